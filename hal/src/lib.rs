@@ -1,0 +1,191 @@
+//! `bench-hal`: the hardware abstraction between the `bench` real-time loop
+//! and a flexure stage driven by a voice-coil **current amplifier** and read
+//! by a **position probe**.
+//!
+//! The loop sees one trait, [`Stage`], with an explicit lifecycle (after
+//! ros2_control's hardware interface):
+//!
+//! ```text
+//!  configure(period_ns) ──► enable() ──► { read_sample(); write_command() }* ──► disable()
+//!   link up, probe          amplifier      one pair per loop tick               0 A, amplifier
+//!   readable, 0 A           enabled                                             disabled
+//! ```
+//!
+//! Backends live side by side in this crate. The simulated plant
+//! ([`sim::SimStage`]) is one of them, not a test double: it runs the lumped
+//! SR4DoF model of the thesis ([`model::Sr4dof`], Eq. 2-5) discretised
+//! exactly (zero-order hold) at the loop period.
+//!
+//! The trait fits both **host-clocked** backends (the loop sleeps until an
+//! absolute deadline, then reads the latest sample: the simulator, an analog
+//! card) and **device-clocked** ones (the DAQ samples on its own timer and
+//! [`Stage::read_sample`] blocks, with a bounded timeout, until the next
+//! sample arrives: a USB-serial microcontroller, a CAN module). The backend
+//! says which in [`DeviceInfo::clock`].
+#![warn(missing_docs)]
+
+pub mod model;
+pub mod sim;
+
+use core::fmt;
+
+/// Classes of HAL failure, in the words of the bench rather than of a device
+/// (after `embedded_hal::digital::ErrorKind`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+#[non_exhaustive]
+pub enum ErrorKind {
+    /// No sample or acknowledgement within the backend's bounded timeout.
+    Timeout,
+    /// A value outside what the device can represent or accepts
+    /// (e.g. a current above the amplifier's peak rating).
+    OutOfRange,
+    /// A frame failed its integrity check.
+    Crc,
+    /// The amplifier reported a fault (over-temperature, over-current, …).
+    AmplifierFault,
+    /// The link to the device is down or unusable (disconnect, bus-off).
+    Link,
+    /// The device speaks another protocol or version.
+    Protocol,
+    /// A lifecycle method was called in the wrong state
+    /// (e.g. a non-zero command while the amplifier is disabled).
+    InvalidState,
+    /// The backend's configuration is invalid.
+    Config,
+    /// The device is held by another process.
+    Busy,
+    /// The device does not exist.
+    NotFound,
+    /// Anything else.
+    Other,
+}
+
+/// A HAL error: any backend error type, with a [`kind`](Error::kind) the loop
+/// can act on without knowing the backend.
+pub trait Error: fmt::Debug + fmt::Display + Send + Sync + 'static {
+    /// The class of this error.
+    fn kind(&self) -> ErrorKind;
+}
+
+/// How the loop is paced.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Clock {
+    /// The host paces the loop: it waits for its own deadline, then
+    /// [`Stage::read_sample`] returns the latest sample without waiting.
+    Host,
+    /// The device samples on its own timer at `rate_hz`;
+    /// [`Stage::read_sample`] blocks (bounded) until the next sample.
+    Device {
+        /// Device sample rate, Hz.
+        rate_hz: f64,
+    },
+}
+
+/// What a configured backend reports about itself.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DeviceInfo {
+    /// Human-readable backend and device name (recorded in MCAP metadata).
+    pub name: String,
+    /// Who paces the loop.
+    pub clock: Clock,
+    /// Sample period actually in force, ns (may differ from the request for
+    /// device-clocked backends).
+    pub period_ns: u64,
+    /// Largest current the amplifier delivers, A (commands beyond are
+    /// clipped by the amplifier).
+    pub peak_current_a: f64,
+    /// Current the actuator can carry continuously, A (I²t rating).
+    pub continuous_current_a: f64,
+    /// The probe reads positions in `[-probe_range_m, +probe_range_m]`.
+    pub probe_range_m: f64,
+}
+
+/// One probe sample. Plain data, `Copy`: reading one never allocates.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Sample {
+    /// Sample sequence number, consecutive from 0 after `configure`. A gap
+    /// means samples were lost.
+    pub seq: u64,
+    /// Device time of the sample, ns since `configure`.
+    pub device_time_ns: u64,
+    /// Probe reading, m. Saturated at the probe range when out of range.
+    pub position_m: f64,
+    /// Amplifier output current if the device measures it, A; `NaN` if not.
+    pub measured_current_a: f64,
+    /// Status flags.
+    pub flags: SampleFlags,
+}
+
+/// Status bits carried with a sample.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct SampleFlags {
+    /// The probe is beyond its range; `position_m` is not trustworthy.
+    pub out_of_range: bool,
+    /// The amplifier is enabled.
+    pub amplifier_enabled: bool,
+    /// The amplifier reports a fault.
+    pub amplifier_fault: bool,
+}
+
+/// One command to the amplifier.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Command {
+    /// Current demand, A.
+    pub current_a: f64,
+    /// Sequence number of the sample this command answers (device-clocked
+    /// backends use it to measure latency and detect a stale host).
+    pub answers_seq: u64,
+}
+
+/// The loop's view of a stage: one current-controlled actuator and one
+/// position probe.
+///
+/// Real-time safety: [`read_sample`](Stage::read_sample) and
+/// [`write_command`](Stage::write_command) are called on the real-time tick.
+/// Implementations must not allocate, lock contended mutexes or log in them;
+/// blocking is allowed only for device I/O and must be bounded by a timeout.
+/// The other methods run outside the tick.
+///
+/// Safety contract: [`disable`](Stage::disable) must drive the current to
+/// 0 A and disable the amplifier from any state, including after an error,
+/// and be idempotent. Dropping a backend must leave the amplifier disabled.
+pub trait Stage {
+    /// The backend's error type.
+    type Error: Error;
+
+    /// Brings the link up at the requested sample period and makes the probe
+    /// readable, amplifier disabled (0 A). Not real-time.
+    ///
+    /// # Errors
+    /// `Config` for an unusable period, `NotFound`/`Busy`/`Link`/`Protocol`
+    /// when the device cannot be reached.
+    fn configure(&mut self, period_ns: u64) -> Result<DeviceInfo, Self::Error>;
+
+    /// Enables the amplifier at 0 A. Not real-time.
+    ///
+    /// # Errors
+    /// `InvalidState` if not configured; `AmplifierFault` if it refuses.
+    fn enable(&mut self) -> Result<(), Self::Error>;
+
+    /// Reads the next sample. Real-time safe.
+    ///
+    /// # Errors
+    /// `Timeout` when no sample arrives in time, `Link`/`Crc` on link faults,
+    /// `InvalidState` if not configured.
+    fn read_sample(&mut self) -> Result<Sample, Self::Error>;
+
+    /// Sends the current demand for the coming period. Real-time safe.
+    ///
+    /// # Errors
+    /// `InvalidState` for a non-zero demand while the amplifier is disabled,
+    /// `OutOfRange` for a non-finite demand, `Link` on link faults.
+    fn write_command(&mut self, command: Command) -> Result<(), Self::Error>;
+
+    /// Commands 0 A and disables the amplifier. Works from any state and is
+    /// idempotent. Not real-time (but bounded).
+    ///
+    /// # Errors
+    /// `Link` if the device could not be told; the backend must still have
+    /// done everything it can locally.
+    fn disable(&mut self) -> Result<(), Self::Error>;
+}

@@ -1,0 +1,484 @@
+//! The simulated bench: the SR4DoF model ([`crate::model`]) behind a
+//! first-order current amplifier and a capacitance probe, discretised
+//! exactly at the loop period.
+//!
+//! State `x = [z (4), ż (4), i]` (m, m/s, A), inputs `w = [u, d]`: the
+//! current demand `u` (A, clipped at the amplifier's peak current) and an
+//! input force disturbance `d` (N, acting where the actuator acts).
+//!
+//! ```text
+//! ż = v
+//! M v̇ = −K z − C v + q (k_f i + d)
+//! i̇ = ω_a (u − i),        ω_a = 2π · bandwidth_hz        (first-order current loop)
+//! ```
+//!
+//! Zero-order hold, exact: `[Φ Γ; 0 I] = exp([A B; 0 0] · T)`, so
+//! `x[k+1] = Φ x[k] + Γ w[k]` reproduces the continuous plant at the sample
+//! instants for a command held over each period.
+//!
+//! The probe adds white Gaussian noise (`noise_rms_m`), quantises to
+//! `quantization_m`, saturates at `±range_m` and raises
+//! [`SampleFlags::out_of_range`] beyond it. A mechanical stop at
+//! `±mechanical_stop_m` holds `x1` (inelastic: the X velocity of stage ①
+//! into the stop is removed). Noise comes from a ChaCha8 generator seeded
+//! from the config: the same config and seed give the same samples, bit for
+//! bit.
+
+use crate::model::{positive, ParamError, Sr4dof, Sr4dofParams};
+use crate::{Clock, Command, DeviceInfo, ErrorKind, Sample, SampleFlags, Stage};
+use nalgebra::{Complex, DMatrix, SMatrix, SVector};
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use rand_distr::{Distribution, StandardNormal};
+use serde::{Deserialize, Serialize};
+use std::f64::consts::PI;
+
+/// Number of continuous states: 4 positions, 4 velocities, 1 coil current.
+pub const STATES: usize = 9;
+
+/// Current amplifier and voice-coil actuator (the `[actuator]` table).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ActuatorParams {
+    /// Voice-coil force constant `k_f`, N/A (LA24-20-000A: 11.12).
+    pub force_constant_n_per_a: f64,
+    /// −3 dB bandwidth of the amplifier's current loop, Hz (thesis: 1 kHz).
+    pub bandwidth_hz: f64,
+    /// Peak current, A: demands beyond are clipped by the amplifier.
+    pub peak_current_a: f64,
+    /// Continuous current rating, A (I²t limit).
+    pub continuous_current_a: f64,
+}
+
+impl ActuatorParams {
+    /// Checks every value, keys under `prefix`.
+    ///
+    /// # Errors
+    /// The first offending key with the reason.
+    pub fn validate(&self, prefix: &str) -> Result<(), ParamError> {
+        positive(&format!("{prefix}.force_constant_n_per_a"), self.force_constant_n_per_a)?;
+        positive(&format!("{prefix}.bandwidth_hz"), self.bandwidth_hz)?;
+        positive(&format!("{prefix}.peak_current_a"), self.peak_current_a)?;
+        positive(&format!("{prefix}.continuous_current_a"), self.continuous_current_a)?;
+        if self.continuous_current_a > self.peak_current_a {
+            return Err(ParamError::new(
+                format!("{prefix}.continuous_current_a"),
+                format!(
+                    "{} A is above peak_current_a = {} A",
+                    self.continuous_current_a, self.peak_current_a
+                ),
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// Position probe (the `[probe]` table).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ProbeParams {
+    /// Half range: the probe reads `[-range_m, +range_m]`, m (2 mm probe: 1e-3).
+    pub range_m: f64,
+    /// White noise, RMS, m (thesis probe: 40 nm).
+    pub noise_rms_m: f64,
+    /// Quantisation step, m (0 for none).
+    pub quantization_m: f64,
+}
+
+impl ProbeParams {
+    /// Checks every value, keys under `prefix`.
+    ///
+    /// # Errors
+    /// The first offending key with the reason.
+    pub fn validate(&self, prefix: &str) -> Result<(), ParamError> {
+        positive(&format!("{prefix}.range_m"), self.range_m)?;
+        crate::model::non_negative(&format!("{prefix}.noise_rms_m"), self.noise_rms_m)?;
+        crate::model::non_negative(&format!("{prefix}.quantization_m"), self.quantization_m)?;
+        Ok(())
+    }
+}
+
+/// Everything the simulated bench needs.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SimParams {
+    /// The mechanism.
+    pub plant: Sr4dofParams,
+    /// Amplifier and actuator.
+    pub actuator: ActuatorParams,
+    /// Probe.
+    pub probe: ProbeParams,
+    /// Mechanical stop on x1, m (travel blocked beyond ±this).
+    pub mechanical_stop_m: f64,
+    /// Seed of the noise generator.
+    pub seed: u64,
+}
+
+/// Errors of the simulated backend.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum SimError {
+    /// A parameter is unusable.
+    #[error("invalid simulator parameter {0}")]
+    Param(#[from] ParamError),
+    /// `read_sample`/`write_command`/`enable` before `configure`.
+    #[error("the simulated stage is not configured")]
+    NotConfigured,
+    /// Non-zero current demanded while the amplifier is disabled.
+    #[error("{current_a} A demanded while the amplifier is disabled")]
+    NotEnabled {
+        /// The demand, A.
+        current_a: f64,
+    },
+    /// A non-finite current demand.
+    #[error("current demand is not finite ({current_a})")]
+    NotFinite {
+        /// The demand.
+        current_a: f64,
+    },
+    /// A sample period the simulator cannot use.
+    #[error("sample period {period_ns} ns is unusable: {reason}")]
+    Period {
+        /// The requested period, ns.
+        period_ns: u64,
+        /// Why.
+        reason: String,
+    },
+}
+
+impl crate::Error for SimError {
+    fn kind(&self) -> ErrorKind {
+        match self {
+            Self::Param(_) | Self::Period { .. } => ErrorKind::Config,
+            Self::NotConfigured | Self::NotEnabled { .. } => ErrorKind::InvalidState,
+            Self::NotFinite { .. } => ErrorKind::OutOfRange,
+        }
+    }
+}
+
+/// The plant (mechanics + amplifier) discretised with a zero-order hold.
+#[derive(Debug, Clone)]
+pub struct ZohPlant {
+    /// State transition `Φ = e^{A T}`.
+    pub phi: SMatrix<f64, STATES, STATES>,
+    /// Input matrix `Γ = ∫₀ᵀ e^{A τ} dτ B`, columns `[u (A), d (N)]`.
+    pub gamma: SMatrix<f64, STATES, 2>,
+    /// Sample period, s.
+    pub period_s: f64,
+    /// Continuous state matrix `A`.
+    pub a: SMatrix<f64, STATES, STATES>,
+    /// Continuous input matrix `B`, columns `[u (A), d (N)]`.
+    pub b: SMatrix<f64, STATES, 2>,
+}
+
+impl ZohPlant {
+    /// Builds `A`, `B` from the model and the amplifier and discretises them
+    /// exactly (matrix exponential of the augmented matrix).
+    pub fn new(model: &Sr4dof, actuator: &ActuatorParams, period_s: f64) -> Self {
+        let m_inv = model
+            .mass()
+            .try_inverse()
+            .expect("the model checked M positive definite");
+        let mk = -m_inv * model.stiffness();
+        let mc = -m_inv * model.damping();
+        let mq = m_inv * model.input();
+        let wa = 2.0 * PI * actuator.bandwidth_hz;
+        let mut a = SMatrix::<f64, STATES, STATES>::zeros();
+        let mut b = SMatrix::<f64, STATES, 2>::zeros();
+        for i in 0..4 {
+            a[(i, 4 + i)] = 1.0;
+            for j in 0..4 {
+                a[(4 + i, j)] = mk[(i, j)];
+                a[(4 + i, 4 + j)] = mc[(i, j)];
+            }
+            a[(4 + i, 8)] = mq[i] * actuator.force_constant_n_per_a;
+            b[(4 + i, 1)] = mq[i];
+        }
+        a[(8, 8)] = -wa;
+        b[(8, 0)] = wa;
+
+        let n = STATES + 2;
+        let mut aug = DMatrix::<f64>::zeros(n, n);
+        for i in 0..STATES {
+            for j in 0..STATES {
+                aug[(i, j)] = a[(i, j)] * period_s;
+            }
+            for j in 0..2 {
+                aug[(i, STATES + j)] = b[(i, j)] * period_s;
+            }
+        }
+        let e = aug.exp();
+        let phi = SMatrix::<f64, STATES, STATES>::from_fn(|i, j| e[(i, j)]);
+        let gamma = SMatrix::<f64, STATES, 2>::from_fn(|i, j| e[(i, STATES + j)]);
+        Self {
+            phi,
+            gamma,
+            period_s,
+            a,
+            b,
+        }
+    }
+
+    /// One step: `x ← Φ x + Γ [u, d]ᵀ`. Real-time safe (no allocation).
+    #[inline]
+    pub fn step(&self, x: &mut SVector<f64, STATES>, current_a: f64, force_n: f64) {
+        let w = SVector::<f64, 2>::new(current_a, force_n);
+        *x = self.phi * *x + self.gamma * w;
+    }
+
+    /// Frequency response of the sampled system from the current demand `u`
+    /// to `x1`: `cᵀ (z I − Φ)⁻¹ Γ_u` at `z = e^{jωT}`, m/A. This is what a
+    /// sampled measurement of the ZOH plant converges to; it differs from the
+    /// continuous response by the hold's half-period delay and aliasing.
+    pub fn frf(&self, frequency_hz: f64) -> Complex<f64> {
+        let w = 2.0 * PI * frequency_hz * self.period_s;
+        let z = Complex::new(w.cos(), w.sin());
+        let m: SMatrix<Complex<f64>, STATES, STATES> = SMatrix::from_fn(|i, j| {
+            let d = if i == j { z } else { Complex::new(0.0, 0.0) };
+            d - Complex::new(self.phi[(i, j)], 0.0)
+        });
+        let rhs: SVector<Complex<f64>, STATES> =
+            SVector::from_fn(|i, _| Complex::new(self.gamma[(i, 0)], 0.0));
+        match m.lu().solve(&rhs) {
+            Some(x) => x[0],
+            None => Complex::new(f64::NAN, f64::NAN),
+        }
+    }
+
+    /// Continuous frequency response from the current demand to `x1`,
+    /// `cᵀ (jωI − A)⁻¹ B_u`, m/A (amplifier lag included, no hold).
+    pub fn frf_continuous(&self, frequency_hz: f64) -> Complex<f64> {
+        let s = Complex::new(0.0, 2.0 * PI * frequency_hz);
+        let m: SMatrix<Complex<f64>, STATES, STATES> = SMatrix::from_fn(|i, j| {
+            let d = if i == j { s } else { Complex::new(0.0, 0.0) };
+            d - Complex::new(self.a[(i, j)], 0.0)
+        });
+        let rhs: SVector<Complex<f64>, STATES> =
+            SVector::from_fn(|i, _| Complex::new(self.b[(i, 0)], 0.0));
+        match m.lu().solve(&rhs) {
+            Some(x) => x[0],
+            None => Complex::new(f64::NAN, f64::NAN),
+        }
+    }
+}
+
+/// Fault injection hooks of the simulator (used by tests and `bench`'s
+/// fault-injection options).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct Injection {
+    /// Added to `x1` as read by the probe from now on, m.
+    pub position_offset_m: f64,
+}
+
+/// The simulated stage backend.
+#[derive(Debug, Clone)]
+pub struct SimStage {
+    params: SimParams,
+    model: Sr4dof,
+    plant: Option<ZohPlant>,
+    x: SVector<f64, STATES>,
+    rng: ChaCha8Rng,
+    seq: u64,
+    period_ns: u64,
+    enabled: bool,
+    demand_a: f64,
+    disturbance_n: f64,
+    first_read: bool,
+    at_stop: bool,
+    injection: Injection,
+}
+
+impl SimStage {
+    /// Builds the model and validates the parameters. The stage starts
+    /// unconfigured, at rest at the operating point.
+    ///
+    /// # Errors
+    /// [`SimError::Param`] naming the offending key.
+    pub fn new(params: SimParams) -> Result<Self, SimError> {
+        params.actuator.validate("actuator")?;
+        params.probe.validate("probe")?;
+        positive("stage.mechanical_stop_m", params.mechanical_stop_m)?;
+        let model = Sr4dof::new(params.plant)?;
+        Ok(Self {
+            rng: ChaCha8Rng::seed_from_u64(params.seed),
+            params,
+            model,
+            plant: None,
+            x: SVector::zeros(),
+            seq: 0,
+            period_ns: 0,
+            enabled: false,
+            demand_a: 0.0,
+            disturbance_n: 0.0,
+            first_read: true,
+            at_stop: false,
+            injection: Injection::default(),
+        })
+    }
+
+    /// The lumped model behind the simulator.
+    pub fn model(&self) -> &Sr4dof {
+        &self.model
+    }
+
+    /// The parameters.
+    pub fn params(&self) -> &SimParams {
+        &self.params
+    }
+
+    /// The discretised plant, once configured.
+    pub fn plant(&self) -> Option<&ZohPlant> {
+        self.plant.as_ref()
+    }
+
+    /// Current through the coil, A (the amplifier's output state).
+    pub fn coil_current_a(&self) -> f64 {
+        self.x[8]
+    }
+
+    /// True position of stage ① in X, m (no probe noise).
+    pub fn true_position_m(&self) -> f64 {
+        self.x[0]
+    }
+
+    /// Whether the amplifier is enabled.
+    pub fn is_enabled(&self) -> bool {
+        self.enabled
+    }
+
+    /// Sets the input force disturbance held over the coming period, N.
+    /// Real-time safe.
+    pub fn set_disturbance_n(&mut self, force_n: f64) {
+        self.disturbance_n = force_n;
+    }
+
+    /// Fault injection state (see [`Injection`]).
+    pub fn injection_mut(&mut self) -> &mut Injection {
+        &mut self.injection
+    }
+
+    fn advance(&mut self) {
+        let Some(plant) = self.plant.as_ref() else {
+            return;
+        };
+        let demand = if self.enabled { self.demand_a } else { 0.0 };
+        plant.step(&mut self.x, demand, self.disturbance_n);
+        if !self.enabled {
+            // A disabled amplifier opens the coil circuit: no current flows.
+            self.x[8] = 0.0;
+        }
+        let stop = self.params.mechanical_stop_m;
+        self.at_stop = false;
+        if self.x[0].abs() > stop {
+            self.x[0] = stop.copysign(self.x[0]);
+            if self.x[4] * self.x[0] > 0.0 {
+                self.x[4] = 0.0;
+            }
+            self.at_stop = true;
+        }
+    }
+
+    /// Whether x1 sat on the mechanical stop during the last period.
+    pub fn at_stop(&self) -> bool {
+        self.at_stop
+    }
+}
+
+impl Stage for SimStage {
+    type Error = SimError;
+
+    fn configure(&mut self, period_ns: u64) -> Result<DeviceInfo, SimError> {
+        // 10 µs … 1 s: faster than the matrix exponential stays accurate for
+        // and slower than any sensible loop are both refused.
+        if !(10_000..=1_000_000_000).contains(&period_ns) {
+            return Err(SimError::Period {
+                period_ns,
+                reason: "must be between 10 µs and 1 s".into(),
+            });
+        }
+        self.plant = Some(ZohPlant::new(
+            &self.model,
+            &self.params.actuator,
+            period_ns as f64 * 1e-9,
+        ));
+        self.period_ns = period_ns;
+        self.seq = 0;
+        self.first_read = true;
+        self.enabled = false;
+        self.demand_a = 0.0;
+        Ok(DeviceInfo {
+            name: "sim:sr4dof".into(),
+            clock: Clock::Host,
+            period_ns,
+            peak_current_a: self.params.actuator.peak_current_a,
+            continuous_current_a: self.params.actuator.continuous_current_a,
+            probe_range_m: self.params.probe.range_m,
+        })
+    }
+
+    fn enable(&mut self) -> Result<(), SimError> {
+        if self.plant.is_none() {
+            return Err(SimError::NotConfigured);
+        }
+        self.enabled = true;
+        self.demand_a = 0.0;
+        Ok(())
+    }
+
+    fn read_sample(&mut self) -> Result<Sample, SimError> {
+        if self.plant.is_none() {
+            return Err(SimError::NotConfigured);
+        }
+        // The plant evolves over the period that ends at this sample, with
+        // the command written after the previous sample held (ZOH).
+        if self.first_read {
+            self.first_read = false;
+        } else {
+            self.advance();
+            self.seq += 1;
+        }
+        let p = &self.params.probe;
+        let noise: f64 = StandardNormal.sample(&mut self.rng);
+        let mut y = self.x[0] + self.injection.position_offset_m + p.noise_rms_m * noise;
+        if p.quantization_m > 0.0 {
+            y = (y / p.quantization_m).round() * p.quantization_m;
+        }
+        let out_of_range = !(y.abs() <= p.range_m);
+        if out_of_range {
+            y = p.range_m.copysign(y);
+        }
+        Ok(Sample {
+            seq: self.seq,
+            device_time_ns: self.seq * self.period_ns,
+            position_m: y,
+            measured_current_a: self.x[8],
+            flags: SampleFlags {
+                out_of_range,
+                amplifier_enabled: self.enabled,
+                amplifier_fault: false,
+            },
+        })
+    }
+
+    fn write_command(&mut self, command: Command) -> Result<(), SimError> {
+        if self.plant.is_none() {
+            return Err(SimError::NotConfigured);
+        }
+        let i = command.current_a;
+        if !i.is_finite() {
+            self.demand_a = 0.0;
+            return Err(SimError::NotFinite { current_a: i });
+        }
+        if !self.enabled && i != 0.0 {
+            return Err(SimError::NotEnabled { current_a: i });
+        }
+        let peak = self.params.actuator.peak_current_a;
+        self.demand_a = i.clamp(-peak, peak);
+        Ok(())
+    }
+
+    fn disable(&mut self) -> Result<(), SimError> {
+        self.enabled = false;
+        self.demand_a = 0.0;
+        self.x[8] = 0.0;
+        Ok(())
+    }
+}

@@ -1,0 +1,172 @@
+//! Fixed-size records that leave the real-time tick through the wait-free
+//! queue (`rtrb`) to the writer thread. Every type here is `Copy` and holds no
+//! heap data, so pushing one never allocates.
+
+/// One loop tick as seen by the recorder (`/bench/sample`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SampleRecord {
+    /// Tick index since the loop started (0-based).
+    pub tick: u64,
+    /// Loop time of the tick, s (`tick × period` in virtual time; time since
+    /// the first deadline in real-time mode).
+    pub t_s: f64,
+    /// Current commanded to the amplifier at this tick, A (after limits).
+    pub current_command_a: f64,
+    /// Probe reading at this tick, m (`NaN` when the probe gave none).
+    pub position_m: f64,
+    /// Excitation part of the command, A (`NaN` when no excitation runs).
+    pub excitation_a: f64,
+    /// Position setpoint, m (`NaN` in open loop).
+    pub setpoint_m: f64,
+    /// Supervisor state at the end of the tick.
+    pub state: SupervisorState,
+    /// Probe reported out of range at this tick.
+    pub out_of_range: bool,
+}
+
+/// Loop timing statistics over a reporting window (`/bench/timing`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TimingRecord {
+    /// Last tick covered by this window.
+    pub tick: u64,
+    /// Loop time at the end of the window, s.
+    pub t_s: f64,
+    /// Ticks in the window.
+    pub ticks: u64,
+    /// Wake-up latency (actual wake − deadline), ns: mean, p99, max.
+    /// Zero in virtual time.
+    pub wake_latency_mean_ns: f64,
+    /// 99th percentile of wake-up latency, ns (histogram bucket upper edge).
+    pub wake_latency_p99_ns: f64,
+    /// Largest wake-up latency in the window, ns.
+    pub wake_latency_max_ns: f64,
+    /// Compute time (wake → command written), ns: mean.
+    pub compute_mean_ns: f64,
+    /// 99th percentile of compute time, ns (histogram bucket upper edge).
+    pub compute_p99_ns: f64,
+    /// Largest compute time in the window, ns.
+    pub compute_max_ns: f64,
+    /// Ticks that finished after the next deadline, in the window.
+    pub overruns: u64,
+    /// Records the queue could not take (writer too slow), since start.
+    pub dropped_records: u64,
+}
+
+/// Supervisor state (SPEC §7).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum SupervisorState {
+    /// Amplifier disabled, 0 A.
+    Disabled,
+    /// Amplifier enabled, no job output applied yet.
+    Enabled,
+    /// A job drives the command.
+    Running,
+    /// A fault latched: 0 A, amplifier disabled until an explicit reset.
+    Faulted,
+}
+
+impl SupervisorState {
+    /// Lower-case name used in recordings and summaries.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Disabled => "disabled",
+            Self::Enabled => "enabled",
+            Self::Running => "running",
+            Self::Faulted => "faulted",
+        }
+    }
+}
+
+/// What happened (`/bench/event`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum EventKind {
+    /// The loop started (first tick).
+    LoopStarted,
+    /// Supervisor state changed; `state` in the record is the new state.
+    StateChanged,
+    /// The job started driving the command.
+    JobStarted,
+    /// The job finished normally.
+    JobFinished,
+    /// A fault latched; `fault` says which.
+    Fault,
+    /// Stopped by SIGINT/SIGTERM; the command went to 0 A.
+    Interrupted,
+    /// The loop stopped (last tick).
+    LoopStopped,
+}
+
+impl EventKind {
+    /// Snake-case name used in recordings.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::LoopStarted => "loop_started",
+            Self::StateChanged => "state_changed",
+            Self::JobStarted => "job_started",
+            Self::JobFinished => "job_finished",
+            Self::Fault => "fault",
+            Self::Interrupted => "interrupted",
+            Self::LoopStopped => "loop_stopped",
+        }
+    }
+}
+
+/// Why the supervisor faulted.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum FaultKind {
+    /// |position| beyond the software position limit.
+    PositionLimit,
+    /// Probe flagged out of range.
+    ProbeOutOfRange,
+    /// Probe reading not finite.
+    ProbeNotFinite,
+    /// The job's command was not finite.
+    CommandNotFinite,
+    /// Too many consecutive loop overruns.
+    Overruns,
+    /// The HAL returned an error on read or write.
+    Hal,
+}
+
+impl FaultKind {
+    /// Snake-case name used in recordings and exit messages.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::PositionLimit => "position_limit",
+            Self::ProbeOutOfRange => "probe_out_of_range",
+            Self::ProbeNotFinite => "probe_not_finite",
+            Self::CommandNotFinite => "command_not_finite",
+            Self::Overruns => "overruns",
+            Self::Hal => "hal",
+        }
+    }
+}
+
+/// One event (`/bench/event`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct EventRecord {
+    /// Tick at which it happened.
+    pub tick: u64,
+    /// Loop time, s.
+    pub t_s: f64,
+    /// What happened.
+    pub kind: EventKind,
+    /// Supervisor state after the event.
+    pub state: SupervisorState,
+    /// The fault, for [`EventKind::Fault`].
+    pub fault: Option<FaultKind>,
+    /// A number that qualifies the event (e.g. the offending position in m),
+    /// `NaN` when none.
+    pub value: f64,
+}
+
+/// Anything the tick sends to the writer.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Record {
+    /// `/bench/sample`
+    Sample(SampleRecord),
+    /// `/bench/timing`
+    Timing(TimingRecord),
+    /// `/bench/event`
+    Event(EventRecord),
+}
