@@ -124,7 +124,10 @@ impl ParamError {
 /// [`ParamError`] naming `key`.
 pub fn positive(key: &str, value: f64) -> Result<(), ParamError> {
     if !value.is_finite() {
-        Err(ParamError::new(key, format!("must be a finite number, got {value}")))
+        Err(ParamError::new(
+            key,
+            format!("must be a finite number, got {value}"),
+        ))
     } else if value <= 0.0 {
         Err(ParamError::new(key, format!("must be > 0, got {value}")))
     } else {
@@ -138,7 +141,10 @@ pub fn positive(key: &str, value: f64) -> Result<(), ParamError> {
 /// [`ParamError`] naming `key`.
 pub fn non_negative(key: &str, value: f64) -> Result<(), ParamError> {
     if !value.is_finite() {
-        Err(ParamError::new(key, format!("must be a finite number, got {value}")))
+        Err(ParamError::new(
+            key,
+            format!("must be a finite number, got {value}"),
+        ))
     } else if value < 0.0 {
         Err(ParamError::new(key, format!("must be >= 0, got {value}")))
     } else {
@@ -169,7 +175,10 @@ impl Sr4dofParams {
             positive(&k("parallelogram_stiffness_n_per_m"), kp)?;
         }
         if !self.operating_point_m.is_finite() {
-            return Err(ParamError::new(k("operating_point_m"), "must be a finite number"));
+            return Err(ParamError::new(
+                k("operating_point_m"),
+                "must be a finite number",
+            ));
         }
         // Eq. (2-1) is a small-rotation result; beyond ~15 % of L the beams
         // are far outside the model (the thesis' bench goes to ~10 %).
@@ -185,7 +194,10 @@ impl Sr4dofParams {
         if !self.mass_asymmetry.is_finite() || self.mass_asymmetry <= -1.0 {
             return Err(ParamError::new(
                 k("mass_asymmetry"),
-                format!("must be finite and > -1 (m2 stays positive), got {}", self.mass_asymmetry),
+                format!(
+                    "must be finite and > -1 (m2 stays positive), got {}",
+                    self.mass_asymmetry
+                ),
             ));
         }
         non_negative(&k("damping.zeta_rigid"), self.damping.zeta_rigid)?;
@@ -592,7 +604,10 @@ pub fn poly_mul(a: &[f64], b: &[f64]) -> Vec<f64> {
 /// eigenvalues of its companion matrix. Leading zero coefficients are
 /// dropped.
 pub fn poly_roots(coeffs: &[f64]) -> Vec<Complex<f64>> {
-    let first = coeffs.iter().position(|c| *c != 0.0).unwrap_or(coeffs.len());
+    let first = coeffs
+        .iter()
+        .position(|c| *c != 0.0)
+        .unwrap_or(coeffs.len());
     let c = &coeffs[first..];
     let n = c.len().saturating_sub(1);
     if n == 0 {

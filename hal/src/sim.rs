@@ -56,10 +56,16 @@ impl ActuatorParams {
     /// # Errors
     /// The first offending key with the reason.
     pub fn validate(&self, prefix: &str) -> Result<(), ParamError> {
-        positive(&format!("{prefix}.force_constant_n_per_a"), self.force_constant_n_per_a)?;
+        positive(
+            &format!("{prefix}.force_constant_n_per_a"),
+            self.force_constant_n_per_a,
+        )?;
         positive(&format!("{prefix}.bandwidth_hz"), self.bandwidth_hz)?;
         positive(&format!("{prefix}.peak_current_a"), self.peak_current_a)?;
-        positive(&format!("{prefix}.continuous_current_a"), self.continuous_current_a)?;
+        positive(
+            &format!("{prefix}.continuous_current_a"),
+            self.continuous_current_a,
+        )?;
         if self.continuous_current_a > self.peak_current_a {
             return Err(ParamError::new(
                 format!("{prefix}.continuous_current_a"),

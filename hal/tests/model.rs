@@ -71,7 +71,12 @@ fn table_2_2_mode_shapes_symmetric() {
         [0.0, 0.0481, -0.7063, -0.7063],
     ];
     for (i, col) in table.iter().enumerate() {
-        assert_shape(m.modes()[i].unit_shape(), *col, 0.003, &format!("mode {}", i + 1));
+        assert_shape(
+            m.modes()[i].unit_shape(),
+            *col,
+            0.003,
+            &format!("mode {}", i + 1),
+        );
     }
 }
 
@@ -85,7 +90,12 @@ fn table_2_2_mode_shapes_asymmetric() {
         [-0.0139, -0.0387, 0.1384, 0.9895],
     ];
     for (i, col) in table.iter().enumerate() {
-        assert_shape(m.modes()[i].unit_shape(), *col, 0.025, &format!("mode {}", i + 1));
+        assert_shape(
+            m.modes()[i].unit_shape(),
+            *col,
+            0.025,
+            &format!("mode {}", i + 1),
+        );
     }
 }
 
@@ -101,7 +111,11 @@ fn table_2_2_frequencies_with_thesis_stiffness() {
         for i in 0..4 {
             let f = m.modes()[i].frequency_hz();
             let t = TABLE_2_2_HZ[k][i];
-            assert!((f / t - 1.0).abs() < 0.05, "Δm23={dm} f{} = {f:.2} Hz vs {t}", i + 1);
+            assert!(
+                (f / t - 1.0).abs() < 0.05,
+                "Δm23={dm} f{} = {f:.2} Hz vs {t}",
+                i + 1
+            );
         }
     }
 }
@@ -120,7 +134,11 @@ fn default_stiffness_is_24ei_over_l3_and_frequencies_are_a_little_low() {
     // The Y modes scale as √k: 8 % stiffer gives the table's values.
     for i in 1..4 {
         let ratio = TABLE_2_2_HZ[0][i] / m.modes()[i].frequency_hz();
-        assert!(ratio > 1.02 && ratio < 1.07, "mode {}: ratio {ratio}", i + 1);
+        assert!(
+            ratio > 1.02 && ratio < 1.07,
+            "mode {}: ratio {ratio}",
+            i + 1
+        );
     }
 }
 
@@ -155,13 +173,24 @@ fn mass_normalised_shapes_and_residues() {
         for (j, b) in m.modes().iter().enumerate() {
             let mm = a.shape.dot(&(m.mass() * b.shape));
             let kk = a.shape.dot(&(m.stiffness() * b.shape));
-            let (em, ek) = if i == j { (1.0, a.omega_rad_s.powi(2)) } else { (0.0, 0.0) };
+            let (em, ek) = if i == j {
+                (1.0, a.omega_rad_s.powi(2))
+            } else {
+                (0.0, 0.0)
+            };
             assert!((mm - em).abs() < 1e-9, "φ{i}ᵀMφ{j} = {mm}");
-            assert!((kk - ek).abs() < 1e-6 * a.omega_rad_s.powi(2), "φ{i}ᵀKφ{j} = {kk}");
+            assert!(
+                (kk - ek).abs() < 1e-6 * a.omega_rad_s.powi(2),
+                "φ{i}ᵀKφ{j} = {kk}"
+            );
         }
     }
     // Static compliance: Σ βᵢ/ωᵢ² = (K⁻¹ q)[0].
-    let static_modal: f64 = m.modes().iter().map(|md| md.residue / md.omega_rad_s.powi(2)).sum();
+    let static_modal: f64 = m
+        .modes()
+        .iter()
+        .map(|md| md.residue / md.omega_rad_s.powi(2))
+        .sum();
     let static_direct = (m.stiffness().try_inverse().unwrap() * m.input())[0];
     assert!((static_modal / static_direct - 1.0).abs() < 1e-9);
     // At α → 0 stage ① alone moves in X against k4 + k5 with all masses.
@@ -201,17 +230,34 @@ fn cnmp_zeros_follow_the_sign_of_the_asymmetry() {
     assert!(neg.cnmp_discriminant() > 0.0);
     assert!(pos.has_cnmp_zeros());
     assert!(!neg.has_cnmp_zeros());
-    let kinds = |m: &Sr4dof| m.undamped_zeros().iter().map(|z| z.kind).collect::<Vec<_>>();
-    assert_eq!(kinds(&pos).iter().filter(|k| **k == ZeroType::CmpCnmp).count(), 2);
+    let kinds = |m: &Sr4dof| {
+        m.undamped_zeros()
+            .iter()
+            .map(|z| z.kind)
+            .collect::<Vec<_>>()
+    };
+    assert_eq!(
+        kinds(&pos)
+            .iter()
+            .filter(|k| **k == ZeroType::CmpCnmp)
+            .count(),
+        2
+    );
     assert!(kinds(&neg).iter().all(|k| *k == ZeroType::Mmp));
     // Every zero makes the FRF vanish (independent of the root finder).
     for z in pos.zeros() {
         let g: nalgebra::Complex<f64> = pos
             .modes()
             .iter()
-            .map(|md| md.residue / (z * z + 2.0 * md.zeta * md.omega_rad_s * z + md.omega_rad_s.powi(2)))
+            .map(|md| {
+                md.residue / (z * z + 2.0 * md.zeta * md.omega_rad_s * z + md.omega_rad_s.powi(2))
+            })
             .sum();
-        let scale: f64 = pos.modes().iter().map(|md| md.residue.abs() / md.omega_rad_s.powi(2)).sum();
+        let scale: f64 = pos
+            .modes()
+            .iter()
+            .map(|md| md.residue.abs() / md.omega_rad_s.powi(2))
+            .sum();
         assert!(g.norm() < 1e-6 * scale, "G({z}) = {g}");
     }
 }
@@ -221,13 +267,19 @@ fn discriminant_sign_matches_root_types_across_the_map() {
     for y in [0.0, 0.02, 0.04, 0.06, 0.08, 0.10] {
         for dm in [-0.1, -0.05, 0.0, 0.02, 0.05, 0.1] {
             let m = Sr4dof::new(ch5(y, dm)).unwrap();
-            let complex = m.undamped_zeros().iter().any(|z| z.kind == ZeroType::CmpCnmp);
+            let complex = m
+                .undamped_zeros()
+                .iter()
+                .any(|z| z.kind == ZeroType::CmpCnmp);
             let d = m.cnmp_discriminant();
             if d != 0.0 {
                 assert_eq!(d < 0.0, complex, "Y1o={y} Δm23={dm} Δ={d}");
             }
             if dm < 0.0 {
-                assert!(!complex, "negative asymmetry must be CNMP-free (Fig 5-10): Y1o={y} Δm23={dm}");
+                assert!(
+                    !complex,
+                    "negative asymmetry must be CNMP-free (Fig 5-10): Y1o={y} Δm23={dm}"
+                );
             }
         }
     }

@@ -1,0 +1,17 @@
+//! `bench`: real-time loop, chirp identification, recording and plotting for
+//! the SR4DoF flexure motion stage of the reference thesis.
+//!
+//! The hardware sits behind [`bench_hal::Stage`]; the simulated plant
+//! ([`bench_hal::sim::SimStage`]) is the default backend.
+#![warn(missing_docs)]
+
+pub mod chirp;
+pub mod config;
+pub mod excitation;
+pub mod plot;
+pub mod record;
+pub mod records;
+pub mod rt;
+pub mod supervisor;
+pub mod sysid;
+pub mod timing;

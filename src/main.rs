@@ -1,0 +1,364 @@
+//! The `bench` command line. `main` is the one place that turns outcomes
+//! into exit statuses:
+//!
+//! | status | meaning |
+//! |---|---|
+//! | 0 | success |
+//! | 1 | unexpected error (I/O after the run, internal) |
+//! | 2 | bad input: config or arguments; nothing was enabled, no recording left |
+//! | 3 | safety fault: the supervisor latched; 0 A, amplifier disabled, recording finished |
+//! | 4 | hardware (HAL) error; 0 A, amplifier disabled, recording finished |
+//! | 130 | interrupted by SIGINT/SIGTERM; 0 A, amplifier disabled, recording finished |
+
+use anyhow::Context;
+use bench::chirp::{run_chirp, ChirpOptions, ChirpSummary, RunError};
+use bench::config::{BenchConfig, ChirpKind, ConfigError, DEFAULT_CONFIG};
+use clap::{Args, Parser, Subcommand, ValueEnum};
+use std::io::IsTerminal;
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+use std::sync::atomic::AtomicBool;
+use std::sync::Arc;
+
+/// Runs a precision flexure stage (SR4DoF) on a lab bench: chirp
+/// identification in a real-time loop, recorded to MCAP. Without hardware it
+/// runs the thesis' lumped model as a simulated plant.
+#[derive(Debug, Parser)]
+#[command(name = "bench", version, about, long_about = None)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Debug, Subcommand)]
+enum Command {
+    /// Excite the stage with a chirp, record it, estimate the FRF, plot it
+    /// beside the model and report the modes and the CMP-CNMP phase test.
+    Chirp(ChirpArgs),
+}
+
+#[derive(Debug, Clone, Copy, ValueEnum)]
+enum KindArg {
+    Exponential,
+    Linear,
+}
+
+#[derive(Debug, Args)]
+struct ChirpArgs {
+    /// Bench description (TOML).
+    #[arg(long, value_name = "FILE", default_value = DEFAULT_CONFIG)]
+    config: PathBuf,
+    /// MCAP recording [default: recordings/chirp-<UTC time>.mcap].
+    #[arg(long, value_name = "FILE.mcap")]
+    out: Option<PathBuf>,
+    /// FRF CSV [default: beside --out, <stem>.frf.csv].
+    #[arg(long, value_name = "FILE")]
+    frf_csv: Option<PathBuf>,
+    /// Bode plot PNG [default: beside --out, <stem>.bode.png].
+    #[arg(long, value_name = "FILE.png")]
+    plot: Option<PathBuf>,
+    /// Pace the loop in real time (absolute deadlines, SCHED_FIFO and
+    /// mlockall when permitted) instead of virtual time.
+    #[arg(long)]
+    realtime: bool,
+    /// Simulator noise seed [default: sim.seed from the config].
+    #[arg(long, value_name = "N")]
+    seed: Option<u64>,
+    /// Print the summary as one JSON object on stdout.
+    #[arg(long)]
+    json: bool,
+    /// Operating point Y1o, m (overrides plant.operating_point_m).
+    #[arg(
+        long,
+        value_name = "M",
+        allow_negative_numbers = true,
+        conflicts_with = "operating_point_pct"
+    )]
+    operating_point_m: Option<f64>,
+    /// Operating point Y1o in % of the beam length L.
+    #[arg(long, value_name = "PERCENT", allow_negative_numbers = true)]
+    operating_point_pct: Option<f64>,
+    /// Mass asymmetry Δm23 = m2/m3 − 1, e.g. 0.1 for +10 % (overrides
+    /// plant.mass_asymmetry).
+    #[arg(long, value_name = "X", allow_negative_numbers = true)]
+    mass_asymmetry: Option<f64>,
+    /// Chirp current amplitude, A (overrides chirp.amplitude_a).
+    #[arg(long, value_name = "A", allow_negative_numbers = true)]
+    amplitude_a: Option<f64>,
+    /// Sweep start frequency, Hz (overrides chirp.f_start_hz).
+    #[arg(long, value_name = "HZ", allow_negative_numbers = true)]
+    f_start_hz: Option<f64>,
+    /// Sweep end frequency, Hz (overrides chirp.f_end_hz).
+    #[arg(long, value_name = "HZ", allow_negative_numbers = true)]
+    f_end_hz: Option<f64>,
+    /// Sweep duration, s (overrides chirp.duration_s).
+    #[arg(long, value_name = "S", allow_negative_numbers = true)]
+    duration_s: Option<f64>,
+    /// Sweep law (overrides chirp.kind).
+    #[arg(long, value_enum)]
+    chirp_kind: Option<KindArg>,
+}
+
+/// Exit statuses (see the module docs).
+mod status {
+    pub const ERROR: u8 = 1;
+    pub const BAD_INPUT: u8 = 2;
+    pub const FAULT: u8 = 3;
+    pub const HAL: u8 = 4;
+    pub const INTERRUPTED: u8 = 130;
+}
+
+fn main() -> ExitCode {
+    tracing_subscriber::fmt()
+        .with_writer(std::io::stderr)
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_env("BENCH_LOG")
+                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn")),
+        )
+        .with_target(false)
+        .init();
+    let cli = Cli::parse();
+    let stop = Arc::new(AtomicBool::new(false));
+    if let Err(e) = install_signal_handlers(&stop) {
+        eprintln!("error: {e:#}");
+        return ExitCode::from(status::ERROR);
+    }
+    match cli.command {
+        Command::Chirp(args) => chirp(args, stop),
+    }
+}
+
+/// First SIGINT/SIGTERM raises `stop` (the loop winds down safely); a second
+/// one exits at once.
+fn install_signal_handlers(stop: &Arc<AtomicBool>) -> anyhow::Result<()> {
+    use signal_hook::consts::{SIGINT, SIGTERM};
+    for sig in [SIGINT, SIGTERM] {
+        signal_hook::flag::register_conditional_shutdown(
+            sig,
+            i32::from(status::INTERRUPTED),
+            Arc::clone(stop),
+        )
+        .context("installing signal handlers")?;
+        signal_hook::flag::register(sig, Arc::clone(stop)).context("installing signal handlers")?;
+    }
+    Ok(())
+}
+
+fn bad_input(msg: impl std::fmt::Display) -> ExitCode {
+    eprintln!("error: {msg}");
+    ExitCode::from(status::BAD_INPUT)
+}
+
+/// `recordings/<prefix>-YYYYmmddTHHMMSSZ.mcap`
+fn default_recording(prefix: &str) -> PathBuf {
+    let now = time::OffsetDateTime::now_utc();
+    let fmt = time::macros::format_description!("[year][month][day]T[hour][minute][second]Z");
+    let stamp = now.format(&fmt).unwrap_or_else(|_| "now".into());
+    Path::new("recordings").join(format!("{prefix}-{stamp}.mcap"))
+}
+
+/// `dir/stem.mcap` → `dir/stem<suffix>`
+fn beside(out: &Path, suffix: &str) -> PathBuf {
+    let stem = out
+        .file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    out.with_file_name(format!("{stem}{suffix}"))
+}
+
+fn load_config(path: &Path) -> Result<BenchConfig, ConfigError> {
+    BenchConfig::load(path)
+}
+
+fn apply_overrides(cfg: &mut BenchConfig, a: &ChirpArgs) {
+    if let Some(v) = a.operating_point_m {
+        cfg.plant.operating_point_m = v;
+    }
+    if let Some(p) = a.operating_point_pct {
+        cfg.plant.operating_point_m = p / 100.0 * cfg.plant.beam.length_m;
+    }
+    if let Some(v) = a.mass_asymmetry {
+        cfg.plant.mass_asymmetry = v;
+    }
+    if let Some(v) = a.amplitude_a {
+        cfg.chirp.amplitude_a = v;
+    }
+    if let Some(v) = a.f_start_hz {
+        cfg.chirp.f_start_hz = v;
+    }
+    if let Some(v) = a.f_end_hz {
+        cfg.chirp.f_end_hz = v;
+    }
+    if let Some(v) = a.duration_s {
+        cfg.chirp.duration_s = v;
+        // Keep the fades inside a short sweep.
+        cfg.chirp.taper_s = cfg.chirp.taper_s.min(0.25 * v.max(0.0));
+    }
+    if let Some(k) = a.chirp_kind {
+        cfg.chirp.kind = match k {
+            KindArg::Exponential => ChirpKind::Exponential,
+            KindArg::Linear => ChirpKind::Linear,
+        };
+    }
+}
+
+/// Which command-line flag overrode a config key (for error messages).
+fn flag_for_key(key: &str, a: &ChirpArgs) -> Option<&'static str> {
+    let pairs: [(&str, bool, &'static str); 7] = [
+        (
+            "plant.operating_point_m",
+            a.operating_point_m.is_some(),
+            "--operating-point-m",
+        ),
+        (
+            "plant.operating_point_m",
+            a.operating_point_pct.is_some(),
+            "--operating-point-pct",
+        ),
+        (
+            "plant.mass_asymmetry",
+            a.mass_asymmetry.is_some(),
+            "--mass-asymmetry",
+        ),
+        (
+            "chirp.amplitude_a",
+            a.amplitude_a.is_some(),
+            "--amplitude-a",
+        ),
+        ("chirp.f_start_hz", a.f_start_hz.is_some(), "--f-start-hz"),
+        ("chirp.f_end_hz", a.f_end_hz.is_some(), "--f-end-hz"),
+        ("chirp.duration_s", a.duration_s.is_some(), "--duration-s"),
+    ];
+    pairs
+        .iter()
+        .find(|(k, set, _)| *set && *k == key)
+        .map(|p| p.2)
+}
+
+fn chirp(args: ChirpArgs, stop: Arc<AtomicBool>) -> ExitCode {
+    let mut cfg = match load_config(&args.config) {
+        Ok(c) => c,
+        Err(e) => return bad_input(e),
+    };
+    apply_overrides(&mut cfg, &args);
+    if let Err(e) = cfg.validate(&args.config) {
+        return match &e {
+            ConfigError::Invalid { key, reason, .. } => match flag_for_key(key, &args) {
+                Some(flag) => bad_input(format!("{flag} (config key {key}): {reason}")),
+                None => bad_input(e),
+            },
+            _ => bad_input(e),
+        };
+    }
+    let out = args
+        .out
+        .clone()
+        .unwrap_or_else(|| default_recording("chirp"));
+    if out.extension().and_then(|e| e.to_str()) != Some("mcap") {
+        return bad_input(format!(
+            "--out {}: the recording must end in .mcap",
+            out.display()
+        ));
+    }
+    let opts = ChirpOptions {
+        frf_csv: args
+            .frf_csv
+            .clone()
+            .unwrap_or_else(|| beside(&out, ".frf.csv")),
+        plot: args
+            .plot
+            .clone()
+            .unwrap_or_else(|| beside(&out, ".bode.png")),
+        out,
+        seed: args.seed.unwrap_or(cfg.sim.seed),
+        config: cfg,
+        config_path: args.config.clone(),
+        realtime: args.realtime,
+        progress: std::io::stderr().is_terminal(),
+    };
+    match run_chirp(&opts, stop) {
+        Ok(summary) => {
+            if args.json {
+                match serde_json::to_string(&summary) {
+                    Ok(s) => println!("{s}"),
+                    Err(e) => {
+                        eprintln!("error: {e}");
+                        return ExitCode::from(status::ERROR);
+                    }
+                }
+            } else {
+                print_summary(&summary);
+            }
+            ExitCode::SUCCESS
+        }
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            ExitCode::from(match e {
+                RunError::BadInput(_) => status::BAD_INPUT,
+                RunError::Fault { .. } => status::FAULT,
+                RunError::Hal { .. } => status::HAL,
+                RunError::Interrupted { .. } => status::INTERRUPTED,
+                RunError::Other(_) => status::ERROR,
+            })
+        }
+    }
+}
+
+fn print_summary(s: &ChirpSummary) {
+    println!("bench chirp on {} (seed {})", s.backend, s.seed);
+    println!(
+        "  operating point Y1o = {:.3} mm ({:.1} % of L), mass asymmetry Δm23 = {:+.1} %",
+        s.operating_point_m * 1e3,
+        s.operating_point_fraction_of_l * 100.0,
+        s.mass_asymmetry * 100.0
+    );
+    println!("  peak |x1| = {:.1} µm", s.peak_position_m * 1e6);
+    println!("  recording   {}", s.recording.display());
+    println!("  FRF (CSV)   {}", s.frf_csv.display());
+    println!("  Bode plot   {}", s.plot.display());
+    println!("resonances (measured):");
+    for r in &s.resonances {
+        match r.damping_ratio {
+            Some(z) => println!(
+                "  {:8.2} Hz  |H| = {:.3e} m/A  ζ ≈ {:.4}",
+                r.frequency_hz, r.magnitude_m_per_a, z
+            ),
+            None => println!(
+                "  {:8.2} Hz  |H| = {:.3e} m/A",
+                r.frequency_hz, r.magnitude_m_per_a
+            ),
+        }
+    }
+    let f: Vec<String> = s
+        .model
+        .natural_frequencies_hz
+        .iter()
+        .map(|f| format!("{f:.2}"))
+        .collect();
+    println!("model natural frequencies: {} Hz", f.join(", "));
+    match &s.closely_spaced_pair {
+        Some(p) => {
+            println!(
+                "closely spaced pair: {:.2} Hz and {:.2} Hz; net phase over {:.1}–{:.1} Hz: {:.0}° (≈ {:.0}°)",
+                p.lower_hz, p.upper_hz, p.band_hz.0, p.band_hz.1, p.net_phase_deg, p.net_phase_multiple_deg
+            );
+            if p.cmp_cnmp {
+                println!("  → CMP-CNMP zeros: the pair shows the net −360° phase drop");
+            } else {
+                println!("  → no CMP-CNMP zeros: the zeros between the modes give back phase");
+            }
+        }
+        None => println!("closely spaced pair: not found (no two adjacent resonances within 25 %)"),
+    }
+    println!(
+        "model zeros: {} (CMP-CNMP: {})",
+        s.model.zero_types.join(", "),
+        if s.model.cmp_cnmp { "yes" } else { "no" }
+    );
+    let t = &s.timing;
+    println!(
+        "loop: {} ticks at {:.0} Hz ({}), {:.2} s wall; compute mean {:.2} µs, p99 {:.2} µs, max {:.1} µs; wake p99 {:.1} µs; overruns {}; dropped {}",
+        t.ticks, t.rate_hz, t.mode, t.wall_s, t.compute_mean_us, t.compute_p99_us, t.compute_max_us,
+        t.wake_latency_p99_us, t.overruns, t.dropped_records
+    );
+}

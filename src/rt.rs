@@ -1,0 +1,480 @@
+//! The real-time loop (SPEC §4).
+//!
+//! One dedicated OS thread runs [`run`]. Per tick, in this order:
+//!
+//! 1. wait: real-time mode sleeps until the tick's absolute deadline
+//!    (`clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME)`); virtual time does
+//!    not wait; a device-clocked backend waits inside `read_sample`;
+//! 2. read the sample (HAL);
+//! 3. supervise the sample;
+//! 4. run the job (excitation or controller);
+//! 5. supervise and clip the command, write it (HAL); on a fault in this
+//!    tick: 0 A and disable the amplifier now;
+//! 6. push the tick's record to the wait-free SPSC queue (`rtrb`); in
+//!    real-time mode a full queue drops the record and counts it, it never
+//!    waits; in virtual time (no deadlines) the loop yields until the writer
+//!    makes room, so a simulated run never loses a record;
+//! 7. measure wake-up latency, compute time and overrun.
+//!
+//! Nothing on the tick allocates, locks, logs or does I/O other than the
+//! HAL calls (the `alloc` integration test counts allocations to prove it).
+//! Setup before the first tick (scheduling, memory locking) and teardown
+//! after the last may do all of these.
+
+use crate::records::{
+    EventKind, EventRecord, FaultKind, Record, SampleRecord, SupervisorState, TimingRecord,
+};
+use crate::supervisor::{Supervisor, SupervisorConfig};
+use crate::timing::TickTiming;
+use bench_hal::{Clock, Command, Sample, Stage};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+
+/// What a job produces each tick.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct JobOutput {
+    /// Current demand, A (before the supervisor's limits).
+    pub command_a: f64,
+    /// Excitation part of the demand, A (`NaN` if none).
+    pub excitation_a: f64,
+    /// Position setpoint, m (`NaN` in open loop).
+    pub setpoint_m: f64,
+    /// The job is complete after this tick.
+    pub done: bool,
+}
+
+/// A job driven by the loop: excitation or controller.
+pub trait Job {
+    /// Computes this tick's output from the sample. Called on the real-time
+    /// thread: must not allocate, lock, log or block.
+    fn tick(&mut self, tick: u64, sample: &Sample) -> JobOutput;
+}
+
+/// How the loop is paced.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Pacing {
+    /// As fast as possible; loop time is `tick × period` (simulator only).
+    Virtual,
+    /// Absolute deadlines on `CLOCK_MONOTONIC`, with SCHED_FIFO at
+    /// `priority`, `mlockall` and optional CPU pinning when permitted.
+    RealTime {
+        /// SCHED_FIFO priority, 1–99.
+        priority: i32,
+        /// CPU to pin to.
+        cpu: Option<usize>,
+    },
+}
+
+/// Loop parameters.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LoopOptions {
+    /// Tick period, ns.
+    pub period_ns: u64,
+    /// Pacing.
+    pub pacing: Pacing,
+    /// Ticks between `/bench/timing` records.
+    pub timing_interval_ticks: u64,
+    /// Supervisor limits.
+    pub safety: SupervisorConfig,
+    /// Hard cap on ticks (the job normally ends first).
+    pub max_ticks: u64,
+}
+
+/// Why the loop stopped.
+#[derive(Debug, Clone, PartialEq)]
+pub enum StopReason {
+    /// The job finished.
+    Finished,
+    /// The supervisor latched a fault at `tick`; `value` caused it.
+    Fault {
+        /// Which fault.
+        kind: FaultKind,
+        /// The offending value (position in m, command in A, overrun count).
+        value: f64,
+        /// Tick of the fault.
+        tick: u64,
+    },
+    /// A HAL call failed (the supervisor faulted with [`FaultKind::Hal`]).
+    Hal {
+        /// The backend's message.
+        message: String,
+        /// Tick of the failure.
+        tick: u64,
+    },
+    /// The stop flag was raised (SIGINT/SIGTERM).
+    Interrupted {
+        /// Tick at which the loop stopped.
+        tick: u64,
+    },
+    /// `max_ticks` reached before the job finished.
+    TickLimit,
+}
+
+/// What the loop reports when it ends.
+#[derive(Debug, Clone)]
+pub struct LoopReport {
+    /// Ticks run.
+    pub ticks: u64,
+    /// Why it stopped.
+    pub stop: StopReason,
+    /// Timing over the whole run.
+    pub timing: TickTiming,
+    /// Records dropped because the queue was full.
+    pub dropped_records: u64,
+    /// Real-time setup problems (not permitted, etc.), one line each.
+    pub warnings: Vec<String>,
+    /// Final supervisor state.
+    pub final_state: SupervisorState,
+}
+
+fn now_ns() -> u64 {
+    let mut ts = libc::timespec {
+        tv_sec: 0,
+        tv_nsec: 0,
+    };
+    // SAFETY: valid pointer to a timespec; CLOCK_MONOTONIC always exists.
+    unsafe { libc::clock_gettime(libc::CLOCK_MONOTONIC, &mut ts) };
+    ts.tv_sec as u64 * 1_000_000_000 + ts.tv_nsec as u64
+}
+
+fn sleep_until_ns(deadline: u64) {
+    let ts = libc::timespec {
+        tv_sec: (deadline / 1_000_000_000) as libc::time_t,
+        tv_nsec: (deadline % 1_000_000_000) as libc::c_long,
+    };
+    // SAFETY: valid timespec; EINTR just returns early and we re-check.
+    loop {
+        let r = unsafe {
+            libc::clock_nanosleep(
+                libc::CLOCK_MONOTONIC,
+                libc::TIMER_ABSTIME,
+                &ts,
+                std::ptr::null_mut(),
+            )
+        };
+        if r != libc::EINTR {
+            break;
+        }
+    }
+}
+
+/// Applies SCHED_FIFO, `mlockall` and CPU pinning to the calling thread.
+/// Returns one warning line per thing that was not permitted.
+pub fn make_realtime(priority: i32, cpu: Option<usize>) -> Vec<String> {
+    let mut warnings = Vec::new();
+    // SAFETY: plain libc calls on the current thread with valid arguments.
+    unsafe {
+        if libc::mlockall(libc::MCL_CURRENT | libc::MCL_FUTURE) != 0 {
+            warnings.push(format!(
+                "mlockall failed ({}): page faults may add latency",
+                std::io::Error::last_os_error()
+            ));
+        }
+        let param = libc::sched_param {
+            sched_priority: priority,
+        };
+        let r = libc::pthread_setschedparam(libc::pthread_self(), libc::SCHED_FIFO, &param);
+        if r != 0 {
+            warnings.push(format!(
+                "SCHED_FIFO priority {priority} not permitted ({}): running with normal scheduling, expect jitter",
+                std::io::Error::from_raw_os_error(r)
+            ));
+        }
+        if let Some(cpu) = cpu {
+            let mut set: libc::cpu_set_t = std::mem::zeroed();
+            libc::CPU_SET(cpu, &mut set);
+            if libc::sched_setaffinity(0, std::mem::size_of::<libc::cpu_set_t>(), &set) != 0 {
+                warnings.push(format!(
+                    "pinning to CPU {cpu} failed ({})",
+                    std::io::Error::last_os_error()
+                ));
+            }
+        }
+    }
+    warnings
+}
+
+struct Emitter<'a> {
+    out: &'a mut rtrb::Producer<Record>,
+    dropped: u64,
+    /// Virtual time: wait for queue space instead of dropping.
+    backpressure: bool,
+}
+
+impl Emitter<'_> {
+    #[inline]
+    fn push(&mut self, r: Record) {
+        let mut r = r;
+        loop {
+            match self.out.push(r) {
+                Ok(()) => return,
+                Err(rtrb::PushError::Full(back)) => {
+                    if !self.backpressure || self.out.is_abandoned() {
+                        self.dropped += 1;
+                        return;
+                    }
+                    r = back;
+                    std::thread::yield_now();
+                }
+            }
+        }
+    }
+
+    fn event(&mut self, tick: u64, t_s: f64, kind: EventKind, sup: &Supervisor, value: f64) {
+        self.push(Record::Event(EventRecord {
+            tick,
+            t_s,
+            kind,
+            state: sup.state(),
+            fault: if kind == EventKind::Fault {
+                sup.fault().map(|f| f.0)
+            } else {
+                None
+            },
+            value,
+        }));
+    }
+}
+
+/// Runs `job` on `stage` until it finishes, a fault latches, `stop` is
+/// raised or `max_ticks` pass. The stage must be configured; `run` enables
+/// the amplifier before the first tick and always leaves it disabled at
+/// 0 A. `progress` is set to the tick count as the loop goes.
+pub fn run<S: Stage, J: Job>(
+    stage: &mut S,
+    job: &mut J,
+    opts: &LoopOptions,
+    clock: Clock,
+    out: &mut rtrb::Producer<Record>,
+    stop: &AtomicBool,
+    progress: &AtomicU64,
+) -> LoopReport {
+    let mut warnings = Vec::new();
+    if let Pacing::RealTime { priority, cpu } = opts.pacing {
+        warnings.extend(make_realtime(priority, cpu));
+    }
+    let mut sup = Supervisor::new(opts.safety);
+    let mut em = Emitter {
+        out,
+        dropped: 0,
+        backpressure: opts.pacing == Pacing::Virtual,
+    };
+    let period_s = opts.period_ns as f64 * 1e-9;
+    let mut total = TickTiming::default();
+    let mut window = TickTiming::default();
+    let mut window_ticks = 0u64;
+
+    em.event(0, 0.0, EventKind::LoopStarted, &sup, f64::NAN);
+    if let Err(e) = stage.enable() {
+        let _ = stage.disable();
+        sup.trip(FaultKind::Hal, f64::NAN);
+        em.event(0, 0.0, EventKind::Fault, &sup, f64::NAN);
+        return LoopReport {
+            ticks: 0,
+            stop: StopReason::Hal {
+                message: format!("enable failed: {e}"),
+                tick: 0,
+            },
+            timing: total,
+            dropped_records: em.dropped,
+            warnings,
+            final_state: sup.state(),
+        };
+    }
+    sup.enabled();
+    em.event(0, 0.0, EventKind::StateChanged, &sup, f64::NAN);
+    sup.running();
+    em.event(0, 0.0, EventKind::JobStarted, &sup, f64::NAN);
+
+    let host_paced = matches!(opts.pacing, Pacing::RealTime { .. }) && clock == Clock::Host;
+    let start_ns = now_ns() + opts.period_ns;
+    let mut stop_reason = StopReason::TickLimit;
+    let mut tick = 0u64;
+    let mut hal_error: Option<String> = None;
+    while tick < opts.max_ticks {
+        let deadline = start_ns + tick * opts.period_ns;
+        if host_paced {
+            sleep_until_ns(deadline);
+        }
+        let wake = now_ns();
+        let t_s = match clock {
+            Clock::Host => tick as f64 * period_s,
+            Clock::Device { .. } => f64::NAN, // replaced from the sample below
+        };
+
+        let mut fault_now = false;
+        let sample = match stage.read_sample() {
+            Ok(s) => s,
+            Err(e) => {
+                if hal_error.is_none() {
+                    hal_error = Some(format!("read_sample: {e}"));
+                }
+                fault_now |= sup.trip(FaultKind::Hal, f64::NAN);
+                Sample {
+                    seq: tick,
+                    device_time_ns: 0,
+                    position_m: f64::NAN,
+                    measured_current_a: f64::NAN,
+                    flags: Default::default(),
+                }
+            }
+        };
+        let t_s = if t_s.is_nan() {
+            sample.device_time_ns as f64 * 1e-9
+        } else {
+            t_s
+        };
+        fault_now |= sup.check_sample(&sample).is_some();
+        let job_out = job.tick(tick, &sample);
+        let (command_a, cmd_fault) = sup.command(job_out.command_a);
+        fault_now |= cmd_fault.is_some();
+        if let Err(e) = stage.write_command(Command {
+            current_a: command_a,
+            answers_seq: sample.seq,
+        }) {
+            if hal_error.is_none() {
+                hal_error = Some(format!("write_command: {e}"));
+            }
+            fault_now |= sup.trip(FaultKind::Hal, command_a);
+        }
+        if fault_now {
+            // Same tick: 0 A and amplifier off.
+            let _ = stage.write_command(Command {
+                current_a: 0.0,
+                answers_seq: sample.seq,
+            });
+            let _ = stage.disable();
+        }
+
+        em.push(Record::Sample(SampleRecord {
+            tick,
+            t_s,
+            current_command_a: command_a,
+            position_m: sample.position_m,
+            excitation_a: job_out.excitation_a,
+            setpoint_m: job_out.setpoint_m,
+            state: sup.state(),
+            out_of_range: sample.flags.out_of_range,
+        }));
+        if fault_now {
+            let value = sup.fault().map(|f| f.1).unwrap_or(f64::NAN);
+            em.event(tick, t_s, EventKind::Fault, &sup, value);
+        }
+
+        let end = now_ns();
+        let overran = host_paced && end > deadline + opts.period_ns;
+        if host_paced {
+            window.wake.record(wake as f64 - deadline as f64);
+        } else {
+            window.wake.record(0.0);
+        }
+        window.compute.record(end as f64 - wake as f64);
+        if overran {
+            window.overruns += 1;
+        }
+        if host_paced && sup.check_overrun(overran).is_some() {
+            let _ = stage.write_command(Command {
+                current_a: 0.0,
+                answers_seq: sample.seq,
+            });
+            let _ = stage.disable();
+            em.event(
+                tick,
+                t_s,
+                EventKind::Fault,
+                &sup,
+                sup.fault().map(|f| f.1).unwrap_or(f64::NAN),
+            );
+        }
+        window_ticks += 1;
+        if window_ticks >= opts.timing_interval_ticks {
+            em.push(timing_record(tick, t_s, window_ticks, &window, em.dropped));
+            total.merge(&window);
+            window = TickTiming::default();
+            window_ticks = 0;
+        }
+
+        tick += 1;
+        progress.store(tick, Ordering::Relaxed);
+        if sup.state() == SupervisorState::Faulted {
+            let (kind, value) = sup.fault().unwrap_or((FaultKind::Hal, f64::NAN));
+            stop_reason = match hal_error.take() {
+                Some(message) if kind == FaultKind::Hal => StopReason::Hal {
+                    message,
+                    tick: tick - 1,
+                },
+                _ => StopReason::Fault {
+                    kind,
+                    value,
+                    tick: tick - 1,
+                },
+            };
+            break;
+        }
+        if job_out.done {
+            em.event(tick - 1, t_s, EventKind::JobFinished, &sup, f64::NAN);
+            stop_reason = StopReason::Finished;
+            break;
+        }
+        if stop.load(Ordering::Relaxed) {
+            em.event(tick - 1, t_s, EventKind::Interrupted, &sup, f64::NAN);
+            stop_reason = StopReason::Interrupted { tick: tick - 1 };
+            break;
+        }
+    }
+    // Teardown: always 0 A and disabled.
+    let _ = stage.write_command(Command {
+        current_a: 0.0,
+        answers_seq: 0,
+    });
+    let _ = stage.disable();
+    sup.disabled();
+    let t_end = tick as f64 * period_s;
+    em.event(
+        tick.saturating_sub(1),
+        t_end,
+        EventKind::StateChanged,
+        &sup,
+        f64::NAN,
+    );
+    if window_ticks > 0 {
+        em.push(timing_record(
+            tick.saturating_sub(1),
+            t_end,
+            window_ticks,
+            &window,
+            em.dropped,
+        ));
+        total.merge(&window);
+    }
+    em.event(
+        tick.saturating_sub(1),
+        t_end,
+        EventKind::LoopStopped,
+        &sup,
+        f64::NAN,
+    );
+    LoopReport {
+        ticks: tick,
+        stop: stop_reason,
+        timing: total,
+        dropped_records: em.dropped,
+        warnings,
+        final_state: sup.state(),
+    }
+}
+
+fn timing_record(tick: u64, t_s: f64, ticks: u64, w: &TickTiming, dropped: u64) -> Record {
+    Record::Timing(TimingRecord {
+        tick,
+        t_s,
+        ticks,
+        wake_latency_mean_ns: w.wake.mean_ns(),
+        wake_latency_p99_ns: w.wake.quantile_ns(0.99),
+        wake_latency_max_ns: w.wake.max_ns(),
+        compute_mean_ns: w.compute.mean_ns(),
+        compute_p99_ns: w.compute.quantile_ns(0.99),
+        compute_max_ns: w.compute.max_ns(),
+        overruns: w.overruns,
+        dropped_records: dropped,
+    })
+}
