@@ -26,7 +26,7 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 /// Smallest peak prominence for a resonance, dB.
-pub const MIN_PROMINENCE_DB: f64 = 6.0;
+pub const MIN_PROMINENCE_DB: f64 = 3.0;
 
 /// Capacity of the record queue, records (≈ 13 s at 5 kHz).
 const QUEUE_CAPACITY: usize = 1 << 16;
@@ -171,8 +171,9 @@ pub struct ChirpSummary {
     pub resonances: Vec<Resonance>,
     /// The closely spaced pair and its phase test.
     pub closely_spaced_pair: Option<PairVerdict>,
-    /// Verdict: the measured phase shows the CMP-CNMP −360° signature.
-    pub cmp_cnmp: bool,
+    /// Verdict: the measured phase shows the CMP-CNMP −360° signature
+    /// (`None` when no closely spaced pair was resolved).
+    pub cmp_cnmp: Option<bool>,
     /// The model of the configured bench.
     pub model: ModelSummary,
     /// Loop timing.
@@ -550,7 +551,7 @@ pub fn run_chirp(opts: &ChirpOptions, stop: Arc<AtomicBool>) -> Result<ChirpSumm
         operating_point_m: cfg.plant.operating_point_m,
         operating_point_fraction_of_l: cfg.plant.operating_point_m / cfg.plant.beam.length_m,
         mass_asymmetry: cfg.plant.mass_asymmetry,
-        cmp_cnmp: pair.map(|p| p.cmp_cnmp).unwrap_or(false),
+        cmp_cnmp: pair.map(|p| p.cmp_cnmp),
         peak_position_m: y.iter().fold(0.0, |m: f64, v| m.max(v.abs())),
         resonances,
         closely_spaced_pair: pair,

@@ -348,7 +348,9 @@ fn print_summary(s: &ChirpSummary) {
                 println!("  → no CMP-CNMP zeros: the zeros between the modes give back phase");
             }
         }
-        None => println!("closely spaced pair: not found (no two adjacent resonances within 25 %)"),
+        None => println!(
+            "closely spaced pair: not resolved (no two adjacent resonances within 25 %): CMP-CNMP verdict undetermined"
+        ),
     }
     println!(
         "model zeros: {} (CMP-CNMP: {})",

@@ -57,7 +57,8 @@ pub struct BodePlot<'a> {
     /// the same length as `measured.frequency_hz`.
     pub coherence: &'a [f64],
     /// Optional model response, drawn dashed in another colour; may use a
-    /// different frequency grid than `measured`.
+    /// different frequency grid than `measured` and is clipped to the
+    /// measured frequency band.
     pub model: Option<BodeSeries<'a>>,
     /// Resonance frequencies in Hz, drawn as labelled vertical dashed lines on
     /// all panels. Markers outside the plotted frequency range are skipped.
@@ -150,9 +151,11 @@ type Chart<'a, 'b, X> = ChartContext<'a, BitMapBackend<'b>, Cartesian2d<X, Ticke
 ///
 /// Panels from top to bottom: magnitude in dB re 1 m/A (20·log10 of the
 /// linear m/A magnitude), unwrapped phase in degrees and coherence (0..1.05),
-/// all sharing a logarithmic frequency axis spanning the measured and model
-/// frequencies. Invalid points are skipped and break the line. The file is
-/// drawn to a temporary file in the same directory and renamed into place.
+/// all sharing a logarithmic frequency axis. The axis spans the measured
+/// frequencies (the model is clipped to that band); only if the measured
+/// series has no usable band do the model frequencies widen it. Invalid points
+/// are skipped and break the line. The file is drawn to a temporary file in
+/// the same directory and renamed into place.
 ///
 /// # Errors
 ///
@@ -182,7 +185,7 @@ pub fn write_bode_png(path: &Path, plot: &BodePlot<'_>) -> Result<(), PlotError>
 /// `path`, with `title` above them (omitted when empty).
 ///
 /// The image is 1400 px wide and 1000 px high for up to three panels, growing
-/// by 300 px per additional panel. Each panel gets its own y range (from its
+/// by 300 px per additional panel (capped at 8000 px). Each panel gets its own y range (from its
 /// data, with a margin) and a legend of its labelled series. Non-finite
 /// samples are skipped and break the line.
 ///

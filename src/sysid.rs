@@ -249,10 +249,20 @@ pub struct Resonance {
     pub prominence_db: f64,
 }
 
-/// Finds resonances: local maxima of |H| on the grid that rise at least
-/// `min_prominence_db` above both flanking minima and have coherence ≥ 0.5,
-/// then refines each peak on a bin-spaced sweep of the lightly smoothed
-/// estimate and estimates damping from the half-power bandwidth.
+/// Relative distance at which a lightly damped peak must have dropped by
+/// [`SHARPNESS_DB`] on at least one side.
+pub const SHARPNESS_SPAN: f64 = 0.03;
+/// Drop required within ±[`SHARPNESS_SPAN`] of a peak, dB.
+pub const SHARPNESS_DB: f64 = 3.0;
+
+/// Finds lightly damped resonances: local maxima of |H| on the grid that
+/// rise at least `min_prominence_db` above the higher of the two flanking
+/// minima, have coherence ≥ 0.5, and are sharp — |H| is at least
+/// [`SHARPNESS_DB`] lower at `f·(1 ± SHARPNESS_SPAN)` on one side or the
+/// other (a single mode passes this for ζ ≲ 0.03; the broad hump that
+/// follows an anti-resonance does not). Each peak is then refined on a
+/// quarter-bin sweep of the lightly smoothed estimate, and its damping is
+/// estimated from the half-power bandwidth.
 pub fn find_resonances(frf: &Frf, spectra: &Spectra, min_prominence_db: f64) -> Vec<Resonance> {
     let db: Vec<f64> = frf
         .magnitude_m_per_a
@@ -286,6 +296,15 @@ pub fn find_resonances(frf: &Frf, spectra: &Spectra, min_prominence_db: f64) -> 
         let right = flank(&mut (i + 1..n));
         let prominence = db[i] - left.max(right);
         if prominence < min_prominence_db {
+            continue;
+        }
+        let f = frf.frequency_hz[i];
+        let db_at = |x: f64| {
+            let j = frf.frequency_hz.partition_point(|g| *g < x).min(n - 1);
+            db[j]
+        };
+        let drop = (db[i] - db_at(f * (1.0 - SHARPNESS_SPAN))).max(db[i] - db_at(f * (1.0 + SHARPNESS_SPAN)));
+        if drop < SHARPNESS_DB {
             continue;
         }
         out.push(refine_peak(frf, spectra, i, prominence));

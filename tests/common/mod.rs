@@ -1,0 +1,103 @@
+//! Shared helpers for the process-boundary tests: run the `bench` binary,
+//! read its outputs, load the scipy reference (`tests/data/`).
+#![allow(dead_code)]
+
+use serde_json::Value;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+/// The `bench` binary under test.
+pub fn bench() -> Command {
+    let mut c = Command::new(env!("CARGO_BIN_EXE_bench"));
+    c.current_dir(env!("CARGO_MANIFEST_DIR"));
+    c
+}
+
+/// Runs `bench` with `args`, returns the output.
+pub fn run(args: &[&str]) -> Output {
+    bench().args(args).output().expect("cannot start bench")
+}
+
+/// A fresh temporary directory.
+pub fn tmp() -> tempfile::TempDir {
+    tempfile::tempdir().expect("tempdir")
+}
+
+/// `dir/name` as a `String`.
+pub fn path_in(dir: &Path, name: &str) -> String {
+    dir.join(name).display().to_string()
+}
+
+/// Parses the one JSON object `--json` prints.
+pub fn json_stdout(out: &Output) -> Value {
+    let s = String::from_utf8_lossy(&out.stdout);
+    serde_json::from_str(s.trim()).unwrap_or_else(|e| {
+        panic!(
+            "stdout is not one JSON object ({e}):\n{s}\nstderr:\n{}",
+            String::from_utf8_lossy(&out.stderr)
+        )
+    })
+}
+
+/// The scipy reference (`tests/data/sr4dof_reference.json`), one case.
+pub fn reference(case: &str) -> Value {
+    let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/sr4dof_reference.json");
+    let all: Value = serde_json::from_str(&std::fs::read_to_string(p).expect("reference data")).expect("json");
+    all[case].clone()
+}
+
+/// `Vec<f64>` from a JSON array.
+pub fn floats(v: &Value) -> Vec<f64> {
+    v.as_array().expect("array").iter().map(|x| x.as_f64().expect("number")).collect()
+}
+
+/// Rows of the FRF CSV: (frequency_hz, magnitude_m_per_a, phase_deg, coherence).
+pub fn read_frf_csv(path: &Path) -> Vec<[f64; 4]> {
+    let text = std::fs::read_to_string(path).expect("FRF CSV");
+    let mut lines = text.lines();
+    assert_eq!(lines.next(), Some("frequency_hz,magnitude_m_per_a,phase_deg,coherence"));
+    lines
+        .map(|l| {
+            let v: Vec<f64> = l.split(',').map(|x| x.parse().expect("number")).collect();
+            [v[0], v[1], v[2], v[3]]
+        })
+        .collect()
+}
+
+/// Linear interpolation of `y(x)` in log x; `x` ascending.
+pub fn interp_log(x: &[f64], y: &[f64], at: f64) -> f64 {
+    let i = x.partition_point(|v| *v < at).clamp(1, x.len() - 1);
+    let (x0, x1) = (x[i - 1].ln(), x[i].ln());
+    let t = (at.ln() - x0) / (x1 - x0);
+    y[i - 1] + t * (y[i] - y[i - 1])
+}
+
+/// Median of a slice (sorted copy).
+pub fn median(v: &[f64]) -> f64 {
+    let mut s = v.to_vec();
+    s.sort_by(f64::total_cmp);
+    s[s.len() / 2]
+}
+
+/// Files in `dir` (names).
+pub fn files_in(dir: &Path) -> Vec<PathBuf> {
+    let mut v: Vec<PathBuf> = std::fs::read_dir(dir)
+        .expect("read_dir")
+        .map(|e| e.expect("entry").path())
+        .collect();
+    v.sort();
+    v
+}
+
+/// All messages of an MCAP file by topic: (topic, log_time, JSON value).
+pub fn mcap_messages(path: &Path) -> Vec<(String, u64, Value)> {
+    let bytes = std::fs::read(path).expect("recording");
+    mcap::MessageStream::new(&bytes)
+        .expect("mcap")
+        .map(|m| {
+            let m = m.expect("message");
+            let v: Value = serde_json::from_slice(&m.data).expect("json payload");
+            (m.channel.topic.clone(), m.log_time, v)
+        })
+        .collect()
+}
