@@ -1,0 +1,181 @@
+//! The real-time tick allocates nothing once running (copper-rs style
+//! counting allocator). Counts only on the loop's own thread, from the
+//! 100th tick on, across everything the tick does: HAL read (simulator
+//! step, noise), supervisor, job, HAL write, queue push, timing.
+
+use bench::chirp::ChirpJob;
+use bench::config::BenchConfig;
+use bench::excitation::Chirp;
+use bench::records::Record;
+use bench::rt::{self, Job, JobOutput, LoopOptions, Pacing, StopReason};
+use bench::supervisor::SupervisorConfig;
+use bench_hal::sim::SimStage;
+use bench_hal::{Sample, Stage};
+use std::alloc::{GlobalAlloc, Layout, System};
+use std::cell::Cell;
+use std::path::Path;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::Arc;
+
+struct Counting;
+
+thread_local! {
+    /// Counting switched on for this thread.
+    static COUNTING: Cell<bool> = const { Cell::new(false) };
+    /// Allocations made by this thread while counting (per thread, so
+    /// tests running in parallel do not see each other's).
+    static ALLOCATIONS: Cell<u64> = const { Cell::new(0) };
+}
+
+fn count_one() {
+    // `try_with`: thread-locals may be gone during thread teardown.
+    let _ = COUNTING.try_with(|c| {
+        if c.get() {
+            let _ = ALLOCATIONS.try_with(|n| n.set(n.get() + 1));
+        }
+    });
+}
+
+/// Stops counting on this thread and returns the count.
+fn stop_counting() -> u64 {
+    COUNTING.with(|c| c.set(false));
+    ALLOCATIONS.with(|n| n.get())
+}
+
+unsafe impl GlobalAlloc for Counting {
+    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
+        count_one();
+        System.alloc(layout)
+    }
+    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
+        System.dealloc(ptr, layout)
+    }
+    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
+        count_one();
+        System.realloc(ptr, layout, new_size)
+    }
+}
+
+#[global_allocator]
+static GLOBAL: Counting = Counting;
+
+/// Wraps a job and switches counting on at `from_tick` on the loop thread.
+struct Counted<J> {
+    inner: J,
+    from_tick: u64,
+}
+
+impl<J: Job> Job for Counted<J> {
+    fn tick(&mut self, tick: u64, sample: &Sample) -> JobOutput {
+        if tick == self.from_tick {
+            COUNTING.with(|c| c.set(true));
+        }
+        self.inner.tick(tick, sample)
+    }
+}
+
+fn run_counted(pacing: Pacing, seconds: f64) -> (u64, u64) {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("bench-config/sr4dof-ch5.toml");
+    let mut cfg = BenchConfig::load(&path).unwrap();
+    cfg.chirp.duration_s = seconds;
+    cfg.chirp.taper_s = 0.1;
+    cfg.chirp.f_start_hz = 5.0;
+    cfg.validate(&path).unwrap();
+    let mut stage = SimStage::new(cfg.sim_params(7)).unwrap();
+    let info = stage.configure(cfg.loop_.period_ns()).unwrap();
+    let chirp = Chirp::new(&cfg.chirp, info.period_ns as f64 * 1e-9);
+    let opts = LoopOptions {
+        period_ns: info.period_ns,
+        pacing,
+        timing_interval_ticks: 500,
+        safety: SupervisorConfig {
+            position_limit_m: cfg.safety.position_limit_m,
+            peak_current_a: info.peak_current_a,
+            max_consecutive_overruns: 1000,
+        },
+        max_ticks: chirp.total_ticks(),
+    };
+    let (mut producer, mut consumer) = rtrb::RingBuffer::<Record>::new(1 << 16);
+    let done = Arc::new(AtomicBool::new(false));
+    let drain_done = Arc::clone(&done);
+    // Drain on another thread (it may allocate; it is not counted).
+    let drain = std::thread::spawn(move || {
+        let mut n = 0u64;
+        loop {
+            while consumer.pop().is_ok() {
+                n += 1;
+            }
+            if drain_done.load(Ordering::Acquire) && consumer.is_empty() {
+                return n;
+            }
+            std::thread::sleep(std::time::Duration::from_millis(1));
+        }
+    });
+    let stop = AtomicBool::new(false);
+    let progress = AtomicU64::new(0);
+    let rt_thread = std::thread::spawn(move || {
+        let mut job = Counted {
+            inner: ChirpJob::new(chirp),
+            from_tick: 100,
+        };
+        let report = rt::run(&mut stage, &mut job, &opts, info.clock, &mut producer, &stop, &progress);
+        (report, stop_counting())
+    });
+    let (report, allocations) = rt_thread.join().unwrap();
+    done.store(true, Ordering::Release);
+    let records = drain.join().unwrap();
+    assert_eq!(report.stop, StopReason::Finished);
+    assert!(records >= report.ticks);
+    (allocations, report.ticks)
+}
+
+#[test]
+fn tick_allocates_nothing() {
+    let (allocs, ticks) = run_counted(Pacing::Virtual, 4.0);
+    assert!(ticks > 20_000);
+    assert_eq!(allocs, 0, "{allocs} allocations in {ticks} virtual-time ticks");
+    let (allocs, ticks) = run_counted(Pacing::RealTime { priority: 10, cpu: None }, 0.5);
+    assert!(ticks > 2_000);
+    assert_eq!(allocs, 0, "{allocs} allocations in {ticks} real-time ticks");
+}
+
+/// The counter does count: a tick that allocates is caught.
+#[test]
+fn counter_sees_an_allocating_job() {
+    struct Leaky;
+    impl Job for Leaky {
+        fn tick(&mut self, tick: u64, _s: &Sample) -> JobOutput {
+            let v = vec![tick; 4];
+            JobOutput {
+                command_a: 0.0,
+                excitation_a: v.len() as f64 * 0.0,
+                setpoint_m: f64::NAN,
+                done: tick >= 200,
+            }
+        }
+    }
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("bench-config/sr4dof-ch5.toml");
+    let cfg = BenchConfig::load(&path).unwrap();
+    let mut stage = SimStage::new(cfg.sim_params(7)).unwrap();
+    let info = stage.configure(cfg.loop_.period_ns()).unwrap();
+    let opts = LoopOptions {
+        period_ns: info.period_ns,
+        pacing: Pacing::Virtual,
+        timing_interval_ticks: 50,
+        safety: SupervisorConfig {
+            position_limit_m: 0.8e-3,
+            peak_current_a: 9.98,
+            max_consecutive_overruns: 5,
+        },
+        max_ticks: 1_000,
+    };
+    let (mut producer, _consumer) = rtrb::RingBuffer::<Record>::new(4096);
+    let allocations = std::thread::spawn(move || {
+        let mut job = Counted { inner: Leaky, from_tick: 100 };
+        rt::run(&mut stage, &mut job, &opts, info.clock, &mut producer, &AtomicBool::new(false), &AtomicU64::new(0));
+        stop_counting()
+    })
+    .join()
+    .unwrap();
+    assert!(allocations >= 100, "{allocations}");
+}

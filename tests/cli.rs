@@ -1,0 +1,227 @@
+//! Bad input, signals and kills at the process boundary.
+
+mod common;
+
+use common::*;
+use std::path::Path;
+use std::process::Stdio;
+use std::time::{Duration, Instant};
+
+const CH5: &str = "bench-config/sr4dof-ch5.toml";
+
+fn shipped_ch5() -> String {
+    std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join(CH5)).unwrap()
+}
+
+/// Runs `bench chirp` with `args` into an empty directory and checks: exit
+/// 2, the message on stderr names `needle`, and nothing was left behind.
+fn refused(extra: &[&str], config_text: Option<&str>, needle: &str) {
+    let dir = tmp();
+    let out_dir = dir.path().join("out");
+    std::fs::create_dir(&out_dir).unwrap();
+    let cfg = path_in(dir.path(), "bench.toml");
+    std::fs::write(&cfg, config_text.unwrap_or(&shipped_ch5())).unwrap();
+    let out = path_in(&out_dir, "run.mcap");
+    let mut args = vec!["chirp", "--config", cfg.as_str(), "--out", out.as_str()];
+    args.extend_from_slice(extra);
+    let o = run(&args);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{extra:?}: status {:?}, stderr: {err}", o.status);
+    assert!(err.contains(needle), "{extra:?}: stderr lacks {needle:?}: {err}");
+    assert!(o.stdout.is_empty(), "nothing on stdout on error");
+    assert!(files_in(&out_dir).is_empty(), "files left behind: {:?}", files_in(&out_dir));
+}
+
+#[test]
+fn missing_config() {
+    let o = run(&["chirp", "--config", "/nonexistent/bench.toml"]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("/nonexistent/bench.toml"));
+}
+
+#[test]
+fn unparseable_config() {
+    refused(&[], Some("this is [ not toml"), "bench.toml");
+}
+
+#[test]
+fn unknown_key() {
+    let text = shipped_ch5().replace("[plant]\n", "[plant]\nm6_kg = 0.1\n");
+    refused(&[], Some(&text), "m6_kg");
+}
+
+#[test]
+fn non_positive_mass_and_stiffness() {
+    let text = shipped_ch5().replace("m1_kg = 0.4 ", "m1_kg = 0.0 ");
+    refused(&[], Some(&text), "plant.m1_kg");
+    let text = shipped_ch5().replace("k5_n_per_m = 36.0e3", "k5_n_per_m = -36.0e3");
+    refused(&[], Some(&text), "plant.k5_n_per_m");
+}
+
+#[test]
+fn nan_value() {
+    let text = shipped_ch5().replace("k4_n_per_m = 36.0e3", "k4_n_per_m = nan");
+    refused(&[], Some(&text), "plant.k4_n_per_m");
+}
+
+#[test]
+fn f_end_at_or_above_nyquist() {
+    refused(&["--f-end-hz", "2500"], None, "--f-end-hz");
+    refused(&["--f-end-hz", "3000"], None, "Nyquist");
+    let text = shipped_ch5().replace("f_end_hz = 500.0", "f_end_hz = 2600.0");
+    refused(&[], Some(&text), "chirp.f_end_hz");
+}
+
+#[test]
+fn amplitude_above_peak_current() {
+    refused(&["--amplitude-a", "12"], None, "--amplitude-a");
+    refused(&["--amplitude-a", "12"], None, "peak current");
+}
+
+#[test]
+fn bad_arguments() {
+    refused(&["--duration-s", "-3"], None, "--duration-s");
+    refused(&["--seed", "abc"], None, "--seed");
+    refused(&["--operating-point-pct", "30"], None, "--operating-point-pct");
+}
+
+#[test]
+fn unwritable_outputs() {
+    let dir = tmp();
+    let file = path_in(dir.path(), "a-file");
+    std::fs::write(&file, "x").unwrap();
+    for (flag, value) in [
+        ("--out", "/nonexistent-dir/run.mcap".to_string()),
+        ("--out", format!("{file}/run.mcap")),
+        ("--frf-csv", "/nonexistent-dir/frf.csv".to_string()),
+        ("--plot", format!("{file}/bode.png")),
+    ] {
+        refused(&[flag, &value], None, flag);
+    }
+    refused(&["--out", "/tmp/not-an-mcap.txt"], None, ".mcap");
+}
+
+/// Waits until `part` holds at least one flushed sample; returns the
+/// highest tick seen and when.
+fn wait_for_samples(part: &Path, deadline: Duration) -> (u64, Instant) {
+    let start = Instant::now();
+    loop {
+        if let Ok(bytes) = std::fs::read(part) {
+            let s = bench::record::read_samples_tolerant(&bytes);
+            if let Some(last) = s.last() {
+                return (last.tick, Instant::now());
+            }
+        }
+        assert!(start.elapsed() < deadline, "no samples in {} after {deadline:?}", part.display());
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+/// SPEC §8: a real-time run killed with SIGKILL leaves a `.part` file whose
+/// completed chunks read back, losing at most ~100 ms of samples.
+#[test]
+fn sigkill_in_realtime_loses_at_most_100_ms() {
+    let dir = tmp();
+    let out = path_in(dir.path(), "run.mcap");
+    let mut child = bench()
+        .args(["chirp", "--realtime", "--duration-s", "30", "--f-start-hz", "5", "--out", &out])
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    let part = dir.path().join("run.mcap.part");
+    let (k0, t0) = wait_for_samples(&part, Duration::from_secs(20));
+    std::thread::sleep(Duration::from_millis(1500));
+    let waited = t0.elapsed().as_secs_f64();
+    child.kill().unwrap(); // SIGKILL
+    child.wait().unwrap();
+    assert!(!dir.path().join("run.mcap").exists(), "a killed run must not look complete");
+    let bytes = std::fs::read(&part).unwrap();
+    let samples = bench::record::read_samples_tolerant(&bytes);
+    // Completed chunks read back, in order, without gaps.
+    for (i, s) in samples.iter().enumerate() {
+        assert_eq!(s.tick, i as u64);
+    }
+    // The loop ran in real time from tick k0 at t0 for `waited` seconds.
+    let produced_at_least = k0 as f64 + waited * 5000.0;
+    let recovered = samples.len() as f64;
+    let lost_s = (produced_at_least - recovered) / 5000.0;
+    eprintln!("recovered {recovered} samples; lost at most {:.0} ms", lost_s * 1e3);
+    assert!(lost_s <= 0.15, "lost {:.0} ms of samples", lost_s * 1e3);
+}
+
+/// SIGINT and SIGTERM stop the loop safely: exit 130, a finished recording
+/// that ends with the interruption and the amplifier disabled.
+#[test]
+fn sigint_and_sigterm_finish_the_recording() {
+    for sig in [libc::SIGINT, libc::SIGTERM] {
+        let dir = tmp();
+        let out = path_in(dir.path(), "run.mcap");
+        let child = bench()
+            .args(["chirp", "--realtime", "--duration-s", "30", "--f-start-hz", "5", "--out", &out])
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap();
+        wait_for_samples(&dir.path().join("run.mcap.part"), Duration::from_secs(20));
+        // SAFETY: sending a signal to our own child.
+        unsafe { libc::kill(child.id() as i32, sig) };
+        let o = child.wait_with_output().unwrap();
+        assert_eq!(o.status.code(), Some(130), "signal {sig}: {}", String::from_utf8_lossy(&o.stderr));
+        assert!(String::from_utf8_lossy(&o.stderr).contains("interrupted"));
+        let path = dir.path().join("run.mcap");
+        assert!(path.exists() && !dir.path().join("run.mcap.part").exists());
+        let msgs = mcap_messages(&path); // strict reader: the file is complete
+        let events: Vec<(String, String)> = msgs
+            .iter()
+            .filter(|m| m.0 == "/bench/event")
+            .map(|m| (m.2["kind"].as_str().unwrap().into(), m.2["state"].as_str().unwrap().into()))
+            .collect();
+        let i = events.iter().position(|e| e.0 == "interrupted").expect("interrupted event");
+        assert!(events[i..].iter().any(|e| e.1 == "disabled"), "{events:?}");
+        assert_eq!(events.last().unwrap().0, "loop_stopped");
+    }
+}
+
+/// A fault on the stage (the chirp drives x1 past the software limit) ends
+/// the run with the fault status, 0 A from the faulting tick and a finished
+/// recording holding the fault.
+#[test]
+fn position_fault_stops_the_chirp() {
+    let dir = tmp();
+    let out = path_in(dir.path(), "run.mcap");
+    // 0.5 A at the 29 Hz rigid-body mode without the amplitude profile.
+    let text = shipped_ch5().replace("amplitude_profile = ", "# amplitude_profile = ");
+    let cfg = path_in(dir.path(), "bench.toml");
+    std::fs::write(&cfg, text).unwrap();
+    let o = run(&["chirp", "--config", &cfg, "--out", &out]);
+    assert_eq!(o.status.code(), Some(3), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("position_limit"));
+    let msgs = mcap_messages(&dir.path().join("run.mcap"));
+    let fault = msgs
+        .iter()
+        .find(|m| m.0 == "/bench/event" && m.2["kind"] == "fault")
+        .expect("fault event");
+    assert_eq!(fault.2["fault"], "position_limit");
+    let fault_tick = fault.2["tick"].as_u64().unwrap();
+    let samples: Vec<_> = msgs.iter().filter(|m| m.0 == "/bench/sample").collect();
+    let at = samples.iter().find(|m| m.2["tick"].as_u64() == Some(fault_tick)).unwrap();
+    assert_eq!(at.2["current_command_a"].as_f64(), Some(0.0));
+    assert_eq!(at.2["state"], "faulted");
+    assert!(at.2["position_m"].as_f64().unwrap().abs() > 0.8e-3);
+    assert_eq!(samples.last().unwrap().2["tick"].as_u64(), Some(fault_tick));
+}
+
+#[test]
+fn help_lists_every_chirp_option() {
+    let o = run(&["chirp", "--help"]);
+    assert!(o.status.success());
+    let help = String::from_utf8_lossy(&o.stdout);
+    for flag in [
+        "--config", "--out", "--frf-csv", "--plot", "--realtime", "--seed", "--json",
+        "--operating-point-m", "--operating-point-pct", "--mass-asymmetry", "--amplitude-a",
+        "--f-start-hz", "--f-end-hz", "--duration-s", "--chirp-kind",
+    ] {
+        assert!(help.contains(flag), "--help lacks {flag}");
+    }
+}
