@@ -481,7 +481,8 @@ mod tests {
     #[test]
     fn invalid_values_name_the_key() {
         let (c, p) = shipped("sr4dof-ch5.toml");
-        let cases: Vec<(Box<dyn Fn(&mut BenchConfig)>, &str)> = vec![
+        type Mutation = Box<dyn Fn(&mut BenchConfig)>;
+        let cases: Vec<(Mutation, &str)> = vec![
             (Box::new(|c| c.plant.m1_kg = 0.0), "plant.m1_kg"),
             (Box::new(|c| c.plant.k5_n_per_m = -3.0), "plant.k5_n_per_m"),
             (Box::new(|c| c.plant.m2_kg = f64::NAN), "plant.m2_kg"),

@@ -303,7 +303,8 @@ pub fn find_resonances(frf: &Frf, spectra: &Spectra, min_prominence_db: f64) -> 
             let j = frf.frequency_hz.partition_point(|g| *g < x).min(n - 1);
             db[j]
         };
-        let drop = (db[i] - db_at(f * (1.0 - SHARPNESS_SPAN))).max(db[i] - db_at(f * (1.0 + SHARPNESS_SPAN)));
+        let drop = (db[i] - db_at(f * (1.0 - SHARPNESS_SPAN)))
+            .max(db[i] - db_at(f * (1.0 + SHARPNESS_SPAN)));
         if drop < SHARPNESS_DB {
             continue;
         }
@@ -495,7 +496,8 @@ mod tests {
     fn unwrap_and_grid() {
         let mut p = vec![170.0, -170.0, -10.0, 175.0, -175.0];
         unwrap_deg(&mut p);
-        assert_eq!(p, vec![170.0, 190.0, 350.0, 535.0, 545.0]);
+        // Each step takes the representative nearest the previous value.
+        assert_eq!(p, vec![170.0, 190.0, 350.0, 175.0, 185.0]);
         let g = log_grid(1.0, 1000.0, 10);
         assert_eq!(g.len(), 31);
         assert!((g[10] - 10.0).abs() < 1e-9 && (g[30] - 1000.0).abs() < 1e-9);

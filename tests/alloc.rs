@@ -118,7 +118,15 @@ fn run_counted(pacing: Pacing, seconds: f64) -> (u64, u64) {
             inner: ChirpJob::new(chirp),
             from_tick: 100,
         };
-        let report = rt::run(&mut stage, &mut job, &opts, info.clock, &mut producer, &stop, &progress);
+        let report = rt::run(
+            &mut stage,
+            &mut job,
+            &opts,
+            info.clock,
+            &mut producer,
+            &stop,
+            &progress,
+        );
         (report, stop_counting())
     });
     let (report, allocations) = rt_thread.join().unwrap();
@@ -133,8 +141,17 @@ fn run_counted(pacing: Pacing, seconds: f64) -> (u64, u64) {
 fn tick_allocates_nothing() {
     let (allocs, ticks) = run_counted(Pacing::Virtual, 4.0);
     assert!(ticks > 20_000);
-    assert_eq!(allocs, 0, "{allocs} allocations in {ticks} virtual-time ticks");
-    let (allocs, ticks) = run_counted(Pacing::RealTime { priority: 10, cpu: None }, 0.5);
+    assert_eq!(
+        allocs, 0,
+        "{allocs} allocations in {ticks} virtual-time ticks"
+    );
+    let (allocs, ticks) = run_counted(
+        Pacing::RealTime {
+            priority: 10,
+            cpu: None,
+        },
+        0.5,
+    );
     assert!(ticks > 2_000);
     assert_eq!(allocs, 0, "{allocs} allocations in {ticks} real-time ticks");
 }
@@ -145,7 +162,7 @@ fn counter_sees_an_allocating_job() {
     struct Leaky;
     impl Job for Leaky {
         fn tick(&mut self, tick: u64, _s: &Sample) -> JobOutput {
-            let v = vec![tick; 4];
+            let v: Vec<u64> = std::iter::repeat_n(tick, 4).collect();
             JobOutput {
                 command_a: 0.0,
                 excitation_a: v.len() as f64 * 0.0,
@@ -171,8 +188,19 @@ fn counter_sees_an_allocating_job() {
     };
     let (mut producer, _consumer) = rtrb::RingBuffer::<Record>::new(4096);
     let allocations = std::thread::spawn(move || {
-        let mut job = Counted { inner: Leaky, from_tick: 100 };
-        rt::run(&mut stage, &mut job, &opts, info.clock, &mut producer, &AtomicBool::new(false), &AtomicU64::new(0));
+        let mut job = Counted {
+            inner: Leaky,
+            from_tick: 100,
+        };
+        rt::run(
+            &mut stage,
+            &mut job,
+            &opts,
+            info.clock,
+            &mut producer,
+            &AtomicBool::new(false),
+            &AtomicU64::new(0),
+        );
         stop_counting()
     })
     .join()

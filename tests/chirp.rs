@@ -94,7 +94,11 @@ fn frf_matches_the_model_and_finds_the_cnmp_pair() {
             .iter()
             .map(|f| (f / f_ref - 1.0).abs())
             .fold(f64::INFINITY, f64::min);
-        assert!(best <= 0.005, "mode at {f_ref:.2} Hz: nearest found off by {:.3} %", best * 100.0);
+        assert!(
+            best <= 0.005,
+            "mode at {f_ref:.2} Hz: nearest found off by {:.3} %",
+            best * 100.0
+        );
     }
 
     // Fig 5-9: +10 %, 8 % shows the CMP-CNMP pattern, and so do the model's
@@ -102,11 +106,11 @@ fn frf_matches_the_model_and_finds_the_cnmp_pair() {
     assert_eq!(s["cmp_cnmp"], Value::Bool(true), "{s}");
     let pair = &s["closely_spaced_pair"];
     assert!((pair["net_phase_multiple_deg"].as_f64().unwrap() + 360.0).abs() < 1e-9);
-    let rhp_complex = reference["zeros_hz"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .any(|z| z[0].as_f64().unwrap() > 0.0 && z[1].as_f64().unwrap().abs() > 1.0 && z[0].as_f64().unwrap() < 1e4);
+    let rhp_complex = reference["zeros_hz"].as_array().unwrap().iter().any(|z| {
+        z[0].as_f64().unwrap() > 0.0
+            && z[1].as_f64().unwrap().abs() > 1.0
+            && z[0].as_f64().unwrap() < 1e4
+    });
     assert!(rhp_complex);
     assert_eq!(s["model"]["cmp_cnmp"], Value::Bool(true));
 }
@@ -129,8 +133,14 @@ fn negative_asymmetry_has_no_cnmp_zeros() {
     // "no", not a missing pair.
     let pair = &s["closely_spaced_pair"];
     let modes = floats(&reference["natural_frequencies_hz"]);
-    assert!((pair["lower_hz"].as_f64().unwrap() / modes[2] - 1.0).abs() < 0.005, "{pair}");
-    assert!((pair["upper_hz"].as_f64().unwrap() / modes[3] - 1.0).abs() < 0.005, "{pair}");
+    assert!(
+        (pair["lower_hz"].as_f64().unwrap() / modes[2] - 1.0).abs() < 0.005,
+        "{pair}"
+    );
+    assert!(
+        (pair["upper_hz"].as_f64().unwrap() / modes[3] - 1.0).abs() < 0.005,
+        "{pair}"
+    );
     assert!(pair["net_phase_multiple_deg"].as_f64().unwrap() > -360.0);
 }
 
@@ -148,7 +158,8 @@ fn recording_reads_back_with_every_topic() {
     assert_eq!(count("/sysid/frf"), 1);
     assert_eq!(count("/sysid/summary"), 1);
     // Samples: consecutive ticks, log time = tick × period in ns.
-    let samples: Vec<&(String, u64, Value)> = msgs.iter().filter(|m| m.0 == "/bench/sample").collect();
+    let samples: Vec<&(String, u64, Value)> =
+        msgs.iter().filter(|m| m.0 == "/bench/sample").collect();
     for (k, (_, log_time, v)) in samples.iter().enumerate() {
         assert_eq!(v["tick"].as_u64(), Some(k as u64));
         assert_eq!(*log_time, k as u64 * 200_000);
@@ -158,14 +169,23 @@ fn recording_reads_back_with_every_topic() {
     }
     // The config is in the metadata, and it parses back.
     let bytes = std::fs::read(&path).unwrap();
-    let summary = mcap::Summary::read(&bytes).unwrap().expect("summary section");
+    let summary = mcap::Summary::read(&bytes)
+        .unwrap()
+        .expect("summary section");
     let meta_names: Vec<String> = summary
         .metadata_indexes
         .iter()
         .map(|m| m.name.clone())
         .collect();
-    assert!(meta_names.contains(&"bench.config".to_string()), "{meta_names:?}");
-    let idx = summary.metadata_indexes.iter().find(|m| m.name == "bench.config").unwrap();
+    assert!(
+        meta_names.contains(&"bench.config".to_string()),
+        "{meta_names:?}"
+    );
+    let idx = summary
+        .metadata_indexes
+        .iter()
+        .find(|m| m.name == "bench.config")
+        .unwrap();
     let meta = mcap::read::metadata(&bytes, idx).unwrap();
     let toml = &meta.metadata["toml"];
     bench::config::BenchConfig::from_toml(toml, Path::new("recorded")).unwrap();
@@ -175,7 +195,12 @@ fn recording_reads_back_with_every_topic() {
         .filter(|m| m.0 == "/bench/event")
         .map(|m| m.2["kind"].as_str().unwrap().to_string())
         .collect();
-    for k in ["loop_started", "job_started", "job_finished", "loop_stopped"] {
+    for k in [
+        "loop_started",
+        "job_started",
+        "job_finished",
+        "loop_stopped",
+    ] {
         assert!(kinds.iter().any(|x| x == k), "{k} missing from {kinds:?}");
     }
 }

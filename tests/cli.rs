@@ -26,10 +26,22 @@ fn refused(extra: &[&str], config_text: Option<&str>, needle: &str) {
     args.extend_from_slice(extra);
     let o = run(&args);
     let err = String::from_utf8_lossy(&o.stderr);
-    assert_eq!(o.status.code(), Some(2), "{extra:?}: status {:?}, stderr: {err}", o.status);
-    assert!(err.contains(needle), "{extra:?}: stderr lacks {needle:?}: {err}");
+    assert_eq!(
+        o.status.code(),
+        Some(2),
+        "{extra:?}: status {:?}, stderr: {err}",
+        o.status
+    );
+    assert!(
+        err.contains(needle),
+        "{extra:?}: stderr lacks {needle:?}: {err}"
+    );
     assert!(o.stdout.is_empty(), "nothing on stdout on error");
-    assert!(files_in(&out_dir).is_empty(), "files left behind: {:?}", files_in(&out_dir));
+    assert!(
+        files_in(&out_dir).is_empty(),
+        "files left behind: {:?}",
+        files_in(&out_dir)
+    );
 }
 
 #[test]
@@ -82,7 +94,11 @@ fn amplitude_above_peak_current() {
 fn bad_arguments() {
     refused(&["--duration-s", "-3"], None, "--duration-s");
     refused(&["--seed", "abc"], None, "--seed");
-    refused(&["--operating-point-pct", "30"], None, "--operating-point-pct");
+    refused(
+        &["--operating-point-pct", "30"],
+        None,
+        "--operating-point-pct",
+    );
 }
 
 #[test]
@@ -112,7 +128,11 @@ fn wait_for_samples(part: &Path, deadline: Duration) -> (u64, Instant) {
                 return (last.tick, Instant::now());
             }
         }
-        assert!(start.elapsed() < deadline, "no samples in {} after {deadline:?}", part.display());
+        assert!(
+            start.elapsed() < deadline,
+            "no samples in {} after {deadline:?}",
+            part.display()
+        );
         std::thread::sleep(Duration::from_millis(20));
     }
 }
@@ -124,7 +144,16 @@ fn sigkill_in_realtime_loses_at_most_100_ms() {
     let dir = tmp();
     let out = path_in(dir.path(), "run.mcap");
     let mut child = bench()
-        .args(["chirp", "--realtime", "--duration-s", "30", "--f-start-hz", "5", "--out", &out])
+        .args([
+            "chirp",
+            "--realtime",
+            "--duration-s",
+            "30",
+            "--f-start-hz",
+            "5",
+            "--out",
+            &out,
+        ])
         .stdout(Stdio::null())
         .stderr(Stdio::null())
         .spawn()
@@ -135,7 +164,10 @@ fn sigkill_in_realtime_loses_at_most_100_ms() {
     let waited = t0.elapsed().as_secs_f64();
     child.kill().unwrap(); // SIGKILL
     child.wait().unwrap();
-    assert!(!dir.path().join("run.mcap").exists(), "a killed run must not look complete");
+    assert!(
+        !dir.path().join("run.mcap").exists(),
+        "a killed run must not look complete"
+    );
     let bytes = std::fs::read(&part).unwrap();
     let samples = bench::record::read_samples_tolerant(&bytes);
     // Completed chunks read back, in order, without gaps.
@@ -146,7 +178,10 @@ fn sigkill_in_realtime_loses_at_most_100_ms() {
     let produced_at_least = k0 as f64 + waited * 5000.0;
     let recovered = samples.len() as f64;
     let lost_s = (produced_at_least - recovered) / 5000.0;
-    eprintln!("recovered {recovered} samples; lost at most {:.0} ms", lost_s * 1e3);
+    eprintln!(
+        "recovered {recovered} samples; lost at most {:.0} ms",
+        lost_s * 1e3
+    );
     assert!(lost_s <= 0.15, "lost {:.0} ms of samples", lost_s * 1e3);
 }
 
@@ -158,7 +193,16 @@ fn sigint_and_sigterm_finish_the_recording() {
         let dir = tmp();
         let out = path_in(dir.path(), "run.mcap");
         let child = bench()
-            .args(["chirp", "--realtime", "--duration-s", "30", "--f-start-hz", "5", "--out", &out])
+            .args([
+                "chirp",
+                "--realtime",
+                "--duration-s",
+                "30",
+                "--f-start-hz",
+                "5",
+                "--out",
+                &out,
+            ])
             .stdout(Stdio::null())
             .stderr(Stdio::piped())
             .spawn()
@@ -167,7 +211,12 @@ fn sigint_and_sigterm_finish_the_recording() {
         // SAFETY: sending a signal to our own child.
         unsafe { libc::kill(child.id() as i32, sig) };
         let o = child.wait_with_output().unwrap();
-        assert_eq!(o.status.code(), Some(130), "signal {sig}: {}", String::from_utf8_lossy(&o.stderr));
+        assert_eq!(
+            o.status.code(),
+            Some(130),
+            "signal {sig}: {}",
+            String::from_utf8_lossy(&o.stderr)
+        );
         assert!(String::from_utf8_lossy(&o.stderr).contains("interrupted"));
         let path = dir.path().join("run.mcap");
         assert!(path.exists() && !dir.path().join("run.mcap.part").exists());
@@ -175,9 +224,17 @@ fn sigint_and_sigterm_finish_the_recording() {
         let events: Vec<(String, String)> = msgs
             .iter()
             .filter(|m| m.0 == "/bench/event")
-            .map(|m| (m.2["kind"].as_str().unwrap().into(), m.2["state"].as_str().unwrap().into()))
+            .map(|m| {
+                (
+                    m.2["kind"].as_str().unwrap().into(),
+                    m.2["state"].as_str().unwrap().into(),
+                )
+            })
             .collect();
-        let i = events.iter().position(|e| e.0 == "interrupted").expect("interrupted event");
+        let i = events
+            .iter()
+            .position(|e| e.0 == "interrupted")
+            .expect("interrupted event");
         assert!(events[i..].iter().any(|e| e.1 == "disabled"), "{events:?}");
         assert_eq!(events.last().unwrap().0, "loop_stopped");
     }
@@ -195,7 +252,12 @@ fn position_fault_stops_the_chirp() {
     let cfg = path_in(dir.path(), "bench.toml");
     std::fs::write(&cfg, text).unwrap();
     let o = run(&["chirp", "--config", &cfg, "--out", &out]);
-    assert_eq!(o.status.code(), Some(3), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_eq!(
+        o.status.code(),
+        Some(3),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
     assert!(String::from_utf8_lossy(&o.stderr).contains("position_limit"));
     let msgs = mcap_messages(&dir.path().join("run.mcap"));
     let fault = msgs
@@ -205,7 +267,10 @@ fn position_fault_stops_the_chirp() {
     assert_eq!(fault.2["fault"], "position_limit");
     let fault_tick = fault.2["tick"].as_u64().unwrap();
     let samples: Vec<_> = msgs.iter().filter(|m| m.0 == "/bench/sample").collect();
-    let at = samples.iter().find(|m| m.2["tick"].as_u64() == Some(fault_tick)).unwrap();
+    let at = samples
+        .iter()
+        .find(|m| m.2["tick"].as_u64() == Some(fault_tick))
+        .unwrap();
     assert_eq!(at.2["current_command_a"].as_f64(), Some(0.0));
     assert_eq!(at.2["state"], "faulted");
     assert!(at.2["position_m"].as_f64().unwrap().abs() > 0.8e-3);
@@ -218,9 +283,21 @@ fn help_lists_every_chirp_option() {
     assert!(o.status.success());
     let help = String::from_utf8_lossy(&o.stdout);
     for flag in [
-        "--config", "--out", "--frf-csv", "--plot", "--realtime", "--seed", "--json",
-        "--operating-point-m", "--operating-point-pct", "--mass-asymmetry", "--amplitude-a",
-        "--f-start-hz", "--f-end-hz", "--duration-s", "--chirp-kind",
+        "--config",
+        "--out",
+        "--frf-csv",
+        "--plot",
+        "--realtime",
+        "--seed",
+        "--json",
+        "--operating-point-m",
+        "--operating-point-pct",
+        "--mass-asymmetry",
+        "--amplitude-a",
+        "--f-start-hz",
+        "--f-end-hz",
+        "--duration-s",
+        "--chirp-kind",
     ] {
         assert!(help.contains(flag), "--help lacks {flag}");
     }

@@ -348,7 +348,7 @@ impl Sr4dof {
             .try_inverse()
             .ok_or_else(|| ParamError::new("plant", "mass matrix is singular"))?;
         // Symmetric standard form A = L⁻¹ K L⁻ᵀ; φ = L⁻ᵀ v is mass-normalised.
-        let sym = &l_inv * stiffness * l_inv.transpose();
+        let sym = l_inv * stiffness * l_inv.transpose();
         let sym = (sym + sym.transpose()) * 0.5;
         let eig = SymmetricEigen::new(sym);
         let mut order: Vec<usize> = (0..4).collect();
@@ -393,7 +393,7 @@ impl Sr4dof {
         for m in &mut modes {
             m.zeta = ra / (2.0 * m.omega_rad_s) + rb * m.omega_rad_s / 2.0;
         }
-        if modes.iter().any(|m| !(m.zeta >= 0.0)) {
+        if modes.iter().any(|m| m.zeta.is_nan() || m.zeta < 0.0) {
             return Err(ParamError::new(
                 "plant.damping",
                 "the Rayleigh fit gives negative modal damping: zeta_rigid and zeta_csm are too far apart",

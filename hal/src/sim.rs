@@ -447,7 +447,8 @@ impl Stage for SimStage {
         if p.quantization_m > 0.0 {
             y = (y / p.quantization_m).round() * p.quantization_m;
         }
-        let out_of_range = !(y.abs() <= p.range_m);
+        // NaN and a full-scale (saturated) reading count as out of range.
+        let out_of_range = y.is_nan() || y.abs() >= p.range_m;
         if out_of_range {
             y = p.range_m.copysign(y);
         }

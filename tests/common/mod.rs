@@ -42,20 +42,28 @@ pub fn json_stdout(out: &Output) -> Value {
 /// The scipy reference (`tests/data/sr4dof_reference.json`), one case.
 pub fn reference(case: &str) -> Value {
     let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/sr4dof_reference.json");
-    let all: Value = serde_json::from_str(&std::fs::read_to_string(p).expect("reference data")).expect("json");
+    let all: Value =
+        serde_json::from_str(&std::fs::read_to_string(p).expect("reference data")).expect("json");
     all[case].clone()
 }
 
 /// `Vec<f64>` from a JSON array.
 pub fn floats(v: &Value) -> Vec<f64> {
-    v.as_array().expect("array").iter().map(|x| x.as_f64().expect("number")).collect()
+    v.as_array()
+        .expect("array")
+        .iter()
+        .map(|x| x.as_f64().expect("number"))
+        .collect()
 }
 
 /// Rows of the FRF CSV: (frequency_hz, magnitude_m_per_a, phase_deg, coherence).
 pub fn read_frf_csv(path: &Path) -> Vec<[f64; 4]> {
     let text = std::fs::read_to_string(path).expect("FRF CSV");
     let mut lines = text.lines();
-    assert_eq!(lines.next(), Some("frequency_hz,magnitude_m_per_a,phase_deg,coherence"));
+    assert_eq!(
+        lines.next(),
+        Some("frequency_hz,magnitude_m_per_a,phase_deg,coherence")
+    );
     lines
         .map(|l| {
             let v: Vec<f64> = l.split(',').map(|x| x.parse().expect("number")).collect();
