@@ -1044,10 +1044,14 @@ mod tests {
             } else {
                 1e-6 * tick as f64
             },
-            excitation_a: if tick % 2 == 0 { f64::NAN } else { 0.05 },
+            excitation_a: if tick.is_multiple_of(2) {
+                f64::NAN
+            } else {
+                0.05
+            },
             setpoint_m: f64::NAN,
             state: SupervisorState::Running,
-            out_of_range: tick % 11 == 0,
+            out_of_range: tick.is_multiple_of(11),
         }
     }
 
