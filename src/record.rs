@@ -362,7 +362,7 @@ fn sample_schema() -> Value {
             "tick": {"type": "integer", "minimum": 0,
                 "description": "Tick index since the loop started, ticks (0-based)"},
             "t_s": {"type": ["number", "null"],
-                "description": "Loop time of the tick, s (tick × period in virtual time; time since the first deadline in real-time mode)"},
+                "description": "Loop time of the tick, s: tick × period, the nominal sample instant (device time for device-clocked backends)"},
             "current_command_a": {"type": ["number", "null"],
                 "description": "Current commanded to the amplifier at this tick after limits, A"},
             "position_m": {"type": ["number", "null"],

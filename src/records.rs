@@ -7,8 +7,9 @@
 pub struct SampleRecord {
     /// Tick index since the loop started (0-based).
     pub tick: u64,
-    /// Loop time of the tick, s (`tick × period` in virtual time; time since
-    /// the first deadline in real-time mode).
+    /// Loop time of the tick, s: `tick × period`, the tick's nominal sample
+    /// instant, in virtual and real-time mode alike (device time for
+    /// device-clocked backends).
     pub t_s: f64,
     /// Current commanded to the amplifier at this tick, A (after limits).
     pub current_command_a: f64,

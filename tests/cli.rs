@@ -137,13 +137,10 @@ fn wait_for_samples(part: &Path, deadline: Duration) -> (u64, Instant) {
     }
 }
 
-/// SPEC §8: a real-time run killed with SIGKILL leaves a `.part` file whose
-/// completed chunks read back, losing at most ~100 ms of samples.
-#[test]
-fn sigkill_in_realtime_loses_at_most_100_ms() {
-    let dir = tmp();
-    let out = path_in(dir.path(), "run.mcap");
-    let mut child = bench()
+/// Starts a 30 s real-time chirp writing `dir/run.mcap`, stderr piped.
+fn spawn_realtime_chirp(dir: &Path) -> std::process::Child {
+    let out = path_in(dir, "run.mcap");
+    bench()
         .args([
             "chirp",
             "--realtime",
@@ -155,9 +152,17 @@ fn sigkill_in_realtime_loses_at_most_100_ms() {
             &out,
         ])
         .stdout(Stdio::null())
-        .stderr(Stdio::null())
+        .stderr(Stdio::piped())
         .spawn()
-        .unwrap();
+        .unwrap()
+}
+
+/// SPEC §8: a real-time run killed with SIGKILL leaves a `.part` file whose
+/// completed chunks read back, losing at most ~100 ms of samples.
+#[test]
+fn sigkill_in_realtime_loses_at_most_100_ms() {
+    let dir = tmp();
+    let mut child = spawn_realtime_chirp(dir.path());
     let part = dir.path().join("run.mcap.part");
     let (k0, t0) = wait_for_samples(&part, Duration::from_secs(20));
     std::thread::sleep(Duration::from_millis(1500));
@@ -191,22 +196,7 @@ fn sigkill_in_realtime_loses_at_most_100_ms() {
 fn sigint_and_sigterm_finish_the_recording() {
     for sig in [libc::SIGINT, libc::SIGTERM] {
         let dir = tmp();
-        let out = path_in(dir.path(), "run.mcap");
-        let child = bench()
-            .args([
-                "chirp",
-                "--realtime",
-                "--duration-s",
-                "30",
-                "--f-start-hz",
-                "5",
-                "--out",
-                &out,
-            ])
-            .stdout(Stdio::null())
-            .stderr(Stdio::piped())
-            .spawn()
-            .unwrap();
+        let child = spawn_realtime_chirp(dir.path());
         wait_for_samples(&dir.path().join("run.mcap.part"), Duration::from_secs(20));
         // SAFETY: sending a signal to our own child.
         unsafe { libc::kill(child.id() as i32, sig) };
