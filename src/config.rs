@@ -6,9 +6,11 @@
 //! unknown keys), [`BenchConfig::validate`] checks physics and limits. Both
 //! report the dotted key and the reason.
 
+use crate::control::ControllerConfig;
 use bench_hal::model::{non_negative, positive, ParamError, Sr4dofParams};
 use bench_hal::sim::{ActuatorParams, ProbeParams, SimParams};
 use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 /// Default bench description, relative to the working directory.
@@ -73,6 +75,59 @@ pub struct BenchConfig {
     /// Simulator settings.
     #[serde(default)]
     pub sim: SimConfig,
+    /// Feedback controllers by name (`[controller.slow]`, `[controller.fast]`,
+    /// any `[controller.NAME]`).
+    #[serde(default)]
+    pub controller: BTreeMap<String, ControllerConfig>,
+    /// Closed-loop step defaults.
+    #[serde(default)]
+    pub step: StepConfig,
+}
+
+/// `[step]`: the closed-loop step experiment of `bench control`.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct StepConfig {
+    /// Step size, m.
+    #[serde(default = "default_step_m")]
+    pub step_m: f64,
+    /// Time at the start position before the step, s.
+    #[serde(default = "default_settle_s")]
+    pub settle_s: f64,
+    /// Total run time, s (settle + step + hold).
+    #[serde(default = "default_step_duration_s")]
+    pub duration_s: f64,
+    /// Raised-cosine ramp time of a smoothed step, s (0: a sharp step).
+    #[serde(default)]
+    pub smooth_s: f64,
+    /// Final window for the steady-state error statistics, s.
+    #[serde(default = "default_ss_window_s")]
+    pub steady_state_window_s: f64,
+}
+
+fn default_step_m() -> f64 {
+    1e-5
+}
+fn default_settle_s() -> f64 {
+    0.2
+}
+fn default_step_duration_s() -> f64 {
+    4.0
+}
+fn default_ss_window_s() -> f64 {
+    3.0
+}
+
+impl Default for StepConfig {
+    fn default() -> Self {
+        Self {
+            step_m: default_step_m(),
+            settle_s: default_settle_s(),
+            duration_s: default_step_duration_s(),
+            smooth_s: 0.0,
+            steady_state_window_s: default_ss_window_s(),
+        }
+    }
 }
 
 /// `[loop]`
@@ -124,10 +179,45 @@ pub struct SafetyConfig {
     /// Consecutive loop overruns that fault the supervisor (real-time mode).
     #[serde(default = "default_max_overruns")]
     pub max_consecutive_overruns: u32,
+    /// Consecutive samples that may be missing (sequence gap) or stale
+    /// (sequence not advancing) before the supervisor faults.
+    #[serde(default = "default_max_missed")]
+    pub max_missed_samples: u32,
+    /// Largest plausible change of the probe reading between two ticks, m;
+    /// a larger jump faults (a glitch or a lost target, not motion).
+    #[serde(default = "default_max_step")]
+    pub max_position_step_m: f64,
+    /// How long the peak current may flow from cold, s: the I²t budget is
+    /// `(I_peak² − I_cont²) · this`; the accumulator integrates
+    /// `i² − I_cont²` (never below 0) and faults when it exceeds the budget.
+    #[serde(default = "default_i2t_s")]
+    pub i2t_peak_duration_s: f64,
+    /// Smallest phase margin the loop check accepts, degrees.
+    #[serde(default = "default_min_pm")]
+    pub min_phase_margin_deg: f64,
+    /// Largest peak of |S| the loop check accepts (2.0 = 6 dB, modulus
+    /// margin 0.5).
+    #[serde(default = "default_max_s")]
+    pub max_sensitivity_peak: f64,
 }
 
 fn default_max_overruns() -> u32 {
     5
+}
+fn default_max_missed() -> u32 {
+    3
+}
+fn default_max_step() -> f64 {
+    50e-6
+}
+fn default_i2t_s() -> f64 {
+    1.0
+}
+fn default_min_pm() -> f64 {
+    30.0
+}
+fn default_max_s() -> f64 {
+    2.5
 }
 
 /// Sweep law of the chirp.

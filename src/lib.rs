@@ -7,7 +7,9 @@
 
 pub mod chirp;
 pub mod config;
+pub mod control;
 pub mod excitation;
+pub mod loopcheck;
 pub mod plot;
 pub mod record;
 pub mod records;

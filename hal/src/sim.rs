@@ -179,6 +179,18 @@ impl ZohPlant {
     /// Builds `A`, `B` from the model and the amplifier and discretises them
     /// exactly (matrix exponential of the augmented matrix).
     pub fn new(model: &Sr4dof, actuator: &ActuatorParams, period_s: f64) -> Self {
+        Self::build(model, actuator, period_s, true)
+    }
+
+    /// The same plant with an ideal amplifier (coil current = demand, no
+    /// lag): the force enters directly as `k_f u`. The current state is kept
+    /// (so the matrices keep their size) but decoupled, with a stable
+    /// eigenvalue `e^{−T}`.
+    pub fn without_amplifier_lag(model: &Sr4dof, actuator: &ActuatorParams, period_s: f64) -> Self {
+        Self::build(model, actuator, period_s, false)
+    }
+
+    fn build(model: &Sr4dof, actuator: &ActuatorParams, period_s: f64, lag: bool) -> Self {
         let m_inv = model
             .mass()
             .try_inverse()
@@ -195,11 +207,19 @@ impl ZohPlant {
                 a[(4 + i, j)] = mk[(i, j)];
                 a[(4 + i, 4 + j)] = mc[(i, j)];
             }
-            a[(4 + i, 8)] = mq[i] * actuator.force_constant_n_per_a;
+            if lag {
+                a[(4 + i, 8)] = mq[i] * actuator.force_constant_n_per_a;
+            } else {
+                b[(4 + i, 0)] = mq[i] * actuator.force_constant_n_per_a;
+            }
             b[(4 + i, 1)] = mq[i];
         }
-        a[(8, 8)] = -wa;
-        b[(8, 0)] = wa;
+        if lag {
+            a[(8, 8)] = -wa;
+            b[(8, 0)] = wa;
+        } else {
+            a[(8, 8)] = -1.0;
+        }
 
         let n = STATES + 2;
         let mut aug = DMatrix::<f64>::zeros(n, n);

@@ -1,0 +1,307 @@
+//! The loop check run before the amplifier is enabled (SPEC §6).
+//!
+//! Open loop `L(e^{jωT}) = C_d(e^{jωT}) · P(e^{jωT}) · u`, where `C_d` is
+//! the discrete controller that will run (A per error unit), `P` the plant
+//! from current demand to x1 (m/A) and `u` the error unit per metre (10⁶
+//! for µm). With the model, `P` is the exact zero-order-hold plant the
+//! simulator runs, with the amplifier lag and without it; with a measured
+//! FRF (`bench chirp` CSV), `P` is the measurement on its grid.
+//!
+//! Figures (Skogestad & Postlethwaite, *Multivariable Feedback Control*,
+//! §2.4):
+//! - gain crossovers ω_c: |L| = 1 (all of them, ascending);
+//! - phase margin at each: `PM = 180° + ∠L(ω_c)` wrapped to (−180°, 180°];
+//!   the reported and checked PM is the one at the first crossover (the
+//!   bandwidth); a lightly damped resonance above it can lift |L| over 1
+//!   again, and those crossings are judged by stability and ‖S‖∞;
+//! - gain margin: `GM = −20 log10 |L|` where L crosses the negative real
+//!   axis with |L| < 1 (the smallest; none: infinite);
+//! - modulus margin: `‖S‖∞ = max |1/(1 + L)|` up to Nyquist;
+//! - closed-loop stability (model only): the eigenvalues of the discrete
+//!   closed loop (plant ⊕ controller state space, negative feedback), stable
+//!   when all lie inside the unit circle.
+
+use crate::control::DiscreteController;
+use bench_hal::sim::{ZohPlant, STATES};
+use nalgebra::{Complex, DMatrix};
+use serde::Serialize;
+use std::f64::consts::PI;
+
+/// Margins of one open loop.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Margins {
+    /// Gain crossover frequencies, rad/s, ascending.
+    pub crossovers_rad_s: Vec<f64>,
+    /// Phase margin at each crossover, degrees.
+    pub phase_margins_deg: Vec<f64>,
+    /// Phase margin at the first crossover (the bandwidth), degrees. The
+    /// further crossovers a lightly damped resonance peak makes are listed
+    /// with their phase but judged by the closed-loop poles, the gain margin
+    /// and the modulus margin instead.
+    pub phase_margin_deg: Option<f64>,
+    /// Gain margin, dB (`None`: no crossing of the negative real axis
+    /// with |L| < 1).
+    pub gain_margin_db: Option<f64>,
+    /// Where the gain margin is taken, rad/s.
+    pub gain_margin_at_rad_s: Option<f64>,
+    /// Peak of |S| = |1/(1 + L)|.
+    pub sensitivity_peak: f64,
+    /// Where the peak is, rad/s.
+    pub sensitivity_peak_at_rad_s: f64,
+}
+
+/// Wraps degrees to (−180, 180].
+fn wrap180(d: f64) -> f64 {
+    let w = (d + 180.0).rem_euclid(360.0) - 180.0;
+    if w <= -180.0 {
+        w + 360.0
+    } else {
+        w
+    }
+}
+
+/// Margins of `l(ω)` evaluated on `grid_rad_s` (ascending), refining each
+/// crossing by bisection when `refine` is true (a function defined between
+/// grid points) or by linear interpolation otherwise (measured data).
+pub fn margins(l: &dyn Fn(f64) -> Complex<f64>, grid_rad_s: &[f64], refine: bool) -> Margins {
+    let vals: Vec<Complex<f64>> = grid_rad_s.iter().map(|&w| l(w)).collect();
+    let bisect = |f: &dyn Fn(Complex<f64>) -> f64, mut a: f64, mut b: f64| {
+        let fa0 = f(l(a));
+        for _ in 0..60 {
+            let m = (a * b).sqrt();
+            if (f(l(m)) > 0.0) == (fa0 > 0.0) {
+                a = m;
+            } else {
+                b = m;
+            }
+        }
+        (a * b).sqrt()
+    };
+    let mut crossovers = Vec::new();
+    let mut pms = Vec::new();
+    let mut gm: Option<(f64, f64)> = None;
+    let (mut s_peak, mut s_at) = (0.0, grid_rad_s.first().copied().unwrap_or(0.0));
+    for i in 0..vals.len() {
+        let s = 1.0 / (vals[i] + 1.0).norm();
+        if s > s_peak {
+            s_peak = s;
+            s_at = grid_rad_s[i];
+        }
+        if i == 0 {
+            continue;
+        }
+        let (w0, w1) = (grid_rad_s[i - 1], grid_rad_s[i]);
+        let (l0, l1) = (vals[i - 1], vals[i]);
+        // Gain crossover.
+        let g0 = l0.norm().ln();
+        let g1 = l1.norm().ln();
+        if g0.is_finite() && g1.is_finite() && (g0 > 0.0) != (g1 > 0.0) {
+            let (w, lw) = if refine {
+                let w = bisect(&|v| v.norm().ln(), w0, w1);
+                (w, l(w))
+            } else {
+                let t = g0 / (g0 - g1);
+                let w = (w0.ln() + t * (w1.ln() - w0.ln())).exp();
+                (w, l0 + (l1 - l0) * t)
+            };
+            crossovers.push(w);
+            pms.push(wrap180(lw.arg().to_degrees() + 180.0));
+        }
+        // Phase crossover: Im L changes sign with Re L < 0.
+        if (l0.im > 0.0) != (l1.im > 0.0) && (l0.re < 0.0 || l1.re < 0.0) {
+            let (w, lw) = if refine {
+                let w = bisect(&|v| v.im, w0, w1);
+                (w, l(w))
+            } else {
+                let t = l0.im / (l0.im - l1.im);
+                let w = (w0.ln() + t * (w1.ln() - w0.ln())).exp();
+                (w, l0 + (l1 - l0) * t)
+            };
+            if lw.re < 0.0 && lw.norm() < 1.0 {
+                let g = -20.0 * lw.norm().log10();
+                if gm.is_none_or(|(best, _)| g < best) {
+                    gm = Some((g, w));
+                }
+            }
+        }
+    }
+    Margins {
+        phase_margin_deg: pms.first().copied(),
+        crossovers_rad_s: crossovers,
+        phase_margins_deg: pms,
+        gain_margin_db: gm.map(|g| g.0),
+        gain_margin_at_rad_s: gm.map(|g| g.1),
+        sensitivity_peak: s_peak,
+        sensitivity_peak_at_rad_s: s_at,
+    }
+}
+
+/// Log grid from 0.1 rad/s to just below Nyquist.
+pub fn model_grid(period_s: f64) -> Vec<f64> {
+    let top = 0.999 * PI / period_s;
+    let n = 20_000;
+    (0..=n)
+        .map(|i| 0.1 * (top / 0.1f64).powf(i as f64 / n as f64))
+        .collect()
+}
+
+/// Margins of controller × ZOH model plant.
+pub fn model_margins(plant: &ZohPlant, ctrl: &DiscreteController) -> Margins {
+    let t = plant.period_s;
+    let k = ctrl.error_per_metre();
+    let l = |w: f64| ctrl.response(w, t) * plant.frf(w / (2.0 * PI)) * k;
+    margins(&l, &model_grid(t), true)
+}
+
+/// Margins of controller × a measured FRF (`frequency_hz`, magnitude m/A,
+/// phase degrees).
+pub fn measured_margins(
+    ctrl: &DiscreteController,
+    period_s: f64,
+    frequency_hz: &[f64],
+    magnitude_m_per_a: &[f64],
+    phase_deg: &[f64],
+) -> Margins {
+    let k = ctrl.error_per_metre();
+    let grid: Vec<f64> = frequency_hz.iter().map(|f| 2.0 * PI * f).collect();
+    let vals: Vec<Complex<f64>> = grid
+        .iter()
+        .zip(magnitude_m_per_a.iter().zip(phase_deg))
+        .map(|(w, (m, p))| {
+            ctrl.response(*w, period_s) * Complex::from_polar(*m, p.to_radians()) * k
+        })
+        .collect();
+    let lookup = |w: f64| {
+        let i = grid.partition_point(|g| *g < w).min(grid.len() - 1);
+        vals[i]
+    };
+    margins(&lookup, &grid, false)
+}
+
+/// Eigenvalues of the discrete closed loop (ZOH plant, controller,
+/// negative feedback, zero reference), and whether all are inside the unit
+/// circle.
+pub fn closed_loop_poles(plant: &ZohPlant, ctrl: &DiscreteController) -> (Vec<Complex<f64>>, bool) {
+    let (ac, bc, cc, dc) = ctrl.state_space();
+    let k = ctrl.error_per_metre();
+    let np = STATES;
+    let nc = ac.nrows();
+    let mut a = DMatrix::<f64>::zeros(np + nc, np + nc);
+    // e = −k x1 (error unit), u = Cc xc + Dc e.
+    for i in 0..np {
+        for j in 0..np {
+            a[(i, j)] = plant.phi[(i, j)];
+        }
+        a[(i, 0)] += -plant.gamma[(i, 0)] * dc * k;
+        for j in 0..nc {
+            a[(i, np + j)] = plant.gamma[(i, 0)] * cc[(0, j)];
+        }
+    }
+    for i in 0..nc {
+        a[(np + i, 0)] = -bc[(i, 0)] * k;
+        for j in 0..nc {
+            a[(np + i, np + j)] = ac[(i, j)];
+        }
+    }
+    let poles: Vec<Complex<f64>> = a.complex_eigenvalues().iter().copied().collect();
+    let stable = poles.iter().all(|p| p.norm() < 1.0);
+    (poles, stable)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A loop with known margins: L(s) = 1/(s (s + 1)) has crossover
+    /// ω = 0.786 rad/s (ω⁴ + ω² = 1) and PM = 90° − atan(ω) = 51.8°.
+    #[test]
+    fn margins_of_a_textbook_loop() {
+        let l = |w: f64| {
+            let s = Complex::new(0.0, w);
+            Complex::new(1.0, 0.0) / (s * (s + 1.0))
+        };
+        let grid: Vec<f64> = (0..=4000)
+            .map(|i| 0.01 * 10f64.powf(i as f64 / 1000.0))
+            .collect();
+        let m = margins(&l, &grid, true);
+        let wc = ((5f64.sqrt() - 1.0) / 2.0).sqrt();
+        assert_eq!(m.crossovers_rad_s.len(), 1);
+        assert!((m.crossovers_rad_s[0] - wc).abs() < 1e-9);
+        let pm = 90.0 - wc.atan().to_degrees();
+        assert!((m.phase_margin_deg.unwrap() - pm).abs() < 1e-6);
+        assert!(m.gain_margin_db.is_none());
+        // |S| peaks where |1 + L| is smallest: check against a dense scan.
+        let dense = (0..200_000)
+            .map(|i| 0.01 * 10f64.powf(i as f64 / 50_000.0))
+            .map(|w| 1.0 / (l(w) + 1.0).norm())
+            .fold(0.0, f64::max);
+        assert!((m.sensitivity_peak / dense - 1.0).abs() < 1e-4);
+        // A delay adds a phase crossover: L = e^{−s}/(s(s+1)) · 0.5.
+        let l2 = |w: f64| l(w) * Complex::from_polar(0.5, -w);
+        let m2 = margins(&l2, &grid, true);
+        let gm = m2.gain_margin_db.unwrap();
+        // At the phase crossover ω: atan(ω) + ω = π/2 → ω ≈ 0.8603.
+        let w180 = m2.gain_margin_at_rad_s.unwrap();
+        assert!((w180.atan() + w180 - PI / 2.0).abs() < 1e-9);
+        let expect = -20.0 * (0.5 / (w180 * (1.0 + w180 * w180).sqrt())).log10();
+        assert!((gm - expect).abs() < 1e-6);
+    }
+}
+
+#[cfg(test)]
+mod thesis {
+    use super::*;
+    use crate::config::BenchConfig;
+    use bench_hal::sim::SimStage;
+
+    /// Eq. (6-6) and (6-7) on the Chapter 5 model reproduce Figs 6-8 and
+    /// 6-10: slow 18 rad/s / 70°, fast 287 rad/s / 42° (thesis); with the
+    /// amplifier lag excluded, within 18.7 ± 1 rad/s / 73 ± 3° and
+    /// 285 ± 5 rad/s / 42 ± 3°.
+    #[test]
+    fn chapter_6_margins() {
+        let p =
+            std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("bench-config/sr4dof-ch5.toml");
+        let cfg = BenchConfig::load(&p).unwrap();
+        let stage = SimStage::new(cfg.sim_params(1)).unwrap();
+        let t = cfg.loop_.period_ns() as f64 * 1e-9;
+        let check = |name: &str, wc: f64, wc_tol: f64, pm: f64| {
+            let c = DiscreteController::new(&cfg.controller[name], t, cfg.actuator.peak_current_a);
+            let ideal = ZohPlant::without_amplifier_lag(stage.model(), &cfg.actuator, t);
+            let m = model_margins(&ideal, &c);
+            let w = m.crossovers_rad_s[0];
+            let p = m.phase_margin_deg.unwrap();
+            eprintln!("{name}: ω_c = {w:.2} rad/s, PM = {p:.2}° (no amplifier lag)");
+            assert!((w - wc).abs() <= wc_tol, "{name}: crossover {w}");
+            assert!((p - pm).abs() <= 3.0, "{name}: phase margin {p}");
+            let real = ZohPlant::new(stage.model(), &cfg.actuator, t);
+            assert!(
+                closed_loop_poles(&real, &c).1,
+                "{name} unstable with the amplifier"
+            );
+            assert!(
+                closed_loop_poles(&ideal, &c).1,
+                "{name} unstable without the amplifier lag"
+            );
+        };
+        check("slow", 18.7, 1.0, 73.0);
+        check("fast", 285.0, 5.0, 42.0);
+    }
+
+    /// The fast controller with 10× gain is unstable on the model.
+    #[test]
+    fn ten_times_the_fast_gain_is_unstable() {
+        let p =
+            std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("bench-config/sr4dof-ch5.toml");
+        let cfg = BenchConfig::load(&p).unwrap();
+        let stage = SimStage::new(cfg.sim_params(1)).unwrap();
+        let t = 2e-4;
+        let mut fast = cfg.controller["fast"].clone();
+        fast.gain *= 10.0;
+        let c = DiscreteController::new(&fast, t, 9.98);
+        let plant = ZohPlant::new(stage.model(), &cfg.actuator, t);
+        let (poles, stable) = closed_loop_poles(&plant, &c);
+        assert!(!stable);
+        assert!(poles.iter().any(|p| p.norm() > 1.0));
+    }
+}
