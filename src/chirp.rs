@@ -13,7 +13,6 @@ use crate::plot::{write_bode_png, BodePlot, BodeSeries};
 use crate::record::{spawn_writer, Recorder, DEFAULT_CHUNK_INTERVAL};
 use crate::records::Record;
 use crate::rt::{self, Job, JobOutput, LoopOptions, LoopReport, Pacing, StopReason};
-use crate::supervisor::SupervisorConfig;
 use crate::sysid::{closely_spaced_pair, find_resonances, Frf, PairVerdict, Resonance, Spectra};
 use bench_hal::sim::{SimStage, ZohPlant};
 use bench_hal::{Sample, Stage};
@@ -382,11 +381,7 @@ pub fn run_chirp(opts: &ChirpOptions, stop: Arc<AtomicBool>) -> Result<ChirpSumm
             Pacing::Virtual
         },
         timing_interval_ticks: ((cfg.loop_.timing_interval_s / period_s).round() as u64).max(1),
-        safety: SupervisorConfig {
-            position_limit_m: cfg.safety.position_limit_m,
-            peak_current_a: info.peak_current_a,
-            max_consecutive_overruns: cfg.safety.max_consecutive_overruns,
-        },
+        safety: cfg.supervisor(&info),
         max_ticks: total_ticks,
     };
     let progress = Arc::new(AtomicU64::new(0));

@@ -398,6 +398,28 @@ impl BenchConfig {
                 ),
             ));
         }
+        positive(
+            "safety.max_position_step_m",
+            self.safety.max_position_step_m,
+        )?;
+        positive(
+            "safety.i2t_peak_duration_s",
+            self.safety.i2t_peak_duration_s,
+        )?;
+        positive(
+            "safety.min_phase_margin_deg",
+            self.safety.min_phase_margin_deg,
+        )?;
+        positive(
+            "safety.max_sensitivity_peak",
+            self.safety.max_sensitivity_peak,
+        )?;
+        if self.safety.max_sensitivity_peak < 1.0 {
+            return Err(ParamError::new(
+                "safety.max_sensitivity_peak",
+                "must be >= 1 (no loop has a sensitivity peak below 1)",
+            ));
+        }
         if self.safety.max_consecutive_overruns == 0 {
             return Err(ParamError::new(
                 "safety.max_consecutive_overruns",
@@ -517,6 +539,21 @@ impl BenchConfig {
             probe: self.probe,
             mechanical_stop_m: self.stage.mechanical_stop_m,
             seed,
+        }
+    }
+
+    /// The supervisor's limits for a configured backend (`info`) at its
+    /// period.
+    pub fn supervisor(&self, info: &bench_hal::DeviceInfo) -> crate::supervisor::SupervisorConfig {
+        crate::supervisor::SupervisorConfig {
+            position_limit_m: self.safety.position_limit_m,
+            peak_current_a: info.peak_current_a,
+            max_consecutive_overruns: self.safety.max_consecutive_overruns,
+            max_missed_samples: self.safety.max_missed_samples,
+            max_position_step_m: self.safety.max_position_step_m,
+            continuous_current_a: info.continuous_current_a,
+            i2t_peak_duration_s: self.safety.i2t_peak_duration_s,
+            period_s: info.period_ns as f64 * 1e-9,
         }
     }
 

@@ -329,9 +329,13 @@ fn fault_names() -> Vec<Value> {
         CommandNotFinite,
         Overruns,
         Hal,
+        StaleSample,
+        PositionJump,
+        I2t,
     ];
     let _ = |f: FaultKind| match f {
-        PositionLimit | ProbeOutOfRange | ProbeNotFinite | CommandNotFinite | Overruns | Hal => (),
+        PositionLimit | ProbeOutOfRange | ProbeNotFinite | CommandNotFinite | Overruns | Hal
+        | StaleSample | PositionJump | I2t => (),
     };
     let mut v: Vec<Value> = all.iter().map(|f| Value::from(f.as_str())).collect();
     v.push(Value::Null);

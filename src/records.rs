@@ -127,6 +127,13 @@ pub enum FaultKind {
     Overruns,
     /// The HAL returned an error on read or write.
     Hal,
+    /// Too many consecutive samples missing (sequence gap) or stale
+    /// (sequence not advancing).
+    StaleSample,
+    /// The probe reading jumped further in one tick than the stage can move.
+    PositionJump,
+    /// The I²t budget above the continuous current rating is spent.
+    I2t,
 }
 
 impl FaultKind {
@@ -139,6 +146,9 @@ impl FaultKind {
             Self::CommandNotFinite => "command_not_finite",
             Self::Overruns => "overruns",
             Self::Hal => "hal",
+            Self::StaleSample => "stale_sample",
+            Self::PositionJump => "position_jump",
+            Self::I2t => "i2t",
         }
     }
 }

@@ -4,10 +4,19 @@
 //! command is 0 A from the faulting tick on and the loop disables the
 //! amplifier in the same tick; only [`Supervisor::reset`] leaves `faulted`.
 //!
-//! Checks, in order, on each sample: probe value finite, probe in range,
-//! |position| within the software limit; on each command: finite; on each
-//! tick in real-time mode: fewer than M consecutive overruns. Commands are
-//! clipped to the amplifier's peak current.
+//! Checks, in order, on each sample: sequence advancing (at most
+//! `max_missed_samples` consecutive samples missing or stale), probe value
+//! finite, probe in range, |position| within the software limit, change
+//! since the last sample plausible (`max_position_step_m` per tick); on each
+//! command: finite, I²t budget not spent; on each tick in real-time mode:
+//! fewer than M consecutive overruns. Commands are clipped to the
+//! amplifier's peak current.
+//!
+//! I²t (thermal protection of the coil): the accumulator integrates
+//! `i² − I_cont²` over time, never going below zero, and faults when it
+//! exceeds the budget `(I_peak² − I_cont²) · t_peak`: from cold, the peak
+//! current may flow for `t_peak`, and any current at or below the continuous
+//! rating may flow for ever.
 
 use crate::records::{FaultKind, SupervisorState};
 use bench_hal::Sample;
@@ -21,6 +30,16 @@ pub struct SupervisorConfig {
     pub peak_current_a: f64,
     /// Consecutive overruns that fault (0 disables the check, virtual time).
     pub max_consecutive_overruns: u32,
+    /// Consecutive missing or stale samples tolerated.
+    pub max_missed_samples: u32,
+    /// Largest plausible change of the reading per tick, m.
+    pub max_position_step_m: f64,
+    /// Continuous current rating, A.
+    pub continuous_current_a: f64,
+    /// How long the peak current may flow from cold, s.
+    pub i2t_peak_duration_s: f64,
+    /// Loop period, s (I²t integration step).
+    pub period_s: f64,
 }
 
 /// The supervisor. All methods are real-time safe.
@@ -30,17 +49,34 @@ pub struct Supervisor {
     state: SupervisorState,
     fault: Option<(FaultKind, f64)>,
     consecutive_overruns: u32,
+    last_seq: Option<u64>,
+    last_position_m: f64,
+    missed: u64,
+    i2t_a2s: f64,
+    i2t_budget_a2s: f64,
 }
 
 impl Supervisor {
     /// A supervisor in the `disabled` state.
     pub fn new(cfg: SupervisorConfig) -> Self {
+        let ic2 = cfg.continuous_current_a * cfg.continuous_current_a;
         Self {
             cfg,
             state: SupervisorState::Disabled,
             fault: None,
             consecutive_overruns: 0,
+            last_seq: None,
+            last_position_m: f64::NAN,
+            missed: 0,
+            i2t_a2s: 0.0,
+            i2t_budget_a2s: (cfg.peak_current_a * cfg.peak_current_a - ic2).max(0.0)
+                * cfg.i2t_peak_duration_s,
         }
+    }
+
+    /// The I²t accumulator, A²·s (0 when cold).
+    pub fn i2t_a2s(&self) -> f64 {
+        self.i2t_a2s
     }
 
     /// Current state.
@@ -90,21 +126,58 @@ impl Supervisor {
         self.state = SupervisorState::Disabled;
         self.fault = None;
         self.consecutive_overruns = 0;
+        self.last_seq = None;
+        self.last_position_m = f64::NAN;
+        self.missed = 0;
     }
 
     /// Checks a sample; trips and returns the fault if it is bad.
     pub fn check_sample(&mut self, s: &Sample) -> Option<FaultKind> {
         let x = s.position_m;
-        let fault = if !x.is_finite() {
+        // Sequence: a gap counts the samples missed, a repeat counts stale.
+        let mut ticks_since = 1u64;
+        let stale = match self.last_seq {
+            None => false,
+            Some(last) if s.seq == last.wrapping_add(1) => {
+                self.missed = 0;
+                false
+            }
+            Some(last) if s.seq > last => {
+                self.missed += s.seq - last - 1;
+                ticks_since = s.seq - last;
+                false
+            }
+            Some(_) => {
+                self.missed += 1;
+                true
+            }
+        };
+        if !stale {
+            self.last_seq = Some(s.seq);
+        }
+        let jump = (x - self.last_position_m).abs();
+        let fault = if self.missed > u64::from(self.cfg.max_missed_samples) {
+            Some(FaultKind::StaleSample)
+        } else if !x.is_finite() {
             Some(FaultKind::ProbeNotFinite)
         } else if s.flags.out_of_range {
             Some(FaultKind::ProbeOutOfRange)
         } else if x.abs() > self.cfg.position_limit_m {
             Some(FaultKind::PositionLimit)
+        } else if jump > self.cfg.max_position_step_m * ticks_since as f64 {
+            Some(FaultKind::PositionJump)
         } else {
             None
         };
-        fault.filter(|k| self.trip(*k, x))
+        if !stale && x.is_finite() {
+            self.last_position_m = x;
+        }
+        let value = if fault == Some(FaultKind::StaleSample) {
+            self.missed as f64
+        } else {
+            x
+        };
+        fault.filter(|k| self.trip(*k, value))
     }
 
     /// Records whether this tick overran; trips after M in a row.
@@ -136,7 +209,13 @@ impl Supervisor {
             return (0.0, None);
         }
         let p = self.cfg.peak_current_a;
-        (current_a.clamp(-p, p), None)
+        let i = current_a.clamp(-p, p);
+        let ic = self.cfg.continuous_current_a;
+        self.i2t_a2s = (self.i2t_a2s + (i * i - ic * ic) * self.cfg.period_s).max(0.0);
+        if self.i2t_a2s > self.i2t_budget_a2s && self.trip(FaultKind::I2t, self.i2t_a2s) {
+            return (0.0, Some(FaultKind::I2t));
+        }
+        (i, None)
     }
 }
 
@@ -145,20 +224,33 @@ mod tests {
     use super::*;
     use bench_hal::SampleFlags;
 
-    fn sup() -> Supervisor {
-        let mut s = Supervisor::new(SupervisorConfig {
+    fn config() -> SupervisorConfig {
+        SupervisorConfig {
             position_limit_m: 0.8e-3,
             peak_current_a: 9.98,
             max_consecutive_overruns: 3,
-        });
+            max_missed_samples: 3,
+            max_position_step_m: 50e-6,
+            continuous_current_a: 2.34,
+            i2t_peak_duration_s: 1.0,
+            period_s: 2e-4,
+        }
+    }
+
+    fn sup() -> Supervisor {
+        let mut s = Supervisor::new(config());
         s.enabled();
         s.running();
         s
     }
 
     fn sample(x: f64, oor: bool) -> Sample {
+        seq_sample(0, x, oor)
+    }
+
+    fn seq_sample(seq: u64, x: f64, oor: bool) -> Sample {
         Sample {
-            seq: 0,
+            seq,
             device_time_ns: 0,
             position_m: x,
             measured_current_a: f64::NAN,
@@ -203,6 +295,63 @@ mod tests {
             (0.0, Some(FaultKind::CommandNotFinite))
         );
         assert_eq!(s.state(), SupervisorState::Faulted);
+    }
+
+    #[test]
+    fn missing_and_stale_samples() {
+        let mut s = sup();
+        for k in 0..10 {
+            assert_eq!(s.check_sample(&seq_sample(k, 0.0, false)), None);
+        }
+        // A gap of 3 is tolerated (max 3), then recovery resets the count.
+        assert_eq!(s.check_sample(&seq_sample(13, 0.0, false)), None);
+        assert_eq!(s.check_sample(&seq_sample(14, 0.0, false)), None);
+        // The same sequence number four times: stale.
+        for _ in 0..3 {
+            assert_eq!(s.check_sample(&seq_sample(14, 0.0, false)), None);
+        }
+        assert_eq!(
+            s.check_sample(&seq_sample(14, 0.0, false)),
+            Some(FaultKind::StaleSample)
+        );
+        // A gap of 4 at once faults.
+        let mut s = sup();
+        s.check_sample(&seq_sample(0, 0.0, false));
+        assert_eq!(
+            s.check_sample(&seq_sample(5, 0.0, false)),
+            Some(FaultKind::StaleSample)
+        );
+    }
+
+    #[test]
+    fn position_jump() {
+        let mut s = sup();
+        assert_eq!(s.check_sample(&seq_sample(0, 0.0, false)), None);
+        assert_eq!(s.check_sample(&seq_sample(1, 40e-6, false)), None);
+        assert_eq!(
+            s.check_sample(&seq_sample(2, 100e-6, false)),
+            Some(FaultKind::PositionJump)
+        );
+    }
+
+    /// I²t: the peak current is allowed for 1 s from cold, the continuous
+    /// current for ever (analytic budget (9.98² − 2.34²) A² · 1 s).
+    #[test]
+    fn i2t_budget() {
+        let mut s = sup();
+        for _ in 0..100_000 {
+            assert_eq!(s.command(2.34).1, None);
+        }
+        assert_eq!(s.i2t_a2s(), 0.0);
+        let mut ticks = 0;
+        while s.command(9.98).1.is_none() {
+            ticks += 1;
+            assert!(ticks < 10_000);
+        }
+        // 1 s at 5 kHz.
+        assert!((4999..=5001).contains(&ticks), "{ticks}");
+        assert_eq!(s.state(), SupervisorState::Faulted);
+        assert_eq!(s.command(1.0).0, 0.0);
     }
 
     #[test]

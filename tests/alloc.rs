@@ -8,7 +8,6 @@ use bench::config::BenchConfig;
 use bench::excitation::Chirp;
 use bench::records::Record;
 use bench::rt::{self, Job, JobOutput, LoopOptions, Pacing, StopReason};
-use bench::supervisor::SupervisorConfig;
 use bench_hal::sim::SimStage;
 use bench_hal::{Sample, Stage};
 use std::alloc::{GlobalAlloc, Layout, System};
@@ -88,10 +87,9 @@ fn run_counted(pacing: Pacing, seconds: f64) -> (u64, u64) {
         period_ns: info.period_ns,
         pacing,
         timing_interval_ticks: 500,
-        safety: SupervisorConfig {
-            position_limit_m: cfg.safety.position_limit_m,
-            peak_current_a: info.peak_current_a,
+        safety: bench::supervisor::SupervisorConfig {
             max_consecutive_overruns: 1000,
+            ..cfg.supervisor(&info)
         },
         max_ticks: chirp.total_ticks(),
     };
@@ -179,11 +177,7 @@ fn counter_sees_an_allocating_job() {
         period_ns: info.period_ns,
         pacing: Pacing::Virtual,
         timing_interval_ticks: 50,
-        safety: SupervisorConfig {
-            position_limit_m: 0.8e-3,
-            peak_current_a: 9.98,
-            max_consecutive_overruns: 5,
-        },
+        safety: cfg.supervisor(&info),
         max_ticks: 1_000,
     };
     let (mut producer, _consumer) = rtrb::RingBuffer::<Record>::new(4096);
