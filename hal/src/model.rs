@@ -96,6 +96,21 @@ pub struct Sr4dofParams {
     pub parallelogram_stiffness_n_per_m: Option<f64>,
     /// Damping targets.
     pub damping: Damping,
+    /// Optional force disturbance (`[plant.disturbance]`), simulator only.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub disturbance: Option<Disturbance>,
+}
+
+/// Band-limited random force disturbance acting where the actuator acts
+/// (an input disturbance: floor vibration, air, cable forces).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Disturbance {
+    /// RMS force, N.
+    pub rms_n: f64,
+    /// Pass band `[low, high]`, Hz: white Gaussian noise through a
+    /// second-order Butterworth high-pass at `low` and low-pass at `high`.
+    pub band_hz: [f64; 2],
 }
 
 /// A parameter that cannot describe a physical bench.
@@ -199,6 +214,20 @@ impl Sr4dofParams {
                     self.mass_asymmetry
                 ),
             ));
+        }
+        if let Some(d) = &self.disturbance {
+            non_negative(&k("disturbance.rms_n"), d.rms_n)?;
+            positive(&k("disturbance.band_hz[0]"), d.band_hz[0])?;
+            positive(&k("disturbance.band_hz[1]"), d.band_hz[1])?;
+            if d.band_hz[0] >= d.band_hz[1] {
+                return Err(ParamError::new(
+                    k("disturbance.band_hz"),
+                    format!(
+                        "low edge {} Hz must be below the high edge {} Hz",
+                        d.band_hz[0], d.band_hz[1]
+                    ),
+                ));
+            }
         }
         non_negative(&k("damping.zeta_rigid"), self.damping.zeta_rigid)?;
         non_negative(&k("damping.zeta_csm"), self.damping.zeta_csm)?;

@@ -286,12 +286,112 @@ impl ZohPlant {
     }
 }
 
-/// Fault injection hooks of the simulator (used by tests and `bench`'s
-/// fault-injection options).
+/// A fault the simulated device can be told to produce (tests and
+/// `bench control --inject-fault`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum FaultInjection {
+    /// The probe reads NaN from then on.
+    Nan,
+    /// The device repeats its last sample (same sequence number and value)
+    /// from then on.
+    Frozen,
+    /// The device drops this many samples once (a sequence gap; the plant
+    /// keeps moving).
+    Drop(u64),
+    /// The reading jumps by this offset, m, from then on.
+    Jump(f64),
+    /// The probe reports out of range from then on.
+    OutOfRange,
+}
+
+/// A fault scheduled at a device time.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ScheduledFault {
+    /// Device time at which it starts, s.
+    pub at_s: f64,
+    /// What happens.
+    pub kind: FaultInjection,
+}
+
+/// Second-order section (RBJ cookbook, bilinear) for the disturbance
+/// shaping filter, direct form I.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
-pub struct Injection {
-    /// Added to `x1` as read by the probe from now on, m.
-    pub position_offset_m: f64,
+struct Biquad {
+    b: [f64; 3],
+    a: [f64; 2],
+    x: [f64; 2],
+    y: [f64; 2],
+}
+
+impl Biquad {
+    /// Butterworth (Q = 1/√2) low-pass (`high_pass = false`) or high-pass
+    /// at `f_hz` for sample rate `fs_hz`.
+    fn butterworth(f_hz: f64, fs_hz: f64, high_pass: bool) -> Self {
+        let w0 = 2.0 * PI * (f_hz / fs_hz).min(0.49);
+        let alpha = w0.sin() / (2.0 * std::f64::consts::FRAC_1_SQRT_2);
+        let c = w0.cos();
+        let a0 = 1.0 + alpha;
+        let b = if high_pass {
+            [(1.0 + c) / 2.0, -(1.0 + c), (1.0 + c) / 2.0]
+        } else {
+            [(1.0 - c) / 2.0, 1.0 - c, (1.0 - c) / 2.0]
+        };
+        Self {
+            b: [b[0] / a0, b[1] / a0, b[2] / a0],
+            a: [-2.0 * c / a0, (1.0 - alpha) / a0],
+            ..Default::default()
+        }
+    }
+
+    #[inline]
+    fn step(&mut self, x: f64) -> f64 {
+        let y = self.b[0] * x + self.b[1] * self.x[0] + self.b[2] * self.x[1]
+            - self.a[0] * self.y[0]
+            - self.a[1] * self.y[1];
+        self.x = [x, self.x[0]];
+        self.y = [y, self.y[0]];
+        y
+    }
+}
+
+/// Band-limited Gaussian force generator with its own random stream.
+#[derive(Debug, Clone)]
+struct DisturbanceSource {
+    hp: Biquad,
+    lp: Biquad,
+    scale: f64,
+    rng: ChaCha8Rng,
+}
+
+impl DisturbanceSource {
+    fn new(d: &crate::model::Disturbance, fs_hz: f64, seed: u64) -> Self {
+        let hp = Biquad::butterworth(d.band_hz[0], fs_hz, true);
+        let lp = Biquad::butterworth(d.band_hz[1], fs_hz, false);
+        // Noise gain of the shaping filter: energy of its impulse response.
+        let (mut h, mut l) = (hp, lp);
+        let mut energy = 0.0;
+        let n = (50.0 * fs_hz / d.band_hz[0]).min(5e7) as usize;
+        for k in 0..n.max(1000) {
+            let v = l.step(h.step(if k == 0 { 1.0 } else { 0.0 }));
+            energy += v * v;
+        }
+        Self {
+            hp,
+            lp,
+            scale: if energy > 0.0 {
+                d.rms_n / energy.sqrt()
+            } else {
+                0.0
+            },
+            rng: ChaCha8Rng::seed_from_u64(seed ^ 0xD157_0EBA_5CE0_F00D),
+        }
+    }
+
+    #[inline]
+    fn next_n(&mut self) -> f64 {
+        let w: f64 = StandardNormal.sample(&mut self.rng);
+        self.scale * self.lp.step(self.hp.step(w))
+    }
 }
 
 /// The simulated stage backend.
@@ -309,7 +409,10 @@ pub struct SimStage {
     disturbance_n: f64,
     first_read: bool,
     at_stop: bool,
-    injection: Injection,
+    fault: Option<ScheduledFault>,
+    drop_done: bool,
+    last_sample: Option<Sample>,
+    disturbance: Option<DisturbanceSource>,
 }
 
 impl SimStage {
@@ -336,7 +439,10 @@ impl SimStage {
             disturbance_n: 0.0,
             first_read: true,
             at_stop: false,
-            injection: Injection::default(),
+            fault: None,
+            drop_done: false,
+            last_sample: None,
+            disturbance: None,
         })
     }
 
@@ -370,15 +476,22 @@ impl SimStage {
         self.enabled
     }
 
-    /// Sets the input force disturbance held over the coming period, N.
-    /// Real-time safe.
+    /// Sets the input force disturbance held over the coming period, N
+    /// (added to the configured band-limited disturbance). Real-time safe.
     pub fn set_disturbance_n(&mut self, force_n: f64) {
         self.disturbance_n = force_n;
     }
 
-    /// Fault injection state (see [`Injection`]).
-    pub fn injection_mut(&mut self) -> &mut Injection {
-        &mut self.injection
+    /// Schedules a fault (replaces any earlier one).
+    pub fn inject(&mut self, fault: ScheduledFault) {
+        self.fault = Some(fault);
+        self.drop_done = false;
+    }
+
+    fn active_fault(&self) -> Option<FaultInjection> {
+        let f = self.fault?;
+        let t = self.seq as f64 * self.period_ns as f64 * 1e-9;
+        (t >= f.at_s).then_some(f.kind)
     }
 
     fn advance(&mut self) {
@@ -386,7 +499,8 @@ impl SimStage {
             return;
         };
         let demand = if self.enabled { self.demand_a } else { 0.0 };
-        plant.step(&mut self.x, demand, self.disturbance_n);
+        let d = self.disturbance_n + self.disturbance.as_mut().map_or(0.0, |s| s.next_n());
+        plant.step(&mut self.x, demand, d);
         if !self.enabled {
             // A disabled amplifier opens the coil circuit: no current flows.
             self.x[8] = 0.0;
@@ -426,6 +540,12 @@ impl Stage for SimStage {
             period_ns as f64 * 1e-9,
         ));
         self.period_ns = period_ns;
+        self.disturbance = self
+            .params
+            .plant
+            .disturbance
+            .filter(|d| d.rms_n > 0.0)
+            .map(|d| DisturbanceSource::new(&d, 1e9 / period_ns as f64, self.params.seed));
         self.seq = 0;
         self.first_read = true;
         self.enabled = false;
@@ -461,18 +581,37 @@ impl Stage for SimStage {
             self.advance();
             self.seq += 1;
         }
+        let fault = self.active_fault();
+        if let (Some(FaultInjection::Frozen), Some(last)) = (fault, self.last_sample) {
+            return Ok(last);
+        }
+        if let (Some(FaultInjection::Drop(n)), false) = (fault, self.drop_done) {
+            self.drop_done = true;
+            for _ in 0..n {
+                self.advance();
+                self.seq += 1;
+            }
+        }
         let p = &self.params.probe;
         let noise: f64 = StandardNormal.sample(&mut self.rng);
-        let mut y = self.x[0] + self.injection.position_offset_m + p.noise_rms_m * noise;
+        let offset = match fault {
+            Some(FaultInjection::Jump(dx)) => dx,
+            _ => 0.0,
+        };
+        let mut y = self.x[0] + offset + p.noise_rms_m * noise;
         if p.quantization_m > 0.0 {
             y = (y / p.quantization_m).round() * p.quantization_m;
         }
-        // NaN and a full-scale (saturated) reading count as out of range.
-        let out_of_range = y.is_nan() || y.abs() >= p.range_m;
+        // A full-scale (saturated) reading counts as out of range.
+        let mut out_of_range = y.abs() >= p.range_m || fault == Some(FaultInjection::OutOfRange);
         if out_of_range {
             y = p.range_m.copysign(y);
         }
-        Ok(Sample {
+        if fault == Some(FaultInjection::Nan) {
+            y = f64::NAN;
+            out_of_range = false;
+        }
+        let sample = Sample {
             seq: self.seq,
             device_time_ns: self.seq * self.period_ns,
             position_m: y,
@@ -482,7 +621,9 @@ impl Stage for SimStage {
                 amplifier_enabled: self.enabled,
                 amplifier_fault: false,
             },
-        })
+        };
+        self.last_sample = Some(sample);
+        Ok(sample)
     }
 
     fn write_command(&mut self, command: Command) -> Result<(), SimError> {
@@ -507,5 +648,34 @@ impl Stage for SimStage {
         self.demand_a = 0.0;
         self.x[8] = 0.0;
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::model::Disturbance;
+
+    /// The shaped disturbance has the configured RMS, zero mean, and its
+    /// power sits in the band (a 2nd-order Butterworth band-pass: the
+    /// variance of first differences is bounded by the high edge).
+    #[test]
+    fn disturbance_rms_and_band() {
+        let d = Disturbance {
+            rms_n: 0.02,
+            band_hz: [1.0, 30.0],
+        };
+        let fs = 5000.0;
+        let mut src = DisturbanceSource::new(&d, fs, 9);
+        let n = 2_000_000;
+        let v: Vec<f64> = (0..n).map(|_| src.next_n()).collect();
+        let mean = v.iter().sum::<f64>() / n as f64;
+        let rms = (v.iter().map(|x| x * x).sum::<f64>() / n as f64).sqrt();
+        assert!((rms / 0.02 - 1.0).abs() < 0.05, "{rms}");
+        assert!(mean.abs() < 0.1 * 0.02, "{mean}");
+        // For a signal band-limited to f_h, RMS of the first difference is
+        // at most about 2π f_h T × RMS; white noise would give √2 × RMS.
+        let diff = (v.windows(2).map(|w| (w[1] - w[0]).powi(2)).sum::<f64>() / n as f64).sqrt();
+        assert!(diff < 2.0 * PI * 30.0 / fs * 0.02 * 1.5, "{diff}");
     }
 }

@@ -28,6 +28,7 @@ fn ch2(y1o_frac: f64, dm23: f64, kp: Option<f64>) -> Sr4dofParams {
             zeta_rigid: 0.009,
             zeta_csm: 0.004,
         },
+        disturbance: None,
     }
 }
 

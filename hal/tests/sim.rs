@@ -30,6 +30,7 @@ fn params(y1o_frac: f64, noise: f64) -> SimParams {
                 zeta_rigid: 0.009,
                 zeta_csm: 0.004,
             },
+            disturbance: None,
         },
         actuator: ActuatorParams {
             force_constant_n_per_a: 11.12,
@@ -189,4 +190,34 @@ fn same_seed_same_noise() {
         .collect();
     let rms = (v.iter().map(|x| x * x).sum::<f64>() / v.len() as f64).sqrt();
     assert!((rms / 40e-9 - 1.0).abs() < 0.03, "{rms}");
+}
+
+#[test]
+fn injected_faults_show_in_the_samples() {
+    use bench_hal::sim::{FaultInjection, ScheduledFault};
+    let start = |kind| {
+        let mut s = SimStage::new(params(0.08, 0.0)).unwrap();
+        s.configure(200_000).unwrap();
+        s.enable().unwrap();
+        s.inject(ScheduledFault { at_s: 0.01, kind });
+        s
+    };
+    // 0.01 s = 50 ticks.
+    let mut s = start(FaultInjection::Nan);
+    let v: Vec<_> = (0..60).map(|_| s.read_sample().unwrap()).collect();
+    assert!(v[49].position_m.is_finite() && v[50].position_m.is_nan());
+    let mut s = start(FaultInjection::Frozen);
+    let v: Vec<_> = (0..60).map(|_| s.read_sample().unwrap()).collect();
+    assert_eq!(v[49].seq, 49);
+    assert!(v[50..].iter().all(|x| *x == v[49]));
+    let mut s = start(FaultInjection::Drop(7));
+    let v: Vec<_> = (0..60).map(|_| s.read_sample().unwrap()).collect();
+    assert_eq!(v[50].seq, 57);
+    assert_eq!(v[51].seq, 58);
+    let mut s = start(FaultInjection::Jump(0.3e-3));
+    let v: Vec<_> = (0..60).map(|_| s.read_sample().unwrap()).collect();
+    assert!((v[50].position_m - v[49].position_m - 0.3e-3).abs() < 1e-6);
+    let mut s = start(FaultInjection::OutOfRange);
+    let v: Vec<_> = (0..60).map(|_| s.read_sample().unwrap()).collect();
+    assert!(!v[49].flags.out_of_range && v[50].flags.out_of_range);
 }
