@@ -10,25 +10,22 @@
 use crate::config::BenchConfig;
 use crate::excitation::Chirp;
 use crate::plot::{write_bode_png, BodePlot, BodeSeries};
-use crate::record::{spawn_writer, Recorder, DEFAULT_CHUNK_INTERVAL};
-use crate::records::Record;
-use crate::rt::{self, Job, JobOutput, LoopOptions, LoopReport, Pacing, StopReason};
+use crate::rt::{Job, JobOutput};
+use crate::session::{
+    check_writable, finish, open_recording, run_recorded, Recorded, RunError, SessionOptions,
+    TimingSummary,
+};
 use crate::sysid::{closely_spaced_pair, find_resonances, Frf, PairVerdict, Resonance, Spectra};
 use bench_hal::sim::{SimStage, ZohPlant};
 use bench_hal::{Sample, Stage};
 use serde::Serialize;
 use serde_json::json;
-use std::collections::BTreeMap;
-use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
-use std::sync::{Arc, Mutex};
-use std::time::{Duration, Instant};
+use std::path::PathBuf;
+use std::sync::atomic::AtomicBool;
+use std::sync::Arc;
 
 /// Smallest peak prominence for a resonance, dB.
 pub const MIN_PROMINENCE_DB: f64 = 3.0;
-
-/// Capacity of the record queue, records (≈ 13 s at 5 kHz).
-const QUEUE_CAPACITY: usize = 1 << 16;
 
 /// The chirp job: open loop, command = excitation.
 #[derive(Debug, Clone, Copy)]
@@ -75,55 +72,6 @@ pub struct ChirpOptions {
     pub seed: u64,
     /// Show a progress bar (real-time mode, on a terminal).
     pub progress: bool,
-}
-
-/// Loop timing in the summary.
-#[derive(Debug, Clone, Serialize)]
-pub struct TimingSummary {
-    /// Ticks run.
-    pub ticks: u64,
-    /// Pacing: `virtual` or `realtime`.
-    pub mode: &'static str,
-    /// Loop rate, Hz.
-    pub rate_hz: f64,
-    /// Wake-up latency p99, µs (0 in virtual time).
-    pub wake_latency_p99_us: f64,
-    /// Largest wake-up latency, µs.
-    pub wake_latency_max_us: f64,
-    /// Mean compute time per tick, µs.
-    pub compute_mean_us: f64,
-    /// Compute time p99, µs.
-    pub compute_p99_us: f64,
-    /// Largest compute time, µs.
-    pub compute_max_us: f64,
-    /// Ticks that ended after the next deadline.
-    pub overruns: u64,
-    /// Records dropped because the writer fell behind.
-    pub dropped_records: u64,
-    /// Wall time of the loop, s.
-    pub wall_s: f64,
-    /// Real-time setup warnings.
-    pub warnings: Vec<String>,
-}
-
-impl TimingSummary {
-    fn new(r: &LoopReport, realtime: bool, rate_hz: f64, wall_s: f64) -> Self {
-        let t = &r.timing;
-        Self {
-            ticks: r.ticks,
-            mode: if realtime { "realtime" } else { "virtual" },
-            rate_hz,
-            wake_latency_p99_us: t.wake.quantile_ns(0.99) * 1e-3,
-            wake_latency_max_us: t.wake.max_ns() * 1e-3,
-            compute_mean_us: t.compute.mean_ns() * 1e-3,
-            compute_p99_us: t.compute.quantile_ns(0.99) * 1e-3,
-            compute_max_us: t.compute.max_ns() * 1e-3,
-            overruns: t.overruns,
-            dropped_records: r.dropped_records,
-            wall_s,
-            warnings: r.warnings.clone(),
-        }
-    }
 }
 
 /// The model's view of the same bench, for comparison.
@@ -179,96 +127,6 @@ pub struct ChirpSummary {
     pub timing: TimingSummary,
 }
 
-/// Why a chirp run did not produce a summary.
-#[derive(Debug, thiserror::Error)]
-pub enum RunError {
-    /// Bad input detected before anything was enabled (exit 2).
-    #[error("{0}")]
-    BadInput(String),
-    /// The supervisor latched a fault (exit 3). The recording was finished.
-    #[error("safety fault: {kind} at tick {tick} (value {value:e}); 0 A, amplifier disabled; recording {recording}")]
-    Fault {
-        /// Fault name.
-        kind: &'static str,
-        /// Offending value.
-        value: f64,
-        /// Tick.
-        tick: u64,
-        /// The finished recording.
-        recording: String,
-    },
-    /// The HAL failed (exit 4). The recording was finished.
-    #[error(
-        "hardware error at tick {tick}: {message}; 0 A, amplifier disabled; recording {recording}"
-    )]
-    Hal {
-        /// Backend message.
-        message: String,
-        /// Tick.
-        tick: u64,
-        /// The finished recording.
-        recording: String,
-    },
-    /// Stopped by SIGINT/SIGTERM (exit 130). The recording was finished.
-    #[error("interrupted at tick {tick}: 0 A, amplifier disabled; recording {recording} finished")]
-    Interrupted {
-        /// Tick.
-        tick: u64,
-        /// The finished recording.
-        recording: String,
-    },
-    /// Anything else (exit 1).
-    #[error(transparent)]
-    Other(#[from] anyhow::Error),
-}
-
-/// Checks that `path` can be created: its directory exists and is writable.
-/// Creates and removes a probe file beside it; leaves nothing behind.
-///
-/// # Errors
-/// [`RunError::BadInput`] naming `arg` and the path.
-pub fn check_writable(path: &Path, arg: &str) -> Result<(), RunError> {
-    let dir = match path.parent() {
-        Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
-        _ => PathBuf::from("."),
-    };
-    if path.file_name().is_none() {
-        return Err(RunError::BadInput(format!(
-            "{arg} {}: not a file path",
-            path.display()
-        )));
-    }
-    if !dir.is_dir() {
-        return Err(RunError::BadInput(format!(
-            "{arg} {}: directory {} does not exist",
-            path.display(),
-            dir.display()
-        )));
-    }
-    if path.is_dir() {
-        return Err(RunError::BadInput(format!(
-            "{arg} {}: is a directory",
-            path.display()
-        )));
-    }
-    let probe = dir.join(format!(".bench-write-check-{}", std::process::id()));
-    match std::fs::OpenOptions::new()
-        .write(true)
-        .create_new(true)
-        .open(&probe)
-    {
-        Ok(_) => {
-            let _ = std::fs::remove_file(&probe);
-            Ok(())
-        }
-        Err(e) => Err(RunError::BadInput(format!(
-            "{arg} {}: cannot write in {}: {e}",
-            path.display(),
-            dir.display()
-        ))),
-    }
-}
-
 fn model_summary(stage: &SimStage) -> ModelSummary {
     let m = stage.model();
     let two_pi = 2.0 * std::f64::consts::PI;
@@ -289,13 +147,6 @@ fn model_summary(stage: &SimStage) -> ModelSummary {
         cnmp_discriminant: m.cnmp_discriminant(),
         cmp_cnmp: m.has_cnmp_zeros(),
     }
-}
-
-/// Input and output samples kept by the writer for identification.
-#[derive(Debug, Default)]
-struct Collected {
-    excitation_a: Vec<f64>,
-    position_m: Vec<f64>,
 }
 
 /// Runs `bench chirp` end to end on the simulated bench.
@@ -322,152 +173,35 @@ pub fn run_chirp(opts: &ChirpOptions, stop: Arc<AtomicBool>) -> Result<ChirpSumm
     let chirp = Chirp::new(&cfg.chirp, period_s);
     let total_ticks = chirp.total_ticks();
 
-    let mut recorder =
-        Recorder::create(&opts.out).map_err(|e| RunError::BadInput(format!("--out: {e}")))?;
-    let mut meta = BTreeMap::new();
-    meta.insert("toml".to_string(), cfg.to_toml());
-    meta.insert("path".to_string(), opts.config_path.display().to_string());
-    recorder
-        .write_metadata("bench.config", &meta)
-        .map_err(anyhow::Error::from)?;
-    let mut run_meta = BTreeMap::new();
-    run_meta.insert("command".to_string(), "chirp".to_string());
-    run_meta.insert("backend".to_string(), info.name.clone());
-    run_meta.insert("seed".to_string(), opts.seed.to_string());
-    run_meta.insert(
-        "mode".to_string(),
-        if opts.realtime { "realtime" } else { "virtual" }.to_string(),
-    );
-    run_meta.insert("rate_hz".to_string(), rate_hz.to_string());
-    run_meta.insert("version".to_string(), env!("CARGO_PKG_VERSION").to_string());
-    run_meta.insert(
-        "log_time_unit".to_string(),
-        "ns of loop time (tick × period)".to_string(),
-    );
-    recorder
-        .write_metadata("bench.run", &run_meta)
-        .map_err(anyhow::Error::from)?;
-
-    let (mut producer, consumer) = rtrb::RingBuffer::<Record>::new(QUEUE_CAPACITY);
-    let collected = Arc::new(Mutex::new(Collected {
-        excitation_a: Vec::with_capacity(total_ticks as usize),
-        position_m: Vec::with_capacity(total_ticks as usize),
-    }));
-    let sink = Arc::clone(&collected);
-    let writer_done = Arc::new(AtomicBool::new(false));
-    // Runs on the writer thread (never the real-time one).
-    let writer = spawn_writer(
-        consumer,
-        recorder,
-        Arc::clone(&writer_done),
-        DEFAULT_CHUNK_INTERVAL,
-        move |r| {
-            if let Record::Sample(s) = r {
-                let mut c = sink.lock().expect("collector poisoned");
-                c.excitation_a.push(s.excitation_a);
-                c.position_m.push(s.position_m);
-            }
-        },
-    );
-
-    let loop_opts = LoopOptions {
-        period_ns: info.period_ns,
-        pacing: if opts.realtime {
-            Pacing::RealTime {
-                priority: cfg.loop_.priority,
-                cpu: cfg.loop_.cpu,
-            }
-        } else {
-            Pacing::Virtual
-        },
-        timing_interval_ticks: ((cfg.loop_.timing_interval_s / period_s).round() as u64).max(1),
-        safety: cfg.supervisor(&info),
+    let session = SessionOptions {
+        command: "chirp",
+        config_path: &opts.config_path,
+        out: &opts.out,
+        realtime: opts.realtime,
+        progress: opts.progress,
+        seed: opts.seed,
         max_ticks: total_ticks,
     };
-    let progress = Arc::new(AtomicU64::new(0));
-    let clock = info.clock;
-    let rt_progress = Arc::clone(&progress);
-    let rt_stop = Arc::clone(&stop);
-    let wall = Instant::now();
-    let rt_thread = std::thread::Builder::new()
-        .name("bench-rt".into())
-        .spawn(move || {
-            let mut job = ChirpJob::new(chirp);
-            let report = rt::run(
-                &mut stage,
-                &mut job,
-                &loop_opts,
-                clock,
-                &mut producer,
-                &rt_stop,
-                &rt_progress,
-            );
-            (stage, report)
-        })
-        .map_err(|e| anyhow::anyhow!("cannot spawn the real-time thread: {e}"))?;
-
-    if opts.realtime && opts.progress {
-        let bar = indicatif::ProgressBar::new(total_ticks);
-        bar.set_style(
-            indicatif::ProgressStyle::with_template(
-                "{spinner} chirp [{bar:40}] {percent:>3}% {elapsed_precise} / ~{duration_precise}",
-            )
-            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
-        );
-        while !rt_thread.is_finished() {
-            bar.set_position(progress.load(Ordering::Relaxed));
-            std::thread::sleep(Duration::from_millis(100));
-        }
-        bar.finish_and_clear();
-    }
-    let (stage, report) = rt_thread
-        .join()
-        .map_err(|_| anyhow::anyhow!("the real-time thread panicked"))?;
-    let wall_s = wall.elapsed().as_secs_f64();
-    writer_done.store(true, Ordering::Release);
-    let (mut recorder, _stats) = writer
-        .join()
-        .map_err(|_| anyhow::anyhow!("the writer thread panicked"))?
-        .map_err(anyhow::Error::from)?;
-    let timing = TimingSummary::new(&report, opts.realtime, rate_hz, wall_s);
-    for w in &timing.warnings {
-        tracing::warn!("{w}");
-    }
-
-    let end_ns = crate::record::log_time_ns(report.ticks as f64 * period_s);
-    match report.stop {
-        StopReason::Finished => {}
-        StopReason::Fault { kind, value, tick } => {
-            let recording = finish(recorder)?;
-            return Err(RunError::Fault {
-                kind: kind.as_str(),
-                value,
-                tick,
-                recording,
-            });
-        }
-        StopReason::Hal { message, tick } => {
-            let recording = finish(recorder)?;
-            return Err(RunError::Hal {
-                message,
-                tick,
-                recording,
-            });
-        }
-        StopReason::Interrupted { tick } => {
-            let recording = finish(recorder)?;
-            return Err(RunError::Interrupted { tick, recording });
-        }
-        StopReason::TickLimit => {
-            let recording = finish(recorder)?;
-            return Err(RunError::Other(anyhow::anyhow!(
-                "the chirp did not finish within its tick budget; recording {recording}"
-            )));
-        }
-    }
+    let recorder = open_recording(&session, cfg, &info)?;
+    let run = run_recorded(
+        stage,
+        &info,
+        ChirpJob::new(chirp),
+        cfg,
+        recorder,
+        &session,
+        stop,
+    )?;
+    let Recorded {
+        stage,
+        mut recorder,
+        data,
+        timing,
+        end_ns,
+        ..
+    } = run;
 
     // Identification.
-    let data = std::mem::take(&mut *collected.lock().expect("collector poisoned"));
     let lead = (chirp.lead_in_ticks() as usize).min(data.position_m.len());
     let offset = if lead > 0 {
         data.position_m[..lead].iter().sum::<f64>() / lead as f64
@@ -572,9 +306,4 @@ pub fn run_chirp(opts: &ChirpOptions, stop: Arc<AtomicBool>) -> Result<ChirpSumm
         .map_err(anyhow::Error::from)?;
     finish(recorder)?;
     Ok(summary)
-}
-
-fn finish(recorder: Recorder) -> Result<String, RunError> {
-    let path = recorder.finish().map_err(anyhow::Error::from)?;
-    Ok(path.display().to_string())
 }

@@ -14,6 +14,7 @@ pub mod plot;
 pub mod record;
 pub mod records;
 pub mod rt;
+pub mod session;
 pub mod supervisor;
 pub mod sysid;
 pub mod timing;

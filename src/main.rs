@@ -11,8 +11,9 @@
 //! | 130 | interrupted by SIGINT/SIGTERM; 0 A, amplifier disabled, recording finished |
 
 use anyhow::Context;
-use bench::chirp::{run_chirp, ChirpOptions, ChirpSummary, RunError};
+use bench::chirp::{run_chirp, ChirpOptions, ChirpSummary};
 use bench::config::{BenchConfig, ChirpKind, ConfigError, DEFAULT_CONFIG};
+use bench::session::RunError;
 use clap::{Args, Parser, Subcommand, ValueEnum};
 use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
@@ -294,7 +295,7 @@ fn chirp(args: ChirpArgs, stop: Arc<AtomicBool>) -> ExitCode {
         Err(e) => {
             eprintln!("error: {e:#}");
             ExitCode::from(match e {
-                RunError::BadInput(_) => status::BAD_INPUT,
+                RunError::BadInput(_) | RunError::Refused(_) => status::BAD_INPUT,
                 RunError::Fault { .. } => status::FAULT,
                 RunError::Hal { .. } => status::HAL,
                 RunError::Interrupted { .. } => status::INTERRUPTED,

@@ -1,0 +1,421 @@
+//! The machinery every recorded job shares: open the recording, run the
+//! real-time loop on its own thread with the writer draining the queue,
+//! show progress, and turn how the loop stopped into a result.
+
+use crate::config::BenchConfig;
+use crate::record::{spawn_writer, RecordError, Recorder, DEFAULT_CHUNK_INTERVAL};
+use crate::records::Record;
+use crate::rt::{self, Job, LoopOptions, LoopReport, Pacing, StopReason};
+use bench_hal::sim::SimStage;
+use bench_hal::DeviceInfo;
+use serde::Serialize;
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+/// Capacity of the record queue, records (≈ 13 s at 5 kHz).
+const QUEUE_CAPACITY: usize = 1 << 16;
+
+/// Loop timing in the summary.
+#[derive(Debug, Clone, Serialize)]
+pub struct TimingSummary {
+    /// Ticks run.
+    pub ticks: u64,
+    /// Pacing: `virtual` or `realtime`.
+    pub mode: &'static str,
+    /// Loop rate, Hz.
+    pub rate_hz: f64,
+    /// Wake-up latency p99, µs (0 in virtual time).
+    pub wake_latency_p99_us: f64,
+    /// Largest wake-up latency, µs.
+    pub wake_latency_max_us: f64,
+    /// Mean compute time per tick, µs.
+    pub compute_mean_us: f64,
+    /// Compute time p99, µs.
+    pub compute_p99_us: f64,
+    /// Largest compute time, µs.
+    pub compute_max_us: f64,
+    /// Ticks that ended after the next deadline.
+    pub overruns: u64,
+    /// Records dropped because the writer fell behind.
+    pub dropped_records: u64,
+    /// Wall time of the loop, s.
+    pub wall_s: f64,
+    /// Real-time setup warnings.
+    pub warnings: Vec<String>,
+}
+
+impl TimingSummary {
+    fn new(r: &LoopReport, realtime: bool, rate_hz: f64, wall_s: f64) -> Self {
+        let t = &r.timing;
+        Self {
+            ticks: r.ticks,
+            mode: if realtime { "realtime" } else { "virtual" },
+            rate_hz,
+            wake_latency_p99_us: t.wake.quantile_ns(0.99) * 1e-3,
+            wake_latency_max_us: t.wake.max_ns() * 1e-3,
+            compute_mean_us: t.compute.mean_ns() * 1e-3,
+            compute_p99_us: t.compute.quantile_ns(0.99) * 1e-3,
+            compute_max_us: t.compute.max_ns() * 1e-3,
+            overruns: t.overruns,
+            dropped_records: r.dropped_records,
+            wall_s,
+            warnings: r.warnings.clone(),
+        }
+    }
+}
+
+/// Why a run did not produce a summary.
+#[derive(Debug, thiserror::Error)]
+pub enum RunError {
+    /// Bad input detected before anything was enabled (exit 2).
+    #[error("{0}")]
+    BadInput(String),
+    /// The loop check refused the controller before enabling (exit 2).
+    #[error("{0}")]
+    Refused(String),
+    /// The supervisor latched a fault (exit 3). The recording was finished.
+    #[error("safety fault: {kind} at tick {tick} (value {value:e}); 0 A, amplifier disabled; recording {recording}")]
+    Fault {
+        /// Fault name.
+        kind: &'static str,
+        /// Offending value.
+        value: f64,
+        /// Tick.
+        tick: u64,
+        /// The finished recording.
+        recording: String,
+    },
+    /// The HAL failed (exit 4). The recording was finished.
+    #[error(
+        "hardware error at tick {tick}: {message}; 0 A, amplifier disabled; recording {recording}"
+    )]
+    Hal {
+        /// Backend message.
+        message: String,
+        /// Tick.
+        tick: u64,
+        /// The finished recording.
+        recording: String,
+    },
+    /// Stopped by SIGINT/SIGTERM (exit 130). The recording was finished.
+    #[error("interrupted at tick {tick}: 0 A, amplifier disabled; recording {recording} finished")]
+    Interrupted {
+        /// Tick.
+        tick: u64,
+        /// The finished recording.
+        recording: String,
+    },
+    /// Anything else (exit 1).
+    #[error(transparent)]
+    Other(#[from] anyhow::Error),
+}
+
+/// Checks that `path` can be created: its directory exists and is writable.
+/// Creates and removes a probe file beside it; leaves nothing behind.
+///
+/// # Errors
+/// [`RunError::BadInput`] naming `arg` and the path.
+pub fn check_writable(path: &Path, arg: &str) -> Result<(), RunError> {
+    let dir = match path.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
+        _ => PathBuf::from("."),
+    };
+    if path.file_name().is_none() {
+        return Err(RunError::BadInput(format!(
+            "{arg} {}: not a file path",
+            path.display()
+        )));
+    }
+    if !dir.is_dir() {
+        return Err(RunError::BadInput(format!(
+            "{arg} {}: directory {} does not exist",
+            path.display(),
+            dir.display()
+        )));
+    }
+    if path.is_dir() {
+        return Err(RunError::BadInput(format!(
+            "{arg} {}: is a directory",
+            path.display()
+        )));
+    }
+    let probe = dir.join(format!(".bench-write-check-{}", std::process::id()));
+    match std::fs::OpenOptions::new()
+        .write(true)
+        .create_new(true)
+        .open(&probe)
+    {
+        Ok(_) => {
+            let _ = std::fs::remove_file(&probe);
+            Ok(())
+        }
+        Err(e) => Err(RunError::BadInput(format!(
+            "{arg} {}: cannot write in {}: {e}",
+            path.display(),
+            dir.display()
+        ))),
+    }
+}
+
+/// Per-tick signals kept by the writer for the analysis after the run.
+#[derive(Debug, Default, Clone)]
+pub struct Collected {
+    /// Loop time, s.
+    pub t_s: Vec<f64>,
+    /// Excitation, A (NaN when none).
+    pub excitation_a: Vec<f64>,
+    /// Probe reading, m.
+    pub position_m: Vec<f64>,
+    /// Setpoint, m (NaN in open loop).
+    pub setpoint_m: Vec<f64>,
+    /// Command after the supervisor, A.
+    pub current_command_a: Vec<f64>,
+}
+
+/// Finishes the recording, returning its path for messages.
+///
+/// # Errors
+/// [`RunError::Other`] with the recorder's error.
+pub fn finish(recorder: Recorder) -> Result<String, RunError> {
+    let path = recorder.finish().map_err(anyhow::Error::from)?;
+    Ok(path.display().to_string())
+}
+
+impl From<RecordError> for RunError {
+    fn from(e: RecordError) -> Self {
+        RunError::Other(e.into())
+    }
+}
+
+/// What a recorded run needs besides the job.
+#[derive(Debug, Clone, Copy)]
+pub struct SessionOptions<'a> {
+    /// Job name (`chirp`, `control`), recorded and shown.
+    pub command: &'static str,
+    /// Where the config came from.
+    pub config_path: &'a Path,
+    /// The recording.
+    pub out: &'a Path,
+    /// Real-time pacing.
+    pub realtime: bool,
+    /// Show a progress bar (real-time mode).
+    pub progress: bool,
+    /// Simulator seed.
+    pub seed: u64,
+    /// Tick budget (the job normally ends first).
+    pub max_ticks: u64,
+}
+
+/// A run that finished its job.
+#[derive(Debug)]
+pub struct Recorded {
+    /// The stage, back from the loop thread (disabled, 0 A).
+    pub stage: SimStage,
+    /// The recording, open for the job's results.
+    pub recorder: Recorder,
+    /// The per-tick signals.
+    pub data: Collected,
+    /// Loop timing.
+    pub timing: TimingSummary,
+    /// Log time of the end of the run, ns.
+    pub end_ns: u64,
+    /// Loop period, s.
+    pub period_s: f64,
+}
+
+/// Creates the recording `opts.out` (as `.part`) with the resolved config
+/// and the run description as metadata.
+///
+/// # Errors
+/// [`RunError::BadInput`] naming `--out` when the file cannot be created.
+pub fn open_recording(
+    opts: &SessionOptions,
+    cfg: &BenchConfig,
+    info: &DeviceInfo,
+) -> Result<Recorder, RunError> {
+    let mut recorder =
+        Recorder::create(opts.out).map_err(|e| RunError::BadInput(format!("--out: {e}")))?;
+    let mut meta = BTreeMap::new();
+    meta.insert("toml".to_string(), cfg.to_toml());
+    meta.insert("path".to_string(), opts.config_path.display().to_string());
+    recorder
+        .write_metadata("bench.config", &meta)
+        .map_err(anyhow::Error::from)?;
+    let mut run_meta = BTreeMap::new();
+    run_meta.insert("command".to_string(), opts.command.to_string());
+    run_meta.insert("backend".to_string(), info.name.clone());
+    run_meta.insert("seed".to_string(), opts.seed.to_string());
+    run_meta.insert(
+        "mode".to_string(),
+        if opts.realtime { "realtime" } else { "virtual" }.to_string(),
+    );
+    run_meta.insert(
+        "rate_hz".to_string(),
+        (1e9 / info.period_ns as f64).to_string(),
+    );
+    run_meta.insert("version".to_string(), env!("CARGO_PKG_VERSION").to_string());
+    run_meta.insert(
+        "log_time_unit".to_string(),
+        "ns of loop time (tick × period)".to_string(),
+    );
+    recorder
+        .write_metadata("bench.run", &run_meta)
+        .map_err(anyhow::Error::from)?;
+    Ok(recorder)
+}
+
+/// Runs `job` on `stage` (configured, described by `info`) into `recorder`.
+/// `stop` is raised by SIGINT/SIGTERM.
+///
+/// # Errors
+/// [`RunError::Fault`], [`RunError::Hal`], [`RunError::Interrupted`] with
+/// the recording finished and the amplifier disabled; [`RunError::Other`]
+/// for thread or recording failures.
+pub fn run_recorded<J: Job + Send + 'static>(
+    mut stage: SimStage,
+    info: &DeviceInfo,
+    mut job: J,
+    cfg: &BenchConfig,
+    recorder: Recorder,
+    opts: &SessionOptions,
+    stop: Arc<AtomicBool>,
+) -> Result<Recorded, RunError> {
+    let period_s = info.period_ns as f64 * 1e-9;
+    let rate_hz = 1.0 / period_s;
+    let (mut producer, consumer) = rtrb::RingBuffer::<Record>::new(QUEUE_CAPACITY);
+    let n = opts.max_ticks.min(1 << 26) as usize;
+    let collected = Arc::new(Mutex::new(Collected {
+        t_s: Vec::with_capacity(n),
+        excitation_a: Vec::with_capacity(n),
+        position_m: Vec::with_capacity(n),
+        setpoint_m: Vec::with_capacity(n),
+        current_command_a: Vec::with_capacity(n),
+    }));
+    let sink = Arc::clone(&collected);
+    let writer_done = Arc::new(AtomicBool::new(false));
+    // Runs on the writer thread (never the real-time one).
+    let writer = spawn_writer(
+        consumer,
+        recorder,
+        Arc::clone(&writer_done),
+        DEFAULT_CHUNK_INTERVAL,
+        move |r| {
+            if let Record::Sample(s) = r {
+                let mut c = sink.lock().expect("collector poisoned");
+                c.t_s.push(s.t_s);
+                c.excitation_a.push(s.excitation_a);
+                c.position_m.push(s.position_m);
+                c.setpoint_m.push(s.setpoint_m);
+                c.current_command_a.push(s.current_command_a);
+            }
+        },
+    );
+
+    let loop_opts = LoopOptions {
+        period_ns: info.period_ns,
+        pacing: if opts.realtime {
+            Pacing::RealTime {
+                priority: cfg.loop_.priority,
+                cpu: cfg.loop_.cpu,
+            }
+        } else {
+            Pacing::Virtual
+        },
+        timing_interval_ticks: ((cfg.loop_.timing_interval_s / period_s).round() as u64).max(1),
+        safety: cfg.supervisor(&info),
+        max_ticks: opts.max_ticks,
+    };
+    let progress = Arc::new(AtomicU64::new(0));
+    let clock = info.clock;
+    let rt_progress = Arc::clone(&progress);
+    let rt_stop = Arc::clone(&stop);
+    let wall = Instant::now();
+    let rt_thread = std::thread::Builder::new()
+        .name("bench-rt".into())
+        .spawn(move || {
+            let report = rt::run(
+                &mut stage,
+                &mut job,
+                &loop_opts,
+                clock,
+                &mut producer,
+                &rt_stop,
+                &rt_progress,
+            );
+            (stage, report)
+        })
+        .map_err(|e| anyhow::anyhow!("cannot spawn the real-time thread: {e}"))?;
+
+    if opts.realtime && opts.progress {
+        let bar = indicatif::ProgressBar::new(opts.max_ticks);
+        bar.set_style(
+            indicatif::ProgressStyle::with_template(
+                &format!("{{spinner}} {} [{{bar:40}}] {{percent:>3}}% {{elapsed_precise}} / ~{{duration_precise}}", opts.command),
+            )
+            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+        );
+        while !rt_thread.is_finished() {
+            bar.set_position(progress.load(Ordering::Relaxed));
+            std::thread::sleep(Duration::from_millis(100));
+        }
+        bar.finish_and_clear();
+    }
+    let (stage, report) = rt_thread
+        .join()
+        .map_err(|_| anyhow::anyhow!("the real-time thread panicked"))?;
+    let wall_s = wall.elapsed().as_secs_f64();
+    writer_done.store(true, Ordering::Release);
+    let (recorder, _stats) = writer
+        .join()
+        .map_err(|_| anyhow::anyhow!("the writer thread panicked"))?
+        .map_err(anyhow::Error::from)?;
+    let timing = TimingSummary::new(&report, opts.realtime, rate_hz, wall_s);
+    for w in &timing.warnings {
+        tracing::warn!("{w}");
+    }
+
+    let end_ns = crate::record::log_time_ns(report.ticks as f64 * period_s);
+    match report.stop {
+        StopReason::Finished => {}
+        StopReason::Fault { kind, value, tick } => {
+            let recording = finish(recorder)?;
+            return Err(RunError::Fault {
+                kind: kind.as_str(),
+                value,
+                tick,
+                recording,
+            });
+        }
+        StopReason::Hal { message, tick } => {
+            let recording = finish(recorder)?;
+            return Err(RunError::Hal {
+                message,
+                tick,
+                recording,
+            });
+        }
+        StopReason::Interrupted { tick } => {
+            let recording = finish(recorder)?;
+            return Err(RunError::Interrupted { tick, recording });
+        }
+        StopReason::TickLimit => {
+            let recording = finish(recorder)?;
+            return Err(RunError::Other(anyhow::anyhow!(
+                "the {} did not finish within its tick budget; recording {recording}",
+                opts.command
+            )));
+        }
+    }
+    let data = std::mem::take(&mut *collected.lock().expect("collector poisoned"));
+    Ok(Recorded {
+        stage,
+        recorder,
+        data,
+        timing,
+        end_ns,
+        period_s,
+    })
+}
