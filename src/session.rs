@@ -325,7 +325,7 @@ pub fn run_recorded<J: Job + Send + 'static>(
             Pacing::Virtual
         },
         timing_interval_ticks: ((cfg.loop_.timing_interval_s / period_s).round() as u64).max(1),
-        safety: cfg.supervisor(&info),
+        safety: cfg.supervisor(info),
         max_ticks: opts.max_ticks,
     };
     let progress = Arc::new(AtomicU64::new(0));
