@@ -427,6 +427,46 @@ impl BenchConfig {
             ));
         }
         self.check_chirp()?;
+        for (name, c) in &self.controller {
+            c.validate(&format!("controller.{name}"))
+                .map_err(|e| ParamError::new(e.key, e.reason))?;
+        }
+        let st = &self.step;
+        if !st.step_m.is_finite() || st.step_m == 0.0 {
+            return Err(ParamError::new(
+                "step.step_m",
+                format!("must be finite and non-zero, got {}", st.step_m),
+            ));
+        }
+        if st.step_m.abs() >= self.safety.position_limit_m {
+            return Err(ParamError::new(
+                "step.step_m",
+                format!(
+                    "{} m is not inside the software position limit safety.position_limit_m = {} m",
+                    st.step_m, self.safety.position_limit_m
+                ),
+            ));
+        }
+        positive("step.duration_s", st.duration_s)?;
+        non_negative("step.settle_s", st.settle_s)?;
+        non_negative("step.smooth_s", st.smooth_s)?;
+        if st.settle_s + st.smooth_s >= st.duration_s {
+            return Err(ParamError::new(
+                "step.duration_s",
+                format!(
+                    "{} s leaves no time after settle_s + smooth_s = {} s",
+                    st.duration_s,
+                    st.settle_s + st.smooth_s
+                ),
+            ));
+        }
+        positive("step.steady_state_window_s", st.steady_state_window_s)?;
+        if st.steady_state_window_s > st.duration_s - st.settle_s - st.smooth_s {
+            return Err(ParamError::new(
+                "step.steady_state_window_s",
+                "must fit after the step (duration_s - settle_s - smooth_s)",
+            ));
+        }
         let id = &self.identification;
         if id.points_per_decade < 10 || id.points_per_decade > 10_000 {
             return Err(ParamError::new(

@@ -8,6 +8,7 @@
 pub mod chirp;
 pub mod config;
 pub mod control;
+pub mod control_run;
 pub mod excitation;
 pub mod loopcheck;
 pub mod plot;

@@ -13,7 +13,9 @@
 use anyhow::Context;
 use bench::chirp::{run_chirp, ChirpOptions, ChirpSummary};
 use bench::config::{BenchConfig, ChirpKind, ConfigError, DEFAULT_CONFIG};
+use bench::control_run::{run_control, ControlOptions, ControlSummary};
 use bench::session::RunError;
+use bench_hal::sim::{FaultInjection, ScheduledFault};
 use clap::{Args, Parser, Subcommand, ValueEnum};
 use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
@@ -36,6 +38,65 @@ enum Command {
     /// Excite the stage with a chirp, record it, estimate the FRF, plot it
     /// beside the model and report the modes and the CMP-CNMP phase test.
     Chirp(ChirpArgs),
+    /// Check a controller against the plant, then run a closed-loop step
+    /// under the supervisor and report rise, settling, overshoot and the
+    /// steady-state positioning noise.
+    Control(ControlArgs),
+}
+
+#[derive(Debug, Args)]
+#[command(group(clap::ArgGroup::new("which").required(true).args(["slow", "fast", "controller"])))]
+struct ControlArgs {
+    /// The slow controller of Eq. (6-6) (`[controller.slow]`).
+    #[arg(long)]
+    slow: bool,
+    /// The fast controller of Eq. (6-7) (`[controller.fast]`).
+    #[arg(long)]
+    fast: bool,
+    /// Any `[controller.NAME]` of the config.
+    #[arg(long, value_name = "NAME")]
+    controller: Option<String>,
+    /// Bench description (TOML).
+    #[arg(long, value_name = "FILE", default_value = DEFAULT_CONFIG)]
+    config: PathBuf,
+    /// Step size, m (overrides step.step_m).
+    #[arg(long, value_name = "M", allow_negative_numbers = true)]
+    step_m: Option<f64>,
+    /// Run time, s (overrides step.duration_s).
+    #[arg(long, value_name = "S", allow_negative_numbers = true)]
+    duration_s: Option<f64>,
+    /// Smooth the step with a raised-cosine ramp of this length, s
+    /// (overrides step.smooth_s).
+    #[arg(long, value_name = "S", allow_negative_numbers = true)]
+    smooth_s: Option<f64>,
+    /// MCAP recording [default: recordings/control-<name>-<UTC time>.mcap].
+    #[arg(long, value_name = "FILE.mcap")]
+    out: Option<PathBuf>,
+    /// Step plot PNG [default: beside --out, <stem>.step.png].
+    #[arg(long, value_name = "FILE.png")]
+    plot: Option<PathBuf>,
+    /// Print the summary as one JSON object on stdout.
+    #[arg(long)]
+    json: bool,
+    /// Pace the loop in real time.
+    #[arg(long)]
+    realtime: bool,
+    /// Print the loop check and exit without enabling anything.
+    #[arg(long)]
+    check_only: bool,
+    /// Also check the margins on a measured FRF (a `bench chirp` CSV).
+    #[arg(long, value_name = "FILE.csv")]
+    frf: Option<PathBuf>,
+    /// Run even when the loop check refuses (simulator only).
+    #[arg(long)]
+    override_check: bool,
+    /// Simulator noise seed [default: sim.seed].
+    #[arg(long, value_name = "N")]
+    seed: Option<u64>,
+    /// Inject a simulator fault: KIND@T_S with KIND one of nan, frozen,
+    /// drop (10 samples), jump (0.2 mm), out_of_range; e.g. nan@1.5.
+    #[arg(long, value_name = "KIND@T_S")]
+    inject_fault: Option<String>,
 }
 
 #[derive(Debug, Clone, Copy, ValueEnum)]
@@ -126,6 +187,7 @@ fn main() -> ExitCode {
     }
     match cli.command {
         Command::Chirp(args) => chirp(args, stop),
+        Command::Control(args) => control(args, stop),
     }
 }
 
@@ -294,13 +356,7 @@ fn chirp(args: ChirpArgs, stop: Arc<AtomicBool>) -> ExitCode {
         }
         Err(e) => {
             eprintln!("error: {e:#}");
-            ExitCode::from(match e {
-                RunError::BadInput(_) | RunError::Refused(_) => status::BAD_INPUT,
-                RunError::Fault { .. } => status::FAULT,
-                RunError::Hal { .. } => status::HAL,
-                RunError::Interrupted { .. } => status::INTERRUPTED,
-                RunError::Other(_) => status::ERROR,
-            })
+            exit_for(&e)
         }
     }
 }
@@ -364,4 +420,223 @@ fn print_summary(s: &ChirpSummary) {
         t.ticks, t.rate_hz, t.mode, t.wall_s, t.compute_mean_us, t.compute_p99_us, t.compute_max_us,
         t.wake_latency_p99_us, t.overruns, t.dropped_records
     );
+}
+
+fn exit_for(e: &RunError) -> ExitCode {
+    ExitCode::from(match e {
+        RunError::BadInput(_) | RunError::Refused(_) => status::BAD_INPUT,
+        RunError::Fault { .. } => status::FAULT,
+        RunError::Hal { .. } => status::HAL,
+        RunError::Interrupted { .. } => status::INTERRUPTED,
+        RunError::Other(_) => status::ERROR,
+    })
+}
+
+/// Parses `KIND@T_S`.
+fn parse_fault(s: &str) -> Result<ScheduledFault, String> {
+    let (kind, at) = s
+        .split_once('@')
+        .ok_or_else(|| format!("--inject-fault {s}: expected KIND@T_S, e.g. nan@1.5"))?;
+    let at_s: f64 = at
+        .parse()
+        .ok()
+        .filter(|t: &f64| t.is_finite() && *t >= 0.0)
+        .ok_or_else(|| {
+            format!("--inject-fault {s}: time {at:?} is not a non-negative number of seconds")
+        })?;
+    let kind = match kind {
+        "nan" => FaultInjection::Nan,
+        "frozen" => FaultInjection::Frozen,
+        "drop" => FaultInjection::Drop(10),
+        "jump" => FaultInjection::Jump(0.2e-3),
+        "out_of_range" => FaultInjection::OutOfRange,
+        other => {
+            return Err(format!(
+                "--inject-fault {s}: unknown kind {other:?} (nan, frozen, drop, jump, out_of_range)"
+            ))
+        }
+    };
+    Ok(ScheduledFault { at_s, kind })
+}
+
+fn control(args: ControlArgs, stop: Arc<AtomicBool>) -> ExitCode {
+    let mut cfg = match load_config(&args.config) {
+        Ok(c) => c,
+        Err(e) => return bad_input(e),
+    };
+    if let Some(v) = args.step_m {
+        cfg.step.step_m = v;
+    }
+    if let Some(v) = args.duration_s {
+        cfg.step.duration_s = v;
+        cfg.step.steady_state_window_s = cfg.step.steady_state_window_s.min(0.5 * v.max(0.0));
+    }
+    if let Some(v) = args.smooth_s {
+        cfg.step.smooth_s = v;
+    }
+    if let Err(e) = cfg.validate(&args.config) {
+        return match &e {
+            ConfigError::Invalid { key, reason, .. } => {
+                let flag = match key.as_str() {
+                    "step.step_m" if args.step_m.is_some() => Some("--step-m"),
+                    "step.duration_s" if args.duration_s.is_some() => Some("--duration-s"),
+                    "step.smooth_s" if args.smooth_s.is_some() => Some("--smooth-s"),
+                    _ => None,
+                };
+                match flag {
+                    Some(f) => bad_input(format!("{f} (config key {key}): {reason}")),
+                    None => bad_input(e),
+                }
+            }
+            _ => bad_input(e),
+        };
+    }
+    let inject = match args.inject_fault.as_deref().map(parse_fault).transpose() {
+        Ok(f) => f,
+        Err(e) => return bad_input(e),
+    };
+    let name = if args.slow {
+        "slow".to_string()
+    } else if args.fast {
+        "fast".to_string()
+    } else {
+        args.controller.clone().unwrap_or_default()
+    };
+    let out = args
+        .out
+        .clone()
+        .unwrap_or_else(|| default_recording(&format!("control-{name}")));
+    if out.extension().and_then(|e| e.to_str()) != Some("mcap") {
+        return bad_input(format!(
+            "--out {}: the recording must end in .mcap",
+            out.display()
+        ));
+    }
+    let opts = ControlOptions {
+        plot: args
+            .plot
+            .clone()
+            .unwrap_or_else(|| beside(&out, ".step.png")),
+        out,
+        seed: args.seed.unwrap_or(cfg.sim.seed),
+        config: cfg,
+        config_path: args.config.clone(),
+        controller: name,
+        check_only: args.check_only,
+        frf: args.frf.clone(),
+        override_check: args.override_check,
+        realtime: args.realtime,
+        progress: std::io::stderr().is_terminal(),
+        inject,
+    };
+    match run_control(&opts, stop) {
+        Ok(summary) => {
+            if args.json {
+                match serde_json::to_string(&summary) {
+                    Ok(s) => println!("{s}"),
+                    Err(e) => {
+                        eprintln!("error: {e}");
+                        return ExitCode::from(status::ERROR);
+                    }
+                }
+            } else {
+                print_control_summary(&summary);
+            }
+            if args.check_only && !summary.loop_check.passed() {
+                eprintln!(
+                    "error: loop check refuses controller {}: {}",
+                    summary.controller,
+                    summary.loop_check.failures.join("; ")
+                );
+                return ExitCode::from(status::BAD_INPUT);
+            }
+            ExitCode::SUCCESS
+        }
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            exit_for(&e)
+        }
+    }
+}
+
+fn print_margins(label: &str, m: &bench::loopcheck::Margins) {
+    let wc: Vec<String> = m
+        .crossovers_rad_s
+        .iter()
+        .map(|w| format!("{w:.1}"))
+        .collect();
+    println!(
+        "  {label}: crossover(s) {} rad/s; phase margin {}; gain margin {}; peak |S| {:.2} ({:.1} dB) at {:.0} rad/s",
+        if wc.is_empty() { "none".to_string() } else { wc.join(", ") },
+        m.phase_margin_deg.map_or("–".to_string(), |p| format!("{p:.1}°")),
+        m.gain_margin_db.map_or("∞".to_string(), |g| format!("{g:.1} dB")),
+        m.sensitivity_peak,
+        20.0 * m.sensitivity_peak.log10(),
+        m.sensitivity_peak_at_rad_s
+    );
+}
+
+fn print_control_summary(s: &ControlSummary) {
+    println!(
+        "bench control --controller {} on {} (seed {})",
+        s.controller, s.backend, s.seed
+    );
+    if !s.description.is_empty() {
+        println!("  {}", s.description);
+    }
+    let c = &s.loop_check;
+    println!("loop check:");
+    print_margins("model, amplifier included", &c.model);
+    print_margins(
+        "model, amplifier lag excluded",
+        &c.model_without_amplifier_lag,
+    );
+    if let Some(m) = &c.measured {
+        print_margins("measured FRF", m);
+    }
+    println!(
+        "  closed loop {} (largest pole |z| = {:.5})",
+        if c.closed_loop_stable {
+            "stable"
+        } else {
+            "UNSTABLE"
+        },
+        c.largest_pole_magnitude
+    );
+    if c.passed() {
+        println!("  → passed");
+    } else {
+        for f in &c.failures {
+            println!("  → refused: {f}");
+        }
+    }
+    if let Some(m) = &s.metrics {
+        let opt = |v: Option<f64>, unit: &str, scale: f64| {
+            v.map_or("–".to_string(), |x| format!("{:.4} {unit}", x * scale))
+        };
+        println!("step of {:.2} µm:", m.step_m * 1e6);
+        println!("  rise time (10–90 %) {}", opt(m.rise_time_s, "s", 1.0));
+        println!("  settling time (2 %) {}", opt(m.settling_time_s, "s", 1.0));
+        println!("  overshoot {:.1} %", m.overshoot_pct);
+        println!(
+            "  steady-state error over the last {:.1} s: mean {:.1} nm, σ {:.1} nm",
+            m.steady_state_window_s, m.steady_state_error_mean_nm, m.steady_state_error_std_nm
+        );
+        println!("  peak command {:.3} A", m.peak_command_a);
+    }
+    if s.disturbance_rms_n > 0.0 {
+        println!("disturbance: {:.4} N RMS", s.disturbance_rms_n);
+    }
+    if let Some(p) = &s.recording {
+        println!("recording   {}", p.display());
+    }
+    if let Some(p) = &s.plot {
+        println!("step plot   {}", p.display());
+    }
+    if let Some(t) = &s.timing {
+        println!(
+            "loop: {} ticks at {:.0} Hz ({}), {:.2} s wall; compute mean {:.2} µs, p99 {:.2} µs; overruns {}",
+            t.ticks, t.rate_hz, t.mode, t.wall_s, t.compute_mean_us, t.compute_p99_us, t.overruns
+        );
+    }
 }

@@ -1,0 +1,612 @@
+//! `bench control`: check a controller against the plant, then run a
+//! closed-loop step on the stage and measure it.
+//!
+//! The experiment: the setpoint starts at the measured position (bumpless:
+//! zero error, zero controller state, 0 A), holds it for `settle_s`, steps
+//! by `step_m` (optionally as a raised-cosine ramp over `smooth_s`) and
+//! holds until `duration_s`. Metrics (step response `r = (y − y₀)/step`):
+//! - rise time: from r = 0.1 to r = 0.9 (first crossings), s;
+//! - settling time: from the step until r stays within 1 ± 0.02, s;
+//! - overshoot: `max r − 1`, % (0 when none);
+//!
+//! (these three on the reading smoothed by a centred moving average over
+//! [`SMOOTHING_S`], so probe noise — 40 nm RMS against a 200 nm band for a
+//! 10 µm step — does not count as motion; the average is far shorter than
+//! the responses it measures);
+//! - steady-state error `setpoint − y` over the final
+//!   `steady_state_window_s`: mean and standard deviation, nm.
+
+use crate::config::BenchConfig;
+use crate::control::{ControllerConfig, DiscreteController};
+use crate::loopcheck::{closed_loop_poles, measured_margins, model_margins, Margins};
+use crate::plot::{write_time_png, TimePanel};
+use crate::rt::{Job, JobOutput};
+use crate::session::{
+    check_writable, finish, open_recording, run_recorded, Collected, Recorded, RunError,
+    SessionOptions, TimingSummary,
+};
+use bench_hal::sim::{ScheduledFault, SimStage, ZohPlant};
+use bench_hal::{Sample, Stage};
+use serde::Serialize;
+use serde_json::json;
+use std::f64::consts::PI;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::AtomicBool;
+use std::sync::Arc;
+
+/// The closed-loop step job. Real-time safe: no allocation in `tick`.
+#[derive(Debug, Clone, Copy)]
+pub struct ControlJob {
+    ctrl: DiscreteController,
+    start_m: Option<f64>,
+    step_m: f64,
+    settle_ticks: u64,
+    smooth_ticks: u64,
+    total_ticks: u64,
+}
+
+impl ControlJob {
+    /// A step of `step_m` after `settle_ticks`, ramped over `smooth_ticks`
+    /// (0: sharp), ending after `total_ticks`.
+    pub fn new(
+        ctrl: DiscreteController,
+        step_m: f64,
+        settle_ticks: u64,
+        smooth_ticks: u64,
+        total_ticks: u64,
+    ) -> Self {
+        Self {
+            ctrl,
+            start_m: None,
+            step_m,
+            settle_ticks,
+            smooth_ticks,
+            total_ticks,
+        }
+    }
+
+    /// Setpoint offset from the start position at `tick`, m.
+    pub fn profile_m(&self, tick: u64) -> f64 {
+        if tick < self.settle_ticks {
+            0.0
+        } else if self.smooth_ticks == 0 || tick >= self.settle_ticks + self.smooth_ticks {
+            self.step_m
+        } else {
+            let x = (tick - self.settle_ticks) as f64 / self.smooth_ticks as f64;
+            self.step_m * 0.5 * (1.0 - (PI * x).cos())
+        }
+    }
+}
+
+impl Job for ControlJob {
+    #[inline]
+    fn tick(&mut self, tick: u64, sample: &Sample) -> JobOutput {
+        let y = sample.position_m;
+        // Bumpless start: the first finite reading is the start position.
+        if self.start_m.is_none() && y.is_finite() {
+            self.start_m = Some(y);
+        }
+        let setpoint = self.start_m.unwrap_or(0.0) + self.profile_m(tick);
+        let command_a = self.ctrl.update(setpoint - y);
+        JobOutput {
+            command_a,
+            excitation_a: f64::NAN,
+            setpoint_m: setpoint,
+            done: tick + 1 >= self.total_ticks,
+        }
+    }
+}
+
+/// Step-response figures.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct StepMetrics {
+    /// Step size, m.
+    pub step_m: f64,
+    /// 10–90 % rise time, s (`None` if never reached).
+    pub rise_time_s: Option<f64>,
+    /// 2 % settling time after the step, s (`None` if never settled).
+    pub settling_time_s: Option<f64>,
+    /// Overshoot, % of the step.
+    pub overshoot_pct: f64,
+    /// Mean of `setpoint − position` over the final window, nm.
+    pub steady_state_error_mean_nm: f64,
+    /// Standard deviation of `setpoint − position` over the final window, nm.
+    pub steady_state_error_std_nm: f64,
+    /// Length of that window, s.
+    pub steady_state_window_s: f64,
+    /// Largest |command|, A.
+    pub peak_command_a: f64,
+}
+
+/// Width of the centred moving average applied before the rise, settling
+/// and overshoot figures, s.
+pub const SMOOTHING_S: f64 = 2e-3;
+
+/// Centred moving average of `x` over `2h + 1` samples (shorter at the ends).
+fn moving_average(x: &[f64], h: usize) -> Vec<f64> {
+    let mut prefix = Vec::with_capacity(x.len() + 1);
+    prefix.push(0.0);
+    for v in x {
+        prefix.push(prefix.last().copied().unwrap_or(0.0) + v);
+    }
+    (0..x.len())
+        .map(|k| {
+            let (a, b) = (k.saturating_sub(h), (k + h + 1).min(x.len()));
+            (prefix[b] - prefix[a]) / (b - a) as f64
+        })
+        .collect()
+}
+
+/// Computes the step metrics from the recorded signals.
+pub fn step_metrics(
+    d: &Collected,
+    settle_s: f64,
+    step_m: f64,
+    window_s: f64,
+    period_s: f64,
+) -> StepMetrics {
+    let n = d.position_m.len();
+    let k0 = ((settle_s / period_s).round() as usize).min(n);
+    let y0 = d.setpoint_m.first().copied().unwrap_or(0.0);
+    let h = ((SMOOTHING_S / period_s / 2.0).round() as usize).max(1);
+    let r: Vec<f64> = moving_average(&d.position_m, h)
+        .iter()
+        .map(|y| (y - y0) / step_m)
+        .collect();
+    let first = |thr: f64| (k0..n).find(|&k| r[k] >= thr);
+    let rise_time_s = match (first(0.1), first(0.9)) {
+        (Some(a), Some(b)) => Some((b - a) as f64 * period_s),
+        _ => None,
+    };
+    let settling_time_s = match (k0..n).rev().find(|&k| (r[k] - 1.0).abs() > 0.02) {
+        None => Some(0.0),
+        Some(k) if k + 1 < n => Some((k + 1 - k0) as f64 * period_s),
+        Some(_) => None,
+    };
+    let overshoot_pct = (r[k0.min(n)..]
+        .iter()
+        .copied()
+        .fold(f64::NEG_INFINITY, f64::max)
+        - 1.0)
+        .max(0.0)
+        * 100.0;
+    let w = ((window_s / period_s).round() as usize)
+        .min(n.saturating_sub(k0))
+        .max(1);
+    let e: Vec<f64> = (n - w..n)
+        .map(|k| d.setpoint_m[k] - d.position_m[k])
+        .collect();
+    let mean = e.iter().sum::<f64>() / e.len() as f64;
+    let var = e.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (e.len().max(2) - 1) as f64;
+    StepMetrics {
+        step_m,
+        rise_time_s,
+        settling_time_s,
+        overshoot_pct,
+        steady_state_error_mean_nm: mean * 1e9,
+        steady_state_error_std_nm: var.sqrt() * 1e9,
+        steady_state_window_s: w as f64 * period_s,
+        peak_command_a: d
+            .current_command_a
+            .iter()
+            .fold(0.0, |m: f64, v| m.max(v.abs())),
+    }
+}
+
+/// The loop check (SPEC §6) of one controller.
+#[derive(Debug, Clone, Serialize)]
+pub struct LoopCheck {
+    /// Controller name.
+    pub controller: String,
+    /// Margins with the model plant, amplifier included (what runs).
+    pub model: Margins,
+    /// Margins with the model plant, amplifier lag excluded (the thesis'
+    /// Figs 6-8, 6-10).
+    pub model_without_amplifier_lag: Margins,
+    /// All discrete closed-loop poles inside the unit circle.
+    pub closed_loop_stable: bool,
+    /// Largest closed-loop pole magnitude.
+    pub largest_pole_magnitude: f64,
+    /// Margins on a measured FRF, when given.
+    pub measured: Option<Margins>,
+    /// Why the check refuses the controller (empty: it passes).
+    pub failures: Vec<String>,
+}
+
+impl LoopCheck {
+    /// Whether the controller may be enabled.
+    pub fn passed(&self) -> bool {
+        self.failures.is_empty()
+    }
+}
+
+/// A measured FRF read from a `bench chirp` CSV.
+#[derive(Debug, Clone, Default)]
+pub struct MeasuredFrf {
+    /// Hz.
+    pub frequency_hz: Vec<f64>,
+    /// m/A.
+    pub magnitude_m_per_a: Vec<f64>,
+    /// Degrees.
+    pub phase_deg: Vec<f64>,
+}
+
+impl MeasuredFrf {
+    /// Reads `frequency_hz,magnitude_m_per_a,phase_deg,coherence`.
+    ///
+    /// # Errors
+    /// [`RunError::BadInput`] naming `--frf`, the line and the reason.
+    pub fn read_csv(path: &Path) -> Result<Self, RunError> {
+        let bad = |why: String| RunError::BadInput(format!("--frf {}: {why}", path.display()));
+        let text = std::fs::read_to_string(path).map_err(|e| bad(e.to_string()))?;
+        let mut lines = text.lines();
+        if lines.next() != Some("frequency_hz,magnitude_m_per_a,phase_deg,coherence") {
+            return Err(bad(
+                "the header is not frequency_hz,magnitude_m_per_a,phase_deg,coherence (a bench chirp CSV)".into(),
+            ));
+        }
+        let mut m = Self::default();
+        for (i, line) in lines.enumerate() {
+            let v: Vec<f64> = line
+                .split(',')
+                .map(|x| x.trim().parse::<f64>())
+                .collect::<Result<_, _>>()
+                .map_err(|e| bad(format!("line {}: {e}", i + 2)))?;
+            if v.len() != 4 || !v[0].is_finite() || v[0] <= 0.0 {
+                return Err(bad(format!(
+                    "line {}: expected 4 numbers with a positive frequency",
+                    i + 2
+                )));
+            }
+            if m.frequency_hz.last().is_some_and(|f| *f >= v[0]) {
+                return Err(bad(format!("line {}: frequencies must ascend", i + 2)));
+            }
+            m.frequency_hz.push(v[0]);
+            m.magnitude_m_per_a.push(v[1]);
+            m.phase_deg.push(v[2]);
+        }
+        if m.frequency_hz.len() < 10 {
+            return Err(bad("fewer than 10 points".into()));
+        }
+        Ok(m)
+    }
+}
+
+/// Runs the loop check of `name` against the model of `stage` (and a
+/// measured FRF if given), judged by the `[safety]` limits.
+pub fn check_loop(
+    cfg: &BenchConfig,
+    stage: &SimStage,
+    name: &str,
+    ctrl: &DiscreteController,
+    period_s: f64,
+    measured: Option<&MeasuredFrf>,
+) -> LoopCheck {
+    let plant = ZohPlant::new(stage.model(), &cfg.actuator, period_s);
+    let ideal = ZohPlant::without_amplifier_lag(stage.model(), &cfg.actuator, period_s);
+    let model = model_margins(&plant, ctrl);
+    let (poles, stable) = closed_loop_poles(&plant, ctrl);
+    let largest = poles.iter().map(|p| p.norm()).fold(0.0, f64::max);
+    let measured = measured.map(|m| {
+        measured_margins(
+            ctrl,
+            period_s,
+            &m.frequency_hz,
+            &m.magnitude_m_per_a,
+            &m.phase_deg,
+        )
+    });
+    let mut failures = Vec::new();
+    if !stable {
+        failures.push(format!(
+            "closed loop unstable on the model: largest pole |z| = {largest:.4} (must be < 1)"
+        ));
+    }
+    let min_pm = cfg.safety.min_phase_margin_deg;
+    let max_s = cfg.safety.max_sensitivity_peak;
+    for (what, m) in [("model", Some(&model)), ("measured FRF", measured.as_ref())] {
+        let Some(m) = m else { continue };
+        match m.phase_margin_deg {
+            Some(pm) if pm < min_pm => failures.push(format!(
+                "phase margin {pm:.1}° at {:.1} rad/s ({what}) is below safety.min_phase_margin_deg = {min_pm}°",
+                m.crossovers_rad_s[0]
+            )),
+            None => failures.push(format!("no gain crossover ({what}): the loop never reaches |L| = 1")),
+            _ => {}
+        }
+        if m.sensitivity_peak > max_s {
+            failures.push(format!(
+                "sensitivity peak |S| = {:.2} ({:.1} dB) at {:.1} rad/s ({what}) is above safety.max_sensitivity_peak = {max_s}",
+                m.sensitivity_peak,
+                20.0 * m.sensitivity_peak.log10(),
+                m.sensitivity_peak_at_rad_s
+            ));
+        }
+    }
+    LoopCheck {
+        controller: name.to_string(),
+        model,
+        model_without_amplifier_lag: model_margins(&ideal, ctrl),
+        closed_loop_stable: stable,
+        largest_pole_magnitude: largest,
+        measured,
+        failures,
+    }
+}
+
+/// Everything `bench control` needs.
+#[derive(Debug, Clone)]
+pub struct ControlOptions {
+    /// Validated config (overrides applied).
+    pub config: BenchConfig,
+    /// Where it came from.
+    pub config_path: PathBuf,
+    /// Controller name (`slow`, `fast`, or any `[controller.NAME]`).
+    pub controller: String,
+    /// Only print the loop check.
+    pub check_only: bool,
+    /// A measured FRF to check the margins on.
+    pub frf: Option<PathBuf>,
+    /// Run even if the check refuses (simulator only).
+    pub override_check: bool,
+    /// The recording.
+    pub out: PathBuf,
+    /// The step plot.
+    pub plot: PathBuf,
+    /// Real-time pacing.
+    pub realtime: bool,
+    /// Seed.
+    pub seed: u64,
+    /// Progress bar.
+    pub progress: bool,
+    /// A simulator fault to inject.
+    pub inject: Option<ScheduledFault>,
+}
+
+/// Result of `bench control`.
+#[derive(Debug, Clone, Serialize)]
+pub struct ControlSummary {
+    /// Controller name.
+    pub controller: String,
+    /// Its description.
+    pub description: String,
+    /// The loop check.
+    pub loop_check: LoopCheck,
+    /// Step metrics (`None` with `--check-only`).
+    pub metrics: Option<StepMetrics>,
+    /// The recording (`None` with `--check-only`).
+    pub recording: Option<PathBuf>,
+    /// The step plot.
+    pub plot: Option<PathBuf>,
+    /// Backend.
+    pub backend: String,
+    /// Seed.
+    pub seed: u64,
+    /// Disturbance force RMS, N (0: none).
+    pub disturbance_rms_n: f64,
+    /// Loop timing.
+    pub timing: Option<TimingSummary>,
+}
+
+fn controller_config<'a>(
+    cfg: &'a BenchConfig,
+    name: &str,
+) -> Result<&'a ControllerConfig, RunError> {
+    cfg.controller.get(name).ok_or_else(|| {
+        let known: Vec<&str> = cfg.controller.keys().map(|k| k.as_str()).collect();
+        RunError::BadInput(format!(
+            "--controller {name}: no [controller.{name}] in the config (known: {})",
+            if known.is_empty() {
+                "none".to_string()
+            } else {
+                known.join(", ")
+            }
+        ))
+    })
+}
+
+/// Runs `bench control`.
+///
+/// # Errors
+/// [`RunError::BadInput`] for an unknown controller, an unusable FRF file or
+/// output path; [`RunError::Refused`] when the loop check fails (without
+/// `override_check`); otherwise as [`run_recorded`].
+pub fn run_control(
+    opts: &ControlOptions,
+    stop: Arc<AtomicBool>,
+) -> Result<ControlSummary, RunError> {
+    let cfg = &opts.config;
+    let ccfg = controller_config(cfg, &opts.controller)?;
+    let measured = opts.frf.as_deref().map(MeasuredFrf::read_csv).transpose()?;
+    let mut stage = SimStage::new(cfg.sim_params(opts.seed))
+        .map_err(|e| RunError::BadInput(format!("config {}: {e}", opts.config_path.display())))?;
+    let info = stage
+        .configure(cfg.loop_.period_ns())
+        .map_err(|e| RunError::BadInput(format!("loop.rate_hz: {e}")))?;
+    let period_s = info.period_ns as f64 * 1e-9;
+    let ctrl = DiscreteController::new(ccfg, period_s, info.peak_current_a);
+    let check = check_loop(
+        cfg,
+        &stage,
+        &opts.controller,
+        &ctrl,
+        period_s,
+        measured.as_ref(),
+    );
+    let mut summary = ControlSummary {
+        controller: opts.controller.clone(),
+        description: ccfg.description.clone(),
+        loop_check: check.clone(),
+        metrics: None,
+        recording: None,
+        plot: None,
+        backend: info.name.clone(),
+        seed: opts.seed,
+        disturbance_rms_n: cfg.plant.disturbance.map_or(0.0, |d| d.rms_n),
+        timing: None,
+    };
+    if opts.check_only {
+        return Ok(summary);
+    }
+    if !check.passed() {
+        if !opts.override_check {
+            return Err(RunError::Refused(format!(
+                "loop check refused controller {}: {}; nothing was enabled",
+                opts.controller,
+                check.failures.join("; ")
+            )));
+        }
+        tracing::warn!(
+            "loop check failed ({}); running anyway on the simulator (--override-check)",
+            check.failures.join("; ")
+        );
+    }
+    let step = &cfg.step;
+    check_writable(&opts.out, "--out")?;
+    check_writable(&opts.plot, "--plot")?;
+    if let Some(f) = opts.inject {
+        stage.inject(f);
+    }
+    let ticks = |s: f64| (s / period_s).round() as u64;
+    let total = ticks(step.duration_s);
+    let session = SessionOptions {
+        command: "control",
+        config_path: &opts.config_path,
+        out: &opts.out,
+        realtime: opts.realtime,
+        progress: opts.progress,
+        seed: opts.seed,
+        max_ticks: total,
+    };
+    let mut recorder = open_recording(&session, cfg, &info)?;
+    let check_ch = recorder.add_json_channel(
+        "/control/loop_check",
+        "bench.LoopCheck",
+        &json!({
+            "type": "object",
+            "description": "Loop check before enable: gain crossovers (rad/s), phase margins (deg), gain margin (dB), sensitivity peak |S| (ratio) on the ZOH model with and without the amplifier lag, closed-loop stability, failures."
+        }),
+    )?;
+    recorder.write_json(
+        check_ch,
+        0,
+        &serde_json::to_value(&check).map_err(anyhow::Error::from)?,
+    )?;
+    recorder.flush_chunk()?;
+    let job = ControlJob::new(
+        ctrl,
+        step.step_m,
+        ticks(step.settle_s),
+        ticks(step.smooth_s),
+        total,
+    );
+    let Recorded {
+        mut recorder,
+        data,
+        timing,
+        end_ns,
+        ..
+    } = run_recorded(stage, &info, job, cfg, recorder, &session, stop)?;
+
+    let metrics = step_metrics(
+        &data,
+        step.settle_s,
+        step.step_m,
+        step.steady_state_window_s,
+        period_s,
+    );
+    let metrics_ch = recorder.add_json_channel(
+        "/control/metrics",
+        "bench.StepMetrics",
+        &json!({
+            "type": "object",
+            "description": "Closed-loop step metrics: rise_time_s (10-90 %, s), settling_time_s (2 %, s), overshoot_pct (%), steady_state_error_mean_nm / _std_nm (nm) over steady_state_window_s (s), peak_command_a (A)."
+        }),
+    )?;
+    recorder.write_json(
+        metrics_ch,
+        end_ns,
+        &serde_json::to_value(metrics).map_err(anyhow::Error::from)?,
+    )?;
+
+    let t = &data.t_s;
+    let um = |v: &[f64], off: f64| v.iter().map(|x| (x - off) * 1e6).collect::<Vec<f64>>();
+    let y0 = data.setpoint_m.first().copied().unwrap_or(0.0);
+    let pos = um(&data.position_m, y0);
+    let sp = um(&data.setpoint_m, y0);
+    let err: Vec<f64> = sp.iter().zip(&pos).map(|(s, p)| s - p).collect();
+    let title = format!(
+        "bench control --controller {}: {:.1} µm step (seed {})",
+        opts.controller,
+        step.step_m * 1e6,
+        opts.seed
+    );
+    write_time_png(
+        &opts.plot,
+        &title,
+        &[
+            TimePanel {
+                y_label: "position − start [µm]",
+                series: vec![("setpoint", t, &sp), ("position (probe)", t, &pos)],
+            },
+            TimePanel {
+                y_label: "current command [A]",
+                series: vec![("command", t, &data.current_command_a)],
+            },
+            TimePanel {
+                y_label: "error [µm]",
+                series: vec![("setpoint − position", t, &err)],
+            },
+        ],
+    )
+    .map_err(|e| anyhow::anyhow!("{e}"))?;
+    summary.metrics = Some(metrics);
+    summary.plot = Some(opts.plot.clone());
+    summary.timing = Some(timing);
+    let ch = recorder.add_json_channel(
+        "/control/summary",
+        "bench.ControlSummary",
+        &json!({"type": "object", "description": "Summary of a bench control run (the --json output)."}),
+    )?;
+    recorder.write_json(
+        ch,
+        end_ns,
+        &serde_json::to_value(&summary).map_err(anyhow::Error::from)?,
+    )?;
+    summary.recording = Some(PathBuf::from(finish(recorder)?));
+    Ok(summary)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Metrics of a known first-order step response y = 1 − e^{−t/τ}:
+    /// rise 10–90 % = τ ln 9, 2 % settling = τ ln 50, no overshoot.
+    #[test]
+    fn metrics_of_a_first_order_response() {
+        let dt = 1e-4;
+        let tau = 0.01;
+        let settle = 0.1;
+        let n = 10_000;
+        let mut d = Collected::default();
+        for k in 0..n {
+            let t = k as f64 * dt;
+            let y = if t < settle {
+                0.0
+            } else {
+                1e-5 * (1.0 - (-(t - settle + dt) / tau).exp())
+            };
+            d.t_s.push(t);
+            d.position_m.push(y);
+            d.setpoint_m.push(if t < settle { 0.0 } else { 1e-5 });
+            d.current_command_a.push(0.1);
+        }
+        let m = step_metrics(&d, settle, 1e-5, 0.5, dt);
+        assert!((m.rise_time_s.unwrap() - tau * 9f64.ln()).abs() < 2.0 * dt);
+        assert!((m.settling_time_s.unwrap() - tau * 50f64.ln()).abs() < 2.0 * dt);
+        assert_eq!(m.overshoot_pct, 0.0);
+        assert!(m.steady_state_error_mean_nm.abs() < 1e-3);
+        assert_eq!(m.peak_command_a, 0.1);
+    }
+}
