@@ -605,8 +605,32 @@ mod tests {
         let m = step_metrics(&d, settle, 1e-5, 0.5, dt);
         assert!((m.rise_time_s.unwrap() - tau * 9f64.ln()).abs() < 2.0 * dt);
         assert!((m.settling_time_s.unwrap() - tau * 50f64.ln()).abs() < 2.0 * dt);
-        assert_eq!(m.overshoot_pct, 0.0);
+        assert!(m.overshoot_pct < 1e-6);
         assert!(m.steady_state_error_mean_nm.abs() < 1e-3);
         assert_eq!(m.peak_command_a, 0.1);
+    }
+
+    /// Overshoot of an underdamped second-order step response:
+    /// `exp(−ζπ/√(1−ζ²))` (Ogata, *Modern Control Engineering*, §5-3).
+    #[test]
+    fn overshoot_of_a_second_order_response() {
+        let (dt, wn, zeta) = (1e-4, 60.0, 0.3);
+        let wd = wn * (1.0f64 - zeta * zeta).sqrt();
+        let mut d = Collected::default();
+        for k in 0..30_000 {
+            let t = k as f64 * dt - 0.1;
+            let r = if t < 0.0 {
+                0.0
+            } else {
+                1.0 - (-zeta * wn * t).exp() * ((wd * t).cos() + zeta * wn / wd * (wd * t).sin())
+            };
+            d.t_s.push(t + 0.1);
+            d.position_m.push(1e-5 * r);
+            d.setpoint_m.push(if t < 0.0 { 0.0 } else { 1e-5 });
+            d.current_command_a.push(0.0);
+        }
+        let m = step_metrics(&d, 0.1, 1e-5, 1.0, dt);
+        let expected = 100.0 * (-zeta * PI / (1.0f64 - zeta * zeta).sqrt()).exp();
+        assert!((m.overshoot_pct - expected).abs() < 0.2, "{} vs {expected}", m.overshoot_pct);
     }
 }
