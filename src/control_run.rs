@@ -631,6 +631,74 @@ mod tests {
         }
         let m = step_metrics(&d, 0.1, 1e-5, 1.0, dt);
         let expected = 100.0 * (-zeta * PI / (1.0f64 - zeta * zeta).sqrt()).exp();
-        assert!((m.overshoot_pct - expected).abs() < 0.2, "{} vs {expected}", m.overshoot_pct);
+        assert!(
+            (m.overshoot_pct - expected).abs() < 0.2,
+            "{} vs {expected}",
+            m.overshoot_pct
+        );
+    }
+
+    mod property {
+        use super::super::*;
+        use crate::supervisor::{Supervisor, SupervisorConfig};
+        use bench_hal::SampleFlags;
+        use proptest::prelude::*;
+
+        fn reading() -> impl Strategy<Value = f64> {
+            prop_oneof![
+                4 => -1e-3..1e-3f64,
+                1 => Just(f64::NAN),
+                1 => Just(f64::INFINITY),
+                1 => Just(f64::NEG_INFINITY),
+                1 => prop::num::f64::ANY,
+                1 => -1e300..1e300f64,
+            ]
+        }
+
+        proptest! {
+            #![proptest_config(ProptestConfig::with_cases(300))]
+            /// No sequence of sample values makes the command non-finite or
+            /// larger than the peak current: the controller, then the
+            /// supervisor, exactly as the tick chains them.
+            #[test]
+            fn command_is_always_finite_and_limited(
+                values in prop::collection::vec(reading(), 1..400),
+                fast in any::<bool>(),
+                oor in prop::collection::vec(any::<bool>(), 400),
+            ) {
+                let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("bench-config/sr4dof-ch5.toml");
+                let cfg = BenchConfig::load(&path).unwrap();
+                let name = if fast { "fast" } else { "slow" };
+                let peak = cfg.actuator.peak_current_a;
+                let ctrl = DiscreteController::new(&cfg.controller[name], 2e-4, peak);
+                let mut job = ControlJob::new(ctrl, 1e-5, 10, 0, 1_000_000);
+                let mut sup = Supervisor::new(SupervisorConfig {
+                    position_limit_m: 0.8e-3,
+                    peak_current_a: peak,
+                    max_consecutive_overruns: 5,
+                    max_missed_samples: 3,
+                    max_position_step_m: 50e-6,
+                    continuous_current_a: cfg.actuator.continuous_current_a,
+                    i2t_peak_duration_s: 1.0,
+                    period_s: 2e-4,
+                });
+                sup.enabled();
+                sup.running();
+                for (k, x) in values.iter().enumerate() {
+                    let sample = Sample {
+                        seq: k as u64,
+                        device_time_ns: k as u64 * 200_000,
+                        position_m: *x,
+                        measured_current_a: f64::NAN,
+                        flags: SampleFlags { out_of_range: oor[k], ..Default::default() },
+                    };
+                    sup.check_sample(&sample);
+                    let out = job.tick(k as u64, &sample);
+                    let (cmd, _) = sup.command(out.command_a);
+                    prop_assert!(cmd.is_finite(), "tick {k}: {cmd}");
+                    prop_assert!(cmd.abs() <= peak, "tick {k}: {cmd}");
+                }
+            }
+        }
     }
 }

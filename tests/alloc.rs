@@ -154,6 +154,65 @@ fn tick_allocates_nothing() {
     assert_eq!(allocs, 0, "{allocs} allocations in {ticks} real-time ticks");
 }
 
+/// The same with the fast controller (Eq. 6-7) and the supervisor closing
+/// the loop, disturbance on.
+#[test]
+fn closed_loop_tick_allocates_nothing() {
+    use bench::control::DiscreteController;
+    use bench::control_run::ControlJob;
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("bench-config/sr4dof-ch5.toml");
+    let cfg = BenchConfig::load(&path).unwrap();
+    assert!(cfg.plant.disturbance.is_some());
+    let mut stage = SimStage::new(cfg.sim_params(7)).unwrap();
+    let info = stage.configure(cfg.loop_.period_ns()).unwrap();
+    let period_s = info.period_ns as f64 * 1e-9;
+    let ctrl = DiscreteController::new(&cfg.controller["fast"], period_s, info.peak_current_a);
+    let total = 20_000;
+    let opts = LoopOptions {
+        period_ns: info.period_ns,
+        pacing: Pacing::Virtual,
+        timing_interval_ticks: 500,
+        safety: cfg.supervisor(&info),
+        max_ticks: total,
+    };
+    let (mut producer, mut consumer) = rtrb::RingBuffer::<Record>::new(1 << 16);
+    let drain = std::thread::spawn(move || {
+        let mut n = 0u64;
+        while !consumer.is_abandoned() || !consumer.is_empty() {
+            while consumer.pop().is_ok() {
+                n += 1;
+            }
+            std::thread::sleep(std::time::Duration::from_millis(1));
+        }
+        n
+    });
+    let (report, allocations) = std::thread::spawn(move || {
+        let mut job = Counted {
+            inner: ControlJob::new(ctrl, 1e-5, 1000, 0, total),
+            from_tick: 100,
+        };
+        let report = rt::run(
+            &mut stage,
+            &mut job,
+            &opts,
+            info.clock,
+            &mut producer,
+            &AtomicBool::new(false),
+            &AtomicU64::new(0),
+        );
+        (report, stop_counting())
+    })
+    .join()
+    .unwrap();
+    assert!(drain.join().unwrap() >= total);
+    assert_eq!(report.stop, StopReason::Finished);
+    assert_eq!(
+        allocations, 0,
+        "{allocations} allocations in {} closed-loop ticks",
+        report.ticks
+    );
+}
+
 /// The counter does count: a tick that allocates is caught.
 #[test]
 fn counter_sees_an_allocating_job() {

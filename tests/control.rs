@@ -1,0 +1,280 @@
+//! `bench control` end to end on the simulated Chapter 5 bench.
+
+mod common;
+
+use common::*;
+use serde_json::Value;
+use std::path::Path;
+
+const CH5: &str = "bench-config/sr4dof-ch5.toml";
+
+fn shipped_ch5() -> String {
+    std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join(CH5)).unwrap()
+}
+
+fn control(dir: &Path, extra: &[&str]) -> (std::process::Output, String) {
+    let out = path_in(dir, "run.mcap");
+    let mut args = vec!["control", "--json", "--out", out.as_str()];
+    args.extend_from_slice(extra);
+    let o = run(&args);
+    let err = String::from_utf8_lossy(&o.stderr).into_owned();
+    (o, err)
+}
+
+fn metric(s: &Value, key: &str) -> f64 {
+    s["metrics"][key]
+        .as_f64()
+        .unwrap_or_else(|| panic!("{key} missing in {s}"))
+}
+
+/// Both thesis controllers close a stable loop; the fast one settles
+/// faster and, with the configured disturbance, holds position with a
+/// smaller σ (thesis: 0.086 s vs 0.166 s, 0.050 µm vs 0.066 µm).
+#[test]
+fn slow_and_fast_steps() {
+    let dir = tmp();
+    let mut s = Vec::new();
+    for c in ["--slow", "--fast"] {
+        let (o, err) = control(dir.path(), &[c]);
+        assert!(o.status.success(), "{c}: {err}");
+        s.push(json_stdout(&o));
+    }
+    let (slow, fast) = (&s[0], &s[1]);
+    for v in [slow, fast] {
+        assert_eq!(v["loop_check"]["closed_loop_stable"], Value::Bool(true));
+        assert!(metric(v, "overshoot_pct") < 20.0);
+        assert!(metric(v, "steady_state_error_mean_nm").abs() < 20.0);
+    }
+    let (ts, tf) = (
+        metric(slow, "settling_time_s"),
+        metric(fast, "settling_time_s"),
+    );
+    eprintln!("settling: slow {ts:.3} s, fast {tf:.3} s");
+    assert!(tf < ts, "fast {tf} s is not faster than slow {ts} s");
+    let (ss, sf) = (
+        metric(slow, "steady_state_error_std_nm"),
+        metric(fast, "steady_state_error_std_nm"),
+    );
+    eprintln!("steady-state σ: slow {ss:.1} nm, fast {sf:.1} nm");
+    assert!(sf < ss, "fast σ {sf} nm is not below slow σ {ss} nm");
+    assert!(slow["disturbance_rms_n"].as_f64().unwrap() > 0.0);
+    // The thesis' figures without the amplifier lag (Figs 6-8, 6-10).
+    let m = |v: &Value, k: &str| v["loop_check"]["model_without_amplifier_lag"][k].clone();
+    let wc = |v: &Value| m(v, "crossovers_rad_s")[0].as_f64().unwrap();
+    let pm = |v: &Value| m(v, "phase_margin_deg").as_f64().unwrap();
+    assert!((wc(slow) - 18.7).abs() <= 1.0 && (pm(slow) - 73.0).abs() <= 3.0);
+    assert!((wc(fast) - 285.0).abs() <= 5.0 && (pm(fast) - 42.0).abs() <= 3.0);
+    // The recording holds the check, the metrics and setpoints.
+    let msgs = mcap_messages(&dir.path().join("run.mcap"));
+    assert!(msgs.iter().any(|m| m.0 == "/control/loop_check"));
+    let metrics = msgs.iter().find(|m| m.0 == "/control/metrics").unwrap();
+    assert_eq!(metrics.2["settling_time_s"].as_f64(), Some(tf));
+    let sample = msgs.iter().find(|m| m.0 == "/bench/sample").unwrap();
+    assert!(sample.2["setpoint_m"].as_f64().is_some());
+    assert!(dir.path().join("run.step.png").exists());
+}
+
+#[test]
+fn check_only_records_nothing() {
+    let dir = tmp();
+    let (o, err) = control(dir.path(), &["--fast", "--check-only"]);
+    assert!(o.status.success(), "{err}");
+    let s = json_stdout(&o);
+    assert!(s["metrics"].is_null());
+    assert!(files_in(dir.path()).is_empty());
+    let o = run(&["control", "--slow", "--check-only"]);
+    let text = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        text.contains("phase margin") && text.contains("passed"),
+        "{text}"
+    );
+}
+
+/// A controller whose loop is unstable on the model is refused before
+/// enable: exit 2, the failing figure in the message, nothing recorded.
+#[test]
+fn unstable_controller_is_refused() {
+    let dir = tmp();
+    let cfg = path_in(dir.path(), "bench.toml");
+    std::fs::write(
+        &cfg,
+        shipped_ch5().replace("gain = 51110.0", "gain = 511100.0"),
+    )
+    .unwrap();
+    let out_dir = dir.path().join("out");
+    std::fs::create_dir(&out_dir).unwrap();
+    let out = path_in(&out_dir, "run.mcap");
+    let o = run(&["control", "--fast", "--config", &cfg, "--out", &out]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("unstable") && err.contains("largest pole"),
+        "{err}"
+    );
+    assert!(files_in(&out_dir).is_empty());
+    let o = run(&["control", "--fast", "--config", &cfg, "--check-only"]);
+    assert_eq!(o.status.code(), Some(2));
+    // The override runs it on the simulator: the supervisor catches it.
+    let o = run(&[
+        "control",
+        "--fast",
+        "--config",
+        &cfg,
+        "--out",
+        &out,
+        "--override-check",
+        "--duration-s",
+        "2",
+    ]);
+    assert_eq!(
+        o.status.code(),
+        Some(3),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+}
+
+/// Every injected fault: 0 A from the faulting tick on, faulted until the
+/// end (no reset), the fault in the recording, the fault exit status.
+#[test]
+fn injected_faults_latch_with_zero_current() {
+    for (kind, fault) in [
+        ("nan", "probe_not_finite"),
+        ("frozen", "stale_sample"),
+        ("drop", "stale_sample"),
+        ("jump", "position_jump"),
+        ("out_of_range", "probe_out_of_range"),
+    ] {
+        let dir = tmp();
+        let spec = format!("{kind}@1.0");
+        let (o, err) = control(
+            dir.path(),
+            &["--fast", "--duration-s", "2", "--inject-fault", &spec],
+        );
+        assert_eq!(o.status.code(), Some(3), "{kind}: {err}");
+        assert!(err.contains(fault), "{kind}: {err}");
+        let msgs = mcap_messages(&dir.path().join("run.mcap"));
+        let ev = msgs
+            .iter()
+            .find(|m| m.0 == "/bench/event" && m.2["kind"] == "fault")
+            .unwrap_or_else(|| panic!("{kind}: no fault event"));
+        assert_eq!(ev.2["fault"], fault, "{kind}");
+        let tick = ev.2["tick"].as_u64().unwrap();
+        assert!(
+            (4990..=5010).contains(&tick),
+            "{kind}: fault at tick {tick}"
+        );
+        let samples: Vec<&Value> = msgs
+            .iter()
+            .filter(|m| m.0 == "/bench/sample")
+            .map(|m| &m.2)
+            .collect();
+        let after: Vec<&&Value> = samples
+            .iter()
+            .filter(|s| s["tick"].as_u64().unwrap() >= tick)
+            .collect();
+        assert!(!after.is_empty());
+        for s in after {
+            assert_eq!(s["current_command_a"].as_f64(), Some(0.0), "{kind}: {s}");
+            assert_eq!(s["state"], "faulted", "{kind}");
+        }
+        // Before the fault the loop was running with current flowing.
+        assert!(samples[..tick as usize]
+            .iter()
+            .any(|s| s["current_command_a"].as_f64().unwrap() != 0.0));
+        // The last state change keeps it faulted (latched, no reset).
+        let last_state = msgs.iter().rev().find(|m| m.0 == "/bench/event").unwrap();
+        assert_eq!(last_state.2["state"], "faulted", "{kind}");
+    }
+}
+
+#[test]
+fn bad_controller_input() {
+    let dir = tmp();
+    let o = run(&["control", "--controller", "nope", "--check-only"]);
+    assert_eq!(o.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains("nope") && err.contains("fast") && err.contains("slow"),
+        "{err}"
+    );
+    let cases = [
+        (
+            "zeta = 0.7 }]   # 179/2",
+            "zeta = -0.7 }]   # 179/2",
+            "controller.slow.complex_poles[0].zeta",
+        ),
+        (
+            "omega_rad_s = 175.0",
+            "omega_rad_s = 0.0",
+            "controller.fast.complex_zeros[0].omega_rad_s",
+        ),
+        (
+            "real_zeros_rad_s = [88.7]",
+            "real_zeros_rad_s = [88.7, 1.0, 2.0, 3.0]",
+            "improper",
+        ),
+        ("gain = 0.12 ", "gain = 0.0 ", "controller.slow.gain"),
+    ];
+    for (from, to, needle) in cases {
+        let text = shipped_ch5();
+        assert!(text.contains(from), "fixture drifted: {from}");
+        let cfg = path_in(dir.path(), "bench.toml");
+        std::fs::write(&cfg, text.replace(from, to)).unwrap();
+        let o = run(&["control", "--fast", "--config", &cfg, "--check-only"]);
+        assert_eq!(o.status.code(), Some(2), "{needle}");
+        assert!(
+            String::from_utf8_lossy(&o.stderr).contains(needle),
+            "{needle}: {}",
+            String::from_utf8_lossy(&o.stderr)
+        );
+    }
+    let o = run(&["control", "--fast", "--step-m", "1e-3", "--check-only"]);
+    assert_eq!(o.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains("--step-m") && err.contains("position limit"),
+        "{err}"
+    );
+    let o = run(&["control", "--fast", "--inject-fault", "smoke@1"]);
+    assert_eq!(o.status.code(), Some(2));
+    let o = run(&["control"]);
+    assert_eq!(
+        o.status.code(),
+        Some(2),
+        "one of --slow/--fast/--controller is required"
+    );
+}
+
+/// With `--frf`, the margins are also computed on a measured response; on
+/// the simulator they agree with the model's.
+#[test]
+fn margins_on_a_measured_frf() {
+    let dir = tmp();
+    let out = path_in(dir.path(), "c.mcap");
+    let o = run(&["chirp", "--out", &out]);
+    assert!(o.status.success());
+    let csv = path_in(dir.path(), "c.frf.csv");
+    let (o, err) = control(dir.path(), &["--fast", "--check-only", "--frf", &csv]);
+    assert!(o.status.success(), "{err}");
+    let s = json_stdout(&o);
+    let model = s["loop_check"]["model"]["crossovers_rad_s"][0]
+        .as_f64()
+        .unwrap();
+    let meas = s["loop_check"]["measured"]["crossovers_rad_s"][0]
+        .as_f64()
+        .unwrap();
+    assert!((meas / model - 1.0).abs() < 0.02, "{meas} vs {model}");
+    let pm_model = s["loop_check"]["model"]["phase_margin_deg"]
+        .as_f64()
+        .unwrap();
+    let pm_meas = s["loop_check"]["measured"]["phase_margin_deg"]
+        .as_f64()
+        .unwrap();
+    assert!((pm_meas - pm_model).abs() < 2.0, "{pm_meas} vs {pm_model}");
+    let bad = path_in(dir.path(), "bad.csv");
+    std::fs::write(&bad, "not,a,frf\n").unwrap();
+    let o = run(&["control", "--fast", "--check-only", "--frf", &bad]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("--frf"));
+}
