@@ -292,3 +292,30 @@ fn help_lists_every_chirp_option() {
         assert!(help.contains(flag), "--help lacks {flag}");
     }
 }
+
+#[test]
+fn help_lists_every_control_option() {
+    let o = run(&["control", "--help"]);
+    assert!(o.status.success());
+    let help = String::from_utf8_lossy(&o.stdout);
+    for flag in [
+        "--slow",
+        "--fast",
+        "--controller",
+        "--config",
+        "--step-m",
+        "--duration-s",
+        "--smooth-s",
+        "--out",
+        "--plot",
+        "--json",
+        "--realtime",
+        "--check-only",
+        "--frf",
+        "--override-check",
+        "--seed",
+        "--inject-fault",
+    ] {
+        assert!(help.contains(flag), "--help lacks {flag}");
+    }
+}

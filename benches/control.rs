@@ -1,0 +1,102 @@
+//! Closed-loop costs: per-tick compute of the fast controller (Eq. 6-7)
+//! plus the supervisor, with its p50/p99 from a histogram of single ticks,
+//! and a whole closed-loop step in virtual time (simulated seconds per wall
+//! second).
+
+use bench::config::BenchConfig;
+use bench::control::DiscreteController;
+use bench::control_run::{run_control, ControlJob, ControlOptions};
+use bench::rt::Job;
+use bench::supervisor::Supervisor;
+use bench::timing::Histogram;
+use bench_hal::{Sample, SampleFlags};
+use criterion::{black_box, criterion_group, criterion_main, Criterion};
+use std::path::Path;
+use std::sync::atomic::AtomicBool;
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+fn config() -> (BenchConfig, std::path::PathBuf) {
+    let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("bench-config/sr4dof-ch5.toml");
+    (BenchConfig::load(&p).unwrap(), p)
+}
+
+fn sample(k: u64) -> Sample {
+    Sample {
+        seq: k,
+        device_time_ns: k * 200_000,
+        position_m: 1e-6 * ((k % 97) as f64 * 0.01).sin(),
+        measured_current_a: f64::NAN,
+        flags: SampleFlags::default(),
+    }
+}
+
+fn control(c: &mut Criterion) {
+    let (cfg, path) = config();
+    let info = bench_hal::DeviceInfo {
+        name: "bench".into(),
+        clock: bench_hal::Clock::Host,
+        period_ns: cfg.loop_.period_ns(),
+        peak_current_a: cfg.actuator.peak_current_a,
+        continuous_current_a: cfg.actuator.continuous_current_a,
+        probe_range_m: cfg.probe.range_m,
+    };
+    let ctrl = DiscreteController::new(&cfg.controller["fast"], 2e-4, info.peak_current_a);
+    let mut job = ControlJob::new(ctrl, 1e-5, 10, 0, u64::MAX);
+    let mut sup = Supervisor::new(cfg.supervisor(&info));
+    sup.enabled();
+    sup.running();
+
+    // p50/p99 of single ticks (Instant overhead included, ~20 ns).
+    let mut h = Histogram::default();
+    for k in 0..1_000_000u64 {
+        let s = sample(k);
+        let t0 = Instant::now();
+        sup.check_sample(&s);
+        let out = job.tick(k, &s);
+        black_box(sup.command(out.command_a));
+        h.record(t0.elapsed().as_nanos() as f64);
+    }
+    println!(
+        "control/fast_tick_single: p50 {:.0} ns, p99 {:.0} ns, max {:.0} ns (log-bucket upper edges, 1e6 ticks)",
+        h.quantile_ns(0.5),
+        h.quantile_ns(0.99),
+        h.max_ns()
+    );
+
+    let mut g = c.benchmark_group("control");
+    let mut k = 0u64;
+    g.bench_function("fast_controller_plus_supervisor_tick", |b| {
+        b.iter(|| {
+            k += 1;
+            let s = sample(k);
+            sup.check_sample(&s);
+            let out = job.tick(k, &s);
+            sup.command(out.command_a)
+        })
+    });
+
+    let dir = tempfile::tempdir().unwrap();
+    let opts = ControlOptions {
+        config: cfg.clone(),
+        config_path: path,
+        controller: "fast".into(),
+        check_only: false,
+        frf: None,
+        override_check: false,
+        out: dir.path().join("run.mcap"),
+        plot: dir.path().join("run.step.png"),
+        realtime: false,
+        seed: 1,
+        progress: false,
+        inject: None,
+    };
+    g.sample_size(10).measurement_time(Duration::from_secs(15));
+    g.bench_function("closed_loop_step_4s_virtual", |b| {
+        b.iter(|| run_control(&opts, Arc::new(AtomicBool::new(false))).unwrap())
+    });
+    g.finish();
+}
+
+criterion_group!(benches, control);
+criterion_main!(benches);
