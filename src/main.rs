@@ -305,13 +305,7 @@ fn chirp(args: ChirpArgs, stop: Arc<AtomicBool>) -> ExitCode {
     };
     apply_overrides(&mut cfg, &args);
     if let Err(e) = cfg.validate(&args.config) {
-        return match &e {
-            ConfigError::Invalid { key, reason, .. } => match flag_for_key(key, &args) {
-                Some(flag) => bad_input(format!("{flag} (config key {key}): {reason}")),
-                None => bad_input(e),
-            },
-            _ => bad_input(e),
-        };
+        return invalid_config(e, |key| flag_for_key(key, &args));
     }
     let out = args
         .out
@@ -340,20 +334,10 @@ fn chirp(args: ChirpArgs, stop: Arc<AtomicBool>) -> ExitCode {
         progress: std::io::stderr().is_terminal(),
     };
     match run_chirp(&opts, stop) {
-        Ok(summary) => {
-            if args.json {
-                match serde_json::to_string(&summary) {
-                    Ok(s) => println!("{s}"),
-                    Err(e) => {
-                        eprintln!("error: {e}");
-                        return ExitCode::from(status::ERROR);
-                    }
-                }
-            } else {
-                print_summary(&summary);
-            }
-            ExitCode::SUCCESS
-        }
+        Ok(summary) => match emit(&summary, args.json, print_summary) {
+            Ok(()) => ExitCode::SUCCESS,
+            Err(code) => code,
+        },
         Err(e) => {
             eprintln!("error: {e:#}");
             exit_for(&e)
@@ -422,6 +406,31 @@ fn print_summary(s: &ChirpSummary) {
     );
 }
 
+/// Prints a summary: one JSON object with `--json`, else the human form.
+fn emit<T: serde::Serialize>(summary: &T, json: bool, human: fn(&T)) -> Result<(), ExitCode> {
+    if json {
+        let s = serde_json::to_string(summary).map_err(|e| {
+            eprintln!("error: {e}");
+            ExitCode::from(status::ERROR)
+        })?;
+        println!("{s}");
+    } else {
+        human(summary);
+    }
+    Ok(())
+}
+
+/// Exit for a config that failed validation, naming the flag when a
+/// command-line override set the offending key.
+fn invalid_config(e: ConfigError, flag_for_key: impl Fn(&str) -> Option<&'static str>) -> ExitCode {
+    if let ConfigError::Invalid { key, reason, .. } = &e {
+        if let Some(flag) = flag_for_key(key) {
+            return bad_input(format!("{flag} (config key {key}): {reason}"));
+        }
+    }
+    bad_input(e)
+}
+
 fn exit_for(e: &RunError) -> ExitCode {
     ExitCode::from(match e {
         RunError::BadInput(_) | RunError::Refused(_) => status::BAD_INPUT,
@@ -475,21 +484,12 @@ fn control(args: ControlArgs, stop: Arc<AtomicBool>) -> ExitCode {
         cfg.step.smooth_s = v;
     }
     if let Err(e) = cfg.validate(&args.config) {
-        return match &e {
-            ConfigError::Invalid { key, reason, .. } => {
-                let flag = match key.as_str() {
-                    "step.step_m" if args.step_m.is_some() => Some("--step-m"),
-                    "step.duration_s" if args.duration_s.is_some() => Some("--duration-s"),
-                    "step.smooth_s" if args.smooth_s.is_some() => Some("--smooth-s"),
-                    _ => None,
-                };
-                match flag {
-                    Some(f) => bad_input(format!("{f} (config key {key}): {reason}")),
-                    None => bad_input(e),
-                }
-            }
-            _ => bad_input(e),
-        };
+        return invalid_config(e, |key| match key {
+            "step.step_m" if args.step_m.is_some() => Some("--step-m"),
+            "step.duration_s" if args.duration_s.is_some() => Some("--duration-s"),
+            "step.smooth_s" if args.smooth_s.is_some() => Some("--smooth-s"),
+            _ => None,
+        });
     }
     let inject = match args.inject_fault.as_deref().map(parse_fault).transpose() {
         Ok(f) => f,
@@ -531,16 +531,8 @@ fn control(args: ControlArgs, stop: Arc<AtomicBool>) -> ExitCode {
     };
     match run_control(&opts, stop) {
         Ok(summary) => {
-            if args.json {
-                match serde_json::to_string(&summary) {
-                    Ok(s) => println!("{s}"),
-                    Err(e) => {
-                        eprintln!("error: {e}");
-                        return ExitCode::from(status::ERROR);
-                    }
-                }
-            } else {
-                print_control_summary(&summary);
+            if let Err(code) = emit(&summary, args.json, print_control_summary) {
+                return code;
             }
             if args.check_only && !summary.loop_check.passed() {
                 eprintln!(

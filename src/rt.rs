@@ -14,7 +14,11 @@
 //!    real-time mode a full queue drops the record and counts it, it never
 //!    waits; in virtual time (no deadlines) the loop yields until the writer
 //!    makes room, so a simulated run never loses a record;
-//! 7. measure wake-up latency, compute time and overrun.
+//! 7. measure wake-up latency, compute time and overrun. A tick that ends
+//!    more than one period after its deadline is an overrun; the deadlines
+//!    it made the loop miss are skipped, not caught up back to back, so one
+//!    stall (a VM hiccup, an SMI) costs one overrun and only a loop that
+//!    keeps missing its deadlines reaches `max_consecutive_overruns`.
 //!
 //! Nothing on the tick allocates, locks, logs or does I/O other than the
 //! HAL calls (the `alloc` integration test counts allocations to prove it).
@@ -286,7 +290,9 @@ pub fn run<S: Stage, J: Job>(
     em.event(0, 0.0, EventKind::JobStarted, &sup, f64::NAN);
 
     let host_paced = matches!(opts.pacing, Pacing::RealTime { .. }) && clock == Clock::Host;
-    let start_ns = now_ns() + opts.period_ns;
+    // Deadlines are start + tick × period, shifted by the periods skipped
+    // after a stall (see below).
+    let mut start_ns = now_ns() + opts.period_ns;
     let mut stop_reason = StopReason::TickLimit;
     let mut tick = 0u64;
     let mut hal_error: Option<String> = None;
@@ -370,6 +376,12 @@ pub fn run<S: Stage, J: Job>(
         window.compute.record(end as f64 - wake as f64);
         if overran {
             window.overruns += 1;
+            // A stall longer than a period: skip the deadlines already
+            // missed instead of running catch-up ticks back to back (their
+            // samples would not be a period apart). One stall is one
+            // overrun; only a loop that keeps missing faults.
+            let missed = (end - deadline) / opts.period_ns;
+            start_ns += missed * opts.period_ns;
         }
         if host_paced && sup.check_overrun(overran).is_some() {
             let _ = stage.write_command(Command {

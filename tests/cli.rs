@@ -168,10 +168,12 @@ fn sigkill_in_realtime_loses_at_most_100_ms() {
     std::thread::sleep(Duration::from_millis(1500));
     let waited = t0.elapsed().as_secs_f64();
     child.kill().unwrap(); // SIGKILL
-    child.wait().unwrap();
+    let o = child.wait_with_output().unwrap();
     assert!(
         !dir.path().join("run.mcap").exists(),
-        "a killed run must not look complete"
+        "a killed run must not look complete; the run ended by itself first: {:?} {}",
+        o.status,
+        String::from_utf8_lossy(&o.stderr)
     );
     let bytes = std::fs::read(&part).unwrap();
     let samples = bench::record::read_samples_tolerant(&bytes);
