@@ -295,7 +295,9 @@ pub fn run<S: Stage, J: Job>(
     let mut start_ns = now_ns() + opts.period_ns;
     let mut stop_reason = StopReason::TickLimit;
     let mut tick = 0u64;
-    let mut hal_error: Option<String> = None;
+    // The first HAL error, kept as-is (formatting would allocate on the
+    // tick); it becomes a message after the loop.
+    let mut hal_error: Option<(&'static str, S::Error)> = None;
     while tick < opts.max_ticks {
         let deadline = start_ns + tick * opts.period_ns;
         if host_paced {
@@ -312,7 +314,7 @@ pub fn run<S: Stage, J: Job>(
             Ok(s) => s,
             Err(e) => {
                 if hal_error.is_none() {
-                    hal_error = Some(format!("read_sample: {e}"));
+                    hal_error = Some(("read_sample", e));
                 }
                 fault_now |= sup.trip(FaultKind::Hal, f64::NAN);
                 Sample {
@@ -338,7 +340,7 @@ pub fn run<S: Stage, J: Job>(
             answers_seq: sample.seq,
         }) {
             if hal_error.is_none() {
-                hal_error = Some(format!("write_command: {e}"));
+                hal_error = Some(("write_command", e));
             }
             fault_now |= sup.trip(FaultKind::Hal, command_a);
         }
@@ -350,6 +352,9 @@ pub fn run<S: Stage, J: Job>(
             });
             let _ = stage.disable();
         }
+        // Compute time ends when the command is out; queueing the record
+        // comes after (in virtual time it may wait for the writer).
+        let end = now_ns();
 
         em.push(Record::Sample(SampleRecord {
             tick,
@@ -366,7 +371,6 @@ pub fn run<S: Stage, J: Job>(
             em.event(tick, t_s, EventKind::Fault, &sup, value);
         }
 
-        let end = now_ns();
         let overran = host_paced && end > deadline + opts.period_ns;
         if host_paced {
             window.wake.record(wake as f64 - deadline as f64);
@@ -410,8 +414,8 @@ pub fn run<S: Stage, J: Job>(
         if sup.state() == SupervisorState::Faulted {
             let (kind, value) = sup.fault().unwrap_or((FaultKind::Hal, f64::NAN));
             stop_reason = match hal_error.take() {
-                Some(message) if kind == FaultKind::Hal => StopReason::Hal {
-                    message,
+                Some((call, e)) if kind == FaultKind::Hal => StopReason::Hal {
+                    message: format!("{call}: {e}"),
                     tick: tick - 1,
                 },
                 _ => StopReason::Fault {
