@@ -13,8 +13,7 @@ use bench_hal::{Sample, Stage};
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::cell::Cell;
 use std::path::Path;
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
-use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, AtomicU64};
 
 struct Counting;
 
@@ -73,13 +72,59 @@ impl<J: Job> Job for Counted<J> {
     }
 }
 
-fn run_counted(pacing: Pacing, seconds: f64) -> (u64, u64) {
+/// Runs `job` on `stage` in a fresh loop thread, counting that thread's
+/// allocations from tick 100 on, with the queue drained on another thread
+/// (which may allocate: it is not counted). Returns the report, the
+/// allocations and the records drained.
+fn run_counted_job<J: Job + Send + 'static>(
+    mut stage: SimStage,
+    job: J,
+    opts: LoopOptions,
+    clock: bench_hal::Clock,
+) -> (rt::LoopReport, u64, u64) {
+    let (mut producer, mut consumer) = rtrb::RingBuffer::<Record>::new(1 << 16);
+    let drain = std::thread::spawn(move || {
+        let mut n = 0u64;
+        while !consumer.is_abandoned() || !consumer.is_empty() {
+            while consumer.pop().is_ok() {
+                n += 1;
+            }
+            std::thread::sleep(std::time::Duration::from_millis(1));
+        }
+        n
+    });
+    let (report, allocations) = std::thread::spawn(move || {
+        let mut job = Counted {
+            inner: job,
+            from_tick: 100,
+        };
+        let report = rt::run(
+            &mut stage,
+            &mut job,
+            &opts,
+            clock,
+            &mut producer,
+            &AtomicBool::new(false),
+            &AtomicU64::new(0),
+        );
+        (report, stop_counting())
+    })
+    .join()
+    .unwrap();
+    (report, allocations, drain.join().unwrap())
+}
+
+fn ch5() -> BenchConfig {
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("bench-config/sr4dof-ch5.toml");
-    let mut cfg = BenchConfig::load(&path).unwrap();
+    BenchConfig::load(&path).unwrap()
+}
+
+fn run_counted(pacing: Pacing, seconds: f64) -> (u64, u64) {
+    let mut cfg = ch5();
     cfg.chirp.duration_s = seconds;
     cfg.chirp.taper_s = 0.1;
     cfg.chirp.f_start_hz = 5.0;
-    cfg.validate(&path).unwrap();
+    cfg.validate(Path::new("ch5")).unwrap();
     let mut stage = SimStage::new(cfg.sim_params(7)).unwrap();
     let info = stage.configure(cfg.loop_.period_ns()).unwrap();
     let chirp = Chirp::new(&cfg.chirp, info.period_ns as f64 * 1e-9);
@@ -93,43 +138,8 @@ fn run_counted(pacing: Pacing, seconds: f64) -> (u64, u64) {
         },
         max_ticks: chirp.total_ticks(),
     };
-    let (mut producer, mut consumer) = rtrb::RingBuffer::<Record>::new(1 << 16);
-    let done = Arc::new(AtomicBool::new(false));
-    let drain_done = Arc::clone(&done);
-    // Drain on another thread (it may allocate; it is not counted).
-    let drain = std::thread::spawn(move || {
-        let mut n = 0u64;
-        loop {
-            while consumer.pop().is_ok() {
-                n += 1;
-            }
-            if drain_done.load(Ordering::Acquire) && consumer.is_empty() {
-                return n;
-            }
-            std::thread::sleep(std::time::Duration::from_millis(1));
-        }
-    });
-    let stop = AtomicBool::new(false);
-    let progress = AtomicU64::new(0);
-    let rt_thread = std::thread::spawn(move || {
-        let mut job = Counted {
-            inner: ChirpJob::new(chirp),
-            from_tick: 100,
-        };
-        let report = rt::run(
-            &mut stage,
-            &mut job,
-            &opts,
-            info.clock,
-            &mut producer,
-            &stop,
-            &progress,
-        );
-        (report, stop_counting())
-    });
-    let (report, allocations) = rt_thread.join().unwrap();
-    done.store(true, Ordering::Release);
-    let records = drain.join().unwrap();
+    let (report, allocations, records) =
+        run_counted_job(stage, ChirpJob::new(chirp), opts, info.clock);
     assert_eq!(report.stop, StopReason::Finished);
     assert!(records >= report.ticks);
     (allocations, report.ticks)
@@ -160,8 +170,7 @@ fn tick_allocates_nothing() {
 fn closed_loop_tick_allocates_nothing() {
     use bench::control::DiscreteController;
     use bench::control_run::ControlJob;
-    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("bench-config/sr4dof-ch5.toml");
-    let cfg = BenchConfig::load(&path).unwrap();
+    let cfg = ch5();
     assert!(cfg.plant.disturbance.is_some());
     let mut stage = SimStage::new(cfg.sim_params(7)).unwrap();
     let info = stage.configure(cfg.loop_.period_ns()).unwrap();
@@ -175,36 +184,9 @@ fn closed_loop_tick_allocates_nothing() {
         safety: cfg.supervisor(&info),
         max_ticks: total,
     };
-    let (mut producer, mut consumer) = rtrb::RingBuffer::<Record>::new(1 << 16);
-    let drain = std::thread::spawn(move || {
-        let mut n = 0u64;
-        while !consumer.is_abandoned() || !consumer.is_empty() {
-            while consumer.pop().is_ok() {
-                n += 1;
-            }
-            std::thread::sleep(std::time::Duration::from_millis(1));
-        }
-        n
-    });
-    let (report, allocations) = std::thread::spawn(move || {
-        let mut job = Counted {
-            inner: ControlJob::new(ctrl, 1e-5, 1000, 0, total),
-            from_tick: 100,
-        };
-        let report = rt::run(
-            &mut stage,
-            &mut job,
-            &opts,
-            info.clock,
-            &mut producer,
-            &AtomicBool::new(false),
-            &AtomicU64::new(0),
-        );
-        (report, stop_counting())
-    })
-    .join()
-    .unwrap();
-    assert!(drain.join().unwrap() >= total);
+    let job = ControlJob::new(ctrl, 1e-5, 1000, 0, total);
+    let (report, allocations, records) = run_counted_job(stage, job, opts, info.clock);
+    assert!(records >= total);
     assert_eq!(report.stop, StopReason::Finished);
     assert_eq!(
         allocations, 0,
@@ -228,8 +210,7 @@ fn counter_sees_an_allocating_job() {
             }
         }
     }
-    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("bench-config/sr4dof-ch5.toml");
-    let cfg = BenchConfig::load(&path).unwrap();
+    let cfg = ch5();
     let mut stage = SimStage::new(cfg.sim_params(7)).unwrap();
     let info = stage.configure(cfg.loop_.period_ns()).unwrap();
     let opts = LoopOptions {
@@ -239,24 +220,6 @@ fn counter_sees_an_allocating_job() {
         safety: cfg.supervisor(&info),
         max_ticks: 1_000,
     };
-    let (mut producer, _consumer) = rtrb::RingBuffer::<Record>::new(4096);
-    let allocations = std::thread::spawn(move || {
-        let mut job = Counted {
-            inner: Leaky,
-            from_tick: 100,
-        };
-        rt::run(
-            &mut stage,
-            &mut job,
-            &opts,
-            info.clock,
-            &mut producer,
-            &AtomicBool::new(false),
-            &AtomicU64::new(0),
-        );
-        stop_counting()
-    })
-    .join()
-    .unwrap();
+    let (_, allocations, _) = run_counted_job(stage, Leaky, opts, info.clock);
     assert!(allocations >= 100, "{allocations}");
 }
