@@ -292,52 +292,19 @@ struct FrfOut<'a> {
 }
 
 fn state_names() -> Vec<&'static str> {
-    use SupervisorState::*;
-    let all = [Disabled, Enabled, Running, Faulted];
-    // Exhaustiveness guard: a new variant makes this fail to compile, so the
-    // schema's enum list cannot silently go stale.
-    let _ = |s: SupervisorState| match s {
-        Disabled | Enabled | Running | Faulted => (),
-    };
-    all.iter().map(|s| s.as_str()).collect()
+    SupervisorState::ALL.iter().map(|s| s.as_str()).collect()
 }
 
 fn event_kind_names() -> Vec<&'static str> {
-    use EventKind::*;
-    let all = [
-        LoopStarted,
-        StateChanged,
-        JobStarted,
-        JobFinished,
-        Fault,
-        Interrupted,
-        LoopStopped,
-    ];
-    let _ = |k: EventKind| match k {
-        LoopStarted | StateChanged | JobStarted | JobFinished | Fault | Interrupted
-        | LoopStopped => (),
-    };
-    all.iter().map(|k| k.as_str()).collect()
+    EventKind::ALL.iter().map(|k| k.as_str()).collect()
 }
 
+/// Fault names, plus `null` (no fault).
 fn fault_names() -> Vec<Value> {
-    use FaultKind::*;
-    let all = [
-        PositionLimit,
-        ProbeOutOfRange,
-        ProbeNotFinite,
-        CommandNotFinite,
-        Overruns,
-        Hal,
-        StaleSample,
-        PositionJump,
-        I2t,
-    ];
-    let _ = |f: FaultKind| match f {
-        PositionLimit | ProbeOutOfRange | ProbeNotFinite | CommandNotFinite | Overruns | Hal
-        | StaleSample | PositionJump | I2t => (),
-    };
-    let mut v: Vec<Value> = all.iter().map(|f| Value::from(f.as_str())).collect();
+    let mut v: Vec<Value> = FaultKind::ALL
+        .iter()
+        .map(|f| Value::from(f.as_str()))
+        .collect();
     v.push(Value::Null);
     v
 }
@@ -997,10 +964,7 @@ struct SampleIn {
 }
 
 fn parse_state(s: &str) -> Option<SupervisorState> {
-    use SupervisorState::*;
-    [Disabled, Enabled, Running, Faulted]
-        .into_iter()
-        .find(|st| st.as_str() == s)
+    SupervisorState::ALL.into_iter().find(|st| st.as_str() == s)
 }
 
 /// Decodes a `/bench/sample` JSON payload back into a [`SampleRecord`]

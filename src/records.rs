@@ -67,6 +67,9 @@ pub enum SupervisorState {
 }
 
 impl SupervisorState {
+    /// Every state (the recording schemas list them).
+    pub const ALL: [Self; 4] = [Self::Disabled, Self::Enabled, Self::Running, Self::Faulted];
+
     /// Lower-case name used in recordings and summaries.
     pub fn as_str(self) -> &'static str {
         match self {
@@ -98,6 +101,17 @@ pub enum EventKind {
 }
 
 impl EventKind {
+    /// Every kind (the recording schemas list them).
+    pub const ALL: [Self; 7] = [
+        Self::LoopStarted,
+        Self::StateChanged,
+        Self::JobStarted,
+        Self::JobFinished,
+        Self::Fault,
+        Self::Interrupted,
+        Self::LoopStopped,
+    ];
+
     /// Snake-case name used in recordings.
     pub fn as_str(self) -> &'static str {
         match self {
@@ -137,6 +151,19 @@ pub enum FaultKind {
 }
 
 impl FaultKind {
+    /// Every fault (the recording schemas list them).
+    pub const ALL: [Self; 9] = [
+        Self::PositionLimit,
+        Self::ProbeOutOfRange,
+        Self::ProbeNotFinite,
+        Self::CommandNotFinite,
+        Self::Overruns,
+        Self::Hal,
+        Self::StaleSample,
+        Self::PositionJump,
+        Self::I2t,
+    ];
+
     /// Snake-case name used in recordings and exit messages.
     pub fn as_str(self) -> &'static str {
         match self {
@@ -180,4 +207,69 @@ pub enum Record {
     Timing(TimingRecord),
     /// `/bench/event`
     Event(EventRecord),
+}
+
+/// Keeps the `ALL` lists complete: a new variant stops this compiling until
+/// it is added here, and the test below then checks it is in `ALL`.
+#[allow(dead_code)]
+fn variant_index(r: (SupervisorState, EventKind, FaultKind)) -> (usize, usize, usize) {
+    use EventKind as E;
+    use FaultKind as F;
+    use SupervisorState as S;
+    let s = match r.0 {
+        S::Disabled => 0,
+        S::Enabled => 1,
+        S::Running => 2,
+        S::Faulted => 3,
+    };
+    let e = match r.1 {
+        E::LoopStarted => 0,
+        E::StateChanged => 1,
+        E::JobStarted => 2,
+        E::JobFinished => 3,
+        E::Fault => 4,
+        E::Interrupted => 5,
+        E::LoopStopped => 6,
+    };
+    let f = match r.2 {
+        F::PositionLimit => 0,
+        F::ProbeOutOfRange => 1,
+        F::ProbeNotFinite => 2,
+        F::CommandNotFinite => 3,
+        F::Overruns => 4,
+        F::Hal => 5,
+        F::StaleSample => 6,
+        F::PositionJump => 7,
+        F::I2t => 8,
+    };
+    (s, e, f)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// `ALL[i]` is the variant with index i, and names are distinct.
+    #[test]
+    fn all_lists_are_complete_and_names_distinct() {
+        for (i, s) in SupervisorState::ALL.iter().enumerate() {
+            assert_eq!(variant_index((*s, EventKind::Fault, FaultKind::Hal)).0, i);
+        }
+        for (i, e) in EventKind::ALL.iter().enumerate() {
+            assert_eq!(
+                variant_index((SupervisorState::Faulted, *e, FaultKind::Hal)).1,
+                i
+            );
+        }
+        for (i, f) in FaultKind::ALL.iter().enumerate() {
+            assert_eq!(
+                variant_index((SupervisorState::Faulted, EventKind::Fault, *f)).2,
+                i
+            );
+        }
+        let mut names: Vec<&str> = FaultKind::ALL.iter().map(|f| f.as_str()).collect();
+        names.sort();
+        names.dedup();
+        assert_eq!(names.len(), FaultKind::ALL.len());
+    }
 }
