@@ -36,6 +36,10 @@ pub struct Chirp {
     lead_in_ticks: u64,
     sweep_ticks: u64,
     tail_ticks: u64,
+    /// Sweep time T, s (`sweep_ticks × period_s`).
+    sweep_s: f64,
+    /// `ln(f_end / f_start)`.
+    ln_ratio: f64,
 }
 
 impl Chirp {
@@ -43,6 +47,7 @@ impl Chirp {
     /// assumed validated ([`crate::config::BenchConfig::validate`]).
     pub fn new(cfg: &ChirpConfig, period_s: f64) -> Self {
         let ticks = |s: f64| (s / period_s).round() as u64;
+        let sweep_ticks = ticks(cfg.duration_s).max(1);
         let mut profile = [(0.0, 1.0); MAX_PROFILE_POINTS];
         let profile_len = cfg.amplitude_profile.len().min(MAX_PROFILE_POINTS);
         for (slot, [f, scale]) in profile.iter_mut().zip(&cfg.amplitude_profile) {
@@ -58,8 +63,10 @@ impl Chirp {
             profile_len,
             period_s,
             lead_in_ticks: ticks(cfg.lead_in_s),
-            sweep_ticks: ticks(cfg.duration_s).max(1),
+            sweep_ticks,
             tail_ticks: ticks(cfg.tail_s),
+            sweep_s: sweep_ticks as f64 * period_s,
+            ln_ratio: (cfg.f_end_hz / cfg.f_start_hz).ln(),
         }
     }
 
@@ -75,7 +82,7 @@ impl Chirp {
 
     /// Instantaneous frequency at sweep time `t` (s from the sweep start), Hz.
     pub fn frequency_hz(&self, t: f64) -> f64 {
-        let big_t = self.sweep_ticks as f64 * self.period_s;
+        let big_t = self.sweep_s;
         let (f0, f1) = (self.f_start_hz, self.f_end_hz);
         match self.kind {
             ChirpKind::Exponential => f0 * (f1 / f0).powf(t / big_t),
@@ -108,11 +115,11 @@ impl Chirp {
             return 0.0;
         }
         let t = (tick - self.lead_in_ticks) as f64 * self.period_s;
-        let big_t = self.sweep_ticks as f64 * self.period_s;
+        let big_t = self.sweep_s;
         let (f0, f1) = (self.f_start_hz, self.f_end_hz);
         let theta = match self.kind {
             ChirpKind::Exponential => {
-                let ln_r = (f1 / f0).ln();
+                let ln_r = self.ln_ratio;
                 2.0 * PI * f0 * big_t / ln_r * ((t / big_t * ln_r).exp() - 1.0)
             }
             ChirpKind::Linear => 2.0 * PI * (f0 * t + (f1 - f0) * t * t / (2.0 * big_t)),
