@@ -1,7 +1,8 @@
 //! The simulated stage: exact ZOH, amplifier, probe, stop, lifecycle and
 //! determinism, against analytic results.
 
-use bench_hal::model::{Beam, Damping, Sr4dofParams};
+mod common;
+
 use bench_hal::sim::{ActuatorParams, ProbeParams, SimParams, SimStage, ZohPlant};
 use bench_hal::{Command, Error, ErrorKind, Stage};
 use nalgebra::Complex;
@@ -9,29 +10,7 @@ use std::f64::consts::PI;
 
 fn params(y1o_frac: f64, noise: f64) -> SimParams {
     SimParams {
-        plant: Sr4dofParams {
-            m1_kg: 0.4,
-            m2_kg: 0.06,
-            m3_kg: 0.06,
-            m4_kg: 0.8,
-            m5_kg: 0.8,
-            k4_n_per_m: 36e3,
-            k5_n_per_m: 36e3,
-            operating_point_m: y1o_frac * 0.0475,
-            mass_asymmetry: 0.1,
-            beam: Beam {
-                length_m: 0.0475,
-                height_m: 0.0254,
-                thickness_m: 0.000625,
-                youngs_modulus_pa: 6.9e10,
-            },
-            parallelogram_stiffness_n_per_m: None,
-            damping: Damping {
-                zeta_rigid: 0.009,
-                zeta_csm: 0.004,
-            },
-            disturbance: None,
-        },
+        plant: common::ch5(y1o_frac, 0.1),
         actuator: ActuatorParams {
             force_constant_n_per_a: 11.12,
             bandwidth_hz: 1000.0,
