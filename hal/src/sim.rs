@@ -406,7 +406,6 @@ pub struct SimStage {
     period_ns: u64,
     enabled: bool,
     demand_a: f64,
-    disturbance_n: f64,
     first_read: bool,
     at_stop: bool,
     fault: Option<ScheduledFault>,
@@ -436,7 +435,6 @@ impl SimStage {
             period_ns: 0,
             enabled: false,
             demand_a: 0.0,
-            disturbance_n: 0.0,
             first_read: true,
             at_stop: false,
             fault: None,
@@ -476,12 +474,6 @@ impl SimStage {
         self.enabled
     }
 
-    /// Sets the input force disturbance held over the coming period, N
-    /// (added to the configured band-limited disturbance). Real-time safe.
-    pub fn set_disturbance_n(&mut self, force_n: f64) {
-        self.disturbance_n = force_n;
-    }
-
     /// Schedules a fault (replaces any earlier one).
     pub fn inject(&mut self, fault: ScheduledFault) {
         self.fault = Some(fault);
@@ -499,7 +491,7 @@ impl SimStage {
             return;
         };
         let demand = if self.enabled { self.demand_a } else { 0.0 };
-        let d = self.disturbance_n + self.disturbance.as_mut().map_or(0.0, |s| s.next_n());
+        let d = self.disturbance.as_mut().map_or(0.0, |s| s.next_n());
         plant.step(&mut self.x, demand, d);
         if !self.enabled {
             // A disabled amplifier opens the coil circuit: no current flows.
