@@ -24,7 +24,11 @@
 //! says which in [`DeviceInfo::clock`].
 #![warn(missing_docs)]
 
+pub mod can;
+pub mod device;
 pub mod model;
+pub mod protocol;
+pub mod serial;
 pub mod sim;
 
 use core::fmt;

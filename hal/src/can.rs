@@ -1,0 +1,1 @@
+//! SocketCAN backend (in progress).

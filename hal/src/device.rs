@@ -1,0 +1,508 @@
+//! The device side of an emulated DAQ: the simulated plant as a
+//! microcontroller would run it, with its own clock and a watchdog.
+//!
+//! Both emulators (serial over a pseudo-terminal, SocketCAN) wrap one
+//! [`DeviceCore`]; they differ only in how samples and commands travel. The
+//! core is transport-free and time is passed in, so its rules are unit
+//! tested without a link:
+//!
+//! * **The device owns the clock.** [`DeviceCore::tick`] is called on the
+//!   device's sample timer (period `period_ns`). It advances the plant by one
+//!   period with the latest accepted command held (zero-order hold) and
+//!   returns the new sample, sequence numbers consecutive from 0.
+//! * **Latest command wins.** [`DeviceCore::command`] stores a demand for the
+//!   coming period; it is applied from the next tick on.
+//! * **Watchdog.** While enabled, if no valid command has arrived for
+//!   `watchdog_ns`, the next tick drops the current to 0 A, disables the
+//!   amplifier and latches [`DeviceFault::Watchdog`]. Only
+//!   [`DeviceCore::enable`] clears the latch. Worst-case detection time is
+//!   `watchdog_ns + period_ns` after the last valid command.
+
+use crate::sim::{FaultInjection, ScheduledFault, SimError, SimParams, SimStage};
+use crate::{Command, DeviceInfo, Sample, Stage};
+
+/// A latched device fault (reported in samples and status messages).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum DeviceFault {
+    /// No valid command for longer than the watchdog time.
+    Watchdog,
+    /// A command while disabled or a non-finite command.
+    BadCommand,
+}
+
+impl DeviceFault {
+    /// Wire code (serial protocol `fault` field, CAN status byte).
+    pub fn code(self) -> u8 {
+        match self {
+            Self::Watchdog => 1,
+            Self::BadCommand => 2,
+        }
+    }
+
+    /// The fault for a wire code, `None` for 0 or an unknown code.
+    pub fn from_code(code: u8) -> Option<Self> {
+        match code {
+            1 => Some(Self::Watchdog),
+            2 => Some(Self::BadCommand),
+            _ => None,
+        }
+    }
+
+    /// Snake-case name.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Watchdog => "watchdog",
+            Self::BadCommand => "bad_command",
+        }
+    }
+}
+
+/// The emulated device: plant, clock, amplifier state and watchdog.
+#[derive(Debug, Clone)]
+pub struct DeviceCore {
+    stage: SimStage,
+    info: DeviceInfo,
+    watchdog_ns: u64,
+    enabled: bool,
+    fault: Option<DeviceFault>,
+    /// Device time of the last valid command (or of the enable), ns.
+    last_command_ns: u64,
+    /// Device time of the latest tick, ns.
+    now_ns: u64,
+    demand_a: f64,
+    last_seq: u64,
+}
+
+impl DeviceCore {
+    /// A device running `params` at `period_ns` with a `watchdog_ns`
+    /// watchdog. Disabled at 0 A.
+    ///
+    /// # Errors
+    /// The simulator's parameter or period errors.
+    pub fn new(params: SimParams, period_ns: u64, watchdog_ns: u64) -> Result<Self, SimError> {
+        let mut stage = SimStage::new(params)?;
+        let info = stage.configure(period_ns)?;
+        Ok(Self {
+            stage,
+            info,
+            watchdog_ns,
+            enabled: false,
+            fault: None,
+            last_command_ns: 0,
+            now_ns: 0,
+            demand_a: 0.0,
+            last_seq: 0,
+        })
+    }
+
+    /// What the device reports in its handshake.
+    pub fn info(&self) -> &DeviceInfo {
+        &self.info
+    }
+
+    /// Sample period, ns.
+    pub fn period_ns(&self) -> u64 {
+        self.info.period_ns
+    }
+
+    /// Watchdog time, ns.
+    pub fn watchdog_ns(&self) -> u64 {
+        self.watchdog_ns
+    }
+
+    /// Schedules a plant-side fault (NaN, frozen, jump, …) at device time.
+    pub fn inject(&mut self, fault: ScheduledFault) {
+        self.stage.inject(fault);
+    }
+
+    /// Enables the amplifier at 0 A and clears a latched fault. The watchdog
+    /// starts counting from `now_ns`.
+    pub fn enable(&mut self, now_ns: u64) {
+        self.fault = None;
+        self.demand_a = 0.0;
+        self.enabled = self.stage.enable().is_ok();
+        self.last_command_ns = now_ns;
+    }
+
+    /// 0 A, amplifier disabled. Does not clear a latched fault.
+    pub fn disable(&mut self) {
+        self.enabled = false;
+        self.demand_a = 0.0;
+        let _ = self.stage.disable();
+    }
+
+    /// Accepts a command received at `now_ns`. A non-finite demand, or a
+    /// non-zero one while disabled or faulted, is refused: 0 A, disabled,
+    /// fault latched ([`DeviceFault::BadCommand`]); returns `false`.
+    /// A zero demand while disabled is accepted and does nothing (the host
+    /// keeps the watchdog fed while idle).
+    pub fn command(&mut self, command: Command, now_ns: u64) -> bool {
+        let i = command.current_a;
+        if !i.is_finite() || (!self.enabled && i != 0.0) {
+            if self.enabled || !i.is_finite() {
+                self.fault.get_or_insert(DeviceFault::BadCommand);
+            }
+            self.disable();
+            return false;
+        }
+        self.last_command_ns = now_ns;
+        if self.enabled {
+            let peak = self.info.peak_current_a;
+            self.demand_a = i.clamp(-peak, peak);
+        }
+        true
+    }
+
+    /// One sample-timer tick at device time `now_ns`: watchdog check, then
+    /// the plant advances one period under the held demand and is sampled.
+    pub fn tick(&mut self, now_ns: u64) -> Sample {
+        self.now_ns = now_ns;
+        if self.enabled && now_ns.saturating_sub(self.last_command_ns) > self.watchdog_ns {
+            self.fault = Some(DeviceFault::Watchdog);
+            self.disable();
+        }
+        let _ = self.stage.write_command(Command {
+            current_a: if self.enabled { self.demand_a } else { 0.0 },
+            answers_seq: self.last_seq,
+        });
+        let mut s = self
+            .stage
+            .read_sample()
+            .expect("a configured simulator always samples");
+        s.flags.amplifier_enabled = self.enabled;
+        s.flags.amplifier_fault = self.fault.is_some();
+        self.last_seq = s.seq;
+        s
+    }
+
+    /// The current the device is commanding now, A (0 when disabled).
+    pub fn commanded_current_a(&self) -> f64 {
+        if self.enabled {
+            self.demand_a
+        } else {
+            0.0
+        }
+    }
+
+    /// Amplifier enabled.
+    pub fn is_enabled(&self) -> bool {
+        self.enabled
+    }
+
+    /// The latched fault, if any.
+    pub fn fault(&self) -> Option<DeviceFault> {
+        self.fault
+    }
+
+    /// Device time of the last valid command, ns.
+    pub fn last_command_ns(&self) -> u64 {
+        self.last_command_ns
+    }
+
+    /// Whether a plant-side fault injection of this kind is wired (all are).
+    pub fn supports(_kind: FaultInjection) -> bool {
+        true
+    }
+}
+
+/// A link-level fault an emulator can inject (on top of the plant-side
+/// [`FaultInjection`]s of the simulator).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum LinkFault {
+    /// Flip this many random bits in each of the next `frames` outgoing
+    /// frames (serial: the CRC must reject them; CAN: the bus CRC would, so
+    /// the emulator sends an error frame instead of the data frame).
+    BitFlips {
+        /// Bits flipped per frame.
+        bits: u32,
+        /// Frames affected.
+        frames: u32,
+    },
+    /// Do not send the next `frames` sample frames (the plant keeps moving,
+    /// the sequence number keeps counting).
+    Drop {
+        /// Frames dropped.
+        frames: u32,
+    },
+    /// Hold every outgoing frame back by this long from then on, s.
+    Delay {
+        /// Added latency, s.
+        delay_s: f64,
+    },
+    /// Stop sampling and sending for this long (the device hangs), s. The
+    /// watchdog does not run while stalled, as on a hung microcontroller.
+    Stall {
+        /// Length of the stall, s.
+        duration_s: f64,
+    },
+    /// Drop the link for good (serial: close the pseudo-terminal; CAN:
+    /// report bus-off and go silent).
+    Disconnect,
+}
+
+impl LinkFault {
+    /// Parses `bitflip:BITS[xFRAMES]`, `drop:FRAMES`, `delay:SECONDS`,
+    /// `stall:SECONDS`, `disconnect`.
+    ///
+    /// # Errors
+    /// A message naming the part that does not parse.
+    pub fn parse(s: &str) -> Result<Self, String> {
+        let (name, arg) = s.split_once(':').unwrap_or((s, ""));
+        let num = |what: &str| -> Result<f64, String> {
+            arg.parse::<f64>()
+                .ok()
+                .filter(|v| v.is_finite() && *v >= 0.0)
+                .ok_or_else(|| format!("{name}: {what} `{arg}` is not a non-negative number"))
+        };
+        match name {
+            "bitflip" => {
+                let (bits, frames) = arg.split_once('x').unwrap_or((arg, "1"));
+                let bits = bits
+                    .parse::<u32>()
+                    .ok()
+                    .filter(|b| *b > 0)
+                    .ok_or_else(|| format!("bitflip: bit count `{bits}` is not a positive integer"))?;
+                let frames = frames
+                    .parse::<u32>()
+                    .map_err(|_| format!("bitflip: frame count `{frames}` is not an integer"))?;
+                Ok(Self::BitFlips { bits, frames })
+            }
+            "drop" => Ok(Self::Drop {
+                frames: arg
+                    .parse()
+                    .map_err(|_| format!("drop: frame count `{arg}` is not an integer"))?,
+            }),
+            "delay" => Ok(Self::Delay {
+                delay_s: num("delay")?,
+            }),
+            "stall" => Ok(Self::Stall {
+                duration_s: num("duration")?,
+            }),
+            "disconnect" if arg.is_empty() => Ok(Self::Disconnect),
+            _ => Err(format!(
+                "unknown link fault `{s}` (expected bitflip:BITS[xFRAMES], drop:FRAMES, delay:S, stall:S or disconnect)"
+            )),
+        }
+    }
+}
+
+/// A link fault scheduled at device time.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ScheduledLinkFault {
+    /// Device time (since the emulator started) at which it starts, s.
+    pub at_s: f64,
+    /// What happens.
+    pub kind: LinkFault,
+}
+
+/// What an emulator publishes about itself, lock-free, for tests and the
+/// status line (`Arc` it and read from any thread).
+#[derive(Debug, Default)]
+pub struct EmulatorStatus {
+    /// Commanded current, A, as `f64::to_bits`.
+    commanded_current_bits: std::sync::atomic::AtomicU64,
+    /// Amplifier enabled.
+    pub enabled: std::sync::atomic::AtomicBool,
+    /// Latched fault code ([`DeviceFault::code`], 0 for none).
+    pub fault_code: std::sync::atomic::AtomicU8,
+    /// Monotonic time of the last valid command, ns (`CLOCK_MONOTONIC`).
+    pub last_command_mono_ns: std::sync::atomic::AtomicU64,
+    /// Monotonic time at which the current was last dropped to 0 by the
+    /// watchdog, ns (0 if never).
+    pub watchdog_trip_mono_ns: std::sync::atomic::AtomicU64,
+    /// Samples sent.
+    pub samples_sent: std::sync::atomic::AtomicU64,
+    /// Valid commands received.
+    pub commands_received: std::sync::atomic::AtomicU64,
+    /// Frames received that failed their check (CRC, decoding).
+    pub bad_frames: std::sync::atomic::AtomicU64,
+    /// Commands that arrived after the period they were meant for.
+    pub late_commands: std::sync::atomic::AtomicU64,
+    /// A host is connected (serial: the pty is open on the other side).
+    pub host_connected: std::sync::atomic::AtomicBool,
+}
+
+impl EmulatorStatus {
+    /// Commanded current, A.
+    pub fn commanded_current_a(&self) -> f64 {
+        f64::from_bits(
+            self.commanded_current_bits
+                .load(std::sync::atomic::Ordering::Acquire),
+        )
+    }
+
+    /// Publishes the device's state.
+    pub fn publish(&self, d: &DeviceCore) {
+        use std::sync::atomic::Ordering::Release;
+        self.commanded_current_bits
+            .store(d.commanded_current_a().to_bits(), Release);
+        self.enabled.store(d.is_enabled(), Release);
+        self.fault_code
+            .store(d.fault().map_or(0, DeviceFault::code), Release);
+    }
+}
+
+/// `CLOCK_MONOTONIC`, ns.
+pub fn monotonic_ns() -> u64 {
+    let mut ts = libc::timespec {
+        tv_sec: 0,
+        tv_nsec: 0,
+    };
+    // SAFETY: valid pointer; CLOCK_MONOTONIC always exists.
+    unsafe { libc::clock_gettime(libc::CLOCK_MONOTONIC, &mut ts) };
+    ts.tv_sec as u64 * 1_000_000_000 + ts.tv_nsec as u64
+}
+
+/// Sleeps until `CLOCK_MONOTONIC` reaches `deadline_ns` (absolute, so
+/// periods do not drift). Returns at once if it has passed.
+pub fn sleep_until_ns(deadline_ns: u64) {
+    let ts = libc::timespec {
+        tv_sec: (deadline_ns / 1_000_000_000) as libc::time_t,
+        tv_nsec: (deadline_ns % 1_000_000_000) as libc::c_long,
+    };
+    loop {
+        // SAFETY: valid timespec; EINTR returns early and we retry.
+        let r = unsafe {
+            libc::clock_nanosleep(
+                libc::CLOCK_MONOTONIC,
+                libc::TIMER_ABSTIME,
+                &ts,
+                std::ptr::null_mut(),
+            )
+        };
+        if r != libc::EINTR {
+            break;
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::model::{Beam, Damping, Sr4dofParams};
+    use crate::sim::{ActuatorParams, ProbeParams};
+
+    /// The Chapter 5 bench (thesis §5.1, Table 2-1 beams).
+    fn params() -> SimParams {
+        SimParams {
+            plant: Sr4dofParams {
+                m1_kg: 0.4,
+                m2_kg: 0.06,
+                m3_kg: 0.06,
+                m4_kg: 0.8,
+                m5_kg: 0.8,
+                k4_n_per_m: 36e3,
+                k5_n_per_m: 36e3,
+                operating_point_m: 0.08 * 0.0475,
+                mass_asymmetry: 0.1,
+                beam: Beam {
+                    length_m: 0.0475,
+                    height_m: 0.0254,
+                    thickness_m: 0.000625,
+                    youngs_modulus_pa: 6.9e10,
+                },
+                parallelogram_stiffness_n_per_m: None,
+                damping: Damping {
+                    zeta_rigid: 0.009,
+                    zeta_csm: 0.004,
+                },
+                disturbance: None,
+            },
+            actuator: ActuatorParams {
+                force_constant_n_per_a: 11.12,
+                bandwidth_hz: 1000.0,
+                peak_current_a: 9.98,
+                continuous_current_a: 2.34,
+            },
+            probe: ProbeParams {
+                range_m: 1e-3,
+                noise_rms_m: 0.0,
+                quantization_m: 0.0,
+            },
+            mechanical_stop_m: 1e-3,
+            seed: 1,
+        }
+    }
+
+    const PERIOD: u64 = 200_000;
+
+    #[test]
+    fn watchdog_drops_current_within_its_time_plus_one_period() {
+        let wd = 5_000_000;
+        let mut d = DeviceCore::new(params(), PERIOD, wd).unwrap();
+        d.enable(0);
+        let mut t = 0;
+        let mut last_cmd = 0;
+        // Fed for 10 ms.
+        while t < 10_000_000 {
+            t += PERIOD;
+            d.tick(t);
+            assert!(d.command(
+                Command {
+                    current_a: 0.3,
+                    answers_seq: 0
+                },
+                t
+            ));
+            last_cmd = t;
+        }
+        assert_eq!(d.commanded_current_a(), 0.3);
+        // Host goes quiet.
+        let mut tripped_at = None;
+        while t < 40_000_000 {
+            t += PERIOD;
+            let s = d.tick(t);
+            if d.commanded_current_a() == 0.0 && tripped_at.is_none() {
+                tripped_at = Some(t);
+                assert!(s.flags.amplifier_fault && !s.flags.amplifier_enabled);
+            }
+        }
+        let tripped_at = tripped_at.expect("watchdog never tripped");
+        assert!(tripped_at - last_cmd > wd);
+        assert!(tripped_at - last_cmd <= wd + PERIOD);
+        // Latched: commands do not bring the current back.
+        assert!(!d.command(
+            Command {
+                current_a: 0.3,
+                answers_seq: 0
+            },
+            t
+        ));
+        assert_eq!(d.fault(), Some(DeviceFault::Watchdog));
+        assert_eq!(d.commanded_current_a(), 0.0);
+        // Re-enable clears it.
+        d.enable(t);
+        assert_eq!(d.fault(), None);
+    }
+
+    #[test]
+    fn link_faults_parse() {
+        assert_eq!(
+            LinkFault::parse("bitflip:2x10"),
+            Ok(LinkFault::BitFlips { bits: 2, frames: 10 })
+        );
+        assert_eq!(LinkFault::parse("drop:5"), Ok(LinkFault::Drop { frames: 5 }));
+        assert_eq!(
+            LinkFault::parse("stall:0.5"),
+            Ok(LinkFault::Stall { duration_s: 0.5 })
+        );
+        assert_eq!(LinkFault::parse("disconnect"), Ok(LinkFault::Disconnect));
+        assert!(LinkFault::parse("stall:-1").unwrap_err().contains("stall"));
+        assert!(LinkFault::parse("melt").unwrap_err().contains("unknown"));
+    }
+
+    #[test]
+    fn non_finite_command_latches_bad_command() {
+        let mut d = DeviceCore::new(params(), PERIOD, 5_000_000).unwrap();
+        d.enable(0);
+        assert!(!d.command(
+            Command {
+                current_a: f64::NAN,
+                answers_seq: 0
+            },
+            0
+        ));
+        assert_eq!(d.fault(), Some(DeviceFault::BadCommand));
+        assert!(!d.is_enabled());
+    }
+}

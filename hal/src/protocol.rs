@@ -1,0 +1,1 @@
+//! Serial DAQ wire protocol (in progress).

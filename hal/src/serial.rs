@@ -1,0 +1,1 @@
+//! Serial DAQ backend (in progress).
