@@ -29,6 +29,7 @@ pub mod device;
 pub mod model;
 pub mod protocol;
 pub mod serial;
+pub mod serial_emulator;
 pub mod sim;
 
 use core::fmt;

@@ -1,1 +1,708 @@
-//! Serial DAQ backend (in progress).
+//! Serial DAQ backend: a USB-serial (CDC-ACM) microcontroller speaking the
+//! [`protocol`](crate::protocol) (specified in `hal/PROTOCOL.md`).
+//!
+//! The port is opened with the `serialport` crate (raw mode, exclusive:
+//! `TIOCEXCL` plus an exclusive `flock`, so a second `bench` on the same port
+//! is refused as [`ErrorKind::Busy`], even as root). On the real-time tick
+//! the backend then works on the raw file descriptor with `ppoll`/`read`/
+//! `write` and fixed buffers, so reading and writing never allocate.
+//!
+//! The device owns the clock ([`Clock::Device`]): [`SerialStage::read_sample`]
+//! waits, at most `sample_timeout_ns`, for the next sample frame. If several
+//! samples are already queued (the host was late), it returns the newest and
+//! counts the older ones as late; the supervisor sees the sequence gap.
+//!
+//! Errors on the tick and what the loop's link supervision makes of them:
+//!
+//! | condition | error kind | host reaction |
+//! |---|---|---|
+//! | no sample frame within the timeout | `Timeout` | bad sample; K in a row → link fault |
+//! | only corrupt frames within the timeout | `Crc` | bad sample; K in a row → link fault |
+//! | end of file, `POLLHUP`, `EIO` (unplugged, emulator gone) | `Link` | link fault at once |
+//! | write failed or blocked beyond one period | `Link` | link fault at once |
+
+use crate::protocol::{
+    self, flags, DeviceHello, DeviceMessage, Frame, FrameError, FrameReader, HostMessage,
+    WireStatus, MAX_FRAME,
+};
+use crate::{Clock, Command, DeviceInfo, ErrorKind, Sample, SampleFlags, Stage};
+use std::os::fd::{AsRawFd, RawFd};
+use std::time::Duration;
+
+/// Serial backend settings (the `[backend.serial]` table).
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct SerialConfig {
+    /// Device path, e.g. `/dev/ttyACM0` (the `--backend serial:PATH` argument
+    /// overrides it).
+    pub path: String,
+    /// Line rate, baud (ignored by USB CDC-ACM devices and pseudo-terminals).
+    pub baud: u32,
+    /// How long to wait for the device's hello and for enable/disable
+    /// acknowledgements, ms.
+    pub handshake_timeout_ms: f64,
+    /// Longest wait for a sample on the tick, in sample periods. Past it the
+    /// read is a bad sample (`Timeout`).
+    pub sample_timeout_periods: f64,
+}
+
+impl Default for SerialConfig {
+    fn default() -> Self {
+        Self {
+            path: "/dev/ttyACM0".into(),
+            baud: 921_600,
+            handshake_timeout_ms: 500.0,
+            sample_timeout_periods: 2.0,
+        }
+    }
+}
+
+impl SerialConfig {
+    /// Checks every value, keys under `prefix`.
+    ///
+    /// # Errors
+    /// The first offending key with the reason.
+    pub fn validate(&self, prefix: &str) -> Result<(), crate::model::ParamError> {
+        if self.path.is_empty() {
+            return Err(crate::model::ParamError::new(
+                format!("{prefix}.path"),
+                "is empty",
+            ));
+        }
+        crate::model::positive(
+            &format!("{prefix}.handshake_timeout_ms"),
+            self.handshake_timeout_ms,
+        )?;
+        if !(self.sample_timeout_periods >= 1.0 && self.sample_timeout_periods <= 1000.0) {
+            return Err(crate::model::ParamError::new(
+                format!("{prefix}.sample_timeout_periods"),
+                format!(
+                    "{} is outside 1 … 1000 periods",
+                    self.sample_timeout_periods
+                ),
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// Errors of the serial backend.
+#[derive(Debug, thiserror::Error)]
+pub enum SerialError {
+    /// The device path does not exist.
+    #[error("serial device {path} does not exist")]
+    NotFound {
+        /// The path.
+        path: String,
+    },
+    /// Another process holds the port.
+    #[error("serial device {path} is busy (held by another process)")]
+    Busy {
+        /// The path.
+        path: String,
+    },
+    /// Opening or configuring the port failed.
+    #[error("cannot open serial device {path}: {reason}")]
+    Open {
+        /// The path.
+        path: String,
+        /// The system's reason.
+        reason: String,
+    },
+    /// The device did not answer the hello in time, or answered garbage.
+    #[error("no protocol hello from {path} within {timeout_ms} ms ({bad_frames} bad frames): is it a bench DAQ?")]
+    NoHello {
+        /// The path.
+        path: String,
+        /// How long we waited.
+        timeout_ms: f64,
+        /// Corrupt frames seen meanwhile.
+        bad_frames: u64,
+    },
+    /// The device speaks another protocol version.
+    #[error("device on {path} speaks protocol version {device}, bench speaks version {host}")]
+    Version {
+        /// The path.
+        path: String,
+        /// The device's version.
+        device: u16,
+        /// Ours.
+        host: u16,
+    },
+    /// The device samples at another rate than the loop asks for.
+    #[error("device on {path} samples every {device_ns} ns ({:.1} Hz) but the loop asks for {requested_ns} ns ({:.1} Hz): set [loop] rate_hz to the device's rate", 1e9 / *device_ns as f64, 1e9 / *requested_ns as f64)]
+    Rate {
+        /// The path.
+        path: String,
+        /// Device period, ns.
+        device_ns: u64,
+        /// Requested period, ns.
+        requested_ns: u64,
+    },
+    /// No acknowledgement of enable/disable in time.
+    #[error("device did not acknowledge {what} within {timeout_ms} ms")]
+    NoAck {
+        /// `enable` or `disable`.
+        what: &'static str,
+        /// How long we waited.
+        timeout_ms: f64,
+    },
+    /// The device refused to enable (a latched fault it could not clear).
+    #[error("device refused to enable (fault code {fault})")]
+    Refused {
+        /// The device's fault code.
+        fault: u8,
+    },
+    /// No sample within the timeout.
+    #[error("no sample within {timeout_us} µs")]
+    Timeout {
+        /// The timeout, µs.
+        timeout_us: u64,
+    },
+    /// Only corrupt frames within the timeout.
+    #[error("only corrupt frames within the sample timeout (last: {0})")]
+    Corrupt(FrameError),
+    /// The link is gone (unplugged, peer closed).
+    #[error("serial link lost: {0}")]
+    Disconnected(&'static str),
+    /// A lifecycle method in the wrong state.
+    #[error("serial stage: {0}")]
+    State(&'static str),
+    /// A non-finite current demand.
+    #[error("current demand is not finite ({0})")]
+    NotFinite(f64),
+}
+
+impl crate::Error for SerialError {
+    fn kind(&self) -> ErrorKind {
+        match self {
+            Self::NotFound { .. } => ErrorKind::NotFound,
+            Self::Busy { .. } => ErrorKind::Busy,
+            Self::Open { .. } | Self::Disconnected(_) => ErrorKind::Link,
+            Self::NoHello { .. } | Self::Version { .. } => ErrorKind::Protocol,
+            Self::Rate { .. } => ErrorKind::Config,
+            Self::NoAck { .. } | Self::Timeout { .. } => ErrorKind::Timeout,
+            Self::Refused { .. } => ErrorKind::AmplifierFault,
+            Self::Corrupt(_) => ErrorKind::Crc,
+            Self::State(_) => ErrorKind::InvalidState,
+            Self::NotFinite(_) => ErrorKind::OutOfRange,
+        }
+    }
+}
+
+/// Link counters of the serial backend.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize)]
+pub struct SerialStats {
+    /// Samples returned to the loop.
+    pub samples: u64,
+    /// Frames that failed their CRC.
+    pub crc_errors: u64,
+    /// Frames that were not valid COBS, too short or too long, or did not
+    /// decode.
+    pub frame_errors: u64,
+    /// Sequence gaps seen (each gap counts once).
+    pub sequence_gaps: u64,
+    /// Samples the device sent that never reached the loop (sum of gap
+    /// sizes, late ones included).
+    pub missed_samples: u64,
+    /// Samples that arrived but were superseded by a newer one before the
+    /// loop read them (the host was late).
+    pub late_samples: u64,
+    /// Reads that timed out.
+    pub timeouts: u64,
+}
+
+/// The serial DAQ stage.
+pub struct SerialStage {
+    cfg: SerialConfig,
+    port: Option<serialport::TTYPort>,
+    fd: RawFd,
+    reader: FrameReader,
+    rx: [u8; 512],
+    rx_len: usize,
+    rx_pos: usize,
+    hello: Option<DeviceHello>,
+    period_ns: u64,
+    timeout_ns: u64,
+    /// First device sequence number after configure (seq 0 for the loop).
+    seq_base: Option<u64>,
+    /// Unwrapped device sequence of the last sample returned.
+    last_seq: Option<u64>,
+    last_time_us: u64,
+    enabled: bool,
+    stats: SerialStats,
+    last_status: Option<WireStatus>,
+}
+
+impl std::fmt::Debug for SerialStage {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("SerialStage")
+            .field("path", &self.cfg.path)
+            .field("hello", &self.hello)
+            .field("stats", &self.stats)
+            .finish()
+    }
+}
+
+/// What [`SerialStage::wait_for`] shows its filter.
+enum Seen<'a> {
+    /// A valid message.
+    Message(DeviceMessage),
+    /// A rejected frame, raw.
+    Rejected(&'a mut [u8]),
+}
+
+fn now_ns() -> u64 {
+    crate::device::monotonic_ns()
+}
+
+impl SerialStage {
+    /// Opens the port (exclusively). Nothing is sent until
+    /// [`configure`](Stage::configure).
+    ///
+    /// # Errors
+    /// `NotFound` if the path does not exist, `Busy` if another process
+    /// holds it, `Link` if it cannot be opened or set to raw mode.
+    pub fn open(cfg: &SerialConfig) -> Result<Self, SerialError> {
+        let path = cfg.path.clone();
+        if !std::path::Path::new(&path).exists() {
+            return Err(SerialError::NotFound { path });
+        }
+        let port = serialport::new(&path, cfg.baud)
+            .timeout(Duration::from_millis(100))
+            .open_native()
+            .map_err(|e| match e.kind() {
+                serialport::ErrorKind::NoDevice => SerialError::Busy { path: path.clone() },
+                serialport::ErrorKind::Io(std::io::ErrorKind::NotFound) => {
+                    SerialError::NotFound { path: path.clone() }
+                }
+                _ => SerialError::Open {
+                    path: path.clone(),
+                    reason: e.to_string(),
+                },
+            })?;
+        let fd = port.as_raw_fd();
+        Ok(Self {
+            cfg: cfg.clone(),
+            port: Some(port),
+            fd,
+            reader: FrameReader::new(),
+            rx: [0; 512],
+            rx_len: 0,
+            rx_pos: 0,
+            hello: None,
+            period_ns: 0,
+            timeout_ns: 0,
+            seq_base: None,
+            last_seq: None,
+            last_time_us: 0,
+            enabled: false,
+            stats: SerialStats::default(),
+            last_status: None,
+        })
+    }
+
+    /// Link counters so far.
+    pub fn stats(&self) -> SerialStats {
+        self.stats
+    }
+
+    /// The device's hello (after `configure`).
+    pub fn device_hello(&self) -> Option<&DeviceHello> {
+        self.hello.as_ref()
+    }
+
+    /// The last status the device reported.
+    pub fn last_status(&self) -> Option<WireStatus> {
+        self.last_status
+    }
+
+    fn send(&mut self, msg: &HostMessage) -> Result<(), SerialError> {
+        let mut frame = [0u8; MAX_FRAME];
+        let n = protocol::encode(msg, &mut frame);
+        let deadline = now_ns() + self.timeout_ns.max(1_000_000);
+        let mut off = 0;
+        while off < n {
+            // SAFETY: fd is open for the port's lifetime; the slice is valid.
+            let r = unsafe {
+                libc::write(
+                    self.fd,
+                    frame[off..n].as_ptr().cast(),
+                    n - off,
+                )
+            };
+            if r > 0 {
+                off += r as usize;
+                continue;
+            }
+            let err = std::io::Error::last_os_error().raw_os_error();
+            match err {
+                Some(libc::EINTR) => continue,
+                Some(libc::EAGAIN) if now_ns() < deadline => {
+                    self.poll(libc::POLLOUT, deadline)?;
+                }
+                Some(libc::EAGAIN) => return Err(SerialError::Disconnected("write blocked")),
+                _ => return Err(SerialError::Disconnected("write failed")),
+            }
+        }
+        Ok(())
+    }
+
+    /// Waits for `events` on the fd until `deadline` (monotonic ns).
+    /// `Ok(true)` ready, `Ok(false)` timed out.
+    fn poll(&self, events: libc::c_short, deadline: u64) -> Result<bool, SerialError> {
+        loop {
+            let now = now_ns();
+            let left = deadline.saturating_sub(now);
+            let ts = libc::timespec {
+                tv_sec: (left / 1_000_000_000) as libc::time_t,
+                tv_nsec: (left % 1_000_000_000) as libc::c_long,
+            };
+            let mut pfd = libc::pollfd {
+                fd: self.fd,
+                events,
+                revents: 0,
+            };
+            // SAFETY: one valid pollfd, valid timespec, no signal mask.
+            let r = unsafe { libc::ppoll(&mut pfd, 1, &ts, std::ptr::null()) };
+            if r < 0 {
+                if std::io::Error::last_os_error().raw_os_error() == Some(libc::EINTR) {
+                    continue;
+                }
+                return Err(SerialError::Disconnected("poll failed"));
+            }
+            if r == 0 {
+                return Ok(false);
+            }
+            if pfd.revents & events != 0 {
+                return Ok(true);
+            }
+            if pfd.revents & (libc::POLLHUP | libc::POLLERR | libc::POLLNVAL) != 0 {
+                return Err(SerialError::Disconnected("device hung up"));
+            }
+        }
+    }
+
+    /// Reads what is available into the receive buffer (after the fd was
+    /// reported readable). `Err` on end of file or an I/O error.
+    fn fill(&mut self) -> Result<(), SerialError> {
+        self.rx_pos = 0;
+        self.rx_len = 0;
+        loop {
+            // SAFETY: fd is open; rx is a valid writable buffer.
+            let r = unsafe { libc::read(self.fd, self.rx.as_mut_ptr().cast(), self.rx.len()) };
+            if r > 0 {
+                self.rx_len = r as usize;
+                return Ok(());
+            }
+            if r == 0 {
+                return Err(SerialError::Disconnected("end of file"));
+            }
+            match std::io::Error::last_os_error().raw_os_error() {
+                Some(libc::EINTR) => continue,
+                Some(libc::EAGAIN) => return Ok(()),
+                _ => return Err(SerialError::Disconnected("read failed (device gone)")),
+            }
+        }
+    }
+
+    /// The next complete, valid device message in the receive buffer.
+    fn next_buffered(&mut self) -> Option<Result<DeviceMessage, FrameError>> {
+        while self.rx_pos < self.rx_len {
+            let b = self.rx[self.rx_pos];
+            self.rx_pos += 1;
+            match self.reader.push(b) {
+                None => {}
+                Some(Frame::TooLong) => return Some(Err(FrameError::TooLong)),
+                Some(Frame::Bytes(f)) => return Some(protocol::decode::<DeviceMessage>(f)),
+            }
+        }
+        None
+    }
+
+    fn count_bad(&mut self, e: FrameError) {
+        if e == FrameError::Crc {
+            self.stats.crc_errors += 1;
+        } else {
+            self.stats.frame_errors += 1;
+        }
+    }
+
+    /// Waits (until `deadline`) for a message accepted by `want`, consuming
+    /// what comes before. `want` also sees each rejected frame's raw bytes
+    /// (COBS-encoded, as received). Not real-time.
+    fn wait_for<T>(
+        &mut self,
+        deadline: u64,
+        mut want: impl FnMut(Seen<'_>) -> Option<T>,
+    ) -> Result<Option<T>, SerialError> {
+        loop {
+            while self.rx_pos < self.rx_len {
+                let b = self.rx[self.rx_pos];
+                self.rx_pos += 1;
+                let got = match self.reader.push(b) {
+                    None => None,
+                    Some(Frame::TooLong) => {
+                        self.stats.frame_errors += 1;
+                        None
+                    }
+                    Some(Frame::Bytes(f)) => {
+                        let mut raw = [0u8; MAX_FRAME];
+                        let len = f.len();
+                        raw[..len].copy_from_slice(f);
+                        match protocol::decode::<DeviceMessage>(f) {
+                            Ok(m) => {
+                                if let DeviceMessage::Status(s) = m {
+                                    self.last_status = Some(s);
+                                }
+                                want(Seen::Message(m))
+                            }
+                            Err(e) => {
+                                self.count_bad(e);
+                                want(Seen::Rejected(&mut raw[..len]))
+                            }
+                        }
+                    }
+                };
+                if got.is_some() {
+                    return Ok(got);
+                }
+            }
+            if !self.poll(libc::POLLIN, deadline)? {
+                return Ok(None);
+            }
+            self.fill()?;
+        }
+    }
+
+    fn handshake_deadline(&self) -> u64 {
+        now_ns() + (self.cfg.handshake_timeout_ms * 1e6) as u64
+    }
+
+    fn request_status(
+        &mut self,
+        msg: HostMessage,
+        what: &'static str,
+    ) -> Result<WireStatus, SerialError> {
+        if self.port.is_none() || self.hello.is_none() {
+            return Err(SerialError::State("not configured"));
+        }
+        self.send(&msg)?;
+        let deadline = self.handshake_deadline();
+        let got = self.wait_for(deadline, |m| match m {
+            Seen::Message(DeviceMessage::Status(s)) => Some(s),
+            _ => None,
+        })?;
+        got.ok_or(SerialError::NoAck {
+            what,
+            timeout_ms: self.cfg.handshake_timeout_ms,
+        })
+    }
+}
+
+impl Stage for SerialStage {
+    type Error = SerialError;
+
+    /// Flushes the input, sends the hello and waits for the device's; checks
+    /// the version and the rate.
+    fn configure(&mut self, period_ns: u64) -> Result<DeviceInfo, SerialError> {
+        let Some(port) = self.port.as_mut() else {
+            return Err(SerialError::State("port closed"));
+        };
+        let _ = serialport::SerialPort::clear(port, serialport::ClearBuffer::Input);
+        self.reader.clear();
+        self.rx_len = 0;
+        self.rx_pos = 0;
+        self.hello = None;
+        self.timeout_ns = period_ns;
+        self.send(&HostMessage::Hello {
+            version: protocol::VERSION,
+        })?;
+        let deadline = self.handshake_deadline();
+        let got = self.wait_for(deadline, |m| match m {
+            Seen::Message(DeviceMessage::Hello(h)) => Some(Ok(h)),
+            // A CRC-valid frame that does not decode: maybe another
+            // version's hello.
+            Seen::Rejected(raw) => protocol::peek_hello_version(raw).map(Err),
+            Seen::Message(_) => None,
+        })?;
+        let path = self.cfg.path.clone();
+        let hello = match got {
+            None => {
+                return Err(SerialError::NoHello {
+                    path,
+                    timeout_ms: self.cfg.handshake_timeout_ms,
+                    bad_frames: self.stats.crc_errors + self.stats.frame_errors,
+                })
+            }
+            Some(Err(v)) | Some(Ok(DeviceHello { version: v, .. })) if v != protocol::VERSION => {
+                return Err(SerialError::Version {
+                    path,
+                    device: v,
+                    host: protocol::VERSION,
+                })
+            }
+            Some(Ok(h)) => h,
+            Some(Err(_)) => unreachable!("a matching version decodes"),
+        };
+        if u64::from(hello.period_ns) != period_ns {
+            return Err(SerialError::Rate {
+                path,
+                device_ns: hello.period_ns.into(),
+                requested_ns: period_ns,
+            });
+        }
+        self.hello = Some(hello);
+        self.period_ns = period_ns;
+        self.timeout_ns = (period_ns as f64 * self.cfg.sample_timeout_periods) as u64;
+        self.seq_base = None;
+        self.last_seq = None;
+        self.enabled = false;
+        Ok(DeviceInfo {
+            name: format!("serial:{path} (protocol v{})", hello.version),
+            clock: Clock::Device {
+                rate_hz: 1e9 / period_ns as f64,
+            },
+            period_ns,
+            peak_current_a: hello.peak_current_a.into(),
+            continuous_current_a: hello.continuous_current_a.into(),
+            probe_range_m: hello.probe_range_m.into(),
+        })
+    }
+
+    fn enable(&mut self) -> Result<(), SerialError> {
+        let s = self.request_status(HostMessage::Enable, "enable")?;
+        if !s.enabled {
+            return Err(SerialError::Refused { fault: s.fault });
+        }
+        self.enabled = true;
+        Ok(())
+    }
+
+    /// Real-time: fixed buffers, `ppoll`/`read` only.
+    fn read_sample(&mut self) -> Result<Sample, SerialError> {
+        let Some(hello) = self.hello else {
+            return Err(SerialError::State("not configured"));
+        };
+        let deadline = now_ns() + self.timeout_ns;
+        let mut newest = None;
+        let mut last_bad = None;
+        loop {
+            while let Some(m) = self.next_buffered() {
+                match m {
+                    Ok(DeviceMessage::Sample(s)) => {
+                        if newest.is_some() {
+                            self.stats.late_samples += 1;
+                        }
+                        newest = Some(s);
+                    }
+                    Ok(DeviceMessage::Status(s)) => self.last_status = Some(s),
+                    Ok(DeviceMessage::Hello(_)) => {}
+                    Err(e) => {
+                        self.count_bad(e);
+                        last_bad = Some(e);
+                    }
+                }
+            }
+            // Drain whatever else is already there, without waiting, once a
+            // sample is in hand; otherwise wait for more.
+            let until = if newest.is_some() { 0 } else { deadline };
+            if !self.poll(libc::POLLIN, until)? {
+                break;
+            }
+            self.fill()?;
+        }
+        let Some(w) = newest else {
+            self.stats.timeouts += 1;
+            return Err(match last_bad {
+                Some(e) => SerialError::Corrupt(e),
+                None => SerialError::Timeout {
+                    timeout_us: self.timeout_ns / 1000,
+                },
+            });
+        };
+        // Unwrap the 32-bit sequence against the last one.
+        let seq = match self.last_seq {
+            None => u64::from(w.seq),
+            Some(last) => {
+                let delta = w.seq.wrapping_sub(last as u32);
+                last + u64::from(delta)
+            }
+        };
+        if let Some(last) = self.last_seq {
+            if seq > last + 1 {
+                self.stats.sequence_gaps += 1;
+                self.stats.missed_samples += seq - last - 1;
+            }
+        }
+        self.last_seq = Some(seq);
+        let base = *self.seq_base.get_or_insert(seq);
+        self.last_time_us = w.time_us;
+        self.stats.samples += 1;
+        Ok(Sample {
+            seq: seq - base,
+            device_time_ns: w.time_us.saturating_mul(1000),
+            position_m: if w.position == crate::serial_emulator::INVALID_POSITION {
+                f64::NAN
+            } else {
+                f64::from(w.position) * f64::from(hello.position_lsb_m)
+            },
+            measured_current_a: w.current_a.into(),
+            flags: SampleFlags {
+                out_of_range: w.flags & flags::OUT_OF_RANGE != 0,
+                amplifier_enabled: w.flags & flags::AMPLIFIER_ENABLED != 0,
+                amplifier_fault: w.flags & flags::FAULT != 0,
+            },
+        })
+    }
+
+    /// Real-time: one frame written from a stack buffer.
+    fn write_command(&mut self, command: Command) -> Result<(), SerialError> {
+        if self.hello.is_none() {
+            return Err(SerialError::State("not configured"));
+        }
+        let i = command.current_a;
+        if !i.is_finite() {
+            let _ = self.send(&HostMessage::Command {
+                answers_seq: 0,
+                current_a: 0.0,
+            });
+            return Err(SerialError::NotFinite(i));
+        }
+        if !self.enabled && i != 0.0 {
+            return Err(SerialError::State("non-zero current while disabled"));
+        }
+        let device_seq = command.answers_seq + self.seq_base.unwrap_or(0);
+        self.send(&HostMessage::Command {
+            answers_seq: device_seq as u32,
+            current_a: i as f32,
+        })
+    }
+
+    fn disable(&mut self) -> Result<(), SerialError> {
+        self.enabled = false;
+        if self.port.is_none() || self.hello.is_none() {
+            return Ok(());
+        }
+        let _ = self.send(&HostMessage::Command {
+            answers_seq: 0,
+            current_a: 0.0,
+        });
+        let s = self.request_status(HostMessage::Disable, "disable")?;
+        if s.enabled {
+            return Err(SerialError::NoAck {
+                what: "disable",
+                timeout_ms: self.cfg.handshake_timeout_ms,
+            });
+        }
+        Ok(())
+    }
+}
+
+impl Drop for SerialStage {
+    fn drop(&mut self) {
+        if self.hello.is_some() {
+            let _ = self.send(&HostMessage::Disable);
+        }
+    }
+}
