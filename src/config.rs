@@ -82,6 +82,86 @@ pub struct BenchConfig {
     /// Closed-loop step defaults.
     #[serde(default)]
     pub step: StepConfig,
+    /// Which hardware runs the jobs (`[backend]`, default: the simulator).
+    #[serde(default)]
+    pub backend: BackendConfig,
+    /// The device emulator of `bench emulate` (`[emulator]`).
+    #[serde(default)]
+    pub emulator: EmulatorConfig,
+}
+
+/// Backend kinds (`[backend] kind`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum BackendKind {
+    /// The simulated plant in-process (`bench_hal::sim`).
+    #[default]
+    Sim,
+    /// A serial DAQ speaking `hal/PROTOCOL.md`.
+    Serial,
+    /// A CAN analog I/O module on SocketCAN.
+    Socketcan,
+}
+
+impl BackendKind {
+    /// The name used in config and on the command line.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Sim => "sim",
+            Self::Serial => "serial",
+            Self::Socketcan => "socketcan",
+        }
+    }
+}
+
+/// `[backend]`: which hardware runs the jobs. `--backend` overrides `kind`
+/// and the device.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BackendConfig {
+    /// `sim`, `serial` or `socketcan`.
+    #[serde(default)]
+    pub kind: BackendKind,
+    /// `[backend.serial]`: the serial DAQ.
+    #[serde(default)]
+    pub serial: bench_hal::serial::SerialConfig,
+}
+
+/// `[emulator]`: the device side run by `bench emulate`.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct EmulatorConfig {
+    /// Device watchdog: with no valid command for this long while enabled,
+    /// the device drops the current to 0 A and latches a fault, ms.
+    #[serde(default = "default_watchdog_ms")]
+    pub watchdog_ms: f64,
+    /// Size of one probe count on the serial link, m.
+    #[serde(default = "default_position_lsb_m")]
+    pub position_lsb_m: f64,
+    /// SCHED_FIFO priority of the emulator's device thread (0: normal
+    /// scheduling). Keep it below `[loop] priority`.
+    #[serde(default = "default_emulator_priority")]
+    pub priority: i32,
+}
+
+fn default_watchdog_ms() -> f64 {
+    50.0
+}
+fn default_position_lsb_m() -> f64 {
+    1e-10
+}
+fn default_emulator_priority() -> i32 {
+    70
+}
+
+impl Default for EmulatorConfig {
+    fn default() -> Self {
+        Self {
+            watchdog_ms: default_watchdog_ms(),
+            position_lsb_m: default_position_lsb_m(),
+            priority: default_emulator_priority(),
+        }
+    }
 }
 
 /// `[step]`: the closed-loop step experiment of `bench control`.
@@ -374,6 +454,18 @@ impl BenchConfig {
             ));
         }
         positive("loop.timing_interval_s", self.loop_.timing_interval_s)?;
+        self.backend.serial.validate("backend.serial")?;
+        positive("emulator.watchdog_ms", self.emulator.watchdog_ms)?;
+        positive("emulator.position_lsb_m", self.emulator.position_lsb_m)?;
+        if !(0..=99).contains(&self.emulator.priority) {
+            return Err(ParamError::new(
+                "emulator.priority",
+                format!(
+                    "SCHED_FIFO priority must be 0 (none) or 1–99, got {}",
+                    self.emulator.priority
+                ),
+            ));
+        }
         self.plant.validate("plant")?;
         self.actuator.validate("actuator")?;
         self.probe.validate("probe")?;
