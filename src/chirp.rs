@@ -7,6 +7,7 @@
 //! calling thread shows progress, then estimates, plots and summarises once
 //! the loop has stopped.
 
+use crate::backend::{self, BackendSpec};
 use crate::config::BenchConfig;
 use crate::excitation::Chirp;
 use crate::plot::{write_bode_png, BodePlot, BodeSeries};
@@ -16,8 +17,9 @@ use crate::session::{
     TimingSummary,
 };
 use crate::sysid::{closely_spaced_pair, find_resonances, Frf, PairVerdict, Resonance, Spectra};
-use bench_hal::sim::{SimStage, ZohPlant};
-use bench_hal::{Sample, Stage};
+use bench_hal::model::Sr4dof;
+use bench_hal::sim::ZohPlant;
+use bench_hal::Sample;
 use serde::Serialize;
 use serde_json::json;
 use std::path::PathBuf;
@@ -72,6 +74,8 @@ pub struct ChirpOptions {
     pub seed: u64,
     /// Show a progress bar (real-time mode, on a terminal).
     pub progress: bool,
+    /// `--backend` (else `[backend]` of the config).
+    pub backend: Option<BackendSpec>,
 }
 
 /// The model's view of the same bench, for comparison.
@@ -123,12 +127,15 @@ pub struct ChirpSummary {
     pub cmp_cnmp: Option<bool>,
     /// The model of the configured bench.
     pub model: ModelSummary,
+    /// Link counters of a hardware backend (CRC errors, sequence gaps,
+    /// late samples, timeouts); absent on the simulator.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub link: Option<serde_json::Value>,
     /// Loop timing.
     pub timing: TimingSummary,
 }
 
-fn model_summary(stage: &SimStage) -> ModelSummary {
-    let m = stage.model();
+fn model_summary(m: &Sr4dof) -> ModelSummary {
     let two_pi = 2.0 * std::f64::consts::PI;
     ModelSummary {
         natural_frequencies_hz: m.modes().iter().map(|md| md.frequency_hz()).collect(),
@@ -162,12 +169,10 @@ pub fn run_chirp(opts: &ChirpOptions, stop: Arc<AtomicBool>) -> Result<ChirpSumm
     check_writable(&opts.frf_csv, "--frf-csv")?;
     check_writable(&opts.plot, "--plot")?;
 
-    let mut stage = SimStage::new(cfg.sim_params(opts.seed))
+    let model = Sr4dof::new(cfg.plant)
         .map_err(|e| RunError::BadInput(format!("config {}: {e}", opts.config_path.display())))?;
-    let period_ns = cfg.loop_.period_ns();
-    let info = stage
-        .configure(period_ns)
-        .map_err(|e| RunError::BadInput(format!("loop.rate_hz: {e}")))?;
+    let spec = BackendSpec::resolve(opts.backend.as_ref(), cfg);
+    let (stage, info) = backend::open(&spec, cfg, &opts.config_path, opts.seed, None)?;
     let period_s = info.period_ns as f64 * 1e-9;
     let rate_hz = 1.0 / period_s;
     let chirp = Chirp::new(&cfg.chirp, period_s);
@@ -177,7 +182,8 @@ pub fn run_chirp(opts: &ChirpOptions, stop: Arc<AtomicBool>) -> Result<ChirpSumm
         command: "chirp",
         config_path: &opts.config_path,
         out: &opts.out,
-        realtime: opts.realtime,
+        // Hardware runs in real time whatever the flag says.
+        realtime: opts.realtime || !spec.is_sim(),
         progress: opts.progress,
         seed: opts.seed,
         max_ticks: total_ticks,
@@ -219,7 +225,7 @@ pub fn run_chirp(opts: &ChirpOptions, stop: Arc<AtomicBool>) -> Result<ChirpSumm
     let resonances = find_resonances(&frf, &spectra, MIN_PROMINENCE_DB);
     let pair = closely_spaced_pair(&frf, &resonances);
 
-    let zoh = ZohPlant::new(stage.model(), &cfg.actuator, period_s);
+    let zoh = ZohPlant::new(&model, &cfg.actuator, period_s);
     let model_h: Vec<_> = frf.frequency_hz.iter().map(|&f| zoh.frf(f)).collect();
     let model_mag: Vec<f64> = model_h.iter().map(|h| h.norm()).collect();
     let mut model_phase: Vec<f64> = model_h.iter().map(|h| h.arg().to_degrees()).collect();
@@ -284,7 +290,8 @@ pub fn run_chirp(opts: &ChirpOptions, stop: Arc<AtomicBool>) -> Result<ChirpSumm
         peak_position_m: y.iter().fold(0.0, |m: f64, v| m.max(v.abs())),
         resonances,
         closely_spaced_pair: pair,
-        model: model_summary(&stage),
+        model: model_summary(&model),
+        link: stage.link_stats(),
         timing,
     };
     let ch = recorder

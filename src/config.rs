@@ -125,6 +125,9 @@ pub struct BackendConfig {
     /// `[backend.serial]`: the serial DAQ.
     #[serde(default)]
     pub serial: bench_hal::serial::SerialConfig,
+    /// `[backend.can]`: the SocketCAN module and its frame map.
+    #[serde(default)]
+    pub can: bench_hal::can::CanConfig,
 }
 
 /// `[emulator]`: the device side run by `bench emulate`.
@@ -455,6 +458,7 @@ impl BenchConfig {
         }
         positive("loop.timing_interval_s", self.loop_.timing_interval_s)?;
         self.backend.serial.validate("backend.serial")?;
+        self.backend.can.validate("backend.can")?;
         positive("emulator.watchdog_ms", self.emulator.watchdog_ms)?;
         positive("emulator.position_lsb_m", self.emulator.position_lsb_m)?;
         if !(0..=99).contains(&self.emulator.priority) {

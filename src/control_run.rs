@@ -16,6 +16,7 @@
 //! - steady-state error `setpoint − y` over the final
 //!   `steady_state_window_s`: mean and standard deviation, nm.
 
+use crate::backend::{self, BackendSpec};
 use crate::config::BenchConfig;
 use crate::control::{ControllerConfig, DiscreteController};
 use crate::loopcheck::{closed_loop_poles, measured_margins, model_margins, Margins};
@@ -25,8 +26,9 @@ use crate::session::{
     check_writable, finish, open_recording, run_recorded, Collected, Recorded, RunError,
     SessionOptions, TimingSummary,
 };
-use bench_hal::sim::{ScheduledFault, SimStage, ZohPlant};
-use bench_hal::{Sample, Stage};
+use bench_hal::model::Sr4dof;
+use bench_hal::sim::{ScheduledFault, ZohPlant};
+use bench_hal::Sample;
 use serde::Serialize;
 use serde_json::json;
 use std::f64::consts::PI;
@@ -276,14 +278,14 @@ impl MeasuredFrf {
 /// measured FRF if given), judged by the `[safety]` limits.
 pub fn check_loop(
     cfg: &BenchConfig,
-    stage: &SimStage,
+    model: &Sr4dof,
     name: &str,
     ctrl: &DiscreteController,
     period_s: f64,
     measured: Option<&MeasuredFrf>,
 ) -> LoopCheck {
-    let plant = ZohPlant::new(stage.model(), &cfg.actuator, period_s);
-    let ideal = ZohPlant::without_amplifier_lag(stage.model(), &cfg.actuator, period_s);
+    let plant = ZohPlant::new(model, &cfg.actuator, period_s);
+    let ideal = ZohPlant::without_amplifier_lag(model, &cfg.actuator, period_s);
     let model = model_margins(&plant, ctrl);
     let (poles, stable) = closed_loop_poles(&plant, ctrl);
     let largest = poles.iter().map(|p| p.norm()).fold(0.0, f64::max);
@@ -361,6 +363,8 @@ pub struct ControlOptions {
     pub progress: bool,
     /// A simulator fault to inject.
     pub inject: Option<ScheduledFault>,
+    /// `--backend` (else `[backend]` of the config).
+    pub backend: Option<BackendSpec>,
 }
 
 /// Result of `bench control`.
@@ -384,6 +388,9 @@ pub struct ControlSummary {
     pub seed: u64,
     /// Disturbance force RMS, N (0: none).
     pub disturbance_rms_n: f64,
+    /// Link counters of a hardware backend; absent on the simulator.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub link: Option<serde_json::Value>,
     /// Loop timing.
     pub timing: Option<TimingSummary>,
 }
@@ -418,16 +425,20 @@ pub fn run_control(
     let cfg = &opts.config;
     let ccfg = controller_config(cfg, &opts.controller)?;
     let measured = opts.frf.as_deref().map(MeasuredFrf::read_csv).transpose()?;
-    let mut stage = SimStage::new(cfg.sim_params(opts.seed))
+    let model = Sr4dof::new(cfg.plant)
         .map_err(|e| RunError::BadInput(format!("config {}: {e}", opts.config_path.display())))?;
-    let info = stage
-        .configure(cfg.loop_.period_ns())
-        .map_err(|e| RunError::BadInput(format!("loop.rate_hz: {e}")))?;
-    let period_s = info.period_ns as f64 * 1e-9;
-    let ctrl = DiscreteController::new(ccfg, period_s, info.peak_current_a);
+    let spec = BackendSpec::resolve(opts.backend.as_ref(), cfg);
+    if opts.override_check && !spec.is_sim() {
+        return Err(RunError::BadInput(format!(
+            "--override-check: only allowed on the sim backend, not {spec}"
+        )));
+    }
+    // The loop check needs no device: with --check-only nothing is opened.
+    let period_s = cfg.loop_.period_ns() as f64 * 1e-9;
+    let ctrl = DiscreteController::new(ccfg, period_s, cfg.actuator.peak_current_a);
     let check = check_loop(
         cfg,
-        &stage,
+        &model,
         &opts.controller,
         &ctrl,
         period_s,
@@ -440,9 +451,10 @@ pub fn run_control(
         metrics: None,
         recording: None,
         plot: None,
-        backend: info.name.clone(),
+        backend: spec.to_string(),
         seed: opts.seed,
         disturbance_rms_n: cfg.plant.disturbance.map_or(0.0, |d| d.rms_n),
+        link: None,
         timing: None,
     };
     if opts.check_only {
@@ -464,16 +476,25 @@ pub fn run_control(
     let step = &cfg.step;
     check_writable(&opts.out, "--out")?;
     check_writable(&opts.plot, "--plot")?;
-    if let Some(f) = opts.inject {
-        stage.inject(f);
+    let (stage, info) = backend::open(&spec, cfg, &opts.config_path, opts.seed, opts.inject)?;
+    summary.backend = info.name.clone();
+    if info.period_ns != cfg.loop_.period_ns() {
+        return Err(RunError::BadInput(format!(
+            "--backend {spec}: runs every {} ns, the controller was discretised for {} ns; nothing was enabled",
+            info.period_ns,
+            cfg.loop_.period_ns()
+        )));
     }
+    // Anti-windup at the limit the device reports.
+    let ctrl = DiscreteController::new(ccfg, period_s, info.peak_current_a);
     let ticks = |s: f64| (s / period_s).round() as u64;
     let total = ticks(step.duration_s);
     let session = SessionOptions {
         command: "control",
         config_path: &opts.config_path,
         out: &opts.out,
-        realtime: opts.realtime,
+        // Hardware runs in real time whatever the flag says.
+        realtime: opts.realtime || !spec.is_sim(),
         progress: opts.progress,
         seed: opts.seed,
         max_ticks: total,
@@ -501,12 +522,14 @@ pub fn run_control(
         total,
     );
     let Recorded {
+        stage,
         mut recorder,
         data,
         timing,
         end_ns,
         ..
     } = run_recorded(stage, &info, job, cfg, recorder, &session, stop)?;
+    summary.link = stage.link_stats();
 
     let metrics = step_metrics(
         &data,

@@ -5,6 +5,7 @@
 //! ([`bench_hal::sim::SimStage`]) is the default backend.
 #![warn(missing_docs)]
 
+pub mod backend;
 pub mod chirp;
 pub mod config;
 pub mod control;

@@ -11,10 +11,13 @@
 //! | 130 | interrupted by SIGINT/SIGTERM; 0 A, amplifier disabled, recording finished |
 
 use anyhow::Context;
+use bench::backend::BackendSpec;
 use bench::chirp::{run_chirp, ChirpOptions, ChirpSummary};
 use bench::config::{BenchConfig, ChirpKind, ConfigError, DEFAULT_CONFIG};
 use bench::control_run::{run_control, ControlOptions, ControlSummary};
 use bench::session::RunError;
+use bench_hal::device::{DeviceCore, EmulatorStatus, LinkFault, ScheduledLinkFault};
+use bench_hal::serial_emulator::{Pty, SerialEmulatorOptions};
 use bench_hal::sim::{FaultInjection, ScheduledFault};
 use clap::{Args, Parser, Subcommand, ValueEnum};
 use std::io::IsTerminal;
@@ -42,6 +45,47 @@ enum Command {
     /// under the supervisor and report rise, settling, overshoot and the
     /// steady-state positioning noise.
     Control(ControlArgs),
+    /// Run the simulated plant as a DAQ device (serial over a
+    /// pseudo-terminal, or SocketCAN), so the hardware backends can be
+    /// exercised without hardware.
+    #[command(subcommand)]
+    Emulate(EmulateCommand),
+}
+
+#[derive(Debug, Subcommand)]
+enum EmulateCommand {
+    /// Serial DAQ on a new pseudo-terminal: prints its path on the first
+    /// line of stdout, then serves `bench ... --backend serial:PATH`.
+    Serial(EmulateArgs),
+    /// CAN analog I/O module on a SocketCAN interface.
+    Can {
+        /// CAN interface, e.g. vcan0 (overrides backend.can.interface).
+        #[arg(long, value_name = "IFACE")]
+        iface: Option<String>,
+        #[command(flatten)]
+        common: EmulateArgs,
+    },
+}
+
+#[derive(Debug, Args)]
+struct EmulateArgs {
+    /// Bench description (TOML): plant, rate, [emulator] watchdog.
+    #[arg(long, value_name = "FILE", default_value = DEFAULT_CONFIG)]
+    config: PathBuf,
+    /// Plant noise seed [default: sim.seed].
+    #[arg(long, value_name = "N")]
+    seed: Option<u64>,
+    /// Inject a fault at device time T_S (repeatable): link faults
+    /// bitflip:BITS[xFRAMES], drop:FRAMES, delay:S, stall:S, disconnect;
+    /// plant faults nan, frozen, jump, out_of_range. E.g. stall:0.5@2.
+    #[arg(long = "fault", value_name = "KIND@T_S")]
+    faults: Vec<String>,
+    /// Protocol version to announce (serial; for testing refusal).
+    #[arg(long, value_name = "N")]
+    protocol_version: Option<u16>,
+    /// Stop after this long, s (default: until SIGINT/SIGTERM).
+    #[arg(long, value_name = "S")]
+    duration_s: Option<f64>,
 }
 
 #[derive(Debug, Args)]
@@ -97,6 +141,10 @@ struct ControlArgs {
     /// drop (10 samples), jump (0.2 mm), out_of_range; e.g. nan@1.5.
     #[arg(long, value_name = "KIND@T_S")]
     inject_fault: Option<String>,
+    /// Backend: sim, serial:PATH or socketcan:IFACE [default: [backend] of
+    /// the config]. Hardware always runs in real time.
+    #[arg(long, value_name = "BACKEND")]
+    backend: Option<BackendSpec>,
 }
 
 #[derive(Debug, Clone, Copy, ValueEnum)]
@@ -159,6 +207,10 @@ struct ChirpArgs {
     /// Sweep law (overrides chirp.kind).
     #[arg(long, value_enum)]
     chirp_kind: Option<KindArg>,
+    /// Backend: sim, serial:PATH or socketcan:IFACE [default: [backend] of
+    /// the config]. Hardware always runs in real time.
+    #[arg(long, value_name = "BACKEND")]
+    backend: Option<BackendSpec>,
 }
 
 /// Exit statuses (see the module docs).
@@ -188,6 +240,7 @@ fn main() -> ExitCode {
     match cli.command {
         Command::Chirp(args) => chirp(args, stop),
         Command::Control(args) => control(args, stop),
+        Command::Emulate(cmd) => emulate(cmd, stop),
     }
 }
 
@@ -332,6 +385,7 @@ fn chirp(args: ChirpArgs, stop: Arc<AtomicBool>) -> ExitCode {
         config_path: args.config.clone(),
         realtime: args.realtime,
         progress: std::io::stderr().is_terminal(),
+        backend: args.backend.clone(),
     };
     match run_chirp(&opts, stop) {
         Ok(summary) => match emit(&summary, args.json, print_summary) {
@@ -528,6 +582,7 @@ fn control(args: ControlArgs, stop: Arc<AtomicBool>) -> ExitCode {
         realtime: args.realtime,
         progress: std::io::stderr().is_terminal(),
         inject,
+        backend: args.backend.clone(),
     };
     match run_control(&opts, stop) {
         Ok(summary) => {
@@ -630,5 +685,168 @@ fn print_control_summary(s: &ControlSummary) {
             "loop: {} ticks at {:.0} Hz ({}), {:.2} s wall; compute mean {:.2} µs, p99 {:.2} µs; overruns {}",
             t.ticks, t.rate_hz, t.mode, t.wall_s, t.compute_mean_us, t.compute_p99_us, t.overruns
         );
+    }
+}
+
+/// Parses an emulator `--fault KIND@T_S`: a link fault or a plant fault.
+fn parse_emulator_fault(s: &str) -> Result<EmulatorFault, String> {
+    let (kind, at) = s
+        .rsplit_once('@')
+        .ok_or_else(|| format!("--fault {s}: expected KIND@T_S, e.g. stall:0.5@2"))?;
+    let at_s: f64 = at
+        .parse()
+        .ok()
+        .filter(|t: &f64| t.is_finite() && *t >= 0.0)
+        .ok_or_else(|| {
+            format!("--fault {s}: time {at:?} is not a non-negative number of seconds")
+        })?;
+    match LinkFault::parse(kind) {
+        Ok(kind) => Ok(EmulatorFault::Link(ScheduledLinkFault { at_s, kind })),
+        Err(link_err) => match parse_fault(s) {
+            Ok(f) => Ok(EmulatorFault::Plant(f)),
+            Err(_) => Err(format!(
+                "--fault {s}: {link_err}; or a plant fault nan, frozen, drop, jump, out_of_range"
+            )),
+        },
+    }
+}
+
+enum EmulatorFault {
+    Link(ScheduledLinkFault),
+    Plant(ScheduledFault),
+}
+
+fn emulate(cmd: EmulateCommand, stop: Arc<AtomicBool>) -> ExitCode {
+    let (args, can_iface) = match cmd {
+        EmulateCommand::Serial(a) => (a, None),
+        EmulateCommand::Can { iface, common } => (common, Some(iface)),
+    };
+    let cfg = match load_config(&args.config).and_then(|c| c.validate(&args.config).map(|_| c)) {
+        Ok(c) => c,
+        Err(e) => return bad_input(e),
+    };
+    let mut link_faults = Vec::new();
+    let mut plant_faults = Vec::new();
+    for f in &args.faults {
+        match parse_emulator_fault(f) {
+            Ok(EmulatorFault::Link(l)) => link_faults.push(l),
+            Ok(EmulatorFault::Plant(p)) => plant_faults.push(p),
+            Err(e) => return bad_input(e),
+        }
+    }
+    if let Some(d) = args.duration_s {
+        if !(d.is_finite() && d > 0.0) {
+            return bad_input(format!(
+                "--duration-s {d}: must be a positive number of seconds"
+            ));
+        }
+    }
+    let seed = args.seed.unwrap_or(cfg.sim.seed);
+    let watchdog_ns = (cfg.emulator.watchdog_ms * 1e6) as u64;
+    let mut core = match DeviceCore::new(cfg.sim_params(seed), cfg.loop_.period_ns(), watchdog_ns) {
+        Ok(c) => c,
+        Err(e) => return bad_input(format!("config {}: {e}", args.config.display())),
+    };
+    for f in plant_faults {
+        core.inject(f);
+    }
+    let priority = (cfg.emulator.priority > 0).then_some(cfg.emulator.priority);
+    let status = Arc::new(EmulatorStatus::default());
+    let rate_hz = cfg.loop_.rate_hz;
+    if let Some(d) = args.duration_s {
+        let stop = Arc::clone(&stop);
+        std::thread::spawn(move || {
+            std::thread::sleep(std::time::Duration::from_secs_f64(d));
+            stop.store(true, std::sync::atomic::Ordering::Relaxed);
+        });
+    }
+    let result = match can_iface {
+        None => {
+            let pty = match Pty::open() {
+                Ok(p) => p,
+                Err(e) => {
+                    eprintln!("error: cannot create a pseudo-terminal: {e}");
+                    return ExitCode::from(status::ERROR);
+                }
+            };
+            println!("{}", pty.path());
+            eprintln!(
+                "serial DAQ emulator on {} at {rate_hz} Hz, watchdog {} ms, protocol v{}; connect with --backend serial:{}; Ctrl-C stops",
+                pty.path(),
+                cfg.emulator.watchdog_ms,
+                args.protocol_version.unwrap_or(bench_hal::protocol::VERSION),
+                pty.path()
+            );
+            let opts = SerialEmulatorOptions {
+                protocol_version: args
+                    .protocol_version
+                    .unwrap_or(bench_hal::protocol::VERSION),
+                position_lsb_m: cfg.emulator.position_lsb_m,
+                link_faults,
+                seed,
+                realtime_priority: priority,
+            };
+            let st = Arc::clone(&status);
+            let s = Arc::clone(&stop);
+            std::thread::Builder::new()
+                .name("bench-emulator".into())
+                .spawn(move || bench_hal::serial_emulator::run(pty, core, &opts, &s, &st))
+                .map_err(|e| e.to_string())
+                .and_then(|t| t.join().map_err(|_| "emulator thread panicked".to_string()))
+                .and_then(|r| r.map_err(|e| e.to_string()))
+        }
+        Some(iface) => {
+            if args.protocol_version.is_some() {
+                return bad_input(
+                    "--protocol-version: only the serial emulator has a protocol version",
+                );
+            }
+            let ccfg = bench_hal::can::CanConfig {
+                interface: iface.unwrap_or_else(|| cfg.backend.can.interface.clone()),
+                ..cfg.backend.can.clone()
+            };
+            let sock = match bench_hal::can::open_socket(&ccfg.interface) {
+                Ok(s) => s,
+                Err(e) => return bad_input(format!("--iface {}: {e}", ccfg.interface)),
+            };
+            println!("{}", ccfg.interface);
+            eprintln!(
+                "CAN DAQ emulator on {} node {} at {rate_hz} Hz, watchdog {} ms; connect with --backend socketcan:{}; Ctrl-C stops",
+                ccfg.interface, ccfg.node_id, cfg.emulator.watchdog_ms, ccfg.interface
+            );
+            let st = Arc::clone(&status);
+            let s = Arc::clone(&stop);
+            std::thread::Builder::new()
+                .name("bench-emulator".into())
+                .spawn(move || {
+                    if let Some(p) = priority {
+                        bench::rt::make_realtime(p, None);
+                    }
+                    bench_hal::can::run_emulator(sock, &ccfg, core, &link_faults, &s, &st)
+                })
+                .map_err(|e| e.to_string())
+                .and_then(|t| t.join().map_err(|_| "emulator thread panicked".to_string()))
+                .and_then(|r| r.map_err(|e| e.to_string()))
+        }
+    };
+    use std::sync::atomic::Ordering::Relaxed;
+    eprintln!(
+        "emulator stopped: {} samples sent, {} commands, {} bad frames, {} late commands, watchdog {}",
+        status.samples_sent.load(Relaxed),
+        status.commands_received.load(Relaxed),
+        status.bad_frames.load(Relaxed),
+        status.late_commands.load(Relaxed),
+        if status.watchdog_trip_mono_ns.load(Relaxed) != 0 {
+            "tripped"
+        } else {
+            "never tripped"
+        }
+    );
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: emulator: {e}");
+            ExitCode::from(status::ERROR)
+        }
     }
 }

@@ -98,11 +98,15 @@ pub enum EventKind {
     Interrupted,
     /// The loop stopped (last tick).
     LoopStopped,
+    /// A tick without a usable sample (timeout or corrupt frames on a
+    /// hardware link): the last reading and command were held; `value` is
+    /// the count of consecutive bad samples.
+    SampleMissing,
 }
 
 impl EventKind {
     /// Every kind (the recording schemas list them).
-    pub const ALL: [Self; 7] = [
+    pub const ALL: [Self; 8] = [
         Self::LoopStarted,
         Self::StateChanged,
         Self::JobStarted,
@@ -110,6 +114,7 @@ impl EventKind {
         Self::Fault,
         Self::Interrupted,
         Self::LoopStopped,
+        Self::SampleMissing,
     ];
 
     /// Snake-case name used in recordings.
@@ -122,6 +127,7 @@ impl EventKind {
             Self::Fault => "fault",
             Self::Interrupted => "interrupted",
             Self::LoopStopped => "loop_stopped",
+            Self::SampleMissing => "sample_missing",
         }
     }
 }
@@ -141,18 +147,22 @@ pub enum FaultKind {
     Overruns,
     /// The HAL returned an error on read or write.
     Hal,
-    /// Too many consecutive samples missing (sequence gap) or stale
-    /// (sequence not advancing).
+    /// Too many consecutive stale samples (sequence not advancing: a frozen
+    /// device).
     StaleSample,
     /// The probe reading jumped further in one tick than the stage can move.
     PositionJump,
     /// The I²t budget above the continuous current rating is spent.
     I2t,
+    /// The link to the device failed: more than `max_missed_samples`
+    /// consecutive samples missing (sequence gap, timeout) or corrupt, or
+    /// the link is gone (disconnect, bus-off).
+    Link,
 }
 
 impl FaultKind {
     /// Every fault (the recording schemas list them).
-    pub const ALL: [Self; 9] = [
+    pub const ALL: [Self; 10] = [
         Self::PositionLimit,
         Self::ProbeOutOfRange,
         Self::ProbeNotFinite,
@@ -162,6 +172,7 @@ impl FaultKind {
         Self::StaleSample,
         Self::PositionJump,
         Self::I2t,
+        Self::Link,
     ];
 
     /// Snake-case name used in recordings and exit messages.
@@ -176,6 +187,7 @@ impl FaultKind {
             Self::StaleSample => "stale_sample",
             Self::PositionJump => "position_jump",
             Self::I2t => "i2t",
+            Self::Link => "link",
         }
     }
 }
@@ -230,6 +242,7 @@ fn variant_index(r: (SupervisorState, EventKind, FaultKind)) -> (usize, usize, u
         E::Fault => 4,
         E::Interrupted => 5,
         E::LoopStopped => 6,
+        E::SampleMissing => 7,
     };
     let f = match r.2 {
         F::PositionLimit => 0,
@@ -241,6 +254,7 @@ fn variant_index(r: (SupervisorState, EventKind, FaultKind)) -> (usize, usize, u
         F::StaleSample => 6,
         F::PositionJump => 7,
         F::I2t => 8,
+        F::Link => 9,
     };
     (s, e, f)
 }

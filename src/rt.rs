@@ -5,7 +5,11 @@
 //! 1. wait: real-time mode sleeps until the tick's absolute deadline
 //!    (`clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME)`); virtual time does
 //!    not wait; a device-clocked backend waits inside `read_sample`;
-//! 2. read the sample (HAL);
+//! 2. read the sample (HAL). A read that brings no usable sample (timeout,
+//!    corrupt frames) counts towards the supervisor's link fault (K in a
+//!    row); host-clocked, the tick runs on the last reading and command
+//!    held, device-clocked, no tick runs until a sample arrives. A lost link
+//!    (disconnect, bus-off) is the link fault at once;
 //! 3. supervise the sample;
 //! 4. run the job (excitation or controller);
 //! 5. supervise and clip the command, write it (HAL); on a fault in this
@@ -30,7 +34,7 @@ use crate::records::{
 };
 use crate::supervisor::{Supervisor, SupervisorConfig};
 use crate::timing::TickTiming;
-use bench_hal::{Clock, Command, Sample, Stage};
+use bench_hal::{Clock, Command, Error as _, ErrorKind, Sample, Stage};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 
 /// What a job produces each tick.
@@ -96,6 +100,8 @@ pub enum StopReason {
         value: f64,
         /// Tick of the fault.
         tick: u64,
+        /// What the backend said, for link faults.
+        detail: Option<String>,
     },
     /// A HAL call failed (the supervisor faulted with [`FaultKind::Hal`]).
     Hal {
@@ -298,43 +304,117 @@ pub fn run<S: Stage, J: Job>(
     // The first HAL error, kept as-is (formatting would allocate on the
     // tick); it becomes a message after the loop.
     let mut hal_error: Option<(&'static str, S::Error)> = None;
+    // The latest bad-sample or lost-link error (for the link fault's
+    // message).
+    let mut link_error: Option<S::Error> = None;
+    let mut last_good: Option<Sample> = None;
+    let mut last_t_s = -period_s;
+    let mut last_command_a = 0.0;
+    let mut last_excitation_a = f64::NAN;
+    let mut last_setpoint_m = f64::NAN;
     while tick < opts.max_ticks {
         let deadline = start_ns + tick * opts.period_ns;
         if host_paced {
             sleep_until_ns(deadline);
         }
-        let wake = now_ns();
-        let t_s = match clock {
-            Clock::Host => tick as f64 * period_s,
-            Clock::Device { .. } => f64::NAN, // replaced from the sample below
-        };
+        let mut wake = now_ns();
 
         let mut fault_now = false;
+        // A read without a usable sample (timeout, corrupt frames) counts
+        // towards the link fault. Host-clocked, the tick still runs and
+        // holds the last reading and command; device-clocked, there is no
+        // tick until a sample comes. A lost link faults at once; any other
+        // HAL error is a HAL fault.
+        let mut missing = false;
         let sample = match stage.read_sample() {
             Ok(s) => s,
             Err(e) => {
-                if hal_error.is_none() {
-                    hal_error = Some(("read_sample", e));
+                match e.kind() {
+                    ErrorKind::Timeout | ErrorKind::Crc => {
+                        let tripped = sup.sample_missing().is_some();
+                        link_error = Some(e);
+                        if !tripped && matches!(clock, Clock::Device { .. }) {
+                            // The device clocks the loop: no sample, no
+                            // tick. The device holds the last command; the
+                            // next read waits again.
+                            em.event(
+                                tick,
+                                last_t_s,
+                                EventKind::SampleMissing,
+                                &sup,
+                                sup.missing_samples() as f64,
+                            );
+                            if stop.load(Ordering::Relaxed) {
+                                em.event(tick, last_t_s, EventKind::Interrupted, &sup, f64::NAN);
+                                stop_reason = StopReason::Interrupted {
+                                    tick: tick.saturating_sub(1),
+                                };
+                                break;
+                            }
+                            continue;
+                        }
+                        missing = true;
+                        fault_now |= tripped;
+                    }
+                    ErrorKind::Link => {
+                        fault_now |= sup.link_lost();
+                        link_error = Some(e);
+                    }
+                    _ => {
+                        if hal_error.is_none() {
+                            hal_error = Some(("read_sample", e));
+                        }
+                        fault_now |= sup.trip(FaultKind::Hal, f64::NAN);
+                    }
                 }
-                fault_now |= sup.trip(FaultKind::Hal, f64::NAN);
                 Sample {
-                    seq: tick,
-                    device_time_ns: 0,
-                    position_m: f64::NAN,
+                    seq: last_good.map_or(tick, |s| s.seq),
+                    device_time_ns: last_good.map_or(0, |s| s.device_time_ns),
+                    position_m: last_good.map_or(f64::NAN, |s| s.position_m),
                     measured_current_a: f64::NAN,
-                    flags: Default::default(),
+                    flags: last_good.map_or(Default::default(), |s| s.flags),
                 }
             }
         };
-        let t_s = if t_s.is_nan() {
-            sample.device_time_ns as f64 * 1e-9
-        } else {
-            t_s
+        if let Clock::Device { .. } = clock {
+            // Device-clocked, the tick starts when its sample arrives.
+            wake = now_ns();
+        }
+        let t_s = match clock {
+            Clock::Host => tick as f64 * period_s,
+            // Device time of the sample; a held one is a period later.
+            Clock::Device { .. } if missing => last_t_s + period_s,
+            Clock::Device { .. } => sample.device_time_ns as f64 * 1e-9,
         };
-        fault_now |= sup.check_sample(&sample).is_some();
-        let job_out = job.tick(tick, &sample);
+        last_t_s = t_s;
+        if missing {
+            em.event(
+                tick,
+                t_s,
+                EventKind::SampleMissing,
+                &sup,
+                sup.missing_samples() as f64,
+            );
+        } else {
+            fault_now |= sup.check_sample(&sample).is_some();
+            last_good = Some(sample);
+        }
+        let job_out = if missing || last_good.is_none() {
+            // Hold: the job does not run on a tick without a sample.
+            JobOutput {
+                command_a: last_command_a,
+                excitation_a: last_excitation_a,
+                setpoint_m: last_setpoint_m,
+                done: false,
+            }
+        } else {
+            job.tick(tick, &sample)
+        };
+        last_excitation_a = job_out.excitation_a;
+        last_setpoint_m = job_out.setpoint_m;
         let (command_a, cmd_fault) = sup.command(job_out.command_a);
         fault_now |= cmd_fault.is_some();
+        last_command_a = job_out.command_a;
         if let Err(e) = stage.write_command(Command {
             current_a: command_a,
             answers_seq: sample.seq,
@@ -413,15 +493,34 @@ pub fn run<S: Stage, J: Job>(
         progress.store(tick, Ordering::Relaxed);
         if sup.state() == SupervisorState::Faulted {
             let (kind, value) = sup.fault().unwrap_or((FaultKind::Hal, f64::NAN));
-            stop_reason = match hal_error.take() {
-                Some((call, e)) if kind == FaultKind::Hal => StopReason::Hal {
+            stop_reason = match (hal_error.take(), link_error.take()) {
+                (Some((call, e)), _) if kind == FaultKind::Hal => StopReason::Hal {
                     message: format!("{call}: {e}"),
                     tick: tick - 1,
+                },
+                (_, Some(e)) if kind == FaultKind::Link => StopReason::Fault {
+                    kind,
+                    value,
+                    tick: tick - 1,
+                    detail: Some(if value.is_nan() {
+                        format!("link lost: {e}")
+                    } else {
+                        format!("{value} consecutive samples missing or corrupt (last: {e})")
+                    }),
+                },
+                (_, None) if kind == FaultKind::Link => StopReason::Fault {
+                    kind,
+                    value,
+                    tick: tick - 1,
+                    detail: Some(format!(
+                        "{value} consecutive samples missing (sequence gap)"
+                    )),
                 },
                 _ => StopReason::Fault {
                     kind,
                     value,
                     tick: tick - 1,
+                    detail: None,
                 },
             };
             break;

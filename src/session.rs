@@ -2,11 +2,11 @@
 //! real-time loop on its own thread with the writer draining the queue,
 //! show progress, and turn how the loop stopped into a result.
 
+use crate::backend::AnyStage;
 use crate::config::BenchConfig;
 use crate::record::{spawn_writer, RecordError, Recorder, DEFAULT_CHUNK_INTERVAL};
 use crate::records::Record;
 use crate::rt::{self, Job, LoopOptions, LoopReport, Pacing, StopReason};
-use bench_hal::sim::SimStage;
 use bench_hal::DeviceInfo;
 use serde::Serialize;
 use std::collections::BTreeMap;
@@ -77,12 +77,14 @@ pub enum RunError {
     #[error("{0}")]
     Refused(String),
     /// The supervisor latched a fault (exit 3). The recording was finished.
-    #[error("safety fault: {kind} at tick {tick} (value {value:e}); 0 A, amplifier disabled; recording {recording}")]
+    #[error("safety fault: {kind} at tick {tick} ({detail}); 0 A, amplifier disabled; recording {recording}")]
     Fault {
         /// Fault name.
         kind: &'static str,
         /// Offending value.
         value: f64,
+        /// `value …`, or what the backend said (link faults).
+        detail: String,
         /// Tick.
         tick: u64,
         /// The finished recording.
@@ -213,7 +215,7 @@ pub struct SessionOptions<'a> {
 #[derive(Debug)]
 pub struct Recorded {
     /// The stage, back from the loop thread (disabled, 0 A).
-    pub stage: SimStage,
+    pub stage: AnyStage,
     /// The recording, open for the job's results.
     pub recorder: Recorder,
     /// The per-tick signals.
@@ -275,7 +277,7 @@ pub fn open_recording(
 /// the recording finished and the amplifier disabled; [`RunError::Other`]
 /// for thread or recording failures.
 pub fn run_recorded<J: Job + Send + 'static>(
-    mut stage: SimStage,
+    mut stage: AnyStage,
     info: &DeviceInfo,
     mut job: J,
     cfg: &BenchConfig,
@@ -380,11 +382,17 @@ pub fn run_recorded<J: Job + Send + 'static>(
     let end_ns = crate::record::log_time_ns(report.ticks as f64 * period_s);
     match report.stop {
         StopReason::Finished => {}
-        StopReason::Fault { kind, value, tick } => {
+        StopReason::Fault {
+            kind,
+            value,
+            tick,
+            detail,
+        } => {
             let recording = finish(recorder)?;
             return Err(RunError::Fault {
                 kind: kind.as_str(),
                 value,
+                detail: detail.unwrap_or_else(|| format!("value {value:e}")),
                 tick,
                 recording,
             });

@@ -4,8 +4,14 @@
 //! command is 0 A from the faulting tick on and the loop disables the
 //! amplifier in the same tick; only [`Supervisor::reset`] leaves `faulted`.
 //!
-//! Checks, in order, on each sample: sequence advancing (at most
-//! `max_missed_samples` consecutive samples missing or stale), probe value
+//! Link supervision: a tick without a usable sample (timeout, corrupt
+//! frames; [`Supervisor::sample_missing`]) and a sequence gap both count
+//! missing samples; more than `max_missed_samples` (K) in a row is the
+//! `link` fault, as is a link that is gone ([`Supervisor::link_lost`]).
+//!
+//! Checks, in order, on each sample: sequence advancing (at most K
+//! consecutive samples missing, else `link`; at most K stale, else
+//! `stale_sample`), probe value
 //! finite, probe in range, |position| within the software limit, change
 //! since the last sample plausible (`max_position_step_m` per tick); on each
 //! command: finite, I²t budget not spent; on each tick in real-time mode:
@@ -30,7 +36,8 @@ pub struct SupervisorConfig {
     pub peak_current_a: f64,
     /// Consecutive overruns that fault (0 disables the check, virtual time).
     pub max_consecutive_overruns: u32,
-    /// Consecutive missing or stale samples tolerated.
+    /// Consecutive missing (gap, timeout, corrupt) or stale samples
+    /// tolerated (K).
     pub max_missed_samples: u32,
     /// Largest plausible change of the reading per tick, m.
     pub max_position_step_m: f64,
@@ -51,7 +58,10 @@ pub struct Supervisor {
     consecutive_overruns: u32,
     last_seq: Option<u64>,
     last_position_m: f64,
-    missed: u64,
+    /// Consecutive stale samples.
+    stale: u64,
+    /// Consecutive missing samples (ticks without one, or a gap).
+    missing: u64,
     i2t_a2s: f64,
     i2t_budget_a2s: f64,
 }
@@ -67,7 +77,8 @@ impl Supervisor {
             consecutive_overruns: 0,
             last_seq: None,
             last_position_m: f64::NAN,
-            missed: 0,
+            stale: 0,
+            missing: 0,
             i2t_a2s: 0.0,
             i2t_budget_a2s: (cfg.peak_current_a * cfg.peak_current_a - ic2).max(0.0)
                 * cfg.i2t_peak_duration_s,
@@ -128,35 +139,60 @@ impl Supervisor {
         self.consecutive_overruns = 0;
         self.last_seq = None;
         self.last_position_m = f64::NAN;
-        self.missed = 0;
+        self.stale = 0;
+        self.missing = 0;
+    }
+
+    /// A tick had no usable sample (timeout, corrupt frames). Trips
+    /// [`FaultKind::Link`] when more than K in a row are missing; returns
+    /// the fault if this call tripped it.
+    pub fn sample_missing(&mut self) -> Option<FaultKind> {
+        self.missing += 1;
+        let n = self.missing;
+        (n > u64::from(self.cfg.max_missed_samples) && self.trip(FaultKind::Link, n as f64))
+            .then_some(FaultKind::Link)
+    }
+
+    /// Consecutive missing samples so far.
+    pub fn missing_samples(&self) -> u64 {
+        self.missing
+    }
+
+    /// The link is gone (disconnect, bus-off): [`FaultKind::Link`] at once.
+    /// Returns `true` if this call tripped it.
+    pub fn link_lost(&mut self) -> bool {
+        self.trip(FaultKind::Link, f64::NAN)
     }
 
     /// Checks a sample; trips and returns the fault if it is bad.
     pub fn check_sample(&mut self, s: &Sample) -> Option<FaultKind> {
         let x = s.position_m;
-        // Sequence: a gap counts the samples missed, a repeat counts stale.
+        // Sequence: a gap counts the samples missing (together with the
+        // ticks that had none), a repeat counts stale.
         let mut ticks_since = 1u64;
+        let mut gap = 0u64;
         let stale = match self.last_seq {
             None => false,
-            Some(last) if s.seq == last.wrapping_add(1) => {
-                self.missed = 0;
-                false
-            }
             Some(last) if s.seq > last => {
-                self.missed += s.seq - last - 1;
+                gap = s.seq - last - 1;
                 ticks_since = s.seq - last;
                 false
             }
-            Some(_) => {
-                self.missed += 1;
-                true
-            }
+            Some(_) => true,
         };
-        if !stale {
+        let missing = self.missing.max(gap);
+        if stale {
+            self.stale += 1;
+        } else {
+            self.stale = 0;
+            self.missing = 0;
             self.last_seq = Some(s.seq);
         }
         let jump = (x - self.last_position_m).abs();
-        let fault = if self.missed > u64::from(self.cfg.max_missed_samples) {
+        let k = u64::from(self.cfg.max_missed_samples);
+        let fault = if missing > k {
+            Some(FaultKind::Link)
+        } else if self.stale > k {
             Some(FaultKind::StaleSample)
         } else if !x.is_finite() {
             Some(FaultKind::ProbeNotFinite)
@@ -172,10 +208,10 @@ impl Supervisor {
         if !stale && x.is_finite() {
             self.last_position_m = x;
         }
-        let value = if fault == Some(FaultKind::StaleSample) {
-            self.missed as f64
-        } else {
-            x
+        let value = match fault {
+            Some(FaultKind::Link) => missing as f64,
+            Some(FaultKind::StaleSample) => self.stale as f64,
+            _ => x,
         };
         fault.filter(|k| self.trip(*k, value))
     }
@@ -314,13 +350,36 @@ mod tests {
             s.check_sample(&seq_sample(14, 0.0, false)),
             Some(FaultKind::StaleSample)
         );
-        // A gap of 4 at once faults.
+        // A gap of 4 at once is the link fault.
         let mut s = sup();
         s.check_sample(&seq_sample(0, 0.0, false));
         assert_eq!(
             s.check_sample(&seq_sample(5, 0.0, false)),
-            Some(FaultKind::StaleSample)
+            Some(FaultKind::Link)
         );
+        assert_eq!(s.fault(), Some((FaultKind::Link, 4.0)));
+    }
+
+    #[test]
+    fn ticks_without_a_sample_and_the_gap_they_leave_count_once() {
+        // Two timeouts, then the next sample shows the gap of the two it
+        // missed: 2 missing, not 4, so K = 3 holds.
+        let mut s = sup();
+        s.check_sample(&seq_sample(0, 0.0, false));
+        assert_eq!(s.sample_missing(), None);
+        assert_eq!(s.sample_missing(), None);
+        assert_eq!(s.check_sample(&seq_sample(3, 0.0, false)), None);
+        assert_eq!(s.missing_samples(), 0);
+        // Four in a row trip on the fourth.
+        for _ in 0..3 {
+            assert_eq!(s.sample_missing(), None);
+        }
+        assert_eq!(s.sample_missing(), Some(FaultKind::Link));
+        assert_eq!(s.command(1.0), (0.0, None));
+        // A disconnect trips at once (but a latched fault is not replaced).
+        let mut s = sup();
+        assert!(s.link_lost());
+        assert_eq!(s.fault().map(|f| f.0), Some(FaultKind::Link));
     }
 
     #[test]

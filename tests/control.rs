@@ -141,7 +141,7 @@ fn injected_faults_latch_with_zero_current() {
     for (kind, fault) in [
         ("nan", "probe_not_finite"),
         ("frozen", "stale_sample"),
-        ("drop", "stale_sample"),
+        ("drop", "link"),
         ("jump", "position_jump"),
         ("out_of_range", "probe_out_of_range"),
     ] {

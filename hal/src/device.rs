@@ -479,9 +479,15 @@ mod tests {
     fn link_faults_parse() {
         assert_eq!(
             LinkFault::parse("bitflip:2x10"),
-            Ok(LinkFault::BitFlips { bits: 2, frames: 10 })
+            Ok(LinkFault::BitFlips {
+                bits: 2,
+                frames: 10
+            })
         );
-        assert_eq!(LinkFault::parse("drop:5"), Ok(LinkFault::Drop { frames: 5 }));
+        assert_eq!(
+            LinkFault::parse("drop:5"),
+            Ok(LinkFault::Drop { frames: 5 })
+        );
         assert_eq!(
             LinkFault::parse("stall:0.5"),
             Ok(LinkFault::Stall { duration_s: 0.5 })

@@ -190,7 +190,7 @@ pub fn decode<M: for<'de> Deserialize<'de>>(frame: &mut [u8]) -> Result<M, Frame
         return Err(FrameError::Crc);
     }
     match postcard::take_from_bytes::<M>(body) {
-        Ok((m, rest)) if rest.is_empty() => Ok(m),
+        Ok((m, [])) => Ok(m),
         _ => Err(FrameError::Decode),
     }
 }
@@ -343,6 +343,9 @@ mod tests {
                 None => {}
             }
         }
-        assert_eq!(seen, vec![Err(FrameError::TooLong), Ok(HostMessage::Enable)]);
+        assert_eq!(
+            seen,
+            vec![Err(FrameError::TooLong), Ok(HostMessage::Enable)]
+        );
     }
 }

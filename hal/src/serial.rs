@@ -8,9 +8,12 @@
 //! `write` and fixed buffers, so reading and writing never allocate.
 //!
 //! The device owns the clock ([`Clock::Device`]): [`SerialStage::read_sample`]
-//! waits, at most `sample_timeout_ns`, for the next sample frame. If several
-//! samples are already queued (the host was late), it returns the newest and
-//! counts the older ones as late; the supervisor sees the sequence gap.
+//! returns the samples in order, one per call, waiting at most
+//! `sample_timeout_periods` for the next one. Samples that arrive in a burst
+//! (the USB or pty layer delayed them) are all returned, back to back, so
+//! the loop catches up without losing any. If more than [`BACKLOG`] pile
+//! up, the oldest are dropped and counted as late; the supervisor then sees
+//! the sequence gap.
 //!
 //! Errors on the tick and what the loop's link supervision makes of them:
 //!
@@ -23,11 +26,14 @@
 
 use crate::protocol::{
     self, flags, DeviceHello, DeviceMessage, Frame, FrameError, FrameReader, HostMessage,
-    WireStatus, MAX_FRAME,
+    WireSample, WireStatus, MAX_FRAME,
 };
 use crate::{Clock, Command, DeviceInfo, ErrorKind, Sample, SampleFlags, Stage};
 use std::os::fd::{AsRawFd, RawFd};
 use std::time::Duration;
+
+/// Most samples queued on the host side; older ones are dropped beyond.
+pub const BACKLOG: usize = 32;
 
 /// Serial backend settings (the `[backend.serial]` table).
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -41,8 +47,11 @@ pub struct SerialConfig {
     /// How long to wait for the device's hello and for enable/disable
     /// acknowledgements, ms.
     pub handshake_timeout_ms: f64,
-    /// Longest wait for a sample on the tick, in sample periods. Past it the
-    /// read is a bad sample (`Timeout`).
+    /// Longest wait for a sample on the tick, in sample periods (default 25:
+    /// 5 ms at 5 kHz). Past it the read is a bad sample (`Timeout`); the
+    /// host's link fault comes after `safety.max_missed_samples + 1` of them
+    /// in a row. USB and pseudo-terminal layers deliver samples in bursts:
+    /// on a loaded 2-core VM a pty held samples back for up to 5.4 ms.
     pub sample_timeout_periods: f64,
 }
 
@@ -52,7 +61,7 @@ impl Default for SerialConfig {
             path: "/dev/ttyACM0".into(),
             baud: 921_600,
             handshake_timeout_ms: 500.0,
-            sample_timeout_periods: 2.0,
+            sample_timeout_periods: 25.0,
         }
     }
 }
@@ -171,6 +180,12 @@ pub enum SerialError {
     /// A non-finite current demand.
     #[error("current demand is not finite ({0})")]
     NotFinite(f64),
+    /// The device reports a latched fault while enabled.
+    #[error("device reports a latched fault (code {code}: 1 watchdog, 2 bad command); its amplifier is off")]
+    DeviceFault {
+        /// The device's fault code (0 if no status came with it).
+        code: u8,
+    },
 }
 
 impl crate::Error for SerialError {
@@ -182,7 +197,7 @@ impl crate::Error for SerialError {
             Self::NoHello { .. } | Self::Version { .. } => ErrorKind::Protocol,
             Self::Rate { .. } => ErrorKind::Config,
             Self::NoAck { .. } | Self::Timeout { .. } => ErrorKind::Timeout,
-            Self::Refused { .. } => ErrorKind::AmplifierFault,
+            Self::Refused { .. } | Self::DeviceFault { .. } => ErrorKind::AmplifierFault,
             Self::Corrupt(_) => ErrorKind::Crc,
             Self::State(_) => ErrorKind::InvalidState,
             Self::NotFinite(_) => ErrorKind::OutOfRange,
@@ -205,9 +220,11 @@ pub struct SerialStats {
     /// Samples the device sent that never reached the loop (sum of gap
     /// sizes, late ones included).
     pub missed_samples: u64,
-    /// Samples that arrived but were superseded by a newer one before the
-    /// loop read them (the host was late).
+    /// Samples dropped because more than [`BACKLOG`] were waiting (the host
+    /// fell behind).
     pub late_samples: u64,
+    /// Most samples that were waiting at once.
+    pub max_backlog: u64,
     /// Reads that timed out.
     pub timeouts: u64,
 }
@@ -221,6 +238,10 @@ pub struct SerialStage {
     rx: [u8; 512],
     rx_len: usize,
     rx_pos: usize,
+    /// Received samples not yet returned, oldest first (ring).
+    queue: [WireSample; BACKLOG],
+    queue_head: usize,
+    queue_len: usize,
     hello: Option<DeviceHello>,
     period_ns: u64,
     timeout_ns: u64,
@@ -228,7 +249,8 @@ pub struct SerialStage {
     seq_base: Option<u64>,
     /// Unwrapped device sequence of the last sample returned.
     last_seq: Option<u64>,
-    last_time_us: u64,
+    /// Device time of the first sample after configure, µs.
+    time_base_us: Option<u64>,
     enabled: bool,
     stats: SerialStats,
     last_status: Option<WireStatus>,
@@ -290,12 +312,21 @@ impl SerialStage {
             rx: [0; 512],
             rx_len: 0,
             rx_pos: 0,
+            queue: [WireSample {
+                seq: 0,
+                time_us: 0,
+                position: 0,
+                current_a: 0.0,
+                flags: 0,
+            }; BACKLOG],
+            queue_head: 0,
+            queue_len: 0,
             hello: None,
             period_ns: 0,
             timeout_ns: 0,
             seq_base: None,
             last_seq: None,
-            last_time_us: 0,
+            time_base_us: None,
             enabled: false,
             stats: SerialStats::default(),
             last_status: None,
@@ -324,13 +355,7 @@ impl SerialStage {
         let mut off = 0;
         while off < n {
             // SAFETY: fd is open for the port's lifetime; the slice is valid.
-            let r = unsafe {
-                libc::write(
-                    self.fd,
-                    frame[off..n].as_ptr().cast(),
-                    n - off,
-                )
-            };
+            let r = unsafe { libc::write(self.fd, frame[off..n].as_ptr().cast(), n - off) };
             if r > 0 {
                 off += r as usize;
                 continue;
@@ -418,6 +443,17 @@ impl SerialStage {
             }
         }
         None
+    }
+
+    fn enqueue(&mut self, s: WireSample) {
+        if self.queue_len == BACKLOG {
+            self.queue_head = (self.queue_head + 1) % BACKLOG;
+            self.queue_len -= 1;
+            self.stats.late_samples += 1;
+        }
+        self.queue[(self.queue_head + self.queue_len) % BACKLOG] = s;
+        self.queue_len += 1;
+        self.stats.max_backlog = self.stats.max_backlog.max(self.queue_len as u64);
     }
 
     fn count_bad(&mut self, e: FrameError) {
@@ -513,6 +549,7 @@ impl Stage for SerialStage {
         self.reader.clear();
         self.rx_len = 0;
         self.rx_pos = 0;
+        self.queue_len = 0;
         self.hello = None;
         self.timeout_ns = period_ns;
         self.send(&HostMessage::Hello {
@@ -557,6 +594,7 @@ impl Stage for SerialStage {
         self.timeout_ns = (period_ns as f64 * self.cfg.sample_timeout_periods) as u64;
         self.seq_base = None;
         self.last_seq = None;
+        self.time_base_us = None;
         self.enabled = false;
         Ok(DeviceInfo {
             name: format!("serial:{path} (protocol v{})", hello.version),
@@ -576,6 +614,13 @@ impl Stage for SerialStage {
             return Err(SerialError::Refused { fault: s.fault });
         }
         self.enabled = true;
+        // Samples from before the enable are history: the loop starts with
+        // the next one.
+        self.queue_len = 0;
+        while self.poll(libc::POLLIN, 0)? {
+            self.fill()?;
+            while self.next_buffered().is_some() {}
+        }
         Ok(())
     }
 
@@ -585,17 +630,11 @@ impl Stage for SerialStage {
             return Err(SerialError::State("not configured"));
         };
         let deadline = now_ns() + self.timeout_ns;
-        let mut newest = None;
         let mut last_bad = None;
         loop {
             while let Some(m) = self.next_buffered() {
                 match m {
-                    Ok(DeviceMessage::Sample(s)) => {
-                        if newest.is_some() {
-                            self.stats.late_samples += 1;
-                        }
-                        newest = Some(s);
-                    }
+                    Ok(DeviceMessage::Sample(s)) => self.enqueue(s),
                     Ok(DeviceMessage::Status(s)) => self.last_status = Some(s),
                     Ok(DeviceMessage::Hello(_)) => {}
                     Err(e) => {
@@ -604,15 +643,15 @@ impl Stage for SerialStage {
                     }
                 }
             }
-            // Drain whatever else is already there, without waiting, once a
-            // sample is in hand; otherwise wait for more.
-            let until = if newest.is_some() { 0 } else { deadline };
-            if !self.poll(libc::POLLIN, until)? {
+            if self.queue_len > 0 {
+                break;
+            }
+            if !self.poll(libc::POLLIN, deadline)? {
                 break;
             }
             self.fill()?;
         }
-        let Some(w) = newest else {
+        if self.queue_len == 0 {
             self.stats.timeouts += 1;
             return Err(match last_bad {
                 Some(e) => SerialError::Corrupt(e),
@@ -620,7 +659,18 @@ impl Stage for SerialStage {
                     timeout_us: self.timeout_ns / 1000,
                 },
             });
-        };
+        }
+        let w = self.queue[self.queue_head];
+        self.queue_head = (self.queue_head + 1) % BACKLOG;
+        self.queue_len -= 1;
+        if self.enabled && w.flags & flags::FAULT != 0 {
+            // The device latched a fault (its watchdog, a refused command)
+            // while we drive it: nothing we command reaches the coil.
+            self.enabled = false;
+            return Err(SerialError::DeviceFault {
+                code: self.last_status.map_or(0, |s| s.fault),
+            });
+        }
         // Unwrap the 32-bit sequence against the last one.
         let seq = match self.last_seq {
             None => u64::from(w.seq),
@@ -637,11 +687,11 @@ impl Stage for SerialStage {
         }
         self.last_seq = Some(seq);
         let base = *self.seq_base.get_or_insert(seq);
-        self.last_time_us = w.time_us;
+        let time_base = *self.time_base_us.get_or_insert(w.time_us);
         self.stats.samples += 1;
         Ok(Sample {
             seq: seq - base,
-            device_time_ns: w.time_us.saturating_mul(1000),
+            device_time_ns: w.time_us.saturating_sub(time_base).saturating_mul(1000),
             position_m: if w.position == crate::serial_emulator::INVALID_POSITION {
                 f64::NAN
             } else {

@@ -73,8 +73,9 @@ impl Pty {
     /// The system's error if no pty can be allocated.
     pub fn open() -> Result<Self, serialport::Error> {
         let (master, slave) = serialport::TTYPort::pair()?;
-        let path = serialport::SerialPort::name(&slave)
-            .ok_or_else(|| serialport::Error::new(serialport::ErrorKind::Unknown, "pty has no name"))?;
+        let path = serialport::SerialPort::name(&slave).ok_or_else(|| {
+            serialport::Error::new(serialport::ErrorKind::Unknown, "pty has no name")
+        })?;
         let fd = master.as_raw_fd();
         // Non-blocking writes: with no host reading, frames are dropped
         // instead of stalling the device clock.

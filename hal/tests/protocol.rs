@@ -24,10 +24,7 @@ fn encoded<M: serde::Serialize>(m: &M) -> Vec<u8> {
 /// (message, frame bytes from protocol_examples.py)
 fn host_examples() -> Vec<(HostMessage, &'static str)> {
     vec![
-        (
-            HostMessage::Hello { version: 1 },
-            "01 06 01 d1 f4 0a 03 00",
-        ),
+        (HostMessage::Hello { version: 1 }, "01 06 01 d1 f4 0a 03 00"),
         (HostMessage::Enable, "06 01 52 d0 16 a0 00"),
         (
             HostMessage::Command {

@@ -97,7 +97,9 @@ fn round_trip_moves_the_stage_and_disable_leaves_zero_amps() {
     let info = stage.configure(PERIOD_NS).unwrap();
     assert_eq!(info.period_ns, PERIOD_NS);
     assert_eq!(info.peak_current_a as f32, 9.98f32);
-    assert!(matches!(info.clock, bench_hal::Clock::Device { rate_hz } if (rate_hz - 1000.0).abs() < 1e-9));
+    assert!(
+        matches!(info.clock, bench_hal::Clock::Device { rate_hz } if (rate_hz - 1000.0).abs() < 1e-9)
+    );
     stage.enable().unwrap();
     let mut last_seq = None;
     let mut x_end = 0.0;
@@ -120,7 +122,10 @@ fn round_trip_moves_the_stage_and_disable_leaves_zero_amps() {
     assert!(x_end > 1e-7, "x1 = {x_end} m after 50 ms at 0.2 A");
     assert!((emu.status.commanded_current_a() - 0.2).abs() < 1e-6);
     stage.disable().unwrap();
-    assert!(wait_until(Duration::from_secs(1), || emu.status.commanded_current_a() == 0.0
+    assert!(wait_until(Duration::from_secs(1), || emu
+        .status
+        .commanded_current_a()
+        == 0.0
         && !emu.status.enabled.load(Ordering::Relaxed)));
     assert_eq!(emu.status.fault_code.load(Ordering::Relaxed), 0);
     let st = stage.stats();
@@ -154,14 +159,21 @@ fn quiet_host_trips_the_watchdog_within_its_time_plus_one_period() {
     assert!(dt > WATCHDOG_NS, "tripped {dt} ns after the last command");
     // The device checks on its tick: watchdog + one period, plus the
     // scheduling slack of this (non-real-time) test thread.
-    assert!(dt <= WATCHDOG_NS + PERIOD_NS + 2_000_000, "tripped {dt} ns after the last command");
+    assert!(
+        dt <= WATCHDOG_NS + PERIOD_NS + 2_000_000,
+        "tripped {dt} ns after the last command"
+    );
     assert_eq!(emu.status.commanded_current_a(), 0.0);
+    // The host hears of it from the first sample after the trip (after the
+    // ones still queued from before): a device fault.
+    let e = (0..1000)
+        .find_map(|_| stage.read_sample().err())
+        .expect("no device fault reported");
+    assert_eq!(e.kind(), ErrorKind::AmplifierFault, "{e}");
     // Latched: commands do not bring the current back.
-    let s = stage.read_sample().unwrap();
-    assert!(s.flags.amplifier_fault && !s.flags.amplifier_enabled);
     let _ = stage.write_command(Command {
         current_a: 0.1,
-        answers_seq: s.seq,
+        answers_seq: 0,
     });
     std::thread::sleep(Duration::from_millis(20));
     assert_eq!(emu.status.commanded_current_a(), 0.0);
@@ -188,7 +200,10 @@ fn another_rate_is_refused_with_both_rates() {
     let e = stage.configure(200_000).unwrap_err();
     assert_eq!(e.kind(), ErrorKind::Config);
     let msg = e.to_string();
-    assert!(msg.contains("1000.0 Hz") && msg.contains("5000.0 Hz"), "{msg}");
+    assert!(
+        msg.contains("1000.0 Hz") && msg.contains("5000.0 Hz"),
+        "{msg}"
+    );
 }
 
 #[test]
@@ -278,8 +293,16 @@ fn link_faults_surface_as_their_kinds() {
     stage.enable().unwrap();
     let errs = run_until_errors(&mut stage, 3, 5000);
     assert_eq!(errs.len(), 3);
-    assert!(errs.iter().all(|k| *k == ErrorKind::Crc || *k == ErrorKind::Timeout), "{errs:?}");
-    assert!(stage.stats().crc_errors + stage.stats().frame_errors >= 3, "{errs:?} {:?}", stage.stats());
+    assert!(
+        errs.iter()
+            .all(|k| *k == ErrorKind::Crc || *k == ErrorKind::Timeout),
+        "{errs:?}"
+    );
+    assert!(
+        stage.stats().crc_errors + stage.stats().frame_errors >= 3,
+        "{errs:?} {:?}",
+        stage.stats()
+    );
     drop(stage);
     drop(emu);
 

@@ -1,0 +1,212 @@
+//! Backend selection: `[backend] kind` in the config, overridden by
+//! `--backend sim|serial:PATH|socketcan:IFACE` on the command line.
+//!
+//! [`AnyStage`] puts the backends behind one concrete type, so the loop
+//! stays monomorphic (no dynamic dispatch or boxing on the tick).
+
+use crate::config::{BackendKind, BenchConfig};
+use crate::session::RunError;
+use bench_hal::serial::{SerialError, SerialStage};
+use bench_hal::sim::{ScheduledFault, SimError, SimStage};
+use bench_hal::{Command, DeviceInfo, ErrorKind, Sample, Stage};
+use std::fmt;
+use std::str::FromStr;
+
+/// A backend named on the command line.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum BackendSpec {
+    /// `sim`
+    Sim,
+    /// `serial:PATH`
+    Serial(String),
+    /// `socketcan:IFACE`
+    Socketcan(String),
+}
+
+impl FromStr for BackendSpec {
+    type Err = String;
+
+    fn from_str(s: &str) -> Result<Self, String> {
+        let (kind, dev) = s.split_once(':').unwrap_or((s, ""));
+        match (kind, dev) {
+            ("sim", "") => Ok(Self::Sim),
+            ("serial", p) if !p.is_empty() => Ok(Self::Serial(p.into())),
+            ("socketcan", i) if !i.is_empty() => Ok(Self::Socketcan(i.into())),
+            ("serial", _) => Err("serial needs a device path: serial:/dev/ttyACM0".into()),
+            ("socketcan", _) => Err("socketcan needs an interface: socketcan:can0".into()),
+            _ => Err(format!(
+                "unknown backend `{s}` (expected sim, serial:PATH or socketcan:IFACE)"
+            )),
+        }
+    }
+}
+
+impl BackendSpec {
+    /// The spec in force: the command line's, else the config's.
+    pub fn resolve(cli: Option<&BackendSpec>, cfg: &BenchConfig) -> BackendSpec {
+        match cli {
+            Some(s) => s.clone(),
+            None => match cfg.backend.kind {
+                BackendKind::Sim => Self::Sim,
+                BackendKind::Serial => Self::Serial(cfg.backend.serial.path.clone()),
+                BackendKind::Socketcan => Self::Socketcan(cfg.backend.can.interface.clone()),
+            },
+        }
+    }
+
+    /// Whether this is the in-process simulator.
+    pub fn is_sim(&self) -> bool {
+        matches!(self, Self::Sim)
+    }
+}
+
+impl fmt::Display for BackendSpec {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Self::Sim => write!(f, "sim"),
+            Self::Serial(p) => write!(f, "serial:{p}"),
+            Self::Socketcan(i) => write!(f, "socketcan:{i}"),
+        }
+    }
+}
+
+/// Any backend.
+#[derive(Debug)]
+pub enum AnyStage {
+    /// The simulator.
+    Sim(Box<SimStage>),
+    /// A serial DAQ.
+    Serial(Box<SerialStage>),
+    /// A SocketCAN module.
+    Can(Box<bench_hal::can::CanStage>),
+}
+
+/// Any backend's error.
+#[derive(Debug, thiserror::Error)]
+pub enum AnyError {
+    /// From the simulator.
+    #[error(transparent)]
+    Sim(SimError),
+    /// From the serial backend.
+    #[error(transparent)]
+    Serial(SerialError),
+    /// From the SocketCAN backend.
+    #[error(transparent)]
+    Can(bench_hal::can::CanError),
+}
+
+impl bench_hal::Error for AnyError {
+    fn kind(&self) -> ErrorKind {
+        match self {
+            Self::Sim(e) => e.kind(),
+            Self::Serial(e) => e.kind(),
+            Self::Can(e) => e.kind(),
+        }
+    }
+}
+
+macro_rules! each {
+    ($self:ident, $s:ident => $e:expr) => {
+        match $self {
+            AnyStage::Sim($s) => $e.map_err(AnyError::Sim),
+            AnyStage::Serial($s) => $e.map_err(AnyError::Serial),
+            AnyStage::Can($s) => $e.map_err(AnyError::Can),
+        }
+    };
+}
+
+impl Stage for AnyStage {
+    type Error = AnyError;
+
+    fn configure(&mut self, period_ns: u64) -> Result<DeviceInfo, AnyError> {
+        each!(self, s => s.configure(period_ns))
+    }
+
+    fn enable(&mut self) -> Result<(), AnyError> {
+        each!(self, s => s.enable())
+    }
+
+    #[inline]
+    fn read_sample(&mut self) -> Result<Sample, AnyError> {
+        each!(self, s => s.read_sample())
+    }
+
+    #[inline]
+    fn write_command(&mut self, command: Command) -> Result<(), AnyError> {
+        each!(self, s => s.write_command(command))
+    }
+
+    fn disable(&mut self) -> Result<(), AnyError> {
+        each!(self, s => s.disable())
+    }
+}
+
+impl AnyStage {
+    /// Link counters of a hardware backend, as JSON (`None` for the
+    /// simulator).
+    pub fn link_stats(&self) -> Option<serde_json::Value> {
+        match self {
+            Self::Sim(_) => None,
+            Self::Serial(s) => serde_json::to_value(s.stats()).ok(),
+            Self::Can(s) => serde_json::to_value(s.stats()).ok(),
+        }
+    }
+}
+
+/// Opens and configures the backend `spec` at the config's loop rate.
+/// `inject` schedules a simulator fault (refused on hardware).
+///
+/// # Errors
+/// [`RunError::BadInput`] naming `--backend` (or the config key) and the
+/// reason when the device is missing, busy, speaks another protocol
+/// version, runs at another rate, or its configuration is invalid. Nothing
+/// is enabled.
+pub fn open(
+    spec: &BackendSpec,
+    cfg: &BenchConfig,
+    config_path: &std::path::Path,
+    seed: u64,
+    inject: Option<ScheduledFault>,
+) -> Result<(AnyStage, DeviceInfo), RunError> {
+    let period_ns = cfg.loop_.period_ns();
+    let bad = |e: &dyn fmt::Display| {
+        RunError::BadInput(format!("--backend {spec}: {e}; nothing was enabled"))
+    };
+    if inject.is_some() && !spec.is_sim() {
+        return Err(RunError::BadInput(format!(
+            "--inject-fault: only the sim backend injects faults (use `bench emulate --fault` for a device), not {spec}"
+        )));
+    }
+    match spec {
+        BackendSpec::Sim => {
+            let mut stage = SimStage::new(cfg.sim_params(seed)).map_err(|e| {
+                RunError::BadInput(format!("config {}: {e}", config_path.display()))
+            })?;
+            let info = stage
+                .configure(period_ns)
+                .map_err(|e| RunError::BadInput(format!("loop.rate_hz: {e}")))?;
+            if let Some(f) = inject {
+                stage.inject(f);
+            }
+            Ok((AnyStage::Sim(Box::new(stage)), info))
+        }
+        BackendSpec::Serial(path) => {
+            let scfg = bench_hal::serial::SerialConfig {
+                path: path.clone(),
+                ..cfg.backend.serial.clone()
+            };
+            let mut stage = SerialStage::open(&scfg).map_err(|e| bad(&e))?;
+            let info = stage.configure(period_ns).map_err(|e| bad(&e))?;
+            Ok((AnyStage::Serial(Box::new(stage)), info))
+        }
+        BackendSpec::Socketcan(iface) => {
+            let ccfg = bench_hal::can::CanConfig {
+                interface: iface.clone(),
+                ..cfg.backend.can.clone()
+            };
+            let mut stage = bench_hal::can::CanStage::open(&ccfg).map_err(|e| bad(&e))?;
+            let info = stage.configure(period_ns).map_err(|e| bad(&e))?;
+            Ok((AnyStage::Can(Box::new(stage)), info))
+        }
+    }
+}
