@@ -28,6 +28,7 @@ fn chirp(c: &mut Criterion) {
         realtime: false,
         seed: 1,
         progress: false,
+        backend: None,
     };
     let mut g = c.benchmark_group("chirp");
     g.sample_size(10).measurement_time(Duration::from_secs(20));

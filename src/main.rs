@@ -83,6 +83,11 @@ struct EmulateArgs {
     /// Protocol version to announce (serial; for testing refusal).
     #[arg(long, value_name = "N")]
     protocol_version: Option<u16>,
+    /// Lockstep test mode (serial): while enabled, the device waits for the
+    /// answer to each sample before taking the next, so results do not
+    /// depend on scheduling.
+    #[arg(long)]
+    lockstep: bool,
     /// Stop after this long, s (default: until SIGINT/SIGTERM).
     #[arg(long, value_name = "S")]
     duration_s: Option<f64>,
@@ -785,6 +790,7 @@ fn emulate(cmd: EmulateCommand, stop: Arc<AtomicBool>) -> ExitCode {
                 link_faults,
                 seed,
                 realtime_priority: priority,
+                lockstep: args.lockstep,
             };
             let st = Arc::clone(&status);
             let s = Arc::clone(&stop);
@@ -831,11 +837,12 @@ fn emulate(cmd: EmulateCommand, stop: Arc<AtomicBool>) -> ExitCode {
     };
     use std::sync::atomic::Ordering::Relaxed;
     eprintln!(
-        "emulator stopped: {} samples sent, {} commands, {} bad frames, {} late commands, watchdog {}",
+        "emulator stopped: {} samples sent, {} commands, {} bad frames, {} late commands, largest tick lateness {} µs, watchdog {}",
         status.samples_sent.load(Relaxed),
         status.commands_received.load(Relaxed),
         status.bad_frames.load(Relaxed),
         status.late_commands.load(Relaxed),
+        status.max_tick_lateness_ns.load(Relaxed) / 1000,
         if status.watchdog_trip_mono_ns.load(Relaxed) != 0 {
             "tripped"
         } else {

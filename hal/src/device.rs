@@ -310,6 +310,10 @@ pub struct EmulatorStatus {
     /// Monotonic time at which the current was last dropped to 0 by the
     /// watchdog, ns (0 if never).
     pub watchdog_trip_mono_ns: std::sync::atomic::AtomicU64,
+    /// Scheduled time (deadline) of the device tick at which the watchdog
+    /// tripped, ns (`CLOCK_MONOTONIC`): the device-time statement of the
+    /// trip, free of the host OS's scheduling delay.
+    pub watchdog_trip_deadline_mono_ns: std::sync::atomic::AtomicU64,
     /// Samples sent.
     pub samples_sent: std::sync::atomic::AtomicU64,
     /// Valid commands received.
@@ -318,8 +322,11 @@ pub struct EmulatorStatus {
     pub bad_frames: std::sync::atomic::AtomicU64,
     /// Commands that arrived after the period they were meant for.
     pub late_commands: std::sync::atomic::AtomicU64,
-    /// A host is connected (serial: the pty is open on the other side).
+    /// A host has said hello (serial) since the emulator started.
     pub host_connected: std::sync::atomic::AtomicBool,
+    /// Largest lateness of a device tick behind its deadline, ns (the
+    /// emulator's own timing jitter).
+    pub max_tick_lateness_ns: std::sync::atomic::AtomicU64,
 }
 
 impl EmulatorStatus {

@@ -614,13 +614,9 @@ impl Stage for SerialStage {
             return Err(SerialError::Refused { fault: s.fault });
         }
         self.enabled = true;
-        // Samples from before the enable are history: the loop starts with
-        // the next one.
-        self.queue_len = 0;
-        while self.poll(libc::POLLIN, 0)? {
-            self.fill()?;
-            while self.next_buffered().is_some() {}
-        }
+        // Samples that came in meanwhile stay queued: the loop answers them
+        // in order and catches up within a few ticks (a device in lockstep
+        // waits for those answers).
         Ok(())
     }
 

@@ -38,6 +38,13 @@ pub struct SerialEmulatorOptions {
     pub seed: u64,
     /// SCHED_FIFO priority for the emulator thread (`None`: normal).
     pub realtime_priority: Option<i32>,
+    /// Lockstep (test mode): while enabled, the device takes its next
+    /// sample only once the command answering the last one has arrived (or
+    /// the watchdog time has passed), never earlier than its period. The
+    /// plant then sees exactly the zero-order hold of the direct simulator
+    /// whatever the scheduling, so link-path results can be compared with
+    /// it on a machine without real-time guarantees.
+    pub lockstep: bool,
 }
 
 impl Default for SerialEmulatorOptions {
@@ -48,6 +55,7 @@ impl Default for SerialEmulatorOptions {
             link_faults: Vec::new(),
             seed: 0,
             realtime_priority: None,
+            lockstep: false,
         }
     }
 }
@@ -77,6 +85,13 @@ impl Pty {
             serialport::Error::new(serialport::ErrorKind::Unknown, "pty has no name")
         })?;
         let fd = master.as_raw_fd();
+        // Neither end may leak into child processes (a `bench` host started
+        // by the emulator's process would keep the pty alive after a
+        // disconnect).
+        for f in [fd, slave.as_raw_fd()] {
+            // SAFETY: valid fds; F_SETFD with FD_CLOEXEC.
+            unsafe { libc::fcntl(f, libc::F_SETFD, libc::FD_CLOEXEC) };
+        }
         // Non-blocking writes: with no host reading, frames are dropped
         // instead of stalling the device clock.
         // SAFETY: valid fd; F_GETFL/F_SETFL with plain flags.
@@ -110,6 +125,9 @@ struct Link {
 
 impl Link {
     fn write_now(&self, frame: &[u8]) {
+        if self.fd < 0 {
+            return; // disconnected
+        }
         // SAFETY: valid fd and buffer. A full buffer (no host) drops it.
         unsafe { libc::write(self.fd, frame.as_ptr().cast(), frame.len()) };
     }
@@ -187,8 +205,9 @@ pub fn run(
         position_lsb_m: opts.position_lsb_m as f32,
     };
     let lsb = f64::from(hello.position_lsb_m);
+    let mut pty = Some(pty);
     let mut link = Link {
-        fd: pty.master.as_raw_fd(),
+        fd: pty.as_ref().map_or(-1, |p| p.master.as_raw_fd()),
         reader: FrameReader::new(),
         delayed: VecDeque::new(),
         delay_ns: 0,
@@ -208,14 +227,32 @@ pub fn run(
     let mut last_sent_seq: u32 = 0;
     let mut stalled_until = 0u64;
     let mut rx = [0u8; 512];
+    // Lockstep: the command answering the last sample has arrived.
+    let mut answered = true;
+    let mut last_tick_ns = start;
     while !stop.load(Ordering::Relaxed) {
-        // Serve the host until the next tick.
+        // Serve the host until the next tick (in lockstep, also until the
+        // answer to the last sample, at most the watchdog time).
         loop {
             let now = monotonic_ns();
-            if now >= next {
+            let waiting = opts.lockstep
+                && session
+                && core.is_enabled()
+                && !answered
+                && now < last_tick_ns + core.watchdog_ns();
+            if now >= next && !waiting {
                 break;
             }
-            let left = next - now;
+            let until = if now >= next {
+                last_tick_ns + core.watchdog_ns()
+            } else {
+                next
+            };
+            if pty.is_none() {
+                crate::device::sleep_until_ns(until);
+                continue;
+            }
+            let left = until - now;
             let ts = libc::timespec {
                 tv_sec: (left / 1_000_000_000) as libc::time_t,
                 tv_nsec: (left % 1_000_000_000) as libc::c_long,
@@ -230,7 +267,7 @@ pub fn run(
             if r <= 0 || pfd.revents & libc::POLLIN == 0 {
                 if r > 0 {
                     // Hang-up without data: wait out the period.
-                    crate::device::sleep_until_ns(next);
+                    crate::device::sleep_until_ns(until);
                 }
                 continue;
             }
@@ -268,6 +305,7 @@ pub fn run(
                     }
                     HostMessage::Enable => {
                         core.enable(t_dev);
+                        answered = true;
                         status.last_command_mono_ns.store(now, Ordering::Relaxed);
                         link.send(&status_msg(&core, status), now, false);
                     }
@@ -284,6 +322,9 @@ pub fn run(
                     } => {
                         if answers_seq != last_sent_seq && current_a != 0.0 {
                             status.late_commands.fetch_add(1, Ordering::Relaxed);
+                        }
+                        if answers_seq == last_sent_seq {
+                            answered = true;
                         }
                         let had_fault = core.fault().is_some();
                         if core.command(
@@ -304,6 +345,11 @@ pub fn run(
             status.publish(&core);
         }
         let now = monotonic_ns();
+        if !opts.lockstep {
+            status
+                .max_tick_lateness_ns
+                .fetch_max(now.saturating_sub(next), Ordering::Relaxed);
+        }
         let t_s = (now - start) as f64 * 1e-9;
         while faults.front().is_some_and(|f| f.at_s <= t_s) {
             let f = faults.pop_front().expect("checked");
@@ -318,16 +364,24 @@ pub fn run(
                     stalled_until = now + (duration_s * 1e9) as u64;
                 }
                 LinkFault::Disconnect => {
-                    status.publish(&core);
-                    drop(pty);
-                    return Ok(());
+                    // The cable is pulled; the device itself keeps running
+                    // (and its watchdog with it).
+                    pty.take();
+                    link.fd = -1;
+                    session = false;
+                    status.host_connected.store(false, Ordering::Relaxed);
                 }
             }
         }
         if now >= stalled_until {
+            last_tick_ns = now;
+            answered = false;
             let was_enabled = core.is_enabled();
             let s = core.tick(now - start);
             if was_enabled && !core.is_enabled() && core.fault() == Some(DeviceFault::Watchdog) {
+                status
+                    .watchdog_trip_deadline_mono_ns
+                    .store(next, Ordering::Release);
                 status.watchdog_trip_mono_ns.store(now, Ordering::Release);
                 if session {
                     link.send(&status_msg(&core, status), now, false);
@@ -368,7 +422,9 @@ pub fn run(
                 status.samples_sent.fetch_add(1, Ordering::Relaxed);
             }
         }
-        link.flush_due(now);
+        if pty.is_some() {
+            link.flush_due(now);
+        }
         next += period;
         let now = monotonic_ns();
         if now > next + period {
