@@ -377,7 +377,8 @@ pub fn run(
             last_tick_ns = now;
             answered = false;
             let was_enabled = core.is_enabled();
-            let s = core.tick(now - start);
+            // Device time is the timer's: the tick's scheduled time.
+            let s = core.tick(next.min(now) - start);
             if was_enabled && !core.is_enabled() && core.fault() == Some(DeviceFault::Watchdog) {
                 status
                     .watchdog_trip_deadline_mono_ns

@@ -155,13 +155,23 @@ fn quiet_host_trips_the_watchdog_within_its_time_plus_one_period() {
         != 0));
     let last = emu.status.last_command_mono_ns.load(Ordering::Relaxed);
     let trip = emu.status.watchdog_trip_mono_ns.load(Ordering::Relaxed);
-    let dt = trip - last;
-    assert!(dt > WATCHDOG_NS, "tripped {dt} ns after the last command");
-    // The device checks on its tick: watchdog + one period, plus the
-    // scheduling slack of this (non-real-time) test thread.
+    let deadline = emu
+        .status
+        .watchdog_trip_deadline_mono_ns
+        .load(Ordering::Relaxed);
+    // In device time (the scheduled time of the tick that tripped): within
+    // the watchdog time plus one period.
+    let dt = deadline.saturating_sub(last);
     assert!(
-        dt <= WATCHDOG_NS + PERIOD_NS + 2_000_000,
-        "tripped {dt} ns after the last command"
+        dt + PERIOD_NS > WATCHDOG_NS && dt <= WATCHDOG_NS + PERIOD_NS,
+        "tripped at the tick {dt} ns after the last command"
+    );
+    // In wall time, plus whatever the VM's scheduler adds (stalls of tens of
+    // ms happen on a shared 2-core VM).
+    assert!(
+        trip - last <= WATCHDOG_NS + PERIOD_NS + 100_000_000,
+        "tripped {} ns after the last command",
+        trip - last
     );
     assert_eq!(emu.status.commanded_current_a(), 0.0);
     // The host hears of it from the first sample after the trip (after the
