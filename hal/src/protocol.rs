@@ -13,9 +13,10 @@
 //! marks a frame end and a receiver resynchronises at the next zero after any
 //! corruption. A frame is accepted only if it COBS-decodes, its CRC matches,
 //! and the message decodes to exactly the bytes before the CRC (no trailing
-//! bytes). CRC-32C has Hamming distance ≥ 6 at these lengths (≤ 64 bytes),
-//! so every 1–5 bit error within a frame's payload is detected; anything else
-//! passes with probability 2⁻³².
+//! bytes). CRC-32C has Hamming distance 6 up to 5243 bits (Koopman), so
+//! every 1–5 bit error in the decoded payload and CRC is detected; an error
+//! that hits a COBS code byte shifts bytes instead and passes the CRC with
+//! probability 2⁻³² at most.
 //!
 //! Units are fixed by the protocol: currents in A (`f32`), times in µs,
 //! periods in ns, positions as signed probe counts with the count size
