@@ -99,13 +99,12 @@
 //!
 //! The device drops the current to 0 A, disables the amplifier and latches
 //! [`DeviceFault::Watchdog`] when no valid command has arrived for
-//! `watchdog_ms` while enabled. The emulator checks it on every sample tick
-//! (SYNC or timer) **and** from its own clock when ticks stop (a host that
-//! dies stops sending SYNC too), so the current is 0 within
-//! `watchdog_ms` + one period of the last valid command in both modes. Only
-//! an enable edge clears the latch. (The own-clock check runs one plant tick
-//! whose sample is not sent, [`DeviceCore`] having no check-only method: the
-//! device counter then skips one.)
+//! `[emulator] watchdog_ms` while enabled. The emulator checks it on every
+//! sample tick (SYNC or timer) **and** from its own clock when ticks stop (a
+//! host that dies stops sending SYNC too;
+//! [`DeviceCore::check_watchdog`], the plant does not advance), so the
+//! current is 0 within `watchdog_ms` + one period of the last valid command
+//! in both modes. Only an enable edge clears the latch.
 //!
 //! # Emulator fault injection ([`LinkFault`])
 //!
@@ -664,9 +663,6 @@ pub struct CanConfig {
     /// ([`Clock::Host`], default); false: the device samples on its own
     /// timer ([`Clock::Device`]).
     pub sync_producer: bool,
-    /// Device watchdog, ms (default 50): the emulator's, and the one the
-    /// device is expected to run.
-    pub watchdog_ms: f64,
     /// Bound on the wait for a sample, ms (default: two periods, at least
     /// 1 ms).
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -692,7 +688,6 @@ impl Default for CanConfig {
             extended: false,
             sync_id: DEFAULT_SYNC_ID,
             sync_producer: true,
-            watchdog_ms: 50.0,
             sample_timeout_ms: None,
             peak_current_a: 9.98,
             continuous_current_a: 2.34,
@@ -722,11 +717,6 @@ impl CanConfig {
         self.sample.resolved_id(self.node_id)
     }
 
-    /// Watchdog time, ns.
-    pub fn watchdog_ns(&self) -> u64 {
-        (self.watchdog_ms * 1e6).round() as u64
-    }
-
     /// Bound on the wait for a sample at `period_ns`, ns.
     pub fn sample_timeout_ns(&self, period_ns: u64) -> u64 {
         match self.sample_timeout_ms {
@@ -752,7 +742,6 @@ impl CanConfig {
                 format!("must be 1..=127, got {}", self.node_id),
             ));
         }
-        positive(&k("watchdog_ms"), self.watchdog_ms)?;
         if let Some(t) = self.sample_timeout_ms {
             positive(&k("sample_timeout_ms"), t)?;
         }
@@ -1690,8 +1679,8 @@ impl Emulator<'_> {
         Ok(())
     }
 
-    /// One sample tick at `now`; `send` false for a watchdog-only tick.
-    fn tick(&mut self, now: u64, send: bool) -> Result<(), CanError> {
+    /// One sample tick at `now`.
+    fn tick(&mut self, now: u64) -> Result<(), CanError> {
         let was_enabled = self.core.is_enabled();
         let s = self.core.tick(self.dev(now));
         self.last_tick_ns = now;
@@ -1702,7 +1691,7 @@ impl Emulator<'_> {
             self.status.host_connected.store(false, Ordering::Release);
         }
         self.publish();
-        if !send || self.faults.disconnected {
+        if self.faults.disconnected {
             return Ok(());
         }
         if self.faults.drop_left > 0 {
@@ -1774,7 +1763,7 @@ impl Emulator<'_> {
                 self.send_now(&frame)?;
             }
             if !sync && !stalled && now >= next_tick {
-                self.tick(now, true)?;
+                self.tick(now)?;
                 while next_tick <= now {
                     next_tick += period;
                 }
@@ -1785,8 +1774,13 @@ impl Emulator<'_> {
                 && self.core.is_enabled()
                 && self.dev(now).saturating_sub(self.core.last_command_ns()) > watchdog
                 && now.saturating_sub(self.last_tick_ns) >= period
+                && self.core.check_watchdog(self.dev(now))
             {
-                self.tick(now, false)?;
+                self.status
+                    .watchdog_trip_mono_ns
+                    .store(now, Ordering::Release);
+                self.status.host_connected.store(false, Ordering::Release);
+                self.publish();
             }
             // Sleep until the next thing to do, or a frame.
             let mut wake = now + EMULATOR_POLL_NS;
@@ -1837,7 +1831,7 @@ impl Emulator<'_> {
         if word == self.sync_word {
             self.status.host_connected.store(true, Ordering::Release);
             if self.cfg.sync_producer {
-                self.tick(now, true)?;
+                self.tick(now)?;
             }
         } else if word == self.command_word {
             let c = match self.cfg.command.decode(f.data()) {
@@ -1897,7 +1891,7 @@ impl Emulator<'_> {
 /// `late_commands` counts enabled commands answering an older sample than
 /// the last one sent.
 ///
-/// Build `core` with `cfg.watchdog_ns()`. The socket gets an id filter for
+/// Build `core` with the device's watchdog time (`[emulator] watchdog_ms`). The socket gets an id filter for
 /// the SYNC and command ids when it is a CAN_RAW socket.
 ///
 /// # Errors

@@ -153,14 +153,23 @@ impl DeviceCore {
         true
     }
 
+    /// Applies the watchdog rule at device time `now_ns` without advancing
+    /// the plant (for a device whose sample ticks stopped, e.g. a SYNC-driven
+    /// one whose host died). Returns `true` if this call tripped it.
+    pub fn check_watchdog(&mut self, now_ns: u64) -> bool {
+        if self.enabled && now_ns.saturating_sub(self.last_command_ns) > self.watchdog_ns {
+            self.fault = Some(DeviceFault::Watchdog);
+            self.disable();
+            return true;
+        }
+        false
+    }
+
     /// One sample-timer tick at device time `now_ns`: watchdog check, then
     /// the plant advances one period under the held demand and is sampled.
     pub fn tick(&mut self, now_ns: u64) -> Sample {
         self.now_ns = now_ns;
-        if self.enabled && now_ns.saturating_sub(self.last_command_ns) > self.watchdog_ns {
-            self.fault = Some(DeviceFault::Watchdog);
-            self.disable();
-        }
+        self.check_watchdog(now_ns);
         let _ = self.stage.write_command(Command {
             current_a: if self.enabled { self.demand_a } else { 0.0 },
             answers_seq: self.last_seq,

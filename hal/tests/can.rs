@@ -28,6 +28,7 @@ use std::time::{Duration, Instant};
 
 const PERIOD_NS: u64 = 1_000_000;
 const WATCHDOG_MS: f64 = 50.0;
+const WATCHDOG_NS: u64 = 50_000_000;
 /// Allowance for the emulator thread's wake-up on a loaded machine.
 const SCHED_SLACK_NS: u64 = 25_000_000;
 
@@ -55,7 +56,6 @@ fn cfg(sync_producer: bool) -> CanConfig {
     CanConfig {
         interface: "pair".into(),
         sync_producer,
-        watchdog_ms: WATCHDOG_MS,
         sample_timeout_ms: Some(500.0),
         ..CanConfig::default()
     }
@@ -162,7 +162,6 @@ fn default_frame_map_against_hand_computed_bytes() {
     );
     assert_eq!((c.command.len(), c.sample.len()), (7, 7));
     assert!(c.sync_producer);
-    assert_eq!(c.watchdog_ns(), 50_000_000);
     // Default timeout: two periods, at least 1 ms.
     assert_eq!(c.sample_timeout_ns(1_000_000), 2_000_000);
     assert_eq!(c.sample_timeout_ns(200_000), 1_000_000);
@@ -348,11 +347,6 @@ fn bad_ids_and_node_ids_are_refused_naming_the_key() {
         ..CanConfig::default()
     };
     assert!(invalid(&c).starts_with("backend.can.continuous_current_a:"));
-    let c = CanConfig {
-        watchdog_ms: 0.0,
-        ..CanConfig::default()
-    };
-    assert!(invalid(&c).starts_with("backend.can.watchdog_ms:"));
 }
 
 // ---------------------------------------------------------------------------
@@ -399,7 +393,7 @@ impl Rig {
     ) -> Self {
         let status = Arc::new(EmulatorStatus::default());
         let stop = Arc::new(AtomicBool::new(false));
-        let core = DeviceCore::new(sim_params(), PERIOD_NS, cfg.watchdog_ns()).unwrap();
+        let core = DeviceCore::new(sim_params(), PERIOD_NS, WATCHDOG_NS).unwrap();
         let faults: Vec<ScheduledLinkFault> = faults
             .into_iter()
             .map(|(at_s, kind)| ScheduledLinkFault { at_s, kind })
@@ -627,7 +621,7 @@ fn watchdog_trips(sync: bool) {
     );
     let last = rig.status.last_command_mono_ns.load(Ordering::Acquire);
     let trip = rig.status.watchdog_trip_mono_ns.load(Ordering::Acquire);
-    let wd = cfg(sync).watchdog_ns();
+    let wd = WATCHDOG_NS;
     let dt = trip - last;
     println!(
         "{} mode: 0 A {:.3} ms after the last command (watchdog {} ms + period {} ms)",
@@ -1118,7 +1112,7 @@ fn round_trip_on_vcan0() {
     let device = open_socket("vcan0").unwrap();
     let status = Arc::new(EmulatorStatus::default());
     let stop = Arc::new(AtomicBool::new(false));
-    let core = DeviceCore::new(sim_params(), PERIOD_NS, c.watchdog_ns()).unwrap();
+    let core = DeviceCore::new(sim_params(), PERIOD_NS, WATCHDOG_NS).unwrap();
     let emulator = {
         let (c, status, stop) = (c.clone(), status.clone(), stop.clone());
         thread::spawn(move || run_emulator(device, &c, core, &[], &stop, &status))
