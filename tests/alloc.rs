@@ -76,8 +76,8 @@ impl<J: Job> Job for Counted<J> {
 /// allocations from tick 100 on, with the queue drained on another thread
 /// (which may allocate: it is not counted). Returns the report, the
 /// allocations and the records drained.
-fn run_counted_job<J: Job + Send + 'static>(
-    mut stage: SimStage,
+fn run_counted_job<S: Stage + Send + 'static, J: Job + Send + 'static>(
+    mut stage: S,
     job: J,
     opts: LoopOptions,
     clock: bench_hal::Clock,
@@ -191,6 +191,66 @@ fn closed_loop_tick_allocates_nothing() {
     assert_eq!(
         allocations, 0,
         "{allocations} allocations in {} closed-loop ticks",
+        report.ticks
+    );
+}
+
+/// The same over the serial backend (protocol encode/decode, pty I/O),
+/// against the emulator in lockstep on another thread (not counted).
+#[test]
+fn serial_tick_allocates_nothing() {
+    use bench::control::DiscreteController;
+    use bench::control_run::ControlJob;
+    use bench_hal::device::{DeviceCore, EmulatorStatus};
+    use bench_hal::serial::{SerialConfig, SerialStage};
+    use bench_hal::serial_emulator::{self, Pty, SerialEmulatorOptions};
+    use std::sync::Arc;
+    let cfg = ch5();
+    let period_ns = cfg.loop_.period_ns();
+    let core = DeviceCore::new(cfg.sim_params(7), period_ns, 1_000_000_000).unwrap();
+    let pty = Pty::open().unwrap();
+    let path = pty.path().to_string();
+    let stop = Arc::new(AtomicBool::new(false));
+    let status = Arc::new(EmulatorStatus::default());
+    let (s, st) = (Arc::clone(&stop), Arc::clone(&status));
+    let emu = std::thread::spawn(move || {
+        let opts = SerialEmulatorOptions {
+            lockstep: true,
+            ..Default::default()
+        };
+        serial_emulator::run(pty, core, &opts, &s, &st)
+    });
+    let mut stage = SerialStage::open(&SerialConfig {
+        path,
+        sample_timeout_periods: 1000.0,
+        ..Default::default()
+    })
+    .unwrap();
+    let info = stage.configure(period_ns).unwrap();
+    let period_s = info.period_ns as f64 * 1e-9;
+    let ctrl = DiscreteController::new(&cfg.controller["fast"], period_s, info.peak_current_a);
+    let total = 4_000;
+    let opts = LoopOptions {
+        period_ns: info.period_ns,
+        pacing: Pacing::RealTime {
+            priority: 10,
+            cpu: None,
+        },
+        timing_interval_ticks: 500,
+        safety: bench::supervisor::SupervisorConfig {
+            max_missed_samples: 1000,
+            ..cfg.supervisor(&info)
+        },
+        max_ticks: total,
+    };
+    let job = ControlJob::new(ctrl, 1e-5, 1000, 0, total);
+    let (report, allocations, _) = run_counted_job(stage, job, opts, info.clock);
+    stop.store(true, std::sync::atomic::Ordering::Relaxed);
+    emu.join().unwrap().unwrap();
+    assert_eq!(report.stop, StopReason::Finished, "{:?}", report.stop);
+    assert_eq!(
+        allocations, 0,
+        "{allocations} allocations in {} serial ticks",
         report.ticks
     );
 }

@@ -466,3 +466,70 @@ fn bad_devices_are_refused_before_anything_is_enabled() {
         "{e}"
     );
 }
+
+/// `bench emulate serial` as its own process (as a user runs it): it prints
+/// the pty path first, serves a `bench control --fast` run, and stops on
+/// SIGINT with its counters.
+#[test]
+fn bench_emulate_serial_serves_bench_control() {
+    let _g = one_at_a_time();
+    let dir = tmp();
+    let cfg = quiet_config(dir.path());
+    let cfg_s = cfg.display().to_string();
+    let mut emu = bench()
+        .args(["emulate", "serial", "--lockstep", "--config", &cfg_s])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut line = String::new();
+    std::io::BufRead::read_line(
+        &mut std::io::BufReader::new(emu.stdout.take().unwrap()),
+        &mut line,
+    )
+    .unwrap();
+    let path = line.trim().to_string();
+    assert!(path.starts_with("/dev/pts/"), "first line: {line:?}");
+    let o = control(
+        &cfg_s,
+        &path_in(dir.path(), "run.mcap"),
+        Some(&format!("serial:{path}")),
+        &["--duration-s", "1"],
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    let s = json_stdout(&o);
+    assert!(s["metrics"]["settling_time_s"].as_f64().unwrap() < 0.5);
+    // SIGINT: the emulator stops cleanly and reports.
+    // SAFETY: plain kill(2) on our child.
+    unsafe { libc::kill(emu.id() as i32, libc::SIGINT) };
+    let out = emu.wait_with_output().unwrap();
+    assert!(out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("emulator stopped") && err.contains("0 bad frames"),
+        "{err}"
+    );
+}
+
+#[test]
+fn bad_can_interfaces_are_refused() {
+    let _g = one_at_a_time();
+    let dir = tmp();
+    let cfg = quiet_config(dir.path());
+    let cfg_s = cfg.display().to_string();
+    let o = control(
+        &cfg_s,
+        &path_in(dir.path(), "run.mcap"),
+        Some("socketcan:nocan7"),
+        &[],
+    );
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    assert!(stderr(&o).contains("nocan7"), "{}", stderr(&o));
+    let o = run(&["emulate", "can", "--iface", "nocan7", "--config", &cfg_s]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    assert!(stderr(&o).contains("nocan7"), "{}", stderr(&o));
+    // Emulator options that do not apply.
+    let o = run(&["emulate", "serial", "--fault", "melt@1", "--config", &cfg_s]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(stderr(&o).contains("melt"), "{}", stderr(&o));
+}
