@@ -34,6 +34,7 @@ use crate::records::{
 };
 use crate::supervisor::{Supervisor, SupervisorConfig};
 use crate::timing::TickTiming;
+use bench_hal::device::{monotonic_ns as now_ns, sleep_until_ns};
 use bench_hal::{Clock, Command, Error as _, ErrorKind, Sample, Stage};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 
@@ -134,37 +135,6 @@ pub struct LoopReport {
     pub warnings: Vec<String>,
     /// Final supervisor state.
     pub final_state: SupervisorState,
-}
-
-fn now_ns() -> u64 {
-    let mut ts = libc::timespec {
-        tv_sec: 0,
-        tv_nsec: 0,
-    };
-    // SAFETY: valid pointer to a timespec; CLOCK_MONOTONIC always exists.
-    unsafe { libc::clock_gettime(libc::CLOCK_MONOTONIC, &mut ts) };
-    ts.tv_sec as u64 * 1_000_000_000 + ts.tv_nsec as u64
-}
-
-fn sleep_until_ns(deadline: u64) {
-    let ts = libc::timespec {
-        tv_sec: (deadline / 1_000_000_000) as libc::time_t,
-        tv_nsec: (deadline % 1_000_000_000) as libc::c_long,
-    };
-    // SAFETY: valid timespec; EINTR just returns early and we re-check.
-    loop {
-        let r = unsafe {
-            libc::clock_nanosleep(
-                libc::CLOCK_MONOTONIC,
-                libc::TIMER_ABSTIME,
-                &ts,
-                std::ptr::null_mut(),
-            )
-        };
-        if r != libc::EINTR {
-            break;
-        }
-    }
 }
 
 /// Applies SCHED_FIFO, `mlockall` and CPU pinning to the calling thread.

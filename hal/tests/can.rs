@@ -15,7 +15,7 @@ use bench_hal::can::{
     Endian, FieldSpec, SamplePayload,
 };
 use bench_hal::device::{DeviceCore, EmulatorStatus, LinkFault, ScheduledLinkFault};
-use bench_hal::sim::{ActuatorParams, ProbeParams, SimParams};
+use bench_hal::sim::SimParams;
 use bench_hal::{Clock, Command, Error, ErrorKind, SampleFlags, Stage};
 use serde::Deserialize;
 use socketcan::{CanDataFrame, EmbeddedFrame, Socket, StandardId};
@@ -34,22 +34,7 @@ const SCHED_SLACK_NS: u64 = 25_000_000;
 
 /// The Chapter 5 bench (thesis §5.1), noise-free.
 fn sim_params() -> SimParams {
-    SimParams {
-        plant: common::ch5(0.08, 0.1),
-        actuator: ActuatorParams {
-            force_constant_n_per_a: 11.12,
-            bandwidth_hz: 1000.0,
-            peak_current_a: 9.98,
-            continuous_current_a: 2.34,
-        },
-        probe: ProbeParams {
-            range_m: 1e-3,
-            noise_rms_m: 0.0,
-            quantization_m: 0.0,
-        },
-        mechanical_stop_m: 1e-3,
-        seed: 1,
-    }
+    common::ch5_bench(0.08, 0.0, 1)
 }
 
 fn cfg(sync_producer: bool) -> CanConfig {

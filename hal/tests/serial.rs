@@ -6,7 +6,7 @@ mod common;
 use bench_hal::device::{DeviceCore, EmulatorStatus, LinkFault, ScheduledLinkFault};
 use bench_hal::serial::{SerialConfig, SerialStage};
 use bench_hal::serial_emulator::{self, Pty, SerialEmulatorOptions};
-use bench_hal::sim::{ActuatorParams, ProbeParams, SimParams};
+use bench_hal::sim::SimParams;
 use bench_hal::{Command, Error as _, ErrorKind, Stage};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
@@ -17,22 +17,7 @@ const PERIOD_NS: u64 = 1_000_000; // 1 kHz: robust on a loaded 2-core machine
 const WATCHDOG_NS: u64 = 20_000_000;
 
 fn params() -> SimParams {
-    SimParams {
-        plant: common::ch5(0.08, 0.10),
-        actuator: ActuatorParams {
-            force_constant_n_per_a: 11.12,
-            bandwidth_hz: 1000.0,
-            peak_current_a: 9.98,
-            continuous_current_a: 2.34,
-        },
-        probe: ProbeParams {
-            range_m: 1e-3,
-            noise_rms_m: 0.0,
-            quantization_m: 0.0,
-        },
-        mechanical_stop_m: 1e-3,
-        seed: 7,
-    }
+    common::ch5_bench(0.08, 0.0, 7)
 }
 
 struct Emulator {
@@ -346,6 +331,37 @@ fn link_faults_surface_as_their_kinds() {
     }
     assert!(gap >= 10, "largest gap {gap}");
     assert!(stage.stats().missed_samples >= 10);
+    drop(stage);
+    drop(emu);
+
+    // Delay: samples still come, in order, later (no errors).
+    let emu = Emulator::start(SerialEmulatorOptions {
+        link_faults: vec![ScheduledLinkFault {
+            at_s: 0.0,
+            kind: LinkFault::Delay { delay_s: 0.01 },
+        }],
+        ..Default::default()
+    });
+    let mut stage = SerialStage::open(&emu.config()).unwrap();
+    stage.configure(PERIOD_NS).unwrap();
+    stage.enable().unwrap();
+    let mut last = None;
+    for _ in 0..200 {
+        let s = stage.read_sample().unwrap();
+        if let Some(l) = last {
+            assert_eq!(s.seq, l + 1);
+        }
+        last = Some(s.seq);
+        stage
+            .write_command(Command {
+                current_a: 0.01,
+                answers_seq: s.seq,
+            })
+            .unwrap();
+    }
+    // The commands answer samples 10 ms old: the device counts them late.
+    let late = emu.status.late_commands.load(Ordering::Relaxed);
+    assert!(late >= 150, "{late} late commands of 200");
     drop(stage);
     drop(emu);
 

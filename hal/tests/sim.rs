@@ -3,28 +3,13 @@
 
 mod common;
 
-use bench_hal::sim::{ActuatorParams, ProbeParams, SimParams, SimStage, ZohPlant};
+use bench_hal::sim::{SimParams, SimStage, ZohPlant};
 use bench_hal::{Command, Error, ErrorKind, Stage};
 use nalgebra::Complex;
 use std::f64::consts::PI;
 
 fn params(y1o_frac: f64, noise: f64) -> SimParams {
-    SimParams {
-        plant: common::ch5(y1o_frac, 0.1),
-        actuator: ActuatorParams {
-            force_constant_n_per_a: 11.12,
-            bandwidth_hz: 1000.0,
-            peak_current_a: 9.98,
-            continuous_current_a: 2.34,
-        },
-        probe: ProbeParams {
-            range_m: 1e-3,
-            noise_rms_m: noise,
-            quantization_m: 0.0,
-        },
-        mechanical_stop_m: 1e-3,
-        seed: 5,
-    }
+    common::ch5_bench(y1o_frac, noise, 5)
 }
 
 /// Drives `current_a` for `n` ticks and returns the last reading.

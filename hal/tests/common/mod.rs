@@ -3,6 +3,7 @@
 #![allow(dead_code)]
 
 use bench_hal::model::{Beam, Damping, Sr4dofParams};
+use bench_hal::sim::{ActuatorParams, ProbeParams, SimParams};
 
 /// Table 2-1 parameters at operating point `y1o_frac` of L.
 pub fn ch2(y1o_frac: f64, dm23: f64, kp: Option<f64>) -> Sr4dofParams {
@@ -46,5 +47,27 @@ pub fn ch5(y1o_frac: f64, dm23: f64) -> Sr4dofParams {
             ..ch2(0.0, 0.0, None).beam
         },
         ..ch2(y1o_frac, dm23, None)
+    }
+}
+
+/// The simulated Chapter 5 bench at `y1o_frac` of L, Δm23 = +10 %: BEI Kimco
+/// LA24-20-000A voice coil on an MP111 amplifier (§5.2.1), a ±1 mm probe
+/// with `noise_rms_m` white noise and no quantisation, the ±1 mm stop.
+pub fn ch5_bench(y1o_frac: f64, noise_rms_m: f64, seed: u64) -> SimParams {
+    SimParams {
+        plant: ch5(y1o_frac, 0.1),
+        actuator: ActuatorParams {
+            force_constant_n_per_a: 11.12,
+            bandwidth_hz: 1000.0,
+            peak_current_a: 9.98,
+            continuous_current_a: 2.34,
+        },
+        probe: ProbeParams {
+            range_m: 1e-3,
+            noise_rms_m,
+            quantization_m: 0.0,
+        },
+        mechanical_stop_m: 1e-3,
+        seed,
     }
 }
