@@ -142,6 +142,22 @@ impl Stage for AnyStage {
 }
 
 impl AnyStage {
+    /// Schedules a simulator fault (tests, `--inject-fault`).
+    ///
+    /// # Errors
+    /// [`RunError::BadInput`] on hardware.
+    pub fn inject(&mut self, fault: ScheduledFault) -> Result<(), RunError> {
+        match self {
+            Self::Sim(s) => {
+                s.inject(fault);
+                Ok(())
+            }
+            _ => Err(RunError::BadInput(
+                "--inject-fault: only the sim backend injects faults".into(),
+            )),
+        }
+    }
+
     /// Link counters of a hardware backend, as JSON (`None` for the
     /// simulator).
     pub fn link_stats(&self) -> Option<serde_json::Value> {

@@ -7,7 +7,7 @@
 //! calling thread shows progress, then estimates, plots and summarises once
 //! the loop has stopped.
 
-use crate::backend::{self, BackendSpec};
+use crate::backend::{self, AnyStage, BackendSpec};
 use crate::config::BenchConfig;
 use crate::excitation::Chirp;
 use crate::plot::{write_bode_png, BodePlot, BodeSeries};
@@ -19,11 +19,11 @@ use crate::session::{
 use crate::sysid::{closely_spaced_pair, find_resonances, Frf, PairVerdict, Resonance, Spectra};
 use bench_hal::model::Sr4dof;
 use bench_hal::sim::ZohPlant;
-use bench_hal::Sample;
+use bench_hal::{DeviceInfo, Sample};
 use serde::Serialize;
 use serde_json::json;
 use std::path::PathBuf;
-use std::sync::atomic::AtomicBool;
+use std::sync::atomic::{AtomicBool, AtomicU64};
 use std::sync::Arc;
 
 /// Smallest peak prominence for a resonance, dB.
@@ -164,15 +164,36 @@ fn model_summary(m: &Sr4dof) -> ModelSummary {
 /// See [`RunError`]; on every error after the loop started the recording is
 /// finished and the amplifier left disabled.
 pub fn run_chirp(opts: &ChirpOptions, stop: Arc<AtomicBool>) -> Result<ChirpSummary, RunError> {
-    let cfg = &opts.config;
+    check_outputs(opts)?;
+    let spec = BackendSpec::resolve(opts.backend.as_ref(), &opts.config);
+    let (mut stage, info) = backend::open(&spec, &opts.config, &opts.config_path, opts.seed, None)?;
+    run_chirp_on(&mut stage, &info, !spec.is_sim(), opts, stop, None)
+}
+
+fn check_outputs(opts: &ChirpOptions) -> Result<(), RunError> {
     check_writable(&opts.out, "--out")?;
     check_writable(&opts.frf_csv, "--frf-csv")?;
-    check_writable(&opts.plot, "--plot")?;
+    check_writable(&opts.plot, "--plot")
+}
 
+/// Runs the chirp on an opened, configured `stage` (`info`), which it
+/// leaves configured, disabled at 0 A. `hardware` forces real-time pacing;
+/// `ticks`, if given, follows the loop's tick count (progress).
+///
+/// # Errors
+/// As [`run_chirp`].
+pub fn run_chirp_on(
+    stage: &mut AnyStage,
+    info: &DeviceInfo,
+    hardware: bool,
+    opts: &ChirpOptions,
+    stop: Arc<AtomicBool>,
+    ticks: Option<&AtomicU64>,
+) -> Result<ChirpSummary, RunError> {
+    let cfg = &opts.config;
+    check_outputs(opts)?;
     let model = Sr4dof::new(cfg.plant)
         .map_err(|e| RunError::BadInput(format!("config {}: {e}", opts.config_path.display())))?;
-    let spec = BackendSpec::resolve(opts.backend.as_ref(), cfg);
-    let (stage, info) = backend::open(&spec, cfg, &opts.config_path, opts.seed, None)?;
     let period_s = info.period_ns as f64 * 1e-9;
     let rate_hz = 1.0 / period_s;
     let chirp = Chirp::new(&cfg.chirp, period_s);
@@ -183,15 +204,16 @@ pub fn run_chirp(opts: &ChirpOptions, stop: Arc<AtomicBool>) -> Result<ChirpSumm
         config_path: &opts.config_path,
         out: &opts.out,
         // Hardware runs in real time whatever the flag says.
-        realtime: opts.realtime || !spec.is_sim(),
+        realtime: opts.realtime || hardware,
         progress: opts.progress,
         seed: opts.seed,
         max_ticks: total_ticks,
+        ticks,
     };
-    let recorder = open_recording(&session, cfg, &info)?;
+    let recorder = open_recording(&session, cfg, info)?;
     let run = run_recorded(
         stage,
-        &info,
+        info,
         ChirpJob::new(chirp),
         cfg,
         recorder,
@@ -199,7 +221,6 @@ pub fn run_chirp(opts: &ChirpOptions, stop: Arc<AtomicBool>) -> Result<ChirpSumm
         stop,
     )?;
     let Recorded {
-        stage,
         mut recorder,
         data,
         timing,

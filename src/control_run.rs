@@ -16,7 +16,7 @@
 //! - steady-state error `setpoint − y` over the final
 //!   `steady_state_window_s`: mean and standard deviation, nm.
 
-use crate::backend::{self, BackendSpec};
+use crate::backend::{self, AnyStage, BackendSpec};
 use crate::config::BenchConfig;
 use crate::control::{ControllerConfig, DiscreteController};
 use crate::loopcheck::{closed_loop_poles, measured_margins, model_margins, Margins};
@@ -28,12 +28,12 @@ use crate::session::{
 };
 use bench_hal::model::Sr4dof;
 use bench_hal::sim::{ScheduledFault, ZohPlant};
-use bench_hal::Sample;
+use bench_hal::{DeviceInfo, Sample};
 use serde::Serialize;
 use serde_json::json;
 use std::f64::consts::PI;
 use std::path::{Path, PathBuf};
-use std::sync::atomic::AtomicBool;
+use std::sync::atomic::{AtomicBool, AtomicU64};
 use std::sync::Arc;
 
 /// The closed-loop step job. Real-time safe: no allocation in `tick`.
@@ -422,6 +422,30 @@ pub fn run_control(
     opts: &ControlOptions,
     stop: Arc<AtomicBool>,
 ) -> Result<ControlSummary, RunError> {
+    run_control_from(opts, stop, StageSource::Open, None)
+}
+
+/// Where `bench control` gets its stage.
+#[derive(Debug)]
+pub enum StageSource<'a> {
+    /// Open the backend of the options (and drop it after the run).
+    Open,
+    /// An opened, configured stage that stays with its owner (the daemon);
+    /// it is left configured, disabled at 0 A.
+    Borrowed(&'a mut AnyStage, &'a DeviceInfo),
+}
+
+/// [`run_control`] on a stage from `source`; `ticks`, if given, follows
+/// the loop's tick count (progress).
+///
+/// # Errors
+/// As [`run_control`].
+pub fn run_control_from(
+    opts: &ControlOptions,
+    stop: Arc<AtomicBool>,
+    source: StageSource<'_>,
+    progress_ticks: Option<&AtomicU64>,
+) -> Result<ControlSummary, RunError> {
     let cfg = &opts.config;
     let ccfg = controller_config(cfg, &opts.controller)?;
     let measured = opts.frf.as_deref().map(MeasuredFrf::read_csv).transpose()?;
@@ -476,7 +500,20 @@ pub fn run_control(
     let step = &cfg.step;
     check_writable(&opts.out, "--out")?;
     check_writable(&opts.plot, "--plot")?;
-    let (stage, info) = backend::open(&spec, cfg, &opts.config_path, opts.seed, opts.inject)?;
+    let mut opened;
+    let (stage, info): (&mut AnyStage, DeviceInfo) = match source {
+        StageSource::Open => {
+            let (s, i) = backend::open(&spec, cfg, &opts.config_path, opts.seed, opts.inject)?;
+            opened = s;
+            (&mut opened, i)
+        }
+        StageSource::Borrowed(s, i) => {
+            if let Some(f) = opts.inject {
+                s.inject(f)?;
+            }
+            (s, i.clone())
+        }
+    };
     summary.backend = info.name.clone();
     if info.period_ns != cfg.loop_.period_ns() {
         return Err(RunError::BadInput(format!(
@@ -498,6 +535,7 @@ pub fn run_control(
         progress: opts.progress,
         seed: opts.seed,
         max_ticks: total,
+        ticks: progress_ticks,
     };
     let mut recorder = open_recording(&session, cfg, &info)?;
     let check_ch = recorder.add_json_channel(
@@ -521,15 +559,15 @@ pub fn run_control(
         ticks(step.smooth_s),
         total,
     );
+    let recorded = run_recorded(stage, &info, job, cfg, recorder, &session, stop);
+    summary.link = stage.link_stats();
     let Recorded {
-        stage,
         mut recorder,
         data,
         timing,
         end_ns,
         ..
-    } = run_recorded(stage, &info, job, cfg, recorder, &session, stop)?;
-    summary.link = stage.link_stats();
+    } = recorded?;
 
     let metrics = step_metrics(
         &data,

@@ -209,13 +209,14 @@ pub struct SessionOptions<'a> {
     pub seed: u64,
     /// Tick budget (the job normally ends first).
     pub max_ticks: u64,
+    /// Where the loop publishes its tick count (a watcher's progress), if
+    /// anywhere.
+    pub ticks: Option<&'a AtomicU64>,
 }
 
 /// A run that finished its job.
 #[derive(Debug)]
 pub struct Recorded {
-    /// The stage, back from the loop thread (disabled, 0 A).
-    pub stage: AnyStage,
     /// The recording, open for the job's results.
     pub recorder: Recorder,
     /// The per-tick signals.
@@ -270,6 +271,8 @@ pub fn open_recording(
 }
 
 /// Runs `job` on `stage` (configured, described by `info`) into `recorder`.
+/// The loop thread borrows the stage and gives it back disabled at 0 A
+/// whatever happens, so an owner (the daemon) keeps its device across jobs.
 /// `stop` is raised by SIGINT/SIGTERM.
 ///
 /// # Errors
@@ -277,7 +280,7 @@ pub fn open_recording(
 /// the recording finished and the amplifier disabled; [`RunError::Other`]
 /// for thread or recording failures.
 pub fn run_recorded<J: Job + Send + 'static>(
-    mut stage: AnyStage,
+    stage: &mut AnyStage,
     info: &DeviceInfo,
     mut job: J,
     cfg: &BenchConfig,
@@ -330,44 +333,44 @@ pub fn run_recorded<J: Job + Send + 'static>(
         safety: cfg.supervisor(info),
         max_ticks: opts.max_ticks,
     };
-    let progress = Arc::new(AtomicU64::new(0));
     let clock = info.clock;
-    let rt_progress = Arc::clone(&progress);
-    let rt_stop = Arc::clone(&stop);
     let wall = Instant::now();
-    let rt_thread = std::thread::Builder::new()
-        .name("bench-rt".into())
-        .spawn(move || {
-            let report = rt::run(
-                &mut stage,
-                &mut job,
-                &loop_opts,
-                clock,
-                &mut producer,
-                &rt_stop,
-                &rt_progress,
+    let local_progress = AtomicU64::new(0);
+    let progress: &AtomicU64 = opts.ticks.unwrap_or(&local_progress);
+    let stop: &AtomicBool = &stop;
+    let report = std::thread::scope(|scope| {
+        let rt_thread = std::thread::Builder::new()
+            .name("bench-rt".into())
+            .spawn_scoped(scope, || {
+                rt::run(
+                    stage,
+                    &mut job,
+                    &loop_opts,
+                    clock,
+                    &mut producer,
+                    stop,
+                    progress,
+                )
+            })
+            .map_err(|e| anyhow::anyhow!("cannot spawn the real-time thread: {e}"))?;
+        if opts.realtime && opts.progress {
+            let bar = indicatif::ProgressBar::new(opts.max_ticks);
+            bar.set_style(
+                indicatif::ProgressStyle::with_template(
+                    &format!("{{spinner}} {} [{{bar:40}}] {{percent:>3}}% {{elapsed_precise}} / ~{{duration_precise}}", opts.command),
+                )
+                .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
             );
-            (stage, report)
-        })
-        .map_err(|e| anyhow::anyhow!("cannot spawn the real-time thread: {e}"))?;
-
-    if opts.realtime && opts.progress {
-        let bar = indicatif::ProgressBar::new(opts.max_ticks);
-        bar.set_style(
-            indicatif::ProgressStyle::with_template(
-                &format!("{{spinner}} {} [{{bar:40}}] {{percent:>3}}% {{elapsed_precise}} / ~{{duration_precise}}", opts.command),
-            )
-            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
-        );
-        while !rt_thread.is_finished() {
-            bar.set_position(progress.load(Ordering::Relaxed));
-            std::thread::sleep(Duration::from_millis(100));
+            while !rt_thread.is_finished() {
+                bar.set_position(progress.load(Ordering::Relaxed));
+                std::thread::sleep(Duration::from_millis(100));
+            }
+            bar.finish_and_clear();
         }
-        bar.finish_and_clear();
-    }
-    let (stage, report) = rt_thread
-        .join()
-        .map_err(|_| anyhow::anyhow!("the real-time thread panicked"))?;
+        rt_thread
+            .join()
+            .map_err(|_| anyhow::anyhow!("the real-time thread panicked"))
+    })?;
     let wall_s = wall.elapsed().as_secs_f64();
     writer_done.store(true, Ordering::Release);
     let (recorder, _stats) = writer
@@ -419,7 +422,6 @@ pub fn run_recorded<J: Job + Send + 'static>(
     }
     let data = std::mem::take(&mut *collected.lock().expect("collector poisoned"));
     Ok(Recorded {
-        stage,
         recorder,
         data,
         timing,
