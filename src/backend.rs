@@ -142,14 +142,19 @@ impl Stage for AnyStage {
 }
 
 impl AnyStage {
-    /// Schedules a simulator fault (tests, `--inject-fault`).
+    /// Schedules a simulator fault `fault.at_s` seconds from now (tests,
+    /// `--inject-fault`).
     ///
     /// # Errors
     /// [`RunError::BadInput`] on hardware.
     pub fn inject(&mut self, fault: ScheduledFault) -> Result<(), RunError> {
         match self {
             Self::Sim(s) => {
-                s.inject(fault);
+                // `at_s` counts from now (a stage that has been running).
+                s.inject(ScheduledFault {
+                    at_s: fault.at_s + s.device_time_s(),
+                    ..fault
+                });
                 Ok(())
             }
             _ => Err(RunError::BadInput(

@@ -20,7 +20,7 @@ use crate::sysid::{closely_spaced_pair, find_resonances, Frf, PairVerdict, Reson
 use bench_hal::model::Sr4dof;
 use bench_hal::sim::ZohPlant;
 use bench_hal::{DeviceInfo, Sample};
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use serde_json::json;
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, AtomicU64};
@@ -79,7 +79,7 @@ pub struct ChirpOptions {
 }
 
 /// The model's view of the same bench, for comparison.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct ModelSummary {
     /// Natural frequencies of the four modes, Hz.
     pub natural_frequencies_hz: Vec<f64>,
@@ -90,7 +90,7 @@ pub struct ModelSummary {
     /// Zeros of the damped model, `[re, im]` in Hz (s / 2π).
     pub zeros_hz: Vec<[f64; 2]>,
     /// Types of the undamped numerator roots (Chapter 3).
-    pub zero_types: Vec<&'static str>,
+    pub zero_types: Vec<String>,
     /// Eq. (2-8) discriminant (negative ⇔ CMP-CNMP).
     pub cnmp_discriminant: f64,
     /// The damped model has complex right-half-plane zeros.
@@ -98,7 +98,7 @@ pub struct ModelSummary {
 }
 
 /// Result of `bench chirp` (printed, and as JSON with `--json`).
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct ChirpSummary {
     /// The MCAP recording.
     pub recording: PathBuf,
@@ -149,7 +149,7 @@ fn model_summary(m: &Sr4dof) -> ModelSummary {
         zero_types: m
             .undamped_zeros()
             .iter()
-            .map(|z| z.kind.as_str())
+            .map(|z| z.kind.as_str().to_string())
             .collect::<Vec<_>>(),
         cnmp_discriminant: m.cnmp_discriminant(),
         cmp_cnmp: m.has_cnmp_zeros(),

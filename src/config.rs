@@ -201,6 +201,29 @@ fn default_ss_window_s() -> f64 {
     3.0
 }
 
+impl StepConfig {
+    /// Applies the command-line (or daemon request) overrides of a step:
+    /// size, run time (the steady-state window shrinks to at most half of a
+    /// shorter run) and ramp.
+    pub fn apply_overrides(
+        &mut self,
+        step_m: Option<f64>,
+        duration_s: Option<f64>,
+        smooth_s: Option<f64>,
+    ) {
+        if let Some(v) = step_m {
+            self.step_m = v;
+        }
+        if let Some(v) = duration_s {
+            self.duration_s = v;
+            self.steady_state_window_s = self.steady_state_window_s.min(0.5 * v.max(0.0));
+        }
+        if let Some(v) = smooth_s {
+            self.smooth_s = v;
+        }
+    }
+}
+
 impl Default for StepConfig {
     fn default() -> Self {
         Self {

@@ -27,9 +27,9 @@ use crate::session::{
     SessionOptions, TimingSummary,
 };
 use bench_hal::model::Sr4dof;
-use bench_hal::sim::{ScheduledFault, ZohPlant};
+use bench_hal::sim::{FaultInjection, ScheduledFault, ZohPlant};
 use bench_hal::{DeviceInfo, Sample};
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use serde_json::json;
 use std::f64::consts::PI;
 use std::path::{Path, PathBuf};
@@ -100,7 +100,7 @@ impl Job for ControlJob {
 }
 
 /// Step-response figures.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct StepMetrics {
     /// Step size, m.
     pub step_m: f64,
@@ -196,7 +196,7 @@ pub fn step_metrics(
 }
 
 /// The loop check (SPEC §6) of one controller.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct LoopCheck {
     /// Controller name.
     pub controller: String,
@@ -368,7 +368,7 @@ pub struct ControlOptions {
 }
 
 /// Result of `bench control`.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct ControlSummary {
     /// Controller name.
     pub controller: String,
@@ -636,6 +636,37 @@ pub fn run_control_from(
     )?;
     summary.recording = Some(PathBuf::from(finish(recorder)?));
     Ok(summary)
+}
+
+/// Parses a simulator fault `KIND@T_S` (`--inject-fault`): nan, frozen,
+/// drop (10 samples), jump (0.2 mm), out_of_range.
+///
+/// # Errors
+/// A message naming the part that does not parse.
+pub fn parse_fault(s: &str) -> Result<ScheduledFault, String> {
+    let (kind, at) = s
+        .split_once('@')
+        .ok_or_else(|| format!("--inject-fault {s}: expected KIND@T_S, e.g. nan@1.5"))?;
+    let at_s: f64 = at
+        .parse()
+        .ok()
+        .filter(|t: &f64| t.is_finite() && *t >= 0.0)
+        .ok_or_else(|| {
+            format!("--inject-fault {s}: time {at:?} is not a non-negative number of seconds")
+        })?;
+    let kind = match kind {
+        "nan" => FaultInjection::Nan,
+        "frozen" => FaultInjection::Frozen,
+        "drop" => FaultInjection::Drop(10),
+        "jump" => FaultInjection::Jump(0.2e-3),
+        "out_of_range" => FaultInjection::OutOfRange,
+        other => {
+            return Err(format!(
+                "--inject-fault {s}: unknown kind {other:?} (nan, frozen, drop, jump, out_of_range)"
+            ))
+        }
+    };
+    Ok(ScheduledFault { at_s, kind })
 }
 
 #[cfg(test)]

@@ -7,9 +7,11 @@
 
 pub mod backend;
 pub mod chirp;
+pub mod client;
 pub mod config;
 pub mod control;
 pub mod control_run;
+pub mod daemon;
 pub mod excitation;
 pub mod loopcheck;
 pub mod plot;

@@ -24,11 +24,11 @@
 use crate::control::DiscreteController;
 use bench_hal::sim::{ZohPlant, STATES};
 use nalgebra::{Complex, DMatrix};
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use std::f64::consts::PI;
 
 /// Margins of one open loop.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Margins {
     /// Gain crossover frequencies, rad/s, ascending.
     pub crossovers_rad_s: Vec<f64>,

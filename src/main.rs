@@ -9,16 +9,18 @@
 //! | 3 | safety fault: the supervisor latched; 0 A, amplifier disabled, recording finished |
 //! | 4 | hardware (HAL) error; 0 A, amplifier disabled, recording finished |
 //! | 130 | interrupted by SIGINT/SIGTERM; 0 A, amplifier disabled, recording finished |
+//! | 5 | `--daemon`: the daemon refused the job (busy, or a latched fault) |
 
 use anyhow::Context;
 use bench::backend::BackendSpec;
 use bench::chirp::{run_chirp, ChirpOptions, ChirpSummary};
 use bench::config::{BenchConfig, ChirpKind, ConfigError, DEFAULT_CONFIG};
+use bench::control_run::parse_fault;
 use bench::control_run::{run_control, ControlOptions, ControlSummary};
 use bench::session::RunError;
 use bench_hal::device::{DeviceCore, EmulatorStatus, LinkFault, ScheduledLinkFault};
 use bench_hal::serial_emulator::{Pty, SerialEmulatorOptions};
-use bench_hal::sim::{FaultInjection, ScheduledFault};
+use bench_hal::sim::ScheduledFault;
 use clap::{Args, Parser, Subcommand, ValueEnum};
 use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
@@ -50,6 +52,32 @@ enum Command {
     /// exercised without hardware.
     #[command(subcommand)]
     Emulate(EmulateCommand),
+    /// Own the bench: keep it safe between jobs and serve chirp and control
+    /// jobs, one at a time, as JSON lines on a Unix socket.
+    Serve(ServeArgs),
+}
+
+#[derive(Debug, Args)]
+struct ServeArgs {
+    /// Bench description (TOML).
+    #[arg(long, value_name = "FILE", default_value = DEFAULT_CONFIG)]
+    config: PathBuf,
+    /// Socket path [default: $XDG_RUNTIME_DIR/bench.sock, else
+    /// /run/bench/bench.sock]. Its directory must not be world-writable.
+    #[arg(long, value_name = "PATH")]
+    socket: Option<PathBuf>,
+    /// Let this group use the socket (mode 0660; default owner-only 0600).
+    #[arg(long, value_name = "GROUP")]
+    socket_group: Option<String>,
+    /// Directory for the job recordings and the rolling event log.
+    #[arg(long, value_name = "DIR", default_value = "recordings")]
+    recordings: PathBuf,
+    /// Backend [default: [backend] of the config].
+    #[arg(long, value_name = "BACKEND")]
+    backend: Option<BackendSpec>,
+    /// Simulator seed [default: sim.seed].
+    #[arg(long, value_name = "N")]
+    seed: Option<u64>,
 }
 
 #[derive(Debug, Subcommand)]
@@ -150,6 +178,11 @@ struct ControlArgs {
     /// the config]. Hardware always runs in real time.
     #[arg(long, value_name = "BACKEND")]
     backend: Option<BackendSpec>,
+    /// Submit to a running `bench serve` instead of opening the bench here
+    /// [SOCKET default: $XDG_RUNTIME_DIR/bench.sock, else
+    /// /run/bench/bench.sock]. The daemon's config and backend apply.
+    #[arg(long, value_name = "SOCKET", num_args = 0..=1, default_missing_value = "")]
+    daemon: Option<String>,
 }
 
 #[derive(Debug, Clone, Copy, ValueEnum)]
@@ -216,6 +249,11 @@ struct ChirpArgs {
     /// the config]. Hardware always runs in real time.
     #[arg(long, value_name = "BACKEND")]
     backend: Option<BackendSpec>,
+    /// Submit to a running `bench serve` instead of opening the bench here
+    /// [SOCKET default: $XDG_RUNTIME_DIR/bench.sock, else
+    /// /run/bench/bench.sock]. The daemon's config and backend apply.
+    #[arg(long, value_name = "SOCKET", num_args = 0..=1, default_missing_value = "")]
+    daemon: Option<String>,
 }
 
 /// Exit statuses (see the module docs).
@@ -225,6 +263,7 @@ mod status {
     pub const FAULT: u8 = 3;
     pub const HAL: u8 = 4;
     pub const INTERRUPTED: u8 = 130;
+    pub const DAEMON_REFUSED: u8 = 5;
 }
 
 fn main() -> ExitCode {
@@ -246,6 +285,7 @@ fn main() -> ExitCode {
         Command::Chirp(args) => chirp(args, stop),
         Command::Control(args) => control(args, stop),
         Command::Emulate(cmd) => emulate(cmd, stop),
+        Command::Serve(args) => serve(args),
     }
 }
 
@@ -357,6 +397,31 @@ fn flag_for_key(key: &str, a: &ChirpArgs) -> Option<&'static str> {
 }
 
 fn chirp(args: ChirpArgs, stop: Arc<AtomicBool>) -> ExitCode {
+    if let Some(sock) = &args.daemon {
+        let local_only = [
+            (args.out.is_some(), "--out"),
+            (args.frf_csv.is_some(), "--frf-csv"),
+            (args.plot.is_some(), "--plot"),
+            (args.operating_point_m.is_some(), "--operating-point-m"),
+            (args.operating_point_pct.is_some(), "--operating-point-pct"),
+            (args.mass_asymmetry.is_some(), "--mass-asymmetry"),
+            (args.backend.is_some(), "--backend"),
+            (args.chirp_kind.is_some(), "--chirp-kind"),
+        ];
+        if let Some((_, flag)) = local_only.iter().find(|(set, _)| *set) {
+            return bad_input(format!(
+                "{flag}: not with --daemon (the daemon owns the bench, its config and where recordings go)"
+            ));
+        }
+        let params = serde_json::json!({
+            "seed": args.seed,
+            "amplitude_a": args.amplitude_a,
+            "f_start_hz": args.f_start_hz,
+            "f_end_hz": args.f_end_hz,
+            "duration_s": args.duration_s,
+        });
+        return via_daemon(sock, "chirp", params, args.json, print_summary);
+    }
     let mut cfg = match load_config(&args.config) {
         Ok(c) => c,
         Err(e) => return bad_input(e),
@@ -500,48 +565,44 @@ fn exit_for(e: &RunError) -> ExitCode {
     })
 }
 
-/// Parses `KIND@T_S`.
-fn parse_fault(s: &str) -> Result<ScheduledFault, String> {
-    let (kind, at) = s
-        .split_once('@')
-        .ok_or_else(|| format!("--inject-fault {s}: expected KIND@T_S, e.g. nan@1.5"))?;
-    let at_s: f64 = at
-        .parse()
-        .ok()
-        .filter(|t: &f64| t.is_finite() && *t >= 0.0)
-        .ok_or_else(|| {
-            format!("--inject-fault {s}: time {at:?} is not a non-negative number of seconds")
-        })?;
-    let kind = match kind {
-        "nan" => FaultInjection::Nan,
-        "frozen" => FaultInjection::Frozen,
-        "drop" => FaultInjection::Drop(10),
-        "jump" => FaultInjection::Jump(0.2e-3),
-        "out_of_range" => FaultInjection::OutOfRange,
-        other => {
-            return Err(format!(
-                "--inject-fault {s}: unknown kind {other:?} (nan, frozen, drop, jump, out_of_range)"
-            ))
-        }
-    };
-    Ok(ScheduledFault { at_s, kind })
-}
-
 fn control(args: ControlArgs, stop: Arc<AtomicBool>) -> ExitCode {
+    if let Some(sock) = &args.daemon {
+        let local_only = [
+            (args.out.is_some(), "--out"),
+            (args.plot.is_some(), "--plot"),
+            (args.backend.is_some(), "--backend"),
+            (args.check_only, "--check-only"),
+            (args.frf.is_some(), "--frf"),
+        ];
+        if let Some((_, flag)) = local_only.iter().find(|(set, _)| *set) {
+            return bad_input(format!(
+                "{flag}: not with --daemon (run it locally, or let the daemon choose the recording)"
+            ));
+        }
+        let controller = if args.slow {
+            "slow".to_string()
+        } else if args.fast {
+            "fast".to_string()
+        } else {
+            args.controller.clone().unwrap_or_default()
+        };
+        let params = serde_json::json!({
+            "controller": controller,
+            "seed": args.seed,
+            "step_m": args.step_m,
+            "duration_s": args.duration_s,
+            "smooth_s": args.smooth_s,
+            "inject_fault": args.inject_fault,
+            "override_check": args.override_check,
+        });
+        return via_daemon(sock, "control", params, args.json, print_control_summary);
+    }
     let mut cfg = match load_config(&args.config) {
         Ok(c) => c,
         Err(e) => return bad_input(e),
     };
-    if let Some(v) = args.step_m {
-        cfg.step.step_m = v;
-    }
-    if let Some(v) = args.duration_s {
-        cfg.step.duration_s = v;
-        cfg.step.steady_state_window_s = cfg.step.steady_state_window_s.min(0.5 * v.max(0.0));
-    }
-    if let Some(v) = args.smooth_s {
-        cfg.step.smooth_s = v;
-    }
+    cfg.step
+        .apply_overrides(args.step_m, args.duration_s, args.smooth_s);
     if let Err(e) = cfg.validate(&args.config) {
         return invalid_config(e, |key| match key {
             "step.step_m" if args.step_m.is_some() => Some("--step-m"),
@@ -853,6 +914,104 @@ fn emulate(cmd: EmulateCommand, stop: Arc<AtomicBool>) -> ExitCode {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
             eprintln!("error: emulator: {e}");
+            ExitCode::from(status::ERROR)
+        }
+    }
+}
+
+/// Submits a job to the daemon, shows its progress on stderr and prints the
+/// summary as the local run does.
+fn via_daemon<T: serde::de::DeserializeOwned + serde::Serialize>(
+    socket: &str,
+    cmd: &str,
+    params: serde_json::Value,
+    json: bool,
+    human: fn(&T),
+) -> ExitCode {
+    let socket = if socket.is_empty() {
+        bench::daemon::default_socket_path()
+    } else {
+        PathBuf::from(socket)
+    };
+    let show = std::io::stderr().is_terminal();
+    let result = bench::client::request(&socket, cmd, params, |ev| {
+        if !show {
+            return;
+        }
+        match ev["event"].as_str() {
+            Some("progress") => {
+                let (t, n) = (
+                    ev["ticks"].as_f64().unwrap_or(0.0),
+                    ev["total_ticks"].as_f64().unwrap_or(1.0),
+                );
+                eprint!("\r{cmd} on the daemon: {:5.1} %", 100.0 * t / n.max(1.0));
+            }
+            Some("job_started") => {
+                eprintln!("{cmd} job {} started: {}", ev["job"], ev["recording"])
+            }
+            Some("job_finished") => eprintln!(),
+            _ => {}
+        }
+    });
+    match result {
+        Ok(v) => match serde_json::from_value::<T>(v.clone()) {
+            Ok(summary) => {
+                if let Some(r) = v.get("recording").and_then(|r| r.as_str()) {
+                    if !json {
+                        println!("recording (daemon) {r}");
+                    }
+                }
+                match emit(&summary, json, human) {
+                    Ok(()) => ExitCode::SUCCESS,
+                    Err(code) => code,
+                }
+            }
+            Err(e) => {
+                eprintln!("error: the daemon's summary does not parse: {e}");
+                ExitCode::from(status::ERROR)
+            }
+        },
+        Err(e) => {
+            eprintln!("error: {e}");
+            ExitCode::from(match &e {
+                bench::client::ClientError::Connect { .. } => status::BAD_INPUT,
+                bench::client::ClientError::Io(_) => status::ERROR,
+                bench::client::ClientError::Api { kind, .. } => match kind.as_str() {
+                    "bad_params" | "bad_request" | "unknown_command" | "refused" => {
+                        status::BAD_INPUT
+                    }
+                    "busy" | "faulted" => status::DAEMON_REFUSED,
+                    "fault" => status::FAULT,
+                    "hal" => status::HAL,
+                    "interrupted" => status::INTERRUPTED,
+                    _ => status::ERROR,
+                },
+            })
+        }
+    }
+}
+
+fn serve(args: ServeArgs) -> ExitCode {
+    let cfg = match load_config(&args.config).and_then(|c| c.validate(&args.config).map(|_| c)) {
+        Ok(c) => c,
+        Err(e) => return bad_input(e),
+    };
+    let opts = bench::daemon::ServeOptions {
+        seed: args.seed.unwrap_or(cfg.sim.seed),
+        config: cfg,
+        config_path: args.config,
+        socket: args
+            .socket
+            .unwrap_or_else(bench::daemon::default_socket_path),
+        socket_group: args.socket_group,
+        recordings: args.recordings,
+        backend: args.backend,
+    };
+    match bench::daemon::serve(opts) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e @ bench::daemon::ServeError::BadInput(_)) => bad_input(e),
+        Err(e) => {
+            eprintln!("error: {e}");
             ExitCode::from(status::ERROR)
         }
     }

@@ -8,7 +8,7 @@ use crate::record::{spawn_writer, RecordError, Recorder, DEFAULT_CHUNK_INTERVAL}
 use crate::records::Record;
 use crate::rt::{self, Job, LoopOptions, LoopReport, Pacing, StopReason};
 use bench_hal::DeviceInfo;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
@@ -19,12 +19,12 @@ use std::time::{Duration, Instant};
 const QUEUE_CAPACITY: usize = 1 << 16;
 
 /// Loop timing in the summary.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct TimingSummary {
     /// Ticks run.
     pub ticks: u64,
     /// Pacing: `virtual` or `realtime`.
-    pub mode: &'static str,
+    pub mode: String,
     /// Loop rate, Hz.
     pub rate_hz: f64,
     /// Wake-up latency p99, µs (0 in virtual time).
@@ -52,7 +52,7 @@ impl TimingSummary {
         let t = &r.timing;
         Self {
             ticks: r.ticks,
-            mode: if realtime { "realtime" } else { "virtual" },
+            mode: if realtime { "realtime" } else { "virtual" }.to_string(),
             rate_hz,
             wake_latency_p99_us: t.wake.quantile_ns(0.99) * 1e-3,
             wake_latency_max_us: t.wake.max_ns() * 1e-3,

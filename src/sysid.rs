@@ -29,7 +29,7 @@
 use crate::config::IdentificationConfig;
 use nalgebra::Complex;
 use realfft::RealFftPlanner;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use std::f64::consts::PI;
 use std::io::Write;
 use std::path::Path;
@@ -235,7 +235,7 @@ impl Frf {
 }
 
 /// A resonance found in a measured FRF.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct Resonance {
     /// Peak frequency, Hz (refined between grid points).
     pub frequency_hz: f64,
@@ -373,7 +373,7 @@ fn refine_peak(frf: &Frf, spectra: &Spectra, i: usize, prominence_db: f64) -> Re
 }
 
 /// The phase test for CMP-CNMP zeros across a closely spaced pair.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct PairVerdict {
     /// Lower mode of the pair, Hz.
     pub lower_hz: f64,

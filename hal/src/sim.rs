@@ -508,6 +508,12 @@ impl SimStage {
         }
     }
 
+    /// Device time of the latest sample, s since `configure` (fault
+    /// injections are scheduled on this clock).
+    pub fn device_time_s(&self) -> f64 {
+        self.seq as f64 * self.period_ns as f64 * 1e-9
+    }
+
     /// Whether x1 sat on the mechanical stop during the last period.
     pub fn at_stop(&self) -> bool {
         self.at_stop

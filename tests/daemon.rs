@@ -1,0 +1,589 @@
+//! `bench serve` through its socket, as a separate process: requests and
+//! errors, jobs equal to local runs, one job at a time, stop, SIGTERM, the
+//! unattended rule, latched faults, socket permissions, and 1000 status
+//! requests during a real-time job.
+
+mod common;
+
+use common::*;
+use serde_json::{json, Value};
+use std::io::{BufRead, BufReader, Write};
+use std::os::unix::fs::PermissionsExt;
+use std::os::unix::net::UnixStream;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Stdio};
+use std::sync::{Mutex, MutexGuard};
+use std::time::{Duration, Instant};
+
+static SERIAL: Mutex<()> = Mutex::new(());
+
+fn one_at_a_time() -> MutexGuard<'static, ()> {
+    SERIAL.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+/// The Chapter 5 bench without probe noise and disturbance (so a job on the
+/// daemon and a local run see the same plant response), short chirp tail.
+fn quiet_config(dir: &Path) -> PathBuf {
+    let text = std::fs::read_to_string(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("bench-config/sr4dof-ch5.toml"),
+    )
+    .unwrap();
+    let text: String = text
+        .lines()
+        .filter(|l| !l.starts_with("disturbance ="))
+        .map(|l| {
+            if l.starts_with("noise_rms_m =") {
+                "noise_rms_m = 0.0".to_string()
+            } else if l.starts_with("tail_s =") {
+                "tail_s = 1.0".to_string()
+            } else {
+                l.to_string()
+            }
+        })
+        .collect::<Vec<_>>()
+        .join("\n");
+    let p = dir.join("bench.toml");
+    std::fs::write(&p, text).unwrap();
+    p
+}
+
+struct Daemon {
+    child: Child,
+    socket: PathBuf,
+    dir: tempfile::TempDir,
+    config: PathBuf,
+}
+
+impl Daemon {
+    fn start() -> Self {
+        let dir = tmp();
+        std::fs::set_permissions(dir.path(), std::fs::Permissions::from_mode(0o700)).unwrap();
+        let config = quiet_config(dir.path());
+        let socket = dir.path().join("bench.sock");
+        let child = bench()
+            .args([
+                "serve",
+                "--config",
+                &config.display().to_string(),
+                "--socket",
+                &socket.display().to_string(),
+                "--recordings",
+                &path_in(dir.path(), "rec"),
+            ])
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap();
+        let t0 = Instant::now();
+        while UnixStream::connect(&socket).is_err() {
+            assert!(
+                t0.elapsed() < Duration::from_secs(20),
+                "daemon did not come up"
+            );
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        Self {
+            child,
+            socket,
+            dir,
+            config,
+        }
+    }
+
+    fn client(&self) -> Client {
+        Client::new(&self.socket)
+    }
+
+    fn sock(&self) -> String {
+        self.socket.display().to_string()
+    }
+}
+
+impl Drop for Daemon {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+struct Client {
+    w: UnixStream,
+    r: BufReader<UnixStream>,
+    next: u64,
+}
+
+impl Client {
+    fn new(socket: &Path) -> Self {
+        let w = UnixStream::connect(socket).unwrap();
+        let r = BufReader::new(w.try_clone().unwrap());
+        Self { w, r, next: 100 }
+    }
+
+    fn send_raw(&mut self, line: &str) {
+        self.w.write_all(format!("{line}\n").as_bytes()).unwrap();
+    }
+
+    fn line(&mut self) -> Value {
+        let mut l = String::new();
+        assert!(
+            self.r.read_line(&mut l).unwrap() > 0,
+            "daemon closed the connection"
+        );
+        serde_json::from_str(&l).unwrap()
+    }
+
+    /// The next response (skipping events).
+    fn response(&mut self) -> Value {
+        loop {
+            let v = self.line();
+            if v.get("event").is_none() {
+                return v;
+            }
+        }
+    }
+
+    fn call(&mut self, cmd: &str, params: Value) -> Value {
+        self.next += 1;
+        self.send_raw(&json!({ "id": self.next, "cmd": cmd, "params": params }).to_string());
+        let r = self.response();
+        assert_eq!(r["id"], json!(self.next), "{r}");
+        r
+    }
+
+    /// Submits a job without waiting for its end; returns the job id from
+    /// the `job_started` event.
+    fn submit(&mut self, cmd: &str, params: Value) -> Value {
+        self.next += 1;
+        self.send_raw(&json!({ "id": self.next, "cmd": cmd, "params": params }).to_string());
+        loop {
+            let v = self.line();
+            if v["event"] == "job_started" {
+                return v;
+            }
+            assert!(v.get("event").is_some(), "job refused: {v}");
+        }
+    }
+}
+
+fn wait_state(c: &mut Client, state: &str, timeout: Duration) -> Value {
+    let t0 = Instant::now();
+    loop {
+        let s = c.call("status", json!({}));
+        if s["result"]["state"] == state {
+            return s["result"].clone();
+        }
+        assert!(t0.elapsed() < timeout, "state stayed {}", s["result"]);
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
+
+#[test]
+fn requests_errors_and_jobs_equal_to_local_runs() {
+    let _g = one_at_a_time();
+    let d = Daemon::start();
+    // Owner-only socket.
+    let mode = std::fs::metadata(&d.socket).unwrap().permissions().mode() & 0o777;
+    assert_eq!(mode, 0o600, "socket mode {mode:o}");
+    let mut c = d.client();
+    let s = c.call("status", json!({}));
+    assert_eq!(s["ok"], true);
+    assert_eq!(s["result"]["state"], "disabled");
+    assert_eq!(s["result"]["backend"], "sim:sr4dof");
+    // Malformed JSON, unknown commands, bad parameters: errors, and the
+    // daemon keeps serving.
+    c.send_raw("{not json");
+    let r = c.response();
+    assert_eq!(r["error"]["kind"], "bad_request", "{r}");
+    c.send_raw(r#"{"id": 7}"#);
+    assert_eq!(c.response()["error"]["kind"], "bad_request");
+    assert_eq!(
+        c.call("frobnicate", json!({}))["error"]["kind"],
+        "unknown_command"
+    );
+    let r = c.call("chirp", json!({ "amplitude_a": "loud" }));
+    assert_eq!(r["error"]["kind"], "bad_params", "{r}");
+    assert!(r["error"]["message"]
+        .as_str()
+        .unwrap()
+        .contains("amplitude_a"));
+    let r = c.call("chirp", json!({ "f_end_hz": 1e5 }));
+    assert_eq!(r["error"]["kind"], "bad_params", "{r}");
+    assert!(
+        r["error"]["message"].as_str().unwrap().contains("f_end_hz"),
+        "{r}"
+    );
+    let r = c.call("control", json!({ "controller": "nope" }));
+    assert_eq!(r["error"]["kind"], "bad_params", "{r}");
+    assert_eq!(c.call("status", json!({}))["result"]["state"], "disabled");
+
+    let cfg = d.config.display().to_string();
+    // The fast step, both ways (first: after a chirp the lightly damped
+    // modes ring for seconds, and a step on a ringing stage settles later).
+    let o = run(&[
+        "control",
+        "--fast",
+        "--daemon",
+        &d.sock(),
+        "--duration-s",
+        "1.5",
+        "--json",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let r = json_stdout(&o);
+    let out = path_in(d.dir.path(), "local-step.mcap");
+    let o = run(&[
+        "control",
+        "--fast",
+        "--config",
+        &cfg,
+        "--out",
+        &out,
+        "--duration-s",
+        "1.5",
+        "--json",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let l = json_stdout(&o);
+    for k in ["rise_time_s", "settling_time_s", "overshoot_pct"] {
+        let (a, b) = (
+            r["metrics"][k].as_f64().unwrap(),
+            l["metrics"][k].as_f64().unwrap(),
+        );
+        // Within 2 %, or two ticks (0.4 ms) for the tick-quantised times.
+        assert!(
+            (a - b).abs() <= (0.02 * b.abs()).max(if k == "overshoot_pct" { 0.5 } else { 4e-4 }),
+            "{k}: daemon {a}, local {b}"
+        );
+    }
+    // A chirp through the socket (the CLI client) and locally, once the
+    // step's ringing has died down (29 Hz mode: time constant 0.6 s).
+    std::thread::sleep(Duration::from_secs(4));
+    let args = ["--f-start-hz", "5", "--duration-s", "3", "--json"];
+    let mut remote = vec!["chirp", "--daemon", d.socket.to_str().unwrap()];
+    remote.extend(args);
+    let o = run(&remote);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let r = json_stdout(&o);
+    let out = path_in(d.dir.path(), "local.mcap");
+    let mut local = vec!["chirp", "--config", &cfg, "--out", &out];
+    local.extend(args);
+    let o = run(&local);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let l = json_stdout(&o);
+    let freqs = |v: &Value| -> Vec<f64> {
+        v["resonances"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|r| r["frequency_hz"].as_f64().unwrap())
+            .filter(|f| *f < 200.0) // the modes, not noise bumps
+            .collect()
+    };
+    let (fr, fl) = (freqs(&r), freqs(&l));
+    assert_eq!(fr.len(), fl.len(), "{fr:?} vs {fl:?}");
+    for (a, b) in fr.iter().zip(&fl) {
+        assert!((a / b - 1.0).abs() < 2e-3, "{fr:?} vs {fl:?}");
+    }
+    assert_eq!(r["cmp_cnmp"], l["cmp_cnmp"]);
+    // Its recording is under recordings/, finished.
+    let rec = Path::new(r["recording"].as_str().unwrap()).to_path_buf();
+    assert!(
+        rec.starts_with(d.dir.path().join("rec")) && rec.exists(),
+        "{rec:?}"
+    );
+
+    assert_eq!(c.call("status", json!({}))["result"]["jobs_run"], 2);
+    // The rolling event log has the jobs.
+    let log = std::fs::read_to_string(d.dir.path().join("rec/daemon-events.jsonl")).unwrap();
+    assert!(log.contains("job_started") && log.contains("job_finished"));
+}
+
+/// The recording ends with the interruption, then the loop's teardown
+/// (0 A, amplifier disabled: the `disabled` state) and the loop's end.
+fn assert_stopped_at_zero_amps(rec: &Path) {
+    let events: Vec<Value> = mcap_messages(rec)
+        .into_iter()
+        .filter(|m| m.0 == "/bench/event")
+        .map(|m| m.2)
+        .collect();
+    let i = events
+        .iter()
+        .position(|e| e["kind"] == "interrupted")
+        .expect("no interrupted event");
+    let after: Vec<(&Value, &Value)> = events[i..]
+        .iter()
+        .map(|e| (&e["kind"], &e["state"]))
+        .collect();
+    assert!(
+        after
+            .iter()
+            .any(|(k, s)| *k == "state_changed" && *s == "disabled"),
+        "{after:?}"
+    );
+    assert_eq!(events.last().unwrap()["kind"], "loop_stopped");
+}
+
+#[test]
+fn one_job_at_a_time_and_stop_leaves_zero_amps() {
+    let _g = one_at_a_time();
+    let d = Daemon::start();
+    let mut a = d.client();
+    let started = a.submit("chirp", json!({ "duration_s": 30, "f_start_hz": 2 }));
+    let rec = PathBuf::from(started["recording"].as_str().unwrap());
+    let mut b = d.client();
+    let r = b.call("control", json!({ "controller": "fast" }));
+    assert_eq!(r["error"]["kind"], "busy", "{r}");
+    let s = wait_state(&mut b, "running", Duration::from_secs(5));
+    assert_eq!(s["job"]["kind"], "chirp");
+    std::thread::sleep(Duration::from_millis(700));
+    let s = b.call("status", json!({}))["result"].clone();
+    assert!(s["job"]["ticks"].as_u64().unwrap() > 0, "{s}");
+    assert_eq!(b.call("stop", json!({}))["ok"], true);
+    // The submitter gets its answer: interrupted, recording finished.
+    let r = a.response();
+    assert_eq!(r["error"]["kind"], "interrupted", "{r}");
+    assert!(rec.exists(), "{rec:?} not finished");
+    assert_stopped_at_zero_amps(&rec);
+    wait_state(&mut b, "disabled", Duration::from_secs(5));
+}
+
+#[test]
+fn sigterm_mid_job_finishes_the_recording_and_removes_the_socket() {
+    let _g = one_at_a_time();
+    let d = Daemon::start();
+    let mut a = d.client();
+    let started = a.submit("chirp", json!({ "duration_s": 30, "f_start_hz": 2 }));
+    let rec = PathBuf::from(started["recording"].as_str().unwrap());
+    std::thread::sleep(Duration::from_millis(800));
+    let mut d = d;
+    // SAFETY: plain kill(2) on our child.
+    unsafe { libc::kill(d.child.id() as i32, libc::SIGTERM) };
+    let status = d.child.wait().unwrap();
+    assert!(status.success(), "exit {status:?}");
+    assert!(!d.socket.exists(), "socket left behind");
+    assert!(rec.exists(), "recording not finished");
+    assert_stopped_at_zero_amps(&rec);
+    // The client got its interrupted answer before the daemon left.
+    let r = a.response();
+    assert_eq!(r["error"]["kind"], "interrupted", "{r}");
+}
+
+#[test]
+fn a_client_that_leaves_stops_its_job_unless_detached() {
+    let _g = one_at_a_time();
+    let d = Daemon::start();
+    {
+        let mut a = d.client();
+        a.submit("chirp", json!({ "duration_s": 30, "f_start_hz": 2 }));
+    } // disconnects
+    let mut b = d.client();
+    wait_state(&mut b, "disabled", Duration::from_secs(5));
+    {
+        let mut a = d.client();
+        a.submit(
+            "control",
+            json!({ "controller": "fast", "duration_s": 1.5, "detach": true }),
+        );
+    }
+    std::thread::sleep(Duration::from_millis(500));
+    assert_eq!(b.call("status", json!({}))["result"]["state"], "running");
+    let s = wait_state(&mut b, "disabled", Duration::from_secs(20));
+    assert_eq!(s["jobs_run"], 2);
+    // `shutdown`: the daemon exits 0 and removes its socket.
+    assert_eq!(b.call("shutdown", json!({}))["ok"], true);
+    let mut d = d;
+    let t0 = Instant::now();
+    let status = loop {
+        if let Some(st) = d.child.try_wait().unwrap() {
+            break st;
+        }
+        assert!(
+            t0.elapsed() < Duration::from_secs(10),
+            "daemon did not shut down"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    assert!(status.success(), "{status:?}");
+    assert!(!d.socket.exists());
+}
+
+#[test]
+fn faults_latch_until_reset() {
+    let _g = one_at_a_time();
+    let d = Daemon::start();
+    let mut c = d.client();
+    let r = c.call(
+        "control",
+        json!({ "controller": "fast", "duration_s": 1.5, "inject_fault": "nan@0.3" }),
+    );
+    assert_eq!(r["error"]["kind"], "fault", "{r}");
+    let s = c.call("status", json!({}))["result"].clone();
+    assert_eq!(s["state"], "faulted");
+    assert_eq!(s["fault"]["kind"], "probe_not_finite", "{s}");
+    assert!(s["fault"]["message"]
+        .as_str()
+        .unwrap()
+        .contains("probe_not_finite"));
+    assert_eq!(c.call("enable", json!({}))["error"]["kind"], "faulted");
+    assert_eq!(c.call("chirp", json!({}))["error"]["kind"], "faulted");
+    assert_eq!(c.call("reset", json!({}))["ok"], true);
+    assert_eq!(c.call("enable", json!({}))["ok"], true);
+    assert_eq!(c.call("status", json!({}))["result"]["state"], "enabled");
+    assert_eq!(c.call("disable", json!({}))["ok"], true);
+    // The CLI client maps the fault to the fault exit status.
+    let o = run(&[
+        "control",
+        "--fast",
+        "--daemon",
+        &d.sock(),
+        "--duration-s",
+        "1.5",
+        "--inject-fault",
+        "jump@0.3",
+    ]);
+    assert_eq!(
+        o.status.code(),
+        Some(3),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let o = run(&[
+        "control",
+        "--fast",
+        "--daemon",
+        &d.sock(),
+        "--duration-s",
+        "1.5",
+    ]);
+    assert_eq!(
+        o.status.code(),
+        Some(5),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+}
+
+#[test]
+fn socket_access_and_stale_sockets() {
+    let _g = one_at_a_time();
+    let d = Daemon::start();
+    // A second daemon on a live socket is refused.
+    let o = run(&[
+        "serve",
+        "--config",
+        &d.config.display().to_string(),
+        "--socket",
+        &d.sock(),
+    ]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("another bench daemon"));
+    // Another user cannot reach it (owner-only socket in a private dir).
+    use std::os::unix::process::CommandExt;
+    let o = bench()
+        .args(["control", "--fast", "--daemon", &d.sock()])
+        .uid(65534)
+        .gid(65534)
+        .output();
+    match o {
+        Ok(o) => {
+            assert_eq!(
+                o.status.code(),
+                Some(2),
+                "{}",
+                String::from_utf8_lossy(&o.stderr)
+            );
+            assert!(String::from_utf8_lossy(&o.stderr).contains("ermission denied"));
+        }
+        // Not root, or the build directory is private: the mode check
+        // above and below still stands.
+        Err(e) => eprintln!("skipped the other-user client: cannot run bench as uid 65534: {e}"),
+    }
+    // A world-writable directory is refused.
+    let ww = tmp();
+    std::fs::set_permissions(ww.path(), std::fs::Permissions::from_mode(0o777)).unwrap();
+    let o = run(&[
+        "serve",
+        "--config",
+        &d.config.display().to_string(),
+        "--socket",
+        &path_in(ww.path(), "b.sock"),
+    ]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("world-writable"));
+    // SIGKILL leaves a stale socket; a restart replaces it.
+    let socket = d.socket.clone();
+    let config = d.config.clone();
+    let dir = tmp();
+    std::fs::set_permissions(dir.path(), std::fs::Permissions::from_mode(0o700)).unwrap();
+    let stale = dir.path().join("s.sock");
+    {
+        let _l = std::os::unix::net::UnixListener::bind(&stale).unwrap();
+    } // closed, file left
+    assert!(stale.exists());
+    let mut child = bench()
+        .args([
+            "serve",
+            "--config",
+            &config.display().to_string(),
+            "--socket",
+            stale.to_str().unwrap(),
+            "--recordings",
+            &path_in(dir.path(), "rec"),
+            "--socket-group",
+            "root",
+        ])
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    let t0 = Instant::now();
+    while UnixStream::connect(&stale).is_err() {
+        assert!(
+            t0.elapsed() < Duration::from_secs(20),
+            "restart did not replace the stale socket"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let mode = std::fs::metadata(&stale).unwrap().permissions().mode() & 0o777;
+    assert_eq!(mode, 0o660, "with --socket-group: {mode:o}");
+    let _ = child.kill();
+    let _ = child.wait();
+    drop(d);
+    let _ = socket;
+}
+
+#[test]
+fn thousand_status_requests_during_a_realtime_job() {
+    let _g = one_at_a_time();
+    let d = Daemon::start();
+    let mut a = d.client();
+    a.submit("control", json!({ "controller": "fast", "duration_s": 4 }));
+    let socket = d.socket.clone();
+    let t0 = Instant::now();
+    let threads: Vec<_> = (0..10)
+        .map(|_| {
+            let socket = socket.clone();
+            std::thread::spawn(move || {
+                let mut c = Client::new(&socket);
+                let mut ok = 0;
+                for _ in 0..100 {
+                    if c.call("status", json!({}))["ok"] == true {
+                        ok += 1;
+                    }
+                }
+                ok
+            })
+        })
+        .collect();
+    let answered: u32 = threads.into_iter().map(|t| t.join().unwrap()).sum();
+    let took = t0.elapsed();
+    assert_eq!(answered, 1000);
+    let r = a.response();
+    assert_eq!(r["ok"], true, "{r}");
+    let overruns = r["result"]["timing"]["overruns"].as_u64().unwrap();
+    eprintln!(
+        "1000 status requests from 10 clients in {:.0} ms during the job; loop overruns: {overruns}",
+        took.as_secs_f64() * 1e3
+    );
+    // Overruns fault the job after max_consecutive_overruns; it finished.
+    assert!(r["result"]["metrics"]["settling_time_s"].as_f64().is_some());
+}
