@@ -44,7 +44,7 @@ use crate::backend::{self, AnyStage, BackendSpec};
 use crate::chirp::{run_chirp_on, ChirpOptions};
 use crate::config::BenchConfig;
 use crate::control_run::{run_control_from, ControlOptions, StageSource};
-use crate::session::RunError;
+use crate::session::{beside, RunError};
 use bench_hal::{Clock, Command, DeviceInfo, Error as _, ErrorKind, Stage};
 use serde::Serialize;
 use serde_json::{json, Value};
@@ -298,6 +298,16 @@ fn unix_time_s() -> f64 {
         .map_or(0.0, |d| d.as_secs_f64())
 }
 
+/// A job summary as JSON (the response's `result`).
+fn to_json<T: Serialize>(summary: T) -> Result<Value, (ApiError, RunError)> {
+    serde_json::to_value(summary).map_err(|e| {
+        (
+            ApiError::new("error", e.to_string()),
+            RunError::Other(e.into()),
+        )
+    })
+}
+
 /// The owner thread: idle supervision of the device between jobs, and the
 /// jobs themselves.
 fn owner(
@@ -372,14 +382,7 @@ fn owner(
                         Some(&handle.ticks),
                     )
                     .map_err(|e| (ApiError::from_run(&e), e))
-                    .and_then(|s| {
-                        serde_json::to_value(&s).map_err(|e| {
-                            (
-                                ApiError::new("error", e.to_string()),
-                                RunError::Other(e.into()),
-                            )
-                        })
-                    }),
+                    .and_then(to_json),
                     JobSpec::Control(opts) => run_control_from(
                         &opts,
                         Arc::clone(&handle.stop),
@@ -387,14 +390,7 @@ fn owner(
                         Some(&handle.ticks),
                     )
                     .map_err(|e| (ApiError::from_run(&e), e))
-                    .and_then(|s| {
-                        serde_json::to_value(&s).map_err(|e| {
-                            (
-                                ApiError::new("error", e.to_string()),
-                                RunError::Other(e.into()),
-                            )
-                        })
-                    }),
+                    .and_then(to_json),
                 };
                 {
                     let mut s = lock(&status);
@@ -526,18 +522,7 @@ fn check_params(params: &Value, known: &[&str]) -> Result<(), ApiError> {
 }
 
 fn recording_path(dir: &Path, prefix: &str, id: u64) -> PathBuf {
-    let now = time::OffsetDateTime::now_utc();
-    let fmt = time::macros::format_description!("[year][month][day]T[hour][minute][second]Z");
-    let stamp = now.format(&fmt).unwrap_or_else(|_| "now".into());
-    dir.join(format!("{prefix}-{stamp}-job{id}.mcap"))
-}
-
-fn beside(out: &Path, suffix: &str) -> PathBuf {
-    let stem = out
-        .file_stem()
-        .map(|s| s.to_string_lossy().into_owned())
-        .unwrap_or_default();
-    out.with_file_name(format!("{stem}{suffix}"))
+    crate::session::stamped_recording(dir, prefix, &format!("-job{id}"))
 }
 
 /// Builds a job from a request; `Err` for bad parameters.

@@ -312,20 +312,10 @@ fn bad_input(msg: impl std::fmt::Display) -> ExitCode {
 
 /// `recordings/<prefix>-YYYYmmddTHHMMSSZ.mcap`
 fn default_recording(prefix: &str) -> PathBuf {
-    let now = time::OffsetDateTime::now_utc();
-    let fmt = time::macros::format_description!("[year][month][day]T[hour][minute][second]Z");
-    let stamp = now.format(&fmt).unwrap_or_else(|_| "now".into());
-    Path::new("recordings").join(format!("{prefix}-{stamp}.mcap"))
+    bench::session::stamped_recording(Path::new("recordings"), prefix, "")
 }
 
-/// `dir/stem.mcap` → `dir/stem<suffix>`
-fn beside(out: &Path, suffix: &str) -> PathBuf {
-    let stem = out
-        .file_stem()
-        .map(|s| s.to_string_lossy().into_owned())
-        .unwrap_or_default();
-    out.with_file_name(format!("{stem}{suffix}"))
-}
+use bench::session::beside;
 
 fn load_config(path: &Path) -> Result<BenchConfig, ConfigError> {
     BenchConfig::load(path)

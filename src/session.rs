@@ -429,3 +429,22 @@ pub fn run_recorded<J: Job + Send + 'static>(
         period_s,
     })
 }
+
+/// `dir/PREFIX-YYYYmmddTHHMMSSZSUFFIX.mcap` (UTC): where a run's recording
+/// goes by default.
+pub fn stamped_recording(dir: &Path, prefix: &str, suffix: &str) -> PathBuf {
+    let now = time::OffsetDateTime::now_utc();
+    let fmt = time::macros::format_description!("[year][month][day]T[hour][minute][second]Z");
+    let stamp = now.format(&fmt).unwrap_or_else(|_| "now".into());
+    dir.join(format!("{prefix}-{stamp}{suffix}.mcap"))
+}
+
+/// `dir/stem.mcap` → `dir/stem<suffix>`: the files that go with a
+/// recording (FRF CSV, plots).
+pub fn beside(out: &Path, suffix: &str) -> PathBuf {
+    let stem = out
+        .file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    out.with_file_name(format!("{stem}{suffix}"))
+}

@@ -12,39 +12,39 @@ use std::os::unix::fs::PermissionsExt;
 use std::os::unix::net::UnixStream;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Stdio};
-use std::sync::{Mutex, MutexGuard};
 use std::time::{Duration, Instant};
 
-static SERIAL: Mutex<()> = Mutex::new(());
-
-fn one_at_a_time() -> MutexGuard<'static, ()> {
-    SERIAL.lock().unwrap_or_else(|e| e.into_inner())
+/// The quiet Chapter 5 bench, short chirp tail.
+fn quiet_config(dir: &Path) -> PathBuf {
+    common::quiet_config(dir, 1.0, "")
 }
 
-/// The Chapter 5 bench without probe noise and disturbance (so a job on the
-/// daemon and a local run see the same plant response), short chirp tail.
-fn quiet_config(dir: &Path) -> PathBuf {
-    let text = std::fs::read_to_string(
-        Path::new(env!("CARGO_MANIFEST_DIR")).join("bench-config/sr4dof-ch5.toml"),
-    )
-    .unwrap();
-    let text: String = text
-        .lines()
-        .filter(|l| !l.starts_with("disturbance ="))
-        .map(|l| {
-            if l.starts_with("noise_rms_m =") {
-                "noise_rms_m = 0.0".to_string()
-            } else if l.starts_with("tail_s =") {
-                "tail_s = 1.0".to_string()
-            } else {
-                l.to_string()
-            }
-        })
-        .collect::<Vec<_>>()
-        .join("\n");
-    let p = dir.join("bench.toml");
-    std::fs::write(&p, text).unwrap();
-    p
+/// Starts `bench serve` and waits until its socket answers.
+fn spawn_serve(config: &Path, socket: &Path, recordings: &Path, extra: &[&str]) -> Child {
+    let child = bench()
+        .args([
+            "serve",
+            "--config",
+            config.to_str().unwrap(),
+            "--socket",
+            socket.to_str().unwrap(),
+            "--recordings",
+            recordings.to_str().unwrap(),
+        ])
+        .args(extra)
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let t0 = Instant::now();
+    while UnixStream::connect(socket).is_err() {
+        assert!(
+            t0.elapsed() < Duration::from_secs(20),
+            "daemon on {socket:?} did not come up"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    child
 }
 
 struct Daemon {
@@ -60,28 +60,7 @@ impl Daemon {
         std::fs::set_permissions(dir.path(), std::fs::Permissions::from_mode(0o700)).unwrap();
         let config = quiet_config(dir.path());
         let socket = dir.path().join("bench.sock");
-        let child = bench()
-            .args([
-                "serve",
-                "--config",
-                &config.display().to_string(),
-                "--socket",
-                &socket.display().to_string(),
-                "--recordings",
-                &path_in(dir.path(), "rec"),
-            ])
-            .stdout(Stdio::null())
-            .stderr(Stdio::piped())
-            .spawn()
-            .unwrap();
-        let t0 = Instant::now();
-        while UnixStream::connect(&socket).is_err() {
-            assert!(
-                t0.elapsed() < Duration::from_secs(20),
-                "daemon did not come up"
-            );
-            std::thread::sleep(Duration::from_millis(20));
-        }
+        let child = spawn_serve(&config, &socket, &dir.path().join("rec"), &[]);
         Self {
             child,
             socket,
@@ -520,29 +499,13 @@ fn socket_access_and_stale_sockets() {
         let _l = std::os::unix::net::UnixListener::bind(&stale).unwrap();
     } // closed, file left
     assert!(stale.exists());
-    let mut child = bench()
-        .args([
-            "serve",
-            "--config",
-            &config.display().to_string(),
-            "--socket",
-            stale.to_str().unwrap(),
-            "--recordings",
-            &path_in(dir.path(), "rec"),
-            "--socket-group",
-            "root",
-        ])
-        .stderr(Stdio::null())
-        .spawn()
-        .unwrap();
-    let t0 = Instant::now();
-    while UnixStream::connect(&stale).is_err() {
-        assert!(
-            t0.elapsed() < Duration::from_secs(20),
-            "restart did not replace the stale socket"
-        );
-        std::thread::sleep(Duration::from_millis(20));
-    }
+    // (spawn_serve fails the test if the socket never answers.)
+    let mut child = spawn_serve(
+        &config,
+        &stale,
+        &dir.path().join("rec"),
+        &["--socket-group", "root"],
+    );
     let mode = std::fs::metadata(&stale).unwrap().permissions().mode() & 0o777;
     assert_eq!(mode, 0o660, "with --socket-group: {mode:o}");
     let _ = child.kill();

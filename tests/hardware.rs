@@ -15,44 +15,20 @@ use common::*;
 use serde_json::Value;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::{Arc, Mutex, MutexGuard};
+use std::sync::Arc;
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
-static SERIAL: Mutex<()> = Mutex::new(());
-
-fn one_at_a_time() -> MutexGuard<'static, ()> {
-    SERIAL.lock().unwrap_or_else(|e| e.into_inner())
-}
-
-/// The Chapter 5 bench without probe noise and disturbance, so the two
-/// paths see the same plant response and differ only by the link.
+/// The quiet Chapter 5 bench (`common::quiet_config`). This 2-core VM
+/// stalls even SCHED_FIFO threads for up to ~70 ms at times (measured; see
+/// the README), so the link limits get room for that and only the injected
+/// faults trip them.
 fn quiet_config(dir: &Path) -> PathBuf {
-    let text = std::fs::read_to_string(
-        Path::new(env!("CARGO_MANIFEST_DIR")).join("bench-config/sr4dof-ch5.toml"),
+    common::quiet_config(
+        dir,
+        2.0,
+        "\n[backend.serial]\nsample_timeout_periods = 200.0\n\n[emulator]\nwatchdog_ms = 300.0\n",
     )
-    .unwrap();
-    let text: String = text
-        .lines()
-        .filter(|l| !l.starts_with("disturbance ="))
-        .map(|l| {
-            if l.starts_with("noise_rms_m =") {
-                "noise_rms_m = 0.0".to_string()
-            } else if l.starts_with("tail_s =") {
-                "tail_s = 2.0".to_string()
-            } else {
-                l.to_string()
-            }
-        })
-        .collect::<Vec<_>>()
-        .join("\n")
-        // This 2-core VM stalls even SCHED_FIFO threads for up to ~70 ms
-        // at times (measured; see the README): link limits with room for
-        // that, so only the injected faults trip them.
-        + "\n[backend.serial]\nsample_timeout_periods = 200.0\n\n[emulator]\nwatchdog_ms = 300.0\n";
-    let p = dir.join("bench.toml");
-    std::fs::write(&p, text).unwrap();
-    p
 }
 
 struct Emulator {

@@ -109,3 +109,40 @@ pub fn mcap_messages(path: &Path) -> Vec<(String, u64, Value)> {
         })
         .collect()
 }
+
+static SERIAL: std::sync::Mutex<()> = std::sync::Mutex::new(());
+
+/// Serialises the real-time tests of one test binary (they would disturb
+/// each other on a 2-core machine).
+pub fn one_at_a_time() -> std::sync::MutexGuard<'static, ()> {
+    SERIAL.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+/// The Chapter 5 bench (`sr4dof-ch5.toml`) without probe noise and
+/// disturbance, with a `tail_s` chirp tail, plus `extra` TOML appended;
+/// written to `dir/bench.toml`. Two runs then see the same plant response
+/// and differ only by what is under test.
+pub fn quiet_config(dir: &Path, tail_s: f64, extra: &str) -> PathBuf {
+    let text = std::fs::read_to_string(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("bench-config/sr4dof-ch5.toml"),
+    )
+    .expect("shipped config");
+    let text: String = text
+        .lines()
+        .filter(|l| !l.starts_with("disturbance ="))
+        .map(|l| {
+            if l.starts_with("noise_rms_m =") {
+                "noise_rms_m = 0.0".to_string()
+            } else if l.starts_with("tail_s =") {
+                format!("tail_s = {tail_s:?}")
+            } else {
+                l.to_string()
+            }
+        })
+        .collect::<Vec<_>>()
+        .join("\n")
+        + extra;
+    let p = dir.join("bench.toml");
+    std::fs::write(&p, text).expect("write config");
+    p
+}
