@@ -704,6 +704,10 @@ async fn connection(ctx: Arc<Ctx>, stream: tokio::net::UnixStream) {
                 }
                 serde_json::to_value(s).map_err(|e| ApiError::new("error", e.to_string()))
             }
+            "enable" | "disable" | "reset" if lock(&ctx.running).is_some() => Err(ApiError::new(
+                "busy",
+                format!("a job is running: `stop` it first ({cmd} acts between jobs)"),
+            )),
             "enable" => owner_call(&ctx, OwnerCmd::Enable).await.map(|()| json!({ "state": "enabled" })),
             "disable" => owner_call(&ctx, OwnerCmd::Disable).await.map(|()| json!({ "state": "disabled" })),
             "reset" => owner_call(&ctx, OwnerCmd::Reset).await.map(|()| json!({ "state": "disabled" })),

@@ -312,6 +312,10 @@ fn one_job_at_a_time_and_stop_leaves_zero_amps() {
     let mut b = d.client();
     let r = b.call("control", json!({ "controller": "fast" }));
     assert_eq!(r["error"]["kind"], "busy", "{r}");
+    for cmd in ["enable", "disable", "reset"] {
+        let r = b.call(cmd, json!({}));
+        assert_eq!(r["error"]["kind"], "busy", "{cmd}: {r}");
+    }
     let s = wait_state(&mut b, "running", Duration::from_secs(5));
     assert_eq!(s["job"]["kind"], "chirp");
     std::thread::sleep(Duration::from_millis(700));
