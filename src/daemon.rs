@@ -184,6 +184,9 @@ struct Ctx {
     spec: BackendSpec,
     period_s: f64,
     status: Arc<Mutex<Status>>,
+    /// Last reading between jobs, m, as `f64::to_bits` (written by the
+    /// owner without a lock).
+    position_bits: Arc<AtomicU64>,
     owner: Mutex<mpsc::Sender<OwnerCmd>>,
     events: broadcast::Sender<String>,
     next_job: AtomicU64,
@@ -308,19 +311,31 @@ fn to_json<T: Serialize>(summary: T) -> Result<Value, (ApiError, RunError)> {
     })
 }
 
+/// What the owner thread shares with the socket side, and its settings.
+struct OwnerShared {
+    status: Arc<Mutex<Status>>,
+    position_bits: Arc<AtomicU64>,
+    events: broadcast::Sender<String>,
+    /// Not the simulator: jobs run in real time.
+    hardware: bool,
+    /// K of the link rule between jobs (`safety.max_missed_samples`).
+    max_missed_samples: u32,
+}
+
 /// The owner thread: idle supervision of the device between jobs, and the
 /// jobs themselves.
-fn owner(
-    mut stage: AnyStage,
-    info: DeviceInfo,
-    spec: BackendSpec,
-    rx: mpsc::Receiver<OwnerCmd>,
-    status: Arc<Mutex<Status>>,
-    events: broadcast::Sender<String>,
-) {
+fn owner(mut stage: AnyStage, info: DeviceInfo, rx: mpsc::Receiver<OwnerCmd>, shared: OwnerShared) {
+    let OwnerShared {
+        status,
+        position_bits,
+        events,
+        hardware,
+        max_missed_samples,
+    } = shared;
     let period_ns = info.period_ns;
-    let hardware = !spec.is_sim();
-    let mut enabled = false;
+    // Only this thread latches and clears faults, so it keeps the flag
+    // itself: the idle ticks take no lock.
+    let mut faulted = false;
     let mut next = bench_hal::device::monotonic_ns() + period_ns;
     let mut missing = 0u32;
     let set_state = |state: &'static str, fault: Option<ApiError>| {
@@ -336,13 +351,11 @@ fn owner(
         match rx.try_recv() {
             Ok(OwnerCmd::Shutdown) | Err(mpsc::TryRecvError::Disconnected) => break,
             Ok(OwnerCmd::Enable(reply)) => {
-                let faulted = lock(&status).state == "faulted";
                 let r = if faulted {
                     Err(ApiError::new("faulted", "a fault is latched: reset first"))
                 } else {
                     match stage.enable() {
                         Ok(()) => {
-                            enabled = true;
                             set_state("enabled", None);
                             Ok(())
                         }
@@ -357,21 +370,19 @@ fn owner(
                     answers_seq: 0,
                 });
                 let r = stage.disable();
-                enabled = false;
-                if lock(&status).state != "faulted" {
+                if !faulted {
                     set_state("disabled", None);
                 }
                 let _ = reply.send(r.map_err(|e| ApiError::new("hal", e.to_string())));
             }
             Ok(OwnerCmd::Reset(reply)) => {
                 let _ = stage.disable();
-                enabled = false;
+                faulted = false;
                 missing = 0;
                 set_state("disabled", None);
                 let _ = reply.send(Ok(()));
             }
             Ok(OwnerCmd::Job(job, handle, reply)) => {
-                enabled = false;
                 let result = match job {
                     JobSpec::Chirp(opts) => run_chirp_on(
                         &mut stage,
@@ -402,9 +413,11 @@ fn owner(
                 match &result {
                     // The latched fault is reported by its supervisor name.
                     Err((api, RunError::Fault { kind, .. })) => {
+                        faulted = true;
                         set_state("faulted", Some(ApiError::new(kind, api.message.clone())));
                     }
                     Err((api, RunError::Hal { .. })) => {
+                        faulted = true;
                         set_state("faulted", Some(api.clone()));
                     }
                     _ => set_state("disabled", None),
@@ -423,7 +436,7 @@ fn owner(
                 next = now + period_ns;
             }
         }
-        if lock(&status).state == "faulted" {
+        if faulted {
             if info.clock != Clock::Host {
                 std::thread::sleep(std::time::Duration::from_nanos(period_ns));
             }
@@ -432,17 +445,18 @@ fn owner(
         match stage.read_sample() {
             Ok(s) => {
                 missing = 0;
-                lock(&status).position_m = s.position_m;
+                position_bits.store(s.position_m.to_bits(), Ordering::Relaxed);
                 let _ = stage.write_command(Command {
                     current_a: 0.0,
                     answers_seq: s.seq,
                 });
             }
             Err(e) if matches!(e.kind(), ErrorKind::Timeout | ErrorKind::Crc) => {
+                // The supervisor's rule (K = safety.max_missed_samples).
                 missing += 1;
-                if missing > 3 {
+                if missing > max_missed_samples {
                     let _ = stage.disable();
-                    enabled = false;
+                    faulted = true;
                     set_state(
                         "faulted",
                         Some(ApiError::new(
@@ -454,14 +468,13 @@ fn owner(
             }
             Err(e) => {
                 let _ = stage.disable();
-                enabled = false;
+                faulted = true;
                 set_state(
                     "faulted",
                     Some(ApiError::new("hal", format!("between jobs: {e}"))),
                 );
             }
         }
-        let _ = enabled;
     }
     let _ = stage.write_command(Command {
         current_a: 0.0,
@@ -699,6 +712,7 @@ async fn connection(ctx: Arc<Ctx>, stream: tokio::net::UnixStream) {
         let r = match cmd.as_str() {
             "status" => {
                 let mut s = lock(&ctx.status).clone();
+                s.position_m = f64::from_bits(ctx.position_bits.load(Ordering::Relaxed));
                 if let (Some(j), Some(h)) = (s.job.as_mut(), lock(&ctx.running).as_ref()) {
                     j.ticks = h.ticks.load(Ordering::Relaxed);
                 }
@@ -895,16 +909,19 @@ pub fn serve(opts: ServeOptions) -> Result<(), ServeError> {
         last_recording: None,
     }));
     let (owner_tx, owner_rx) = mpsc::channel();
+    let position_bits = Arc::new(AtomicU64::new(f64::NAN.to_bits()));
     let owner_thread = {
-        let (status, events, spec, info) = (
-            Arc::clone(&status),
-            events.clone(),
-            spec.clone(),
-            info.clone(),
-        );
+        let shared = OwnerShared {
+            status: Arc::clone(&status),
+            position_bits: Arc::clone(&position_bits),
+            events: events.clone(),
+            hardware: !spec.is_sim(),
+            max_missed_samples: opts.config.safety.max_missed_samples,
+        };
+        let info = info.clone();
         std::thread::Builder::new()
             .name("bench-owner".into())
-            .spawn(move || owner(stage, info, spec, owner_rx, status, events))
+            .spawn(move || owner(stage, info, owner_rx, shared))
             .map_err(|e| ServeError::Other(format!("cannot start the owner thread: {e}")))?
     };
     let ctx = Arc::new(Ctx {
@@ -915,6 +932,7 @@ pub fn serve(opts: ServeOptions) -> Result<(), ServeError> {
         seed: opts.seed,
         spec,
         status,
+        position_bits,
         owner: Mutex::new(owner_tx),
         events,
         next_job: AtomicU64::new(0),

@@ -18,7 +18,7 @@
 //!   [`DeviceCore::enable`] clears the latch. Worst-case detection time is
 //!   `watchdog_ns + period_ns` after the last valid command.
 
-use crate::sim::{FaultInjection, ScheduledFault, SimError, SimParams, SimStage};
+use crate::sim::{ScheduledFault, SimError, SimParams, SimStage};
 use crate::{Command, DeviceInfo, Sample, Stage};
 
 /// A latched device fault (reported in samples and status messages).
@@ -67,8 +67,6 @@ pub struct DeviceCore {
     fault: Option<DeviceFault>,
     /// Device time of the last valid command (or of the enable), ns.
     last_command_ns: u64,
-    /// Device time of the latest tick, ns.
-    now_ns: u64,
     demand_a: f64,
     last_seq: u64,
 }
@@ -89,7 +87,6 @@ impl DeviceCore {
             enabled: false,
             fault: None,
             last_command_ns: 0,
-            now_ns: 0,
             demand_a: 0.0,
             last_seq: 0,
         })
@@ -168,7 +165,6 @@ impl DeviceCore {
     /// One sample-timer tick at device time `now_ns`: watchdog check, then
     /// the plant advances one period under the held demand and is sampled.
     pub fn tick(&mut self, now_ns: u64) -> Sample {
-        self.now_ns = now_ns;
         self.check_watchdog(now_ns);
         let _ = self.stage.write_command(Command {
             current_a: if self.enabled { self.demand_a } else { 0.0 },
@@ -207,15 +203,10 @@ impl DeviceCore {
     pub fn last_command_ns(&self) -> u64 {
         self.last_command_ns
     }
-
-    /// Whether a plant-side fault injection of this kind is wired (all are).
-    pub fn supports(_kind: FaultInjection) -> bool {
-        true
-    }
 }
 
 /// A link-level fault an emulator can inject (on top of the plant-side
-/// [`FaultInjection`]s of the simulator).
+/// [`FaultInjection`](crate::sim::FaultInjection)s of the simulator).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum LinkFault {
     /// Flip this many random bits in each of the next `frames` outgoing
