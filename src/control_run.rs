@@ -18,7 +18,7 @@
 
 use crate::backend::{self, AnyStage, BackendSpec};
 use crate::config::BenchConfig;
-use crate::control::{ControllerConfig, DiscreteController};
+use crate::control::{ControllerConfig, DiscreteController, DiscretizationReport};
 use crate::loopcheck::{closed_loop_poles, measured_margins, model_margins, Margins};
 use crate::plot::{write_time_png, TimePanel};
 use crate::rt::{Job, JobOutput};
@@ -211,6 +211,9 @@ pub struct LoopCheck {
     pub largest_pole_magnitude: f64,
     /// Margins on a measured FRF, when given.
     pub measured: Option<Margins>,
+    /// The discretisation that runs and its error against the continuous
+    /// design up to f_s/10.
+    pub discretization: DiscretizationReport,
     /// Why the check refuses the controller (empty: it passes).
     pub failures: Vec<String>,
 }
@@ -332,6 +335,7 @@ pub fn check_loop(
         closed_loop_stable: stable,
         largest_pole_magnitude: largest,
         measured,
+        discretization: ctrl.discretization(),
         failures,
     }
 }
@@ -522,8 +526,8 @@ pub fn run_control_from(
             cfg.loop_.period_ns()
         )));
     }
-    // Anti-windup at the limit the device reports.
-    let ctrl = DiscreteController::new(ccfg, period_s, info.peak_current_a);
+    // Anti-windup at the limit the device reports (same sections).
+    let ctrl = ctrl.with_limit(info.peak_current_a);
     let ticks = |s: f64| (s / period_s).round() as u64;
     let total = ticks(step.duration_s);
     let session = SessionOptions {
@@ -543,7 +547,7 @@ pub fn run_control_from(
         "bench.LoopCheck",
         &json!({
             "type": "object",
-            "description": "Loop check before enable: gain crossovers (rad/s), phase margins (deg), gain margin (dB), sensitivity peak |S| (ratio) on the ZOH model with and without the amplifier lag, closed-loop stability, failures."
+            "description": "Loop check before enable: gain crossovers (rad/s), phase margins (deg), gain margin (dB), sensitivity peak |S| (ratio) on the ZOH model with and without the amplifier lag, closed-loop stability, the discretisation (method, max error in dB and deg up to f_s/10, largest gain excess above in dB), failures."
         }),
     )?;
     recorder.write_json(

@@ -689,6 +689,15 @@ fn print_control_summary(s: &ControlSummary) {
     }
     let c = &s.loop_check;
     println!("loop check:");
+    let d = &c.discretization;
+    println!(
+        "  discretisation {}: within {:.3} dB / {:.2}° of the continuous design up to {:.0} Hz; above, at most {:+.2} dB",
+        d.method.as_str(),
+        d.max_error_db,
+        d.max_error_deg,
+        d.up_to_hz,
+        d.above_band_max_excess_db
+    );
     print_margins("model, amplifier included", &c.model);
     print_margins(
         "model, amplifier lag excluded",

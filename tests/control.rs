@@ -82,6 +82,13 @@ fn check_only_records_nothing() {
     let s = json_stdout(&o);
     assert!(s["metrics"].is_null());
     assert!(files_in(dir.path()).is_empty());
+    // The check reports the discretisation that runs and its error to
+    // f_s/10 (issue: within 0.1 dB / 1°).
+    let d = &s["loop_check"]["discretization"];
+    assert_eq!(d["method"], "least_squares", "{d}");
+    assert_eq!(d["up_to_hz"].as_f64(), Some(500.0));
+    assert!(d["max_error_db"].as_f64().unwrap() <= 0.1, "{d}");
+    assert!(d["max_error_deg"].as_f64().unwrap() <= 1.0, "{d}");
     let o = run(&["control", "--slow", "--check-only"]);
     let text = String::from_utf8_lossy(&o.stdout);
     assert!(
@@ -215,6 +222,11 @@ fn bad_controller_input() {
             "improper",
         ),
         ("gain = 0.12 ", "gain = 0.0 ", "controller.slow.gain"),
+        (
+            "discretization = \"least_squares\"   # within",
+            "discretization = \"bilinear\"   # within",
+            "discretization = \"bilinear\"",
+        ),
     ];
     for (from, to, needle) in cases {
         let text = shipped_ch5();
