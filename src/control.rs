@@ -550,6 +550,9 @@ fn fit_numerator(zinv: &[Complex<f64>], g: &[Complex<f64>], w: &[f64]) -> Option
         .filter(|&k| g[k].re.is_finite() && g[k].im.is_finite() && w[k] > 0.0)
         .collect();
     let m = rows.len();
+    if m < 3 {
+        return None;
+    }
     let mut a = DMatrix::<f64>::zeros(2 * m, 3);
     let mut r = DMatrix::<f64>::zeros(2 * m, 1);
     for (row, &k) in rows.iter().enumerate() {
@@ -1188,6 +1191,40 @@ mod tests {
             );
             assert!(db <= 0.1 && deg <= 1.0, "{name}: {db} dB, {deg}°");
         }
+    }
+
+    /// A controller that fills all sections leaves no room for the extra
+    /// all-zero section; the fit still runs and is never worse than Tustin.
+    #[test]
+    fn least_squares_with_every_section_in_use() {
+        let t = 200e-6;
+        let pairs = |w0: f64, z: f64| {
+            (0..MAX_SECTIONS)
+                .map(|i| ComplexPair {
+                    omega_rad_s: w0 * 1.4f64.powi(i as i32),
+                    zeta: z,
+                })
+                .collect::<Vec<_>>()
+        };
+        let cfg = ControllerConfig {
+            description: String::new(),
+            error_unit: ErrorUnit::Metre,
+            form: Form::UnityDc,
+            gain: 1.0,
+            integrators: 0,
+            real_zeros_rad_s: vec![],
+            real_poles_rad_s: vec![],
+            complex_zeros: pairs(60.0, 0.3),
+            complex_poles: pairs(50.0, 0.5),
+            discretization: Discretization::LeastSquares,
+        };
+        cfg.validate("controller.big").unwrap();
+        let d = DiscreteController::new(&cfg, t, f64::INFINITY);
+        assert_eq!(d.sections().len(), MAX_SECTIONS);
+        let (db, deg) = max_error(&cfg, t, 500.0);
+        let (tdb, tdeg) = max_error(&with(cfg, Discretization::Tustin), t, 500.0);
+        eprintln!("12 sections: least squares {db:.4} dB {deg:.4}°; Tustin {tdb:.4} dB {tdeg:.4}°");
+        assert!((db / 0.1).max(deg) <= (tdb / 0.1).max(tdeg) + 1e-9);
     }
 
     /// Why 0.1 dB at f_s/10 is out of reach for any bilinear map: for
