@@ -991,6 +991,23 @@ mod tests {
         }
     }
 
+    /// `gain` alone (error in metres, monic, no factors, Tustin): the
+    /// start of the hand-written test controllers.
+    fn bare(gain: f64) -> ControllerConfig {
+        ControllerConfig {
+            description: String::new(),
+            error_unit: ErrorUnit::Metre,
+            form: Form::Monic,
+            gain,
+            integrators: 0,
+            real_zeros_rad_s: vec![],
+            real_poles_rad_s: vec![],
+            complex_zeros: vec![],
+            complex_poles: vec![],
+            discretization: Discretization::Tustin,
+        }
+    }
+
     /// The shipped config's controllers, as they run.
     fn shipped() -> Vec<(String, ControllerConfig)> {
         let p =
@@ -1135,18 +1152,7 @@ mod tests {
     #[test]
     fn least_squares_on_other_controllers() {
         let t = 200e-6;
-        let base = ControllerConfig {
-            description: String::new(),
-            error_unit: ErrorUnit::Micrometre,
-            form: Form::Monic,
-            gain: 1.0,
-            integrators: 0,
-            real_zeros_rad_s: vec![],
-            real_poles_rad_s: vec![],
-            complex_zeros: vec![],
-            complex_poles: vec![],
-            discretization: Discretization::LeastSquares,
-        };
+        let base = with(bare(1.0), Discretization::LeastSquares);
         let pi_rolloff = ControllerConfig {
             integrators: 1,
             real_zeros_rad_s: vec![30.0],
@@ -1207,16 +1213,11 @@ mod tests {
                 .collect::<Vec<_>>()
         };
         let cfg = ControllerConfig {
-            description: String::new(),
-            error_unit: ErrorUnit::Metre,
             form: Form::UnityDc,
-            gain: 1.0,
-            integrators: 0,
-            real_zeros_rad_s: vec![],
-            real_poles_rad_s: vec![],
             complex_zeros: pairs(60.0, 0.3),
             complex_poles: pairs(50.0, 0.5),
             discretization: Discretization::LeastSquares,
+            ..bare(1.0)
         };
         cfg.validate("controller.big").unwrap();
         let d = DiscreteController::new(&cfg, t, f64::INFINITY);
@@ -1237,16 +1238,8 @@ mod tests {
     fn tustin_integrator_droop_at_fs_over_10() {
         let t = 200e-6;
         let cfg = ControllerConfig {
-            description: String::new(),
-            error_unit: ErrorUnit::Metre,
-            form: Form::Monic,
-            gain: 1.0,
             integrators: 1,
-            real_zeros_rad_s: vec![],
-            real_poles_rad_s: vec![],
-            complex_zeros: vec![],
-            complex_poles: vec![],
-            discretization: Discretization::Tustin,
+            ..bare(1.0)
         };
         let d = DiscreteController::new(&cfg, t, f64::INFINITY);
         let w = 2.0 * PI * 500.0;
@@ -1295,16 +1288,9 @@ mod tests {
     fn step_response_of_an_integrator_and_anti_windup() {
         // 10/s on a 1 µm error: the output ramps at 10 A/s.
         let cfg = ControllerConfig {
-            description: String::new(),
             error_unit: ErrorUnit::Micrometre,
-            form: Form::Monic,
-            gain: 10.0,
             integrators: 1,
-            real_zeros_rad_s: vec![],
-            real_poles_rad_s: vec![],
-            complex_zeros: vec![],
-            complex_poles: vec![],
-            discretization: Discretization::Tustin,
+            ..bare(10.0)
         };
         let t = 1e-3;
         let mut d = DiscreteController::new(&cfg, t, 2.0);
