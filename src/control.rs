@@ -660,6 +660,14 @@ fn least_squares(
     )
 }
 
+/// `g · Π sections(e^{jθ})`: the discrete controller's response at
+/// `θ = ωT` (rad/sample).
+fn cascade_response(gain: f64, sections: &[Biquad], theta: f64) -> Complex<f64> {
+    sections
+        .iter()
+        .fold(Complex::new(gain, 0.0), |acc, s| acc * s.response(theta))
+}
+
 /// Largest `20 log10 |C_d/C|` from `f_lo_hz` to just below Nyquist, dB.
 fn above_band_excess_db(
     cfg: &ControllerConfig,
@@ -672,9 +680,7 @@ fn above_band_excess_db(
     (0..=points)
         .map(|i| {
             let w = 2.0 * PI * (f_lo_hz + (f_hi - f_lo_hz) * i as f64 / points as f64);
-            let hd = sections.iter().fold(Complex::new(cfg.gain, 0.0), |acc, s| {
-                acc * s.response(w * period_s)
-            });
+            let hd = cascade_response(cfg.gain, sections, w * period_s);
             20.0 * (hd.norm() / cfg.response(w).norm()).log10()
         })
         .filter(|x| x.is_finite())
@@ -695,10 +701,7 @@ fn cascade_error(
     for i in 0..=points {
         let f = 0.1 * (f_max_hz / 0.1f64).powf(i as f64 / points as f64);
         let w = 2.0 * PI * f;
-        let hd = sections.iter().fold(Complex::new(cfg.gain, 0.0), |acc, s| {
-            acc * s.response(w * period_s)
-        });
-        let r = hd / cfg.response(w);
+        let r = cascade_response(cfg.gain, sections, w * period_s) / cfg.response(w);
         if r.norm() > 0.0 && r.re.is_finite() && r.im.is_finite() {
             db = db.max((20.0 * r.norm().log10()).abs());
             deg = deg.max(r.arg().to_degrees().abs());
@@ -804,12 +807,7 @@ impl DiscreteController {
     /// Discrete response at frequency `omega_rad_s` (rad/s) for a sample
     /// period `period_s`: `C(e^{jωT})`, A per error unit.
     pub fn response(&self, omega_rad_s: f64, period_s: f64) -> Complex<f64> {
-        let theta = omega_rad_s * period_s;
-        self.sections()
-            .iter()
-            .fold(Complex::new(self.gain, 0.0), |acc, s| {
-                acc * s.response(theta)
-            })
+        cascade_response(self.gain, self.sections(), omega_rad_s * period_s)
     }
 
     /// Clears the state (bumpless restart from the current position).
