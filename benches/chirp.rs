@@ -2,9 +2,9 @@
 //! the default 0.1–500 Hz chirp, and the FRF estimation alone on a record of
 //! the same length.
 
-use bench::chirp::{run_chirp, ChirpOptions};
 use bench::config::BenchConfig;
-use bench::sysid::{find_resonances, Frf, Spectra};
+use bench::ident::frf::{find_resonances, Frf, Spectra};
+use bench::jobs::chirp::{run_chirp, ChirpOptions};
 use criterion::{criterion_group, criterion_main, Criterion};
 use std::path::Path;
 use std::sync::atomic::AtomicBool;

@@ -5,10 +5,10 @@
 
 use bench::config::BenchConfig;
 use bench::control::DiscreteController;
-use bench::control_run::{run_control, ControlJob, ControlOptions};
+use bench::jobs::step::{run_control, ControlJob, ControlOptions};
+use bench::rt::supervisor::Supervisor;
+use bench::rt::timing::Histogram;
 use bench::rt::Job;
-use bench::supervisor::Supervisor;
-use bench::timing::Histogram;
 use bench_hal::{Sample, SampleFlags};
 use criterion::{black_box, criterion_group, criterion_main, Criterion};
 use std::path::Path;

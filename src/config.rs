@@ -703,8 +703,11 @@ impl BenchConfig {
 
     /// The supervisor's limits for a configured backend (`info`) at its
     /// period.
-    pub fn supervisor(&self, info: &bench_hal::DeviceInfo) -> crate::supervisor::SupervisorConfig {
-        crate::supervisor::SupervisorConfig {
+    pub fn supervisor(
+        &self,
+        info: &bench_hal::DeviceInfo,
+    ) -> crate::rt::supervisor::SupervisorConfig {
+        crate::rt::supervisor::SupervisorConfig {
             position_limit_m: self.safety.position_limit_m,
             peak_current_a: info.peak_current_a,
             max_consecutive_overruns: self.safety.max_consecutive_overruns,

@@ -2,23 +2,19 @@
 //! the SR4DoF flexure motion stage of the reference thesis.
 //!
 //! The hardware sits behind [`bench_hal::Stage`]; the simulated plant
-//! ([`bench_hal::sim::SimStage`]) is the default backend.
+//! ([`bench_hal::sim::SimStage`]) is the default backend. The folders, from
+//! the tick outwards: [`rt`] (loop, supervisor, backends), [`ident`]
+//! (excitation, FRF), [`control`] (controllers, loop check), [`record`]
+//! (MCAP topics, writer, reader), [`jobs`] (chirp and step runs),
+//! [`daemon`] (`bench serve` and its client). The command line lives in the
+//! binary (`src/cli`).
 #![warn(missing_docs)]
 
-pub mod backend;
-pub mod chirp;
-pub mod client;
 pub mod config;
 pub mod control;
-pub mod control_run;
 pub mod daemon;
-pub mod excitation;
-pub mod loopcheck;
+pub mod ident;
+pub mod jobs;
 pub mod plot;
 pub mod record;
-pub mod records;
 pub mod rt;
-pub mod session;
-pub mod supervisor;
-pub mod sysid;
-pub mod timing;

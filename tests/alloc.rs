@@ -3,10 +3,10 @@
 //! 100th tick on, across everything the tick does: HAL read (simulator
 //! step, noise), supervisor, job, HAL write, queue push, timing.
 
-use bench::chirp::ChirpJob;
 use bench::config::BenchConfig;
-use bench::excitation::Chirp;
-use bench::records::Record;
+use bench::ident::excitation::Chirp;
+use bench::jobs::chirp::ChirpJob;
+use bench::record::topics::Record;
 use bench::rt::{self, Job, JobOutput, LoopOptions, Pacing, StopReason};
 use bench_hal::sim::SimStage;
 use bench_hal::{Sample, Stage};
@@ -132,7 +132,7 @@ fn run_counted(pacing: Pacing, seconds: f64) -> (u64, u64) {
         period_ns: info.period_ns,
         pacing,
         timing_interval_ticks: 500,
-        safety: bench::supervisor::SupervisorConfig {
+        safety: bench::rt::supervisor::SupervisorConfig {
             max_consecutive_overruns: 1000,
             ..cfg.supervisor(&info)
         },
@@ -169,7 +169,7 @@ fn tick_allocates_nothing() {
 #[test]
 fn closed_loop_tick_allocates_nothing() {
     use bench::control::DiscreteController;
-    use bench::control_run::ControlJob;
+    use bench::jobs::step::ControlJob;
     let cfg = ch5();
     assert!(cfg.plant.disturbance.is_some());
     let mut stage = SimStage::new(cfg.sim_params(7)).unwrap();
@@ -200,7 +200,7 @@ fn closed_loop_tick_allocates_nothing() {
 #[test]
 fn serial_tick_allocates_nothing() {
     use bench::control::DiscreteController;
-    use bench::control_run::ControlJob;
+    use bench::jobs::step::ControlJob;
     use bench_hal::device::{DeviceCore, EmulatorStatus};
     use bench_hal::serial::{SerialConfig, SerialStage};
     use bench_hal::serial_emulator::{self, Pty, SerialEmulatorOptions};
@@ -237,7 +237,7 @@ fn serial_tick_allocates_nothing() {
             cpu: None,
         },
         timing_interval_ticks: 500,
-        safety: bench::supervisor::SupervisorConfig {
+        safety: bench::rt::supervisor::SupervisorConfig {
             max_missed_samples: 1000,
             ..cfg.supervisor(&info)
         },

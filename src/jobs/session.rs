@@ -2,10 +2,10 @@
 //! real-time loop on its own thread with the writer draining the queue,
 //! show progress, and turn how the loop stopped into a result.
 
-use crate::backend::AnyStage;
 use crate::config::BenchConfig;
+use crate::record::topics::Record;
 use crate::record::{spawn_writer, RecordError, Recorder, DEFAULT_CHUNK_INTERVAL};
-use crate::records::Record;
+use crate::rt::backend::AnyStage;
 use crate::rt::{self, Job, LoopOptions, LoopReport, Pacing, StopReason};
 use bench_hal::DeviceInfo;
 use serde::{Deserialize, Serialize};

@@ -40,11 +40,13 @@
 //! said `"detach": true`. A detached job runs to its own end and no
 //! further.
 
-use crate::backend::{self, AnyStage, BackendSpec};
-use crate::chirp::{run_chirp_on, ChirpOptions};
+pub mod client;
+
 use crate::config::BenchConfig;
-use crate::control_run::{run_control_from, ControlOptions, StageSource};
-use crate::session::{beside, RunError};
+use crate::jobs::chirp::{run_chirp_on, ChirpOptions};
+use crate::jobs::session::{beside, RunError};
+use crate::jobs::step::{run_control_from, ControlOptions, StageSource};
+use crate::rt::backend::{self, AnyStage, BackendSpec};
 use bench_hal::{Clock, Command, DeviceInfo, Error as _, ErrorKind, Stage};
 use serde::Serialize;
 use serde_json::{json, Value};
@@ -535,7 +537,7 @@ fn check_params(params: &Value, known: &[&str]) -> Result<(), ApiError> {
 }
 
 fn recording_path(dir: &Path, prefix: &str, id: u64) -> PathBuf {
-    crate::session::stamped_recording(dir, prefix, &format!("-job{id}"))
+    crate::jobs::session::stamped_recording(dir, prefix, &format!("-job{id}"))
 }
 
 /// Builds a job from a request; `Err` for bad parameters.
@@ -574,7 +576,7 @@ fn job_spec(
         }
         cfg.validate(&ctx.config_path)
             .map_err(|e| ApiError::new("bad_params", e.to_string()))?;
-        let chirp = crate::excitation::Chirp::new(&cfg.chirp, ctx.period_s);
+        let chirp = crate::ident::excitation::Chirp::new(&cfg.chirp, ctx.period_s);
         let out = recording_path(&ctx.recordings, "chirp", id);
         let opts = ChirpOptions {
             frf_csv: beside(&out, ".frf.csv"),
@@ -632,7 +634,7 @@ fn job_spec(
         let inject = match param::<String>(params, "inject_fault")? {
             None => None,
             Some(s) => Some(
-                crate::control_run::parse_fault(&s).map_err(|e| ApiError::new("bad_params", e))?,
+                crate::jobs::step::parse_fault(&s).map_err(|e| ApiError::new("bad_params", e))?,
             ),
         };
         let out = recording_path(&ctx.recordings, &format!("control-{controller}"), id);

@@ -29,11 +29,11 @@
 //! Setup before the first tick (scheduling, memory locking) and teardown
 //! after the last may do all of these.
 
-use crate::records::{
+use crate::record::topics::{
     EventKind, EventRecord, FaultKind, Record, SampleRecord, SupervisorState, TimingRecord,
 };
-use crate::supervisor::{Supervisor, SupervisorConfig};
-use crate::timing::TickTiming;
+use crate::rt::supervisor::{Supervisor, SupervisorConfig};
+use crate::rt::timing::TickTiming;
 use bench_hal::device::{monotonic_ns as now_ns, sleep_until_ns};
 use bench_hal::{Clock, Command, Error as _, ErrorKind, Sample, Stage};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};

@@ -71,6 +71,8 @@
 //! state with the setpoint at the measured position, so the first command
 //! is 0 A.
 
+pub mod loop_check;
+
 use nalgebra::{Complex, DMatrix};
 use serde::{Deserialize, Serialize};
 use std::f64::consts::PI;

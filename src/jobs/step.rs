@@ -16,16 +16,16 @@
 //! - steady-state error `setpoint − y` over the final
 //!   `steady_state_window_s`: mean and standard deviation, nm.
 
-use crate::backend::{self, AnyStage, BackendSpec};
 use crate::config::BenchConfig;
+use crate::control::loop_check::{closed_loop_poles, measured_margins, model_margins, Margins};
 use crate::control::{ControllerConfig, DiscreteController, DiscretizationReport};
-use crate::loopcheck::{closed_loop_poles, measured_margins, model_margins, Margins};
-use crate::plot::{write_time_png, TimePanel};
-use crate::rt::{Job, JobOutput};
-use crate::session::{
+use crate::jobs::session::{
     check_writable, finish, open_recording, run_recorded, Collected, Recorded, RunError,
     SessionOptions, TimingSummary,
 };
+use crate::plot::{write_time_png, TimePanel};
+use crate::rt::backend::{self, AnyStage, BackendSpec};
+use crate::rt::{Job, JobOutput};
 use bench_hal::model::Sr4dof;
 use bench_hal::sim::{FaultInjection, ScheduledFault, ZohPlant};
 use bench_hal::{DeviceInfo, Sample};
@@ -736,7 +736,7 @@ mod tests {
 
     mod property {
         use super::super::*;
-        use crate::supervisor::{Supervisor, SupervisorConfig};
+        use crate::rt::supervisor::{Supervisor, SupervisorConfig};
         use bench_hal::SampleFlags;
         use proptest::prelude::*;
 

@@ -66,6 +66,8 @@
 //! in (faster than real time) virtual time. Flushing hands the bytes to the OS
 //! (survives a killed process); only `finish` fsyncs (survives power loss).
 
+pub mod topics;
+
 use std::collections::BTreeMap;
 use std::fs::File;
 use std::io::{self, BufWriter, Write};
@@ -79,7 +81,7 @@ use mcap::records::MessageHeader;
 use serde::{Deserialize, Serialize};
 use serde_json::{json, Value};
 
-use crate::records::{
+use crate::record::topics::{
     EventKind, EventRecord, FaultKind, Record, SampleRecord, SupervisorState, TimingRecord,
 };
 
@@ -999,7 +1001,7 @@ pub fn read_samples_tolerant(bytes: &[u8]) -> Vec<SampleRecord> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::records::{EventKind, FaultKind};
+    use crate::record::topics::{EventKind, FaultKind};
 
     fn sample(tick: u64) -> SampleRecord {
         let t_s = tick as f64 * 200e-6;

@@ -7,16 +7,18 @@
 //! calling thread shows progress, then estimates, plots and summarises once
 //! the loop has stopped.
 
-use crate::backend::{self, AnyStage, BackendSpec};
 use crate::config::BenchConfig;
-use crate::excitation::Chirp;
-use crate::plot::{write_bode_png, BodePlot, BodeSeries};
-use crate::rt::{Job, JobOutput};
-use crate::session::{
+use crate::ident::excitation::Chirp;
+use crate::ident::frf::{
+    closely_spaced_pair, find_resonances, Frf, PairVerdict, Resonance, Spectra,
+};
+use crate::jobs::session::{
     check_writable, finish, open_recording, run_recorded, Recorded, RunError, SessionOptions,
     TimingSummary,
 };
-use crate::sysid::{closely_spaced_pair, find_resonances, Frf, PairVerdict, Resonance, Spectra};
+use crate::plot::{write_bode_png, BodePlot, BodeSeries};
+use crate::rt::backend::{self, AnyStage, BackendSpec};
+use crate::rt::{Job, JobOutput};
 use bench_hal::model::Sr4dof;
 use bench_hal::sim::ZohPlant;
 use bench_hal::{DeviceInfo, Sample};
@@ -250,7 +252,7 @@ pub fn run_chirp_on(
     let model_h: Vec<_> = frf.frequency_hz.iter().map(|&f| zoh.frf(f)).collect();
     let model_mag: Vec<f64> = model_h.iter().map(|h| h.norm()).collect();
     let mut model_phase: Vec<f64> = model_h.iter().map(|h| h.arg().to_degrees()).collect();
-    crate::sysid::unwrap_deg(&mut model_phase);
+    crate::ident::frf::unwrap_deg(&mut model_phase);
     // Align the model's unwrapped phase with the measurement's branch at the
     // first grid point (both start near 0° or −180°).
     if let (Some(m0), Some(p0)) = (model_phase.first().copied(), frf.phase_deg.first().copied()) {

@@ -24,7 +24,7 @@
 //! current may flow for `t_peak`, and any current at or below the continuous
 //! rating may flow for ever.
 
-use crate::records::{FaultKind, SupervisorState};
+use crate::record::topics::{FaultKind, SupervisorState};
 use bench_hal::Sample;
 
 /// Supervisor limits.
