@@ -13,6 +13,7 @@
 pub mod config;
 pub mod control;
 pub mod daemon;
+pub mod error;
 pub mod ident;
 pub mod jobs;
 pub mod plot;

@@ -15,8 +15,8 @@
 
 use anyhow::Context;
 use bench::config::{BenchConfig, ChirpKind, ConfigError, DEFAULT_CONFIG};
+use bench::error::RunError;
 use bench::jobs::chirp::{run_chirp, ChirpOptions, ChirpSummary};
-use bench::jobs::session::RunError;
 use bench::jobs::step::parse_fault;
 use bench::jobs::step::{run_control, ControlOptions, ControlSummary};
 use bench::rt::backend::BackendSpec;
@@ -553,7 +553,11 @@ fn exit_for(e: &RunError) -> ExitCode {
         RunError::Fault { .. } => status::FAULT,
         RunError::Hal { .. } => status::HAL,
         RunError::Interrupted { .. } => status::INTERRUPTED,
-        RunError::Other(_) => status::ERROR,
+        RunError::TickLimit { .. }
+        | RunError::Record(_)
+        | RunError::Output { .. }
+        | RunError::Json(_)
+        | RunError::Thread(_) => status::ERROR,
     })
 }
 

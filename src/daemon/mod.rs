@@ -43,8 +43,9 @@
 pub mod client;
 
 use crate::config::BenchConfig;
+use crate::error::RunError;
 use crate::jobs::chirp::{run_chirp_on, ChirpOptions};
-use crate::jobs::session::{beside, RunError};
+use crate::jobs::session::beside;
 use crate::jobs::step::{run_control_from, ControlOptions, StageSource};
 use crate::rt::backend::{self, AnyStage, BackendSpec};
 use bench_hal::{Clock, Command, DeviceInfo, Error as _, ErrorKind, Stage};
@@ -122,7 +123,11 @@ impl ApiError {
             RunError::Fault { .. } => "fault",
             RunError::Hal { .. } => "hal",
             RunError::Interrupted { .. } => "interrupted",
-            RunError::Other(_) => "error",
+            RunError::TickLimit { .. }
+            | RunError::Record(_)
+            | RunError::Output { .. }
+            | RunError::Json(_)
+            | RunError::Thread(_) => "error",
         };
         Self::new(kind, format!("{e:#}"))
     }
@@ -305,12 +310,8 @@ fn unix_time_s() -> f64 {
 
 /// A job summary as JSON (the response's `result`).
 fn to_json<T: Serialize>(summary: T) -> Result<Value, (ApiError, RunError)> {
-    serde_json::to_value(summary).map_err(|e| {
-        (
-            ApiError::new("error", e.to_string()),
-            RunError::Other(e.into()),
-        )
-    })
+    serde_json::to_value(summary)
+        .map_err(|e| (ApiError::new("error", e.to_string()), RunError::Json(e)))
 }
 
 /// What the owner thread shares with the socket side, and its settings.

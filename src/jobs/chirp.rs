@@ -8,13 +8,13 @@
 //! the loop has stopped.
 
 use crate::config::BenchConfig;
+use crate::error::RunError;
 use crate::ident::excitation::Chirp;
 use crate::ident::frf::{
     closely_spaced_pair, find_resonances, Frf, PairVerdict, Resonance, Spectra,
 };
 use crate::jobs::session::{
-    check_writable, finish, open_recording, run_recorded, Recorded, RunError, SessionOptions,
-    TimingSummary,
+    check_writable, finish, open_recording, run_recorded, Recorded, SessionOptions, TimingSummary,
 };
 use crate::plot::{write_bode_png, BodePlot, BodeSeries};
 use crate::rt::backend::{self, AnyStage, BackendSpec};
@@ -260,17 +260,17 @@ pub fn run_chirp_on(
         model_phase.iter_mut().for_each(|p| *p += shift);
     }
 
-    recorder
-        .write_frf(
-            end_ns,
-            &frf.frequency_hz,
-            &frf.magnitude_m_per_a,
-            &frf.phase_deg,
-            &frf.coherence,
-        )
-        .map_err(anyhow::Error::from)?;
-    frf.write_csv(&opts.frf_csv)
-        .map_err(|e| anyhow::anyhow!("cannot write {}: {e}", opts.frf_csv.display()))?;
+    recorder.write_frf(
+        end_ns,
+        &frf.frequency_hz,
+        &frf.magnitude_m_per_a,
+        &frf.phase_deg,
+        &frf.coherence,
+    )?;
+    frf.write_csv(&opts.frf_csv).map_err(|e| RunError::Output {
+        path: opts.frf_csv.clone(),
+        reason: e.to_string(),
+    })?;
     let markers: Vec<f64> = resonances.iter().map(|r| r.frequency_hz).collect();
     let title = format!(
         "x1 / current, Y1o = {:.1} % of L, Δm23 = {:+.0} % (seed {})",
@@ -298,7 +298,10 @@ pub fn run_chirp_on(
             markers_hz: &markers,
         },
     )
-    .map_err(|e| anyhow::anyhow!("{e}"))?;
+    .map_err(|e| RunError::Output {
+        path: opts.plot.clone(),
+        reason: e.to_string(),
+    })?;
 
     let summary = ChirpSummary {
         recording: opts.out.clone(),
@@ -326,14 +329,8 @@ pub fn run_chirp_on(
                 "description": "Summary of a bench chirp run: resonances (Hz, m/A), CMP-CNMP phase test (deg), model comparison and loop timing (µs)."
             }),
         )
-        .map_err(anyhow::Error::from)?;
-    recorder
-        .write_json(
-            ch,
-            end_ns,
-            &serde_json::to_value(&summary).map_err(anyhow::Error::from)?,
-        )
-        .map_err(anyhow::Error::from)?;
+        ?;
+    recorder.write_json(ch, end_ns, &serde_json::to_value(&summary)?)?;
     finish(recorder)?;
     Ok(summary)
 }

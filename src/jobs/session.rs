@@ -3,8 +3,9 @@
 //! show progress, and turn how the loop stopped into a result.
 
 use crate::config::BenchConfig;
+use crate::error::RunError;
 use crate::record::topics::Record;
-use crate::record::{spawn_writer, RecordError, Recorder, DEFAULT_CHUNK_INTERVAL};
+use crate::record::{spawn_writer, Recorder, DEFAULT_CHUNK_INTERVAL};
 use crate::rt::backend::AnyStage;
 use crate::rt::{self, Job, LoopOptions, LoopReport, Pacing, StopReason};
 use bench_hal::DeviceInfo;
@@ -65,54 +66,6 @@ impl TimingSummary {
             warnings: r.warnings.clone(),
         }
     }
-}
-
-/// Why a run did not produce a summary.
-#[derive(Debug, thiserror::Error)]
-pub enum RunError {
-    /// Bad input detected before anything was enabled (exit 2).
-    #[error("{0}")]
-    BadInput(String),
-    /// The loop check refused the controller before enabling (exit 2).
-    #[error("{0}")]
-    Refused(String),
-    /// The supervisor latched a fault (exit 3). The recording was finished.
-    #[error("safety fault: {kind} at tick {tick} ({detail}); 0 A, amplifier disabled; recording {recording}")]
-    Fault {
-        /// Fault name.
-        kind: &'static str,
-        /// Offending value.
-        value: f64,
-        /// `value …`, or what the backend said (link faults).
-        detail: String,
-        /// Tick.
-        tick: u64,
-        /// The finished recording.
-        recording: String,
-    },
-    /// The HAL failed (exit 4). The recording was finished.
-    #[error(
-        "hardware error at tick {tick}: {message}; 0 A, amplifier disabled; recording {recording}"
-    )]
-    Hal {
-        /// Backend message.
-        message: String,
-        /// Tick.
-        tick: u64,
-        /// The finished recording.
-        recording: String,
-    },
-    /// Stopped by SIGINT/SIGTERM (exit 130). The recording was finished.
-    #[error("interrupted at tick {tick}: 0 A, amplifier disabled; recording {recording} finished")]
-    Interrupted {
-        /// Tick.
-        tick: u64,
-        /// The finished recording.
-        recording: String,
-    },
-    /// Anything else (exit 1).
-    #[error(transparent)]
-    Other(#[from] anyhow::Error),
 }
 
 /// Checks that `path` can be created: its directory exists and is writable.
@@ -180,16 +133,10 @@ pub struct Collected {
 /// Finishes the recording, returning its path for messages.
 ///
 /// # Errors
-/// [`RunError::Other`] with the recorder's error.
+/// [`RunError::Record`] with the recorder's error.
 pub fn finish(recorder: Recorder) -> Result<String, RunError> {
-    let path = recorder.finish().map_err(anyhow::Error::from)?;
+    let path = recorder.finish()?;
     Ok(path.display().to_string())
-}
-
-impl From<RecordError> for RunError {
-    fn from(e: RecordError) -> Self {
-        RunError::Other(e.into())
-    }
 }
 
 /// What a recorded run needs besides the job.
@@ -244,9 +191,7 @@ pub fn open_recording(
     let mut meta = BTreeMap::new();
     meta.insert("toml".to_string(), cfg.to_toml());
     meta.insert("path".to_string(), opts.config_path.display().to_string());
-    recorder
-        .write_metadata("bench.config", &meta)
-        .map_err(anyhow::Error::from)?;
+    recorder.write_metadata("bench.config", &meta)?;
     let mut run_meta = BTreeMap::new();
     run_meta.insert("command".to_string(), opts.command.to_string());
     run_meta.insert("backend".to_string(), info.name.clone());
@@ -264,9 +209,7 @@ pub fn open_recording(
         "log_time_unit".to_string(),
         "ns of loop time (tick × period)".to_string(),
     );
-    recorder
-        .write_metadata("bench.run", &run_meta)
-        .map_err(anyhow::Error::from)?;
+    recorder.write_metadata("bench.run", &run_meta)?;
     Ok(recorder)
 }
 
@@ -277,8 +220,8 @@ pub fn open_recording(
 ///
 /// # Errors
 /// [`RunError::Fault`], [`RunError::Hal`], [`RunError::Interrupted`] with
-/// the recording finished and the amplifier disabled; [`RunError::Other`]
-/// for thread or recording failures.
+/// the recording finished and the amplifier disabled; [`RunError::Thread`]
+/// or [`RunError::Record`] for thread or recording failures.
 pub fn run_recorded<J: Job + Send + 'static>(
     stage: &mut AnyStage,
     info: &DeviceInfo,
@@ -352,7 +295,7 @@ pub fn run_recorded<J: Job + Send + 'static>(
                     progress,
                 )
             })
-            .map_err(|e| anyhow::anyhow!("cannot spawn the real-time thread: {e}"))?;
+            .map_err(|e| RunError::Thread(format!("cannot spawn the real-time thread: {e}")))?;
         if opts.realtime && opts.progress {
             let bar = indicatif::ProgressBar::new(opts.max_ticks);
             bar.set_style(
@@ -369,14 +312,13 @@ pub fn run_recorded<J: Job + Send + 'static>(
         }
         rt_thread
             .join()
-            .map_err(|_| anyhow::anyhow!("the real-time thread panicked"))
+            .map_err(|_| RunError::Thread("the real-time thread panicked".into()))
     })?;
     let wall_s = wall.elapsed().as_secs_f64();
     writer_done.store(true, Ordering::Release);
     let (recorder, _stats) = writer
         .join()
-        .map_err(|_| anyhow::anyhow!("the writer thread panicked"))?
-        .map_err(anyhow::Error::from)?;
+        .map_err(|_| RunError::Thread("the writer thread panicked".into()))??;
     let timing = TimingSummary::new(&report, opts.realtime, rate_hz, wall_s);
     for w in &timing.warnings {
         tracing::warn!("{w}");
@@ -414,10 +356,10 @@ pub fn run_recorded<J: Job + Send + 'static>(
         }
         StopReason::TickLimit => {
             let recording = finish(recorder)?;
-            return Err(RunError::Other(anyhow::anyhow!(
-                "the {} did not finish within its tick budget; recording {recording}",
-                opts.command
-            )));
+            return Err(RunError::TickLimit {
+                job: opts.command,
+                recording,
+            });
         }
     }
     let data = std::mem::take(&mut *collected.lock().expect("collector poisoned"));

@@ -19,9 +19,10 @@
 use crate::config::BenchConfig;
 use crate::control::loop_check::{closed_loop_poles, measured_margins, model_margins, Margins};
 use crate::control::{ControllerConfig, DiscreteController, DiscretizationReport};
+use crate::error::RunError;
 use crate::jobs::session::{
-    check_writable, finish, open_recording, run_recorded, Collected, Recorded, RunError,
-    SessionOptions, TimingSummary,
+    check_writable, finish, open_recording, run_recorded, Collected, Recorded, SessionOptions,
+    TimingSummary,
 };
 use crate::plot::{write_time_png, TimePanel};
 use crate::rt::backend::{self, AnyStage, BackendSpec};
@@ -550,11 +551,7 @@ pub fn run_control_from(
             "description": "Loop check before enable: gain crossovers (rad/s), phase margins (deg), gain margin (dB), sensitivity peak |S| (ratio) on the ZOH model with and without the amplifier lag, closed-loop stability, the discretisation (method, max error in dB and deg up to f_s/10, largest gain excess above in dB), failures."
         }),
     )?;
-    recorder.write_json(
-        check_ch,
-        0,
-        &serde_json::to_value(&check).map_err(anyhow::Error::from)?,
-    )?;
+    recorder.write_json(check_ch, 0, &serde_json::to_value(&check)?)?;
     recorder.flush_chunk()?;
     let job = ControlJob::new(
         ctrl,
@@ -588,11 +585,7 @@ pub fn run_control_from(
             "description": "Closed-loop step metrics: rise_time_s (10-90 %, s), settling_time_s (2 %, s), overshoot_pct (%), steady_state_error_mean_nm / _std_nm (nm) over steady_state_window_s (s), peak_command_a (A)."
         }),
     )?;
-    recorder.write_json(
-        metrics_ch,
-        end_ns,
-        &serde_json::to_value(metrics).map_err(anyhow::Error::from)?,
-    )?;
+    recorder.write_json(metrics_ch, end_ns, &serde_json::to_value(metrics)?)?;
 
     let t = &data.t_s;
     let um = |v: &[f64], off: f64| v.iter().map(|x| (x - off) * 1e6).collect::<Vec<f64>>();
@@ -624,7 +617,10 @@ pub fn run_control_from(
             },
         ],
     )
-    .map_err(|e| anyhow::anyhow!("{e}"))?;
+    .map_err(|e| RunError::Output {
+        path: opts.plot.clone(),
+        reason: e.to_string(),
+    })?;
     summary.metrics = Some(metrics);
     summary.plot = Some(opts.plot.clone());
     summary.timing = Some(timing);
@@ -633,11 +629,7 @@ pub fn run_control_from(
         "bench.ControlSummary",
         &json!({"type": "object", "description": "Summary of a bench control run (the --json output)."}),
     )?;
-    recorder.write_json(
-        ch,
-        end_ns,
-        &serde_json::to_value(&summary).map_err(anyhow::Error::from)?,
-    )?;
+    recorder.write_json(ch, end_ns, &serde_json::to_value(&summary)?)?;
     summary.recording = Some(PathBuf::from(finish(recorder)?));
     Ok(summary)
 }

@@ -5,7 +5,7 @@
 //! stays monomorphic (no dynamic dispatch or boxing on the tick).
 
 use crate::config::{BackendKind, BenchConfig};
-use crate::jobs::session::RunError;
+use crate::error::RunError;
 use bench_hal::serial::{SerialError, SerialStage};
 use bench_hal::sim::{ScheduledFault, SimError, SimStage};
 use bench_hal::{Command, DeviceInfo, ErrorKind, Sample, Stage};

@@ -1,0 +1,78 @@
+//! How a run ends when it does not produce a summary: one error type for
+//! every job, mapped to exit statuses by the CLI and to error kinds by the
+//! daemon.
+
+use crate::record::RecordError;
+use std::path::PathBuf;
+
+/// Why a run did not produce a summary.
+#[derive(Debug, thiserror::Error)]
+pub enum RunError {
+    /// Bad input detected before anything was enabled (exit 2).
+    #[error("{0}")]
+    BadInput(String),
+    /// The loop check refused the controller before enabling (exit 2).
+    #[error("{0}")]
+    Refused(String),
+    /// The supervisor latched a fault (exit 3). The recording was finished.
+    #[error("safety fault: {kind} at tick {tick} ({detail}); 0 A, amplifier disabled; recording {recording}")]
+    Fault {
+        /// Fault name.
+        kind: &'static str,
+        /// Offending value.
+        value: f64,
+        /// `value …`, or what the backend said (link faults).
+        detail: String,
+        /// Tick.
+        tick: u64,
+        /// The finished recording.
+        recording: String,
+    },
+    /// The HAL failed (exit 4). The recording was finished.
+    #[error(
+        "hardware error at tick {tick}: {message}; 0 A, amplifier disabled; recording {recording}"
+    )]
+    Hal {
+        /// Backend message.
+        message: String,
+        /// Tick.
+        tick: u64,
+        /// The finished recording.
+        recording: String,
+    },
+    /// Stopped by SIGINT/SIGTERM (exit 130). The recording was finished.
+    #[error("interrupted at tick {tick}: 0 A, amplifier disabled; recording {recording} finished")]
+    Interrupted {
+        /// Tick.
+        tick: u64,
+        /// The finished recording.
+        recording: String,
+    },
+    /// The job did not finish within its tick budget (exit 1). The
+    /// recording was finished.
+    #[error("the {job} did not finish within its tick budget; recording {recording}")]
+    TickLimit {
+        /// The job (`chirp`, `control`).
+        job: &'static str,
+        /// The finished recording.
+        recording: String,
+    },
+    /// The recording could not be written (exit 1).
+    #[error(transparent)]
+    Record(#[from] RecordError),
+    /// A result file beside the recording (FRF CSV, plot) could not be
+    /// written (exit 1).
+    #[error("cannot write {}: {reason}", path.display())]
+    Output {
+        /// The file.
+        path: PathBuf,
+        /// Why.
+        reason: String,
+    },
+    /// A result could not be encoded as JSON (exit 1).
+    #[error("encoding a result as JSON: {0}")]
+    Json(#[from] serde_json::Error),
+    /// A loop or writer thread could not start or panicked (exit 1).
+    #[error("{0}")]
+    Thread(String),
+}
