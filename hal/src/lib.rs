@@ -22,14 +22,27 @@
 //! [`Stage::read_sample`] blocks, with a bounded timeout, until the next
 //! sample arrives: a USB-serial microcontroller, a CAN module). The backend
 //! says which in [`DeviceInfo::clock`].
+//!
+//! # Layout
+//!
+//! * The crate root: the [`Stage`] trait, its data and error kinds.
+//! * [`model`], [`sim`]: the SR4DoF model and the simulated stage.
+//! * [`protocol`]: the serial wire format (both sides of the wire).
+//! * [`clock`]: `CLOCK_MONOTONIC` time and absolute sleeps.
+//! * Host backends: [`serial`] ([`serial::SerialStage`]) and [`can`]
+//!   ([`can::CanStage`], with the CAN frame map and socket primitives the
+//!   CAN emulator shares).
+//! * [`emulator`]: the device side of the wire ([`emulator::DeviceCore`]
+//!   and its serial and CAN transports); never used by a host backend
+//!   except for the wire fault codes ([`emulator::DeviceFault`]).
 #![warn(missing_docs)]
 
 pub mod can;
-pub mod device;
+pub mod clock;
+pub mod emulator;
 pub mod model;
 pub mod protocol;
 pub mod serial;
-pub mod serial_emulator;
 pub mod sim;
 
 use core::fmt;

@@ -101,6 +101,10 @@ pub struct DeviceHello {
     pub position_lsb_m: f32,
 }
 
+/// A probe reading that is not a number is sent as this count
+/// ([`WireSample::position`]).
+pub const INVALID_POSITION: i32 = i32::MIN;
+
 /// One probe sample.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct WireSample {

@@ -24,9 +24,10 @@
 //! | end of file, `POLLHUP`, `EIO` (unplugged, emulator gone) | `Link` | link fault at once |
 //! | write failed or blocked beyond one period | `Link` | link fault at once |
 
+use crate::clock::monotonic_ns;
 use crate::protocol::{
     self, flags, DeviceHello, DeviceMessage, Frame, FrameError, FrameReader, HostMessage,
-    WireSample, WireStatus, MAX_FRAME,
+    WireSample, WireStatus, INVALID_POSITION, MAX_FRAME,
 };
 use crate::{Clock, Command, DeviceInfo, ErrorKind, Sample, SampleFlags, Stage};
 use std::os::fd::{AsRawFd, RawFd};
@@ -274,10 +275,6 @@ enum Seen<'a> {
     Rejected(&'a mut [u8]),
 }
 
-fn now_ns() -> u64 {
-    crate::device::monotonic_ns()
-}
-
 impl SerialStage {
     /// Opens the port (exclusively). Nothing is sent until
     /// [`configure`](Stage::configure).
@@ -351,7 +348,7 @@ impl SerialStage {
     fn send(&mut self, msg: &HostMessage) -> Result<(), SerialError> {
         let mut frame = [0u8; MAX_FRAME];
         let n = protocol::encode(msg, &mut frame);
-        let deadline = now_ns() + self.timeout_ns.max(1_000_000);
+        let deadline = monotonic_ns() + self.timeout_ns.max(1_000_000);
         let mut off = 0;
         while off < n {
             // SAFETY: fd is open for the port's lifetime; the slice is valid.
@@ -363,7 +360,7 @@ impl SerialStage {
             let err = std::io::Error::last_os_error().raw_os_error();
             match err {
                 Some(libc::EINTR) => continue,
-                Some(libc::EAGAIN) if now_ns() < deadline => {
+                Some(libc::EAGAIN) if monotonic_ns() < deadline => {
                     self.poll(libc::POLLOUT, deadline)?;
                 }
                 Some(libc::EAGAIN) => return Err(SerialError::Disconnected("write blocked")),
@@ -377,7 +374,7 @@ impl SerialStage {
     /// `Ok(true)` ready, `Ok(false)` timed out.
     fn poll(&self, events: libc::c_short, deadline: u64) -> Result<bool, SerialError> {
         loop {
-            let now = now_ns();
+            let now = monotonic_ns();
             let left = deadline.saturating_sub(now);
             let ts = libc::timespec {
                 tv_sec: (left / 1_000_000_000) as libc::time_t,
@@ -512,7 +509,7 @@ impl SerialStage {
     }
 
     fn handshake_deadline(&self) -> u64 {
-        now_ns() + (self.cfg.handshake_timeout_ms * 1e6) as u64
+        monotonic_ns() + (self.cfg.handshake_timeout_ms * 1e6) as u64
     }
 
     fn request_status(
@@ -625,7 +622,7 @@ impl Stage for SerialStage {
         let Some(hello) = self.hello else {
             return Err(SerialError::State("not configured"));
         };
-        let deadline = now_ns() + self.timeout_ns;
+        let deadline = monotonic_ns() + self.timeout_ns;
         let mut last_bad = None;
         loop {
             while let Some(m) = self.next_buffered() {
@@ -688,7 +685,7 @@ impl Stage for SerialStage {
         Ok(Sample {
             seq: seq - base,
             device_time_ns: w.time_us.saturating_sub(time_base).saturating_mul(1000),
-            position_m: if w.position == crate::serial_emulator::INVALID_POSITION {
+            position_m: if w.position == INVALID_POSITION {
                 f64::NAN
             } else {
                 f64::from(w.position) * f64::from(hello.position_lsb_m)

@@ -11,10 +11,11 @@
 mod common;
 
 use bench_hal::can::{
-    open_socket, run_emulator, seq_delta, CanConfig, CanError, CanSocket, CanStage, CommandPayload,
-    Endian, FieldSpec, SamplePayload,
+    open_socket, seq_delta, CanConfig, CanError, CanSocket, CanStage, CommandPayload, Endian,
+    FieldSpec, SamplePayload,
 };
-use bench_hal::device::{DeviceCore, EmulatorStatus, LinkFault, ScheduledLinkFault};
+use bench_hal::emulator::can::run_emulator;
+use bench_hal::emulator::{DeviceCore, EmulatorStatus, LinkFault, ScheduledLinkFault};
 use bench_hal::sim::SimParams;
 use bench_hal::{Clock, Command, Error, ErrorKind, SampleFlags, Stage};
 use serde::Deserialize;
@@ -645,7 +646,7 @@ fn watchdog_trips(sync: bool) {
     assert!(e.to_string().contains("watchdog"), "{e}");
     assert_eq!(
         rig.stage.device_fault(),
-        Some(bench_hal::device::DeviceFault::Watchdog)
+        Some(bench_hal::emulator::DeviceFault::Watchdog)
     );
     thread::sleep(Duration::from_millis(20));
     assert_eq!(rig.status.commanded_current_a(), 0.0);

@@ -3,7 +3,7 @@
 
 mod common;
 
-use bench_hal::device::{DeviceCore, DeviceFault, LinkFault};
+use bench_hal::emulator::{DeviceCore, DeviceFault, LinkFault};
 use bench_hal::sim::SimParams;
 use bench_hal::Command;
 

@@ -3,9 +3,9 @@
 
 mod common;
 
-use bench_hal::device::{DeviceCore, EmulatorStatus, LinkFault, ScheduledLinkFault};
+use bench_hal::emulator::serial::{self as serial_emulator, Pty, SerialEmulatorOptions};
+use bench_hal::emulator::{DeviceCore, EmulatorStatus, LinkFault, ScheduledLinkFault};
 use bench_hal::serial::{SerialConfig, SerialStage};
-use bench_hal::serial_emulator::{self, Pty, SerialEmulatorOptions};
 use bench_hal::sim::SimParams;
 use bench_hal::{Command, Error as _, ErrorKind, Stage};
 use std::sync::atomic::{AtomicBool, Ordering};

@@ -9,21 +9,17 @@
 //! handling host frames between ticks. Samples stream from the first host
 //! hello on. Injected [`LinkFault`]s act on the frames it sends.
 
-use crate::device::{
-    monotonic_ns, DeviceCore, DeviceFault, EmulatorStatus, LinkFault, ScheduledLinkFault,
-};
+use super::{DeviceCore, DeviceFault, EmulatorStatus, LinkFault, ScheduledLinkFault};
+use crate::clock::{monotonic_ns, sleep_until_ns};
 use crate::protocol::{
     self, flags, DeviceHello, DeviceMessage, Frame, FrameReader, HostMessage, WireSample,
-    WireStatus, MAX_FRAME,
+    WireStatus, INVALID_POSITION, MAX_FRAME,
 };
 use crate::Command;
 use rand::{Rng, SeedableRng};
 use std::collections::VecDeque;
 use std::os::fd::{AsRawFd, RawFd};
 use std::sync::atomic::{AtomicBool, Ordering};
-
-/// A probe reading that is not a number is sent as this count.
-pub const INVALID_POSITION: i32 = i32::MIN;
 
 /// Emulator settings.
 #[derive(Debug, Clone, PartialEq)]
@@ -249,7 +245,7 @@ pub fn run(
                 next
             };
             if pty.is_none() {
-                crate::device::sleep_until_ns(until);
+                sleep_until_ns(until);
                 continue;
             }
             let left = until - now;
@@ -267,7 +263,7 @@ pub fn run(
             if r <= 0 || pfd.revents & libc::POLLIN == 0 {
                 if r > 0 {
                     // Hang-up without data: wait out the period.
-                    crate::device::sleep_until_ns(until);
+                    sleep_until_ns(until);
                 }
                 continue;
             }

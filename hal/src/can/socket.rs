@@ -1,0 +1,162 @@
+//! Socket primitives: non-blocking, no allocation, deadlines on
+//! `CLOCK_MONOTONIC` ([`crate::clock`]). Used by the host stage and by the
+//! CAN emulator.
+
+use super::CanError;
+use crate::clock::{monotonic_ns, sleep_until_ns};
+use socketcan::frame::can_frame_default;
+use socketcan::{CanFrame, CanSocket, Socket};
+use std::io;
+use std::os::fd::RawFd;
+
+/// One datagram read from the socket.
+pub(crate) enum Rx {
+    Frame(CanFrame),
+    /// A datagram of the wrong size (not a classic CAN frame).
+    Bad(usize),
+}
+
+pub(crate) fn errno(e: &io::Error) -> i32 {
+    e.raw_os_error().unwrap_or(0)
+}
+
+/// Waits until the socket is readable (`POLLIN`) or writable (`POLLOUT`),
+/// or `deadline_ns` passes. `Ok(false)` on timeout.
+pub(crate) fn wait_fd(fd: RawFd, events: libc::c_short, deadline_ns: u64) -> io::Result<bool> {
+    loop {
+        let now = monotonic_ns();
+        let left = deadline_ns.saturating_sub(now);
+        let ts = libc::timespec {
+            tv_sec: (left / 1_000_000_000) as libc::time_t,
+            tv_nsec: (left % 1_000_000_000) as libc::c_long,
+        };
+        let mut pfd = libc::pollfd {
+            fd,
+            events,
+            revents: 0,
+        };
+        // SAFETY: one valid pollfd, a valid timespec, no signal mask.
+        let r = unsafe { libc::ppoll(&mut pfd, 1, &ts, std::ptr::null()) };
+        if r > 0 {
+            return Ok(true);
+        }
+        if r == 0 {
+            return Ok(false);
+        }
+        let e = io::Error::last_os_error();
+        if errno(&e) != libc::EINTR {
+            return Err(e);
+        }
+    }
+}
+
+/// Reads one datagram without blocking; `Ok(None)` when none is queued.
+pub(crate) fn try_recv(fd: RawFd) -> io::Result<Option<Rx>> {
+    let mut frame = can_frame_default();
+    let size = std::mem::size_of::<libc::can_frame>();
+    loop {
+        // SAFETY: `frame` is a plain C struct of `size` bytes.
+        let n = unsafe {
+            libc::recv(
+                fd,
+                (&mut frame as *mut libc::can_frame).cast(),
+                size,
+                libc::MSG_DONTWAIT,
+            )
+        };
+        if n >= 0 {
+            let n = n as usize;
+            return Ok(Some(if n == size {
+                Rx::Frame(CanFrame::from(frame))
+            } else {
+                Rx::Bad(n)
+            }));
+        }
+        let e = io::Error::last_os_error();
+        match errno(&e) {
+            libc::EINTR => continue,
+            libc::EAGAIN => return Ok(None),
+            _ => return Err(e),
+        }
+    }
+}
+
+/// Sends one frame without blocking.
+pub(crate) fn try_send(fd: RawFd, frame: &libc::can_frame) -> io::Result<()> {
+    let size = std::mem::size_of::<libc::can_frame>();
+    loop {
+        // SAFETY: `frame` is a fully initialised C struct of `size` bytes.
+        let n = unsafe {
+            libc::send(
+                fd,
+                (frame as *const libc::can_frame).cast(),
+                size,
+                libc::MSG_DONTWAIT | libc::MSG_NOSIGNAL,
+            )
+        };
+        if n >= 0 {
+            return Ok(());
+        }
+        let e = io::Error::last_os_error();
+        if errno(&e) != libc::EINTR {
+            return Err(e);
+        }
+    }
+}
+
+pub(crate) fn queue_full(e: &io::Error) -> bool {
+    matches!(errno(e), libc::EAGAIN | libc::ENOBUFS)
+}
+
+/// Sends one frame, retrying while the transmit queue is full until
+/// `deadline_ns`.
+pub(crate) fn send_until(
+    fd: RawFd,
+    frame: &libc::can_frame,
+    deadline_ns: u64,
+) -> Result<(), CanError> {
+    loop {
+        match try_send(fd, frame) {
+            Ok(()) => return Ok(()),
+            Err(e) if queue_full(&e) => {
+                let now = monotonic_ns();
+                if now >= deadline_ns {
+                    return Err(CanError::TxFull);
+                }
+                // ENOBUFS is not pollable: short sleeps.
+                sleep_until_ns(deadline_ns.min(now + 100_000));
+            }
+            Err(source) => return Err(CanError::Io { op: "send", source }),
+        }
+    }
+}
+
+/// Sets a socket option that only a real CAN_RAW socket has. On another
+/// socket (a Unix datagram pair in tests) the option does not exist and is
+/// skipped: `Ok(false)`.
+pub(crate) fn can_option(r: io::Result<()>, op: &'static str) -> Result<bool, CanError> {
+    match r {
+        Ok(()) => Ok(true),
+        Err(e) if matches!(errno(&e), libc::ENOPROTOOPT | libc::EOPNOTSUPP) => Ok(false),
+        Err(source) => Err(CanError::Io { op, source }),
+    }
+}
+
+/// Opens a raw CAN socket on `interface` (for
+/// [`run_emulator`](crate::emulator::can::run_emulator); the stage
+/// opens its own with [`CanStage::open`](super::CanStage::open)).
+///
+/// # Errors
+/// `NotFound` naming the interface when it does not exist (or the kernel
+/// has no SocketCAN), `Link` for other socket errors.
+pub fn open_socket(interface: &str) -> Result<CanSocket, CanError> {
+    CanSocket::open(interface).map_err(|source| match errno(&source) {
+        libc::ENODEV | libc::ENXIO | libc::EAFNOSUPPORT | libc::EPROTONOSUPPORT => {
+            CanError::NotFound {
+                interface: interface.into(),
+                source,
+            }
+        }
+        _ => CanError::Io { op: "open", source },
+    })
+}
