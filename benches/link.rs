@@ -11,10 +11,10 @@
 //! `cargo bench --bench link`. Not criterion: these are distributions and
 //! counts, printed as a table.
 
-use bench_hal::device::{DeviceCore, EmulatorStatus};
+use bench_hal::emulator::serial::{self as serial_emulator, Pty, SerialEmulatorOptions};
+use bench_hal::emulator::{DeviceCore, EmulatorStatus};
 use bench_hal::protocol::{self, DeviceMessage, Frame, FrameReader, HostMessage, MAX_FRAME};
 use bench_hal::serial::{SerialConfig, SerialStage};
-use bench_hal::serial_emulator::{self, Pty, SerialEmulatorOptions};
 use bench_hal::{Command, Stage};
 use std::io::{Read, Write};
 use std::path::Path;

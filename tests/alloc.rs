@@ -201,9 +201,9 @@ fn closed_loop_tick_allocates_nothing() {
 fn serial_tick_allocates_nothing() {
     use bench::control::DiscreteController;
     use bench::jobs::step::ControlJob;
-    use bench_hal::device::{DeviceCore, EmulatorStatus};
+    use bench_hal::emulator::serial::{self as serial_emulator, Pty, SerialEmulatorOptions};
+    use bench_hal::emulator::{DeviceCore, EmulatorStatus};
     use bench_hal::serial::{SerialConfig, SerialStage};
-    use bench_hal::serial_emulator::{self, Pty, SerialEmulatorOptions};
     use std::sync::Arc;
     let cfg = ch5();
     let period_ns = cfg.loop_.period_ns();

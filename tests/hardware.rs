@@ -9,8 +9,8 @@
 mod common;
 
 use bench::config::BenchConfig;
-use bench_hal::device::{DeviceCore, EmulatorStatus, LinkFault, ScheduledLinkFault};
-use bench_hal::serial_emulator::{self, Pty, SerialEmulatorOptions};
+use bench_hal::emulator::serial::{self as serial_emulator, Pty, SerialEmulatorOptions};
+use bench_hal::emulator::{DeviceCore, EmulatorStatus, LinkFault, ScheduledLinkFault};
 use common::*;
 use serde_json::Value;
 use std::path::{Path, PathBuf};

@@ -206,4 +206,19 @@ pub trait Stage {
     /// `Link` if the device could not be told; the backend must still have
     /// done everything it can locally.
     fn disable(&mut self) -> Result<(), Self::Error>;
+
+    /// The safe stop, in one place: commands 0 A (answering
+    /// `answers_seq`), then disables the amplifier. The disable runs even
+    /// when the 0 A command fails (a link that is gone), and its result is
+    /// returned. Real-time safe when `write_command` and `disable` are.
+    ///
+    /// # Errors
+    /// As [`disable`](Stage::disable).
+    fn zero_and_disable(&mut self, answers_seq: u64) -> Result<(), Self::Error> {
+        let _ = self.write_command(Command {
+            current_a: 0.0,
+            answers_seq,
+        });
+        self.disable()
+    }
 }

@@ -20,8 +20,8 @@ use bench::jobs::chirp::{run_chirp, ChirpOptions, ChirpSummary};
 use bench::jobs::step::parse_fault;
 use bench::jobs::step::{run_control, ControlOptions, ControlSummary};
 use bench::rt::backend::BackendSpec;
-use bench_hal::device::{DeviceCore, EmulatorStatus, LinkFault, ScheduledLinkFault};
-use bench_hal::serial_emulator::{Pty, SerialEmulatorOptions};
+use bench_hal::emulator::serial::{Pty, SerialEmulatorOptions};
+use bench_hal::emulator::{DeviceCore, EmulatorStatus, LinkFault, ScheduledLinkFault};
 use bench_hal::sim::ScheduledFault;
 use clap::{Args, Parser, Subcommand, ValueEnum};
 use std::io::IsTerminal;
@@ -862,7 +862,7 @@ fn emulate(cmd: EmulateCommand, stop: Arc<AtomicBool>) -> ExitCode {
             let s = Arc::clone(&stop);
             std::thread::Builder::new()
                 .name("bench-emulator".into())
-                .spawn(move || bench_hal::serial_emulator::run(pty, core, &opts, &s, &st))
+                .spawn(move || bench_hal::emulator::serial::run(pty, core, &opts, &s, &st))
                 .map_err(|e| e.to_string())
                 .and_then(|t| t.join().map_err(|_| "emulator thread panicked".to_string()))
                 .and_then(|r| r.map_err(|e| e.to_string()))
@@ -894,7 +894,7 @@ fn emulate(cmd: EmulateCommand, stop: Arc<AtomicBool>) -> ExitCode {
                     if let Some(p) = priority {
                         bench::rt::make_realtime(p, None);
                     }
-                    bench_hal::can::run_emulator(sock, &ccfg, core, &link_faults, &s, &st)
+                    bench_hal::emulator::can::run_emulator(sock, &ccfg, core, &link_faults, &s, &st)
                 })
                 .map_err(|e| e.to_string())
                 .and_then(|t| t.join().map_err(|_| "emulator thread panicked".to_string()))

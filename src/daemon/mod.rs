@@ -339,7 +339,7 @@ fn owner(mut stage: AnyStage, info: DeviceInfo, rx: mpsc::Receiver<OwnerCmd>, sh
     // Only this thread latches and clears faults, so it keeps the flag
     // itself: the idle ticks take no lock.
     let mut faulted = false;
-    let mut next = bench_hal::device::monotonic_ns() + period_ns;
+    let mut next = bench_hal::clock::monotonic_ns() + period_ns;
     let mut missing = 0u32;
     let set_state = |state: &'static str, fault: Option<ApiError>| {
         let mut s = lock(&status);
@@ -426,15 +426,15 @@ fn owner(mut stage: AnyStage, info: DeviceInfo, rx: mpsc::Receiver<OwnerCmd>, sh
                     _ => set_state("disabled", None),
                 }
                 let _ = reply.send(result.map_err(|(api, _)| api));
-                next = bench_hal::device::monotonic_ns() + period_ns;
+                next = bench_hal::clock::monotonic_ns() + period_ns;
             }
             Err(mpsc::TryRecvError::Empty) => {}
         }
         // Idle supervision: read the device, hold 0 A.
         if info.clock == Clock::Host {
-            bench_hal::device::sleep_until_ns(next);
+            bench_hal::clock::sleep_until_ns(next);
             next += period_ns;
-            let now = bench_hal::device::monotonic_ns();
+            let now = bench_hal::clock::monotonic_ns();
             if now > next + period_ns {
                 next = now + period_ns;
             }

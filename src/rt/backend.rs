@@ -163,14 +163,58 @@ impl AnyStage {
         }
     }
 
+    /// Link counters of a hardware backend since it was opened (`None` for
+    /// the simulator). A copy: real-time safe.
+    pub fn link_counters(&self) -> Option<LinkCounters> {
+        match self {
+            Self::Sim(_) => None,
+            Self::Serial(s) => Some(LinkCounters::Serial(s.stats())),
+            Self::Can(s) => Some(LinkCounters::Can(s.stats())),
+        }
+    }
+
     /// Link counters of a hardware backend, as JSON (`None` for the
     /// simulator).
     pub fn link_stats(&self) -> Option<serde_json::Value> {
+        self.link_counters().map(LinkCounters::to_json)
+    }
+}
+
+/// A snapshot of a hardware backend's link counters.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum LinkCounters {
+    /// Serial DAQ.
+    Serial(bench_hal::serial::SerialStats),
+    /// SocketCAN module.
+    Can(bench_hal::can::CanStats),
+}
+
+impl LinkCounters {
+    /// The counters as a JSON object (field names of the backend's stats).
+    pub fn to_json(self) -> serde_json::Value {
         match self {
-            Self::Sim(_) => None,
-            Self::Serial(s) => serde_json::to_value(s.stats()).ok(),
-            Self::Can(s) => serde_json::to_value(s.stats()).ok(),
+            Self::Serial(s) => serde_json::to_value(s),
+            Self::Can(s) => serde_json::to_value(s),
         }
+        .unwrap_or(serde_json::Value::Null)
+    }
+
+    /// The counters of what happened between `before` and `after` (one
+    /// job on a device that stays open): every counter is the difference;
+    /// the `max_*` figures are the largest since the device was opened.
+    pub fn between(before: Self, after: Self) -> serde_json::Value {
+        let (b, mut a) = (before.to_json(), after.to_json());
+        if let (Some(b), Some(a)) = (b.as_object(), a.as_object_mut()) {
+            for (k, v) in a.iter_mut() {
+                if k.starts_with("max_") {
+                    continue;
+                }
+                if let (Some(x), Some(y)) = (v.as_u64(), b.get(k).and_then(|v| v.as_u64())) {
+                    *v = serde_json::Value::from(x.saturating_sub(y));
+                }
+            }
+        }
+        a
     }
 }
 

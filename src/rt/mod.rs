@@ -6,8 +6,12 @@
 //! `alloc` integration test proves it.
 
 pub mod backend;
+pub mod service;
 pub mod supervisor;
 mod tick;
 pub mod timing;
 
-pub use tick::{make_realtime, run, Job, JobOutput, LoopOptions, LoopReport, Pacing, StopReason};
+pub use tick::{
+    make_realtime, run, Emitter, HoldJob, Job, JobEnd, JobOutput, Loop, LoopOptions, LoopReport,
+    Pacing, RawStop, Read, StopReason, TickResult,
+};

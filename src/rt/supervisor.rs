@@ -25,7 +25,49 @@
 //! rating may flow for ever.
 
 use crate::record::topics::{FaultKind, SupervisorState};
-use bench_hal::Sample;
+use bench_hal::{ErrorKind, Sample};
+
+/// The HAL call that failed (see [`Supervisor::hal_error`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum HalCall {
+    /// `Stage::enable`.
+    Enable,
+    /// `Stage::read_sample`.
+    ReadSample,
+    /// `Stage::write_command`.
+    WriteCommand,
+}
+
+impl HalCall {
+    /// The call's name, as messages show it.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Enable => "enable",
+            Self::ReadSample => "read_sample",
+            Self::WriteCommand => "write_command",
+        }
+    }
+}
+
+/// What a failed HAL call means for the loop ([`Supervisor::hal_error`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum HalVerdict {
+    /// A read brought no usable sample (timeout, corrupt frames): it counts
+    /// towards the link fault; `tripped` when this one made it more than K
+    /// in a row.
+    SampleMissing {
+        /// This call latched the link fault.
+        tripped: bool,
+    },
+    /// The call is a fault of this kind at once: `link` for a read on a
+    /// link that is gone, `hal` for anything else.
+    Fault {
+        /// The fault.
+        kind: FaultKind,
+        /// This call latched it (false when a fault was already latched).
+        tripped: bool,
+    },
+}
 
 /// Supervisor limits.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -162,6 +204,29 @@ impl Supervisor {
     /// Returns `true` if this call tripped it.
     pub fn link_lost(&mut self) -> bool {
         self.trip(FaultKind::Link, f64::NAN)
+    }
+
+    /// The one mapping from a HAL error to the supervisor's rules. A read
+    /// that times out or brings corrupt frames is a missing sample (K in a
+    /// row are tolerated); a read on a lost link (disconnect, bus-off) is
+    /// the link fault at once; any other failure of any call is the `hal`
+    /// fault, with `value` (the command in A for a write, else NaN).
+    pub fn hal_error(&mut self, call: HalCall, kind: ErrorKind, value: f64) -> HalVerdict {
+        match (call, kind) {
+            (HalCall::ReadSample, ErrorKind::Timeout | ErrorKind::Crc) => {
+                HalVerdict::SampleMissing {
+                    tripped: self.sample_missing().is_some(),
+                }
+            }
+            (HalCall::ReadSample, ErrorKind::Link) => HalVerdict::Fault {
+                kind: FaultKind::Link,
+                tripped: self.link_lost(),
+            },
+            _ => HalVerdict::Fault {
+                kind: FaultKind::Hal,
+                tripped: self.trip(FaultKind::Hal, value),
+            },
+        }
     }
 
     /// Checks a sample; trips and returns the fault if it is bad.
@@ -380,6 +445,64 @@ mod tests {
         let mut s = sup();
         assert!(s.link_lost());
         assert_eq!(s.fault().map(|f| f.0), Some(FaultKind::Link));
+    }
+
+    #[test]
+    fn hal_errors_map_to_one_rule() {
+        use bench_hal::ErrorKind as K;
+        // Timeouts and corrupt frames on a read are missing samples: K = 3
+        // tolerated, the fourth trips the link fault.
+        for kind in [K::Timeout, K::Crc] {
+            let mut s = sup();
+            for _ in 0..3 {
+                assert_eq!(
+                    s.hal_error(HalCall::ReadSample, kind, f64::NAN),
+                    HalVerdict::SampleMissing { tripped: false }
+                );
+            }
+            assert_eq!(
+                s.hal_error(HalCall::ReadSample, kind, f64::NAN),
+                HalVerdict::SampleMissing { tripped: true }
+            );
+            assert_eq!(s.fault(), Some((FaultKind::Link, 4.0)));
+        }
+        // A lost link on a read is the link fault at once.
+        let mut s = sup();
+        assert_eq!(
+            s.hal_error(HalCall::ReadSample, K::Link, f64::NAN),
+            HalVerdict::Fault {
+                kind: FaultKind::Link,
+                tripped: true
+            }
+        );
+        // Everything else is a HAL fault, whatever the call; the first
+        // fault stays latched.
+        for (call, kind) in [
+            (HalCall::ReadSample, K::Protocol),
+            (HalCall::ReadSample, K::AmplifierFault),
+            (HalCall::WriteCommand, K::Link),
+            (HalCall::WriteCommand, K::Timeout),
+            (HalCall::Enable, K::AmplifierFault),
+        ] {
+            let mut s = sup();
+            assert_eq!(
+                s.hal_error(call, kind, 1.5),
+                HalVerdict::Fault {
+                    kind: FaultKind::Hal,
+                    tripped: true
+                },
+                "{call:?} {kind:?}"
+            );
+            assert_eq!(s.fault(), Some((FaultKind::Hal, 1.5)));
+            assert_eq!(
+                s.hal_error(HalCall::ReadSample, K::Link, f64::NAN),
+                HalVerdict::Fault {
+                    kind: FaultKind::Link,
+                    tripped: false
+                }
+            );
+            assert_eq!(s.fault(), Some((FaultKind::Hal, 1.5)));
+        }
     }
 
     #[test]

@@ -1,41 +1,53 @@
-//! The real-time loop (SPEC §4).
+//! The real-time loop (README "Architecture" and "Safety").
 //!
-//! One dedicated OS thread runs [`run`]. Per tick, in this order:
+//! A [`Loop`] owns the stage's tick for as long as it lives: a local run
+//! makes one for one job ([`run`]); the daemon keeps one for its whole life
+//! and runs the hold job between jobs ([`crate::rt::service`]). One
+//! [`Supervisor`] lives in the loop, so every safety rule applies on every
+//! tick, in a job or between jobs. Per tick, in this order (each step is
+//! one method of [`Loop`]):
 //!
-//! 1. wait: real-time mode sleeps until the tick's absolute deadline
-//!    (`clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME)`); virtual time does
-//!    not wait; a device-clocked backend waits inside `read_sample`;
-//! 2. read the sample (HAL). A read that brings no usable sample (timeout,
-//!    corrupt frames) counts towards the supervisor's link fault (K in a
-//!    row); host-clocked, the tick runs on the last reading and command
-//!    held, device-clocked, no tick runs until a sample arrives. A lost link
-//!    (disconnect, bus-off) is the link fault at once;
-//! 3. supervise the sample;
-//! 4. run the job (excitation or controller);
-//! 5. supervise and clip the command, write it (HAL); on a fault in this
-//!    tick: 0 A and disable the amplifier now;
-//! 6. push the tick's record to the wait-free SPSC queue (`rtrb`); in
-//!    real-time mode a full queue drops the record and counts it, it never
-//!    waits; in virtual time (no deadlines) the loop yields until the writer
-//!    makes room, so a simulated run never loses a record;
-//! 7. measure wake-up latency, compute time and overrun. A tick that ends
-//!    more than one period after its deadline is an overrun; the deadlines
-//!    it made the loop miss are skipped, not caught up back to back, so one
-//!    stall (a VM hiccup, an SMI) costs one overrun and only a loop that
-//!    keeps missing its deadlines reaches `max_consecutive_overruns`.
+//! 1. **wait** ([`Loop::wait`]): real-time mode sleeps until the tick's
+//!    absolute deadline (`clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME)`);
+//!    virtual time does not wait; a device-clocked backend waits inside
+//!    `read_sample`;
+//! 2. **read** the sample ([`Loop::read`]). A failed read goes to the
+//!    supervisor's one HAL-error rule ([`Supervisor::hal_error`]): a read
+//!    without a usable sample (timeout, corrupt frames) counts towards the
+//!    link fault (K in a row); host-clocked, the tick runs on the last
+//!    reading and command held, device-clocked, no tick runs until a sample
+//!    arrives. A lost link (disconnect, bus-off) is the link fault at once;
+//! 3. **supervise the sample** ([`Loop::supervise_sample`]);
+//! 4. run the **job** ([`Loop::job_output`]): excitation, controller, or the
+//!    hold job; it does not run on a tick without a sample;
+//! 5. **supervise and write the command** ([`Loop::command`]); on a fault in
+//!    this tick: 0 A and disable the amplifier now
+//!    ([`bench_hal::Stage::zero_and_disable`], the one safe stop);
+//! 6. **push the record** ([`Emitter::push`]) to the job's wait-free SPSC
+//!    queue (`rtrb`); in real-time mode a full queue drops the record and
+//!    counts it, it never waits; in virtual time (no deadlines) the loop
+//!    yields until the writer makes room, so a simulated run never loses a
+//!    record. Between jobs nothing is recorded;
+//! 7. **timing** ([`Loop::timing`]): wake-up latency, compute time and
+//!    overrun. A tick that ends more than one period after its deadline is
+//!    an overrun; the deadlines it made the loop miss are skipped, not
+//!    caught up back to back, so one stall (a VM hiccup, an SMI) costs one
+//!    overrun and only a loop that keeps missing its deadlines reaches
+//!    `max_consecutive_overruns`.
 //!
 //! Nothing on the tick allocates, locks, logs or does I/O other than the
-//! HAL calls (the `alloc` integration test counts allocations to prove it).
-//! Setup before the first tick (scheduling, memory locking) and teardown
-//! after the last may do all of these.
+//! HAL calls (the `alloc` integration test counts allocations to prove it,
+//! including a faulting tick). A job's end comes back raw ([`JobEnd`]);
+//! only [`JobEnd::into_report`], after the loop, formats messages. Setup
+//! before the first tick (scheduling, memory locking) may allocate.
 
 use crate::record::topics::{
     EventKind, EventRecord, FaultKind, Record, SampleRecord, SupervisorState, TimingRecord,
 };
-use crate::rt::supervisor::{Supervisor, SupervisorConfig};
+use crate::rt::supervisor::{HalCall, HalVerdict, Supervisor, SupervisorConfig};
 use crate::rt::timing::TickTiming;
-use bench_hal::device::{monotonic_ns as now_ns, sleep_until_ns};
-use bench_hal::{Clock, Command, Error as _, ErrorKind, Sample, Stage};
+use bench_hal::clock::{monotonic_ns as now_ns, sleep_until_ns};
+use bench_hal::{Clock, Command, Error as _, Sample, Stage};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 
 /// What a job produces each tick.
@@ -51,11 +63,43 @@ pub struct JobOutput {
     pub done: bool,
 }
 
-/// A job driven by the loop: excitation or controller.
+impl JobOutput {
+    /// 0 A, no excitation, no setpoint, not done: what the hold job gives
+    /// and what a job holds before its first sample.
+    pub const ZERO: Self = Self {
+        command_a: 0.0,
+        excitation_a: f64::NAN,
+        setpoint_m: f64::NAN,
+        done: false,
+    };
+}
+
+/// A job driven by the loop: excitation, controller, or the hold job.
 pub trait Job {
-    /// Computes this tick's output from the sample. Called on the real-time
-    /// thread: must not allocate, lock, log or block.
+    /// Computes this tick's output from the sample; `tick` counts from 0 at
+    /// the job's first tick. Called on the real-time thread: must not
+    /// allocate, lock, log or block.
     fn tick(&mut self, tick: u64, sample: &Sample) -> JobOutput;
+}
+
+impl<J: Job + ?Sized> Job for Box<J> {
+    #[inline]
+    fn tick(&mut self, tick: u64, sample: &Sample) -> JobOutput {
+        (**self).tick(tick, sample)
+    }
+}
+
+/// The hold job run between jobs: 0 A, never finishes. (The supervisor
+/// gives 0 A anyway unless a job runs; holding a position would need a
+/// controller and is not offered.)
+#[derive(Debug, Clone, Copy, Default)]
+pub struct HoldJob;
+
+impl Job for HoldJob {
+    #[inline]
+    fn tick(&mut self, _tick: u64, _sample: &Sample) -> JobOutput {
+        JobOutput::ZERO
+    }
 }
 
 /// How the loop is paced.
@@ -84,7 +128,7 @@ pub struct LoopOptions {
     pub timing_interval_ticks: u64,
     /// Supervisor limits.
     pub safety: SupervisorConfig,
-    /// Hard cap on ticks (the job normally ends first).
+    /// Hard cap on a job's ticks (the job normally ends first).
     pub max_ticks: u64,
 }
 
@@ -118,6 +162,108 @@ pub enum StopReason {
     },
     /// `max_ticks` reached before the job finished.
     TickLimit,
+}
+
+/// How a job ended, as the tick saw it: HAL errors kept unformatted (a
+/// message would allocate); [`JobEnd::into_report`] formats them.
+#[derive(Debug)]
+pub enum RawStop<E> {
+    /// The job finished.
+    Finished,
+    /// The supervisor latched a fault.
+    Fault {
+        /// Which fault.
+        kind: FaultKind,
+        /// The offending value.
+        value: f64,
+        /// Tick of the fault (job ticks).
+        tick: u64,
+        /// The last bad-sample or lost-link error, for link faults.
+        link_error: Option<E>,
+    },
+    /// A HAL call failed.
+    Hal {
+        /// The call.
+        call: HalCall,
+        /// The backend's error.
+        error: E,
+        /// Tick of the failure (job ticks).
+        tick: u64,
+    },
+    /// The stop flag was raised.
+    Interrupted {
+        /// Tick at which the job stopped.
+        tick: u64,
+    },
+    /// The tick budget ran out.
+    TickLimit,
+}
+
+/// A job's end, straight from the loop.
+#[derive(Debug)]
+pub struct JobEnd<E> {
+    /// Job ticks run.
+    pub ticks: u64,
+    /// Why it stopped.
+    pub stop: RawStop<E>,
+    /// Timing over the job.
+    pub timing: TickTiming,
+    /// Records dropped because the queue was full.
+    pub dropped_records: u64,
+    /// Supervisor state after the job.
+    pub final_state: SupervisorState,
+}
+
+impl<E: std::fmt::Display> JobEnd<E> {
+    /// The report with messages formatted (allocates; not on the tick).
+    pub fn into_report(self, warnings: Vec<String>) -> LoopReport {
+        LoopReport {
+            ticks: self.ticks,
+            stop: self.stop.describe(),
+            timing: self.timing,
+            dropped_records: self.dropped_records,
+            warnings,
+            final_state: self.final_state,
+        }
+    }
+}
+
+impl<E: std::fmt::Display> RawStop<E> {
+    /// The stop reason with the backend's messages formatted.
+    pub fn describe(self) -> StopReason {
+        match self {
+            Self::Finished => StopReason::Finished,
+            Self::TickLimit => StopReason::TickLimit,
+            Self::Interrupted { tick } => StopReason::Interrupted { tick },
+            Self::Hal { call, error, tick } => StopReason::Hal {
+                message: format!("{}: {error}", call.as_str()),
+                tick,
+            },
+            Self::Fault {
+                kind,
+                value,
+                tick,
+                link_error,
+            } => {
+                let detail = match (kind, link_error) {
+                    (FaultKind::Link, Some(e)) if value.is_nan() => Some(format!("link lost: {e}")),
+                    (FaultKind::Link, Some(e)) => Some(format!(
+                        "{value} consecutive samples missing or corrupt (last: {e})"
+                    )),
+                    (FaultKind::Link, None) => Some(format!(
+                        "{value} consecutive samples missing (sequence gap)"
+                    )),
+                    _ => None,
+                };
+                StopReason::Fault {
+                    kind,
+                    value,
+                    tick,
+                    detail,
+                }
+            }
+        }
+    }
 }
 
 /// What the loop reports when it ends.
@@ -173,22 +319,51 @@ pub fn make_realtime(priority: i32, cpu: Option<usize>) -> Vec<String> {
     warnings
 }
 
-struct Emitter<'a> {
-    out: &'a mut rtrb::Producer<Record>,
+/// Where a job's records go: its own queue, or nowhere (between jobs).
+pub struct Emitter<'q> {
+    out: Option<&'q mut rtrb::Producer<Record>>,
     dropped: u64,
     /// Virtual time: wait for queue space instead of dropping.
     backpressure: bool,
 }
 
-impl Emitter<'_> {
+impl<'q> Emitter<'q> {
+    /// Records into `out`; `backpressure` waits for room instead of
+    /// dropping (virtual time only).
+    pub fn new(out: &'q mut rtrb::Producer<Record>, backpressure: bool) -> Self {
+        Self {
+            out: Some(out),
+            dropped: 0,
+            backpressure,
+        }
+    }
+
+    /// Records nothing (the hold job between jobs).
+    pub fn none() -> Self {
+        Self {
+            out: None,
+            dropped: 0,
+            backpressure: false,
+        }
+    }
+
+    /// Records dropped because the queue was full.
+    pub fn dropped(&self) -> u64 {
+        self.dropped
+    }
+
+    /// Step 6: pushes one record; never allocates.
     #[inline]
-    fn push(&mut self, r: Record) {
+    pub fn push(&mut self, r: Record) {
+        let Some(out) = self.out.as_deref_mut() else {
+            return;
+        };
         let mut r = r;
         loop {
-            match self.out.push(r) {
+            match out.push(r) {
                 Ok(()) => return,
                 Err(rtrb::PushError::Full(back)) => {
-                    if !self.backpressure || self.out.is_abandoned() {
+                    if !self.backpressure || out.is_abandoned() {
                         self.dropped += 1;
                         return;
                     }
@@ -200,6 +375,9 @@ impl Emitter<'_> {
     }
 
     fn event(&mut self, tick: u64, t_s: f64, kind: EventKind, sup: &Supervisor, value: f64) {
+        if self.out.is_none() {
+            return;
+        }
         self.push(Record::Event(EventRecord {
             tick,
             t_s,
@@ -215,11 +393,560 @@ impl Emitter<'_> {
     }
 }
 
-/// Runs `job` on `stage` until it finishes, a fault latches, `stop` is
-/// raised or `max_ticks` pass. The stage must be configured; `run` enables
-/// the amplifier before the first tick and always leaves it disabled at
-/// 0 A. `progress` is set to the tick count as the loop goes.
-pub fn run<S: Stage, J: Job>(
+/// What [`Loop::read`] got.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Read {
+    /// A sample.
+    Sample(Sample),
+    /// No usable sample this tick (timeout, corrupt frames, lost link, a
+    /// failed read); `fault` when the read latched a fault.
+    Missing {
+        /// This read latched a fault.
+        fault: bool,
+    },
+}
+
+/// Per-job bookkeeping of the loop (tick counts, timing windows, what the
+/// job last asked for).
+struct JobCursor {
+    /// Job ticks so far.
+    tick: u64,
+    /// Device time the job's loop time counts from, s.
+    origin_s: f64,
+    /// Loop time of the last tick, s (job time).
+    last_t_s: f64,
+    /// The job's last output (held on a tick without a sample).
+    held: JobOutput,
+    total: TickTiming,
+    window: TickTiming,
+    window_ticks: u64,
+}
+
+/// One tick's result for the caller.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum TickResult {
+    /// The tick ran; `done` if the job said so.
+    Ran {
+        /// The job is complete.
+        done: bool,
+    },
+    /// Device-clocked and no sample came: no tick ran.
+    NoTick,
+}
+
+/// The real-time loop over a configured stage: its deadlines, its one
+/// supervisor and the state a tick carries to the next.
+pub struct Loop<'s, S: Stage> {
+    stage: &'s mut S,
+    sup: Supervisor,
+    period_ns: u64,
+    period_s: f64,
+    timing_interval_ticks: u64,
+    clock: Clock,
+    host_paced: bool,
+    backpressure: bool,
+    /// Deadline of the next tick, ns (host-paced).
+    next_deadline_ns: u64,
+    last_good: Option<Sample>,
+    /// The first HAL error of the current job, kept as-is.
+    hal_error: Option<(HalCall, S::Error)>,
+    /// The latest bad-sample or lost-link error.
+    link_error: Option<S::Error>,
+    /// Real-time setup warnings.
+    warnings: Vec<String>,
+    /// Where the last reading is published (m, as `f64::to_bits`).
+    position_bits: Option<&'s AtomicU64>,
+}
+
+impl<'s, S: Stage> Loop<'s, S> {
+    /// A loop on `stage` (configured, amplifier disabled). Real-time pacing
+    /// applies SCHED_FIFO and memory locking to the calling thread, which
+    /// must be the one that runs the ticks.
+    pub fn new(stage: &'s mut S, opts: &LoopOptions, clock: Clock) -> Self {
+        let mut warnings = Vec::new();
+        if let Pacing::RealTime { priority, cpu } = opts.pacing {
+            warnings.extend(make_realtime(priority, cpu));
+        }
+        Self {
+            stage,
+            sup: Supervisor::new(opts.safety),
+            period_ns: opts.period_ns,
+            period_s: opts.period_ns as f64 * 1e-9,
+            timing_interval_ticks: opts.timing_interval_ticks.max(1),
+            clock,
+            host_paced: matches!(opts.pacing, Pacing::RealTime { .. }) && clock == Clock::Host,
+            backpressure: opts.pacing == Pacing::Virtual,
+            next_deadline_ns: now_ns() + opts.period_ns,
+            last_good: None,
+            hal_error: None,
+            link_error: None,
+            warnings,
+            position_bits: None,
+        }
+    }
+
+    /// Publishes every good reading into `bits` (m, as `f64::to_bits`).
+    pub fn publish_position(&mut self, bits: &'s AtomicU64) {
+        self.position_bits = Some(bits);
+    }
+
+    /// The supervisor.
+    pub fn supervisor(&self) -> &Supervisor {
+        &self.sup
+    }
+
+    /// The stage (between ticks).
+    pub fn stage(&mut self) -> &mut S {
+        self.stage
+    }
+
+    /// Real-time setup warnings.
+    pub fn warnings(&self) -> &[String] {
+        &self.warnings
+    }
+
+    /// Loop period, s.
+    pub fn period_s(&self) -> f64 {
+        self.period_s
+    }
+
+    /// The latest bad-sample or lost-link error and the first HAL error
+    /// since the last call, taken (to describe a fault between jobs).
+    pub fn take_errors(&mut self) -> (Option<S::Error>, Option<(HalCall, S::Error)>) {
+        (self.link_error.take(), self.hal_error.take())
+    }
+
+    /// Enables the amplifier at 0 A (between jobs or at a job's start).
+    /// Refused (`Err(None)`) while a fault is latched; a HAL failure is the
+    /// `hal` fault, with the amplifier disabled again.
+    ///
+    /// # Errors
+    /// `None` when faulted, else the backend's error.
+    pub fn enable(&mut self) -> Result<(), Option<S::Error>> {
+        if self.sup.state() == SupervisorState::Faulted {
+            return Err(None);
+        }
+        if self.sup.state() != SupervisorState::Disabled {
+            return Ok(());
+        }
+        match self.stage.enable() {
+            Ok(()) => {
+                self.sup.enabled();
+                Ok(())
+            }
+            Err(e) => {
+                self.sup.hal_error(HalCall::Enable, e.kind(), f64::NAN);
+                let _ = self.stage.zero_and_disable(0);
+                Err(Some(e))
+            }
+        }
+    }
+
+    /// 0 A and amplifier disabled; the supervisor goes back to `disabled`
+    /// unless a fault is latched.
+    pub fn disable(&mut self) {
+        let _ = self.stage.zero_and_disable(0);
+        self.sup.disabled();
+    }
+
+    /// Clears a latched fault (amplifier disabled, supervisor `disabled`).
+    pub fn reset(&mut self) {
+        let _ = self.stage.zero_and_disable(0);
+        self.sup.reset();
+        self.link_error = None;
+        self.hal_error = None;
+    }
+
+    /// Step 1: waits for the tick's deadline (host-paced); returns it.
+    #[inline]
+    pub fn wait(&self) -> u64 {
+        let deadline = self.next_deadline_ns;
+        if self.host_paced {
+            sleep_until_ns(deadline);
+        }
+        deadline
+    }
+
+    /// Step 2: reads the sample; a failure goes to the supervisor's HAL
+    /// rule.
+    #[inline]
+    pub fn read(&mut self) -> Read {
+        match self.stage.read_sample() {
+            Ok(s) => Read::Sample(s),
+            Err(e) => match self.sup.hal_error(HalCall::ReadSample, e.kind(), f64::NAN) {
+                HalVerdict::SampleMissing { tripped } => {
+                    self.link_error = Some(e);
+                    Read::Missing { fault: tripped }
+                }
+                HalVerdict::Fault { kind, tripped } => {
+                    if kind == FaultKind::Link {
+                        self.link_error = Some(e);
+                    } else if self.hal_error.is_none() {
+                        self.hal_error = Some((HalCall::ReadSample, e));
+                    }
+                    Read::Missing { fault: tripped }
+                }
+            },
+        }
+    }
+
+    /// Step 3: supervises a sample; `true` if it latched a fault.
+    #[inline]
+    pub fn supervise_sample(&mut self, sample: &Sample) -> bool {
+        let fault = self.sup.check_sample(sample).is_some();
+        self.last_good = Some(*sample);
+        if let Some(bits) = self.position_bits {
+            bits.store(sample.position_m.to_bits(), Ordering::Relaxed);
+        }
+        fault
+    }
+
+    /// Step 4: the job's output, or the last one held on a tick without a
+    /// sample (the job does not run then).
+    #[inline]
+    pub fn job_output<J: Job + ?Sized>(
+        job: &mut J,
+        tick: u64,
+        sample: Option<&Sample>,
+        held: JobOutput,
+    ) -> JobOutput {
+        match sample {
+            Some(s) => job.tick(tick, s),
+            None => JobOutput {
+                done: false,
+                ..held
+            },
+        }
+    }
+
+    /// Step 5: supervises and clips the demand, writes it; on a fault
+    /// latched in this tick (`fault_before` or here), 0 A and disable now.
+    /// Returns the current sent (A) and whether the tick faulted.
+    #[inline]
+    pub fn command(&mut self, demand_a: f64, answers_seq: u64, fault_before: bool) -> (f64, bool) {
+        let (command_a, cmd_fault) = self.sup.command(demand_a);
+        let mut fault = fault_before | cmd_fault.is_some();
+        if let Err(e) = self.stage.write_command(Command {
+            current_a: command_a,
+            answers_seq,
+        }) {
+            if let HalVerdict::Fault { tripped: true, .. } =
+                self.sup
+                    .hal_error(HalCall::WriteCommand, e.kind(), command_a)
+            {
+                fault = true;
+                if self.hal_error.is_none() {
+                    self.hal_error = Some((HalCall::WriteCommand, e));
+                }
+            }
+        }
+        if fault {
+            let _ = self.stage.zero_and_disable(answers_seq);
+        }
+        (command_a, fault)
+    }
+
+    /// Step 7: wake-up latency, compute time, overrun (and the overrun
+    /// rule; a trip is 0 A and disable now). Returns `true` if the overrun
+    /// rule latched a fault.
+    #[inline]
+    pub fn timing(
+        &mut self,
+        deadline: u64,
+        wake: u64,
+        end: u64,
+        answers_seq: u64,
+        window: &mut TickTiming,
+    ) -> bool {
+        let overran = self.host_paced && end > deadline + self.period_ns;
+        window.wake.record(if self.host_paced {
+            wake as f64 - deadline as f64
+        } else {
+            0.0
+        });
+        window.compute.record(end as f64 - wake as f64);
+        let mut next = deadline + self.period_ns;
+        if overran {
+            window.overruns += 1;
+            // Skip the deadlines already missed instead of running catch-up
+            // ticks back to back: one stall is one overrun.
+            next += (end - deadline) / self.period_ns * self.period_ns;
+        }
+        self.next_deadline_ns = next;
+        if self.host_paced && self.sup.check_overrun(overran).is_some() {
+            let _ = self.stage.zero_and_disable(answers_seq);
+            return true;
+        }
+        false
+    }
+
+    /// One tick of `job` (steps 1–7). `cur` is the job's bookkeeping; `em`
+    /// where its records go.
+    fn tick<J: Job + ?Sized>(
+        &mut self,
+        job: &mut J,
+        cur: &mut JobCursor,
+        em: &mut Emitter<'_>,
+    ) -> TickResult {
+        let deadline = self.wait();
+        let mut wake = now_ns();
+        let read = self.read();
+        let device_clocked = matches!(self.clock, Clock::Device { .. });
+        if let (Read::Missing { fault: false }, true) = (read, device_clocked) {
+            // The device clocks the loop: no sample, no tick. The device
+            // holds the last command; the next read waits again.
+            em.event(
+                cur.tick,
+                cur.last_t_s,
+                EventKind::SampleMissing,
+                &self.sup,
+                self.sup.missing_samples() as f64,
+            );
+            return TickResult::NoTick;
+        }
+        if device_clocked {
+            // Device-clocked, the tick starts when its sample arrives.
+            wake = now_ns();
+        }
+        let (sample, mut fault) = match read {
+            Read::Sample(s) => (Some(s), false),
+            Read::Missing { fault } => (None, fault),
+        };
+        let t_s = match (self.clock, sample) {
+            (Clock::Host, _) => cur.tick as f64 * self.period_s,
+            (Clock::Device { .. }, Some(s)) => s.device_time_ns as f64 * 1e-9 - cur.origin_s,
+            // Device time of a held sample: a period after the last.
+            (Clock::Device { .. }, None) => cur.last_t_s + self.period_s,
+        };
+        cur.last_t_s = t_s;
+        match &sample {
+            Some(s) => fault |= self.supervise_sample(s),
+            None => em.event(
+                cur.tick,
+                t_s,
+                EventKind::SampleMissing,
+                &self.sup,
+                self.sup.missing_samples() as f64,
+            ),
+        }
+        // A tick without a sample holds the last reading.
+        let shown = sample.or(self.last_good);
+        let out = if self.last_good.is_some() {
+            Self::job_output(job, cur.tick, sample.as_ref(), cur.held)
+        } else {
+            JobOutput {
+                done: false,
+                ..cur.held
+            }
+        };
+        cur.held = out;
+        let seq = shown.map_or(cur.tick, |s| s.seq);
+        let (command_a, tick_fault) = self.command(out.command_a, seq, fault);
+        fault = tick_fault;
+        // Compute time ends when the command is out; queueing the record
+        // comes after (in virtual time it may wait for the writer).
+        let end = now_ns();
+        em.push(Record::Sample(SampleRecord {
+            tick: cur.tick,
+            t_s,
+            current_command_a: command_a,
+            position_m: sample.map_or(shown.map_or(f64::NAN, |s| s.position_m), |s| s.position_m),
+            excitation_a: out.excitation_a,
+            setpoint_m: out.setpoint_m,
+            state: self.sup.state(),
+            out_of_range: shown.is_some_and(|s| s.flags.out_of_range),
+        }));
+        if fault {
+            let value = self.sup.fault().map_or(f64::NAN, |f| f.1);
+            em.event(cur.tick, t_s, EventKind::Fault, &self.sup, value);
+        }
+        if self.timing(deadline, wake, end, seq, &mut cur.window) {
+            let value = self.sup.fault().map_or(f64::NAN, |f| f.1);
+            em.event(cur.tick, t_s, EventKind::Fault, &self.sup, value);
+        }
+        cur.window_ticks += 1;
+        if cur.window_ticks >= self.timing_interval_ticks {
+            em.push(timing_record(
+                cur.tick,
+                t_s,
+                cur.window_ticks,
+                &cur.window,
+                em.dropped,
+            ));
+            cur.total.merge(&cur.window);
+            cur.window = TickTiming::default();
+            cur.window_ticks = 0;
+        }
+        cur.tick += 1;
+        TickResult::Ran { done: out.done }
+    }
+
+    fn cursor(&self) -> JobCursor {
+        JobCursor {
+            tick: 0,
+            // A job on a running loop counts its time from the last sample.
+            origin_s: self
+                .last_good
+                .map_or(0.0, |s| s.device_time_ns as f64 * 1e-9),
+            last_t_s: -self.period_s,
+            held: JobOutput::ZERO,
+            total: TickTiming::default(),
+            window: TickTiming::default(),
+            window_ticks: 0,
+        }
+    }
+
+    /// Runs `job` until it finishes, a fault latches, `stop` is raised or
+    /// `max_ticks` pass, recording into `out`. Enables the amplifier before
+    /// the first tick and always leaves it disabled at 0 A. `progress` is
+    /// set to the job's tick count as it goes. A latched fault refuses the
+    /// job before anything is enabled. Nothing here allocates.
+    pub fn run_job<J: Job + ?Sized>(
+        &mut self,
+        job: &mut J,
+        out: &mut rtrb::Producer<Record>,
+        max_ticks: u64,
+        stop: &AtomicBool,
+        progress: &AtomicU64,
+    ) -> JobEnd<S::Error> {
+        let mut em = Emitter::new(out, self.backpressure);
+        let mut cur = self.cursor();
+        self.hal_error = None;
+        self.link_error = None;
+        em.event(0, 0.0, EventKind::LoopStarted, &self.sup, f64::NAN);
+        let mut stop_reason = match self.enable() {
+            Ok(()) => None,
+            Err(e) => {
+                em.event(0, 0.0, EventKind::Fault, &self.sup, f64::NAN);
+                Some(match e {
+                    Some(error) => RawStop::Hal {
+                        call: HalCall::Enable,
+                        error,
+                        tick: 0,
+                    },
+                    None => {
+                        let (kind, value) = self.sup.fault().unwrap_or((FaultKind::Hal, f64::NAN));
+                        RawStop::Fault {
+                            kind,
+                            value,
+                            tick: 0,
+                            link_error: None,
+                        }
+                    }
+                })
+            }
+        };
+        if stop_reason.is_none() {
+            em.event(0, 0.0, EventKind::StateChanged, &self.sup, f64::NAN);
+            self.sup.running();
+            em.event(0, 0.0, EventKind::JobStarted, &self.sup, f64::NAN);
+        }
+        while stop_reason.is_none() {
+            if cur.tick >= max_ticks {
+                stop_reason = Some(RawStop::TickLimit);
+                break;
+            }
+            let result = self.tick(job, &mut cur, &mut em);
+            progress.store(cur.tick, Ordering::Relaxed);
+            let last = cur.tick.saturating_sub(1);
+            if self.sup.state() == SupervisorState::Faulted {
+                stop_reason = Some(self.fault_stop(last));
+            } else if result == (TickResult::Ran { done: true }) {
+                em.event(
+                    last,
+                    cur.last_t_s,
+                    EventKind::JobFinished,
+                    &self.sup,
+                    f64::NAN,
+                );
+                stop_reason = Some(RawStop::Finished);
+            } else if stop.load(Ordering::Relaxed) {
+                em.event(
+                    last,
+                    cur.last_t_s,
+                    EventKind::Interrupted,
+                    &self.sup,
+                    f64::NAN,
+                );
+                stop_reason = Some(RawStop::Interrupted { tick: last });
+            }
+        }
+        // Teardown: always 0 A and disabled.
+        self.disable();
+        let last = cur.tick.saturating_sub(1);
+        let t_end = cur.tick as f64 * self.period_s;
+        em.event(last, t_end, EventKind::StateChanged, &self.sup, f64::NAN);
+        if cur.window_ticks > 0 {
+            em.push(timing_record(
+                last,
+                t_end,
+                cur.window_ticks,
+                &cur.window,
+                em.dropped,
+            ));
+            cur.total.merge(&cur.window);
+        }
+        em.event(last, t_end, EventKind::LoopStopped, &self.sup, f64::NAN);
+        JobEnd {
+            ticks: cur.tick,
+            stop: stop_reason.unwrap_or(RawStop::TickLimit),
+            timing: cur.total,
+            dropped_records: em.dropped,
+            final_state: self.sup.state(),
+        }
+    }
+
+    /// The latched fault as a stop reason, with the error that explains it.
+    fn fault_stop(&mut self, tick: u64) -> RawStop<S::Error> {
+        let (kind, value) = self.sup.fault().unwrap_or((FaultKind::Hal, f64::NAN));
+        match (kind, self.hal_error.take()) {
+            (FaultKind::Hal, Some((call, error))) => RawStop::Hal { call, error, tick },
+            _ => RawStop::Fault {
+                kind,
+                value,
+                tick,
+                link_error: if kind == FaultKind::Link {
+                    self.link_error.take()
+                } else {
+                    None
+                },
+            },
+        }
+    }
+
+    /// Runs the hold job between jobs, nothing recorded, until `until`
+    /// (checked once per tick, after it) returns `true`. Every rule of the
+    /// supervisor applies; a fault is 0 A and disable at its tick, then the
+    /// hold goes on (the device keeps being read). Returns `true` if a fault
+    /// latched during the hold.
+    pub fn hold(&mut self, mut until: impl FnMut(&Self) -> bool) -> bool {
+        let mut em = Emitter::none();
+        let mut cur = self.cursor();
+        let faulted_before = self.sup.state() == SupervisorState::Faulted;
+        let mut job = HoldJob;
+        loop {
+            let r = self.tick(&mut job, &mut cur, &mut em);
+            if r == TickResult::NoTick && self.sup.state() == SupervisorState::Faulted {
+                // A device that is gone answers at once: do not spin.
+                std::thread::sleep(std::time::Duration::from_nanos(self.period_ns));
+            }
+            // The hold's own bookkeeping must not grow without bound.
+            cur.tick = cur.tick.min(1 << 40);
+            cur.window = TickTiming::default();
+            if until(self) {
+                break;
+            }
+        }
+        !faulted_before && self.sup.state() == SupervisorState::Faulted
+    }
+}
+
+/// Runs `job` on `stage` in a loop of its own until it finishes, a fault
+/// latches, `stop` is raised or `max_ticks` pass. The stage must be
+/// configured; `run` enables the amplifier before the first tick and
+/// always leaves it disabled at 0 A. `progress` is set to the tick count as
+/// the loop goes.
+pub fn run<S: Stage, J: Job + ?Sized>(
     stage: &mut S,
     job: &mut J,
     opts: &LoopOptions,
@@ -228,324 +955,10 @@ pub fn run<S: Stage, J: Job>(
     stop: &AtomicBool,
     progress: &AtomicU64,
 ) -> LoopReport {
-    let mut warnings = Vec::new();
-    if let Pacing::RealTime { priority, cpu } = opts.pacing {
-        warnings.extend(make_realtime(priority, cpu));
-    }
-    let mut sup = Supervisor::new(opts.safety);
-    let mut em = Emitter {
-        out,
-        dropped: 0,
-        backpressure: opts.pacing == Pacing::Virtual,
-    };
-    let period_s = opts.period_ns as f64 * 1e-9;
-    let mut total = TickTiming::default();
-    let mut window = TickTiming::default();
-    let mut window_ticks = 0u64;
-
-    em.event(0, 0.0, EventKind::LoopStarted, &sup, f64::NAN);
-    if let Err(e) = stage.enable() {
-        let _ = stage.disable();
-        sup.trip(FaultKind::Hal, f64::NAN);
-        em.event(0, 0.0, EventKind::Fault, &sup, f64::NAN);
-        return LoopReport {
-            ticks: 0,
-            stop: StopReason::Hal {
-                message: format!("enable failed: {e}"),
-                tick: 0,
-            },
-            timing: total,
-            dropped_records: em.dropped,
-            warnings,
-            final_state: sup.state(),
-        };
-    }
-    sup.enabled();
-    em.event(0, 0.0, EventKind::StateChanged, &sup, f64::NAN);
-    sup.running();
-    em.event(0, 0.0, EventKind::JobStarted, &sup, f64::NAN);
-
-    let host_paced = matches!(opts.pacing, Pacing::RealTime { .. }) && clock == Clock::Host;
-    // Deadlines are start + tick × period, shifted by the periods skipped
-    // after a stall (see below).
-    let mut start_ns = now_ns() + opts.period_ns;
-    let mut stop_reason = StopReason::TickLimit;
-    let mut tick = 0u64;
-    // The first HAL error, kept as-is (formatting would allocate on the
-    // tick); it becomes a message after the loop.
-    let mut hal_error: Option<(&'static str, S::Error)> = None;
-    // The latest bad-sample or lost-link error (for the link fault's
-    // message).
-    let mut link_error: Option<S::Error> = None;
-    let mut last_good: Option<Sample> = None;
-    let mut last_t_s = -period_s;
-    let mut last_command_a = 0.0;
-    let mut last_excitation_a = f64::NAN;
-    let mut last_setpoint_m = f64::NAN;
-    while tick < opts.max_ticks {
-        let deadline = start_ns + tick * opts.period_ns;
-        if host_paced {
-            sleep_until_ns(deadline);
-        }
-        let mut wake = now_ns();
-
-        let mut fault_now = false;
-        // A read without a usable sample (timeout, corrupt frames) counts
-        // towards the link fault. Host-clocked, the tick still runs and
-        // holds the last reading and command; device-clocked, there is no
-        // tick until a sample comes. A lost link faults at once; any other
-        // HAL error is a HAL fault.
-        let mut missing = false;
-        let sample = match stage.read_sample() {
-            Ok(s) => s,
-            Err(e) => {
-                match e.kind() {
-                    ErrorKind::Timeout | ErrorKind::Crc => {
-                        let tripped = sup.sample_missing().is_some();
-                        link_error = Some(e);
-                        if !tripped && matches!(clock, Clock::Device { .. }) {
-                            // The device clocks the loop: no sample, no
-                            // tick. The device holds the last command; the
-                            // next read waits again.
-                            em.event(
-                                tick,
-                                last_t_s,
-                                EventKind::SampleMissing,
-                                &sup,
-                                sup.missing_samples() as f64,
-                            );
-                            if stop.load(Ordering::Relaxed) {
-                                em.event(tick, last_t_s, EventKind::Interrupted, &sup, f64::NAN);
-                                stop_reason = StopReason::Interrupted {
-                                    tick: tick.saturating_sub(1),
-                                };
-                                break;
-                            }
-                            continue;
-                        }
-                        missing = true;
-                        fault_now |= tripped;
-                    }
-                    ErrorKind::Link => {
-                        fault_now |= sup.link_lost();
-                        link_error = Some(e);
-                    }
-                    _ => {
-                        if hal_error.is_none() {
-                            hal_error = Some(("read_sample", e));
-                        }
-                        fault_now |= sup.trip(FaultKind::Hal, f64::NAN);
-                    }
-                }
-                Sample {
-                    seq: last_good.map_or(tick, |s| s.seq),
-                    device_time_ns: last_good.map_or(0, |s| s.device_time_ns),
-                    position_m: last_good.map_or(f64::NAN, |s| s.position_m),
-                    measured_current_a: f64::NAN,
-                    flags: last_good.map_or(Default::default(), |s| s.flags),
-                }
-            }
-        };
-        if let Clock::Device { .. } = clock {
-            // Device-clocked, the tick starts when its sample arrives.
-            wake = now_ns();
-        }
-        let t_s = match clock {
-            Clock::Host => tick as f64 * period_s,
-            // Device time of the sample; a held one is a period later.
-            Clock::Device { .. } if missing => last_t_s + period_s,
-            Clock::Device { .. } => sample.device_time_ns as f64 * 1e-9,
-        };
-        last_t_s = t_s;
-        if missing {
-            em.event(
-                tick,
-                t_s,
-                EventKind::SampleMissing,
-                &sup,
-                sup.missing_samples() as f64,
-            );
-        } else {
-            fault_now |= sup.check_sample(&sample).is_some();
-            last_good = Some(sample);
-        }
-        let job_out = if missing || last_good.is_none() {
-            // Hold: the job does not run on a tick without a sample.
-            JobOutput {
-                command_a: last_command_a,
-                excitation_a: last_excitation_a,
-                setpoint_m: last_setpoint_m,
-                done: false,
-            }
-        } else {
-            job.tick(tick, &sample)
-        };
-        last_excitation_a = job_out.excitation_a;
-        last_setpoint_m = job_out.setpoint_m;
-        let (command_a, cmd_fault) = sup.command(job_out.command_a);
-        fault_now |= cmd_fault.is_some();
-        last_command_a = job_out.command_a;
-        if let Err(e) = stage.write_command(Command {
-            current_a: command_a,
-            answers_seq: sample.seq,
-        }) {
-            if hal_error.is_none() {
-                hal_error = Some(("write_command", e));
-            }
-            fault_now |= sup.trip(FaultKind::Hal, command_a);
-        }
-        if fault_now {
-            // Same tick: 0 A and amplifier off.
-            let _ = stage.write_command(Command {
-                current_a: 0.0,
-                answers_seq: sample.seq,
-            });
-            let _ = stage.disable();
-        }
-        // Compute time ends when the command is out; queueing the record
-        // comes after (in virtual time it may wait for the writer).
-        let end = now_ns();
-
-        em.push(Record::Sample(SampleRecord {
-            tick,
-            t_s,
-            current_command_a: command_a,
-            position_m: sample.position_m,
-            excitation_a: job_out.excitation_a,
-            setpoint_m: job_out.setpoint_m,
-            state: sup.state(),
-            out_of_range: sample.flags.out_of_range,
-        }));
-        if fault_now {
-            let value = sup.fault().map(|f| f.1).unwrap_or(f64::NAN);
-            em.event(tick, t_s, EventKind::Fault, &sup, value);
-        }
-
-        let overran = host_paced && end > deadline + opts.period_ns;
-        if host_paced {
-            window.wake.record(wake as f64 - deadline as f64);
-        } else {
-            window.wake.record(0.0);
-        }
-        window.compute.record(end as f64 - wake as f64);
-        if overran {
-            window.overruns += 1;
-            // A stall longer than a period: skip the deadlines already
-            // missed instead of running catch-up ticks back to back (their
-            // samples would not be a period apart). One stall is one
-            // overrun; only a loop that keeps missing faults.
-            let missed = (end - deadline) / opts.period_ns;
-            start_ns += missed * opts.period_ns;
-        }
-        if host_paced && sup.check_overrun(overran).is_some() {
-            let _ = stage.write_command(Command {
-                current_a: 0.0,
-                answers_seq: sample.seq,
-            });
-            let _ = stage.disable();
-            em.event(
-                tick,
-                t_s,
-                EventKind::Fault,
-                &sup,
-                sup.fault().map(|f| f.1).unwrap_or(f64::NAN),
-            );
-        }
-        window_ticks += 1;
-        if window_ticks >= opts.timing_interval_ticks {
-            em.push(timing_record(tick, t_s, window_ticks, &window, em.dropped));
-            total.merge(&window);
-            window = TickTiming::default();
-            window_ticks = 0;
-        }
-
-        tick += 1;
-        progress.store(tick, Ordering::Relaxed);
-        if sup.state() == SupervisorState::Faulted {
-            let (kind, value) = sup.fault().unwrap_or((FaultKind::Hal, f64::NAN));
-            stop_reason = match (hal_error.take(), link_error.take()) {
-                (Some((call, e)), _) if kind == FaultKind::Hal => StopReason::Hal {
-                    message: format!("{call}: {e}"),
-                    tick: tick - 1,
-                },
-                (_, Some(e)) if kind == FaultKind::Link => StopReason::Fault {
-                    kind,
-                    value,
-                    tick: tick - 1,
-                    detail: Some(if value.is_nan() {
-                        format!("link lost: {e}")
-                    } else {
-                        format!("{value} consecutive samples missing or corrupt (last: {e})")
-                    }),
-                },
-                (_, None) if kind == FaultKind::Link => StopReason::Fault {
-                    kind,
-                    value,
-                    tick: tick - 1,
-                    detail: Some(format!(
-                        "{value} consecutive samples missing (sequence gap)"
-                    )),
-                },
-                _ => StopReason::Fault {
-                    kind,
-                    value,
-                    tick: tick - 1,
-                    detail: None,
-                },
-            };
-            break;
-        }
-        if job_out.done {
-            em.event(tick - 1, t_s, EventKind::JobFinished, &sup, f64::NAN);
-            stop_reason = StopReason::Finished;
-            break;
-        }
-        if stop.load(Ordering::Relaxed) {
-            em.event(tick - 1, t_s, EventKind::Interrupted, &sup, f64::NAN);
-            stop_reason = StopReason::Interrupted { tick: tick - 1 };
-            break;
-        }
-    }
-    // Teardown: always 0 A and disabled.
-    let _ = stage.write_command(Command {
-        current_a: 0.0,
-        answers_seq: 0,
-    });
-    let _ = stage.disable();
-    sup.disabled();
-    let t_end = tick as f64 * period_s;
-    em.event(
-        tick.saturating_sub(1),
-        t_end,
-        EventKind::StateChanged,
-        &sup,
-        f64::NAN,
-    );
-    if window_ticks > 0 {
-        em.push(timing_record(
-            tick.saturating_sub(1),
-            t_end,
-            window_ticks,
-            &window,
-            em.dropped,
-        ));
-        total.merge(&window);
-    }
-    em.event(
-        tick.saturating_sub(1),
-        t_end,
-        EventKind::LoopStopped,
-        &sup,
-        f64::NAN,
-    );
-    LoopReport {
-        ticks: tick,
-        stop: stop_reason,
-        timing: total,
-        dropped_records: em.dropped,
-        warnings,
-        final_state: sup.state(),
-    }
+    let mut lp = Loop::new(stage, opts, clock);
+    let end = lp.run_job(job, out, opts.max_ticks, stop, progress);
+    let warnings = std::mem::take(&mut lp.warnings);
+    end.into_report(warnings)
 }
 
 fn timing_record(tick: u64, t_s: f64, ticks: u64, w: &TickTiming, dropped: u64) -> Record {

@@ -1,0 +1,221 @@
+//! The daemon's loop: one [`Loop`] and one supervisor for the daemon's
+//! whole life. Between jobs the loop runs the hold job (0 A; every rule of
+//! the supervisor applies, the device keeps being read, nothing is
+//! recorded); a job is prepared on another thread and handed over on a
+//! tick, so no sample backlog builds up, and handed back when it ends.
+//!
+//! Requests and replies cross wait-free SPSC queues (`rtrb`), so nothing on
+//! the tick locks, allocates or formats: a job, its record queue and its
+//! stop flag arrive boxed ([`JobTicket`]) and go back boxed, to be dropped
+//! off the real-time thread; errors come back unformatted.
+
+use crate::record::topics::{FaultKind, Record, SupervisorState};
+use crate::rt::backend::{AnyError, AnyStage, LinkCounters};
+use crate::rt::supervisor::HalCall;
+use crate::rt::{Job, JobEnd, Loop, LoopOptions};
+use bench_hal::sim::ScheduledFault;
+use bench_hal::Clock;
+use std::sync::atomic::{AtomicBool, AtomicU64, AtomicU8, Ordering};
+use std::sync::Arc;
+
+/// A job handed to the loop, with everything it needs on the tick.
+pub struct JobTicket {
+    /// The job.
+    pub job: Box<dyn Job + Send>,
+    /// Its record queue (the writer drains the other end).
+    pub out: rtrb::Producer<Record>,
+    /// Tick budget.
+    pub max_ticks: u64,
+    /// Raised to stop the job safely.
+    pub stop: Arc<AtomicBool>,
+    /// The job's tick count.
+    pub progress: Arc<AtomicU64>,
+}
+
+/// What the daemon asks of its loop.
+pub enum LoopRequest {
+    /// Enable the amplifier at 0 A (refused while faulted).
+    Enable,
+    /// 0 A, amplifier disabled.
+    Disable,
+    /// Clear a latched fault.
+    Reset,
+    /// Schedule a simulator fault, `at_s` from now (tests).
+    Inject(ScheduledFault),
+    /// Run a job now.
+    Job(Box<JobTicket>),
+    /// End the loop (0 A, disabled).
+    Shutdown,
+}
+
+/// What the loop answers.
+pub enum LoopReply {
+    /// The answer to [`LoopRequest::Enable`]: `Err(None)` while faulted.
+    Enabled(Result<(), Option<AnyError>>),
+    /// The answer to [`LoopRequest::Disable`].
+    Disabled,
+    /// The answer to [`LoopRequest::Reset`].
+    Reset,
+    /// The answer to [`LoopRequest::Inject`] (refused on hardware).
+    Injected(bool),
+    /// A job ended; its ticket comes back to be dropped off the tick.
+    JobDone {
+        /// The ticket.
+        ticket: Box<JobTicket>,
+        /// How it ended.
+        end: JobEnd<AnyError>,
+        /// Link counters before and after the job (hardware).
+        link: Option<(LinkCounters, LinkCounters)>,
+    },
+    /// A fault latched between jobs.
+    Fault {
+        /// Which.
+        kind: FaultKind,
+        /// The offending value.
+        value: f64,
+        /// The last bad-sample or lost-link error.
+        link_error: Option<AnyError>,
+        /// The HAL error, for `hal` faults.
+        hal_error: Option<(HalCall, AnyError)>,
+    },
+    /// The loop ended.
+    Stopped,
+}
+
+/// What the loop publishes for `status` without a lock.
+#[derive(Debug)]
+pub struct LoopStatus {
+    /// Last reading, m, as `f64::to_bits`.
+    pub position_bits: AtomicU64,
+    /// Supervisor state (`SupervisorState as u8`).
+    pub state: AtomicU8,
+}
+
+impl Default for LoopStatus {
+    fn default() -> Self {
+        Self {
+            position_bits: AtomicU64::new(f64::NAN.to_bits()),
+            state: AtomicU8::new(SupervisorState::Disabled as u8),
+        }
+    }
+}
+
+impl LoopStatus {
+    /// The last reading, m.
+    pub fn position_m(&self) -> f64 {
+        f64::from_bits(self.position_bits.load(Ordering::Relaxed))
+    }
+
+    /// The supervisor's state.
+    pub fn state(&self) -> SupervisorState {
+        let s = self.state.load(Ordering::Relaxed);
+        SupervisorState::ALL
+            .into_iter()
+            .find(|v| *v as u8 == s)
+            .unwrap_or(SupervisorState::Faulted)
+    }
+}
+
+/// Runs the daemon's loop on the calling thread until
+/// [`LoopRequest::Shutdown`] (or the request queue's other end is gone).
+/// Leaves the stage at 0 A, disabled.
+pub fn run_service(
+    stage: &mut AnyStage,
+    opts: &LoopOptions,
+    clock: Clock,
+    mut requests: rtrb::Consumer<LoopRequest>,
+    mut replies: rtrb::Producer<LoopReply>,
+    status: &LoopStatus,
+) {
+    let mut lp = Loop::new(stage, opts, clock);
+    for w in lp.warnings() {
+        tracing::warn!("{w}");
+    }
+    lp.publish_position(&status.position_bits);
+    let publish = |lp: &Loop<'_, AnyStage>| {
+        status
+            .state
+            .store(lp.supervisor().state() as u8, Ordering::Relaxed);
+    };
+    let reply = |r: LoopReply, replies: &mut rtrb::Producer<LoopReply>| {
+        // The daemon drains replies continuously; a full queue means it is
+        // gone.
+        let _ = replies.push(r);
+    };
+    loop {
+        publish(&lp);
+        let mut pending = None;
+        let was_faulted = lp.supervisor().state() == SupervisorState::Faulted;
+        let newly_faulted = lp.hold(|lp| {
+            if !was_faulted && lp.supervisor().state() == SupervisorState::Faulted {
+                return true;
+            }
+            if requests.is_abandoned() && requests.is_empty() {
+                pending = Some(LoopRequest::Shutdown);
+                return true;
+            }
+            match requests.pop() {
+                Ok(r) => {
+                    pending = Some(r);
+                    true
+                }
+                Err(_) => false,
+            }
+        });
+        publish(&lp);
+        if newly_faulted {
+            let (kind, value) = lp
+                .supervisor()
+                .fault()
+                .unwrap_or((FaultKind::Hal, f64::NAN));
+            let (link_error, hal_error) = lp.take_errors();
+            reply(
+                LoopReply::Fault {
+                    kind,
+                    value,
+                    link_error,
+                    hal_error,
+                },
+                &mut replies,
+            );
+        }
+        let Some(req) = pending else { continue };
+        match req {
+            LoopRequest::Enable => {
+                let r = lp.enable();
+                reply(LoopReply::Enabled(r), &mut replies);
+            }
+            LoopRequest::Disable => {
+                lp.disable();
+                reply(LoopReply::Disabled, &mut replies);
+            }
+            LoopRequest::Reset => {
+                lp.reset();
+                reply(LoopReply::Reset, &mut replies);
+            }
+            LoopRequest::Inject(f) => {
+                let ok = lp.stage().inject(f).is_ok();
+                reply(LoopReply::Injected(ok), &mut replies);
+            }
+            LoopRequest::Job(mut ticket) => {
+                let before = lp.stage().link_counters();
+                let t = &mut *ticket;
+                let end = lp.run_job(&mut t.job, &mut t.out, t.max_ticks, &t.stop, &t.progress);
+                let after = lp.stage().link_counters();
+                publish(&lp);
+                reply(
+                    LoopReply::JobDone {
+                        ticket,
+                        end,
+                        link: before.zip(after),
+                    },
+                    &mut replies,
+                );
+            }
+            LoopRequest::Shutdown => break,
+        }
+    }
+    lp.disable();
+    publish(&lp);
+    reply(LoopReply::Stopped, &mut replies);
+}
