@@ -98,16 +98,18 @@ fn run_counted_job<S: Stage + Send + 'static, J: Job + Send + 'static>(
             inner: job,
             from_tick: 100,
         };
-        let report = rt::run(
-            &mut stage,
+        let mut lp = rt::Loop::new(&mut stage, &opts, clock);
+        let end = lp.run_job(
             &mut job,
-            &opts,
-            clock,
             &mut producer,
+            opts.max_ticks,
             &AtomicBool::new(false),
             &AtomicU64::new(0),
         );
-        (report, stop_counting())
+        // Counted up to here: every tick, the faulting one and the
+        // teardown. Formatting the report (after the loop) may allocate.
+        let allocations = stop_counting();
+        (end.into_report(Vec::new()), allocations)
     })
     .join()
     .unwrap();
@@ -253,6 +255,90 @@ fn serial_tick_allocates_nothing() {
         "{allocations} allocations in {} serial ticks",
         report.ticks
     );
+}
+
+/// A faulting tick allocates nothing either: for every simulator fault,
+/// the tick that latches it (0 A, disable), the fault event and the
+/// teardown are counted.
+#[test]
+fn faulting_tick_allocates_nothing() {
+    use bench::record::topics::FaultKind;
+    use bench_hal::sim::{FaultInjection, ScheduledFault};
+    let cfg = ch5();
+    for (kind, expect) in [
+        (FaultInjection::Nan, FaultKind::ProbeNotFinite),
+        (FaultInjection::Frozen, FaultKind::StaleSample),
+        (FaultInjection::Drop(10), FaultKind::Link),
+        (FaultInjection::Jump(2e-4), FaultKind::PositionJump),
+        (FaultInjection::OutOfRange, FaultKind::ProbeOutOfRange),
+    ] {
+        let mut stage = SimStage::new(cfg.sim_params(7)).unwrap();
+        let info = stage.configure(cfg.loop_.period_ns()).unwrap();
+        stage.inject(ScheduledFault { at_s: 0.2, kind });
+        let period_s = info.period_ns as f64 * 1e-9;
+        let chirp = Chirp::new(&cfg.chirp, period_s);
+        let opts = LoopOptions {
+            period_ns: info.period_ns,
+            pacing: Pacing::Virtual,
+            timing_interval_ticks: 500,
+            safety: cfg.supervisor(&info),
+            max_ticks: chirp.total_ticks(),
+        };
+        let (report, allocations, _) =
+            run_counted_job(stage, ChirpJob::new(chirp), opts, info.clock);
+        match report.stop {
+            StopReason::Fault { kind: k, tick, .. } => {
+                assert_eq!(k, expect, "{kind:?}");
+                assert!(
+                    tick > 100,
+                    "{kind:?} faulted at tick {tick}, before counting"
+                );
+            }
+            other => panic!("{kind:?}: {other:?}"),
+        }
+        assert_eq!(allocations, 0, "{kind:?}: {allocations} allocations");
+    }
+}
+
+/// The daemon's hold between jobs allocates nothing, including a fault
+/// that latches during the hold.
+#[test]
+fn hold_and_a_fault_between_jobs_allocate_nothing() {
+    use bench::record::topics::{FaultKind, SupervisorState};
+    use bench_hal::sim::{FaultInjection, ScheduledFault};
+    let cfg = ch5();
+    let mut stage = SimStage::new(cfg.sim_params(7)).unwrap();
+    let info = stage.configure(cfg.loop_.period_ns()).unwrap();
+    stage.inject(ScheduledFault {
+        at_s: 0.2,
+        kind: FaultInjection::Nan,
+    });
+    let opts = LoopOptions {
+        period_ns: info.period_ns,
+        pacing: Pacing::Virtual,
+        timing_interval_ticks: 500,
+        safety: cfg.supervisor(&info),
+        max_ticks: u64::MAX,
+    };
+    let (fault, allocations) = std::thread::spawn(move || {
+        let mut lp = rt::Loop::new(&mut stage, &opts, info.clock);
+        let mut n = 0u64;
+        let latched = lp.hold(|_| {
+            n += 1;
+            if n == 100 {
+                COUNTING.with(|c| c.set(true));
+            }
+            n >= 3_000
+        });
+        let allocations = stop_counting();
+        assert!(latched);
+        assert_eq!(lp.supervisor().state(), SupervisorState::Faulted);
+        (lp.supervisor().fault().map(|f| f.0), allocations)
+    })
+    .join()
+    .unwrap();
+    assert_eq!(fault, Some(FaultKind::ProbeNotFinite));
+    assert_eq!(allocations, 0, "{allocations} allocations in the hold");
 }
 
 /// The counter does count: a tick that allocates is caught.

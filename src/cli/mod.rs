@@ -80,6 +80,11 @@ struct ServeArgs {
     /// Simulator seed [default: sim.seed].
     #[arg(long, value_name = "N")]
     seed: Option<u64>,
+    /// Inject a simulator fault T_S seconds after start, between jobs (for
+    /// testing supervision): KIND@T_S with KIND one of nan, frozen, drop,
+    /// jump, out_of_range.
+    #[arg(long, value_name = "KIND@T_S")]
+    inject_fault: Option<String>,
 }
 
 #[derive(Debug, Subcommand)]
@@ -1001,7 +1006,12 @@ fn serve(args: ServeArgs) -> ExitCode {
         Ok(c) => c,
         Err(e) => return bad_input(e),
     };
+    let inject = match args.inject_fault.as_deref().map(parse_fault).transpose() {
+        Ok(f) => f,
+        Err(e) => return bad_input(format!("--inject-fault: {e}")),
+    };
     let opts = bench::daemon::ServeOptions {
+        inject,
         seed: args.seed.unwrap_or(cfg.sim.seed),
         config: cfg,
         config_path: args.config,

@@ -46,9 +46,12 @@ use crate::config::BenchConfig;
 use crate::error::RunError;
 use crate::jobs::chirp::{run_chirp_on, ChirpOptions};
 use crate::jobs::session::beside;
+use crate::jobs::session::Runner;
 use crate::jobs::step::{run_control_from, ControlOptions, StageSource};
-use crate::rt::backend::{self, AnyStage, BackendSpec};
-use bench_hal::{Clock, Command, DeviceInfo, Error as _, ErrorKind, Stage};
+use crate::record::topics::FaultKind;
+use crate::rt::backend::{self, BackendSpec};
+use crate::rt::service::{run_service, LoopReply, LoopRequest, LoopStatus, ServiceClient};
+use crate::rt::{LoopOptions, Pacing, RawStop, StopReason};
 use serde::Serialize;
 use serde_json::{json, Value};
 use std::io::Write as _;
@@ -88,6 +91,9 @@ pub struct ServeOptions {
     pub backend: Option<BackendSpec>,
     /// Simulator seed.
     pub seed: u64,
+    /// A simulator fault to inject, `at_s` after the daemon starts (tests
+    /// of supervision between jobs).
+    pub inject: Option<bench_hal::sim::ScheduledFault>,
 }
 
 /// Why the daemon did not start or stopped with an error.
@@ -191,9 +197,8 @@ struct Ctx {
     spec: BackendSpec,
     period_s: f64,
     status: Arc<Mutex<Status>>,
-    /// Last reading between jobs, m, as `f64::to_bits` (written by the
-    /// owner without a lock).
-    position_bits: Arc<AtomicU64>,
+    /// What the real-time loop publishes (last reading, supervisor state).
+    loop_status: Arc<LoopStatus>,
     owner: Mutex<mpsc::Sender<OwnerCmd>>,
     events: broadcast::Sender<String>,
     next_job: AtomicU64,
@@ -314,33 +319,60 @@ fn to_json<T: Serialize>(summary: T) -> Result<Value, (ApiError, RunError)> {
         .map_err(|e| (ApiError::new("error", e.to_string()), RunError::Json(e)))
 }
 
-/// What the owner thread shares with the socket side, and its settings.
+/// What the owner thread shares with the socket side.
 struct OwnerShared {
     status: Arc<Mutex<Status>>,
-    position_bits: Arc<AtomicU64>,
     events: broadcast::Sender<String>,
-    /// Not the simulator: jobs run in real time.
-    hardware: bool,
-    /// K of the link rule between jobs (`safety.max_missed_samples`).
-    max_missed_samples: u32,
 }
 
-/// The owner thread: idle supervision of the device between jobs, and the
-/// jobs themselves.
-fn owner(mut stage: AnyStage, info: DeviceInfo, rx: mpsc::Receiver<OwnerCmd>, shared: OwnerShared) {
-    let OwnerShared {
-        status,
-        position_bits,
-        events,
-        hardware,
-        max_missed_samples,
-    } = shared;
-    let period_ns = info.period_ns;
-    // Only this thread latches and clears faults, so it keeps the flag
-    // itself: the idle ticks take no lock.
-    let mut faulted = false;
-    let mut next = bench_hal::clock::monotonic_ns() + period_ns;
-    let mut missing = 0u32;
+/// A fault the loop latched between jobs, as `status` reports it: the
+/// supervisor's fault name and what caused it.
+fn between_jobs_fault(r: LoopReply) -> Option<ApiError> {
+    let LoopReply::Fault {
+        kind,
+        value,
+        link_error,
+        hal_error,
+    } = r
+    else {
+        return None;
+    };
+    let stop = match hal_error {
+        Some((call, error)) if kind == FaultKind::Hal => RawStop::Hal {
+            call,
+            error,
+            tick: 0,
+        },
+        _ => RawStop::Fault {
+            kind,
+            value,
+            tick: 0,
+            link_error,
+        },
+    };
+    let message = match stop.describe() {
+        StopReason::Hal { message, .. } => message,
+        StopReason::Fault {
+            detail: Some(d), ..
+        } => d,
+        _ => format!("value {value:e}"),
+    };
+    Some(ApiError::new(
+        kind.as_str(),
+        format!(
+            "between jobs: {} ({message}); 0 A, amplifier disabled",
+            kind.as_str()
+        ),
+    ))
+}
+
+/// The owner thread: the daemon's side of the loop. It hands requests and
+/// jobs to the real-time loop ([`crate::rt::service`]), which runs the
+/// hold job and the one supervisor between them, and reports faults the
+/// loop latched between jobs.
+fn owner(mut client: ServiceClient, rx: mpsc::Receiver<OwnerCmd>, shared: OwnerShared) {
+    let OwnerShared { status, events } = shared;
+    let hardware = client.hardware;
     let set_state = |state: &'static str, fault: Option<ApiError>| {
         let mut s = lock(&status);
         s.state = state;
@@ -349,47 +381,59 @@ fn owner(mut stage: AnyStage, info: DeviceInfo, rx: mpsc::Receiver<OwnerCmd>, sh
         }
         let _ = events.send(event("state", json!({ "state": state, "fault": s.fault })));
     };
+    let gone = || ApiError::new("error", "the real-time loop is gone");
     loop {
-        // Requests first.
-        match rx.try_recv() {
-            Ok(OwnerCmd::Shutdown) | Err(mpsc::TryRecvError::Disconnected) => break,
+        let cmd = rx.recv_timeout(std::time::Duration::from_millis(10));
+        match cmd {
+            Ok(OwnerCmd::Shutdown) | Err(mpsc::RecvTimeoutError::Disconnected) => break,
+            Err(mpsc::RecvTimeoutError::Timeout) => {}
             Ok(OwnerCmd::Enable(reply)) => {
-                let r = if faulted {
-                    Err(ApiError::new("faulted", "a fault is latched: reset first"))
-                } else {
-                    match stage.enable() {
-                        Ok(()) => {
-                            set_state("enabled", None);
-                            Ok(())
-                        }
-                        Err(e) => Err(ApiError::new("hal", format!("enable failed: {e}"))),
+                let r = match client.call(LoopRequest::Enable) {
+                    Some(LoopReply::Enabled(Ok(()))) => {
+                        set_state("enabled", None);
+                        Ok(())
                     }
+                    Some(LoopReply::Enabled(Err(None))) => {
+                        Err(ApiError::new("faulted", "a fault is latched: reset first"))
+                    }
+                    Some(LoopReply::Enabled(Err(Some(e)))) => {
+                        let api = ApiError::new("hal", format!("enable failed: {e}"));
+                        set_state("faulted", Some(api.clone()));
+                        Err(api)
+                    }
+                    _ => Err(gone()),
                 };
                 let _ = reply.send(r);
             }
             Ok(OwnerCmd::Disable(reply)) => {
-                let _ = stage.write_command(Command {
-                    current_a: 0.0,
-                    answers_seq: 0,
-                });
-                let r = stage.disable();
-                if !faulted {
-                    set_state("disabled", None);
-                }
-                let _ = reply.send(r.map_err(|e| ApiError::new("hal", e.to_string())));
+                let r = match client.call(LoopRequest::Disable) {
+                    Some(_) => {
+                        if lock(&status).state != "faulted" {
+                            set_state("disabled", None);
+                        }
+                        Ok(())
+                    }
+                    None => Err(gone()),
+                };
+                let _ = reply.send(r);
             }
             Ok(OwnerCmd::Reset(reply)) => {
-                let _ = stage.disable();
-                faulted = false;
-                missing = 0;
-                set_state("disabled", None);
-                let _ = reply.send(Ok(()));
+                let r = match client.call(LoopRequest::Reset) {
+                    Some(_) => {
+                        // Faults reported before the reset are cleared by
+                        // it; one that latches again after it is reported.
+                        client.forget_earlier_faults();
+                        set_state("disabled", None);
+                        Ok(())
+                    }
+                    None => Err(gone()),
+                };
+                let _ = reply.send(r);
             }
             Ok(OwnerCmd::Job(job, handle, reply)) => {
                 let result = match job {
                     JobSpec::Chirp(opts) => run_chirp_on(
-                        &mut stage,
-                        &info,
+                        &mut Runner::Service(&mut client),
                         hardware,
                         &opts,
                         Arc::clone(&handle.stop),
@@ -400,7 +444,7 @@ fn owner(mut stage: AnyStage, info: DeviceInfo, rx: mpsc::Receiver<OwnerCmd>, sh
                     JobSpec::Control(opts) => run_control_from(
                         &opts,
                         Arc::clone(&handle.stop),
-                        StageSource::Borrowed(&mut stage, &info),
+                        StageSource::Service(&mut client),
                         Some(&handle.ticks),
                     )
                     .map_err(|e| (ApiError::from_run(&e), e))
@@ -416,74 +460,23 @@ fn owner(mut stage: AnyStage, info: DeviceInfo, rx: mpsc::Receiver<OwnerCmd>, sh
                 match &result {
                     // The latched fault is reported by its supervisor name.
                     Err((api, RunError::Fault { kind, .. })) => {
-                        faulted = true;
                         set_state("faulted", Some(ApiError::new(kind, api.message.clone())));
                     }
                     Err((api, RunError::Hal { .. })) => {
-                        faulted = true;
                         set_state("faulted", Some(api.clone()));
                     }
                     _ => set_state("disabled", None),
                 }
                 let _ = reply.send(result.map_err(|(api, _)| api));
-                next = bench_hal::clock::monotonic_ns() + period_ns;
-            }
-            Err(mpsc::TryRecvError::Empty) => {}
-        }
-        // Idle supervision: read the device, hold 0 A.
-        if info.clock == Clock::Host {
-            bench_hal::clock::sleep_until_ns(next);
-            next += period_ns;
-            let now = bench_hal::clock::monotonic_ns();
-            if now > next + period_ns {
-                next = now + period_ns;
             }
         }
-        if faulted {
-            if info.clock != Clock::Host {
-                std::thread::sleep(std::time::Duration::from_nanos(period_ns));
-            }
-            continue;
-        }
-        match stage.read_sample() {
-            Ok(s) => {
-                missing = 0;
-                position_bits.store(s.position_m.to_bits(), Ordering::Relaxed);
-                let _ = stage.write_command(Command {
-                    current_a: 0.0,
-                    answers_seq: s.seq,
-                });
-            }
-            Err(e) if matches!(e.kind(), ErrorKind::Timeout | ErrorKind::Crc) => {
-                // The supervisor's rule (K = safety.max_missed_samples).
-                missing += 1;
-                if missing > max_missed_samples {
-                    let _ = stage.disable();
-                    faulted = true;
-                    set_state(
-                        "faulted",
-                        Some(ApiError::new(
-                            "link",
-                            format!("between jobs: {missing} samples missing (last: {e})"),
-                        )),
-                    );
-                }
-            }
-            Err(e) => {
-                let _ = stage.disable();
-                faulted = true;
-                set_state(
-                    "faulted",
-                    Some(ApiError::new("hal", format!("between jobs: {e}"))),
-                );
+        for f in client.take_faults() {
+            if let Some(api) = between_jobs_fault(f) {
+                set_state("faulted", Some(api));
             }
         }
     }
-    let _ = stage.write_command(Command {
-        current_a: 0.0,
-        answers_seq: 0,
-    });
-    let _ = stage.disable();
+    let _ = client.call(LoopRequest::Shutdown);
 }
 
 /// Appends events to `dir/daemon-events.jsonl`, rotating to `.1` past
@@ -715,7 +708,7 @@ async fn connection(ctx: Arc<Ctx>, stream: tokio::net::UnixStream) {
         let r = match cmd.as_str() {
             "status" => {
                 let mut s = lock(&ctx.status).clone();
-                s.position_m = f64::from_bits(ctx.position_bits.load(Ordering::Relaxed));
+                s.position_m = ctx.loop_status.position_m();
                 if let (Some(j), Some(h)) = (s.job.as_mut(), lock(&ctx.running).as_ref()) {
                     j.ticks = h.ticks.load(Ordering::Relaxed);
                 }
@@ -898,8 +891,14 @@ pub fn serve(opts: ServeOptions) -> Result<(), ServeError> {
         ServeError::BadInput(format!("--recordings {}: {e}", opts.recordings.display()))
     })?;
     let spec = BackendSpec::resolve(opts.backend.as_ref(), &opts.config);
-    let (stage, info) = backend::open(&spec, &opts.config, &opts.config_path, opts.seed, None)
-        .map_err(|e| ServeError::BadInput(e.to_string()))?;
+    let (mut stage, info) = backend::open(
+        &spec,
+        &opts.config,
+        &opts.config_path,
+        opts.seed,
+        opts.inject,
+    )
+    .map_err(|e| ServeError::BadInput(e.to_string()))?;
     let (events, _) = broadcast::channel::<String>(1024);
     let status = Arc::new(Mutex::new(Status {
         state: "disabled",
@@ -912,19 +911,43 @@ pub fn serve(opts: ServeOptions) -> Result<(), ServeError> {
         last_recording: None,
     }));
     let (owner_tx, owner_rx) = mpsc::channel();
-    let position_bits = Arc::new(AtomicU64::new(f64::NAN.to_bits()));
+    // The real-time loop: one Loop and one supervisor for the daemon's
+    // life, paced in real time (jobs on a daemon always are).
+    let loop_status = Arc::new(LoopStatus::default());
+    let (req_tx, req_rx) = rtrb::RingBuffer::<LoopRequest>::new(16);
+    let (rep_tx, rep_rx) = rtrb::RingBuffer::<LoopReply>::new(64);
+    let period_s = info.period_ns as f64 * 1e-9;
+    let loop_opts = LoopOptions {
+        period_ns: info.period_ns,
+        pacing: Pacing::RealTime {
+            priority: opts.config.loop_.priority,
+            cpu: opts.config.loop_.cpu,
+        },
+        timing_interval_ticks: ((opts.config.loop_.timing_interval_s / period_s).round() as u64)
+            .max(1),
+        safety: opts.config.supervisor(&info),
+        max_ticks: u64::MAX,
+    };
+    let rt_thread = {
+        let loop_status = Arc::clone(&loop_status);
+        let clock = info.clock;
+        std::thread::Builder::new()
+            .name("bench-rt".into())
+            .spawn(move || {
+                run_service(&mut stage, &loop_opts, clock, req_rx, rep_tx, &loop_status);
+                drop(stage);
+            })
+            .map_err(|e| ServeError::Other(format!("cannot start the real-time thread: {e}")))?
+    };
+    let client = ServiceClient::new(req_tx, rep_rx, info.clone(), !spec.is_sim());
     let owner_thread = {
         let shared = OwnerShared {
             status: Arc::clone(&status),
-            position_bits: Arc::clone(&position_bits),
             events: events.clone(),
-            hardware: !spec.is_sim(),
-            max_missed_samples: opts.config.safety.max_missed_samples,
         };
-        let info = info.clone();
         std::thread::Builder::new()
             .name("bench-owner".into())
-            .spawn(move || owner(stage, info, owner_rx, shared))
+            .spawn(move || owner(client, owner_rx, shared))
             .map_err(|e| ServeError::Other(format!("cannot start the owner thread: {e}")))?
     };
     let ctx = Arc::new(Ctx {
@@ -935,7 +958,7 @@ pub fn serve(opts: ServeOptions) -> Result<(), ServeError> {
         seed: opts.seed,
         spec,
         status,
-        position_bits,
+        loop_status,
         owner: Mutex::new(owner_tx),
         events,
         next_job: AtomicU64::new(0),
@@ -994,6 +1017,7 @@ pub fn serve(opts: ServeOptions) -> Result<(), ServeError> {
     });
     // The owner finishes the job (its recording) before it sees Shutdown.
     let _ = owner_thread.join();
+    let _ = rt_thread.join();
     let _ = std::fs::remove_file(&opts.socket);
     result
 }

@@ -14,14 +14,15 @@ use crate::ident::frf::{
     closely_spaced_pair, find_resonances, Frf, PairVerdict, Resonance, Spectra,
 };
 use crate::jobs::session::{
-    check_writable, finish, open_recording, run_recorded, Recorded, SessionOptions, TimingSummary,
+    check_writable, finish, open_recording, run_recorded, Recorded, Runner, SessionOptions,
+    TimingSummary,
 };
 use crate::plot::{write_bode_png, BodePlot, BodeSeries};
-use crate::rt::backend::{self, AnyStage, BackendSpec};
+use crate::rt::backend::{self, BackendSpec};
 use crate::rt::{Job, JobOutput};
 use bench_hal::model::Sr4dof;
 use bench_hal::sim::ZohPlant;
-use bench_hal::{DeviceInfo, Sample};
+use bench_hal::Sample;
 use serde::{Deserialize, Serialize};
 use serde_json::json;
 use std::path::PathBuf;
@@ -169,7 +170,11 @@ pub fn run_chirp(opts: &ChirpOptions, stop: Arc<AtomicBool>) -> Result<ChirpSumm
     check_outputs(opts)?;
     let spec = BackendSpec::resolve(opts.backend.as_ref(), &opts.config);
     let (mut stage, info) = backend::open(&spec, &opts.config, &opts.config_path, opts.seed, None)?;
-    run_chirp_on(&mut stage, &info, !spec.is_sim(), opts, stop, None)
+    let mut runner = Runner::Local {
+        stage: &mut stage,
+        info: &info,
+    };
+    run_chirp_on(&mut runner, !spec.is_sim(), opts, stop, None)
 }
 
 fn check_outputs(opts: &ChirpOptions) -> Result<(), RunError> {
@@ -178,21 +183,22 @@ fn check_outputs(opts: &ChirpOptions) -> Result<(), RunError> {
     check_writable(&opts.plot, "--plot")
 }
 
-/// Runs the chirp on an opened, configured `stage` (`info`), which it
-/// leaves configured, disabled at 0 A. `hardware` forces real-time pacing;
+/// Runs the chirp on `runner` (a configured stage, which it leaves
+/// configured, disabled at 0 A; or the daemon's loop). `hardware` forces
+/// real-time pacing;
 /// `ticks`, if given, follows the loop's tick count (progress).
 ///
 /// # Errors
 /// As [`run_chirp`].
 pub fn run_chirp_on(
-    stage: &mut AnyStage,
-    info: &DeviceInfo,
+    runner: &mut Runner<'_>,
     hardware: bool,
     opts: &ChirpOptions,
     stop: Arc<AtomicBool>,
-    ticks: Option<&AtomicU64>,
+    ticks: Option<&Arc<AtomicU64>>,
 ) -> Result<ChirpSummary, RunError> {
     let cfg = &opts.config;
+    let info = &runner.info().clone();
     check_outputs(opts)?;
     let model = Sr4dof::new(cfg.plant)
         .map_err(|e| RunError::BadInput(format!("config {}: {e}", opts.config_path.display())))?;
@@ -213,20 +219,13 @@ pub fn run_chirp_on(
         ticks,
     };
     let recorder = open_recording(&session, cfg, info)?;
-    let run = run_recorded(
-        stage,
-        info,
-        ChirpJob::new(chirp),
-        cfg,
-        recorder,
-        &session,
-        stop,
-    )?;
+    let run = run_recorded(runner, ChirpJob::new(chirp), cfg, recorder, &session, stop)?;
     let Recorded {
         mut recorder,
         data,
         timing,
         end_ns,
+        link: run_link,
         ..
     } = run;
 
@@ -317,7 +316,7 @@ pub fn run_chirp_on(
         resonances,
         closely_spaced_pair: pair,
         model: model_summary(&model),
-        link: stage.link_stats(),
+        link: run_link,
         timing,
     };
     let ch = recorder

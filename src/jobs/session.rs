@@ -6,7 +6,8 @@ use crate::config::BenchConfig;
 use crate::error::RunError;
 use crate::record::topics::Record;
 use crate::record::{spawn_writer, Recorder, DEFAULT_CHUNK_INTERVAL};
-use crate::rt::backend::AnyStage;
+use crate::rt::backend::{AnyStage, LinkCounters};
+use crate::rt::service::{JobTicket, LoopReply, LoopRequest, ServiceClient};
 use crate::rt::{self, Job, LoopOptions, LoopReport, Pacing, StopReason};
 use bench_hal::DeviceInfo;
 use serde::{Deserialize, Serialize};
@@ -158,7 +159,7 @@ pub struct SessionOptions<'a> {
     pub max_ticks: u64,
     /// Where the loop publishes its tick count (a watcher's progress), if
     /// anywhere.
-    pub ticks: Option<&'a AtomicU64>,
+    pub ticks: Option<&'a Arc<AtomicU64>>,
 }
 
 /// A run that finished its job.
@@ -174,6 +175,32 @@ pub struct Recorded {
     pub end_ns: u64,
     /// Loop period, s.
     pub period_s: f64,
+    /// Link counters of this job (hardware backends), as JSON.
+    pub link: Option<serde_json::Value>,
+}
+
+/// Where a recorded job runs.
+pub enum Runner<'a> {
+    /// A stage opened for this run: the loop runs this one job on a thread
+    /// of its own and gives the stage back disabled at 0 A.
+    Local {
+        /// The configured stage.
+        stage: &'a mut AnyStage,
+        /// What it reported.
+        info: &'a DeviceInfo,
+    },
+    /// The daemon's loop, which runs the hold job before and after.
+    Service(&'a mut ServiceClient),
+}
+
+impl Runner<'_> {
+    /// The device the job runs on.
+    pub fn info(&self) -> &DeviceInfo {
+        match self {
+            Self::Local { info, .. } => info,
+            Self::Service(c) => &c.info,
+        }
+    }
 }
 
 /// Creates the recording `opts.out` (as `.part`) with the resolved config
@@ -223,17 +250,17 @@ pub fn open_recording(
 /// the recording finished and the amplifier disabled; [`RunError::Thread`]
 /// or [`RunError::Record`] for thread or recording failures.
 pub fn run_recorded<J: Job + Send + 'static>(
-    stage: &mut AnyStage,
-    info: &DeviceInfo,
-    mut job: J,
+    runner: &mut Runner<'_>,
+    job: J,
     cfg: &BenchConfig,
     recorder: Recorder,
     opts: &SessionOptions,
     stop: Arc<AtomicBool>,
 ) -> Result<Recorded, RunError> {
+    let info = runner.info().clone();
     let period_s = info.period_ns as f64 * 1e-9;
     let rate_hz = 1.0 / period_s;
-    let (mut producer, consumer) = rtrb::RingBuffer::<Record>::new(QUEUE_CAPACITY);
+    let (producer, consumer) = rtrb::RingBuffer::<Record>::new(QUEUE_CAPACITY);
     let n = opts.max_ticks.min(1 << 26) as usize;
     let collected = Arc::new(Mutex::new(Collected {
         t_s: Vec::with_capacity(n),
@@ -273,47 +300,41 @@ pub fn run_recorded<J: Job + Send + 'static>(
             Pacing::Virtual
         },
         timing_interval_ticks: ((cfg.loop_.timing_interval_s / period_s).round() as u64).max(1),
-        safety: cfg.supervisor(info),
+        safety: cfg.supervisor(&info),
         max_ticks: opts.max_ticks,
     };
-    let clock = info.clock;
     let wall = Instant::now();
-    let local_progress = AtomicU64::new(0);
-    let progress: &AtomicU64 = opts.ticks.unwrap_or(&local_progress);
-    let stop: &AtomicBool = &stop;
-    let report = std::thread::scope(|scope| {
-        let rt_thread = std::thread::Builder::new()
-            .name("bench-rt".into())
-            .spawn_scoped(scope, || {
-                rt::run(
-                    stage,
-                    &mut job,
-                    &loop_opts,
-                    clock,
-                    &mut producer,
-                    stop,
-                    progress,
-                )
-            })
-            .map_err(|e| RunError::Thread(format!("cannot spawn the real-time thread: {e}")))?;
-        if opts.realtime && opts.progress {
-            let bar = indicatif::ProgressBar::new(opts.max_ticks);
-            bar.set_style(
-                indicatif::ProgressStyle::with_template(
-                    &format!("{{spinner}} {} [{{bar:40}}] {{percent:>3}}% {{elapsed_precise}} / ~{{duration_precise}}", opts.command),
-                )
-                .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
-            );
-            while !rt_thread.is_finished() {
-                bar.set_position(progress.load(Ordering::Relaxed));
-                std::thread::sleep(Duration::from_millis(100));
-            }
-            bar.finish_and_clear();
+    let progress = opts.ticks.cloned().unwrap_or_default();
+    let (report, link) = match runner {
+        Runner::Local { stage, .. } => {
+            let report = run_local(
+                stage, info.clock, job, &loop_opts, producer, &stop, &progress, opts,
+            )?;
+            (report, stage.link_stats())
         }
-        rt_thread
-            .join()
-            .map_err(|_| RunError::Thread("the real-time thread panicked".into()))
-    })?;
+        Runner::Service(client) => {
+            let ticket = Box::new(JobTicket {
+                job: Box::new(job),
+                out: producer,
+                max_ticks: opts.max_ticks,
+                stop: Arc::clone(&stop),
+                progress: Arc::clone(&progress),
+                end: None,
+                link: None,
+            });
+            match client.call(LoopRequest::Job(ticket)) {
+                Some(LoopReply::JobDone(mut ticket)) => match ticket.end.take() {
+                    // The ticket is dropped here, off the real-time thread.
+                    Some(end) => (
+                        end.into_report(Vec::new()),
+                        ticket.link.map(|(b, a)| LinkCounters::between(b, a)),
+                    ),
+                    None => return Err(RunError::Thread("the daemon's loop lost a job".into())),
+                },
+                _ => return Err(RunError::Thread("the daemon's loop is gone".into())),
+            }
+        }
+    };
     let wall_s = wall.elapsed().as_secs_f64();
     writer_done.store(true, Ordering::Release);
     let (recorder, _stats) = writer
@@ -369,6 +390,55 @@ pub fn run_recorded<J: Job + Send + 'static>(
         timing,
         end_ns,
         period_s,
+        link,
+    })
+}
+
+/// Runs `job` in a loop of its own on a scoped real-time thread (the stage
+/// comes back disabled at 0 A), with the progress bar if asked.
+#[allow(clippy::too_many_arguments)]
+fn run_local<J: Job + Send>(
+    stage: &mut AnyStage,
+    clock: bench_hal::Clock,
+    mut job: J,
+    loop_opts: &LoopOptions,
+    mut producer: rtrb::Producer<Record>,
+    stop: &AtomicBool,
+    progress: &AtomicU64,
+    opts: &SessionOptions,
+) -> Result<LoopReport, RunError> {
+    std::thread::scope(|scope| {
+        let rt_thread = std::thread::Builder::new()
+            .name("bench-rt".into())
+            .spawn_scoped(scope, || {
+                rt::run(
+                    stage,
+                    &mut job,
+                    loop_opts,
+                    clock,
+                    &mut producer,
+                    stop,
+                    progress,
+                )
+            })
+            .map_err(|e| RunError::Thread(format!("cannot spawn the real-time thread: {e}")))?;
+        if opts.realtime && opts.progress {
+            let bar = indicatif::ProgressBar::new(opts.max_ticks);
+            bar.set_style(
+                indicatif::ProgressStyle::with_template(
+                    &format!("{{spinner}} {} [{{bar:40}}] {{percent:>3}}% {{elapsed_precise}} / ~{{duration_precise}}", opts.command),
+                )
+                .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+            );
+            while !rt_thread.is_finished() {
+                bar.set_position(progress.load(Ordering::Relaxed));
+                std::thread::sleep(Duration::from_millis(100));
+            }
+            bar.finish_and_clear();
+        }
+        rt_thread
+            .join()
+            .map_err(|_| RunError::Thread("the real-time thread panicked".into()))
     })
 }
 

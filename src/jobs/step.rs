@@ -21,15 +21,16 @@ use crate::control::loop_check::{closed_loop_poles, measured_margins, model_marg
 use crate::control::{ControllerConfig, DiscreteController, DiscretizationReport};
 use crate::error::RunError;
 use crate::jobs::session::{
-    check_writable, finish, open_recording, run_recorded, Collected, Recorded, SessionOptions,
-    TimingSummary,
+    check_writable, finish, open_recording, run_recorded, Collected, Recorded, Runner,
+    SessionOptions, TimingSummary,
 };
 use crate::plot::{write_time_png, TimePanel};
-use crate::rt::backend::{self, AnyStage, BackendSpec};
+use crate::rt::backend::{self, BackendSpec};
+use crate::rt::service::{LoopReply, LoopRequest, ServiceClient};
 use crate::rt::{Job, JobOutput};
 use bench_hal::model::Sr4dof;
 use bench_hal::sim::{FaultInjection, ScheduledFault, ZohPlant};
-use bench_hal::{DeviceInfo, Sample};
+use bench_hal::Sample;
 use serde::{Deserialize, Serialize};
 use serde_json::json;
 use std::f64::consts::PI;
@@ -431,13 +432,12 @@ pub fn run_control(
 }
 
 /// Where `bench control` gets its stage.
-#[derive(Debug)]
 pub enum StageSource<'a> {
     /// Open the backend of the options (and drop it after the run).
     Open,
-    /// An opened, configured stage that stays with its owner (the daemon);
-    /// it is left configured, disabled at 0 A.
-    Borrowed(&'a mut AnyStage, &'a DeviceInfo),
+    /// The daemon's loop (its stage stays with it; between jobs it holds
+    /// 0 A).
+    Service(&'a mut ServiceClient),
 }
 
 /// [`run_control`] on a stage from `source`; `ticks`, if given, follows
@@ -449,7 +449,7 @@ pub fn run_control_from(
     opts: &ControlOptions,
     stop: Arc<AtomicBool>,
     source: StageSource<'_>,
-    progress_ticks: Option<&AtomicU64>,
+    progress_ticks: Option<&Arc<AtomicU64>>,
 ) -> Result<ControlSummary, RunError> {
     let cfg = &opts.config;
     let ccfg = controller_config(cfg, &opts.controller)?;
@@ -506,19 +506,32 @@ pub fn run_control_from(
     check_writable(&opts.out, "--out")?;
     check_writable(&opts.plot, "--plot")?;
     let mut opened;
-    let (stage, info): (&mut AnyStage, DeviceInfo) = match source {
+    let opened_info;
+    let mut runner = match source {
         StageSource::Open => {
             let (s, i) = backend::open(&spec, cfg, &opts.config_path, opts.seed, opts.inject)?;
             opened = s;
-            (&mut opened, i)
-        }
-        StageSource::Borrowed(s, i) => {
-            if let Some(f) = opts.inject {
-                s.inject(f)?;
+            opened_info = i;
+            Runner::Local {
+                stage: &mut opened,
+                info: &opened_info,
             }
-            (s, i.clone())
+        }
+        StageSource::Service(client) => {
+            if let Some(f) = opts.inject {
+                match client.call(LoopRequest::Inject(f)) {
+                    Some(LoopReply::Injected(true)) => {}
+                    _ => {
+                        return Err(RunError::BadInput(
+                            "inject_fault: only the sim backend injects faults".into(),
+                        ))
+                    }
+                }
+            }
+            Runner::Service(client)
         }
     };
+    let info = runner.info().clone();
     summary.backend = info.name.clone();
     if info.period_ns != cfg.loop_.period_ns() {
         return Err(RunError::BadInput(format!(
@@ -560,15 +573,16 @@ pub fn run_control_from(
         ticks(step.smooth_s),
         total,
     );
-    let recorded = run_recorded(stage, &info, job, cfg, recorder, &session, stop);
-    summary.link = stage.link_stats();
+    let recorded = run_recorded(&mut runner, job, cfg, recorder, &session, stop);
     let Recorded {
         mut recorder,
         data,
         timing,
         end_ns,
+        link,
         ..
     } = recorded?;
+    summary.link = link;
 
     let metrics = step_metrics(
         &data,

@@ -12,6 +12,6 @@ mod tick;
 pub mod timing;
 
 pub use tick::{
-    make_realtime, run, Emitter, HoldJob, Job, JobEnd, JobOutput, Loop, LoopOptions, LoopReport,
-    Pacing, RawStop, Read, StopReason, TickResult,
+    make_realtime, run, Emitter, HalFailure, HoldJob, Job, JobEnd, JobOutput, Loop, LoopOptions,
+    LoopReport, Pacing, RawStop, Read, StopReason, TickResult,
 };

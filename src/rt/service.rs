@@ -11,8 +11,7 @@
 
 use crate::record::topics::{FaultKind, Record, SupervisorState};
 use crate::rt::backend::{AnyError, AnyStage, LinkCounters};
-use crate::rt::supervisor::HalCall;
-use crate::rt::{Job, JobEnd, Loop, LoopOptions};
+use crate::rt::{HalFailure, Job, JobEnd, Loop, LoopOptions};
 use bench_hal::sim::ScheduledFault;
 use bench_hal::Clock;
 use std::sync::atomic::{AtomicBool, AtomicU64, AtomicU8, Ordering};
@@ -30,6 +29,11 @@ pub struct JobTicket {
     pub stop: Arc<AtomicBool>,
     /// The job's tick count.
     pub progress: Arc<AtomicU64>,
+    /// How it ended (filled in by the loop).
+    pub end: Option<JobEnd<AnyError>>,
+    /// Link counters before and after the job (hardware; filled in by the
+    /// loop).
+    pub link: Option<(LinkCounters, LinkCounters)>,
 }
 
 /// What the daemon asks of its loop.
@@ -58,15 +62,9 @@ pub enum LoopReply {
     Reset,
     /// The answer to [`LoopRequest::Inject`] (refused on hardware).
     Injected(bool),
-    /// A job ended; its ticket comes back to be dropped off the tick.
-    JobDone {
-        /// The ticket.
-        ticket: Box<JobTicket>,
-        /// How it ended.
-        end: JobEnd<AnyError>,
-        /// Link counters before and after the job (hardware).
-        link: Option<(LinkCounters, LinkCounters)>,
-    },
+    /// A job ended; its ticket comes back, with how it ended, to be
+    /// dropped off the tick.
+    JobDone(Box<JobTicket>),
     /// A fault latched between jobs.
     Fault {
         /// Which.
@@ -76,7 +74,7 @@ pub enum LoopReply {
         /// The last bad-sample or lost-link error.
         link_error: Option<AnyError>,
         /// The HAL error, for `hal` faults.
-        hal_error: Option<(HalCall, AnyError)>,
+        hal_error: Option<HalFailure<AnyError>>,
     },
     /// The loop ended.
     Stopped,
@@ -200,17 +198,10 @@ pub fn run_service(
             LoopRequest::Job(mut ticket) => {
                 let before = lp.stage().link_counters();
                 let t = &mut *ticket;
-                let end = lp.run_job(&mut t.job, &mut t.out, t.max_ticks, &t.stop, &t.progress);
-                let after = lp.stage().link_counters();
+                t.end = Some(lp.run_job(&mut t.job, &mut t.out, t.max_ticks, &t.stop, &t.progress));
+                t.link = before.zip(lp.stage().link_counters());
                 publish(&lp);
-                reply(
-                    LoopReply::JobDone {
-                        ticket,
-                        end,
-                        link: before.zip(after),
-                    },
-                    &mut replies,
-                );
+                reply(LoopReply::JobDone(ticket), &mut replies);
             }
             LoopRequest::Shutdown => break,
         }
@@ -218,4 +209,82 @@ pub fn run_service(
     lp.disable();
     publish(&lp);
     reply(LoopReply::Stopped, &mut replies);
+}
+
+/// The daemon's side of the loop's queues (not real-time): sends a
+/// request and waits for its answer.
+pub struct ServiceClient {
+    requests: rtrb::Producer<LoopRequest>,
+    replies: rtrb::Consumer<LoopReply>,
+    /// The device the loop runs.
+    pub info: bench_hal::DeviceInfo,
+    /// Not the simulator: jobs run in real time.
+    pub hardware: bool,
+    /// Faults between jobs that arrived while waiting for an answer.
+    faults: Vec<LoopReply>,
+}
+
+/// How often the daemon polls the loop's answers.
+const POLL: std::time::Duration = std::time::Duration::from_millis(1);
+
+impl ServiceClient {
+    /// The client of a loop fed by `requests` and answering on `replies`.
+    pub fn new(
+        requests: rtrb::Producer<LoopRequest>,
+        replies: rtrb::Consumer<LoopReply>,
+        info: bench_hal::DeviceInfo,
+        hardware: bool,
+    ) -> Self {
+        Self {
+            requests,
+            replies,
+            info,
+            hardware,
+            faults: Vec::new(),
+        }
+    }
+
+    /// Sends `req` and waits for its answer (the next reply that is not a
+    /// fault between jobs; those are kept for [`Self::take_faults`]).
+    /// `None` when the loop is gone.
+    pub fn call(&mut self, req: LoopRequest) -> Option<LoopReply> {
+        let mut req = req;
+        loop {
+            match self.requests.push(req) {
+                Ok(()) => break,
+                Err(rtrb::PushError::Full(r)) => {
+                    if self.requests.is_abandoned() {
+                        return None;
+                    }
+                    req = r;
+                    std::thread::sleep(POLL);
+                }
+            }
+        }
+        loop {
+            match self.replies.pop() {
+                Ok(r @ LoopReply::Fault { .. }) => self.faults.push(r),
+                Ok(LoopReply::Stopped) => return None,
+                Ok(r) => return Some(r),
+                Err(_) if self.replies.is_abandoned() => return None,
+                Err(_) => std::thread::sleep(POLL),
+            }
+        }
+    }
+
+    /// Forgets the faults that arrived before the last answer (a reset
+    /// cleared them); later ones stay queued.
+    pub fn forget_earlier_faults(&mut self) {
+        self.faults.clear();
+    }
+
+    /// Faults between jobs reported since the last call, oldest first.
+    pub fn take_faults(&mut self) -> Vec<LoopReply> {
+        while let Ok(r) = self.replies.pop() {
+            if let LoopReply::Fault { .. } = r {
+                self.faults.push(r);
+            }
+        }
+        std::mem::take(&mut self.faults)
+    }
 }

@@ -393,6 +393,10 @@ impl<'q> Emitter<'q> {
     }
 }
 
+/// A failed HAL call, kept unformatted: which call, and the backend's
+/// error.
+pub type HalFailure<E> = (HalCall, E);
+
 /// What [`Loop::read`] got.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum Read {
@@ -449,7 +453,7 @@ pub struct Loop<'s, S: Stage> {
     next_deadline_ns: u64,
     last_good: Option<Sample>,
     /// The first HAL error of the current job, kept as-is.
-    hal_error: Option<(HalCall, S::Error)>,
+    hal_error: Option<HalFailure<S::Error>>,
     /// The latest bad-sample or lost-link error.
     link_error: Option<S::Error>,
     /// Real-time setup warnings.
@@ -512,7 +516,7 @@ impl<'s, S: Stage> Loop<'s, S> {
 
     /// The latest bad-sample or lost-link error and the first HAL error
     /// since the last call, taken (to describe a fault between jobs).
-    pub fn take_errors(&mut self) -> (Option<S::Error>, Option<(HalCall, S::Error)>) {
+    pub fn take_errors(&mut self) -> (Option<S::Error>, Option<HalFailure<S::Error>>) {
         (self.link_error.take(), self.hal_error.take())
     }
 
@@ -975,4 +979,344 @@ fn timing_record(tick: u64, t_s: f64, ticks: u64, w: &TickTiming, dropped: u64) 
         overruns: w.overruns,
         dropped_records: dropped,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use bench_hal::{ErrorKind, SampleFlags};
+    use std::collections::VecDeque;
+
+    /// A scripted backend error.
+    #[derive(Debug)]
+    struct ScriptError(ErrorKind);
+
+    impl std::fmt::Display for ScriptError {
+        fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+            write!(f, "scripted {:?}", self.0)
+        }
+    }
+
+    impl bench_hal::Error for ScriptError {
+        fn kind(&self) -> ErrorKind {
+            self.0
+        }
+    }
+
+    /// A stage that plays a script of reads and logs what the loop did.
+    #[derive(Default)]
+    struct Script {
+        reads: VecDeque<Result<f64, ErrorKind>>,
+        seq: u64,
+        enable_error: Option<ErrorKind>,
+        write_error_at: Option<usize>,
+        writes: Vec<f64>,
+        enables: u32,
+        disables: u32,
+    }
+
+    impl Script {
+        fn new(reads: impl IntoIterator<Item = Result<f64, ErrorKind>>) -> Self {
+            Self {
+                reads: reads.into_iter().collect(),
+                ..Default::default()
+            }
+        }
+    }
+
+    impl Stage for Script {
+        type Error = ScriptError;
+        fn configure(&mut self, _period_ns: u64) -> Result<bench_hal::DeviceInfo, ScriptError> {
+            unreachable!()
+        }
+        fn enable(&mut self) -> Result<(), ScriptError> {
+            self.enables += 1;
+            self.enable_error.map_or(Ok(()), |k| Err(ScriptError(k)))
+        }
+        fn read_sample(&mut self) -> Result<Sample, ScriptError> {
+            let x = self.reads.pop_front().unwrap_or(Ok(0.0));
+            let x = x.map_err(ScriptError)?;
+            self.seq += 1;
+            Ok(Sample {
+                seq: self.seq,
+                device_time_ns: self.seq * 200_000,
+                position_m: x,
+                measured_current_a: f64::NAN,
+                flags: SampleFlags::default(),
+            })
+        }
+        fn write_command(&mut self, c: Command) -> Result<(), ScriptError> {
+            self.writes.push(c.current_a);
+            if self.write_error_at == Some(self.writes.len()) {
+                return Err(ScriptError(ErrorKind::Link));
+            }
+            Ok(())
+        }
+        fn disable(&mut self) -> Result<(), ScriptError> {
+            self.disables += 1;
+            Ok(())
+        }
+    }
+
+    fn opts() -> LoopOptions {
+        LoopOptions {
+            period_ns: 200_000,
+            pacing: Pacing::Virtual,
+            timing_interval_ticks: 10,
+            safety: SupervisorConfig {
+                position_limit_m: 0.8e-3,
+                peak_current_a: 2.0,
+                max_consecutive_overruns: 3,
+                max_missed_samples: 3,
+                max_position_step_m: 50e-6,
+                continuous_current_a: 1.0,
+                i2t_peak_duration_s: 1.0,
+                period_s: 2e-4,
+            },
+            max_ticks: 1000,
+        }
+    }
+
+    /// Demands `current_a` for `n` ticks, then is done.
+    struct Constant {
+        current_a: f64,
+        n: u64,
+    }
+
+    impl Job for Constant {
+        fn tick(&mut self, tick: u64, _s: &Sample) -> JobOutput {
+            JobOutput {
+                command_a: self.current_a,
+                excitation_a: self.current_a,
+                setpoint_m: f64::NAN,
+                done: tick + 1 >= self.n,
+            }
+        }
+    }
+
+    fn records(mut c: rtrb::Consumer<Record>) -> Vec<Record> {
+        std::iter::from_fn(|| c.pop().ok()).collect()
+    }
+
+    fn events(r: &[Record]) -> Vec<EventKind> {
+        r.iter()
+            .filter_map(|r| match r {
+                Record::Event(e) => Some(e.kind),
+                _ => None,
+            })
+            .collect()
+    }
+
+    #[test]
+    fn read_maps_errors_through_the_supervisor() {
+        let mut st = Script::new([
+            Ok(0.0),
+            Err(ErrorKind::Timeout),
+            Err(ErrorKind::Crc),
+            Err(ErrorKind::Timeout),
+            Err(ErrorKind::Crc),
+        ]);
+        let mut lp = Loop::new(&mut st, &opts(), Clock::Host);
+        assert!(matches!(lp.read(), Read::Sample(_)));
+        for _ in 0..3 {
+            assert_eq!(lp.read(), Read::Missing { fault: false });
+        }
+        // The fourth missing sample in a row is more than K = 3.
+        assert_eq!(lp.read(), Read::Missing { fault: true });
+        assert_eq!(lp.supervisor().fault().map(|f| f.0), Some(FaultKind::Link));
+        let (link, hal) = lp.take_errors();
+        assert_eq!(link.map(|e| e.0), Some(ErrorKind::Crc));
+        assert!(hal.is_none());
+        // Any other read error is the HAL fault, kept with its call.
+        let mut st = Script::new([Err(ErrorKind::Protocol)]);
+        let mut lp = Loop::new(&mut st, &opts(), Clock::Host);
+        assert_eq!(lp.read(), Read::Missing { fault: true });
+        assert_eq!(lp.supervisor().fault().map(|f| f.0), Some(FaultKind::Hal));
+        let (_, hal) = lp.take_errors();
+        assert_eq!(
+            hal.map(|(c, e)| (c, e.0)),
+            Some((HalCall::ReadSample, ErrorKind::Protocol))
+        );
+    }
+
+    #[test]
+    fn command_clips_and_a_fault_is_zero_then_disable_at_once() {
+        let mut st = Script::new([]);
+        let mut lp = Loop::new(&mut st, &opts(), Clock::Host);
+        lp.enable().unwrap();
+        lp.sup.running();
+        assert_eq!(lp.command(5.0, 1, false), (2.0, false));
+        assert_eq!(lp.command(f64::NAN, 2, false), (0.0, true));
+        // A fault found earlier in the tick also stops it now.
+        let mut st2 = Script::new([]);
+        let mut lp2 = Loop::new(&mut st2, &opts(), Clock::Host);
+        lp2.enable().unwrap();
+        lp2.sup.running();
+        assert!(lp2.command(1.0, 1, true).1);
+        drop(lp2);
+        // 1 A was written, then the safe stop: 0 A and one disable.
+        assert_eq!(st2.writes, vec![1.0, 0.0]);
+        assert_eq!(st2.disables, 1);
+        drop(lp);
+        assert_eq!(st.writes, vec![2.0, 0.0, 0.0]);
+        assert_eq!(st.disables, 1);
+        // A failed write is the HAL fault with the command as its value.
+        let mut st = Script {
+            write_error_at: Some(1),
+            ..Script::new([])
+        };
+        let mut lp = Loop::new(&mut st, &opts(), Clock::Host);
+        lp.enable().unwrap();
+        lp.sup.running();
+        assert_eq!(lp.command(1.5, 1, false), (1.5, true));
+        assert_eq!(lp.supervisor().fault(), Some((FaultKind::Hal, 1.5)));
+    }
+
+    #[test]
+    fn job_output_is_held_without_a_sample() {
+        let mut job = Constant {
+            current_a: 0.7,
+            n: 10,
+        };
+        let held = JobOutput {
+            command_a: 0.3,
+            done: true,
+            ..JobOutput::ZERO
+        };
+        let s = Sample {
+            seq: 0,
+            device_time_ns: 0,
+            position_m: 0.0,
+            measured_current_a: f64::NAN,
+            flags: SampleFlags::default(),
+        };
+        type L<'a> = Loop<'a, Script>;
+        assert_eq!(L::job_output(&mut job, 0, Some(&s), held).command_a, 0.7);
+        let h = L::job_output(&mut job, 1, None, held);
+        assert_eq!(h.command_a, 0.3);
+        // A held output never ends the job.
+        assert!(!h.done);
+    }
+
+    #[test]
+    fn timing_counts_overruns_skips_missed_deadlines_and_faults_after_m() {
+        let mut st = Script::new([]);
+        let mut lp = Loop::new(&mut st, &opts(), Clock::Host);
+        // As if paced in real time (without SCHED_FIFO on the test thread).
+        lp.host_paced = true;
+        let p = 200_000;
+        let mut w = TickTiming::default();
+        // On time: the next deadline is a period later.
+        assert!(!lp.timing(1_000_000, 1_000_010, 1_000_100, 0, &mut w));
+        assert_eq!(lp.next_deadline_ns, 1_000_000 + p);
+        assert_eq!(w.overruns, 0);
+        // Ends 3.5 periods late: one overrun, three deadlines skipped.
+        assert!(!lp.timing(2_000_000, 2_000_000, 2_000_000 + 7 * p / 2, 0, &mut w));
+        assert_eq!(w.overruns, 1);
+        assert_eq!(lp.next_deadline_ns, 2_000_000 + 4 * p);
+        // M = 3 overruns in a row fault (and stop the stage).
+        assert!(!lp.timing(3_000_000, 3_000_000, 3_000_000 + 2 * p + 1, 0, &mut w));
+        assert!(lp.timing(4_000_000, 4_000_000, 4_000_000 + 2 * p + 1, 0, &mut w));
+        assert_eq!(
+            lp.supervisor().fault().map(|f| f.0),
+            Some(FaultKind::Overruns)
+        );
+        drop(lp);
+        assert_eq!(st.disables, 1);
+    }
+
+    #[test]
+    fn a_job_runs_enabled_and_ends_disabled_at_zero_amps() {
+        let (mut tx, rx) = rtrb::RingBuffer::new(1024);
+        let mut st = Script::new([]);
+        let mut lp = Loop::new(&mut st, &opts(), Clock::Host);
+        let end = lp.run_job(
+            &mut Constant {
+                current_a: 0.5,
+                n: 25,
+            },
+            &mut tx,
+            1000,
+            &AtomicBool::new(false),
+            &AtomicU64::new(0),
+        );
+        assert!(matches!(end.stop, RawStop::Finished));
+        assert_eq!(end.ticks, 25);
+        assert_eq!(end.final_state, SupervisorState::Disabled);
+        drop(lp);
+        assert_eq!(st.enables, 1);
+        assert_eq!(st.disables, 1);
+        assert_eq!(st.writes.len(), 26);
+        assert_eq!(st.writes.last(), Some(&0.0));
+        let r = records(rx);
+        assert_eq!(
+            events(&r),
+            [
+                EventKind::LoopStarted,
+                EventKind::StateChanged,
+                EventKind::JobStarted,
+                EventKind::JobFinished,
+                EventKind::StateChanged,
+                EventKind::LoopStopped
+            ]
+        );
+        let samples = r.iter().filter(|r| matches!(r, Record::Sample(_))).count();
+        assert_eq!(samples, 25);
+    }
+
+    #[test]
+    fn a_latched_fault_refuses_the_next_job_and_a_failed_enable_is_a_hal_stop() {
+        let (mut tx, _rx) = rtrb::RingBuffer::new(1024);
+        let mut st = Script::new([Ok(0.0), Ok(f64::NAN)]);
+        let mut lp = Loop::new(&mut st, &opts(), Clock::Host);
+        // Between jobs: the hold sees the NaN and latches.
+        let mut n = 0;
+        assert!(lp.hold(|_| {
+            n += 1;
+            n >= 5
+        }));
+        let end = lp.run_job(
+            &mut Constant {
+                current_a: 0.5,
+                n: 25,
+            },
+            &mut tx,
+            1000,
+            &AtomicBool::new(false),
+            &AtomicU64::new(0),
+        );
+        assert!(matches!(
+            end.stop,
+            RawStop::Fault {
+                kind: FaultKind::ProbeNotFinite,
+                tick: 0,
+                ..
+            }
+        ));
+        assert_eq!(end.ticks, 0);
+        drop(lp);
+        // Never enabled; nothing but 0 A was written.
+        assert_eq!(st.enables, 0);
+        assert!(st.writes.iter().all(|w| *w == 0.0));
+        let mut st = Script {
+            enable_error: Some(ErrorKind::AmplifierFault),
+            ..Script::new([])
+        };
+        let mut lp = Loop::new(&mut st, &opts(), Clock::Host);
+        let end = lp.run_job(
+            &mut Constant {
+                current_a: 0.5,
+                n: 25,
+            },
+            &mut tx,
+            1000,
+            &AtomicBool::new(false),
+            &AtomicU64::new(0),
+        );
+        let stop = end.stop.describe();
+        assert!(
+            matches!(&stop, StopReason::Hal { message, tick: 0 } if message.starts_with("enable: ")),
+            "{stop:?}"
+        );
+    }
 }
