@@ -415,14 +415,21 @@ impl Default for IdentificationConfig {
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct SimConfig {
-    /// Seed of the simulator's noise generator.
-    #[serde(default)]
+    /// Seed of the simulator's noise generator (default 1, with or without
+    /// a `[sim]` table).
+    #[serde(default = "default_seed")]
     pub seed: u64,
+}
+
+fn default_seed() -> u64 {
+    1
 }
 
 impl Default for SimConfig {
     fn default() -> Self {
-        Self { seed: 1 }
+        Self {
+            seed: default_seed(),
+        }
     }
 }
 
@@ -757,6 +764,24 @@ mod tests {
         assert!(
             (c.actuator.peak_current_a * c.actuator.force_constant_n_per_a - 111.0).abs() < 0.1
         );
+    }
+
+    /// One default seed: no `[sim]` table and a `[sim]` table without
+    /// `seed` both give 1.
+    #[test]
+    fn default_seed_with_and_without_the_sim_table() {
+        let (c, p) = shipped("sr4dof-ch5.toml");
+        let text = c.to_toml();
+        let start = text.find("[sim]").unwrap();
+        let end = text[start..]
+            .find("\n[")
+            .map_or(text.len(), |e| start + e + 1);
+        let without_table = format!("{}{}", &text[..start], &text[end..]);
+        let without_seed = format!("{}[sim]\n{}", &text[..start], &text[end..]);
+        for t in [without_table, without_seed] {
+            assert_eq!(BenchConfig::from_toml(&t, &p).unwrap().sim.seed, 1, "{t}");
+        }
+        assert_eq!(SimConfig::default().seed, 1);
     }
 
     #[test]
