@@ -38,7 +38,7 @@ pub enum ConfigError {
     /// A value that cannot describe a usable bench.
     #[error("config {path}: {key}: {reason}")]
     Invalid {
-        /// The file (or `<overrides>` for command-line values).
+        /// The file.
         path: PathBuf,
         /// Dotted key.
         key: String,
@@ -199,29 +199,6 @@ fn default_step_duration_s() -> f64 {
 }
 fn default_ss_window_s() -> f64 {
     3.0
-}
-
-impl StepConfig {
-    /// Applies the command-line (or daemon request) overrides of a step:
-    /// size, run time (the steady-state window shrinks to at most half of a
-    /// shorter run) and ramp.
-    pub fn apply_overrides(
-        &mut self,
-        step_m: Option<f64>,
-        duration_s: Option<f64>,
-        smooth_s: Option<f64>,
-    ) {
-        if let Some(v) = step_m {
-            self.step_m = v;
-        }
-        if let Some(v) = duration_s {
-            self.duration_s = v;
-            self.steady_state_window_s = self.steady_state_window_s.min(0.5 * v.max(0.0));
-        }
-        if let Some(v) = smooth_s {
-            self.smooth_s = v;
-        }
-    }
 }
 
 impl Default for StepConfig {
@@ -469,7 +446,12 @@ impl BenchConfig {
         })
     }
 
-    fn check(&self) -> Result<(), ParamError> {
+    /// [`Self::validate`] without a file: for a config changed in memory
+    /// (a job request applied to it).
+    ///
+    /// # Errors
+    /// [`ParamError`] with the first offending dotted key.
+    pub fn check(&self) -> Result<(), ParamError> {
         positive("loop.rate_hz", self.loop_.rate_hz)?;
         if !(100.0..=100_000.0).contains(&self.loop_.rate_hz) {
             return Err(ParamError::new(
