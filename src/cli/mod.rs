@@ -18,7 +18,8 @@ use bench::config::{BenchConfig, ChirpKind, ConfigError, DEFAULT_CONFIG};
 use bench::error::RunError;
 use bench::jobs::chirp::{run_chirp, ChirpOptions, ChirpSummary};
 use bench::jobs::request::{
-    parse_fault, ChirpRequest, ControlRequest, LocalOverrides, OperatingPoint, RequestError,
+    parse_fault, ChirpRequest, ControlRequest, JobRequest, LocalOverrides, OperatingPoint,
+    RequestError,
 };
 use bench::jobs::step::{run_control, ControlOptions, ControlSummary};
 use bench::rt::backend::BackendSpec;
@@ -446,8 +447,8 @@ fn chirp(args: ChirpArgs, stop: Arc<AtomicBool>) -> ExitCode {
                 "{flag}: not with --daemon (the daemon owns the bench, its config and where recordings go)"
             ));
         }
-        let params = serde_json::to_value(args.request()).unwrap_or_default();
-        return via_daemon(sock, "chirp", params, args.json, print_summary);
+        let job = JobRequest::Chirp(args.request());
+        return via_daemon(sock, &job, args.json, print_summary);
     }
     let mut cfg = match load_config(&args.config) {
         Ok(c) => c,
@@ -627,8 +628,8 @@ fn control(args: ControlArgs, stop: Arc<AtomicBool>) -> ExitCode {
                 "{flag}: not with --daemon (run it locally, or let the daemon choose the recording)"
             ));
         }
-        let params = serde_json::to_value(args.request()).unwrap_or_default();
-        return via_daemon(sock, "control", params, args.json, print_control_summary);
+        let job = JobRequest::Control(args.request());
+        return via_daemon(sock, &job, args.json, print_control_summary);
     }
     let mut cfg = match load_config(&args.config) {
         Ok(c) => c,
@@ -950,18 +951,18 @@ fn emulate(cmd: EmulateCommand, stop: Arc<AtomicBool>) -> ExitCode {
 /// summary as the local run does.
 fn via_daemon<T: serde::de::DeserializeOwned + serde::Serialize>(
     socket: &str,
-    cmd: &str,
-    params: serde_json::Value,
+    job: &JobRequest,
     json: bool,
     human: fn(&T),
 ) -> ExitCode {
+    let cmd = job.kind();
     let socket = if socket.is_empty() {
         bench::daemon::default_socket_path()
     } else {
         PathBuf::from(socket)
     };
     let show = std::io::stderr().is_terminal();
-    let result = bench::daemon::client::request(&socket, cmd, params, |ev| {
+    let result = bench::daemon::client::submit(&socket, job, |ev| {
         if !show {
             return;
         }
