@@ -517,7 +517,7 @@ async fn event_log(dir: PathBuf, mut rx: broadcast::Receiver<String>) {
 
 /// Deserialises `params` (an object, or absent) as `T`, naming the
 /// parameter at fault: `params.KEY: why`.
-fn param<T: serde::de::DeserializeOwned>(params: Value) -> Result<T, ApiError> {
+fn from_params<T: serde::de::DeserializeOwned>(params: Value) -> Result<T, ApiError> {
     use serde::de::{value::MapAccessDeserializer, DeserializeSeed, IntoDeserializer, MapAccess};
     /// The object's entries; `at` is the key being read until its value
     /// has been read.
@@ -567,7 +567,7 @@ fn param<T: serde::de::DeserializeOwned>(params: Value) -> Result<T, ApiError> {
 
 /// The job request of a `chirp` or `control` command, and whether it asked
 /// to `detach` (a transport option of the daemon, not part of the job).
-fn check_params(cmd: &str, params: &Value) -> Result<(JobRequest, bool), ApiError> {
+fn job_request(cmd: &str, params: &Value) -> Result<(JobRequest, bool), ApiError> {
     let mut params = params.clone();
     let detach = match params.as_object_mut().and_then(|m| m.remove("detach")) {
         None | Some(Value::Null) => false,
@@ -580,9 +580,9 @@ fn check_params(cmd: &str, params: &Value) -> Result<(JobRequest, bool), ApiErro
         }
     };
     let request = if cmd == "chirp" {
-        JobRequest::Chirp(param(params)?)
+        JobRequest::Chirp(from_params(params)?)
     } else {
-        JobRequest::Control(param(params)?)
+        JobRequest::Control(from_params(params)?)
     };
     Ok((request, detach))
 }
@@ -792,7 +792,7 @@ fn submit(
     out: &tokio::sync::mpsc::UnboundedSender<String>,
 ) -> Result<Option<JobHandle>, ApiError> {
     let job_id = ctx.next_job.fetch_add(1, Ordering::Relaxed) + 1;
-    let (request, detach) = check_params(cmd, params)?;
+    let (request, detach) = job_request(cmd, params)?;
     let (spec, kind, total, recording) = job_spec(ctx, &request, job_id)?;
     let handle = JobHandle {
         id: job_id,
