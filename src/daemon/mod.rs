@@ -1,4 +1,4 @@
-//! `bench serve`: the daemon that owns the bench (SPEC §10).
+//! `bench serve`: the daemon that owns the bench (README, *`bench serve`: the daemon*).
 //!
 //! One **owner thread** holds the backend, opened once. Between jobs it
 //! keeps reading the device at the loop rate with the amplifier disabled

@@ -196,7 +196,7 @@ pub fn step_metrics(
     }
 }
 
-/// The loop check (SPEC §6) of one controller.
+/// The loop check of one controller (README, *`bench control`*; thesis §6.2.1).
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct LoopCheck {
     /// Controller name.

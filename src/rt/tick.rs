@@ -1,4 +1,4 @@
-//! The real-time loop (SPEC §4).
+//! The real-time loop (README, *Layout*: the HAL lifecycle and who paces the loop).
 //!
 //! One dedicated OS thread runs [`run`]. Per tick, in this order:
 //!
