@@ -103,17 +103,6 @@ pub enum BackendKind {
     Socketcan,
 }
 
-impl BackendKind {
-    /// The name used in config and on the command line.
-    pub fn as_str(self) -> &'static str {
-        match self {
-            Self::Sim => "sim",
-            Self::Serial => "serial",
-            Self::Socketcan => "socketcan",
-        }
-    }
-}
-
 /// `[backend]`: which hardware runs the jobs. `--backend` overrides `kind`
 /// and the device.
 #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
