@@ -351,6 +351,23 @@ impl ChirpArgs {
             }),
         }
     }
+
+    /// The flag that set a config key (for error messages).
+    fn flag_for(&self, key: &str) -> Option<String> {
+        let flag = match key {
+            "plant.operating_point_m" if self.operating_point_m.is_some() => "--operating-point-m",
+            "plant.operating_point_m" if self.operating_point_pct.is_some() => {
+                "--operating-point-pct"
+            }
+            "plant.mass_asymmetry" if self.mass_asymmetry.is_some() => "--mass-asymmetry",
+            "chirp.amplitude_a" if self.amplitude_a.is_some() => "--amplitude-a",
+            "chirp.f_start_hz" if self.f_start_hz.is_some() => "--f-start-hz",
+            "chirp.f_end_hz" if self.f_end_hz.is_some() => "--f-end-hz",
+            "chirp.duration_s" if self.duration_s.is_some() => "--duration-s",
+            _ => return None,
+        };
+        Some(flag.to_string())
+    }
 }
 
 impl ControlArgs {
@@ -397,39 +414,6 @@ impl ControlArgs {
     }
 }
 
-/// Which command-line flag overrode a config key (for error messages).
-fn flag_for_key(key: &str, a: &ChirpArgs) -> Option<String> {
-    let pairs: [(&str, bool, &'static str); 7] = [
-        (
-            "plant.operating_point_m",
-            a.operating_point_m.is_some(),
-            "--operating-point-m",
-        ),
-        (
-            "plant.operating_point_m",
-            a.operating_point_pct.is_some(),
-            "--operating-point-pct",
-        ),
-        (
-            "plant.mass_asymmetry",
-            a.mass_asymmetry.is_some(),
-            "--mass-asymmetry",
-        ),
-        (
-            "chirp.amplitude_a",
-            a.amplitude_a.is_some(),
-            "--amplitude-a",
-        ),
-        ("chirp.f_start_hz", a.f_start_hz.is_some(), "--f-start-hz"),
-        ("chirp.f_end_hz", a.f_end_hz.is_some(), "--f-end-hz"),
-        ("chirp.duration_s", a.duration_s.is_some(), "--duration-s"),
-    ];
-    pairs
-        .iter()
-        .find(|(k, set, _)| *set && *k == key)
-        .map(|p| p.2.to_string())
-}
-
 fn chirp(args: ChirpArgs, stop: Arc<AtomicBool>) -> ExitCode {
     if let Some(sock) = &args.daemon {
         let local_only = [
@@ -457,7 +441,7 @@ fn chirp(args: ChirpArgs, stop: Arc<AtomicBool>) -> ExitCode {
     let request = args.request();
     args.local_overrides().apply(&mut cfg);
     if let Err(e) = request.apply(&mut cfg) {
-        return refused_request(e, &args.config, |key| flag_for_key(key, &args));
+        return refused_request(e, &args.config, |key| args.flag_for(key));
     }
     let out = args
         .out
