@@ -38,7 +38,7 @@ pub enum ConfigError {
     /// A value that cannot describe a usable bench.
     #[error("config {path}: {key}: {reason}")]
     Invalid {
-        /// The file (or `<overrides>` for command-line values).
+        /// The file.
         path: PathBuf,
         /// Dotted key.
         key: String,
@@ -101,17 +101,6 @@ pub enum BackendKind {
     Serial,
     /// A CAN analog I/O module on SocketCAN.
     Socketcan,
-}
-
-impl BackendKind {
-    /// The name used in config and on the command line.
-    pub fn as_str(self) -> &'static str {
-        match self {
-            Self::Sim => "sim",
-            Self::Serial => "serial",
-            Self::Socketcan => "socketcan",
-        }
-    }
 }
 
 /// `[backend]`: which hardware runs the jobs. `--backend` overrides `kind`
@@ -199,29 +188,6 @@ fn default_step_duration_s() -> f64 {
 }
 fn default_ss_window_s() -> f64 {
     3.0
-}
-
-impl StepConfig {
-    /// Applies the command-line (or daemon request) overrides of a step:
-    /// size, run time (the steady-state window shrinks to at most half of a
-    /// shorter run) and ramp.
-    pub fn apply_overrides(
-        &mut self,
-        step_m: Option<f64>,
-        duration_s: Option<f64>,
-        smooth_s: Option<f64>,
-    ) {
-        if let Some(v) = step_m {
-            self.step_m = v;
-        }
-        if let Some(v) = duration_s {
-            self.duration_s = v;
-            self.steady_state_window_s = self.steady_state_window_s.min(0.5 * v.max(0.0));
-        }
-        if let Some(v) = smooth_s {
-            self.smooth_s = v;
-        }
-    }
 }
 
 impl Default for StepConfig {
@@ -415,14 +381,21 @@ impl Default for IdentificationConfig {
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct SimConfig {
-    /// Seed of the simulator's noise generator.
-    #[serde(default)]
+    /// Seed of the simulator's noise generator (default 1, with or without
+    /// a `[sim]` table).
+    #[serde(default = "default_seed")]
     pub seed: u64,
+}
+
+fn default_seed() -> u64 {
+    1
 }
 
 impl Default for SimConfig {
     fn default() -> Self {
-        Self { seed: 1 }
+        Self {
+            seed: default_seed(),
+        }
     }
 }
 
@@ -462,7 +435,12 @@ impl BenchConfig {
         })
     }
 
-    fn check(&self) -> Result<(), ParamError> {
+    /// [`Self::validate`] without a file: for a config changed in memory
+    /// (a job request applied to it).
+    ///
+    /// # Errors
+    /// [`ParamError`] with the first offending dotted key.
+    pub fn check(&self) -> Result<(), ParamError> {
         positive("loop.rate_hz", self.loop_.rate_hz)?;
         if !(100.0..=100_000.0).contains(&self.loop_.rate_hz) {
             return Err(ParamError::new(
@@ -757,6 +735,24 @@ mod tests {
         assert!(
             (c.actuator.peak_current_a * c.actuator.force_constant_n_per_a - 111.0).abs() < 0.1
         );
+    }
+
+    /// One default seed: no `[sim]` table and a `[sim]` table without
+    /// `seed` both give 1.
+    #[test]
+    fn default_seed_with_and_without_the_sim_table() {
+        let (c, p) = shipped("sr4dof-ch5.toml");
+        let text = c.to_toml();
+        let start = text.find("[sim]").unwrap();
+        let end = text[start..]
+            .find("\n[")
+            .map_or(text.len(), |e| start + e + 1);
+        let without_table = format!("{}{}", &text[..start], &text[end..]);
+        let without_seed = format!("{}[sim]\n{}", &text[..start], &text[end..]);
+        for t in [without_table, without_seed] {
+            assert_eq!(BenchConfig::from_toml(&t, &p).unwrap().sim.seed, 1, "{t}");
+        }
+        assert_eq!(SimConfig::default().seed, 1);
     }
 
     #[test]

@@ -17,7 +17,10 @@ use anyhow::Context;
 use bench::config::{BenchConfig, ChirpKind, ConfigError, DEFAULT_CONFIG};
 use bench::error::RunError;
 use bench::jobs::chirp::{run_chirp, ChirpOptions, ChirpSummary};
-use bench::jobs::step::parse_fault;
+use bench::jobs::request::{
+    parse_fault, ChirpRequest, ControlRequest, JobRequest, LocalOverrides, OperatingPoint,
+    RequestError,
+};
 use bench::jobs::step::{run_control, ControlOptions, ControlSummary};
 use bench::rt::backend::BackendSpec;
 use bench_hal::emulator::serial::{Pty, SerialEmulatorOptions};
@@ -328,69 +331,92 @@ fn load_config(path: &Path) -> Result<BenchConfig, ConfigError> {
     BenchConfig::load(path)
 }
 
-fn apply_overrides(cfg: &mut BenchConfig, a: &ChirpArgs) {
-    if let Some(v) = a.operating_point_m {
-        cfg.plant.operating_point_m = v;
+impl ChirpArgs {
+    /// The job request of the flags.
+    fn request(&self) -> ChirpRequest {
+        ChirpRequest {
+            seed: self.seed,
+            amplitude_a: self.amplitude_a,
+            f_start_hz: self.f_start_hz,
+            f_end_hz: self.f_end_hz,
+            duration_s: self.duration_s,
+        }
     }
-    if let Some(p) = a.operating_point_pct {
-        cfg.plant.operating_point_m = p / 100.0 * cfg.plant.beam.length_m;
+
+    /// The local-only overrides of the flags.
+    fn local_overrides(&self) -> LocalOverrides {
+        LocalOverrides {
+            operating_point: self.operating_point_m.map(OperatingPoint::Metres).or(self
+                .operating_point_pct
+                .map(OperatingPoint::PercentOfBeamLength)),
+            mass_asymmetry: self.mass_asymmetry,
+            chirp_kind: self.chirp_kind.map(|k| match k {
+                KindArg::Exponential => ChirpKind::Exponential,
+                KindArg::Linear => ChirpKind::Linear,
+            }),
+        }
     }
-    if let Some(v) = a.mass_asymmetry {
-        cfg.plant.mass_asymmetry = v;
-    }
-    if let Some(v) = a.amplitude_a {
-        cfg.chirp.amplitude_a = v;
-    }
-    if let Some(v) = a.f_start_hz {
-        cfg.chirp.f_start_hz = v;
-    }
-    if let Some(v) = a.f_end_hz {
-        cfg.chirp.f_end_hz = v;
-    }
-    if let Some(v) = a.duration_s {
-        cfg.chirp.duration_s = v;
-        // Keep the fades inside a short sweep.
-        cfg.chirp.taper_s = cfg.chirp.taper_s.min(0.25 * v.max(0.0));
-    }
-    if let Some(k) = a.chirp_kind {
-        cfg.chirp.kind = match k {
-            KindArg::Exponential => ChirpKind::Exponential,
-            KindArg::Linear => ChirpKind::Linear,
+
+    /// The flag that set a config key (for error messages).
+    fn flag_for(&self, key: &str) -> Option<String> {
+        let flag = match key {
+            "plant.operating_point_m" if self.operating_point_m.is_some() => "--operating-point-m",
+            "plant.operating_point_m" if self.operating_point_pct.is_some() => {
+                "--operating-point-pct"
+            }
+            "plant.mass_asymmetry" if self.mass_asymmetry.is_some() => "--mass-asymmetry",
+            "chirp.amplitude_a" if self.amplitude_a.is_some() => "--amplitude-a",
+            "chirp.f_start_hz" if self.f_start_hz.is_some() => "--f-start-hz",
+            "chirp.f_end_hz" if self.f_end_hz.is_some() => "--f-end-hz",
+            "chirp.duration_s" if self.duration_s.is_some() => "--duration-s",
+            _ => return None,
         };
+        Some(flag.to_string())
     }
 }
 
-/// Which command-line flag overrode a config key (for error messages).
-fn flag_for_key(key: &str, a: &ChirpArgs) -> Option<&'static str> {
-    let pairs: [(&str, bool, &'static str); 7] = [
-        (
-            "plant.operating_point_m",
-            a.operating_point_m.is_some(),
-            "--operating-point-m",
-        ),
-        (
-            "plant.operating_point_m",
-            a.operating_point_pct.is_some(),
-            "--operating-point-pct",
-        ),
-        (
-            "plant.mass_asymmetry",
-            a.mass_asymmetry.is_some(),
-            "--mass-asymmetry",
-        ),
-        (
-            "chirp.amplitude_a",
-            a.amplitude_a.is_some(),
-            "--amplitude-a",
-        ),
-        ("chirp.f_start_hz", a.f_start_hz.is_some(), "--f-start-hz"),
-        ("chirp.f_end_hz", a.f_end_hz.is_some(), "--f-end-hz"),
-        ("chirp.duration_s", a.duration_s.is_some(), "--duration-s"),
-    ];
-    pairs
-        .iter()
-        .find(|(k, set, _)| *set && *k == key)
-        .map(|p| p.2)
+impl ControlArgs {
+    /// The controller the flags select.
+    fn controller(&self) -> String {
+        if self.slow {
+            "slow".to_string()
+        } else if self.fast {
+            "fast".to_string()
+        } else {
+            self.controller.clone().unwrap_or_default()
+        }
+    }
+
+    /// The job request of the flags.
+    fn request(&self) -> ControlRequest {
+        ControlRequest {
+            controller: self.controller(),
+            step_m: self.step_m,
+            duration_s: self.duration_s,
+            smooth_s: self.smooth_s,
+            seed: self.seed,
+            inject_fault: self.inject_fault.clone(),
+            override_check: self.override_check,
+        }
+    }
+
+    /// The flag that set a config key or request field (for error
+    /// messages), with its value where the message needs it.
+    fn flag_for(&self, key: &str) -> Option<String> {
+        match key {
+            "step.step_m" if self.step_m.is_some() => Some("--step-m".into()),
+            "step.duration_s" if self.duration_s.is_some() => Some("--duration-s".into()),
+            "step.smooth_s" if self.smooth_s.is_some() => Some("--smooth-s".into()),
+            "controller" if self.slow => Some("--slow".into()),
+            "controller" if self.fast => Some("--fast".into()),
+            "controller" => Some(format!("--controller {}", self.controller())),
+            "inject_fault" => self
+                .inject_fault
+                .as_ref()
+                .map(|f| format!("--inject-fault {f}")),
+            _ => None,
+        }
+    }
 }
 
 fn chirp(args: ChirpArgs, stop: Arc<AtomicBool>) -> ExitCode {
@@ -410,22 +436,17 @@ fn chirp(args: ChirpArgs, stop: Arc<AtomicBool>) -> ExitCode {
                 "{flag}: not with --daemon (the daemon owns the bench, its config and where recordings go)"
             ));
         }
-        let params = serde_json::json!({
-            "seed": args.seed,
-            "amplitude_a": args.amplitude_a,
-            "f_start_hz": args.f_start_hz,
-            "f_end_hz": args.f_end_hz,
-            "duration_s": args.duration_s,
-        });
-        return via_daemon(sock, "chirp", params, args.json, print_summary);
+        let job = JobRequest::Chirp(args.request());
+        return via_daemon(sock, &job, args.json, print_summary);
     }
     let mut cfg = match load_config(&args.config) {
         Ok(c) => c,
         Err(e) => return bad_input(e),
     };
-    apply_overrides(&mut cfg, &args);
-    if let Err(e) = cfg.validate(&args.config) {
-        return invalid_config(e, |key| flag_for_key(key, &args));
+    let request = args.request();
+    args.local_overrides().apply(&mut cfg);
+    if let Err(e) = request.apply(&mut cfg) {
+        return refused_request(e, &args.config, |key| args.flag_for(key));
     }
     let out = args
         .out
@@ -447,7 +468,7 @@ fn chirp(args: ChirpArgs, stop: Arc<AtomicBool>) -> ExitCode {
             .clone()
             .unwrap_or_else(|| beside(&out, ".bode.png")),
         out,
-        seed: args.seed.unwrap_or(cfg.sim.seed),
+        seed: request.seed.unwrap_or(cfg.sim.seed),
         config: cfg,
         config_path: args.config.clone(),
         realtime: args.realtime,
@@ -541,15 +562,31 @@ fn emit<T: serde::Serialize>(summary: &T, json: bool, human: fn(&T)) -> Result<(
     Ok(())
 }
 
-/// Exit for a config that failed validation, naming the flag when a
-/// command-line override set the offending key.
-fn invalid_config(e: ConfigError, flag_for_key: impl Fn(&str) -> Option<&'static str>) -> ExitCode {
-    if let ConfigError::Invalid { key, reason, .. } = &e {
-        if let Some(flag) = flag_for_key(key) {
-            return bad_input(format!("{flag} (config key {key}): {reason}"));
-        }
+/// Exit for a job request the config refuses, naming the flag when one set
+/// the offending config key or request field (`flag`), else the file.
+fn refused_request(
+    e: RequestError,
+    config: &Path,
+    flag: impl Fn(&str) -> Option<String>,
+) -> ExitCode {
+    match e {
+        RequestError::Invalid { key, reason } => match flag(&key) {
+            Some(flag) => bad_input(format!("{flag} (config key {key}): {reason}")),
+            None => bad_input(ConfigError::Invalid {
+                path: config.to_path_buf(),
+                key,
+                reason,
+            }),
+        },
+        RequestError::Field {
+            field,
+            value,
+            reason,
+        } => match flag(field) {
+            Some(flag) => bad_input(format!("{flag}: {reason}")),
+            None => bad_input(format!("{field} {value:?}: {reason}")),
+        },
     }
-    bad_input(e)
 }
 
 fn exit_for(e: &RunError) -> ExitCode {
@@ -580,49 +617,19 @@ fn control(args: ControlArgs, stop: Arc<AtomicBool>) -> ExitCode {
                 "{flag}: not with --daemon (run it locally, or let the daemon choose the recording)"
             ));
         }
-        let controller = if args.slow {
-            "slow".to_string()
-        } else if args.fast {
-            "fast".to_string()
-        } else {
-            args.controller.clone().unwrap_or_default()
-        };
-        let params = serde_json::json!({
-            "controller": controller,
-            "seed": args.seed,
-            "step_m": args.step_m,
-            "duration_s": args.duration_s,
-            "smooth_s": args.smooth_s,
-            "inject_fault": args.inject_fault,
-            "override_check": args.override_check,
-        });
-        return via_daemon(sock, "control", params, args.json, print_control_summary);
+        let job = JobRequest::Control(args.request());
+        return via_daemon(sock, &job, args.json, print_control_summary);
     }
     let mut cfg = match load_config(&args.config) {
         Ok(c) => c,
         Err(e) => return bad_input(e),
     };
-    cfg.step
-        .apply_overrides(args.step_m, args.duration_s, args.smooth_s);
-    if let Err(e) = cfg.validate(&args.config) {
-        return invalid_config(e, |key| match key {
-            "step.step_m" if args.step_m.is_some() => Some("--step-m"),
-            "step.duration_s" if args.duration_s.is_some() => Some("--duration-s"),
-            "step.smooth_s" if args.smooth_s.is_some() => Some("--smooth-s"),
-            _ => None,
-        });
-    }
-    let inject = match args.inject_fault.as_deref().map(parse_fault).transpose() {
+    let request = args.request();
+    let inject = match request.apply(&mut cfg) {
         Ok(f) => f,
-        Err(e) => return bad_input(e),
+        Err(e) => return refused_request(e, &args.config, |key| args.flag_for(key)),
     };
-    let name = if args.slow {
-        "slow".to_string()
-    } else if args.fast {
-        "fast".to_string()
-    } else {
-        args.controller.clone().unwrap_or_default()
-    };
+    let name = request.controller.clone();
     let out = args
         .out
         .clone()
@@ -639,13 +646,13 @@ fn control(args: ControlArgs, stop: Arc<AtomicBool>) -> ExitCode {
             .clone()
             .unwrap_or_else(|| beside(&out, ".step.png")),
         out,
-        seed: args.seed.unwrap_or(cfg.sim.seed),
+        seed: request.seed.unwrap_or(cfg.sim.seed),
         config: cfg,
         config_path: args.config.clone(),
         controller: name,
         check_only: args.check_only,
         frf: args.frf.clone(),
-        override_check: args.override_check,
+        override_check: request.override_check,
         realtime: args.realtime,
         progress: std::io::stderr().is_terminal(),
         inject,
@@ -933,18 +940,18 @@ fn emulate(cmd: EmulateCommand, stop: Arc<AtomicBool>) -> ExitCode {
 /// summary as the local run does.
 fn via_daemon<T: serde::de::DeserializeOwned + serde::Serialize>(
     socket: &str,
-    cmd: &str,
-    params: serde_json::Value,
+    job: &JobRequest,
     json: bool,
     human: fn(&T),
 ) -> ExitCode {
+    let cmd = job.kind();
     let socket = if socket.is_empty() {
         bench::daemon::default_socket_path()
     } else {
         PathBuf::from(socket)
     };
     let show = std::io::stderr().is_terminal();
-    let result = bench::daemon::client::request(&socket, cmd, params, |ev| {
+    let result = bench::daemon::client::submit(&socket, job, |ev| {
         if !show {
             return;
         }

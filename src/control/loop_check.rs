@@ -1,4 +1,4 @@
-//! The loop check run before the amplifier is enabled (SPEC §6).
+//! The loop check run before the amplifier is enabled (README, *`bench control`*; thesis §6.2.1).
 //!
 //! Open loop `L(e^{jωT}) = C_d(e^{jωT}) · P(e^{jωT}) · u`, where `C_d` is
 //! the discrete controller that will run (A per error unit), `P` the plant

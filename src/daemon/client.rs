@@ -2,6 +2,7 @@
 //! submit their job over the socket, show its progress, and get the same
 //! summary as a local run.
 
+use crate::jobs::request::JobRequest;
 use serde_json::{json, Value};
 use std::io::{BufRead, BufReader, Write};
 use std::path::Path;
@@ -30,18 +31,20 @@ pub enum ClientError {
     Io(String),
 }
 
-/// Sends `{"id": 1, "cmd": cmd, "params": params}` to the daemon at
-/// `socket` and waits for the response. Events in between go to
+/// Submits `job` to the daemon at `socket` (`{"id": 1, "cmd": KIND,
+/// "params": {...}}`, attached: the job stops if this client goes away)
+/// and waits for the response, the job's summary. Events in between go to
 /// `on_event`.
 ///
 /// # Errors
 /// [`ClientError`].
-pub fn request(
+pub fn submit(
     socket: &Path,
-    cmd: &str,
-    params: Value,
+    job: &JobRequest,
     mut on_event: impl FnMut(&Value),
 ) -> Result<Value, ClientError> {
+    let mut line = serde_json::to_value(job).map_err(|e| ClientError::Io(e.to_string()))?;
+    line["id"] = json!(1);
     let mut stream = std::os::unix::net::UnixStream::connect(socket).map_err(|e| {
         ClientError::Connect {
             path: socket.display().to_string(),
@@ -56,7 +59,6 @@ pub fn request(
             },
         }
     })?;
-    let line = json!({ "id": 1, "cmd": cmd, "params": params }).to_string();
     stream
         .write_all(format!("{line}\n").as_bytes())
         .map_err(|e| ClientError::Io(e.to_string()))?;

@@ -1,4 +1,4 @@
-//! `bench serve`: the daemon that owns the bench (SPEC §10).
+//! `bench serve`: the daemon that owns the bench (README, *`bench serve`: the daemon*).
 //!
 //! One **owner thread** holds the backend, opened once. Between jobs it
 //! keeps reading the device at the loop rate with the amplifier disabled
@@ -23,11 +23,14 @@
 //! | `status` | – | state, fault and cause, job and progress, backend, last reading |
 //! | `enable` / `disable` | – | amplifier enabled at 0 A / disabled (refused while faulted) |
 //! | `reset` | – | clears a latched fault (back to `disabled`) |
-//! | `chirp` | `seed`, `amplitude_a`, `f_start_hz`, `f_end_hz`, `duration_s`, `detach` | the `bench chirp --json` summary |
-//! | `control` | `controller`, `step_m`, `duration_s`, `smooth_s`, `seed`, `inject_fault`, `override_check`, `detach` | the `bench control --json` summary |
+//! | `chirp` | the fields of a [`ChirpRequest`], and `detach` | the `bench chirp --json` summary |
+//! | `control` | the fields of a [`ControlRequest`], and `detach` | the `bench control --json` summary |
 //! | `stop` | – | the running job stops safely (0 A, recording finished) |
 //! | `subscribe` | – | this connection receives every event from now on |
 //! | `shutdown` | – | stops the job, then the daemon |
+//!
+//! [`ChirpRequest`]: crate::jobs::request::ChirpRequest
+//! [`ControlRequest`]: crate::jobs::request::ControlRequest
 //!
 //! Error kinds: `bad_request` (not JSON, no `cmd`), `unknown_command`,
 //! `bad_params`, `busy` (a job is running), `faulted` (reset first),
@@ -45,6 +48,7 @@ pub mod client;
 use crate::config::BenchConfig;
 use crate::error::RunError;
 use crate::jobs::chirp::{run_chirp_on, ChirpOptions};
+use crate::jobs::request::{JobRequest, RequestError};
 use crate::jobs::session::beside;
 use crate::jobs::session::Runner;
 use crate::jobs::step::{run_control_from, ControlOptions, StageSource};
@@ -504,30 +508,76 @@ async fn event_log(dir: PathBuf, mut rx: broadcast::Receiver<String>) {
     }
 }
 
-fn param<T: serde::de::DeserializeOwned>(params: &Value, key: &str) -> Result<Option<T>, ApiError> {
-    match params.get(key) {
-        None | Some(Value::Null) => Ok(None),
-        Some(v) => serde_json::from_value(v.clone())
-            .map(Some)
-            .map_err(|e| ApiError::new("bad_params", format!("params.{key}: {e}"))),
+/// Deserialises `params` (an object, or absent) as `T`, naming the
+/// parameter at fault: `params.KEY: why`.
+fn from_params<T: serde::de::DeserializeOwned>(params: Value) -> Result<T, ApiError> {
+    use serde::de::{value::MapAccessDeserializer, DeserializeSeed, IntoDeserializer, MapAccess};
+    /// The object's entries; `at` is the key being read until its value
+    /// has been read.
+    struct Entries {
+        iter: serde_json::map::IntoIter,
+        value: Option<Value>,
+        at: Option<String>,
     }
+    impl<'de> MapAccess<'de> for Entries {
+        type Error = serde_json::Error;
+        fn next_key_seed<K: DeserializeSeed<'de>>(
+            &mut self,
+            seed: K,
+        ) -> Result<Option<K::Value>, Self::Error> {
+            let Some((k, v)) = self.iter.next() else {
+                return Ok(None);
+            };
+            self.value = Some(v);
+            self.at = Some(k.clone());
+            seed.deserialize(k.into_deserializer()).map(Some)
+        }
+        fn next_value_seed<V: DeserializeSeed<'de>>(
+            &mut self,
+            seed: V,
+        ) -> Result<V::Value, Self::Error> {
+            let v = seed.deserialize(self.value.take().unwrap_or(Value::Null))?;
+            self.at = None;
+            Ok(v)
+        }
+    }
+    let map = match params {
+        Value::Null => serde_json::Map::new(),
+        Value::Object(m) => m,
+        _ => return Err(ApiError::new("bad_params", "params must be an object")),
+    };
+    let mut entries = Entries {
+        iter: map.into_iter(),
+        value: None,
+        at: None,
+    };
+    let parsed = T::deserialize(MapAccessDeserializer::new(&mut entries));
+    parsed.map_err(|e| {
+        let at = entries.at.map_or(String::new(), |k| format!(".{k}"));
+        ApiError::new("bad_params", format!("params{at}: {e}"))
+    })
 }
 
-fn check_params(params: &Value, known: &[&str]) -> Result<(), ApiError> {
-    match params {
-        Value::Null => Ok(()),
-        Value::Object(m) => match m.keys().find(|k| !known.contains(&k.as_str())) {
-            Some(k) => Err(ApiError::new(
+/// The job request of a `chirp` or `control` command, and whether it asked
+/// to `detach` (a transport option of the daemon, not part of the job).
+fn job_request(cmd: &str, params: &Value) -> Result<(JobRequest, bool), ApiError> {
+    let mut params = params.clone();
+    let detach = match params.as_object_mut().and_then(|m| m.remove("detach")) {
+        None | Some(Value::Null) => false,
+        Some(Value::Bool(d)) => d,
+        Some(v) => {
+            return Err(ApiError::new(
                 "bad_params",
-                format!(
-                    "params.{k}: unknown parameter (known: {})",
-                    known.join(", ")
-                ),
-            )),
-            None => Ok(()),
-        },
-        _ => Err(ApiError::new("bad_params", "params must be an object")),
-    }
+                format!("params.detach: expected true or false, got {v}"),
+            ))
+        }
+    };
+    let request = if cmd == "chirp" {
+        JobRequest::Chirp(from_params(params)?)
+    } else {
+        JobRequest::Control(from_params(params)?)
+    };
+    Ok((request, detach))
 }
 
 fn recording_path(dir: &Path, prefix: &str, id: u64) -> PathBuf {
@@ -537,118 +587,62 @@ fn recording_path(dir: &Path, prefix: &str, id: u64) -> PathBuf {
 /// Builds a job from a request; `Err` for bad parameters.
 fn job_spec(
     ctx: &Ctx,
-    cmd: &str,
-    params: &Value,
+    request: &JobRequest,
     id: u64,
 ) -> Result<(JobSpec, &'static str, u64, PathBuf), ApiError> {
     let mut cfg = ctx.cfg.clone();
-    let seed = param::<u64>(params, "seed")?.unwrap_or(ctx.seed);
-    if cmd == "chirp" {
-        check_params(
-            params,
-            &[
-                "seed",
-                "amplitude_a",
-                "f_start_hz",
-                "f_end_hz",
-                "duration_s",
-                "detach",
-            ],
-        )?;
-        if let Some(v) = param(params, "amplitude_a")? {
-            cfg.chirp.amplitude_a = v;
-        }
-        if let Some(v) = param(params, "f_start_hz")? {
-            cfg.chirp.f_start_hz = v;
-        }
-        if let Some(v) = param(params, "f_end_hz")? {
-            cfg.chirp.f_end_hz = v;
-        }
-        if let Some(v) = param::<f64>(params, "duration_s")? {
-            cfg.chirp.duration_s = v;
-            cfg.chirp.taper_s = cfg.chirp.taper_s.min(0.25 * v.max(0.0));
-        }
-        cfg.validate(&ctx.config_path)
-            .map_err(|e| ApiError::new("bad_params", e.to_string()))?;
-        let chirp = crate::ident::excitation::Chirp::new(&cfg.chirp, ctx.period_s);
-        let out = recording_path(&ctx.recordings, "chirp", id);
-        let opts = ChirpOptions {
-            frf_csv: beside(&out, ".frf.csv"),
-            plot: beside(&out, ".bode.png"),
-            out: out.clone(),
-            seed,
-            config: cfg,
-            config_path: ctx.config_path.clone(),
-            realtime: true,
-            progress: false,
-            backend: Some(ctx.spec.clone()),
+    // The request names a config key or its field; a field is a parameter.
+    let bad = |e: RequestError| {
+        let message = match e {
+            RequestError::Field { .. } => format!("params.{e}"),
+            RequestError::Invalid { .. } => e.to_string(),
         };
-        Ok((
-            JobSpec::Chirp(Box::new(opts)),
-            "chirp",
-            chirp.total_ticks(),
-            out,
-        ))
-    } else {
-        check_params(
-            params,
-            &[
-                "seed",
-                "controller",
-                "step_m",
-                "duration_s",
-                "smooth_s",
-                "inject_fault",
-                "override_check",
-                "detach",
-            ],
-        )?;
-        let controller: String = param(params, "controller")?.ok_or_else(|| {
-            ApiError::new(
-                "bad_params",
-                "params.controller: missing (slow, fast or a [controller.NAME])",
-            )
-        })?;
-        if !cfg.controller.contains_key(&controller) {
-            return Err(ApiError::new(
-                "bad_params",
-                format!(
-                    "params.controller: no [controller.{controller}] in the daemon's config (known: {})",
-                    cfg.controller.keys().cloned().collect::<Vec<_>>().join(", ")
-                ),
-            ));
+        ApiError::new("bad_params", message)
+    };
+    match request {
+        JobRequest::Chirp(req) => {
+            req.apply(&mut cfg).map_err(bad)?;
+            let chirp = crate::ident::excitation::Chirp::new(&cfg.chirp, ctx.period_s);
+            let out = recording_path(&ctx.recordings, "chirp", id);
+            let opts = ChirpOptions {
+                frf_csv: beside(&out, ".frf.csv"),
+                plot: beside(&out, ".bode.png"),
+                out: out.clone(),
+                seed: req.seed.unwrap_or(ctx.seed),
+                config: cfg,
+                config_path: ctx.config_path.clone(),
+                realtime: true,
+                progress: false,
+                backend: Some(ctx.spec.clone()),
+            };
+            Ok((
+                JobSpec::Chirp(Box::new(opts)),
+                request.kind(),
+                chirp.total_ticks(),
+                out,
+            ))
         }
-        cfg.step.apply_overrides(
-            param(params, "step_m")?,
-            param(params, "duration_s")?,
-            param(params, "smooth_s")?,
-        );
-        cfg.validate(&ctx.config_path)
-            .map_err(|e| ApiError::new("bad_params", e.to_string()))?;
-        let inject = match param::<String>(params, "inject_fault")? {
-            None => None,
-            Some(s) => Some(
-                crate::jobs::step::parse_fault(&s).map_err(|e| ApiError::new("bad_params", e))?,
-            ),
-        };
-        let out = recording_path(&ctx.recordings, &format!("control-{controller}"), id);
-        let total = (cfg.step.duration_s / ctx.period_s).round() as u64;
-        let opts = ControlOptions {
-            plot: beside(&out, ".step.png"),
-            out: out.clone(),
-            controller,
-            check_only: false,
-            frf: None,
-            override_check: param(params, "override_check")?.unwrap_or(false),
-            realtime: true,
-            seed,
-            progress: false,
-            inject,
-            backend: Some(ctx.spec.clone()),
-            config: cfg,
-            config_path: ctx.config_path.clone(),
-        };
-        Ok((JobSpec::Control(Box::new(opts)), "control", total, out))
+        JobRequest::Control(req) => {
+            let inject = req.apply(&mut cfg).map_err(bad)?;
+            let out = recording_path(&ctx.recordings, &format!("control-{}", req.controller), id);
+            let total = (cfg.step.duration_s / ctx.period_s).round() as u64;
+            let opts = ControlOptions {
+                plot: beside(&out, ".step.png"),
+                out: out.clone(),
+                controller: req.controller.clone(),
+                check_only: false,
+                frf: None,
+                override_check: req.override_check,
+                realtime: true,
+                seed: req.seed.unwrap_or(ctx.seed),
+                progress: false,
+                inject,
+                backend: Some(ctx.spec.clone()),
+                config: cfg,
+                config_path: ctx.config_path.clone(),
+            };
+            Ok((JobSpec::Control(Box::new(opts)), request.kind(), total, out))
+        }
     }
 }
 
@@ -752,10 +746,8 @@ async fn connection(ctx: Arc<Ctx>, stream: tokio::net::UnixStream) {
             }
             "chirp" | "control" => {
                 match submit(&ctx, &cmd, &params, &id, &out) {
-                    Ok(handle) => {
-                        if !param::<bool>(&params, "detach").ok().flatten().unwrap_or(false) {
-                            attached.push(handle);
-                        }
+                    Ok(attach) => {
+                        attached.extend(attach);
                         continue; // the job task responds
                     }
                     Err(e) => Err(e),
@@ -783,17 +775,18 @@ async fn connection(ctx: Arc<Ctx>, stream: tokio::net::UnixStream) {
 }
 
 /// Starts a job: checks busy/faulted, hands it to the owner, and spawns
-/// the task that streams progress and sends the response.
+/// the task that streams progress and sends the response. Returns the job
+/// to stop when this client leaves (`None`: detached).
 fn submit(
     ctx: &Arc<Ctx>,
     cmd: &str,
     params: &Value,
     id: &Value,
     out: &tokio::sync::mpsc::UnboundedSender<String>,
-) -> Result<JobHandle, ApiError> {
+) -> Result<Option<JobHandle>, ApiError> {
     let job_id = ctx.next_job.fetch_add(1, Ordering::Relaxed) + 1;
-    let (spec, kind, total, recording) = job_spec(ctx, cmd, params, job_id)?;
-    let detach = param::<bool>(params, "detach")?.unwrap_or(false);
+    let (request, detach) = job_request(cmd, params)?;
+    let (spec, kind, total, recording) = job_spec(ctx, &request, job_id)?;
     let handle = JobHandle {
         id: job_id,
         stop: Arc::new(AtomicBool::new(false)),
@@ -877,7 +870,7 @@ fn submit(
         let _ = out.send(fin);
         let _ = out.send(respond(&id, result));
     });
-    Ok(handle)
+    Ok((!detach).then_some(handle))
 }
 
 /// Runs the daemon until `shutdown`, SIGTERM or SIGINT.

@@ -1,4 +1,4 @@
-//! Chirp excitation for identification (SPEC §5).
+//! Chirp excitation for identification (thesis §5.2.2; README, *Configuration reference*: `[chirp]`).
 //!
 //! The record is `lead-in | sweep | tail`, all at the loop rate:
 //!

@@ -6,5 +6,6 @@
 //! `config`); never the CLI or the daemon.
 
 pub mod chirp;
+pub mod request;
 pub mod session;
 pub mod step;

@@ -29,7 +29,7 @@ use crate::rt::backend::{self, BackendSpec};
 use crate::rt::service::{LoopReply, LoopRequest, ServiceClient};
 use crate::rt::{Job, JobOutput};
 use bench_hal::model::Sr4dof;
-use bench_hal::sim::{FaultInjection, ScheduledFault, ZohPlant};
+use bench_hal::sim::{ScheduledFault, ZohPlant};
 use bench_hal::Sample;
 use serde::{Deserialize, Serialize};
 use serde_json::json;
@@ -197,7 +197,7 @@ pub fn step_metrics(
     }
 }
 
-/// The loop check (SPEC §6) of one controller.
+/// The loop check of one controller (README, *`bench control`*; thesis §6.2.1).
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct LoopCheck {
     /// Controller name.
@@ -646,37 +646,6 @@ pub fn run_control_from(
     recorder.write_json(ch, end_ns, &serde_json::to_value(&summary)?)?;
     summary.recording = Some(PathBuf::from(finish(recorder)?));
     Ok(summary)
-}
-
-/// Parses a simulator fault `KIND@T_S` (`--inject-fault`): nan, frozen,
-/// drop (10 samples), jump (0.2 mm), out_of_range.
-///
-/// # Errors
-/// A message naming the part that does not parse.
-pub fn parse_fault(s: &str) -> Result<ScheduledFault, String> {
-    let (kind, at) = s
-        .split_once('@')
-        .ok_or_else(|| format!("--inject-fault {s}: expected KIND@T_S, e.g. nan@1.5"))?;
-    let at_s: f64 = at
-        .parse()
-        .ok()
-        .filter(|t: &f64| t.is_finite() && *t >= 0.0)
-        .ok_or_else(|| {
-            format!("--inject-fault {s}: time {at:?} is not a non-negative number of seconds")
-        })?;
-    let kind = match kind {
-        "nan" => FaultInjection::Nan,
-        "frozen" => FaultInjection::Frozen,
-        "drop" => FaultInjection::Drop(10),
-        "jump" => FaultInjection::Jump(0.2e-3),
-        "out_of_range" => FaultInjection::OutOfRange,
-        other => {
-            return Err(format!(
-                "--inject-fault {s}: unknown kind {other:?} (nan, frozen, drop, jump, out_of_range)"
-            ))
-        }
-    };
-    Ok(ScheduledFault { at_s, kind })
 }
 
 #[cfg(test)]

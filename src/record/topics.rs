@@ -53,7 +53,7 @@ pub struct TimingRecord {
     pub dropped_records: u64,
 }
 
-/// Supervisor state (SPEC §7).
+/// Supervisor state (README, *Safety*).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum SupervisorState {
     /// Amplifier disabled, 0 A.

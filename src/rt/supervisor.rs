@@ -1,4 +1,4 @@
-//! The safety supervisor that runs on every tick (SPEC §7).
+//! The safety supervisor that runs on every tick (README, *Safety*).
 //!
 //! States: `disabled → enabled → running → faulted`. A fault latches: the
 //! command is 0 A from the faulting tick on and the loop disables the

@@ -1,0 +1,502 @@
+//! Job requests: what a chirp or a closed-loop step is asked to do, one
+//! serde type per job kind. `bench chirp|control` build them from their
+//! flags, `bench serve` deserialises them from a request's `params`, and
+//! `--daemon` sends them serialised. Applied to a [`BenchConfig`], a
+//! request writes its values into the config and checks the result, in one
+//! place: [`ChirpRequest::apply`], [`ControlRequest::apply`].
+//!
+//! Errors name the config key or the request field, never a command-line
+//! flag: only the CLI knows its flags.
+
+use crate::config::{BenchConfig, ChirpKind};
+use bench_hal::sim::{FaultInjection, ScheduledFault};
+use serde::{Deserialize, Serialize};
+
+/// Why a request cannot run on a config.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum RequestError {
+    /// With the request applied, the config does not describe a usable run.
+    #[error("{key}: {reason}")]
+    Invalid {
+        /// Dotted config key (e.g. `chirp.duration_s`).
+        key: String,
+        /// Why.
+        reason: String,
+    },
+    /// A request field that does not parse, or names nothing in the config.
+    #[error("{field} {value:?}: {reason}")]
+    Field {
+        /// The field (e.g. `inject_fault`).
+        field: &'static str,
+        /// Its value as given.
+        value: String,
+        /// Why.
+        reason: String,
+    },
+}
+
+/// A job for the bench, as the daemon takes it: `{"cmd": "chirp" |
+/// "control", "params": {...}}` with the fields of [`ChirpRequest`] or
+/// [`ControlRequest`] as `params`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "cmd", content = "params", rename_all = "lowercase")]
+pub enum JobRequest {
+    /// `bench chirp`.
+    Chirp(ChirpRequest),
+    /// `bench control`.
+    Control(ControlRequest),
+}
+
+impl JobRequest {
+    /// The job kind, as the daemon's `cmd`: `chirp` or `control`.
+    pub fn kind(&self) -> &'static str {
+        match self {
+            Self::Chirp(_) => "chirp",
+            Self::Control(_) => "control",
+        }
+    }
+}
+
+/// A chirp (`bench chirp`, the daemon's `chirp`). Every field is optional:
+/// absent, the config's value holds.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ChirpRequest {
+    /// Simulator noise seed. Not a config value: absent, the runner's
+    /// default holds (`sim.seed`, or `bench serve --seed`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub seed: Option<u64>,
+    /// Current amplitude, A (`chirp.amplitude_a`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub amplitude_a: Option<f64>,
+    /// Sweep start frequency, Hz (`chirp.f_start_hz`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub f_start_hz: Option<f64>,
+    /// Sweep end frequency, Hz (`chirp.f_end_hz`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub f_end_hz: Option<f64>,
+    /// Sweep duration, s (`chirp.duration_s`). Each fade (`chirp.taper_s`)
+    /// shrinks to at most a quarter of it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub duration_s: Option<f64>,
+}
+
+impl ChirpRequest {
+    /// Writes the request into `cfg` and checks the whole config.
+    ///
+    /// # Errors
+    /// [`RequestError::Invalid`] naming the first offending config key
+    /// (`cfg` keeps the request's values).
+    pub fn apply(&self, cfg: &mut BenchConfig) -> Result<(), RequestError> {
+        let c = &mut cfg.chirp;
+        set(&mut c.amplitude_a, self.amplitude_a);
+        set(&mut c.f_start_hz, self.f_start_hz);
+        set(&mut c.f_end_hz, self.f_end_hz);
+        if let Some(v) = self.duration_s {
+            c.duration_s = v;
+            // Keep the fades inside a short sweep.
+            c.taper_s = c.taper_s.min(0.25 * v.max(0.0));
+        }
+        check(cfg)
+    }
+}
+
+/// A closed-loop step (`bench control`, the daemon's `control`). Absent
+/// optional fields leave the config's `[step]` values.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ControlRequest {
+    /// The controller: `slow`, `fast` or any `[controller.NAME]` of the
+    /// config.
+    pub controller: String,
+    /// Step size, m (`step.step_m`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub step_m: Option<f64>,
+    /// Run time, s (`step.duration_s`). The steady-state window
+    /// (`step.steady_state_window_s`) shrinks to at most half of it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub duration_s: Option<f64>,
+    /// Raised-cosine ramp of the step, s (`step.smooth_s`; 0: sharp).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub smooth_s: Option<f64>,
+    /// Simulator noise seed, as [`ChirpRequest::seed`].
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub seed: Option<u64>,
+    /// A simulator fault to inject, `KIND@T_S` ([`parse_fault`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub inject_fault: Option<String>,
+    /// Run even when the loop check refuses (simulator only).
+    #[serde(default)]
+    pub override_check: bool,
+}
+
+impl ControlRequest {
+    /// A step of `controller` with the config's `[step]` values.
+    pub fn new(controller: impl Into<String>) -> Self {
+        Self {
+            controller: controller.into(),
+            step_m: None,
+            duration_s: None,
+            smooth_s: None,
+            seed: None,
+            inject_fault: None,
+            override_check: false,
+        }
+    }
+
+    /// Checks the controller against `cfg`, writes the step into it, checks
+    /// the whole config, and parses the fault to inject.
+    ///
+    /// # Errors
+    /// [`RequestError::Field`] for a controller the config does not have or
+    /// a fault that does not parse; [`RequestError::Invalid`] naming the
+    /// first offending config key (`cfg` keeps the request's values).
+    pub fn apply(&self, cfg: &mut BenchConfig) -> Result<Option<ScheduledFault>, RequestError> {
+        if !cfg.controller.contains_key(&self.controller) {
+            let known: Vec<&str> = cfg.controller.keys().map(String::as_str).collect();
+            return Err(RequestError::Field {
+                field: "controller",
+                value: self.controller.clone(),
+                reason: format!(
+                    "no [controller.{}] in the config (known: {})",
+                    self.controller,
+                    if known.is_empty() {
+                        "none".to_string()
+                    } else {
+                        known.join(", ")
+                    }
+                ),
+            });
+        }
+        let s = &mut cfg.step;
+        set(&mut s.step_m, self.step_m);
+        if let Some(v) = self.duration_s {
+            s.duration_s = v;
+            // Keep the steady-state window inside a short run.
+            s.steady_state_window_s = s.steady_state_window_s.min(0.5 * v.max(0.0));
+        }
+        set(&mut s.smooth_s, self.smooth_s);
+        check(cfg)?;
+        self.inject_fault
+            .as_deref()
+            .map(|f| {
+                parse_fault(f).map_err(|reason| RequestError::Field {
+                    field: "inject_fault",
+                    value: f.to_string(),
+                    reason,
+                })
+            })
+            .transpose()
+    }
+}
+
+/// What a local run may change besides its job request: the simulated
+/// plant's operating point and mass asymmetry, and the sweep law. A daemon
+/// takes none of them: its bench and config stay as it was started.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct LocalOverrides {
+    /// Operating point Y1o (`plant.operating_point_m`).
+    pub operating_point: Option<OperatingPoint>,
+    /// Mass asymmetry Δm23 = m2/m3 − 1 (`plant.mass_asymmetry`).
+    pub mass_asymmetry: Option<f64>,
+    /// Sweep law (`chirp.kind`).
+    pub chirp_kind: Option<ChirpKind>,
+}
+
+/// An operating point Y1o, in metres or relative to the beam length L.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum OperatingPoint {
+    /// Y1o, m.
+    Metres(f64),
+    /// Y1o in % of `plant.beam.length_m`.
+    PercentOfBeamLength(f64),
+}
+
+impl LocalOverrides {
+    /// Writes the overrides into `cfg`. It does not check: apply the job
+    /// request after it, which checks the whole config.
+    pub fn apply(&self, cfg: &mut BenchConfig) {
+        match self.operating_point {
+            Some(OperatingPoint::Metres(m)) => cfg.plant.operating_point_m = m,
+            Some(OperatingPoint::PercentOfBeamLength(p)) => {
+                cfg.plant.operating_point_m = p / 100.0 * cfg.plant.beam.length_m;
+            }
+            None => {}
+        }
+        set(&mut cfg.plant.mass_asymmetry, self.mass_asymmetry);
+        set(&mut cfg.chirp.kind, self.chirp_kind);
+    }
+}
+
+fn set<T>(slot: &mut T, value: Option<T>) {
+    if let Some(v) = value {
+        *slot = v;
+    }
+}
+
+fn check(cfg: &BenchConfig) -> Result<(), RequestError> {
+    cfg.check().map_err(|e| RequestError::Invalid {
+        key: e.key,
+        reason: e.reason,
+    })
+}
+
+/// Parses a simulator fault `KIND@T_S`: KIND one of nan, frozen, drop (10
+/// samples), jump (0.2 mm), out_of_range; T_S the loop time, s.
+///
+/// # Errors
+/// Why it does not parse (the caller names the field or flag).
+pub fn parse_fault(s: &str) -> Result<ScheduledFault, String> {
+    let (kind, at) = s
+        .split_once('@')
+        .ok_or_else(|| "expected KIND@T_S, e.g. nan@1.5".to_string())?;
+    let at_s: f64 = at
+        .parse()
+        .ok()
+        .filter(|t: &f64| t.is_finite() && *t >= 0.0)
+        .ok_or_else(|| format!("time {at:?} is not a non-negative number of seconds"))?;
+    let kind = match kind {
+        "nan" => FaultInjection::Nan,
+        "frozen" => FaultInjection::Frozen,
+        "drop" => FaultInjection::Drop(10),
+        "jump" => FaultInjection::Jump(0.2e-3),
+        "out_of_range" => FaultInjection::OutOfRange,
+        other => {
+            return Err(format!(
+                "unknown kind {other:?} (nan, frozen, drop, jump, out_of_range)"
+            ))
+        }
+    };
+    Ok(ScheduledFault { at_s, kind })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use serde_json::json;
+    use std::path::Path;
+
+    fn ch5() -> BenchConfig {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("bench-config/sr4dof-ch5.toml");
+        let cfg = BenchConfig::load(&path).unwrap();
+        cfg.validate(&path).unwrap();
+        cfg
+    }
+
+    type Expect = fn(&mut BenchConfig);
+
+    /// Each field lands on its config key and nowhere else.
+    #[test]
+    fn chirp_fields_land_on_their_keys() {
+        let cases: [(ChirpRequest, Expect); 5] = [
+            (
+                ChirpRequest {
+                    amplitude_a: Some(0.25),
+                    ..Default::default()
+                },
+                |c| c.chirp.amplitude_a = 0.25,
+            ),
+            (
+                ChirpRequest {
+                    f_start_hz: Some(5.0),
+                    ..Default::default()
+                },
+                |c| c.chirp.f_start_hz = 5.0,
+            ),
+            (
+                ChirpRequest {
+                    f_end_hz: Some(400.0),
+                    ..Default::default()
+                },
+                |c| c.chirp.f_end_hz = 400.0,
+            ),
+            // A long sweep keeps the fades; a short one shrinks them.
+            (
+                ChirpRequest {
+                    duration_s: Some(20.0),
+                    ..Default::default()
+                },
+                |c| c.chirp.duration_s = 20.0,
+            ),
+            (
+                ChirpRequest {
+                    duration_s: Some(1.0),
+                    ..Default::default()
+                },
+                |c| {
+                    c.chirp.duration_s = 1.0;
+                    c.chirp.taper_s = 0.25;
+                },
+            ),
+        ];
+        for (request, expect) in cases {
+            let mut got = ch5();
+            request.apply(&mut got).unwrap();
+            let mut want = ch5();
+            expect(&mut want);
+            assert_eq!(got, want, "{request:?}");
+        }
+        // The seed is not a config value.
+        let mut got = ch5();
+        ChirpRequest {
+            seed: Some(42),
+            ..Default::default()
+        }
+        .apply(&mut got)
+        .unwrap();
+        assert_eq!(got, ch5());
+    }
+
+    #[test]
+    fn control_fields_land_on_their_keys() {
+        let with = |f: fn(&mut ControlRequest)| {
+            let mut r = ControlRequest::new("fast");
+            f(&mut r);
+            r
+        };
+        let cases: [(ControlRequest, Expect); 5] = [
+            (with(|r| r.step_m = Some(-5e-6)), |c| c.step.step_m = -5e-6),
+            (with(|r| r.duration_s = Some(8.0)), |c| {
+                c.step.duration_s = 8.0
+            }),
+            (with(|r| r.duration_s = Some(1.5)), |c| {
+                c.step.duration_s = 1.5;
+                c.step.steady_state_window_s = 0.75;
+            }),
+            (with(|r| r.smooth_s = Some(0.05)), |c| {
+                c.step.smooth_s = 0.05
+            }),
+            // Not config values.
+            (
+                with(|r| {
+                    r.seed = Some(7);
+                    r.override_check = true;
+                }),
+                |_| {},
+            ),
+        ];
+        for (request, expect) in cases {
+            let mut got = ch5();
+            assert_eq!(request.apply(&mut got).unwrap(), None);
+            let mut want = ch5();
+            expect(&mut want);
+            assert_eq!(got, want, "{request:?}");
+        }
+        let mut got = ch5();
+        let fault = with(|r| r.inject_fault = Some("jump@0.3".into()))
+            .apply(&mut got)
+            .unwrap();
+        assert_eq!(
+            fault,
+            Some(ScheduledFault {
+                at_s: 0.3,
+                kind: FaultInjection::Jump(0.2e-3)
+            })
+        );
+        assert_eq!(got, ch5());
+    }
+
+    #[test]
+    fn local_overrides_land_on_their_keys() {
+        let mut got = ch5();
+        LocalOverrides {
+            operating_point: Some(OperatingPoint::PercentOfBeamLength(5.0)),
+            mass_asymmetry: Some(0.05),
+            chirp_kind: Some(ChirpKind::Linear),
+        }
+        .apply(&mut got);
+        let mut want = ch5();
+        want.plant.operating_point_m = 0.05 * want.plant.beam.length_m;
+        want.plant.mass_asymmetry = 0.05;
+        want.chirp.kind = ChirpKind::Linear;
+        assert_eq!(got, want);
+        LocalOverrides {
+            operating_point: Some(OperatingPoint::Metres(1e-3)),
+            ..Default::default()
+        }
+        .apply(&mut got);
+        assert_eq!(got.plant.operating_point_m, 1e-3);
+    }
+
+    /// A bad value is refused naming the config key it set.
+    #[test]
+    fn bad_values_name_the_key() {
+        let chirp = |f: fn(&mut ChirpRequest)| {
+            let mut r = ChirpRequest::default();
+            f(&mut r);
+            r.apply(&mut ch5()).unwrap_err()
+        };
+        let invalid = |key: &str, e: &RequestError| matches!(e, RequestError::Invalid { key: k, .. } if k == key);
+        for (e, key) in [
+            (chirp(|r| r.amplitude_a = Some(12.0)), "chirp.amplitude_a"),
+            (chirp(|r| r.f_start_hz = Some(f64::NAN)), "chirp.f_start_hz"),
+            (chirp(|r| r.f_end_hz = Some(2500.0)), "chirp.f_end_hz"),
+            (chirp(|r| r.duration_s = Some(-3.0)), "chirp.duration_s"),
+        ] {
+            assert!(invalid(key, &e), "{key}: {e}");
+            assert!(e.to_string().starts_with(key), "{e}");
+        }
+        let control = |f: fn(&mut ControlRequest)| {
+            let mut r = ControlRequest::new("slow");
+            f(&mut r);
+            r.apply(&mut ch5()).unwrap_err()
+        };
+        for (e, key) in [
+            (control(|r| r.step_m = Some(1e-3)), "step.step_m"),
+            (control(|r| r.duration_s = Some(0.1)), "step.duration_s"),
+            (control(|r| r.smooth_s = Some(-1.0)), "step.smooth_s"),
+        ] {
+            assert!(invalid(key, &e), "{key}: {e}");
+        }
+        let e = control(|r| r.controller = "nope".into());
+        assert!(
+            matches!(&e, RequestError::Field { field: "controller", value, reason }
+                if value == "nope" && reason.contains("fast, slow")),
+            "{e}"
+        );
+        let e = control(|r| r.inject_fault = Some("smoke@1".into()));
+        assert!(
+            matches!(&e, RequestError::Field { field: "inject_fault", reason, .. }
+                if reason.contains("unknown kind")),
+            "{e}"
+        );
+        for bad in ["nan", "nan@-1", "nan@x"] {
+            assert!(parse_fault(bad).is_err(), "{bad}");
+        }
+    }
+
+    #[test]
+    fn unknown_fields_are_refused() {
+        let e = serde_json::from_value::<ChirpRequest>(json!({ "amplitude": 0.1 })).unwrap_err();
+        assert!(e.to_string().contains("amplitude"), "{e}");
+        let e = serde_json::from_value::<ControlRequest>(
+            json!({ "controller": "fast", "detach": true }),
+        )
+        .unwrap_err();
+        assert!(e.to_string().contains("detach"), "{e}");
+        let e = serde_json::from_value::<JobRequest>(
+            json!({ "cmd": "control", "params": { "controller": "fast", "step": 1e-6 } }),
+        )
+        .unwrap_err();
+        assert!(e.to_string().contains("step"), "{e}");
+    }
+
+    /// The daemon's wire form: `cmd` and `params`; absent fields stay out.
+    #[test]
+    fn wire_form() {
+        let chirp = JobRequest::Chirp(ChirpRequest {
+            duration_s: Some(3.0),
+            ..Default::default()
+        });
+        let v = serde_json::to_value(&chirp).unwrap();
+        assert_eq!(
+            v,
+            json!({ "cmd": "chirp", "params": { "duration_s": 3.0 } })
+        );
+        assert_eq!(serde_json::from_value::<JobRequest>(v).unwrap(), chirp);
+        let control: ControlRequest =
+            serde_json::from_value(json!({ "controller": "fast", "seed": null })).unwrap();
+        assert_eq!(control, ControlRequest::new("fast"));
+        assert_eq!(JobRequest::Control(control).kind(), "control");
+    }
+}
