@@ -993,16 +993,19 @@ fn via_daemon<T: serde::de::DeserializeOwned + serde::Serialize>(
             ExitCode::from(match &e {
                 bench::daemon::client::ClientError::Connect { .. } => status::BAD_INPUT,
                 bench::daemon::client::ClientError::Io(_) => status::ERROR,
-                bench::daemon::client::ClientError::Api { kind, .. } => match kind.as_str() {
-                    "bad_params" | "bad_request" | "unknown_command" | "refused" => {
-                        status::BAD_INPUT
+                bench::daemon::client::ClientError::Api { kind, .. } => {
+                    use bench::daemon::ApiErrorKind as K;
+                    match kind {
+                        K::BadParams | K::BadRequest | K::UnknownCommand | K::Refused => {
+                            status::BAD_INPUT
+                        }
+                        K::Busy | K::Faulted => status::DAEMON_REFUSED,
+                        K::Fault => status::FAULT,
+                        K::Hal => status::HAL,
+                        K::Interrupted => status::INTERRUPTED,
+                        K::Error => status::ERROR,
                     }
-                    "busy" | "faulted" => status::DAEMON_REFUSED,
-                    "fault" => status::FAULT,
-                    "hal" => status::HAL,
-                    "interrupted" => status::INTERRUPTED,
-                    _ => status::ERROR,
-                },
+                }
             })
         }
     }

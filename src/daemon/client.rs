@@ -2,6 +2,7 @@
 //! submit their job over the socket, show its progress, and get the same
 //! summary as a local run.
 
+use crate::daemon::ApiErrorKind;
 use crate::jobs::request::JobRequest;
 use serde_json::{json, Value};
 use std::io::{BufRead, BufReader, Write};
@@ -19,10 +20,10 @@ pub enum ClientError {
         reason: String,
     },
     /// The daemon answered with an error.
-    #[error("daemon: {kind}: {message}")]
+    #[error("daemon: {}: {message}", serde_json::to_value(kind).ok().and_then(|v| v.as_str().map(str::to_string)).unwrap_or_default())]
     Api {
-        /// Error kind (`busy`, `faulted`, `bad_params`, `fault`, …).
-        kind: String,
+        /// Error kind.
+        kind: ApiErrorKind,
         /// Message.
         message: String,
     },
@@ -76,7 +77,8 @@ pub fn submit(
                 return Ok(v["result"].clone());
             }
             return Err(ClientError::Api {
-                kind: v["error"]["kind"].as_str().unwrap_or("error").to_string(),
+                kind: serde_json::from_value(v["error"]["kind"].clone())
+                    .unwrap_or(ApiErrorKind::Error),
                 message: v["error"]["message"].as_str().unwrap_or("").to_string(),
             });
         }
