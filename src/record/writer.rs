@@ -1,0 +1,1290 @@
+//! The MCAP writer: [`Recorder`] (channels, messages, the `.part` rule,
+//! chunk flushing) and the writer thread ([`spawn_writer`]) that drains the
+//! tick's queue into it. See the [module docs](crate::record) for topics and units.
+
+use std::collections::BTreeMap;
+use std::fs::File;
+use std::io::{self, BufWriter, Write};
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+use mcap::records::MessageHeader;
+use serde::Serialize;
+use serde_json::{json, Value};
+
+use crate::record::topics::{
+    EventKind, EventRecord, FaultKind, Record, SampleRecord, SupervisorState, TimingRecord,
+};
+use crate::record::{
+    SCHEMA_EVENT, SCHEMA_FRF, SCHEMA_SAMPLE, SCHEMA_TIMING, TOPIC_EVENT, TOPIC_FRF, TOPIC_SAMPLE,
+    TOPIC_TIMING,
+};
+
+/// Default chunk-flush interval for [`spawn_writer`], 100 ms (wall time and
+/// loop time alike).
+pub const DEFAULT_CHUNK_INTERVAL: Duration = Duration::from_millis(100);
+
+/// Suffix appended to the final file name while recording.
+pub const PART_SUFFIX: &str = ".part";
+
+/// Size of the buffer between the mcap writer and the file, bytes.
+const FILE_BUFFER_BYTES: usize = 64 * 1024;
+
+/// Largest number of records taken from the queue in one batch by the writer
+/// thread (slots are released to the producer after each batch).
+const MAX_BATCH: usize = 1024;
+
+/// Errors of the recorder.
+#[derive(Debug, thiserror::Error)]
+pub enum RecordError {
+    /// The recording file could not be created (directory missing, not
+    /// writable, …).
+    #[error(
+        "cannot create recording file {} (in directory {}): {source}",
+        path.display(),
+        dir.display()
+    )]
+    Create {
+        /// The file that could not be created (the `.part` file).
+        path: PathBuf,
+        /// Its directory.
+        dir: PathBuf,
+        /// The OS reason.
+        source: io::Error,
+    },
+    /// Writing, flushing or syncing the recording failed.
+    #[error("I/O error on recording {}: {source}", path.display())]
+    Io {
+        /// The file being written.
+        path: PathBuf,
+        /// The OS reason.
+        source: io::Error,
+    },
+    /// The mcap writer reported an error.
+    #[error("MCAP error on recording {}: {source}", path.display())]
+    Mcap {
+        /// The file being written.
+        path: PathBuf,
+        /// The mcap crate's error.
+        source: mcap::McapError,
+    },
+    /// Renaming the finished `.part` file to its final name failed.
+    #[error("cannot rename {} to {}: {source}", from.display(), to.display())]
+    Rename {
+        /// The `.part` file.
+        from: PathBuf,
+        /// The final path.
+        to: PathBuf,
+        /// The OS reason.
+        source: io::Error,
+    },
+    /// A message could not be serialized to JSON.
+    #[error("cannot serialize message to JSON: {0}")]
+    Json(#[from] serde_json::Error),
+    /// A [`ChannelHandle`] that this recorder did not hand out.
+    #[error("unknown channel handle {0}")]
+    UnknownChannel(usize),
+    /// The arrays given to [`Recorder::write_frf`] differ in length.
+    #[error(
+        "FRF arrays differ in length: frequency {frequency}, magnitude {magnitude}, \
+         phase {phase}, coherence {coherence}"
+    )]
+    FrfLength {
+        /// Length of `frequency_hz`.
+        frequency: usize,
+        /// Length of `magnitude_m_per_a`.
+        magnitude: usize,
+        /// Length of `phase_deg`.
+        phase: usize,
+        /// Length of `coherence`.
+        coherence: usize,
+    },
+}
+
+/// Identifies a channel of one [`Recorder`] (returned by
+/// [`Recorder::add_json_channel`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub struct ChannelHandle(usize);
+
+#[derive(Debug)]
+struct ChannelState {
+    /// MCAP channel id.
+    id: u16,
+    /// Sequence number of the next message on this channel.
+    next_sequence: u32,
+}
+
+/// MCAP recorder (see the [module docs](crate::record) for topics, units, the `.part`
+/// rule and chunking).
+pub struct Recorder {
+    /// `None` only after `finish` / during `drop`.
+    writer: Option<mcap::Writer<BufWriter<File>>>,
+    final_path: PathBuf,
+    part_path: PathBuf,
+    channels: Vec<ChannelState>,
+    sample: ChannelHandle,
+    timing: ChannelHandle,
+    event: ChannelHandle,
+    frf: ChannelHandle,
+    /// Reused serialization buffer (no allocation per message once warm).
+    buf: Vec<u8>,
+}
+
+impl std::fmt::Debug for Recorder {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Recorder")
+            .field("final_path", &self.final_path)
+            .field("part_path", &self.part_path)
+            .field("channels", &self.channels.len())
+            .field("open", &self.writer.is_some())
+            .finish()
+    }
+}
+
+/// Log time of a record, ns of loop time: `round(t_s × 1e9)`.
+///
+/// Saturating: negative or `NaN` times give 0, times beyond `u64::MAX` ns
+/// (≈ 584 years) give `u64::MAX`.
+pub fn log_time_ns(t_s: f64) -> u64 {
+    // `as` from f64 to u64 saturates and maps NaN to 0.
+    (t_s * 1e9).round() as u64
+}
+
+/// `<final_path>.part`.
+pub fn part_path_for(final_path: &Path) -> PathBuf {
+    let mut s = final_path.as_os_str().to_owned();
+    s.push(PART_SUFFIX);
+    PathBuf::from(s)
+}
+
+/// `Some(x)` if `x` is finite, else `None` (written as JSON `null`).
+#[inline]
+fn fin(x: f64) -> Option<f64> {
+    x.is_finite().then_some(x)
+}
+
+#[derive(Serialize)]
+struct SampleOut {
+    tick: u64,
+    t_s: Option<f64>,
+    current_command_a: Option<f64>,
+    position_m: Option<f64>,
+    excitation_a: Option<f64>,
+    setpoint_m: Option<f64>,
+    state: &'static str,
+    out_of_range: bool,
+}
+
+#[derive(Serialize)]
+struct TimingOut {
+    tick: u64,
+    t_s: Option<f64>,
+    ticks: u64,
+    wake_latency_mean_ns: Option<f64>,
+    wake_latency_p99_ns: Option<f64>,
+    wake_latency_max_ns: Option<f64>,
+    compute_mean_ns: Option<f64>,
+    compute_p99_ns: Option<f64>,
+    compute_max_ns: Option<f64>,
+    overruns: u64,
+    dropped_records: u64,
+}
+
+#[derive(Serialize)]
+struct EventOut {
+    tick: u64,
+    t_s: Option<f64>,
+    kind: &'static str,
+    state: &'static str,
+    fault: Option<&'static str>,
+    value: Option<f64>,
+}
+
+/// serde_json writes non-finite `f64` as `null`, so the slices serialize
+/// directly.
+#[derive(Serialize)]
+struct FrfOut<'a> {
+    frequency_hz: &'a [f64],
+    magnitude_m_per_a: &'a [f64],
+    phase_deg: &'a [f64],
+    coherence: &'a [f64],
+}
+
+fn state_names() -> Vec<&'static str> {
+    SupervisorState::ALL.iter().map(|s| s.as_str()).collect()
+}
+
+fn event_kind_names() -> Vec<&'static str> {
+    EventKind::ALL.iter().map(|k| k.as_str()).collect()
+}
+
+/// Fault names, plus `null` (no fault).
+fn fault_names() -> Vec<Value> {
+    let mut v: Vec<Value> = FaultKind::ALL
+        .iter()
+        .map(|f| Value::from(f.as_str()))
+        .collect();
+    v.push(Value::Null);
+    v
+}
+
+fn object_schema(title: &str, description: &str, properties: Value) -> Value {
+    let required: Vec<Value> = properties
+        .as_object()
+        .map(|m| m.keys().map(|k| Value::from(k.as_str())).collect())
+        .unwrap_or_default();
+    json!({
+        "$schema": "https://json-schema.org/draft/2020-12/schema",
+        "title": title,
+        "description": description,
+        "type": "object",
+        "properties": properties,
+        "required": required,
+    })
+}
+
+/// JSON Schema of `bench.Sample`.
+fn sample_schema() -> Value {
+    object_schema(
+        SCHEMA_SAMPLE,
+        "One real-time loop tick. Non-finite numbers are written as null.",
+        json!({
+            "tick": {"type": "integer", "minimum": 0,
+                "description": "Tick index since the loop started, ticks (0-based)"},
+            "t_s": {"type": ["number", "null"],
+                "description": "Loop time of the tick, s: tick × period, the nominal sample instant (device time for device-clocked backends)"},
+            "current_command_a": {"type": ["number", "null"],
+                "description": "Current commanded to the amplifier at this tick after limits, A"},
+            "position_m": {"type": ["number", "null"],
+                "description": "Probe reading at this tick, m (null when the probe gave none)"},
+            "excitation_a": {"type": ["number", "null"],
+                "description": "Excitation part of the command, A (null when no excitation runs)"},
+            "setpoint_m": {"type": ["number", "null"],
+                "description": "Position setpoint, m (null in open loop)"},
+            "state": {"type": "string", "enum": state_names(),
+                "description": "Supervisor state at the end of the tick (no unit)"},
+            "out_of_range": {"type": "boolean",
+                "description": "Probe reported out of range at this tick (no unit)"},
+        }),
+    )
+}
+
+/// JSON Schema of `bench.Timing`.
+fn timing_schema() -> Value {
+    object_schema(
+        SCHEMA_TIMING,
+        "Loop timing statistics over one reporting window. Non-finite numbers are written as null.",
+        json!({
+            "tick": {"type": "integer", "minimum": 0,
+                "description": "Last tick covered by this window, ticks (0-based index)"},
+            "t_s": {"type": ["number", "null"],
+                "description": "Loop time at the end of the window, s"},
+            "ticks": {"type": "integer", "minimum": 0,
+                "description": "Ticks in the window, count"},
+            "wake_latency_mean_ns": {"type": ["number", "null"],
+                "description": "Mean wake-up latency (actual wake − deadline), ns (0 in virtual time)"},
+            "wake_latency_p99_ns": {"type": ["number", "null"],
+                "description": "99th percentile of wake-up latency, ns (histogram bucket upper edge)"},
+            "wake_latency_max_ns": {"type": ["number", "null"],
+                "description": "Largest wake-up latency in the window, ns"},
+            "compute_mean_ns": {"type": ["number", "null"],
+                "description": "Mean compute time (wake → command written), ns"},
+            "compute_p99_ns": {"type": ["number", "null"],
+                "description": "99th percentile of compute time, ns (histogram bucket upper edge)"},
+            "compute_max_ns": {"type": ["number", "null"],
+                "description": "Largest compute time in the window, ns"},
+            "overruns": {"type": "integer", "minimum": 0,
+                "description": "Ticks in the window that finished after the next deadline, count"},
+            "dropped_records": {"type": "integer", "minimum": 0,
+                "description": "Records the queue could not take (writer too slow) since start, count"},
+        }),
+    )
+}
+
+/// JSON Schema of `bench.Event`.
+fn event_schema() -> Value {
+    object_schema(
+        SCHEMA_EVENT,
+        "Something that happened in the loop (start, state change, fault, …).",
+        json!({
+            "tick": {"type": "integer", "minimum": 0,
+                "description": "Tick at which it happened, ticks (0-based index)"},
+            "t_s": {"type": ["number", "null"],
+                "description": "Loop time of the event, s"},
+            "kind": {"type": "string", "enum": event_kind_names(),
+                "description": "What happened (no unit)"},
+            "state": {"type": "string", "enum": state_names(),
+                "description": "Supervisor state after the event (no unit)"},
+            "fault": {"type": ["string", "null"], "enum": fault_names(),
+                "description": "The fault for kind = fault, else null (no unit)"},
+            "value": {"type": ["number", "null"],
+                "description": "Number qualifying the event, unit depends on kind/fault (e.g. the offending position in m for position_limit); null when none"},
+        }),
+    )
+}
+
+/// JSON Schema of `bench.Frf`.
+fn frf_schema() -> Value {
+    let arr = |desc: &str| json!({"type": "array", "items": {"type": ["number", "null"]}, "description": desc});
+    object_schema(
+        SCHEMA_FRF,
+        "Identified frequency response function current → position; all arrays have the same length, one entry per frequency line. Non-finite numbers are written as null.",
+        json!({
+            "frequency_hz": arr("Frequency of each line, Hz"),
+            "magnitude_m_per_a": arr("Magnitude of the position/current response, m/A"),
+            "phase_deg": arr("Phase of the position/current response, deg"),
+            "coherence": arr("Magnitude-squared coherence, dimensionless (0 … 1)"),
+        }),
+    )
+}
+
+impl Recorder {
+    /// Creates the recording `<final_path>.part` (see the
+    /// [module docs](crate::record)), writes the MCAP header and registers the
+    /// channels `/bench/sample`, `/bench/timing`, `/bench/event` and
+    /// `/sysid/frf`, then flushes so the schemas reach the OS at once.
+    ///
+    /// Chunks are lz4-compressed and closed only by
+    /// [`flush_chunk`](Self::flush_chunk) (never by size). An existing
+    /// `.part` file is truncated; an existing `final_path` is only replaced
+    /// by [`finish`](Self::finish).
+    ///
+    /// # Errors
+    /// [`RecordError::Create`] naming the `.part` path, its directory and the
+    /// OS reason when the directory does not exist or is not writable (or
+    /// `final_path` has no file name); [`RecordError::Mcap`] if the header
+    /// cannot be written.
+    pub fn create(final_path: &Path) -> Result<Recorder, RecordError> {
+        let part_path = part_path_for(final_path);
+        let dir = match final_path.parent() {
+            Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
+            _ => PathBuf::from("."),
+        };
+        if final_path.file_name().is_none() {
+            return Err(RecordError::Create {
+                path: part_path,
+                dir,
+                source: io::Error::new(io::ErrorKind::InvalidInput, "path has no file name"),
+            });
+        }
+        let file = File::create(&part_path).map_err(|source| RecordError::Create {
+            path: part_path.clone(),
+            dir: dir.clone(),
+            source,
+        })?;
+        let writer = mcap::WriteOptions::new()
+            .compression(Some(mcap::Compression::Lz4))
+            .chunk_size(None)
+            .disable_seeking(true)
+            .profile("")
+            .library(concat!("bench-", env!("CARGO_PKG_VERSION"), " (mcap-rs)"))
+            .create(BufWriter::with_capacity(FILE_BUFFER_BYTES, file))
+            .map_err(|source| RecordError::Mcap {
+                path: part_path.clone(),
+                source,
+            })?;
+        let mut rec = Recorder {
+            writer: Some(writer),
+            final_path: final_path.to_path_buf(),
+            part_path,
+            channels: Vec::with_capacity(8),
+            sample: ChannelHandle(0),
+            timing: ChannelHandle(0),
+            event: ChannelHandle(0),
+            frf: ChannelHandle(0),
+            buf: Vec::with_capacity(512),
+        };
+        rec.sample = rec.add_json_channel(TOPIC_SAMPLE, SCHEMA_SAMPLE, &sample_schema())?;
+        rec.timing = rec.add_json_channel(TOPIC_TIMING, SCHEMA_TIMING, &timing_schema())?;
+        rec.event = rec.add_json_channel(TOPIC_EVENT, SCHEMA_EVENT, &event_schema())?;
+        rec.frf = rec.add_json_channel(TOPIC_FRF, SCHEMA_FRF, &frf_schema())?;
+        rec.flush_chunk()?;
+        Ok(rec)
+    }
+
+    /// The path the recording gets on [`finish`](Self::finish).
+    pub fn final_path(&self) -> &Path {
+        &self.final_path
+    }
+
+    /// The `.part` file being written (`<final_path>.part`).
+    pub fn part_path(&self) -> &Path {
+        &self.part_path
+    }
+
+    fn writer(&mut self) -> &mut mcap::Writer<BufWriter<File>> {
+        self.writer
+            .as_mut()
+            .expect("Recorder used after finish (writer is only taken by finish/drop)")
+    }
+
+    fn mcap_err(&self, source: mcap::McapError) -> RecordError {
+        RecordError::Mcap {
+            path: self.part_path.clone(),
+            source,
+        }
+    }
+
+    /// Registers a JSON channel on `topic` with a `jsonschema` schema named
+    /// `schema_name` whose data is `schema` (a JSON Schema document; give each
+    /// field a `description` stating its unit). Registering the same
+    /// topic/schema twice returns an equivalent handle.
+    ///
+    /// The channel record goes into the current chunk: it reaches the file
+    /// with the next [`flush_chunk`](Self::flush_chunk).
+    ///
+    /// # Errors
+    /// [`RecordError::Json`] / [`RecordError::Mcap`].
+    pub fn add_json_channel(
+        &mut self,
+        topic: &str,
+        schema_name: &str,
+        schema: &Value,
+    ) -> Result<ChannelHandle, RecordError> {
+        let schema_data = serde_json::to_vec_pretty(schema)?;
+        let w = self.writer();
+        let ids = w
+            .add_schema(schema_name, "jsonschema", &schema_data)
+            .and_then(|sid| w.add_channel(sid, topic, "json", &BTreeMap::new()));
+        let id = ids.map_err(|e| self.mcap_err(e))?;
+        if let Some(i) = self.channels.iter().position(|c| c.id == id) {
+            return Ok(ChannelHandle(i));
+        }
+        self.channels.push(ChannelState {
+            id,
+            next_sequence: 0,
+        });
+        Ok(ChannelHandle(self.channels.len() - 1))
+    }
+
+    /// Writes `self.buf` as one message on `ch` at `log_time` (ns of loop
+    /// time; publish time = log time).
+    fn write_buf(&mut self, ch: ChannelHandle, log_time: u64) -> Result<(), RecordError> {
+        let state = self
+            .channels
+            .get_mut(ch.0)
+            .ok_or(RecordError::UnknownChannel(ch.0))?;
+        let header = MessageHeader {
+            channel_id: state.id,
+            sequence: state.next_sequence,
+            log_time,
+            publish_time: log_time,
+        };
+        state.next_sequence = state.next_sequence.wrapping_add(1);
+        let w = self
+            .writer
+            .as_mut()
+            .expect("Recorder used after finish (writer is only taken by finish/drop)");
+        match w.write_to_known_channel(&header, &self.buf) {
+            Ok(()) => Ok(()),
+            Err(e) => Err(self.mcap_err(e)),
+        }
+    }
+
+    /// Writes `value` (serialized as JSON) on a channel from
+    /// [`add_json_channel`](Self::add_json_channel) at `log_time_ns`
+    /// (nanoseconds of loop time; publish time = log time).
+    ///
+    /// # Errors
+    /// [`RecordError::UnknownChannel`], [`RecordError::Json`],
+    /// [`RecordError::Mcap`].
+    pub fn write_json(
+        &mut self,
+        ch: ChannelHandle,
+        log_time_ns: u64,
+        value: &Value,
+    ) -> Result<(), RecordError> {
+        self.buf.clear();
+        serde_json::to_writer(&mut self.buf, value)?;
+        self.write_buf(ch, log_time_ns)
+    }
+
+    fn write_ser<T: Serialize>(
+        &mut self,
+        ch: ChannelHandle,
+        log_time: u64,
+        value: &T,
+    ) -> Result<(), RecordError> {
+        self.buf.clear();
+        serde_json::to_writer(&mut self.buf, value)?;
+        self.write_buf(ch, log_time)
+    }
+
+    /// Writes one record from the tick: a [`Record::Sample`] on
+    /// `/bench/sample`, [`Record::Timing`] on `/bench/timing`,
+    /// [`Record::Event`] on `/bench/event`, each at log time
+    /// `round(t_s × 1e9)` ns of loop time. Non-finite numbers become `null`.
+    ///
+    /// # Errors
+    /// [`RecordError::Json`] / [`RecordError::Mcap`].
+    pub fn write_record(&mut self, r: &Record) -> Result<(), RecordError> {
+        match r {
+            Record::Sample(s) => self.write_sample(s),
+            Record::Timing(t) => self.write_timing(t),
+            Record::Event(e) => self.write_event(e),
+        }
+    }
+
+    fn write_sample(&mut self, s: &SampleRecord) -> Result<(), RecordError> {
+        let out = SampleOut {
+            tick: s.tick,
+            t_s: fin(s.t_s),
+            current_command_a: fin(s.current_command_a),
+            position_m: fin(s.position_m),
+            excitation_a: fin(s.excitation_a),
+            setpoint_m: fin(s.setpoint_m),
+            state: s.state.as_str(),
+            out_of_range: s.out_of_range,
+        };
+        self.write_ser(self.sample, log_time_ns(s.t_s), &out)
+    }
+
+    fn write_timing(&mut self, t: &TimingRecord) -> Result<(), RecordError> {
+        let out = TimingOut {
+            tick: t.tick,
+            t_s: fin(t.t_s),
+            ticks: t.ticks,
+            wake_latency_mean_ns: fin(t.wake_latency_mean_ns),
+            wake_latency_p99_ns: fin(t.wake_latency_p99_ns),
+            wake_latency_max_ns: fin(t.wake_latency_max_ns),
+            compute_mean_ns: fin(t.compute_mean_ns),
+            compute_p99_ns: fin(t.compute_p99_ns),
+            compute_max_ns: fin(t.compute_max_ns),
+            overruns: t.overruns,
+            dropped_records: t.dropped_records,
+        };
+        self.write_ser(self.timing, log_time_ns(t.t_s), &out)
+    }
+
+    fn write_event(&mut self, e: &EventRecord) -> Result<(), RecordError> {
+        let out = EventOut {
+            tick: e.tick,
+            t_s: fin(e.t_s),
+            kind: e.kind.as_str(),
+            state: e.state.as_str(),
+            fault: e.fault.map(FaultKind::as_str),
+            value: fin(e.value),
+        };
+        self.write_ser(self.event, log_time_ns(e.t_s), &out)
+    }
+
+    /// Writes the identified frequency response on `/sysid/frf` at
+    /// `log_time_ns` (ns of loop time). Arrays: `frequency_hz` in Hz,
+    /// `magnitude_m_per_a` in m/A, `phase_deg` in degrees, `coherence`
+    /// dimensionless (0…1); non-finite entries become `null`.
+    ///
+    /// # Errors
+    /// [`RecordError::FrfLength`] if the four slices differ in length;
+    /// [`RecordError::Json`] / [`RecordError::Mcap`].
+    pub fn write_frf(
+        &mut self,
+        log_time_ns: u64,
+        frequency_hz: &[f64],
+        magnitude_m_per_a: &[f64],
+        phase_deg: &[f64],
+        coherence: &[f64],
+    ) -> Result<(), RecordError> {
+        let n = frequency_hz.len();
+        if magnitude_m_per_a.len() != n || phase_deg.len() != n || coherence.len() != n {
+            return Err(RecordError::FrfLength {
+                frequency: n,
+                magnitude: magnitude_m_per_a.len(),
+                phase: phase_deg.len(),
+                coherence: coherence.len(),
+            });
+        }
+        let out = FrfOut {
+            frequency_hz,
+            magnitude_m_per_a,
+            phase_deg,
+            coherence,
+        };
+        self.write_ser(self.frf, log_time_ns, &out)
+    }
+
+    /// Writes an MCAP Metadata record `name` with string `entries` (e.g.
+    /// name `"bench.config"`, key `"toml"` = the resolved configuration).
+    /// This closes the current chunk (an mcap rule) and flushes, so the
+    /// metadata survives a killed process.
+    ///
+    /// # Errors
+    /// [`RecordError::Mcap`].
+    pub fn write_metadata(
+        &mut self,
+        name: &str,
+        entries: &BTreeMap<String, String>,
+    ) -> Result<(), RecordError> {
+        let md = mcap::records::Metadata {
+            name: name.to_owned(),
+            metadata: entries.clone(),
+        };
+        let res = self.writer().write_metadata(&md);
+        res.map_err(|e| self.mcap_err(e))?;
+        self.flush_chunk()
+    }
+
+    /// Closes the current chunk, writes it out and flushes the file buffer so
+    /// the bytes reach the OS (no fsync). Everything written before this call
+    /// survives a killed process. A no-op apart from the buffer flush when no
+    /// chunk is open.
+    ///
+    /// # Errors
+    /// [`RecordError::Mcap`].
+    pub fn flush_chunk(&mut self) -> Result<(), RecordError> {
+        // mcap's `Writer::flush` = finish the chunk + `flush()` the
+        // underlying writer, i.e. our BufWriter → write(2) to the file.
+        let res = self.writer().flush();
+        res.map_err(|e| self.mcap_err(e))
+    }
+
+    /// Completes the MCAP (summary section + footer), flushes, fsyncs the
+    /// file, renames `<final_path>.part` to `final_path` (then fsyncs the
+    /// directory, best effort) and returns `final_path`.
+    ///
+    /// On error the `.part` file is left in place and nothing is renamed.
+    ///
+    /// # Errors
+    /// [`RecordError::Mcap`], [`RecordError::Io`], [`RecordError::Rename`].
+    pub fn finish(mut self) -> Result<PathBuf, RecordError> {
+        let mut w = self
+            .writer
+            .take()
+            .expect("Recorder writer present until finish");
+        w.finish().map_err(|e| self.mcap_err(e))?;
+        let io_err = |source| RecordError::Io {
+            path: self.part_path.clone(),
+            source,
+        };
+        let file = w
+            .into_inner()
+            .into_inner()
+            .map_err(|e| io_err(e.into_error()))?;
+        file.sync_all().map_err(io_err)?;
+        drop(file);
+        std::fs::rename(&self.part_path, &self.final_path).map_err(|source| {
+            RecordError::Rename {
+                from: self.part_path.clone(),
+                to: self.final_path.clone(),
+                source,
+            }
+        })?;
+        sync_parent_dir(&self.final_path);
+        Ok(self.final_path.clone())
+    }
+}
+
+/// fsync the directory holding `path` so the rename is durable (best effort;
+/// not possible on every platform).
+fn sync_parent_dir(path: &Path) {
+    let dir = match path.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p,
+        _ => Path::new("."),
+    };
+    if let Ok(d) = File::open(dir) {
+        let _ = d.sync_all();
+    }
+}
+
+/// Dropping a [`Recorder`] without [`Recorder::finish`] (e.g. on an error
+/// path) still completes the MCAP structure (summary, footer) in the `.part`
+/// file and flushes it, but does **not** rename it: the `.part` suffix marks
+/// the run as failed/incomplete. Errors are logged with `tracing`, not
+/// returned.
+impl Drop for Recorder {
+    fn drop(&mut self) {
+        if let Some(mut w) = self.writer.take() {
+            if let Err(e) = w.finish() {
+                tracing::warn!(
+                    path = %self.part_path.display(),
+                    error = %e,
+                    "could not complete the MCAP of an unfinished recording"
+                );
+            }
+            let mut inner = w.into_inner();
+            if let Err(e) = inner.flush() {
+                tracing::warn!(path = %self.part_path.display(), error = %e, "flush failed");
+            }
+            tracing::warn!(
+                path = %self.part_path.display(),
+                "recording dropped without finish(); left as .part"
+            );
+        }
+    }
+}
+
+/// Counters returned by the writer thread ([`spawn_writer`]).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct WriterStats {
+    /// Records popped from the queue and written, count.
+    pub records_written: u64,
+    /// Chunks closed and flushed by the thread, count.
+    pub chunks_flushed: u64,
+}
+
+fn record_log_time(r: &Record) -> u64 {
+    log_time_ns(match r {
+        Record::Sample(s) => s.t_s,
+        Record::Timing(t) => t.t_s,
+        Record::Event(e) => e.t_s,
+    })
+}
+
+/// Starts the writer thread (named `bench-writer`): it pops every record from
+/// `consumer`, writes it with [`Recorder::write_record`], then calls
+/// `on_record` on it (e.g. to collect samples for identification).
+///
+/// It closes and flushes a chunk ([`Recorder::flush_chunk`]) whenever
+/// `chunk_interval` of wall time has passed since the last flush, or the log
+/// time (loop time, ns) of the written records has advanced by at least
+/// `chunk_interval` since the last flush ([`DEFAULT_CHUNK_INTERVAL`] = 100 ms
+/// is the intended value). When the queue is empty it sleeps ~1 ms.
+///
+/// It exits once `done` is set (or the producer was dropped) **and** the
+/// queue is empty — the queue is drained fully — flushes the last chunk, and
+/// returns the recorder, **not finished**, so the caller can add e.g.
+/// `/sysid/frf` and then call [`Recorder::finish`]. On a write error the
+/// thread returns the error at once and the recorder is dropped (leaving the
+/// `.part` file, see [`Recorder`]'s `Drop`); the producer then sees a full
+/// queue.
+///
+/// # Panics
+/// If the OS cannot spawn a thread.
+pub fn spawn_writer<F>(
+    mut consumer: rtrb::Consumer<Record>,
+    mut recorder: Recorder,
+    done: Arc<AtomicBool>,
+    chunk_interval: Duration,
+    mut on_record: F,
+) -> JoinHandle<Result<(Recorder, WriterStats), RecordError>>
+where
+    F: FnMut(&Record) + Send + 'static,
+{
+    std::thread::Builder::new()
+        .name("bench-writer".into())
+        .spawn(move || {
+            let interval_ns = u64::try_from(chunk_interval.as_nanos()).unwrap_or(u64::MAX);
+            let mut stats = WriterStats::default();
+            let mut last_flush_wall = Instant::now();
+            // Log time of the last record written before the previous flush
+            // (or of the first record ever).
+            let mut last_flush_log: Option<u64> = None;
+            // Log time of the newest record written.
+            let mut last_written_log: Option<u64> = None;
+            let mut dirty = false;
+            loop {
+                // Read `done` before looking at the queue: if it was set, every
+                // record pushed before it is visible to the `slots()` below.
+                let finishing = done.load(Ordering::Acquire) || consumer.is_abandoned();
+                let n = consumer.slots().min(MAX_BATCH);
+                if n > 0 {
+                    let chunk = consumer
+                        .read_chunk(n)
+                        .expect("slots() said these are available");
+                    let (a, b) = chunk.as_slices();
+                    for r in a.iter().chain(b) {
+                        recorder.write_record(r)?;
+                        on_record(r);
+                        stats.records_written += 1;
+                        dirty = true;
+                        let t = record_log_time(r);
+                        last_written_log = Some(t);
+                        let base = *last_flush_log.get_or_insert(t);
+                        if t.saturating_sub(base) >= interval_ns {
+                            recorder.flush_chunk()?;
+                            stats.chunks_flushed += 1;
+                            dirty = false;
+                            last_flush_log = Some(t);
+                            last_flush_wall = Instant::now();
+                        }
+                    }
+                    chunk.commit_all();
+                }
+                if dirty && last_flush_wall.elapsed() >= chunk_interval {
+                    recorder.flush_chunk()?;
+                    stats.chunks_flushed += 1;
+                    dirty = false;
+                    last_flush_wall = Instant::now();
+                    last_flush_log = last_written_log;
+                }
+                if n == 0 {
+                    if finishing {
+                        break;
+                    }
+                    std::thread::sleep(Duration::from_millis(1));
+                }
+            }
+            if dirty {
+                recorder.flush_chunk()?;
+                stats.chunks_flushed += 1;
+            }
+            Ok((recorder, stats))
+        })
+        .expect("cannot spawn the bench-writer thread")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::record::reader::{decode_sample, read_messages_tolerant, read_samples_tolerant};
+    use crate::record::topics::{EventKind, FaultKind};
+
+    fn sample(tick: u64) -> SampleRecord {
+        let t_s = tick as f64 * 200e-6;
+        SampleRecord {
+            tick,
+            t_s,
+            current_command_a: 0.1 * (tick as f64).sin(),
+            position_m: if tick % 7 == 3 {
+                f64::NAN
+            } else {
+                1e-6 * tick as f64
+            },
+            excitation_a: if tick.is_multiple_of(2) {
+                f64::NAN
+            } else {
+                0.05
+            },
+            setpoint_m: f64::NAN,
+            state: SupervisorState::Running,
+            out_of_range: tick.is_multiple_of(11),
+        }
+    }
+
+    fn timing(tick: u64) -> TimingRecord {
+        TimingRecord {
+            tick,
+            t_s: tick as f64 * 200e-6,
+            ticks: 500,
+            wake_latency_mean_ns: 1234.5,
+            wake_latency_p99_ns: 5000.0,
+            wake_latency_max_ns: 9000.0,
+            compute_mean_ns: 800.25,
+            compute_p99_ns: 2000.0,
+            compute_max_ns: f64::NAN,
+            overruns: 1,
+            dropped_records: 2,
+        }
+    }
+
+    fn event(tick: u64, kind: EventKind, fault: Option<FaultKind>, value: f64) -> EventRecord {
+        EventRecord {
+            tick,
+            t_s: tick as f64 * 200e-6,
+            kind,
+            state: SupervisorState::Faulted,
+            fault,
+            value,
+        }
+    }
+
+    /// Equal, both NaN, or 1 ULP apart: the JSON text is the exact shortest
+    /// representation, but serde_json without its `float_roundtrip` feature
+    /// may parse it back 1 ULP off.
+    fn same_f64(a: f64, b: f64) -> bool {
+        (a.is_nan() && b.is_nan())
+            || a == b
+            || (a.is_finite() && (a - b).abs() <= f64::EPSILON * a.abs().max(b.abs()))
+    }
+
+    fn same_sample(a: &SampleRecord, b: &SampleRecord) -> bool {
+        a.tick == b.tick
+            && same_f64(a.t_s, b.t_s)
+            && same_f64(a.current_command_a, b.current_command_a)
+            && same_f64(a.position_m, b.position_m)
+            && same_f64(a.excitation_a, b.excitation_a)
+            && same_f64(a.setpoint_m, b.setpoint_m)
+            && a.state == b.state
+            && a.out_of_range == b.out_of_range
+    }
+
+    fn by_topic(msgs: &[mcap::Message<'static>]) -> BTreeMap<String, Vec<Value>> {
+        let mut out: BTreeMap<String, Vec<Value>> = BTreeMap::new();
+        for m in msgs {
+            out.entry(m.channel.topic.clone())
+                .or_default()
+                .push(serde_json::from_slice(&m.data).expect("message is JSON"));
+        }
+        out
+    }
+
+    #[test]
+    fn record_roundtrip_full_file() {
+        let dir = tempfile::tempdir().unwrap();
+        let final_path = dir.path().join("run.mcap");
+        let mut rec = Recorder::create(&final_path).unwrap();
+        assert_eq!(rec.part_path(), dir.path().join("run.mcap.part"));
+        assert!(rec.part_path().exists());
+        assert!(!final_path.exists());
+
+        let mut config = BTreeMap::new();
+        config.insert("toml".to_string(), "[loop]\nrate_hz = 5000\n".to_string());
+        config.insert("version".to_string(), "1".to_string());
+        rec.write_metadata("bench.config", &config).unwrap();
+
+        rec.write_record(&Record::Event(event(
+            0,
+            EventKind::LoopStarted,
+            None,
+            f64::NAN,
+        )))
+        .unwrap();
+        for tick in 0..1000 {
+            rec.write_record(&Record::Sample(sample(tick))).unwrap();
+            if tick % 500 == 499 {
+                rec.write_record(&Record::Timing(timing(tick))).unwrap();
+                rec.flush_chunk().unwrap();
+            }
+        }
+        rec.write_record(&Record::Event(event(
+            999,
+            EventKind::Fault,
+            Some(FaultKind::PositionLimit),
+            1.5e-3,
+        )))
+        .unwrap();
+        let freq = [1.0, 2.0, 4.0];
+        let mag = [1e-3, 2e-3, f64::NAN];
+        let phase = [-10.0, -20.0, -180.0];
+        let coh = [0.99, 0.95, 0.5];
+        rec.write_frf(log_time_ns(0.2), &freq, &mag, &phase, &coh)
+            .unwrap();
+        // Extra channel through the generic API.
+        let ch = rec
+            .add_json_channel(
+                "/bench/metrics",
+                "bench.Metrics",
+                &json!({"type": "object", "properties": {"rms_m": {"type": "number", "description": "RMS error, m"}}}),
+            )
+            .unwrap();
+        rec.write_json(ch, 42, &json!({"rms_m": 1e-7})).unwrap();
+        rec.write_json(ch, 43, &json!({"rms_m": 2e-7})).unwrap();
+        assert!(matches!(
+            rec.write_frf(0, &freq, &mag[..2], &phase, &coh),
+            Err(RecordError::FrfLength { magnitude: 2, .. })
+        ));
+
+        let out = rec.finish().unwrap();
+        assert_eq!(out, final_path);
+        assert!(final_path.exists());
+        assert!(!part_path_for(&final_path).exists(), ".part must be gone");
+
+        let bytes = std::fs::read(&final_path).unwrap();
+        // Strict reader (checks end magic, CRCs) must accept the file.
+        let msgs: Vec<_> = mcap::MessageStream::new(&bytes)
+            .unwrap()
+            .collect::<Result<_, _>>()
+            .unwrap();
+        let topics = by_topic(&msgs);
+        assert_eq!(topics[TOPIC_SAMPLE].len(), 1000);
+        assert_eq!(topics[TOPIC_TIMING].len(), 2);
+        assert_eq!(topics[TOPIC_EVENT].len(), 2);
+        assert_eq!(topics[TOPIC_FRF].len(), 1);
+        assert_eq!(topics["/bench/metrics"].len(), 2);
+
+        // Encodings, schema names, schemas with unit descriptions.
+        for m in &msgs {
+            assert_eq!(m.channel.message_encoding, "json");
+            let schema = m.channel.schema.as_ref().unwrap();
+            assert_eq!(schema.encoding, "jsonschema");
+        }
+        let schema_of = |topic: &str| {
+            let m = msgs.iter().find(|m| m.channel.topic == topic).unwrap();
+            let s = m.channel.schema.as_ref().unwrap();
+            (
+                s.name.clone(),
+                serde_json::from_slice::<Value>(&s.data).unwrap(),
+            )
+        };
+        for (topic, name) in [
+            (TOPIC_SAMPLE, SCHEMA_SAMPLE),
+            (TOPIC_TIMING, SCHEMA_TIMING),
+            (TOPIC_EVENT, SCHEMA_EVENT),
+            (TOPIC_FRF, SCHEMA_FRF),
+        ] {
+            let (n, s) = schema_of(topic);
+            assert_eq!(n, name);
+            let props = s["properties"].as_object().unwrap();
+            assert!(!props.is_empty());
+            for (field, p) in props {
+                assert!(
+                    p["description"].as_str().is_some_and(|d| !d.is_empty()),
+                    "{topic}.{field} lacks a description"
+                );
+            }
+        }
+        // Every emitted sample field is described by the schema.
+        let (_, ss) = schema_of(TOPIC_SAMPLE);
+        for k in topics[TOPIC_SAMPLE][0].as_object().unwrap().keys() {
+            assert!(ss["properties"].get(k).is_some(), "{k} not in schema");
+        }
+        let (_, ts) = schema_of(TOPIC_TIMING);
+        assert_eq!(
+            ts["properties"].as_object().unwrap().len(),
+            topics[TOPIC_TIMING][0].as_object().unwrap().len()
+        );
+
+        // Decoded sample equals what was written; NaN came back as null.
+        let samples: Vec<&mcap::Message> = msgs
+            .iter()
+            .filter(|m| m.channel.topic == TOPIC_SAMPLE)
+            .collect();
+        for (i, m) in samples.iter().enumerate() {
+            let got = decode_sample(&m.data).unwrap();
+            assert!(same_sample(&got, &sample(i as u64)), "sample {i}: {got:?}");
+            assert_eq!(m.sequence, i as u32);
+            assert_eq!(m.log_time, log_time_ns(i as f64 * 200e-6));
+            assert_eq!(m.publish_time, m.log_time);
+        }
+        let v3 = &topics[TOPIC_SAMPLE][3];
+        assert_eq!(v3["tick"], json!(3));
+        assert!(v3["position_m"].is_null());
+        assert!(v3["setpoint_m"].is_null());
+        assert_eq!(v3["excitation_a"], json!(0.05));
+        assert_eq!(v3["state"], json!("running"));
+        assert_eq!(v3["out_of_range"], json!(false));
+        assert!(same_f64(
+            v3["current_command_a"].as_f64().unwrap(),
+            0.1 * 3f64.sin()
+        ));
+        let t0 = &topics[TOPIC_TIMING][0];
+        assert_eq!(t0["tick"], json!(499));
+        assert_eq!(t0["ticks"], json!(500));
+        assert_eq!(t0["wake_latency_mean_ns"], json!(1234.5));
+        assert!(t0["compute_max_ns"].is_null());
+        assert_eq!(t0["dropped_records"], json!(2));
+        let e = &topics[TOPIC_EVENT];
+        assert_eq!(e[0]["kind"], json!("loop_started"));
+        assert!(e[0]["fault"].is_null());
+        assert!(e[0]["value"].is_null());
+        assert_eq!(e[1]["kind"], json!("fault"));
+        assert_eq!(e[1]["fault"], json!("position_limit"));
+        assert_eq!(e[1]["state"], json!("faulted"));
+        assert_eq!(e[1]["value"], json!(1.5e-3));
+        let f = &topics[TOPIC_FRF][0];
+        assert_eq!(f["frequency_hz"], json!([1.0, 2.0, 4.0]));
+        assert_eq!(f["magnitude_m_per_a"], json!([1e-3, 2e-3, null]));
+        assert_eq!(f["coherence"], json!([0.99, 0.95, 0.5]));
+        let frf_msg = msgs.iter().find(|m| m.channel.topic == TOPIC_FRF).unwrap();
+        assert_eq!(frf_msg.log_time, 200_000_000);
+
+        // Summary: statistics and metadata.
+        let summary = mcap::Summary::read(&bytes).unwrap().unwrap();
+        let stats = summary.stats.as_ref().unwrap();
+        assert_eq!(stats.message_count, 1000 + 2 + 2 + 1 + 2);
+        assert_eq!(stats.metadata_count, 1);
+        assert_eq!(summary.metadata_indexes.len(), 1);
+        assert_eq!(summary.metadata_indexes[0].name, "bench.config");
+        let md = mcap::read::metadata(&bytes, &summary.metadata_indexes[0]).unwrap();
+        assert_eq!(md.name, "bench.config");
+        assert_eq!(md.metadata, config);
+        assert!(summary.chunk_indexes.iter().all(|c| c.compression == "lz4"));
+    }
+
+    #[test]
+    fn record_create_in_missing_directory_fails_with_path() {
+        let dir = tempfile::tempdir().unwrap();
+        let final_path = dir.path().join("no-such-dir").join("run.mcap");
+        let err = Recorder::create(&final_path).unwrap_err();
+        assert!(matches!(err, RecordError::Create { .. }), "{err:?}");
+        let msg = err.to_string();
+        assert!(msg.contains("no-such-dir"), "{msg}");
+        assert!(msg.contains("run.mcap.part"), "{msg}");
+        let os = io::Error::from(io::ErrorKind::NotFound).to_string();
+        assert!(
+            msg.contains("No such file or directory") || msg.contains(&os),
+            "{msg}"
+        );
+    }
+
+    #[test]
+    fn record_drop_without_finish_leaves_part() {
+        let dir = tempfile::tempdir().unwrap();
+        let final_path = dir.path().join("run.mcap");
+        {
+            let mut rec = Recorder::create(&final_path).unwrap();
+            for tick in 0..10 {
+                rec.write_record(&Record::Sample(sample(tick))).unwrap();
+            }
+            // dropped here, e.g. on an error path
+        }
+        assert!(!final_path.exists());
+        let part = part_path_for(&final_path);
+        assert!(part.exists());
+        // Drop still completed the MCAP structure: strict reading works.
+        let bytes = std::fs::read(&part).unwrap();
+        let n = mcap::MessageStream::new(&bytes)
+            .unwrap()
+            .collect::<Result<Vec<_>, _>>()
+            .unwrap()
+            .len();
+        assert_eq!(n, 10);
+        assert!(mcap::Summary::read(&bytes).unwrap().is_some());
+    }
+
+    #[test]
+    fn record_truncated_file_readable_up_to_last_flush() {
+        let dir = tempfile::tempdir().unwrap();
+        let final_path = dir.path().join("run.mcap");
+        let mut rec = Recorder::create(&final_path).unwrap();
+        let part = rec.part_path().to_path_buf();
+
+        // Right after create, the schemas/channels are already on disk.
+        let bytes0 = std::fs::read(&part).unwrap();
+        let r0 = read_messages_tolerant(&bytes0);
+        assert!(r0.messages.is_empty());
+        assert!(r0.error.is_none(), "{:?}", r0.error);
+
+        let mut tick = 0;
+        let mut snapshots = Vec::new(); // (bytes on disk, samples flushed so far)
+        for _batch in 0..5 {
+            for _ in 0..300 {
+                rec.write_record(&Record::Sample(sample(tick))).unwrap();
+                tick += 1;
+            }
+            rec.flush_chunk().unwrap();
+            snapshots.push((std::fs::read(&part).unwrap(), tick));
+        }
+        // Written but not flushed: must not be on disk, must not matter.
+        for _ in 0..123 {
+            rec.write_record(&Record::Sample(sample(tick))).unwrap();
+            tick += 1;
+        }
+        let unflushed = std::fs::read(&part).unwrap();
+        assert_eq!(unflushed, snapshots.last().unwrap().0);
+
+        for (bytes, flushed) in &snapshots {
+            // Cleanly cut after a flush ("SIGKILL" right after flush_chunk).
+            let samples = read_samples_tolerant(bytes);
+            assert_eq!(samples.len() as u64, *flushed);
+            for (i, s) in samples.iter().enumerate() {
+                assert!(same_sample(s, &sample(i as u64)));
+            }
+            let r = read_messages_tolerant(bytes);
+            assert!(r.error.is_none(), "{:?}", r.error);
+
+            // The strict linear reader yields the same messages, then an
+            // UnexpectedEof error (no end magic / footer).
+            let mut ok = 0;
+            let mut err = None;
+            for m in mcap::MessageStream::new(bytes).unwrap() {
+                match m {
+                    Ok(_) => ok += 1,
+                    Err(e) => {
+                        err = Some(e);
+                        break;
+                    }
+                }
+            }
+            assert_eq!(ok, *flushed);
+            assert!(
+                matches!(err, Some(mcap::McapError::UnexpectedEof)),
+                "{err:?}"
+            );
+            // No summary in a killed file.
+            assert!(
+                mcap::Summary::read(bytes).is_err()
+                    || mcap::Summary::read(bytes).unwrap().is_none()
+            );
+        }
+
+        // Killed while a chunk was being written: cut inside the last chunk.
+        let (prev, prev_flushed) = &snapshots[snapshots.len() - 2];
+        let (last, last_flushed) = &snapshots[snapshots.len() - 1];
+        for cut in [
+            prev.len() + 1,
+            prev.len() + 9,
+            prev.len() + 40,
+            (prev.len() + last.len()) / 2,
+            last.len() - 1,
+        ] {
+            let r = read_messages_tolerant(&last[..cut]);
+            let n = r
+                .messages
+                .iter()
+                .filter(|m| m.channel.topic == TOPIC_SAMPLE)
+                .count() as u64;
+            assert!(n >= *prev_flushed && n <= *last_flushed, "cut {cut}: {n}");
+            // mcap quirk: with `IgnoreEndMagic`, a cut right after a chunk's
+            // 9-byte opcode+length prefix counts as a clean end of file (the
+            // reader only moves into the chunk state). Nothing is lost.
+            if cut != prev.len() + 9 {
+                assert!(r.error.is_some(), "cut {cut}: a cut chunk must be reported");
+            }
+        }
+        drop(rec);
+    }
+
+    #[test]
+    fn record_writer_thread_drains_and_flushes() {
+        let dir = tempfile::tempdir().unwrap();
+        let final_path = dir.path().join("run.mcap");
+        let rec = Recorder::create(&final_path).unwrap();
+        let (mut prod, cons) = rtrb::RingBuffer::<Record>::new(4096);
+        let done = Arc::new(AtomicBool::new(false));
+        let seen = Arc::new(std::sync::Mutex::new(Vec::new()));
+        let seen2 = Arc::clone(&seen);
+        let h = spawn_writer(
+            cons,
+            rec,
+            Arc::clone(&done),
+            DEFAULT_CHUNK_INTERVAL,
+            move |r| {
+                if let Record::Sample(s) = r {
+                    seen2.lock().unwrap().push(s.tick);
+                }
+            },
+        );
+        assert_eq!(h.thread().name(), Some("bench-writer"));
+        // 5000 samples = 1 s of loop time at 5 kHz, pushed much faster than
+        // real time: log-time flushing must give ~10 chunks.
+        let n = 5000u64;
+        let mut pushed = 0;
+        while pushed < n {
+            if prod.push(Record::Sample(sample(pushed))).is_ok() {
+                pushed += 1;
+            } else {
+                std::thread::yield_now();
+            }
+        }
+        prod.push(Record::Event(event(
+            n,
+            EventKind::LoopStopped,
+            None,
+            f64::NAN,
+        )))
+        .unwrap();
+        done.store(true, Ordering::Release);
+        let (rec, stats) = h.join().unwrap().unwrap();
+        assert_eq!(stats.records_written, n + 1);
+        assert!(stats.chunks_flushed >= 10, "{stats:?}");
+        assert_eq!(*seen.lock().unwrap(), (0..n).collect::<Vec<_>>());
+
+        // Flushed on return: the .part already holds everything.
+        let bytes = std::fs::read(rec.part_path()).unwrap();
+        assert_eq!(read_samples_tolerant(&bytes).len() as u64, n);
+
+        let path = rec.finish().unwrap();
+        let bytes = std::fs::read(path).unwrap();
+        let summary = mcap::Summary::read(&bytes).unwrap().unwrap();
+        assert_eq!(summary.stats.unwrap().message_count, n + 1);
+        // ≤ 100 ms of loop time per chunk (+ one tick of slack).
+        for c in &summary.chunk_indexes {
+            assert!(
+                c.message_end_time - c.message_start_time <= 100_000_000 + 200_000,
+                "{c:?}"
+            );
+        }
+    }
+
+    #[test]
+    fn record_log_time_rounding() {
+        assert_eq!(log_time_ns(0.0), 0);
+        assert_eq!(log_time_ns(1.5), 1_500_000_000);
+        assert_eq!(log_time_ns(200e-6 * 3.0), 600_000);
+        assert_eq!(log_time_ns(-1.0), 0);
+        assert_eq!(log_time_ns(f64::NAN), 0);
+    }
+}
