@@ -4,39 +4,42 @@
 //! [`topics`] holds the records the tick pushes (`Copy`, no heap data); the
 //! writer ([`Recorder`], [`spawn_writer`]) serialises them on its own thread;
 //! the reader ([`read_messages_tolerant`], [`read_samples_tolerant`]) reads
-//! recordings back, also cut ones. Uses nothing of the crate outside this
-//! folder.
+//! recordings back, also cut ones; [`schema_of`] generates each channel's
+//! JSON Schema. Uses nothing of the crate outside this folder.
 //!
 //! # Topics
 //!
 //! Every channel uses `message_encoding = "json"` and a schema with
-//! `encoding = "jsonschema"` whose data is a JSON Schema document; every field
-//! of every schema carries a `description` that states its unit. Non-finite
-//! floating-point values (`NaN`, `±inf`) are written as JSON `null`, since JSON
-//! has no NaN; the schemas declare those fields as `["number", "null"]`.
+//! `encoding = "jsonschema"` whose data is a JSON Schema document. Each
+//! record is written down once, as a Rust type: a message is the type's
+//! `serde_json` form and the channel's schema is generated from the same
+//! type ([`schema_of`]), so every field's `description` is its doc comment,
+//! which states its unit. Non-finite floating-point values (`NaN`, `±inf`)
+//! are written as JSON `null`, since JSON has no NaN; the schemas declare
+//! every number as `["number", "null"]`.
 //!
-//! - `/bench/sample`, schema `bench.Sample` — one per loop tick:
-//!   `tick` (tick index, integer, 0-based), `t_s` (loop time, s),
-//!   `current_command_a` (A), `position_m` (m, `null` when the probe gave
-//!   none), `excitation_a` (A, `null` when no excitation runs), `setpoint_m`
-//!   (m, `null` in open loop), `state` (supervisor state, string),
-//!   `out_of_range` (bool).
-//! - `/bench/timing`, schema `bench.Timing` — one per reporting window:
-//!   `tick` (last tick of the window), `t_s` (s), `ticks` (count),
-//!   `wake_latency_mean_ns`, `wake_latency_p99_ns`, `wake_latency_max_ns`
-//!   (ns), `compute_mean_ns`, `compute_p99_ns`, `compute_max_ns` (ns),
-//!   `overruns` (count in the window), `dropped_records` (count since start).
-//! - `/bench/event`, schema `bench.Event`: `tick`, `t_s` (s), `kind` (string,
-//!   [`EventKind::as_str`](topics::EventKind::as_str)), `state` (string),
-//!   `fault` (string, [`FaultKind::as_str`](topics::FaultKind::as_str), or
-//!   `null`), `value` (number or `null`; unit depends on the event, e.g. m
-//!   for a position-limit fault).
-//! - `/sysid/frf`, schema `bench.Frf` — arrays of equal length, one entry per
+//! - `/bench/sample`, schema `bench.Sample`: one [`SampleRecord`] per loop
+//!   tick.
+//! - `/bench/timing`, schema `bench.Timing`: one [`TimingRecord`] per
+//!   reporting window.
+//! - `/bench/event`, schema `bench.Event`: one [`EventRecord`] per event;
+//!   `kind`, `state` and `fault` are the [`EventKind::as_str`],
+//!   [`SupervisorState::as_str`] and [`FaultKind::as_str`] names.
+//! - `/sysid/frf`, schema `bench.Frf`: arrays of equal length, one entry per
 //!   frequency line: `frequency_hz` (Hz), `magnitude_m_per_a` (m/A),
-//!   `phase_deg` (deg), `coherence` (dimensionless, 0…1).
+//!   `phase_deg` (deg), `coherence` (dimensionless, 0…1); see
+//!   [`Recorder::write_frf`].
 //!
-//! Further topics can be added with [`Recorder::add_json_channel`] and written
-//! with [`Recorder::write_json`].
+//! The jobs add their results (e.g. `/sysid/summary`, `/control/metrics`)
+//! with [`Recorder::add_channel_for`], which registers the schema generated
+//! from the message type, and write them with [`Recorder::write`].
+//!
+//! [`SampleRecord`]: topics::SampleRecord
+//! [`TimingRecord`]: topics::TimingRecord
+//! [`EventRecord`]: topics::EventRecord
+//! [`EventKind::as_str`]: topics::EventKind::as_str
+//! [`SupervisorState::as_str`]: topics::SupervisorState::as_str
+//! [`FaultKind::as_str`]: topics::FaultKind::as_str
 //!
 //! # Time stamps
 //!
@@ -74,12 +77,14 @@
 //! (survives a killed process); only `finish` fsyncs (survives power loss).
 
 mod reader;
+mod schema;
 pub mod topics;
 mod writer;
 
 pub use reader::{decode_sample, read_messages_tolerant, read_samples_tolerant, TolerantRead};
+pub use schema::{nan_if_null, schema_of};
 pub use writer::{
-    log_time_ns, part_path_for, spawn_writer, ChannelHandle, RecordError, Recorder, WriterStats,
+    log_time_ns, part_path_for, spawn_writer, Channel, RecordError, Recorder, WriterStats,
     DEFAULT_CHUNK_INTERVAL, PART_SUFFIX,
 };
 

@@ -1,8 +1,6 @@
 //! Reading recordings back, also the `.part` file of a killed run.
 
-use serde::Deserialize;
-
-use crate::record::topics::{SampleRecord, SupervisorState};
+use crate::record::topics::SampleRecord;
 use crate::record::TOPIC_SAMPLE;
 
 /// What a tolerant read of a (possibly truncated) recording returned.
@@ -53,37 +51,10 @@ pub fn read_messages_tolerant(bytes: &[u8]) -> TolerantRead {
     }
 }
 
-#[derive(Deserialize)]
-struct SampleIn {
-    tick: u64,
-    t_s: Option<f64>,
-    current_command_a: Option<f64>,
-    position_m: Option<f64>,
-    excitation_a: Option<f64>,
-    setpoint_m: Option<f64>,
-    state: String,
-    out_of_range: bool,
-}
-
-fn parse_state(s: &str) -> Option<SupervisorState> {
-    SupervisorState::ALL.into_iter().find(|st| st.as_str() == s)
-}
-
 /// Decodes a `/bench/sample` JSON payload back into a [`SampleRecord`]
 /// (`null` → `NaN`). `None` if it does not parse.
 pub fn decode_sample(data: &[u8]) -> Option<SampleRecord> {
-    let s: SampleIn = serde_json::from_slice(data).ok()?;
-    let nan = |x: Option<f64>| x.unwrap_or(f64::NAN);
-    Some(SampleRecord {
-        tick: s.tick,
-        t_s: nan(s.t_s),
-        current_command_a: nan(s.current_command_a),
-        position_m: nan(s.position_m),
-        excitation_a: nan(s.excitation_a),
-        setpoint_m: nan(s.setpoint_m),
-        state: parse_state(&s.state)?,
-        out_of_range: s.out_of_range,
-    })
+    serde_json::from_slice(data).ok()
 }
 
 /// The `/bench/sample` records of a possibly truncated recording (see

@@ -5,6 +5,7 @@
 use std::collections::BTreeMap;
 use std::fs::File;
 use std::io::{self, BufWriter, Write};
+use std::marker::PhantomData;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
@@ -12,12 +13,12 @@ use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 use mcap::records::MessageHeader;
+use schemars::JsonSchema;
 use serde::Serialize;
-use serde_json::{json, Value};
+use serde_json::Value;
 
-use crate::record::topics::{
-    EventKind, EventRecord, FaultKind, Record, SampleRecord, SupervisorState, TimingRecord,
-};
+use crate::record::schema_of;
+use crate::record::topics::{EventRecord, Record, SampleRecord, TimingRecord};
 use crate::record::{
     SCHEMA_EVENT, SCHEMA_FRF, SCHEMA_SAMPLE, SCHEMA_TIMING, TOPIC_EVENT, TOPIC_FRF, TOPIC_SAMPLE,
     TOPIC_TIMING,
@@ -84,7 +85,7 @@ pub enum RecordError {
     /// A message could not be serialized to JSON.
     #[error("cannot serialize message to JSON: {0}")]
     Json(#[from] serde_json::Error),
-    /// A [`ChannelHandle`] that this recorder did not hand out.
+    /// A [`Channel`] that this recorder did not hand out.
     #[error("unknown channel handle {0}")]
     UnknownChannel(usize),
     /// The arrays given to [`Recorder::write_frf`] differ in length.
@@ -104,10 +105,40 @@ pub enum RecordError {
     },
 }
 
-/// Identifies a channel of one [`Recorder`] (returned by
-/// [`Recorder::add_json_channel`]).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
-pub struct ChannelHandle(usize);
+/// A channel of one [`Recorder`] whose messages are `T` and whose schema
+/// was generated from `T` (returned by [`Recorder::add_channel_for`],
+/// written with [`Recorder::write`]).
+pub struct Channel<T: ?Sized> {
+    index: usize,
+    message: PhantomData<fn(&T)>,
+}
+
+impl<T: ?Sized> Channel<T> {
+    fn new(index: usize) -> Self {
+        Self {
+            index,
+            message: PhantomData,
+        }
+    }
+}
+
+// Not derived: the derives would require `T: Clone` etc.
+impl<T: ?Sized> Clone for Channel<T> {
+    fn clone(&self) -> Self {
+        *self
+    }
+}
+
+impl<T: ?Sized> Copy for Channel<T> {}
+
+impl<T: ?Sized> std::fmt::Debug for Channel<T> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Channel")
+            .field("index", &self.index)
+            .field("message", &std::any::type_name::<T>())
+            .finish()
+    }
+}
 
 #[derive(Debug)]
 struct ChannelState {
@@ -125,10 +156,10 @@ pub struct Recorder {
     final_path: PathBuf,
     part_path: PathBuf,
     channels: Vec<ChannelState>,
-    sample: ChannelHandle,
-    timing: ChannelHandle,
-    event: ChannelHandle,
-    frf: ChannelHandle,
+    sample: Channel<SampleRecord>,
+    timing: Channel<TimingRecord>,
+    event: Channel<EventRecord>,
+    frf: Channel<FrfRecord<'static>>,
     /// Reused serialization buffer (no allocation per message once warm).
     buf: Vec<u8>,
 }
@@ -160,185 +191,19 @@ pub fn part_path_for(final_path: &Path) -> PathBuf {
     PathBuf::from(s)
 }
 
-/// `Some(x)` if `x` is finite, else `None` (written as JSON `null`).
-#[inline]
-fn fin(x: f64) -> Option<f64> {
-    x.is_finite().then_some(x)
-}
-
-#[derive(Serialize)]
-struct SampleOut {
-    tick: u64,
-    t_s: Option<f64>,
-    current_command_a: Option<f64>,
-    position_m: Option<f64>,
-    excitation_a: Option<f64>,
-    setpoint_m: Option<f64>,
-    state: &'static str,
-    out_of_range: bool,
-}
-
-#[derive(Serialize)]
-struct TimingOut {
-    tick: u64,
-    t_s: Option<f64>,
-    ticks: u64,
-    wake_latency_mean_ns: Option<f64>,
-    wake_latency_p99_ns: Option<f64>,
-    wake_latency_max_ns: Option<f64>,
-    compute_mean_ns: Option<f64>,
-    compute_p99_ns: Option<f64>,
-    compute_max_ns: Option<f64>,
-    overruns: u64,
-    dropped_records: u64,
-}
-
-#[derive(Serialize)]
-struct EventOut {
-    tick: u64,
-    t_s: Option<f64>,
-    kind: &'static str,
-    state: &'static str,
-    fault: Option<&'static str>,
-    value: Option<f64>,
-}
-
-/// serde_json writes non-finite `f64` as `null`, so the slices serialize
-/// directly.
-#[derive(Serialize)]
-struct FrfOut<'a> {
+/// The identified frequency response current → position (`/sysid/frf`):
+/// arrays of equal length, one entry per frequency line. Non-finite numbers
+/// are written as null.
+#[derive(Serialize, JsonSchema)]
+struct FrfRecord<'a> {
+    /// Frequency of each line, Hz.
     frequency_hz: &'a [f64],
+    /// Magnitude of the position/current response, m/A.
     magnitude_m_per_a: &'a [f64],
+    /// Phase of the position/current response, deg.
     phase_deg: &'a [f64],
+    /// Magnitude-squared coherence, dimensionless (0 … 1).
     coherence: &'a [f64],
-}
-
-fn state_names() -> Vec<&'static str> {
-    SupervisorState::ALL.iter().map(|s| s.as_str()).collect()
-}
-
-fn event_kind_names() -> Vec<&'static str> {
-    EventKind::ALL.iter().map(|k| k.as_str()).collect()
-}
-
-/// Fault names, plus `null` (no fault).
-fn fault_names() -> Vec<Value> {
-    let mut v: Vec<Value> = FaultKind::ALL
-        .iter()
-        .map(|f| Value::from(f.as_str()))
-        .collect();
-    v.push(Value::Null);
-    v
-}
-
-fn object_schema(title: &str, description: &str, properties: Value) -> Value {
-    let required: Vec<Value> = properties
-        .as_object()
-        .map(|m| m.keys().map(|k| Value::from(k.as_str())).collect())
-        .unwrap_or_default();
-    json!({
-        "$schema": "https://json-schema.org/draft/2020-12/schema",
-        "title": title,
-        "description": description,
-        "type": "object",
-        "properties": properties,
-        "required": required,
-    })
-}
-
-/// JSON Schema of `bench.Sample`.
-fn sample_schema() -> Value {
-    object_schema(
-        SCHEMA_SAMPLE,
-        "One real-time loop tick. Non-finite numbers are written as null.",
-        json!({
-            "tick": {"type": "integer", "minimum": 0,
-                "description": "Tick index since the loop started, ticks (0-based)"},
-            "t_s": {"type": ["number", "null"],
-                "description": "Loop time of the tick, s: tick × period, the nominal sample instant (device time for device-clocked backends)"},
-            "current_command_a": {"type": ["number", "null"],
-                "description": "Current commanded to the amplifier at this tick after limits, A"},
-            "position_m": {"type": ["number", "null"],
-                "description": "Probe reading at this tick, m (null when the probe gave none)"},
-            "excitation_a": {"type": ["number", "null"],
-                "description": "Excitation part of the command, A (null when no excitation runs)"},
-            "setpoint_m": {"type": ["number", "null"],
-                "description": "Position setpoint, m (null in open loop)"},
-            "state": {"type": "string", "enum": state_names(),
-                "description": "Supervisor state at the end of the tick (no unit)"},
-            "out_of_range": {"type": "boolean",
-                "description": "Probe reported out of range at this tick (no unit)"},
-        }),
-    )
-}
-
-/// JSON Schema of `bench.Timing`.
-fn timing_schema() -> Value {
-    object_schema(
-        SCHEMA_TIMING,
-        "Loop timing statistics over one reporting window. Non-finite numbers are written as null.",
-        json!({
-            "tick": {"type": "integer", "minimum": 0,
-                "description": "Last tick covered by this window, ticks (0-based index)"},
-            "t_s": {"type": ["number", "null"],
-                "description": "Loop time at the end of the window, s"},
-            "ticks": {"type": "integer", "minimum": 0,
-                "description": "Ticks in the window, count"},
-            "wake_latency_mean_ns": {"type": ["number", "null"],
-                "description": "Mean wake-up latency (actual wake − deadline), ns (0 in virtual time)"},
-            "wake_latency_p99_ns": {"type": ["number", "null"],
-                "description": "99th percentile of wake-up latency, ns (histogram bucket upper edge)"},
-            "wake_latency_max_ns": {"type": ["number", "null"],
-                "description": "Largest wake-up latency in the window, ns"},
-            "compute_mean_ns": {"type": ["number", "null"],
-                "description": "Mean compute time (wake → command written), ns"},
-            "compute_p99_ns": {"type": ["number", "null"],
-                "description": "99th percentile of compute time, ns (histogram bucket upper edge)"},
-            "compute_max_ns": {"type": ["number", "null"],
-                "description": "Largest compute time in the window, ns"},
-            "overruns": {"type": "integer", "minimum": 0,
-                "description": "Ticks in the window that finished after the next deadline, count"},
-            "dropped_records": {"type": "integer", "minimum": 0,
-                "description": "Records the queue could not take (writer too slow) since start, count"},
-        }),
-    )
-}
-
-/// JSON Schema of `bench.Event`.
-fn event_schema() -> Value {
-    object_schema(
-        SCHEMA_EVENT,
-        "Something that happened in the loop (start, state change, fault, …).",
-        json!({
-            "tick": {"type": "integer", "minimum": 0,
-                "description": "Tick at which it happened, ticks (0-based index)"},
-            "t_s": {"type": ["number", "null"],
-                "description": "Loop time of the event, s"},
-            "kind": {"type": "string", "enum": event_kind_names(),
-                "description": "What happened (no unit)"},
-            "state": {"type": "string", "enum": state_names(),
-                "description": "Supervisor state after the event (no unit)"},
-            "fault": {"type": ["string", "null"], "enum": fault_names(),
-                "description": "The fault for kind = fault, else null (no unit)"},
-            "value": {"type": ["number", "null"],
-                "description": "Number qualifying the event, unit depends on kind/fault (e.g. the offending position in m for position_limit); null when none"},
-        }),
-    )
-}
-
-/// JSON Schema of `bench.Frf`.
-fn frf_schema() -> Value {
-    let arr = |desc: &str| json!({"type": "array", "items": {"type": ["number", "null"]}, "description": desc});
-    object_schema(
-        SCHEMA_FRF,
-        "Identified frequency response function current → position; all arrays have the same length, one entry per frequency line. Non-finite numbers are written as null.",
-        json!({
-            "frequency_hz": arr("Frequency of each line, Hz"),
-            "magnitude_m_per_a": arr("Magnitude of the position/current response, m/A"),
-            "phase_deg": arr("Phase of the position/current response, deg"),
-            "coherence": arr("Magnitude-squared coherence, dimensionless (0 … 1)"),
-        }),
-    )
 }
 
 impl Recorder {
@@ -391,16 +256,16 @@ impl Recorder {
             final_path: final_path.to_path_buf(),
             part_path,
             channels: Vec::with_capacity(8),
-            sample: ChannelHandle(0),
-            timing: ChannelHandle(0),
-            event: ChannelHandle(0),
-            frf: ChannelHandle(0),
+            sample: Channel::new(0),
+            timing: Channel::new(0),
+            event: Channel::new(0),
+            frf: Channel::new(0),
             buf: Vec::with_capacity(512),
         };
-        rec.sample = rec.add_json_channel(TOPIC_SAMPLE, SCHEMA_SAMPLE, &sample_schema())?;
-        rec.timing = rec.add_json_channel(TOPIC_TIMING, SCHEMA_TIMING, &timing_schema())?;
-        rec.event = rec.add_json_channel(TOPIC_EVENT, SCHEMA_EVENT, &event_schema())?;
-        rec.frf = rec.add_json_channel(TOPIC_FRF, SCHEMA_FRF, &frf_schema())?;
+        rec.sample = rec.add_channel_for(TOPIC_SAMPLE, SCHEMA_SAMPLE)?;
+        rec.timing = rec.add_channel_for(TOPIC_TIMING, SCHEMA_TIMING)?;
+        rec.event = rec.add_channel_for(TOPIC_EVENT, SCHEMA_EVENT)?;
+        rec.frf = rec.add_channel_for(TOPIC_FRF, SCHEMA_FRF)?;
         rec.flush_chunk()?;
         Ok(rec)
     }
@@ -428,13 +293,57 @@ impl Recorder {
         }
     }
 
-    /// Registers a JSON channel on `topic` with a `jsonschema` schema named
-    /// `schema_name` whose data is `schema` (a JSON Schema document; give each
-    /// field a `description` stating its unit). Registering the same
-    /// topic/schema twice returns an equivalent handle.
+    /// Registers a JSON channel on `topic` whose messages are `T`, with a
+    /// `jsonschema` schema named `schema_name` generated from `T` by
+    /// [`schema_of`] (each field's doc comment, stating its unit, is its
+    /// description). Registering the same topic and schema twice returns an
+    /// equivalent channel.
     ///
     /// The channel record goes into the current chunk: it reaches the file
     /// with the next [`flush_chunk`](Self::flush_chunk).
+    ///
+    /// # Errors
+    /// [`RecordError::Json`] / [`RecordError::Mcap`].
+    pub fn add_channel_for<T: JsonSchema + ?Sized>(
+        &mut self,
+        topic: &str,
+        schema_name: &str,
+    ) -> Result<Channel<T>, RecordError> {
+        let schema_data = serde_json::to_vec_pretty(&schema_of::<T>())?;
+        let w = self.writer();
+        let ids = w
+            .add_schema(schema_name, "jsonschema", &schema_data)
+            .and_then(|sid| w.add_channel(sid, topic, "json", &BTreeMap::new()));
+        let id = ids.map_err(|e| self.mcap_err(e))?;
+        if let Some(i) = self.channels.iter().position(|c| c.id == id) {
+            return Ok(Channel::new(i));
+        }
+        self.channels.push(ChannelState {
+            id,
+            next_sequence: 0,
+        });
+        Ok(Channel::new(self.channels.len() - 1))
+    }
+
+    /// Writes `message` (its `serde_json` form; non-finite numbers become
+    /// `null`) on `ch` at `log_time_ns` (nanoseconds of loop time; publish
+    /// time = log time).
+    ///
+    /// # Errors
+    /// [`RecordError::UnknownChannel`] for a channel of another recorder,
+    /// [`RecordError::Json`], [`RecordError::Mcap`].
+    pub fn write<T: Serialize + ?Sized>(
+        &mut self,
+        ch: Channel<T>,
+        log_time_ns: u64,
+        message: &T,
+    ) -> Result<(), RecordError> {
+        self.write_at(ch.index, log_time_ns, message)
+    }
+
+    /// Registers a JSON channel on `topic` with a `jsonschema` schema named
+    /// `schema_name` whose data is `schema`. Superseded by
+    /// [`add_channel_for`](Self::add_channel_for).
     ///
     /// # Errors
     /// [`RecordError::Json`] / [`RecordError::Mcap`].
@@ -443,7 +352,7 @@ impl Recorder {
         topic: &str,
         schema_name: &str,
         schema: &Value,
-    ) -> Result<ChannelHandle, RecordError> {
+    ) -> Result<Channel<Value>, RecordError> {
         let schema_data = serde_json::to_vec_pretty(schema)?;
         let w = self.writer();
         let ids = w
@@ -451,22 +360,46 @@ impl Recorder {
             .and_then(|sid| w.add_channel(sid, topic, "json", &BTreeMap::new()));
         let id = ids.map_err(|e| self.mcap_err(e))?;
         if let Some(i) = self.channels.iter().position(|c| c.id == id) {
-            return Ok(ChannelHandle(i));
+            return Ok(Channel::new(i));
         }
         self.channels.push(ChannelState {
             id,
             next_sequence: 0,
         });
-        Ok(ChannelHandle(self.channels.len() - 1))
+        Ok(Channel::new(self.channels.len() - 1))
     }
 
-    /// Writes `self.buf` as one message on `ch` at `log_time` (ns of loop
-    /// time; publish time = log time).
-    fn write_buf(&mut self, ch: ChannelHandle, log_time: u64) -> Result<(), RecordError> {
+    /// Writes `value` on a channel from
+    /// [`add_json_channel`](Self::add_json_channel). Superseded by
+    /// [`write`](Self::write).
+    ///
+    /// # Errors
+    /// [`RecordError::UnknownChannel`], [`RecordError::Json`],
+    /// [`RecordError::Mcap`].
+    pub fn write_json(
+        &mut self,
+        ch: Channel<Value>,
+        log_time_ns: u64,
+        value: &Value,
+    ) -> Result<(), RecordError> {
+        self.write(ch, log_time_ns, value)
+    }
+
+    /// Serialises `message` into `self.buf` and writes it as one message on
+    /// channel `index` at `log_time` (ns of loop time; publish time = log
+    /// time).
+    fn write_at<T: Serialize + ?Sized>(
+        &mut self,
+        index: usize,
+        log_time: u64,
+        message: &T,
+    ) -> Result<(), RecordError> {
+        self.buf.clear();
+        serde_json::to_writer(&mut self.buf, message)?;
         let state = self
             .channels
-            .get_mut(ch.0)
-            .ok_or(RecordError::UnknownChannel(ch.0))?;
+            .get_mut(index)
+            .ok_or(RecordError::UnknownChannel(index))?;
         let header = MessageHeader {
             channel_id: state.id,
             sequence: state.next_sequence,
@@ -484,35 +417,6 @@ impl Recorder {
         }
     }
 
-    /// Writes `value` (serialized as JSON) on a channel from
-    /// [`add_json_channel`](Self::add_json_channel) at `log_time_ns`
-    /// (nanoseconds of loop time; publish time = log time).
-    ///
-    /// # Errors
-    /// [`RecordError::UnknownChannel`], [`RecordError::Json`],
-    /// [`RecordError::Mcap`].
-    pub fn write_json(
-        &mut self,
-        ch: ChannelHandle,
-        log_time_ns: u64,
-        value: &Value,
-    ) -> Result<(), RecordError> {
-        self.buf.clear();
-        serde_json::to_writer(&mut self.buf, value)?;
-        self.write_buf(ch, log_time_ns)
-    }
-
-    fn write_ser<T: Serialize>(
-        &mut self,
-        ch: ChannelHandle,
-        log_time: u64,
-        value: &T,
-    ) -> Result<(), RecordError> {
-        self.buf.clear();
-        serde_json::to_writer(&mut self.buf, value)?;
-        self.write_buf(ch, log_time)
-    }
-
     /// Writes one record from the tick: a [`Record::Sample`] on
     /// `/bench/sample`, [`Record::Timing`] on `/bench/timing`,
     /// [`Record::Event`] on `/bench/event`, each at log time
@@ -522,53 +426,10 @@ impl Recorder {
     /// [`RecordError::Json`] / [`RecordError::Mcap`].
     pub fn write_record(&mut self, r: &Record) -> Result<(), RecordError> {
         match r {
-            Record::Sample(s) => self.write_sample(s),
-            Record::Timing(t) => self.write_timing(t),
-            Record::Event(e) => self.write_event(e),
+            Record::Sample(s) => self.write(self.sample, log_time_ns(s.t_s), s),
+            Record::Timing(t) => self.write(self.timing, log_time_ns(t.t_s), t),
+            Record::Event(e) => self.write(self.event, log_time_ns(e.t_s), e),
         }
-    }
-
-    fn write_sample(&mut self, s: &SampleRecord) -> Result<(), RecordError> {
-        let out = SampleOut {
-            tick: s.tick,
-            t_s: fin(s.t_s),
-            current_command_a: fin(s.current_command_a),
-            position_m: fin(s.position_m),
-            excitation_a: fin(s.excitation_a),
-            setpoint_m: fin(s.setpoint_m),
-            state: s.state.as_str(),
-            out_of_range: s.out_of_range,
-        };
-        self.write_ser(self.sample, log_time_ns(s.t_s), &out)
-    }
-
-    fn write_timing(&mut self, t: &TimingRecord) -> Result<(), RecordError> {
-        let out = TimingOut {
-            tick: t.tick,
-            t_s: fin(t.t_s),
-            ticks: t.ticks,
-            wake_latency_mean_ns: fin(t.wake_latency_mean_ns),
-            wake_latency_p99_ns: fin(t.wake_latency_p99_ns),
-            wake_latency_max_ns: fin(t.wake_latency_max_ns),
-            compute_mean_ns: fin(t.compute_mean_ns),
-            compute_p99_ns: fin(t.compute_p99_ns),
-            compute_max_ns: fin(t.compute_max_ns),
-            overruns: t.overruns,
-            dropped_records: t.dropped_records,
-        };
-        self.write_ser(self.timing, log_time_ns(t.t_s), &out)
-    }
-
-    fn write_event(&mut self, e: &EventRecord) -> Result<(), RecordError> {
-        let out = EventOut {
-            tick: e.tick,
-            t_s: fin(e.t_s),
-            kind: e.kind.as_str(),
-            state: e.state.as_str(),
-            fault: e.fault.map(FaultKind::as_str),
-            value: fin(e.value),
-        };
-        self.write_ser(self.event, log_time_ns(e.t_s), &out)
     }
 
     /// Writes the identified frequency response on `/sysid/frf` at
@@ -596,13 +457,14 @@ impl Recorder {
                 coherence: coherence.len(),
             });
         }
-        let out = FrfOut {
+        let frf = FrfRecord {
             frequency_hz,
             magnitude_m_per_a,
             phase_deg,
             coherence,
         };
-        self.write_ser(self.frf, log_time_ns, &out)
+        // The channel's type is `FrfRecord<'static>`; this one borrows.
+        self.write_at(self.frf.index, log_time_ns, &frf)
     }
 
     /// Writes an MCAP Metadata record `name` with string `entries` (e.g.
@@ -829,7 +691,8 @@ where
 mod tests {
     use super::*;
     use crate::record::reader::{decode_sample, read_messages_tolerant, read_samples_tolerant};
-    use crate::record::topics::{EventKind, FaultKind};
+    use crate::record::topics::{EventKind, FaultKind, SupervisorState};
+    use serde_json::json;
 
     fn sample(tick: u64) -> SampleRecord {
         let t_s = tick as f64 * 200e-6;
@@ -910,6 +773,13 @@ mod tests {
         out
     }
 
+    /// A job's result, for the generic channel API.
+    #[derive(Serialize, JsonSchema)]
+    struct Metrics {
+        /// RMS error, m.
+        rms_m: f64,
+    }
+
     #[test]
     fn record_roundtrip_full_file() {
         let dir = tempfile::tempdir().unwrap();
@@ -953,14 +823,10 @@ mod tests {
             .unwrap();
         // Extra channel through the generic API.
         let ch = rec
-            .add_json_channel(
-                "/bench/metrics",
-                "bench.Metrics",
-                &json!({"type": "object", "properties": {"rms_m": {"type": "number", "description": "RMS error, m"}}}),
-            )
+            .add_channel_for::<Metrics>("/bench/metrics", "bench.Metrics")
             .unwrap();
-        rec.write_json(ch, 42, &json!({"rms_m": 1e-7})).unwrap();
-        rec.write_json(ch, 43, &json!({"rms_m": 2e-7})).unwrap();
+        rec.write(ch, 42, &Metrics { rms_m: 1e-7 }).unwrap();
+        rec.write(ch, 43, &Metrics { rms_m: f64::NAN }).unwrap();
         assert!(matches!(
             rec.write_frf(0, &freq, &mag[..2], &phase, &coh),
             Err(RecordError::FrfLength { magnitude: 2, .. })
@@ -990,7 +856,7 @@ mod tests {
             let schema = m.channel.schema.as_ref().unwrap();
             assert_eq!(schema.encoding, "jsonschema");
         }
-        let schema_of = |topic: &str| {
+        let stored_schema = |topic: &str| {
             let m = msgs.iter().find(|m| m.channel.topic == topic).unwrap();
             let s = m.channel.schema.as_ref().unwrap();
             (
@@ -998,14 +864,16 @@ mod tests {
                 serde_json::from_slice::<Value>(&s.data).unwrap(),
             )
         };
-        for (topic, name) in [
-            (TOPIC_SAMPLE, SCHEMA_SAMPLE),
-            (TOPIC_TIMING, SCHEMA_TIMING),
-            (TOPIC_EVENT, SCHEMA_EVENT),
-            (TOPIC_FRF, SCHEMA_FRF),
+        for (topic, name, generated) in [
+            (TOPIC_SAMPLE, SCHEMA_SAMPLE, schema_of::<SampleRecord>()),
+            (TOPIC_TIMING, SCHEMA_TIMING, schema_of::<TimingRecord>()),
+            (TOPIC_EVENT, SCHEMA_EVENT, schema_of::<EventRecord>()),
+            (TOPIC_FRF, SCHEMA_FRF, schema_of::<FrfRecord>()),
+            ("/bench/metrics", "bench.Metrics", schema_of::<Metrics>()),
         ] {
-            let (n, s) = schema_of(topic);
+            let (n, s) = stored_schema(topic);
             assert_eq!(n, name);
+            assert_eq!(s, generated, "{topic}");
             let props = s["properties"].as_object().unwrap();
             assert!(!props.is_empty());
             for (field, p) in props {
@@ -1014,17 +882,30 @@ mod tests {
                     "{topic}.{field} lacks a description"
                 );
             }
+            // Every emitted field is in the schema, and every field of the
+            // schema is emitted.
+            let first = topics[topic][0].as_object().unwrap();
+            assert_eq!(
+                first.keys().collect::<Vec<_>>(),
+                props.keys().collect::<Vec<_>>(),
+                "{topic}"
+            );
         }
-        // Every emitted sample field is described by the schema.
-        let (_, ss) = schema_of(TOPIC_SAMPLE);
-        for k in topics[TOPIC_SAMPLE][0].as_object().unwrap().keys() {
-            assert!(ss["properties"].get(k).is_some(), "{k} not in schema");
+        // Fields that may be non-finite admit null; the others do not.
+        let (_, ss) = stored_schema(TOPIC_SAMPLE);
+        let p = &ss["properties"];
+        for f in [
+            "t_s",
+            "current_command_a",
+            "position_m",
+            "excitation_a",
+            "setpoint_m",
+        ] {
+            assert_eq!(p[f]["type"], json!(["number", "null"]), "{f}");
         }
-        let (_, ts) = schema_of(TOPIC_TIMING);
-        assert_eq!(
-            ts["properties"].as_object().unwrap().len(),
-            topics[TOPIC_TIMING][0].as_object().unwrap().len()
-        );
+        assert_eq!(p["tick"]["type"], json!("integer"));
+        assert_eq!(p["out_of_range"]["type"], json!("boolean"));
+        assert!(topics["/bench/metrics"][1]["rms_m"].is_null());
 
         // Decoded sample equals what was written; NaN came back as null.
         let samples: Vec<&mcap::Message> = msgs
