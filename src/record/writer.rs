@@ -15,7 +15,6 @@ use std::time::{Duration, Instant};
 use mcap::records::MessageHeader;
 use schemars::JsonSchema;
 use serde::Serialize;
-use serde_json::Value;
 
 use crate::record::schema_of;
 use crate::record::topics::{EventRecord, Record, SampleRecord, TimingRecord};
@@ -341,50 +340,6 @@ impl Recorder {
         self.write_at(ch.index, log_time_ns, message)
     }
 
-    /// Registers a JSON channel on `topic` with a `jsonschema` schema named
-    /// `schema_name` whose data is `schema`. Superseded by
-    /// [`add_channel_for`](Self::add_channel_for).
-    ///
-    /// # Errors
-    /// [`RecordError::Json`] / [`RecordError::Mcap`].
-    pub fn add_json_channel(
-        &mut self,
-        topic: &str,
-        schema_name: &str,
-        schema: &Value,
-    ) -> Result<Channel<Value>, RecordError> {
-        let schema_data = serde_json::to_vec_pretty(schema)?;
-        let w = self.writer();
-        let ids = w
-            .add_schema(schema_name, "jsonschema", &schema_data)
-            .and_then(|sid| w.add_channel(sid, topic, "json", &BTreeMap::new()));
-        let id = ids.map_err(|e| self.mcap_err(e))?;
-        if let Some(i) = self.channels.iter().position(|c| c.id == id) {
-            return Ok(Channel::new(i));
-        }
-        self.channels.push(ChannelState {
-            id,
-            next_sequence: 0,
-        });
-        Ok(Channel::new(self.channels.len() - 1))
-    }
-
-    /// Writes `value` on a channel from
-    /// [`add_json_channel`](Self::add_json_channel). Superseded by
-    /// [`write`](Self::write).
-    ///
-    /// # Errors
-    /// [`RecordError::UnknownChannel`], [`RecordError::Json`],
-    /// [`RecordError::Mcap`].
-    pub fn write_json(
-        &mut self,
-        ch: Channel<Value>,
-        log_time_ns: u64,
-        value: &Value,
-    ) -> Result<(), RecordError> {
-        self.write(ch, log_time_ns, value)
-    }
-
     /// Serialises `message` into `self.buf` and writes it as one message on
     /// channel `index` at `log_time` (ns of loop time; publish time = log
     /// time).
@@ -692,7 +647,7 @@ mod tests {
     use super::*;
     use crate::record::reader::{decode_sample, read_messages_tolerant, read_samples_tolerant};
     use crate::record::topics::{EventKind, FaultKind, SupervisorState};
-    use serde_json::json;
+    use serde_json::{json, Value};
 
     fn sample(tick: u64) -> SampleRecord {
         let t_s = tick as f64 * 200e-6;
