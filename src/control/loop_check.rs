@@ -28,7 +28,7 @@ use serde::{Deserialize, Serialize};
 use std::f64::consts::PI;
 
 /// Margins of one open loop.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct Margins {
     /// Gain crossover frequencies, rad/s, ascending.
     pub crossovers_rad_s: Vec<f64>,
@@ -44,7 +44,7 @@ pub struct Margins {
     pub gain_margin_db: Option<f64>,
     /// Where the gain margin is taken, rad/s.
     pub gain_margin_at_rad_s: Option<f64>,
-    /// Peak of |S| = |1/(1 + L)|.
+    /// Peak of |S| = |1/(1 + L)|, dimensionless ratio.
     pub sensitivity_peak: f64,
     /// Where the peak is, rad/s.
     pub sensitivity_peak_at_rad_s: f64,

@@ -117,7 +117,9 @@ pub enum Form {
 
 /// How the continuous controller becomes the discrete one
 /// (`discretization` key; see the module docs).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, schemars::JsonSchema,
+)]
 #[serde(rename_all = "snake_case")]
 pub enum Discretization {
     /// Tustin per section, pre-warped at the section's critical frequency.
@@ -141,7 +143,7 @@ impl Discretization {
 /// How closely the discrete controller follows the continuous design:
 /// the largest error of `C_d(e^{jωT}) / C(jω)` from 0.1 Hz to
 /// `up_to_hz` (f_s/10).
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct DiscretizationReport {
     /// The method that runs.
     pub method: Discretization,

@@ -235,7 +235,7 @@ impl Frf {
 }
 
 /// A resonance found in a measured FRF.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct Resonance {
     /// Peak frequency, Hz (refined between grid points).
     pub frequency_hz: f64,
@@ -373,7 +373,7 @@ fn refine_peak(frf: &Frf, spectra: &Spectra, i: usize, prominence_db: f64) -> Re
 }
 
 /// The phase test for CMP-CNMP zeros across a closely spaced pair.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct PairVerdict {
     /// Lower mode of the pair, Hz.
     pub lower_hz: f64,

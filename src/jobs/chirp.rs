@@ -24,7 +24,6 @@ use bench_hal::model::Sr4dof;
 use bench_hal::sim::ZohPlant;
 use bench_hal::Sample;
 use serde::{Deserialize, Serialize};
-use serde_json::json;
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, AtomicU64};
 use std::sync::Arc;
@@ -82,11 +81,11 @@ pub struct ChirpOptions {
 }
 
 /// The model's view of the same bench, for comparison.
-#[derive(Debug, Clone, Serialize, Deserialize)]
+#[derive(Debug, Clone, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct ModelSummary {
     /// Natural frequencies of the four modes, Hz.
     pub natural_frequencies_hz: Vec<f64>,
-    /// Modal damping ratios.
+    /// Modal damping ratios, dimensionless.
     pub damping_ratios: Vec<f64>,
     /// Index (0-based) of the X rigid-body mode.
     pub rigid_body_mode: usize,
@@ -94,14 +93,15 @@ pub struct ModelSummary {
     pub zeros_hz: Vec<[f64; 2]>,
     /// Types of the undamped numerator roots (Chapter 3).
     pub zero_types: Vec<String>,
-    /// Eq. (2-8) discriminant (negative ⇔ CMP-CNMP).
+    /// Eq. (2-8) discriminant of the numerator cubic in `u = s²`, in the
+    /// model's SI units (only its sign matters: negative ⇔ CMP-CNMP).
     pub cnmp_discriminant: f64,
     /// The damped model has complex right-half-plane zeros.
     pub cmp_cnmp: bool,
 }
 
 /// Result of `bench chirp` (printed, and as JSON with `--json`).
-#[derive(Debug, Clone, Serialize, Deserialize)]
+#[derive(Debug, Clone, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct ChirpSummary {
     /// The MCAP recording.
     pub recording: PathBuf,
@@ -115,9 +115,9 @@ pub struct ChirpSummary {
     pub seed: u64,
     /// Operating point Y1o, m, and as a fraction of L.
     pub operating_point_m: f64,
-    /// Y1o / L.
+    /// Y1o / L, dimensionless.
     pub operating_point_fraction_of_l: f64,
-    /// Δm23.
+    /// Mass asymmetry Δm23 = m2/m3 − 1, dimensionless.
     pub mass_asymmetry: f64,
     /// Largest |x1| read during the run, m.
     pub peak_position_m: f64,
@@ -319,17 +319,8 @@ pub fn run_chirp_on(
         link: run_link,
         timing,
     };
-    let ch = recorder
-        .add_json_channel(
-            "/sysid/summary",
-            "bench.ChirpSummary",
-            &json!({
-                "type": "object",
-                "description": "Summary of a bench chirp run: resonances (Hz, m/A), CMP-CNMP phase test (deg), model comparison and loop timing (µs)."
-            }),
-        )
-        ?;
-    recorder.write_json(ch, end_ns, &serde_json::to_value(&summary)?)?;
+    let ch = recorder.add_channel_for::<ChirpSummary>("/sysid/summary", "bench.ChirpSummary")?;
+    recorder.write(ch, end_ns, &summary)?;
     finish(recorder)?;
     Ok(summary)
 }

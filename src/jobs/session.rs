@@ -21,7 +21,7 @@ use std::time::{Duration, Instant};
 const QUEUE_CAPACITY: usize = 1 << 16;
 
 /// Loop timing in the summary.
-#[derive(Debug, Clone, Serialize, Deserialize)]
+#[derive(Debug, Clone, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct TimingSummary {
     /// Ticks run.
     pub ticks: u64,

@@ -32,7 +32,6 @@ use bench_hal::model::Sr4dof;
 use bench_hal::sim::{ScheduledFault, ZohPlant};
 use bench_hal::Sample;
 use serde::{Deserialize, Serialize};
-use serde_json::json;
 use std::f64::consts::PI;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, AtomicU64};
@@ -102,7 +101,7 @@ impl Job for ControlJob {
 }
 
 /// Step-response figures.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct StepMetrics {
     /// Step size, m.
     pub step_m: f64,
@@ -198,7 +197,7 @@ pub fn step_metrics(
 }
 
 /// The loop check of one controller (README, *`bench control`*; thesis §6.2.1).
-#[derive(Debug, Clone, Serialize, Deserialize)]
+#[derive(Debug, Clone, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct LoopCheck {
     /// Controller name.
     pub controller: String,
@@ -209,7 +208,7 @@ pub struct LoopCheck {
     pub model_without_amplifier_lag: Margins,
     /// All discrete closed-loop poles inside the unit circle.
     pub closed_loop_stable: bool,
-    /// Largest closed-loop pole magnitude.
+    /// Largest closed-loop pole magnitude |z|, dimensionless.
     pub largest_pole_magnitude: f64,
     /// Margins on a measured FRF, when given.
     pub measured: Option<Margins>,
@@ -374,7 +373,7 @@ pub struct ControlOptions {
 }
 
 /// Result of `bench control`.
-#[derive(Debug, Clone, Serialize, Deserialize)]
+#[derive(Debug, Clone, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct ControlSummary {
     /// Controller name.
     pub controller: String,
@@ -556,15 +555,9 @@ pub fn run_control_from(
         ticks: progress_ticks,
     };
     let mut recorder = open_recording(&session, cfg, &info)?;
-    let check_ch = recorder.add_json_channel(
-        "/control/loop_check",
-        "bench.LoopCheck",
-        &json!({
-            "type": "object",
-            "description": "Loop check before enable: gain crossovers (rad/s), phase margins (deg), gain margin (dB), sensitivity peak |S| (ratio) on the ZOH model with and without the amplifier lag, closed-loop stability, the discretisation (method, max error in dB and deg up to f_s/10, largest gain excess above in dB), failures."
-        }),
-    )?;
-    recorder.write_json(check_ch, 0, &serde_json::to_value(&check)?)?;
+    let check_ch =
+        recorder.add_channel_for::<LoopCheck>("/control/loop_check", "bench.LoopCheck")?;
+    recorder.write(check_ch, 0, &check)?;
     recorder.flush_chunk()?;
     let job = ControlJob::new(
         ctrl,
@@ -591,15 +584,9 @@ pub fn run_control_from(
         step.steady_state_window_s,
         period_s,
     );
-    let metrics_ch = recorder.add_json_channel(
-        "/control/metrics",
-        "bench.StepMetrics",
-        &json!({
-            "type": "object",
-            "description": "Closed-loop step metrics: rise_time_s (10-90 %, s), settling_time_s (2 %, s), overshoot_pct (%), steady_state_error_mean_nm / _std_nm (nm) over steady_state_window_s (s), peak_command_a (A)."
-        }),
-    )?;
-    recorder.write_json(metrics_ch, end_ns, &serde_json::to_value(metrics)?)?;
+    let metrics_ch =
+        recorder.add_channel_for::<StepMetrics>("/control/metrics", "bench.StepMetrics")?;
+    recorder.write(metrics_ch, end_ns, &metrics)?;
 
     let t = &data.t_s;
     let um = |v: &[f64], off: f64| v.iter().map(|x| (x - off) * 1e6).collect::<Vec<f64>>();
@@ -638,12 +625,9 @@ pub fn run_control_from(
     summary.metrics = Some(metrics);
     summary.plot = Some(opts.plot.clone());
     summary.timing = Some(timing);
-    let ch = recorder.add_json_channel(
-        "/control/summary",
-        "bench.ControlSummary",
-        &json!({"type": "object", "description": "Summary of a bench control run (the --json output)."}),
-    )?;
-    recorder.write_json(ch, end_ns, &serde_json::to_value(&summary)?)?;
+    let ch =
+        recorder.add_channel_for::<ControlSummary>("/control/summary", "bench.ControlSummary")?;
+    recorder.write(ch, end_ns, &summary)?;
     summary.recording = Some(PathBuf::from(finish(recorder)?));
     Ok(summary)
 }

@@ -1,60 +1,90 @@
 //! Fixed-size records that leave the real-time tick through the wait-free
 //! queue (`rtrb`) to the writer thread. Every type here is `Copy` and holds no
 //! heap data, so pushing one never allocates.
+//!
+//! Each record is also its recorded message: the writer thread serialises it
+//! with `serde_json` (a non-finite `f64` becomes `null`), the channel's JSON
+//! Schema is generated from it ([`crate::record::schema_of`]; a field's doc
+//! comment, with its unit, is its description) and the reader deserialises
+//! the same type (`null` gives NaN, [`crate::record::nan_if_null`]).
 
-/// One loop tick as seen by the recorder (`/bench/sample`).
-#[derive(Debug, Clone, Copy, PartialEq)]
+use schemars::JsonSchema;
+use serde::{Deserialize, Serialize};
+
+use crate::record::nan_if_null;
+
+/// One loop tick as seen by the recorder (`/bench/sample`). Non-finite
+/// numbers are written as null.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, JsonSchema)]
 pub struct SampleRecord {
-    /// Tick index since the loop started (0-based).
+    /// Tick index since the loop started, ticks (0-based).
     pub tick: u64,
     /// Loop time of the tick, s: `tick × period`, the tick's nominal sample
     /// instant, in virtual and real-time mode alike (device time for
     /// device-clocked backends).
+    #[serde(deserialize_with = "nan_if_null")]
     pub t_s: f64,
     /// Current commanded to the amplifier at this tick, A (after limits).
+    #[serde(deserialize_with = "nan_if_null")]
     pub current_command_a: f64,
-    /// Probe reading at this tick, m (`NaN` when the probe gave none).
+    /// Probe reading at this tick, m (`NaN`, written as null, when the probe
+    /// gave none).
+    #[serde(deserialize_with = "nan_if_null")]
     pub position_m: f64,
-    /// Excitation part of the command, A (`NaN` when no excitation runs).
+    /// Excitation part of the command, A (`NaN`, written as null, when no
+    /// excitation runs).
+    #[serde(deserialize_with = "nan_if_null")]
     pub excitation_a: f64,
-    /// Position setpoint, m (`NaN` in open loop).
+    /// Position setpoint, m (`NaN`, written as null, in open loop).
+    #[serde(deserialize_with = "nan_if_null")]
     pub setpoint_m: f64,
-    /// Supervisor state at the end of the tick.
+    /// Supervisor state at the end of the tick (no unit).
     pub state: SupervisorState,
-    /// Probe reported out of range at this tick.
+    /// Probe reported out of range at this tick (no unit).
     pub out_of_range: bool,
 }
 
 /// Loop timing statistics over a reporting window (`/bench/timing`).
-#[derive(Debug, Clone, Copy, PartialEq)]
+/// Non-finite numbers are written as null.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, JsonSchema)]
 pub struct TimingRecord {
-    /// Last tick covered by this window.
+    /// Last tick covered by this window, ticks (0-based index).
     pub tick: u64,
     /// Loop time at the end of the window, s.
+    #[serde(deserialize_with = "nan_if_null")]
     pub t_s: f64,
-    /// Ticks in the window.
+    /// Ticks in the window, count.
     pub ticks: u64,
-    /// Wake-up latency (actual wake − deadline), ns: mean, p99, max.
-    /// Zero in virtual time.
+    /// Mean wake-up latency (actual wake − deadline), ns (0 in virtual
+    /// time).
+    #[serde(deserialize_with = "nan_if_null")]
     pub wake_latency_mean_ns: f64,
     /// 99th percentile of wake-up latency, ns (histogram bucket upper edge).
+    #[serde(deserialize_with = "nan_if_null")]
     pub wake_latency_p99_ns: f64,
     /// Largest wake-up latency in the window, ns.
+    #[serde(deserialize_with = "nan_if_null")]
     pub wake_latency_max_ns: f64,
-    /// Compute time (wake → command written), ns: mean.
+    /// Mean compute time (wake → command written), ns.
+    #[serde(deserialize_with = "nan_if_null")]
     pub compute_mean_ns: f64,
     /// 99th percentile of compute time, ns (histogram bucket upper edge).
+    #[serde(deserialize_with = "nan_if_null")]
     pub compute_p99_ns: f64,
     /// Largest compute time in the window, ns.
+    #[serde(deserialize_with = "nan_if_null")]
     pub compute_max_ns: f64,
-    /// Ticks that finished after the next deadline, in the window.
+    /// Ticks in the window that finished after the next deadline, count.
     pub overruns: u64,
-    /// Records the queue could not take (writer too slow), since start.
+    /// Records the queue could not take (writer too slow) since start,
+    /// count.
     pub dropped_records: u64,
 }
 
-/// Supervisor state (README, *Safety*).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+/// Supervisor state (the README's Safety section), recorded as its
+/// `as_str` name.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, JsonSchema)]
+#[serde(rename_all = "snake_case")]
 pub enum SupervisorState {
     /// Amplifier disabled, 0 A.
     Disabled,
@@ -67,7 +97,7 @@ pub enum SupervisorState {
 }
 
 impl SupervisorState {
-    /// Every state (the recording schemas list them).
+    /// Every state.
     pub const ALL: [Self; 4] = [Self::Disabled, Self::Enabled, Self::Running, Self::Faulted];
 
     /// Lower-case name used in recordings and summaries.
@@ -81,8 +111,9 @@ impl SupervisorState {
     }
 }
 
-/// What happened (`/bench/event`).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+/// What happened (`/bench/event`), recorded as its `as_str` name.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, JsonSchema)]
+#[serde(rename_all = "snake_case")]
 pub enum EventKind {
     /// The loop started (first tick).
     LoopStarted,
@@ -105,7 +136,7 @@ pub enum EventKind {
 }
 
 impl EventKind {
-    /// Every kind (the recording schemas list them).
+    /// Every kind.
     pub const ALL: [Self; 8] = [
         Self::LoopStarted,
         Self::StateChanged,
@@ -132,8 +163,9 @@ impl EventKind {
     }
 }
 
-/// Why the supervisor faulted.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+/// Why the supervisor faulted, recorded as its `as_str` name.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, JsonSchema)]
+#[serde(rename_all = "snake_case")]
 pub enum FaultKind {
     /// |position| beyond the software position limit.
     PositionLimit,
@@ -161,7 +193,7 @@ pub enum FaultKind {
 }
 
 impl FaultKind {
-    /// Every fault (the recording schemas list them).
+    /// Every fault.
     pub const ALL: [Self; 10] = [
         Self::PositionLimit,
         Self::ProbeOutOfRange,
@@ -192,21 +224,25 @@ impl FaultKind {
     }
 }
 
-/// One event (`/bench/event`).
-#[derive(Debug, Clone, Copy, PartialEq)]
+/// One event (`/bench/event`): something that happened in the loop (start,
+/// state change, fault, …). Non-finite numbers are written as null.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, JsonSchema)]
 pub struct EventRecord {
-    /// Tick at which it happened.
+    /// Tick at which it happened, ticks (0-based index).
     pub tick: u64,
-    /// Loop time, s.
+    /// Loop time of the event, s.
+    #[serde(deserialize_with = "nan_if_null")]
     pub t_s: f64,
-    /// What happened.
+    /// What happened (no unit).
     pub kind: EventKind,
-    /// Supervisor state after the event.
+    /// Supervisor state after the event (no unit).
     pub state: SupervisorState,
-    /// The fault, for [`EventKind::Fault`].
+    /// The fault for kind `fault`, else null (no unit).
     pub fault: Option<FaultKind>,
-    /// A number that qualifies the event (e.g. the offending position in m),
-    /// `NaN` when none.
+    /// A number that qualifies the event, unit depending on the kind and
+    /// fault (e.g. the offending position in m for `position_limit`); `NaN`,
+    /// written as null, when none.
+    #[serde(deserialize_with = "nan_if_null")]
     pub value: f64,
 }
 
@@ -285,5 +321,24 @@ mod tests {
         names.sort();
         names.dedup();
         assert_eq!(names.len(), FaultKind::ALL.len());
+    }
+
+    /// The recorded (serde) name of every variant is its `as_str` name, and
+    /// reads back.
+    #[test]
+    fn serde_names_are_as_str() {
+        fn check<T>(all: &[T], name: fn(&T) -> &'static str)
+        where
+            T: Serialize + for<'de> Deserialize<'de> + PartialEq + std::fmt::Debug,
+        {
+            for v in all {
+                let json = serde_json::to_value(v).unwrap();
+                assert_eq!(json, serde_json::Value::from(name(v)), "{v:?}");
+                assert_eq!(&serde_json::from_value::<T>(json).unwrap(), v);
+            }
+        }
+        check(&SupervisorState::ALL, |s| s.as_str());
+        check(&EventKind::ALL, |k| k.as_str());
+        check(&FaultKind::ALL, |f| f.as_str());
     }
 }
