@@ -1,0 +1,260 @@
+//! `bench chirp`: its flags, the job request and local overrides they make,
+//! and the printed summary.
+
+use super::serve::via_daemon;
+use super::{bad_input, default_recording, emit, exit_for, load_config, refused_request};
+use bench::config::{ChirpKind, DEFAULT_CONFIG};
+use bench::jobs::chirp::{run_chirp, ChirpOptions, ChirpSummary};
+use bench::jobs::request::{ChirpRequest, JobRequest, LocalOverrides, OperatingPoint};
+use bench::jobs::session::beside;
+use bench::rt::backend::BackendSpec;
+use clap::{Args, ValueEnum};
+use std::io::IsTerminal;
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::sync::atomic::AtomicBool;
+use std::sync::Arc;
+
+#[derive(Debug, Clone, Copy, ValueEnum)]
+pub(super) enum KindArg {
+    Exponential,
+    Linear,
+}
+
+#[derive(Debug, Args)]
+pub(super) struct ChirpArgs {
+    /// Bench description (TOML).
+    #[arg(long, value_name = "FILE", default_value = DEFAULT_CONFIG)]
+    config: PathBuf,
+    /// MCAP recording [default: recordings/chirp-<UTC time>.mcap].
+    #[arg(long, value_name = "FILE.mcap")]
+    out: Option<PathBuf>,
+    /// FRF CSV [default: beside --out, <stem>.frf.csv].
+    #[arg(long, value_name = "FILE")]
+    frf_csv: Option<PathBuf>,
+    /// Bode plot PNG [default: beside --out, <stem>.bode.png].
+    #[arg(long, value_name = "FILE.png")]
+    plot: Option<PathBuf>,
+    /// Pace the loop in real time (absolute deadlines, SCHED_FIFO and
+    /// mlockall when permitted) instead of virtual time.
+    #[arg(long)]
+    realtime: bool,
+    /// Simulator noise seed [default: sim.seed from the config].
+    #[arg(long, value_name = "N")]
+    seed: Option<u64>,
+    /// Print the summary as one JSON object on stdout.
+    #[arg(long)]
+    json: bool,
+    /// Operating point Y1o, m (overrides plant.operating_point_m).
+    #[arg(
+        long,
+        value_name = "M",
+        allow_negative_numbers = true,
+        conflicts_with = "operating_point_pct"
+    )]
+    operating_point_m: Option<f64>,
+    /// Operating point Y1o in % of the beam length L.
+    #[arg(long, value_name = "PERCENT", allow_negative_numbers = true)]
+    operating_point_pct: Option<f64>,
+    /// Mass asymmetry Δm23 = m2/m3 − 1, e.g. 0.1 for +10 % (overrides
+    /// plant.mass_asymmetry).
+    #[arg(long, value_name = "X", allow_negative_numbers = true)]
+    mass_asymmetry: Option<f64>,
+    /// Chirp current amplitude, A (overrides chirp.amplitude_a).
+    #[arg(long, value_name = "A", allow_negative_numbers = true)]
+    amplitude_a: Option<f64>,
+    /// Sweep start frequency, Hz (overrides chirp.f_start_hz).
+    #[arg(long, value_name = "HZ", allow_negative_numbers = true)]
+    f_start_hz: Option<f64>,
+    /// Sweep end frequency, Hz (overrides chirp.f_end_hz).
+    #[arg(long, value_name = "HZ", allow_negative_numbers = true)]
+    f_end_hz: Option<f64>,
+    /// Sweep duration, s (overrides chirp.duration_s).
+    #[arg(long, value_name = "S", allow_negative_numbers = true)]
+    duration_s: Option<f64>,
+    /// Sweep law (overrides chirp.kind).
+    #[arg(long, value_enum)]
+    chirp_kind: Option<KindArg>,
+    /// Backend: sim, serial:PATH or socketcan:IFACE [default: [backend] of
+    /// the config]. Hardware always runs in real time.
+    #[arg(long, value_name = "BACKEND")]
+    backend: Option<BackendSpec>,
+    /// Submit to a running `bench serve` instead of opening the bench here
+    /// [SOCKET default: $XDG_RUNTIME_DIR/bench.sock, else
+    /// /run/bench/bench.sock]. The daemon's config and backend apply.
+    #[arg(long, value_name = "SOCKET", num_args = 0..=1, default_missing_value = "")]
+    daemon: Option<String>,
+}
+
+impl ChirpArgs {
+    /// The job request of the flags.
+    fn request(&self) -> ChirpRequest {
+        ChirpRequest {
+            seed: self.seed,
+            amplitude_a: self.amplitude_a,
+            f_start_hz: self.f_start_hz,
+            f_end_hz: self.f_end_hz,
+            duration_s: self.duration_s,
+        }
+    }
+
+    /// The local-only overrides of the flags.
+    fn local_overrides(&self) -> LocalOverrides {
+        LocalOverrides {
+            operating_point: self.operating_point_m.map(OperatingPoint::Metres).or(self
+                .operating_point_pct
+                .map(OperatingPoint::PercentOfBeamLength)),
+            mass_asymmetry: self.mass_asymmetry,
+            chirp_kind: self.chirp_kind.map(|k| match k {
+                KindArg::Exponential => ChirpKind::Exponential,
+                KindArg::Linear => ChirpKind::Linear,
+            }),
+        }
+    }
+
+    /// The flag that set a config key (for error messages).
+    fn flag_for(&self, key: &str) -> Option<String> {
+        let flag = match key {
+            "plant.operating_point_m" if self.operating_point_m.is_some() => "--operating-point-m",
+            "plant.operating_point_m" if self.operating_point_pct.is_some() => {
+                "--operating-point-pct"
+            }
+            "plant.mass_asymmetry" if self.mass_asymmetry.is_some() => "--mass-asymmetry",
+            "chirp.amplitude_a" if self.amplitude_a.is_some() => "--amplitude-a",
+            "chirp.f_start_hz" if self.f_start_hz.is_some() => "--f-start-hz",
+            "chirp.f_end_hz" if self.f_end_hz.is_some() => "--f-end-hz",
+            "chirp.duration_s" if self.duration_s.is_some() => "--duration-s",
+            _ => return None,
+        };
+        Some(flag.to_string())
+    }
+}
+
+pub(super) fn chirp(args: ChirpArgs, stop: Arc<AtomicBool>) -> ExitCode {
+    if let Some(sock) = &args.daemon {
+        let local_only = [
+            (args.out.is_some(), "--out"),
+            (args.frf_csv.is_some(), "--frf-csv"),
+            (args.plot.is_some(), "--plot"),
+            (args.operating_point_m.is_some(), "--operating-point-m"),
+            (args.operating_point_pct.is_some(), "--operating-point-pct"),
+            (args.mass_asymmetry.is_some(), "--mass-asymmetry"),
+            (args.backend.is_some(), "--backend"),
+            (args.chirp_kind.is_some(), "--chirp-kind"),
+        ];
+        if let Some((_, flag)) = local_only.iter().find(|(set, _)| *set) {
+            return bad_input(format!(
+                "{flag}: not with --daemon (the daemon owns the bench, its config and where recordings go)"
+            ));
+        }
+        let job = JobRequest::Chirp(args.request());
+        return via_daemon(sock, &job, args.json, print_summary);
+    }
+    let mut cfg = match load_config(&args.config) {
+        Ok(c) => c,
+        Err(e) => return bad_input(e),
+    };
+    let request = args.request();
+    args.local_overrides().apply(&mut cfg);
+    if let Err(e) = request.apply(&mut cfg) {
+        return refused_request(e, &args.config, |key| args.flag_for(key));
+    }
+    let out = args
+        .out
+        .clone()
+        .unwrap_or_else(|| default_recording("chirp"));
+    if out.extension().and_then(|e| e.to_str()) != Some("mcap") {
+        return bad_input(format!(
+            "--out {}: the recording must end in .mcap",
+            out.display()
+        ));
+    }
+    let opts = ChirpOptions {
+        frf_csv: args
+            .frf_csv
+            .clone()
+            .unwrap_or_else(|| beside(&out, ".frf.csv")),
+        plot: args
+            .plot
+            .clone()
+            .unwrap_or_else(|| beside(&out, ".bode.png")),
+        out,
+        seed: request.seed.unwrap_or(cfg.sim.seed),
+        config: cfg,
+        config_path: args.config.clone(),
+        realtime: args.realtime,
+        progress: std::io::stderr().is_terminal(),
+        backend: args.backend.clone(),
+    };
+    match run_chirp(&opts, stop) {
+        Ok(summary) => match emit(&summary, args.json, print_summary) {
+            Ok(()) => ExitCode::SUCCESS,
+            Err(code) => code,
+        },
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            exit_for(&e)
+        }
+    }
+}
+
+pub(super) fn print_summary(s: &ChirpSummary) {
+    println!("bench chirp on {} (seed {})", s.backend, s.seed);
+    println!(
+        "  operating point Y1o = {:.3} mm ({:.1} % of L), mass asymmetry Δm23 = {:+.1} %",
+        s.operating_point_m * 1e3,
+        s.operating_point_fraction_of_l * 100.0,
+        s.mass_asymmetry * 100.0
+    );
+    println!("  peak |x1| = {:.1} µm", s.peak_position_m * 1e6);
+    println!("  recording   {}", s.recording.display());
+    println!("  FRF (CSV)   {}", s.frf_csv.display());
+    println!("  Bode plot   {}", s.plot.display());
+    println!("resonances (measured):");
+    for r in &s.resonances {
+        match r.damping_ratio {
+            Some(z) => println!(
+                "  {:8.2} Hz  |H| = {:.3e} m/A  ζ ≈ {:.4}",
+                r.frequency_hz, r.magnitude_m_per_a, z
+            ),
+            None => println!(
+                "  {:8.2} Hz  |H| = {:.3e} m/A",
+                r.frequency_hz, r.magnitude_m_per_a
+            ),
+        }
+    }
+    let f: Vec<String> = s
+        .model
+        .natural_frequencies_hz
+        .iter()
+        .map(|f| format!("{f:.2}"))
+        .collect();
+    println!("model natural frequencies: {} Hz", f.join(", "));
+    match &s.closely_spaced_pair {
+        Some(p) => {
+            println!(
+                "closely spaced pair: {:.2} Hz and {:.2} Hz; net phase over {:.1}–{:.1} Hz: {:.0}° (≈ {:.0}°)",
+                p.lower_hz, p.upper_hz, p.band_hz.0, p.band_hz.1, p.net_phase_deg, p.net_phase_multiple_deg
+            );
+            if p.cmp_cnmp {
+                println!("  → CMP-CNMP zeros: the pair shows the net −360° phase drop");
+            } else {
+                println!("  → no CMP-CNMP zeros: the zeros between the modes give back phase");
+            }
+        }
+        None => println!(
+            "closely spaced pair: not resolved (no two adjacent resonances within 25 %): CMP-CNMP verdict undetermined"
+        ),
+    }
+    println!(
+        "model zeros: {} (CMP-CNMP: {})",
+        s.model.zero_types.join(", "),
+        if s.model.cmp_cnmp { "yes" } else { "no" }
+    );
+    let t = &s.timing;
+    println!(
+        "loop: {} ticks at {:.0} Hz ({}), {:.2} s wall; compute mean {:.2} µs, p99 {:.2} µs, max {:.1} µs; wake p99 {:.1} µs; overruns {}; dropped {}",
+        t.ticks, t.rate_hz, t.mode, t.wall_s, t.compute_mean_us, t.compute_p99_us, t.compute_max_us,
+        t.wake_latency_p99_us, t.overruns, t.dropped_records
+    );
+}

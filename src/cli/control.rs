@@ -1,0 +1,292 @@
+//! `bench control`: its flags, the job request they make, and the printed
+//! loop check and step summary.
+
+use super::serve::via_daemon;
+use super::{bad_input, default_recording, emit, exit_for, load_config, refused_request, status};
+use bench::config::DEFAULT_CONFIG;
+use bench::jobs::request::{ControlRequest, JobRequest};
+use bench::jobs::session::beside;
+use bench::jobs::step::{run_control, ControlOptions, ControlSummary};
+use bench::rt::backend::BackendSpec;
+use clap::Args;
+use std::io::IsTerminal;
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::sync::atomic::AtomicBool;
+use std::sync::Arc;
+
+#[derive(Debug, Args)]
+#[command(group(clap::ArgGroup::new("which").required(true).args(["slow", "fast", "controller"])))]
+pub(super) struct ControlArgs {
+    /// The slow controller of Eq. (6-6) (`[controller.slow]`).
+    #[arg(long)]
+    slow: bool,
+    /// The fast controller of Eq. (6-7) (`[controller.fast]`).
+    #[arg(long)]
+    fast: bool,
+    /// Any `[controller.NAME]` of the config.
+    #[arg(long, value_name = "NAME")]
+    controller: Option<String>,
+    /// Bench description (TOML).
+    #[arg(long, value_name = "FILE", default_value = DEFAULT_CONFIG)]
+    config: PathBuf,
+    /// Step size, m (overrides step.step_m).
+    #[arg(long, value_name = "M", allow_negative_numbers = true)]
+    step_m: Option<f64>,
+    /// Run time, s (overrides step.duration_s).
+    #[arg(long, value_name = "S", allow_negative_numbers = true)]
+    duration_s: Option<f64>,
+    /// Smooth the step with a raised-cosine ramp of this length, s
+    /// (overrides step.smooth_s).
+    #[arg(long, value_name = "S", allow_negative_numbers = true)]
+    smooth_s: Option<f64>,
+    /// MCAP recording [default: recordings/control-<name>-<UTC time>.mcap].
+    #[arg(long, value_name = "FILE.mcap")]
+    out: Option<PathBuf>,
+    /// Step plot PNG [default: beside --out, <stem>.step.png].
+    #[arg(long, value_name = "FILE.png")]
+    plot: Option<PathBuf>,
+    /// Print the summary as one JSON object on stdout.
+    #[arg(long)]
+    json: bool,
+    /// Pace the loop in real time.
+    #[arg(long)]
+    realtime: bool,
+    /// Print the loop check and exit without enabling anything.
+    #[arg(long)]
+    check_only: bool,
+    /// Also check the margins on a measured FRF (a `bench chirp` CSV).
+    #[arg(long, value_name = "FILE.csv")]
+    frf: Option<PathBuf>,
+    /// Run even when the loop check refuses (simulator only).
+    #[arg(long)]
+    override_check: bool,
+    /// Simulator noise seed [default: sim.seed].
+    #[arg(long, value_name = "N")]
+    seed: Option<u64>,
+    /// Inject a simulator fault: KIND@T_S with KIND one of nan, frozen,
+    /// drop (10 samples), jump (0.2 mm), out_of_range; e.g. nan@1.5.
+    #[arg(long, value_name = "KIND@T_S")]
+    inject_fault: Option<String>,
+    /// Backend: sim, serial:PATH or socketcan:IFACE [default: [backend] of
+    /// the config]. Hardware always runs in real time.
+    #[arg(long, value_name = "BACKEND")]
+    backend: Option<BackendSpec>,
+    /// Submit to a running `bench serve` instead of opening the bench here
+    /// [SOCKET default: $XDG_RUNTIME_DIR/bench.sock, else
+    /// /run/bench/bench.sock]. The daemon's config and backend apply.
+    #[arg(long, value_name = "SOCKET", num_args = 0..=1, default_missing_value = "")]
+    daemon: Option<String>,
+}
+
+impl ControlArgs {
+    /// The controller the flags select.
+    fn controller(&self) -> String {
+        if self.slow {
+            "slow".to_string()
+        } else if self.fast {
+            "fast".to_string()
+        } else {
+            self.controller.clone().unwrap_or_default()
+        }
+    }
+
+    /// The job request of the flags.
+    fn request(&self) -> ControlRequest {
+        ControlRequest {
+            controller: self.controller(),
+            step_m: self.step_m,
+            duration_s: self.duration_s,
+            smooth_s: self.smooth_s,
+            seed: self.seed,
+            inject_fault: self.inject_fault.clone(),
+            override_check: self.override_check,
+        }
+    }
+
+    /// The flag that set a config key or request field (for error
+    /// messages), with its value where the message needs it.
+    fn flag_for(&self, key: &str) -> Option<String> {
+        match key {
+            "step.step_m" if self.step_m.is_some() => Some("--step-m".into()),
+            "step.duration_s" if self.duration_s.is_some() => Some("--duration-s".into()),
+            "step.smooth_s" if self.smooth_s.is_some() => Some("--smooth-s".into()),
+            "controller" if self.slow => Some("--slow".into()),
+            "controller" if self.fast => Some("--fast".into()),
+            "controller" => Some(format!("--controller {}", self.controller())),
+            "inject_fault" => self
+                .inject_fault
+                .as_ref()
+                .map(|f| format!("--inject-fault {f}")),
+            _ => None,
+        }
+    }
+}
+
+pub(super) fn control(args: ControlArgs, stop: Arc<AtomicBool>) -> ExitCode {
+    if let Some(sock) = &args.daemon {
+        let local_only = [
+            (args.out.is_some(), "--out"),
+            (args.plot.is_some(), "--plot"),
+            (args.backend.is_some(), "--backend"),
+            (args.check_only, "--check-only"),
+            (args.frf.is_some(), "--frf"),
+        ];
+        if let Some((_, flag)) = local_only.iter().find(|(set, _)| *set) {
+            return bad_input(format!(
+                "{flag}: not with --daemon (run it locally, or let the daemon choose the recording)"
+            ));
+        }
+        let job = JobRequest::Control(args.request());
+        return via_daemon(sock, &job, args.json, print_control_summary);
+    }
+    let mut cfg = match load_config(&args.config) {
+        Ok(c) => c,
+        Err(e) => return bad_input(e),
+    };
+    let request = args.request();
+    let inject = match request.apply(&mut cfg) {
+        Ok(f) => f,
+        Err(e) => return refused_request(e, &args.config, |key| args.flag_for(key)),
+    };
+    let name = request.controller.clone();
+    let out = args
+        .out
+        .clone()
+        .unwrap_or_else(|| default_recording(&format!("control-{name}")));
+    if out.extension().and_then(|e| e.to_str()) != Some("mcap") {
+        return bad_input(format!(
+            "--out {}: the recording must end in .mcap",
+            out.display()
+        ));
+    }
+    let opts = ControlOptions {
+        plot: args
+            .plot
+            .clone()
+            .unwrap_or_else(|| beside(&out, ".step.png")),
+        out,
+        seed: request.seed.unwrap_or(cfg.sim.seed),
+        config: cfg,
+        config_path: args.config.clone(),
+        controller: name,
+        check_only: args.check_only,
+        frf: args.frf.clone(),
+        override_check: request.override_check,
+        realtime: args.realtime,
+        progress: std::io::stderr().is_terminal(),
+        inject,
+        backend: args.backend.clone(),
+    };
+    match run_control(&opts, stop) {
+        Ok(summary) => {
+            if let Err(code) = emit(&summary, args.json, print_control_summary) {
+                return code;
+            }
+            if args.check_only && !summary.loop_check.passed() {
+                eprintln!(
+                    "error: loop check refuses controller {}: {}",
+                    summary.controller,
+                    summary.loop_check.failures.join("; ")
+                );
+                return ExitCode::from(status::BAD_INPUT);
+            }
+            ExitCode::SUCCESS
+        }
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            exit_for(&e)
+        }
+    }
+}
+
+pub(super) fn print_margins(label: &str, m: &bench::control::loop_check::Margins) {
+    let wc: Vec<String> = m
+        .crossovers_rad_s
+        .iter()
+        .map(|w| format!("{w:.1}"))
+        .collect();
+    println!(
+        "  {label}: crossover(s) {} rad/s; phase margin {}; gain margin {}; peak |S| {:.2} ({:.1} dB) at {:.0} rad/s",
+        if wc.is_empty() { "none".to_string() } else { wc.join(", ") },
+        m.phase_margin_deg.map_or("–".to_string(), |p| format!("{p:.1}°")),
+        m.gain_margin_db.map_or("∞".to_string(), |g| format!("{g:.1} dB")),
+        m.sensitivity_peak,
+        20.0 * m.sensitivity_peak.log10(),
+        m.sensitivity_peak_at_rad_s
+    );
+}
+
+pub(super) fn print_control_summary(s: &ControlSummary) {
+    println!(
+        "bench control --controller {} on {} (seed {})",
+        s.controller, s.backend, s.seed
+    );
+    if !s.description.is_empty() {
+        println!("  {}", s.description);
+    }
+    let c = &s.loop_check;
+    println!("loop check:");
+    let d = &c.discretization;
+    println!(
+        "  discretisation {}: within {:.3} dB / {:.2}° of the continuous design up to {:.0} Hz; above, at most {:+.2} dB",
+        d.method.as_str(),
+        d.max_error_db,
+        d.max_error_deg,
+        d.up_to_hz,
+        d.above_band_max_excess_db
+    );
+    print_margins("model, amplifier included", &c.model);
+    print_margins(
+        "model, amplifier lag excluded",
+        &c.model_without_amplifier_lag,
+    );
+    if let Some(m) = &c.measured {
+        print_margins("measured FRF", m);
+    }
+    println!(
+        "  closed loop {} (largest pole |z| = {:.5})",
+        if c.closed_loop_stable {
+            "stable"
+        } else {
+            "UNSTABLE"
+        },
+        c.largest_pole_magnitude
+    );
+    if c.passed() {
+        println!("  → passed");
+    } else {
+        for f in &c.failures {
+            println!("  → refused: {f}");
+        }
+    }
+    if let Some(m) = &s.metrics {
+        let opt = |v: Option<f64>, unit: &str, scale: f64| {
+            v.map_or("–".to_string(), |x| format!("{:.4} {unit}", x * scale))
+        };
+        println!("step of {:.2} µm:", m.step_m * 1e6);
+        println!("  rise time (10–90 %) {}", opt(m.rise_time_s, "s", 1.0));
+        println!("  settling time (2 %) {}", opt(m.settling_time_s, "s", 1.0));
+        println!("  overshoot {:.1} %", m.overshoot_pct);
+        println!(
+            "  steady-state error over the last {:.1} s: mean {:.1} nm, σ {:.1} nm",
+            m.steady_state_window_s, m.steady_state_error_mean_nm, m.steady_state_error_std_nm
+        );
+        println!("  peak command {:.3} A", m.peak_command_a);
+    }
+    if s.disturbance_rms_n > 0.0 {
+        println!("disturbance: {:.4} N RMS", s.disturbance_rms_n);
+    }
+    if let Some(p) = &s.recording {
+        println!("recording   {}", p.display());
+    }
+    if let Some(p) = &s.plot {
+        println!("step plot   {}", p.display());
+    }
+    if let Some(t) = &s.timing {
+        println!(
+            "loop: {} ticks at {:.0} Hz ({}), {:.2} s wall; compute mean {:.2} µs, p99 {:.2} µs; overruns {}",
+            t.ticks, t.rate_hz, t.mode, t.wall_s, t.compute_mean_us, t.compute_p99_us, t.overruns
+        );
+    }
+}

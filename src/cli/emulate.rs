@@ -1,0 +1,219 @@
+//! `bench emulate serial|can`: the simulated plant as a DAQ device.
+
+use super::{bad_input, load_config, status};
+use bench::config::DEFAULT_CONFIG;
+use bench::jobs::request::parse_fault;
+use bench_hal::emulator::serial::{Pty, SerialEmulatorOptions};
+use bench_hal::emulator::{DeviceCore, EmulatorStatus, LinkFault, ScheduledLinkFault};
+use bench_hal::sim::ScheduledFault;
+use clap::{Args, Subcommand};
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::sync::atomic::AtomicBool;
+use std::sync::Arc;
+
+#[derive(Debug, Subcommand)]
+pub(super) enum EmulateCommand {
+    /// Serial DAQ on a new pseudo-terminal: prints its path on the first
+    /// line of stdout, then serves `bench ... --backend serial:PATH`.
+    Serial(EmulateArgs),
+    /// CAN analog I/O module on a SocketCAN interface.
+    Can {
+        /// CAN interface, e.g. vcan0 (overrides backend.can.interface).
+        #[arg(long, value_name = "IFACE")]
+        iface: Option<String>,
+        #[command(flatten)]
+        common: EmulateArgs,
+    },
+}
+
+#[derive(Debug, Args)]
+pub(super) struct EmulateArgs {
+    /// Bench description (TOML): plant, rate, [emulator] watchdog.
+    #[arg(long, value_name = "FILE", default_value = DEFAULT_CONFIG)]
+    config: PathBuf,
+    /// Plant noise seed [default: sim.seed].
+    #[arg(long, value_name = "N")]
+    seed: Option<u64>,
+    /// Inject a fault at device time T_S (repeatable): link faults
+    /// bitflip:BITS[xFRAMES], drop:FRAMES, delay:S, stall:S, disconnect;
+    /// plant faults nan, frozen, jump, out_of_range. E.g. stall:0.5@2.
+    #[arg(long = "fault", value_name = "KIND@T_S")]
+    faults: Vec<String>,
+    /// Protocol version to announce (serial; for testing refusal).
+    #[arg(long, value_name = "N")]
+    protocol_version: Option<u16>,
+    /// Lockstep test mode (serial): while enabled, the device waits for the
+    /// answer to each sample before taking the next, so results do not
+    /// depend on scheduling.
+    #[arg(long)]
+    lockstep: bool,
+    /// Stop after this long, s (default: until SIGINT/SIGTERM).
+    #[arg(long, value_name = "S")]
+    duration_s: Option<f64>,
+}
+
+/// Parses an emulator `--fault KIND@T_S`: a link fault or a plant fault.
+pub(super) fn parse_emulator_fault(s: &str) -> Result<EmulatorFault, String> {
+    let (kind, at) = s
+        .rsplit_once('@')
+        .ok_or_else(|| format!("--fault {s}: expected KIND@T_S, e.g. stall:0.5@2"))?;
+    let at_s: f64 = at
+        .parse()
+        .ok()
+        .filter(|t: &f64| t.is_finite() && *t >= 0.0)
+        .ok_or_else(|| {
+            format!("--fault {s}: time {at:?} is not a non-negative number of seconds")
+        })?;
+    match LinkFault::parse(kind) {
+        Ok(kind) => Ok(EmulatorFault::Link(ScheduledLinkFault { at_s, kind })),
+        Err(link_err) => match parse_fault(s) {
+            Ok(f) => Ok(EmulatorFault::Plant(f)),
+            Err(_) => Err(format!(
+                "--fault {s}: {link_err}; or a plant fault nan, frozen, drop, jump, out_of_range"
+            )),
+        },
+    }
+}
+
+pub(super) enum EmulatorFault {
+    Link(ScheduledLinkFault),
+    Plant(ScheduledFault),
+}
+
+pub(super) fn emulate(cmd: EmulateCommand, stop: Arc<AtomicBool>) -> ExitCode {
+    let (args, can_iface) = match cmd {
+        EmulateCommand::Serial(a) => (a, None),
+        EmulateCommand::Can { iface, common } => (common, Some(iface)),
+    };
+    let cfg = match load_config(&args.config).and_then(|c| c.validate(&args.config).map(|_| c)) {
+        Ok(c) => c,
+        Err(e) => return bad_input(e),
+    };
+    let mut link_faults = Vec::new();
+    let mut plant_faults = Vec::new();
+    for f in &args.faults {
+        match parse_emulator_fault(f) {
+            Ok(EmulatorFault::Link(l)) => link_faults.push(l),
+            Ok(EmulatorFault::Plant(p)) => plant_faults.push(p),
+            Err(e) => return bad_input(e),
+        }
+    }
+    if let Some(d) = args.duration_s {
+        if !(d.is_finite() && d > 0.0) {
+            return bad_input(format!(
+                "--duration-s {d}: must be a positive number of seconds"
+            ));
+        }
+    }
+    let seed = args.seed.unwrap_or(cfg.sim.seed);
+    let watchdog_ns = (cfg.emulator.watchdog_ms * 1e6) as u64;
+    let mut core = match DeviceCore::new(cfg.sim_params(seed), cfg.loop_.period_ns(), watchdog_ns) {
+        Ok(c) => c,
+        Err(e) => return bad_input(format!("config {}: {e}", args.config.display())),
+    };
+    for f in plant_faults {
+        core.inject(f);
+    }
+    let priority = (cfg.emulator.priority > 0).then_some(cfg.emulator.priority);
+    let status = Arc::new(EmulatorStatus::default());
+    let rate_hz = cfg.loop_.rate_hz;
+    if let Some(d) = args.duration_s {
+        let stop = Arc::clone(&stop);
+        std::thread::spawn(move || {
+            std::thread::sleep(std::time::Duration::from_secs_f64(d));
+            stop.store(true, std::sync::atomic::Ordering::Relaxed);
+        });
+    }
+    let result = match can_iface {
+        None => {
+            let pty = match Pty::open() {
+                Ok(p) => p,
+                Err(e) => {
+                    eprintln!("error: cannot create a pseudo-terminal: {e}");
+                    return ExitCode::from(status::ERROR);
+                }
+            };
+            println!("{}", pty.path());
+            eprintln!(
+                "serial DAQ emulator on {} at {rate_hz} Hz, watchdog {} ms, protocol v{}; connect with --backend serial:{}; Ctrl-C stops",
+                pty.path(),
+                cfg.emulator.watchdog_ms,
+                args.protocol_version.unwrap_or(bench_hal::protocol::VERSION),
+                pty.path()
+            );
+            let opts = SerialEmulatorOptions {
+                protocol_version: args
+                    .protocol_version
+                    .unwrap_or(bench_hal::protocol::VERSION),
+                position_lsb_m: cfg.emulator.position_lsb_m,
+                link_faults,
+                seed,
+                realtime_priority: priority,
+                lockstep: args.lockstep,
+            };
+            let st = Arc::clone(&status);
+            let s = Arc::clone(&stop);
+            std::thread::Builder::new()
+                .name("bench-emulator".into())
+                .spawn(move || bench_hal::emulator::serial::run(pty, core, &opts, &s, &st))
+                .map_err(|e| e.to_string())
+                .and_then(|t| t.join().map_err(|_| "emulator thread panicked".to_string()))
+                .and_then(|r| r.map_err(|e| e.to_string()))
+        }
+        Some(iface) => {
+            if args.protocol_version.is_some() {
+                return bad_input(
+                    "--protocol-version: only the serial emulator has a protocol version",
+                );
+            }
+            let ccfg = bench_hal::can::CanConfig {
+                interface: iface.unwrap_or_else(|| cfg.backend.can.interface.clone()),
+                ..cfg.backend.can.clone()
+            };
+            let sock = match bench_hal::can::open_socket(&ccfg.interface) {
+                Ok(s) => s,
+                Err(e) => return bad_input(format!("--iface {}: {e}", ccfg.interface)),
+            };
+            println!("{}", ccfg.interface);
+            eprintln!(
+                "CAN DAQ emulator on {} node {} at {rate_hz} Hz, watchdog {} ms; connect with --backend socketcan:{}; Ctrl-C stops",
+                ccfg.interface, ccfg.node_id, cfg.emulator.watchdog_ms, ccfg.interface
+            );
+            let st = Arc::clone(&status);
+            let s = Arc::clone(&stop);
+            std::thread::Builder::new()
+                .name("bench-emulator".into())
+                .spawn(move || {
+                    if let Some(p) = priority {
+                        bench::rt::make_realtime(p, None);
+                    }
+                    bench_hal::emulator::can::run_emulator(sock, &ccfg, core, &link_faults, &s, &st)
+                })
+                .map_err(|e| e.to_string())
+                .and_then(|t| t.join().map_err(|_| "emulator thread panicked".to_string()))
+                .and_then(|r| r.map_err(|e| e.to_string()))
+        }
+    };
+    use std::sync::atomic::Ordering::Relaxed;
+    eprintln!(
+        "emulator stopped: {} samples sent, {} commands, {} bad frames, {} late commands, largest tick lateness {} µs, watchdog {}",
+        status.samples_sent.load(Relaxed),
+        status.commands_received.load(Relaxed),
+        status.bad_frames.load(Relaxed),
+        status.late_commands.load(Relaxed),
+        status.max_tick_lateness_ns.load(Relaxed) / 1000,
+        if status.watchdog_trip_mono_ns.load(Relaxed) != 0 {
+            "tripped"
+        } else {
+            "never tripped"
+        }
+    );
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: emulator: {e}");
+            ExitCode::from(status::ERROR)
+        }
+    }
+}

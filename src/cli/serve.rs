@@ -1,0 +1,144 @@
+//! `bench serve`, and `--daemon` (a job submitted to a running daemon).
+
+use super::{bad_input, emit, load_config, status};
+use bench::config::DEFAULT_CONFIG;
+use bench::jobs::request::{parse_fault, JobRequest};
+use bench::rt::backend::BackendSpec;
+use clap::Args;
+use std::io::IsTerminal;
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+#[derive(Debug, Args)]
+pub(super) struct ServeArgs {
+    /// Bench description (TOML).
+    #[arg(long, value_name = "FILE", default_value = DEFAULT_CONFIG)]
+    config: PathBuf,
+    /// Socket path [default: $XDG_RUNTIME_DIR/bench.sock, else
+    /// /run/bench/bench.sock]. Its directory must not be world-writable.
+    #[arg(long, value_name = "PATH")]
+    socket: Option<PathBuf>,
+    /// Let this group use the socket (mode 0660; default owner-only 0600).
+    #[arg(long, value_name = "GROUP")]
+    socket_group: Option<String>,
+    /// Directory for the job recordings and the rolling event log.
+    #[arg(long, value_name = "DIR", default_value = "recordings")]
+    recordings: PathBuf,
+    /// Backend [default: [backend] of the config].
+    #[arg(long, value_name = "BACKEND")]
+    backend: Option<BackendSpec>,
+    /// Simulator seed [default: sim.seed].
+    #[arg(long, value_name = "N")]
+    seed: Option<u64>,
+    /// Inject a simulator fault T_S seconds after start, between jobs (for
+    /// testing supervision): KIND@T_S with KIND one of nan, frozen, drop,
+    /// jump, out_of_range.
+    #[arg(long, value_name = "KIND@T_S")]
+    inject_fault: Option<String>,
+}
+
+/// Submits a job to the daemon, shows its progress on stderr and prints the
+/// summary as the local run does.
+pub(super) fn via_daemon<T: serde::de::DeserializeOwned + serde::Serialize>(
+    socket: &str,
+    job: &JobRequest,
+    json: bool,
+    human: fn(&T),
+) -> ExitCode {
+    let cmd = job.kind();
+    let socket = if socket.is_empty() {
+        bench::daemon::default_socket_path()
+    } else {
+        PathBuf::from(socket)
+    };
+    let show = std::io::stderr().is_terminal();
+    let result = bench::daemon::client::submit(&socket, job, |ev| {
+        if !show {
+            return;
+        }
+        match ev["event"].as_str() {
+            Some("progress") => {
+                let (t, n) = (
+                    ev["ticks"].as_f64().unwrap_or(0.0),
+                    ev["total_ticks"].as_f64().unwrap_or(1.0),
+                );
+                eprint!("\r{cmd} on the daemon: {:5.1} %", 100.0 * t / n.max(1.0));
+            }
+            Some("job_started") => {
+                eprintln!("{cmd} job {} started: {}", ev["job"], ev["recording"])
+            }
+            Some("job_finished") => eprintln!(),
+            _ => {}
+        }
+    });
+    match result {
+        Ok(v) => match serde_json::from_value::<T>(v.clone()) {
+            Ok(summary) => {
+                if let Some(r) = v.get("recording").and_then(|r| r.as_str()) {
+                    if !json {
+                        println!("recording (daemon) {r}");
+                    }
+                }
+                match emit(&summary, json, human) {
+                    Ok(()) => ExitCode::SUCCESS,
+                    Err(code) => code,
+                }
+            }
+            Err(e) => {
+                eprintln!("error: the daemon's summary does not parse: {e}");
+                ExitCode::from(status::ERROR)
+            }
+        },
+        Err(e) => {
+            eprintln!("error: {e}");
+            ExitCode::from(match &e {
+                bench::daemon::client::ClientError::Connect { .. } => status::BAD_INPUT,
+                bench::daemon::client::ClientError::Io(_) => status::ERROR,
+                bench::daemon::client::ClientError::Api { kind, .. } => {
+                    use bench::daemon::ApiErrorKind as K;
+                    match kind {
+                        K::BadParams | K::BadRequest | K::UnknownCommand | K::Refused => {
+                            status::BAD_INPUT
+                        }
+                        K::Busy | K::Faulted => status::DAEMON_REFUSED,
+                        K::Fault => status::FAULT,
+                        K::Hal => status::HAL,
+                        K::Interrupted => status::INTERRUPTED,
+                        K::Error => status::ERROR,
+                    }
+                }
+            })
+        }
+    }
+}
+
+pub(super) fn serve(args: ServeArgs) -> ExitCode {
+    let cfg = match load_config(&args.config).and_then(|c| c.validate(&args.config).map(|_| c)) {
+        Ok(c) => c,
+        Err(e) => return bad_input(e),
+    };
+    let inject = match args.inject_fault.as_deref().map(parse_fault).transpose() {
+        Ok(f) => f,
+        Err(e) => return bad_input(format!("--inject-fault: {e}")),
+    };
+    let opts = bench::daemon::ServeOptions {
+        inject,
+        seed: args.seed.unwrap_or(cfg.sim.seed),
+        config: cfg,
+        config_path: args.config,
+        socket: args
+            .socket
+            .unwrap_or_else(bench::daemon::default_socket_path),
+        socket_group: args.socket_group,
+        recordings: args.recordings,
+        backend: args.backend,
+    };
+    match bench::daemon::serve(opts) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e @ bench::daemon::ServeError::BadInput(_)) => bad_input(e),
+        Err(e) => {
+            eprintln!("error: {e}");
+            ExitCode::from(status::ERROR)
+        }
+    }
+}
