@@ -8,9 +8,23 @@ use std::path::PathBuf;
 /// Why a run did not produce a summary.
 #[derive(Debug, thiserror::Error)]
 pub enum RunError {
-    /// Bad input detected before anything was enabled (exit 2).
+    /// Bad input detected before anything was enabled (exit 2): the
+    /// message names the config key or file it is about.
     #[error("{0}")]
     BadInput(String),
+    /// A run option is unusable, found before anything was enabled (exit
+    /// 2). `key` is the option's name as the job options and requests spell
+    /// it (`out`, `plot`, `frf_csv`, `frf`, `backend`, `controller`,
+    /// `override_check`, `inject_fault`); the CLI shows its flag instead.
+    #[error("{key}{}: {reason}", if subject.is_empty() { String::new() } else { format!(" {subject}") })]
+    BadOption {
+        /// The option.
+        key: &'static str,
+        /// What was given (a path, a backend), or empty.
+        subject: String,
+        /// Why it is refused.
+        reason: String,
+    },
     /// The loop check refused the controller before enabling (exit 2).
     #[error("{0}")]
     Refused(String),
@@ -75,4 +89,15 @@ pub enum RunError {
     /// A loop or writer thread could not start or panicked (exit 1).
     #[error("{0}")]
     Thread(String),
+}
+
+impl RunError {
+    /// A [`RunError::BadOption`].
+    pub fn option(key: &'static str, subject: impl ToString, reason: impl Into<String>) -> Self {
+        Self::BadOption {
+            key,
+            subject: subject.to_string(),
+            reason: reason.into(),
+        }
+    }
 }

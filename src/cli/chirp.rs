@@ -2,7 +2,7 @@
 //! and the printed summary.
 
 use super::serve::via_daemon;
-use super::{bad_input, default_recording, emit, exit_for, load_config, refused_request};
+use super::{bad_input, default_recording, emit, load_config, refused_request, run_failed};
 use bench::config::{ChirpKind, DEFAULT_CONFIG};
 use bench::jobs::chirp::{run_chirp, ChirpOptions, ChirpSummary};
 use bench::jobs::request::{ChirpRequest, JobRequest, LocalOverrides, OperatingPoint};
@@ -191,10 +191,7 @@ pub(super) fn chirp(args: ChirpArgs, stop: Arc<AtomicBool>) -> ExitCode {
             Ok(()) => ExitCode::SUCCESS,
             Err(code) => code,
         },
-        Err(e) => {
-            eprintln!("error: {e:#}");
-            exit_for(&e)
-        }
+        Err(e) => run_failed(&e),
     }
 }
 

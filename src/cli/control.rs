@@ -2,7 +2,7 @@
 //! loop check and step summary.
 
 use super::serve::via_daemon;
-use super::{bad_input, default_recording, emit, exit_for, load_config, refused_request, status};
+use super::{bad_input, default_recording, emit, load_config, refused_request, run_failed, status};
 use bench::config::DEFAULT_CONFIG;
 use bench::jobs::request::{ControlRequest, JobRequest};
 use bench::jobs::session::beside;
@@ -193,10 +193,7 @@ pub(super) fn control(args: ControlArgs, stop: Arc<AtomicBool>) -> ExitCode {
             }
             ExitCode::SUCCESS
         }
-        Err(e) => {
-            eprintln!("error: {e:#}");
-            exit_for(&e)
-        }
+        Err(e) => run_failed(&e),
     }
 }
 

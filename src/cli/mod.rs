@@ -173,9 +173,50 @@ pub(super) fn refused_request(
     }
 }
 
-pub(super) fn exit_for(e: &RunError) -> ExitCode {
+/// The flag of a run option (`RunError::BadOption`'s key).
+fn option_flag(key: &str) -> Option<&'static str> {
+    Some(match key {
+        "out" => "--out",
+        "plot" => "--plot",
+        "frf_csv" => "--frf-csv",
+        "frf" => "--frf",
+        "backend" => "--backend",
+        "controller" => "--controller",
+        "override_check" => "--override-check",
+        "inject_fault" => "--inject-fault",
+        "socket" => "--socket",
+        "socket_group" => "--socket-group",
+        "recordings" => "--recordings",
+        _ => return None,
+    })
+}
+
+/// Prints a run's error (options by their flags) and returns its exit
+/// status.
+pub(super) fn run_failed(e: &RunError) -> ExitCode {
+    match e {
+        RunError::BadOption {
+            key,
+            subject,
+            reason,
+        } => {
+            let flag = option_flag(key).unwrap_or(key);
+            if subject.is_empty() {
+                eprintln!("error: {flag}: {reason}");
+            } else {
+                eprintln!("error: {flag} {subject}: {reason}");
+            }
+        }
+        e => eprintln!("error: {e:#}"),
+    }
+    exit_for(e)
+}
+
+fn exit_for(e: &RunError) -> ExitCode {
     ExitCode::from(match e {
-        RunError::BadInput(_) | RunError::Refused(_) => status::BAD_INPUT,
+        RunError::BadInput(_) | RunError::BadOption { .. } | RunError::Refused(_) => {
+            status::BAD_INPUT
+        }
         RunError::Fault { .. } => status::FAULT,
         RunError::Hal { .. } => status::HAL,
         RunError::Interrupted { .. } => status::INTERRUPTED,

@@ -1,6 +1,6 @@
 //! `bench serve`, and `--daemon` (a job submitted to a running daemon).
 
-use super::{bad_input, emit, load_config, status};
+use super::{bad_input, emit, load_config, run_failed, status};
 use bench::config::DEFAULT_CONFIG;
 use bench::jobs::request::{parse_fault, JobRequest};
 use bench::rt::backend::BackendSpec;
@@ -135,7 +135,7 @@ pub(super) fn serve(args: ServeArgs) -> ExitCode {
     };
     match bench::daemon::serve(opts) {
         Ok(()) => ExitCode::SUCCESS,
-        Err(e @ bench::daemon::ServeError::BadInput(_)) => bad_input(e),
+        Err(bench::daemon::ServeError::Input(e)) => run_failed(&e),
         Err(e) => {
             eprintln!("error: {e}");
             ExitCode::from(status::ERROR)

@@ -53,6 +53,7 @@ mod socket;
 pub use protocol::ApiErrorKind;
 
 use crate::config::BenchConfig;
+use crate::error::RunError;
 use crate::rt::backend::{self, BackendSpec};
 use crate::rt::service::{run_service, LoopReply, LoopRequest, LoopStatus, ServiceClient};
 use crate::rt::{LoopOptions, Pacing};
@@ -99,9 +100,10 @@ pub struct ServeOptions {
 /// Why the daemon did not start or stopped with an error.
 #[derive(Debug, thiserror::Error)]
 pub enum ServeError {
-    /// Bad input before anything was opened (exit 2).
-    #[error("{0}")]
-    BadInput(String),
+    /// Bad input before anything was opened (exit 2): an option
+    /// (`socket`, `socket_group`, `recordings`, `backend`) or the config.
+    #[error(transparent)]
+    Input(RunError),
     /// Anything else (exit 1).
     #[error("{0}")]
     Other(String),
@@ -131,12 +133,16 @@ fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
 /// Runs the daemon until `shutdown`, SIGTERM or SIGINT.
 ///
 /// # Errors
-/// [`ServeError::BadInput`] for an unusable socket path, a busy socket, a
+/// [`ServeError::Input`] for an unusable socket path, a busy socket, a
 /// device that cannot be opened; [`ServeError::Other`] otherwise.
 pub fn serve(opts: ServeOptions) -> Result<(), ServeError> {
     prepare_socket(&opts.socket)?;
     std::fs::create_dir_all(&opts.recordings).map_err(|e| {
-        ServeError::BadInput(format!("--recordings {}: {e}", opts.recordings.display()))
+        ServeError::Input(RunError::option(
+            "recordings",
+            opts.recordings.display(),
+            e.to_string(),
+        ))
     })?;
     let spec = BackendSpec::resolve(opts.backend.as_ref(), &opts.config);
     let (mut stage, info) = backend::open(
@@ -146,7 +152,7 @@ pub fn serve(opts: ServeOptions) -> Result<(), ServeError> {
         opts.seed,
         opts.inject,
     )
-    .map_err(|e| ServeError::BadInput(e.to_string()))?;
+    .map_err(ServeError::Input)?;
     let (events, _) = broadcast::channel::<String>(1024);
     let status = Arc::new(Mutex::new(Status {
         state: "disabled",

@@ -38,7 +38,7 @@ impl ApiErrorKind {
     /// The kind a run's error answers with.
     pub fn of_run(e: &RunError) -> Self {
         match e {
-            RunError::BadInput(_) => Self::BadParams,
+            RunError::BadInput(_) | RunError::BadOption { .. } => Self::BadParams,
             RunError::Refused(_) => Self::Refused,
             RunError::Fault { .. } => Self::Fault,
             RunError::Hal { .. } => Self::Hal,

@@ -6,6 +6,7 @@
 use super::owner::{job_spec, JobHandle, OwnerCmd, Reply};
 use super::protocol::{event, job_request, respond, ApiError, ApiErrorKind, JobStatus};
 use super::{lock, Ctx, ServeError};
+use crate::error::RunError;
 use serde_json::{json, Value};
 use std::io::Write as _;
 use std::os::unix::fs::PermissionsExt;
@@ -27,39 +28,37 @@ pub(super) fn prepare_socket(path: &Path) -> Result<(), ServeError> {
         _ => PathBuf::from("."),
     };
     let meta = std::fs::metadata(&dir).map_err(|e| {
-        ServeError::BadInput(format!(
-            "--socket {}: directory {}: {e}",
+        ServeError::Input(RunError::option(
+            "socket",
             path.display(),
-            dir.display()
+            format!("directory {}: {e}", dir.display()),
         ))
     })?;
     if meta.permissions().mode() & 0o002 != 0 {
-        return Err(ServeError::BadInput(format!(
-            "--socket {}: directory {} is world-writable (mode {:o}); use a private directory such as $XDG_RUNTIME_DIR",
-            path.display(),
-            dir.display(),
-            meta.permissions().mode() & 0o7777
-        )));
+        return Err(ServeError::Input(RunError::option("socket", path.display(), format!("directory {} is world-writable (mode {:o}); use a private directory such as $XDG_RUNTIME_DIR", dir.display(), meta.permissions().mode() & 0o7777))));
     }
     match std::fs::symlink_metadata(path) {
         Err(_) => Ok(()),
         Ok(m) => {
             use std::os::unix::fs::FileTypeExt;
             if !m.file_type().is_socket() {
-                return Err(ServeError::BadInput(format!(
-                    "--socket {}: exists and is not a socket; not touching it",
-                    path.display()
+                return Err(ServeError::Input(RunError::option(
+                    "socket",
+                    path.display(),
+                    "exists and is not a socket; not touching it",
                 )));
             }
             match std::os::unix::net::UnixStream::connect(path) {
-                Ok(_) => Err(ServeError::BadInput(format!(
-                    "--socket {}: another bench daemon is serving there",
-                    path.display()
+                Ok(_) => Err(ServeError::Input(RunError::option(
+                    "socket",
+                    path.display(),
+                    "another bench daemon is serving there",
                 ))),
                 Err(_) => std::fs::remove_file(path).map_err(|e| {
-                    ServeError::BadInput(format!(
-                        "--socket {}: stale socket cannot be removed: {e}",
-                        path.display()
+                    ServeError::Input(RunError::option(
+                        "socket",
+                        path.display(),
+                        format!("stale socket cannot be removed: {e}"),
                     ))
                 }),
             }
@@ -79,29 +78,43 @@ pub(super) fn bind_socket(
     // SAFETY: as above.
     unsafe { libc::umask(old) };
     let listener = listener.map_err(|e| {
-        ServeError::BadInput(format!("--socket {}: cannot bind: {e}", path.display()))
+        ServeError::Input(RunError::option(
+            "socket",
+            path.display(),
+            format!("cannot bind: {e}"),
+        ))
     })?;
     if let Some(g) = group {
-        let cname = std::ffi::CString::new(g)
-            .map_err(|_| ServeError::BadInput(format!("--socket-group {g:?}: not a name")))?;
+        let cname = std::ffi::CString::new(g).map_err(|_| {
+            ServeError::Input(RunError::option(
+                "socket_group",
+                format!("{g:?}"),
+                "not a name",
+            ))
+        })?;
         // SAFETY: valid C string; getgrnam returns null or a static record.
         let gr = unsafe { libc::getgrnam(cname.as_ptr()) };
         if gr.is_null() {
             let _ = std::fs::remove_file(path);
-            return Err(ServeError::BadInput(format!(
-                "--socket-group {g}: no such group"
+            return Err(ServeError::Input(RunError::option(
+                "socket_group",
+                g,
+                "no such group",
             )));
         }
         // SAFETY: gr is non-null.
         let gid = unsafe { (*gr).gr_gid };
-        let cpath = std::ffi::CString::new(path.as_os_str().as_encoded_bytes())
-            .map_err(|_| ServeError::BadInput("--socket: path has a NUL byte".into()))?;
+        let cpath = std::ffi::CString::new(path.as_os_str().as_encoded_bytes()).map_err(|_| {
+            ServeError::Input(RunError::option("socket", "", "path has a NUL byte"))
+        })?;
         // SAFETY: valid path; uid -1 keeps the owner.
         if unsafe { libc::chown(cpath.as_ptr(), u32::MAX, gid) } != 0 {
             let e = std::io::Error::last_os_error();
             let _ = std::fs::remove_file(path);
-            return Err(ServeError::BadInput(format!(
-                "--socket-group {g}: cannot give the socket to the group: {e}"
+            return Err(ServeError::Input(RunError::option(
+                "socket_group",
+                g,
+                format!("cannot give the socket to the group: {e}"),
             )));
         }
         std::fs::set_permissions(path, std::fs::Permissions::from_mode(0o660))

@@ -178,9 +178,9 @@ pub fn run_chirp(opts: &ChirpOptions, stop: Arc<AtomicBool>) -> Result<ChirpSumm
 }
 
 fn check_outputs(opts: &ChirpOptions) -> Result<(), RunError> {
-    check_writable(&opts.out, "--out")?;
-    check_writable(&opts.frf_csv, "--frf-csv")?;
-    check_writable(&opts.plot, "--plot")
+    check_writable(&opts.out, "out")?;
+    check_writable(&opts.frf_csv, "frf_csv")?;
+    check_writable(&opts.plot, "plot")
 }
 
 /// Runs the chirp on `runner` (a configured stage, which it leaves

@@ -73,30 +73,21 @@ impl TimingSummary {
 /// Creates and removes a probe file beside it; leaves nothing behind.
 ///
 /// # Errors
-/// [`RunError::BadInput`] naming `arg` and the path.
-pub fn check_writable(path: &Path, arg: &str) -> Result<(), RunError> {
+/// [`RunError::BadOption`] naming `key` and the path.
+pub fn check_writable(path: &Path, key: &'static str) -> Result<(), RunError> {
     let dir = match path.parent() {
         Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
         _ => PathBuf::from("."),
     };
+    let bad = |reason: String| RunError::option(key, path.display(), reason);
     if path.file_name().is_none() {
-        return Err(RunError::BadInput(format!(
-            "{arg} {}: not a file path",
-            path.display()
-        )));
+        return Err(bad("not a file path".into()));
     }
     if !dir.is_dir() {
-        return Err(RunError::BadInput(format!(
-            "{arg} {}: directory {} does not exist",
-            path.display(),
-            dir.display()
-        )));
+        return Err(bad(format!("directory {} does not exist", dir.display())));
     }
     if path.is_dir() {
-        return Err(RunError::BadInput(format!(
-            "{arg} {}: is a directory",
-            path.display()
-        )));
+        return Err(bad("is a directory".into()));
     }
     let probe = dir.join(format!(".bench-write-check-{}", std::process::id()));
     match std::fs::OpenOptions::new()
@@ -108,11 +99,7 @@ pub fn check_writable(path: &Path, arg: &str) -> Result<(), RunError> {
             let _ = std::fs::remove_file(&probe);
             Ok(())
         }
-        Err(e) => Err(RunError::BadInput(format!(
-            "{arg} {}: cannot write in {}: {e}",
-            path.display(),
-            dir.display()
-        ))),
+        Err(e) => Err(bad(format!("cannot write in {}: {e}", dir.display()))),
     }
 }
 
@@ -207,14 +194,14 @@ impl Runner<'_> {
 /// and the run description as metadata.
 ///
 /// # Errors
-/// [`RunError::BadInput`] naming `--out` when the file cannot be created.
+/// [`RunError::BadOption`] naming `out` when the file cannot be created.
 pub fn open_recording(
     opts: &SessionOptions,
     cfg: &BenchConfig,
     info: &DeviceInfo,
 ) -> Result<Recorder, RunError> {
     let mut recorder =
-        Recorder::create(opts.out).map_err(|e| RunError::BadInput(format!("--out: {e}")))?;
+        Recorder::create(opts.out).map_err(|e| RunError::option("out", "", e.to_string()))?;
     let mut meta = BTreeMap::new();
     meta.insert("toml".to_string(), cfg.to_toml());
     meta.insert("path".to_string(), opts.config_path.display().to_string());

@@ -157,8 +157,10 @@ impl AnyStage {
                 });
                 Ok(())
             }
-            _ => Err(RunError::BadInput(
-                "--inject-fault: only the sim backend injects faults".into(),
+            _ => Err(RunError::option(
+                "inject_fault",
+                "",
+                "only the sim backend injects faults",
             )),
         }
     }
@@ -222,7 +224,7 @@ impl LinkCounters {
 /// `inject` schedules a simulator fault (refused on hardware).
 ///
 /// # Errors
-/// [`RunError::BadInput`] naming `--backend` (or the config key) and the
+/// [`RunError::BadOption`] naming `backend` (or the config key) and the
 /// reason when the device is missing, busy, speaks another protocol
 /// version, runs at another rate, or its configuration is invalid. Nothing
 /// is enabled.
@@ -235,12 +237,14 @@ pub fn open(
 ) -> Result<(AnyStage, DeviceInfo), RunError> {
     let period_ns = cfg.loop_.period_ns();
     let bad = |e: &dyn fmt::Display| {
-        RunError::BadInput(format!("--backend {spec}: {e}; nothing was enabled"))
+        RunError::option("backend", spec, format!("{e}; nothing was enabled"))
     };
     if inject.is_some() && !spec.is_sim() {
-        return Err(RunError::BadInput(format!(
-            "--inject-fault: only the sim backend injects faults (use `bench emulate --fault` for a device), not {spec}"
-        )));
+        return Err(RunError::option(
+            "inject_fault",
+            "",
+            format!("only the sim backend injects faults (use `bench emulate --fault` for a device), not {spec}"),
+        ));
     }
     match spec {
         BackendSpec::Sim => {
