@@ -160,8 +160,6 @@ pub struct Recorded {
     pub timing: TimingSummary,
     /// Log time of the end of the run, ns.
     pub end_ns: u64,
-    /// Loop period, s.
-    pub period_s: f64,
     /// Link counters of this job (hardware backends), as JSON.
     pub link: Option<serde_json::Value>,
 }
@@ -376,7 +374,6 @@ pub fn run_recorded<J: Job + Send + 'static>(
         data,
         timing,
         end_ns,
-        period_s,
         link,
     })
 }

@@ -347,11 +347,6 @@ impl<'q> Emitter<'q> {
         }
     }
 
-    /// Records dropped because the queue was full.
-    pub fn dropped(&self) -> u64 {
-        self.dropped
-    }
-
     /// Step 6: pushes one record; never allocates.
     #[inline]
     pub fn push(&mut self, r: Record) {
@@ -507,11 +502,6 @@ impl<'s, S: Stage> Loop<'s, S> {
     /// Real-time setup warnings.
     pub fn warnings(&self) -> &[String] {
         &self.warnings
-    }
-
-    /// Loop period, s.
-    pub fn period_s(&self) -> f64 {
-        self.period_s
     }
 
     /// The latest bad-sample or lost-link error and the first HAL error
