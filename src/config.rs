@@ -88,6 +88,21 @@ pub struct BenchConfig {
     /// The device emulator of `bench emulate` (`[emulator]`).
     #[serde(default)]
     pub emulator: EmulatorConfig,
+    /// `bench serve` (`[daemon]`).
+    #[serde(default)]
+    pub daemon: DaemonConfig,
+}
+
+/// `[daemon]`: what `bench serve` does between jobs.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DaemonConfig {
+    /// The controller (a `[controller.NAME]`) that holds the position the
+    /// stage is at when the amplifier is enabled between jobs; absent: the
+    /// hold job commands 0 A. It must pass the loop check on the model when
+    /// the daemon starts.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub hold_controller: Option<String>,
 }
 
 /// Backend kinds (`[backend] kind`).
@@ -441,6 +456,21 @@ impl BenchConfig {
     /// # Errors
     /// [`ParamError`] with the first offending dotted key.
     pub fn check(&self) -> Result<(), ParamError> {
+        if let Some(name) = &self.daemon.hold_controller {
+            if !self.controller.contains_key(name) {
+                return Err(ParamError::new(
+                    "daemon.hold_controller",
+                    format!(
+                        "no [controller.{name}] in the config (known: {})",
+                        self.controller
+                            .keys()
+                            .cloned()
+                            .collect::<Vec<_>>()
+                            .join(", ")
+                    ),
+                ));
+            }
+        }
         positive("loop.rate_hz", self.loop_.rate_hz)?;
         if !(100.0..=100_000.0).contains(&self.loop_.rate_hz) {
             return Err(ParamError::new(

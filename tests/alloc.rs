@@ -323,7 +323,7 @@ fn hold_and_a_fault_between_jobs_allocate_nothing() {
     let (fault, allocations) = std::thread::spawn(move || {
         let mut lp = rt::Loop::new(&mut stage, &opts, info.clock);
         let mut n = 0u64;
-        let latched = lp.hold(|_| {
+        let latched = lp.hold(&mut rt::HoldJob, |_| {
             n += 1;
             if n == 100 {
                 COUNTING.with(|c| c.set(true));

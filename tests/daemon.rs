@@ -587,6 +587,133 @@ fn twenty_serial_daemon_jobs_start_cleanly() {
     let _ = emu.wait();
 }
 
+/// Enabled between jobs, the daemon holds 0 A, or, with `[daemon]
+/// hold_controller`, holds the position with that controller (a non-zero
+/// current against the probe noise and the disturbance of the shipped
+/// bench, the stage within a micrometre); a job takes over from the hold
+/// and ends disabled at 0 A.
+#[test]
+fn hold_between_jobs_is_zero_current_or_the_hold_controller() {
+    let _g = one_at_a_time();
+    let sample = |c: &mut Client| {
+        let s = c.call("status", json!({}))["result"].clone();
+        (
+            s["command_a"].as_f64().unwrap(),
+            s["position_m"].as_f64().unwrap_or(f64::NAN),
+        )
+    };
+    // Zero current.
+    let d = Daemon::start();
+    let mut c = d.client();
+    assert_eq!(
+        c.call("status", json!({}))["result"]["hold"],
+        "zero_current"
+    );
+    assert_eq!(c.call("enable", json!({}))["ok"], true);
+    for _ in 0..20 {
+        assert_eq!(sample(&mut c).0, 0.0);
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    drop(d);
+    // The fast controller holds the position (shipped bench: disturbance
+    // and probe noise on).
+    let dir = tmp();
+    std::fs::set_permissions(dir.path(), std::fs::Permissions::from_mode(0o700)).unwrap();
+    let text = std::fs::read_to_string(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("bench-config/sr4dof-ch5.toml"),
+    )
+    .unwrap()
+        + "\n[daemon]\nhold_controller = \"fast\"\n";
+    let config = dir.path().join("bench.toml");
+    std::fs::write(&config, text).unwrap();
+    let socket = dir.path().join("bench.sock");
+    let mut child = spawn_serve(&config, &socket, &dir.path().join("rec"), &[]);
+    let mut c = Client::new(&socket);
+    let s = c.call("status", json!({}))["result"].clone();
+    assert_eq!(s["hold"], "position (controller fast)", "{s}");
+    // Disabled, the hold controller does not drive.
+    assert_eq!(sample(&mut c).0, 0.0);
+    assert_eq!(c.call("enable", json!({}))["ok"], true);
+    let mut driven = 0;
+    for _ in 0..40 {
+        std::thread::sleep(Duration::from_millis(10));
+        let (i, x) = sample(&mut c);
+        if i != 0.0 {
+            driven += 1;
+        }
+        assert!(i.abs() < 1.0, "hold current {i} A");
+        assert!(x.abs() < 1e-6, "held at {x} m");
+    }
+    assert!(
+        driven > 30,
+        "the hold controller commanded 0 A {} times",
+        40 - driven
+    );
+    // A job takes over and leaves the amplifier disabled at 0 A.
+    let r = c.call(
+        "control",
+        json!({ "controller": "fast", "duration_s": 0.5 }),
+    );
+    assert_eq!(r["ok"], true, "{r}");
+    let s = c.call("status", json!({}))["result"].clone();
+    assert_eq!(s["state"], "disabled", "{s}");
+    assert_eq!(s["command_a"], 0.0, "{s}");
+    // Enabled again, then disabled: the hold ends at 0 A.
+    assert_eq!(c.call("enable", json!({}))["ok"], true);
+    std::thread::sleep(Duration::from_millis(100));
+    assert_eq!(c.call("disable", json!({}))["ok"], true);
+    std::thread::sleep(Duration::from_millis(50));
+    assert_eq!(sample(&mut c).0, 0.0);
+    let _ = child.kill();
+    let _ = child.wait();
+}
+
+/// A hold controller that fails the loop check keeps the daemon from
+/// starting (exit 2, the key named).
+#[test]
+fn a_hold_controller_that_fails_the_loop_check_is_refused() {
+    let dir = tmp();
+    std::fs::set_permissions(dir.path(), std::fs::Permissions::from_mode(0o700)).unwrap();
+    // Ten times the fast controller's gain is unstable (Chapter 6).
+    let text = std::fs::read_to_string(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("bench-config/sr4dof-ch5.toml"),
+    )
+    .unwrap();
+    let fast = text.find("[controller.fast]").unwrap();
+    let gain = fast + text[fast..].find("\ngain = ").unwrap() + 1;
+    let end = gain + text[gain..].find('\n').unwrap();
+    let value: f64 = text[gain + 7..end]
+        .split('#')
+        .next()
+        .unwrap()
+        .trim()
+        .parse()
+        .unwrap();
+    let text = format!(
+        "{}gain = {:e}{}\n[daemon]\nhold_controller = \"fast\"\n",
+        &text[..gain],
+        10.0 * value,
+        &text[end..]
+    );
+    let config = dir.path().join("bench.toml");
+    std::fs::write(&config, text).unwrap();
+    let o = run(&[
+        "serve",
+        "--config",
+        config.to_str().unwrap(),
+        "--socket",
+        dir.path().join("b.sock").to_str().unwrap(),
+        "--recordings",
+        dir.path().join("rec").to_str().unwrap(),
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("daemon.hold_controller") && err.contains("loop check"),
+        "{err}"
+    );
+}
+
 #[test]
 fn socket_access_and_stale_sockets() {
     let _g = one_at_a_time();

@@ -53,7 +53,9 @@ mod socket;
 pub use protocol::ApiErrorKind;
 
 use crate::config::BenchConfig;
+use crate::control::DiscreteController;
 use crate::error::RunError;
+use crate::jobs::step::{check_loop, ControlJob};
 use crate::rt::backend::{self, BackendSpec};
 use crate::rt::service::{run_service, LoopReply, LoopRequest, LoopStatus, ServiceClient};
 use crate::rt::{LoopOptions, Pacing};
@@ -130,6 +132,48 @@ fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
     m.lock().unwrap_or_else(|e| e.into_inner())
 }
 
+/// The hold controller of `[daemon] hold_controller`, checked once: it must
+/// pass the loop check on the model (at the device's rate and current
+/// limit), or the daemon does not start.
+fn hold_factory(
+    cfg: &BenchConfig,
+    info: &bench_hal::DeviceInfo,
+) -> Result<Option<owner::HoldFactory>, ServeError> {
+    let Some(name) = cfg.daemon.hold_controller.clone() else {
+        return Ok(None);
+    };
+    let refuse = |reason: String| {
+        ServeError::Input(RunError::BadInput(format!(
+            "daemon.hold_controller {name}: {reason}; nothing was enabled"
+        )))
+    };
+    let ccfg = cfg
+        .controller
+        .get(&name)
+        .ok_or_else(|| refuse("no such [controller.NAME]".into()))?;
+    let period_s = info.period_ns as f64 * 1e-9;
+    if info.period_ns != cfg.loop_.period_ns() {
+        return Err(refuse(format!(
+            "the device runs every {} ns, the controller is discretised for {} ns",
+            info.period_ns,
+            cfg.loop_.period_ns()
+        )));
+    }
+    let model = bench_hal::model::Sr4dof::new(cfg.plant).map_err(|e| refuse(e.to_string()))?;
+    let ctrl = DiscreteController::new(ccfg, period_s, info.peak_current_a);
+    let check = check_loop(cfg, &model, &name, &ctrl, period_s, None);
+    if !check.passed() {
+        return Err(refuse(format!(
+            "the loop check refused it: {}",
+            check.failures.join("; ")
+        )));
+    }
+    Ok(Some(Box::new(move || {
+        // Step 0, never done: holds the position of its first tick.
+        Box::new(ControlJob::new(ctrl, 0.0, 0, 0, u64::MAX))
+    })))
+}
+
 /// Runs the daemon until `shutdown`, SIGTERM or SIGINT.
 ///
 /// # Errors
@@ -161,6 +205,15 @@ pub fn serve(opts: ServeOptions) -> Result<(), ServeError> {
         backend: info.name.clone(),
         rate_hz: 1e9 / info.period_ns as f64,
         position_m: f64::NAN,
+        command_a: 0.0,
+        hold: opts
+            .config
+            .daemon
+            .hold_controller
+            .as_ref()
+            .map_or("zero_current".into(), |c| {
+                format!("position (controller {c})")
+            }),
         jobs_run: 0,
         last_recording: None,
     }));
@@ -182,6 +235,7 @@ pub fn serve(opts: ServeOptions) -> Result<(), ServeError> {
         safety: opts.config.supervisor(&info),
         max_ticks: u64::MAX,
     };
+    let hold = hold_factory(&opts.config, &info)?;
     let rt_thread = {
         let loop_status = Arc::clone(&loop_status);
         let clock = info.clock;
@@ -198,6 +252,7 @@ pub fn serve(opts: ServeOptions) -> Result<(), ServeError> {
         let shared = OwnerShared {
             status: Arc::clone(&status),
             events: events.clone(),
+            hold,
         };
         std::thread::Builder::new()
             .name("bench-owner".into())

@@ -13,7 +13,7 @@ use crate::jobs::session::Runner;
 use crate::jobs::step::{run_control_from, ControlOptions, StageSource};
 use crate::record::topics::FaultKind;
 use crate::rt::service::{LoopReply, LoopRequest, ServiceClient};
-use crate::rt::{RawStop, StopReason};
+use crate::rt::{Job, RawStop, StopReason};
 use serde_json::{json, Value};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, AtomicU64};
@@ -47,7 +47,14 @@ pub(super) enum OwnerCmd {
 pub(super) struct OwnerShared {
     pub(super) status: Arc<Mutex<Status>>,
     pub(super) events: broadcast::Sender<String>,
+    /// Makes a fresh hold job for each `enable` (`[daemon]
+    /// hold_controller`), if one is configured.
+    pub(super) hold: Option<HoldFactory>,
 }
+
+/// Makes the hold controller's job: the controller holds the position the
+/// stage is at on its first tick, for ever.
+pub(super) type HoldFactory = Box<dyn Fn() -> Box<dyn Job + Send> + Send>;
 
 /// A fault the loop latched between jobs, as `status` reports it: the
 /// supervisor's fault name and what caused it.
@@ -95,7 +102,11 @@ pub(super) fn between_jobs_fault(r: LoopReply) -> Option<FaultStatus> {
 /// hold job and the one supervisor between them, and reports faults the
 /// loop latched between jobs.
 pub(super) fn owner(mut client: ServiceClient, rx: mpsc::Receiver<OwnerCmd>, shared: OwnerShared) {
-    let OwnerShared { status, events } = shared;
+    let OwnerShared {
+        status,
+        events,
+        hold,
+    } = shared;
     let hardware = client.hardware;
     let set_state = |state: &'static str, fault: Option<FaultStatus>| {
         let mut s = lock(&status);
@@ -112,16 +123,16 @@ pub(super) fn owner(mut client: ServiceClient, rx: mpsc::Receiver<OwnerCmd>, sha
             Ok(OwnerCmd::Shutdown) | Err(mpsc::RecvTimeoutError::Disconnected) => break,
             Err(mpsc::RecvTimeoutError::Timeout) => {}
             Ok(OwnerCmd::Enable(reply)) => {
-                let r = match client.call(LoopRequest::Enable) {
-                    Some(LoopReply::Enabled(Ok(()))) => {
+                let r = match client.call(LoopRequest::Enable(hold.as_ref().map(|f| f()))) {
+                    Some(LoopReply::Enabled(Ok(()), _)) => {
                         set_state("enabled", None);
                         Ok(())
                     }
-                    Some(LoopReply::Enabled(Err(None))) => Err(ApiError::new(
+                    Some(LoopReply::Enabled(Err(None), _)) => Err(ApiError::new(
                         ApiErrorKind::Faulted,
                         "a fault is latched: reset first",
                     )),
-                    Some(LoopReply::Enabled(Err(Some(e)))) => {
+                    Some(LoopReply::Enabled(Err(Some(e)), _)) => {
                         let api = ApiError::new(ApiErrorKind::Hal, format!("enable failed: {e}"));
                         set_state(
                             "faulted",

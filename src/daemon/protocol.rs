@@ -91,8 +91,14 @@ pub(super) struct Status {
     pub(super) job: Option<JobStatus>,
     pub(super) backend: String,
     pub(super) rate_hz: f64,
-    /// Last reading between jobs, m.
+    /// Last reading, m.
     pub(super) position_m: f64,
+    /// Last current commanded, A (0 between jobs unless a hold controller
+    /// holds the position).
+    pub(super) command_a: f64,
+    /// What holds the stage between jobs when enabled: `zero_current`, or
+    /// `position (controller NAME)` (`[daemon] hold_controller`).
+    pub(super) hold: String,
     pub(super) jobs_run: u64,
     pub(super) last_recording: Option<String>,
 }

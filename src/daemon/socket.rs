@@ -204,6 +204,7 @@ pub(super) async fn connection(ctx: Arc<Ctx>, stream: tokio::net::UnixStream) {
             "status" => {
                 let mut s = lock(&ctx.status).clone();
                 s.position_m = ctx.loop_status.position_m();
+                s.command_a = ctx.loop_status.command_a();
                 if let (Some(j), Some(h)) = (s.job.as_mut(), lock(&ctx.running).as_ref()) {
                     j.ticks = h.ticks.load(Ordering::Relaxed);
                 }

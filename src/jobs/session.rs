@@ -306,6 +306,7 @@ pub fn run_recorded<J: Job + Send + 'static>(
                 progress: Arc::clone(&progress),
                 end: None,
                 link: None,
+                old_hold: None,
             });
             match client.call(LoopRequest::Job(ticket)) {
                 Some(LoopReply::JobDone(mut ticket)) => match ticket.end.take() {

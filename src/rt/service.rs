@@ -11,7 +11,7 @@
 
 use crate::record::topics::{FaultKind, Record, SupervisorState};
 use crate::rt::backend::{AnyError, AnyStage, LinkCounters};
-use crate::rt::{HalFailure, Job, JobEnd, Loop, LoopOptions};
+use crate::rt::{HalFailure, HoldJob, Job, JobEnd, Loop, LoopOptions};
 use bench_hal::sim::ScheduledFault;
 use bench_hal::Clock;
 use std::sync::atomic::{AtomicBool, AtomicU64, AtomicU8, Ordering};
@@ -34,12 +34,17 @@ pub struct JobTicket {
     /// Link counters before and after the job (hardware; filled in by the
     /// loop).
     pub link: Option<(LinkCounters, LinkCounters)>,
+    /// The hold job the job took over from (filled in by the loop), to be
+    /// dropped off the tick.
+    pub old_hold: Option<Box<dyn Job + Send>>,
 }
 
 /// What the daemon asks of its loop.
 pub enum LoopRequest {
-    /// Enable the amplifier at 0 A (refused while faulted).
-    Enable,
+    /// Enable the amplifier at 0 A (refused while faulted); with a hold
+    /// job (a controller holding the position it starts at), that job then
+    /// drives the stage between jobs.
+    Enable(Option<Box<dyn Job + Send>>),
     /// 0 A, amplifier disabled.
     Disable,
     /// Clear a latched fault.
@@ -54,12 +59,13 @@ pub enum LoopRequest {
 
 /// What the loop answers.
 pub enum LoopReply {
-    /// The answer to [`LoopRequest::Enable`]: `Err(None)` while faulted.
-    Enabled(Result<(), Option<AnyError>>),
-    /// The answer to [`LoopRequest::Disable`].
-    Disabled,
-    /// The answer to [`LoopRequest::Reset`].
-    Reset,
+    /// The answer to [`LoopRequest::Enable`]: `Err(None)` while faulted;
+    /// the hold job it replaced, to be dropped off the tick.
+    Enabled(Result<(), Option<AnyError>>, Option<Box<dyn Job + Send>>),
+    /// The answer to [`LoopRequest::Disable`], with the hold job it ended.
+    Disabled(Option<Box<dyn Job + Send>>),
+    /// The answer to [`LoopRequest::Reset`], with the hold job it ended.
+    Reset(Option<Box<dyn Job + Send>>),
     /// The answer to [`LoopRequest::Inject`] (refused on hardware).
     Injected(bool),
     /// A job ended; its ticket comes back, with how it ended, to be
@@ -87,6 +93,8 @@ pub struct LoopStatus {
     pub position_bits: AtomicU64,
     /// Supervisor state (`SupervisorState as u8`).
     pub state: AtomicU8,
+    /// Last current commanded, A, as `f64::to_bits`.
+    pub command_bits: AtomicU64,
 }
 
 impl Default for LoopStatus {
@@ -94,6 +102,7 @@ impl Default for LoopStatus {
         Self {
             position_bits: AtomicU64::new(f64::NAN.to_bits()),
             state: AtomicU8::new(SupervisorState::Disabled as u8),
+            command_bits: AtomicU64::new(0f64.to_bits()),
         }
     }
 }
@@ -102,6 +111,11 @@ impl LoopStatus {
     /// The last reading, m.
     pub fn position_m(&self) -> f64 {
         f64::from_bits(self.position_bits.load(Ordering::Relaxed))
+    }
+
+    /// The last current commanded, A.
+    pub fn command_a(&self) -> f64 {
+        f64::from_bits(self.command_bits.load(Ordering::Relaxed))
     }
 
     /// The supervisor's state.
@@ -129,7 +143,9 @@ pub fn run_service(
     for w in lp.warnings() {
         tracing::warn!("{w}");
     }
-    lp.publish_position(&status.position_bits);
+    lp.publish(&status.position_bits, &status.command_bits);
+    // The hold job of the last `Enable` (None: 0 A).
+    let mut hold: Option<Box<dyn Job + Send>> = None;
     let publish = |lp: &Loop<'_, AnyStage>| {
         status
             .state
@@ -144,7 +160,12 @@ pub fn run_service(
         publish(&lp);
         let mut pending = None;
         let was_faulted = lp.supervisor().state() == SupervisorState::Faulted;
-        let newly_faulted = lp.hold(|lp| {
+        let mut zero = HoldJob;
+        let job: &mut dyn Job = match hold.as_mut() {
+            Some(h) => h,
+            None => &mut zero,
+        };
+        let newly_faulted = lp.hold(job, |lp| {
             if !was_faulted && lp.supervisor().state() == SupervisorState::Faulted {
                 return true;
             }
@@ -179,23 +200,32 @@ pub fn run_service(
         }
         let Some(req) = pending else { continue };
         match req {
-            LoopRequest::Enable => {
+            LoopRequest::Enable(job) => {
                 let r = lp.enable();
-                reply(LoopReply::Enabled(r), &mut replies);
+                let old = std::mem::replace(&mut hold, None);
+                if r.is_ok() && job.is_some() {
+                    // The hold controller drives from the next tick on.
+                    hold = job;
+                    lp.drive();
+                }
+                reply(LoopReply::Enabled(r, old), &mut replies);
             }
             LoopRequest::Disable => {
                 lp.disable();
-                reply(LoopReply::Disabled, &mut replies);
+                reply(LoopReply::Disabled(hold.take()), &mut replies);
             }
             LoopRequest::Reset => {
                 lp.reset();
-                reply(LoopReply::Reset, &mut replies);
+                reply(LoopReply::Reset(hold.take()), &mut replies);
             }
             LoopRequest::Inject(f) => {
                 let ok = lp.stage().inject(f).is_ok();
                 reply(LoopReply::Injected(ok), &mut replies);
             }
             LoopRequest::Job(mut ticket) => {
+                // The job takes over from the hold controller; it ends
+                // disabled, so the hold does not resume by itself.
+                ticket.old_hold = hold.take();
                 let before = lp.stage().link_counters();
                 let t = &mut *ticket;
                 t.end = Some(lp.run_job(&mut t.job, &mut t.out, t.max_ticks, &t.stop, &t.progress));

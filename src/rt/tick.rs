@@ -453,8 +453,9 @@ pub struct Loop<'s, S: Stage> {
     link_error: Option<S::Error>,
     /// Real-time setup warnings.
     warnings: Vec<String>,
-    /// Where the last reading is published (m, as `f64::to_bits`).
-    position_bits: Option<&'s AtomicU64>,
+    /// Where the last reading and command are published (m and A, as
+    /// `f64::to_bits`).
+    published: Option<(&'s AtomicU64, &'s AtomicU64)>,
 }
 
 impl<'s, S: Stage> Loop<'s, S> {
@@ -480,13 +481,20 @@ impl<'s, S: Stage> Loop<'s, S> {
             hal_error: None,
             link_error: None,
             warnings,
-            position_bits: None,
+            published: None,
         }
     }
 
-    /// Publishes every good reading into `bits` (m, as `f64::to_bits`).
-    pub fn publish_position(&mut self, bits: &'s AtomicU64) {
-        self.position_bits = Some(bits);
+    /// Publishes every good reading into `position_bits` (m) and every
+    /// command into `command_bits` (A), as `f64::to_bits`.
+    pub fn publish(&mut self, position_bits: &'s AtomicU64, command_bits: &'s AtomicU64) {
+        self.published = Some((position_bits, command_bits));
+    }
+
+    /// Between jobs, with the amplifier enabled: the hold job's demand
+    /// goes through (the supervisor's `running` state), instead of 0 A.
+    pub fn drive(&mut self) {
+        self.sup.running();
     }
 
     /// The supervisor.
@@ -589,7 +597,7 @@ impl<'s, S: Stage> Loop<'s, S> {
     pub fn supervise_sample(&mut self, sample: &Sample) -> bool {
         let fault = self.sup.check_sample(sample).is_some();
         self.last_good = Some(*sample);
-        if let Some(bits) = self.position_bits {
+        if let Some((bits, _)) = self.published {
             bits.store(sample.position_m.to_bits(), Ordering::Relaxed);
         }
         fault
@@ -636,6 +644,10 @@ impl<'s, S: Stage> Loop<'s, S> {
         }
         if fault {
             let _ = self.stage.zero_and_disable(answers_seq);
+        }
+        if let Some((_, bits)) = self.published {
+            let sent = if fault { 0.0 } else { command_a };
+            bits.store(sent.to_bits(), Ordering::Relaxed);
         }
         (command_a, fault)
     }
@@ -908,18 +920,22 @@ impl<'s, S: Stage> Loop<'s, S> {
         }
     }
 
-    /// Runs the hold job between jobs, nothing recorded, until `until`
-    /// (checked once per tick, after it) returns `true`. Every rule of the
-    /// supervisor applies; a fault is 0 A and disable at its tick, then the
-    /// hold goes on (the device keeps being read). Returns `true` if a fault
-    /// latched during the hold.
-    pub fn hold(&mut self, mut until: impl FnMut(&Self) -> bool) -> bool {
+    /// Runs `job` as the hold job between jobs ([`HoldJob`]: 0 A; a
+    /// controller holds position once [`Loop::drive`] let it), nothing
+    /// recorded, until `until` (checked once per tick, after it) returns
+    /// `true`. Every rule of the supervisor applies; a fault is 0 A and
+    /// disable at its tick, then the hold goes on (the device keeps being
+    /// read). Returns `true` if a fault latched during the hold.
+    pub fn hold<J: Job + ?Sized>(
+        &mut self,
+        job: &mut J,
+        mut until: impl FnMut(&Self) -> bool,
+    ) -> bool {
         let mut em = Emitter::none();
         let mut cur = self.cursor();
         let faulted_before = self.sup.state() == SupervisorState::Faulted;
-        let mut job = HoldJob;
         loop {
-            let r = self.tick(&mut job, &mut cur, &mut em);
+            let r = self.tick(job, &mut cur, &mut em);
             if r == TickResult::NoTick && self.sup.state() == SupervisorState::Faulted {
                 // A device that is gone answers at once: do not spin.
                 std::thread::sleep(std::time::Duration::from_nanos(self.period_ns));
@@ -1261,7 +1277,7 @@ mod tests {
         let mut lp = Loop::new(&mut st, &opts(), Clock::Host);
         // Between jobs: the hold sees the NaN and latches.
         let mut n = 0;
-        assert!(lp.hold(|_| {
+        assert!(lp.hold(&mut HoldJob, |_| {
             n += 1;
             n >= 5
         }));
