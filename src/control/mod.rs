@@ -714,6 +714,47 @@ fn cascade_error(
     (db, deg)
 }
 
+/// Discretises `cfg` at `period_s` (see the module docs): Tustin with
+/// pre-warp per section or, when asked for and no worse, matched poles with
+/// fitted numerators. Returns the sections that run and the report on them.
+fn discretize(cfg: &ControllerConfig, period_s: f64) -> (Vec<Biquad>, DiscretizationReport) {
+    let secs = sections(cfg);
+    let up_to_hz = 0.1 / period_s;
+    let tustin: Vec<Biquad> = secs.iter().map(|s| tustin(s, period_s)).collect();
+    let tustin_error = cascade_error(cfg, &tustin, period_s, up_to_hz);
+    let mut chosen = (Discretization::Tustin, tustin, tustin_error);
+    if cfg.discretization == Discretization::LeastSquares {
+        let target = |w: f64| cfg.response(w) / cfg.gain;
+        // One extra all-zero section (poles at z = 0) gives the fit
+        // three more numerator taps when there is room for it.
+        let mut fit_secs = secs.clone();
+        if fit_secs.len() < MAX_SECTIONS {
+            fit_secs.push(ContinuousSection {
+                b: [1.0, 0.0, 0.0],
+                a: [1.0, 0.0, 0.0],
+                prewarp_rad_s: None,
+            });
+        }
+        if let Some(fit) = least_squares(&fit_secs, &target, period_s, up_to_hz) {
+            let e = cascade_error(cfg, &fit, period_s, up_to_hz);
+            // Keep the fit unless it is worse than Tustin (on the scale
+            // of the 0.1 dB / 1° target); the report says what runs.
+            if (e.0 / 0.1).max(e.1) <= (tustin_error.0 / 0.1).max(tustin_error.1) {
+                chosen = (Discretization::LeastSquares, fit, e);
+            }
+        }
+    }
+    let (method, biquads, (max_error_db, max_error_deg)) = chosen;
+    let report = DiscretizationReport {
+        method,
+        max_error_db,
+        max_error_deg,
+        up_to_hz,
+        above_band_max_excess_db: above_band_excess_db(cfg, &biquads, period_s, up_to_hz),
+    };
+    (biquads, report)
+}
+
 /// The discrete controller run on the tick: gain × cascade of biquads, with
 /// the error converted from metres and the output clipped with conditional
 /// integration.
@@ -733,33 +774,7 @@ impl DiscreteController {
     /// Discretises `cfg` at `period_s` with output limit `limit_a` (A).
     /// The config must have passed [`ControllerConfig::validate`].
     pub fn new(cfg: &ControllerConfig, period_s: f64, limit_a: f64) -> Self {
-        let secs = sections(cfg);
-        let up_to_hz = 0.1 / period_s;
-        let tustin: Vec<Biquad> = secs.iter().map(|s| tustin(s, period_s)).collect();
-        let tustin_error = cascade_error(cfg, &tustin, period_s, up_to_hz);
-        let mut chosen = (Discretization::Tustin, tustin, tustin_error);
-        if cfg.discretization == Discretization::LeastSquares {
-            let target = |w: f64| cfg.response(w) / cfg.gain;
-            // One extra all-zero section (poles at z = 0) gives the fit
-            // three more numerator taps when there is room for it.
-            let mut fit_secs = secs.clone();
-            if fit_secs.len() < MAX_SECTIONS {
-                fit_secs.push(ContinuousSection {
-                    b: [1.0, 0.0, 0.0],
-                    a: [1.0, 0.0, 0.0],
-                    prewarp_rad_s: None,
-                });
-            }
-            if let Some(fit) = least_squares(&fit_secs, &target, period_s, up_to_hz) {
-                let e = cascade_error(cfg, &fit, period_s, up_to_hz);
-                // Keep the fit unless it is worse than Tustin (on the scale
-                // of the 0.1 dB / 1° target); the report says what runs.
-                if (e.0 / 0.1).max(e.1) <= (tustin_error.0 / 0.1).max(tustin_error.1) {
-                    chosen = (Discretization::LeastSquares, fit, e);
-                }
-            }
-        }
-        let (method, biquads, (max_error_db, max_error_deg)) = chosen;
+        let (biquads, report) = discretize(cfg, period_s);
         let mut sections = [Biquad::default(); MAX_SECTIONS];
         for (slot, s) in sections.iter_mut().zip(&biquads) {
             *slot = *s;
@@ -772,13 +787,7 @@ impl DiscreteController {
             state: [[0.0; 2]; MAX_SECTIONS],
             limit_a,
             saturated: false,
-            report: DiscretizationReport {
-                method,
-                max_error_db,
-                max_error_deg,
-                up_to_hz,
-                above_band_max_excess_db: above_band_excess_db(cfg, &biquads, period_s, up_to_hz),
-            },
+            report,
         }
     }
 
