@@ -20,12 +20,21 @@
 //! - closed-loop stability (model only): the eigenvalues of the discrete
 //!   closed loop (plant ⊕ controller state space, negative feedback), stable
 //!   when all lie inside the unit circle.
+//!
+//! [`check_loop`] computes these for one controller, on the model and, if
+//! given, on a [`MeasuredFrf`], and judges them by the `[safety]` limits
+//! (`min_phase_margin_deg`, `max_sensitivity_peak`) into a [`LoopCheck`]:
+//! `bench control` enables nothing unless it passes.
 
-use crate::control::DiscreteController;
+use crate::config::BenchConfig;
+use crate::control::{DiscreteController, DiscretizationReport};
+use crate::error::RunError;
+use bench_hal::model::Sr4dof;
 use bench_hal::sim::{ZohPlant, STATES};
 use nalgebra::{Complex, DMatrix};
 use serde::{Deserialize, Serialize};
 use std::f64::consts::PI;
+use std::path::Path;
 
 /// Margins of one open loop.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
@@ -206,6 +215,151 @@ pub fn closed_loop_poles(plant: &ZohPlant, ctrl: &DiscreteController) -> (Vec<Co
     let poles: Vec<Complex<f64>> = a.complex_eigenvalues().iter().copied().collect();
     let stable = poles.iter().all(|p| p.norm() < 1.0);
     (poles, stable)
+}
+
+/// The loop check of one controller (README, *`bench control`*; thesis §6.2.1).
+#[derive(Debug, Clone, Serialize, Deserialize, schemars::JsonSchema)]
+pub struct LoopCheck {
+    /// Controller name.
+    pub controller: String,
+    /// Margins with the model plant, amplifier included (what runs).
+    pub model: Margins,
+    /// Margins with the model plant, amplifier lag excluded (the thesis'
+    /// Figs 6-8, 6-10).
+    pub model_without_amplifier_lag: Margins,
+    /// All discrete closed-loop poles inside the unit circle.
+    pub closed_loop_stable: bool,
+    /// Largest closed-loop pole magnitude |z|, dimensionless.
+    pub largest_pole_magnitude: f64,
+    /// Margins on a measured FRF, when given.
+    pub measured: Option<Margins>,
+    /// The discretisation that runs and its error against the continuous
+    /// design up to f_s/10.
+    pub discretization: DiscretizationReport,
+    /// Why the check refuses the controller (empty: it passes).
+    pub failures: Vec<String>,
+}
+
+impl LoopCheck {
+    /// Whether the controller may be enabled.
+    pub fn passed(&self) -> bool {
+        self.failures.is_empty()
+    }
+}
+
+/// A measured FRF read from a `bench chirp` CSV.
+#[derive(Debug, Clone, Default)]
+pub struct MeasuredFrf {
+    /// Hz.
+    pub frequency_hz: Vec<f64>,
+    /// m/A.
+    pub magnitude_m_per_a: Vec<f64>,
+    /// Degrees.
+    pub phase_deg: Vec<f64>,
+}
+
+impl MeasuredFrf {
+    /// Reads `frequency_hz,magnitude_m_per_a,phase_deg,coherence`.
+    ///
+    /// # Errors
+    /// [`RunError::BadInput`] naming `--frf`, the line and the reason.
+    pub fn read_csv(path: &Path) -> Result<Self, RunError> {
+        let bad = |why: String| RunError::BadInput(format!("--frf {}: {why}", path.display()));
+        let text = std::fs::read_to_string(path).map_err(|e| bad(e.to_string()))?;
+        let mut lines = text.lines();
+        if lines.next() != Some("frequency_hz,magnitude_m_per_a,phase_deg,coherence") {
+            return Err(bad(
+                "the header is not frequency_hz,magnitude_m_per_a,phase_deg,coherence (a bench chirp CSV)".into(),
+            ));
+        }
+        let mut m = Self::default();
+        for (i, line) in lines.enumerate() {
+            let v: Vec<f64> = line
+                .split(',')
+                .map(|x| x.trim().parse::<f64>())
+                .collect::<Result<_, _>>()
+                .map_err(|e| bad(format!("line {}: {e}", i + 2)))?;
+            if v.len() != 4 || !v[0].is_finite() || v[0] <= 0.0 {
+                return Err(bad(format!(
+                    "line {}: expected 4 numbers with a positive frequency",
+                    i + 2
+                )));
+            }
+            if m.frequency_hz.last().is_some_and(|f| *f >= v[0]) {
+                return Err(bad(format!("line {}: frequencies must ascend", i + 2)));
+            }
+            m.frequency_hz.push(v[0]);
+            m.magnitude_m_per_a.push(v[1]);
+            m.phase_deg.push(v[2]);
+        }
+        if m.frequency_hz.len() < 10 {
+            return Err(bad("fewer than 10 points".into()));
+        }
+        Ok(m)
+    }
+}
+
+/// Runs the loop check of `name` against the model of `stage` (and a
+/// measured FRF if given), judged by the `[safety]` limits.
+pub fn check_loop(
+    cfg: &BenchConfig,
+    model: &Sr4dof,
+    name: &str,
+    ctrl: &DiscreteController,
+    period_s: f64,
+    measured: Option<&MeasuredFrf>,
+) -> LoopCheck {
+    let plant = ZohPlant::new(model, &cfg.actuator, period_s);
+    let ideal = ZohPlant::without_amplifier_lag(model, &cfg.actuator, period_s);
+    let model = model_margins(&plant, ctrl);
+    let (poles, stable) = closed_loop_poles(&plant, ctrl);
+    let largest = poles.iter().map(|p| p.norm()).fold(0.0, f64::max);
+    let measured = measured.map(|m| {
+        measured_margins(
+            ctrl,
+            period_s,
+            &m.frequency_hz,
+            &m.magnitude_m_per_a,
+            &m.phase_deg,
+        )
+    });
+    let mut failures = Vec::new();
+    if !stable {
+        failures.push(format!(
+            "closed loop unstable on the model: largest pole |z| = {largest:.4} (must be < 1)"
+        ));
+    }
+    let min_pm = cfg.safety.min_phase_margin_deg;
+    let max_s = cfg.safety.max_sensitivity_peak;
+    for (what, m) in [("model", Some(&model)), ("measured FRF", measured.as_ref())] {
+        let Some(m) = m else { continue };
+        match m.phase_margin_deg {
+            Some(pm) if pm < min_pm => failures.push(format!(
+                "phase margin {pm:.1}° at {:.1} rad/s ({what}) is below safety.min_phase_margin_deg = {min_pm}°",
+                m.crossovers_rad_s[0]
+            )),
+            None => failures.push(format!("no gain crossover ({what}): the loop never reaches |L| = 1")),
+            _ => {}
+        }
+        if m.sensitivity_peak > max_s {
+            failures.push(format!(
+                "sensitivity peak |S| = {:.2} ({:.1} dB) at {:.1} rad/s ({what}) is above safety.max_sensitivity_peak = {max_s}",
+                m.sensitivity_peak,
+                20.0 * m.sensitivity_peak.log10(),
+                m.sensitivity_peak_at_rad_s
+            ));
+        }
+    }
+    LoopCheck {
+        controller: name.to_string(),
+        model,
+        model_without_amplifier_lag: model_margins(&ideal, ctrl),
+        closed_loop_stable: stable,
+        largest_pole_magnitude: largest,
+        measured,
+        discretization: ctrl.discretization(),
+        failures,
+    }
 }
 
 #[cfg(test)]

@@ -1,0 +1,489 @@
+//! The controller as designed: its definition (`[controller.NAME]`), its
+//! validation, the continuous transfer function `C(s)` and its grouping
+//! into continuous second-order sections (see *Continuous form* in
+//! [`crate::control`]). Nothing here knows the sample period.
+
+use super::Discretization;
+use nalgebra::Complex;
+use serde::{Deserialize, Serialize};
+
+/// Most second-order sections a controller may have.
+pub const MAX_SECTIONS: usize = 12;
+
+/// Unit of the error the controller's gain expects.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub enum ErrorUnit {
+    /// metres
+    #[serde(rename = "m")]
+    Metre,
+    /// micrometres (the thesis' controllers)
+    #[serde(rename = "um")]
+    Micrometre,
+    /// nanometres
+    #[serde(rename = "nm")]
+    Nanometre,
+}
+
+impl ErrorUnit {
+    /// Multiplier from metres to this unit.
+    pub fn per_metre(self) -> f64 {
+        match self {
+            Self::Metre => 1.0,
+            Self::Micrometre => 1e6,
+            Self::Nanometre => 1e9,
+        }
+    }
+}
+
+/// How the factors are normalised.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Form {
+    /// Factors as written: `(s + z)`, `(s² + 2ζωs + ω²)` (Eq. 6-7).
+    Monic,
+    /// Each factor divided by its value at s = 0 (Eq. 6-6: `ω²/(s²+…)`).
+    UnityDc,
+}
+
+/// A complex pair `s² + 2ζωs + ω²`.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ComplexPair {
+    /// Natural frequency ω, rad/s.
+    pub omega_rad_s: f64,
+    /// Damping ratio ζ.
+    pub zeta: f64,
+}
+
+/// `[controller.NAME]`
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ControllerConfig {
+    /// What it is (shown in summaries).
+    #[serde(default)]
+    pub description: String,
+    /// Unit of the position error the gain expects.
+    pub error_unit: ErrorUnit,
+    /// Factor normalisation.
+    pub form: Form,
+    /// Gain g, A per error unit (times s^n for n integrators).
+    pub gain: f64,
+    /// Number of integrators n (poles at s = 0).
+    #[serde(default)]
+    pub integrators: u32,
+    /// Real zeros: corner frequencies z (root at −z), rad/s.
+    #[serde(default)]
+    pub real_zeros_rad_s: Vec<f64>,
+    /// Real poles: corner frequencies p (root at −p), rad/s.
+    #[serde(default)]
+    pub real_poles_rad_s: Vec<f64>,
+    /// Complex zero pairs.
+    #[serde(default)]
+    pub complex_zeros: Vec<ComplexPair>,
+    /// Complex pole pairs.
+    #[serde(default)]
+    pub complex_poles: Vec<ComplexPair>,
+    /// Discretisation method (default `tustin`).
+    #[serde(default)]
+    pub discretization: Discretization,
+}
+
+/// A controller definition that cannot be used.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("{key}: {reason}")]
+pub struct ControllerError {
+    /// Dotted config key.
+    pub key: String,
+    /// Why.
+    pub reason: String,
+}
+
+fn cerr(key: String, reason: impl Into<String>) -> ControllerError {
+    ControllerError {
+        key,
+        reason: reason.into(),
+    }
+}
+
+impl ControllerConfig {
+    /// Checks the transfer function: finite positive gain, positive
+    /// frequencies, 0 ≤ ζ, proper (zeros ≤ poles), at most
+    /// [`MAX_SECTIONS`] sections. `prefix` is e.g. `controller.fast`.
+    ///
+    /// # Errors
+    /// The first offending key with the reason.
+    pub fn validate(&self, prefix: &str) -> Result<(), ControllerError> {
+        if !self.gain.is_finite() || self.gain == 0.0 {
+            return Err(cerr(
+                format!("{prefix}.gain"),
+                format!("must be finite and non-zero, got {}", self.gain),
+            ));
+        }
+        for (name, v) in [
+            ("real_zeros_rad_s", &self.real_zeros_rad_s),
+            ("real_poles_rad_s", &self.real_poles_rad_s),
+        ] {
+            for (i, x) in v.iter().enumerate() {
+                if !x.is_finite() || *x <= 0.0 {
+                    return Err(cerr(
+                        format!("{prefix}.{name}[{i}]"),
+                        format!(
+                            "corner frequency must be finite and > 0 rad/s, got {x} (use `integrators` for s = 0)"
+                        ),
+                    ));
+                }
+            }
+        }
+        for (name, v) in [
+            ("complex_zeros", &self.complex_zeros),
+            ("complex_poles", &self.complex_poles),
+        ] {
+            for (i, p) in v.iter().enumerate() {
+                if !p.omega_rad_s.is_finite() || p.omega_rad_s <= 0.0 {
+                    return Err(cerr(
+                        format!("{prefix}.{name}[{i}].omega_rad_s"),
+                        format!("must be finite and > 0 rad/s, got {}", p.omega_rad_s),
+                    ));
+                }
+                if !p.zeta.is_finite() || p.zeta < 0.0 {
+                    return Err(cerr(
+                        format!("{prefix}.{name}[{i}].zeta"),
+                        format!("must be finite and >= 0, got {}", p.zeta),
+                    ));
+                }
+            }
+        }
+        let zeros = self.real_zeros_rad_s.len() + 2 * self.complex_zeros.len();
+        let poles =
+            self.integrators as usize + self.real_poles_rad_s.len() + 2 * self.complex_poles.len();
+        if zeros > poles {
+            return Err(cerr(
+                prefix.to_string(),
+                format!("improper: {zeros} zeros but {poles} poles (a controller must have at least as many poles as zeros)"),
+            ));
+        }
+        if poles == 0 {
+            return Err(cerr(
+                prefix.to_string(),
+                "empty transfer function: no poles",
+            ));
+        }
+        if poles.div_ceil(2) > MAX_SECTIONS {
+            return Err(cerr(
+                prefix.to_string(),
+                format!("{poles} poles need more than {MAX_SECTIONS} second-order sections"),
+            ));
+        }
+        Ok(())
+    }
+
+    /// Continuous frequency response `C(jω)` at `omega_rad_s`, A per error
+    /// unit.
+    pub fn response(&self, omega_rad_s: f64) -> Complex<f64> {
+        self.eval(Complex::new(0.0, omega_rad_s))
+    }
+
+    /// `C(s)`, A per error unit.
+    pub fn eval(&self, s: Complex<f64>) -> Complex<f64> {
+        let unity = self.form == Form::UnityDc;
+        let mut c = Complex::new(self.gain, 0.0);
+        for _ in 0..self.integrators {
+            c /= s;
+        }
+        for z in &self.real_zeros_rad_s {
+            c *= (s + z) / if unity { *z } else { 1.0 };
+        }
+        for p in &self.real_poles_rad_s {
+            c /= (s + p) / if unity { *p } else { 1.0 };
+        }
+        let quad = |q: &ComplexPair| {
+            let w = q.omega_rad_s;
+            (s * s + s * (2.0 * q.zeta * w) + w * w) / if unity { w * w } else { 1.0 }
+        };
+        for q in &self.complex_zeros {
+            c *= quad(q);
+        }
+        for q in &self.complex_poles {
+            c /= quad(q);
+        }
+        c
+    }
+}
+
+/// A continuous section `(b2 s² + b1 s + b0) / (a2 s² + a1 s + a0)` with
+/// its pre-warp frequency (rad/s; `None`: plain Tustin).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(super) struct ContinuousSection {
+    pub(super) b: [f64; 3],
+    pub(super) a: [f64; 3],
+    pub(super) prewarp_rad_s: Option<f64>,
+}
+
+/// Groups the factors into continuous second-order sections.
+pub(super) fn sections(cfg: &ControllerConfig) -> Vec<ContinuousSection> {
+    let unity = cfg.form == Form::UnityDc;
+    let quad = |q: &ComplexPair| {
+        let w2 = q.omega_rad_s * q.omega_rad_s;
+        let n = if unity { w2 } else { 1.0 };
+        [w2 / n, 2.0 * q.zeta * q.omega_rad_s / n, 1.0 / n]
+    };
+    let lin = |r: f64| {
+        let n = if unity { r } else { 1.0 };
+        [r / n, 1.0 / n]
+    };
+    let mut czeros: Vec<ComplexPair> = cfg.complex_zeros.clone();
+    let mut rzeros: Vec<f64> = cfg.real_zeros_rad_s.clone();
+    let mut out = Vec::new();
+    for p in &cfg.complex_poles {
+        let a = quad(p);
+        let (b, warp) = if let Some(z) = czeros.pop() {
+            // Notch-type section: keep its centre (the zeros) exact.
+            (
+                quad(&z),
+                Some(z.omega_rad_s.max(p.omega_rad_s).min(z.omega_rad_s)),
+            )
+        } else {
+            let mut b = [1.0, 0.0, 0.0];
+            for _ in 0..2 {
+                if let Some(z) = rzeros.pop() {
+                    let l = lin(z);
+                    b = [
+                        b[0] * l[0],
+                        b[0] * l[1] + b[1] * l[0],
+                        b[1] * l[1] + b[2] * l[0],
+                    ];
+                }
+            }
+            (b, Some(p.omega_rad_s))
+        };
+        out.push(ContinuousSection {
+            b,
+            a,
+            prewarp_rad_s: warp,
+        });
+    }
+    // Real poles and integrators, two per section, with the remaining zeros
+    // (leftover complex zero pairs cannot occur in a proper controller
+    // without complex poles to pair with; they get their own section over
+    // two real poles/integrators below).
+    let mut first_order_poles: Vec<Option<f64>> =
+        cfg.real_poles_rad_s.iter().map(|p| Some(*p)).collect();
+    first_order_poles.extend((0..cfg.integrators).map(|_| None));
+    // Larger corners first so a lead (zero below pole) pairs sensibly.
+    first_order_poles.sort_by(|a, b| b.unwrap_or(0.0).total_cmp(&a.unwrap_or(0.0)));
+    let mut chunks = first_order_poles.chunks(2);
+    for z in czeros.drain(..) {
+        let pp = chunks.next().unwrap_or(&[]);
+        let mut a = [1.0, 0.0, 0.0];
+        for p in pp {
+            let l = match p {
+                Some(p) => lin(*p),
+                None => [0.0, 1.0],
+            };
+            a = [
+                a[0] * l[0],
+                a[0] * l[1] + a[1] * l[0],
+                a[1] * l[1] + a[2] * l[0],
+            ];
+        }
+        let integ = pp.iter().any(|p| p.is_none());
+        out.push(ContinuousSection {
+            b: quad(&z),
+            a,
+            prewarp_rad_s: if integ { None } else { Some(z.omega_rad_s) },
+        });
+    }
+    for pp in chunks {
+        let mut a = [1.0, 0.0, 0.0];
+        let mut b = [1.0, 0.0, 0.0];
+        let mut warp: Option<f64> = None;
+        let mut integ = false;
+        for p in pp {
+            let l = match p {
+                Some(p) => {
+                    warp = Some(warp.unwrap_or(0.0).max(*p));
+                    lin(*p)
+                }
+                None => {
+                    integ = true;
+                    [0.0, 1.0]
+                }
+            };
+            a = [
+                a[0] * l[0],
+                a[0] * l[1] + a[1] * l[0],
+                a[1] * l[1] + a[2] * l[0],
+            ];
+            if let Some(z) = rzeros.pop() {
+                let l = lin(z);
+                warp = Some(warp.unwrap_or(0.0).max(z));
+                b = [
+                    b[0] * l[0],
+                    b[0] * l[1] + b[1] * l[0],
+                    b[1] * l[1] + b[2] * l[0],
+                ];
+            }
+        }
+        out.push(ContinuousSection {
+            b,
+            a,
+            prewarp_rad_s: if integ { None } else { warp },
+        });
+    }
+    debug_assert!(rzeros.is_empty(), "validate() rejects improper controllers");
+    out
+}
+
+impl ContinuousSection {
+    /// `(b2 s² + b1 s + b0) / (a2 s² + a1 s + a0)` at `s`.
+    pub(super) fn eval(&self, s: Complex<f64>) -> Complex<f64> {
+        (s * s * self.b[2] + s * self.b[1] + self.b[0])
+            / (s * s * self.a[2] + s * self.a[1] + self.a[0])
+    }
+
+    /// The section's poles (roots of `a2 s² + a1 s + a0`; one or two).
+    pub(super) fn poles(&self) -> Vec<Complex<f64>> {
+        let [a0, a1, a2] = self.a;
+        if a2 == 0.0 {
+            return if a1 == 0.0 {
+                vec![]
+            } else {
+                vec![Complex::new(-a0 / a1, 0.0)]
+            };
+        }
+        let disc = a1 * a1 - 4.0 * a2 * a0;
+        if disc < 0.0 {
+            let (re, im) = (-a1 / (2.0 * a2), (-disc).sqrt() / (2.0 * a2));
+            vec![Complex::new(re, im), Complex::new(re, -im)]
+        } else {
+            // The larger root without cancellation, the other from the product.
+            let q = -0.5 * (a1 + a1.signum() * disc.sqrt());
+            let r1 = if q == 0.0 { 0.0 } else { q / a2 };
+            let r2 = if q == 0.0 { 0.0 } else { a0 / q };
+            vec![Complex::new(r1, 0.0), Complex::new(r2, 0.0)]
+        }
+    }
+}
+
+#[cfg(test)]
+pub(super) mod tests {
+    use super::*;
+
+    /// Eq. (6-6) as printed.
+    pub fn slow() -> ControllerConfig {
+        ControllerConfig {
+            description: "Eq. (6-6)".into(),
+            error_unit: ErrorUnit::Micrometre,
+            form: Form::UnityDc,
+            gain: 0.12,
+            integrators: 1,
+            real_zeros_rad_s: vec![],
+            real_poles_rad_s: vec![],
+            complex_zeros: vec![],
+            complex_poles: vec![ComplexPair {
+                omega_rad_s: 179.0 / 2.0,
+                zeta: 0.7,
+            }],
+            discretization: Discretization::Tustin,
+        }
+    }
+
+    /// Eq. (6-7) as printed.
+    pub fn fast() -> ControllerConfig {
+        ControllerConfig {
+            description: "Eq. (6-7)".into(),
+            error_unit: ErrorUnit::Micrometre,
+            form: Form::Monic,
+            gain: 51110.0,
+            integrators: 1,
+            real_zeros_rad_s: vec![88.7],
+            real_poles_rad_s: vec![625.0, 893.0],
+            complex_zeros: vec![
+                ComplexPair {
+                    omega_rad_s: 175.0,
+                    zeta: 0.4,
+                },
+                ComplexPair {
+                    omega_rad_s: 520.0,
+                    zeta: 0.01,
+                },
+            ],
+            complex_poles: vec![
+                ComplexPair {
+                    omega_rad_s: 700.0,
+                    zeta: 0.7,
+                },
+                ComplexPair {
+                    omega_rad_s: 555.0,
+                    zeta: 0.1,
+                },
+            ],
+            discretization: Discretization::Tustin,
+        }
+    }
+
+    /// `gain` alone (error in metres, monic, no factors, Tustin): the
+    /// start of the hand-written test controllers.
+    pub fn bare(gain: f64) -> ControllerConfig {
+        ControllerConfig {
+            description: String::new(),
+            error_unit: ErrorUnit::Metre,
+            form: Form::Monic,
+            gain,
+            integrators: 0,
+            real_zeros_rad_s: vec![],
+            real_poles_rad_s: vec![],
+            complex_zeros: vec![],
+            complex_poles: vec![],
+            discretization: Discretization::Tustin,
+        }
+    }
+
+    #[test]
+    fn continuous_forms_are_the_printed_equations() {
+        // Eq. (6-6) written out by hand: 0.12/s · (179/2)²/(s² + 0.7·179 s + (179/2)²).
+        let s = Complex::new(0.0, 37.0);
+        let by_hand = Complex::new(0.12, 0.0) / s * (89.5f64 * 89.5)
+            / (s * s + s * (0.7 * 179.0) + 89.5 * 89.5);
+        assert!((slow().eval(s) - by_hand).norm() < 1e-12 * by_hand.norm());
+        // Eq. (6-7) written out by hand.
+        let s = Complex::new(0.0, 287.0);
+        let by_hand = Complex::new(51110.0, 0.0) / s * (s + 88.7) / (s + 625.0) / (s + 893.0)
+            * (s * s + s * (2.0 * 0.4 * 175.0) + 175.0 * 175.0)
+            / (s * s + s * (2.0 * 0.7 * 700.0) + 700.0 * 700.0)
+            * (s * s + s * (2.0 * 0.01 * 520.0) + 520.0 * 520.0)
+            / (s * s + s * (2.0 * 0.1 * 555.0) + 555.0 * 555.0);
+        assert!((fast().eval(s) - by_hand).norm() < 1e-12 * by_hand.norm());
+    }
+
+    #[test]
+    fn bad_definitions_name_the_key() {
+        let mut c = fast();
+        c.complex_poles[0].zeta = -0.1;
+        assert_eq!(
+            c.validate("controller.fast").unwrap_err().key,
+            "controller.fast.complex_poles[0].zeta"
+        );
+        let mut c = fast();
+        c.complex_zeros[1].omega_rad_s = 0.0;
+        assert_eq!(
+            c.validate("controller.fast").unwrap_err().key,
+            "controller.fast.complex_zeros[1].omega_rad_s"
+        );
+        let mut c = slow();
+        c.real_zeros_rad_s = vec![1.0, 2.0, 3.0, 4.0];
+        assert!(c
+            .validate("controller.slow")
+            .unwrap_err()
+            .reason
+            .contains("improper"));
+        let mut c = slow();
+        c.integrators = 0;
+        c.complex_poles.clear();
+        assert!(c
+            .validate("controller.slow")
+            .unwrap_err()
+            .reason
+            .contains("empty"));
+    }
+}
