@@ -53,9 +53,10 @@ mod socket;
 pub use protocol::ApiErrorKind;
 
 use crate::config::BenchConfig;
+use crate::control::loop_check::check_loop;
 use crate::control::DiscreteController;
 use crate::error::RunError;
-use crate::jobs::step::{check_loop, ControlJob};
+use crate::jobs::step::ControlJob;
 use crate::rt::backend::{self, BackendSpec};
 use crate::rt::service::{run_service, LoopReply, LoopRequest, LoopStatus, ServiceClient};
 use crate::rt::{LoopOptions, Pacing};

@@ -202,7 +202,7 @@ pub fn run_service(
         match req {
             LoopRequest::Enable(job) => {
                 let r = lp.enable();
-                let old = std::mem::replace(&mut hold, None);
+                let old = hold.take();
                 if r.is_ok() && job.is_some() {
                     // The hold controller drives from the next tick on.
                     hold = job;
