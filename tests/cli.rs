@@ -157,7 +157,7 @@ fn spawn_realtime_chirp(dir: &Path) -> std::process::Child {
         .unwrap()
 }
 
-/// SPEC §8: a real-time run killed with SIGKILL leaves a `.part` file whose
+/// README, *Recording reference* (durability): a real-time run killed with SIGKILL leaves a `.part` file whose
 /// completed chunks read back, losing at most ~100 ms of samples.
 #[test]
 fn sigkill_in_realtime_loses_at_most_100_ms() {

@@ -262,9 +262,10 @@ impl MeasuredFrf {
     /// Reads `frequency_hz,magnitude_m_per_a,phase_deg,coherence`.
     ///
     /// # Errors
-    /// [`RunError::BadInput`] naming `--frf`, the line and the reason.
+    /// [`RunError::BadOption`] naming `frf`, the file, the line and the
+    /// reason.
     pub fn read_csv(path: &Path) -> Result<Self, RunError> {
-        let bad = |why: String| RunError::BadInput(format!("--frf {}: {why}", path.display()));
+        let bad = |why: String| RunError::option("frf", path.display(), why);
         let text = std::fs::read_to_string(path).map_err(|e| bad(e.to_string()))?;
         let mut lines = text.lines();
         if lines.next() != Some("frequency_hz,magnitude_m_per_a,phase_deg,coherence") {

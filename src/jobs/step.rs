@@ -262,14 +262,18 @@ fn controller_config<'a>(
 ) -> Result<&'a ControllerConfig, RunError> {
     cfg.controller.get(name).ok_or_else(|| {
         let known: Vec<&str> = cfg.controller.keys().map(|k| k.as_str()).collect();
-        RunError::BadInput(format!(
-            "--controller {name}: no [controller.{name}] in the config (known: {})",
-            if known.is_empty() {
-                "none".to_string()
-            } else {
-                known.join(", ")
-            }
-        ))
+        RunError::option(
+            "controller",
+            name,
+            format!(
+                "no [controller.{name}] in the config (known: {})",
+                if known.is_empty() {
+                    "none".to_string()
+                } else {
+                    known.join(", ")
+                }
+            ),
+        )
     })
 }
 
@@ -313,9 +317,11 @@ pub fn run_control_from(
         .map_err(|e| RunError::BadInput(format!("config {}: {e}", opts.config_path.display())))?;
     let spec = BackendSpec::resolve(opts.backend.as_ref(), cfg);
     if opts.override_check && !spec.is_sim() {
-        return Err(RunError::BadInput(format!(
-            "--override-check: only allowed on the sim backend, not {spec}"
-        )));
+        return Err(RunError::option(
+            "override_check",
+            "",
+            format!("only allowed on the sim backend, not {spec}"),
+        ));
     }
     // The loop check needs no device: with --check-only nothing is opened.
     let period_s = cfg.loop_.period_ns() as f64 * 1e-9;
@@ -358,8 +364,8 @@ pub fn run_control_from(
         );
     }
     let step = &cfg.step;
-    check_writable(&opts.out, "--out")?;
-    check_writable(&opts.plot, "--plot")?;
+    check_writable(&opts.out, "out")?;
+    check_writable(&opts.plot, "plot")?;
     let mut opened;
     let opened_info;
     let mut runner = match source {
@@ -389,11 +395,15 @@ pub fn run_control_from(
     let info = runner.info().clone();
     summary.backend = info.name.clone();
     if info.period_ns != cfg.loop_.period_ns() {
-        return Err(RunError::BadInput(format!(
-            "--backend {spec}: runs every {} ns, the controller was discretised for {} ns; nothing was enabled",
-            info.period_ns,
-            cfg.loop_.period_ns()
-        )));
+        return Err(RunError::option(
+            "backend",
+            &spec,
+            format!(
+                "runs every {} ns, the controller was discretised for {} ns; nothing was enabled",
+                info.period_ns,
+                cfg.loop_.period_ns()
+            ),
+        ));
     }
     // Anti-windup at the limit the device reports (same sections).
     let ctrl = ctrl.with_limit(info.peak_current_a);
