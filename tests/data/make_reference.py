@@ -2,7 +2,7 @@
 """Independent reference for the bench's SR4DoF simulator (scipy / numpy).
 
 Builds Eq. (2-5) of the thesis from scratch, fits Rayleigh damping as
-the README's plant model defines (thesis Table 2-2 damping ratios), adds the first-order current amplifier, discretises with a
+the README (*Configuration reference*, Rayleigh damping) defines, adds the first-order current amplifier, discretises with a
 zero-order hold (scipy.signal.cont2discrete, method 'zoh') and writes
 `sr4dof_reference.json` beside this script:
 
