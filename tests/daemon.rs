@@ -443,6 +443,38 @@ fn faults_latch_until_reset() {
     );
 }
 
+/// A daemon on the serial backend, against the emulator as a user runs it
+/// (`bench emulate serial`) with `faults`; the emulator process is killed
+/// when the pair is dropped.
+struct SerialDaemon {
+    daemon: Daemon,
+    emulator: Child,
+    _dir: tempfile::TempDir,
+}
+
+impl SerialDaemon {
+    fn start(faults: &[&str]) -> Self {
+        let dir = tmp();
+        let cfg = common::quiet_config(dir.path(), 1.0, SERIAL_EXTRA);
+        let (emulator, pty) = spawn_emulator(&cfg, faults);
+        let daemon = Daemon::start_with(&["--backend", &format!("serial:{pty}")], SERIAL_EXTRA);
+        Self {
+            daemon,
+            emulator,
+            _dir: dir,
+        }
+    }
+}
+
+impl Drop for SerialDaemon {
+    fn drop(&mut self) {
+        let _ = self.daemon.child.kill();
+        let _ = self.daemon.child.wait();
+        let _ = self.emulator.kill();
+        let _ = self.emulator.wait();
+    }
+}
+
 /// The serial emulator as a user runs it (`bench emulate serial`), with
 /// link faults; returns the process and its pty path.
 fn spawn_emulator(config: &Path, faults: &[&str]) -> (Child, String) {
@@ -538,14 +570,8 @@ fn sim_faults_between_jobs_latch_until_reset() {
 fn serial_link_faults_between_jobs_latch_until_reset() {
     let _g = one_at_a_time();
     for fault in ["stall:1.0@2", "disconnect@2", "bitflip:8x12@2"] {
-        let dir = tmp();
-        let cfg = common::quiet_config(dir.path(), 1.0, SERIAL_EXTRA);
-        let (mut emu, pty) = spawn_emulator(&cfg, &[fault]);
-        let d = Daemon::start_with(&["--backend", &format!("serial:{pty}")], SERIAL_EXTRA);
-        assert_latched_between_jobs(&d, "link", fault);
-        drop(d);
-        let _ = emu.kill();
-        let _ = emu.wait();
+        let s = SerialDaemon::start(&[fault]);
+        assert_latched_between_jobs(&s.daemon, "link", fault);
     }
 }
 
@@ -555,11 +581,8 @@ fn serial_link_faults_between_jobs_latch_until_reset() {
 #[test]
 fn twenty_serial_daemon_jobs_start_cleanly() {
     let _g = one_at_a_time();
-    let dir = tmp();
-    let cfg = common::quiet_config(dir.path(), 1.0, SERIAL_EXTRA);
-    let (mut emu, pty) = spawn_emulator(&cfg, &[]);
-    let d = Daemon::start_with(&["--backend", &format!("serial:{pty}")], SERIAL_EXTRA);
-    let mut c = d.client();
+    let s = SerialDaemon::start(&[]);
+    let mut c = s.daemon.client();
     for i in 0..20 {
         // Some time between jobs: the loop keeps reading the device.
         std::thread::sleep(Duration::from_millis(50 + 20 * (i % 5)));
@@ -582,9 +605,6 @@ fn twenty_serial_daemon_jobs_start_cleanly() {
         let missed = r["result"]["link"]["missed_samples"].as_u64().unwrap();
         assert!(missed <= 3, "job {i}: {missed} samples missed: {r}");
     }
-    drop(d);
-    let _ = emu.kill();
-    let _ = emu.wait();
 }
 
 /// Enabled between jobs, the daemon holds 0 A, or, with `[daemon]

@@ -1100,6 +1100,23 @@ mod tests {
         }
     }
 
+    /// Runs a job of 25 ticks at 0.5 A on `lp`.
+    fn run_constant(
+        lp: &mut Loop<'_, Script>,
+        tx: &mut rtrb::Producer<Record>,
+    ) -> JobEnd<ScriptError> {
+        lp.run_job(
+            &mut Constant {
+                current_a: 0.5,
+                n: 25,
+            },
+            tx,
+            1000,
+            &AtomicBool::new(false),
+            &AtomicU64::new(0),
+        )
+    }
+
     fn records(mut c: rtrb::Consumer<Record>) -> Vec<Record> {
         std::iter::from_fn(|| c.pop().ok()).collect()
     }
@@ -1236,16 +1253,7 @@ mod tests {
         let (mut tx, rx) = rtrb::RingBuffer::new(1024);
         let mut st = Script::new([]);
         let mut lp = Loop::new(&mut st, &opts(), Clock::Host);
-        let end = lp.run_job(
-            &mut Constant {
-                current_a: 0.5,
-                n: 25,
-            },
-            &mut tx,
-            1000,
-            &AtomicBool::new(false),
-            &AtomicU64::new(0),
-        );
+        let end = run_constant(&mut lp, &mut tx);
         assert!(matches!(end.stop, RawStop::Finished));
         assert_eq!(end.ticks, 25);
         assert_eq!(end.final_state, SupervisorState::Disabled);
@@ -1281,16 +1289,7 @@ mod tests {
             n += 1;
             n >= 5
         }));
-        let end = lp.run_job(
-            &mut Constant {
-                current_a: 0.5,
-                n: 25,
-            },
-            &mut tx,
-            1000,
-            &AtomicBool::new(false),
-            &AtomicU64::new(0),
-        );
+        let end = run_constant(&mut lp, &mut tx);
         assert!(matches!(
             end.stop,
             RawStop::Fault {
@@ -1309,16 +1308,7 @@ mod tests {
             ..Script::new([])
         };
         let mut lp = Loop::new(&mut st, &opts(), Clock::Host);
-        let end = lp.run_job(
-            &mut Constant {
-                current_a: 0.5,
-                n: 25,
-            },
-            &mut tx,
-            1000,
-            &AtomicBool::new(false),
-            &AtomicU64::new(0),
-        );
+        let end = run_constant(&mut lp, &mut tx);
         let stop = end.stop.describe();
         assert!(
             matches!(&stop, StopReason::Hal { message, tick: 0 } if message.starts_with("enable: ")),
