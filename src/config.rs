@@ -16,6 +16,80 @@ use std::path::{Path, PathBuf};
 /// Default bench description, relative to the working directory.
 pub const DEFAULT_CONFIG: &str = "bench-config/sr4dof-ch5.toml";
 
+/// The bounds of the safety keys (`[safety]`, `[actuator]`, `[emulator]`
+/// and the link timeouts of `[backend]`), with why each is where it is.
+/// [`BenchConfig::check`] refuses a value outside its range, naming the key;
+/// the README's configuration reference and the comments in
+/// `bench-config/*.toml` give the same ranges.
+pub mod limits {
+    /// Largest `[emulator] watchdog_ms`, ms: a host that dies leaves the
+    /// current flowing at most this long (plus one period).
+    pub const WATCHDOG_MAX_MS: f64 = 1000.0;
+    /// Smallest `[emulator] watchdog_ms`, ms (the serial hello announces it
+    /// in whole ms). It must also cover two loop periods.
+    pub const WATCHDOG_MIN_MS: f64 = 1.0;
+    /// Largest peak current (`actuator.peak_current_a`,
+    /// `backend.can.peak_current_a`), A: twice the rated peak of the bench's
+    /// coil (LA24-20-000A: 111 N at 11.12 N/A = 9.98 A, thesis §5.1.2), room
+    /// for another coil of this size, but not for a value no amplifier of
+    /// this bench delivers (the supervisor clips commands to it, the I²t
+    /// budget grows with its square).
+    pub const PEAK_CURRENT_MAX_A: f64 = 20.0;
+    /// The X travel of stage 1 on the thesis bench, m: ±1 mm, a factor of
+    /// two against yielding, with a mechanical stop there (§5.1.2); the
+    /// probe reads ±1 mm too. `safety.position_limit_m` is below it.
+    pub const STROKE_M: f64 = 1.0e-3;
+    /// Smallest `safety.position_limit_m`, m: well above the probe's noise
+    /// (40 nm RMS, 400 nm peak to peak).
+    pub const POSITION_LIMIT_MIN_M: f64 = 1.0e-6;
+    /// Smallest `safety.max_position_step_m`, m: 25 × the probe's RMS noise,
+    /// so noise alone never trips the jump check.
+    pub const POSITION_STEP_MIN_M: f64 = 1.0e-6;
+    /// Fastest plausible motion of stage 1, m/s: within its ±1 mm it cannot
+    /// exceed about 0.5 m/s (the peak force, 111 N, on the 2.1 kg moving
+    /// mass across the whole stroke; or a full 1 mm swing at the 80 Hz
+    /// modes); twice that. `safety.max_position_step_m` is at most this
+    /// times one loop period (200 µm at 5 kHz).
+    pub const STAGE_SPEED_MAX_M_PER_S: f64 = 1.0;
+    /// Longest time the loop may run late or without a sample before the
+    /// supervisor faults, s: `safety.max_consecutive_overruns` and
+    /// `safety.max_missed_samples` are at most this many seconds of ticks
+    /// (500 at 5 kHz). At the peak force the stage crosses its stroke in
+    /// well under this, so a larger count protects nothing.
+    pub const BLIND_MAX_S: f64 = 0.1;
+    /// Longest time from the last sample to the link fault when every read
+    /// times out, s: `(safety.max_missed_samples + 1)` × the sample timeout
+    /// is at most this, as long as the longest device watchdog.
+    pub const LINK_FAULT_MAX_S: f64 = 1.0;
+    /// Longest wait for one sample (`[backend.serial]
+    /// sample_timeout_periods` × period, `[backend.can] sample_timeout_ms`),
+    /// s. The tests on a loaded 2-core VM need 40 ms; USB bursts are a few
+    /// ms.
+    pub const SAMPLE_TIMEOUT_MAX_S: f64 = 0.2;
+    /// Shortest `[backend.can] sample_timeout_ms`, ms: about one CAN frame
+    /// at 1 Mbit/s.
+    pub const CAN_SAMPLE_TIMEOUT_MIN_MS: f64 = 0.1;
+    /// `[backend.serial] handshake_timeout_ms` range, ms: long enough for a
+    /// USB device to answer, short enough that a silent device cannot hold
+    /// the disable (which waits for its acknowledgement) for more than
+    /// 10 s.
+    pub const HANDSHAKE_TIMEOUT_MS: (f64, f64) = (1.0, 10_000.0);
+    /// `safety.i2t_peak_duration_s` range, s: a coil's peak rating holds for
+    /// seconds (the shipped 1 s), not minutes; below 10 ms the budget is
+    /// spent in a few ticks.
+    pub const I2T_PEAK_DURATION_S: (f64, f64) = (0.01, 10.0);
+    /// `safety.min_phase_margin_deg` range, degrees: `[20, 90)`. Below 20°
+    /// a loop rings badly and a small plant change destabilises it; 90° and
+    /// above no useful loop reaches.
+    pub const MIN_PHASE_MARGIN_DEG: (f64, f64) = (20.0, 90.0);
+    /// Largest `safety.max_sensitivity_peak` (‖S‖∞): 6 (15.6 dB), a modulus
+    /// margin of 0.17. It must be above 1, which no loop beats.
+    pub const MAX_SENSITIVITY_PEAK: f64 = 6.0;
+    /// Largest `[emulator] position_lsb_m`, m: 1 µm, the smallest jump the
+    /// supervisor looks for. The smallest is `probe.range_m / (2³¹ − 1)`.
+    pub const POSITION_LSB_MAX_M: f64 = 1.0e-6;
+}
+
 /// A configuration problem, with the file and the key.
 #[derive(Debug, thiserror::Error)]
 pub enum ConfigError {
@@ -59,7 +133,11 @@ pub struct BenchConfig {
     pub loop_: LoopConfig,
     /// The mechanism (SR4DoF lumped model, Eq. 2-5).
     pub plant: Sr4dofParams,
-    /// Amplifier and voice coil.
+    /// Amplifier and voice coil. Safety ranges: `peak_current_a` in
+    /// (0, [`limits::PEAK_CURRENT_MAX_A`]] (20 A, twice the coil's rated
+    /// 9.98 A peak: the supervisor clips every command to it and the I²t
+    /// budget grows with its square), `continuous_current_a` in
+    /// (0, `peak_current_a`].
     pub actuator: ActuatorParams,
     /// Position probe.
     pub probe: ProbeParams,
@@ -83,6 +161,8 @@ pub struct BenchConfig {
     #[serde(default)]
     pub step: StepConfig,
     /// Which hardware runs the jobs (`[backend]`, default: the simulator).
+    /// Its link timeouts and the CAN device's current ratings have safety
+    /// ranges (see [`BackendConfig`]).
     #[serde(default)]
     pub backend: BackendConfig,
     /// The device emulator of `bench emulate` (`[emulator]`).
@@ -126,10 +206,19 @@ pub struct BackendConfig {
     /// `sim`, `serial` or `socketcan`.
     #[serde(default)]
     pub kind: BackendKind,
-    /// `[backend.serial]`: the serial DAQ.
+    /// `[backend.serial]`: the serial DAQ. Safety ranges:
+    /// `sample_timeout_periods` in [1, 1000] periods and at most
+    /// [`limits::SAMPLE_TIMEOUT_MAX_S`] (200 ms) at the loop rate;
+    /// `handshake_timeout_ms` in [`limits::HANDSHAKE_TIMEOUT_MS`]
+    /// (1 ms … 10 s); and `(safety.max_missed_samples + 1)` sample timeouts
+    /// at most [`limits::LINK_FAULT_MAX_S`] (1 s).
     #[serde(default)]
     pub serial: bench_hal::serial::SerialConfig,
-    /// `[backend.can]`: the SocketCAN module and its frame map.
+    /// `[backend.can]`: the SocketCAN module and its frame map. Safety
+    /// ranges: `sample_timeout_ms` in [0.1, 200] ms (and the same 1 s to the
+    /// link fault as the serial link), `peak_current_a` in (0, 20] A and
+    /// `continuous_current_a` in (0, `peak_current_a`], as for
+    /// `[actuator]`.
     #[serde(default)]
     pub can: bench_hal::can::CanConfig,
 }
@@ -140,9 +229,15 @@ pub struct BackendConfig {
 pub struct EmulatorConfig {
     /// Device watchdog: with no valid command for this long while enabled,
     /// the device drops the current to 0 A and latches a fault, ms.
+    /// Range: at least 1 ms and two loop periods (commands come once a
+    /// period), at most [`limits::WATCHDOG_MAX_MS`] (1 s: a dead host must
+    /// not leave current flowing longer).
     #[serde(default = "default_watchdog_ms")]
     pub watchdog_ms: f64,
-    /// Size of one probe count on the serial link, m.
+    /// Size of one probe count on the serial link, m. Range:
+    /// `probe.range_m / (2³¹ − 1)` (the whole probe range fits the 32-bit
+    /// count) to [`limits::POSITION_LSB_MAX_M`] (1 µm: a coarser count would
+    /// hide motion the position limit and jump checks must see).
     #[serde(default = "default_position_lsb_m")]
     pub position_lsb_m: f64,
     /// SCHED_FIFO priority of the emulator's device thread (0: normal
@@ -256,34 +351,55 @@ pub struct StageConfig {
     pub mechanical_stop_m: f64,
 }
 
-/// `[safety]`
+/// `[safety]`. Every key has a range (below, and in the README's
+/// configuration reference); a value outside it is refused naming the key,
+/// so no config can switch a protection off.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct SafetyConfig {
     /// Software position limit on |x1|, m: beyond it the supervisor faults.
-    /// Must be inside the mechanical stop and the probe range.
+    /// Range: [`limits::POSITION_LIMIT_MIN_M`] (1 µm, well above the probe's
+    /// 40 nm RMS noise) up to, not including, [`limits::STROKE_M`] (the
+    /// ±1 mm X travel of the thesis bench, §5.1.2), and inside
+    /// `stage.mechanical_stop_m` and `probe.range_m`.
     pub position_limit_m: f64,
     /// Consecutive loop overruns that fault the supervisor (real-time mode).
+    /// Range: 1 to the ticks of [`limits::BLIND_MAX_S`] (0.1 s; 500 at
+    /// 5 kHz). 0 would switch the check off.
     #[serde(default = "default_max_overruns")]
     pub max_consecutive_overruns: u32,
-    /// Consecutive samples that may be missing (sequence gap) or stale
-    /// (sequence not advancing) before the supervisor faults.
+    /// Consecutive samples that may be missing (sequence gap, timeout,
+    /// corrupt frames) or stale (sequence not advancing) before the
+    /// supervisor faults (K). Range: 0 (every missing sample faults) to the
+    /// ticks of [`limits::BLIND_MAX_S`] (0.1 s; 500 at 5 kHz), and K + 1
+    /// sample timeouts (`[backend.serial] sample_timeout_periods`,
+    /// `[backend.can] sample_timeout_ms`) at most
+    /// [`limits::LINK_FAULT_MAX_S`] (1 s, the longest device watchdog).
     #[serde(default = "default_max_missed")]
     pub max_missed_samples: u32,
     /// Largest plausible change of the probe reading between two ticks, m;
     /// a larger jump faults (a glitch or a lost target, not motion).
+    /// Range: [`limits::POSITION_STEP_MIN_M`] (1 µm, 25 × the probe's RMS
+    /// noise) to [`limits::STAGE_SPEED_MAX_M_PER_S`] × one period (1 m/s,
+    /// twice what the peak force can reach over the 2 mm stroke; 200 µm at
+    /// 5 kHz), and below `position_limit_m`.
     #[serde(default = "default_max_step")]
     pub max_position_step_m: f64,
     /// How long the peak current may flow from cold, s: the I²t budget is
     /// `(I_peak² − I_cont²) · this`; the accumulator integrates
     /// `i² − I_cont²` (never below 0) and faults when it exceeds the budget.
+    /// Range: [`limits::I2T_PEAK_DURATION_S`] (10 ms to 10 s: a coil's peak
+    /// rating is a rating for seconds, not minutes).
     #[serde(default = "default_i2t_s")]
     pub i2t_peak_duration_s: f64,
-    /// Smallest phase margin the loop check accepts, degrees.
+    /// Smallest phase margin the loop check accepts, degrees. Range:
+    /// [`limits::MIN_PHASE_MARGIN_DEG`] (20° up to, not including, 90°:
+    /// below 20° a loop rings and small plant changes destabilise it).
     #[serde(default = "default_min_pm")]
     pub min_phase_margin_deg: f64,
     /// Largest peak of |S| the loop check accepts (2.0 = 6 dB, modulus
-    /// margin 0.5).
+    /// margin 0.5). Range: above 1 (no loop does better) up to
+    /// [`limits::MAX_SENSITIVITY_PEAK`] (6, modulus margin 0.17).
     #[serde(default = "default_max_s")]
     pub max_sensitivity_peak: f64,
 }
@@ -488,71 +604,17 @@ impl BenchConfig {
             ));
         }
         positive("loop.timing_interval_s", self.loop_.timing_interval_s)?;
-        self.backend.serial.validate("backend.serial")?;
-        self.backend.can.validate("backend.can")?;
-        positive("emulator.watchdog_ms", self.emulator.watchdog_ms)?;
-        positive("emulator.position_lsb_m", self.emulator.position_lsb_m)?;
-        if !(0..=99).contains(&self.emulator.priority) {
-            return Err(ParamError::new(
-                "emulator.priority",
-                format!(
-                    "SCHED_FIFO priority must be 0 (none) or 1–99, got {}",
-                    self.emulator.priority
-                ),
-            ));
-        }
         self.plant.validate("plant")?;
         self.actuator.validate("actuator")?;
+        self.check_current_ratings(
+            "actuator",
+            self.actuator.peak_current_a,
+            self.actuator.continuous_current_a,
+        )?;
         self.probe.validate("probe")?;
         positive("stage.mechanical_stop_m", self.stage.mechanical_stop_m)?;
-        let lim = self.safety.position_limit_m;
-        positive("safety.position_limit_m", lim)?;
-        if lim >= self.stage.mechanical_stop_m {
-            return Err(ParamError::new(
-                "safety.position_limit_m",
-                format!(
-                    "{lim} m must be inside the mechanical stop ({} m)",
-                    self.stage.mechanical_stop_m
-                ),
-            ));
-        }
-        if lim >= self.probe.range_m {
-            return Err(ParamError::new(
-                "safety.position_limit_m",
-                format!(
-                    "{lim} m must be inside the probe range ({} m)",
-                    self.probe.range_m
-                ),
-            ));
-        }
-        positive(
-            "safety.max_position_step_m",
-            self.safety.max_position_step_m,
-        )?;
-        positive(
-            "safety.i2t_peak_duration_s",
-            self.safety.i2t_peak_duration_s,
-        )?;
-        positive(
-            "safety.min_phase_margin_deg",
-            self.safety.min_phase_margin_deg,
-        )?;
-        positive(
-            "safety.max_sensitivity_peak",
-            self.safety.max_sensitivity_peak,
-        )?;
-        if self.safety.max_sensitivity_peak < 1.0 {
-            return Err(ParamError::new(
-                "safety.max_sensitivity_peak",
-                "must be >= 1 (no loop has a sensitivity peak below 1)",
-            ));
-        }
-        if self.safety.max_consecutive_overruns == 0 {
-            return Err(ParamError::new(
-                "safety.max_consecutive_overruns",
-                "must be >= 1",
-            ));
-        }
+        self.check_safety()?;
+        self.check_links()?;
         self.check_chirp()?;
         for (name, c) in &self.controller {
             c.validate(&format!("controller.{name}"))
@@ -612,6 +674,220 @@ impl BenchConfig {
             return Err(ParamError::new(
                 "identification.min_bins",
                 "must be >= 3 (coherence needs averaging over bins)",
+            ));
+        }
+        Ok(())
+    }
+
+    /// The ticks in `seconds` at the loop rate (rounded down; the rate is
+    /// checked first).
+    fn ticks_in(&self, seconds: f64) -> u64 {
+        (seconds * self.loop_.rate_hz * TIME_TOLERANCE).floor() as u64
+    }
+
+    /// `[safety]`: every key inside its range ([`limits`]).
+    fn check_safety(&self) -> Result<(), ParamError> {
+        let s = &self.safety;
+        let lim = s.position_limit_m;
+        in_range(
+            "safety.position_limit_m",
+            lim,
+            Range::closed_open(limits::POSITION_LIMIT_MIN_M, limits::STROKE_M),
+            "m",
+            "above the probe noise and inside the ±1 mm travel of the bench (thesis §5.1.2)",
+        )?;
+        if lim >= self.stage.mechanical_stop_m {
+            return Err(ParamError::new(
+                "safety.position_limit_m",
+                format!(
+                    "{lim} m must be inside the mechanical stop ({} m)",
+                    self.stage.mechanical_stop_m
+                ),
+            ));
+        }
+        if lim >= self.probe.range_m {
+            return Err(ParamError::new(
+                "safety.position_limit_m",
+                format!(
+                    "{lim} m must be inside the probe range ({} m)",
+                    self.probe.range_m
+                ),
+            ));
+        }
+        let blind = self.ticks_in(limits::BLIND_MAX_S);
+        in_count(
+            "safety.max_consecutive_overruns",
+            s.max_consecutive_overruns,
+            1,
+            blind,
+            "at least 1 (0 switches the check off) and at most 0.1 s of ticks at loop.rate_hz",
+        )?;
+        in_count(
+            "safety.max_missed_samples",
+            s.max_missed_samples,
+            0,
+            blind,
+            "at most 0.1 s of ticks at loop.rate_hz",
+        )?;
+        let period_s = 1.0 / self.loop_.rate_hz;
+        let step_max = limits::STAGE_SPEED_MAX_M_PER_S * period_s;
+        in_range(
+            "safety.max_position_step_m",
+            s.max_position_step_m,
+            Range::closed(limits::POSITION_STEP_MIN_M, step_max),
+            "m",
+            "above the probe noise and at most 1 m/s × one period (the stage moves at most about 0.5 m/s)",
+        )?;
+        if s.max_position_step_m >= lim {
+            return Err(ParamError::new(
+                "safety.max_position_step_m",
+                format!(
+                    "{} m must be below safety.position_limit_m = {lim} m (a larger step would pass from one side of the limit to the other unnoticed)",
+                    s.max_position_step_m
+                ),
+            ));
+        }
+        let (lo, hi) = limits::I2T_PEAK_DURATION_S;
+        in_range(
+            "safety.i2t_peak_duration_s",
+            s.i2t_peak_duration_s,
+            Range::closed(lo, hi),
+            "s",
+            "a coil's peak current is rated for seconds, not minutes",
+        )?;
+        let (lo, hi) = limits::MIN_PHASE_MARGIN_DEG;
+        in_range(
+            "safety.min_phase_margin_deg",
+            s.min_phase_margin_deg,
+            Range::closed_open(lo, hi),
+            "°",
+            "below 20° a loop rings and small plant changes destabilise it",
+        )?;
+        in_range(
+            "safety.max_sensitivity_peak",
+            s.max_sensitivity_peak,
+            Range::open_closed(1.0, limits::MAX_SENSITIVITY_PEAK),
+            "",
+            "above 1 (no loop has a lower sensitivity peak) and at most 6 (modulus margin 0.17)",
+        )?;
+        Ok(())
+    }
+
+    /// Peak and continuous current ratings under `prefix` (the actuator, a
+    /// CAN device): inside (0, [`limits::PEAK_CURRENT_MAX_A`]], continuous
+    /// at most peak (the tables' own checks refuse the rest).
+    fn check_current_ratings(
+        &self,
+        prefix: &str,
+        peak_a: f64,
+        continuous_a: f64,
+    ) -> Result<(), ParamError> {
+        in_range(
+            &format!("{prefix}.peak_current_a"),
+            peak_a,
+            Range::open_closed(0.0, limits::PEAK_CURRENT_MAX_A),
+            "A",
+            "twice the 9.98 A peak of the bench's voice coil (LA24-20-000A, thesis §5.1.2)",
+        )?;
+        in_range(
+            &format!("{prefix}.continuous_current_a"),
+            continuous_a,
+            Range::open_closed(0.0, peak_a),
+            "A",
+            "positive and at most peak_current_a",
+        )
+    }
+
+    /// The device emulator and the link timeouts of `[backend]`, each in
+    /// its range, and the time to the link fault (K + 1 timeouts) at most
+    /// [`limits::LINK_FAULT_MAX_S`].
+    fn check_links(&self) -> Result<(), ParamError> {
+        let period_s = 1.0 / self.loop_.rate_hz;
+        self.backend.serial.validate("backend.serial")?;
+        let serial = &self.backend.serial;
+        let (lo, hi) = limits::HANDSHAKE_TIMEOUT_MS;
+        in_range(
+            "backend.serial.handshake_timeout_ms",
+            serial.handshake_timeout_ms,
+            Range::closed(lo, hi),
+            "ms",
+            "a silent device must not hold the disable longer",
+        )?;
+        let serial_timeout_s = serial.sample_timeout_periods * period_s;
+        if serial_timeout_s > limits::SAMPLE_TIMEOUT_MAX_S * TIME_TOLERANCE {
+            return Err(ParamError::new(
+                "backend.serial.sample_timeout_periods",
+                format!(
+                    "{} periods = {:.1} ms at loop.rate_hz = {} Hz is above the longest sample timeout, {} ms",
+                    serial.sample_timeout_periods,
+                    serial_timeout_s * 1e3,
+                    self.loop_.rate_hz,
+                    limits::SAMPLE_TIMEOUT_MAX_S * 1e3
+                ),
+            ));
+        }
+        self.backend.can.validate("backend.can")?;
+        let can = &self.backend.can;
+        if let Some(ms) = can.sample_timeout_ms {
+            in_range(
+                "backend.can.sample_timeout_ms",
+                ms,
+                Range::closed(
+                    limits::CAN_SAMPLE_TIMEOUT_MIN_MS,
+                    limits::SAMPLE_TIMEOUT_MAX_S * 1e3,
+                ),
+                "ms",
+                "about one CAN frame to the longest sample timeout",
+            )?;
+        }
+        self.check_current_ratings("backend.can", can.peak_current_a, can.continuous_current_a)?;
+        let period_ns = self.loop_.period_ns();
+        let can_timeout_s = can.sample_timeout_ns(period_ns).max(period_ns) as f64 * 1e-9;
+        let k = f64::from(self.safety.max_missed_samples);
+        for (what, timeout_s) in [
+            ("backend.serial.sample_timeout_periods", serial_timeout_s),
+            ("backend.can.sample_timeout_ms", can_timeout_s),
+        ] {
+            if (k + 1.0) * timeout_s > limits::LINK_FAULT_MAX_S * TIME_TOLERANCE {
+                return Err(ParamError::new(
+                    "safety.max_missed_samples",
+                    format!(
+                        "{k} missing samples + 1, each a {:.1} ms timeout ({what}), is {:.3} s to the link fault: at most {} s",
+                        timeout_s * 1e3,
+                        (k + 1.0) * timeout_s,
+                        limits::LINK_FAULT_MAX_S
+                    ),
+                ));
+            }
+        }
+        let e = &self.emulator;
+        in_range(
+            "emulator.watchdog_ms",
+            e.watchdog_ms,
+            Range::closed(
+                limits::WATCHDOG_MIN_MS.max(2e3 * period_s),
+                limits::WATCHDOG_MAX_MS,
+            ),
+            "ms",
+            "at least two loop periods and 1 ms, at most 1 s of current after the host is gone",
+        )?;
+        in_range(
+            "emulator.position_lsb_m",
+            e.position_lsb_m,
+            Range::closed(
+                self.probe.range_m / f64::from(i32::MAX),
+                limits::POSITION_LSB_MAX_M,
+            ),
+            "m",
+            "the 32-bit count must cover probe.range_m, and be finer than the smallest jump the supervisor looks for",
+        )?;
+        if !(0..=99).contains(&e.priority) {
+            return Err(ParamError::new(
+                "emulator.priority",
+                format!(
+                    "SCHED_FIFO priority must be 0 (none) or 1–99, got {}",
+                    e.priority
+                ),
             ));
         }
         Ok(())
@@ -730,6 +1006,108 @@ impl BenchConfig {
     /// The resolved config as TOML (recorded as MCAP metadata).
     pub fn to_toml(&self) -> String {
         toml::to_string(self).unwrap_or_else(|e| format!("# not serialisable: {e}"))
+    }
+}
+
+/// Products of periods and counts are compared with the time bounds of
+/// [`limits`] with this relative slack, so that a value exactly on a bound
+/// (1000 periods at 5 kHz = 200 ms) is not refused for a rounding error.
+const TIME_TOLERANCE: f64 = 1.0 + 1e-9;
+
+/// A range of a real value; either end open or closed.
+#[derive(Debug, Clone, Copy)]
+struct Range {
+    lo: f64,
+    lo_closed: bool,
+    hi: f64,
+    hi_closed: bool,
+}
+
+impl Range {
+    /// `[lo, hi]`
+    fn closed(lo: f64, hi: f64) -> Self {
+        Self {
+            lo,
+            lo_closed: true,
+            hi,
+            hi_closed: true,
+        }
+    }
+    /// `[lo, hi)`
+    fn closed_open(lo: f64, hi: f64) -> Self {
+        Self {
+            hi_closed: false,
+            ..Self::closed(lo, hi)
+        }
+    }
+    /// `(lo, hi]`
+    fn open_closed(lo: f64, hi: f64) -> Self {
+        Self {
+            lo_closed: false,
+            ..Self::closed(lo, hi)
+        }
+    }
+
+    fn contains(&self, v: f64) -> bool {
+        let above = if self.lo_closed {
+            v >= self.lo
+        } else {
+            v > self.lo
+        };
+        let below = if self.hi_closed {
+            v <= self.hi
+        } else {
+            v < self.hi
+        };
+        above && below
+    }
+}
+
+impl std::fmt::Display for Range {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "{}{:?}, {:?}{}",
+            if self.lo_closed { '[' } else { '(' },
+            self.lo,
+            self.hi,
+            if self.hi_closed { ']' } else { ')' }
+        )
+    }
+}
+
+/// `value` finite and inside `range` (in `unit`), else an error naming
+/// `key` with the range and `why`.
+fn in_range(key: &str, value: f64, range: Range, unit: &str, why: &str) -> Result<(), ParamError> {
+    if !value.is_finite() {
+        return Err(ParamError::new(
+            key,
+            format!("must be a finite number, got {value}"),
+        ));
+    }
+    if !range.contains(value) {
+        let unit = if unit.is_empty() {
+            String::new()
+        } else {
+            format!(" {unit}")
+        };
+        return Err(ParamError::new(
+            key,
+            format!("{value:?}{unit} is outside {range}{unit}: {why}"),
+        ));
+    }
+    Ok(())
+}
+
+/// A count inside `lo..=hi`, else an error naming `key`.
+fn in_count(key: &str, value: u32, lo: u64, hi: u64, why: &str) -> Result<(), ParamError> {
+    if (lo..=hi).contains(&u64::from(value)) {
+        Ok(())
+    } else {
+        Err(ParamError::new(
+            key,
+            format!("{value} is outside {lo}…{hi}: {why}"),
+        ))
     }
 }
 

@@ -46,13 +46,15 @@ pub struct SerialConfig {
     /// Line rate, baud (ignored by USB CDC-ACM devices and pseudo-terminals).
     pub baud: u32,
     /// How long to wait for the device's hello and for enable/disable
-    /// acknowledgements, ms.
+    /// acknowledgements, ms (`bench` accepts 1 ms … 10 s).
     pub handshake_timeout_ms: f64,
     /// Longest wait for a sample on the tick, in sample periods (default 25:
     /// 5 ms at 5 kHz). Past it the read is a bad sample (`Timeout`); the
     /// host's link fault comes after `safety.max_missed_samples + 1` of them
     /// in a row. USB and pseudo-terminal layers deliver samples in bursts:
     /// on a loaded 2-core VM a pty held samples back for up to 5.4 ms.
+    /// Range: 1 … 1000 periods; `bench` also holds it to at most 200 ms at
+    /// the loop rate, and `(max_missed_samples + 1)` of them to at most 1 s.
     pub sample_timeout_periods: f64,
 }
 

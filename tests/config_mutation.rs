@@ -1,0 +1,674 @@
+//! Mutations of the shipped `bench-config/sr4dof-ch5.toml`, key by key, for
+//! every key that a protection depends on (`[safety]`, `[actuator]`,
+//! `[emulator]`, the link timeouts and ratings of `[backend]`): NaN, ±inf,
+//! negative, zero, denormal, huge, the integer extremes, the values just
+//! outside and just inside each documented bound, wrong types and deletion,
+//! plus property-based values (any bit pattern, and values clustered around
+//! the bounds). For each: refused naming the key, or accepted with the value
+//! inside its documented range.
+//!
+//! The ranges here are written from the documentation (README,
+//! *Configuration reference*; the comments in the shipped files), not taken
+//! from `config::limits`, so the test holds the code to what is documented.
+//! At the shipped rate (5 kHz) and values.
+
+mod common;
+
+use bench::config::{BenchConfig, ConfigError};
+use proptest::prelude::*;
+use std::path::{Path, PathBuf};
+use toml::{Table, Value};
+
+const SHIPPED: &str = "bench-config/sr4dof-ch5.toml";
+
+fn shipped_text() -> String {
+    std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join(SHIPPED))
+        .expect("shipped config")
+}
+
+fn shipped_table() -> Table {
+    shipped_text().parse().expect("shipped config is TOML")
+}
+
+/// What kind of value the key holds.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Kind {
+    /// `f64`
+    Real,
+    /// `u32`
+    Count,
+    /// `i32`
+    Int,
+}
+
+/// A documented range: `lo`/`hi` with closed or open ends.
+#[derive(Debug, Clone, Copy)]
+struct Bounds {
+    lo: f64,
+    lo_closed: bool,
+    hi: f64,
+    hi_closed: bool,
+}
+
+impl Bounds {
+    const fn new(lo: f64, lo_closed: bool, hi: f64, hi_closed: bool) -> Self {
+        Self {
+            lo,
+            lo_closed,
+            hi,
+            hi_closed,
+        }
+    }
+
+    fn contains(&self, v: f64) -> bool {
+        v.is_finite()
+            && (if self.lo_closed {
+                v >= self.lo
+            } else {
+                v > self.lo
+            })
+            && (if self.hi_closed {
+                v <= self.hi
+            } else {
+                v < self.hi
+            })
+    }
+
+    /// The values just outside each end (for a closed end the next float
+    /// beyond it, for an open end the end itself), and just inside.
+    fn edges(&self, kind: Kind) -> (Vec<f64>, Vec<f64>) {
+        let (mut outside, mut inside) = (Vec::new(), Vec::new());
+        if kind == Kind::Real {
+            if self.lo_closed {
+                outside.push(self.lo.next_down());
+                inside.push(self.lo);
+            } else {
+                outside.push(self.lo);
+                inside.push(self.lo.next_up());
+            }
+            if self.hi.is_finite() {
+                if self.hi_closed {
+                    outside.push(self.hi.next_up());
+                    inside.push(self.hi);
+                } else {
+                    outside.push(self.hi);
+                    inside.push(self.hi.next_down());
+                }
+            }
+        } else {
+            // Integer ends are closed.
+            outside.extend([self.lo - 1.0, self.hi + 1.0]);
+            inside.extend([self.lo, self.hi]);
+        }
+        (outside, inside)
+    }
+}
+
+/// One key under test.
+struct Spec {
+    /// Dotted key, as the errors name it.
+    key: &'static str,
+    kind: Kind,
+    /// Deleting it is a parse error (no default).
+    required: bool,
+    /// The documented range, at the shipped config's other values.
+    range: Bounds,
+}
+
+/// Every key that a protection depends on, with its documented range for
+/// the shipped Chapter 5 config (5 kHz loop, ±1 mm stop and probe,
+/// `position_limit_m` 0.8 mm, 9.98 A peak, default serial timeout 25
+/// periods = 5 ms, default CAN timeout 1 ms, K = 3).
+fn specs() -> Vec<Spec> {
+    let rate: f64 = 5000.0;
+    let period = 1.0 / rate;
+    // 0.1 s of ticks.
+    let blind = (0.1 * rate).floor();
+    // (K + 1) timeouts at most 1 s: serial 5 ms, CAN 1 ms.
+    let k_max = blind.min(199.0).min(999.0);
+    let s = |key, kind, required, range| Spec {
+        key,
+        kind,
+        required,
+        range,
+    };
+    use Kind::*;
+    vec![
+        s(
+            "safety.position_limit_m",
+            Real,
+            true,
+            Bounds::new(1e-6, true, 1e-3, false),
+        ),
+        s(
+            "safety.max_consecutive_overruns",
+            Count,
+            false,
+            Bounds::new(1.0, true, blind, true),
+        ),
+        s(
+            "safety.max_missed_samples",
+            Count,
+            false,
+            Bounds::new(0.0, true, k_max, true),
+        ),
+        s(
+            "safety.max_position_step_m",
+            Real,
+            false,
+            // 1 m/s × one period (below the 0.8 mm limit).
+            Bounds::new(1e-6, true, 1.0 * period, true),
+        ),
+        s(
+            "safety.i2t_peak_duration_s",
+            Real,
+            false,
+            Bounds::new(0.01, true, 10.0, true),
+        ),
+        s(
+            "safety.min_phase_margin_deg",
+            Real,
+            false,
+            Bounds::new(20.0, true, 90.0, false),
+        ),
+        s(
+            "safety.max_sensitivity_peak",
+            Real,
+            false,
+            Bounds::new(1.0, false, 6.0, true),
+        ),
+        s(
+            "actuator.peak_current_a",
+            Real,
+            true,
+            Bounds::new(0.0, false, 20.0, true),
+        ),
+        s(
+            "actuator.continuous_current_a",
+            Real,
+            true,
+            Bounds::new(0.0, false, 9.98, true),
+        ),
+        // Not protections themselves, but NaN, inf and non-positive values
+        // are refused here too.
+        s(
+            "actuator.force_constant_n_per_a",
+            Real,
+            true,
+            Bounds::new(0.0, false, f64::INFINITY, false),
+        ),
+        s(
+            "actuator.bandwidth_hz",
+            Real,
+            true,
+            Bounds::new(0.0, false, f64::INFINITY, false),
+        ),
+        s(
+            "emulator.watchdog_ms",
+            Real,
+            false,
+            // At least 1 ms and two periods (0.4 ms), at most 1 s.
+            Bounds::new(1.0, true, 1000.0, true),
+        ),
+        s(
+            "emulator.position_lsb_m",
+            Real,
+            false,
+            Bounds::new(1e-3 / f64::from(i32::MAX), true, 1e-6, true),
+        ),
+        s(
+            "emulator.priority",
+            Int,
+            false,
+            Bounds::new(0.0, true, 99.0, true),
+        ),
+        s(
+            "backend.serial.sample_timeout_periods",
+            Real,
+            false,
+            // 1 … 1000 periods, at most 200 ms (1000 periods at 5 kHz).
+            Bounds::new(1.0, true, 1000.0, true),
+        ),
+        s(
+            "backend.serial.handshake_timeout_ms",
+            Real,
+            false,
+            Bounds::new(1.0, true, 10_000.0, true),
+        ),
+        s(
+            "backend.can.sample_timeout_ms",
+            Real,
+            false,
+            Bounds::new(0.1, true, 200.0, true),
+        ),
+        s(
+            "backend.can.peak_current_a",
+            Real,
+            false,
+            Bounds::new(0.0, false, 20.0, true),
+        ),
+        s(
+            "backend.can.continuous_current_a",
+            Real,
+            false,
+            // At most the CAN device's default peak, 9.98 A.
+            Bounds::new(0.0, false, 9.98, true),
+        ),
+    ]
+}
+
+/// The table holding `key`'s last segment (created if missing), and that
+/// segment.
+fn slot<'a>(t: &'a mut Table, key: &'a str) -> (&'a mut Table, &'a str) {
+    let mut parts: Vec<&str> = key.split('.').collect();
+    let last = parts.pop().expect("dotted key");
+    let mut t = t;
+    for p in parts {
+        t = t
+            .entry(p)
+            .or_insert_with(|| Value::Table(Table::new()))
+            .as_table_mut()
+            .expect("a table");
+    }
+    (t, last)
+}
+
+/// A mutation of one key.
+#[derive(Debug, Clone)]
+enum Mutation {
+    /// A value of any TOML type.
+    Set(Value),
+    /// The key removed.
+    Delete,
+}
+
+fn mutate(key: &str, m: &Mutation) -> String {
+    let mut t = shipped_table();
+    let (table, last) = slot(&mut t, key);
+    match m {
+        Mutation::Set(v) => {
+            table.insert(last.to_string(), v.clone());
+        }
+        Mutation::Delete => {
+            table.remove(last);
+        }
+    }
+    toml::to_string(&t).expect("serialisable")
+}
+
+/// Loads and validates TOML text as `bench` does.
+fn load(text: &str) -> Result<BenchConfig, ConfigError> {
+    let p = Path::new("mutated.toml");
+    let c = BenchConfig::from_toml(text, p)?;
+    c.validate(p)?;
+    Ok(c)
+}
+
+/// The value of `key` in a loaded config (`None` if unset).
+fn value_of(c: &BenchConfig, key: &str) -> Option<f64> {
+    let v: Value = toml::from_str(&c.to_toml()).expect("resolved config");
+    let mut cur = &v;
+    for p in key.split('.') {
+        cur = cur.get(p)?;
+    }
+    match cur {
+        Value::Float(f) => Some(*f),
+        Value::Integer(i) => Some(*i as f64),
+        other => panic!("{key} is {other:?}"),
+    }
+}
+
+/// The numeric value a TOML value gives this key, if it is of a type the
+/// key accepts (`None`: a type error is expected).
+fn numeric(kind: Kind, v: &Value) -> Option<f64> {
+    match (kind, v) {
+        (Kind::Real, Value::Float(f)) => Some(*f),
+        (Kind::Real, Value::Integer(i)) => Some(*i as f64),
+        (Kind::Count, Value::Integer(i)) if u32::try_from(*i).is_ok() => Some(*i as f64),
+        (Kind::Int, Value::Integer(i)) if i32::try_from(*i).is_ok() => Some(*i as f64),
+        _ => None,
+    }
+}
+
+/// The rule every mutation must obey; `Err` describes a violation.
+fn judge(spec: &Spec, m: &Mutation) -> Result<(), String> {
+    let text = mutate(spec.key, m);
+    let last = spec.key.rsplit('.').next().expect("key");
+    let got = load(&text);
+    let expect = match m {
+        Mutation::Delete if spec.required => None,
+        Mutation::Delete => {
+            // An optional key falls back to its default, inside its range
+            // (or unset: the CAN timeout's computed default).
+            return match got {
+                Ok(c) => match value_of(&c, spec.key) {
+                    Some(v) if !spec.range.contains(v) => {
+                        Err(format!("deleted: default {v} outside {:?}", spec.range))
+                    }
+                    _ => Ok(()),
+                },
+                Err(e) => Err(format!("deleting an optional key refused: {e}")),
+            };
+        }
+        Mutation::Set(v) => numeric(spec.kind, v).map(|x| (x, spec.range.contains(x))),
+    };
+    match (expect, got) {
+        // Inside the documented range: accepted with exactly this value, or
+        // refused for another key's cross-check (e.g. a peak current below
+        // the continuous rating), never for this key.
+        (Some((x, true)), Ok(c)) => match value_of(&c, spec.key) {
+            Some(v) if v == x => Ok(()),
+            other => Err(format!("accepted {x:?} but loaded {other:?}")),
+        },
+        (Some((x, true)), Err(ConfigError::Invalid { key, reason, .. })) => {
+            if key == spec.key {
+                Err(format!(
+                    "{x:?} is inside the documented range but refused: {reason}"
+                ))
+            } else {
+                Ok(())
+            }
+        }
+        (Some((x, true)), Err(e)) => Err(format!("{x:?}: unexpected error {e}")),
+        // Outside: refused naming this key.
+        (Some((x, false)), Ok(_)) => Err(format!("{x:?} is outside {:?} but accepted", spec.range)),
+        (Some((x, false)), Err(ConfigError::Invalid { key, reason, .. })) => {
+            if key == spec.key {
+                Ok(())
+            } else {
+                Err(format!(
+                    "{x:?} refused naming {key} ({reason}), not {}",
+                    spec.key
+                ))
+            }
+        }
+        (Some((x, false)), Err(e)) => Err(format!("{x:?}: unexpected error {e}")),
+        // Wrong type, out of the integer type, or a required key deleted: a
+        // parse error naming the key.
+        (None, Ok(_)) => Err("accepted".into()),
+        (None, Err(e @ ConfigError::Parse { .. })) => {
+            let msg = e.to_string();
+            if msg.contains(last) {
+                Ok(())
+            } else {
+                Err(format!("parse error does not name {last}: {msg}"))
+            }
+        }
+        (None, Err(e)) => Err(format!("unexpected error {e}")),
+    }
+}
+
+/// The exhaustive table of mutations for one key.
+fn table_for(spec: &Spec) -> Vec<Mutation> {
+    let mut m = Vec::new();
+    let set = Mutation::Set;
+    match spec.kind {
+        Kind::Real => {
+            for x in [
+                f64::NAN,
+                -f64::NAN,
+                f64::INFINITY,
+                f64::NEG_INFINITY,
+                -1.0,
+                -5e-324,
+                -0.0,
+                0.0,
+                5e-324,
+                f64::MIN_POSITIVE,
+                1e-300,
+                1e300,
+                f64::MAX,
+                -1e300,
+            ] {
+                m.push(set(Value::Float(x)));
+            }
+            let (outside, inside) = spec.range.edges(spec.kind);
+            for x in outside.into_iter().chain(inside) {
+                m.push(set(Value::Float(x)));
+            }
+            // An integer where a real goes (TOML allows it for floats).
+            m.push(set(Value::Integer(-1)));
+            m.push(set(Value::Integer(0)));
+            m.push(set(Value::Integer(i64::MAX)));
+            m.push(set(Value::Integer(u32::MAX.into())));
+        }
+        Kind::Count | Kind::Int => {
+            for i in [
+                i64::MIN,
+                -1,
+                0,
+                1,
+                i64::from(u32::MAX),
+                i64::from(u32::MAX) + 1,
+                i64::from(i32::MAX),
+                i64::from(i32::MIN),
+                i64::MAX,
+            ] {
+                m.push(set(Value::Integer(i)));
+            }
+            let (outside, inside) = spec.range.edges(spec.kind);
+            for x in outside.into_iter().chain(inside) {
+                m.push(set(Value::Integer(x as i64)));
+            }
+            // Reals where an integer goes.
+            for x in [f64::NAN, f64::INFINITY, 3.0, 1e300, 5e-324] {
+                m.push(set(Value::Float(x)));
+            }
+        }
+    }
+    // Wrong types.
+    m.push(set(Value::String("1.0".into())));
+    m.push(set(Value::String(String::new())));
+    m.push(set(Value::Boolean(true)));
+    m.push(set(Value::Array(vec![Value::Float(1.0)])));
+    m.push(set(Value::Table(Table::new())));
+    m.push(Mutation::Delete);
+    m
+}
+
+#[test]
+fn the_shipped_configs_and_the_test_fixtures_validate() {
+    for name in ["sr4dof-ch5.toml", "sr4dof-ch2.toml"] {
+        let p = Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("bench-config")
+            .join(name);
+        let c = BenchConfig::load(&p).unwrap();
+        c.validate(&p).unwrap();
+    }
+    // The hardware and daemon tests' slow-VM link settings.
+    let dir = common::tmp();
+    let p = common::quiet_config(
+        dir.path(),
+        2.0,
+        "\n[backend.serial]\nsample_timeout_periods = 200.0\n\n[emulator]\nwatchdog_ms = 300.0\n",
+    );
+    BenchConfig::load(&p).unwrap().validate(&p).unwrap();
+    // Every spec holds for the shipped values themselves.
+    let c = load(&shipped_text()).unwrap();
+    for spec in specs() {
+        if let Some(v) = value_of(&c, spec.key) {
+            assert!(spec.range.contains(v), "{}: shipped {v}", spec.key);
+        }
+    }
+}
+
+#[test]
+fn every_mutation_of_every_safety_key_is_refused_naming_it_or_stays_in_range() {
+    let mut failures = Vec::new();
+    let mut n = 0;
+    for spec in specs() {
+        for m in table_for(&spec) {
+            n += 1;
+            if let Err(why) = judge(&spec, &m) {
+                failures.push(format!("{} = {m:?}: {why}", spec.key));
+            }
+        }
+    }
+    assert!(n > 500, "only {n} mutations");
+    assert!(
+        failures.is_empty(),
+        "{} of {n} mutations broke the rule:\n{}",
+        failures.len(),
+        failures.join("\n")
+    );
+}
+
+/// A real value for key `spec`: any bit pattern, or near one of the bounds
+/// (a few ulps, or a relative nudge), or anywhere inside.
+fn real_near(spec: &Spec, bits: u64, mode: u8, ulps: i32, frac: f64) -> f64 {
+    let r = spec.range;
+    let hi = if r.hi.is_finite() { r.hi } else { 1e6 };
+    let nudge = |mut x: f64| {
+        for _ in 0..ulps.unsigned_abs() {
+            x = if ulps > 0 { x.next_up() } else { x.next_down() };
+        }
+        x
+    };
+    match mode % 5 {
+        0 => f64::from_bits(bits),
+        1 => nudge(r.lo),
+        2 => nudge(hi),
+        3 => r.lo + frac * (hi - r.lo),
+        _ => hi * (1.0 + (frac - 0.5) * 1e-6 * f64::from(ulps)),
+    }
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 3000, ..ProptestConfig::default() })]
+
+    /// Property: for any value of any safety key, `bench` refuses it naming
+    /// the key exactly when it is outside the documented range.
+    #[test]
+    fn any_value_of_any_safety_key_obeys_its_documented_range(
+        which in 0usize..64,
+        bits in any::<u64>(),
+        mode in any::<u8>(),
+        ulps in -4i32..=4,
+        frac in 0.0f64..=1.0,
+        wide in any::<i64>(),
+    ) {
+        let specs = specs();
+        let spec = &specs[which % specs.len()];
+        let value = match spec.kind {
+            Kind::Real => Value::Float(real_near(spec, bits, mode, ulps, frac)),
+            Kind::Count | Kind::Int => Value::Integer(match mode % 4 {
+                0 => wide,
+                1 => spec.range.lo as i64 + i64::from(ulps),
+                2 => spec.range.hi as i64 + i64::from(ulps),
+                _ => (spec.range.lo + frac * (spec.range.hi - spec.range.lo)).round() as i64,
+            }),
+        };
+        let m = Mutation::Set(value);
+        if let Err(why) = judge(spec, &m) {
+            prop_assert!(false, "{} = {:?}: {}", spec.key, m, why);
+        }
+    }
+
+    /// The counts' bounds follow the loop rate: at any rate, K and the
+    /// overrun count are refused naming the key exactly when above 0.1 s of
+    /// ticks (K also when K + 1 sample timeouts exceed 1 s), the overrun
+    /// count also at 0.
+    #[test]
+    fn the_count_bounds_follow_the_loop_rate(
+        rate in 100.0f64..=100_000.0,
+        n in 0u32..=20_000,
+        overruns in any::<bool>(),
+    ) {
+        let mut t = shipped_table();
+        t["loop"].as_table_mut().unwrap().insert("rate_hz".into(), Value::Float(rate));
+        // A jump limit that fits every rate (1 m/s × 10 µs), and a serial
+        // timeout within 200 ms at every rate.
+        t["safety"].as_table_mut().unwrap()
+            .insert("max_position_step_m".into(), Value::Float(5e-6));
+        let mut serial = Table::new();
+        serial.insert("sample_timeout_periods".into(), Value::Float(10.0));
+        let mut backend = Table::new();
+        backend.insert("serial".into(), Value::Table(serial));
+        t.insert("backend".into(), Value::Table(backend));
+        let key = if overruns { "max_consecutive_overruns" } else { "max_missed_samples" };
+        t["safety"].as_table_mut().unwrap().insert(key.into(), Value::Integer(n.into()));
+        let text = toml::to_string(&t).unwrap();
+        let blind = (0.1 * rate).floor();
+        let ok = if overruns {
+            n >= 1 && f64::from(n) <= blind
+        } else {
+            // The serial timeout (10 periods) or the CAN default (2
+            // periods, at least 1 ms), whichever is longer.
+            let timeout_s = (10.0 / rate).max(1e-3);
+            f64::from(n) <= blind && (f64::from(n) + 1.0) * timeout_s <= 1.0 + 1e-9
+        };
+        let dotted = format!("safety.{key}");
+        match load(&text) {
+            Err(ConfigError::Invalid { key: k, reason, .. }) if k == dotted => {
+                prop_assert!(!ok, "{dotted} = {n} at {rate} Hz refused: {reason}");
+            }
+            Err(ConfigError::Invalid { key: k, .. }) => {
+                // Another key (the chirp's band at a low rate): fine, if
+                // this value was inside its range.
+                prop_assert!(ok, "{dotted} = {n} at {rate} Hz: refused naming {k} instead");
+            }
+            Err(e) => prop_assert!(false, "{e}"),
+            Ok(_) => prop_assert!(ok, "{dotted} = {n} at {rate} Hz accepted"),
+        }
+    }
+}
+
+/// The same rule through the command line: `bench control --fast
+/// --check-only` exits 2 naming the key, for each key's non-finite, just
+/// out-of-range, wrong-type and (where required) deleted values.
+#[test]
+fn the_cli_refuses_every_out_of_range_safety_key_with_exit_2() {
+    let dir = common::tmp();
+    let mut n = 0;
+    let mut failures = Vec::new();
+    for spec in specs() {
+        let (outside, _) = spec.range.edges(spec.kind);
+        let mut ms: Vec<Mutation> = outside
+            .into_iter()
+            .map(|x| match spec.kind {
+                Kind::Real => Mutation::Set(Value::Float(x)),
+                _ => Mutation::Set(Value::Integer(x as i64)),
+            })
+            .collect();
+        ms.push(Mutation::Set(match spec.kind {
+            Kind::Real => Value::Float(f64::NAN),
+            _ => Value::Integer(i64::from(u32::MAX)),
+        }));
+        ms.push(Mutation::Set(Value::String("1".into())));
+        if spec.required {
+            ms.push(Mutation::Delete);
+        }
+        for m in ms {
+            // The documented range's open upper end at infinity has no value
+            // just outside it.
+            if matches!(&m, Mutation::Set(Value::Float(x)) if x.is_infinite()) {
+                continue;
+            }
+            n += 1;
+            let path: PathBuf = dir.path().join(format!("m{n}.toml"));
+            std::fs::write(&path, mutate(spec.key, &m)).unwrap();
+            let o = common::run(&[
+                "control",
+                "--fast",
+                "--check-only",
+                "--config",
+                &path.display().to_string(),
+            ]);
+            let err = String::from_utf8_lossy(&o.stderr);
+            let last = spec.key.rsplit('.').next().unwrap();
+            if o.status.code() != Some(2) || !err.contains(last) {
+                failures.push(format!(
+                    "{} = {m:?}: exit {:?}, stderr {err}",
+                    spec.key,
+                    o.status.code()
+                ));
+            }
+        }
+    }
+    assert!(
+        failures.is_empty(),
+        "{} of {n} command lines:\n{}",
+        failures.len(),
+        failures.join("\n")
+    );
+}
