@@ -14,7 +14,7 @@ use crate::rt::backend::{AnyError, AnyStage, LinkCounters};
 use crate::rt::{HalFailure, HoldJob, Job, JobEnd, Loop, LoopOptions};
 use bench_hal::sim::ScheduledFault;
 use bench_hal::Clock;
-use std::sync::atomic::{AtomicBool, AtomicU64, AtomicU8, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::Arc;
 
 /// A job handed to the loop, with everything it needs on the tick.
@@ -86,13 +86,12 @@ pub enum LoopReply {
     Stopped,
 }
 
-/// What the loop publishes for `status` without a lock.
+/// What the loop publishes for `status` without a lock (last reading and
+/// command).
 #[derive(Debug)]
 pub struct LoopStatus {
     /// Last reading, m, as `f64::to_bits`.
     pub position_bits: AtomicU64,
-    /// Supervisor state (`SupervisorState as u8`).
-    pub state: AtomicU8,
     /// Last current commanded, A, as `f64::to_bits`.
     pub command_bits: AtomicU64,
 }
@@ -101,7 +100,6 @@ impl Default for LoopStatus {
     fn default() -> Self {
         Self {
             position_bits: AtomicU64::new(f64::NAN.to_bits()),
-            state: AtomicU8::new(SupervisorState::Disabled as u8),
             command_bits: AtomicU64::new(0f64.to_bits()),
         }
     }
@@ -116,15 +114,6 @@ impl LoopStatus {
     /// The last current commanded, A.
     pub fn command_a(&self) -> f64 {
         f64::from_bits(self.command_bits.load(Ordering::Relaxed))
-    }
-
-    /// The supervisor's state.
-    pub fn state(&self) -> SupervisorState {
-        let s = self.state.load(Ordering::Relaxed);
-        SupervisorState::ALL
-            .into_iter()
-            .find(|v| *v as u8 == s)
-            .unwrap_or(SupervisorState::Faulted)
     }
 }
 
@@ -146,18 +135,12 @@ pub fn run_service(
     lp.publish(&status.position_bits, &status.command_bits);
     // The hold job of the last `Enable` (None: 0 A).
     let mut hold: Option<Box<dyn Job + Send>> = None;
-    let publish = |lp: &Loop<'_, AnyStage>| {
-        status
-            .state
-            .store(lp.supervisor().state() as u8, Ordering::Relaxed);
-    };
     let reply = |r: LoopReply, replies: &mut rtrb::Producer<LoopReply>| {
         // The daemon drains replies continuously; a full queue means it is
         // gone.
         let _ = replies.push(r);
     };
     loop {
-        publish(&lp);
         let mut pending = None;
         let was_faulted = lp.supervisor().state() == SupervisorState::Faulted;
         let mut zero = HoldJob;
@@ -181,7 +164,6 @@ pub fn run_service(
                 Err(_) => false,
             }
         });
-        publish(&lp);
         if newly_faulted {
             let (kind, value) = lp
                 .supervisor()
@@ -230,14 +212,12 @@ pub fn run_service(
                 let t = &mut *ticket;
                 t.end = Some(lp.run_job(&mut t.job, &mut t.out, t.max_ticks, &t.stop, &t.progress));
                 t.link = before.zip(lp.stage().link_counters());
-                publish(&lp);
                 reply(LoopReply::JobDone(ticket), &mut replies);
             }
             LoopRequest::Shutdown => break,
         }
     }
     lp.disable();
-    publish(&lp);
     reply(LoopReply::Stopped, &mut replies);
 }
 

@@ -940,9 +940,6 @@ impl<'s, S: Stage> Loop<'s, S> {
                 // A device that is gone answers at once: do not spin.
                 std::thread::sleep(std::time::Duration::from_nanos(self.period_ns));
             }
-            // The hold's own bookkeeping must not grow without bound.
-            cur.tick = cur.tick.min(1 << 40);
-            cur.window = TickTiming::default();
             if until(self) {
                 break;
             }
