@@ -23,11 +23,24 @@
 //! | only corrupt frames within the timeout | `Crc` | bad sample; K in a row → link fault |
 //! | end of file, `POLLHUP`, `EIO` (unplugged, emulator gone) | `Link` | link fault at once |
 //! | write failed or blocked beyond one period | `Link` | link fault at once |
+//!
+//! **A corrupt frame costs its own sample, never the next one.** A bit
+//! error on a frame's `0x00` delimiter glues the following frame, intact,
+//! to the corrupt one; the receiver then sees one bad frame where two
+//! samples were sent, and K corrupt frames could show as a gap of K + 1
+//! (the link fault), where K dropped frames show as a gap of K. So a
+//! rejected frame is searched, from its end, for a valid frame
+//! (`recover`): the intact frame glued to it is returned as if its
+//! delimiter had been there (counted in [`SerialStats::recovered_frames`]).
+//! Only complete suffixes that pass the CRC-32C are taken, so the search
+//! never invents a frame (odds 2⁻³² per try, at most 63 tries); a frame
+//! whose content is intact but whose own delimiter was hit is still lost
+//! (it is the corrupt one).
 
 use crate::clock::monotonic_ns;
 use crate::protocol::{
-    self, flags, DeviceHello, DeviceMessage, Frame, FrameError, FrameReader, HostMessage,
-    WireSample, WireStatus, INVALID_POSITION, MAX_FRAME,
+    self, flags, DeviceHello, DeviceMessage, FrameError, HostMessage, WireSample, WireStatus,
+    INVALID_POSITION, MAX_FRAME,
 };
 use crate::{Clock, Command, DeviceInfo, ErrorKind, Sample, SampleFlags, Stage};
 use std::os::fd::{AsRawFd, RawFd};
@@ -230,6 +243,9 @@ pub struct SerialStats {
     pub max_backlog: u64,
     /// Reads that timed out.
     pub timeouts: u64,
+    /// Intact frames recovered from the end of a rejected one (a bit error
+    /// on the delimiter between them had glued them together).
+    pub recovered_frames: u64,
 }
 
 /// The serial DAQ stage.
@@ -237,7 +253,15 @@ pub struct SerialStage {
     cfg: SerialConfig,
     port: Option<serialport::TTYPort>,
     fd: RawFd,
-    reader: FrameReader,
+    /// The bytes received since the last delimiter, the last [`MAX_FRAME`]
+    /// of them (a ring): the frame being received, or the end of an
+    /// over-long one.
+    tail: [u8; MAX_FRAME],
+    /// Bytes received since the last delimiter (may exceed [`MAX_FRAME`]).
+    tail_len: usize,
+    /// A message recovered from the end of the last rejected frame, not
+    /// yet returned.
+    recovered: Option<DeviceMessage>,
     rx: [u8; 512],
     rx_len: usize,
     rx_pos: usize,
@@ -267,6 +291,28 @@ impl std::fmt::Debug for SerialStage {
             .field("stats", &self.stats)
             .finish()
     }
+}
+
+/// What [`SerialStage::next_buffered`] yields.
+enum Rx {
+    /// A valid message.
+    Message(DeviceMessage),
+    /// A rejected frame: why, and its bytes as received (COBS-encoded; the
+    /// last [`MAX_FRAME`] of them when it was too long), `len` of them.
+    Rejected(FrameError, [u8; MAX_FRAME], usize),
+}
+
+/// The message of the longest proper suffix of `raw` (a rejected frame's
+/// bytes, as received) that is a valid frame: where a bit error destroyed a
+/// delimiter, the next frame sits intact at the end of the corrupt one.
+/// Real-time: stack buffers only.
+fn recover(raw: &[u8]) -> Option<DeviceMessage> {
+    (1..raw.len()).find_map(|start| {
+        let mut buf = [0u8; MAX_FRAME];
+        let part = &mut buf[..raw.len() - start];
+        part.copy_from_slice(&raw[start..]);
+        protocol::decode::<DeviceMessage>(part).ok()
+    })
 }
 
 /// What [`SerialStage::wait_for`] shows its filter.
@@ -307,7 +353,9 @@ impl SerialStage {
             cfg: cfg.clone(),
             port: Some(port),
             fd,
-            reader: FrameReader::new(),
+            tail: [0; MAX_FRAME],
+            tail_len: 0,
+            recovered: None,
             rx: [0; 512],
             rx_len: 0,
             rx_pos: 0,
@@ -430,16 +478,46 @@ impl SerialStage {
         }
     }
 
-    /// The next complete, valid device message in the receive buffer.
-    fn next_buffered(&mut self) -> Option<Result<DeviceMessage, FrameError>> {
+    /// The next complete frame in the receive buffer: a valid device
+    /// message, or a rejected frame (counted). After a rejected frame, the
+    /// intact frame a corrupted delimiter glued to its end, if any
+    /// (`recover`), comes next. Real-time: fixed buffers.
+    fn next_buffered(&mut self) -> Option<Rx> {
+        if let Some(m) = self.recovered.take() {
+            return Some(Rx::Message(m));
+        }
         while self.rx_pos < self.rx_len {
             let b = self.rx[self.rx_pos];
             self.rx_pos += 1;
-            match self.reader.push(b) {
-                None => {}
-                Some(Frame::TooLong) => return Some(Err(FrameError::TooLong)),
-                Some(Frame::Bytes(f)) => return Some(protocol::decode::<DeviceMessage>(f)),
+            if b != 0 {
+                self.tail[self.tail_len % MAX_FRAME] = b;
+                self.tail_len += 1;
+                continue;
             }
+            let len = std::mem::take(&mut self.tail_len);
+            if len == 0 {
+                continue;
+            }
+            let n = len.min(MAX_FRAME);
+            let mut raw = [0u8; MAX_FRAME];
+            for (i, r) in raw[..n].iter_mut().enumerate() {
+                *r = self.tail[(len - n + i) % MAX_FRAME];
+            }
+            let err = if len > MAX_FRAME {
+                FrameError::TooLong
+            } else {
+                let mut frame = raw;
+                match protocol::decode::<DeviceMessage>(&mut frame[..n]) {
+                    Ok(m) => return Some(Rx::Message(m)),
+                    Err(e) => e,
+                }
+            };
+            self.count_bad(err);
+            self.recovered = recover(&raw[..n]);
+            if self.recovered.is_some() {
+                self.stats.recovered_frames += 1;
+            }
+            return Some(Rx::Rejected(err, raw, n));
         }
         None
     }
@@ -472,32 +550,16 @@ impl SerialStage {
         mut want: impl FnMut(Seen<'_>) -> Option<T>,
     ) -> Result<Option<T>, SerialError> {
         loop {
-            while self.rx_pos < self.rx_len {
-                let b = self.rx[self.rx_pos];
-                self.rx_pos += 1;
-                let got = match self.reader.push(b) {
-                    None => None,
-                    Some(Frame::TooLong) => {
-                        self.stats.frame_errors += 1;
-                        None
-                    }
-                    Some(Frame::Bytes(f)) => {
-                        let mut raw = [0u8; MAX_FRAME];
-                        let len = f.len();
-                        raw[..len].copy_from_slice(f);
-                        match protocol::decode::<DeviceMessage>(f) {
-                            Ok(m) => {
-                                if let DeviceMessage::Status(s) = m {
-                                    self.last_status = Some(s);
-                                }
-                                want(Seen::Message(m))
-                            }
-                            Err(e) => {
-                                self.count_bad(e);
-                                want(Seen::Rejected(&mut raw[..len]))
-                            }
+            while let Some(rx) = self.next_buffered() {
+                let got = match rx {
+                    Rx::Message(m) => {
+                        if let DeviceMessage::Status(s) = m {
+                            self.last_status = Some(s);
                         }
+                        want(Seen::Message(m))
                     }
+                    Rx::Rejected(FrameError::TooLong, ..) => None,
+                    Rx::Rejected(_, mut raw, len) => want(Seen::Rejected(&mut raw[..len])),
                 };
                 if got.is_some() {
                     return Ok(got);
@@ -545,7 +607,8 @@ impl Stage for SerialStage {
             return Err(SerialError::State("port closed"));
         };
         let _ = serialport::SerialPort::clear(port, serialport::ClearBuffer::Input);
-        self.reader.clear();
+        self.tail_len = 0;
+        self.recovered = None;
         self.rx_len = 0;
         self.rx_pos = 0;
         self.queue_len = 0;
@@ -627,15 +690,12 @@ impl Stage for SerialStage {
         let deadline = monotonic_ns() + self.timeout_ns;
         let mut last_bad = None;
         loop {
-            while let Some(m) = self.next_buffered() {
-                match m {
-                    Ok(DeviceMessage::Sample(s)) => self.enqueue(s),
-                    Ok(DeviceMessage::Status(s)) => self.last_status = Some(s),
-                    Ok(DeviceMessage::Hello(_)) => {}
-                    Err(e) => {
-                        self.count_bad(e);
-                        last_bad = Some(e);
-                    }
+            while let Some(rx) = self.next_buffered() {
+                match rx {
+                    Rx::Message(DeviceMessage::Sample(s)) => self.enqueue(s),
+                    Rx::Message(DeviceMessage::Status(s)) => self.last_status = Some(s),
+                    Rx::Message(DeviceMessage::Hello(_)) => {}
+                    Rx::Rejected(e, ..) => last_bad = Some(e),
                 }
             }
             if self.queue_len > 0 {
@@ -748,6 +808,62 @@ impl Drop for SerialStage {
     fn drop(&mut self) {
         if self.hello.is_some() {
             let _ = self.send(&HostMessage::Disable);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn sample_frame(seq: u32) -> ([u8; MAX_FRAME], usize) {
+        let mut f = [0u8; MAX_FRAME];
+        let n = protocol::encode(
+            &DeviceMessage::Sample(WireSample {
+                seq,
+                time_us: 1_000_000 + u64::from(seq) * 200,
+                position: -12_345,
+                current_a: 0.5,
+                flags: 0,
+            }),
+            &mut f,
+        );
+        (f, n)
+    }
+
+    /// A frame whose delimiter was flipped, glued to the next: the next one
+    /// comes back, whole, from the end; the glued-on frame itself does not
+    /// (it is the corrupt one), nor does anything from a lone corrupt frame.
+    #[test]
+    fn the_frame_after_a_corrupted_delimiter_is_recovered() {
+        let (a, na) = sample_frame(7);
+        let (b, nb) = sample_frame(8);
+        for bit in 0..8 {
+            for flip_content in [None, Some(3), Some(na - 2)] {
+                // The bytes between two delimiters as received: frame 7
+                // (maybe also hit inside), its delimiter turned non-zero,
+                // frame 8 without its delimiter.
+                let mut raw = Vec::new();
+                raw.extend_from_slice(&a[..na - 1]);
+                if let Some(i) = flip_content {
+                    raw[i] ^= 0x10;
+                }
+                raw.push(1 << bit);
+                raw.extend_from_slice(&b[..nb - 1]);
+                let Some(DeviceMessage::Sample(s)) = recover(&raw) else {
+                    panic!("not recovered: bit {bit}, {flip_content:?}");
+                };
+                assert_eq!(s.seq, 8);
+            }
+        }
+        // A lone corrupt frame (any one bit) yields nothing.
+        for bit in 0..(na - 1) * 8 {
+            let mut raw = a[..na - 1].to_vec();
+            raw[bit / 8] ^= 1 << (bit % 8);
+            if raw.contains(&0) {
+                continue; // the flip made a delimiter: two frames
+            }
+            assert_eq!(recover(&raw), None, "bit {bit}");
         }
     }
 }

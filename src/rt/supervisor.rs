@@ -8,6 +8,12 @@
 //! frames; [`Supervisor::sample_missing`]) and a sequence gap both count
 //! missing samples; more than `max_missed_samples` (K) in a row is the
 //! `link` fault, as is a link that is gone ([`Supervisor::link_lost`]).
+//! A tick without a sample and the gap it leaves in the sequence are the
+//! same missing samples: the count is the larger of the two, never their
+//! sum. So K corrupt frames (K bad reads, then a gap of K) and K dropped
+//! ones (a gap of K) are both K missing samples, and neither trips; K + 1
+//! of either does. (That a corrupt frame never costs its neighbour's
+//! sample too is the backend's part: `bench_hal::serial`.)
 //!
 //! Checks, in order, on each sample: sequence advancing (at most K
 //! consecutive samples missing, else `link`; at most K stale, else
@@ -445,6 +451,90 @@ mod tests {
         let mut s = sup();
         assert!(s.link_lost());
         assert_eq!(s.fault().map(|f| f.0), Some(FaultKind::Link));
+    }
+
+    /// "More than K" means the same for corrupt and dropped frames: K of
+    /// either are tolerated, K + 1 trip, at any K; a bad read and the gap
+    /// it leaves count once.
+    #[test]
+    fn k_corrupt_frames_count_as_k_dropped_ones() {
+        use bench_hal::ErrorKind as E;
+        for k in [0u32, 1, 2, 3, 7, 50] {
+            let sup_k = || {
+                let mut s = Supervisor::new(SupervisorConfig {
+                    max_missed_samples: k,
+                    ..config()
+                });
+                s.enabled();
+                s.running();
+                assert_eq!(s.check_sample(&seq_sample(0, 0.0, false)), None);
+                s
+            };
+            let n = u64::from(k);
+            // Dropped: a gap of K is tolerated, K + 1 trips (value K + 1).
+            let mut s = sup_k();
+            assert_eq!(
+                s.check_sample(&seq_sample(n + 1, 0.0, false)),
+                None,
+                "k={k}"
+            );
+            assert_eq!(s.state(), SupervisorState::Running);
+            let mut s = sup_k();
+            assert_eq!(
+                s.check_sample(&seq_sample(n + 2, 0.0, false)),
+                Some(FaultKind::Link),
+                "k={k}"
+            );
+            assert_eq!(s.fault(), Some((FaultKind::Link, (n + 1) as f64)));
+            // Corrupt (or timed out), each read a tick without a sample,
+            // then the gap they leave: K and the gap of K are K, not 2K.
+            for kind in [E::Crc, E::Timeout] {
+                for bad_reads in 0..=n {
+                    let mut s = sup_k();
+                    for _ in 0..bad_reads {
+                        assert_eq!(
+                            s.hal_error(HalCall::ReadSample, kind, f64::NAN),
+                            HalVerdict::SampleMissing { tripped: false },
+                            "k={k}"
+                        );
+                    }
+                    assert_eq!(
+                        s.check_sample(&seq_sample(n + 1, 0.0, false)),
+                        None,
+                        "k={k}, {bad_reads} bad reads then a gap of {k}"
+                    );
+                    assert_eq!(s.missing_samples(), 0);
+                    // The count starts again: K more are tolerated.
+                    for _ in 0..n {
+                        s.hal_error(HalCall::ReadSample, kind, f64::NAN);
+                    }
+                    assert_eq!(s.check_sample(&seq_sample(2 * n + 2, 0.0, false)), None);
+                    assert_eq!(s.state(), SupervisorState::Running, "k={k}");
+                }
+                // K + 1 bad reads trip on the last one.
+                let mut s = sup_k();
+                for i in 0..=n {
+                    assert_eq!(
+                        s.hal_error(HalCall::ReadSample, kind, f64::NAN),
+                        HalVerdict::SampleMissing { tripped: i == n },
+                        "k={k}, read {i}"
+                    );
+                }
+                assert_eq!(s.fault(), Some((FaultKind::Link, (n + 1) as f64)));
+                // K bad reads, then a gap of K + 1: the sample that shows
+                // the (K + 1)th missing one trips.
+                let mut s = sup_k();
+                for _ in 0..n {
+                    s.hal_error(HalCall::ReadSample, kind, f64::NAN);
+                }
+                assert_eq!(
+                    s.check_sample(&seq_sample(n + 2, 0.0, false)),
+                    Some(FaultKind::Link),
+                    "k={k}"
+                );
+                assert_eq!(s.fault(), Some((FaultKind::Link, (n + 1) as f64)));
+            }
+        }
     }
 
     #[test]
