@@ -131,6 +131,9 @@ impl Emulator<'_> {
         let s = self.core.tick(self.dev(now));
         self.last_tick_ns = now;
         if was_enabled && !self.core.is_enabled() {
+            // State (0 A) first, then the trip stamp: whoever sees the
+            // stamp sees the current dropped.
+            self.publish();
             self.status
                 .watchdog_trip_mono_ns
                 .store(now, Ordering::Release);
@@ -222,6 +225,7 @@ impl Emulator<'_> {
                 && now.saturating_sub(self.last_tick_ns) >= period
                 && self.core.check_watchdog(self.dev(now))
             {
+                self.publish();
                 self.status
                     .watchdog_trip_mono_ns
                     .store(now, Ordering::Release);

@@ -376,6 +376,9 @@ pub fn run(
             // Device time is the timer's: the tick's scheduled time.
             let s = core.tick(next.min(now) - start);
             if was_enabled && !core.is_enabled() && core.fault() == Some(DeviceFault::Watchdog) {
+                // The device's state (0 A) is published before the trip
+                // stamps: whoever sees the stamp sees the current dropped.
+                status.publish(&core);
                 status
                     .watchdog_trip_deadline_mono_ns
                     .store(next, Ordering::Release);
