@@ -8,15 +8,12 @@
 
 mod common;
 
-use bench::config::BenchConfig;
-use bench_hal::emulator::serial::{self as serial_emulator, Pty, SerialEmulatorOptions};
-use bench_hal::emulator::{DeviceCore, EmulatorStatus, LinkFault, ScheduledLinkFault};
+use bench_hal::emulator::{LinkFault, ScheduledLinkFault};
+use common::emulator::Emulator;
 use common::*;
 use serde_json::Value;
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::Arc;
-use std::thread::JoinHandle;
+use std::sync::atomic::Ordering;
 use std::time::{Duration, Instant};
 
 /// The quiet Chapter 5 bench (`common::quiet_config`). This 2-core VM
@@ -29,78 +26,6 @@ fn quiet_config(dir: &Path) -> PathBuf {
         2.0,
         "\n[backend.serial]\nsample_timeout_periods = 200.0\n\n[emulator]\nwatchdog_ms = 300.0\n",
     )
-}
-
-struct Emulator {
-    path: String,
-    stop: Arc<AtomicBool>,
-    status: Arc<EmulatorStatus>,
-    period_ns: u64,
-    watchdog_ns: u64,
-    thread: Option<JoinHandle<std::io::Result<()>>>,
-}
-
-impl Emulator {
-    /// The device of `config`, as `bench emulate serial --config` runs it.
-    fn start(config: &Path, faults: Vec<ScheduledLinkFault>, version: Option<u16>) -> Self {
-        Self::start_with(config, faults, version, false)
-    }
-
-    /// In lockstep mode (the comparisons with the direct simulator).
-    fn lockstep(config: &Path) -> Self {
-        Self::start_with(config, vec![], None, true)
-    }
-
-    fn start_with(
-        config: &Path,
-        faults: Vec<ScheduledLinkFault>,
-        version: Option<u16>,
-        lockstep: bool,
-    ) -> Self {
-        let cfg = BenchConfig::load(config).unwrap();
-        let watchdog_ns = (cfg.emulator.watchdog_ms * 1e6) as u64;
-        let core = DeviceCore::new(
-            cfg.sim_params(cfg.sim.seed),
-            cfg.loop_.period_ns(),
-            watchdog_ns,
-        )
-        .unwrap();
-        let pty = Pty::open().unwrap();
-        let path = pty.path().to_string();
-        let opts = SerialEmulatorOptions {
-            protocol_version: version.unwrap_or(bench_hal::protocol::VERSION),
-            position_lsb_m: cfg.emulator.position_lsb_m,
-            link_faults: faults,
-            seed: 1,
-            realtime_priority: Some(cfg.emulator.priority),
-            lockstep,
-        };
-        let stop = Arc::new(AtomicBool::new(false));
-        let status = Arc::new(EmulatorStatus::default());
-        let (s, st) = (Arc::clone(&stop), Arc::clone(&status));
-        let thread = std::thread::spawn(move || serial_emulator::run(pty, core, &opts, &s, &st));
-        Self {
-            path,
-            stop,
-            status,
-            period_ns: cfg.loop_.period_ns(),
-            watchdog_ns,
-            thread: Some(thread),
-        }
-    }
-
-    fn backend(&self) -> String {
-        format!("serial:{}", self.path)
-    }
-}
-
-impl Drop for Emulator {
-    fn drop(&mut self) {
-        self.stop.store(true, Ordering::Relaxed);
-        if let Some(t) = self.thread.take() {
-            let _ = t.join();
-        }
-    }
 }
 
 fn stderr(o: &std::process::Output) -> String {

@@ -4,7 +4,7 @@
 
 use crate::config::BenchConfig;
 use crate::error::RunError;
-use crate::record::topics::Record;
+use crate::record::topics::{FaultKind, Record};
 use crate::record::{spawn_writer, Recorder, DEFAULT_CHUNK_INTERVAL};
 use crate::rt::backend::{AnyStage, LinkCounters};
 use crate::rt::service::{JobTicket, LoopReply, LoopRequest, ServiceClient};
@@ -256,12 +256,16 @@ pub fn run_recorded<J: Job + Send + 'static>(
     }));
     let sink = Arc::clone(&collected);
     let writer_done = Arc::new(AtomicBool::new(false));
+    let part_path = recorder.part_path().to_path_buf();
     // Runs on the writer thread (never the real-time one).
     let writer = spawn_writer(
         consumer,
         recorder,
         Arc::clone(&writer_done),
         DEFAULT_CHUNK_INTERVAL,
+        // One below the loop's priority, in real-time runs only.
+        opts.realtime
+            .then(|| cfg.loop_.priority.saturating_sub(1).max(1)),
         move |r| {
             if let Record::Sample(s) = r {
                 let mut c = sink.lock().expect("collector poisoned");
@@ -323,9 +327,32 @@ pub fn run_recorded<J: Job + Send + 'static>(
     };
     let wall_s = wall.elapsed().as_secs_f64();
     writer_done.store(true, Ordering::Release);
-    let (recorder, _stats) = writer
+    let written = writer
         .join()
-        .map_err(|_| RunError::Thread("the writer thread panicked".into()))??;
+        .map_err(|_| RunError::Thread("the writer thread panicked".into()))?;
+    let (recorder, _stats) = match written {
+        Ok(w) => w,
+        // The writer died on a write error: the loop saw its queue
+        // abandoned and stopped on the `recording` fault (0 A, disabled).
+        // What was written stays in the `.part` file, which is not renamed.
+        Err(e) => {
+            return Err(match report.stop {
+                StopReason::Fault {
+                    kind: FaultKind::Recording,
+                    value,
+                    tick,
+                    ..
+                } => RunError::Fault {
+                    kind: FaultKind::Recording.as_str(),
+                    value,
+                    detail: format!("the recording failed: {}", error_chain(&e)),
+                    tick,
+                    recording: format!("incomplete, left as {}", part_path.display()),
+                },
+                _ => RunError::Record(e),
+            })
+        }
+    };
     let timing = TimingSummary::new(&report, opts.realtime, rate_hz, wall_s);
     for w in &timing.warnings {
         tracing::warn!("{w}");
@@ -444,4 +471,20 @@ pub fn beside(out: &Path, suffix: &str) -> PathBuf {
         .map(|s| s.to_string_lossy().into_owned())
         .unwrap_or_default();
     out.with_file_name(format!("{stem}{suffix}"))
+}
+
+/// `error: cause: cause …`, each source once (a wrapper that repeats its
+/// source's text is not repeated).
+fn error_chain(e: &dyn std::error::Error) -> String {
+    let mut text = e.to_string();
+    let mut cur = e.source();
+    while let Some(c) = cur {
+        let c_text = c.to_string();
+        if !text.contains(&c_text) {
+            text.push_str(": ");
+            text.push_str(&c_text);
+        }
+        cur = c.source();
+    }
+    text
 }

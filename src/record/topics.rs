@@ -190,11 +190,18 @@ pub enum FaultKind {
     /// consecutive samples missing (sequence gap, timeout) or corrupt, or
     /// the link is gone (disconnect, bus-off).
     Link,
+    /// The device ran on commands that did not answer its previous sample
+    /// (the link delivers them late) for longer than
+    /// `safety.max_command_latency_s`.
+    LinkLatency,
+    /// The recording failed (a write error such as a full disk killed the
+    /// writer): the run cannot keep its promise to record, so it stops.
+    Recording,
 }
 
 impl FaultKind {
     /// Every fault.
-    pub const ALL: [Self; 10] = [
+    pub const ALL: [Self; 12] = [
         Self::PositionLimit,
         Self::ProbeOutOfRange,
         Self::ProbeNotFinite,
@@ -205,6 +212,8 @@ impl FaultKind {
         Self::PositionJump,
         Self::I2t,
         Self::Link,
+        Self::LinkLatency,
+        Self::Recording,
     ];
 
     /// Snake-case name used in recordings and exit messages.
@@ -220,6 +229,8 @@ impl FaultKind {
             Self::PositionJump => "position_jump",
             Self::I2t => "i2t",
             Self::Link => "link",
+            Self::LinkLatency => "link_latency",
+            Self::Recording => "recording",
         }
     }
 }
@@ -291,6 +302,8 @@ fn variant_index(r: (SupervisorState, EventKind, FaultKind)) -> (usize, usize, u
         F::PositionJump => 7,
         F::I2t => 8,
         F::Link => 9,
+        F::LinkLatency => 10,
+        F::Recording => 11,
     };
     (s, e, f)
 }

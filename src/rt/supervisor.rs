@@ -21,8 +21,9 @@
 //! finite, probe in range, |position| within the software limit, change
 //! since the last sample plausible (`max_position_step_m` per tick); on each
 //! command: finite, I²t budget not spent; on each tick in real-time mode:
-//! fewer than M consecutive overruns. Commands are clipped to the
-//! amplifier's peak current.
+//! fewer than M consecutive overruns; on each tick of a recorded job: the
+//! recording still alive (`recording`, see [`Supervisor::recording_lost`]).
+//! Commands are clipped to the amplifier's peak current.
 //!
 //! I²t (thermal protection of the coil): the accumulator integrates
 //! `i² − I_cont²` over time, never going below zero, and faults when it
@@ -285,6 +286,16 @@ impl Supervisor {
             _ => x,
         };
         fault.filter(|k| self.trip(*k, value))
+    }
+
+    /// The job's recording is lost (its writer died on a write error, e.g.
+    /// a full disk): trips [`FaultKind::Recording`] at once, whatever the
+    /// state, so the tick that sees it commands 0 A and disables. `value`
+    /// is the number of records the tick could not hand over so far.
+    /// Returns the fault if this call tripped it.
+    pub fn recording_lost(&mut self, dropped_records: u64) -> Option<FaultKind> {
+        self.trip(FaultKind::Recording, dropped_records as f64)
+            .then_some(FaultKind::Recording)
     }
 
     /// Records whether this tick overran; trips after M in a row.

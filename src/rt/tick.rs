@@ -347,6 +347,15 @@ impl<'q> Emitter<'q> {
         }
     }
 
+    /// The job records, and its writer is gone (it died on a write error):
+    /// the recording is lost. One atomic load; real-time safe.
+    #[inline]
+    pub fn recording_lost(&self) -> bool {
+        self.out
+            .as_deref()
+            .is_some_and(rtrb::Producer::is_abandoned)
+    }
+
     /// Step 6: pushes one record; never allocates.
     #[inline]
     pub fn push(&mut self, r: Record) {
@@ -725,6 +734,9 @@ impl<'s, S: Stage> Loop<'s, S> {
             (Clock::Device { .. }, None) => cur.last_t_s + self.period_s,
         };
         cur.last_t_s = t_s;
+        if em.recording_lost() {
+            fault |= self.sup.recording_lost(em.dropped).is_some();
+        }
         match &sample {
             Some(s) => fault |= self.supervise_sample(s),
             None => em.event(
@@ -1125,6 +1137,58 @@ mod tests {
                 _ => None,
             })
             .collect()
+    }
+
+    /// Demands 0.5 A; at tick `at` the writer dies (its consumer is
+    /// dropped, as `spawn_writer` does on a write error).
+    struct WriterDies {
+        consumer: Option<rtrb::Consumer<Record>>,
+        at: u64,
+    }
+
+    impl Job for WriterDies {
+        fn tick(&mut self, tick: u64, _s: &Sample) -> JobOutput {
+            if tick == self.at {
+                self.consumer = None;
+            }
+            JobOutput {
+                command_a: 0.5,
+                excitation_a: 0.5,
+                setpoint_m: f64::NAN,
+                done: false,
+            }
+        }
+    }
+
+    #[test]
+    fn a_lost_recording_is_zero_amps_and_disable_on_the_next_tick() {
+        let mut st = Script::new([]);
+        let (mut tx, rx) = rtrb::RingBuffer::<Record>::new(4096);
+        let mut lp = Loop::new(&mut st, &opts(), Clock::Host);
+        let mut job = WriterDies {
+            consumer: Some(rx),
+            at: 10,
+        };
+        let end = lp.run_job(
+            &mut job,
+            &mut tx,
+            1000,
+            &AtomicBool::new(false),
+            &AtomicU64::new(0),
+        );
+        let end = end.into_report(Vec::new());
+        match end.stop {
+            StopReason::Fault { kind, tick, .. } => {
+                assert_eq!(kind, FaultKind::Recording);
+                assert_eq!(tick, 11, "the tick after the writer died");
+            }
+            other => panic!("{other:?}"),
+        }
+        drop(lp);
+        // Ticks 0..=10 drove 0.5 A; tick 11 wrote 0 A, then disabled.
+        assert_eq!(&st.writes[..11], &[0.5; 11]);
+        assert!(st.writes[11..].iter().all(|&i| i == 0.0), "{:?}", st.writes);
+        assert!(st.disables >= 1);
     }
 
     #[test]

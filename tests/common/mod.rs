@@ -2,6 +2,8 @@
 //! read its outputs, load the scipy reference (`tests/data/`).
 #![allow(dead_code)]
 
+pub mod emulator;
+
 use serde_json::Value;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
