@@ -480,10 +480,16 @@ impl SimStage {
         self.drop_done = false;
     }
 
+    /// The injected fault in force at this sample. A drop or a jump is an
+    /// event *between* two samples: one scheduled at or before the first
+    /// sample happens right after it (a gap or a jump needs a sample before
+    /// it to be one; at 0 s there is none, and the first sample would
+    /// simply start later or elsewhere).
     fn active_fault(&self) -> Option<FaultInjection> {
         let f = self.fault?;
         let t = self.seq as f64 * self.period_ns as f64 * 1e-9;
-        (t >= f.at_s).then_some(f.kind)
+        let event = matches!(f.kind, FaultInjection::Drop(_) | FaultInjection::Jump(_));
+        (t >= f.at_s && !(event && self.last_sample.is_none())).then_some(f.kind)
     }
 
     fn advance(&mut self) {
