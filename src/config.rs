@@ -385,6 +385,15 @@ pub struct SafetyConfig {
     /// 5 kHz), and below `position_limit_m`.
     #[serde(default = "default_max_step")]
     pub max_position_step_m: f64,
+    /// Longest the device may run on commands that do not answer its
+    /// previous sample, s: a link that delivers commands (or samples) late
+    /// adds delay the loop check never saw, and the loop can go unstable.
+    /// The device flags each such sample
+    /// ([`bench_hal::SampleFlags::command_late`]); more than this long of
+    /// them in a row is the `link_latency` fault. Range: one loop period to
+    /// [`limits::BLIND_MAX_S`] (0.1 s). Default 2 ms (10 ticks at 5 kHz).
+    #[serde(default = "default_max_latency")]
+    pub max_command_latency_s: f64,
     /// How long the peak current may flow from cold, s: the I²t budget is
     /// `(I_peak² − I_cont²) · this`; the accumulator integrates
     /// `i² − I_cont²` (never below 0) and faults when it exceeds the budget.
@@ -412,6 +421,9 @@ fn default_max_missed() -> u32 {
 }
 fn default_max_step() -> f64 {
     50e-6
+}
+fn default_max_latency() -> f64 {
+    2e-3
 }
 fn default_i2t_s() -> f64 {
     1.0
@@ -747,6 +759,13 @@ impl BenchConfig {
                 ),
             ));
         }
+        in_range(
+            "safety.max_command_latency_s",
+            s.max_command_latency_s,
+            Range::closed(period_s, limits::BLIND_MAX_S),
+            "s",
+            "at least one loop period and at most 0.1 s (the stage crosses its stroke in less)",
+        )?;
         let (lo, hi) = limits::I2T_PEAK_DURATION_S;
         in_range(
             "safety.i2t_peak_duration_s",
@@ -997,6 +1016,11 @@ impl BenchConfig {
             max_consecutive_overruns: self.safety.max_consecutive_overruns,
             max_missed_samples: self.safety.max_missed_samples,
             max_position_step_m: self.safety.max_position_step_m,
+            // Whole periods in the bound (the small epsilon keeps 2 ms at
+            // 200 µs at 10 periods despite rounding).
+            max_late_commands: (self.safety.max_command_latency_s / (info.period_ns as f64 * 1e-9)
+                + 1e-9)
+                .floor() as u64,
             continuous_current_a: info.continuous_current_a,
             i2t_peak_duration_s: self.safety.i2t_peak_duration_s,
             period_s: info.period_ns as f64 * 1e-9,

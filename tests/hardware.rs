@@ -311,6 +311,67 @@ fn link_faults_end_in_the_link_fault_with_zero_amps() {
     }
 }
 
+/// Every frame 10 ms late (issue 12, item 3): no sample is missing, so the
+/// link rules see nothing, but the loop runs on commands 50 periods old. The
+/// device flags those samples, and more than `max_command_latency_s` (5 ms
+/// here) of them is the `link_latency` fault at 0 A, before the loop
+/// oscillates into the position limit.
+#[test]
+fn a_uniformly_late_link_is_the_link_latency_fault() {
+    let _g = one_at_a_time();
+    let dir = tmp();
+    let cfg = quiet_config(dir.path());
+    let text = std::fs::read_to_string(&cfg).unwrap().replace(
+        "max_command_latency_s = 0.1",
+        "max_command_latency_s = 0.005",
+    );
+    std::fs::write(&cfg, text).unwrap();
+    let emu = Emulator::start(
+        &cfg,
+        vec![ScheduledLinkFault {
+            at_s: 1.5,
+            kind: LinkFault::Delay { delay_s: 0.01 },
+        }],
+        None,
+    );
+    let out = dir.path().join("run.mcap");
+    let o = control(
+        &cfg.display().to_string(),
+        &out.display().to_string(),
+        Some(&emu.backend()),
+        &["--duration-s", "6"],
+    );
+    let err = stderr(&o);
+    assert_eq!(o.status.code(), Some(3), "{err}");
+    assert!(err.contains("link_latency"), "{err}");
+    let msgs = mcap_messages(&out);
+    let ev = msgs
+        .iter()
+        .find(|m| m.0 == "/bench/event" && m.2["kind"] == "fault")
+        .expect("no fault event");
+    assert_eq!(ev.2["fault"], "link_latency");
+    // The value is the time run on late commands: past the 5 ms bound.
+    let late_s = ev.2["value"].as_f64().unwrap();
+    assert!((0.005..0.0062).contains(&late_s), "{late_s} s");
+    let tick = ev.2["tick"].as_u64().unwrap();
+    let mut max_x: f64 = 0.0;
+    for m in msgs.iter().filter(|m| m.0 == "/bench/sample") {
+        max_x = max_x.max(m.2["position_m"].as_f64().unwrap_or(0.0).abs());
+        if m.2["tick"].as_u64().unwrap() >= tick {
+            assert_eq!(m.2["current_command_a"].as_f64(), Some(0.0), "{}", m.2);
+        }
+    }
+    assert!(max_x < 0.8e-3, "reached {max_x} m");
+    let t0 = Instant::now();
+    while emu.status.commanded_current_a() != 0.0 {
+        assert!(
+            t0.elapsed() < Duration::from_secs(2),
+            "device still driving"
+        );
+        std::thread::sleep(Duration::from_millis(5));
+    }
+}
+
 #[test]
 fn bad_devices_are_refused_before_anything_is_enabled() {
     let _g = one_at_a_time();

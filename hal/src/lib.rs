@@ -143,6 +143,12 @@ pub struct SampleFlags {
     pub amplifier_enabled: bool,
     /// The amplifier reports a fault.
     pub amplifier_fault: bool,
+    /// The command in force over the period that ended at this sample did
+    /// not answer the previous sample: it arrived late, or none arrived (the
+    /// device ran on an older one). Set only while the amplifier is enabled;
+    /// backends that cannot tell report `false`. Many in a row mean a link
+    /// whose latency exceeds a period (`link_latency` fault).
+    pub command_late: bool,
 }
 
 /// One command to the amplifier.

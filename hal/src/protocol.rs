@@ -52,6 +52,10 @@ pub mod flags {
     pub const AMPLIFIER_ENABLED: u8 = 1 << 1;
     /// The device has a latched fault (see [`super::WireStatus::fault`]).
     pub const FAULT: u8 = 1 << 2;
+    /// The command in force over the period that ended at this sample did
+    /// not answer the previous sample (late or missing): see
+    /// [`SampleFlags::command_late`](crate::SampleFlags::command_late).
+    pub const COMMAND_LATE: u8 = 1 << 3;
 }
 
 /// Messages from the host to the device.

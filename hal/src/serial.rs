@@ -757,6 +757,7 @@ impl Stage for SerialStage {
                 out_of_range: w.flags & flags::OUT_OF_RANGE != 0,
                 amplifier_enabled: w.flags & flags::AMPLIFIER_ENABLED != 0,
                 amplifier_fault: w.flags & flags::FAULT != 0,
+                command_late: w.flags & flags::COMMAND_LATE != 0,
             },
         })
     }

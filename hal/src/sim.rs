@@ -624,6 +624,8 @@ impl Stage for SimStage {
                 out_of_range,
                 amplifier_enabled: self.enabled,
                 amplifier_fault: false,
+                // Commands are applied in the call: never late.
+                command_late: false,
             },
         };
         self.last_sample = Some(sample);

@@ -178,6 +178,7 @@ fn default_frame_map_against_hand_computed_bytes() {
             out_of_range: false,
             amplifier_enabled: true,
             amplifier_fault: true,
+            command_late: false,
         },
         fault_code: 1,
         measured_current_a: f64::NAN,

@@ -20,6 +20,7 @@
 mod chirp;
 mod control;
 mod emulate;
+mod recover;
 mod serve;
 
 use anyhow::Context;
@@ -30,6 +31,7 @@ use chirp::{chirp, ChirpArgs};
 use clap::{Parser, Subcommand};
 use control::{control, ControlArgs};
 use emulate::{emulate, EmulateCommand};
+use recover::{recover, RecoverArgs};
 use serve::{serve, ServeArgs};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
@@ -63,6 +65,9 @@ enum Command {
     /// Own the bench: keep it safe between jobs and serve chirp and control
     /// jobs, one at a time, as JSON lines on a Unix socket.
     Serve(ServeArgs),
+    /// Turn the `.part` file of a killed or failed run into a complete,
+    /// indexed recording (every completely written chunk, the metadata).
+    Recover(RecoverArgs),
 }
 
 /// Exit statuses (see the module docs).
@@ -95,6 +100,7 @@ pub fn main() -> ExitCode {
         Command::Control(args) => control(args, stop),
         Command::Emulate(cmd) => emulate(cmd, stop),
         Command::Serve(args) => serve(args),
+        Command::Recover(args) => recover(args),
     }
 }
 

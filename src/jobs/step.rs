@@ -599,6 +599,7 @@ mod tests {
                     max_consecutive_overruns: 5,
                     max_missed_samples: 3,
                     max_position_step_m: 50e-6,
+                    max_late_commands: 10,
                     continuous_current_a: cfg.actuator.continuous_current_a,
                     i2t_peak_duration_s: 1.0,
                     period_s: 2e-4,

@@ -77,6 +77,7 @@
 //! (survives a killed process); only `finish` fsyncs (survives power loss).
 
 mod reader;
+pub mod recover;
 mod schema;
 pub mod topics;
 mod writer;

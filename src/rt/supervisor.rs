@@ -17,7 +17,11 @@
 //!
 //! Checks, in order, on each sample: sequence advancing (at most K
 //! consecutive samples missing, else `link`; at most K stale, else
-//! `stale_sample`), probe value
+//! `stale_sample`), commands arriving in time (the device flags each
+//! sample whose period ran on a command that did not answer the previous
+//! sample; more than `safety.max_command_latency_s` of those in a row is
+//! `link_latency`: a uniformly late link is as unsafe as a lost one, since
+//! the loop check assumed one period of delay), probe value
 //! finite, probe in range, |position| within the software limit, change
 //! since the last sample plausible (`max_position_step_m` per tick); on each
 //! command: finite, I²t budget not spent; on each tick in real-time mode:
@@ -90,6 +94,10 @@ pub struct SupervisorConfig {
     pub max_missed_samples: u32,
     /// Largest plausible change of the reading per tick, m.
     pub max_position_step_m: f64,
+    /// Consecutive samples flagged `command_late` tolerated (the whole
+    /// periods in `safety.max_command_latency_s`); one more is the
+    /// `link_latency` fault.
+    pub max_late_commands: u64,
     /// Continuous current rating, A.
     pub continuous_current_a: f64,
     /// How long the peak current may flow from cold, s.
@@ -111,6 +119,8 @@ pub struct Supervisor {
     stale: u64,
     /// Consecutive missing samples (ticks without one, or a gap).
     missing: u64,
+    /// Consecutive samples on which the device ran on a late command.
+    late: u64,
     i2t_a2s: f64,
     i2t_budget_a2s: f64,
 }
@@ -128,6 +138,7 @@ impl Supervisor {
             last_position_m: f64::NAN,
             stale: 0,
             missing: 0,
+            late: 0,
             i2t_a2s: 0.0,
             i2t_budget_a2s: (cfg.peak_current_a * cfg.peak_current_a - ic2).max(0.0)
                 * cfg.i2t_peak_duration_s,
@@ -190,6 +201,7 @@ impl Supervisor {
         self.last_position_m = f64::NAN;
         self.stale = 0;
         self.missing = 0;
+        self.late = 0;
     }
 
     /// A tick had no usable sample (timeout, corrupt frames). Trips
@@ -262,8 +274,19 @@ impl Supervisor {
         }
         let jump = (x - self.last_position_m).abs();
         let k = u64::from(self.cfg.max_missed_samples);
+        // Late commands: counted on fresh samples, in ticks since the last
+        // one (a gap of late samples is as late).
+        if !stale {
+            self.late = if s.flags.command_late {
+                self.late + ticks_since
+            } else {
+                0
+            };
+        }
         let fault = if missing > k {
             Some(FaultKind::Link)
+        } else if self.late > self.cfg.max_late_commands {
+            Some(FaultKind::LinkLatency)
         } else if self.stale > k {
             Some(FaultKind::StaleSample)
         } else if !x.is_finite() {
@@ -283,6 +306,8 @@ impl Supervisor {
         let value = match fault {
             Some(FaultKind::Link) => missing as f64,
             Some(FaultKind::StaleSample) => self.stale as f64,
+            // How long the device has run on late commands, s.
+            Some(FaultKind::LinkLatency) => self.late as f64 * self.cfg.period_s,
             _ => x,
         };
         fault.filter(|k| self.trip(*k, value))
@@ -349,6 +374,7 @@ mod tests {
             max_consecutive_overruns: 3,
             max_missed_samples: 3,
             max_position_step_m: 50e-6,
+            max_late_commands: 10,
             continuous_current_a: 2.34,
             i2t_peak_duration_s: 1.0,
             period_s: 2e-4,
@@ -377,6 +403,50 @@ mod tests {
                 ..Default::default()
             },
         }
+    }
+
+    fn late_sample(seq: u64, late: bool) -> Sample {
+        let mut s = seq_sample(seq, 0.0, false);
+        s.flags.command_late = late;
+        s
+    }
+
+    /// N late commands in a row (N = the periods in
+    /// `max_command_latency_s`, 10 here) pass, N + 1 trip `link_latency`
+    /// with the time run on late commands; one on-time command resets the
+    /// count, and a gap of late samples counts its missing ticks.
+    #[test]
+    fn more_than_the_bound_of_late_commands_in_a_row_is_the_latency_fault() {
+        let mut sv = sup();
+        let mut seq = 0;
+        for _ in 0..10 {
+            assert_eq!(sv.check_sample(&late_sample(seq, true)), None);
+            seq += 1;
+        }
+        // One in time: the count starts again.
+        assert_eq!(sv.check_sample(&late_sample(seq, false)), None);
+        seq += 1;
+        for _ in 0..10 {
+            assert_eq!(sv.check_sample(&late_sample(seq, true)), None);
+            seq += 1;
+        }
+        assert_eq!(
+            sv.check_sample(&late_sample(seq, true)),
+            Some(FaultKind::LinkLatency)
+        );
+        let (kind, value) = sv.fault().unwrap();
+        assert_eq!(kind, FaultKind::LinkLatency);
+        assert!((value - 11.0 * 2e-4).abs() < 1e-12, "{value}");
+        assert_eq!(sv.command(1.0), (0.0, None));
+        // A gap of 2 between late samples counts 3 ticks late.
+        let mut sv = sup();
+        for seq in [0, 3, 6, 9] {
+            assert_eq!(sv.check_sample(&late_sample(seq, true)), None);
+        }
+        assert_eq!(
+            sv.check_sample(&late_sample(12, true)),
+            Some(FaultKind::LinkLatency)
+        );
     }
 
     #[test]

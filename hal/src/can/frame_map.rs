@@ -23,6 +23,9 @@ pub const STATUS_OUT_OF_RANGE: u64 = 1 << 0;
 pub const STATUS_AMPLIFIER_ENABLED: u64 = 1 << 1;
 /// Status bit: the amplifier reports a fault.
 pub const STATUS_AMPLIFIER_FAULT: u64 = 1 << 2;
+/// Status bit: the command in force did not answer the previous sample
+/// (see [`SampleFlags::command_late`]).
+pub const STATUS_COMMAND_LATE: u64 = 1 << 3;
 /// Status bits 4–7 carry the latched fault code ([`DeviceFault::code`](crate::emulator::DeviceFault::code)).
 pub const STATUS_FAULT_CODE_SHIFT: u32 = 4;
 /// Control bit: enable request (the device enables on its rising edge).
@@ -478,6 +481,9 @@ impl SampleMap {
         if f.amplifier_fault {
             status |= STATUS_AMPLIFIER_FAULT;
         }
+        if f.command_late {
+            status |= STATUS_COMMAND_LATE;
+        }
         self.status.encode_bits(status, &mut d);
         if let Some(m) = &self.measured_current {
             m.encode(p.measured_current_a, &mut d);
@@ -499,6 +505,7 @@ impl SampleMap {
                 out_of_range: status & STATUS_OUT_OF_RANGE != 0,
                 amplifier_enabled: status & STATUS_AMPLIFIER_ENABLED != 0,
                 amplifier_fault: status & STATUS_AMPLIFIER_FAULT != 0,
+                command_late: status & STATUS_COMMAND_LATE != 0,
             },
             fault_code: ((status >> STATUS_FAULT_CODE_SHIFT) & 0x0F) as u8,
             measured_current_a: self

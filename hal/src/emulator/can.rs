@@ -349,7 +349,7 @@ impl Emulator<'_> {
 pub fn run_emulator(
     sock: CanSocket,
     cfg: &CanConfig,
-    core: DeviceCore,
+    mut core: DeviceCore,
     faults: &[ScheduledLinkFault],
     stop: &AtomicBool,
     status: &EmulatorStatus,
@@ -369,6 +369,7 @@ pub fn run_emulator(
     )?;
     let mut schedule: Vec<ScheduledLinkFault> = faults.to_vec();
     schedule.sort_by(|a, b| a.at_s.total_cmp(&b.at_s));
+    core.set_answer_bits(u32::from(cfg.command.answers_seq.width_bits));
     let period = core.period_ns();
     let watchdog = core.watchdog_ns();
     let t0 = monotonic_ns();

@@ -69,6 +69,11 @@ pub struct DeviceCore {
     last_command_ns: u64,
     demand_a: f64,
     last_seq: u64,
+    /// Sequence number (low bits, `seq_mask`) the last accepted command
+    /// answered; the enable counts as an answer to the sample before it.
+    answered_seq: Option<u64>,
+    /// The bits of the sequence number a command carries.
+    seq_mask: u64,
 }
 
 impl DeviceCore {
@@ -89,6 +94,8 @@ impl DeviceCore {
             last_command_ns: 0,
             demand_a: 0.0,
             last_seq: 0,
+            answered_seq: None,
+            seq_mask: u64::from(u32::MAX),
         })
     }
 
@@ -107,6 +114,16 @@ impl DeviceCore {
         self.watchdog_ns
     }
 
+    /// Commands carry the low `bits` of the sample sequence number they
+    /// answer (32 on the serial link, the mapped width on CAN).
+    pub fn set_answer_bits(&mut self, bits: u32) {
+        self.seq_mask = if bits >= 64 {
+            u64::MAX
+        } else {
+            (1u64 << bits) - 1
+        };
+    }
+
     /// Schedules a plant-side fault (NaN, frozen, jump, …) at device time.
     pub fn inject(&mut self, fault: ScheduledFault) {
         self.stage.inject(fault);
@@ -119,6 +136,7 @@ impl DeviceCore {
         self.demand_a = 0.0;
         self.enabled = self.stage.enable().is_ok();
         self.last_command_ns = now_ns;
+        self.answered_seq = Some(self.last_seq & self.seq_mask);
     }
 
     /// 0 A, amplifier disabled. Does not clear a latched fault.
@@ -143,6 +161,7 @@ impl DeviceCore {
             return false;
         }
         self.last_command_ns = now_ns;
+        self.answered_seq = Some(command.answers_seq & self.seq_mask);
         if self.enabled {
             let peak = self.info.peak_current_a;
             self.demand_a = i.clamp(-peak, peak);
@@ -164,6 +183,8 @@ impl DeviceCore {
 
     /// One sample-timer tick at device time `now_ns`: watchdog check, then
     /// the plant advances one period under the held demand and is sampled.
+    /// The sample says whether the command in force answered the previous
+    /// sample ([`SampleFlags::command_late`](crate::SampleFlags::command_late)).
     pub fn tick(&mut self, now_ns: u64) -> Sample {
         self.check_watchdog(now_ns);
         let _ = self.stage.write_command(Command {
@@ -176,6 +197,8 @@ impl DeviceCore {
             .expect("a configured simulator always samples");
         s.flags.amplifier_enabled = self.enabled;
         s.flags.amplifier_fault = self.fault.is_some();
+        s.flags.command_late =
+            self.enabled && self.answered_seq != Some(self.last_seq & self.seq_mask);
         self.last_seq = s.seq;
         s
     }

@@ -407,6 +407,9 @@ pub fn run(
                 if s.flags.amplifier_fault {
                     fl |= flags::FAULT;
                 }
+                if s.flags.command_late {
+                    fl |= flags::COMMAND_LATE;
+                }
                 last_sent_seq = s.seq as u32;
                 link.send(
                     &DeviceMessage::Sample(WireSample {

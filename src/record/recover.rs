@@ -1,0 +1,162 @@
+//! `bench recover`: turns the `.part` file a killed run left into a
+//! complete, indexed recording that any MCAP reader opens (the README's
+//! `make_reader` example needs the summary and footer a killed process
+//! never wrote).
+//!
+//! What is kept: every message of every chunk that was completely written
+//! (the chunks are closed every 50 ms, see [`super::spawn_writer`]), in file
+//! order, on its original channel and schema, and every metadata record
+//! (`bench.config`, `bench.run`). A metadata record `bench.recovered` is
+//! added: the `.part` file it came from, the number of messages, and why
+//! reading stopped (the cut chunk of a killed run, or `clean end`).
+
+use std::collections::BTreeMap;
+use std::fs::File;
+use std::io::BufWriter;
+use std::path::{Path, PathBuf};
+
+use serde::Serialize;
+
+use super::reader::read_messages_tolerant;
+
+/// Errors of [`recover`].
+#[derive(Debug, thiserror::Error)]
+pub enum RecoverError {
+    /// The input could not be read.
+    #[error("cannot read {path}: {source}")]
+    Read {
+        /// The input.
+        path: PathBuf,
+        /// Why.
+        source: std::io::Error,
+    },
+    /// The input is not an MCAP file (no valid header), or holds no message.
+    #[error("{path} is not a recoverable recording: {reason}")]
+    NotARecording {
+        /// The input.
+        path: PathBuf,
+        /// Why.
+        reason: String,
+    },
+    /// Writing the recovered recording failed (nothing is left under the
+    /// output name).
+    #[error("cannot write {path}: {reason}")]
+    Write {
+        /// The output.
+        path: PathBuf,
+        /// Why.
+        reason: String,
+    },
+}
+
+/// What [`recover`] did.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Recovered {
+    /// The `.part` file read.
+    pub from: PathBuf,
+    /// The complete recording written.
+    pub to: PathBuf,
+    /// Messages copied, count.
+    pub messages: u64,
+    /// Metadata records copied (besides `bench.recovered`), count.
+    pub metadata: u64,
+    /// Log time of the last message kept, s (loop time).
+    pub last_log_time_s: f64,
+    /// Why reading stopped: the error at the cut (e.g. an unexpected end of
+    /// file inside the chunk being written when the run was killed), or
+    /// `clean end`.
+    pub stopped: String,
+}
+
+/// Reads `part` tolerantly and writes every complete message and metadata
+/// record to `tmp` (a new file, the caller renames it): an MCAP with lz4
+/// chunks, summary, indexes and footer.
+///
+/// # Errors
+/// [`RecoverError::Read`], [`RecoverError::NotARecording`] (no header, no
+/// message), [`RecoverError::Write`].
+pub fn recover(part: &Path, tmp: &Path, to: &Path) -> Result<Recovered, RecoverError> {
+    let bytes = std::fs::read(part).map_err(|source| RecoverError::Read {
+        path: part.to_path_buf(),
+        source,
+    })?;
+    let not = |reason: String| RecoverError::NotARecording {
+        path: part.to_path_buf(),
+        reason,
+    };
+    if !bytes.starts_with(mcap::MAGIC) {
+        return Err(not("it does not start with the MCAP magic".into()));
+    }
+    let read = read_messages_tolerant(&bytes);
+    if read.messages.is_empty() {
+        return Err(not(match read.error {
+            Some(e) => format!("no complete message ({e})"),
+            None => "it holds no message".into(),
+        }));
+    }
+    // Top-level metadata records (written outside chunks), up to the cut.
+    let mut metadata = Vec::new();
+    if let Ok(records) = mcap::read::LinearReader::new_with_options(
+        &bytes,
+        mcap::read::Options::IgnoreEndMagic.into(),
+    ) {
+        for r in records {
+            match r {
+                Ok(mcap::records::Record::Metadata(m)) => metadata.push(m),
+                Ok(_) => {}
+                Err(_) => break,
+            }
+        }
+    }
+    let write_err = |reason: String| RecoverError::Write {
+        path: to.to_path_buf(),
+        reason,
+    };
+    let file = File::options()
+        .write(true)
+        .create_new(true)
+        .open(tmp)
+        .map_err(|e| write_err(format!("{}: {e}", tmp.display())))?;
+    let mut w = mcap::WriteOptions::new()
+        .compression(Some(mcap::Compression::Lz4))
+        .profile("")
+        .library(concat!("bench-", env!("CARGO_PKG_VERSION"), " (mcap-rs)"))
+        .create(BufWriter::new(file))
+        .map_err(|e| write_err(e.to_string()))?;
+    let stopped = read
+        .error
+        .as_ref()
+        .map_or_else(|| "clean end".to_string(), ToString::to_string);
+    let mut last_ns = 0;
+    for m in &read.messages {
+        w.write(m).map_err(|e| write_err(e.to_string()))?;
+        last_ns = m.log_time;
+    }
+    for m in &metadata {
+        w.write_metadata(m).map_err(|e| write_err(e.to_string()))?;
+    }
+    let report = Recovered {
+        from: part.to_path_buf(),
+        to: to.to_path_buf(),
+        messages: read.messages.len() as u64,
+        metadata: metadata.len() as u64,
+        last_log_time_s: last_ns as f64 * 1e-9,
+        stopped,
+    };
+    w.write_metadata(&mcap::records::Metadata {
+        name: "bench.recovered".into(),
+        metadata: BTreeMap::from([
+            ("from".to_string(), part.display().to_string()),
+            ("messages".to_string(), report.messages.to_string()),
+            ("stopped".to_string(), report.stopped.clone()),
+        ]),
+    })
+    .map_err(|e| write_err(e.to_string()))?;
+    w.finish().map_err(|e| write_err(e.to_string()))?;
+    let inner = w.into_inner();
+    let file = inner
+        .into_inner()
+        .map_err(|e| write_err(e.error().to_string()))?;
+    file.sync_all().map_err(|e| write_err(e.to_string()))?;
+    Ok(report)
+}
