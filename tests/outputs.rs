@@ -232,12 +232,21 @@ fn existing_outputs_are_refused_and_kept_unless_overwrite() {
     }
 }
 
+/// A kind of special file: its name, how to make one, how to recognise
+/// it, and how the refusal calls it.
+type SpecialKind = (
+    &'static str,
+    fn(&Path),
+    fn(&std::fs::FileType) -> bool,
+    &'static str,
+);
+
 #[test]
 fn special_files_are_never_replaced_even_with_overwrite() {
     let dir = tmp();
     let d = dir.path();
     std::fs::write(d.join("target.png"), b"link target").unwrap();
-    let kinds: [(&str, fn(&Path), fn(&std::fs::FileType) -> bool, &str); 4] = [
+    let kinds: [SpecialKind; 4] = [
         (
             "char",
             mknod_char,
