@@ -5,6 +5,7 @@
 use bench::config::BenchConfig;
 use bench::ident::frf::{find_resonances, Frf, Spectra};
 use bench::jobs::chirp::{run_chirp, ChirpOptions};
+use bench::outputs::{Existing, Origin, OutputPlan};
 use criterion::{criterion_group, criterion_main, Criterion};
 use std::path::Path;
 use std::sync::atomic::AtomicBool;
@@ -33,7 +34,14 @@ fn chirp(c: &mut Criterion) {
     let mut g = c.benchmark_group("chirp");
     g.sample_size(10).measurement_time(Duration::from_secs(20));
     g.bench_function("default_chirp_end_to_end", |b| {
-        b.iter(|| run_chirp(&opts, Arc::new(AtomicBool::new(false))).unwrap())
+        // Every iteration writes the same files: --overwrite.
+        let outputs = || {
+            OutputPlan::new(Existing::Replace)
+                .with_recording(&opts.out, Origin::Given)
+                .with_output("frf_csv", &opts.frf_csv, Origin::Given)
+                .with_output("plot", &opts.plot, Origin::Given)
+        };
+        b.iter(|| run_chirp(&opts, outputs(), Arc::new(AtomicBool::new(false))).unwrap())
     });
 
     // A record of the default length (lead-in + 60 s sweep + tail at 5 kHz).

@@ -6,6 +6,7 @@
 use bench::config::BenchConfig;
 use bench::control::DiscreteController;
 use bench::jobs::step::{run_control, ControlJob, ControlOptions};
+use bench::outputs::{Existing, Origin, OutputPlan};
 use bench::rt::supervisor::Supervisor;
 use bench::rt::timing::Histogram;
 use bench::rt::Job;
@@ -94,7 +95,13 @@ fn control(c: &mut Criterion) {
     };
     g.sample_size(10).measurement_time(Duration::from_secs(15));
     g.bench_function("closed_loop_step_4s_virtual", |b| {
-        b.iter(|| run_control(&opts, Arc::new(AtomicBool::new(false))).unwrap())
+        // Every iteration writes the same files: --overwrite.
+        let outputs = || {
+            OutputPlan::new(Existing::Replace)
+                .with_recording(&opts.out, Origin::Given)
+                .with_output("plot", &opts.plot, Origin::Given)
+        };
+        b.iter(|| run_control(&opts, outputs(), Arc::new(AtomicBool::new(false))).unwrap())
     });
     g.finish();
 }

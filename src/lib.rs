@@ -16,6 +16,7 @@ pub mod daemon;
 pub mod error;
 pub mod ident;
 pub mod jobs;
+pub mod outputs;
 pub mod plot;
 pub mod record;
 pub mod rt;

@@ -12,17 +12,21 @@
 //! Rendering uses the plotters bitmap backend with an embedded DejaVu Sans
 //! font, so no system font libraries are needed. Non-finite samples (and
 //! non-positive magnitudes or frequencies, which have no logarithm) are
-//! skipped and break the line instead of failing. The image is first drawn to
-//! a hidden temporary file next to the target and then renamed over it, so a
-//! reader never sees a half-written PNG.
+//! skipped and break the line instead of failing. The image is drawn in
+//! memory, encoded to a hidden temporary file next to the target and renamed
+//! to it when complete, by the rules of [`crate::outputs`]: a reader never
+//! sees a half-written PNG, and an existing file is replaced only with
+//! [`Existing::Replace`] (`--overwrite`), never when it is not a regular file.
 
 use std::error::Error as StdError;
-use std::fs;
 use std::io;
+use std::io::Write;
 use std::ops::Range;
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::OnceLock;
+
+use image::codecs::png::PngEncoder;
+use image::{ColorType, ImageEncoder};
 
 use plotters::coord::ranged1d::{DefaultFormatting, KeyPointHint, ValueFormatter};
 use plotters::coord::types::RangedCoordf64;
@@ -30,6 +34,8 @@ use plotters::coord::Shift;
 use plotters::element::DashedPathElement;
 use plotters::prelude::*;
 use plotters::style::text_anchor::{HPos, Pos, VPos};
+
+use crate::outputs::{self, Existing};
 
 /// One frequency-response curve.
 #[derive(Debug, Clone, Copy)]
@@ -154,8 +160,8 @@ type Chart<'a, 'b, X> = ChartContext<'a, BitMapBackend<'b>, Cartesian2d<X, Ticke
 /// all sharing a logarithmic frequency axis. The axis spans the measured
 /// frequencies (the model is clipped to that band); only if the measured
 /// series has no usable band do the model frequencies widen it. Invalid points
-/// are skipped and break the line. The file is drawn to a temporary file in
-/// the same directory and renamed into place.
+/// are skipped and break the line. The file is written to a temporary file in
+/// the same directory and renamed into place (see [`crate::outputs`]).
 ///
 /// # Errors
 ///
@@ -163,7 +169,11 @@ type Chart<'a, 'b, X> = ChartContext<'a, BitMapBackend<'b>, Cartesian2d<X, Ticke
 /// cannot be written, [`PlotError::InvalidData`] if slice lengths disagree,
 /// [`PlotError::Draw`] if plotters fails, [`PlotError::Font`] if the embedded
 /// font cannot be loaded.
-pub fn write_bode_png(path: &Path, plot: &BodePlot<'_>) -> Result<(), PlotError> {
+pub fn write_bode_png(
+    path: &Path,
+    existing: Existing,
+    plot: &BodePlot<'_>,
+) -> Result<(), PlotError> {
     check_series(path, "measured", &plot.measured)?;
     if let Some(model) = &plot.model {
         check_series(path, "model", model)?;
@@ -178,7 +188,7 @@ pub fn write_bode_png(path: &Path, plot: &BodePlot<'_>) -> Result<(), PlotError>
             ),
         ));
     }
-    write_png_atomically(path, BODE_SIZE, |root| draw_bode(root, plot))
+    write_png_atomically(path, existing, BODE_SIZE, |root| draw_bode(root, plot))
 }
 
 /// Writes stacked time-series `panels` sharing one time axis (s) as a PNG to
@@ -193,7 +203,12 @@ pub fn write_bode_png(path: &Path, plot: &BodePlot<'_>) -> Result<(), PlotError>
 ///
 /// [`PlotError::InvalidData`] if `panels` is empty or a series has
 /// `t_s.len() != values.len()`; otherwise as for [`write_bode_png`].
-pub fn write_time_png(path: &Path, title: &str, panels: &[TimePanel<'_>]) -> Result<(), PlotError> {
+pub fn write_time_png(
+    path: &Path,
+    existing: Existing,
+    title: &str,
+    panels: &[TimePanel<'_>],
+) -> Result<(), PlotError> {
     if panels.is_empty() {
         return Err(invalid(path, "no panels to plot".to_string()));
     }
@@ -214,7 +229,9 @@ pub fn write_time_png(path: &Path, title: &str, panels: &[TimePanel<'_>]) -> Res
     }
     let extra = u32::try_from(panels.len().saturating_sub(3)).unwrap_or(u32::MAX);
     let height = 1000u32.saturating_add(extra.saturating_mul(300)).min(8000);
-    write_png_atomically(path, (1400, height), |root| draw_time(root, title, panels))
+    write_png_atomically(path, existing, (1400, height), |root| {
+        draw_time(root, title, panels)
+    })
 }
 
 fn invalid(path: &Path, reason: String) -> PlotError {
@@ -252,14 +269,16 @@ fn ensure_font() -> Result<(), PlotError> {
     }
 }
 
-/// Draws with `draw` into a hidden temporary PNG next to `path`, then renames
-/// it to `path`. The temporary file is removed on failure.
+/// Draws with `draw` into an RGB buffer, then writes it as a PNG to `path`
+/// through a temporary file renamed when complete
+/// ([`outputs::write_atomically`](crate::outputs::write_atomically)): a
+/// failed write leaves nothing under `path`.
 fn write_png_atomically(
     path: &Path,
+    existing: Existing,
     size: (u32, u32),
     draw: impl FnOnce(&Area<'_>) -> Result<(), BoxError>,
 ) -> Result<(), PlotError> {
-    static COUNTER: AtomicU64 = AtomicU64::new(0);
     ensure_font()?;
     let io_err = |source: io::Error| PlotError::Io {
         path: path.to_path_buf(),
@@ -275,41 +294,35 @@ fn write_png_atomically(
             format!("directory {} does not exist", dir.display()),
         )));
     }
-    let Some(file_name) = path.file_name() else {
+    if path.file_name().is_none() {
         return Err(io_err(io::Error::new(
             io::ErrorKind::InvalidInput,
             "path has no file name",
         )));
-    };
-    let tmp = dir.join(format!(
-        ".{}.{}-{}.tmp.png",
-        file_name.to_string_lossy(),
-        std::process::id(),
-        COUNTER.fetch_add(1, Ordering::Relaxed)
-    ));
-
-    let result = (|| -> Result<(), BoxError> {
-        let root = BitMapBackend::new(&tmp, size).into_drawing_area();
+    }
+    let mut rgb = vec![0u8; size.0 as usize * size.1 as usize * 3];
+    (|| -> Result<(), BoxError> {
+        let root = BitMapBackend::with_buffer(&mut rgb, size).into_drawing_area();
         root.fill(&WHITE)?;
         draw(&root)?;
         root.present()?;
         Ok(())
-    })();
-    // The backend is dropped by now; on error its Drop may still have written
-    // a partial file, so always clean up.
-    match result {
-        Ok(()) => fs::rename(&tmp, path).map_err(|e| {
-            let _ = fs::remove_file(&tmp);
-            io_err(e)
-        }),
-        Err(e) => {
-            let _ = fs::remove_file(&tmp);
-            Err(PlotError::Draw {
-                path: path.to_path_buf(),
-                message: e.to_string(),
-            })
-        }
-    }
+    })()
+    .map_err(|e| PlotError::Draw {
+        path: path.to_path_buf(),
+        message: e.to_string(),
+    })?;
+    outputs::write_atomically(path, existing, |file| {
+        let mut w = io::BufWriter::new(file);
+        PngEncoder::new(&mut w)
+            .write_image(&rgb, size.0, size.1, ColorType::Rgb8)
+            .map_err(|e| match e {
+                image::ImageError::IoError(e) => e,
+                e => io::Error::other(e.to_string()),
+            })?;
+        w.flush()
+    })
+    .map_err(io_err)
 }
 
 // ---------------------------------------------------------------------------
@@ -1061,6 +1074,7 @@ fn fmt_sig(v: f64, sig: i32) -> String {
 mod tests {
     use super::*;
     use std::f64::consts::PI;
+    use std::fs;
 
     /// Two-mode compliance `x/i` of a flexure stage in m/A: a main mode near
     /// 71 Hz and a weaker one near 420 Hz, with an optional dead time.
@@ -1183,20 +1197,24 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("bode.png");
         let e = example();
-        write_bode_png(&path, &bode(&e, &[70.9, 420.0])).unwrap();
+        write_bode_png(&path, Existing::Refuse, &bode(&e, &[70.9, 420.0])).unwrap();
         assert_eq!(png_size(&path), (1400, 1000));
         // Nothing but the final file is left behind.
         assert_eq!(dir_entries(dir.path()), vec!["bode.png".to_string()]);
     }
 
     #[test]
-    fn plot_bode_overwrites_existing_file() {
+    fn plot_bode_replaces_an_existing_file_only_with_overwrite() {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("bode.png");
         fs::write(&path, b"old").unwrap();
         let e = example();
-        write_bode_png(&path, &bode(&e, &[])).unwrap();
+        let err = write_bode_png(&path, Existing::Refuse, &bode(&e, &[])).unwrap_err();
+        assert!(matches!(err, PlotError::Io { .. }), "{err:?}");
+        assert_eq!(fs::read(&path).unwrap(), b"old");
+        write_bode_png(&path, Existing::Replace, &bode(&e, &[])).unwrap();
         assert_eq!(png_size(&path), (1400, 1000));
+        assert_eq!(dir_entries(dir.path()), vec!["bode.png".to_string()]);
     }
 
     #[test]
@@ -1229,7 +1247,7 @@ mod tests {
             markers_hz: &[f64::NAN, -5.0, 1e9, 70.9],
         };
         let path = dir.path().join("nan.png");
-        write_bode_png(&path, &plot).unwrap();
+        write_bode_png(&path, Existing::Refuse, &plot).unwrap();
         assert_eq!(png_size(&path), (1400, 1000));
     }
 
@@ -1287,7 +1305,8 @@ mod tests {
                 markers_hz: &one,
             };
             let path = dir.path().join(format!("case{i}.png"));
-            write_bode_png(&path, &plot).unwrap_or_else(|e| panic!("case {i}: {e}"));
+            write_bode_png(&path, Existing::Refuse, &plot)
+                .unwrap_or_else(|e| panic!("case {i}: {e}"));
             assert_eq!(png_size(&path), (1400, 1000), "case {i}");
         }
     }
@@ -1297,14 +1316,15 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("no-such-dir").join("bode.png");
         let e = example();
-        let err = write_bode_png(&path, &bode(&e, &[])).unwrap_err();
+        let err = write_bode_png(&path, Existing::Refuse, &bode(&e, &[])).unwrap_err();
         assert!(matches!(err, PlotError::Io { .. }), "{err:?}");
         let msg = err.to_string();
         assert!(msg.contains(&path.display().to_string()), "{msg}");
         assert!(msg.contains("does not exist"), "{msg}");
         assert!(!path.exists());
 
-        let err = write_time_png(&path, "t", &[TimePanel::default()]).unwrap_err();
+        let err =
+            write_time_png(&path, Existing::Refuse, "t", &[TimePanel::default()]).unwrap_err();
         assert!(err.to_string().contains(&path.display().to_string()));
     }
 
@@ -1315,13 +1335,13 @@ mod tests {
         let e = example();
         let mut plot = bode(&e, &[]);
         plot.coherence = &e.coh[1..];
-        let err = write_bode_png(&path, &plot).unwrap_err();
+        let err = write_bode_png(&path, Existing::Refuse, &plot).unwrap_err();
         assert!(matches!(err, PlotError::InvalidData { .. }), "{err:?}");
         assert!(err.to_string().contains("coherence"));
 
         let mut plot = bode(&e, &[]);
         plot.model.as_mut().unwrap().phase_deg = &e.phase_m[..3];
-        let err = write_bode_png(&path, &plot).unwrap_err();
+        let err = write_bode_png(&path, Existing::Refuse, &plot).unwrap_err();
         assert!(err.to_string().contains("lumped model"), "{err}");
 
         let t = [0.0, 1.0];
@@ -1329,9 +1349,9 @@ mod tests {
             y_label: "y",
             series: vec![("s", &t[..], &t[..1])],
         };
-        let err = write_time_png(&path, "", &[panel]).unwrap_err();
+        let err = write_time_png(&path, Existing::Refuse, "", &[panel]).unwrap_err();
         assert!(matches!(err, PlotError::InvalidData { .. }), "{err:?}");
-        assert!(write_time_png(&path, "", &[]).is_err());
+        assert!(write_time_png(&path, Existing::Refuse, "", &[]).is_err());
         assert!(!path.exists());
     }
 
@@ -1376,7 +1396,7 @@ mod tests {
             },
         ];
         let path = dir.path().join("step.png");
-        write_time_png(&path, "Closed-loop step", &panels).unwrap();
+        write_time_png(&path, Existing::Refuse, "Closed-loop step", &panels).unwrap();
         assert_eq!(png_size(&path), (1400, 1000));
 
         // Many panels grow the figure; empty and constant panels are fine.
@@ -1386,7 +1406,7 @@ mod tests {
             y_label: "const",
             series: vec![("c", &t[..], &c[..])],
         });
-        write_time_png(&path, "", &many).unwrap();
+        write_time_png(&path, Existing::Replace, "", &many).unwrap();
         assert_eq!(png_size(&path), (1400, 1600));
     }
 
@@ -1426,6 +1446,7 @@ mod tests {
         let e = example();
         write_bode_png(
             Path::new("/tmp/bode-example.png"),
+            Existing::Replace,
             &bode(&e, &[70.9, 420.0]),
         )
         .unwrap();
@@ -1442,6 +1463,7 @@ mod tests {
         ];
         write_time_png(
             Path::new("/tmp/time-example.png"),
+            Existing::Replace,
             "Closed-loop step, X axis",
             &panels,
         )

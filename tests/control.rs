@@ -35,7 +35,10 @@ fn slow_and_fast_steps() {
     let dir = tmp();
     let mut s = Vec::new();
     for c in ["--slow", "--fast"] {
-        let (o, err) = control(dir.path(), &[c]);
+        // A directory each: bench never replaces a recording.
+        let sub = dir.path().join(&c[2..]);
+        std::fs::create_dir(&sub).unwrap();
+        let (o, err) = control(&sub, &[c]);
         assert!(o.status.success(), "{c}: {err}");
         s.push(json_stdout(&o));
     }
@@ -65,13 +68,13 @@ fn slow_and_fast_steps() {
     assert!((wc(slow) - 18.7).abs() <= 1.0 && (pm(slow) - 73.0).abs() <= 3.0);
     assert!((wc(fast) - 285.0).abs() <= 5.0 && (pm(fast) - 42.0).abs() <= 3.0);
     // The recording holds the check, the metrics and setpoints.
-    let msgs = mcap_messages(&dir.path().join("run.mcap"));
+    let msgs = mcap_messages(&dir.path().join("fast/run.mcap"));
     assert!(msgs.iter().any(|m| m.0 == "/control/loop_check"));
     let metrics = msgs.iter().find(|m| m.0 == "/control/metrics").unwrap();
     assert_eq!(metrics.2["settling_time_s"].as_f64(), Some(tf));
     let sample = msgs.iter().find(|m| m.0 == "/bench/sample").unwrap();
     assert!(sample.2["setpoint_m"].as_f64().is_some());
-    assert!(dir.path().join("run.step.png").exists());
+    assert!(dir.path().join("fast/run.step.png").exists());
 }
 
 #[test]

@@ -2,7 +2,7 @@
 //! and the printed summary.
 
 use super::serve::via_daemon;
-use super::{bad_input, default_recording, emit, load_config, refused_request, run_failed};
+use super::{bad_input, emit, load_config, origin, recording_plan, refused_request, run_failed};
 use bench::config::{ChirpKind, DEFAULT_CONFIG};
 use bench::jobs::chirp::{run_chirp, ChirpOptions, ChirpSummary};
 use bench::jobs::request::{ChirpRequest, JobRequest, LocalOverrides, OperatingPoint};
@@ -35,6 +35,10 @@ pub(super) struct ChirpArgs {
     /// Bode plot PNG [default: beside --out, <stem>.bode.png].
     #[arg(long, value_name = "FILE.png")]
     plot: Option<PathBuf>,
+    /// Replace existing output files (regular files only), each once its
+    /// successor is complete. Without it an existing output is refused.
+    #[arg(long)]
+    overwrite: bool,
     /// Pace the loop in real time (absolute deadlines, SCHED_FIFO and
     /// mlockall when permitted) instead of virtual time.
     #[arg(long)]
@@ -136,6 +140,7 @@ pub(super) fn chirp(args: ChirpArgs, stop: Arc<AtomicBool>) -> ExitCode {
             (args.out.is_some(), "--out"),
             (args.frf_csv.is_some(), "--frf-csv"),
             (args.plot.is_some(), "--plot"),
+            (args.overwrite, "--overwrite"),
             (args.operating_point_m.is_some(), "--operating-point-m"),
             (args.operating_point_pct.is_some(), "--operating-point-pct"),
             (args.mass_asymmetry.is_some(), "--mass-asymmetry"),
@@ -159,25 +164,35 @@ pub(super) fn chirp(args: ChirpArgs, stop: Arc<AtomicBool>) -> ExitCode {
     if let Err(e) = request.apply(&mut cfg) {
         return refused_request(e, &args.config, |key| args.flag_for(key));
     }
-    let out = args
-        .out
-        .clone()
-        .unwrap_or_else(|| default_recording("chirp"));
+    let (out, outputs) = match recording_plan(
+        args.out.as_deref(),
+        "chirp",
+        &[".frf.csv", ".bode.png"],
+        args.overwrite,
+    ) {
+        Ok(r) => r,
+        Err(e) => return run_failed(&e),
+    };
     if out.extension().and_then(|e| e.to_str()) != Some("mcap") {
         return bad_input(format!(
             "--out {}: the recording must end in .mcap",
             out.display()
         ));
     }
+    let frf_csv = args
+        .frf_csv
+        .clone()
+        .unwrap_or_else(|| beside(&out, ".frf.csv"));
+    let plot = args
+        .plot
+        .clone()
+        .unwrap_or_else(|| beside(&out, ".bode.png"));
+    let outputs = outputs
+        .with_output("frf_csv", &frf_csv, origin(args.frf_csv.is_some()))
+        .with_output("plot", &plot, origin(args.plot.is_some()));
     let opts = ChirpOptions {
-        frf_csv: args
-            .frf_csv
-            .clone()
-            .unwrap_or_else(|| beside(&out, ".frf.csv")),
-        plot: args
-            .plot
-            .clone()
-            .unwrap_or_else(|| beside(&out, ".bode.png")),
+        frf_csv,
+        plot,
         out,
         seed: request.seed.unwrap_or(cfg.sim.seed),
         config: cfg,
@@ -186,7 +201,7 @@ pub(super) fn chirp(args: ChirpArgs, stop: Arc<AtomicBool>) -> ExitCode {
         progress: std::io::stderr().is_terminal(),
         backend: args.backend.clone(),
     };
-    match run_chirp(&opts, stop) {
+    match run_chirp(&opts, outputs, stop) {
         Ok(summary) => match emit(&summary, args.json, print_summary) {
             Ok(()) => ExitCode::SUCCESS,
             Err(code) => code,

@@ -2,11 +2,15 @@
 //! loop check and step summary.
 
 use super::serve::via_daemon;
-use super::{bad_input, default_recording, emit, load_config, refused_request, run_failed, status};
+use super::{
+    bad_input, emit, load_config, origin, recording_plan, refused_request, run_failed, status,
+    unclaimed_recording,
+};
 use bench::config::DEFAULT_CONFIG;
 use bench::jobs::request::{ControlRequest, JobRequest};
 use bench::jobs::session::beside;
 use bench::jobs::step::{run_control, ControlOptions, ControlSummary};
+use bench::outputs::{Existing, OutputPlan};
 use bench::rt::backend::BackendSpec;
 use clap::Args;
 use std::io::IsTerminal;
@@ -46,6 +50,10 @@ pub(super) struct ControlArgs {
     /// Step plot PNG [default: beside --out, <stem>.step.png].
     #[arg(long, value_name = "FILE.png")]
     plot: Option<PathBuf>,
+    /// Replace existing output files (regular files only), each once its
+    /// successor is complete. Without it an existing output is refused.
+    #[arg(long)]
+    overwrite: bool,
     /// Print the summary as one JSON object on stdout.
     #[arg(long)]
     json: bool,
@@ -128,6 +136,7 @@ pub(super) fn control(args: ControlArgs, stop: Arc<AtomicBool>) -> ExitCode {
         let local_only = [
             (args.out.is_some(), "--out"),
             (args.plot.is_some(), "--plot"),
+            (args.overwrite, "--overwrite"),
             (args.backend.is_some(), "--backend"),
             (args.check_only, "--check-only"),
             (args.frf.is_some(), "--frf"),
@@ -150,21 +159,33 @@ pub(super) fn control(args: ControlArgs, stop: Arc<AtomicBool>) -> ExitCode {
         Err(e) => return refused_request(e, &args.config, |key| args.flag_for(key)),
     };
     let name = request.controller.clone();
-    let out = args
-        .out
-        .clone()
-        .unwrap_or_else(|| default_recording(&format!("control-{name}")));
+    let prefix = format!("control-{name}");
+    // --check-only writes nothing: no name is claimed, no path checked.
+    let (out, outputs) = if args.check_only {
+        let out = args
+            .out
+            .clone()
+            .unwrap_or_else(|| unclaimed_recording(&prefix));
+        (out, OutputPlan::new(Existing::Refuse))
+    } else {
+        match recording_plan(args.out.as_deref(), &prefix, &[".step.png"], args.overwrite) {
+            Ok(r) => r,
+            Err(e) => return run_failed(&e),
+        }
+    };
     if out.extension().and_then(|e| e.to_str()) != Some("mcap") {
         return bad_input(format!(
             "--out {}: the recording must end in .mcap",
             out.display()
         ));
     }
+    let plot = args
+        .plot
+        .clone()
+        .unwrap_or_else(|| beside(&out, ".step.png"));
+    let outputs = outputs.with_output("plot", &plot, origin(args.plot.is_some()));
     let opts = ControlOptions {
-        plot: args
-            .plot
-            .clone()
-            .unwrap_or_else(|| beside(&out, ".step.png")),
+        plot,
         out,
         seed: request.seed.unwrap_or(cfg.sim.seed),
         config: cfg,
@@ -178,7 +199,7 @@ pub(super) fn control(args: ControlArgs, stop: Arc<AtomicBool>) -> ExitCode {
         inject,
         backend: args.backend.clone(),
     };
-    match run_control(&opts, stop) {
+    match run_control(&opts, outputs, stop) {
         Ok(summary) => {
             if let Err(code) = emit(&summary, args.json, print_control_summary) {
                 return code;

@@ -27,6 +27,7 @@ use anyhow::Context;
 use bench::config::{BenchConfig, ConfigError};
 use bench::error::RunError;
 use bench::jobs::request::RequestError;
+use bench::outputs::{claim_recording, Existing, Origin, OutputPlan};
 use chirp::{chirp, ChirpArgs};
 use clap::{Parser, Subcommand};
 use control::{control, ControlArgs};
@@ -125,9 +126,47 @@ pub(super) fn bad_input(msg: impl std::fmt::Display) -> ExitCode {
     ExitCode::from(status::BAD_INPUT)
 }
 
-/// `recordings/<prefix>-YYYYmmddTHHMMSSZ.mcap`
-pub(super) fn default_recording(prefix: &str) -> PathBuf {
-    bench::jobs::session::stamped_recording(Path::new("recordings"), prefix, "")
+/// Where recordings go by default.
+const RECORDINGS: &str = "recordings";
+
+/// The recording of a local run: `--out`, or a fresh default name
+/// `recordings/<prefix>-YYYYmmddTHHMMSS.mmmZ[-N].mcap` claimed at once
+/// (its `.part` file created; see `bench::outputs::claim_recording`), with
+/// the plan of outputs it starts. `companions` are the suffixes of the
+/// default files beside it (`.frf.csv`, …).
+pub(super) fn recording_plan(
+    out: Option<&Path>,
+    prefix: &str,
+    companions: &[&str],
+    overwrite: bool,
+) -> Result<(PathBuf, OutputPlan), RunError> {
+    let plan = OutputPlan::new(Existing::overwrite(overwrite));
+    Ok(match out {
+        Some(out) => (out.to_path_buf(), plan.with_recording(out, Origin::Given)),
+        None => {
+            let claim = claim_recording(Path::new(RECORDINGS), prefix, companions)?;
+            (
+                claim.path().to_path_buf(),
+                plan.with_claimed_recording(claim),
+            )
+        }
+    })
+}
+
+/// An unclaimed default recording name (for `--check-only`, which writes
+/// nothing).
+pub(super) fn unclaimed_recording(prefix: &str) -> PathBuf {
+    bench::jobs::session::stamped_recording(Path::new(RECORDINGS), prefix, "")
+}
+
+/// [`Origin::Given`] for a path given by its flag, else
+/// [`Origin::Derived`] (from `--out`).
+pub(super) fn origin(given: bool) -> Origin {
+    if given {
+        Origin::Given
+    } else {
+        Origin::Derived
+    }
 }
 
 pub(super) fn load_config(path: &Path) -> Result<BenchConfig, ConfigError> {

@@ -1,7 +1,8 @@
 //! `bench recover FILE.mcap.part`: a killed run's `.part` file → a
 //! complete, indexed recording.
 
-use super::{bad_input, emit, status};
+use super::{bad_input, emit, run_failed, status};
+use bench::outputs::{Existing, Origin, OutputPlan};
 use bench::record::recover::{recover as recover_part, RecoverError, Recovered};
 use bench::record::PART_SUFFIX;
 use clap::Args;
@@ -51,72 +52,35 @@ pub fn recover(args: RecoverArgs) -> ExitCode {
             args.part.display()
         ));
     };
-    if out == args.part {
-        return bad_input("--out: the output must not be the .part file itself");
+    let existing = Existing::overwrite(args.overwrite);
+    let same = |a: &Path, b: &Path| {
+        a.canonicalize()
+            .ok()
+            .zip(b.canonicalize().ok())
+            .is_some_and(|(a, b)| a == b)
+    };
+    if same(&out, &args.part) {
+        return bad_input("--out: the output must not be the .part file it is read from");
     }
-    match std::fs::symlink_metadata(&out) {
-        Ok(m) if !m.is_file() => {
-            return bad_input(format!(
-                "--out: {} exists and is not a regular file",
-                out.display()
-            ))
-        }
-        Ok(_) if !args.overwrite => {
-            return bad_input(format!(
-                "--out: {} exists (give --overwrite to replace it)",
-                out.display()
-            ))
-        }
-        _ => {}
+    if let Err(e) = OutputPlan::new(existing)
+        .with_output("out", &out, Origin::Given)
+        .check()
+    {
+        return run_failed(&e);
     }
-    let tmp = PathBuf::from(format!(
-        "{}.recover-{}.tmp",
-        out.display(),
-        std::process::id()
-    ));
-    let result = recover_part(&args.part, &tmp, &out).and_then(|r| {
-        commit(&tmp, &out, args.overwrite).map_err(|reason| RecoverError::Write {
-            path: out.clone(),
-            reason,
-        })?;
-        Ok(r)
-    });
-    match result {
+    match recover_part(&args.part, &out, existing) {
         Ok(r) => match emit(&r, args.json, human) {
             Ok(()) => ExitCode::SUCCESS,
             Err(code) => code,
         },
-        Err(e) => {
-            let _ = std::fs::remove_file(&tmp);
-            match e {
-                RecoverError::NotARecording { .. } => bad_input(format!("PART: {e}")),
-                RecoverError::Read { .. } => bad_input(format!("PART: {e}")),
-                RecoverError::Write { .. } => {
-                    eprintln!("error: {e}");
-                    ExitCode::from(status::ERROR)
-                }
-            }
+        Err(e @ (RecoverError::NotARecording { .. } | RecoverError::Read { .. })) => {
+            bad_input(format!("PART: {e}"))
+        }
+        Err(e @ RecoverError::Write { .. }) => {
+            eprintln!("error: {e}");
+            ExitCode::from(status::ERROR)
         }
     }
-}
-
-/// Renames the finished `tmp` to `out`; without `overwrite`, never replaces
-/// a file that appeared meanwhile (a hard link fails on an existing name).
-fn commit(tmp: &Path, out: &Path, overwrite: bool) -> Result<(), String> {
-    if overwrite {
-        std::fs::rename(tmp, out).map_err(|e| e.to_string())?;
-    } else {
-        std::fs::hard_link(tmp, out).map_err(|e| e.to_string())?;
-        std::fs::remove_file(tmp).map_err(|e| e.to_string())?;
-    }
-    let dir = match out.parent() {
-        Some(p) if !p.as_os_str().is_empty() => p,
-        _ => Path::new("."),
-    };
-    if let Ok(d) = std::fs::File::open(dir) {
-        let _ = d.sync_all();
-    }
-    Ok(())
 }
 
 fn human(r: &Recovered) {

@@ -138,10 +138,12 @@ pub(super) async fn event_log(dir: PathBuf, mut rx: broadcast::Receiver<String>)
         if std::fs::metadata(&path).map_or(0, |m| m.len()) > EVENT_LOG_MAX_BYTES {
             let _ = std::fs::rename(&path, dir.join("daemon-events.jsonl.1"));
         }
-        if let Ok(mut f) = std::fs::OpenOptions::new()
-            .create(true)
-            .append(true)
-            .open(&path)
+        // Created with the mode of every output (crate::outputs::FILE_MODE).
+        if let Ok(mut f) = std::os::unix::fs::OpenOptionsExt::mode(
+            std::fs::OpenOptions::new().create(true).append(true),
+            crate::outputs::FILE_MODE,
+        )
+        .open(&path)
         {
             let _ = writeln!(f, "{line}");
         }

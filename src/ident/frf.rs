@@ -213,12 +213,31 @@ impl Frf {
         }
     }
 
-    /// Writes the CSV `frequency_hz,magnitude_m_per_a,phase_deg,coherence`.
+    /// Writes the CSV `frequency_hz,magnitude_m_per_a,phase_deg,coherence`
+    /// to `path` through a temporary file renamed when complete
+    /// ([`outputs::write_atomically`](crate::outputs::write_atomically)):
+    /// a failed write leaves nothing under `path`, and an existing `path`
+    /// is replaced only with [`Existing::Replace`](crate::outputs::Existing::Replace).
     ///
     /// # Errors
-    /// I/O errors from creating or writing `path`.
-    pub fn write_csv(&self, path: &Path) -> std::io::Result<()> {
-        let mut w = std::io::BufWriter::new(std::fs::File::create(path)?);
+    /// I/O errors from creating, writing or renaming the file.
+    pub fn write_csv(
+        &self,
+        path: &Path,
+        existing: crate::outputs::Existing,
+    ) -> std::io::Result<()> {
+        crate::outputs::write_atomically(path, existing, |f| {
+            let mut w = std::io::BufWriter::new(f);
+            self.write_csv_to(&mut w)?;
+            w.flush()
+        })
+    }
+
+    /// Writes the CSV rows (with the header) to `w`.
+    ///
+    /// # Errors
+    /// The writer's.
+    pub fn write_csv_to(&self, w: &mut impl Write) -> std::io::Result<()> {
         writeln!(w, "frequency_hz,magnitude_m_per_a,phase_deg,coherence")?;
         for i in 0..self.frequency_hz.len() {
             writeln!(

@@ -14,9 +14,9 @@ use crate::ident::frf::{
     closely_spaced_pair, find_resonances, Frf, PairVerdict, Resonance, Spectra,
 };
 use crate::jobs::session::{
-    check_writable, finish, open_recording, run_recorded, Recorded, Runner, SessionOptions,
-    TimingSummary,
+    finish, open_recording, run_recorded, Recorded, Runner, SessionOptions, TimingSummary,
 };
+use crate::outputs::{Existing, Origin, OutputPlan};
 use crate::plot::{write_bode_png, BodePlot, BodeSeries};
 use crate::rt::backend::{self, BackendSpec};
 use crate::rt::{Job, JobOutput};
@@ -159,34 +159,43 @@ fn model_summary(m: &Sr4dof) -> ModelSummary {
     }
 }
 
-/// Runs `bench chirp` end to end on the simulated bench.
+/// Runs `bench chirp` end to end on the backend of `opts`, writing the
+/// outputs of `outputs` (the paths of `opts`; see [`crate::outputs`]), which
+/// are checked before the backend is opened.
 ///
 /// `stop` is raised by SIGINT/SIGTERM.
 ///
 /// # Errors
 /// See [`RunError`]; on every error after the loop started the recording is
 /// finished and the amplifier left disabled.
-pub fn run_chirp(opts: &ChirpOptions, stop: Arc<AtomicBool>) -> Result<ChirpSummary, RunError> {
-    check_outputs(opts)?;
+pub fn run_chirp(
+    opts: &ChirpOptions,
+    mut outputs: OutputPlan,
+    stop: Arc<AtomicBool>,
+) -> Result<ChirpSummary, RunError> {
+    outputs.check()?;
     let spec = BackendSpec::resolve(opts.backend.as_ref(), &opts.config);
     let (mut stage, info) = backend::open(&spec, &opts.config, &opts.config_path, opts.seed, None)?;
     let mut runner = Runner::Local {
         stage: &mut stage,
         info: &info,
     };
-    run_chirp_on(&mut runner, !spec.is_sim(), opts, stop, None)
+    run_chirp_with(&mut runner, !spec.is_sim(), opts, &mut outputs, stop, None)
 }
 
-fn check_outputs(opts: &ChirpOptions) -> Result<(), RunError> {
-    check_writable(&opts.out, "out")?;
-    check_writable(&opts.frf_csv, "frf_csv")?;
-    check_writable(&opts.plot, "plot")
+/// The outputs of a chirp, none replaced (the daemon's jobs: their names
+/// are derived from the recording's).
+pub fn chirp_outputs(opts: &ChirpOptions) -> OutputPlan {
+    OutputPlan::new(Existing::Refuse)
+        .with_recording(&opts.out, Origin::Default)
+        .with_output("frf_csv", &opts.frf_csv, Origin::Derived)
+        .with_output("plot", &opts.plot, Origin::Derived)
 }
 
 /// Runs the chirp on `runner` (a configured stage, which it leaves
-/// configured, disabled at 0 A; or the daemon's loop). `hardware` forces
-/// real-time pacing;
-/// `ticks`, if given, follows the loop's tick count (progress).
+/// configured, disabled at 0 A; or the daemon's loop), with the outputs of
+/// [`chirp_outputs`]. `hardware` forces real-time pacing; `ticks`, if
+/// given, follows the loop's tick count (progress).
 ///
 /// # Errors
 /// As [`run_chirp`].
@@ -197,9 +206,21 @@ pub fn run_chirp_on(
     stop: Arc<AtomicBool>,
     ticks: Option<&Arc<AtomicU64>>,
 ) -> Result<ChirpSummary, RunError> {
+    let mut outputs = chirp_outputs(opts);
+    run_chirp_with(runner, hardware, opts, &mut outputs, stop, ticks)
+}
+
+fn run_chirp_with(
+    runner: &mut Runner<'_>,
+    hardware: bool,
+    opts: &ChirpOptions,
+    outputs: &mut OutputPlan,
+    stop: Arc<AtomicBool>,
+    ticks: Option<&Arc<AtomicU64>>,
+) -> Result<ChirpSummary, RunError> {
     let cfg = &opts.config;
     let info = &runner.info().clone();
-    check_outputs(opts)?;
+    outputs.check()?;
     let model = Sr4dof::new(cfg.plant)
         .map_err(|e| RunError::BadInput(format!("config {}: {e}", opts.config_path.display())))?;
     let period_s = info.period_ns as f64 * 1e-9;
@@ -218,7 +239,7 @@ pub fn run_chirp_on(
         max_ticks: total_ticks,
         ticks,
     };
-    let recorder = open_recording(&session, cfg, info)?;
+    let recorder = open_recording(&session, cfg, info, outputs)?;
     let run = run_recorded(runner, ChirpJob::new(chirp), cfg, recorder, &session, stop)?;
     let Recorded {
         mut recorder,
@@ -266,10 +287,11 @@ pub fn run_chirp_on(
         &frf.phase_deg,
         &frf.coherence,
     )?;
-    frf.write_csv(&opts.frf_csv).map_err(|e| RunError::Output {
-        path: opts.frf_csv.clone(),
-        reason: e.to_string(),
-    })?;
+    frf.write_csv(&opts.frf_csv, outputs.existing())
+        .map_err(|e| RunError::Output {
+            path: opts.frf_csv.clone(),
+            reason: e.to_string(),
+        })?;
     let markers: Vec<f64> = resonances.iter().map(|r| r.frequency_hz).collect();
     let title = format!(
         "x1 / current, Y1o = {:.1} % of L, Δm23 = {:+.0} % (seed {})",
@@ -279,6 +301,7 @@ pub fn run_chirp_on(
     );
     write_bode_png(
         &opts.plot,
+        outputs.existing(),
         &BodePlot {
             title: &title,
             measured: BodeSeries {

@@ -4,6 +4,7 @@
 
 use crate::config::BenchConfig;
 use crate::error::RunError;
+use crate::outputs::OutputPlan;
 use crate::record::topics::{FaultKind, Record};
 use crate::record::{spawn_writer, Recorder, DEFAULT_CHUNK_INTERVAL};
 use crate::rt::backend::{AnyStage, LinkCounters};
@@ -66,40 +67,6 @@ impl TimingSummary {
             wall_s,
             warnings: r.warnings.clone(),
         }
-    }
-}
-
-/// Checks that `path` can be created: its directory exists and is writable.
-/// Creates and removes a probe file beside it; leaves nothing behind.
-///
-/// # Errors
-/// [`RunError::BadOption`] naming `key` and the path.
-pub fn check_writable(path: &Path, key: &'static str) -> Result<(), RunError> {
-    let dir = match path.parent() {
-        Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
-        _ => PathBuf::from("."),
-    };
-    let bad = |reason: String| RunError::option(key, path.display(), reason);
-    if path.file_name().is_none() {
-        return Err(bad("not a file path".into()));
-    }
-    if !dir.is_dir() {
-        return Err(bad(format!("directory {} does not exist", dir.display())));
-    }
-    if path.is_dir() {
-        return Err(bad("is a directory".into()));
-    }
-    let probe = dir.join(format!(".bench-write-check-{}", std::process::id()));
-    match std::fs::OpenOptions::new()
-        .write(true)
-        .create_new(true)
-        .open(&probe)
-    {
-        Ok(_) => {
-            let _ = std::fs::remove_file(&probe);
-            Ok(())
-        }
-        Err(e) => Err(bad(format!("cannot write in {}: {e}", dir.display()))),
     }
 }
 
@@ -188,8 +155,9 @@ impl Runner<'_> {
     }
 }
 
-/// Creates the recording `opts.out` (as `.part`) with the resolved config
-/// and the run description as metadata.
+/// Creates the recording `opts.out` (as `.part`, by the rules of
+/// `outputs`: the claimed `.part` file if `outputs` holds one) with the
+/// resolved config and the run description as metadata.
 ///
 /// # Errors
 /// [`RunError::BadOption`] naming `out` when the file cannot be created.
@@ -197,9 +165,11 @@ pub fn open_recording(
     opts: &SessionOptions,
     cfg: &BenchConfig,
     info: &DeviceInfo,
+    outputs: &mut OutputPlan,
 ) -> Result<Recorder, RunError> {
     let mut recorder =
-        Recorder::create(opts.out).map_err(|e| RunError::option("out", "", e.to_string()))?;
+        Recorder::create_with(opts.out, outputs.existing(), outputs.take_claimed_part())
+            .map_err(|e| RunError::option("out", "", e.to_string()))?;
     let mut meta = BTreeMap::new();
     meta.insert("toml".to_string(), cfg.to_toml());
     meta.insert("path".to_string(), opts.config_path.display().to_string());
@@ -454,13 +424,12 @@ fn run_local<J: Job + Send>(
     })
 }
 
-/// `dir/PREFIX-YYYYmmddTHHMMSSZSUFFIX.mcap` (UTC): where a run's recording
-/// goes by default.
+/// `dir/PREFIX-YYYYmmddTHHMMSS.mmmZSUFFIX.mcap` (UTC, to the millisecond):
+/// the daemon's recording names (`SUFFIX` is `-job<N>`). The name is not
+/// claimed: the job refuses it if it exists. Local runs claim theirs with
+/// [`outputs::claim_recording`](crate::outputs::claim_recording).
 pub fn stamped_recording(dir: &Path, prefix: &str, suffix: &str) -> PathBuf {
-    let now = time::OffsetDateTime::now_utc();
-    let fmt = time::macros::format_description!("[year][month][day]T[hour][minute][second]Z");
-    let stamp = now.format(&fmt).unwrap_or_else(|_| "now".into());
-    dir.join(format!("{prefix}-{stamp}{suffix}.mcap"))
+    dir.join(format!("{prefix}-{}{suffix}.mcap", crate::outputs::stamp()))
 }
 
 /// `dir/stem.mcap` → `dir/stem<suffix>`: the files that go with a

@@ -22,9 +22,10 @@ use crate::control::loop_check::{check_loop, LoopCheck, MeasuredFrf};
 use crate::control::{ControllerConfig, DiscreteController};
 use crate::error::RunError;
 use crate::jobs::session::{
-    check_writable, finish, open_recording, run_recorded, Collected, Recorded, Runner,
-    SessionOptions, TimingSummary,
+    finish, open_recording, run_recorded, Collected, Recorded, Runner, SessionOptions,
+    TimingSummary,
 };
+use crate::outputs::{Existing, Origin, OutputPlan};
 use crate::plot::{write_time_png, TimePanel};
 use crate::rt::backend::{self, BackendSpec};
 use crate::rt::service::{LoopReply, LoopRequest, ServiceClient};
@@ -283,11 +284,24 @@ fn controller_config<'a>(
 /// [`RunError::BadInput`] for an unknown controller, an unusable FRF file or
 /// output path; [`RunError::Refused`] when the loop check fails (without
 /// `override_check`); otherwise as [`run_recorded`].
+///
+/// The outputs in `outputs` (the paths of `opts`; see [`crate::outputs`])
+/// are checked after the loop check and before the backend is opened;
+/// `--check-only` writes none.
 pub fn run_control(
     opts: &ControlOptions,
+    mut outputs: OutputPlan,
     stop: Arc<AtomicBool>,
 ) -> Result<ControlSummary, RunError> {
-    run_control_from(opts, stop, StageSource::Open, None)
+    run_control_with(opts, &mut outputs, stop, StageSource::Open, None)
+}
+
+/// The outputs of a control run, none replaced (the daemon's jobs: their
+/// names are derived from the recording's).
+pub fn control_outputs(opts: &ControlOptions) -> OutputPlan {
+    OutputPlan::new(Existing::Refuse)
+        .with_recording(&opts.out, Origin::Default)
+        .with_output("plot", &opts.plot, Origin::Derived)
 }
 
 /// Where `bench control` gets its stage.
@@ -306,6 +320,17 @@ pub enum StageSource<'a> {
 /// As [`run_control`].
 pub fn run_control_from(
     opts: &ControlOptions,
+    stop: Arc<AtomicBool>,
+    source: StageSource<'_>,
+    progress_ticks: Option<&Arc<AtomicU64>>,
+) -> Result<ControlSummary, RunError> {
+    let mut outputs = control_outputs(opts);
+    run_control_with(opts, &mut outputs, stop, source, progress_ticks)
+}
+
+fn run_control_with(
+    opts: &ControlOptions,
+    outputs: &mut OutputPlan,
     stop: Arc<AtomicBool>,
     source: StageSource<'_>,
     progress_ticks: Option<&Arc<AtomicU64>>,
@@ -364,8 +389,7 @@ pub fn run_control_from(
         );
     }
     let step = &cfg.step;
-    check_writable(&opts.out, "out")?;
-    check_writable(&opts.plot, "plot")?;
+    outputs.check()?;
     let mut opened;
     let opened_info;
     let mut runner = match source {
@@ -420,7 +444,7 @@ pub fn run_control_from(
         max_ticks: total,
         ticks: progress_ticks,
     };
-    let mut recorder = open_recording(&session, cfg, &info)?;
+    let mut recorder = open_recording(&session, cfg, &info, outputs)?;
     let check_ch =
         recorder.add_channel_for::<LoopCheck>("/control/loop_check", "bench.LoopCheck")?;
     recorder.write(check_ch, 0, &check)?;
@@ -468,6 +492,7 @@ pub fn run_control_from(
     );
     write_time_png(
         &opts.plot,
+        outputs.existing(),
         &title,
         &[
             TimePanel {

@@ -11,13 +11,13 @@
 //! reading stopped (the cut chunk of a killed run, or `clean end`).
 
 use std::collections::BTreeMap;
-use std::fs::File;
-use std::io::BufWriter;
+use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
 
 use serde::Serialize;
 
 use super::reader::read_messages_tolerant;
+use crate::outputs::{write_atomically, Existing};
 
 /// Errors of [`recover`].
 #[derive(Debug, thiserror::Error)]
@@ -69,13 +69,16 @@ pub struct Recovered {
 }
 
 /// Reads `part` tolerantly and writes every complete message and metadata
-/// record to `tmp` (a new file, the caller renames it): an MCAP with lz4
-/// chunks, summary, indexes and footer.
+/// record to `to`: an MCAP with lz4 chunks, summary, indexes and footer,
+/// written under a temporary name and renamed when complete
+/// ([`crate::outputs::write_atomically`]: mode 0640, an existing `to` is
+/// replaced only with [`Existing::Replace`] and only if it is a regular
+/// file). Check `to` first with [`crate::outputs::OutputPlan::check`].
 ///
 /// # Errors
 /// [`RecoverError::Read`], [`RecoverError::NotARecording`] (no header, no
-/// message), [`RecoverError::Write`].
-pub fn recover(part: &Path, tmp: &Path, to: &Path) -> Result<Recovered, RecoverError> {
+/// message), [`RecoverError::Write`] (nothing is left under `to`).
+pub fn recover(part: &Path, to: &Path, existing: Existing) -> Result<Recovered, RecoverError> {
     let bytes = std::fs::read(part).map_err(|source| RecoverError::Read {
         path: part.to_path_buf(),
         source,
@@ -108,55 +111,47 @@ pub fn recover(part: &Path, tmp: &Path, to: &Path) -> Result<Recovered, RecoverE
             }
         }
     }
-    let write_err = |reason: String| RecoverError::Write {
-        path: to.to_path_buf(),
-        reason,
-    };
-    let file = File::options()
-        .write(true)
-        .create_new(true)
-        .open(tmp)
-        .map_err(|e| write_err(format!("{}: {e}", tmp.display())))?;
-    let mut w = mcap::WriteOptions::new()
-        .compression(Some(mcap::Compression::Lz4))
-        .profile("")
-        .library(concat!("bench-", env!("CARGO_PKG_VERSION"), " (mcap-rs)"))
-        .create(BufWriter::new(file))
-        .map_err(|e| write_err(e.to_string()))?;
     let stopped = read
         .error
         .as_ref()
         .map_or_else(|| "clean end".to_string(), ToString::to_string);
-    let mut last_ns = 0;
-    for m in &read.messages {
-        w.write(m).map_err(|e| write_err(e.to_string()))?;
-        last_ns = m.log_time;
-    }
-    for m in &metadata {
-        w.write_metadata(m).map_err(|e| write_err(e.to_string()))?;
-    }
     let report = Recovered {
         from: part.to_path_buf(),
         to: to.to_path_buf(),
         messages: read.messages.len() as u64,
         metadata: metadata.len() as u64,
-        last_log_time_s: last_ns as f64 * 1e-9,
+        last_log_time_s: read.messages.last().map_or(0, |m| m.log_time) as f64 * 1e-9,
         stopped,
     };
-    w.write_metadata(&mcap::records::Metadata {
-        name: "bench.recovered".into(),
-        metadata: BTreeMap::from([
-            ("from".to_string(), part.display().to_string()),
-            ("messages".to_string(), report.messages.to_string()),
-            ("stopped".to_string(), report.stopped.clone()),
-        ]),
+    let mcap_err = |e: mcap::McapError| std::io::Error::other(e.to_string());
+    write_atomically(to, existing, |file| {
+        let mut w = mcap::WriteOptions::new()
+            .compression(Some(mcap::Compression::Lz4))
+            .profile("")
+            .library(concat!("bench-", env!("CARGO_PKG_VERSION"), " (mcap-rs)"))
+            .create(BufWriter::new(&mut *file))
+            .map_err(mcap_err)?;
+        for m in &read.messages {
+            w.write(m).map_err(mcap_err)?;
+        }
+        for m in &metadata {
+            w.write_metadata(m).map_err(mcap_err)?;
+        }
+        w.write_metadata(&mcap::records::Metadata {
+            name: "bench.recovered".into(),
+            metadata: BTreeMap::from([
+                ("from".to_string(), part.display().to_string()),
+                ("messages".to_string(), report.messages.to_string()),
+                ("stopped".to_string(), report.stopped.clone()),
+            ]),
+        })
+        .map_err(mcap_err)?;
+        w.finish().map_err(mcap_err)?;
+        w.into_inner().flush()
     })
-    .map_err(|e| write_err(e.to_string()))?;
-    w.finish().map_err(|e| write_err(e.to_string()))?;
-    let inner = w.into_inner();
-    let file = inner
-        .into_inner()
-        .map_err(|e| write_err(e.error().to_string()))?;
-    file.sync_all().map_err(|e| write_err(e.to_string()))?;
+    .map_err(|e| RecoverError::Write {
+        path: to.to_path_buf(),
+        reason: e.to_string(),
+    })?;
     Ok(report)
 }

@@ -156,6 +156,8 @@ pub struct Recorder {
     writer: Option<mcap::Writer<BufWriter<File>>>,
     final_path: PathBuf,
     part_path: PathBuf,
+    /// What the final rename does with an existing file.
+    existing: crate::outputs::Existing,
     channels: Vec<ChannelState>,
     sample: Channel<SampleRecord>,
     timing: Channel<TimingRecord>,
@@ -214,16 +216,34 @@ impl Recorder {
     /// `/sysid/frf`, then flushes so the schemas reach the OS at once.
     ///
     /// Chunks are lz4-compressed and closed only by
-    /// [`flush_chunk`](Self::flush_chunk) (never by size). An existing
-    /// `.part` file is truncated; an existing `final_path` is only replaced
-    /// by [`finish`](Self::finish).
+    /// [`flush_chunk`](Self::flush_chunk) (never by size). The `.part` file
+    /// is created exclusively with mode [`FILE_MODE`](crate::outputs::FILE_MODE):
+    /// an existing one (the partial recording of a killed run) is refused,
+    /// and [`finish`](Self::finish) never replaces an existing
+    /// `final_path` (see [`crate::outputs`]).
     ///
     /// # Errors
     /// [`RecordError::Create`] naming the `.part` path, its directory and the
-    /// OS reason when the directory does not exist or is not writable (or
-    /// `final_path` has no file name); [`RecordError::Mcap`] if the header
-    /// cannot be written.
+    /// OS reason when the directory does not exist or is not writable, the
+    /// `.part` file exists (or `final_path` has no file name);
+    /// [`RecordError::Mcap`] if the header cannot be written.
     pub fn create(final_path: &Path) -> Result<Recorder, RecordError> {
+        Self::create_with(final_path, crate::outputs::Existing::Refuse, None)
+    }
+
+    /// [`create`](Self::create) with the run's policy for existing files
+    /// (`--overwrite`: an existing regular `.part` and `final_path` are
+    /// replaced) and, for a default name claimed by
+    /// [`claim_recording`](crate::outputs::claim_recording), its `.part`
+    /// file already created and open (`claimed_part`).
+    ///
+    /// # Errors
+    /// As [`create`](Self::create).
+    pub fn create_with(
+        final_path: &Path,
+        existing: crate::outputs::Existing,
+        claimed_part: Option<File>,
+    ) -> Result<Recorder, RecordError> {
         let part_path = part_path_for(final_path);
         let dir = match final_path.parent() {
             Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
@@ -236,11 +256,16 @@ impl Recorder {
                 source: io::Error::new(io::ErrorKind::InvalidInput, "path has no file name"),
             });
         }
-        let file = File::create(&part_path).map_err(|source| RecordError::Create {
-            path: part_path.clone(),
-            dir: dir.clone(),
-            source,
-        })?;
+        let file = match claimed_part {
+            Some(f) => f,
+            None => crate::outputs::create_part(&part_path, existing).map_err(|source| {
+                RecordError::Create {
+                    path: part_path.clone(),
+                    dir: dir.clone(),
+                    source,
+                }
+            })?,
+        };
         let writer = mcap::WriteOptions::new()
             .compression(Some(mcap::Compression::Lz4))
             .chunk_size(None)
@@ -256,6 +281,7 @@ impl Recorder {
             writer: Some(writer),
             final_path: final_path.to_path_buf(),
             part_path,
+            existing,
             channels: Vec::with_capacity(8),
             sample: Channel::new(0),
             timing: Channel::new(0),
@@ -460,8 +486,11 @@ impl Recorder {
     }
 
     /// Completes the MCAP (summary section + footer), flushes, fsyncs the
-    /// file, renames `<final_path>.part` to `final_path` (then fsyncs the
-    /// directory, best effort) and returns `final_path`.
+    /// file, renames `<final_path>.part` to `final_path` without replacing
+    /// an existing file unless the recorder was created with
+    /// [`Existing::Replace`](crate::outputs::Existing::Replace)
+    /// ([`outputs::commit`](crate::outputs::commit)), then fsyncs the
+    /// directory (best effort) and returns `final_path`.
     ///
     /// On error the `.part` file is left in place and nothing is renamed.
     ///
@@ -483,13 +512,13 @@ impl Recorder {
             .map_err(|e| io_err(e.into_error()))?;
         file.sync_all().map_err(io_err)?;
         drop(file);
-        std::fs::rename(&self.part_path, &self.final_path).map_err(|source| {
-            RecordError::Rename {
+        crate::outputs::commit(&self.part_path, &self.final_path, self.existing).map_err(
+            |source| RecordError::Rename {
                 from: self.part_path.clone(),
                 to: self.final_path.clone(),
                 source,
-            }
-        })?;
+            },
+        )?;
         sync_parent_dir(&self.final_path);
         Ok(self.final_path.clone())
     }

@@ -1,0 +1,842 @@
+//! The files a run writes (recording, FRF CSV, plot): the rules that keep
+//! a run from losing or damaging a file, in one place.
+//!
+//! # Rules
+//!
+//! 1. **Nothing is replaced without `--overwrite`.** An output path that
+//!    exists is refused before the run ([`Existing::Refuse`]), and the final
+//!    rename never replaces a file that appeared while the run was writing
+//!    ([`commit`] uses `renameat2(RENAME_NOREPLACE)`, or a hard link where
+//!    the file system has no such rename). With `--overwrite`
+//!    ([`Existing::Replace`]) an existing *regular file* is replaced, and only
+//!    once its successor is complete. The daemon never replaces anything:
+//!    its jobs name their own outputs.
+//! 2. **Only regular files are ever replaced.** An existing output path that
+//!    is a symbolic link, a device node, a FIFO, a socket or a directory is
+//!    refused even with `--overwrite`: as root, `--plot /dev/null` would
+//!    otherwise replace `/dev/null`, and a link would redirect the write to
+//!    wherever it points. Directories above the file may be links.
+//! 3. **Default names are unique.** [`claim_recording`] stamps the name to
+//!    the millisecond and claims it by creating its `.part` file with
+//!    `O_CREAT | O_EXCL`. A name whose `.part` or any companion (the
+//!    recording itself, its FRF CSV or plot) exists is skipped for the next
+//!    counter suffix (`-1`, `-2`, …). Two runs can never hold one name.
+//! 4. **Every output is written under a temporary name in its directory**
+//!    (the recording as `<name>.part`, the others as a hidden
+//!    `.<name>.<pid>.<n>.tmp`), synced, and renamed to its final name only
+//!    when complete ([`write_atomically`]). A failed write (a full disk)
+//!    removes the temporary file: nothing incomplete carries a final name.
+//! 5. **No two outputs of a run may be the same file**, however spelled
+//!    (`./a` and `a`, `d/../a`, a linked directory): [`OutputPlan::check`]
+//!    compares the canonical directory and the file name of every output,
+//!    the recording's `.part` name included, and refuses the run.
+//! 6. **Paths are checked before anything is enabled**
+//!    ([`OutputPlan::check`]): valid UTF-8 (summaries and recordings carry
+//!    them as JSON strings), a file name, an existing directory that can be
+//!    written, and rules 1, 2 and 5.
+//! 7. **Files are created with mode [`FILE_MODE`] (0640)**, given to the
+//!    open call (never a chmod afterwards, so no instant is world-readable),
+//!    and narrowed further by the umask: the owner writes, the owner's group
+//!    may read, others get nothing. This follows the daemon's socket, which
+//!    is owner-only, or shared with one group (`--socket-group`).
+//!
+//! # Errors
+//!
+//! Refusals are [`RunError::BadOption`] naming the option (`out`,
+//! `frf_csv`, `plot`; the CLI shows `--out`, `--frf-csv`, `--plot`), the
+//! path and the reason; a collision names the other option in the reason.
+//! Writers return [`io::Error`]s: [`io::ErrorKind::AlreadyExists`] when the
+//! final name appeared meanwhile, [`io::ErrorKind::InvalidInput`] when it
+//! became something other than a regular file.
+//!
+//! The checks run before the run, the final renames after it; a file that
+//! changes type between the two (another process replacing a regular file
+//! with a device node in that window) is refused again by [`commit`], but
+//! an attacker who can write the output directory can always race a rename.
+//! Output directories should not be writable by untrusted users.
+
+use crate::error::RunError;
+use crate::record::part_path_for;
+use std::ffi::OsString;
+use std::fs::{self, File, OpenOptions};
+use std::io;
+use std::os::unix::ffi::OsStrExt;
+use std::os::unix::fs::{FileTypeExt, OpenOptionsExt};
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicU64, Ordering};
+
+/// Mode of every file `bench` creates (recordings, `.part` files, FRF CSVs,
+/// plots, the daemon's event log), before the umask: `rw-r-----`.
+pub const FILE_MODE: u32 = 0o640;
+
+/// Largest counter suffix [`claim_recording`] tries in one millisecond.
+const MAX_CLAIM_ATTEMPTS: u32 = 10_000;
+
+/// What to do with an output path that exists.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub enum Existing {
+    /// Refuse the run, and never replace a file at the final rename (the
+    /// default, and always in the daemon).
+    #[default]
+    Refuse,
+    /// `--overwrite`: replace an existing regular file once its successor
+    /// is complete. Anything but a regular file is still refused.
+    Replace,
+}
+
+impl Existing {
+    /// [`Existing::Replace`] when `overwrite`, else [`Existing::Refuse`].
+    pub fn overwrite(overwrite: bool) -> Self {
+        if overwrite {
+            Self::Replace
+        } else {
+            Self::Refuse
+        }
+    }
+}
+
+/// Where an output's path came from (for the messages).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Origin {
+    /// Given on the command line.
+    Given,
+    /// Derived from the recording's name (`<stem>.frf.csv`, …).
+    Derived,
+    /// A default name chosen by `bench`.
+    Default,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Role {
+    /// An output file.
+    File(Origin),
+    /// The `.part` name of the recording.
+    Part,
+    /// The `.part` name of a claimed recording (it exists: it is ours).
+    ClaimedPart,
+}
+
+#[derive(Debug)]
+struct Output {
+    key: &'static str,
+    path: PathBuf,
+    role: Role,
+}
+
+impl Output {
+    /// How a message names this output, e.g. `--plot`, `the default
+    /// --frf-csv (derived from --out)`.
+    fn describe(&self) -> String {
+        let flag = flag(self.key);
+        match self.role {
+            Role::File(Origin::Given) => flag.to_string(),
+            Role::File(Origin::Derived) => format!("the default {flag} (derived from --out)"),
+            Role::File(Origin::Default) => format!("the default {flag}"),
+            Role::Part | Role::ClaimedPart => format!("the temporary name of the {flag} recording"),
+        }
+    }
+}
+
+/// The flag of an output option (for messages that name a second option).
+fn flag(key: &str) -> &str {
+    match key {
+        "out" => "--out",
+        "frf_csv" => "--frf-csv",
+        "plot" => "--plot",
+        other => other,
+    }
+}
+
+/// A default recording name claimed by [`claim_recording`]: its `.part`
+/// file exists, empty, created by this process. Dropped unused (the run was
+/// refused before recording), it removes that file.
+#[derive(Debug)]
+pub struct Claim {
+    path: PathBuf,
+    part: PathBuf,
+    file: Option<File>,
+}
+
+impl Claim {
+    /// The recording's final path.
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+}
+
+impl Drop for Claim {
+    fn drop(&mut self) {
+        if self.file.take().is_some() {
+            let _ = fs::remove_file(&self.part);
+        }
+    }
+}
+
+/// `YYYYmmddTHHMMSS.mmmZ` (UTC, ISO 8601 basic format with milliseconds).
+pub fn stamp() -> String {
+    let now = time::OffsetDateTime::now_utc();
+    let fmt = time::macros::format_description!(
+        "[year][month][day]T[hour][minute][second].[subsecond digits:3]Z"
+    );
+    now.format(&fmt).unwrap_or_else(|_| "now".into())
+}
+
+/// Claims a fresh default recording name `dir/PREFIX-<stamp>[-N].mcap`
+/// (see rule 3 of the [module docs](self)): creates its `.part` file with
+/// `O_EXCL` and mode [`FILE_MODE`], and skips names whose `.part`, final
+/// name, or `<stem>COMPANION` (e.g. `.frf.csv`) exists.
+///
+/// # Errors
+/// [`RunError::BadOption`] naming `out` when `dir` is missing or not
+/// writable, or (never in practice) every counter is taken.
+pub fn claim_recording(dir: &Path, prefix: &str, companions: &[&str]) -> Result<Claim, RunError> {
+    claim_with_stamp(dir, prefix, &stamp(), companions)
+}
+
+fn claim_with_stamp(
+    dir: &Path,
+    prefix: &str,
+    stamp: &str,
+    companions: &[&str],
+) -> Result<Claim, RunError> {
+    for n in 0..MAX_CLAIM_ATTEMPTS {
+        let name = if n == 0 {
+            format!("{prefix}-{stamp}")
+        } else {
+            format!("{prefix}-{stamp}-{n}")
+        };
+        let path = dir.join(format!("{name}.mcap"));
+        let part = part_path_for(&path);
+        let file = match create_new(&part) {
+            Ok(f) => f,
+            Err(e) if e.kind() == io::ErrorKind::AlreadyExists => continue,
+            Err(e) => {
+                return Err(RunError::option(
+                    "out",
+                    dir.display(),
+                    format!("cannot create a recording in this directory: {e}"),
+                ))
+            }
+        };
+        let claim = Claim {
+            path,
+            part,
+            file: Some(file),
+        };
+        let taken = std::iter::once(claim.path.clone())
+            .chain(companions.iter().map(|c| dir.join(format!("{name}{c}"))))
+            .any(|p| p.symlink_metadata().is_ok());
+        if taken {
+            continue; // dropping the claim removes its .part
+        }
+        return Ok(claim);
+    }
+    Err(RunError::option(
+        "out",
+        dir.display(),
+        format!("no free recording name {prefix}-{stamp}-N"),
+    ))
+}
+
+/// The outputs of one run, checked together before anything is enabled
+/// (rules 1, 2, 5 and 6 of the [module docs](self)), and the policy their
+/// writers follow.
+#[derive(Debug, Default)]
+pub struct OutputPlan {
+    existing: Existing,
+    outputs: Vec<Output>,
+    claim: Option<Claim>,
+}
+
+impl OutputPlan {
+    /// An empty plan.
+    pub fn new(existing: Existing) -> Self {
+        Self {
+            existing,
+            outputs: Vec::new(),
+            claim: None,
+        }
+    }
+
+    /// Adds the recording (`out`) at `path`, and its `.part` name.
+    pub fn with_recording(mut self, path: &Path, origin: Origin) -> Self {
+        self.outputs.push(Output {
+            key: "out",
+            path: path.to_path_buf(),
+            role: Role::File(origin),
+        });
+        self.outputs.push(Output {
+            key: "out",
+            path: part_path_for(path),
+            role: Role::Part,
+        });
+        self
+    }
+
+    /// Adds a recording whose name [`claim_recording`] claimed; its `.part`
+    /// file is handed to the recorder by [`take_claimed_part`](Self::take_claimed_part).
+    pub fn with_claimed_recording(mut self, claim: Claim) -> Self {
+        self.outputs.push(Output {
+            key: "out",
+            path: claim.path.clone(),
+            role: Role::File(Origin::Default),
+        });
+        self.outputs.push(Output {
+            key: "out",
+            path: claim.part.clone(),
+            role: Role::ClaimedPart,
+        });
+        self.claim = Some(claim);
+        self
+    }
+
+    /// Adds the output `key` (`frf_csv`, `plot`) at `path`.
+    pub fn with_output(mut self, key: &'static str, path: &Path, origin: Origin) -> Self {
+        self.outputs.push(Output {
+            key,
+            path: path.to_path_buf(),
+            role: Role::File(origin),
+        });
+        self
+    }
+
+    /// What the writers do with a file that exists.
+    pub fn existing(&self) -> Existing {
+        self.existing
+    }
+
+    /// The claimed recording's `.part` file, opened for writing, once (see
+    /// [`with_claimed_recording`](Self::with_claimed_recording)).
+    pub fn take_claimed_part(&mut self) -> Option<File> {
+        self.claim.as_mut().and_then(|c| c.file.take())
+    }
+
+    /// Checks every output, then every pair (rules 1, 2, 5, 6).
+    ///
+    /// # Errors
+    /// [`RunError::BadOption`] naming the output's option and path: not
+    /// UTF-8; no file name; directory missing, not a directory or not
+    /// writable; an existing symlink or non-regular file; an existing file
+    /// without [`Existing::Replace`]; the same file as another output (the
+    /// reason names it).
+    pub fn check(&self) -> Result<(), RunError> {
+        let mut seen: Vec<(&Output, (PathBuf, OsString))> = Vec::with_capacity(self.outputs.len());
+        for o in &self.outputs {
+            let id = self.check_one(o)?;
+            if let Some((first, _)) = seen.iter().find(|(_, other)| *other == id) {
+                // Report it under the option the user gave, if any.
+                let (a, b) = if matches!(o.role, Role::File(Origin::Given)) {
+                    (o, *first)
+                } else {
+                    (*first, o)
+                };
+                return Err(RunError::option(
+                    a.key,
+                    a.path.display(),
+                    format!(
+                        "is the same file as {} ({}): one would be lost",
+                        b.describe(),
+                        b.path.display()
+                    ),
+                ));
+            }
+            seen.push((o, id));
+        }
+        Ok(())
+    }
+
+    /// Checks one output; returns its identity (canonical directory, file
+    /// name).
+    fn check_one(&self, o: &Output) -> Result<(PathBuf, OsString), RunError> {
+        let subject = o.path.display();
+        let bad = |reason: String| RunError::option(o.key, &subject, reason);
+        if o.path.to_str().is_none() {
+            return Err(bad(
+                "is not valid UTF-8 (summaries and recordings name their files in JSON)".into(),
+            ));
+        }
+        let name = match o.path.file_name() {
+            Some(n) if !o.path.as_os_str().as_bytes().ends_with(b"/") => n.to_os_string(),
+            _ => return Err(bad("is not a file path".into())),
+        };
+        let dir = parent_dir(&o.path);
+        match dir.metadata() {
+            Ok(m) if m.is_dir() => {}
+            Ok(_) => return Err(bad(format!("{} is not a directory", dir.display()))),
+            Err(e) => return Err(bad(format!("directory {}: {e}", dir.display()))),
+        }
+        match o.path.symlink_metadata() {
+            Ok(m) if m.file_type().is_symlink() => {
+                return Err(bad(
+                    "is a symbolic link; bench writes only to regular files (give the link's target)"
+                        .into(),
+                ))
+            }
+            Ok(m) if !m.is_file() => {
+                return Err(bad(format!(
+                    "is {}, not a regular file; bench never replaces one, even with --overwrite",
+                    kind_of(&m.file_type())
+                )))
+            }
+            Ok(_) if o.role == Role::ClaimedPart => {}
+            Ok(_) if self.existing == Existing::Refuse => {
+                return Err(bad(match o.role {
+                    Role::Part => format!(
+                        "the partial recording {} of an earlier run exists; read or move it, or give --overwrite",
+                        o.path.display()
+                    ),
+                    _ => format!(
+                        "exists{}; bench never replaces a file unless --overwrite is given",
+                        match o.role {
+                            Role::File(Origin::Derived) => " (the default name, derived from --out)",
+                            _ => "",
+                        }
+                    ),
+                }))
+            }
+            Ok(_) => {}
+            Err(e) if e.kind() == io::ErrorKind::NotFound => {}
+            Err(e) => return Err(bad(e.to_string())),
+        }
+        // Writable: create and remove a temporary file where the output's
+        // temporary file will go.
+        if matches!(o.role, Role::File(_)) {
+            let probe = temp_path(&o.path);
+            match create_new(&probe) {
+                Ok(_) => {
+                    let _ = fs::remove_file(&probe);
+                }
+                Err(e) => return Err(bad(format!("cannot write in {}: {e}", dir.display()))),
+            }
+        }
+        let canonical = dir
+            .canonicalize()
+            .map_err(|e| bad(format!("directory {}: {e}", dir.display())))?;
+        Ok((canonical, name))
+    }
+}
+
+/// A file type in words.
+fn kind_of(t: &fs::FileType) -> &'static str {
+    if t.is_dir() {
+        "a directory"
+    } else if t.is_char_device() {
+        "a character device"
+    } else if t.is_block_device() {
+        "a block device"
+    } else if t.is_fifo() {
+        "a FIFO"
+    } else if t.is_socket() {
+        "a socket"
+    } else if t.is_symlink() {
+        "a symbolic link"
+    } else {
+        "a special file"
+    }
+}
+
+/// The directory of `path` (`.` for a bare file name).
+fn parent_dir(path: &Path) -> &Path {
+    match path.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p,
+        _ => Path::new("."),
+    }
+}
+
+/// Creates `path` exclusively (`O_CREAT | O_EXCL`, which also refuses a
+/// symbolic link) with mode [`FILE_MODE`].
+///
+/// # Errors
+/// The OS error; [`io::ErrorKind::AlreadyExists`] when `path` exists.
+pub fn create_new(path: &Path) -> io::Result<File> {
+    OpenOptions::new()
+        .write(true)
+        .create_new(true)
+        .mode(FILE_MODE)
+        .open(path)
+}
+
+/// Creates a recording's `.part` file: exclusively, or with
+/// [`Existing::Replace`] after removing a regular file of that name (the
+/// partial recording of an earlier run).
+///
+/// # Errors
+/// The OS error; [`io::ErrorKind::AlreadyExists`] when it exists and may not
+/// be replaced, [`io::ErrorKind::InvalidInput`] when it is not a regular
+/// file.
+pub fn create_part(part: &Path, existing: Existing) -> io::Result<File> {
+    match create_new(part) {
+        Err(e) if e.kind() == io::ErrorKind::AlreadyExists && existing == Existing::Replace => {
+            ensure_regular(part)?;
+            fs::remove_file(part)?;
+            create_new(part)
+        }
+        r => r,
+    }
+}
+
+/// Errors unless `path` is a regular file or does not exist.
+fn ensure_regular(path: &Path) -> io::Result<()> {
+    match path.symlink_metadata() {
+        Ok(m) if !m.is_file() => Err(io::Error::new(
+            io::ErrorKind::InvalidInput,
+            format!(
+                "{} is {}, not a regular file; not replaced",
+                path.display(),
+                kind_of(&m.file_type())
+            ),
+        )),
+        _ => Ok(()),
+    }
+}
+
+/// A fresh hidden temporary name beside `path`:
+/// `.<name>.<pid>.<n>.tmp`.
+fn temp_path(path: &Path) -> PathBuf {
+    static COUNTER: AtomicU64 = AtomicU64::new(0);
+    let mut name = OsString::from(".");
+    name.push(path.file_name().unwrap_or_default());
+    name.push(format!(
+        ".{}.{}.tmp",
+        std::process::id(),
+        COUNTER.fetch_add(1, Ordering::Relaxed)
+    ));
+    parent_dir(path).join(name)
+}
+
+/// Writes `path` through a temporary file beside it (rule 4 of the
+/// [module docs](self)): `write` fills the temporary file (mode
+/// [`FILE_MODE`]), which is synced, [`commit`]ted to `path`, and the
+/// directory synced (best effort). On any
+/// error the temporary file is removed and nothing is left under `path`.
+///
+/// # Errors
+/// The error of `write`, of syncing, or of [`commit`].
+pub fn write_atomically(
+    path: &Path,
+    existing: Existing,
+    write: impl FnOnce(&mut File) -> io::Result<()>,
+) -> io::Result<()> {
+    let tmp = temp_path(path);
+    let mut file = create_new(&tmp)?;
+    let result = write(&mut file)
+        .and_then(|()| file.sync_all())
+        .and_then(|()| {
+            drop(file);
+            commit(&tmp, path, existing)
+        });
+    match result {
+        Ok(()) => {
+            if let Ok(d) = File::open(parent_dir(path)) {
+                let _ = d.sync_all();
+            }
+            Ok(())
+        }
+        Err(e) => {
+            let _ = fs::remove_file(&tmp);
+            Err(e)
+        }
+    }
+}
+
+/// Renames the complete file `tmp` to `dest` (same directory; the caller
+/// syncs the directory). With [`Existing::Refuse`] an existing `dest`
+/// is never replaced: `renameat2(RENAME_NOREPLACE)`, or where the file
+/// system lacks it, a hard link and an unlink. With [`Existing::Replace`] a
+/// regular file is replaced; anything else is still refused.
+///
+/// # Errors
+/// [`io::ErrorKind::AlreadyExists`] when `dest` exists (and may not be
+/// replaced), [`io::ErrorKind::InvalidInput`] when it is not a regular
+/// file, else the OS error. `tmp` is left in place on error.
+pub fn commit(tmp: &Path, dest: &Path, existing: Existing) -> io::Result<()> {
+    let exists = |e: io::Error| {
+        if e.kind() == io::ErrorKind::AlreadyExists {
+            io::Error::new(
+                io::ErrorKind::AlreadyExists,
+                format!(
+                    "{} appeared while the run was writing it; not replaced (the complete file is {})",
+                    dest.display(),
+                    tmp.display()
+                ),
+            )
+        } else {
+            e
+        }
+    };
+    match existing {
+        Existing::Replace => {
+            ensure_regular(dest)?;
+            fs::rename(tmp, dest)?;
+        }
+        Existing::Refuse => match rename_noreplace(tmp, dest) {
+            Ok(()) => {}
+            Err(e) if matches!(e.raw_os_error(), Some(libc::EINVAL) | Some(libc::ENOSYS)) => {
+                // No RENAME_NOREPLACE here: link(2) never replaces either.
+                fs::hard_link(tmp, dest).map_err(exists)?;
+                fs::remove_file(tmp)?;
+            }
+            Err(e) => return Err(exists(e)),
+        },
+    }
+    Ok(())
+}
+
+fn rename_noreplace(from: &Path, to: &Path) -> io::Result<()> {
+    let c = |p: &Path| {
+        std::ffi::CString::new(p.as_os_str().as_bytes())
+            .map_err(|_| io::Error::new(io::ErrorKind::InvalidInput, "path has a NUL byte"))
+    };
+    let (from, to) = (c(from)?, c(to)?);
+    // SAFETY: two valid NUL-terminated paths, relative to the cwd.
+    let r = unsafe {
+        libc::renameat2(
+            libc::AT_FDCWD,
+            from.as_ptr(),
+            libc::AT_FDCWD,
+            to.as_ptr(),
+            libc::RENAME_NOREPLACE,
+        )
+    };
+    if r == 0 {
+        Ok(())
+    } else {
+        Err(io::Error::last_os_error())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+    use std::io::Write;
+    use std::os::unix::fs::PermissionsExt;
+
+    /// The process umask, from /proc (reading it with umask(2) would change
+    /// it for the other tests' threads).
+    fn umask() -> u32 {
+        let status = fs::read_to_string("/proc/self/status").unwrap();
+        let line = status.lines().find(|l| l.starts_with("Umask:")).unwrap();
+        u32::from_str_radix(line.split_whitespace().nth(1).unwrap(), 8).unwrap()
+    }
+
+    fn mode(p: &Path) -> u32 {
+        p.symlink_metadata().unwrap().permissions().mode() & 0o777
+    }
+
+    /// Names in `dir`, sorted.
+    fn names(dir: &Path) -> Vec<String> {
+        let mut v: Vec<String> = fs::read_dir(dir)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect();
+        v.sort();
+        v
+    }
+
+    #[test]
+    fn a_write_that_fails_midway_leaves_nothing_under_the_final_name() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("frf.csv");
+        for existing in [Existing::Refuse, Existing::Replace] {
+            let err = write_atomically(&path, existing, |f| {
+                f.write_all(b"frequency_hz,magnitude_m_per_a\n1,2\n")?;
+                Err(io::Error::from_raw_os_error(libc::ENOSPC))
+            })
+            .unwrap_err();
+            assert_eq!(err.raw_os_error(), Some(libc::ENOSPC));
+            assert!(names(dir.path()).is_empty(), "{:?}", names(dir.path()));
+        }
+        // With a previous file under the name, it is kept as it was.
+        fs::write(&path, b"previous").unwrap();
+        let err = write_atomically(&path, Existing::Replace, |f| {
+            f.write_all(b"half")?;
+            Err(io::Error::other("injected"))
+        })
+        .unwrap_err();
+        assert_eq!(err.to_string(), "injected");
+        assert_eq!(fs::read(&path).unwrap(), b"previous");
+        assert_eq!(names(dir.path()), ["frf.csv"]);
+    }
+
+    #[test]
+    fn the_final_rename_never_replaces_a_file_that_appeared_meanwhile() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("plot.png");
+        let err = write_atomically(&path, Existing::Refuse, |f| {
+            fs::write(&path, b"someone else's")?;
+            f.write_all(b"ours")
+        })
+        .unwrap_err();
+        assert_eq!(err.kind(), io::ErrorKind::AlreadyExists, "{err}");
+        assert_eq!(fs::read(&path).unwrap(), b"someone else's");
+        assert_eq!(names(dir.path()), ["plot.png"]);
+        // --overwrite replaces a regular file, once complete, with mode 0640.
+        write_atomically(&path, Existing::Replace, |f| f.write_all(b"ours")).unwrap();
+        assert_eq!(fs::read(&path).unwrap(), b"ours");
+        assert_eq!(mode(&path), FILE_MODE & !umask());
+        // ... but never anything else, even if it appears meanwhile.
+        let fifo = dir.path().join("fifo");
+        let c = std::ffi::CString::new(fifo.as_os_str().as_bytes()).unwrap();
+        // SAFETY: a valid path.
+        assert_eq!(unsafe { libc::mkfifo(c.as_ptr(), 0o600) }, 0);
+        let err = write_atomically(&fifo, Existing::Replace, |f| f.write_all(b"x")).unwrap_err();
+        assert_eq!(err.kind(), io::ErrorKind::InvalidInput, "{err}");
+        assert!(fifo.symlink_metadata().unwrap().file_type().is_fifo());
+        assert_eq!(names(dir.path()), ["fifo", "plot.png"]);
+    }
+
+    #[test]
+    fn rename_noreplace_and_the_hard_link_fallback_never_replace() {
+        // commit's two ways (the link where renameat2 is missing).
+        let dir = tempfile::tempdir().unwrap();
+        let (tmp, dest) = (dir.path().join("t"), dir.path().join("d"));
+        fs::write(&tmp, b"new").unwrap();
+        fs::write(&dest, b"old").unwrap();
+        assert!(rename_noreplace(&tmp, &dest).is_err());
+        assert_eq!(
+            fs::hard_link(&tmp, &dest).unwrap_err().kind(),
+            io::ErrorKind::AlreadyExists
+        );
+        assert_eq!(fs::read(&dest).unwrap(), b"old");
+    }
+
+    #[test]
+    fn a_recording_part_file_has_the_output_mode_from_creation() {
+        let dir = tempfile::tempdir().unwrap();
+        let final_path = dir.path().join("run.mcap");
+        let rec = crate::record::Recorder::create(&final_path).unwrap();
+        // While the recorder is open (the run is going on).
+        assert_eq!(mode(rec.part_path()), FILE_MODE & !umask());
+        let part = rec.part_path().to_path_buf();
+        let done = rec.finish().unwrap();
+        assert_eq!(mode(&done), FILE_MODE & !umask());
+        assert!(!part.exists());
+        // A leftover .part (a killed run) is refused, not truncated.
+        fs::write(&part, b"killed run").unwrap();
+        assert!(
+            crate::record::Recorder::create(&final_path).is_err(),
+            "an existing .part must be refused"
+        );
+        assert_eq!(fs::read(&part).unwrap(), b"killed run");
+        // ... and the finished recording is not replaced by a new one.
+        fs::remove_file(&part).unwrap();
+        let before = fs::read(&done).unwrap();
+        let rec = crate::record::Recorder::create(&final_path).unwrap();
+        assert!(rec.finish().is_err());
+        assert_eq!(fs::read(&done).unwrap(), before);
+    }
+
+    #[test]
+    fn claims_in_the_same_millisecond_get_distinct_names() {
+        let dir = tempfile::tempdir().unwrap();
+        let companions = [".step.png"];
+        let a = claim_with_stamp(dir.path(), "control-fast", "T0", &companions).unwrap();
+        let b = claim_with_stamp(dir.path(), "control-fast", "T0", &companions).unwrap();
+        assert_eq!(a.path(), dir.path().join("control-fast-T0.mcap"));
+        assert_eq!(b.path(), dir.path().join("control-fast-T0-1.mcap"));
+        // A name whose companion exists is skipped.
+        fs::write(dir.path().join("control-fast-T0-2.step.png"), b"x").unwrap();
+        let c = claim_with_stamp(dir.path(), "control-fast", "T0", &companions).unwrap();
+        assert_eq!(c.path(), dir.path().join("control-fast-T0-3.mcap"));
+        // The claim is the .part file, created with the output mode.
+        assert_eq!(mode(&part_path_for(c.path())), FILE_MODE & !umask());
+        // Unused claims are given back.
+        drop((a, b, c));
+        assert_eq!(names(dir.path()), ["control-fast-T0-2.step.png"]);
+    }
+
+    #[test]
+    fn concurrent_claims_never_share_a_name() {
+        let dir = tempfile::tempdir().unwrap();
+        let claims: Vec<Claim> = std::thread::scope(|s| {
+            let hs: Vec<_> = (0..8)
+                .map(|_| s.spawn(|| claim_with_stamp(dir.path(), "chirp", "T", &[]).unwrap()))
+                .collect();
+            hs.into_iter().map(|h| h.join().unwrap()).collect()
+        });
+        let mut paths: Vec<&Path> = claims.iter().map(Claim::path).collect();
+        paths.sort();
+        paths.dedup();
+        assert_eq!(paths.len(), 8);
+    }
+
+    fn err_text(r: Result<(), RunError>) -> String {
+        match r.unwrap_err() {
+            e @ RunError::BadOption { .. } => e.to_string(),
+            e => panic!("not a BadOption: {e:?}"),
+        }
+    }
+
+    #[test]
+    fn a_non_utf8_path_is_refused_by_its_option() {
+        let dir = tempfile::tempdir().unwrap();
+        let bad = dir
+            .path()
+            .join(std::ffi::OsStr::from_bytes(b"run-\xff.mcap"));
+        let plan = OutputPlan::new(Existing::Replace).with_recording(&bad, Origin::Given);
+        let msg = err_text(plan.check());
+        assert!(msg.starts_with("out ") && msg.contains("UTF-8"), "{msg}");
+        let plan = OutputPlan::new(Existing::Refuse).with_output("plot", &bad, Origin::Given);
+        assert!(err_text(plan.check()).starts_with("plot "));
+        assert!(names(dir.path()).is_empty());
+    }
+
+    /// A spelling of `dir/sub/name`: with `./`, `sub/../sub/`, doubled
+    /// slashes, or through a link to `sub`, relative to `dir` or absolute.
+    fn spelling(dir: &Path, name: &str, how: u8) -> PathBuf {
+        let rel = match how % 6 {
+            0 => format!("sub/{name}"),
+            1 => format!("./sub/./{name}"),
+            2 => format!("sub//{name}"),
+            3 => format!("sub/../sub/{name}"),
+            4 => format!("link/{name}"),
+            _ => format!("./link/../sub/{name}"),
+        };
+        if how < 6 {
+            dir.join(rel)
+        } else {
+            PathBuf::from(format!("{}/{rel}", dir.display()))
+        }
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(64))]
+        /// Any two spellings of one file collide, whichever two options
+        /// they are given to; two different names never do.
+        #[test]
+        fn every_spelling_of_one_file_collides(
+            a in 0u8..12,
+            b in 0u8..12,
+            keys in prop::sample::select(vec![("out", "frf_csv"), ("out", "plot"), ("frf_csv", "plot")]),
+            name in "[a-z]{1,6}",
+            other in "[A-Z]{1,6}",
+        ) {
+            let dir = tempfile::tempdir().unwrap();
+            fs::create_dir(dir.path().join("sub")).unwrap();
+            std::os::unix::fs::symlink("sub", dir.path().join("link")).unwrap();
+            let plan = |second: &str| {
+                let first = spelling(dir.path(), &name, a);
+                let second = spelling(dir.path(), second, b);
+                let p = OutputPlan::new(Existing::Refuse);
+                let p = if keys.0 == "out" {
+                    p.with_recording(&first, Origin::Given)
+                } else {
+                    p.with_output(keys.0, &first, Origin::Given)
+                };
+                p.with_output(keys.1, &second, Origin::Given)
+            };
+            let msg = err_text(plan(&name).check());
+            prop_assert!(msg.starts_with(keys.1), "{}", msg);
+            prop_assert!(msg.contains(flag(keys.0)), "{}", msg);
+            prop_assert!(plan(&other).check().is_ok());
+            // The recording's .part name is an output too.
+            if keys.0 == "out" {
+                let part = format!("{name}.part");
+                let msg = err_text(plan(&part).check());
+                prop_assert!(msg.contains("temporary name of the --out recording"), "{}", msg);
+            }
+            prop_assert_eq!(names(dir.path()), ["link", "sub"]);
+        }
+    }
+}

@@ -1,0 +1,532 @@
+//! The output path rules (issue 12, items 5–8 and 15), through the `bench`
+//! binary: unique default names, no replacing without `--overwrite`, only
+//! regular files replaced, colliding outputs refused before the run,
+//! non-UTF-8 paths refused before the run, nothing incomplete under a final
+//! name on a full disk, and the modes of recordings and the daemon's event
+//! log. The rules themselves: `bench::outputs`.
+
+mod common;
+
+use common::*;
+use serde_json::{json, Value};
+use std::ffi::{CString, OsStr, OsString};
+use std::io::{BufRead, BufReader, Write};
+use std::os::unix::ffi::OsStrExt;
+use std::os::unix::fs::{FileTypeExt, PermissionsExt};
+use std::os::unix::net::UnixStream;
+use std::os::unix::process::CommandExt;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output, Stdio};
+use std::time::{Duration, Instant};
+
+fn config() -> String {
+    path_in(
+        Path::new(env!("CARGO_MANIFEST_DIR")),
+        "bench-config/sr4dof-ch5.toml",
+    )
+}
+
+/// `bench` run in `dir` with umask 0, so a file's mode is the mode it was
+/// opened with.
+fn bench_in(dir: &Path) -> Command {
+    let mut c = bench();
+    c.current_dir(dir);
+    // SAFETY: umask(2) is async-signal-safe.
+    unsafe {
+        c.pre_exec(|| {
+            libc::umask(0);
+            Ok(())
+        });
+    }
+    c
+}
+
+/// `bench chirp` (short) in `dir` with `extra` arguments.
+fn chirp(dir: &Path, extra: &[&OsStr]) -> Output {
+    let cfg = config();
+    bench_in(dir)
+        .args([
+            "chirp",
+            "--config",
+            &cfg,
+            "--duration-s",
+            "2",
+            "--f-start-hz",
+            "20",
+        ])
+        .args(extra)
+        .output()
+        .unwrap()
+}
+
+/// `bench control --fast` (short) in `dir` with `extra` arguments.
+fn control(dir: &Path, extra: &[&OsStr]) -> Output {
+    let cfg = config();
+    bench_in(dir)
+        .args(["control", "--fast", "--config", &cfg, "--duration-s", "0.4"])
+        .args(extra)
+        .output()
+        .unwrap()
+}
+
+fn os(args: &[&str]) -> Vec<OsString> {
+    args.iter().map(OsString::from).collect()
+}
+
+fn refs(v: &[OsString]) -> Vec<&OsStr> {
+    v.iter().map(OsString::as_os_str).collect()
+}
+
+fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+/// Asserts exit 2 with `needles` in the message.
+fn assert_refused(o: &Output, needles: &[&str]) {
+    let e = stderr(o);
+    assert_eq!(o.status.code(), Some(2), "stderr: {e}");
+    for n in needles {
+        assert!(e.contains(n), "{n:?} not in: {e}");
+    }
+}
+
+/// Names in `dir`, sorted.
+fn names(dir: &Path) -> Vec<String> {
+    files_in(dir)
+        .iter()
+        .map(|p| p.file_name().unwrap().to_string_lossy().into_owned())
+        .collect()
+}
+
+fn mode(p: &Path) -> u32 {
+    p.symlink_metadata().unwrap().permissions().mode() & 0o777
+}
+
+fn cstr(p: &Path) -> CString {
+    CString::new(p.as_os_str().as_bytes()).unwrap()
+}
+
+/// A character device node like /dev/null (1, 3), made in a temporary
+/// directory, never under /dev.
+fn mknod_char(p: &Path) {
+    // SAFETY: a valid path.
+    let r = unsafe { libc::mknod(cstr(p).as_ptr(), libc::S_IFCHR | 0o666, libc::makedev(1, 3)) };
+    assert_eq!(r, 0, "mknod {p:?}: {}", std::io::Error::last_os_error());
+}
+
+fn mkfifo(p: &Path) {
+    // SAFETY: a valid path.
+    assert_eq!(unsafe { libc::mkfifo(cstr(p).as_ptr(), 0o600) }, 0);
+}
+
+/// The recording reads back strictly (summary and footer) and holds the
+/// control summary: a complete run.
+fn assert_complete_control_recording(p: &Path) {
+    let msgs = mcap_messages(p);
+    assert!(
+        msgs.iter().any(|(t, _, _)| t == "/control/summary"),
+        "{p:?} has no /control/summary"
+    );
+    let bytes = std::fs::read(p).unwrap();
+    assert!(mcap::Summary::read(&bytes).unwrap().is_some(), "{p:?}");
+}
+
+#[test]
+fn three_default_runs_in_one_second_give_three_complete_recordings() {
+    let dir = tmp();
+    std::fs::create_dir(dir.path().join("recordings")).unwrap();
+    let cfg = config();
+    let t0 = Instant::now();
+    let children: Vec<_> = (0..3)
+        .map(|_| {
+            bench_in(dir.path())
+                .args(["control", "--fast", "--config", &cfg, "--duration-s", "0.4"])
+                .stdout(Stdio::null())
+                .stderr(Stdio::piped())
+                .spawn()
+                .unwrap()
+        })
+        .collect();
+    let started = t0.elapsed();
+    for c in children {
+        let o = c.wait_with_output().unwrap();
+        assert!(o.status.success(), "{}", stderr(&o));
+    }
+    assert!(started < Duration::from_secs(1), "launched in {started:?}");
+    let rec = dir.path().join("recordings");
+    let all = names(&rec);
+    let mcaps: Vec<&String> = all.iter().filter(|n| n.ends_with(".mcap")).collect();
+    let pngs = all.iter().filter(|n| n.ends_with(".step.png")).count();
+    assert_eq!(mcaps.len(), 3, "{all:?}");
+    assert_eq!(pngs, 3, "{all:?}");
+    assert_eq!(
+        all.len(),
+        6,
+        "nothing else (no .part, no temporary file): {all:?}"
+    );
+    for m in mcaps {
+        assert!(m.starts_with("control-fast-"), "{m}");
+        assert_complete_control_recording(&rec.join(m));
+    }
+}
+
+#[test]
+fn existing_outputs_are_refused_and_kept_unless_overwrite() {
+    let dir = tmp();
+    let d = dir.path();
+    // --out and --plot of bench control.
+    for (flag, file) in [("--out", "run.mcap"), ("--plot", "run.png")] {
+        let path = d.join(file);
+        std::fs::write(&path, b"precious").unwrap();
+        let mut args = os(&["--out", "run.mcap"]);
+        if flag != "--out" {
+            args.extend(os(&[flag, file]));
+        }
+        let o = control(d, &refs(&args));
+        assert_refused(&o, &[flag, file, "--overwrite"]);
+        assert_eq!(std::fs::read(&path).unwrap(), b"precious");
+        assert_eq!(names(d), [file], "nothing else was created");
+        args.push("--overwrite".into());
+        let o = control(d, &refs(&args));
+        assert!(o.status.success(), "{}", stderr(&o));
+        assert_ne!(std::fs::read(&path).unwrap(), b"precious");
+        assert_complete_control_recording(&d.join("run.mcap"));
+        for f in names(d) {
+            std::fs::remove_file(d.join(f)).unwrap();
+        }
+    }
+    // The derived default names count too: run.step.png beside run.mcap.
+    std::fs::write(d.join("run.step.png"), b"precious").unwrap();
+    let o = control(d, &refs(&os(&["--out", "run.mcap"])));
+    assert_refused(&o, &["--plot", "run.step.png", "derived from --out"]);
+    assert_eq!(std::fs::read(d.join("run.step.png")).unwrap(), b"precious");
+    std::fs::remove_file(d.join("run.step.png")).unwrap();
+    // A .part left by a killed run is a recording too.
+    std::fs::write(d.join("run.mcap.part"), b"killed run").unwrap();
+    let o = control(d, &refs(&os(&["--out", "run.mcap"])));
+    assert_refused(&o, &["--out", "run.mcap.part"]);
+    assert_eq!(
+        std::fs::read(d.join("run.mcap.part")).unwrap(),
+        b"killed run"
+    );
+    std::fs::remove_file(d.join("run.mcap.part")).unwrap();
+
+    // --frf-csv of bench chirp.
+    let csv = d.join("frf.csv");
+    std::fs::write(&csv, b"precious").unwrap();
+    let args = os(&["--out", "c.mcap", "--frf-csv", "frf.csv"]);
+    let o = chirp(d, &refs(&args));
+    assert_refused(&o, &["--frf-csv", "frf.csv", "--overwrite"]);
+    assert_eq!(std::fs::read(&csv).unwrap(), b"precious");
+    assert_eq!(names(d), ["frf.csv"]);
+    let mut args = args;
+    args.push("--overwrite".into());
+    let o = chirp(d, &refs(&args));
+    assert!(o.status.success(), "{}", stderr(&o));
+    let rows = read_frf_csv(&csv);
+    assert!(rows.len() > 100);
+    assert_eq!(names(d), ["c.bode.png", "c.mcap", "frf.csv"]);
+    // Every output of a local run is rw-r----- (opened so, umask 0 here).
+    for f in names(d) {
+        assert_eq!(mode(&d.join(&f)), 0o640, "{f}");
+    }
+}
+
+/// A kind of special file: its name, how to make one, how to recognise
+/// it, and how the refusal calls it.
+type SpecialKind = (
+    &'static str,
+    fn(&Path),
+    fn(&std::fs::FileType) -> bool,
+    &'static str,
+);
+
+#[test]
+fn special_files_are_never_replaced_even_with_overwrite() {
+    let dir = tmp();
+    let d = dir.path();
+    std::fs::write(d.join("target.png"), b"link target").unwrap();
+    let kinds: [SpecialKind; 4] = [
+        (
+            "char",
+            mknod_char,
+            |t| t.is_char_device(),
+            "character device",
+        ),
+        ("fifo", mkfifo, |t| t.is_fifo(), "FIFO"),
+        (
+            "link",
+            |p| std::os::unix::fs::symlink("target.png", p).unwrap(),
+            |t| t.is_symlink(),
+            "symbolic link",
+        ),
+        (
+            "dir",
+            |p| std::fs::create_dir(p).unwrap(),
+            |t| t.is_dir(),
+            "directory",
+        ),
+    ];
+    for (kind, make, is, words) in kinds {
+        for (flag, name) in [
+            ("--out", format!("{kind}.mcap")),
+            ("--plot", format!("{kind}.png")),
+            ("--frf-csv", format!("{kind}.csv")),
+        ] {
+            let p = d.join(&name);
+            make(&p);
+            for overwrite in [false, true] {
+                let mut args = os(&[flag, &name]);
+                if flag != "--out" {
+                    args.extend(os(&["--out", "run.mcap"]));
+                }
+                if overwrite {
+                    args.push("--overwrite".into());
+                }
+                let o = chirp(d, &refs(&args));
+                assert_refused(&o, &[flag, &name, words]);
+                assert!(is(&p.symlink_metadata().unwrap().file_type()), "{name}");
+            }
+            assert!(!d.join("run.mcap").exists() && !d.join("run.mcap.part").exists());
+        }
+    }
+    assert_eq!(std::fs::read(d.join("target.png")).unwrap(), b"link target");
+}
+
+#[test]
+fn colliding_outputs_are_refused_before_the_run() {
+    let dir = tmp();
+    let d = dir.path();
+    std::fs::create_dir(d.join("sub")).unwrap();
+    // (extra arguments, the two flags the message names)
+    let cases: &[(&[&str], [&str; 2])] = &[
+        (
+            &["--out", "x.mcap", "--plot", "x.mcap"],
+            ["--plot", "--out"],
+        ),
+        (
+            &["--out", "x.mcap", "--frf-csv", "x.mcap"],
+            ["--frf-csv", "--out"],
+        ),
+        (
+            &["--out", "x.mcap", "--plot", "p.png", "--frf-csv", "p.png"],
+            ["--plot", "--frf-csv"],
+        ),
+        (
+            &["--out", "x.mcap", "--plot", "x.frf.csv"],
+            ["--plot", "default --frf-csv"],
+        ),
+        (
+            &["--out", "x.mcap", "--frf-csv", "x.bode.png"],
+            ["--frf-csv", "default --plot"],
+        ),
+        (
+            &["--out", "x.mcap", "--plot", "./x.mcap"],
+            ["--plot", "--out"],
+        ),
+        (
+            &["--out", "./x.mcap", "--frf-csv", "sub/../x.mcap"],
+            ["--frf-csv", "--out"],
+        ),
+        (
+            &["--out", "x.mcap", "--frf-csv", "x.mcap.part"],
+            ["--frf-csv", "temporary name of the --out"],
+        ),
+        (
+            &["--out", "x.mcap", "--plot", "./x.mcap.part"],
+            ["--plot", "temporary name of the --out"],
+        ),
+    ];
+    for (args, flags) in cases {
+        let t0 = Instant::now();
+        let o = chirp(d, &refs(&os(args)));
+        assert_refused(&o, flags);
+        assert!(stderr(&o).contains("same file"), "{}", stderr(&o));
+        assert!(
+            t0.elapsed() < Duration::from_secs(2),
+            "{args:?}: refused only after the run?"
+        );
+        assert_eq!(names(d), ["sub"], "{args:?}: no file left");
+    }
+    for (args, flags) in [
+        (
+            ["--out", "y.mcap", "--plot", "./y.mcap"],
+            ["--plot", "--out"],
+        ),
+        (
+            ["--out", "y.mcap", "--plot", "y.mcap.part"],
+            ["--plot", "--out"],
+        ),
+    ] {
+        let o = control(d, &refs(&os(&args)));
+        assert_refused(&o, &flags);
+        assert_eq!(names(d), ["sub"], "{args:?}: no file left");
+    }
+}
+
+#[test]
+fn a_non_utf8_out_is_refused_before_the_run() {
+    let dir = tmp();
+    let d = dir.path();
+    let bad = OsStr::from_bytes(b"run-\xff\xfe.mcap");
+    for cmd in ["chirp", "control"] {
+        for flag in ["--out", "--plot"] {
+            let t0 = Instant::now();
+            let mut args: Vec<&OsStr> = vec![OsStr::new(flag), bad];
+            if flag != "--out" {
+                args.extend([OsStr::new("--out"), OsStr::new("ok.mcap")]);
+            }
+            let o = if cmd == "chirp" {
+                chirp(d, &args)
+            } else {
+                control(d, &args)
+            };
+            assert_refused(&o, &[flag, "UTF-8"]);
+            assert!(t0.elapsed() < Duration::from_secs(2), "{cmd} {flag}");
+            assert!(names(d).is_empty(), "{:?}", names(d));
+        }
+    }
+    let o = chirp(
+        d,
+        &[
+            OsStr::new("--out"),
+            OsStr::new("ok.mcap"),
+            OsStr::new("--frf-csv"),
+            bad,
+        ],
+    );
+    assert_refused(&o, &["--frf-csv", "UTF-8"]);
+    assert!(names(d).is_empty());
+}
+
+/// A tmpfs of `size` mounted on `dir` until dropped.
+struct Tmpfs(PathBuf);
+
+impl Tmpfs {
+    fn mount(dir: &Path, size: &str) -> Option<Self> {
+        let o = Command::new("mount")
+            .args(["-t", "tmpfs", "-o", &format!("size={size}"), "tmpfs"])
+            .arg(dir)
+            .output()
+            .ok()?;
+        if o.status.success() {
+            Some(Self(dir.to_path_buf()))
+        } else {
+            eprintln!(
+                "skipping the disk-full test: cannot mount a tmpfs ({}); \
+                 bench::outputs' unit tests inject the write error instead",
+                String::from_utf8_lossy(&o.stderr).trim()
+            );
+            None
+        }
+    }
+}
+
+impl Drop for Tmpfs {
+    fn drop(&mut self) {
+        let _ = Command::new("umount").arg(&self.0).status();
+    }
+}
+
+#[test]
+fn a_full_disk_leaves_no_csv_or_plot_under_its_final_name() {
+    let dir = tmp();
+    let d = dir.path();
+    let full = d.join("full");
+    std::fs::create_dir(&full).unwrap();
+    // 8 KiB: the FRF CSV (~22 KB) and the plot (~110 KB) do not fit.
+    let Some(_fs) = Tmpfs::mount(&full, "8k") else {
+        return;
+    };
+    for flag in ["--frf-csv", "--plot"] {
+        let target = full.join(if flag == "--plot" { "b.png" } else { "f.csv" });
+        let out = d.join("run.mcap");
+        let o = chirp(
+            d,
+            &[
+                OsStr::new("--out"),
+                out.as_os_str(),
+                OsStr::new(flag),
+                target.as_os_str(),
+            ],
+        );
+        let e = stderr(&o);
+        assert_eq!(o.status.code(), Some(1), "{e}");
+        assert!(e.contains("No space left on device"), "{e}");
+        assert!(!target.exists(), "{target:?} left behind");
+        assert!(names(&full).is_empty(), "{:?}", names(&full));
+        for f in names(d) {
+            if f != "full" {
+                std::fs::remove_file(d.join(f)).unwrap();
+            }
+        }
+    }
+}
+
+/// `bench serve` with umask 0: the event log and a job's recording get the
+/// output mode, rw-r-----.
+#[test]
+fn the_daemon_event_log_and_recordings_are_not_world_readable() {
+    let dir = tmp();
+    std::fs::set_permissions(dir.path(), std::fs::Permissions::from_mode(0o700)).unwrap();
+    let socket = dir.path().join("bench.sock");
+    let rec = dir.path().join("rec");
+    let cfg = config();
+    let mut child = bench_in(dir.path())
+        .args(["serve", "--config", &cfg, "--socket"])
+        .arg(&socket)
+        .arg("--recordings")
+        .arg(&rec)
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    struct Kill(std::process::Child);
+    impl Drop for Kill {
+        fn drop(&mut self) {
+            let _ = self.0.kill();
+            let _ = self.0.wait();
+        }
+    }
+    let t0 = Instant::now();
+    let stream = loop {
+        if let Ok(s) = UnixStream::connect(&socket) {
+            break s;
+        }
+        if let Ok(Some(st)) = child.try_wait() {
+            panic!("bench serve exited: {st}");
+        }
+        assert!(
+            t0.elapsed() < Duration::from_secs(20),
+            "daemon did not come up"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    let _guard = Kill(child);
+    let mut w = stream.try_clone().unwrap();
+    let mut r = BufReader::new(stream);
+    let req =
+        json!({"id": 1, "cmd": "control", "params": {"controller": "fast", "duration_s": 0.4}});
+    w.write_all(format!("{req}\n").as_bytes()).unwrap();
+    let response = loop {
+        let mut l = String::new();
+        assert!(
+            r.read_line(&mut l).unwrap() > 0,
+            "daemon closed the connection"
+        );
+        let v: Value = serde_json::from_str(&l).unwrap();
+        if v.get("event").is_none() {
+            break v;
+        }
+    };
+    assert_eq!(response["ok"], json!(true), "{response}");
+    let recording = PathBuf::from(response["result"]["recording"].as_str().unwrap());
+    assert_eq!(mode(&recording), 0o640);
+    let log = rec.join("daemon-events.jsonl");
+    let t0 = Instant::now();
+    while !log.exists() {
+        assert!(t0.elapsed() < Duration::from_secs(5), "no event log");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    assert_eq!(mode(&log), 0o640);
+}
