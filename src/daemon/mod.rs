@@ -49,6 +49,36 @@ pub mod client;
 mod owner;
 mod protocol;
 mod socket;
+pub mod testing;
+
+/// The longest request line the daemon reads, in bytes (the newline not
+/// counted). A longer line gets a `bad_request` answer naming this limit
+/// and the connection is closed; the rest of the line is never read.
+pub const MAX_LINE_BYTES: usize = 64 * 1024;
+
+/// Answers and events queued for one client and not yet taken by its
+/// socket, in bytes (about 2000 `status` answers). A client that lets its
+/// queue reach this (it sends requests and does not read the answers) is
+/// disconnected; other clients are not slowed down.
+pub const MAX_PENDING_BYTES: usize = 1024 * 1024;
+
+/// How long one write to a client may wait for room in its socket, in
+/// seconds, before the client is disconnected as not reading.
+pub const WRITE_STALL_TIMEOUT_S: u64 = 10;
+
+/// Clients connected at once. One more is answered `busy` ("too many
+/// clients") and closed.
+pub const MAX_CLIENTS: usize = 64;
+
+/// How long the daemon stops accepting after running out of file
+/// descriptors, in milliseconds. The client that could not be accepted is
+/// answered `busy` and closed through a reserved descriptor; connected
+/// clients keep being served.
+pub const ACCEPT_BACKOFF_MS: u64 = 100;
+
+/// Deepest nesting of arrays and objects in a request (the `id` included),
+/// in levels; deeper is a `bad_request`.
+pub const MAX_JSON_DEPTH: usize = 64;
 
 pub use protocol::ApiErrorKind;
 
@@ -63,7 +93,7 @@ use crate::rt::{LoopOptions, Pacing};
 use owner::{owner, JobHandle, OwnerCmd, OwnerShared};
 use protocol::{event, Status};
 use serde_json::json;
-use socket::{bind_socket, connection, event_log, prepare_socket};
+use socket::{bind_socket, event_log, prepare_socket};
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{mpsc, Arc, Mutex};
@@ -296,17 +326,11 @@ pub fn serve(opts: ServeOptions) -> Result<(), ServeError> {
             .map_err(|e| ServeError::Other(format!("signals: {e}")))?;
         let mut int = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::interrupt())
             .map_err(|e| ServeError::Other(format!("signals: {e}")))?;
-        loop {
-            tokio::select! {
-                a = listener.accept() => {
-                    if let Ok((stream, _)) = a {
-                        tokio::spawn(connection(Arc::clone(&ctx), stream));
-                    }
-                }
-                _ = term.recv() => break,
-                _ = int.recv() => break,
-                _ = ctx.shutdown.notified() => break,
-            }
+        tokio::select! {
+            () = socket::accept_clients(Arc::clone(&ctx), listener) => {}
+            _ = term.recv() => {}
+            _ = int.recv() => {}
+            () = ctx.shutdown.notified() => {}
         }
         // Stop safely: the running job ends at 0 A with its recording
         // finished, then the owner disables and returns.
