@@ -2,12 +2,14 @@
 //! and the printed summary.
 
 use super::serve::via_daemon;
-use super::{bad_input, default_recording, emit, load_config, refused_request, run_failed};
+use super::{
+    bad_input, default_recording, emit, job_thread, load_config, refused_request, run_failed,
+};
 use bench::config::{ChirpKind, DEFAULT_CONFIG};
-use bench::jobs::chirp::{run_chirp, ChirpOptions, ChirpSummary};
+use bench::jobs::chirp::{run_chirp_on, ChirpOptions, ChirpSummary};
 use bench::jobs::request::{ChirpRequest, JobRequest, LocalOverrides, OperatingPoint};
-use bench::jobs::session::beside;
-use bench::rt::backend::BackendSpec;
+use bench::jobs::session::{beside, Runner};
+use bench::rt::backend::{self, BackendSpec};
 use clap::{Args, ValueEnum};
 use std::io::IsTerminal;
 use std::path::PathBuf;
@@ -186,7 +188,23 @@ pub(super) fn chirp(args: ChirpArgs, stop: Arc<AtomicBool>) -> ExitCode {
         progress: std::io::stderr().is_terminal(),
         backend: args.backend.clone(),
     };
-    match run_chirp(&opts, stop) {
+    // `run_chirp` (outputs are checked by `run_chirp_on`, before anything
+    // is enabled), with the loop's tick count for the preparation watch.
+    let result = job_thread::run_job(stop, move |stop, ticks| {
+        let spec = BackendSpec::resolve(opts.backend.as_ref(), &opts.config);
+        let (mut stage, info) =
+            backend::open(&spec, &opts.config, &opts.config_path, opts.seed, None)?;
+        let mut runner = Runner::Local {
+            stage: &mut stage,
+            info: &info,
+        };
+        run_chirp_on(&mut runner, !spec.is_sim(), &opts, stop, Some(&ticks))
+    });
+    let result = match result {
+        Ok(r) => r,
+        Err(code) => return code,
+    };
+    match result {
         Ok(summary) => match emit(&summary, args.json, print_summary) {
             Ok(()) => ExitCode::SUCCESS,
             Err(code) => code,

@@ -2,11 +2,14 @@
 //! loop check and step summary.
 
 use super::serve::via_daemon;
-use super::{bad_input, default_recording, emit, load_config, refused_request, run_failed, status};
+use super::{
+    bad_input, default_recording, emit, job_thread, load_config, refused_request, run_failed,
+    status,
+};
 use bench::config::DEFAULT_CONFIG;
 use bench::jobs::request::{ControlRequest, JobRequest};
 use bench::jobs::session::beside;
-use bench::jobs::step::{run_control, ControlOptions, ControlSummary};
+use bench::jobs::step::{run_control_from, ControlOptions, ControlSummary, StageSource};
 use bench::rt::backend::BackendSpec;
 use clap::Args;
 use std::io::IsTerminal;
@@ -178,7 +181,14 @@ pub(super) fn control(args: ControlArgs, stop: Arc<AtomicBool>) -> ExitCode {
         inject,
         backend: args.backend.clone(),
     };
-    match run_control(&opts, stop) {
+    let result = job_thread::run_job(stop, move |stop, ticks| {
+        run_control_from(&opts, stop, StageSource::Open, Some(&ticks))
+    });
+    let result = match result {
+        Ok(r) => r,
+        Err(code) => return code,
+    };
+    match result {
         Ok(summary) => {
             if let Err(code) = emit(&summary, args.json, print_control_summary) {
                 return code;
