@@ -12,8 +12,10 @@ use crate::jobs::session::beside;
 use crate::jobs::session::Runner;
 use crate::jobs::step::{run_control_from, ControlOptions, StageSource};
 use crate::record::topics::FaultKind;
+use crate::record::topics::SupervisorState;
 use crate::rt::service::{LoopReply, LoopRequest, ServiceClient};
-use crate::rt::{Job, RawStop, StopReason};
+use crate::rt::timing::TickTiming;
+use crate::rt::{Job, JobEnd, RawStop, StopReason};
 use serde_json::{json, Value};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, AtomicU64};
@@ -114,9 +116,17 @@ struct Active {
     replies: rtrb::Producer<LoopReply>,
     /// The job was handed to the loop (it may have enabled the stage).
     in_loop: bool,
-    /// The loop gave the job back (0 A, disabled).
+    /// The loop gave the job back (0 A, disabled), or the job was
+    /// stopped as it was about to reach the loop.
     loop_done: bool,
+    /// When `stop` was first seen while the job was being prepared.
+    stop_seen: Option<std::time::Instant>,
 }
+
+/// How long a job stopped during its preparation is given to reach the
+/// loop (it then ends `interrupted` before its first tick, its recording
+/// finished) or to return, before it is abandoned.
+const PREPARATION_STOP_GRACE: std::time::Duration = std::time::Duration::from_millis(200);
 
 /// How an active job ended, for the owner.
 enum Outcome {
@@ -174,6 +184,7 @@ impl Active {
                 replies: rep_tx,
                 in_loop: false,
                 loop_done: false,
+                stop_seen: None,
             }),
             Err(e) => Err((
                 reply,
@@ -188,27 +199,46 @@ impl Active {
     /// Relays the worker's requests to the loop (a job's run blocks here
     /// until the loop gives it back; `stop` ends it within a tick) and
     /// says whether the job is over. A job stopped before it reached the
-    /// loop is abandoned: it never touched the stage. With `shutting_down`
-    /// a job the loop already gave back is not waited for either.
+    /// loop never gets there: it ends `interrupted` before its first tick
+    /// (amplifier disabled, as at the end of any job; its recording
+    /// finished by the worker), or, when its preparation does not get that
+    /// far within [`PREPARATION_STOP_GRACE`], it is abandoned: it never
+    /// touched the stage. With `shutting_down` a job the loop already gave
+    /// back is not waited for either.
     fn step(&mut self, client: &mut ServiceClient, shutting_down: bool) -> Option<Outcome> {
         let stopped = || self.handle.stop.load(std::sync::atomic::Ordering::Relaxed);
         while let Ok(req) = self.requests.pop() {
-            let is_job = matches!(req, LoopRequest::Job(_));
-            if is_job {
-                if stopped() {
-                    // Dropped here (its record queue too), off the loop.
-                    return Some(Outcome::Abandoned);
+            let reply = match req {
+                LoopRequest::Job(mut ticket) if stopped() => {
+                    if client.call(LoopRequest::Disable).is_none() {
+                        return Some(Outcome::Finished(Err(gone_loop())));
+                    }
+                    ticket.end = Some(JobEnd {
+                        ticks: 0,
+                        stop: RawStop::Interrupted { tick: 0 },
+                        timing: TickTiming::default(),
+                        dropped_records: 0,
+                        final_state: SupervisorState::Disabled,
+                    });
+                    self.loop_done = true;
+                    LoopReply::JobDone(ticket)
                 }
-                self.in_loop = true;
-            }
-            let Some(r) = client.call(req) else {
-                return Some(Outcome::Finished(Err(gone_loop())));
+                LoopRequest::Job(ticket) => {
+                    self.in_loop = true;
+                    let r = client.call(LoopRequest::Job(ticket));
+                    self.loop_done = true;
+                    match r {
+                        Some(r) => r,
+                        None => return Some(Outcome::Finished(Err(gone_loop()))),
+                    }
+                }
+                req => match client.call(req) {
+                    Some(r) => r,
+                    None => return Some(Outcome::Finished(Err(gone_loop()))),
+                },
             };
             // The worker waits for each answer: there is room.
-            let _ = self.replies.push(r);
-            if is_job {
-                self.loop_done = true;
-            }
+            let _ = self.replies.push(reply);
         }
         match self.done.try_recv() {
             Ok(r) => Some(Outcome::Finished(r)),
@@ -216,9 +246,16 @@ impl Active {
                 ApiError::new(ApiErrorKind::Error, "the job thread panicked"),
                 RunError::Thread("the job thread panicked".into()),
             )))),
-            Err(mpsc::TryRecvError::Empty) => ((stopped() && !self.in_loop)
-                || (shutting_down && self.loop_done))
-                .then_some(Outcome::Abandoned),
+            Err(mpsc::TryRecvError::Empty) => {
+                let preparing = !self.in_loop && !self.loop_done;
+                if preparing && stopped() {
+                    let seen = *self.stop_seen.get_or_insert_with(std::time::Instant::now);
+                    if seen.elapsed() >= PREPARATION_STOP_GRACE {
+                        return Some(Outcome::Abandoned);
+                    }
+                }
+                (shutting_down && self.loop_done).then_some(Outcome::Abandoned)
+            }
         }
     }
 }
