@@ -4,8 +4,10 @@
 //! with one supervisor runs it for the daemon's life: the hold job between
 //! jobs (every safety rule applies, faults latch), jobs handed over on a
 //! tick. The **owner thread** (`owner.rs`) is the daemon's side of that loop:
-//! it prepares jobs (recording, loop check) and keeps the state `status`
-//! shows. The **socket side** (`socket.rs`) is a single-threaded tokio
+//! it starts each job on a worker thread that prepares it (recording, loop
+//! check), relays the worker's requests to the loop, and keeps the state
+//! `status` shows; a job stopped during its preparation is abandoned
+//! before it reaches the loop. The **socket side** (`socket.rs`) is a single-threaded tokio
 //! runtime serving JSON lines on a Unix domain socket; it talks to the
 //! owner through a channel, so nothing on it can block the loop. The wire
 //! format lives in `protocol.rs`, the client of `--daemon` in [`client`].
@@ -34,7 +36,13 @@
 //! [`ChirpRequest`]: crate::jobs::request::ChirpRequest
 //! [`ControlRequest`]: crate::jobs::request::ControlRequest
 //!
-//! Error kinds: `bad_request` (not JSON, no `cmd`), `unknown_command`,
+//! Lines are at most [`MAX_LINE_BYTES`], UTF-8, one JSON object with no
+//! key twice at any level; the `id` is echoed byte for byte (any JSON
+//! value). Each client has at most [`MAX_PENDING_BYTES`] of output queued
+//! and at most [`MAX_CLIENTS`] are served at once (see the constants).
+//!
+//! Error kinds: `bad_request` (not UTF-8, not JSON, a duplicate key, no
+//! `cmd`, a line too long), `unknown_command`,
 //! `bad_params`, `busy` (a job is running), `faulted` (reset first),
 //! `refused` (loop check), `fault`, `hal`, `interrupted`, `error`.
 //!

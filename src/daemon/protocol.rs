@@ -12,13 +12,15 @@ use serde_json::{json, Value};
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum ApiErrorKind {
-    /// Not JSON, or no `cmd`.
+    /// Not UTF-8, not JSON, not an object, a key twice, no `cmd`, or a
+    /// line over [`MAX_LINE_BYTES`](super::MAX_LINE_BYTES).
     BadRequest,
     /// No such command.
     UnknownCommand,
     /// A parameter is missing, unknown or out of its range.
     BadParams,
-    /// A job is running.
+    /// A job is running; or, and the connection is then closed, too many
+    /// clients or no file descriptor left.
     Busy,
     /// A fault is latched: `reset` first.
     Faulted,

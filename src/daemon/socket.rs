@@ -292,6 +292,8 @@ pub(super) async fn accept_clients(ctx: Arc<Ctx>, listener: tokio::net::UnixList
     let slots = Arc::new(tokio::sync::Semaphore::new(MAX_CLIENTS));
     let reserve_fd = || std::fs::File::open("/dev/null").ok();
     let mut reserve = reserve_fd();
+    // Warn once per run of exhaustion, not every back-off.
+    let mut exhausted_since_accept = false;
     let refuse = |stream: tokio::net::UnixStream, why: String| {
         let line = respond(&null_id(), Err(ApiError::new(ApiErrorKind::Busy, why))) + "\n";
         // Best effort: the line fits in an empty socket buffer.
@@ -301,6 +303,7 @@ pub(super) async fn accept_clients(ctx: Arc<Ctx>, listener: tokio::net::UnixList
         match listener.accept().await {
             Ok((stream, _)) => match Arc::clone(&slots).try_acquire_owned() {
                 Ok(slot) => {
+                    exhausted_since_accept = false;
                     tokio::spawn(connection(Arc::clone(&ctx), stream, slot));
                 }
                 Err(_) => refuse(
@@ -328,7 +331,11 @@ pub(super) async fn accept_clients(ctx: Arc<Ctx>, listener: tokio::net::UnixList
                         }
                         reserve = reserve_fd();
                     }
-                    tracing::warn!("accept: {e}; pausing {ACCEPT_BACKOFF_MS} ms");
+                    if !std::mem::replace(&mut exhausted_since_accept, true) {
+                        tracing::warn!(
+                            "accept: {e}; refusing new clients and pausing {ACCEPT_BACKOFF_MS} ms between tries until descriptors are free"
+                        );
+                    }
                     tokio::time::sleep(std::time::Duration::from_millis(ACCEPT_BACKOFF_MS)).await;
                 } else {
                     // Transient (e.g. a client that gave up): do not spin.
