@@ -232,7 +232,9 @@ fn out_of_file_descriptors_the_daemon_backs_off_and_keeps_serving() {
     std::thread::sleep(Duration::from_secs(1));
     let cpu = cpu_s(pid) - c0;
     eprintln!("daemon CPU at the descriptor limit: {cpu:.2} s in 1 s");
-    assert!(cpu < 0.5, "the daemon spins: {cpu:.2} s of CPU in 1 s");
+    // (The old accept loop took 0.6 s of the 1 s here with 4 builds
+    // sharing the 2 cores; the daemon at rest takes under 0.1 s.)
+    assert!(cpu < 0.3, "the daemon spins: {cpu:.2} s of CPU in 1 s");
     // The connected clients are still served.
     assert!(timed_status(&mut first) < Duration::from_millis(500));
     assert!(status_on_new_connection(&d.socket).is_none());

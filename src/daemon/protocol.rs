@@ -389,3 +389,86 @@ pub(super) fn parse_request(line: &[u8]) -> Result<Request, (Id, ApiError)> {
     };
     Ok(Request { id, cmd, params })
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn refused(line: &[u8]) -> (String, ApiError) {
+        match parse_request(line) {
+            Ok(_) => panic!("accepted {:?}", String::from_utf8_lossy(line)),
+            Err((id, e)) => (id.get().to_string(), e),
+        }
+    }
+
+    #[test]
+    fn ids_are_kept_as_sent() {
+        for id in [
+            "18446744073709551616",
+            "1e400",
+            "-0.0",
+            "\"a\\\"\\u00e9😀\"",
+            "[1, {\"k\" : [1e400]}]",
+        ] {
+            let r = parse_request(format!("{{\"id\": {id} , \"cmd\": \"status\"}}").as_bytes())
+                .unwrap_or_else(|e| panic!("{id}: {:?}", e.1.message));
+            assert_eq!(r.id.get(), id);
+            assert!(respond(&r.id, Ok(json!(1))).starts_with(&format!("{{\"id\":{id},")));
+        }
+        assert_eq!(
+            parse_request(br#"{"cmd":"status"}"#).unwrap().id.get(),
+            "null"
+        );
+    }
+
+    #[test]
+    fn duplicates_are_refused_at_every_level() {
+        for (line, key, at) in [
+            (
+                &br#"{"cmd":"a","cmd":"b"}"#[..],
+                "cmd",
+                "the request object",
+            ),
+            (
+                br#"{"id":1,"cmd":"x","params":{"a":1,"a":2}}"#,
+                "a",
+                "params",
+            ),
+            (
+                br#"{"id":1,"cmd":"x","params":{"a":[{"b":1,"\u0062":2}]}}"#,
+                "b",
+                "params.a[0]",
+            ),
+            (br#"{"id":{"k":1,"k":2},"cmd":"x"}"#, "k", "id"),
+        ] {
+            let (_, e) = refused(line);
+            assert_eq!(e.kind, ApiErrorKind::BadRequest);
+            assert_eq!(e.message, format!("duplicate key {key:?} in {at}"));
+        }
+        // The id is echoed when the duplicate is elsewhere.
+        let (id, _) = refused(br#"{"id":"x","cmd":"s","params":{"a":1,"a":2}}"#);
+        assert_eq!(id, "\"x\"");
+    }
+
+    #[test]
+    fn other_bad_lines() {
+        let (_, e) = refused(b"{\"cmd\":\"st\xffatus\"}");
+        assert!(e.message.starts_with("not UTF-8"), "{}", e.message);
+        let (_, e) = refused(b"[1]");
+        assert_eq!(e.kind, ApiErrorKind::BadRequest);
+        let (id, e) = refused(br#"{"id":2,"cmd":7}"#);
+        assert_eq!(
+            (id.as_str(), e.message.as_str()),
+            ("2", "no \"cmd\" string")
+        );
+        let (_, e) = refused(br#"{"id":2,"cmd":"chirp","params":{"duration_s":1e400}}"#);
+        assert_eq!(e.kind, ApiErrorKind::BadParams);
+        let deep = format!(
+            "{{\"cmd\":\"s\",\"id\":{}1{}}}",
+            "[".repeat(super::super::MAX_JSON_DEPTH + 1),
+            "]".repeat(super::super::MAX_JSON_DEPTH + 1)
+        );
+        let (_, e) = refused(deep.as_bytes());
+        assert!(e.message.contains("nested deeper"), "{}", e.message);
+    }
+}

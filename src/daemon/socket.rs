@@ -593,3 +593,47 @@ pub(super) fn submit(
     });
     Ok((!detach).then_some(handle))
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    async fn lines(input: &[u8], max: usize) -> Vec<Result<Vec<u8>, &'static str>> {
+        let mut r = tokio::io::BufReader::with_capacity(4, input);
+        let mut buf = Vec::new();
+        let mut out = Vec::new();
+        loop {
+            match read_line_bounded(&mut r, &mut buf, max).await.unwrap() {
+                LineRead::Line => out.push(Ok(buf.clone())),
+                LineRead::TooLong => {
+                    out.push(Err("too long"));
+                    return out;
+                }
+                LineRead::Eof => return out,
+            }
+        }
+    }
+
+    #[test]
+    fn lines_are_bounded() {
+        let rt = tokio::runtime::Builder::new_current_thread()
+            .build()
+            .unwrap();
+        rt.block_on(async {
+            assert_eq!(
+                lines(b"ab\r\n\ncdefgh\nxy", 6).await,
+                vec![
+                    Ok(b"ab".to_vec()),
+                    Ok(vec![]),
+                    Ok(b"cdefgh".to_vec()),
+                    Ok(b"xy".to_vec())
+                ]
+            );
+            assert_eq!(
+                lines(b"abc\nabcdefg\nnever read", 6).await,
+                vec![Ok(b"abc".to_vec()), Err("too long")]
+            );
+            assert_eq!(lines(b"abcdefg", 6).await, vec![Err("too long")]);
+        });
+    }
+}
