@@ -296,8 +296,12 @@ pub(super) async fn accept_clients(ctx: Arc<Ctx>, listener: tokio::net::UnixList
     let mut exhausted_since_accept = false;
     let refuse = |stream: tokio::net::UnixStream, why: String| {
         let line = respond(&null_id(), Err(ApiError::new(ApiErrorKind::Busy, why))) + "\n";
-        // Best effort: the line fits in an empty socket buffer.
-        let _ = stream.try_write(line.as_bytes());
+        // Best effort, without waiting: the line fits in an empty socket
+        // buffer. (tokio's `try_write` would refuse a stream whose
+        // readiness the runtime has not seen yet.)
+        if let Ok(s) = stream.into_std() {
+            let _ = (&s).write(line.as_bytes());
+        }
     };
     loop {
         match listener.accept().await {
