@@ -41,7 +41,7 @@ fn chirp(c: &mut Criterion) {
                 .with_output("frf_csv", &opts.frf_csv, Origin::Given)
                 .with_output("plot", &opts.plot, Origin::Given)
         };
-        b.iter(|| run_chirp(&opts, outputs(), Arc::new(AtomicBool::new(false))).unwrap())
+        b.iter(|| run_chirp(&opts, outputs(), Arc::new(AtomicBool::new(false)), None).unwrap())
     });
 
     // A record of the default length (lead-in + 60 s sweep + tail at 5 kHz).

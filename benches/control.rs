@@ -101,7 +101,7 @@ fn control(c: &mut Criterion) {
                 .with_recording(&opts.out, Origin::Given)
                 .with_output("plot", &opts.plot, Origin::Given)
         };
-        b.iter(|| run_control(&opts, outputs(), Arc::new(AtomicBool::new(false))).unwrap())
+        b.iter(|| run_control(&opts, outputs(), Arc::new(AtomicBool::new(false)), None).unwrap())
     });
     g.finish();
 }

@@ -4,157 +4,17 @@
 //! requests during a real-time job.
 
 mod common;
+#[path = "common/daemon.rs"]
+mod daemon_fixtures;
 
 use common::*;
+use daemon_fixtures::*;
 use serde_json::{json, Value};
-use std::io::{BufRead, BufReader, Write};
+use std::io::{BufRead, BufReader};
 use std::os::unix::fs::PermissionsExt;
-use std::os::unix::net::UnixStream;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Stdio};
 use std::time::{Duration, Instant};
-
-/// Starts `bench serve` and waits until its socket answers.
-fn spawn_serve(config: &Path, socket: &Path, recordings: &Path, extra: &[&str]) -> Child {
-    let child = bench()
-        .args([
-            "serve",
-            "--config",
-            config.to_str().unwrap(),
-            "--socket",
-            socket.to_str().unwrap(),
-            "--recordings",
-            recordings.to_str().unwrap(),
-        ])
-        .args(extra)
-        .stdout(Stdio::null())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
-    let t0 = Instant::now();
-    while UnixStream::connect(socket).is_err() {
-        assert!(
-            t0.elapsed() < Duration::from_secs(20),
-            "daemon on {socket:?} did not come up"
-        );
-        std::thread::sleep(Duration::from_millis(20));
-    }
-    child
-}
-
-struct Daemon {
-    child: Child,
-    socket: PathBuf,
-    dir: tempfile::TempDir,
-    config: PathBuf,
-}
-
-impl Daemon {
-    fn start() -> Self {
-        Self::start_with(&[], "")
-    }
-
-    /// With extra `bench serve` arguments and extra config text.
-    fn start_with(extra: &[&str], config_extra: &str) -> Self {
-        let dir = tmp();
-        std::fs::set_permissions(dir.path(), std::fs::Permissions::from_mode(0o700)).unwrap();
-        let config = common::quiet_config(dir.path(), 1.0, config_extra);
-        let socket = dir.path().join("bench.sock");
-        let child = spawn_serve(&config, &socket, &dir.path().join("rec"), extra);
-        Self {
-            child,
-            socket,
-            dir,
-            config,
-        }
-    }
-
-    fn client(&self) -> Client {
-        Client::new(&self.socket)
-    }
-
-    fn sock(&self) -> String {
-        self.socket.display().to_string()
-    }
-}
-
-impl Drop for Daemon {
-    fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
-    }
-}
-
-struct Client {
-    w: UnixStream,
-    r: BufReader<UnixStream>,
-    next: u64,
-}
-
-impl Client {
-    fn new(socket: &Path) -> Self {
-        let w = UnixStream::connect(socket).unwrap();
-        let r = BufReader::new(w.try_clone().unwrap());
-        Self { w, r, next: 100 }
-    }
-
-    fn send_raw(&mut self, line: &str) {
-        self.w.write_all(format!("{line}\n").as_bytes()).unwrap();
-    }
-
-    fn line(&mut self) -> Value {
-        let mut l = String::new();
-        assert!(
-            self.r.read_line(&mut l).unwrap() > 0,
-            "daemon closed the connection"
-        );
-        serde_json::from_str(&l).unwrap()
-    }
-
-    /// The next response (skipping events).
-    fn response(&mut self) -> Value {
-        loop {
-            let v = self.line();
-            if v.get("event").is_none() {
-                return v;
-            }
-        }
-    }
-
-    fn call(&mut self, cmd: &str, params: Value) -> Value {
-        self.next += 1;
-        self.send_raw(&json!({ "id": self.next, "cmd": cmd, "params": params }).to_string());
-        let r = self.response();
-        assert_eq!(r["id"], json!(self.next), "{r}");
-        r
-    }
-
-    /// Submits a job without waiting for its end; returns the job id from
-    /// the `job_started` event.
-    fn submit(&mut self, cmd: &str, params: Value) -> Value {
-        self.next += 1;
-        self.send_raw(&json!({ "id": self.next, "cmd": cmd, "params": params }).to_string());
-        loop {
-            let v = self.line();
-            if v["event"] == "job_started" {
-                return v;
-            }
-            assert!(v.get("event").is_some(), "job refused: {v}");
-        }
-    }
-}
-
-fn wait_state(c: &mut Client, state: &str, timeout: Duration) -> Value {
-    let t0 = Instant::now();
-    loop {
-        let s = c.call("status", json!({}));
-        if s["result"]["state"] == state {
-            return s["result"].clone();
-        }
-        assert!(t0.elapsed() < timeout, "state stayed {}", s["result"]);
-        std::thread::sleep(Duration::from_millis(50));
-    }
-}
 
 #[test]
 fn requests_errors_and_jobs_equal_to_local_runs() {

@@ -2,7 +2,9 @@
 //! and the printed summary.
 
 use super::serve::via_daemon;
-use super::{bad_input, emit, load_config, origin, recording_plan, refused_request, run_failed};
+use super::{
+    bad_input, emit, job_thread, load_config, origin, recording_plan, refused_request, run_failed,
+};
 use bench::config::{ChirpKind, DEFAULT_CONFIG};
 use bench::jobs::chirp::{run_chirp, ChirpOptions, ChirpSummary};
 use bench::jobs::request::{ChirpRequest, JobRequest, LocalOverrides, OperatingPoint};
@@ -201,7 +203,16 @@ pub(super) fn chirp(args: ChirpArgs, stop: Arc<AtomicBool>) -> ExitCode {
         progress: std::io::stderr().is_terminal(),
         backend: args.backend.clone(),
     };
-    match run_chirp(&opts, outputs, stop) {
+    // On a worker thread, with the loop's tick count for the preparation
+    // watch (a stop before the first tick ends the run at once).
+    let result = job_thread::run_job(stop, move |stop, ticks| {
+        run_chirp(&opts, outputs, stop, Some(&ticks))
+    });
+    let result = match result {
+        Ok(r) => r,
+        Err(code) => return code,
+    };
+    match result {
         Ok(summary) => match emit(&summary, args.json, print_summary) {
             Ok(()) => ExitCode::SUCCESS,
             Err(code) => code,

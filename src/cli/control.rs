@@ -3,8 +3,8 @@
 
 use super::serve::via_daemon;
 use super::{
-    bad_input, emit, load_config, origin, recording_plan, refused_request, run_failed, status,
-    unclaimed_recording,
+    bad_input, emit, job_thread, load_config, origin, recording_plan, refused_request, run_failed,
+    status, unclaimed_recording,
 };
 use bench::config::DEFAULT_CONFIG;
 use bench::jobs::request::{ControlRequest, JobRequest};
@@ -199,7 +199,14 @@ pub(super) fn control(args: ControlArgs, stop: Arc<AtomicBool>) -> ExitCode {
         inject,
         backend: args.backend.clone(),
     };
-    match run_control(&opts, outputs, stop) {
+    let result = job_thread::run_job(stop, move |stop, ticks| {
+        run_control(&opts, outputs, stop, Some(&ticks))
+    });
+    let result = match result {
+        Ok(r) => r,
+        Err(code) => return code,
+    };
+    match result {
         Ok(summary) => {
             if let Err(code) = emit(&summary, args.json, print_control_summary) {
                 return code;

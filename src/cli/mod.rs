@@ -20,6 +20,7 @@
 mod chirp;
 mod control;
 mod emulate;
+mod job_thread;
 mod recover;
 mod serve;
 

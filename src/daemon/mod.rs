@@ -4,8 +4,10 @@
 //! with one supervisor runs it for the daemon's life: the hold job between
 //! jobs (every safety rule applies, faults latch), jobs handed over on a
 //! tick. The **owner thread** (`owner.rs`) is the daemon's side of that loop:
-//! it prepares jobs (recording, loop check) and keeps the state `status`
-//! shows. The **socket side** (`socket.rs`) is a single-threaded tokio
+//! it starts each job on a worker thread that prepares it (recording, loop
+//! check), relays the worker's requests to the loop, and keeps the state
+//! `status` shows; a job stopped during its preparation is abandoned
+//! before it reaches the loop. The **socket side** (`socket.rs`) is a single-threaded tokio
 //! runtime serving JSON lines on a Unix domain socket; it talks to the
 //! owner through a channel, so nothing on it can block the loop. The wire
 //! format lives in `protocol.rs`, the client of `--daemon` in [`client`].
@@ -34,7 +36,13 @@
 //! [`ChirpRequest`]: crate::jobs::request::ChirpRequest
 //! [`ControlRequest`]: crate::jobs::request::ControlRequest
 //!
-//! Error kinds: `bad_request` (not JSON, no `cmd`), `unknown_command`,
+//! Lines are at most [`MAX_LINE_BYTES`], UTF-8, one JSON object with no
+//! key twice at any level; the `id` is echoed byte for byte (any JSON
+//! value). Each client has at most [`MAX_PENDING_BYTES`] of output queued
+//! and at most [`MAX_CLIENTS`] are served at once (see the constants).
+//!
+//! Error kinds: `bad_request` (not UTF-8, not JSON, a duplicate key, no
+//! `cmd`, a line too long), `unknown_command`,
 //! `bad_params`, `busy` (a job is running), `faulted` (reset first),
 //! `refused` (loop check), `fault`, `hal`, `interrupted`, `error`.
 //!
@@ -49,6 +57,36 @@ pub mod client;
 mod owner;
 mod protocol;
 mod socket;
+pub mod testing;
+
+/// The longest request line the daemon reads, in bytes (the newline not
+/// counted). A longer line gets a `bad_request` answer naming this limit
+/// and the connection is closed; the rest of the line is never read.
+pub const MAX_LINE_BYTES: usize = 64 * 1024;
+
+/// Answers and events queued for one client and not yet taken by its
+/// socket, in bytes (about 2000 `status` answers). A client that lets its
+/// queue reach this (it sends requests and does not read the answers) is
+/// disconnected; other clients are not slowed down.
+pub const MAX_PENDING_BYTES: usize = 1024 * 1024;
+
+/// How long one write to a client may wait for room in its socket, in
+/// seconds, before the client is disconnected as not reading.
+pub const WRITE_STALL_TIMEOUT_S: u64 = 10;
+
+/// Clients connected at once. One more is answered `busy` ("too many
+/// clients") and closed.
+pub const MAX_CLIENTS: usize = 64;
+
+/// How long the daemon stops accepting after running out of file
+/// descriptors, in milliseconds. The client that could not be accepted is
+/// answered `busy` and closed through a reserved descriptor; connected
+/// clients keep being served.
+pub const ACCEPT_BACKOFF_MS: u64 = 100;
+
+/// Deepest nesting of arrays and objects in a request (the `id` included),
+/// in levels; deeper is a `bad_request`.
+pub const MAX_JSON_DEPTH: usize = 64;
 
 pub use protocol::ApiErrorKind;
 
@@ -63,7 +101,7 @@ use crate::rt::{LoopOptions, Pacing};
 use owner::{owner, JobHandle, OwnerCmd, OwnerShared};
 use protocol::{event, Status};
 use serde_json::json;
-use socket::{bind_socket, connection, event_log, prepare_socket};
+use socket::{bind_socket, event_log, prepare_socket};
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{mpsc, Arc, Mutex};
@@ -296,17 +334,11 @@ pub fn serve(opts: ServeOptions) -> Result<(), ServeError> {
             .map_err(|e| ServeError::Other(format!("signals: {e}")))?;
         let mut int = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::interrupt())
             .map_err(|e| ServeError::Other(format!("signals: {e}")))?;
-        loop {
-            tokio::select! {
-                a = listener.accept() => {
-                    if let Ok((stream, _)) = a {
-                        tokio::spawn(connection(Arc::clone(&ctx), stream));
-                    }
-                }
-                _ = term.recv() => break,
-                _ = int.recv() => break,
-                _ = ctx.shutdown.notified() => break,
-            }
+        tokio::select! {
+            () = socket::accept_clients(Arc::clone(&ctx), listener) => {}
+            _ = term.recv() => {}
+            _ = int.recv() => {}
+            () = ctx.shutdown.notified() => {}
         }
         // Stop safely: the running job ends at 0 A with its recording
         // finished, then the owner disables and returns.

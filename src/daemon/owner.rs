@@ -12,8 +12,10 @@ use crate::jobs::session::beside;
 use crate::jobs::session::Runner;
 use crate::jobs::step::{run_control_from, ControlOptions, StageSource};
 use crate::record::topics::FaultKind;
+use crate::record::topics::SupervisorState;
 use crate::rt::service::{LoopReply, LoopRequest, ServiceClient};
-use crate::rt::{Job, RawStop, StopReason};
+use crate::rt::timing::TickTiming;
+use crate::rt::{Job, JobEnd, RawStop, StopReason};
 use serde_json::{json, Value};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, AtomicU64};
@@ -97,17 +99,186 @@ pub(super) fn between_jobs_fault(r: LoopReply) -> Option<FaultStatus> {
     })
 }
 
+/// What a job's worker thread sends back.
+type JobResult = Result<Value, (ApiError, RunError)>;
+
+/// A job being prepared or run. Its worker thread prepares it and runs it
+/// through a [`ServiceClient`] of its own, whose queues the owner relays
+/// to the loop: the owner stays free to answer, and it alone decides
+/// whether the job reaches the loop.
+struct Active {
+    handle: JobHandle,
+    reply: Reply<Value>,
+    done: mpsc::Receiver<JobResult>,
+    /// The worker's loop requests.
+    requests: rtrb::Consumer<LoopRequest>,
+    /// The loop's answers, for the worker.
+    replies: rtrb::Producer<LoopReply>,
+    /// The job was handed to the loop (it may have enabled the stage).
+    in_loop: bool,
+    /// The loop gave the job back (0 A, disabled), or the job was
+    /// stopped as it was about to reach the loop.
+    loop_done: bool,
+    /// When `stop` was first seen while the job was being prepared.
+    stop_seen: Option<std::time::Instant>,
+}
+
+/// How long a job stopped during its preparation is given to reach the
+/// loop (it then ends `interrupted` before its first tick, its recording
+/// finished) or to return, before it is abandoned.
+const PREPARATION_STOP_GRACE: std::time::Duration = std::time::Duration::from_millis(200);
+
+/// How an active job ended, for the owner.
+enum Outcome {
+    /// The worker returned.
+    Finished(JobResult),
+    /// Stopped before it reached the loop: its worker is left behind.
+    Abandoned,
+}
+
+impl Active {
+    /// Starts the worker thread of `job`.
+    fn start(
+        job: JobSpec,
+        handle: JobHandle,
+        reply: Reply<Value>,
+        client: &ServiceClient,
+    ) -> Result<Self, (Reply<Value>, ApiError)> {
+        let (req_tx, req_rx) = rtrb::RingBuffer::<LoopRequest>::new(4);
+        let (rep_tx, rep_rx) = rtrb::RingBuffer::<LoopReply>::new(4);
+        let mut proxy = ServiceClient::new(req_tx, rep_rx, client.info.clone(), client.hardware);
+        let (done_tx, done) = mpsc::channel();
+        let (stop, ticks) = (Arc::clone(&handle.stop), Arc::clone(&handle.ticks));
+        let hardware = client.hardware;
+        let spawned = std::thread::Builder::new()
+            .name(format!("bench-job{}", handle.id))
+            .spawn(move || {
+                crate::daemon::testing::prepare_hang_hook();
+                let result = match job {
+                    JobSpec::Chirp(opts) => run_chirp_on(
+                        &mut Runner::Service(&mut proxy),
+                        hardware,
+                        &opts,
+                        stop,
+                        Some(&ticks),
+                    )
+                    .map_err(|e| (ApiError::from_run(&e), e))
+                    .and_then(to_json),
+                    JobSpec::Control(opts) => run_control_from(
+                        &opts,
+                        stop,
+                        StageSource::Service(&mut proxy),
+                        Some(&ticks),
+                    )
+                    .map_err(|e| (ApiError::from_run(&e), e))
+                    .and_then(to_json),
+                };
+                let _ = done_tx.send(result);
+            });
+        match spawned {
+            Ok(_) => Ok(Self {
+                handle,
+                reply,
+                done,
+                requests: req_rx,
+                replies: rep_tx,
+                in_loop: false,
+                loop_done: false,
+                stop_seen: None,
+            }),
+            Err(e) => Err((
+                reply,
+                ApiError::new(
+                    ApiErrorKind::Error,
+                    format!("cannot start the job thread: {e}"),
+                ),
+            )),
+        }
+    }
+
+    /// Relays the worker's requests to the loop (a job's run blocks here
+    /// until the loop gives it back; `stop` ends it within a tick) and
+    /// says whether the job is over. A job stopped before it reached the
+    /// loop never gets there: it ends `interrupted` before its first tick
+    /// (amplifier disabled, as at the end of any job; its recording
+    /// finished by the worker), or, when its preparation does not get that
+    /// far within [`PREPARATION_STOP_GRACE`], it is abandoned: it never
+    /// touched the stage. With `shutting_down` a job the loop already gave
+    /// back is not waited for either.
+    fn step(&mut self, client: &mut ServiceClient, shutting_down: bool) -> Option<Outcome> {
+        let stopped = || self.handle.stop.load(std::sync::atomic::Ordering::Relaxed);
+        while let Ok(req) = self.requests.pop() {
+            let reply = match req {
+                LoopRequest::Job(mut ticket) if stopped() => {
+                    if client.call(LoopRequest::Disable).is_none() {
+                        return Some(Outcome::Finished(Err(gone_loop())));
+                    }
+                    ticket.end = Some(JobEnd {
+                        ticks: 0,
+                        stop: RawStop::Interrupted { tick: 0 },
+                        timing: TickTiming::default(),
+                        dropped_records: 0,
+                        final_state: SupervisorState::Disabled,
+                    });
+                    self.loop_done = true;
+                    LoopReply::JobDone(ticket)
+                }
+                LoopRequest::Job(ticket) => {
+                    self.in_loop = true;
+                    let r = client.call(LoopRequest::Job(ticket));
+                    self.loop_done = true;
+                    match r {
+                        Some(r) => r,
+                        None => return Some(Outcome::Finished(Err(gone_loop()))),
+                    }
+                }
+                req => match client.call(req) {
+                    Some(r) => r,
+                    None => return Some(Outcome::Finished(Err(gone_loop()))),
+                },
+            };
+            // The worker waits for each answer: there is room.
+            let _ = self.replies.push(reply);
+        }
+        match self.done.try_recv() {
+            Ok(r) => Some(Outcome::Finished(r)),
+            Err(mpsc::TryRecvError::Disconnected) => Some(Outcome::Finished(Err((
+                ApiError::new(ApiErrorKind::Error, "the job thread panicked"),
+                RunError::Thread("the job thread panicked".into()),
+            )))),
+            Err(mpsc::TryRecvError::Empty) => {
+                let preparing = !self.in_loop && !self.loop_done;
+                if preparing && stopped() {
+                    let seen = *self.stop_seen.get_or_insert_with(std::time::Instant::now);
+                    if seen.elapsed() >= PREPARATION_STOP_GRACE {
+                        return Some(Outcome::Abandoned);
+                    }
+                }
+                (shutting_down && self.loop_done).then_some(Outcome::Abandoned)
+            }
+        }
+    }
+}
+
+fn gone_loop() -> (ApiError, RunError) {
+    (
+        ApiError::new(ApiErrorKind::Error, "the real-time loop is gone"),
+        RunError::Thread("the daemon's loop is gone".into()),
+    )
+}
+
 /// The owner thread: the daemon's side of the loop. It hands requests and
 /// jobs to the real-time loop ([`crate::rt::service`]), which runs the
 /// hold job and the one supervisor between them, and reports faults the
-/// loop latched between jobs.
+/// loop latched between jobs. Jobs are prepared on a worker thread each,
+/// so the owner keeps answering while one is prepared, and a job stopped
+/// (or a daemon shut down) during its preparation ends at once.
 pub(super) fn owner(mut client: ServiceClient, rx: mpsc::Receiver<OwnerCmd>, shared: OwnerShared) {
     let OwnerShared {
         status,
         events,
         hold,
     } = shared;
-    let hardware = client.hardware;
     let set_state = |state: &'static str, fault: Option<FaultStatus>| {
         let mut s = lock(&status);
         s.state = state;
@@ -117,11 +288,27 @@ pub(super) fn owner(mut client: ServiceClient, rx: mpsc::Receiver<OwnerCmd>, sha
         let _ = events.send(event("state", json!({ "state": state, "fault": s.fault })));
     };
     let gone = || ApiError::new(ApiErrorKind::Error, "the real-time loop is gone");
+    let busy = || ApiError::new(ApiErrorKind::Busy, "a job is running: `stop` it first");
+    let mut active: Option<Active> = None;
+    let mut shutting_down = false;
     loop {
-        let cmd = rx.recv_timeout(std::time::Duration::from_millis(10));
+        let wait = std::time::Duration::from_millis(if active.is_some() { 1 } else { 10 });
+        let cmd = rx.recv_timeout(wait);
         match cmd {
-            Ok(OwnerCmd::Shutdown) | Err(mpsc::RecvTimeoutError::Disconnected) => break,
+            Ok(OwnerCmd::Shutdown) => shutting_down = true,
+            Err(mpsc::RecvTimeoutError::Disconnected) => {
+                shutting_down = true;
+                std::thread::sleep(wait);
+            }
             Err(mpsc::RecvTimeoutError::Timeout) => {}
+            Ok(OwnerCmd::Enable(reply) | OwnerCmd::Disable(reply) | OwnerCmd::Reset(reply))
+                if active.is_some() =>
+            {
+                let _ = reply.send(Err(busy()));
+            }
+            Ok(OwnerCmd::Job(_, _, reply)) if active.is_some() => {
+                let _ = reply.send(Err(busy()));
+            }
             Ok(OwnerCmd::Enable(reply)) => {
                 let r = match client.call(LoopRequest::Enable(hold.as_ref().map(|f| f()))) {
                     Some(LoopReply::Enabled(Ok(()), _)) => {
@@ -173,52 +360,89 @@ pub(super) fn owner(mut client: ServiceClient, rx: mpsc::Receiver<OwnerCmd>, sha
                 let _ = reply.send(r);
             }
             Ok(OwnerCmd::Job(job, handle, reply)) => {
-                let result = match job {
-                    JobSpec::Chirp(opts) => run_chirp_on(
-                        &mut Runner::Service(&mut client),
-                        hardware,
-                        &opts,
-                        Arc::clone(&handle.stop),
-                        Some(&handle.ticks),
-                    )
-                    .map_err(|e| (ApiError::from_run(&e), e))
-                    .and_then(to_json),
-                    JobSpec::Control(opts) => run_control_from(
-                        &opts,
-                        Arc::clone(&handle.stop),
-                        StageSource::Service(&mut client),
-                        Some(&handle.ticks),
-                    )
-                    .map_err(|e| (ApiError::from_run(&e), e))
-                    .and_then(to_json),
-                };
-                {
-                    let mut s = lock(&status);
-                    s.jobs_run += 1;
-                    if let Some(j) = s.job.take() {
-                        s.last_recording = Some(j.recording);
+                match Active::start(job, handle, reply, &client) {
+                    Ok(a) => active = Some(a),
+                    Err((reply, e)) => {
+                        lock(&status).job = None;
+                        set_state("disabled", None);
+                        let _ = reply.send(Err(e));
                     }
                 }
-                match &result {
-                    // The latched fault is reported by its supervisor name.
-                    Err((api, RunError::Fault { kind, .. })) => {
-                        let fault = FaultStatus {
-                            kind,
-                            message: api.message.clone(),
-                        };
-                        set_state("faulted", Some(fault));
-                    }
-                    Err((api, RunError::Hal { .. })) => {
-                        let fault = FaultStatus {
-                            kind: FaultKind::Hal.as_str(),
-                            message: api.message.clone(),
-                        };
-                        set_state("faulted", Some(fault));
-                    }
-                    _ => set_state("disabled", None),
-                }
-                let _ = reply.send(result.map_err(|(api, _)| api));
             }
+        }
+        if let Some(a) = active.as_mut() {
+            if shutting_down {
+                a.handle
+                    .stop
+                    .store(true, std::sync::atomic::Ordering::Relaxed);
+            }
+            match a.step(&mut client, shutting_down) {
+                None => {}
+                Some(Outcome::Finished(result)) => {
+                    let reply = active.take().map(|a| a.reply);
+                    {
+                        let mut s = lock(&status);
+                        s.jobs_run += 1;
+                        if let Some(j) = s.job.take() {
+                            s.last_recording = Some(j.recording);
+                        }
+                    }
+                    match &result {
+                        // The latched fault is reported by its supervisor name.
+                        Err((api, RunError::Fault { kind, .. })) => {
+                            let fault = FaultStatus {
+                                kind,
+                                message: api.message.clone(),
+                            };
+                            set_state("faulted", Some(fault));
+                        }
+                        Err((api, RunError::Hal { .. })) => {
+                            let fault = FaultStatus {
+                                kind: FaultKind::Hal.as_str(),
+                                message: api.message.clone(),
+                            };
+                            set_state("faulted", Some(fault));
+                        }
+                        _ => set_state("disabled", None),
+                    }
+                    if let Some(reply) = reply {
+                        let _ = reply.send(result.map_err(|(api, _)| api));
+                    }
+                }
+                Some(Outcome::Abandoned) => {
+                    let Some(a) = active.take() else { continue };
+                    let was_in_loop = a.in_loop;
+                    // Dropping the worker's queues: whatever it asks of
+                    // the loop from now on gets "the loop is gone".
+                    let Active { handle, reply, .. } = a;
+                    tracing::warn!(
+                        "job {} abandoned {}; its thread is left to end on its own",
+                        handle.id,
+                        if was_in_loop {
+                            "after the loop gave it back (shutdown)"
+                        } else {
+                            "while being prepared (nothing was enabled)"
+                        }
+                    );
+                    // A job ends disabled, this one too.
+                    let r = client.call(LoopRequest::Disable);
+                    lock(&status).job = None;
+                    set_state("disabled", None);
+                    let message = if was_in_loop {
+                        "the daemon shut down while the job was finishing; 0 A, amplifier disabled"
+                    } else {
+                        "stopped while the job was being prepared; nothing was enabled, no recording"
+                    };
+                    let _ = reply.send(Err(if r.is_some() {
+                        ApiError::new(ApiErrorKind::Interrupted, message)
+                    } else {
+                        gone()
+                    }));
+                }
+            }
+        }
+        if shutting_down && active.is_none() {
+            break;
         }
         for f in client.take_faults() {
             if let Some(api) = between_jobs_fault(f) {

@@ -5,19 +5,22 @@
 use crate::error::RunError;
 use crate::jobs::request::JobRequest;
 use serde::{Deserialize, Serialize};
+use serde_json::value::RawValue;
 use serde_json::{json, Value};
 
 /// The kind of an error response: what the client may do about it.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum ApiErrorKind {
-    /// Not JSON, or no `cmd`.
+    /// Not UTF-8, not JSON, not an object, a key twice, no `cmd`, or a
+    /// line over [`MAX_LINE_BYTES`](super::MAX_LINE_BYTES).
     BadRequest,
     /// No such command.
     UnknownCommand,
     /// A parameter is missing, unknown or out of its range.
     BadParams,
-    /// A job is running.
+    /// A job is running; or, and the connection is then closed, too many
+    /// clients or no file descriptor left.
     Busy,
     /// A fault is latched: `reset` first.
     Faulted,
@@ -214,9 +217,258 @@ pub(super) fn job_request(cmd: &str, params: &Value) -> Result<(JobRequest, bool
     Ok((request, detach))
 }
 
-pub(super) fn respond(id: &Value, r: Result<Value, ApiError>) -> String {
-    match r {
-        Ok(v) => json!({ "id": id, "ok": true, "result": v }).to_string(),
-        Err(e) => json!({ "id": id, "ok": false, "error": e }).to_string(),
+/// A request's `id` exactly as the client wrote it (raw JSON text, echoed
+/// byte for byte: big integers, `1e400`, escapes and nesting survive).
+pub(super) type Id = Box<RawValue>;
+
+/// The `id` of answers to lines that have none (or none that could be
+/// read): `null`.
+pub(super) fn null_id() -> Id {
+    RawValue::from_string("null".into()).unwrap_or_else(|_| unreachable!("null is JSON"))
+}
+
+/// One response line: `{"id": ID, "ok": true, "result": ..}` or
+/// `{"id": ID, "ok": false, "error": {"kind": .., "message": ..}}`.
+pub(super) fn respond(id: &RawValue, r: Result<Value, ApiError>) -> String {
+    #[derive(Serialize)]
+    struct Response<'a> {
+        id: &'a RawValue,
+        ok: bool,
+        #[serde(skip_serializing_if = "Option::is_none")]
+        result: Option<Value>,
+        #[serde(skip_serializing_if = "Option::is_none")]
+        error: Option<ApiError>,
+    }
+    let (ok, result, error) = match r {
+        Ok(v) => (true, Some(v), None),
+        Err(e) => (false, None, Some(e)),
+    };
+    serde_json::to_string(&Response {
+        id,
+        ok,
+        result,
+        error,
+    })
+    .unwrap_or_else(|e| {
+        // A `Value` with a non-string key cannot occur; never panic here.
+        json!({ "id": null, "ok": false, "error": { "kind": "error", "message": e.to_string() } })
+            .to_string()
+    })
+}
+
+/// A request line, read: the `id` as sent, the `cmd`, the `params`
+/// (`null` when absent).
+pub(super) struct Request {
+    pub(super) id: Id,
+    pub(super) cmd: String,
+    pub(super) params: Value,
+}
+
+/// The entries of one JSON object, in order, values unparsed.
+struct Entries<'a>(Vec<(String, &'a RawValue)>);
+
+impl<'de: 'a, 'a> Deserialize<'de> for Entries<'a> {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        struct V<'a>(std::marker::PhantomData<&'a ()>);
+        impl<'de: 'a, 'a> serde::de::Visitor<'de> for V<'a> {
+            type Value = Entries<'a>;
+            fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+                f.write_str("a JSON object")
+            }
+            fn visit_map<A: serde::de::MapAccess<'de>>(
+                self,
+                mut map: A,
+            ) -> Result<Entries<'a>, A::Error> {
+                let mut v = Vec::new();
+                while let Some(k) = map.next_key::<String>()? {
+                    v.push((k, map.next_value::<&'a RawValue>()?));
+                }
+                Ok(Entries(v))
+            }
+        }
+        d.deserialize_map(V(std::marker::PhantomData))
+    }
+}
+
+/// The first key that appears twice in `entries`.
+fn duplicate<'e>(entries: &'e [(String, &RawValue)]) -> Option<&'e str> {
+    let mut seen = std::collections::HashSet::with_capacity(entries.len());
+    entries
+        .iter()
+        .find(|(k, _)| !seen.insert(k.as_str()))
+        .map(|(k, _)| k.as_str())
+}
+
+/// Refuses a duplicate key anywhere in `raw` (`at`: where `raw` is in the
+/// request, for the message), and nesting deeper than
+/// [`MAX_JSON_DEPTH`](super::MAX_JSON_DEPTH). Leaves (numbers, strings)
+/// are never converted, so any number the grammar allows passes.
+fn check_unique(raw: &RawValue, at: &str, depth: usize) -> Result<(), String> {
+    let text = raw.get();
+    let nested = match text.as_bytes().first() {
+        Some(b'{' | b'[') => true,
+        _ => return Ok(()),
+    };
+    if nested && depth >= super::MAX_JSON_DEPTH {
+        return Err(format!(
+            "{at} is nested deeper than {} levels",
+            super::MAX_JSON_DEPTH
+        ));
+    }
+    if text.starts_with('{') {
+        let Entries(entries) = serde_json::from_str(text).map_err(|e| format!("{at}: {e}"))?;
+        if let Some(k) = duplicate(&entries) {
+            return Err(format!("duplicate key {k:?} in {at}"));
+        }
+        for (k, v) in &entries {
+            check_unique(v, &format!("{at}.{k}"), depth + 1)?;
+        }
+    } else {
+        let items: Vec<&RawValue> = serde_json::from_str(text).map_err(|e| format!("{at}: {e}"))?;
+        for (i, v) in items.iter().enumerate() {
+            check_unique(v, &format!("{at}[{i}]"), depth + 1)?;
+        }
+    }
+    Ok(())
+}
+
+/// Reads one request line (without its newline): UTF-8, one JSON object
+/// with no duplicate key at any level, a `cmd` string. On error, the
+/// answer's `id` (the request's when it could be read, else `null`) and a
+/// `bad_request` (or `bad_params` for `params` that are JSON but hold a
+/// number out of the range of a double).
+pub(super) fn parse_request(line: &[u8]) -> Result<Request, (Id, ApiError)> {
+    let bad = |id: Id, m: String| (id, ApiError::new(ApiErrorKind::BadRequest, m));
+    let text = std::str::from_utf8(line).map_err(|e| {
+        bad(
+            null_id(),
+            format!("not UTF-8: invalid byte at offset {}", e.valid_up_to()),
+        )
+    })?;
+    let top: &RawValue =
+        serde_json::from_str(text).map_err(|e| bad(null_id(), format!("not JSON: {e}")))?;
+    if !top.get().starts_with('{') {
+        return Err(bad(
+            null_id(),
+            "a request is a JSON object: {\"id\": .., \"cmd\": .., \"params\": {..}}".into(),
+        ));
+    }
+    let Entries(entries) =
+        serde_json::from_str(top.get()).map_err(|e| bad(null_id(), format!("not JSON: {e}")))?;
+    if let Some(k) = duplicate(&entries) {
+        return Err(bad(
+            null_id(),
+            format!("duplicate key {k:?} in the request object"),
+        ));
+    }
+    let get = |name: &str| entries.iter().find(|(k, _)| k == name).map(|(_, v)| *v);
+    // The id first, so that later errors can be answered with it.
+    let id = match get("id") {
+        Some(raw) => {
+            check_unique(raw, "id", 1).map_err(|m| bad(null_id(), m))?;
+            raw.to_owned()
+        }
+        None => null_id(),
+    };
+    for (k, v) in &entries {
+        if k != "id" {
+            check_unique(v, k, 1).map_err(|m| bad(id.clone(), m))?;
+        }
+    }
+    let Some(cmd) = get("cmd").and_then(|c| serde_json::from_str::<String>(c.get()).ok()) else {
+        return Err(bad(id, "no \"cmd\" string".into()));
+    };
+    let params = match get("params") {
+        None => Value::Null,
+        Some(p) => serde_json::from_str(p.get()).map_err(|e| {
+            (
+                id.clone(),
+                ApiError::new(ApiErrorKind::BadParams, format!("params: {e}")),
+            )
+        })?,
+    };
+    Ok(Request { id, cmd, params })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn refused(line: &[u8]) -> (String, ApiError) {
+        match parse_request(line) {
+            Ok(_) => panic!("accepted {:?}", String::from_utf8_lossy(line)),
+            Err((id, e)) => (id.get().to_string(), e),
+        }
+    }
+
+    #[test]
+    fn ids_are_kept_as_sent() {
+        for id in [
+            "18446744073709551616",
+            "1e400",
+            "-0.0",
+            "\"a\\\"\\u00e9😀\"",
+            "[1, {\"k\" : [1e400]}]",
+        ] {
+            let r = parse_request(format!("{{\"id\": {id} , \"cmd\": \"status\"}}").as_bytes())
+                .unwrap_or_else(|e| panic!("{id}: {:?}", e.1.message));
+            assert_eq!(r.id.get(), id);
+            assert!(respond(&r.id, Ok(json!(1))).starts_with(&format!("{{\"id\":{id},")));
+        }
+        assert_eq!(
+            parse_request(br#"{"cmd":"status"}"#).unwrap().id.get(),
+            "null"
+        );
+    }
+
+    #[test]
+    fn duplicates_are_refused_at_every_level() {
+        for (line, key, at) in [
+            (
+                &br#"{"cmd":"a","cmd":"b"}"#[..],
+                "cmd",
+                "the request object",
+            ),
+            (
+                br#"{"id":1,"cmd":"x","params":{"a":1,"a":2}}"#,
+                "a",
+                "params",
+            ),
+            (
+                br#"{"id":1,"cmd":"x","params":{"a":[{"b":1,"\u0062":2}]}}"#,
+                "b",
+                "params.a[0]",
+            ),
+            (br#"{"id":{"k":1,"k":2},"cmd":"x"}"#, "k", "id"),
+        ] {
+            let (_, e) = refused(line);
+            assert_eq!(e.kind, ApiErrorKind::BadRequest);
+            assert_eq!(e.message, format!("duplicate key {key:?} in {at}"));
+        }
+        // The id is echoed when the duplicate is elsewhere.
+        let (id, _) = refused(br#"{"id":"x","cmd":"s","params":{"a":1,"a":2}}"#);
+        assert_eq!(id, "\"x\"");
+    }
+
+    #[test]
+    fn other_bad_lines() {
+        let (_, e) = refused(b"{\"cmd\":\"st\xffatus\"}");
+        assert!(e.message.starts_with("not UTF-8"), "{}", e.message);
+        let (_, e) = refused(b"[1]");
+        assert_eq!(e.kind, ApiErrorKind::BadRequest);
+        let (id, e) = refused(br#"{"id":2,"cmd":7}"#);
+        assert_eq!(
+            (id.as_str(), e.message.as_str()),
+            ("2", "no \"cmd\" string")
+        );
+        let (_, e) = refused(br#"{"id":2,"cmd":"chirp","params":{"duration_s":1e400}}"#);
+        assert_eq!(e.kind, ApiErrorKind::BadParams);
+        let deep = format!(
+            "{{\"cmd\":\"s\",\"id\":{}1{}}}",
+            "[".repeat(super::super::MAX_JSON_DEPTH + 1),
+            "]".repeat(super::super::MAX_JSON_DEPTH + 1)
+        );
+        let (_, e) = refused(deep.as_bytes());
+        assert!(e.message.contains("nested deeper"), "{}", e.message);
     }
 }

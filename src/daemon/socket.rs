@@ -4,14 +4,20 @@
 //! nothing here can block the loop.
 
 use super::owner::{job_spec, JobHandle, OwnerCmd, Reply};
-use super::protocol::{event, job_request, respond, ApiError, ApiErrorKind, JobStatus};
-use super::{lock, Ctx, ServeError};
+use super::protocol::{
+    event, job_request, null_id, parse_request, respond, ApiError, ApiErrorKind, Id, JobStatus,
+    Request,
+};
+use super::{
+    lock, Ctx, ServeError, ACCEPT_BACKOFF_MS, MAX_CLIENTS, MAX_LINE_BYTES, MAX_PENDING_BYTES,
+    WRITE_STALL_TIMEOUT_S,
+};
 use crate::error::RunError;
 use serde_json::{json, Value};
 use std::io::Write as _;
 use std::os::unix::fs::PermissionsExt;
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering};
 use std::sync::Arc;
 use tokio::io::{AsyncBufReadExt, AsyncWriteExt};
 use tokio::sync::{broadcast, oneshot};
@@ -162,46 +168,246 @@ pub(super) async fn owner_call<T>(
         .map_err(|_| ApiError::new(ApiErrorKind::Error, "the bench owner thread is gone"))?
 }
 
-/// Serves one connection.
-pub(super) async fn connection(ctx: Arc<Ctx>, stream: tokio::net::UnixStream) {
-    let (rd, mut wr) = stream.into_split();
-    let (out, mut out_rx) = tokio::sync::mpsc::unbounded_channel::<String>();
-    let writer = tokio::spawn(async move {
-        while let Some(line) = out_rx.recv().await {
-            if wr.write_all(line.as_bytes()).await.is_err() || wr.write_all(b"\n").await.is_err() {
-                break;
+/// What a connection queues for its client: lines, counted in bytes
+/// against [`MAX_PENDING_BYTES`]. A client whose queue would overflow is
+/// disconnected (it does not read its answers); so is one whose socket
+/// accepts nothing for [`WRITE_STALL_TIMEOUT_S`].
+#[derive(Clone)]
+pub(super) struct Outbox {
+    tx: tokio::sync::mpsc::UnboundedSender<String>,
+    pending: Arc<AtomicUsize>,
+    cut: Arc<Cut>,
+}
+
+/// Raised when the client is to be disconnected.
+#[derive(Default)]
+struct Cut {
+    flag: AtomicBool,
+    notify: tokio::sync::Notify,
+}
+
+impl Cut {
+    fn raise(&self) {
+        self.flag.store(true, Ordering::Relaxed);
+        self.notify.notify_one();
+    }
+}
+
+impl Outbox {
+    /// Queues `line` for the client; `false` when the client is gone, or
+    /// has just been disconnected because its queue is full.
+    pub(super) fn send(&self, line: String) -> bool {
+        if self.cut.flag.load(Ordering::Relaxed) {
+            return false;
+        }
+        let n = line.len() + 1;
+        if self.pending.fetch_add(n, Ordering::Relaxed) + n > MAX_PENDING_BYTES {
+            self.pending.fetch_sub(n, Ordering::Relaxed);
+            self.cut.raise();
+            return false;
+        }
+        if self.tx.send(line).is_err() {
+            self.pending.fetch_sub(n, Ordering::Relaxed);
+            return false;
+        }
+        true
+    }
+}
+
+/// Writes a connection's queue to its socket, one line at a time.
+async fn write_lines(
+    mut wr: tokio::net::unix::OwnedWriteHalf,
+    mut rx: tokio::sync::mpsc::UnboundedReceiver<String>,
+    pending: Arc<AtomicUsize>,
+    cut: Arc<Cut>,
+) {
+    let stall = std::time::Duration::from_secs(WRITE_STALL_TIMEOUT_S);
+    while let Some(line) = rx.recv().await {
+        let n = line.len() + 1;
+        let mut bytes = line.into_bytes();
+        bytes.push(b'\n');
+        match tokio::time::timeout(stall, wr.write_all(&bytes)).await {
+            Ok(Ok(())) => {}
+            // Gone, or not reading for WRITE_STALL_TIMEOUT_S.
+            Ok(Err(_)) | Err(_) => {
+                cut.raise();
+                return;
             }
         }
-    });
-    let mut lines = tokio::io::BufReader::new(rd).lines();
+        pending.fetch_sub(n, Ordering::Relaxed);
+    }
+}
+
+/// How a bounded line read ended.
+enum LineRead {
+    /// A line is in the buffer (its newline and a trailing CR removed; a
+    /// last line without newline counts).
+    Line,
+    /// The client closed its side.
+    Eof,
+    /// More than [`MAX_LINE_BYTES`] without a newline; the rest is left
+    /// unread.
+    TooLong,
+}
+
+/// Reads one line into `buf` (cleared first); `buf` never holds more than
+/// `max` bytes.
+async fn read_line_bounded<R: tokio::io::AsyncBufRead + Unpin>(
+    r: &mut R,
+    buf: &mut Vec<u8>,
+    max: usize,
+) -> std::io::Result<LineRead> {
+    buf.clear();
+    loop {
+        let chunk = r.fill_buf().await?;
+        if chunk.is_empty() {
+            return Ok(if buf.is_empty() {
+                LineRead::Eof
+            } else {
+                LineRead::Line
+            });
+        }
+        let (content, used) = match chunk.iter().position(|&b| b == b'\n') {
+            Some(i) => (i, Some(i + 1)),
+            None => (chunk.len(), None),
+        };
+        if buf.len() + content > max {
+            return Ok(LineRead::TooLong);
+        }
+        buf.extend_from_slice(&chunk[..content]);
+        r.consume(used.unwrap_or(content));
+        if used.is_some() {
+            if buf.last() == Some(&b'\r') {
+                buf.pop();
+            }
+            return Ok(LineRead::Line);
+        }
+    }
+}
+
+/// Accepts clients for ever: at most [`MAX_CLIENTS`] at once (one more is
+/// told `busy` and closed). Out of file descriptors, it refuses the
+/// waiting client through a reserved descriptor (so it does not hang in
+/// the backlog) and pauses accepting for [`ACCEPT_BACKOFF_MS`] instead of
+/// spinning; connected clients are served all along.
+pub(super) async fn accept_clients(ctx: Arc<Ctx>, listener: tokio::net::UnixListener) {
+    let slots = Arc::new(tokio::sync::Semaphore::new(MAX_CLIENTS));
+    let reserve_fd = || std::fs::File::open("/dev/null").ok();
+    let mut reserve = reserve_fd();
+    // Warn once per run of exhaustion, not every back-off.
+    let mut exhausted_since_accept = false;
+    let refuse = |stream: tokio::net::UnixStream, why: String| {
+        let line = respond(&null_id(), Err(ApiError::new(ApiErrorKind::Busy, why))) + "\n";
+        // Best effort, without waiting: the line fits in an empty socket
+        // buffer. (tokio's `try_write` would refuse a stream whose
+        // readiness the runtime has not seen yet.)
+        if let Ok(s) = stream.into_std() {
+            let _ = (&s).write(line.as_bytes());
+        }
+    };
+    loop {
+        match listener.accept().await {
+            Ok((stream, _)) => match Arc::clone(&slots).try_acquire_owned() {
+                Ok(slot) => {
+                    exhausted_since_accept = false;
+                    tokio::spawn(connection(Arc::clone(&ctx), stream, slot));
+                }
+                Err(_) => refuse(
+                    stream,
+                    format!("too many clients: at most {MAX_CLIENTS} at once; try again later"),
+                ),
+            },
+            Err(e) => {
+                let exhausted = matches!(
+                    e.raw_os_error(),
+                    Some(libc::EMFILE | libc::ENFILE | libc::ENOBUFS | libc::ENOMEM)
+                );
+                if exhausted {
+                    if reserve.take().is_some() {
+                        let zero = std::time::Duration::ZERO;
+                        if let Ok(Ok((stream, _))) =
+                            tokio::time::timeout(zero, listener.accept()).await
+                        {
+                            refuse(
+                                stream,
+                                format!(
+                                    "the daemon is out of file descriptors ({e}); try again later"
+                                ),
+                            );
+                        }
+                        reserve = reserve_fd();
+                    }
+                    if !std::mem::replace(&mut exhausted_since_accept, true) {
+                        tracing::warn!(
+                            "accept: {e}; refusing new clients and pausing {ACCEPT_BACKOFF_MS} ms between tries until descriptors are free"
+                        );
+                    }
+                    tokio::time::sleep(std::time::Duration::from_millis(ACCEPT_BACKOFF_MS)).await;
+                } else {
+                    // Transient (e.g. a client that gave up): do not spin.
+                    tokio::time::sleep(std::time::Duration::from_millis(10)).await;
+                }
+            }
+        }
+    }
+}
+
+/// Serves one connection; `_slot` is its place among [`MAX_CLIENTS`].
+pub(super) async fn connection(
+    ctx: Arc<Ctx>,
+    stream: tokio::net::UnixStream,
+    _slot: tokio::sync::OwnedSemaphorePermit,
+) {
+    let (rd, wr) = stream.into_split();
+    let (tx, rx) = tokio::sync::mpsc::unbounded_channel::<String>();
+    let out = Outbox {
+        tx,
+        pending: Arc::new(AtomicUsize::new(0)),
+        cut: Arc::new(Cut::default()),
+    };
+    let writer = tokio::spawn(write_lines(
+        wr,
+        rx,
+        Arc::clone(&out.pending),
+        Arc::clone(&out.cut),
+    ));
+    let mut reader = tokio::io::BufReader::new(rd);
+    let mut buf = Vec::new();
     // Jobs this client submitted without `detach`.
     let mut attached: Vec<JobHandle> = Vec::new();
-    while let Ok(Some(line)) = lines.next_line().await {
-        if line.trim().is_empty() {
-            continue;
-        }
-        let req: Value = match serde_json::from_str(&line) {
-            Ok(v) => v,
-            Err(e) => {
-                let _ = out.send(respond(
-                    &Value::Null,
+    loop {
+        let read = tokio::select! {
+            r = read_line_bounded(&mut reader, &mut buf, MAX_LINE_BYTES) => r,
+            () = out.cut.notify.notified() => break,
+        };
+        match read {
+            Ok(LineRead::Line) => {}
+            Ok(LineRead::TooLong) => {
+                out.send(respond(
+                    &null_id(),
                     Err(ApiError::new(
                         ApiErrorKind::BadRequest,
-                        format!("not JSON: {e}"),
+                        format!(
+                            "request line longer than {MAX_LINE_BYTES} bytes; closing the connection"
+                        ),
                     )),
                 ));
+                break;
+            }
+            Ok(LineRead::Eof) | Err(_) => break,
+        }
+        // A client that pipelines does not hold the runtime.
+        tokio::task::consume_budget().await;
+        if buf.iter().all(u8::is_ascii_whitespace) {
+            continue;
+        }
+        let (id, cmd, params) = match parse_request(&buf) {
+            Ok(Request { id, cmd, params }) => (id, cmd, params),
+            Err((id, e)) => {
+                out.send(respond(&id, Err(e)));
                 continue;
             }
         };
-        let id = req.get("id").cloned().unwrap_or(Value::Null);
-        let Some(cmd) = req.get("cmd").and_then(Value::as_str).map(str::to_string) else {
-            let _ = out.send(respond(
-                &id,
-                Err(ApiError::new(ApiErrorKind::BadRequest, "no \"cmd\" string")),
-            ));
-            continue;
-        };
-        let params = req.get("params").cloned().unwrap_or(Value::Null);
         let r = match cmd.as_str() {
             "status" => {
                 let mut s = lock(&ctx.status).clone();
@@ -233,7 +439,7 @@ pub(super) async fn connection(ctx: Arc<Ctx>, stream: tokio::net::UnixStream) {
                     loop {
                         match rx.recv().await {
                             Ok(l) => {
-                                if out.send(l).is_err() {
+                                if !out.send(l) {
                                     return;
                                 }
                             }
@@ -262,8 +468,11 @@ pub(super) async fn connection(ctx: Arc<Ctx>, stream: tokio::net::UnixStream) {
                 format!("unknown command {other:?} (status, enable, disable, reset, chirp, control, stop, subscribe, shutdown)"),
             )),
         };
-        let _ = out.send(respond(&id, r));
+        out.send(respond(&id, r));
     }
+    // Nothing more is read: a disconnected client's unread input stays
+    // unread.
+    drop(reader);
     // The client is gone: its attached jobs stop (the unattended rule).
     for h in attached {
         if lock(&ctx.running).as_ref().is_some_and(|r| r.id == h.id) {
@@ -274,8 +483,19 @@ pub(super) async fn connection(ctx: Arc<Ctx>, stream: tokio::net::UnixStream) {
             ));
         }
     }
+    if out.cut.flag.load(Ordering::Relaxed) {
+        // Disconnected: what is queued is dropped with the socket.
+        writer.abort();
+        return;
+    }
+    let cut = Arc::clone(&out.cut);
     drop(out);
-    let _ = writer.await;
+    // Answers still queued (and those of a detached job's task) go out,
+    // unless the client stops reading.
+    tokio::select! {
+        _ = writer => {}
+        () = cut.notify.notified() => {}
+    }
 }
 
 /// Starts a job: checks busy/faulted, hands it to the owner, and spawns
@@ -285,8 +505,8 @@ pub(super) fn submit(
     ctx: &Arc<Ctx>,
     cmd: &str,
     params: &Value,
-    id: &Value,
-    out: &tokio::sync::mpsc::UnboundedSender<String>,
+    id: &Id,
+    out: &Outbox,
 ) -> Result<Option<JobHandle>, ApiError> {
     let job_id = ctx.next_job.fetch_add(1, Ordering::Relaxed) + 1;
     let (request, detach) = job_request(cmd, params)?;
@@ -342,7 +562,7 @@ pub(super) fn submit(
         json!({ "job": job_id, "kind": kind, "total_ticks": total, "recording": recording, "detach": detach }),
     );
     let _ = ctx.events.send(started.clone());
-    let _ = out.send(started);
+    out.send(started);
     let ctx = Arc::clone(ctx);
     let out = out.clone();
     let id = id.clone();
@@ -357,7 +577,7 @@ pub(super) fn submit(
                     let p = event("progress", json!({
                         "job": h.id, "ticks": h.ticks.load(Ordering::Relaxed), "total_ticks": total
                     }));
-                    let _ = out.send(p.clone());
+                    out.send(p.clone());
                     let _ = ctx.events.send(p);
                 }
             }
@@ -374,8 +594,52 @@ pub(super) fn submit(
             json!({ "job": h.id, "kind": kind, "ok": result.is_ok(), "error": result.as_ref().err() }),
         );
         let _ = ctx.events.send(fin.clone());
-        let _ = out.send(fin);
-        let _ = out.send(respond(&id, result));
+        out.send(fin);
+        out.send(respond(&id, result));
     });
     Ok((!detach).then_some(handle))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    async fn lines(input: &[u8], max: usize) -> Vec<Result<Vec<u8>, &'static str>> {
+        let mut r = tokio::io::BufReader::with_capacity(4, input);
+        let mut buf = Vec::new();
+        let mut out = Vec::new();
+        loop {
+            match read_line_bounded(&mut r, &mut buf, max).await.unwrap() {
+                LineRead::Line => out.push(Ok(buf.clone())),
+                LineRead::TooLong => {
+                    out.push(Err("too long"));
+                    return out;
+                }
+                LineRead::Eof => return out,
+            }
+        }
+    }
+
+    #[test]
+    fn lines_are_bounded() {
+        let rt = tokio::runtime::Builder::new_current_thread()
+            .build()
+            .unwrap();
+        rt.block_on(async {
+            assert_eq!(
+                lines(b"ab\r\n\ncdefgh\nxy", 6).await,
+                vec![
+                    Ok(b"ab".to_vec()),
+                    Ok(vec![]),
+                    Ok(b"cdefgh".to_vec()),
+                    Ok(b"xy".to_vec())
+                ]
+            );
+            assert_eq!(
+                lines(b"abc\nabcdefg\nnever read", 6).await,
+                vec![Ok(b"abc".to_vec()), Err("too long")]
+            );
+            assert_eq!(lines(b"abcdefg", 6).await, vec![Err("too long")]);
+        });
+    }
 }

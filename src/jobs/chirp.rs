@@ -163,7 +163,8 @@ fn model_summary(m: &Sr4dof) -> ModelSummary {
 /// outputs of `outputs` (the paths of `opts`; see [`crate::outputs`]), which
 /// are checked before the backend is opened.
 ///
-/// `stop` is raised by SIGINT/SIGTERM.
+/// `stop` is raised by SIGINT/SIGTERM; `ticks`, if given, follows the
+/// loop's tick count (progress, and the CLI's preparation watch).
 ///
 /// # Errors
 /// See [`RunError`]; on every error after the loop started the recording is
@@ -172,6 +173,7 @@ pub fn run_chirp(
     opts: &ChirpOptions,
     mut outputs: OutputPlan,
     stop: Arc<AtomicBool>,
+    ticks: Option<&Arc<AtomicU64>>,
 ) -> Result<ChirpSummary, RunError> {
     outputs.check()?;
     let spec = BackendSpec::resolve(opts.backend.as_ref(), &opts.config);
@@ -180,7 +182,7 @@ pub fn run_chirp(
         stage: &mut stage,
         info: &info,
     };
-    run_chirp_with(&mut runner, !spec.is_sim(), opts, &mut outputs, stop, None)
+    run_chirp_with(&mut runner, !spec.is_sim(), opts, &mut outputs, stop, ticks)
 }
 
 /// The outputs of a chirp, none replaced (the daemon's jobs: their names

@@ -287,13 +287,15 @@ fn controller_config<'a>(
 ///
 /// The outputs in `outputs` (the paths of `opts`; see [`crate::outputs`])
 /// are checked after the loop check and before the backend is opened;
-/// `--check-only` writes none.
+/// `--check-only` writes none. `ticks`, if given, follows the loop's tick
+/// count (progress, and the CLI's preparation watch).
 pub fn run_control(
     opts: &ControlOptions,
     mut outputs: OutputPlan,
     stop: Arc<AtomicBool>,
+    ticks: Option<&Arc<AtomicU64>>,
 ) -> Result<ControlSummary, RunError> {
-    run_control_with(opts, &mut outputs, stop, StageSource::Open, None)
+    run_control_with(opts, &mut outputs, stop, StageSource::Open, ticks)
 }
 
 /// The outputs of a control run, none replaced (the daemon's jobs: their
