@@ -69,6 +69,11 @@ use std::sync::atomic::{AtomicU64, Ordering};
 /// plots, the daemon's event log), before the umask: `rw-r-----`.
 pub const FILE_MODE: u32 = 0o640;
 
+/// Mode of a directory `bench` creates for its recordings (the daemon's
+/// `--recordings`): 0750, the directory counterpart of [`FILE_MODE`],
+/// narrowed by the umask.
+pub const DIR_MODE: u32 = 0o750;
+
 /// Largest counter suffix [`claim_recording`] tries in one millisecond.
 const MAX_CLAIM_ATTEMPTS: u32 = 10_000;
 

@@ -464,7 +464,7 @@ fn a_full_disk_leaves_no_csv_or_plot_under_its_final_name() {
 }
 
 /// `bench serve` with umask 0: the event log and a job's recording get the
-/// output mode, rw-r-----.
+/// output mode, rw-r-----, the recordings directory it creates rwxr-x---.
 #[test]
 fn the_daemon_event_log_and_recordings_are_not_world_readable() {
     let dir = tmp();
@@ -529,4 +529,6 @@ fn the_daemon_event_log_and_recordings_are_not_world_readable() {
         std::thread::sleep(Duration::from_millis(20));
     }
     assert_eq!(mode(&log), 0o640);
+    // The recordings directory the daemon created: rwxr-x---.
+    assert_eq!(mode(&rec), 0o750);
 }

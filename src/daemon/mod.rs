@@ -220,7 +220,16 @@ fn hold_factory(
 /// device that cannot be opened; [`ServeError::Other`] otherwise.
 pub fn serve(opts: ServeOptions) -> Result<(), ServeError> {
     prepare_socket(&opts.socket)?;
-    std::fs::create_dir_all(&opts.recordings).map_err(|e| {
+    // The recordings directory follows the files' policy (owner writes,
+    // group reads; `outputs::DIR_MODE`), whatever the umask lets through.
+    {
+        use std::os::unix::fs::DirBuilderExt;
+        std::fs::DirBuilder::new()
+            .recursive(true)
+            .mode(crate::outputs::DIR_MODE)
+            .create(&opts.recordings)
+    }
+    .map_err(|e| {
         ServeError::Input(RunError::option(
             "recordings",
             opts.recordings.display(),
