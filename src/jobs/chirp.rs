@@ -206,6 +206,13 @@ pub fn run_chirp_on(
     let rate_hz = 1.0 / period_s;
     let chirp = Chirp::new(&cfg.chirp, period_s);
     let total_ticks = chirp.total_ticks();
+    if total_ticks > crate::config::ranges::JOB_TICKS_MAX {
+        return Err(RunError::BadInput(format!(
+            "config {}: chirp.duration_s: lead_in_s + duration_s + tail_s is more than {} ticks at the device's period",
+            opts.config_path.display(),
+            crate::config::ranges::JOB_TICKS_MAX
+        )));
+    }
 
     let session = SessionOptions {
         command: "chirp",
