@@ -14,7 +14,7 @@ use crate::ident::frf::{
     closely_spaced_pair, find_resonances, Frf, PairVerdict, Resonance, Spectra,
 };
 use crate::jobs::session::{
-    check_writable, finish, open_recording, run_recorded, Recorded, Runner, SessionOptions,
+    check_writable, finish, open_recording, run_recorded, Kept, Recorded, Runner, SessionOptions,
     TimingSummary,
 };
 use crate::plot::{write_bode_png, BodePlot, BodeSeries};
@@ -223,6 +223,7 @@ pub fn run_chirp_on(
         progress: opts.progress,
         seed: opts.seed,
         max_ticks: total_ticks,
+        keep: Kept::CHIRP,
         ticks,
     };
     let recorder = open_recording(&session, cfg, info)?;

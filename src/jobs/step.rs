@@ -22,7 +22,7 @@ use crate::control::loop_check::{check_loop, LoopCheck, MeasuredFrf};
 use crate::control::{ControllerConfig, DiscreteController};
 use crate::error::RunError;
 use crate::jobs::session::{
-    check_writable, finish, open_recording, run_recorded, Collected, Recorded, Runner,
+    check_writable, finish, open_recording, run_recorded, Collected, Kept, Recorded, Runner,
     SessionOptions, TimingSummary,
 };
 use crate::plot::{write_time_png, TimePanel};
@@ -428,6 +428,7 @@ pub fn run_control_from(
         progress: opts.progress,
         seed: opts.seed,
         max_ticks: total,
+        keep: Kept::STEP,
         ticks: progress_ticks,
     };
     let mut recorder = open_recording(&session, cfg, &info)?;
