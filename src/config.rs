@@ -922,7 +922,7 @@ impl BenchConfig {
     /// [`ranges::JOB_TICKS_MAX`] ticks (its record is held in memory).
     fn check_job_ticks(&self, key: &str, seconds: f64) -> Result<(), ParamError> {
         let ticks = seconds * self.loop_.rate_hz;
-        if !(ticks <= ranges::JOB_TICKS_MAX as f64) {
+        if !ticks.is_finite() || ticks > ranges::JOB_TICKS_MAX as f64 {
             return Err(ParamError::new(
                 key,
                 format!(

@@ -472,4 +472,31 @@ mod thesis {
         assert!(!stable);
         assert!(poles.iter().any(|p| p.norm() > 1.0));
     }
+
+    /// A controller that bypassed validation with a non-finite or absurd
+    /// frequency (it used to spin forever in the eigenvalue iteration) gets
+    /// a refusing verdict, in bounded time.
+    #[test]
+    fn absurd_controllers_are_refused_in_bounded_time() {
+        let p =
+            std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("bench-config/sr4dof-ch5.toml");
+        let cfg = BenchConfig::load(&p).unwrap();
+        let model = Sr4dof::new(cfg.plant).unwrap();
+        let t = cfg.loop_.period_ns() as f64 * 1e-9;
+        for omega in [1e300, 5e-324, f64::NAN, f64::INFINITY] {
+            let mut slow = cfg.controller["slow"].clone();
+            slow.complex_poles[0].omega_rad_s = omega;
+            let (tx, rx) = std::sync::mpsc::channel();
+            let cfg = cfg.clone();
+            let model = model.clone();
+            std::thread::spawn(move || {
+                let c = DiscreteController::new(&slow, t, 9.98);
+                let _ = tx.send(check_loop(&cfg, &model, "slow", &c, t, None));
+            });
+            let check = rx
+                .recv_timeout(std::time::Duration::from_secs(10))
+                .unwrap_or_else(|e| panic!("omega {omega}: {e}"));
+            assert!(!check.passed(), "omega {omega} passed");
+        }
+    }
 }
