@@ -7,11 +7,15 @@
 //! report the dotted key and the reason.
 
 use crate::control::ControllerConfig;
-use bench_hal::model::{non_negative, positive, ParamError, Sr4dofParams};
+use bench_hal::model::{non_negative, ParamError, Sr4dofParams};
 use bench_hal::sim::{ActuatorParams, ProbeParams, SimParams};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
+
+/// Largest config file `bench` reads, bytes (1 MiB; the shipped ones are
+/// about 8 KiB).
+pub const MAX_CONFIG_BYTES: u64 = 1 << 20;
 
 /// Default bench description, relative to the working directory.
 pub const DEFAULT_CONFIG: &str = "bench-config/sr4dof-ch5.toml";
@@ -90,6 +94,63 @@ pub mod limits {
     pub const POSITION_LSB_MAX_M: f64 = 1.0e-6;
 }
 
+/// The bounds of the other numeric keys: what a flexure stage on a lab
+/// bench, its amplifier, probe and jobs can be, with room around the
+/// thesis' benches (the model's own ranges are in
+/// [`bench_hal::model::ranges`]). The README's configuration reference and
+/// the comments in `bench-config/*.toml` give the same ranges.
+pub mod ranges {
+    /// `loop.rate_hz`, Hz.
+    pub const RATE_HZ: (f64, f64) = (100.0, 100_000.0);
+    /// `loop.timing_interval_s`, s.
+    pub const TIMING_INTERVAL_S: (f64, f64) = (0.01, 60.0);
+    /// `loop.cpu` is below this (the kernel's `CPU_SETSIZE`) and below the
+    /// number of CPUs online.
+    pub const CPU_SETSIZE: usize = 1024;
+    /// `actuator.force_constant_n_per_a`, N/A: voice coils are 1–100 N/A.
+    pub const FORCE_CONSTANT_N_PER_A: (f64, f64) = (0.01, 1000.0);
+    /// `actuator.bandwidth_hz`, Hz: current loops of linear amplifiers.
+    pub const AMPLIFIER_BANDWIDTH_HZ: (f64, f64) = (10.0, 100_000.0);
+    /// `probe.range_m` and `stage.mechanical_stop_m`, m: 10 µm to 10 mm.
+    pub const TRAVEL_M: (f64, f64) = (1e-5, 1e-2);
+    /// `probe.noise_rms_m` and `probe.quantization_m`, m: 0 to 1 µm (the
+    /// smallest jump the supervisor looks for), and below `probe.range_m`.
+    pub const PROBE_RESOLUTION_M: (f64, f64) = (0.0, 1e-6);
+    /// `[backend.serial] baud`, Bd.
+    pub const BAUD: (u32, u32) = (50, 20_000_000);
+    /// Lowest chirp frequency (`chirp.f_start_hz`, the profile's
+    /// breakpoints), Hz; the highest is below Nyquist.
+    pub const CHIRP_F_MIN_HZ: f64 = 0.01;
+    /// Smallest `chirp.amplitude_a`, A (0.1 mA); the largest is
+    /// `actuator.peak_current_a`.
+    pub const CHIRP_AMPLITUDE_MIN_A: f64 = 1e-4;
+    /// Scale of an `chirp.amplitude_profile` breakpoint.
+    pub const PROFILE_SCALE: (f64, f64) = (1e-3, 1.0);
+    /// `chirp.duration_s`, s: 0.1 s to 10 minutes.
+    pub const CHIRP_DURATION_S: (f64, f64) = (0.1, 600.0);
+    /// `chirp.lead_in_s`, `chirp.tail_s`, s: at most a minute each.
+    pub const CHIRP_QUIET_MAX_S: f64 = 60.0;
+    /// `step.duration_s`, s: at most an hour.
+    pub const STEP_DURATION_MAX_S: f64 = 3600.0;
+    /// `step.settle_s`, `step.smooth_s`, s: at most a minute each.
+    pub const STEP_PHASE_MAX_S: f64 = 60.0;
+    /// Smallest `|step.step_m|`, m (1 nm); the largest is below
+    /// `safety.position_limit_m`.
+    pub const STEP_MIN_M: f64 = 1e-9;
+    /// Smallest `step.steady_state_window_s`, s.
+    pub const STEADY_STATE_WINDOW_MIN_S: f64 = 1e-3;
+    /// Most ticks of one job (a chirp's lead-in + sweep + tail, a step's
+    /// duration) at the loop rate: 2²⁵ (1.9 h at 5 kHz, 5.6 min at
+    /// 100 kHz), so that the job's record fits in memory.
+    pub const JOB_TICKS_MAX: u64 = 1 << 25;
+    /// `identification.points_per_decade`.
+    pub const POINTS_PER_DECADE: (usize, usize) = (10, 10_000);
+    /// `identification.relative_resolution`.
+    pub const RELATIVE_RESOLUTION: (f64, f64) = (1e-4, 0.5);
+    /// `identification.min_bins`.
+    pub const MIN_BINS: (usize, usize) = (3, 1000);
+}
+
 /// A configuration problem, with the file and the key.
 #[derive(Debug, thiserror::Error)]
 pub enum ConfigError {
@@ -100,6 +161,15 @@ pub enum ConfigError {
         path: PathBuf,
         /// The OS error.
         source: std::io::Error,
+    },
+    /// Not a config file: not a regular file (a FIFO, a device, a
+    /// directory), or larger than [`MAX_CONFIG_BYTES`].
+    #[error("--config {path}: {reason}")]
+    NotAConfigFile {
+        /// The file.
+        path: PathBuf,
+        /// Why.
+        reason: String,
     },
     /// Syntax, type or unknown-key error (the message names the key).
     #[error("config {path}: {message}")]
@@ -390,8 +460,10 @@ pub struct SafetyConfig {
     /// adds delay the loop check never saw, and the loop can go unstable.
     /// The device flags each such sample
     /// ([`bench_hal::SampleFlags::command_late`]); more than this long of
-    /// them in a row is the `link_latency` fault. Range: one loop period to
-    /// [`limits::BLIND_MAX_S`] (0.1 s). Default 2 ms (10 ticks at 5 kHz).
+    /// them in a row is the `link_latency` fault: the whole periods in this
+    /// bound are tolerated, so a bound under one period tolerates none.
+    /// Range: above 0 and at most [`limits::BLIND_MAX_S`] (0.1 s). Default
+    /// 2 ms (10 ticks at 5 kHz; none at 100 Hz).
     #[serde(default = "default_max_latency")]
     pub max_command_latency_s: f64,
     /// How long the peak current may flow from cold, s: the I²t budget is
@@ -548,10 +620,60 @@ impl BenchConfig {
     /// # Errors
     /// [`ConfigError::Read`] or [`ConfigError::Parse`].
     pub fn load(path: &Path) -> Result<Self, ConfigError> {
-        let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
+        use std::io::Read;
+        use std::os::unix::fs::{FileTypeExt, OpenOptionsExt};
+        let read_err = |source| ConfigError::Read {
             path: path.to_path_buf(),
             source,
-        })?;
+        };
+        let not_config = |reason: String| ConfigError::NotAConfigFile {
+            path: path.to_path_buf(),
+            reason,
+        };
+        // Non-blocking, so that opening a FIFO does not wait for a writer;
+        // nothing is read before the type and size are known.
+        let file = std::fs::OpenOptions::new()
+            .read(true)
+            .custom_flags(libc::O_NONBLOCK)
+            .open(path)
+            .map_err(read_err)?;
+        let meta = file.metadata().map_err(read_err)?;
+        let t = meta.file_type();
+        if !t.is_file() {
+            let kind = if t.is_dir() {
+                "a directory"
+            } else if t.is_fifo() {
+                "a FIFO"
+            } else if t.is_char_device() {
+                "a character device"
+            } else if t.is_block_device() {
+                "a block device"
+            } else if t.is_socket() {
+                "a socket"
+            } else {
+                "not a regular file"
+            };
+            return Err(not_config(format!(
+                "{kind}: a config must be a regular TOML file"
+            )));
+        }
+        let too_large = || {
+            not_config(format!(
+                "larger than {MAX_CONFIG_BYTES} bytes (1 MiB): not a bench description"
+            ))
+        };
+        if meta.len() > MAX_CONFIG_BYTES {
+            return Err(too_large());
+        }
+        let mut bytes = Vec::new();
+        file.take(MAX_CONFIG_BYTES + 1)
+            .read_to_end(&mut bytes)
+            .map_err(read_err)?;
+        if bytes.len() as u64 > MAX_CONFIG_BYTES {
+            return Err(too_large());
+        }
+        let text = String::from_utf8(bytes)
+            .map_err(|e| read_err(std::io::Error::new(std::io::ErrorKind::InvalidData, e)))?;
         Self::from_toml(&text, path)
     }
 
@@ -599,12 +721,25 @@ impl BenchConfig {
                 ));
             }
         }
-        positive("loop.rate_hz", self.loop_.rate_hz)?;
-        if !(100.0..=100_000.0).contains(&self.loop_.rate_hz) {
-            return Err(ParamError::new(
-                "loop.rate_hz",
-                format!("{} Hz is outside 100 Hz … 100 kHz", self.loop_.rate_hz),
-            ));
+        let (lo, hi) = ranges::RATE_HZ;
+        in_range(
+            "loop.rate_hz",
+            self.loop_.rate_hz,
+            Range::closed(lo, hi),
+            "Hz",
+            "100 Hz to 100 kHz",
+        )?;
+        if let Some(cpu) = self.loop_.cpu {
+            let online = online_cpus();
+            if cpu >= ranges::CPU_SETSIZE || cpu >= online {
+                return Err(ParamError::new(
+                    "loop.cpu",
+                    format!(
+                        "CPU {cpu} does not exist: {online} CPUs are online (0–{})",
+                        online.saturating_sub(1)
+                    ),
+                ));
+            }
         }
         if !(1..=99).contains(&self.loop_.priority) {
             return Err(ParamError::new(
@@ -615,16 +750,80 @@ impl BenchConfig {
                 ),
             ));
         }
-        positive("loop.timing_interval_s", self.loop_.timing_interval_s)?;
+        let (lo, hi) = ranges::TIMING_INTERVAL_S;
+        in_range(
+            "loop.timing_interval_s",
+            self.loop_.timing_interval_s,
+            Range::closed(lo, hi),
+            "s",
+            "10 ms to a minute",
+        )?;
         self.plant.validate("plant")?;
-        self.actuator.validate("actuator")?;
+        let nyquist = self.loop_.rate_hz / 2.0;
+        if let Some(d) = &self.plant.disturbance {
+            if d.band_hz[1] >= nyquist {
+                return Err(ParamError::new(
+                    "plant.disturbance.band_hz[1]",
+                    format!(
+                        "{} Hz is at or above the Nyquist frequency {nyquist} Hz of the loop (loop.rate_hz = {} Hz)",
+                        d.band_hz[1], self.loop_.rate_hz
+                    ),
+                ));
+            }
+        }
+        let (lo, hi) = ranges::FORCE_CONSTANT_N_PER_A;
+        in_range(
+            "actuator.force_constant_n_per_a",
+            self.actuator.force_constant_n_per_a,
+            Range::closed(lo, hi),
+            "N/A",
+            "voice coils are 1–100 N/A",
+        )?;
+        let (lo, hi) = ranges::AMPLIFIER_BANDWIDTH_HZ;
+        in_range(
+            "actuator.bandwidth_hz",
+            self.actuator.bandwidth_hz,
+            Range::closed(lo, hi),
+            "Hz",
+            "the current loop of a linear amplifier",
+        )?;
+        // The ratings first: their messages name both keys.
         self.check_current_ratings(
             "actuator",
             self.actuator.peak_current_a,
             self.actuator.continuous_current_a,
         )?;
+        self.actuator.validate("actuator")?;
+        let (lo, hi) = ranges::TRAVEL_M;
+        in_range(
+            "probe.range_m",
+            self.probe.range_m,
+            Range::closed(lo, hi),
+            "m",
+            "10 µm to 10 mm",
+        )?;
+        let (lo, hi) = ranges::PROBE_RESOLUTION_M;
+        for (key, v) in [
+            ("probe.noise_rms_m", self.probe.noise_rms_m),
+            ("probe.quantization_m", self.probe.quantization_m),
+        ] {
+            in_range(
+                key,
+                v,
+                Range::closed(lo, hi),
+                "m",
+                "0 to 1 µm, the smallest jump the supervisor looks for (and below probe.range_m)",
+            )?;
+        }
         self.probe.validate("probe")?;
-        positive("stage.mechanical_stop_m", self.stage.mechanical_stop_m)?;
+        let (lo, hi) = ranges::TRAVEL_M;
+        in_range(
+            "stage.mechanical_stop_m",
+            self.stage.mechanical_stop_m,
+            Range::closed(lo, hi),
+            "m",
+            "10 µm to 10 mm",
+        )?;
         self.check_safety()?;
         self.check_links()?;
         self.check_chirp()?;
@@ -632,11 +831,22 @@ impl BenchConfig {
             c.validate(&format!("controller.{name}"))
                 .map_err(|e| ParamError::new(e.key, e.reason))?;
         }
+        self.check_step()?;
+        self.check_identification()
+    }
+
+    /// `[step]`: each key in its range ([`ranges`]), the phases inside the
+    /// run, the run at most [`ranges::JOB_TICKS_MAX`] ticks.
+    fn check_step(&self) -> Result<(), ParamError> {
         let st = &self.step;
-        if !st.step_m.is_finite() || st.step_m == 0.0 {
+        if !st.step_m.is_finite() || st.step_m.abs() < ranges::STEP_MIN_M {
             return Err(ParamError::new(
                 "step.step_m",
-                format!("must be finite and non-zero, got {}", st.step_m),
+                format!(
+                    "must be finite with |step_m| at least {} m (1 nm), got {}",
+                    ranges::STEP_MIN_M,
+                    st.step_m
+                ),
             ));
         }
         if st.step_m.abs() >= self.safety.position_limit_m {
@@ -648,44 +858,92 @@ impl BenchConfig {
                 ),
             ));
         }
-        positive("step.duration_s", st.duration_s)?;
-        non_negative("step.settle_s", st.settle_s)?;
-        non_negative("step.smooth_s", st.smooth_s)?;
+        for (key, v) in [
+            ("step.settle_s", st.settle_s),
+            ("step.smooth_s", st.smooth_s),
+        ] {
+            in_range(
+                key,
+                v,
+                Range::closed(0.0, ranges::STEP_PHASE_MAX_S),
+                "s",
+                "0 to a minute",
+            )?;
+        }
+        in_range(
+            "step.duration_s",
+            st.duration_s,
+            Range::open_closed(0.0, ranges::STEP_DURATION_MAX_S),
+            "s",
+            "a closed-loop step runs at most an hour",
+        )?;
+        self.check_job_ticks("step.duration_s", st.duration_s)?;
         if st.settle_s + st.smooth_s >= st.duration_s {
             return Err(ParamError::new(
                 "step.duration_s",
                 format!(
-                    "{} s leaves no time after settle_s + smooth_s = {} s",
+                    "{} s leaves no time after step.settle_s + step.smooth_s = {} s",
                     st.duration_s,
                     st.settle_s + st.smooth_s
                 ),
             ));
         }
-        positive("step.steady_state_window_s", st.steady_state_window_s)?;
-        if st.steady_state_window_s > st.duration_s - st.settle_s - st.smooth_s {
-            return Err(ParamError::new(
-                "step.steady_state_window_s",
-                "must fit after the step (duration_s - settle_s - smooth_s)",
-            ));
-        }
+        in_range(
+            "step.steady_state_window_s",
+            st.steady_state_window_s,
+            Range::closed(
+                ranges::STEADY_STATE_WINDOW_MIN_S,
+                st.duration_s - st.settle_s - st.smooth_s,
+            ),
+            "s",
+            "at least 1 ms, and it must fit after the step (step.duration_s - step.settle_s - step.smooth_s)",
+        )?;
+        Ok(())
+    }
+
+    /// `[identification]`: each key in its range ([`ranges`]).
+    fn check_identification(&self) -> Result<(), ParamError> {
         let id = &self.identification;
-        if id.points_per_decade < 10 || id.points_per_decade > 10_000 {
+        let (lo, hi) = ranges::POINTS_PER_DECADE;
+        if !(lo..=hi).contains(&id.points_per_decade) {
             return Err(ParamError::new(
                 "identification.points_per_decade",
-                format!("must be 10–10000, got {}", id.points_per_decade),
+                format!("must be {lo}–{hi}, got {}", id.points_per_decade),
             ));
         }
-        positive("identification.relative_resolution", id.relative_resolution)?;
-        if id.relative_resolution > 0.5 {
-            return Err(ParamError::new(
-                "identification.relative_resolution",
-                "must be <= 0.5 (a fraction of the frequency)",
-            ));
-        }
-        if id.min_bins < 3 {
+        let (lo, hi) = ranges::RELATIVE_RESOLUTION;
+        in_range(
+            "identification.relative_resolution",
+            id.relative_resolution,
+            Range::closed(lo, hi),
+            "",
+            "a fraction of the frequency, 0.01 % to 50 %",
+        )?;
+        let (lo, hi) = ranges::MIN_BINS;
+        if !(lo..=hi).contains(&id.min_bins) {
             return Err(ParamError::new(
                 "identification.min_bins",
-                "must be >= 3 (coherence needs averaging over bins)",
+                format!(
+                    "must be {lo}–{hi} (coherence needs averaging over bins), got {}",
+                    id.min_bins
+                ),
+            ));
+        }
+        Ok(())
+    }
+
+    /// A job of `seconds` at the loop rate is at most
+    /// [`ranges::JOB_TICKS_MAX`] ticks (its record is held in memory).
+    fn check_job_ticks(&self, key: &str, seconds: f64) -> Result<(), ParamError> {
+        let ticks = seconds * self.loop_.rate_hz;
+        if !ticks.is_finite() || ticks > ranges::JOB_TICKS_MAX as f64 {
+            return Err(ParamError::new(
+                key,
+                format!(
+                    "{seconds} s at loop.rate_hz = {} Hz is {ticks:.0} ticks: a job is at most {} ticks",
+                    self.loop_.rate_hz,
+                    ranges::JOB_TICKS_MAX
+                ),
             ));
         }
         Ok(())
@@ -712,7 +970,7 @@ impl BenchConfig {
             return Err(ParamError::new(
                 "safety.position_limit_m",
                 format!(
-                    "{lim} m must be inside the mechanical stop ({} m)",
+                    "{lim} m must be inside the mechanical stop (stage.mechanical_stop_m = {} m)",
                     self.stage.mechanical_stop_m
                 ),
             ));
@@ -721,7 +979,7 @@ impl BenchConfig {
             return Err(ParamError::new(
                 "safety.position_limit_m",
                 format!(
-                    "{lim} m must be inside the probe range ({} m)",
+                    "{lim} m must be inside the probe range (probe.range_m = {} m)",
                     self.probe.range_m
                 ),
             ));
@@ -748,7 +1006,7 @@ impl BenchConfig {
             s.max_position_step_m,
             Range::closed(limits::POSITION_STEP_MIN_M, step_max),
             "m",
-            "above the probe noise and at most 1 m/s × one period (the stage moves at most about 0.5 m/s)",
+            "above the probe noise and at most 1 m/s × one period (1 / loop.rate_hz; the stage moves at most about 0.5 m/s)",
         )?;
         if s.max_position_step_m >= lim {
             return Err(ParamError::new(
@@ -762,9 +1020,9 @@ impl BenchConfig {
         in_range(
             "safety.max_command_latency_s",
             s.max_command_latency_s,
-            Range::closed(period_s, limits::BLIND_MAX_S),
+            Range::open_closed(0.0, limits::BLIND_MAX_S),
             "s",
-            "at least one loop period and at most 0.1 s (the stage crosses its stroke in less)",
+            "above 0 and at most 0.1 s (the stage crosses its stroke in less)",
         )?;
         let (lo, hi) = limits::I2T_PEAK_DURATION_S;
         in_range(
@@ -813,7 +1071,7 @@ impl BenchConfig {
             continuous_a,
             Range::open_closed(0.0, peak_a),
             "A",
-            "positive and at most peak_current_a",
+            &format!("positive and at most {prefix}.peak_current_a"),
         )
     }
 
@@ -824,6 +1082,13 @@ impl BenchConfig {
         let period_s = 1.0 / self.loop_.rate_hz;
         self.backend.serial.validate("backend.serial")?;
         let serial = &self.backend.serial;
+        let (lo, hi) = ranges::BAUD;
+        if !(lo..=hi).contains(&serial.baud) {
+            return Err(ParamError::new(
+                "backend.serial.baud",
+                format!("{} Bd is outside {lo}…{hi} Bd", serial.baud),
+            ));
+        }
         let (lo, hi) = limits::HANDSHAKE_TIMEOUT_MS;
         in_range(
             "backend.serial.handshake_timeout_ms",
@@ -845,8 +1110,9 @@ impl BenchConfig {
                 ),
             ));
         }
-        self.backend.can.validate("backend.can")?;
         let can = &self.backend.can;
+        self.check_current_ratings("backend.can", can.peak_current_a, can.continuous_current_a)?;
+        can.validate("backend.can")?;
         if let Some(ms) = can.sample_timeout_ms {
             in_range(
                 "backend.can.sample_timeout_ms",
@@ -859,7 +1125,6 @@ impl BenchConfig {
                 "about one CAN frame to the longest sample timeout",
             )?;
         }
-        self.check_current_ratings("backend.can", can.peak_current_a, can.continuous_current_a)?;
         let period_ns = self.loop_.period_ns();
         let can_timeout_s = can.sample_timeout_ns(period_ns).max(period_ns) as f64 * 1e-9;
         let k = f64::from(self.safety.max_missed_samples);
@@ -888,7 +1153,7 @@ impl BenchConfig {
                 limits::WATCHDOG_MAX_MS,
             ),
             "ms",
-            "at least two loop periods and 1 ms, at most 1 s of current after the host is gone",
+            "at least two loop periods (1 / loop.rate_hz) and 1 ms, at most 1 s of current after the host is gone",
         )?;
         in_range(
             "emulator.position_lsb_m",
@@ -914,14 +1179,26 @@ impl BenchConfig {
 
     fn check_chirp(&self) -> Result<(), ParamError> {
         let c = &self.chirp;
-        positive("chirp.f_start_hz", c.f_start_hz)?;
-        positive("chirp.f_end_hz", c.f_end_hz)?;
         let nyquist = self.loop_.rate_hz / 2.0;
+        in_range(
+            "chirp.f_start_hz",
+            c.f_start_hz,
+            Range::closed(ranges::CHIRP_F_MIN_HZ, f64::MAX),
+            "Hz",
+            "at least 0.01 Hz, and below chirp.f_end_hz",
+        )?;
+        in_range(
+            "chirp.f_end_hz",
+            c.f_end_hz,
+            Range::closed(ranges::CHIRP_F_MIN_HZ, f64::MAX),
+            "Hz",
+            "above chirp.f_start_hz and below the Nyquist frequency",
+        )?;
         if c.f_end_hz >= nyquist {
             return Err(ParamError::new(
                 "chirp.f_end_hz",
                 format!(
-                    "{} Hz is at or above the Nyquist frequency {nyquist} Hz of the {} Hz loop",
+                    "{} Hz is at or above the Nyquist frequency {nyquist} Hz of the loop (loop.rate_hz = {} Hz)",
                     c.f_end_hz, self.loop_.rate_hz
                 ),
             ));
@@ -930,17 +1207,23 @@ impl BenchConfig {
             return Err(ParamError::new(
                 "chirp.f_start_hz",
                 format!(
-                    "{} Hz must be below f_end_hz = {} Hz",
+                    "{} Hz must be below chirp.f_end_hz = {} Hz",
                     c.f_start_hz, c.f_end_hz
                 ),
             ));
         }
-        positive("chirp.amplitude_a", c.amplitude_a)?;
+        in_range(
+            "chirp.amplitude_a",
+            c.amplitude_a,
+            Range::closed(ranges::CHIRP_AMPLITUDE_MIN_A, f64::MAX),
+            "A",
+            "at least 0.1 mA and at most actuator.peak_current_a",
+        )?;
         if c.amplitude_a > self.actuator.peak_current_a {
             return Err(ParamError::new(
                 "chirp.amplitude_a",
                 format!(
-                    "{} A is above the amplifier's peak current {} A",
+                    "{} A is above the amplifier's peak current actuator.peak_current_a = {} A",
                     c.amplitude_a, self.actuator.peak_current_a
                 ),
             ));
@@ -956,40 +1239,60 @@ impl BenchConfig {
         }
         for (i, [f, scale]) in c.amplitude_profile.iter().enumerate() {
             let key = format!("chirp.amplitude_profile[{i}]");
-            positive(&key, *f)?;
-            positive(&key, *scale)?;
-            if *scale > 1.0 {
-                return Err(ParamError::new(
-                    key,
-                    format!("scale {scale} must be <= 1 (amplitude_a is the largest amplitude)"),
-                ));
-            }
+            in_range(
+                &format!("{key}[0]"),
+                *f,
+                Range::closed_open(ranges::CHIRP_F_MIN_HZ, nyquist),
+                "Hz",
+                "a breakpoint frequency from 0.01 Hz to below the Nyquist frequency (loop.rate_hz / 2)",
+            )?;
+            let (lo, hi) = ranges::PROFILE_SCALE;
+            in_range(
+                &format!("{key}[1]"),
+                *scale,
+                Range::closed(lo, hi),
+                "",
+                "a scale of amplitude_a (the largest amplitude), 0.001 to 1",
+            )?;
             if i > 0 && *f <= c.amplitude_profile[i - 1][0] {
                 return Err(ParamError::new(
-                    key,
-                    "frequencies must be strictly ascending",
+                    format!("{key}[0]"),
+                    format!(
+                        "{f} Hz must be above chirp.amplitude_profile[{}][0] = {} Hz (frequencies strictly ascending)",
+                        i - 1,
+                        c.amplitude_profile[i - 1][0]
+                    ),
                 ));
             }
         }
-        positive("chirp.duration_s", c.duration_s)?;
-        if c.duration_s > 3600.0 {
-            return Err(ParamError::new(
-                "chirp.duration_s",
-                "must be at most 3600 s",
-            ));
-        }
+        let (lo, hi) = ranges::CHIRP_DURATION_S;
+        in_range(
+            "chirp.duration_s",
+            c.duration_s,
+            Range::closed(lo, hi),
+            "s",
+            "0.1 s to 10 minutes",
+        )?;
         non_negative("chirp.taper_s", c.taper_s)?;
         if 2.0 * c.taper_s > c.duration_s {
             return Err(ParamError::new(
                 "chirp.taper_s",
                 format!(
-                    "2 × {} s of taper does not fit in duration_s = {} s",
+                    "2 × {} s of taper does not fit in chirp.duration_s = {} s",
                     c.taper_s, c.duration_s
                 ),
             ));
         }
-        non_negative("chirp.lead_in_s", c.lead_in_s)?;
-        non_negative("chirp.tail_s", c.tail_s)?;
+        for (key, v) in [("chirp.lead_in_s", c.lead_in_s), ("chirp.tail_s", c.tail_s)] {
+            in_range(
+                key,
+                v,
+                Range::closed(0.0, ranges::CHIRP_QUIET_MAX_S),
+                "s",
+                "0 to a minute of quiet time",
+            )?;
+        }
+        self.check_job_ticks("chirp.duration_s", c.lead_in_s + c.duration_s + c.tail_s)?;
         Ok(())
     }
 
@@ -1121,6 +1424,24 @@ fn in_range(key: &str, value: f64, range: Range, unit: &str, why: &str) -> Resul
         ));
     }
     Ok(())
+}
+
+/// The ticks in `seconds` at a loop period of `period_s`, rounded to the
+/// nearest: `None` unless both are finite, `seconds` is non-negative,
+/// `period_s` positive and the count at most [`ranges::JOB_TICKS_MAX`].
+pub fn ticks_in(seconds: f64, period_s: f64) -> Option<u64> {
+    if !(seconds.is_finite() && seconds >= 0.0 && period_s.is_finite() && period_s > 0.0) {
+        return None;
+    }
+    let t = (seconds / period_s).round();
+    (t <= ranges::JOB_TICKS_MAX as f64).then_some(t as u64)
+}
+
+/// The CPUs online (at least 1).
+fn online_cpus() -> usize {
+    // SAFETY: sysconf has no preconditions.
+    let n = unsafe { libc::sysconf(libc::_SC_NPROCESSORS_ONLN) };
+    usize::try_from(n).unwrap_or(1).max(1)
 }
 
 /// A count inside `lo..=hi`, else an error naming `key`.

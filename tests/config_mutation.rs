@@ -160,6 +160,13 @@ fn specs() -> Vec<Spec> {
             Bounds::new(1e-6, true, 1.0 * period, true),
         ),
         s(
+            "safety.max_command_latency_s",
+            Real,
+            false,
+            // (0, 0.1] s.
+            Bounds::new(0.0, false, 0.1, true),
+        ),
+        s(
             "safety.i2t_peak_duration_s",
             Real,
             false,
@@ -189,19 +196,19 @@ fn specs() -> Vec<Spec> {
             true,
             Bounds::new(0.0, false, 9.98, true),
         ),
-        // Not protections themselves, but NaN, inf and non-positive values
-        // are refused here too.
+        // Not protections themselves, but they set how hard and how fast
+        // the coil pushes: [0.01, 1000] N/A, [10, 100 000] Hz.
         s(
             "actuator.force_constant_n_per_a",
             Real,
             true,
-            Bounds::new(0.0, false, f64::INFINITY, false),
+            Bounds::new(0.01, true, 1000.0, true),
         ),
         s(
             "actuator.bandwidth_hz",
             Real,
             true,
-            Bounds::new(0.0, false, f64::INFINITY, false),
+            Bounds::new(10.0, true, 100_000.0, true),
         ),
         s(
             "emulator.watchdog_ms",

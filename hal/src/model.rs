@@ -167,75 +167,234 @@ pub fn non_negative(key: &str, value: f64) -> Result<(), ParamError> {
     }
 }
 
+/// The documented ranges of the `[plant]` keys (README, *Configuration
+/// reference*; the comments in `bench-config/*.toml`): a lumped model of a
+/// flexure stage on a lab bench, with margins of one to three decades
+/// around the thesis' benches, so that a value outside describes no bench
+/// (and no value inside can overflow the model's arithmetic).
+pub mod ranges {
+    /// Each stage mass, kg: 0.1 g (below the thesis' 0.5 g trim masses) to
+    /// 100 kg. The asymmetry is applied on top of `m2_kg`.
+    pub const MASS_KG: (f64, f64) = (1e-4, 100.0);
+    /// X bearing stiffnesses `k4_n_per_m`, `k5_n_per_m` and the
+    /// parallelogram Y stiffness (explicit or `24 E I / L³`), N/m: 1 N/m to
+    /// 10 MN/m (the thesis' flexures: 4.4 to 36 kN/m).
+    pub const STIFFNESS_N_PER_M: (f64, f64) = (1.0, 1e7);
+    /// `beam.length_m`, m: 1 mm to 0.5 m.
+    pub const BEAM_LENGTH_M: (f64, f64) = (1e-3, 0.5);
+    /// `beam.height_m`, m: 0.1 mm to 0.2 m.
+    pub const BEAM_HEIGHT_M: (f64, f64) = (1e-4, 0.2);
+    /// `beam.thickness_m`, m: 10 µm to 10 mm, and at most a tenth of the
+    /// length (a slender beam: the `24 E I / L³` of a fixed-guided beam).
+    pub const BEAM_THICKNESS_M: (f64, f64) = (1e-5, 1e-2);
+    /// `beam.youngs_modulus_pa`, Pa: 100 MPa (stiff polymers) to 1 TPa
+    /// (diamond is 1.2 TPa; aluminium 69 GPa).
+    pub const YOUNGS_MODULUS_PA: (f64, f64) = (1e8, 1e12);
+    /// `mass_asymmetry` Δm23 = m2/m3 − 1: m2 between a tenth of m3 and ten
+    /// times it (the thesis maps ±10 %).
+    pub const MASS_ASYMMETRY: (f64, f64) = (-0.9, 9.0);
+    /// `|operating_point_m|` at most this fraction of the beam length:
+    /// Eq. (2-1) is a small-rotation result (the thesis' bench goes to
+    /// about 10 %).
+    pub const OPERATING_POINT_OF_L: f64 = 0.2;
+    /// `damping.zeta_rigid`, `damping.zeta_csm`: [0, 1) (lightly damped;
+    /// 1 is critical damping).
+    pub const ZETA: (f64, f64) = (0.0, 1.0);
+    /// `disturbance.rms_n`, N: 0 (none) to 10 N (a tenth of the coil's
+    /// 111 N peak force).
+    pub const DISTURBANCE_RMS_N: (f64, f64) = (0.0, 10.0);
+    /// Lowest `disturbance.band_hz` edge, Hz; the highest is below the
+    /// Nyquist frequency of the loop (checked with the loop rate).
+    pub const DISTURBANCE_MIN_HZ: f64 = 0.01;
+    /// The keys the model's matrices are built from: an error of the
+    /// assembled model (not positive definite, an eigenvalue problem that
+    /// does not converge) names these.
+    pub const MODEL_KEYS: &str = "plant.m1_kg, plant.m2_kg, plant.m3_kg, plant.m4_kg, \
+plant.m5_kg, plant.k4_n_per_m, plant.k5_n_per_m, plant.operating_point_m, \
+plant.mass_asymmetry, plant.beam.length_m, plant.beam.height_m, plant.beam.thickness_m, \
+plant.beam.youngs_modulus_pa, plant.parallelogram_stiffness_n_per_m";
+}
+
+/// Checks that `value` is finite and in `[lo, hi]` (`unit` for the
+/// message), with `why` the documented reason for the range.
+///
+/// # Errors
+/// [`ParamError`] naming `key`.
+pub fn within(
+    key: &str,
+    value: f64,
+    (lo, hi): (f64, f64),
+    unit: &str,
+    why: &str,
+) -> Result<(), ParamError> {
+    if !value.is_finite() {
+        return Err(ParamError::new(
+            key,
+            format!("must be a finite number, got {value}"),
+        ));
+    }
+    if !(lo..=hi).contains(&value) {
+        return Err(ParamError::new(
+            key,
+            format!("{value:?} {unit} is outside [{lo:?}, {hi:?}] {unit}: {why}"),
+        ));
+    }
+    Ok(())
+}
+
 impl Sr4dofParams {
-    /// Checks every value; `prefix` is prepended to key names
-    /// (e.g. `"plant"`).
+    /// Checks every value against its documented range ([`ranges`]);
+    /// `prefix` is prepended to key names (e.g. `"plant"`). The disturbance
+    /// band's upper edge is checked against the loop's Nyquist frequency by
+    /// the caller (the model does not know the loop rate).
     ///
     /// # Errors
     /// The first offending key with the reason.
     pub fn validate(&self, prefix: &str) -> Result<(), ParamError> {
         let k = |name: &str| format!("{prefix}.{name}");
-        positive(&k("m1_kg"), self.m1_kg)?;
-        positive(&k("m2_kg"), self.m2_kg)?;
-        positive(&k("m3_kg"), self.m3_kg)?;
-        positive(&k("m4_kg"), self.m4_kg)?;
-        positive(&k("m5_kg"), self.m5_kg)?;
-        positive(&k("k4_n_per_m"), self.k4_n_per_m)?;
-        positive(&k("k5_n_per_m"), self.k5_n_per_m)?;
-        positive(&k("beam.length_m"), self.beam.length_m)?;
-        positive(&k("beam.height_m"), self.beam.height_m)?;
-        positive(&k("beam.thickness_m"), self.beam.thickness_m)?;
-        positive(&k("beam.youngs_modulus_pa"), self.beam.youngs_modulus_pa)?;
-        if let Some(kp) = self.parallelogram_stiffness_n_per_m {
-            positive(&k("parallelogram_stiffness_n_per_m"), kp)?;
+        for (name, v) in [
+            ("m1_kg", self.m1_kg),
+            ("m2_kg", self.m2_kg),
+            ("m3_kg", self.m3_kg),
+            ("m4_kg", self.m4_kg),
+            ("m5_kg", self.m5_kg),
+        ] {
+            within(&k(name), v, ranges::MASS_KG, "kg", "0.1 g to 100 kg")?;
+        }
+        for (name, v) in [
+            ("k4_n_per_m", self.k4_n_per_m),
+            ("k5_n_per_m", self.k5_n_per_m),
+        ] {
+            within(
+                &k(name),
+                v,
+                ranges::STIFFNESS_N_PER_M,
+                "N/m",
+                "1 N/m to 10 MN/m",
+            )?;
+        }
+        let b = &self.beam;
+        within(
+            &k("beam.length_m"),
+            b.length_m,
+            ranges::BEAM_LENGTH_M,
+            "m",
+            "1 mm to 0.5 m",
+        )?;
+        within(
+            &k("beam.height_m"),
+            b.height_m,
+            ranges::BEAM_HEIGHT_M,
+            "m",
+            "0.1 mm to 0.2 m",
+        )?;
+        within(
+            &k("beam.thickness_m"),
+            b.thickness_m,
+            ranges::BEAM_THICKNESS_M,
+            "m",
+            "10 µm to 10 mm",
+        )?;
+        if b.thickness_m > 0.1 * b.length_m {
+            return Err(ParamError::new(
+                k("beam.thickness_m"),
+                format!(
+                    "{} m is more than a tenth of {prefix}.beam.length_m = {} m: not a slender beam (24 E I / L³)",
+                    b.thickness_m, b.length_m
+                ),
+            ));
+        }
+        within(
+            &k("beam.youngs_modulus_pa"),
+            b.youngs_modulus_pa,
+            ranges::YOUNGS_MODULUS_PA,
+            "Pa",
+            "100 MPa to 1 TPa",
+        )?;
+        match self.parallelogram_stiffness_n_per_m {
+            Some(kp) => within(
+                &k("parallelogram_stiffness_n_per_m"),
+                kp,
+                ranges::STIFFNESS_N_PER_M,
+                "N/m",
+                "1 N/m to 10 MN/m",
+            )?,
+            None => {
+                let kp = b.parallelogram_stiffness_n_per_m();
+                let (lo, hi) = ranges::STIFFNESS_N_PER_M;
+                if !(lo..=hi).contains(&kp) {
+                    return Err(ParamError::new(
+                        k("beam"),
+                        format!(
+                            "24 E I / L³ from {p}.beam.length_m, {p}.beam.height_m, {p}.beam.thickness_m and {p}.beam.youngs_modulus_pa is {kp:.4e} N/m, outside [{lo:?}, {hi:?}] N/m (1 N/m to 10 MN/m)",
+                            p = prefix
+                        ),
+                    ));
+                }
+            }
         }
         if !self.operating_point_m.is_finite() {
             return Err(ParamError::new(
                 k("operating_point_m"),
-                "must be a finite number",
+                format!("must be a finite number, got {}", self.operating_point_m),
             ));
         }
         // Eq. (2-1) is a small-rotation result; beyond ~15 % of L the beams
         // are far outside the model (the thesis' bench goes to ~10 %).
-        if self.operating_point_m.abs() > 0.2 * self.beam.length_m {
+        if self.operating_point_m.abs() > ranges::OPERATING_POINT_OF_L * b.length_m {
             return Err(ParamError::new(
                 k("operating_point_m"),
                 format!(
-                    "|{}| m is beyond 20 % of the beam length {} m: outside the model's validity",
-                    self.operating_point_m, self.beam.length_m
+                    "|{}| m is beyond 20 % of the beam length {prefix}.beam.length_m = {} m: outside the model's validity",
+                    self.operating_point_m, b.length_m
                 ),
             ));
         }
-        if !self.mass_asymmetry.is_finite() || self.mass_asymmetry <= -1.0 {
-            return Err(ParamError::new(
-                k("mass_asymmetry"),
-                format!(
-                    "must be finite and > -1 (m2 stays positive), got {}",
-                    self.mass_asymmetry
-                ),
-            ));
-        }
+        within(
+            &k("mass_asymmetry"),
+            self.mass_asymmetry,
+            ranges::MASS_ASYMMETRY,
+            "",
+            "m2 between a tenth of m3 and ten times it",
+        )?;
         if let Some(d) = &self.disturbance {
-            non_negative(&k("disturbance.rms_n"), d.rms_n)?;
-            positive(&k("disturbance.band_hz[0]"), d.band_hz[0])?;
-            positive(&k("disturbance.band_hz[1]"), d.band_hz[1])?;
+            within(
+                &k("disturbance.rms_n"),
+                d.rms_n,
+                ranges::DISTURBANCE_RMS_N,
+                "N",
+                "0 to a tenth of the coil's 111 N peak force",
+            )?;
+            for i in 0..2 {
+                within(
+                    &k(&format!("disturbance.band_hz[{i}]")),
+                    d.band_hz[i],
+                    (ranges::DISTURBANCE_MIN_HZ, f64::MAX),
+                    "Hz",
+                    "at least 0.01 Hz (and below the loop's Nyquist frequency)",
+                )?;
+            }
             if d.band_hz[0] >= d.band_hz[1] {
                 return Err(ParamError::new(
-                    k("disturbance.band_hz"),
+                    k("disturbance.band_hz[0]"),
                     format!(
-                        "low edge {} Hz must be below the high edge {} Hz",
+                        "low edge {} Hz must be below the high edge {prefix}.disturbance.band_hz[1] = {} Hz",
                         d.band_hz[0], d.band_hz[1]
                     ),
                 ));
             }
         }
-        non_negative(&k("damping.zeta_rigid"), self.damping.zeta_rigid)?;
-        non_negative(&k("damping.zeta_csm"), self.damping.zeta_csm)?;
-        if self.damping.zeta_rigid >= 1.0 || self.damping.zeta_csm >= 1.0 {
-            return Err(ParamError::new(
-                k("damping"),
-                "damping ratios must be < 1 (lightly damped flexure)",
-            ));
+        for (name, z) in [
+            ("damping.zeta_rigid", self.damping.zeta_rigid),
+            ("damping.zeta_csm", self.damping.zeta_csm),
+        ] {
+            let (lo, hi) = ranges::ZETA;
+            if !z.is_finite() || z < lo || z >= hi {
+                return Err(ParamError::new(
+                    k(name),
+                    format!("{z:?} is outside [0, 1): a damping ratio of a lightly damped flexure"),
+                ));
+            }
         }
         Ok(())
     }
@@ -334,7 +493,14 @@ pub struct Sr4dof {
     input: Vector4<f64>,
     rayleigh: (f64, f64),
     modes: [Mode; 4],
+    zeros: Vec<Complex<f64>>,
+    undamped_zeros: Vec<UndampedZero>,
 }
+
+/// Most iterations of an eigenvalue solver (modes, polynomial roots, the
+/// loop check's closed-loop poles): a 4×4 or a 30×30 problem converges in
+/// a few dozen; non-finite or absurd input would otherwise iterate forever.
+pub const MAX_EIGEN_ITERATIONS: usize = 10_000;
 
 impl Sr4dof {
     /// Assembles M and K of Eq. (2-5), solves the generalised eigenproblem
@@ -369,17 +535,23 @@ impl Sr4dof {
         );
         let input = Vector4::new(1.0, a, -2.0 * a, 0.0);
 
+        let model_err =
+            |what: &str| ParamError::new("plant", format!("{what} (from {})", ranges::MODEL_KEYS));
         let chol = mass
             .cholesky()
-            .ok_or_else(|| ParamError::new("plant", "mass matrix is not positive definite"))?;
+            .ok_or_else(|| model_err("mass matrix is not positive definite"))?;
         let l_inv = chol
             .l()
             .try_inverse()
-            .ok_or_else(|| ParamError::new("plant", "mass matrix is singular"))?;
+            .ok_or_else(|| model_err("mass matrix is singular"))?;
         // Symmetric standard form A = L⁻¹ K L⁻ᵀ; φ = L⁻ᵀ v is mass-normalised.
         let sym = l_inv * stiffness * l_inv.transpose();
         let sym = (sym + sym.transpose()) * 0.5;
-        let eig = SymmetricEigen::new(sym);
+        if sym.iter().any(|v| !v.is_finite()) {
+            return Err(model_err("the stiffness and mass matrices are not finite"));
+        }
+        let eig = SymmetricEigen::try_new(sym, f64::EPSILON, MAX_EIGEN_ITERATIONS)
+            .ok_or_else(|| model_err("the modes do not converge"))?;
         let mut order: Vec<usize> = (0..4).collect();
         order.sort_by(|&i, &j| eig.eigenvalues[i].total_cmp(&eig.eigenvalues[j]));
         let mut modes = [Mode {
@@ -391,8 +563,7 @@ impl Sr4dof {
         for (slot, &i) in order.iter().enumerate() {
             let lam = eig.eigenvalues[i];
             if lam <= 0.0 {
-                return Err(ParamError::new(
-                    "plant",
+                return Err(model_err(
                     "stiffness matrix is not positive definite (a mode has ω² <= 0)",
                 ));
             }
@@ -424,12 +595,12 @@ impl Sr4dof {
         }
         if modes.iter().any(|m| m.zeta.is_nan() || m.zeta < 0.0) {
             return Err(ParamError::new(
-                "plant.damping",
-                "the Rayleigh fit gives negative modal damping: zeta_rigid and zeta_csm are too far apart",
+                "plant.damping.zeta_rigid",
+                "the Rayleigh fit gives negative modal damping: plant.damping.zeta_rigid and plant.damping.zeta_csm are too far apart",
             ));
         }
         let damping = mass * ra + stiffness * rb;
-        Ok(Self {
+        let mut model = Self {
             params,
             alpha: a,
             mass,
@@ -438,7 +609,16 @@ impl Sr4dof {
             input,
             rayleigh: (ra, rb),
             modes,
-        })
+            zeros: Vec::new(),
+            undamped_zeros: Vec::new(),
+        };
+        model.zeros = model
+            .compute_zeros()
+            .ok_or_else(|| model_err("the zeros of the model do not converge"))?;
+        model.undamped_zeros = model
+            .compute_undamped_zeros()
+            .ok_or_else(|| model_err("the undamped zeros of the model do not converge"))?;
+        Ok(model)
     }
 
     /// The parameters the model was built from.
@@ -553,6 +733,10 @@ impl Sr4dof {
 
     /// Roots `u = s²` of the undamped numerator, classified (Chapter 3).
     pub fn undamped_zeros(&self) -> Vec<UndampedZero> {
+        self.undamped_zeros.clone()
+    }
+
+    fn compute_undamped_zeros(&self) -> Option<Vec<UndampedZero>> {
         let scale = self.frequency_scale().powi(2);
         let n = self.undamped_numerator();
         // Scale u = scale · v to keep the coefficients well conditioned.
@@ -561,7 +745,7 @@ impl Sr4dof {
             .enumerate()
             .map(|(k, c)| c * scale.powi(3 - k as i32))
             .collect();
-        let mut out: Vec<UndampedZero> = poly_roots(&scaled)
+        let mut out: Vec<UndampedZero> = poly_roots(&scaled)?
             .into_iter()
             .map(|v| v * scale)
             .map(|u| {
@@ -576,13 +760,17 @@ impl Sr4dof {
             })
             .collect();
         out.sort_by(|a, b| a.u.norm().total_cmp(&b.u.norm()));
-        out
+        Some(out)
     }
 
     /// Zeros in `s` (rad/s) of the damped force→x1 transfer function
     /// `G(s) = Σ βᵢ / (s² + 2ζᵢωᵢ s + ωᵢ²)`: the roots of its degree-6
     /// numerator, ascending in magnitude.
     pub fn zeros(&self) -> Vec<Complex<f64>> {
+        self.zeros.clone()
+    }
+
+    fn compute_zeros(&self) -> Option<Vec<Complex<f64>>> {
         let scale = self.frequency_scale();
         // In σ = s/scale each factor is σ² + 2ζ(ω/scale)σ + (ω/scale)².
         let mut num = vec![0.0; 7];
@@ -599,9 +787,9 @@ impl Sr4dof {
                 num[off + k] += c;
             }
         }
-        let mut z: Vec<Complex<f64>> = poly_roots(&num).into_iter().map(|r| r * scale).collect();
+        let mut z: Vec<Complex<f64>> = poly_roots(&num)?.into_iter().map(|r| r * scale).collect();
         z.sort_by(|a, b| a.norm().total_cmp(&b.norm()));
-        z
+        Some(z)
     }
 
     /// `true` if the model's transfer function has CMP-CNMP zeros: complex
@@ -631,8 +819,9 @@ pub fn poly_mul(a: &[f64], b: &[f64]) -> Vec<f64> {
 
 /// Roots of a polynomial (coefficients highest power first) as the
 /// eigenvalues of its companion matrix. Leading zero coefficients are
-/// dropped.
-pub fn poly_roots(coeffs: &[f64]) -> Vec<Complex<f64>> {
+/// dropped. `None` if a coefficient is not finite or the eigenvalue
+/// iteration does not converge in [`MAX_EIGEN_ITERATIONS`].
+pub fn poly_roots(coeffs: &[f64]) -> Option<Vec<Complex<f64>>> {
     let first = coeffs
         .iter()
         .position(|c| *c != 0.0)
@@ -640,7 +829,7 @@ pub fn poly_roots(coeffs: &[f64]) -> Vec<Complex<f64>> {
     let c = &coeffs[first..];
     let n = c.len().saturating_sub(1);
     if n == 0 {
-        return Vec::new();
+        return Some(Vec::new());
     }
     let mut comp = DMatrix::<f64>::zeros(n, n);
     for j in 0..n {
@@ -649,5 +838,9 @@ pub fn poly_roots(coeffs: &[f64]) -> Vec<Complex<f64>> {
     for i in 1..n {
         comp[(i, i - 1)] = 1.0;
     }
-    comp.complex_eigenvalues().iter().copied().collect()
+    if comp.iter().any(|v| !v.is_finite()) {
+        return None;
+    }
+    let schur = nalgebra::Schur::try_new(comp, f64::EPSILON, MAX_EIGEN_ITERATIONS)?;
+    Some(schur.complex_eigenvalues().iter().copied().collect())
 }

@@ -255,3 +255,58 @@ fn bad_parameters_name_the_key() {
     p.beam.thickness_m = 0.0;
     assert_eq!(Sr4dof::new(p).unwrap_err().key, "plant.beam.thickness_m");
 }
+
+/// Values that describe no bench are refused naming the key, before any
+/// matrix is built: with 1e300 the eigenvalue iteration used to spin
+/// forever (issue 12, item 10).
+#[test]
+fn absurd_parameters_are_refused_naming_the_key() {
+    type Set = fn(&mut bench_hal::model::Sr4dofParams);
+    let cases: [(Set, &str); 10] = [
+        (|p| p.m1_kg = 5e-324, "plant.m1_kg"),
+        (|p| p.m4_kg = 1e9, "plant.m4_kg"),
+        (|p| p.k4_n_per_m = 1e300, "plant.k4_n_per_m"),
+        (|p| p.k5_n_per_m = f64::NAN, "plant.k5_n_per_m"),
+        (|p| p.mass_asymmetry = 1e6, "plant.mass_asymmetry"),
+        (|p| p.beam.length_m = 100.0, "plant.beam.length_m"),
+        (|p| p.beam.thickness_m = 1e300, "plant.beam.thickness_m"),
+        (
+            |p| p.beam.youngs_modulus_pa = 1e300,
+            "plant.beam.youngs_modulus_pa",
+        ),
+        (
+            |p| p.parallelogram_stiffness_n_per_m = Some(f64::INFINITY),
+            "plant.parallelogram_stiffness_n_per_m",
+        ),
+        (|p| p.damping.zeta_csm = 1.0, "plant.damping.zeta_csm"),
+    ];
+    for (set, key) in cases {
+        let mut p = ch5(0.08, 0.1);
+        set(&mut p);
+        let e = Sr4dof::new(p).unwrap_err();
+        assert_eq!(e.key, key, "{e}");
+    }
+    // A beam whose 24 E I / L³ is outside [1, 1e7] N/m names the beam keys.
+    let mut p = ch5(0.08, 0.1);
+    p.beam.thickness_m = 1e-5;
+    let e = Sr4dof::new(p).unwrap_err().to_string();
+    for k in ["plant.beam.length_m", "plant.beam.thickness_m"] {
+        assert!(e.contains(k), "{e}");
+    }
+}
+
+/// The polynomial roots are bounded: non-finite coefficients give `None`
+/// at once instead of an endless iteration.
+#[test]
+fn polynomial_roots_of_non_finite_coefficients_are_none() {
+    use bench_hal::model::poly_roots;
+    assert!(poly_roots(&[1.0, f64::NAN, 1.0]).is_none());
+    assert!(poly_roots(&[1e-300, 1e300, 1.0]).is_none());
+    let r = poly_roots(&[1.0, 0.0, -4.0]).unwrap();
+    let mut re: Vec<f64> = r.iter().map(|z| z.re).collect();
+    re.sort_by(f64::total_cmp);
+    assert!(
+        (re[0] + 2.0).abs() < 1e-12 && (re[1] - 2.0).abs() < 1e-12,
+        "{r:?}"
+    );
+}

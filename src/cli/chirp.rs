@@ -7,7 +7,7 @@ use super::{
 };
 use bench::config::{ChirpKind, DEFAULT_CONFIG};
 use bench::jobs::chirp::{run_chirp, ChirpOptions, ChirpSummary};
-use bench::jobs::request::{ChirpRequest, JobRequest, LocalOverrides, OperatingPoint};
+use bench::jobs::request::{parse_seed, ChirpRequest, JobRequest, LocalOverrides, OperatingPoint};
 use bench::jobs::session::beside;
 use bench::rt::backend::BackendSpec;
 use clap::{Args, ValueEnum};
@@ -46,7 +46,7 @@ pub(super) struct ChirpArgs {
     #[arg(long)]
     realtime: bool,
     /// Simulator noise seed [default: sim.seed from the config].
-    #[arg(long, value_name = "N")]
+    #[arg(long, value_name = "N", allow_hyphen_values = true, value_parser = parse_seed)]
     seed: Option<u64>,
     /// Print the summary as one JSON object on stdout.
     #[arg(long)]
@@ -55,28 +55,28 @@ pub(super) struct ChirpArgs {
     #[arg(
         long,
         value_name = "M",
-        allow_negative_numbers = true,
+        allow_hyphen_values = true,
         conflicts_with = "operating_point_pct"
     )]
     operating_point_m: Option<f64>,
     /// Operating point Y1o in % of the beam length L.
-    #[arg(long, value_name = "PERCENT", allow_negative_numbers = true)]
+    #[arg(long, value_name = "PERCENT", allow_hyphen_values = true)]
     operating_point_pct: Option<f64>,
     /// Mass asymmetry Δm23 = m2/m3 − 1, e.g. 0.1 for +10 % (overrides
     /// plant.mass_asymmetry).
-    #[arg(long, value_name = "X", allow_negative_numbers = true)]
+    #[arg(long, value_name = "X", allow_hyphen_values = true)]
     mass_asymmetry: Option<f64>,
     /// Chirp current amplitude, A (overrides chirp.amplitude_a).
-    #[arg(long, value_name = "A", allow_negative_numbers = true)]
+    #[arg(long, value_name = "A", allow_hyphen_values = true)]
     amplitude_a: Option<f64>,
     /// Sweep start frequency, Hz (overrides chirp.f_start_hz).
-    #[arg(long, value_name = "HZ", allow_negative_numbers = true)]
+    #[arg(long, value_name = "HZ", allow_hyphen_values = true)]
     f_start_hz: Option<f64>,
     /// Sweep end frequency, Hz (overrides chirp.f_end_hz).
-    #[arg(long, value_name = "HZ", allow_negative_numbers = true)]
+    #[arg(long, value_name = "HZ", allow_hyphen_values = true)]
     f_end_hz: Option<f64>,
     /// Sweep duration, s (overrides chirp.duration_s).
-    #[arg(long, value_name = "S", allow_negative_numbers = true)]
+    #[arg(long, value_name = "S", allow_hyphen_values = true)]
     duration_s: Option<f64>,
     /// Sweep law (overrides chirp.kind).
     #[arg(long, value_enum)]

@@ -7,7 +7,7 @@ use super::{
     status, unclaimed_recording,
 };
 use bench::config::DEFAULT_CONFIG;
-use bench::jobs::request::{ControlRequest, JobRequest};
+use bench::jobs::request::{parse_seed, ControlRequest, JobRequest};
 use bench::jobs::session::beside;
 use bench::jobs::step::{run_control, ControlOptions, ControlSummary};
 use bench::outputs::{Existing, OutputPlan};
@@ -35,14 +35,14 @@ pub(super) struct ControlArgs {
     #[arg(long, value_name = "FILE", default_value = DEFAULT_CONFIG)]
     config: PathBuf,
     /// Step size, m (overrides step.step_m).
-    #[arg(long, value_name = "M", allow_negative_numbers = true)]
+    #[arg(long, value_name = "M", allow_hyphen_values = true)]
     step_m: Option<f64>,
     /// Run time, s (overrides step.duration_s).
-    #[arg(long, value_name = "S", allow_negative_numbers = true)]
+    #[arg(long, value_name = "S", allow_hyphen_values = true)]
     duration_s: Option<f64>,
     /// Smooth the step with a raised-cosine ramp of this length, s
     /// (overrides step.smooth_s).
-    #[arg(long, value_name = "S", allow_negative_numbers = true)]
+    #[arg(long, value_name = "S", allow_hyphen_values = true)]
     smooth_s: Option<f64>,
     /// MCAP recording [default: recordings/control-<name>-<UTC time>.mcap].
     #[arg(long, value_name = "FILE.mcap")]
@@ -70,7 +70,7 @@ pub(super) struct ControlArgs {
     #[arg(long)]
     override_check: bool,
     /// Simulator noise seed [default: sim.seed].
-    #[arg(long, value_name = "N")]
+    #[arg(long, value_name = "N", allow_hyphen_values = true, value_parser = parse_seed)]
     seed: Option<u64>,
     /// Inject a simulator fault: KIND@T_S with KIND one of nan, frozen,
     /// drop (10 samples), jump (0.2 mm), out_of_range; e.g. nan@1.5.

@@ -10,6 +10,20 @@ use serde::{Deserialize, Serialize};
 /// Most second-order sections a controller may have.
 pub const MAX_SECTIONS: usize = 12;
 
+/// Range of a corner frequency (`real_zeros_rad_s`, `real_poles_rad_s`,
+/// `omega_rad_s` of a complex pair), rad/s: 1 mrad/s to 1 Mrad/s (above
+/// the Nyquist frequency of the fastest loop, 100 kHz = 314 krad/s).
+pub const CORNER_RAD_S: (f64, f64) = (1e-3, 1e6);
+/// Range of a damping ratio `zeta` of a complex pair: 0 (a notch) to 10
+/// (two well separated real roots).
+pub const ZETA: (f64, f64) = (0.0, 10.0);
+/// Range of `|gain|`, A per error unit (× s^n for n integrators and, for
+/// `monic`, × rad/s per excess pole): wide, since a monic high-order
+/// controller's gain carries its corner frequencies.
+pub const GAIN_ABS: (f64, f64) = (1e-20, 1e20);
+/// Most `integrators`.
+pub const MAX_INTEGRATORS: u32 = 3;
+
 /// Unit of the error the controller's gain expects.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 pub enum ErrorUnit {
@@ -113,22 +127,36 @@ impl ControllerConfig {
     /// # Errors
     /// The first offending key with the reason.
     pub fn validate(&self, prefix: &str) -> Result<(), ControllerError> {
-        if !self.gain.is_finite() || self.gain == 0.0 {
+        if !self.gain.is_finite() || !(GAIN_ABS.0..=GAIN_ABS.1).contains(&self.gain.abs()) {
             return Err(cerr(
                 format!("{prefix}.gain"),
-                format!("must be finite and non-zero, got {}", self.gain),
+                format!(
+                    "must be finite with |gain| in [{:?}, {:?}], got {}",
+                    GAIN_ABS.0, GAIN_ABS.1, self.gain
+                ),
             ));
         }
+        if self.integrators > MAX_INTEGRATORS {
+            return Err(cerr(
+                format!("{prefix}.integrators"),
+                format!(
+                    "at most {MAX_INTEGRATORS} integrators, got {}",
+                    self.integrators
+                ),
+            ));
+        }
+        let corner = |x: f64| x.is_finite() && (CORNER_RAD_S.0..=CORNER_RAD_S.1).contains(&x);
         for (name, v) in [
             ("real_zeros_rad_s", &self.real_zeros_rad_s),
             ("real_poles_rad_s", &self.real_poles_rad_s),
         ] {
             for (i, x) in v.iter().enumerate() {
-                if !x.is_finite() || *x <= 0.0 {
+                if !corner(*x) {
                     return Err(cerr(
                         format!("{prefix}.{name}[{i}]"),
                         format!(
-                            "corner frequency must be finite and > 0 rad/s, got {x} (use `integrators` for s = 0)"
+                            "corner frequency must be in [{:?}, {:?}] rad/s, got {x} (use `integrators` for s = 0)",
+                            CORNER_RAD_S.0, CORNER_RAD_S.1
                         ),
                     ));
                 }
@@ -139,16 +167,19 @@ impl ControllerConfig {
             ("complex_poles", &self.complex_poles),
         ] {
             for (i, p) in v.iter().enumerate() {
-                if !p.omega_rad_s.is_finite() || p.omega_rad_s <= 0.0 {
+                if !corner(p.omega_rad_s) {
                     return Err(cerr(
                         format!("{prefix}.{name}[{i}].omega_rad_s"),
-                        format!("must be finite and > 0 rad/s, got {}", p.omega_rad_s),
+                        format!(
+                            "must be in [{:?}, {:?}] rad/s, got {}",
+                            CORNER_RAD_S.0, CORNER_RAD_S.1, p.omega_rad_s
+                        ),
                     ));
                 }
-                if !p.zeta.is_finite() || p.zeta < 0.0 {
+                if !p.zeta.is_finite() || !(ZETA.0..=ZETA.1).contains(&p.zeta) {
                     return Err(cerr(
                         format!("{prefix}.{name}[{i}].zeta"),
-                        format!("must be finite and >= 0, got {}", p.zeta),
+                        format!("must be in [{:?}, {:?}], got {}", ZETA.0, ZETA.1, p.zeta),
                     ));
                 }
             }
@@ -159,7 +190,7 @@ impl ControllerConfig {
         if zeros > poles {
             return Err(cerr(
                 prefix.to_string(),
-                format!("improper: {zeros} zeros but {poles} poles (a controller must have at least as many poles as zeros)"),
+                format!("improper: {zeros} zeros ({prefix}.real_zeros_rad_s, {prefix}.complex_zeros) but {poles} poles ({prefix}.integrators, {prefix}.real_poles_rad_s, {prefix}.complex_poles): a controller must have at least as many poles as zeros"),
             ));
         }
         if poles == 0 {
@@ -171,7 +202,7 @@ impl ControllerConfig {
         if poles.div_ceil(2) > MAX_SECTIONS {
             return Err(cerr(
                 prefix.to_string(),
-                format!("{poles} poles need more than {MAX_SECTIONS} second-order sections"),
+                format!("{poles} poles ({prefix}.integrators, {prefix}.real_poles_rad_s, {prefix}.complex_poles) need more than {MAX_SECTIONS} second-order sections"),
             ));
         }
         Ok(())

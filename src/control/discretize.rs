@@ -124,7 +124,19 @@ fn fit_numerator(zinv: &[Complex<f64>], g: &[Complex<f64>], w: &[f64]) -> Option
         }
         r[(row, 0)] = w[k];
     }
-    let b = a.svd(true, true).solve(&r, 1e-300).ok()?;
+    if a.iter().chain(r.iter()).any(|v| !v.is_finite()) {
+        return None;
+    }
+    // Bounded: an SVD that does not converge is a failed fit (Tustin runs).
+    let b = a
+        .try_svd(
+            true,
+            true,
+            f64::EPSILON,
+            bench_hal::model::MAX_EIGEN_ITERATIONS,
+        )?
+        .solve(&r, 1e-300)
+        .ok()?;
     let out = [b[(0, 0)], b[(1, 0)], b[(2, 0)]];
     out.iter().all(|x| x.is_finite()).then_some(out)
 }

@@ -29,9 +29,9 @@
 use crate::config::BenchConfig;
 use crate::control::{DiscreteController, DiscretizationReport};
 use crate::error::RunError;
-use bench_hal::model::Sr4dof;
+use bench_hal::model::{Sr4dof, MAX_EIGEN_ITERATIONS};
 use bench_hal::sim::{ZohPlant, STATES};
-use nalgebra::{Complex, DMatrix};
+use nalgebra::{Complex, DMatrix, Schur};
 use serde::{Deserialize, Serialize};
 use std::f64::consts::PI;
 use std::path::Path;
@@ -189,7 +189,8 @@ pub fn measured_margins(
 
 /// Eigenvalues of the discrete closed loop (ZOH plant, controller,
 /// negative feedback, zero reference), and whether all are inside the unit
-/// circle.
+/// circle. Non-finite matrices or an eigenvalue iteration that does not
+/// converge in [`MAX_EIGEN_ITERATIONS`] give no poles and "unstable".
 pub fn closed_loop_poles(plant: &ZohPlant, ctrl: &DiscreteController) -> (Vec<Complex<f64>>, bool) {
     let (ac, bc, cc, dc) = ctrl.state_space();
     let k = ctrl.error_per_metre();
@@ -212,9 +213,17 @@ pub fn closed_loop_poles(plant: &ZohPlant, ctrl: &DiscreteController) -> (Vec<Co
             a[(np + i, np + j)] = ac[(i, j)];
         }
     }
-    let poles: Vec<Complex<f64>> = a.complex_eigenvalues().iter().copied().collect();
-    let stable = poles.iter().all(|p| p.norm() < 1.0);
-    (poles, stable)
+    if a.iter().any(|v| !v.is_finite()) {
+        return (Vec::new(), false);
+    }
+    match Schur::try_new(a, f64::EPSILON, MAX_EIGEN_ITERATIONS) {
+        Some(schur) => {
+            let poles: Vec<Complex<f64>> = schur.complex_eigenvalues().iter().copied().collect();
+            let stable = poles.iter().all(|p| p.norm() < 1.0);
+            (poles, stable)
+        }
+        None => (Vec::new(), false),
+    }
 }
 
 /// The loop check of one controller (README, *`bench control`*; thesis §6.2.1).
@@ -325,7 +334,11 @@ pub fn check_loop(
         )
     });
     let mut failures = Vec::new();
-    if !stable {
+    if poles.is_empty() {
+        failures.push(format!(
+            "the closed-loop poles cannot be computed (non-finite or not converging): check [controller.{name}] and the [plant] and [actuator] keys"
+        ));
+    } else if !stable {
         failures.push(format!(
             "closed loop unstable on the model: largest pole |z| = {largest:.4} (must be < 1)"
         ));
@@ -458,5 +471,32 @@ mod thesis {
         let (poles, stable) = closed_loop_poles(&plant, &c);
         assert!(!stable);
         assert!(poles.iter().any(|p| p.norm() > 1.0));
+    }
+
+    /// A controller that bypassed validation with a non-finite or absurd
+    /// frequency (it used to spin forever in the eigenvalue iteration) gets
+    /// a refusing verdict, in bounded time.
+    #[test]
+    fn absurd_controllers_are_refused_in_bounded_time() {
+        let p =
+            std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("bench-config/sr4dof-ch5.toml");
+        let cfg = BenchConfig::load(&p).unwrap();
+        let model = Sr4dof::new(cfg.plant).unwrap();
+        let t = cfg.loop_.period_ns() as f64 * 1e-9;
+        for omega in [1e300, 5e-324, f64::NAN, f64::INFINITY] {
+            let mut slow = cfg.controller["slow"].clone();
+            slow.complex_poles[0].omega_rad_s = omega;
+            let (tx, rx) = std::sync::mpsc::channel();
+            let cfg = cfg.clone();
+            let model = model.clone();
+            std::thread::spawn(move || {
+                let c = DiscreteController::new(&slow, t, 9.98);
+                let _ = tx.send(check_loop(&cfg, &model, "slow", &c, t, None));
+            });
+            let check = rx
+                .recv_timeout(std::time::Duration::from_secs(10))
+                .unwrap_or_else(|e| panic!("omega {omega}: {e}"));
+            assert!(!check.passed(), "omega {omega} passed");
+        }
     }
 }

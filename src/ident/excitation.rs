@@ -46,7 +46,9 @@ impl Chirp {
     /// Builds the chirp for a loop of period `period_s` (s). The config is
     /// assumed validated ([`crate::config::BenchConfig::validate`]).
     pub fn new(cfg: &ChirpConfig, period_s: f64) -> Self {
-        let ticks = |s: f64| (s / period_s).round() as u64;
+        // Checked: a duration beyond the tick range saturates (the job
+        // refuses more than `ranges::JOB_TICKS_MAX` ticks), never wraps.
+        let ticks = |s: f64| crate::config::ticks_in(s, period_s).unwrap_or(u64::MAX);
         let sweep_ticks = ticks(cfg.duration_s).max(1);
         let mut profile = [(0.0, 1.0); MAX_PROFILE_POINTS];
         let profile_len = cfg.amplitude_profile.len().min(MAX_PROFILE_POINTS);
@@ -72,7 +74,9 @@ impl Chirp {
 
     /// Total record length, ticks (lead-in + sweep + tail).
     pub fn total_ticks(&self) -> u64 {
-        self.lead_in_ticks + self.sweep_ticks + self.tail_ticks
+        self.lead_in_ticks
+            .saturating_add(self.sweep_ticks)
+            .saturating_add(self.tail_ticks)
     }
 
     /// Ticks of quiet lead-in before the sweep.

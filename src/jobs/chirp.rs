@@ -14,7 +14,7 @@ use crate::ident::frf::{
     closely_spaced_pair, find_resonances, Frf, PairVerdict, Resonance, Spectra,
 };
 use crate::jobs::session::{
-    finish, open_recording, run_recorded, Recorded, Runner, SessionOptions, TimingSummary,
+    finish, open_recording, run_recorded, Kept, Recorded, Runner, SessionOptions, TimingSummary,
 };
 use crate::outputs::{Existing, Origin, OutputPlan};
 use crate::plot::{write_bode_png, BodePlot, BodeSeries};
@@ -229,6 +229,13 @@ fn run_chirp_with(
     let rate_hz = 1.0 / period_s;
     let chirp = Chirp::new(&cfg.chirp, period_s);
     let total_ticks = chirp.total_ticks();
+    if total_ticks > crate::config::ranges::JOB_TICKS_MAX {
+        return Err(RunError::BadInput(format!(
+            "config {}: chirp.duration_s: lead_in_s + duration_s + tail_s is more than {} ticks at the device's period",
+            opts.config_path.display(),
+            crate::config::ranges::JOB_TICKS_MAX
+        )));
+    }
 
     let session = SessionOptions {
         command: "chirp",
@@ -239,6 +246,7 @@ fn run_chirp_with(
         progress: opts.progress,
         seed: opts.seed,
         max_ticks: total_ticks,
+        keep: Kept::CHIRP,
         ticks,
     };
     let recorder = open_recording(&session, cfg, info, outputs)?;

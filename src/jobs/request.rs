@@ -88,6 +88,20 @@ impl ChirpRequest {
     /// [`RequestError::Invalid`] naming the first offending config key
     /// (`cfg` keeps the request's values).
     pub fn apply(&self, cfg: &mut BenchConfig) -> Result<(), RequestError> {
+        if self.duration_s.is_some() {
+            // The fades shrink below: the configured ones must be valid
+            // first, or a short sweep would hide a bad chirp.taper_s.
+            let c = &cfg.chirp;
+            if !c.taper_s.is_finite() || c.taper_s < 0.0 || 2.0 * c.taper_s > c.duration_s {
+                return Err(RequestError::Invalid {
+                    key: "chirp.taper_s".into(),
+                    reason: format!(
+                        "{} s is not a fade that fits in the configured chirp.duration_s = {} s",
+                        c.taper_s, c.duration_s
+                    ),
+                });
+            }
+        }
         let c = &mut cfg.chirp;
         set(&mut c.amplitude_a, self.amplitude_a);
         set(&mut c.f_start_hz, self.f_start_hz);
@@ -95,7 +109,9 @@ impl ChirpRequest {
         if let Some(v) = self.duration_s {
             c.duration_s = v;
             // Keep the fades inside a short sweep.
-            c.taper_s = c.taper_s.min(0.25 * v.max(0.0));
+            if v.is_finite() && v > 0.0 {
+                c.taper_s = c.taper_s.min(0.25 * v);
+            }
         }
         check(cfg)
     }
@@ -168,12 +184,28 @@ impl ControlRequest {
                 ),
             });
         }
+        if self.duration_s.is_some() {
+            // The window shrinks below: the configured one must be valid
+            // first, or a short run would hide a bad steady_state_window_s.
+            let s = &cfg.step;
+            let w = s.steady_state_window_s;
+            if !w.is_finite() || w <= 0.0 || w > s.duration_s - s.settle_s - s.smooth_s {
+                return Err(RequestError::Invalid {
+                    key: "step.steady_state_window_s".into(),
+                    reason: format!(
+                        "{w} s is not a window that fits after the configured step (step.duration_s - step.settle_s - step.smooth_s)"
+                    ),
+                });
+            }
+        }
         let s = &mut cfg.step;
         set(&mut s.step_m, self.step_m);
         if let Some(v) = self.duration_s {
             s.duration_s = v;
             // Keep the steady-state window inside a short run.
-            s.steady_state_window_s = s.steady_state_window_s.min(0.5 * v.max(0.0));
+            if v.is_finite() && v > 0.0 {
+                s.steady_state_window_s = s.steady_state_window_s.min(0.5 * v);
+            }
         }
         set(&mut s.smooth_s, self.smooth_s);
         check(cfg)?;
@@ -238,6 +270,21 @@ fn check(cfg: &BenchConfig) -> Result<(), RequestError> {
     cfg.check().map_err(|e| RequestError::Invalid {
         key: e.key,
         reason: e.reason,
+    })
+}
+
+/// Parses a simulator seed (`seed`, `--seed`): an integer in
+/// `0..=2^64 − 1`, with a message that says so for anything else (a
+/// negative number, a fraction, text).
+///
+/// # Errors
+/// Why it does not parse (the caller names the field or flag).
+pub fn parse_seed(s: &str) -> Result<u64, String> {
+    s.trim().parse::<u64>().map_err(|_| {
+        format!(
+            "{s:?} is not a seed: an integer in 0..={} (2^64 - 1)",
+            u64::MAX
+        )
     })
 }
 

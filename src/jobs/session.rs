@@ -85,6 +85,41 @@ pub struct Collected {
     pub current_command_a: Vec<f64>,
 }
 
+/// Which columns of [`Collected`] a job keeps; the others stay empty.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Kept {
+    /// [`Collected::t_s`]
+    pub t_s: bool,
+    /// [`Collected::excitation_a`]
+    pub excitation_a: bool,
+    /// [`Collected::position_m`]
+    pub position_m: bool,
+    /// [`Collected::setpoint_m`]
+    pub setpoint_m: bool,
+    /// [`Collected::current_command_a`]
+    pub current_command_a: bool,
+}
+
+impl Kept {
+    /// A chirp's FRF estimate: excitation and position (16 bytes a tick).
+    pub const CHIRP: Self = Self {
+        t_s: false,
+        excitation_a: true,
+        position_m: true,
+        setpoint_m: false,
+        current_command_a: false,
+    };
+    /// A closed-loop step's metrics and plot: no excitation (32 bytes a
+    /// tick).
+    pub const STEP: Self = Self {
+        t_s: true,
+        excitation_a: false,
+        position_m: true,
+        setpoint_m: true,
+        current_command_a: true,
+    };
+}
+
 /// Finishes the recording, returning its path for messages.
 ///
 /// # Errors
@@ -111,6 +146,9 @@ pub struct SessionOptions<'a> {
     pub seed: u64,
     /// Tick budget (the job normally ends first).
     pub max_ticks: u64,
+    /// The per-tick signals the job's analysis reads: only these are
+    /// collected (and their memory reserved up front, `max_ticks` each).
+    pub keep: Kept,
     /// Where the loop publishes its tick count (a watcher's progress), if
     /// anywhere.
     pub ticks: Option<&'a Arc<AtomicU64>>,
@@ -216,13 +254,17 @@ pub fn run_recorded<J: Job + Send + 'static>(
     let period_s = info.period_ns as f64 * 1e-9;
     let rate_hz = 1.0 / period_s;
     let (producer, consumer) = rtrb::RingBuffer::<Record>::new(QUEUE_CAPACITY);
-    let n = opts.max_ticks.min(1 << 26) as usize;
+    // The config bounds a job to `ranges::JOB_TICKS_MAX` ticks; reserve
+    // only the columns the job reads.
+    let n = opts.max_ticks.min(crate::config::ranges::JOB_TICKS_MAX) as usize;
+    let keep = opts.keep;
+    let reserve = |kept: bool| Vec::with_capacity(if kept { n } else { 0 });
     let collected = Arc::new(Mutex::new(Collected {
-        t_s: Vec::with_capacity(n),
-        excitation_a: Vec::with_capacity(n),
-        position_m: Vec::with_capacity(n),
-        setpoint_m: Vec::with_capacity(n),
-        current_command_a: Vec::with_capacity(n),
+        t_s: reserve(keep.t_s),
+        excitation_a: reserve(keep.excitation_a),
+        position_m: reserve(keep.position_m),
+        setpoint_m: reserve(keep.setpoint_m),
+        current_command_a: reserve(keep.current_command_a),
     }));
     let sink = Arc::clone(&collected);
     let writer_done = Arc::new(AtomicBool::new(false));
@@ -239,11 +281,20 @@ pub fn run_recorded<J: Job + Send + 'static>(
         move |r| {
             if let Record::Sample(s) = r {
                 let mut c = sink.lock().expect("collector poisoned");
-                c.t_s.push(s.t_s);
-                c.excitation_a.push(s.excitation_a);
-                c.position_m.push(s.position_m);
-                c.setpoint_m.push(s.setpoint_m);
-                c.current_command_a.push(s.current_command_a);
+                let push = |v: &mut Vec<f64>, kept: bool, x: f64| {
+                    if kept {
+                        v.push(x);
+                    }
+                };
+                push(&mut c.t_s, keep.t_s, s.t_s);
+                push(&mut c.excitation_a, keep.excitation_a, s.excitation_a);
+                push(&mut c.position_m, keep.position_m, s.position_m);
+                push(&mut c.setpoint_m, keep.setpoint_m, s.setpoint_m);
+                push(
+                    &mut c.current_command_a,
+                    keep.current_command_a,
+                    s.current_command_a,
+                );
             }
         },
     );

@@ -22,7 +22,7 @@ use crate::control::loop_check::{check_loop, LoopCheck, MeasuredFrf};
 use crate::control::{ControllerConfig, DiscreteController};
 use crate::error::RunError;
 use crate::jobs::session::{
-    finish, open_recording, run_recorded, Collected, Recorded, Runner, SessionOptions,
+    finish, open_recording, run_recorded, Collected, Kept, Recorded, Runner, SessionOptions,
     TimingSummary,
 };
 use crate::outputs::{Existing, Origin, OutputPlan};
@@ -433,8 +433,18 @@ fn run_control_with(
     }
     // Anti-windup at the limit the device reports (same sections).
     let ctrl = ctrl.with_limit(info.peak_current_a);
-    let ticks = |s: f64| (s / period_s).round() as u64;
-    let total = ticks(step.duration_s);
+    let ticks = |key: &str, s: f64| {
+        crate::config::ticks_in(s, period_s).ok_or_else(|| {
+            RunError::BadInput(format!(
+                "config {}: {key}: {s} s is more than {} ticks at the device's period",
+                opts.config_path.display(),
+                crate::config::ranges::JOB_TICKS_MAX
+            ))
+        })
+    };
+    let total = ticks("step.duration_s", step.duration_s)?;
+    let settle = ticks("step.settle_s", step.settle_s)?;
+    let smooth = ticks("step.smooth_s", step.smooth_s)?;
     let session = SessionOptions {
         command: "control",
         config_path: &opts.config_path,
@@ -444,6 +454,7 @@ fn run_control_with(
         progress: opts.progress,
         seed: opts.seed,
         max_ticks: total,
+        keep: Kept::STEP,
         ticks: progress_ticks,
     };
     let mut recorder = open_recording(&session, cfg, &info, outputs)?;
@@ -451,13 +462,7 @@ fn run_control_with(
         recorder.add_channel_for::<LoopCheck>("/control/loop_check", "bench.LoopCheck")?;
     recorder.write(check_ch, 0, &check)?;
     recorder.flush_chunk()?;
-    let job = ControlJob::new(
-        ctrl,
-        step.step_m,
-        ticks(step.settle_s),
-        ticks(step.smooth_s),
-        total,
-    );
+    let job = ControlJob::new(ctrl, step.step_m, settle, smooth, total);
     let recorded = run_recorded(&mut runner, job, cfg, recorder, &session, stop);
     let Recorded {
         mut recorder,
