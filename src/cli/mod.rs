@@ -82,16 +82,42 @@ pub(super) mod status {
     pub const DAEMON_REFUSED: u8 = 5;
 }
 
-pub fn main() -> ExitCode {
+/// Logging to stderr, as the Rust ecosystem does it: the filter comes from
+/// `RUST_LOG` (`BENCH_LOG` is kept as an alias; `RUST_LOG` wins), by
+/// default `info` for `bench serve` (each job's start and end, with its
+/// recording, goes to the journal) and `warn` for the other commands.
+/// Colour codes only when stderr is a terminal and `NO_COLOR` is unset,
+/// never into a file or a pipe.
+fn init_logging(daemon: bool) {
+    use std::io::IsTerminal;
+    use tracing_subscriber::EnvFilter;
+    let default = if daemon { "info" } else { "warn" };
+    let filter = ["RUST_LOG", "BENCH_LOG"]
+        .iter()
+        .find_map(|v| std::env::var(v).ok().filter(|s| !s.trim().is_empty()))
+        .map_or_else(
+            || EnvFilter::new(default),
+            |spec| {
+                EnvFilter::try_new(&spec).unwrap_or_else(|e| {
+                    eprintln!(
+                        "warning: RUST_LOG={spec:?} is not a log filter ({e}); using {default}"
+                    );
+                    EnvFilter::new(default)
+                })
+            },
+        );
+    let ansi = std::io::stderr().is_terminal() && std::env::var_os("NO_COLOR").is_none();
     tracing_subscriber::fmt()
         .with_writer(std::io::stderr)
-        .with_env_filter(
-            tracing_subscriber::EnvFilter::try_from_env("BENCH_LOG")
-                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn")),
-        )
+        .with_env_filter(filter)
+        .with_ansi(ansi)
         .with_target(false)
         .init();
+}
+
+pub fn main() -> ExitCode {
     let cli = Cli::parse();
+    init_logging(matches!(cli.command, Command::Serve(_)));
     let stop = Arc::new(AtomicBool::new(false));
     if let Err(e) = install_signal_handlers(&stop) {
         eprintln!("error: {e:#}");

@@ -361,7 +361,17 @@ pub(super) fn owner(mut client: ServiceClient, rx: mpsc::Receiver<OwnerCmd>, sha
             }
             Ok(OwnerCmd::Job(job, handle, reply)) => {
                 match Active::start(job, handle, reply, &client) {
-                    Ok(a) => active = Some(a),
+                    Ok(a) => {
+                        if let Some(j) = lock(&status).job.as_ref() {
+                            tracing::info!(
+                                job = j.id,
+                                kind = j.kind,
+                                recording = %j.recording,
+                                "job started"
+                            );
+                        }
+                        active = Some(a);
+                    }
                     Err((reply, e)) => {
                         lock(&status).job = None;
                         set_state("disabled", None);
@@ -384,6 +394,21 @@ pub(super) fn owner(mut client: ServiceClient, rx: mpsc::Receiver<OwnerCmd>, sha
                         let mut s = lock(&status);
                         s.jobs_run += 1;
                         if let Some(j) = s.job.take() {
+                            match &result {
+                                Ok(_) => tracing::info!(
+                                    job = j.id,
+                                    kind = j.kind,
+                                    recording = %j.recording,
+                                    "job finished"
+                                ),
+                                Err((api, _)) => tracing::warn!(
+                                    job = j.id,
+                                    kind = j.kind,
+                                    recording = %j.recording,
+                                    error = %api.message,
+                                    "job ended with an error"
+                                ),
+                            }
                             s.last_recording = Some(j.recording);
                         }
                     }

@@ -28,6 +28,9 @@ pub fn spawn_serve_with(
     adjust: impl FnOnce(&mut Command),
 ) -> Child {
     let mut cmd = bench();
+    // Its stderr is a pipe the tests do not read: warnings only, so a long
+    // test never fills it (tests/logging.rs reads the default `info`).
+    cmd.env("RUST_LOG", "warn");
     adjust(&mut cmd);
     let child = cmd
         .args([
