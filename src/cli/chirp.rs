@@ -3,7 +3,8 @@
 
 use super::serve::via_daemon;
 use super::{
-    bad_input, emit, job_thread, load_config, origin, recording_plan, refused_request, run_failed,
+    bad_input, emit, job_thread, load_config, origin, recording_plan, refuse_local_only,
+    refused_request, run_failed,
 };
 use bench::config::{ChirpKind, DEFAULT_CONFIG};
 use bench::jobs::chirp::{run_chirp, ChirpOptions, ChirpSummary};
@@ -149,10 +150,11 @@ pub(super) fn chirp(args: ChirpArgs, stop: Arc<AtomicBool>) -> ExitCode {
             (args.backend.is_some(), "--backend"),
             (args.chirp_kind.is_some(), "--chirp-kind"),
         ];
-        if let Some((_, flag)) = local_only.iter().find(|(set, _)| *set) {
-            return bad_input(format!(
-                "{flag}: not with --daemon (the daemon owns the bench, its config and where recordings go)"
-            ));
+        if let Some(code) = refuse_local_only(
+            &local_only,
+            "the daemon owns the bench, its config and where recordings go",
+        ) {
+            return code;
         }
         let job = JobRequest::Chirp(args.request());
         return via_daemon(sock, &job, args.json, print_summary);

@@ -3,8 +3,8 @@
 
 use super::serve::via_daemon;
 use super::{
-    bad_input, emit, job_thread, load_config, origin, recording_plan, refused_request, run_failed,
-    status, unclaimed_recording,
+    bad_input, emit, job_thread, load_config, origin, recording_plan, refuse_local_only,
+    refused_request, run_failed, status, unclaimed_recording,
 };
 use bench::config::DEFAULT_CONFIG;
 use bench::jobs::request::{parse_seed, ControlRequest, JobRequest};
@@ -141,10 +141,11 @@ pub(super) fn control(args: ControlArgs, stop: Arc<AtomicBool>) -> ExitCode {
             (args.check_only, "--check-only"),
             (args.frf.is_some(), "--frf"),
         ];
-        if let Some((_, flag)) = local_only.iter().find(|(set, _)| *set) {
-            return bad_input(format!(
-                "{flag}: not with --daemon (run it locally, or let the daemon choose the recording)"
-            ));
+        if let Some(code) = refuse_local_only(
+            &local_only,
+            "run it locally, or let the daemon choose the recording",
+        ) {
+            return code;
         }
         let job = JobRequest::Control(args.request());
         return via_daemon(sock, &job, args.json, print_control_summary);

@@ -180,6 +180,15 @@ pub(super) fn recording_plan(
     })
 }
 
+/// With `--daemon`: exit 2 for the first of `flags` (`(given, "--flag")`)
+/// that only a local run takes, saying `why`.
+pub(super) fn refuse_local_only(flags: &[(bool, &str)], why: &str) -> Option<ExitCode> {
+    flags
+        .iter()
+        .find(|(given, _)| *given)
+        .map(|(_, flag)| bad_input(format!("{flag}: not with --daemon ({why})")))
+}
+
 /// An unclaimed default recording name (for `--check-only`, which writes
 /// nothing).
 pub(super) fn unclaimed_recording(prefix: &str) -> PathBuf {
