@@ -129,6 +129,28 @@ fn control(cfg: &str, out: &str, backend: Option<&str>, extra: &[&str]) -> std::
     run(&args)
 }
 
+/// A 6 s fast step over the serial link of the emulator of `cfg`, with
+/// `fault` from 1.5 s of device time (late enough for the host to connect
+/// and close the loop); the recording is `run.mcap` beside `cfg`.
+fn step_with_link_fault(cfg: &Path, fault: LinkFault) -> (Emulator, std::process::Output, PathBuf) {
+    let emu = Emulator::start(
+        cfg,
+        vec![ScheduledLinkFault {
+            at_s: 1.5,
+            kind: fault,
+        }],
+        None,
+    );
+    let out = cfg.with_file_name("run.mcap");
+    let o = control(
+        &cfg.display().to_string(),
+        &out.display().to_string(),
+        Some(&emu.backend()),
+        &["--duration-s", "6"],
+    );
+    (emu, o, out)
+}
+
 #[test]
 fn fast_step_over_the_serial_link_matches_the_direct_simulator() {
     let _g = one_at_a_time();
@@ -261,22 +283,7 @@ fn link_faults_end_in_the_link_fault_with_zero_amps() {
     ] {
         let dir = tmp();
         let cfg = quiet_config(dir.path());
-        let emu = Emulator::start(
-            &cfg,
-            vec![ScheduledLinkFault {
-                // Late enough for the host to connect and close the loop.
-                at_s: 1.5,
-                kind: fault,
-            }],
-            None,
-        );
-        let out = dir.path().join("run.mcap");
-        let o = control(
-            &cfg.display().to_string(),
-            &out.display().to_string(),
-            Some(&emu.backend()),
-            &["--duration-s", "6"],
-        );
+        let (emu, o, out) = step_with_link_fault(&cfg, fault);
         let err = stderr(&o);
         assert_eq!(o.status.code(), Some(3), "{fault:?}: {err}");
         assert!(
@@ -326,21 +333,7 @@ fn a_uniformly_late_link_is_the_link_latency_fault() {
         "max_command_latency_s = 0.005",
     );
     std::fs::write(&cfg, text).unwrap();
-    let emu = Emulator::start(
-        &cfg,
-        vec![ScheduledLinkFault {
-            at_s: 1.5,
-            kind: LinkFault::Delay { delay_s: 0.01 },
-        }],
-        None,
-    );
-    let out = dir.path().join("run.mcap");
-    let o = control(
-        &cfg.display().to_string(),
-        &out.display().to_string(),
-        Some(&emu.backend()),
-        &["--duration-s", "6"],
-    );
+    let (emu, o, out) = step_with_link_fault(&cfg, LinkFault::Delay { delay_s: 0.01 });
     let err = stderr(&o);
     assert_eq!(o.status.code(), Some(3), "{err}");
     assert!(err.contains("link_latency"), "{err}");
