@@ -626,7 +626,11 @@ where
         .name("bench-writer".into())
         .spawn(move || {
             if let Some(p) = priority {
-                set_fifo_priority(p);
+                // The loop's own setup (mlockall is process-wide: again is
+                // a no-op); not permitted, the writer runs normally.
+                for w in crate::rt::make_realtime(p, None) {
+                    tracing::debug!("bench-writer: {w}");
+                }
             }
             let mut last: Option<(u64, f64)> = None;
             let result = write_queue(
@@ -656,21 +660,6 @@ where
             }
         })
         .expect("cannot spawn the bench-writer thread")
-}
-
-/// `SCHED_FIFO` at `priority` for the calling thread, best effort.
-fn set_fifo_priority(priority: i32) {
-    let param = libc::sched_param {
-        sched_priority: priority,
-    };
-    // SAFETY: plain syscall on the calling thread with a valid parameter.
-    let r = unsafe { libc::pthread_setschedparam(libc::pthread_self(), libc::SCHED_FIFO, &param) };
-    if r != 0 {
-        tracing::debug!(
-            priority,
-            "the writer runs without SCHED_FIFO (not permitted)"
-        );
-    }
 }
 
 /// The writer thread's loop (see [`spawn_writer`]). `last` is the tick and
