@@ -135,7 +135,7 @@ fn run_counted(pacing: Pacing, seconds: f64) -> (u64, u64) {
         pacing,
         timing_interval_ticks: 500,
         safety: bench::rt::supervisor::SupervisorConfig {
-            max_consecutive_overruns: 1000,
+            max_missed_deadlines: u64::MAX,
             ..cfg.supervisor(&info)
         },
         max_ticks: chirp.total_ticks(),

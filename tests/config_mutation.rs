@@ -141,10 +141,10 @@ fn specs() -> Vec<Spec> {
             Bounds::new(1e-6, true, 1e-3, false),
         ),
         s(
-            "safety.max_consecutive_overruns",
-            Count,
+            "safety.max_overrun_s",
+            Real,
             false,
-            Bounds::new(1.0, true, blind, true),
+            Bounds::new(0.0, false, 0.1, true),
         ),
         s(
             "safety.max_missed_samples",
@@ -571,15 +571,14 @@ proptest! {
         }
     }
 
-    /// The counts' bounds follow the loop rate: at any rate, K and the
-    /// overrun count are refused naming the key exactly when above 0.1 s of
-    /// ticks (K also when K + 1 sample timeouts exceed 1 s), the overrun
-    /// count also at 0.
+    /// K's bounds follow the loop rate: at any rate, K is refused naming
+    /// the key exactly when above 0.1 s of ticks or when K + 1 sample
+    /// timeouts exceed 1 s. (The overrun bound is a time,
+    /// `safety.max_overrun_s`, whatever the rate.)
     #[test]
     fn the_count_bounds_follow_the_loop_rate(
         rate in 100.0f64..=100_000.0,
         n in 0u32..=20_000,
-        overruns in any::<bool>(),
     ) {
         let mut t = shipped_table();
         t["loop"].as_table_mut().unwrap().insert("rate_hz".into(), Value::Float(rate));
@@ -592,18 +591,14 @@ proptest! {
         let mut backend = Table::new();
         backend.insert("serial".into(), Value::Table(serial));
         t.insert("backend".into(), Value::Table(backend));
-        let key = if overruns { "max_consecutive_overruns" } else { "max_missed_samples" };
+        let key = "max_missed_samples";
         t["safety"].as_table_mut().unwrap().insert(key.into(), Value::Integer(n.into()));
         let text = toml::to_string(&t).unwrap();
         let blind = (0.1 * rate).floor();
-        let ok = if overruns {
-            n >= 1 && f64::from(n) <= blind
-        } else {
-            // The serial timeout (10 periods) or the CAN default (2
-            // periods, at least 1 ms), whichever is longer.
-            let timeout_s = (10.0 / rate).max(1e-3);
-            f64::from(n) <= blind && (f64::from(n) + 1.0) * timeout_s <= 1.0 + 1e-9
-        };
+        // The serial timeout (10 periods) or the CAN default (2 periods,
+        // at least 1 ms), whichever is longer.
+        let timeout_s = (10.0 / rate).max(1e-3);
+        let ok = f64::from(n) <= blind && (f64::from(n) + 1.0) * timeout_s <= 1.0 + 1e-9;
         let dotted = format!("safety.{key}");
         match load(&text) {
             Err(ConfigError::Invalid { key: k, reason, .. }) if k == dotted => {

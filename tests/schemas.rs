@@ -215,13 +215,17 @@ fn recorded_messages_match_their_channel_schemas() {
     let names = |s: &str| -> BTreeSet<String> { s.split(' ').map(String::from).collect() };
     assert_eq!(
         keys(&samples[0]),
-        names("tick t_s current_command_a position_m excitation_a setpoint_m state out_of_range")
+        names(
+            "tick t_s wake_s current_command_a position_m excitation_a setpoint_m state \
+             out_of_range"
+        )
     );
     assert_eq!(
         keys(&chirp["/bench/timing"].messages[0]),
         names(
-            "tick t_s ticks wake_latency_mean_ns wake_latency_p99_ns wake_latency_max_ns \
-             compute_mean_ns compute_p99_ns compute_max_ns overruns dropped_records"
+            "tick t_s ticks wake_latency_mean_ns wake_latency_p50_ns wake_latency_p99_ns \
+             wake_latency_p999_ns wake_latency_max_ns compute_mean_ns compute_p50_ns \
+             compute_p99_ns compute_p999_ns compute_max_ns overruns dropped_records"
         )
     );
     assert_eq!(keys(&events[0]), names("tick t_s kind state fault value"));

@@ -276,10 +276,7 @@ pub(super) fn print_summary(s: &ChirpSummary) {
         s.model.zero_types.join(", "),
         if s.model.cmp_cnmp { "yes" } else { "no" }
     );
-    let t = &s.timing;
-    println!(
-        "loop: {} ticks at {:.0} Hz ({}), {:.2} s wall; compute mean {:.2} µs, p99 {:.2} µs, max {:.1} µs; wake p99 {:.1} µs; overruns {}; dropped {}",
-        t.ticks, t.rate_hz, t.mode, t.wall_s, t.compute_mean_us, t.compute_p99_us, t.compute_max_us,
-        t.wake_latency_p99_us, t.overruns, t.dropped_records
-    );
+    for line in s.timing.lines() {
+        println!("{line}");
+    }
 }

@@ -310,9 +310,8 @@ pub(super) fn print_control_summary(s: &ControlSummary) {
         println!("step plot   {}", p.display());
     }
     if let Some(t) = &s.timing {
-        println!(
-            "loop: {} ticks at {:.0} Hz ({}), {:.2} s wall; compute mean {:.2} µs, p99 {:.2} µs; overruns {}",
-            t.ticks, t.rate_hz, t.mode, t.wall_s, t.compute_mean_us, t.compute_p99_us, t.overruns
-        );
+        for line in t.lines() {
+            println!("{line}");
+        }
     }
 }

@@ -14,7 +14,7 @@ use crate::jobs::step::{run_control_from, ControlOptions, StageSource};
 use crate::record::topics::FaultKind;
 use crate::record::topics::SupervisorState;
 use crate::rt::service::{LoopReply, LoopRequest, ServiceClient};
-use crate::rt::timing::TickTiming;
+use crate::rt::timing::TimingStats;
 use crate::rt::{Job, JobEnd, RawStop, StopReason};
 use serde_json::{json, Value};
 use std::path::{Path, PathBuf};
@@ -216,7 +216,8 @@ impl Active {
                     ticket.end = Some(JobEnd {
                         ticks: 0,
                         stop: RawStop::Interrupted { tick: 0 },
-                        timing: TickTiming::default(),
+                        timing: TimingStats::default(),
+                        cpu_dma_latency: Default::default(),
                         dropped_records: 0,
                         final_state: SupervisorState::Disabled,
                     });

@@ -30,16 +30,33 @@ pub struct TimingSummary {
     pub mode: String,
     /// Loop rate, Hz.
     pub rate_hz: f64,
+    /// Median wake-up latency (actual wake − deadline), µs: the headline
+    /// figure (0 in virtual time). Quantiles come from an HDR histogram and
+    /// are at most 1 % above the true value.
+    pub wake_latency_p50_us: f64,
     /// Wake-up latency p99, µs (0 in virtual time).
     pub wake_latency_p99_us: f64,
-    /// Largest wake-up latency, µs.
+    /// Wake-up latency p99.9, µs (0 in virtual time).
+    pub wake_latency_p999_us: f64,
+    /// Largest wake-up latency, µs (exact).
     pub wake_latency_max_us: f64,
-    /// Mean compute time per tick, µs.
-    pub compute_mean_us: f64,
+    /// Mean wake-up latency, µs (one preemption can dominate it; the median
+    /// is the figure to quote).
+    pub wake_latency_mean_us: f64,
+    /// Median compute time per tick (wake timestamp → command written,
+    /// less one clock read), µs: the headline figure.
+    pub compute_p50_us: f64,
     /// Compute time p99, µs.
     pub compute_p99_us: f64,
-    /// Largest compute time, µs.
+    /// Compute time p99.9, µs.
+    pub compute_p999_us: f64,
+    /// Largest compute time, µs (exact).
     pub compute_max_us: f64,
+    /// Mean compute time per tick, µs (one preemption can dominate it).
+    pub compute_mean_us: f64,
+    /// `/dev/cpu_dma_latency`: `held at 0 µs`, `unavailable (reason)` or
+    /// `not requested (virtual time)`.
+    pub cpu_dma_latency: String,
     /// Ticks that ended after the next deadline.
     pub overruns: u64,
     /// Records dropped because the writer fell behind.
@@ -51,17 +68,65 @@ pub struct TimingSummary {
 }
 
 impl TimingSummary {
+    /// The summary's loop lines, as `bench chirp` and `bench control`
+    /// print them: medians first, then p99, p99.9 and max, µs.
+    pub fn lines(&self) -> Vec<String> {
+        let q = |p50: f64, p99: f64, p999: f64, max: f64, mean: f64| {
+            format!("p50 {p50:.2} µs, p99 {p99:.2} µs, p99.9 {p999:.2} µs, max {max:.1} µs (mean {mean:.2} µs)")
+        };
+        let wake = if self.mode == "virtual" {
+            "none (virtual time)".to_string()
+        } else {
+            q(
+                self.wake_latency_p50_us,
+                self.wake_latency_p99_us,
+                self.wake_latency_p999_us,
+                self.wake_latency_max_us,
+                self.wake_latency_mean_us,
+            )
+        };
+        vec![
+            format!(
+                "loop: {} ticks at {:.0} Hz ({}), {:.2} s wall; overruns {}; dropped {}; /dev/cpu_dma_latency {}",
+                self.ticks,
+                self.rate_hz,
+                self.mode,
+                self.wall_s,
+                self.overruns,
+                self.dropped_records,
+                self.cpu_dma_latency
+            ),
+            format!("  wake-up latency {wake}"),
+            format!(
+                "  compute         {}",
+                q(
+                    self.compute_p50_us,
+                    self.compute_p99_us,
+                    self.compute_p999_us,
+                    self.compute_max_us,
+                    self.compute_mean_us
+                )
+            ),
+        ]
+    }
+
     fn new(r: &LoopReport, realtime: bool, rate_hz: f64, wall_s: f64) -> Self {
         let t = &r.timing;
         Self {
             ticks: r.ticks,
             mode: if realtime { "realtime" } else { "virtual" }.to_string(),
             rate_hz,
-            wake_latency_p99_us: t.wake.quantile_ns(0.99) * 1e-3,
-            wake_latency_max_us: t.wake.max_ns() * 1e-3,
-            compute_mean_us: t.compute.mean_ns() * 1e-3,
-            compute_p99_us: t.compute.quantile_ns(0.99) * 1e-3,
-            compute_max_us: t.compute.max_ns() * 1e-3,
+            wake_latency_p50_us: t.wake.p50_ns * 1e-3,
+            wake_latency_p99_us: t.wake.p99_ns * 1e-3,
+            wake_latency_p999_us: t.wake.p999_ns * 1e-3,
+            wake_latency_max_us: t.wake.max_ns * 1e-3,
+            wake_latency_mean_us: t.wake.mean_ns * 1e-3,
+            compute_p50_us: t.compute.p50_ns * 1e-3,
+            compute_p99_us: t.compute.p99_ns * 1e-3,
+            compute_p999_us: t.compute.p999_ns * 1e-3,
+            compute_max_us: t.compute.max_ns * 1e-3,
+            compute_mean_us: t.compute.mean_ns * 1e-3,
+            cpu_dma_latency: r.cpu_dma_latency.to_string(),
             overruns: t.overruns,
             dropped_records: r.dropped_records,
             wall_s,

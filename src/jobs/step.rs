@@ -628,7 +628,7 @@ mod tests {
                 let mut sup = Supervisor::new(SupervisorConfig {
                     position_limit_m: 0.8e-3,
                     peak_current_a: peak,
-                    max_consecutive_overruns: 5,
+                    max_missed_deadlines: 10,
                     max_missed_samples: 3,
                     max_position_step_m: 50e-6,
                     max_late_commands: 10,

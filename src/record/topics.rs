@@ -13,6 +13,11 @@ use serde::{Deserialize, Serialize};
 
 use crate::record::nan_if_null;
 
+/// NaN: the value of a field a recording made before it existed lacks.
+fn nan() -> f64 {
+    f64::NAN
+}
+
 /// One loop tick as seen by the recorder (`/bench/sample`). Non-finite
 /// numbers are written as null.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, JsonSchema)]
@@ -24,6 +29,15 @@ pub struct SampleRecord {
     /// device-clocked backends).
     #[serde(deserialize_with = "nan_if_null")]
     pub t_s: f64,
+    /// When the tick actually woke, s: `CLOCK_MONOTONIC` (the clock of the
+    /// loop's deadlines) since the job's first deadline, so `wake_s − t_s`
+    /// is the tick's wake-up latency plus the periods lost in stalls: a
+    /// 50 ms stall shows as a 50 ms gap in `wake_s` while `t_s` goes on
+    /// one period a tick. Device-clocked, since the job's first sample
+    /// (whose `wake_s` is its `t_s`). Virtual time has no wall clock:
+    /// `wake_s = t_s`. Recordings made before this field read it as `NaN`.
+    #[serde(default = "nan", deserialize_with = "nan_if_null")]
+    pub wake_s: f64,
     /// Current commanded to the amplifier at this tick, A (after limits).
     #[serde(deserialize_with = "nan_if_null")]
     pub current_command_a: f64,
@@ -59,18 +73,37 @@ pub struct TimingRecord {
     /// time).
     #[serde(deserialize_with = "nan_if_null")]
     pub wake_latency_mean_ns: f64,
-    /// 99th percentile of wake-up latency, ns (histogram bucket upper edge).
+    /// Median wake-up latency, ns (HDR histogram, ≤ 1 % above the true
+    /// value; `NaN` in recordings made before this field).
+    #[serde(default = "nan", deserialize_with = "nan_if_null")]
+    pub wake_latency_p50_ns: f64,
+    /// 99th percentile of wake-up latency, ns (HDR histogram, ≤ 1 % above
+    /// the true value).
     #[serde(deserialize_with = "nan_if_null")]
     pub wake_latency_p99_ns: f64,
+    /// 99.9th percentile of wake-up latency, ns (≤ 1 % above; `NaN` in
+    /// recordings made before this field).
+    #[serde(default = "nan", deserialize_with = "nan_if_null")]
+    pub wake_latency_p999_ns: f64,
     /// Largest wake-up latency in the window, ns.
     #[serde(deserialize_with = "nan_if_null")]
     pub wake_latency_max_ns: f64,
-    /// Mean compute time (wake → command written), ns.
+    /// Mean compute time (wake timestamp → command written, less one clock
+    /// read), ns.
     #[serde(deserialize_with = "nan_if_null")]
     pub compute_mean_ns: f64,
-    /// 99th percentile of compute time, ns (histogram bucket upper edge).
+    /// Median compute time, ns (≤ 1 % above; `NaN` in recordings made
+    /// before this field).
+    #[serde(default = "nan", deserialize_with = "nan_if_null")]
+    pub compute_p50_ns: f64,
+    /// 99th percentile of compute time, ns (HDR histogram, ≤ 1 % above the
+    /// true value).
     #[serde(deserialize_with = "nan_if_null")]
     pub compute_p99_ns: f64,
+    /// 99.9th percentile of compute time, ns (≤ 1 % above; `NaN` in
+    /// recordings made before this field).
+    #[serde(default = "nan", deserialize_with = "nan_if_null")]
+    pub compute_p999_ns: f64,
     /// Largest compute time in the window, ns.
     #[serde(deserialize_with = "nan_if_null")]
     pub compute_max_ns: f64,
@@ -175,7 +208,8 @@ pub enum FaultKind {
     ProbeNotFinite,
     /// The job's command was not finite.
     CommandNotFinite,
-    /// Too many consecutive loop overruns.
+    /// The real-time loop ran behind its deadlines for longer than
+    /// `safety.max_overrun_s` (value: how long, s).
     Overruns,
     /// The HAL returned an error on read or write.
     Hal,

@@ -752,6 +752,7 @@ mod tests {
         SampleRecord {
             tick,
             t_s,
+            wake_s: t_s + 1e-5 * (tick % 3) as f64,
             current_command_a: 0.1 * (tick as f64).sin(),
             position_m: if tick % 7 == 3 {
                 f64::NAN
@@ -775,10 +776,14 @@ mod tests {
             t_s: tick as f64 * 200e-6,
             ticks: 500,
             wake_latency_mean_ns: 1234.5,
+            wake_latency_p50_ns: 1100.0,
             wake_latency_p99_ns: 5000.0,
+            wake_latency_p999_ns: 8000.0,
             wake_latency_max_ns: 9000.0,
             compute_mean_ns: 800.25,
+            compute_p50_ns: 750.0,
             compute_p99_ns: 2000.0,
+            compute_p999_ns: 2500.0,
             compute_max_ns: f64::NAN,
             overruns: 1,
             dropped_records: 2,

@@ -6,6 +6,7 @@
 //! `alloc` integration test proves it.
 
 pub mod backend;
+pub mod latency;
 pub mod service;
 pub mod supervisor;
 mod tick;

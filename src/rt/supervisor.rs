@@ -25,7 +25,9 @@
 //! finite, probe in range, |position| within the software limit, change
 //! since the last sample plausible (`max_position_step_m` per tick); on each
 //! command: finite, I²t budget not spent; on each tick in real-time mode:
-//! fewer than M consecutive overruns; on each tick of a recorded job: the
+//! deadlines missed in a row for at most `safety.max_overrun_s` (counted in
+//! whole periods, so a stall is judged by its length whatever the rate;
+//! [`Supervisor::check_overrun`]); on each tick of a recorded job: the
 //! recording still alive (`recording`, see [`Supervisor::recording_lost`]).
 //! Commands are clipped to the amplifier's peak current.
 //!
@@ -80,6 +82,14 @@ pub enum HalVerdict {
     },
 }
 
+/// The whole periods of `period_s` in a time bound `bound_s` (s), as the
+/// supervisor counts its in-a-row rules in ticks: `⌊bound / period⌋`, with
+/// a relative slack of 1e-9 so that 2 ms at 200 µs is 10 periods despite
+/// rounding. A bound under one period tolerates none.
+pub fn whole_periods(bound_s: f64, period_s: f64) -> u64 {
+    (bound_s / period_s + 1e-9).floor() as u64
+}
+
 /// Supervisor limits.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct SupervisorConfig {
@@ -87,8 +97,10 @@ pub struct SupervisorConfig {
     pub position_limit_m: f64,
     /// Amplifier peak current, A: commands are clipped to ±this.
     pub peak_current_a: f64,
-    /// Consecutive overruns that fault (0 disables the check, virtual time).
-    pub max_consecutive_overruns: u32,
+    /// Deadlines that may be missed in a row (the whole periods in
+    /// `safety.max_overrun_s`); one more is the `overruns` fault. Checked
+    /// in real-time (host-paced) mode only.
+    pub max_missed_deadlines: u64,
     /// Consecutive missing (gap, timeout, corrupt) or stale samples
     /// tolerated (K).
     pub max_missed_samples: u32,
@@ -112,7 +124,8 @@ pub struct Supervisor {
     cfg: SupervisorConfig,
     state: SupervisorState,
     fault: Option<(FaultKind, f64)>,
-    consecutive_overruns: u32,
+    /// Deadlines missed in a row.
+    missed_deadlines: u64,
     last_seq: Option<u64>,
     last_position_m: f64,
     /// Consecutive stale samples.
@@ -133,7 +146,7 @@ impl Supervisor {
             cfg,
             state: SupervisorState::Disabled,
             fault: None,
-            consecutive_overruns: 0,
+            missed_deadlines: 0,
             last_seq: None,
             last_position_m: f64::NAN,
             stale: 0,
@@ -196,7 +209,7 @@ impl Supervisor {
     pub fn reset(&mut self) {
         self.state = SupervisorState::Disabled;
         self.fault = None;
-        self.consecutive_overruns = 0;
+        self.missed_deadlines = 0;
         self.last_seq = None;
         self.last_position_m = f64::NAN;
         self.stale = 0;
@@ -323,22 +336,29 @@ impl Supervisor {
             .then_some(FaultKind::Recording)
     }
 
-    /// Records whether this tick overran; trips after M in a row.
-    pub fn check_overrun(&mut self, overran: bool) -> Option<FaultKind> {
-        if !overran {
-            self.consecutive_overruns = 0;
+    /// Records how many deadlines this tick made the loop miss (0: it ended
+    /// before the next deadline, which ends the streak). Deadlines missed
+    /// in a row add up; more than `max_missed_deadlines` of them (the whole
+    /// periods in `safety.max_overrun_s`) trip [`FaultKind::Overruns`],
+    /// with the time the loop has been behind as its value, s. So one
+    /// stall of a given length trips or not whatever the loop rate, and so
+    /// does a loop that keeps ending a little late. Returns the fault if
+    /// this call tripped it.
+    pub fn check_overrun(&mut self, missed: u64) -> Option<FaultKind> {
+        if missed == 0 {
+            self.missed_deadlines = 0;
             return None;
         }
-        self.consecutive_overruns += 1;
-        let m = self.cfg.max_consecutive_overruns;
-        if m > 0
-            && self.consecutive_overruns >= m
-            && self.trip(FaultKind::Overruns, self.consecutive_overruns as f64)
-        {
-            Some(FaultKind::Overruns)
-        } else {
-            None
-        }
+        self.missed_deadlines = self.missed_deadlines.saturating_add(missed);
+        let behind_s = self.missed_deadlines as f64 * self.cfg.period_s;
+        (self.missed_deadlines > self.cfg.max_missed_deadlines
+            && self.trip(FaultKind::Overruns, behind_s))
+        .then_some(FaultKind::Overruns)
+    }
+
+    /// Deadlines missed in a row so far.
+    pub fn missed_deadlines(&self) -> u64 {
+        self.missed_deadlines
     }
 
     /// The command to send for a job's demand `current_a`: 0 A unless
@@ -371,7 +391,7 @@ mod tests {
         SupervisorConfig {
             position_limit_m: 0.8e-3,
             peak_current_a: 9.98,
-            max_consecutive_overruns: 3,
+            max_missed_deadlines: 3,
             max_missed_samples: 3,
             max_position_step_m: 50e-6,
             max_late_commands: 10,
@@ -710,11 +730,79 @@ mod tests {
     #[test]
     fn overruns_in_a_row() {
         let mut s = sup();
-        assert_eq!(s.check_overrun(true), None);
-        assert_eq!(s.check_overrun(true), None);
-        assert_eq!(s.check_overrun(false), None);
-        assert_eq!(s.check_overrun(true), None);
-        assert_eq!(s.check_overrun(true), None);
-        assert_eq!(s.check_overrun(true), Some(FaultKind::Overruns));
+        // 3 deadlines may be missed in a row; the fourth trips.
+        assert_eq!(s.check_overrun(2), None);
+        assert_eq!(s.check_overrun(1), None);
+        assert_eq!(s.check_overrun(0), None);
+        assert_eq!(s.missed_deadlines(), 0);
+        assert_eq!(s.check_overrun(1), None);
+        assert_eq!(s.check_overrun(2), None);
+        assert_eq!(s.check_overrun(1), Some(FaultKind::Overruns));
+        // The value is how long the loop was behind: 4 periods of 200 µs.
+        let (_, behind_s) = s.fault().unwrap();
+        assert!((behind_s - 4.0 * 2e-4).abs() < 1e-12, "{behind_s}");
+    }
+
+    /// The supervisor at `rate_hz` with the shipped bound of 2 ms, the
+    /// missed deadlines converted as the config does.
+    fn sup_at(rate_hz: f64) -> Supervisor {
+        let period_s = 1.0 / rate_hz;
+        let mut s = Supervisor::new(SupervisorConfig {
+            max_missed_deadlines: whole_periods(2e-3, period_s),
+            period_s,
+            ..config()
+        });
+        s.enabled();
+        s.running();
+        s
+    }
+
+    /// One tick stalled `stall_s` at `rate_hz`: it ends `stall_s` after
+    /// its deadline, so it misses ⌊stall / period⌋ deadlines, then the loop
+    /// is on time again. Returns whether the overrun rule tripped.
+    fn one_stall_trips(rate_hz: f64, stall_s: f64) -> bool {
+        let mut s = sup_at(rate_hz);
+        let missed = (stall_s * rate_hz).floor() as u64;
+        let tripped = [0, 0, missed, 0, 0]
+            .into_iter()
+            .any(|m| s.check_overrun(m).is_some());
+        assert_eq!(tripped, s.fault().is_some());
+        tripped
+    }
+
+    /// A loop that ends every tick a little more than a period late for
+    /// `late_s` in all: one deadline missed per tick. Returns whether the
+    /// rule tripped.
+    fn slow_ticks_trip(rate_hz: f64, late_s: f64) -> bool {
+        let mut s = sup_at(rate_hz);
+        let ticks = (late_s * rate_hz).round() as u64;
+        (0..ticks).any(|_| s.check_overrun(1).is_some())
+    }
+
+    #[test]
+    fn the_same_stall_is_judged_the_same_at_5_10_and_20_khz() {
+        for rate_hz in [5e3, 10e3, 20e3] {
+            // Behind schedule longer than 2 ms: the fault, at every rate.
+            for stall_s in [2.5e-3, 3e-3, 50e-3] {
+                assert!(one_stall_trips(rate_hz, stall_s), "{rate_hz} Hz {stall_s} s");
+                assert!(slow_ticks_trip(rate_hz, stall_s), "{rate_hz} Hz {stall_s} s");
+            }
+            // Up to 2 ms: tolerated, at every rate (at 20 kHz 1.5 ms is 30
+            // missed deadlines, which M = 5 ticks used to fault on).
+            for stall_s in [0.3e-3, 1.5e-3, 1.9e-3] {
+                assert!(!one_stall_trips(rate_hz, stall_s), "{rate_hz} Hz {stall_s} s");
+                assert!(!slow_ticks_trip(rate_hz, stall_s), "{rate_hz} Hz {stall_s} s");
+            }
+        }
+    }
+
+    #[test]
+    fn whole_periods_of_a_bound() {
+        // 2 ms is 10 periods at 5 kHz despite 2e-3 / 2e-4 rounding below.
+        assert_eq!(whole_periods(2e-3, 2e-4), 10);
+        assert_eq!(whole_periods(2e-3, 1e-4), 20);
+        assert_eq!(whole_periods(2e-3, 5e-5), 40);
+        assert_eq!(whole_periods(2e-3, 1e-2), 0);
+        assert_eq!(whole_periods(0.1, 1.0 / 3.0), 0);
     }
 }

@@ -31,9 +31,22 @@
 //! 7. **timing** ([`Loop::timing`]): wake-up latency, compute time and
 //!    overrun. A tick that ends more than one period after its deadline is
 //!    an overrun; the deadlines it made the loop miss are skipped, not
-//!    caught up back to back, so one stall (a VM hiccup, an SMI) costs one
-//!    overrun and only a loop that keeps missing its deadlines reaches
-//!    `max_consecutive_overruns`.
+//!    caught up back to back, and counted: deadlines missed in a row for
+//!    longer than `safety.max_overrun_s` are the `overruns` fault
+//!    ([`Supervisor::check_overrun`]), the same stall judged the same at
+//!    any rate.
+//!
+//! Wake-up latency is the wake timestamp (`CLOCK_MONOTONIC`, read right
+//! after the sleep returns) minus the deadline. Compute time runs from that
+//! timestamp to the one taken when the command is out, minus the cost of
+//! one clock read (measured when the loop is made: the smallest of 1000
+//! back-to-back reads), so neither the sleep nor the timer calls count.
+//! Both go into HDR histograms allocated before the first tick
+//! ([`crate::rt::timing`], ≤ 1 % relative error).
+//!
+//! Real-time pacing also holds `/dev/cpu_dma_latency` at 0 for the loop's
+//! life, as `cyclictest` does ([`crate::rt::latency`]); when it cannot be
+//! opened the loop says so in its warnings and the report.
 //!
 //! Nothing on the tick allocates, locks, logs or does I/O other than the
 //! HAL calls (the `alloc` integration test counts allocations to prove it,
@@ -45,7 +58,8 @@ use crate::record::topics::{
     EventKind, EventRecord, FaultKind, Record, SampleRecord, SupervisorState, TimingRecord,
 };
 use crate::rt::supervisor::{HalCall, HalVerdict, Supervisor, SupervisorConfig};
-use crate::rt::timing::TickTiming;
+use crate::rt::latency::{CpuDmaLatency, DmaLatency};
+use crate::rt::timing::{TickTiming, TimingStats};
 use bench_hal::clock::{monotonic_ns as now_ns, sleep_until_ns};
 use bench_hal::{Clock, Command, Error as _, Sample, Stage};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
@@ -141,7 +155,8 @@ pub enum StopReason {
     Fault {
         /// Which fault.
         kind: FaultKind,
-        /// The offending value (position in m, command in A, overrun count).
+        /// The offending value (position in m, command in A, time behind
+        /// schedule in s).
         value: f64,
         /// Tick of the fault.
         tick: u64,
@@ -207,11 +222,13 @@ pub struct JobEnd<E> {
     /// Why it stopped.
     pub stop: RawStop<E>,
     /// Timing over the job.
-    pub timing: TickTiming,
+    pub timing: TimingStats,
     /// Records dropped because the queue was full.
     pub dropped_records: u64,
     /// Supervisor state after the job.
     pub final_state: SupervisorState,
+    /// Whether the loop held `/dev/cpu_dma_latency` at 0.
+    pub cpu_dma_latency: DmaLatency,
 }
 
 impl<E: std::fmt::Display> JobEnd<E> {
@@ -224,6 +241,7 @@ impl<E: std::fmt::Display> JobEnd<E> {
             dropped_records: self.dropped_records,
             warnings,
             final_state: self.final_state,
+            cpu_dma_latency: self.cpu_dma_latency,
         }
     }
 }
@@ -274,13 +292,15 @@ pub struct LoopReport {
     /// Why it stopped.
     pub stop: StopReason,
     /// Timing over the whole run.
-    pub timing: TickTiming,
+    pub timing: TimingStats,
     /// Records dropped because the queue was full.
     pub dropped_records: u64,
     /// Real-time setup problems (not permitted, etc.), one line each.
     pub warnings: Vec<String>,
     /// Final supervisor state.
     pub final_state: SupervisorState,
+    /// Whether the loop held `/dev/cpu_dma_latency` at 0.
+    pub cpu_dma_latency: DmaLatency,
 }
 
 /// Applies SCHED_FIFO, `mlockall` and CPU pinning to the calling thread.
@@ -336,6 +356,12 @@ impl<'q> Emitter<'q> {
             dropped: 0,
             backpressure,
         }
+    }
+
+    /// Whether anything is recorded (not between jobs).
+    #[inline]
+    pub fn records(&self) -> bool {
+        self.out.is_some()
     }
 
     /// Records nothing (the hold job between jobs).
@@ -425,8 +451,9 @@ struct JobCursor {
     last_t_s: f64,
     /// The job's last output (held on a tick without a sample).
     held: JobOutput,
-    total: TickTiming,
-    window: TickTiming,
+    /// Monotonic time the job's `wake_s` counts from, ns (set on its first
+    /// tick).
+    origin_ns: Option<u64>,
     window_ticks: u64,
 }
 
@@ -465,6 +492,28 @@ pub struct Loop<'s, S: Stage> {
     /// Where the last reading and command are published (m and A, as
     /// `f64::to_bits`).
     published: Option<(&'s AtomicU64, &'s AtomicU64)>,
+    /// Timing over the current job (allocated once, reset per job).
+    total: TickTiming,
+    /// Timing over the current `/bench/timing` window.
+    window: TickTiming,
+    /// Cost of one clock read, ns (taken off the compute time).
+    clock_read_ns: u64,
+    /// The `/dev/cpu_dma_latency` request, held while the loop lives.
+    _dma_guard: Option<CpuDmaLatency>,
+    dma_latency: DmaLatency,
+}
+
+/// The cost of one `CLOCK_MONOTONIC` read, ns: the smallest difference of
+/// two back-to-back reads over 1000 tries (the interval between two reads
+/// spans about one call).
+fn clock_read_cost_ns() -> u64 {
+    (0..1000)
+        .map(|_| {
+            let a = now_ns();
+            now_ns().saturating_sub(a)
+        })
+        .min()
+        .unwrap_or(0)
 }
 
 impl<'s, S: Stage> Loop<'s, S> {
@@ -473,9 +522,20 @@ impl<'s, S: Stage> Loop<'s, S> {
     /// must be the one that runs the ticks.
     pub fn new(stage: &'s mut S, opts: &LoopOptions, clock: Clock) -> Self {
         let mut warnings = Vec::new();
-        if let Pacing::RealTime { priority, cpu } = opts.pacing {
-            warnings.extend(make_realtime(priority, cpu));
-        }
+        let (dma_guard, dma_latency) = match opts.pacing {
+            Pacing::RealTime { priority, cpu } => {
+                warnings.extend(make_realtime(priority, cpu));
+                let (guard, status) = CpuDmaLatency::try_hold();
+                if guard.is_none() {
+                    warnings.push(format!(
+                        "{} {status}: deep CPU idle states may add wake-up latency",
+                        crate::rt::latency::PATH
+                    ));
+                }
+                (guard, status)
+            }
+            Pacing::Virtual => (None, DmaLatency::NotRequested),
+        };
         Self {
             stage,
             sup: Supervisor::new(opts.safety),
@@ -491,7 +551,17 @@ impl<'s, S: Stage> Loop<'s, S> {
             link_error: None,
             warnings,
             published: None,
+            total: TickTiming::default(),
+            window: TickTiming::default(),
+            clock_read_ns: clock_read_cost_ns(),
+            _dma_guard: dma_guard,
+            dma_latency,
         }
+    }
+
+    /// Whether this loop holds `/dev/cpu_dma_latency` at 0.
+    pub fn cpu_dma_latency(&self) -> DmaLatency {
+        self.dma_latency
     }
 
     /// Publishes every good reading into `position_bits` (m) and every
@@ -663,32 +733,33 @@ impl<'s, S: Stage> Loop<'s, S> {
 
     /// Step 7: wake-up latency, compute time, overrun (and the overrun
     /// rule; a trip is 0 A and disable now). Returns `true` if the overrun
-    /// rule latched a fault.
+    /// rule latched a fault. Times in ns on `CLOCK_MONOTONIC`.
     #[inline]
-    pub fn timing(
-        &mut self,
-        deadline: u64,
-        wake: u64,
-        end: u64,
-        answers_seq: u64,
-        window: &mut TickTiming,
-    ) -> bool {
+    pub fn timing(&mut self, deadline: u64, wake: u64, end: u64, answers_seq: u64) -> bool {
         let overran = self.host_paced && end > deadline + self.period_ns;
-        window.wake.record(if self.host_paced {
-            wake as f64 - deadline as f64
+        let wake_ns = if self.host_paced {
+            wake.saturating_sub(deadline)
         } else {
-            0.0
-        });
-        window.compute.record(end as f64 - wake as f64);
+            0
+        };
+        let compute_ns = end.saturating_sub(wake).saturating_sub(self.clock_read_ns);
+        for t in [&mut self.window, &mut self.total] {
+            t.wake.record(wake_ns);
+            t.compute.record(compute_ns);
+        }
         let mut next = deadline + self.period_ns;
+        // Deadlines this tick made the loop miss (0 on time).
+        let mut missed = 0;
         if overran {
-            window.overruns += 1;
+            self.window.overruns += 1;
+            self.total.overruns += 1;
             // Skip the deadlines already missed instead of running catch-up
-            // ticks back to back: one stall is one overrun.
-            next += (end - deadline) / self.period_ns * self.period_ns;
+            // ticks back to back.
+            missed = (end - deadline) / self.period_ns;
+            next += missed * self.period_ns;
         }
         self.next_deadline_ns = next;
-        if self.host_paced && self.sup.check_overrun(overran).is_some() {
+        if self.host_paced && self.sup.check_overrun(missed).is_some() {
             let _ = self.stage.zero_and_disable(answers_seq);
             return true;
         }
@@ -734,6 +805,21 @@ impl<'s, S: Stage> Loop<'s, S> {
             (Clock::Device { .. }, None) => cur.last_t_s + self.period_s,
         };
         cur.last_t_s = t_s;
+        // Monotonic wake time since the job's first deadline (host-paced)
+        // or its first sample (device-clocked: the first wake_s is its
+        // t_s); virtual time has no wall clock: wake_s = t_s.
+        let origin_ns = *cur.origin_ns.get_or_insert_with(|| {
+            if self.host_paced {
+                deadline
+            } else {
+                wake.saturating_sub((t_s.max(0.0) * 1e9) as u64)
+            }
+        });
+        let wake_s = if self.backpressure {
+            t_s
+        } else {
+            wake.saturating_sub(origin_ns) as f64 * 1e-9
+        };
         if em.recording_lost() {
             fault |= self.sup.recording_lost(em.dropped).is_some();
         }
@@ -767,6 +853,7 @@ impl<'s, S: Stage> Loop<'s, S> {
         em.push(Record::Sample(SampleRecord {
             tick: cur.tick,
             t_s,
+            wake_s,
             current_command_a: command_a,
             position_m: sample.map_or(shown.map_or(f64::NAN, |s| s.position_m), |s| s.position_m),
             excitation_a: out.excitation_a,
@@ -778,28 +865,33 @@ impl<'s, S: Stage> Loop<'s, S> {
             let value = self.sup.fault().map_or(f64::NAN, |f| f.1);
             em.event(cur.tick, t_s, EventKind::Fault, &self.sup, value);
         }
-        if self.timing(deadline, wake, end, seq, &mut cur.window) {
+        if self.timing(deadline, wake, end, seq) {
             let value = self.sup.fault().map_or(f64::NAN, |f| f.1);
             em.event(cur.tick, t_s, EventKind::Fault, &self.sup, value);
         }
         cur.window_ticks += 1;
         if cur.window_ticks >= self.timing_interval_ticks {
-            em.push(timing_record(
-                cur.tick,
-                t_s,
-                cur.window_ticks,
-                &cur.window,
-                em.dropped,
-            ));
-            cur.total.merge(&cur.window);
-            cur.window = TickTiming::default();
+            if em.records() {
+                em.push(timing_record(
+                    cur.tick,
+                    t_s,
+                    cur.window_ticks,
+                    &self.window,
+                    em.dropped,
+                ));
+            }
+            self.window.reset();
             cur.window_ticks = 0;
         }
         cur.tick += 1;
         TickResult::Ran { done: out.done }
     }
 
-    fn cursor(&self) -> JobCursor {
+    /// A new job's bookkeeping; resets the timing histograms (no
+    /// allocation).
+    fn cursor(&mut self) -> JobCursor {
+        self.total.reset();
+        self.window.reset();
         JobCursor {
             tick: 0,
             // A job on a running loop counts its time from the last sample.
@@ -808,8 +900,7 @@ impl<'s, S: Stage> Loop<'s, S> {
                 .map_or(0.0, |s| s.device_time_ns as f64 * 1e-9),
             last_t_s: -self.period_s,
             held: JobOutput::ZERO,
-            total: TickTiming::default(),
-            window: TickTiming::default(),
+            origin_ns: None,
             window_ticks: 0,
         }
     }
@@ -899,18 +990,18 @@ impl<'s, S: Stage> Loop<'s, S> {
                 last,
                 t_end,
                 cur.window_ticks,
-                &cur.window,
+                &self.window,
                 em.dropped,
             ));
-            cur.total.merge(&cur.window);
         }
         em.event(last, t_end, EventKind::LoopStopped, &self.sup, f64::NAN);
         JobEnd {
             ticks: cur.tick,
             stop: stop_reason.unwrap_or(RawStop::TickLimit),
-            timing: cur.total,
+            timing: self.total.stats(),
             dropped_records: em.dropped,
             final_state: self.sup.state(),
+            cpu_dma_latency: self.dma_latency,
         }
     }
 
@@ -977,20 +1068,27 @@ pub fn run<S: Stage, J: Job + ?Sized>(
     let mut lp = Loop::new(stage, opts, clock);
     let end = lp.run_job(job, out, opts.max_ticks, stop, progress);
     let warnings = std::mem::take(&mut lp.warnings);
+    // The loop (and its /dev/cpu_dma_latency request) ends here.
+    drop(lp);
     end.into_report(warnings)
 }
 
 fn timing_record(tick: u64, t_s: f64, ticks: u64, w: &TickTiming, dropped: u64) -> Record {
+    let s = w.stats();
     Record::Timing(TimingRecord {
         tick,
         t_s,
         ticks,
-        wake_latency_mean_ns: w.wake.mean_ns(),
-        wake_latency_p99_ns: w.wake.quantile_ns(0.99),
-        wake_latency_max_ns: w.wake.max_ns(),
-        compute_mean_ns: w.compute.mean_ns(),
-        compute_p99_ns: w.compute.quantile_ns(0.99),
-        compute_max_ns: w.compute.max_ns(),
+        wake_latency_mean_ns: s.wake.mean_ns,
+        wake_latency_p50_ns: s.wake.p50_ns,
+        wake_latency_p99_ns: s.wake.p99_ns,
+        wake_latency_p999_ns: s.wake.p999_ns,
+        wake_latency_max_ns: s.wake.max_ns,
+        compute_mean_ns: s.compute.mean_ns,
+        compute_p50_ns: s.compute.p50_ns,
+        compute_p99_ns: s.compute.p99_ns,
+        compute_p999_ns: s.compute.p999_ns,
+        compute_max_ns: s.compute.max_ns,
         overruns: w.overruns,
         dropped_records: dropped,
     })
@@ -1081,7 +1179,7 @@ mod tests {
             safety: SupervisorConfig {
                 position_limit_m: 0.8e-3,
                 peak_current_a: 2.0,
-                max_consecutive_overruns: 3,
+                max_missed_deadlines: 3,
                 max_missed_samples: 3,
                 max_position_step_m: 50e-6,
                 max_late_commands: 10,
@@ -1290,24 +1388,109 @@ mod tests {
         // As if paced in real time (without SCHED_FIFO on the test thread).
         lp.host_paced = true;
         let p = 200_000;
-        let mut w = TickTiming::default();
         // On time: the next deadline is a period later.
-        assert!(!lp.timing(1_000_000, 1_000_010, 1_000_100, 0, &mut w));
+        assert!(!lp.timing(1_000_000, 1_000_010, 1_000_100, 0));
         assert_eq!(lp.next_deadline_ns, 1_000_000 + p);
-        assert_eq!(w.overruns, 0);
-        // Ends 3.5 periods late: one overrun, three deadlines skipped.
-        assert!(!lp.timing(2_000_000, 2_000_000, 2_000_000 + 7 * p / 2, 0, &mut w));
-        assert_eq!(w.overruns, 1);
+        assert_eq!(lp.total.overruns, 0);
+        // Ends 3.5 periods late: one overrun, three deadlines missed and
+        // skipped; 3 in a row are tolerated.
+        assert!(!lp.timing(2_000_000, 2_000_000, 2_000_000 + 7 * p / 2, 0));
+        assert_eq!(lp.total.overruns, 1);
+        assert_eq!(lp.window.overruns, 1);
         assert_eq!(lp.next_deadline_ns, 2_000_000 + 4 * p);
-        // M = 3 overruns in a row fault (and stop the stage).
-        assert!(!lp.timing(3_000_000, 3_000_000, 3_000_000 + 2 * p + 1, 0, &mut w));
-        assert!(lp.timing(4_000_000, 4_000_000, 4_000_000 + 2 * p + 1, 0, &mut w));
-        assert_eq!(
-            lp.supervisor().fault().map(|f| f.0),
-            Some(FaultKind::Overruns)
-        );
+        assert_eq!(lp.supervisor().missed_deadlines(), 3);
+        // On time again: the streak ends.
+        assert!(!lp.timing(2_800_000, 2_800_000, 2_800_100, 0));
+        assert_eq!(lp.supervisor().missed_deadlines(), 0);
+        // 2 + 2 missed in a row are more than 3: the fault (and the stage
+        // stopped), its value the time behind, 4 periods.
+        assert!(!lp.timing(3_000_000, 3_000_000, 3_000_000 + 2 * p + 1, 0));
+        assert!(lp.timing(4_000_000, 4_000_000, 4_000_000 + 2 * p + 1, 0));
+        let (kind, behind_s) = lp.supervisor().fault().unwrap();
+        assert_eq!(kind, FaultKind::Overruns);
+        assert!((behind_s - 4.0 * 2e-4).abs() < 1e-12, "{behind_s}");
+        // Wake-up latency: 10 ns, then 0 ns; compute 90 ns less one clock
+        // read at most.
+        assert_eq!(lp.total.wake.count(), 5);
+        assert_eq!(lp.total.wake.max_ns(), 10.0);
+        assert!(lp.total.compute.quantile_ns(0.2) <= 90.0);
         drop(lp);
         assert_eq!(st.disables, 1);
+    }
+
+    #[test]
+    fn a_stall_shows_as_a_gap_in_wake_s_while_t_s_stays_even() {
+        const STALL_AT: u64 = 20;
+        const STALL: std::time::Duration = std::time::Duration::from_millis(20);
+        /// Sleeps in its HAL read at the `STALL_AT`-th read.
+        struct Stalling(Script);
+        impl Stage for Stalling {
+            type Error = ScriptError;
+            fn configure(&mut self, p: u64) -> Result<bench_hal::DeviceInfo, ScriptError> {
+                self.0.configure(p)
+            }
+            fn enable(&mut self) -> Result<(), ScriptError> {
+                self.0.enable()
+            }
+            fn read_sample(&mut self) -> Result<Sample, ScriptError> {
+                if self.0.seq == STALL_AT {
+                    std::thread::sleep(STALL);
+                }
+                self.0.read_sample()
+            }
+            fn write_command(&mut self, c: Command) -> Result<(), ScriptError> {
+                self.0.write_command(c)
+            }
+            fn disable(&mut self) -> Result<(), ScriptError> {
+                self.0.disable()
+            }
+        }
+        let mut st = Stalling(Script::new([]));
+        let mut o = opts();
+        // The stall must not stop the job here.
+        o.safety.max_missed_deadlines = u64::MAX;
+        let mut lp = Loop::new(&mut st, &o, Clock::Host);
+        // Host-paced as in real time (without SCHED_FIFO on the test
+        // thread), records dropped rather than waited for.
+        lp.host_paced = true;
+        lp.backpressure = false;
+        lp.next_deadline_ns = now_ns() + 200_000;
+        let (mut tx, rx) = rtrb::RingBuffer::new(4096);
+        let end = lp.run_job(
+            &mut Constant {
+                current_a: 0.1,
+                n: 50,
+            },
+            &mut tx,
+            1000,
+            &AtomicBool::new(false),
+            &AtomicU64::new(0),
+        );
+        assert!(matches!(end.stop, RawStop::Finished));
+        assert!(end.timing.overruns >= 1);
+        // One wake-up after the stall is at least 20 ms late.
+        assert!(end.timing.wake.max_ns >= 20e6, "{:?}", end.timing);
+        drop(lp);
+        let samples: Vec<SampleRecord> = records(rx)
+            .into_iter()
+            .filter_map(|r| match r {
+                Record::Sample(s) => Some(s),
+                _ => None,
+            })
+            .collect();
+        assert_eq!(samples.len(), 50);
+        for (i, s) in samples.iter().enumerate() {
+            // Nominal time: one period a tick, whatever happened.
+            assert_eq!(s.t_s, i as f64 * 2e-4);
+            // No tick wakes before its deadline.
+            assert!(s.wake_s >= s.t_s, "{i}: {s:?}");
+        }
+        let gaps: Vec<f64> = samples.windows(2).map(|w| w[1].wake_s - w[0].wake_s).collect();
+        assert!(gaps.iter().all(|g| *g > 0.0), "{gaps:?}");
+        // The tick that read the 21st sample stalled: the next one woke at
+        // least the stall later.
+        let k = STALL_AT as usize;
+        assert!(gaps[k] >= STALL.as_secs_f64(), "{:?}", &gaps[k - 2..k + 2]);
     }
 
     #[test]
