@@ -699,6 +699,6 @@ fn thousand_status_requests_during_a_realtime_job() {
         "1000 status requests from 10 clients in {:.0} ms during the job; loop overruns: {overruns}",
         took.as_secs_f64() * 1e3
     );
-    // Overruns fault the job after max_consecutive_overruns; it finished.
+    // Overruns fault the job after safety.max_overrun_s behind; it finished.
     assert!(r["result"]["metrics"]["settling_time_s"].as_f64().is_some());
 }

@@ -784,14 +784,26 @@ mod tests {
         for rate_hz in [5e3, 10e3, 20e3] {
             // Behind schedule longer than 2 ms: the fault, at every rate.
             for stall_s in [2.5e-3, 3e-3, 50e-3] {
-                assert!(one_stall_trips(rate_hz, stall_s), "{rate_hz} Hz {stall_s} s");
-                assert!(slow_ticks_trip(rate_hz, stall_s), "{rate_hz} Hz {stall_s} s");
+                assert!(
+                    one_stall_trips(rate_hz, stall_s),
+                    "{rate_hz} Hz {stall_s} s"
+                );
+                assert!(
+                    slow_ticks_trip(rate_hz, stall_s),
+                    "{rate_hz} Hz {stall_s} s"
+                );
             }
             // Up to 2 ms: tolerated, at every rate (at 20 kHz 1.5 ms is 30
             // missed deadlines, which M = 5 ticks used to fault on).
             for stall_s in [0.3e-3, 1.5e-3, 1.9e-3] {
-                assert!(!one_stall_trips(rate_hz, stall_s), "{rate_hz} Hz {stall_s} s");
-                assert!(!slow_ticks_trip(rate_hz, stall_s), "{rate_hz} Hz {stall_s} s");
+                assert!(
+                    !one_stall_trips(rate_hz, stall_s),
+                    "{rate_hz} Hz {stall_s} s"
+                );
+                assert!(
+                    !slow_ticks_trip(rate_hz, stall_s),
+                    "{rate_hz} Hz {stall_s} s"
+                );
             }
         }
     }

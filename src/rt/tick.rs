@@ -57,8 +57,8 @@
 use crate::record::topics::{
     EventKind, EventRecord, FaultKind, Record, SampleRecord, SupervisorState, TimingRecord,
 };
-use crate::rt::supervisor::{HalCall, HalVerdict, Supervisor, SupervisorConfig};
 use crate::rt::latency::{CpuDmaLatency, DmaLatency};
+use crate::rt::supervisor::{HalCall, HalVerdict, Supervisor, SupervisorConfig};
 use crate::rt::timing::{TickTiming, TimingStats};
 use bench_hal::clock::{monotonic_ns as now_ns, sleep_until_ns};
 use bench_hal::{Clock, Command, Error as _, Sample, Stage};
@@ -1485,7 +1485,10 @@ mod tests {
             // No tick wakes before its deadline.
             assert!(s.wake_s >= s.t_s, "{i}: {s:?}");
         }
-        let gaps: Vec<f64> = samples.windows(2).map(|w| w[1].wake_s - w[0].wake_s).collect();
+        let gaps: Vec<f64> = samples
+            .windows(2)
+            .map(|w| w[1].wake_s - w[0].wake_s)
+            .collect();
         assert!(gaps.iter().all(|g| *g > 0.0), "{gaps:?}");
         // The tick that read the 21st sample stalled: the next one woke at
         // least the stall later.
