@@ -17,11 +17,13 @@
 # (≤ 1 % wide) bucket.
 #
 # Usage: benches/latency-vs-cyclictest.sh [-d SECONDS] [-r ROUNDS]
-#            [-c CPU] [-p PRIORITY] [RATE_HZ ...]
+#            [-c CPU] [-p PRIORITY] [-B BENCH] [RATE_HZ ...]
 #   -d  duration of each run, s (default 30; at least 1)
 #   -r  rounds of (cyclictest, bench) per rate (default 3)
 #   -c  CPU both are pinned to (default: the last one online)
 #   -p  SCHED_FIFO priority of both (default 80)
+#   -B  use this bench binary instead of building target/release/bench
+#       (a quick check of the script; figures come from a release build)
 #   RATE_HZ  loop rates (default 5000 10000)
 # Needs root (or the rights to SCHED_FIFO and /dev/cpu_dma_latency) and
 # cyclictest on PATH. Builds bench in release first. Run it on a quiet
@@ -32,13 +34,15 @@ duration=30
 rounds=3
 cpu=$(( $(nproc) - 1 ))
 prio=80
-while getopts "d:r:c:p:h" opt; do
+bench=
+while getopts "d:r:c:p:B:h" opt; do
     case $opt in
         d) duration=$OPTARG ;;
         r) rounds=$OPTARG ;;
         c) cpu=$OPTARG ;;
         p) prio=$OPTARG ;;
-        *) sed -n '2,28p' "$0"; exit 2 ;;
+        B) bench=$OPTARG ;;
+        *) sed -n '2,30p' "$0"; exit 2 ;;
     esac
 done
 shift $((OPTIND - 1))
@@ -59,8 +63,11 @@ command -v python3 >/dev/null || die "python3 not found (parses the JSON results
 [ "$(id -u)" -eq 0 ] || echo "latency-vs-cyclictest: not root: SCHED_FIFO or /dev/cpu_dma_latency may be refused (both would warn)" >&2
 
 root=$(cd "$(dirname "$0")/.." && pwd)
-cargo build --release --quiet --manifest-path "$root/Cargo.toml" --bin bench
-bench="$root/target/release/bench"
+if [ -z "$bench" ]; then
+    cargo build --release --quiet --manifest-path "$root/Cargo.toml" --bin bench
+    bench="$root/target/release/bench"
+fi
+[ -x "$bench" ] || die "-B: $bench is not an executable"
 work=$(mktemp -d)
 trap 'rm -rf "$work"' EXIT
 
@@ -87,7 +94,7 @@ EOF
 
 # p99 wake-up latency of a bench --json summary, µs.
 bench_p99() {
-    python3 -c 'import json,sys; print(json.load(open(sys.argv[1]))["timing"]["wake_latency_p99_us"])' "$1"
+    python3 -c 'import json, sys; print("%.1f" % json.load(open(sys.argv[1]))["timing"]["wake_latency_p99_us"])' "$1"
 }
 
 summary=()
