@@ -101,8 +101,11 @@ fn create_socket_dir(path: &Path, dir: &Path, group: Option<&str>) -> Result<(),
         .create(dir)
         .map_err(|e| refuse(format!("cannot create directory {}: {e}", dir.display())))?;
     // The umask may have taken bits the policy wants: 0750 exactly.
-    std::fs::set_permissions(dir, std::fs::Permissions::from_mode(crate::outputs::DIR_MODE))
-        .map_err(|e| refuse(format!("chmod {}: {e}", dir.display())))?;
+    std::fs::set_permissions(
+        dir,
+        std::fs::Permissions::from_mode(crate::outputs::DIR_MODE),
+    )
+    .map_err(|e| refuse(format!("chmod {}: {e}", dir.display())))?;
     if let (Some(g), Some(gid)) = (group, gid) {
         chown_group(dir, gid).map_err(|e| {
             let _ = std::fs::remove_dir(dir);
