@@ -1,13 +1,14 @@
 //! Logs follow the ecosystem (issue 17, item 4): `RUST_LOG` (with
 //! `BENCH_LOG` as an alias), the daemon logs each job's start and end with
-//! its recording path at its default level (`info`), and nothing writes
+//! its recording path at its default level (`info`), a job that ends on a
+//! fault and a fault between jobs name the fault, and nothing writes
 //! colour codes into a pipe.
 
 mod common;
 #[path = "common/daemon.rs"]
 mod daemon_fixtures;
 
-use daemon_fixtures::Daemon;
+use daemon_fixtures::{wait_state, Daemon};
 use serde_json::json;
 use std::io::Read;
 use std::time::Duration;
@@ -81,4 +82,90 @@ fn rust_log_and_its_alias_bench_log_set_the_level() {
     }
     let (err, _) = daemon_log(&[("RUST_LOG", "info"), ("BENCH_LOG", "warn")]);
     assert!(err.contains("job started"), "RUST_LOG wins:\n{err}");
+}
+
+/// SIGTERMs the daemon and returns its stderr.
+fn stop_and_read_stderr(mut d: Daemon) -> String {
+    // SAFETY: signalling our own child.
+    unsafe { libc::kill(d.child.id() as i32, libc::SIGTERM) };
+    let t0 = std::time::Instant::now();
+    while d.child.try_wait().unwrap().is_none() {
+        assert!(
+            t0.elapsed() < Duration::from_secs(10),
+            "daemon did not exit"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let mut err = String::new();
+    d.child
+        .stderr
+        .take()
+        .unwrap()
+        .read_to_string(&mut err)
+        .unwrap();
+    err
+}
+
+/// A job that ends on a fault is logged with the fault's supervisor name
+/// and the job's recording (absolute); a fault between jobs is logged with
+/// its name too. No escape codes in the pipe.
+#[test]
+fn faults_are_logged_with_their_name_and_the_recording() {
+    let d = Daemon::start_adjusted(&[], "", |c| {
+        c.env_remove("RUST_LOG").env_remove("BENCH_LOG");
+    });
+    let mut c = d.client();
+    // The probe reads NaN 0.3 s into the job: the `probe_not_finite` fault
+    // (the supervisor's name, as `status` reports it).
+    let r = c.call(
+        "control",
+        json!({"controller": "fast", "duration_s": 1.0, "inject_fault": "nan@0.3"}),
+    );
+    assert_eq!(r["error"]["kind"], json!("fault"), "{r}");
+    let s = wait_state(&mut c, "faulted", Duration::from_secs(5));
+    let fault = s["fault"]["kind"].as_str().unwrap().to_string();
+    assert_eq!(fault, "probe_not_finite", "{s}");
+    let recording = s["last_recording"].as_str().unwrap().to_string();
+    assert!(
+        std::path::Path::new(&recording).is_absolute(),
+        "{recording}"
+    );
+    // Reset: the probe still reads NaN (an injected NaN lasts), so the
+    // fault latches again at once, between jobs.
+    assert_eq!(c.call("reset", json!({}))["ok"], json!(true));
+    let s = wait_state(&mut c, "faulted", Duration::from_secs(10));
+    assert!(
+        s["fault"]["message"]
+            .as_str()
+            .unwrap()
+            .contains("between jobs"),
+        "{s}"
+    );
+    drop(c);
+    let err = stop_and_read_stderr(d);
+    assert!(!err.contains('\u{1b}'), "escape codes in a pipe:\n{err}");
+    let ended = err
+        .lines()
+        .find(|l| l.contains("job ended on a fault"))
+        .unwrap_or_else(|| panic!("no 'job ended on a fault' line:\n{err}"));
+    assert!(ended.contains("ERROR"), "{ended}");
+    assert!(ended.contains(&fault), "{ended}");
+    assert!(ended.contains(&recording), "{ended}");
+    let between = err
+        .lines()
+        .find(|l| l.contains("no job was running"))
+        .unwrap_or_else(|| panic!("no fault-between-jobs line:\n{err}"));
+    assert!(
+        between.contains("ERROR") && between.contains("between jobs") && between.contains(&fault),
+        "{between}"
+    );
+    assert!(
+        between.contains(&recording),
+        "the last recording: {between}"
+    );
+    assert!(
+        err.lines()
+            .any(|l| l.contains("reset") && l.contains(&fault)),
+        "no reset line:\n{err}"
+    );
 }

@@ -387,6 +387,16 @@ impl DisturbanceSource {
         }
     }
 
+    /// As [`Self::new`] with `seed`, without recomputing the gain: the
+    /// filter at rest, the generator fresh.
+    fn reseed(&mut self, seed: u64) {
+        for f in [&mut self.hp, &mut self.lp] {
+            f.x = [0.0; 2];
+            f.y = [0.0; 2];
+        }
+        self.rng = ChaCha8Rng::seed_from_u64(seed ^ 0xD157_0EBA_5CE0_F00D);
+    }
+
     #[inline]
     fn next_n(&mut self) -> f64 {
         let w: f64 = StandardNormal.sample(&mut self.rng);
@@ -412,6 +422,8 @@ pub struct SimStage {
     drop_done: bool,
     last_sample: Option<Sample>,
     disturbance: Option<DisturbanceSource>,
+    /// A [`SimStage::reseed`] that takes effect at the next sample.
+    reseed_at_next: Option<u64>,
 }
 
 impl SimStage {
@@ -441,6 +453,7 @@ impl SimStage {
             drop_done: false,
             last_sample: None,
             disturbance: None,
+            reseed_at_next: None,
         })
     }
 
@@ -472,6 +485,20 @@ impl SimStage {
     /// Whether the amplifier is enabled.
     pub fn is_enabled(&self) -> bool {
         self.enabled
+    }
+
+    /// Restarts the noise from `seed`, as in a stage created with it, from
+    /// the next sample on: that sample carries the first probe-noise draw
+    /// of a fresh generator, and the period after it the first draw of the
+    /// disturbance force, whose shaping filter starts at rest. A local run
+    /// (a stage just created) draws them at the same samples, so a job that
+    /// starts with a reseed on a stage at rest records what a local run
+    /// with that seed records, sample for sample. The mechanical state,
+    /// the device clock and scheduled faults are kept: the stage moves on
+    /// from where it is. Allocates nothing (the daemon's real-time thread
+    /// calls it as a job takes over).
+    pub fn reseed(&mut self, seed: u64) {
+        self.reseed_at_next = Some(seed);
     }
 
     /// Schedules a fault (replaces any earlier one).
@@ -584,6 +611,14 @@ impl Stage for SimStage {
         } else {
             self.advance();
             self.seq += 1;
+        }
+        if let Some(seed) = self.reseed_at_next.take() {
+            // The period that ended at this sample ran on the old noise.
+            self.params.seed = seed;
+            self.rng = ChaCha8Rng::seed_from_u64(seed);
+            if let Some(d) = self.disturbance.as_mut() {
+                d.reseed(seed);
+            }
         }
         let fault = self.active_fault();
         if let (Some(FaultInjection::Frozen), Some(last)) = (fault, self.last_sample) {

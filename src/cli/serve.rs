@@ -14,8 +14,10 @@ pub(super) struct ServeArgs {
     /// Bench description (TOML).
     #[arg(long, value_name = "FILE", default_value = DEFAULT_CONFIG)]
     config: PathBuf,
-    /// Socket path [default: $XDG_RUNTIME_DIR/bench.sock, else
-    /// /run/bench/bench.sock]. Its directory must not be world-writable.
+    /// Socket path [default: $XDG_RUNTIME_DIR/bench.sock when that is an
+    /// absolute path, else /run/bench/bench.sock, /run/bench created if
+    /// missing; the `--daemon` clients use the same rule]. Its directory
+    /// must not be world-writable.
     #[arg(long, value_name = "PATH")]
     socket: Option<PathBuf>,
     /// Let this group use the socket (mode 0660; default owner-only 0600).

@@ -51,7 +51,10 @@
 //! **Unattended rule**: when the client that submitted a job disconnects,
 //! the job is stopped safely (0 A, recording finished), unless the request
 //! said `"detach": true`. A detached job runs to its own end and no
-//! further.
+//! further. A client is gone when its socket hangs up (it closed its end)
+//! or a write to it fails; one that only shut down its sending side (end
+//! of input, as `socat` does) still gets its job's events and answer, and
+//! the daemon closes the connection once everything is answered.
 
 pub mod client;
 mod owner;
@@ -73,6 +76,13 @@ pub const MAX_PENDING_BYTES: usize = 1024 * 1024;
 /// How long one write to a client may wait for room in its socket, in
 /// seconds, before the client is disconnected as not reading.
 pub const WRITE_STALL_TIMEOUT_S: u64 = 10;
+
+/// How often a client that has shut down its sending side (end of input,
+/// as `socat` does) is checked for having gone away altogether, in
+/// milliseconds. Such a client's attached job runs on until it hangs up
+/// (closes its socket) or a write to it fails; it is then stopped within
+/// this time.
+pub const CLIENT_GONE_POLL_MS: u64 = 100;
 
 /// Clients connected at once. One more is answered `busy` ("too many
 /// clients") and closed.
@@ -107,12 +117,21 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{mpsc, Arc, Mutex};
 use tokio::sync::broadcast;
 
-/// The socket when `--socket` is not given: `$XDG_RUNTIME_DIR/bench.sock`,
-/// else `/run/bench/bench.sock`.
+/// The socket's directory when `XDG_RUNTIME_DIR` is unset, empty or
+/// relative: `bench serve` creates it (mode 0750, given to
+/// `--socket-group`) when it is missing.
+pub const FALLBACK_SOCKET_DIR: &str = "/run/bench";
+
+/// The socket when `--socket` is not given, for the server (`bench serve`)
+/// and the clients (`--daemon` without a path) alike:
+/// `$XDG_RUNTIME_DIR/bench.sock` when `XDG_RUNTIME_DIR` is an absolute
+/// path, else `/run/bench/bench.sock` ([`FALLBACK_SOCKET_DIR`]). An empty
+/// or relative `XDG_RUNTIME_DIR` is ignored, as the XDG Base Directory
+/// specification says.
 pub fn default_socket_path() -> PathBuf {
     match std::env::var_os("XDG_RUNTIME_DIR") {
-        Some(d) if !d.is_empty() => PathBuf::from(d).join("bench.sock"),
-        _ => PathBuf::from("/run/bench/bench.sock"),
+        Some(d) if std::path::Path::new(&d).is_absolute() => PathBuf::from(d).join("bench.sock"),
+        _ => PathBuf::from(FALLBACK_SOCKET_DIR).join("bench.sock"),
     }
 }
 
@@ -219,7 +238,7 @@ fn hold_factory(
 /// [`ServeError::Input`] for an unusable socket path, a busy socket, a
 /// device that cannot be opened; [`ServeError::Other`] otherwise.
 pub fn serve(opts: ServeOptions) -> Result<(), ServeError> {
-    prepare_socket(&opts.socket)?;
+    prepare_socket(&opts.socket, opts.socket_group.as_deref())?;
     // The recordings directory follows the files' policy (owner writes,
     // group reads; `outputs::DIR_MODE`), whatever the umask lets through.
     {
@@ -230,6 +249,15 @@ pub fn serve(opts: ServeOptions) -> Result<(), ServeError> {
             .create(&opts.recordings)
     }
     .map_err(|e| {
+        ServeError::Input(RunError::option(
+            "recordings",
+            opts.recordings.display(),
+            e.to_string(),
+        ))
+    })?;
+    // Every path the daemon hands out (recordings, their CSV and plots, the
+    // event log) is absolute: its clients run elsewhere.
+    let recordings = std::path::absolute(&opts.recordings).map_err(|e| {
         ServeError::Input(RunError::option(
             "recordings",
             opts.recordings.display(),
@@ -311,7 +339,7 @@ pub fn serve(opts: ServeOptions) -> Result<(), ServeError> {
         period_s: info.period_ns as f64 * 1e-9,
         cfg: opts.config.clone(),
         config_path: opts.config_path.clone(),
-        recordings: opts.recordings.clone(),
+        recordings: recordings.clone(),
         seed: opts.seed,
         spec,
         status,
@@ -328,7 +356,7 @@ pub fn serve(opts: ServeOptions) -> Result<(), ServeError> {
         .map_err(|e| ServeError::Other(format!("tokio: {e}")))?;
     let result = rt.block_on(async {
         let listener = bind_socket(&opts.socket, opts.socket_group.as_deref())?;
-        tokio::spawn(event_log(opts.recordings.clone(), ctx.events.subscribe()));
+        tokio::spawn(event_log(recordings.clone(), ctx.events.subscribe()));
         let _ = ctx.events.send(event(
             "daemon_started",
             json!({ "socket": opts.socket, "backend": lock(&ctx.status).backend }),

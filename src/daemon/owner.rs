@@ -322,6 +322,11 @@ pub(super) fn owner(mut client: ServiceClient, rx: mpsc::Receiver<OwnerCmd>, sha
                     )),
                     Some(LoopReply::Enabled(Err(Some(e)), _)) => {
                         let api = ApiError::new(ApiErrorKind::Hal, format!("enable failed: {e}"));
+                        tracing::error!(
+                            fault = FaultKind::Hal.as_str(),
+                            "{}; between jobs, fault latched",
+                            api.message
+                        );
                         set_state(
                             "faulted",
                             Some(FaultStatus {
@@ -353,6 +358,9 @@ pub(super) fn owner(mut client: ServiceClient, rx: mpsc::Receiver<OwnerCmd>, sha
                         // Faults reported before the reset are cleared by
                         // it; one that latches again after it is reported.
                         client.forget_earlier_faults();
+                        if let Some(f) = lock(&status).fault.as_ref() {
+                            tracing::info!(fault = f.kind, "reset: the latched fault is cleared");
+                        }
                         set_state("disabled", None);
                         Ok(())
                     }
@@ -374,6 +382,7 @@ pub(super) fn owner(mut client: ServiceClient, rx: mpsc::Receiver<OwnerCmd>, sha
                         active = Some(a);
                     }
                     Err((reply, e)) => {
+                        tracing::error!(error = %e.message, "job not started");
                         lock(&status).job = None;
                         set_state("disabled", None);
                         let _ = reply.send(Err(e));
@@ -401,6 +410,24 @@ pub(super) fn owner(mut client: ServiceClient, rx: mpsc::Receiver<OwnerCmd>, sha
                                     kind = j.kind,
                                     recording = %j.recording,
                                     "job finished"
+                                ),
+                                Err((api, RunError::Fault { kind: fault, .. })) => {
+                                    tracing::error!(
+                                        job = j.id,
+                                        kind = j.kind,
+                                        fault = *fault,
+                                        recording = %j.recording,
+                                        error = %api.message,
+                                        "job ended on a fault; 0 A, amplifier disabled, fault latched"
+                                    )
+                                }
+                                Err((api, RunError::Hal { .. })) => tracing::error!(
+                                    job = j.id,
+                                    kind = j.kind,
+                                    fault = FaultKind::Hal.as_str(),
+                                    recording = %j.recording,
+                                    error = %api.message,
+                                    "job ended on a HAL error; 0 A, amplifier disabled, fault latched"
                                 ),
                                 Err((api, _)) => tracing::warn!(
                                     job = j.id,
@@ -441,13 +468,19 @@ pub(super) fn owner(mut client: ServiceClient, rx: mpsc::Receiver<OwnerCmd>, sha
                     // Dropping the worker's queues: whatever it asks of
                     // the loop from now on gets "the loop is gone".
                     let Active { handle, reply, .. } = a;
+                    let recording = lock(&status)
+                        .job
+                        .as_ref()
+                        .map(|j| j.recording.clone())
+                        .unwrap_or_default();
                     tracing::warn!(
-                        "job {} abandoned {}; its thread is left to end on its own",
-                        handle.id,
+                        job = handle.id,
+                        recording = %recording,
+                        "job abandoned {}; its thread is left to end on its own",
                         if was_in_loop {
                             "after the loop gave it back (shutdown)"
                         } else {
-                            "while being prepared (nothing was enabled)"
+                            "while being prepared (nothing was enabled, no recording)"
                         }
                     );
                     // A job ends disabled, this one too.
@@ -472,6 +505,13 @@ pub(super) fn owner(mut client: ServiceClient, rx: mpsc::Receiver<OwnerCmd>, sha
         }
         for f in client.take_faults() {
             if let Some(api) = between_jobs_fault(f) {
+                let last = lock(&status).last_recording.clone();
+                tracing::error!(
+                    fault = api.kind,
+                    last_recording = last.as_deref().unwrap_or("none"),
+                    "{}; no job was running (nothing recorded); jobs and enable are refused until reset",
+                    api.message
+                );
                 set_state("faulted", Some(api));
             }
         }

@@ -9,12 +9,13 @@ use super::protocol::{
     Request,
 };
 use super::{
-    lock, Ctx, ServeError, ACCEPT_BACKOFF_MS, MAX_CLIENTS, MAX_LINE_BYTES, MAX_PENDING_BYTES,
-    WRITE_STALL_TIMEOUT_S,
+    lock, Ctx, ServeError, ACCEPT_BACKOFF_MS, CLIENT_GONE_POLL_MS, MAX_CLIENTS, MAX_LINE_BYTES,
+    MAX_PENDING_BYTES, WRITE_STALL_TIMEOUT_S,
 };
 use crate::error::RunError;
 use serde_json::{json, Value};
 use std::io::Write as _;
+use std::os::fd::AsRawFd;
 use std::os::unix::fs::PermissionsExt;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering};
@@ -27,12 +28,18 @@ pub(super) const EVENT_LOG_MAX_BYTES: u64 = 10 << 20;
 
 /// Checks the socket path and clears a stale socket: refuses a
 /// world-writable directory, a non-socket file, and a socket another
-/// daemon answers on.
-pub(super) fn prepare_socket(path: &Path) -> Result<(), ServeError> {
+/// daemon answers on. The default directory
+/// ([`FALLBACK_SOCKET_DIR`](super::FALLBACK_SOCKET_DIR)) is created when
+/// missing: mode 0750 (`outputs::DIR_MODE`), given to `group` so its
+/// members can reach a 0660 socket.
+pub(super) fn prepare_socket(path: &Path, group: Option<&str>) -> Result<(), ServeError> {
     let dir = match path.parent() {
         Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
         _ => PathBuf::from("."),
     };
+    if dir == Path::new(super::FALLBACK_SOCKET_DIR) && !dir.exists() {
+        create_socket_dir(path, &dir, group)?;
+    }
     let meta = std::fs::metadata(&dir).map_err(|e| {
         ServeError::Input(RunError::option(
             "socket",
@@ -72,6 +79,80 @@ pub(super) fn prepare_socket(path: &Path) -> Result<(), ServeError> {
     }
 }
 
+/// Creates the default socket directory `dir` (not its parents): mode
+/// 0750, its group `group` when given.
+fn create_socket_dir(path: &Path, dir: &Path, group: Option<&str>) -> Result<(), ServeError> {
+    use std::os::unix::fs::DirBuilderExt;
+    let refuse = |why: String| {
+        ServeError::Input(RunError::option(
+            "socket",
+            path.display(),
+            format!(
+                "{why}: give another socket path with --socket, or set XDG_RUNTIME_DIR to an \
+                 absolute path (the default socket is then $XDG_RUNTIME_DIR/bench.sock), or create {} \
+                 for this user (systemd: RuntimeDirectory=bench)",
+                dir.display()
+            ),
+        ))
+    };
+    let gid = group.map(group_id).transpose()?;
+    std::fs::DirBuilder::new()
+        .mode(crate::outputs::DIR_MODE)
+        .create(dir)
+        .map_err(|e| refuse(format!("cannot create directory {}: {e}", dir.display())))?;
+    // The umask may have taken bits the policy wants: 0750 exactly.
+    std::fs::set_permissions(
+        dir,
+        std::fs::Permissions::from_mode(crate::outputs::DIR_MODE),
+    )
+    .map_err(|e| refuse(format!("chmod {}: {e}", dir.display())))?;
+    if let (Some(g), Some(gid)) = (group, gid) {
+        chown_group(dir, gid).map_err(|e| {
+            let _ = std::fs::remove_dir(dir);
+            ServeError::Input(RunError::option(
+                "socket_group",
+                g,
+                format!("cannot give {} to the group: {e}", dir.display()),
+            ))
+        })?;
+    }
+    tracing::info!(dir = %dir.display(), "created the socket directory");
+    Ok(())
+}
+
+/// The id of group `g`.
+fn group_id(g: &str) -> Result<libc::gid_t, ServeError> {
+    let cname = std::ffi::CString::new(g).map_err(|_| {
+        ServeError::Input(RunError::option(
+            "socket_group",
+            format!("{g:?}"),
+            "not a name",
+        ))
+    })?;
+    // SAFETY: valid C string; getgrnam returns null or a static record.
+    let gr = unsafe { libc::getgrnam(cname.as_ptr()) };
+    if gr.is_null() {
+        return Err(ServeError::Input(RunError::option(
+            "socket_group",
+            g,
+            "no such group",
+        )));
+    }
+    // SAFETY: gr is non-null.
+    Ok(unsafe { (*gr).gr_gid })
+}
+
+/// Gives `path` to group `gid`, keeping its owner.
+fn chown_group(path: &Path, gid: libc::gid_t) -> std::io::Result<()> {
+    let cpath = std::ffi::CString::new(path.as_os_str().as_encoded_bytes())
+        .map_err(|_| std::io::Error::other("path has a NUL byte"))?;
+    // SAFETY: valid path; uid -1 keeps the owner.
+    if unsafe { libc::chown(cpath.as_ptr(), u32::MAX, gid) } != 0 {
+        return Err(std::io::Error::last_os_error());
+    }
+    Ok(())
+}
+
 /// Binds the socket owner-only (0600), or 0660 with `group`.
 pub(super) fn bind_socket(
     path: &Path,
@@ -91,31 +172,10 @@ pub(super) fn bind_socket(
         ))
     })?;
     if let Some(g) = group {
-        let cname = std::ffi::CString::new(g).map_err(|_| {
-            ServeError::Input(RunError::option(
-                "socket_group",
-                format!("{g:?}"),
-                "not a name",
-            ))
-        })?;
-        // SAFETY: valid C string; getgrnam returns null or a static record.
-        let gr = unsafe { libc::getgrnam(cname.as_ptr()) };
-        if gr.is_null() {
+        let gid = group_id(g).inspect_err(|_| {
             let _ = std::fs::remove_file(path);
-            return Err(ServeError::Input(RunError::option(
-                "socket_group",
-                g,
-                "no such group",
-            )));
-        }
-        // SAFETY: gr is non-null.
-        let gid = unsafe { (*gr).gr_gid };
-        let cpath = std::ffi::CString::new(path.as_os_str().as_encoded_bytes()).map_err(|_| {
-            ServeError::Input(RunError::option("socket", "", "path has a NUL byte"))
         })?;
-        // SAFETY: valid path; uid -1 keeps the owner.
-        if unsafe { libc::chown(cpath.as_ptr(), u32::MAX, gid) } != 0 {
-            let e = std::io::Error::last_os_error();
+        if let Err(e) = chown_group(path, gid) {
             let _ = std::fs::remove_file(path);
             return Err(ServeError::Input(RunError::option(
                 "socket_group",
@@ -365,7 +425,7 @@ pub(super) async fn connection(
         pending: Arc::new(AtomicUsize::new(0)),
         cut: Arc::new(Cut::default()),
     };
-    let writer = tokio::spawn(write_lines(
+    let mut writer = tokio::spawn(write_lines(
         wr,
         rx,
         Arc::clone(&out.pending),
@@ -375,6 +435,8 @@ pub(super) async fn connection(
     let mut buf = Vec::new();
     // Jobs this client submitted without `detach`.
     let mut attached: Vec<JobHandle> = Vec::new();
+    // Why reading stopped (a cut client is `Gone`).
+    let mut ended = Ended::Gone;
     loop {
         let read = tokio::select! {
             r = read_line_bounded(&mut reader, &mut buf, MAX_LINE_BYTES) => r,
@@ -392,9 +454,14 @@ pub(super) async fn connection(
                         ),
                     )),
                 ));
+                ended = Ended::Closing;
                 break;
             }
-            Ok(LineRead::Eof) | Err(_) => break,
+            Ok(LineRead::Eof) => {
+                ended = Ended::HalfClosed;
+                break;
+            }
+            Err(_) => break,
         }
         // A client that pipelines does not hold the runtime.
         tokio::task::consume_budget().await;
@@ -471,9 +538,66 @@ pub(super) async fn connection(
         out.send(respond(&id, r));
     }
     // Nothing more is read: a disconnected client's unread input stays
-    // unread.
-    drop(reader);
+    // unread. `reader` is kept until the end: its descriptor is the one
+    // watched for the client's hang-up.
+    let fd = reader.get_ref().as_ref().as_raw_fd();
+    if matches!(ended, Ended::HalfClosed) && !out.cut.flag.load(Ordering::Relaxed) {
+        // End of input is not the client leaving: a client that has shut
+        // down its sending side (`socat` at the end of its input) still
+        // reads. Its jobs run on, their events and answers go out, and the
+        // connection closes once everything is answered (the writer ends
+        // when the last job task and subscription let go of the outbox),
+        // unless the client goes away meanwhile: its socket hangs up or a
+        // write fails.
+        let cut = Arc::clone(&out.cut);
+        drop(out);
+        let gone = tokio::select! {
+            biased;
+            // Everything answered, or a write failed (the writer cut it).
+            _ = &mut writer => cut.flag.load(Ordering::Relaxed),
+            () = cut.notify.notified() => true,
+            () = hung_up(fd) => true,
+        };
+        if gone {
+            stop_attached(&ctx, attached);
+            writer.abort();
+        }
+        drop(reader);
+        return;
+    }
     // The client is gone: its attached jobs stop (the unattended rule).
+    stop_attached(&ctx, attached);
+    if out.cut.flag.load(Ordering::Relaxed) {
+        // Disconnected: what is queued is dropped with the socket.
+        writer.abort();
+        return;
+    }
+    let cut = Arc::clone(&out.cut);
+    drop(out);
+    // Answers still queued (and those of a detached job's task) go out,
+    // unless the client stops reading or hangs up.
+    tokio::select! {
+        _ = &mut writer => {}
+        () = cut.notify.notified() => writer.abort(),
+        () = hung_up(fd) => writer.abort(),
+    }
+    drop(reader);
+}
+
+/// How a connection's reading ended.
+enum Ended {
+    /// End of input: the client shut down its sending side (or closed;
+    /// [`hung_up`] tells which).
+    HalfClosed,
+    /// The daemon closes the connection (a line over the limit).
+    Closing,
+    /// A read failed, or the client was cut off (not reading).
+    Gone,
+}
+
+/// The client is gone: the jobs it submitted without `detach` stop (the
+/// unattended rule), each with a `client_left` event.
+fn stop_attached(ctx: &Ctx, attached: Vec<JobHandle>) {
     for h in attached {
         if lock(&ctx.running).as_ref().is_some_and(|r| r.id == h.id) {
             h.stop.store(true, Ordering::Relaxed);
@@ -483,18 +607,35 @@ pub(super) async fn connection(
             ));
         }
     }
-    if out.cut.flag.load(Ordering::Relaxed) {
-        // Disconnected: what is queued is dropped with the socket.
-        writer.abort();
-        return;
-    }
-    let cut = Arc::clone(&out.cut);
-    drop(out);
-    // Answers still queued (and those of a detached job's task) go out,
-    // unless the client stops reading.
-    tokio::select! {
-        _ = writer => {}
-        () = cut.notify.notified() => {}
+}
+
+/// Whether the peer of the Unix stream socket `fd` is gone: it closed its
+/// end (or shut down both directions), so nothing written reaches anyone.
+/// A peer that only shut down its sending side is not gone. Linux reports
+/// the difference as `POLLHUP` (both directions shut down on this socket)
+/// or `POLLERR`; a half-close alone raises neither.
+fn peer_gone(fd: std::os::fd::RawFd) -> bool {
+    let mut p = libc::pollfd {
+        fd,
+        events: 0,
+        revents: 0,
+    };
+    // SAFETY: one valid pollfd, a zero timeout; `fd` is open (the caller
+    // holds the stream).
+    let n = unsafe { libc::poll(&mut p, 1, 0) };
+    n > 0 && p.revents & (libc::POLLHUP | libc::POLLERR) != 0
+}
+
+/// Completes when the client of `fd` is gone ([`peer_gone`]), checked at
+/// once and then every [`CLIENT_GONE_POLL_MS`].
+async fn hung_up(fd: std::os::fd::RawFd) {
+    let mut every = tokio::time::interval(std::time::Duration::from_millis(CLIENT_GONE_POLL_MS));
+    every.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+    loop {
+        every.tick().await;
+        if peer_gone(fd) {
+            return;
+        }
     }
 }
 

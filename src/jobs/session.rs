@@ -392,6 +392,7 @@ pub fn run_recorded<J: Job + Send + 'static>(
                 job: Box::new(job),
                 out: producer,
                 max_ticks: opts.max_ticks,
+                seed: opts.seed,
                 stop: Arc::clone(&stop),
                 progress: Arc::clone(&progress),
                 end: None,

@@ -165,6 +165,15 @@ impl AnyStage {
         }
     }
 
+    /// The simulator's noise restarts from `seed` at the next sample
+    /// ([`SimStage::reseed`]); hardware has no seed, nothing changes.
+    /// Allocates nothing.
+    pub fn reseed(&mut self, seed: u64) {
+        if let Self::Sim(s) = self {
+            s.reseed(seed);
+        }
+    }
+
     /// Link counters of a hardware backend since it was opened (`None` for
     /// the simulator). A copy: real-time safe.
     pub fn link_counters(&self) -> Option<LinkCounters> {

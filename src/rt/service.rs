@@ -25,6 +25,10 @@ pub struct JobTicket {
     pub out: rtrb::Producer<Record>,
     /// Tick budget.
     pub max_ticks: u64,
+    /// The job's seed: the simulator's noise restarts from it at the
+    /// job's first sample ([`AnyStage::reseed`]), so the job records what a
+    /// local run with that seed records. Ignored on hardware.
+    pub seed: u64,
     /// Raised to stop the job safely.
     pub stop: Arc<AtomicBool>,
     /// The job's tick count.
@@ -209,6 +213,7 @@ pub fn run_service(
                 // disabled, so the hold does not resume by itself.
                 ticket.old_hold = hold.take();
                 let before = lp.stage().link_counters();
+                lp.stage().reseed(ticket.seed);
                 let t = &mut *ticket;
                 t.end = Some(lp.run_job(&mut t.job, &mut t.out, t.max_ticks, &t.stop, &t.progress));
                 t.link = before.zip(lp.stage().link_counters());
