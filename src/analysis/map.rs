@@ -29,7 +29,11 @@ pub struct MapCell {
 /// # Errors
 /// [`ParamError`] naming `plant.operating_point_m` or
 /// `plant.mass_asymmetry` if the cell is outside the model's range.
-pub fn model_at(base: &Sr4dofParams, operating_point_m: f64, mass_asymmetry: f64) -> Result<Sr4dof, ParamError> {
+pub fn model_at(
+    base: &Sr4dofParams,
+    operating_point_m: f64,
+    mass_asymmetry: f64,
+) -> Result<Sr4dof, ParamError> {
     let mut p = *base;
     p.operating_point_m = operating_point_m;
     p.mass_asymmetry = mass_asymmetry;
@@ -168,8 +172,15 @@ pub fn veering_curve(
     // Golden-section refinement on [op[k−1], op[k+1]].
     let lo_i = k.saturating_sub(1);
     let hi_i = (k + 1).min(points.len() - 1);
-    let (mut a, mut b) = (points[lo_i].operating_point_m, points[hi_i].operating_point_m);
-    let f = |op: f64| veering_point(base, op, mass_asymmetry).map(|p| gap(&p)).unwrap_or(f64::INFINITY);
+    let (mut a, mut b) = (
+        points[lo_i].operating_point_m,
+        points[hi_i].operating_point_m,
+    );
+    let f = |op: f64| {
+        veering_point(base, op, mass_asymmetry)
+            .map(|p| gap(&p))
+            .unwrap_or(f64::INFINITY)
+    };
     let r = (5f64.sqrt() - 1.0) / 2.0;
     for _ in 0..60 {
         if b - a <= 1e-12 * b.abs().max(1e-9) {
@@ -205,7 +216,9 @@ pub fn linspace(lo: f64, hi: f64, n: usize) -> Vec<f64> {
     match n {
         0 => Vec::new(),
         1 => vec![lo],
-        _ => (0..n).map(|i| lo + (hi - lo) * i as f64 / (n - 1) as f64).collect(),
+        _ => (0..n)
+            .map(|i| lo + (hi - lo) * i as f64 / (n - 1) as f64)
+            .collect(),
     }
 }
 
@@ -215,7 +228,9 @@ mod tests {
     use crate::config::BenchConfig;
 
     fn base(file: &str) -> Sr4dofParams {
-        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("bench-config").join(file);
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("bench-config")
+            .join(file);
         BenchConfig::load(&path).unwrap().plant
     }
 
@@ -229,9 +244,17 @@ mod tests {
         let l = p.beam.length_m;
         let c = veering_curve(&p, 0.0, &linspace(0.0, 0.12 * l, 121)).unwrap();
         let at = c.closest_operating_point_m / l;
-        assert!((at - 0.066).abs() < 0.01, "crossing at {:.2} % of L", at * 100.0);
+        assert!(
+            (at - 0.066).abs() < 0.01,
+            "crossing at {:.2} % of L",
+            at * 100.0
+        );
         assert!(c.closest_gap_hz < 0.05, "gap {} Hz", c.closest_gap_hz);
-        assert!(c.closest_frequency_hz > 135.0 && c.closest_frequency_hz < 160.0, "{}", c.closest_frequency_hz);
+        assert!(
+            c.closest_frequency_hz > 135.0 && c.closest_frequency_hz < 160.0,
+            "{}",
+            c.closest_frequency_hz
+        );
     }
 
     #[test]
@@ -244,11 +267,14 @@ mod tests {
         let l = p.beam.length_m;
         let c = veering_curve(&p, 0.05, &linspace(0.0, 0.12 * l, 121)).unwrap();
         assert!(c.closest_gap_hz > 0.1, "gap {} Hz", c.closest_gap_hz);
-        let at = veering_curve(&p, 0.05, &[c.closest_operating_point_m]).unwrap().points[0];
+        let at = veering_curve(&p, 0.05, &[c.closest_operating_point_m])
+            .unwrap()
+            .points[0];
         assert!(at.localisation_u * at.localisation_v < 0.0, "{at:?}");
         let start = c.points[0];
         assert!(
-            at.localisation_u.abs() > start.localisation_u.abs() && at.localisation_v.abs() > start.localisation_v.abs(),
+            at.localisation_u.abs() > start.localisation_u.abs()
+                && at.localisation_v.abs() > start.localisation_v.abs(),
             "veering point {at:?}, Y1o = 0 {start:?}"
         );
     }
@@ -271,7 +297,10 @@ mod tests {
             assert_eq!(c.cnmp, c.discriminant < 0.0, "{c:?}");
         }
         for dm in [0.01, 0.04, 0.08] {
-            assert!(map.iter().any(|c| c.mass_asymmetry == dm && c.cnmp), "none at Δm23 = {dm}");
+            assert!(
+                map.iter().any(|c| c.mass_asymmetry == dm && c.cnmp),
+                "none at Δm23 = {dm}"
+            );
         }
     }
 }

@@ -8,8 +8,8 @@
 //! print it; the fit, the campaign and a controller designer reuse it.
 
 pub mod map;
-pub mod plot;
 pub mod modal;
+pub mod plot;
 pub mod sequence;
 pub mod three_mode;
 

@@ -29,7 +29,7 @@ pub const PARTICIPATION_RATIO: f64 = 1e-3;
 /// A mode whose `|αᵢ|` is below this fraction of the largest residue is
 /// outside the path: its pole and a zero cancel to within the model's
 /// accuracy, and the sequence of dominant modes leaves it out.
-pub const RESIDUE_RATIO: f64 = 1e-6;
+pub const RESIDUE_RATIO: f64 = 1e-4;
 
 /// One mode of the actuator-to-probe path.
 #[derive(Debug, Clone, PartialEq, Serialize)]
@@ -76,7 +76,6 @@ impl ModalTerm {
     pub fn omega_rad_s(&self) -> f64 {
         2.0 * PI * self.frequency_hz
     }
-
 }
 
 /// The modes of `model`'s force → x1 path, ascending in frequency, labelled
@@ -93,7 +92,8 @@ pub fn modal_terms(model: &Sr4dof) -> Vec<ModalTerm> {
             (unit, modal_mass_kg, unit[0], q.dot(&unit))
         })
         .collect();
-    let max_of = |f: &dyn Fn(&(Vector4<f64>, f64, f64, f64)) -> f64| raw.iter().map(f).fold(0.0, f64::max);
+    let max_of =
+        |f: &dyn Fn(&(Vector4<f64>, f64, f64, f64)) -> f64| raw.iter().map(f).fold(0.0, f64::max);
     let max_sensor = max_of(&|r| r.2.abs());
     let max_actuator = max_of(&|r| r.3.abs());
     let max_residue = max_of(&|r| (r.2 * r.3 / r.1).abs());
@@ -161,8 +161,10 @@ fn label_terms(terms: &mut [ModalTerm]) {
     let r = (0..terms.len())
         .filter(|&i| i != u && i != v && terms[i].in_path)
         .max_by(|&a, &b| {
-            let ca = (terms[a].residue_per_kg / (terms[a].omega_rad_s().powi(2) - w_pair * w_pair)).abs();
-            let cb = (terms[b].residue_per_kg / (terms[b].omega_rad_s().powi(2) - w_pair * w_pair)).abs();
+            let ca = (terms[a].residue_per_kg / (terms[a].omega_rad_s().powi(2) - w_pair * w_pair))
+                .abs();
+            let cb = (terms[b].residue_per_kg / (terms[b].omega_rad_s().powi(2) - w_pair * w_pair))
+                .abs();
             ca.total_cmp(&cb)
         });
     if let Some(r) = r {
@@ -292,7 +294,8 @@ mod tests {
     use crate::config::BenchConfig;
 
     fn ch5(op_fraction: f64, dm: f64) -> Sr4dof {
-        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("bench-config/sr4dof-ch5.toml");
+        let path =
+            std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("bench-config/sr4dof-ch5.toml");
         let cfg = BenchConfig::load(&path).unwrap();
         let mut p = cfg.plant;
         p.operating_point_m = op_fraction * p.beam.length_m;
@@ -353,6 +356,9 @@ mod tests {
         ];
         let kinds: Vec<ZeroType> = type_damped_zeros(&zs).iter().map(|z| z.kind).collect();
         use ZeroType::*;
-        assert_eq!(kinds, [CmpCnmp, CmpCnmp, CmpCnmp, CmpCnmp, RmpRnmp, RmpRnmp, Mmp, Mmp]);
+        assert_eq!(
+            kinds,
+            [CmpCnmp, CmpCnmp, CmpCnmp, CmpCnmp, RmpRnmp, RmpRnmp, Mmp, Mmp]
+        );
     }
 }

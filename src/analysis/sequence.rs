@@ -85,7 +85,10 @@ pub struct DominantSequence {
 
 /// `G(ω)` of the undamped sum at real frequency `w` (rad/s).
 fn g(terms: &[&SeqTerm], w: f64) -> f64 {
-    terms.iter().map(|t| t.residue / (t.omega_rad_s.powi(2) - w * w)).sum()
+    terms
+        .iter()
+        .map(|t| t.residue / (t.omega_rad_s.powi(2) - w * w))
+        .sum()
 }
 
 /// Sign of `dG/dω` at `w` (`dG/dω = 2ω Σ αᵢ/(ωᵢ² − ω²)²`).
@@ -129,7 +132,11 @@ fn real_zero_frequencies(terms: &[&SeqTerm]) -> Vec<f64> {
         .into_iter()
         .filter(|u| ZeroType::of_u(*u) == ZeroType::Mmp)
         .map(|u| (-u.re).sqrt())
-        .filter(|w| terms.iter().all(|t| (t.omega_rad_s - w).abs() > 1e-9 * t.omega_rad_s))
+        .filter(|w| {
+            terms
+                .iter()
+                .all(|t| (t.omega_rad_s - w).abs() > 1e-9 * t.omega_rad_s)
+        })
         .collect();
     out.sort_by(f64::total_cmp);
     out
@@ -203,8 +210,16 @@ pub fn dominant_sequence(terms: &[SeqTerm]) -> DominantSequence {
         // Rule 2a: candidate x, with the non-candidates alone, still takes
         // over at a zero between the same two poles of G; of those, the
         // one whose zero is nearest ω₀ (in log frequency).
-        let lo = poles.iter().copied().filter(|p| *p < w0).fold(0.0, f64::max);
-        let hi = poles.iter().copied().filter(|p| *p > w0).fold(f64::INFINITY, f64::min);
+        let lo = poles
+            .iter()
+            .copied()
+            .filter(|p| *p < w0)
+            .fold(0.0, f64::max);
+        let hi = poles
+            .iter()
+            .copied()
+            .filter(|p| *p > w0)
+            .fold(f64::INFINITY, f64::min);
         let rest: Vec<&SeqTerm> = all
             .iter()
             .copied()
@@ -214,7 +229,9 @@ pub fn dominant_sequence(terms: &[SeqTerm]) -> DominantSequence {
         // resonances) the group keeps dominating: Tables 3-1 to 3-4 write
         // such stretches [uv] whatever happens between the poles.
         if let Some(gr) = groups.iter().find(|gr| {
-            gr.len() > 1 && gr.first().unwrap().omega_rad_s < w0 && gr.last().unwrap().omega_rad_s > w0
+            gr.len() > 1
+                && gr.first().unwrap().omega_rad_s < w0
+                && gr.last().unwrap().omega_rad_s > w0
         }) {
             events.push(TakeOver {
                 frequency_hz: w0 / (2.0 * PI),
@@ -233,7 +250,9 @@ pub fn dominant_sequence(terms: &[SeqTerm]) -> DominantSequence {
                     sys.push(c);
                     real_zero_frequencies(&sys)
                         .into_iter()
-                        .filter(|&w| w > lo && w < hi && g(&[c], w).signum() == g_slope(&sys, w).signum())
+                        .filter(|&w| {
+                            w > lo && w < hi && g(&[c], w).signum() == g_slope(&sys, w).signum()
+                        })
                         .map(|w| (w / w0).ln().abs())
                         .min_by(f64::total_cmp)
                         .filter(|d| *d <= NEAR_ZERO_LN)
@@ -291,7 +310,13 @@ pub fn dominant_sequence(terms: &[SeqTerm]) -> DominantSequence {
         .join("-");
     let signs = sorted
         .iter()
-        .map(|t| format!("α_{} {} 0", t.label, if t.residue > 0.0 { ">" } else { "<" }))
+        .map(|t| {
+            format!(
+                "α_{} {} 0",
+                t.label,
+                if t.residue > 0.0 { ">" } else { "<" }
+            )
+        })
         .collect::<Vec<_>>()
         .join(", ");
     let alternating = sorted.windows(2).all(|w| w[0].residue * w[1].residue < 0.0);
@@ -409,13 +434,23 @@ mod tests {
                         .collect::<std::collections::BTreeSet<_>>()
                         .into_iter()
                         .collect();
-                    assert_eq!(types, want, "signs {signs:?} α_u {au} α_v {av} ω_v {wv}: {seq}");
+                    assert_eq!(
+                        types, want,
+                        "signs {signs:?} α_u {au} α_v {av} ω_v {wv}: {seq}"
+                    );
                     seen.insert((signs, seq));
                 }
-                None => unmatched.push(format!("{signs:?} α_u {au:.3e} α_v {av:.3e} ω_v {wv:.3}: {seq}")),
+                None => unmatched.push(format!(
+                    "{signs:?} α_u {au:.3e} α_v {av:.3e} ω_v {wv:.3}: {seq}"
+                )),
             }
         }
-        assert!(unmatched.len() < 40, "{} sequences not in Table 3-3, e.g. {:?}", unmatched.len(), &unmatched[..unmatched.len().min(10)]);
+        assert!(
+            unmatched.len() < 40,
+            "{} sequences not in Table 3-3, e.g. {:?}",
+            unmatched.len(),
+            &unmatched[..unmatched.len().min(10)]
+        );
         // Most rows of the table are reached.
         assert!(seen.len() >= 8, "{seen:?}");
     }

@@ -56,7 +56,13 @@ pub struct ThreeModeTest {
 impl ThreeModeTest {
     /// The test from residues (1/kg) and the pair's frequencies (rad/s,
     /// `ω_u < ω_v`).
-    pub fn from_residues(alpha_r: f64, alpha_u: f64, alpha_v: f64, omega_u: f64, omega_v: f64) -> Self {
+    pub fn from_residues(
+        alpha_r: f64,
+        alpha_u: f64,
+        alpha_v: f64,
+        omega_u: f64,
+        omega_v: f64,
+    ) -> Self {
         let (wu2, wv2) = (omega_u * omega_u, omega_v * omega_v);
         let b2 = alpha_r + alpha_u + alpha_v;
         let b2_hat = (wv2 - wu2) * b2 / wu2;
@@ -64,14 +70,21 @@ impl ThreeModeTest {
             let a = omega_v * alpha_v.abs().sqrt();
             let b = omega_u * alpha_u.abs().sqrt();
             let sign = alpha_v.signum();
-            (Some(sign * (a - b).powi(2) / wu2), Some(sign * (a + b).powi(2) / wu2))
+            (
+                Some(sign * (a - b).powi(2) / wu2),
+                Some(sign * (a + b).powi(2) / wu2),
+            )
         } else {
             (None, None)
         };
         let c4_1 = alpha_r * alpha_u < 0.0 && alpha_u * alpha_v < 0.0;
         let c4_2 = match (b21_hat, b22_hat) {
-            (Some(b21), Some(b22)) if alpha_u < 0.0 && alpha_v > 0.0 => b22 > b2_hat && b2_hat > b21 && b21 > 0.0,
-            (Some(b21), Some(b22)) if alpha_u > 0.0 && alpha_v < 0.0 => b22 < b2_hat && b2_hat < b21 && b21 < 0.0,
+            (Some(b21), Some(b22)) if alpha_u < 0.0 && alpha_v > 0.0 => {
+                b22 > b2_hat && b2_hat > b21 && b21 > 0.0
+            }
+            (Some(b21), Some(b22)) if alpha_u > 0.0 && alpha_v < 0.0 => {
+                b22 < b2_hat && b2_hat < b21 && b21 < 0.0
+            }
             _ => false,
         };
         Self {
@@ -129,7 +142,8 @@ mod tests {
         for _ in 0..20000 {
             let wu = 2.0 * std::f64::consts::PI * 150.0;
             let wv = wu * rng.random_range(1.0001..1.3);
-            let s = |rng: &mut rand_chacha::ChaCha8Rng| if rng.random_bool(0.5) { 1.0 } else { -1.0 };
+            let s =
+                |rng: &mut rand_chacha::ChaCha8Rng| if rng.random_bool(0.5) { 1.0 } else { -1.0 };
             let m = |rng: &mut rand_chacha::ChaCha8Rng| 10f64.powf(rng.random_range(-3.0..3.0));
             let ar = s(&mut rng) * m(&mut rng);
             let au = s(&mut rng) * m(&mut rng);
@@ -144,7 +158,12 @@ mod tests {
             if edge {
                 continue;
             }
-            assert_eq!(t.p4_1_cnmp, exact, "α_R {ar} α_u {au} α_v {av} ω_v/ω_u {}", wv / wu);
+            assert_eq!(
+                t.p4_1_cnmp,
+                exact,
+                "α_R {ar} α_u {au} α_v {av} ω_v/ω_u {}",
+                wv / wu
+            );
             if exact {
                 yes += 1;
             } else {
@@ -162,8 +181,18 @@ mod tests {
         let (wu, wv) = (1.0, 2f64.sqrt());
         let lo = 3.0 - 2.0 * 2f64.sqrt();
         let hi = 3.0 + 2.0 * 2f64.sqrt();
-        for (ar, want) in [(lo * 0.99, false), (lo * 1.01, true), (3.0, true), (hi * 0.99, true), (hi * 1.01, false)] {
-            assert_eq!(ThreeModeTest::from_residues(ar, -1.0, 1.0, wu, wv).p4_1_cnmp, want, "α_R {ar}");
+        for (ar, want) in [
+            (lo * 0.99, false),
+            (lo * 1.01, true),
+            (3.0, true),
+            (hi * 0.99, true),
+            (hi * 1.01, false),
+        ] {
+            assert_eq!(
+                ThreeModeTest::from_residues(ar, -1.0, 1.0, wu, wv).p4_1_cnmp,
+                want,
+                "α_R {ar}"
+            );
         }
     }
 }

@@ -25,7 +25,12 @@ pub(super) struct BenchPointArgs {
     #[arg(long, value_name = "FILE", default_value = DEFAULT_CONFIG)]
     config: PathBuf,
     /// Operating point Y1o, m (overrides plant.operating_point_m).
-    #[arg(long, value_name = "M", allow_hyphen_values = true, conflicts_with = "operating_point_pct")]
+    #[arg(
+        long,
+        value_name = "M",
+        allow_hyphen_values = true,
+        conflicts_with = "operating_point_pct"
+    )]
     operating_point_m: Option<f64>,
     /// Operating point Y1o in % of the beam length L.
     #[arg(long, value_name = "PERCENT", allow_hyphen_values = true)]
@@ -52,8 +57,12 @@ impl BenchPointArgs {
         }
         if let Err(e) = p.validate("plant") {
             let flag = match e.key.as_str() {
-                "plant.operating_point_m" if self.operating_point_m.is_some() => Some("--operating-point-m"),
-                "plant.operating_point_m" if self.operating_point_pct.is_some() => Some("--operating-point-pct"),
+                "plant.operating_point_m" if self.operating_point_m.is_some() => {
+                    Some("--operating-point-m")
+                }
+                "plant.operating_point_m" if self.operating_point_pct.is_some() => {
+                    Some("--operating-point-pct")
+                }
                 "plant.mass_asymmetry" if self.mass_asymmetry.is_some() => Some("--mass-asymmetry"),
                 _ => None,
             };
@@ -110,7 +119,10 @@ fn default_output(prefix: &str, suffix: &str) -> PathBuf {
 }
 
 fn absolute(p: &Path) -> String {
-    std::path::absolute(p).unwrap_or_else(|_| p.to_path_buf()).display().to_string()
+    std::path::absolute(p)
+        .unwrap_or_else(|_| p.to_path_buf())
+        .display()
+        .to_string()
 }
 
 /// Creates the directory of a default output path.
@@ -145,12 +157,19 @@ pub(super) fn analyze(args: AnalyzeArgs) -> ExitCode {
     let existing = Existing::overwrite(args.overwrite);
     let (mut pz, mut modes) = (None, None);
     if !args.no_plots {
-        let pz_path = args.pole_zero_png.clone().unwrap_or_else(|| default_output("analyze", ".pole-zero.png"));
+        let pz_path = args
+            .pole_zero_png
+            .clone()
+            .unwrap_or_else(|| default_output("analyze", ".pole-zero.png"));
         let modes_path = args.modes_png.clone().unwrap_or_else(|| {
             // Same stamp as the pole-zero map when both are defaults.
             match &args.pole_zero_png {
                 None => pz_path.with_file_name(
-                    pz_path.file_name().unwrap().to_string_lossy().replace(".pole-zero.png", ".modes.png"),
+                    pz_path
+                        .file_name()
+                        .unwrap()
+                        .to_string_lossy()
+                        .replace(".pole-zero.png", ".modes.png"),
                 ),
                 Some(_) => default_output("analyze", ".modes.png"),
             }
@@ -167,7 +186,14 @@ pub(super) fn analyze(args: AnalyzeArgs) -> ExitCode {
             a.mass_asymmetry * 100.0
         );
         let title = format!("Poles and zeros, force → x1 — {what}");
-        if let Err(e) = write_pole_zero_png(&pz_path, existing, &title, &model, &a.zeros_damped, &a.modes) {
+        if let Err(e) = write_pole_zero_png(
+            &pz_path,
+            existing,
+            &title,
+            &model,
+            &a.zeros_damped,
+            &a.modes,
+        ) {
             return plot_failed(e);
         }
         let title = format!("Decomposed modes {} — {what}", a.sequence);
@@ -200,7 +226,9 @@ fn print_analysis(s: &AnalyzeSummary) {
         a.mass_asymmetry * 100.0,
         a.coupling_alpha
     );
-    println!("modes (residue α of Eq. 4-15 in 1/kg = m/(N·s²); shape unit-length over [x1 y1 y2 y3]):");
+    println!(
+        "modes (residue α of Eq. 4-15 in 1/kg = m/(N·s²); shape unit-length over [x1 y1 y2 y3]):"
+    );
     for m in &a.modes {
         println!(
             "  {} [{:>2}] {:8.2} Hz  ζ {:.4}  modal mass {:.4} kg  α {:+.4e}  shape [{:+.3} {:+.3} {:+.3} {:+.3}]{}",
@@ -255,13 +283,22 @@ fn print_analysis(s: &AnalyzeSummary) {
                 "  C4-1 (alternating signs) {}, C4-2 {} → P4-1: {}; exact (full model): {}",
                 yes_no(t.c4_1),
                 yes_no(t.c4_2),
-                if t.p4_1_cnmp { "CMP-CNMP" } else { "no CMP-CNMP" },
+                if t.p4_1_cnmp {
+                    "CMP-CNMP"
+                } else {
+                    "no CMP-CNMP"
+                },
                 if a.cnmp { "CMP-CNMP" } else { "no CMP-CNMP" }
             );
         }
-        None => println!("three-mode test: not applicable (no remainder mode or no pair in the path)"),
+        None => {
+            println!("three-mode test: not applicable (no remainder mode or no pair in the path)")
+        }
     }
-    for (what, p) in [("pole-zero map", &s.pole_zero_png), ("decomposed modes", &s.modes_png)] {
+    for (what, p) in [
+        ("pole-zero map", &s.pole_zero_png),
+        ("decomposed modes", &s.modes_png),
+    ] {
         if let Some(p) = p {
             println!("{what}: {p}");
         }
@@ -283,10 +320,20 @@ pub(super) struct MapArgs {
     #[arg(long, value_name = "FILE", default_value = DEFAULT_CONFIG)]
     config: PathBuf,
     /// Lowest operating point of the grid, % of L.
-    #[arg(long, value_name = "PERCENT", default_value_t = 0.0, allow_hyphen_values = true)]
+    #[arg(
+        long,
+        value_name = "PERCENT",
+        default_value_t = 0.0,
+        allow_hyphen_values = true
+    )]
     operating_point_from_pct: f64,
     /// Highest operating point of the grid, % of L.
-    #[arg(long, value_name = "PERCENT", default_value_t = 10.0, allow_hyphen_values = true)]
+    #[arg(
+        long,
+        value_name = "PERCENT",
+        default_value_t = 10.0,
+        allow_hyphen_values = true
+    )]
     operating_point_to_pct: f64,
     /// Number of operating points (2 … 401).
     #[arg(long, value_name = "N", default_value_t = 101)]
@@ -295,7 +342,12 @@ pub(super) struct MapArgs {
     #[arg(long, value_name = "X", default_value_t = -0.10, allow_hyphen_values = true)]
     mass_asymmetry_from: f64,
     /// Highest mass asymmetry of the grid (fraction).
-    #[arg(long, value_name = "X", default_value_t = 0.10, allow_hyphen_values = true)]
+    #[arg(
+        long,
+        value_name = "X",
+        default_value_t = 0.10,
+        allow_hyphen_values = true
+    )]
     mass_asymmetry_to: f64,
     /// Number of asymmetries (2 … 401; 1 with --veering).
     #[arg(long, value_name = "N", default_value_t = 81)]
@@ -311,11 +363,22 @@ pub(super) struct MapArgs {
     #[arg(long)]
     veering: bool,
     /// Asymmetries of the veering curves (fractions, comma-separated).
-    #[arg(long, value_name = "X,X,…", value_delimiter = ',', default_value = "0,0.01,0.05", allow_hyphen_values = true)]
+    #[arg(
+        long,
+        value_name = "X,X,…",
+        value_delimiter = ',',
+        default_value = "0,0.01,0.05",
+        allow_hyphen_values = true
+    )]
     veering_asymmetries: Vec<f64>,
     /// Operating points (% of L) at which to print the pair's mode-shape
     /// localisation with --veering (comma-separated).
-    #[arg(long, value_name = "PERCENT,…", value_delimiter = ',', allow_hyphen_values = true)]
+    #[arg(
+        long,
+        value_name = "PERCENT,…",
+        value_delimiter = ',',
+        allow_hyphen_values = true
+    )]
     localisation_at_pct: Vec<f64>,
     /// The map (or veering) PNG [default: map-<UTC time>.png or
     /// veering-<UTC time>.png in the recordings directory].
@@ -345,7 +408,11 @@ impl MapArgs {
             ("--operating-point-to-pct", self.operating_point_to_pct),
         ] {
             if !(v.is_finite() && (0.0..=max_pct).contains(&v)) {
-                let hint = if v > max_pct && v <= max_pct * 100.0 { " (the grid is in % of L: 5 means 5 %)" } else { "" };
+                let hint = if v > max_pct && v <= max_pct * 100.0 {
+                    " (the grid is in % of L: 5 means 5 %)"
+                } else {
+                    ""
+                };
                 return Err(format!(
                     "{flag}: {v} is outside 0 … {max_pct} % of L (the model's small-rotation range, Eq. 2-1){hint}"
                 ));
@@ -363,7 +430,11 @@ impl MapArgs {
             ("--mass-asymmetry-to", self.mass_asymmetry_to),
         ];
         if self.veering {
-            asym_flags.extend(self.veering_asymmetries.iter().map(|v| ("--veering-asymmetries", *v)));
+            asym_flags.extend(
+                self.veering_asymmetries
+                    .iter()
+                    .map(|v| ("--veering-asymmetries", *v)),
+            );
         }
         for (flag, v) in asym_flags {
             if !(v.is_finite() && (lo..=hi).contains(&v)) {
@@ -379,7 +450,11 @@ impl MapArgs {
             ));
         }
         for (flag, n, min) in [
-            ("--operating-points", self.operating_points, if self.veering { 3 } else { 2 }),
+            (
+                "--operating-points",
+                self.operating_points,
+                if self.veering { 3 } else { 2 },
+            ),
             ("--mass-asymmetries", self.mass_asymmetries, 2),
         ] {
             if !(min..=MAX_GRID_POINTS).contains(&n) {
@@ -391,13 +466,23 @@ impl MapArgs {
         }
         for v in &self.localisation_at_pct {
             if !(v.is_finite() && (0.0..=max_pct).contains(v)) {
-                return Err(format!("--localisation-at-pct: {v} is outside 0 … {max_pct} % of L"));
+                return Err(format!(
+                    "--localisation-at-pct: {v} is outside 0 … {max_pct} % of L"
+                ));
             }
         }
         let l = p.beam.length_m;
         Ok((
-            linspace(self.operating_point_from_pct / 100.0 * l, self.operating_point_to_pct / 100.0 * l, self.operating_points),
-            linspace(self.mass_asymmetry_from, self.mass_asymmetry_to, self.mass_asymmetries),
+            linspace(
+                self.operating_point_from_pct / 100.0 * l,
+                self.operating_point_to_pct / 100.0 * l,
+                self.operating_points,
+            ),
+            linspace(
+                self.mass_asymmetry_from,
+                self.mass_asymmetry_to,
+                self.mass_asymmetries,
+            ),
         ))
     }
 }
@@ -407,14 +492,27 @@ impl MapArgs {
 ///
 /// # Errors
 /// A message naming the file, line and column.
-pub(super) fn read_measured(path: &Path, p: &Sr4dofParams) -> Result<(Vec<MeasuredPoint>, usize), String> {
-    let meta = std::fs::metadata(path).map_err(|e| format!("--measured {}: {e}", path.display()))?;
+pub(super) fn read_measured(
+    path: &Path,
+    p: &Sr4dofParams,
+) -> Result<(Vec<MeasuredPoint>, usize), String> {
+    let meta =
+        std::fs::metadata(path).map_err(|e| format!("--measured {}: {e}", path.display()))?;
     if !meta.is_file() || meta.len() > bench::config::MAX_CONFIG_BYTES * 16 {
-        return Err(format!("--measured {}: not a regular file of at most 16 MiB", path.display()));
+        return Err(format!(
+            "--measured {}: not a regular file of at most 16 MiB",
+            path.display()
+        ));
     }
-    let text = std::fs::read_to_string(path).map_err(|e| format!("--measured {}: {e}", path.display()))?;
-    let mut lines = text.lines().enumerate().filter(|(_, l)| !l.trim().is_empty() && !l.starts_with('#'));
-    let (_, header) = lines.next().ok_or_else(|| format!("--measured {}: empty file", path.display()))?;
+    let text =
+        std::fs::read_to_string(path).map_err(|e| format!("--measured {}: {e}", path.display()))?;
+    let mut lines = text
+        .lines()
+        .enumerate()
+        .filter(|(_, l)| !l.trim().is_empty() && !l.starts_with('#'));
+    let (_, header) = lines
+        .next()
+        .ok_or_else(|| format!("--measured {}: empty file", path.display()))?;
     let cols: Vec<&str> = header.split(',').map(str::trim).collect();
     let find = |names: &[&str]| cols.iter().position(|c| names.contains(c));
     let (Some(iop), Some(idm), Some(iv)) = (
@@ -431,14 +529,22 @@ pub(super) fn read_measured(path: &Path, p: &Sr4dofParams) -> Result<(Vec<Measur
     for (i, line) in lines {
         let f: Vec<&str> = line.split(',').map(str::trim).collect();
         let at = |k: usize, name: &str| -> Result<&str, String> {
-            f.get(k).copied().ok_or_else(|| format!("--measured {}:{}: no {name} column", path.display(), i + 1))
+            f.get(k)
+                .copied()
+                .ok_or_else(|| format!("--measured {}:{}: no {name} column", path.display(), i + 1))
         };
         let num = |k: usize, name: &str| -> Result<f64, String> {
             let s = at(k, name)?;
             s.parse::<f64>()
                 .ok()
                 .filter(|v| v.is_finite())
-                .ok_or_else(|| format!("--measured {}:{}: {name} {s:?} is not a finite number", path.display(), i + 1))
+                .ok_or_else(|| {
+                    format!(
+                        "--measured {}:{}: {name} {s:?} is not a finite number",
+                        path.display(),
+                        i + 1
+                    )
+                })
         };
         let op = num(iop, "operating_point_m")?;
         let dm = num(idm, "mass_asymmetry")?;
@@ -554,7 +660,10 @@ pub(super) fn map(args: MapArgs) -> ExitCode {
     }
     // Every cell must describe a bench: the model checks the rest of the
     // plant once, at the grid's corners.
-    for (op, dm) in [(ops[0], dms[0]), (*ops.last().unwrap(), *dms.last().unwrap())] {
+    for (op, dm) in [
+        (ops[0], dms[0]),
+        (*ops.last().unwrap(), *dms.last().unwrap()),
+    ] {
         if let Err(e) = model_at(&p, op, dm) {
             return bad_input(format!("{}: {e}", args.config.display()));
         }
@@ -650,14 +759,27 @@ pub(super) fn map(args: MapArgs) -> ExitCode {
         })
         .collect();
     let title = "CMP-CNMP zeros of force → x1 over the workspace";
-    if let Err(e) = write_map_png(&png, existing, title, p.beam.length_m, &ops, &dms, &cells, crossing, &points) {
+    if let Err(e) = write_map_png(
+        &png,
+        existing,
+        title,
+        p.beam.length_m,
+        &ops,
+        &dms,
+        &cells,
+        crossing,
+        &points,
+    ) {
         return plot_failed(e);
     }
     let csv = match &args.csv {
         Some(path) => {
             let mut text = String::from("operating_point_m,mass_asymmetry,cnmp,cnmp_damped\n");
             for c in &cells {
-                text.push_str(&format!("{},{},{},{}\n", c.operating_point_m, c.mass_asymmetry, c.cnmp, c.cnmp_damped));
+                text.push_str(&format!(
+                    "{},{},{},{}\n",
+                    c.operating_point_m, c.mass_asymmetry, c.cnmp, c.cnmp_damped
+                ));
             }
             if let Err(e) = bench::outputs::write_atomically(path, existing, |f| {
                 use std::io::Write;
@@ -709,14 +831,23 @@ fn print_map(s: &MapSummary) {
         s.cnmp_damped_cells
     );
     match s.crossing_operating_point_m {
-        Some(op) => println!("mode crossing of the symmetric stage at Y1o = {:.3} mm ({:.2} % of L)", op * 1e3, op / l * 100.0),
+        Some(op) => println!(
+            "mode crossing of the symmetric stage at Y1o = {:.3} mm ({:.2} % of L)",
+            op * 1e3,
+            op / l * 100.0
+        ),
         None => println!("no mode crossing of the symmetric stage within the model's range"),
     }
     // Per asymmetry, the operating-point extent of the region (damped).
     for &dm in &s.mass_asymmetries {
-        let row: Vec<&MapCell> = s.cells.iter().filter(|c| c.mass_asymmetry == dm && c.cnmp_damped).collect();
+        let row: Vec<&MapCell> = s
+            .cells
+            .iter()
+            .filter(|c| c.mass_asymmetry == dm && c.cnmp_damped)
+            .collect();
         if let (Some(a), Some(b)) = (row.first(), row.last()) {
-            if s.mass_asymmetries.len() <= 21 || (dm * 100.0).fract().abs() < 1e-9 {
+            let whole_pct = ((dm * 100.0) - (dm * 100.0).round()).abs() < 1e-6;
+            if s.mass_asymmetries.len() <= 21 || whole_pct {
                 println!(
                     "  Δm23 = {:+5.1} %: CMP-CNMP (damped) from {:.2} to {:.2} % of L",
                     dm * 100.0,
@@ -739,7 +870,11 @@ fn print_map(s: &MapSummary) {
                 d.operating_point_m / l * 100.0,
                 d.mass_asymmetry * 100.0,
                 if d.measured_cnmp { "CMP-CNMP" } else { "none" },
-                if d.model_cnmp_damped { "CMP-CNMP" } else { "none" }
+                if d.model_cnmp_damped {
+                    "CMP-CNMP"
+                } else {
+                    "none"
+                }
             );
         }
     }
@@ -758,7 +893,11 @@ fn print_veering(s: &VeeringSummary) {
             c.closest_gap_hz,
             c.closest_operating_point_m / l * 100.0,
             c.closest_frequency_hz,
-            if c.closest_gap_hz < 1e-3 * c.closest_frequency_hz { " — mode crossing" } else { " — veering" }
+            if c.closest_gap_hz < 1e-3 * c.closest_frequency_hz {
+                " — mode crossing"
+            } else {
+                " — veering"
+            }
         );
         let show = |iv: &[[f64; 2]]| {
             if iv.is_empty() {
@@ -770,7 +909,11 @@ fn print_veering(s: &VeeringSummary) {
                     .join(", ")
             }
         };
-        println!("  CMP-CNMP zeros over Y1o: undamped {}; damped {}", show(&c.cnmp_intervals_m), show(&c.cnmp_damped_intervals_m));
+        println!(
+            "  CMP-CNMP zeros over Y1o: undamped {}; damped {}",
+            show(&c.cnmp_intervals_m),
+            show(&c.cnmp_damped_intervals_m)
+        );
     }
     for p in &s.localisation {
         println!(
