@@ -88,3 +88,92 @@ pub fn analyze(model: &Sr4dof) -> Analysis {
         modes,
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::config::BenchConfig;
+    use bench_hal::model::ZeroType;
+
+    fn ch5_at(op_fraction: f64, dm: f64) -> Analysis {
+        let path =
+            std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("bench-config/sr4dof-ch5.toml");
+        let mut p = BenchConfig::load(&path).unwrap().plant;
+        p.operating_point_m = op_fraction * p.beam.length_m;
+        p.mass_asymmetry = dm;
+        analyze(&Sr4dof::new(p).unwrap())
+    }
+
+    fn signs(a: &Analysis) -> Vec<(String, i8)> {
+        a.modes
+            .iter()
+            .filter(|m| m.in_path)
+            .map(|m| (m.label.clone(), m.sign))
+            .collect()
+    }
+
+    #[test]
+    fn chapter_5_bench_at_8_percent_alternates_signs_only_for_positive_asymmetry() {
+        // Thesis 6.2.1 (Fig 6-9): Chapter 5 bench at Y1o = 8 % of L:
+        // Δm23 = +10 % gives α_R > 0, α_u < 0, α_v > 0 (alternating) and
+        // CMP-CNMP zeros; −10 % gives α_R > 0, α_u > 0, α_v < 0 and none.
+        let pos = ch5_at(0.08, 0.10);
+        assert_eq!(
+            signs(&pos),
+            [("R".into(), 1), ("u".into(), -1), ("v".into(), 1)],
+            "{pos:#?}"
+        );
+        assert!(pos.alternating_signs);
+        assert!(pos.cnmp && pos.cnmp_damped);
+        assert_eq!(pos.sequence, "[R]-[u]-[v]");
+        let neg = ch5_at(0.08, -0.10);
+        assert_eq!(
+            signs(&neg),
+            [("R".into(), 1), ("u".into(), 1), ("v".into(), -1)],
+            "{neg:#?}"
+        );
+        assert!(!neg.alternating_signs && !neg.cnmp && !neg.cnmp_damped);
+        // (+, +, −): MMP + RMP-RNMP or dual MMP (Table 3-3), never CMP-CNMP.
+        assert!(neg
+            .zeros_undamped
+            .iter()
+            .all(|z| z.kind != ZeroType::CmpCnmp));
+        assert!(neg.sequence.starts_with("[Ru]-[v]"), "{}", neg.sequence);
+        // Leave out the zero that cancels the hidden Y mode's pole.
+        let hidden: Vec<f64> = neg
+            .modes
+            .iter()
+            .filter(|m| !m.in_path)
+            .map(|m| m.frequency_hz)
+            .collect();
+        let of_path = |z: &&modal::TypedZero| {
+            hidden
+                .iter()
+                .all(|f| (z.frequency_hz / f - 1.0).abs() > 0.01)
+        };
+        let mmp = neg
+            .zeros_undamped
+            .iter()
+            .filter(of_path)
+            .filter(|z| z.kind == ZeroType::Mmp)
+            .count();
+        let rnmp = neg
+            .zeros_undamped
+            .iter()
+            .filter(of_path)
+            .filter(|z| z.kind == ZeroType::RmpRnmp)
+            .count();
+        match neg.sequence.as_str() {
+            "[Ru]-[v]" => assert_eq!(
+                (mmp, rnmp),
+                (2, 2),
+                "MMP + RMP-RNMP: {:?}",
+                neg.zeros_undamped
+            ),
+            "[Ru]-[v]-[DI]" => {
+                assert_eq!((mmp, rnmp), (4, 0), "dual MMP: {:?}", neg.zeros_undamped)
+            }
+            other => panic!("not a Table 3-3 row for (+, +, −): {other}"),
+        }
+    }
+}

@@ -83,7 +83,9 @@ impl ModalTerm {
 pub fn modal_terms(model: &Sr4dof) -> Vec<ModalTerm> {
     let m = model.mass();
     let q = model.input();
-    let raw: Vec<(Vector4<f64>, f64, f64, f64)> = model
+    // Per mode: unit shape, modal mass, sensor and actuator participation.
+    type Raw = (Vector4<f64>, f64, f64, f64);
+    let raw: Vec<Raw> = model
         .modes()
         .iter()
         .map(|mode| {
@@ -92,11 +94,10 @@ pub fn modal_terms(model: &Sr4dof) -> Vec<ModalTerm> {
             (unit, modal_mass_kg, unit[0], q.dot(&unit))
         })
         .collect();
-    let max_of =
-        |f: &dyn Fn(&(Vector4<f64>, f64, f64, f64)) -> f64| raw.iter().map(f).fold(0.0, f64::max);
-    let max_sensor = max_of(&|r| r.2.abs());
-    let max_actuator = max_of(&|r| r.3.abs());
-    let max_residue = max_of(&|r| (r.2 * r.3 / r.1).abs());
+    let max_of = |f: fn(&Raw) -> f64| raw.iter().map(f).fold(0.0, f64::max);
+    let max_sensor = max_of(|r| r.2.abs());
+    let max_actuator = max_of(|r| r.3.abs());
+    let max_residue = max_of(|r| (r.2 * r.3 / r.1).abs());
     let mut terms: Vec<ModalTerm> = model
         .modes()
         .iter()

@@ -44,7 +44,7 @@ pub(super) struct BenchPointArgs {
 impl BenchPointArgs {
     /// The config's plant with the flags applied and checked, or the exit.
     fn plant(&self) -> Result<(BenchConfig, Sr4dofParams), ExitCode> {
-        let cfg = load_config(&self.config).map_err(|e| bad_input(e))?;
+        let cfg = load_config(&self.config).map_err(bad_input)?;
         let mut p = cfg.plant;
         if let Some(m) = self.operating_point_m {
             p.operating_point_m = m;
