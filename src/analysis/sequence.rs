@@ -328,6 +328,34 @@ pub fn dominant_sequence(terms: &[SeqTerm]) -> DominantSequence {
     }
 }
 
+/// Thesis Table 3-3 (a double integrator R and two modes u < v): the zero
+/// types that a sign pattern `(sign α_R, sign α_u, sign α_v)` and a
+/// sequence of dominant modes map to, with CMP-CNMP and dual RMP-RNMP as
+/// one class written `"NMP"` (the table's "CMP-CNMP or dual RMP-RNMP";
+/// the sequence cannot tell them apart). `None` for a pair the table does
+/// not list.
+pub fn table_3_3_zero_types(
+    signs: (i8, i8, i8),
+    sequence: &str,
+) -> Option<&'static [&'static str]> {
+    const DUAL_MMP: &[&str] = &["MMP", "MMP"];
+    const MMP_RNMP: &[&str] = &["MMP", "RMP-RNMP"];
+    const NMP: &[&str] = &["NMP", "NMP"];
+    Some(match (signs, sequence) {
+        ((1, -1, 1), "[R]-[u]-[v]") => NMP,
+        ((1, -1, 1), "[R]-[u]-[R]-[v]") => DUAL_MMP,
+        ((1, -1, 1), "[R]-[u]-[v]-[u]") => MMP_RNMP,
+        ((1, -1, 1), "[R]-[v]-[u]-[v]") => DUAL_MMP,
+        ((1, -1, 1), "[R]-[u]-[v]-[u]-[DI]") => DUAL_MMP,
+        ((1, 1, -1), "[Ru]-[v]") => MMP_RNMP,
+        ((1, 1, -1), "[Ru]-[v]-[DI]") => DUAL_MMP,
+        ((1, -1, -1), "[R]-[uv]-[R]") => DUAL_MMP,
+        ((1, -1, -1), "[R]-[uv]") => MMP_RNMP,
+        ((1, 1, 1), "[Ruv]") => DUAL_MMP,
+        _ => return None,
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -381,27 +409,6 @@ mod tests {
         assert_eq!(zero_types(&sys(21.0)), ["RMP-RNMP", "RMP-RNMP"]);
     }
 
-    /// Table 3-3 (double integrator + two modes): (signs of R, u, v,
-    /// sequence) → zero types, with CMP-CNMP and dual RMP-RNMP one class.
-    fn table_3_3(signs: (i8, i8, i8), seq: &str) -> Option<&'static [&'static str]> {
-        const DUAL_MMP: &[&str] = &["MMP", "MMP"];
-        const MMP_RNMP: &[&str] = &["MMP", "RMP-RNMP"];
-        const NMP: &[&str] = &["NMP", "NMP"];
-        Some(match (signs, seq) {
-            ((1, -1, 1), "[R]-[u]-[v]") => NMP,
-            ((1, -1, 1), "[R]-[u]-[R]-[v]") => DUAL_MMP,
-            ((1, -1, 1), "[R]-[u]-[v]-[u]") => MMP_RNMP,
-            ((1, -1, 1), "[R]-[v]-[u]-[v]") => DUAL_MMP,
-            ((1, -1, 1), "[R]-[u]-[v]-[u]-[DI]") => DUAL_MMP,
-            ((1, 1, -1), "[Ru]-[v]") => MMP_RNMP,
-            ((1, 1, -1), "[Ru]-[v]-[DI]") => DUAL_MMP,
-            ((1, -1, -1), "[R]-[uv]-[R]") => DUAL_MMP,
-            ((1, -1, -1), "[R]-[uv]") => MMP_RNMP,
-            ((1, 1, 1), "[Ruv]") => DUAL_MMP,
-            _ => return None,
-        })
-    }
-
     #[test]
     fn sequences_map_to_zero_types_as_in_table_3_3() {
         // Sampled residues for every sign pattern of Table 3-3, with mode R
@@ -426,7 +433,7 @@ mod tests {
                 .collect::<std::collections::BTreeSet<_>>()
                 .into_iter()
                 .collect();
-            match table_3_3(signs, &seq) {
+            match table_3_3_zero_types(signs, &seq) {
                 Some(row) => {
                     let want: Vec<&str> = row
                         .iter()

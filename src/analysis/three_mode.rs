@@ -51,15 +51,29 @@ pub struct ThreeModeTest {
     /// Verdict of Proposition P4-1 (C4-1 ∧ C4-2): CMP-CNMP zeros in the
     /// three-mode model.
     pub p4_1_cnmp: bool,
+    /// Natural frequency of the remainder mode R, Hz (0: a true double
+    /// integrator).
+    pub frequency_r_hz: f64,
+    /// How much taking R as a double integrator (Assumption A4-5) moves
+    /// b̂₂ at the pair: R's contribution at `ω_u` is `α_R/(ω_R² − ω_u²)`
+    /// instead of `−α_R/ω_u²`, an effective residue larger by
+    /// `α_R ω_R²/(ω_u² − ω_R²)`, times the normalisation of Eq. 4-9. 1/kg.
+    pub remainder_error_hat: f64,
+    /// `b̂₂` is farther than `remainder_error_hat` from both critical
+    /// values (or they do not exist): the assumptions of P4-1 hold well
+    /// enough for its verdict to be decisive here.
+    pub p4_1_decisive: bool,
 }
 
 impl ThreeModeTest {
-    /// The test from residues (1/kg) and the pair's frequencies (rad/s,
-    /// `ω_u < ω_v`).
+    /// The test from residues (1/kg), the remainder's frequency `omega_r`
+    /// (rad/s; 0 for a double integrator) and the pair's (rad/s,
+    /// `omega_r < ω_u < ω_v`).
     pub fn from_residues(
         alpha_r: f64,
         alpha_u: f64,
         alpha_v: f64,
+        omega_r: f64,
         omega_u: f64,
         omega_v: f64,
     ) -> Self {
@@ -87,6 +101,12 @@ impl ThreeModeTest {
             }
             _ => false,
         };
+        let remainder_error_hat =
+            ((wv2 - wu2) / wu2 * alpha_r * omega_r * omega_r / (wu2 - omega_r * omega_r)).abs();
+        let p4_1_decisive = [b21_hat, b22_hat]
+            .iter()
+            .flatten()
+            .all(|b| (b - b2_hat).abs() > remainder_error_hat);
         Self {
             alpha_r_per_kg: alpha_r,
             alpha_u_per_kg: alpha_u,
@@ -99,6 +119,9 @@ impl ThreeModeTest {
             c4_1,
             c4_2,
             p4_1_cnmp: c4_1 && c4_2,
+            frequency_r_hz: omega_r / (2.0 * std::f64::consts::PI),
+            remainder_error_hat,
+            p4_1_decisive,
         }
     }
 
@@ -112,6 +135,7 @@ impl ThreeModeTest {
             r.residue_per_kg,
             u.residue_per_kg,
             v.residue_per_kg,
+            r.omega_rad_s(),
             u.omega_rad_s(),
             v.omega_rad_s(),
         ))
@@ -149,7 +173,7 @@ mod tests {
             let au = s(&mut rng) * m(&mut rng);
             let av = s(&mut rng) * m(&mut rng);
             let exact = quadratic_cnmp(ar, au, av, wu, wv);
-            let t = ThreeModeTest::from_residues(ar, au, av, wu, wv);
+            let t = ThreeModeTest::from_residues(ar, au, av, 0.0, wu, wv);
             // Skip points within rounding of the tangency (b̂₂ = b̂₂₁,₂₂).
             let edge = [t.b21_hat, t.b22_hat]
                 .iter()
@@ -189,7 +213,7 @@ mod tests {
             (hi * 1.01, false),
         ] {
             assert_eq!(
-                ThreeModeTest::from_residues(ar, -1.0, 1.0, wu, wv).p4_1_cnmp,
+                ThreeModeTest::from_residues(ar, -1.0, 1.0, 0.0, wu, wv).p4_1_cnmp,
                 want,
                 "α_R {ar}"
             );

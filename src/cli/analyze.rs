@@ -290,6 +290,12 @@ fn print_analysis(s: &AnalyzeSummary) {
                 },
                 if a.cnmp { "CMP-CNMP" } else { "no CMP-CNMP" }
             );
+            if !t.p4_1_decisive {
+                println!(
+                    "  (not decisive: b̂2 is within {:.2e}, the error of taking R at {:.1} Hz as a double integrator, of a critical value)",
+                    t.remainder_error_hat, t.frequency_r_hz
+                );
+            }
         }
         None => {
             println!("three-mode test: not applicable (no remainder mode or no pair in the path)")
