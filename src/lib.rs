@@ -10,6 +10,7 @@
 //! binary (`src/cli`).
 #![warn(missing_docs)]
 
+pub mod analysis;
 pub mod config;
 pub mod control;
 pub mod daemon;

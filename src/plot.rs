@@ -118,7 +118,7 @@ pub enum PlotError {
 
 /// Width and height of the Bode figure in pixels.
 const BODE_SIZE: (u32, u32) = (1400, 1000);
-const FONT: &str = "sans-serif";
+pub(crate) const FONT: &str = "sans-serif";
 static FONT_BYTES: &[u8] = include_bytes!("../assets/DejaVuSans.ttf");
 
 const TITLE_SIZE: f64 = 28.0;
@@ -149,8 +149,8 @@ const PALETTE: [RGBColor; 8] = [
     RGBColor(23, 190, 207),
 ];
 
-type BoxError = Box<dyn StdError>;
-type Area<'b> = DrawingArea<BitMapBackend<'b>, Shift>;
+pub(crate) type BoxError = Box<dyn StdError>;
+pub(crate) type Area<'b> = DrawingArea<BitMapBackend<'b>, Shift>;
 type Chart<'a, 'b, X> = ChartContext<'a, BitMapBackend<'b>, Cartesian2d<X, Ticked<RangedCoordf64>>>;
 
 /// Writes a Bode figure of `plot` as a 1400x1000 px PNG to `path`.
@@ -273,7 +273,7 @@ fn ensure_font() -> Result<(), PlotError> {
 /// through a temporary file renamed when complete
 /// ([`outputs::write_atomically`](crate::outputs::write_atomically)): a
 /// failed write leaves nothing under `path`.
-fn write_png_atomically(
+pub(crate) fn write_png_atomically(
     path: &Path,
     existing: Existing,
     size: (u32, u32),

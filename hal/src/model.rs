@@ -463,6 +463,25 @@ pub enum ZeroType {
 }
 
 impl ZeroType {
+    /// Relative size of `Im u` below which a root `u = s²` counts as real
+    /// (the roots come from a companion-matrix eigensolver, accurate to a
+    /// few ulps of `|u|` times the conditioning).
+    pub const REAL_TOLERANCE: f64 = 1e-9;
+
+    /// The type of the zeros `s = ±√u` of an undamped transfer function
+    /// from a root `u` (rad/s)² of its numerator in `u = s²` (thesis 3.2.1):
+    /// complex `u` (`|Im u| > REAL_TOLERANCE·|u|`) → CMP-CNMP, real
+    /// `u < 0` → MMP, real `u ≥ 0` → RMP-RNMP.
+    pub fn of_u(u: Complex<f64>) -> Self {
+        if u.im.abs() > Self::REAL_TOLERANCE * u.norm() {
+            Self::CmpCnmp
+        } else if u.re < 0.0 {
+            Self::Mmp
+        } else {
+            Self::RmpRnmp
+        }
+    }
+
     /// The thesis' abbreviation.
     pub fn as_str(self) -> &'static str {
         match self {
@@ -749,13 +768,7 @@ impl Sr4dof {
             .into_iter()
             .map(|v| v * scale)
             .map(|u| {
-                let kind = if u.im.abs() > 1e-9 * u.norm() {
-                    ZeroType::CmpCnmp
-                } else if u.re < 0.0 {
-                    ZeroType::Mmp
-                } else {
-                    ZeroType::RmpRnmp
-                };
+                let kind = ZeroType::of_u(u);
                 UndampedZero { u, kind }
             })
             .collect();

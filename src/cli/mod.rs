@@ -17,6 +17,7 @@
 //! `serve.rs`: its flags and its printing); this file holds the command
 //! tree, the exit statuses and what the commands share.
 
+mod analyze;
 mod chirp;
 mod control;
 mod emulate;
@@ -24,6 +25,7 @@ mod job_thread;
 mod recover;
 mod serve;
 
+use analyze::{analyze, map, AnalyzeArgs, MapArgs};
 use anyhow::Context;
 use bench::config::{BenchConfig, ConfigError};
 use bench::error::RunError;
@@ -70,6 +72,15 @@ enum Command {
     /// Turn the `.part` file of a killed or failed run into a complete,
     /// indexed recording (every completely written chunk, the metadata).
     Recover(RecoverArgs),
+    /// Analyse the model of one bench: modes, modal residues and their
+    /// signs, the sequence of dominant modes, the zeros typed MMP /
+    /// RMP-RNMP / CMP-CNMP and Chapter 4's three-mode test; pole-zero and
+    /// decomposed-mode plots.
+    Analyze(AnalyzeArgs),
+    /// Map where CMP-CNMP zeros appear over operating point × mass
+    /// asymmetry (thesis Fig 2-5), with measured verdicts overlaid; or,
+    /// with --veering, the closely spaced pair against operating point.
+    Map(MapArgs),
 }
 
 /// Exit statuses (see the module docs).
@@ -129,6 +140,8 @@ pub fn main() -> ExitCode {
         Command::Emulate(cmd) => emulate(cmd, stop),
         Command::Serve(args) => serve(args),
         Command::Recover(args) => recover(args),
+        Command::Analyze(args) => analyze(args),
+        Command::Map(args) => map(args),
     }
 }
 

@@ -1,0 +1,365 @@
+//! The modes of the actuator-to-probe path and the zeros they make.
+//!
+//! For the SR4DoF (`bench_hal::model::Sr4dof`, thesis Eq. 2-5) with force
+//! input `q = [1, α, −2α, 0]ᵀ` and probe output `c = [1, 0, 0, 0]ᵀ`, each
+//! mode `i` of `K φ = ω² M φ` contributes `αᵢ / (s² + 2ζᵢωᵢ s + ωᵢ²)` to
+//! the force → x1 transfer function, with the modal residue of Eq. 4-15
+//!
+//! ```text
+//! αᵢ = (cᵀφ̂ᵢ)(qᵀφ̂ᵢ) / m̃ᵢ,    m̃ᵢ = φ̂ᵢᵀ M φ̂ᵢ,    |φ̂ᵢ| = 1
+//! ```
+//!
+//! in 1/kg (m/(N·s²): metres of x1 per newton of actuator force, times
+//! s²). It equals the `residue` of [`bench_hal::model::Mode`] (computed
+//! there from the mass-normalised shape), which the tests check.
+
+use bench_hal::model::{Sr4dof, ZeroType};
+use nalgebra::{Complex, Vector4};
+use serde::Serialize;
+use std::f64::consts::PI;
+
+/// A mode whose probe participation `|cᵀφ̂|` (unit-length shape) is below
+/// this fraction of the largest mode's is unobservable in x1; the same
+/// for the actuator participation `|qᵀφ̂|` (not driven). At Y1o > 0 the
+/// Y mode of stages ①②③ keeps an x1 motion of about 1e-4 of the X
+/// rigid-body mode's (thesis 4.4.2 calls it unobservable); the pair's
+/// hidden mode at Δm23 = 0 has about 1e-16.
+pub const PARTICIPATION_RATIO: f64 = 1e-3;
+
+/// A mode whose `|αᵢ|` is below this fraction of the largest residue is
+/// outside the path: its pole and a zero cancel to within the model's
+/// accuracy, and the sequence of dominant modes leaves it out.
+pub const RESIDUE_RATIO: f64 = 1e-4;
+
+/// One mode of the actuator-to-probe path.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct ModalTerm {
+    /// Mode number, 1-based, ascending in frequency.
+    pub mode: usize,
+    /// Name in the thesis' notation: `u` and `v` for the closely spaced
+    /// pair (lower, upper), `R` for the remainder mode that dominates the
+    /// rest of the path, `m<N>` for any other mode.
+    pub label: String,
+    /// Undamped natural frequency, Hz.
+    pub frequency_hz: f64,
+    /// Modal damping ratio (Rayleigh), dimensionless.
+    pub damping_ratio: f64,
+    /// Modal mass `φ̂ᵀ M φ̂` of the unit-length shape, kg (Eq. 4-15).
+    pub modal_mass_kg: f64,
+    /// Unit-length mode shape over `[x1, y1, y2, y3]`, dimensionless, sign
+    /// chosen so that its largest-magnitude entry is positive.
+    pub shape: [f64; 4],
+    /// Mass-normalised mode shape (`φᵀ M φ = 1`), m/√kg.
+    pub shape_mass_normalised: [f64; 4],
+    /// Probe participation `cᵀφ̂` (x1 entry of the unit shape).
+    pub sensor_participation: f64,
+    /// Actuator participation `qᵀφ̂`.
+    pub actuator_participation: f64,
+    /// Modal residue `αᵢ` of Eq. 4-15, 1/kg (= m/(N·s²)); its sign is the
+    /// mode's direction (thesis 3.2.1: positive is 0°, negative 180°).
+    /// `residue` in JSON.
+    #[serde(rename = "residue")]
+    pub residue_per_kg: f64,
+    /// Sign of the residue: +1, −1, or 0 for a mode outside the path.
+    pub sign: i8,
+    /// The probe sees the mode ([`PARTICIPATION_RATIO`]).
+    pub observable: bool,
+    /// The actuator drives it ([`PARTICIPATION_RATIO`]).
+    pub controllable: bool,
+    /// The mode appears in the force → x1 transfer function
+    /// ([`RESIDUE_RATIO`]).
+    pub in_path: bool,
+}
+
+impl ModalTerm {
+    /// Natural frequency, rad/s.
+    pub fn omega_rad_s(&self) -> f64 {
+        2.0 * PI * self.frequency_hz
+    }
+}
+
+/// The modes of `model`'s force → x1 path, ascending in frequency, labelled
+/// (see [`ModalTerm::label`]; the pair is [`closely_spaced_pair`]).
+pub fn modal_terms(model: &Sr4dof) -> Vec<ModalTerm> {
+    let m = model.mass();
+    let q = model.input();
+    // Per mode: unit shape, modal mass, sensor and actuator participation.
+    type Raw = (Vector4<f64>, f64, f64, f64);
+    let raw: Vec<Raw> = model
+        .modes()
+        .iter()
+        .map(|mode| {
+            let unit = mode.unit_shape();
+            let modal_mass_kg = (unit.transpose() * m * unit)[(0, 0)];
+            (unit, modal_mass_kg, unit[0], q.dot(&unit))
+        })
+        .collect();
+    let max_of = |f: fn(&Raw) -> f64| raw.iter().map(f).fold(0.0, f64::max);
+    let max_sensor = max_of(|r| r.2.abs());
+    let max_actuator = max_of(|r| r.3.abs());
+    let max_residue = max_of(|r| (r.2 * r.3 / r.1).abs());
+    let mut terms: Vec<ModalTerm> = model
+        .modes()
+        .iter()
+        .zip(&raw)
+        .enumerate()
+        .map(|(i, (mode, &(unit, modal_mass_kg, sensor, actuator)))| {
+            let residue = sensor * actuator / modal_mass_kg;
+            let in_path = residue.abs() >= RESIDUE_RATIO * max_residue;
+            ModalTerm {
+                mode: i + 1,
+                label: format!("m{}", i + 1),
+                frequency_hz: mode.frequency_hz(),
+                damping_ratio: mode.zeta,
+                modal_mass_kg,
+                shape: [unit[0], unit[1], unit[2], unit[3]],
+                shape_mass_normalised: [mode.shape[0], mode.shape[1], mode.shape[2], mode.shape[3]],
+                sensor_participation: sensor,
+                actuator_participation: actuator,
+                residue_per_kg: residue,
+                sign: if !in_path {
+                    0
+                } else if residue > 0.0 {
+                    1
+                } else {
+                    -1
+                },
+                observable: sensor.abs() >= PARTICIPATION_RATIO * max_sensor,
+                controllable: actuator.abs() >= PARTICIPATION_RATIO * max_actuator,
+                in_path,
+            }
+        })
+        .collect();
+    label_terms(&mut terms);
+    terms
+}
+
+/// Indices `(u, v)` into `terms` (ascending in frequency) of the closely
+/// spaced pair: the two adjacent modes with the smallest frequency ratio
+/// (thesis Assumption A3-7 / A4-4; in the SR4DoF the 3rd and 4th modes,
+/// dominated by the secondary stages). `None` with fewer than two modes.
+pub fn closely_spaced_pair(terms: &[ModalTerm]) -> Option<(usize, usize)> {
+    (1..terms.len())
+        .min_by(|&a, &b| {
+            let ra = terms[a].frequency_hz / terms[a - 1].frequency_hz;
+            let rb = terms[b].frequency_hz / terms[b - 1].frequency_hz;
+            ra.total_cmp(&rb)
+        })
+        .map(|i| (i - 1, i))
+}
+
+/// Names the pair `u`, `v` and the remainder mode `R`: of the modes in the
+/// path outside the pair, the one with the largest contribution at the
+/// pair's mean frequency `|αᵢ / (ωᵢ² − ω²)|` (Assumption A4-4: the
+/// remainder is dominated by a single mode).
+fn label_terms(terms: &mut [ModalTerm]) {
+    let Some((u, v)) = closely_spaced_pair(terms) else {
+        return;
+    };
+    terms[u].label = "u".into();
+    terms[v].label = "v".into();
+    let w_pair = 0.5 * (terms[u].omega_rad_s() + terms[v].omega_rad_s());
+    let r = (0..terms.len())
+        .filter(|&i| i != u && i != v && terms[i].in_path)
+        .max_by(|&a, &b| {
+            let ca = (terms[a].residue_per_kg / (terms[a].omega_rad_s().powi(2) - w_pair * w_pair))
+                .abs();
+            let cb = (terms[b].residue_per_kg / (terms[b].omega_rad_s().powi(2) - w_pair * w_pair))
+                .abs();
+            ca.total_cmp(&cb)
+        });
+    if let Some(r) = r {
+        terms[r].label = "R".into();
+    }
+}
+
+/// A zero of a transfer function with its type (thesis 3.2.1).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct TypedZero {
+    /// Real part, rad/s.
+    pub re_rad_s: f64,
+    /// Imaginary part, rad/s.
+    pub im_rad_s: f64,
+    /// `|s| / 2π`, Hz.
+    pub frequency_hz: f64,
+    /// MMP, RMP-RNMP or CMP-CNMP.
+    #[serde(serialize_with = "serialize_zero_type")]
+    pub kind: ZeroType,
+}
+
+fn serialize_zero_type<S: serde::Serializer>(k: &ZeroType, s: S) -> Result<S::Ok, S::Error> {
+    s.serialize_str(k.as_str())
+}
+
+impl TypedZero {
+    fn new(s: Complex<f64>, kind: ZeroType) -> Self {
+        Self {
+            re_rad_s: s.re,
+            im_rad_s: s.im,
+            frequency_hz: s.norm() / (2.0 * PI),
+            kind,
+        }
+    }
+
+    /// The zero as a complex number, rad/s.
+    pub fn s(&self) -> Complex<f64> {
+        Complex::new(self.re_rad_s, self.im_rad_s)
+    }
+
+    /// In the right half plane (non-minimum phase).
+    pub fn nmp(&self) -> bool {
+        self.re_rad_s > 0.0
+    }
+}
+
+/// The zeros in `s` of the undamped transfer function (Eq. 2-7 / 3-2), two
+/// per root `u` of its numerator in `u = s²`: `s = ±√u`, typed by
+/// [`ZeroType::of_u`]. Ascending in `|s|`, the upper-half-plane (or
+/// positive real) one of each pair first.
+pub fn undamped_zeros(model: &Sr4dof) -> Vec<TypedZero> {
+    let mut out = Vec::new();
+    for z in model.undamped_zeros() {
+        let r = z.u.sqrt();
+        // Principal square root: re ≥ 0. Put the upper-half-plane root first.
+        let first = if r.im < 0.0 { -r } else { r };
+        for s in [first, -first] {
+            out.push(TypedZero::new(snap_axis(s, z.kind), z.kind));
+        }
+    }
+    out
+}
+
+/// For an undamped MMP pair the zeros are on the imaginary axis, for an
+/// RMP-RNMP pair on the real axis: drop the rounding residue of the other
+/// part so that the printed zero sits where the theory puts it.
+fn snap_axis(s: Complex<f64>, kind: ZeroType) -> Complex<f64> {
+    match kind {
+        ZeroType::Mmp => Complex::new(0.0, s.im),
+        ZeroType::RmpRnmp => Complex::new(s.re, 0.0),
+        ZeroType::CmpCnmp => s,
+    }
+}
+
+/// Relative distance within which a left-half-plane zero counts as the
+/// mirror image `−s̄` of a right-half-plane one (the partner of an RNMP or
+/// CNMP zero). Light damping (ζ ≲ 0.05) moves the partners apart by about
+/// `2ζ|s|`; MMP zeros have no right-half-plane partner at all.
+pub const MIRROR_TOLERANCE: f64 = 0.1;
+
+/// The zeros of the damped transfer function (`Sr4dof::zeros`), typed:
+/// a right-half-plane zero is RNMP (real) or CNMP (complex); a
+/// left-half-plane zero within [`MIRROR_TOLERANCE`]·|s| of the mirror
+/// image `−s̄` of a right-half-plane zero takes that zero's type (its RMP /
+/// CMP partner); any other left-half-plane zero is MMP (an undamped
+/// imaginary-axis pair moved slightly left by damping).
+pub fn damped_zeros(model: &Sr4dof) -> Vec<TypedZero> {
+    type_damped_zeros(&model.zeros())
+}
+
+/// [`damped_zeros`] for any list of zeros (rad/s) of a real, lightly
+/// damped transfer function.
+pub fn type_damped_zeros(zeros: &[Complex<f64>]) -> Vec<TypedZero> {
+    let nmp_kind = |s: Complex<f64>| {
+        if s.im.abs() > ZeroType::REAL_TOLERANCE.sqrt() * s.norm() {
+            ZeroType::CmpCnmp
+        } else {
+            ZeroType::RmpRnmp
+        }
+    };
+    zeros
+        .iter()
+        .map(|&s| {
+            if s.re > 0.0 {
+                return TypedZero::new(s, nmp_kind(s));
+            }
+            let partner = zeros
+                .iter()
+                .filter(|w| w.re > 0.0)
+                .find(|w| (-w.conj() - s).norm() <= MIRROR_TOLERANCE * s.norm());
+            match partner {
+                Some(&w) => TypedZero::new(s, nmp_kind(w)),
+                None => TypedZero::new(s, ZeroType::Mmp),
+            }
+        })
+        .collect()
+}
+
+/// `true` if any zero is CMP-CNMP.
+pub fn has_cmp_cnmp(zeros: &[TypedZero]) -> bool {
+    zeros.iter().any(|z| z.kind == ZeroType::CmpCnmp)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::config::BenchConfig;
+
+    fn ch5(op_fraction: f64, dm: f64) -> Sr4dof {
+        let path =
+            std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("bench-config/sr4dof-ch5.toml");
+        let cfg = BenchConfig::load(&path).unwrap();
+        let mut p = cfg.plant;
+        p.operating_point_m = op_fraction * p.beam.length_m;
+        p.mass_asymmetry = dm;
+        Sr4dof::new(p).unwrap()
+    }
+
+    #[test]
+    fn residues_of_eq_4_15_equal_the_models_mass_normalised_residues() {
+        // Two derivations: unit shape over modal mass here, mass-normalised
+        // shape in the model. They must agree.
+        let model = ch5(0.05, 0.04);
+        for (t, m) in modal_terms(&model).iter().zip(model.modes()) {
+            assert!(
+                (t.residue_per_kg - m.residue).abs() <= 1e-9 * m.residue.abs().max(1e-12),
+                "mode {}: {} vs {}",
+                t.mode,
+                t.residue_per_kg,
+                m.residue
+            );
+        }
+    }
+
+    #[test]
+    fn the_y_mode_is_unobservable_and_the_hidden_pair_mode_appears_with_asymmetry() {
+        // Thesis 4.4.2: one mode (Y of stages ①②③) is unobservable in x1
+        // at any operating point; 2.2.2: with Δm23 = 0 one mode of the pair
+        // is hidden, with Δm23 ≠ 0 both appear.
+        let sym = modal_terms(&ch5(0.03, 0.0));
+        assert_eq!(sym.iter().filter(|t| !t.in_path).count(), 2, "{sym:#?}");
+        let asym = modal_terms(&ch5(0.03, 0.05));
+        assert_eq!(asym.iter().filter(|t| !t.in_path).count(), 1, "{asym:#?}");
+        let hidden = asym.iter().find(|t| !t.in_path).unwrap();
+        assert!(!hidden.observable, "{hidden:?}");
+        // The hidden one is the Y mode, the lowest on the Chapter 5 bench.
+        assert_eq!(hidden.mode, 1, "{hidden:?}");
+        let labels: Vec<&str> = asym.iter().map(|t| t.label.as_str()).collect();
+        assert_eq!(labels.iter().filter(|l| **l == "u").count(), 1);
+        assert_eq!(labels.iter().filter(|l| **l == "v").count(), 1);
+        let r = asym.iter().find(|t| t.label == "R").unwrap();
+        // R is the X rigid-body mode: x1 dominates its shape.
+        assert!(r.shape[0].abs() > 0.9, "{r:?}");
+    }
+
+    #[test]
+    fn damped_typing_keeps_quartets_and_pairs_together() {
+        // A CMP-CNMP quartet moved by damping, an RMP-RNMP pair and an MMP
+        // pair: every zero gets its analytic type.
+        let zs = [
+            Complex::new(3.0, 900.0),
+            Complex::new(3.0, -900.0),
+            Complex::new(-5.0, 901.0),
+            Complex::new(-5.0, -901.0),
+            Complex::new(400.0, 0.0),
+            Complex::new(-402.0, 0.0),
+            Complex::new(-0.5, 120.0),
+            Complex::new(-0.5, -120.0),
+        ];
+        let kinds: Vec<ZeroType> = type_damped_zeros(&zs).iter().map(|z| z.kind).collect();
+        use ZeroType::*;
+        assert_eq!(
+            kinds,
+            [CmpCnmp, CmpCnmp, CmpCnmp, CmpCnmp, RmpRnmp, RmpRnmp, Mmp, Mmp]
+        );
+    }
+}
