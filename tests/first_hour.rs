@@ -295,6 +295,7 @@ fn subcommands(bench: &Installed, w: &World) -> Vec<String> {
         .nth(1)
         .expect("a Commands: section")
         .lines()
+        .skip(1) // the rest of the "Commands:" line
         .take_while(|l| !l.trim().is_empty())
         .filter_map(|l| l.split_whitespace().next().map(str::to_string))
         .filter(|c| c != "help")

@@ -599,12 +599,30 @@ fn values_in_the_wrong_unit_are_refused_with_a_hint() {
     let dir = common::tmp();
     let out = dir.path().join("c.mcap").display().to_string();
     for (args, want) in [
-        (["--mass-asymmetry", "10"], vec!["--mass-asymmetry", "0.10 = 10 %", "give 0.1"]),
-        (["--mass-asymmetry", "-8"], vec!["--mass-asymmetry", "0.10 = 10 %", "give -0.08"]),
-        (["--operating-point-m", "3"], vec!["--operating-point-m", "3 mm = 0.003 m"]),
-        (["--operating-point-m", "-8"], vec!["--operating-point-m", "-8 mm = -0.008 m"]),
-        (["--mass-asymmetry-pct", "1000"], vec!["--mass-asymmetry-pct 1000", "-33 % to 50 %"]),
-        (["--operating-point-pct", "21"], vec!["--operating-point-pct 21", "20 %"]),
+        (
+            ["--mass-asymmetry", "10"],
+            vec!["--mass-asymmetry", "0.10 = 10 %", "give 0.1"],
+        ),
+        (
+            ["--mass-asymmetry", "-8"],
+            vec!["--mass-asymmetry", "0.10 = 10 %", "give -0.08"],
+        ),
+        (
+            ["--operating-point-m", "3"],
+            vec!["--operating-point-m", "3 mm = 0.003 m"],
+        ),
+        (
+            ["--operating-point-m", "-8"],
+            vec!["--operating-point-m", "-8 mm = -0.008 m"],
+        ),
+        (
+            ["--mass-asymmetry-pct", "1000"],
+            vec!["--mass-asymmetry-pct 1000", "-33 % to 50 %"],
+        ),
+        (
+            ["--operating-point-pct", "21"],
+            vec!["--operating-point-pct 21", "20 %"],
+        ),
     ] {
         let mut a = vec!["chirp", "--duration-s", "0.1", "--out", &out];
         a.extend(args);
@@ -628,7 +646,10 @@ fn values_in_the_wrong_unit_are_refused_with_a_hint() {
         let o = common::run(&a);
         let err = String::from_utf8_lossy(&o.stderr);
         assert_eq!(o.status.code(), Some(2), "{args:?}: {err}");
-        assert!(!err.contains("0.10 = 10 %") && !err.contains(" mm = "), "{args:?}: {err}");
+        assert!(
+            !err.contains("0.10 = 10 %") && !err.contains(" mm = "),
+            "{args:?}: {err}"
+        );
     }
     let o = common::run(&[
         "chirp",
@@ -641,12 +662,25 @@ fn values_in_the_wrong_unit_are_refused_with_a_hint() {
     ]);
     let err = String::from_utf8_lossy(&o.stderr);
     assert_eq!(o.status.code(), Some(2), "{err}");
-    assert!(err.contains("--mass-asymmetry-pct") && err.contains("cannot be used with"), "{err}");
+    assert!(
+        err.contains("--mass-asymmetry-pct") && err.contains("cannot be used with"),
+        "{err}"
+    );
     // The percent flag is the fraction: the same Δm23 in the summary.
     let o = common::run(&[
-        "chirp", "--duration-s", "0.1", "--json", "--out", &out, "--mass-asymmetry-pct", "-8",
+        "chirp",
+        "--duration-s",
+        "0.1",
+        "--json",
+        "--out",
+        &out,
+        "--mass-asymmetry-pct",
+        "-8",
     ]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let s = common::json_stdout(&o);
-    assert!((s["mass_asymmetry"].as_f64().unwrap() + 0.08).abs() < 1e-15, "{s}");
+    assert!(
+        (s["mass_asymmetry"].as_f64().unwrap() + 0.08).abs() < 1e-15,
+        "{s}"
+    );
 }
