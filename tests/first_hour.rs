@@ -126,7 +126,7 @@ fn from_an_empty_directory_recordings_go_to_the_xdg_data_home() {
     let rec = PathBuf::from(s["recording"].as_str().unwrap());
     assert!(rec.is_absolute(), "{rec:?}");
     assert_eq!(rec.parent().unwrap(), want, "summary: {s}");
-    assert_eq!(recordings_in(&want), [rec.clone()]);
+    assert_eq!(recordings_in(&want), std::slice::from_ref(&rec));
     for p in ["frf_csv", "plot"] {
         let f = PathBuf::from(s[p].as_str().unwrap());
         assert!(
@@ -351,13 +351,14 @@ fn the_bash_completion_script_is_valid_and_knows_every_command() {
     assert_eq!(o.status.code(), Some(2));
 }
 
-/// Renders roff with `groff -man -Tutf8` or `man -l -`; `None` when
+/// Renders roff with `groff -k -man -Tutf8` or `man -l -`; `None` when
 /// neither is installed.
 fn render_roff(roff: &[u8]) -> Option<String> {
     use std::io::Write;
     use std::process::Stdio;
     for (prog, args) in [
-        ("groff", &["-man", "-Tutf8", "-ww"][..]),
+        // -k: through preconv, as man(1) does (the page is UTF-8: Δ, µ, −).
+        ("groff", &["-k", "-man", "-Tutf8", "-ww"][..]),
         ("man", &["-l", "-"][..]),
     ] {
         let Ok(mut child) = Command::new(prog)
