@@ -17,8 +17,57 @@ use std::path::{Path, PathBuf};
 /// about 8 KiB).
 pub const MAX_CONFIG_BYTES: u64 = 1 << 20;
 
-/// Default bench description, relative to the working directory.
+/// The shipped bench description in the repository (the Chapter 5 bench),
+/// relative to the repository root. `bench` does not read it at run time:
+/// its text is built in ([`BUILTIN_CONFIG_TOML`]).
 pub const DEFAULT_CONFIG: &str = "bench-config/sr4dof-ch5.toml";
+
+/// The built-in bench description: the text of
+/// `bench-config/sr4dof-ch5.toml` (the Chapter 5/6 bench of the thesis,
+/// Fig 5-9: +10 % mass asymmetry, Y1o = 8 % of L), compiled into the
+/// binary. It applies when no `--config` is given, so an installed `bench`
+/// runs from any directory; `bench config default` prints it.
+pub const BUILTIN_CONFIG_TOML: &str = include_str!("../bench-config/sr4dof-ch5.toml");
+
+/// How messages, summaries and recordings (`bench.config` metadata `path`)
+/// name the built-in config.
+pub const BUILTIN_CONFIG_NAME: &str = "built-in (sr4dof-ch5)";
+
+/// A hint for a value that looks given in the wrong unit: a mass asymmetry
+/// in percent (`10` for 10 %: `0.10` is meant; magnitudes of 1 or more,
+/// i.e. at least 100 % as a fraction) or an operating point in
+/// millimetres (`3` for 3 mm: `0.003` is meant). `None` unless the value is
+/// outside the key's range ([`bench_hal::model::ranges`]) and the rescaled
+/// one is inside it. `beam_length_m` bounds the operating point.
+#[must_use]
+pub fn unit_hint(key: &str, value: f64, beam_length_m: f64) -> Option<String> {
+    use bench_hal::model::ranges;
+    if !value.is_finite() {
+        return None;
+    }
+    match key {
+        "plant.mass_asymmetry" => {
+            let (lo, hi) = ranges::MASS_ASYMMETRY;
+            let inside = |x: f64| (lo..=hi).contains(&x);
+            (value.abs() >= 1.0 && !inside(value) && inside(value / 100.0)).then(|| {
+                format!(
+                    "Δm23 is a fraction, 0.10 = 10 %: for {value} % give {}",
+                    value / 100.0
+                )
+            })
+        }
+        "plant.operating_point_m" => {
+            let max = ranges::OPERATING_POINT_OF_L * beam_length_m;
+            (value.abs() > max && (value / 1000.0).abs() <= max).then(|| {
+                format!(
+                    "the operating point is in metres: {value} mm = {} m",
+                    value / 1000.0
+                )
+            })
+        }
+        _ => None,
+    }
+}
 
 /// The bounds of the safety keys (`[safety]`, `[actuator]`, `[emulator]`
 /// and the link timeouts of `[backend]`), with why each is where it is.
@@ -693,12 +742,24 @@ impl BenchConfig {
     /// Parses TOML text; `path` is only used in messages.
     ///
     /// # Errors
-    /// [`ConfigError::Parse`] naming the key and position.
+    /// [`ConfigError::Parse`] naming the key and position, with the
+    /// parser's multi-line display (the line and a caret under the
+    /// offending span).
     pub fn from_toml(text: &str, path: &Path) -> Result<Self, ConfigError> {
         toml::from_str(text).map_err(|e| ConfigError::Parse {
             path: path.to_path_buf(),
-            message: e.to_string().trim_end().replace('\n', " | "),
+            message: e.to_string().trim_end().to_string(),
         })
+    }
+
+    /// The built-in bench ([`BUILTIN_CONFIG_TOML`]), parsed (no physical
+    /// validation, as [`Self::load`]).
+    ///
+    /// # Errors
+    /// [`ConfigError::Parse`] (never for the shipped text: a unit test
+    /// parses and validates it).
+    pub fn builtin() -> Result<Self, ConfigError> {
+        Self::from_toml(BUILTIN_CONFIG_TOML, Path::new(BUILTIN_CONFIG_NAME))
     }
 
     /// Checks every value for physical sense and mutual consistency.
@@ -771,7 +832,17 @@ impl BenchConfig {
             "s",
             "10 ms to a minute",
         )?;
-        self.plant.validate("plant")?;
+        self.plant.validate("plant").map_err(|mut e| {
+            let value = match e.key.as_str() {
+                "plant.mass_asymmetry" => self.plant.mass_asymmetry,
+                "plant.operating_point_m" => self.plant.operating_point_m,
+                _ => return e,
+            };
+            if let Some(hint) = unit_hint(&e.key, value, self.plant.beam.length_m) {
+                e.reason = format!("{}; {hint}", e.reason);
+            }
+            e
+        })?;
         let nyquist = self.loop_.rate_hz / 2.0;
         if let Some(d) = &self.plant.disturbance {
             if d.band_hz[1] >= nyquist {
@@ -1486,6 +1557,64 @@ mod tests {
             .join("bench-config")
             .join(name);
         (BenchConfig::load(&path).unwrap(), path)
+    }
+
+    #[test]
+    fn the_builtin_config_is_the_shipped_chapter_5_file() {
+        let (c, p) = shipped("sr4dof-ch5.toml");
+        let text = std::fs::read_to_string(&p).unwrap();
+        assert_eq!(BUILTIN_CONFIG_TOML, text);
+        let b = BenchConfig::builtin().unwrap();
+        b.validate(Path::new(BUILTIN_CONFIG_NAME)).unwrap();
+        assert_eq!(b, c);
+    }
+
+    #[test]
+    fn a_toml_error_keeps_its_caret_display_and_names_the_file() {
+        let e = BenchConfig::from_toml("[loop]\nrate_hz = \"fast\"\n", Path::new("my.toml"))
+            .unwrap_err()
+            .to_string();
+        assert!(e.starts_with("config my.toml: "), "{e}");
+        assert!(!e.contains(" | "), "{e}");
+        // The offending line, and a caret line under it.
+        let lines: Vec<&str> = e.lines().collect();
+        assert!(
+            lines.iter().any(|l| l.contains("rate_hz = \"fast\"")),
+            "{e}"
+        );
+        assert!(
+            lines.iter().any(|l| l
+                .trim_start()
+                .trim_start_matches('|')
+                .trim()
+                .starts_with('^')),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn values_in_the_wrong_unit_get_a_hint() {
+        let (mut c, _) = shipped("sr4dof-ch5.toml");
+        c.plant.mass_asymmetry = 10.0;
+        let e = c.check().unwrap_err();
+        assert_eq!(e.key, "plant.mass_asymmetry");
+        assert!(
+            e.reason.contains("0.10 = 10 %") && e.reason.contains("give 0.1"),
+            "{}",
+            e.reason
+        );
+        // A plausible-looking fraction out of range: no percent hint.
+        c.plant.mass_asymmetry = 0.9;
+        assert!(!c.check().unwrap_err().reason.contains("0.10 = 10 %"));
+        c.plant.mass_asymmetry = 0.1;
+        c.plant.operating_point_m = 3.0;
+        let e = c.check().unwrap_err();
+        assert_eq!(e.key, "plant.operating_point_m");
+        assert!(e.reason.contains("3 mm = 0.003 m"), "{}", e.reason);
+        // 20 % of L = 9.5 mm: 0.05 m is out of range, but 0.05 mm is not
+        // what was meant either way; 50 (mm) is out of range in metres too.
+        c.plant.operating_point_m = 50.0;
+        assert!(!c.check().unwrap_err().reason.contains("mm ="));
     }
 
     #[test]

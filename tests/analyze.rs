@@ -272,15 +272,15 @@ fn bad_map_and_analyze_flags_are_refused_naming_the_flag() {
             cases.push((vec![flag.into(), v.into()], flag));
         }
     }
-    // Fractions: −0.9 … 9 is the model's range.
-    for v in ["nan", "inf", "-1", "-5", "10", "1e9"] {
+    // Fractions: −0.33 … 0.5 is the model's range.
+    for v in ["nan", "inf", "-1", "-0.4", "0.6", "10", "1e9"] {
         for flag in ["--mass-asymmetry-from", "--mass-asymmetry-to"] {
             let mut args = vec![flag.to_string(), v.to_string()];
             // Keep the other end of the range valid and in order.
             if flag.ends_with("from") {
-                args.extend(["--mass-asymmetry-to".into(), "9".into()]);
+                args.extend(["--mass-asymmetry-to".into(), "0.5".into()]);
             } else {
-                args.extend(["--mass-asymmetry-from".into(), "-0.9".into()]);
+                args.extend(["--mass-asymmetry-from".into(), "-0.33".into()]);
             }
             cases.push((args, flag));
         }
@@ -338,6 +338,8 @@ fn bad_map_and_analyze_flags_are_refused_naming_the_flag() {
     // analyze: the plant flags.
     for (args, flag) in [
         (vec!["--mass-asymmetry", "12"], "--mass-asymmetry"),
+        (vec!["--mass-asymmetry", "0.6"], "--mass-asymmetry"),
+        (vec!["--mass-asymmetry-pct", "60"], "--mass-asymmetry-pct"),
         (vec!["--mass-asymmetry", "nan"], "--mass-asymmetry"),
         (vec!["--operating-point-pct", "30"], "--operating-point-pct"),
         (vec!["--operating-point-m", "3"], "--operating-point-m"),
@@ -363,7 +365,7 @@ fn bad_map_and_analyze_flags_are_refused_naming_the_flag() {
     for body in [
         "operating_point_m,mass_asymmetry,verdict\n0.001,0.05,maybe\n",
         "operating_point_m,mass_asymmetry,verdict\n3,0.05,true\n",
-        "operating_point_m,mass_asymmetry,verdict\n0.001,50,true\n",
+        "operating_point_m,mass_asymmetry,verdict\n0.001,5,true\n",
         "operating_point_m,mass_asymmetry,verdict\nx,0.05,true\n",
         "op,dm,verdict\n0.001,0.05,true\n",
         "",

@@ -334,7 +334,7 @@ fn documented(key: &str, c: &Value) -> Option<(Doc, bool)> {
             generic != "plant.parallelogram_stiffness_n_per_m",
         ),
         "plant.operating_point_m" => (closed(-0.2 * length, 0.2 * length), req),
-        "plant.mass_asymmetry" => (closed(-0.9, 9.0), req),
+        "plant.mass_asymmetry" => (closed(-0.33, 0.5), req),
         "plant.beam.length_m" => (closed(1e-3, 0.5), req),
         "plant.beam.height_m" => (closed(1e-4, 0.2), req),
         "plant.beam.thickness_m" => (closed(1e-5, 1e-2), req),

@@ -674,3 +674,60 @@ fn the_cli_refuses_every_out_of_range_safety_key_with_exit_2() {
         failures.join("\n")
     );
 }
+
+/// Unit slips in the file (issue 17, item 5): `mass_asymmetry = 10`
+/// (meant as 10 %) and `operating_point_m = 3` (meant as 3 mm) are refused
+/// with exit 2 naming the file and the key, with the value in the intended
+/// unit; a TOML syntax or type error keeps the parser's multi-line display
+/// (the offending line and a caret under it) and names the file.
+#[test]
+fn unit_slips_in_the_file_get_a_hint_and_toml_errors_keep_their_caret() {
+    let dir = common::tmp();
+    let text = shipped_text();
+    for (from, to, want) in [
+        (
+            "mass_asymmetry = 0.10 ",
+            "mass_asymmetry = 10   ",
+            vec!["plant.mass_asymmetry", "0.10 = 10 %", "give 0.1"],
+        ),
+        (
+            "operating_point_m = 3.8e-3",
+            "operating_point_m = 3.8   ",
+            vec!["plant.operating_point_m", "3.8 mm = 0.0038 m"],
+        ),
+    ] {
+        assert!(text.contains(from), "the shipped file has {from:?}");
+        let path = dir.path().join("slip.toml");
+        std::fs::write(&path, text.replacen(from, to, 1)).unwrap();
+        let p = path.display().to_string();
+        let o = common::run(&["chirp", "--config", &p, "--duration-s", "0.1"]);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(2), "{err}");
+        assert!(err.contains(&p), "names the file: {err}");
+        for w in want {
+            assert!(err.contains(w), "no {w:?} in {err}");
+        }
+    }
+    // A type error: multi-line, the line and the caret, not joined by " | ".
+    let path = dir.path().join("typo.toml");
+    std::fs::write(
+        &path,
+        text.replacen("rate_hz = 5000.0 ", "rate_hz = \"5 kHz\"", 1),
+    )
+    .unwrap();
+    let p = path.display().to_string();
+    let o = common::run(&["control", "--fast", "--check-only", "--config", &p]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(err.contains(&p), "{err}");
+    assert!(err.lines().count() >= 4, "multi-line: {err}");
+    let lines: Vec<&str> = err.lines().collect();
+    let at = lines
+        .iter()
+        .position(|l| l.contains("rate_hz = \"5 kHz\""))
+        .unwrap_or_else(|| panic!("the offending line is shown: {err}"));
+    let caret = lines[at + 1];
+    let col = caret.find('^').expect("a caret line under it");
+    assert_eq!(&lines[at][col..col + 7], "\"5 kHz\"", "{err}");
+    assert!(!err.contains(" | rate_hz"), "not joined: {err}");
+}

@@ -112,7 +112,10 @@ const STEP_DURATION: Doc = doc(0.2, false, 3600.0, true);
 const SMOOTH: Doc = doc(0.0, true, 0.8, true);
 const OPERATING_POINT_M: Doc = doc(-0.2 * 0.0475, true, 0.2 * 0.0475, true);
 const OPERATING_POINT_PCT: Doc = doc(-20.0, true, 20.0, true);
-const MASS_ASYMMETRY: Doc = doc(-0.9, true, 9.0, true);
+/// README: −0.33 to 0.5 (the heavier secondary stage at most about 1.5
+/// times the lighter); `--mass-asymmetry-pct` the same in %.
+const MASS_ASYMMETRY: Doc = doc(-0.33, true, 0.5, true);
+const MASS_ASYMMETRY_PCT: Doc = doc(-33.0, true, 50.0, true);
 
 /// One request field: its name (the daemon's param and, with `--` and
 /// dashes, the flag), the config key it lands on, its range, and how to set
@@ -446,6 +449,11 @@ fn the_binary_refuses_every_out_of_range_flag_with_exit_2() {
                 OPERATING_POINT_PCT,
             ),
             ("mass_asymmetry", "plant.mass_asymmetry", MASS_ASYMMETRY),
+            (
+                "mass_asymmetry_pct",
+                "plant.mass_asymmetry",
+                MASS_ASYMMETRY_PCT,
+            ),
         ])
         .collect();
     for (name, key, d) in chirp_flags {
@@ -559,6 +567,9 @@ fn the_binary_takes_values_inside_the_ranges_including_negative_ones() {
     }
     for (i, args) in [
         vec!["--mass-asymmetry", "-0.1", "--seed", "18446744073709551615"],
+        vec!["--mass-asymmetry", "0.5"],
+        vec!["--mass-asymmetry-pct", "-33"],
+        vec!["--mass-asymmetry-pct", "10"],
         vec!["--operating-point-pct", "-5"],
         vec!["--operating-point-m", "-2e-3", "--amplitude-a", "1e-4"],
         vec!["--f-start-hz", "0.01", "--f-end-hz", "2499"],
@@ -576,4 +587,100 @@ fn the_binary_takes_values_inside_the_ranges_including_negative_ones() {
             String::from_utf8_lossy(&o.stderr)
         );
     }
+}
+
+/// A value in the wrong unit (issue 17, item 5): a mass asymmetry in
+/// percent given as a fraction, an operating point in mm given as metres.
+/// Refused (exit 2) naming the flag, with the hint in the intended unit;
+/// `--mass-asymmetry-pct` runs the same sweep as the fraction; the two
+/// mass-asymmetry flags exclude each other.
+#[test]
+fn values_in_the_wrong_unit_are_refused_with_a_hint() {
+    let dir = common::tmp();
+    let out = dir.path().join("c.mcap").display().to_string();
+    for (args, want) in [
+        (
+            ["--mass-asymmetry", "10"],
+            vec!["--mass-asymmetry", "0.10 = 10 %", "give 0.1"],
+        ),
+        (
+            ["--mass-asymmetry", "-8"],
+            vec!["--mass-asymmetry", "0.10 = 10 %", "give -0.08"],
+        ),
+        (
+            ["--operating-point-m", "3"],
+            vec!["--operating-point-m", "3 mm = 0.003 m"],
+        ),
+        (
+            ["--operating-point-m", "-8"],
+            vec!["--operating-point-m", "-8 mm = -0.008 m"],
+        ),
+        (
+            ["--mass-asymmetry-pct", "1000"],
+            vec!["--mass-asymmetry-pct 1000", "-33 % to 50 %"],
+        ),
+        (
+            ["--operating-point-pct", "21"],
+            vec!["--operating-point-pct 21", "20 %"],
+        ),
+    ] {
+        let mut a = vec!["chirp", "--duration-s", "0.1", "--out", &out];
+        a.extend(args);
+        let o = common::run(&a);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(2), "{args:?}: {err}");
+        for w in want {
+            assert!(err.contains(w), "{args:?}: no {w:?} in {err}");
+        }
+        assert!(!dir.path().join("c.mcap").exists());
+    }
+    // Out of range but not a unit slip: no hint that would mislead.
+    for args in [
+        ["--mass-asymmetry", "0.9"],
+        ["--mass-asymmetry", "60"],
+        ["--operating-point-m", "0.05"],
+        ["--operating-point-m", "50"],
+    ] {
+        let mut a = vec!["chirp", "--duration-s", "0.1", "--out", &out];
+        a.extend(args);
+        let o = common::run(&a);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(2), "{args:?}: {err}");
+        assert!(
+            !err.contains("0.10 = 10 %") && !err.contains(" mm = "),
+            "{args:?}: {err}"
+        );
+    }
+    let o = common::run(&[
+        "chirp",
+        "--mass-asymmetry",
+        "0.1",
+        "--mass-asymmetry-pct",
+        "10",
+        "--out",
+        &out,
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("--mass-asymmetry-pct") && err.contains("cannot be used with"),
+        "{err}"
+    );
+    // The percent flag is the fraction: the same Δm23 in the summary.
+    let o = common::run(&[
+        "chirp",
+        "--duration-s",
+        "0.1",
+        "--json",
+        "--out",
+        &out,
+        "--mass-asymmetry-pct",
+        "-8",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let s = common::json_stdout(&o);
+    assert!(
+        (s["mass_asymmetry"].as_f64().unwrap() + 0.08).abs() < 1e-15,
+        "{s}"
+    );
 }

@@ -3,13 +3,13 @@
 //! point × mass asymmetry, or with `--veering` the pair's frequencies
 //! against operating point).
 
-use super::{bad_input, emit, load_config, status};
+use super::{bad_input, emit, load_config, status, CONFIG_HELP};
 use bench::analysis::map::{cnmp_map, linspace, model_at, veering_curve, MapCell, VeeringCurve};
 use bench::analysis::plot::{
     write_decomposed_bode_png, write_map_png, write_pole_zero_png, write_veering_png, MeasuredPoint,
 };
 use bench::analysis::{analyze as analyze_model, Analysis};
-use bench::config::{BenchConfig, DEFAULT_CONFIG};
+use bench::config::BenchConfig;
 use bench::outputs::Existing;
 use bench_hal::model::{ranges, Sr4dof, Sr4dofParams};
 use clap::Args;
@@ -21,9 +21,8 @@ use std::process::ExitCode;
 /// asymmetry flags as `bench chirp`.
 #[derive(Debug, Args)]
 pub(super) struct BenchPointArgs {
-    /// Bench description (TOML).
-    #[arg(long, value_name = "FILE", default_value = DEFAULT_CONFIG)]
-    config: PathBuf,
+    #[arg(long, value_name = "FILE", help = CONFIG_HELP)]
+    config: Option<PathBuf>,
     /// Operating point Y1o, m (overrides plant.operating_point_m).
     #[arg(
         long,
@@ -35,16 +34,26 @@ pub(super) struct BenchPointArgs {
     /// Operating point Y1o in % of the beam length L.
     #[arg(long, value_name = "PERCENT", allow_hyphen_values = true)]
     operating_point_pct: Option<f64>,
-    /// Mass asymmetry Δm23 = m2/m3 − 1, e.g. 0.1 for +10 % (overrides
-    /// plant.mass_asymmetry).
-    #[arg(long, value_name = "X", allow_hyphen_values = true)]
+    /// Mass asymmetry Δm23 = m2/m3 − 1 as a fraction, e.g. 0.1 for +10 %
+    /// (overrides plant.mass_asymmetry).
+    #[arg(long, value_name = "X", allow_hyphen_values = true, conflicts_with = "mass_asymmetry_pct")]
     mass_asymmetry: Option<f64>,
+    /// Mass asymmetry Δm23 in % (overrides plant.mass_asymmetry).
+    #[arg(long, value_name = "PERCENT", allow_hyphen_values = true)]
+    mass_asymmetry_pct: Option<f64>,
 }
 
 impl BenchPointArgs {
+    /// The config's name in messages.
+    fn config_name(&self) -> String {
+        self.config
+            .as_ref()
+            .map_or(bench::config::BUILTIN_CONFIG_NAME.to_string(), |p| p.display().to_string())
+    }
+
     /// The config's plant with the flags applied and checked, or the exit.
     fn plant(&self) -> Result<(BenchConfig, Sr4dofParams), ExitCode> {
-        let cfg = load_config(&self.config).map_err(bad_input)?;
+        let (cfg, _) = load_config(self.config.as_deref()).map_err(bad_input)?;
         let mut p = cfg.plant;
         if let Some(m) = self.operating_point_m {
             p.operating_point_m = m;
@@ -55,6 +64,9 @@ impl BenchPointArgs {
         if let Some(x) = self.mass_asymmetry {
             p.mass_asymmetry = x;
         }
+        if let Some(pct) = self.mass_asymmetry_pct {
+            p.mass_asymmetry = pct / 100.0;
+        }
         if let Err(e) = p.validate("plant") {
             let flag = match e.key.as_str() {
                 "plant.operating_point_m" if self.operating_point_m.is_some() => {
@@ -64,11 +76,26 @@ impl BenchPointArgs {
                     Some("--operating-point-pct")
                 }
                 "plant.mass_asymmetry" if self.mass_asymmetry.is_some() => Some("--mass-asymmetry"),
+                "plant.mass_asymmetry" if self.mass_asymmetry_pct.is_some() => Some("--mass-asymmetry-pct"),
                 _ => None,
             };
+            let (lo, hi) = ranges::MASS_ASYMMETRY;
+            let max_pct = ranges::OPERATING_POINT_OF_L * 100.0;
             return Err(match flag {
+                // The -pct flags are judged in percent (the fraction and
+                // metre hints of the keys would mislead).
+                Some(f @ "--mass-asymmetry-pct") => bad_input(format!(
+                    "{f} {}: Δm23 must be {} % to {} %",
+                    self.mass_asymmetry_pct.unwrap_or_default(),
+                    lo * 100.0,
+                    hi * 100.0
+                )),
+                Some(f @ "--operating-point-pct") => bad_input(format!(
+                    "{f} {}: |Y1o| must be at most {max_pct} % of the beam length (Eq. 2-1 is a small-rotation result)",
+                    self.operating_point_pct.unwrap_or_default()
+                )),
                 Some(f) => bad_input(format!("{f}: {}", e.reason)),
-                None => bad_input(format!("{}: {e}", self.config.display())),
+                None => bad_input(format!("{}: {e}", self.config_name())),
             });
         }
         Ok((cfg, p))
@@ -112,10 +139,14 @@ struct AnalyzeSummary {
     modes_png: Option<String>,
 }
 
-/// A default output path beside the recordings: `<dir>/<prefix>-<stamp><suffix>`.
-fn default_output(prefix: &str, suffix: &str) -> PathBuf {
-    let stem = super::unclaimed_recording(prefix);
-    bench::jobs::session::beside(&stem, suffix)
+/// A default output path in the recordings directory (the rule of
+/// [`super::default_recordings`], created if missing):
+/// `<dir>/<prefix>-<UTC stamp><suffix>`; `flag` names the flag that
+/// overrides it in the error.
+fn default_output(prefix: &str, suffix: &str, flag: &str) -> Result<PathBuf, ExitCode> {
+    let dir = super::default_recordings(true, flag).map_err(bad_input)?;
+    let stem = bench::jobs::session::stamped_recording(&dir, prefix, "");
+    Ok(bench::jobs::session::beside(&stem, suffix))
 }
 
 fn absolute(p: &Path) -> String {
@@ -123,20 +154,6 @@ fn absolute(p: &Path) -> String {
         .unwrap_or_else(|_| p.to_path_buf())
         .display()
         .to_string()
-}
-
-/// Creates the directory of a default output path.
-fn ensure_parent(p: &Path) -> std::io::Result<()> {
-    match p.parent() {
-        Some(d) if !d.as_os_str().is_empty() && !d.exists() => {
-            use std::os::unix::fs::DirBuilderExt;
-            std::fs::DirBuilder::new()
-                .recursive(true)
-                .mode(bench::outputs::DIR_MODE)
-                .create(d)
-        }
-        _ => Ok(()),
-    }
 }
 
 fn plot_failed(e: impl std::fmt::Display) -> ExitCode {
@@ -151,34 +168,34 @@ pub(super) fn analyze(args: AnalyzeArgs) -> ExitCode {
     };
     let model = match Sr4dof::new(params) {
         Ok(m) => m,
-        Err(e) => return bad_input(format!("{}: {e}", args.bench.config.display())),
+        Err(e) => return bad_input(format!("{}: {e}", args.bench.config_name())),
     };
     let a = analyze_model(&model);
     let existing = Existing::overwrite(args.overwrite);
     let (mut pz, mut modes) = (None, None);
     if !args.no_plots {
-        let pz_path = args
-            .pole_zero_png
-            .clone()
-            .unwrap_or_else(|| default_output("analyze", ".pole-zero.png"));
-        let modes_path = args.modes_png.clone().unwrap_or_else(|| {
+        let pz_path = match &args.pole_zero_png {
+            Some(p) => p.clone(),
+            None => match default_output("analyze", ".pole-zero.png", "--pole-zero-png") {
+                Ok(p) => p,
+                Err(code) => return code,
+            },
+        };
+        let modes_path = match (&args.modes_png, &args.pole_zero_png) {
+            (Some(p), _) => p.clone(),
             // Same stamp as the pole-zero map when both are defaults.
-            match &args.pole_zero_png {
-                None => pz_path.with_file_name(
-                    pz_path
-                        .file_name()
-                        .unwrap()
-                        .to_string_lossy()
-                        .replace(".pole-zero.png", ".modes.png"),
-                ),
-                Some(_) => default_output("analyze", ".modes.png"),
-            }
-        });
-        for p in [&pz_path, &modes_path] {
-            if let Err(e) = ensure_parent(p) {
-                return plot_failed(format!("{}: {e}", p.display()));
-            }
-        }
+            (None, None) => pz_path.with_file_name(
+                pz_path
+                    .file_name()
+                    .unwrap_or_default()
+                    .to_string_lossy()
+                    .replace(".pole-zero.png", ".modes.png"),
+            ),
+            (None, Some(_)) => match default_output("analyze", ".modes.png", "--modes-png") {
+                Ok(p) => p,
+                Err(code) => return code,
+            },
+        };
         let what = format!(
             "Y1o = {:.3} mm ({:.2} % of L), Δm23 = {:+.1} %",
             a.operating_point_m * 1e3,
@@ -204,7 +221,7 @@ pub(super) fn analyze(args: AnalyzeArgs) -> ExitCode {
         modes = Some(absolute(&modes_path));
     }
     let summary = AnalyzeSummary {
-        config: args.bench.config.display().to_string(),
+        config: args.bench.config_name(),
         beam_length_m: params.beam.length_m,
         analysis: a,
         pole_zero_png: pz,
@@ -321,10 +338,10 @@ fn yes_no(b: bool) -> &'static str {
 
 #[derive(Debug, Args)]
 pub(super) struct MapArgs {
-    /// Bench description (TOML); its operating point and asymmetry are
-    /// replaced by the grid.
-    #[arg(long, value_name = "FILE", default_value = DEFAULT_CONFIG)]
-    config: PathBuf,
+    /// Bench description (TOML) [default: the built-in Chapter 5 bench];
+    /// its operating point and asymmetry are replaced by the grid.
+    #[arg(long, value_name = "FILE")]
+    config: Option<PathBuf>,
     /// Lowest operating point of the grid, % of L.
     #[arg(
         long,
@@ -445,7 +462,7 @@ impl MapArgs {
         for (flag, v) in asym_flags {
             if !(v.is_finite() && (lo..=hi).contains(&v)) {
                 return Err(format!(
-                    "{flag}: {v} is outside {lo} … {hi} (a fraction: m2 between a tenth of m3 and ten times it; 0.1 = 10 %)"
+                    "{flag}: {v} is outside {lo} … {hi} (a fraction, 0.10 = 10 %: the heavier secondary stage at most about 1.5 times the lighter)"
                 ));
             }
         }
@@ -644,10 +661,11 @@ struct LocalisationAt {
 }
 
 pub(super) fn map(args: MapArgs) -> ExitCode {
-    let cfg = match load_config(&args.config) {
+    let (cfg, config_path) = match load_config(args.config.as_deref()) {
         Ok(c) => c,
         Err(e) => return bad_input(e),
     };
+    let config_name = config_path.display().to_string();
     let p = cfg.plant;
     let (ops, dms) = match args.grid(&p) {
         Ok(g) => g,
@@ -671,18 +689,18 @@ pub(super) fn map(args: MapArgs) -> ExitCode {
         (*ops.last().unwrap(), *dms.last().unwrap()),
     ] {
         if let Err(e) = model_at(&p, op, dm) {
-            return bad_input(format!("{}: {e}", args.config.display()));
+            return bad_input(format!("{}: {e}", config_name));
         }
     }
     let existing = Existing::overwrite(args.overwrite);
-    let png = args
-        .png
-        .clone()
-        .unwrap_or_else(|| default_output(if args.veering { "veering" } else { "map" }, ".png"));
-    if let Err(e) = ensure_parent(&png) {
-        return plot_failed(format!("{}: {e}", png.display()));
-    }
-    let config = args.config.display().to_string();
+    let png = match &args.png {
+        Some(p) => p.clone(),
+        None => match default_output(if args.veering { "veering" } else { "map" }, ".png", "--png") {
+            Ok(p) => p,
+            Err(code) => return code,
+        },
+    };
+    let config = config_name.clone();
     if args.veering {
         let curves = match args
             .veering_asymmetries
@@ -691,7 +709,7 @@ pub(super) fn map(args: MapArgs) -> ExitCode {
             .collect::<Result<Vec<_>, _>>()
         {
             Ok(c) => c,
-            Err(e) => return bad_input(format!("{}: {e}", args.config.display())),
+            Err(e) => return bad_input(format!("{}: {e}", config_name)),
         };
         let mut localisation = Vec::new();
         for c in &curves {
@@ -728,7 +746,7 @@ pub(super) fn map(args: MapArgs) -> ExitCode {
     }
     let cells = match cnmp_map(&p, &ops, &dms) {
         Ok(c) => c,
-        Err(e) => return bad_input(format!("{}: {e}", args.config.display())),
+        Err(e) => return bad_input(format!("{}: {e}", config_name)),
     };
     let crossing = {
         let l = p.beam.length_m;

@@ -4,9 +4,9 @@
 use super::serve::via_daemon;
 use super::{
     bad_input, emit, job_thread, load_config, origin, recording_plan, refuse_local_only,
-    refused_request, run_failed,
+    refused_request, run_failed, CONFIG_HELP,
 };
-use bench::config::{ChirpKind, DEFAULT_CONFIG};
+use bench::config::ChirpKind;
 use bench::jobs::chirp::{run_chirp, ChirpOptions, ChirpSummary};
 use bench::jobs::request::{parse_seed, ChirpRequest, JobRequest, LocalOverrides, OperatingPoint};
 use bench::jobs::session::beside;
@@ -26,10 +26,10 @@ pub(super) enum KindArg {
 
 #[derive(Debug, Args)]
 pub(super) struct ChirpArgs {
-    /// Bench description (TOML).
-    #[arg(long, value_name = "FILE", default_value = DEFAULT_CONFIG)]
-    config: PathBuf,
-    /// MCAP recording [default: recordings/chirp-<UTC time>.mcap].
+    #[arg(long, value_name = "FILE", help = CONFIG_HELP)]
+    config: Option<PathBuf>,
+    /// MCAP recording [default: chirp-<UTC time>.mcap in ./recordings if it
+    /// exists, else in $XDG_DATA_HOME/bench/recordings].
     #[arg(long, value_name = "FILE.mcap")]
     out: Option<PathBuf>,
     /// FRF CSV [default: beside --out, <stem>.frf.csv].
@@ -52,7 +52,8 @@ pub(super) struct ChirpArgs {
     /// Print the summary as one JSON object on stdout.
     #[arg(long)]
     json: bool,
-    /// Operating point Y1o, m (overrides plant.operating_point_m).
+    /// Operating point Y1o, m (overrides plant.operating_point_m); 3 mm is
+    /// 0.003.
     #[arg(
         long,
         value_name = "M",
@@ -63,10 +64,19 @@ pub(super) struct ChirpArgs {
     /// Operating point Y1o in % of the beam length L.
     #[arg(long, value_name = "PERCENT", allow_hyphen_values = true)]
     operating_point_pct: Option<f64>,
-    /// Mass asymmetry Δm23 = m2/m3 − 1, e.g. 0.1 for +10 % (overrides
-    /// plant.mass_asymmetry).
-    #[arg(long, value_name = "X", allow_hyphen_values = true)]
+    /// Mass asymmetry Δm23 = m2/m3 − 1 as a fraction, 0.10 = +10 %
+    /// (overrides plant.mass_asymmetry); range −0.33 to 0.5.
+    #[arg(
+        long,
+        value_name = "X",
+        allow_hyphen_values = true,
+        conflicts_with = "mass_asymmetry_pct"
+    )]
     mass_asymmetry: Option<f64>,
+    /// Mass asymmetry Δm23 in %, 10 = +10 % (overrides
+    /// plant.mass_asymmetry); range −33 to 50.
+    #[arg(long, value_name = "PERCENT", allow_hyphen_values = true)]
+    mass_asymmetry_pct: Option<f64>,
     /// Chirp current amplitude, A (overrides chirp.amplitude_a).
     #[arg(long, value_name = "A", allow_hyphen_values = true)]
     amplitude_a: Option<f64>,
@@ -111,12 +121,40 @@ impl ChirpArgs {
             operating_point: self.operating_point_m.map(OperatingPoint::Metres).or(self
                 .operating_point_pct
                 .map(OperatingPoint::PercentOfBeamLength)),
-            mass_asymmetry: self.mass_asymmetry,
+            mass_asymmetry: self
+                .mass_asymmetry
+                .or(self.mass_asymmetry_pct.map(|p| p / 100.0)),
             chirp_kind: self.chirp_kind.map(|k| match k {
                 KindArg::Exponential => ChirpKind::Exponential,
                 KindArg::Linear => ChirpKind::Linear,
             }),
         }
+    }
+
+    /// Exit 2 for a percent flag outside its key's range, said in percent
+    /// (the ranges are the model's, `bench_hal::model::ranges`; the key's
+    /// own check would say them as fractions and metres).
+    fn refuse_percent_out_of_range(&self) -> Option<ExitCode> {
+        use bench_hal::model::ranges;
+        if let Some(p) = self.mass_asymmetry_pct {
+            let (lo, hi) = ranges::MASS_ASYMMETRY;
+            if !(p.is_finite() && (lo * 100.0..=hi * 100.0).contains(&p)) {
+                return Some(bad_input(format!(
+                    "--mass-asymmetry-pct {p}: Δm23 must be {} % to {} % (config key plant.mass_asymmetry): the heavier secondary stage at most about 1.5 times the lighter, so the two stay a closely spaced pair (thesis §2.2.1, §5.2.1; its grid spans −8 % to +10 %)",
+                    lo * 100.0,
+                    hi * 100.0
+                )));
+            }
+        }
+        if let Some(p) = self.operating_point_pct {
+            let max = ranges::OPERATING_POINT_OF_L * 100.0;
+            if !(p.is_finite() && p.abs() <= max) {
+                return Some(bad_input(format!(
+                    "--operating-point-pct {p}: |Y1o| must be at most {max} % of the beam length (config key plant.operating_point_m): Eq. (2-1) is a small-rotation result, outside the model's validity beyond"
+                )));
+            }
+        }
+        None
     }
 
     /// The flag that set a config key (for error messages).
@@ -127,6 +165,7 @@ impl ChirpArgs {
                 "--operating-point-pct"
             }
             "plant.mass_asymmetry" if self.mass_asymmetry.is_some() => "--mass-asymmetry",
+            "plant.mass_asymmetry" if self.mass_asymmetry_pct.is_some() => "--mass-asymmetry-pct",
             "chirp.amplitude_a" if self.amplitude_a.is_some() => "--amplitude-a",
             "chirp.f_start_hz" if self.f_start_hz.is_some() => "--f-start-hz",
             "chirp.f_end_hz" if self.f_end_hz.is_some() => "--f-end-hz",
@@ -147,6 +186,7 @@ pub(super) fn chirp(args: ChirpArgs, stop: Arc<AtomicBool>) -> ExitCode {
             (args.operating_point_m.is_some(), "--operating-point-m"),
             (args.operating_point_pct.is_some(), "--operating-point-pct"),
             (args.mass_asymmetry.is_some(), "--mass-asymmetry"),
+            (args.mass_asymmetry_pct.is_some(), "--mass-asymmetry-pct"),
             (args.backend.is_some(), "--backend"),
             (args.chirp_kind.is_some(), "--chirp-kind"),
         ];
@@ -159,14 +199,17 @@ pub(super) fn chirp(args: ChirpArgs, stop: Arc<AtomicBool>) -> ExitCode {
         let job = JobRequest::Chirp(args.request());
         return via_daemon(sock, &job, args.json, print_summary);
     }
-    let mut cfg = match load_config(&args.config) {
+    let (mut cfg, config_path) = match load_config(args.config.as_deref()) {
         Ok(c) => c,
         Err(e) => return bad_input(e),
     };
+    if let Some(code) = args.refuse_percent_out_of_range() {
+        return code;
+    }
     let request = args.request();
     args.local_overrides().apply(&mut cfg);
     if let Err(e) = request.apply(&mut cfg) {
-        return refused_request(e, &args.config, |key| args.flag_for(key));
+        return refused_request(e, &config_path, |key| args.flag_for(key));
     }
     let (out, outputs) = match recording_plan(
         args.out.as_deref(),
@@ -200,7 +243,7 @@ pub(super) fn chirp(args: ChirpArgs, stop: Arc<AtomicBool>) -> ExitCode {
         out,
         seed: request.seed.unwrap_or(cfg.sim.seed),
         config: cfg,
-        config_path: args.config.clone(),
+        config_path,
         realtime: args.realtime,
         progress: std::io::stderr().is_terminal(),
         backend: args.backend.clone(),

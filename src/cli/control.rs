@@ -4,9 +4,8 @@
 use super::serve::via_daemon;
 use super::{
     bad_input, emit, job_thread, load_config, origin, recording_plan, refuse_local_only,
-    refused_request, run_failed, status, unclaimed_recording,
+    refused_request, run_failed, status, unclaimed_recording, CONFIG_HELP,
 };
-use bench::config::DEFAULT_CONFIG;
 use bench::jobs::request::{parse_seed, ControlRequest, JobRequest};
 use bench::jobs::session::beside;
 use bench::jobs::step::{run_control, ControlOptions, ControlSummary};
@@ -31,9 +30,8 @@ pub(super) struct ControlArgs {
     /// Any `[controller.NAME]` of the config.
     #[arg(long, value_name = "NAME")]
     controller: Option<String>,
-    /// Bench description (TOML).
-    #[arg(long, value_name = "FILE", default_value = DEFAULT_CONFIG)]
-    config: PathBuf,
+    #[arg(long, value_name = "FILE", help = CONFIG_HELP)]
+    config: Option<PathBuf>,
     /// Step size, m (overrides step.step_m).
     #[arg(long, value_name = "M", allow_hyphen_values = true)]
     step_m: Option<f64>,
@@ -44,7 +42,8 @@ pub(super) struct ControlArgs {
     /// (overrides step.smooth_s).
     #[arg(long, value_name = "S", allow_hyphen_values = true)]
     smooth_s: Option<f64>,
-    /// MCAP recording [default: recordings/control-<name>-<UTC time>.mcap].
+    /// MCAP recording [default: control-<name>-<UTC time>.mcap in
+    /// ./recordings if it exists, else in $XDG_DATA_HOME/bench/recordings].
     #[arg(long, value_name = "FILE.mcap")]
     out: Option<PathBuf>,
     /// Step plot PNG [default: beside --out, <stem>.step.png].
@@ -150,23 +149,27 @@ pub(super) fn control(args: ControlArgs, stop: Arc<AtomicBool>) -> ExitCode {
         let job = JobRequest::Control(args.request());
         return via_daemon(sock, &job, args.json, print_control_summary);
     }
-    let mut cfg = match load_config(&args.config) {
+    let (mut cfg, config_path) = match load_config(args.config.as_deref()) {
         Ok(c) => c,
         Err(e) => return bad_input(e),
     };
     let request = args.request();
     let inject = match request.apply(&mut cfg) {
         Ok(f) => f,
-        Err(e) => return refused_request(e, &args.config, |key| args.flag_for(key)),
+        Err(e) => return refused_request(e, &config_path, |key| args.flag_for(key)),
     };
     let name = request.controller.clone();
     let prefix = format!("control-{name}");
     // --check-only writes nothing: no name is claimed, no path checked.
     let (out, outputs) = if args.check_only {
-        let out = args
+        let out = match args
             .out
             .clone()
-            .unwrap_or_else(|| unclaimed_recording(&prefix));
+            .map_or_else(|| unclaimed_recording(&prefix), Ok)
+        {
+            Ok(out) => out,
+            Err(e) => return bad_input(format!("--out: {e}")),
+        };
         (out, OutputPlan::new(Existing::Refuse))
     } else {
         match recording_plan(args.out.as_deref(), &prefix, &[".step.png"], args.overwrite) {
@@ -190,7 +193,7 @@ pub(super) fn control(args: ControlArgs, stop: Arc<AtomicBool>) -> ExitCode {
         out,
         seed: request.seed.unwrap_or(cfg.sim.seed),
         config: cfg,
-        config_path: args.config.clone(),
+        config_path,
         controller: name,
         check_only: args.check_only,
         frf: args.frf.clone(),

@@ -1,7 +1,6 @@
 //! `bench emulate serial|can`: the simulated plant as a DAQ device.
 
-use super::{bad_input, load_config, status};
-use bench::config::DEFAULT_CONFIG;
+use super::{bad_input, load_config, status, CONFIG_HELP};
 use bench::jobs::request::parse_fault;
 use bench_hal::emulator::serial::{Pty, SerialEmulatorOptions};
 use bench_hal::emulator::{DeviceCore, EmulatorStatus, LinkFault, ScheduledLinkFault};
@@ -29,9 +28,9 @@ pub(super) enum EmulateCommand {
 
 #[derive(Debug, Args)]
 pub(super) struct EmulateArgs {
-    /// Bench description (TOML): plant, rate, [emulator] watchdog.
-    #[arg(long, value_name = "FILE", default_value = DEFAULT_CONFIG)]
-    config: PathBuf,
+    /// Its plant, rate and [emulator] watchdog apply.
+    #[arg(long, value_name = "FILE", help = CONFIG_HELP)]
+    config: Option<PathBuf>,
     /// Plant noise seed [default: sim.seed].
     #[arg(long, value_name = "N")]
     seed: Option<u64>,
@@ -86,7 +85,9 @@ pub(super) fn emulate(cmd: EmulateCommand, stop: Arc<AtomicBool>) -> ExitCode {
         EmulateCommand::Serial(a) => (a, None),
         EmulateCommand::Can { iface, common } => (common, Some(iface)),
     };
-    let cfg = match load_config(&args.config).and_then(|c| c.validate(&args.config).map(|_| c)) {
+    let (cfg, config_path) = match load_config(args.config.as_deref())
+        .and_then(|(c, p)| c.validate(&p).map(|_| (c, p)))
+    {
         Ok(c) => c,
         Err(e) => return bad_input(e),
     };
@@ -110,7 +111,7 @@ pub(super) fn emulate(cmd: EmulateCommand, stop: Arc<AtomicBool>) -> ExitCode {
     let watchdog_ns = (cfg.emulator.watchdog_ms * 1e6) as u64;
     let mut core = match DeviceCore::new(cfg.sim_params(seed), cfg.loop_.period_ns(), watchdog_ns) {
         Ok(c) => c,
-        Err(e) => return bad_input(format!("config {}: {e}", args.config.display())),
+        Err(e) => return bad_input(format!("config {}: {e}", config_path.display())),
     };
     for f in plant_faults {
         core.inject(f);

@@ -19,7 +19,9 @@
 
 mod analyze;
 mod chirp;
+mod config_cmd;
 mod control;
+mod docs;
 mod emulate;
 mod job_thread;
 mod recover;
@@ -33,7 +35,9 @@ use bench::jobs::request::RequestError;
 use bench::outputs::{claim_recording, Existing, Origin, OutputPlan};
 use chirp::{chirp, ChirpArgs};
 use clap::{Parser, Subcommand};
+use config_cmd::{config_command, ConfigCommand};
 use control::{control, ControlArgs};
+use docs::{completions, man, CompletionsArgs, ManArgs};
 use emulate::{emulate, EmulateCommand};
 use recover::{recover, RecoverArgs};
 use serve::{serve, ServeArgs};
@@ -81,6 +85,15 @@ enum Command {
     /// asymmetry (thesis Fig 2-5), with measured verdicts overlaid; or,
     /// with --veering, the closely spaced pair against operating point.
     Map(MapArgs),
+    /// The built-in bench description: print it as a commented TOML file
+    /// to start from, or check a file.
+    #[command(subcommand)]
+    Config(ConfigCommand),
+    /// Print the shell completion script for SHELL to stdout.
+    Completions(CompletionsArgs),
+    /// Print the man page (roff) to stdout, or write one page per command
+    /// with --out DIR.
+    Man(ManArgs),
 }
 
 /// Exit statuses (see the module docs).
@@ -142,6 +155,9 @@ pub fn main() -> ExitCode {
         Command::Recover(args) => recover(args),
         Command::Analyze(args) => analyze(args),
         Command::Map(args) => map(args),
+        Command::Config(cmd) => config_command(cmd),
+        Command::Completions(args) => completions(&args),
+        Command::Man(args) => man(&args),
     }
 }
 
@@ -166,14 +182,58 @@ pub(super) fn bad_input(msg: impl std::fmt::Display) -> ExitCode {
     ExitCode::from(status::BAD_INPUT)
 }
 
-/// Where recordings go by default.
-const RECORDINGS: &str = "recordings";
+/// The recordings directory in the working directory that, when it
+/// exists, takes the recordings (a checkout of the repository has one).
+const LOCAL_RECORDINGS: &str = "recordings";
+
+/// Where recordings go by default, as an absolute path: `./recordings`
+/// when that directory exists in the working directory, else
+/// `$XDG_DATA_HOME/bench/recordings`, with `XDG_DATA_HOME` defaulting to
+/// `$HOME/.local/share` when it is unset, empty or relative (XDG Base
+/// Directory specification). With `create`, the XDG directory and its
+/// parents are made with mode [`bench::outputs::DIR_MODE`].
+///
+/// # Errors
+/// A message for `flag` (`--out`, `--recordings`) when neither
+/// `XDG_DATA_HOME` nor `HOME` is an absolute path, or the directory cannot
+/// be created.
+pub(super) fn default_recordings(create: bool, flag: &str) -> Result<PathBuf, String> {
+    let cwd = std::env::current_dir()
+        .map_err(|e| format!("the working directory is unreadable ({e}): give {flag}"))?;
+    let local = cwd.join(LOCAL_RECORDINGS);
+    if local.is_dir() {
+        return Ok(local);
+    }
+    let absolute = |var: &str| {
+        std::env::var_os(var)
+            .map(PathBuf::from)
+            .filter(|p| p.is_absolute())
+    };
+    let data_home = absolute("XDG_DATA_HOME")
+        .or_else(|| absolute("HOME").map(|h| h.join(".local/share")))
+        .ok_or_else(|| {
+            format!(
+                "no ./recordings here, and neither XDG_DATA_HOME nor HOME is an absolute path: give {flag}, or create ./recordings"
+            )
+        })?;
+    let dir = data_home.join("bench").join("recordings");
+    if create {
+        use std::os::unix::fs::DirBuilderExt;
+        std::fs::DirBuilder::new()
+            .recursive(true)
+            .mode(bench::outputs::DIR_MODE)
+            .create(&dir)
+            .map_err(|e| format!("cannot create {} ({e}): give {flag}", dir.display()))?;
+    }
+    Ok(dir)
+}
 
 /// The recording of a local run: `--out`, or a fresh default name
-/// `recordings/<prefix>-YYYYmmddTHHMMSS.mmmZ[-N].mcap` claimed at once
-/// (its `.part` file created; see `bench::outputs::claim_recording`), with
-/// the plan of outputs it starts. `companions` are the suffixes of the
-/// default files beside it (`.frf.csv`, …).
+/// `<recordings>/<prefix>-YYYYmmddTHHMMSS.mmmZ[-N].mcap` (an absolute path;
+/// the directory of [`default_recordings`]) claimed at once (its `.part`
+/// file created; see `bench::outputs::claim_recording`), with the plan of
+/// outputs it starts. `companions` are the suffixes of the default files
+/// beside it (`.frf.csv`, …).
 pub(super) fn recording_plan(
     out: Option<&Path>,
     prefix: &str,
@@ -184,7 +244,9 @@ pub(super) fn recording_plan(
     Ok(match out {
         Some(out) => (out.to_path_buf(), plan.with_recording(out, Origin::Given)),
         None => {
-            let claim = claim_recording(Path::new(RECORDINGS), prefix, companions)?;
+            let dir = default_recordings(true, "--out FILE.mcap")
+                .map_err(|reason| RunError::option("out", "", reason))?;
+            let claim = claim_recording(&dir, prefix, companions)?;
             (
                 claim.path().to_path_buf(),
                 plan.with_claimed_recording(claim),
@@ -203,9 +265,10 @@ pub(super) fn refuse_local_only(flags: &[(bool, &str)], why: &str) -> Option<Exi
 }
 
 /// An unclaimed default recording name (for `--check-only`, which writes
-/// nothing).
-pub(super) fn unclaimed_recording(prefix: &str) -> PathBuf {
-    bench::jobs::session::stamped_recording(Path::new(RECORDINGS), prefix, "")
+/// nothing: the directory is not created).
+pub(super) fn unclaimed_recording(prefix: &str) -> Result<PathBuf, String> {
+    let dir = default_recordings(false, "--out FILE.mcap")?;
+    Ok(bench::jobs::session::stamped_recording(&dir, prefix, ""))
 }
 
 /// [`Origin::Given`] for a path given by its flag, else
@@ -218,9 +281,21 @@ pub(super) fn origin(given: bool) -> Origin {
     }
 }
 
-pub(super) fn load_config(path: &Path) -> Result<BenchConfig, ConfigError> {
-    BenchConfig::load(path)
+/// The config of `--config FILE` (read with the file checks of
+/// [`BenchConfig::load`]), else the built-in bench; with the name messages
+/// and recordings give it (the file, or [`bench::config::BUILTIN_CONFIG_NAME`]).
+pub(super) fn load_config(path: Option<&Path>) -> Result<(BenchConfig, PathBuf), ConfigError> {
+    match path {
+        Some(p) => Ok((BenchConfig::load(p)?, p.to_path_buf())),
+        None => Ok((
+            BenchConfig::builtin()?,
+            PathBuf::from(bench::config::BUILTIN_CONFIG_NAME),
+        )),
+    }
 }
+
+/// The help of every `--config`.
+pub(super) const CONFIG_HELP: &str = "Bench description (TOML) [default: the built-in Chapter 5 bench; `bench config default` prints it]";
 
 /// Prints a summary: one JSON object with `--json`, else the human form.
 pub(super) fn emit<T: serde::Serialize>(

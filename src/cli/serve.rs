@@ -1,7 +1,6 @@
 //! `bench serve`, and `--daemon` (a job submitted to a running daemon).
 
-use super::{bad_input, emit, load_config, run_failed, status};
-use bench::config::DEFAULT_CONFIG;
+use super::{bad_input, default_recordings, emit, load_config, run_failed, status, CONFIG_HELP};
 use bench::jobs::request::{parse_fault, JobRequest};
 use bench::rt::backend::BackendSpec;
 use clap::Args;
@@ -11,9 +10,8 @@ use std::process::ExitCode;
 
 #[derive(Debug, Args)]
 pub(super) struct ServeArgs {
-    /// Bench description (TOML).
-    #[arg(long, value_name = "FILE", default_value = DEFAULT_CONFIG)]
-    config: PathBuf,
+    #[arg(long, value_name = "FILE", help = CONFIG_HELP)]
+    config: Option<PathBuf>,
     /// Socket path [default: $XDG_RUNTIME_DIR/bench.sock when that is an
     /// absolute path, else /run/bench/bench.sock, /run/bench created if
     /// missing; the `--daemon` clients use the same rule]. Its directory
@@ -23,9 +21,12 @@ pub(super) struct ServeArgs {
     /// Let this group use the socket (mode 0660; default owner-only 0600).
     #[arg(long, value_name = "GROUP")]
     socket_group: Option<String>,
-    /// Directory for the job recordings and the rolling event log.
-    #[arg(long, value_name = "DIR", default_value = "recordings")]
-    recordings: PathBuf,
+    /// Directory for the job recordings and the rolling event log
+    /// [default: ./recordings if it exists, else
+    /// $XDG_DATA_HOME/bench/recordings, XDG_DATA_HOME defaulting to
+    /// ~/.local/share].
+    #[arg(long, value_name = "DIR")]
+    recordings: Option<PathBuf>,
     /// Backend [default: [backend] of the config].
     #[arg(long, value_name = "BACKEND")]
     backend: Option<BackendSpec>,
@@ -115,9 +116,18 @@ pub(super) fn via_daemon<T: serde::de::DeserializeOwned + serde::Serialize>(
 }
 
 pub(super) fn serve(args: ServeArgs) -> ExitCode {
-    let cfg = match load_config(&args.config).and_then(|c| c.validate(&args.config).map(|_| c)) {
+    let (cfg, config_path) = match load_config(args.config.as_deref())
+        .and_then(|(c, p)| c.validate(&p).map(|_| (c, p)))
+    {
         Ok(c) => c,
         Err(e) => return bad_input(e),
+    };
+    let recordings = match args.recordings {
+        Some(dir) => dir,
+        None => match default_recordings(true, "--recordings DIR") {
+            Ok(dir) => dir,
+            Err(e) => return bad_input(format!("--recordings: {e}")),
+        },
     };
     let inject = match args.inject_fault.as_deref().map(parse_fault).transpose() {
         Ok(f) => f,
@@ -127,12 +137,12 @@ pub(super) fn serve(args: ServeArgs) -> ExitCode {
         inject,
         seed: args.seed.unwrap_or(cfg.sim.seed),
         config: cfg,
-        config_path: args.config,
+        config_path,
         socket: args
             .socket
             .unwrap_or_else(bench::daemon::default_socket_path),
         socket_group: args.socket_group,
-        recordings: args.recordings,
+        recordings,
         backend: args.backend,
     };
     match bench::daemon::serve(opts) {
