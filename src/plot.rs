@@ -733,7 +733,7 @@ fn staircase(t: &[f64], v: &[f64]) -> Vec<(f64, f64)> {
 /// column.
 fn decimate(pts: &[(f64, f64)], x_range: &Range<f64>, columns: usize) -> Vec<(f64, f64)> {
     let span = x_range.end - x_range.start;
-    if pts.len() <= 4 * columns.max(1) || !(span > 0.0) {
+    if pts.len() <= 4 * columns.max(1) || span.is_nan() || span <= 0.0 {
         return pts.to_vec();
     }
     let col = |x: f64| ((x - x_range.start) / span * columns as f64).floor() as i64;
