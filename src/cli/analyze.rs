@@ -36,7 +36,12 @@ pub(super) struct BenchPointArgs {
     operating_point_pct: Option<f64>,
     /// Mass asymmetry Δm23 = m2/m3 − 1 as a fraction, e.g. 0.1 for +10 %
     /// (overrides plant.mass_asymmetry).
-    #[arg(long, value_name = "X", allow_hyphen_values = true, conflicts_with = "mass_asymmetry_pct")]
+    #[arg(
+        long,
+        value_name = "X",
+        allow_hyphen_values = true,
+        conflicts_with = "mass_asymmetry_pct"
+    )]
     mass_asymmetry: Option<f64>,
     /// Mass asymmetry Δm23 in % (overrides plant.mass_asymmetry).
     #[arg(long, value_name = "PERCENT", allow_hyphen_values = true)]
@@ -48,7 +53,9 @@ impl BenchPointArgs {
     fn config_name(&self) -> String {
         self.config
             .as_ref()
-            .map_or(bench::config::BUILTIN_CONFIG_NAME.to_string(), |p| p.display().to_string())
+            .map_or(bench::config::BUILTIN_CONFIG_NAME.to_string(), |p| {
+                p.display().to_string()
+            })
     }
 
     /// The config's plant with the flags applied and checked, or the exit.
@@ -76,7 +83,9 @@ impl BenchPointArgs {
                     Some("--operating-point-pct")
                 }
                 "plant.mass_asymmetry" if self.mass_asymmetry.is_some() => Some("--mass-asymmetry"),
-                "plant.mass_asymmetry" if self.mass_asymmetry_pct.is_some() => Some("--mass-asymmetry-pct"),
+                "plant.mass_asymmetry" if self.mass_asymmetry_pct.is_some() => {
+                    Some("--mass-asymmetry-pct")
+                }
                 _ => None,
             };
             let (lo, hi) = ranges::MASS_ASYMMETRY;
@@ -695,7 +704,11 @@ pub(super) fn map(args: MapArgs) -> ExitCode {
     let existing = Existing::overwrite(args.overwrite);
     let png = match &args.png {
         Some(p) => p.clone(),
-        None => match default_output(if args.veering { "veering" } else { "map" }, ".png", "--png") {
+        None => match default_output(
+            if args.veering { "veering" } else { "map" },
+            ".png",
+            "--png",
+        ) {
             Ok(p) => p,
             Err(code) => return code,
         },

@@ -199,6 +199,20 @@ pub fn unwrap_deg(phase_deg: &mut [f64]) {
 }
 
 impl Frf {
+    /// The unwrapped phase, degrees, at the first grid point at or above
+    /// `frequency_hz` (the last one above the grid; NaN for an empty grid):
+    /// the phase [`closely_spaced_pair`] takes at the edges of its band.
+    pub fn phase_at_deg(&self, frequency_hz: f64) -> f64 {
+        let grid = &self.frequency_hz;
+        if grid.is_empty() {
+            return f64::NAN;
+        }
+        let i = grid
+            .partition_point(|g| *g < frequency_hz)
+            .min(grid.len() - 1);
+        self.phase_deg[i]
+    }
+
     /// Estimates the FRF on the log grid `f_lo … f_hi` (Hz).
     pub fn estimate(spectra: &Spectra, f_lo: f64, f_hi: f64, cfg: &IdentificationConfig) -> Self {
         let frequency_hz = log_grid(f_lo, f_hi, cfg.points_per_decade);
@@ -268,6 +282,13 @@ pub struct Resonance {
     pub prominence_db: f64,
 }
 
+/// Smallest magnitude-squared coherence γ² at which an FRF point is taken
+/// as data: a resonance must peak at or above it, and the Bode plot draws
+/// the points below it faint (at γ² = 0.5 as much of the output power is
+/// noise or nonlinearity as is explained by the input; Bendat & Piersol,
+/// *Random Data*, §9.2.3).
+pub const MIN_COHERENCE: f64 = 0.5;
+
 /// Relative distance at which a lightly damped peak must have dropped by
 /// [`SHARPNESS_DB`] on at least one side.
 pub const SHARPNESS_SPAN: f64 = 0.03;
@@ -276,7 +297,7 @@ pub const SHARPNESS_DB: f64 = 3.0;
 
 /// Finds lightly damped resonances: local maxima of |H| on the grid that
 /// rise at least `min_prominence_db` above the higher of the two flanking
-/// minima, have coherence ≥ 0.5, and are sharp — |H| is at least
+/// minima, have coherence ≥ [`MIN_COHERENCE`], and are sharp — |H| is at least
 /// [`SHARPNESS_DB`] lower at `f·(1 ± SHARPNESS_SPAN)` on one side or the
 /// other (a single mode passes this for ζ ≲ 0.03; the broad hump that
 /// follows an anti-resonance does not). Each peak is then refined on a
@@ -297,7 +318,7 @@ pub fn find_resonances(frf: &Frf, spectra: &Spectra, min_prominence_db: f64) -> 
     let n = db.len();
     let mut out = Vec::new();
     for i in 1..n.saturating_sub(1) {
-        if !(db[i] > db[i - 1] && db[i] >= db[i + 1]) || frf.coherence[i] < 0.5 {
+        if !(db[i] > db[i - 1] && db[i] >= db[i + 1]) || frf.coherence[i] < MIN_COHERENCE {
             continue;
         }
         // Flanking minima: walk down until the curve rises above the peak.
@@ -447,11 +468,7 @@ pub fn closely_spaced_pair(frf: &Frf, resonances: &[Resonance]) -> Option<PairVe
         .map(|r| r.frequency_hz)
         .unwrap_or(*grid.last()?);
     let band = ((below * fa).sqrt(), (fb * above).sqrt());
-    let phase_at = |f: f64| {
-        let i = grid.partition_point(|g| *g < f).min(grid.len() - 1);
-        frf.phase_deg[i]
-    };
-    let net = phase_at(band.1) - phase_at(band.0);
+    let net = frf.phase_at_deg(band.1) - frf.phase_at_deg(band.0);
     let multiple = (net / 180.0).round() * 180.0;
     Some(PairVerdict {
         lower_hz: fa,
@@ -461,6 +478,29 @@ pub fn closely_spaced_pair(frf: &Frf, resonances: &[Resonance]) -> Option<PairVe
         net_phase_multiple_deg: multiple,
         cmp_cnmp: multiple <= -360.0,
     })
+}
+
+/// Why [`closely_spaced_pair`] finds no pair among `resonances` (as it
+/// received them, ascending), e.g. for the summary and the plot; `None`
+/// when it does find one.
+pub fn no_pair_reason(resonances: &[Resonance]) -> Option<String> {
+    let closest = resonances
+        .windows(2)
+        .map(|w| (w[0].frequency_hz, w[1].frequency_hz))
+        .min_by(|a, b| (a.1 / a.0).total_cmp(&(b.1 / b.0)));
+    match (resonances.len(), closest) {
+        (0, _) => Some("no resonance was found in the measured FRF".to_string()),
+        (1, _) => Some(format!(
+            "only one resonance was found ({:.2} Hz)",
+            resonances[0].frequency_hz
+        )),
+        (_, Some((a, b))) if b / a > CLOSE_PAIR_RATIO => Some(format!(
+            "the closest adjacent resonances, {a:.2} Hz and {b:.2} Hz, are {:.0} % apart (a pair must be within {:.0} %)",
+            (b / a - 1.0) * 100.0,
+            (CLOSE_PAIR_RATIO - 1.0) * 100.0
+        )),
+        _ => None,
+    }
 }
 
 #[cfg(test)]

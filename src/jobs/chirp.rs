@@ -11,13 +11,13 @@ use crate::config::BenchConfig;
 use crate::error::RunError;
 use crate::ident::excitation::Chirp;
 use crate::ident::frf::{
-    closely_spaced_pair, find_resonances, Frf, PairVerdict, Resonance, Spectra,
+    closely_spaced_pair, find_resonances, no_pair_reason, Frf, PairVerdict, Resonance, Spectra,
 };
 use crate::jobs::session::{
     finish, open_recording, run_recorded, Kept, Recorded, Runner, SessionOptions, TimingSummary,
 };
 use crate::outputs::{Existing, Origin, OutputPlan};
-use crate::plot::{write_bode_png, BodePlot, BodeSeries};
+use crate::plot::{write_bode_png, BodePlot, BodeSeries, PairZoom};
 use crate::rt::backend::{self, BackendSpec};
 use crate::rt::{Job, JobOutput};
 use bench_hal::model::Sr4dof;
@@ -30,6 +30,9 @@ use std::sync::Arc;
 
 /// Smallest peak prominence for a resonance, dB.
 pub const MIN_PROMINENCE_DB: f64 = 3.0;
+
+/// Fewest points per decade of the model curve in the Bode plot.
+pub const MODEL_POINTS_PER_DECADE: usize = 2000;
 
 /// The chirp job: open loop, command = excitation.
 #[derive(Debug, Clone, Copy)]
@@ -279,7 +282,16 @@ fn run_chirp_with(
     let pair = closely_spaced_pair(&frf, &resonances);
 
     let zoh = ZohPlant::new(&model, &cfg.actuator, period_s);
-    let model_h: Vec<_> = frf.frequency_hz.iter().map(|&f| zoh.frf(f)).collect();
+    // The model on a grid at least as dense as MODEL_POINTS_PER_DECADE, so
+    // its lightly damped peaks keep their shape in the plot's pair zoom.
+    let model_f = crate::ident::frf::log_grid(
+        cfg.chirp.f_start_hz,
+        cfg.chirp.f_end_hz,
+        cfg.identification
+            .points_per_decade
+            .max(MODEL_POINTS_PER_DECADE),
+    );
+    let model_h: Vec<_> = model_f.iter().map(|&f| zoh.frf(f)).collect();
     let model_mag: Vec<f64> = model_h.iter().map(|h| h.norm()).collect();
     let mut model_phase: Vec<f64> = model_h.iter().map(|h| h.arg().to_degrees()).collect();
     crate::ident::frf::unwrap_deg(&mut model_phase);
@@ -303,6 +315,15 @@ fn run_chirp_with(
             reason: e.to_string(),
         })?;
     let markers: Vec<f64> = resonances.iter().map(|r| r.frequency_hz).collect();
+    let no_pair = no_pair_reason(&resonances)
+        .unwrap_or_else(|| "no two adjacent resonances were resolved".to_string());
+    let pair_zoom = match &pair {
+        Some(p) => PairZoom::Resolved {
+            pair: *p,
+            band_phase_deg: (frf.phase_at_deg(p.band_hz.0), frf.phase_at_deg(p.band_hz.1)),
+        },
+        None => PairZoom::Unresolved { reason: &no_pair },
+    };
     let title = format!(
         "x1 / current, Y1o = {:.1} % of L, Δm23 = {:+.0} % (seed {})",
         100.0 * cfg.plant.operating_point_m / cfg.plant.beam.length_m,
@@ -323,11 +344,12 @@ fn run_chirp_with(
             coherence: &frf.coherence,
             model: Some(BodeSeries {
                 label: "model (ZOH)",
-                frequency_hz: &frf.frequency_hz,
+                frequency_hz: &model_f,
                 magnitude: &model_mag,
                 phase_deg: &model_phase,
             }),
             markers_hz: &markers,
+            pair: Some(pair_zoom),
         },
     )
     .map_err(|e| RunError::Output {

@@ -26,7 +26,7 @@ use crate::jobs::session::{
     TimingSummary,
 };
 use crate::outputs::{Existing, Origin, OutputPlan};
-use crate::plot::{write_time_png, TimePanel};
+use crate::plot::{write_step_png, StepPlot};
 use crate::rt::backend::{self, BackendSpec};
 use crate::rt::service::{LoopReply, LoopRequest, ServiceClient};
 use crate::rt::{Job, JobOutput};
@@ -142,6 +142,48 @@ fn moving_average(x: &[f64], h: usize) -> Vec<f64> {
         .collect()
 }
 
+/// Step response level at which the rise time starts (10 %).
+pub const RISE_FROM: f64 = 0.1;
+/// Step response level at which the rise time ends (90 %).
+pub const RISE_TO: f64 = 0.9;
+/// Half width of the settling band around the final value, as a fraction
+/// of the step (2 %).
+pub const SETTLING_BAND: f64 = 0.02;
+
+/// Where, in the recorded samples, the events behind [`StepMetrics`] happen
+/// (indices into the columns of [`Collected`]), for the plot's markers.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct StepEvents {
+    /// The sample at which the step starts (`settle_s / period_s`, rounded).
+    pub step: usize,
+    /// First sample after the step at which the smoothed response reaches
+    /// [`RISE_FROM`] of the step (`None` if never).
+    pub rise_from: Option<usize>,
+    /// First sample after the step at which it reaches [`RISE_TO`].
+    pub rise_to: Option<usize>,
+    /// First sample from which it stays within ±[`SETTLING_BAND`] of the
+    /// step (`None` if it never settles before the end of the record).
+    pub settled: Option<usize>,
+    /// Sample of the largest smoothed response after the step (`None` if
+    /// nothing follows the step).
+    pub peak: Option<usize>,
+    /// First sample of the steady-state window (which runs to the end).
+    pub steady_state_from: usize,
+}
+
+/// The step metrics, where their events happen, and the smoothed reading
+/// they are computed on.
+#[derive(Debug, Clone, PartialEq)]
+pub struct StepAnalysis {
+    /// The figures.
+    pub metrics: StepMetrics,
+    /// Where they come from.
+    pub events: StepEvents,
+    /// The probe reading smoothed by the centred moving average over
+    /// [`SMOOTHING_S`], m (same length as [`Collected::position_m`]).
+    pub smoothed_position_m: Vec<f64>,
+}
+
 /// Computes the step metrics from the recorded signals.
 pub fn step_metrics(
     d: &Collected,
@@ -150,31 +192,47 @@ pub fn step_metrics(
     window_s: f64,
     period_s: f64,
 ) -> StepMetrics {
+    step_analysis(d, settle_s, step_m, window_s, period_s).metrics
+}
+
+/// Computes the step metrics (see the module documentation), where their
+/// events happen and the smoothed reading, from the recorded signals.
+pub fn step_analysis(
+    d: &Collected,
+    settle_s: f64,
+    step_m: f64,
+    window_s: f64,
+    period_s: f64,
+) -> StepAnalysis {
     let n = d.position_m.len();
     let k0 = ((settle_s / period_s).round() as usize).min(n);
     let y0 = d.setpoint_m.first().copied().unwrap_or(0.0);
     let h = ((SMOOTHING_S / period_s / 2.0).round() as usize).max(1);
-    let r: Vec<f64> = moving_average(&d.position_m, h)
+    let smoothed_position_m = moving_average(&d.position_m, h);
+    let r: Vec<f64> = smoothed_position_m
         .iter()
         .map(|y| (y - y0) / step_m)
         .collect();
     let first = |thr: f64| (k0..n).find(|&k| r[k] >= thr);
-    let rise_time_s = match (first(0.1), first(0.9)) {
+    let (rise_from, rise_to) = (first(RISE_FROM), first(RISE_TO));
+    let rise_time_s = match (rise_from, rise_to) {
         (Some(a), Some(b)) => Some((b - a) as f64 * period_s),
         _ => None,
     };
-    let settling_time_s = match (k0..n).rev().find(|&k| (r[k] - 1.0).abs() > 0.02) {
-        None => Some(0.0),
-        Some(k) if k + 1 < n => Some((k + 1 - k0) as f64 * period_s),
+    let settled = match (k0..n).rev().find(|&k| (r[k] - 1.0).abs() > SETTLING_BAND) {
+        None => Some(k0),
+        Some(k) if k + 1 < n => Some(k + 1),
         Some(_) => None,
     };
-    let overshoot_pct = (r[k0.min(n)..]
-        .iter()
-        .copied()
-        .fold(f64::NEG_INFINITY, f64::max)
-        - 1.0)
-        .max(0.0)
-        * 100.0;
+    let settling_time_s = settled.map(|k| (k - k0) as f64 * period_s);
+    // The first largest value; NaN readings (a dropped probe sample spreads
+    // over the average) are no peak.
+    let peak = (k0..n).fold(None, |best: Option<usize>, k| match best {
+        _ if r[k].is_nan() => best,
+        Some(b) if r[b] >= r[k] => Some(b),
+        _ => Some(k),
+    });
+    let overshoot_pct = (peak.map_or(f64::NEG_INFINITY, |k| r[k]) - 1.0).max(0.0) * 100.0;
     let w = ((window_s / period_s).round() as usize)
         .min(n.saturating_sub(k0))
         .max(1);
@@ -183,7 +241,7 @@ pub fn step_metrics(
         .collect();
     let mean = e.iter().sum::<f64>() / e.len() as f64;
     let var = e.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (e.len().max(2) - 1) as f64;
-    StepMetrics {
+    let metrics = StepMetrics {
         step_m,
         rise_time_s,
         settling_time_s,
@@ -195,6 +253,18 @@ pub fn step_metrics(
             .current_command_a
             .iter()
             .fold(0.0, |m: f64, v| m.max(v.abs())),
+    };
+    StepAnalysis {
+        metrics,
+        events: StepEvents {
+            step: k0,
+            rise_from,
+            rise_to,
+            settled,
+            peak,
+            steady_state_from: n - w,
+        },
+        smoothed_position_m,
     }
 }
 
@@ -474,7 +544,11 @@ fn run_control_with(
     } = recorded?;
     summary.link = link;
 
-    let metrics = step_metrics(
+    let StepAnalysis {
+        metrics,
+        events,
+        smoothed_position_m,
+    } = step_analysis(
         &data,
         step.settle_s,
         step.step_m,
@@ -485,36 +559,27 @@ fn run_control_with(
         recorder.add_channel_for::<StepMetrics>("/control/metrics", "bench.StepMetrics")?;
     recorder.write(metrics_ch, end_ns, &metrics)?;
 
-    let t = &data.t_s;
     let um = |v: &[f64], off: f64| v.iter().map(|x| (x - off) * 1e6).collect::<Vec<f64>>();
     let y0 = data.setpoint_m.first().copied().unwrap_or(0.0);
-    let pos = um(&data.position_m, y0);
-    let sp = um(&data.setpoint_m, y0);
-    let err: Vec<f64> = sp.iter().zip(&pos).map(|(s, p)| s - p).collect();
     let title = format!(
         "bench control --controller {}: {:.1} µm step (seed {})",
         opts.controller,
         step.step_m * 1e6,
         opts.seed
     );
-    write_time_png(
+    write_step_png(
         &opts.plot,
         outputs.existing(),
-        &title,
-        &[
-            TimePanel {
-                y_label: "position − start [µm]",
-                series: vec![("setpoint", t, &sp), ("position (probe)", t, &pos)],
-            },
-            TimePanel {
-                y_label: "current command [A]",
-                series: vec![("command", t, &data.current_command_a)],
-            },
-            TimePanel {
-                y_label: "error [µm]",
-                series: vec![("setpoint − position", t, &err)],
-            },
-        ],
+        &StepPlot {
+            title: &title,
+            t_s: &data.t_s,
+            setpoint_um: &um(&data.setpoint_m, y0),
+            position_um: &um(&data.position_m, y0),
+            smoothed_um: &um(&smoothed_position_m, y0),
+            command_a: &data.current_command_a,
+            metrics: &metrics,
+            events: &events,
+        },
     )
     .map_err(|e| RunError::Output {
         path: opts.plot.clone(),
