@@ -83,7 +83,7 @@ fn frames(img: &RgbImage) -> Vec<Frame> {
             edges.push((y, best_span.0, best_span.1));
         }
     }
-    assert!(edges.len() % 2 == 0, "unpaired frame edges at {edges:?}");
+    assert!(edges.len().is_multiple_of(2), "unpaired frame edges at {edges:?}");
     edges
         .chunks(2)
         .map(|p| Frame {
@@ -200,7 +200,7 @@ fn zoom_ms(rise_s: f64, settle_s: f64, record_end_s: f64) -> (f64, f64) {
         .max(4.0 * rise_s)
         .max(20.0 * DT)
         .min(record_end_s - SETTLE_S);
-    let pre = (post / 10.0).max(2.0 * DT).min(SETTLE_S);
+    let pre = (post / 10.0).clamp(2.0 * DT, SETTLE_S);
     (-pre * 1e3, post * 1e3)
 }
 
