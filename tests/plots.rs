@@ -83,7 +83,10 @@ fn frames(img: &RgbImage) -> Vec<Frame> {
             edges.push((y, best_span.0, best_span.1));
         }
     }
-    assert!(edges.len().is_multiple_of(2), "unpaired frame edges at {edges:?}");
+    assert!(
+        edges.len().is_multiple_of(2),
+        "unpaired frame edges at {edges:?}"
+    );
     edges
         .chunks(2)
         .map(|p| Frame {
