@@ -729,5 +729,8 @@ fn unit_slips_in_the_file_get_a_hint_and_toml_errors_keep_their_caret() {
     let caret = lines[at + 1];
     let col = caret.find('^').expect("a caret line under it");
     assert_eq!(&lines[at][col..col + 7], "\"5 kHz\"", "{err}");
-    assert!(!err.contains(" | rate_hz"), "not joined: {err}");
+    // Not joined into one line: the gutter line, the source line and the
+    // caret line stay lines of their own.
+    let gutter = lines[at].split(" |").next().unwrap_or_default().trim();
+    assert!(gutter.parse::<usize>().is_ok(), "not joined: {err}");
 }

@@ -23,11 +23,29 @@ struct Installed {
     bin: PathBuf,
 }
 
+/// Copies the binary to a directory of its own. Under a lock that every
+/// spawn of this file also takes: a copy still open for writing when
+/// another test thread forks would leak into that child and make the
+/// `exec` of the copy fail with ETXTBSY ("Text file busy").
 fn install() -> Installed {
+    let _g = SPAWN.lock().unwrap_or_else(|e| e.into_inner());
     let dir = common::tmp();
     let bin = dir.path().join("bench");
     std::fs::copy(env!("CARGO_BIN_EXE_bench"), &bin).expect("copy the binary");
     Installed { _dir: dir, bin }
+}
+
+static SPAWN: std::sync::Mutex<()> = std::sync::Mutex::new(());
+
+/// `c.output()` with the fork under [`SPAWN`].
+fn output_locked(c: &mut Command) -> std::io::Result<Output> {
+    let child = {
+        let _g = SPAWN.lock().unwrap_or_else(|e| e.into_inner());
+        c.stdout(std::process::Stdio::piped())
+            .stderr(std::process::Stdio::piped())
+            .spawn()?
+    };
+    child.wait_with_output()
 }
 
 /// A user's world: an empty working directory, a home and a data home of
@@ -69,7 +87,7 @@ impl Installed {
         if let Some(x) = xdg {
             c.env("XDG_DATA_HOME", x);
         }
-        c.output().expect("run the installed bench")
+        output_locked(&mut c).expect("run the installed bench")
     }
 }
 
@@ -207,24 +225,25 @@ fn a_recordings_directory_in_the_working_directory_wins() {
 fn with_no_home_at_all_the_error_names_out_and_nothing_is_written() {
     let bench = install();
     let w = world();
-    let mut c = Command::new(&bench.bin);
-    let o = c
-        .current_dir(&w.cwd)
-        .args(["chirp", "--duration-s", "0.5"])
-        .env_clear()
-        .output()
-        .unwrap();
+    let o = output_locked(
+        Command::new(&bench.bin)
+            .current_dir(&w.cwd)
+            .args(["chirp", "--duration-s", "0.5"])
+            .env_clear(),
+    )
+    .unwrap();
     assert_eq!(o.status.code(), Some(2));
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(err.contains("--out") && err.contains("HOME"), "{err}");
     assert_eq!(std::fs::read_dir(&w.cwd).unwrap().count(), 0);
     // With --out it runs.
-    let o = Command::new(&bench.bin)
-        .current_dir(&w.cwd)
-        .args(["chirp", "--duration-s", "0.5", "--out", "run.mcap"])
-        .env_clear()
-        .output()
-        .unwrap();
+    let o = output_locked(
+        Command::new(&bench.bin)
+            .current_dir(&w.cwd)
+            .args(["chirp", "--duration-s", "0.5", "--out", "run.mcap"])
+            .env_clear(),
+    )
+    .unwrap();
     ok(&o, "bench chirp --out run.mcap");
     assert!(w.cwd.join("run.mcap").is_file());
 }
@@ -333,7 +352,7 @@ fn the_bash_completion_script_is_valid_and_knows_every_command() {
     );
     let path = w.cwd.join("bench.bash");
     std::fs::write(&path, &script).unwrap();
-    match Command::new("bash").arg("-n").arg(&path).output() {
+    match output_locked(Command::new("bash").arg("-n").arg(&path)) {
         Ok(o) => assert!(
             o.status.success(),
             "bash -n: {}",
@@ -361,16 +380,19 @@ fn render_roff(roff: &[u8]) -> Option<String> {
         ("groff", &["-k", "-man", "-Tutf8", "-ww"][..]),
         ("man", &["-l", "-"][..]),
     ] {
-        let Ok(mut child) = Command::new(prog)
-            .args(args)
-            .env("MANPAGER", "cat")
-            .env("PAGER", "cat")
-            .env("MANWIDTH", "200")
-            .stdin(Stdio::piped())
-            .stdout(Stdio::piped())
-            .stderr(Stdio::piped())
-            .spawn()
-        else {
+        let spawned = {
+            let _g = SPAWN.lock().unwrap_or_else(|e| e.into_inner());
+            Command::new(prog)
+                .args(args)
+                .env("MANPAGER", "cat")
+                .env("PAGER", "cat")
+                .env("MANWIDTH", "200")
+                .stdin(Stdio::piped())
+                .stdout(Stdio::piped())
+                .stderr(Stdio::piped())
+                .spawn()
+        };
+        let Ok(mut child) = spawned else {
             continue;
         };
         child.stdin.take().unwrap().write_all(roff).unwrap();
@@ -400,9 +422,26 @@ fn the_man_page_renders_and_mentions_every_command() {
     match render_roff(&roff) {
         Some(page) => {
             // Rendering may hyphenate or embolden: compare plain words.
-            let plain: String = page
-                .chars()
+            // Drop grotty's overstrikes ("c\bc" bold, "_\bc" underline).
+            let mut plain_chars: Vec<char> = Vec::new();
+            for c in page.chars() {
+                if c == '\u{8}' {
+                    plain_chars.pop();
+                } else {
+                    plain_chars.push(c);
+                }
+            }
+            let plain: String = plain_chars
+                .into_iter()
                 .filter(|c| !c.is_control() || *c == '\n')
+                // groff -Tutf8 draws "-" as a hyphen or minus sign.
+                .map(|c| {
+                    if matches!(c, '\u{2010}' | '\u{2212}') {
+                        '-'
+                    } else {
+                        c
+                    }
+                })
                 .collect();
             for c in &cmds {
                 assert!(

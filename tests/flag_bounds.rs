@@ -638,8 +638,8 @@ fn values_in_the_wrong_unit_are_refused_with_a_hint() {
     for args in [
         ["--mass-asymmetry", "0.9"],
         ["--mass-asymmetry", "60"],
-        ["--operating-point-m", "0.05"],
         ["--operating-point-m", "50"],
+        ["--operating-point-m", "1000"],
     ] {
         let mut a = vec!["chirp", "--duration-s", "0.1", "--out", &out];
         a.extend(args);
