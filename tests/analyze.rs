@@ -320,6 +320,24 @@ fn bad_map_and_analyze_flags_are_refused_naming_the_flag() {
         ],
         "--localisation-at-pct",
     ));
+    // Too many curves or points: each flag has a count range too.
+    cases.push((
+        vec![
+            "--veering".into(),
+            "--veering-asymmetries".into(),
+            "0,0.01,0.02,0.03,0.04,0.05,0.06".into(),
+        ],
+        "--veering-asymmetries",
+    ));
+    let many: Vec<String> = (0..21).map(|i| (f64::from(i) * 0.5).to_string()).collect();
+    cases.push((
+        vec![
+            "--veering".into(),
+            "--localisation-at-pct".into(),
+            many.join(","),
+        ],
+        "--localisation-at-pct",
+    ));
     for (args, flag) in &cases {
         let mut full: Vec<&str> = vec!["map", "--config", ch5, "--png", "m.png", "--csv", "c.csv"];
         full.extend(args.iter().map(String::as_str));

@@ -394,7 +394,8 @@ pub(super) struct MapArgs {
     /// of --veering-asymmetries.
     #[arg(long)]
     veering: bool,
-    /// Asymmetries of the veering curves (fractions, comma-separated).
+    /// Asymmetries of the veering curves (fractions, comma-separated; 1 … 6
+    /// of them).
     #[arg(
         long,
         value_name = "X,X,…",
@@ -404,7 +405,7 @@ pub(super) struct MapArgs {
     )]
     veering_asymmetries: Vec<f64>,
     /// Operating points (% of L) at which to print the pair's mode-shape
-    /// localisation with --veering (comma-separated).
+    /// localisation with --veering (comma-separated; at most 20).
     #[arg(
         long,
         value_name = "PERCENT,…",
@@ -426,6 +427,11 @@ pub(super) struct MapArgs {
     #[arg(long)]
     json: bool,
 }
+
+/// Most curves of `--veering-asymmetries` (the plot's palette).
+pub const MAX_VEERING_CURVES: usize = 6;
+/// Most operating points of `--localisation-at-pct`.
+pub const MAX_LOCALISATION_POINTS: usize = 20;
 
 /// Largest number of points along one axis of the grid.
 pub const MAX_GRID_POINTS: usize = 401;
@@ -495,6 +501,18 @@ impl MapArgs {
         }
         if self.veering && self.veering_asymmetries.is_empty() {
             return Err("--veering-asymmetries: give at least one asymmetry".into());
+        }
+        if self.veering_asymmetries.len() > MAX_VEERING_CURVES {
+            return Err(format!(
+                "--veering-asymmetries: {} curves; at most {MAX_VEERING_CURVES} (one colour each in the plot)",
+                self.veering_asymmetries.len()
+            ));
+        }
+        if self.localisation_at_pct.len() > MAX_LOCALISATION_POINTS {
+            return Err(format!(
+                "--localisation-at-pct: {} points; at most {MAX_LOCALISATION_POINTS}",
+                self.localisation_at_pct.len()
+            ));
         }
         for v in &self.localisation_at_pct {
             if !(v.is_finite() && (0.0..=max_pct).contains(v)) {
