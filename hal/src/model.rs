@@ -223,12 +223,14 @@ plant.beam.youngs_modulus_pa, plant.parallelogram_stiffness_n_per_m";
 }
 
 /// Checks that `value` is finite and in `[lo, hi]` (`unit` for the
-/// message), with `why` the documented reason for the range.
+/// message), with `why` the documented reason for the range. `key` is
+/// only formatted on failure (the map validates tens of thousands of
+/// benches).
 ///
 /// # Errors
 /// [`ParamError`] naming `key`.
 pub fn within(
-    key: &str,
+    key: impl std::fmt::Display,
     value: f64,
     (lo, hi): (f64, f64),
     unit: &str,
@@ -236,13 +238,13 @@ pub fn within(
 ) -> Result<(), ParamError> {
     if !value.is_finite() {
         return Err(ParamError::new(
-            key,
+            key.to_string(),
             format!("must be a finite number, got {value}"),
         ));
     }
     if !(lo..=hi).contains(&value) {
         return Err(ParamError::new(
-            key,
+            key.to_string(),
             format!("{value:?} {unit} is outside [{lo:?}, {hi:?}] {unit}: {why}"),
         ));
     }
@@ -258,7 +260,14 @@ impl Sr4dofParams {
     /// # Errors
     /// The first offending key with the reason.
     pub fn validate(&self, prefix: &str) -> Result<(), ParamError> {
-        let k = |name: &str| format!("{prefix}.{name}");
+        // The dotted key, formatted only when a check fails.
+        struct Key<'a>(&'a str, &'a str);
+        impl std::fmt::Display for Key<'_> {
+            fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+                write!(f, "{}.{}", self.0, self.1)
+            }
+        }
+        let k = |name| Key(prefix, name);
         for (name, v) in [
             ("m1_kg", self.m1_kg),
             ("m2_kg", self.m2_kg),
@@ -266,14 +275,14 @@ impl Sr4dofParams {
             ("m4_kg", self.m4_kg),
             ("m5_kg", self.m5_kg),
         ] {
-            within(&k(name), v, ranges::MASS_KG, "kg", "0.1 g to 100 kg")?;
+            within(k(name), v, ranges::MASS_KG, "kg", "0.1 g to 100 kg")?;
         }
         for (name, v) in [
             ("k4_n_per_m", self.k4_n_per_m),
             ("k5_n_per_m", self.k5_n_per_m),
         ] {
             within(
-                &k(name),
+                k(name),
                 v,
                 ranges::STIFFNESS_N_PER_M,
                 "N/m",
@@ -282,21 +291,21 @@ impl Sr4dofParams {
         }
         let b = &self.beam;
         within(
-            &k("beam.length_m"),
+            k("beam.length_m"),
             b.length_m,
             ranges::BEAM_LENGTH_M,
             "m",
             "1 mm to 0.5 m",
         )?;
         within(
-            &k("beam.height_m"),
+            k("beam.height_m"),
             b.height_m,
             ranges::BEAM_HEIGHT_M,
             "m",
             "0.1 mm to 0.2 m",
         )?;
         within(
-            &k("beam.thickness_m"),
+            k("beam.thickness_m"),
             b.thickness_m,
             ranges::BEAM_THICKNESS_M,
             "m",
@@ -304,7 +313,7 @@ impl Sr4dofParams {
         )?;
         if b.thickness_m > 0.1 * b.length_m {
             return Err(ParamError::new(
-                k("beam.thickness_m"),
+                k("beam.thickness_m").to_string(),
                 format!(
                     "{} m is more than a tenth of {prefix}.beam.length_m = {} m: not a slender beam (24 E I / L³)",
                     b.thickness_m, b.length_m
@@ -312,7 +321,7 @@ impl Sr4dofParams {
             ));
         }
         within(
-            &k("beam.youngs_modulus_pa"),
+            k("beam.youngs_modulus_pa"),
             b.youngs_modulus_pa,
             ranges::YOUNGS_MODULUS_PA,
             "Pa",
@@ -320,7 +329,7 @@ impl Sr4dofParams {
         )?;
         match self.parallelogram_stiffness_n_per_m {
             Some(kp) => within(
-                &k("parallelogram_stiffness_n_per_m"),
+                k("parallelogram_stiffness_n_per_m"),
                 kp,
                 ranges::STIFFNESS_N_PER_M,
                 "N/m",
@@ -331,7 +340,7 @@ impl Sr4dofParams {
                 let (lo, hi) = ranges::STIFFNESS_N_PER_M;
                 if !(lo..=hi).contains(&kp) {
                     return Err(ParamError::new(
-                        k("beam"),
+                        k("beam").to_string(),
                         format!(
                             "24 E I / L³ from {p}.beam.length_m, {p}.beam.height_m, {p}.beam.thickness_m and {p}.beam.youngs_modulus_pa is {kp:.4e} N/m, outside [{lo:?}, {hi:?}] N/m (1 N/m to 10 MN/m)",
                             p = prefix
@@ -342,7 +351,7 @@ impl Sr4dofParams {
         }
         if !self.operating_point_m.is_finite() {
             return Err(ParamError::new(
-                k("operating_point_m"),
+                k("operating_point_m").to_string(),
                 format!("must be a finite number, got {}", self.operating_point_m),
             ));
         }
@@ -350,7 +359,7 @@ impl Sr4dofParams {
         // are far outside the model (the thesis' bench goes to ~10 %).
         if self.operating_point_m.abs() > ranges::OPERATING_POINT_OF_L * b.length_m {
             return Err(ParamError::new(
-                k("operating_point_m"),
+                k("operating_point_m").to_string(),
                 format!(
                     "|{}| m is beyond 20 % of the beam length {prefix}.beam.length_m = {} m: outside the model's validity",
                     self.operating_point_m, b.length_m
@@ -358,7 +367,7 @@ impl Sr4dofParams {
             ));
         }
         within(
-            &k("mass_asymmetry"),
+            k("mass_asymmetry"),
             self.mass_asymmetry,
             ranges::MASS_ASYMMETRY,
             "",
@@ -366,15 +375,18 @@ impl Sr4dofParams {
         )?;
         if let Some(d) = &self.disturbance {
             within(
-                &k("disturbance.rms_n"),
+                k("disturbance.rms_n"),
                 d.rms_n,
                 ranges::DISTURBANCE_RMS_N,
                 "N",
                 "0 to a tenth of the coil's 111 N peak force",
             )?;
-            for i in 0..2 {
+            for (i, name) in ["disturbance.band_hz[0]", "disturbance.band_hz[1]"]
+                .into_iter()
+                .enumerate()
+            {
                 within(
-                    &k(&format!("disturbance.band_hz[{i}]")),
+                    k(name),
                     d.band_hz[i],
                     (ranges::DISTURBANCE_MIN_HZ, f64::MAX),
                     "Hz",
@@ -383,7 +395,7 @@ impl Sr4dofParams {
             }
             if d.band_hz[0] >= d.band_hz[1] {
                 return Err(ParamError::new(
-                    k("disturbance.band_hz[0]"),
+                    k("disturbance.band_hz[0]").to_string(),
                     format!(
                         "low edge {} Hz must be below the high edge {prefix}.disturbance.band_hz[1] = {} Hz",
                         d.band_hz[0], d.band_hz[1]
@@ -398,7 +410,7 @@ impl Sr4dofParams {
             let (lo, hi) = ranges::ZETA;
             if !z.is_finite() || z < lo || z >= hi {
                 return Err(ParamError::new(
-                    k(name),
+                    k(name).to_string(),
                     format!("{z:?} is outside [0, 1): a damping ratio of a lightly damped flexure"),
                 ));
             }
@@ -417,6 +429,54 @@ impl Sr4dofParams {
         self.parallelogram_stiffness_n_per_m
             .unwrap_or_else(|| self.beam.parallelogram_stiffness_n_per_m())
     }
+
+    /// The mass matrix M, stiffness matrix K and generalised input `q` of
+    /// Eq. (2-5) over `[x1, y1, y2, y3]` (M in kg, K in N/m, q
+    /// dimensionless: generalised force per newton of actuator force),
+    /// with `m2 = m2_kg·(1 + mass_asymmetry)` and all four parallelogram
+    /// stiffnesses `k12 = k24 = k13 = k35` equal to
+    /// [`parallelogram_stiffness`](Self::parallelogram_stiffness). Not
+    /// validated: see [`validate`](Self::validate).
+    pub fn matrices(&self) -> Matrices {
+        let a = self.alpha();
+        let (m1, m3, m4, m5) = (self.m1_kg, self.m3_kg, self.m4_kg, self.m5_kg);
+        let m2 = self.m2_kg * (1.0 + self.mass_asymmetry);
+        let (k4, k5) = (self.k4_n_per_m, self.k5_n_per_m);
+        let kp = self.parallelogram_stiffness();
+        let (k12, k24, k13, k35) = (kp, kp, kp, kp);
+        let a2 = a * a;
+
+        #[rustfmt::skip]
+        let mass = Matrix4::new(
+            m1 + m2 + m3 + m4 + m5, a * (m2 + m4 - m3 - m5), -a * (m2 + 2.0 * m4), a * (m3 + 2.0 * m5),
+            a * (m2 + m4 - m3 - m5), m1 + a2 * (m2 + m3 + m4 + m5), -a2 * (m2 + 2.0 * m4), -a2 * (m3 + 2.0 * m5),
+            -a * (m2 + 2.0 * m4), -a2 * (m2 + 2.0 * m4), m2 + a2 * m2 + 4.0 * a2 * m4, 0.0,
+            a * (m3 + 2.0 * m5), -a2 * (m3 + 2.0 * m5), 0.0, m3 + a2 * m3 + 4.0 * a2 * m5,
+        );
+        #[rustfmt::skip]
+        let stiffness = Matrix4::new(
+            k4 + k5, a * (k4 - k5), -2.0 * a * k4, 2.0 * a * k5,
+            a * (k4 - k5), k12 + k13 + a2 * (k4 + k5), -2.0 * a2 * k4 - k12, -2.0 * a2 * k5 - k13,
+            -2.0 * a * k4, -2.0 * a2 * k4 - k12, 4.0 * a2 * k4 + k24 + k12, 0.0,
+            2.0 * a * k5, -2.0 * a2 * k5 - k13, 0.0, 4.0 * a2 * k5 + k13 + k35,
+        );
+        Matrices {
+            mass,
+            stiffness,
+            input: Vector4::new(1.0, a, -2.0 * a, 0.0),
+        }
+    }
+}
+
+/// The matrices of Eq. (2-5) ([`Sr4dofParams::matrices`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Matrices {
+    /// Mass matrix M, kg.
+    pub mass: Matrix4<f64>,
+    /// Stiffness matrix K, N/m.
+    pub stiffness: Matrix4<f64>,
+    /// Generalised force per unit actuator force, `q = [1, α, −2α, 0]ᵀ`.
+    pub input: Vector4<f64>,
 }
 
 /// One mode of the undamped model.
@@ -538,28 +598,11 @@ impl Sr4dof {
     pub fn new(params: Sr4dofParams) -> Result<Self, ParamError> {
         params.validate("plant")?;
         let a = params.alpha();
-        let (m1, m3, m4, m5) = (params.m1_kg, params.m3_kg, params.m4_kg, params.m5_kg);
-        let m2 = params.m2_kg * (1.0 + params.mass_asymmetry);
-        let (k4, k5) = (params.k4_n_per_m, params.k5_n_per_m);
-        let kp = params.parallelogram_stiffness();
-        let (k12, k24, k13, k35) = (kp, kp, kp, kp);
-        let a2 = a * a;
-
-        #[rustfmt::skip]
-        let mass = Matrix4::new(
-            m1 + m2 + m3 + m4 + m5, a * (m2 + m4 - m3 - m5), -a * (m2 + 2.0 * m4), a * (m3 + 2.0 * m5),
-            a * (m2 + m4 - m3 - m5), m1 + a2 * (m2 + m3 + m4 + m5), -a2 * (m2 + 2.0 * m4), -a2 * (m3 + 2.0 * m5),
-            -a * (m2 + 2.0 * m4), -a2 * (m2 + 2.0 * m4), m2 + a2 * m2 + 4.0 * a2 * m4, 0.0,
-            a * (m3 + 2.0 * m5), -a2 * (m3 + 2.0 * m5), 0.0, m3 + a2 * m3 + 4.0 * a2 * m5,
-        );
-        #[rustfmt::skip]
-        let stiffness = Matrix4::new(
-            k4 + k5, a * (k4 - k5), -2.0 * a * k4, 2.0 * a * k5,
-            a * (k4 - k5), k12 + k13 + a2 * (k4 + k5), -2.0 * a2 * k4 - k12, -2.0 * a2 * k5 - k13,
-            -2.0 * a * k4, -2.0 * a2 * k4 - k12, 4.0 * a2 * k4 + k24 + k12, 0.0,
-            2.0 * a * k5, -2.0 * a2 * k5 - k13, 0.0, 4.0 * a2 * k5 + k13 + k35,
-        );
-        let input = Vector4::new(1.0, a, -2.0 * a, 0.0);
+        let Matrices {
+            mass,
+            stiffness,
+            input,
+        } = params.matrices();
 
         let model_err =
             |what: &str| ParamError::new("plant", format!("{what} (from {})", ranges::MODEL_KEYS));
@@ -638,12 +681,10 @@ impl Sr4dof {
             zeros: Vec::new(),
             undamped_zeros: Vec::new(),
         };
-        model.zeros = model
-            .compute_zeros()
-            .ok_or_else(|| model_err("the zeros of the model do not converge"))?;
         model.undamped_zeros = model
             .compute_undamped_zeros()
-            .ok_or_else(|| model_err("the undamped zeros of the model do not converge"))?;
+            .ok_or_else(|| model_err("the zeros of the model do not converge"))?;
+        model.zeros = model.compute_zeros();
         Ok(model)
     }
 
@@ -734,14 +775,21 @@ impl Sr4dof {
     pub fn undamped_numerator(&self) -> [f64; 4] {
         let mut n = [0.0; 4];
         for (i, mi) in self.modes.iter().enumerate() {
-            let mut p = vec![mi.residue];
+            // Π_{j≠i} (u + ωj²) = u³ + e1 u² + e2 u + e3 with e the
+            // elementary symmetric polynomials of the other three ωj².
+            let mut p = [1.0, 0.0, 0.0, 0.0];
+            let mut deg = 0;
             for (j, mj) in self.modes.iter().enumerate() {
                 if i != j {
-                    p = poly_mul(&p, &[1.0, mj.omega_rad_s * mj.omega_rad_s]);
+                    let w2 = mj.omega_rad_s * mj.omega_rad_s;
+                    deg += 1;
+                    for k in (1..=deg).rev() {
+                        p[k] += w2 * p[k - 1];
+                    }
                 }
             }
             for (acc, c) in n.iter_mut().zip(p) {
-                *acc += c;
+                *acc += mi.residue * c;
             }
         }
         n
@@ -758,8 +806,8 @@ impl Sr4dof {
     }
 
     /// Roots `u = s²` of the undamped numerator, classified (Chapter 3).
-    pub fn undamped_zeros(&self) -> Vec<UndampedZero> {
-        self.undamped_zeros.clone()
+    pub fn undamped_zeros(&self) -> &[UndampedZero] {
+        &self.undamped_zeros
     }
 
     fn compute_undamped_zeros(&self) -> Option<Vec<UndampedZero>> {
@@ -771,45 +819,52 @@ impl Sr4dof {
             .enumerate()
             .map(|(k, c)| c * scale.powi(3 - k as i32))
             .collect();
-        let mut out: Vec<UndampedZero> = poly_roots(&scaled)?
-            .into_iter()
-            .map(|v| v * scale)
-            .map(|u| {
-                let kind = ZeroType::of_u(u);
-                UndampedZero { u, kind }
-            })
-            .collect();
+        let mut out: Vec<UndampedZero> =
+            poly_roots_cubic(&[scaled[0], scaled[1], scaled[2], scaled[3]])?
+                .into_iter()
+                .map(|v| v * scale)
+                .map(|u| {
+                    let kind = ZeroType::of_u(u);
+                    UndampedZero { u, kind }
+                })
+                .collect();
         out.sort_by(|a, b| a.u.norm().total_cmp(&b.u.norm()));
         Some(out)
     }
 
     /// Zeros in `s` (rad/s) of the damped force→x1 transfer function
-    /// `G(s) = Σ βᵢ / (s² + 2ζᵢωᵢ s + ωᵢ²)`: the roots of its degree-6
-    /// numerator, ascending in magnitude.
-    pub fn zeros(&self) -> Vec<Complex<f64>> {
-        self.zeros.clone()
+    /// `G(s) = Σ βᵢ / (s² + 2ζᵢωᵢ s + ωᵢ²)`, ascending in magnitude.
+    ///
+    /// With Rayleigh damping `C = aM + bK` each modal factor is
+    /// `s² + (a + bωᵢ²)s + ωᵢ² = (1 + bs)(λ + ωᵢ²)` with
+    /// `λ = (s² + as)/(1 + bs)`, so the degree-6 numerator is
+    /// `(1 + bs)³ N(λ)` with `N(u)` the undamped numerator of Eq. (2-7):
+    /// each root `u` of `N` gives two damped zeros, the roots of
+    /// `s² + (a − bu)s − u = 0` (for `a = b = 0`, `s = ±√u`).
+    pub fn zeros(&self) -> &[Complex<f64>] {
+        &self.zeros
     }
 
-    fn compute_zeros(&self) -> Option<Vec<Complex<f64>>> {
-        let scale = self.frequency_scale();
-        // In σ = s/scale each factor is σ² + 2ζ(ω/scale)σ + (ω/scale)².
-        let mut num = vec![0.0; 7];
-        for (i, mi) in self.modes.iter().enumerate() {
-            let mut p = vec![mi.residue / (scale * scale)];
-            for (j, mj) in self.modes.iter().enumerate() {
-                if i != j {
-                    let w = mj.omega_rad_s / scale;
-                    p = poly_mul(&p, &[1.0, 2.0 * mj.zeta * w, w * w]);
-                }
-            }
-            let off = num.len() - p.len();
-            for (k, c) in p.into_iter().enumerate() {
-                num[off + k] += c;
-            }
+    fn compute_zeros(&self) -> Vec<Complex<f64>> {
+        let (a, b) = self.rayleigh;
+        let mut z: Vec<Complex<f64>> = Vec::with_capacity(6);
+        for root in &self.undamped_zeros {
+            let u = root.u;
+            let p = Complex::new(a, 0.0) - u * b;
+            let d = (p * p + u * 4.0).sqrt();
+            // The larger root without cancellation, the other from the
+            // product of the roots (−u).
+            let s1 = if (-p).re * d.re + (-p).im * d.im >= 0.0 {
+                (-p + d) * 0.5
+            } else {
+                (-p - d) * 0.5
+            };
+            let s2 = if s1.norm() > 0.0 { -u / s1 } else { -p - s1 };
+            z.push(s1);
+            z.push(s2);
         }
-        let mut z: Vec<Complex<f64>> = poly_roots(&num)?.into_iter().map(|r| r * scale).collect();
         z.sort_by(|a, b| a.norm().total_cmp(&b.norm()));
-        Some(z)
+        z
     }
 
     /// `true` if the model's transfer function has CMP-CNMP zeros: complex
@@ -835,6 +890,29 @@ pub fn poly_mul(a: &[f64], b: &[f64]) -> Vec<f64> {
         }
     }
     out
+}
+
+/// Roots of a cubic (coefficients highest power first) as the eigenvalues
+/// of its 3×3 companion matrix on the stack: the same method as
+/// [`poly_roots`] without a heap allocation per matrix (the map solves
+/// tens of thousands). A zero leading coefficient falls back to
+/// [`poly_roots`].
+pub fn poly_roots_cubic(c: &[f64; 4]) -> Option<Vec<Complex<f64>>> {
+    if c[0] == 0.0 {
+        return poly_roots(c);
+    }
+    let mut comp = nalgebra::Matrix3::<f64>::zeros();
+    for j in 0..3 {
+        comp[(0, j)] = -c[j + 1] / c[0];
+    }
+    for i in 1..3 {
+        comp[(i, i - 1)] = 1.0;
+    }
+    if comp.iter().any(|v| !v.is_finite()) {
+        return None;
+    }
+    let schur = nalgebra::Schur::try_new(comp, f64::EPSILON, MAX_EIGEN_ITERATIONS)?;
+    Some(schur.complex_eigenvalues().iter().copied().collect())
 }
 
 /// Roots of a polynomial (coefficients highest power first) as the

@@ -2,8 +2,9 @@
 //! 5-2) and the curve veering of the closely spaced pair (2.3, Fig 2-6,
 //! Chapter 4).
 
-use super::modal::{closely_spaced_pair, damped_zeros, has_cmp_cnmp, modal_terms, undamped_zeros};
+use super::modal::{closely_spaced_pair, modal_terms, model_cnmp_damped, model_cnmp_undamped};
 use bench_hal::model::{ParamError, Sr4dof, Sr4dofParams};
+use rayon::prelude::*;
 use serde::Serialize;
 
 /// One cell of the map.
@@ -40,30 +41,52 @@ pub fn model_at(
     Sr4dof::new(p)
 }
 
-/// The map on the grid `operating_points_m × mass_asymmetries`, row-major
-/// with the asymmetry varying slowest.
+/// One cell of the map: the model of `base` at `operating_point_m` and
+/// `mass_asymmetry` (eigen-decomposition, residues, damped and undamped
+/// zeros and their types), reduced to the verdicts.
 ///
 /// # Errors
-/// The first cell's [`ParamError`] outside the model's range.
+/// [`ParamError`] as [`model_at`].
+pub fn map_cell(
+    base: &Sr4dofParams,
+    operating_point_m: f64,
+    mass_asymmetry: f64,
+) -> Result<MapCell, ParamError> {
+    let model = model_at(base, operating_point_m, mass_asymmetry)?;
+    Ok(MapCell {
+        operating_point_m,
+        mass_asymmetry,
+        cnmp: model_cnmp_undamped(&model),
+        cnmp_damped: model_cnmp_damped(&model),
+        discriminant: model.cnmp_discriminant(),
+    })
+}
+
+/// The map on the grid `operating_points_m × mass_asymmetries`, row-major
+/// with the asymmetry varying slowest. The cells are computed in parallel
+/// on rayon's global pool (one thread per core); the result does not
+/// depend on the number of threads.
+///
+/// # Errors
+/// The [`ParamError`] of the first cell (in row-major order) outside the
+/// model's range.
 pub fn cnmp_map(
     base: &Sr4dofParams,
     operating_points_m: &[f64],
     mass_asymmetries: &[f64],
 ) -> Result<Vec<MapCell>, ParamError> {
-    let mut out = Vec::with_capacity(operating_points_m.len() * mass_asymmetries.len());
-    for &dm in mass_asymmetries {
-        for &op in operating_points_m {
-            let model = model_at(base, op, dm)?;
-            out.push(MapCell {
-                operating_point_m: op,
-                mass_asymmetry: dm,
-                cnmp: has_cmp_cnmp(&undamped_zeros(&model)),
-                cnmp_damped: has_cmp_cnmp(&damped_zeros(&model)),
-                discriminant: model.cnmp_discriminant(),
-            });
-        }
-    }
-    Ok(out)
+    let n_op = operating_points_m.len();
+    let cells: Vec<Result<MapCell, ParamError>> = (0..n_op * mass_asymmetries.len())
+        .into_par_iter()
+        .map(|i| {
+            map_cell(
+                base,
+                operating_points_m[i % n_op],
+                mass_asymmetries[i / n_op],
+            )
+        })
+        .collect();
+    cells.into_iter().collect()
 }
 
 /// One operating point of a veering curve.
@@ -127,8 +150,8 @@ fn veering_point(base: &Sr4dofParams, op: f64, dm: f64) -> Result<VeeringPoint, 
         frequency_v_hz: terms[v].frequency_hz,
         localisation_u: localisation(&terms[u].shape),
         localisation_v: localisation(&terms[v].shape),
-        cnmp: has_cmp_cnmp(&undamped_zeros(&model)),
-        cnmp_damped: has_cmp_cnmp(&damped_zeros(&model)),
+        cnmp: model_cnmp_undamped(&model),
+        cnmp_damped: model_cnmp_damped(&model),
     })
 }
 
@@ -232,6 +255,37 @@ mod tests {
             .join("bench-config")
             .join(file);
         BenchConfig::load(&path).unwrap().plant
+    }
+
+    #[test]
+    fn parallel_map_cells_equal_the_full_analysis_of_each_bench() {
+        // The map's lean verdicts (no zero lists, cells on rayon's pool)
+        // against `analyze` of the same bench, cell by cell, on a grid
+        // that crosses both CNMP boundaries and includes Y1o = 0 and
+        // Δm23 = 0 (pole-zero cancellations), and on one thread.
+        let p = base("sr4dof-ch5.toml");
+        let l = p.beam.length_m;
+        let ops = linspace(0.0, 0.10 * l, 41);
+        let dms = linspace(-0.10, 0.10, 21);
+        let cells = cnmp_map(&p, &ops, &dms).unwrap();
+        assert_eq!(cells.len(), 41 * 21);
+        let mut seen = (0, 0);
+        for (i, c) in cells.iter().enumerate() {
+            assert_eq!(c.operating_point_m, ops[i % 41]);
+            assert_eq!(c.mass_asymmetry, dms[i / 41]);
+            let a = crate::analysis::analyze(
+                &model_at(&p, c.operating_point_m, c.mass_asymmetry).unwrap(),
+            );
+            assert_eq!((c.cnmp, c.cnmp_damped), (a.cnmp, a.cnmp_damped), "{c:?}");
+            seen.0 += usize::from(c.cnmp);
+            seen.1 += usize::from(c.cnmp_damped);
+        }
+        assert!(seen.0 > 0 && seen.1 > 0 && seen.0 < cells.len(), "{seen:?}");
+        let one = rayon::ThreadPoolBuilder::new()
+            .num_threads(1)
+            .build()
+            .unwrap();
+        assert_eq!(one.install(|| cnmp_map(&p, &ops, &dms).unwrap()), cells);
     }
 
     #[test]

@@ -253,19 +253,43 @@ pub const MIRROR_TOLERANCE: f64 = 0.1;
 /// CMP partner); any other left-half-plane zero is MMP (an undamped
 /// imaginary-axis pair moved slightly left by damping).
 pub fn damped_zeros(model: &Sr4dof) -> Vec<TypedZero> {
-    type_damped_zeros(&model.zeros())
+    type_damped_zeros(model.zeros())
+}
+
+/// The type of a right-half-plane zero `s` (rad/s) of a damped transfer
+/// function: CMP-CNMP if complex (`|Im s| > √REAL_TOLERANCE·|s|`, looser
+/// than for `u = s²` since `s = √u` halves the digits), else RMP-RNMP.
+pub fn nmp_kind(s: Complex<f64>) -> ZeroType {
+    if s.im.abs() > ZeroType::REAL_TOLERANCE.sqrt() * s.norm() {
+        ZeroType::CmpCnmp
+    } else {
+        ZeroType::RmpRnmp
+    }
+}
+
+/// `has_cmp_cnmp(&undamped_zeros(model))` without building the list (the
+/// map's inner loop).
+pub fn model_cnmp_undamped(model: &Sr4dof) -> bool {
+    model
+        .undamped_zeros()
+        .iter()
+        .any(|z| z.kind == ZeroType::CmpCnmp)
+}
+
+/// `has_cmp_cnmp(&damped_zeros(model))` without building the list: a
+/// left-half-plane zero is typed CMP-CNMP only as the mirror partner of a
+/// right-half-plane one ([`type_damped_zeros`]), so this is "some
+/// right-half-plane zero is complex".
+pub fn model_cnmp_damped(model: &Sr4dof) -> bool {
+    model
+        .zeros()
+        .iter()
+        .any(|&s| s.re > 0.0 && nmp_kind(s) == ZeroType::CmpCnmp)
 }
 
 /// [`damped_zeros`] for any list of zeros (rad/s) of a real, lightly
 /// damped transfer function.
 pub fn type_damped_zeros(zeros: &[Complex<f64>]) -> Vec<TypedZero> {
-    let nmp_kind = |s: Complex<f64>| {
-        if s.im.abs() > ZeroType::REAL_TOLERANCE.sqrt() * s.norm() {
-            ZeroType::CmpCnmp
-        } else {
-            ZeroType::RmpRnmp
-        }
-    };
     zeros
         .iter()
         .map(|&s| {
