@@ -460,10 +460,14 @@ fn twenty_serial_daemon_jobs_start_cleanly() {
             r["result"]["link"]
         );
         // Before the one loop, the backlog of the pause between jobs came
-        // out as a gap of 300-400 samples at tick 1; now only what this
-        // VM's scheduling stalls lose (a sample or two) may be missing.
+        // out as a gap of 300-400 samples at tick 1 (the 50-130 ms pause at
+        // 5 kHz). Now only what scheduling stalls lose may be missing: a
+        // sample or two on a quiet VM, 8 seen once with the whole test
+        // suite running on both cores. The bound sits well below the
+        // regression and well above the stalls (no timing assertion: the
+        // backlog is a count of the pause's samples, not a latency).
         let missed = r["result"]["link"]["missed_samples"].as_u64().unwrap();
-        assert!(missed <= 3, "job {i}: {missed} samples missed: {r}");
+        assert!(missed < 100, "job {i}: {missed} samples missed: {r}");
     }
 }
 
