@@ -1,0 +1,13 @@
+//! `bench campaign`: the thesis' Fig 5-10 experiment over a grid of
+//! operating point × mass asymmetry, one chirp and one verdict per cell,
+//! resumable after a crash.
+//!
+//! - [`file`]: the campaign file (bench config, grid, chirp overrides,
+//!   settle time, trim mass), its validation, the cells, the operator's
+//!   serpentine order and the per-cell seeds.
+//! - [`journal`]: the append-only, fsync'd, checksummed journal that makes
+//!   a campaign survive SIGKILL and power loss without losing a completed
+//!   cell or counting a half-finished one.
+
+pub mod file;
+pub mod journal;
