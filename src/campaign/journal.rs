@@ -344,7 +344,7 @@ mod tests {
             operating_point_m: 0.001 * cell as f64,
             mass_asymmetry: -0.02,
             seed: 7 + cell as u64,
-            verdict: Some(cell % 2 == 0),
+            verdict: Some(cell.is_multiple_of(2)),
             reason: None,
             files: vec![FileSum {
                 path: format!("cells/{cell}/chirp.mcap"),
