@@ -216,6 +216,20 @@ impl Campaign {
     /// # Errors
     /// As [`Self::load`].
     pub fn from_text(path: &Path, text: String) -> Result<Self, CampaignError> {
+        Self::from_text_with_config(path, text, None)
+    }
+
+    /// [`Self::from_text`] with the bench config read from `config_file`
+    /// instead of the file the campaign names (a campaign directory's
+    /// copy).
+    ///
+    /// # Errors
+    /// As [`Self::load`].
+    pub fn from_text_with_config(
+        path: &Path,
+        text: String,
+        config_file: Option<&Path>,
+    ) -> Result<Self, CampaignError> {
         let invalid = |key: &str, reason: String| CampaignError::Invalid {
             path: path.to_path_buf(),
             key: key.to_string(),
@@ -246,7 +260,9 @@ impl Campaign {
             ));
         }
         let dir = path.parent().unwrap_or(Path::new("."));
-        let config_path = if spec.config.is_absolute() {
+        let config_path = if let Some(p) = config_file {
+            p.to_path_buf()
+        } else if spec.config.is_absolute() {
             spec.config.clone()
         } else {
             dir.join(&spec.config)

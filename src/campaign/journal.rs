@@ -52,6 +52,13 @@ pub enum Entry {
         campaign_sha256: String,
         /// SHA-256 of the bench config's text, hex.
         config_sha256: String,
+        /// The campaign file's text (to say what changed on a refused
+        /// resume).
+        #[serde(default)]
+        campaign_text: String,
+        /// The bench config's text.
+        #[serde(default)]
+        config_text: String,
         /// Number of cells of the grid.
         cells: usize,
         /// When the campaign was created, UTC (RFC 3339).
@@ -333,6 +340,8 @@ mod tests {
             version: JOURNAL_VERSION,
             campaign_sha256: sha256_hex(b"campaign"),
             config_sha256: sha256_hex(b"config"),
+            campaign_text: "seed = 1\n".into(),
+            config_text: "[plant]\nm1_kg = 0.1\n".into(),
             cells: 3,
             created_utc: "2026-11-22T10:00:00Z".into(),
         }

@@ -11,3 +11,4 @@
 
 pub mod file;
 pub mod journal;
+pub mod run;

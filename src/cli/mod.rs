@@ -18,6 +18,7 @@
 //! tree, the exit statuses and what the commands share.
 
 mod analyze;
+mod campaign;
 mod chirp;
 mod config_cmd;
 mod control;
@@ -33,6 +34,7 @@ use bench::config::{BenchConfig, ConfigError};
 use bench::error::RunError;
 use bench::jobs::request::RequestError;
 use bench::outputs::{claim_recording, Existing, Origin, OutputPlan};
+use campaign::{campaign, CampaignCommand};
 use chirp::{chirp, ChirpArgs};
 use clap::{Parser, Subcommand};
 use config_cmd::{config_command, ConfigCommand};
@@ -85,6 +87,12 @@ enum Command {
     /// asymmetry (thesis Fig 2-5), with measured verdicts overlaid; or,
     /// with --veering, the closely spaced pair against operating point.
     Map(MapArgs),
+    /// Run the thesis' Fig 5-10 experiment over a grid of operating point ×
+    /// mass asymmetry: one chirp and one verdict per cell, on the
+    /// simulator in parallel, journaled so a killed run resumes where it
+    /// stopped; the measured map against the model's.
+    #[command(subcommand)]
+    Campaign(CampaignCommand),
     /// The built-in bench description: print it as a commented TOML file
     /// to start from, or check a file.
     #[command(subcommand)]
@@ -155,6 +163,7 @@ pub fn main() -> ExitCode {
         Command::Recover(args) => recover(args),
         Command::Analyze(args) => analyze(args),
         Command::Map(args) => map(args),
+        Command::Campaign(cmd) => campaign(cmd, stop),
         Command::Config(cmd) => config_command(cmd),
         Command::Completions(args) => completions(&args),
         Command::Man(args) => man(&args),

@@ -1,0 +1,817 @@
+//! Running a campaign on the simulator: the campaign directory, the cells
+//! in parallel, the journal after each cell, resuming, and the results
+//! (`cells.csv`, the map, the agreement with the model).
+//!
+//! # The campaign directory
+//!
+//! ```text
+//! DIR/campaign.toml        the campaign file as it was at `run` (verbatim)
+//! DIR/bench.toml           the bench config as it was at `run` (verbatim)
+//! DIR/origin.json          where the two came from (absolute paths)
+//! DIR/journal.jsonl        the journal (see `journal`)
+//! DIR/cells/NNN/           one directory per cell (NNN = cell index):
+//!     chirp.mcap, frf.csv, bode.png, summary.json
+//! DIR/cells.csv            one row per cell (written after every run)
+//! DIR/map.png              measured verdicts on the model's map
+//! DIR/summary.json         the campaign summary
+//! ```
+//!
+//! A cell is done when its `done` journal entry is durable: that entry is
+//! appended only after the cell's four files are complete and synced, and
+//! carries their SHA-256 checksums. A cell directory without one is
+//! removed and the cell run again from scratch.
+
+use super::file::{changed_keys, Campaign, Cell};
+use super::journal::{self, file_sum, sha256_hex, Entry, Journal, JournalError, ReadJournal};
+use crate::analysis::map::{cnmp_map, linspace, model_at, MapCell};
+use crate::analysis::modal::model_cnmp_damped;
+use crate::analysis::plot::{write_map_png, MeasuredPoint};
+use crate::jobs::chirp::{chirp_outputs, run_chirp, ChirpOptions, ChirpSummary};
+use crate::outputs::{write_atomically, Existing};
+use serde::{Deserialize, Serialize};
+use std::fs::{self, File};
+use std::io::{self, Write};
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+use std::sync::{Arc, Mutex};
+
+/// The copy of the campaign file in a campaign directory.
+pub const CAMPAIGN_COPY: &str = "campaign.toml";
+/// The copy of the bench config in a campaign directory.
+pub const CONFIG_COPY: &str = "bench.toml";
+/// Where the copies came from.
+pub const ORIGIN_FILE: &str = "origin.json";
+/// Per-cell results.
+pub const CELLS_CSV: &str = "cells.csv";
+/// The map.
+pub const MAP_PNG: &str = "map.png";
+/// The campaign summary.
+pub const SUMMARY_JSON: &str = "summary.json";
+
+/// Errors of a campaign run.
+#[derive(Debug, thiserror::Error)]
+pub enum CampaignRunError {
+    /// Bad input (exit 2): the message names the argument or file.
+    #[error("{0}")]
+    BadInput(String),
+    /// The journal failed.
+    #[error(transparent)]
+    Journal(#[from] JournalError),
+    /// An output could not be written.
+    #[error("{}: {source}", path.display())]
+    Io {
+        /// The file or directory.
+        path: PathBuf,
+        /// The OS error.
+        source: io::Error,
+    },
+    /// A cell's run failed (not a verdict: the chirp itself).
+    #[error("cell {cell} ({operating_point_m} m, Δm23 = {mass_asymmetry}): {reason}")]
+    Cell {
+        /// Cell index.
+        cell: usize,
+        /// Operating point, m.
+        operating_point_m: f64,
+        /// Mass asymmetry.
+        mass_asymmetry: f64,
+        /// What failed.
+        reason: String,
+    },
+    /// Stopped by SIGINT/SIGTERM; every completed cell is in the journal.
+    #[error("stopped after {done} of {cells} cells; `bench campaign resume {}` goes on", dir.display())]
+    Stopped {
+        /// The campaign directory.
+        dir: PathBuf,
+        /// Cells done.
+        done: usize,
+        /// Cells in all.
+        cells: usize,
+    },
+}
+
+fn io_at(path: &Path) -> impl FnOnce(io::Error) -> CampaignRunError + '_ {
+    move |source| CampaignRunError::Io {
+        path: path.to_path_buf(),
+        source,
+    }
+}
+
+/// Where a campaign's files came from (`origin.json`).
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct Origin {
+    /// The campaign file given to `run`, absolute.
+    pub campaign_file: PathBuf,
+    /// The bench config it named, absolute.
+    pub config_file: PathBuf,
+}
+
+/// One row of `cells.csv` and of the summary.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct CellResult {
+    /// Cell index (row-major, asymmetry slowest).
+    pub index: usize,
+    /// Operating point Y1o, m.
+    pub operating_point_m: f64,
+    /// Mass asymmetry Δm23.
+    pub mass_asymmetry: f64,
+    /// `done`, `skipped` or `pending`.
+    pub status: &'static str,
+    /// Measured verdict (`None`: undecided or not run).
+    pub verdict: Option<bool>,
+    /// Why undecided, or why the two measured tests disagree.
+    pub reason: Option<String>,
+    /// The damped model's verdict at this cell (CMP-CNMP zeros).
+    pub model_cnmp: bool,
+    /// Simulator seed.
+    pub seed: u64,
+    /// The cell's directory, relative to the campaign directory.
+    pub dir: String,
+}
+
+/// The campaign summary (`summary.json`, `--json`).
+#[derive(Debug, Clone, Serialize)]
+pub struct CampaignSummary {
+    /// The campaign directory, absolute.
+    pub dir: PathBuf,
+    /// Cells in the grid.
+    pub cells: usize,
+    /// Cells done.
+    pub done: usize,
+    /// Cells skipped by the operator.
+    pub skipped: usize,
+    /// Cells not yet run.
+    pub pending: usize,
+    /// Done cells with a verdict.
+    pub decided: usize,
+    /// Decided cells whose verdict equals the model's.
+    pub agree: usize,
+    /// Decided cells whose verdict differs from the model's.
+    pub disagreements: Vec<CellResult>,
+    /// Every cell.
+    pub results: Vec<CellResult>,
+    /// `cells.csv`, absolute.
+    pub cells_csv: PathBuf,
+    /// The map PNG, absolute (absent until a cell is done).
+    pub map_png: Option<PathBuf>,
+}
+
+/// The directory of cell `index`, relative to the campaign directory.
+pub fn cell_dir(index: usize) -> String {
+    format!("cells/{index:03}")
+}
+
+/// The files of a done cell, relative to its directory.
+pub const CELL_FILES: [&str; 4] = ["chirp.mcap", "frf.csv", "bode.png", "summary.json"];
+
+/// Checks that `dir` can hold a new campaign: it does not exist (its
+/// parent is writable) or is an empty directory.
+///
+/// # Errors
+/// [`CampaignRunError::BadInput`] naming `--out` and the reason.
+pub fn check_new_dir(dir: &Path) -> Result<(), CampaignRunError> {
+    let bad = |why: String| CampaignRunError::BadInput(format!("--out {}: {why}", dir.display()));
+    match fs::symlink_metadata(dir) {
+        Ok(m) if !m.is_dir() => Err(bad("exists and is not a directory".into())),
+        Ok(_) => match fs::read_dir(dir) {
+            Ok(mut it) => {
+                if it.next().is_some() {
+                    Err(bad(
+                        "is not empty: a campaign never overwrites (use `bench campaign resume` for a campaign directory)"
+                            .into(),
+                    ))
+                } else {
+                    Ok(())
+                }
+            }
+            Err(e) => Err(bad(format!("cannot be read: {e}"))),
+        },
+        Err(e) if e.kind() == io::ErrorKind::NotFound => {
+            let parent = dir
+                .parent()
+                .filter(|p| !p.as_os_str().is_empty())
+                .unwrap_or(Path::new("."));
+            if !parent.is_dir() {
+                return Err(bad(format!(
+                    "its parent {} is not a directory",
+                    parent.display()
+                )));
+            }
+            // SAFETY-free probe: access(2) on the parent for write + search.
+            let c = std::ffi::CString::new(parent.as_os_str().as_encoded_bytes())
+                .map_err(|_| bad("the path holds a NUL byte".into()))?;
+            // SAFETY: `c` is a valid NUL-terminated path for the call.
+            if unsafe { libc::access(c.as_ptr(), libc::W_OK | libc::X_OK) } != 0 {
+                return Err(bad(format!(
+                    "its parent {} is not writable: {}",
+                    parent.display(),
+                    io::Error::last_os_error()
+                )));
+            }
+            Ok(())
+        }
+        Err(e) => Err(bad(e.to_string())),
+    }
+}
+
+/// Creates campaign directory `dir` for `campaign`: the copies, the
+/// origin, and the journal with its header. `dir` must pass
+/// [`check_new_dir`].
+///
+/// # Errors
+/// [`CampaignRunError`] if anything cannot be written (nothing is left
+/// looking like a campaign then: the journal is written last).
+pub fn create(campaign: &Campaign, dir: &Path) -> Result<(), CampaignRunError> {
+    check_new_dir(dir)?;
+    fs::create_dir_all(dir).map_err(io_at(dir))?;
+    let put = |name: &str, text: &str| {
+        let p = dir.join(name);
+        write_atomically(&p, Existing::Refuse, |f| f.write_all(text.as_bytes())).map_err(io_at(&p))
+    };
+    put(CAMPAIGN_COPY, &campaign.text)?;
+    put(CONFIG_COPY, &campaign.config_text)?;
+    let abs = |p: &Path| std::path::absolute(p).unwrap_or_else(|_| p.to_path_buf());
+    let origin = Origin {
+        campaign_file: abs(&campaign.path),
+        config_file: abs(&campaign.config_path),
+    };
+    put(
+        ORIGIN_FILE,
+        &(serde_json::to_string_pretty(&origin).expect("origin serialises") + "\n"),
+    )?;
+    Journal::create(
+        dir,
+        &Entry::Header {
+            version: journal::JOURNAL_VERSION,
+            campaign_sha256: sha256_hex(campaign.text.as_bytes()),
+            config_sha256: sha256_hex(campaign.config_text.as_bytes()),
+            campaign_text: campaign.text.clone(),
+            config_text: campaign.config_text.clone(),
+            cells: campaign.cells().len(),
+            created_utc: now_utc(),
+        },
+    )?;
+    Ok(())
+}
+
+fn now_utc() -> String {
+    time::OffsetDateTime::now_utc()
+        .format(&time::format_description::well_known::Rfc3339)
+        .unwrap_or_default()
+}
+
+/// What the journal says the campaign is now: the header's hashes and
+/// texts, or those of the last `--force` resume.
+struct Current {
+    campaign_sha256: String,
+    config_sha256: String,
+    campaign_text: String,
+    config_text: String,
+}
+
+fn current(j: &ReadJournal) -> Current {
+    let mut out = Current {
+        campaign_sha256: String::new(),
+        config_sha256: String::new(),
+        campaign_text: String::new(),
+        config_text: String::new(),
+    };
+    for e in &j.entries {
+        if let Entry::Header {
+            campaign_sha256,
+            config_sha256,
+            campaign_text,
+            config_text,
+            ..
+        } = e
+        {
+            out = Current {
+                campaign_sha256: campaign_sha256.clone(),
+                config_sha256: config_sha256.clone(),
+                campaign_text: campaign_text.clone(),
+                config_text: config_text.clone(),
+            };
+        }
+    }
+    out
+}
+
+/// Loads the campaign of directory `dir` for `resume` / `status` / `map`:
+/// from the copies in `dir`, or from `campaign_file` if given. The hashes
+/// must match the journal's unless `force`; a mismatch names the keys that
+/// changed. Also returns a note when the original files have changed since
+/// `run` (they are not used then).
+///
+/// # Errors
+/// [`CampaignRunError::BadInput`]: not a campaign directory, a hash
+/// mismatch without `force`, or an unusable campaign file.
+pub fn load_dir(
+    dir: &Path,
+    campaign_file: Option<&Path>,
+    force: bool,
+) -> Result<(Campaign, ReadJournal, Option<String>), CampaignRunError> {
+    let not_campaign = |why: String| {
+        CampaignRunError::BadInput(format!(
+            "{}: not a bench campaign directory ({why})",
+            dir.display()
+        ))
+    };
+    if !dir.is_dir() {
+        return Err(not_campaign("not a directory".into()));
+    }
+    let j = journal::read(dir).map_err(|e| not_campaign(e.to_string()))?;
+    let copy = dir.join(CAMPAIGN_COPY);
+    let copy_text =
+        fs::read_to_string(&copy).map_err(|e| not_campaign(format!("{}: {e}", copy.display())))?;
+    let config_copy = dir.join(CONFIG_COPY);
+    let config_copy_text = fs::read_to_string(&config_copy)
+        .map_err(|e| not_campaign(format!("{}: {e}", config_copy.display())))?;
+    let was = current(&j);
+    let campaign = match campaign_file {
+        Some(p) => Campaign::load(p).map_err(|e| CampaignRunError::BadInput(e.to_string()))?,
+        None => Campaign::from_text_with_config(&copy, copy_text.clone(), Some(&config_copy))
+            .map_err(|e| CampaignRunError::BadInput(e.to_string()))?,
+    };
+    let mut changed = Vec::new();
+    if sha256_hex(campaign.text.as_bytes()) != was.campaign_sha256 {
+        changed.extend(
+            changed_keys(&was.campaign_text, &campaign.text)
+                .into_iter()
+                .map(|k| format!("campaign {k}")),
+        );
+        if changed.is_empty() {
+            changed.push("campaign file (comments or layout)".into());
+        }
+    }
+    if sha256_hex(campaign.config_text.as_bytes()) != was.config_sha256 {
+        let keys = changed_keys(&was.config_text, &campaign.config_text);
+        if keys.is_empty() {
+            changed.push("bench config (comments or layout)".into());
+        }
+        changed.extend(keys.into_iter().map(|k| format!("config {k}")));
+    }
+    if !changed.is_empty() && !force {
+        return Err(CampaignRunError::BadInput(format!(
+            "{}: the campaign changed since it was started ({}); resuming would mix two experiments. Pass --force to go on with the changed files (done cells at the same operating point and asymmetry are kept)",
+            dir.display(),
+            changed.join(", ")
+        )));
+    }
+    // Say so when the originals changed but the copies are used.
+    let mut note = None;
+    if campaign_file.is_none() {
+        if let Ok(text) = fs::read_to_string(dir.join(ORIGIN_FILE)) {
+            if let Ok(origin) = serde_json::from_str::<Origin>(&text) {
+                let differs = |p: &Path, was: &str| {
+                    fs::read_to_string(p).map(|now| now != was).unwrap_or(false)
+                };
+                let mut which = Vec::new();
+                if differs(&origin.campaign_file, &copy_text) {
+                    which.push(origin.campaign_file.display().to_string());
+                }
+                if differs(&origin.config_file, &config_copy_text) {
+                    which.push(origin.config_file.display().to_string());
+                }
+                if !which.is_empty() {
+                    note = Some(format!(
+                        "{} changed since the campaign started; it goes on with its copies in {} (pass --campaign FILE --force to use the changed files)",
+                        which.join(" and "),
+                        dir.display()
+                    ));
+                }
+            }
+        }
+    }
+    Ok((campaign, j, note))
+}
+
+/// Records in the journal (and the copies) that a forced resume goes on
+/// with changed files.
+///
+/// # Errors
+/// [`CampaignRunError`] on a write failure.
+pub fn adopt_changed(
+    dir: &Path,
+    journal: &mut Journal,
+    campaign: &Campaign,
+) -> Result<(), CampaignRunError> {
+    for (name, text) in [
+        (CAMPAIGN_COPY, &campaign.text),
+        (CONFIG_COPY, &campaign.config_text),
+    ] {
+        let p = dir.join(name);
+        write_atomically(&p, Existing::Replace, |f| f.write_all(text.as_bytes()))
+            .map_err(io_at(&p))?;
+    }
+    journal.append(&Entry::Header {
+        version: journal::JOURNAL_VERSION,
+        campaign_sha256: sha256_hex(campaign.text.as_bytes()),
+        config_sha256: sha256_hex(campaign.config_text.as_bytes()),
+        campaign_text: campaign.text.clone(),
+        config_text: campaign.config_text.clone(),
+        cells: campaign.cells().len(),
+        created_utc: now_utc(),
+    })?;
+    Ok(())
+}
+
+/// The done entry of `cell` in `j`, if one matches its coordinates.
+fn done_entry<'a>(j: &'a ReadJournal, cell: &Cell) -> Option<&'a Entry> {
+    j.done().get(&cell.index).copied().filter(|e| {
+        matches!(e, Entry::Done { operating_point_m, mass_asymmetry, .. }
+            if *operating_point_m == cell.operating_point_m && *mass_asymmetry == cell.mass_asymmetry)
+    })
+}
+
+/// Options of [`run_cells`].
+pub struct RunOptions<'a> {
+    /// Worker threads (cells at once), ≥ 1.
+    pub threads: usize,
+    /// Raised by SIGINT/SIGTERM: the cells running finish or stop, none
+    /// is started after.
+    pub stop: Arc<AtomicBool>,
+    /// Called after each cell with (cells done, cells in all).
+    pub on_cell: Option<&'a (dyn Fn(usize, usize) + Sync)>,
+}
+
+/// Runs every cell of `campaign` not yet done in `dir` (created with
+/// [`create`]) on the simulator, `opts.threads` at a time, journaling each,
+/// then writes the results.
+///
+/// # Errors
+/// [`CampaignRunError`]: a cell that failed (the others that completed are
+/// kept), a journal or output failure, or a stop.
+pub fn run_cells(
+    campaign: &Campaign,
+    dir: &Path,
+    journal: Journal,
+    already: &ReadJournal,
+    opts: &RunOptions<'_>,
+) -> Result<CampaignSummary, CampaignRunError> {
+    let cells = campaign.cells();
+    let skipped = already.skipped();
+    let todo: Vec<Cell> = campaign
+        .serpentine()
+        .into_iter()
+        .filter(|c| done_entry(already, c).is_none() && !skipped.contains(&c.index))
+        .collect();
+    let total = cells.len();
+    let done_count = AtomicUsize::new(total - todo.len());
+    let next = AtomicUsize::new(0);
+    let journal = Mutex::new(journal);
+    let first_error: Mutex<Option<CampaignRunError>> = Mutex::new(None);
+    let failed = AtomicBool::new(false);
+    std::thread::scope(|s| {
+        for _ in 0..opts.threads.max(1) {
+            s.spawn(|| loop {
+                if opts.stop.load(Ordering::SeqCst) || failed.load(Ordering::SeqCst) {
+                    break;
+                }
+                let k = next.fetch_add(1, Ordering::SeqCst);
+                let Some(cell) = todo.get(k) else { break };
+                match run_cell(campaign, dir, cell, &journal, &opts.stop) {
+                    Ok(()) => {
+                        let n = done_count.fetch_add(1, Ordering::SeqCst) + 1;
+                        if let Some(f) = opts.on_cell {
+                            f(n, total);
+                        }
+                    }
+                    Err(e) => {
+                        failed.store(true, Ordering::SeqCst);
+                        let mut slot = first_error.lock().unwrap_or_else(|p| p.into_inner());
+                        if slot.is_none() && !opts.stop.load(Ordering::SeqCst) {
+                            *slot = Some(e);
+                        }
+                        break;
+                    }
+                }
+            });
+        }
+    });
+    if let Some(e) = first_error.into_inner().unwrap_or_else(|p| p.into_inner()) {
+        let _ = write_results(campaign, dir);
+        return Err(e);
+    }
+    let summary = write_results(campaign, dir)?;
+    if summary.pending > 0 {
+        return Err(CampaignRunError::Stopped {
+            dir: dir.to_path_buf(),
+            done: summary.done,
+            cells: summary.cells,
+        });
+    }
+    Ok(summary)
+}
+
+/// Runs one cell from scratch and journals it.
+fn run_cell(
+    campaign: &Campaign,
+    dir: &Path,
+    cell: &Cell,
+    journal: &Mutex<Journal>,
+    stop: &Arc<AtomicBool>,
+) -> Result<(), CampaignRunError> {
+    let rel = cell_dir(cell.index);
+    let cdir = dir.join(&rel);
+    // Whatever an interrupted attempt left is not a result.
+    if cdir.exists() {
+        fs::remove_dir_all(&cdir).map_err(io_at(&cdir))?;
+    }
+    fs::create_dir_all(&cdir).map_err(io_at(&cdir))?;
+    journal
+        .lock()
+        .unwrap_or_else(|p| p.into_inner())
+        .append(&Entry::Started { cell: cell.index })?;
+    let mut config = campaign.config.clone();
+    config.plant.operating_point_m = cell.operating_point_m;
+    config.plant.mass_asymmetry = cell.mass_asymmetry;
+    let seed = campaign.seed_of(cell);
+    config.sim.seed = seed;
+    let opts = ChirpOptions {
+        config,
+        config_path: campaign.config_path.clone(),
+        out: cdir.join(CELL_FILES[0]),
+        frf_csv: cdir.join(CELL_FILES[1]),
+        plot: cdir.join(CELL_FILES[2]),
+        realtime: false,
+        seed,
+        progress: false,
+        backend: None,
+    };
+    let cell_err = |reason: String| CampaignRunError::Cell {
+        cell: cell.index,
+        operating_point_m: cell.operating_point_m,
+        mass_asymmetry: cell.mass_asymmetry,
+        reason,
+    };
+    let summary: ChirpSummary = run_chirp(&opts, chirp_outputs(&opts), stop.clone(), None)
+        .map_err(|e| cell_err(e.to_string()))?;
+    let reason = match summary.cmp_cnmp {
+        Some(_) => None,
+        None => Some("no closely spaced pair resolved".to_string()),
+    };
+    let summary_path = cdir.join(CELL_FILES[3]);
+    let json = serde_json::to_string_pretty(&summary).expect("summaries serialise") + "\n";
+    write_atomically(&summary_path, Existing::Refuse, |f| {
+        f.write_all(json.as_bytes())
+    })
+    .map_err(io_at(&summary_path))?;
+    // Every output synced before the entry that counts it.
+    let mut files = Vec::new();
+    for name in CELL_FILES {
+        let p = cdir.join(name);
+        File::open(&p)
+            .and_then(|f| f.sync_all())
+            .map_err(io_at(&p))?;
+        files.push(file_sum(dir, &format!("{rel}/{name}")).map_err(io_at(&p))?);
+    }
+    File::open(&cdir)
+        .and_then(|d| d.sync_all())
+        .map_err(io_at(&cdir))?;
+    journal
+        .lock()
+        .unwrap_or_else(|p| p.into_inner())
+        .append(&Entry::Done {
+            cell: cell.index,
+            operating_point_m: cell.operating_point_m,
+            mass_asymmetry: cell.mass_asymmetry,
+            seed,
+            verdict: summary.cmp_cnmp,
+            reason,
+            files,
+        })?;
+    Ok(())
+}
+
+/// The state of every cell from the journal, against the model.
+///
+/// # Errors
+/// [`CampaignRunError::BadInput`] if the model fails at a cell (cannot
+/// happen for a validated campaign).
+pub fn results(campaign: &Campaign, j: &ReadJournal) -> Result<Vec<CellResult>, CampaignRunError> {
+    let skipped = j.skipped();
+    campaign
+        .cells()
+        .iter()
+        .map(|c| {
+            let model = model_at(
+                &campaign.config.plant,
+                c.operating_point_m,
+                c.mass_asymmetry,
+            )
+            .map_err(|e| CampaignRunError::BadInput(e.to_string()))?;
+            let (status, verdict, reason, seed) = match done_entry(j, c) {
+                Some(Entry::Done {
+                    verdict,
+                    reason,
+                    seed,
+                    ..
+                }) => ("done", *verdict, reason.clone(), *seed),
+                _ if skipped.contains(&c.index) => ("skipped", None, None, campaign.seed_of(c)),
+                _ => ("pending", None, None, campaign.seed_of(c)),
+            };
+            Ok(CellResult {
+                index: c.index,
+                operating_point_m: c.operating_point_m,
+                mass_asymmetry: c.mass_asymmetry,
+                status,
+                verdict,
+                reason,
+                model_cnmp: model_cnmp_damped(&model),
+                seed,
+                dir: cell_dir(c.index),
+            })
+        })
+        .collect()
+}
+
+/// Checks the files of every done cell against the journal's checksums:
+/// the cells whose files are missing or changed, with the first reason.
+pub fn damaged_cells(dir: &Path, j: &ReadJournal) -> Vec<(usize, String)> {
+    let mut out = Vec::new();
+    for (cell, e) in j.done() {
+        let Entry::Done { files, .. } = e else {
+            continue;
+        };
+        for f in files {
+            match file_sum(dir, &f.path) {
+                Ok(now) if now == *f => {}
+                Ok(_) => {
+                    out.push((cell, format!("{} changed since it was recorded", f.path)));
+                    break;
+                }
+                Err(e) => {
+                    out.push((cell, format!("{}: {e}", f.path)));
+                    break;
+                }
+            }
+        }
+    }
+    out
+}
+
+/// The campaign summary from the journal of `dir` (no files written).
+///
+/// # Errors
+/// As [`results`].
+pub fn summarize(
+    campaign: &Campaign,
+    dir: &Path,
+    j: &ReadJournal,
+) -> Result<CampaignSummary, CampaignRunError> {
+    let results = results(campaign, j)?;
+    let count = |s: &str| results.iter().filter(|r| r.status == s).count();
+    let decided: Vec<&CellResult> = results
+        .iter()
+        .filter(|r| r.status == "done" && r.verdict.is_some())
+        .collect();
+    let disagreements: Vec<CellResult> = decided
+        .iter()
+        .filter(|r| r.verdict != Some(r.model_cnmp))
+        .map(|r| (*r).clone())
+        .collect();
+    let abs = std::path::absolute(dir).unwrap_or_else(|_| dir.to_path_buf());
+    let done = count("done");
+    Ok(CampaignSummary {
+        dir: abs.clone(),
+        cells: results.len(),
+        done,
+        skipped: count("skipped"),
+        pending: count("pending"),
+        decided: decided.len(),
+        agree: decided.len() - disagreements.len(),
+        disagreements,
+        cells_csv: abs.join(CELLS_CSV),
+        map_png: (done > 0).then(|| abs.join(MAP_PNG)),
+        results,
+    })
+}
+
+/// Writes `cells.csv`, the map and `summary.json` of `dir` from its
+/// journal (replacing earlier ones).
+///
+/// # Errors
+/// [`CampaignRunError`] on a write failure.
+pub fn write_results(campaign: &Campaign, dir: &Path) -> Result<CampaignSummary, CampaignRunError> {
+    let j = journal::read(dir)?;
+    let summary = summarize(campaign, dir, &j)?;
+    let csv_path = dir.join(CELLS_CSV);
+    let mut csv = String::from(
+        "index,operating_point_m,mass_asymmetry,status,verdict,model_cnmp,agrees,seed,reason,recording,frf_csv,summary\n",
+    );
+    for r in &summary.results {
+        let verdict = r.verdict.map(|v| v.to_string()).unwrap_or_default();
+        let agrees = r
+            .verdict
+            .map(|v| (v == r.model_cnmp).to_string())
+            .unwrap_or_default();
+        let reason = r
+            .reason
+            .clone()
+            .unwrap_or_default()
+            .replace(['"', ','], ";");
+        let file = |i: usize| {
+            if r.status == "done" {
+                format!("{}/{}", r.dir, CELL_FILES[i])
+            } else {
+                String::new()
+            }
+        };
+        csv.push_str(&format!(
+            "{},{},{},{},{},{},{},{},{},{},{},{}\n",
+            r.index,
+            r.operating_point_m,
+            r.mass_asymmetry,
+            r.status,
+            verdict,
+            r.model_cnmp,
+            agrees,
+            r.seed,
+            reason,
+            file(0),
+            file(1),
+            file(3)
+        ));
+    }
+    write_atomically(&csv_path, Existing::Replace, |f| {
+        f.write_all(csv.as_bytes())
+    })
+    .map_err(io_at(&csv_path))?;
+    if summary.done > 0 {
+        write_map(campaign, dir, &summary)?;
+    }
+    let sum_path = dir.join(SUMMARY_JSON);
+    let json = serde_json::to_string_pretty(&summary).expect("summaries serialise") + "\n";
+    write_atomically(&sum_path, Existing::Replace, |f| {
+        f.write_all(json.as_bytes())
+    })
+    .map_err(io_at(&sum_path))?;
+    Ok(summary)
+}
+
+/// The map PNG: the damped model's CNMP map over the campaign's range
+/// (half a grid step beyond each edge), the measured verdicts as squares
+/// (CMP-CNMP) and circles (none), as the thesis' Fig 5-10.
+fn write_map(
+    campaign: &Campaign,
+    dir: &Path,
+    summary: &CampaignSummary,
+) -> Result<(), CampaignRunError> {
+    let p = &campaign.config.plant;
+    // Half a grid step beyond the outer cells, within the model's range;
+    // an axis of values ≥ 0 stays ≥ 0 (the thesis' maps start there).
+    let edge = |v: &[f64], lo: f64, hi: f64| {
+        let (min, max) = v
+            .iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), x| {
+                (a.min(*x), b.max(*x))
+            });
+        let half = if v.len() > 1 {
+            0.5 * (max - min) / (v.len() - 1) as f64
+        } else {
+            0.01 * (hi - lo)
+        };
+        let lo = if min >= 0.0 { lo.max(0.0) } else { lo };
+        ((min - half).max(lo), (max + half).min(hi))
+    };
+    let lim = bench_hal::model::ranges::OPERATING_POINT_OF_L * p.beam.length_m;
+    let (op_lo, op_hi) = edge(&campaign.operating_points_m, -lim, lim);
+    let (dlo, dhi) = bench_hal::model::ranges::MASS_ASYMMETRY;
+    let (dm_lo, dm_hi) = edge(&campaign.mass_asymmetries, dlo, dhi);
+    let ops = linspace(op_lo, op_hi, 121);
+    let dms = linspace(dm_lo, dm_hi, 91);
+    let cells: Vec<MapCell> =
+        cnmp_map(p, &ops, &dms).map_err(|e| CampaignRunError::BadInput(format!("map: {e}")))?;
+    let measured: Vec<MeasuredPoint> = summary
+        .results
+        .iter()
+        .filter_map(|r| {
+            r.verdict.map(|v| MeasuredPoint {
+                operating_point_m: r.operating_point_m,
+                mass_asymmetry: r.mass_asymmetry,
+                cnmp: v,
+            })
+        })
+        .collect();
+    let title = format!(
+        "Measured verdicts ({} of {} decided, {} disagree) on the model's CNMP map",
+        summary.decided,
+        summary.cells,
+        summary.disagreements.len()
+    );
+    let png = dir.join(MAP_PNG);
+    write_map_png(
+        &png,
+        Existing::Replace,
+        &title,
+        p.beam.length_m,
+        &ops,
+        &dms,
+        &cells,
+        None,
+        &measured,
+    )
+    .map_err(|e| CampaignRunError::Io {
+        path: png.clone(),
+        source: io::Error::other(e.to_string()),
+    })
+}
