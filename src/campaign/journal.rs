@@ -75,8 +75,12 @@ pub enum Entry {
         cell: usize,
         /// Operating point Y1o, m.
         operating_point_m: f64,
-        /// Mass asymmetry Δm23 = m2/m3 − 1.
+        /// Mass asymmetry Δm23 = m2/m3 − 1 of the grid.
         mass_asymmetry: f64,
+        /// The asymmetry the operator set with whole trim masses, when it
+        /// differs from the grid's (hardware campaigns).
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        achieved_mass_asymmetry: Option<f64>,
         /// Simulator noise seed of the cell.
         seed: u64,
         /// Measured CMP-CNMP verdict (`None`: undecided, see `reason`).
@@ -352,6 +356,7 @@ mod tests {
             cell,
             operating_point_m: 0.001 * cell as f64,
             mass_asymmetry: -0.02,
+            achieved_mass_asymmetry: None,
             seed: 7 + cell as u64,
             verdict: Some(cell.is_multiple_of(2)),
             reason: None,

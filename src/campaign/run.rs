@@ -28,6 +28,7 @@ use crate::analysis::modal::model_cnmp_damped;
 use crate::analysis::plot::{write_map_png, MeasuredPoint};
 use crate::jobs::chirp::{chirp_outputs, run_chirp, ChirpOptions, ChirpSummary};
 use crate::outputs::{write_atomically, Existing};
+use crate::rt::backend::BackendSpec;
 use serde::{Deserialize, Serialize};
 use std::fs::{self, File};
 use std::io::{self, Write};
@@ -112,8 +113,11 @@ pub struct CellResult {
     pub index: usize,
     /// Operating point Y1o, m.
     pub operating_point_m: f64,
-    /// Mass asymmetry Δm23.
+    /// Mass asymmetry Δm23 of the grid.
     pub mass_asymmetry: f64,
+    /// The asymmetry set with whole trim masses, where it differs from the
+    /// grid's (hardware); the model's verdict is taken there.
+    pub achieved_mass_asymmetry: Option<f64>,
     /// `done`, `skipped` or `pending`.
     pub status: &'static str,
     /// Measured verdict (`None`: undecided or not run).
@@ -468,7 +472,7 @@ pub fn run_cells(
                 }
                 let k = next.fetch_add(1, Ordering::SeqCst);
                 let Some(cell) = todo.get(k) else { break };
-                match run_cell(campaign, dir, cell, &journal, &opts.stop) {
+                match run_cell(campaign, dir, cell, &journal, &opts.stop, None) {
                     Ok(()) => {
                         let n = done_count.fetch_add(1, Ordering::SeqCst) + 1;
                         if let Some(f) = opts.on_cell {
@@ -509,6 +513,7 @@ fn run_cell(
     cell: &Cell,
     journal: &Mutex<Journal>,
     stop: &Arc<AtomicBool>,
+    hardware: Option<(&BackendSpec, f64)>,
 ) -> Result<(), CampaignRunError> {
     let rel = cell_dir(cell.index);
     let cdir = dir.join(&rel);
@@ -523,7 +528,12 @@ fn run_cell(
         .append(&Entry::Started { cell: cell.index })?;
     let mut config = campaign.config.clone();
     config.plant.operating_point_m = cell.operating_point_m;
-    config.plant.mass_asymmetry = cell.mass_asymmetry;
+    // On hardware the model (FRF plot, summary) is of the asymmetry the
+    // operator could set with whole trim masses.
+    let achieved = hardware
+        .map(|(_, a)| a)
+        .filter(|a| *a != cell.mass_asymmetry);
+    config.plant.mass_asymmetry = achieved.unwrap_or(cell.mass_asymmetry);
     let seed = campaign.seed_of(cell);
     config.sim.seed = seed;
     let opts = ChirpOptions {
@@ -532,10 +542,10 @@ fn run_cell(
         out: cdir.join(CELL_FILES[0]),
         frf_csv: cdir.join(CELL_FILES[1]),
         plot: cdir.join(CELL_FILES[2]),
-        realtime: false,
+        realtime: hardware.is_some(),
         seed,
         progress: false,
-        backend: None,
+        backend: hardware.map(|(b, _)| b.clone()),
     };
     let cell_err = |reason: String| CampaignRunError::Cell {
         cell: cell.index,
@@ -574,6 +584,7 @@ fn run_cell(
             cell: cell.index,
             operating_point_m: cell.operating_point_m,
             mass_asymmetry: cell.mass_asymmetry,
+            achieved_mass_asymmetry: achieved,
             seed,
             verdict: summary.cmp_cnmp,
             reason,
@@ -593,26 +604,36 @@ pub fn results(campaign: &Campaign, j: &ReadJournal) -> Result<Vec<CellResult>, 
         .cells()
         .iter()
         .map(|c| {
-            let model = model_at(
-                &campaign.config.plant,
-                c.operating_point_m,
-                c.mass_asymmetry,
-            )
-            .map_err(|e| CampaignRunError::BadInput(e.to_string()))?;
-            let (status, verdict, reason, seed) = match done_entry(j, c) {
+            let (status, verdict, reason, seed, achieved) = match done_entry(j, c) {
                 Some(Entry::Done {
                     verdict,
                     reason,
                     seed,
+                    achieved_mass_asymmetry,
                     ..
-                }) => ("done", *verdict, reason.clone(), *seed),
-                _ if skipped.contains(&c.index) => ("skipped", None, None, campaign.seed_of(c)),
-                _ => ("pending", None, None, campaign.seed_of(c)),
+                }) => (
+                    "done",
+                    *verdict,
+                    reason.clone(),
+                    *seed,
+                    *achieved_mass_asymmetry,
+                ),
+                _ if skipped.contains(&c.index) => {
+                    ("skipped", None, None, campaign.seed_of(c), None)
+                }
+                _ => ("pending", None, None, campaign.seed_of(c), None),
             };
+            let model = model_at(
+                &campaign.config.plant,
+                c.operating_point_m,
+                achieved.unwrap_or(c.mass_asymmetry),
+            )
+            .map_err(|e| CampaignRunError::BadInput(e.to_string()))?;
             Ok(CellResult {
                 index: c.index,
                 operating_point_m: c.operating_point_m,
                 mass_asymmetry: c.mass_asymmetry,
+                achieved_mass_asymmetry: achieved,
                 status,
                 verdict,
                 reason,
@@ -787,7 +808,7 @@ fn write_map(
         .filter_map(|r| {
             r.verdict.map(|v| MeasuredPoint {
                 operating_point_m: r.operating_point_m,
-                mass_asymmetry: r.mass_asymmetry,
+                mass_asymmetry: r.achieved_mass_asymmetry.unwrap_or(r.mass_asymmetry),
                 cnmp: v,
             })
         })
@@ -814,4 +835,312 @@ fn write_map(
         path: png.clone(),
         source: io::Error::other(e.to_string()),
     })
+}
+
+/// Whole trim masses on the two secondary stages that set a mass
+/// asymmetry.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TrimMasses {
+    /// Trim masses on stage 2.
+    pub stage2: u32,
+    /// Trim masses on stage 3.
+    pub stage3: u32,
+    /// The asymmetry they give, `(m2 + n2·δ)/(m3 + n3·δ) − 1`.
+    pub achieved_mass_asymmetry: f64,
+}
+
+/// The whole number of trim masses of `increment_kg` on stage 2 (for
+/// Δm23 ≥ m2/m3 − 1) or stage 3 (below) nearest to mass asymmetry
+/// `target`, for secondary stages of `m2_kg`, `m3_kg` without trim masses
+/// (thesis 5.2.1: 0.5 g masses on the 60 g stages, 0.8 % each).
+/// Δm23 = m2/m3 − 1.
+pub fn trim_masses(m2_kg: f64, m3_kg: f64, increment_kg: f64, target: f64) -> TrimMasses {
+    let (n2, n3) = if m2_kg <= m3_kg * (1.0 + target) {
+        (
+            ((m3_kg * (1.0 + target) - m2_kg) / increment_kg).round(),
+            0.0,
+        )
+    } else {
+        (
+            0.0,
+            ((m2_kg / (1.0 + target) - m3_kg) / increment_kg).round(),
+        )
+    };
+    TrimMasses {
+        stage2: n2 as u32,
+        stage3: n3 as u32,
+        achieved_mass_asymmetry: (m2_kg + n2 * increment_kg) / (m3_kg + n3 * increment_kg) - 1.0,
+    }
+}
+
+/// What the operator answers before a cell.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum OperatorAnswer {
+    /// The setup is changed: run the cell.
+    Run,
+    /// Skip this cell (journaled as skipped).
+    Skip,
+    /// Run the previous cell again first.
+    RedoPrevious,
+    /// Stop the campaign (resumable).
+    Stop,
+}
+
+/// The person at the bench: shown the instructions, answers.
+pub trait Operator {
+    /// Shows `instructions` and waits for the answer.
+    ///
+    /// # Errors
+    /// The I/O error of asking (a closed input counts as
+    /// [`OperatorAnswer::Stop`], not an error).
+    fn ask(&mut self, instructions: &str) -> io::Result<OperatorAnswer>;
+}
+
+/// An operator on a text stream: instructions to `out`, one answer per
+/// line from `input` (empty line: run; `s`: skip; `r`: redo the previous
+/// cell; `q`: stop; end of input: stop). Anything else is asked again.
+pub struct LineOperator<R, W> {
+    /// Answers.
+    pub input: R,
+    /// Where the instructions go.
+    pub out: W,
+}
+
+impl<R: io::BufRead, W: Write> Operator for LineOperator<R, W> {
+    fn ask(&mut self, instructions: &str) -> io::Result<OperatorAnswer> {
+        loop {
+            write!(
+                self.out,
+                "{instructions}\n  [Enter] run · s skip · r redo the previous cell · q stop: "
+            )?;
+            self.out.flush()?;
+            let mut line = String::new();
+            if self.input.read_line(&mut line)? == 0 {
+                writeln!(self.out)?;
+                return Ok(OperatorAnswer::Stop);
+            }
+            match line.trim() {
+                "" => return Ok(OperatorAnswer::Run),
+                "s" | "skip" => return Ok(OperatorAnswer::Skip),
+                "r" | "redo" => return Ok(OperatorAnswer::RedoPrevious),
+                "q" | "quit" | "stop" => return Ok(OperatorAnswer::Stop),
+                other => writeln!(self.out, "  not an answer: {other:?}")?,
+            }
+        }
+    }
+}
+
+/// The setup of the bench: operating point and trim masses.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Setup {
+    operating_point_m: f64,
+    masses: TrimMasses,
+}
+
+/// What the operator must change from `from` (unknown at the start of a
+/// session) to reach `cell`.
+fn instructions(
+    campaign: &Campaign,
+    position: (usize, usize),
+    cell: &Cell,
+    from: Option<&Setup>,
+    to: &Setup,
+) -> String {
+    let mm = |m: f64| m * 1e3;
+    let mut s = format!(
+        "cell {} of {} (grid cell {}): operating point Y1o = {:.3} mm ({:.2} % of L)",
+        position.0,
+        position.1,
+        cell.index,
+        mm(to.operating_point_m),
+        100.0 * to.operating_point_m / campaign.config.plant.beam.length_m
+    );
+    if let Some(f) = from {
+        let d = to.operating_point_m - f.operating_point_m;
+        if d == 0.0 {
+            s.push_str(", unchanged");
+        } else {
+            s.push_str(&format!(
+                ", move {:+.3} mm from {:.3} mm",
+                mm(d),
+                mm(f.operating_point_m)
+            ));
+        }
+    }
+    let g = campaign.spec.mass_increment_kg * 1e3;
+    let change = |now: u32, was: Option<u32>| match was {
+        Some(w) if now > w => format!(" (add {})", now - w),
+        Some(w) if now < w => format!(" (remove {})", w - now),
+        Some(_) => " (unchanged)".to_string(),
+        None => String::new(),
+    };
+    s.push_str(&format!(
+        "\n  trim masses of {g} g: {} on stage 2{}, {} on stage 3{} -> Δm23 = {:+.2} % (grid {:+.2} %)",
+        to.masses.stage2,
+        change(to.masses.stage2, from.map(|f| f.masses.stage2)),
+        to.masses.stage3,
+        change(to.masses.stage3, from.map(|f| f.masses.stage3)),
+        100.0 * to.masses.achieved_mass_asymmetry,
+        100.0 * cell.mass_asymmetry
+    ));
+    s.push_str("\n  the amplifier is disabled at 0 A until you answer");
+    s
+}
+
+/// Runs the cells of `campaign` not yet done or skipped on hardware
+/// (`backend`), one at a time in the serpentine order, each only after the
+/// operator confirmed the setup they were told to make. Between cells the
+/// backend is closed (the amplifier disabled at 0 A, as every chirp leaves
+/// it); nothing is opened before the answer.
+///
+/// # Errors
+/// As [`run_cells`]; [`CampaignRunError::Stopped`] when the operator
+/// stops or the input ends.
+pub fn run_attended(
+    campaign: &Campaign,
+    dir: &Path,
+    journal: Journal,
+    already: &ReadJournal,
+    backend: &BackendSpec,
+    operator: &mut dyn Operator,
+    stop: &Arc<AtomicBool>,
+) -> Result<CampaignSummary, CampaignRunError> {
+    let p = &campaign.config.plant;
+    let setup_of = |c: &Cell| Setup {
+        operating_point_m: c.operating_point_m,
+        masses: trim_masses(
+            p.m2_kg,
+            p.m3_kg,
+            campaign.spec.mass_increment_kg,
+            c.mass_asymmetry,
+        ),
+    };
+    let skipped = already.skipped();
+    let mut todo: std::collections::VecDeque<Cell> = campaign
+        .serpentine()
+        .into_iter()
+        .filter(|c| done_entry(already, c).is_none() && !skipped.contains(&c.index))
+        .collect();
+    let total = todo.len();
+    let journal = Mutex::new(journal);
+    let mut current: Option<Setup> = None;
+    let mut previous: Option<Cell> = None;
+    let mut finished = 0;
+    let mut stopped = false;
+    while let Some(cell) = todo.front().copied() {
+        if stop.load(Ordering::SeqCst) {
+            stopped = true;
+            break;
+        }
+        let to = setup_of(&cell);
+        let text = instructions(
+            campaign,
+            ((finished + 1).min(total), total),
+            &cell,
+            current.as_ref(),
+            &to,
+        );
+        let answer = operator.ask(&text).map_err(|e| CampaignRunError::Io {
+            path: PathBuf::from("(operator)"),
+            source: e,
+        })?;
+        match answer {
+            OperatorAnswer::Stop => {
+                stopped = true;
+                break;
+            }
+            OperatorAnswer::Skip => {
+                journal
+                    .lock()
+                    .unwrap_or_else(|p| p.into_inner())
+                    .append(&Entry::Skipped { cell: cell.index })?;
+                todo.pop_front();
+                finished += 1;
+                previous = Some(cell);
+            }
+            OperatorAnswer::RedoPrevious => {
+                if let Some(prev) = previous.take() {
+                    todo.push_front(prev);
+                }
+            }
+            OperatorAnswer::Run => {
+                run_cell(
+                    campaign,
+                    dir,
+                    &cell,
+                    &journal,
+                    stop,
+                    Some((backend, to.masses.achieved_mass_asymmetry)),
+                )?;
+                current = Some(to);
+                todo.pop_front();
+                finished += 1;
+                previous = Some(cell);
+            }
+        }
+    }
+    let summary = write_results(campaign, dir)?;
+    if stopped || summary.pending > 0 {
+        return Err(CampaignRunError::Stopped {
+            dir: dir.to_path_buf(),
+            done: summary.done,
+            cells: summary.cells,
+        });
+    }
+    Ok(summary)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn trim_masses_give_the_thesis_steps() {
+        // Thesis 5.2.1: a 0.5 g mass is 0.8 % of the 60 g secondary stage.
+        let one = trim_masses(0.06, 0.06, 0.0005, 0.008);
+        assert_eq!((one.stage2, one.stage3), (1, 0));
+        assert!((one.achieved_mass_asymmetry - 0.0005 / 0.06).abs() < 1e-15);
+        // −2 %: masses on stage 3, m2/(m3 + n δ) − 1 nearest −0.02.
+        let neg = trim_masses(0.06, 0.06, 0.0005, -0.02);
+        assert_eq!((neg.stage2, neg.stage3), (0, 2));
+        assert!((neg.achieved_mass_asymmetry - (0.06 / 0.061 - 1.0)).abs() < 1e-15);
+        let zero = trim_masses(0.06, 0.06, 0.0005, 0.0);
+        assert_eq!(
+            (zero.stage2, zero.stage3, zero.achieved_mass_asymmetry),
+            (0, 0, 0.0)
+        );
+        // Every target within half a mass of what it gets.
+        for k in -80..=100 {
+            let t = k as f64 * 1e-3;
+            let m = trim_masses(0.06, 0.06, 0.0005, t);
+            let per_mass = 0.0005 / 0.06;
+            assert!(
+                (m.achieved_mass_asymmetry - t).abs() <= 0.5 * per_mass * 1.1,
+                "{t}: {m:?}"
+            );
+        }
+    }
+
+    #[test]
+    fn the_line_operator_reads_answers_and_stops_at_the_end_of_input() {
+        let mut out = Vec::new();
+        let mut op = LineOperator {
+            input: io::Cursor::new("\nx\ns\nr\nq\n"),
+            out: &mut out,
+        };
+        let answers: Vec<OperatorAnswer> = (0..5).map(|_| op.ask("cell").unwrap()).collect();
+        assert_eq!(
+            answers,
+            [
+                OperatorAnswer::Run,
+                OperatorAnswer::Skip,
+                OperatorAnswer::RedoPrevious,
+                OperatorAnswer::Stop,
+                OperatorAnswer::Stop
+            ]
+        );
+        assert!(String::from_utf8(out)
+            .unwrap()
+            .contains("not an answer: \"x\""));
+    }
 }

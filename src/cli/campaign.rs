@@ -5,9 +5,10 @@ use super::{bad_input, emit, status};
 use bench::campaign::file::Campaign;
 use bench::campaign::journal::Journal;
 use bench::campaign::run::{
-    create, damaged_cells, load_dir, run_cells, summarize, write_results, CampaignRunError,
-    CampaignSummary, RunOptions,
+    create, damaged_cells, load_dir, run_attended, run_cells, summarize, write_results,
+    CampaignRunError, CampaignSummary, LineOperator, RunOptions,
 };
+use bench::rt::backend::BackendSpec;
 use clap::{Args, Subcommand};
 use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
@@ -43,6 +44,11 @@ pub(super) struct RunArgs {
     /// cores].
     #[arg(long, value_name = "N")]
     threads: Option<usize>,
+    /// Hardware: serial:PATH or socketcan:IFACE (else `[backend]` of the
+    /// bench config). On hardware the cells run one at a time, each after
+    /// the operator has made and confirmed the setup they are told.
+    #[arg(long, value_name = "SPEC")]
+    backend: Option<BackendSpec>,
     /// Print the summary as one JSON object on stdout.
     #[arg(long)]
     json: bool,
@@ -64,6 +70,9 @@ pub(super) struct ResumeArgs {
     /// Cells run at once, 1 … 64 [default: the number of cores].
     #[arg(long, value_name = "N")]
     threads: Option<usize>,
+    /// Hardware backend, as for `run`.
+    #[arg(long, value_name = "SPEC")]
+    backend: Option<BackendSpec>,
     /// Print the summary as one JSON object on stdout.
     #[arg(long)]
     json: bool,
@@ -124,7 +133,16 @@ fn run(a: RunArgs, stop: Arc<AtomicBool>) -> ExitCode {
         Ok(j) => j,
         Err(e) => return failed(&e.into()),
     };
-    go(&campaign, &dir, journal, &read, threads, stop, a.json)
+    go(
+        &campaign,
+        &dir,
+        journal,
+        &read,
+        threads,
+        a.backend.as_ref(),
+        stop,
+        a.json,
+    )
 }
 
 fn resume(a: ResumeArgs, stop: Arc<AtomicBool>) -> ExitCode {
@@ -160,18 +178,50 @@ fn resume(a: ResumeArgs, stop: Arc<AtomicBool>) -> ExitCode {
             list.join("; ")
         ));
     }
-    go(&campaign, &a.dir, journal, &read, threads, stop, a.json)
+    go(
+        &campaign,
+        &a.dir,
+        journal,
+        &read,
+        threads,
+        a.backend.as_ref(),
+        stop,
+        a.json,
+    )
 }
 
+#[allow(clippy::too_many_arguments)]
 fn go(
     campaign: &Campaign,
     dir: &Path,
     journal: Journal,
     read: &bench::campaign::journal::ReadJournal,
     threads: usize,
+    backend: Option<&BackendSpec>,
     stop: Arc<AtomicBool>,
     json: bool,
 ) -> ExitCode {
+    let spec = BackendSpec::resolve(backend, &campaign.config);
+    if !spec.is_sim() {
+        // Instructions and answers on the terminal (stderr, so that
+        // --json keeps stdout for the summary).
+        let mut operator = LineOperator {
+            input: std::io::stdin().lock(),
+            out: std::io::stderr(),
+        };
+        eprintln!(
+            "campaign {} on {spec}: {} cells, one at a time; change the setup as told, then answer",
+            dir.display(),
+            campaign.cells().len() - read.done().len() - read.skipped().len()
+        );
+        return match run_attended(campaign, dir, journal, read, &spec, &mut operator, &stop) {
+            Ok(s) => match emit(&s, json, print_summary) {
+                Ok(()) => ExitCode::SUCCESS,
+                Err(code) => code,
+            },
+            Err(e) => failed(&e),
+        };
+    }
     let total = campaign.cells().len();
     let bar = (std::io::stderr().is_terminal() && !json).then(|| {
         let b = indicatif::ProgressBar::new(total as u64);
