@@ -308,3 +308,134 @@ fn the_shipped_fig_5_10_campaign_is_the_thesis_grid() {
     assert!((c.mass_asymmetries[9] - 0.10).abs() < 1e-12);
     drop(tmp);
 }
+
+/// Every numeric key of the shipped campaign file, found by walking its
+/// tables, set to hostile values (NaN, ±inf, negative, zero, denormal,
+/// huge, the wrong type) and deleted, and an unknown key added to every
+/// table: each mutation is refused naming its key, or accepted with the
+/// value inside the range the README documents.
+#[test]
+fn mutations_of_every_campaign_key_are_refused_by_name_or_in_range() {
+    use toml::{Table, Value};
+    let shipped = Path::new(env!("CARGO_MANIFEST_DIR")).join("bench-config/campaign-fig5-10.toml");
+    let text = std::fs::read_to_string(&shipped).unwrap();
+    let table: Table = text.parse().unwrap();
+    // Dotted paths of the numeric leaves.
+    fn leaves(prefix: &str, t: &Table, out: &mut Vec<String>) {
+        for (k, v) in t {
+            let key = if prefix.is_empty() {
+                k.clone()
+            } else {
+                format!("{prefix}.{k}")
+            };
+            match v {
+                Value::Table(t) => leaves(&key, t, out),
+                Value::Float(_) | Value::Integer(_) => out.push(key),
+                _ => {}
+            }
+        }
+    }
+    let mut keys = Vec::new();
+    leaves("", &table, &mut keys);
+    assert!(keys.len() >= 10, "{keys:?}");
+    let l = 0.0475;
+    // The README's ranges, for an accepted value.
+    let in_range = |key: &str, v: f64, c: &bench::campaign::file::Campaign| -> bool {
+        match key {
+            "seed" => v >= 0.0,
+            "settle_s" => (0.0..=600.0).contains(&v),
+            "mass_increment_kg" => (1e-5..=0.1).contains(&v),
+            k if k.starts_with("grid.operating_point_pct") => c
+                .operating_points_m
+                .iter()
+                .all(|op| op.abs() <= 0.2 * l + 1e-15),
+            k if k.starts_with("grid.mass_asymmetry") => {
+                c.mass_asymmetries.iter().all(|d| (-0.33..=0.5).contains(d))
+            }
+            "chirp.duration_s" => (0.1..=600.0).contains(&c.config.chirp.duration_s),
+            other => panic!("no documented range for {other}"),
+        }
+    };
+    let set = |t: &mut Table, key: &str, v: Option<Value>| {
+        let parts: Vec<&str> = key.split('.').collect();
+        let mut cur = t;
+        for p in &parts[..parts.len() - 1] {
+            cur = cur.get_mut(*p).unwrap().as_table_mut().unwrap();
+        }
+        match v {
+            Some(v) => {
+                cur.insert(parts[parts.len() - 1].to_string(), v);
+            }
+            None => {
+                cur.remove(parts[parts.len() - 1]);
+            }
+        }
+    };
+    let hostile: Vec<Value> = vec![
+        Value::Float(f64::NAN),
+        Value::Float(f64::INFINITY),
+        Value::Float(f64::NEG_INFINITY),
+        Value::Float(-1.0),
+        Value::Float(0.0),
+        Value::Float(-0.0),
+        Value::Float(5e-324),
+        Value::Float(1e300),
+        Value::Float(-1e300),
+        Value::Integer(-1),
+        Value::Integer(i64::MAX),
+        Value::Float(0.5),
+        Value::Float(2.0),
+        Value::Float(1e-6),
+        Value::String("1.0".into()),
+        Value::Boolean(true),
+        Value::Array(vec![]),
+    ];
+    let mut mutations = 0;
+    for key in &keys {
+        let mut cases: Vec<Option<Value>> = hostile.iter().cloned().map(Some).collect();
+        cases.push(None);
+        for v in cases {
+            let mut t = table.clone();
+            set(&mut t, key, v.clone());
+            let mutated = toml::to_string(&t).unwrap();
+            mutations += 1;
+            match bench::campaign::file::Campaign::from_text(&shipped, mutated.clone()) {
+                Err(e) => {
+                    let msg = e.to_string();
+                    let last = key.rsplit('.').next().unwrap();
+                    assert!(
+                        msg.contains(key.as_str()) || msg.contains(last),
+                        "{key} = {v:?}: the refusal does not name it: {msg}"
+                    );
+                }
+                Ok(c) => {
+                    let given = match &v {
+                        Some(Value::Float(f)) => Some(*f),
+                        Some(Value::Integer(i)) => Some(*i as f64),
+                        _ => None,
+                    };
+                    if let Some(x) = given {
+                        assert!(in_range(key, x, &c), "{key} = {x} accepted out of range");
+                    }
+                    assert!(c.cells().len() <= 10_000);
+                }
+            }
+        }
+    }
+    // An unknown key in every table.
+    for table_key in ["", "grid", "chirp"] {
+        let mut t = table.clone();
+        let target = if table_key.is_empty() {
+            &mut t
+        } else {
+            t.get_mut(table_key).unwrap().as_table_mut().unwrap()
+        };
+        target.insert("not_a_key".into(), Value::Integer(1));
+        let e = bench::campaign::file::Campaign::from_text(&shipped, toml::to_string(&t).unwrap())
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("not_a_key"), "[{table_key}]: {e}");
+        mutations += 1;
+    }
+    assert!(mutations > 150, "{mutations}");
+}

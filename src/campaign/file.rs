@@ -43,8 +43,7 @@ pub const MASS_INCREMENT_KG: (f64, f64) = (1e-5, 0.1);
 pub const DUPLICATE_TOLERANCE: f64 = 1e-9;
 
 /// One axis as written: a list or an inclusive range.
-#[derive(Debug, Clone, PartialEq, Deserialize)]
-#[serde(untagged)]
+#[derive(Debug, Clone, PartialEq)]
 pub enum AxisSpec {
     /// Explicit values.
     List(Vec<f64>),
@@ -59,18 +58,74 @@ pub enum AxisSpec {
     },
 }
 
-/// `[grid]` as written.
+/// `[grid]` as written (each axis a list or a `{ from, to, step }`
+/// table, read by [`AxisSpec::from_value`] so that a refusal names the
+/// element).
 #[derive(Debug, Clone, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct GridSpec {
     /// Operating points Y1o, m.
-    pub operating_point_m: Option<AxisSpec>,
+    pub operating_point_m: Option<toml::Value>,
     /// Operating points in % of the beam length L.
-    pub operating_point_pct: Option<AxisSpec>,
+    pub operating_point_pct: Option<toml::Value>,
     /// Mass asymmetries Δm23 = m2/m3 − 1 (fractions, 0.02 = 2 %).
-    pub mass_asymmetry: Option<AxisSpec>,
+    pub mass_asymmetry: Option<toml::Value>,
     /// Mass asymmetries in %.
-    pub mass_asymmetry_pct: Option<AxisSpec>,
+    pub mass_asymmetry_pct: Option<toml::Value>,
+}
+
+impl AxisSpec {
+    /// An axis from its TOML value: an array of numbers, or a table with
+    /// exactly `from`, `to` and `step`.
+    ///
+    /// # Errors
+    /// `(key, reason)`: the dotted key of the offending element
+    /// (`grid.mass_asymmetry[2]`, `grid.operating_point_pct.step`).
+    pub fn from_value(key: &str, v: &toml::Value) -> Result<Self, (String, String)> {
+        let number = |k: String, v: &toml::Value| match v {
+            toml::Value::Float(f) => Ok(*f),
+            toml::Value::Integer(i) => Ok(*i as f64),
+            other => Err((k, format!("expected a number, got {}", other.type_str()))),
+        };
+        match v {
+            toml::Value::Array(a) => a
+                .iter()
+                .enumerate()
+                .map(|(i, x)| number(format!("{key}[{i}]"), x))
+                .collect::<Result<Vec<_>, _>>()
+                .map(Self::List),
+            toml::Value::Table(t) => {
+                if let Some(k) = t
+                    .keys()
+                    .find(|k| !["from", "to", "step"].contains(&k.as_str()))
+                {
+                    return Err((
+                        format!("{key}.{k}"),
+                        "unknown key: a range has from, to and step".into(),
+                    ));
+                }
+                let get = |name: &str| match t.get(name) {
+                    Some(x) => number(format!("{key}.{name}"), x),
+                    None => Err((
+                        format!("{key}.{name}"),
+                        "missing: a range has from, to and step".into(),
+                    )),
+                };
+                Ok(Self::Range {
+                    from: get("from")?,
+                    to: get("to")?,
+                    step: get("step")?,
+                })
+            }
+            other => Err((
+                key.to_string(),
+                format!(
+                    "expected a list [a, b, ...] or a range {{ from, to, step }}, got {}",
+                    other.type_str()
+                ),
+            )),
+        }
+    }
 }
 
 /// The campaign file as written.
@@ -338,8 +393,16 @@ impl Campaign {
             ),
             0.01,
         )?;
-        let (op_key, op_values, op_scale) = ops;
-        let (dm_key, dm_values, dm_scale) = dms;
+        let (op_key, op_values, op_scale, op_range) = ops;
+        let (dm_key, dm_values, dm_scale, dm_range) = dms;
+        // The key of value i: `key[i]` for a list; for a range, `key.from`
+        // for the first value and `key.to` for any later one (the values
+        // ascend, so a later value out of range means `to` is).
+        let name = |key: &str, range: bool, i: usize| match (range, i) {
+            (false, _) => format!("{key}[{i}]"),
+            (true, 0) => format!("{key}.from"),
+            (true, _) => format!("{key}.to"),
+        };
         if op_values.len() * dm_values.len() > MAX_CELLS {
             return Err(invalid(
                 "grid",
@@ -357,7 +420,7 @@ impl Campaign {
             let lim = ranges::OPERATING_POINT_OF_L * length_m;
             if op.abs() > lim {
                 return Err(invalid(
-                    &format!("{op_key}[{i}]"),
+                    &name(&op_key, op_range, i),
                     format!(
                         "{} ({op} m) is beyond 20 % of the beam length {length_m} m: outside the model's validity",
                         op / op_scale
@@ -369,7 +432,7 @@ impl Campaign {
             let (lo, hi) = ranges::MASS_ASYMMETRY;
             if !(lo..=hi).contains(&dm) {
                 return Err(invalid(
-                    &format!("{dm_key}[{i}]"),
+                    &name(&dm_key, dm_range, i),
                     format!(
                         "{} (Δm23 = {dm}) is outside [{lo}, {hi}]: the model's mass-asymmetry range (0.02 = 2 %)",
                         dm / dm_scale
@@ -448,16 +511,16 @@ impl Campaign {
 /// empty, finite, no duplicates. `pct_scale` converts the percent form.
 fn pick_axis(
     path: &Path,
-    si: (&str, Option<&AxisSpec>),
-    pct: (&str, Option<&AxisSpec>),
+    si: (&str, Option<&toml::Value>),
+    pct: (&str, Option<&toml::Value>),
     pct_scale: f64,
-) -> Result<(String, Vec<f64>, f64), CampaignError> {
+) -> Result<(String, Vec<f64>, f64, bool), CampaignError> {
     let invalid = |key: &str, reason: String| CampaignError::Invalid {
         path: path.to_path_buf(),
         key: key.to_string(),
         reason,
     };
-    let (key, spec, scale) = match (si.1, pct.1) {
+    let (key, value, scale) = match (si.1, pct.1) {
         (Some(_), Some(_)) => {
             return Err(invalid(
                 pct.0,
@@ -473,7 +536,9 @@ fn pick_axis(
             ))
         }
     };
-    let values: Vec<f64> = match spec {
+    let spec = AxisSpec::from_value(key, value).map_err(|(k, why)| invalid(&k, why))?;
+    let is_range = matches!(spec, AxisSpec::Range { .. });
+    let values: Vec<f64> = match &spec {
         AxisSpec::List(v) => {
             if v.is_empty() {
                 return Err(invalid(key, "empty list: the grid has no cells".into()));
@@ -536,7 +601,7 @@ fn pick_axis(
             ));
         }
     }
-    Ok((key.to_string(), values, scale))
+    Ok((key.to_string(), values, scale, is_range))
 }
 
 /// The keys whose values differ between two TOML texts, dotted
