@@ -4,6 +4,8 @@
 //! are journaled and resumable.
 
 mod common;
+#[path = "common/daemon.rs"]
+mod daemon_fixtures;
 
 use common::emulator::Emulator;
 use std::io::{Read, Write};
@@ -169,4 +171,70 @@ fn the_operator_is_told_each_change_and_nothing_moves_before_the_answer() {
         "{s}"
     );
     assert!(!emu.status.enabled.load(Ordering::SeqCst));
+}
+
+#[test]
+fn with_daemon_each_cell_is_a_daemon_job_after_the_operator_answers() {
+    let tmp = tempfile::tempdir().unwrap();
+    let file = campaign_file(tmp.path());
+    // The daemon serves the same quiet bench (its config, its simulator).
+    let socket = tmp.path().join("bench.sock");
+    let recordings = tmp.path().join("daemon-recordings");
+    std::fs::create_dir(&recordings).unwrap();
+    let mut serve = daemon_fixtures::spawn_serve(
+        &tmp.path().join("bench.toml"),
+        &socket,
+        &recordings,
+        &[],
+    );
+    let text = std::fs::read_to_string(&file).unwrap();
+    std::fs::write(
+        &file,
+        text.replace("operating_point_pct = [2.0, 6.0]", "operating_point_pct = [6.0]"),
+    )
+    .unwrap();
+    let mut child = Command::new(env!("CARGO_BIN_EXE_bench"))
+        .args(["campaign", "run", file.to_str().unwrap(), "--out", "d", "--json"])
+        .args(["--daemon", socket.to_str().unwrap()])
+        .current_dir(tmp.path())
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let err = Collected::of(&mut child);
+    let mut stdin = child.stdin.take().unwrap();
+    err.prompts(1);
+    // No job before the answer.
+    std::thread::sleep(Duration::from_millis(200));
+    let chirps = || {
+        std::fs::read_dir(&recordings)
+            .unwrap()
+            .filter_map(|e| e.ok())
+            .map(|e| e.file_name().to_string_lossy().into_owned())
+            .filter(|n| n.starts_with("chirp"))
+            .collect::<Vec<_>>()
+    };
+    assert!(chirps().is_empty(), "{:?}", chirps());
+    stdin.write_all(b"\n").unwrap();
+    err.prompts(2);
+    stdin.write_all(b"\n").unwrap();
+    drop(stdin);
+    let out = child.wait_with_output().unwrap();
+    assert!(out.status.success(), "{}", err.text());
+    let s: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(s["done"], 2, "{s}");
+    // The journal names the daemon's recordings (absolute), checksummed.
+    let journal = std::fs::read_to_string(tmp.path().join("d/journal.jsonl")).unwrap();
+    let rec = recordings.canonicalize().unwrap();
+    assert_eq!(
+        journal.matches(&format!("\"path\":\"{}", rec.display())).count(),
+        2,
+        "{journal}"
+    );
+    for cell in ["cells/000", "cells/001"] {
+        assert!(tmp.path().join("d").join(cell).join("frf.csv").is_file());
+    }
+    serve.kill().unwrap();
+    let _ = serve.wait();
 }

@@ -472,7 +472,15 @@ pub fn run_cells(
                 }
                 let k = next.fetch_add(1, Ordering::SeqCst);
                 let Some(cell) = todo.get(k) else { break };
-                match run_cell(campaign, dir, cell, &journal, &opts.stop, None) {
+                match run_cell(
+                    campaign,
+                    dir,
+                    cell,
+                    &journal,
+                    &opts.stop,
+                    &CellBench::Sim,
+                    None,
+                ) {
                     Ok(()) => {
                         let n = done_count.fetch_add(1, Ordering::SeqCst) + 1;
                         if let Some(f) = opts.on_cell {
@@ -506,14 +514,29 @@ pub fn run_cells(
     Ok(summary)
 }
 
-/// Runs one cell from scratch and journals it.
+/// Where a cell's chirp runs.
+#[derive(Debug, Clone, PartialEq)]
+pub enum CellBench {
+    /// The simulator, in virtual time.
+    Sim,
+    /// A hardware backend (`serial:…`, `socketcan:…`), in real time.
+    Backend(BackendSpec),
+    /// A chirp job of the `bench serve` daemon on this socket (its own
+    /// config and backend; the campaign sends the seed and the chirp).
+    Daemon(PathBuf),
+}
+
+/// Runs one cell from scratch and journals it. `achieved`: the mass
+/// asymmetry the operator set (hardware), where it differs from the
+/// grid's.
 fn run_cell(
     campaign: &Campaign,
     dir: &Path,
     cell: &Cell,
     journal: &Mutex<Journal>,
     stop: &Arc<AtomicBool>,
-    hardware: Option<(&BackendSpec, f64)>,
+    bench: &CellBench,
+    achieved: Option<f64>,
 ) -> Result<(), CampaignRunError> {
     let rel = cell_dir(cell.index);
     let cdir = dir.join(&rel);
@@ -530,31 +553,70 @@ fn run_cell(
     config.plant.operating_point_m = cell.operating_point_m;
     // On hardware the model (FRF plot, summary) is of the asymmetry the
     // operator could set with whole trim masses.
-    let achieved = hardware
-        .map(|(_, a)| a)
-        .filter(|a| *a != cell.mass_asymmetry);
+    let achieved = achieved.filter(|a| *a != cell.mass_asymmetry);
     config.plant.mass_asymmetry = achieved.unwrap_or(cell.mass_asymmetry);
     let seed = campaign.seed_of(cell);
     config.sim.seed = seed;
-    let opts = ChirpOptions {
-        config,
-        config_path: campaign.config_path.clone(),
-        out: cdir.join(CELL_FILES[0]),
-        frf_csv: cdir.join(CELL_FILES[1]),
-        plot: cdir.join(CELL_FILES[2]),
-        realtime: hardware.is_some(),
-        seed,
-        progress: false,
-        backend: hardware.map(|(b, _)| b.clone()),
-    };
     let cell_err = |reason: String| CampaignRunError::Cell {
         cell: cell.index,
         operating_point_m: cell.operating_point_m,
         mass_asymmetry: cell.mass_asymmetry,
         reason,
     };
-    let summary: ChirpSummary = run_chirp(&opts, chirp_outputs(&opts), stop.clone(), None)
-        .map_err(|e| cell_err(e.to_string()))?;
+    // The recording's path as the journal names it: in the cell's
+    // directory, or the daemon's (absolute).
+    let mut recording = format!("{rel}/{}", CELL_FILES[0]);
+    let summary: ChirpSummary = match bench {
+        CellBench::Sim | CellBench::Backend(_) => {
+            let opts = ChirpOptions {
+                config,
+                config_path: campaign.config_path.clone(),
+                out: cdir.join(CELL_FILES[0]),
+                frf_csv: cdir.join(CELL_FILES[1]),
+                plot: cdir.join(CELL_FILES[2]),
+                realtime: *bench != CellBench::Sim,
+                seed,
+                progress: false,
+                backend: match bench {
+                    CellBench::Backend(b) => Some(b.clone()),
+                    _ => None,
+                },
+            };
+            run_chirp(&opts, chirp_outputs(&opts), stop.clone(), None)
+                .map_err(|e| cell_err(e.to_string()))?
+        }
+        CellBench::Daemon(socket) => {
+            let c = &config.chirp;
+            let job = crate::jobs::request::JobRequest::Chirp(crate::jobs::request::ChirpRequest {
+                seed: Some(seed),
+                amplitude_a: Some(c.amplitude_a),
+                f_start_hz: Some(c.f_start_hz),
+                f_end_hz: Some(c.f_end_hz),
+                duration_s: Some(c.duration_s),
+            });
+            let v = crate::daemon::client::submit(socket, &job, |_| {})
+                .map_err(|e| cell_err(format!("daemon {}: {e}", socket.display())))?;
+            let summary: ChirpSummary = serde_json::from_value(v)
+                .map_err(|e| cell_err(format!("the daemon's summary does not parse: {e}")))?;
+            // The FRF and the plot beside the cell's summary; the
+            // recording stays where the daemon wrote it.
+            for (from, name) in [
+                (&summary.frf_csv, CELL_FILES[1]),
+                (&summary.plot, CELL_FILES[2]),
+            ] {
+                let to = cdir.join(name);
+                fs::copy(from, &to).map_err(|e| {
+                    cell_err(format!(
+                        "copying the daemon's {} to {}: {e}",
+                        from.display(),
+                        to.display()
+                    ))
+                })?;
+            }
+            recording = summary.recording.display().to_string();
+            summary
+        }
+    };
     let reason = match summary.cmp_cnmp {
         Some(_) => None,
         None => Some("no closely spaced pair resolved".to_string()),
@@ -567,12 +629,17 @@ fn run_cell(
     .map_err(io_at(&summary_path))?;
     // Every output synced before the entry that counts it.
     let mut files = Vec::new();
-    for name in CELL_FILES {
-        let p = cdir.join(name);
+    for (i, name) in CELL_FILES.iter().enumerate() {
+        let path = if i == 0 {
+            recording.clone()
+        } else {
+            format!("{rel}/{name}")
+        };
+        let p = dir.join(&path);
         File::open(&p)
             .and_then(|f| f.sync_all())
             .map_err(io_at(&p))?;
-        files.push(file_sum(dir, &format!("{rel}/{name}")).map_err(io_at(&p))?);
+        files.push(file_sum(dir, &path).map_err(io_at(&p))?);
     }
     File::open(&cdir)
         .and_then(|d| d.sync_all())
@@ -988,7 +1055,7 @@ fn instructions(
 }
 
 /// Runs the cells of `campaign` not yet done or skipped on hardware
-/// (`backend`), one at a time in the serpentine order, each only after the
+/// (`bench`: a backend or the daemon), one at a time in the serpentine order, each only after the
 /// operator confirmed the setup they were told to make. Between cells the
 /// backend is closed (the amplifier disabled at 0 A, as every chirp leaves
 /// it); nothing is opened before the answer.
@@ -1001,7 +1068,7 @@ pub fn run_attended(
     dir: &Path,
     journal: Journal,
     already: &ReadJournal,
-    backend: &BackendSpec,
+    bench: &CellBench,
     operator: &mut dyn Operator,
     stop: &Arc<AtomicBool>,
 ) -> Result<CampaignSummary, CampaignRunError> {
@@ -1070,7 +1137,8 @@ pub fn run_attended(
                     &cell,
                     &journal,
                     stop,
-                    Some((backend, to.masses.achieved_mass_asymmetry)),
+                    bench,
+                    Some(to.masses.achieved_mass_asymmetry),
                 )?;
                 current = Some(to);
                 todo.pop_front();

@@ -6,7 +6,7 @@ use bench::campaign::file::Campaign;
 use bench::campaign::journal::Journal;
 use bench::campaign::run::{
     create, damaged_cells, load_dir, run_attended, run_cells, summarize, write_results,
-    CampaignRunError, CampaignSummary, LineOperator, RunOptions,
+    CampaignRunError, CampaignSummary, CellBench, LineOperator, RunOptions,
 };
 use bench::rt::backend::BackendSpec;
 use clap::{Args, Subcommand};
@@ -49,6 +49,12 @@ pub(super) struct RunArgs {
     /// the operator has made and confirmed the setup they are told.
     #[arg(long, value_name = "SPEC")]
     backend: Option<BackendSpec>,
+    /// Run each cell as a chirp job of the running `bench serve` on
+    /// SOCKET [default: $XDG_RUNTIME_DIR/bench.sock, else
+    /// /run/bench/bench.sock]; the daemon's config and backend apply. The
+    /// operator is asked before each cell as on hardware.
+    #[arg(long, value_name = "SOCKET", num_args = 0..=1, default_missing_value = "", conflicts_with = "backend")]
+    daemon: Option<String>,
     /// Print the summary as one JSON object on stdout.
     #[arg(long)]
     json: bool,
@@ -73,6 +79,12 @@ pub(super) struct ResumeArgs {
     /// Hardware backend, as for `run`.
     #[arg(long, value_name = "SPEC")]
     backend: Option<BackendSpec>,
+    /// Run each cell as a chirp job of the running `bench serve` on
+    /// SOCKET [default: $XDG_RUNTIME_DIR/bench.sock, else
+    /// /run/bench/bench.sock]; the daemon's config and backend apply. The
+    /// operator is asked before each cell as on hardware.
+    #[arg(long, value_name = "SOCKET", num_args = 0..=1, default_missing_value = "", conflicts_with = "backend")]
+    daemon: Option<String>,
     /// Print the summary as one JSON object on stdout.
     #[arg(long)]
     json: bool,
@@ -133,15 +145,9 @@ fn run(a: RunArgs, stop: Arc<AtomicBool>) -> ExitCode {
         Ok(j) => j,
         Err(e) => return failed(&e.into()),
     };
+    let bench = target(a.backend.as_ref(), a.daemon.as_deref(), &campaign);
     go(
-        &campaign,
-        &dir,
-        journal,
-        &read,
-        threads,
-        a.backend.as_ref(),
-        stop,
-        a.json,
+        &campaign, &dir, journal, &read, threads, bench, stop, a.json,
     )
 }
 
@@ -178,16 +184,26 @@ fn resume(a: ResumeArgs, stop: Arc<AtomicBool>) -> ExitCode {
             list.join("; ")
         ));
     }
+    let bench = target(a.backend.as_ref(), a.daemon.as_deref(), &campaign);
     go(
-        &campaign,
-        &a.dir,
-        journal,
-        &read,
-        threads,
-        a.backend.as_ref(),
-        stop,
-        a.json,
+        &campaign, &a.dir, journal, &read, threads, bench, stop, a.json,
     )
+}
+
+/// Where the cells run: the daemon, a hardware backend (flag or
+/// `[backend]`), or the simulator.
+fn target(backend: Option<&BackendSpec>, daemon: Option<&str>, campaign: &Campaign) -> CellBench {
+    if let Some(sock) = daemon {
+        return CellBench::Daemon(if sock.is_empty() {
+            bench::daemon::default_socket_path()
+        } else {
+            PathBuf::from(sock)
+        });
+    }
+    match BackendSpec::resolve(backend, &campaign.config) {
+        BackendSpec::Sim => CellBench::Sim,
+        spec => CellBench::Backend(spec),
+    }
 }
 
 #[allow(clippy::too_many_arguments)]
@@ -197,12 +213,16 @@ fn go(
     journal: Journal,
     read: &bench::campaign::journal::ReadJournal,
     threads: usize,
-    backend: Option<&BackendSpec>,
+    bench: CellBench,
     stop: Arc<AtomicBool>,
     json: bool,
 ) -> ExitCode {
-    let spec = BackendSpec::resolve(backend, &campaign.config);
-    if !spec.is_sim() {
+    if bench != CellBench::Sim {
+        let on = match &bench {
+            CellBench::Daemon(s) => format!("the daemon at {}", s.display()),
+            CellBench::Backend(spec) => spec.to_string(),
+            CellBench::Sim => unreachable!(),
+        };
         // Instructions and answers on the terminal (stderr, so that
         // --json keeps stdout for the summary).
         let mut operator = LineOperator {
@@ -210,11 +230,11 @@ fn go(
             out: std::io::stderr(),
         };
         eprintln!(
-            "campaign {} on {spec}: {} cells, one at a time; change the setup as told, then answer",
+            "campaign {} on {on}: {} cells, one at a time; change the setup as told, then answer",
             dir.display(),
             campaign.cells().len() - read.done().len() - read.skipped().len()
         );
-        return match run_attended(campaign, dir, journal, read, &spec, &mut operator, &stop) {
+        return match run_attended(campaign, dir, journal, read, &bench, &mut operator, &stop) {
             Ok(s) => match emit(&s, json, print_summary) {
                 Ok(()) => ExitCode::SUCCESS,
                 Err(code) => code,
