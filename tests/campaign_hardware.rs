@@ -181,20 +181,38 @@ fn with_daemon_each_cell_is_a_daemon_job_after_the_operator_answers() {
     let socket = tmp.path().join("bench.sock");
     let recordings = tmp.path().join("daemon-recordings");
     std::fs::create_dir(&recordings).unwrap();
-    let mut serve = daemon_fixtures::spawn_serve(
+    // Killed on drop, also when an assertion fails.
+    struct Serve(std::process::Child);
+    impl Drop for Serve {
+        fn drop(&mut self) {
+            let _ = self.0.kill();
+            let _ = self.0.wait();
+        }
+    }
+    let _serve = Serve(daemon_fixtures::spawn_serve(
         &tmp.path().join("bench.toml"),
         &socket,
         &recordings,
         &[],
-    );
+    ));
     let text = std::fs::read_to_string(&file).unwrap();
     std::fs::write(
         &file,
-        text.replace("operating_point_pct = [2.0, 6.0]", "operating_point_pct = [6.0]"),
+        text.replace(
+            "operating_point_pct = [2.0, 6.0]",
+            "operating_point_pct = [6.0]",
+        ),
     )
     .unwrap();
     let mut child = Command::new(env!("CARGO_BIN_EXE_bench"))
-        .args(["campaign", "run", file.to_str().unwrap(), "--out", "d", "--json"])
+        .args([
+            "campaign",
+            "run",
+            file.to_str().unwrap(),
+            "--out",
+            "d",
+            "--json",
+        ])
         .args(["--daemon", socket.to_str().unwrap()])
         .current_dir(tmp.path())
         .stdin(Stdio::piped())
@@ -228,13 +246,13 @@ fn with_daemon_each_cell_is_a_daemon_job_after_the_operator_answers() {
     let journal = std::fs::read_to_string(tmp.path().join("d/journal.jsonl")).unwrap();
     let rec = recordings.canonicalize().unwrap();
     assert_eq!(
-        journal.matches(&format!("\"path\":\"{}", rec.display())).count(),
+        journal
+            .matches(&format!("\"path\":\"{}", rec.display()))
+            .count(),
         2,
         "{journal}"
     );
     for cell in ["cells/000", "cells/001"] {
         assert!(tmp.path().join("d").join(cell).join("frf.csv").is_file());
     }
-    serve.kill().unwrap();
-    let _ = serve.wait();
 }

@@ -24,6 +24,7 @@ mod config_cmd;
 mod control;
 mod docs;
 mod emulate;
+mod export;
 mod job_thread;
 mod recover;
 mod serve;
@@ -41,6 +42,7 @@ use config_cmd::{config_command, ConfigCommand};
 use control::{control, ControlArgs};
 use docs::{completions, man, CompletionsArgs, ManArgs};
 use emulate::{emulate, EmulateCommand};
+use export::{export, ExportArgs};
 use recover::{recover, RecoverArgs};
 use serve::{serve, ServeArgs};
 use std::path::{Path, PathBuf};
@@ -93,6 +95,9 @@ enum Command {
     /// stopped; the measured map against the model's.
     #[command(subcommand)]
     Campaign(CampaignCommand),
+    /// Export a recording's channel as a CSV or Parquet table (one column
+    /// per field, the unit in its name) for numpy and pandas.
+    Export(ExportArgs),
     /// The built-in bench description: print it as a commented TOML file
     /// to start from, or check a file.
     #[command(subcommand)]
@@ -164,6 +169,7 @@ pub fn main() -> ExitCode {
         Command::Analyze(args) => analyze(args),
         Command::Map(args) => map(args),
         Command::Campaign(cmd) => campaign(cmd, stop),
+        Command::Export(args) => export(args),
         Command::Config(cmd) => config_command(cmd),
         Command::Completions(args) => completions(&args),
         Command::Man(args) => man(&args),

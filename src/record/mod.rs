@@ -76,6 +76,7 @@
 //! in (faster than real time) virtual time. Flushing hands the bytes to the OS
 //! (survives a killed process); only `finish` fsyncs (survives power loss).
 
+pub mod export;
 mod reader;
 pub mod recover;
 mod schema;

@@ -1,0 +1,182 @@
+//! `bench export`: a recording's samples, timing and FRF as CSV and
+//! Parquet, checked value for value against the recording read back with
+//! the MCAP reader; bad input.
+
+mod common;
+
+use bench::record::read_samples_tolerant;
+use common::*;
+use parquet::file::reader::{FileReader, SerializedFileReader};
+use parquet::record::Field;
+use std::path::Path;
+
+fn short_chirp(dir: &Path) -> String {
+    let rec = path_in(dir, "run.mcap");
+    let out = run(&[
+        "chirp",
+        "--out",
+        &rec,
+        "--duration-s",
+        "1",
+        "--f-start-hz",
+        "20",
+        "--seed",
+        "7",
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    rec
+}
+
+fn f64_of(s: &str) -> f64 {
+    if s == "NaN" {
+        f64::NAN
+    } else {
+        s.parse().unwrap()
+    }
+}
+
+fn same(a: f64, b: f64) -> bool {
+    a == b || (a.is_nan() && b.is_nan())
+}
+
+#[test]
+fn samples_export_to_csv_and_parquet_equal_the_recording() {
+    let dir = tmp();
+    let rec = short_chirp(dir.path());
+    let samples = read_samples_tolerant(&std::fs::read(&rec).unwrap());
+    assert!(samples.len() > 5000);
+
+    let csv = path_in(dir.path(), "s.csv");
+    let out = run(&["export", &rec, "--to", "csv", "--out", &csv]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let text = std::fs::read_to_string(&csv).unwrap();
+    let mut lines = text.lines();
+    assert_eq!(
+        lines.next().unwrap(),
+        "log_time_ns,tick,t_s,wake_s,current_command_a,position_m,excitation_a,setpoint_m,state,out_of_range"
+    );
+    let rows: Vec<Vec<&str>> = lines.map(|l| l.split(',').collect()).collect();
+    assert_eq!(rows.len(), samples.len());
+    for (r, s) in rows.iter().zip(&samples) {
+        assert_eq!(r[1].parse::<u64>().unwrap(), s.tick);
+        assert!(same(f64_of(r[2]), s.t_s));
+        assert!(same(f64_of(r[4]), s.current_command_a));
+        assert!(same(f64_of(r[5]), s.position_m), "{r:?} {s:?}");
+        assert!(same(f64_of(r[6]), s.excitation_a));
+        assert!(same(f64_of(r[7]), s.setpoint_m));
+        assert_eq!(r[8], s.state.as_str());
+        assert_eq!(r[9] == "true", s.out_of_range);
+    }
+
+    let pq = path_in(dir.path(), "s.parquet");
+    let out = run(&["export", &rec, "--to", "parquet", "--out", &pq]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let reader = SerializedFileReader::new(std::fs::File::open(&pq).unwrap()).unwrap();
+    assert_eq!(
+        reader.metadata().file_metadata().num_rows() as usize,
+        samples.len()
+    );
+    for (row, s) in reader.get_row_iter(None).unwrap().zip(&samples) {
+        let row = row.unwrap();
+        let cols: Vec<(&String, &Field)> = row.get_column_iter().collect();
+        assert_eq!(cols[1], (&"tick".to_string(), &Field::Long(s.tick as i64)));
+        let real = |i: usize| match cols[i].1 {
+            Field::Double(x) => *x,
+            other => panic!("{other:?}"),
+        };
+        assert!(same(real(5), s.position_m));
+        assert!(same(real(4), s.current_command_a));
+        assert_eq!(cols[8].1, &Field::Str(s.state.as_str().to_string()));
+        assert_eq!(cols[9].1, &Field::Bool(s.out_of_range));
+    }
+}
+
+#[test]
+fn the_frf_exports_one_row_per_line_like_the_frf_csv() {
+    let dir = tmp();
+    let rec = short_chirp(dir.path());
+    let out = run(&["export", &rec, "--to", "csv", "--topic", "/sysid/frf"]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let exported = std::fs::read_to_string(dir.path().join("run.sysid-frf.csv")).unwrap();
+    let frf_csv = std::fs::read_to_string(dir.path().join("run.frf.csv")).unwrap();
+    let mut e = exported.lines();
+    let header: Vec<&str> = e.next().unwrap().split(',').collect();
+    let col = |name: &str| header.iter().position(|h| *h == name).unwrap();
+    let (fi, mi) = (col("frequency_hz"), col("magnitude_m_per_a"));
+    let rows: Vec<Vec<&str>> = e.map(|l| l.split(',').collect()).collect();
+    let reference: Vec<Vec<&str>> = frf_csv
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').collect())
+        .collect();
+    assert_eq!(rows.len(), reference.len());
+    for (r, c) in rows.iter().zip(&reference) {
+        // The FRF CSV prints 7 significant digits.
+        let rel = |a: f64, b: f64| (a - b).abs() <= 1e-6 * b.abs().max(1e-300);
+        assert!(rel(f64_of(r[fi]), f64_of(c[0])), "{r:?} {c:?}");
+        assert!(rel(f64_of(r[mi]), f64_of(c[1])), "{r:?} {c:?}");
+    }
+    // Timing and events export too.
+    for topic in ["/bench/timing", "/bench/event"] {
+        let out = run(&["export", &rec, "--to", "parquet", "--topic", topic]);
+        assert!(
+            out.status.success(),
+            "{topic}: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+    }
+}
+
+#[test]
+fn bad_export_input_exits_2_naming_the_file_or_topic() {
+    let dir = tmp();
+    let rec = short_chirp(dir.path());
+    let out = run(&["export", &rec, "--to", "csv", "--topic", "/no/such"]);
+    assert_eq!(out.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("/no/such") && err.contains("/bench/sample"),
+        "{err}"
+    );
+    let junk = path_in(dir.path(), "junk.mcap");
+    std::fs::write(&junk, b"not an mcap file at all").unwrap();
+    let out = run(&["export", &junk, "--to", "csv"]);
+    assert_eq!(out.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("junk.mcap"));
+    let out = run(&[
+        "export",
+        &path_in(dir.path(), "missing.mcap"),
+        "--to",
+        "csv",
+    ]);
+    assert_eq!(out.status.code(), Some(2));
+    // An existing output is kept unless --overwrite.
+    let csv = path_in(dir.path(), "keep.csv");
+    std::fs::write(&csv, "keep").unwrap();
+    let out = run(&["export", &rec, "--to", "csv", "--out", &csv]);
+    assert_eq!(out.status.code(), Some(2));
+    assert_eq!(std::fs::read_to_string(&csv).unwrap(), "keep");
+    let out = run(&["export", &rec, "--to", "csv", "--out", &csv, "--overwrite"]);
+    assert!(out.status.success());
+    assert!(std::fs::read_to_string(&csv)
+        .unwrap()
+        .starts_with("log_time_ns,"));
+    let out = run(&["export", &rec, "--to", "xlsx"]);
+    assert_eq!(out.status.code(), Some(2));
+}
