@@ -3,6 +3,7 @@
 //! point × mass asymmetry, or with `--veering` the pair's frequencies
 //! against operating point).
 
+use super::point::PointArgs;
 use super::{bad_input, emit, load_config, status, CONFIG_HELP};
 use bench::analysis::map::{cnmp_map, linspace, model_at, veering_curve, MapCell, VeeringCurve};
 use bench::analysis::plot::{
@@ -23,29 +24,8 @@ use std::process::ExitCode;
 pub(super) struct BenchPointArgs {
     #[arg(long, value_name = "FILE", help = CONFIG_HELP)]
     config: Option<PathBuf>,
-    /// Operating point Y1o, m (overrides plant.operating_point_m).
-    #[arg(
-        long,
-        value_name = "M",
-        allow_hyphen_values = true,
-        conflicts_with = "operating_point_pct"
-    )]
-    operating_point_m: Option<f64>,
-    /// Operating point Y1o in % of the beam length L.
-    #[arg(long, value_name = "PERCENT", allow_hyphen_values = true)]
-    operating_point_pct: Option<f64>,
-    /// Mass asymmetry Δm23 = m2/m3 − 1 as a fraction, e.g. 0.1 for +10 %
-    /// (overrides plant.mass_asymmetry).
-    #[arg(
-        long,
-        value_name = "X",
-        allow_hyphen_values = true,
-        conflicts_with = "mass_asymmetry_pct"
-    )]
-    mass_asymmetry: Option<f64>,
-    /// Mass asymmetry Δm23 in % (overrides plant.mass_asymmetry).
-    #[arg(long, value_name = "PERCENT", allow_hyphen_values = true)]
-    mass_asymmetry_pct: Option<f64>,
+    #[command(flatten)]
+    point: PointArgs,
 }
 
 impl BenchPointArgs {
@@ -62,47 +42,12 @@ impl BenchPointArgs {
     fn plant(&self) -> Result<(BenchConfig, Sr4dofParams), ExitCode> {
         let (cfg, _) = load_config(self.config.as_deref()).map_err(bad_input)?;
         let mut p = cfg.plant;
-        if let Some(m) = self.operating_point_m {
-            p.operating_point_m = m;
+        if let Some(code) = self.point.refuse_percent_out_of_range() {
+            return Err(code);
         }
-        if let Some(pct) = self.operating_point_pct {
-            p.operating_point_m = pct / 100.0 * p.beam.length_m;
-        }
-        if let Some(x) = self.mass_asymmetry {
-            p.mass_asymmetry = x;
-        }
-        if let Some(pct) = self.mass_asymmetry_pct {
-            p.mass_asymmetry = pct / 100.0;
-        }
+        self.point.apply(&mut p);
         if let Err(e) = p.validate("plant") {
-            let flag = match e.key.as_str() {
-                "plant.operating_point_m" if self.operating_point_m.is_some() => {
-                    Some("--operating-point-m")
-                }
-                "plant.operating_point_m" if self.operating_point_pct.is_some() => {
-                    Some("--operating-point-pct")
-                }
-                "plant.mass_asymmetry" if self.mass_asymmetry.is_some() => Some("--mass-asymmetry"),
-                "plant.mass_asymmetry" if self.mass_asymmetry_pct.is_some() => {
-                    Some("--mass-asymmetry-pct")
-                }
-                _ => None,
-            };
-            let (lo, hi) = ranges::MASS_ASYMMETRY;
-            let max_pct = ranges::OPERATING_POINT_OF_L * 100.0;
-            return Err(match flag {
-                // The -pct flags are judged in percent (the fraction and
-                // metre hints of the keys would mislead).
-                Some(f @ "--mass-asymmetry-pct") => bad_input(format!(
-                    "{f} {}: Δm23 must be {} % to {} %",
-                    self.mass_asymmetry_pct.unwrap_or_default(),
-                    lo * 100.0,
-                    hi * 100.0
-                )),
-                Some(f @ "--operating-point-pct") => bad_input(format!(
-                    "{f} {}: |Y1o| must be at most {max_pct} % of the beam length (Eq. 2-1 is a small-rotation result)",
-                    self.operating_point_pct.unwrap_or_default()
-                )),
+            return Err(match self.point.flag_for(&e.key) {
                 Some(f) => bad_input(format!("{f}: {}", e.reason)),
                 None => bad_input(format!("{}: {e}", self.config_name())),
             });

@@ -1,6 +1,7 @@
 //! `bench chirp`: its flags, the job request and local overrides they make,
 //! and the printed summary.
 
+use super::point::PointArgs;
 use super::serve::via_daemon;
 use super::{
     bad_input, emit, job_thread, load_config, origin, recording_plan, refuse_local_only,
@@ -8,7 +9,7 @@ use super::{
 };
 use bench::config::ChirpKind;
 use bench::jobs::chirp::{run_chirp, ChirpOptions, ChirpSummary};
-use bench::jobs::request::{parse_seed, ChirpRequest, JobRequest, LocalOverrides, OperatingPoint};
+use bench::jobs::request::{parse_seed, ChirpRequest, JobRequest, LocalOverrides};
 use bench::jobs::session::beside;
 use bench::rt::backend::BackendSpec;
 use clap::{Args, ValueEnum};
@@ -52,31 +53,8 @@ pub(super) struct ChirpArgs {
     /// Print the summary as one JSON object on stdout.
     #[arg(long)]
     json: bool,
-    /// Operating point Y1o, m (overrides plant.operating_point_m); 3 mm is
-    /// 0.003.
-    #[arg(
-        long,
-        value_name = "M",
-        allow_hyphen_values = true,
-        conflicts_with = "operating_point_pct"
-    )]
-    operating_point_m: Option<f64>,
-    /// Operating point Y1o in % of the beam length L.
-    #[arg(long, value_name = "PERCENT", allow_hyphen_values = true)]
-    operating_point_pct: Option<f64>,
-    /// Mass asymmetry Δm23 = m2/m3 − 1 as a fraction, 0.10 = +10 %
-    /// (overrides plant.mass_asymmetry); range −0.33 to 0.5.
-    #[arg(
-        long,
-        value_name = "X",
-        allow_hyphen_values = true,
-        conflicts_with = "mass_asymmetry_pct"
-    )]
-    mass_asymmetry: Option<f64>,
-    /// Mass asymmetry Δm23 in %, 10 = +10 % (overrides
-    /// plant.mass_asymmetry); range −33 to 50.
-    #[arg(long, value_name = "PERCENT", allow_hyphen_values = true)]
-    mass_asymmetry_pct: Option<f64>,
+    #[command(flatten)]
+    point: PointArgs,
     /// Chirp current amplitude, A (overrides chirp.amplitude_a).
     #[arg(long, value_name = "A", allow_hyphen_values = true)]
     amplitude_a: Option<f64>,
@@ -118,12 +96,8 @@ impl ChirpArgs {
     /// The local-only overrides of the flags.
     fn local_overrides(&self) -> LocalOverrides {
         LocalOverrides {
-            operating_point: self.operating_point_m.map(OperatingPoint::Metres).or(self
-                .operating_point_pct
-                .map(OperatingPoint::PercentOfBeamLength)),
-            mass_asymmetry: self
-                .mass_asymmetry
-                .or(self.mass_asymmetry_pct.map(|p| p / 100.0)),
+            operating_point: self.point.operating_point(),
+            mass_asymmetry: self.point.mass_asymmetry(),
             chirp_kind: self.chirp_kind.map(|k| match k {
                 KindArg::Exponential => ChirpKind::Exponential,
                 KindArg::Linear => ChirpKind::Linear,
@@ -131,41 +105,12 @@ impl ChirpArgs {
         }
     }
 
-    /// Exit 2 for a percent flag outside its key's range, said in percent
-    /// (the ranges are the model's, `bench_hal::model::ranges`; the key's
-    /// own check would say them as fractions and metres).
-    fn refuse_percent_out_of_range(&self) -> Option<ExitCode> {
-        use bench_hal::model::ranges;
-        if let Some(p) = self.mass_asymmetry_pct {
-            let (lo, hi) = ranges::MASS_ASYMMETRY;
-            if !(p.is_finite() && (lo * 100.0..=hi * 100.0).contains(&p)) {
-                return Some(bad_input(format!(
-                    "--mass-asymmetry-pct {p}: Δm23 must be {} % to {} % (config key plant.mass_asymmetry): the heavier secondary stage at most about 1.5 times the lighter, so the two stay a closely spaced pair (thesis §2.2.1, §5.2.1; its grid spans −8 % to +10 %)",
-                    lo * 100.0,
-                    hi * 100.0
-                )));
-            }
-        }
-        if let Some(p) = self.operating_point_pct {
-            let max = ranges::OPERATING_POINT_OF_L * 100.0;
-            if !(p.is_finite() && p.abs() <= max) {
-                return Some(bad_input(format!(
-                    "--operating-point-pct {p}: |Y1o| must be at most {max} % of the beam length (config key plant.operating_point_m): Eq. (2-1) is a small-rotation result, outside the model's validity beyond"
-                )));
-            }
-        }
-        None
-    }
-
     /// The flag that set a config key (for error messages).
     fn flag_for(&self, key: &str) -> Option<String> {
+        if let Some(f) = self.point.flag_for(key) {
+            return Some(f.to_string());
+        }
         let flag = match key {
-            "plant.operating_point_m" if self.operating_point_m.is_some() => "--operating-point-m",
-            "plant.operating_point_m" if self.operating_point_pct.is_some() => {
-                "--operating-point-pct"
-            }
-            "plant.mass_asymmetry" if self.mass_asymmetry.is_some() => "--mass-asymmetry",
-            "plant.mass_asymmetry" if self.mass_asymmetry_pct.is_some() => "--mass-asymmetry-pct",
             "chirp.amplitude_a" if self.amplitude_a.is_some() => "--amplitude-a",
             "chirp.f_start_hz" if self.f_start_hz.is_some() => "--f-start-hz",
             "chirp.f_end_hz" if self.f_end_hz.is_some() => "--f-end-hz",
@@ -178,18 +123,17 @@ impl ChirpArgs {
 
 pub(super) fn chirp(args: ChirpArgs, stop: Arc<AtomicBool>) -> ExitCode {
     if let Some(sock) = &args.daemon {
-        let local_only = [
+        let mut local_only = vec![
             (args.out.is_some(), "--out"),
             (args.frf_csv.is_some(), "--frf-csv"),
             (args.plot.is_some(), "--plot"),
             (args.overwrite, "--overwrite"),
-            (args.operating_point_m.is_some(), "--operating-point-m"),
-            (args.operating_point_pct.is_some(), "--operating-point-pct"),
-            (args.mass_asymmetry.is_some(), "--mass-asymmetry"),
-            (args.mass_asymmetry_pct.is_some(), "--mass-asymmetry-pct"),
+        ];
+        local_only.extend(args.point.given());
+        local_only.extend([
             (args.backend.is_some(), "--backend"),
             (args.chirp_kind.is_some(), "--chirp-kind"),
-        ];
+        ]);
         if let Some(code) = refuse_local_only(
             &local_only,
             "the daemon owns the bench, its config and where recordings go",
@@ -203,7 +147,7 @@ pub(super) fn chirp(args: ChirpArgs, stop: Arc<AtomicBool>) -> ExitCode {
         Ok(c) => c,
         Err(e) => return bad_input(e),
     };
-    if let Some(code) = args.refuse_percent_out_of_range() {
+    if let Some(code) = args.point.refuse_percent_out_of_range() {
         return code;
     }
     let request = args.request();

@@ -26,6 +26,7 @@ mod docs;
 mod emulate;
 mod export;
 mod job_thread;
+mod point;
 mod recover;
 mod serve;
 
