@@ -60,6 +60,18 @@ impl Collected {
     }
 }
 
+/// `bench ARGS` in `cwd` with stdin, stdout and stderr piped.
+fn spawn(args: &[&str], cwd: &Path) -> Child {
+    Command::new(env!("CARGO_BIN_EXE_bench"))
+        .args(args)
+        .current_dir(cwd)
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap()
+}
+
 fn campaign_file(dir: &Path) -> std::path::PathBuf {
     // The shipped bench with the link-latency and overrun bounds of the
     // shared test config (a loaded 2-core VM stalls the host at times).
@@ -91,15 +103,18 @@ fn the_operator_is_told_each_change_and_nothing_moves_before_the_answer() {
     let cfg = Path::new(env!("CARGO_MANIFEST_DIR")).join("bench-config/sr4dof-ch5.toml");
     let emu = Emulator::start(&cfg, vec![], None);
     let backend = emu.backend();
-    let mut child = Command::new(env!("CARGO_BIN_EXE_bench"))
-        .args(["campaign", "run", file.to_str().unwrap(), "--out", "hw"])
-        .args(["--backend", &backend])
-        .current_dir(tmp.path())
-        .stdin(Stdio::piped())
-        .stdout(Stdio::null())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
+    let mut child = spawn(
+        &[
+            "campaign",
+            "run",
+            file.to_str().unwrap(),
+            "--out",
+            "hw",
+            "--backend",
+            &backend,
+        ],
+        tmp.path(),
+    );
     let err = Collected::of(&mut child);
     let mut stdin = child.stdin.take().unwrap();
 
@@ -148,14 +163,10 @@ fn the_operator_is_told_each_change_and_nothing_moves_before_the_answer() {
     let journal = std::fs::read_to_string(tmp.path().join("hw/journal.jsonl")).unwrap();
     assert_eq!(journal.matches("\"entry\":\"done\"").count(), 1);
     assert_eq!(journal.matches("\"entry\":\"skipped\"").count(), 1);
-    let mut child = Command::new(env!("CARGO_BIN_EXE_bench"))
-        .args(["campaign", "resume", "hw", "--backend", &backend, "--json"])
-        .current_dir(tmp.path())
-        .stdin(Stdio::piped())
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
+    let mut child = spawn(
+        &["campaign", "resume", "hw", "--backend", &backend, "--json"],
+        tmp.path(),
+    );
     let err = Collected::of(&mut child);
     child.stdin.take().unwrap().write_all(b"\n\n").unwrap();
     let out = child.wait_with_output().unwrap();
@@ -204,22 +215,19 @@ fn with_daemon_each_cell_is_a_daemon_job_after_the_operator_answers() {
         ),
     )
     .unwrap();
-    let mut child = Command::new(env!("CARGO_BIN_EXE_bench"))
-        .args([
+    let mut child = spawn(
+        &[
             "campaign",
             "run",
             file.to_str().unwrap(),
             "--out",
             "d",
             "--json",
-        ])
-        .args(["--daemon", socket.to_str().unwrap()])
-        .current_dir(tmp.path())
-        .stdin(Stdio::piped())
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
+            "--daemon",
+            socket.to_str().unwrap(),
+        ],
+        tmp.path(),
+    );
     let err = Collected::of(&mut child);
     let mut stdin = child.stdin.take().unwrap();
     err.prompts(1);

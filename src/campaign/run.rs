@@ -242,19 +242,21 @@ pub fn create(campaign: &Campaign, dir: &Path) -> Result<(), CampaignRunError> {
         ORIGIN_FILE,
         &(serde_json::to_string_pretty(&origin).expect("origin serialises") + "\n"),
     )?;
-    Journal::create(
-        dir,
-        &Entry::Header {
-            version: journal::JOURNAL_VERSION,
-            campaign_sha256: sha256_hex(campaign.text.as_bytes()),
-            config_sha256: sha256_hex(campaign.config_text.as_bytes()),
-            campaign_text: campaign.text.clone(),
-            config_text: campaign.config_text.clone(),
-            cells: campaign.cells().len(),
-            created_utc: now_utc(),
-        },
-    )?;
+    Journal::create(dir, &header_of(campaign))?;
     Ok(())
+}
+
+/// The journal header of `campaign`: its texts and their hashes.
+fn header_of(campaign: &Campaign) -> Entry {
+    Entry::Header {
+        version: journal::JOURNAL_VERSION,
+        campaign_sha256: sha256_hex(campaign.text.as_bytes()),
+        config_sha256: sha256_hex(campaign.config_text.as_bytes()),
+        campaign_text: campaign.text.clone(),
+        config_text: campaign.config_text.clone(),
+        cells: campaign.cells().len(),
+        created_utc: now_utc(),
+    }
 }
 
 fn now_utc() -> String {
@@ -406,15 +408,7 @@ pub fn adopt_changed(
         write_atomically(&p, Existing::Replace, |f| f.write_all(text.as_bytes()))
             .map_err(io_at(&p))?;
     }
-    journal.append(&Entry::Header {
-        version: journal::JOURNAL_VERSION,
-        campaign_sha256: sha256_hex(campaign.text.as_bytes()),
-        config_sha256: sha256_hex(campaign.config_text.as_bytes()),
-        campaign_text: campaign.text.clone(),
-        config_text: campaign.config_text.clone(),
-        cells: campaign.cells().len(),
-        created_utc: now_utc(),
-    })?;
+    journal.append(&header_of(campaign))?;
     Ok(())
 }
 

@@ -40,6 +40,13 @@ pub(super) struct RunArgs {
     /// file's `out`].
     #[arg(long, value_name = "DIR")]
     out: Option<PathBuf>,
+    #[command(flatten)]
+    how: HowArgs,
+}
+
+/// Where and how the cells run, for `run` and `resume`.
+#[derive(Debug, Args)]
+pub(super) struct HowArgs {
     /// Cells run at once on the simulator, 1 … 64 [default: the number of
     /// cores].
     #[arg(long, value_name = "N")]
@@ -73,21 +80,8 @@ pub(super) struct ResumeArgs {
     /// cells at the same operating point and asymmetry are kept.
     #[arg(long)]
     force: bool,
-    /// Cells run at once, 1 … 64 [default: the number of cores].
-    #[arg(long, value_name = "N")]
-    threads: Option<usize>,
-    /// Hardware backend, as for `run`.
-    #[arg(long, value_name = "SPEC")]
-    backend: Option<BackendSpec>,
-    /// Run each cell as a chirp job of the running `bench serve` on
-    /// SOCKET [default: $XDG_RUNTIME_DIR/bench.sock, else
-    /// /run/bench/bench.sock]; the daemon's config and backend apply. The
-    /// operator is asked before each cell as on hardware.
-    #[arg(long, value_name = "SOCKET", num_args = 0..=1, default_missing_value = "", conflicts_with = "backend")]
-    daemon: Option<String>,
-    /// Print the summary as one JSON object on stdout.
-    #[arg(long)]
-    json: bool,
+    #[command(flatten)]
+    how: HowArgs,
 }
 
 #[derive(Debug, Args)]
@@ -124,7 +118,7 @@ pub(super) fn campaign(cmd: CampaignCommand, stop: Arc<AtomicBool>) -> ExitCode 
 }
 
 fn run(a: RunArgs, stop: Arc<AtomicBool>) -> ExitCode {
-    let threads = match threads(a.threads) {
+    let threads = match threads(a.how.threads) {
         Ok(n) => n,
         Err(code) => return code,
     };
@@ -145,14 +139,14 @@ fn run(a: RunArgs, stop: Arc<AtomicBool>) -> ExitCode {
         Ok(j) => j,
         Err(e) => return failed(&e.into()),
     };
-    let bench = target(a.backend.as_ref(), a.daemon.as_deref(), &campaign);
+    let bench = target(a.how.backend.as_ref(), a.how.daemon.as_deref(), &campaign);
     go(
-        &campaign, &dir, journal, &read, threads, bench, stop, a.json,
+        &campaign, &dir, journal, &read, threads, bench, stop, a.how.json,
     )
 }
 
 fn resume(a: ResumeArgs, stop: Arc<AtomicBool>) -> ExitCode {
-    let threads = match threads(a.threads) {
+    let threads = match threads(a.how.threads) {
         Ok(n) => n,
         Err(code) => return code,
     };
@@ -184,9 +178,9 @@ fn resume(a: ResumeArgs, stop: Arc<AtomicBool>) -> ExitCode {
             list.join("; ")
         ));
     }
-    let bench = target(a.backend.as_ref(), a.daemon.as_deref(), &campaign);
+    let bench = target(a.how.backend.as_ref(), a.how.daemon.as_deref(), &campaign);
     go(
-        &campaign, &a.dir, journal, &read, threads, bench, stop, a.json,
+        &campaign, &a.dir, journal, &read, threads, bench, stop, a.how.json,
     )
 }
 
