@@ -81,9 +81,20 @@ impl Daemon {
         config_extra: &str,
         adjust: impl FnOnce(&mut Command),
     ) -> Self {
+        Self::start_edited(extra, config_extra, |t| t.to_string(), adjust)
+    }
+
+    /// As [`Self::start_adjusted`], the config text passed through `edit`
+    /// (see [`crate::common::quiet_config_edited`]).
+    pub fn start_edited(
+        extra: &[&str],
+        config_extra: &str,
+        edit: impl FnOnce(&str) -> String,
+        adjust: impl FnOnce(&mut Command),
+    ) -> Self {
         let dir = tmp();
         std::fs::set_permissions(dir.path(), std::fs::Permissions::from_mode(0o700)).unwrap();
-        let config = crate::common::quiet_config(dir.path(), 1.0, config_extra);
+        let config = crate::common::quiet_config_edited(dir.path(), 1.0, config_extra, edit);
         let socket = dir.path().join("bench.sock");
         let child = spawn_serve_with(&config, &socket, &dir.path().join("rec"), extra, adjust);
         Self {

@@ -120,22 +120,23 @@ pub fn one_at_a_time() -> std::sync::MutexGuard<'static, ()> {
     SERIAL.lock().unwrap_or_else(|e| e.into_inner())
 }
 
-/// The Chapter 5 bench (`sr4dof-ch5.toml`) without probe noise and
-/// disturbance, with a `tail_s` chirp tail and the link latency bound at
-/// its largest (0.1 s), plus `extra` TOML appended;
-/// written to `dir/bench.toml`. Two runs then see the same plant response
-/// and differ only by what is under test.
 /// `text` (a bench config) with the two timing bounds a loaded 2-core VM
 /// trips (it stalls the host for tens of ms at times) at their largest,
 /// 0.1 s: `max_command_latency_s` and `max_overrun_s`. Only the tests of
 /// those rules tighten them.
 pub fn relax_timing_bounds(text: &str) -> String {
+    let text = set_key(text, "max_command_latency_s", "0.1");
+    set_key(&text, "max_overrun_s", "0.1")
+}
+
+/// `text` (a bench config) with the value of every line that sets `key`
+/// replaced by `value` (TOML text).
+pub fn set_key(text: &str, key: &str, value: &str) -> String {
+    let prefix = format!("{key} =");
     text.lines()
         .map(|l| {
-            if l.starts_with("max_command_latency_s =") {
-                "max_command_latency_s = 0.1".to_string()
-            } else if l.starts_with("max_overrun_s =") {
-                "max_overrun_s = 0.1".to_string()
+            if l.starts_with(&prefix) {
+                format!("{key} = {value}")
             } else {
                 l.to_string()
             }
@@ -144,7 +145,23 @@ pub fn relax_timing_bounds(text: &str) -> String {
         .join("\n")
 }
 
+/// The Chapter 5 bench (`sr4dof-ch5.toml`) without probe noise and
+/// disturbance, with a `tail_s` chirp tail and the link latency bound at
+/// its largest (0.1 s), plus `extra` TOML appended;
+/// written to `dir/bench.toml`. Two runs then see the same plant response
+/// and differ only by what is under test.
 pub fn quiet_config(dir: &Path, tail_s: f64, extra: &str) -> PathBuf {
+    quiet_config_edited(dir, tail_s, extra, |t| t.to_string())
+}
+
+/// As [`quiet_config`], the text passed through `edit` before `extra` is
+/// appended.
+pub fn quiet_config_edited(
+    dir: &Path,
+    tail_s: f64,
+    extra: &str,
+    edit: impl FnOnce(&str) -> String,
+) -> PathBuf {
     let text = std::fs::read_to_string(
         Path::new(env!("CARGO_MANIFEST_DIR")).join("bench-config/sr4dof-ch5.toml"),
     )
@@ -163,7 +180,7 @@ pub fn quiet_config(dir: &Path, tail_s: f64, extra: &str) -> PathBuf {
         })
         .collect::<Vec<_>>()
         .join("\n");
-    let text = relax_timing_bounds(&text) + extra;
+    let text = edit(&relax_timing_bounds(&text)) + extra;
     let p = dir.join("bench.toml");
     std::fs::write(&p, text).expect("write config");
     p
