@@ -613,7 +613,13 @@ fn run_cell(
     };
     let reason = match summary.cmp_cnmp {
         Some(_) => None,
-        None => Some("no closely spaced pair resolved".to_string()),
+        None => Some(
+            summary
+                .verdict
+                .reason
+                .clone()
+                .unwrap_or_else(|| "the verdict is undecided".to_string()),
+        ),
     };
     let summary_path = cdir.join(CELL_FILES[3]);
     let json = serde_json::to_string_pretty(&summary).expect("summaries serialise") + "\n";

@@ -222,18 +222,9 @@ pub(super) fn print_summary(s: &ChirpSummary) {
     println!("  recording   {}", s.recording.display());
     println!("  FRF (CSV)   {}", s.frf_csv.display());
     println!("  Bode plot   {}", s.plot.display());
-    println!("resonances (measured):");
-    for r in &s.resonances {
-        match r.damping_ratio {
-            Some(z) => println!(
-                "  {:8.2} Hz  |H| = {:.3e} m/A  ζ ≈ {:.4}",
-                r.frequency_hz, r.magnitude_m_per_a, z
-            ),
-            None => println!(
-                "  {:8.2} Hz  |H| = {:.3e} m/A",
-                r.frequency_hz, r.magnitude_m_per_a
-            ),
-        }
+    match &s.fit {
+        Some(fit) => super::fit::print_fit(fit),
+        None => println!("modal fit: none"),
     }
     let f: Vec<String> = s
         .model
@@ -242,22 +233,7 @@ pub(super) fn print_summary(s: &ChirpSummary) {
         .map(|f| format!("{f:.2}"))
         .collect();
     println!("model natural frequencies: {} Hz", f.join(", "));
-    match &s.closely_spaced_pair {
-        Some(p) => {
-            println!(
-                "closely spaced pair: {:.2} Hz and {:.2} Hz; net phase over {:.1}–{:.1} Hz: {:.0}° (≈ {:.0}°)",
-                p.lower_hz, p.upper_hz, p.band_hz.0, p.band_hz.1, p.net_phase_deg, p.net_phase_multiple_deg
-            );
-            if p.cmp_cnmp {
-                println!("  → CMP-CNMP zeros: the pair shows the net −360° phase drop");
-            } else {
-                println!("  → no CMP-CNMP zeros: the zeros between the modes give back phase");
-            }
-        }
-        None => println!(
-            "closely spaced pair: not resolved (no two adjacent resonances within 25 %): CMP-CNMP verdict undetermined"
-        ),
-    }
+    super::fit::print_verdict(&s.verdict);
     println!(
         "model zeros: {} (CMP-CNMP: {})",
         s.model.zero_types.join(", "),

@@ -25,6 +25,7 @@ mod control;
 mod docs;
 mod emulate;
 mod export;
+mod fit;
 mod job_thread;
 mod point;
 mod recover;
@@ -44,6 +45,7 @@ use control::{control, ControlArgs};
 use docs::{completions, man, CompletionsArgs, ManArgs};
 use emulate::{emulate, EmulateCommand};
 use export::{export, ExportArgs};
+use fit::FitArgs;
 use recover::{recover, RecoverArgs};
 use serve::{serve, ServeArgs};
 use std::path::{Path, PathBuf};
@@ -96,6 +98,11 @@ enum Command {
     /// stopped; the measured map against the model's.
     #[command(subcommand)]
     Campaign(CampaignCommand),
+    /// Fit the modes of a measured FRF (CSV or recording) automatically:
+    /// frequency, damping ratio and signed modal constant of each mode with
+    /// 1σ, residual terms, the sequence of dominant modes, the typed zeros
+    /// and the CMP-CNMP verdict; measured vs fitted Bode PNG
+    Fit(FitArgs),
     /// Export a recording's channel as a CSV or Parquet table (one column
     /// per field, the unit in its name) for numpy and pandas.
     Export(ExportArgs),
@@ -171,6 +178,7 @@ pub fn main() -> ExitCode {
         Command::Map(args) => map(args),
         Command::Campaign(cmd) => campaign(cmd, stop),
         Command::Export(args) => export(args),
+        Command::Fit(args) => fit::fit(args),
         Command::Config(cmd) => config_command(cmd),
         Command::Completions(args) => completions(&args),
         Command::Man(args) => man(&args),

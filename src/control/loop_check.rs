@@ -276,35 +276,12 @@ impl MeasuredFrf {
     pub fn read_csv(path: &Path) -> Result<Self, RunError> {
         let bad = |why: String| RunError::option("frf", path.display(), why);
         let text = std::fs::read_to_string(path).map_err(|e| bad(e.to_string()))?;
-        let mut lines = text.lines();
-        if lines.next() != Some("frequency_hz,magnitude_m_per_a,phase_deg,coherence") {
-            return Err(bad(
-                "the header is not frequency_hz,magnitude_m_per_a,phase_deg,coherence (a bench chirp CSV)".into(),
-            ));
-        }
-        let mut m = Self::default();
-        for (i, line) in lines.enumerate() {
-            let v: Vec<f64> = line
-                .split(',')
-                .map(|x| x.trim().parse::<f64>())
-                .collect::<Result<_, _>>()
-                .map_err(|e| bad(format!("line {}: {e}", i + 2)))?;
-            if v.len() != 4 || !v[0].is_finite() || v[0] <= 0.0 {
-                return Err(bad(format!(
-                    "line {}: expected 4 numbers with a positive frequency",
-                    i + 2
-                )));
-            }
-            if m.frequency_hz.last().is_some_and(|f| *f >= v[0]) {
-                return Err(bad(format!("line {}: frequencies must ascend", i + 2)));
-            }
-            m.frequency_hz.push(v[0]);
-            m.magnitude_m_per_a.push(v[1]);
-            m.phase_deg.push(v[2]);
-        }
-        if m.frequency_hz.len() < 10 {
-            return Err(bad("fewer than 10 points".into()));
-        }
+        let frf = crate::ident::frf::Frf::read_csv(&text).map_err(bad)?;
+        let m = Self {
+            frequency_hz: frf.frequency_hz,
+            magnitude_m_per_a: frf.magnitude_m_per_a,
+            phase_deg: frf.phase_deg,
+        };
         Ok(m)
     }
 }

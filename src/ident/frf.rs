@@ -247,6 +247,97 @@ impl Frf {
         })
     }
 
+    /// Reads the CSV `bench chirp` writes
+    /// (`frequency_hz,magnitude_m_per_a,phase_deg,coherence`), checking
+    /// every field: frequencies positive, finite and ascending; magnitudes
+    /// positive and finite; phases finite; coherence in 0 … 1; at least
+    /// [`MIN_CSV_POINTS`] rows.
+    ///
+    /// # Errors
+    /// The reason, naming the line (1-based, the header is line 1) and the
+    /// column.
+    pub fn read_csv(text: &str) -> Result<Self, String> {
+        const HEADER: &str = "frequency_hz,magnitude_m_per_a,phase_deg,coherence";
+        const COLUMNS: [&str; 4] = [
+            "frequency_hz",
+            "magnitude_m_per_a",
+            "phase_deg",
+            "coherence",
+        ];
+        let mut lines = text.lines();
+        match lines.next() {
+            Some(h) if h.trim_end() == HEADER => {}
+            Some(h) => {
+                return Err(format!(
+                    "line 1: the header is {h:?}, not {HEADER} (the CSV bench chirp writes)"
+                ))
+            }
+            None => return Err("the file is empty (expected the header {HEADER})".into()),
+        }
+        let mut frf = Self {
+            frequency_hz: Vec::new(),
+            magnitude_m_per_a: Vec::new(),
+            phase_deg: Vec::new(),
+            coherence: Vec::new(),
+        };
+        for (i, line) in lines.enumerate() {
+            let n = i + 2;
+            if line.trim().is_empty() {
+                continue;
+            }
+            let fields: Vec<&str> = line.split(',').collect();
+            if fields.len() != 4 {
+                return Err(format!(
+                    "line {n}: {} fields, expected 4 ({HEADER})",
+                    fields.len()
+                ));
+            }
+            let mut v = [0.0; 4];
+            for (j, f) in fields.iter().enumerate() {
+                v[j] = f.trim().parse::<f64>().map_err(|e| {
+                    format!(
+                        "line {n}: {}: {:?} is not a number ({e})",
+                        COLUMNS[j],
+                        f.trim()
+                    )
+                })?;
+                if !v[j].is_finite() {
+                    return Err(format!("line {n}: {}: {} is not finite", COLUMNS[j], v[j]));
+                }
+            }
+            if v[0] <= 0.0 {
+                return Err(format!("line {n}: frequency_hz: {} is not positive", v[0]));
+            }
+            if frf.frequency_hz.last().is_some_and(|f| *f >= v[0]) {
+                return Err(format!(
+                    "line {n}: frequency_hz: {} does not ascend (the line before has {})",
+                    v[0],
+                    frf.frequency_hz.last().unwrap()
+                ));
+            }
+            if v[1] <= 0.0 {
+                return Err(format!(
+                    "line {n}: magnitude_m_per_a: {} is not positive",
+                    v[1]
+                ));
+            }
+            if !(0.0..=1.0).contains(&v[3]) {
+                return Err(format!("line {n}: coherence: {} is outside 0 … 1", v[3]));
+            }
+            frf.frequency_hz.push(v[0]);
+            frf.magnitude_m_per_a.push(v[1]);
+            frf.phase_deg.push(v[2]);
+            frf.coherence.push(v[3]);
+        }
+        if frf.frequency_hz.len() < MIN_CSV_POINTS {
+            return Err(format!(
+                "{} data lines; an FRF needs at least {MIN_CSV_POINTS}",
+                frf.frequency_hz.len()
+            ));
+        }
+        Ok(frf)
+    }
+
     /// Writes the CSV rows (with the header) to `w`.
     ///
     /// # Errors
@@ -266,6 +357,9 @@ impl Frf {
         w.flush()
     }
 }
+
+/// Fewest rows of an FRF CSV.
+pub const MIN_CSV_POINTS: usize = 10;
 
 /// A resonance found in a measured FRF.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]

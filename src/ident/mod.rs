@@ -6,3 +6,5 @@
 
 pub mod excitation;
 pub mod frf;
+pub mod modal_fit;
+pub mod verdict;

@@ -10,9 +10,7 @@
 use crate::config::BenchConfig;
 use crate::error::RunError;
 use crate::ident::excitation::Chirp;
-use crate::ident::frf::{
-    closely_spaced_pair, find_resonances, no_pair_reason, Frf, PairVerdict, Resonance, Spectra,
-};
+use crate::ident::frf::{Frf, PairVerdict, Resonance, Spectra};
 use crate::jobs::session::{
     finish, open_recording, run_recorded, Kept, Recorded, Runner, SessionOptions, TimingSummary,
 };
@@ -124,13 +122,21 @@ pub struct ChirpSummary {
     pub mass_asymmetry: f64,
     /// Largest |x1| read during the run, m.
     pub peak_position_m: f64,
-    /// Resonances found in the measured FRF.
+    /// The resonances of the measured FRF: the modes of the modal fit,
+    /// each at its fitted natural frequency and damping ratio, with the
+    /// measured |H| there and its height over the lower flanking minimum
+    /// within ±5 %.
     pub resonances: Vec<Resonance>,
-    /// The closely spaced pair and its phase test.
+    /// The closely spaced pair (of the fit) and the net phase across it.
     pub closely_spaced_pair: Option<PairVerdict>,
-    /// Verdict: the measured phase shows the CMP-CNMP −360° signature
-    /// (`None` when no closely spaced pair was resolved).
+    /// Verdict: CMP-CNMP zeros between the pair (`null` when the data
+    /// cannot decide; `verdict.reason` says why).
     pub cmp_cnmp: Option<bool>,
+    /// The automatic modal fit of the measured FRF (`bench fit`); absent
+    /// when it could not be made (`verdict.reason` says why).
+    pub fit: Option<crate::ident::modal_fit::ModalFit>,
+    /// Both tests behind `cmp_cnmp` and how they combine.
+    pub verdict: crate::ident::verdict::Verdict,
     /// The model of the configured bench.
     pub model: ModelSummary,
     /// Link counters of a hardware backend (CRC errors, sequence gaps,
@@ -159,6 +165,73 @@ fn model_summary(m: &Sr4dof) -> ModelSummary {
             .collect::<Vec<_>>(),
         cnmp_discriminant: m.cnmp_discriminant(),
         cmp_cnmp: m.has_cnmp_zeros(),
+    }
+}
+
+/// What the modal fit and the verdict make of a measured FRF.
+#[derive(Debug, Clone)]
+pub struct Identified {
+    /// The fit (`None` if it could not be made).
+    pub fit: Option<crate::ident::modal_fit::ModalFit>,
+    /// The verdict.
+    pub verdict: crate::ident::verdict::Verdict,
+    /// The fitted modes as resonances.
+    pub resonances: Vec<Resonance>,
+    /// The path outside the mechanics the fit assumed.
+    pub path: crate::ident::modal_fit::Path,
+}
+
+/// Fits `frf` ([`crate::ident::modal_fit::fit`]) for a loop of period
+/// `period_s` and an amplifier of bandwidth `amplifier_bandwidth_hz`, and
+/// gives the verdict ([`crate::ident::verdict`]).
+pub fn identify(frf: &Frf, period_s: f64, amplifier_bandwidth_hz: f64) -> Identified {
+    use crate::ident::modal_fit::{self, FrfData, Path};
+    use crate::ident::verdict;
+    let path = Path {
+        period_s,
+        amplifier_bandwidth_hz,
+    };
+    match modal_fit::fit(&FrfData::from_frf(frf), &path) {
+        Ok(fit) => {
+            let v = verdict::verdict(frf, &fit, |f| modal_fit::path_phase_deg(&fit, &path, f));
+            let resonances = fit
+                .modes
+                .iter()
+                .filter(|m| m.in_path)
+                .map(|m| as_resonance(frf, m.frequency_hz, m.damping_ratio))
+                .collect();
+            Identified {
+                fit: Some(fit),
+                verdict: v,
+                resonances,
+                path,
+            }
+        }
+        Err(e) => Identified {
+            fit: None,
+            verdict: verdict::without_fit(&e.to_string()),
+            resonances: Vec::new(),
+            path,
+        },
+    }
+}
+
+/// A fitted mode as a [`Resonance`]: measured |H| at the grid point
+/// nearest `frequency_hz`, prominence over the lower of the minima within
+/// ±5 % on each side.
+fn as_resonance(frf: &Frf, frequency_hz: f64, damping_ratio: f64) -> Resonance {
+    let g = &frf.frequency_hz;
+    let m = &frf.magnitude_m_per_a;
+    let k = g.partition_point(|f| *f < frequency_hz).min(g.len() - 1);
+    let lo = g.partition_point(|f| *f < frequency_hz / 1.05);
+    let hi = g.partition_point(|f| *f <= frequency_hz * 1.05).max(k + 1);
+    let left = m[lo..=k].iter().fold(f64::INFINITY, |a, b| a.min(*b));
+    let right = m[k..hi].iter().fold(f64::INFINITY, |a, b| a.min(*b));
+    Resonance {
+        frequency_hz,
+        magnitude_m_per_a: m[k],
+        damping_ratio: Some(damping_ratio),
+        prominence_db: 20.0 * (m[k] / left.min(right)).log10(),
     }
 }
 
@@ -278,8 +351,9 @@ fn run_chirp_with(
         cfg.chirp.f_end_hz,
         &cfg.identification,
     );
-    let resonances = find_resonances(&frf, &spectra, MIN_PROMINENCE_DB);
-    let pair = closely_spaced_pair(&frf, &resonances);
+    let identified = identify(&frf, period_s, cfg.actuator.bandwidth_hz);
+    let resonances = identified.resonances;
+    let pair = identified.verdict.phase_test.pair;
 
     let zoh = ZohPlant::new(&model, &cfg.actuator, period_s);
     // The model on a grid at least as dense as MODEL_POINTS_PER_DECADE, so
@@ -315,8 +389,12 @@ fn run_chirp_with(
             reason: e.to_string(),
         })?;
     let markers: Vec<f64> = resonances.iter().map(|r| r.frequency_hz).collect();
-    let no_pair = no_pair_reason(&resonances)
-        .unwrap_or_else(|| "no two adjacent resonances were resolved".to_string());
+    let no_pair = identified
+        .verdict
+        .phase_test
+        .reason
+        .clone()
+        .unwrap_or_else(|| "no closely spaced pair was fitted".to_string());
     let pair_zoom = match &pair {
         Some(p) => PairZoom::Resolved {
             pair: *p,
@@ -366,10 +444,12 @@ fn run_chirp_with(
         operating_point_m: cfg.plant.operating_point_m,
         operating_point_fraction_of_l: cfg.plant.operating_point_m / cfg.plant.beam.length_m,
         mass_asymmetry: cfg.plant.mass_asymmetry,
-        cmp_cnmp: pair.map(|p| p.cmp_cnmp),
+        cmp_cnmp: identified.verdict.cmp_cnmp,
         peak_position_m: y.iter().fold(0.0, |m: f64, v| m.max(v.abs())),
         resonances,
         closely_spaced_pair: pair,
+        fit: identified.fit,
+        verdict: identified.verdict,
         model: model_summary(&model),
         link: run_link,
         timing,

@@ -83,7 +83,10 @@ mod schema;
 pub mod topics;
 mod writer;
 
-pub use reader::{decode_sample, read_messages_tolerant, read_samples_tolerant, TolerantRead};
+pub use reader::{
+    decode_sample, read_frf, read_messages_tolerant, read_samples_tolerant, RecordedFrf,
+    TolerantRead,
+};
 pub use schema::{nan_if_null, schema_of};
 pub use writer::{
     log_time_ns, part_path_for, spawn_writer, Channel, RecordError, Recorder, WriterStats,

@@ -68,3 +68,103 @@ pub fn read_samples_tolerant(bytes: &[u8]) -> Vec<SampleRecord> {
         .filter_map(|m| decode_sample(&m.data))
         .collect()
 }
+
+/// The FRF and the bench config a `bench chirp` recording holds.
+#[derive(Debug, Clone)]
+pub struct RecordedFrf {
+    /// `/sysid/frf` (the last one if several).
+    pub frf: crate::ident::frf::Frf,
+    /// The `toml` entry of the `bench.config` metadata record, if present.
+    pub config_toml: Option<String>,
+}
+
+/// Reads the `/sysid/frf` message and the `bench.config` metadata of the
+/// recording in `bytes` (complete, or the `.part` of a killed run).
+///
+/// # Errors
+/// The reason: not a readable MCAP, no `/sysid/frf` channel (with the
+/// topics it has), or a `/sysid/frf` payload that is not an FRF (naming
+/// the field).
+pub fn read_frf(bytes: &[u8]) -> Result<RecordedFrf, String> {
+    #[derive(serde::Deserialize)]
+    struct Payload {
+        frequency_hz: Vec<f64>,
+        magnitude_m_per_a: Vec<f64>,
+        phase_deg: Vec<f64>,
+        coherence: Vec<f64>,
+    }
+    let read = read_messages_tolerant(bytes);
+    if read.messages.is_empty() {
+        return Err(match read.error {
+            Some(e) => format!("not a readable MCAP recording: {e}"),
+            None => "no messages: an empty recording".into(),
+        });
+    }
+    let Some(msg) = read
+        .messages
+        .iter()
+        .rev()
+        .find(|m| m.channel.topic == crate::record::TOPIC_FRF)
+    else {
+        let mut topics: Vec<&str> = read
+            .messages
+            .iter()
+            .map(|m| m.channel.topic.as_str())
+            .collect();
+        topics.sort();
+        topics.dedup();
+        return Err(format!(
+            "no {} channel (a bench chirp recording has one; this one has {})",
+            crate::record::TOPIC_FRF,
+            topics.join(", ")
+        ));
+    };
+    let p: Payload = serde_json::from_slice(&msg.data).map_err(|e| {
+        format!(
+            "{}: the payload is not an FRF: {e}",
+            crate::record::TOPIC_FRF
+        )
+    })?;
+    let n = p.frequency_hz.len();
+    for (name, len) in [
+        ("magnitude_m_per_a", p.magnitude_m_per_a.len()),
+        ("phase_deg", p.phase_deg.len()),
+        ("coherence", p.coherence.len()),
+    ] {
+        if len != n {
+            return Err(format!(
+                "{}: {name} has {len} values for {n} frequencies",
+                crate::record::TOPIC_FRF
+            ));
+        }
+    }
+    // The same checks as the CSV: through its reader.
+    let mut csv = String::from("frequency_hz,magnitude_m_per_a,phase_deg,coherence\n");
+    for k in 0..n {
+        csv.push_str(&format!(
+            "{:?},{:?},{:?},{:?}\n",
+            p.frequency_hz[k], p.magnitude_m_per_a[k], p.phase_deg[k], p.coherence[k]
+        ));
+    }
+    let frf = crate::ident::frf::Frf::read_csv(&csv).map_err(|e| {
+        format!(
+            "{}: {}",
+            crate::record::TOPIC_FRF,
+            e.replace("line ", "point ")
+        )
+    })?;
+    let config_toml = mcap::read::LinearReader::new_with_options(
+        bytes,
+        mcap::read::Options::IgnoreEndMagic.into(),
+    )
+    .ok()
+    .and_then(|r| {
+        r.filter_map(Result::ok).find_map(|rec| match rec {
+            mcap::records::Record::Metadata(m) if m.name == "bench.config" => {
+                m.metadata.get("toml").cloned()
+            }
+            _ => None,
+        })
+    });
+    Ok(RecordedFrf { frf, config_toml })
+}

@@ -1,0 +1,1001 @@
+//! Automatic full-band modal fit of a measured FRF (`bench fit`).
+//!
+//! # Model
+//! The measured current → x1 response (m/A) is fitted on its whole grid by
+//!
+//! ```text
+//! Ĥ(jω) = D(jω) · [ Σᵢ Aᵢ / (s² + 2ζᵢωᵢ s + ωᵢ²)  +  L / s²  +  U ],   s = jω
+//! D(jω) = e^{−jωτ} · sinc(ωT/2) / (1 + jω/ω_a)
+//! ```
+//!
+//! - `Aᵢ` (m/(A·s²)) is the real modal constant of mode `i`: the force
+//!   constant times the modal residue `αᵢ` of thesis Eq. 4-15 (1/kg).
+//!   Its sign is the mode's direction (thesis 3.2.1).
+//! - `L` (m/(A·s²)) and `U` (m/A) are the lower and upper residual terms:
+//!   the mass line of modes below the band and the static compliance of
+//!   modes above it (Ewins, *Modal Testing*, §4.2.2).
+//! - `D` is the path outside the mechanics: the zero-order hold of the
+//!   sampled current (`sinc(ωT/2)` and half a period of delay), the
+//!   amplifier's first-order current loop of bandwidth `ω_a` (from the
+//!   config), and the delay `τ`, fitted (it starts at `T/2`; a real loop
+//!   adds its latency on top).
+//!
+//! # Method
+//! Nonlinear least squares on the relative, coherence-weighted error
+//!
+//! ```text
+//! rₖ = wₖ (Ĥₖ − Hₖ) / |Hₖ|,      wₖ = 1 / √((1 − γₖ²)/γₖ² + ε²)
+//! ```
+//!
+//! (the real and imaginary parts of `rₖ`; `(1 − γ²)/γ²` is the normalised
+//! random error of an H1 estimate per average, Bendat & Piersol, *Random
+//! Data*, Eq. 9.90; `ε` = [`MODEL_ERROR_FLOOR`] bounds the weight of
+//! noise-free points). The model order is not chosen by the user:
+//!
+//! 1. Start with the residual terms alone (`Aᵢ`, `L`, `U` are linear: for
+//!    fixed poles they come from a linear least-squares solve, the LSFD
+//!    step of Peeters et al., *The PolyMAX frequency-domain method*, 2004).
+//! 2. Where the weighted residual concentrates (a sliding ±1 % window over
+//!    the points with γ² ≥ [`MIN_COHERENCE`]), try a mode: a grid of
+//!    frequencies and damping ratios around it, each scored by the linear
+//!    solve (variable projection, Golub & Pereyra 1973), the best refined
+//!    with all parameters by Levenberg-Marquardt (`levenberg-marquardt`
+//!    crate, MINPACK's algorithm).
+//! 3. Keep the mode if it lowers the residual by more than
+//!    [`MIN_IMPROVEMENT`], is lightly damped (ζ < [`MAX_DAMPING`]), lies
+//!    in the coherent band, and its modal constant is at least
+//!    [`MIN_SIGNIFICANCE`] standard deviations from zero; repeat from 2.
+//!
+//! The 1σ uncertainties come from the Jacobian at the optimum,
+//! `Σ = s² (JᵀJ)⁻¹` with `s²` the residual variance per degree of freedom
+//! (so they hold whatever the absolute noise level).
+
+use super::frf::{Frf, C64, MIN_COHERENCE};
+use levenberg_marquardt::{LeastSquaresProblem, LevenbergMarquardt};
+use nalgebra::{DMatrix, DVector, Dyn, Owned};
+use serde::{Deserialize, Serialize};
+use std::f64::consts::PI;
+
+/// Relative model error added to every point's variance (0.2 %): what the
+/// hold's aliasing and the estimator's smoothing leave near 500 Hz at
+/// 5 kHz, so that noise-free points do not get unbounded weight.
+pub const MODEL_ERROR_FLOOR: f64 = 2e-3;
+/// A mode is kept only if it lowers the weighted residual sum of squares
+/// by at least this fraction (5 %).
+pub const MIN_IMPROVEMENT: f64 = 0.05;
+/// Largest damping ratio of a fitted mode; a broader term is out-of-band
+/// dynamics for the residual terms.
+pub const MAX_DAMPING: f64 = 0.2;
+/// A kept mode's modal constant is at least this many standard deviations
+/// from zero (its sign is then known).
+pub const MIN_SIGNIFICANCE: f64 = 3.0;
+/// At most this many modes are fitted.
+pub const MAX_MODES: usize = 10;
+/// Largest RMS relative error over the coherent points of a fit that
+/// explains the measurement (5 %); above it the fit missed part of the
+/// response and decides nothing.
+pub const MAX_FIT_ERROR: f64 = 0.05;
+
+/// The measured FRF as the fit uses it.
+#[derive(Debug, Clone)]
+pub struct FrfData {
+    /// Grid, Hz, ascending.
+    pub frequency_hz: Vec<f64>,
+    /// Complex response, m/A.
+    pub response: Vec<C64>,
+    /// γ², 0 … 1.
+    pub coherence: Vec<f64>,
+}
+
+impl FrfData {
+    /// From an estimated [`Frf`] (magnitude and unwrapped phase).
+    pub fn from_frf(frf: &Frf) -> Self {
+        Self {
+            frequency_hz: frf.frequency_hz.clone(),
+            response: frf
+                .magnitude_m_per_a
+                .iter()
+                .zip(&frf.phase_deg)
+                .map(|(m, p)| C64::from_polar(*m, p.to_radians()))
+                .collect(),
+            coherence: frf.coherence.clone(),
+        }
+    }
+}
+
+/// The known path outside the mechanics.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Path {
+    /// Sample period of the current demand (zero-order hold), s.
+    pub period_s: f64,
+    /// −3 dB bandwidth of the current amplifier, Hz.
+    pub amplifier_bandwidth_hz: f64,
+}
+
+impl Path {
+    /// `D(jω)` without the delay: hold gain `sinc(ωT/2)` and amplifier lag.
+    fn gain(&self, w: f64) -> C64 {
+        let x = 0.5 * w * self.period_s;
+        let sinc = if x.abs() < 1e-12 { 1.0 } else { x.sin() / x };
+        C64::new(sinc, 0.0) / C64::new(1.0, w / (2.0 * PI * self.amplifier_bandwidth_hz))
+    }
+}
+
+/// One fitted mode.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
+pub struct FittedMode {
+    /// Name: `u`, `v` for the closely spaced pair, `R` for the remainder
+    /// mode, `m<N>` otherwise (as in `bench analyze`).
+    pub label: String,
+    /// Undamped natural frequency, Hz.
+    pub frequency_hz: f64,
+    /// 1σ of the natural frequency, Hz.
+    pub frequency_sigma_hz: f64,
+    /// Modal damping ratio.
+    pub damping_ratio: f64,
+    /// 1σ of the damping ratio.
+    pub damping_ratio_sigma: f64,
+    /// Modal constant `Aᵢ`, m/(A·s²) (force constant × residue αᵢ), signed.
+    pub modal_constant: f64,
+    /// 1σ of the modal constant, m/(A·s²).
+    pub modal_constant_sigma: f64,
+    /// Sign of the modal constant: +1 or −1.
+    pub sign: i8,
+    /// The mode is in the actuator-to-probe path as `bench analyze` counts
+    /// it: `|Aᵢ|` at least `RESIDUE_RATIO` (1e-4) of the largest. Modes
+    /// outside it are listed but left out of the sequence and the zeros.
+    pub in_path: bool,
+}
+
+/// A zero of the fitted modal model.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
+pub struct FittedZero {
+    /// Real part, Hz (`s / 2π`).
+    pub re_hz: f64,
+    /// Imaginary part, Hz.
+    pub im_hz: f64,
+    /// `MMP`, `RMP-RNMP` or `CMP-CNMP` (thesis 3.2.1).
+    #[serde(rename = "type")]
+    pub kind: String,
+}
+
+/// The result of [`fit`].
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
+pub struct ModalFit {
+    /// The modes, ascending in frequency.
+    pub modes: Vec<FittedMode>,
+    /// Lower residual `L` (term `L/s²`), m/(A·s²), and its 1σ.
+    pub lower_residual: f64,
+    /// 1σ of `lower_residual`.
+    pub lower_residual_sigma: f64,
+    /// Upper residual `U` (static compliance of modes above the band), m/A.
+    pub upper_residual_m_per_a: f64,
+    /// 1σ of `upper_residual_m_per_a`.
+    pub upper_residual_sigma_m_per_a: f64,
+    /// Fitted delay τ of the path (hold, amplifier transport, latency), s.
+    pub delay_s: f64,
+    /// 1σ of the delay, s.
+    pub delay_sigma_s: f64,
+    /// RMS relative error `|Ĥ − H| / |H|` over the points with
+    /// γ² ≥ [`MIN_COHERENCE`].
+    pub rms_relative_error: f64,
+    /// Points with γ² ≥ [`MIN_COHERENCE`] (the coherent band).
+    pub coherent_points: usize,
+    /// Sign sequence in thesis notation, e.g. `α_R > 0, α_u < 0, α_v > 0`.
+    pub sign_sequence: String,
+    /// Sequence of dominant modes (thesis 3.2.1), e.g. `[R]-[u]-[v]`.
+    pub dominant_sequence: String,
+    /// Zeros of the fitted modal sum with its damping (residual terms
+    /// left out: they are the model's truncation, not the structure's),
+    /// typed.
+    pub zeros: Vec<FittedZero>,
+    /// The fitted model has CMP-CNMP zeros.
+    pub cmp_cnmp: bool,
+}
+
+/// Why no fit could be made.
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum FitError {
+    /// Too few points with adequate coherence.
+    #[error("only {coherent} of {total} FRF points have coherence >= {MIN_COHERENCE}; at least {needed} are needed")]
+    TooFewPoints {
+        /// Points with γ² ≥ MIN_COHERENCE.
+        coherent: usize,
+        /// All points.
+        total: usize,
+        /// Needed.
+        needed: usize,
+    },
+}
+
+/// Fewest coherent points a fit needs.
+pub const MIN_POINTS: usize = 20;
+
+/// Full parameter set: nonlinear (per mode f, ζ; delay) and linear.
+#[derive(Debug, Clone, PartialEq)]
+struct Params {
+    f_hz: Vec<f64>,
+    zeta: Vec<f64>,
+    a: Vec<f64>,
+    l: f64,
+    u: f64,
+    tau_s: f64,
+}
+
+/// Precomputed per-point data.
+struct Prepared<'a> {
+    w: Vec<f64>,
+    h: &'a [C64],
+    /// Weight over |H|: the residual is `scale · (Ĥ − H)`.
+    scale: Vec<f64>,
+    gain: Vec<C64>,
+    coherent: Vec<bool>,
+}
+
+impl<'a> Prepared<'a> {
+    fn new(data: &'a FrfData, path: &Path) -> Self {
+        let w: Vec<f64> = data.frequency_hz.iter().map(|f| 2.0 * PI * f).collect();
+        let scale = data
+            .response
+            .iter()
+            .zip(&data.coherence)
+            .map(|(h, g)| {
+                let g = g.clamp(1e-6, 1.0);
+                let var = (1.0 - g) / g + MODEL_ERROR_FLOOR * MODEL_ERROR_FLOOR;
+                1.0 / (var.sqrt() * h.norm().max(f64::MIN_POSITIVE))
+            })
+            .collect();
+        let gain = w.iter().map(|&w| path.gain(w)).collect();
+        let coherent = data.coherence.iter().map(|g| *g >= MIN_COHERENCE).collect();
+        Self {
+            w,
+            h: &data.response,
+            scale,
+            gain,
+            coherent,
+        }
+    }
+
+    fn len(&self) -> usize {
+        self.w.len()
+    }
+
+    /// `D(jω)` at point `k` with delay `tau_s`.
+    fn d(&self, k: usize, tau_s: f64) -> C64 {
+        self.gain[k] * C64::from_polar(1.0, -self.w[k] * tau_s)
+    }
+
+    /// The linear basis at point `k` (before `D`): modes, `1/s²`, `1`.
+    fn basis(&self, k: usize, f_hz: &[f64], zeta: &[f64], out: &mut Vec<C64>) {
+        out.clear();
+        let s = C64::new(0.0, self.w[k]);
+        for (f, z) in f_hz.iter().zip(zeta) {
+            let wn = 2.0 * PI * f;
+            out.push(C64::new(1.0, 0.0) / (s * s + s * (2.0 * z * wn) + wn * wn));
+        }
+        out.push(C64::new(1.0, 0.0) / (s * s));
+        out.push(C64::new(1.0, 0.0));
+    }
+
+    /// Solves the linear coefficients for fixed poles and delay (weighted
+    /// least squares over all points, by the normal equations of the
+    /// column-scaled basis, solved by SVD); returns them and the cost.
+    fn solve_linear(&self, f_hz: &[f64], zeta: &[f64], tau_s: f64) -> Option<(Vec<f64>, f64)> {
+        self.solve_linear_in(0..self.len(), f_hz, zeta, tau_s)
+    }
+
+    /// [`Self::solve_linear`] over the points `range` only.
+    fn solve_linear_in(
+        &self,
+        range: std::ops::Range<usize>,
+        f_hz: &[f64],
+        zeta: &[f64],
+        tau_s: f64,
+    ) -> Option<(Vec<f64>, f64)> {
+        let p = f_hz.len() + 2;
+        let mut g = DMatrix::<f64>::zeros(p, p);
+        let mut rhs = DVector::<f64>::zeros(p);
+        let mut row = Vec::with_capacity(p);
+        for k in range.clone() {
+            let d = self.d(k, tau_s) * self.scale[k];
+            self.basis(k, f_hz, zeta, &mut row);
+            row.iter_mut().for_each(|c| *c *= d);
+            let t = self.h[k] * self.scale[k];
+            for i in 0..p {
+                let ci = row[i].conj();
+                rhs[i] += (ci * t).re;
+                for j in i..p {
+                    g[(i, j)] += (ci * row[j]).re;
+                }
+            }
+        }
+        for i in 0..p {
+            for j in 0..i {
+                g[(i, j)] = g[(j, i)];
+            }
+        }
+        let norms: Vec<f64> = (0..p)
+            .map(|j| g[(j, j)].sqrt().max(f64::MIN_POSITIVE))
+            .collect();
+        for i in 0..p {
+            rhs[i] /= norms[i];
+            for j in 0..p {
+                g[(i, j)] /= norms[i] * norms[j];
+            }
+        }
+        let x = g.svd(true, true).solve(&rhs, 1e-13).ok()?;
+        let coef: Vec<f64> = x.iter().zip(&norms).map(|(v, n)| v / n).collect();
+        let mut cost = 0.0;
+        for k in range {
+            let d = self.d(k, tau_s) * self.scale[k];
+            self.basis(k, f_hz, zeta, &mut row);
+            let m: C64 = row.iter().zip(&coef).map(|(c, x)| c * x).sum();
+            cost += (m * d - self.h[k] * self.scale[k]).norm_sqr();
+        }
+        cost.is_finite().then_some((coef, cost))
+    }
+
+    /// The model at point `k`.
+    fn model(&self, k: usize, p: &Params) -> C64 {
+        let s = C64::new(0.0, self.w[k]);
+        let mut m = C64::new(p.l, 0.0) / (s * s) + p.u;
+        for i in 0..p.f_hz.len() {
+            let wn = 2.0 * PI * p.f_hz[i];
+            m += p.a[i] / (s * s + s * (2.0 * p.zeta[i] * wn) + wn * wn);
+        }
+        self.d(k, p.tau_s) * m
+    }
+
+    fn cost(&self, p: &Params) -> f64 {
+        (0..self.len())
+            .map(|k| ((self.model(k, p) - self.h[k]) * self.scale[k]).norm_sqr())
+            .sum()
+    }
+}
+
+/// The Levenberg-Marquardt problem over all parameters:
+/// `[ln f₁…, ln ζ₁…, A₁…, L, U, τ/T]`, with `A`, `L`, `U` scaled by their
+/// starting magnitudes.
+struct Problem<'p, 'a> {
+    prep: &'p Prepared<'a>,
+    n_modes: usize,
+    x: DVector<f64>,
+    /// Scales of A₁…, L, U.
+    lin_scale: Vec<f64>,
+    period_s: f64,
+}
+
+impl Problem<'_, '_> {
+    fn new<'p, 'a>(prep: &'p Prepared<'a>, p: &Params, period_s: f64) -> Problem<'p, 'a> {
+        let n = p.f_hz.len();
+        let lin: Vec<f64> = p.a.iter().chain([&p.l, &p.u]).copied().collect();
+        let lin_scale: Vec<f64> = lin.iter().map(|v| v.abs().max(1e-30)).collect();
+        let mut x = DVector::<f64>::zeros(3 * n + 3);
+        for i in 0..n {
+            x[i] = p.f_hz[i].ln();
+            x[n + i] = p.zeta[i].ln();
+        }
+        for (j, v) in lin.iter().enumerate() {
+            x[2 * n + j] = v / lin_scale[j];
+        }
+        x[3 * n + 2] = p.tau_s / period_s;
+        Problem {
+            prep,
+            n_modes: n,
+            x,
+            lin_scale,
+            period_s,
+        }
+    }
+
+    fn params(&self) -> Params {
+        let n = self.n_modes;
+        let x = &self.x;
+        Params {
+            f_hz: (0..n).map(|i| x[i].exp()).collect(),
+            zeta: (0..n).map(|i| x[n + i].exp()).collect(),
+            a: (0..n).map(|i| x[2 * n + i] * self.lin_scale[i]).collect(),
+            l: x[3 * n] * self.lin_scale[n],
+            u: x[3 * n + 1] * self.lin_scale[n + 1],
+            tau_s: x[3 * n + 2] * self.period_s,
+        }
+    }
+
+    /// The Jacobian of the residuals with respect to `x` (analytic).
+    fn jacobian_of(&self, p: &Params) -> DMatrix<f64> {
+        let n = self.n_modes;
+        let m = self.prep.len();
+        let mut j = DMatrix::<f64>::zeros(2 * m, 3 * n + 3);
+        for k in 0..m {
+            let s = C64::new(0.0, self.prep.w[k]);
+            let sc = self.prep.scale[k];
+            let d = self.prep.d(k, p.tau_s) * sc;
+            let mut put = |col: usize, v: C64| {
+                j[(2 * k, col)] = v.re;
+                j[(2 * k + 1, col)] = v.im;
+            };
+            let mut total = C64::new(p.l, 0.0) / (s * s) + p.u;
+            for i in 0..n {
+                let wn = 2.0 * PI * p.f_hz[i];
+                let den = s * s + s * (2.0 * p.zeta[i] * wn) + wn * wn;
+                let inv = C64::new(1.0, 0.0) / den;
+                total += p.a[i] * inv;
+                let inv2 = inv * inv;
+                // ∂/∂ln f = ω ∂/∂ω: −A (2ζ s ω + 2ω²) / den².
+                put(
+                    i,
+                    -d * p.a[i] * (s * (2.0 * p.zeta[i] * wn) + 2.0 * wn * wn) * inv2,
+                );
+                // ∂/∂ln ζ = ζ ∂/∂ζ: −A 2ζω s / den².
+                put(n + i, -d * p.a[i] * s * (2.0 * p.zeta[i] * wn) * inv2);
+                put(2 * n + i, d * inv * self.lin_scale[i]);
+            }
+            put(3 * n, d / (s * s) * self.lin_scale[n]);
+            put(3 * n + 1, d * self.lin_scale[n + 1]);
+            put(3 * n + 2, -s * d * total * self.period_s);
+        }
+        j
+    }
+}
+
+impl LeastSquaresProblem<f64, Dyn, Dyn> for Problem<'_, '_> {
+    type ResidualStorage = Owned<f64, Dyn>;
+    type JacobianStorage = Owned<f64, Dyn, Dyn>;
+    type ParameterStorage = Owned<f64, Dyn>;
+
+    fn set_params(&mut self, x: &DVector<f64>) {
+        self.x.copy_from(x);
+    }
+
+    fn params(&self) -> DVector<f64> {
+        self.x.clone()
+    }
+
+    fn residuals(&self) -> Option<DVector<f64>> {
+        let p = self.params();
+        if p.zeta.iter().any(|z| !(z.is_finite() && *z < 10.0)) {
+            return None;
+        }
+        let m = self.prep.len();
+        let mut r = DVector::<f64>::zeros(2 * m);
+        for k in 0..m {
+            let e = (self.prep.model(k, &p) - self.prep.h[k]) * self.prep.scale[k];
+            r[2 * k] = e.re;
+            r[2 * k + 1] = e.im;
+        }
+        r.iter().all(|v| v.is_finite()).then_some(r)
+    }
+
+    fn jacobian(&self) -> Option<DMatrix<f64>> {
+        let j = self.jacobian_of(&self.params());
+        j.iter().all(|v| v.is_finite()).then_some(j)
+    }
+}
+
+/// Refines all parameters from `start` by Levenberg-Marquardt; returns the
+/// refined parameters (or `start` if the refinement made it worse).
+fn refine(prep: &Prepared, start: &Params, period_s: f64) -> Params {
+    let problem = Problem::new(prep, start, period_s);
+    let (problem, _report) = LevenbergMarquardt::new()
+        .with_patience(20)
+        .minimize(problem);
+    let p = problem.params();
+    let ok = p
+        .f_hz
+        .iter()
+        .chain(&p.zeta)
+        .chain(&p.a)
+        .all(|v| v.is_finite());
+    if ok && prep.cost(&p) <= prep.cost(start) {
+        p
+    } else {
+        start.clone()
+    }
+}
+
+/// 1σ of every parameter in natural units (`[f…, ζ…, A…, L, U, τ]`),
+/// from `s² (JᵀJ)⁻¹`.
+fn sigmas(prep: &Prepared, p: &Params, period_s: f64) -> Vec<f64> {
+    let problem = Problem::new(prep, p, period_s);
+    let j = problem.jacobian_of(p);
+    let n = p.f_hz.len();
+    let dof = (j.nrows() as f64 - j.ncols() as f64).max(1.0);
+    let s2 = prep.cost(p) / dof;
+    let jtj = j.transpose() * &j;
+    let cov = match jtj.clone().try_inverse() {
+        Some(c) => c,
+        None => jtj
+            .pseudo_inverse(1e-300)
+            .unwrap_or_else(|_| DMatrix::from_element(3 * n + 3, 3 * n + 3, f64::INFINITY)),
+    };
+    let sd = |i: usize| (s2 * cov[(i, i)]).max(0.0).sqrt();
+    let mut out = Vec::with_capacity(3 * n + 3);
+    for i in 0..n {
+        out.push(sd(i) * p.f_hz[i]);
+    }
+    for i in 0..n {
+        out.push(sd(n + i) * p.zeta[i]);
+    }
+    for i in 0..n {
+        out.push(sd(2 * n + i) * problem.lin_scale[i]);
+    }
+    out.push(sd(3 * n) * problem.lin_scale[n]);
+    out.push(sd(3 * n + 1) * problem.lin_scale[n + 1]);
+    out.push(sd(3 * n + 2) * period_s);
+    out
+}
+
+/// Parameters with the linear part re-solved for the given poles/delay.
+fn with_linear(prep: &Prepared, f_hz: Vec<f64>, zeta: Vec<f64>, tau_s: f64) -> Option<Params> {
+    let (coef, _) = prep.solve_linear(&f_hz, &zeta, tau_s)?;
+    let n = f_hz.len();
+    Some(Params {
+        a: coef[..n].to_vec(),
+        l: coef[n],
+        u: coef[n + 1],
+        f_hz,
+        zeta,
+        tau_s,
+    })
+}
+
+/// Frequencies (Hz) where the weighted residual of `p` concentrates: the
+/// local maxima of its energy in a ±1 % window over coherent points,
+/// largest first, at least 3 % apart, away from the modes of `p`.
+fn residual_peaks(prep: &Prepared, freq_hz: &[f64], p: &Params, max: usize) -> Vec<f64> {
+    let n = prep.len();
+    let e: Vec<f64> = (0..n)
+        .map(|k| {
+            if prep.coherent[k] {
+                ((prep.model(k, p) - prep.h[k]) * prep.scale[k]).norm_sqr()
+            } else {
+                0.0
+            }
+        })
+        .collect();
+    // Sliding window sums over ±1 % (two pointers on the ascending grid).
+    let mut energy = vec![0.0; n];
+    let (mut lo, mut hi, mut acc) = (0usize, 0usize, 0.0);
+    for k in 0..n {
+        while hi < n && freq_hz[hi] <= freq_hz[k] * 1.01 {
+            acc += e[hi];
+            hi += 1;
+        }
+        while freq_hz[lo] < freq_hz[k] / 1.01 {
+            acc -= e[lo];
+            lo += 1;
+        }
+        energy[k] = acc.max(0.0);
+    }
+    let mut order: Vec<usize> = (0..n).filter(|&k| prep.coherent[k]).collect();
+    order.sort_by(|&a, &b| energy[b].total_cmp(&energy[a]));
+    let mut out: Vec<f64> = Vec::new();
+    for k in order {
+        let f = freq_hz[k];
+        let far = |g: &f64| (f / g).ln().abs() > 0.03_f64.ln_1p();
+        let near_mode = p.f_hz.iter().any(|m| (f / m).ln().abs() < 0.003);
+        if energy[k] > 0.0 && !near_mode && out.iter().all(far) {
+            out.push(f);
+            if out.len() == max {
+                break;
+            }
+        }
+    }
+    out
+}
+
+/// Peaks of the measured |H| over coherent points (local maxima), the
+/// most prominent first (height over the lower minimum within ±5 %), away
+/// from the modes of `p`: the classic peak-picking start.
+fn magnitude_peaks(prep: &Prepared, freq_hz: &[f64], p: &Params, max: usize) -> Vec<f64> {
+    let n = prep.len();
+    let mag: Vec<f64> = prep.h.iter().map(|h| h.norm()).collect();
+    let mut peaks: Vec<(f64, f64)> = (1..n.saturating_sub(1))
+        .filter(|&k| prep.coherent[k] && mag[k] > mag[k - 1] && mag[k] >= mag[k + 1])
+        .filter(|&k| !p.f_hz.iter().any(|m| (freq_hz[k] / m).ln().abs() < 0.003))
+        .map(|k| {
+            let lo = freq_hz.partition_point(|f| *f < freq_hz[k] / 1.05);
+            let hi = freq_hz.partition_point(|f| *f <= freq_hz[k] * 1.05);
+            let left = mag[lo..=k].iter().fold(f64::INFINITY, |a, b| a.min(*b));
+            let right = mag[k..hi].iter().fold(f64::INFINITY, |a, b| a.min(*b));
+            (freq_hz[k], mag[k] / left.max(right))
+        })
+        .collect();
+    peaks.sort_by(|a, b| b.1.total_cmp(&a.1));
+    peaks.into_iter().take(max).map(|(f, _)| f).collect()
+}
+
+/// A mode tried near `f0`: the best of a grid over frequency (±4 % in
+/// 0.25 % steps) and damping, scored by the linear solve over the points
+/// within ±15 % of `f0`, with the cost it removes there.
+struct Trial {
+    f_hz: f64,
+    zeta: f64,
+    gain: f64,
+    /// The window's cost without the mode.
+    baseline: f64,
+}
+
+fn try_mode(prep: &Prepared, freq_hz: &[f64], current: &Params, f0: f64) -> Option<Trial> {
+    let lo = freq_hz.partition_point(|f| *f < f0 / 1.15);
+    let hi = freq_hz.partition_point(|f| *f <= f0 * 1.15);
+    let window = lo..hi;
+    let (_, baseline) =
+        prep.solve_linear_in(window.clone(), &current.f_hz, &current.zeta, current.tau_s)?;
+    let mut best: Option<Trial> = None;
+    let mut fs = current.f_hz.clone();
+    let mut zs = current.zeta.clone();
+    fs.push(f0);
+    zs.push(0.01);
+    let last = fs.len() - 1;
+    for k in -16..=16 {
+        for z in [0.003, 0.01, 0.03] {
+            fs[last] = f0 * (1.0 + 0.0025 * k as f64);
+            zs[last] = z;
+            if let Some((_, cost)) = prep.solve_linear_in(window.clone(), &fs, &zs, current.tau_s) {
+                let gain = baseline - cost;
+                if best.as_ref().is_none_or(|b| gain > b.gain) {
+                    best = Some(Trial {
+                        f_hz: fs[last],
+                        zeta: z,
+                        gain,
+                        baseline,
+                    });
+                }
+            }
+        }
+    }
+    best
+}
+
+/// `current` with the mode of `trial` added, all parameters refined.
+fn add_mode(prep: &Prepared, current: &Params, trial: &Trial, period_s: f64) -> Option<Params> {
+    let mut fs = current.f_hz.clone();
+    let mut zs = current.zeta.clone();
+    fs.push(trial.f_hz);
+    zs.push(trial.zeta);
+    let start = with_linear(prep, fs, zs, current.tau_s)?;
+    Some(sorted(refine(prep, &start, period_s)))
+}
+
+/// Modes sorted ascending in frequency.
+fn sorted(p: Params) -> Params {
+    let mut idx: Vec<usize> = (0..p.f_hz.len()).collect();
+    idx.sort_by(|&a, &b| p.f_hz[a].total_cmp(&p.f_hz[b]));
+    Params {
+        f_hz: idx.iter().map(|&i| p.f_hz[i]).collect(),
+        zeta: idx.iter().map(|&i| p.zeta[i]).collect(),
+        a: idx.iter().map(|&i| p.a[i]).collect(),
+        ..p
+    }
+}
+
+/// Whether `p` is an acceptable model: every mode lightly damped, inside
+/// the coherent band, apart from the others, and significant.
+fn acceptable(prep: &Prepared, freq_hz: &[f64], p: &Params, period_s: f64) -> bool {
+    let (lo, hi) = coherent_band(prep, freq_hz);
+    let n = p.f_hz.len();
+    let sd = sigmas(prep, p, period_s);
+    (0..n).all(|i| {
+        p.zeta[i] < MAX_DAMPING
+            && p.f_hz[i] >= lo
+            && p.f_hz[i] <= hi
+            && p.a[i].abs() >= MIN_SIGNIFICANCE * sd[2 * n + i]
+            && (i == 0 || p.f_hz[i] / p.f_hz[i - 1] > 1.003)
+    })
+}
+
+/// First and last frequency with γ² ≥ [`MIN_COHERENCE`].
+fn coherent_band(prep: &Prepared, freq_hz: &[f64]) -> (f64, f64) {
+    let first = prep.coherent.iter().position(|c| *c).unwrap_or(0);
+    let last = prep.coherent.iter().rposition(|c| *c).unwrap_or(0);
+    (freq_hz[first], freq_hz[last])
+}
+
+/// Fits the modal model to `data` (see the module docs).
+///
+/// # Errors
+/// [`FitError::TooFewPoints`] when fewer than [`MIN_POINTS`] points have
+/// γ² ≥ [`MIN_COHERENCE`].
+pub fn fit(data: &FrfData, path: &Path) -> Result<ModalFit, FitError> {
+    let prep = Prepared::new(data, path);
+    let coherent = prep.coherent.iter().filter(|c| **c).count();
+    if coherent < MIN_POINTS {
+        return Err(FitError::TooFewPoints {
+            coherent,
+            total: data.frequency_hz.len(),
+            needed: MIN_POINTS,
+        });
+    }
+    let period_s = path.period_s;
+    // The residual terms alone, the delay at the hold's half period (a
+    // delay fitted without any mode would wander off to explain the
+    // resonances' phase).
+    let mut current = with_linear(&prep, Vec::new(), Vec::new(), 0.5 * period_s)
+        .expect("the residual terms alone always solve");
+    let mut cost = prep.cost(&current);
+    'grow: while current.f_hz.len() < MAX_MODES {
+        let mut candidates = residual_peaks(&prep, &data.frequency_hz, &current, 3);
+        candidates.extend(magnitude_peaks(&prep, &data.frequency_hz, &current, 3));
+        let mut trials: Vec<Trial> = candidates
+            .into_iter()
+            .filter_map(|f0| try_mode(&prep, &data.frequency_hz, &current, f0))
+            .collect();
+        trials.sort_by(|a, b| b.gain.total_cmp(&a.gain));
+        for trial in &trials {
+            // Only a trial that removes a good part of the misfit is refined
+            // (its window's half at the start, when the misfit is spread
+            // over the whole band).
+            let worth = trial.gain >= 0.8 * MIN_IMPROVEMENT * cost
+                || (current.f_hz.is_empty() && trial.gain >= 0.5 * trial.baseline);
+            if !worth {
+                continue;
+            }
+            let Some(p) = add_mode(&prep, &current, trial, period_s) else {
+                continue;
+            };
+            let c = prep.cost(&p);
+            if c < (1.0 - MIN_IMPROVEMENT) * cost
+                && acceptable(&prep, &data.frequency_hz, &p, period_s)
+            {
+                current = p;
+                cost = c;
+                continue 'grow;
+            }
+        }
+        break;
+    }
+    Ok(summarise(&prep, data, &current, period_s))
+}
+
+fn summarise(prep: &Prepared, data: &FrfData, p: &Params, period_s: f64) -> ModalFit {
+    use crate::analysis::modal::{has_cmp_cnmp, type_damped_zeros};
+    use crate::analysis::sequence::{dominant_sequence, SeqTerm};
+    let n = p.f_hz.len();
+    let sd = sigmas(prep, p, period_s);
+    let amax = p.a.iter().fold(0.0_f64, |m, v| m.max(v.abs()));
+    let in_path: Vec<bool> =
+        p.a.iter()
+            .map(|a| a.abs() >= crate::analysis::modal::RESIDUE_RATIO * amax)
+            .collect();
+    let path_idx: Vec<usize> = (0..n).filter(|&i| in_path[i]).collect();
+    let path_f: Vec<f64> = path_idx.iter().map(|&i| p.f_hz[i]).collect();
+    let path_z: Vec<f64> = path_idx.iter().map(|&i| p.zeta[i]).collect();
+    let path_a: Vec<f64> = path_idx.iter().map(|&i| p.a[i]).collect();
+    let mut labels: Vec<String> = (0..n).map(|i| format!("m{}", i + 1)).collect();
+    for (k, l) in self::labels(&path_f, &path_a).into_iter().enumerate() {
+        if !l.starts_with('m') {
+            labels[path_idx[k]] = l;
+        }
+    }
+    let modes: Vec<FittedMode> = (0..n)
+        .map(|i| FittedMode {
+            label: labels[i].clone(),
+            frequency_hz: p.f_hz[i],
+            frequency_sigma_hz: sd[i],
+            damping_ratio: p.zeta[i],
+            damping_ratio_sigma: sd[n + i],
+            modal_constant: p.a[i],
+            modal_constant_sigma: sd[2 * n + i],
+            sign: if p.a[i] >= 0.0 { 1 } else { -1 },
+            in_path: in_path[i],
+        })
+        .collect();
+    let seq_terms: Vec<SeqTerm> = modes
+        .iter()
+        .filter(|m| m.in_path)
+        .map(|m| SeqTerm {
+            label: m.label.clone(),
+            omega_rad_s: 2.0 * PI * m.frequency_hz,
+            residue: m.modal_constant,
+        })
+        .collect();
+    let seq = if seq_terms.is_empty() {
+        None
+    } else {
+        Some(dominant_sequence(&seq_terms))
+    };
+    let roots = damped_numerator_roots(&path_f, &path_z, &path_a);
+    let typed = type_damped_zeros(&roots);
+    let mut sum_sq = 0.0;
+    let mut count = 0usize;
+    for k in 0..prep.len() {
+        if prep.coherent[k] {
+            let h = data.response[k];
+            sum_sq += ((prep.model(k, p) - h) / h.norm()).norm_sqr();
+            count += 1;
+        }
+    }
+    ModalFit {
+        modes,
+        lower_residual: p.l,
+        lower_residual_sigma: sd[3 * n],
+        upper_residual_m_per_a: p.u,
+        upper_residual_sigma_m_per_a: sd[3 * n + 1],
+        delay_s: p.tau_s,
+        delay_sigma_s: sd[3 * n + 2],
+        rms_relative_error: (sum_sq / count.max(1) as f64).sqrt(),
+        coherent_points: count,
+        sign_sequence: seq.as_ref().map(|s| s.signs.clone()).unwrap_or_default(),
+        dominant_sequence: seq.map(|s| s.notation).unwrap_or_default(),
+        zeros: typed
+            .iter()
+            .map(|z| FittedZero {
+                re_hz: z.s().re / (2.0 * PI),
+                im_hz: z.s().im / (2.0 * PI),
+                kind: z.kind.as_str().to_string(),
+            })
+            .collect(),
+        cmp_cnmp: has_cmp_cnmp(&typed),
+    }
+}
+
+/// Labels as `bench analyze` gives them: the closely spaced pair (the
+/// adjacent modes with the smallest frequency ratio, at most
+/// `CLOSE_PAIR_RATIO` = 1.25) `u`, `v`; of the
+/// others, the one with the largest contribution `|Aᵢ/(ωᵢ² − ω²)|` at the
+/// pair's mean frequency `R`; the rest `m<N>`.
+pub fn labels(f_hz: &[f64], a: &[f64]) -> Vec<String> {
+    let mut out: Vec<String> = (0..f_hz.len()).map(|i| format!("m{}", i + 1)).collect();
+    let Some(v) = (1..f_hz.len())
+        .min_by(|&x, &y| (f_hz[x] / f_hz[x - 1]).total_cmp(&(f_hz[y] / f_hz[y - 1])))
+        .filter(|&v| f_hz[v] / f_hz[v - 1] <= super::frf::CLOSE_PAIR_RATIO)
+    else {
+        // No closely spaced pair: the largest static contribution is R.
+        if let Some(r) = (0..f_hz.len()).max_by(|&x, &y| {
+            (a[x] / f_hz[x].powi(2))
+                .abs()
+                .total_cmp(&(a[y] / f_hz[y].powi(2)).abs())
+        }) {
+            out[r] = "R".into();
+        }
+        return out;
+    };
+    let u = v - 1;
+    out[u] = "u".into();
+    out[v] = "v".into();
+    let w2 = (PI * (f_hz[u] + f_hz[v])).powi(2);
+    let r = (0..f_hz.len())
+        .filter(|&i| i != u && i != v)
+        .max_by(|&x, &y| {
+            let cx = (a[x] / ((2.0 * PI * f_hz[x]).powi(2) - w2)).abs();
+            let cy = (a[y] / ((2.0 * PI * f_hz[y]).powi(2) - w2)).abs();
+            cx.total_cmp(&cy)
+        });
+    if let Some(r) = r {
+        out[r] = "R".into();
+    }
+    out
+}
+
+/// Roots (rad/s) of the numerator of `Σᵢ Aᵢ / (s² + 2ζᵢωᵢ s + ωᵢ²)`,
+/// computed in `s/ω̄` (ω̄ the geometric mean natural frequency).
+pub fn damped_numerator_roots(f_hz: &[f64], zeta: &[f64], a: &[f64]) -> Vec<C64> {
+    use bench_hal::model::{poly_mul, poly_roots};
+    let n = f_hz.len();
+    if n < 2 {
+        return Vec::new();
+    }
+    let wbar = (f_hz.iter().map(|f| (2.0 * PI * f).ln()).sum::<f64>() / n as f64).exp();
+    let amax = a
+        .iter()
+        .fold(0.0_f64, |m, v| m.max(v.abs()))
+        .max(f64::MIN_POSITIVE);
+    let mut num = vec![0.0; 2 * n - 1];
+    for (i, ai) in a.iter().enumerate() {
+        let mut poly = vec![ai / amax];
+        for j in 0..n {
+            if i != j {
+                let w = 2.0 * PI * f_hz[j] / wbar;
+                poly = poly_mul(&poly, &[1.0, 2.0 * zeta[j] * w, w * w]);
+            }
+        }
+        let off = num.len() - poly.len();
+        for (k, c) in poly.into_iter().enumerate() {
+            num[off + k] += c;
+        }
+    }
+    poly_roots(&num)
+        .unwrap_or_default()
+        .into_iter()
+        .map(|r| r * wbar)
+        .collect()
+}
+
+/// Phase of the path outside the mechanics at `frequency_hz` with the
+/// fitted delay, degrees (continuous, not wrapped):
+/// `−atan(f/f_a) − 360° f τ` (the hold's sinc is positive below the
+/// sample rate).
+pub fn path_phase_deg(fit: &ModalFit, path: &Path, frequency_hz: f64) -> f64 {
+    -(frequency_hz / path.amplifier_bandwidth_hz)
+        .atan()
+        .to_degrees()
+        - 360.0 * frequency_hz * fit.delay_s
+}
+
+/// The fitted model `Ĥ` at `frequency_hz` (m/A), for plots.
+pub fn evaluate(fit: &ModalFit, path: &Path, frequency_hz: f64) -> C64 {
+    let w = 2.0 * PI * frequency_hz;
+    let s = C64::new(0.0, w);
+    let mut m = C64::new(fit.lower_residual, 0.0) / (s * s) + fit.upper_residual_m_per_a;
+    for md in &fit.modes {
+        let wn = 2.0 * PI * md.frequency_hz;
+        m += md.modal_constant / (s * s + s * (2.0 * md.damping_ratio * wn) + wn * wn);
+    }
+    path.gain(w) * C64::from_polar(1.0, -w * fit.delay_s) * m
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::analysis::modal::modal_terms;
+    use crate::config::BenchConfig;
+    use bench_hal::model::Sr4dof;
+    use bench_hal::sim::ZohPlant;
+
+    fn ch5() -> BenchConfig {
+        let path =
+            std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("bench-config/sr4dof-ch5.toml");
+        BenchConfig::load(&path).unwrap()
+    }
+
+    /// The exact sampled response of the Chapter 5 bench (ZOH plant with
+    /// the amplifier), noise-free, on the chirp's grid.
+    fn exact(op: f64, dm: f64) -> (FrfData, Sr4dof, Path, f64) {
+        let cfg = ch5();
+        let mut p = cfg.plant;
+        p.operating_point_m = op * p.beam.length_m;
+        p.mass_asymmetry = dm;
+        let model = Sr4dof::new(p).unwrap();
+        let period_s = cfg.loop_.period_ns() as f64 * 1e-9;
+        let zoh = ZohPlant::new(&model, &cfg.actuator, period_s);
+        let f = super::super::frf::log_grid(0.1, 500.0, 400);
+        let data = FrfData {
+            response: f.iter().map(|&f| zoh.frf(f)).collect(),
+            coherence: vec![1.0; f.len()],
+            frequency_hz: f,
+        };
+        let path = Path {
+            period_s,
+            amplifier_bandwidth_hz: cfg.actuator.bandwidth_hz,
+        };
+        (data, model, path, cfg.actuator.force_constant_n_per_a)
+    }
+
+    /// The exact sampled response of the Chapter 5 bench on both sides of
+    /// the CMP-CNMP boundary: the fitted modes are the model's (frequency
+    /// 1e-4, damping 2 %, modal constant 1 % = force constant × residue of
+    /// Eq. 4-15), and so is the CMP-CNMP answer.
+    #[test]
+    fn exact_response_gives_the_model_modes() {
+        for (op, dm) in [(0.08, 0.1), (0.006, -0.08)] {
+            let (data, model, path, kf) = exact(op, dm);
+            let fit = fit(&data, &path).unwrap();
+            let terms: Vec<_> = modal_terms(&model)
+                .into_iter()
+                .filter(|t| t.in_path)
+                .collect();
+            for t in &terms {
+                let m = fit
+                    .modes
+                    .iter()
+                    .find(|m| m.label == t.label)
+                    .unwrap_or_else(|| panic!("{op} {dm}: no {} in {:?}", t.label, fit.modes));
+                assert!(
+                    (m.frequency_hz / t.frequency_hz - 1.0).abs() < 1e-4,
+                    "{m:?} {t:?}"
+                );
+                assert!(
+                    (m.damping_ratio / t.damping_ratio - 1.0).abs() < 0.02,
+                    "{m:?} {t:?}"
+                );
+                let a = t.residue_per_kg * kf;
+                assert!((m.modal_constant / a - 1.0).abs() < 0.01, "{m:?} {t:?}");
+            }
+            assert_eq!(
+                fit.cmp_cnmp,
+                crate::analysis::modal::model_cnmp_damped(&model)
+            );
+        }
+    }
+}

@@ -1,0 +1,396 @@
+//! `bench fit` and the modal fit behind it (`bench::ident::modal_fit`,
+//! `bench::ident::verdict`).
+//!
+//! The reference is independent of the fit: the 60 random benches of
+//! `tests/data/analysis_reference.json` (masses and stiffnesses ±25 %,
+//! operating point 0–10 % of L, asymmetry ±15 %), whose frequencies,
+//! residues and typed zeros `tests/data/analysis_reference.py` computed
+//! with scipy from the thesis' Eq. 2-5; the damping ratios are the
+//! model's Rayleigh ones.
+
+mod common;
+
+use bench::config::BenchConfig;
+use bench::ident::frf::{log_grid, C64};
+use bench::ident::modal_fit::{fit, FrfData, Path as FitPath};
+use bench_hal::model::Sr4dof;
+use bench_hal::sim::ZohPlant;
+use rand::SeedableRng;
+use rand_distr_free::normal;
+use serde::Deserialize;
+use serde_json::Value;
+use std::path::Path;
+use std::process::Command;
+
+/// Box-Muller on the test's RNG (no extra crate).
+mod rand_distr_free {
+    use rand::Rng;
+    pub fn normal(rng: &mut impl Rng) -> f64 {
+        let u1: f64 = rng.random_range(f64::EPSILON..1.0);
+        let u2: f64 = rng.random_range(0.0..1.0);
+        (-2.0 * u1.ln()).sqrt() * (2.0 * std::f64::consts::PI * u2).cos()
+    }
+}
+
+#[derive(Deserialize)]
+struct Params {
+    m1_kg: f64,
+    m2_kg: f64,
+    m3_kg: f64,
+    m4_kg: f64,
+    m5_kg: f64,
+    k4_n_per_m: f64,
+    k5_n_per_m: f64,
+    parallelogram_stiffness_n_per_m: f64,
+    operating_point_m: f64,
+    mass_asymmetry: f64,
+    zeta_rigid: f64,
+    zeta_csm: f64,
+}
+
+#[derive(Deserialize)]
+struct Reference {
+    params: Params,
+    frequencies_hz: Vec<f64>,
+    residues_per_kg: Vec<f64>,
+    zeros_damped: Vec<(f64, f64, String)>,
+}
+
+fn root() -> &'static Path {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+}
+
+fn bench() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_bench"))
+}
+
+/// Relative noise of the synthetic FRFs (0.1 % per point, complex).
+const NOISE: f64 = 1e-3;
+
+/// Fitted frequencies within 0.2 %, damping ratios within 15 %, the signs
+/// of every mode whose peak stands above the noise, and the zero types of
+/// the fitted model equal to scipy's (CMP-CNMP present or not) on the 60
+/// random benches, from their exact sampled response with 0.1 % noise.
+#[test]
+fn random_plants_frequencies_damping_signs_and_zero_types() {
+    let refs: Vec<Reference> = serde_json::from_str(
+        &std::fs::read_to_string(root().join("tests/data/analysis_reference.json")).unwrap(),
+    )
+    .unwrap();
+    let cfg = BenchConfig::load(&root().join("bench-config/sr4dof-ch5.toml")).unwrap();
+    let period_s = cfg.loop_.period_ns() as f64 * 1e-9;
+    let path = FitPath {
+        period_s,
+        amplifier_bandwidth_hz: cfg.actuator.bandwidth_hz,
+    };
+    let kf = cfg.actuator.force_constant_n_per_a;
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(13);
+    let mut checked_modes = 0;
+    let mut checked_zeros = 0;
+    for (i, r) in refs.iter().enumerate() {
+        let q = &r.params;
+        let mut p = cfg.plant;
+        p.m1_kg = q.m1_kg;
+        p.m2_kg = q.m2_kg;
+        p.m3_kg = q.m3_kg;
+        p.m4_kg = q.m4_kg;
+        p.m5_kg = q.m5_kg;
+        p.k4_n_per_m = q.k4_n_per_m;
+        p.k5_n_per_m = q.k5_n_per_m;
+        p.parallelogram_stiffness_n_per_m = Some(q.parallelogram_stiffness_n_per_m);
+        p.operating_point_m = q.operating_point_m;
+        p.mass_asymmetry = q.mass_asymmetry;
+        p.damping.zeta_rigid = q.zeta_rigid;
+        p.damping.zeta_csm = q.zeta_csm;
+        let model = Sr4dof::new(p).unwrap();
+        let zoh = ZohPlant::new(&model, &cfg.actuator, period_s);
+        let f = log_grid(0.1, 500.0, 400);
+        let h: Vec<C64> = f
+            .iter()
+            .map(|&f| {
+                let e = C64::new(normal(&mut rng), normal(&mut rng)) * (NOISE / 2f64.sqrt());
+                zoh.frf(f) * (C64::new(1.0, 0.0) + e)
+            })
+            .collect();
+        let data = FrfData {
+            response: h,
+            coherence: vec![1.0 / (1.0 + NOISE * NOISE); f.len()],
+            frequency_hz: f,
+        };
+        let fitted = fit(&data, &path).unwrap();
+        let zetas: Vec<f64> = model.modes().iter().map(|m| m.zeta).collect();
+        let amax = r
+            .residues_per_kg
+            .iter()
+            .fold(0.0_f64, |m, a| m.max(a.abs()));
+        let mut all_found = true;
+        for (k, (&fr, &alpha)) in r.frequencies_hz.iter().zip(&r.residues_per_kg).enumerate() {
+            // The mode's peak over the rest of the response, relative.
+            let w = 2.0 * std::f64::consts::PI * fr;
+            let peak = (kf * alpha).abs() / (2.0 * zetas[k] * w * w);
+            let rest = zoh.frf(fr).norm();
+            let visible = peak > 20.0 * NOISE * rest;
+            let in_path = alpha.abs() >= 1e-4 * amax;
+            let found = fitted
+                .modes
+                .iter()
+                .find(|m| (m.frequency_hz / fr - 1.0).abs() < 2e-3);
+            if !visible {
+                if in_path && found.is_none() {
+                    all_found = false;
+                }
+                continue;
+            }
+            let m = found.unwrap_or_else(|| {
+                panic!(
+                    "bench {i}: mode {k} at {fr:.3} Hz not fitted within 0.2 %: {:?}",
+                    fitted.modes
+                )
+            });
+            assert!(
+                (m.damping_ratio / zetas[k] - 1.0).abs() < 0.15,
+                "bench {i}: mode {k} damping {} vs {}",
+                m.damping_ratio,
+                zetas[k]
+            );
+            assert_eq!(
+                m.modal_constant.signum(),
+                alpha.signum(),
+                "bench {i}: mode {k} sign ({} vs residue {alpha})",
+                m.modal_constant
+            );
+            checked_modes += 1;
+        }
+        if all_found {
+            let reference_cnmp = r.zeros_damped.iter().any(|z| z.2 == "CMP-CNMP");
+            assert_eq!(
+                fitted.cmp_cnmp, reference_cnmp,
+                "bench {i}: fitted zeros {:?} vs scipy {:?}",
+                fitted.zeros, r.zeros_damped
+            );
+            let rnmp = |n: usize| n;
+            assert_eq!(
+                rnmp(fitted.zeros.iter().filter(|z| z.kind == "RMP-RNMP").count()),
+                r.zeros_damped.iter().filter(|z| z.2 == "RMP-RNMP").count(),
+                "bench {i}: RMP-RNMP zeros {:?} vs scipy {:?}",
+                fitted.zeros,
+                r.zeros_damped
+            );
+            checked_zeros += 1;
+        }
+    }
+    assert!(checked_modes >= 150, "{checked_modes} modes checked");
+    assert!(
+        checked_zeros >= 50,
+        "{checked_zeros} benches' zeros checked"
+    );
+}
+
+fn write(dir: &Path, name: &str, text: &str) -> std::path::PathBuf {
+    let p = dir.join(name);
+    std::fs::write(&p, text).unwrap();
+    p
+}
+
+/// A valid FRF CSV: the Chapter 5 bench's exact sampled response.
+fn valid_csv() -> String {
+    let cfg = BenchConfig::load(&root().join("bench-config/sr4dof-ch5.toml")).unwrap();
+    let model = Sr4dof::new(cfg.plant).unwrap();
+    let zoh = ZohPlant::new(&model, &cfg.actuator, cfg.loop_.period_ns() as f64 * 1e-9);
+    let mut s = String::from("frequency_hz,magnitude_m_per_a,phase_deg,coherence\n");
+    let mut last = 0.0;
+    let mut off = 0.0;
+    for f in log_grid(1.0, 400.0, 200) {
+        let h = zoh.frf(f);
+        let mut p = h.arg().to_degrees() + off;
+        while p - last > 180.0 {
+            p -= 360.0;
+            off -= 360.0;
+        }
+        while p - last < -180.0 {
+            p += 360.0;
+            off += 360.0;
+        }
+        last = p;
+        s.push_str(&format!("{f},{:e},{p},0.999\n", h.norm()));
+    }
+    s
+}
+
+/// `bench fit` on a valid CSV: exit 0, JSON with the modes (frequency,
+/// damping ratio, signed modal constant and their 1σ), the verdict, a PNG.
+#[test]
+fn fit_cli_on_a_csv() {
+    let dir = tempfile::tempdir().unwrap();
+    let csv = write(dir.path(), "frf.csv", &valid_csv());
+    let out = bench()
+        .args(["fit", csv.to_str().unwrap(), "--json"])
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let v: Value = serde_json::from_slice(&out.stdout).unwrap();
+    let modes = v["modes"].as_array().unwrap();
+    assert!(modes.len() >= 3, "{v}");
+    for m in modes {
+        for k in [
+            "frequency_hz",
+            "frequency_sigma_hz",
+            "damping_ratio",
+            "damping_ratio_sigma",
+            "modal_constant",
+            "modal_constant_sigma",
+            "sign",
+        ] {
+            assert!(m[k].is_number(), "{k} in {m}");
+        }
+    }
+    // The default bench (3 % of L, Δm23 = 0... whatever it is) against its model.
+    let cfg = BenchConfig::load(&root().join("bench-config/sr4dof-ch5.toml")).unwrap();
+    let model = Sr4dof::new(cfg.plant).unwrap();
+    assert_eq!(
+        v["verdict"]["cmp_cnmp"],
+        Value::Bool(bench::analysis::modal::model_cnmp_damped(&model)),
+        "{v}"
+    );
+    let png = dir.path().join("frf.fit.png");
+    assert!(std::fs::metadata(&png).unwrap().len() > 10_000);
+}
+
+/// Bad FRFs: exit 2 naming the file and the line or field, no PNG.
+/// Generated: every data line of a valid CSV broken in each column in
+/// several ways, plus the header, too few points and recordings without
+/// an FRF.
+#[test]
+fn bad_frf_inputs_exit_2_naming_the_line() {
+    let dir = tempfile::tempdir().unwrap();
+    let good = valid_csv();
+    let lines: Vec<&str> = good.lines().collect();
+    let run = |name: &str, text: &str| {
+        let p = write(dir.path(), name, text);
+        let out = bench()
+            .args(["fit", p.to_str().unwrap(), "--no-plot"])
+            .output()
+            .unwrap();
+        (
+            out.status.code(),
+            String::from_utf8_lossy(&out.stderr).into_owned(),
+            p,
+        )
+    };
+    let mut cases: Vec<(String, String, String)> = Vec::new(); // (text, must contain, what)
+    let columns = [
+        "frequency_hz",
+        "magnitude_m_per_a",
+        "phase_deg",
+        "coherence",
+    ];
+    for li in (1..lines.len()).step_by(37) {
+        for (c, col) in columns.iter().enumerate() {
+            let bad_values: &[&str] = match c {
+                0 => &["NaN", "-1", "0", "x", "", "inf"],
+                1 => &["NaN", "-1e-6", "0", "x", ""],
+                2 => &["NaN", "inf", "x", ""],
+                _ => &["NaN", "-0.1", "1.5", "x", ""],
+            };
+            for bad in bad_values {
+                let mut l: Vec<String> = lines.iter().map(|s| s.to_string()).collect();
+                let mut f: Vec<String> = l[li].split(',').map(String::from).collect();
+                f[c] = bad.to_string();
+                l[li] = f.join(",");
+                cases.push((
+                    l.join("\n"),
+                    format!("line {}", li + 1),
+                    format!("{col}={bad:?}"),
+                ));
+            }
+        }
+        // Non-monotonic: this line's frequency equal to the previous one's.
+        if li > 1 {
+            let mut l: Vec<String> = lines.iter().map(|s| s.to_string()).collect();
+            let prev = l[li - 1].split(',').next().unwrap().to_string();
+            let rest: Vec<String> = l[li].split(',').skip(1).map(String::from).collect();
+            l[li] = format!("{prev},{}", rest.join(","));
+            cases.push((
+                l.join("\n"),
+                format!("line {}", li + 1),
+                "repeated frequency".into(),
+            ));
+        }
+        // A missing or an extra field.
+        let mut l: Vec<String> = lines.iter().map(|s| s.to_string()).collect();
+        l[li] = format!("{},1", l[li]);
+        cases.push((
+            l.join("\n"),
+            format!("line {}", li + 1),
+            "extra field".into(),
+        ));
+    }
+    cases.push((
+        good.replacen("coherence", "gamma2", 1),
+        "line 1".into(),
+        "wrong header".into(),
+    ));
+    cases.push((
+        lines[..6].join("\n"),
+        "at least".into(),
+        "too few points".into(),
+    ));
+    cases.push((String::new(), "empty".into(), "empty file".into()));
+    for (k, (text, needle, what)) in cases.iter().enumerate() {
+        let (code, err, p) = run(&format!("bad{k}.csv"), text);
+        assert_eq!(code, Some(2), "{what}: {err}");
+        assert!(err.contains(p.to_str().unwrap()), "{what}: {err}");
+        assert!(err.contains(needle.as_str()), "{what}: {err}");
+    }
+    assert!(cases.len() > 100, "{} cases", cases.len());
+    // A file that is not a recording, and a recording without /sysid/frf.
+    let (code, err, _) = run("junk.mcap", "not an mcap");
+    assert_eq!(code, Some(2), "{err}");
+    assert!(err.contains("junk.mcap"), "{err}");
+    let rec = dir.path().join("nofrf.mcap");
+    {
+        let mut w = mcap::Writer::new(std::io::BufWriter::new(
+            std::fs::File::create(&rec).unwrap(),
+        ))
+        .unwrap();
+        let ch = w
+            .add_channel(
+                0,
+                "/bench/sample",
+                "json",
+                &std::collections::BTreeMap::new(),
+            )
+            .unwrap();
+        w.write_to_known_channel(
+            &mcap::records::MessageHeader {
+                channel_id: ch,
+                sequence: 0,
+                log_time: 1,
+                publish_time: 1,
+            },
+            b"{}",
+        )
+        .unwrap();
+        w.finish().unwrap();
+    }
+    let out = bench()
+        .args(["fit", rec.to_str().unwrap()])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("nofrf.mcap") && err.contains("/sysid/frf"),
+        "{err}"
+    );
+    // No plot left by any refusal.
+    assert!(std::fs::read_dir(dir.path()).unwrap().all(|e| !e
+        .unwrap()
+        .file_name()
+        .to_string_lossy()
+        .ends_with(".png")));
+}
