@@ -32,9 +32,11 @@
 //! Data*, Eq. 9.90; `ε` = [`MODEL_ERROR_FLOOR`] bounds the weight of
 //! noise-free points). The model order is not chosen by the user:
 //!
-//! 1. Start with the residual terms alone (`Aᵢ`, `L`, `U` are linear: for
-//!    fixed poles they come from a linear least-squares solve, the LSFD
-//!    step of Peeters et al., *The PolyMAX frequency-domain method*, 2004).
+//! 1. Start from the peaks of |H| that rise [`PEAK_PROMINENCE`] (1 dB) above
+//!    their flanks, each placed by the grid of step 2, all refined
+//!    together (`Aᵢ`, `L`, `U` are linear: for fixed poles they come from a
+//!    linear least-squares solve, the LSFD step of Peeters et al., *The
+//!    PolyMAX frequency-domain method*, 2004).
 //! 2. Where the weighted residual concentrates (a sliding ±1 % window over
 //!    the points with γ² ≥ [`MIN_COHERENCE`]), try a mode: a grid of
 //!    frequencies and damping ratios around it, each scored by the linear
@@ -42,9 +44,11 @@
 //!    with all parameters by Levenberg-Marquardt (`levenberg-marquardt`
 //!    crate, MINPACK's algorithm).
 //! 3. Keep the mode if it lowers the residual by more than
-//!    [`MIN_IMPROVEMENT`], is lightly damped (ζ < [`MAX_DAMPING`]), lies
-//!    in the coherent band, and its modal constant is at least
-//!    [`MIN_SIGNIFICANCE`] standard deviations from zero; repeat from 2.
+//!    [`MIN_IMPROVEMENT`], is lightly damped (ζ < [`MAX_DAMPING`]) and lies
+//!    in the coherent band; repeat from 2.
+//! 4. Drop, one at a time, the mode whose modal constant is least
+//!    significant while it is less than [`MIN_SIGNIFICANCE`] standard
+//!    deviations from zero, refitting after each.
 //!
 //! The 1σ uncertainties come from the Jacobian at the optimum,
 //! `Σ = s² (JᵀJ)⁻¹` with `s²` the residual variance per degree of freedom
@@ -71,6 +75,9 @@ pub const MAX_DAMPING: f64 = 0.2;
 pub const MIN_SIGNIFICANCE: f64 = 3.0;
 /// At most this many modes are fitted.
 pub const MAX_MODES: usize = 10;
+/// A peak of |H| this much above the lower of its flanking minima within
+/// ±5 % (1 dB) starts as a mode.
+pub const PEAK_PROMINENCE: f64 = 1.122;
 /// Largest RMS relative error over the coherent points of a fit that
 /// explains the measurement (5 %); above it the fit missed part of the
 /// response and decides nothing.
@@ -323,7 +330,14 @@ impl<'a> Prepared<'a> {
                 g[(i, j)] /= norms[i] * norms[j];
             }
         }
-        let x = g.svd(true, true).solve(&rhs, 1e-13).ok()?;
+        if !(g.iter().chain(rhs.iter()).all(|v| v.is_finite())) {
+            return None;
+        }
+        // Bounded iterations: nalgebra's SVD never returns on some inputs.
+        let x = g
+            .try_svd(true, true, f64::EPSILON, 500)?
+            .solve(&rhs, 1e-13)
+            .ok()?;
         let coef: Vec<f64> = x.iter().zip(&norms).map(|(v, n)| v / n).collect();
         let mut cost = 0.0;
         for k in range {
@@ -485,6 +499,7 @@ fn refine(prep: &Prepared, start: &Params, period_s: f64) -> Params {
         .iter()
         .chain(&p.zeta)
         .chain(&p.a)
+        .chain([&p.l, &p.u, &p.tau_s])
         .all(|v| v.is_finite());
     if ok && prep.cost(&p) <= prep.cost(start) {
         p
@@ -502,11 +517,18 @@ fn sigmas(prep: &Prepared, p: &Params, period_s: f64) -> Vec<f64> {
     let dof = (j.nrows() as f64 - j.ncols() as f64).max(1.0);
     let s2 = prep.cost(p) / dof;
     let jtj = j.transpose() * &j;
-    let cov = match jtj.clone().try_inverse() {
-        Some(c) => c,
-        None => jtj
-            .pseudo_inverse(1e-300)
-            .unwrap_or_else(|_| DMatrix::from_element(3 * n + 3, 3 * n + 3, f64::INFINITY)),
+    let unknown = DMatrix::from_element(3 * n + 3, 3 * n + 3, f64::INFINITY);
+    let cov = if !jtj.iter().all(|v| v.is_finite()) {
+        unknown
+    } else {
+        match jtj.clone().try_inverse() {
+            Some(c) => c,
+            None => jtj
+                .clone()
+                .try_svd(true, true, f64::EPSILON, 500)
+                .and_then(|svd| svd.pseudo_inverse(1e-300).ok())
+                .unwrap_or(unknown),
+        }
     };
     let sd = |i: usize| (s2 * cov[(i, i)]).max(0.0).sqrt();
     let mut out = Vec::with_capacity(3 * n + 3);
@@ -587,7 +609,7 @@ fn residual_peaks(prep: &Prepared, freq_hz: &[f64], p: &Params, max: usize) -> V
 /// Peaks of the measured |H| over coherent points (local maxima), the
 /// most prominent first (height over the lower minimum within ±5 %), away
 /// from the modes of `p`: the classic peak-picking start.
-fn magnitude_peaks(prep: &Prepared, freq_hz: &[f64], p: &Params, max: usize) -> Vec<f64> {
+fn magnitude_peaks(prep: &Prepared, freq_hz: &[f64], p: &Params, max: usize) -> Vec<(f64, f64)> {
     let n = prep.len();
     let mag: Vec<f64> = prep.h.iter().map(|h| h.norm()).collect();
     let mut peaks: Vec<(f64, f64)> = (1..n.saturating_sub(1))
@@ -602,7 +624,8 @@ fn magnitude_peaks(prep: &Prepared, freq_hz: &[f64], p: &Params, max: usize) -> 
         })
         .collect();
     peaks.sort_by(|a, b| b.1.total_cmp(&a.1));
-    peaks.into_iter().take(max).map(|(f, _)| f).collect()
+    peaks.truncate(max);
+    peaks
 }
 
 /// A mode tried near `f0`: the best of a grid over frequency (±4 % in
@@ -648,14 +671,21 @@ fn try_mode(prep: &Prepared, freq_hz: &[f64], current: &Params, f0: f64) -> Opti
     best
 }
 
-/// `current` with the mode of `trial` added, all parameters refined.
-fn add_mode(prep: &Prepared, current: &Params, trial: &Trial, period_s: f64) -> Option<Params> {
+/// `current` with the mode of `trial` added: all parameters refined, and
+/// the unrefined start (poles from the grid, linear terms solved), for
+/// when the refinement drifts (a mode stretched over modes not yet fitted).
+fn add_mode(
+    prep: &Prepared,
+    current: &Params,
+    trial: &Trial,
+    period_s: f64,
+) -> Option<[Params; 2]> {
     let mut fs = current.f_hz.clone();
     let mut zs = current.zeta.clone();
     fs.push(trial.f_hz);
     zs.push(trial.zeta);
     let start = with_linear(prep, fs, zs, current.tau_s)?;
-    Some(sorted(refine(prep, &start, period_s)))
+    Some([sorted(refine(prep, &start, period_s)), sorted(start)])
 }
 
 /// Modes sorted ascending in frequency.
@@ -670,19 +700,47 @@ fn sorted(p: Params) -> Params {
     }
 }
 
-/// Whether `p` is an acceptable model: every mode lightly damped, inside
-/// the coherent band, apart from the others, and significant.
-fn acceptable(prep: &Prepared, freq_hz: &[f64], p: &Params, period_s: f64) -> bool {
+/// Whether `p` is an acceptable model while modes are added: every mode
+/// lightly damped, inside the coherent band and apart from the others.
+/// (Significance is judged once all modes are in, by [`prune`]: before,
+/// the residual variance that scales the uncertainties still holds the
+/// modes not yet fitted.)
+fn acceptable(prep: &Prepared, freq_hz: &[f64], p: &Params) -> bool {
     let (lo, hi) = coherent_band(prep, freq_hz);
-    let n = p.f_hz.len();
-    let sd = sigmas(prep, p, period_s);
-    (0..n).all(|i| {
+    (0..p.f_hz.len()).all(|i| {
         p.zeta[i] < MAX_DAMPING
             && p.f_hz[i] >= lo
             && p.f_hz[i] <= hi
-            && p.a[i].abs() >= MIN_SIGNIFICANCE * sd[2 * n + i]
             && (i == 0 || p.f_hz[i] / p.f_hz[i - 1] > 1.003)
     })
+}
+
+/// Removes, one at a time, the mode whose modal constant is least
+/// significant while it is below [`MIN_SIGNIFICANCE`] standard deviations,
+/// refitting after each removal.
+fn prune(prep: &Prepared, mut p: Params, period_s: f64) -> Params {
+    loop {
+        let n = p.f_hz.len();
+        if n == 0 {
+            return p;
+        }
+        let sd = sigmas(prep, &p, period_s);
+        let (worst, z) = (0..n)
+            .map(|i| (i, p.a[i].abs() / sd[2 * n + i]))
+            .min_by(|a, b| a.1.total_cmp(&b.1))
+            .expect("n > 0");
+        if z >= MIN_SIGNIFICANCE {
+            return p;
+        }
+        let mut f = p.f_hz.clone();
+        let mut zeta = p.zeta.clone();
+        f.remove(worst);
+        zeta.remove(worst);
+        let Some(start) = with_linear(prep, f, zeta, p.tau_s) else {
+            return p;
+        };
+        p = refine(prep, &start, period_s);
+    }
 }
 
 /// First and last frequency with γ² ≥ [`MIN_COHERENCE`].
@@ -714,9 +772,42 @@ pub fn fit(data: &FrfData, path: &Path) -> Result<ModalFit, FitError> {
     let mut current = with_linear(&prep, Vec::new(), Vec::new(), 0.5 * period_s)
         .expect("the residual terms alone always solve");
     let mut cost = prep.cost(&current);
+    // Peak picking: every peak at least 1 dB above its flanks at once, each
+    // placed by its own grid, then all refined together (one at a time, a
+    // mode stretches over the others not yet fitted).
+    let mut start: Vec<(f64, f64)> =
+        magnitude_peaks(&prep, &data.frequency_hz, &current, MAX_MODES)
+            .into_iter()
+            .filter(|(_, prominence)| *prominence >= PEAK_PROMINENCE)
+            .filter_map(|(f0, _)| try_mode(&prep, &data.frequency_hz, &current, f0))
+            .map(|t| (t.f_hz, t.zeta))
+            .collect();
+    start.sort_by(|a, b| a.0.total_cmp(&b.0));
+    start.dedup_by(|b, a| b.0 / a.0 <= 1.003);
+    if let Some(s0) = with_linear(
+        &prep,
+        start.iter().map(|x| x.0).collect(),
+        start.iter().map(|x| x.1).collect(),
+        current.tau_s,
+    )
+    .filter(|_| !start.is_empty())
+    {
+        for p in [sorted(refine(&prep, &s0, period_s)), s0] {
+            let c = prep.cost(&p);
+            if c < cost && acceptable(&prep, &data.frequency_hz, &p) {
+                current = p;
+                cost = c;
+                break;
+            }
+        }
+    }
     'grow: while current.f_hz.len() < MAX_MODES {
         let mut candidates = residual_peaks(&prep, &data.frequency_hz, &current, 3);
-        candidates.extend(magnitude_peaks(&prep, &data.frequency_hz, &current, 3));
+        candidates.extend(
+            magnitude_peaks(&prep, &data.frequency_hz, &current, 3)
+                .into_iter()
+                .map(|(f, _)| f),
+        );
         let mut trials: Vec<Trial> = candidates
             .into_iter()
             .filter_map(|f0| try_mode(&prep, &data.frequency_hz, &current, f0))
@@ -731,20 +822,21 @@ pub fn fit(data: &FrfData, path: &Path) -> Result<ModalFit, FitError> {
             if !worth {
                 continue;
             }
-            let Some(p) = add_mode(&prep, &current, trial, period_s) else {
+            let Some(options) = add_mode(&prep, &current, trial, period_s) else {
                 continue;
             };
-            let c = prep.cost(&p);
-            if c < (1.0 - MIN_IMPROVEMENT) * cost
-                && acceptable(&prep, &data.frequency_hz, &p, period_s)
-            {
-                current = p;
-                cost = c;
-                continue 'grow;
+            for p in options {
+                let c = prep.cost(&p);
+                if c < (1.0 - MIN_IMPROVEMENT) * cost && acceptable(&prep, &data.frequency_hz, &p) {
+                    current = p;
+                    cost = c;
+                    continue 'grow;
+                }
             }
         }
         break;
     }
+    let current = prune(&prep, current, period_s);
     Ok(summarise(&prep, data, &current, period_s))
 }
 
@@ -873,7 +965,8 @@ pub fn labels(f_hz: &[f64], a: &[f64]) -> Vec<String> {
 pub fn damped_numerator_roots(f_hz: &[f64], zeta: &[f64], a: &[f64]) -> Vec<C64> {
     use bench_hal::model::{poly_mul, poly_roots};
     let n = f_hz.len();
-    if n < 2 {
+    let finite = f_hz.iter().chain(zeta).chain(a).all(|v| v.is_finite());
+    if n < 2 || !finite {
         return Vec::new();
     }
     let wbar = (f_hz.iter().map(|f| (2.0 * PI * f).ln()).sum::<f64>() / n as f64).exp();

@@ -227,8 +227,17 @@ pub fn residue_test(fit: &ModalFit) -> ResidueTest {
         }
     }
     let confidence = agree as f64 / DRAWS as f64;
+    let uncertain = modes.iter().any(|m| {
+        !(m.frequency_sigma_hz.is_finite()
+            && m.damping_ratio_sigma.is_finite()
+            && m.modal_constant_sigma.is_finite())
+    });
     let misfit = if modes.is_empty() {
         Some("the fit found no mode".to_string())
+    } else if modes.len() >= 2 && fit.zeros.is_empty() {
+        Some("the zeros of the fitted model could not be computed".to_string())
+    } else if uncertain {
+        Some("the fit's uncertainties could not be computed (singular Jacobian)".to_string())
     } else if fit.rms_relative_error > MAX_FIT_ERROR {
         Some(format!(
             "the fit leaves an RMS relative error of {:.1} % (at most {:.0} % for a fit that explains the measurement)",
