@@ -73,7 +73,7 @@ pub struct BodeSeries<'a> {
 #[derive(Debug, Clone, Copy)]
 pub enum PairZoom<'a> {
     /// The pair the FRF analysis found
-    /// ([`closely_spaced_pair`](crate::ident::frf::closely_spaced_pair)).
+    /// ([`phase_test`](crate::ident::verdict::phase_test)).
     Resolved {
         /// Its modes, band, net phase and verdict.
         pair: PairVerdict,
@@ -85,7 +85,7 @@ pub enum PairZoom<'a> {
     /// No pair was resolved; the panel shows why.
     Unresolved {
         /// The reason, e.g. from
-        /// [`no_pair_reason`](crate::ident::frf::no_pair_reason).
+        /// the phase test's reason ([`crate::ident::verdict::PhaseTest`]).
         reason: &'a str,
     },
 }

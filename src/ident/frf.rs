@@ -201,7 +201,7 @@ pub fn unwrap_deg(phase_deg: &mut [f64]) {
 impl Frf {
     /// The unwrapped phase, degrees, at the first grid point at or above
     /// `frequency_hz` (the last one above the grid; NaN for an empty grid):
-    /// the phase [`closely_spaced_pair`] takes at the edges of its band.
+    /// the phase the verdict's phase test takes at the edges of its band.
     pub fn phase_at_deg(&self, frequency_hz: f64) -> f64 {
         let grid = &self.frequency_hz;
         if grid.is_empty() {
@@ -301,33 +301,8 @@ impl Frf {
                         f.trim()
                     )
                 })?;
-                if !v[j].is_finite() {
-                    return Err(format!("line {n}: {}: {} is not finite", COLUMNS[j], v[j]));
-                }
             }
-            if v[0] <= 0.0 {
-                return Err(format!("line {n}: frequency_hz: {} is not positive", v[0]));
-            }
-            if frf.frequency_hz.last().is_some_and(|f| *f >= v[0]) {
-                return Err(format!(
-                    "line {n}: frequency_hz: {} does not ascend (the line before has {})",
-                    v[0],
-                    frf.frequency_hz.last().unwrap()
-                ));
-            }
-            if v[1] <= 0.0 {
-                return Err(format!(
-                    "line {n}: magnitude_m_per_a: {} is not positive",
-                    v[1]
-                ));
-            }
-            if !(0.0..=1.0).contains(&v[3]) {
-                return Err(format!("line {n}: coherence: {} is outside 0 … 1", v[3]));
-            }
-            frf.frequency_hz.push(v[0]);
-            frf.magnitude_m_per_a.push(v[1]);
-            frf.phase_deg.push(v[2]);
-            frf.coherence.push(v[3]);
+            frf.push_checked(v).map_err(|e| format!("line {n}: {e}"))?;
         }
         if frf.frequency_hz.len() < MIN_CSV_POINTS {
             return Err(format!(
@@ -336,6 +311,44 @@ impl Frf {
             ));
         }
         Ok(frf)
+    }
+
+    /// Appends the point `[frequency_hz, magnitude_m_per_a, phase_deg,
+    /// coherence]` after checking it: all finite, frequency positive and
+    /// above the last one, magnitude positive, coherence in 0 … 1.
+    ///
+    /// # Errors
+    /// The reason, naming the column; nothing is appended.
+    pub fn push_checked(&mut self, v: [f64; 4]) -> Result<(), String> {
+        const COLUMNS: [&str; 4] = [
+            "frequency_hz",
+            "magnitude_m_per_a",
+            "phase_deg",
+            "coherence",
+        ];
+        if let Some(j) = v.iter().position(|x| !x.is_finite()) {
+            return Err(format!("{}: {} is not finite", COLUMNS[j], v[j]));
+        }
+        if v[0] <= 0.0 {
+            return Err(format!("frequency_hz: {} is not positive", v[0]));
+        }
+        if let Some(last) = self.frequency_hz.last().filter(|f| **f >= v[0]) {
+            return Err(format!(
+                "frequency_hz: {} does not ascend (the point before has {last})",
+                v[0]
+            ));
+        }
+        if v[1] <= 0.0 {
+            return Err(format!("magnitude_m_per_a: {} is not positive", v[1]));
+        }
+        if !(0.0..=1.0).contains(&v[3]) {
+            return Err(format!("coherence: {} is outside 0 … 1", v[3]));
+        }
+        self.frequency_hz.push(v[0]);
+        self.magnitude_m_per_a.push(v[1]);
+        self.phase_deg.push(v[2]);
+        self.coherence.push(v[3]);
+        Ok(())
     }
 
     /// Writes the CSV rows (with the header) to `w`.
@@ -364,11 +377,13 @@ pub const MIN_CSV_POINTS: usize = 10;
 /// A resonance found in a measured FRF.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct Resonance {
-    /// Peak frequency, Hz (refined between grid points).
+    /// Peak frequency, Hz (refined between grid points; in `bench chirp`'s
+    /// summary the fitted natural frequency).
     pub frequency_hz: f64,
     /// Peak magnitude, m/A.
     pub magnitude_m_per_a: f64,
-    /// Damping ratio from the half-power (−3 dB) bandwidth,
+    /// Damping ratio: in `bench chirp`'s summary the modal fit's; from
+    /// [`find_resonances`] the half-power (−3 dB) bandwidth,
     /// `ζ ≈ (f₊ − f₋) / (2 f_n)`, when both half-power points are found
     /// before a neighbouring feature.
     pub damping_ratio: Option<f64>,
@@ -527,75 +542,6 @@ pub struct PairVerdict {
 /// Largest ratio between two adjacent resonances for them to count as a
 /// closely spaced pair.
 pub const CLOSE_PAIR_RATIO: f64 = 1.25;
-
-/// Looks for the closely spaced pair (the adjacent resonances with the
-/// smallest frequency ratio, below [`CLOSE_PAIR_RATIO`]) and measures the
-/// net phase across it.
-///
-/// The band runs from the geometric mean of the pair's lower mode and the
-/// resonance below it (or the grid start) to the geometric mean of its upper
-/// mode and the resonance above it (or the grid end), so it holds the pair's
-/// own zeros and no other pole. Each lightly damped pole pair in the band
-/// contributes −180°, each minimum-phase zero pair +180°, and a CMP-CNMP
-/// quartet 0° (its left- and right-half-plane pairs cancel). Two poles with
-/// a net of −360° therefore mean the zeros between them are CMP-CNMP; with
-/// minimum-phase (MMP) zeros the net is −180° or 0°. The hold and amplifier
-/// lag add a few degrees; the net is rounded to a multiple of 180°.
-pub fn closely_spaced_pair(frf: &Frf, resonances: &[Resonance]) -> Option<PairVerdict> {
-    let (k, ratio) = resonances
-        .windows(2)
-        .enumerate()
-        .map(|(k, w)| (k, w[1].frequency_hz / w[0].frequency_hz))
-        .min_by(|a, b| a.1.total_cmp(&b.1))?;
-    if ratio > CLOSE_PAIR_RATIO {
-        return None;
-    }
-    let (fa, fb) = (resonances[k].frequency_hz, resonances[k + 1].frequency_hz);
-    let grid = &frf.frequency_hz;
-    let below = if k > 0 {
-        resonances[k - 1].frequency_hz
-    } else {
-        grid[0]
-    };
-    let above = resonances
-        .get(k + 2)
-        .map(|r| r.frequency_hz)
-        .unwrap_or(*grid.last()?);
-    let band = ((below * fa).sqrt(), (fb * above).sqrt());
-    let net = frf.phase_at_deg(band.1) - frf.phase_at_deg(band.0);
-    let multiple = (net / 180.0).round() * 180.0;
-    Some(PairVerdict {
-        lower_hz: fa,
-        upper_hz: fb,
-        band_hz: band,
-        net_phase_deg: net,
-        net_phase_multiple_deg: multiple,
-        cmp_cnmp: multiple <= -360.0,
-    })
-}
-
-/// Why [`closely_spaced_pair`] finds no pair among `resonances` (as it
-/// received them, ascending), e.g. for the summary and the plot; `None`
-/// when it does find one.
-pub fn no_pair_reason(resonances: &[Resonance]) -> Option<String> {
-    let closest = resonances
-        .windows(2)
-        .map(|w| (w[0].frequency_hz, w[1].frequency_hz))
-        .min_by(|a, b| (a.1 / a.0).total_cmp(&(b.1 / b.0)));
-    match (resonances.len(), closest) {
-        (0, _) => Some("no resonance was found in the measured FRF".to_string()),
-        (1, _) => Some(format!(
-            "only one resonance was found ({:.2} Hz)",
-            resonances[0].frequency_hz
-        )),
-        (_, Some((a, b))) if b / a > CLOSE_PAIR_RATIO => Some(format!(
-            "the closest adjacent resonances, {a:.2} Hz and {b:.2} Hz, are {:.0} % apart (a pair must be within {:.0} %)",
-            (b / a - 1.0) * 100.0,
-            (CLOSE_PAIR_RATIO - 1.0) * 100.0
-        )),
-        _ => None,
-    }
-}
 
 #[cfg(test)]
 mod tests {

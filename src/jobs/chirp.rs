@@ -26,9 +26,6 @@ use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, AtomicU64};
 use std::sync::Arc;
 
-/// Smallest peak prominence for a resonance, dB.
-pub const MIN_PROMINENCE_DB: f64 = 3.0;
-
 /// Fewest points per decade of the model curve in the Bode plot.
 pub const MODEL_POINTS_PER_DECADE: usize = 2000;
 

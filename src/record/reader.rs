@@ -138,21 +138,28 @@ pub fn read_frf(bytes: &[u8]) -> Result<RecordedFrf, String> {
             ));
         }
     }
-    // The same checks as the CSV: through its reader.
-    let mut csv = String::from("frequency_hz,magnitude_m_per_a,phase_deg,coherence\n");
+    let mut frf = crate::ident::frf::Frf {
+        frequency_hz: Vec::with_capacity(n),
+        magnitude_m_per_a: Vec::with_capacity(n),
+        phase_deg: Vec::with_capacity(n),
+        coherence: Vec::with_capacity(n),
+    };
     for k in 0..n {
-        csv.push_str(&format!(
-            "{:?},{:?},{:?},{:?}\n",
-            p.frequency_hz[k], p.magnitude_m_per_a[k], p.phase_deg[k], p.coherence[k]
+        frf.push_checked([
+            p.frequency_hz[k],
+            p.magnitude_m_per_a[k],
+            p.phase_deg[k],
+            p.coherence[k],
+        ])
+        .map_err(|e| format!("{}: point {}: {e}", crate::record::TOPIC_FRF, k + 1))?;
+    }
+    if n < crate::ident::frf::MIN_CSV_POINTS {
+        return Err(format!(
+            "{}: {n} points; an FRF needs at least {}",
+            crate::record::TOPIC_FRF,
+            crate::ident::frf::MIN_CSV_POINTS
         ));
     }
-    let frf = crate::ident::frf::Frf::read_csv(&csv).map_err(|e| {
-        format!(
-            "{}: {}",
-            crate::record::TOPIC_FRF,
-            e.replace("line ", "point ")
-        )
-    })?;
     let config_toml = mcap::read::LinearReader::new_with_options(
         bytes,
         mcap::read::Options::IgnoreEndMagic.into(),
