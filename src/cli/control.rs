@@ -270,6 +270,12 @@ pub(super) fn print_control_summary(s: &ControlSummary) {
         "model, amplifier lag excluded",
         &c.model_without_amplifier_lag,
     );
+    if let Some(m) = &c.continuous {
+        print_margins(
+            "continuous, as the thesis computes (no hold, no amplifier)",
+            m,
+        );
+    }
     if let Some(m) = &c.measured {
         print_margins("measured FRF", m);
     }

@@ -4,6 +4,9 @@
 use super::{bad_input, emit, load_config, status, CONFIG_HELP};
 use bench::ident::frf::{log_grid, Frf};
 use bench::ident::modal_fit::{self, ModalFit};
+use bench::ident::update::{
+    update_to_frequencies, update_to_frf, updated_toml, Bench, Parameter, Update, UpdateError,
+};
 use bench::ident::verdict::Verdict;
 use bench::outputs::Existing;
 use bench::plot::{write_bode_png, BodePlot, BodeSeries, PairZoom};
@@ -17,9 +20,30 @@ pub(super) struct FitArgs {
     /// The measured FRF: a `bench chirp` CSV
     /// (frequency_hz,magnitude_m_per_a,phase_deg,coherence) or recording
     /// (`.mcap`, or the `.mcap.part` of a killed run; its /sysid/frf).
-    input: PathBuf,
-    #[arg(long, value_name = "FILE", help = CONFIG_HELP, long_help = "Bench description (TOML) for the loop period and the amplifier bandwidth of the fit's path model [default: the config a recording holds; for a CSV the built-in Chapter 5 bench]")]
+    #[arg(required_unless_present = "frequencies")]
+    input: Option<PathBuf>,
+    #[arg(long, value_name = "FILE", help = CONFIG_HELP, long_help = "Bench description (TOML): the loop period and the amplifier bandwidth of the fit's path model, and the start bench of --update and --frequencies [default: the config a recording holds; for a CSV the built-in Chapter 5 bench]")]
     config: Option<PathBuf>,
+    /// Update the bench's physical parameters (--free) to the measured FRF
+    /// and write the updated bench as TOML (--out).
+    #[arg(long, requires = "input")]
+    update: bool,
+    /// Update to measured natural frequencies instead of an FRF, Hz,
+    /// ascending, 1 to 4 of them (e.g. 18.2,27.6,153.2,154.3).
+    #[arg(long, value_name = "F1,F2,...", value_delimiter = ',', conflicts_with_all = ["input", "update", "png", "no_plot"])]
+    frequencies: Option<Vec<String>>,
+    /// The parameters to update, comma separated, from
+    /// parallelogram_stiffness_n_per_m, mass_asymmetry, zeta_rigid,
+    /// zeta_csm, force_constant_n_per_a, operating_point_m [default with
+    /// --update: all but operating_point_m; with --frequencies:
+    /// parallelogram_stiffness_n_per_m].
+    #[arg(long, value_name = "NAMES", value_delimiter = ',')]
+    free: Option<Vec<String>>,
+    /// The updated bench (TOML) [default with --update: beside the input,
+    /// <stem>.updated.toml; with --frequencies: none, the result is only
+    /// printed].
+    #[arg(long, value_name = "FILE.toml")]
+    out: Option<PathBuf>,
     /// Measured vs fitted Bode PNG with the pair zoom [default: beside the
     /// input, <stem>.fit.png].
     #[arg(long, value_name = "FILE.png")]
@@ -27,7 +51,7 @@ pub(super) struct FitArgs {
     /// Write no PNG.
     #[arg(long, conflicts_with = "png")]
     no_plot: bool,
-    /// Replace an existing PNG (a regular file).
+    /// Replace existing output files (regular files only).
     #[arg(long)]
     overwrite: bool,
     /// Print the result as one JSON object on stdout.
@@ -49,6 +73,22 @@ struct FitSummary {
     verdict: Verdict,
     #[serde(skip_serializing_if = "Option::is_none")]
     plot: Option<PathBuf>,
+    /// The model update (`--update`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    update: Option<Update>,
+    /// Where the updated bench was written.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    updated_config: Option<PathBuf>,
+}
+
+/// What `bench fit --frequencies` prints.
+#[derive(Debug, Serialize)]
+struct FrequencySummary {
+    /// The measured natural frequencies, Hz.
+    frequencies_hz: Vec<f64>,
+    update: Update,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    updated_config: Option<PathBuf>,
 }
 
 fn is_recording(p: &Path) -> bool {
@@ -56,13 +96,237 @@ fn is_recording(p: &Path) -> bool {
     name.ends_with(".mcap") || name.ends_with(".mcap.part")
 }
 
+/// `<stem><suffix>` beside `input`.
+fn beside(input: &Path, suffix: &str) -> PathBuf {
+    let name = input
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    let stem = name
+        .trim_end_matches(".part")
+        .trim_end_matches(".mcap")
+        .trim_end_matches(".csv")
+        .to_string();
+    input.with_file_name(format!("{stem}{suffix}"))
+}
+
+/// Refuses an existing output without `--overwrite`.
+fn check_output(flag: &str, path: &Path, overwrite: bool) -> Result<(), ExitCode> {
+    if path.exists() && !overwrite {
+        return Err(bad_input(format!(
+            "{flag} {}: exists (pass --overwrite to replace it)",
+            path.display()
+        )));
+    }
+    Ok(())
+}
+
+/// The `--free` list, or `default`.
+fn parse_free(list: Option<&[String]>, default: &[Parameter]) -> Result<Vec<Parameter>, String> {
+    let Some(list) = list else {
+        return Ok(default.to_vec());
+    };
+    let mut out = Vec::new();
+    for name in list {
+        let name = name.trim();
+        let p = Parameter::from_name(name).ok_or_else(|| {
+            let names: Vec<&str> = Parameter::ALL.iter().map(|p| p.name()).collect();
+            format!(
+                "--free {name:?}: not a parameter the update fits (one of {})",
+                names.join(", ")
+            )
+        })?;
+        if out.contains(&p) {
+            return Err(format!("--free {name}: given twice"));
+        }
+        out.push(p);
+    }
+    if out.is_empty() {
+        return Err("--free: no parameter given".into());
+    }
+    Ok(out)
+}
+
+/// The start bench's TOML text: `--config`, the recording's, or the
+/// built-in.
+fn start_toml(config: Option<&Path>, recorded: Option<&str>) -> Result<String, String> {
+    match (config, recorded) {
+        (Some(p), _) => {
+            std::fs::read_to_string(p).map_err(|e| format!("--config {}: {e}", p.display()))
+        }
+        (None, Some(t)) => Ok(t.to_string()),
+        (None, None) => Ok(bench::config::BUILTIN_CONFIG_TOML.to_string()),
+    }
+}
+
+fn start_bench(cfg: &bench::config::BenchConfig) -> Bench {
+    Bench {
+        plant: cfg.plant,
+        force_constant_n_per_a: cfg.actuator.force_constant_n_per_a,
+    }
+}
+
+/// Writes the updated bench to `out`, checked by the config loader first.
+fn write_updated(
+    out: &Path,
+    overwrite: bool,
+    start_toml: &str,
+    update: &Update,
+    from: &str,
+) -> Result<(), ExitCode> {
+    let mut header = format!(
+        "# Updated by `bench fit` ({}) from {from}, {}:\n# RMS relative error {:.3} % (start {:.3} %).\n",
+        update.source,
+        bench::outputs::stamp(),
+        100.0 * update.rms_relative_error,
+        100.0 * update.start_rms_relative_error
+    );
+    for p in update.parameters.iter().filter(|p| p.free) {
+        header.push_str(&format!(
+            "# {} = {:.6e} {} (1 sigma {}; start {:.6e})\n",
+            p.key,
+            p.value,
+            p.unit,
+            p.sigma
+                .map_or("not estimable".into(), |s| format!("{s:.2e}")),
+            p.start
+        ));
+    }
+    let text = updated_toml(start_toml, update, &header)
+        .map_err(|e| bad_input(format!("--out {}: {e}", out.display())))?;
+    if let Err(e) = bench::config::BenchConfig::from_toml(&text, out) {
+        return Err(bad_input(format!(
+            "--out {}: the updated bench is not a valid config: {e}",
+            out.display()
+        )));
+    }
+    bench::outputs::write_atomically(out, Existing::overwrite(overwrite), |f| {
+        use std::io::Write;
+        f.write_all(text.as_bytes())
+    })
+    .map_err(|e| {
+        eprintln!("error: --out {}: {e}", out.display());
+        ExitCode::from(status::ERROR)
+    })
+}
+
+/// Parses and checks `--frequencies`: numbers, finite, positive, below
+/// `nyquist_hz`, strictly ascending, one to four.
+fn parse_frequencies(list: &[String], nyquist_hz: f64) -> Result<Vec<f64>, String> {
+    if list.is_empty() || list.len() > 4 {
+        return Err(format!(
+            "--frequencies: {} values; give 1 to 4 natural frequencies (the SR4DoF model has 4 modes)",
+            list.len()
+        ));
+    }
+    let mut out: Vec<f64> = Vec::with_capacity(list.len());
+    for (i, s) in list.iter().enumerate() {
+        let n = i + 1;
+        let f: f64 = s
+            .trim()
+            .parse()
+            .map_err(|_| format!("--frequencies: value {n} {s:?} is not a number (Hz)"))?;
+        if !f.is_finite() || f <= 0.0 {
+            return Err(format!(
+                "--frequencies: value {n} ({s}) must be a finite frequency > 0 Hz"
+            ));
+        }
+        if f >= nyquist_hz {
+            return Err(format!(
+                "--frequencies: value {n} ({f} Hz) is at or above the Nyquist frequency {nyquist_hz} Hz of the config's loop rate"
+            ));
+        }
+        if let Some(prev) = out.last().filter(|p| f <= **p) {
+            return Err(format!(
+                "--frequencies: value {n} ({f} Hz) is not above the one before ({prev} Hz): give them ascending, each mode once"
+            ));
+        }
+        out.push(f);
+    }
+    Ok(out)
+}
+
+fn fit_frequencies(a: &FitArgs, list: &[String]) -> ExitCode {
+    let (cfg, _) = match load_config(a.config.as_deref()) {
+        Ok(c) => c,
+        Err(e) => return bad_input(e),
+    };
+    let nyquist = 0.5 / (cfg.loop_.period_ns() as f64 * 1e-9);
+    let measured = match parse_frequencies(list, nyquist) {
+        Ok(f) => f,
+        Err(e) => return bad_input(e),
+    };
+    let free = match parse_free(a.free.as_deref(), &Parameter::FREQUENCIES_DEFAULT) {
+        Ok(f) => f,
+        Err(e) => return bad_input(e),
+    };
+    if let Some(out) = &a.out {
+        if let Err(code) = check_output("--out", out, a.overwrite) {
+            return code;
+        }
+    }
+    let start = match start_toml(a.config.as_deref(), None) {
+        Ok(t) => t,
+        Err(e) => return bad_input(e),
+    };
+    let update = match update_to_frequencies(&start_bench(&cfg), &free, &measured) {
+        Ok(u) => u,
+        Err(e @ (UpdateError::NotFromFrequencies(_) | UpdateError::NoFreeParameter)) => {
+            return bad_input(format!("--free: {e}"))
+        }
+        Err(e) => return bad_input(format!("--frequencies: {e}")),
+    };
+    if let Some(out) = &a.out {
+        let from = format!("--frequencies {}", list.join(","));
+        if let Err(code) = write_updated(out, a.overwrite, &start, &update, &from) {
+            return code;
+        }
+    }
+    let summary = FrequencySummary {
+        frequencies_hz: measured,
+        update,
+        updated_config: a.out.clone(),
+    };
+    match emit(&summary, a.json, |s| {
+        println!(
+            "bench fit --frequencies {}",
+            s.frequencies_hz
+                .iter()
+                .map(|f| f.to_string())
+                .collect::<Vec<_>>()
+                .join(",")
+        );
+        print_update(&s.update, s.updated_config.as_deref());
+    }) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(code) => code,
+    }
+}
+
 pub(super) fn fit(a: FitArgs) -> ExitCode {
-    let input = a.input.display().to_string();
-    let bytes = match std::fs::read(&a.input) {
+    if a.frequencies.is_none() && !a.update {
+        for (flag, given) in [("--out", a.out.is_some()), ("--free", a.free.is_some())] {
+            if given {
+                return bad_input(format!("{flag}: only with --update or --frequencies"));
+            }
+        }
+    }
+    if let Some(list) = &a.frequencies {
+        return fit_frequencies(&a, list);
+    }
+    let Some(input_path) = a.input.clone() else {
+        return bad_input("INPUT: give an FRF (CSV or recording), or --frequencies");
+    };
+    let input = input_path.display().to_string();
+    let free = match parse_free(a.free.as_deref(), &Parameter::FRF_DEFAULT) {
+        Ok(f) => f,
+        Err(e) => return bad_input(e),
+    };
+    let bytes = match std::fs::read(&input_path) {
         Ok(b) => b,
         Err(e) => return bad_input(format!("{input}: {e}")),
     };
-    let (frf, recorded_config) = if is_recording(&a.input) {
+    let (frf, recorded_config) = if is_recording(&input_path) {
         match bench::record::read_frf(&bytes) {
             Ok(r) => (r.frf, r.config_toml),
             Err(e) => return bad_input(format!("{input}: {e}")),
@@ -76,8 +340,8 @@ pub(super) fn fit(a: FitArgs) -> ExitCode {
             Err(e) => return bad_input(format!("{input}: {e}")),
         }
     };
-    let cfg = match (&a.config, recorded_config) {
-        (None, Some(toml)) => match bench::config::BenchConfig::from_toml(&toml, &a.input) {
+    let cfg = match (&a.config, &recorded_config) {
+        (None, Some(toml)) => match bench::config::BenchConfig::from_toml(toml, &input_path) {
             Ok(c) => c,
             Err(e) => return bad_input(format!("{input}: its recorded bench.config: {e}")),
         },
@@ -94,43 +358,70 @@ pub(super) fn fit(a: FitArgs) -> ExitCode {
         ));
     }
     let plot = (!a.no_plot).then(|| {
-        a.png.clone().unwrap_or_else(|| {
-            let name = a
-                .input
-                .file_name()
-                .map(|n| n.to_string_lossy().into_owned())
-                .unwrap_or_default();
-            let stem = name
-                .trim_end_matches(".part")
-                .trim_end_matches(".mcap")
-                .trim_end_matches(".csv")
-                .to_string();
-            a.input.with_file_name(format!("{stem}.fit.png"))
-        })
+        a.png
+            .clone()
+            .unwrap_or_else(|| beside(&input_path, ".fit.png"))
     });
     if let Some(p) = &plot {
-        if p.exists() && !a.overwrite {
-            return bad_input(format!(
-                "--png {}: exists (pass --overwrite to replace it)",
-                p.display()
-            ));
+        if let Err(code) = check_output("--png", p, a.overwrite) {
+            return code;
         }
     }
+    let out = a.update.then(|| {
+        a.out
+            .clone()
+            .unwrap_or_else(|| beside(&input_path, ".updated.toml"))
+    });
+    let start = match &out {
+        Some(o) => {
+            if let Err(code) = check_output("--out", o, a.overwrite) {
+                return code;
+            }
+            match start_toml(a.config.as_deref(), recorded_config.as_deref()) {
+                Ok(t) => Some(t),
+                Err(e) => return bad_input(e),
+            }
+        }
+        None => None,
+    };
     let id = bench::jobs::chirp::identify(&frf, period_s, cfg.actuator.bandwidth_hz);
+    let update = match &start {
+        Some(_) => match update_to_frf(
+            &start_bench(&cfg),
+            &free,
+            &modal_fit::FrfData::from_frf(&frf),
+            &id.path,
+            id.fit.as_ref(),
+        ) {
+            Ok(u) => Some(u),
+            Err(UpdateError::Start(e)) => {
+                return bad_input(format!("--update: the start bench: {e}"))
+            }
+            Err(e) => return bad_input(format!("{input}: --update: {e}")),
+        },
+        None => None,
+    };
     if let (Some(p), Some(f)) = (&plot, &id.fit) {
         if let Err(e) = write_plot(p, Existing::overwrite(a.overwrite), &frf, f, &id) {
             eprintln!("error: --png {}: {e}", p.display());
             return ExitCode::from(status::ERROR);
         }
     }
+    if let (Some(o), Some(u), Some(s)) = (&out, &update, &start) {
+        if let Err(code) = write_updated(o, a.overwrite, s, u, &input) {
+            return code;
+        }
+    }
     let summary = FitSummary {
-        input: a.input.clone(),
+        input: input_path,
         period_s,
         amplifier_bandwidth_hz: cfg.actuator.bandwidth_hz,
         modes: id.fit.as_ref().map(|f| f.modes.clone()).unwrap_or_default(),
         fit: id.fit.clone(),
         verdict: id.verdict.clone(),
         plot: plot.filter(|_| id.fit.is_some()),
+        update,
+        updated_config: out,
     };
     match emit(&summary, a.json, print_summary) {
         Ok(()) => ExitCode::SUCCESS,
@@ -211,6 +502,86 @@ fn print_summary(s: &FitSummary) {
     print_verdict(&s.verdict);
     if let Some(p) = &s.plot {
         println!("  Bode plot   {}", p.display());
+    }
+    if let Some(u) = &s.update {
+        print_update(u, s.updated_config.as_deref());
+    }
+}
+
+/// Prints a model update.
+fn print_update(u: &Update, out: Option<&Path>) {
+    let free = u.parameters.iter().filter(|p| p.free).count();
+    println!(
+        "model update ({}, {free} free parameter{}): RMS relative error {:.3} % (start {:.3} %){}",
+        if u.source == "frf" {
+            "to the FRF"
+        } else {
+            "to the natural frequencies"
+        },
+        if free == 1 { "" } else { "s" },
+        100.0 * u.rms_relative_error,
+        100.0 * u.start_rms_relative_error,
+        match (u.delay_s, u.delay_sigma_s) {
+            (Some(d), Some(s)) => format!(", delay {:.1} ± {:.1} µs", d * 1e6, s * 1e6),
+            (Some(d), None) => format!(", delay {:.1} µs", d * 1e6),
+            _ => String::new(),
+        }
+    );
+    println!("  parameter                          start           updated ± 1σ");
+    for p in &u.parameters {
+        let sigma = p.sigma.map_or("—".into(), |s| format!("{s:.3e}"));
+        if p.free {
+            println!(
+                "  {:<33}  {:<14.6e}  {:.6e} ± {sigma} {}",
+                p.name, p.start, p.value, p.unit
+            );
+            if p.name == Parameter::ParallelogramStiffness.name() {
+                println!(
+                    "  {:<33}  = {:.4} × 24 E I / L³ of the configured beam",
+                    "", u.stiffness_over_beam
+                );
+            }
+        } else {
+            println!("  {:<33}  {:<14.6e}  (held) {}", p.name, p.value, p.unit);
+        }
+    }
+    println!(
+        "  modes of the updated model (start mode by shape MAC; measured by order or FRF MAC):"
+    );
+    for (i, m) in u.modes.iter().enumerate() {
+        let measured = match (m.measured_frequency_hz, m.measured_mac) {
+            (Some(f), Some(mac)) => format!("measured {f:.3} Hz (MAC {mac:.2})"),
+            (Some(f), None) => format!("measured {f:.3} Hz"),
+            _ => "not measured".into(),
+        };
+        println!(
+            "  {}  {:>9.3} Hz  ζ {:.5}  A {:+.3e} m/(A·s²)  start mode {} at {:.3} Hz (MAC {:.2}), {measured}",
+            i + 1,
+            m.frequency_hz,
+            m.damping_ratio,
+            m.modal_constant,
+            m.start_mode,
+            m.start_frequency_hz,
+            m.start_mac
+        );
+    }
+    if u.crossed_veering {
+        println!("  the update crossed the veering: the closely spaced pair's shapes exchanged");
+    }
+    println!(
+        "  updated model: {}",
+        if u.cmp_cnmp {
+            "CMP-CNMP zeros"
+        } else {
+            "no CMP-CNMP zeros"
+        }
+    );
+    if let Some(w) = &u.warning {
+        println!("  warning: {w}");
+    }
+    match out {
+        Some(p) => println!("  updated bench {}", p.display()),
+        None => println!("  (no --out: nothing written)"),
     }
 }
 

@@ -234,8 +234,14 @@ pub struct LoopCheck {
     /// Margins with the model plant, amplifier included (what runs).
     pub model: Margins,
     /// Margins with the model plant, amplifier lag excluded (the thesis'
-    /// Figs 6-8, 6-10).
+    /// Figs 6-8, 6-10), discrete: the controller that runs and the held
+    /// plant.
     pub model_without_amplifier_lag: Margins,
+    /// Margins in continuous time, as the thesis computed them (§6.2):
+    /// the continuous design `C(jω)` of `[controller.NAME]` times the
+    /// force constant and the model's force → x1 response `k_f G(jω)`, no
+    /// hold, no amplifier. `null` for a controller not in the config.
+    pub continuous: Option<Margins>,
     /// All discrete closed-loop poles inside the unit circle.
     pub closed_loop_stable: bool,
     /// Largest closed-loop pole magnitude |z|, dimensionless.
@@ -296,6 +302,11 @@ pub fn check_loop(
     period_s: f64,
     measured: Option<&MeasuredFrf>,
 ) -> LoopCheck {
+    let continuous = cfg.controller.get(name).map(|c| {
+        let per_unit = c.error_unit.per_metre() * cfg.actuator.force_constant_n_per_a;
+        let l = |w: f64| c.response(w) * model.force_frf(w / (2.0 * PI)) * per_unit;
+        margins(&l, &model_grid(period_s), true)
+    });
     let plant = ZohPlant::new(model, &cfg.actuator, period_s);
     let ideal = ZohPlant::without_amplifier_lag(model, &cfg.actuator, period_s);
     let model = model_margins(&plant, ctrl);
@@ -345,6 +356,7 @@ pub fn check_loop(
         controller: name.to_string(),
         model,
         model_without_amplifier_lag: model_margins(&ideal, ctrl),
+        continuous,
         closed_loop_stable: stable,
         largest_pole_magnitude: largest,
         measured,

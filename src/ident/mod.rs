@@ -7,4 +7,5 @@
 pub mod excitation;
 pub mod frf;
 pub mod modal_fit;
+pub mod update;
 pub mod verdict;

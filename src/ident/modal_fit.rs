@@ -126,6 +126,14 @@ impl Path {
         let sinc = if x.abs() < 1e-12 { 1.0 } else { x.sin() / x };
         C64::new(sinc, 0.0) / C64::new(1.0, w / (2.0 * PI * self.amplifier_bandwidth_hz))
     }
+
+    /// `D(jω) = e^{−jωτ} sinc(ωT/2) / (1 + jω/ω_a)` at `frequency_hz`
+    /// with the delay `delay_s` (dimensionless: the current the coil gets
+    /// per ampere demanded).
+    pub fn response(&self, frequency_hz: f64, delay_s: f64) -> C64 {
+        let w = 2.0 * PI * frequency_hz;
+        self.gain(w) * C64::from_polar(1.0, -w * delay_s)
+    }
 }
 
 /// One fitted mode.
@@ -229,6 +237,21 @@ struct Params {
     tau_s: f64,
 }
 
+/// The weight of each point over its magnitude, `wₖ / |Hₖ|` with
+/// `wₖ = 1/√((1 − γₖ²)/γₖ² + ε²)` (the [module docs](self)): the residual
+/// of a model `Ĥ` at point `k` is `(Ĥₖ − Hₖ) ·` this.
+pub fn relative_weights(data: &FrfData) -> Vec<f64> {
+    data.response
+        .iter()
+        .zip(&data.coherence)
+        .map(|(h, g)| {
+            let g = g.clamp(1e-6, 1.0);
+            let var = (1.0 - g) / g + MODEL_ERROR_FLOOR * MODEL_ERROR_FLOOR;
+            1.0 / (var.sqrt() * h.norm().max(f64::MIN_POSITIVE))
+        })
+        .collect()
+}
+
 /// Precomputed per-point data.
 struct Prepared<'a> {
     w: Vec<f64>,
@@ -242,16 +265,7 @@ struct Prepared<'a> {
 impl<'a> Prepared<'a> {
     fn new(data: &'a FrfData, path: &Path) -> Self {
         let w: Vec<f64> = data.frequency_hz.iter().map(|f| 2.0 * PI * f).collect();
-        let scale = data
-            .response
-            .iter()
-            .zip(&data.coherence)
-            .map(|(h, g)| {
-                let g = g.clamp(1e-6, 1.0);
-                let var = (1.0 - g) / g + MODEL_ERROR_FLOOR * MODEL_ERROR_FLOOR;
-                1.0 / (var.sqrt() * h.norm().max(f64::MIN_POSITIVE))
-            })
-            .collect();
+        let scale = relative_weights(data);
         let gain = w.iter().map(|&w| path.gain(w)).collect();
         let coherent = data.coherence.iter().map(|g| *g >= MIN_COHERENCE).collect();
         Self {
