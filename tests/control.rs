@@ -293,3 +293,36 @@ fn margins_on_a_measured_frf() {
     assert_eq!(o.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&o.stderr).contains("--frf"));
 }
+
+/// With the calibrated stiffness of the shipped bench (README,
+/// *Calibration*) and no noise, quantisation or disturbance, the Chapter 6
+/// steps reproduce the thesis (§6.2, Figs 6-8 to 6-11): 2 % settling
+/// 0.0858 s (fast, Eq. 6-7) and 0.1663 s (slow, Eq. 6-6) within 10 %, and
+/// the continuous phase margins, computed as the thesis computed them (no
+/// hold, no amplifier), 42° and 70° within 3°.
+#[test]
+fn noise_free_steps_reproduce_chapter_6() {
+    let dir = tmp();
+    let cfg = quiet_config_edited(dir.path(), 5.0, "", |t| set_key(t, "quantization_m", "0.0"));
+    let cfg = cfg.to_str().unwrap();
+    for (flag, settling_s, pm_deg) in [("--fast", 0.0858, 42.0), ("--slow", 0.1663, 70.0)] {
+        let sub = dir.path().join(&flag[2..]);
+        std::fs::create_dir(&sub).unwrap();
+        let (o, err) = control(&sub, &[flag, "--config", cfg]);
+        assert!(o.status.success(), "{flag}: {err}");
+        let s = json_stdout(&o);
+        let ts = metric(&s, "settling_time_s");
+        assert!(
+            (ts / settling_s - 1.0).abs() <= 0.1,
+            "{flag}: settling {ts} s vs the thesis' {settling_s} s"
+        );
+        let pm = s["loop_check"]["continuous"]["phase_margin_deg"]
+            .as_f64()
+            .unwrap();
+        assert!(
+            (pm - pm_deg).abs() <= 3.0,
+            "{flag}: continuous phase margin {pm}° vs the thesis' {pm_deg}°"
+        );
+        eprintln!("{flag}: settling {ts} s, continuous PM {pm:.1}°");
+    }
+}

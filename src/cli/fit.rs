@@ -30,7 +30,7 @@ pub(super) struct FitArgs {
     update: bool,
     /// Update to measured natural frequencies instead of an FRF, Hz,
     /// ascending, 1 to 4 of them (e.g. 18.2,27.6,153.2,154.3).
-    #[arg(long, value_name = "F1,F2,...", value_delimiter = ',', conflicts_with_all = ["input", "update", "png", "no_plot"])]
+    #[arg(long, value_name = "F1,F2,...", value_delimiter = ',', allow_hyphen_values = true, conflicts_with_all = ["input", "update", "png", "no_plot"])]
     frequencies: Option<Vec<String>>,
     /// The parameters to update, comma separated, from
     /// parallelogram_stiffness_n_per_m, mass_asymmetry, zeta_rigid,
