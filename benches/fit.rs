@@ -3,22 +3,30 @@
 //! response on the chirp's grid (0.1–500 Hz, 400 points per decade) with
 //! 0.5 % complex noise per point and the matching coherence (the simulated
 //! 60 s chirp leaves an RMS relative error of about 0.8 %). Also the
-//! verdict (the fit plus the phase test and 400 residue-test draws).
+//! verdict (the fit plus the phase test and 400 residue-test draws), and
+//! the model update (`bench fit --update`) of the same FRF from the
+//! Fig 5-11 start (the bench configured symmetric, textbook stiffness, the
+//! five default parameters free), given the modal fit.
 //!
 //!     cargo bench --bench fit
 
 use bench::config::BenchConfig;
 use bench::ident::frf::{log_grid, unwrap_deg, Frf, C64};
 use bench::ident::modal_fit::{fit, FrfData, Path as FitPath};
+use bench::ident::update::{update_to_frf, Bench, Parameter};
 use bench_hal::model::Sr4dof;
 use bench_hal::sim::ZohPlant;
 use criterion::{black_box, Criterion};
 use rand::{Rng, SeedableRng};
 use std::path::Path;
 
-fn default_chirp_frf() -> (Frf, FitPath) {
+fn ch5() -> BenchConfig {
     let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("bench-config/sr4dof-ch5.toml");
-    let cfg = BenchConfig::load(&p).expect("shipped config");
+    BenchConfig::load(&p).expect("shipped config")
+}
+
+fn default_chirp_frf() -> (Frf, FitPath) {
+    let cfg = ch5();
     let period_s = cfg.loop_.period_ns() as f64 * 1e-9;
     let zoh = ZohPlant::new(&Sr4dof::new(cfg.plant).unwrap(), &cfg.actuator, period_s);
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(1);
@@ -68,6 +76,34 @@ fn main() {
         })
     });
     let f = fit(&data, &path).unwrap();
+    let cfg = ch5();
+    let mut plant = cfg.plant;
+    plant.mass_asymmetry = 0.0;
+    plant.parallelogram_stiffness_n_per_m = None;
+    let start = Bench {
+        plant,
+        force_constant_n_per_a: cfg.actuator.force_constant_n_per_a,
+    };
+    c.bench_function("model update, default chirp FRF (5 parameters)", |b| {
+        b.iter(|| {
+            update_to_frf(
+                black_box(&start),
+                &Parameter::FRF_DEFAULT,
+                &data,
+                &path,
+                Some(&f),
+            )
+            .unwrap()
+        })
+    });
+    let u = update_to_frf(&start, &Parameter::FRF_DEFAULT, &data, &path, Some(&f)).unwrap();
+    println!(
+        "updated: {:?}",
+        u.parameters
+            .iter()
+            .map(|p| (p.name.clone(), p.value))
+            .collect::<Vec<_>>()
+    );
     println!(
         "modes: {:?}, sequence {}, CMP-CNMP {}",
         f.modes

@@ -102,7 +102,7 @@ fn frf_matches_the_model_and_finds_the_cnmp_pair() {
     }
 
     // Fig 5-9: +10 %, 8 % shows the CMP-CNMP pattern, and so do the model's
-    // zeros (scipy: a complex pair in the right half plane near 79.7 Hz).
+    // zeros (scipy: a complex pair in the right half plane near 83.3 Hz).
     assert_eq!(s["cmp_cnmp"], Value::Bool(true), "{s}");
     let pair = &s["closely_spaced_pair"];
     assert!((pair["net_phase_multiple_deg"].as_f64().unwrap() + 360.0).abs() < 1e-9);
@@ -129,7 +129,7 @@ fn negative_asymmetry_has_no_cnmp_zeros() {
         .all(|z| z[0].as_f64().unwrap() < 0.0));
     assert_eq!(s["model"]["cmp_cnmp"], Value::Bool(false));
     assert_eq!(s["cmp_cnmp"], Value::Bool(false), "{s}");
-    // The pair is still found (81.0 / 84.9 Hz): the verdict is a measured
+    // The pair is still found (84.7 / 88.8 Hz): the verdict is a measured
     // "no", not a missing pair.
     let pair = &s["closely_spaced_pair"];
     let modes = floats(&reference["natural_frequencies_hz"]);

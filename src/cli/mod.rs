@@ -101,7 +101,9 @@ enum Command {
     /// Fit the modes of a measured FRF (CSV or recording) automatically:
     /// frequency, damping ratio and signed modal constant of each mode with
     /// 1σ, residual terms, the sequence of dominant modes, the typed zeros
-    /// and the CMP-CNMP verdict; measured vs fitted Bode PNG
+    /// and the CMP-CNMP verdict; measured vs fitted Bode PNG. With
+    /// --update, the bench's physical parameters fitted to the FRF and
+    /// written as TOML; with --frequencies, to measured natural frequencies
     Fit(FitArgs),
     /// Export a recording's channel as a CSV or Parquet table (one column
     /// per field, the unit in its name) for numpy and pandas.
