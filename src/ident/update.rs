@@ -199,7 +199,7 @@ impl Parameter {
         }
     }
 
-    fn from_x(self, b: &Bench, x: f64) -> f64 {
+    fn value_at_x(self, b: &Bench, x: f64) -> f64 {
         match self {
             Self::MassAsymmetry => x,
             Self::OperatingPoint => x * b.plant.beam.length_m,
@@ -447,7 +447,7 @@ impl<'a> Problem<'a> {
     fn bench_at(&self, x: &DVector<f64>) -> Bench {
         let mut b = self.start;
         for (i, p) in self.free.iter().enumerate() {
-            p.set(&mut b, p.from_x(&self.start, x[i]));
+            p.set(&mut b, p.value_at_x(&self.start, x[i]));
         }
         b
     }
@@ -595,15 +595,14 @@ fn order_preserving(n: usize) -> Vec<Vec<usize>> {
     out
 }
 
+/// The result of step 1: the bench, the model mode of each measured
+/// frequency, the cost and the 1σ of each free coordinate.
+type FrequencyFit = (Bench, Vec<usize>, f64, Vec<Option<f64>>);
+
 /// Step 1: the frequency-shaping free parameters fitted to `measured_hz`
-/// from `start`; the best order-preserving pairing. Returns the bench,
-/// the pairing and the cost.
-fn fit_frequencies(
-    start: Bench,
-    free: &[Parameter],
-    measured_hz: &[f64],
-) -> Option<(Bench, Vec<usize>, f64, Vec<Option<f64>>)> {
-    let mut best: Option<(Bench, Vec<usize>, f64, Vec<Option<f64>>)> = None;
+/// from `start`, with the best order-preserving pairing.
+fn fit_frequencies(start: Bench, free: &[Parameter], measured_hz: &[f64]) -> Option<FrequencyFit> {
+    let mut best: Option<FrequencyFit> = None;
     for mode in order_preserving(measured_hz.len()) {
         let target = Target::Frequencies { measured_hz, mode };
         let problem = Problem::new(start, free, &target, 0.0);
