@@ -11,26 +11,15 @@
 mod common;
 
 use bench::config::BenchConfig;
-use bench::ident::frf::{log_grid, C64};
-use bench::ident::modal_fit::{fit, FrfData, Path as FitPath};
+use bench::ident::frf::log_grid;
+use bench::ident::modal_fit::{fit, Path as FitPath};
 use bench_hal::model::Sr4dof;
 use bench_hal::sim::ZohPlant;
 use rand::SeedableRng;
-use rand_distr_free::normal;
 use serde::Deserialize;
 use serde_json::Value;
 use std::path::Path;
 use std::process::Command;
-
-/// Box-Muller on the test's RNG (no extra crate).
-mod rand_distr_free {
-    use rand::Rng;
-    pub fn normal(rng: &mut impl Rng) -> f64 {
-        let u1: f64 = rng.random_range(f64::EPSILON..1.0);
-        let u2: f64 = rng.random_range(0.0..1.0);
-        (-2.0 * u1.ln()).sqrt() * (2.0 * std::f64::consts::PI * u2).cos()
-    }
-}
 
 #[derive(Deserialize)]
 struct Params {
@@ -104,19 +93,7 @@ fn random_plants_frequencies_damping_signs_and_zero_types() {
         p.damping.zeta_csm = q.zeta_csm;
         let model = Sr4dof::new(p).unwrap();
         let zoh = ZohPlant::new(&model, &cfg.actuator, period_s);
-        let f = log_grid(0.1, 500.0, 400);
-        let h: Vec<C64> = f
-            .iter()
-            .map(|&f| {
-                let e = C64::new(normal(&mut rng), normal(&mut rng)) * (NOISE / 2f64.sqrt());
-                zoh.frf(f) * (C64::new(1.0, 0.0) + e)
-            })
-            .collect();
-        let data = FrfData {
-            response: h,
-            coherence: vec![1.0 / (1.0 + NOISE * NOISE); f.len()],
-            frequency_hz: f,
-        };
+        let data = common::noisy_frf(&zoh, NOISE, &mut rng);
         let fitted = fit(&data, &path).unwrap();
         let zetas: Vec<f64> = model.modes().iter().map(|m| m.zeta).collect();
         let amax = r

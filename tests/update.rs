@@ -9,8 +9,7 @@
 mod common;
 
 use bench::config::BenchConfig;
-use bench::ident::frf::{log_grid, C64};
-use bench::ident::modal_fit::{fit, FrfData, Path as FitPath};
+use bench::ident::modal_fit::{fit, Path as FitPath};
 use bench::ident::update::{update_to_frf, Bench, Parameter};
 use bench_hal::model::Sr4dof;
 use bench_hal::sim::ZohPlant;
@@ -29,13 +28,6 @@ fn bench() -> Command {
 
 fn ch5() -> BenchConfig {
     BenchConfig::load(&root().join("bench-config/sr4dof-ch5.toml")).unwrap()
-}
-
-/// Box-Muller on the test's RNG.
-fn normal(rng: &mut impl Rng) -> f64 {
-    let u1: f64 = rng.random_range(f64::EPSILON..1.0);
-    let u2: f64 = rng.random_range(0.0..1.0);
-    (-2.0 * u1.ln()).sqrt() * (2.0 * std::f64::consts::PI * u2).cos()
 }
 
 /// Relative noise of the synthetic FRFs (0.1 % per point, complex).
@@ -89,19 +81,7 @@ fn random_plants_hidden_parameters_are_recovered() {
         let mut act = cfg.actuator;
         act.force_constant_n_per_a = kf;
         let zoh = ZohPlant::new(&model, &act, period_s);
-        let f = log_grid(0.1, 500.0, 400);
-        let h: Vec<C64> = f
-            .iter()
-            .map(|&f| {
-                let e = C64::new(normal(&mut rng), normal(&mut rng)) * (NOISE / 2f64.sqrt());
-                zoh.frf(f) * (C64::new(1.0, 0.0) + e)
-            })
-            .collect();
-        let data = FrfData {
-            response: h,
-            coherence: vec![1.0 / (1.0 + NOISE * NOISE); f.len()],
-            frequency_hz: f,
-        };
+        let data = common::noisy_frf(&zoh, NOISE, &mut rng);
         let mut start = truth;
         start.parallelogram_stiffness_n_per_m = None; // 24 E I / L³
         start.mass_asymmetry = 0.0;

@@ -185,3 +185,32 @@ pub fn quiet_config_edited(
     std::fs::write(&p, text).expect("write config");
     p
 }
+
+/// The exact sampled response of `zoh` on the chirp's grid (0.1–500 Hz,
+/// 400 points per decade) with complex Gaussian noise of relative RMS
+/// `noise` per point, and the coherence that noise implies.
+pub fn noisy_frf(
+    zoh: &bench_hal::sim::ZohPlant,
+    noise: f64,
+    rng: &mut impl rand::Rng,
+) -> bench::ident::modal_fit::FrfData {
+    use bench::ident::frf::C64;
+    let mut normal = || {
+        let u1: f64 = rng.random_range(f64::EPSILON..1.0);
+        let u2: f64 = rng.random_range(0.0..1.0);
+        (-2.0 * u1.ln()).sqrt() * (2.0 * std::f64::consts::PI * u2).cos()
+    };
+    let f = bench::ident::frf::log_grid(0.1, 500.0, 400);
+    let h: Vec<C64> = f
+        .iter()
+        .map(|&f| {
+            let e = C64::new(normal(), normal()) * (noise / 2f64.sqrt());
+            zoh.frf(f) * (C64::new(1.0, 0.0) + e)
+        })
+        .collect();
+    bench::ident::modal_fit::FrfData {
+        response: h,
+        coherence: vec![1.0 / (1.0 + noise * noise); f.len()],
+        frequency_hz: f,
+    }
+}
