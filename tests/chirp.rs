@@ -157,21 +157,47 @@ fn recording_reads_back_with_every_topic() {
     assert!(count("/bench/event") >= 4);
     assert_eq!(count("/sysid/frf"), 1);
     assert_eq!(count("/sysid/summary"), 1);
-    // Samples: consecutive ticks, log time = tick × period in ns.
+    // The run's start, host, version and config hash in the metadata.
+    let bytes = std::fs::read(&path).unwrap();
+    let summary = mcap::Summary::read(&bytes)
+        .unwrap()
+        .expect("summary section");
+    let run_meta = |name: &str| {
+        let idx = summary
+            .metadata_indexes
+            .iter()
+            .find(|m| m.name == name)
+            .unwrap_or_else(|| panic!("no {name} metadata"));
+        mcap::read::metadata(&bytes, idx).unwrap().metadata
+    };
+    let run = run_meta("bench.run");
+    let start_ns: u64 = run["start_time_unix_ns"].parse().unwrap();
+    let now_ns = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .unwrap()
+        .as_nanos() as u64;
+    assert!(
+        start_ns <= now_ns && now_ns - start_ns < 600_000_000_000,
+        "{run:?}"
+    );
+    assert!(run["start_time_utc"].ends_with('Z'), "{run:?}");
+    assert_eq!(run["version"], env!("CARGO_PKG_VERSION"));
+    assert!(run.contains_key("host"));
+    let config = run_meta("bench.config");
+    assert_eq!(run["config_sha256"], config["sha256"]);
+    assert_eq!(run["config_sha256"].len(), 64);
+    // Samples: consecutive ticks, log time = the run's start (Unix ns) +
+    // tick × period.
     let samples: Vec<&(String, u64, Value)> =
         msgs.iter().filter(|m| m.0 == "/bench/sample").collect();
     for (k, (_, log_time, v)) in samples.iter().enumerate() {
         assert_eq!(v["tick"].as_u64(), Some(k as u64));
-        assert_eq!(*log_time, k as u64 * 200_000);
+        assert_eq!(*log_time, start_ns + k as u64 * 200_000);
         for key in ["t_s", "current_command_a", "position_m", "excitation_a"] {
             assert!(v.get(key).is_some(), "sample lacks {key}");
         }
     }
     // The config is in the metadata, and it parses back.
-    let bytes = std::fs::read(&path).unwrap();
-    let summary = mcap::Summary::read(&bytes)
-        .unwrap()
-        .expect("summary section");
     let meta_names: Vec<String> = summary
         .metadata_indexes
         .iter()
@@ -189,6 +215,20 @@ fn recording_reads_back_with_every_topic() {
     let meta = mcap::read::metadata(&bytes, idx).unwrap();
     let toml = &meta.metadata["toml"];
     bench::config::BenchConfig::from_toml(toml, Path::new("recorded")).unwrap();
+    // Every event again as a foxglove.Log line at the same time.
+    let events: Vec<_> = msgs.iter().filter(|m| m.0 == "/bench/event").collect();
+    let logs: Vec<_> = msgs.iter().filter(|m| m.0 == "/bench/log").collect();
+    assert_eq!(events.len(), logs.len());
+    for (e, l) in events.iter().zip(&logs) {
+        assert_eq!(e.1, l.1);
+        let ts = &l.2["timestamp"];
+        let ns = ts["sec"].as_u64().unwrap() * 1_000_000_000 + ts["nsec"].as_u64().unwrap();
+        assert_eq!(ns, l.1);
+        assert!(l.2["message"]
+            .as_str()
+            .unwrap()
+            .starts_with(e.2["kind"].as_str().unwrap()));
+    }
     // Events: started, finished, stopped.
     let kinds: Vec<String> = msgs
         .iter()

@@ -273,9 +273,24 @@ pub fn open_recording(
     let mut recorder =
         Recorder::create_with(opts.out, outputs.existing(), outputs.take_claimed_part())
             .map_err(|e| RunError::option("out", "", e.to_string()))?;
+    let start = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .unwrap_or_default();
+    let start_ns = u64::try_from(start.as_nanos()).unwrap_or(u64::MAX);
+    recorder.set_time_origin_ns(start_ns);
+    let toml = cfg.to_toml();
+    let config_sha256 = {
+        use sha2::Digest;
+        let digest = sha2::Sha256::digest(toml.as_bytes());
+        digest
+            .iter()
+            .map(|b| format!("{b:02x}"))
+            .collect::<String>()
+    };
     let mut meta = BTreeMap::new();
-    meta.insert("toml".to_string(), cfg.to_toml());
+    meta.insert("toml".to_string(), toml);
     meta.insert("path".to_string(), opts.config_path.display().to_string());
+    meta.insert("sha256".to_string(), config_sha256.clone());
     recorder.write_metadata("bench.config", &meta)?;
     let mut run_meta = BTreeMap::new();
     run_meta.insert("command".to_string(), opts.command.to_string());
@@ -290,12 +305,38 @@ pub fn open_recording(
         (1e9 / info.period_ns as f64).to_string(),
     );
     run_meta.insert("version".to_string(), env!("CARGO_PKG_VERSION").to_string());
+    run_meta.insert("start_time_unix_ns".to_string(), start_ns.to_string());
+    run_meta.insert(
+        "start_time_utc".to_string(),
+        time::OffsetDateTime::from_unix_timestamp_nanos(i128::from(start_ns))
+            .ok()
+            .and_then(|t| {
+                t.format(&time::format_description::well_known::Rfc3339)
+                    .ok()
+            })
+            .unwrap_or_default(),
+    );
+    run_meta.insert("host".to_string(), host_name());
+    run_meta.insert("config_sha256".to_string(), config_sha256);
     run_meta.insert(
         "log_time_unit".to_string(),
-        "ns of loop time (tick × period)".to_string(),
+        "ns since the Unix epoch: start_time_unix_ns + loop time (tick × period)".to_string(),
     );
     recorder.write_metadata("bench.run", &run_meta)?;
     Ok(recorder)
+}
+
+/// This machine's host name (`gethostname`), empty if it has none.
+fn host_name() -> String {
+    let mut buf = [0u8; 256];
+    // SAFETY: `buf` is valid for `buf.len()` bytes; gethostname writes at
+    // most that many and we read up to the first NUL within them.
+    let rc = unsafe { libc::gethostname(buf.as_mut_ptr().cast(), buf.len()) };
+    if rc != 0 {
+        return String::new();
+    }
+    let end = buf.iter().position(|&b| b == 0).unwrap_or(buf.len());
+    String::from_utf8_lossy(&buf[..end]).into_owned()
 }
 
 /// Runs `job` on `stage` (configured, described by `info`) into `recorder`.

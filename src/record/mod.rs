@@ -43,10 +43,17 @@
 //!
 //! # Time stamps
 //!
-//! Log time and publish time of every message are **nanoseconds of loop time**
-//! (not wall-clock / Unix time): for records, `log_time_ns = round(t_s × 1e9)`
-//! (see [`log_time_ns`]), where `t_s` is the record's loop time in seconds.
-//! Publish time equals log time. Sequence numbers count per channel from 0.
+//! Log time and publish time of every message are **nanoseconds since the
+//! Unix epoch**: the run's start ([`Recorder::set_time_origin_ns`], the
+//! `start_time_unix_ns` of the `bench.run` metadata) plus the record's loop
+//! time, `round(t_s × 1e9)` (see [`log_time_ns`]), so Foxglove places a
+//! recording at the moment it was made. The writers take loop time; the
+//! recorder adds the origin. Recordings made before (origin 0) hold loop
+//! time alone. Publish time equals log time. Sequence numbers count per
+//! channel from 0.
+//!
+//! - `/bench/log`, schema `foxglove.Log`: every event again as a
+//!   [`FoxgloveLog`](topics::FoxgloveLog) line, for Foxglove's Log panel.
 //!
 //! # The `.part` rule
 //!
@@ -101,6 +108,8 @@ pub const TOPIC_TIMING: &str = "/bench/timing";
 pub const TOPIC_EVENT: &str = "/bench/event";
 /// Topic of the identified frequency response.
 pub const TOPIC_FRF: &str = "/sysid/frf";
+/// Topic of the events as Foxglove log lines.
+pub const TOPIC_LOG: &str = "/bench/log";
 
 /// Schema name of [`TOPIC_SAMPLE`].
 pub const SCHEMA_SAMPLE: &str = "bench.Sample";
@@ -110,3 +119,5 @@ pub const SCHEMA_TIMING: &str = "bench.Timing";
 pub const SCHEMA_EVENT: &str = "bench.Event";
 /// Schema name of [`TOPIC_FRF`].
 pub const SCHEMA_FRF: &str = "bench.Frf";
+/// Schema name of [`TOPIC_LOG`]: Foxglove's well-known log schema.
+pub const SCHEMA_LOG: &str = "foxglove.Log";

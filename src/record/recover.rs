@@ -60,7 +60,8 @@ pub struct Recovered {
     pub messages: u64,
     /// Metadata records copied (besides `bench.recovered`), count.
     pub metadata: u64,
-    /// Log time of the last message kept, s (loop time).
+    /// Loop time of the last message kept, s (its log time less the run's
+    /// start).
     pub last_log_time_s: f64,
     /// Why reading stopped: the error at the cut (e.g. an unexpected end of
     /// file inside the chunk being written when the run was killed), or
@@ -111,6 +112,14 @@ pub fn recover(part: &Path, to: &Path, existing: Existing) -> Result<Recovered, 
             }
         }
     }
+    // The run's start (`bench.run` start_time_unix_ns): log times are that
+    // plus loop time; recordings made before hold loop time alone.
+    let origin_ns = metadata
+        .iter()
+        .find(|m| m.name == "bench.run")
+        .and_then(|m| m.metadata.get("start_time_unix_ns"))
+        .and_then(|s| s.parse::<u64>().ok())
+        .unwrap_or(0);
     let stopped = read
         .error
         .as_ref()
@@ -120,7 +129,11 @@ pub fn recover(part: &Path, to: &Path, existing: Existing) -> Result<Recovered, 
         to: to.to_path_buf(),
         messages: read.messages.len() as u64,
         metadata: metadata.len() as u64,
-        last_log_time_s: read.messages.last().map_or(0, |m| m.log_time) as f64 * 1e-9,
+        last_log_time_s: read
+            .messages
+            .last()
+            .map_or(0, |m| m.log_time.saturating_sub(origin_ns)) as f64
+            * 1e-9,
         stopped,
     };
     let mcap_err = |e: mcap::McapError| std::io::Error::other(e.to_string());

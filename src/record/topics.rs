@@ -291,6 +291,80 @@ pub struct EventRecord {
     pub value: f64,
 }
 
+/// Seconds and nanoseconds since the Unix epoch (Foxglove's `time`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, JsonSchema)]
+pub struct FoxgloveTime {
+    /// Whole seconds since 1970-01-01T00:00:00Z, s.
+    pub sec: u32,
+    /// Nanoseconds within the second, ns (0 … 999 999 999).
+    pub nsec: u32,
+}
+
+impl FoxgloveTime {
+    /// From nanoseconds since the Unix epoch.
+    pub fn from_unix_ns(ns: u64) -> Self {
+        Self {
+            sec: u32::try_from(ns / 1_000_000_000).unwrap_or(u32::MAX),
+            nsec: (ns % 1_000_000_000) as u32,
+        }
+    }
+}
+
+/// A log line in Foxglove's well-known `foxglove.Log` schema (JSON
+/// encoding; <https://docs.foxglove.dev/docs/visualization/message-schemas/log>):
+/// every `/bench/event` is also written as one on `/bench/log`, so that
+/// Foxglove's and Lichtblick's Log panel lists the run's events.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
+pub struct FoxgloveLog {
+    /// When it happened, since the Unix epoch (the message's log time).
+    pub timestamp: FoxgloveTime,
+    /// Severity: 1 debug, 2 info, 3 warning, 4 error, 5 fatal (no unit).
+    pub level: u8,
+    /// What happened, in words (no unit).
+    pub message: String,
+    /// Source: `bench` (no unit).
+    pub name: String,
+    /// Source file: empty (no unit).
+    pub file: String,
+    /// Source line: 0 (no unit).
+    pub line: u32,
+}
+
+impl FoxgloveLog {
+    /// The log line of `e`, at `unix_ns` ns since the Unix epoch: level
+    /// error for a fault, warning for an interruption or a missing sample,
+    /// info otherwise.
+    pub fn of_event(e: &EventRecord, unix_ns: u64) -> Self {
+        let level = match e.kind {
+            EventKind::Fault => 4,
+            EventKind::Interrupted | EventKind::SampleMissing => 3,
+            _ => 2,
+        };
+        let mut message = e.kind.as_str().to_string();
+        if let Some(f) = e.fault {
+            message.push_str(": ");
+            message.push_str(f.as_str());
+        }
+        if e.value.is_finite() {
+            message.push_str(&format!(" (value {})", e.value));
+        }
+        message.push_str(&format!(
+            "; state {}; tick {}, t = {:.6} s",
+            e.state.as_str(),
+            e.tick,
+            e.t_s
+        ));
+        Self {
+            timestamp: FoxgloveTime::from_unix_ns(unix_ns),
+            level,
+            message,
+            name: "bench".into(),
+            file: String::new(),
+            line: 0,
+        }
+    }
+}
+
 /// Anything the tick sends to the writer.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum Record {

@@ -18,11 +18,12 @@ use serde::Serialize;
 
 use crate::record::schema_of;
 use crate::record::topics::{
-    EventKind, EventRecord, FaultKind, Record, SampleRecord, SupervisorState, TimingRecord,
+    EventKind, EventRecord, FaultKind, FoxgloveLog, Record, SampleRecord, SupervisorState,
+    TimingRecord,
 };
 use crate::record::{
-    SCHEMA_EVENT, SCHEMA_FRF, SCHEMA_SAMPLE, SCHEMA_TIMING, TOPIC_EVENT, TOPIC_FRF, TOPIC_SAMPLE,
-    TOPIC_TIMING,
+    SCHEMA_EVENT, SCHEMA_FRF, SCHEMA_LOG, SCHEMA_SAMPLE, SCHEMA_TIMING, TOPIC_EVENT, TOPIC_FRF,
+    TOPIC_LOG, TOPIC_SAMPLE, TOPIC_TIMING,
 };
 
 /// Default chunk-flush interval for [`spawn_writer`], 100 ms (wall time and
@@ -163,6 +164,10 @@ pub struct Recorder {
     timing: Channel<TimingRecord>,
     event: Channel<EventRecord>,
     frf: Channel<FrfRecord<'static>>,
+    log: Channel<FoxgloveLog>,
+    /// Added to every log time: the run's start, ns since the Unix epoch
+    /// (0 until set).
+    time_origin_ns: u64,
     /// Reused serialization buffer (no allocation per message once warm).
     buf: Vec<u8>,
 }
@@ -287,12 +292,15 @@ impl Recorder {
             timing: Channel::new(0),
             event: Channel::new(0),
             frf: Channel::new(0),
+            log: Channel::new(0),
+            time_origin_ns: 0,
             buf: Vec::with_capacity(512),
         };
         rec.sample = rec.add_channel_for(TOPIC_SAMPLE, SCHEMA_SAMPLE)?;
         rec.timing = rec.add_channel_for(TOPIC_TIMING, SCHEMA_TIMING)?;
         rec.event = rec.add_channel_for(TOPIC_EVENT, SCHEMA_EVENT)?;
         rec.frf = rec.add_channel_for(TOPIC_FRF, SCHEMA_FRF)?;
+        rec.log = rec.add_channel_for(TOPIC_LOG, SCHEMA_LOG)?;
         rec.flush_chunk()?;
         Ok(rec)
     }
@@ -383,6 +391,7 @@ impl Recorder {
             .channels
             .get_mut(index)
             .ok_or(RecordError::UnknownChannel(index))?;
+        let log_time = log_time.saturating_add(self.time_origin_ns);
         let header = MessageHeader {
             channel_id: state.id,
             sequence: state.next_sequence,
@@ -411,8 +420,25 @@ impl Recorder {
         match r {
             Record::Sample(s) => self.write(self.sample, log_time_ns(s.t_s), s),
             Record::Timing(t) => self.write(self.timing, log_time_ns(t.t_s), t),
-            Record::Event(e) => self.write(self.event, log_time_ns(e.t_s), e),
+            Record::Event(e) => {
+                let t = log_time_ns(e.t_s);
+                self.write(self.event, t, e)?;
+                let line = FoxgloveLog::of_event(e, t.saturating_add(self.time_origin_ns));
+                self.write(self.log, t, &line)
+            }
         }
+    }
+
+    /// Sets the run's start, ns since the Unix epoch: every message's log
+    /// time is this plus its loop time (see the [module docs](crate::record)).
+    /// Set it before the first message.
+    pub fn set_time_origin_ns(&mut self, unix_ns: u64) {
+        self.time_origin_ns = unix_ns;
+    }
+
+    /// The run's start, ns since the Unix epoch (0: not set).
+    pub fn time_origin_ns(&self) -> u64 {
+        self.time_origin_ns
     }
 
     /// Writes the identified frequency response on `/sysid/frf` at
@@ -838,6 +864,34 @@ mod tests {
         rms_m: f64,
     }
 
+    /// With the run's start set, every log time (and the log line's
+    /// timestamp) is that start plus the loop time.
+    #[test]
+    fn log_times_are_unix_time_from_the_origin() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut rec = Recorder::create(&dir.path().join("run.mcap")).unwrap();
+        let origin = 1_795_000_000_123_456_789;
+        rec.set_time_origin_ns(origin);
+        rec.write_record(&Record::Sample(sample(5))).unwrap();
+        rec.write_record(&Record::Event(event(
+            5,
+            EventKind::JobStarted,
+            None,
+            f64::NAN,
+        )))
+        .unwrap();
+        let path = rec.finish().unwrap();
+        let bytes = std::fs::read(path).unwrap();
+        let msgs = read_messages_tolerant(&bytes).messages;
+        assert_eq!(msgs.len(), 3);
+        for m in &msgs {
+            assert_eq!(m.log_time, origin + 1_000_000, "{}", m.channel.topic);
+        }
+        let log: Value = serde_json::from_slice(&msgs[2].data).unwrap();
+        assert_eq!(log["timestamp"]["sec"], json!(1_795_000_000));
+        assert_eq!(log["timestamp"]["nsec"], json!(124_456_789));
+    }
+
     #[test]
     fn record_roundtrip_full_file() {
         let dir = tempfile::tempdir().unwrap();
@@ -1002,6 +1056,16 @@ mod tests {
         assert_eq!(e[1]["fault"], json!("position_limit"));
         assert_eq!(e[1]["state"], json!("faulted"));
         assert_eq!(e[1]["value"], json!(1.5e-3));
+        // The events again as foxglove.Log lines: info, then error.
+        let log = &topics[TOPIC_LOG];
+        assert_eq!(log.len(), 2);
+        assert_eq!(log[0]["level"], json!(2));
+        assert_eq!(log[1]["level"], json!(4));
+        let text = log[1]["message"].as_str().unwrap();
+        assert!(
+            text.starts_with("fault: position_limit (value 0.0015)"),
+            "{text}"
+        );
         let f = &topics[TOPIC_FRF][0];
         assert_eq!(f["frequency_hz"], json!([1.0, 2.0, 4.0]));
         assert_eq!(f["magnitude_m_per_a"], json!([1e-3, 2e-3, null]));
@@ -1012,7 +1076,8 @@ mod tests {
         // Summary: statistics and metadata.
         let summary = mcap::Summary::read(&bytes).unwrap().unwrap();
         let stats = summary.stats.as_ref().unwrap();
-        assert_eq!(stats.message_count, 1000 + 2 + 2 + 1 + 2);
+        // Samples, timing, events, FRF, and the events again on /bench/log.
+        assert_eq!(stats.message_count, 1000 + 2 + 2 + 1 + 2 + 2);
         assert_eq!(stats.metadata_count, 1);
         assert_eq!(summary.metadata_indexes.len(), 1);
         assert_eq!(summary.metadata_indexes[0].name, "bench.config");
@@ -1209,7 +1274,8 @@ mod tests {
         let path = rec.finish().unwrap();
         let bytes = std::fs::read(path).unwrap();
         let summary = mcap::Summary::read(&bytes).unwrap().unwrap();
-        assert_eq!(summary.stats.unwrap().message_count, n + 1);
+        // The samples, the event and its /bench/log line.
+        assert_eq!(summary.stats.unwrap().message_count, n + 2);
         // ≤ 100 ms of loop time per chunk (+ one tick of slack).
         for c in &summary.chunk_indexes {
             assert!(
