@@ -295,6 +295,75 @@ fn fig_5_11_asymmetry_is_recovered_through_the_simulator() {
     let dm = param(&v, "mass_asymmetry")["value"].as_f64().unwrap();
     assert!((dm + 0.02).abs() < 0.005, "{dm}");
     assert_eq!(v["update"]["crossed_veering"], true, "{}", v["update"]);
+    // Without --config the recording's own config is the start, and the
+    // updated bench goes beside the recording.
+    let v = json(
+        &bench()
+            .arg("fit")
+            .arg(&rec)
+            .args(["--update", "--no-plot", "--json"])
+            .output()
+            .unwrap(),
+    );
+    let dm = param(&v, "mass_asymmetry");
+    assert_eq!(dm["start"].as_f64(), Some(-0.02), "{dm}");
+    assert!((dm["value"].as_f64().unwrap() + 0.02).abs() < 0.005, "{dm}");
+    let beside = dir.path().join("run.updated.toml");
+    assert_eq!(v["updated_config"].as_str(), beside.to_str());
+    BenchConfig::load(&beside).unwrap();
+}
+
+/// Near zero operating point the Y modes barely couple into x1: the
+/// stiffness, asymmetry and pair damping are not determined by the FRF.
+/// The update holds them at the start values and says so, instead of
+/// reporting what the invisible pair fitted to the noise.
+#[test]
+fn an_unobservable_parameter_is_flagged() {
+    let cfg = ch5();
+    let period_s = cfg.loop_.period_ns() as f64 * 1e-9;
+    let path = FitPath {
+        period_s,
+        amplifier_bandwidth_hz: cfg.actuator.bandwidth_hz,
+    };
+    let mut truth = cfg.plant;
+    truth.operating_point_m = 0.0005 * truth.beam.length_m;
+    truth.mass_asymmetry = 0.05;
+    let zoh = ZohPlant::new(&Sr4dof::new(truth).unwrap(), &cfg.actuator, period_s);
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
+    let data = common::noisy_frf(&zoh, 1e-2, &mut rng);
+    let mut start = truth;
+    start.mass_asymmetry = 0.0;
+    let start = Bench {
+        plant: start,
+        force_constant_n_per_a: cfg.actuator.force_constant_n_per_a,
+    };
+    let modal = fit(&data, &path).ok();
+    let u = update_to_frf(
+        &start,
+        &Parameter::FRF_DEFAULT,
+        &data,
+        &path,
+        modal.as_ref(),
+    )
+    .unwrap();
+    let w = u.warning.clone().unwrap_or_default();
+    assert!(w.contains("not seen"), "{w:?}: {:?}", u.parameters);
+    // Held, not guessed: the start's values, no 1σ; the rest still fitted.
+    for name in [
+        "parallelogram_stiffness_n_per_m",
+        "mass_asymmetry",
+        "zeta_csm",
+    ] {
+        let p = u.parameters.iter().find(|p| p.name == name).unwrap();
+        assert!(!p.free && p.value == p.start && p.sigma.is_none(), "{p:?}");
+    }
+    let (k, _) = value(&u, Parameter::ForceConstant);
+    let (zr, _) = value(&u, Parameter::ZetaRigid);
+    assert!(
+        (k / cfg.actuator.force_constant_n_per_a - 1.0).abs() < 0.02,
+        "{k}"
+    );
+    assert!((zr / truth.damping.zeta_rigid - 1.0).abs() < 0.15, "{zr}");
 }
 
 /// The calibration of the README: Table 2-2's four frequencies (Chapter 2

@@ -817,15 +817,71 @@ pub fn update_to_frequencies(
     })
 }
 
+/// Whether a parameter is determined only by the closely spaced pair
+/// (the Y modes' stiffness, the asymmetry, the operating point, and the
+/// damping ratio at the pair).
+fn needs_the_pair(p: Parameter) -> bool {
+    p.shapes_frequencies() || p == Parameter::ZetaCsm
+}
+
 /// Updates the free parameters of `start` to the measured FRF `data`
 /// (steps 1–4 of the [module docs](self)). `fit` is the modal fit of the
 /// same data (`modal_fit::fit`), for the start of step 2 and the pairing;
 /// without it step 1 is skipped and `τ` starts at `T/2`.
 ///
+/// **A pair the FRF does not show.** When neither mode of the updated
+/// model's closely spaced pair pairs with a fitted mode (MAC ≥
+/// [`MIN_PAIR_MAC`]), e.g. near zero operating point where the Y modes
+/// barely couple into x1, the parameters only the pair determines
+/// (stiffness, asymmetry, operating point, `zeta_csm`) are not measured by
+/// this FRF: they are held at their start values, the others refitted, and
+/// the warning says so. (Without this, the fit uses the invisible pair to
+/// fit noise and reports a wrong stiffness with a small 1σ.)
+///
 /// # Errors
 /// [`UpdateError`]: nothing free, a start that is no bench, too few
 /// coherent points, or no fit.
 pub fn update_to_frf(
+    start: &Bench,
+    free: &[Parameter],
+    data: &FrfData,
+    path: &Path,
+    fit: Option<&ModalFit>,
+) -> Result<Update, UpdateError> {
+    let u = update_frf_once(start, free, data, path, fit)?;
+    let pair_seen = u.modes[2..]
+        .iter()
+        .any(|m| m.measured_frequency_hz.is_some());
+    let held: Vec<Parameter> = free
+        .iter()
+        .copied()
+        .filter(|p| needs_the_pair(*p))
+        .collect();
+    if fit.is_none() || pair_seen || held.is_empty() {
+        return Ok(u);
+    }
+    let names: Vec<&str> = held.iter().map(|p| p.name()).collect();
+    let why = format!(
+        "the closely spaced pair is not seen in this FRF (no fitted mode pairs with either of its modes): {} not updated, held at the start values",
+        names.join(", ")
+    );
+    let rest: Vec<Parameter> = free
+        .iter()
+        .copied()
+        .filter(|p| !needs_the_pair(*p))
+        .collect();
+    if rest.is_empty() {
+        return Err(UpdateError::NoFit(why));
+    }
+    let mut u = update_frf_once(start, &rest, data, path, fit)?;
+    u.warning = Some(match u.warning {
+        Some(w) => format!("{why}; {w}"),
+        None => why,
+    });
+    Ok(u)
+}
+
+fn update_frf_once(
     start: &Bench,
     free: &[Parameter],
     data: &FrfData,

@@ -78,7 +78,7 @@
 //! The writer thread ([`spawn_writer`]) closes and flushes a chunk whenever
 //! `chunk_interval` of **wall** time has elapsed since the last flush, **or**
 //! the log (loop) time of the written records has advanced by at least
-//! `chunk_interval` since the last flush. With the default 100 ms, a killed
+//! `chunk_interval` since the last flush. With the default 50 ms, a killed
 //! run loses at most about 100 ms of records, whether it ran in real time or
 //! in (faster than real time) virtual time. Flushing hands the bytes to the OS
 //! (survives a killed process); only `finish` fsyncs (survives power loss).

@@ -26,7 +26,7 @@ use crate::record::{
     TOPIC_LOG, TOPIC_SAMPLE, TOPIC_TIMING,
 };
 
-/// Default chunk-flush interval for [`spawn_writer`], 100 ms (wall time and
+/// Default chunk-flush interval for [`spawn_writer`], 50 ms (wall time and
 /// loop time alike).
 pub const DEFAULT_CHUNK_INTERVAL: Duration = Duration::from_millis(50);
 
