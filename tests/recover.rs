@@ -91,7 +91,7 @@ fn start_realtime_run(rec: &Path) -> Killed {
             .arg("--out")
             .arg(rec)
             .stdout(Stdio::null())
-            .stderr(Stdio::null())
+            .stderr(std::fs::File::create(rec.with_extension("stderr")).unwrap())
             .spawn()
             .unwrap(),
     )
@@ -141,7 +141,11 @@ fn chunks_reach_the_disk_every_100_ms_under_load_and_a_killed_run_recovers() {
             .map(|w| (w[1] - w[0]).as_secs_f64() * 1e3)
             .fold(0.0, f64::max);
         gaps_ms.push(worst);
-        assert!(!rec.exists(), "a killed run never looks complete");
+        assert!(
+            !rec.exists(),
+            "a killed run never looks complete; run {n} ended by itself first: {}",
+            std::fs::read_to_string(rec.with_extension("stderr")).unwrap_or_default()
+        );
 
         // `bench recover` makes it a complete, indexed recording.
         let o = run(&["recover", part.to_str().unwrap(), "--json"]);
