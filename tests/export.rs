@@ -180,3 +180,64 @@ fn bad_export_input_exits_2_naming_the_file_or_topic() {
     let out = run(&["export", &rec, "--to", "xlsx"]);
     assert_eq!(out.status.code(), Some(2));
 }
+
+/// A recording made before the protobuf blocks (`tests/data/README.md`:
+/// one JSON `bench.Sample` per tick, lz4 chunks) still reads: the samples
+/// through `read_samples_tolerant`, and `bench export` gives one row per
+/// tick equal, value for value, to the JSON messages parsed here with
+/// serde_json alone.
+#[test]
+fn recordings_made_before_the_blocks_still_read_and_export() {
+    let legacy = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/legacy-json-samples.mcap");
+    let bytes = std::fs::read(&legacy).unwrap();
+    let json: Vec<(u64, serde_json::Value)> = mcap::MessageStream::new(&bytes)
+        .unwrap()
+        .map(|m| m.unwrap())
+        .filter(|m| m.channel.topic == "/bench/sample")
+        .map(|m| {
+            assert_eq!(m.channel.message_encoding, "json");
+            (m.log_time, serde_json::from_slice(&m.data).unwrap())
+        })
+        .collect();
+    assert_eq!(json.len(), 2000);
+    let samples = read_samples_tolerant(&bytes);
+    assert_eq!(samples.len(), json.len());
+    let num = |v: &serde_json::Value| v.as_f64().unwrap_or(f64::NAN);
+    for (s, (_, v)) in samples.iter().zip(&json) {
+        assert_eq!(s.tick, v["tick"].as_u64().unwrap());
+        assert!(same(s.position_m, num(&v["position_m"])));
+        assert!(same(s.current_command_a, num(&v["current_command_a"])));
+    }
+    let dir = tmp();
+    let csv = path_in(dir.path(), "legacy.csv");
+    let out = run(&[
+        "export",
+        legacy.to_str().unwrap(),
+        "--to",
+        "csv",
+        "--out",
+        &csv,
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let text = std::fs::read_to_string(&csv).unwrap();
+    let mut lines = text.lines();
+    let header: Vec<&str> = lines.next().unwrap().split(',').collect();
+    let col = |name: &str| header.iter().position(|h| *h == name).unwrap();
+    let rows: Vec<Vec<&str>> = lines.map(|l| l.split(',').collect()).collect();
+    assert_eq!(rows.len(), json.len());
+    for (r, (log_time, v)) in rows.iter().zip(&json) {
+        assert_eq!(r[col("log_time_ns")].parse::<u64>().unwrap(), *log_time);
+        assert_eq!(
+            r[col("tick")].parse::<u64>().unwrap(),
+            v["tick"].as_u64().unwrap()
+        );
+        for f in ["t_s", "position_m", "current_command_a", "setpoint_m"] {
+            assert!(same(f64_of(r[col(f)]), num(&v[f])), "{f}");
+        }
+        assert_eq!(r[col("state")], v["state"].as_str().unwrap());
+    }
+}

@@ -1,8 +1,12 @@
 //! Every message of a recorded chirp run and of recorded control runs (one
 //! clean, one with a fault) on the simulator is valid against its channel's
-//! JSON Schema, checked with an independent validator (`jsonschema`); every
-//! field of every schema has a description; and the validator does reject a
-//! wrong message against the generated schemas.
+//! schema, checked with independent implementations: JSON channels against
+//! their JSON Schema (`jsonschema`), the protobuf channels (`/bench/sample`
+//! blocks, `/bench/envelope`) decoded against the recorded
+//! `FileDescriptorSet` by `prost-reflect` (no unknown field, every enum
+//! value defined, every column of a block as long as the block); every
+//! field of every JSON schema has a description; and the validators do
+//! reject wrong messages.
 
 mod common;
 
@@ -11,11 +15,52 @@ use serde_json::{json, Value};
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::Path;
 
-/// One channel of a recording: its schema and its messages.
+/// One channel of a recording: its schema and its messages (protobuf
+/// channels: validated while read, `schema` null; sample blocks as one
+/// JSON-shaped sample per tick).
 struct Channel {
     schema_name: String,
     schema: Value,
     messages: Vec<Value>,
+}
+
+/// Decodes a protobuf message against the schema's own descriptor set
+/// (prost-reflect, independent of the writer's prost structs) and checks
+/// it: no unknown field, every enum value defined, and for a sample block
+/// every repeated column as long as `t_s`.
+fn check_protobuf(topic: &str, schema: &mcap::Schema, data: &[u8]) -> Result<(), String> {
+    use prost_reflect::{DescriptorPool, DynamicMessage, Kind, Value as PV};
+    let pool = DescriptorPool::decode(schema.data.as_ref())
+        .map_err(|e| format!("{topic}: schema is not a FileDescriptorSet: {e}"))?;
+    let desc = pool
+        .get_message_by_name(&schema.name)
+        .ok_or_else(|| format!("{topic}: no message {} in its schema", schema.name))?;
+    let msg = DynamicMessage::decode(desc.clone(), data)
+        .map_err(|e| format!("{topic}: not a {}: {e}", schema.name))?;
+    if msg.unknown_fields().next().is_some() {
+        return Err(format!("{topic}: unknown fields"));
+    }
+    let mut lengths = BTreeSet::new();
+    for f in desc.fields() {
+        let v = msg.get_field(&f);
+        if let Kind::Enum(e) = f.kind() {
+            let values: Vec<i32> = match v.as_ref() {
+                PV::EnumNumber(n) => vec![*n],
+                PV::List(l) => l.iter().filter_map(PV::as_enum_number).collect(),
+                _ => vec![],
+            };
+            if let Some(n) = values.iter().find(|n| e.get_value(**n).is_none()) {
+                return Err(format!("{topic}.{}: {n} is not a {}", f.name(), e.name()));
+            }
+        }
+        if f.is_list() {
+            lengths.insert(v.as_list().map_or(0, <[PV]>::len));
+        }
+    }
+    if lengths.len() > 1 {
+        return Err(format!("{topic}: columns of different lengths {lengths:?}"));
+    }
+    Ok(())
 }
 
 /// The channels of an MCAP recording by topic (strict read: the file must
@@ -25,8 +70,27 @@ fn channels(path: &Path) -> BTreeMap<String, Channel> {
     let mut out: BTreeMap<String, Channel> = BTreeMap::new();
     for m in mcap::MessageStream::new(&bytes).expect("mcap") {
         let m = m.expect("message");
-        assert_eq!(m.channel.message_encoding, "json", "{}", m.channel.topic);
         let schema = m.channel.schema.as_ref().expect("channel has a schema");
+        if m.channel.message_encoding == "protobuf" {
+            assert_eq!(schema.encoding, "protobuf", "{}", m.channel.topic);
+            check_protobuf(&m.channel.topic, schema, &m.data).unwrap();
+            let ch = out
+                .entry(m.channel.topic.clone())
+                .or_insert_with(|| Channel {
+                    schema_name: schema.name.clone(),
+                    schema: Value::Null,
+                    messages: Vec::new(),
+                });
+            if m.channel.topic == "/bench/sample" {
+                for (_, s) in bench::record::decode_samples(&m).unwrap() {
+                    ch.messages.push(serde_json::to_value(s).unwrap());
+                }
+            } else {
+                ch.messages.push(Value::Null);
+            }
+            continue;
+        }
+        assert_eq!(m.channel.message_encoding, "json", "{}", m.channel.topic);
         assert_eq!(schema.encoding, "jsonschema", "{}", m.channel.topic);
         let ch = out
             .entry(m.channel.topic.clone())
@@ -72,7 +136,7 @@ fn validate_recording(path: &Path) -> BTreeMap<String, Channel> {
     let chans = channels(path);
     assert!(!chans.is_empty(), "{}: no messages", path.display());
     let mut failures = Vec::new();
-    for (topic, ch) in &chans {
+    for (topic, ch) in chans.iter().filter(|c| !c.1.schema.is_null()) {
         let validator = jsonschema::validator_for(&ch.schema)
             .unwrap_or_else(|e| panic!("{topic}: schema {} invalid: {e}", ch.schema_name));
         let mut missing = Vec::new();
@@ -128,6 +192,7 @@ fn recorded_messages_match_their_channel_schemas() {
     let dir = tmp();
     let chirp = dir.path().join("chirp.mcap");
     let control = dir.path().join("control.mcap");
+    let control_path = control.clone();
     let faulted = dir.path().join("faulted.mcap");
     let p = |f: &Path| f.display().to_string();
     let (chirp_s, control_s, faulted_s) = (p(&chirp), p(&control), p(&faulted));
@@ -176,7 +241,8 @@ fn recorded_messages_match_their_channel_schemas() {
     assert_topics(
         &chirp,
         &[
-            ("/bench/sample", "bench.Sample"),
+            ("/bench/sample", "bench.SampleBlock"),
+            ("/bench/envelope", "bench.Envelope"),
             ("/bench/timing", "bench.Timing"),
             ("/bench/event", "bench.Event"),
             ("/sysid/frf", "bench.Frf"),
@@ -187,7 +253,8 @@ fn recorded_messages_match_their_channel_schemas() {
     assert_topics(
         &control,
         &[
-            ("/bench/sample", "bench.Sample"),
+            ("/bench/sample", "bench.SampleBlock"),
+            ("/bench/envelope", "bench.Envelope"),
             ("/bench/event", "bench.Event"),
             ("/control/loop_check", "bench.LoopCheck"),
             ("/control/metrics", "bench.StepMetrics"),
@@ -198,7 +265,8 @@ fn recorded_messages_match_their_channel_schemas() {
     assert_topics(
         &faulted,
         &[
-            ("/bench/sample", "bench.Sample"),
+            ("/bench/sample", "bench.SampleBlock"),
+            ("/bench/envelope", "bench.Envelope"),
             ("/bench/event", "bench.Event"),
             ("/control/loop_check", "bench.LoopCheck"),
         ],
@@ -241,33 +309,65 @@ fn recorded_messages_match_their_channel_schemas() {
         )
     );
 
-    // The validator rejects wrong messages against the generated schemas.
-    let sample_schema = &control["/bench/sample"].schema;
-    let sample = &control["/bench/sample"].messages[0];
+    // The validators reject wrong messages against the generated schemas.
     let valid = |schema: &Value, v: &Value| jsonschema::validator_for(schema).unwrap().is_valid(v);
-    assert!(valid(sample_schema, sample));
+    let timing_schema = &control["/bench/timing"].schema;
+    let timing = &control["/bench/timing"].messages[0];
+    assert!(valid(timing_schema, timing));
     assert!(valid(
-        sample_schema,
-        &replaced(sample, "/position_m", Value::Null)
+        timing_schema,
+        &replaced(timing, "/wake_latency_max_ns", Value::Null)
     ));
     for (pointer, wrong) in [
-        ("/position_m", json!("1e-6")),
+        ("/wake_latency_max_ns", json!("1e3")),
         ("/tick", json!(-1)),
         ("/tick", json!(0.5)),
-        ("/state", json!("sleeping")),
-        ("/out_of_range", json!(0)),
+        ("/overruns", json!(false)),
     ] {
         assert!(
-            !valid(sample_schema, &replaced(sample, pointer, wrong.clone())),
+            !valid(timing_schema, &replaced(timing, pointer, wrong.clone())),
             "{pointer} = {wrong} accepted"
         );
     }
-    let mut no_tick = sample.clone();
+    let mut no_tick = timing.clone();
     no_tick.as_object_mut().unwrap().remove("tick");
     assert!(
-        !valid(sample_schema, &no_tick),
-        "a sample without tick accepted"
+        !valid(timing_schema, &no_tick),
+        "a timing window without tick accepted"
     );
+    // Protobuf: a block with an undefined state, a ragged block, a field
+    // of the wrong wire type and an unknown field are refused.
+    let schema = mcap::Schema {
+        id: 1,
+        name: "bench.SampleBlock".into(),
+        encoding: "protobuf".into(),
+        data: bench::record::proto::file_descriptor_set().into(),
+    };
+    let block = |edit: &dyn Fn(&mut bench::record::proto::SampleBlock)| {
+        let mut b = bench::record::proto::SampleBlock::with_capacity();
+        let s = bench::record::read_samples_tolerant(&std::fs::read(&control_path).unwrap());
+        for r in &s[..10] {
+            b.push(r);
+        }
+        edit(&mut b);
+        prost::Message::encode_to_vec(&b)
+    };
+    check_protobuf("/bench/sample", &schema, &block(&|_| {})).unwrap();
+    assert!(check_protobuf("/bench/sample", &schema, &block(&|b| b.state[3] = 7)).is_err());
+    assert!(check_protobuf(
+        "/bench/sample",
+        &schema,
+        &block(&|b| {
+            b.position_m.pop();
+        })
+    )
+    .is_err());
+    let mut wrong_wire = block(&|_| {});
+    wrong_wire.extend([0x10, 0x01]); // field 2 (t_s, packed doubles) as a varint
+    assert!(check_protobuf("/bench/sample", &schema, &wrong_wire).is_err());
+    let mut unknown = block(&|_| {});
+    unknown.extend([0xa0, 0x01, 0x01]); // field 20, varint
+    assert!(check_protobuf("/bench/sample", &schema, &unknown).is_err());
     let event_schema = &faulted["/bench/event"].schema;
     assert!(!valid(
         event_schema,

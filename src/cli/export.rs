@@ -20,9 +20,9 @@ pub(super) struct ExportArgs {
     /// Table format.
     #[arg(long, value_enum)]
     to: FormatArg,
-    /// The channel: /bench/sample (one row per tick), /bench/timing,
-    /// /bench/event, /sysid/frf (one row per frequency line), or any other
-    /// recorded topic.
+    /// The channel: /bench/sample (one row per tick), /bench/envelope (one
+    /// per millisecond), /bench/timing, /bench/event, /sysid/frf (one row
+    /// per frequency line), or any other recorded topic.
     #[arg(long, value_name = "TOPIC", default_value = "/bench/sample")]
     topic: String,
     /// Output file [default: beside the recording, <stem>.<topic>.<csv|parquet>].

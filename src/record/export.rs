@@ -4,9 +4,10 @@
 //! Every table starts with `log_time_ns` (the message's MCAP log time, ns)
 //! followed by the message's fields under their recorded names, which
 //! carry the unit (`t_s`, `position_m`, `current_command_a`; `tick` is a
-//! count, `state` a name). `/bench/sample` is decoded into its record type
-//! (also recordings made before newer fields: those read as `NaN`); any
-//! other JSON channel is flattened: scalar fields become columns, nested
+//! count, `state` a name). `/bench/sample` is decoded into one row per
+//! tick, from its protobuf blocks or the JSON messages of older recordings
+//! (also those made before newer fields: those read as `NaN`); any
+//! other channel (JSON, or the protobuf `/bench/envelope`) is flattened: scalar fields become columns, nested
 //! objects `outer.inner` columns, and a message of equal-length arrays (the
 //! FRF) one row per array element. Missing numbers are `NaN` (CSV: `NaN`).
 //!
@@ -17,7 +18,8 @@
 //! pandas reads it with `pd.read_parquet(path)`.
 
 use crate::outputs::{write_atomically, Existing};
-use crate::record::{decode_sample, read_messages_tolerant, TOPIC_SAMPLE};
+use crate::record::proto::Envelope;
+use crate::record::{decode_samples, read_messages_tolerant, TOPIC_ENVELOPE, TOPIC_SAMPLE};
 use parquet::basic::{Compression, Repetition, Type as PhysicalType};
 use parquet::data_type::{BoolType, ByteArray, ByteArrayType, DoubleType, Int64Type};
 use parquet::file::properties::WriterProperties;
@@ -172,11 +174,8 @@ fn samples_table(msgs: &[&mcap::Message<'static>]) -> Table {
     let mut f: [Vec<f64>; 6] = std::array::from_fn(|_| Vec::with_capacity(n));
     let mut state = Vec::with_capacity(n);
     let mut oor = Vec::with_capacity(n);
-    for m in msgs {
-        let Some(s) = decode_sample(&m.data) else {
-            continue;
-        };
-        log.push(m.log_time as i64);
+    for (log_time, s) in msgs.iter().filter_map(|m| decode_samples(m).ok()).flatten() {
+        log.push(log_time as i64);
         tick.push(s.tick as i64);
         for (col, v) in f.iter_mut().zip([
             s.t_s,
@@ -269,13 +268,27 @@ fn rows_of(v: &Value) -> Vec<Vec<(String, Cell)>> {
     vec![row]
 }
 
+/// A message as JSON: a JSON message as it is, a protobuf
+/// `/bench/envelope` message as its fields (the state by name). `None`
+/// for what does not decode.
+fn value_of(m: &mcap::Message<'static>) -> Option<Value> {
+    match m.channel.message_encoding.as_str() {
+        "json" => serde_json::from_slice(&m.data).ok(),
+        "protobuf" if m.channel.topic == TOPIC_ENVELOPE => {
+            let e = <Envelope as prost::Message>::decode(&m.data[..]).ok()?;
+            serde_json::to_value(e).ok()
+        }
+        _ => None,
+    }
+}
+
 fn json_table(msgs: &[&mcap::Message<'static>]) -> Table {
     // Column order: first seen; type: reals if any real, else integers,
     // booleans or names.
     let mut order: Vec<String> = Vec::new();
     let mut rows: Vec<(u64, BTreeMap<String, Cell>)> = Vec::new();
     for m in msgs {
-        let Ok(v) = serde_json::from_slice::<Value>(&m.data) else {
+        let Some(v) = value_of(m) else {
             continue;
         };
         for row in rows_of(&v) {

@@ -9,7 +9,10 @@
 //!
 //! # Topics
 //!
-//! Every channel uses `message_encoding = "json"` and a schema with
+//! The per-tick channels are binary ([`proto`]): `/bench/sample` holds the
+//! ticks in blocks and `/bench/envelope` their extremes per millisecond for
+//! plotting, both protobuf. Every other channel uses
+//! `message_encoding = "json"` and a schema with
 //! `encoding = "jsonschema"` whose data is a JSON Schema document. Each
 //! record is written down once, as a Rust type: a message is the type's
 //! `serde_json` form and the channel's schema is generated from the same
@@ -18,8 +21,15 @@
 //! are written as JSON `null`, since JSON has no NaN; the schemas declare
 //! every number as `["number", "null"]`.
 //!
-//! - `/bench/sample`, schema `bench.Sample`: one [`SampleRecord`] per loop
-//!   tick.
+//! - `/bench/sample`, schema `bench.SampleBlock` (protobuf): up to
+//!   [`proto::BLOCK_TICKS`] consecutive ticks per message as columns, read
+//!   back as one [`SampleRecord`] per tick ([`read_samples_tolerant`],
+//!   [`decode_samples`]). Recordings made before this held one JSON
+//!   `bench.Sample` message per tick on the same topic; the readers take
+//!   both.
+//! - `/bench/envelope`, schema `bench.Envelope` (protobuf): per
+//!   millisecond of loop time, the smallest and largest position and
+//!   command ([`proto::Envelope`]).
 //! - `/bench/timing`, schema `bench.Timing`: one [`TimingRecord`] per
 //!   reporting window.
 //! - `/bench/event`, schema `bench.Event`: one [`EventRecord`] per event;
@@ -67,7 +77,8 @@
 //!
 //! # Chunks and flushing
 //!
-//! Messages go into lz4-compressed chunks. Chunks are **not** closed by size:
+//! Messages go into zstd-compressed chunks (older recordings: lz4; the
+//! readers take both). Chunks are **not** closed by size:
 //! a chunk is closed only by [`Recorder::flush_chunk`] (and by metadata writes
 //! and `finish`). The chunk being built is held in memory (the mcap writer is
 //! configured with `disable_seeking(true)`, i.e. buffered chunks), so the file
@@ -84,6 +95,7 @@
 //! (survives a killed process); only `finish` fsyncs (survives power loss).
 
 pub mod export;
+pub mod proto;
 mod reader;
 pub mod recover;
 mod schema;
@@ -91,8 +103,8 @@ pub mod topics;
 mod writer;
 
 pub use reader::{
-    decode_sample, read_frf, read_messages_tolerant, read_samples_tolerant, RecordedFrf,
-    TolerantRead,
+    decode_sample, decode_samples, read_frf, read_messages_tolerant, read_samples_tolerant,
+    RecordedFrf, TolerantRead,
 };
 pub use schema::{nan_if_null, schema_of};
 pub use writer::{
@@ -102,6 +114,8 @@ pub use writer::{
 
 /// Topic of the per-tick samples.
 pub const TOPIC_SAMPLE: &str = "/bench/sample";
+/// Topic of the per-millisecond extremes of the samples, for display.
+pub const TOPIC_ENVELOPE: &str = "/bench/envelope";
 /// Topic of the loop-timing windows.
 pub const TOPIC_TIMING: &str = "/bench/timing";
 /// Topic of the events.
@@ -111,7 +125,9 @@ pub const TOPIC_FRF: &str = "/sysid/frf";
 /// Topic of the events as Foxglove log lines.
 pub const TOPIC_LOG: &str = "/bench/log";
 
-/// Schema name of [`TOPIC_SAMPLE`].
+/// Schema name of [`TOPIC_SAMPLE`] in recordings made before the
+/// protobuf blocks (one JSON message per tick); now
+/// [`proto::SCHEMA_SAMPLE_BLOCK`].
 pub const SCHEMA_SAMPLE: &str = "bench.Sample";
 /// Schema name of [`TOPIC_TIMING`].
 pub const SCHEMA_TIMING: &str = "bench.Timing";

@@ -1,7 +1,7 @@
 //! Reading recordings back, also the `.part` file of a killed run.
 
 use crate::record::topics::SampleRecord;
-use crate::record::TOPIC_SAMPLE;
+use crate::record::{log_time_ns, TOPIC_SAMPLE};
 
 /// What a tolerant read of a (possibly truncated) recording returned.
 #[derive(Debug)]
@@ -57,15 +57,43 @@ pub fn decode_sample(data: &[u8]) -> Option<SampleRecord> {
     serde_json::from_slice(data).ok()
 }
 
+/// The ticks of one `/bench/sample` message with their log times (ns, as
+/// recorded: the block's log time plus each tick's loop time since the
+/// block's first): a protobuf `bench.SampleBlock` gives its ticks, a JSON
+/// `bench.Sample` (recordings made before the blocks) one tick.
+///
+/// # Errors
+/// Why the payload is neither (the encoding and the decoder's reason).
+pub fn decode_samples(m: &mcap::Message<'_>) -> Result<Vec<(u64, SampleRecord)>, String> {
+    match m.channel.message_encoding.as_str() {
+        "protobuf" => {
+            let records = crate::record::proto::decode_block(&m.data)?;
+            let t0 = records.first().map_or(0, |r| log_time_ns(r.t_s));
+            let origin = m.log_time.saturating_sub(t0);
+            Ok(records
+                .into_iter()
+                .map(|r| (origin.saturating_add(log_time_ns(r.t_s)), r))
+                .collect())
+        }
+        "json" => decode_sample(&m.data)
+            .map(|r| vec![(m.log_time, r)])
+            .ok_or_else(|| "not a bench.Sample JSON message".to_string()),
+        other => Err(format!("unknown message encoding {other:?}")),
+    }
+}
+
 /// The `/bench/sample` records of a possibly truncated recording (see
 /// [`read_messages_tolerant`]), decoded back into [`SampleRecord`]s in file
-/// order (`null` → `NaN`). Messages that fail to decode are skipped.
+/// order (JSON `null` → `NaN`), from the protobuf blocks or the JSON
+/// messages of older recordings. Messages that fail to decode are skipped.
 pub fn read_samples_tolerant(bytes: &[u8]) -> Vec<SampleRecord> {
     read_messages_tolerant(bytes)
         .messages
         .iter()
         .filter(|m| m.channel.topic == TOPIC_SAMPLE)
-        .filter_map(|m| decode_sample(&m.data))
+        .filter_map(|m| decode_samples(m).ok())
+        .flatten()
+        .map(|(_, r)| r)
         .collect()
 }
 

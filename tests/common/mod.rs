@@ -104,10 +104,32 @@ pub fn mcap_messages(path: &Path) -> Vec<(String, u64, Value)> {
     let bytes = std::fs::read(path).expect("recording");
     mcap::MessageStream::new(&bytes)
         .expect("mcap")
-        .map(|m| {
+        .flat_map(|m| {
             let m = m.expect("message");
-            let v: Value = serde_json::from_slice(&m.data).expect("json payload");
-            (m.channel.topic.clone(), m.log_time, v)
+            if m.channel.message_encoding == "json" {
+                let v: Value = serde_json::from_slice(&m.data).expect("json payload");
+                return vec![(m.channel.topic.clone(), m.log_time, v)];
+            }
+            // Protobuf: the sample blocks as one JSON-shaped sample per
+            // tick (as recordings before the blocks held them), the
+            // envelope as its fields.
+            match m.channel.topic.as_str() {
+                "/bench/sample" => bench::record::decode_samples(&m)
+                    .expect("a sample block")
+                    .into_iter()
+                    .map(|(t, s)| {
+                        let v = serde_json::to_value(s).unwrap();
+                        (m.channel.topic.clone(), t, v)
+                    })
+                    .collect(),
+                "/bench/envelope" => {
+                    let e = <bench::record::proto::Envelope as prost::Message>::decode(&m.data[..])
+                        .expect("an envelope");
+                    let v = serde_json::to_value(e).unwrap();
+                    vec![(m.channel.topic.clone(), m.log_time, v)]
+                }
+                other => panic!("unexpected protobuf channel {other}"),
+            }
         })
         .collect()
 }

@@ -1,0 +1,86 @@
+//! The recorder's cost per tick and the recording's size per tick on the
+//! default chirp (issue 16: at most 0.3 µs of CPU and 32 bytes on disk per
+//! tick for `/bench/sample`).
+//!
+//! Setup runs the default `bench chirp` once in virtual time and reads its
+//! samples back; the benchmark writes those samples again through a
+//! [`Recorder`] as the writer thread does (a chunk flush every 250 ticks,
+//! i.e. every 50 ms of loop time at 5 kHz) and finishes the file. The
+//! writer runs on one thread, so the wall time per tick is its CPU time per
+//! tick. The sizes (whole file and per tick) are printed once.
+
+use bench::config::BenchConfig;
+use bench::jobs::chirp::{run_chirp, ChirpOptions};
+use bench::outputs::{Existing, Origin, OutputPlan};
+use bench::record::topics::{Record, SampleRecord};
+use bench::record::{read_samples_tolerant, Recorder};
+use criterion::{criterion_group, criterion_main, Criterion, Throughput};
+use std::path::Path;
+use std::sync::atomic::AtomicBool;
+use std::sync::Arc;
+use std::time::Duration;
+
+/// The default chirp's samples (as recorded).
+fn default_chirp_samples(dir: &Path) -> (Vec<SampleRecord>, u64) {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("bench-config/sr4dof-ch5.toml");
+    let opts = ChirpOptions {
+        config: BenchConfig::load(&path).unwrap(),
+        config_path: path,
+        out: dir.join("chirp.mcap"),
+        frf_csv: dir.join("chirp.frf.csv"),
+        plot: dir.join("chirp.bode.png"),
+        realtime: false,
+        seed: 1,
+        progress: false,
+        backend: None,
+    };
+    let outputs = OutputPlan::new(Existing::Replace)
+        .with_recording(&opts.out, Origin::Given)
+        .with_output("frf_csv", &opts.frf_csv, Origin::Given)
+        .with_output("plot", &opts.plot, Origin::Given);
+    run_chirp(&opts, outputs, Arc::new(AtomicBool::new(false)), None).unwrap();
+    let bytes = std::fs::read(&opts.out).unwrap();
+    (read_samples_tolerant(&bytes), bytes.len() as u64)
+}
+
+/// Writes `samples` into a new recording at `path` as the writer thread
+/// does; returns the file's size, bytes.
+fn record(path: &Path, samples: &[SampleRecord]) -> u64 {
+    let mut rec = Recorder::create_with(path, Existing::Replace, None).unwrap();
+    for (i, s) in samples.iter().enumerate() {
+        rec.write_record(&Record::Sample(*s)).unwrap();
+        if i % 250 == 249 {
+            rec.flush_chunk().unwrap();
+        }
+    }
+    let out = rec.finish().unwrap();
+    std::fs::metadata(out).unwrap().len()
+}
+
+fn recorder(c: &mut Criterion) {
+    let dir = tempfile::tempdir().unwrap();
+    let (samples, chirp_bytes) = default_chirp_samples(dir.path());
+    let n = samples.len() as f64;
+    let path = dir.path().join("samples.mcap");
+    let sample_bytes = record(&path, &samples);
+    eprintln!(
+        "default chirp: {} ticks; the samples alone (/bench/sample blocks, \
+         /bench/envelope, headers, index): {} bytes = {:.1} B/tick; \
+         the whole chirp recording: {} bytes = {:.1} B/tick",
+        samples.len(),
+        sample_bytes,
+        sample_bytes as f64 / n,
+        chirp_bytes,
+        chirp_bytes as f64 / n
+    );
+    let mut g = c.benchmark_group("recorder");
+    g.sample_size(10).measurement_time(Duration::from_secs(10));
+    g.throughput(Throughput::Elements(samples.len() as u64));
+    g.bench_function("default_chirp_samples", |b| {
+        b.iter(|| record(&path, &samples))
+    });
+    g.finish();
+}
+
+criterion_group!(benches, recorder);
+criterion_main!(benches);
