@@ -21,7 +21,7 @@ pub(super) struct ExportArgs {
     #[arg(long, value_enum)]
     to: FormatArg,
     /// The channel: /bench/sample (one row per tick), /bench/envelope (one
-    /// per millisecond), /bench/timing, /bench/event, /sysid/frf (one row
+    /// per 5 ms), /bench/timing, /bench/event, /sysid/frf (one row
     /// per frequency line), or any other recorded topic.
     #[arg(long, value_name = "TOPIC", default_value = "/bench/sample")]
     topic: String,

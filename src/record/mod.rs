@@ -10,7 +10,7 @@
 //! # Topics
 //!
 //! The per-tick channels are binary ([`proto`]): `/bench/sample` holds the
-//! ticks in blocks and `/bench/envelope` their extremes per millisecond for
+//! ticks in blocks and `/bench/envelope` their extremes per 5 ms for
 //! plotting, both protobuf. Every other channel uses
 //! `message_encoding = "json"` and a schema with
 //! `encoding = "jsonschema"` whose data is a JSON Schema document. Each
@@ -28,8 +28,8 @@
 //!   `bench.Sample` message per tick on the same topic; the readers take
 //!   both.
 //! - `/bench/envelope`, schema `bench.Envelope` (protobuf): per
-//!   millisecond of loop time, the smallest and largest position and
-//!   command ([`proto::Envelope`]).
+//!   [`proto::ENVELOPE_PERIOD_S`] (5 ms) of loop time, the smallest and
+//!   largest position and command ([`proto::Envelope`]).
 //! - `/bench/timing`, schema `bench.Timing`: one [`TimingRecord`] per
 //!   reporting window.
 //! - `/bench/event`, schema `bench.Event`: one [`EventRecord`] per event;
@@ -77,8 +77,7 @@
 //!
 //! # Chunks and flushing
 //!
-//! Messages go into zstd-compressed chunks (older recordings: lz4; the
-//! readers take both). Chunks are **not** closed by size:
+//! Messages go into lz4-compressed chunks. Chunks are **not** closed by size:
 //! a chunk is closed only by [`Recorder::flush_chunk`] (and by metadata writes
 //! and `finish`). The chunk being built is held in memory (the mcap writer is
 //! configured with `disable_seeking(true)`, i.e. buffered chunks), so the file
@@ -114,7 +113,7 @@ pub use writer::{
 
 /// Topic of the per-tick samples.
 pub const TOPIC_SAMPLE: &str = "/bench/sample";
-/// Topic of the per-millisecond extremes of the samples, for display.
+/// Topic of the per-5 ms extremes of the samples, for display.
 pub const TOPIC_ENVELOPE: &str = "/bench/envelope";
 /// Topic of the loop-timing windows.
 pub const TOPIC_TIMING: &str = "/bench/timing";

@@ -139,9 +139,7 @@ pub fn recover(part: &Path, to: &Path, existing: Existing) -> Result<Recovered, 
     let mcap_err = |e: mcap::McapError| std::io::Error::other(e.to_string());
     write_atomically(to, existing, |file| {
         let mut w = mcap::WriteOptions::new()
-            .compression(Some(mcap::Compression::Zstd))
-            .compression_level(super::writer::ZSTD_LEVEL)
-            .compression_threads(0)
+            .compression(Some(mcap::Compression::Lz4))
             .profile("")
             .library(concat!("bench-", env!("CARGO_PKG_VERSION"), " (mcap-rs)"))
             .create(BufWriter::new(&mut *file))
