@@ -6,8 +6,8 @@
 //! the tick outwards: [`rt`] (loop, supervisor, backends), [`ident`]
 //! (excitation, FRF), [`control`] (controllers, loop check), [`record`]
 //! (MCAP topics, writer, reader), [`jobs`] (chirp and step runs),
-//! [`daemon`] (`bench serve` and its client). The command line lives in the
-//! binary (`src/cli`).
+//! [`daemon`] (`bench serve` and its client), [`live`] (the Foxglove live
+//! view). The command line lives in the binary (`src/cli`).
 #![warn(missing_docs)]
 
 pub mod analysis;
@@ -18,6 +18,7 @@ pub mod daemon;
 pub mod error;
 pub mod ident;
 pub mod jobs;
+pub mod live;
 pub mod outputs;
 pub mod plot;
 pub mod record;

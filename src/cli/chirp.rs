@@ -47,6 +47,8 @@ pub(super) struct ChirpArgs {
     /// mlockall when permitted) instead of virtual time.
     #[arg(long)]
     realtime: bool,
+    #[command(flatten)]
+    live: super::LiveArgs,
     /// Simulator noise seed [default: sim.seed from the config].
     #[arg(long, value_name = "N", allow_hyphen_values = true, value_parser = parse_seed)]
     seed: Option<u64>,
@@ -128,6 +130,10 @@ pub(super) fn chirp(args: ChirpArgs, stop: Arc<AtomicBool>) -> ExitCode {
             (args.frf_csv.is_some(), "--frf-csv"),
             (args.plot.is_some(), "--plot"),
             (args.overwrite, "--overwrite"),
+            (
+                args.live.given(),
+                "--live (bench serve --live shows the daemon's jobs)",
+            ),
         ];
         local_only.extend(args.point.given());
         local_only.extend([
@@ -194,6 +200,11 @@ pub(super) fn chirp(args: ChirpArgs, stop: Arc<AtomicBool>) -> ExitCode {
     };
     // On a worker thread, with the loop's tick count for the preparation
     // watch (a stop before the first tick ends the run at once).
+    // Kept until the run has ended: the live view serves while it runs.
+    let _live = match args.live.start(opts.config.loop_.cpu) {
+        Ok(l) => l,
+        Err(code) => return code,
+    };
     let result = job_thread::run_job(stop, move |stop, ticks| {
         run_chirp(&opts, outputs, stop, Some(&ticks))
     });

@@ -59,6 +59,8 @@ pub(super) struct ControlArgs {
     /// Pace the loop in real time.
     #[arg(long)]
     realtime: bool,
+    #[command(flatten)]
+    live: super::LiveArgs,
     /// Print the loop check and exit without enabling anything.
     #[arg(long)]
     check_only: bool,
@@ -139,6 +141,10 @@ pub(super) fn control(args: ControlArgs, stop: Arc<AtomicBool>) -> ExitCode {
             (args.backend.is_some(), "--backend"),
             (args.check_only, "--check-only"),
             (args.frf.is_some(), "--frf"),
+            (
+                args.live.given(),
+                "--live (bench serve --live shows the daemon's jobs)",
+            ),
         ];
         if let Some(code) = refuse_local_only(
             &local_only,
@@ -202,6 +208,11 @@ pub(super) fn control(args: ControlArgs, stop: Arc<AtomicBool>) -> ExitCode {
         progress: std::io::stderr().is_terminal(),
         inject,
         backend: args.backend.clone(),
+    };
+    // Kept until the run has ended: the live view serves while it runs.
+    let _live = match args.live.start(opts.config.loop_.cpu) {
+        Ok(l) => l,
+        Err(code) => return code,
     };
     let result = job_thread::run_job(stop, move |stop, ticks| {
         run_control(&opts, outputs, stop, Some(&ticks))

@@ -203,6 +203,46 @@ fn install_signal_handlers(stop: &Arc<AtomicBool>) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// `--live [IP:PORT]`, shared by `chirp`, `control` and `serve`.
+#[derive(Debug, clap::Args)]
+pub(super) struct LiveArgs {
+    /// Serve a live view of the run for Foxglove on IP:PORT (WebSocket,
+    /// protocol foxglove.sdk.v1): every recorded channel as it is written.
+    /// Without a value 127.0.0.1:8765, loopback only; another interface
+    /// only when named (e.g. 0.0.0.0:8765). Port 0: the OS picks one
+    /// (printed).
+    #[arg(long, value_name = "IP:PORT", num_args = 0..=1, default_missing_value = bench::live::DEFAULT_ADDR)]
+    live: Option<String>,
+}
+
+impl LiveArgs {
+    /// Whether `--live` was given.
+    pub(super) fn given(&self) -> bool {
+        self.live.is_some()
+    }
+
+    /// Starts the live view when asked and says where on stderr; exit 2
+    /// naming `--live` when the address is refused or cannot be served.
+    /// `loop_cpu`: the CPU the real-time loop is pinned to (`loop.cpu`),
+    /// which the server keeps off.
+    pub(super) fn start(
+        &self,
+        loop_cpu: Option<usize>,
+    ) -> Result<Option<bench::live::LiveServer>, ExitCode> {
+        let Some(given) = &self.live else {
+            return Ok(None);
+        };
+        let server = bench::live::parse_addr(given)
+            .and_then(|a| bench::live::LiveServer::start(a, loop_cpu))
+            .map_err(bad_input)?;
+        eprintln!(
+            "live view on {} (Foxglove: Open connection > Foxglove WebSocket)",
+            server.url()
+        );
+        Ok(Some(server))
+    }
+}
+
 pub(super) fn bad_input(msg: impl std::fmt::Display) -> ExitCode {
     eprintln!("error: {msg}");
     ExitCode::from(status::BAD_INPUT)

@@ -38,6 +38,8 @@ pub(super) struct ServeArgs {
     /// jump, out_of_range.
     #[arg(long, value_name = "KIND@T_S")]
     inject_fault: Option<String>,
+    #[command(flatten)]
+    live: super::LiveArgs,
 }
 
 /// Submits a job to the daemon, shows its progress on stderr and prints the
@@ -132,6 +134,11 @@ pub(super) fn serve(args: ServeArgs) -> ExitCode {
     let inject = match args.inject_fault.as_deref().map(parse_fault).transpose() {
         Ok(f) => f,
         Err(e) => return bad_input(format!("--inject-fault: {e}")),
+    };
+    // On while the daemon runs: every job's channels, as they are written.
+    let _live = match args.live.start(cfg.loop_.cpu) {
+        Ok(l) => l,
+        Err(code) => return code,
     };
     let opts = bench::daemon::ServeOptions {
         inject,

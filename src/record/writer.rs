@@ -162,6 +162,9 @@ pub struct Recorder {
     /// What the final rename does with an existing file.
     existing: crate::outputs::Existing,
     channels: Vec<ChannelState>,
+    /// The live twin of each channel (same index), when a live view runs
+    /// ([`crate::live`]).
+    live: Vec<Option<crate::live::LiveChannel>>,
     /// `/bench/sample` (protobuf blocks), index into `channels`.
     sample: usize,
     /// `/bench/envelope` (protobuf), index into `channels`.
@@ -297,6 +300,7 @@ impl Recorder {
             part_path,
             existing,
             channels: Vec::with_capacity(8),
+            live: Vec::with_capacity(8),
             sample: 0,
             envelope: 0,
             block: SampleBlock::with_capacity(),
@@ -371,6 +375,13 @@ impl Recorder {
             id,
             next_sequence: 0,
         });
+        self.live.push(crate::live::LiveChannel::new(
+            topic,
+            "json",
+            schema_name,
+            "jsonschema",
+            &schema_data,
+        ));
         Ok(Channel::new(self.channels.len() - 1))
     }
 
@@ -392,6 +403,13 @@ impl Recorder {
             id,
             next_sequence: 0,
         });
+        self.live.push(crate::live::LiveChannel::new(
+            topic,
+            "protobuf",
+            schema_name,
+            "protobuf",
+            descriptor,
+        ));
         Ok(self.channels.len() - 1)
     }
 
@@ -455,6 +473,9 @@ impl Recorder {
             publish_time: log_time,
         };
         state.next_sequence = state.next_sequence.wrapping_add(1);
+        if let Some(Some(live)) = self.live.get(index) {
+            live.log(&self.buf, log_time);
+        }
         let w = self
             .writer
             .as_mut()

@@ -1,0 +1,262 @@
+//! The live view (`--live [ADDR]`): a Foxglove WebSocket server (the
+//! `foxglove` crate's, protocol `foxglove.sdk.v1`) that carries every
+//! channel the recorder writes, as it writes it.
+//!
+//! Nothing here touches the real-time tick. The recorder's writer thread
+//! (non-real-time) logs each message it has just written to the file to
+//! the matching live channel as well ([`LiveChannel::log`]); the server
+//! sends on its own threads (a tokio runtime the crate starts). A client
+//! that reads too slowly has its queue of [`MESSAGE_BACKLOG`] messages cut
+//! from the oldest: it is decimated, never waited for. For display, the
+//! samples are there twice: `/bench/envelope` (min/max per 5 ms, built on
+//! the writer thread) for plots against time, and the `/bench/sample`
+//! blocks with every tick.
+//!
+//! The server binds to loopback by default ([`DEFAULT_ADDR`]); another
+//! address only when given explicitly ([`parse_addr`]).
+
+use std::net::{IpAddr, SocketAddr};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+
+use foxglove::{ChannelBuilder, PartialMetadata, RawChannel, Schema, WebSocketServer};
+
+/// The default address of the live view: loopback only.
+pub const DEFAULT_ADDR: &str = "127.0.0.1:8765";
+
+/// Messages queued per client before the oldest are dropped.
+pub const MESSAGE_BACKLOG: usize = 1024;
+
+/// Set once a server runs in this process: recorders then mirror their
+/// channels.
+static SERVING: AtomicBool = AtomicBool::new(false);
+
+/// Errors of the live view.
+#[derive(Debug, thiserror::Error)]
+pub enum LiveError {
+    /// The `--live` argument is not `IP:PORT`.
+    #[error("--live {given:?}: {reason}")]
+    Address {
+        /// What was given.
+        given: String,
+        /// Why it is refused.
+        reason: String,
+    },
+    /// The server could not start (e.g. the port is taken).
+    #[error("--live {addr}: cannot start the live view: {reason}")]
+    Start {
+        /// The address.
+        addr: SocketAddr,
+        /// Why.
+        reason: String,
+    },
+}
+
+/// Parses `--live`'s value: an IP address and a port, `IP:PORT` (IPv6 as
+/// `[IP]:PORT`). Host names are refused (an explicit address says which
+/// interface is exposed); port 0 lets the OS choose (the chosen port is
+/// printed).
+///
+/// # Errors
+/// [`LiveError::Address`] naming the value and the reason.
+pub fn parse_addr(given: &str) -> Result<SocketAddr, LiveError> {
+    given.parse::<SocketAddr>().map_err(|_| LiveError::Address {
+        given: given.to_string(),
+        reason: "expected IP:PORT, e.g. 127.0.0.1:8765 (loopback, the default) or \
+                 0.0.0.0:8765 to serve every interface; host names are not accepted"
+            .into(),
+    })
+}
+
+/// A running live view; stops when dropped.
+pub struct LiveServer {
+    handle: Option<foxglove::WebSocketServerHandle>,
+    addr: SocketAddr,
+    /// Ends the server's thread when sent (or dropped).
+    shutdown: Option<tokio::sync::oneshot::Sender<()>>,
+    thread: Option<std::thread::JoinHandle<()>>,
+}
+
+impl std::fmt::Debug for LiveServer {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("LiveServer")
+            .field("addr", &self.addr)
+            .finish()
+    }
+}
+
+impl LiveServer {
+    /// Starts the server on `addr`; from now on every recorder created in
+    /// this process mirrors its channels to it.
+    ///
+    /// The server runs on one thread of its own (`bench-live`, a
+    /// single-threaded tokio runtime) at nice 10, kept off `loop_cpu` (the
+    /// CPU the real-time loop is pinned to, `loop.cpu`) when the machine
+    /// has another: its sends, and the loopback network work the kernel
+    /// does for them on the sending CPU, stay away from the loop.
+    ///
+    /// # Errors
+    /// [`LiveError::Start`] when it cannot bind or start.
+    pub fn start(addr: SocketAddr, loop_cpu: Option<usize>) -> Result<Self, LiveError> {
+        let fail = |reason: String| LiveError::Start { addr, reason };
+        let rt = tokio::runtime::Builder::new_current_thread()
+            .enable_all()
+            .build()
+            .map_err(|e| fail(e.to_string()))?;
+        let handle = rt.handle().clone();
+        let (tx, rx) = tokio::sync::oneshot::channel::<()>();
+        let thread = std::thread::Builder::new()
+            .name("bench-live".into())
+            .spawn(move || {
+                keep_off(loop_cpu);
+                // Drives the server's tasks until shutdown.
+                let _ = rt.block_on(rx);
+            })
+            .map_err(|e| fail(e.to_string()))?;
+        let server = WebSocketServer::new()
+            .name(concat!("bench ", env!("CARGO_PKG_VERSION")))
+            .bind(addr.ip().to_string(), addr.port())
+            .message_backlog_size(MESSAGE_BACKLOG)
+            .tokio_runtime(&handle)
+            .start_blocking();
+        let mut live = Self {
+            handle: None,
+            addr,
+            shutdown: Some(tx),
+            thread: Some(thread),
+        };
+        let server = server.map_err(|e| fail(e.to_string()))?;
+        live.addr = SocketAddr::new(addr.ip(), server.port());
+        live.handle = Some(server);
+        SERVING.store(true, Ordering::Release);
+        Ok(live)
+    }
+
+    /// The address served (with the port the OS chose for port 0).
+    pub fn addr(&self) -> SocketAddr {
+        self.addr
+    }
+
+    /// The URL to open in Foxglove (*Open connection* → *Foxglove
+    /// WebSocket*).
+    pub fn url(&self) -> String {
+        let host = match self.addr.ip() {
+            IpAddr::V6(ip) => format!("[{ip}]"),
+            IpAddr::V4(ip) => ip.to_string(),
+        };
+        format!("ws://{host}:{}", self.addr.port())
+    }
+
+    /// Clients connected now.
+    pub fn clients(&self) -> usize {
+        self.handle.as_ref().map_or(0, |h| h.client_count())
+    }
+}
+
+impl Drop for LiveServer {
+    fn drop(&mut self) {
+        SERVING.store(false, Ordering::Release);
+        if let Some(h) = self.handle.take() {
+            // The server's tasks end on the runtime thread, still running.
+            drop(h.stop());
+        }
+        if let Some(tx) = self.shutdown.take() {
+            let _ = tx.send(());
+        }
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
+}
+
+/// Lowers the calling thread's priority (nice 10) and, on a machine with
+/// more than one CPU, keeps it off `cpu`. Best effort: a refusal leaves
+/// the thread as it was.
+fn keep_off(cpu: Option<usize>) {
+    // SAFETY: plain syscalls on the calling thread with valid arguments.
+    unsafe {
+        libc::setpriority(libc::PRIO_PROCESS, 0, 10);
+        let online = libc::sysconf(libc::_SC_NPROCESSORS_ONLN);
+        if let (Some(cpu), true) = (cpu, online > 1) {
+            let mut set: libc::cpu_set_t = std::mem::zeroed();
+            for c in (0..online as usize).filter(|c| *c != cpu) {
+                libc::CPU_SET(c, &mut set);
+            }
+            libc::sched_setaffinity(0, std::mem::size_of::<libc::cpu_set_t>(), &set);
+        }
+    }
+}
+
+/// One recorder channel's live twin.
+#[derive(Clone)]
+pub struct LiveChannel(Arc<RawChannel>);
+
+impl std::fmt::Debug for LiveChannel {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_tuple("LiveChannel").field(&self.0.topic()).finish()
+    }
+}
+
+impl LiveChannel {
+    /// The live twin of a recorder channel, `None` when no live view runs
+    /// (or the crate refuses the channel). A channel with the same topic,
+    /// encoding and schema as an earlier one (the next job of `bench
+    /// serve`) is that channel: clients stay subscribed across jobs.
+    pub fn new(
+        topic: &str,
+        message_encoding: &str,
+        schema_name: &str,
+        schema_encoding: &str,
+        schema_data: &[u8],
+    ) -> Option<Self> {
+        if !SERVING.load(Ordering::Acquire) {
+            return None;
+        }
+        ChannelBuilder::new(topic)
+            .message_encoding(message_encoding)
+            .schema(Schema::new(
+                schema_name,
+                schema_encoding,
+                schema_data.to_vec(),
+            ))
+            .build_raw()
+            .ok()
+            .map(Self)
+    }
+
+    /// Sends `data` (already encoded as the channel says) with `log_time`
+    /// (ns since the Unix epoch) to the subscribed clients. Never blocks: a
+    /// client whose queue is full loses its oldest messages.
+    pub fn log(&self, data: &[u8], log_time_ns: u64) {
+        self.0
+            .log_with_meta(data, PartialMetadata::with_log_time(log_time_ns));
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn addresses_are_ip_and_port_only() {
+        assert_eq!(
+            parse_addr(DEFAULT_ADDR).unwrap(),
+            "127.0.0.1:8765".parse().unwrap()
+        );
+        assert!(parse_addr("[::1]:9000").is_ok());
+        for bad in [
+            "",
+            "localhost:8765",
+            "127.0.0.1",
+            "127.0.0.1:",
+            "127.0.0.1:65536",
+            "127.0.0.1:-1",
+            "8765",
+            "ws://127.0.0.1:8765",
+            "256.0.0.1:80",
+        ] {
+            let e = parse_addr(bad).unwrap_err().to_string();
+            assert!(e.contains("--live") && e.contains("IP:PORT"), "{bad}: {e}");
+        }
+    }
+}

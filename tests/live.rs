@@ -1,0 +1,342 @@
+//! The live view (`--live`): real WebSocket clients (tokio-tungstenite,
+//! speaking the Foxglove protocol `foxglove.sdk.v1` as the Foxglove app
+//! does) connect to a running real-time chirp, subscribe to the samples
+//! and receive them with increasing timestamps; a client that subscribes
+//! and then never reads does not hold the run up; bad `--live` values exit
+//! 2 naming the flag.
+
+mod common;
+
+use common::*;
+use futures_util::{SinkExt, StreamExt};
+use serde_json::{json, Value};
+use std::io::{BufRead, BufReader};
+use std::process::Stdio;
+use std::time::Duration;
+use tokio_tungstenite::tungstenite::client::IntoClientRequest;
+use tokio_tungstenite::tungstenite::Message;
+
+/// One received `MessageData` frame: subscription id, log time (ns), payload.
+type Frame = (u32, u64, Vec<u8>);
+
+/// Connects to `url`, subscribes to `topics` (subscription id = index + 1)
+/// once they are advertised, and collects MessageData frames until `until`
+/// says enough or `timeout` passes.
+async fn subscribe(
+    url: &str,
+    topics: &[&str],
+    until: impl Fn(&[Frame]) -> bool,
+    timeout: Duration,
+) -> (Vec<Value>, Vec<Frame>) {
+    let mut req = url.into_client_request().unwrap();
+    req.headers_mut()
+        .insert("Sec-WebSocket-Protocol", "foxglove.sdk.v1".parse().unwrap());
+    let (mut ws, resp) = tokio_tungstenite::connect_async(req).await.unwrap();
+    assert_eq!(resp.headers()["sec-websocket-protocol"], "foxglove.sdk.v1");
+    let mut advertised: Vec<Value> = Vec::new();
+    let mut subscribed = vec![false; topics.len()];
+    let mut frames = Vec::new();
+    let deadline = tokio::time::Instant::now() + timeout;
+    while !until(&frames) {
+        let msg = match tokio::time::timeout_at(deadline, ws.next()).await {
+            Ok(Some(Ok(m))) => m,
+            _ => break,
+        };
+        match msg {
+            Message::Text(t) => {
+                let v: Value = serde_json::from_str(&t).unwrap();
+                if v["op"] == "advertise" {
+                    for ch in v["channels"].as_array().unwrap() {
+                        advertised.push(ch.clone());
+                        let topic = ch["topic"].as_str().unwrap();
+                        if let Some(i) = topics.iter().position(|t| *t == topic) {
+                            if !subscribed[i] {
+                                subscribed[i] = true;
+                                let sub = json!({"op": "subscribe", "subscriptions": [
+                                    {"id": i + 1, "channelId": ch["id"]}
+                                ]});
+                                ws.send(Message::Text(sub.to_string().into()))
+                                    .await
+                                    .unwrap();
+                            }
+                        }
+                    }
+                }
+            }
+            // Opcode 1: MessageData.
+            Message::Binary(b) if b[0] == 1 => {
+                let sub = u32::from_le_bytes(b[1..5].try_into().unwrap());
+                let t = u64::from_le_bytes(b[5..13].try_into().unwrap());
+                frames.push((sub, t, b[13..].to_vec()));
+            }
+            _ => {}
+        }
+    }
+    (advertised, frames)
+}
+
+/// A client that subscribes to `topic` and then reads nothing more.
+async fn stall(
+    url: &str,
+    topic: &str,
+) -> tokio_tungstenite::WebSocketStream<tokio_tungstenite::MaybeTlsStream<tokio::net::TcpStream>> {
+    let mut req = url.into_client_request().unwrap();
+    req.headers_mut()
+        .insert("Sec-WebSocket-Protocol", "foxglove.sdk.v1".parse().unwrap());
+    let (mut ws, _) = tokio_tungstenite::connect_async(req).await.unwrap();
+    loop {
+        if let Some(Ok(Message::Text(t))) = ws.next().await {
+            let v: Value = serde_json::from_str(&t).unwrap();
+            if v["op"] != "advertise" {
+                continue;
+            }
+            if let Some(ch) = v["channels"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .find(|c| c["topic"] == topic)
+            {
+                let sub =
+                    json!({"op": "subscribe", "subscriptions": [{"id": 9, "channelId": ch["id"]}]});
+                ws.send(Message::Text(sub.to_string().into()))
+                    .await
+                    .unwrap();
+                return ws;
+            }
+        }
+    }
+}
+
+#[test]
+fn live_clients_receive_the_samples_of_a_running_chirp() {
+    let _g = one_at_a_time();
+    let dir = tmp();
+    let cfg = quiet_config(dir.path(), 0.5, "");
+    let rec = dir.path().join("run.mcap");
+    let mut child = bench()
+        .args([
+            "chirp",
+            "--realtime",
+            "--json",
+            "--duration-s",
+            "4",
+            "--f-start-hz",
+            "20",
+        ])
+        .args(["--live", "127.0.0.1:0", "--config"])
+        .arg(&cfg)
+        .arg("--out")
+        .arg(&rec)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    // The URL, from stderr.
+    let mut err = BufReader::new(child.stderr.take().unwrap());
+    let mut line = String::new();
+    let url = loop {
+        line.clear();
+        assert!(err.read_line(&mut line).unwrap() > 0, "no live view line");
+        if let Some(rest) = line.strip_prefix("live view on ") {
+            break rest.split_whitespace().next().unwrap().to_string();
+        }
+    };
+    assert!(url.starts_with("ws://127.0.0.1:"), "{url}");
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .unwrap();
+    let enough = |f: &[Frame]| {
+        f.iter().filter(|x| x.0 == 1).count() >= 10 && f.iter().filter(|x| x.0 == 2).count() >= 100
+    };
+    let topics = ["/bench/sample", "/bench/envelope"];
+    let ((adv_a, frames_a), (_, frames_b)) = rt.block_on(async {
+        let _stalled = stall(&url, "/bench/sample").await;
+        tokio::join!(
+            subscribe(&url, &topics, enough, Duration::from_secs(20)),
+            subscribe(&url, &topics, enough, Duration::from_secs(20)),
+        )
+    });
+    // Every recorded channel is advertised, with the recording's encodings.
+    let adv = |topic: &str| adv_a.iter().find(|c| c["topic"] == topic).cloned();
+    for (topic, encoding, schema) in [
+        ("/bench/sample", "protobuf", "bench.SampleBlock"),
+        ("/bench/envelope", "protobuf", "bench.Envelope"),
+        ("/bench/event", "json", "bench.Event"),
+        ("/bench/log", "json", "foxglove.Log"),
+        ("/bench/timing", "json", "bench.Timing"),
+    ] {
+        let ch = adv(topic).unwrap_or_else(|| panic!("{topic} not advertised: {adv_a:?}"));
+        assert_eq!(ch["encoding"], encoding, "{topic}");
+        assert_eq!(ch["schemaName"], schema, "{topic}");
+    }
+    for frames in [&frames_a, &frames_b] {
+        assert!(enough(frames), "too few messages: {}", frames.len());
+        // The samples: consecutive ticks, increasing timestamps.
+        let mut last_tick = None;
+        let mut last_time = 0;
+        for (_, t, data) in frames.iter().filter(|f| f.0 == 1) {
+            assert!(*t > last_time, "timestamps must increase");
+            last_time = *t;
+            let block = bench::record::proto::decode_block(data).unwrap();
+            for s in block {
+                if let Some(k) = last_tick {
+                    assert_eq!(s.tick, k + 1, "ticks in order, none lost");
+                }
+                last_tick = Some(s.tick);
+            }
+        }
+        // The envelope: increasing timestamps, 25 ticks per 5 ms at 5 kHz.
+        let env: Vec<&Frame> = frames.iter().filter(|f| f.0 == 2).collect();
+        assert!(env.windows(2).all(|w| w[1].1 > w[0].1));
+        for (_, _, data) in &env[1..env.len() - 1] {
+            let e = <bench::record::proto::Envelope as prost::Message>::decode(&data[..]).unwrap();
+            assert_eq!(e.ticks, 25);
+            assert!(e.position_min_m <= e.position_max_m);
+        }
+    }
+    // Log times are Unix time: within a minute of now.
+    let now_ns = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .unwrap()
+        .as_nanos() as u64;
+    let t = frames_a[0].1;
+    assert!(t < now_ns && now_ns - t < 60_000_000_000, "{t} vs {now_ns}");
+    // The run ends by itself, complete: the stalled client held nothing up.
+    let out = child.wait_with_output().unwrap();
+    let mut rest = String::new();
+    std::io::Read::read_to_string(&mut err, &mut rest).unwrap();
+    assert!(out.status.success(), "{rest}");
+    let summary: Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(summary["timing"]["dropped_records"], 0, "{summary}");
+    assert!(rec.exists());
+    let samples = bench::record::read_samples_tolerant(&std::fs::read(&rec).unwrap());
+    assert_eq!(
+        samples.len() as u64,
+        summary["timing"]["ticks"].as_u64().unwrap()
+    );
+}
+
+#[test]
+fn bad_live_addresses_exit_2_naming_the_flag() {
+    for bad in [
+        "localhost:8765",
+        "8765",
+        "127.0.0.1",
+        "ws://127.0.0.1:1",
+        "1.2.3.4.5:6",
+        "[::1]",
+    ] {
+        for cmd in ["chirp", "control"] {
+            let o = run(&[cmd, "--live", bad, "--duration-s", "1"]);
+            assert_eq!(o.status.code(), Some(2), "{cmd} --live {bad}");
+            let e = String::from_utf8_lossy(&o.stderr);
+            assert!(e.contains("--live") && e.contains("IP:PORT"), "{e}");
+        }
+    }
+    // A port already taken: exit 2 naming --live and the address.
+    let taken = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let addr = taken.local_addr().unwrap().to_string();
+    let o = run(&["chirp", "--live", &addr, "--duration-s", "1"]);
+    assert_eq!(o.status.code(), Some(2));
+    let e = String::from_utf8_lossy(&o.stderr);
+    assert!(e.contains("--live") && e.contains(&addr), "{e}");
+    // With --daemon the daemon's own live view applies.
+    let o = run(&["chirp", "--daemon", "/nonexistent.sock", "--live"]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("--live"));
+}
+
+/// The cost of watching: real-time chirps of 10 s (loop pinned to the last
+/// CPU) alternately without a live view and with `--live` and two
+/// subscribed clients reading everything, three of each; prints each run's overruns and p99 wake-up
+/// latency and the ratio of the medians (README, *Live view*). A
+/// measurement, not a test: `cargo test --release --test live -- --ignored
+/// --nocapture`.
+#[test]
+#[ignore]
+fn measure_two_clients_against_none() {
+    let _g = one_at_a_time();
+    let dir = tmp();
+    // The loop pinned to the last CPU, as a real-time setup would.
+    let last = std::thread::available_parallelism().map_or(1, |n| n.get()) - 1;
+    let cfg = quiet_config_edited(dir.path(), 0.5, "", |t| {
+        t.replace("[loop]\n", &format!("[loop]\ncpu = {last}\n"))
+    });
+    let rt = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(1)
+        .enable_all()
+        .build()
+        .unwrap();
+    let mut p99 = [Vec::new(), Vec::new()];
+    for round in 0..6 {
+        let watched = round % 2 == 1;
+        let rec = dir.path().join(format!("run{round}.mcap"));
+        let mut cmd = bench();
+        cmd.args(["chirp", "--realtime", "--json", "--duration-s", "10"])
+            .arg("--config")
+            .arg(&cfg)
+            .arg("--out")
+            .arg(&rec)
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped());
+        if watched {
+            cmd.args(["--live", "127.0.0.1:0"]);
+        }
+        let mut child = cmd.spawn().unwrap();
+        let mut err = BufReader::new(child.stderr.take().unwrap());
+        let clients = watched.then(|| {
+            let mut line = String::new();
+            let url = loop {
+                line.clear();
+                assert!(err.read_line(&mut line).unwrap() > 0);
+                if let Some(rest) = line.strip_prefix("live view on ") {
+                    break rest.split_whitespace().next().unwrap().to_string();
+                }
+            };
+            let topics = ["/bench/sample", "/bench/envelope", "/bench/timing"];
+            (0..2)
+                .map(|_| {
+                    let url = url.clone();
+                    rt.spawn(async move {
+                        subscribe(&url, &topics, |_| false, Duration::from_secs(30))
+                            .await
+                            .1
+                            .len()
+                    })
+                })
+                .collect::<Vec<_>>()
+        });
+        let out = child.wait_with_output().unwrap();
+        let mut rest = String::new();
+        std::io::Read::read_to_string(&mut err, &mut rest).unwrap();
+        assert!(out.status.success(), "{rest}");
+        let s: Value = serde_json::from_slice(&out.stdout).unwrap();
+        let received: Vec<usize> = clients
+            .into_iter()
+            .flatten()
+            .map(|h| rt.block_on(h).unwrap())
+            .collect();
+        let t = &s["timing"];
+        eprintln!(
+            "{}: overruns {}, p99 wake-up {} us, messages received by the clients {received:?}",
+            if watched {
+                "two clients"
+            } else {
+                "no live view"
+            },
+            t["overruns"],
+            t["wake_latency_p99_us"]
+        );
+        p99[usize::from(watched)].push(t["wake_latency_p99_us"].as_f64().unwrap());
+    }
+    let median = |v: &mut Vec<f64>| {
+        v.sort_by(f64::total_cmp);
+        v[v.len() / 2]
+    };
+    let (a, b) = (median(&mut p99[0]), median(&mut p99[1]));
+    eprintln!(
+        "median p99 wake-up: none {a} us, two clients {b} us, ratio {:.2}",
+        b / a
+    );
+}
