@@ -31,6 +31,17 @@ fn short_chirp(dir: &Path) -> String {
     rec
 }
 
+/// `bench export REC --to csv --out CSV` (must succeed); the CSV's text.
+fn export_csv(rec: &str, csv: &str) -> String {
+    let out = run(&["export", rec, "--to", "csv", "--out", csv]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    std::fs::read_to_string(csv).unwrap()
+}
+
 fn f64_of(s: &str) -> f64 {
     if s == "NaN" {
         f64::NAN
@@ -50,14 +61,7 @@ fn samples_export_to_csv_and_parquet_equal_the_recording() {
     let samples = read_samples_tolerant(&std::fs::read(&rec).unwrap());
     assert!(samples.len() > 5000);
 
-    let csv = path_in(dir.path(), "s.csv");
-    let out = run(&["export", &rec, "--to", "csv", "--out", &csv]);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let text = std::fs::read_to_string(&csv).unwrap();
+    let text = export_csv(&rec, &path_in(dir.path(), "s.csv"));
     let mut lines = text.lines();
     assert_eq!(
         lines.next().unwrap(),
@@ -209,21 +213,7 @@ fn recordings_made_before_the_blocks_still_read_and_export() {
         assert!(same(s.current_command_a, num(&v["current_command_a"])));
     }
     let dir = tmp();
-    let csv = path_in(dir.path(), "legacy.csv");
-    let out = run(&[
-        "export",
-        legacy.to_str().unwrap(),
-        "--to",
-        "csv",
-        "--out",
-        &csv,
-    ]);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let text = std::fs::read_to_string(&csv).unwrap();
+    let text = export_csv(legacy.to_str().unwrap(), &path_in(dir.path(), "legacy.csv"));
     let mut lines = text.lines();
     let header: Vec<&str> = lines.next().unwrap().split(',').collect();
     let col = |name: &str| header.iter().position(|h| *h == name).unwrap();

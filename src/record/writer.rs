@@ -363,26 +363,8 @@ impl Recorder {
         schema_name: &str,
     ) -> Result<Channel<T>, RecordError> {
         let schema_data = serde_json::to_vec_pretty(&schema_of::<T>())?;
-        let w = self.writer();
-        let ids = w
-            .add_schema(schema_name, "jsonschema", &schema_data)
-            .and_then(|sid| w.add_channel(sid, topic, "json", &BTreeMap::new()));
-        let id = ids.map_err(|e| self.mcap_err(e))?;
-        if let Some(i) = self.channels.iter().position(|c| c.id == id) {
-            return Ok(Channel::new(i));
-        }
-        self.channels.push(ChannelState {
-            id,
-            next_sequence: 0,
-        });
-        self.live.push(crate::live::LiveChannel::new(
-            topic,
-            "json",
-            schema_name,
-            "jsonschema",
-            &schema_data,
-        ));
-        Ok(Channel::new(self.channels.len() - 1))
+        self.register(topic, "json", schema_name, "jsonschema", &schema_data)
+            .map(Channel::new)
     }
 
     /// Registers a protobuf channel on `topic` whose schema is the message
@@ -394,21 +376,38 @@ impl Recorder {
         schema_name: &str,
         descriptor: &[u8],
     ) -> Result<usize, RecordError> {
+        self.register(topic, "protobuf", schema_name, "protobuf", descriptor)
+    }
+
+    /// Adds the schema and the channel to the MCAP and, when a live view
+    /// runs, the channel's live twin; returns the channel's index. The same
+    /// topic, encoding and schema registered again return the same index.
+    fn register(
+        &mut self,
+        topic: &str,
+        message_encoding: &str,
+        schema_name: &str,
+        schema_encoding: &str,
+        schema_data: &[u8],
+    ) -> Result<usize, RecordError> {
         let w = self.writer();
         let ids = w
-            .add_schema(schema_name, "protobuf", descriptor)
-            .and_then(|sid| w.add_channel(sid, topic, "protobuf", &BTreeMap::new()));
+            .add_schema(schema_name, schema_encoding, schema_data)
+            .and_then(|sid| w.add_channel(sid, topic, message_encoding, &BTreeMap::new()));
         let id = ids.map_err(|e| self.mcap_err(e))?;
+        if let Some(i) = self.channels.iter().position(|c| c.id == id) {
+            return Ok(i);
+        }
         self.channels.push(ChannelState {
             id,
             next_sequence: 0,
         });
         self.live.push(crate::live::LiveChannel::new(
             topic,
-            "protobuf",
+            message_encoding,
             schema_name,
-            "protobuf",
-            descriptor,
+            schema_encoding,
+            schema_data,
         ));
         Ok(self.channels.len() - 1)
     }
