@@ -75,6 +75,8 @@ pub const MAX_DAMPING: f64 = 0.2;
 pub const MIN_SIGNIFICANCE: f64 = 3.0;
 /// At most this many modes are fitted.
 pub const MAX_MODES: usize = 10;
+/// Adjacent fitted modes closer than this frequency ratio are one mode.
+pub const MIN_SEPARATION: f64 = 1.003;
 /// A peak of |H| this much above the lower of its flanking minima within
 /// ±5 % (1 dB) starts as a mode.
 pub const PEAK_PROMINENCE: f64 = 1.122;
@@ -144,15 +146,21 @@ pub struct FittedMode {
     pub label: String,
     /// Undamped natural frequency, Hz.
     pub frequency_hz: f64,
-    /// 1σ of the natural frequency, Hz.
+    /// 1σ of the natural frequency, Hz (`null` in JSON: not determined).
+    #[serde(with = "sigma")]
+    #[schemars(with = "Option<f64>")]
     pub frequency_sigma_hz: f64,
     /// Modal damping ratio.
     pub damping_ratio: f64,
-    /// 1σ of the damping ratio.
+    /// 1σ of the damping ratio (`null` in JSON: not determined).
+    #[serde(with = "sigma")]
+    #[schemars(with = "Option<f64>")]
     pub damping_ratio_sigma: f64,
     /// Modal constant `Aᵢ`, m/(A·s²) (force constant × residue αᵢ), signed.
     pub modal_constant: f64,
-    /// 1σ of the modal constant, m/(A·s²).
+    /// 1σ of the modal constant, m/(A·s²) (`null` in JSON: not determined).
+    #[serde(with = "sigma")]
+    #[schemars(with = "Option<f64>")]
     pub modal_constant_sigma: f64,
     /// Sign of the modal constant: +1 or −1.
     pub sign: i8,
@@ -160,6 +168,24 @@ pub struct FittedMode {
     /// it: `|Aᵢ|` at least `RESIDUE_RATIO` (1e-4) of the largest. Modes
     /// outside it are listed but left out of the sequence and the zeros.
     pub in_path: bool,
+}
+
+/// A 1σ in JSON: a number, or `null` when the data do not determine the
+/// parameter (a singular `JᵀJ`; held as `f64::INFINITY`).
+mod sigma {
+    use serde::{Deserialize, Deserializer, Serializer};
+
+    pub fn serialize<S: Serializer>(v: &f64, s: S) -> Result<S::Ok, S::Error> {
+        if v.is_finite() {
+            s.serialize_f64(*v)
+        } else {
+            s.serialize_none()
+        }
+    }
+
+    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
+        Ok(Option::<f64>::deserialize(d)?.unwrap_or(f64::INFINITY))
+    }
 }
 
 /// A zero of the fitted modal model.
@@ -182,14 +208,20 @@ pub struct ModalFit {
     /// Lower residual `L` (term `L/s²`), m/(A·s²), and its 1σ.
     pub lower_residual: f64,
     /// 1σ of `lower_residual`.
+    #[serde(with = "sigma")]
+    #[schemars(with = "Option<f64>")]
     pub lower_residual_sigma: f64,
     /// Upper residual `U` (static compliance of modes above the band), m/A.
     pub upper_residual_m_per_a: f64,
     /// 1σ of `upper_residual_m_per_a`.
+    #[serde(with = "sigma")]
+    #[schemars(with = "Option<f64>")]
     pub upper_residual_sigma_m_per_a: f64,
     /// Fitted delay τ of the path (hold, amplifier transport, latency), s.
     pub delay_s: f64,
     /// 1σ of the delay, s.
+    #[serde(with = "sigma")]
+    #[schemars(with = "Option<f64>")]
     pub delay_sigma_s: f64,
     /// RMS relative error `|Ĥ − H| / |H|` over the points with
     /// γ² ≥ [`MIN_COHERENCE`].
@@ -544,7 +576,16 @@ fn sigmas(prep: &Prepared, p: &Params, period_s: f64) -> Vec<f64> {
                 .unwrap_or(unknown),
         }
     };
-    let sd = |i: usize| (s2 * cov[(i, i)]).max(0.0).sqrt();
+    // A variance that is not positive comes from a (near-)singular JᵀJ:
+    // the parameter is not determined by the data, its 1σ unknown (never 0).
+    let sd = |i: usize| {
+        let v = s2 * cov[(i, i)];
+        if v > 0.0 && v.is_finite() {
+            v.sqrt()
+        } else {
+            f64::INFINITY
+        }
+    };
     let mut out = Vec::with_capacity(3 * n + 3);
     for i in 0..n {
         out.push(sd(i) * p.f_hz[i]);
@@ -725,13 +766,21 @@ fn acceptable(prep: &Prepared, freq_hz: &[f64], p: &Params) -> bool {
         p.zeta[i] < MAX_DAMPING
             && p.f_hz[i] >= lo
             && p.f_hz[i] <= hi
-            && (i == 0 || p.f_hz[i] / p.f_hz[i - 1] > 1.003)
+            && (i == 0 || p.f_hz[i] / p.f_hz[i - 1] > MIN_SEPARATION)
     })
+}
+
+/// The first adjacent pair of modes of `p` closer than [`MIN_SEPARATION`]:
+/// the index of the one with the smaller modal constant.
+fn coincident(p: &Params) -> Option<usize> {
+    let i = (1..p.f_hz.len()).find(|&i| p.f_hz[i] / p.f_hz[i - 1] <= MIN_SEPARATION)?;
+    Some(if p.a[i].abs() < p.a[i - 1].abs() { i } else { i - 1 })
 }
 
 /// Removes, one at a time, the mode whose modal constant is least
 /// significant while it is below [`MIN_SIGNIFICANCE`] standard deviations,
-/// refitting after each removal.
+/// refitting after each removal; two modes a refit pulls within
+/// [`MIN_SEPARATION`] are merged (the weaker dropped, refitted).
 fn prune(prep: &Prepared, mut p: Params, period_s: f64) -> Params {
     loop {
         let n = p.f_hz.len();
@@ -753,7 +802,20 @@ fn prune(prep: &Prepared, mut p: Params, period_s: f64) -> Params {
         let Some(start) = with_linear(prep, f, zeta, p.tau_s) else {
             return p;
         };
-        p = refine(prep, &start, period_s);
+        p = sorted(refine(prep, &start, period_s));
+        // Two modes the refit pulls together are one: the weaker goes (a
+        // split mode's halves carry large opposite constants whose 1σ the
+        // singular JᵀJ cannot give).
+        while let Some(weaker) = coincident(&p) {
+            let mut f = p.f_hz.clone();
+            let mut zeta = p.zeta.clone();
+            f.remove(weaker);
+            zeta.remove(weaker);
+            let Some(start) = with_linear(prep, f, zeta, p.tau_s) else {
+                return p;
+            };
+            p = sorted(refine(prep, &start, period_s));
+        }
     }
 }
 
@@ -797,7 +859,7 @@ pub fn fit(data: &FrfData, path: &Path) -> Result<ModalFit, FitError> {
             .map(|t| (t.f_hz, t.zeta))
             .collect();
     start.sort_by(|a, b| a.0.total_cmp(&b.0));
-    start.dedup_by(|b, a| b.0 / a.0 <= 1.003);
+    start.dedup_by(|b, a| b.0 / a.0 <= MIN_SEPARATION);
     if let Some(s0) = with_linear(
         &prep,
         start.iter().map(|x| x.0).collect(),
