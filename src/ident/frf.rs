@@ -6,8 +6,11 @@
 //! # Method
 //! 1. The whole record (lead-in, sweep, ring-down tail) of input `u[n]` (A)
 //!    and output `y[n]` (m, probe offset removed) is zero-padded to a fast
-//!    length `N` and transformed once with a real FFT (`realfft`):
-//!    `U[k]`, `Y[k]`, bin spacing `Δf = f_s / N`. Because the excitation
+//!    length `N` and transformed once: both channels packed as one complex
+//!    signal `u + i·y` and transformed in the record's own memory by a
+//!    four-step FFT ([`crate::ident::fft`], `rustfft` for the short
+//!    transforms), giving `U[k]`, `Y[k]` up to the band's top, bin spacing
+//!    `Δf = f_s / N`. Because the excitation
 //!    starts and ends at rest, the record holds the complete response and the
 //!    full-record transform needs no time window.
 //! 2. At each grid frequency `f` the cross- and auto-spectra are averaged
@@ -27,8 +30,8 @@
 //! start to its end frequency, so resolution and density both scale with `f`.
 
 use crate::config::IdentificationConfig;
+use crate::ident::fft::PackedSpectrum;
 use nalgebra::Complex;
-use realfft::RealFftPlanner;
 use serde::{Deserialize, Serialize};
 use std::f64::consts::PI;
 use std::io::Write;
@@ -37,11 +40,11 @@ use std::path::Path;
 /// Complex number type used for spectra.
 pub type C64 = Complex<f64>;
 
-/// The spectra of one record, ready to be averaged at any frequency.
+/// The spectra of one record, ready to be averaged at any frequency up to
+/// the one it was made for.
 #[derive(Debug, Clone)]
 pub struct Spectra {
-    u: Vec<C64>,
-    y: Vec<C64>,
+    spectrum: PackedSpectrum,
     bin_hz: f64,
     relative_resolution: f64,
     min_bins: usize,
@@ -56,8 +59,9 @@ pub struct Estimate {
     pub coherence: f64,
 }
 
-/// Smallest `n ≥ len` of the form 2^a 3^b 5^c (fast FFT sizes).
-fn fast_len(len: usize) -> usize {
+/// Smallest `n ≥ len` of the form 2^a 3^b 5^c (fast FFT sizes; the record
+/// is zero-padded to it, so a record reserves this many ticks).
+pub fn fast_len(len: usize) -> usize {
     let mut n = len.max(2);
     loop {
         let mut m = n;
@@ -74,7 +78,8 @@ fn fast_len(len: usize) -> usize {
 }
 
 impl Spectra {
-    /// Transforms the record. `u` (A) and `y` (m) are sampled at `rate_hz`.
+    /// Transforms the record, keeping every bin up to Nyquist. `u` (A) and
+    /// `y` (m) are sampled at `rate_hz`.
     ///
     /// # Panics
     /// If `u` and `y` differ in length.
@@ -84,26 +89,43 @@ impl Spectra {
             y.len(),
             "input and output records differ in length"
         );
-        let n = fast_len(u.len());
-        let mut planner = RealFftPlanner::<f64>::new();
-        let fft = planner.plan_fft_forward(n);
-        let transform = |x: &[f64]| {
-            let mut buf = fft.make_input_vec();
-            buf[..x.len()].copy_from_slice(x);
-            let mut out = fft.make_output_vec();
-            fft.process(&mut buf, &mut out)
-                .expect("buffer sizes come from the plan");
-            out.into_iter()
-                .map(|c| C64::new(c.re, c.im))
-                .collect::<Vec<_>>()
+        let mut record = Vec::with_capacity(fast_len(u.len()));
+        record.extend(u.iter().zip(y).map(|(a, b)| C64::new(*a, *b)));
+        Self::from_record(record, rate_hz, cfg, f64::INFINITY)
+    }
+
+    /// Transforms a packed record `u[n] + i·y[n]` (A, m; sampled at
+    /// `rate_hz`) in its own memory ([`crate::ident::fft`]): zero-padded to
+    /// [`fast_len`] (within the reserved capacity if the caller reserved
+    /// it), and only the bins that estimates up to `f_max_hz` read are kept.
+    /// Peak memory: the record's 16 bytes a tick plus `O(√N)`.
+    pub fn from_record(
+        mut record: Vec<C64>,
+        rate_hz: f64,
+        cfg: &IdentificationConfig,
+        f_max_hz: f64,
+    ) -> Self {
+        let n = fast_len(record.len());
+        record.resize(n, C64::new(0.0, 0.0));
+        let bin_hz = rate_hz / n as f64;
+        let half_width_hz =
+            (0.5 * cfg.relative_resolution * f_max_hz).max(0.5 * cfg.min_bins as f64 * bin_hz);
+        let k_max = if f_max_hz.is_finite() {
+            ((f_max_hz + half_width_hz) / bin_hz).ceil() as usize + 1
+        } else {
+            n / 2
         };
         Self {
-            u: transform(u),
-            y: transform(y),
-            bin_hz: rate_hz / n as f64,
+            spectrum: PackedSpectrum::transform(record, k_max),
+            bin_hz,
             relative_resolution: cfg.relative_resolution,
             min_bins: cfg.min_bins,
         }
+    }
+
+    /// Bytes the spectra hold.
+    pub fn heap_bytes(&self) -> usize {
+        self.spectrum.heap_bytes()
     }
 
     /// DFT bin spacing, Hz.
@@ -128,13 +150,21 @@ impl Spectra {
         let lo = ((frequency_hz - half_width_hz) / self.bin_hz)
             .ceil()
             .max(0.0) as usize;
-        let hi =
-            (((frequency_hz + half_width_hz) / self.bin_hz).floor() as usize).min(self.u.len() - 1);
+        let top = ((frequency_hz + half_width_hz) / self.bin_hz).floor() as usize;
+        let nyquist = self.spectrum.len() / 2;
+        if top > self.spectrum.k_max() && self.spectrum.k_max() < nyquist {
+            // Above the band the spectra were kept for.
+            return Estimate {
+                response: C64::new(f64::NAN, f64::NAN),
+                coherence: 0.0,
+            };
+        }
+        let hi = top.min(self.spectrum.k_max());
         let (mut suu, mut syy, mut syu) = (0.0, 0.0, C64::new(0.0, 0.0));
         for k in lo..=hi {
             let d = (k as f64 * self.bin_hz - frequency_hz) / half_width_hz;
             let w = (0.5 * PI * d).cos().powi(2);
-            let (u, y) = (self.u[k], self.y[k]);
+            let (u, y) = self.spectrum.bin(k);
             suu += w * u.norm_sqr();
             syy += w * y.norm_sqr();
             syu += y * u.conj() * w;

@@ -5,6 +5,7 @@
 //! loop, the recorder or the daemon.
 
 pub mod excitation;
+pub mod fft;
 pub mod frf;
 pub mod modal_fit;
 pub mod update;

@@ -333,15 +333,27 @@ fn run_chirp_with(
         ..
     } = run;
 
-    // Identification.
-    let lead = (chirp.lead_in_ticks() as usize).min(data.position_m.len());
+    // Identification, in the record's own memory: the probe offset (the
+    // lead-in's mean) comes off the position in place, and the FFT runs in
+    // the packed record (16 bytes a tick at the peak).
+    let mut record = data.frf_record;
+    let lead = (chirp.lead_in_ticks() as usize).min(record.len());
     let offset = if lead > 0 {
-        data.position_m[..lead].iter().sum::<f64>() / lead as f64
+        record[..lead].iter().map(|z| z.im).sum::<f64>() / lead as f64
     } else {
         0.0
     };
-    let y: Vec<f64> = data.position_m.iter().map(|v| v - offset).collect();
-    let spectra = Spectra::new(&data.excitation_a, &y, rate_hz, &cfg.identification);
+    let mut peak_position_m = 0.0_f64;
+    for z in &mut record {
+        z.im -= offset;
+        peak_position_m = peak_position_m.max(z.im.abs());
+    }
+    let spectra = Spectra::from_record(
+        record,
+        rate_hz,
+        &cfg.identification,
+        cfg.chirp.f_end_hz,
+    );
     let frf = Frf::estimate(
         &spectra,
         cfg.chirp.f_start_hz,
@@ -442,7 +454,7 @@ fn run_chirp_with(
         operating_point_fraction_of_l: cfg.plant.operating_point_m / cfg.plant.beam.length_m,
         mass_asymmetry: cfg.plant.mass_asymmetry,
         cmp_cnmp: identified.verdict.cmp_cnmp,
-        peak_position_m: y.iter().fold(0.0, |m: f64, v| m.max(v.abs())),
+        peak_position_m,
         resonances,
         closely_spaced_pair: pair,
         fit: identified.fit,

@@ -5,6 +5,7 @@
 use crate::config::BenchConfig;
 use crate::error::RunError;
 use crate::outputs::OutputPlan;
+use crate::ident::frf::C64;
 use crate::record::topics::{FaultKind, Record};
 use crate::record::{spawn_writer, Recorder, DEFAULT_CHUNK_INTERVAL};
 use crate::rt::backend::{AnyStage, LinkCounters};
@@ -148,6 +149,10 @@ pub struct Collected {
     pub setpoint_m: Vec<f64>,
     /// Command after the supervisor, A.
     pub current_command_a: Vec<f64>,
+    /// The FRF record, packed: excitation (A) + i · probe reading (m), 16
+    /// bytes a tick, with room reserved for the FFT's zero padding
+    /// ([`crate::ident::frf::Spectra::from_record`] transforms it in place).
+    pub frf_record: Vec<C64>,
 }
 
 /// Which columns of [`Collected`] a job keeps; the others stay empty.
@@ -163,16 +168,20 @@ pub struct Kept {
     pub setpoint_m: bool,
     /// [`Collected::current_command_a`]
     pub current_command_a: bool,
+    /// [`Collected::frf_record`]
+    pub frf_record: bool,
 }
 
 impl Kept {
-    /// A chirp's FRF estimate: excitation and position (16 bytes a tick).
+    /// A chirp's FRF estimate: excitation and position, packed (16 bytes a
+    /// tick, and the FFT runs in them).
     pub const CHIRP: Self = Self {
         t_s: false,
-        excitation_a: true,
-        position_m: true,
+        excitation_a: false,
+        position_m: false,
         setpoint_m: false,
         current_command_a: false,
+        frf_record: true,
     };
     /// A closed-loop step's metrics and plot: no excitation (32 bytes a
     /// tick).
@@ -182,6 +191,7 @@ impl Kept {
         position_m: true,
         setpoint_m: true,
         current_command_a: true,
+        frf_record: false,
     };
 }
 
@@ -371,6 +381,11 @@ pub fn run_recorded<J: Job + Send + 'static>(
         position_m: reserve(keep.position_m),
         setpoint_m: reserve(keep.setpoint_m),
         current_command_a: reserve(keep.current_command_a),
+        frf_record: Vec::with_capacity(if keep.frf_record {
+            crate::ident::frf::fast_len(n)
+        } else {
+            0
+        }),
     }));
     let sink = Arc::clone(&collected);
     let writer_done = Arc::new(AtomicBool::new(false));
@@ -401,6 +416,9 @@ pub fn run_recorded<J: Job + Send + 'static>(
                     keep.current_command_a,
                     s.current_command_a,
                 );
+                if keep.frf_record {
+                    c.frf_record.push(C64::new(s.excitation_a, s.position_m));
+                }
             }
         },
     );
