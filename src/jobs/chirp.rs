@@ -332,6 +332,15 @@ fn run_chirp_with(
         link: run_link,
         ..
     } = run;
+    // The samples go to the disk while the FRF and the fit are computed: an
+    // fsync of the part file now (any descriptor of a file syncs it) leaves
+    // the one in `finish` only the tail, the summary and the index.
+    // Durability is unchanged: `finish` still syncs before the rename, and
+    // reports the errors.
+    let early_sync = {
+        let part = recorder.part_path().to_path_buf();
+        std::thread::spawn(move || std::fs::File::open(part).and_then(|f| f.sync_data()))
+    };
 
     // Identification, in the record's own memory: the probe offset (the
     // lead-in's mean) comes off the position in place, and the FFT runs in
@@ -360,21 +369,27 @@ fn run_chirp_with(
         cfg.chirp.f_end_hz,
         &cfg.identification,
     );
-    let identified = identify(&frf, period_s, cfg.actuator.bandwidth_hz);
+    let zoh = ZohPlant::new(&model, &cfg.actuator, period_s);
+    // The fit and the model's curve for the plot, side by side. The model
+    // is drawn on a grid at least as dense as MODEL_POINTS_PER_DECADE, so
+    // its lightly damped peaks keep their shape in the plot's pair zoom.
+    let (identified, (model_f, model_h)) = rayon::join(
+        || identify(&frf, period_s, cfg.actuator.bandwidth_hz),
+        || {
+            let f = crate::ident::frf::log_grid(
+                cfg.chirp.f_start_hz,
+                cfg.chirp.f_end_hz,
+                cfg.identification
+                    .points_per_decade
+                    .max(MODEL_POINTS_PER_DECADE),
+            );
+            let h: Vec<_> = f.iter().map(|&f| zoh.frf(f)).collect();
+            (f, h)
+        },
+    );
     let resonances = identified.resonances;
     let pair = identified.verdict.phase_test.pair;
 
-    let zoh = ZohPlant::new(&model, &cfg.actuator, period_s);
-    // The model on a grid at least as dense as MODEL_POINTS_PER_DECADE, so
-    // its lightly damped peaks keep their shape in the plot's pair zoom.
-    let model_f = crate::ident::frf::log_grid(
-        cfg.chirp.f_start_hz,
-        cfg.chirp.f_end_hz,
-        cfg.identification
-            .points_per_decade
-            .max(MODEL_POINTS_PER_DECADE),
-    );
-    let model_h: Vec<_> = model_f.iter().map(|&f| zoh.frf(f)).collect();
     let model_mag: Vec<f64> = model_h.iter().map(|h| h.norm()).collect();
     let mut model_phase: Vec<f64> = model_h.iter().map(|h| h.arg().to_degrees()).collect();
     crate::ident::frf::unwrap_deg(&mut model_phase);
@@ -465,6 +480,7 @@ fn run_chirp_with(
     };
     let ch = recorder.add_channel_for::<ChirpSummary>("/sysid/summary", "bench.ChirpSummary")?;
     recorder.write(ch, end_ns, &summary)?;
+    let _ = early_sync.join();
     finish(recorder)?;
     Ok(summary)
 }
