@@ -125,10 +125,18 @@ fn requests_errors_and_jobs_equal_to_local_runs() {
             (a[1] / b[1] - 1.0).abs()
         })
         .collect();
-    assert!(rel.len() > fr.len() / 2, "{} of {} points coherent", rel.len(), fr.len());
+    assert!(
+        rel.len() > fr.len() / 2,
+        "{} of {} points coherent",
+        rel.len(),
+        fr.len()
+    );
     rel.sort_by(f64::total_cmp);
     let (median, p95) = (rel[rel.len() / 2], rel[rel.len() * 95 / 100]);
-    assert!(median < 0.01 && p95 < 0.05, "|H| daemon/local − 1: median {median}, p95 {p95}");
+    assert!(
+        median < 0.01 && p95 < 0.05,
+        "|H| daemon/local − 1: median {median}, p95 {p95}"
+    );
     // Its recording is under recordings/, finished.
     let rec = Path::new(r["recording"].as_str().unwrap()).to_path_buf();
     assert!(

@@ -245,8 +245,7 @@ impl PackedSpectrum {
 
     /// Bytes held.
     pub fn heap_bytes(&self) -> usize {
-        self.z.capacity() * std::mem::size_of::<C64>()
-            + 3 * self.n1 * std::mem::size_of::<usize>()
+        self.z.capacity() * std::mem::size_of::<C64>() + 3 * self.n1 * std::mem::size_of::<usize>()
     }
 }
 
@@ -284,8 +283,14 @@ mod tests {
             for k in 0..=s.k_max() {
                 let (uk, yk) = s.bin(k);
                 let (ru, ry) = (dft(&u, k), dft(&y, k));
-                assert!((uk - ru).norm() < 1e-10 * (m as f64), "M {m} k {k}: {uk} vs {ru}");
-                assert!((yk - ry).norm() < 1e-13 * (m as f64), "M {m} k {k}: {yk} vs {ry}");
+                assert!(
+                    (uk - ru).norm() < 1e-10 * (m as f64),
+                    "M {m} k {k}: {uk} vs {ru}"
+                );
+                assert!(
+                    (yk - ry).norm() < 1e-13 * (m as f64),
+                    "M {m} k {k}: {yk} vs {ry}"
+                );
             }
         }
     }
@@ -296,7 +301,11 @@ mod tests {
         let z = vec![C64::new(1.0, 0.0); m];
         let s = PackedSpectrum::transform(z, m / 10);
         // Two spectra of M/10 bins each: a fifth of the record, plus rows.
-        assert!(s.heap_bytes() <= m * 16 / 5 + 16 * 700, "{}", s.heap_bytes());
+        assert!(
+            s.heap_bytes() <= m * 16 / 5 + 16 * 700,
+            "{}",
+            s.heap_bytes()
+        );
         // A constant: all of U in bin 0.
         assert!((s.bin(0).0.re - m as f64).abs() < 1e-9);
         assert!(s.bin(7).0.norm() < 1e-9);

@@ -774,7 +774,11 @@ fn acceptable(prep: &Prepared, freq_hz: &[f64], p: &Params) -> bool {
 /// the index of the one with the smaller modal constant.
 fn coincident(p: &Params) -> Option<usize> {
     let i = (1..p.f_hz.len()).find(|&i| p.f_hz[i] / p.f_hz[i - 1] <= MIN_SEPARATION)?;
-    Some(if p.a[i].abs() < p.a[i - 1].abs() { i } else { i - 1 })
+    Some(if p.a[i].abs() < p.a[i - 1].abs() {
+        i
+    } else {
+        i - 1
+    })
 }
 
 /// Removes, one at a time, the mode whose modal constant is least

@@ -357,12 +357,7 @@ fn run_chirp_with(
         z.im -= offset;
         peak_position_m = peak_position_m.max(z.im.abs());
     }
-    let spectra = Spectra::from_record(
-        record,
-        rate_hz,
-        &cfg.identification,
-        cfg.chirp.f_end_hz,
-    );
+    let spectra = Spectra::from_record(record, rate_hz, &cfg.identification, cfg.chirp.f_end_hz);
     let frf = Frf::estimate(
         &spectra,
         cfg.chirp.f_start_hz,

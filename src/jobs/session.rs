@@ -4,8 +4,8 @@
 
 use crate::config::BenchConfig;
 use crate::error::RunError;
-use crate::outputs::OutputPlan;
 use crate::ident::frf::C64;
+use crate::outputs::OutputPlan;
 use crate::record::topics::{FaultKind, Record};
 use crate::record::{spawn_writer, Recorder, DEFAULT_CHUNK_INTERVAL};
 use crate::rt::backend::{AnyStage, LinkCounters};
