@@ -2,46 +2,21 @@
 //! the default 0.1–500 Hz chirp, and the FRF estimation alone on a record of
 //! the same length.
 
-use bench::config::BenchConfig;
+mod common;
+
 use bench::ident::frf::{find_resonances, Frf, Spectra};
-use bench::jobs::chirp::{run_chirp, ChirpOptions};
-use bench::outputs::{Existing, Origin, OutputPlan};
 use criterion::{criterion_group, criterion_main, Criterion};
-use std::path::Path;
-use std::sync::atomic::AtomicBool;
-use std::sync::Arc;
 use std::time::Duration;
 
-fn config() -> (BenchConfig, std::path::PathBuf) {
-    let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("bench-config/sr4dof-ch5.toml");
-    (BenchConfig::load(&p).unwrap(), p)
-}
-
 fn chirp(c: &mut Criterion) {
-    let (cfg, path) = config();
     let dir = tempfile::tempdir().unwrap();
-    let opts = ChirpOptions {
-        config: cfg.clone(),
-        config_path: path,
-        out: dir.path().join("run.mcap"),
-        frf_csv: dir.path().join("run.frf.csv"),
-        plot: dir.path().join("run.bode.png"),
-        realtime: false,
-        seed: 1,
-        progress: false,
-        backend: None,
-    };
+    let opts = common::default_chirp(dir.path());
+    let cfg = &opts.config;
     let mut g = c.benchmark_group("chirp");
     g.sample_size(10).measurement_time(Duration::from_secs(20));
     g.bench_function("default_chirp_end_to_end", |b| {
         // Every iteration writes the same files: --overwrite.
-        let outputs = || {
-            OutputPlan::new(Existing::Replace)
-                .with_recording(&opts.out, Origin::Given)
-                .with_output("frf_csv", &opts.frf_csv, Origin::Given)
-                .with_output("plot", &opts.plot, Origin::Given)
-        };
-        b.iter(|| run_chirp(&opts, outputs(), Arc::new(AtomicBool::new(false)), None).unwrap())
+        b.iter(|| common::run(&opts))
     });
 
     // A record of the default length (lead-in + 60 s sweep + tail at 5 kHz).

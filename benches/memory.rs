@@ -13,15 +13,12 @@
 //! Run with `cargo bench --bench memory`; the figures are deterministic
 //! (allocation sizes, not times).
 
-use bench::config::BenchConfig;
+mod common;
+
 use bench::ident::excitation::Chirp;
 use bench::ident::frf::{fast_len, Frf, Spectra, C64};
-use bench::jobs::chirp::{run_chirp, ChirpOptions};
-use bench::outputs::{Existing, Origin, OutputPlan};
 use std::alloc::{GlobalAlloc, Layout, System};
-use std::path::Path;
-use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
-use std::sync::Arc;
+use std::sync::atomic::{AtomicUsize, Ordering};
 
 struct Counting;
 
@@ -70,8 +67,7 @@ fn peak_of<T>(f: impl FnOnce() -> T) -> (T, usize) {
 }
 
 fn main() {
-    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("bench-config/sr4dof-ch5.toml");
-    let config = BenchConfig::load(&path).unwrap();
+    let (config, _) = common::shipped();
     let period_s = 1.0 / config.loop_.rate_hz;
     let chirp = Chirp::new(&config.chirp, period_s);
     let n = chirp.total_ticks() as usize;
@@ -100,23 +96,8 @@ fn main() {
     });
 
     let dir = tempfile::tempdir().unwrap();
-    let opts = ChirpOptions {
-        config: config.clone(),
-        config_path: path,
-        out: dir.path().join("chirp.mcap"),
-        frf_csv: dir.path().join("chirp.frf.csv"),
-        plot: dir.path().join("chirp.bode.png"),
-        realtime: false,
-        seed: 1,
-        progress: false,
-        backend: None,
-    };
-    let outputs = OutputPlan::new(Existing::Replace)
-        .with_recording(&opts.out, Origin::Given)
-        .with_output("frf_csv", &opts.frf_csv, Origin::Given)
-        .with_output("plot", &opts.plot, Origin::Given);
-    let (summary, run_peak) =
-        peak_of(|| run_chirp(&opts, outputs, Arc::new(AtomicBool::new(false)), None).unwrap());
+    let opts = common::default_chirp(dir.path());
+    let (summary, run_peak) = peak_of(|| common::run(&opts));
     assert_eq!(summary.timing.ticks as usize, n, "the run's ticks");
 
     let per = |b: usize| b as f64 / n as f64;

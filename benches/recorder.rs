@@ -9,36 +9,19 @@
 //! writer runs on one thread, so the wall time per tick is its CPU time per
 //! tick. The sizes (whole file and per tick) are printed once.
 
-use bench::config::BenchConfig;
-use bench::jobs::chirp::{run_chirp, ChirpOptions};
-use bench::outputs::{Existing, Origin, OutputPlan};
+mod common;
+
+use bench::outputs::Existing;
 use bench::record::topics::{Record, SampleRecord};
 use bench::record::{read_samples_tolerant, Recorder};
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 use std::path::Path;
-use std::sync::atomic::AtomicBool;
-use std::sync::Arc;
 use std::time::Duration;
 
 /// The default chirp's samples (as recorded).
 fn default_chirp_samples(dir: &Path) -> (Vec<SampleRecord>, u64) {
-    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("bench-config/sr4dof-ch5.toml");
-    let opts = ChirpOptions {
-        config: BenchConfig::load(&path).unwrap(),
-        config_path: path,
-        out: dir.join("chirp.mcap"),
-        frf_csv: dir.join("chirp.frf.csv"),
-        plot: dir.join("chirp.bode.png"),
-        realtime: false,
-        seed: 1,
-        progress: false,
-        backend: None,
-    };
-    let outputs = OutputPlan::new(Existing::Replace)
-        .with_recording(&opts.out, Origin::Given)
-        .with_output("frf_csv", &opts.frf_csv, Origin::Given)
-        .with_output("plot", &opts.plot, Origin::Given);
-    run_chirp(&opts, outputs, Arc::new(AtomicBool::new(false)), None).unwrap();
+    let opts = common::default_chirp(dir);
+    common::run(&opts);
     let bytes = std::fs::read(&opts.out).unwrap();
     (read_samples_tolerant(&bytes), bytes.len() as u64)
 }

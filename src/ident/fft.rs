@@ -27,12 +27,9 @@
 //! so the record's memory is the whole of the estimate's memory: 16 bytes a
 //! tick at the peak, `32·k_max / M` after.
 
-use rustfft::num_complex::Complex;
+use crate::ident::frf::C64;
 use rustfft::FftPlanner;
 use std::f64::consts::PI;
-
-/// Complex number type of the record and its spectrum.
-pub type C64 = Complex<f64>;
 
 /// Columns gathered at a time in step 1: eight `Complex<f64>` are two
 /// 64-byte cache lines of each row.
@@ -202,13 +199,8 @@ impl PackedSpectrum {
     }
 
     /// Transform length `M`.
-    pub fn len(&self) -> usize {
+    pub fn fft_len(&self) -> usize {
         self.len
-    }
-
-    /// Always false: a transform has at least one bin.
-    pub fn is_empty(&self) -> bool {
-        false
     }
 
     /// Highest bin kept.

@@ -77,6 +77,11 @@ pub fn fast_len(len: usize) -> usize {
     }
 }
 
+/// Half width of the smoothing window at `f`, Hz: `max(ρ f / 2, n_min Δf / 2)`.
+fn half_width_hz(relative_resolution: f64, min_bins: usize, bin_hz: f64, f_hz: f64) -> f64 {
+    (0.5 * relative_resolution * f_hz).max(0.5 * min_bins as f64 * bin_hz)
+}
+
 impl Spectra {
     /// Transforms the record, keeping every bin up to Nyquist. `u` (A) and
     /// `y` (m) are sampled at `rate_hz`.
@@ -108,10 +113,10 @@ impl Spectra {
         let n = fast_len(record.len());
         record.resize(n, C64::new(0.0, 0.0));
         let bin_hz = rate_hz / n as f64;
-        let half_width_hz =
-            (0.5 * cfg.relative_resolution * f_max_hz).max(0.5 * cfg.min_bins as f64 * bin_hz);
         let k_max = if f_max_hz.is_finite() {
-            ((f_max_hz + half_width_hz) / bin_hz).ceil() as usize + 1
+            let top_hz =
+                f_max_hz + half_width_hz(cfg.relative_resolution, cfg.min_bins, bin_hz, f_max_hz);
+            (top_hz / bin_hz).ceil() as usize + 1
         } else {
             n / 2
         };
@@ -123,11 +128,6 @@ impl Spectra {
         }
     }
 
-    /// Bytes the spectra hold.
-    pub fn heap_bytes(&self) -> usize {
-        self.spectrum.heap_bytes()
-    }
-
     /// DFT bin spacing, Hz.
     pub fn bin_hz(&self) -> f64 {
         self.bin_hz
@@ -135,8 +135,12 @@ impl Spectra {
 
     /// Half width of the smoothing window at `f`, Hz.
     pub fn half_width_hz(&self, frequency_hz: f64) -> f64 {
-        (0.5 * self.relative_resolution * frequency_hz)
-            .max(0.5 * self.min_bins as f64 * self.bin_hz)
+        half_width_hz(
+            self.relative_resolution,
+            self.min_bins,
+            self.bin_hz,
+            frequency_hz,
+        )
     }
 
     /// The smoothed H1 estimate and coherence at `frequency_hz` with the
@@ -151,7 +155,7 @@ impl Spectra {
             .ceil()
             .max(0.0) as usize;
         let top = ((frequency_hz + half_width_hz) / self.bin_hz).floor() as usize;
-        let nyquist = self.spectrum.len() / 2;
+        let nyquist = self.spectrum.fft_len() / 2;
         if top > self.spectrum.k_max() && self.spectrum.k_max() < nyquist {
             // Above the band the spectra were kept for.
             return Estimate {

@@ -141,8 +141,6 @@ impl TimingSummary {
 pub struct Collected {
     /// Loop time, s.
     pub t_s: Vec<f64>,
-    /// Excitation, A (NaN when none).
-    pub excitation_a: Vec<f64>,
     /// Probe reading, m.
     pub position_m: Vec<f64>,
     /// Setpoint, m (NaN in open loop).
@@ -160,8 +158,6 @@ pub struct Collected {
 pub struct Kept {
     /// [`Collected::t_s`]
     pub t_s: bool,
-    /// [`Collected::excitation_a`]
-    pub excitation_a: bool,
     /// [`Collected::position_m`]
     pub position_m: bool,
     /// [`Collected::setpoint_m`]
@@ -177,7 +173,6 @@ impl Kept {
     /// tick, and the FFT runs in them).
     pub const CHIRP: Self = Self {
         t_s: false,
-        excitation_a: false,
         position_m: false,
         setpoint_m: false,
         current_command_a: false,
@@ -187,7 +182,6 @@ impl Kept {
     /// tick).
     pub const STEP: Self = Self {
         t_s: true,
-        excitation_a: false,
         position_m: true,
         setpoint_m: true,
         current_command_a: true,
@@ -377,7 +371,6 @@ pub fn run_recorded<J: Job + Send + 'static>(
     let reserve = |kept: bool| Vec::with_capacity(if kept { n } else { 0 });
     let collected = Arc::new(Mutex::new(Collected {
         t_s: reserve(keep.t_s),
-        excitation_a: reserve(keep.excitation_a),
         position_m: reserve(keep.position_m),
         setpoint_m: reserve(keep.setpoint_m),
         current_command_a: reserve(keep.current_command_a),
@@ -408,7 +401,6 @@ pub fn run_recorded<J: Job + Send + 'static>(
                     }
                 };
                 push(&mut c.t_s, keep.t_s, s.t_s);
-                push(&mut c.excitation_a, keep.excitation_a, s.excitation_a);
                 push(&mut c.position_m, keep.position_m, s.position_m);
                 push(&mut c.setpoint_m, keep.setpoint_m, s.setpoint_m);
                 push(
