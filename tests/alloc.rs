@@ -6,7 +6,6 @@
 use bench::config::BenchConfig;
 use bench::ident::excitation::Chirp;
 use bench::jobs::chirp::ChirpJob;
-use bench::record::topics::Record;
 use bench::rt::{self, Job, JobOutput, LoopOptions, Pacing, StopReason};
 use bench_hal::sim::SimStage;
 use bench_hal::{Sample, Stage};
@@ -82,13 +81,16 @@ fn run_counted_job<S: Stage + Send + 'static, J: Job + Send + 'static>(
     opts: LoopOptions,
     clock: bench_hal::Clock,
 ) -> (rt::LoopReport, u64, u64) {
-    let (mut producer, mut consumer) = rtrb::RingBuffer::<Record>::new(1 << 16);
+    let (mut producer, mut consumer) = rt::RecordQueue::new(1 << 16);
+    let room = std::sync::Arc::clone(&producer.room);
     let drain = std::thread::spawn(move || {
         let mut n = 0u64;
         while !consumer.is_abandoned() || !consumer.is_empty() {
             while consumer.pop().is_ok() {
                 n += 1;
             }
+            // Wakes a virtual-time loop parked on the full queue.
+            room.made_room(0, 1 << 16);
             std::thread::sleep(std::time::Duration::from_millis(1));
         }
         n

@@ -7,10 +7,10 @@ use crate::error::RunError;
 use crate::ident::frf::C64;
 use crate::outputs::OutputPlan;
 use crate::record::topics::{FaultKind, Record};
-use crate::record::{spawn_writer, Recorder, DEFAULT_CHUNK_INTERVAL};
+use crate::record::{spawn_writer, ChunkPolicy, Recorder};
 use crate::rt::backend::{AnyStage, LinkCounters};
 use crate::rt::service::{JobTicket, LoopReply, LoopRequest, ServiceClient};
-use crate::rt::{self, Job, LoopOptions, LoopReport, Pacing, StopReason};
+use crate::rt::{self, Job, LoopOptions, LoopReport, Pacing, RecordQueue, StopReason};
 use bench_hal::DeviceInfo;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
@@ -363,7 +363,7 @@ pub fn run_recorded<J: Job + Send + 'static>(
     let info = runner.info().clone();
     let period_s = info.period_ns as f64 * 1e-9;
     let rate_hz = 1.0 / period_s;
-    let (producer, consumer) = rtrb::RingBuffer::<Record>::new(QUEUE_CAPACITY);
+    let (producer, consumer) = RecordQueue::new(QUEUE_CAPACITY);
     // The config bounds a job to `ranges::JOB_TICKS_MAX` ticks; reserve
     // only the columns the job reads.
     let n = opts.max_ticks.min(crate::config::ranges::JOB_TICKS_MAX) as usize;
@@ -386,9 +386,14 @@ pub fn run_recorded<J: Job + Send + 'static>(
     // Runs on the writer thread (never the real-time one).
     let writer = spawn_writer(
         consumer,
+        Arc::clone(&producer.room),
         recorder,
         Arc::clone(&writer_done),
-        DEFAULT_CHUNK_INTERVAL,
+        if opts.realtime {
+            ChunkPolicy::REAL_TIME
+        } else {
+            ChunkPolicy::VIRTUAL_TIME
+        },
         // One below the loop's priority, in real-time runs only.
         opts.realtime
             .then(|| cfg.loop_.priority.saturating_sub(1).max(1)),
@@ -552,7 +557,7 @@ fn run_local<J: Job + Send>(
     clock: bench_hal::Clock,
     mut job: J,
     loop_opts: &LoopOptions,
-    mut producer: rtrb::Producer<Record>,
+    mut producer: RecordQueue,
     stop: &AtomicBool,
     progress: &AtomicU64,
     opts: &SessionOptions,

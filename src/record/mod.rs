@@ -86,12 +86,12 @@
 //! [`read_messages_tolerant`] / [`read_samples_tolerant`].
 //!
 //! The writer thread ([`spawn_writer`]) closes and flushes a chunk whenever
-//! `chunk_interval` of **wall** time has elapsed since the last flush, **or**
-//! the log (loop) time of the written records has advanced by at least
-//! `chunk_interval` since the last flush. With the default 50 ms, a killed
-//! run loses at most about 100 ms of records, whether it ran in real time or
-//! in (faster than real time) virtual time. Flushing hands the bytes to the OS
-//! (survives a killed process); only `finish` fsyncs (survives power loss).
+//! 50 ms of **wall** time has elapsed since the last flush, **or** the log
+//! (loop) time of the written records has advanced by 50 ms in real time, by
+//! 1 s in (faster than real time) virtual time ([`ChunkPolicy`]). A killed
+//! run loses at most about 100 ms of wall time's records. Flushing hands the
+//! bytes to the OS (survives a killed process); only `finish` fsyncs
+//! (survives power loss).
 
 pub mod export;
 pub mod proto;
@@ -107,8 +107,8 @@ pub use reader::{
 };
 pub use schema::{nan_if_null, schema_of};
 pub use writer::{
-    log_time_ns, part_path_for, spawn_writer, Channel, RecordError, Recorder, WriterStats,
-    DEFAULT_CHUNK_INTERVAL, PART_SUFFIX,
+    log_time_ns, part_path_for, spawn_writer, Channel, ChunkPolicy, RecordError, Recorder,
+    WriterStats, PART_SUFFIX,
 };
 
 /// Topic of the per-tick samples.

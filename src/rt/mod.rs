@@ -14,5 +14,5 @@ pub mod timing;
 
 pub use tick::{
     make_realtime, run, Emitter, HalFailure, HoldJob, Job, JobEnd, JobOutput, Loop, LoopOptions,
-    LoopReport, Pacing, RawStop, Read, StopReason, TickResult,
+    LoopReport, Pacing, QueueRoom, RawStop, Read, RecordQueue, StopReason, TickResult,
 };

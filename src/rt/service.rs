@@ -9,7 +9,7 @@
 //! stop flag arrive boxed ([`JobTicket`]) and go back boxed, to be dropped
 //! off the real-time thread; errors come back unformatted.
 
-use crate::record::topics::{FaultKind, Record, SupervisorState};
+use crate::record::topics::{FaultKind, SupervisorState};
 use crate::rt::backend::{AnyError, AnyStage, LinkCounters};
 use crate::rt::{HalFailure, HoldJob, Job, JobEnd, Loop, LoopOptions};
 use bench_hal::sim::ScheduledFault;
@@ -22,7 +22,7 @@ pub struct JobTicket {
     /// The job.
     pub job: Box<dyn Job + Send>,
     /// Its record queue (the writer drains the other end).
-    pub out: rtrb::Producer<Record>,
+    pub out: crate::rt::RecordQueue,
     /// Tick budget.
     pub max_ticks: u64,
     /// The job's seed: the simulator's noise restarts from it at the

@@ -339,28 +339,139 @@ pub fn make_realtime(priority: i32, cpu: Option<usize>) -> Vec<String> {
     warnings
 }
 
-/// How long the virtual-time loop sleeps at a time while the recorder's
-/// queue is full (see [`Emitter::push`]). Short against the time the
-/// writer takes to empty half a queue (tens of ms for the 65 536-record
-/// queue of a job), so the writer never runs dry.
-pub const BACKPRESSURE_SLEEP: std::time::Duration = std::time::Duration::from_micros(500);
+/// The longest the virtual-time loop stays parked without a wake-up from
+/// the writer ([`QueueRoom`]): a safety net only (a writer that died, a
+/// wake-up lost to a bug), never the pacing. Long against the tens of ms
+/// the writer takes to empty half the 65 536-record queue of a job.
+pub const ROOM_WAIT_TIMEOUT: std::time::Duration = std::time::Duration::from_millis(200);
+
+/// Room in a job's record queue, for the virtual-time loop's wait on the
+/// writer: the loop parks ([`std::thread::park_timeout`]) while the queue
+/// is full, and the writer unparks it once it has emptied half the queue
+/// ([`QueueRoom::made_room`]). No spinning, no lock: one flag, one thread
+/// handle. One per job; the writer and the loop share it.
+///
+/// The hand-over is the store-fence-load pattern on both sides: the loop
+/// raises `waiting`, fences, then looks at the queue; the writer frees
+/// slots, fences, then takes `waiting`. Either the loop sees the room, or
+/// the writer sees the flag and unparks (an unpark before the park makes
+/// the park return at once).
+#[derive(Debug, Default)]
+pub struct QueueRoom {
+    waiting: AtomicBool,
+    parked: std::sync::OnceLock<std::thread::Thread>,
+    /// Wake-ups given by the writer.
+    unparks: AtomicU64,
+    /// Parks that ended on [`ROOM_WAIT_TIMEOUT`] instead of a wake-up.
+    timeouts: AtomicU64,
+}
+
+impl QueueRoom {
+    /// Writer side, after it has taken records off the queue: `queued` are
+    /// still in it, out of `capacity`. Wakes the loop if it waits and half
+    /// the queue is free.
+    pub fn made_room(&self, queued: usize, capacity: usize) {
+        std::sync::atomic::fence(Ordering::SeqCst);
+        if queued <= capacity / 2 {
+            self.wake();
+        }
+    }
+
+    /// Writer side, when it ends (done or failed): wakes a waiting loop so
+    /// it sees the queue abandoned at once.
+    pub fn release(&self) {
+        std::sync::atomic::fence(Ordering::SeqCst);
+        self.wake();
+    }
+
+    fn wake(&self) {
+        if self.waiting.swap(false, Ordering::SeqCst) {
+            if let Some(t) = self.parked.get() {
+                self.unparks.fetch_add(1, Ordering::Relaxed);
+                t.unpark();
+            }
+        }
+    }
+
+    /// Loop side: parks until half of `out` is free or its writer is gone.
+    fn wait(&self, out: &rtrb::Producer<Record>) {
+        let half = (out.buffer().capacity() / 2).max(1);
+        let me = self.parked.get_or_init(std::thread::current);
+        debug_assert_eq!(
+            me.id(),
+            std::thread::current().id(),
+            "one loop thread per job"
+        );
+        loop {
+            self.waiting.store(true, Ordering::SeqCst);
+            std::sync::atomic::fence(Ordering::SeqCst);
+            if out.slots() >= half || out.is_abandoned() {
+                self.waiting.store(false, Ordering::SeqCst);
+                return;
+            }
+            let t0 = std::time::Instant::now();
+            std::thread::park_timeout(ROOM_WAIT_TIMEOUT);
+            if t0.elapsed() >= ROOM_WAIT_TIMEOUT {
+                self.timeouts.fetch_add(1, Ordering::Relaxed);
+            }
+        }
+    }
+
+    /// Wake-ups the writer gave, and parks that timed out instead.
+    pub fn counts(&self) -> (u64, u64) {
+        (
+            self.unparks.load(Ordering::Relaxed),
+            self.timeouts.load(Ordering::Relaxed),
+        )
+    }
+}
+
+/// Virtual time measures the compute time of one tick in this many: no
+/// deadline depends on it, and two clock reads and two histogram updates a
+/// tick were a quarter of the virtual-time loop's CPU. Real time measures
+/// every tick.
+pub const VIRTUAL_TIMING_STRIDE: u64 = 16;
+
+/// A job's record queue, the loop's end: the producer, and the
+/// [`QueueRoom`] the writer signals.
+pub struct RecordQueue {
+    /// The loop's end of the queue.
+    pub producer: rtrb::Producer<Record>,
+    /// Shared with the writer (pass it to
+    /// [`spawn_writer`](crate::record::writer::spawn_writer)).
+    pub room: std::sync::Arc<QueueRoom>,
+}
+
+impl RecordQueue {
+    /// A queue of `capacity` records: the loop's end, and the writer's.
+    pub fn new(capacity: usize) -> (Self, rtrb::Consumer<Record>) {
+        let (producer, consumer) = rtrb::RingBuffer::new(capacity);
+        (
+            Self {
+                producer,
+                room: Default::default(),
+            },
+            consumer,
+        )
+    }
+}
 
 /// Where a job's records go: its own queue, or nowhere (between jobs).
 pub struct Emitter<'q> {
     out: Option<&'q mut rtrb::Producer<Record>>,
     dropped: u64,
     /// Virtual time: wait for queue space instead of dropping.
-    backpressure: bool,
+    room: Option<&'q QueueRoom>,
 }
 
 impl<'q> Emitter<'q> {
-    /// Records into `out`; `backpressure` waits for room instead of
-    /// dropping (virtual time only).
-    pub fn new(out: &'q mut rtrb::Producer<Record>, backpressure: bool) -> Self {
+    /// Records into `out`; with `room` (virtual time only) a full queue
+    /// is waited for instead of dropping.
+    pub fn new(out: &'q mut rtrb::Producer<Record>, room: Option<&'q QueueRoom>) -> Self {
         Self {
             out: Some(out),
             dropped: 0,
-            backpressure,
+            room,
         }
     }
 
@@ -375,7 +486,7 @@ impl<'q> Emitter<'q> {
         Self {
             out: None,
             dropped: 0,
-            backpressure: false,
+            room: None,
         }
     }
 
@@ -389,10 +500,9 @@ impl<'q> Emitter<'q> {
     }
 
     /// Step 6: pushes one record; never allocates. In real time a full
-    /// queue drops the record (counted). In virtual time (backpressure) the
-    /// loop waits for the writer without spinning: it sleeps
-    /// [`BACKPRESSURE_SLEEP`] at a time until the writer has emptied half
-    /// the queue, so a run bound by the writer costs a few hundred wake-ups
+    /// queue drops the record (counted). In virtual time (a [`QueueRoom`])
+    /// the loop parks until the writer has emptied half the queue and wakes
+    /// it, so a run bound by the writer costs one wake-up per half queue
     /// instead of one `sched_yield` per record.
     #[inline]
     pub fn push(&mut self, r: Record) {
@@ -403,17 +513,16 @@ impl<'q> Emitter<'q> {
         loop {
             match out.push(r) {
                 Ok(()) => return,
-                Err(rtrb::PushError::Full(back)) => {
-                    if !self.backpressure || out.is_abandoned() {
+                Err(rtrb::PushError::Full(back)) => match self.room {
+                    Some(room) if !out.is_abandoned() => {
+                        r = back;
+                        room.wait(out);
+                    }
+                    _ => {
                         self.dropped += 1;
                         return;
                     }
-                    r = back;
-                    let half = out.buffer().capacity() / 2;
-                    while out.slots() < half.max(1) && !out.is_abandoned() {
-                        std::thread::sleep(BACKPRESSURE_SLEEP);
-                    }
-                }
+                },
             }
         }
     }
@@ -789,7 +898,9 @@ impl<'s, S: Stage> Loop<'s, S> {
         em: &mut Emitter<'_>,
     ) -> TickResult {
         let deadline = self.wait();
-        let mut wake = now_ns();
+        // Virtual time times one tick in VIRTUAL_TIMING_STRIDE.
+        let timed = !self.backpressure || cur.tick.is_multiple_of(VIRTUAL_TIMING_STRIDE);
+        let mut wake = if timed { now_ns() } else { 0 };
         let read = self.read();
         let device_clocked = matches!(self.clock, Clock::Device { .. });
         if let (Read::Missing { fault: false }, true) = (read, device_clocked) {
@@ -804,7 +915,7 @@ impl<'s, S: Stage> Loop<'s, S> {
             );
             return TickResult::NoTick;
         }
-        if device_clocked {
+        if device_clocked && timed {
             // Device-clocked, the tick starts when its sample arrives.
             wake = now_ns();
         }
@@ -863,7 +974,7 @@ impl<'s, S: Stage> Loop<'s, S> {
         fault = tick_fault;
         // Compute time ends when the command is out; queueing the record
         // comes after (in virtual time it may wait for the writer).
-        let end = now_ns();
+        let end = if timed { now_ns() } else { wake };
         em.push(Record::Sample(SampleRecord {
             tick: cur.tick,
             t_s,
@@ -879,7 +990,7 @@ impl<'s, S: Stage> Loop<'s, S> {
             let value = self.sup.fault().map_or(f64::NAN, |f| f.1);
             em.event(cur.tick, t_s, EventKind::Fault, &self.sup, value);
         }
-        if self.timing(deadline, wake, end, seq) {
+        if timed && self.timing(deadline, wake, end, seq) {
             let value = self.sup.fault().map_or(f64::NAN, |f| f.1);
             em.event(cur.tick, t_s, EventKind::Fault, &self.sup, value);
         }
@@ -927,12 +1038,13 @@ impl<'s, S: Stage> Loop<'s, S> {
     pub fn run_job<J: Job + ?Sized>(
         &mut self,
         job: &mut J,
-        out: &mut rtrb::Producer<Record>,
+        out: &mut RecordQueue,
         max_ticks: u64,
         stop: &AtomicBool,
         progress: &AtomicU64,
     ) -> JobEnd<S::Error> {
-        let mut em = Emitter::new(out, self.backpressure);
+        let room = self.backpressure.then_some(&*out.room);
+        let mut em = Emitter::new(&mut out.producer, room);
         let mut cur = self.cursor();
         self.hal_error = None;
         self.link_error = None;
@@ -1075,7 +1187,7 @@ pub fn run<S: Stage, J: Job + ?Sized>(
     job: &mut J,
     opts: &LoopOptions,
     clock: Clock,
-    out: &mut rtrb::Producer<Record>,
+    out: &mut RecordQueue,
     stop: &AtomicBool,
     progress: &AtomicU64,
 ) -> LoopReport {
@@ -1223,10 +1335,7 @@ mod tests {
     }
 
     /// Runs a job of 25 ticks at 0.5 A on `lp`.
-    fn run_constant(
-        lp: &mut Loop<'_, Script>,
-        tx: &mut rtrb::Producer<Record>,
-    ) -> JobEnd<ScriptError> {
+    fn run_constant(lp: &mut Loop<'_, Script>, tx: &mut RecordQueue) -> JobEnd<ScriptError> {
         lp.run_job(
             &mut Constant {
                 current_a: 0.5,
@@ -1276,7 +1385,7 @@ mod tests {
     #[test]
     fn a_lost_recording_is_zero_amps_and_disable_on_the_next_tick() {
         let mut st = Script::new([]);
-        let (mut tx, rx) = rtrb::RingBuffer::<Record>::new(4096);
+        let (mut tx, rx) = RecordQueue::new(4096);
         let mut lp = Loop::new(&mut st, &opts(), Clock::Host);
         let mut job = WriterDies {
             consumer: Some(rx),
@@ -1469,7 +1578,7 @@ mod tests {
         lp.host_paced = true;
         lp.backpressure = false;
         lp.next_deadline_ns = now_ns() + 200_000;
-        let (mut tx, rx) = rtrb::RingBuffer::new(4096);
+        let (mut tx, rx) = RecordQueue::new(4096);
         let end = lp.run_job(
             &mut Constant {
                 current_a: 0.1,
@@ -1513,7 +1622,7 @@ mod tests {
 
     #[test]
     fn a_job_runs_enabled_and_ends_disabled_at_zero_amps() {
-        let (mut tx, rx) = rtrb::RingBuffer::new(1024);
+        let (mut tx, rx) = RecordQueue::new(1024);
         let mut st = Script::new([]);
         let mut lp = Loop::new(&mut st, &opts(), Clock::Host);
         let end = run_constant(&mut lp, &mut tx);
@@ -1556,13 +1665,77 @@ mod tests {
     }
 
     /// Virtual time waits for a full queue without spinning: blocked for
-    /// 0.3 s of wall time behind a stalled writer, the loop thread uses a
-    /// small fraction of that in CPU (a spinning wait uses all of it), and
-    /// no record is dropped.
+    /// 0.15 s of wall time behind a stalled writer, the loop thread uses a
+    /// small fraction of that in CPU (a spinning wait uses all of it), no
+    /// record is dropped, and every wait ends on the writer's wake-up, none
+    /// on the safety timeout (a lost wake-up would show as one).
     #[test]
-    fn backpressure_waits_without_spinning() {
-        let (mut tx, mut rx) = rtrb::RingBuffer::<Record>::new(64);
-        let event = Record::Event(EventRecord {
+    fn backpressure_parks_until_the_writer_makes_room() {
+        let (mut q, mut rx) = RecordQueue::new(64);
+        let room = std::sync::Arc::clone(&q.room);
+        let event = |tick| {
+            Record::Event(EventRecord {
+                tick,
+                t_s: 0.0,
+                kind: EventKind::LoopStarted,
+                state: SupervisorState::Disabled,
+                fault: None,
+                value: f64::NAN,
+            })
+        };
+        const N: u64 = 64 * 200;
+        let writer = std::thread::spawn(move || {
+            // Stalled for less than the safety timeout.
+            std::thread::sleep(std::time::Duration::from_millis(150));
+            let mut ticks = Vec::new();
+            while (ticks.len() as u64) < N {
+                // Drains a few at a time, as the writer's batches do.
+                let n = rx.slots().min(7);
+                if n == 0 {
+                    std::thread::sleep(std::time::Duration::from_micros(50));
+                    continue;
+                }
+                for _ in 0..n {
+                    if let Ok(Record::Event(e)) = rx.pop() {
+                        ticks.push(e.tick);
+                    }
+                }
+                room.made_room(rx.slots(), 64);
+            }
+            room.release();
+            ticks
+        });
+        let mut em = Emitter::new(&mut q.producer, Some(&*q.room));
+        let (wall, cpu) = (std::time::Instant::now(), thread_cpu_s());
+        for tick in 0..N {
+            em.push(event(tick));
+        }
+        let (wall_s, cpu_s) = (wall.elapsed().as_secs_f64(), thread_cpu_s() - cpu);
+        assert_eq!(em.dropped, 0);
+        assert!(wall_s >= 0.12, "did not wait: {wall_s} s");
+        assert!(
+            cpu_s < 0.25 * wall_s,
+            "{cpu_s:.3} s of CPU over {wall_s:.3} s waiting"
+        );
+        assert_eq!(writer.join().unwrap(), (0..N).collect::<Vec<_>>());
+        let (unparks, timeouts) = q.room.counts();
+        assert!(unparks >= 1, "never woken by the writer");
+        assert_eq!(timeouts, 0, "{timeouts} waits ended on the safety timeout");
+    }
+
+    /// A writer that dies while the loop waits frees it at once: the push
+    /// that waited is dropped (counted), nothing hangs.
+    #[test]
+    fn backpressure_ends_when_the_writer_is_gone() {
+        let (mut q, rx) = RecordQueue::new(4);
+        let room = std::sync::Arc::clone(&q.room);
+        let writer = std::thread::spawn(move || {
+            std::thread::sleep(std::time::Duration::from_millis(50));
+            drop(rx);
+            room.release();
+        });
+        let mut em = Emitter::new(&mut q.producer, Some(&*q.room));
+        let r = Record::Event(EventRecord {
             tick: 0,
             t_s: 0.0,
             kind: EventKind::LoopStarted,
@@ -1570,36 +1743,22 @@ mod tests {
             fault: None,
             value: f64::NAN,
         });
-        let writer = std::thread::spawn(move || {
-            std::thread::sleep(std::time::Duration::from_millis(300));
-            let mut n = 0;
-            while n < 128 {
-                if rx.pop().is_ok() {
-                    n += 1;
-                } else {
-                    std::thread::sleep(std::time::Duration::from_millis(1));
-                }
-            }
-            n
-        });
-        let mut em = Emitter::new(&mut tx, true);
-        let (wall, cpu) = (std::time::Instant::now(), thread_cpu_s());
-        for _ in 0..128 {
-            em.push(event);
+        for _ in 0..6 {
+            em.push(r);
         }
-        let (wall_s, cpu_s) = (wall.elapsed().as_secs_f64(), thread_cpu_s() - cpu);
-        assert_eq!(em.dropped, 0);
-        assert!(wall_s >= 0.25, "did not wait: {wall_s} s");
-        assert!(
-            cpu_s < 0.25 * wall_s,
-            "{cpu_s:.3} s of CPU over {wall_s:.3} s waiting"
+        writer.join().unwrap();
+        assert_eq!(em.dropped, 2);
+        assert!(em.recording_lost());
+        assert_eq!(
+            q.room.counts().1,
+            0,
+            "woken by the timeout, not the release"
         );
-        assert_eq!(writer.join().unwrap(), 128);
     }
 
     #[test]
     fn a_latched_fault_refuses_the_next_job_and_a_failed_enable_is_a_hal_stop() {
-        let (mut tx, _rx) = rtrb::RingBuffer::new(1024);
+        let (mut tx, _rx) = RecordQueue::new(1024);
         let mut st = Script::new([Ok(0.0), Ok(f64::NAN)]);
         let mut lp = Loop::new(&mut st, &opts(), Clock::Host);
         // Between jobs: the hold sees the NaN and latches.
