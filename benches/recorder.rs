@@ -4,8 +4,9 @@
 //!
 //! Setup runs the default `bench chirp` once in virtual time and reads its
 //! samples back; the benchmark writes those samples again through a
-//! [`Recorder`] as the writer thread does (a chunk flush every 250 ticks,
-//! i.e. every 50 ms of loop time at 5 kHz) and finishes the file. The
+//! [`Recorder`] as the writer thread does and finishes the file: with the
+//! real-time chunk policy (a chunk every 250 ticks, 50 ms of loop time at
+//! 5 kHz) and with the virtual-time one (every 5 000 ticks, 1 s). The
 //! writer runs on one thread, so the wall time per tick is its CPU time per
 //! tick. The sizes (whole file and per tick) are printed once.
 
@@ -27,12 +28,12 @@ fn default_chirp_samples(dir: &Path) -> (Vec<SampleRecord>, u64) {
 }
 
 /// Writes `samples` into a new recording at `path` as the writer thread
-/// does; returns the file's size, bytes.
-fn record(path: &Path, samples: &[SampleRecord]) -> u64 {
+/// does, a chunk every `chunk_ticks`; returns the file's size, bytes.
+fn record(path: &Path, samples: &[SampleRecord], chunk_ticks: usize) -> u64 {
     let mut rec = Recorder::create_with(path, Existing::Replace, None).unwrap();
     for (i, s) in samples.iter().enumerate() {
         rec.write_record(&Record::Sample(*s)).unwrap();
-        if i % 250 == 249 {
+        if i % chunk_ticks == chunk_ticks - 1 {
             rec.flush_chunk().unwrap();
         }
     }
@@ -45,23 +46,32 @@ fn recorder(c: &mut Criterion) {
     let (samples, chirp_bytes) = default_chirp_samples(dir.path());
     let n = samples.len() as f64;
     let path = dir.path().join("samples.mcap");
-    let sample_bytes = record(&path, &samples);
+    // The chunk policies in ticks at the default 5 kHz.
+    let policies = [("real_time", 250), ("virtual_time", 5000)];
+    for (name, chunk_ticks) in policies {
+        let sample_bytes = record(&path, &samples, chunk_ticks);
+        eprintln!(
+            "default chirp, {name} chunks ({chunk_ticks} ticks): {} ticks; the samples \
+             alone (/bench/sample blocks, /bench/envelope, headers, index): {} bytes \
+             = {:.1} B/tick",
+            samples.len(),
+            sample_bytes,
+            sample_bytes as f64 / n,
+        );
+    }
     eprintln!(
-        "default chirp: {} ticks; the samples alone (/bench/sample blocks, \
-         /bench/envelope, headers, index): {} bytes = {:.1} B/tick; \
-         the whole chirp recording: {} bytes = {:.1} B/tick",
-        samples.len(),
-        sample_bytes,
-        sample_bytes as f64 / n,
+        "the whole chirp recording (virtual time): {} bytes = {:.1} B/tick",
         chirp_bytes,
         chirp_bytes as f64 / n
     );
     let mut g = c.benchmark_group("recorder");
     g.sample_size(10).measurement_time(Duration::from_secs(10));
     g.throughput(Throughput::Elements(samples.len() as u64));
-    g.bench_function("default_chirp_samples", |b| {
-        b.iter(|| record(&path, &samples))
-    });
+    for (name, chunk_ticks) in policies {
+        g.bench_function(format!("default_chirp_samples_{name}"), |b| {
+            b.iter(|| record(&path, &samples, chunk_ticks))
+        });
+    }
     g.finish();
 }
 

@@ -57,6 +57,7 @@
 use super::frf::{Frf, C64, MIN_COHERENCE};
 use levenberg_marquardt::{LeastSquaresProblem, LevenbergMarquardt};
 use nalgebra::{DMatrix, DVector, Dyn, Owned};
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::f64::consts::PI;
 
@@ -857,7 +858,7 @@ pub fn fit(data: &FrfData, path: &Path) -> Result<ModalFit, FitError> {
     // mode stretches over the others not yet fitted).
     let mut start: Vec<(f64, f64)> =
         magnitude_peaks(&prep, &data.frequency_hz, &current, MAX_MODES)
-            .into_iter()
+            .into_par_iter()
             .filter(|(_, prominence)| *prominence >= PEAK_PROMINENCE)
             .filter_map(|(f0, _)| try_mode(&prep, &data.frequency_hz, &current, f0))
             .map(|t| (t.f_hz, t.zeta))
@@ -888,8 +889,10 @@ pub fn fit(data: &FrfData, path: &Path) -> Result<ModalFit, FitError> {
                 .into_iter()
                 .map(|(f, _)| f),
         );
+        // The candidates' grids are independent: tried side by side (in
+        // the candidates' order, so the result does not depend on it).
         let mut trials: Vec<Trial> = candidates
-            .into_iter()
+            .into_par_iter()
             .filter_map(|f0| try_mode(&prep, &data.frequency_hz, &current, f0))
             .collect();
         trials.sort_by(|a, b| b.gain.total_cmp(&a.gain));

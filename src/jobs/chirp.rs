@@ -368,7 +368,8 @@ fn run_chirp_with(
     // The fit and the model's curve for the plot, side by side. The model
     // is drawn on a grid at least as dense as MODEL_POINTS_PER_DECADE, so
     // its lightly damped peaks keep their shape in the plot's pair zoom.
-    let (identified, (model_f, model_h)) = rayon::join(
+    // ... and the FRF CSV is written beside them.
+    let (identified, ((model_f, model_h), csv)) = rayon::join(
         || identify(&frf, period_s, cfg.actuator.bandwidth_hz),
         || {
             let f = crate::ident::frf::log_grid(
@@ -379,11 +380,16 @@ fn run_chirp_with(
                     .max(MODEL_POINTS_PER_DECADE),
             );
             let h: Vec<_> = f.iter().map(|&f| zoh.frf(f)).collect();
-            (f, h)
+            let csv = frf
+                .write_csv(&opts.frf_csv, outputs.existing())
+                .map_err(|e| RunError::Output {
+                    path: opts.frf_csv.clone(),
+                    reason: e.to_string(),
+                });
+            ((f, h), csv)
         },
     );
-    let resonances = identified.resonances;
-    let pair = identified.verdict.phase_test.pair;
+    csv?;
 
     let model_mag: Vec<f64> = model_h.iter().map(|h| h.norm()).collect();
     let mut model_phase: Vec<f64> = model_h.iter().map(|h| h.arg().to_degrees()).collect();
@@ -394,65 +400,6 @@ fn run_chirp_with(
         let shift = ((p0 - m0) / 360.0).round() * 360.0;
         model_phase.iter_mut().for_each(|p| *p += shift);
     }
-
-    recorder.write_frf(
-        end_ns,
-        &frf.frequency_hz,
-        &frf.magnitude_m_per_a,
-        &frf.phase_deg,
-        &frf.coherence,
-    )?;
-    frf.write_csv(&opts.frf_csv, outputs.existing())
-        .map_err(|e| RunError::Output {
-            path: opts.frf_csv.clone(),
-            reason: e.to_string(),
-        })?;
-    let markers: Vec<f64> = resonances.iter().map(|r| r.frequency_hz).collect();
-    let no_pair = identified
-        .verdict
-        .phase_test
-        .reason
-        .clone()
-        .unwrap_or_else(|| "no closely spaced pair was fitted".to_string());
-    let pair_zoom = match &pair {
-        Some(p) => PairZoom::Resolved {
-            pair: *p,
-            band_phase_deg: (frf.phase_at_deg(p.band_hz.0), frf.phase_at_deg(p.band_hz.1)),
-        },
-        None => PairZoom::Unresolved { reason: &no_pair },
-    };
-    let title = format!(
-        "x1 / current, Y1o = {:.1} % of L, Δm23 = {:+.0} % (seed {})",
-        100.0 * cfg.plant.operating_point_m / cfg.plant.beam.length_m,
-        100.0 * cfg.plant.mass_asymmetry,
-        opts.seed
-    );
-    write_bode_png(
-        &opts.plot,
-        outputs.existing(),
-        &BodePlot {
-            title: &title,
-            measured: BodeSeries {
-                label: "measured (H1)",
-                frequency_hz: &frf.frequency_hz,
-                magnitude: &frf.magnitude_m_per_a,
-                phase_deg: &frf.phase_deg,
-            },
-            coherence: &frf.coherence,
-            model: Some(BodeSeries {
-                label: "model (ZOH)",
-                frequency_hz: &model_f,
-                magnitude: &model_mag,
-                phase_deg: &model_phase,
-            }),
-            markers_hz: &markers,
-            pair: Some(pair_zoom),
-        },
-    )
-    .map_err(|e| RunError::Output {
-        path: opts.plot.clone(),
-        reason: e.to_string(),
-    })?;
 
     let summary = ChirpSummary {
         recording: opts.out.clone(),
@@ -465,17 +412,83 @@ fn run_chirp_with(
         mass_asymmetry: cfg.plant.mass_asymmetry,
         cmp_cnmp: identified.verdict.cmp_cnmp,
         peak_position_m,
-        resonances,
-        closely_spaced_pair: pair,
+        resonances: identified.resonances,
+        closely_spaced_pair: identified.verdict.phase_test.pair,
         fit: identified.fit,
         verdict: identified.verdict,
         model: model_summary(&model),
         link: run_link,
         timing,
     };
-    let ch = recorder.add_channel_for::<ChirpSummary>("/sysid/summary", "bench.ChirpSummary")?;
-    recorder.write(ch, end_ns, &summary)?;
-    let _ = early_sync.join();
-    finish(recorder)?;
+    let markers: Vec<f64> = summary.resonances.iter().map(|r| r.frequency_hz).collect();
+    let no_pair = summary
+        .verdict
+        .phase_test
+        .reason
+        .clone()
+        .unwrap_or_else(|| "no closely spaced pair was fitted".to_string());
+    let pair_zoom = match &summary.closely_spaced_pair {
+        Some(p) => PairZoom::Resolved {
+            pair: *p,
+            band_phase_deg: (frf.phase_at_deg(p.band_hz.0), frf.phase_at_deg(p.band_hz.1)),
+        },
+        None => PairZoom::Unresolved { reason: &no_pair },
+    };
+    let title = format!(
+        "x1 / current, Y1o = {:.1} % of L, Δm23 = {:+.0} % (seed {})",
+        100.0 * cfg.plant.operating_point_m / cfg.plant.beam.length_m,
+        100.0 * cfg.plant.mass_asymmetry,
+        opts.seed
+    );
+    // The plot is rendered while the recording is finished (its tail, the
+    // summary and the index written and synced, then renamed): a failed
+    // plot still leaves the recording complete.
+    let (plotted, finished) = rayon::join(
+        || {
+            write_bode_png(
+                &opts.plot,
+                outputs.existing(),
+                &BodePlot {
+                    title: &title,
+                    measured: BodeSeries {
+                        label: "measured (H1)",
+                        frequency_hz: &frf.frequency_hz,
+                        magnitude: &frf.magnitude_m_per_a,
+                        phase_deg: &frf.phase_deg,
+                    },
+                    coherence: &frf.coherence,
+                    model: Some(BodeSeries {
+                        label: "model (ZOH)",
+                        frequency_hz: &model_f,
+                        magnitude: &model_mag,
+                        phase_deg: &model_phase,
+                    }),
+                    markers_hz: &markers,
+                    pair: Some(pair_zoom),
+                },
+            )
+            .map_err(|e| RunError::Output {
+                path: opts.plot.clone(),
+                reason: e.to_string(),
+            })
+        },
+        || -> Result<(), RunError> {
+            recorder.write_frf(
+                end_ns,
+                &frf.frequency_hz,
+                &frf.magnitude_m_per_a,
+                &frf.phase_deg,
+                &frf.coherence,
+            )?;
+            let ch =
+                recorder.add_channel_for::<ChirpSummary>("/sysid/summary", "bench.ChirpSummary")?;
+            recorder.write(ch, end_ns, &summary)?;
+            let _ = early_sync.join();
+            finish(recorder)?;
+            Ok(())
+        },
+    );
+    finished?;
+    plotted?;
     Ok(summary)
 }
