@@ -1,6 +1,8 @@
 //! The live view (`--live`): real WebSocket clients (tokio-tungstenite,
-//! speaking the Foxglove protocol `foxglove.sdk.v1` as the Foxglove app
-//! does) connect to a running real-time chirp, subscribe to the samples
+//! speaking the Foxglove protocol `foxglove.sdk.v1`; one offers it as the
+//! Foxglove app does, one offers `foxglove.websocket.v1, foxglove.sdk.v1`
+//! as Lichtblick's Foxglove WebSocket player does since its PR #819)
+//! connect to a running real-time chirp, subscribe to the samples
 //! and receive them with increasing timestamps; a client that subscribes
 //! and then never reads does not hold the run up; bad `--live` values exit
 //! 2 naming the flag.
@@ -19,19 +21,29 @@ use tokio_tungstenite::tungstenite::Message;
 /// One received `MessageData` frame: subscription id, log time (ns), payload.
 type Frame = (u32, u64, Vec<u8>);
 
-/// Connects to `url`, subscribes to `topics` (subscription id = index + 1)
-/// once they are advertised, and collects MessageData frames until `until`
-/// says enough or `timeout` passes.
+/// The subprotocols the Foxglove app offers.
+const FOXGLOVE: &str = "foxglove.sdk.v1";
+/// The subprotocols Lichtblick's Foxglove WebSocket player offers, in its
+/// order (`[FoxgloveClient.SUPPORTED_SUBPROTOCOL, "foxglove.sdk.v1"]` in
+/// `FoxgloveWebSocketPlayer/index.ts` since lichtblick PR #819).
+const LICHTBLICK: &str = "foxglove.websocket.v1, foxglove.sdk.v1";
+
+/// Connects to `url` offering the subprotocols `offered`, subscribes to
+/// `topics` (subscription id = index + 1) once they are advertised, and
+/// collects MessageData frames until `until` says enough or `timeout`
+/// passes.
 async fn subscribe(
     url: &str,
+    offered: &str,
     topics: &[&str],
     until: impl Fn(&[Frame]) -> bool,
     timeout: Duration,
 ) -> (Vec<Value>, Vec<Frame>) {
     let mut req = url.into_client_request().unwrap();
     req.headers_mut()
-        .insert("Sec-WebSocket-Protocol", "foxglove.sdk.v1".parse().unwrap());
+        .insert("Sec-WebSocket-Protocol", offered.parse().unwrap());
     let (mut ws, resp) = tokio_tungstenite::connect_async(req).await.unwrap();
+    // Both offers get the one the server speaks.
     assert_eq!(resp.headers()["sec-websocket-protocol"], "foxglove.sdk.v1");
     let mut advertised: Vec<Value> = Vec::new();
     let mut subscribed = vec![false; topics.len()];
@@ -150,25 +162,45 @@ fn live_clients_receive_the_samples_of_a_running_chirp() {
         f.iter().filter(|x| x.0 == 1).count() >= 10 && f.iter().filter(|x| x.0 == 2).count() >= 100
     };
     let topics = ["/bench/sample", "/bench/envelope"];
-    let ((adv_a, frames_a), (_, frames_b)) = rt.block_on(async {
+    let ((adv_a, frames_a), (adv_b, frames_b)) = rt.block_on(async {
         let _stalled = stall(&url, "/bench/sample").await;
         tokio::join!(
-            subscribe(&url, &topics, enough, Duration::from_secs(20)),
-            subscribe(&url, &topics, enough, Duration::from_secs(20)),
+            subscribe(&url, FOXGLOVE, &topics, enough, Duration::from_secs(20)),
+            subscribe(&url, LICHTBLICK, &topics, enough, Duration::from_secs(20)),
         )
     });
-    // Every recorded channel is advertised, with the recording's encodings.
-    let adv = |topic: &str| adv_a.iter().find(|c| c["topic"] == topic).cloned();
-    for (topic, encoding, schema) in [
-        ("/bench/sample", "protobuf", "bench.SampleBlock"),
-        ("/bench/envelope", "protobuf", "bench.Envelope"),
-        ("/bench/event", "json", "bench.Event"),
-        ("/bench/log", "json", "foxglove.Log"),
-        ("/bench/timing", "json", "bench.Timing"),
-    ] {
-        let ch = adv(topic).unwrap_or_else(|| panic!("{topic} not advertised: {adv_a:?}"));
-        assert_eq!(ch["encoding"], encoding, "{topic}");
-        assert_eq!(ch["schemaName"], schema, "{topic}");
+    // Every recorded channel is advertised to both, with the recording's
+    // encodings, and with the schema in the form Lichtblick's player
+    // parses: protobuf with a base64 FileDescriptorSet, json with a JSON
+    // Schema (schemaEncoding `protobuf` / `jsonschema`, or none for json).
+    for adv_all in [&adv_a, &adv_b] {
+        let adv = |topic: &str| adv_all.iter().find(|c| c["topic"] == topic).cloned();
+        for (topic, encoding, schema) in [
+            ("/bench/sample", "protobuf", "bench.SampleBlock"),
+            ("/bench/envelope", "protobuf", "bench.Envelope"),
+            ("/bench/event", "json", "bench.Event"),
+            ("/bench/log", "json", "foxglove.Log"),
+            ("/bench/timing", "json", "bench.Timing"),
+        ] {
+            let ch = adv(topic).unwrap_or_else(|| panic!("{topic} not advertised: {adv_all:?}"));
+            assert_eq!(ch["encoding"], encoding, "{topic}");
+            assert_eq!(ch["schemaName"], schema, "{topic}");
+            let text = ch["schema"].as_str().unwrap();
+            match (encoding, ch["schemaEncoding"].as_str()) {
+                ("protobuf", Some("protobuf")) => {
+                    let base64 = |c: char| c.is_ascii_alphanumeric() || "+/=".contains(c);
+                    assert!(
+                        !text.is_empty() && text.len() % 4 == 0 && text.chars().all(base64),
+                        "{topic}: schema is not base64"
+                    );
+                }
+                ("json", None | Some("jsonschema")) => {
+                    let v: Value = serde_json::from_str(text).unwrap();
+                    assert!(v.is_object(), "{topic}: {v}");
+                }
+                other => panic!("{topic}: encoding/schemaEncoding {other:?}"),
+            }
+        }
     }
     for frames in [&frames_a, &frames_b] {
         assert!(enough(frames), "too few messages: {}", frames.len());
@@ -249,10 +281,10 @@ fn bad_live_addresses_exit_2_naming_the_flag() {
 
 /// The cost of watching: real-time chirps of 10 s (loop pinned to the last
 /// CPU) alternately without a live view and with `--live` and two
-/// subscribed clients reading everything, three of each; prints each run's overruns and p99 wake-up
-/// latency and the ratio of the medians (README, *Live view*). A
-/// measurement, not a test: `cargo test --release --test live -- --ignored
-/// --nocapture`.
+/// subscribed clients reading everything, `BENCH_LIVE_PAIRS` (default 3)
+/// of each; prints each run's overruns and p99 wake-up latency and the
+/// medians of both (README, *Live view*). A measurement, not a test:
+/// `cargo test --release --test live -- --ignored --nocapture`.
 #[test]
 #[ignore]
 fn measure_two_clients_against_none() {
@@ -268,8 +300,13 @@ fn measure_two_clients_against_none() {
         .enable_all()
         .build()
         .unwrap();
+    let pairs: usize = std::env::var("BENCH_LIVE_PAIRS")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(3);
     let mut p99 = [Vec::new(), Vec::new()];
-    for round in 0..6 {
+    let mut overruns = [Vec::new(), Vec::new()];
+    for round in 0..2 * pairs {
         let watched = round % 2 == 1;
         let rec = dir.path().join(format!("run{round}.mcap"));
         let mut cmd = bench();
@@ -299,7 +336,7 @@ fn measure_two_clients_against_none() {
                 .map(|_| {
                     let url = url.clone();
                     rt.spawn(async move {
-                        subscribe(&url, &topics, |_| false, Duration::from_secs(30))
+                        subscribe(&url, FOXGLOVE, &topics, |_| false, Duration::from_secs(30))
                             .await
                             .1
                             .len()
@@ -329,14 +366,17 @@ fn measure_two_clients_against_none() {
             t["wake_latency_p99_us"]
         );
         p99[usize::from(watched)].push(t["wake_latency_p99_us"].as_f64().unwrap());
+        overruns[usize::from(watched)].push(t["overruns"].as_f64().unwrap());
     }
     let median = |v: &mut Vec<f64>| {
         v.sort_by(f64::total_cmp);
         v[v.len() / 2]
     };
     let (a, b) = (median(&mut p99[0]), median(&mut p99[1]));
+    let (oa, ob) = (median(&mut overruns[0]), median(&mut overruns[1]));
     eprintln!(
-        "median p99 wake-up: none {a} us, two clients {b} us, ratio {:.2}",
+        "medians over {pairs} pairs: p99 wake-up none {a} us, two clients {b} us (ratio {:.2}); \
+         overruns none {oa}, two clients {ob}",
         b / a
     );
 }
