@@ -40,6 +40,8 @@ pub struct Chirp {
     sweep_s: f64,
     /// `ln(f_end / f_start)`.
     ln_ratio: f64,
+    /// `ln(f_start)`.
+    ln_f_start: f64,
 }
 
 impl Chirp {
@@ -69,6 +71,7 @@ impl Chirp {
             tail_ticks: ticks(cfg.tail_s),
             sweep_s: sweep_ticks as f64 * period_s,
             ln_ratio: (cfg.f_end_hz / cfg.f_start_hz).ln(),
+            ln_f_start: cfg.f_start_hz.ln(),
         }
     }
 
@@ -96,11 +99,15 @@ impl Chirp {
 
     /// Amplitude scale at frequency `f` (Hz) from the profile.
     pub fn profile_scale(&self, frequency_hz: f64) -> f64 {
+        self.profile_scale_ln(frequency_hz.ln())
+    }
+
+    /// [`Chirp::profile_scale`] at `x = ln f` (f in Hz).
+    fn profile_scale_ln(&self, x: f64) -> f64 {
         let p = &self.profile[..self.profile_len];
         let (Some(first), Some(last)) = (p.first(), p.last()) else {
             return 1.0;
         };
-        let x = frequency_hz.ln();
         if x <= first.0 {
             return first.1;
         }
@@ -128,10 +135,14 @@ impl Chirp {
             }
             ChirpKind::Linear => 2.0 * PI * (f0 * t + (f1 - f0) * t * t / (2.0 * big_t)),
         };
-        let scale = if self.profile_len > 0 {
-            self.profile_scale(self.frequency_hz(t))
-        } else {
-            1.0
+        // ln f(t) in closed form for the exponential sweep,
+        // ln f0 + (t/T)·ln(f1/f0): no pow and no ln on the tick.
+        let scale = match (self.profile_len, self.kind) {
+            (0, _) => 1.0,
+            (_, ChirpKind::Exponential) => {
+                self.profile_scale_ln(self.ln_f_start + t / big_t * self.ln_ratio)
+            }
+            (_, ChirpKind::Linear) => self.profile_scale(self.frequency_hz(t)),
         };
         self.amplitude_a * scale * self.window(t, big_t) * theta.sin()
     }
@@ -233,5 +244,13 @@ mod tests {
             .map(|i| c.value_a(i).abs())
             .fold(0.0, f64::max);
         assert!((env - 0.05).abs() < 1e-3, "{env}");
+        // On the slope (√200 Hz, halfway between 1 and 0.1 in ln f) the
+        // envelope is 0.5 × 0.55 A, within the slope's change over ±30 ms.
+        let t = 10.0 * 200f64.sqrt().ln() / 100f64.ln();
+        let k = 2_000 + (t * 1e4) as u64;
+        let env = (k - 300..k + 300)
+            .map(|i| c.value_a(i).abs())
+            .fold(0.0, f64::max);
+        assert!((env - 0.275).abs() < 0.01, "{env}");
     }
 }
