@@ -338,3 +338,46 @@ fn help_lists_every_control_option() {
         assert!(help.contains(flag), "--help lacks {flag}");
     }
 }
+
+/// A reader that went away (`bench chirp | head`) or a full disk behind
+/// stdout: no panic, the run's files complete, and the status says what
+/// happened (141 = 128 + SIGPIPE for the closed pipe; 1 and the error on
+/// stderr for /dev/full). Both the text and the `--json` printing.
+#[test]
+fn a_closed_or_full_stdout_ends_with_complete_files_and_a_status() {
+    let dir = tmp();
+    for (i, json) in [false, true].into_iter().enumerate() {
+        for full in [false, true] {
+            let out = dir.path().join(format!("run{i}{}.mcap", u8::from(full)));
+            let mut cmd = bench();
+            cmd.args(["chirp", "--duration-s", "2", "--f-start-hz", "20", "--out"])
+                .arg(&out)
+                .stderr(Stdio::piped());
+            if json {
+                cmd.arg("--json");
+            }
+            if full {
+                cmd.stdout(std::fs::File::create("/dev/full").unwrap());
+            } else {
+                cmd.stdout(Stdio::piped());
+            }
+            let mut child = cmd.spawn().unwrap();
+            // The reader goes away before anything is printed.
+            drop(child.stdout.take());
+            let o = child.wait_with_output().unwrap();
+            let err = String::from_utf8_lossy(&o.stderr);
+            assert!(!err.contains("panicked"), "{err}");
+            if full {
+                assert_eq!(o.status.code(), Some(1), "{err}");
+                assert!(err.contains("standard output"), "{err}");
+            } else {
+                assert_eq!(o.status.code(), Some(141), "{err}");
+            }
+            // The recording and its outputs were finished before printing.
+            assert!(out.exists(), "no {}", out.display());
+            assert!(!Path::new(&format!("{}.part", out.display())).exists());
+            let samples = bench::record::read_samples_tolerant(&std::fs::read(&out).unwrap());
+            assert!(samples.len() > 10_000, "{}", samples.len());
+        }
+    }
+}

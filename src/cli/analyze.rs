@@ -189,7 +189,7 @@ pub(super) fn analyze(args: AnalyzeArgs) -> ExitCode {
 
 fn print_analysis(s: &AnalyzeSummary) {
     let a = &s.analysis;
-    println!(
+    outln!(
         "bench {}: Y1o = {:.3} mm ({:.2} % of L), Δm23 = {:+.2} %, α = 0.6·Y1o/L = {:.4}",
         s.config,
         a.operating_point_m * 1e3,
@@ -197,11 +197,11 @@ fn print_analysis(s: &AnalyzeSummary) {
         a.mass_asymmetry * 100.0,
         a.coupling_alpha
     );
-    println!(
+    outln!(
         "modes (residue α of Eq. 4-15 in 1/kg = m/(N·s²); shape unit-length over [x1 y1 y2 y3]):"
     );
     for m in &a.modes {
-        println!(
+        outln!(
             "  {} [{:>2}] {:8.2} Hz  ζ {:.4}  modal mass {:.4} kg  α {:+.4e}  shape [{:+.3} {:+.3} {:+.3} {:+.3}]{}",
             m.mode,
             m.label,
@@ -221,12 +221,12 @@ fn print_analysis(s: &AnalyzeSummary) {
             }
         );
     }
-    println!("sign sequence: {}", a.sign_sequence);
-    println!("sequence of dominant modes: {}", a.sequence);
+    outln!("sign sequence: {}", a.sign_sequence);
+    outln!("sequence of dominant modes: {}", a.sequence);
     for (label, zs) in [("undamped", &a.zeros_undamped), ("damped", &a.zeros_damped)] {
-        println!("zeros ({label}):");
+        outln!("zeros ({label}):");
         for z in zs.iter().filter(|z| z.im_rad_s >= 0.0) {
-            println!(
+            outln!(
                 "  {:>9.3} {:+9.3}j Hz  |s|/2π {:8.2} Hz  {}{}",
                 z.re_rad_s / (2.0 * std::f64::consts::PI),
                 z.im_rad_s / (2.0 * std::f64::consts::PI),
@@ -236,7 +236,7 @@ fn print_analysis(s: &AnalyzeSummary) {
             );
         }
     }
-    println!(
+    outln!(
         "CMP-CNMP zeros: {} undamped (Δ of Eq. 2-8 = {:.3e}), {} damped",
         if a.cnmp { "yes" } else { "no" },
         a.discriminant,
@@ -244,13 +244,13 @@ fn print_analysis(s: &AnalyzeSummary) {
     );
     match &a.three_mode {
         Some(t) => {
-            println!(
+            outln!(
                 "three-mode test (Ch. 4, R as a double integrator): b̂2 = {:.4e}, b̂21 = {}, b̂22 = {}",
                 t.b2_hat,
                 t.b21_hat.map_or("–".into(), |b| format!("{b:.4e}")),
                 t.b22_hat.map_or("–".into(), |b| format!("{b:.4e}")),
             );
-            println!(
+            outln!(
                 "  C4-1 (alternating signs) {}, C4-2 {} → P4-1: {}; exact (full model): {}",
                 yes_no(t.c4_1),
                 yes_no(t.c4_2),
@@ -262,14 +262,14 @@ fn print_analysis(s: &AnalyzeSummary) {
                 if a.cnmp { "CMP-CNMP" } else { "no CMP-CNMP" }
             );
             if !t.p4_1_decisive {
-                println!(
+                outln!(
                     "  (not decisive: b̂2 is within {:.2e}, the error of taking R at {:.1} Hz as a double integrator, of a critical value)",
                     t.remainder_error_hat, t.frequency_r_hz
                 );
             }
         }
         None => {
-            println!("three-mode test: not applicable (no remainder mode or no pair in the path)")
+            outln!("three-mode test: not applicable (no remainder mode or no pair in the path)")
         }
     }
     for (what, p) in [
@@ -277,7 +277,7 @@ fn print_analysis(s: &AnalyzeSummary) {
         ("decomposed modes", &s.modes_png),
     ] {
         if let Some(p) = p {
-            println!("{what}: {p}");
+            outln!("{what}: {p}");
         }
     }
 }
@@ -814,7 +814,7 @@ pub(super) fn map(args: MapArgs) -> ExitCode {
 
 fn print_map(s: &MapSummary) {
     let l = s.beam_length_m;
-    println!(
+    outln!(
         "CNMP map of {}: {} operating points {:.2} … {:.2} % of L × {} asymmetries {:+.1} … {:+.1} %",
         s.config,
         s.operating_points_m.len(),
@@ -824,19 +824,19 @@ fn print_map(s: &MapSummary) {
         s.mass_asymmetries[0] * 100.0,
         s.mass_asymmetries.last().unwrap() * 100.0
     );
-    println!(
+    outln!(
         "cells with CMP-CNMP zeros: {} of {} undamped, {} damped",
         s.cnmp_cells,
         s.cells.len(),
         s.cnmp_damped_cells
     );
     match s.crossing_operating_point_m {
-        Some(op) => println!(
+        Some(op) => outln!(
             "mode crossing of the symmetric stage at Y1o = {:.3} mm ({:.2} % of L)",
             op * 1e3,
             op / l * 100.0
         ),
-        None => println!("no mode crossing of the symmetric stage within the model's range"),
+        None => outln!("no mode crossing of the symmetric stage within the model's range"),
     }
     // Per asymmetry, the operating-point extent of the region (damped).
     for &dm in &s.mass_asymmetries {
@@ -848,7 +848,7 @@ fn print_map(s: &MapSummary) {
         if let (Some(a), Some(b)) = (row.first(), row.last()) {
             let whole_pct = ((dm * 100.0) - (dm * 100.0).round()).abs() < 1e-6;
             if s.mass_asymmetries.len() <= 21 || whole_pct {
-                println!(
+                outln!(
                     "  Δm23 = {:+5.1} %: CMP-CNMP (damped) from {:.2} to {:.2} % of L",
                     dm * 100.0,
                     a.operating_point_m / l * 100.0,
@@ -858,14 +858,14 @@ fn print_map(s: &MapSummary) {
         }
     }
     if s.measured > 0 || s.measured_undecided > 0 {
-        println!(
+        outln!(
             "measured: {} cells ({} undecided, not drawn); {} disagree with the damped model:",
             s.measured,
             s.measured_undecided,
             s.disagreements.len()
         );
         for d in &s.disagreements {
-            println!(
+            outln!(
                 "  Y1o {:.2} % of L, Δm23 {:+.1} %: measured {}, model {}",
                 d.operating_point_m / l * 100.0,
                 d.mass_asymmetry * 100.0,
@@ -878,16 +878,16 @@ fn print_map(s: &MapSummary) {
             );
         }
     }
-    println!("map: {}", s.png);
+    outln!("map: {}", s.png);
     if let Some(c) = &s.csv {
-        println!("cells: {c}");
+        outln!("cells: {c}");
     }
 }
 
 fn print_veering(s: &VeeringSummary) {
     let l = s.beam_length_m;
     for c in &s.curves {
-        println!(
+        outln!(
             "Δm23 = {:+.1} %: closest approach {:.3} Hz apart at Y1o = {:.2} % of L ({:.1} Hz){}",
             c.mass_asymmetry * 100.0,
             c.closest_gap_hz,
@@ -909,14 +909,14 @@ fn print_veering(s: &VeeringSummary) {
                     .join(", ")
             }
         };
-        println!(
+        outln!(
             "  CMP-CNMP zeros over Y1o: undamped {}; damped {}",
             show(&c.cnmp_intervals_m),
             show(&c.cnmp_damped_intervals_m)
         );
     }
     for p in &s.localisation {
-        println!(
+        outln!(
             "  Δm23 = {:+.1} %, Y1o = {:.2} % of L: u {:.2} Hz localisation {:+.2}, v {:.2} Hz localisation {:+.2} (+1 stage ②, −1 stage ③)",
             p.mass_asymmetry * 100.0,
             p.operating_point_m / l * 100.0,
@@ -926,5 +926,5 @@ fn print_veering(s: &VeeringSummary) {
             p.localisation_v
         );
     }
-    println!("veering plot: {}", s.png);
+    outln!("veering plot: {}", s.png);
 }

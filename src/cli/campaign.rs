@@ -316,12 +316,15 @@ fn failed(e: &CampaignRunError) -> ExitCode {
 }
 
 fn print_summary(s: &CampaignSummary) {
-    println!("campaign {}", s.dir.display());
-    println!(
+    outln!("campaign {}", s.dir.display());
+    outln!(
         "  cells: {} done, {} pending, {} skipped of {}",
-        s.done, s.pending, s.skipped, s.cells
+        s.done,
+        s.pending,
+        s.skipped,
+        s.cells
     );
-    println!(
+    outln!(
         "  verdicts: {} decided, {} undecided; {} agree with the model, {} disagree",
         s.decided,
         s.done - s.decided,
@@ -329,10 +332,10 @@ fn print_summary(s: &CampaignSummary) {
         s.disagreements.len()
     );
     if !s.disagreements.is_empty() {
-        println!("  cells where measurement and model disagree:");
-        println!("    cell  operating point   asymmetry  measured  model");
+        outln!("  cells where measurement and model disagree:");
+        outln!("    cell  operating point   asymmetry  measured  model");
         for d in &s.disagreements {
-            println!(
+            outln!(
                 "    {:>4}  {:>9.3} mm      {:>+7.1} %  {:>8}  {}",
                 d.index,
                 d.operating_point_m * 1e3,
@@ -352,9 +355,9 @@ fn print_summary(s: &CampaignSummary) {
         .filter(|r| r.status == "done" && r.verdict.is_none())
         .collect();
     if !undecided.is_empty() {
-        println!("  undecided cells:");
+        outln!("  undecided cells:");
         for r in undecided {
-            println!(
+            outln!(
                 "    {:>4}  {:>9.3} mm  {:>+7.1} %  {}",
                 r.index,
                 r.operating_point_m * 1e3,
@@ -363,8 +366,8 @@ fn print_summary(s: &CampaignSummary) {
             );
         }
     }
-    println!("  cells.csv: {}", s.cells_csv.display());
+    outln!("  cells.csv: {}", s.cells_csv.display());
     if let Some(p) = &s.map_png {
-        println!("  map: {}", p.display());
+        outln!("  map: {}", p.display());
     }
 }

@@ -222,20 +222,20 @@ pub(super) fn chirp(args: ChirpArgs, stop: Arc<AtomicBool>) -> ExitCode {
 }
 
 pub(super) fn print_summary(s: &ChirpSummary) {
-    println!("bench chirp on {} (seed {})", s.backend, s.seed);
-    println!(
+    outln!("bench chirp on {} (seed {})", s.backend, s.seed);
+    outln!(
         "  operating point Y1o = {:.3} mm ({:.1} % of L), mass asymmetry Δm23 = {:+.1} %",
         s.operating_point_m * 1e3,
         s.operating_point_fraction_of_l * 100.0,
         s.mass_asymmetry * 100.0
     );
-    println!("  peak |x1| = {:.1} µm", s.peak_position_m * 1e6);
-    println!("  recording   {}", s.recording.display());
-    println!("  FRF (CSV)   {}", s.frf_csv.display());
-    println!("  Bode plot   {}", s.plot.display());
+    outln!("  peak |x1| = {:.1} µm", s.peak_position_m * 1e6);
+    outln!("  recording   {}", s.recording.display());
+    outln!("  FRF (CSV)   {}", s.frf_csv.display());
+    outln!("  Bode plot   {}", s.plot.display());
     match &s.fit {
         Some(fit) => super::fit::print_fit(fit),
-        None => println!("modal fit: none"),
+        None => outln!("modal fit: none"),
     }
     let f: Vec<String> = s
         .model
@@ -243,14 +243,14 @@ pub(super) fn print_summary(s: &ChirpSummary) {
         .iter()
         .map(|f| format!("{f:.2}"))
         .collect();
-    println!("model natural frequencies: {} Hz", f.join(", "));
+    outln!("model natural frequencies: {} Hz", f.join(", "));
     super::fit::print_verdict(&s.verdict);
-    println!(
+    outln!(
         "model zeros: {} (CMP-CNMP: {})",
         s.model.zero_types.join(", "),
         if s.model.cmp_cnmp { "yes" } else { "no" }
     );
     for line in s.timing.lines() {
-        println!("{line}");
+        outln!("{line}");
     }
 }

@@ -43,7 +43,7 @@ pub(super) fn config_command(cmd: ConfigCommand) -> ExitCode {
         ConfigCommand::Check { file } => {
             match load_config(Some(&file)).and_then(|(c, p)| c.validate(&p)) {
                 Ok(()) => {
-                    println!("{}: a valid bench description", file.display());
+                    outln!("{}: a valid bench description", file.display());
                     ExitCode::SUCCESS
                 }
                 Err(e) => bad_input(e),

@@ -246,7 +246,7 @@ pub(super) fn print_margins(label: &str, m: &bench::control::loop_check::Margins
         .iter()
         .map(|w| format!("{w:.1}"))
         .collect();
-    println!(
+    outln!(
         "  {label}: crossover(s) {} rad/s; phase margin {}; gain margin {}; peak |S| {:.2} ({:.1} dB) at {:.0} rad/s",
         if wc.is_empty() { "none".to_string() } else { wc.join(", ") },
         m.phase_margin_deg.map_or("–".to_string(), |p| format!("{p:.1}°")),
@@ -258,17 +258,19 @@ pub(super) fn print_margins(label: &str, m: &bench::control::loop_check::Margins
 }
 
 pub(super) fn print_control_summary(s: &ControlSummary) {
-    println!(
+    outln!(
         "bench control --controller {} on {} (seed {})",
-        s.controller, s.backend, s.seed
+        s.controller,
+        s.backend,
+        s.seed
     );
     if !s.description.is_empty() {
-        println!("  {}", s.description);
+        outln!("  {}", s.description);
     }
     let c = &s.loop_check;
-    println!("loop check:");
+    outln!("loop check:");
     let d = &c.discretization;
-    println!(
+    outln!(
         "  discretisation {}: within {:.3} dB / {:.2}° of the continuous design up to {:.0} Hz; above, at most {:+.2} dB",
         d.method.as_str(),
         d.max_error_db,
@@ -290,7 +292,7 @@ pub(super) fn print_control_summary(s: &ControlSummary) {
     if let Some(m) = &c.measured {
         print_margins("measured FRF", m);
     }
-    println!(
+    outln!(
         "  closed loop {} (largest pole |z| = {:.5})",
         if c.closed_loop_stable {
             "stable"
@@ -300,38 +302,40 @@ pub(super) fn print_control_summary(s: &ControlSummary) {
         c.largest_pole_magnitude
     );
     if c.passed() {
-        println!("  → passed");
+        outln!("  → passed");
     } else {
         for f in &c.failures {
-            println!("  → refused: {f}");
+            outln!("  → refused: {f}");
         }
     }
     if let Some(m) = &s.metrics {
         let opt = |v: Option<f64>, unit: &str, scale: f64| {
             v.map_or("–".to_string(), |x| format!("{:.4} {unit}", x * scale))
         };
-        println!("step of {:.2} µm:", m.step_m * 1e6);
-        println!("  rise time (10–90 %) {}", opt(m.rise_time_s, "s", 1.0));
-        println!("  settling time (2 %) {}", opt(m.settling_time_s, "s", 1.0));
-        println!("  overshoot {:.1} %", m.overshoot_pct);
-        println!(
+        outln!("step of {:.2} µm:", m.step_m * 1e6);
+        outln!("  rise time (10–90 %) {}", opt(m.rise_time_s, "s", 1.0));
+        outln!("  settling time (2 %) {}", opt(m.settling_time_s, "s", 1.0));
+        outln!("  overshoot {:.1} %", m.overshoot_pct);
+        outln!(
             "  steady-state error over the last {:.1} s: mean {:.1} nm, σ {:.1} nm",
-            m.steady_state_window_s, m.steady_state_error_mean_nm, m.steady_state_error_std_nm
+            m.steady_state_window_s,
+            m.steady_state_error_mean_nm,
+            m.steady_state_error_std_nm
         );
-        println!("  peak command {:.3} A", m.peak_command_a);
+        outln!("  peak command {:.3} A", m.peak_command_a);
     }
     if s.disturbance_rms_n > 0.0 {
-        println!("disturbance: {:.4} N RMS", s.disturbance_rms_n);
+        outln!("disturbance: {:.4} N RMS", s.disturbance_rms_n);
     }
     if let Some(p) = &s.recording {
-        println!("recording   {}", p.display());
+        outln!("recording   {}", p.display());
     }
     if let Some(p) = &s.plot {
-        println!("step plot   {}", p.display());
+        outln!("step plot   {}", p.display());
     }
     if let Some(t) = &s.timing {
         for line in t.lines() {
-            println!("{line}");
+            outln!("{line}");
         }
     }
 }

@@ -135,7 +135,7 @@ pub(super) fn emulate(cmd: EmulateCommand, stop: Arc<AtomicBool>) -> ExitCode {
                     return ExitCode::from(status::ERROR);
                 }
             };
-            println!("{}", pty.path());
+            outln!("{}", pty.path());
             eprintln!(
                 "serial DAQ emulator on {} at {rate_hz} Hz, watchdog {} ms, protocol v{}; connect with --backend serial:{}; Ctrl-C stops",
                 pty.path(),
@@ -176,7 +176,7 @@ pub(super) fn emulate(cmd: EmulateCommand, stop: Arc<AtomicBool>) -> ExitCode {
                 Ok(s) => s,
                 Err(e) => return bad_input(format!("--iface {}: {e}", ccfg.interface)),
             };
-            println!("{}", ccfg.interface);
+            outln!("{}", ccfg.interface);
             eprintln!(
                 "CAN DAQ emulator on {} node {} at {rate_hz} Hz, watchdog {} ms; connect with --backend socketcan:{}; Ctrl-C stops",
                 ccfg.interface, ccfg.node_id, cfg.emulator.watchdog_ms, ccfg.interface

@@ -76,7 +76,7 @@ pub(super) fn export(a: ExportArgs) -> ExitCode {
     ) {
         Ok(rows) => {
             let abs = std::path::absolute(&out).unwrap_or(out);
-            println!("{rows} rows of {} -> {}", a.topic, abs.display());
+            outln!("{rows} rows of {} -> {}", a.topic, abs.display());
             ExitCode::SUCCESS
         }
         Err(e @ (ExportError::Recording { .. } | ExportError::NoTopic { .. })) => bad_input(e),

@@ -288,7 +288,7 @@ fn fit_frequencies(a: &FitArgs, list: &[String]) -> ExitCode {
         updated_config: a.out.clone(),
     };
     match emit(&summary, a.json, |s| {
-        println!(
+        outln!(
             "bench fit --frequencies {}",
             s.frequencies_hz
                 .iter()
@@ -494,14 +494,14 @@ fn write_plot(
 }
 
 fn print_summary(s: &FitSummary) {
-    println!("bench fit {}", s.input.display());
+    outln!("bench fit {}", s.input.display());
     match &s.fit {
         Some(f) => print_fit(f),
-        None => println!("modal fit: none"),
+        None => outln!("modal fit: none"),
     }
     print_verdict(&s.verdict);
     if let Some(p) = &s.plot {
-        println!("  Bode plot   {}", p.display());
+        outln!("  Bode plot   {}", p.display());
     }
     if let Some(u) = &s.update {
         print_update(u, s.updated_config.as_deref());
@@ -511,7 +511,7 @@ fn print_summary(s: &FitSummary) {
 /// Prints a model update.
 fn print_update(u: &Update, out: Option<&Path>) {
     let free = u.parameters.iter().filter(|p| p.free).count();
-    println!(
+    outln!(
         "model update ({}, {free} free parameter{}): RMS relative error {:.3} % (start {:.3} %){}",
         if u.source == "frf" {
             "to the FRF"
@@ -527,34 +527,36 @@ fn print_update(u: &Update, out: Option<&Path>) {
             _ => String::new(),
         }
     );
-    println!("  parameter                          start           updated ± 1σ");
+    outln!("  parameter                          start           updated ± 1σ");
     for p in &u.parameters {
         let sigma = p.sigma.map_or("—".into(), |s| format!("{s:.3e}"));
         if p.free {
-            println!(
+            outln!(
                 "  {:<33}  {:<14.6e}  {:.6e} ± {sigma} {}",
-                p.name, p.start, p.value, p.unit
+                p.name,
+                p.start,
+                p.value,
+                p.unit
             );
             if p.name == Parameter::ParallelogramStiffness.name() {
-                println!(
+                outln!(
                     "  {:<33}  = {:.4} × 24 E I / L³ of the configured beam",
-                    "", u.stiffness_over_beam
+                    "",
+                    u.stiffness_over_beam
                 );
             }
         } else {
-            println!("  {:<33}  {:<14.6e}  (held) {}", p.name, p.value, p.unit);
+            outln!("  {:<33}  {:<14.6e}  (held) {}", p.name, p.value, p.unit);
         }
     }
-    println!(
-        "  modes of the updated model (start mode by shape MAC; measured by order or FRF MAC):"
-    );
+    outln!("  modes of the updated model (start mode by shape MAC; measured by order or FRF MAC):");
     for (i, m) in u.modes.iter().enumerate() {
         let measured = match (m.measured_frequency_hz, m.measured_mac) {
             (Some(f), Some(mac)) => format!("measured {f:.3} Hz (MAC {mac:.2})"),
             (Some(f), None) => format!("measured {f:.3} Hz"),
             _ => "not measured".into(),
         };
-        println!(
+        outln!(
             "  {}  {:>9.3} Hz  ζ {:.5}  A {:+.3e} m/(A·s²)  start mode {} at {:.3} Hz (MAC {:.2}), {measured}",
             i + 1,
             m.frequency_hz,
@@ -566,9 +568,9 @@ fn print_update(u: &Update, out: Option<&Path>) {
         );
     }
     if u.crossed_veering {
-        println!("  the update crossed the veering: the closely spaced pair's shapes exchanged");
+        outln!("  the update crossed the veering: the closely spaced pair's shapes exchanged");
     }
-    println!(
+    outln!(
         "  updated model: {}",
         if u.cmp_cnmp {
             "CMP-CNMP zeros"
@@ -577,26 +579,26 @@ fn print_update(u: &Update, out: Option<&Path>) {
         }
     );
     if let Some(w) = &u.warning {
-        println!("  warning: {w}");
+        outln!("  warning: {w}");
     }
     match out {
-        Some(p) => println!("  updated bench {}", p.display()),
-        None => println!("  (no --out: nothing written)"),
+        Some(p) => outln!("  updated bench {}", p.display()),
+        None => outln!("  (no --out: nothing written)"),
     }
 }
 
 /// Prints a modal fit (also in `bench chirp`'s summary).
 pub(super) fn print_fit(f: &ModalFit) {
-    println!(
+    outln!(
         "modal fit ({} coherent points, rms relative error {:.2} %, delay {:.1} ± {:.1} µs):",
         f.coherent_points,
         100.0 * f.rms_relative_error,
         f.delay_s * 1e6,
         f.delay_sigma_s * 1e6
     );
-    println!("  mode  frequency (Hz)         damping ratio          modal constant (m/(A·s²))");
+    outln!("  mode  frequency (Hz)         damping ratio          modal constant (m/(A·s²))");
     for m in &f.modes {
-        println!(
+        outln!(
             "  {:<4}  {:>9.3} ± {:<9.3}  {:>8.5} ± {:<9.5}  {:>+11.4e} ± {:.1e}{}",
             m.label,
             m.frequency_hz,
@@ -612,25 +614,26 @@ pub(super) fn print_fit(f: &ModalFit) {
             }
         );
     }
-    println!(
+    outln!(
         "  residual terms: lower {:+.3e} m/(A·s²), upper {:+.3e} m/A",
-        f.lower_residual, f.upper_residual_m_per_a
+        f.lower_residual,
+        f.upper_residual_m_per_a
     );
-    println!("  signs: {}", f.sign_sequence);
-    println!("  sequence of dominant modes: {}", f.dominant_sequence);
+    outln!("  signs: {}", f.sign_sequence);
+    outln!("  sequence of dominant modes: {}", f.dominant_sequence);
     let zeros: Vec<String> = f
         .zeros
         .iter()
         .filter(|z| z.im_hz >= 0.0)
         .map(|z| format!("{:+.2}{:+.2}j Hz {}", z.re_hz, z.im_hz, z.kind))
         .collect();
-    println!("  zeros: {}", zeros.join(", "));
+    outln!("  zeros: {}", zeros.join(", "));
 }
 
 /// Prints the verdict with both tests.
 pub(super) fn print_verdict(v: &Verdict) {
     match &v.phase_test.pair {
-        Some(p) => println!(
+        Some(p) => outln!(
             "phase test: pair {:.2} Hz and {:.2} Hz, net phase over {:.1}–{:.1} Hz: {:.0}° (≈ {:.0}°): {}",
             p.lower_hz,
             p.upper_hz,
@@ -640,12 +643,12 @@ pub(super) fn print_verdict(v: &Verdict) {
             p.net_phase_multiple_deg,
             answer(v.phase_test.cmp_cnmp)
         ),
-        None => println!("phase test: {}", answer(None)),
+        None => outln!("phase test: {}", answer(None)),
     }
     if let Some(r) = &v.phase_test.reason {
-        println!("  ({r})");
+        outln!("  ({r})");
     }
-    println!(
+    outln!(
         "residue test: {} [{}], confidence {:.0} %: {}",
         v.residue_test.dominant_sequence,
         v.residue_test.sign_sequence,
@@ -653,11 +656,11 @@ pub(super) fn print_verdict(v: &Verdict) {
         answer(v.residue_test.cmp_cnmp)
     );
     if let Some(r) = &v.residue_test.reason {
-        println!("  ({r})");
+        outln!("  ({r})");
     }
-    println!("verdict: {}", answer(v.cmp_cnmp));
+    outln!("verdict: {}", answer(v.cmp_cnmp));
     if let Some(r) = &v.reason {
-        println!("  ({r})");
+        outln!("  ({r})");
     }
 }
 

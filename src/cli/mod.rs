@@ -12,15 +12,28 @@
 //! | 4 | hardware (HAL) error; 0 A, amplifier disabled, recording finished |
 //! | 130 | interrupted by SIGINT/SIGTERM; 0 A, amplifier disabled, recording finished |
 //! | 5 | `--daemon`: the daemon refused the job (busy, or a latched fault) |
+//! | 141 | the command succeeded, but the reader of its standard output went away (`bench … \| head`); what it wrote to files is complete |
 //!
 //! One file per command (`chirp.rs`, `control.rs`, `emulate.rs`,
 //! `serve.rs`: its flags and its printing); this file holds the command
 //! tree, the exit statuses and what the commands share.
 
+/// `outln!` for the command line's output: a reader that went away or a
+/// failed write stops the printing, not the command ([`console`]).
+macro_rules! outln {
+    () => {
+        $crate::cli::console::write(format_args!("\n"))
+    };
+    ($($arg:tt)*) => {
+        $crate::cli::console::write(format_args!("{}\n", format_args!($($arg)*)))
+    };
+}
+
 mod analyze;
 mod campaign;
 mod chirp;
 mod config_cmd;
+mod console;
 mod control;
 mod docs;
 mod emulate;
@@ -170,7 +183,7 @@ pub fn main() -> ExitCode {
         eprintln!("error: {e:#}");
         return ExitCode::from(status::ERROR);
     }
-    match cli.command {
+    let code = match cli.command {
         Command::Chirp(args) => chirp(args, stop),
         Command::Control(args) => control(args, stop),
         Command::Emulate(cmd) => emulate(cmd, stop),
@@ -184,7 +197,9 @@ pub fn main() -> ExitCode {
         Command::Config(cmd) => config_command(cmd),
         Command::Completions(args) => completions(&args),
         Command::Man(args) => man(&args),
-    }
+    };
+    // Output that could not be written changes a success's status only.
+    console::status(code == ExitCode::SUCCESS).map_or(code, ExitCode::from)
 }
 
 /// First SIGINT/SIGTERM raises `stop` (the loop winds down safely); a second
@@ -374,7 +389,7 @@ pub(super) fn emit<T: serde::Serialize>(
             eprintln!("error: {e}");
             ExitCode::from(status::ERROR)
         })?;
-        println!("{s}");
+        outln!("{s}");
     } else {
         human(summary);
     }

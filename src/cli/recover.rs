@@ -84,13 +84,13 @@ pub fn recover(args: RecoverArgs) -> ExitCode {
 }
 
 fn human(r: &Recovered) {
-    println!(
+    outln!(
         "recovered {} messages and {} metadata records ({:.3} s of loop time) from {}",
         r.messages,
         r.metadata,
         r.last_log_time_s,
         r.from.display()
     );
-    println!("  reading stopped at: {}", r.stopped);
-    println!("  recording           {}", r.to.display());
+    outln!("  reading stopped at: {}", r.stopped);
+    outln!("  recording           {}", r.to.display());
 }

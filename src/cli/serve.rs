@@ -81,7 +81,7 @@ pub(super) fn via_daemon<T: serde::de::DeserializeOwned + serde::Serialize>(
             Ok(summary) => {
                 if let Some(r) = v.get("recording").and_then(|r| r.as_str()) {
                     if !json {
-                        println!("recording (daemon) {r}");
+                        outln!("recording (daemon) {r}");
                     }
                 }
                 match emit(&summary, json, human) {
