@@ -23,3 +23,4 @@ pub mod outputs;
 pub mod plot;
 pub mod record;
 pub mod rt;
+pub mod splitmix;

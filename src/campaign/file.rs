@@ -242,12 +242,7 @@ pub enum CampaignError {
 /// SplitMix64 (Steele, Lea & Flood 2014) over the three, so that cells get
 /// unrelated noise and a re-run of the same campaign gets the same.
 pub fn cell_seed(seed: u64, op_index: usize, dm_index: usize) -> u64 {
-    fn mix(mut z: u64) -> u64 {
-        z = z.wrapping_add(0x9e37_79b9_7f4a_7c15);
-        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-        z ^ (z >> 31)
-    }
+    use crate::splitmix::splitmix64 as mix;
     mix(mix(mix(seed) ^ op_index as u64) ^ ((dm_index as u64) << 32 | 0x5eed))
 }
 

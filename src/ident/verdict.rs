@@ -201,13 +201,11 @@ pub fn residue_test(fit: &ModalFit) -> ResidueTest {
     let nominal = fit.cmp_cnmp;
     // SplitMix64 + Box-Muller, fixed seed: the same fit gives the same
     // confidence.
-    let mut state: u64 = 0x9E37_79B9_7F4A_7C15;
+    use crate::splitmix::{splitmix64, GAMMA};
+    let mut state: u64 = GAMMA;
     let mut uniform = || {
-        state = state.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut x = state;
-        x = (x ^ (x >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        x = (x ^ (x >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        x ^= x >> 31;
+        let x = splitmix64(state);
+        state = state.wrapping_add(GAMMA);
         ((x >> 11) as f64 + 0.5) / (1u64 << 53) as f64
     };
     let mut normal = || {
