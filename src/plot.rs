@@ -90,6 +90,49 @@ pub enum PairZoom<'a> {
     },
 }
 
+impl<'a> PairZoom<'a> {
+    /// The zoom for `test`'s pair on the measured `frf`, or, when it found
+    /// none, the panel with `reason` (e.g. [`PairZoom::reason_of`]).
+    pub fn of(
+        test: &crate::ident::verdict::PhaseTest,
+        frf: &crate::ident::frf::Frf,
+        reason: &'a str,
+    ) -> Self {
+        match &test.pair {
+            Some(p) => PairZoom::Resolved {
+                pair: *p,
+                band_phase_deg: (frf.phase_at_deg(p.band_hz.0), frf.phase_at_deg(p.band_hz.1)),
+            },
+            None => PairZoom::Unresolved { reason },
+        }
+    }
+
+    /// Why `test` resolved no pair, for the panel.
+    pub fn reason_of(test: &crate::ident::verdict::PhaseTest) -> String {
+        test.reason
+            .clone()
+            .unwrap_or_else(|| "no closely spaced pair was fitted".to_string())
+    }
+}
+
+/// Magnitude (of `h`'s unit) and unwrapped phase (degrees) of the curve
+/// `h`, the phase shifted by whole turns onto the branch of `reference_deg`
+/// (the measured phase at the first grid point: both start near 0° or
+/// −180°), so a model curve lies on the measurement in a Bode plot.
+pub fn bode_curve(
+    h: &[crate::ident::frf::C64],
+    reference_deg: Option<f64>,
+) -> (Vec<f64>, Vec<f64>) {
+    let magnitude = h.iter().map(|h| h.norm()).collect();
+    let mut phase: Vec<f64> = h.iter().map(|h| h.arg().to_degrees()).collect();
+    crate::ident::frf::unwrap_deg(&mut phase);
+    if let (Some(m0), Some(p0)) = (phase.first().copied(), reference_deg) {
+        let shift = ((p0 - m0) / 360.0).round() * 360.0;
+        phase.iter_mut().for_each(|p| *p += shift);
+    }
+    (magnitude, phase)
+}
+
 /// Everything shown in one Bode figure (see [`write_bode_png`]).
 #[derive(Debug, Clone, Copy)]
 pub struct BodePlot<'a> {

@@ -9,7 +9,7 @@ use bench::ident::update::{
 };
 use bench::ident::verdict::Verdict;
 use bench::outputs::Existing;
-use bench::plot::{write_bode_png, BodePlot, BodeSeries, PairZoom};
+use bench::plot::{bode_curve, write_bode_png, BodePlot, BodeSeries, PairZoom};
 use clap::Args;
 use serde::Serialize;
 use std::path::{Path, PathBuf};
@@ -442,27 +442,15 @@ fn write_plot(
         .iter()
         .map(|&f| modal_fit::evaluate(fit, &id.path, f))
         .collect();
-    let mag: Vec<f64> = h.iter().map(|h| h.norm()).collect();
-    let mut phase: Vec<f64> = h.iter().map(|h| h.arg().to_degrees()).collect();
-    bench::ident::frf::unwrap_deg(&mut phase);
-    if let (Some(m0), Some(p0)) = (phase.first().copied(), frf.phase_deg.first().copied()) {
-        let shift = ((p0 - m0) / 360.0).round() * 360.0;
-        phase.iter_mut().for_each(|p| *p += shift);
-    }
+    let (mag, phase) = bode_curve(&h, frf.phase_deg.first().copied());
     let markers: Vec<f64> = fit
         .modes
         .iter()
         .filter(|m| m.in_path)
         .map(|m| m.frequency_hz)
         .collect();
-    let reason = id.verdict.phase_test.reason.clone().unwrap_or_default();
-    let pair = match &id.verdict.phase_test.pair {
-        Some(p) => PairZoom::Resolved {
-            pair: *p,
-            band_phase_deg: (frf.phase_at_deg(p.band_hz.0), frf.phase_at_deg(p.band_hz.1)),
-        },
-        None => PairZoom::Unresolved { reason: &reason },
-    };
+    let reason = PairZoom::reason_of(&id.verdict.phase_test);
+    let pair = PairZoom::of(&id.verdict.phase_test, frf, &reason);
     let title = format!(
         "modal fit: {} modes, sequence {}",
         markers.len(),

@@ -15,7 +15,7 @@ use crate::jobs::session::{
     finish, open_recording, run_recorded, Kept, Recorded, Runner, SessionOptions, TimingSummary,
 };
 use crate::outputs::{Existing, Origin, OutputPlan};
-use crate::plot::{write_bode_png, BodePlot, BodeSeries, PairZoom};
+use crate::plot::{bode_curve, write_bode_png, BodePlot, BodeSeries, PairZoom};
 use crate::rt::backend::{self, BackendSpec};
 use crate::rt::{Job, JobOutput};
 use bench_hal::model::Sr4dof;
@@ -391,15 +391,7 @@ fn run_chirp_with(
     );
     csv?;
 
-    let model_mag: Vec<f64> = model_h.iter().map(|h| h.norm()).collect();
-    let mut model_phase: Vec<f64> = model_h.iter().map(|h| h.arg().to_degrees()).collect();
-    crate::ident::frf::unwrap_deg(&mut model_phase);
-    // Align the model's unwrapped phase with the measurement's branch at the
-    // first grid point (both start near 0° or −180°).
-    if let (Some(m0), Some(p0)) = (model_phase.first().copied(), frf.phase_deg.first().copied()) {
-        let shift = ((p0 - m0) / 360.0).round() * 360.0;
-        model_phase.iter_mut().for_each(|p| *p += shift);
-    }
+    let (model_mag, model_phase) = bode_curve(&model_h, frf.phase_deg.first().copied());
 
     let summary = ChirpSummary {
         recording: opts.out.clone(),
@@ -421,19 +413,8 @@ fn run_chirp_with(
         timing,
     };
     let markers: Vec<f64> = summary.resonances.iter().map(|r| r.frequency_hz).collect();
-    let no_pair = summary
-        .verdict
-        .phase_test
-        .reason
-        .clone()
-        .unwrap_or_else(|| "no closely spaced pair was fitted".to_string());
-    let pair_zoom = match &summary.closely_spaced_pair {
-        Some(p) => PairZoom::Resolved {
-            pair: *p,
-            band_phase_deg: (frf.phase_at_deg(p.band_hz.0), frf.phase_at_deg(p.band_hz.1)),
-        },
-        None => PairZoom::Unresolved { reason: &no_pair },
-    };
+    let no_pair = PairZoom::reason_of(&summary.verdict.phase_test);
+    let pair_zoom = PairZoom::of(&summary.verdict.phase_test, &frf, &no_pair);
     let title = format!(
         "x1 / current, Y1o = {:.1} % of L, Δm23 = {:+.0} % (seed {})",
         100.0 * cfg.plant.operating_point_m / cfg.plant.beam.length_m,
