@@ -139,38 +139,61 @@ pub fn modal_terms(model: &Sr4dof) -> Vec<ModalTerm> {
 /// (thesis Assumption A3-7 / A4-4; in the SR4DoF the 3rd and 4th modes,
 /// dominated by the secondary stages). `None` with fewer than two modes.
 pub fn closely_spaced_pair(terms: &[ModalTerm]) -> Option<(usize, usize)> {
-    (1..terms.len())
-        .min_by(|&a, &b| {
-            let ra = terms[a].frequency_hz / terms[a - 1].frequency_hz;
-            let rb = terms[b].frequency_hz / terms[b - 1].frequency_hz;
-            ra.total_cmp(&rb)
-        })
-        .map(|i| (i - 1, i))
+    let f: Vec<f64> = terms.iter().map(|t| t.frequency_hz).collect();
+    let none = vec![0.0; f.len()];
+    pair_and_remainder(&f, &none, &vec![false; f.len()], f64::INFINITY).0
 }
 
-/// Names the pair `u`, `v` and the remainder mode `R`: of the modes in the
-/// path outside the pair, the one with the largest contribution at the
-/// pair's mean frequency `|αᵢ / (ωᵢ² − ω²)|` (Assumption A4-4: the
-/// remainder is dominated by a single mode).
+/// Names the pair `u`, `v` and the remainder mode `R`
+/// ([`pair_and_remainder`] over the modes in the path).
 fn label_terms(terms: &mut [ModalTerm]) {
-    let Some((u, v)) = closely_spaced_pair(terms) else {
-        return;
-    };
-    terms[u].label = "u".into();
-    terms[v].label = "v".into();
-    let w_pair = 0.5 * (terms[u].omega_rad_s() + terms[v].omega_rad_s());
-    let r = (0..terms.len())
-        .filter(|&i| i != u && i != v && terms[i].in_path)
-        .max_by(|&a, &b| {
-            let ca = (terms[a].residue_per_kg / (terms[a].omega_rad_s().powi(2) - w_pair * w_pair))
-                .abs();
-            let cb = (terms[b].residue_per_kg / (terms[b].omega_rad_s().powi(2) - w_pair * w_pair))
-                .abs();
-            ca.total_cmp(&cb)
-        });
-    if let Some(r) = r {
+    let f: Vec<f64> = terms.iter().map(|t| t.frequency_hz).collect();
+    let residue: Vec<f64> = terms.iter().map(|t| t.residue_per_kg).collect();
+    let in_path: Vec<bool> = terms.iter().map(|t| t.in_path).collect();
+    let (pair, r) = pair_and_remainder(&f, &residue, &in_path, f64::INFINITY);
+    if let Some((u, v)) = pair {
+        terms[u].label = "u".into();
+        terms[v].label = "v".into();
+    }
+    if let (Some(_), Some(r)) = (pair, r) {
         terms[r].label = "R".into();
     }
+}
+
+/// The labels' rule, shared by `bench analyze` (model modes) and the modal
+/// fit (fitted modes). Modes ascending in frequency `f_hz` (Hz) with
+/// residues (or modal constants) `residue`, `in_path` the ones in the
+/// actuator-to-sensor path. Returns:
+/// - the closely spaced pair `(u, v)`: the two adjacent modes with the
+///   smallest frequency ratio, if it is at most `max_ratio` (thesis
+///   Assumption A3-7 / A4-4);
+/// - the remainder mode `R`: with a pair, the mode in the path outside it
+///   with the largest contribution `|αᵢ / (ωᵢ² − ω²)|` at the pair's mean
+///   frequency ω (Assumption A4-4: the remainder is dominated by a single
+///   mode); without one, the largest static contribution `|αᵢ / ωᵢ²|`.
+///
+/// # Panics
+/// If the three slices differ in length.
+pub fn pair_and_remainder(
+    f_hz: &[f64],
+    residue: &[f64],
+    in_path: &[bool],
+    max_ratio: f64,
+) -> (Option<(usize, usize)>, Option<usize>) {
+    assert!(f_hz.len() == residue.len() && f_hz.len() == in_path.len());
+    let w = |i: usize| 2.0 * PI * f_hz[i];
+    let pair = (1..f_hz.len())
+        .min_by(|&x, &y| (f_hz[x] / f_hz[x - 1]).total_cmp(&(f_hz[y] / f_hz[y - 1])))
+        .filter(|&v| f_hz[v] / f_hz[v - 1] <= max_ratio)
+        .map(|v| (v - 1, v));
+    let w2 = pair.map_or(0.0, |(u, v)| (0.5 * (w(u) + w(v))).powi(2));
+    let r = (0..f_hz.len())
+        .filter(|&i| in_path[i] && pair.is_none_or(|(u, v)| i != u && i != v))
+        .max_by(|&x, &y| {
+            let c = |i: usize| (residue[i] / (w(i).powi(2) - w2)).abs();
+            c(x).total_cmp(&c(y))
+        });
+    (pair, r)
 }
 
 /// A zero of a transfer function with its type (thesis 3.2.1).

@@ -1005,38 +1005,23 @@ fn summarise(prep: &Prepared, data: &FrfData, p: &Params, period_s: f64) -> Moda
     }
 }
 
-/// Labels as `bench analyze` gives them: the closely spaced pair (the
-/// adjacent modes with the smallest frequency ratio, at most
-/// `CLOSE_PAIR_RATIO` = 1.25) `u`, `v`; of the
-/// others, the one with the largest contribution `|Aᵢ/(ωᵢ² − ω²)|` at the
-/// pair's mean frequency `R`; the rest `m<N>`.
+/// Labels as `bench analyze` gives them
+/// ([`crate::analysis::modal::pair_and_remainder`], every mode in the
+/// path): the closely spaced pair (the adjacent modes with the smallest
+/// frequency ratio, at most `CLOSE_PAIR_RATIO` = 1.25) `u`, `v`; `R` the
+/// remainder mode; the rest `m<N>`.
 pub fn labels(f_hz: &[f64], a: &[f64]) -> Vec<String> {
     let mut out: Vec<String> = (0..f_hz.len()).map(|i| format!("m{}", i + 1)).collect();
-    let Some(v) = (1..f_hz.len())
-        .min_by(|&x, &y| (f_hz[x] / f_hz[x - 1]).total_cmp(&(f_hz[y] / f_hz[y - 1])))
-        .filter(|&v| f_hz[v] / f_hz[v - 1] <= super::frf::CLOSE_PAIR_RATIO)
-    else {
-        // No closely spaced pair: the largest static contribution is R.
-        if let Some(r) = (0..f_hz.len()).max_by(|&x, &y| {
-            (a[x] / f_hz[x].powi(2))
-                .abs()
-                .total_cmp(&(a[y] / f_hz[y].powi(2)).abs())
-        }) {
-            out[r] = "R".into();
-        }
-        return out;
-    };
-    let u = v - 1;
-    out[u] = "u".into();
-    out[v] = "v".into();
-    let w2 = (PI * (f_hz[u] + f_hz[v])).powi(2);
-    let r = (0..f_hz.len())
-        .filter(|&i| i != u && i != v)
-        .max_by(|&x, &y| {
-            let cx = (a[x] / ((2.0 * PI * f_hz[x]).powi(2) - w2)).abs();
-            let cy = (a[y] / ((2.0 * PI * f_hz[y]).powi(2) - w2)).abs();
-            cx.total_cmp(&cy)
-        });
+    let (pair, r) = crate::analysis::modal::pair_and_remainder(
+        f_hz,
+        a,
+        &vec![true; f_hz.len()],
+        super::frf::CLOSE_PAIR_RATIO,
+    );
+    if let Some((u, v)) = pair {
+        out[u] = "u".into();
+        out[v] = "v".into();
+    }
     if let Some(r) = r {
         out[r] = "R".into();
     }
