@@ -69,6 +69,19 @@ pub struct BodeSeries<'a> {
     pub phase_deg: &'a [f64],
 }
 
+impl<'a> BodeSeries<'a> {
+    /// The H1 estimate `frf` as a figure's measured curve, labelled
+    /// "measured (H1)".
+    pub fn measured_h1(frf: &'a crate::ident::frf::Frf) -> Self {
+        Self {
+            label: "measured (H1)",
+            frequency_hz: &frf.frequency_hz,
+            magnitude: &frf.magnitude_m_per_a,
+            phase_deg: &frf.phase_deg,
+        }
+    }
+}
+
 /// The zoom on the closely spaced pair of a Bode figure.
 #[derive(Debug, Clone, Copy)]
 pub enum PairZoom<'a> {

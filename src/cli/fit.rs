@@ -461,12 +461,7 @@ fn write_plot(
         existing,
         &BodePlot {
             title: &title,
-            measured: BodeSeries {
-                label: "measured (H1)",
-                frequency_hz: &frf.frequency_hz,
-                magnitude: &frf.magnitude_m_per_a,
-                phase_deg: &frf.phase_deg,
-            },
+            measured: BodeSeries::measured_h1(frf),
             coherence: &frf.coherence,
             model: Some(BodeSeries {
                 label: "modal fit",

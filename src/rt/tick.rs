@@ -1620,6 +1620,23 @@ mod tests {
         assert!(gaps[k] >= STALL.as_secs_f64(), "{:?}", &gaps[k - 2..k + 2]);
     }
 
+    /// Virtual time times one tick in [`VIRTUAL_TIMING_STRIDE`] (the
+    /// first of each stride), without backpressure every tick.
+    #[test]
+    fn virtual_time_times_one_tick_in_the_stride() {
+        let (mut tx, _rx) = RecordQueue::new(1024);
+        let mut st = Script::new([]);
+        let mut lp = Loop::new(&mut st, &opts(), Clock::Host);
+        let end = run_constant(&mut lp, &mut tx);
+        assert_eq!(end.ticks, 25);
+        // Ticks 0 and 16 of 25.
+        assert_eq!(lp.total.compute.count(), 2);
+        lp.backpressure = false;
+        let end = run_constant(&mut lp, &mut tx);
+        assert_eq!(end.ticks, 25);
+        assert_eq!(lp.total.compute.count(), 25);
+    }
+
     #[test]
     fn a_job_runs_enabled_and_ends_disabled_at_zero_amps() {
         let (mut tx, rx) = RecordQueue::new(1024);
