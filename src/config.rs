@@ -88,6 +88,15 @@ pub mod limits {
     /// this bench delivers (the supervisor clips commands to it, the I²t
     /// budget grows with its square).
     pub const PEAK_CURRENT_MAX_A: f64 = 20.0;
+    /// Smallest ratio of `actuator.peak_current_a` to
+    /// `actuator.continuous_current_a`: 1.25. The I²t budget is
+    /// `(I_peak² − I_cont²) · t_peak`; at a ratio of 1 it is zero and the
+    /// protection can never trip (no current above the peak flows, and the
+    /// accumulator only grows above the continuous rating), so the
+    /// protection would be configured off. At 1.25 the budget is at least
+    /// `0.56 · I_cont² · t_peak`. Coils are rated with a peak 3–5 times the
+    /// continuous current (LA24-20-000A: 4.3).
+    pub const PEAK_TO_CONTINUOUS_MIN: f64 = 1.25;
     /// The X travel of stage 1 on the thesis bench, m: ±1 mm, a factor of
     /// two against yielding, with a mechanical stop there (§5.1.2); the
     /// probe reads ±1 mm too. `safety.position_limit_m` is below it.
@@ -482,22 +491,20 @@ pub struct SafetyConfig {
     /// ±1 mm X travel of the thesis bench, §5.1.2), and inside
     /// `stage.mechanical_stop_m` and `probe.range_m`.
     pub position_limit_m: f64,
-    /// Longest the real-time loop may run behind its deadlines, s:
-    /// deadlines missed in a row for longer than this are the `overruns`
-    /// fault (real-time mode; virtual time has no deadlines). The whole
-    /// periods in this bound are tolerated (a bound under one period
-    /// tolerates none), so a stall of a given length is judged the same at
-    /// any `loop.rate_hz`. Range: above 0 and at most
-    /// [`limits::BLIND_MAX_S`] (0.1 s). Default 10 ms (50 periods at
-    /// 5 kHz, 200 at 20 kHz): a stall is seen only when it ends, so the
-    /// bound cannot keep the stage in its travel (the position limit does,
-    /// on the first tick after); it bounds how long a run may have gone
-    /// without its loop. A quiet 2-core VM stalls the loop for up to about
-    /// 3 ms now and then (measured, README), which a 2 ms bound turned
-    /// into faults of normal runs; a scheduling failure (tens of ms) still
-    /// ends the run.
-    #[serde(default = "default_max_overrun_s")]
-    pub max_overrun_s: f64,
+    /// Optional upper limit on how long the real-time loop may run behind
+    /// its deadlines in a closed-loop job, s (whole periods tolerated, so a
+    /// stall is judged the same at any `loop.rate_hz`). Absent (the
+    /// default): the bound comes from the loop itself, the smaller of its
+    /// delay margin and the time the held peak current takes to reach the
+    /// position limit ([`crate::control::loop_check::StallLimit`]). Set,
+    /// it may only tighten that bound (a value above it is refused by the
+    /// loop check with both numbers) and it applies to every job, open-loop
+    /// identification included. Open-loop jobs without it never stop on a
+    /// stall: the stall is recorded and its span left out of the FRF.
+    /// Between jobs at 0 A stalls are reported, never latched. Range:
+    /// above 0 and at most [`limits::BLIND_MAX_S`] (0.1 s).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub max_overrun_s: Option<f64>,
     /// The tick count that `max_overrun_s` replaced; refused with a hint
     /// (never written).
     #[serde(default, skip_serializing)]
@@ -519,17 +526,17 @@ pub struct SafetyConfig {
     /// 5 kHz), and below `position_limit_m`.
     #[serde(default = "default_max_step")]
     pub max_position_step_m: f64,
-    /// Longest the device may run on commands that do not answer its
-    /// previous sample, s: a link that delivers commands (or samples) late
-    /// adds delay the loop check never saw, and the loop can go unstable.
-    /// The device flags each such sample
-    /// ([`bench_hal::SampleFlags::command_late`]); more than this long of
-    /// them in a row is the `link_latency` fault: the whole periods in this
-    /// bound are tolerated, so a bound under one period tolerates none.
-    /// Range: above 0 and at most [`limits::BLIND_MAX_S`] (0.1 s). Default
-    /// 2 ms (10 ticks at 5 kHz; none at 100 Hz).
-    #[serde(default = "default_max_latency")]
-    pub max_command_latency_s: f64,
+    /// Optional upper limit on how long the device may run on commands
+    /// that do not answer its previous sample (a late link), s: the device
+    /// flags each such sample ([`bench_hal::SampleFlags::command_late`]),
+    /// and in a closed-loop job more than the bound of them in a row is the
+    /// `link_latency` fault (whole periods tolerated). Absent (the
+    /// default): the loop's own stall bound, as for `max_overrun_s`; set,
+    /// it may only tighten it (above it: refused with both numbers) and
+    /// applies to every job. Range: above 0 and at most
+    /// [`limits::BLIND_MAX_S`] (0.1 s).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub max_command_latency_s: Option<f64>,
     /// How long the peak current may flow from cold, s: the I²t budget is
     /// `(I_peak² − I_cont²) · this`; the accumulator integrates
     /// `i² − I_cont²` (never below 0) and faults when it exceeds the budget.
@@ -549,17 +556,11 @@ pub struct SafetyConfig {
     pub max_sensitivity_peak: f64,
 }
 
-fn default_max_overrun_s() -> f64 {
-    10e-3
-}
 fn default_max_missed() -> u32 {
     3
 }
 fn default_max_step() -> f64 {
     50e-6
-}
-fn default_max_latency() -> f64 {
-    2e-3
 }
 fn default_i2t_s() -> f64 {
     1.0
@@ -874,11 +875,7 @@ impl BenchConfig {
             "the current loop of a linear amplifier",
         )?;
         // The ratings first: their messages name both keys.
-        self.check_current_ratings(
-            "actuator",
-            self.actuator.peak_current_a,
-            self.actuator.continuous_current_a,
-        )?;
+        self.check_actuator_ratings()?;
         self.actuator.validate("actuator")?;
         let (lo, hi) = ranges::TRAVEL_M;
         in_range(
@@ -1073,16 +1070,18 @@ impl BenchConfig {
         if s.max_consecutive_overruns.is_some() {
             return Err(ParamError::new(
                 "safety.max_consecutive_overruns",
-                "was replaced by safety.max_overrun_s, the time the loop may run behind its deadlines in s (default 0.01): a tick count judged the same stall differently at each loop rate; write e.g. `max_overrun_s = 0.01` instead".to_string(),
+                "was replaced: the stall bound now comes from the loop (delay margin, reach of the position limit), and safety.max_overrun_s (s, optional) may only tighten it; a tick count judged the same stall differently at each loop rate; delete the key, or write e.g. `max_overrun_s = 0.002`".to_string(),
             ));
         }
-        in_range(
-            "safety.max_overrun_s",
-            s.max_overrun_s,
-            Range::open_closed(0.0, limits::BLIND_MAX_S),
-            "s",
-            "above 0 and at most 0.1 s (at the peak force the stage crosses its stroke in less)",
-        )?;
+        if let Some(v) = s.max_overrun_s {
+            in_range(
+                "safety.max_overrun_s",
+                v,
+                Range::open_closed(0.0, limits::BLIND_MAX_S),
+                "s",
+                "above 0 and at most 0.1 s (at the peak force the stage crosses its stroke in less); delete the key for the loop's own bound",
+            )?;
+        }
         let blind = self.ticks_in(limits::BLIND_MAX_S);
         in_count(
             "safety.max_missed_samples",
@@ -1109,13 +1108,15 @@ impl BenchConfig {
                 ),
             ));
         }
-        in_range(
-            "safety.max_command_latency_s",
-            s.max_command_latency_s,
-            Range::open_closed(0.0, limits::BLIND_MAX_S),
-            "s",
-            "above 0 and at most 0.1 s (the stage crosses its stroke in less)",
-        )?;
+        if let Some(v) = s.max_command_latency_s {
+            in_range(
+                "safety.max_command_latency_s",
+                v,
+                Range::open_closed(0.0, limits::BLIND_MAX_S),
+                "s",
+                "above 0 and at most 0.1 s (the stage crosses its stroke in less); delete the key for the loop's own bound",
+            )?;
+        }
         let (lo, hi) = limits::I2T_PEAK_DURATION_S;
         in_range(
             "safety.i2t_peak_duration_s",
@@ -1142,8 +1143,71 @@ impl BenchConfig {
         Ok(())
     }
 
-    /// Peak and continuous current ratings under `prefix` (the actuator, a
-    /// CAN device): inside (0, [`limits::PEAK_CURRENT_MAX_A`]], continuous
+    /// The actuator's current limits against its coil's datasheet ratings:
+    /// `rated_peak_current_a` in (0, [`limits::PEAK_CURRENT_MAX_A`]],
+    /// `rated_continuous_current_a` below it; `peak_current_a` at most the
+    /// rated peak; `continuous_current_a` at most the rated continuous
+    /// current and at most `peak_current_a /`
+    /// [`limits::PEAK_TO_CONTINUOUS_MIN`], so the I²t protection cannot be
+    /// configured off.
+    fn check_actuator_ratings(&self) -> Result<(), ParamError> {
+        let a = &self.actuator;
+        in_range(
+            "actuator.rated_peak_current_a",
+            a.rated_peak_current_a,
+            Range::open_closed(0.0, limits::PEAK_CURRENT_MAX_A),
+            "A",
+            "the coil's datasheet peak force over its force constant (LA24-20-000A: 111 N / 11.12 N/A = 9.98 A); at most twice that",
+        )?;
+        in_range(
+            "actuator.rated_continuous_current_a",
+            a.rated_continuous_current_a,
+            Range::open(0.0, a.rated_peak_current_a),
+            "A",
+            &format!(
+                "the coil's datasheet continuous force over its force constant (LA24-20-000A: 26 N / 11.12 N/A = 2.34 A), below actuator.rated_peak_current_a = {} A",
+                a.rated_peak_current_a
+            ),
+        )?;
+        in_range(
+            "actuator.peak_current_a",
+            a.peak_current_a,
+            Range::open_closed(0.0, a.rated_peak_current_a),
+            "A",
+            &format!(
+                "at most the coil's rating actuator.rated_peak_current_a = {} A",
+                a.rated_peak_current_a
+            ),
+        )?;
+        let by_ratio = a.peak_current_a / limits::PEAK_TO_CONTINUOUS_MIN;
+        let (hi, why) = if a.rated_continuous_current_a <= by_ratio {
+            (
+                a.rated_continuous_current_a,
+                format!(
+                    "at most the coil's rating actuator.rated_continuous_current_a = {} A",
+                    a.rated_continuous_current_a
+                ),
+            )
+        } else {
+            (
+                by_ratio,
+                format!(
+                    "at most actuator.peak_current_a / {} = {by_ratio:.4} A: a continuous rating this close to the peak leaves no I2t budget, which would switch the coil's thermal protection off",
+                    limits::PEAK_TO_CONTINUOUS_MIN
+                ),
+            )
+        };
+        in_range(
+            "actuator.continuous_current_a",
+            a.continuous_current_a,
+            Range::open_closed(0.0, hi * TIME_TOLERANCE),
+            "A",
+            &why,
+        )
+    }
+
+    /// Peak and continuous current ratings under `prefix` (a CAN device):
+    /// inside (0, [`limits::PEAK_CURRENT_MAX_A`]], continuous
     /// at most peak (the tables' own checks refuse the rest).
     fn check_current_ratings(
         &self,
@@ -1399,26 +1463,39 @@ impl BenchConfig {
         }
     }
 
+    /// The current limits in force on a configured backend (`info`): the
+    /// smaller of `[actuator]`'s and the device's, each
+    /// ([`crate::rt::supervisor::CurrentLimits::in_force`]).
+    pub fn current_limits(
+        &self,
+        info: &bench_hal::DeviceInfo,
+    ) -> crate::rt::supervisor::CurrentLimits {
+        crate::rt::supervisor::CurrentLimits::in_force(
+            self.actuator.peak_current_a,
+            self.actuator.continuous_current_a,
+            info,
+        )
+    }
+
     /// The supervisor's limits for a configured backend (`info`) at its
-    /// period.
+    /// period; the currents are [`Self::current_limits`].
     pub fn supervisor(
         &self,
         info: &bench_hal::DeviceInfo,
     ) -> crate::rt::supervisor::SupervisorConfig {
+        let currents = self.current_limits(info);
         crate::rt::supervisor::SupervisorConfig {
             position_limit_m: self.safety.position_limit_m,
-            peak_current_a: info.peak_current_a,
-            max_missed_deadlines: crate::rt::supervisor::whole_periods(
-                self.safety.max_overrun_s,
-                info.period_ns as f64 * 1e-9,
-            ),
+            peak_current_a: currents.peak_current_a,
+            max_missed_deadlines: self.safety.max_overrun_s.map_or(u64::MAX, |b| {
+                crate::rt::supervisor::whole_periods(b, info.period_ns as f64 * 1e-9)
+            }),
             max_missed_samples: self.safety.max_missed_samples,
             max_position_step_m: self.safety.max_position_step_m,
-            max_late_commands: crate::rt::supervisor::whole_periods(
-                self.safety.max_command_latency_s,
-                info.period_ns as f64 * 1e-9,
-            ),
-            continuous_current_a: info.continuous_current_a,
+            max_late_commands: self.safety.max_command_latency_s.map_or(u64::MAX, |b| {
+                crate::rt::supervisor::whole_periods(b, info.period_ns as f64 * 1e-9)
+            }),
+            continuous_current_a: currents.continuous_current_a,
             i2t_peak_duration_s: self.safety.i2t_peak_duration_s,
             period_s: info.period_ns as f64 * 1e-9,
         }
@@ -1457,6 +1534,14 @@ impl Range {
     /// `[lo, hi)`
     fn closed_open(lo: f64, hi: f64) -> Self {
         Self {
+            hi_closed: false,
+            ..Self::closed(lo, hi)
+        }
+    }
+    /// `(lo, hi)`
+    fn open(lo: f64, hi: f64) -> Self {
+        Self {
+            lo_closed: false,
             hi_closed: false,
             ..Self::closed(lo, hi)
         }

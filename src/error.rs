@@ -41,6 +41,9 @@ pub enum RunError {
         tick: u64,
         /// The finished recording.
         recording: String,
+        /// What `--json` prints beside the fault: the job, backend,
+        /// current limits, loop timing and link counters of the run.
+        context: Box<serde_json::Value>,
     },
     /// The HAL failed (exit 4). The recording was finished.
     #[error(
@@ -92,6 +95,67 @@ pub enum RunError {
 }
 
 impl RunError {
+    /// The summary `--json` prints on stdout for a run that ended without
+    /// its job's summary: `{"outcome": …, "error": message, …}` with the
+    /// fault (kind, value, tick, message), the recording and, for a fault,
+    /// the run's context (backend, current limits, timing); `None` for
+    /// errors before anything ran (bad input: stderr only).
+    pub fn summary_json(&self) -> Option<serde_json::Value> {
+        use serde_json::json;
+        let message = format!("{self:#}");
+        match self {
+            Self::Fault {
+                kind,
+                value,
+                detail,
+                tick,
+                recording,
+                context,
+            } => {
+                let mut v = json!({
+                    "outcome": "fault",
+                    "error": message,
+                    "fault": {
+                        "kind": kind,
+                        "value": value.is_finite().then_some(*value),
+                        "message": detail,
+                        "tick": tick,
+                    },
+                    "recording": recording,
+                });
+                if let (Some(o), Some(c)) = (v.as_object_mut(), context.as_object()) {
+                    for (k, x) in c {
+                        o.insert(k.clone(), x.clone());
+                    }
+                }
+                Some(v)
+            }
+            Self::Hal {
+                message: m,
+                tick,
+                recording,
+            } => Some(json!({
+                "outcome": "hal",
+                "error": message,
+                "hal": {"message": m, "tick": tick},
+                "recording": recording,
+            })),
+            Self::Interrupted { tick, recording } => Some(json!({
+                "outcome": "interrupted",
+                "error": message,
+                "tick": tick,
+                "recording": recording,
+            })),
+            Self::TickLimit { job, recording } => Some(json!({
+                "outcome": "tick_limit",
+                "error": message,
+                "job": job,
+                "recording": recording,
+            })),
+            _ => None,
+        }
+    }
+
     /// A [`RunError::BadOption`].
     pub fn option(key: &'static str, subject: impl ToString, reason: impl Into<String>) -> Self {
         Self::BadOption {

@@ -268,7 +268,7 @@ fn tables(v: &Value, path: &str, out: &mut Vec<String>) {
 
 /// The optional keys the shipped files show commented out (or leave out),
 /// with a value to start from: covered as if present.
-const OPTIONAL: [(&str, Value); 10] = [
+const OPTIONAL: [(&str, Value); 12] = [
     ("loop.cpu", Value::Integer(0)),
     ("plant.parallelogram_stiffness_n_per_m", Value::Float(8.5e3)),
     ("backend.serial.handshake_timeout_ms", Value::Float(500.0)),
@@ -279,6 +279,8 @@ const OPTIONAL: [(&str, Value); 10] = [
     ("emulator.watchdog_ms", Value::Float(50.0)),
     ("emulator.position_lsb_m", Value::Float(1e-10)),
     ("emulator.priority", Value::Integer(70)),
+    ("safety.max_overrun_s", Value::Float(0.002)),
+    ("safety.max_command_latency_s", Value::Float(0.002)),
 ];
 
 /// What the documentation says about `key` in the config `c` (the shipped
@@ -297,6 +299,8 @@ fn documented(key: &str, c: &Value) -> Option<(Doc, bool)> {
     let blind = (0.1 * rate).floor();
     let limit = num("safety.position_limit_m", 0.8e-3);
     let peak = num("actuator.peak_current_a", 9.98);
+    let rated_peak = num("actuator.rated_peak_current_a", 9.98);
+    let rated_cont = num("actuator.rated_continuous_current_a", 2.34);
     let length = num("plant.beam.length_m", 0.0475);
     // SAFETY: sysconf has no preconditions.
     let online = unsafe { libc::sysconf(libc::_SC_NPROCESSORS_ONLN) }.max(1) as f64;
@@ -352,9 +356,14 @@ fn documented(key: &str, c: &Value) -> Option<(Doc, bool)> {
         }
         "actuator.force_constant_n_per_a" => (closed(0.01, 1000.0), req),
         "actuator.bandwidth_hz" => (closed(10.0, 100_000.0), req),
-        "actuator.peak_current_a" => (open_closed(0.0, 20.0), req),
+        // At most the coil's datasheet rating (README: `peak_current_a`).
+        "actuator.peak_current_a" => (open_closed(0.0, rated_peak), req),
+        "actuator.rated_peak_current_a" => (open_closed(0.0, 20.0), opt),
+        "actuator.rated_continuous_current_a" => (open(0.0, rated_peak), opt),
         "backend.can.peak_current_a" => (open_closed(0.0, 20.0), opt),
-        "actuator.continuous_current_a" => (open_closed(0.0, peak), req),
+        // At most the coil's rating and peak / 1.25, so the I²t budget
+        // never vanishes (README: `continuous_current_a`).
+        "actuator.continuous_current_a" => (open_closed(0.0, rated_cont.min(peak / 1.25)), req),
         "probe.range_m" => (
             Doc {
                 lo_closed: false,
@@ -617,7 +626,7 @@ fn evaluate_here(text: &str) -> Result<Outcome, String> {
     let period = c.loop_.period_ns() as f64 * 1e-9;
     for (name, cc) in &c.controller {
         let ctrl = DiscreteController::new(cc, period, c.actuator.peak_current_a);
-        let check = check_loop(&c, &model, name, &ctrl, period, None);
+        let check = check_loop(&c, &model, name, &ctrl, period, None, c.step.step_m);
         if check.passed() {
             // A pass means what the [safety] margins say.
             let pm = check.model.phase_margin_deg.unwrap_or(f64::NAN);
@@ -652,15 +661,17 @@ fn safety_effective(c: &BenchConfig) -> Result<(), String> {
                 && s.position_limit_m < c.probe.range_m,
         ),
         (
-            "peak current in (0, 20] A, continuous in (0, peak]",
+            "peak current in (0, rated peak <= 20 A], continuous at most the rated one and peak / 1.25 (an I2t budget that cannot vanish)",
             c.actuator.peak_current_a > 0.0
-                && c.actuator.peak_current_a <= 20.0
+                && c.actuator.peak_current_a <= c.actuator.rated_peak_current_a
+                && c.actuator.rated_peak_current_a <= 20.0
                 && c.actuator.continuous_current_a > 0.0
-                && c.actuator.continuous_current_a <= c.actuator.peak_current_a,
+                && c.actuator.continuous_current_a <= c.actuator.rated_continuous_current_a
+                && c.actuator.continuous_current_a * 1.25 <= c.actuator.peak_current_a * (1.0 + 1e-9),
         ),
         (
-            "overrun bound (0, 0.1] s",
-            s.max_overrun_s > 0.0 && s.max_overrun_s <= 0.1,
+            "overrun bound absent or (0, 0.1] s",
+            s.max_overrun_s.is_none_or(|v| v > 0.0 && v <= 0.1),
         ),
         (
             "missed samples at most 0.1 s of ticks",
@@ -674,7 +685,7 @@ fn safety_effective(c: &BenchConfig) -> Result<(), String> {
         ),
         (
             "command latency (0, 0.1] s",
-            s.max_command_latency_s > 0.0 && s.max_command_latency_s <= 0.1,
+            s.max_command_latency_s.is_none_or(|v| v > 0.0 && v <= 0.1),
         ),
         (
             "I²t duration [0.01, 10] s",

@@ -447,6 +447,27 @@ fn sim_faults_between_jobs_latch_until_reset() {
     }
 }
 
+/// A host stall between jobs (the loop thread blocked 60 ms, 300
+/// deadlines missed at 5 kHz) with the amplifier disabled at 0 A is
+/// reported and never latched: there is nothing to protect. Jobs still run
+/// afterwards, and a stall in the middle of the idle loop is not counted
+/// against the next job.
+#[test]
+fn a_stall_between_jobs_never_latches() {
+    let _g = one_at_a_time();
+    let d = Daemon::start_with(&["--inject-fault", "stall:60@0.8"], "");
+    let mut c = d.client();
+    // Past the stall (0.8 s of loop time, then 60 ms).
+    let t0 = std::time::Instant::now();
+    while t0.elapsed() < Duration::from_secs(2) {
+        let s = c.call("status", json!({}))["result"].clone();
+        assert_ne!(s["state"], "faulted", "latched a stall between jobs: {s}");
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    let r = c.call("chirp", json!({ "duration_s": 0.5 }));
+    assert_eq!(r["ok"], true, "{r}");
+}
+
 /// Link faults of the serial device between jobs (a hung device, a
 /// disconnect, a burst of corrupt frames) latch the `link` fault.
 #[test]

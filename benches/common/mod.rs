@@ -28,6 +28,7 @@ pub fn default_chirp(dir: &Path) -> ChirpOptions {
         seed: 1,
         progress: false,
         backend: None,
+        inject: None,
     }
 }
 

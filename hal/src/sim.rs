@@ -48,9 +48,31 @@ pub struct ActuatorParams {
     pub peak_current_a: f64,
     /// Continuous current rating, A (I²t limit).
     pub continuous_current_a: f64,
+    /// The coil's rated peak current from its datasheet, A: the peak
+    /// force over the force constant the datasheet gives (LA24-20-000A:
+    /// 111 N / 11.12 N/A = 9.98 A, thesis §5.1.2). `peak_current_a` may not
+    /// exceed it. Absent in the TOML: the thesis coil's 9.98 A.
+    #[serde(default = "ActuatorParams::la24_rated_peak_current_a")]
+    pub rated_peak_current_a: f64,
+    /// The coil's rated continuous current from its datasheet, A: the
+    /// continuous (stall) force over the force constant (LA24-20-000A:
+    /// 26 N / 11.12 N/A = 2.34 A). `continuous_current_a` may not exceed
+    /// it. Absent in the TOML: the thesis coil's 2.34 A.
+    #[serde(default = "ActuatorParams::la24_rated_continuous_current_a")]
+    pub rated_continuous_current_a: f64,
 }
 
 impl ActuatorParams {
+    /// The thesis coil's (BEI Kimco LA24-20-000A) rated peak current, A.
+    pub fn la24_rated_peak_current_a() -> f64 {
+        9.98
+    }
+
+    /// The thesis coil's rated continuous current, A.
+    pub fn la24_rated_continuous_current_a() -> f64 {
+        2.34
+    }
+
     /// Checks every value, keys under `prefix`.
     ///
     /// # Errors
@@ -65,6 +87,14 @@ impl ActuatorParams {
         positive(
             &format!("{prefix}.continuous_current_a"),
             self.continuous_current_a,
+        )?;
+        positive(
+            &format!("{prefix}.rated_peak_current_a"),
+            self.rated_peak_current_a,
+        )?;
+        positive(
+            &format!("{prefix}.rated_continuous_current_a"),
+            self.rated_continuous_current_a,
         )?;
         if self.continuous_current_a > self.peak_current_a {
             return Err(ParamError::new(
@@ -302,6 +332,11 @@ pub enum FaultInjection {
     Jump(f64),
     /// The probe reports out of range from then on.
     OutOfRange,
+    /// The host stalls once for this long, s: the read blocks (the
+    /// calling thread sleeps), as a host that was not scheduled would
+    /// (tests of the loop's stall rules; the plant advances one period per
+    /// read, so nothing physical happens in the simulation).
+    Stall(f64),
 }
 
 /// A fault scheduled at a device time.
@@ -515,7 +550,10 @@ impl SimStage {
     fn active_fault(&self) -> Option<FaultInjection> {
         let f = self.fault?;
         let t = self.seq as f64 * self.period_ns as f64 * 1e-9;
-        let event = matches!(f.kind, FaultInjection::Drop(_) | FaultInjection::Jump(_));
+        let event = matches!(
+            f.kind,
+            FaultInjection::Drop(_) | FaultInjection::Jump(_) | FaultInjection::Stall(_)
+        );
         (t >= f.at_s && !(event && self.last_sample.is_none())).then_some(f.kind)
     }
 
@@ -623,6 +661,12 @@ impl Stage for SimStage {
         let fault = self.active_fault();
         if let (Some(FaultInjection::Frozen), Some(last)) = (fault, self.last_sample) {
             return Ok(last);
+        }
+        if let (Some(FaultInjection::Stall(s)), false) = (fault, self.drop_done) {
+            self.drop_done = true;
+            if s.is_finite() && s > 0.0 {
+                std::thread::sleep(std::time::Duration::from_secs_f64(s));
+            }
         }
         if let (Some(FaultInjection::Drop(n)), false) = (fault, self.drop_done) {
             self.drop_done = true;

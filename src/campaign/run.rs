@@ -575,6 +575,7 @@ fn run_cell(
                     CellBench::Backend(b) => Some(b.clone()),
                     _ => None,
                 },
+                inject: None,
             };
             run_chirp(&opts, chirp_outputs(&opts), stop.clone(), None)
                 .map_err(|e| cell_err(e.to_string()))?

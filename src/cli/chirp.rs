@@ -5,11 +5,11 @@ use super::point::PointArgs;
 use super::serve::via_daemon;
 use super::{
     bad_input, emit, job_thread, load_config, origin, recording_plan, refuse_local_only,
-    refused_request, run_failed, CONFIG_HELP,
+    refused_request, run_failed, run_failed_json, CONFIG_HELP,
 };
 use bench::config::ChirpKind;
 use bench::jobs::chirp::{run_chirp, ChirpOptions, ChirpSummary};
-use bench::jobs::request::{parse_seed, ChirpRequest, JobRequest, LocalOverrides};
+use bench::jobs::request::{parse_fault, parse_seed, ChirpRequest, JobRequest, LocalOverrides};
 use bench::jobs::session::beside;
 use bench::rt::backend::BackendSpec;
 use clap::{Args, ValueEnum};
@@ -72,6 +72,11 @@ pub(super) struct ChirpArgs {
     /// Sweep law (overrides chirp.kind).
     #[arg(long, value_enum)]
     chirp_kind: Option<KindArg>,
+    /// Inject a simulator fault: KIND@T_S with KIND one of nan, frozen,
+    /// drop (10 samples), jump (0.2 mm), out_of_range, stall:MS (the host
+    /// stalls once for MS ms; with --realtime); e.g. stall:30@5.
+    #[arg(long, value_name = "KIND@T_S")]
+    inject_fault: Option<String>,
     /// Backend: sim, serial:PATH or socketcan:IFACE [default: [backend] of
     /// the config]. Hardware always runs in real time.
     #[arg(long, value_name = "BACKEND")]
@@ -139,6 +144,7 @@ pub(super) fn chirp(args: ChirpArgs, stop: Arc<AtomicBool>) -> ExitCode {
         local_only.extend([
             (args.backend.is_some(), "--backend"),
             (args.chirp_kind.is_some(), "--chirp-kind"),
+            (args.inject_fault.is_some(), "--inject-fault"),
         ]);
         if let Some(code) = refuse_local_only(
             &local_only,
@@ -157,6 +163,15 @@ pub(super) fn chirp(args: ChirpArgs, stop: Arc<AtomicBool>) -> ExitCode {
         return code;
     }
     let request = args.request();
+    let inject = match args.inject_fault.as_deref().map(parse_fault).transpose() {
+        Ok(f) => f,
+        Err(reason) => {
+            return bad_input(format!(
+                "--inject-fault {}: {reason}",
+                args.inject_fault.as_deref().unwrap_or_default()
+            ))
+        }
+    };
     args.local_overrides().apply(&mut cfg);
     if let Err(e) = request.apply(&mut cfg) {
         return refused_request(e, &config_path, |key| args.flag_for(key));
@@ -197,6 +212,7 @@ pub(super) fn chirp(args: ChirpArgs, stop: Arc<AtomicBool>) -> ExitCode {
         realtime: args.realtime,
         progress: std::io::stderr().is_terminal(),
         backend: args.backend.clone(),
+        inject,
     };
     // On a worker thread, with the loop's tick count for the preparation
     // watch (a stop before the first tick ends the run at once).
@@ -217,7 +233,7 @@ pub(super) fn chirp(args: ChirpArgs, stop: Arc<AtomicBool>) -> ExitCode {
             Ok(()) => ExitCode::SUCCESS,
             Err(code) => code,
         },
-        Err(e) => run_failed(&e),
+        Err(e) => run_failed_json(&e, args.json),
     }
 }
 

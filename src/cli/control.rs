@@ -4,7 +4,7 @@
 use super::serve::via_daemon;
 use super::{
     bad_input, emit, job_thread, load_config, origin, recording_plan, refuse_local_only,
-    refused_request, run_failed, status, unclaimed_recording, CONFIG_HELP,
+    refused_request, run_failed, run_failed_json, status, unclaimed_recording, CONFIG_HELP,
 };
 use bench::jobs::request::{parse_seed, ControlRequest, JobRequest};
 use bench::jobs::session::beside;
@@ -236,7 +236,7 @@ pub(super) fn control(args: ControlArgs, stop: Arc<AtomicBool>) -> ExitCode {
             }
             ExitCode::SUCCESS
         }
-        Err(e) => run_failed(&e),
+        Err(e) => run_failed_json(&e, args.json),
     }
 }
 

@@ -42,6 +42,12 @@ pub(super) struct EmulateArgs {
     /// Protocol version to announce (serial; for testing refusal).
     #[arg(long, value_name = "N")]
     protocol_version: Option<u16>,
+    /// Current limits to announce in the hello, PEAK,CONTINUOUS in A,
+    /// instead of the config's (serial; for testing that the host's limits
+    /// win and that values outside the physical ranges, NaN included, are
+    /// refused). The device still clips at its config's peak.
+    #[arg(long, value_name = "PEAK,CONT", value_parser = parse_currents)]
+    announce_currents_a: Option<(f32, f32)>,
     /// Lockstep test mode (serial): while enabled, the device waits for the
     /// answer to each sample before taking the next, so results do not
     /// depend on scheduling.
@@ -50,6 +56,20 @@ pub(super) struct EmulateArgs {
     /// Stop after this long, s (default: until SIGINT/SIGTERM).
     #[arg(long, value_name = "S")]
     duration_s: Option<f64>,
+}
+
+/// Parses `PEAK,CONT` (A; any float, NaN and inf included: the host is
+/// the one that judges them).
+fn parse_currents(s: &str) -> Result<(f32, f32), String> {
+    let (p, c) = s
+        .split_once(',')
+        .ok_or_else(|| format!("{s:?}: expected PEAK,CONTINUOUS in A, e.g. 9.98,2.34"))?;
+    let f = |v: &str| {
+        v.trim()
+            .parse::<f32>()
+            .map_err(|e| format!("{v:?} is not a number: {e}"))
+    };
+    Ok((f(p)?, f(c)?))
 }
 
 /// Parses an emulator `--fault KIND@T_S`: a link fault or a plant fault.
@@ -152,6 +172,7 @@ pub(super) fn emulate(cmd: EmulateCommand, stop: Arc<AtomicBool>) -> ExitCode {
                 seed,
                 realtime_priority: priority,
                 lockstep: args.lockstep,
+                announce_currents_a: args.announce_currents_a,
             };
             let st = Arc::clone(&status);
             let s = Arc::clone(&stop);

@@ -441,6 +441,17 @@ fn option_flag(key: &str) -> Option<&'static str> {
     })
 }
 
+/// As [`run_failed`], and with `--json` the run's summary with the fault
+/// ([`RunError::summary_json`]) on stdout first.
+pub(super) fn run_failed_json(e: &RunError, json: bool) -> ExitCode {
+    if json {
+        if let Some(v) = e.summary_json() {
+            outln!("{v}");
+        }
+    }
+    run_failed(e)
+}
+
 /// Prints a run's error (options by their flags) and returns its exit
 /// status.
 pub(super) fn run_failed(e: &RunError) -> ExitCode {

@@ -251,8 +251,180 @@ pub struct LoopCheck {
     /// The discretisation that runs and its error against the continuous
     /// design up to f_s/10.
     pub discretization: DiscretizationReport,
+    /// How long a stall (the host late, the link late) may hold the last
+    /// command before the loop is unsafe, and the bound the supervisor
+    /// applies in this job.
+    pub stall: StallLimit,
     /// Why the check refuses the controller (empty: it passes).
     pub failures: Vec<String>,
+}
+
+/// How long the closed loop may run on a held command (a host stall, a
+/// late link) before it is unsafe, from the loop itself, not a constant:
+/// the smaller of
+/// - the **delay margin**, the extra delay the loop tolerates before it
+///   loses stability: `min_i PM_i / ω_i` over every gain crossover ω_i of
+///   the loop that runs (model with zero-order hold and amplifier lag, and
+///   the measured FRF when given), with each phase margin taken in
+///   (0, 360°] (a pure delay τ turns L by −ωτ; Skogestad & Postlethwaite
+///   §2.4); and
+/// - the **reach time**, the time the peak current held from rest takes to
+///   carry x1 across the room between the job's farthest setpoint and the
+///   position limit (the model, zero-order hold; the worst held command is
+///   the peak the supervisor allows).
+///
+/// `safety.max_overrun_s` and `safety.max_command_latency_s`, when set,
+/// are upper limits a user may tighten: the bound in force is the smallest
+/// of all, and a key above the derived bound is refused with both numbers.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
+pub struct StallLimit {
+    /// Delay margin, s (`None`: no gain crossover, so no finite one).
+    pub delay_margin_s: Option<f64>,
+    /// The crossover that sets it, rad/s.
+    pub delay_margin_at_rad_s: Option<f64>,
+    /// Time for the held peak current to cross the room, s (`None`: not
+    /// within 1 s, the model's static deflection stays inside).
+    pub reach_time_s: Option<f64>,
+    /// The room: `safety.position_limit_m` − the job's farthest setpoint
+    /// from the start position, m.
+    pub reach_room_m: f64,
+    /// The peak current of the reach, A.
+    pub reach_current_a: f64,
+    /// The derived bound: the smaller of the two, s (infinite: neither).
+    pub derived_bound_s: f64,
+    /// The bound the supervisor applies to overruns and late commands in
+    /// this job: the derived bound, or a smaller `safety.max_overrun_s` /
+    /// `safety.max_command_latency_s`, s.
+    pub bound_s: f64,
+    /// Where `bound_s` comes from, as fault messages name it (`delay margin
+    /// of controller fast at 8.0 % of L (model, 284 rad/s)`).
+    pub source: String,
+}
+
+/// The longest reach time looked for, s.
+const REACH_HORIZON_S: f64 = 1.0;
+
+/// The delay margin of `m`: `min_i PM_i / ω_i` with PM in (0, 2π], and the
+/// crossover where it is least. `None` without a crossover.
+pub fn delay_margin(m: &Margins) -> Option<(f64, f64)> {
+    m.crossovers_rad_s
+        .iter()
+        .zip(&m.phase_margins_deg)
+        .map(|(&w, &pm)| {
+            let pm = if pm <= 0.0 { pm + 360.0 } else { pm };
+            (pm.to_radians() / w, w)
+        })
+        .min_by(|a, b| a.0.total_cmp(&b.0))
+}
+
+/// The time `current_a` held from rest takes to move x1 by more than
+/// `room_m` on `plant` (its own period), within [`REACH_HORIZON_S`].
+pub fn reach_time_s(plant: &ZohPlant, current_a: f64, room_m: f64) -> Option<f64> {
+    if room_m <= 0.0 {
+        return Some(0.0);
+    }
+    let mut x = nalgebra::SVector::<f64, STATES>::zeros();
+    let n = (REACH_HORIZON_S / plant.period_s).ceil() as u64;
+    for k in 1..=n {
+        plant.step(&mut x, current_a, 0.0);
+        if x[0].abs() > room_m {
+            return Some(k as f64 * plant.period_s);
+        }
+    }
+    None
+}
+
+impl StallLimit {
+    /// The stall limit of controller `name` on `model` (the margins of the
+    /// loop that runs, `measured` too when given), for a job whose farthest
+    /// setpoint is `setpoint_max_m` from its start, judged against the
+    /// user's upper limits in `cfg.safety`; failures (a key above the
+    /// derived bound) go to `failures`.
+    #[allow(clippy::too_many_arguments)]
+    pub fn of(
+        cfg: &BenchConfig,
+        name: &str,
+        plant: &ZohPlant,
+        model: &Margins,
+        measured: Option<&Margins>,
+        setpoint_max_m: f64,
+        failures: &mut Vec<String>,
+    ) -> Self {
+        let at = format!(
+            "{:.1} % of L",
+            100.0 * cfg.plant.operating_point_m / cfg.plant.beam.length_m
+        );
+        let mut dm: Option<(f64, f64, &str)> = delay_margin(model).map(|(d, w)| (d, w, "model"));
+        if let Some((d, w)) = measured.and_then(delay_margin) {
+            if dm.is_none_or(|(m, ..)| d < m) {
+                dm = Some((d, w, "measured FRF"));
+            }
+        }
+        let room = cfg.safety.position_limit_m - setpoint_max_m.abs();
+        let peak = cfg.actuator.peak_current_a;
+        let reach = reach_time_s(plant, peak, room);
+        let mut bound = f64::INFINITY;
+        let mut source = "no bound: the loop has no crossover and the held peak current stays inside the position limit".to_string();
+        if let Some((d, w, what)) = dm {
+            bound = d;
+            source = format!("delay margin of controller {name} at {at} ({what}, {w:.0} rad/s)");
+        }
+        if let Some(r) = reach {
+            if r < bound {
+                bound = r;
+                source = format!(
+                    "time for the held peak current {peak} A to move x1 {:.0} µm to the position limit (controller {name} at {at}, model)",
+                    room * 1e6
+                );
+            }
+        }
+        let derived = bound;
+        for (key, v) in [
+            ("safety.max_overrun_s", cfg.safety.max_overrun_s),
+            (
+                "safety.max_command_latency_s",
+                cfg.safety.max_command_latency_s,
+            ),
+        ] {
+            let Some(v) = v else { continue };
+            if v > derived * (1.0 + 1e-9) {
+                failures.push(format!(
+                    "{key} = {:.1} ms is above the {:.1} ms a stall may last in this loop ({source}): lower it or delete the key",
+                    v * 1e3,
+                    derived * 1e3
+                ));
+            } else if v < bound {
+                bound = v;
+                source = format!("{key} (below the loop's {:.1} ms, {source})", derived * 1e3);
+            }
+        }
+        Self {
+            delay_margin_s: dm.map(|d| d.0),
+            delay_margin_at_rad_s: dm.map(|d| d.1),
+            reach_time_s: reach,
+            reach_room_m: room,
+            reach_current_a: peak,
+            derived_bound_s: derived,
+            bound_s: bound,
+            source,
+        }
+    }
+
+    /// One line for the loop check's report.
+    pub fn line(&self) -> String {
+        let ms = |v: Option<f64>| v.map_or("none".to_string(), |v| format!("{:.1} ms", v * 1e3));
+        format!(
+            "stall bound {}: delay margin {}{}, reach time {} (held {} A across {:.0} µm); applied: {}",
+            ms(self.bound_s.is_finite().then_some(self.bound_s)),
+            ms(self.delay_margin_s),
+            self.delay_margin_at_rad_s
+                .map_or(String::new(), |w| format!(" at {w:.0} rad/s")),
+            ms(self.reach_time_s),
+            self.reach_current_a,
+            self.reach_room_m * 1e6,
+            self.source
+        )
+    }
 }
 
 impl LoopCheck {
@@ -294,6 +466,10 @@ impl MeasuredFrf {
 
 /// Runs the loop check of `name` against the model of `stage` (and a
 /// measured FRF if given), judged by the `[safety]` limits.
+///
+/// `setpoint_max_m` is the job's farthest setpoint from its start position
+/// (the step; 0 for a hold), for the stall limit's reach time
+/// ([`StallLimit`]).
 pub fn check_loop(
     cfg: &BenchConfig,
     model: &Sr4dof,
@@ -301,6 +477,7 @@ pub fn check_loop(
     ctrl: &DiscreteController,
     period_s: f64,
     measured: Option<&MeasuredFrf>,
+    setpoint_max_m: f64,
 ) -> LoopCheck {
     let continuous = cfg.controller.get(name).map(|c| {
         let per_unit = c.error_unit.per_metre() * cfg.actuator.force_constant_n_per_a;
@@ -352,8 +529,18 @@ pub fn check_loop(
             ));
         }
     }
+    let stall = StallLimit::of(
+        cfg,
+        name,
+        &plant,
+        &model,
+        measured.as_ref(),
+        setpoint_max_m,
+        &mut failures,
+    );
     LoopCheck {
         controller: name.to_string(),
+        stall,
         model,
         model_without_amplifier_lag: model_margins(&ideal, ctrl),
         continuous,
@@ -480,7 +667,7 @@ mod thesis {
             let model = model.clone();
             std::thread::spawn(move || {
                 let c = DiscreteController::new(&slow, t, 9.98);
-                let _ = tx.send(check_loop(&cfg, &model, "slow", &c, t, None));
+                let _ = tx.send(check_loop(&cfg, &model, "slow", &c, t, None, 0.0));
             });
             let check = rx
                 .recv_timeout(std::time::Duration::from_secs(10))

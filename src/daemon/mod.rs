@@ -107,7 +107,7 @@ use crate::error::RunError;
 use crate::jobs::step::ControlJob;
 use crate::rt::backend::{self, BackendSpec};
 use crate::rt::service::{run_service, LoopReply, LoopRequest, LoopStatus, ServiceClient};
-use crate::rt::{LoopOptions, Pacing};
+use crate::rt::{Job, LoopOptions, Pacing};
 use owner::{owner, JobHandle, OwnerCmd, OwnerShared};
 use protocol::{event, Status};
 use serde_json::json;
@@ -192,11 +192,13 @@ fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
 
 /// The hold controller of `[daemon] hold_controller`, checked once: it must
 /// pass the loop check on the model (at the device's rate and current
-/// limit), or the daemon does not start.
+/// limit), or the daemon does not start. With it, its stall bounds (the
+/// loop check's [`crate::control::loop_check::StallLimit`]), which apply
+/// between jobs while it drives the stage.
 fn hold_factory(
     cfg: &BenchConfig,
     info: &bench_hal::DeviceInfo,
-) -> Result<Option<owner::HoldFactory>, ServeError> {
+) -> Result<Option<(owner::HoldFactory, crate::rt::supervisor::StallBounds)>, ServeError> {
     let Some(name) = cfg.daemon.hold_controller.clone() else {
         return Ok(None);
     };
@@ -218,18 +220,23 @@ fn hold_factory(
         )));
     }
     let model = bench_hal::model::Sr4dof::new(cfg.plant).map_err(|e| refuse(e.to_string()))?;
-    let ctrl = DiscreteController::new(ccfg, period_s, info.peak_current_a);
-    let check = check_loop(cfg, &model, &name, &ctrl, period_s, None);
+    let ctrl = DiscreteController::new(ccfg, period_s, cfg.current_limits(info).peak_current_a);
+    let check = check_loop(cfg, &model, &name, &ctrl, period_s, None, 0.0);
     if !check.passed() {
         return Err(refuse(format!(
             "the loop check refused it: {}",
             check.failures.join("; ")
         )));
     }
-    Ok(Some(Box::new(move || {
-        // Step 0, never done: holds the position of its first tick.
-        Box::new(ControlJob::new(ctrl, 0.0, 0, 0, u64::MAX))
-    })))
+    let bounds = crate::rt::supervisor::StallBounds::of(check.stall.bound_s, period_s);
+    tracing::info!("hold controller {name}: {}", check.stall.line());
+    Ok(Some((
+        Box::new(move || {
+            // Step 0, never done: holds the position of its first tick.
+            Box::new(ControlJob::new(ctrl, 0.0, 0, 0, u64::MAX)) as Box<dyn Job + Send>
+        }),
+        bounds,
+    )))
 }
 
 /// Runs the daemon until `shutdown`, SIGTERM or SIGINT.
@@ -300,6 +307,17 @@ pub fn serve(opts: ServeOptions) -> Result<(), ServeError> {
     let (req_tx, req_rx) = rtrb::RingBuffer::<LoopRequest>::new(16);
     let (rep_tx, rep_rx) = rtrb::RingBuffer::<LoopReply>::new(64);
     let period_s = info.period_ns as f64 * 1e-9;
+    let (hold, hold_bounds) = match hold_factory(&opts.config, &info)? {
+        Some((h, b)) => (Some(h), Some(b)),
+        None => (None, None),
+    };
+    let mut safety = opts.config.supervisor(&info);
+    if let Some(b) = hold_bounds {
+        // Between jobs only the hold controller drives the stage (the
+        // timing rules are checked while it does).
+        safety.max_missed_deadlines = safety.max_missed_deadlines.min(b.max_missed_deadlines);
+        safety.max_late_commands = safety.max_late_commands.min(b.max_late_commands);
+    }
     let loop_opts = LoopOptions {
         period_ns: info.period_ns,
         pacing: Pacing::RealTime {
@@ -308,10 +326,9 @@ pub fn serve(opts: ServeOptions) -> Result<(), ServeError> {
         },
         timing_interval_ticks: ((opts.config.loop_.timing_interval_s / period_s).round() as u64)
             .max(1),
-        safety: opts.config.supervisor(&info),
+        safety,
         max_ticks: u64::MAX,
     };
-    let hold = hold_factory(&opts.config, &info)?;
     let rt_thread = {
         let loop_status = Arc::clone(&loop_status);
         let clock = info.clock;

@@ -553,6 +553,7 @@ pub(super) fn job_spec(
                 realtime: true,
                 progress: false,
                 backend: Some(ctx.spec.clone()),
+                inject: None,
             };
             Ok((
                 JobSpec::Chirp(Box::new(opts)),

@@ -87,6 +87,11 @@ impl Chirp {
         self.lead_in_ticks
     }
 
+    /// The sweep's length T, s.
+    pub fn sweep_s(&self) -> f64 {
+        self.sweep_s
+    }
+
     /// Instantaneous frequency at sweep time `t` (s from the sweep start), Hz.
     pub fn frequency_hz(&self, t: f64) -> f64 {
         let big_t = self.sweep_s;

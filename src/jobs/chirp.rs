@@ -76,6 +76,8 @@ pub struct ChirpOptions {
     pub progress: bool,
     /// `--backend` (else `[backend]` of the config).
     pub backend: Option<BackendSpec>,
+    /// A simulator fault to inject (local runs on the simulator only).
+    pub inject: Option<bench_hal::sim::ScheduledFault>,
 }
 
 /// The model's view of the same bench, for comparison.
@@ -142,6 +144,109 @@ pub struct ChirpSummary {
     pub link: Option<serde_json::Value>,
     /// Loop timing.
     pub timing: TimingSummary,
+    /// The current limits in force and where each came from (`null` in
+    /// summaries of older versions).
+    #[serde(default)]
+    pub current_limits: Option<crate::rt::supervisor::CurrentLimits>,
+    /// The stalls the run saw and the FRF lines they cost.
+    #[serde(default)]
+    pub stalls: StallReport,
+}
+
+/// The stalls of an open-loop run (`/bench/event` `stall`: the loop
+/// behind its deadlines, or the device on late commands) and what they
+/// cost the FRF. A stall holds the last excitation sample while the sweep
+/// is at `f(t)`, so the record no longer shows what the plant received
+/// there: the FRF lines whose smoothing window meets the frequencies swept
+/// during the stall, widened by twice `identification.relative_resolution`
+/// on each side, are left out of the FRF (its CSV and fit), counted here.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
+pub struct StallReport {
+    /// Stalls seen, count.
+    pub count: u64,
+    /// The longest, s.
+    pub longest_s: f64,
+    /// All of them, s.
+    pub total_s: f64,
+    /// The sweep's frequency bands they distorted, `[f_lo, f_hi]` Hz (a
+    /// stall in the lead-in or the tail distorts none).
+    pub bands_hz: Vec<[f64; 2]>,
+    /// FRF lines left out, count.
+    pub excluded_lines: u64,
+}
+
+impl StallReport {
+    /// The report of `stalls` (end tick, length s) on `chirp` at
+    /// `period_s`, with the FRF's relative resolution `r`.
+    pub fn of(stalls: &[(u64, f64)], chirp: &Chirp, period_s: f64, r: f64) -> Self {
+        let mut rep = Self::default();
+        let lead_s = chirp.lead_in_ticks() as f64 * period_s;
+        let sweep_s = chirp.sweep_s();
+        for &(tick, len_s) in stalls {
+            if !(len_s.is_finite() && len_s > 0.0) {
+                continue;
+            }
+            rep.count += 1;
+            rep.longest_s = rep.longest_s.max(len_s);
+            rep.total_s += len_s;
+            // The held span in the sweep's time: it ends at `tick`.
+            let t_end = tick as f64 * period_s - lead_s;
+            let t_start = t_end - len_s - period_s;
+            if t_end < 0.0 || t_start > sweep_s {
+                continue;
+            }
+            let f_lo = chirp.frequency_hz(t_start.max(0.0)) * (1.0 - 2.0 * r);
+            let f_hi = chirp.frequency_hz(t_end.min(sweep_s)) * (1.0 + 2.0 * r);
+            rep.bands_hz.push([f_lo, f_hi]);
+        }
+        rep
+    }
+
+    /// `frf` without the lines in the stalls' bands (counted).
+    pub fn exclude(&mut self, frf: Frf) -> Frf {
+        if self.bands_hz.is_empty() {
+            return frf;
+        }
+        let keep: Vec<bool> = frf
+            .frequency_hz
+            .iter()
+            .map(|f| !self.bands_hz.iter().any(|[lo, hi]| f >= lo && f <= hi))
+            .collect();
+        self.excluded_lines = keep.iter().filter(|k| !**k).count() as u64;
+        let pick = |v: Vec<f64>| -> Vec<f64> {
+            v.into_iter()
+                .zip(&keep)
+                .filter_map(|(x, k)| k.then_some(x))
+                .collect()
+        };
+        Frf {
+            frequency_hz: pick(frf.frequency_hz),
+            magnitude_m_per_a: pick(frf.magnitude_m_per_a),
+            phase_deg: pick(frf.phase_deg),
+            coherence: pick(frf.coherence),
+        }
+    }
+
+    /// One line for the summary.
+    pub fn line(&self) -> String {
+        let bands: Vec<String> = self
+            .bands_hz
+            .iter()
+            .map(|[a, b]| format!("{a:.2}–{b:.2} Hz"))
+            .collect();
+        format!(
+            "stalls: {} (longest {:.1} ms, {:.1} ms in all); {} FRF lines left out{}",
+            self.count,
+            self.longest_s * 1e3,
+            self.total_s * 1e3,
+            self.excluded_lines,
+            if bands.is_empty() {
+                String::new()
+            } else {
+                format!(" ({})", bands.join(", "))
+            }
+        )
+    }
 }
 
 fn model_summary(m: &Sr4dof) -> ModelSummary {
@@ -250,7 +355,13 @@ pub fn run_chirp(
 ) -> Result<ChirpSummary, RunError> {
     outputs.check()?;
     let spec = BackendSpec::resolve(opts.backend.as_ref(), &opts.config);
-    let (mut stage, info) = backend::open(&spec, &opts.config, &opts.config_path, opts.seed, None)?;
+    let (mut stage, info) = backend::open(
+        &spec,
+        &opts.config,
+        &opts.config_path,
+        opts.seed,
+        opts.inject,
+    )?;
     let mut runner = Runner::Local {
         stage: &mut stage,
         info: &info,
@@ -321,6 +432,10 @@ fn run_chirp_with(
         max_ticks: total_ticks,
         keep: Kept::CHIRP,
         ticks,
+        // Open loop: a stall distorts the record, it endangers nothing; it
+        // is recorded and its span left out of the FRF.
+        stall: None,
+        stall_source: "",
     };
     let recorder = open_recording(&session, cfg, info, outputs)?;
     let run = run_recorded(runner, ChirpJob::new(chirp), cfg, recorder, &session, stop)?;
@@ -330,7 +445,8 @@ fn run_chirp_with(
         timing,
         end_ns,
         link: run_link,
-        ..
+        current_limits,
+        stalls,
     } = run;
     // The samples go to the disk while the FRF and the fit are computed: an
     // fsync of the part file now (any descriptor of a file syncs it) leaves
@@ -364,6 +480,17 @@ fn run_chirp_with(
         cfg.chirp.f_end_hz,
         &cfg.identification,
     );
+    let stall_report = StallReport::of(
+        &stalls,
+        &chirp,
+        period_s,
+        cfg.identification.relative_resolution,
+    );
+    let mut stall_report = stall_report;
+    let frf = stall_report.exclude(frf);
+    if stall_report.count > 0 {
+        tracing::warn!("{}", stall_report.line());
+    }
     let zoh = ZohPlant::new(&model, &cfg.actuator, period_s);
     // The fit and the model's curve for the plot, side by side. The model
     // is drawn on a grid at least as dense as MODEL_POINTS_PER_DECADE, so
@@ -411,6 +538,8 @@ fn run_chirp_with(
         model: model_summary(&model),
         link: run_link,
         timing,
+        current_limits: Some(current_limits),
+        stalls: stall_report,
     };
     let markers: Vec<f64> = summary.resonances.iter().map(|r| r.frequency_hz).collect();
     let no_pair = PairZoom::reason_of(&summary.verdict.phase_test);

@@ -289,7 +289,8 @@ pub fn parse_seed(s: &str) -> Result<u64, String> {
 }
 
 /// Parses a simulator fault `KIND@T_S`: KIND one of nan, frozen, drop (10
-/// samples), jump (0.2 mm), out_of_range; T_S the loop time, s.
+/// samples), jump (0.2 mm), out_of_range, or `stall:MS` (the host stalls
+/// once for MS milliseconds, 0 < MS ≤ 10 000); T_S the loop time, s.
 ///
 /// # Errors
 /// Why it does not parse (the caller names the field or flag).
@@ -309,9 +310,23 @@ pub fn parse_fault(s: &str) -> Result<ScheduledFault, String> {
         "jump" => FaultInjection::Jump(0.2e-3),
         "out_of_range" => FaultInjection::OutOfRange,
         other => {
-            return Err(format!(
-                "unknown kind {other:?} (nan, frozen, drop, jump, out_of_range)"
-            ))
+            match other.strip_prefix("stall:") {
+                Some(ms) => {
+                    let ms: f64 = ms
+                    .parse()
+                    .ok()
+                    .filter(|m: &f64| m.is_finite() && *m > 0.0 && *m <= 10_000.0)
+                    .ok_or_else(|| {
+                        format!("stall {ms:?} is not a duration in ms in (0, 10000], e.g. stall:30@1.5")
+                    })?;
+                    FaultInjection::Stall(ms * 1e-3)
+                }
+                None => {
+                    return Err(format!(
+                        "unknown kind {other:?} (nan, frozen, drop, jump, out_of_range, stall:MS)"
+                    ))
+                }
+            }
         }
     };
     Ok(ScheduledFault { at_s, kind })

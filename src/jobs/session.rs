@@ -10,6 +10,7 @@ use crate::record::topics::{FaultKind, Record};
 use crate::record::{spawn_writer, ChunkPolicy, Recorder};
 use crate::rt::backend::{AnyStage, LinkCounters};
 use crate::rt::service::{JobTicket, LoopReply, LoopRequest, ServiceClient};
+use crate::rt::supervisor::{fault_message, CurrentLimits, StallBounds};
 use crate::rt::{self, Job, LoopOptions, LoopReport, Pacing, RecordQueue, StopReason};
 use bench_hal::DeviceInfo;
 use serde::{Deserialize, Serialize};
@@ -151,6 +152,8 @@ pub struct Collected {
     /// bytes a tick, with room reserved for the FFT's zero padding
     /// ([`crate::ident::frf::Spectra::from_record`] transforms it in place).
     pub frf_record: Vec<C64>,
+    /// Stall events: tick, length (s).
+    pub stalls: Vec<(u64, f64)>,
 }
 
 /// Which columns of [`Collected`] a job keeps; the others stay empty.
@@ -221,6 +224,14 @@ pub struct SessionOptions<'a> {
     /// Where the loop publishes its tick count (a watcher's progress), if
     /// anywhere.
     pub ticks: Option<&'a Arc<AtomicU64>>,
+    /// The job's stall bounds: a closed loop's from its loop check
+    /// ([`crate::control::loop_check::StallLimit`]); `None`: only the
+    /// user's `safety.max_overrun_s` / `max_command_latency_s`, if set
+    /// (open-loop identification).
+    pub stall: Option<crate::rt::supervisor::StallBounds>,
+    /// Where the stall bound comes from, for fault messages (empty: the
+    /// config keys).
+    pub stall_source: &'a str,
 }
 
 /// A run that finished its job.
@@ -236,6 +247,11 @@ pub struct Recorded {
     pub end_ns: u64,
     /// Link counters of this job (hardware backends), as JSON.
     pub link: Option<serde_json::Value>,
+    /// The current limits in force and where each came from.
+    pub current_limits: CurrentLimits,
+    /// The stalls seen (`/bench/event` `stall`): the tick at which each
+    /// ended and how long it was, s.
+    pub stalls: Vec<(u64, f64)>,
 }
 
 /// Where a recorded job runs.
@@ -321,6 +337,12 @@ pub fn open_recording(
             .unwrap_or_default(),
     );
     run_meta.insert("host".to_string(), host_name());
+    // The current limits in force and where each came from (the host's
+    // config or the device), as JSON.
+    run_meta.insert(
+        "current_limits".to_string(),
+        serde_json::to_string(&cfg.current_limits(info)).unwrap_or_default(),
+    );
     run_meta.insert("config_sha256".to_string(), config_sha256);
     run_meta.insert(
         "log_time_unit".to_string(),
@@ -379,6 +401,7 @@ pub fn run_recorded<J: Job + Send + 'static>(
         } else {
             0
         }),
+        stalls: Vec::new(),
     }));
     let sink = Arc::clone(&collected);
     let writer_done = Arc::new(AtomicBool::new(false));
@@ -398,6 +421,15 @@ pub fn run_recorded<J: Job + Send + 'static>(
         opts.realtime
             .then(|| cfg.loop_.priority.saturating_sub(1).max(1)),
         move |r| {
+            if let Record::Event(e) = r {
+                if e.kind == crate::record::topics::EventKind::Stall {
+                    sink.lock()
+                        .expect("collector poisoned")
+                        .stalls
+                        .push((e.tick, e.value));
+                }
+                return;
+            }
             if let Record::Sample(s) = r {
                 let mut c = sink.lock().expect("collector poisoned");
                 let push = |v: &mut Vec<f64>, kept: bool, x: f64| {
@@ -434,6 +466,16 @@ pub fn run_recorded<J: Job + Send + 'static>(
         safety: cfg.supervisor(&info),
         max_ticks: opts.max_ticks,
     };
+    let mut loop_opts = loop_opts;
+    if let Some(b) = opts.stall {
+        loop_opts.safety.max_missed_deadlines = b.max_missed_deadlines;
+        loop_opts.safety.max_late_commands = b.max_late_commands;
+    }
+    let stall = StallBounds {
+        max_missed_deadlines: loop_opts.safety.max_missed_deadlines,
+        max_late_commands: loop_opts.safety.max_late_commands,
+    };
+    let current_limits = cfg.current_limits(&info);
     let wall = Instant::now();
     let progress = opts.ticks.cloned().unwrap_or_default();
     let (report, link) = match runner {
@@ -449,6 +491,7 @@ pub fn run_recorded<J: Job + Send + 'static>(
                 out: producer,
                 max_ticks: opts.max_ticks,
                 seed: opts.seed,
+                stall,
                 stop: Arc::clone(&stop),
                 progress: Arc::clone(&progress),
                 end: None,
@@ -491,6 +534,11 @@ pub fn run_recorded<J: Job + Send + 'static>(
                     detail: format!("the recording failed: {}", error_chain(&e)),
                     tick,
                     recording: format!("incomplete, left as {}", part_path.display()),
+                    context: Box::new(serde_json::json!({
+                        "command": opts.command,
+                        "backend": info.name,
+                        "current_limits": current_limits,
+                    })),
                 },
                 _ => RunError::Record(e),
             })
@@ -511,12 +559,29 @@ pub fn run_recorded<J: Job + Send + 'static>(
             detail,
         } => {
             let recording = finish(recorder)?;
+            let source = if opts.stall_source.is_empty() {
+                match kind {
+                    FaultKind::LinkLatency => "safety.max_command_latency_s",
+                    _ => "safety.max_overrun_s",
+                }
+            } else {
+                opts.stall_source
+            };
+            let message = fault_message(kind, value, &loop_opts.safety, source, detail.as_deref());
+            let context = serde_json::json!({
+                "command": opts.command,
+                "backend": info.name,
+                "current_limits": current_limits,
+                "timing": timing,
+                "link": link,
+            });
             return Err(RunError::Fault {
                 kind: kind.as_str(),
                 value,
-                detail: detail.unwrap_or_else(|| format!("value {value:e}")),
+                detail: message,
                 tick,
                 recording,
+                context: Box::new(context),
             });
         }
         StopReason::Hal { message, tick } => {
@@ -540,12 +605,15 @@ pub fn run_recorded<J: Job + Send + 'static>(
         }
     }
     let data = std::mem::take(&mut *collected.lock().expect("collector poisoned"));
+    let stalls = data.stalls.clone();
     Ok(Recorded {
         recorder,
         data,
         timing,
         end_ns,
         link,
+        current_limits,
+        stalls,
     })
 }
 

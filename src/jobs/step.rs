@@ -325,6 +325,10 @@ pub struct ControlSummary {
     pub link: Option<serde_json::Value>,
     /// Loop timing.
     pub timing: Option<TimingSummary>,
+    /// The current limits in force and where each came from (`None` with
+    /// `--check-only`).
+    #[serde(default)]
+    pub current_limits: Option<crate::rt::supervisor::CurrentLimits>,
 }
 
 fn controller_config<'a>(
@@ -430,6 +434,7 @@ fn run_control_with(
         &ctrl,
         period_s,
         measured.as_ref(),
+        cfg.step.step_m,
     );
     let mut summary = ControlSummary {
         controller: opts.controller.clone(),
@@ -443,6 +448,7 @@ fn run_control_with(
         disturbance_rms_n: cfg.plant.disturbance.map_or(0.0, |d| d.rms_n),
         link: None,
         timing: None,
+        current_limits: None,
     };
     if opts.check_only {
         return Ok(summary);
@@ -501,8 +507,9 @@ fn run_control_with(
             ),
         ));
     }
-    // Anti-windup at the limit the device reports (same sections).
-    let ctrl = ctrl.with_limit(info.peak_current_a);
+    // Anti-windup at the peak current in force (the smaller of the
+    // host's and the device's; same sections).
+    let ctrl = ctrl.with_limit(cfg.current_limits(&info).peak_current_a);
     let ticks = |key: &str, s: f64| {
         crate::config::ticks_in(s, period_s).ok_or_else(|| {
             RunError::BadInput(format!(
@@ -526,6 +533,14 @@ fn run_control_with(
         max_ticks: total,
         keep: Kept::STEP,
         ticks: progress_ticks,
+        // Closed loop: a stall longer than the loop's own bound (delay
+        // margin, reach of the position limit) is the overruns or
+        // link_latency fault.
+        stall: Some(crate::rt::supervisor::StallBounds::of(
+            check.stall.bound_s,
+            period_s,
+        )),
+        stall_source: &check.stall.source,
     };
     let mut recorder = open_recording(&session, cfg, &info, outputs)?;
     let check_ch =
@@ -540,9 +555,11 @@ fn run_control_with(
         timing,
         end_ns,
         link,
+        current_limits,
         ..
     } = recorded?;
     summary.link = link;
+    summary.current_limits = Some(current_limits);
 
     let StepAnalysis {
         metrics,

@@ -166,11 +166,18 @@ pub enum EventKind {
     /// hardware link): the last reading and command were held; `value` is
     /// the count of consecutive bad samples.
     SampleMissing,
+    /// The stage ran on a held command for longer than a period: the
+    /// loop woke late and missed deadlines (host stall; real time only),
+    /// or the device ran on late commands (a run of samples flagged
+    /// `command_late`, reported when it ends). `value` is the stall, s
+    /// (missed deadlines × period, or late samples × period). Open-loop
+    /// identification leaves the span it distorted out of the FRF.
+    Stall,
 }
 
 impl EventKind {
     /// Every kind.
-    pub const ALL: [Self; 8] = [
+    pub const ALL: [Self; 9] = [
         Self::LoopStarted,
         Self::StateChanged,
         Self::JobStarted,
@@ -179,6 +186,7 @@ impl EventKind {
         Self::Interrupted,
         Self::LoopStopped,
         Self::SampleMissing,
+        Self::Stall,
     ];
 
     /// Snake-case name used in recordings.
@@ -192,6 +200,7 @@ impl EventKind {
             Self::Interrupted => "interrupted",
             Self::LoopStopped => "loop_stopped",
             Self::SampleMissing => "sample_missing",
+            Self::Stall => "stall",
         }
     }
 }
@@ -398,6 +407,7 @@ fn variant_index(r: (SupervisorState, EventKind, FaultKind)) -> (usize, usize, u
         E::Interrupted => 5,
         E::LoopStopped => 6,
         E::SampleMissing => 7,
+        E::Stall => 8,
     };
     let f = match r.2 {
         F::PositionLimit => 0,

@@ -235,9 +235,40 @@ impl LinkCounters {
 /// # Errors
 /// [`RunError::BadOption`] naming `backend` (or the config key) and the
 /// reason when the device is missing, busy, speaks another protocol
-/// version, runs at another rate, or its configuration is invalid. Nothing
-/// is enabled.
+/// version, runs at another rate, announces current limits or a probe range
+/// outside the physical ranges
+/// ([`crate::rt::supervisor::check_announced`]), or its configuration is
+/// invalid. Nothing is enabled.
 pub fn open(
+    spec: &BackendSpec,
+    cfg: &BenchConfig,
+    config_path: &std::path::Path,
+    seed: u64,
+    inject: Option<ScheduledFault>,
+) -> Result<(AnyStage, DeviceInfo), RunError> {
+    if inject.is_some() && !spec.is_sim() {
+        return Err(RunError::option(
+            "inject_fault",
+            "",
+            format!("only the sim backend injects faults (use `bench emulate --fault` for a device), not {spec}"),
+        ));
+    }
+    let (mut stage, info) = open_stage(spec, cfg, config_path, seed, inject)?;
+    // The device's announcement is checked before anything can be
+    // enabled; the loop then runs on the smaller of its limits and the
+    // host's (`BenchConfig::current_limits`).
+    if let Err(why) = crate::rt::supervisor::check_announced(&info) {
+        let _ = stage.disable();
+        return Err(RunError::option(
+            "backend",
+            spec,
+            format!("{why}; refused at the handshake, nothing was enabled"),
+        ));
+    }
+    Ok((stage, info))
+}
+
+fn open_stage(
     spec: &BackendSpec,
     cfg: &BenchConfig,
     config_path: &std::path::Path,
@@ -248,13 +279,6 @@ pub fn open(
     let bad = |e: &dyn fmt::Display| {
         RunError::option("backend", spec, format!("{e}; nothing was enabled"))
     };
-    if inject.is_some() && !spec.is_sim() {
-        return Err(RunError::option(
-            "inject_fault",
-            "",
-            format!("only the sim backend injects faults (use `bench emulate --fault` for a device), not {spec}"),
-        ));
-    }
     match spec {
         BackendSpec::Sim => {
             let mut stage = SimStage::new(cfg.sim_params(seed)).map_err(|e| {

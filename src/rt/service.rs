@@ -25,6 +25,9 @@ pub struct JobTicket {
     pub out: crate::rt::RecordQueue,
     /// Tick budget.
     pub max_ticks: u64,
+    /// The job's stall bounds (closed loop: its loop check's; open loop:
+    /// none but the user's; see [`crate::rt::supervisor::StallBounds`]).
+    pub stall: crate::rt::supervisor::StallBounds,
     /// The job's seed: the simulator's noise restarts from it at the
     /// job's first sample ([`AnyStage::reseed`]), so the job records what a
     /// local run with that seed records. Ignored on hardware.
@@ -215,7 +218,11 @@ pub fn run_service(
                 let before = lp.stage().link_counters();
                 lp.stage().reseed(ticket.seed);
                 let t = &mut *ticket;
+                // The job's stall bounds while it runs, the hold's after.
+                let hold_bounds = lp.supervisor().stall_bounds();
+                lp.set_stall_bounds(t.stall);
                 t.end = Some(lp.run_job(&mut t.job, &mut t.out, t.max_ticks, &t.stop, &t.progress));
+                lp.set_stall_bounds(hold_bounds);
                 t.link = before.zip(lp.stage().link_counters());
                 reply(LoopReply::JobDone(ticket), &mut replies);
             }

@@ -90,6 +90,269 @@ pub fn whole_periods(bound_s: f64, period_s: f64) -> u64 {
     (bound_s / period_s + 1e-9).floor() as u64
 }
 
+/// Where a current limit in force came from ([`CurrentLimits`]).
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize, schemars::JsonSchema,
+)]
+#[serde(rename_all = "snake_case")]
+pub enum LimitSource {
+    /// The host's config (`[actuator]`): the smaller, or equal.
+    HostConfig,
+    /// The device's announcement (serial hello, `[backend.can]`): smaller
+    /// than the host's.
+    Device,
+}
+
+impl LimitSource {
+    /// As the summary names it.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::HostConfig => "host config",
+            Self::Device => "device",
+        }
+    }
+}
+
+/// The current limits in force for a run: each the smaller of the host's
+/// config (`actuator.peak_current_a`, `actuator.continuous_current_a`) and
+/// what the device announced ([`bench_hal::DeviceInfo`]), so a device can
+/// lower the host's limits and never raise them. The supervisor clips
+/// commands to `peak_current_a`, the I²t protection and the controllers'
+/// anti-windup use these values, and the summary and the recording
+/// (`bench.run` metadata `current_limits`) state them with their sources.
+#[derive(
+    Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize, schemars::JsonSchema,
+)]
+pub struct CurrentLimits {
+    /// Peak current in force, A.
+    pub peak_current_a: f64,
+    /// Where it came from.
+    pub peak_from: LimitSource,
+    /// Continuous current rating in force (I²t), A.
+    pub continuous_current_a: f64,
+    /// Where it came from.
+    pub continuous_from: LimitSource,
+    /// The host's `actuator.peak_current_a`, A.
+    pub host_peak_current_a: f64,
+    /// The host's `actuator.continuous_current_a`, A.
+    pub host_continuous_current_a: f64,
+    /// The device's announced peak current, A.
+    pub device_peak_current_a: f64,
+    /// The device's announced continuous current, A.
+    pub device_continuous_current_a: f64,
+}
+
+impl CurrentLimits {
+    /// The smaller of the host's and the device's, each; the device's
+    /// values must have passed [`check_announced`] (NaN never wins a
+    /// comparison here: a NaN announcement is refused before).
+    pub fn in_force(
+        host_peak_a: f64,
+        host_continuous_a: f64,
+        device: &bench_hal::DeviceInfo,
+    ) -> Self {
+        let pick = |host: f64, dev: f64| {
+            if dev < host {
+                (dev, LimitSource::Device)
+            } else {
+                (host, LimitSource::HostConfig)
+            }
+        };
+        let (peak, peak_from) = pick(host_peak_a, device.peak_current_a);
+        let (cont, continuous_from) = pick(host_continuous_a, device.continuous_current_a);
+        Self {
+            peak_current_a: peak,
+            peak_from,
+            continuous_current_a: cont,
+            continuous_from,
+            host_peak_current_a: host_peak_a,
+            host_continuous_current_a: host_continuous_a,
+            device_peak_current_a: device.peak_current_a,
+            device_continuous_current_a: device.continuous_current_a,
+        }
+    }
+
+    /// One line for the summary: `peak 1 A (host config; device 9.98 A),
+    /// continuous 0.5 A (host config; device 2.34 A)`.
+    pub fn line(&self) -> String {
+        format!(
+            "current limits: peak {} A ({}; host {} A, device {} A), continuous {} A ({}; host {} A, device {} A)",
+            self.peak_current_a,
+            self.peak_from.as_str(),
+            self.host_peak_current_a,
+            self.device_peak_current_a,
+            self.continuous_current_a,
+            self.continuous_from.as_str(),
+            self.host_continuous_current_a,
+            self.device_continuous_current_a,
+        )
+    }
+}
+
+/// The largest current a device may announce, A
+/// ([`crate::config::limits::PEAK_CURRENT_MAX_A`]: twice the thesis coil's
+/// peak).
+pub const ANNOUNCED_CURRENT_MAX_A: f64 = crate::config::limits::PEAK_CURRENT_MAX_A;
+
+/// Checks what a device announced at its handshake (serial hello, the CAN
+/// device's `[backend.can]` ratings) against the physical ranges: peak and
+/// continuous current finite, positive, at most
+/// [`ANNOUNCED_CURRENT_MAX_A`], continuous at most peak; probe range
+/// finite, positive, at most 10 mm. A device outside them is refused before
+/// anything is enabled.
+///
+/// # Errors
+/// The values named, with the range each broke.
+pub fn check_announced(device: &bench_hal::DeviceInfo) -> Result<(), String> {
+    let mut bad = Vec::new();
+    for (name, v) in [
+        ("peak current", device.peak_current_a),
+        ("continuous current", device.continuous_current_a),
+    ] {
+        if !(v.is_finite() && v > 0.0 && v <= ANNOUNCED_CURRENT_MAX_A) {
+            bad.push(format!(
+                "{name} {v:e} A is outside (0, {ANNOUNCED_CURRENT_MAX_A}] A"
+            ));
+        }
+    }
+    if bad.is_empty() && device.continuous_current_a > device.peak_current_a {
+        bad.push(format!(
+            "continuous current {} A is above its peak current {} A",
+            device.continuous_current_a, device.peak_current_a
+        ));
+    }
+    let r = device.probe_range_m;
+    if !(r.is_finite() && r > 0.0 && r <= 1e-2) {
+        bad.push(format!("probe range {r:e} m is outside (0, 0.01] m"));
+    }
+    if bad.is_empty() {
+        Ok(())
+    } else {
+        Err(format!(
+            "the device {} announced values outside their physical ranges: {}",
+            device.name,
+            bad.join("; ")
+        ))
+    }
+}
+
+/// How long a job may leave the stage on a held command: the loop behind
+/// its deadlines (host stall), or the device running on late commands.
+/// Set per job ([`Supervisor::set_stall_bounds`]): a closed loop's bound
+/// comes from its loop check (delay margin, the position reachable under
+/// the held peak current; [`crate::control::loop_check::StallLimit`]);
+/// open-loop identification has none (a late command distorts the record,
+/// it endangers nothing: the stall is recorded and its span left out of the
+/// FRF); between jobs at 0 A nothing is checked.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct StallBounds {
+    /// Deadlines that may be missed in a row; `u64::MAX`: no bound.
+    pub max_missed_deadlines: u64,
+    /// Late commands that may run in a row; `u64::MAX`: no bound.
+    pub max_late_commands: u64,
+}
+
+impl StallBounds {
+    /// No bound: open-loop identification.
+    pub const NONE: Self = Self {
+        max_missed_deadlines: u64::MAX,
+        max_late_commands: u64::MAX,
+    };
+
+    /// A stall bound of `bound_s` at a loop period of `period_s`, in whole
+    /// periods ([`whole_periods`]), for both rules.
+    pub fn of(bound_s: f64, period_s: f64) -> Self {
+        let n = if bound_s.is_finite() {
+            whole_periods(bound_s, period_s)
+        } else {
+            u64::MAX
+        };
+        Self {
+            max_missed_deadlines: n,
+            max_late_commands: n,
+        }
+    }
+}
+
+/// A fault as a person can act on it: the quantity and its unit, the bound
+/// it broke and where the bound came from, e.g. `stall 29.6 ms > 2.1 ms
+/// (delay margin of controller fast at 8.0 % of L (model, 284 rad/s))`.
+/// `value` is the supervisor's ([`Supervisor::fault`]); `stall_source`
+/// names where the stall bound came from; `detail` is what a backend said
+/// (link faults). Allocates: never on the tick.
+pub fn fault_message(
+    kind: FaultKind,
+    value: f64,
+    cfg: &SupervisorConfig,
+    stall_source: &str,
+    detail: Option<&str>,
+) -> String {
+    let um = |m: f64| m * 1e6;
+    let ms = |s: f64| s * 1e3;
+    let periods_ms = |n: u64| n as f64 * cfg.period_s * 1e3;
+    match kind {
+        FaultKind::PositionLimit => format!(
+            "|x1| = {:.1} µm > {:.1} µm position limit (safety.position_limit_m)",
+            um(value.abs()),
+            um(cfg.position_limit_m)
+        ),
+        FaultKind::ProbeOutOfRange => format!(
+            "probe out of range: reading {:.1} µm at the end of its range (probe.range_m)",
+            um(value)
+        ),
+        FaultKind::ProbeNotFinite => format!("probe reading {value} m is not a number"),
+        FaultKind::CommandNotFinite => {
+            format!("controller output {value} A is not a number (0 A sent instead)")
+        }
+        FaultKind::PositionJump => format!(
+            "reading moved {:.1} µm in one tick > {:.1} µm (safety.max_position_step_m: faster than the stage can move)",
+            um(value),
+            um(cfg.max_position_step_m)
+        ),
+        FaultKind::I2t => {
+            let budget = (cfg.peak_current_a.powi(2) - cfg.continuous_current_a.powi(2)).max(0.0)
+                * cfg.i2t_peak_duration_s;
+            format!(
+                "I²t {value:.3} A²s > budget {budget:.3} A²s = (peak {} A² − continuous {} A²) × safety.i2t_peak_duration_s {} s: the coil has carried more than its continuous rating for too long",
+                cfg.peak_current_a, cfg.continuous_current_a, cfg.i2t_peak_duration_s
+            )
+        }
+        FaultKind::Overruns => format!(
+            "stall {:.1} ms > {:.1} ms ({}): the loop ran behind its deadlines on a held command",
+            ms(value),
+            periods_ms(cfg.max_missed_deadlines),
+            stall_source
+        ),
+        FaultKind::LinkLatency => format!(
+            "commands late for {:.1} ms > {:.1} ms ({}): the device ran on held commands",
+            ms(value),
+            periods_ms(cfg.max_late_commands),
+            stall_source
+        ),
+        FaultKind::StaleSample => format!(
+            "{value} stale samples in a row > {} (safety.max_missed_samples): the device repeats its sequence number",
+            cfg.max_missed_samples
+        ),
+        FaultKind::Link => match detail {
+            Some(d) if value.is_nan() => d.to_string(),
+            Some(d) => format!(
+                "{d} > {} (safety.max_missed_samples, {:.1} ms)",
+                cfg.max_missed_samples,
+                periods_ms(u64::from(cfg.max_missed_samples))
+            ),
+            None => format!("{value} consecutive samples missing > {}", cfg.max_missed_samples),
+        },
+        FaultKind::Recording => match detail {
+            Some(d) => d.to_string(),
+            None => format!("the recording failed ({value} records not handed over)"),
+        },
+        FaultKind::Hal => match detail {
+            Some(d) => d.to_string(),
+            None => format!("hardware error (value {value})"),
+        },
+    }
+}
+
 /// Supervisor limits.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct SupervisorConfig {
@@ -97,9 +360,11 @@ pub struct SupervisorConfig {
     pub position_limit_m: f64,
     /// Amplifier peak current, A: commands are clipped to ±this.
     pub peak_current_a: f64,
-    /// Deadlines that may be missed in a row (the whole periods in
-    /// `safety.max_overrun_s`); one more is the `overruns` fault. Checked
-    /// in real-time (host-paced) mode only.
+    /// Deadlines that may be missed in a row (the whole periods in the
+    /// job's stall bound, [`StallBounds`]); one more is the `overruns`
+    /// fault. Checked in real-time (host-paced) mode, while a job or a
+    /// hold controller drives the stage (`running`) only; `u64::MAX`:
+    /// never (open-loop identification).
     pub max_missed_deadlines: u64,
     /// Consecutive missing (gap, timeout, corrupt) or stale samples
     /// tolerated (K).
@@ -107,8 +372,8 @@ pub struct SupervisorConfig {
     /// Largest plausible change of the reading per tick, m.
     pub max_position_step_m: f64,
     /// Consecutive samples flagged `command_late` tolerated (the whole
-    /// periods in `safety.max_command_latency_s`); one more is the
-    /// `link_latency` fault.
+    /// periods in the job's stall bound); one more is the `link_latency`
+    /// fault. Checked while `running` only; `u64::MAX`: never.
     pub max_late_commands: u64,
     /// Continuous current rating, A.
     pub continuous_current_a: f64,
@@ -205,6 +470,34 @@ impl Supervisor {
         true
     }
 
+    /// The stall bounds of the job that starts (and of the hold job after
+    /// it): see [`StallBounds`]. Real-time safe.
+    pub fn set_stall_bounds(&mut self, b: StallBounds) {
+        self.cfg.max_missed_deadlines = b.max_missed_deadlines;
+        self.cfg.max_late_commands = b.max_late_commands;
+        self.missed_deadlines = 0;
+        self.late = 0;
+    }
+
+    /// The stall bounds in force.
+    pub fn stall_bounds(&self) -> StallBounds {
+        StallBounds {
+            max_missed_deadlines: self.cfg.max_missed_deadlines,
+            max_late_commands: self.cfg.max_late_commands,
+        }
+    }
+
+    /// The limits in force.
+    pub fn config(&self) -> &SupervisorConfig {
+        &self.cfg
+    }
+
+    /// Consecutive samples so far on which the device ran on a late
+    /// command.
+    pub fn late_commands(&self) -> u64 {
+        self.late
+    }
+
     /// Clears a latched fault: back to `disabled`.
     pub fn reset(&mut self) {
         self.state = SupervisorState::Disabled;
@@ -298,7 +591,7 @@ impl Supervisor {
         }
         let fault = if missing > k {
             Some(FaultKind::Link)
-        } else if self.late > self.cfg.max_late_commands {
+        } else if self.late > self.cfg.max_late_commands && self.state == SupervisorState::Running {
             Some(FaultKind::LinkLatency)
         } else if self.stale > k {
             Some(FaultKind::StaleSample)
@@ -321,6 +614,8 @@ impl Supervisor {
             Some(FaultKind::StaleSample) => self.stale as f64,
             // How long the device has run on late commands, s.
             Some(FaultKind::LinkLatency) => self.late as f64 * self.cfg.period_s,
+            // How far the reading moved per tick, m.
+            Some(FaultKind::PositionJump) => jump / ticks_since as f64,
             _ => x,
         };
         fault.filter(|k| self.trip(*k, value))
@@ -344,8 +639,13 @@ impl Supervisor {
     /// stall of a given length trips or not whatever the loop rate, and so
     /// does a loop that keeps ending a little late. Returns the fault if
     /// this call tripped it.
+    ///
+    /// Only while `running` (a job or a hold controller drives the stage):
+    /// disabled, or enabled at 0 A between jobs, a late loop holds 0 A and
+    /// endangers nothing, so the stall is reported (events, timing) and
+    /// never latched.
     pub fn check_overrun(&mut self, missed: u64) -> Option<FaultKind> {
-        if missed == 0 {
+        if missed == 0 || self.state != SupervisorState::Running {
             self.missed_deadlines = 0;
             return None;
         }

@@ -58,7 +58,7 @@ use crate::record::topics::{
     EventKind, EventRecord, FaultKind, Record, SampleRecord, SupervisorState, TimingRecord,
 };
 use crate::rt::latency::{CpuDmaLatency, DmaLatency};
-use crate::rt::supervisor::{HalCall, HalVerdict, Supervisor, SupervisorConfig};
+use crate::rt::supervisor::{HalCall, HalVerdict, StallBounds, Supervisor, SupervisorConfig};
 use crate::rt::timing::{TickTiming, TimingStats};
 use bench_hal::clock::{monotonic_ns as now_ns, sleep_until_ns};
 use bench_hal::{Clock, Command, Error as _, Sample, Stage};
@@ -855,10 +855,11 @@ impl<'s, S: Stage> Loop<'s, S> {
     }
 
     /// Step 7: wake-up latency, compute time, overrun (and the overrun
-    /// rule; a trip is 0 A and disable now). Returns `true` if the overrun
-    /// rule latched a fault. Times in ns on `CLOCK_MONOTONIC`.
+    /// rule; a trip is 0 A and disable now). Returns the deadlines this
+    /// tick made the loop miss (0 on time) and whether the overrun rule
+    /// latched a fault. Times in ns on `CLOCK_MONOTONIC`.
     #[inline]
-    pub fn timing(&mut self, deadline: u64, wake: u64, end: u64, answers_seq: u64) -> bool {
+    pub fn timing(&mut self, deadline: u64, wake: u64, end: u64, answers_seq: u64) -> (u64, bool) {
         let overran = self.host_paced && end > deadline + self.period_ns;
         let wake_ns = if self.host_paced {
             wake.saturating_sub(deadline)
@@ -884,9 +885,15 @@ impl<'s, S: Stage> Loop<'s, S> {
         self.next_deadline_ns = next;
         if self.host_paced && self.sup.check_overrun(missed).is_some() {
             let _ = self.stage.zero_and_disable(answers_seq);
-            return true;
+            return (missed, true);
         }
-        false
+        (missed, false)
+    }
+
+    /// The job's stall bounds (see [`StallBounds`]); the supervisor's
+    /// others stay.
+    pub fn set_stall_bounds(&mut self, b: StallBounds) {
+        self.sup.set_stall_bounds(b);
     }
 
     /// One tick of `job` (steps 1–7). `cur` is the job's bookkeeping; `em`
@@ -948,6 +955,7 @@ impl<'s, S: Stage> Loop<'s, S> {
         if em.recording_lost() {
             fault |= self.sup.recording_lost(em.dropped).is_some();
         }
+        let late_before = self.sup.late_commands();
         match &sample {
             Some(s) => fault |= self.supervise_sample(s),
             None => em.event(
@@ -975,22 +983,50 @@ impl<'s, S: Stage> Loop<'s, S> {
         // Compute time ends when the command is out; queueing the record
         // comes after (in virtual time it may wait for the writer).
         let end = if timed { now_ns() } else { wake };
+        // Timing before the record: a stall that faults this tick shows in
+        // its sample (0 A, faulted), as any other fault of the tick does.
+        let (missed, timing_fault) = if timed {
+            self.timing(deadline, wake, end, seq)
+        } else {
+            (0, false)
+        };
+        if missed > 0 {
+            em.event(
+                cur.tick,
+                t_s,
+                EventKind::Stall,
+                &self.sup,
+                missed as f64 * self.period_s,
+            );
+        }
+        // A run of late commands that ended at this sample.
+        if late_before > 0 && self.sup.late_commands() == 0 {
+            em.event(
+                cur.tick,
+                t_s,
+                EventKind::Stall,
+                &self.sup,
+                late_before as f64 * self.period_s,
+            );
+        }
         em.push(Record::Sample(SampleRecord {
             tick: cur.tick,
             t_s,
             wake_s,
-            current_command_a: command_a,
+            // What is in force after this tick: 0 A once it faulted (the
+            // stop was sent in this tick).
+            current_command_a: if fault || timing_fault {
+                0.0
+            } else {
+                command_a
+            },
             position_m: sample.map_or(shown.map_or(f64::NAN, |s| s.position_m), |s| s.position_m),
             excitation_a: out.excitation_a,
             setpoint_m: out.setpoint_m,
             state: self.sup.state(),
             out_of_range: shown.is_some_and(|s| s.flags.out_of_range),
         }));
-        if fault {
-            let value = self.sup.fault().map_or(f64::NAN, |f| f.1);
-            em.event(cur.tick, t_s, EventKind::Fault, &self.sup, value);
-        }
-        if timed && self.timing(deadline, wake, end, seq) {
+        if fault || timing_fault {
             let value = self.sup.fault().map_or(f64::NAN, |f| f.1);
             em.event(cur.tick, t_s, EventKind::Fault, &self.sup, value);
         }
@@ -1110,6 +1146,26 @@ impl<'s, S: Stage> Loop<'s, S> {
         self.disable();
         let last = cur.tick.saturating_sub(1);
         let t_end = cur.tick as f64 * self.period_s;
+        if matches!(
+            stop_reason,
+            Some(RawStop::Interrupted { .. } | RawStop::TickLimit)
+        ) && cur.tick > 0
+        {
+            // The stop came after the last tick's command was sent: one
+            // more sample shows the 0 A and the state the teardown left.
+            let shown = self.last_good;
+            em.push(Record::Sample(SampleRecord {
+                tick: cur.tick,
+                t_s: cur.last_t_s + self.period_s,
+                wake_s: f64::NAN,
+                current_command_a: 0.0,
+                position_m: shown.map_or(f64::NAN, |s| s.position_m),
+                excitation_a: f64::NAN,
+                setpoint_m: cur.held.setpoint_m,
+                state: self.sup.state(),
+                out_of_range: shown.is_some_and(|s| s.flags.out_of_range),
+            }));
+        }
         em.event(last, t_end, EventKind::StateChanged, &self.sup, f64::NAN);
         if cur.window_ticks > 0 {
             em.push(timing_record(
@@ -1511,24 +1567,42 @@ mod tests {
         // As if paced in real time (without SCHED_FIFO on the test thread).
         lp.host_paced = true;
         let p = 200_000;
+        // Disabled, or enabled at 0 A between jobs: a stall of any length is
+        // counted and skipped, never latched.
+        for _ in 0..3 {
+            assert_eq!(
+                lp.timing(500_000, 500_000, 500_000 + 100 * p, 0),
+                (100, false)
+            );
+            lp.sup.enabled();
+        }
+        assert_eq!(lp.supervisor().state(), SupervisorState::Enabled);
+        assert_eq!(lp.supervisor().missed_deadlines(), 0);
+        lp.total.reset();
+        lp.window.reset();
+        // A job drives the stage: the bound applies.
+        lp.sup.running();
         // On time: the next deadline is a period later.
-        assert!(!lp.timing(1_000_000, 1_000_010, 1_000_100, 0));
+        assert!(!lp.timing(1_000_000, 1_000_010, 1_000_100, 0).1);
         assert_eq!(lp.next_deadline_ns, 1_000_000 + p);
         assert_eq!(lp.total.overruns, 0);
         // Ends 3.5 periods late: one overrun, three deadlines missed and
         // skipped; 3 in a row are tolerated.
-        assert!(!lp.timing(2_000_000, 2_000_000, 2_000_000 + 7 * p / 2, 0));
+        assert_eq!(
+            lp.timing(2_000_000, 2_000_000, 2_000_000 + 7 * p / 2, 0),
+            (3, false)
+        );
         assert_eq!(lp.total.overruns, 1);
         assert_eq!(lp.window.overruns, 1);
         assert_eq!(lp.next_deadline_ns, 2_000_000 + 4 * p);
         assert_eq!(lp.supervisor().missed_deadlines(), 3);
         // On time again: the streak ends.
-        assert!(!lp.timing(2_800_000, 2_800_000, 2_800_100, 0));
+        assert!(!lp.timing(2_800_000, 2_800_000, 2_800_100, 0).1);
         assert_eq!(lp.supervisor().missed_deadlines(), 0);
         // 2 + 2 missed in a row are more than 3: the fault (and the stage
         // stopped), its value the time behind, 4 periods.
-        assert!(!lp.timing(3_000_000, 3_000_000, 3_000_000 + 2 * p + 1, 0));
-        assert!(lp.timing(4_000_000, 4_000_000, 4_000_000 + 2 * p + 1, 0));
+        assert!(!lp.timing(3_000_000, 3_000_000, 3_000_000 + 2 * p + 1, 0).1);
+        assert!(lp.timing(4_000_000, 4_000_000, 4_000_000 + 2 * p + 1, 0).1);
         let (kind, behind_s) = lp.supervisor().fault().unwrap();
         assert_eq!(kind, FaultKind::Overruns);
         assert!((behind_s - 4.0 * 2e-4).abs() < 1e-12, "{behind_s}");

@@ -37,6 +37,18 @@ impl Emulator {
         version: Option<u16>,
         lockstep: bool,
     ) -> Self {
+        Self::start_announcing(config, faults, version, lockstep, None)
+    }
+
+    /// As [`Self::start_with`], announcing `announce` (peak, continuous
+    /// current, A) in its hello instead of its config's.
+    pub fn start_announcing(
+        config: &Path,
+        faults: Vec<ScheduledLinkFault>,
+        version: Option<u16>,
+        lockstep: bool,
+        announce: Option<(f32, f32)>,
+    ) -> Self {
         let cfg = BenchConfig::load(config).unwrap();
         let watchdog_ns = (cfg.emulator.watchdog_ms * 1e6) as u64;
         let core = DeviceCore::new(
@@ -54,6 +66,7 @@ impl Emulator {
             seed: 1,
             realtime_priority: Some(cfg.emulator.priority),
             lockstep,
+            announce_currents_a: announce,
         };
         let stop = Arc::new(AtomicBool::new(false));
         let status = Arc::new(EmulatorStatus::default());

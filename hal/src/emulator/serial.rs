@@ -41,6 +41,11 @@ pub struct SerialEmulatorOptions {
     /// whatever the scheduling, so link-path results can be compared with
     /// it on a machine without real-time guarantees.
     pub lockstep: bool,
+    /// Current limits to announce in the hello instead of the device's
+    /// own, `(peak, continuous)` A (tests of the host's refusal and of its
+    /// limits winning; any value, NaN and 1e30 included). The device still
+    /// clips at its own peak.
+    pub announce_currents_a: Option<(f32, f32)>,
 }
 
 impl Default for SerialEmulatorOptions {
@@ -52,6 +57,7 @@ impl Default for SerialEmulatorOptions {
             seed: 0,
             realtime_priority: None,
             lockstep: false,
+            announce_currents_a: None,
         }
     }
 }
@@ -195,8 +201,12 @@ pub fn run(
         version: opts.protocol_version,
         period_ns: info.period_ns as u32,
         watchdog_ms: (core.watchdog_ns() / 1_000_000) as u32,
-        peak_current_a: info.peak_current_a as f32,
-        continuous_current_a: info.continuous_current_a as f32,
+        peak_current_a: opts
+            .announce_currents_a
+            .map_or(info.peak_current_a as f32, |a| a.0),
+        continuous_current_a: opts
+            .announce_currents_a
+            .map_or(info.continuous_current_a as f32, |a| a.1),
         probe_range_m: info.probe_range_m as f32,
         position_lsb_m: opts.position_lsb_m as f32,
     };

@@ -61,6 +61,8 @@ pub fn ch5_bench(y1o_frac: f64, noise_rms_m: f64, seed: u64) -> SimParams {
             bandwidth_hz: 1000.0,
             peak_current_a: 9.98,
             continuous_current_a: 2.34,
+            rated_peak_current_a: 9.98,
+            rated_continuous_current_a: 2.34,
         },
         probe: ProbeParams {
             range_m: 1e-3,
