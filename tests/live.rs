@@ -380,3 +380,105 @@ fn measure_two_clients_against_none() {
         b / a
     );
 }
+
+/// The soak of issue 25: `BENCH_SOAK_RUNS` (default 20) real-time chirps of
+/// 20 s and as many fast steps (4 s), each with two live clients reading
+/// every sample, on this machine as it is. Every run must end without a
+/// fault; the stalls each run saw are printed (count, longest) and
+/// summarised at the end. A measurement on a real machine, run by hand:
+/// `cargo test --release --test live -- --ignored --nocapture soak`.
+#[test]
+#[ignore]
+fn soak_chirps_and_fast_steps_with_two_clients() {
+    let _g = one_at_a_time();
+    let dir = tmp();
+    let cfg = quiet_config_edited(dir.path(), 0.5, "", |t| t.to_string());
+    let rt = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(1)
+        .enable_all()
+        .build()
+        .unwrap();
+    let runs: usize = std::env::var("BENCH_SOAK_RUNS")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(20);
+    let mut faults = Vec::new();
+    let mut longest_all = 0.0f64;
+    let mut stalls_all = 0u64;
+    for round in 0..2 * runs {
+        let chirp = round < runs;
+        let rec = dir.path().join(format!("soak{round}.mcap"));
+        let mut cmd = bench();
+        if chirp {
+            cmd.args(["chirp", "--duration-s", "20"]);
+        } else {
+            cmd.args(["control", "--fast", "--duration-s", "4"]);
+        }
+        cmd.args(["--realtime", "--json", "--live", "127.0.0.1:0", "--config"])
+            .arg(&cfg)
+            .arg("--out")
+            .arg(&rec)
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped());
+        let mut child = cmd.spawn().unwrap();
+        let mut err = BufReader::new(child.stderr.take().unwrap());
+        let mut line = String::new();
+        let url = loop {
+            line.clear();
+            assert!(err.read_line(&mut line).unwrap() > 0);
+            if let Some(rest) = line.strip_prefix("live view on ") {
+                break rest.split_whitespace().next().unwrap().to_string();
+            }
+        };
+        let topics = ["/bench/sample", "/bench/envelope", "/bench/timing"];
+        let clients: Vec<_> = (0..2)
+            .map(|_| {
+                let url = url.clone();
+                rt.spawn(async move {
+                    subscribe(&url, FOXGLOVE, &topics, |_| false, Duration::from_secs(40))
+                        .await
+                        .1
+                        .len()
+                })
+            })
+            .collect();
+        let out = child.wait_with_output().unwrap();
+        let mut rest = String::new();
+        std::io::Read::read_to_string(&mut err, &mut rest).unwrap();
+        let received: Vec<usize> = clients.into_iter().map(|h| rt.block_on(h).unwrap()).collect();
+        let s: Value = serde_json::from_slice(&out.stdout).unwrap_or(Value::Null);
+        let what = if chirp { "chirp" } else { "fast step" };
+        // Stalls: the chirp's summary counts them; a step's recording holds
+        // its `stall` events.
+        let stalls: Vec<f64> = if chirp {
+            vec![s["stalls"]["longest_s"].as_f64().unwrap_or(0.0); s["stalls"]["count"].as_u64().unwrap_or(0) as usize]
+        } else {
+            common::mcap_messages(&rec)
+                .into_iter()
+                .filter(|(t, _, v)| t == "/bench/event" && v["kind"] == "stall")
+                .map(|(.., v)| v["value"].as_f64().unwrap_or(0.0))
+                .collect()
+        };
+        let longest = stalls.iter().copied().fold(0.0, f64::max);
+        longest_all = longest_all.max(longest);
+        stalls_all += stalls.len() as u64;
+        eprintln!(
+            "{what} {round}: exit {:?}, stalls {} (longest {:.2} ms), overruns {}, p99 wake-up {} us, clients received {received:?}",
+            out.status.code(),
+            stalls.len(),
+            longest * 1e3,
+            s["timing"]["overruns"],
+            s["timing"]["wake_latency_p99_us"],
+        );
+        if !out.status.success() {
+            faults.push(format!("{what} {round}: {}", rest.trim()));
+        }
+    }
+    eprintln!(
+        "soak: {} runs, {} faults; {stalls_all} stalls, longest {:.2} ms",
+        2 * runs,
+        faults.len(),
+        longest_all * 1e3
+    );
+    assert!(faults.is_empty(), "{faults:#?}");
+}

@@ -266,6 +266,10 @@ pub(super) fn print_summary(s: &ChirpSummary) {
         s.model.zero_types.join(", "),
         if s.model.cmp_cnmp { "yes" } else { "no" }
     );
+    if let Some(l) = &s.current_limits {
+        outln!("{}", l.line());
+    }
+    outln!("{}", s.stalls.line());
     for line in s.timing.lines() {
         outln!("{line}");
     }

@@ -301,6 +301,7 @@ pub(super) fn print_control_summary(s: &ControlSummary) {
         },
         c.largest_pole_magnitude
     );
+    outln!("  {}", c.stall.line());
     if c.passed() {
         outln!("  → passed");
     } else {
@@ -326,6 +327,9 @@ pub(super) fn print_control_summary(s: &ControlSummary) {
     }
     if s.disturbance_rms_n > 0.0 {
         outln!("disturbance: {:.4} N RMS", s.disturbance_rms_n);
+    }
+    if let Some(l) = &s.current_limits {
+        outln!("{}", l.line());
     }
     if let Some(p) = &s.recording {
         outln!("recording   {}", p.display());

@@ -229,6 +229,9 @@ impl StallReport {
 
     /// One line for the summary.
     pub fn line(&self) -> String {
+        if self.count == 0 {
+            return "stalls: none".to_string();
+        }
         let bands: Vec<String> = self
             .bands_hz
             .iter()

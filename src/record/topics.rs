@@ -341,12 +341,12 @@ pub struct FoxgloveLog {
 
 impl FoxgloveLog {
     /// The log line of `e`, at `unix_ns` ns since the Unix epoch: level
-    /// error for a fault, warning for an interruption or a missing sample,
-    /// info otherwise.
+    /// error for a fault, warning for an interruption, a missing sample or
+    /// a stall, info otherwise.
     pub fn of_event(e: &EventRecord, unix_ns: u64) -> Self {
         let level = match e.kind {
             EventKind::Fault => 4,
-            EventKind::Interrupted | EventKind::SampleMissing => 3,
+            EventKind::Interrupted | EventKind::SampleMissing | EventKind::Stall => 3,
             _ => 2,
         };
         let mut message = e.kind.as_str().to_string();
