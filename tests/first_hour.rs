@@ -324,6 +324,7 @@ fn subcommands(bench: &Installed, w: &World) -> Vec<String> {
         "control",
         "emulate",
         "serve",
+        "daemon",
         "recover",
         "config",
         "completions",

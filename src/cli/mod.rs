@@ -8,10 +8,11 @@
 //! | 0 | success |
 //! | 1 | unexpected error (I/O after the run, internal) |
 //! | 2 | bad input: config or arguments; nothing was enabled, no recording left |
-//! | 3 | safety fault: the supervisor latched; 0 A, amplifier disabled, recording finished |
+//! | 3 | safety fault: the supervisor latched; 0 A, amplifier disabled, recording finished (`bench daemon status`: a fault is latched) |
 //! | 4 | hardware (HAL) error; 0 A, amplifier disabled, recording finished |
 //! | 130 | interrupted by SIGINT/SIGTERM; 0 A, amplifier disabled, recording finished |
-//! | 5 | `--daemon`: the daemon refused the job (busy, or a latched fault) |
+//! | 5 | `--daemon`, `bench daemon`: the daemon refused (busy, or a latched fault) |
+//! | 6 | `bench daemon`: no daemon answers at the socket (no socket, a stale one, permission denied) |
 //! | 141 | the command succeeded, but the reader of its standard output went away (`bench … \| head`); what it wrote to files is complete |
 //!
 //! One file per command (`chirp.rs`, `control.rs`, `emulate.rs`,
@@ -35,6 +36,7 @@ mod chirp;
 mod config_cmd;
 mod console;
 mod control;
+mod daemon_cmd;
 mod docs;
 mod emulate;
 mod export;
@@ -55,6 +57,7 @@ use chirp::{chirp, ChirpArgs};
 use clap::{Parser, Subcommand};
 use config_cmd::{config_command, ConfigCommand};
 use control::{control, ControlArgs};
+use daemon_cmd::{daemon, DaemonArgs};
 use docs::{completions, man, CompletionsArgs, ManArgs};
 use emulate::{emulate, EmulateCommand};
 use export::{export, ExportArgs};
@@ -93,6 +96,10 @@ enum Command {
     /// Own the bench: keep it safe between jobs and serve chirp and control
     /// jobs, one at a time, as JSON lines on a Unix socket.
     Serve(ServeArgs),
+    /// Talk to a running `bench serve` without writing JSON: show its
+    /// status, reset a latched fault, enable or disable the amplifier,
+    /// stop the running job, shut the daemon down.
+    Daemon(DaemonArgs),
     /// Turn the `.part` file of a killed or failed run into a complete,
     /// indexed recording (every completely written chunk, the metadata).
     Recover(RecoverArgs),
@@ -140,6 +147,7 @@ pub(super) mod status {
     pub const HAL: u8 = 4;
     pub const INTERRUPTED: u8 = 130;
     pub const DAEMON_REFUSED: u8 = 5;
+    pub const NO_DAEMON: u8 = 6;
 }
 
 /// Logging to stderr, as the Rust ecosystem does it: the filter comes from
@@ -188,6 +196,7 @@ pub fn main() -> ExitCode {
         Command::Control(args) => control(args, stop),
         Command::Emulate(cmd) => emulate(cmd, stop),
         Command::Serve(args) => serve(args),
+        Command::Daemon(args) => daemon(args),
         Command::Recover(args) => recover(args),
         Command::Analyze(args) => analyze(args),
         Command::Map(args) => map(args),

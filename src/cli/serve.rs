@@ -1,6 +1,8 @@
 //! `bench serve`, and `--daemon` (a job submitted to a running daemon).
 
 use super::{bad_input, default_recordings, emit, load_config, run_failed, status, CONFIG_HELP};
+use bench::daemon::client::ClientError;
+use bench::daemon::ApiErrorKind;
 use bench::jobs::request::{parse_fault, JobRequest};
 use bench::rt::backend::BackendSpec;
 use clap::Args;
@@ -97,23 +99,27 @@ pub(super) fn via_daemon<T: serde::de::DeserializeOwned + serde::Serialize>(
         Err(e) => {
             eprintln!("error: {e}");
             ExitCode::from(match &e {
-                bench::daemon::client::ClientError::Connect { .. } => status::BAD_INPUT,
-                bench::daemon::client::ClientError::Io(_) => status::ERROR,
-                bench::daemon::client::ClientError::Api { kind, .. } => {
-                    use bench::daemon::ApiErrorKind as K;
-                    match kind {
-                        K::BadParams | K::BadRequest | K::UnknownCommand | K::Refused => {
-                            status::BAD_INPUT
-                        }
-                        K::Busy | K::Faulted => status::DAEMON_REFUSED,
-                        K::Fault => status::FAULT,
-                        K::Hal => status::HAL,
-                        K::Interrupted => status::INTERRUPTED,
-                        K::Error => status::ERROR,
-                    }
-                }
+                ClientError::Connect { .. } | ClientError::NotASocket { .. } => status::BAD_INPUT,
+                ClientError::Io(_) => status::ERROR,
+                ClientError::Api { kind, .. } => answer_status(*kind),
             })
         }
+    }
+}
+
+/// The exit status of the daemon's error answer `kind`, for every client
+/// (`--daemon`, `bench daemon`): 5 for a refusal (`busy`, `faulted`), the
+/// status of the local run's outcome for a job's end (fault 3, HAL 4,
+/// interrupted 130), 2 for what the client sent, 1 for anything else.
+pub(super) fn answer_status(kind: ApiErrorKind) -> u8 {
+    use ApiErrorKind as K;
+    match kind {
+        K::BadParams | K::BadRequest | K::UnknownCommand | K::Refused => status::BAD_INPUT,
+        K::Busy | K::Faulted => status::DAEMON_REFUSED,
+        K::Fault => status::FAULT,
+        K::Hal => status::HAL,
+        K::Interrupted => status::INTERRUPTED,
+        K::Error => status::ERROR,
     }
 }
 
