@@ -1200,7 +1200,7 @@ impl BenchConfig {
         in_range(
             "actuator.continuous_current_a",
             a.continuous_current_a,
-            Range::open_closed(0.0, hi * TIME_TOLERANCE),
+            Range::open_closed(0.0, hi),
             "A",
             &why,
         )
@@ -1477,6 +1477,21 @@ impl BenchConfig {
         )
     }
 
+    /// How far the held current can carry x1 on this bench
+    /// ([`crate::rt::supervisor::ReachEnvelope`], the model at `period_s`);
+    /// none if the model cannot be built (the config's validation refuses
+    /// that before any job).
+    pub fn reach_envelope(&self, period_s: f64) -> crate::rt::supervisor::ReachEnvelope {
+        match bench_hal::model::Sr4dof::new(self.plant) {
+            Ok(m) => crate::rt::supervisor::ReachEnvelope::of(&bench_hal::sim::ZohPlant::new(
+                &m,
+                &self.actuator,
+                period_s,
+            )),
+            Err(_) => crate::rt::supervisor::ReachEnvelope::NONE,
+        }
+    }
+
     /// The supervisor's limits for a configured backend (`info`) at its
     /// period; the currents are [`Self::current_limits`].
     pub fn supervisor(
@@ -1496,6 +1511,7 @@ impl BenchConfig {
                 crate::rt::supervisor::whole_periods(b, info.period_ns as f64 * 1e-9)
             }),
             continuous_current_a: currents.continuous_current_a,
+            reach: self.reach_envelope(info.period_ns as f64 * 1e-9),
             i2t_peak_duration_s: self.safety.i2t_peak_duration_s,
             period_s: info.period_ns as f64 * 1e-9,
         }

@@ -184,17 +184,33 @@ fn specs() -> Vec<Spec> {
             false,
             Bounds::new(1.0, false, 6.0, true),
         ),
+        // At most the coil's rating (9.98 A shipped).
         s(
             "actuator.peak_current_a",
             Real,
             true,
-            Bounds::new(0.0, false, 20.0, true),
+            Bounds::new(0.0, false, 9.98, true),
         ),
+        // At most the coil's rating (2.34 A) and the peak / 1.25 (7.984 A).
         s(
             "actuator.continuous_current_a",
             Real,
             true,
-            Bounds::new(0.0, false, 9.98, true),
+            Bounds::new(0.0, false, 2.34, true),
+        ),
+        // The coil's datasheet ratings: (0, 20] A, and the continuous one
+        // below the peak one.
+        s(
+            "actuator.rated_peak_current_a",
+            Real,
+            false,
+            Bounds::new(0.0, false, 20.0, true),
+        ),
+        s(
+            "actuator.rated_continuous_current_a",
+            Real,
+            false,
+            Bounds::new(0.0, false, 9.98, false),
         ),
         // Not protections themselves, but they set how hard and how fast
         // the coil pushes: [0.01, 1000] N/A, [10, 100 000] Hz.

@@ -445,13 +445,19 @@ fn soak_chirps_and_fast_steps_with_two_clients() {
         let out = child.wait_with_output().unwrap();
         let mut rest = String::new();
         std::io::Read::read_to_string(&mut err, &mut rest).unwrap();
-        let received: Vec<usize> = clients.into_iter().map(|h| rt.block_on(h).unwrap()).collect();
+        let received: Vec<usize> = clients
+            .into_iter()
+            .map(|h| rt.block_on(h).unwrap())
+            .collect();
         let s: Value = serde_json::from_slice(&out.stdout).unwrap_or(Value::Null);
         let what = if chirp { "chirp" } else { "fast step" };
         // Stalls: the chirp's summary counts them; a step's recording holds
         // its `stall` events.
         let stalls: Vec<f64> = if chirp {
-            vec![s["stalls"]["longest_s"].as_f64().unwrap_or(0.0); s["stalls"]["count"].as_u64().unwrap_or(0) as usize]
+            vec![
+                s["stalls"]["longest_s"].as_f64().unwrap_or(0.0);
+                s["stalls"]["count"].as_u64().unwrap_or(0) as usize
+            ]
         } else {
             common::mcap_messages(&rec)
                 .into_iter()

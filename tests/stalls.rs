@@ -19,7 +19,14 @@ fn config(dir: &Path, extra_safety: &str) -> PathBuf {
 /// The loop check's stall bound of `controller`, s, and its source.
 fn stall_bound(cfg: &Path, controller: &str) -> (f64, String) {
     let out = bench()
-        .args(["control", "--controller", controller, "--check-only", "--json", "--config"])
+        .args([
+            "control",
+            "--controller",
+            controller,
+            "--check-only",
+            "--json",
+            "--config",
+        ])
         .arg(cfg)
         .output()
         .unwrap();
@@ -31,24 +38,44 @@ fn stall_bound(cfg: &Path, controller: &str) -> (f64, String) {
     )
 }
 
-fn control_with_stall(cfg: &Path, dir: &Path, controller: &str, stall_ms: f64) -> (Option<i32>, Value) {
+fn control_with_stall(
+    cfg: &Path,
+    dir: &Path,
+    controller: &str,
+    stall_ms: f64,
+) -> (Option<i32>, Value) {
     let rec = path_in(dir, &format!("{controller}-{stall_ms}.mcap"));
     let out = bench()
-        .args(["control", "--controller", controller, "--realtime", "--duration-s", "1.5", "--json"])
-        .args(["--inject-fault", &format!("stall:{stall_ms}@0.6"), "--out", &rec, "--config"])
+        .args([
+            "control",
+            "--controller",
+            controller,
+            "--realtime",
+            "--duration-s",
+            "1.5",
+            "--json",
+        ])
+        .args([
+            "--inject-fault",
+            &format!("stall:{stall_ms}@0.6"),
+            "--out",
+            &rec,
+            "--config",
+        ])
         .arg(cfg)
         .output()
         .unwrap();
     (out.status.code(), json_stdout(&out))
 }
 
-/// The slow controller's bound is the reach time of the held peak current
-/// (6 ms on the Chapter 5 bench; its delay margin is 17 ms), the fast one's
-/// its delay margin (2.3 ms at 284 rad/s). A stall of a third of the bound
-/// runs through; one of 2.5 times stops the run on `overruns`, with the
-/// stall, the bound and where it came from in the message. (The bound is
-/// counted in whole periods; the supervisor's unit test checks the edge,
-/// K periods behind tolerated and K + 1 not.)
+/// Each controller's delay bound is its delay margin plus one period of
+/// that crossover (fast: 2.3 + 22.1 ms; slow: 17.0 + 33.9 ms at the
+/// 185 rad/s crossing). With the loop settled (a small held current, whose
+/// reach never gets to the limit), a stall of a third of the bound runs
+/// through; one of 2.5 times stops the run on `overruns`, with the stall,
+/// the bound and where it came from in the message. (The bound is counted
+/// in whole periods; the supervisor's unit test checks the edge, K periods
+/// behind tolerated and K + 1 not.)
 #[test]
 fn a_closed_loop_stops_when_a_stall_exceeds_its_derived_bound() {
     let _g = one_at_a_time();
@@ -56,16 +83,23 @@ fn a_closed_loop_stops_when_a_stall_exceeds_its_derived_bound() {
     let cfg = config(dir.path(), "");
     for controller in ["slow", "fast"] {
         let (bound_s, source) = stall_bound(&cfg, controller);
-        let expected = if controller == "slow" { "time for the held peak current" } else { "delay margin of controller fast" };
-        assert!(source.starts_with(expected), "{controller}: {source}");
-        assert!(bound_s > 1e-3 && bound_s < 0.05, "{controller}: {bound_s}");
+        assert!(source.starts_with("delay margin"), "{controller}: {source}");
+        assert!(source.contains(&format!("controller {controller}")), "{source}");
+        assert!(bound_s > 10e-3 && bound_s < 0.1, "{controller}: {bound_s}");
         let (code, v) = control_with_stall(&cfg, dir.path(), controller, bound_s * 1e3 / 3.0);
-        assert_eq!(code, Some(0), "{controller}: a stall of a third of the bound faulted: {v}");
+        assert_eq!(
+            code,
+            Some(0),
+            "{controller}: a stall of a third of the bound faulted: {v}"
+        );
         let (code, v) = control_with_stall(&cfg, dir.path(), controller, bound_s * 1e3 * 2.5);
         assert_eq!(code, Some(3), "{controller}: {v}");
         assert_eq!(v["fault"]["kind"], "overruns", "{controller}: {v}");
         let msg = v["fault"]["message"].as_str().unwrap();
-        assert!(msg.starts_with("stall ") && msg.contains(" ms > ") && msg.contains(&source), "{controller}: {msg}");
+        assert!(
+            msg.starts_with("stall ") && msg.contains(" ms > ") && msg.contains(&source),
+            "{controller}: {msg}"
+        );
         let stalled = v["fault"]["value"].as_f64().unwrap();
         assert!(stalled > bound_s, "{controller}: {stalled} s");
     }
@@ -81,12 +115,25 @@ fn an_open_loop_chirp_survives_a_stall_and_leaves_its_span_out() {
     let cfg = config(dir.path(), "");
     let rec = path_in(dir.path(), "chirp.mcap");
     let out = bench()
-        .args(["chirp", "--realtime", "--duration-s", "4", "--json", "--inject-fault", "stall:30@2.5"])
+        .args([
+            "chirp",
+            "--realtime",
+            "--duration-s",
+            "4",
+            "--json",
+            "--inject-fault",
+            "stall:30@2.5",
+        ])
         .args(["--out", &rec, "--config"])
         .arg(&cfg)
         .output()
         .unwrap();
-    assert_eq!(out.status.code(), Some(0), "{}", String::from_utf8_lossy(&out.stderr));
+    assert_eq!(
+        out.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let v = json_stdout(&out);
     let st = &v["stalls"];
     assert!(st["count"].as_u64().unwrap() >= 1, "{st}");
@@ -136,4 +183,84 @@ fn a_user_bound_above_the_loops_own_is_refused_with_both_numbers() {
         assert_eq!(bound, 0.001, "{key}");
         assert!(source.starts_with(&format!("safety.{key}")), "{source}");
     }
+}
+
+/// The serial soak of issue 25: `BENCH_SOAK_RUNS` (default 20) default
+/// chirps (65 s each) over the serial emulator in real time, on this
+/// machine as it is. Every run must finish; the stalls (late-command runs)
+/// each saw are printed. Run by hand (22 minutes):
+/// `cargo test --release --test stalls -- --ignored --nocapture`.
+#[test]
+#[ignore]
+fn soak_default_chirps_over_the_serial_emulator() {
+    let _g = one_at_a_time();
+    let dir = tmp();
+    let shipped = Path::new(env!("CARGO_MANIFEST_DIR")).join("bench-config/sr4dof-ch5.toml");
+    let runs: usize = std::env::var("BENCH_SOAK_RUNS")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(20);
+    let mut failed = Vec::new();
+    for run in 0..runs {
+        let emu = common::emulator::Emulator::start(&shipped, vec![], None);
+        let rec = path_in(dir.path(), &format!("serial{run}.mcap"));
+        let out = bench()
+            .args(["chirp", "--json", "--backend", &emu.backend(), "--out", &rec])
+            .output()
+            .unwrap();
+        let v: Value = serde_json::from_slice(&out.stdout).unwrap_or(Value::Null);
+        eprintln!(
+            "run {run}: exit {:?}, stalls {} (longest {:.2} ms, {} FRF lines left out), link {}",
+            out.status.code(),
+            v["stalls"]["count"],
+            v["stalls"]["longest_s"].as_f64().unwrap_or(0.0) * 1e3,
+            v["stalls"]["excluded_lines"],
+            v["link"]
+        );
+        if !out.status.success() {
+            failed.push(format!("run {run}: {}", String::from_utf8_lossy(&out.stderr)));
+        }
+    }
+    assert!(failed.is_empty(), "{failed:#?}");
+}
+
+/// The travel rule: a stall right after a 500 µm step, while the fast
+/// controller drives near the peak current (8.6 A, 1.8 ms after the step),
+/// is shorter than the delay
+/// bound (24.4 ms) but long enough for that current to carry x1 to the
+/// 800 µm limit (the model's reach: about 6 ms from the start): it stops
+/// the run, and the message names the held current and the reach. The same
+/// stall before the step (the loop holding its start, a few mA) runs
+/// through.
+#[test]
+fn a_stall_on_a_large_held_current_stops_on_the_reach() {
+    let _g = one_at_a_time();
+    let dir = tmp();
+    let cfg = config(dir.path(), "");
+    let run = |at: &str| {
+        let rec = path_in(dir.path(), &format!("reach{at}.mcap"));
+        let out = bench()
+            .args(["control", "--fast", "--realtime", "--duration-s", "1", "--step-m", "0.0005", "--json"])
+            .args(["--inject-fault", &format!("stall:15@{at}"), "--out", &rec, "--config"])
+            .arg(&cfg)
+            .output()
+            .unwrap();
+        (out.status.code(), json_stdout(&out))
+    };
+    // settle_s = 0.2 s: the step is at 0.2 s, the command near its peak
+    // 1.8 ms later.
+    let (code, v) = run("0.2018");
+    assert_eq!(code, Some(3), "{v}");
+    assert_eq!(v["fault"]["kind"], "overruns", "{v}");
+    let msg = v["fault"]["message"].as_str().unwrap();
+    assert!(msg.contains("could carry x1 to the 800.0 µm position limit"), "{msg}");
+    let held: f64 = msg
+        .split("the held ")
+        .nth(1)
+        .and_then(|r| r.split(' ').next())
+        .and_then(|a| a.parse().ok())
+        .unwrap_or_else(|| panic!("{msg}"));
+    assert!(held > 5.0, "{msg}");
+    let (code, v) = run("0.1");
+    assert_eq!(code, Some(0), "{v}");
 }

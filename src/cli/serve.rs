@@ -97,6 +97,20 @@ pub(super) fn via_daemon<T: serde::de::DeserializeOwned + serde::Serialize>(
             }
         },
         Err(e) => {
+            if let (true, ClientError::Api { kind, message }) = (json, &e) {
+                // A job that ended without its summary (fault, HAL error,
+                // interrupted): its outcome on stdout, as a local run's.
+                if matches!(
+                    kind,
+                    ApiErrorKind::Fault | ApiErrorKind::Hal | ApiErrorKind::Interrupted
+                ) {
+                    let v = serde_json::json!({
+                        "outcome": kind,
+                        "error": message,
+                    });
+                    outln!("{v}");
+                }
+            }
             eprintln!("error: {e}");
             ExitCode::from(match &e {
                 ClientError::Connect { .. } | ClientError::NotASocket { .. } => status::BAD_INPUT,

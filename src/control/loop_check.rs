@@ -260,26 +260,37 @@ pub struct LoopCheck {
 }
 
 /// How long the closed loop may run on a held command (a host stall, a
-/// late link) before it is unsafe, from the loop itself, not a constant:
-/// the smaller of
-/// - the **delay margin**, the extra delay the loop tolerates before it
-///   loses stability: `min_i PM_i / ω_i` over every gain crossover ω_i of
-///   the loop that runs (model with zero-order hold and amplifier lag, and
-///   the measured FRF when given), with each phase margin taken in
-///   (0, 360°] (a pure delay τ turns L by −ωτ; Skogestad & Postlethwaite
-///   §2.4); and
-/// - the **reach time**, the time the peak current held from rest takes to
-///   carry x1 across the room between the job's farthest setpoint and the
-///   position limit (the model, zero-order hold; the worst held command is
-///   the peak the supervisor allows).
+/// late link) before it is unsafe, from the loop itself, not a constant.
+/// Two rules, each with a physical reason:
+/// - **Stability (the delay bound, applied in whole periods):** a stall
+///   delays every command the loop computes until it ends. The loop loses
+///   stability when a delay beyond its **delay margin** persists long
+///   enough for the oscillation at that crossover to build up, about one
+///   of its periods: the bound is `min_i (DM_i + 2π / ω_i)` with
+///   `DM_i = PM_i / ω_i` over every gain crossover ω_i of the loop that
+///   runs (model with zero-order hold and amplifier lag, and the measured
+///   FRF when given), each phase margin taken in (0, 360°] (a delay τ turns
+///   L by −ωτ; Skogestad & Postlethwaite §2.4). A stall shorter than that
+///   is a transient the stable loop recovers from.
+/// - **Travel (the reach, applied at run time):** the command held through
+///   the stall must not be able to carry x1 to the position limit: the
+///   supervisor compares the stall with the time the *held* current takes
+///   to cover the room from the last reading to the limit, from the
+///   model's step response ([`crate::rt::supervisor::ReachEnvelope`]).
+///   `reach_time_s` here is that time for the peak current from the job's
+///   farthest setpoint: the worst case, for the report.
 ///
 /// `safety.max_overrun_s` and `safety.max_command_latency_s`, when set,
-/// are upper limits a user may tighten: the bound in force is the smallest
-/// of all, and a key above the derived bound is refused with both numbers.
+/// are upper limits a user may tighten: the delay bound in force is the
+/// smallest, and a key above the derived bound is refused with both
+/// numbers.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct StallLimit {
     /// Delay margin, s (`None`: no gain crossover, so no finite one).
     pub delay_margin_s: Option<f64>,
+    /// The delay bound: the delay margin plus one period of its crossover,
+    /// s (`None`: no crossover).
+    pub delay_bound_s: Option<f64>,
     /// The crossover that sets it, rad/s.
     pub delay_margin_at_rad_s: Option<f64>,
     /// Time for the held peak current to cross the room, s (`None`: not
@@ -290,11 +301,13 @@ pub struct StallLimit {
     pub reach_room_m: f64,
     /// The peak current of the reach, A.
     pub reach_current_a: f64,
-    /// The derived bound: the smaller of the two, s (infinite: neither).
+    /// The derived bound in whole periods: the delay bound, s (infinite:
+    /// none).
     pub derived_bound_s: f64,
     /// The bound the supervisor applies to overruns and late commands in
-    /// this job: the derived bound, or a smaller `safety.max_overrun_s` /
-    /// `safety.max_command_latency_s`, s.
+    /// this job, in whole periods: the derived bound, or a smaller
+    /// `safety.max_overrun_s` / `safety.max_command_latency_s`, s. (The
+    /// reach of the held current applies besides, at run time.)
     pub bound_s: f64,
     /// Where `bound_s` comes from, as fault messages name it (`delay margin
     /// of controller fast at 8.0 % of L (model, 284 rad/s)`).
@@ -356,7 +369,7 @@ impl StallLimit {
         );
         let mut dm: Option<(f64, f64, &str)> = delay_margin(model).map(|(d, w)| (d, w, "model"));
         if let Some((d, w)) = measured.and_then(delay_margin) {
-            if dm.is_none_or(|(m, ..)| d < m) {
+            if dm.is_none_or(|(m, w0, _)| d + 2.0 * PI / w < m + 2.0 * PI / w0) {
                 dm = Some((d, w, "measured FRF"));
             }
         }
@@ -364,19 +377,15 @@ impl StallLimit {
         let peak = cfg.actuator.peak_current_a;
         let reach = reach_time_s(plant, peak, room);
         let mut bound = f64::INFINITY;
-        let mut source = "no bound: the loop has no crossover and the held peak current stays inside the position limit".to_string();
-        if let Some((d, w, what)) = dm {
-            bound = d;
-            source = format!("delay margin of controller {name} at {at} ({what}, {w:.0} rad/s)");
-        }
-        if let Some(r) = reach {
-            if r < bound {
-                bound = r;
-                source = format!(
-                    "time for the held peak current {peak} A to move x1 {:.0} µm to the position limit (controller {name} at {at}, model)",
-                    room * 1e6
-                );
-            }
+        let mut source = "no delay bound: the loop has no gain crossover".to_string();
+        let delay_bound = dm.map(|(d, w, _)| d + 2.0 * PI / w);
+        if let (Some((d, w, what)), Some(b)) = (dm, delay_bound) {
+            bound = b;
+            source = format!(
+                "delay margin {:.1} ms of controller {name} at {at} ({what}, {w:.0} rad/s) + one period of that crossover, {:.1} ms",
+                d * 1e3,
+                2.0 * PI / w * 1e3
+            );
         }
         let derived = bound;
         for (key, v) in [
@@ -400,6 +409,7 @@ impl StallLimit {
         }
         Self {
             delay_margin_s: dm.map(|d| d.0),
+            delay_bound_s: delay_bound,
             delay_margin_at_rad_s: dm.map(|d| d.1),
             reach_time_s: reach,
             reach_room_m: room,
@@ -414,15 +424,15 @@ impl StallLimit {
     pub fn line(&self) -> String {
         let ms = |v: Option<f64>| v.map_or("none".to_string(), |v| format!("{:.1} ms", v * 1e3));
         format!(
-            "stall bound {}: delay margin {}{}, reach time {} (held {} A across {:.0} µm); applied: {}",
+            "stall bound {} ({}); delay margin {}{}; and at run time the reach of the held current (worst case: {} held {} A across {:.0} µm)",
             ms(self.bound_s.is_finite().then_some(self.bound_s)),
+            self.source,
             ms(self.delay_margin_s),
             self.delay_margin_at_rad_s
                 .map_or(String::new(), |w| format!(" at {w:.0} rad/s")),
             ms(self.reach_time_s),
             self.reach_current_a,
             self.reach_room_m * 1e6,
-            self.source
         )
     }
 }
@@ -674,5 +684,88 @@ mod thesis {
                 .unwrap_or_else(|e| panic!("omega {omega}: {e}"));
             assert!(!check.passed(), "omega {omega} passed");
         }
+    }
+
+    /// The delay margin of L(s) = 1/(s (s + 1)) is PM / ω_c = 0.9038 rad /
+    /// 0.7862 rad/s = 1.1496 s (textbook: Skogestad & Postlethwaite §2.4),
+    /// and it is the delay at which the loop loses its phase margin: with
+    /// 0.99 × it the delayed loop keeps a positive margin, with 1.01 × it
+    /// has none.
+    #[test]
+    fn delay_margin_of_a_textbook_loop() {
+        let l = |w: f64| {
+            let s = Complex::new(0.0, w);
+            Complex::new(1.0, 0.0) / (s * (s + 1.0))
+        };
+        let grid: Vec<f64> = (0..=4000)
+            .map(|i| 0.01 * 10f64.powf(i as f64 / 1000.0))
+            .collect();
+        let wc = ((5f64.sqrt() - 1.0) / 2.0).sqrt();
+        let pm = std::f64::consts::FRAC_PI_2 - wc.atan();
+        let (dm, at) = delay_margin(&margins(&l, &grid, true)).unwrap();
+        assert!((at - wc).abs() < 1e-9);
+        assert!((dm - pm / wc).abs() < 1e-9, "{dm} against {}", pm / wc);
+        for (k, positive) in [(0.99, true), (1.01, false)] {
+            let tau = k * dm;
+            let delayed = |w: f64| l(w) * Complex::from_polar(1.0, -w * tau);
+            let m = margins(&delayed, &grid, true);
+            assert_eq!(m.phase_margin_deg.unwrap() > 0.0, positive, "{k}: {m:?}");
+        }
+        // A crossing with a negative phase margin still tolerates the
+        // delay that turns it the rest of the way to −180°: 360° + PM.
+        let m = Margins {
+            crossovers_rad_s: vec![10.0, 100.0],
+            phase_margins_deg: vec![60.0, -90.0],
+            phase_margin_deg: Some(60.0),
+            gain_margin_db: None,
+            gain_margin_at_rad_s: None,
+            sensitivity_peak: 1.0,
+            sensitivity_peak_at_rad_s: 1.0,
+        };
+        let (dm, at) = delay_margin(&m).unwrap();
+        assert_eq!(at, 100.0);
+        assert!((dm - 270f64.to_radians() / 100.0).abs() < 1e-12);
+    }
+
+    /// The reach time is when the simulated bench (`SimStage`, the plant
+    /// the tests check against scipy), enabled from rest with the peak
+    /// current commanded, first reads x1 beyond the room: the same to one
+    /// period.
+    #[test]
+    fn reach_time_matches_the_simulator() {
+        use bench_hal::{Command, Stage};
+        let p =
+            std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("bench-config/sr4dof-ch5.toml");
+        let mut cfg = BenchConfig::load(&p).unwrap();
+        cfg.probe.noise_rms_m = 0.0;
+        cfg.probe.quantization_m = 0.0;
+        cfg.plant.disturbance = None;
+        let model = Sr4dof::new(cfg.plant).unwrap();
+        let t = cfg.loop_.period_ns() as f64 * 1e-9;
+        let plant = ZohPlant::new(&model, &cfg.actuator, t);
+        for (current, room) in [(9.98, 790e-6), (2.0, 100e-6), (9.98, 20e-6)] {
+            let reach = reach_time_s(&plant, current, room).unwrap();
+            let mut sim = bench_hal::sim::SimStage::new(cfg.sim_params(1)).unwrap();
+            sim.configure(cfg.loop_.period_ns()).unwrap();
+            sim.enable().unwrap();
+            let x0 = sim.read_sample().unwrap().position_m;
+            let mut k = 0u64;
+            loop {
+                sim.write_command(Command { current_a: current, answers_seq: k }).unwrap();
+                k += 1;
+                let x = sim.read_sample().unwrap().position_m;
+                if (x - x0).abs() > room {
+                    break;
+                }
+                assert!(k < 10_000, "never reached");
+            }
+            assert!((k as f64 * t - reach).abs() <= t * 1.001, "{current} A, {room} m: sim {} s, reach {reach} s", k as f64 * t);
+        }
+        // Less current needs longer; a room the static deflection never
+        // leaves is never reached.
+        let a = reach_time_s(&plant, 9.98, 790e-6).unwrap();
+        let b = reach_time_s(&plant, 5.0, 790e-6).unwrap();
+        assert!(b > a);
+        assert_eq!(reach_time_s(&plant, 0.01, 790e-6), None);
     }
 }

@@ -81,6 +81,7 @@ pub(super) fn between_jobs_fault(r: LoopReply) -> Option<FaultStatus> {
             value,
             tick: 0,
             link_error,
+            stall: None,
         },
     };
     let message = match stop.describe() {

@@ -557,6 +557,7 @@ pub fn run_recorded<J: Job + Send + 'static>(
             value,
             tick,
             detail,
+            stall,
         } => {
             let recording = finish(recorder)?;
             let source = if opts.stall_source.is_empty() {
@@ -567,7 +568,14 @@ pub fn run_recorded<J: Job + Send + 'static>(
             } else {
                 opts.stall_source
             };
-            let message = fault_message(kind, value, &loop_opts.safety, source, detail.as_deref());
+            let message = fault_message(
+                kind,
+                value,
+                &loop_opts.safety,
+                stall,
+                source,
+                detail.as_deref(),
+            );
             let context = serde_json::json!({
                 "command": opts.command,
                 "backend": info.name,

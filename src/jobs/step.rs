@@ -717,6 +717,7 @@ mod tests {
                     continuous_current_a: cfg.actuator.continuous_current_a,
                     i2t_peak_duration_s: 1.0,
                     period_s: 2e-4,
+                    reach: crate::rt::supervisor::ReachEnvelope::NONE,
                 });
                 sup.enabled();
                 sup.running();

@@ -284,9 +284,24 @@ pub fn fault_message(
     kind: FaultKind,
     value: f64,
     cfg: &SupervisorConfig,
+    stall: Option<(f64, StallRule, f64)>,
     stall_source: &str,
     detail: Option<&str>,
 ) -> String {
+    let stall_bound = |default_periods: u64| match stall {
+        Some((bound_s, StallRule::Reach, held_a)) => format!(
+            "{:.1} ms (the held {held_a:.3} A could carry x1 to the {:.1} µm position limit in that time: the model's reach)",
+            bound_s * 1e3,
+            cfg.position_limit_m * 1e6
+        ),
+        Some((bound_s, StallRule::Bound, _)) => {
+            format!("{:.1} ms ({stall_source})", bound_s * 1e3)
+        }
+        None => format!(
+            "{:.1} ms ({stall_source})",
+            default_periods as f64 * cfg.period_s * 1e3
+        ),
+    };
     let um = |m: f64| m * 1e6;
     let ms = |s: f64| s * 1e3;
     let periods_ms = |n: u64| n as f64 * cfg.period_s * 1e3;
@@ -318,16 +333,14 @@ pub fn fault_message(
             )
         }
         FaultKind::Overruns => format!(
-            "stall {:.1} ms > {:.1} ms ({}): the loop ran behind its deadlines on a held command",
+            "stall {:.1} ms > {}: the loop ran behind its deadlines on a held command",
             ms(value),
-            periods_ms(cfg.max_missed_deadlines),
-            stall_source
+            stall_bound(cfg.max_missed_deadlines)
         ),
         FaultKind::LinkLatency => format!(
-            "commands late for {:.1} ms > {:.1} ms ({}): the device ran on held commands",
+            "commands late for {:.1} ms > {}: the device ran on held commands",
             ms(value),
-            periods_ms(cfg.max_late_commands),
-            stall_source
+            stall_bound(cfg.max_late_commands)
         ),
         FaultKind::StaleSample => format!(
             "{value} stale samples in a row > {} (safety.max_missed_samples): the device repeats its sequence number",
@@ -351,6 +364,84 @@ pub fn fault_message(
             None => format!("hardware error (value {value})"),
         },
     }
+}
+
+/// Points of a [`ReachEnvelope`].
+pub const REACH_POINTS: usize = 64;
+/// First and last time of a [`ReachEnvelope`], s (log-spaced between).
+pub const REACH_SPAN_S: (f64, f64) = (1e-4, 1.0);
+
+/// How far x1 can move under a held current: the largest |x1| the model
+/// reaches from rest under a 1 A step held for `t` (zero-order hold,
+/// amplifier lag included), per ampere, at [`REACH_POINTS`] times
+/// log-spaced over [`REACH_SPAN_S`]. The plant is linear, so `I` amperes
+/// reach `I` times as far. The supervisor judges a stall with it: the held
+/// command, the room left to the position limit and this give the time the
+/// stall may last ([`ReachEnvelope::time_to_reach_s`]). Plain data, `Copy`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ReachEnvelope {
+    /// Largest |x1| by `t_i`, m per A (non-decreasing).
+    pub m_per_a: [f64; REACH_POINTS],
+}
+
+impl ReachEnvelope {
+    /// No reach known: every held current is taken as harmless (tests).
+    pub const NONE: Self = Self {
+        m_per_a: [0.0; REACH_POINTS],
+    };
+
+    /// The time of point `i`, s.
+    pub fn t_s(i: usize) -> f64 {
+        let (a, b) = REACH_SPAN_S;
+        a * (b / a).powf(i as f64 / (REACH_POINTS - 1) as f64)
+    }
+
+    /// The envelope of `plant` (the model at the loop's period).
+    pub fn of(plant: &bench_hal::sim::ZohPlant) -> Self {
+        let mut x = nalgebra::SVector::<f64, { bench_hal::sim::STATES }>::zeros();
+        let mut m_per_a = [0.0; REACH_POINTS];
+        let mut t = 0.0;
+        let mut peak = 0.0f64;
+        for (i, slot) in m_per_a.iter_mut().enumerate() {
+            let until = Self::t_s(i);
+            while t < until {
+                plant.step(&mut x, 1.0, 0.0);
+                t += plant.period_s;
+                peak = peak.max(x[0].abs());
+            }
+            *slot = peak;
+        }
+        Self { m_per_a }
+    }
+
+    /// How long `held_a` amperes may be held before x1 could have moved
+    /// `room_m`, s: the last envelope time at which it provably has not
+    /// (conservative by one grid step, at most 16 %); infinite if it never
+    /// does within the span. Real-time safe.
+    pub fn time_to_reach_s(&self, held_a: f64, room_m: f64) -> f64 {
+        let held = held_a.abs();
+        if room_m.is_nan() || room_m <= 0.0 {
+            return 0.0;
+        }
+        if held == 0.0 {
+            return f64::INFINITY;
+        }
+        match self.m_per_a.iter().position(|&r| held * r > room_m) {
+            None => f64::INFINITY,
+            Some(0) => 0.0,
+            Some(i) => Self::t_s(i - 1),
+        }
+    }
+}
+
+/// Which rule set the bound a stall broke (for its message).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum StallRule {
+    /// The job's bound in whole periods (a closed loop's delay rule, or a
+    /// user's `safety.max_overrun_s` / `max_command_latency_s`).
+    Bound,
+    /// The held command could have carried x1 to the position limit.
+    Reach,
 }
 
 /// Supervisor limits.
@@ -381,6 +472,8 @@ pub struct SupervisorConfig {
     pub i2t_peak_duration_s: f64,
     /// Loop period, s (I²t integration step).
     pub period_s: f64,
+    /// How far the held command can carry x1 in a stall (the model's).
+    pub reach: ReachEnvelope,
 }
 
 /// The supervisor. All methods are real-time safe.
@@ -401,6 +494,11 @@ pub struct Supervisor {
     late: u64,
     i2t_a2s: f64,
     i2t_budget_a2s: f64,
+    /// The last command sent, A (what the device holds in a stall).
+    last_command_a: f64,
+    /// The bound the latched stall fault broke, s, which rule, and the
+    /// command held, A.
+    stall_bound: Option<(f64, StallRule, f64)>,
 }
 
 impl Supervisor {
@@ -420,6 +518,8 @@ impl Supervisor {
             i2t_a2s: 0.0,
             i2t_budget_a2s: (cfg.peak_current_a * cfg.peak_current_a - ic2).max(0.0)
                 * cfg.i2t_peak_duration_s,
+            last_command_a: 0.0,
+            stall_bound: None,
         }
     }
 
@@ -508,6 +608,47 @@ impl Supervisor {
         self.stale = 0;
         self.missing = 0;
         self.late = 0;
+        self.stall_bound = None;
+    }
+
+    /// The bound the latched `overruns` or `link_latency` fault broke: the
+    /// bound, s, which rule set it, and the command held, A.
+    pub fn stall_bound(&self) -> Option<(f64, StallRule, f64)> {
+        self.stall_bound
+    }
+
+    /// How long the stage may run on the command now held before it could
+    /// reach the position limit from the last reading, s (infinite: not
+    /// within a second). Real-time safe.
+    pub fn reach_time_s(&self) -> f64 {
+        let x = if self.last_position_m.is_finite() {
+            self.last_position_m.abs()
+        } else {
+            0.0
+        };
+        self.cfg
+            .reach
+            .time_to_reach_s(self.last_command_a, self.cfg.position_limit_m - x)
+    }
+
+    /// A stall of `stalled` periods (deadlines missed, or late commands,
+    /// in a row) against its two rules: the job's bound in periods
+    /// (`bound`), and the reach of the held command. Returns the rule that
+    /// broke, and records its bound.
+    fn stall_broken(&mut self, stalled: u64, bound: u64) -> Option<StallRule> {
+        let stalled_s = stalled as f64 * self.cfg.period_s;
+        let reach = self.reach_time_s();
+        let (rule, bound_s) = if stalled_s > reach {
+            (StallRule::Reach, reach)
+        } else if stalled > bound {
+            (StallRule::Bound, bound as f64 * self.cfg.period_s)
+        } else {
+            return None;
+        };
+        if self.state != SupervisorState::Faulted {
+            self.stall_bound = Some((bound_s, rule, self.last_command_a));
+        }
+        Some(rule)
     }
 
     /// A tick had no usable sample (timeout, corrupt frames). Trips
@@ -591,7 +732,12 @@ impl Supervisor {
         }
         let fault = if missing > k {
             Some(FaultKind::Link)
-        } else if self.late > self.cfg.max_late_commands && self.state == SupervisorState::Running {
+        } else if self.state == SupervisorState::Running
+            && self.late > 0
+            && self
+                .stall_broken(self.late, self.cfg.max_late_commands)
+                .is_some()
+        {
             Some(FaultKind::LinkLatency)
         } else if self.stale > k {
             Some(FaultKind::StaleSample)
@@ -651,7 +797,9 @@ impl Supervisor {
         }
         self.missed_deadlines = self.missed_deadlines.saturating_add(missed);
         let behind_s = self.missed_deadlines as f64 * self.cfg.period_s;
-        (self.missed_deadlines > self.cfg.max_missed_deadlines
+        (self
+            .stall_broken(self.missed_deadlines, self.cfg.max_missed_deadlines)
+            .is_some()
             && self.trip(FaultKind::Overruns, behind_s))
         .then_some(FaultKind::Overruns)
     }
@@ -669,10 +817,12 @@ impl Supervisor {
             return (0.0, tripped.then_some(FaultKind::CommandNotFinite));
         }
         if self.state != SupervisorState::Running {
+            self.last_command_a = 0.0;
             return (0.0, None);
         }
         let p = self.cfg.peak_current_a;
         let i = current_a.clamp(-p, p);
+        self.last_command_a = i;
         let ic = self.cfg.continuous_current_a;
         self.i2t_a2s = (self.i2t_a2s + (i * i - ic * ic) * self.cfg.period_s).max(0.0);
         if self.i2t_a2s > self.i2t_budget_a2s && self.trip(FaultKind::I2t, self.i2t_a2s) {
@@ -698,6 +848,7 @@ mod tests {
             continuous_current_a: 2.34,
             i2t_peak_duration_s: 1.0,
             period_s: 2e-4,
+            reach: crate::rt::supervisor::ReachEnvelope::NONE,
         }
     }
 

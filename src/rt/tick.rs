@@ -162,6 +162,9 @@ pub enum StopReason {
         tick: u64,
         /// What the backend said, for link faults.
         detail: Option<String>,
+        /// For a stall fault: the bound it broke, s, which rule, the
+        /// command held, A.
+        stall: Option<(f64, crate::rt::supervisor::StallRule, f64)>,
     },
     /// A HAL call failed (the supervisor faulted with [`FaultKind::Hal`]).
     Hal {
@@ -195,6 +198,9 @@ pub enum RawStop<E> {
         tick: u64,
         /// The last bad-sample or lost-link error, for link faults.
         link_error: Option<E>,
+        /// For a stall fault: the bound it broke, s, which rule, the
+        /// command held, A ([`Supervisor::stall_bound`]).
+        stall: Option<(f64, crate::rt::supervisor::StallRule, f64)>,
     },
     /// A HAL call failed.
     Hal {
@@ -262,6 +268,7 @@ impl<E: std::fmt::Display> RawStop<E> {
                 value,
                 tick,
                 link_error,
+                stall,
             } => {
                 let detail = match (kind, link_error) {
                     (FaultKind::Link, Some(e)) if value.is_nan() => Some(format!("link lost: {e}")),
@@ -278,6 +285,7 @@ impl<E: std::fmt::Display> RawStop<E> {
                     value,
                     tick,
                     detail,
+                    stall,
                 }
             }
         }
@@ -1102,6 +1110,7 @@ impl<'s, S: Stage> Loop<'s, S> {
                             value,
                             tick: 0,
                             link_error: None,
+                            stall: None,
                         }
                     }
                 })
@@ -1201,6 +1210,7 @@ impl<'s, S: Stage> Loop<'s, S> {
                 } else {
                     None
                 },
+                stall: self.sup.stall_bound(),
             },
         }
     }
@@ -1368,6 +1378,7 @@ mod tests {
                 continuous_current_a: 1.0,
                 i2t_peak_duration_s: 1.0,
                 period_s: 2e-4,
+                reach: crate::rt::supervisor::ReachEnvelope::NONE,
             },
             max_ticks: 1000,
         }
