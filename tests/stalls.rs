@@ -84,7 +84,10 @@ fn a_closed_loop_stops_when_a_stall_exceeds_its_derived_bound() {
     for controller in ["slow", "fast"] {
         let (bound_s, source) = stall_bound(&cfg, controller);
         assert!(source.starts_with("delay margin"), "{controller}: {source}");
-        assert!(source.contains(&format!("controller {controller}")), "{source}");
+        assert!(
+            source.contains(&format!("controller {controller}")),
+            "{source}"
+        );
         assert!(bound_s > 10e-3 && bound_s < 0.1, "{controller}: {bound_s}");
         let (code, v) = control_with_stall(&cfg, dir.path(), controller, bound_s * 1e3 / 3.0);
         assert_eq!(
@@ -205,7 +208,14 @@ fn soak_default_chirps_over_the_serial_emulator() {
         let emu = common::emulator::Emulator::start(&shipped, vec![], None);
         let rec = path_in(dir.path(), &format!("serial{run}.mcap"));
         let out = bench()
-            .args(["chirp", "--json", "--backend", &emu.backend(), "--out", &rec])
+            .args([
+                "chirp",
+                "--json",
+                "--backend",
+                &emu.backend(),
+                "--out",
+                &rec,
+            ])
             .output()
             .unwrap();
         let v: Value = serde_json::from_slice(&out.stdout).unwrap_or(Value::Null);
@@ -218,7 +228,10 @@ fn soak_default_chirps_over_the_serial_emulator() {
             v["link"]
         );
         if !out.status.success() {
-            failed.push(format!("run {run}: {}", String::from_utf8_lossy(&out.stderr)));
+            failed.push(format!(
+                "run {run}: {}",
+                String::from_utf8_lossy(&out.stderr)
+            ));
         }
     }
     assert!(failed.is_empty(), "{failed:#?}");
@@ -240,8 +253,23 @@ fn a_stall_on_a_large_held_current_stops_on_the_reach() {
     let run = |at: &str| {
         let rec = path_in(dir.path(), &format!("reach{at}.mcap"));
         let out = bench()
-            .args(["control", "--fast", "--realtime", "--duration-s", "1", "--step-m", "0.0005", "--json"])
-            .args(["--inject-fault", &format!("stall:15@{at}"), "--out", &rec, "--config"])
+            .args([
+                "control",
+                "--fast",
+                "--realtime",
+                "--duration-s",
+                "1",
+                "--step-m",
+                "0.0005",
+                "--json",
+            ])
+            .args([
+                "--inject-fault",
+                &format!("stall:15@{at}"),
+                "--out",
+                &rec,
+                "--config",
+            ])
             .arg(&cfg)
             .output()
             .unwrap();
@@ -253,7 +281,10 @@ fn a_stall_on_a_large_held_current_stops_on_the_reach() {
     assert_eq!(code, Some(3), "{v}");
     assert_eq!(v["fault"]["kind"], "overruns", "{v}");
     let msg = v["fault"]["message"].as_str().unwrap();
-    assert!(msg.contains("could carry x1 to the 800.0 µm position limit"), "{msg}");
+    assert!(
+        msg.contains("could carry x1 to the 800.0 µm position limit"),
+        "{msg}"
+    );
     let held: f64 = msg
         .split("the held ")
         .nth(1)

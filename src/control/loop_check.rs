@@ -751,7 +751,11 @@ mod thesis {
             let x0 = sim.read_sample().unwrap().position_m;
             let mut k = 0u64;
             loop {
-                sim.write_command(Command { current_a: current, answers_seq: k }).unwrap();
+                sim.write_command(Command {
+                    current_a: current,
+                    answers_seq: k,
+                })
+                .unwrap();
                 k += 1;
                 let x = sim.read_sample().unwrap().position_m;
                 if (x - x0).abs() > room {
@@ -759,7 +763,11 @@ mod thesis {
                 }
                 assert!(k < 10_000, "never reached");
             }
-            assert!((k as f64 * t - reach).abs() <= t * 1.001, "{current} A, {room} m: sim {} s, reach {reach} s", k as f64 * t);
+            assert!(
+                (k as f64 * t - reach).abs() <= t * 1.001,
+                "{current} A, {room} m: sim {} s, reach {reach} s",
+                k as f64 * t
+            );
         }
         // Less current needs longer; a room the static deflection never
         // leaves is never reached.

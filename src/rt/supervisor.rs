@@ -288,7 +288,8 @@ pub fn fault_message(
     stall_source: &str,
     detail: Option<&str>,
 ) -> String {
-    let stall_bound = |default_periods: u64| match stall {
+    let stall_bound = |default_periods: u64| {
+        match stall {
         Some((bound_s, StallRule::Reach, held_a)) => format!(
             "{:.1} ms (the held {held_a:.3} A could carry x1 to the {:.1} µm position limit in that time: the model's reach)",
             bound_s * 1e3,
@@ -301,6 +302,7 @@ pub fn fault_message(
             "{:.1} ms ({stall_source})",
             default_periods as f64 * cfg.period_s * 1e3
         ),
+    }
     };
     let um = |m: f64| m * 1e6;
     let ms = |s: f64| s * 1e3;
