@@ -115,15 +115,22 @@ fn requests_errors_and_jobs_equal_to_local_runs() {
     // equal data.)
     let frf = |v: &Value| common::read_frf_csv(Path::new(v["frf_csv"].as_str().unwrap()));
     let (fr, fl) = (frf(&r), frf(&l));
-    assert_eq!(fr.len(), fl.len());
+    // The daemon runs in real time: a host stall leaves its span out of
+    // that FRF (`stalls` in its summary), so the grids are matched by
+    // frequency; every daemon line is a line of the local grid.
+    let excluded = r["stalls"]["excluded_lines"].as_u64().unwrap() as usize;
+    assert_eq!(fr.len() + excluded, fl.len(), "{}", r["stalls"]);
     let mut rel: Vec<f64> = fr
         .iter()
-        .zip(&fl)
-        .filter(|(a, b)| a[3] >= 0.9 && b[3] >= 0.9)
-        .map(|(a, b)| {
-            assert_eq!(a[0], b[0], "grids differ");
-            (a[1] / b[1] - 1.0).abs()
+        .map(|a| {
+            let b = fl
+                .iter()
+                .find(|b| b[0] == a[0])
+                .unwrap_or_else(|| panic!("{} Hz not on the local grid", a[0]));
+            (a, b)
         })
+        .filter(|(a, b)| a[3] >= 0.9 && b[3] >= 0.9)
+        .map(|(a, b)| (a[1] / b[1] - 1.0).abs())
         .collect();
     assert!(
         rel.len() > fr.len() / 2,
@@ -753,6 +760,6 @@ fn thousand_status_requests_during_a_realtime_job() {
         "1000 status requests from 10 clients in {:.0} ms during the job; loop overruns: {overruns}",
         took.as_secs_f64() * 1e3
     );
-    // Overruns fault the job after safety.max_overrun_s behind; it finished.
+    // A stall beyond the loop's own bound faults the job; it finished.
     assert!(r["result"]["metrics"]["settling_time_s"].as_f64().is_some());
 }
