@@ -328,9 +328,10 @@ fn a_uniformly_late_link_is_the_link_latency_fault() {
     let _g = one_at_a_time();
     let dir = tmp();
     let cfg = quiet_config(dir.path());
-    let text = std::fs::read_to_string(&cfg)
-        .unwrap()
-        .replace("\n[safety]\n", "\n[safety]\nmax_command_latency_s = 0.005\n");
+    let text = std::fs::read_to_string(&cfg).unwrap().replace(
+        "\n[safety]\n",
+        "\n[safety]\nmax_command_latency_s = 0.005\n",
+    );
     std::fs::write(&cfg, text).unwrap();
     let (emu, o, out) = step_with_link_fault(&cfg, LinkFault::Delay { delay_s: 0.01 });
     let err = stderr(&o);

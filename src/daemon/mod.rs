@@ -345,6 +345,7 @@ pub fn serve(opts: ServeOptions) -> Result<(), ServeError> {
         let shared = OwnerShared {
             status: Arc::clone(&status),
             events: events.clone(),
+            safety: loop_opts.safety,
             hold,
         };
         std::thread::Builder::new()

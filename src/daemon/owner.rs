@@ -49,6 +49,8 @@ pub(super) enum OwnerCmd {
 pub(super) struct OwnerShared {
     pub(super) status: Arc<Mutex<Status>>,
     pub(super) events: broadcast::Sender<String>,
+    /// The loop's limits between jobs (for the faults' messages).
+    pub(super) safety: crate::rt::supervisor::SupervisorConfig,
     /// Makes a fresh hold job for each `enable` (`[daemon]
     /// hold_controller`), if one is configured.
     pub(super) hold: Option<HoldFactory>,
@@ -59,8 +61,13 @@ pub(super) struct OwnerShared {
 pub(super) type HoldFactory = Box<dyn Fn() -> Box<dyn Job + Send> + Send>;
 
 /// A fault the loop latched between jobs, as `status` reports it: the
-/// supervisor's fault name and what caused it.
-pub(super) fn between_jobs_fault(r: LoopReply) -> Option<FaultStatus> {
+/// supervisor's fault name and its physical reason, with the quantity, the
+/// bound and where it came from
+/// ([`crate::rt::supervisor::fault_message`]).
+pub(super) fn between_jobs_fault(
+    r: LoopReply,
+    safety: &crate::rt::supervisor::SupervisorConfig,
+) -> Option<FaultStatus> {
     let LoopReply::Fault {
         kind,
         value,
@@ -86,9 +93,14 @@ pub(super) fn between_jobs_fault(r: LoopReply) -> Option<FaultStatus> {
     };
     let message = match stop.describe() {
         StopReason::Hal { message, .. } => message,
-        StopReason::Fault {
-            detail: Some(d), ..
-        } => d,
+        StopReason::Fault { detail, stall, .. } => crate::rt::supervisor::fault_message(
+            kind,
+            value,
+            safety,
+            stall,
+            "the hold controller's stall bound",
+            detail.as_deref(),
+        ),
         _ => format!("value {value:e}"),
     };
     Some(FaultStatus {
@@ -279,6 +291,7 @@ pub(super) fn owner(mut client: ServiceClient, rx: mpsc::Receiver<OwnerCmd>, sha
     let OwnerShared {
         status,
         events,
+        safety,
         hold,
     } = shared;
     let set_state = |state: &'static str, fault: Option<FaultStatus>| {
@@ -505,7 +518,7 @@ pub(super) fn owner(mut client: ServiceClient, rx: mpsc::Receiver<OwnerCmd>, sha
             break;
         }
         for f in client.take_faults() {
-            if let Some(api) = between_jobs_fault(f) {
+            if let Some(api) = between_jobs_fault(f, &safety) {
                 let last = lock(&status).last_recording.clone();
                 tracing::error!(
                     fault = api.kind,
