@@ -92,6 +92,15 @@ impl Chirp {
         self.sweep_s
     }
 
+    /// The sweep rate df/dt at sweep time `t`, Hz/s: `f(t) ln(f1/f0) / T`
+    /// (exponential) or `(f1 − f0) / T` (linear).
+    pub fn sweep_rate_hz_per_s(&self, t: f64) -> f64 {
+        match self.kind {
+            ChirpKind::Exponential => self.frequency_hz(t) * self.ln_ratio / self.sweep_s,
+            ChirpKind::Linear => (self.f_end_hz - self.f_start_hz) / self.sweep_s,
+        }
+    }
+
     /// Instantaneous frequency at sweep time `t` (s from the sweep start), Hz.
     pub fn frequency_hz(&self, t: f64) -> f64 {
         let big_t = self.sweep_s;

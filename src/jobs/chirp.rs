@@ -153,13 +153,33 @@ pub struct ChirpSummary {
     pub stalls: StallReport,
 }
 
+/// The largest relative bias, in power, a stall may leave at the swept
+/// line before its band is left out of the FRF: 1e-4, a 1 % error of |H|.
+pub const STALL_BIAS_MAX: f64 = 1e-4;
+
+/// The relative bias in power a hold of `hold_s` leaves at the line the
+/// sweep is at (`f_hz`, sweeping at `rate_hz_per_s`): the held sample
+/// departs from the planned sine by up to `min(2π f t, 2)` of its
+/// amplitude, an error pulse of energy `A² min(2π f h, 2)² h / 3`
+/// (`h = hold_s`), spread over about `1/h` Hz, against the chirp's energy
+/// density `A² / (2 df/dt)` there:
+/// `(2/3) min(2π f h, 2)² h² (df/dt)`. Dimensionless.
+pub fn held_excitation_bias(f_hz: f64, hold_s: f64, rate_hz_per_s: f64) -> f64 {
+    let e = (2.0 * std::f64::consts::PI * f_hz * hold_s).min(2.0);
+    2.0 / 3.0 * e * e * hold_s * hold_s * rate_hz_per_s.abs()
+}
+
 /// The stalls of an open-loop run (`/bench/event` `stall`: the loop
 /// behind its deadlines, or the device on late commands) and what they
 /// cost the FRF. A stall holds the last excitation sample while the sweep
-/// is at `f(t)`, so the record no longer shows what the plant received
-/// there: the FRF lines whose smoothing window meets the frequencies swept
-/// during the stall, widened by twice `identification.relative_resolution`
-/// on each side, are left out of the FRF (its CSV and fit), counted here.
+/// is at `f(t)`, so the record no longer shows exactly what the plant
+/// received there. A stall whose bias at the swept line
+/// ([`held_excitation_bias`]) exceeds [`STALL_BIAS_MAX`] (1 % of |H|) has
+/// its band left out: the FRF lines whose smoothing window meets the
+/// frequencies swept during the stall, widened by twice
+/// `identification.relative_resolution` on each side (from the FRF, its
+/// CSV and fit), counted here. Shorter stalls are counted only: a VM's
+/// ordinary one-period overruns bias no line by 1e-8.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct StallReport {
     /// Stalls seen, count.
@@ -168,8 +188,8 @@ pub struct StallReport {
     pub longest_s: f64,
     /// All of them, s.
     pub total_s: f64,
-    /// The sweep's frequency bands they distorted, `[f_lo, f_hi]` Hz (a
-    /// stall in the lead-in or the tail distorts none).
+    /// The sweep's frequency bands they biased by more than 1 %,
+    /// `[f_lo, f_hi]` Hz (a stall in the lead-in or the tail biases none).
     pub bands_hz: Vec<[f64; 2]>,
     /// FRF lines left out, count.
     pub excluded_lines: u64,
@@ -193,6 +213,14 @@ impl StallReport {
             let t_end = tick as f64 * period_s - lead_s;
             let t_start = t_end - len_s - period_s;
             if t_end < 0.0 || t_start > sweep_s {
+                continue;
+            }
+            // The bias the held excitation leaves at the swept line.
+            let t_mid = (0.5 * (t_start + t_end)).clamp(0.0, sweep_s);
+            let f_s = chirp.frequency_hz(t_mid);
+            let bias =
+                held_excitation_bias(f_s, len_s + period_s, chirp.sweep_rate_hz_per_s(t_mid));
+            if bias <= STALL_BIAS_MAX {
                 continue;
             }
             let f_lo = chirp.frequency_hz(t_start.max(0.0)) * (1.0 - 2.0 * r);
@@ -599,4 +627,28 @@ fn run_chirp_with(
     finished?;
     plotted?;
     Ok(summary)
+}
+
+#[cfg(test)]
+mod stall_tests {
+    use super::*;
+
+    /// The bias formula's figures: a one-period hold (0.2 ms) at 100 Hz in
+    /// a 20 s sweep of 0.1–500 Hz is 1.8e-8; 30 ms at 7.07 Hz in a 4 s
+    /// sweep is 1.6e-2 (a 12 % error of |H|), worked by hand from
+    /// `(2/3)(2π f h)² h² df/dt`.
+    #[test]
+    fn held_excitation_bias_by_hand() {
+        let k20 = (5000f64).ln() / 20.0;
+        let b = held_excitation_bias(100.0, 2e-4, 100.0 * k20);
+        let by_hand =
+            2.0 / 3.0 * (2.0 * std::f64::consts::PI * 100.0 * 2e-4f64).powi(2) * 4e-8 * 100.0 * k20;
+        assert!((b / by_hand - 1.0).abs() < 1e-12 && b < 2e-8, "{b}");
+        let f = 0.1 * 5000f64.sqrt();
+        let b = held_excitation_bias(f, 0.03, f * (5000f64).ln() / 4.0);
+        assert!((b - 1.605e-2).abs() < 0.001e-2, "{b}");
+        // The error saturates at twice the amplitude: a hold of many periods.
+        let long = held_excitation_bias(100.0, 1.0, 1.0);
+        assert!((long - 2.0 / 3.0 * 4.0).abs() < 1e-12);
+    }
 }
