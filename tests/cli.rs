@@ -381,3 +381,72 @@ fn a_closed_or_full_stdout_ends_with_complete_files_and_a_status() {
         }
     }
 }
+
+/// A standard error that cannot be written (`2>/dev/full`, a log on a full
+/// disk) loses the messages, never the exit status: a fault still exits 3
+/// with its recording finished, bad input 2, never 101 (the status of a
+/// panic, which `eprintln!` and tracing's own error report raise on such a
+/// stderr). With `RUST_LOG=debug` tracing writes there too, and an invalid
+/// `RUST_LOG` takes the warning path.
+#[test]
+fn a_full_stderr_keeps_the_exit_status() {
+    let dir = tmp();
+    let fault_cfg = path_in(dir.path(), "fault.toml");
+    // As in `position_fault_stops_the_chirp`: 0.5 A at the rigid-body mode.
+    std::fs::write(
+        &fault_cfg,
+        shipped_ch5().replace("amplitude_profile = ", "# amplitude_profile = "),
+    )
+    .unwrap();
+    let bad_cfg = path_in(dir.path(), "bad.toml");
+    std::fs::write(&bad_cfg, "no_such_key = 1\n").unwrap();
+    for (i, log) in ["", "debug", "no such filter ==="].into_iter().enumerate() {
+        for (cfg, want) in [(&fault_cfg, 3), (&bad_cfg, 2)] {
+            let out = dir.path().join(format!("run{i}-{want}.mcap"));
+            let o = bench()
+                .args(["chirp", "--config", cfg, "--out"])
+                .arg(&out)
+                .env("RUST_LOG", log)
+                .stdout(Stdio::null())
+                .stderr(std::fs::File::create("/dev/full").unwrap())
+                .output()
+                .unwrap();
+            assert_eq!(
+                o.status.code(),
+                Some(want),
+                "RUST_LOG={log:?}, {cfg}: status {:?}",
+                o.status
+            );
+            if want == 3 {
+                // The fault's recording is finished and holds the fault.
+                let fault = mcap_messages(&out)
+                    .into_iter()
+                    .find(|m| m.0 == "/bench/event" && m.2["kind"] == "fault")
+                    .expect("a fault event");
+                assert_eq!(fault.2["fault"], "position_limit");
+            } else {
+                assert!(!out.exists());
+            }
+        }
+    }
+    // `bench control --inject-fault` (the fault latched by the loop itself).
+    let out = dir.path().join("control.mcap");
+    let o = bench()
+        .args([
+            "control",
+            "--fast",
+            "--duration-s",
+            "2",
+            "--inject-fault",
+            "nan@1.0",
+            "--out",
+        ])
+        .arg(&out)
+        .env("RUST_LOG", "debug")
+        .stdout(Stdio::null())
+        .stderr(std::fs::File::create("/dev/full").unwrap())
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(3), "control: {:?}", o.status);
+    assert!(out.exists());
+}

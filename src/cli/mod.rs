@@ -29,6 +29,18 @@ macro_rules! outln {
     };
 }
 
+/// `errln!`, the command line's `eprintln!` that never panics: a standard
+/// error that cannot be written (`2>/dev/full`, a log on a full disk) loses
+/// the line, never the command's exit status ([`console::write_err`]).
+macro_rules! errln {
+    () => {
+        $crate::cli::console::write_err(format_args!("\n"))
+    };
+    ($($arg:tt)*) => {
+        $crate::cli::console::write_err(format_args!("{}\n", format_args!($($arg)*)))
+    };
+}
+
 mod analyze;
 mod campaign;
 mod chirp;
@@ -159,16 +171,18 @@ fn init_logging(daemon: bool) {
             || EnvFilter::new(default),
             |spec| {
                 EnvFilter::try_new(&spec).unwrap_or_else(|e| {
-                    eprintln!(
-                        "warning: RUST_LOG={spec:?} is not a log filter ({e}); using {default}"
-                    );
+                    errln!("warning: RUST_LOG={spec:?} is not a log filter ({e}); using {default}");
                     EnvFilter::new(default)
                 })
             },
         );
     let ansi = std::io::stderr().is_terminal() && std::env::var_os("NO_COLOR").is_none();
+    // `log_internal_errors(false)`: a failed write to stderr is dropped;
+    // with it, tracing reports the failure with `eprintln!`, which panics
+    // on that same stderr.
     tracing_subscriber::fmt()
         .with_writer(std::io::stderr)
+        .log_internal_errors(false)
         .with_env_filter(filter)
         .with_ansi(ansi)
         .with_target(false)
@@ -180,7 +194,7 @@ pub fn main() -> ExitCode {
     init_logging(matches!(cli.command, Command::Serve(_)));
     let stop = Arc::new(AtomicBool::new(false));
     if let Err(e) = install_signal_handlers(&stop) {
-        eprintln!("error: {e:#}");
+        errln!("error: {e:#}");
         return ExitCode::from(status::ERROR);
     }
     let code = match cli.command {
@@ -250,7 +264,7 @@ impl LiveArgs {
         let server = bench::live::parse_addr(given)
             .and_then(|a| bench::live::LiveServer::start(a, loop_cpu))
             .map_err(bad_input)?;
-        eprintln!(
+        errln!(
             "live view on {} (Foxglove: Open connection > Foxglove WebSocket)",
             server.url()
         );
@@ -259,7 +273,7 @@ impl LiveArgs {
 }
 
 pub(super) fn bad_input(msg: impl std::fmt::Display) -> ExitCode {
-    eprintln!("error: {msg}");
+    errln!("error: {msg}");
     ExitCode::from(status::BAD_INPUT)
 }
 
@@ -386,7 +400,7 @@ pub(super) fn emit<T: serde::Serialize>(
 ) -> Result<(), ExitCode> {
     if json {
         let s = serde_json::to_string(summary).map_err(|e| {
-            eprintln!("error: {e}");
+            errln!("error: {e}");
             ExitCode::from(status::ERROR)
         })?;
         outln!("{s}");
@@ -452,12 +466,12 @@ pub(super) fn run_failed(e: &RunError) -> ExitCode {
         } => {
             let flag = option_flag(key).unwrap_or(key);
             if subject.is_empty() {
-                eprintln!("error: {flag}: {reason}");
+                errln!("error: {flag}: {reason}");
             } else {
-                eprintln!("error: {flag} {subject}: {reason}");
+                errln!("error: {flag} {subject}: {reason}");
             }
         }
-        e => eprintln!("error: {e:#}"),
+        e => errln!("error: {e:#}"),
     }
     exit_for(e)
 }

@@ -77,7 +77,7 @@ pub fn recover(args: RecoverArgs) -> ExitCode {
             bad_input(format!("PART: {e}"))
         }
         Err(e @ RecoverError::Write { .. }) => {
-            eprintln!("error: {e}");
+            errln!("error: {e}");
             ExitCode::from(status::ERROR)
         }
     }

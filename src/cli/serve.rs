@@ -70,9 +70,9 @@ pub(super) fn via_daemon<T: serde::de::DeserializeOwned + serde::Serialize>(
                 eprint!("\r{cmd} on the daemon: {:5.1} %", 100.0 * t / n.max(1.0));
             }
             Some("job_started") => {
-                eprintln!("{cmd} job {} started: {}", ev["job"], ev["recording"])
+                errln!("{cmd} job {} started: {}", ev["job"], ev["recording"])
             }
-            Some("job_finished") => eprintln!(),
+            Some("job_finished") => errln!(),
             _ => {}
         }
     });
@@ -90,12 +90,12 @@ pub(super) fn via_daemon<T: serde::de::DeserializeOwned + serde::Serialize>(
                 }
             }
             Err(e) => {
-                eprintln!("error: the daemon's summary does not parse: {e}");
+                errln!("error: the daemon's summary does not parse: {e}");
                 ExitCode::from(status::ERROR)
             }
         },
         Err(e) => {
-            eprintln!("error: {e}");
+            errln!("error: {e}");
             ExitCode::from(match &e {
                 bench::daemon::client::ClientError::Connect { .. } => status::BAD_INPUT,
                 bench::daemon::client::ClientError::Io(_) => status::ERROR,
@@ -156,7 +156,7 @@ pub(super) fn serve(args: ServeArgs) -> ExitCode {
         Ok(()) => ExitCode::SUCCESS,
         Err(bench::daemon::ServeError::Input(e)) => run_failed(&e),
         Err(e) => {
-            eprintln!("error: {e}");
+            errln!("error: {e}");
             ExitCode::from(status::ERROR)
         }
     }
