@@ -307,7 +307,7 @@ fn map_cmd(a: DirArgs) -> ExitCode {
 }
 
 fn failed(e: &CampaignRunError) -> ExitCode {
-    errln!("error: {e}");
+    errln!("error: {}", bench::error::error_chain(&e));
     ExitCode::from(match e {
         CampaignRunError::BadInput(_) => status::BAD_INPUT,
         CampaignRunError::Stopped { .. } => status::INTERRUPTED,

@@ -471,7 +471,7 @@ pub(super) fn run_failed(e: &RunError) -> ExitCode {
                 errln!("error: {flag} {subject}: {reason}");
             }
         }
-        e => errln!("error: {e:#}"),
+        e => errln!("error: {}", bench::error::error_chain(e)),
     }
     exit_for(e)
 }

@@ -77,7 +77,7 @@ pub fn recover(args: RecoverArgs) -> ExitCode {
             bad_input(format!("PART: {e}"))
         }
         Err(e @ RecoverError::Write { .. }) => {
-            errln!("error: {e}");
+            errln!("error: {}", bench::error::error_chain(&e));
             ExitCode::from(status::ERROR)
         }
     }

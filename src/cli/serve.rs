@@ -95,7 +95,7 @@ pub(super) fn via_daemon<T: serde::de::DeserializeOwned + serde::Serialize>(
             }
         },
         Err(e) => {
-            errln!("error: {e}");
+            errln!("error: {}", bench::error::error_chain(&e));
             ExitCode::from(match &e {
                 bench::daemon::client::ClientError::Connect { .. } => status::BAD_INPUT,
                 bench::daemon::client::ClientError::Io(_) => status::ERROR,
@@ -156,7 +156,7 @@ pub(super) fn serve(args: ServeArgs) -> ExitCode {
         Ok(()) => ExitCode::SUCCESS,
         Err(bench::daemon::ServeError::Input(e)) => run_failed(&e),
         Err(e) => {
-            errln!("error: {e}");
+            errln!("error: {}", bench::error::error_chain(&e));
             ExitCode::from(status::ERROR)
         }
     }

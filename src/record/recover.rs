@@ -136,7 +136,7 @@ pub fn recover(part: &Path, to: &Path, existing: Existing) -> Result<Recovered, 
             * 1e-9,
         stopped,
     };
-    let mcap_err = |e: mcap::McapError| std::io::Error::other(e.to_string());
+    let mcap_err = |e: mcap::McapError| std::io::Error::other(crate::error::error_chain(&e));
     write_atomically(to, existing, |file| {
         let mut w = mcap::WriteOptions::new()
             .compression(Some(mcap::Compression::Lz4))
