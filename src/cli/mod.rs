@@ -12,6 +12,7 @@
 //! | 4 | hardware (HAL) error; 0 A, amplifier disabled, recording finished |
 //! | 130 | interrupted by SIGINT/SIGTERM; 0 A, amplifier disabled, recording finished |
 //! | 5 | `--daemon`: the daemon refused the job (busy, or a latched fault) |
+//! | 6 | `bench recover`: data lost (a damaged chunk dropped); the recovered recording holds everything intact |
 //! | 141 | the command succeeded, but the reader of its standard output went away (`bench … \| head`); what it wrote to files is complete |
 //!
 //! One file per command (`chirp.rs`, `control.rs`, `emulate.rs`,
@@ -152,6 +153,7 @@ pub(super) mod status {
     pub const HAL: u8 = 4;
     pub const INTERRUPTED: u8 = 130;
     pub const DAEMON_REFUSED: u8 = 5;
+    pub const DATA_LOST: u8 = 6;
 }
 
 /// Logging to stderr, as the Rust ecosystem does it: the filter comes from
