@@ -192,8 +192,33 @@ pub mod ranges {
     /// duration) at the loop rate: 2²⁵ (1.9 h at 5 kHz, 5.6 min at
     /// 100 kHz), so that the job's record fits in memory.
     pub const JOB_TICKS_MAX: u64 = 1 << 25;
-    /// `identification.points_per_decade`.
+    /// `identification.points_per_decade`, at most; also at most
+    /// [`points_per_decade_max`] for the relative resolution.
     pub const POINTS_PER_DECADE: (usize, usize) = (10, 10_000);
+    /// Grid points per smoothing window, at most: a handful draw the
+    /// smoothed curve (its narrowest feature is the window); ten leave a
+    /// margin for the plots, more add post-processing time and file size,
+    /// not detail.
+    pub const POINTS_PER_WINDOW: f64 = 10.0;
+
+    /// The densest meaningful FRF grid, points per decade, for the
+    /// smoothing window's full width `relative_resolution × f`:
+    /// [`POINTS_PER_WINDOW`] points per window, `10 ln(10) /
+    /// relative_resolution` rounded down (5756 at the default 0.4 %), and
+    /// at most [`POINTS_PER_DECADE`]'s 10 000 (from 0.23 % down). A window is also at least
+    /// `min_bins` DFT bins wide, so this is never finer than the record's
+    /// DFT resolution allows either.
+    pub fn points_per_decade_max(relative_resolution: f64) -> usize {
+        // Rounded down (a product on the bound by 1e-12 is on it).
+        let most = (POINTS_PER_WINDOW * std::f64::consts::LN_10 / relative_resolution
+            * (1.0 + 1e-12))
+            .floor();
+        if most.is_finite() && most < POINTS_PER_DECADE.1 as f64 {
+            most as usize
+        } else {
+            POINTS_PER_DECADE.1
+        }
+    }
     /// `identification.relative_resolution`.
     pub const RELATIVE_RESOLUTION: (f64, f64) = (1e-4, 0.5);
     /// `identification.min_bins`.
@@ -997,14 +1022,33 @@ impl BenchConfig {
                 format!("must be {lo}–{hi}, got {}", id.points_per_decade),
             ));
         }
-        let (lo, hi) = ranges::RELATIVE_RESOLUTION;
+        let (rlo, rhi) = ranges::RELATIVE_RESOLUTION;
         in_range(
             "identification.relative_resolution",
             id.relative_resolution,
-            Range::closed(lo, hi),
+            Range::closed(rlo, rhi),
             "",
             "a fraction of the frequency, 0.01 % to 50 %",
         )?;
+        let most = ranges::points_per_decade_max(id.relative_resolution);
+        if id.points_per_decade > most {
+            return Err(ParamError::new(
+                "identification.points_per_decade",
+                format!(
+                    "{} points per decade is denser than the FRF estimate resolves: each point \
+                     averages a window of identification.relative_resolution = {} × f (and at \
+                     least identification.min_bins DFT bins, so the grid cannot usefully be \
+                     denser than the record's DFT resolution either), ln(10) / {} = {:.0} \
+                     independent points per decade; more than {} points per window add time, \
+                     not detail. Range [{lo}, {most}] at this relative_resolution",
+                    id.points_per_decade,
+                    id.relative_resolution,
+                    id.relative_resolution,
+                    std::f64::consts::LN_10 / id.relative_resolution,
+                    ranges::POINTS_PER_WINDOW,
+                ),
+            ));
+        }
         let (lo, hi) = ranges::MIN_BINS;
         if !(lo..=hi).contains(&id.min_bins) {
             return Err(ParamError::new(

@@ -974,6 +974,18 @@ fn a_refusal_between_two_keys_names_both() {
             "chirp.amplitude_profile[1][0]",
             "chirp.amplitude_profile[0][0]",
         ),
+        (
+            "points_per_decade = 400 ",
+            "points_per_decade = 10000 ",
+            "identification.points_per_decade",
+            "identification.relative_resolution",
+        ),
+        (
+            "relative_resolution = 0.004",
+            "relative_resolution = 0.1  ",
+            "identification.points_per_decade",
+            "identification.relative_resolution",
+        ),
     ] {
         assert!(text.contains(from), "the shipped file has {from:?}");
         let e = load(&text.replacen(from, to, 1)).expect_err(to);
