@@ -201,8 +201,33 @@ pub mod ranges {
     /// duration) at the loop rate: 2²⁵ (1.9 h at 5 kHz, 5.6 min at
     /// 100 kHz), so that the job's record fits in memory.
     pub const JOB_TICKS_MAX: u64 = 1 << 25;
-    /// `identification.points_per_decade`.
+    /// `identification.points_per_decade`, at most; also at most
+    /// [`points_per_decade_max`] for the relative resolution.
     pub const POINTS_PER_DECADE: (usize, usize) = (10, 10_000);
+    /// Grid points per smoothing window, at most: a handful draw the
+    /// smoothed curve (its narrowest feature is the window); ten leave a
+    /// margin for the plots, more add post-processing time and file size,
+    /// not detail.
+    pub const POINTS_PER_WINDOW: f64 = 10.0;
+
+    /// The densest meaningful FRF grid, points per decade, for the
+    /// smoothing window's full width `relative_resolution × f`:
+    /// [`POINTS_PER_WINDOW`] points per window, `10 ln(10) /
+    /// relative_resolution` rounded down (5756 at the default 0.4 %), and
+    /// at most [`POINTS_PER_DECADE`]'s 10 000 (from 0.23 % down). A window is also at least
+    /// `min_bins` DFT bins wide, so this is never finer than the record's
+    /// DFT resolution allows either.
+    pub fn points_per_decade_max(relative_resolution: f64) -> usize {
+        // Rounded down (a product on the bound by 1e-12 is on it).
+        let most = (POINTS_PER_WINDOW * std::f64::consts::LN_10 / relative_resolution
+            * (1.0 + 1e-12))
+            .floor();
+        if most.is_finite() && most < POINTS_PER_DECADE.1 as f64 {
+            most as usize
+        } else {
+            POINTS_PER_DECADE.1
+        }
+    }
     /// `identification.relative_resolution`.
     pub const RELATIVE_RESOLUTION: (f64, f64) = (1e-4, 0.5);
     /// `identification.min_bins`.
@@ -751,7 +776,7 @@ impl BenchConfig {
     pub fn from_toml(text: &str, path: &Path) -> Result<Self, ConfigError> {
         toml::from_str(text).map_err(|e| ConfigError::Parse {
             path: path.to_path_buf(),
-            message: e.to_string().trim_end().to_string(),
+            message: toml_error_message(text, &e),
         })
     }
 
@@ -994,14 +1019,33 @@ impl BenchConfig {
                 format!("must be {lo}–{hi}, got {}", id.points_per_decade),
             ));
         }
-        let (lo, hi) = ranges::RELATIVE_RESOLUTION;
+        let (rlo, rhi) = ranges::RELATIVE_RESOLUTION;
         in_range(
             "identification.relative_resolution",
             id.relative_resolution,
-            Range::closed(lo, hi),
+            Range::closed(rlo, rhi),
             "",
             "a fraction of the frequency, 0.01 % to 50 %",
         )?;
+        let most = ranges::points_per_decade_max(id.relative_resolution);
+        if id.points_per_decade > most {
+            return Err(ParamError::new(
+                "identification.points_per_decade",
+                format!(
+                    "{} points per decade is denser than the FRF estimate resolves: each point \
+                     averages a window of identification.relative_resolution = {} × f (and at \
+                     least identification.min_bins DFT bins, so the grid cannot usefully be \
+                     denser than the record's DFT resolution either), ln(10) / {} = {:.0} \
+                     independent points per decade; more than {} points per window add time, \
+                     not detail. Range [{lo}, {most}] at this relative_resolution",
+                    id.points_per_decade,
+                    id.relative_resolution,
+                    id.relative_resolution,
+                    std::f64::consts::LN_10 / id.relative_resolution,
+                    ranges::POINTS_PER_WINDOW,
+                ),
+            ));
+        }
         let (lo, hi) = ranges::MIN_BINS;
         if !(lo..=hi).contains(&id.min_bins) {
             return Err(ParamError::new(
@@ -1632,6 +1676,95 @@ pub fn ticks_in(seconds: f64, period_s: f64) -> Option<u64> {
     (t <= ranges::JOB_TICKS_MAX as f64).then_some(t as u64)
 }
 
+/// The message of a TOML error in `text`, the key it is about first: the
+/// parser names a line, and the key only when it is on that line, so the
+/// full key path comes first, array elements by index
+/// (`chirp.amplitude_profile[1][1]: TOML parse error at line 86, …`),
+/// also for an element on a line of its own. Without a key (a syntax
+/// error), the parser's message alone.
+pub fn toml_error_message(text: &str, e: &toml::de::Error) -> String {
+    let message = e.to_string().trim_end().to_string();
+    match e.span().and_then(|span| key_path_at(text, span)) {
+        Some(key) => format!("{key}: {message}"),
+        None => message,
+    }
+}
+
+/// The dotted key path of the innermost key or value of `text` whose span
+/// holds `span` (a parse error's): tables and inline tables by name, array
+/// elements and arrays of tables by index (`controller.fast.real_poles_rad_s[1]`,
+/// `chirp.amplitude_profile[1][1]`). `None` for text that is no TOML
+/// document (a syntax error) or a span outside every key.
+fn key_path_at(text: &str, span: std::ops::Range<usize>) -> Option<String> {
+    use toml_edit::{Item, Table, Value};
+    /// The best (shortest containing) span so far, and its path.
+    type Best = Option<(usize, String)>;
+    fn consider(
+        at: Option<std::ops::Range<usize>>,
+        span: &std::ops::Range<usize>,
+        path: &str,
+        best: &mut Best,
+    ) {
+        if let Some(at) = at {
+            let holds = at.start <= span.start && span.end <= at.end;
+            if holds && best.as_ref().is_none_or(|(len, _)| at.len() <= *len) {
+                *best = Some((at.len(), path.to_string()));
+            }
+        }
+    }
+    fn join(path: &str, key: &str) -> String {
+        if path.is_empty() {
+            key.to_string()
+        } else {
+            format!("{path}.{key}")
+        }
+    }
+    fn value(v: &Value, path: &str, span: &std::ops::Range<usize>, best: &mut Best) {
+        consider(v.span(), span, path, best);
+        match v {
+            Value::Array(a) => {
+                for (i, x) in a.iter().enumerate() {
+                    value(x, &format!("{path}[{i}]"), span, best);
+                }
+            }
+            Value::InlineTable(t) => {
+                for (k, x) in t.iter() {
+                    let p = join(path, k);
+                    consider(t.key(k).and_then(toml_edit::Key::span), span, &p, best);
+                    value(x, &p, span, best);
+                }
+            }
+            _ => {}
+        }
+    }
+    fn item(it: &Item, path: &str, span: &std::ops::Range<usize>, best: &mut Best) {
+        match it {
+            Item::Value(v) => value(v, path, span, best),
+            Item::Table(t) => table(t, path, span, best),
+            Item::ArrayOfTables(a) => {
+                for (i, t) in a.iter().enumerate() {
+                    table(t, &format!("{path}[{i}]"), span, best);
+                }
+            }
+            Item::None => {}
+        }
+    }
+    fn table(t: &Table, path: &str, span: &std::ops::Range<usize>, best: &mut Best) {
+        if !path.is_empty() {
+            consider(t.span(), span, path, best);
+        }
+        for (k, it) in t.iter() {
+            let p = join(path, k);
+            consider(t.key(k).and_then(toml_edit::Key::span), span, &p, best);
+            item(it, &p, span, best);
+        }
+    }
+    let doc = toml_edit::ImDocument::parse(text).ok()?;
+    let mut best = None;
+    table(doc.as_table(), "", &span, &mut best);
+    best.map(|(_, path)| path)
+}
+
 /// The CPUs online (at least 1).
 fn online_cpus() -> usize {
     // SAFETY: sysconf has no preconditions.
@@ -1693,6 +1826,38 @@ mod tests {
                 .trim_start_matches('|')
                 .trim()
                 .starts_with('^')),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn a_toml_error_names_its_key_path_array_elements_included() {
+        // The span of the offending value `"a"` → its key path.
+        for (text, key) in [
+            ("[loop]\nrate_hz = \"a\"\n", "loop.rate_hz"),
+            (
+                "[chirp]\nx = [\n  [1.0, 2.0],\n  [3.0, \"a\"],\n]\n",
+                "chirp.x[1][1]",
+            ),
+            ("[c.f]\np = [\n  1.0,\n  \"a\",\n]\n", "c.f.p[1]"),
+            ("[c]\nz = [{ w = 1.0 }, { w = \"a\" }]\n", "c.z[1].w"),
+            ("t = { u = [0, [1, \"a\"]] }\n", "t.u[1][1]"),
+        ] {
+            let at = text.find("\"a\"").unwrap();
+            assert_eq!(
+                key_path_at(text, at..at + 3).as_deref(),
+                Some(key),
+                "{text}"
+            );
+        }
+        // A syntax error has no key path.
+        assert_eq!(key_path_at("[a\nb = 1", 0..1), None);
+        // The message of a type error in the bench's own structure.
+        let text = BUILTIN_CONFIG_TOML.replacen("f_end_hz = 500.0", "f_end_hz = [\n 1,\n]", 1);
+        let e = BenchConfig::from_toml(&text, Path::new("b.toml")).unwrap_err();
+        assert!(
+            e.to_string()
+                .starts_with("config b.toml: chirp.f_end_hz: TOML parse error"),
             "{e}"
         );
     }

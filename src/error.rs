@@ -165,3 +165,21 @@ impl RunError {
         }
     }
 }
+
+/// `error: cause: cause …`, each source once (a wrapper that repeats its
+/// source's text is not repeated): the whole chain of `e`, so that the
+/// OS's reason under a library's wrapper (`No space left on device (os
+/// error 28)` under mcap's `I/O error from writing`) reaches the message.
+pub fn error_chain(e: &dyn std::error::Error) -> String {
+    let mut text = e.to_string();
+    let mut cur = e.source();
+    while let Some(c) = cur {
+        let c_text = c.to_string();
+        if !text.contains(&c_text) {
+            text.push_str(": ");
+            text.push_str(&c_text);
+        }
+        cur = c.source();
+    }
+    text
+}

@@ -439,8 +439,30 @@ fn documented(key: &str, c: &Value) -> Option<(Doc, bool)> {
         "chirp.duration_s" => (closed(0.1f64.max(2.0 * f("chirp.taper_s")?), 600.0), req),
         "chirp.taper_s" => (closed(0.0, f("chirp.duration_s")? / 2.0), req),
         "chirp.lead_in_s" | "chirp.tail_s" => (closed(0.0, 60.0), req),
-        "identification.points_per_decade" => (closed(10.0, 10_000.0), opt),
-        "identification.relative_resolution" => (closed(1e-4, 0.5), opt),
+        // At most 10 points per smoothing window (README: 10 ln(10) /
+        // relative_resolution), and at most 10 000.
+        "identification.points_per_decade" => (
+            closed(
+                10.0,
+                (10.0 * std::f64::consts::LN_10 / num("identification.relative_resolution", 0.004))
+                    .floor()
+                    .min(10_000.0),
+            ),
+            opt,
+        ),
+        // A computed bound: on it to the last bits either way.
+        "identification.relative_resolution" => (
+            Doc {
+                fuzzy: true,
+                ..closed(
+                    1e-4,
+                    (10.0 * std::f64::consts::LN_10
+                        / num("identification.points_per_decade", 400.0))
+                    .min(0.5),
+                )
+            },
+            opt,
+        ),
         "identification.min_bins" => (closed(3.0, 1000.0), opt),
         "step.step_m" => (
             Doc {

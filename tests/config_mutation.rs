@@ -750,3 +750,267 @@ fn unit_slips_in_the_file_get_a_hint_and_toml_errors_keep_their_caret() {
     let gutter = lines[at].split(" |").next().unwrap_or_default().trim();
     assert!(gutter.parse::<usize>().is_ok(), "not joined: {err}");
 }
+
+/// One step into an array's element: an index, or an inline table's field.
+#[derive(Debug, Clone)]
+enum Step {
+    Index(usize),
+    Field(String),
+}
+
+/// `[1][1]`, `[0].zeta`: the steps as a key path suffix.
+fn render(steps: &[Step]) -> String {
+    steps
+        .iter()
+        .map(|s| match s {
+            Step::Index(i) => format!("[{i}]"),
+            Step::Field(f) => format!(".{f}"),
+        })
+        .collect()
+}
+
+/// The dotted keys of every array-valued key under `t` (through tables
+/// and inline tables).
+fn array_keys(t: &toml_edit::Table, path: &str, out: &mut Vec<String>) {
+    fn in_value(v: &toml_edit::Value, path: String, out: &mut Vec<String>) {
+        match v {
+            toml_edit::Value::Array(_) => out.push(path),
+            toml_edit::Value::InlineTable(t) => {
+                for (k, v) in t.iter() {
+                    in_value(v, format!("{path}.{k}"), out);
+                }
+            }
+            _ => {}
+        }
+    }
+    for (k, item) in t.iter() {
+        let p = if path.is_empty() {
+            k.to_string()
+        } else {
+            format!("{path}.{k}")
+        };
+        match item {
+            toml_edit::Item::Table(t) => array_keys(t, &p, out),
+            toml_edit::Item::Value(v) => in_value(v, p, out),
+            _ => {}
+        }
+    }
+}
+
+/// Every node inside an array, at every depth: its elements, the elements
+/// of inner arrays, the fields of inline tables.
+fn nodes(v: &toml_edit::Value, at: Vec<Step>, out: &mut Vec<Vec<Step>>) {
+    if !at.is_empty() {
+        out.push(at.clone());
+    }
+    match v {
+        toml_edit::Value::Array(a) => {
+            for (i, x) in a.iter().enumerate() {
+                let mut s = at.clone();
+                s.push(Step::Index(i));
+                nodes(x, s, out);
+            }
+        }
+        toml_edit::Value::InlineTable(t) => {
+            for (k, x) in t.iter() {
+                let mut s = at.clone();
+                s.push(Step::Field(k.to_string()));
+                nodes(x, s, out);
+            }
+        }
+        _ => {}
+    }
+}
+
+fn node_mut<'a>(v: &'a mut toml_edit::Value, steps: &[Step]) -> &'a mut toml_edit::Value {
+    steps.iter().fold(v, |v, s| match (s, v) {
+        (Step::Index(i), toml_edit::Value::Array(a)) => a.get_mut(*i).expect("element"),
+        (Step::Field(f), toml_edit::Value::InlineTable(t)) => t.get_mut(f).expect("field"),
+        (s, v) => panic!("{s:?} into {v:?}"),
+    })
+}
+
+fn key_mut<'a>(doc: &'a mut toml_edit::DocumentMut, key: &str) -> &'a mut toml_edit::Value {
+    let mut item = doc.as_item_mut();
+    for k in key.split('.') {
+        item = &mut item[k];
+    }
+    item.as_value_mut().expect("a value")
+}
+
+/// Issue 25: for every array-valued key of the shipped configs, every
+/// element at every depth (an element, an element of an inner array, a
+/// field of an inline table) set in turn to a value of the wrong type
+/// (a string for a number, a number for anything else), with the array
+/// written one element per line, where the parser's line and caret do not
+/// show the key: the refusal names the element's full path
+/// (`chirp.amplitude_profile[1][1]`, `controller.fast.complex_zeros[1].zeta`),
+/// in the library and at the command line (exit 2).
+#[test]
+fn a_wrong_type_in_a_multi_line_array_names_the_element() {
+    let dir = common::tmp();
+    let mut checked = Vec::new();
+    for file in [
+        "bench-config/sr4dof-ch5.toml",
+        "bench-config/sr4dof-ch2.toml",
+    ] {
+        let text =
+            std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join(file)).unwrap();
+        let doc: toml_edit::DocumentMut = text.parse().unwrap();
+        let mut keys = Vec::new();
+        array_keys(doc.as_table(), "", &mut keys);
+        for key in keys {
+            let mut all = Vec::new();
+            nodes(
+                &key_mut(&mut doc.clone(), &key).clone(),
+                Vec::new(),
+                &mut all,
+            );
+            assert!(!all.is_empty(), "{file}: {key} is empty");
+            for steps in all {
+                let mut d = doc.clone();
+                let array = key_mut(&mut d, &key);
+                if let toml_edit::Value::Array(a) = array {
+                    for v in a.iter_mut() {
+                        v.decor_mut().set_prefix("\n    ");
+                    }
+                    a.set_trailing("\n");
+                    a.set_trailing_comma(true);
+                }
+                let node = node_mut(array, &steps);
+                let decor = node.decor().clone();
+                *node = match node {
+                    toml_edit::Value::Float(_) | toml_edit::Value::Integer(_) => "wrong".into(),
+                    _ => 1.5.into(),
+                };
+                *node.decor_mut() = decor;
+                let path = format!("{key}{}", render(&steps));
+                let mutated = d.to_string();
+                let e = BenchConfig::from_toml(&mutated, Path::new("m.toml"))
+                    .expect_err(&format!("{path} of a wrong type accepted:\n{mutated}"));
+                let msg = e.to_string();
+                assert!(
+                    matches!(e, ConfigError::Parse { .. })
+                        && msg.starts_with(&format!("config m.toml: {path}: ")),
+                    "{file}: does not start with {path}: {msg}"
+                );
+                checked.push((file, path, mutated));
+            }
+        }
+    }
+    // All the keys the shipped configs have as arrays, elements included.
+    for want in [
+        "chirp.amplitude_profile[1][1]",
+        "plant.disturbance.band_hz[1]",
+        "controller.fast.real_poles_rad_s[1]",
+        "controller.fast.complex_zeros[1].zeta",
+    ] {
+        assert!(checked.iter().any(|c| c.1 == want), "{want} not checked");
+    }
+    // At the command line: exit 2, the path on stderr.
+    for (_, path, mutated) in checked.iter().step_by(7) {
+        let p = dir.path().join("m.toml");
+        std::fs::write(&p, mutated).unwrap();
+        let o = common::run(&["config", "check", p.to_str().unwrap()]);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(2), "{err}");
+        assert!(err.contains(&format!("{path}: ")), "{path}: {err}");
+    }
+}
+
+/// Refusals that compare two keys name the key refused first and the key
+/// it is compared with in the message.
+#[test]
+fn a_refusal_between_two_keys_names_both() {
+    let text = shipped_text();
+    for (from, to, refused, other) in [
+        (
+            "f_start_hz = 0.1 ",
+            "f_start_hz = 600.0 ",
+            "chirp.f_start_hz",
+            "chirp.f_end_hz",
+        ),
+        (
+            "f_end_hz = 500.0",
+            "f_end_hz = 2600.0",
+            "chirp.f_end_hz",
+            "loop.rate_hz",
+        ),
+        (
+            "amplitude_a = 0.5 ",
+            "amplitude_a = 15.0 ",
+            "chirp.amplitude_a",
+            "actuator.peak_current_a",
+        ),
+        (
+            "taper_s = 0.5 ",
+            "taper_s = 40.0 ",
+            "chirp.taper_s",
+            "chirp.duration_s",
+        ),
+        (
+            "mechanical_stop_m = 1.0e-3",
+            "mechanical_stop_m = 0.5e-3",
+            "safety.position_limit_m",
+            "stage.mechanical_stop_m",
+        ),
+        (
+            "range_m = 1.0e-3 ",
+            "range_m = 0.5e-3 ",
+            "safety.position_limit_m",
+            "probe.range_m",
+        ),
+        (
+            "step_m = 10.0e-6",
+            "step_m = 0.9e-3",
+            "step.step_m",
+            "safety.position_limit_m",
+        ),
+        (
+            "duration_s = 4.0 ",
+            "duration_s = 0.1 ",
+            "step.duration_s",
+            "step.settle_s",
+        ),
+        (
+            "continuous_current_a = 2.34",
+            "continuous_current_a = 12.0",
+            "actuator.continuous_current_a",
+            "actuator.peak_current_a",
+        ),
+        (
+            "band_hz = [1.0, 20.0]",
+            "band_hz = [30.0, 20.0]",
+            "plant.disturbance.band_hz[0]",
+            "plant.disturbance.band_hz[1]",
+        ),
+        (
+            "[[12.0, 1.0], [20.0, 0.1]",
+            "[[22.0, 1.0], [20.0, 0.1]",
+            "chirp.amplitude_profile[1][0]",
+            "chirp.amplitude_profile[0][0]",
+        ),
+        (
+            "points_per_decade = 400 ",
+            "points_per_decade = 10000 ",
+            "identification.points_per_decade",
+            "identification.relative_resolution",
+        ),
+        (
+            "relative_resolution = 0.004",
+            "relative_resolution = 0.1  ",
+            "identification.points_per_decade",
+            "identification.relative_resolution",
+        ),
+    ] {
+        assert!(text.contains(from), "the shipped file has {from:?}");
+        let e = load(&text.replacen(from, to, 1)).expect_err(to);
+        let msg = e.to_string();
+        assert!(
+            msg.starts_with(&format!("config mutated.toml: {refused}: ")),
+            "{to}: {msg}"
+        );
+        let reason = msg.split_once(&format!("{refused}: ")).unwrap().1;
+        assert!(reason.contains(other), "{to}: {msg}");
+    }
+}

@@ -25,16 +25,21 @@ const DISK_BYTES: u64 = 1 << 20;
 enum Disk {
     /// A tmpfs of [`DISK_BYTES`] mounted at the path (unmounted on drop).
     Tmpfs(PathBuf),
-    /// A plain directory; the `bench` process gets `RLIMIT_FSIZE`.
-    Limit(PathBuf),
+    /// A plain directory; the `bench` process gets `RLIMIT_FSIZE` (bytes).
+    Limit(PathBuf, u64),
 }
 
 impl Disk {
     fn new(dir: &Path) -> Self {
-        let at = dir.join("disk");
+        Self::sized(dir, "disk", DISK_BYTES)
+    }
+
+    /// A disk of `bytes` (a multiple of the 4 KiB page) at `dir/name`.
+    fn sized(dir: &Path, name: &str, bytes: u64) -> Self {
+        let at = dir.join(name);
         std::fs::create_dir(&at).unwrap();
         let ok = Command::new("mount")
-            .args(["-t", "tmpfs", "-o", &format!("size={DISK_BYTES}")])
+            .args(["-t", "tmpfs", "-o", &format!("size={bytes}")])
             .arg("tmpfs")
             .arg(&at)
             .stderr(Stdio::null())
@@ -44,27 +49,27 @@ impl Disk {
             Self::Tmpfs(at)
         } else {
             eprintln!("mounting a tmpfs is not permitted here: injecting the write error with RLIMIT_FSIZE");
-            Self::Limit(at)
+            Self::Limit(at, bytes)
         }
     }
 
     fn dir(&self) -> &Path {
         match self {
-            Self::Tmpfs(p) | Self::Limit(p) => p,
+            Self::Tmpfs(p) | Self::Limit(p, _) => p,
         }
     }
 
     /// `bench` with the file size limit when there is no tmpfs.
     fn bench(&self) -> Command {
         let mut c = bench();
-        if let Self::Limit(_) = self {
+        if let Self::Limit(_, bytes) = *self {
             // SAFETY: only async-signal-safe calls between fork and exec.
             unsafe {
-                c.pre_exec(|| {
+                c.pre_exec(move || {
                     libc::signal(libc::SIGXFSZ, libc::SIG_IGN);
                     let l = libc::rlimit {
-                        rlim_cur: DISK_BYTES,
-                        rlim_max: DISK_BYTES,
+                        rlim_cur: bytes,
+                        rlim_max: bytes,
                     };
                     if libc::setrlimit(libc::RLIMIT_FSIZE, &l) != 0 {
                         return Err(std::io::Error::last_os_error());
@@ -85,7 +90,7 @@ impl Disk {
                 let mut st: libc::statvfs = unsafe { std::mem::zeroed() };
                 unsafe { libc::statvfs(c.as_ptr(), &mut st) == 0 && st.f_bavail == 0 }
             }
-            Self::Limit(_) => std::fs::metadata(file).is_ok_and(|m| m.len() >= DISK_BYTES),
+            Self::Limit(_, bytes) => std::fs::metadata(file).is_ok_and(|m| m.len() >= *bytes),
         }
     }
 }
@@ -205,4 +210,57 @@ fn a_full_disk_is_a_fault_in_virtual_time_too() {
         let part = PathBuf::from(format!("{}.part", rec.display()));
         std::fs::remove_file(part).unwrap();
     }
+}
+
+/// A disk that fills after the run, while the recording is being finished
+/// (its last chunk and its summary): exit 1, and the final error line says
+/// why in the OS's words (issue 25): `No space left on device (os error
+/// 28)` (`File too large (os error 27)` under the file size limit), not
+/// only mcap's "I/O error from writing".
+///
+/// The disk is made a little smaller than the recording a first run on a
+/// roomy disk made (the same chirp; sizes differ by a few KB between runs,
+/// so a few sizes are tried until the write fails after the run).
+#[test]
+fn a_disk_full_at_the_finish_names_the_os_cause() {
+    let _g = one_at_a_time();
+    let dir = tmp();
+    let chirp = |bench: Command, rec: &Path| {
+        let mut c = bench;
+        c.args(["chirp", "--duration-s", "5", "--out"])
+            .arg(rec)
+            .args(["--frf-csv", &path_in(dir.path(), "frf.csv"), "--overwrite"])
+            .args(["--plot", &path_in(dir.path(), "bode.png")])
+            .stdout(Stdio::null());
+        c.output().unwrap()
+    };
+    let roomy = dir.path().join("roomy.mcap");
+    let o = chirp(bench(), &roomy);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let size = std::fs::metadata(&roomy).unwrap().len();
+    let mut tried = Vec::new();
+    for short_by in [16u64 << 10, 32 << 10, 8 << 10, 48 << 10] {
+        let limit = (size - short_by) & !4095;
+        let disk = Disk::sized(dir.path(), &format!("disk{short_by}"), limit);
+        let rec = disk.dir().join("run.mcap");
+        let o = chirp(disk.bench(), &rec);
+        let err = String::from_utf8_lossy(&o.stderr).into_owned();
+        tried.push((limit, o.status.code()));
+        if o.status.code() != Some(1) {
+            continue;
+        }
+        let last = err.lines().last().unwrap_or_default();
+        eprintln!("a disk of {limit} bytes for a recording of {size}: {last}");
+        assert!(last.starts_with("error: "), "{err}");
+        assert!(
+            last.contains("No space left on device (os error 28)")
+                || (matches!(disk, Disk::Limit(..))
+                    && last.contains("File too large (os error 27)")),
+            "the final line names the OS cause: {last}"
+        );
+        assert!(last.contains("run.mcap"), "and the file: {last}");
+        assert!(!rec.exists(), "nothing incomplete has a final name");
+        return;
+    }
+    panic!("no size made the finish fail (limit bytes, status): {tried:?}");
 }

@@ -219,3 +219,229 @@ fn recover_refuses_what_is_not_a_recording() {
     assert_eq!(o.status.code(), Some(2));
     assert!(!dir.path().join("e.mcap").exists());
 }
+
+/// One message as the mcap crate reads it: topic, sequence, log time,
+/// payload.
+type Msg = (String, u32, u64, Vec<u8>);
+
+/// A chunk of the undamaged file: its start and length in bytes, its
+/// messages.
+type Chunk = (usize, usize, Vec<Msg>);
+
+fn msg(m: &mcap::Message<'_>) -> Msg {
+    (
+        m.channel.topic.clone(),
+        m.sequence,
+        m.log_time,
+        m.data.to_vec(),
+    )
+}
+
+/// A chirp in virtual time: 65 s of loop time, one chunk per second, a
+/// finished recording. Returns its bytes, its data section (what a run
+/// killed right after its last chunk leaves: everything before the
+/// `DataEnd` record) and, read by the mcap crate from the summary of the
+/// undamaged file, each chunk's byte range and its messages.
+fn chunked_recording(dir: &Path) -> (Vec<u8>, usize, Vec<Chunk>) {
+    let rec = dir.join("whole.mcap");
+    let o = bench()
+        .args(["chirp", "--out"])
+        .arg(&rec)
+        .stdout(Stdio::null())
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let bytes = std::fs::read(&rec).unwrap();
+    let summary = mcap::Summary::read(&bytes).unwrap().expect("a summary");
+    let mut chunks: Vec<Chunk> = summary
+        .chunk_indexes
+        .iter()
+        .map(|c| {
+            let msgs = summary
+                .stream_chunk(&bytes, c)
+                .unwrap()
+                .map(|m| msg(&m.unwrap()))
+                .collect();
+            (c.chunk_start_offset as usize, c.chunk_length as usize, msgs)
+        })
+        .collect();
+    chunks.sort_by_key(|c| c.0);
+    let footer = mcap::read::footer(&bytes).unwrap();
+    let data_end = usize::try_from(footer.summary_start).unwrap() - 13; // DataEnd: 9 + 4 bytes
+    assert_eq!(
+        bytes[data_end], 0x0f,
+        "the DataEnd record precedes the summary"
+    );
+    (bytes, data_end, chunks)
+}
+
+/// Every message of the recording `path` (complete, indexed), sorted.
+fn messages_of(path: &Path) -> Vec<Msg> {
+    let bytes = std::fs::read(path).unwrap();
+    assert!(
+        mcap::Summary::read(&bytes).unwrap().is_some(),
+        "a complete MCAP"
+    );
+    let mut v: Vec<Msg> = mcap::MessageStream::new(&bytes)
+        .unwrap()
+        .map(|m| msg(&m.unwrap()))
+        .collect();
+    v.sort();
+    v
+}
+
+/// Issue 25: a flipped bit in chunk k loses chunk k only. For chunk 0 (the
+/// channel definitions), the first chunk of samples, the middle one, the
+/// last but one and seeded random others, bits flipped at seeded random
+/// places in the chunk's header (opcode, length, log times, sizes, CRC,
+/// compression) and in its compressed data: `bench recover` keeps every
+/// message of every other chunk, none of chunk k, names chunk k and its
+/// offset, and exits 7. The expected messages come from the mcap crate
+/// reading the undamaged file, chunk by chunk. (A flip that lz4 decodes to
+/// the same records, their CRC intact, keeps the chunk: then every message
+/// must be the undamaged file's, and exit 0.)
+#[test]
+fn a_damaged_chunk_loses_that_chunk_only() {
+    let dir = tmp();
+    let (bytes, data_end, chunks) = chunked_recording(dir.path());
+    let n = chunks.len();
+    assert!(n > 30, "{n} chunks");
+    let part = &bytes[..data_end];
+    let mut seed = 25u64;
+    let mut draw = |below: usize| {
+        seed = seed.wrapping_add(bench::splitmix::GAMMA);
+        (bench::splitmix::splitmix64(seed) % below as u64) as usize
+    };
+    let mut ks = vec![0, 1, n / 2, n - 2];
+    for _ in 0..4 {
+        ks.push(1 + draw(n - 2));
+    }
+    let (mut cases, mut unchanged) = (0, 0);
+    for &k in &ks {
+        let (start, len, _) = &chunks[k];
+        // The chunk record's header: opcode, length, start/end time,
+        // uncompressed size, CRC, compression ("lz4"), compressed size.
+        let header = 9 + 8 + 8 + 8 + 4 + 4 + 3 + 8;
+        assert!(*len > header);
+        let positions = [
+            draw(header),
+            draw(header),
+            header + draw(len - header),
+            header + draw(len - header),
+        ];
+        for pos in positions {
+            let bit = draw(8);
+            let mut damaged = part.to_vec();
+            damaged[start + pos] ^= 1 << bit;
+            let p = dir.path().join(format!("k{k}-{pos}-{bit}.mcap.part"));
+            std::fs::write(&p, &damaged).unwrap();
+            let o = run(&["recover", p.to_str().unwrap(), "--json"]);
+            let what = format!("chunk {k} (at byte {start}), byte {pos} bit {bit}");
+            let err = String::from_utf8_lossy(&o.stderr);
+            cases += 1;
+            if o.status.code() == Some(0) {
+                // lz4 took the flipped bit for the same output (the CRC of
+                // the chunk's records matches): kept whole, and then every
+                // message is the undamaged file's.
+                let mut all: Vec<Msg> = chunks.iter().flat_map(|c| c.2.iter().cloned()).collect();
+                all.sort();
+                assert!(messages_of(&p.with_extension("")) == all, "{what}");
+                unchanged += 1;
+                continue;
+            }
+            assert_eq!(o.status.code(), Some(7), "{what}: {err}");
+            assert!(err.contains("data lost"), "{what}: {err}");
+            let r = json_stdout(&o);
+            assert_eq!(r["lost"], true, "{what}");
+            let dropped = r["dropped"].as_array().unwrap();
+            assert_eq!(dropped.len(), 1, "{what}: {dropped:?}");
+            assert_eq!(dropped[0]["kind"], "chunk", "{what}");
+            assert_eq!(dropped[0]["chunk_index"], k, "{what}");
+            assert_eq!(dropped[0]["offset_bytes"], *start, "{what}");
+            let mut want: Vec<Msg> = chunks
+                .iter()
+                .enumerate()
+                .filter(|(j, _)| *j != k)
+                .flat_map(|(_, c)| c.2.iter().cloned())
+                .collect();
+            want.sort();
+            let got = messages_of(&p.with_extension(""));
+            assert_eq!(got.len(), want.len(), "{what}");
+            assert!(
+                got == want,
+                "{what}: other messages than every other chunk's"
+            );
+            if k > 0 {
+                assert_eq!(dropped[0]["messages"], chunks[k].2.len(), "{what}");
+            }
+        }
+    }
+    assert_eq!(cases, 32);
+    assert!(
+        unchanged <= 2,
+        "{unchanged} of {cases} flips changed nothing"
+    );
+}
+
+/// A run killed while its last chunk was being written: the cut chunk is
+/// the expected end, named, and not a loss (exit 0, every complete chunk
+/// kept); the same cut after a damaged chunk is a loss (exit 7).
+#[test]
+fn a_cut_last_chunk_is_named_and_is_no_loss() {
+    let dir = tmp();
+    let (bytes, data_end, chunks) = chunked_recording(dir.path());
+    let (last_start, last_len, _) = chunks[chunks.len() - 1];
+    assert!(last_start + last_len <= data_end);
+    let all_but_last: Vec<Msg> = {
+        let mut v: Vec<Msg> = chunks[..chunks.len() - 1]
+            .iter()
+            .flat_map(|c| c.2.iter().cloned())
+            .collect();
+        v.sort();
+        v
+    };
+    for cut in [1, 9, 40, last_len / 2, last_len - 1] {
+        let p = dir.path().join(format!("cut{cut}.mcap.part"));
+        std::fs::write(&p, &bytes[..last_start + cut]).unwrap();
+        let o = run(&["recover", p.to_str().unwrap(), "--json"]);
+        assert_eq!(
+            o.status.code(),
+            Some(0),
+            "cut {cut}: {}",
+            String::from_utf8_lossy(&o.stderr)
+        );
+        let r = json_stdout(&o);
+        assert_eq!(r["lost"], false);
+        assert_eq!(r["cut"]["offset_bytes"], last_start, "cut {cut}");
+        assert_eq!(r["cut"]["chunk_index"], chunks.len() - 1, "cut {cut}");
+        assert!(r["dropped"].as_array().unwrap().is_empty());
+        assert!(
+            messages_of(&p.with_extension("")) == all_but_last,
+            "cut {cut}"
+        );
+    }
+    // Damage in chunk 5, and the cut.
+    let mut damaged = bytes[..last_start + last_len / 2].to_vec();
+    damaged[chunks[5].0 + 100] ^= 0x10;
+    let p = dir.path().join("both.mcap.part");
+    std::fs::write(&p, &damaged).unwrap();
+    let o = run(&["recover", p.to_str().unwrap(), "--json"]);
+    assert_eq!(o.status.code(), Some(7));
+    let r = json_stdout(&o);
+    assert_eq!(r["dropped"][0]["chunk_index"], 5);
+    assert_eq!(r["cut"]["offset_bytes"], last_start);
+    // The recovered file names both in its `bench.recovered` metadata.
+    let out = std::fs::read(p.with_extension("")).unwrap();
+    let summary = mcap::Summary::read(&out).unwrap().unwrap();
+    let idx = summary
+        .metadata_indexes
+        .iter()
+        .find(|m| m.name == "bench.recovered")
+        .unwrap();
+    let md = mcap::read::metadata(&out, idx).unwrap().metadata;
+    assert_eq!(md["lost"], "true");
+    let dropped: serde_json::Value = serde_json::from_str(&md["dropped"]).unwrap();
+    assert_eq!(dropped[0]["chunk_index"], 5);
+    assert_eq!(dropped[0]["offset_bytes"], chunks[5].0);
+    assert!(md["cut"].contains(&last_start.to_string()), "{}", md["cut"]);
+}

@@ -287,7 +287,7 @@ impl Campaign {
         };
         let spec: CampaignSpec = toml::from_str(&text).map_err(|e| CampaignError::Parse {
             path: path.to_path_buf(),
-            message: e.to_string().trim_end().to_string(),
+            message: crate::config::toml_error_message(&text, &e),
         })?;
         let (lo, hi) = SETTLE_S;
         if !(spec.settle_s.is_finite() && (lo..=hi).contains(&spec.settle_s)) {

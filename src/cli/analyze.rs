@@ -111,7 +111,7 @@ fn absolute(p: &Path) -> String {
 }
 
 fn plot_failed(e: impl std::fmt::Display) -> ExitCode {
-    eprintln!("error: {e}");
+    errln!("error: {e}");
     ExitCode::from(status::ERROR)
 }
 

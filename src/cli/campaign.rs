@@ -155,7 +155,7 @@ fn resume(a: ResumeArgs, stop: Arc<AtomicBool>) -> ExitCode {
         Err(e) => return failed(&e),
     };
     if let Some(n) = note {
-        eprintln!("note: {n}");
+        errln!("note: {n}");
     }
     let (mut journal, read) = match Journal::open(&a.dir) {
         Ok(j) => j,
@@ -223,7 +223,7 @@ fn go(
             input: std::io::stdin().lock(),
             out: std::io::stderr(),
         };
-        eprintln!(
+        errln!(
             "campaign {} on {on}: {} cells, one at a time; change the setup as told, then answer",
             dir.display(),
             campaign.cells().len() - read.done().len() - read.skipped().len()
@@ -277,14 +277,14 @@ fn status_cmd(a: DirArgs) -> ExitCode {
         Err(e) => return failed(&e),
     };
     if let Some(n) = note {
-        eprintln!("note: {n}");
+        errln!("note: {n}");
     }
     let s = match summarize(&campaign, &a.dir, &read) {
         Ok(s) => s,
         Err(e) => return failed(&e),
     };
     for (c, why) in damaged_cells(&a.dir, &read) {
-        eprintln!("warning: cell {c}: {why}");
+        errln!("warning: cell {c}: {why}");
     }
     match emit(&s, a.json, print_summary) {
         Ok(()) => ExitCode::SUCCESS,
@@ -307,7 +307,7 @@ fn map_cmd(a: DirArgs) -> ExitCode {
 }
 
 fn failed(e: &CampaignRunError) -> ExitCode {
-    eprintln!("error: {e}");
+    errln!("error: {}", bench::error::error_chain(&e));
     ExitCode::from(match e {
         CampaignRunError::BadInput(_) => status::BAD_INPUT,
         CampaignRunError::Stopped { .. } => status::INTERRUPTED,

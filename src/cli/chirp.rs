@@ -221,6 +221,7 @@ pub(super) fn chirp(args: ChirpArgs, stop: Arc<AtomicBool>) -> ExitCode {
         Ok(l) => l,
         Err(code) => return code,
     };
+    let stopped = Arc::clone(&stop);
     let result = job_thread::run_job(stop, move |stop, ticks| {
         run_chirp(&opts, outputs, stop, Some(&ticks))
     });
@@ -230,6 +231,16 @@ pub(super) fn chirp(args: ChirpArgs, stop: Arc<AtomicBool>) -> ExitCode {
     };
     match result {
         Ok(summary) => match emit(&summary, args.json, print_summary) {
+            // SIGINT/SIGTERM after the sweep, during the FRF, the fit and
+            // the plot (under a second at the densest grid the config
+            // allows): those were finished, and nothing is missing.
+            Ok(()) if stopped.load(std::sync::atomic::Ordering::Relaxed) => {
+                errln!(
+                    "note: interrupted after the sweep, while the FRF, the modal fit and the plot were computed: they were finished first; the recording {} and every output are complete",
+                    summary.recording.display()
+                );
+                ExitCode::SUCCESS
+            }
             Ok(()) => ExitCode::SUCCESS,
             Err(code) => code,
         },

@@ -35,7 +35,7 @@ pub(super) fn config_command(cmd: ConfigCommand) -> ExitCode {
                 // A closed pipe (`| head`) is the reader's choice.
                 Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => ExitCode::SUCCESS,
                 Err(e) => {
-                    eprintln!("error: writing the config to stdout: {e}");
+                    errln!("error: writing the config to stdout: {e}");
                     ExitCode::from(status::ERROR)
                 }
             }

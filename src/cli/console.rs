@@ -1,7 +1,8 @@
 //! The command line's standard output. A reader that goes away (`bench …
 //! | head`) or a full disk must not panic the process in the middle of a
 //! run, nor stop the work it prints about (a campaign goes on, its
-//! recordings and journal are complete): `outln!` (defined in `cli/mod.rs`) writes
+//! recordings and journal are complete); nor may a standard error that
+//! cannot be written (`errln!` ignores its failures). `outln!` (defined in `cli/mod.rs`) writes
 //! to stdout and, on the first failed write, stops printing and remembers
 //! the error, which [`status`] turns into the exit status once the command
 //! is done.
@@ -26,6 +27,14 @@ pub fn write(args: std::fmt::Arguments<'_>) {
     }
 }
 
+/// Writes `args` to stderr, ignoring failures (`errln!`). `eprintln!`
+/// panics when stderr cannot be written, and the panic's exit 101 would
+/// hide the command's own status (a fault's 3) behind a full disk under a
+/// log.
+pub fn write_err(args: std::fmt::Arguments<'_>) {
+    let _ = std::io::stderr().lock().write_fmt(args);
+}
+
 /// The exit status once the command is done, if stdout changes it: none
 /// if stdout took everything or the command failed on its own (`success`
 /// false: its status stands); otherwise 141 (128 + SIGPIPE, what a shell
@@ -36,6 +45,6 @@ pub fn status(success: bool) -> Option<u8> {
     if e.kind() == std::io::ErrorKind::BrokenPipe {
         return success.then_some(141);
     }
-    eprintln!("error: standard output: {e}");
+    errln!("error: standard output: {e}");
     success.then_some(1)
 }

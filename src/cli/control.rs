@@ -227,7 +227,7 @@ pub(super) fn control(args: ControlArgs, stop: Arc<AtomicBool>) -> ExitCode {
                 return code;
             }
             if args.check_only && !summary.loop_check.passed() {
-                eprintln!(
+                errln!(
                     "error: loop check refuses controller {}: {}",
                     summary.controller,
                     summary.loop_check.failures.join("; ")

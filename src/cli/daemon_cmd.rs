@@ -257,9 +257,9 @@ fn failed(e: &ClientError, socket: &Path, given: bool) -> ExitCode {
     match e {
         ClientError::NotASocket { reason, .. } => {
             if given {
-                eprintln!("error: --socket {}: {reason}", socket.display());
+                errln!("error: --socket {}: {reason}", socket.display());
             } else {
-                eprintln!(
+                errln!(
                     "error: the default socket {}: {reason}; give --socket",
                     socket.display()
                 );
@@ -267,15 +267,15 @@ fn failed(e: &ClientError, socket: &Path, given: bool) -> ExitCode {
             ExitCode::from(status::BAD_INPUT)
         }
         ClientError::Connect { .. } => {
-            eprintln!("error: {e}");
+            errln!("error: {e}");
             ExitCode::from(status::NO_DAEMON)
         }
         ClientError::Api { kind, .. } => {
-            eprintln!("error: {e}");
+            errln!("error: {e}");
             ExitCode::from(answer_status(*kind))
         }
         ClientError::Io(_) => {
-            eprintln!("error: {e}");
+            errln!("error: {e}");
             ExitCode::from(status::ERROR)
         }
     }
@@ -286,7 +286,7 @@ fn show_status(answer: &Value, json: bool) -> ExitCode {
     let view: StatusView = match serde_json::from_value(answer.clone()) {
         Ok(v) => v,
         Err(e) => {
-            eprintln!("error: the daemon's status does not parse: {e}: {answer}");
+            errln!("error: the daemon's status does not parse: {e}: {answer}");
             return ExitCode::from(status::ERROR);
         }
     };
@@ -323,7 +323,7 @@ fn stop(socket: &Path, given: bool, answer: &Value, json: bool) -> ExitCode {
             break s["state"].as_str().unwrap_or("?").to_string();
         }
         if t0.elapsed() > WAIT_LIMIT {
-            eprintln!(
+            errln!(
                 "error: job {id} is still running {} s after `stop`",
                 WAIT_LIMIT.as_secs()
             );
@@ -345,7 +345,7 @@ fn shutdown(socket: &Path, answer: &Value, json: bool) -> ExitCode {
     let t0 = Instant::now();
     while std::fs::symlink_metadata(socket).is_ok() {
         if t0.elapsed() > WAIT_LIMIT {
-            eprintln!(
+            errln!(
                 "error: the daemon accepted `shutdown` but {} is still there after {} s",
                 socket.display(),
                 WAIT_LIMIT.as_secs()

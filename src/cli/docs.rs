@@ -43,7 +43,7 @@ fn print(bytes: &[u8], what: &str) -> ExitCode {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!("error: writing the {what} to stdout: {e}");
+            errln!("error: writing the {what} to stdout: {e}");
             ExitCode::from(status::ERROR)
         }
     }
@@ -61,11 +61,11 @@ pub(super) fn man(args: &ManArgs) -> ExitCode {
     if let Some(dir) = &args.out {
         return match write_pages(&root, dir) {
             Ok(n) => {
-                eprintln!("wrote {n} man pages to {}", dir.display());
+                errln!("wrote {n} man pages to {}", dir.display());
                 ExitCode::SUCCESS
             }
             Err(e) => {
-                eprintln!("error: --out {}: {e}", dir.display());
+                errln!("error: --out {}: {e}", dir.display());
                 ExitCode::from(status::ERROR)
             }
         };
@@ -93,7 +93,7 @@ pub(super) fn man(args: &ManArgs) -> ExitCode {
     match rendered {
         Ok(()) => print(&page, "man page"),
         Err(e) => {
-            eprintln!("error: rendering the man page: {e}");
+            errln!("error: rendering the man page: {e}");
             ExitCode::from(status::ERROR)
         }
     }

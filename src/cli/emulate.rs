@@ -151,12 +151,12 @@ pub(super) fn emulate(cmd: EmulateCommand, stop: Arc<AtomicBool>) -> ExitCode {
             let pty = match Pty::open() {
                 Ok(p) => p,
                 Err(e) => {
-                    eprintln!("error: cannot create a pseudo-terminal: {e}");
+                    errln!("error: cannot create a pseudo-terminal: {e}");
                     return ExitCode::from(status::ERROR);
                 }
             };
             outln!("{}", pty.path());
-            eprintln!(
+            errln!(
                 "serial DAQ emulator on {} at {rate_hz} Hz, watchdog {} ms, protocol v{}; connect with --backend serial:{}; Ctrl-C stops",
                 pty.path(),
                 cfg.emulator.watchdog_ms,
@@ -198,7 +198,7 @@ pub(super) fn emulate(cmd: EmulateCommand, stop: Arc<AtomicBool>) -> ExitCode {
                 Err(e) => return bad_input(format!("--iface {}: {e}", ccfg.interface)),
             };
             outln!("{}", ccfg.interface);
-            eprintln!(
+            errln!(
                 "CAN DAQ emulator on {} node {} at {rate_hz} Hz, watchdog {} ms; connect with --backend socketcan:{}; Ctrl-C stops",
                 ccfg.interface, ccfg.node_id, cfg.emulator.watchdog_ms, ccfg.interface
             );
@@ -218,7 +218,7 @@ pub(super) fn emulate(cmd: EmulateCommand, stop: Arc<AtomicBool>) -> ExitCode {
         }
     };
     use std::sync::atomic::Ordering::Relaxed;
-    eprintln!(
+    errln!(
         "emulator stopped: {} samples sent, {} commands, {} bad frames, {} late commands, largest tick lateness {} µs, watchdog {}",
         status.samples_sent.load(Relaxed),
         status.commands_received.load(Relaxed),
@@ -234,7 +234,7 @@ pub(super) fn emulate(cmd: EmulateCommand, stop: Arc<AtomicBool>) -> ExitCode {
     match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!("error: emulator: {e}");
+            errln!("error: emulator: {e}");
             ExitCode::from(status::ERROR)
         }
     }

@@ -81,7 +81,7 @@ pub(super) fn export(a: ExportArgs) -> ExitCode {
         }
         Err(e @ (ExportError::Recording { .. } | ExportError::NoTopic { .. })) => bad_input(e),
         Err(e) => {
-            eprintln!("error: {e}");
+            errln!("error: {}", bench::error::error_chain(&e));
             ExitCode::from(status::ERROR)
         }
     }

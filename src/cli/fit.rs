@@ -205,7 +205,7 @@ fn write_updated(
         f.write_all(text.as_bytes())
     })
     .map_err(|e| {
-        eprintln!("error: --out {}: {e}", out.display());
+        errln!("error: --out {}: {e}", out.display());
         ExitCode::from(status::ERROR)
     })
 }
@@ -403,7 +403,7 @@ pub(super) fn fit(a: FitArgs) -> ExitCode {
     };
     if let (Some(p), Some(f)) = (&plot, &id.fit) {
         if let Err(e) = write_plot(p, Existing::overwrite(a.overwrite), &frf, f, &id) {
-            eprintln!("error: --png {}: {e}", p.display());
+            errln!("error: --png {}: {e}", p.display());
             return ExitCode::from(status::ERROR);
         }
     }

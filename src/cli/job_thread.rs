@@ -40,7 +40,7 @@ pub(super) fn run_job<T: Send + 'static>(
             let _ = tx.send(job(worker_stop, worker_ticks));
         });
     if let Err(e) = spawned {
-        eprintln!("error: cannot start the job thread: {e}");
+        errln!("error: cannot start the job thread: {e}");
         return Err(ExitCode::from(status::ERROR));
     }
     let mut stopped_at: Option<Instant> = None;
@@ -48,7 +48,7 @@ pub(super) fn run_job<T: Send + 'static>(
         match rx.recv_timeout(Duration::from_millis(10)) {
             Ok(r) => return Ok(r),
             Err(mpsc::RecvTimeoutError::Disconnected) => {
-                eprintln!("error: the job thread panicked");
+                errln!("error: the job thread panicked");
                 return Err(ExitCode::from(status::ERROR));
             }
             Err(mpsc::RecvTimeoutError::Timeout) => {}
@@ -56,7 +56,7 @@ pub(super) fn run_job<T: Send + 'static>(
         if stop.load(Ordering::Relaxed) {
             let at = *stopped_at.get_or_insert_with(Instant::now);
             if ticks.load(Ordering::Relaxed) == 0 && at.elapsed() >= PREPARATION_STOP_GRACE {
-                eprintln!("error: interrupted while the job was being prepared; nothing was enabled, no recording");
+                errln!("error: interrupted while the job was being prepared; nothing was enabled, no recording");
                 return Err(ExitCode::from(status::INTERRUPTED));
             }
         }

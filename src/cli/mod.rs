@@ -13,6 +13,7 @@
 //! | 130 | interrupted by SIGINT/SIGTERM; 0 A, amplifier disabled, recording finished |
 //! | 5 | `--daemon`, `bench daemon`: the daemon refused (busy, or a latched fault) |
 //! | 6 | `bench daemon`: no daemon answers at the socket (no socket, a stale one, permission denied) |
+//! | 7 | `bench recover`: data lost (a damaged chunk dropped); the recovered recording holds everything intact |
 //! | 141 | the command succeeded, but the reader of its standard output went away (`bench … \| head`); what it wrote to files is complete |
 //!
 //! One file per command (`chirp.rs`, `control.rs`, `emulate.rs`,
@@ -27,6 +28,18 @@ macro_rules! outln {
     };
     ($($arg:tt)*) => {
         $crate::cli::console::write(format_args!("{}\n", format_args!($($arg)*)))
+    };
+}
+
+/// `errln!`, the command line's `eprintln!` that never panics: a standard
+/// error that cannot be written (`2>/dev/full`, a log on a full disk) loses
+/// the line, never the command's exit status ([`console::write_err`]).
+macro_rules! errln {
+    () => {
+        $crate::cli::console::write_err(format_args!("\n"))
+    };
+    ($($arg:tt)*) => {
+        $crate::cli::console::write_err(format_args!("{}\n", format_args!($($arg)*)))
     };
 }
 
@@ -148,6 +161,7 @@ pub(super) mod status {
     pub const INTERRUPTED: u8 = 130;
     pub const DAEMON_REFUSED: u8 = 5;
     pub const NO_DAEMON: u8 = 6;
+    pub const DATA_LOST: u8 = 7;
 }
 
 /// Logging to stderr, as the Rust ecosystem does it: the filter comes from
@@ -167,16 +181,18 @@ fn init_logging(daemon: bool) {
             || EnvFilter::new(default),
             |spec| {
                 EnvFilter::try_new(&spec).unwrap_or_else(|e| {
-                    eprintln!(
-                        "warning: RUST_LOG={spec:?} is not a log filter ({e}); using {default}"
-                    );
+                    errln!("warning: RUST_LOG={spec:?} is not a log filter ({e}); using {default}");
                     EnvFilter::new(default)
                 })
             },
         );
     let ansi = std::io::stderr().is_terminal() && std::env::var_os("NO_COLOR").is_none();
+    // `log_internal_errors(false)`: a failed write to stderr is dropped;
+    // with it, tracing reports the failure with `eprintln!`, which panics
+    // on that same stderr.
     tracing_subscriber::fmt()
         .with_writer(std::io::stderr)
+        .log_internal_errors(false)
         .with_env_filter(filter)
         .with_ansi(ansi)
         .with_target(false)
@@ -188,7 +204,7 @@ pub fn main() -> ExitCode {
     init_logging(matches!(cli.command, Command::Serve(_)));
     let stop = Arc::new(AtomicBool::new(false));
     if let Err(e) = install_signal_handlers(&stop) {
-        eprintln!("error: {e:#}");
+        errln!("error: {e:#}");
         return ExitCode::from(status::ERROR);
     }
     let code = match cli.command {
@@ -259,7 +275,7 @@ impl LiveArgs {
         let server = bench::live::parse_addr(given)
             .and_then(|a| bench::live::LiveServer::start(a, loop_cpu))
             .map_err(bad_input)?;
-        eprintln!(
+        errln!(
             "live view on {} (Foxglove: Open connection > Foxglove WebSocket)",
             server.url()
         );
@@ -268,7 +284,7 @@ impl LiveArgs {
 }
 
 pub(super) fn bad_input(msg: impl std::fmt::Display) -> ExitCode {
-    eprintln!("error: {msg}");
+    errln!("error: {msg}");
     ExitCode::from(status::BAD_INPUT)
 }
 
@@ -395,7 +411,7 @@ pub(super) fn emit<T: serde::Serialize>(
 ) -> Result<(), ExitCode> {
     if json {
         let s = serde_json::to_string(summary).map_err(|e| {
-            eprintln!("error: {e}");
+            errln!("error: {e}");
             ExitCode::from(status::ERROR)
         })?;
         outln!("{s}");
@@ -472,12 +488,12 @@ pub(super) fn run_failed(e: &RunError) -> ExitCode {
         } => {
             let flag = option_flag(key).unwrap_or(key);
             if subject.is_empty() {
-                eprintln!("error: {flag}: {reason}");
+                errln!("error: {flag}: {reason}");
             } else {
-                eprintln!("error: {flag} {subject}: {reason}");
+                errln!("error: {flag} {subject}: {reason}");
             }
         }
-        e => eprintln!("error: {e:#}"),
+        e => errln!("error: {}", bench::error::error_chain(e)),
     }
     exit_for(e)
 }

@@ -11,6 +11,18 @@ use std::process::ExitCode;
 
 /// `bench recover` arguments.
 #[derive(Debug, Args)]
+#[command(after_help = "\
+Every chunk is checked on its own (length, lz4, CRC of its records, its log \
+times); a damaged chunk is dropped whole and every intact chunk after it is \
+kept. The summary and the `bench.recovered` metadata name what was dropped \
+(chunk index, byte offset, messages and loop time when known, reason).
+
+Exit status: 0 when everything written was recovered; the chunk cut by the \
+kill (the one being written, incomplete at the end of the file) is expected \
+and named, not a loss. 6 when data was lost: a damaged chunk, metadata \
+record or unreadable bytes were dropped (the recording is still written, \
+with everything intact). 2 for input that is no recording or an output \
+refused, 1 when writing the output failed.")]
 pub struct RecoverArgs {
     /// The `.part` file a killed or failed run left (`<name>.mcap.part`).
     part: PathBuf,
@@ -70,6 +82,15 @@ pub fn recover(args: RecoverArgs) -> ExitCode {
     }
     match recover_part(&args.part, &out, existing) {
         Ok(r) => match emit(&r, args.json, human) {
+            Ok(()) if r.lost => {
+                errln!(
+                    "error: {}: data lost: {}; {} recovered without it",
+                    r.from.display(),
+                    lost_in_words(&r),
+                    r.to.display()
+                );
+                ExitCode::from(status::DATA_LOST)
+            }
             Ok(()) => ExitCode::SUCCESS,
             Err(code) => code,
         },
@@ -77,20 +98,85 @@ pub fn recover(args: RecoverArgs) -> ExitCode {
             bad_input(format!("PART: {e}"))
         }
         Err(e @ RecoverError::Write { .. }) => {
-            eprintln!("error: {e}");
+            errln!("error: {}", bench::error::error_chain(&e));
             ExitCode::from(status::ERROR)
         }
     }
 }
 
+/// What was lost, in a few words: the dropped regions and orphaned
+/// messages, counted.
+fn lost_in_words(r: &Recovered) -> String {
+    let mut parts = Vec::new();
+    let lost: Vec<_> = r.dropped.iter().filter(|d| d.lost).collect();
+    if !lost.is_empty() {
+        let chunks: Vec<String> = lost
+            .iter()
+            .map(|d| format!("{} {}", d.kind.as_str(), d.chunk_index))
+            .collect();
+        parts.push(format!("dropped {}", chunks.join(", ")));
+    }
+    let orphaned: u64 = r.orphaned.iter().map(|o| o.messages).sum();
+    if orphaned > 0 {
+        parts.push(format!(
+            "{orphaned} messages whose channel definition was lost"
+        ));
+    }
+    parts.join("; ")
+}
+
 fn human(r: &Recovered) {
     outln!(
-        "recovered {} messages and {} metadata records ({:.3} s of loop time) from {}",
+        "recovered {} messages of {} chunks and {} metadata records ({:.3} s of loop time) from {}",
         r.messages,
+        r.chunks,
         r.metadata,
         r.last_log_time_s,
         r.from.display()
     );
-    outln!("  reading stopped at: {}", r.stopped);
+    for d in &r.dropped {
+        let mut what = String::new();
+        if let Some(n) = d.messages {
+            what.push_str(&format!(", {n} messages"));
+        }
+        if let Some([a, b]) = d.loop_time_s {
+            what.push_str(&format!(", loop time {a:.3} s to {b:.3} s"));
+        }
+        outln!(
+            "  dropped {} {} at byte {} ({} bytes{what}){}: {}",
+            d.kind.as_str(),
+            d.chunk_index,
+            d.offset_bytes,
+            d.length_bytes,
+            if d.lost {
+                ""
+            } else {
+                ", nothing lost: rebuilt"
+            },
+            d.reason
+        );
+    }
+    for o in &r.orphaned {
+        outln!(
+            "  dropped {} messages on channel {}: its definition was lost",
+            o.messages,
+            o.channel_id
+        );
+    }
+    if let Some(note) = &r.rebuilt {
+        outln!("  rebuilt: {note}");
+    }
+    if let Some(c) = &r.cut {
+        outln!(
+            "  cut by the kill     {} {} at byte {} ({} bytes present): {}",
+            c.kind.as_str(),
+            c.chunk_index,
+            c.offset_bytes,
+            c.length_bytes,
+            c.reason
+        );
+    } else {
+        outln!("  reading stopped at: {}", r.stopped);
+    }
     outln!("  recording           {}", r.to.display());
 }

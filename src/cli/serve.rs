@@ -69,12 +69,19 @@ pub(super) fn via_daemon<T: serde::de::DeserializeOwned + serde::Serialize>(
                     ev["ticks"].as_f64().unwrap_or(0.0),
                     ev["total_ticks"].as_f64().unwrap_or(1.0),
                 );
-                eprint!("\r{cmd} on the daemon: {:5.1} %", 100.0 * t / n.max(1.0));
+                {
+                    use std::io::Write as _;
+                    let _ = write!(
+                        std::io::stderr(),
+                        "\r{cmd} on the daemon: {:5.1} %",
+                        100.0 * t / n.max(1.0)
+                    );
+                }
             }
             Some("job_started") => {
-                eprintln!("{cmd} job {} started: {}", ev["job"], ev["recording"])
+                errln!("{cmd} job {} started: {}", ev["job"], ev["recording"])
             }
-            Some("job_finished") => eprintln!(),
+            Some("job_finished") => errln!(),
             _ => {}
         }
     });
@@ -92,7 +99,7 @@ pub(super) fn via_daemon<T: serde::de::DeserializeOwned + serde::Serialize>(
                 }
             }
             Err(e) => {
-                eprintln!("error: the daemon's summary does not parse: {e}");
+                errln!("error: the daemon's summary does not parse: {e}");
                 ExitCode::from(status::ERROR)
             }
         },
@@ -111,7 +118,7 @@ pub(super) fn via_daemon<T: serde::de::DeserializeOwned + serde::Serialize>(
                     outln!("{v}");
                 }
             }
-            eprintln!("error: {e}");
+            errln!("error: {}", bench::error::error_chain(&e));
             ExitCode::from(match &e {
                 ClientError::Connect { .. } | ClientError::NotASocket { .. } => status::BAD_INPUT,
                 ClientError::Io(_) => status::ERROR,
@@ -176,7 +183,7 @@ pub(super) fn serve(args: ServeArgs) -> ExitCode {
         Ok(()) => ExitCode::SUCCESS,
         Err(bench::daemon::ServeError::Input(e)) => run_failed(&e),
         Err(e) => {
-            eprintln!("error: {e}");
+            errln!("error: {}", bench::error::error_chain(&e));
             ExitCode::from(status::ERROR)
         }
     }

@@ -112,6 +112,7 @@ use owner::{owner, JobHandle, OwnerCmd, OwnerShared};
 use protocol::{event, Status};
 use serde_json::json;
 use socket::{bind_socket, event_log, prepare_socket};
+use std::io::Write as _;
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{mpsc, Arc, Mutex};
@@ -379,7 +380,9 @@ pub fn serve(opts: ServeOptions) -> Result<(), ServeError> {
             "daemon_started",
             json!({ "socket": opts.socket, "backend": lock(&ctx.status).backend }),
         ));
-        eprintln!(
+        // Never a panic on a stderr that cannot be written (`/dev/full`).
+        let _ = writeln!(
+            std::io::stderr(),
             "bench serve: {} on {} (backend {})",
             std::process::id(),
             opts.socket.display(),

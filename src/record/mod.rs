@@ -83,7 +83,8 @@
 //! configured with `disable_seeking(true)`, i.e. buffered chunks), so the file
 //! on disk only ever holds complete chunks plus, at worst, one chunk that was
 //! cut while being written — readable up to the last complete chunk with
-//! [`read_messages_tolerant`] / [`read_samples_tolerant`].
+//! [`read_messages_tolerant`] / [`read_samples_tolerant`], which also keep
+//! every intact chunk after a damaged one ([`salvage`]).
 //!
 //! The writer thread ([`spawn_writer`]) closes and flushes a chunk whenever
 //! 50 ms of **wall** time has elapsed since the last flush, **or** the log
@@ -97,6 +98,7 @@ pub mod export;
 pub mod proto;
 mod reader;
 pub mod recover;
+pub mod salvage;
 mod schema;
 pub mod topics;
 mod writer;

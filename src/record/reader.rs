@@ -3,51 +3,32 @@
 use crate::record::topics::SampleRecord;
 use crate::record::{log_time_ns, TOPIC_SAMPLE};
 
-/// What a tolerant read of a (possibly truncated) recording returned.
+/// What a tolerant read of a (possibly cut or damaged) recording returned.
 #[derive(Debug)]
 pub struct TolerantRead {
-    /// Messages read, in file order, up to the first error.
+    /// Messages of every intact chunk, in file order (a damaged chunk is
+    /// dropped whole, the intact chunks after it are kept: see
+    /// [`super::salvage`]).
     pub messages: Vec<mcap::Message<'static>>,
-    /// The error that stopped reading (e.g. unexpected end of file in a chunk
-    /// cut by a kill), `None` if the data ended cleanly. Note: the mcap
-    /// reader also reports a clean end when the file was cut exactly after a
-    /// chunk's 9-byte opcode+length prefix, so `None` does not prove that the
-    /// recording was not killed — use the `.part` name / summary for that.
-    pub error: Option<mcap::McapError>,
+    /// The first thing that was not read, in words (a dropped chunk, the
+    /// chunk cut by a kill, or input that is no MCAP); `None` if the file
+    /// was read to its end.
+    pub error: Option<String>,
 }
 
-/// Reads every message of a possibly truncated MCAP (e.g. the `.part` file
-/// left by a killed run): linear read with
-/// [`mcap::read::Options::IgnoreEndMagic`], keeping messages until the first
-/// error. All messages of chunks that were completely written are returned.
+/// Reads every message of a possibly cut or damaged MCAP (e.g. the `.part`
+/// file left by a killed run) with [`super::salvage::salvage`]: every
+/// message of every intact chunk, the chunks after a damaged one included.
 pub fn read_messages_tolerant(bytes: &[u8]) -> TolerantRead {
-    let mut messages = Vec::new();
-    let stream = match mcap::MessageStream::new_with_options(
-        bytes,
-        mcap::read::Options::IgnoreEndMagic.into(),
-    ) {
-        Ok(s) => s,
-        Err(e) => {
-            return TolerantRead {
-                messages,
-                error: Some(e),
-            }
-        }
-    };
-    for m in stream {
-        match m {
-            Ok(m) => messages.push(m),
-            Err(e) => {
-                return TolerantRead {
-                    messages,
-                    error: Some(e),
-                }
-            }
-        }
-    }
-    TolerantRead {
-        messages,
-        error: None,
+    match super::salvage::salvage(bytes) {
+        Ok(s) => TolerantRead {
+            error: s.first_problem(),
+            messages: s.messages,
+        },
+        Err(e) => TolerantRead {
+            messages: Vec::new(),
+            error: Some(e),
+        },
     }
 }
 
