@@ -25,7 +25,7 @@
 //! channels can only be kept with the definitions rebuilt: that is done
 //! when the recording was made by this very version of `bench` (the
 //! `bench.run` metadata's `version`), whose recorder registers the same
-//! channels in the same order ([`super::writer::base_channels`]); otherwise
+//! channels in the same order (`writer::base_channels`); otherwise
 //! those messages are reported lost ([`Salvage::orphaned`]).
 //!
 //! Pure over a byte slice (no I/O), after mcap's sans-io reader.
