@@ -976,6 +976,14 @@ fn a_refusal_between_two_keys_names_both() {
             "continuous_current_a = 2.34",
             "continuous_current_a = 12.0",
             "actuator.continuous_current_a",
+            "actuator.rated_continuous_current_a",
+        ),
+        // A peak too close to the continuous rating leaves no I²t budget:
+        // the continuous rating is refused, naming the peak.
+        (
+            "peak_current_a = 9.98",
+            "peak_current_a = 2.5",
+            "actuator.continuous_current_a",
             "actuator.peak_current_a",
         ),
         (
