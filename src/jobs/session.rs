@@ -531,7 +531,7 @@ pub fn run_recorded<J: Job + Send + 'static>(
                 } => RunError::Fault {
                     kind: FaultKind::Recording.as_str(),
                     value,
-                    detail: format!("the recording failed: {}", error_chain(&e)),
+                    detail: format!("the recording failed: {}", crate::error::error_chain(&e)),
                     tick,
                     recording: format!("incomplete, left as {}", part_path.display()),
                     context: Box::new(serde_json::json!({
@@ -689,20 +689,4 @@ pub fn beside(out: &Path, suffix: &str) -> PathBuf {
         .map(|s| s.to_string_lossy().into_owned())
         .unwrap_or_default();
     out.with_file_name(format!("{stem}{suffix}"))
-}
-
-/// `error: cause: cause …`, each source once (a wrapper that repeats its
-/// source's text is not repeated).
-fn error_chain(e: &dyn std::error::Error) -> String {
-    let mut text = e.to_string();
-    let mut cur = e.source();
-    while let Some(c) = cur {
-        let c_text = c.to_string();
-        if !text.contains(&c_text) {
-            text.push_str(": ");
-            text.push_str(&c_text);
-        }
-        cur = c.source();
-    }
-    text
 }
