@@ -253,12 +253,6 @@ pub struct StallBounds {
 }
 
 impl StallBounds {
-    /// No bound: open-loop identification.
-    pub const NONE: Self = Self {
-        max_missed_deadlines: u64::MAX,
-        max_late_commands: u64::MAX,
-    };
-
     /// A stall bound of `bound_s` at a loop period of `period_s`, in whole
     /// periods ([`whole_periods`]), for both rules.
     pub fn of(bound_s: f64, period_s: f64) -> Self {
@@ -587,11 +581,6 @@ impl Supervisor {
             max_missed_deadlines: self.cfg.max_missed_deadlines,
             max_late_commands: self.cfg.max_late_commands,
         }
-    }
-
-    /// The limits in force.
-    pub fn config(&self) -> &SupervisorConfig {
-        &self.cfg
     }
 
     /// Consecutive samples so far on which the device ran on a late
