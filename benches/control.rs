@@ -41,6 +41,7 @@ fn control(c: &mut Criterion) {
         peak_current_a: cfg.actuator.peak_current_a,
         continuous_current_a: cfg.actuator.continuous_current_a,
         probe_range_m: cfg.probe.range_m,
+        watchdog_s: None,
     };
     let ctrl = DiscreteController::new(&cfg.controller["fast"], 2e-4, info.peak_current_a);
     let mut job = ControlJob::new(ctrl, 1e-5, 10, 0, u64::MAX);

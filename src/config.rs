@@ -1556,6 +1556,7 @@ impl BenchConfig {
             }),
             continuous_current_a: currents.continuous_current_a,
             reach: self.reach_envelope(info.period_ns as f64 * 1e-9),
+            watchdog_s: info.watchdog_s,
             i2t_peak_duration_s: self.safety.i2t_peak_duration_s,
             period_s: info.period_ns as f64 * 1e-9,
         }

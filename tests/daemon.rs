@@ -475,6 +475,24 @@ fn a_stall_between_jobs_never_latches() {
     assert_eq!(r["ok"], true, "{r}");
 }
 
+/// A serial link silent for 30 ms between jobs (frames held back, as a
+/// USB hiccup does), shorter than the device's 50 ms watchdog: nothing is
+/// latched, and the next job runs.
+#[test]
+fn a_silent_serial_link_between_jobs_never_latches() {
+    let _g = one_at_a_time();
+    let s = SerialDaemon::start(&["hold:0.03@2"]);
+    let mut c = s.daemon.client();
+    let t0 = std::time::Instant::now();
+    while t0.elapsed() < Duration::from_secs(3) {
+        let st = c.call("status", json!({}))["result"].clone();
+        assert_ne!(st["state"], "faulted", "latched a hiccup between jobs: {st}");
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    let r = c.call("chirp", json!({ "duration_s": 0.5 }));
+    assert_eq!(r["ok"], true, "{r}");
+}
+
 /// Link faults of the serial device between jobs (a hung device, a
 /// disconnect, a burst of corrupt frames) latch the `link` fault.
 #[test]

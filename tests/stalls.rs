@@ -2,10 +2,15 @@
 //! up, as a loaded host does) ends a closed loop exactly when it exceeds the
 //! bound the loop check derived, never below it; open-loop identification
 //! survives it, with the span left out of the FRF; a user's bound above the
-//! loop's own is refused with both numbers.
+//! loop's own is refused with both numbers. Over the serial emulator, a
+//! link that holds its frames back (a USB hiccup, `hold:S`) is judged the
+//! same way: by how long it was silent, against the device's watchdog in
+//! open loop and the loop's bound in closed loop.
 
 mod common;
 
+use bench_hal::emulator::{LinkFault, ScheduledLinkFault};
+use common::emulator::Emulator;
 use common::{bench, json_stdout, one_at_a_time, path_in, quiet_config_edited, tmp};
 use serde_json::Value;
 use std::path::{Path, PathBuf};
@@ -294,4 +299,126 @@ fn a_stall_on_a_large_held_current_stops_on_the_reach() {
     assert!(held > 5.0, "{msg}");
     let (code, v) = run("0.1");
     assert_eq!(code, Some(0), "{v}");
+}
+
+/// `bench` over the serial emulator, which holds its frames back for
+/// `hold_ms` once, `at_s` after it started: `args` after the backend.
+fn serial_with_hold(cfg: &Path, hold_ms: f64, at_s: f64, args: &[&str]) -> (Option<i32>, Value) {
+    let emu = Emulator::start(
+        cfg,
+        vec![ScheduledLinkFault {
+            at_s,
+            kind: LinkFault::Hold {
+                duration_s: hold_ms * 1e-3,
+            },
+        }],
+        None,
+    );
+    let out = bench()
+        .args(args)
+        .args(["--json", "--backend", &emu.backend(), "--config"])
+        .arg(cfg)
+        .output()
+        .unwrap();
+    (out.status.code(), json_stdout(&out))
+}
+
+/// A serial link that goes silent for 5, 30 or 45 ms (the device keeps
+/// sampling, its frames arrive late, together) during an open-loop chirp
+/// (3 s after the emulator started: the chirp has started by then, even on
+/// a loaded machine):
+/// shorter than the device's 50 ms watchdog, so the link is not dead and
+/// the chirp finishes, with the stall (the device running on late
+/// commands) reported at its length. The host keeps every sample of the
+/// silence (its queue holds a watchdog's worth), so none is missing.
+#[test]
+fn an_open_loop_chirp_rides_out_a_silent_serial_link() {
+    let _g = one_at_a_time();
+    let dir = tmp();
+    let cfg = config(dir.path(), "");
+    for hold_ms in [5.0, 30.0, 45.0] {
+        let rec = path_in(dir.path(), &format!("hold{hold_ms}.mcap"));
+        let (code, v) = serial_with_hold(
+            &cfg,
+            hold_ms,
+            3.0,
+            &["chirp", "--duration-s", "6", "--out", &rec],
+        );
+        assert_eq!(code, Some(0), "hold {hold_ms} ms: {v}");
+        let longest = v["stalls"]["longest_s"].as_f64().unwrap();
+        assert!(
+            longest >= 0.9 * hold_ms * 1e-3,
+            "hold {hold_ms} ms: longest stall {longest} s: {}",
+            v["stalls"]
+        );
+        assert_eq!(v["link"]["missed_samples"], 0, "hold {hold_ms} ms: {v}");
+    }
+}
+
+/// The same silence in closed loop: the fast controller's bound (delay
+/// margin + one crossover period, 24.4 ms) decides. A third of it runs
+/// through; 1.6 times it stops the step on `link`, the message giving the
+/// silence, the bound and where it came from (the silence is judged at
+/// each sample timeout, 5 ms here, so the stop comes within one timeout
+/// after the bound).
+#[test]
+fn a_closed_loop_stops_when_the_serial_link_is_silent_beyond_its_bound() {
+    let _g = one_at_a_time();
+    let dir = tmp();
+    let cfg = config(dir.path(), "");
+    let (bound_s, source) = stall_bound(&cfg, "fast");
+    let step = |hold_ms: f64| {
+        let rec = path_in(dir.path(), &format!("step{hold_ms}.mcap"));
+        serial_with_hold(
+            &cfg,
+            hold_ms,
+            1.0,
+            &["control", "--fast", "--duration-s", "2", "--out", &rec],
+        )
+    };
+    let (code, v) = step(bound_s * 1e3 / 3.0);
+    assert_eq!(code, Some(0), "a third of the bound faulted: {v}");
+    let (code, v) = step(bound_s * 1e3 * 1.6);
+    assert_eq!(code, Some(3), "{v}");
+    assert_eq!(v["fault"]["kind"], "link", "{v}");
+    let msg = v["fault"]["message"].as_str().unwrap();
+    assert!(
+        msg.starts_with("no sample for ") && msg.contains(&source),
+        "{msg}"
+    );
+    let silent_s = v["fault"]["value"].as_f64().unwrap();
+    assert!(
+        silent_s > bound_s && silent_s < bound_s + 0.015,
+        "{silent_s} s against {bound_s} s"
+    );
+}
+
+/// A device that stays silent longer than its own watchdog (it hangs for
+/// 80 ms) is a dead link, even in open loop: the chirp stops on `link`,
+/// naming the watchdog.
+#[test]
+fn a_serial_device_silent_beyond_its_watchdog_ends_the_chirp() {
+    let _g = one_at_a_time();
+    let dir = tmp();
+    let cfg = config(dir.path(), "");
+    let emu = Emulator::start(
+        &cfg,
+        vec![ScheduledLinkFault {
+            at_s: 2.0,
+            kind: LinkFault::Stall { duration_s: 0.08 },
+        }],
+        None,
+    );
+    let rec = path_in(dir.path(), "hung.mcap");
+    let out = bench()
+        .args(["chirp", "--duration-s", "4", "--json", "--out", &rec])
+        .args(["--backend", &emu.backend(), "--config"])
+        .arg(&cfg)
+        .output()
+        .unwrap();
+    let v = json_stdout(&out);
+    assert_eq!(out.status.code(), Some(3), "{v}");
+    assert_eq!(v["fault"]["kind"], "link", "{v}");
+    let msg = v["fault"]["message"].as_str().unwrap();
+    assert!(msg.contains("> 50.0 ms (the device's watchdog"), "{msg}");
 }

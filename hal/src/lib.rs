@@ -116,6 +116,12 @@ pub struct DeviceInfo {
     pub continuous_current_a: f64,
     /// The probe reads positions in `[-probe_range_m, +probe_range_m]`.
     pub probe_range_m: f64,
+    /// The device's own watchdog, s, when it announces one: with no valid
+    /// command for this long while enabled, the device drops the current to
+    /// 0 A and latches a fault (serial: the hello's `watchdog_ms`). `None`:
+    /// not announced (simulator, CAN). The host judges a silent link by it:
+    /// a device heard from within its watchdog time is not dead.
+    pub watchdog_s: Option<f64>,
 }
 
 /// One probe sample. Plain data, `Copy`: reading one never allocates.

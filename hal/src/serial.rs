@@ -11,15 +11,20 @@
 //! returns the samples in order, one per call, waiting at most
 //! `sample_timeout_periods` for the next one. Samples that arrive in a burst
 //! (the USB or pty layer delayed them) are all returned, back to back, so
-//! the loop catches up without losing any. If more than [`BACKLOG`] pile
-//! up, the oldest are dropped and counted as late; the supervisor then sees
-//! the sequence gap.
+//! the loop catches up without losing any. The host keeps as many as the
+//! device runs on one command before its watchdog stops it
+//! ([`backlog_len`]: the announced `watchdog_ms` of samples, plus
+//! [`BACKLOG`]), so a host that stalls for less than the device's watchdog
+//! loses no sample: after the stall the loop answers them all, and the
+//! supervisor judges the stall by the late commands the device flagged. If
+//! more pile up, the oldest are dropped and counted as late; the supervisor
+//! then sees the sequence gap.
 //!
 //! Errors on the tick and what the loop's link supervision makes of them:
 //!
 //! | condition | error kind | host reaction |
 //! |---|---|---|
-//! | no sample frame within the timeout | `Timeout` | bad sample; K in a row → link fault |
+//! | no frame at all within the timeout | `Timeout` | silent link: judged by how long it has been silent (the device's watchdog, the job's stall bound, the reach of the held command) |
 //! | only corrupt frames within the timeout | `Crc` | bad sample; K in a row → link fault |
 //! | end of file, `POLLHUP`, `EIO` (unplugged, emulator gone) | `Link` | link fault at once |
 //! | write failed or blocked beyond one period | `Link` | link fault at once |
@@ -46,8 +51,34 @@ use crate::{Clock, Command, DeviceInfo, ErrorKind, Sample, SampleFlags, Stage};
 use std::os::fd::{AsRawFd, RawFd};
 use std::time::Duration;
 
-/// Most samples queued on the host side; older ones are dropped beyond.
+/// Samples queued on the host side beyond the device's watchdog time
+/// ([`backlog_len`]); older ones are dropped beyond.
 pub const BACKLOG: usize = 32;
+
+/// Longest watchdog whose samples the host keeps, s (the device's watchdog
+/// is at most 1 s: a dead host must not leave current flowing longer).
+pub const BACKLOG_WATCHDOG_MAX_S: f64 = 1.0;
+
+/// Samples the host queues at most for a device sampling every `period_ns`
+/// with a watchdog of `watchdog_ms` (`u32::MAX`: not announced, taken as
+/// [`BACKLOG_WATCHDOG_MAX_S`]): every sample of one watchdog time, plus
+/// [`BACKLOG`]. Allocated at `configure`, never on the tick.
+pub fn backlog_len(period_ns: u64, watchdog_ms: u32) -> usize {
+    let watchdog_s = if watchdog_ms == u32::MAX {
+        BACKLOG_WATCHDOG_MAX_S
+    } else {
+        (f64::from(watchdog_ms) * 1e-3).min(BACKLOG_WATCHDOG_MAX_S)
+    };
+    (watchdog_s * 1e9 / period_ns.max(1) as f64).ceil() as usize + BACKLOG
+}
+
+const EMPTY_SAMPLE: WireSample = WireSample {
+    seq: 0,
+    time_us: 0,
+    position: 0,
+    current_a: 0.0,
+    flags: 0,
+};
 
 /// Serial backend settings (the `[backend.serial]` table).
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -236,8 +267,8 @@ pub struct SerialStats {
     /// Samples the device sent that never reached the loop (sum of gap
     /// sizes, late ones included).
     pub missed_samples: u64,
-    /// Samples dropped because more than [`BACKLOG`] were waiting (the host
-    /// fell behind).
+    /// Samples dropped because more than [`backlog_len`] were waiting (the
+    /// host fell behind by more than the device's watchdog time).
     pub late_samples: u64,
     /// Most samples that were waiting at once.
     pub max_backlog: u64,
@@ -266,7 +297,7 @@ pub struct SerialStage {
     rx_len: usize,
     rx_pos: usize,
     /// Received samples not yet returned, oldest first (ring).
-    queue: [WireSample; BACKLOG],
+    queue: Box<[WireSample]>,
     queue_head: usize,
     queue_len: usize,
     hello: Option<DeviceHello>,
@@ -359,13 +390,7 @@ impl SerialStage {
             rx: [0; 512],
             rx_len: 0,
             rx_pos: 0,
-            queue: [WireSample {
-                seq: 0,
-                time_us: 0,
-                position: 0,
-                current_a: 0.0,
-                flags: 0,
-            }; BACKLOG],
+            queue: vec![EMPTY_SAMPLE; BACKLOG].into_boxed_slice(),
             queue_head: 0,
             queue_len: 0,
             hello: None,
@@ -523,12 +548,13 @@ impl SerialStage {
     }
 
     fn enqueue(&mut self, s: WireSample) {
-        if self.queue_len == BACKLOG {
-            self.queue_head = (self.queue_head + 1) % BACKLOG;
+        let cap = self.queue.len();
+        if self.queue_len == cap {
+            self.queue_head = (self.queue_head + 1) % cap;
             self.queue_len -= 1;
             self.stats.late_samples += 1;
         }
-        self.queue[(self.queue_head + self.queue_len) % BACKLOG] = s;
+        self.queue[(self.queue_head + self.queue_len) % cap] = s;
         self.queue_len += 1;
         self.stats.max_backlog = self.stats.max_backlog.max(self.queue_len as u64);
     }
@@ -653,6 +679,12 @@ impl Stage for SerialStage {
         }
         self.hello = Some(hello);
         self.period_ns = period_ns;
+        let cap = backlog_len(period_ns, hello.watchdog_ms);
+        if self.queue.len() != cap {
+            self.queue = vec![EMPTY_SAMPLE; cap].into_boxed_slice();
+        }
+        self.queue_head = 0;
+        self.queue_len = 0;
         self.timeout_ns = (period_ns as f64 * self.cfg.sample_timeout_periods) as u64;
         self.seq_base = None;
         self.last_seq = None;
@@ -667,6 +699,8 @@ impl Stage for SerialStage {
             peak_current_a: hello.peak_current_a.into(),
             continuous_current_a: hello.continuous_current_a.into(),
             probe_range_m: hello.probe_range_m.into(),
+            watchdog_s: (hello.watchdog_ms != u32::MAX)
+                .then(|| f64::from(hello.watchdog_ms) * 1e-3),
         })
     }
 
@@ -716,7 +750,7 @@ impl Stage for SerialStage {
             });
         }
         let w = self.queue[self.queue_head];
-        self.queue_head = (self.queue_head + 1) % BACKLOG;
+        self.queue_head = (self.queue_head + 1) % self.queue.len();
         self.queue_len -= 1;
         if self.enabled && w.flags & flags::FAULT != 0 {
             // The device latched a fault (its watchdog, a refused command)

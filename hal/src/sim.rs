@@ -626,6 +626,7 @@ impl Stage for SimStage {
             peak_current_a: self.params.actuator.peak_current_a,
             continuous_current_a: self.params.actuator.continuous_current_a,
             probe_range_m: self.params.probe.range_m,
+            watchdog_s: None,
         })
     }
 

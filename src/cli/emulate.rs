@@ -35,7 +35,8 @@ pub(super) struct EmulateArgs {
     #[arg(long, value_name = "N")]
     seed: Option<u64>,
     /// Inject a fault at device time T_S (repeatable): link faults
-    /// bitflip:BITS[xFRAMES], drop:FRAMES, delay:S, stall:S, disconnect;
+    /// bitflip:BITS[xFRAMES], drop:FRAMES, delay:S, hold:S (frames held
+    /// back once, then sent together), stall:S, disconnect;
     /// plant faults nan, frozen, jump, out_of_range. E.g. stall:0.5@2.
     #[arg(long = "fault", value_name = "KIND@T_S")]
     faults: Vec<String>,

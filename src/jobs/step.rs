@@ -718,6 +718,7 @@ mod tests {
                     i2t_peak_duration_s: 1.0,
                     period_s: 2e-4,
                     reach: crate::rt::supervisor::ReachEnvelope::NONE,
+                    watchdog_s: None,
                 });
                 sup.enabled();
                 sup.running();

@@ -4,10 +4,15 @@
 //! command is 0 A from the faulting tick on and the loop disables the
 //! amplifier in the same tick; only [`Supervisor::reset`] leaves `faulted`.
 //!
-//! Link supervision: a tick without a usable sample (timeout, corrupt
-//! frames; [`Supervisor::sample_missing`]) and a sequence gap both count
-//! missing samples; more than `max_missed_samples` (K) in a row is the
-//! `link` fault, as is a link that is gone ([`Supervisor::link_lost`]).
+//! Link supervision: a tick without a usable sample (corrupt frames;
+//! [`Supervisor::sample_missing`]) and a sequence gap both count missing
+//! samples; more than `max_missed_samples` (K) in a row is the `link`
+//! fault, as is a link that is gone ([`Supervisor::link_lost`]). A link
+//! that is merely silent (reads time out, no frame at all: a USB hiccup, a
+//! device that hangs) loses nothing yet; with the device's watchdog known
+//! it is judged by how long it has been silent, against the watchdog, the
+//! job's stall bound and the reach of the held command
+//! ([`Supervisor::link_silent`]).
 //! A tick without a sample and the gap it leaves in the sequence are the
 //! same missing samples: the count is the larger of the two, never their
 //! sum. So K corrupt frames (K bad reads, then a gap of K) and K dropped
@@ -292,6 +297,10 @@ pub fn fault_message(
         Some((bound_s, StallRule::Bound, _)) => {
             format!("{:.1} ms ({stall_source})", bound_s * 1e3)
         }
+        Some((bound_s, StallRule::Watchdog, _)) => format!(
+            "{:.1} ms (the device's watchdog: silent longer, the device is dead or has stopped the current itself)",
+            bound_s * 1e3
+        ),
         None => format!(
             "{:.1} ms ({stall_source})",
             default_periods as f64 * cfg.period_s * 1e3
@@ -344,6 +353,7 @@ pub fn fault_message(
         ),
         FaultKind::Link => match detail {
             Some(d) if value.is_nan() => d.to_string(),
+            Some(d) if stall.is_some() => format!("{d} > {}", stall_bound(cfg.max_late_commands)),
             Some(d) => format!(
                 "{d} > {} (safety.max_missed_samples, {:.1} ms)",
                 cfg.max_missed_samples,
@@ -438,6 +448,9 @@ pub enum StallRule {
     Bound,
     /// The held command could have carried x1 to the position limit.
     Reach,
+    /// The device's own watchdog time: a device silent for longer is dead
+    /// (or has stopped the current itself), the link with it.
+    Watchdog,
 }
 
 /// Supervisor limits.
@@ -470,6 +483,12 @@ pub struct SupervisorConfig {
     pub period_s: f64,
     /// How far the held command can carry x1 in a stall (the model's).
     pub reach: ReachEnvelope,
+    /// The device's watchdog time, s, when it announces one
+    /// ([`bench_hal::DeviceInfo::watchdog_s`]). With it, a read that times
+    /// out (no frame at all: the link is silent) is judged by how long the
+    /// link has been silent ([`Supervisor::link_silent`]); without it, a
+    /// timed-out read is a missing sample (K rule).
+    pub watchdog_s: Option<f64>,
 }
 
 /// The supervisor. All methods are real-time safe.
@@ -486,6 +505,9 @@ pub struct Supervisor {
     stale: u64,
     /// Consecutive missing samples (ticks without one, or a gap).
     missing: u64,
+    /// Consecutive reads that timed out on a silent link (judged by time
+    /// when the device announced its watchdog).
+    silent_reads: u64,
     /// Consecutive samples on which the device ran on a late command.
     late: u64,
     i2t_a2s: f64,
@@ -510,6 +532,7 @@ impl Supervisor {
             last_position_m: f64::NAN,
             stale: 0,
             missing: 0,
+            silent_reads: 0,
             late: 0,
             i2t_a2s: 0.0,
             i2t_budget_a2s: (cfg.peak_current_a * cfg.peak_current_a - ic2).max(0.0)
@@ -598,6 +621,7 @@ impl Supervisor {
         self.last_position_m = f64::NAN;
         self.stale = 0;
         self.missing = 0;
+        self.silent_reads = 0;
         self.late = 0;
         self.stall_bound = None;
     }
@@ -652,9 +676,49 @@ impl Supervisor {
             .then_some(FaultKind::Link)
     }
 
-    /// Consecutive missing samples so far.
+    /// Consecutive missing samples (and reads that timed out on a silent
+    /// link) so far.
     pub fn missing_samples(&self) -> u64 {
-        self.missing
+        self.missing + self.silent_reads
+    }
+
+    /// A read timed out with no frame at all: the link has been silent for
+    /// `silent_s` since the last sample (or since the job started). With a
+    /// device watchdog announced ([`SupervisorConfig::watchdog_s`]) the
+    /// silence is judged by its length, as a stall, never by a count of
+    /// timeouts: the `link` fault trips when it exceeds the smallest of
+    /// the device's watchdog (a device silent for longer is dead, or has
+    /// stopped the current itself), the job's stall bound while it drives
+    /// the stage (`running`: the device holds the last command, as in any
+    /// stall; [`StallBounds`]) and the reach of the held command. So an
+    /// open-loop chirp rides out a USB hiccup shorter than the watchdog,
+    /// and a closed loop stops exactly when the silence exceeds its delay
+    /// bound. Without a watchdog, the read counts as a missing sample
+    /// ([`Supervisor::sample_missing`]). Returns the fault if this call
+    /// tripped it; the fault's value is `silent_s`.
+    pub fn link_silent(&mut self, silent_s: f64) -> Option<FaultKind> {
+        let Some(watchdog_s) = self.cfg.watchdog_s else {
+            return self.sample_missing();
+        };
+        self.silent_reads += 1;
+        let mut bound = (watchdog_s, StallRule::Watchdog);
+        if self.state == SupervisorState::Running && self.cfg.max_late_commands != u64::MAX {
+            let b = self.cfg.max_late_commands as f64 * self.cfg.period_s;
+            if b < bound.0 {
+                bound = (b, StallRule::Bound);
+            }
+        }
+        let reach = self.reach_time_s();
+        if reach < bound.0 {
+            bound = (reach, StallRule::Reach);
+        }
+        if !(silent_s > bound.0) {
+            return None;
+        }
+        if self.state != SupervisorState::Faulted {
+            self.stall_bound = Some((bound.0, bound.1, self.last_command_a));
+        }
+        self.trip(FaultKind::Link, silent_s).then_some(FaultKind::Link)
     }
 
     /// The link is gone (disconnect, bus-off): [`FaultKind::Link`] at once.
@@ -664,13 +728,18 @@ impl Supervisor {
     }
 
     /// The one mapping from a HAL error to the supervisor's rules. A read
-    /// that times out or brings corrupt frames is a missing sample (K in a
-    /// row are tolerated); a read on a lost link (disconnect, bus-off) is
-    /// the link fault at once; any other failure of any call is the `hal`
-    /// fault, with `value` (the command in A for a write, else NaN).
+    /// that times out is a silent link ([`Supervisor::link_silent`], with
+    /// `value` the time since the last sample, s); a read that brings only
+    /// corrupt frames is a missing sample (K in a row are tolerated); a
+    /// read on a lost link (disconnect, bus-off) is the link fault at once;
+    /// any other failure of any call is the `hal` fault, with `value` (the
+    /// command in A for a write, else NaN).
     pub fn hal_error(&mut self, call: HalCall, kind: ErrorKind, value: f64) -> HalVerdict {
         match (call, kind) {
-            (HalCall::ReadSample, ErrorKind::Timeout | ErrorKind::Crc) => {
+            (HalCall::ReadSample, ErrorKind::Timeout) => HalVerdict::SampleMissing {
+                tripped: self.link_silent(value).is_some(),
+            },
+            (HalCall::ReadSample, ErrorKind::Crc) => {
                 HalVerdict::SampleMissing {
                     tripped: self.sample_missing().is_some(),
                 }
@@ -708,6 +777,7 @@ impl Supervisor {
         } else {
             self.stale = 0;
             self.missing = 0;
+            self.silent_reads = 0;
             self.last_seq = Some(s.seq);
         }
         let jump = (x - self.last_position_m).abs();
@@ -840,6 +910,7 @@ mod tests {
             i2t_peak_duration_s: 1.0,
             period_s: 2e-4,
             reach: crate::rt::supervisor::ReachEnvelope::NONE,
+            watchdog_s: None,
         }
     }
 
@@ -852,6 +923,81 @@ mod tests {
 
     fn sample(x: f64, oor: bool) -> Sample {
         seq_sample(0, x, oor)
+    }
+
+    /// A silent link (reads that time out) is judged by time when the
+    /// device announced its watchdog: the watchdog between jobs and in open
+    /// loop, the job's stall bound while running in closed loop (here 10
+    /// periods, 2 ms), never by the count of timeouts; without a watchdog,
+    /// each timeout is a missing sample (K = 3).
+    #[test]
+    fn a_silent_link_is_judged_by_how_long_it_was_silent() {
+        let timeout = |s: &mut Supervisor, silent_s: f64| {
+            s.hal_error(HalCall::ReadSample, ErrorKind::Timeout, silent_s)
+        };
+        let watchdog = SupervisorConfig {
+            watchdog_s: Some(50e-3),
+            ..config()
+        };
+        // Idle (disabled): only the watchdog; many timeouts below it are fine.
+        let mut s = Supervisor::new(watchdog);
+        for i in 1..=9 {
+            assert_eq!(
+                timeout(&mut s, f64::from(i) * 5e-3),
+                HalVerdict::SampleMissing { tripped: false }
+            );
+        }
+        assert_eq!(
+            timeout(&mut s, 50.1e-3),
+            HalVerdict::SampleMissing { tripped: true }
+        );
+        assert_eq!(s.fault(), Some((FaultKind::Link, 50.1e-3)));
+        assert_eq!(s.stall_bound().map(|b| b.1), Some(StallRule::Watchdog));
+        // A sample ends the silence: the count starts again.
+        let mut s = Supervisor::new(watchdog);
+        timeout(&mut s, 40e-3);
+        assert_eq!(s.check_sample(&seq_sample(1, 0.0, false)), None);
+        assert_eq!(
+            timeout(&mut s, 40e-3),
+            HalVerdict::SampleMissing { tripped: false }
+        );
+        // Running under a closed loop's bound of 10 periods (2 ms).
+        let mut s = Supervisor::new(watchdog);
+        s.enabled();
+        s.running();
+        assert_eq!(
+            timeout(&mut s, 2e-3),
+            HalVerdict::SampleMissing { tripped: false }
+        );
+        assert_eq!(
+            timeout(&mut s, 2.1e-3),
+            HalVerdict::SampleMissing { tripped: true }
+        );
+        assert_eq!(s.stall_bound().map(|b| (b.0, b.1)), Some((2e-3, StallRule::Bound)));
+        // Open loop (no bound): the watchdog.
+        let mut s = Supervisor::new(SupervisorConfig {
+            max_late_commands: u64::MAX,
+            ..watchdog
+        });
+        s.enabled();
+        s.running();
+        assert_eq!(
+            timeout(&mut s, 45e-3),
+            HalVerdict::SampleMissing { tripped: false }
+        );
+        // No watchdog: the fourth timeout in a row is K + 1 missing samples.
+        let mut s = sup();
+        for _ in 0..3 {
+            assert_eq!(
+                timeout(&mut s, 1e-3),
+                HalVerdict::SampleMissing { tripped: false }
+            );
+        }
+        assert_eq!(
+            timeout(&mut s, 1e-3),
+            HalVerdict::SampleMissing { tripped: true }
+        );
+        assert_eq!(s.fault(), Some((FaultKind::Link, 4.0)));
     }
 
     fn seq_sample(seq: u64, x: f64, oor: bool) -> Sample {

@@ -272,6 +272,10 @@ impl<E: std::fmt::Display> RawStop<E> {
             } => {
                 let detail = match (kind, link_error) {
                     (FaultKind::Link, Some(e)) if value.is_nan() => Some(format!("link lost: {e}")),
+                    (FaultKind::Link, Some(e)) if stall.is_some() => Some(format!(
+                        "no sample for {:.1} ms (last: {e})",
+                        value * 1e3
+                    )),
                     (FaultKind::Link, Some(e)) => Some(format!(
                         "{value} consecutive samples missing or corrupt (last: {e})"
                     )),
@@ -618,6 +622,9 @@ pub struct Loop<'s, S: Stage> {
     hal_error: Option<HalFailure<S::Error>>,
     /// The latest bad-sample or lost-link error.
     link_error: Option<S::Error>,
+    /// When the last sample was read (or the job started), monotonic ns:
+    /// how long the link has been silent when a read times out.
+    last_sample_ns: u64,
     /// Real-time setup warnings.
     warnings: Vec<String>,
     /// Where the last reading and command are published (m and A, as
@@ -680,6 +687,7 @@ impl<'s, S: Stage> Loop<'s, S> {
             last_good: None,
             hal_error: None,
             link_error: None,
+            last_sample_ns: now_ns(),
             warnings,
             published: None,
             total: TickTiming::default(),
@@ -780,12 +788,21 @@ impl<'s, S: Stage> Loop<'s, S> {
     }
 
     /// Step 2: reads the sample; a failure goes to the supervisor's HAL
-    /// rule.
+    /// rule (a timed-out read with how long the link has been silent, s).
     #[inline]
     pub fn read(&mut self) -> Read {
-        match self.stage.read_sample() {
-            Ok(s) => Read::Sample(s),
-            Err(e) => match self.sup.hal_error(HalCall::ReadSample, e.kind(), f64::NAN) {
+        let read = self.stage.read_sample();
+        let now = now_ns();
+        match read {
+            Ok(s) => {
+                self.last_sample_ns = now;
+                Read::Sample(s)
+            }
+            Err(e) => match self.sup.hal_error(
+                HalCall::ReadSample,
+                e.kind(),
+                now.saturating_sub(self.last_sample_ns) as f64 * 1e-9,
+            ) {
                 HalVerdict::SampleMissing { tripped } => {
                     self.link_error = Some(e);
                     Read::Missing { fault: tripped }
@@ -1092,6 +1109,7 @@ impl<'s, S: Stage> Loop<'s, S> {
         let mut cur = self.cursor();
         self.hal_error = None;
         self.link_error = None;
+        self.last_sample_ns = now_ns();
         em.event(0, 0.0, EventKind::LoopStarted, &self.sup, f64::NAN);
         let mut stop_reason = match self.enable() {
             Ok(()) => None,
@@ -1379,6 +1397,7 @@ mod tests {
                 i2t_peak_duration_s: 1.0,
                 period_s: 2e-4,
                 reach: crate::rt::supervisor::ReachEnvelope::NONE,
+                watchdog_s: None,
             },
             max_ticks: 1000,
         }

@@ -48,6 +48,8 @@ struct Faults {
     drop_left: u32,
     flip_left: u32,
     delay_ns: u64,
+    /// Outgoing frames are held until then (a `hold` fault), monotonic ns.
+    hold_until_ns: u64,
     stall_until_ns: Option<u64>,
     disconnected: bool,
 }
@@ -93,12 +95,14 @@ impl Emulator<'_> {
 
     /// Sends through the delay line.
     fn emit(&mut self, frame: libc::can_frame, now: u64) -> Result<bool, CanError> {
-        if self.faults.delay_ns > 0 {
+        if self.faults.delay_ns > 0 || now < self.faults.hold_until_ns || !self.delayed.is_empty()
+        {
             let t = self
                 .delayed
                 .back()
                 .map_or(0, |(t, _)| *t)
-                .max(now + self.faults.delay_ns);
+                .max(now + self.faults.delay_ns)
+                .max(self.faults.hold_until_ns);
             self.delayed.push_back((t, frame));
             Ok(true)
         } else {
@@ -111,6 +115,9 @@ impl Emulator<'_> {
             LinkFault::BitFlips { frames, .. } => self.faults.flip_left += frames,
             LinkFault::Drop { frames } => self.faults.drop_left += frames,
             LinkFault::Delay { delay_s } => self.faults.delay_ns = (delay_s * 1e9) as u64,
+            LinkFault::Hold { duration_s } => {
+                self.faults.hold_until_ns = now + (duration_s * 1e9) as u64;
+            }
             LinkFault::Stall { duration_s } => {
                 self.faults.stall_until_ns = Some(now + (duration_s * 1e9) as u64);
             }

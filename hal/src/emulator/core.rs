@@ -252,6 +252,13 @@ pub enum LinkFault {
         /// Added latency, s.
         delay_s: f64,
     },
+    /// Hold every outgoing frame back for this long, once, then send them
+    /// together (a USB or driver hiccup): the device keeps sampling, and
+    /// its watchdog keeps running on the commands that do not come, s.
+    Hold {
+        /// Length of the hold, s.
+        duration_s: f64,
+    },
     /// Stop sampling and sending for this long (the device hangs), s. The
     /// watchdog does not run while stalled, as on a hung microcontroller.
     Stall {
@@ -265,7 +272,7 @@ pub enum LinkFault {
 
 impl LinkFault {
     /// Parses `bitflip:BITS[xFRAMES]`, `drop:FRAMES`, `delay:SECONDS`,
-    /// `stall:SECONDS`, `disconnect`.
+    /// `hold:SECONDS`, `stall:SECONDS`, `disconnect`.
     ///
     /// # Errors
     /// A message naming the part that does not parse.
@@ -298,12 +305,15 @@ impl LinkFault {
             "delay" => Ok(Self::Delay {
                 delay_s: num("delay")?,
             }),
+            "hold" => Ok(Self::Hold {
+                duration_s: num("duration")?,
+            }),
             "stall" => Ok(Self::Stall {
                 duration_s: num("duration")?,
             }),
             "disconnect" if arg.is_empty() => Ok(Self::Disconnect),
             _ => Err(format!(
-                "unknown link fault `{s}` (expected bitflip:BITS[xFRAMES], drop:FRAMES, delay:S, stall:S or disconnect)"
+                "unknown link fault `{s}` (expected bitflip:BITS[xFRAMES], drop:FRAMES, delay:S, hold:S, stall:S or disconnect)"
             )),
         }
     }

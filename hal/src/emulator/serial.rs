@@ -119,6 +119,8 @@ struct Link {
     reader: FrameReader,
     delayed: VecDeque<(u64, [u8; MAX_FRAME], usize)>,
     delay_ns: u64,
+    /// Outgoing frames are held until then (a `hold` fault), monotonic ns.
+    hold_until_ns: u64,
     flip_bits: u32,
     flip_frames: u32,
     drop_frames: u32,
@@ -149,8 +151,9 @@ impl Link {
                 frame[bit / 8] ^= 1 << (bit % 8);
             }
         }
-        if self.delay_ns > 0 || !self.delayed.is_empty() {
-            self.delayed.push_back((now + self.delay_ns, frame, n));
+        if self.delay_ns > 0 || now < self.hold_until_ns || !self.delayed.is_empty() {
+            let at = (now + self.delay_ns).max(self.hold_until_ns);
+            self.delayed.push_back((at, frame, n));
         } else {
             self.write_now(&frame[..n]);
         }
@@ -217,6 +220,7 @@ pub fn run(
         reader: FrameReader::new(),
         delayed: VecDeque::new(),
         delay_ns: 0,
+        hold_until_ns: 0,
         flip_bits: 0,
         flip_frames: 0,
         drop_frames: 0,
@@ -366,6 +370,9 @@ pub fn run(
                 }
                 LinkFault::Drop { frames } => link.drop_frames = frames,
                 LinkFault::Delay { delay_s } => link.delay_ns = (delay_s * 1e9) as u64,
+                LinkFault::Hold { duration_s } => {
+                    link.hold_until_ns = now + (duration_s * 1e9) as u64;
+                }
                 LinkFault::Stall { duration_s } => {
                     stalled_until = now + (duration_s * 1e9) as u64;
                 }
