@@ -131,7 +131,7 @@ fn sustained(rate_hz: f64) {
 fn main() {
     // The host side as `bench` runs it: SCHED_FIFO 80 and mlockall (when
     // permitted); the emulator thread at 70.
-    for w in bench::rt::make_realtime(80, None) {
+    for w in bench_hal::os::make_realtime(80, None) {
         println!("warning: {w}");
     }
     round_trip();

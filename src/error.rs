@@ -1,8 +1,10 @@
 //! How a run ends when it does not produce a summary: one error type for
 //! every job, mapped to exit statuses by the CLI and to error kinds by the
 //! daemon.
+//!
+//! Layer rule: may use nothing of the crate.
 
-use crate::record::RecordError;
+use std::io;
 use std::path::PathBuf;
 
 /// Why a run did not produce a summary.
@@ -182,4 +184,71 @@ pub fn error_chain(e: &dyn std::error::Error) -> String {
         cur = c.source();
     }
     text
+}
+
+/// Errors of the recorder.
+#[derive(Debug, thiserror::Error)]
+pub enum RecordError {
+    /// The recording file could not be created (directory missing, not
+    /// writable, …).
+    #[error(
+        "cannot create recording file {} (in directory {}): {source}",
+        path.display(),
+        dir.display()
+    )]
+    Create {
+        /// The file that could not be created (the `.part` file).
+        path: PathBuf,
+        /// Its directory.
+        dir: PathBuf,
+        /// The OS reason.
+        source: io::Error,
+    },
+    /// Writing, flushing or syncing the recording failed.
+    #[error("I/O error on recording {}: {source}", path.display())]
+    Io {
+        /// The file being written.
+        path: PathBuf,
+        /// The OS reason.
+        source: io::Error,
+    },
+    /// The mcap writer reported an error.
+    #[error("MCAP error on recording {}: {source}", path.display())]
+    Mcap {
+        /// The file being written.
+        path: PathBuf,
+        /// The mcap crate's error.
+        source: mcap::McapError,
+    },
+    /// Renaming the finished `.part` file to its final name failed.
+    #[error("cannot rename {} to {}: {source}", from.display(), to.display())]
+    Rename {
+        /// The `.part` file.
+        from: PathBuf,
+        /// The final path.
+        to: PathBuf,
+        /// The OS reason.
+        source: io::Error,
+    },
+    /// A message could not be serialized to JSON.
+    #[error("cannot serialize message to JSON: {0}")]
+    Json(#[from] serde_json::Error),
+    /// A [`Channel`] that this recorder did not hand out.
+    #[error("unknown channel handle {0}")]
+    UnknownChannel(usize),
+    /// The arrays given to [`Recorder::write_frf`] differ in length.
+    #[error(
+        "FRF arrays differ in length: frequency {frequency}, magnitude {magnitude}, \
+         phase {phase}, coherence {coherence}"
+    )]
+    FrfLength {
+        /// Length of `frequency_hz`.
+        frequency: usize,
+        /// Length of `magnitude_m_per_a`.
+        magnitude: usize,
+        /// Length of `phase_deg`.
+        phase: usize,
+        /// Length of `coherence`.
+        coherence: usize,
+    },
 }

@@ -24,3 +24,4 @@ pub mod plot;
 pub mod record;
 pub mod rt;
 pub mod splitmix;
+pub mod vocab;

@@ -14,6 +14,8 @@
 //!
 //! The server binds to loopback by default ([`DEFAULT_ADDR`]); another
 //! address only when given explicitly ([`parse_addr`]).
+//!
+//! Layer rule: may use nothing of the crate.
 
 use std::net::{IpAddr, SocketAddr};
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -108,7 +110,7 @@ impl LiveServer {
         let thread = std::thread::Builder::new()
             .name("bench-live".into())
             .spawn(move || {
-                keep_off(loop_cpu);
+                bench_hal::os::keep_off_cpu(loop_cpu);
                 // Drives the server's tasks until shutdown.
                 let _ = rt.block_on(rx);
             })
@@ -165,24 +167,6 @@ impl Drop for LiveServer {
         }
         if let Some(t) = self.thread.take() {
             let _ = t.join();
-        }
-    }
-}
-
-/// Lowers the calling thread's priority (nice 10) and, on a machine with
-/// more than one CPU, keeps it off `cpu`. Best effort: a refusal leaves
-/// the thread as it was.
-fn keep_off(cpu: Option<usize>) {
-    // SAFETY: plain syscalls on the calling thread with valid arguments.
-    unsafe {
-        libc::setpriority(libc::PRIO_PROCESS, 0, 10);
-        let online = libc::sysconf(libc::_SC_NPROCESSORS_ONLN);
-        if let (Some(cpu), true) = (cpu, online > 1) {
-            let mut set: libc::cpu_set_t = std::mem::zeroed();
-            for c in (0..online as usize).filter(|c| *c != cpu) {
-                libc::CPU_SET(c, &mut set);
-            }
-            libc::sched_setaffinity(0, std::mem::size_of::<libc::cpu_set_t>(), &set);
         }
     }
 }

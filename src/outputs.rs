@@ -54,9 +54,10 @@
 //! with a device node in that window) is refused again by [`commit`], but
 //! an attacker who can write the output directory can always race a rename.
 //! Output directories should not be writable by untrusted users.
+//!
+//! Layer rule: may use `error`.
 
 use crate::error::RunError;
-use crate::record::part_path_for;
 use std::ffi::OsString;
 use std::fs::{self, File, OpenOptions};
 use std::io;
@@ -64,6 +65,16 @@ use std::os::unix::ffi::OsStrExt;
 use std::os::unix::fs::{FileTypeExt, OpenOptionsExt};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
+
+/// Suffix appended to the final file name while it is written.
+pub const PART_SUFFIX: &str = ".part";
+
+/// `<final_path>.part`: where a file is written until it is complete.
+pub fn part_path_for(final_path: &Path) -> PathBuf {
+    let mut s = final_path.as_os_str().to_owned();
+    s.push(PART_SUFFIX);
+    PathBuf::from(s)
+}
 
 /// Mode of every file `bench` creates (recordings, `.part` files, FRF CSVs,
 /// plots, the daemon's event log), before the umask: `rw-r-----`.

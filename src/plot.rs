@@ -31,6 +31,8 @@
 //! reader never sees a half-written PNG, and an existing file is replaced
 //! only with [`Existing::Replace`] (`--overwrite`), never when it is not a
 //! regular file.
+//!
+//! Layer rule: may use `analysis`, `config`, `control`, `ident`, `outputs`.
 
 use std::error::Error as StdError;
 use std::io;

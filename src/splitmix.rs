@@ -2,6 +2,8 @@
 //! generators", OOPSLA 2014): the one mixing function behind the
 //! campaign's per-cell seeds and the residue test's fixed draws, where a
 //! stream must be reproducible from a `u64` without a generator's state.
+//!
+//! Layer rule: may use nothing of the crate.
 
 /// The SplitMix64 output for state `z`: `z + γ` (γ = 0x9e37_79b9_7f4a_7c15,
 /// the golden-ratio increment) through the two xor-shift-multiply rounds.

@@ -486,7 +486,10 @@ fn a_silent_serial_link_between_jobs_never_latches() {
     let t0 = std::time::Instant::now();
     while t0.elapsed() < Duration::from_secs(3) {
         let st = c.call("status", json!({}))["result"].clone();
-        assert_ne!(st["state"], "faulted", "latched a hiccup between jobs: {st}");
+        assert_ne!(
+            st["state"], "faulted",
+            "latched a hiccup between jobs: {st}"
+        );
         std::thread::sleep(Duration::from_millis(100));
     }
     let r = c.call("chirp", json!({ "duration_s": 0.5 }));

@@ -38,9 +38,9 @@
 #![warn(missing_docs)]
 
 pub mod can;
-pub mod clock;
 pub mod emulator;
 pub mod model;
+pub mod os;
 pub mod protocol;
 pub mod serial;
 pub mod sim;

@@ -42,7 +42,7 @@
 //! whose content is intact but whose own delimiter was hit is still lost
 //! (it is the corrupt one).
 
-use crate::clock::monotonic_ns;
+use crate::os::monotonic_ns;
 use crate::protocol::{
     self, flags, DeviceHello, DeviceMessage, FrameError, HostMessage, WireSample, WireStatus,
     INVALID_POSITION, MAX_FRAME,

@@ -6,6 +6,8 @@
 //! Everything here is computed from a [`bench_hal::model::Sr4dof`], so it
 //! works for any bench a config describes. `bench analyze` and `bench map`
 //! print it; the fit, the campaign and a controller designer reuse it.
+//!
+//! Layer rule: may use `config`.
 
 pub mod map;
 pub mod modal;

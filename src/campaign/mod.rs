@@ -8,6 +8,8 @@
 //! - [`journal`]: the append-only, fsync'd, checksummed journal that makes
 //!   a campaign survive SIGKILL and power loss without losing a completed
 //!   cell or counting a half-finished one.
+//!
+//! Layer rule: may use `analysis`, `config`, `daemon`, `jobs`, `outputs`, `rt`, `splitmix`.
 
 pub mod file;
 pub mod journal;

@@ -209,7 +209,7 @@ pub(super) fn emulate(cmd: EmulateCommand, stop: Arc<AtomicBool>) -> ExitCode {
                 .name("bench-emulator".into())
                 .spawn(move || {
                     if let Some(p) = priority {
-                        bench::rt::make_realtime(p, None);
+                        bench_hal::os::make_realtime(p, None);
                     }
                     bench_hal::emulator::can::run_emulator(sock, &ccfg, core, &link_faults, &s, &st)
                 })

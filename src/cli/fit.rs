@@ -327,7 +327,7 @@ pub(super) fn fit(a: FitArgs) -> ExitCode {
         Err(e) => return bad_input(format!("{input}: {e}")),
     };
     let (frf, recorded_config) = if is_recording(&input_path) {
-        match bench::record::read_frf(&bytes) {
+        match bench::ident::frf::read_frf(&bytes) {
             Ok(r) => (r.frf, r.config_toml),
             Err(e) => return bad_input(format!("{input}: {e}")),
         }

@@ -5,35 +5,11 @@
 //! the tick.
 
 use super::design::{sections, ContinuousSection};
+use super::Discretization;
 use super::{Biquad, ControllerConfig, MAX_SECTIONS};
 use nalgebra::{Complex, DMatrix};
 use serde::{Deserialize, Serialize};
 use std::f64::consts::PI;
-
-/// How the continuous controller becomes the discrete one
-/// (`discretization` key; see the module docs).
-#[derive(
-    Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, schemars::JsonSchema,
-)]
-#[serde(rename_all = "snake_case")]
-pub enum Discretization {
-    /// Tustin per section, pre-warped at the section's critical frequency.
-    #[default]
-    Tustin,
-    /// Poles matched (`z = e^{sT}`), numerators fitted by weighted least
-    /// squares to the continuous response up to f_s/10.
-    LeastSquares,
-}
-
-impl Discretization {
-    /// The config spelling.
-    pub fn as_str(self) -> &'static str {
-        match self {
-            Self::Tustin => "tustin",
-            Self::LeastSquares => "least_squares",
-        }
-    }
-}
 
 /// How closely the discrete controller follows the continuous design:
 /// the largest error of `C_d(e^{jωT}) / C(jω)` from 0.1 Hz to

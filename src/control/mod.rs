@@ -83,12 +83,17 @@
 //! wind up while the amplifier saturates. The controller starts from zero
 //! state with the setpoint at the measured position, so the first command
 //! is 0 A.
+//!
+//! Layer rule: may use `config`, `error`, `ident`.
 
 mod design;
 mod discretize;
 pub mod loop_check;
 mod section;
 
-pub use design::{ComplexPair, ControllerConfig, ControllerError, ErrorUnit, Form, MAX_SECTIONS};
-pub use discretize::{Discretization, DiscretizationReport};
+pub use crate::config::controller::{
+    ComplexPair, ControllerConfig, ControllerError, Discretization, ErrorUnit, Form, CORNER_RAD_S,
+    GAIN_ABS, MAX_INTEGRATORS, MAX_SECTIONS, ZETA,
+};
+pub use discretize::DiscretizationReport;
 pub use section::{Biquad, DiscreteController};

@@ -11,7 +11,7 @@
 //! runtime serving JSON lines on a Unix domain socket; it talks to the
 //! owner through a channel, so nothing on it can block the loop. The wire
 //! format lives in `protocol.rs`, the client of `--daemon` in [`client`].
-//! This folder may use `rt`, `jobs` and `config`; the CLI uses it.
+//! The CLI uses it (its layer rule is at the end of this header).
 //!
 //! # Protocol
 //!
@@ -55,6 +55,8 @@
 //! or a write to it fails; one that only shut down its sending side (end
 //! of input, as `socat` does) still gets its job's events and answer, and
 //! the daemon closes the connection once everything is answered.
+//!
+//! Layer rule: may use `analysis`, `config`, `control`, `error`, `ident`, `jobs`, `outputs`, `plot`, `record`, `rt`, `vocab`.
 
 pub mod client;
 mod owner;

@@ -27,7 +27,7 @@
 //! so the record's memory is the whole of the estimate's memory: 16 bytes a
 //! tick at the peak, `32·k_max / M` after.
 
-use crate::ident::frf::C64;
+use super::C64;
 use rustfft::FftPlanner;
 use std::f64::consts::PI;
 

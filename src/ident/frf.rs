@@ -31,14 +31,13 @@
 
 use crate::config::IdentificationConfig;
 use crate::ident::fft::PackedSpectrum;
-use nalgebra::Complex;
 use serde::{Deserialize, Serialize};
 use std::f64::consts::PI;
 use std::io::Write;
 use std::path::Path;
 
 /// Complex number type used for spectra.
-pub type C64 = Complex<f64>;
+pub use super::C64;
 
 /// The spectra of one record, ready to be averaged at any frequency up to
 /// the one it was made for.
@@ -576,6 +575,113 @@ pub struct PairVerdict {
 /// Largest ratio between two adjacent resonances for them to count as a
 /// closely spaced pair.
 pub const CLOSE_PAIR_RATIO: f64 = 1.25;
+
+/// The FRF and the bench config a `bench chirp` recording holds.
+#[derive(Debug, Clone)]
+pub struct RecordedFrf {
+    /// `/sysid/frf` (the last one if several).
+    pub frf: Frf,
+    /// The `toml` entry of the `bench.config` metadata record, if present.
+    pub config_toml: Option<String>,
+}
+
+/// Reads the `/sysid/frf` message and the `bench.config` metadata of the
+/// recording in `bytes` (complete, or the `.part` of a killed run).
+///
+/// # Errors
+/// The reason: not a readable MCAP, no `/sysid/frf` channel (with the
+/// topics it has), or a `/sysid/frf` payload that is not an FRF (naming
+/// the field).
+pub fn read_frf(bytes: &[u8]) -> Result<RecordedFrf, String> {
+    #[derive(serde::Deserialize)]
+    struct Payload {
+        frequency_hz: Vec<f64>,
+        magnitude_m_per_a: Vec<f64>,
+        phase_deg: Vec<f64>,
+        coherence: Vec<f64>,
+    }
+    let read = crate::record::read_messages_tolerant(bytes);
+    if read.messages.is_empty() {
+        return Err(match read.error {
+            Some(e) => format!("not a readable MCAP recording: {e}"),
+            None => "no messages: an empty recording".into(),
+        });
+    }
+    let Some(msg) = read
+        .messages
+        .iter()
+        .rev()
+        .find(|m| m.channel.topic == crate::record::TOPIC_FRF)
+    else {
+        let mut topics: Vec<&str> = read
+            .messages
+            .iter()
+            .map(|m| m.channel.topic.as_str())
+            .collect();
+        topics.sort();
+        topics.dedup();
+        return Err(format!(
+            "no {} channel (a bench chirp recording has one; this one has {})",
+            crate::record::TOPIC_FRF,
+            topics.join(", ")
+        ));
+    };
+    let p: Payload = serde_json::from_slice(&msg.data).map_err(|e| {
+        format!(
+            "{}: the payload is not an FRF: {e}",
+            crate::record::TOPIC_FRF
+        )
+    })?;
+    let n = p.frequency_hz.len();
+    for (name, len) in [
+        ("magnitude_m_per_a", p.magnitude_m_per_a.len()),
+        ("phase_deg", p.phase_deg.len()),
+        ("coherence", p.coherence.len()),
+    ] {
+        if len != n {
+            return Err(format!(
+                "{}: {name} has {len} values for {n} frequencies",
+                crate::record::TOPIC_FRF
+            ));
+        }
+    }
+    let mut frf = Frf {
+        frequency_hz: Vec::with_capacity(n),
+        magnitude_m_per_a: Vec::with_capacity(n),
+        phase_deg: Vec::with_capacity(n),
+        coherence: Vec::with_capacity(n),
+    };
+    for k in 0..n {
+        frf.push_checked([
+            p.frequency_hz[k],
+            p.magnitude_m_per_a[k],
+            p.phase_deg[k],
+            p.coherence[k],
+        ])
+        .map_err(|e| format!("{}: point {}: {e}", crate::record::TOPIC_FRF, k + 1))?;
+    }
+    if n < MIN_CSV_POINTS {
+        return Err(format!(
+            "{}: {n} points; an FRF needs at least {}",
+            crate::record::TOPIC_FRF,
+            MIN_CSV_POINTS
+        ));
+    }
+    let config_toml = mcap::read::LinearReader::new_with_options(
+        bytes,
+        mcap::read::Options::IgnoreEndMagic.into(),
+    )
+    .ok()
+    .and_then(|r| {
+        r.filter_map(Result::ok).find_map(|rec| match rec {
+            mcap::records::Record::Metadata(m) if m.name == "bench.config" => {
+                m.metadata.get("toml").cloned()
+            }
+            _ => None,
+        })
+    });
+    Ok(RecordedFrf { frf, config_toml })
+}
 
 #[cfg(test)]
 mod tests {

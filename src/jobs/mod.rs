@@ -2,8 +2,9 @@
 //! [`crate::rt::Job`] on a stage into a recording; [`chirp`] and [`step`]
 //! are the identification and closed-loop step jobs built on it.
 //!
-//! May use everything below it (`rt`, `ident`, `control`, `record`, `plot`,
-//! `config`); never the CLI or the daemon.
+//! May use everything below it; never the CLI, the daemon or a campaign.
+//!
+//! Layer rule: may use `analysis`, `config`, `control`, `error`, `ident`, `outputs`, `plot`, `record`, `rt`, `vocab`.
 
 pub mod chirp;
 pub mod request;

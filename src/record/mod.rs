@@ -5,7 +5,7 @@
 //! writer ([`Recorder`], [`spawn_writer`]) serialises them on its own thread;
 //! the reader ([`read_messages_tolerant`], [`read_samples_tolerant`]) reads
 //! recordings back, also cut ones; [`schema_of`] generates each channel's
-//! JSON Schema. Uses nothing of the crate outside this folder.
+//! JSON Schema. [`queue`] is the wait-free queue from the tick to the writer.
 //!
 //! # Topics
 //!
@@ -93,9 +93,12 @@
 //! run loses at most about 100 ms of wall time's records. Flushing hands the
 //! bytes to the OS (survives a killed process); only `finish` fsyncs
 //! (survives power loss).
+//!
+//! Layer rule: may use `error`, `live`, `outputs`, `vocab`.
 
 pub mod export;
 pub mod proto;
+pub mod queue;
 mod reader;
 pub mod recover;
 pub mod salvage;
@@ -103,15 +106,13 @@ mod schema;
 pub mod topics;
 mod writer;
 
+pub use crate::error::RecordError;
+pub use crate::outputs::{part_path_for, PART_SUFFIX};
 pub use reader::{
-    decode_sample, decode_samples, read_frf, read_messages_tolerant, read_samples_tolerant,
-    RecordedFrf, TolerantRead,
+    decode_sample, decode_samples, read_messages_tolerant, read_samples_tolerant, TolerantRead,
 };
 pub use schema::{nan_if_null, schema_of};
-pub use writer::{
-    log_time_ns, part_path_for, spawn_writer, Channel, ChunkPolicy, RecordError, Recorder,
-    WriterStats, PART_SUFFIX,
-};
+pub use writer::{log_time_ns, spawn_writer, Channel, ChunkPolicy, Recorder, WriterStats};
 
 /// Topic of the per-tick samples.
 pub const TOPIC_SAMPLE: &str = "/bench/sample";

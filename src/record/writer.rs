@@ -16,9 +16,12 @@ use mcap::records::MessageHeader;
 use schemars::JsonSchema;
 use serde::Serialize;
 
+use crate::error::RecordError;
+use crate::outputs::part_path_for;
 use crate::record::proto::{
     self, Envelope, EnvelopeBuilder, SampleBlock, BLOCK_TICKS, SCHEMA_ENVELOPE, SCHEMA_SAMPLE_BLOCK,
 };
+use crate::record::queue::QueueRoom;
 use crate::record::schema_of;
 use crate::record::topics::{
     EventKind, EventRecord, FaultKind, FoxgloveLog, Record, SupervisorState, TimingRecord,
@@ -27,7 +30,6 @@ use crate::record::{
     SCHEMA_EVENT, SCHEMA_FRF, SCHEMA_LOG, SCHEMA_TIMING, TOPIC_ENVELOPE, TOPIC_EVENT, TOPIC_FRF,
     TOPIC_LOG, TOPIC_SAMPLE, TOPIC_TIMING,
 };
-use crate::rt::QueueRoom;
 
 /// When [`spawn_writer`] closes and flushes a chunk: once `wall` of wall
 /// time, or `loop_time` of log (loop) time, has passed since the last
@@ -64,82 +66,12 @@ impl ChunkPolicy {
 /// read stays off the per-record cost.
 const WALL_CHECK_RECORDS: u64 = 32;
 
-/// Suffix appended to the final file name while recording.
-pub const PART_SUFFIX: &str = ".part";
-
 /// Size of the buffer between the mcap writer and the file, bytes.
 const FILE_BUFFER_BYTES: usize = 64 * 1024;
 
 /// Largest number of records taken from the queue in one batch by the writer
 /// thread (slots are released to the producer after each batch).
 const MAX_BATCH: usize = 1024;
-
-/// Errors of the recorder.
-#[derive(Debug, thiserror::Error)]
-pub enum RecordError {
-    /// The recording file could not be created (directory missing, not
-    /// writable, …).
-    #[error(
-        "cannot create recording file {} (in directory {}): {source}",
-        path.display(),
-        dir.display()
-    )]
-    Create {
-        /// The file that could not be created (the `.part` file).
-        path: PathBuf,
-        /// Its directory.
-        dir: PathBuf,
-        /// The OS reason.
-        source: io::Error,
-    },
-    /// Writing, flushing or syncing the recording failed.
-    #[error("I/O error on recording {}: {source}", path.display())]
-    Io {
-        /// The file being written.
-        path: PathBuf,
-        /// The OS reason.
-        source: io::Error,
-    },
-    /// The mcap writer reported an error.
-    #[error("MCAP error on recording {}: {source}", path.display())]
-    Mcap {
-        /// The file being written.
-        path: PathBuf,
-        /// The mcap crate's error.
-        source: mcap::McapError,
-    },
-    /// Renaming the finished `.part` file to its final name failed.
-    #[error("cannot rename {} to {}: {source}", from.display(), to.display())]
-    Rename {
-        /// The `.part` file.
-        from: PathBuf,
-        /// The final path.
-        to: PathBuf,
-        /// The OS reason.
-        source: io::Error,
-    },
-    /// A message could not be serialized to JSON.
-    #[error("cannot serialize message to JSON: {0}")]
-    Json(#[from] serde_json::Error),
-    /// A [`Channel`] that this recorder did not hand out.
-    #[error("unknown channel handle {0}")]
-    UnknownChannel(usize),
-    /// The arrays given to [`Recorder::write_frf`] differ in length.
-    #[error(
-        "FRF arrays differ in length: frequency {frequency}, magnitude {magnitude}, \
-         phase {phase}, coherence {coherence}"
-    )]
-    FrfLength {
-        /// Length of `frequency_hz`.
-        frequency: usize,
-        /// Length of `magnitude_m_per_a`.
-        magnitude: usize,
-        /// Length of `phase_deg`.
-        phase: usize,
-        /// Length of `coherence`.
-        coherence: usize,
-    },
-}
 
 /// A channel of one [`Recorder`] whose messages are `T` and whose schema
 /// was generated from `T` (returned by [`Recorder::add_channel_for`],
@@ -234,13 +166,6 @@ impl std::fmt::Debug for Recorder {
 pub fn log_time_ns(t_s: f64) -> u64 {
     // `as` from f64 to u64 saturates and maps NaN to 0.
     (t_s * 1e9).round() as u64
-}
-
-/// `<final_path>.part`.
-pub fn part_path_for(final_path: &Path) -> PathBuf {
-    let mut s = final_path.as_os_str().to_owned();
-    s.push(PART_SUFFIX);
-    PathBuf::from(s)
 }
 
 /// The identified frequency response current → position (`/sysid/frf`):
@@ -900,7 +825,7 @@ where
             if let Some(p) = priority {
                 // The loop's own setup (mlockall is process-wide: again is
                 // a no-op); not permitted, the writer runs normally.
-                for w in crate::rt::make_realtime(p, None) {
+                for w in bench_hal::os::make_realtime(p, None) {
                     tracing::debug!("bench-writer: {w}");
                 }
             }

@@ -9,9 +9,9 @@
 //! stop flag arrive boxed ([`JobTicket`]) and go back boxed, to be dropped
 //! off the real-time thread; errors come back unformatted.
 
-use crate::record::topics::{FaultKind, SupervisorState};
 use crate::rt::backend::{AnyError, AnyStage, LinkCounters};
 use crate::rt::{HalFailure, HoldJob, Job, JobEnd, Loop, LoopOptions};
+use crate::vocab::{FaultKind, SupervisorState};
 use bench_hal::sim::ScheduledFault;
 use bench_hal::Clock;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};

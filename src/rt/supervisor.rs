@@ -1,4 +1,4 @@
-//! The safety supervisor that runs on every tick (README, *Safety*).
+//! The safety supervisor that runs on every tick (README, *Safety: limits and stalls*).
 //!
 //! States: `disabled → enabled → running → faulted`. A fault latches: the
 //! command is 0 A from the faulting tick on and the loop disables the
@@ -42,7 +42,7 @@
 //! current may flow for `t_peak`, and any current at or below the continuous
 //! rating may flow for ever.
 
-use crate::record::topics::{FaultKind, SupervisorState};
+use crate::vocab::{FaultKind, SupervisorState};
 use bench_hal::{ErrorKind, Sample};
 
 /// The HAL call that failed (see [`Supervisor::hal_error`]).
@@ -718,7 +718,8 @@ impl Supervisor {
         if self.state != SupervisorState::Faulted {
             self.stall_bound = Some((bound.0, bound.1, self.last_command_a));
         }
-        self.trip(FaultKind::Link, silent_s).then_some(FaultKind::Link)
+        self.trip(FaultKind::Link, silent_s)
+            .then_some(FaultKind::Link)
     }
 
     /// The link is gone (disconnect, bus-off): [`FaultKind::Link`] at once.
@@ -739,11 +740,9 @@ impl Supervisor {
             (HalCall::ReadSample, ErrorKind::Timeout) => HalVerdict::SampleMissing {
                 tripped: self.link_silent(value).is_some(),
             },
-            (HalCall::ReadSample, ErrorKind::Crc) => {
-                HalVerdict::SampleMissing {
-                    tripped: self.sample_missing().is_some(),
-                }
-            }
+            (HalCall::ReadSample, ErrorKind::Crc) => HalVerdict::SampleMissing {
+                tripped: self.sample_missing().is_some(),
+            },
             (HalCall::ReadSample, ErrorKind::Link) => HalVerdict::Fault {
                 kind: FaultKind::Link,
                 tripped: self.link_lost(),
@@ -893,6 +892,65 @@ impl Supervisor {
     }
 }
 
+/// The supervisor's settings from the bench's config, on a configured
+/// backend: the rules here, the numbers there.
+impl crate::config::BenchConfig {
+    /// The current limits in force on a configured backend (`info`): the
+    /// smaller of `[actuator]`'s and the device's, each
+    /// ([`crate::rt::supervisor::CurrentLimits::in_force`]).
+    pub fn current_limits(
+        &self,
+        info: &bench_hal::DeviceInfo,
+    ) -> crate::rt::supervisor::CurrentLimits {
+        crate::rt::supervisor::CurrentLimits::in_force(
+            self.actuator.peak_current_a,
+            self.actuator.continuous_current_a,
+            info,
+        )
+    }
+
+    /// How far the held current can carry x1 on this bench
+    /// ([`crate::rt::supervisor::ReachEnvelope`], the model at `period_s`);
+    /// none if the model cannot be built (the config's validation refuses
+    /// that before any job).
+    pub fn reach_envelope(&self, period_s: f64) -> crate::rt::supervisor::ReachEnvelope {
+        match bench_hal::model::Sr4dof::new(self.plant) {
+            Ok(m) => crate::rt::supervisor::ReachEnvelope::of(&bench_hal::sim::ZohPlant::new(
+                &m,
+                &self.actuator,
+                period_s,
+            )),
+            Err(_) => crate::rt::supervisor::ReachEnvelope::NONE,
+        }
+    }
+
+    /// The supervisor's limits for a configured backend (`info`) at its
+    /// period; the currents are [`Self::current_limits`].
+    pub fn supervisor(
+        &self,
+        info: &bench_hal::DeviceInfo,
+    ) -> crate::rt::supervisor::SupervisorConfig {
+        let currents = self.current_limits(info);
+        crate::rt::supervisor::SupervisorConfig {
+            position_limit_m: self.safety.position_limit_m,
+            peak_current_a: currents.peak_current_a,
+            max_missed_deadlines: self.safety.max_overrun_s.map_or(u64::MAX, |b| {
+                crate::rt::supervisor::whole_periods(b, info.period_ns as f64 * 1e-9)
+            }),
+            max_missed_samples: self.safety.max_missed_samples,
+            max_position_step_m: self.safety.max_position_step_m,
+            max_late_commands: self.safety.max_command_latency_s.map_or(u64::MAX, |b| {
+                crate::rt::supervisor::whole_periods(b, info.period_ns as f64 * 1e-9)
+            }),
+            continuous_current_a: currents.continuous_current_a,
+            reach: self.reach_envelope(info.period_ns as f64 * 1e-9),
+            watchdog_s: info.watchdog_s,
+            i2t_peak_duration_s: self.safety.i2t_peak_duration_s,
+            period_s: info.period_ns as f64 * 1e-9,
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -973,7 +1031,10 @@ mod tests {
             timeout(&mut s, 2.1e-3),
             HalVerdict::SampleMissing { tripped: true }
         );
-        assert_eq!(s.stall_bound().map(|b| (b.0, b.1)), Some((2e-3, StallRule::Bound)));
+        assert_eq!(
+            s.stall_bound().map(|b| (b.0, b.1)),
+            Some((2e-3, StallRule::Bound))
+        );
         // Open loop (no bound): the watchdog.
         let mut s = Supervisor::new(SupervisorConfig {
             max_late_commands: u64::MAX,

@@ -45,7 +45,7 @@
 //! ([`crate::rt::timing`], ≤ 1 % relative error).
 //!
 //! Real-time pacing also holds `/dev/cpu_dma_latency` at 0 for the loop's
-//! life, as `cyclictest` does ([`crate::rt::latency`]); when it cannot be
+//! life, as `cyclictest` does ([`bench_hal::os::CpuDmaLatency`]); when it cannot be
 //! opened the loop says so in its warnings and the report.
 //!
 //! Nothing on the tick allocates, locks, logs or does I/O other than the
@@ -54,13 +54,15 @@
 //! only [`JobEnd::into_report`], after the loop, formats messages. Setup
 //! before the first tick (scheduling, memory locking) may allocate.
 
+use crate::record::queue::{Emitter, RecordQueue};
 use crate::record::topics::{
     EventKind, EventRecord, FaultKind, Record, SampleRecord, SupervisorState, TimingRecord,
 };
-use crate::rt::latency::{CpuDmaLatency, DmaLatency};
 use crate::rt::supervisor::{HalCall, HalVerdict, StallBounds, Supervisor, SupervisorConfig};
 use crate::rt::timing::{TickTiming, TimingStats};
-use bench_hal::clock::{monotonic_ns as now_ns, sleep_until_ns};
+use bench_hal::os::{
+    make_realtime, monotonic_ns as now_ns, sleep_until_ns, CpuDmaLatency, DmaLatency,
+};
 use bench_hal::{Clock, Command, Error as _, Sample, Stage};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 
@@ -272,10 +274,9 @@ impl<E: std::fmt::Display> RawStop<E> {
             } => {
                 let detail = match (kind, link_error) {
                     (FaultKind::Link, Some(e)) if value.is_nan() => Some(format!("link lost: {e}")),
-                    (FaultKind::Link, Some(e)) if stall.is_some() => Some(format!(
-                        "no sample for {:.1} ms (last: {e})",
-                        value * 1e3
-                    )),
+                    (FaultKind::Link, Some(e)) if stall.is_some() => {
+                        Some(format!("no sample for {:.1} ms (last: {e})", value * 1e3))
+                    }
                     (FaultKind::Link, Some(e)) => Some(format!(
                         "{value} consecutive samples missing or corrupt (last: {e})"
                     )),
@@ -315,232 +316,21 @@ pub struct LoopReport {
     pub cpu_dma_latency: DmaLatency,
 }
 
-/// Applies SCHED_FIFO, `mlockall` and CPU pinning to the calling thread.
-/// Returns one warning line per thing that was not permitted.
-pub fn make_realtime(priority: i32, cpu: Option<usize>) -> Vec<String> {
-    let mut warnings = Vec::new();
-    // SAFETY: plain libc calls on the current thread with valid arguments.
-    unsafe {
-        if libc::mlockall(libc::MCL_CURRENT | libc::MCL_FUTURE) != 0 {
-            warnings.push(format!(
-                "mlockall failed ({}): page faults may add latency",
-                std::io::Error::last_os_error()
-            ));
-        }
-        let param = libc::sched_param {
-            sched_priority: priority,
-        };
-        let r = libc::pthread_setschedparam(libc::pthread_self(), libc::SCHED_FIFO, &param);
-        if r != 0 {
-            warnings.push(format!(
-                "SCHED_FIFO priority {priority} not permitted ({}): running with normal scheduling, expect jitter",
-                std::io::Error::from_raw_os_error(r)
-            ));
-        }
-        if let Some(cpu) = cpu {
-            let mut set: libc::cpu_set_t = std::mem::zeroed();
-            libc::CPU_SET(cpu, &mut set);
-            if libc::sched_setaffinity(0, std::mem::size_of::<libc::cpu_set_t>(), &set) != 0 {
-                warnings.push(format!(
-                    "pinning to CPU {cpu} failed ({})",
-                    std::io::Error::last_os_error()
-                ));
-            }
-        }
-    }
-    warnings
-}
-
-/// The longest the virtual-time loop stays parked without a wake-up from
-/// the writer ([`QueueRoom`]): a safety net only (a writer that died, a
-/// wake-up lost to a bug), never the pacing. Long against the tens of ms
-/// the writer takes to empty half the 65 536-record queue of a job.
-pub const ROOM_WAIT_TIMEOUT: std::time::Duration = std::time::Duration::from_millis(200);
-
-/// Room in a job's record queue, for the virtual-time loop's wait on the
-/// writer: the loop parks ([`std::thread::park_timeout`]) while the queue
-/// is full, and the writer unparks it once it has emptied half the queue
-/// ([`QueueRoom::made_room`]). No spinning, no lock: one flag, one thread
-/// handle. One per job; the writer and the loop share it.
-///
-/// The hand-over is the store-fence-load pattern on both sides: the loop
-/// raises `waiting`, fences, then looks at the queue; the writer frees
-/// slots, fences, then takes `waiting`. Either the loop sees the room, or
-/// the writer sees the flag and unparks (an unpark before the park makes
-/// the park return at once).
-#[derive(Debug, Default)]
-pub struct QueueRoom {
-    waiting: AtomicBool,
-    parked: std::sync::OnceLock<std::thread::Thread>,
-    /// Wake-ups given by the writer.
-    unparks: AtomicU64,
-    /// Parks that ended on [`ROOM_WAIT_TIMEOUT`] instead of a wake-up.
-    timeouts: AtomicU64,
-}
-
-impl QueueRoom {
-    /// Writer side, after it has taken records off the queue: `queued` are
-    /// still in it, out of `capacity`. Wakes the loop if it waits and half
-    /// the queue is free.
-    pub fn made_room(&self, queued: usize, capacity: usize) {
-        std::sync::atomic::fence(Ordering::SeqCst);
-        if queued <= capacity / 2 {
-            self.wake();
-        }
-    }
-
-    /// Writer side, when it ends (done or failed): wakes a waiting loop so
-    /// it sees the queue abandoned at once.
-    pub fn release(&self) {
-        std::sync::atomic::fence(Ordering::SeqCst);
-        self.wake();
-    }
-
-    fn wake(&self) {
-        if self.waiting.swap(false, Ordering::SeqCst) {
-            if let Some(t) = self.parked.get() {
-                self.unparks.fetch_add(1, Ordering::Relaxed);
-                t.unpark();
-            }
-        }
-    }
-
-    /// Loop side: parks until half of `out` is free or its writer is gone.
-    fn wait(&self, out: &rtrb::Producer<Record>) {
-        let half = (out.buffer().capacity() / 2).max(1);
-        let me = self.parked.get_or_init(std::thread::current);
-        debug_assert_eq!(
-            me.id(),
-            std::thread::current().id(),
-            "one loop thread per job"
-        );
-        loop {
-            self.waiting.store(true, Ordering::SeqCst);
-            std::sync::atomic::fence(Ordering::SeqCst);
-            if out.slots() >= half || out.is_abandoned() {
-                self.waiting.store(false, Ordering::SeqCst);
-                return;
-            }
-            let t0 = std::time::Instant::now();
-            std::thread::park_timeout(ROOM_WAIT_TIMEOUT);
-            if t0.elapsed() >= ROOM_WAIT_TIMEOUT {
-                self.timeouts.fetch_add(1, Ordering::Relaxed);
-            }
-        }
-    }
-
-    /// Wake-ups the writer gave, and parks that timed out instead.
-    pub fn counts(&self) -> (u64, u64) {
-        (
-            self.unparks.load(Ordering::Relaxed),
-            self.timeouts.load(Ordering::Relaxed),
-        )
-    }
-}
-
 /// Virtual time measures the compute time of one tick in this many: no
 /// deadline depends on it, and two clock reads and two histogram updates a
 /// tick were a quarter of the virtual-time loop's CPU. Real time measures
 /// every tick.
 pub const VIRTUAL_TIMING_STRIDE: u64 = 16;
 
-/// A job's record queue, the loop's end: the producer, and the
-/// [`QueueRoom`] the writer signals.
-pub struct RecordQueue {
-    /// The loop's end of the queue.
-    pub producer: rtrb::Producer<Record>,
-    /// Shared with the writer (pass it to
-    /// [`spawn_writer`](crate::record::writer::spawn_writer)).
-    pub room: std::sync::Arc<QueueRoom>,
+/// Records one event with the supervisor's state (and its fault, for a
+/// fault event). Real-time safe.
+trait EmitEvent {
+    fn event(&mut self, tick: u64, t_s: f64, kind: EventKind, sup: &Supervisor, value: f64);
 }
 
-impl RecordQueue {
-    /// A queue of `capacity` records: the loop's end, and the writer's.
-    pub fn new(capacity: usize) -> (Self, rtrb::Consumer<Record>) {
-        let (producer, consumer) = rtrb::RingBuffer::new(capacity);
-        (
-            Self {
-                producer,
-                room: Default::default(),
-            },
-            consumer,
-        )
-    }
-}
-
-/// Where a job's records go: its own queue, or nowhere (between jobs).
-pub struct Emitter<'q> {
-    out: Option<&'q mut rtrb::Producer<Record>>,
-    dropped: u64,
-    /// Virtual time: wait for queue space instead of dropping.
-    room: Option<&'q QueueRoom>,
-}
-
-impl<'q> Emitter<'q> {
-    /// Records into `out`; with `room` (virtual time only) a full queue
-    /// is waited for instead of dropping.
-    pub fn new(out: &'q mut rtrb::Producer<Record>, room: Option<&'q QueueRoom>) -> Self {
-        Self {
-            out: Some(out),
-            dropped: 0,
-            room,
-        }
-    }
-
-    /// Whether anything is recorded (not between jobs).
-    #[inline]
-    pub fn records(&self) -> bool {
-        self.out.is_some()
-    }
-
-    /// Records nothing (the hold job between jobs).
-    pub fn none() -> Self {
-        Self {
-            out: None,
-            dropped: 0,
-            room: None,
-        }
-    }
-
-    /// The job records, and its writer is gone (it died on a write error):
-    /// the recording is lost. One atomic load; real-time safe.
-    #[inline]
-    pub fn recording_lost(&self) -> bool {
-        self.out
-            .as_deref()
-            .is_some_and(rtrb::Producer::is_abandoned)
-    }
-
-    /// Step 6: pushes one record; never allocates. In real time a full
-    /// queue drops the record (counted). In virtual time (a [`QueueRoom`])
-    /// the loop parks until the writer has emptied half the queue and wakes
-    /// it, so a run bound by the writer costs one wake-up per half queue
-    /// instead of one `sched_yield` per record.
-    #[inline]
-    pub fn push(&mut self, r: Record) {
-        let Some(out) = self.out.as_deref_mut() else {
-            return;
-        };
-        let mut r = r;
-        loop {
-            match out.push(r) {
-                Ok(()) => return,
-                Err(rtrb::PushError::Full(back)) => match self.room {
-                    Some(room) if !out.is_abandoned() => {
-                        r = back;
-                        room.wait(out);
-                    }
-                    _ => {
-                        self.dropped += 1;
-                        return;
-                    }
-                },
-            }
-        }
-    }
-
+impl EmitEvent for Emitter<'_> {
     fn event(&mut self, tick: u64, t_s: f64, kind: EventKind, sup: &Supervisor, value: f64) {
-        if self.out.is_none() {
+        if !self.records() {
             return;
         }
         self.push(Record::Event(EventRecord {
@@ -667,7 +457,7 @@ impl<'s, S: Stage> Loop<'s, S> {
                 if guard.is_none() {
                     warnings.push(format!(
                         "{} {status}: deep CPU idle states may add wake-up latency",
-                        crate::rt::latency::PATH
+                        bench_hal::os::CPU_DMA_LATENCY_PATH
                     ));
                 }
                 (guard, status)

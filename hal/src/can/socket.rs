@@ -1,9 +1,9 @@
 //! Socket primitives: non-blocking, no allocation, deadlines on
-//! `CLOCK_MONOTONIC` ([`crate::clock`]). Used by the host stage and by the
+//! `CLOCK_MONOTONIC` ([`crate::os`]). Used by the host stage and by the
 //! CAN emulator.
 
 use super::CanError;
-use crate::clock::{monotonic_ns, sleep_until_ns};
+use crate::os::{monotonic_ns, sleep_until_ns};
 use socketcan::frame::can_frame_default;
 use socketcan::{CanFrame, CanSocket, Socket};
 use std::io;

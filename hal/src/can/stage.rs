@@ -5,8 +5,8 @@ use super::socket::{can_option, open_socket, send_until, try_recv, wait_fd, Rx};
 use super::{
     seq_delta, CanConfig, CanError, CanSocket, CommandPayload, SamplePayload, CAN_DATA_BYTES,
 };
-use crate::clock::monotonic_ns;
 use crate::emulator::DeviceFault;
+use crate::os::monotonic_ns;
 use crate::{Clock, Command, DeviceInfo, Sample, Stage};
 use socketcan::{CanFrame, EmbeddedFrame, Frame, Socket, SocketOptions};
 use std::io;

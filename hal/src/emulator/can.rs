@@ -29,8 +29,8 @@
 
 use crate::can::socket::{can_option, errno, queue_full, try_recv, try_send, wait_fd, Rx};
 use crate::can::{seq_delta, CanConfig, CanError, CanSocket, SamplePayload};
-use crate::clock::monotonic_ns;
 use crate::emulator::{DeviceCore, DeviceFault, EmulatorStatus, LinkFault, ScheduledLinkFault};
+use crate::os::monotonic_ns;
 use crate::Command;
 use socketcan::errors::{Location, ViolationTypes};
 use socketcan::frame::CanErrorFrame;
@@ -95,8 +95,7 @@ impl Emulator<'_> {
 
     /// Sends through the delay line.
     fn emit(&mut self, frame: libc::can_frame, now: u64) -> Result<bool, CanError> {
-        if self.faults.delay_ns > 0 || now < self.faults.hold_until_ns || !self.delayed.is_empty()
-        {
+        if self.faults.delay_ns > 0 || now < self.faults.hold_until_ns || !self.delayed.is_empty() {
             let t = self
                 .delayed
                 .back()

@@ -10,7 +10,7 @@
 //! hello on. Injected [`LinkFault`]s act on the frames it sends.
 
 use super::{DeviceCore, DeviceFault, EmulatorStatus, LinkFault, ScheduledLinkFault};
-use crate::clock::{monotonic_ns, sleep_until_ns};
+use crate::os::{monotonic_ns, sleep_until_ns};
 use crate::protocol::{
     self, flags, DeviceHello, DeviceMessage, Frame, FrameReader, HostMessage, WireSample,
     WireStatus, INVALID_POSITION, MAX_FRAME,
@@ -192,12 +192,8 @@ pub fn run(
     status: &EmulatorStatus,
 ) -> std::io::Result<()> {
     if let Some(priority) = opts.realtime_priority {
-        let param = libc::sched_param {
-            sched_priority: priority,
-        };
-        // SAFETY: plain call on the current thread; failure just means
-        // normal scheduling.
-        unsafe { libc::pthread_setschedparam(libc::pthread_self(), libc::SCHED_FIFO, &param) };
+        // Refused: normal scheduling.
+        crate::os::set_fifo_priority(priority);
     }
     let info = core.info().clone();
     let hello = DeviceHello {

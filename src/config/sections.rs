@@ -1,0 +1,385 @@
+//! The config's sections other than the plant and the controllers: what
+//! each table of the TOML file holds (`[daemon]`, `[backend]`,
+//! `[emulator]`, `[step]`, `[loop]`, `[stage]`, `[safety]`, `[chirp]`,
+//! `[identification]`, `[sim]`), with its serde defaults. Their ranges are
+//! checked in [`super::validate`]; SI units, the unit in every key name.
+
+use serde::{Deserialize, Serialize};
+
+/// `[daemon]`: what `bench serve` does between jobs.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DaemonConfig {
+    /// The controller (a `[controller.NAME]`) that holds the position the
+    /// stage is at when the amplifier is enabled between jobs; absent: the
+    /// hold job commands 0 A. It must pass the loop check on the model when
+    /// the daemon starts.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub hold_controller: Option<String>,
+}
+
+/// Backend kinds (`[backend] kind`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum BackendKind {
+    /// The simulated plant in-process (`bench_hal::sim`).
+    #[default]
+    Sim,
+    /// A serial DAQ speaking `hal/PROTOCOL.md`.
+    Serial,
+    /// A CAN analog I/O module on SocketCAN.
+    Socketcan,
+}
+
+/// `[backend]`: which hardware runs the jobs. `--backend` overrides `kind`
+/// and the device.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BackendConfig {
+    /// `sim`, `serial` or `socketcan`.
+    #[serde(default)]
+    pub kind: BackendKind,
+    /// `[backend.serial]`: the serial DAQ. Safety ranges:
+    /// `sample_timeout_periods` in [1, 1000] periods and at most
+    /// [`limits::SAMPLE_TIMEOUT_MAX_S`] (200 ms) at the loop rate;
+    /// `handshake_timeout_ms` in [`limits::HANDSHAKE_TIMEOUT_MS`]
+    /// (1 ms … 10 s); and `(safety.max_missed_samples + 1)` sample timeouts
+    /// at most [`limits::LINK_FAULT_MAX_S`] (1 s).
+    #[serde(default)]
+    pub serial: bench_hal::serial::SerialConfig,
+    /// `[backend.can]`: the SocketCAN module and its frame map. Safety
+    /// ranges: `sample_timeout_ms` in [0.1, 200] ms (and the same 1 s to the
+    /// link fault as the serial link), `peak_current_a` in (0, 20] A and
+    /// `continuous_current_a` in (0, `peak_current_a`], as for
+    /// `[actuator]`.
+    #[serde(default)]
+    pub can: bench_hal::can::CanConfig,
+}
+
+/// `[emulator]`: the device side run by `bench emulate`.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct EmulatorConfig {
+    /// Device watchdog: with no valid command for this long while enabled,
+    /// the device drops the current to 0 A and latches a fault, ms.
+    /// Range: at least 1 ms and two loop periods (commands come once a
+    /// period), at most [`limits::WATCHDOG_MAX_MS`] (1 s: a dead host must
+    /// not leave current flowing longer).
+    #[serde(default = "default_watchdog_ms")]
+    pub watchdog_ms: f64,
+    /// Size of one probe count on the serial link, m. Range:
+    /// `probe.range_m / (2³¹ − 1)` (the whole probe range fits the 32-bit
+    /// count) to [`limits::POSITION_LSB_MAX_M`] (1 µm: a coarser count would
+    /// hide motion the position limit and jump checks must see).
+    #[serde(default = "default_position_lsb_m")]
+    pub position_lsb_m: f64,
+    /// SCHED_FIFO priority of the emulator's device thread (0: normal
+    /// scheduling). Keep it below `[loop] priority`.
+    #[serde(default = "default_emulator_priority")]
+    pub priority: i32,
+}
+
+fn default_watchdog_ms() -> f64 {
+    50.0
+}
+fn default_position_lsb_m() -> f64 {
+    1e-10
+}
+fn default_emulator_priority() -> i32 {
+    70
+}
+
+impl Default for EmulatorConfig {
+    fn default() -> Self {
+        Self {
+            watchdog_ms: default_watchdog_ms(),
+            position_lsb_m: default_position_lsb_m(),
+            priority: default_emulator_priority(),
+        }
+    }
+}
+
+/// `[step]`: the closed-loop step experiment of `bench control`.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct StepConfig {
+    /// Step size, m.
+    #[serde(default = "default_step_m")]
+    pub step_m: f64,
+    /// Time at the start position before the step, s.
+    #[serde(default = "default_settle_s")]
+    pub settle_s: f64,
+    /// Total run time, s (settle + step + hold).
+    #[serde(default = "default_step_duration_s")]
+    pub duration_s: f64,
+    /// Raised-cosine ramp time of a smoothed step, s (0: a sharp step).
+    #[serde(default)]
+    pub smooth_s: f64,
+    /// Final window for the steady-state error statistics, s.
+    #[serde(default = "default_ss_window_s")]
+    pub steady_state_window_s: f64,
+}
+
+fn default_step_m() -> f64 {
+    1e-5
+}
+fn default_settle_s() -> f64 {
+    0.2
+}
+fn default_step_duration_s() -> f64 {
+    4.0
+}
+fn default_ss_window_s() -> f64 {
+    3.0
+}
+
+impl Default for StepConfig {
+    fn default() -> Self {
+        Self {
+            step_m: default_step_m(),
+            settle_s: default_settle_s(),
+            duration_s: default_step_duration_s(),
+            smooth_s: 0.0,
+            steady_state_window_s: default_ss_window_s(),
+        }
+    }
+}
+
+/// `[loop]`
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LoopConfig {
+    /// Loop (sample) rate, Hz.
+    pub rate_hz: f64,
+    /// CPU to pin the loop thread to in real-time mode (none: no pinning).
+    #[serde(default)]
+    pub cpu: Option<usize>,
+    /// SCHED_FIFO priority in real-time mode (1–99).
+    #[serde(default = "default_priority")]
+    pub priority: i32,
+    /// Interval between `/bench/timing` reports, s.
+    #[serde(default = "default_timing_interval")]
+    pub timing_interval_s: f64,
+}
+
+fn default_priority() -> i32 {
+    80
+}
+fn default_timing_interval() -> f64 {
+    1.0
+}
+
+impl LoopConfig {
+    /// Loop period, ns (rounded to the nearest ns).
+    pub fn period_ns(&self) -> u64 {
+        (1e9 / self.rate_hz).round() as u64
+    }
+}
+
+/// `[stage]`
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct StageConfig {
+    /// Mechanical stop on x1: travel is blocked beyond ±this, m.
+    pub mechanical_stop_m: f64,
+}
+
+/// `[safety]`. Every key has a range (below, and in the README's
+/// configuration reference); a value outside it is refused naming the key,
+/// so no config can switch a protection off.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SafetyConfig {
+    /// Software position limit on |x1|, m: beyond it the supervisor faults.
+    /// Range: [`limits::POSITION_LIMIT_MIN_M`] (1 µm, well above the probe's
+    /// 40 nm RMS noise) up to, not including, [`limits::STROKE_M`] (the
+    /// ±1 mm X travel of the thesis bench, §5.1.2), and inside
+    /// `stage.mechanical_stop_m` and `probe.range_m`.
+    pub position_limit_m: f64,
+    /// Optional upper limit on how long the real-time loop may run behind
+    /// its deadlines in a closed-loop job, s (whole periods tolerated, so a
+    /// stall is judged the same at any `loop.rate_hz`). Absent (the
+    /// default): the bound comes from the loop itself, the smaller of its
+    /// delay margin and the time the held peak current takes to reach the
+    /// position limit ([`crate::control::loop_check::StallLimit`]). Set,
+    /// it may only tighten that bound (a value above it is refused by the
+    /// loop check with both numbers) and it applies to every job, open-loop
+    /// identification included. Open-loop jobs without it never stop on a
+    /// stall: the stall is recorded and its span left out of the FRF.
+    /// Between jobs at 0 A stalls are reported, never latched. Range:
+    /// above 0 and at most [`limits::BLIND_MAX_S`] (0.1 s).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub max_overrun_s: Option<f64>,
+    /// The tick count that `max_overrun_s` replaced; refused with a hint
+    /// (never written).
+    #[serde(default, skip_serializing)]
+    pub max_consecutive_overruns: Option<serde::de::IgnoredAny>,
+    /// Consecutive samples that may be missing (sequence gap, timeout,
+    /// corrupt frames) or stale (sequence not advancing) before the
+    /// supervisor faults (K). Range: 0 (every missing sample faults) to the
+    /// ticks of [`limits::BLIND_MAX_S`] (0.1 s; 500 at 5 kHz), and K + 1
+    /// sample timeouts (`[backend.serial] sample_timeout_periods`,
+    /// `[backend.can] sample_timeout_ms`) at most
+    /// [`limits::LINK_FAULT_MAX_S`] (1 s, the longest device watchdog).
+    #[serde(default = "default_max_missed")]
+    pub max_missed_samples: u32,
+    /// Largest plausible change of the probe reading between two ticks, m;
+    /// a larger jump faults (a glitch or a lost target, not motion).
+    /// Range: [`limits::POSITION_STEP_MIN_M`] (1 µm, 25 × the probe's RMS
+    /// noise) to [`limits::STAGE_SPEED_MAX_M_PER_S`] × one period (1 m/s,
+    /// twice what the peak force can reach over the 2 mm stroke; 200 µm at
+    /// 5 kHz), and below `position_limit_m`.
+    #[serde(default = "default_max_step")]
+    pub max_position_step_m: f64,
+    /// Optional upper limit on how long the device may run on commands
+    /// that do not answer its previous sample (a late link), s: the device
+    /// flags each such sample ([`bench_hal::SampleFlags::command_late`]),
+    /// and in a closed-loop job more than the bound of them in a row is the
+    /// `link_latency` fault (whole periods tolerated). Absent (the
+    /// default): the loop's own stall bound, as for `max_overrun_s`; set,
+    /// it may only tighten it (above it: refused with both numbers) and
+    /// applies to every job. Range: above 0 and at most
+    /// [`limits::BLIND_MAX_S`] (0.1 s).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub max_command_latency_s: Option<f64>,
+    /// How long the peak current may flow from cold, s: the I²t budget is
+    /// `(I_peak² − I_cont²) · this`; the accumulator integrates
+    /// `i² − I_cont²` (never below 0) and faults when it exceeds the budget.
+    /// Range: [`limits::I2T_PEAK_DURATION_S`] (10 ms to 10 s: a coil's peak
+    /// rating is a rating for seconds, not minutes).
+    #[serde(default = "default_i2t_s")]
+    pub i2t_peak_duration_s: f64,
+    /// Smallest phase margin the loop check accepts, degrees. Range:
+    /// [`limits::MIN_PHASE_MARGIN_DEG`] (20° up to, not including, 90°:
+    /// below 20° a loop rings and small plant changes destabilise it).
+    #[serde(default = "default_min_pm")]
+    pub min_phase_margin_deg: f64,
+    /// Largest peak of |S| the loop check accepts (2.0 = 6 dB, modulus
+    /// margin 0.5). Range: above 1 (no loop does better) up to
+    /// [`limits::MAX_SENSITIVITY_PEAK`] (6, modulus margin 0.17).
+    #[serde(default = "default_max_s")]
+    pub max_sensitivity_peak: f64,
+}
+
+fn default_max_missed() -> u32 {
+    3
+}
+fn default_max_step() -> f64 {
+    50e-6
+}
+fn default_i2t_s() -> f64 {
+    1.0
+}
+fn default_min_pm() -> f64 {
+    30.0
+}
+fn default_max_s() -> f64 {
+    2.5
+}
+
+/// Sweep law of the chirp.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ChirpKind {
+    /// Exponential (logarithmic) sweep: equal time per octave.
+    Exponential,
+    /// Linear sweep: constant df/dt.
+    Linear,
+}
+
+/// Most breakpoints in `chirp.amplitude_profile`.
+pub const MAX_PROFILE_POINTS: usize = 16;
+
+/// `[chirp]`
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ChirpConfig {
+    /// Sweep law.
+    #[serde(default = "default_kind")]
+    pub kind: ChirpKind,
+    /// Start frequency, Hz.
+    pub f_start_hz: f64,
+    /// End frequency, Hz (below the Nyquist frequency).
+    pub f_end_hz: f64,
+    /// Current amplitude, A (at most the amplifier's peak current).
+    pub amplitude_a: f64,
+    /// Optional amplitude schedule over the sweep: `[frequency_hz, scale]`
+    /// breakpoints, ascending in frequency, scale in (0, 1]; the amplitude at
+    /// instantaneous frequency f is `amplitude_a · scale(f)`, interpolated
+    /// linearly in log f and held beyond the ends. Use it to pass a lightly
+    /// damped resonance gently while keeping the signal-to-noise ratio
+    /// elsewhere. Empty: constant amplitude.
+    #[serde(default)]
+    pub amplitude_profile: Vec<[f64; 2]>,
+    /// Sweep duration, s.
+    pub duration_s: f64,
+    /// Raised-cosine fade-in and fade-out at each end of the sweep, s.
+    pub taper_s: f64,
+    /// Quiet time before the sweep (probe offset estimate), s.
+    pub lead_in_s: f64,
+    /// Quiet tail after the sweep for ring-down, s.
+    pub tail_s: f64,
+}
+
+fn default_kind() -> ChirpKind {
+    ChirpKind::Exponential
+}
+
+/// `[identification]`
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct IdentificationConfig {
+    /// Points of the log-spaced output grid per decade.
+    #[serde(default = "default_ppd")]
+    pub points_per_decade: usize,
+    /// Frequency resolution as a fraction of frequency (full width of the
+    /// smoothing window): 0.004 = 0.4 % of f.
+    #[serde(default = "default_resolution")]
+    pub relative_resolution: f64,
+    /// Fewest DFT bins averaged at any grid point (sets the resolution where
+    /// `relative_resolution · f` is finer than the record allows).
+    #[serde(default = "default_min_bins")]
+    pub min_bins: usize,
+}
+
+fn default_ppd() -> usize {
+    400
+}
+fn default_resolution() -> f64 {
+    0.004
+}
+fn default_min_bins() -> usize {
+    5
+}
+
+impl Default for IdentificationConfig {
+    fn default() -> Self {
+        Self {
+            points_per_decade: default_ppd(),
+            relative_resolution: default_resolution(),
+            min_bins: default_min_bins(),
+        }
+    }
+}
+
+/// `[sim]`
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SimConfig {
+    /// Seed of the simulator's noise generator (default 1, with or without
+    /// a `[sim]` table).
+    #[serde(default = "default_seed")]
+    pub seed: u64,
+}
+
+fn default_seed() -> u64 {
+    1
+}
+
+impl Default for SimConfig {
+    fn default() -> Self {
+        Self {
+            seed: default_seed(),
+        }
+    }
+}
