@@ -10,13 +10,14 @@
 //! Layer rule: may use `config`, `error`, `record`, `vocab`.
 
 pub mod backend;
+mod job;
+mod report;
 pub mod service;
 pub mod supervisor;
 mod tick;
 pub mod timing;
 
 pub use crate::record::queue::{Emitter, QueueRoom, RecordQueue};
-pub use tick::{
-    run, HalFailure, HoldJob, Job, JobEnd, JobOutput, Loop, LoopOptions, LoopReport, Pacing,
-    RawStop, Read, StopReason, TickResult,
-};
+pub use job::{HoldJob, Job, JobOutput, LoopOptions, Pacing};
+pub use report::{JobEnd, LoopReport, RawStop, StopReason};
+pub use tick::{run, HalFailure, Loop, Read, TickResult};
