@@ -96,6 +96,7 @@
 //!
 //! Layer rule: may use `error`, `live`, `outputs`, `vocab`.
 
+mod drain;
 pub mod export;
 pub mod proto;
 pub mod queue;
@@ -108,11 +109,12 @@ mod writer;
 
 pub use crate::error::RecordError;
 pub use crate::outputs::{part_path_for, PART_SUFFIX};
+pub use drain::{spawn_writer, WriterStats};
 pub use reader::{
     decode_sample, decode_samples, read_messages_tolerant, read_samples_tolerant, TolerantRead,
 };
 pub use schema::{nan_if_null, schema_of};
-pub use writer::{log_time_ns, spawn_writer, Channel, ChunkPolicy, Recorder, WriterStats};
+pub use writer::{log_time_ns, Channel, ChunkPolicy, Recorder};
 
 /// Topic of the per-tick samples.
 pub const TOPIC_SAMPLE: &str = "/bench/sample";
