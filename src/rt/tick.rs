@@ -1,4 +1,4 @@
-//! The real-time loop (README "Architecture" and "Safety").
+//! The real-time loop (README, *Architecture* and *Safety: limits and stalls*).
 //!
 //! A [`Loop`] owns the stage's tick for as long as it lives: a local run
 //! makes one for one job ([`run`]); the daemon keeps one for its whole life
