@@ -124,6 +124,58 @@ pub struct DeviceInfo {
     pub watchdog_s: Option<f64>,
 }
 
+/// A stage used against its lifecycle (the same rule for every backend):
+/// before `configure`, a non-zero current while the amplifier is disabled,
+/// or a current that is not a number. [`LifecycleError::check_command`]
+/// is the one check every `write_command` makes first.
+#[derive(Debug, Clone, Copy, PartialEq, thiserror::Error)]
+pub enum LifecycleError {
+    /// `read_sample`, `write_command` or `enable` before `configure`.
+    #[error("the stage is not configured")]
+    NotConfigured,
+    /// Non-zero current demanded while the amplifier is disabled.
+    #[error("{current_a} A demanded while the amplifier is disabled")]
+    NotEnabled {
+        /// The demand, A.
+        current_a: f64,
+    },
+    /// A current demand that is not finite.
+    #[error("current demand is not finite ({current_a})")]
+    NotFinite {
+        /// The demand, A.
+        current_a: f64,
+    },
+}
+
+impl LifecycleError {
+    /// The lifecycle check of a command of `current_a` on a stage that is
+    /// (or is not) `configured` and `enabled`: a backend that gets
+    /// `NotFinite` sends 0 A before returning it.
+    ///
+    /// # Errors
+    /// The first rule broken, in the order above.
+    pub fn check_command(configured: bool, enabled: bool, current_a: f64) -> Result<(), Self> {
+        if !configured {
+            Err(Self::NotConfigured)
+        } else if !current_a.is_finite() {
+            Err(Self::NotFinite { current_a })
+        } else if !enabled && current_a != 0.0 {
+            Err(Self::NotEnabled { current_a })
+        } else {
+            Ok(())
+        }
+    }
+}
+
+impl Error for LifecycleError {
+    fn kind(&self) -> ErrorKind {
+        match self {
+            Self::NotConfigured | Self::NotEnabled { .. } => ErrorKind::InvalidState,
+            Self::NotFinite { .. } => ErrorKind::OutOfRange,
+        }
+    }
+}
+
 /// One probe sample. Plain data, `Copy`: reading one never allocates.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Sample {

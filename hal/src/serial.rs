@@ -47,7 +47,7 @@ use crate::protocol::{
     self, flags, DeviceHello, DeviceMessage, FrameError, HostMessage, WireSample, WireStatus,
     INVALID_POSITION, MAX_FRAME,
 };
-use crate::{Clock, Command, DeviceInfo, ErrorKind, Sample, SampleFlags, Stage};
+use crate::{Clock, Command, DeviceInfo, ErrorKind, LifecycleError, Sample, SampleFlags, Stage};
 use std::os::fd::{AsRawFd, RawFd};
 use std::time::Duration;
 
@@ -221,12 +221,12 @@ pub enum SerialError {
     /// The link is gone (unplugged, peer closed).
     #[error("serial link lost: {0}")]
     Disconnected(&'static str),
-    /// A lifecycle method in the wrong state.
+    /// A lifecycle method in the wrong state (the port closed).
     #[error("serial stage: {0}")]
     State(&'static str),
-    /// A non-finite current demand.
-    #[error("current demand is not finite ({0})")]
-    NotFinite(f64),
+    /// Used against the stage's lifecycle.
+    #[error("serial stage: {0}")]
+    Lifecycle(#[from] crate::LifecycleError),
     /// The device reports a latched fault while enabled.
     #[error("device reports a latched fault (code {code}: 1 watchdog, 2 bad command); its amplifier is off")]
     DeviceFault {
@@ -247,7 +247,7 @@ impl crate::Error for SerialError {
             Self::Refused { .. } | Self::DeviceFault { .. } => ErrorKind::AmplifierFault,
             Self::Corrupt(_) => ErrorKind::Crc,
             Self::State(_) => ErrorKind::InvalidState,
-            Self::NotFinite(_) => ErrorKind::OutOfRange,
+            Self::Lifecycle(e) => crate::Error::kind(e),
         }
     }
 }
@@ -608,7 +608,7 @@ impl SerialStage {
         what: &'static str,
     ) -> Result<WireStatus, SerialError> {
         if self.port.is_none() || self.hello.is_none() {
-            return Err(SerialError::State("not configured"));
+            return Err(LifecycleError::NotConfigured.into());
         }
         self.send(&msg)?;
         let deadline = self.handshake_deadline();
@@ -719,7 +719,7 @@ impl Stage for SerialStage {
     /// Real-time: fixed buffers, `ppoll`/`read` only.
     fn read_sample(&mut self) -> Result<Sample, SerialError> {
         let Some(hello) = self.hello else {
-            return Err(SerialError::State("not configured"));
+            return Err(LifecycleError::NotConfigured.into());
         };
         let deadline = monotonic_ns() + self.timeout_ns;
         let mut last_bad = None;
@@ -798,19 +798,15 @@ impl Stage for SerialStage {
 
     /// Real-time: one frame written from a stack buffer.
     fn write_command(&mut self, command: Command) -> Result<(), SerialError> {
-        if self.hello.is_none() {
-            return Err(SerialError::State("not configured"));
-        }
         let i = command.current_a;
-        if !i.is_finite() {
-            let _ = self.send(&HostMessage::Command {
-                answers_seq: 0,
-                current_a: 0.0,
-            });
-            return Err(SerialError::NotFinite(i));
-        }
-        if !self.enabled && i != 0.0 {
-            return Err(SerialError::State("non-zero current while disabled"));
+        if let Err(e) = LifecycleError::check_command(self.hello.is_some(), self.enabled, i) {
+            if matches!(e, LifecycleError::NotFinite { .. }) {
+                let _ = self.send(&HostMessage::Command {
+                    answers_seq: 0,
+                    current_a: 0.0,
+                });
+            }
+            return Err(e.into());
         }
         let device_seq = command.answers_seq + self.seq_base.unwrap_or(0);
         self.send(&HostMessage::Command {

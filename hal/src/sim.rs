@@ -25,7 +25,7 @@
 //! bit.
 
 use crate::model::{positive, ParamError, Sr4dof, Sr4dofParams};
-use crate::{Clock, Command, DeviceInfo, ErrorKind, Sample, SampleFlags, Stage};
+use crate::{Clock, Command, DeviceInfo, ErrorKind, LifecycleError, Sample, SampleFlags, Stage};
 use nalgebra::{Complex, DMatrix, SMatrix, SVector};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -155,21 +155,9 @@ pub enum SimError {
     /// A parameter is unusable.
     #[error("invalid simulator parameter {0}")]
     Param(#[from] ParamError),
-    /// `read_sample`/`write_command`/`enable` before `configure`.
-    #[error("the simulated stage is not configured")]
-    NotConfigured,
-    /// Non-zero current demanded while the amplifier is disabled.
-    #[error("{current_a} A demanded while the amplifier is disabled")]
-    NotEnabled {
-        /// The demand, A.
-        current_a: f64,
-    },
-    /// A non-finite current demand.
-    #[error("current demand is not finite ({current_a})")]
-    NotFinite {
-        /// The demand.
-        current_a: f64,
-    },
+    /// Used against the stage's lifecycle.
+    #[error("simulated stage: {0}")]
+    Lifecycle(#[from] crate::LifecycleError),
     /// A sample period the simulator cannot use.
     #[error("sample period {period_ns} ns is unusable: {reason}")]
     Period {
@@ -184,8 +172,7 @@ impl crate::Error for SimError {
     fn kind(&self) -> ErrorKind {
         match self {
             Self::Param(_) | Self::Period { .. } => ErrorKind::Config,
-            Self::NotConfigured | Self::NotEnabled { .. } => ErrorKind::InvalidState,
-            Self::NotFinite { .. } => ErrorKind::OutOfRange,
+            Self::Lifecycle(e) => crate::Error::kind(e),
         }
     }
 }
@@ -632,7 +619,7 @@ impl Stage for SimStage {
 
     fn enable(&mut self) -> Result<(), SimError> {
         if self.plant.is_none() {
-            return Err(SimError::NotConfigured);
+            return Err(LifecycleError::NotConfigured.into());
         }
         self.enabled = true;
         self.demand_a = 0.0;
@@ -641,7 +628,7 @@ impl Stage for SimStage {
 
     fn read_sample(&mut self) -> Result<Sample, SimError> {
         if self.plant.is_none() {
-            return Err(SimError::NotConfigured);
+            return Err(LifecycleError::NotConfigured.into());
         }
         // The plant evolves over the period that ends at this sample, with
         // the command written after the previous sample held (ZOH).
@@ -713,16 +700,12 @@ impl Stage for SimStage {
     }
 
     fn write_command(&mut self, command: Command) -> Result<(), SimError> {
-        if self.plant.is_none() {
-            return Err(SimError::NotConfigured);
-        }
         let i = command.current_a;
-        if !i.is_finite() {
-            self.demand_a = 0.0;
-            return Err(SimError::NotFinite { current_a: i });
-        }
-        if !self.enabled && i != 0.0 {
-            return Err(SimError::NotEnabled { current_a: i });
+        if let Err(e) = LifecycleError::check_command(self.plant.is_some(), self.enabled, i) {
+            if matches!(e, LifecycleError::NotFinite { .. }) {
+                self.demand_a = 0.0;
+            }
+            return Err(e.into());
         }
         let peak = self.params.actuator.peak_current_a;
         self.demand_a = i.clamp(-peak, peak);

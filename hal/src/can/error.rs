@@ -75,21 +75,9 @@ pub enum CanError {
         /// Its length, bytes.
         len: usize,
     },
-    /// Used before `configure`.
-    #[error("the CAN stage is not configured")]
-    NotConfigured,
-    /// Non-zero current while the amplifier is disabled.
-    #[error("{current_a} A demanded while the amplifier is disabled")]
-    NotEnabled {
-        /// The demand, A.
-        current_a: f64,
-    },
-    /// A non-finite current demand.
-    #[error("current demand is not finite ({current_a})")]
-    NotFinite {
-        /// The demand.
-        current_a: f64,
-    },
+    /// Used against the stage's lifecycle.
+    #[error("CAN stage: {0}")]
+    Lifecycle(#[from] crate::LifecycleError),
     /// An unusable sample period or timeout.
     #[error("sample period {period_ns} ns is unusable: {reason}")]
     Period {
@@ -135,8 +123,7 @@ impl crate::Error for CanError {
             Self::NoDevice { .. } | Self::BusOff | Self::TxFull => ErrorKind::Link,
             Self::ErrorFrame { .. } => ErrorKind::Crc,
             Self::ShortFrame { .. } | Self::BadDatagram { .. } => ErrorKind::Protocol,
-            Self::NotConfigured | Self::NotEnabled { .. } => ErrorKind::InvalidState,
-            Self::NotFinite { .. } => ErrorKind::OutOfRange,
+            Self::Lifecycle(e) => crate::Error::kind(e),
             Self::DeviceFault { .. } => ErrorKind::AmplifierFault,
         }
     }

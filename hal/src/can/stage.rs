@@ -7,7 +7,7 @@ use super::{
 };
 use crate::emulator::DeviceFault;
 use crate::os::monotonic_ns;
-use crate::{Clock, Command, DeviceInfo, Sample, Stage};
+use crate::{Clock, Command, DeviceInfo, LifecycleError, Sample, Stage};
 use socketcan::{CanFrame, EmbeddedFrame, Frame, Socket, SocketOptions};
 use std::io;
 use std::os::fd::{AsRawFd, RawFd};
@@ -417,7 +417,7 @@ impl Stage for CanStage {
     /// enabled in time.
     fn enable(&mut self) -> Result<(), CanError> {
         if !self.configured {
-            return Err(CanError::NotConfigured);
+            return Err(LifecycleError::NotConfigured.into());
         }
         if self.bus_off {
             return Err(CanError::BusOff);
@@ -450,7 +450,7 @@ impl Stage for CanStage {
 
     fn read_sample(&mut self) -> Result<Sample, CanError> {
         if !self.configured {
-            return Err(CanError::NotConfigured);
+            return Err(LifecycleError::NotConfigured.into());
         }
         let s = self.next_sample(self.timeout_ns)?;
         self.stats.samples += 1;
@@ -464,16 +464,12 @@ impl Stage for CanStage {
     }
 
     fn write_command(&mut self, command: Command) -> Result<(), CanError> {
-        if !self.configured {
-            return Err(CanError::NotConfigured);
-        }
         let i = command.current_a;
-        if !i.is_finite() {
-            let _ = self.send_command(0.0, command.answers_seq, self.enabled);
-            return Err(CanError::NotFinite { current_a: i });
-        }
-        if !self.enabled && i != 0.0 {
-            return Err(CanError::NotEnabled { current_a: i });
+        if let Err(e) = LifecycleError::check_command(self.configured, self.enabled, i) {
+            if matches!(e, LifecycleError::NotFinite { .. }) {
+                let _ = self.send_command(0.0, command.answers_seq, self.enabled);
+            }
+            return Err(e.into());
         }
         if self.bus_off {
             return Err(CanError::BusOff);
