@@ -613,13 +613,7 @@ pub fn read_frf(bytes: &[u8]) -> Result<RecordedFrf, String> {
         .rev()
         .find(|m| m.channel.topic == crate::record::TOPIC_FRF)
     else {
-        let mut topics: Vec<&str> = read
-            .messages
-            .iter()
-            .map(|m| m.channel.topic.as_str())
-            .collect();
-        topics.sort();
-        topics.dedup();
+        let topics = read.topics();
         return Err(format!(
             "no {} channel (a bench chirp recording has one; this one has {})",
             crate::record::TOPIC_FRF,

@@ -148,13 +148,7 @@ pub fn table_of(path: &Path, topic: &str) -> Result<Table, ExportError> {
         .filter(|m| m.channel.topic == topic)
         .collect();
     if on.is_empty() {
-        let mut topics: Vec<&str> = read
-            .messages
-            .iter()
-            .map(|m| m.channel.topic.as_str())
-            .collect();
-        topics.sort();
-        topics.dedup();
+        let topics = read.topics();
         return Err(ExportError::NoTopic {
             path: path.to_path_buf(),
             topic: topic.to_string(),

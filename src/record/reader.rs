@@ -16,6 +16,20 @@ pub struct TolerantRead {
     pub error: Option<String>,
 }
 
+impl TolerantRead {
+    /// The topics the messages are on, sorted, each once.
+    pub fn topics(&self) -> Vec<&str> {
+        let mut topics: Vec<&str> = self
+            .messages
+            .iter()
+            .map(|m| m.channel.topic.as_str())
+            .collect();
+        topics.sort();
+        topics.dedup();
+        topics
+    }
+}
+
 /// Reads every message of a possibly cut or damaged MCAP (e.g. the `.part`
 /// file left by a killed run) with [`super::salvage::salvage`]: every
 /// message of every intact chunk, the chunks after a damaged one included.
