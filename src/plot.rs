@@ -49,9 +49,9 @@ use plotters::element::DashedPathElement;
 use plotters::prelude::*;
 use plotters::style::text_anchor::{HPos, Pos, VPos};
 
+use crate::control::step_metrics::{StepEvents, StepMetrics, SETTLING_BAND, SMOOTHING_S};
 use crate::ident::frf::PairVerdict;
 pub use crate::ident::frf::MIN_COHERENCE;
-use crate::jobs::step::{StepEvents, StepMetrics, SETTLING_BAND, SMOOTHING_S};
 use crate::outputs::{self, Existing};
 
 /// One frequency-response curve.
@@ -187,7 +187,7 @@ pub struct StepPlot<'a> {
     /// Coil current command, A.
     pub command_a: &'a [f64],
     /// The figures written on the plot
-    /// ([`step_analysis`](crate::jobs::step::step_analysis)).
+    /// ([`analyze_step`](crate::control::step_metrics::analyze_step)).
     pub metrics: &'a StepMetrics,
     /// Where they happen (sample indices), from the same analysis.
     pub events: &'a StepEvents,
