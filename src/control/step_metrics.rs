@@ -18,8 +18,8 @@
 //! - peak |command|, A.
 //!
 //! Pure computation on slices: no loop, no recording. The step job
-//! ([`crate::jobs::step`]) runs the experiment and calls it; the step
-//! figure ([`crate::plot::write_step_png`]) draws its events and its band.
+//! (`jobs::step`, above this folder) runs the experiment and calls it; the
+//! step figure (`plot::write_step_png`) draws its events and its band.
 
 use serde::{Deserialize, Serialize};
 

@@ -1,5 +1,5 @@
-//! PNG figures: every plot of identification and closed-loop results, and
-//! the pieces they are drawn with.
+//! PNG figures: every plot `bench` writes (identification, closed loop,
+//! model analysis), and the pieces they are drawn with.
 //!
 //! The figures, one file each:
 //! * [`write_bode_png`] (`bode.rs`): a Bode figure, 1400 px wide. Its top
@@ -17,6 +17,12 @@
 //!   marked.
 //! * [`write_time_png`] (`time.rs`): one or more stacked time-series panels
 //!   sharing a time axis.
+//! * The model-analysis figures, 1400×1000 px, drawn with plotters' own
+//!   captions and series-label boxes: [`write_pole_zero_png`]
+//!   (`pole_zero.rs`) and [`write_decomposed_bode_png`] (`modes.rs`) of one
+//!   bench (`bench analyze`); [`write_map_png`], the CNMP map with
+//!   [`MeasuredPoint`]s overlaid, and [`write_veering_png`] (`map.rs`;
+//!   `bench map`, `bench campaign`).
 //!
 //! The pieces: `palette.rs` (every colour), `style.rs` (the embedded font,
 //! text sizes, line width), `axes.rs` (panel geometry, axes with chosen
@@ -44,9 +50,11 @@
 //! A low layer: the figures draw data the layers below compute, and run
 //! nothing. Within the crate this folder may `use` only
 //! [`crate::ident`] (the FRF, the pair verdict, [`MIN_COHERENCE`]),
-//! [`crate::control`] (the step metrics) and [`crate::outputs`] (how a
-//! file is written). Never `jobs`, `cli`, `daemon`, `campaign` or `rt`
-//! (nor `record`, `config`, `live`): they call the figures, not the
+//! [`crate::control`] (the step metrics), [`crate::analysis`] (modal
+//! terms, typed zeros, map cells, veering curves) and [`crate::outputs`]
+//! (how a file is written); outside it, `bench_hal::model` (the plant's
+//! modes and zero types). Never `jobs`, `cli`, `daemon`, `campaign` or
+//! `rt` (nor `record`, `config`, `live`): they call the figures, not the
 //! reverse.
 
 use std::error::Error as StdError;
@@ -60,9 +68,12 @@ mod axes;
 mod bode;
 mod draw;
 mod legend;
+mod map;
+mod modes;
 mod pair_zoom;
 mod palette;
 mod png;
+mod pole_zero;
 mod step;
 mod style;
 #[cfg(test)]
@@ -72,14 +83,15 @@ mod time;
 
 pub use crate::ident::frf::MIN_COHERENCE;
 pub use bode::{bode_curve, write_bode_png, BodePlot, BodeSeries};
+pub use map::{write_map_png, write_veering_png, MeasuredPoint};
+pub use modes::write_decomposed_bode_png;
 pub use pair_zoom::PairZoom;
 pub use palette::{
-    COMMAND_COLOR, FAINT_COLOR, MARKER_COLOR, MEASURED_COLOR, OVERSHOOT_COLOR, RISE_COLOR,
-    SETTLE_COLOR,
+    COMMAND_COLOR, FAINT_COLOR, MAP_CNMP_BOTH, MAP_CNMP_UNDAMPED_ONLY, MARKER_COLOR,
+    MEASURED_COLOR, OVERSHOOT_COLOR, RISE_COLOR, SETTLE_COLOR,
 };
-pub(crate) use png::write_png_atomically;
+pub use pole_zero::write_pole_zero_png;
 pub use step::{write_step_png, StepPlot};
-pub(crate) use style::FONT;
 pub use time::{write_time_png, TimePanel};
 
 /// Error writing a plot; every variant except [`PlotError::Font`] names the
@@ -119,6 +131,6 @@ pub enum PlotError {
 
 /// Any error while drawing (plotters' own, or a pixel count that does not
 /// fit); becomes [`PlotError::Draw`].
-pub(crate) type BoxError = Box<dyn StdError>;
+type BoxError = Box<dyn StdError>;
 /// The whole image, or a part of it split off for a panel.
-pub(crate) type Area<'b> = DrawingArea<BitMapBackend<'b>, Shift>;
+type Area<'b> = DrawingArea<BitMapBackend<'b>, Shift>;

@@ -1,7 +1,8 @@
 //! Every colour of every figure, in one place: the base colours (the
 //! Tableau 10 set plotting libraries default to), then what each one
-//! means in a figure. The public ones are re-exported from [`super`] so
-//! tests can look for them in the pixels.
+//! means in a figure, then the cycles for series without a meaning of
+//! their own. The public ones are re-exported from [`super`] so tests can
+//! look for them in the pixels.
 
 use plotters::style::RGBColor;
 
@@ -32,7 +33,8 @@ pub const MARKER_COLOR: RGBColor = RGBColor(90, 90, 90);
 // Bode figure
 
 /// Colour of the measured FRF (coherence at or above
-/// [`MIN_COHERENCE`](crate::ident::frf::MIN_COHERENCE)).
+/// [`MIN_COHERENCE`](crate::ident::frf::MIN_COHERENCE)), and of the
+/// measured-verdict markers on the CNMP map.
 pub const MEASURED_COLOR: RGBColor = BLUE;
 /// Colour of measured FRF points below
 /// [`MIN_COHERENCE`](crate::ident::frf::MIN_COHERENCE) (the measured
@@ -74,7 +76,25 @@ pub const OVERSHOOT_COLOR: RGBColor = BROWN;
 pub(super) const STEADY_COLOR: RGBColor = CYAN;
 
 // ---------------------------------------------------------------------------
+// Model-analysis figures (pole-zero map, CNMP map)
+
+/// A CMP-CNMP zero; the mode-crossing line of the map.
+pub(super) const CNMP_COLOR: RGBColor = RGBColor(200, 30, 30);
+/// An RMP-RNMP zero.
+pub(super) const RNMP_COLOR: RGBColor = ORANGE;
+/// An MMP zero.
+pub(super) const MMP_COLOR: RGBColor = RGBColor(60, 60, 60);
+/// Shade of a map cell with CMP-CNMP zeros in both models.
+pub const MAP_CNMP_BOTH: RGBColor = RGBColor(30, 30, 30);
+/// Shade of a cell with CMP-CNMP zeros only without damping.
+pub const MAP_CNMP_UNDAMPED_ONLY: RGBColor = RGBColor(150, 150, 150);
+
+// ---------------------------------------------------------------------------
 // Series without a meaning of their own
 
 /// The curves of a time-series panel, in order (cycled).
 pub(super) const SERIES: [RGBColor; 8] = [BLUE, RED, GREEN, ORANGE, PURPLE, BROWN, PINK, CYAN];
+/// The modes of the decomposed-mode plot and the asymmetries of the
+/// veering plot, in order (cycled): the same colours without red, which
+/// marks CMP-CNMP in the model-analysis figures, and pink.
+pub(super) const MODE_SERIES: [RGBColor; 6] = [BLUE, ORANGE, GREEN, PURPLE, BROWN, CYAN];

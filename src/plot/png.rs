@@ -26,7 +26,7 @@ pub(super) fn invalid(path: &Path, reason: String) -> PlotError {
 /// through a temporary file renamed when complete
 /// ([`outputs::write_atomically`](crate::outputs::write_atomically)): a
 /// failed write leaves nothing under `path`.
-pub(crate) fn write_png_atomically(
+pub(super) fn write_png_atomically(
     path: &Path,
     existing: Existing,
     size: (u32, u32),

@@ -1,5 +1,7 @@
 //! Axis ranges, tick positions and number formatting: pure functions of
-//! the data, no drawing.
+//! the data, no drawing. The model-analysis figures (`pole_zero.rs`,
+//! `modes.rs`, `map.rs`) take their ranges from [`span`] and leave the
+//! ticks to plotters.
 
 use std::ops::Range;
 
@@ -221,6 +223,23 @@ pub(super) fn fmt_sig(v: f64, sig: i32) -> String {
     } else {
         s
     }
+}
+
+/// The range of the model-analysis figures: the extent of the finite
+/// `values`, at least `min_span` wide, widened by `pad` of that width in
+/// all (half each side) around its middle; `-1..1` without a finite value.
+pub(super) fn span(values: impl Iterator<Item = f64>, pad: f64, min_span: f64) -> Range<f64> {
+    let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
+    for v in values.filter(|v| v.is_finite()) {
+        lo = lo.min(v);
+        hi = hi.max(v);
+    }
+    if !lo.is_finite() {
+        return -1.0..1.0;
+    }
+    let s = (hi - lo).max(min_span);
+    let mid = 0.5 * (lo + hi);
+    (mid - 0.5 * s * (1.0 + pad))..(mid + 0.5 * s * (1.0 + pad))
 }
 
 #[cfg(test)]
