@@ -101,7 +101,7 @@ impl Job for ControlJob {
 }
 
 /// Computes the step metrics from the recorded signals (see
-/// [`analyze_step`](crate::control::step_metrics::analyze_step)).
+/// [`analyze_step`]).
 pub fn step_metrics(
     d: &Collected,
     settle_s: f64,

@@ -31,8 +31,9 @@
 //! strips, marker labels, header lines) and `png.rs` (writing the file).
 //! Unit tests of the figures as files are in `tests.rs`.
 //!
-//! Legends sit in strips above the panels, outside the plotted area, so
-//! they never hide a trace. Rendering uses the plotters bitmap backend with
+//! In the Bode, step and time-series figures legends sit in strips above
+//! the panels, outside the plotted area, so they never hide a trace.
+//! Rendering uses the plotters bitmap backend with
 //! an embedded DejaVu Sans font, so no system font libraries are needed.
 //! Non-finite samples (and non-positive magnitudes or frequencies, which
 //! have no logarithm) are skipped and break the line instead of failing.
@@ -52,8 +53,8 @@
 //! [`crate::ident`] (the FRF, the pair verdict, [`MIN_COHERENCE`]),
 //! [`crate::control`] (the step metrics), [`crate::analysis`] (modal
 //! terms, typed zeros, map cells, veering curves) and [`crate::outputs`]
-//! (how a file is written); outside it, `bench_hal::model` (the plant's
-//! modes and zero types). Never `jobs`, `cli`, `daemon`, `campaign` or
+//! (how a file is written); from the workspace, `bench_hal::model` (the
+//! plant's modes and zero types). Never `jobs`, `cli`, `daemon`, `campaign` or
 //! `rt` (nor `record`, `config`, `live`): they call the figures, not the
 //! reverse.
 

@@ -22,10 +22,10 @@ pub(super) fn invalid(path: &Path, reason: String) -> PlotError {
     }
 }
 
-/// Draws with `draw` into an RGB buffer, then writes it as a PNG to `path`
-/// through a temporary file renamed when complete
-/// ([`outputs::write_atomically`](crate::outputs::write_atomically)): a
-/// failed write leaves nothing under `path`.
+/// Draws with `draw` into an RGB buffer of `size` px, then writes it as a
+/// PNG to `path` through a temporary file renamed when complete
+/// ([`outputs::write_atomically`]): a failed write leaves nothing under
+/// `path`.
 pub(super) fn write_png_atomically(
     path: &Path,
     existing: Existing,
