@@ -11,7 +11,6 @@
 
 pub mod map;
 pub mod modal;
-pub mod plot;
 pub mod sequence;
 pub mod three_mode;
 

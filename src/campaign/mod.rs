@@ -9,7 +9,7 @@
 //!   a campaign survive SIGKILL and power loss without losing a completed
 //!   cell or counting a half-finished one.
 //!
-//! Layer rule: may use `analysis`, `config`, `daemon`, `jobs`, `outputs`, `rt`, `splitmix`.
+//! Layer rule: may use `analysis`, `config`, `daemon`, `jobs`, `outputs`, `plot`, `rt`, `splitmix`.
 
 pub mod file;
 pub mod journal;

@@ -6,12 +6,12 @@
 use super::point::PointArgs;
 use super::{bad_input, emit, load_config, status, CONFIG_HELP};
 use bench::analysis::map::{cnmp_map, linspace, model_at, veering_curve, MapCell, VeeringCurve};
-use bench::analysis::plot::{
-    write_decomposed_bode_png, write_map_png, write_pole_zero_png, write_veering_png, MeasuredPoint,
-};
 use bench::analysis::{analyze as analyze_model, Analysis};
 use bench::config::BenchConfig;
 use bench::outputs::Existing;
+use bench::plot::{
+    write_decomposed_bode_png, write_map_png, write_pole_zero_png, write_veering_png, MeasuredPoint,
+};
 use bench_hal::model::{ranges, Sr4dof, Sr4dofParams};
 use clap::Args;
 use serde::Serialize;

@@ -9,7 +9,9 @@
 //! sections and reports how closely they follow it; `section.rs` holds
 //! what runs on the tick, the biquads and [`DiscreteController::update`]
 //! (allocation-free); [`loop_check`] judges a controller against the plant
-//! before anything is enabled. The items are used through this module.
+//! before anything is enabled, and [`step_metrics`] judges the closed-loop
+//! step it then runs (rise, settling, overshoot, steady-state error, from
+//! the recorded signals). The items are used through this module.
 //!
 //! May use `nalgebra` and `bench_hal::model`/`bench_hal::sim` (the plant
 //! the loop check closes the loop around); the loop check also reads the
@@ -90,6 +92,7 @@ mod design;
 mod discretize;
 pub mod loop_check;
 mod section;
+pub mod step_metrics;
 
 pub use crate::config::controller::{
     ComplexPair, ControllerConfig, ControllerError, Discretization, ErrorUnit, Form, CORNER_RAD_S,

@@ -1,0 +1,274 @@
+//! How a closed-loop step is judged: the figures `bench control` reports
+//! and plots, computed from the recorded signals.
+//!
+//! The step response is `r = (y − y₀)/step`, `y₀` the first setpoint (the
+//! start position), counted from the sample at which the step starts:
+//! - rise time: from r = [`RISE_FROM`] (0.1) to r = [`RISE_TO`] (0.9)
+//!   (first crossings), s;
+//! - settling time: from the step until r stays within 1 ±
+//!   [`SETTLING_BAND`] (0.02), s;
+//! - overshoot: `max r − 1`, % (0 when none);
+//!
+//! (these three on the reading smoothed by a centred moving average over
+//! [`SMOOTHING_S`], so probe noise — 40 nm RMS against a 200 nm band for a
+//! 10 µm step — does not count as motion; the average is far shorter than
+//! the responses it measures);
+//! - steady-state error `setpoint − y` over the final
+//!   `steady_state_window_s`: mean and standard deviation, nm;
+//! - peak |command|, A.
+//!
+//! Pure computation on slices: no loop, no recording. The step job
+//! (`jobs::step`, above this folder) runs the experiment and calls it; the
+//! step figure (`plot::write_step_png`) draws its events and its band.
+
+use serde::{Deserialize, Serialize};
+
+/// Step-response figures.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
+pub struct StepMetrics {
+    /// Step size, m.
+    pub step_m: f64,
+    /// 10–90 % rise time, s (`None` if never reached).
+    pub rise_time_s: Option<f64>,
+    /// 2 % settling time after the step, s (`None` if never settled).
+    pub settling_time_s: Option<f64>,
+    /// Overshoot, % of the step.
+    pub overshoot_pct: f64,
+    /// Mean of `setpoint − position` over the final window, nm.
+    pub steady_state_error_mean_nm: f64,
+    /// Standard deviation of `setpoint − position` over the final window, nm.
+    pub steady_state_error_std_nm: f64,
+    /// Length of that window, s.
+    pub steady_state_window_s: f64,
+    /// Largest |command|, A.
+    pub peak_command_a: f64,
+}
+
+/// Width of the centred moving average applied before the rise, settling
+/// and overshoot figures, s.
+pub const SMOOTHING_S: f64 = 2e-3;
+
+/// Centred moving average of `x` over `2h + 1` samples (shorter at the ends).
+fn moving_average(x: &[f64], h: usize) -> Vec<f64> {
+    let mut prefix = Vec::with_capacity(x.len() + 1);
+    prefix.push(0.0);
+    for v in x {
+        prefix.push(prefix.last().copied().unwrap_or(0.0) + v);
+    }
+    (0..x.len())
+        .map(|k| {
+            let (a, b) = (k.saturating_sub(h), (k + h + 1).min(x.len()));
+            (prefix[b] - prefix[a]) / (b - a) as f64
+        })
+        .collect()
+}
+
+/// Step response level at which the rise time starts (10 %).
+pub const RISE_FROM: f64 = 0.1;
+/// Step response level at which the rise time ends (90 %).
+pub const RISE_TO: f64 = 0.9;
+/// Half width of the settling band around the final value, as a fraction
+/// of the step (2 %).
+pub const SETTLING_BAND: f64 = 0.02;
+
+/// Where, in the recorded samples, the events behind [`StepMetrics`] happen
+/// (indices into the recorded samples, [`StepSignals`]), for the plot's
+/// markers.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct StepEvents {
+    /// The sample at which the step starts (`settle_s / period_s`, rounded).
+    pub step: usize,
+    /// First sample after the step at which the smoothed response reaches
+    /// [`RISE_FROM`] of the step (`None` if never).
+    pub rise_from: Option<usize>,
+    /// First sample after the step at which it reaches [`RISE_TO`].
+    pub rise_to: Option<usize>,
+    /// First sample from which it stays within ±[`SETTLING_BAND`] of the
+    /// step (`None` if it never settles before the end of the record).
+    pub settled: Option<usize>,
+    /// Sample of the largest smoothed response after the step (`None` if
+    /// nothing follows the step).
+    pub peak: Option<usize>,
+    /// First sample of the steady-state window (which runs to the end).
+    pub steady_state_from: usize,
+}
+
+/// The step metrics, where their events happen, and the smoothed reading
+/// they are computed on.
+#[derive(Debug, Clone, PartialEq)]
+pub struct StepAnalysis {
+    /// The figures.
+    pub metrics: StepMetrics,
+    /// Where they come from.
+    pub events: StepEvents,
+    /// The probe reading smoothed by the centred moving average over
+    /// [`SMOOTHING_S`], m (same length as [`StepSignals::position_m`]).
+    pub smoothed_position_m: Vec<f64>,
+}
+
+/// The recorded signals a step is judged on, one value per sample (the
+/// columns the step job keeps).
+#[derive(Debug, Clone, Copy)]
+pub struct StepSignals<'a> {
+    /// Probe reading, m.
+    pub position_m: &'a [f64],
+    /// Setpoint, m (its first value is the start position).
+    pub setpoint_m: &'a [f64],
+    /// Coil current command, A.
+    pub current_command_a: &'a [f64],
+}
+
+/// Computes the step metrics (see the module documentation), where their
+/// events happen and the smoothed reading, from the recorded signals `d`
+/// of a step of `step_m` (m) starting `settle_s` (s) into the record,
+/// sampled every `period_s` (s), with the steady-state error taken over
+/// the final `window_s` (s).
+pub fn analyze_step(
+    d: StepSignals<'_>,
+    settle_s: f64,
+    step_m: f64,
+    window_s: f64,
+    period_s: f64,
+) -> StepAnalysis {
+    let n = d.position_m.len();
+    let k0 = ((settle_s / period_s).round() as usize).min(n);
+    let y0 = d.setpoint_m.first().copied().unwrap_or(0.0);
+    let h = ((SMOOTHING_S / period_s / 2.0).round() as usize).max(1);
+    let smoothed_position_m = moving_average(d.position_m, h);
+    let r: Vec<f64> = smoothed_position_m
+        .iter()
+        .map(|y| (y - y0) / step_m)
+        .collect();
+    let first = |thr: f64| (k0..n).find(|&k| r[k] >= thr);
+    let (rise_from, rise_to) = (first(RISE_FROM), first(RISE_TO));
+    let rise_time_s = match (rise_from, rise_to) {
+        (Some(a), Some(b)) => Some((b - a) as f64 * period_s),
+        _ => None,
+    };
+    let settled = match (k0..n).rev().find(|&k| (r[k] - 1.0).abs() > SETTLING_BAND) {
+        None => Some(k0),
+        Some(k) if k + 1 < n => Some(k + 1),
+        Some(_) => None,
+    };
+    let settling_time_s = settled.map(|k| (k - k0) as f64 * period_s);
+    // The first largest value; NaN readings (a dropped probe sample spreads
+    // over the average) are no peak.
+    let peak = (k0..n).fold(None, |best: Option<usize>, k| match best {
+        _ if r[k].is_nan() => best,
+        Some(b) if r[b] >= r[k] => Some(b),
+        _ => Some(k),
+    });
+    let overshoot_pct = (peak.map_or(f64::NEG_INFINITY, |k| r[k]) - 1.0).max(0.0) * 100.0;
+    let w = ((window_s / period_s).round() as usize)
+        .min(n.saturating_sub(k0))
+        .max(1);
+    let e: Vec<f64> = (n - w..n)
+        .map(|k| d.setpoint_m[k] - d.position_m[k])
+        .collect();
+    let mean = e.iter().sum::<f64>() / e.len() as f64;
+    let var = e.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (e.len().max(2) - 1) as f64;
+    let metrics = StepMetrics {
+        step_m,
+        rise_time_s,
+        settling_time_s,
+        overshoot_pct,
+        steady_state_error_mean_nm: mean * 1e9,
+        steady_state_error_std_nm: var.sqrt() * 1e9,
+        steady_state_window_s: w as f64 * period_s,
+        peak_command_a: d
+            .current_command_a
+            .iter()
+            .fold(0.0, |m: f64, v| m.max(v.abs())),
+    };
+    StepAnalysis {
+        metrics,
+        events: StepEvents {
+            step: k0,
+            rise_from,
+            rise_to,
+            settled,
+            peak,
+            steady_state_from: n - w,
+        },
+        smoothed_position_m,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::f64::consts::PI;
+
+    /// Owned columns of a made-up record.
+    #[derive(Default)]
+    struct Signals {
+        position_m: Vec<f64>,
+        setpoint_m: Vec<f64>,
+        current_command_a: Vec<f64>,
+    }
+
+    impl Signals {
+        fn view(&self) -> StepSignals<'_> {
+            StepSignals {
+                position_m: &self.position_m,
+                setpoint_m: &self.setpoint_m,
+                current_command_a: &self.current_command_a,
+            }
+        }
+    }
+
+    /// Metrics of a known first-order step response y = 1 − e^{−t/τ}:
+    /// rise 10–90 % = τ ln 9, 2 % settling = τ ln 50, no overshoot.
+    #[test]
+    fn metrics_of_a_first_order_response() {
+        let dt = 1e-4;
+        let tau = 0.01;
+        let settle = 0.1;
+        let n = 10_000;
+        let mut d = Signals::default();
+        for k in 0..n {
+            let t = k as f64 * dt;
+            let y = if t < settle {
+                0.0
+            } else {
+                1e-5 * (1.0 - (-(t - settle + dt) / tau).exp())
+            };
+            d.position_m.push(y);
+            d.setpoint_m.push(if t < settle { 0.0 } else { 1e-5 });
+            d.current_command_a.push(0.1);
+        }
+        let m = analyze_step(d.view(), settle, 1e-5, 0.5, dt).metrics;
+        assert!((m.rise_time_s.unwrap() - tau * 9f64.ln()).abs() < 2.0 * dt);
+        assert!((m.settling_time_s.unwrap() - tau * 50f64.ln()).abs() < 2.0 * dt);
+        assert!(m.overshoot_pct < 1e-6);
+        assert!(m.steady_state_error_mean_nm.abs() < 1e-3);
+        assert_eq!(m.peak_command_a, 0.1);
+    }
+
+    /// Overshoot of an underdamped second-order step response:
+    /// `exp(−ζπ/√(1−ζ²))` (Ogata, *Modern Control Engineering*, §5-3).
+    #[test]
+    fn overshoot_of_a_second_order_response() {
+        let (dt, wn, zeta) = (1e-4, 60.0, 0.3);
+        let wd = wn * (1.0f64 - zeta * zeta).sqrt();
+        let mut d = Signals::default();
+        for k in 0..30_000 {
+            let t = k as f64 * dt - 0.1;
+            let r = if t < 0.0 {
+                0.0
+            } else {
+                1.0 - (-zeta * wn * t).exp() * ((wd * t).cos() + zeta * wn / wd * (wd * t).sin())
+            };
+            d.position_m.push(1e-5 * r);
+            d.setpoint_m.push(if t < 0.0 { 0.0 } else { 1e-5 });
+            d.current_command_a.push(0.0);
+        }
+        let m = analyze_step(d.view(), 0.1, 1e-5, 1.0, dt).metrics;
+        let expected = 100.0 * (-zeta * PI / (1.0f64 - zeta * zeta).sqrt()).exp();
+        assert!(
+            (m.overshoot_pct - expected).abs() < 0.2,
+            "{} vs {expected}",
+            m.overshoot_pct
+        );
+    }
+}

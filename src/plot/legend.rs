@@ -1,0 +1,238 @@
+//! Text around the panels: legend strips above a panel (outside the
+//! plotted area, so they never hide a trace), labels above the frame at
+//! the x of a marker line (stacked in rows so they do not overlap), and
+//! header lines above a section.
+
+use plotters::coord::ranged1d::Ranged;
+use plotters::element::DashedPathElement;
+use plotters::prelude::*;
+use plotters::style::text_anchor::{HPos, Pos, VPos};
+
+use super::axes::{plot_columns, Chart};
+use super::style::{FONT, HEADER_SIZE};
+use super::{Area, BoxError};
+
+/// Legend text, px.
+const LEGEND_SIZE: f64 = 17.0;
+/// Marker labels, px.
+const MARKER_LABEL_SIZE: f64 = 15.0;
+/// Height of one row of a legend strip, px.
+const LEGEND_ROW_H: u32 = 24;
+/// Length of a legend entry's swatch, px.
+const SWATCH_W: i32 = 30;
+
+/// How a legend entry is drawn before its text.
+#[derive(Debug, Clone, Copy)]
+pub(super) enum Swatch {
+    /// A solid line of this width.
+    Line(RGBColor, u32),
+    /// A dashed line.
+    Dashed(RGBColor),
+    /// A translucent patch.
+    Fill(RGBColor, f64),
+    /// Text only.
+    Text,
+}
+
+/// One entry of a legend strip: a swatch and its text.
+pub(super) struct Entry {
+    text: String,
+    swatch: Swatch,
+}
+
+/// The legend entry `text` drawn after `swatch`.
+pub(super) fn entry(text: impl Into<String>, swatch: Swatch) -> Entry {
+    Entry {
+        text: text.into(),
+        swatch,
+    }
+}
+
+/// Legend text, left-aligned and vertically centred on its row.
+fn legend_style() -> TextStyle<'static> {
+    TextStyle::from((FONT, LEGEND_SIZE).into_font()).pos(Pos::new(HPos::Left, VPos::Center))
+}
+
+/// Lays `entries` out left to right in rows `width` px wide: the x offset
+/// and row of each, and the number of rows.
+fn legend_layout(
+    area: &Area<'_>,
+    entries: &[Entry],
+    width: i32,
+) -> Result<(Vec<(i32, usize)>, usize), BoxError> {
+    let style = legend_style();
+    let mut out = Vec::with_capacity(entries.len());
+    let (mut x, mut row) = (0, 0);
+    for e in entries {
+        let (tw, _) = area.estimate_text_size(&e.text, &style)?;
+        let sw = if matches!(e.swatch, Swatch::Text) {
+            0
+        } else {
+            SWATCH_W + 6
+        };
+        let w = sw + i32::try_from(tw)?;
+        if x > 0 && x + w > width {
+            x = 0;
+            row += 1;
+        }
+        out.push((x, row));
+        x += w + 24;
+    }
+    let rows = if entries.is_empty() { 0 } else { row + 1 };
+    Ok((out, rows))
+}
+
+/// Height of the legend strip of `entries` above a panel built on `area`.
+pub(super) fn legend_height(area: &Area<'_>, entries: &[Entry]) -> Result<u32, BoxError> {
+    let (l, r) = plot_columns(area);
+    let (_, rows) = legend_layout(area, entries, r - l)?;
+    Ok(u32::try_from(rows)? * LEGEND_ROW_H)
+}
+
+/// Draws the legend strip of `entries` with its top-left corner at
+/// (`x0`, `y_top`) (absolute pixels), wrapping at `width`.
+fn draw_legend(
+    root: &Area<'_>,
+    entries: &[Entry],
+    x0: i32,
+    width: i32,
+    y_top: i32,
+) -> Result<(), BoxError> {
+    let (pos, _) = legend_layout(root, entries, width)?;
+    let row_h = i32::try_from(LEGEND_ROW_H)?;
+    for (e, (dx, row)) in entries.iter().zip(pos) {
+        let x = x0 + dx;
+        let y = y_top + i32::try_from(row)? * row_h + row_h / 2;
+        let seg = vec![(x, y), (x + SWATCH_W, y)];
+        match e.swatch {
+            Swatch::Line(c, w) => root.draw(&PathElement::new(seg, c.stroke_width(w)))?,
+            Swatch::Dashed(c) => {
+                root.draw(&DashedPathElement::new(seg, 8, 5, c.stroke_width(2)))?;
+            }
+            Swatch::Fill(c, a) => root.draw(&Rectangle::new(
+                [(x, y - 7), (x + SWATCH_W, y + 7)],
+                c.mix(a).filled(),
+            ))?,
+            Swatch::Text => {}
+        }
+        let tx = if matches!(e.swatch, Swatch::Text) {
+            x
+        } else {
+            x + SWATCH_W + 6
+        };
+        root.draw(&Text::new(e.text.clone(), (tx, y), legend_style()))?;
+    }
+    Ok(())
+}
+
+/// Draws the legend strip of `entries` at the top of the space reserved
+/// above the frame of `chart` (built on `area`).
+pub(super) fn panel_legend<X: Ranged<ValueType = f64>>(
+    root: &Area<'_>,
+    area: &Area<'_>,
+    chart: &Chart<'_, '_, X>,
+    entries: &[Entry],
+) -> Result<(), BoxError> {
+    let (xs, _) = chart.plotting_area().get_pixel_range();
+    let (_, top) = area.get_base_pixel();
+    draw_legend(root, entries, xs.start, xs.end - xs.start, top + 2)
+}
+
+/// A label placed above the frame of a panel, at the x of its marker.
+pub(super) struct MarkerLabel {
+    x: f64,
+    text: String,
+    color: RGBColor,
+    row: usize,
+}
+
+/// A marker label in `color`, centred above its point.
+fn marker_style(color: RGBColor) -> TextStyle<'static> {
+    let mut style = TextStyle::from((FONT, MARKER_LABEL_SIZE).into_font())
+        .pos(Pos::new(HPos::Center, VPos::Bottom));
+    style.color = color.to_backend_color();
+    style
+}
+
+/// Assigns marker labels `(x, text, colour)` to rows so that labels in a
+/// row do not overlap; `x_px` maps x to an (approximate) pixel column.
+/// Returns the labels and the number of rows.
+pub(super) fn layout_marker_labels(
+    area: &Area<'_>,
+    items: Vec<(f64, String, RGBColor)>,
+    x_px: impl Fn(f64) -> i32,
+) -> Result<(Vec<MarkerLabel>, usize), BoxError> {
+    let mut sorted = items;
+    sorted.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let mut row_right_edges: Vec<i32> = Vec::new();
+    let mut labels = Vec::new();
+    for (x, text, color) in sorted {
+        let (tw, _) = area.estimate_text_size(&text, &marker_style(color))?;
+        let tw = i32::try_from(tw)?;
+        let left = x_px(x) - tw / 2;
+        let row = match row_right_edges.iter().position(|&r| left > r + 8) {
+            Some(r) => r,
+            None => {
+                row_right_edges.push(i32::MIN);
+                row_right_edges.len() - 1
+            }
+        };
+        row_right_edges[row] = left + tw;
+        labels.push(MarkerLabel {
+            x,
+            text,
+            color,
+            row,
+        });
+    }
+    Ok((labels, row_right_edges.len()))
+}
+
+/// Height of one row of marker labels in pixels.
+pub(super) fn marker_row_height() -> i32 {
+    MARKER_LABEL_SIZE as i32 + 4
+}
+
+/// Draws the marker labels above the frame of `chart`, centred on the lines
+/// (kept inside the plotting columns).
+pub(super) fn draw_marker_labels<X: Ranged<ValueType = f64>>(
+    root: &Area<'_>,
+    chart: &Chart<'_, '_, X>,
+    labels: &[MarkerLabel],
+    y_top: f64,
+) -> Result<(), BoxError> {
+    let (xs, _) = chart.plotting_area().get_pixel_range();
+    for l in labels {
+        let style = marker_style(l.color);
+        let (px, py) = chart.backend_coord(&(l.x, y_top));
+        let (tw, _) = root.estimate_text_size(&l.text, &style)?;
+        let half = i32::try_from(tw)? / 2 + 2;
+        let x = px.clamp(xs.start + half, (xs.end - half).max(xs.start + half));
+        let y = py - 4 - i32::try_from(l.row)? * marker_row_height();
+        root.draw(&Text::new(l.text.clone(), (x, y), style))?;
+    }
+    Ok(())
+}
+
+/// Draws lines of text left-aligned at the plot columns of `area`, from its
+/// top.
+pub(super) fn header_lines(
+    root: &Area<'_>,
+    area: &Area<'_>,
+    lines: &[String],
+) -> Result<(), BoxError> {
+    let (left, _) = plot_columns(area);
+    let (_, top) = area.get_base_pixel();
+    let style =
+        TextStyle::from((FONT, HEADER_SIZE).into_font()).pos(Pos::new(HPos::Left, VPos::Top));
+    for (i, line) in lines.iter().enumerate() {
+        let y = top + i32::try_from(i)? * (HEADER_SIZE as i32 + 8);
+        root.draw(&Text::new(line.clone(), (left, y), style.clone()))?;
+    }
+    Ok(())
+}
+
+/// Height of `n` header lines, px.
+pub(super) fn header_height(n: usize) -> u32 {
+    u32::try_from(n).unwrap_or(0) * (HEADER_SIZE as u32 + 8) + 6
+}

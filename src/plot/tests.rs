@@ -1,0 +1,456 @@
+//! The figures written as files: their sizes, the atomic write, invalid
+//! and degenerate inputs (the Bode and time-series figures), and the pair
+//! window rule. `plot_write_examples_to_tmp` writes example figures for
+//! visual inspection.
+
+use super::pair_zoom::pair_window;
+use super::*;
+use crate::ident::frf::PairVerdict;
+use crate::outputs::Existing;
+use std::f64::consts::PI;
+use std::fs;
+use std::path::Path;
+
+/// Two-mode compliance `x/i` of a flexure stage in m/A: a main mode near
+/// 71 Hz and a weaker one near 420 Hz, with an optional dead time.
+fn stage_response(f: f64, delay_s: f64) -> (f64, f64) {
+    let w = 2.0 * PI * f;
+    let mode = |k: f64, m: f64, zeta: f64, gain: f64| {
+        let c = 2.0 * zeta * (k * m).sqrt();
+        let (re, im) = (k - m * w * w, c * w);
+        let d = re * re + im * im;
+        (gain * re / d, -gain * im / d)
+    };
+    let a = mode(2.0e4, 0.1, 0.02, 5.0);
+    let b = mode(3.0e5, 0.043, 0.01, 0.6);
+    let (re, im) = (a.0 + b.0, a.1 + b.1);
+    let mag = re.hypot(im);
+    let phase = im.atan2(re) - w * delay_s;
+    (mag, phase.to_degrees())
+}
+
+fn unwrap_deg(p: &mut [f64]) {
+    for i in 1..p.len() {
+        while p[i] - p[i - 1] > 180.0 {
+            p[i] -= 360.0;
+        }
+        while p[i] - p[i - 1] < -180.0 {
+            p[i] += 360.0;
+        }
+    }
+}
+
+fn log_grid(n: usize, f0: f64, f1: f64) -> Vec<f64> {
+    (0..n)
+        .map(|i| f0 * (f1 / f0).powf(i as f64 / (n - 1) as f64))
+        .collect()
+}
+
+struct Example {
+    f: Vec<f64>,
+    mag: Vec<f64>,
+    phase: Vec<f64>,
+    coh: Vec<f64>,
+    fm: Vec<f64>,
+    mag_m: Vec<f64>,
+    phase_m: Vec<f64>,
+}
+
+fn example() -> Example {
+    let f = log_grid(200, 1.0, 1000.0);
+    let mut mag = Vec::new();
+    let mut phase = Vec::new();
+    let mut coh = Vec::new();
+    for (i, &fi) in f.iter().enumerate() {
+        let (m, p) = stage_response(fi, 2e-4);
+        // Deterministic "measurement noise" growing with frequency.
+        let noise = 0.08 * (fi / 1000.0).sqrt() * (i as f64 * 2.3).sin();
+        mag.push(m * (1.0 + noise));
+        phase.push(p + 10.0 * noise);
+        let dip = (-((fi.ln() - 130f64.ln()) / 0.08).powi(2)).exp();
+        coh.push((0.98 - 0.5 * (fi / 1000.0).powi(2) - 0.6 * dip).clamp(0.0, 1.0));
+    }
+    unwrap_deg(&mut phase);
+    let fm = log_grid(600, 0.8, 1200.0);
+    let (mut mag_m, mut phase_m): (Vec<f64>, Vec<f64>) =
+        fm.iter().map(|&fi| stage_response(fi, 2e-4)).unzip();
+    unwrap_deg(&mut phase_m);
+    mag_m.iter_mut().for_each(|m| *m *= 1.05);
+    Example {
+        f,
+        mag,
+        phase,
+        coh,
+        fm,
+        mag_m,
+        phase_m,
+    }
+}
+
+fn bode<'a>(e: &'a Example, markers: &'a [f64]) -> BodePlot<'a> {
+    BodePlot {
+        title: "X axis compliance, chirp 1–1000 Hz",
+        measured: BodeSeries {
+            label: "measured",
+            frequency_hz: &e.f,
+            magnitude: &e.mag,
+            phase_deg: &e.phase,
+        },
+        coherence: &e.coh,
+        model: Some(BodeSeries {
+            label: "lumped model",
+            frequency_hz: &e.fm,
+            magnitude: &e.mag_m,
+            phase_deg: &e.phase_m,
+        }),
+        markers_hz: markers,
+        pair: None,
+    }
+}
+
+/// The pair zoom of the example: two made-up modes near 400 Hz.
+fn example_pair() -> PairZoom<'static> {
+    PairZoom::Resolved {
+        pair: PairVerdict {
+            lower_hz: 400.0,
+            upper_hz: 430.0,
+            band_hz: (150.0, 700.0),
+            net_phase_deg: -350.0,
+            net_phase_multiple_deg: -360.0,
+            cmp_cnmp: true,
+        },
+        band_phase_deg: (-190.0, -540.0),
+    }
+}
+
+/// Reads width and height from the PNG signature + IHDR chunk.
+fn png_size(path: &Path) -> (u32, u32) {
+    let bytes = fs::read(path).unwrap();
+    assert!(bytes.len() > 24, "PNG too short");
+    assert_eq!(&bytes[..8], b"\x89PNG\r\n\x1a\n", "not a PNG signature");
+    assert_eq!(&bytes[12..16], b"IHDR");
+    let w = u32::from_be_bytes(bytes[16..20].try_into().unwrap());
+    let h = u32::from_be_bytes(bytes[20..24].try_into().unwrap());
+    (w, h)
+}
+
+fn dir_entries(dir: &Path) -> Vec<String> {
+    let mut v: Vec<String> = fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    v.sort();
+    v
+}
+
+#[test]
+fn plot_bode_writes_1400x1000_png() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("bode.png");
+    let e = example();
+    write_bode_png(&path, Existing::Refuse, &bode(&e, &[70.9, 420.0])).unwrap();
+    assert_eq!(png_size(&path), (1400, 1000));
+    // Nothing but the final file is left behind.
+    assert_eq!(dir_entries(dir.path()), vec!["bode.png".to_string()]);
+}
+
+#[test]
+fn plot_bode_with_a_pair_zoom_is_1400x1650() {
+    let dir = tempfile::tempdir().unwrap();
+    let e = example();
+    for (i, pair) in [
+        example_pair(),
+        PairZoom::Unresolved {
+            reason: "only one resonance",
+        },
+    ]
+    .into_iter()
+    .enumerate()
+    {
+        let path = dir.path().join(format!("bode{i}.png"));
+        let plot = BodePlot {
+            pair: Some(pair),
+            ..bode(&e, &[70.9, 400.0, 430.0])
+        };
+        write_bode_png(&path, Existing::Refuse, &plot).unwrap();
+        assert_eq!(png_size(&path), (1400, 1650));
+    }
+}
+
+#[test]
+fn plot_bode_replaces_an_existing_file_only_with_overwrite() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("bode.png");
+    fs::write(&path, b"old").unwrap();
+    let e = example();
+    let err = write_bode_png(&path, Existing::Refuse, &bode(&e, &[])).unwrap_err();
+    assert!(matches!(err, PlotError::Io { .. }), "{err:?}");
+    assert_eq!(fs::read(&path).unwrap(), b"old");
+    write_bode_png(&path, Existing::Replace, &bode(&e, &[])).unwrap();
+    assert_eq!(png_size(&path), (1400, 1000));
+    assert_eq!(dir_entries(dir.path()), vec!["bode.png".to_string()]);
+}
+
+#[test]
+fn plot_bode_survives_nan_zero_and_negative_points() {
+    let dir = tempfile::tempdir().unwrap();
+    let e = example();
+    let mut mag = e.mag.clone();
+    let mut phase = e.phase.clone();
+    let mut coh = e.coh.clone();
+    let mut f = e.f.clone();
+    mag[10] = 0.0;
+    mag[11] = -1.0;
+    mag[50] = f64::NAN;
+    mag[120] = f64::INFINITY;
+    phase[60] = f64::NAN;
+    phase[61] = f64::NEG_INFINITY;
+    coh[70] = f64::NAN;
+    f[0] = 0.0; // DC bin: no place on a log axis
+    f[199] = f64::NAN;
+    let plot = BodePlot {
+        title: "NaN and zero points",
+        measured: BodeSeries {
+            label: "measured",
+            frequency_hz: &f,
+            magnitude: &mag,
+            phase_deg: &phase,
+        },
+        coherence: &coh,
+        model: None,
+        markers_hz: &[f64::NAN, -5.0, 1e9, 70.9],
+        pair: None,
+    };
+    let path = dir.path().join("nan.png");
+    write_bode_png(&path, Existing::Refuse, &plot).unwrap();
+    assert_eq!(png_size(&path), (1400, 1000));
+}
+
+#[test]
+fn plot_bode_degenerate_inputs_do_not_panic() {
+    let dir = tempfile::tempdir().unwrap();
+    let one = [100.0];
+    // (frequency, magnitude, phase, coherence)
+    type Case = (Vec<f64>, Vec<f64>, Vec<f64>, Vec<f64>);
+    let cases: Vec<Case> = vec![
+        // Single point.
+        (vec![100.0], vec![1e-4], vec![-90.0], vec![0.9]),
+        // All-equal values on a real grid.
+        (
+            log_grid(20, 1.0, 100.0),
+            vec![1e-4; 20],
+            vec![-90.0; 20],
+            vec![1.0; 20],
+        ),
+        // All-equal frequencies.
+        (vec![50.0; 5], vec![1e-3; 5], vec![0.0; 5], vec![0.5; 5]),
+        // Nothing valid at all.
+        (
+            vec![f64::NAN; 3],
+            vec![0.0; 3],
+            vec![f64::NAN; 3],
+            vec![f64::NAN; 3],
+        ),
+        // Empty.
+        (vec![], vec![], vec![], vec![]),
+        // Narrow range without a decade or 1-2-5 tick inside.
+        (
+            vec![101.0, 103.0, 107.0],
+            vec![1e-4, 2e-4, 3e-4],
+            vec![1.0, 2.0, 3.0],
+            vec![1.0; 3],
+        ),
+    ];
+    for (i, (f, m, p, c)) in cases.iter().enumerate() {
+        let plot = BodePlot {
+            title: "",
+            measured: BodeSeries {
+                label: "measured",
+                frequency_hz: f,
+                magnitude: m,
+                phase_deg: p,
+            },
+            coherence: c,
+            model: Some(BodeSeries {
+                label: "model",
+                frequency_hz: &one,
+                magnitude: &[2e-4],
+                phase_deg: &[-45.0],
+            }),
+            markers_hz: &one,
+            pair: None,
+        };
+        let path = dir.path().join(format!("case{i}.png"));
+        write_bode_png(&path, Existing::Refuse, &plot).unwrap_or_else(|e| panic!("case {i}: {e}"));
+        assert_eq!(png_size(&path), (1400, 1000), "case {i}");
+        // The same with a pair zoom, resolved or not.
+        for (j, pair) in [example_pair(), PairZoom::Unresolved { reason: "none" }]
+            .into_iter()
+            .enumerate()
+        {
+            let plot = BodePlot {
+                pair: Some(pair),
+                ..plot
+            };
+            let path = dir.path().join(format!("case{i}-{j}.png"));
+            write_bode_png(&path, Existing::Refuse, &plot)
+                .unwrap_or_else(|e| panic!("case {i}-{j}: {e}"));
+            assert_eq!(png_size(&path), (1400, 1650), "case {i}-{j}");
+        }
+    }
+}
+
+#[test]
+fn plot_missing_directory_is_an_error_naming_the_path() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("no-such-dir").join("bode.png");
+    let e = example();
+    let err = write_bode_png(&path, Existing::Refuse, &bode(&e, &[])).unwrap_err();
+    assert!(matches!(err, PlotError::Io { .. }), "{err:?}");
+    let msg = err.to_string();
+    assert!(msg.contains(&path.display().to_string()), "{msg}");
+    assert!(msg.contains("does not exist"), "{msg}");
+    assert!(!path.exists());
+
+    let err = write_time_png(&path, Existing::Refuse, "t", &[TimePanel::default()]).unwrap_err();
+    assert!(err.to_string().contains(&path.display().to_string()));
+}
+
+#[test]
+fn plot_mismatched_lengths_are_rejected() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("bad.png");
+    let e = example();
+    let mut plot = bode(&e, &[]);
+    plot.coherence = &e.coh[1..];
+    let err = write_bode_png(&path, Existing::Refuse, &plot).unwrap_err();
+    assert!(matches!(err, PlotError::InvalidData { .. }), "{err:?}");
+    assert!(err.to_string().contains("coherence"));
+
+    let mut plot = bode(&e, &[]);
+    plot.model.as_mut().unwrap().phase_deg = &e.phase_m[..3];
+    let err = write_bode_png(&path, Existing::Refuse, &plot).unwrap_err();
+    assert!(err.to_string().contains("lumped model"), "{err}");
+
+    let t = [0.0, 1.0];
+    let panel = TimePanel {
+        y_label: "y",
+        series: vec![("s", &t[..], &t[..1])],
+    };
+    let err = write_time_png(&path, Existing::Refuse, "", &[panel]).unwrap_err();
+    assert!(matches!(err, PlotError::InvalidData { .. }), "{err:?}");
+    assert!(write_time_png(&path, Existing::Refuse, "", &[]).is_err());
+    assert!(!path.exists());
+}
+
+fn step_example() -> (Vec<f64>, Vec<f64>, Vec<f64>, Vec<f64>) {
+    let t: Vec<f64> = (0..2000).map(|i| i as f64 * 1e-4).collect();
+    let r: Vec<f64> = t
+        .iter()
+        .map(|&t| if t >= 0.02 { 10.0 } else { 0.0 })
+        .collect();
+    let y: Vec<f64> = t
+        .iter()
+        .map(|&t| {
+            if t < 0.02 {
+                0.0
+            } else {
+                let s = t - 0.02;
+                10.0 * (1.0 - (-s / 0.004).exp() * (2.0 * PI * 120.0 * s).cos())
+            }
+        })
+        .collect();
+    let u: Vec<f64> = y
+        .iter()
+        .zip(&r)
+        .map(|(y, r)| 0.05 * (r - y) + 0.002 * r)
+        .collect();
+    (t, r, y, u)
+}
+
+#[test]
+fn plot_time_writes_png() {
+    let dir = tempfile::tempdir().unwrap();
+    let (t, r, y, mut u) = step_example();
+    u[500] = f64::NAN;
+    let panels = [
+        TimePanel {
+            y_label: "Position [µm]",
+            series: vec![("reference", &t[..], &r[..]), ("measured", &t[..], &y[..])],
+        },
+        TimePanel {
+            y_label: "Current [A]",
+            series: vec![("", &t[..], &u[..])],
+        },
+    ];
+    let path = dir.path().join("step.png");
+    write_time_png(&path, Existing::Refuse, "Closed-loop step", &panels).unwrap();
+    assert_eq!(png_size(&path), (1400, 1000));
+
+    // Many panels grow the figure; empty and constant panels are fine.
+    let c = vec![3.0; t.len()];
+    let mut many = vec![TimePanel::default(); 4];
+    many.push(TimePanel {
+        y_label: "const",
+        series: vec![("c", &t[..], &c[..])],
+    });
+    write_time_png(&path, Existing::Replace, "", &many).unwrap();
+    assert_eq!(png_size(&path), (1400, 1600));
+}
+
+#[test]
+fn plot_pair_window() {
+    let PairZoom::Resolved { pair, .. } = example_pair() else {
+        unreachable!()
+    };
+    let w = pair_window(&pair, &(1.0..1000.0));
+    assert_eq!(w, 370.0..460.0);
+    // Cut to the measured band when the pair stays inside it.
+    let w = pair_window(&pair, &(1.0..440.0));
+    assert_eq!(w, 370.0..440.0);
+    // A pair at the edge keeps its own window.
+    let w = pair_window(&pair, &(1.0..420.0));
+    assert_eq!(w, 370.0..460.0);
+}
+
+/// Writes `/tmp/bode-example.png`, `/tmp/bode-pair-example.png` and
+/// `/tmp/time-example.png` for visual inspection:
+/// `cargo test --lib plot -- --ignored`.
+#[test]
+#[ignore]
+fn plot_write_examples_to_tmp() {
+    let e = example();
+    write_bode_png(
+        Path::new("/tmp/bode-example.png"),
+        Existing::Replace,
+        &bode(&e, &[70.9, 420.0]),
+    )
+    .unwrap();
+    write_bode_png(
+        Path::new("/tmp/bode-pair-example.png"),
+        Existing::Replace,
+        &BodePlot {
+            pair: Some(example_pair()),
+            ..bode(&e, &[70.9, 400.0, 430.0])
+        },
+    )
+    .unwrap();
+    let (t, r, y, u) = step_example();
+    let panels = [
+        TimePanel {
+            y_label: "Position [µm]",
+            series: vec![("reference", &t[..], &r[..]), ("measured", &t[..], &y[..])],
+        },
+        TimePanel {
+            y_label: "Current [A]",
+            series: vec![("coil current", &t[..], &u[..])],
+        },
+    ];
+    write_time_png(
+        Path::new("/tmp/time-example.png"),
+        Existing::Replace,
+        "Closed-loop step, X axis",
+        &panels,
+    )
+    .unwrap();
+}
