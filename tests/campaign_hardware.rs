@@ -74,11 +74,12 @@ fn spawn(args: &[&str], cwd: &Path) -> Child {
 
 fn campaign_file(dir: &Path) -> std::path::PathBuf {
     // The shipped bench with the link-latency and overrun bounds of the
-    // shared test config (a loaded 2-core VM stalls the host at times), and
-    // 20 missed samples (4 ms at 5 kHz) before the link fault: a 5 ms stall
-    // of the pty under CI load faulted a cell, and this test is about the
-    // operator's flow, not the link's bound.
-    common::quiet_config_edited(dir, 0.3, "", |t| {
+    // shared test config (a loaded 2-core VM stalls the host at times), 20
+    // missed samples (4 ms at 5 kHz) before the link fault, and a 300 ms
+    // device watchdog (a silent link is judged by it: an emulator starved
+    // for 50 ms under a full test run faulted a cell): this test is about
+    // the operator's flow, not the link's bounds.
+    common::quiet_config_edited(dir, 0.3, "\n[emulator]\nwatchdog_ms = 300.0\n", |t| {
         common::set_key(t, "max_missed_samples", "20")
     });
     let p = dir.join("hw.toml");
