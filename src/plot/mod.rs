@@ -49,14 +49,13 @@
 //!
 //! # Layer
 //! A low layer: the figures draw data the layers below compute, and run
-//! nothing. Within the crate this folder may `use` only
-//! [`crate::ident`] (the FRF, the pair verdict, [`MIN_COHERENCE`]),
-//! [`crate::control`] (the step metrics), [`crate::analysis`] (modal
-//! terms, typed zeros, map cells, veering curves) and [`crate::outputs`]
-//! (how a file is written); from the workspace, `bench_hal::model` (the
-//! plant's modes and zero types). Never `jobs`, `cli`, `daemon`, `campaign` or
-//! `rt` (nor `record`, `config`, `live`): they call the figures, not the
-//! reverse.
+//! nothing. May use [`crate::ident`] (the FRF, the pair verdict,
+//! [`MIN_COHERENCE`]), [`crate::control`] (the step metrics),
+//! [`crate::analysis`] (modal terms, typed zeros, map cells, veering
+//! curves), [`crate::outputs`] (how a file is written) and
+//! `bench_hal::model` (the plant's modes and zero types); never `jobs`,
+//! `cli`, `daemon`, `campaign` or `rt` (nor `record`, `config`, `live`):
+//! they call the figures, not the reverse.
 //!
 //! Layer rule: may use `analysis`, `control`, `ident`, `outputs`.
 
