@@ -233,10 +233,10 @@ pub enum RecordError {
     /// A message could not be serialized to JSON.
     #[error("cannot serialize message to JSON: {0}")]
     Json(#[from] serde_json::Error),
-    /// A [`Channel`] that this recorder did not hand out.
+    /// A [`crate::record::Channel`] that this recorder did not hand out.
     #[error("unknown channel handle {0}")]
     UnknownChannel(usize),
-    /// The arrays given to [`Recorder::write_frf`] differ in length.
+    /// The arrays given to [`crate::record::Recorder::write_frf`] differ in length.
     #[error(
         "FRF arrays differ in length: frequency {frequency}, magnitude {magnitude}, \
          phase {phase}, coherence {coherence}"

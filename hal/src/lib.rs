@@ -28,7 +28,8 @@
 //! * The crate root: the [`Stage`] trait, its data and error kinds.
 //! * [`model`], [`sim`]: the SR4DoF model and the simulated stage.
 //! * [`protocol`]: the serial wire format (both sides of the wire).
-//! * [`clock`]: `CLOCK_MONOTONIC` time and absolute sleeps.
+//! * [`os`]: every OS call timing needs (`CLOCK_MONOTONIC` time and
+//!   absolute sleeps, scheduling, memory locking, CPU wake-up latency).
 //! * Host backends: [`serial`] ([`serial::SerialStage`]) and [`can`]
 //!   ([`can::CanStage`], with the CAN frame map and socket primitives the
 //!   CAN emulator shares).

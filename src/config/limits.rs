@@ -1,6 +1,6 @@
 //! The bounds of the safety keys (`[safety]`, `[actuator]`, `[emulator]`
 //! and the link timeouts of `[backend]`), with why each is where it is.
-//! [`BenchConfig::check`] refuses a value outside its range, naming the key;
+//! [`super::BenchConfig::check`] refuses a value outside its range, naming the key;
 //! the README's configuration reference and the comments in
 //! `bench-config/*.toml` give the same ranges.
 //!

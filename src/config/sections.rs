@@ -41,10 +41,10 @@ pub struct BackendConfig {
     pub kind: BackendKind,
     /// `[backend.serial]`: the serial DAQ. Safety ranges:
     /// `sample_timeout_periods` in [1, 1000] periods and at most
-    /// [`limits::SAMPLE_TIMEOUT_MAX_S`] (200 ms) at the loop rate;
-    /// `handshake_timeout_ms` in [`limits::HANDSHAKE_TIMEOUT_MS`]
+    /// [`super::limits::SAMPLE_TIMEOUT_MAX_S`] (200 ms) at the loop rate;
+    /// `handshake_timeout_ms` in [`super::limits::HANDSHAKE_TIMEOUT_MS`]
     /// (1 ms … 10 s); and `(safety.max_missed_samples + 1)` sample timeouts
-    /// at most [`limits::LINK_FAULT_MAX_S`] (1 s).
+    /// at most [`super::limits::LINK_FAULT_MAX_S`] (1 s).
     #[serde(default)]
     pub serial: bench_hal::serial::SerialConfig,
     /// `[backend.can]`: the SocketCAN module and its frame map. Safety
@@ -63,13 +63,13 @@ pub struct EmulatorConfig {
     /// Device watchdog: with no valid command for this long while enabled,
     /// the device drops the current to 0 A and latches a fault, ms.
     /// Range: at least 1 ms and two loop periods (commands come once a
-    /// period), at most [`limits::WATCHDOG_MAX_MS`] (1 s: a dead host must
+    /// period), at most [`super::limits::WATCHDOG_MAX_MS`] (1 s: a dead host must
     /// not leave current flowing longer).
     #[serde(default = "default_watchdog_ms")]
     pub watchdog_ms: f64,
     /// Size of one probe count on the serial link, m. Range:
     /// `probe.range_m / (2³¹ − 1)` (the whole probe range fits the 32-bit
-    /// count) to [`limits::POSITION_LSB_MAX_M`] (1 µm: a coarser count would
+    /// count) to [`super::limits::POSITION_LSB_MAX_M`] (1 µm: a coarser count would
     /// hide motion the position limit and jump checks must see).
     #[serde(default = "default_position_lsb_m")]
     pub position_lsb_m: f64,
@@ -191,8 +191,8 @@ pub struct StageConfig {
 #[serde(deny_unknown_fields)]
 pub struct SafetyConfig {
     /// Software position limit on |x1|, m: beyond it the supervisor faults.
-    /// Range: [`limits::POSITION_LIMIT_MIN_M`] (1 µm, well above the probe's
-    /// 40 nm RMS noise) up to, not including, [`limits::STROKE_M`] (the
+    /// Range: [`super::limits::POSITION_LIMIT_MIN_M`] (1 µm, well above the probe's
+    /// 40 nm RMS noise) up to, not including, [`super::limits::STROKE_M`] (the
     /// ±1 mm X travel of the thesis bench, §5.1.2), and inside
     /// `stage.mechanical_stop_m` and `probe.range_m`.
     pub position_limit_m: f64,
@@ -207,7 +207,7 @@ pub struct SafetyConfig {
     /// identification included. Open-loop jobs without it never stop on a
     /// stall: the stall is recorded and its span left out of the FRF.
     /// Between jobs at 0 A stalls are reported, never latched. Range:
-    /// above 0 and at most [`limits::BLIND_MAX_S`] (0.1 s).
+    /// above 0 and at most [`super::limits::BLIND_MAX_S`] (0.1 s).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub max_overrun_s: Option<f64>,
     /// The tick count that `max_overrun_s` replaced; refused with a hint
@@ -217,16 +217,16 @@ pub struct SafetyConfig {
     /// Consecutive samples that may be missing (sequence gap, timeout,
     /// corrupt frames) or stale (sequence not advancing) before the
     /// supervisor faults (K). Range: 0 (every missing sample faults) to the
-    /// ticks of [`limits::BLIND_MAX_S`] (0.1 s; 500 at 5 kHz), and K + 1
+    /// ticks of [`super::limits::BLIND_MAX_S`] (0.1 s; 500 at 5 kHz), and K + 1
     /// sample timeouts (`[backend.serial] sample_timeout_periods`,
     /// `[backend.can] sample_timeout_ms`) at most
-    /// [`limits::LINK_FAULT_MAX_S`] (1 s, the longest device watchdog).
+    /// [`super::limits::LINK_FAULT_MAX_S`] (1 s, the longest device watchdog).
     #[serde(default = "default_max_missed")]
     pub max_missed_samples: u32,
     /// Largest plausible change of the probe reading between two ticks, m;
     /// a larger jump faults (a glitch or a lost target, not motion).
-    /// Range: [`limits::POSITION_STEP_MIN_M`] (1 µm, 25 × the probe's RMS
-    /// noise) to [`limits::STAGE_SPEED_MAX_M_PER_S`] × one period (1 m/s,
+    /// Range: [`super::limits::POSITION_STEP_MIN_M`] (1 µm, 25 × the probe's RMS
+    /// noise) to [`super::limits::STAGE_SPEED_MAX_M_PER_S`] × one period (1 m/s,
     /// twice what the peak force can reach over the 2 mm stroke; 200 µm at
     /// 5 kHz), and below `position_limit_m`.
     #[serde(default = "default_max_step")]
@@ -239,24 +239,24 @@ pub struct SafetyConfig {
     /// default): the loop's own stall bound, as for `max_overrun_s`; set,
     /// it may only tighten it (above it: refused with both numbers) and
     /// applies to every job. Range: above 0 and at most
-    /// [`limits::BLIND_MAX_S`] (0.1 s).
+    /// [`super::limits::BLIND_MAX_S`] (0.1 s).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub max_command_latency_s: Option<f64>,
     /// How long the peak current may flow from cold, s: the I²t budget is
     /// `(I_peak² − I_cont²) · this`; the accumulator integrates
     /// `i² − I_cont²` (never below 0) and faults when it exceeds the budget.
-    /// Range: [`limits::I2T_PEAK_DURATION_S`] (10 ms to 10 s: a coil's peak
+    /// Range: [`super::limits::I2T_PEAK_DURATION_S`] (10 ms to 10 s: a coil's peak
     /// rating is a rating for seconds, not minutes).
     #[serde(default = "default_i2t_s")]
     pub i2t_peak_duration_s: f64,
     /// Smallest phase margin the loop check accepts, degrees. Range:
-    /// [`limits::MIN_PHASE_MARGIN_DEG`] (20° up to, not including, 90°:
+    /// [`super::limits::MIN_PHASE_MARGIN_DEG`] (20° up to, not including, 90°:
     /// below 20° a loop rings and small plant changes destabilise it).
     #[serde(default = "default_min_pm")]
     pub min_phase_margin_deg: f64,
     /// Largest peak of |S| the loop check accepts (2.0 = 6 dB, modulus
     /// margin 0.5). Range: above 1 (no loop does better) up to
-    /// [`limits::MAX_SENSITIVITY_PEAK`] (6, modulus margin 0.17).
+    /// [`super::limits::MAX_SENSITIVITY_PEAK`] (6, modulus margin 0.17).
     #[serde(default = "default_max_s")]
     pub max_sensitivity_peak: f64,
 }

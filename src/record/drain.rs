@@ -50,7 +50,7 @@ fn record_log_time(r: &Record) -> u64 {
 /// whenever `chunks.wall` of wall time has passed since the last flush, or
 /// the log time (loop time, ns) of the written records has advanced by
 /// `chunks.loop_time` ([`ChunkPolicy`]); the wall deadline is checked every
-/// [`WALL_CHECK_RECORDS`] records (a few µs), so a writer that is behind
+/// 32 records (a few µs), so a writer that is behind
 /// still flushes on time. With 50 ms of wall time, a killed process loses
 /// at most that plus what sits in the queue (a few ms when the writer keeps
 /// up), under the 100 ms the README promises. When the queue is empty it sleeps

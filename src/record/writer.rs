@@ -26,7 +26,7 @@ use crate::record::{
     TOPIC_LOG, TOPIC_SAMPLE, TOPIC_TIMING,
 };
 
-/// When [`spawn_writer`] closes and flushes a chunk: once `wall` of wall
+/// When [`crate::record::spawn_writer`] closes and flushes a chunk: once `wall` of wall
 /// time, or `loop_time` of log (loop) time, has passed since the last
 /// flush, whichever comes first.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

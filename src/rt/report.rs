@@ -60,7 +60,7 @@ pub enum RawStop<E> {
         /// The last bad-sample or lost-link error, for link faults.
         link_error: Option<E>,
         /// For a stall fault: the bound it broke, s, which rule, the
-        /// command held, A ([`Supervisor::stall_bound`]).
+        /// command held, A ([`crate::rt::supervisor::Supervisor::stall_bound`]).
         stall: Option<(f64, crate::rt::supervisor::StallRule, f64)>,
     },
     /// A HAL call failed.

@@ -775,7 +775,7 @@ impl<'s, S: Stage> Loop<'s, S> {
         }
     }
 
-    /// Runs `job` as the hold job between jobs ([`HoldJob`]: 0 A; a
+    /// Runs `job` as the hold job between jobs ([`crate::rt::HoldJob`]: 0 A; a
     /// controller holds position once [`Loop::drive`] let it), nothing
     /// recorded, until `until` (checked once per tick, after it) returns
     /// `true`. Every rule of the supervisor applies; a fault is 0 A and

@@ -7,7 +7,7 @@ use crate::vocab::FaultKind;
 /// A fault as a person can act on it: the quantity and its unit, the bound
 /// it broke and where the bound came from, e.g. `stall 29.6 ms > 2.1 ms
 /// (delay margin of controller fast at 8.0 % of L (model, 284 rad/s))`.
-/// `value` is the supervisor's ([`Supervisor::fault`]); `stall_source`
+/// `value` is the supervisor's ([`super::Supervisor::fault`]); `stall_source`
 /// names where the stall bound came from; `detail` is what a backend said
 /// (link faults). Allocates: never on the tick.
 pub fn fault_message(

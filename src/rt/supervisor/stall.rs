@@ -6,7 +6,7 @@ use super::whole_periods;
 
 /// How long a job may leave the stage on a held command: the loop behind
 /// its deadlines (host stall), or the device running on late commands.
-/// Set per job ([`Supervisor::set_stall_bounds`]): a closed loop's bound
+/// Set per job ([`super::Supervisor::set_stall_bounds`]): a closed loop's bound
 /// comes from its loop check (delay margin, the position reachable under
 /// the held peak current; [`crate::control::loop_check::StallLimit`]);
 /// open-loop identification has none (a late command distorts the record,
