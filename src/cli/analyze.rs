@@ -99,8 +99,8 @@ struct AnalyzeSummary {
 /// overrides it in the error.
 fn default_output(prefix: &str, suffix: &str, flag: &str) -> Result<PathBuf, ExitCode> {
     let dir = super::default_recordings(true, flag).map_err(bad_input)?;
-    let stem = bench::jobs::session::stamped_recording(&dir, prefix, "");
-    Ok(bench::jobs::session::beside(&stem, suffix))
+    let stem = bench::outputs::stamped_recording(&dir, prefix, "");
+    Ok(bench::outputs::beside(&stem, suffix))
 }
 
 fn absolute(p: &Path) -> String {

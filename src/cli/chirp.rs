@@ -10,7 +10,7 @@ use super::{
 use bench::config::ChirpKind;
 use bench::jobs::chirp::{run_chirp, ChirpOptions, ChirpSummary};
 use bench::jobs::request::{parse_fault, parse_seed, ChirpRequest, JobRequest, LocalOverrides};
-use bench::jobs::session::beside;
+use bench::outputs::beside;
 use bench::rt::backend::BackendSpec;
 use clap::{Args, ValueEnum};
 use std::io::IsTerminal;

@@ -8,7 +8,7 @@ use bench::ident::update::{
     update_to_frequencies, update_to_frf, updated_toml, Bench, Parameter, Update, UpdateError,
 };
 use bench::ident::verdict::Verdict;
-use bench::outputs::Existing;
+use bench::outputs::{beside, Existing, OutputPlan};
 use bench::plot::{bode_curve, write_bode_png, BodePlot, BodeSeries, PairZoom};
 use clap::Args;
 use serde::Serialize;
@@ -94,31 +94,6 @@ struct FrequencySummary {
 fn is_recording(p: &Path) -> bool {
     let name = p.to_string_lossy();
     name.ends_with(".mcap") || name.ends_with(".mcap.part")
-}
-
-/// `<stem><suffix>` beside `input`.
-fn beside(input: &Path, suffix: &str) -> PathBuf {
-    let name = input
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_default();
-    let stem = name
-        .trim_end_matches(".part")
-        .trim_end_matches(".mcap")
-        .trim_end_matches(".csv")
-        .to_string();
-    input.with_file_name(format!("{stem}{suffix}"))
-}
-
-/// Refuses an existing output without `--overwrite`.
-fn check_output(flag: &str, path: &Path, overwrite: bool) -> Result<(), ExitCode> {
-    if path.exists() && !overwrite {
-        return Err(bad_input(format!(
-            "{flag} {}: exists (pass --overwrite to replace it)",
-            path.display()
-        )));
-    }
-    Ok(())
 }
 
 /// The `--free` list, or `default`.
@@ -261,8 +236,13 @@ fn fit_frequencies(a: &FitArgs, list: &[String]) -> ExitCode {
         Err(e) => return bad_input(e),
     };
     if let Some(out) = &a.out {
-        if let Err(code) = check_output("--out", out, a.overwrite) {
-            return code;
+        let plan = OutputPlan::new(Existing::overwrite(a.overwrite)).with_output(
+            "out",
+            out,
+            super::origin(true),
+        );
+        if let Err(e) = plan.check() {
+            return super::run_failed(&e);
         }
     }
     let start = match start_toml(a.config.as_deref(), None) {
@@ -362,21 +342,26 @@ pub(super) fn fit(a: FitArgs) -> ExitCode {
             .clone()
             .unwrap_or_else(|| beside(&input_path, ".fit.png"))
     });
-    if let Some(p) = &plot {
-        if let Err(code) = check_output("--png", p, a.overwrite) {
-            return code;
-        }
-    }
     let out = a.update.then(|| {
         a.out
             .clone()
             .unwrap_or_else(|| beside(&input_path, ".updated.toml"))
     });
+    // Every output checked before anything is computed: the one rule of
+    // `bench::outputs` (nothing replaced without --overwrite, regular
+    // files only, no two outputs the same file).
+    let mut plan = OutputPlan::new(Existing::overwrite(a.overwrite)).derived_from("the input");
+    if let Some(p) = &plot {
+        plan = plan.with_output("png", p, super::origin(a.png.is_some()));
+    }
+    if let Some(o) = &out {
+        plan = plan.with_output("out", o, super::origin(a.out.is_some()));
+    }
+    if let Err(e) = plan.check() {
+        return super::run_failed(&e);
+    }
     let start = match &out {
-        Some(o) => {
-            if let Err(code) = check_output("--out", o, a.overwrite) {
-                return code;
-            }
+        Some(_) => {
             match start_toml(a.config.as_deref(), recorded_config.as_deref()) {
                 Ok(t) => Some(t),
                 Err(e) => return bad_input(e),

@@ -374,7 +374,7 @@ pub(super) fn refuse_local_only(flags: &[(bool, &str)], why: &str) -> Option<Exi
 /// nothing: the directory is not created).
 pub(super) fn unclaimed_recording(prefix: &str) -> Result<PathBuf, String> {
     let dir = default_recordings(false, "--out FILE.mcap")?;
-    Ok(bench::jobs::session::stamped_recording(&dir, prefix, ""))
+    Ok(bench::outputs::stamped_recording(&dir, prefix, ""))
 }
 
 /// [`Origin::Given`] for a path given by its flag, else
@@ -453,6 +453,7 @@ fn option_flag(key: &str) -> Option<&'static str> {
     Some(match key {
         "out" => "--out",
         "plot" => "--plot",
+        "png" => "--png",
         "frf_csv" => "--frf-csv",
         "frf" => "--frf",
         "backend" => "--backend",

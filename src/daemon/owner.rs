@@ -8,7 +8,7 @@ use super::{lock, Ctx};
 use crate::error::RunError;
 use crate::jobs::chirp::{run_chirp_on, ChirpOptions};
 use crate::jobs::request::{JobRequest, RequestError};
-use crate::jobs::session::beside;
+use crate::outputs::beside;
 use crate::jobs::session::Runner;
 use crate::jobs::step::{run_control_from, ControlOptions, StageSource};
 use crate::record::topics::FaultKind;
@@ -534,7 +534,7 @@ pub(super) fn owner(mut client: ServiceClient, rx: mpsc::Receiver<OwnerCmd>, sha
 }
 
 pub(super) fn recording_path(dir: &Path, prefix: &str, id: u64) -> PathBuf {
-    crate::jobs::session::stamped_recording(dir, prefix, &format!("-job{id}"))
+    crate::outputs::stamped_recording(dir, prefix, &format!("-job{id}"))
 }
 
 /// Builds a job from a request; `Err` for bad parameters.
