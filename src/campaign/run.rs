@@ -23,7 +23,7 @@
 
 use super::file::{changed_keys, Campaign, Cell};
 use super::journal::{self, file_sum, sha256_hex, Entry, Journal, JournalError, ReadJournal};
-use crate::analysis::map::{cnmp_map, linspace, model_at, MapCell};
+use crate::analysis::map::{agreement, cnmp_map, linspace, model_at, MapCell};
 use crate::analysis::modal::model_cnmp_damped;
 use crate::analysis::plot::{write_map_png, MeasuredPoint};
 use crate::jobs::chirp::{chirp_outputs, run_chirp, ChirpOptions, ChirpSummary};
@@ -749,14 +749,13 @@ pub fn summarize(
 ) -> Result<CampaignSummary, CampaignRunError> {
     let results = results(campaign, j)?;
     let count = |s: &str| results.iter().filter(|r| r.status == s).count();
-    let decided: Vec<&CellResult> = results
+    // Done cells against the damped model at each cell.
+    let done_cells: Vec<&CellResult> = results.iter().filter(|r| r.status == "done").collect();
+    let agreed = agreement(done_cells.iter().map(|r| (r.verdict, r.model_cnmp)));
+    let disagreements: Vec<CellResult> = agreed
+        .disagreements
         .iter()
-        .filter(|r| r.status == "done" && r.verdict.is_some())
-        .collect();
-    let disagreements: Vec<CellResult> = decided
-        .iter()
-        .filter(|r| r.verdict != Some(r.model_cnmp))
-        .map(|r| (*r).clone())
+        .map(|&i| done_cells[i].clone())
         .collect();
     let abs = std::path::absolute(dir).unwrap_or_else(|_| dir.to_path_buf());
     let done = count("done");
@@ -766,8 +765,8 @@ pub fn summarize(
         done,
         skipped: count("skipped"),
         pending: count("pending"),
-        decided: decided.len(),
-        agree: decided.len() - disagreements.len(),
+        decided: agreed.decided,
+        agree: agreed.agree,
         disagreements,
         cells_csv: abs.join(CELLS_CSV),
         map_png: (done > 0).then(|| abs.join(MAP_PNG)),

@@ -5,7 +5,9 @@
 
 use super::point::PointArgs;
 use super::{bad_input, emit, load_config, status, CONFIG_HELP};
-use bench::analysis::map::{cnmp_map, linspace, model_at, veering_curve, MapCell, VeeringCurve};
+use bench::analysis::map::{
+    agreement, cnmp_map, linspace, model_at, nearest_cell, veering_curve, MapCell, VeeringCurve,
+};
 use bench::analysis::plot::{
     write_decomposed_bode_png, write_map_png, write_pole_zero_png, write_veering_png, MeasuredPoint,
 };
@@ -42,10 +44,12 @@ impl BenchPointArgs {
     fn plant(&self) -> Result<(BenchConfig, Sr4dofParams), ExitCode> {
         let (cfg, _) = load_config(self.config.as_deref()).map_err(bad_input)?;
         let mut p = cfg.plant;
-        if let Some(code) = self.point.refuse_percent_out_of_range() {
-            return Err(code);
+        if let Err(e) = self.point.point().check() {
+            return Err(super::refused_request(e, Path::new(""), |key| {
+                self.point.flag_for(key)
+            }));
         }
-        self.point.apply(&mut p);
+        self.point.point().apply(&mut p);
         if let Err(e) = p.validate("plant") {
             return Err(match self.point.flag_for(&e.key) {
                 Some(f) => bad_input(format!("{f}: {}", e.reason)),
@@ -733,29 +737,26 @@ pub(super) fn map(args: MapArgs) -> ExitCode {
             .map(|c| c.closest_operating_point_m)
     };
     let (points, undecided) = measured.unwrap_or_default();
-    let nearest = |m: &MeasuredPoint| {
-        cells
-            .iter()
-            .min_by(|a, b| {
-                let d = |c: &MapCell| {
-                    ((c.operating_point_m - m.operating_point_m) / p.beam.length_m).powi(2)
-                        + (c.mass_asymmetry - m.mass_asymmetry).powi(2)
-                };
-                d(a).total_cmp(&d(b))
-            })
-            .copied()
-    };
-    let disagreements: Vec<Disagreement> = points
+    // Each measured cell against the damped model at the nearest grid cell.
+    let judged: Vec<(&MeasuredPoint, MapCell)> = points
         .iter()
         .filter_map(|m| {
-            let c = nearest(m)?;
-            (c.cnmp_damped != m.cnmp).then_some(Disagreement {
+            nearest_cell(&cells, m.operating_point_m, m.mass_asymmetry, p.beam.length_m)
+                .map(|c| (m, c))
+        })
+        .collect();
+    let disagreements: Vec<Disagreement> = agreement(judged.iter().map(|(m, c)| (Some(m.cnmp), c.cnmp_damped)))
+        .disagreements
+        .iter()
+        .map(|&i| {
+            let (m, c) = judged[i];
+            Disagreement {
                 operating_point_m: m.operating_point_m,
                 mass_asymmetry: m.mass_asymmetry,
                 measured_cnmp: m.cnmp,
                 model_cnmp: c.cnmp,
                 model_cnmp_damped: c.cnmp_damped,
-            })
+            }
         })
         .collect();
     let title = "CMP-CNMP zeros of force → x1 over the workspace";

@@ -6,6 +6,7 @@
 //! `config`); never the CLI or the daemon.
 
 pub mod chirp;
+pub mod point;
 pub mod request;
 pub mod session;
 pub mod step;

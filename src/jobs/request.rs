@@ -8,6 +8,7 @@
 //! Errors name the config key or the request field, never a command-line
 //! flag: only the CLI knows its flags.
 
+pub use super::point::OperatingPoint;
 use crate::config::{BenchConfig, ChirpKind};
 use bench_hal::sim::{FaultInjection, ScheduledFault};
 use serde::{Deserialize, Serialize};
@@ -235,25 +236,12 @@ pub struct LocalOverrides {
     pub chirp_kind: Option<ChirpKind>,
 }
 
-/// An operating point Y1o, in metres or relative to the beam length L.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub enum OperatingPoint {
-    /// Y1o, m.
-    Metres(f64),
-    /// Y1o in % of `plant.beam.length_m`.
-    PercentOfBeamLength(f64),
-}
-
 impl LocalOverrides {
     /// Writes the overrides into `cfg`. It does not check: apply the job
     /// request after it, which checks the whole config.
     pub fn apply(&self, cfg: &mut BenchConfig) {
-        match self.operating_point {
-            Some(OperatingPoint::Metres(m)) => cfg.plant.operating_point_m = m,
-            Some(OperatingPoint::PercentOfBeamLength(p)) => {
-                cfg.plant.operating_point_m = p / 100.0 * cfg.plant.beam.length_m;
-            }
-            None => {}
+        if let Some(op) = self.operating_point {
+            cfg.plant.operating_point_m = op.metres(cfg.plant.beam.length_m);
         }
         set(&mut cfg.plant.mass_asymmetry, self.mass_asymmetry);
         set(&mut cfg.chirp.kind, self.chirp_kind);
