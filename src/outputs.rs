@@ -136,7 +136,9 @@ impl Output {
         let flag = flag(self.key);
         match self.role {
             Role::File(Origin::Given) => flag.to_string(),
-            Role::File(Origin::Derived) => format!("the default {flag} (derived from {derived_from})"),
+            Role::File(Origin::Derived) => {
+                format!("the default {flag} (derived from {derived_from})")
+            }
             Role::File(Origin::Default) => format!("the default {flag}"),
             Role::Part | Role::ClaimedPart => format!("the temporary name of the {flag} recording"),
         }
@@ -674,7 +676,11 @@ mod tests {
             ("x.toml", "x.toml.fit.png"),
             ("x", "x.fit.png"),
         ] {
-            assert_eq!(beside(Path::new(path), ".fit.png"), Path::new(want), "{path}");
+            assert_eq!(
+                beside(Path::new(path), ".fit.png"),
+                Path::new(want),
+                "{path}"
+            );
         }
     }
 
