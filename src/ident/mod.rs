@@ -7,6 +7,7 @@
 pub mod excitation;
 pub mod fft;
 pub mod frf;
+mod lsq;
 pub mod modal_fit;
 pub mod update;
 pub mod verdict;
