@@ -5,10 +5,10 @@
 use super::modal::{closely_spaced_pair, modal_terms, model_cnmp_damped, model_cnmp_undamped};
 use bench_hal::model::{ParamError, Sr4dof, Sr4dofParams};
 use rayon::prelude::*;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 /// One cell of the map.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct MapCell {
     /// Operating point Y1o, m.
     pub operating_point_m: f64,
@@ -90,7 +90,7 @@ pub fn cnmp_map(
 }
 
 /// One operating point of a veering curve.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct VeeringPoint {
     /// Operating point Y1o, m.
     pub operating_point_m: f64,
@@ -110,7 +110,7 @@ pub struct VeeringPoint {
 }
 
 /// The pair's frequencies against operating point for one asymmetry.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct VeeringCurve {
     /// Mass asymmetry Δm23.
     pub mass_asymmetry: f64,

@@ -46,9 +46,10 @@ impl OperatingPoint {
     }
 }
 
-/// The point fields of a request, each optional: absent, the config's
+/// The point of a request, each field optional: absent, the config's
 /// value holds. At most one form per quantity.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct PlantPoint {
     /// Operating point Y1o, m (`plant.operating_point_m`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -66,13 +67,16 @@ pub struct PlantPoint {
 }
 
 impl PlantPoint {
+    /// No field given.
+    pub fn is_empty(&self) -> bool {
+        *self == Self::default()
+    }
+
     /// The operating point asked for, if any (metres first).
     pub fn operating_point(&self) -> Option<OperatingPoint> {
-        self.operating_point_m
-            .map(OperatingPoint::Metres)
-            .or(self
-                .operating_point_pct
-                .map(OperatingPoint::PercentOfBeamLength))
+        self.operating_point_m.map(OperatingPoint::Metres).or(self
+            .operating_point_pct
+            .map(OperatingPoint::PercentOfBeamLength))
     }
 
     /// The mass asymmetry asked for, as a fraction, if any.
