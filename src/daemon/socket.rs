@@ -524,7 +524,7 @@ pub(super) async fn connection(
                 Ok(json!({ "shutting_down": true }))
             }
             cmd if JobRequest::KINDS.contains(&cmd) => {
-                match submit(&ctx, &cmd, &params, &id, &out) {
+                match submit(&ctx, cmd, &params, &id, &out) {
                     Ok(attach) => {
                         attached.extend(attach);
                         continue; // the job task responds
