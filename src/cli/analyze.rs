@@ -18,17 +18,6 @@ use clap::Args;
 use std::path::PathBuf;
 use std::process::ExitCode;
 
-/// `--daemon [SOCKET]` of `bench analyze` and `bench map`.
-#[derive(Debug, Args)]
-pub(super) struct DaemonArg {
-    /// Submit to a running `bench serve` instead of computing here [SOCKET
-    /// default: $XDG_RUNTIME_DIR/bench.sock, else /run/bench/bench.sock].
-    /// The daemon reads --config (and --measured) itself and writes the
-    /// PNGs and the CSV in its recordings directory.
-    #[arg(long, value_name = "SOCKET", num_args = 0..=1, default_missing_value = "")]
-    daemon: Option<String>,
-}
-
 #[derive(Debug, Args)]
 pub(super) struct AnalyzeArgs {
     #[arg(long, value_name = "FILE", help = CONFIG_HELP)]
@@ -52,8 +41,12 @@ pub(super) struct AnalyzeArgs {
     /// Print the result as one JSON object on stdout.
     #[arg(long)]
     json: bool,
-    #[command(flatten)]
-    daemon: DaemonArg,
+    /// Submit to a running `bench serve` instead of computing here [SOCKET
+    /// default: $XDG_RUNTIME_DIR/bench.sock, else /run/bench/bench.sock].
+    /// The daemon reads --config itself and writes the PNGs in its
+    /// recordings directory.
+    #[arg(long, value_name = "SOCKET", num_args = 0..=1, default_missing_value = "")]
+    daemon: Option<String>,
 }
 
 impl AnalyzeArgs {
@@ -79,7 +72,7 @@ fn default_output(prefix: &str, suffix: &str, flag: &str) -> Result<PathBuf, Exi
 
 pub(super) fn analyze(args: AnalyzeArgs) -> ExitCode {
     let request = args.request();
-    if let Some(sock) = &args.daemon.daemon {
+    if let Some(sock) = &args.daemon {
         if let Some(code) = refuse_local_only(
             &[
                 (args.pole_zero_png.is_some(), "--pole-zero-png"),
@@ -298,7 +291,7 @@ pub(super) struct MapArgs {
         long,
         value_name = "X,X,…",
         value_delimiter = ',',
-        default_values_t = defaults::VEERING_ASYMMETRIES,
+        default_value = "0,0.01,0.05",
         allow_hyphen_values = true
     )]
     veering_asymmetries: Vec<f64>,
@@ -326,8 +319,12 @@ pub(super) struct MapArgs {
     /// Print the result as one JSON object on stdout.
     #[arg(long)]
     json: bool,
-    #[command(flatten)]
-    daemon: DaemonArg,
+    /// Submit to a running `bench serve` instead of computing here [SOCKET
+    /// default: $XDG_RUNTIME_DIR/bench.sock, else /run/bench/bench.sock].
+    /// The daemon reads --config and --measured itself and writes the PNG
+    /// (and the CSV of --csv) in its recordings directory.
+    #[arg(long, value_name = "SOCKET", num_args = 0..=1, default_missing_value = "")]
+    daemon: Option<String>,
 }
 
 impl MapArgs {
@@ -352,7 +349,7 @@ impl MapArgs {
 
 pub(super) fn map(args: MapArgs) -> ExitCode {
     let request = args.request();
-    if let Some(sock) = &args.daemon.daemon {
+    if let Some(sock) = &args.daemon {
         let csv_named = matches!(args.csv, Some(Some(_)));
         if let Some(code) = refuse_local_only(
             &[
@@ -521,4 +518,24 @@ fn print_veering(s: &VeeringSummary) {
         );
     }
     outln!("veering plot: {}", s.png);
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::Parser;
+
+    #[derive(Debug, Parser)]
+    struct Map {
+        #[command(flatten)]
+        args: MapArgs,
+    }
+
+    /// The flags' defaults are the request's (the daemon's `map` without
+    /// params is `bench map`).
+    #[test]
+    fn map_flags_default_to_the_request_defaults() {
+        let m = Map::try_parse_from(["map"]).unwrap();
+        assert_eq!(m.args.request(), MapRequest::default());
+    }
 }
