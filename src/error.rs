@@ -158,6 +158,28 @@ impl RunError {
         }
     }
 
+    /// A [`RunError::BadOption`]'s message with its option as `name`
+    /// calls it (the CLI's flag, the daemon's `params.KEY`): `NAME
+    /// SUBJECT: REASON`, the parts that are not empty (a positional
+    /// argument's name is, its value names it). `None` for any other
+    /// error.
+    pub fn option_message(&self, name: impl FnOnce(&'static str) -> String) -> Option<String> {
+        let Self::BadOption {
+            key,
+            subject,
+            reason,
+        } = self
+        else {
+            return None;
+        };
+        let name = name(key);
+        let what: Vec<&str> = [name.as_str(), subject.as_str()]
+            .into_iter()
+            .filter(|s| !s.is_empty())
+            .collect();
+        Some(format!("{}: {reason}", what.join(" ")))
+    }
+
     /// A [`RunError::BadOption`].
     pub fn option(key: &'static str, subject: impl ToString, reason: impl Into<String>) -> Self {
         Self::BadOption {

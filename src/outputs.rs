@@ -141,12 +141,15 @@ struct Output {
 
 impl Output {
     /// How a message names this output, e.g. `--plot`, `the default
-    /// --frf-csv (derived from --out)`.
-    fn describe(&self) -> String {
+    /// --frf-csv (derived from --out)`; `derived_from` names what a derived
+    /// path comes from.
+    fn describe(&self, derived_from: &str) -> String {
         let flag = flag(self.key);
         match self.role {
             Role::File(Origin::Given) => flag.to_string(),
-            Role::File(Origin::Derived) => format!("the default {flag} (derived from --out)"),
+            Role::File(Origin::Derived) => {
+                format!("the default {flag} (derived from {derived_from})")
+            }
             Role::File(Origin::Default) => format!("the default {flag}"),
             Role::Part | Role::ClaimedPart => format!("the temporary name of the {flag} recording"),
         }
@@ -159,6 +162,7 @@ fn flag(key: &str) -> &str {
         "out" => "--out",
         "frf_csv" => "--frf-csv",
         "plot" => "--plot",
+        "png" => "--png",
         other => other,
     }
 }
@@ -186,6 +190,37 @@ impl Drop for Claim {
             let _ = fs::remove_file(&self.part);
         }
     }
+}
+
+/// The file that goes with `path` (a recording or a table): `<stem><suffix>`
+/// in the same directory, where `<stem>` is the file name without a
+/// trailing `.part` and then without one `.mcap` or `.csv`
+/// (`x.mcap.part`, `x.mcap` and `x.csv` all give `x`; `x.frf.csv` gives
+/// `x.frf`; any other name is kept whole). The one rule for every default
+/// output beside another file: the FRF CSV and plots beside a recording
+/// (`.frf.csv`, `.bode.png`, `.step.png`), the fit's plot and updated bench
+/// beside its input (`.fit.png`, `.updated.toml`), the daemon's and
+/// `bench analyze`'s outputs beside a stamped name.
+pub fn beside(path: &Path, suffix: &str) -> PathBuf {
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    let name = name.strip_suffix(".part").unwrap_or(&name);
+    let stem = [".mcap", ".csv"]
+        .iter()
+        .find_map(|ext| name.strip_suffix(ext))
+        .unwrap_or(name);
+    path.with_file_name(format!("{stem}{suffix}"))
+}
+
+/// `dir/PREFIX-YYYYmmddTHHMMSS.mmmZSUFFIX.mcap` (UTC, to the millisecond):
+/// a stamped recording name (the daemon's jobs: `SUFFIX` is `-job<N>`), or
+/// the stem of stamped outputs through [`beside`]. The name is not claimed:
+/// a job refuses it if it exists. Local runs claim theirs with
+/// [`claim_recording`].
+pub fn stamped_recording(dir: &Path, prefix: &str, suffix: &str) -> PathBuf {
+    dir.join(format!("{prefix}-{}{suffix}.mcap", stamp()))
 }
 
 /// `YYYYmmddTHHMMSS.mmmZ` (UTC, ISO 8601 basic format with milliseconds).
@@ -257,21 +292,31 @@ fn claim_with_stamp(
 /// The outputs of one run, checked together before anything is enabled
 /// (rules 1, 2, 5 and 6 of the [module docs](self)), and the policy their
 /// writers follow.
-#[derive(Debug, Default)]
+#[derive(Debug)]
 pub struct OutputPlan {
     existing: Existing,
     outputs: Vec<Output>,
     claim: Option<Claim>,
+    derived_from: &'static str,
 }
 
 impl OutputPlan {
-    /// An empty plan.
+    /// An empty plan; derived outputs are named as derived from `--out`
+    /// ([`Self::derived_from`]).
     pub fn new(existing: Existing) -> Self {
         Self {
             existing,
             outputs: Vec::new(),
             claim: None,
+            derived_from: "--out",
         }
+    }
+
+    /// Says in messages that the [`Origin::Derived`] paths derive from
+    /// `what` (`--out` unless set; `bench fit`: `the input`).
+    pub fn derived_from(mut self, what: &'static str) -> Self {
+        self.derived_from = what;
+        self
     }
 
     /// Adds the recording (`out`) at `path`, and its `.part` name.
@@ -351,7 +396,7 @@ impl OutputPlan {
                     a.path.display(),
                     format!(
                         "is the same file as {} ({}): one would be lost",
-                        b.describe(),
+                        b.describe(self.derived_from),
                         b.path.display()
                     ),
                 ));
@@ -404,8 +449,9 @@ impl OutputPlan {
                     _ => format!(
                         "exists{}; bench never replaces a file unless --overwrite is given",
                         match o.role {
-                            Role::File(Origin::Derived) => " (the default name, derived from --out)",
-                            _ => "",
+                            Role::File(Origin::Derived) =>
+                                format!(" (the default name, derived from {})", self.derived_from),
+                            _ => String::new(),
                         }
                     ),
                 }))
@@ -627,6 +673,27 @@ mod tests {
     use proptest::prelude::*;
     use std::io::Write;
     use std::os::unix::fs::PermissionsExt;
+
+    /// One rule for the files beside another: a recording's, a table's, a
+    /// partial recording's, and any other name kept whole.
+    #[test]
+    fn beside_names() {
+        for (path, want) in [
+            ("d/x.mcap", "d/x.fit.png"),
+            ("d/x.mcap.part", "d/x.fit.png"),
+            ("x.csv", "x.fit.png"),
+            ("d/x.frf.csv", "d/x.frf.fit.png"),
+            ("/a.b/x.csv.mcap", "/a.b/x.csv.fit.png"),
+            ("x.toml", "x.toml.fit.png"),
+            ("x", "x.fit.png"),
+        ] {
+            assert_eq!(
+                beside(Path::new(path), ".fit.png"),
+                Path::new(want),
+                "{path}"
+            );
+        }
+    }
 
     /// The process umask, from /proc (reading it with umask(2) would change
     /// it for the other tests' threads).

@@ -325,6 +325,7 @@ fn request_parameters_from_json() {
                 let got = match &job {
                     JobRequest::Chirp(r) => r.apply(&mut c).map(|()| c),
                     JobRequest::Control(r) => r.apply(&mut c).map(|_| c),
+                    other => panic!("{cmd} parsed as {}", other.kind()),
                 };
                 if let Err(why) = judge(f, x, got) {
                     failures.push(format!("{cmd} {} = {x:?}: {why}", f.name));

@@ -5,10 +5,10 @@
 use super::modal::{closely_spaced_pair, modal_terms, model_cnmp_damped, model_cnmp_undamped};
 use bench_hal::model::{ParamError, Sr4dof, Sr4dofParams};
 use rayon::prelude::*;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 /// One cell of the map.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct MapCell {
     /// Operating point Y1o, m.
     pub operating_point_m: f64,
@@ -90,7 +90,7 @@ pub fn cnmp_map(
 }
 
 /// One operating point of a veering curve.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct VeeringPoint {
     /// Operating point Y1o, m.
     pub operating_point_m: f64,
@@ -110,7 +110,7 @@ pub struct VeeringPoint {
 }
 
 /// The pair's frequencies against operating point for one asymmetry.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct VeeringCurve {
     /// Mass asymmetry Δm23.
     pub mass_asymmetry: f64,
@@ -245,10 +245,76 @@ pub fn linspace(lo: f64, hi: f64, n: usize) -> Vec<f64> {
     }
 }
 
+/// Measured verdicts against the damped model's (thesis Fig 5-10): the
+/// one comparison behind `bench map --measured` and a campaign's summary.
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct Agreement {
+    /// Verdicts given (an undecided one is not compared).
+    pub decided: usize,
+    /// Decided verdicts equal to the damped model's.
+    pub agree: usize,
+    /// The decided verdicts that differ, as indices into the compared
+    /// sequence, in its order.
+    pub disagreements: Vec<usize>,
+}
+
+/// Compares each measured verdict (`Some(true)`: CMP-CNMP zeros measured,
+/// `None`: undecided) with the damped model's verdict at the same point
+/// ([`MapCell::cnmp_damped`]; damping delays the transition, thesis
+/// 5.2.2, so a measurement is judged against the damped model).
+pub fn agreement(compared: impl IntoIterator<Item = (Option<bool>, bool)>) -> Agreement {
+    let mut a = Agreement::default();
+    for (i, (measured, model_damped)) in compared.into_iter().enumerate() {
+        let Some(m) = measured else { continue };
+        a.decided += 1;
+        if m == model_damped {
+            a.agree += 1;
+        } else {
+            a.disagreements.push(i);
+        }
+    }
+    a
+}
+
+/// The cell of `cells` nearest a point, distance measured in operating
+/// point relative to the beam length `length_m` and in mass asymmetry
+/// (both dimensionless); `None` for no cells.
+pub fn nearest_cell(
+    cells: &[MapCell],
+    operating_point_m: f64,
+    mass_asymmetry: f64,
+    length_m: f64,
+) -> Option<MapCell> {
+    let d = |c: &MapCell| {
+        ((c.operating_point_m - operating_point_m) / length_m).powi(2)
+            + (c.mass_asymmetry - mass_asymmetry).powi(2)
+    };
+    cells.iter().min_by(|a, b| d(a).total_cmp(&d(b))).copied()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::config::BenchConfig;
+
+    #[test]
+    fn agreement_counts_decided_verdicts_only() {
+        let a = agreement([
+            (Some(true), true),
+            (None, true),
+            (Some(false), true),
+            (Some(false), false),
+            (Some(true), false),
+        ]);
+        assert_eq!(
+            a,
+            Agreement {
+                decided: 4,
+                agree: 2,
+                disagreements: vec![2, 4]
+            }
+        );
+    }
 
     fn base(file: &str) -> Sr4dofParams {
         let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))

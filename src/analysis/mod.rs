@@ -17,11 +17,11 @@ pub mod three_mode;
 use bench_hal::model::Sr4dof;
 use modal::{damped_zeros, has_cmp_cnmp, modal_terms, undamped_zeros, ModalTerm, TypedZero};
 use sequence::{dominant_sequence, SeqTerm, TakeOver};
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use three_mode::ThreeModeTest;
 
 /// Everything `bench analyze` reports for one bench.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Analysis {
     /// Operating point Y1o, m.
     pub operating_point_m: f64,

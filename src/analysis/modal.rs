@@ -15,7 +15,7 @@
 
 use bench_hal::model::{Sr4dof, ZeroType};
 use nalgebra::{Complex, Vector4};
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use std::f64::consts::PI;
 
 /// A mode whose probe participation `|cᵀφ̂|` (unit-length shape) is below
@@ -32,7 +32,7 @@ pub const PARTICIPATION_RATIO: f64 = 1e-3;
 pub const RESIDUE_RATIO: f64 = 1e-4;
 
 /// One mode of the actuator-to-probe path.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct ModalTerm {
     /// Mode number, 1-based, ascending in frequency.
     pub mode: usize,
@@ -197,7 +197,7 @@ pub fn pair_and_remainder(
 }
 
 /// A zero of a transfer function with its type (thesis 3.2.1).
-#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct TypedZero {
     /// Real part, rad/s.
     pub re_rad_s: f64,
@@ -206,12 +206,24 @@ pub struct TypedZero {
     /// `|s| / 2π`, Hz.
     pub frequency_hz: f64,
     /// MMP, RMP-RNMP or CMP-CNMP.
-    #[serde(serialize_with = "serialize_zero_type")]
+    #[serde(
+        serialize_with = "serialize_zero_type",
+        deserialize_with = "deserialize_zero_type"
+    )]
     pub kind: ZeroType,
 }
 
 fn serialize_zero_type<S: serde::Serializer>(k: &ZeroType, s: S) -> Result<S::Ok, S::Error> {
     s.serialize_str(k.as_str())
+}
+
+/// A zero type by its name ([`ZeroType::as_str`]).
+fn deserialize_zero_type<'de, D: serde::Deserializer<'de>>(d: D) -> Result<ZeroType, D::Error> {
+    let name = String::deserialize(d)?;
+    [ZeroType::Mmp, ZeroType::RmpRnmp, ZeroType::CmpCnmp]
+        .into_iter()
+        .find(|k| k.as_str() == name)
+        .ok_or_else(|| serde::de::Error::custom(format!("{name:?} is not a zero type")))
 }
 
 impl TypedZero {

@@ -28,7 +28,7 @@
 
 use bench_hal::model::{poly_mul, poly_roots, ZeroType};
 use nalgebra::Complex;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use std::f64::consts::PI;
 
 /// "Sufficiently close" of rule 2a: a candidate's own zero (with the
@@ -47,7 +47,7 @@ pub struct SeqTerm {
 }
 
 /// Why a mode takes over.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum TakeOverCause {
     /// Dominant at low frequency (ω → 0).
@@ -59,7 +59,7 @@ pub enum TakeOverCause {
 }
 
 /// A take-over: from `frequency_hz` upwards `to` dominates.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct TakeOver {
     /// Frequency of the take-over, Hz (0 for the low-frequency one).
     pub frequency_hz: f64,

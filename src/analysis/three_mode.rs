@@ -22,10 +22,10 @@
 //! with Eq. 4-10 and with `N(x)`'s roots, which the tests check).
 
 use super::modal::ModalTerm;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 /// The result of the three-mode test for one bench.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct ThreeModeTest {
     /// Remainder residue α_R, 1/kg.
     pub alpha_r_per_kg: f64,

@@ -377,7 +377,8 @@ impl Campaign {
                 "grid.operating_point_pct",
                 spec.grid.operating_point_pct.as_ref(),
             ),
-            0.01 * length_m,
+            // The campaign grid's own rounding of % of L (see the function).
+            crate::jobs::point::campaign_percent_factor(length_m),
         )?;
         let dms = pick_axis(
             path,

@@ -23,9 +23,10 @@
 
 use super::file::{changed_keys, Campaign, Cell};
 use super::journal::{self, file_sum, sha256_hex, Entry, Journal, JournalError, ReadJournal};
-use crate::analysis::map::{cnmp_map, linspace, model_at, MapCell};
+use crate::analysis::map::{agreement, cnmp_map, linspace, model_at, MapCell};
 use crate::analysis::modal::model_cnmp_damped;
 use crate::jobs::chirp::{chirp_outputs, run_chirp, ChirpOptions, ChirpSummary};
+use crate::jobs::request::JobRequest;
 use crate::outputs::{write_atomically, Existing};
 use crate::plot::{write_map_png, MeasuredPoint};
 use crate::rt::backend::BackendSpec;
@@ -55,6 +56,17 @@ pub enum CampaignRunError {
     /// Bad input (exit 2): the message names the argument or file.
     #[error("{0}")]
     BadInput(String),
+    /// An option that cannot be used (exit 2): `key` as the job's options
+    /// and requests spell it (`out`, `threads`); the CLI shows its flag.
+    #[error("{key}{}: {reason}", if value.is_empty() { String::new() } else { format!(" {value}") })]
+    BadOption {
+        /// The option.
+        key: &'static str,
+        /// Its value as given (a path, a number), or empty.
+        value: String,
+        /// Why it is refused.
+        reason: String,
+    },
     /// The journal failed.
     #[error(transparent)]
     Journal(#[from] JournalError),
@@ -107,7 +119,7 @@ pub struct Origin {
 }
 
 /// One row of `cells.csv` and of the summary.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct CellResult {
     /// Cell index (row-major, asymmetry slowest).
     pub index: usize,
@@ -119,7 +131,7 @@ pub struct CellResult {
     /// grid's (hardware); the model's verdict is taken there.
     pub achieved_mass_asymmetry: Option<f64>,
     /// `done`, `skipped` or `pending`.
-    pub status: &'static str,
+    pub status: String,
     /// Measured verdict (`None`: undecided or not run).
     pub verdict: Option<bool>,
     /// Why undecided, or why the two measured tests disagree.
@@ -133,7 +145,7 @@ pub struct CellResult {
 }
 
 /// The campaign summary (`summary.json`, `--json`).
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct CampaignSummary {
     /// The campaign directory, absolute.
     pub dir: PathBuf,
@@ -171,9 +183,14 @@ pub const CELL_FILES: [&str; 4] = ["chirp.mcap", "frf.csv", "bode.png", "summary
 /// parent is writable) or is an empty directory.
 ///
 /// # Errors
-/// [`CampaignRunError::BadInput`] naming `--out` and the reason.
+/// [`CampaignRunError::BadOption`] naming `out`, the directory and the
+/// reason.
 pub fn check_new_dir(dir: &Path) -> Result<(), CampaignRunError> {
-    let bad = |why: String| CampaignRunError::BadInput(format!("--out {}: {why}", dir.display()));
+    let bad = |reason: String| CampaignRunError::BadOption {
+        key: "out",
+        value: dir.display().to_string(),
+        reason,
+    };
     match fs::symlink_metadata(dir) {
         Ok(m) if !m.is_dir() => Err(bad("exists and is not a directory".into())),
         Ok(_) => match fs::read_dir(dir) {
@@ -508,16 +525,23 @@ pub fn run_cells(
     Ok(summary)
 }
 
+/// Submits a job to the `bench serve` daemon at a socket and returns its
+/// summary (the `result` JSON), or why not. The caller gives it (the CLI:
+/// `bench::daemon::client::submit`), so that a campaign, which the daemon
+/// runs too, does not depend on the daemon.
+pub type SubmitJob = fn(&Path, &JobRequest) -> Result<serde_json::Value, String>;
+
 /// Where a cell's chirp runs.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone)]
 pub enum CellBench {
     /// The simulator, in virtual time.
     Sim,
     /// A hardware backend (`serial:…`, `socketcan:…`), in real time.
     Backend(BackendSpec),
     /// A chirp job of the `bench serve` daemon on this socket (its own
-    /// config and backend; the campaign sends the seed and the chirp).
-    Daemon(PathBuf),
+    /// config and backend; the campaign sends the seed and the chirp),
+    /// submitted by the function given.
+    Daemon(PathBuf, SubmitJob),
 }
 
 /// Runs one cell from scratch and journals it. `achieved`: the mass
@@ -568,7 +592,7 @@ fn run_cell(
                 out: cdir.join(CELL_FILES[0]),
                 frf_csv: cdir.join(CELL_FILES[1]),
                 plot: cdir.join(CELL_FILES[2]),
-                realtime: *bench != CellBench::Sim,
+                realtime: !matches!(bench, CellBench::Sim),
                 seed,
                 progress: false,
                 backend: match bench {
@@ -580,16 +604,16 @@ fn run_cell(
             run_chirp(&opts, chirp_outputs(&opts), stop.clone(), None)
                 .map_err(|e| cell_err(e.to_string()))?
         }
-        CellBench::Daemon(socket) => {
+        CellBench::Daemon(socket, submit) => {
             let c = &config.chirp;
-            let job = crate::jobs::request::JobRequest::Chirp(crate::jobs::request::ChirpRequest {
+            let job = JobRequest::Chirp(crate::jobs::request::ChirpRequest {
                 seed: Some(seed),
                 amplitude_a: Some(c.amplitude_a),
                 f_start_hz: Some(c.f_start_hz),
                 f_end_hz: Some(c.f_end_hz),
                 duration_s: Some(c.duration_s),
             });
-            let v = crate::daemon::client::submit(socket, &job, |_| {})
+            let v = submit(socket, &job)
                 .map_err(|e| cell_err(format!("daemon {}: {e}", socket.display())))?;
             let summary: ChirpSummary = serde_json::from_value(v)
                 .map_err(|e| cell_err(format!("the daemon's summary does not parse: {e}")))?;
@@ -702,7 +726,7 @@ pub fn results(campaign: &Campaign, j: &ReadJournal) -> Result<Vec<CellResult>, 
                 operating_point_m: c.operating_point_m,
                 mass_asymmetry: c.mass_asymmetry,
                 achieved_mass_asymmetry: achieved,
-                status,
+                status: status.to_string(),
                 verdict,
                 reason,
                 model_cnmp: model_cnmp_damped(&model),
@@ -749,14 +773,13 @@ pub fn summarize(
 ) -> Result<CampaignSummary, CampaignRunError> {
     let results = results(campaign, j)?;
     let count = |s: &str| results.iter().filter(|r| r.status == s).count();
-    let decided: Vec<&CellResult> = results
+    // Done cells against the damped model at each cell.
+    let done_cells: Vec<&CellResult> = results.iter().filter(|r| r.status == "done").collect();
+    let agreed = agreement(done_cells.iter().map(|r| (r.verdict, r.model_cnmp)));
+    let disagreements: Vec<CellResult> = agreed
+        .disagreements
         .iter()
-        .filter(|r| r.status == "done" && r.verdict.is_some())
-        .collect();
-    let disagreements: Vec<CellResult> = decided
-        .iter()
-        .filter(|r| r.verdict != Some(r.model_cnmp))
-        .map(|r| (*r).clone())
+        .map(|&i| done_cells[i].clone())
         .collect();
     let abs = std::path::absolute(dir).unwrap_or_else(|_| dir.to_path_buf());
     let done = count("done");
@@ -766,8 +789,8 @@ pub fn summarize(
         done,
         skipped: count("skipped"),
         pending: count("pending"),
-        decided: decided.len(),
-        agree: decided.len() - disagreements.len(),
+        decided: agreed.decided,
+        agree: agreed.agree,
         disagreements,
         cells_csv: abs.join(CELLS_CSV),
         map_png: (done > 0).then(|| abs.join(MAP_PNG)),

@@ -1,65 +1,29 @@
 //! `bench analyze` (one bench: modes, residues, sequence, zeros, the
 //! three-mode test, two PNGs) and `bench map` (the CNMP map over operating
 //! point × mass asymmetry, or with `--veering` the pair's frequencies
-//! against operating point).
+//! against operating point): their flags, the jobs they make
+//! (`bench::jobs::analyze`, `bench::jobs::map`), and the printed summaries.
 
 use super::point::PointArgs;
-use super::{bad_input, emit, load_config, status, CONFIG_HELP};
-use bench::analysis::map::{cnmp_map, linspace, model_at, veering_curve, MapCell, VeeringCurve};
-use bench::analysis::{analyze as analyze_model, Analysis};
-use bench::config::BenchConfig;
-use bench::outputs::Existing;
-use bench::plot::{
-    write_decomposed_bode_png, write_map_png, write_pole_zero_png, write_veering_png, MeasuredPoint,
+use super::serve::via_daemon;
+use super::{bad_input, finish, refuse_local_only, run_failed, CONFIG_HELP};
+use bench::analysis::map::MapCell;
+use bench::jobs::analyze::{run_analyze, AnalyzeOptions, AnalyzeRequest, AnalyzeSummary};
+use bench::jobs::map::{
+    defaults, run_map, MapOptions, MapRequest, MapResult, MapSummary, VeeringSummary,
 };
-use bench_hal::model::{ranges, Sr4dof, Sr4dofParams};
+use bench::jobs::request::JobRequest;
+use bench::outputs::Existing;
 use clap::Args;
-use serde::Serialize;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::process::ExitCode;
 
-/// The bench to analyse: the config and the same operating-point and
-/// asymmetry flags as `bench chirp`.
 #[derive(Debug, Args)]
-pub(super) struct BenchPointArgs {
+pub(super) struct AnalyzeArgs {
     #[arg(long, value_name = "FILE", help = CONFIG_HELP)]
     config: Option<PathBuf>,
     #[command(flatten)]
     point: PointArgs,
-}
-
-impl BenchPointArgs {
-    /// The config's name in messages.
-    fn config_name(&self) -> String {
-        self.config
-            .as_ref()
-            .map_or(bench::config::BUILTIN_CONFIG_NAME.to_string(), |p| {
-                p.display().to_string()
-            })
-    }
-
-    /// The config's plant with the flags applied and checked, or the exit.
-    fn plant(&self) -> Result<(BenchConfig, Sr4dofParams), ExitCode> {
-        let (cfg, _) = load_config(self.config.as_deref()).map_err(bad_input)?;
-        let mut p = cfg.plant;
-        if let Some(code) = self.point.refuse_percent_out_of_range() {
-            return Err(code);
-        }
-        self.point.apply(&mut p);
-        if let Err(e) = p.validate("plant") {
-            return Err(match self.point.flag_for(&e.key) {
-                Some(f) => bad_input(format!("{f}: {}", e.reason)),
-                None => bad_input(format!("{}: {e}", self.config_name())),
-            });
-        }
-        Ok((cfg, p))
-    }
-}
-
-#[derive(Debug, Args)]
-pub(super) struct AnalyzeArgs {
-    #[command(flatten)]
-    bench: BenchPointArgs,
     /// Pole-zero map PNG [default: analyze-<UTC time>.pole-zero.png in the
     /// recordings directory].
     #[arg(long, value_name = "FILE.png")]
@@ -77,20 +41,23 @@ pub(super) struct AnalyzeArgs {
     /// Print the result as one JSON object on stdout.
     #[arg(long)]
     json: bool,
+    /// Submit to a running `bench serve` instead of computing here [SOCKET
+    /// default: $XDG_RUNTIME_DIR/bench.sock, else /run/bench/bench.sock].
+    /// The daemon reads --config itself and writes the PNGs in its
+    /// recordings directory.
+    #[arg(long, value_name = "SOCKET", num_args = 0..=1, default_missing_value = "")]
+    daemon: Option<String>,
 }
 
-/// `bench analyze --json`.
-#[derive(Debug, Serialize)]
-struct AnalyzeSummary {
-    /// Where the bench came from.
-    config: String,
-    /// Beam length L, m.
-    beam_length_m: f64,
-    #[serde(flatten)]
-    analysis: Analysis,
-    /// The PNGs written (absolute paths).
-    pole_zero_png: Option<String>,
-    modes_png: Option<String>,
+impl AnalyzeArgs {
+    /// The analysis request of the flags.
+    fn request(&self) -> AnalyzeRequest {
+        AnalyzeRequest {
+            config: self.config.clone(),
+            point: self.point.point(),
+            no_plots: self.no_plots,
+        }
+    }
 }
 
 /// A default output path in the recordings directory (the rule of
@@ -99,48 +66,53 @@ struct AnalyzeSummary {
 /// overrides it in the error.
 fn default_output(prefix: &str, suffix: &str, flag: &str) -> Result<PathBuf, ExitCode> {
     let dir = super::default_recordings(true, flag).map_err(bad_input)?;
-    let stem = bench::jobs::session::stamped_recording(&dir, prefix, "");
-    Ok(bench::jobs::session::beside(&stem, suffix))
-}
-
-fn absolute(p: &Path) -> String {
-    std::path::absolute(p)
-        .unwrap_or_else(|_| p.to_path_buf())
-        .display()
-        .to_string()
-}
-
-fn plot_failed(e: impl std::fmt::Display) -> ExitCode {
-    errln!("error: {e}");
-    ExitCode::from(status::ERROR)
+    let stem = bench::outputs::stamped_recording(&dir, prefix, "");
+    Ok(bench::outputs::beside(&stem, suffix))
 }
 
 pub(super) fn analyze(args: AnalyzeArgs) -> ExitCode {
-    let (_, params) = match args.bench.plant() {
-        Ok(p) => p,
-        Err(code) => return code,
-    };
-    let model = match Sr4dof::new(params) {
-        Ok(m) => m,
-        Err(e) => return bad_input(format!("{}: {e}", args.bench.config_name())),
-    };
-    let a = analyze_model(&model);
-    let existing = Existing::overwrite(args.overwrite);
-    let (mut pz, mut modes) = (None, None);
+    let request = args.request();
+    if let Some(sock) = &args.daemon {
+        if let Some(code) = refuse_local_only(
+            &[
+                (args.pole_zero_png.is_some(), "--pole-zero-png"),
+                (args.modes_png.is_some(), "--modes-png"),
+                (args.overwrite, "--overwrite"),
+            ],
+            "the daemon writes its PNGs in its recordings directory",
+        ) {
+            return code;
+        }
+        let request = AnalyzeRequest {
+            config: request.config.as_deref().map(super::absolute_path),
+            ..request
+        };
+        return via_daemon(
+            sock,
+            &JobRequest::Analyze(request),
+            args.json,
+            print_analysis,
+        );
+    }
+    // The bench is checked before a default PNG name is made (and the
+    // recordings directory with it).
+    if let Err(e) = request.plant() {
+        return run_failed(&e);
+    }
+    let (mut pole_zero_png, mut modes_png) = (None, None);
     if !args.no_plots {
-        let pz_path = match &args.pole_zero_png {
+        let pz = match &args.pole_zero_png {
             Some(p) => p.clone(),
             None => match default_output("analyze", ".pole-zero.png", "--pole-zero-png") {
                 Ok(p) => p,
                 Err(code) => return code,
             },
         };
-        let modes_path = match (&args.modes_png, &args.pole_zero_png) {
+        modes_png = Some(match (&args.modes_png, &args.pole_zero_png) {
             (Some(p), _) => p.clone(),
             // Same stamp as the pole-zero map when both are defaults.
-            (None, None) => pz_path.with_file_name(
-                pz_path
-                    .file_name()
+            (None, None) => pz.with_file_name(
+                pz.file_name()
                     .unwrap_or_default()
                     .to_string_lossy()
                     .replace(".pole-zero.png", ".modes.png"),
@@ -149,42 +121,16 @@ pub(super) fn analyze(args: AnalyzeArgs) -> ExitCode {
                 Ok(p) => p,
                 Err(code) => return code,
             },
-        };
-        let what = format!(
-            "Y1o = {:.3} mm ({:.2} % of L), Δm23 = {:+.1} %",
-            a.operating_point_m * 1e3,
-            a.operating_point_m / params.beam.length_m * 100.0,
-            a.mass_asymmetry * 100.0
-        );
-        let title = format!("Poles and zeros, force → x1 — {what}");
-        if let Err(e) = write_pole_zero_png(
-            &pz_path,
-            existing,
-            &title,
-            &model,
-            &a.zeros_damped,
-            &a.modes,
-        ) {
-            return plot_failed(e);
-        }
-        let title = format!("Decomposed modes {} — {what}", a.sequence);
-        if let Err(e) = write_decomposed_bode_png(&modes_path, existing, &title, &a.modes) {
-            return plot_failed(e);
-        }
-        pz = Some(absolute(&pz_path));
-        modes = Some(absolute(&modes_path));
+        });
+        pole_zero_png = Some(pz);
     }
-    let summary = AnalyzeSummary {
-        config: args.bench.config_name(),
-        beam_length_m: params.beam.length_m,
-        analysis: a,
-        pole_zero_png: pz,
-        modes_png: modes,
+    let opts = AnalyzeOptions {
+        request,
+        pole_zero_png,
+        modes_png,
+        existing: Existing::overwrite(args.overwrite),
     };
-    match emit(&summary, args.json, print_analysis) {
-        Ok(()) => ExitCode::SUCCESS,
-        Err(code) => code,
-    }
+    finish(run_analyze(&opts), args.json, print_analysis)
 }
 
 fn print_analysis(s: &AnalyzeSummary) {
@@ -300,7 +246,7 @@ pub(super) struct MapArgs {
     #[arg(
         long,
         value_name = "PERCENT",
-        default_value_t = 0.0,
+        default_value_t = defaults::OPERATING_POINT_FROM_PCT,
         allow_hyphen_values = true
     )]
     operating_point_from_pct: f64,
@@ -308,26 +254,26 @@ pub(super) struct MapArgs {
     #[arg(
         long,
         value_name = "PERCENT",
-        default_value_t = 10.0,
+        default_value_t = defaults::OPERATING_POINT_TO_PCT,
         allow_hyphen_values = true
     )]
     operating_point_to_pct: f64,
     /// Number of operating points (2 … 401).
-    #[arg(long, value_name = "N", default_value_t = 101)]
+    #[arg(long, value_name = "N", default_value_t = defaults::OPERATING_POINTS)]
     operating_points: usize,
     /// Lowest mass asymmetry Δm23 of the grid (fraction: −0.1 = −10 %).
-    #[arg(long, value_name = "X", default_value_t = -0.10, allow_hyphen_values = true)]
+    #[arg(long, value_name = "X", default_value_t = defaults::MASS_ASYMMETRY_FROM, allow_hyphen_values = true)]
     mass_asymmetry_from: f64,
     /// Highest mass asymmetry of the grid (fraction).
     #[arg(
         long,
         value_name = "X",
-        default_value_t = 0.10,
+        default_value_t = defaults::MASS_ASYMMETRY_TO,
         allow_hyphen_values = true
     )]
     mass_asymmetry_to: f64,
     /// Number of asymmetries (2 … 401; 1 with --veering).
-    #[arg(long, value_name = "N", default_value_t = 81)]
+    #[arg(long, value_name = "N", default_value_t = defaults::MASS_ASYMMETRIES)]
     mass_asymmetries: usize,
     /// Measured verdicts to overlay (CSV with a header naming
     /// `operating_point_m`, `mass_asymmetry` and `verdict` or `cnmp`:
@@ -362,453 +308,98 @@ pub(super) struct MapArgs {
     /// veering-<UTC time>.png in the recordings directory].
     #[arg(long, value_name = "FILE.png")]
     png: Option<PathBuf>,
-    /// One row per cell: operating_point_m,mass_asymmetry,cnmp,cnmp_damped.
-    #[arg(long, value_name = "FILE.csv")]
-    csv: Option<PathBuf>,
+    /// One row per cell: operating_point_m,mass_asymmetry,cnmp,cnmp_damped
+    /// [FILE default: the PNG's name with .csv; with --daemon give no
+    /// FILE: the daemon names it].
+    #[arg(long, value_name = "FILE.csv", num_args = 0..=1)]
+    csv: Option<Option<PathBuf>>,
     /// Replace existing output files (regular files only).
     #[arg(long)]
     overwrite: bool,
     /// Print the result as one JSON object on stdout.
     #[arg(long)]
     json: bool,
+    /// Submit to a running `bench serve` instead of computing here [SOCKET
+    /// default: $XDG_RUNTIME_DIR/bench.sock, else /run/bench/bench.sock].
+    /// The daemon reads --config and --measured itself and writes the PNG
+    /// (and the CSV of --csv) in its recordings directory.
+    #[arg(long, value_name = "SOCKET", num_args = 0..=1, default_missing_value = "")]
+    daemon: Option<String>,
 }
-
-/// Most curves of `--veering-asymmetries` (the plot's palette).
-pub const MAX_VEERING_CURVES: usize = 6;
-/// Most operating points of `--localisation-at-pct`.
-pub const MAX_LOCALISATION_POINTS: usize = 20;
-
-/// Largest number of points along one axis of the grid.
-pub const MAX_GRID_POINTS: usize = 401;
 
 impl MapArgs {
-    /// Checks the grid flags against the model's range; the grid in m and
-    /// fractions.
-    fn grid(&self, p: &Sr4dofParams) -> Result<(Vec<f64>, Vec<f64>), String> {
-        let max_pct = ranges::OPERATING_POINT_OF_L * 100.0;
-        for (flag, v) in [
-            ("--operating-point-from-pct", self.operating_point_from_pct),
-            ("--operating-point-to-pct", self.operating_point_to_pct),
-        ] {
-            if !(v.is_finite() && (0.0..=max_pct).contains(&v)) {
-                let hint = if v > max_pct && v <= max_pct * 100.0 {
-                    " (the grid is in % of L: 5 means 5 %)"
-                } else {
-                    ""
-                };
-                return Err(format!(
-                    "{flag}: {v} is outside 0 … {max_pct} % of L (the model's small-rotation range, Eq. 2-1){hint}"
-                ));
-            }
+    /// The map request of the flags.
+    fn request(&self) -> MapRequest {
+        MapRequest {
+            config: self.config.clone(),
+            operating_point_from_pct: self.operating_point_from_pct,
+            operating_point_to_pct: self.operating_point_to_pct,
+            operating_points: self.operating_points,
+            mass_asymmetry_from: self.mass_asymmetry_from,
+            mass_asymmetry_to: self.mass_asymmetry_to,
+            mass_asymmetries: self.mass_asymmetries,
+            measured: self.measured.clone(),
+            veering: self.veering,
+            veering_asymmetries: self.veering_asymmetries.clone(),
+            localisation_at_pct: self.localisation_at_pct.clone(),
+            csv: self.csv.is_some(),
         }
-        if self.operating_point_to_pct <= self.operating_point_from_pct {
-            return Err(format!(
-                "--operating-point-to-pct: {} must be above --operating-point-from-pct ({})",
-                self.operating_point_to_pct, self.operating_point_from_pct
-            ));
-        }
-        let (lo, hi) = ranges::MASS_ASYMMETRY;
-        let mut asym_flags = vec![
-            ("--mass-asymmetry-from", self.mass_asymmetry_from),
-            ("--mass-asymmetry-to", self.mass_asymmetry_to),
-        ];
-        if self.veering {
-            asym_flags.extend(
-                self.veering_asymmetries
-                    .iter()
-                    .map(|v| ("--veering-asymmetries", *v)),
-            );
-        }
-        for (flag, v) in asym_flags {
-            if !(v.is_finite() && (lo..=hi).contains(&v)) {
-                return Err(format!(
-                    "{flag}: {v} is outside {lo} … {hi} (a fraction, 0.10 = 10 %: the heavier secondary stage at most about 1.5 times the lighter)"
-                ));
-            }
-        }
-        if self.mass_asymmetry_to <= self.mass_asymmetry_from && !self.veering {
-            return Err(format!(
-                "--mass-asymmetry-to: {} must be above --mass-asymmetry-from ({})",
-                self.mass_asymmetry_to, self.mass_asymmetry_from
-            ));
-        }
-        for (flag, n, min) in [
-            (
-                "--operating-points",
-                self.operating_points,
-                if self.veering { 3 } else { 2 },
-            ),
-            ("--mass-asymmetries", self.mass_asymmetries, 2),
-        ] {
-            if !(min..=MAX_GRID_POINTS).contains(&n) {
-                return Err(format!("{flag}: {n} is outside {min} … {MAX_GRID_POINTS}"));
-            }
-        }
-        if self.veering && self.veering_asymmetries.is_empty() {
-            return Err("--veering-asymmetries: give at least one asymmetry".into());
-        }
-        if self.veering_asymmetries.len() > MAX_VEERING_CURVES {
-            return Err(format!(
-                "--veering-asymmetries: {} curves; at most {MAX_VEERING_CURVES} (one colour each in the plot)",
-                self.veering_asymmetries.len()
-            ));
-        }
-        if self.localisation_at_pct.len() > MAX_LOCALISATION_POINTS {
-            return Err(format!(
-                "--localisation-at-pct: {} points; at most {MAX_LOCALISATION_POINTS}",
-                self.localisation_at_pct.len()
-            ));
-        }
-        for v in &self.localisation_at_pct {
-            if !(v.is_finite() && (0.0..=max_pct).contains(v)) {
-                return Err(format!(
-                    "--localisation-at-pct: {v} is outside 0 … {max_pct} % of L"
-                ));
-            }
-        }
-        let l = p.beam.length_m;
-        Ok((
-            linspace(
-                self.operating_point_from_pct / 100.0 * l,
-                self.operating_point_to_pct / 100.0 * l,
-                self.operating_points,
-            ),
-            linspace(
-                self.mass_asymmetry_from,
-                self.mass_asymmetry_to,
-                self.mass_asymmetries,
-            ),
-        ))
     }
-}
-
-/// Reads measured verdicts (see `--measured`). Rows with an empty verdict
-/// are skipped and counted.
-///
-/// # Errors
-/// A message naming the file, line and column.
-pub(super) fn read_measured(
-    path: &Path,
-    p: &Sr4dofParams,
-) -> Result<(Vec<MeasuredPoint>, usize), String> {
-    let meta =
-        std::fs::metadata(path).map_err(|e| format!("--measured {}: {e}", path.display()))?;
-    if !meta.is_file() || meta.len() > bench::config::MAX_CONFIG_BYTES * 16 {
-        return Err(format!(
-            "--measured {}: not a regular file of at most 16 MiB",
-            path.display()
-        ));
-    }
-    let text =
-        std::fs::read_to_string(path).map_err(|e| format!("--measured {}: {e}", path.display()))?;
-    let mut lines = text
-        .lines()
-        .enumerate()
-        .filter(|(_, l)| !l.trim().is_empty() && !l.starts_with('#'));
-    let (_, header) = lines
-        .next()
-        .ok_or_else(|| format!("--measured {}: empty file", path.display()))?;
-    let cols: Vec<&str> = header.split(',').map(str::trim).collect();
-    let find = |names: &[&str]| cols.iter().position(|c| names.contains(c));
-    let (Some(iop), Some(idm), Some(iv)) = (
-        find(&["operating_point_m"]),
-        find(&["mass_asymmetry"]),
-        find(&["verdict", "cnmp"]),
-    ) else {
-        return Err(format!(
-            "--measured {}: the header must name operating_point_m, mass_asymmetry and verdict (or cnmp); it is {header:?}",
-            path.display()
-        ));
-    };
-    let (mut out, mut undecided) = (Vec::new(), 0);
-    for (i, line) in lines {
-        let f: Vec<&str> = line.split(',').map(str::trim).collect();
-        let at = |k: usize, name: &str| -> Result<&str, String> {
-            f.get(k)
-                .copied()
-                .ok_or_else(|| format!("--measured {}:{}: no {name} column", path.display(), i + 1))
-        };
-        let num = |k: usize, name: &str| -> Result<f64, String> {
-            let s = at(k, name)?;
-            s.parse::<f64>()
-                .ok()
-                .filter(|v| v.is_finite())
-                .ok_or_else(|| {
-                    format!(
-                        "--measured {}:{}: {name} {s:?} is not a finite number",
-                        path.display(),
-                        i + 1
-                    )
-                })
-        };
-        let op = num(iop, "operating_point_m")?;
-        let dm = num(idm, "mass_asymmetry")?;
-        let max_op = ranges::OPERATING_POINT_OF_L * p.beam.length_m;
-        if op.abs() > max_op {
-            return Err(format!(
-                "--measured {}:{}: operating_point_m {op} is beyond {max_op} m ({} % of L); is it in mm?",
-                path.display(),
-                i + 1,
-                ranges::OPERATING_POINT_OF_L * 100.0
-            ));
-        }
-        let (lo, hi) = ranges::MASS_ASYMMETRY;
-        if !(lo..=hi).contains(&dm) {
-            return Err(format!(
-                "--measured {}:{}: mass_asymmetry {dm} is outside {lo} … {hi} (a fraction: 0.1 = 10 %)",
-                path.display(),
-                i + 1
-            ));
-        }
-        let cnmp = match at(iv, "verdict")?.to_ascii_lowercase().as_str() {
-            "" | "null" | "none" => {
-                undecided += 1;
-                continue;
-            }
-            "true" | "1" | "yes" => true,
-            "false" | "0" | "no" => false,
-            other => {
-                return Err(format!(
-                    "--measured {}:{}: verdict {other:?} is not true, false or empty",
-                    path.display(),
-                    i + 1
-                ))
-            }
-        };
-        out.push(MeasuredPoint {
-            operating_point_m: op,
-            mass_asymmetry: dm,
-            cnmp,
-        });
-    }
-    Ok((out, undecided))
-}
-
-/// A measured cell whose verdict differs from the model's nearest cell.
-#[derive(Debug, Serialize)]
-struct Disagreement {
-    operating_point_m: f64,
-    mass_asymmetry: f64,
-    measured_cnmp: bool,
-    model_cnmp: bool,
-    model_cnmp_damped: bool,
-}
-
-#[derive(Debug, Serialize)]
-struct MapSummary {
-    config: String,
-    beam_length_m: f64,
-    operating_points_m: Vec<f64>,
-    mass_asymmetries: Vec<f64>,
-    /// Mode-crossing operating point of the symmetric stage (Δm23 = 0), m.
-    crossing_operating_point_m: Option<f64>,
-    cells: Vec<MapCell>,
-    cnmp_cells: usize,
-    cnmp_damped_cells: usize,
-    measured: usize,
-    measured_undecided: usize,
-    /// Measured cells against the damped model at the nearest grid cell.
-    disagreements: Vec<Disagreement>,
-    png: String,
-    csv: Option<String>,
-}
-
-#[derive(Debug, Serialize)]
-struct VeeringSummary {
-    config: String,
-    beam_length_m: f64,
-    curves: Vec<VeeringCurve>,
-    localisation: Vec<LocalisationAt>,
-    png: String,
-}
-
-#[derive(Debug, Serialize)]
-struct LocalisationAt {
-    mass_asymmetry: f64,
-    operating_point_m: f64,
-    frequency_u_hz: f64,
-    frequency_v_hz: f64,
-    localisation_u: f64,
-    localisation_v: f64,
 }
 
 pub(super) fn map(args: MapArgs) -> ExitCode {
-    let (cfg, config_path) = match load_config(args.config.as_deref()) {
-        Ok(c) => c,
-        Err(e) => return bad_input(e),
-    };
-    let config_name = config_path.display().to_string();
-    let p = cfg.plant;
-    let (ops, dms) = match args.grid(&p) {
-        Ok(g) => g,
-        Err(msg) => return bad_input(msg),
-    };
-    let measured = match &args.measured {
-        Some(path) if !args.veering => match read_measured(path, &p) {
-            Ok(m) => Some(m),
-            Err(msg) => return bad_input(msg),
-        },
-        Some(_) => return bad_input("--measured: not with --veering (it overlays the map)"),
-        None => None,
-    };
-    if args.veering && args.csv.is_some() {
-        return bad_input("--csv: not with --veering (the map's cells; use --json for the curves)");
-    }
-    // Every cell must describe a bench: the model checks the rest of the
-    // plant once, at the grid's corners.
-    for (op, dm) in [
-        (ops[0], dms[0]),
-        (*ops.last().unwrap(), *dms.last().unwrap()),
-    ] {
-        if let Err(e) = model_at(&p, op, dm) {
-            return bad_input(format!("{}: {e}", config_name));
+    let request = args.request();
+    if let Some(sock) = &args.daemon {
+        let csv_named = matches!(args.csv, Some(Some(_)));
+        if let Some(code) = refuse_local_only(
+            &[
+                (args.png.is_some(), "--png"),
+                (csv_named, "--csv FILE (--csv alone asks for the cells CSV)"),
+                (args.overwrite, "--overwrite"),
+            ],
+            "the daemon writes its PNG and CSV in its recordings directory",
+        ) {
+            return code;
         }
+        let request = MapRequest {
+            config: request.config.as_deref().map(super::absolute_path),
+            measured: request.measured.as_deref().map(super::absolute_path),
+            ..request
+        };
+        return via_daemon(sock, &JobRequest::Map(request), args.json, print_result);
     }
-    let existing = Existing::overwrite(args.overwrite);
     let png = match &args.png {
         Some(p) => p.clone(),
-        None => match default_output(
-            if args.veering { "veering" } else { "map" },
-            ".png",
-            "--png",
-        ) {
-            Ok(p) => p,
-            Err(code) => return code,
-        },
-    };
-    let config = config_name.clone();
-    if args.veering {
-        let curves = match args
-            .veering_asymmetries
-            .iter()
-            .map(|&dm| veering_curve(&p, dm, &ops))
-            .collect::<Result<Vec<_>, _>>()
-        {
-            Ok(c) => c,
-            Err(e) => return bad_input(format!("{}: {e}", config_name)),
-        };
-        let mut localisation = Vec::new();
-        for c in &curves {
-            for &pct in &args.localisation_at_pct {
-                let op = pct / 100.0 * p.beam.length_m;
-                if let Ok(one) = veering_curve(&p, c.mass_asymmetry, &[op]) {
-                    let pt = one.points[0];
-                    localisation.push(LocalisationAt {
-                        mass_asymmetry: c.mass_asymmetry,
-                        operating_point_m: op,
-                        frequency_u_hz: pt.frequency_u_hz,
-                        frequency_v_hz: pt.frequency_v_hz,
-                        localisation_u: pt.localisation_u,
-                        localisation_v: pt.localisation_v,
-                    });
-                }
+        None => {
+            // The request (config, grid) is checked before a default name
+            // is made (and the recordings directory with it).
+            if let Err(e) = request.check() {
+                return run_failed(&e);
+            }
+            let prefix = if args.veering { "veering" } else { "map" };
+            match default_output(prefix, ".png", "--png") {
+                Ok(p) => p,
+                Err(code) => return code,
             }
         }
-        let title = "Curve veering of the closely spaced pair";
-        if let Err(e) = write_veering_png(&png, existing, title, p.beam.length_m, &curves) {
-            return plot_failed(e);
-        }
-        let s = VeeringSummary {
-            config,
-            beam_length_m: p.beam.length_m,
-            curves,
-            localisation,
-            png: absolute(&png),
-        };
-        return match emit(&s, args.json, print_veering) {
-            Ok(()) => ExitCode::SUCCESS,
-            Err(code) => code,
-        };
-    }
-    let cells = match cnmp_map(&p, &ops, &dms) {
-        Ok(c) => c,
-        Err(e) => return bad_input(format!("{}: {e}", config_name)),
     };
-    let crossing = {
-        let l = p.beam.length_m;
-        let sweep = linspace(0.0, ranges::OPERATING_POINT_OF_L * l * 0.99, 199);
-        veering_curve(&p, 0.0, &sweep)
-            .ok()
-            .filter(|c| c.closest_gap_hz < 1e-3 * c.closest_frequency_hz)
-            .map(|c| c.closest_operating_point_m)
-    };
-    let (points, undecided) = measured.unwrap_or_default();
-    let nearest = |m: &MeasuredPoint| {
-        cells
-            .iter()
-            .min_by(|a, b| {
-                let d = |c: &MapCell| {
-                    ((c.operating_point_m - m.operating_point_m) / p.beam.length_m).powi(2)
-                        + (c.mass_asymmetry - m.mass_asymmetry).powi(2)
-                };
-                d(a).total_cmp(&d(b))
-            })
-            .copied()
-    };
-    let disagreements: Vec<Disagreement> = points
-        .iter()
-        .filter_map(|m| {
-            let c = nearest(m)?;
-            (c.cnmp_damped != m.cnmp).then_some(Disagreement {
-                operating_point_m: m.operating_point_m,
-                mass_asymmetry: m.mass_asymmetry,
-                measured_cnmp: m.cnmp,
-                model_cnmp: c.cnmp,
-                model_cnmp_damped: c.cnmp_damped,
-            })
-        })
-        .collect();
-    let title = "CMP-CNMP zeros of force → x1 over the workspace";
-    if let Err(e) = write_map_png(
-        &png,
-        existing,
-        title,
-        p.beam.length_m,
-        &ops,
-        &dms,
-        &cells,
-        crossing,
-        &points,
-    ) {
-        return plot_failed(e);
-    }
-    let csv = match &args.csv {
-        Some(path) => {
-            let mut text = String::from("operating_point_m,mass_asymmetry,cnmp,cnmp_damped\n");
-            for c in &cells {
-                text.push_str(&format!(
-                    "{},{},{},{}\n",
-                    c.operating_point_m, c.mass_asymmetry, c.cnmp, c.cnmp_damped
-                ));
-            }
-            if let Err(e) = bench::outputs::write_atomically(path, existing, |f| {
-                use std::io::Write;
-                f.write_all(text.as_bytes())
-            }) {
-                return plot_failed(format!("--csv {}: {e}", path.display()));
-            }
-            Some(absolute(path))
-        }
-        None => None,
-    };
-    let s = MapSummary {
-        config,
-        beam_length_m: p.beam.length_m,
-        cnmp_cells: cells.iter().filter(|c| c.cnmp).count(),
-        cnmp_damped_cells: cells.iter().filter(|c| c.cnmp_damped).count(),
-        operating_points_m: ops,
-        mass_asymmetries: dms,
-        crossing_operating_point_m: crossing,
-        cells,
-        measured: points.len(),
-        measured_undecided: undecided,
-        disagreements,
-        png: absolute(&png),
+    let csv = args
+        .csv
+        .as_ref()
+        .map(|c| c.clone().unwrap_or_else(|| png.with_extension("csv")));
+    let opts = MapOptions {
+        request,
+        png,
         csv,
+        existing: Existing::overwrite(args.overwrite),
     };
-    match emit(&s, args.json, print_map) {
-        Ok(()) => ExitCode::SUCCESS,
-        Err(code) => code,
+    finish(run_map(&opts), args.json, print_result)
+}
+
+fn print_result(r: &MapResult) {
+    match r {
+        MapResult::Map(s) => print_map(s),
+        MapResult::Veering(s) => print_veering(s),
     }
 }
 
@@ -927,4 +518,24 @@ fn print_veering(s: &VeeringSummary) {
         );
     }
     outln!("veering plot: {}", s.png);
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::Parser;
+
+    #[derive(Debug, Parser)]
+    struct Map {
+        #[command(flatten)]
+        args: MapArgs,
+    }
+
+    /// The flags' defaults are the request's (the daemon's `map` without
+    /// params is `bench map`).
+    #[test]
+    fn map_flags_default_to_the_request_defaults() {
+        let m = Map::try_parse_from(["map"]).unwrap();
+        assert_eq!(m.args.request(), MapRequest::default());
+    }
 }

@@ -1,17 +1,19 @@
 //! `bench campaign`: run a grid of chirps (thesis Fig 5-10) on the
 //! simulator, resumable after a crash; its status and its map.
 
+use super::serve::via_daemon;
 use super::{bad_input, emit, status};
 use bench::campaign::file::Campaign;
-use bench::campaign::journal::Journal;
+use bench::campaign::job::{self, Ready};
 use bench::campaign::run::{
-    create, damaged_cells, load_dir, run_attended, run_cells, summarize, write_results,
-    CampaignRunError, CampaignSummary, CellBench, LineOperator, RunOptions,
+    damaged_cells, load_dir, summarize, write_results, CampaignRunError, CampaignSummary,
+    CellBench, LineOperator, RunOptions,
 };
+use bench::jobs::request::{CampaignRequest, JobRequest};
 use bench::rt::backend::BackendSpec;
 use clap::{Args, Subcommand};
 use std::io::IsTerminal;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::process::ExitCode;
 use std::sync::atomic::AtomicBool;
 use std::sync::Arc;
@@ -42,6 +44,14 @@ pub(super) struct RunArgs {
     out: Option<PathBuf>,
     #[command(flatten)]
     how: HowArgs,
+    /// Submit the whole campaign as one job to a running `bench serve`
+    /// [SOCKET default: $XDG_RUNTIME_DIR/bench.sock, else
+    /// /run/bench/bench.sock]: the daemon reads the campaign file and runs
+    /// the cells on the simulator, in parallel, in a new directory of its
+    /// recordings (as `run` without --backend here). Unlike --daemon, no
+    /// cell runs on the daemon's bench.
+    #[arg(long, value_name = "SOCKET", num_args = 0..=1, default_missing_value = "", conflicts_with_all = ["out", "backend", "daemon"])]
+    submit: Option<String>,
 }
 
 /// Where and how the cells run, for `run` and `resume`.
@@ -93,21 +103,6 @@ pub(super) struct DirArgs {
     json: bool,
 }
 
-/// Largest `--threads`.
-const MAX_THREADS: usize = 64;
-
-fn threads(given: Option<usize>) -> Result<usize, ExitCode> {
-    match given {
-        Some(n) if (1..=MAX_THREADS).contains(&n) => Ok(n),
-        Some(n) => Err(bad_input(format!(
-            "--threads {n}: must be 1 … {MAX_THREADS} (cells run at once)"
-        ))),
-        None => Ok(std::thread::available_parallelism()
-            .map(|n| n.get())
-            .unwrap_or(1)),
-    }
-}
-
 pub(super) fn campaign(cmd: CampaignCommand, stop: Arc<AtomicBool>) -> ExitCode {
     match cmd {
         CampaignCommand::Run(a) => run(a, stop),
@@ -118,80 +113,64 @@ pub(super) fn campaign(cmd: CampaignCommand, stop: Arc<AtomicBool>) -> ExitCode 
 }
 
 fn run(a: RunArgs, stop: Arc<AtomicBool>) -> ExitCode {
-    let threads = match threads(a.how.threads) {
+    if let Some(sock) = &a.submit {
+        let request = CampaignRequest {
+            file: super::absolute_path(&a.file),
+            threads: a.how.threads,
+        };
+        return via_daemon(
+            sock,
+            &JobRequest::Campaign(request),
+            a.how.json,
+            print_summary,
+        );
+    }
+    let threads = match job::threads(a.how.threads) {
         Ok(n) => n,
-        Err(code) => return code,
+        Err(e) => return failed(&e),
     };
     let campaign = match Campaign::load(&a.file) {
         Ok(c) => c,
         Err(e) => return bad_input(e),
     };
-    let Some(dir) = a.out.clone().or_else(|| campaign.spec.out.clone()) else {
-        return bad_input(format!(
-            "{}: no output directory: give --out DIR or `out = \"DIR\"` in the campaign file",
-            a.file.display()
-        ));
-    };
-    if let Err(e) = create(&campaign, &dir) {
-        return failed(&e);
-    }
-    let (journal, read) = match Journal::open(&dir) {
-        Ok(j) => j,
-        Err(e) => return failed(&e.into()),
-    };
     let bench = target(a.how.backend.as_ref(), a.how.daemon.as_deref(), &campaign);
-    go(
-        &campaign, &dir, journal, &read, threads, bench, stop, a.how.json,
-    )
+    match job::start(campaign, a.out.as_deref()) {
+        Ok(ready) => go(ready, threads, bench, stop, a.how.json),
+        Err(e) => failed(&e),
+    }
 }
 
 fn resume(a: ResumeArgs, stop: Arc<AtomicBool>) -> ExitCode {
-    let threads = match threads(a.how.threads) {
+    let threads = match job::threads(a.how.threads) {
         Ok(n) => n,
-        Err(code) => return code,
-    };
-    let (campaign, _, note) = match load_dir(&a.dir, a.campaign.as_deref(), a.force) {
-        Ok(x) => x,
         Err(e) => return failed(&e),
     };
-    if let Some(n) = note {
+    let ready = match job::resume(&a.dir, a.campaign.as_deref(), a.force) {
+        Ok(r) => r,
+        Err(e) => return failed(&e),
+    };
+    if let Some(n) = &ready.note {
         errln!("note: {n}");
     }
-    let (mut journal, read) = match Journal::open(&a.dir) {
-        Ok(j) => j,
-        Err(e) => return failed(&e.into()),
-    };
-    if a.force {
-        if let Err(e) = bench::campaign::run::adopt_changed(&a.dir, &mut journal, &campaign) {
-            return failed(&e);
-        }
-    }
-    let damaged = damaged_cells(&a.dir, &read);
-    if !damaged.is_empty() {
-        let list: Vec<String> = damaged
-            .iter()
-            .map(|(c, why)| format!("cell {c}: {why}"))
-            .collect();
-        return bad_input(format!(
-            "{}: files of done cells are missing or changed ({}); the campaign's results would not be what it measured. Restore them, or start a new campaign",
-            a.dir.display(),
-            list.join("; ")
-        ));
-    }
-    let bench = target(a.how.backend.as_ref(), a.how.daemon.as_deref(), &campaign);
-    go(
-        &campaign, &a.dir, journal, &read, threads, bench, stop, a.how.json,
-    )
+    let bench = target(
+        a.how.backend.as_ref(),
+        a.how.daemon.as_deref(),
+        &ready.campaign,
+    );
+    go(ready, threads, bench, stop, a.how.json)
 }
 
 /// Where the cells run: the daemon, a hardware backend (flag or
 /// `[backend]`), or the simulator.
 fn target(backend: Option<&BackendSpec>, daemon: Option<&str>, campaign: &Campaign) -> CellBench {
     if let Some(sock) = daemon {
-        return CellBench::Daemon(if sock.is_empty() {
+        let socket = if sock.is_empty() {
             bench::daemon::default_socket_path()
         } else {
             PathBuf::from(sock)
+        };
+        return CellBench::Daemon(socket, |socket, job| {
+            bench::daemon::client::submit(socket, job, |_| {}).map_err(|e| e.to_string())
         });
     }
     match BackendSpec::resolve(backend, &campaign.config) {
@@ -200,23 +179,21 @@ fn target(backend: Option<&BackendSpec>, daemon: Option<&str>, campaign: &Campai
     }
 }
 
-#[allow(clippy::too_many_arguments)]
+/// Runs a ready campaign: attended on hardware or the daemon (the
+/// operator on the terminal), else on the simulator with a progress bar.
 fn go(
-    campaign: &Campaign,
-    dir: &Path,
-    journal: Journal,
-    read: &bench::campaign::journal::ReadJournal,
+    ready: Ready,
     threads: usize,
     bench: CellBench,
     stop: Arc<AtomicBool>,
     json: bool,
 ) -> ExitCode {
-    if bench != CellBench::Sim {
-        let on = match &bench {
-            CellBench::Daemon(s) => format!("the daemon at {}", s.display()),
-            CellBench::Backend(spec) => spec.to_string(),
-            CellBench::Sim => unreachable!(),
-        };
+    let on = match &bench {
+        CellBench::Sim => None,
+        CellBench::Daemon(s, _) => Some(format!("the daemon at {}", s.display())),
+        CellBench::Backend(spec) => Some(spec.to_string()),
+    };
+    if let Some(on) = on {
         // Instructions and answers on the terminal (stderr, so that
         // --json keeps stdout for the summary).
         let mut operator = LineOperator {
@@ -225,10 +202,10 @@ fn go(
         };
         errln!(
             "campaign {} on {on}: {} cells, one at a time; change the setup as told, then answer",
-            dir.display(),
-            campaign.cells().len() - read.done().len() - read.skipped().len()
+            ready.dir.display(),
+            ready.to_run()
         );
-        return match run_attended(campaign, dir, journal, read, &bench, &mut operator, &stop) {
+        return match ready.run_attended(&bench, &mut operator, &stop) {
             Ok(s) => match emit(&s, json, print_summary) {
                 Ok(()) => ExitCode::SUCCESS,
                 Err(code) => code,
@@ -236,16 +213,15 @@ fn go(
             Err(e) => failed(&e),
         };
     }
-    let total = campaign.cells().len();
     let bar = (std::io::stderr().is_terminal() && !json).then(|| {
-        let b = indicatif::ProgressBar::new(total as u64);
+        let b = indicatif::ProgressBar::new(ready.cells() as u64);
         b.set_style(
             indicatif::ProgressStyle::with_template(
                 "{bar:40} {pos}/{len} cells  {elapsed_precise} elapsed, ETA {eta_precise}",
             )
             .expect("a valid template"),
         );
-        b.set_position(read.done().len() as u64);
+        b.set_position(ready.done() as u64);
         b
     });
     let on_cell = |n: usize, _total: usize| {
@@ -258,7 +234,7 @@ fn go(
         stop,
         on_cell: Some(&on_cell),
     };
-    let result = run_cells(campaign, dir, journal, read, &opts);
+    let result = ready.run_parallel(&opts);
     if let Some(b) = &bar {
         b.finish_and_clear();
     }
@@ -307,9 +283,18 @@ fn map_cmd(a: DirArgs) -> ExitCode {
 }
 
 fn failed(e: &CampaignRunError) -> ExitCode {
-    errln!("error: {}", bench::error::error_chain(&e));
+    match e {
+        // An option by its flag.
+        CampaignRunError::BadOption { key, value, reason } if value.is_empty() => {
+            errln!("error: {}: {reason}", super::option_flag(key));
+        }
+        CampaignRunError::BadOption { key, value, reason } => {
+            errln!("error: {} {value}: {reason}", super::option_flag(key));
+        }
+        e => errln!("error: {}", bench::error::error_chain(e)),
+    }
     ExitCode::from(match e {
-        CampaignRunError::BadInput(_) => status::BAD_INPUT,
+        CampaignRunError::BadInput(_) | CampaignRunError::BadOption { .. } => status::BAD_INPUT,
         CampaignRunError::Stopped { .. } => status::INTERRUPTED,
         _ => status::ERROR,
     })

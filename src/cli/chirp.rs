@@ -10,7 +10,7 @@ use super::{
 use bench::config::ChirpKind;
 use bench::jobs::chirp::{run_chirp, ChirpOptions, ChirpSummary};
 use bench::jobs::request::{parse_fault, parse_seed, ChirpRequest, JobRequest, LocalOverrides};
-use bench::jobs::session::beside;
+use bench::outputs::beside;
 use bench::rt::backend::BackendSpec;
 use clap::{Args, ValueEnum};
 use std::io::IsTerminal;
@@ -103,8 +103,8 @@ impl ChirpArgs {
     /// The local-only overrides of the flags.
     fn local_overrides(&self) -> LocalOverrides {
         LocalOverrides {
-            operating_point: self.point.operating_point(),
-            mass_asymmetry: self.point.mass_asymmetry(),
+            operating_point: self.point.point().operating_point(),
+            mass_asymmetry: self.point.point().mass_asymmetry(),
             chirp_kind: self.chirp_kind.map(|k| match k {
                 KindArg::Exponential => ChirpKind::Exponential,
                 KindArg::Linear => ChirpKind::Linear,
@@ -115,7 +115,7 @@ impl ChirpArgs {
     /// The flag that set a config key (for error messages).
     fn flag_for(&self, key: &str) -> Option<String> {
         if let Some(f) = self.point.flag_for(key) {
-            return Some(f.to_string());
+            return Some(f);
         }
         let flag = match key {
             "chirp.amplitude_a" if self.amplitude_a.is_some() => "--amplitude-a",
@@ -159,8 +159,8 @@ pub(super) fn chirp(args: ChirpArgs, stop: Arc<AtomicBool>) -> ExitCode {
         Ok(c) => c,
         Err(e) => return bad_input(e),
     };
-    if let Some(code) = args.point.refuse_percent_out_of_range() {
-        return code;
+    if let Err(e) = args.point.point().check() {
+        return refused_request(e, &config_path, |key| args.flag_for(key));
     }
     let request = args.request();
     let inject = match args.inject_fault.as_deref().map(parse_fault).transpose() {

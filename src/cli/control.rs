@@ -7,8 +7,8 @@ use super::{
     refused_request, run_failed, run_failed_json, status, unclaimed_recording, CONFIG_HELP,
 };
 use bench::jobs::request::{parse_seed, ControlRequest, JobRequest};
-use bench::jobs::session::beside;
 use bench::jobs::step::{run_control, ControlOptions, ControlSummary};
+use bench::outputs::beside;
 use bench::outputs::{Existing, OutputPlan};
 use bench::rt::backend::BackendSpec;
 use clap::Args;

@@ -147,7 +147,8 @@ struct JobView {
     kind: String,
     ticks: u64,
     total_ticks: u64,
-    recording: String,
+    /// `null` for the jobs that do not drive the bench.
+    recording: Option<String>,
     detach: bool,
 }
 
@@ -181,16 +182,23 @@ impl StatusView {
                         if j.detach { ", detached" } else { "" }
                     ),
                 ));
-                lines.push((
-                    "progress",
-                    format!(
-                        "{:.1} % ({} of {} ticks)",
-                        100.0 * j.ticks as f64 / j.total_ticks.max(1) as f64,
-                        j.ticks,
-                        j.total_ticks
-                    ),
-                ));
-                lines.push(("recording", j.recording.clone()));
+                let unit = if j.kind == "campaign" {
+                    "cells"
+                } else {
+                    "ticks"
+                };
+                if j.total_ticks > 0 {
+                    lines.push((
+                        "progress",
+                        format!(
+                            "{:.1} % ({} of {} {unit})",
+                            100.0 * j.ticks as f64 / j.total_ticks.max(1) as f64,
+                            j.ticks,
+                            j.total_ticks
+                        ),
+                    ));
+                }
+                lines.push(("recording", j.recording.clone().unwrap_or("none".into())));
             }
         }
         lines.extend([

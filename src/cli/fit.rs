@@ -1,17 +1,15 @@
-//! `bench fit`: the automatic modal fit of a measured FRF and the CMP-CNMP
-//! verdict (`bench::ident::modal_fit`, `bench::ident::verdict`).
+//! `bench fit`: its flags, the fit job they make
+//! (`bench::jobs::fit`), and the printed summary.
 
-use super::{bad_input, emit, load_config, status, CONFIG_HELP};
-use bench::ident::frf::{log_grid, Frf};
-use bench::ident::modal_fit::{self, ModalFit};
-use bench::ident::update::{
-    update_to_frequencies, update_to_frf, updated_toml, Bench, Parameter, Update, UpdateError,
-};
+use super::serve::via_daemon;
+use super::{bad_input, finish, refuse_local_only, CONFIG_HELP};
+use bench::ident::modal_fit::ModalFit;
+use bench::ident::update::{Parameter, Update};
 use bench::ident::verdict::Verdict;
+use bench::jobs::fit::{run_fit, FitOptions, FitRequest, FitResult, FitSummary, FrequencySummary};
+use bench::jobs::request::JobRequest;
 use bench::outputs::Existing;
-use bench::plot::{bode_curve, write_bode_png, BodePlot, BodeSeries, PairZoom};
 use clap::Args;
-use serde::Serialize;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
@@ -57,423 +55,93 @@ pub(super) struct FitArgs {
     /// Print the result as one JSON object on stdout.
     #[arg(long)]
     json: bool,
+    /// Submit to a running `bench serve` instead of fitting here [SOCKET
+    /// default: $XDG_RUNTIME_DIR/bench.sock, else /run/bench/bench.sock].
+    /// The daemon reads the input (and --config) itself and writes the PNG
+    /// and the updated bench in its recordings directory.
+    #[arg(long, value_name = "SOCKET", num_args = 0..=1, default_missing_value = "")]
+    daemon: Option<String>,
 }
 
-/// What `bench fit` prints.
-#[derive(Debug, Serialize)]
-struct FitSummary {
-    input: PathBuf,
-    /// Sample period and amplifier bandwidth the path model used.
-    period_s: f64,
-    amplifier_bandwidth_hz: f64,
-    /// The fit (`null` when none could be made; see `verdict.reason`).
-    fit: Option<ModalFit>,
-    /// `fit.modes`, repeated at the top level for scripts.
-    modes: Vec<modal_fit::FittedMode>,
-    verdict: Verdict,
-    #[serde(skip_serializing_if = "Option::is_none")]
-    plot: Option<PathBuf>,
-    /// The model update (`--update`).
-    #[serde(skip_serializing_if = "Option::is_none")]
-    update: Option<Update>,
-    /// Where the updated bench was written.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    updated_config: Option<PathBuf>,
-}
-
-/// What `bench fit --frequencies` prints.
-#[derive(Debug, Serialize)]
-struct FrequencySummary {
-    /// The measured natural frequencies, Hz.
-    frequencies_hz: Vec<f64>,
-    update: Update,
-    #[serde(skip_serializing_if = "Option::is_none")]
-    updated_config: Option<PathBuf>,
-}
-
-fn is_recording(p: &Path) -> bool {
-    let name = p.to_string_lossy();
-    name.ends_with(".mcap") || name.ends_with(".mcap.part")
-}
-
-/// `<stem><suffix>` beside `input`.
-fn beside(input: &Path, suffix: &str) -> PathBuf {
-    let name = input
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_default();
-    let stem = name
-        .trim_end_matches(".part")
-        .trim_end_matches(".mcap")
-        .trim_end_matches(".csv")
-        .to_string();
-    input.with_file_name(format!("{stem}{suffix}"))
-}
-
-/// Refuses an existing output without `--overwrite`.
-fn check_output(flag: &str, path: &Path, overwrite: bool) -> Result<(), ExitCode> {
-    if path.exists() && !overwrite {
-        return Err(bad_input(format!(
-            "{flag} {}: exists (pass --overwrite to replace it)",
-            path.display()
-        )));
-    }
-    Ok(())
-}
-
-/// The `--free` list, or `default`.
-fn parse_free(list: Option<&[String]>, default: &[Parameter]) -> Result<Vec<Parameter>, String> {
-    let Some(list) = list else {
-        return Ok(default.to_vec());
-    };
-    let mut out = Vec::new();
-    for name in list {
-        let name = name.trim();
-        let p = Parameter::from_name(name).ok_or_else(|| {
-            let names: Vec<&str> = Parameter::ALL.iter().map(|p| p.name()).collect();
-            format!(
-                "--free {name:?}: not a parameter the update fits (one of {})",
-                names.join(", ")
-            )
-        })?;
-        if out.contains(&p) {
-            return Err(format!("--free {name}: given twice"));
-        }
-        out.push(p);
-    }
-    if out.is_empty() {
-        return Err("--free: no parameter given".into());
-    }
-    Ok(out)
-}
-
-/// The start bench's TOML text: `--config`, the recording's, or the
-/// built-in.
-fn start_toml(config: Option<&Path>, recorded: Option<&str>) -> Result<String, String> {
-    match (config, recorded) {
-        (Some(p), _) => {
-            std::fs::read_to_string(p).map_err(|e| format!("--config {}: {e}", p.display()))
-        }
-        (None, Some(t)) => Ok(t.to_string()),
-        (None, None) => Ok(bench::config::BUILTIN_CONFIG_TOML.to_string()),
-    }
-}
-
-fn start_bench(cfg: &bench::config::BenchConfig) -> Bench {
-    Bench {
-        plant: cfg.plant,
-        force_constant_n_per_a: cfg.actuator.force_constant_n_per_a,
-    }
-}
-
-/// Writes the updated bench to `out`, checked by the config loader first.
-fn write_updated(
-    out: &Path,
-    overwrite: bool,
-    start_toml: &str,
-    update: &Update,
-    from: &str,
-) -> Result<(), ExitCode> {
-    let mut header = format!(
-        "# Updated by `bench fit` ({}) from {from}, {}:\n# RMS relative error {:.3} % (start {:.3} %).\n",
-        update.source,
-        bench::outputs::stamp(),
-        100.0 * update.rms_relative_error,
-        100.0 * update.start_rms_relative_error
-    );
-    for p in update.parameters.iter().filter(|p| p.free) {
-        header.push_str(&format!(
-            "# {} = {:.6e} {} (1 sigma {}; start {:.6e})\n",
-            p.key,
-            p.value,
-            p.unit,
-            p.sigma
-                .map_or("not estimable".into(), |s| format!("{s:.2e}")),
-            p.start
-        ));
-    }
-    let text = updated_toml(start_toml, update, &header)
-        .map_err(|e| bad_input(format!("--out {}: {e}", out.display())))?;
-    if let Err(e) = bench::config::BenchConfig::from_toml(&text, out) {
-        return Err(bad_input(format!(
-            "--out {}: the updated bench is not a valid config: {e}",
-            out.display()
-        )));
-    }
-    bench::outputs::write_atomically(out, Existing::overwrite(overwrite), |f| {
-        use std::io::Write;
-        f.write_all(text.as_bytes())
-    })
-    .map_err(|e| {
-        errln!("error: --out {}: {e}", out.display());
-        ExitCode::from(status::ERROR)
-    })
-}
-
-/// Parses and checks `--frequencies`: numbers, finite, positive, below
-/// `nyquist_hz`, strictly ascending, one to four.
-fn parse_frequencies(list: &[String], nyquist_hz: f64) -> Result<Vec<f64>, String> {
-    if list.is_empty() || list.len() > 4 {
-        return Err(format!(
-            "--frequencies: {} values; give 1 to 4 natural frequencies (the SR4DoF model has 4 modes)",
-            list.len()
-        ));
-    }
-    let mut out: Vec<f64> = Vec::with_capacity(list.len());
-    for (i, s) in list.iter().enumerate() {
-        let n = i + 1;
-        let f: f64 = s
-            .trim()
-            .parse()
-            .map_err(|_| format!("--frequencies: value {n} {s:?} is not a number (Hz)"))?;
-        if !f.is_finite() || f <= 0.0 {
-            return Err(format!(
-                "--frequencies: value {n} ({s}) must be a finite frequency > 0 Hz"
-            ));
-        }
-        if f >= nyquist_hz {
-            return Err(format!(
-                "--frequencies: value {n} ({f} Hz) is at or above the Nyquist frequency {nyquist_hz} Hz of the config's loop rate"
-            ));
-        }
-        if let Some(prev) = out.last().filter(|p| f <= **p) {
-            return Err(format!(
-                "--frequencies: value {n} ({f} Hz) is not above the one before ({prev} Hz): give them ascending, each mode once"
-            ));
-        }
-        out.push(f);
-    }
-    Ok(out)
-}
-
-fn fit_frequencies(a: &FitArgs, list: &[String]) -> ExitCode {
-    let (cfg, _) = match load_config(a.config.as_deref()) {
-        Ok(c) => c,
-        Err(e) => return bad_input(e),
-    };
-    let nyquist = 0.5 / (cfg.loop_.period_ns() as f64 * 1e-9);
-    let measured = match parse_frequencies(list, nyquist) {
-        Ok(f) => f,
-        Err(e) => return bad_input(e),
-    };
-    let free = match parse_free(a.free.as_deref(), &Parameter::FREQUENCIES_DEFAULT) {
-        Ok(f) => f,
-        Err(e) => return bad_input(e),
-    };
-    if let Some(out) = &a.out {
-        if let Err(code) = check_output("--out", out, a.overwrite) {
-            return code;
-        }
-    }
-    let start = match start_toml(a.config.as_deref(), None) {
-        Ok(t) => t,
-        Err(e) => return bad_input(e),
-    };
-    let update = match update_to_frequencies(&start_bench(&cfg), &free, &measured) {
-        Ok(u) => u,
-        Err(e @ (UpdateError::NotFromFrequencies(_) | UpdateError::NoFreeParameter)) => {
-            return bad_input(format!("--free: {e}"))
-        }
-        Err(e) => return bad_input(format!("--frequencies: {e}")),
-    };
-    if let Some(out) = &a.out {
-        let from = format!("--frequencies {}", list.join(","));
-        if let Err(code) = write_updated(out, a.overwrite, &start, &update, &from) {
-            return code;
-        }
-    }
-    let summary = FrequencySummary {
-        frequencies_hz: measured,
-        update,
-        updated_config: a.out.clone(),
-    };
-    match emit(&summary, a.json, |s| {
-        outln!(
-            "bench fit --frequencies {}",
-            s.frequencies_hz
-                .iter()
-                .map(|f| f.to_string())
-                .collect::<Vec<_>>()
-                .join(",")
-        );
-        print_update(&s.update, s.updated_config.as_deref());
-    }) {
-        Ok(()) => ExitCode::SUCCESS,
-        Err(code) => code,
+impl FitArgs {
+    /// The fit request of the flags; `--frequencies` parsed as numbers.
+    fn request(&self) -> Result<FitRequest, String> {
+        let frequencies_hz = self
+            .frequencies
+            .as_ref()
+            .map(|list| {
+                list.iter()
+                    .enumerate()
+                    .map(|(i, s)| {
+                        s.trim().parse::<f64>().map_err(|_| {
+                            format!("--frequencies: value {} {s:?} is not a number (Hz)", i + 1)
+                        })
+                    })
+                    .collect::<Result<Vec<f64>, String>>()
+            })
+            .transpose()?;
+        Ok(FitRequest {
+            input: self.input.clone(),
+            config: self.config.clone(),
+            update: self.update,
+            frequencies_hz,
+            free: self.free.clone(),
+            no_plot: self.no_plot,
+        })
     }
 }
 
 pub(super) fn fit(a: FitArgs) -> ExitCode {
-    if a.frequencies.is_none() && !a.update {
-        for (flag, given) in [("--out", a.out.is_some()), ("--free", a.free.is_some())] {
-            if given {
-                return bad_input(format!("{flag}: only with --update or --frequencies"));
-            }
-        }
-    }
-    if let Some(list) = &a.frequencies {
-        return fit_frequencies(&a, list);
-    }
-    let Some(input_path) = a.input.clone() else {
-        return bad_input("INPUT: give an FRF (CSV or recording), or --frequencies");
-    };
-    let input = input_path.display().to_string();
-    let free = match parse_free(a.free.as_deref(), &Parameter::FRF_DEFAULT) {
-        Ok(f) => f,
+    let request = match a.request() {
+        Ok(r) => r,
         Err(e) => return bad_input(e),
     };
-    let bytes = match std::fs::read(&input_path) {
-        Ok(b) => b,
-        Err(e) => return bad_input(format!("{input}: {e}")),
-    };
-    let (frf, recorded_config) = if is_recording(&input_path) {
-        match bench::ident::frf::read_frf(&bytes) {
-            Ok(r) => (r.frf, r.config_toml),
-            Err(e) => return bad_input(format!("{input}: {e}")),
-        }
-    } else {
-        let Ok(text) = String::from_utf8(bytes) else {
-            return bad_input(format!("{input}: not a text CSV (not UTF-8)"));
-        };
-        match Frf::read_csv(&text) {
-            Ok(f) => (f, None),
-            Err(e) => return bad_input(format!("{input}: {e}")),
-        }
-    };
-    let cfg = match (&a.config, &recorded_config) {
-        (None, Some(toml)) => match bench::config::BenchConfig::from_toml(toml, &input_path) {
-            Ok(c) => c,
-            Err(e) => return bad_input(format!("{input}: its recorded bench.config: {e}")),
-        },
-        (path, _) => match load_config(path.as_deref()) {
-            Ok((c, _)) => c,
-            Err(e) => return bad_input(e),
-        },
-    };
-    let period_s = cfg.loop_.period_ns() as f64 * 1e-9;
-    let nyquist = 0.5 / period_s;
-    if let Some(f) = frf.frequency_hz.last().filter(|f| **f >= nyquist) {
-        return bad_input(format!(
-            "{input}: frequency_hz: {f} Hz is at or above the Nyquist frequency {nyquist} Hz of the config's loop rate"
-        ));
-    }
-    let plot = (!a.no_plot).then(|| {
-        a.png
-            .clone()
-            .unwrap_or_else(|| beside(&input_path, ".fit.png"))
-    });
-    if let Some(p) = &plot {
-        if let Err(code) = check_output("--png", p, a.overwrite) {
-            return code;
-        }
-    }
-    let out = a.update.then(|| {
-        a.out
-            .clone()
-            .unwrap_or_else(|| beside(&input_path, ".updated.toml"))
-    });
-    let start = match &out {
-        Some(o) => {
-            if let Err(code) = check_output("--out", o, a.overwrite) {
-                return code;
-            }
-            match start_toml(a.config.as_deref(), recorded_config.as_deref()) {
-                Ok(t) => Some(t),
-                Err(e) => return bad_input(e),
-            }
-        }
-        None => None,
-    };
-    let id = bench::jobs::chirp::identify(&frf, period_s, cfg.actuator.bandwidth_hz);
-    let update = match &start {
-        Some(_) => match update_to_frf(
-            &start_bench(&cfg),
-            &free,
-            &modal_fit::FrfData::from_frf(&frf),
-            &id.path,
-            id.fit.as_ref(),
+    if let Some(sock) = &a.daemon {
+        if let Some(code) = refuse_local_only(
+            &[
+                (a.out.is_some(), "--out"),
+                (a.png.is_some(), "--png"),
+                (a.overwrite, "--overwrite"),
+            ],
+            "the daemon writes its outputs in its recordings directory",
         ) {
-            Ok(u) => Some(u),
-            Err(UpdateError::Start(e)) => {
-                return bad_input(format!("--update: the start bench: {e}"))
-            }
-            Err(e) => return bad_input(format!("{input}: --update: {e}")),
-        },
-        None => None,
-    };
-    if let (Some(p), Some(f)) = (&plot, &id.fit) {
-        if let Err(e) = write_plot(p, Existing::overwrite(a.overwrite), &frf, f, &id) {
-            errln!("error: --png {}: {e}", p.display());
-            return ExitCode::from(status::ERROR);
-        }
-    }
-    if let (Some(o), Some(u), Some(s)) = (&out, &update, &start) {
-        if let Err(code) = write_updated(o, a.overwrite, s, u, &input) {
             return code;
         }
+        // The daemon runs elsewhere: the paths as this shell means them.
+        let absolute = |p: &Option<PathBuf>| p.as_deref().map(super::absolute_path);
+        let request = FitRequest {
+            input: absolute(&request.input),
+            config: absolute(&request.config),
+            ..request
+        };
+        return via_daemon(sock, &JobRequest::Fit(request), a.json, print_result);
     }
-    let summary = FitSummary {
-        input: input_path,
-        period_s,
-        amplifier_bandwidth_hz: cfg.actuator.bandwidth_hz,
-        modes: id.fit.as_ref().map(|f| f.modes.clone()).unwrap_or_default(),
-        fit: id.fit.clone(),
-        verdict: id.verdict.clone(),
-        plot: plot.filter(|_| id.fit.is_some()),
-        update,
-        updated_config: out,
+    let opts = FitOptions {
+        request,
+        png: a.png.clone(),
+        out: a.out.clone(),
+        existing: Existing::overwrite(a.overwrite),
     };
-    match emit(&summary, a.json, print_summary) {
-        Ok(()) => ExitCode::SUCCESS,
-        Err(code) => code,
+    finish(run_fit(&opts), a.json, print_result)
+}
+
+fn print_result(r: &FitResult) {
+    match r {
+        FitResult::Fit(s) => print_summary(s),
+        FitResult::Frequencies(s) => print_frequencies(s),
     }
 }
 
-fn write_plot(
-    path: &Path,
-    existing: Existing,
-    frf: &Frf,
-    fit: &ModalFit,
-    id: &bench::jobs::chirp::Identified,
-) -> Result<(), String> {
-    let (lo, hi) = (frf.frequency_hz[0], *frf.frequency_hz.last().unwrap());
-    let f = log_grid(lo, hi, bench::jobs::chirp::MODEL_POINTS_PER_DECADE);
-    let h: Vec<_> = f
-        .iter()
-        .map(|&f| modal_fit::evaluate(fit, &id.path, f))
-        .collect();
-    let (mag, phase) = bode_curve(&h, frf.phase_deg.first().copied());
-    let markers: Vec<f64> = fit
-        .modes
-        .iter()
-        .filter(|m| m.in_path)
-        .map(|m| m.frequency_hz)
-        .collect();
-    let reason = PairZoom::reason_of(&id.verdict.phase_test);
-    let pair = PairZoom::of(&id.verdict.phase_test, frf, &reason);
-    let title = format!(
-        "modal fit: {} modes, sequence {}",
-        markers.len(),
-        fit.dominant_sequence
+fn print_frequencies(s: &FrequencySummary) {
+    outln!(
+        "bench fit --frequencies {}",
+        s.frequencies_hz
+            .iter()
+            .map(|f| f.to_string())
+            .collect::<Vec<_>>()
+            .join(",")
     );
-    write_bode_png(
-        path,
-        existing,
-        &BodePlot {
-            title: &title,
-            measured: BodeSeries::measured_h1(frf),
-            coherence: &frf.coherence,
-            model: Some(BodeSeries {
-                label: "modal fit",
-                frequency_hz: &f,
-                magnitude: &mag,
-                phase_deg: &phase,
-            }),
-            markers_hz: &markers,
-            pair: Some(pair),
-        },
-    )
-    .map_err(|e| e.to_string())
+    print_update(&s.update, s.updated_config.as_deref());
 }
 
 fn print_summary(s: &FitSummary) {

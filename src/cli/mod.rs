@@ -106,8 +106,9 @@ enum Command {
     /// exercised without hardware.
     #[command(subcommand)]
     Emulate(EmulateCommand),
-    /// Own the bench: keep it safe between jobs and serve chirp and control
-    /// jobs, one at a time, as JSON lines on a Unix socket.
+    /// Own the bench: keep it safe between jobs and serve every job (chirp,
+    /// control, fit, analyze, map, campaign), one at a time, as JSON lines
+    /// on a Unix socket.
     Serve(ServeArgs),
     /// Talk to a running `bench serve` without writing JSON: show its
     /// status, reset a latched fault, enable or disable the amplifier,
@@ -374,7 +375,14 @@ pub(super) fn refuse_local_only(flags: &[(bool, &str)], why: &str) -> Option<Exi
 /// nothing: the directory is not created).
 pub(super) fn unclaimed_recording(prefix: &str) -> Result<PathBuf, String> {
     let dir = default_recordings(false, "--out FILE.mcap")?;
-    Ok(bench::jobs::session::stamped_recording(&dir, prefix, ""))
+    Ok(bench::outputs::stamped_recording(&dir, prefix, ""))
+}
+
+/// `path` as an absolute path (against the working directory), for a job
+/// submitted to the daemon, which runs elsewhere; as given if the working
+/// directory cannot be read (the daemon then names it).
+pub(super) fn absolute_path(path: &Path) -> PathBuf {
+    std::path::absolute(path).unwrap_or_else(|_| path.to_path_buf())
 }
 
 /// [`Origin::Given`] for a path given by its flag, else
@@ -421,6 +429,22 @@ pub(super) fn emit<T: serde::Serialize>(
     Ok(())
 }
 
+/// Prints a job's summary ([`emit`]) or its error ([`run_failed`]), and
+/// returns the exit status.
+pub(super) fn finish<T: serde::Serialize>(
+    result: Result<T, RunError>,
+    json: bool,
+    human: fn(&T),
+) -> ExitCode {
+    match result {
+        Ok(summary) => match emit(&summary, json, human) {
+            Ok(()) => ExitCode::SUCCESS,
+            Err(code) => code,
+        },
+        Err(e) => run_failed(&e),
+    }
+}
+
 /// Exit for a job request the config refuses, naming the flag when one set
 /// the offending config key or request field (`flag`), else the file.
 pub(super) fn refused_request(
@@ -448,22 +472,17 @@ pub(super) fn refused_request(
     }
 }
 
-/// The flag of a run option (`RunError::BadOption`'s key).
-fn option_flag(key: &str) -> Option<&'static str> {
-    Some(match key {
-        "out" => "--out",
-        "plot" => "--plot",
-        "frf_csv" => "--frf-csv",
-        "frf" => "--frf",
-        "backend" => "--backend",
-        "controller" => "--controller",
-        "override_check" => "--override-check",
-        "inject_fault" => "--inject-fault",
-        "socket" => "--socket",
-        "socket_group" => "--socket-group",
-        "recordings" => "--recordings",
-        _ => return None,
-    })
+/// The flag of a run option or request field (`RunError::BadOption`'s
+/// key): `--` and the key with `-` for `_` (`frf_csv` → `--frf-csv`,
+/// `operating_point_pct` → `--operating-point-pct`), but for
+/// `frequencies_hz` (`--frequencies`) and the positional `input` (`""`:
+/// its value names it).
+pub(super) fn option_flag(key: &str) -> String {
+    match key {
+        "input" => String::new(),
+        "frequencies_hz" => "--frequencies".into(),
+        key => format!("--{}", key.replace('_', "-")),
+    }
 }
 
 /// As [`run_failed`], and with `--json` the run's summary with the fault
@@ -481,17 +500,11 @@ pub(super) fn run_failed_json(e: &RunError, json: bool) -> ExitCode {
 /// status.
 pub(super) fn run_failed(e: &RunError) -> ExitCode {
     match e {
-        RunError::BadOption {
-            key,
-            subject,
-            reason,
-        } => {
-            let flag = option_flag(key).unwrap_or(key);
-            if subject.is_empty() {
-                errln!("error: {flag}: {reason}");
-            } else {
-                errln!("error: {flag} {subject}: {reason}");
-            }
+        e @ RunError::BadOption { .. } => {
+            errln!(
+                "error: {}",
+                e.option_message(option_flag).unwrap_or_default()
+            );
         }
         e => errln!("error: {}", bench::error::error_chain(e)),
     }

@@ -1,12 +1,10 @@
-//! The operating-point and mass-asymmetry flags that `bench chirp`,
-//! `bench analyze` and `bench map --veering` share: one definition, one
-//! range check in percent, one key-to-flag table.
+//! The operating-point and mass-asymmetry flags that `bench chirp` and
+//! `bench analyze` share: declared once, flattened into each, and turned
+//! into the library's [`PlantPoint`] in one step (the conversion and the
+//! checks are the library's, `bench::jobs::point`).
 
-use super::bad_input;
-use bench::jobs::request::OperatingPoint;
-use bench_hal::model::{ranges, Sr4dofParams};
+use bench::jobs::point::PlantPoint;
 use clap::Args;
-use std::process::ExitCode;
 
 #[derive(Debug, Clone, Args)]
 pub(super) struct PointArgs {
@@ -38,31 +36,13 @@ pub(super) struct PointArgs {
 }
 
 impl PointArgs {
-    /// The operating point the flags give, if any.
-    pub fn operating_point(&self) -> Option<OperatingPoint> {
-        self.operating_point_m.map(OperatingPoint::Metres).or(self
-            .operating_point_pct
-            .map(OperatingPoint::PercentOfBeamLength))
-    }
-
-    /// The mass asymmetry the flags give (a fraction), if any.
-    pub fn mass_asymmetry(&self) -> Option<f64> {
-        self.mass_asymmetry
-            .or(self.mass_asymmetry_pct.map(|p| p / 100.0))
-    }
-
-    /// Writes the flags into `p` (not checked: see
-    /// [`Self::refuse_percent_out_of_range`] and the plant's validation).
-    pub fn apply(&self, p: &mut Sr4dofParams) {
-        match self.operating_point() {
-            Some(OperatingPoint::Metres(m)) => p.operating_point_m = m,
-            Some(OperatingPoint::PercentOfBeamLength(pct)) => {
-                p.operating_point_m = pct / 100.0 * p.beam.length_m;
-            }
-            None => {}
-        }
-        if let Some(x) = self.mass_asymmetry() {
-            p.mass_asymmetry = x;
+    /// The library's point: the flags one for one.
+    pub fn point(&self) -> PlantPoint {
+        PlantPoint {
+            operating_point_m: self.operating_point_m,
+            operating_point_pct: self.operating_point_pct,
+            mass_asymmetry: self.mass_asymmetry,
+            mass_asymmetry_pct: self.mass_asymmetry_pct,
         }
     }
 
@@ -76,40 +56,24 @@ impl PointArgs {
         ]
     }
 
-    /// Exit 2 for a percent flag outside its key's range, said in percent
-    /// (the ranges are the model's, `bench_hal::model::ranges`; the key's
-    /// own check would say them as fractions and metres).
-    pub fn refuse_percent_out_of_range(&self) -> Option<ExitCode> {
-        if let Some(p) = self.mass_asymmetry_pct {
-            let (lo, hi) = ranges::MASS_ASYMMETRY;
-            if !(p.is_finite() && (lo * 100.0..=hi * 100.0).contains(&p)) {
-                return Some(bad_input(format!(
-                    "--mass-asymmetry-pct {p}: Δm23 must be {} % to {} % (config key plant.mass_asymmetry): the heavier secondary stage at most about 1.5 times the lighter, so the two stay a closely spaced pair (thesis §2.2.1, §5.2.1; its grid spans −8 % to +10 %)",
-                    lo * 100.0,
-                    hi * 100.0
-                )));
+    /// The flag of a point field (`operating_point_pct`), with its value
+    /// for the percent fields (their messages quote it), or the flag that
+    /// set config key `key` (`plant.operating_point_m`); `None` for
+    /// anything else.
+    pub fn flag_for(&self, key: &str) -> Option<String> {
+        let point = self.point();
+        let field = point.field_for(key).unwrap_or(key);
+        Some(match field {
+            "operating_point_m" => "--operating-point-m".into(),
+            "mass_asymmetry" => "--mass-asymmetry".into(),
+            "operating_point_pct" if key == field => {
+                format!("--operating-point-pct {}", self.operating_point_pct?)
             }
-        }
-        if let Some(p) = self.operating_point_pct {
-            let max = ranges::OPERATING_POINT_OF_L * 100.0;
-            if !(p.is_finite() && p.abs() <= max) {
-                return Some(bad_input(format!(
-                    "--operating-point-pct {p}: |Y1o| must be at most {max} % of the beam length (config key plant.operating_point_m): Eq. (2-1) is a small-rotation result, outside the model's validity beyond"
-                )));
+            "mass_asymmetry_pct" if key == field => {
+                format!("--mass-asymmetry-pct {}", self.mass_asymmetry_pct?)
             }
-        }
-        None
-    }
-
-    /// The flag that set config key `key`, if one did.
-    pub fn flag_for(&self, key: &str) -> Option<&'static str> {
-        Some(match key {
-            "plant.operating_point_m" if self.operating_point_m.is_some() => "--operating-point-m",
-            "plant.operating_point_m" if self.operating_point_pct.is_some() => {
-                "--operating-point-pct"
-            }
-            "plant.mass_asymmetry" if self.mass_asymmetry.is_some() => "--mass-asymmetry",
-            "plant.mass_asymmetry" if self.mass_asymmetry_pct.is_some() => "--mass-asymmetry-pct",
+            "operating_point_pct" => "--operating-point-pct".into(),
+            "mass_asymmetry_pct" => "--mass-asymmetry-pct".into(),
             _ => return None,
         })
     }

@@ -59,16 +59,19 @@ pub(super) fn via_daemon<T: serde::de::DeserializeOwned + serde::Serialize>(
         PathBuf::from(socket)
     };
     let show = std::io::stderr().is_terminal();
+    let mut progressed = false;
     let result = bench::daemon::client::submit(&socket, job, |ev| {
         if !show {
             return;
         }
         match ev["event"].as_str() {
-            Some("progress") => {
+            // A job without progress (fit, analyze, map) has no total.
+            Some("progress") if ev["total_ticks"].as_f64().unwrap_or(0.0) > 0.0 => {
                 let (t, n) = (
                     ev["ticks"].as_f64().unwrap_or(0.0),
                     ev["total_ticks"].as_f64().unwrap_or(1.0),
                 );
+                progressed = true;
                 {
                     use std::io::Write as _;
                     let _ = write!(
@@ -78,10 +81,12 @@ pub(super) fn via_daemon<T: serde::de::DeserializeOwned + serde::Serialize>(
                     );
                 }
             }
-            Some("job_started") => {
-                errln!("{cmd} job {} started: {}", ev["job"], ev["recording"])
-            }
-            Some("job_finished") => errln!(),
+            Some("job_started") => match ev["recording"].as_str() {
+                Some(r) => errln!("{cmd} job {} started: {r}", ev["job"]),
+                None => errln!("{cmd} job {} started", ev["job"]),
+            },
+            // Ends the progress line, if there was one.
+            Some("job_finished") if progressed => errln!(),
             _ => {}
         }
     });

@@ -7,7 +7,12 @@
 //! it starts each job on a worker thread that prepares it (recording, loop
 //! check), relays the worker's requests to the loop, and keeps the state
 //! `status` shows; a job stopped during its preparation is abandoned
-//! before it reaches the loop. The **socket side** (`socket.rs`) is a single-threaded tokio
+//! before it reaches the loop. What each request becomes (its options,
+//! with the daemon's output names) and the library job that runs it live
+//! in `jobs.rs`: chirp and control drive the bench through the loop; fit,
+//! analyze, map and campaign only compute (from files and the model, a
+//! campaign on the simulator) and never touch the bench, but they hold
+//! the one job slot all the same. The **socket side** (`socket.rs`) is a single-threaded tokio
 //! runtime serving JSON lines on a Unix domain socket; it talks to the
 //! owner through a channel, so nothing on it can block the loop. The wire
 //! format lives in `protocol.rs`, the client of `--daemon` in [`client`].
@@ -29,12 +34,27 @@
 //! | `reset` | – | clears a latched fault (back to `disabled`) |
 //! | `chirp` | the fields of a [`ChirpRequest`], and `detach` | the `bench chirp --json` summary |
 //! | `control` | the fields of a [`ControlRequest`], and `detach` | the `bench control --json` summary |
+//! | `fit` | the fields of a [`FitRequest`], and `detach` | the `bench fit --json` summary |
+//! | `analyze` | the fields of an [`AnalyzeRequest`], and `detach` | the `bench analyze --json` summary |
+//! | `map` | the fields of a [`MapRequest`], and `detach` | the `bench map --json` summary |
+//! | `campaign` | the fields of a [`CampaignRequest`], and `detach` | the `bench campaign run --json` summary |
 //! | `stop` | – | the running job stops safely (0 A, recording finished) |
 //! | `subscribe` | – | this connection receives every event from now on |
 //! | `shutdown` | – | stops the job, then the daemon |
 //!
 //! [`ChirpRequest`]: crate::jobs::request::ChirpRequest
 //! [`ControlRequest`]: crate::jobs::request::ControlRequest
+//! [`FitRequest`]: crate::jobs::fit::FitRequest
+//! [`AnalyzeRequest`]: crate::jobs::analyze::AnalyzeRequest
+//! [`MapRequest`]: crate::jobs::map::MapRequest
+//! [`CampaignRequest`]: crate::jobs::request::CampaignRequest
+//!
+//! The jobs that compute take their files by absolute path (the daemon's
+//! working directory is not its clients'), read them with the daemon's
+//! permissions, and write their outputs in the recordings directory under
+//! stamped names (`fit-<UTC>-job<N>.fit.png`, `analyze-…-job<N>.modes.png`,
+//! `map-…-job<N>.png`, `campaign-…-job<N>/`); the request names none.
+//! Their summaries are the local run's.
 //!
 //! Lines are at most [`MAX_LINE_BYTES`], UTF-8, one JSON object with no
 //! key twice at any level; the `id` is echoed byte for byte (any JSON
@@ -56,9 +76,10 @@
 //! of input, as `socat` does) still gets its job's events and answer, and
 //! the daemon closes the connection once everything is answered.
 //!
-//! Layer rule: may use `analysis`, `config`, `control`, `error`, `ident`, `jobs`, `outputs`, `plot`, `record`, `rt`, `vocab`.
+//! Layer rule: may use `analysis`, `campaign`, `config`, `control`, `error`, `ident`, `jobs`, `outputs`, `plot`, `record`, `rt`, `vocab`.
 
 pub mod client;
+mod jobs;
 mod owner;
 mod protocol;
 mod socket;

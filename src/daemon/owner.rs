@@ -3,21 +3,16 @@
 //! the state `status` shows. May use `rt::service`, `jobs`; never the
 //! socket.
 
-use super::protocol::{event, to_json, ApiError, ApiErrorKind, FaultStatus, Status};
-use super::{lock, Ctx};
+use super::jobs::{JobResult, JobSpec};
+use super::lock;
+use super::protocol::{event, ApiError, ApiErrorKind, FaultStatus, Status};
 use crate::error::RunError;
-use crate::jobs::chirp::{run_chirp_on, ChirpOptions};
-use crate::jobs::request::{JobRequest, RequestError};
-use crate::jobs::session::beside;
-use crate::jobs::session::Runner;
-use crate::jobs::step::{run_control_from, ControlOptions, StageSource};
 use crate::record::topics::FaultKind;
 use crate::record::topics::SupervisorState;
 use crate::rt::service::{LoopReply, LoopRequest, ServiceClient};
 use crate::rt::timing::TimingStats;
 use crate::rt::{Job, JobEnd, RawStop, StopReason};
 use serde_json::{json, Value};
-use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, AtomicU64};
 use std::sync::{mpsc, Arc, Mutex};
 use tokio::sync::{broadcast, oneshot};
@@ -32,16 +27,13 @@ pub(super) struct JobHandle {
 
 pub(super) type Reply<T> = oneshot::Sender<Result<T, ApiError>>;
 
-pub(super) enum JobSpec {
-    Chirp(Box<ChirpOptions>),
-    Control(Box<ControlOptions>),
-}
-
 pub(super) enum OwnerCmd {
     Enable(Reply<()>),
     Disable(Reply<()>),
     Reset(Reply<()>),
-    Job(JobSpec, JobHandle, Reply<Value>),
+    /// A job, and the state the daemon was in before it (a job that does
+    /// not use the loop leaves it as it was).
+    Job(JobSpec, JobHandle, &'static str, Reply<Value>),
     Shutdown,
 }
 
@@ -112,9 +104,6 @@ pub(super) fn between_jobs_fault(
     })
 }
 
-/// What a job's worker thread sends back.
-type JobResult = Result<Value, (ApiError, RunError)>;
-
 /// A job being prepared or run. Its worker thread prepares it and runs it
 /// through a [`ServiceClient`] of its own, whose queues the owner relays
 /// to the loop: the owner stays free to answer, and it alone decides
@@ -134,6 +123,11 @@ struct Active {
     loop_done: bool,
     /// When `stop` was first seen while the job was being prepared.
     stop_seen: Option<std::time::Instant>,
+    /// A job that only computes (fit, analyze, map, campaign): it never
+    /// reaches the loop, is never abandoned (a stop reaches the job, and a
+    /// campaign ends after its running cells), and leaves the daemon in
+    /// this state (unless a fault latched meanwhile).
+    compute: Option<&'static str>,
 }
 
 /// How long a job stopped during its preparation is given to reach the
@@ -154,9 +148,11 @@ impl Active {
     fn start(
         job: JobSpec,
         handle: JobHandle,
+        before: &'static str,
         reply: Reply<Value>,
         client: &ServiceClient,
     ) -> Result<Self, (Reply<Value>, ApiError)> {
+        let compute = (!job.uses_loop()).then_some(before);
         let (req_tx, req_rx) = rtrb::RingBuffer::<LoopRequest>::new(4);
         let (rep_tx, rep_rx) = rtrb::RingBuffer::<LoopReply>::new(4);
         let mut proxy = ServiceClient::new(req_tx, rep_rx, client.info.clone(), client.hardware);
@@ -167,25 +163,7 @@ impl Active {
             .name(format!("bench-job{}", handle.id))
             .spawn(move || {
                 crate::daemon::testing::prepare_hang_hook();
-                let result = match job {
-                    JobSpec::Chirp(opts) => run_chirp_on(
-                        &mut Runner::Service(&mut proxy),
-                        hardware,
-                        &opts,
-                        stop,
-                        Some(&ticks),
-                    )
-                    .map_err(|e| (ApiError::from_run(&e), e))
-                    .and_then(to_json),
-                    JobSpec::Control(opts) => run_control_from(
-                        &opts,
-                        stop,
-                        StageSource::Service(&mut proxy),
-                        Some(&ticks),
-                    )
-                    .map_err(|e| (ApiError::from_run(&e), e))
-                    .and_then(to_json),
-                };
+                let result = super::jobs::run(job, &mut proxy, hardware, stop, &ticks);
                 let _ = done_tx.send(result);
             });
         match spawned {
@@ -198,6 +176,7 @@ impl Active {
                 in_loop: false,
                 loop_done: false,
                 stop_seen: None,
+                compute,
             }),
             Err(e) => Err((
                 reply,
@@ -258,8 +237,9 @@ impl Active {
             Ok(r) => Some(Outcome::Finished(r)),
             Err(mpsc::TryRecvError::Disconnected) => Some(Outcome::Finished(Err((
                 ApiError::new(ApiErrorKind::Error, "the job thread panicked"),
-                RunError::Thread("the job thread panicked".into()),
+                Some(RunError::Thread("the job thread panicked".into())),
             )))),
+            Err(mpsc::TryRecvError::Empty) if self.compute.is_some() => None,
             Err(mpsc::TryRecvError::Empty) => {
                 let preparing = !self.in_loop && !self.loop_done;
                 if preparing && stopped() {
@@ -274,10 +254,10 @@ impl Active {
     }
 }
 
-fn gone_loop() -> (ApiError, RunError) {
+fn gone_loop() -> (ApiError, Option<RunError>) {
     (
         ApiError::new(ApiErrorKind::Error, "the real-time loop is gone"),
-        RunError::Thread("the daemon's loop is gone".into()),
+        Some(RunError::Thread("the daemon's loop is gone".into())),
     )
 }
 
@@ -321,7 +301,7 @@ pub(super) fn owner(mut client: ServiceClient, rx: mpsc::Receiver<OwnerCmd>, sha
             {
                 let _ = reply.send(Err(busy()));
             }
-            Ok(OwnerCmd::Job(_, _, reply)) if active.is_some() => {
+            Ok(OwnerCmd::Job(_, _, _, reply)) if active.is_some() => {
                 let _ = reply.send(Err(busy()));
             }
             Ok(OwnerCmd::Enable(reply)) => {
@@ -382,14 +362,14 @@ pub(super) fn owner(mut client: ServiceClient, rx: mpsc::Receiver<OwnerCmd>, sha
                 };
                 let _ = reply.send(r);
             }
-            Ok(OwnerCmd::Job(job, handle, reply)) => {
-                match Active::start(job, handle, reply, &client) {
+            Ok(OwnerCmd::Job(job, handle, before, reply)) => {
+                match Active::start(job, handle, before, reply, &client) {
                     Ok(a) => {
                         if let Some(j) = lock(&status).job.as_ref() {
                             tracing::info!(
                                 job = j.id,
                                 kind = j.kind,
-                                recording = %j.recording,
+                                recording = j.recording.as_deref().unwrap_or("none"),
                                 "job started"
                             );
                         }
@@ -413,7 +393,10 @@ pub(super) fn owner(mut client: ServiceClient, rx: mpsc::Receiver<OwnerCmd>, sha
             match a.step(&mut client, shutting_down) {
                 None => {}
                 Some(Outcome::Finished(result)) => {
-                    let reply = active.take().map(|a| a.reply);
+                    let (reply, compute) = match active.take() {
+                        Some(a) => (Some(a.reply), a.compute),
+                        None => (None, None),
+                    };
                     {
                         let mut s = lock(&status);
                         s.jobs_run += 1;
@@ -422,55 +405,63 @@ pub(super) fn owner(mut client: ServiceClient, rx: mpsc::Receiver<OwnerCmd>, sha
                                 Ok(_) => tracing::info!(
                                     job = j.id,
                                     kind = j.kind,
-                                    recording = %j.recording,
+                                    recording = j.recording.as_deref().unwrap_or("none"),
                                     "job finished"
                                 ),
-                                Err((api, RunError::Fault { kind: fault, .. })) => {
+                                Err((api, Some(RunError::Fault { kind: fault, .. }))) => {
                                     tracing::error!(
                                         job = j.id,
                                         kind = j.kind,
                                         fault = *fault,
-                                        recording = %j.recording,
+                                        recording = j.recording.as_deref().unwrap_or("none"),
                                         error = %api.message,
                                         "job ended on a fault; 0 A, amplifier disabled, fault latched"
                                     )
                                 }
-                                Err((api, RunError::Hal { .. })) => tracing::error!(
+                                Err((api, Some(RunError::Hal { .. }))) => tracing::error!(
                                     job = j.id,
                                     kind = j.kind,
                                     fault = FaultKind::Hal.as_str(),
-                                    recording = %j.recording,
+                                    recording = j.recording.as_deref().unwrap_or("none"),
                                     error = %api.message,
                                     "job ended on a HAL error; 0 A, amplifier disabled, fault latched"
                                 ),
                                 Err((api, _)) => tracing::warn!(
                                     job = j.id,
                                     kind = j.kind,
-                                    recording = %j.recording,
+                                    recording = j.recording.as_deref().unwrap_or("none"),
                                     error = %api.message,
                                     "job ended with an error"
                                 ),
                             }
-                            s.last_recording = Some(j.recording);
+                            if j.recording.is_some() {
+                                s.last_recording = j.recording;
+                            }
                         }
                     }
                     match &result {
                         // The latched fault is reported by its supervisor name.
-                        Err((api, RunError::Fault { kind, .. })) => {
+                        Err((api, Some(RunError::Fault { kind, .. }))) => {
                             let fault = FaultStatus {
                                 kind,
                                 message: api.message.clone(),
                             };
                             set_state("faulted", Some(fault));
                         }
-                        Err((api, RunError::Hal { .. })) => {
+                        Err((api, Some(RunError::Hal { .. }))) => {
                             let fault = FaultStatus {
                                 kind: FaultKind::Hal.as_str(),
                                 message: api.message.clone(),
                             };
                             set_state("faulted", Some(fault));
                         }
-                        _ => set_state("disabled", None),
+                        // A job that did not use the loop leaves the stage
+                        // as it was, and a fault that latched meanwhile.
+                        _ => match compute {
+                            Some(_) if lock(&status).state == "faulted" => {}
+                            Some(before) => set_state(before, None),
+                            None => set_state("disabled", None),
+                        },
                     }
                     if let Some(reply) = reply {
                         let _ = reply.send(result.map_err(|(api, _)| api));
@@ -485,7 +476,7 @@ pub(super) fn owner(mut client: ServiceClient, rx: mpsc::Receiver<OwnerCmd>, sha
                     let recording = lock(&status)
                         .job
                         .as_ref()
-                        .map(|j| j.recording.clone())
+                        .and_then(|j| j.recording.clone())
                         .unwrap_or_default();
                     tracing::warn!(
                         job = handle.id,
@@ -531,71 +522,4 @@ pub(super) fn owner(mut client: ServiceClient, rx: mpsc::Receiver<OwnerCmd>, sha
         }
     }
     let _ = client.call(LoopRequest::Shutdown);
-}
-
-pub(super) fn recording_path(dir: &Path, prefix: &str, id: u64) -> PathBuf {
-    crate::jobs::session::stamped_recording(dir, prefix, &format!("-job{id}"))
-}
-
-/// Builds a job from a request; `Err` for bad parameters.
-pub(super) fn job_spec(
-    ctx: &Ctx,
-    request: &JobRequest,
-    id: u64,
-) -> Result<(JobSpec, &'static str, u64, PathBuf), ApiError> {
-    let mut cfg = ctx.cfg.clone();
-    // The request names a config key or its field; a field is a parameter.
-    let bad = |e: RequestError| {
-        let message = match e {
-            RequestError::Field { .. } => format!("params.{e}"),
-            RequestError::Invalid { .. } => e.to_string(),
-        };
-        ApiError::new(ApiErrorKind::BadParams, message)
-    };
-    match request {
-        JobRequest::Chirp(req) => {
-            req.apply(&mut cfg).map_err(bad)?;
-            let chirp = crate::ident::excitation::Chirp::new(&cfg.chirp, ctx.period_s);
-            let out = recording_path(&ctx.recordings, "chirp", id);
-            let opts = ChirpOptions {
-                frf_csv: beside(&out, ".frf.csv"),
-                plot: beside(&out, ".bode.png"),
-                out: out.clone(),
-                seed: req.seed.unwrap_or(ctx.seed),
-                config: cfg,
-                config_path: ctx.config_path.clone(),
-                realtime: true,
-                progress: false,
-                backend: Some(ctx.spec.clone()),
-                inject: None,
-            };
-            Ok((
-                JobSpec::Chirp(Box::new(opts)),
-                request.kind(),
-                chirp.total_ticks(),
-                out,
-            ))
-        }
-        JobRequest::Control(req) => {
-            let inject = req.apply(&mut cfg).map_err(bad)?;
-            let out = recording_path(&ctx.recordings, &format!("control-{}", req.controller), id);
-            let total = (cfg.step.duration_s / ctx.period_s).round() as u64;
-            let opts = ControlOptions {
-                plot: beside(&out, ".step.png"),
-                out: out.clone(),
-                controller: req.controller.clone(),
-                check_only: false,
-                frf: None,
-                override_check: req.override_check,
-                realtime: true,
-                seed: req.seed.unwrap_or(ctx.seed),
-                progress: false,
-                inject,
-                backend: Some(ctx.spec.clone()),
-                config: cfg,
-                config_path: ctx.config_path.clone(),
-            };
-            Ok((JobSpec::Control(Box::new(opts)), request.kind(), total, out))
-        }
-    }
 }

@@ -111,8 +111,11 @@ pub(super) struct JobStatus {
     pub(super) id: u64,
     pub(super) kind: &'static str,
     pub(super) ticks: u64,
+    /// Ticks of a bench job (chirp, control); cells of a campaign; 0 for
+    /// the jobs without progress (fit, analyze, map).
     pub(super) total_ticks: u64,
-    pub(super) recording: String,
+    /// The recording of a bench job (`null` for the other jobs).
+    pub(super) recording: Option<String>,
     pub(super) detach: bool,
 }
 
@@ -195,8 +198,9 @@ pub(super) fn from_params<T: serde::de::DeserializeOwned>(params: Value) -> Resu
     })
 }
 
-/// The job request of a `chirp` or `control` command, and whether it asked
-/// to `detach` (a transport option of the daemon, not part of the job).
+/// The job request of a job command (one of [`JobRequest::KINDS`]), and
+/// whether it asked to `detach` (a transport option of the daemon, not
+/// part of the job).
 pub(super) fn job_request(cmd: &str, params: &Value) -> Result<(JobRequest, bool), ApiError> {
     let mut params = params.clone();
     let detach = match params.as_object_mut().and_then(|m| m.remove("detach")) {
@@ -209,10 +213,19 @@ pub(super) fn job_request(cmd: &str, params: &Value) -> Result<(JobRequest, bool
             ))
         }
     };
-    let request = if cmd == "chirp" {
-        JobRequest::Chirp(from_params(params)?)
-    } else {
-        JobRequest::Control(from_params(params)?)
+    let request = match cmd {
+        "chirp" => JobRequest::Chirp(from_params(params)?),
+        "control" => JobRequest::Control(from_params(params)?),
+        "fit" => JobRequest::Fit(from_params(params)?),
+        "analyze" => JobRequest::Analyze(from_params(params)?),
+        "map" => JobRequest::Map(from_params(params)?),
+        "campaign" => JobRequest::Campaign(from_params(params)?),
+        other => {
+            return Err(ApiError::new(
+                ApiErrorKind::UnknownCommand,
+                format!("{other:?} is not a job"),
+            ))
+        }
     };
     Ok((request, detach))
 }

@@ -3,7 +3,8 @@
 //! single-threaded tokio runtime and talks to the owner through a channel;
 //! nothing here can block the loop.
 
-use super::owner::{job_spec, JobHandle, OwnerCmd, Reply};
+use super::jobs::{job_spec, Accepted};
+use super::owner::{JobHandle, OwnerCmd, Reply};
 use super::protocol::{
     event, job_request, null_id, parse_request, respond, ApiError, ApiErrorKind, Id, JobStatus,
     Request,
@@ -13,6 +14,7 @@ use super::{
     MAX_PENDING_BYTES, WRITE_STALL_TIMEOUT_S,
 };
 use crate::error::RunError;
+use crate::jobs::request::JobRequest;
 use serde_json::{json, Value};
 use std::io::Write as _;
 use std::os::fd::AsRawFd;
@@ -521,8 +523,8 @@ pub(super) async fn connection(
                 ctx.shutdown.notify_one();
                 Ok(json!({ "shutting_down": true }))
             }
-            "chirp" | "control" => {
-                match submit(&ctx, &cmd, &params, &id, &out) {
+            cmd if JobRequest::KINDS.contains(&cmd) => {
+                match submit(&ctx, cmd, &params, &id, &out) {
                     Ok(attach) => {
                         attached.extend(attach);
                         continue; // the job task responds
@@ -532,7 +534,7 @@ pub(super) async fn connection(
             }
             other => Err(ApiError::new(
                 ApiErrorKind::UnknownCommand,
-                format!("unknown command {other:?} (status, enable, disable, reset, chirp, control, stop, subscribe, shutdown)"),
+                format!("unknown command {other:?} (status, enable, disable, reset, {}, stop, subscribe, shutdown)", JobRequest::KINDS.join(", ")),
             )),
         };
         out.send(respond(&id, r));
@@ -651,13 +653,18 @@ pub(super) fn submit(
 ) -> Result<Option<JobHandle>, ApiError> {
     let job_id = ctx.next_job.fetch_add(1, Ordering::Relaxed) + 1;
     let (request, detach) = job_request(cmd, params)?;
-    let (spec, kind, total, recording) = job_spec(ctx, &request, job_id)?;
+    let Accepted {
+        spec,
+        kind,
+        total,
+        recording,
+    } = job_spec(ctx, &request, job_id)?;
     let handle = JobHandle {
         id: job_id,
         stop: Arc::new(AtomicBool::new(false)),
         ticks: Arc::new(AtomicU64::new(0)),
     };
-    {
+    let before = {
         // Check and claim under the lock: two clients cannot both start.
         let mut running = lock(&ctx.running);
         let mut status = lock(&ctx.status);
@@ -677,19 +684,21 @@ pub(super) fn submit(
             ));
         }
         *running = Some(handle.clone());
+        let before = status.state;
         status.state = "running";
         status.job = Some(JobStatus {
             id: job_id,
             kind,
             ticks: 0,
             total_ticks: total,
-            recording: recording.display().to_string(),
+            recording: recording.as_ref().map(|r| r.display().to_string()),
             detach,
         });
-    }
+        before
+    };
     let (tx, rx) = oneshot::channel();
     if lock(&ctx.owner)
-        .send(OwnerCmd::Job(spec, handle.clone(), tx))
+        .send(OwnerCmd::Job(spec, handle.clone(), before, tx))
         .is_err()
     {
         *lock(&ctx.running) = None;
@@ -724,9 +733,12 @@ pub(super) fn submit(
             }
         };
         *lock(&ctx.running) = None;
+        // A bench job's summary names its recording (it does already;
+        // kept for clients of older summaries). The other jobs' summaries
+        // are sent as the library gives them, equal to a local run's.
         let result = result.map(|mut v| {
-            if let Some(o) = v.as_object_mut() {
-                o.insert("recording".into(), json!(recording));
+            if let (Some(o), Some(r)) = (v.as_object_mut(), &recording) {
+                o.insert("recording".into(), json!(r));
             }
             v
         });

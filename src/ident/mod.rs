@@ -13,6 +13,7 @@ pub type C64 = nalgebra::Complex<f64>;
 pub mod excitation;
 pub mod fft;
 pub mod frf;
+mod lsq;
 pub mod modal_fit;
 pub mod update;
 pub mod verdict;

@@ -57,8 +57,8 @@
 //! (so they hold whatever the absolute noise level).
 
 use super::frf::{Frf, C64, MIN_COHERENCE};
-use levenberg_marquardt::{LeastSquaresProblem, LevenbergMarquardt};
-use nalgebra::{DMatrix, DVector, Dyn, Owned};
+use super::lsq::{self, Residuals};
+use nalgebra::{DMatrix, DVector};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::f64::consts::PI;
@@ -433,7 +433,8 @@ impl<'a> Prepared<'a> {
 struct Problem<'p, 'a> {
     prep: &'p Prepared<'a>,
     n_modes: usize,
-    x: DVector<f64>,
+    /// The start's coordinates.
+    x0: DVector<f64>,
     /// Scales of A₁…, L, U.
     lin_scale: Vec<f64>,
     period_s: f64,
@@ -456,15 +457,15 @@ impl Problem<'_, '_> {
         Problem {
             prep,
             n_modes: n,
-            x,
+            x0: x,
             lin_scale,
             period_s,
         }
     }
 
-    fn params(&self) -> Params {
+    /// The parameters at coordinates `x`.
+    fn params_at(&self, x: &DVector<f64>) -> Params {
         let n = self.n_modes;
-        let x = &self.x;
         Params {
             f_hz: (0..n).map(|i| x[i].exp()).collect(),
             zeta: (0..n).map(|i| x[n + i].exp()).collect(),
@@ -512,21 +513,9 @@ impl Problem<'_, '_> {
     }
 }
 
-impl LeastSquaresProblem<f64, Dyn, Dyn> for Problem<'_, '_> {
-    type ResidualStorage = Owned<f64, Dyn>;
-    type JacobianStorage = Owned<f64, Dyn, Dyn>;
-    type ParameterStorage = Owned<f64, Dyn>;
-
-    fn set_params(&mut self, x: &DVector<f64>) {
-        self.x.copy_from(x);
-    }
-
-    fn params(&self) -> DVector<f64> {
-        self.x.clone()
-    }
-
-    fn residuals(&self) -> Option<DVector<f64>> {
-        let p = self.params();
+impl Residuals for Problem<'_, '_> {
+    fn residuals(&self, x: &DVector<f64>) -> Option<DVector<f64>> {
+        let p = self.params_at(x);
         if p.zeta.iter().any(|z| !(z.is_finite() && *z < 10.0)) {
             return None;
         }
@@ -540,8 +529,8 @@ impl LeastSquaresProblem<f64, Dyn, Dyn> for Problem<'_, '_> {
         r.iter().all(|v| v.is_finite()).then_some(r)
     }
 
-    fn jacobian(&self) -> Option<DMatrix<f64>> {
-        let j = self.jacobian_of(&self.params());
+    fn jacobian(&self, x: &DVector<f64>) -> Option<DMatrix<f64>> {
+        let j = self.jacobian_of(&self.params_at(x));
         j.iter().all(|v| v.is_finite()).then_some(j)
     }
 }
@@ -550,10 +539,8 @@ impl LeastSquaresProblem<f64, Dyn, Dyn> for Problem<'_, '_> {
 /// refined parameters (or `start` if the refinement made it worse).
 fn refine(prep: &Prepared, start: &Params, period_s: f64) -> Params {
     let problem = Problem::new(prep, start, period_s);
-    let (problem, _report) = LevenbergMarquardt::new()
-        .with_patience(20)
-        .minimize(problem);
-    let p = problem.params();
+    let x = lsq::minimise(&problem, problem.x0.clone(), 20);
+    let p = problem.params_at(&x);
     let ok = p
         .f_hz
         .iter()

@@ -57,11 +57,11 @@
 //!    the sum.
 
 use super::frf::{C64, MIN_COHERENCE};
+use super::lsq::{self, Residuals};
 use super::modal_fit::{self, FrfData, ModalFit, Path};
 use bench_hal::model::{ranges, ParamError, Sr4dof, Sr4dofParams};
-use levenberg_marquardt::{LeastSquaresProblem, LevenbergMarquardt};
-use nalgebra::{DMatrix, DVector, Dyn, Owned};
-use serde::Serialize;
+use nalgebra::{DMatrix, DVector};
+use serde::{Deserialize, Serialize};
 use std::f64::consts::PI;
 
 /// Force constant range, N/A (the `actuator.force_constant_n_per_a` key).
@@ -239,7 +239,7 @@ impl Bench {
 }
 
 /// One parameter after the update.
-#[derive(Debug, Clone, PartialEq, Serialize, schemars::JsonSchema)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct UpdatedParameter {
     /// Name ([`Parameter::name`]).
     pub name: String,
@@ -259,7 +259,7 @@ pub struct UpdatedParameter {
 }
 
 /// One mode of the updated model.
-#[derive(Debug, Clone, PartialEq, Serialize, schemars::JsonSchema)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct UpdatedMode {
     /// Natural frequency, Hz.
     pub frequency_hz: f64,
@@ -281,8 +281,8 @@ pub struct UpdatedMode {
     pub measured_mac: Option<f64>,
 }
 
-/// The result of an update.
-#[derive(Debug, Clone, PartialEq, Serialize, schemars::JsonSchema)]
+/// The result of an update (as JSON without [`Update::bench`]).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct Update {
     /// `frf` or `frequencies`.
     pub source: String,
@@ -312,10 +312,11 @@ pub struct Update {
     /// Why the result should not be trusted, when it should not (the
     /// model does not explain the data, or a parameter is not determined).
     pub warning: Option<String>,
-    /// The updated bench.
+    /// The updated bench (`None` in an update read back from JSON, which
+    /// does not carry it).
     #[serde(skip)]
     #[schemars(skip)]
-    pub bench: Bench,
+    pub bench: Option<Bench>,
 }
 
 /// Why no update could be made.
@@ -424,7 +425,8 @@ struct Problem<'a> {
     start: Bench,
     free: &'a [Parameter],
     target: &'a Target<'a>,
-    x: DVector<f64>,
+    /// The start's coordinates.
+    x0: DVector<f64>,
 }
 
 impl<'a> Problem<'a> {
@@ -440,7 +442,7 @@ impl<'a> Problem<'a> {
             start,
             free,
             target,
-            x: DVector::from_vec(x),
+            x0: DVector::from_vec(x),
         }
     }
 
@@ -521,43 +523,29 @@ impl<'a> Problem<'a> {
     }
 }
 
-impl LeastSquaresProblem<f64, Dyn, Dyn> for Problem<'_> {
-    type ResidualStorage = Owned<f64, Dyn>;
-    type JacobianStorage = Owned<f64, Dyn, Dyn>;
-    type ParameterStorage = Owned<f64, Dyn>;
-
-    fn set_params(&mut self, x: &DVector<f64>) {
-        self.x.copy_from(x);
-    }
-
-    fn params(&self) -> DVector<f64> {
-        self.x.clone()
-    }
-
-    fn residuals(&self) -> Option<DVector<f64>> {
+impl Residuals for Problem<'_> {
+    fn residuals(&self, x: &DVector<f64>) -> Option<DVector<f64>> {
         // Outside the ranges: a residual larger than any fit's, so that
         // Levenberg-Marquardt shortens the step instead of stopping.
         Some(
-            self.residuals_at(&self.x)
+            self.residuals_at(x)
                 .unwrap_or_else(|| DVector::from_element(self.len(), 1e10)),
         )
     }
 
-    fn jacobian(&self) -> Option<DMatrix<f64>> {
-        self.jacobian_at(&self.x)
+    fn jacobian(&self, x: &DVector<f64>) -> Option<DMatrix<f64>> {
+        self.jacobian_at(x)
     }
 }
 
 /// Minimises from the problem's start; returns the optimum and its cost.
 fn minimise(problem: Problem) -> (DVector<f64>, f64) {
-    let x0 = problem.x.clone();
+    let x0 = problem.x0.clone();
     let c0 = problem.cost_at(&x0);
-    let (problem, _report) = LevenbergMarquardt::new()
-        .with_patience(50)
-        .minimize(problem);
-    let c = problem.cost_at(&problem.x);
+    let x = lsq::minimise(&problem, x0.clone(), 50);
+    let c = problem.cost_at(&x);
     if c <= c0 {
-        (problem.x.clone(), c)
+        (x, c)
     } else {
         (x0, c0)
     }
@@ -813,7 +801,7 @@ pub fn update_to_frequencies(
         cmp_cnmp: model.has_cnmp_zeros(),
         stiffness_over_beam: stiffness_over_beam(&bench),
         warning,
-        bench,
+        bench: Some(bench),
     })
 }
 
@@ -1024,7 +1012,7 @@ fn update_frf_once(
         cmp_cnmp: model.has_cnmp_zeros(),
         stiffness_over_beam: stiffness_over_beam(&bench),
         warning,
-        bench,
+        bench: Some(bench),
     })
 }
 

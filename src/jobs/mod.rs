@@ -1,12 +1,29 @@
-//! Jobs: what a run does from request to summary. [`session`] runs any
-//! [`crate::rt::Job`] on a stage into a recording; [`chirp`] and [`step`]
-//! are the identification and closed-loop step jobs built on it.
+//! Jobs: what a run does from request to summary. Every workflow of the
+//! CLI is a job here, behind the one [`request::JobRequest`] the daemon
+//! takes: a request (serde, what the flags and the daemon's params say),
+//! its options (the request with its output paths), a `run_*` function,
+//! a summary.
+//!
+//! - [`session`] runs any [`crate::rt::Job`] on a stage into a recording;
+//!   [`chirp`] and [`step`] are the identification and closed-loop step
+//!   jobs built on it (`bench chirp`, `bench control`).
+//! - [`fit`] (`bench fit`, with the model update), [`analyze`] (`bench
+//!   analyze`) and [`map`] (`bench map`, with the measured-verdict CSV)
+//!   compute from files and the model.
+//! - A campaign's request is here ([`request::CampaignRequest`]); the
+//!   campaign job itself is [`crate::campaign::job`].
+//! - [`point`]: the operating point and asymmetry every job that takes
+//!   one shares (% of L to metres, the range checks).
 //!
 //! May use everything below it; never the CLI, the daemon or a campaign.
 //!
 //! Layer rule: may use `analysis`, `config`, `control`, `error`, `ident`, `outputs`, `plot`, `record`, `rt`, `vocab`.
 
+pub mod analyze;
 pub mod chirp;
+pub mod fit;
+pub mod map;
+pub mod point;
 pub mod request;
 pub mod session;
 pub mod step;

@@ -8,6 +8,10 @@
 //! Errors name the config key or the request field, never a command-line
 //! flag: only the CLI knows its flags.
 
+pub use super::analyze::AnalyzeRequest;
+pub use super::fit::FitRequest;
+pub use super::map::MapRequest;
+pub use super::point::OperatingPoint;
 use crate::config::{BenchConfig, ChirpKind};
 use bench_hal::sim::{FaultInjection, ScheduledFault};
 use serde::{Deserialize, Serialize};
@@ -35,9 +39,8 @@ pub enum RequestError {
     },
 }
 
-/// A job for the bench, as the daemon takes it: `{"cmd": "chirp" |
-/// "control", "params": {...}}` with the fields of [`ChirpRequest`] or
-/// [`ControlRequest`] as `params`.
+/// A job for the bench, as the daemon takes it: `{"cmd": KIND, "params":
+/// {...}}` with the fields of the kind's request as `params`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "cmd", content = "params", rename_all = "lowercase")]
 pub enum JobRequest {
@@ -45,15 +48,37 @@ pub enum JobRequest {
     Chirp(ChirpRequest),
     /// `bench control`.
     Control(ControlRequest),
+    /// `bench fit`.
+    Fit(FitRequest),
+    /// `bench analyze`.
+    Analyze(AnalyzeRequest),
+    /// `bench map`.
+    Map(MapRequest),
+    /// `bench campaign run --submit`.
+    Campaign(CampaignRequest),
 }
 
 impl JobRequest {
-    /// The job kind, as the daemon's `cmd`: `chirp` or `control`.
+    /// Every job kind, as the daemon's `cmd`.
+    pub const KINDS: [&'static str; 6] = ["chirp", "control", "fit", "analyze", "map", "campaign"];
+
+    /// The job kind, as the daemon's `cmd`: one of [`Self::KINDS`].
     pub fn kind(&self) -> &'static str {
         match self {
             Self::Chirp(_) => "chirp",
             Self::Control(_) => "control",
+            Self::Fit(_) => "fit",
+            Self::Analyze(_) => "analyze",
+            Self::Map(_) => "map",
+            Self::Campaign(_) => "campaign",
         }
+    }
+
+    /// Whether the job drives the bench (chirp, control): it runs on the
+    /// real-time loop and makes a recording. The others compute from
+    /// files and the model and never touch the bench.
+    pub fn uses_bench(&self) -> bool {
+        matches!(self, Self::Chirp(_) | Self::Control(_))
     }
 }
 
@@ -222,6 +247,22 @@ impl ControlRequest {
     }
 }
 
+/// A campaign (`bench campaign run --submit`, the daemon's `campaign`): a
+/// new campaign of the file's grid, run on the simulator in virtual time,
+/// cells in parallel, in a directory the runner names (the daemon: in its
+/// recordings directory; the file's `out` does not apply). See
+/// [`crate::campaign`].
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CampaignRequest {
+    /// The campaign file (TOML; its `config` relative to it). The daemon
+    /// takes an absolute path.
+    pub file: std::path::PathBuf,
+    /// Cells run at once, 1 … 64 [default: the runner's cores].
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub threads: Option<usize>,
+}
+
 /// What a local run may change besides its job request: the simulated
 /// plant's operating point and mass asymmetry, and the sweep law. A daemon
 /// takes none of them: its bench and config stay as it was started.
@@ -235,25 +276,12 @@ pub struct LocalOverrides {
     pub chirp_kind: Option<ChirpKind>,
 }
 
-/// An operating point Y1o, in metres or relative to the beam length L.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub enum OperatingPoint {
-    /// Y1o, m.
-    Metres(f64),
-    /// Y1o in % of `plant.beam.length_m`.
-    PercentOfBeamLength(f64),
-}
-
 impl LocalOverrides {
     /// Writes the overrides into `cfg`. It does not check: apply the job
     /// request after it, which checks the whole config.
     pub fn apply(&self, cfg: &mut BenchConfig) {
-        match self.operating_point {
-            Some(OperatingPoint::Metres(m)) => cfg.plant.operating_point_m = m,
-            Some(OperatingPoint::PercentOfBeamLength(p)) => {
-                cfg.plant.operating_point_m = p / 100.0 * cfg.plant.beam.length_m;
-            }
-            None => {}
+        if let Some(op) = self.operating_point {
+            cfg.plant.operating_point_m = op.metres(cfg.plant.beam.length_m);
         }
         set(&mut cfg.plant.mass_asymmetry, self.mass_asymmetry);
         set(&mut cfg.chirp.kind, self.chirp_kind);

@@ -15,7 +15,7 @@ use crate::rt::{self, Job, LoopOptions, LoopReport, Pacing, RecordQueue, StopRea
 use bench_hal::DeviceInfo;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
@@ -671,22 +671,4 @@ fn run_local<J: Job + Send>(
             .join()
             .map_err(|_| RunError::Thread("the real-time thread panicked".into()))
     })
-}
-
-/// `dir/PREFIX-YYYYmmddTHHMMSS.mmmZSUFFIX.mcap` (UTC, to the millisecond):
-/// the daemon's recording names (`SUFFIX` is `-job<N>`). The name is not
-/// claimed: the job refuses it if it exists. Local runs claim theirs with
-/// [`outputs::claim_recording`](crate::outputs::claim_recording).
-pub fn stamped_recording(dir: &Path, prefix: &str, suffix: &str) -> PathBuf {
-    dir.join(format!("{prefix}-{}{suffix}.mcap", crate::outputs::stamp()))
-}
-
-/// `dir/stem.mcap` → `dir/stem<suffix>`: the files that go with a
-/// recording (FRF CSV, plots).
-pub fn beside(out: &Path, suffix: &str) -> PathBuf {
-    let stem = out
-        .file_stem()
-        .map(|s| s.to_string_lossy().into_owned())
-        .unwrap_or_default();
-    out.with_file_name(format!("{stem}{suffix}"))
 }

@@ -1,0 +1,187 @@
+//! `bench campaign run|resume` as a job: a campaign made ready to run
+//! ([`start`] a new one, [`resume`] one in its directory), then run on the
+//! simulator in parallel ([`Ready::run_parallel`]) or one cell at a time
+//! after the operator's answer ([`Ready::run_attended`]). The CLI turns its
+//! flags into these calls and shows progress; the daemon's `campaign` job
+//! ([`crate::jobs::request::CampaignRequest`]) starts a new campaign in its
+//! recordings directory and runs it on the simulator.
+
+use super::file::Campaign;
+use super::journal::{Journal, ReadJournal};
+use super::run::{
+    adopt_changed, create, damaged_cells, load_dir, run_attended, run_cells, CampaignRunError,
+    CampaignSummary, CellBench, Operator, RunOptions,
+};
+use std::path::{Path, PathBuf};
+use std::sync::atomic::AtomicBool;
+use std::sync::Arc;
+
+/// Most cells run at once.
+pub const MAX_THREADS: usize = 64;
+
+/// Cells run at once: `given` (1 … [`MAX_THREADS`]), else one per core.
+///
+/// # Errors
+/// [`CampaignRunError::BadOption`] naming `threads`.
+pub fn threads(given: Option<usize>) -> Result<usize, CampaignRunError> {
+    match given {
+        Some(n) if (1..=MAX_THREADS).contains(&n) => Ok(n),
+        Some(n) => Err(CampaignRunError::BadOption {
+            key: "threads",
+            value: n.to_string(),
+            reason: format!("must be 1 … {MAX_THREADS} (cells run at once)"),
+        }),
+        None => Ok(std::thread::available_parallelism()
+            .map(|n| n.get())
+            .unwrap_or(1)),
+    }
+}
+
+/// A campaign ready to run: loaded, its directory created (a new one) or
+/// checked (a resumed one), its journal open.
+pub struct Ready {
+    /// The campaign.
+    pub campaign: Campaign,
+    /// Its directory.
+    pub dir: PathBuf,
+    /// What the operator should know before it goes on (the original
+    /// files changed since `run`; the copies are used).
+    pub note: Option<String>,
+    journal: Journal,
+    read: ReadJournal,
+}
+
+/// Starts a new campaign of `campaign` in `dir` (`None`: the campaign
+/// file's `out`): creates the directory ([`create`]) and opens its
+/// journal.
+///
+/// # Errors
+/// [`CampaignRunError::BadOption`] naming `out` when there is no
+/// directory or it cannot hold a new campaign; journal and I/O errors.
+pub fn start(campaign: Campaign, dir: Option<&Path>) -> Result<Ready, CampaignRunError> {
+    let Some(dir) = dir
+        .map(Path::to_path_buf)
+        .or_else(|| campaign.spec.out.clone())
+    else {
+        return Err(CampaignRunError::BadOption {
+            key: "out",
+            value: String::new(),
+            reason: format!(
+                "{}: no output directory: give one, or `out = \"DIR\"` in the campaign file",
+                campaign.path.display()
+            ),
+        });
+    };
+    create(&campaign, &dir)?;
+    let (journal, read) = Journal::open(&dir)?;
+    Ok(Ready {
+        campaign,
+        dir,
+        note: None,
+        journal,
+        read,
+    })
+}
+
+/// Goes on with the campaign in `dir` ([`load_dir`]: its copies, or
+/// `campaign_file`; with `force` although the files changed, the change
+/// journaled). Refused while a done cell's files are missing or changed.
+///
+/// # Errors
+/// [`CampaignRunError::BadInput`]: not a campaign directory, a change
+/// without `force`, damaged cells; journal and I/O errors.
+pub fn resume(
+    dir: &Path,
+    campaign_file: Option<&Path>,
+    force: bool,
+) -> Result<Ready, CampaignRunError> {
+    let (campaign, _, note) = load_dir(dir, campaign_file, force)?;
+    let (mut journal, read) = Journal::open(dir)?;
+    if force {
+        adopt_changed(dir, &mut journal, &campaign)?;
+    }
+    let damaged = damaged_cells(dir, &read);
+    if !damaged.is_empty() {
+        let list: Vec<String> = damaged
+            .iter()
+            .map(|(c, why)| format!("cell {c}: {why}"))
+            .collect();
+        return Err(CampaignRunError::BadInput(format!(
+            "{}: files of done cells are missing or changed ({}); the campaign's results would not be what it measured. Restore them, or start a new campaign",
+            dir.display(),
+            list.join("; ")
+        )));
+    }
+    Ok(Ready {
+        campaign,
+        dir: dir.to_path_buf(),
+        note,
+        journal,
+        read,
+    })
+}
+
+impl Ready {
+    /// Cells in the grid.
+    pub fn cells(&self) -> usize {
+        self.campaign.cells().len()
+    }
+
+    /// Cells done (journaled) already.
+    pub fn done(&self) -> usize {
+        self.read.done().len()
+    }
+
+    /// Cells left to run: neither done nor skipped.
+    pub fn to_run(&self) -> usize {
+        self.cells() - self.done() - self.read.skipped().len()
+    }
+
+    /// Runs the cells left on the simulator, `opts.threads` at a time
+    /// ([`run_cells`]).
+    ///
+    /// # Errors
+    /// As [`run_cells`].
+    pub fn run_parallel(self, opts: &RunOptions<'_>) -> Result<CampaignSummary, CampaignRunError> {
+        run_cells(&self.campaign, &self.dir, self.journal, &self.read, opts)
+    }
+
+    /// Runs the cells left on `bench` (a backend or the daemon), one at a
+    /// time after the operator's answer ([`run_attended`]).
+    ///
+    /// # Errors
+    /// As [`run_attended`].
+    pub fn run_attended(
+        self,
+        bench: &CellBench,
+        operator: &mut dyn Operator,
+        stop: &Arc<AtomicBool>,
+    ) -> Result<CampaignSummary, CampaignRunError> {
+        run_attended(
+            &self.campaign,
+            &self.dir,
+            self.journal,
+            &self.read,
+            bench,
+            operator,
+            stop,
+        )
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn threads_are_bounded() {
+        assert_eq!(threads(Some(3)).unwrap(), 3);
+        assert!(threads(None).unwrap() >= 1);
+        for n in [0, MAX_THREADS + 1] {
+            assert!(matches!(
+                threads(Some(n)),
+                Err(CampaignRunError::BadOption { key: "threads", .. })
+            ));
+        }
+    }
+}
