@@ -363,7 +363,7 @@ impl Supervisor {
         if reach < bound.0 {
             bound = (reach, StallRule::Reach);
         }
-        if !(silent_s > bound.0) {
+        if silent_s.is_nan() || silent_s <= bound.0 {
             return None;
         }
         if self.state != SupervisorState::Faulted {
