@@ -9,12 +9,12 @@
 //! field (`operating_point_pct`) or the config, never a flag.
 
 use super::point::PlantPoint;
-use crate::plot::{write_decomposed_bode_png, write_pole_zero_png};
 use crate::analysis::{analyze, Analysis};
 use crate::config::BenchConfig;
 use crate::error::RunError;
 use crate::jobs::request::RequestError;
 use crate::outputs::Existing;
+use crate::plot::{write_decomposed_bode_png, write_pole_zero_png};
 use bench_hal::model::{Sr4dof, Sr4dofParams};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};

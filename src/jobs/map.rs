@@ -14,10 +14,10 @@ use super::point::percent_of_length_m;
 use crate::analysis::map::{
     agreement, cnmp_map, linspace, model_at, nearest_cell, veering_curve, MapCell, VeeringCurve,
 };
-use crate::plot::{write_map_png, write_veering_png, MeasuredPoint};
 use crate::config::BenchConfig;
 use crate::error::RunError;
 use crate::outputs::{write_atomically, Existing};
+use crate::plot::{write_map_png, write_veering_png, MeasuredPoint};
 use bench_hal::model::{ranges, Sr4dofParams};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
