@@ -15,6 +15,7 @@ pub mod campaign;
 pub mod config;
 pub mod control;
 pub mod daemon;
+pub mod design;
 pub mod error;
 pub mod ident;
 pub mod jobs;

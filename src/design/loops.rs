@@ -1,0 +1,290 @@
+//! The open loops a design is judged on: the controller times each measured
+//! FRF (and the computation delay), and their figures: every gain
+//! crossover with its phase margin, the gain margin, the modulus margin
+//! `‖S‖∞`, the sensitivity bandwidth ω_B and the Nyquist count.
+//!
+//! Shapes: an FRF's lines are ascending in ω (rad/s); every vector of one
+//! [`DesignFrf`] has one entry per line. Units: the plant in m/A, the
+//! controller in A per error unit, `unit_per_metre` the error unit per
+//! metre (10⁶ for µm), so that `L = C · P · unit_per_metre` is
+//! dimensionless.
+//!
+//! # The Nyquist count
+//! Closed-loop poles in the right half plane, from the Nyquist criterion
+//! on the lines (e.g. Skogestad & Postlethwaite §4.9; Åström & Murray
+//! §10.2).
+//!
+//! For a stable plant and a controller whose only poles on the imaginary
+//! axis are `n` integrators, the closed loop is stable when the phase of
+//! `1 + L(jω)` turns by exactly `n·π/2` from ω → 0⁺ (where `1 + L ≈ L`
+//! points along `−n·π/2`) to ω → ∞ (where `1 + L → 1`). The count starts
+//! from the branch of `arg(1 + L)` nearest `−n·π/2` at the first line
+//! (which must lie where the integrators dominate), follows the phase
+//! line to line by the shortest turn, and counts the whole turns by which
+//! it ends away from 0: each is one encirclement of −1 over ω > 0, two
+//! over the whole contour, so two closed-loop poles in the right half
+//! plane (the count returned). A step of more than 0.9π between two lines
+//! cannot be followed reliably and counts as one turn.
+
+use crate::ident::C64;
+use serde::{Deserialize, Serialize};
+use std::f64::consts::PI;
+
+/// One input FRF as the design uses it: its coherent lines only, with the
+/// computation delay applied.
+#[derive(Debug, Clone)]
+pub struct DesignFrf {
+    /// The input's name in reports (a path, or a campaign cell).
+    pub label: String,
+    /// Lines used, rad/s, ascending.
+    pub omega_rad_s: Vec<f64>,
+    /// `P(e^{jωT}) · e^{−jωτ}` at each line, m/A: the measured plant
+    /// (current demand to position, hold and amplifier included) times
+    /// the computation delay τ the design adds.
+    pub plant_m_per_a: Vec<C64>,
+    /// Lines the input had before the coherence threshold.
+    pub lines_total: usize,
+}
+
+impl DesignFrf {
+    /// The same FRF on fewer lines for the search: every line within
+    /// ±`band` (a fraction) of a frequency in `near_rad_s` (the resonances,
+    /// where the response turns within a few lines), every `every`-th line
+    /// elsewhere, and the first and last lines.
+    pub fn decimated(&self, near_rad_s: &[f64], band: f64, every: usize) -> Self {
+        let n = self.omega_rad_s.len();
+        let keep: Vec<usize> = (0..n)
+            .filter(|&k| {
+                let w = self.omega_rad_s[k];
+                k == 0
+                    || k + 1 == n
+                    || k % every.max(1) == 0
+                    || near_rad_s.iter().any(|r| (w / r - 1.0).abs() <= band)
+            })
+            .collect();
+        Self {
+            label: self.label.clone(),
+            omega_rad_s: keep.iter().map(|&k| self.omega_rad_s[k]).collect(),
+            plant_m_per_a: keep.iter().map(|&k| self.plant_m_per_a[k]).collect(),
+            lines_total: self.lines_total,
+        }
+    }
+}
+
+/// Figures of one open loop on one FRF (or the model).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
+pub struct LoopFigures {
+    /// Every gain crossover (|L| = 1), rad/s, ascending.
+    pub crossovers_rad_s: Vec<f64>,
+    /// The phase margin at each crossover, degrees (180° + ∠L, wrapped to
+    /// (−180°, 180°]).
+    pub phase_margins_deg: Vec<f64>,
+    /// The smallest angle between L and −1 at a crossover, degrees: the
+    /// least |phase margin| (a crossing at ∠L = +80° is 100° from −1
+    /// whichever way L turns; `None`: no crossover).
+    pub phase_margin_min_deg: Option<f64>,
+    /// Gain margin, dB: the smallest `−20 log10 |L|` where L crosses the
+    /// negative real axis inside the unit circle (`None`: no such crossing).
+    pub gain_margin_db: Option<f64>,
+    /// Where, rad/s.
+    pub gain_margin_at_rad_s: Option<f64>,
+    /// Modulus margin's inverse, `‖S‖∞ = max |1/(1 + L)|` over the lines.
+    pub sensitivity_peak: f64,
+    /// Where, rad/s.
+    pub sensitivity_peak_at_rad_s: f64,
+    /// Sensitivity bandwidth ω_B: the lowest frequency at which |S| reaches
+    /// 1/√2 (−3 dB) from below, rad/s (`None`: not within the lines).
+    pub sensitivity_bandwidth_rad_s: Option<f64>,
+    /// Closed-loop poles in the right half plane by the Nyquist count over
+    /// the lines (0: the closed loop is stable, for a stable plant; see
+    /// the module docs, *The Nyquist count*).
+    pub rhp_closed_loop_poles: u32,
+    /// |L| at the highest line, dB: how much loop gain is left where the
+    /// measurement ends.
+    pub edge_gain_db: f64,
+}
+
+/// The figures of the loop `l` (one value per line of `omega_rad_s`,
+/// ascending) of a controller with `integrators` poles at s = 0, in one
+/// pass over the lines. Crossings between two lines are placed by linear
+/// interpolation in log ω (gain crossovers in log |L|, phase crossovers in
+/// Im L), as [`crate::control::loop_check::measured_margins`] does; the
+/// figures agree with it (`figures_agree_with_the_loop_check`).
+pub fn figures(omega_rad_s: &[f64], l: &[C64], integrators: u32) -> LoopFigures {
+    let n = l.len();
+    let mut crossovers = Vec::new();
+    let mut pms = Vec::new();
+    let mut gm: Option<(f64, f64)> = None;
+    let (mut s_peak, mut s_at) = (0.0, omega_rad_s.first().copied().unwrap_or(0.0));
+    let mut wb: Option<f64> = None;
+    let s_target = 0.5f64.sqrt();
+    // Nyquist: the phase of 1 + L, unwrapped (see `nyquist_count`).
+    let mut phase = 0.0;
+    let mut ambiguous = false;
+    let mut prev_g = 0.0;
+    for k in 0..n {
+        let lk = l[k];
+        let one = lk + 1.0;
+        let s = 1.0 / one.norm();
+        let g = lk.norm().ln();
+        if s > s_peak {
+            s_peak = s;
+            s_at = omega_rad_s[k];
+        }
+        if k == 0 {
+            let start = -(integrators as f64) * PI / 2.0;
+            phase = one.arg();
+            phase += 2.0 * PI * ((start - phase) / (2.0 * PI)).round();
+            prev_g = g;
+            continue;
+        }
+        let (w0, w1) = (omega_rad_s[k - 1].ln(), omega_rad_s[k].ln());
+        let l0 = l[k - 1];
+        if wb.is_none() && s >= s_target {
+            let s0 = 1.0 / (l0 + 1.0).norm();
+            let (a, b, t) = (s0.ln(), s.ln(), s_target.ln());
+            let f = if b > a {
+                ((t - a) / (b - a)).clamp(0.0, 1.0)
+            } else {
+                1.0
+            };
+            wb = Some((w0 + f * (w1 - w0)).exp());
+        }
+        let d = (one / (l0 + 1.0)).arg();
+        ambiguous |= d.abs() > 0.9 * PI;
+        phase += d;
+        if prev_g.is_finite() && g.is_finite() && (prev_g > 0.0) != (g > 0.0) {
+            let t = prev_g / (prev_g - g);
+            crossovers.push((w0 + t * (w1 - w0)).exp());
+            let lw = l0 + (lk - l0) * t;
+            pms.push(wrap180(lw.arg().to_degrees() + 180.0));
+        }
+        if (l0.im > 0.0) != (lk.im > 0.0) && (l0.re < 0.0 || lk.re < 0.0) {
+            let t = l0.im / (l0.im - lk.im);
+            let lw = l0 + (lk - l0) * t;
+            if lw.re < 0.0 && lw.norm() < 1.0 {
+                let gdb = -20.0 * lw.norm().log10();
+                if gm.is_none_or(|(best, _)| gdb < best) {
+                    gm = Some((gdb, (w0 + t * (w1 - w0)).exp()));
+                }
+            }
+        }
+        prev_g = g;
+    }
+    let turns = (phase / (2.0 * PI)).round().abs() as u32;
+    LoopFigures {
+        phase_margin_min_deg: pms.iter().map(|p: &f64| p.abs()).reduce(f64::min),
+        crossovers_rad_s: crossovers,
+        phase_margins_deg: pms,
+        gain_margin_db: gm.map(|g| g.0),
+        gain_margin_at_rad_s: gm.map(|g| g.1),
+        sensitivity_peak: s_peak,
+        sensitivity_peak_at_rad_s: s_at,
+        sensitivity_bandwidth_rad_s: if n > 0 && 1.0 / (l[0] + 1.0).norm() >= s_target {
+            None
+        } else {
+            wb
+        },
+        rhp_closed_loop_poles: 2 * turns.max(u32::from(ambiguous)),
+        edge_gain_db: 20.0 * l.last().map_or(0.0, |v| v.norm()).log10(),
+    }
+}
+
+/// Wraps degrees to (−180, 180].
+fn wrap180(d: f64) -> f64 {
+    let w = (d + 180.0).rem_euclid(360.0) - 180.0;
+    if w <= -180.0 {
+        w + 360.0
+    } else {
+        w
+    }
+}
+
+/// `L = C · P · unit_per_metre` on the lines of `frf`, with `c` the
+/// controller's response at each of them.
+pub fn open_loop(frf: &DesignFrf, c: &[C64], unit_per_metre: f64) -> Vec<C64> {
+    frf.plant_m_per_a
+        .iter()
+        .zip(c)
+        .map(|(p, c)| c * p * unit_per_metre)
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn grid() -> Vec<f64> {
+        (0..=4000)
+            .map(|i| 0.01 * 10f64.powf(i as f64 / 1000.0))
+            .collect()
+    }
+
+    /// L(s) = k/(s(s+1)): stable for every k > 0 (the textbook second-order
+    /// loop), its |S| reaches −3 dB where |1 + L|² = 2, solved in closed
+    /// form below; and L = k/(s(s+1)(s/10+1)) is unstable above k = 11
+    /// (Routh: s³/10 + 1.1 s² + s + k, stable iff 1.1 > k/10).
+    #[test]
+    fn textbook_loops() {
+        let w = grid();
+        let l1 = |k: f64| -> Vec<C64> {
+            w.iter()
+                .map(|&w| {
+                    let s = C64::new(0.0, w);
+                    C64::new(k, 0.0) / (s * (s + 1.0))
+                })
+                .collect()
+        };
+        let f = figures(&w, &l1(1.0), 1);
+        assert_eq!(f.rhp_closed_loop_poles, 0);
+        // |S(jω)| = 1/√2 found by bisection on the exact expression.
+        let s_mag = |w: f64| {
+            let s = C64::new(0.0, w);
+            1.0 / (C64::new(1.0, 0.0) / (s * (s + 1.0)) + 1.0).norm()
+        };
+        let (mut a, mut b): (f64, f64) = (0.01, 10.0);
+        for _ in 0..100 {
+            let m: f64 = (a * b).sqrt();
+            if s_mag(m) < 0.5f64.sqrt() {
+                a = m;
+            } else {
+                b = m;
+            }
+        }
+        let wb = f.sensitivity_bandwidth_rad_s.unwrap();
+        assert!((wb / a - 1.0).abs() < 2e-3, "{wb} against {a}");
+        let l3 = |k: f64| -> Vec<C64> {
+            w.iter()
+                .map(|&w| {
+                    let s = C64::new(0.0, w);
+                    C64::new(k, 0.0) / (s * (s + 1.0) * (s / 10.0 + 1.0))
+                })
+                .collect()
+        };
+        assert_eq!(figures(&w, &l3(10.0), 1).rhp_closed_loop_poles, 0);
+        assert_eq!(figures(&w, &l3(12.0), 1).rhp_closed_loop_poles, 2);
+        assert_eq!(figures(&w, &l3(100.0), 1).rhp_closed_loop_poles, 2);
+    }
+
+    /// The one-pass figures are the loop check's on measured data: the
+    /// Eq. (6-7)-like loop with a lightly damped pair, three crossings.
+    #[test]
+    fn figures_agree_with_the_loop_check() {
+        let w = grid();
+        let l: Vec<C64> = w
+            .iter()
+            .map(|&w| {
+                let s = C64::new(0.0, w);
+                let pair = (s * s + s * 0.02 + 4.0) / (s * s + s * 0.01 * 2.2 + 4.84);
+                C64::new(3.0, 0.0) / (s * (s + 1.0)) * pair * C64::from_polar(1.0, -0.05 * w)
+            })
+            .collect();
+        let f = figures(&w, &l, 1);
+        let lookup = |x: f64| l[w.partition_point(|g| *g < x).min(w.len() - 1)];
+        let m = crate::control::loop_check::margins(&lookup, &w, false);
+        assert_eq!(f.crossovers_rad_s, m.crossovers_rad_s);
+        assert_eq!(f.phase_margins_deg, m.phase_margins_deg);
+        assert_eq!(f.gain_margin_db, m.gain_margin_db);
+        assert_eq!(f.sensitivity_peak, m.sensitivity_peak);
+    }
+}

@@ -1,0 +1,156 @@
+//! The modes a design is built around, from `bench fit`'s modal fit of
+//! every input ([`crate::ident::modal_fit`]): the first resonance ω_R (the
+//! lowest mode in the actuator-to-probe path), the closely spaced pair u,
+//! v and the sign sequence of their modal constants (thesis §3.2, §6.1.2).
+
+use super::{derr, DesignError, InputFrf};
+use crate::ident::modal_fit::{self, FrfData, Path};
+use serde::{Deserialize, Serialize};
+use std::f64::consts::PI;
+
+/// The modes of one input.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
+pub struct InputModes {
+    /// The input.
+    pub input: String,
+    /// Lowest in-path mode, Hz (with its 1σ).
+    pub first_resonance_hz: f64,
+    /// 1σ of it, Hz (`null`: not determined).
+    pub first_resonance_sigma_hz: Option<f64>,
+    /// Mode u of the closely spaced pair, Hz.
+    pub u_hz: Option<f64>,
+    /// Mode v, Hz.
+    pub v_hz: Option<f64>,
+    /// The fit's sign sequence, e.g. `α_R > 0, α_u < 0, α_v > 0`.
+    pub sign_sequence: String,
+    /// `alternating` (α_u opposite α_R, α_v with it: §6.1.2.1),
+    /// `non-alternating` (§6.1.2.2), `in phase` (u and v of one sign) or
+    /// `no pair`.
+    pub pair_signs: String,
+    /// The fit's RMS relative error.
+    pub fit_error: f64,
+}
+
+/// The modes over all inputs.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
+pub struct PlantModes {
+    /// ω_R: the median over the inputs of their first resonance, rad/s.
+    pub first_resonance_rad_s: f64,
+    /// Per input.
+    pub inputs: Vec<InputModes>,
+}
+
+impl PlantModes {
+    /// Fits every input with the path model `path`.
+    ///
+    /// # Errors
+    /// Naming the input whose fit fails or finds no mode.
+    pub fn identify(inputs: &[InputFrf], path: Path) -> Result<Self, DesignError> {
+        let mut out = Vec::new();
+        for inp in inputs {
+            let fit = modal_fit::fit(&FrfData::from_frf(&inp.frf), &path)
+                .map_err(|e| derr(&inp.label, format!("modal fit: {e}")))?;
+            let in_path: Vec<_> = fit.modes.iter().filter(|m| m.in_path).collect();
+            let Some(first) = in_path.first() else {
+                return Err(derr(&inp.label, "the modal fit finds no mode in the actuator-to-probe path: the FRF shows no resonance to design around"));
+            };
+            let find = |l: &str| fit.modes.iter().find(|m| m.label == l);
+            let (u, v, r) = (find("u"), find("v"), find("R"));
+            let pair_signs = match (u, v) {
+                (Some(u), Some(v)) if u.sign == v.sign => "in phase",
+                (Some(u), Some(v)) => {
+                    let r_sign = r.map_or(first.sign, |r| r.sign);
+                    if u.sign != r_sign && v.sign == r_sign {
+                        "alternating"
+                    } else {
+                        "non-alternating"
+                    }
+                }
+                _ => "no pair",
+            };
+            out.push(InputModes {
+                input: inp.label.clone(),
+                first_resonance_hz: first.frequency_hz,
+                first_resonance_sigma_hz: first
+                    .frequency_sigma_hz
+                    .is_finite()
+                    .then_some(first.frequency_sigma_hz),
+                u_hz: u.map(|m| m.frequency_hz),
+                v_hz: v.map(|m| m.frequency_hz),
+                sign_sequence: fit.sign_sequence.clone(),
+                pair_signs: pair_signs.into(),
+                fit_error: fit.rms_relative_error,
+            });
+        }
+        let mut f: Vec<f64> = out.iter().map(|m| m.first_resonance_hz).collect();
+        f.sort_by(f64::total_cmp);
+        Ok(Self {
+            first_resonance_rad_s: 2.0 * PI * f[f.len() / 2],
+            inputs: out,
+        })
+    }
+
+    /// Every resonance found on any input (ω_R, u, v), rad/s.
+    pub fn resonances_rad_s(&self) -> Vec<f64> {
+        self.inputs
+            .iter()
+            .flat_map(|m| [Some(m.first_resonance_hz), m.u_hz, m.v_hz])
+            .flatten()
+            .map(|f| 2.0 * PI * f)
+            .collect()
+    }
+
+    /// Where the fast family's notch goes, `(ω_u, ω_v)` in rad/s (the
+    /// interval its centre must lie in on every input), or `None` with the
+    /// thesis' reason; and the structure in words.
+    pub fn notch_plan(&self) -> (Option<(f64, f64)>, String) {
+        let hz = |w: f64| w / (2.0 * PI);
+        let conventional = "conventional lead + 2nd-order low-pass (ζ 0.7) with the phase-boosting pair, no notch (thesis §6.1.2.2: \"apply a conventional controller\")";
+        if let Some(m) = self
+            .inputs
+            .iter()
+            .find(|m| m.pair_signs == "non-alternating")
+        {
+            return (None, format!(
+                "non-alternating signs on {} ({}): after any notch the pair's two resonance circles turn the same way, and phase-stabilising both needs an added mode damped no more than the pair (ζ ≈ 0.004), which can neither be built nor predicted (thesis §6.1.2.2); the sign sequence, not the CMP-CNMP zeros, decides this: {conventional}",
+                m.input, m.sign_sequence
+            ));
+        }
+        if let Some(m) = self.inputs.iter().find(|m| m.pair_signs != "alternating") {
+            return (
+                None,
+                format!(
+                    "{} on {} ({}): no out-of-phase pair to place a notch between: {conventional}",
+                    if m.pair_signs == "in phase" {
+                        "the pair's modes are in phase"
+                    } else {
+                        "no closely spaced pair"
+                    },
+                    m.input,
+                    m.sign_sequence
+                ),
+            );
+        }
+        let u = self
+            .inputs
+            .iter()
+            .filter_map(|m| m.u_hz)
+            .fold(0.0, f64::max);
+        let v = self
+            .inputs
+            .iter()
+            .filter_map(|m| m.v_hz)
+            .fold(f64::INFINITY, f64::min);
+        if u >= v {
+            return (None, format!("the pair moves over the inputs (u up to {u:.2} Hz, v down to {v:.2} Hz): no notch centre lies between u and v on all of them: {conventional}"));
+        }
+        let w = (2.0 * PI * u, 2.0 * PI * v);
+        (Some(w), format!(
+            "alternating signs ({}) on all {} inputs: notch centred between u and v, in ({:.2}, {:.2}) Hz, so that u and v lie on opposite sides (thesis §6.1.2.1), lead for phase at crossover, low-pass roll-off (the Eq. 6-7 family)",
+            self.inputs[0].sign_sequence,
+            self.inputs.len(),
+            hz(w.0),
+            hz(w.1)
+        ))
+    }
+}

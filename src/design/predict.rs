@@ -1,0 +1,111 @@
+//! What a designed controller does on the bench's model: its loop figures
+//! up to the Nyquist frequency (the band no measurement covers included)
+//! and its closed-loop step (`[step]` of the config, noise-free), with the
+//! same computation delay the design assumed.
+
+use super::loops::{figures, LoopFigures};
+use super::{derr, DesignError};
+use crate::config::BenchConfig;
+use crate::control::loop_check::model_grid;
+use crate::control::step_metrics::{analyze_step, StepMetrics, StepSignals};
+use crate::control::{ControllerConfig, DiscreteController};
+use crate::ident::C64;
+use bench_hal::model::Sr4dof;
+use bench_hal::sim::{ZohPlant, STATES};
+use serde::{Deserialize, Serialize};
+use std::f64::consts::PI;
+
+/// The design on the model.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
+pub struct ModelPrediction {
+    /// Loop figures on the model (zero-order hold, amplifier, computation
+    /// delay), 0.1 rad/s to Nyquist.
+    pub figures: LoopFigures,
+    /// The noise-free closed-loop step of `[step]`.
+    pub step: StepMetrics,
+}
+
+/// The model loop `L = C_d · P_zoh · e^{−jωτ}` of `controller` on `cfg`'s
+/// bench, on [`model_grid`], rad/s and dimensionless.
+///
+/// # Errors
+/// The `[plant]` of `cfg` cannot be modelled.
+pub fn model_loop(
+    cfg: &BenchConfig,
+    controller: &ControllerConfig,
+    delay_s: f64,
+) -> Result<(Vec<f64>, Vec<C64>), DesignError> {
+    let model = Sr4dof::new(cfg.plant).map_err(|e| derr("config", e.to_string()))?;
+    let t = cfg.loop_.period_ns() as f64 * 1e-9;
+    let plant = ZohPlant::new(&model, &cfg.actuator, t);
+    let ctrl = DiscreteController::new(controller, t, cfg.actuator.peak_current_a);
+    let k = ctrl.error_per_metre();
+    let grid = model_grid(t);
+    let l = grid
+        .iter()
+        .map(|&w| {
+            ctrl.response(w, t) * plant.frf(w / (2.0 * PI)) * k * C64::from_polar(1.0, -w * delay_s)
+        })
+        .collect();
+    Ok((grid, l))
+}
+
+/// The prediction of `controller` on `cfg`'s model with the computation
+/// delay `delay_s` (whole periods in the step).
+///
+/// # Errors
+/// The `[plant]` of `cfg` cannot be modelled.
+pub fn predict(
+    cfg: &BenchConfig,
+    controller: &ControllerConfig,
+    delay_s: f64,
+) -> Result<ModelPrediction, DesignError> {
+    let (grid, l) = model_loop(cfg, controller, delay_s)?;
+    let figures = figures(&grid, &l, controller.integrators);
+    let model = Sr4dof::new(cfg.plant).map_err(|e| derr("config", e.to_string()))?;
+    let t = cfg.loop_.period_ns() as f64 * 1e-9;
+    let plant = ZohPlant::new(&model, &cfg.actuator, t);
+    let mut ctrl = DiscreteController::new(controller, t, cfg.actuator.peak_current_a);
+    let s = &cfg.step;
+    let n = (s.duration_s / t).round() as usize;
+    let settle = (s.settle_s / t).round() as usize;
+    let smooth = (s.smooth_s / t).round() as usize;
+    let delay = (delay_s / t).round() as usize;
+    let mut queue = vec![0.0; delay + 1];
+    let mut x = nalgebra::SVector::<f64, STATES>::zeros();
+    let (mut y, mut r, mut u) = (
+        Vec::with_capacity(n),
+        Vec::with_capacity(n),
+        Vec::with_capacity(n),
+    );
+    for i in 0..n {
+        let setpoint = if i < settle {
+            0.0
+        } else if smooth == 0 || i >= settle + smooth {
+            s.step_m
+        } else {
+            s.step_m * 0.5 * (1.0 - (PI * (i - settle) as f64 / smooth as f64).cos())
+        };
+        let pos = x[0];
+        let cmd = ctrl.update(setpoint - pos);
+        queue[i % (delay + 1)] = cmd;
+        let applied = queue[(i + 1) % (delay + 1)];
+        y.push(pos);
+        r.push(setpoint);
+        u.push(cmd);
+        plant.step(&mut x, applied, 0.0);
+    }
+    let step = analyze_step(
+        StepSignals {
+            position_m: &y,
+            setpoint_m: &r,
+            current_command_a: &u,
+        },
+        s.settle_s,
+        s.step_m,
+        s.steady_state_window_s,
+        t,
+    )
+    .metrics;
+    Ok(ModelPrediction { figures, step })
+}
