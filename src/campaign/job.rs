@@ -185,3 +185,36 @@ mod tests {
         }
     }
 }
+
+/// The campaign in `dir` as the input of `bench design`: its bench
+/// config's text and the FRF of every done cell (`cells/NNN/frf.csv`),
+/// each checked against the journal's checksum.
+///
+/// # Errors
+/// [`CampaignRunError::BadInput`]: not a campaign directory, or a done
+/// cell whose files are missing or changed since they were recorded.
+pub fn design_input(dir: &Path) -> Result<crate::jobs::design::DesignInput, CampaignRunError> {
+    let (campaign, j, _) = load_dir(dir, None, false)?;
+    if let Some((cell, why)) = damaged_cells(dir, &j).into_iter().next() {
+        return Err(CampaignRunError::BadInput(format!(
+            "{}: cell {cell:03}: {why} (bench campaign resume runs it again)",
+            dir.display()
+        )));
+    }
+    let cells = j
+        .done()
+        .keys()
+        .map(|&i| {
+            (
+                i,
+                dir.join(super::run::cell_dir(i))
+                    .join(super::run::CELL_FILES[1]),
+            )
+        })
+        .collect();
+    Ok(crate::jobs::design::DesignInput::Cells {
+        dir: dir.to_path_buf(),
+        config_toml: campaign.config_text.clone(),
+        cells,
+    })
+}

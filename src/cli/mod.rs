@@ -50,6 +50,7 @@ mod config_cmd;
 mod console;
 mod control;
 mod daemon_cmd;
+mod design;
 mod docs;
 mod emulate;
 mod export;
@@ -139,6 +140,12 @@ enum Command {
     /// --update, the bench's physical parameters fitted to the FRF and
     /// written as TOML; with --frequencies, to measured natural frequencies
     Fit(FitArgs),
+    /// Design a controller from measured FRFs (CSV, recordings, campaign
+    /// directories): the thesis' slow or fast family, its crossover
+    /// pushed as far as the margins allow on every input, written as a
+    /// bench config with [controller.NAME]; report, figure and the step
+    /// predicted on the model.
+    Design(design::DesignArgs),
     /// Export a recording's channel as a CSV or Parquet table (one column
     /// per field, the unit in its name) for numpy and pandas.
     Export(ExportArgs),
@@ -220,6 +227,7 @@ pub fn main() -> ExitCode {
         Command::Campaign(cmd) => campaign(cmd, stop),
         Command::Export(args) => export(args),
         Command::Fit(args) => fit::fit(args),
+        Command::Design(args) => design::design(args),
         Command::Config(cmd) => config_command(cmd),
         Command::Completions(args) => completions(&args),
         Command::Man(args) => man(&args),
@@ -479,7 +487,7 @@ pub(super) fn refused_request(
 /// its value names it).
 pub(super) fn option_flag(key: &str) -> String {
     match key {
-        "input" => String::new(),
+        "input" | "inputs" => String::new(),
         "frequencies_hz" => "--frequencies".into(),
         key => format!("--{}", key.replace('_', "-")),
     }

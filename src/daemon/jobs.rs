@@ -14,6 +14,7 @@ use crate::campaign::run::{CampaignRunError, RunOptions};
 use crate::error::RunError;
 use crate::jobs::analyze::{run_analyze, AnalyzeOptions};
 use crate::jobs::chirp::{run_chirp_on, ChirpOptions};
+use crate::jobs::design::{run_design, DesignInput, DesignOptions};
 use crate::jobs::fit::{run_fit, FitOptions};
 use crate::jobs::map::{run_map, MapOptions};
 use crate::jobs::request::{JobRequest, RequestError};
@@ -31,6 +32,7 @@ pub(super) enum JobSpec {
     Chirp(Box<ChirpOptions>),
     Control(Box<ControlOptions>),
     Fit(Box<FitOptions>),
+    Design(Box<DesignOptions>),
     Analyze(Box<AnalyzeOptions>),
     Map(Box<MapOptions>),
     Campaign(Box<CampaignJob>),
@@ -191,6 +193,39 @@ pub(super) fn job_spec(ctx: &Ctx, request: &JobRequest, id: u64) -> Result<Accep
                 recording: None,
             })
         }
+        JobRequest::Design(req) => {
+            for p in &req.inputs {
+                absolute("inputs", Some(p))?;
+            }
+            absolute("config", req.config.as_deref())?;
+            let inputs = req
+                .inputs
+                .iter()
+                .map(|p| {
+                    if p.is_dir() {
+                        crate::campaign::job::design_input(p)
+                            .map_err(|e| bad_params(format!("params.inputs: {e}")))
+                    } else {
+                        Ok(DesignInput::File(p.clone()))
+                    }
+                })
+                .collect::<Result<Vec<_>, _>>()?;
+            let stem = recording_path(&ctx.recordings, "design", id);
+            let out = beside(&stem, ".designed.toml");
+            let opts = DesignOptions {
+                png: (!req.no_plot).then(|| beside(&stem, ".design.png")),
+                out: Some(out),
+                request: req.clone(),
+                inputs,
+                existing: Existing::Refuse,
+            };
+            Ok(Accepted {
+                spec: JobSpec::Design(Box::new(opts)),
+                kind,
+                total: 0,
+                recording: None,
+            })
+        }
         JobRequest::Analyze(req) => {
             absolute("config", req.config.as_deref())?;
             req.plant().map_err(|e| refused(&e))?;
@@ -282,6 +317,7 @@ pub(super) fn run(
                 .and_then(json)
         }
         JobSpec::Fit(opts) => run_fit(&opts).map_err(answer).and_then(json),
+        JobSpec::Design(opts) => run_design(&opts).map_err(answer).and_then(json),
         JobSpec::Analyze(opts) => run_analyze(&opts).map_err(answer).and_then(json),
         JobSpec::Map(opts) => run_map(&opts).map_err(answer).and_then(json),
         JobSpec::Campaign(job) => {

@@ -76,7 +76,7 @@
 //! of input, as `socat` does) still gets its job's events and answer, and
 //! the daemon closes the connection once everything is answered.
 //!
-//! Layer rule: may use `analysis`, `campaign`, `config`, `control`, `error`, `ident`, `jobs`, `outputs`, `plot`, `record`, `rt`, `vocab`.
+//! Layer rule: may use `analysis`, `campaign`, `config`, `control`, `design`, `error`, `ident`, `jobs`, `outputs`, `plot`, `record`, `rt`, `vocab`.
 
 pub mod client;
 mod jobs;

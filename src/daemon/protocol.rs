@@ -217,6 +217,7 @@ pub(super) fn job_request(cmd: &str, params: &Value) -> Result<(JobRequest, bool
         "chirp" => JobRequest::Chirp(from_params(params)?),
         "control" => JobRequest::Control(from_params(params)?),
         "fit" => JobRequest::Fit(from_params(params)?),
+        "design" => JobRequest::Design(from_params(params)?),
         "analyze" => JobRequest::Analyze(from_params(params)?),
         "map" => JobRequest::Map(from_params(params)?),
         "campaign" => JobRequest::Campaign(from_params(params)?),

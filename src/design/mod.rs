@@ -226,7 +226,9 @@ pub struct InputUse {
 /// (phase near ±180° below the first resonance), or an input that does
 /// not match the first one's wiring (magnitude more than 2× apart or phase
 /// more than 45° apart, median over their common band below
-/// `first_resonance_rad_s / 2`, or no common band to compare).
+/// `first_resonance_rad_s / 2`, or no common band to compare). Without
+/// `first_resonance_rad_s` (before the modes are known) only the lines
+/// are checked.
 pub fn prepare(
     inputs: &[InputFrf],
     delay_s: f64,
@@ -318,7 +320,9 @@ pub fn prepare(
         });
     }
     // The wiring: positive static compliance, and every input like the first.
-    let below = first_resonance_rad_s.map_or(f64::INFINITY, |w| 0.5 * w);
+    let Some(below) = first_resonance_rad_s.map(|w| 0.5 * w) else {
+        return Ok((out, uses));
+    };
     let low_band = |d: &DesignFrf| -> Vec<(f64, C64)> {
         d.omega_rad_s
             .iter()

@@ -24,16 +24,9 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 /// Starts of the multi-start search.
-pub const STARTS: usize = 6;
+pub const STARTS: usize = 8;
 /// Nelder–Mead iterations per run.
-pub const ITERATIONS: u64 = 700;
-/// The level of |S| whose first crossing the search pushes up, dB. The
-/// reported ω_B is at −3 dB; maximising the crossing at −3 dB itself would
-/// let |S| hover just under −3 dB over a wide band below it (a loop that
-/// barely rejects anything there, and whose ω_B a little noise moves by a
-/// decade). 1.5 dB below keeps every line under ω_B clearly below −3 dB.
-pub const OBJECTIVE_LEVEL_DB: f64 = -4.5;
-
+pub const ITERATIONS: u64 = 1500;
 /// Highest loop gain |L| left at the highest coherent line of an FRF, dB:
 /// above the measurement the plant is unknown, and a loop that still has
 /// gain there cannot be certified.
@@ -75,13 +68,29 @@ impl std::fmt::Display for Binding {
                 w / (2.0 * std::f64::consts::PI)
             )
         });
+        let (v, l, i) = (self.value, self.limit, &self.input);
         match self.constraint.as_str() {
-            "phase margin" => write!(f, "phase margin {:.1}° < {:.1}°{at} on {}", self.value, self.limit, self.input),
-            "gain margin" => write!(f, "gain margin {:.2} dB < {:.2} dB{at} on {}", self.value, self.limit, self.input),
-            "sensitivity peak" => write!(f, "‖S‖∞ {:.3} > {:.3}{at} on {}", self.value, self.limit, self.input),
-            "Nyquist" => write!(f, "closed loop unstable by the Nyquist count ({} right-half-plane poles) on {}", self.value, self.input),
-            "no crossover" => write!(f, "no gain crossover on {}", self.input),
-            _ => write!(f, "|L| = {:.1} dB > {:.1} dB at the highest coherent line{at} of {}: the loop still has gain where the measurement ends", self.value, self.limit, self.input),
+            "phase margin" => {
+                let rel = if v < l { "below" } else { "against" };
+                write!(f, "phase margin {v:.1}° {rel} {l:.1}°{at} on {i}")
+            }
+            "gain margin" => {
+                let rel = if v < l { "below" } else { "against" };
+                write!(f, "gain margin {v:.2} dB {rel} {l:.2} dB{at} on {i}")
+            }
+            "sensitivity peak" => {
+                let rel = if v > l { "above" } else { "against" };
+                write!(f, "‖S‖∞ {v:.3} {rel} {l:.3}{at} on {i}")
+            }
+            "Nyquist" => write!(
+                f,
+                "closed loop unstable by the Nyquist count ({v} right-half-plane poles) on {i}"
+            ),
+            "no crossover" => write!(f, "no gain crossover on {i}"),
+            _ => {
+                let rel = if v > l { "above" } else { "against" };
+                write!(f, "|L| {v:.1} dB {rel} {l:.1} dB at the highest coherent line{at} of {i} (the loop's gain where the measurement ends)")
+            }
         }
     }
 }
@@ -101,9 +110,19 @@ pub struct Evaluation {
     pub binding: Option<Binding>,
     /// Smallest ω_B over the FRFs, rad/s.
     pub sensitivity_bandwidth_min_rad_s: f64,
-    /// What the search maximises: the smallest frequency over the FRFs at
-    /// which |S| first reaches [`OBJECTIVE_LEVEL_DB`], rad/s.
+    /// What the search maximises, rad/s: the largest ω* for which
+    /// `|S(jω)| ≤ 1/|W_P(jω)|` on every line of every FRF, with the
+    /// standard performance weight `W_P(s) = (s/M + ω*)/s` (Skogestad &
+    /// Postlethwaite §2.8.2, Eq. 2.72 with A = 0: integral action; M =
+    /// `sensitivity_peak_max`): `ω* = min ω √(1/|S|² − 1/M²)`. It asks
+    /// |S| to rise no faster than a first-order high-pass of corner ω*,
+    /// so the loop cannot buy a high −3 dB crossing with |S| hovering just
+    /// under −3 dB far below it (a slow tail in the step: the thesis'
+    /// "deep" in T, §6.2.1). ω_B ≥ ω*/√(1 − 1/(4M²))·… ≈ 0.76 ω* for M = 2.
     pub objective_rad_s: f64,
+    /// The smallest frequency over the FRFs at which |S| first reaches
+    /// −4.5 dB (1.5 dB inside the −3 dB of ω_B), rad/s.
+    pub level_rad_s: f64,
 }
 
 impl Evaluation {
@@ -114,7 +133,7 @@ impl Evaluation {
 
     /// The search's cost.
     pub fn cost(&self) -> f64 {
-        -self.objective_rad_s.ln() + 30.0 * self.violation
+        -0.5 * (self.objective_rad_s.ln() + self.level_rad_s.ln()) + 30.0 * self.violation
     }
 }
 
@@ -172,7 +191,7 @@ impl<'a> Problem<'a> {
         let mut tightest: Option<(f64, Binding)> = None;
         let mut wb_min = f64::INFINITY;
         let mut objective = f64::INFINITY;
-        let s_level = 10f64.powf(OBJECTIVE_LEVEL_DB / 20.0);
+        let mut level = f64::INFINITY;
         let mut per_input = Vec::with_capacity(self.frfs.len());
         let req = self.req;
         for (&frf, idx) in self.frfs.iter().zip(&self.index) {
@@ -248,20 +267,29 @@ impl<'a> Problem<'a> {
             );
             let wb = f.sensitivity_bandwidth_rad_s.unwrap_or(frf.omega_rad_s[0]);
             wb_min = wb_min.min(wb);
+            // The performance weight's bandwidth (see `objective_rad_s`):
+            // ω* ≤ ω √(1/|S|² − 1/M²) on every line.
+            let m2 = 1.0 / (req.sensitivity_peak_max * req.sensitivity_peak_max);
+            let reach = frf
+                .omega_rad_s
+                .iter()
+                .zip(&l)
+                .map(|(w, v)| w * ((v + 1.0).norm_sqr() - m2).max(1e-12).sqrt())
+                .fold(f64::INFINITY, f64::min);
+            objective = objective.min(reach);
+            let s_level = 10f64.powf(-4.5 / 20.0);
             let w = &frf.omega_rad_s;
             let s_at = |k: usize| 1.0 / (l[k] + 1.0).norm();
-            let reach = match (0..l.len()).find(|&k| s_at(k) >= s_level) {
+            let lv = match (0..l.len()).find(|&k| s_at(k) >= s_level) {
                 None => w[w.len() - 1],
                 Some(0) => w[0],
                 Some(k) => {
-                    // Interpolated in log ω and log |S|, so the cost moves
-                    // smoothly with the parameters.
                     let (a, b) = (s_at(k - 1).ln(), s_at(k).ln());
                     let t = ((s_level.ln() - a) / (b - a)).clamp(0.0, 1.0);
                     (w[k - 1].ln() + t * (w[k].ln() - w[k - 1].ln())).exp()
                 }
             };
-            objective = objective.min(reach);
+            level = level.min(lv);
             figs.push(f);
             per_input.push(violation - before);
         }
@@ -273,6 +301,7 @@ impl<'a> Problem<'a> {
             binding: worst.or(tightest).map(|(_, b)| b),
             sensitivity_bandwidth_min_rad_s: wb_min,
             objective_rad_s: objective,
+            level_rad_s: level,
         }
     }
 

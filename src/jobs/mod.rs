@@ -17,10 +17,11 @@
 //!
 //! May use everything below it; never the CLI, the daemon or a campaign.
 //!
-//! Layer rule: may use `analysis`, `config`, `control`, `error`, `ident`, `outputs`, `plot`, `record`, `rt`, `vocab`.
+//! Layer rule: may use `analysis`, `config`, `control`, `design`, `error`, `ident`, `outputs`, `plot`, `record`, `rt`, `vocab`.
 
 pub mod analyze;
 pub mod chirp;
+pub mod design;
 pub mod fit;
 pub mod map;
 pub mod point;

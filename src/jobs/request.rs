@@ -9,6 +9,7 @@
 //! flag: only the CLI knows its flags.
 
 pub use super::analyze::AnalyzeRequest;
+pub use super::design::DesignRequest;
 pub use super::fit::FitRequest;
 pub use super::map::MapRequest;
 pub use super::point::OperatingPoint;
@@ -50,6 +51,8 @@ pub enum JobRequest {
     Control(ControlRequest),
     /// `bench fit`.
     Fit(FitRequest),
+    /// `bench design`.
+    Design(DesignRequest),
     /// `bench analyze`.
     Analyze(AnalyzeRequest),
     /// `bench map`.
@@ -60,7 +63,9 @@ pub enum JobRequest {
 
 impl JobRequest {
     /// Every job kind, as the daemon's `cmd`.
-    pub const KINDS: [&'static str; 6] = ["chirp", "control", "fit", "analyze", "map", "campaign"];
+    pub const KINDS: [&'static str; 7] = [
+        "chirp", "control", "fit", "design", "analyze", "map", "campaign",
+    ];
 
     /// The job kind, as the daemon's `cmd`: one of [`Self::KINDS`].
     pub fn kind(&self) -> &'static str {
@@ -68,6 +73,7 @@ impl JobRequest {
             Self::Chirp(_) => "chirp",
             Self::Control(_) => "control",
             Self::Fit(_) => "fit",
+            Self::Design(_) => "design",
             Self::Analyze(_) => "analyze",
             Self::Map(_) => "map",
             Self::Campaign(_) => "campaign",

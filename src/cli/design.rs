@@ -1,0 +1,270 @@
+//! `bench design`: its flags, the design job they make
+//! (`bench::jobs::design`), and the printed report.
+
+use super::serve::via_daemon;
+use super::{bad_input, finish, refuse_local_only, CONFIG_HELP};
+use bench::campaign::job::design_input;
+use bench::design::Strategy;
+use bench::jobs::design::{run_design, DesignInput, DesignOptions, DesignRequest, DesignSummary};
+use bench::jobs::request::JobRequest;
+use bench::outputs::Existing;
+use clap::Args;
+use std::f64::consts::PI;
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+#[derive(Debug, Args)]
+pub(super) struct DesignArgs {
+    /// The measured FRFs: `bench chirp` CSVs, recordings (`.mcap`), or
+    /// campaign directories (every done cell's FRF). All from the same
+    /// bench wiring; their frequency grids may differ.
+    #[arg(required = true, value_name = "INPUT")]
+    inputs: Vec<PathBuf>,
+    /// `slow` (integrator + low-pass, crossover 10 % of the first
+    /// resonance, thesis Eq. 6-6), `fast` (lead, low-passes, notch between
+    /// the pair when the residue signs alternate, Eq. 6-7), or `auto`
+    /// (the one that meets the margins with the higher sensitivity
+    /// bandwidth).
+    #[arg(long, default_value = "auto", value_parser = ["slow", "fast", "auto"])]
+    strategy: String,
+    /// Phase margin at every gain crossover of every input, degrees; range
+    /// [20, 80].
+    #[arg(long, value_name = "DEG", default_value_t = bench::jobs::design::PM_MIN_DEG, allow_hyphen_values = true)]
+    pm_min_deg: f64,
+    /// Gain margin on every input, dB; range [2, 20].
+    #[arg(long, value_name = "DB", default_value_t = bench::jobs::design::GM_MIN_DB, allow_hyphen_values = true)]
+    gm_min_db: f64,
+    /// Largest peak of the sensitivity |S| on every input (2: a modulus
+    /// margin of 0.5, 6 dB); range [1.2, 4].
+    #[arg(long, value_name = "RATIO", default_value_t = bench::jobs::design::S_MAX, allow_hyphen_values = true)]
+    s_max: f64,
+    /// Computation delay added to every FRF, s; range 0 to 10 loop periods
+    /// [default: one loop period].
+    #[arg(long, value_name = "S", allow_hyphen_values = true)]
+    computation_delay_s: Option<f64>,
+    /// Name of the controller: the config written holds it as
+    /// [controller.NAME], for `bench control --controller NAME`.
+    #[arg(long, default_value = bench::jobs::design::NAME)]
+    name: String,
+    #[arg(long, value_name = "FILE", help = CONFIG_HELP, long_help = "Bench description (TOML): the loop period, the amplifier, the model the step is predicted on, and the bench the controller is added to [default: the config the first recording holds, else the first campaign's bench.toml, else the built-in Chapter 5 bench]")]
+    config: Option<PathBuf>,
+    /// The bench config with [controller.NAME] added [default: beside the
+    /// first input, <stem>.designed.toml; a campaign: DIR/designed.toml].
+    #[arg(long, value_name = "FILE.toml")]
+    out: Option<PathBuf>,
+    /// The figure: Nyquist of every input's loop with the modulus-margin
+    /// circle, Bode of L and S, the worst input highlighted [default:
+    /// beside --out, <stem>.png].
+    #[arg(long, value_name = "FILE.png")]
+    png: Option<PathBuf>,
+    /// Write no figure.
+    #[arg(long, conflicts_with = "png")]
+    no_plot: bool,
+    /// Replace existing output files (regular files only).
+    #[arg(long)]
+    overwrite: bool,
+    /// Print the report as one JSON object on stdout.
+    #[arg(long)]
+    json: bool,
+    /// Submit to a running `bench serve` instead of designing here [SOCKET
+    /// default: $XDG_RUNTIME_DIR/bench.sock, else /run/bench/bench.sock].
+    /// The daemon reads the inputs (and --config) itself and writes its
+    /// outputs in its recordings directory.
+    #[arg(long, value_name = "SOCKET", num_args = 0..=1, default_missing_value = "")]
+    daemon: Option<String>,
+}
+
+impl DesignArgs {
+    fn request(&self) -> DesignRequest {
+        DesignRequest {
+            inputs: self.inputs.clone(),
+            config: self.config.clone(),
+            strategy: self.strategy.parse::<Strategy>().unwrap_or(Strategy::Auto),
+            pm_min_deg: Some(self.pm_min_deg),
+            gm_min_db: Some(self.gm_min_db),
+            s_max: Some(self.s_max),
+            computation_delay_s: self.computation_delay_s,
+            name: Some(self.name.clone()),
+            no_plot: self.no_plot,
+        }
+    }
+}
+
+/// The inputs with campaign directories expanded into their done cells.
+///
+/// # Errors
+/// The message for a campaign directory that cannot be read.
+pub(super) fn expand_inputs(inputs: &[PathBuf]) -> Result<Vec<DesignInput>, String> {
+    inputs
+        .iter()
+        .map(|p| {
+            if p.is_dir() {
+                design_input(p).map_err(|e| e.to_string())
+            } else {
+                Ok(DesignInput::File(p.clone()))
+            }
+        })
+        .collect()
+}
+
+pub(super) fn design(a: DesignArgs) -> ExitCode {
+    let request = a.request();
+    if let Some(sock) = &a.daemon {
+        if let Some(code) = refuse_local_only(
+            &[
+                (a.out.is_some(), "--out"),
+                (a.png.is_some(), "--png"),
+                (a.overwrite, "--overwrite"),
+            ],
+            "the daemon writes its outputs in its recordings directory",
+        ) {
+            return code;
+        }
+        let request = DesignRequest {
+            inputs: request
+                .inputs
+                .iter()
+                .map(|p| super::absolute_path(p))
+                .collect(),
+            config: request.config.as_deref().map(super::absolute_path),
+            ..request
+        };
+        return via_daemon(sock, &JobRequest::Design(request), a.json, print_summary);
+    }
+    let inputs = match expand_inputs(&request.inputs) {
+        Ok(i) => i,
+        Err(e) => return bad_input(e),
+    };
+    let opts = DesignOptions {
+        request,
+        inputs,
+        out: a.out.clone(),
+        png: a.png.clone(),
+        existing: Existing::overwrite(a.overwrite),
+    };
+    finish(run_design(&opts), a.json, print_summary)
+}
+
+fn opt_num(v: Option<f64>, digits: usize, unit: &str) -> String {
+    v.map_or("none".into(), |v| format!("{v:.digits$}{unit}"))
+}
+
+fn print_summary(s: &DesignSummary) {
+    outln!(
+        "bench design: {} controller `{}` ({:.2} s)",
+        s.strategy,
+        s.name,
+        s.design_time_s
+    );
+    outln!("config: {}", s.config);
+    outln!("inputs (lines with coherence ≥ the identification threshold):");
+    for u in &s.inputs {
+        outln!(
+            "  {}: {} of {} lines, {:.2}–{:.1} Hz",
+            u.input,
+            u.lines_used,
+            u.lines_total,
+            u.band_hz[0],
+            u.band_hz[1]
+        );
+    }
+    for m in &s.modes.inputs {
+        outln!(
+            "  modes of {}: first resonance {:.2} Hz, pair {} / {} Hz, {} ({})",
+            m.input,
+            m.first_resonance_hz,
+            opt_num(m.u_hz, 2, ""),
+            opt_num(m.v_hz, 2, ""),
+            m.pair_signs,
+            m.sign_sequence
+        );
+    }
+    outln!("why: {}", s.why);
+    let r = &s.requirements;
+    outln!(
+        "required on every input: phase margin ≥ {}° at every crossover, gain margin ≥ {} dB, ‖S‖∞ ≤ {}, computation delay {:.1} µs",
+        r.phase_margin_min_deg,
+        r.gain_margin_min_db,
+        r.sensitivity_peak_max,
+        s.computation_delay_s * 1e6
+    );
+    outln!("per input (the discrete controller that will run):");
+    outln!(
+        "  {:<40} {:>10} {:>10} {:>9} {:>8} {:>7}",
+        "input",
+        "ω_B rad/s",
+        "ω_c rad/s",
+        "PM min °",
+        "GM dB",
+        "‖S‖∞"
+    );
+    for f in &s.figures {
+        let g = &f.figures;
+        let mark = if f.input == s.worst_input {
+            " ← worst"
+        } else {
+            ""
+        };
+        outln!(
+            "  {:<40} {:>10} {:>10} {:>9} {:>8} {:>7.3}{mark}",
+            f.input,
+            opt_num(g.sensitivity_bandwidth_rad_s, 1, ""),
+            opt_num(g.crossovers_rad_s.first().copied(), 1, ""),
+            opt_num(g.phase_margin_min_deg, 1, ""),
+            opt_num(g.gain_margin_db, 2, ""),
+            g.sensitivity_peak
+        );
+    }
+    outln!(
+        "result: ω_B {:.1} rad/s ({:.1} Hz), first crossover {} rad/s, least phase margin {}°, least gain margin {} dB, ‖S‖∞ {:.3}",
+        s.sensitivity_bandwidth_rad_s,
+        s.sensitivity_bandwidth_rad_s / (2.0 * PI),
+        opt_num(s.crossover_rad_s, 1, ""),
+        opt_num(s.phase_margin_min_deg, 1, ""),
+        opt_num(s.gain_margin_min_db, 2, ""),
+        s.sensitivity_peak
+    );
+    if let Some(b) = &s.binding {
+        outln!("tightest: {b}");
+    }
+    let m = &s.model;
+    outln!(
+        "on the model (to Nyquist): ω_B {} rad/s, least phase margin {}°, ‖S‖∞ {:.3}, closed loop {}",
+        opt_num(m.figures.sensitivity_bandwidth_rad_s, 1, ""),
+        opt_num(m.figures.phase_margin_min_deg, 1, ""),
+        m.figures.sensitivity_peak,
+        if m.figures.rhp_closed_loop_poles == 0 { "stable".to_string() } else { format!("UNSTABLE ({} right-half-plane poles)", m.figures.rhp_closed_loop_poles) }
+    );
+    outln!(
+        "predicted step of {} µm: rise {}, settling (2 %) {}, overshoot {:.1} %, peak command {:.2} A",
+        m.step.step_m * 1e6,
+        opt_num(m.step.rise_time_s.map(|t| t * 1e3), 1, " ms"),
+        opt_num(m.step.settling_time_s.map(|t| t * 1e3), 1, " ms"),
+        m.step.overshoot_pct,
+        m.step.peak_command_a
+    );
+    for o in &s.strategies {
+        outln!(
+            "  tried {}: {} (ω_B {:.1} rad/s)",
+            o.strategy,
+            if o.meets_margins {
+                "meets the margins".to_string()
+            } else {
+                format!(
+                    "misses: {}",
+                    o.binding.as_ref().map_or(String::new(), |b| b.to_string())
+                )
+            },
+            o.sensitivity_bandwidth_rad_s
+        );
+    }
+    outln!(
+        "config: {} (bench control --config {} --controller {})",
+        s.config_out.display(),
+        s.config_out.display(),
+        s.name
+    );
+    if let Some(p) = &s.plot {
+        outln!("figure: {}", p.display());
+    }
+}

@@ -1,0 +1,557 @@
+//! `bench design` as a job: read the input FRFs (CSV, recordings, the done
+//! cells of campaign directories), identify their modes, design the
+//! controller ([`crate::design`]), predict it on the bench's model, and
+//! write the bench config with the new `[controller.NAME]` and the figure.
+//!
+//! A [`DesignRequest`] is what `bench design`'s flags and the daemon's
+//! `design` params say. Campaign directories are expanded into their cells
+//! by the caller ([`DesignInput::Cells`]; the campaign layer reads its own
+//! journal). Errors are [`RunError::BadOption`] naming the request field
+//! (`inputs`, `config`, `name`, `pm_min_deg`, `gm_min_db`, `s_max`,
+//! `computation_delay_s`, `out`, `png`) or [`RunError::BadInput`] for
+//! margins no controller of the family meets (exit 2, nothing written).
+
+use crate::config::{BenchConfig, BUILTIN_CONFIG_TOML};
+use crate::control::ControllerConfig;
+use crate::design::loops::LoopFigures;
+use crate::design::modes::PlantModes;
+use crate::design::predict::{predict, ModelPrediction};
+use crate::design::search::{Binding, Requirements};
+use crate::design::{design, prepare, DesignError, DesignSpec, InputFrf, InputUse, Strategy};
+use crate::error::RunError;
+use crate::ident::frf::{read_frf, Frf};
+use crate::ident::modal_fit::Path as FitPath;
+use crate::outputs::{beside, write_atomically, Existing, Origin, OutputPlan};
+use serde::{Deserialize, Serialize};
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// Default `pm_min_deg`, degrees.
+pub const PM_MIN_DEG: f64 = 40.0;
+/// Default `gm_min_db`, dB.
+pub const GM_MIN_DB: f64 = 6.0;
+/// Default `s_max` (a 6 dB modulus margin).
+pub const S_MAX: f64 = 2.0;
+/// Default controller name.
+pub const NAME: &str = "designed";
+
+/// A design (`bench design`, the daemon's `design`). Paths are read by
+/// the process that runs the job: the daemon takes absolute paths only.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DesignRequest {
+    /// The FRFs: `bench chirp` CSVs, recordings (`.mcap`, `.mcap.part`)
+    /// or campaign directories (all their done cells).
+    pub inputs: Vec<PathBuf>,
+    /// Bench config (TOML): the loop period, the amplifier, the model of
+    /// the prediction, and the bench the designed controller is added to.
+    /// Absent: the config the first recording holds, else the first
+    /// campaign's, else the built-in bench.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub config: Option<PathBuf>,
+    /// `slow`, `fast` or `auto` (default).
+    #[serde(default = "auto")]
+    pub strategy: Strategy,
+    /// Phase margin at every crossover, degrees (default 40).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub pm_min_deg: Option<f64>,
+    /// Gain margin, dB (default 6).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub gm_min_db: Option<f64>,
+    /// Largest ‖S‖∞ (default 2).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub s_max: Option<f64>,
+    /// Computation delay added to every FRF, s (default one loop period).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub computation_delay_s: Option<f64>,
+    /// Name of the controller (`[controller.NAME]`; default `designed`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub name: Option<String>,
+    /// Write no figure.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub no_plot: bool,
+}
+
+fn auto() -> Strategy {
+    Strategy::Auto
+}
+
+impl Default for DesignRequest {
+    fn default() -> Self {
+        Self {
+            inputs: vec![],
+            config: None,
+            strategy: Strategy::Auto,
+            pm_min_deg: None,
+            gm_min_db: None,
+            s_max: None,
+            computation_delay_s: None,
+            name: None,
+            no_plot: false,
+        }
+    }
+}
+
+/// One input as the job reads it.
+#[derive(Debug, Clone, PartialEq)]
+pub enum DesignInput {
+    /// A CSV or a recording.
+    File(PathBuf),
+    /// A campaign directory's done cells.
+    Cells {
+        /// The directory.
+        dir: PathBuf,
+        /// Its bench config's text (`bench.toml`).
+        config_toml: String,
+        /// `(cell index, its frf.csv)`.
+        cells: Vec<(usize, PathBuf)>,
+    },
+}
+
+/// A design to run: the request, its inputs resolved, where outputs go.
+#[derive(Debug, Clone)]
+pub struct DesignOptions {
+    /// What to design.
+    pub request: DesignRequest,
+    /// The inputs (campaign directories expanded), in request order.
+    pub inputs: Vec<DesignInput>,
+    /// The bench config written; `None`: beside the first input,
+    /// `<stem>.designed.toml` (a campaign: `DIR/designed.toml`).
+    pub out: Option<PathBuf>,
+    /// The figure; `None`: beside `out`, `<stem>.png`.
+    pub png: Option<PathBuf>,
+    /// What to do with existing outputs.
+    pub existing: Existing,
+}
+
+/// Figures of the design on one input.
+#[derive(Debug, Clone, Serialize, Deserialize, schemars::JsonSchema)]
+pub struct InputFigures {
+    /// The input.
+    pub input: String,
+    /// Its loop figures.
+    pub figures: LoopFigures,
+}
+
+/// One strategy tried.
+#[derive(Debug, Clone, Serialize, Deserialize, schemars::JsonSchema)]
+pub struct StrategyOutcome {
+    /// `slow` or `fast`.
+    pub strategy: String,
+    /// Meets every margin on every input.
+    pub meets_margins: bool,
+    /// Smallest ω_B over the inputs, rad/s.
+    pub sensitivity_bandwidth_rad_s: f64,
+    /// The structure and why.
+    pub structure: String,
+    /// The binding (or most violated) constraint.
+    pub binding: Option<Binding>,
+}
+
+/// The result of a design.
+#[derive(Debug, Clone, Serialize, Deserialize, schemars::JsonSchema)]
+pub struct DesignSummary {
+    /// The inputs and the lines used from each.
+    pub inputs: Vec<InputUse>,
+    /// Where the bench config came from.
+    pub config: String,
+    /// The modes found on each input.
+    pub modes: PlantModes,
+    /// The strategy delivered: `slow` or `fast`.
+    pub strategy: String,
+    /// Why, in words (the thesis' rule, the sign sequence).
+    pub why: String,
+    /// The margins required.
+    pub requirements: Requirements,
+    /// The computation delay added to every FRF, s.
+    pub computation_delay_s: f64,
+    /// The controller's name in the written config.
+    pub name: String,
+    /// The controller (as `[controller.NAME]` holds it).
+    #[schemars(skip)]
+    pub controller: ControllerConfig,
+    /// Figures on every input (the discrete controller that will run).
+    pub figures: Vec<InputFigures>,
+    /// The input with the least margin (the binding constraint's).
+    pub worst_input: String,
+    /// The binding constraint.
+    pub binding: Option<Binding>,
+    /// First gain crossover on the worst input, rad/s.
+    pub crossover_rad_s: Option<f64>,
+    /// Smallest ω_B over the inputs, rad/s.
+    pub sensitivity_bandwidth_rad_s: f64,
+    /// Least phase margin (angle to −1) at any crossover of any input, degrees.
+    pub phase_margin_min_deg: Option<f64>,
+    /// Least gain margin over the inputs, dB (`null`: no phase crossover).
+    pub gain_margin_min_db: Option<f64>,
+    /// Largest ‖S‖∞ over the inputs.
+    pub sensitivity_peak: f64,
+    /// On the bench's model: figures to Nyquist and the predicted step.
+    pub model: ModelPrediction,
+    /// Every strategy tried.
+    pub strategies: Vec<StrategyOutcome>,
+    /// The bench config written.
+    pub config_out: PathBuf,
+    /// The figure written, if any.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub plot: Option<PathBuf>,
+    /// Wall time of the design (fits, search, certificate), s.
+    pub design_time_s: f64,
+}
+
+fn is_recording(p: &Path) -> bool {
+    let name = p.to_string_lossy();
+    name.ends_with(".mcap") || name.ends_with(".mcap.part")
+}
+
+/// Checks a controller name: a TOML bare key of 1 to 64 letters, digits,
+/// `_` or `-`.
+fn check_name(name: &str) -> Result<(), RunError> {
+    let ok = !name.is_empty()
+        && name.len() <= 64
+        && name
+            .chars()
+            .all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '-');
+    if ok {
+        Ok(())
+    } else {
+        Err(RunError::option(
+            "name",
+            format!("{name:?}"),
+            "a controller name is 1 to 64 letters, digits, `_` or `-` (it becomes [controller.NAME])",
+        ))
+    }
+}
+
+struct ReadInputs {
+    frfs: Vec<InputFrf>,
+    config_toml: Option<(String, String)>,
+}
+
+fn read_inputs(inputs: &[DesignInput]) -> Result<ReadInputs, RunError> {
+    let mut frfs = Vec::new();
+    let mut config_toml: Option<(String, String)> = None;
+    let read_csv = |label: &str, path: &Path| -> Result<Frf, RunError> {
+        let bad = |r: String| RunError::option("inputs", label, r);
+        let text = std::fs::read(path).map_err(|e| bad(e.to_string()))?;
+        let text = String::from_utf8(text).map_err(|_| bad("not a text CSV (not UTF-8)".into()))?;
+        Frf::read_csv(&text).map_err(bad)
+    };
+    for inp in inputs {
+        match inp {
+            DesignInput::File(p) => {
+                let label = p.display().to_string();
+                let frf = if is_recording(p) {
+                    let bytes = std::fs::read(p)
+                        .map_err(|e| RunError::option("inputs", &label, e.to_string()))?;
+                    let r = read_frf(&bytes).map_err(|e| RunError::option("inputs", &label, e))?;
+                    if config_toml.is_none() {
+                        config_toml = r.config_toml.map(|t| (t, format!("recorded in {label}")));
+                    }
+                    r.frf
+                } else {
+                    read_csv(&label, p)?
+                };
+                frfs.push(InputFrf { label, frf });
+            }
+            DesignInput::Cells {
+                dir,
+                config_toml: t,
+                cells,
+            } => {
+                if cells.is_empty() {
+                    return Err(RunError::option(
+                        "inputs",
+                        dir.display(),
+                        "the campaign has no done cell: nothing to design from (run or resume it first)",
+                    ));
+                }
+                if config_toml.is_none() {
+                    config_toml = Some((t.clone(), format!("{}/bench.toml", dir.display())));
+                }
+                for (i, csv) in cells {
+                    let label = format!("{} cell {i:03}", dir.display());
+                    let frf = read_csv(&label, csv)?;
+                    frfs.push(InputFrf { label, frf });
+                }
+            }
+        }
+    }
+    Ok(ReadInputs { frfs, config_toml })
+}
+
+/// The figures' option key of a design error: an input's label, a
+/// request field, or the margins.
+fn design_error(e: DesignError) -> RunError {
+    let key: Option<&'static str> = match e.what.as_str() {
+        "pm_min_deg" => Some("pm_min_deg"),
+        "gm_min_db" => Some("gm_min_db"),
+        "s_max" => Some("s_max"),
+        "computation_delay_s" => Some("computation_delay_s"),
+        "config" => Some("config"),
+        _ => None,
+    };
+    match key {
+        Some(k) => RunError::option(k, "", e.reason),
+        None if e.what == "margins" => RunError::BadInput(format!("the margins: {}", e.reason)),
+        None => RunError::option("inputs", e.what, e.reason),
+    }
+}
+
+/// Runs a design.
+///
+/// # Errors
+/// See the module docs; nothing is written on an error.
+pub fn run_design(opts: &DesignOptions) -> Result<DesignSummary, RunError> {
+    let t0 = Instant::now();
+    let req = &opts.request;
+    if opts.inputs.is_empty() {
+        return Err(RunError::option(
+            "inputs",
+            "",
+            "at least one FRF (CSV, recording or campaign directory) is needed",
+        ));
+    }
+    let name = req.name.clone().unwrap_or_else(|| NAME.to_string());
+    check_name(&name)?;
+    let read = read_inputs(&opts.inputs)?;
+    let (base_toml, config_source) = match (&req.config, &read.config_toml) {
+        (Some(p), _) => (
+            std::fs::read_to_string(p)
+                .map_err(|e| RunError::option("config", p.display(), e.to_string()))?,
+            p.display().to_string(),
+        ),
+        (None, Some((t, from))) => (t.clone(), from.clone()),
+        (None, None) => (
+            BUILTIN_CONFIG_TOML.to_string(),
+            "built-in (sr4dof-ch5)".to_string(),
+        ),
+    };
+    let cfg_path = req
+        .config
+        .clone()
+        .unwrap_or_else(|| PathBuf::from(&config_source));
+    let cfg = BenchConfig::from_toml(&base_toml, &cfg_path)
+        .map_err(|e| RunError::option("config", &config_source, e.to_string()))?;
+    if cfg.controller.contains_key(&name) {
+        return Err(RunError::option(
+            "name",
+            &name,
+            format!("[controller.{name}] exists in the bench config ({config_source}): choose another name"),
+        ));
+    }
+    let period_s = cfg.loop_.period_ns() as f64 * 1e-9;
+    let spec = DesignSpec {
+        strategy: req.strategy,
+        requirements: Requirements {
+            phase_margin_min_deg: req.pm_min_deg.unwrap_or(PM_MIN_DEG),
+            gain_margin_min_db: req.gm_min_db.unwrap_or(GM_MIN_DB),
+            sensitivity_peak_max: req.s_max.unwrap_or(S_MAX),
+        },
+        computation_delay_s: req.computation_delay_s.unwrap_or(period_s),
+    };
+    spec.validate(period_s).map_err(design_error)?;
+    let nyquist = 0.5 / period_s;
+    for f in &read.frfs {
+        if let Some(top) = f.frf.frequency_hz.last().filter(|x| **x >= nyquist) {
+            return Err(RunError::option(
+                "inputs",
+                &f.label,
+                format!("frequency {top} Hz is at or above the Nyquist frequency {nyquist} Hz of the config's loop rate: an FRF of another loop"),
+            ));
+        }
+    }
+    // Outputs, checked before anything is computed.
+    let out = opts.out.clone().unwrap_or_else(|| match &opts.inputs[0] {
+        DesignInput::File(p) => beside(p, ".designed.toml"),
+        DesignInput::Cells { dir, .. } => dir.join("designed.toml"),
+    });
+    let png = (!req.no_plot).then(|| {
+        opts.png
+            .clone()
+            .unwrap_or_else(|| out.with_extension("png"))
+    });
+    let origin = |given: bool| {
+        if given {
+            Origin::Given
+        } else {
+            Origin::Derived
+        }
+    };
+    let mut plan = OutputPlan::new(opts.existing)
+        .derived_from("the first input")
+        .with_output("out", &out, origin(opts.out.is_some()));
+    if let Some(p) = &png {
+        plan = plan.with_output("png", p, origin(opts.png.is_some()));
+    }
+    plan.check()?;
+
+    let path = FitPath {
+        period_s,
+        amplifier_bandwidth_hz: cfg.actuator.bandwidth_hz,
+    };
+    // The lines first (the fit needs finite, ascending data), then the
+    // modes, then the wiring against the first resonance.
+    prepare(&read.frfs, spec.computation_delay_s, None).map_err(design_error)?;
+    let modes = PlantModes::identify(&read.frfs, path).map_err(design_error)?;
+    let (frfs, uses) = prepare(
+        &read.frfs,
+        spec.computation_delay_s,
+        Some(modes.first_resonance_rad_s),
+    )
+    .map_err(design_error)?;
+    let d = design(&frfs, &modes, &spec, period_s, cfg.actuator.peak_current_a)
+        .map_err(design_error)?;
+    let e = &d.chosen.evaluation;
+    let mut controller = e.controller.clone();
+    controller.description =
+        format!(
+        "bench design ({}): ω_B {:.0} rad/s, least phase margin {:.0}°, ‖S‖∞ {:.2} on {} FRF(s)",
+        d.chosen.strategy,
+        e.sensitivity_bandwidth_min_rad_s,
+        e.figures.iter().filter_map(|f| f.phase_margin_min_deg).fold(f64::INFINITY, f64::min),
+        e.figures.iter().map(|f| f.sensitivity_peak).fold(0.0, f64::max),
+        frfs.len()
+    );
+    let model = predict(&cfg, &controller, spec.computation_delay_s).map_err(design_error)?;
+    let worst_input = e
+        .binding
+        .as_ref()
+        .map_or_else(|| frfs[0].label.clone(), |b| b.input.clone());
+    let worst_index = frfs
+        .iter()
+        .position(|f| f.label == worst_input)
+        .unwrap_or(0);
+    let text = designed_toml(&base_toml, &name, &controller, &d.why)
+        .map_err(|e| RunError::BadInput(format!("the bench config with the design added: {e}")))?;
+    // The written bench must load as it will be run.
+    BenchConfig::from_toml(&text, &out).map_err(|e| {
+        RunError::BadInput(format!(
+            "the bench config with the design added does not load: {e}"
+        ))
+    })?;
+    let summary = DesignSummary {
+        inputs: uses,
+        config: config_source,
+        modes: modes.clone(),
+        strategy: d.chosen.strategy.to_string(),
+        why: d.why.clone(),
+        requirements: spec.requirements,
+        computation_delay_s: spec.computation_delay_s,
+        name: name.clone(),
+        controller: controller.clone(),
+        figures: frfs
+            .iter()
+            .zip(&e.figures)
+            .map(|(f, g)| InputFigures {
+                input: f.label.clone(),
+                figures: g.clone(),
+            })
+            .collect(),
+        crossover_rad_s: e.figures[worst_index].crossovers_rad_s.first().copied(),
+        worst_input,
+        binding: e.binding.clone(),
+        sensitivity_bandwidth_rad_s: e.sensitivity_bandwidth_min_rad_s,
+        phase_margin_min_deg: e
+            .figures
+            .iter()
+            .filter_map(|f| f.phase_margin_min_deg)
+            .reduce(f64::min),
+        gain_margin_min_db: e
+            .figures
+            .iter()
+            .filter_map(|f| f.gain_margin_db)
+            .reduce(f64::min),
+        sensitivity_peak: e
+            .figures
+            .iter()
+            .map(|f| f.sensitivity_peak)
+            .fold(0.0, f64::max),
+        model,
+        strategies: d
+            .attempts
+            .iter()
+            .map(|a| StrategyOutcome {
+                strategy: a.strategy.to_string(),
+                meets_margins: a.evaluation.feasible(),
+                sensitivity_bandwidth_rad_s: a.evaluation.sensitivity_bandwidth_min_rad_s,
+                structure: a.structure.clone(),
+                binding: a.evaluation.binding.clone(),
+            })
+            .collect(),
+        config_out: out.clone(),
+        plot: None,
+        design_time_s: t0.elapsed().as_secs_f64(),
+    };
+    write_atomically(&out, opts.existing, |f| f.write_all(text.as_bytes()))
+        .map_err(|e| RunError::option("out", out.display(), e.to_string()))?;
+    Ok(summary)
+}
+
+/// `base` (a bench config's TOML) with `[controller.NAME]` added after its
+/// other controllers, every other key and comment kept.
+///
+/// # Errors
+/// `base` is not TOML, or its `controller` is not a table.
+pub fn designed_toml(
+    base: &str,
+    name: &str,
+    c: &ControllerConfig,
+    why: &str,
+) -> Result<String, String> {
+    use toml_edit::{value, Array, DocumentMut, InlineTable, Item, Table};
+    let mut doc: DocumentMut = base
+        .parse()
+        .map_err(|e: toml_edit::TomlError| e.to_string())?;
+    let controllers = doc
+        .entry("controller")
+        .or_insert_with(|| {
+            let mut t = Table::new();
+            t.set_implicit(true);
+            Item::Table(t)
+        })
+        .as_table_mut()
+        .ok_or("`controller` is not a table")?;
+    let mut t = Table::new();
+    t.decor_mut().set_prefix(format!(
+        "\n# Designed by `bench design`: {why}\n# C(s) = gain/s · Π factors, each with unit gain at s = 0 (form = \"unity_dc\"), error in µm, output in A.\n"
+    ));
+    t.insert("description", value(c.description.clone()));
+    t.insert("error_unit", value("um"));
+    t.insert("form", value("unity_dc"));
+    t.insert("gain", value(c.gain));
+    t.insert("discretization", value(c.discretization.as_str()));
+    t.insert("integrators", value(i64::from(c.integrators)));
+    let reals = |v: &[f64]| {
+        let mut a = Array::new();
+        for x in v {
+            a.push(*x);
+        }
+        value(a)
+    };
+    let pairs = |v: &[crate::control::ComplexPair]| {
+        let mut a = Array::new();
+        for p in v {
+            let mut it = InlineTable::new();
+            it.insert("omega_rad_s", p.omega_rad_s.into());
+            it.insert("zeta", p.zeta.into());
+            a.push(it);
+        }
+        value(a)
+    };
+    if !c.real_zeros_rad_s.is_empty() {
+        t.insert("real_zeros_rad_s", reals(&c.real_zeros_rad_s));
+    }
+    if !c.real_poles_rad_s.is_empty() {
+        t.insert("real_poles_rad_s", reals(&c.real_poles_rad_s));
+    }
+    if !c.complex_zeros.is_empty() {
+        t.insert("complex_zeros", pairs(&c.complex_zeros));
+    }
+    if !c.complex_poles.is_empty() {
+        t.insert("complex_poles", pairs(&c.complex_poles));
+    }
+    controllers.insert(name, Item::Table(t));
+    Ok(doc.to_string())
+}
