@@ -3,6 +3,7 @@
 #![allow(dead_code)]
 
 pub mod emulator;
+pub mod loop_reference;
 
 use serde_json::Value;
 use std::path::{Path, PathBuf};
