@@ -388,9 +388,14 @@ pub const UNIT_PER_METRE: f64 = 1e6;
 
 /// The design of one strategy on prepared inputs: the search (fast) or the
 /// rule (slow), then the certificate on the discrete controller that will
-/// run at `period_s` with `peak_current_a`.
+/// run at `period_s` with `peak_current_a`, on every input and on `model`
+/// (the bench's model loop on a dense grid to Nyquist, when given: it
+/// covers what lies between the measured lines, such as the peak of a
+/// resonance narrower than their spacing, and the band above them).
+#[allow(clippy::too_many_arguments)]
 pub fn attempt(
     frfs: &[DesignFrf],
+    model: Option<&DesignFrf>,
     modes: &PlantModes,
     strategy: Strategy,
     req: Requirements,
@@ -404,7 +409,7 @@ pub fn attempt(
                 phase_margin_min_deg: req.phase_margin_min_deg.max(SLOW_PHASE_MARGIN_MIN_DEG),
                 ..req
             };
-            let problem = Problem::new(frfs.iter().collect(), req, UNIT_PER_METRE);
+            let problem = Problem::new(frfs.iter().chain(model).collect(), req, UNIT_PER_METRE);
             let fam = Family::Slow {
                 first_resonance_rad_s: wr,
             };
@@ -518,7 +523,7 @@ pub fn attempt(
             // certificate judges the discrete controller on every line by
             // the user's. A miss left (a skipped line, the discretisation)
             // is small: back the gain off by 2 % steps until it passes.
-            let all = Problem::new(frfs.iter().collect(), req, UNIT_PER_METRE);
+            let all = Problem::new(frfs.iter().chain(model).collect(), req, UNIT_PER_METRE);
             let mut c = found.controller.clone();
             let mut evaluation = certify(&all, c.clone(), period_s, peak_current_a);
             for _ in 0..BACK_OFF_STEPS {
@@ -567,13 +572,14 @@ pub struct Designed {
 /// the margins: the binding constraint, where and on which input.
 pub fn design(
     frfs: &[DesignFrf],
+    model: Option<&DesignFrf>,
     modes: &PlantModes,
     spec: &DesignSpec,
     period_s: f64,
     peak_current_a: f64,
 ) -> Result<Designed, DesignError> {
     let req = spec.requirements;
-    let run = |s| attempt(frfs, modes, s, req, period_s, peak_current_a);
+    let run = |s| attempt(frfs, model, modes, s, req, period_s, peak_current_a);
     let fail = |a: &Attempt| {
         let b = a.evaluation.binding.as_ref().map_or(
             "no constraint could be evaluated".to_string(),

@@ -50,6 +50,29 @@ pub fn model_loop(
     Ok((grid, l))
 }
 
+/// The bench's model as one more "FRF" for the certificate: the
+/// zero-order-hold plant of `cfg` (m/A) times the computation delay on
+/// [`model_grid`].
+///
+/// # Errors
+/// The `[plant]` of `cfg` cannot be modelled.
+pub fn model_frf(cfg: &BenchConfig, delay_s: f64) -> Result<super::loops::DesignFrf, DesignError> {
+    let model = Sr4dof::new(cfg.plant).map_err(|e| derr("config", e.to_string()))?;
+    let t = cfg.loop_.period_ns() as f64 * 1e-9;
+    let plant = ZohPlant::new(&model, &cfg.actuator, t);
+    let grid = model_grid(t);
+    let p = grid
+        .iter()
+        .map(|&w| plant.frf(w / (2.0 * PI)) * C64::from_polar(1.0, -w * delay_s))
+        .collect();
+    Ok(super::loops::DesignFrf {
+        label: "the config's model".into(),
+        lines_total: grid.len(),
+        omega_rad_s: grid,
+        plant_m_per_a: p,
+    })
+}
+
 /// The prediction of `controller` on `cfg`'s model with the computation
 /// delay `delay_s` (whole periods in the step).
 ///

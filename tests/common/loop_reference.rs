@@ -192,8 +192,11 @@ impl RefMargins {
         if m.crossovers_rad_s.is_empty() {
             v.push(format!("{}: no gain crossover", self.name));
         }
+        // The phase margin at a crossover is the angle between L and −1
+        // whichever way L turns: |PM| (a crossing at ∠L = +80° is 100°
+        // from −1; the Nyquist count, not the sign, says it is stable).
         for (w, pm) in m.crossovers_rad_s.iter().zip(&m.phase_margins_deg) {
-            if *pm < req.min_phase_margin_deg {
+            if pm.abs() < req.min_phase_margin_deg {
                 v.push(format!(
                     "{}: phase margin {pm:.1}° at the crossover {w:.1} rad/s is below {}°",
                     self.name, req.min_phase_margin_deg
