@@ -169,23 +169,6 @@ impl Ready {
     }
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn threads_are_bounded() {
-        assert_eq!(threads(Some(3)).unwrap(), 3);
-        assert!(threads(None).unwrap() >= 1);
-        for n in [0, MAX_THREADS + 1] {
-            assert!(matches!(
-                threads(Some(n)),
-                Err(CampaignRunError::BadOption { key: "threads", .. })
-            ));
-        }
-    }
-}
-
 /// The campaign in `dir` as the input of `bench design`: its bench
 /// config's text and the FRF of every done cell (`cells/NNN/frf.csv`),
 /// each checked against the journal's checksum.
@@ -217,4 +200,21 @@ pub fn design_input(dir: &Path) -> Result<crate::jobs::design::DesignInput, Camp
         config_toml: campaign.config_text.clone(),
         cells,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn threads_are_bounded() {
+        assert_eq!(threads(Some(3)).unwrap(), 3);
+        assert!(threads(None).unwrap() >= 1);
+        for n in [0, MAX_THREADS + 1] {
+            assert!(matches!(
+                threads(Some(n)),
+                Err(CampaignRunError::BadOption { key: "threads", .. })
+            ));
+        }
+    }
 }

@@ -35,6 +35,7 @@
 //! | `chirp` | the fields of a [`ChirpRequest`], and `detach` | the `bench chirp --json` summary |
 //! | `control` | the fields of a [`ControlRequest`], and `detach` | the `bench control --json` summary |
 //! | `fit` | the fields of a [`FitRequest`], and `detach` | the `bench fit --json` summary |
+//! | `design` | the fields of a [`DesignRequest`], and `detach` | the `bench design --json` summary |
 //! | `analyze` | the fields of an [`AnalyzeRequest`], and `detach` | the `bench analyze --json` summary |
 //! | `map` | the fields of a [`MapRequest`], and `detach` | the `bench map --json` summary |
 //! | `campaign` | the fields of a [`CampaignRequest`], and `detach` | the `bench campaign run --json` summary |
@@ -45,6 +46,7 @@
 //! [`ChirpRequest`]: crate::jobs::request::ChirpRequest
 //! [`ControlRequest`]: crate::jobs::request::ControlRequest
 //! [`FitRequest`]: crate::jobs::fit::FitRequest
+//! [`DesignRequest`]: crate::jobs::design::DesignRequest
 //! [`AnalyzeRequest`]: crate::jobs::analyze::AnalyzeRequest
 //! [`MapRequest`]: crate::jobs::map::MapRequest
 //! [`CampaignRequest`]: crate::jobs::request::CampaignRequest

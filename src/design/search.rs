@@ -1,17 +1,24 @@
-//! The constrained search: maximise the worst sensitivity bandwidth ω_B
-//! over the input FRFs subject to the margins on every one of them, over a
-//! family's parameters ([`super::family`]).
+//! The constrained search: maximise performance (the sensitivity
+//! bandwidth) over the input FRFs subject to the margins on every one of
+//! them, over a family's parameters ([`super::family`]).
 //!
 //! The constraints are turned into one violation `v ≥ 0` (0: all met),
-//! each term scaled to about 1 per tolerable miss:
-//! `Σ_FRF [ Σ_crossings max(0, PM_min − PM_i)/10° + max(0, GM_min − GM)/6 dB
-//! + max(0, 20 log10(‖S‖∞/S_max))/1 dB + 10·(RHP closed-loop poles)
-//! + 10·(no crossover) + max(0, |L|_edge − EDGE_GAIN_MAX_DB)/6 dB ]`, and
-//! the search minimises the exact penalty `−ln ω_B,min + 30 v` with the
-//! Nelder–Mead simplex (`argmin`'s; Nelder & Mead, *Comput. J.* 7, 1965),
-//! from the thesis-scaled start and [`STARTS`] − 1 starts around it drawn
-//! from a fixed SplitMix64 stream (deterministic: the same inputs give the
-//! same controller), each polished once more from its best vertex.
+//! each term scaled to about 1 per tolerable miss, summed over the FRFs:
+//!
+//! ```text
+//! Σ_crossings max(0, PM_min − |PM_i|)/10°  +  max(0, GM_min − GM)/6 dB
+//!   + max(0, 20 log10(‖S‖∞/S_max))/1 dB  +  10·(RHP closed-loop poles)
+//!   + 10·(no crossover)  +  max(0, |L|_edge − EDGE_GAIN_MAX_DB)/6 dB
+//! ```
+//!
+//! The search minimises the exact penalty `−½ (ln ω* + ln ω_4.5) + 30 v`
+//! (ω* the performance weight's bandwidth, [`Evaluation::objective_rad_s`];
+//! ω_4.5 where |S| first reaches −4.5 dB, [`Evaluation::level_rad_s`]) with
+//! the Nelder–Mead simplex (`argmin`'s; Nelder & Mead, *Comput. J.* 7,
+//! 1965), from the thesis-scaled start and [`STARTS`] − 1 starts around it
+//! drawn from a fixed SplitMix64 stream (deterministic: the same inputs
+//! give the same controller), each polished once more from its best
+//! vertex.
 
 use super::family::Family;
 use super::loops::{figures, open_loop, DesignFrf, LoopFigures};

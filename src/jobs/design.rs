@@ -401,9 +401,17 @@ pub fn run_design(opts: &DesignOptions) -> Result<DesignSummary, RunError> {
         Some(modes.first_resonance_rad_s),
     )
     .map_err(design_error)?;
-    let model_loop = crate::design::predict::model_frf(&cfg, spec.computation_delay_s).map_err(design_error)?;
-    let d = design(&frfs, Some(&model_loop), &modes, &spec, period_s, cfg.actuator.peak_current_a)
-        .map_err(design_error)?;
+    let model_loop =
+        crate::design::predict::model_frf(&cfg, spec.computation_delay_s).map_err(design_error)?;
+    let d = design(
+        &frfs,
+        Some(&model_loop),
+        &modes,
+        &spec,
+        period_s,
+        cfg.actuator.peak_current_a,
+    )
+    .map_err(design_error)?;
     let e = &d.chosen.evaluation;
     let mut controller = e.controller.clone();
     controller.description =
