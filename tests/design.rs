@@ -111,7 +111,12 @@ fn fast_design_on_the_chapter_5_model() {
     );
     let _ = figures;
     let p = bench::design::predict::predict(&cfg, &d.chosen.evaluation.controller, t).unwrap();
-    eprintln!("PREDICTED ω_B {:.1} settling {:?} overshoot {:.1}", d.chosen.evaluation.sensitivity_bandwidth_min_rad_s, p.step.settling_time_s, p.step.overshoot_pct);
+    eprintln!(
+        "PREDICTED ω_B {:.1} settling {:?} overshoot {:.1}",
+        d.chosen.evaluation.sensitivity_bandwidth_min_rad_s,
+        p.step.settling_time_s,
+        p.step.overshoot_pct
+    );
     assert!(d.chosen.evaluation.feasible());
 }
 

@@ -285,3 +285,63 @@ fn the_daemon_designs_as_the_cli_does() {
         "{err}"
     );
 }
+
+/// `bench campaign run --design fast`: one controller over the thesis'
+/// 6.2.2 range (0–8 % of L at +10 %), meeting the margins on every cell's
+/// FRF, written into the campaign directory; `bench design DIR` gives the
+/// same controller.
+#[test]
+fn a_campaign_ends_with_one_controller_for_all_its_cells() {
+    let dir = tmp();
+    std::fs::copy(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("bench-config/sr4dof-ch5.toml"),
+        dir.path().join("sr4dof-ch5.toml"),
+    )
+    .unwrap();
+    let file = dir.path().join("ws.toml");
+    std::fs::write(
+        &file,
+        "config = \"sr4dof-ch5.toml\"\nseed = 62\n[grid]\noperating_point_pct = [0.0, 4.0, 8.0]\nmass_asymmetry = [0.10]\n",
+    )
+    .unwrap();
+    let out = dir.path().join("ws");
+    let o = run(&[
+        "campaign",
+        "run",
+        file.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--design",
+        "fast",
+        "--json",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let s = json_stdout(&o);
+    let d = &s["design"];
+    assert_eq!(d["strategy"], "fast", "{d}");
+    let figs = d["figures"].as_array().unwrap();
+    assert_eq!(figs.len(), 3, "one per cell");
+    for f in figs {
+        let g = &f["figures"];
+        assert!(g["phase_margin_min_deg"].as_f64().unwrap() >= 40.0, "{f}");
+        assert!(g["sensitivity_peak"].as_f64().unwrap() <= 2.0, "{f}");
+        assert_eq!(g["rhp_closed_loop_poles"], 0, "{f}");
+    }
+    assert!(out.join("designed.toml").is_file());
+    let again = run(&[
+        "design",
+        out.to_str().unwrap(),
+        "--out",
+        &path_in(dir.path(), "again.toml"),
+        "--no-plot",
+        "--strategy",
+        "fast",
+        "--json",
+    ]);
+    assert!(
+        again.status.success(),
+        "{}",
+        String::from_utf8_lossy(&again.stderr)
+    );
+    assert_eq!(json_stdout(&again)["controller"], d["controller"]);
+}

@@ -169,6 +169,34 @@ impl Ready {
     }
 }
 
+/// Designs one controller over every done cell of the campaign in `dir`
+/// (`bench campaign run|resume --design STRATEGY`): `DIR/designed.toml`
+/// (the campaign's bench with `[controller.designed]`) and
+/// `DIR/designed.png`, replaced when a resumed campaign designs again.
+///
+/// # Errors
+/// As [`crate::jobs::design::run_design`]; the campaign's own results are
+/// untouched.
+pub fn design_over(
+    dir: &Path,
+    strategy: crate::design::Strategy,
+) -> Result<crate::jobs::design::DesignSummary, crate::error::RunError> {
+    use crate::jobs::design::{run_design, DesignOptions, DesignRequest};
+    let input = design_input(dir).map_err(|e| crate::error::RunError::BadInput(e.to_string()))?;
+    let opts = DesignOptions {
+        request: DesignRequest {
+            inputs: vec![dir.to_path_buf()],
+            strategy,
+            ..DesignRequest::default()
+        },
+        inputs: vec![input],
+        out: Some(dir.join("designed.toml")),
+        png: Some(dir.join("designed.png")),
+        existing: crate::outputs::Existing::Replace,
+    };
+    run_design(&opts)
+}
+
 /// The campaign in `dir` as the input of `bench design`: its bench
 /// config's text and the FRF of every done cell (`cells/NNN/frf.csv`),
 /// each checked against the journal's checksum.

@@ -169,6 +169,9 @@ pub struct CampaignSummary {
     pub cells_csv: PathBuf,
     /// The map PNG, absolute (absent until a cell is done).
     pub map_png: Option<PathBuf>,
+    /// The controller designed over every done cell (`--design`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub design: Option<Box<crate::jobs::design::DesignSummary>>,
 }
 
 /// The directory of cell `index`, relative to the campaign directory.
@@ -795,6 +798,7 @@ pub fn summarize(
         cells_csv: abs.join(CELLS_CSV),
         map_png: (done > 0).then(|| abs.join(MAP_PNG)),
         results,
+        design: None,
     })
 }
 

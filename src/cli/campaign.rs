@@ -75,6 +75,11 @@ pub(super) struct HowArgs {
     /// Print the summary as one JSON object on stdout.
     #[arg(long)]
     json: bool,
+    /// At the end, design one controller over every done cell's FRF
+    /// (`bench design DIR --strategy STRATEGY`): DIR/designed.toml and
+    /// DIR/designed.png, the report in the summary.
+    #[arg(long, value_name = "STRATEGY", value_parser = ["slow", "fast", "auto"])]
+    design: Option<String>,
 }
 
 #[derive(Debug, Args)]
@@ -117,6 +122,7 @@ fn run(a: RunArgs, stop: Arc<AtomicBool>) -> ExitCode {
         let request = CampaignRequest {
             file: super::absolute_path(&a.file),
             threads: a.how.threads,
+            design: a.how.design.as_deref().and_then(|s| s.parse().ok()),
         };
         return via_daemon(
             sock,
@@ -135,7 +141,14 @@ fn run(a: RunArgs, stop: Arc<AtomicBool>) -> ExitCode {
     };
     let bench = target(a.how.backend.as_ref(), a.how.daemon.as_deref(), &campaign);
     match job::start(campaign, a.out.as_deref()) {
-        Ok(ready) => go(ready, threads, bench, stop, a.how.json),
+        Ok(ready) => go(
+            ready,
+            threads,
+            bench,
+            stop,
+            a.how.json,
+            a.how.design.as_deref(),
+        ),
         Err(e) => failed(&e),
     }
 }
@@ -157,7 +170,14 @@ fn resume(a: ResumeArgs, stop: Arc<AtomicBool>) -> ExitCode {
         a.how.daemon.as_deref(),
         &ready.campaign,
     );
-    go(ready, threads, bench, stop, a.how.json)
+    go(
+        ready,
+        threads,
+        bench,
+        stop,
+        a.how.json,
+        a.how.design.as_deref(),
+    )
 }
 
 /// Where the cells run: the daemon, a hardware backend (flag or
@@ -187,6 +207,7 @@ fn go(
     bench: CellBench,
     stop: Arc<AtomicBool>,
     json: bool,
+    design: Option<&str>,
 ) -> ExitCode {
     let on = match &bench {
         CellBench::Sim => None,
@@ -206,10 +227,7 @@ fn go(
             ready.to_run()
         );
         return match ready.run_attended(&bench, &mut operator, &stop) {
-            Ok(s) => match emit(&s, json, print_summary) {
-                Ok(()) => ExitCode::SUCCESS,
-                Err(code) => code,
-            },
+            Ok(s) => finish_with_design(s, design, json),
             Err(e) => failed(&e),
         };
     }
@@ -239,11 +257,36 @@ fn go(
         b.finish_and_clear();
     }
     match result {
-        Ok(s) => match emit(&s, json, print_summary) {
+        Ok(s) => finish_with_design(s, design, json),
+        Err(e) => failed(&e),
+    }
+}
+
+/// The summary of a finished run, with the design over its cells when
+/// `--design` asked for one. A design the margins refuse is reported after
+/// the campaign's summary (exit 2); the campaign's results stay.
+fn finish_with_design(s: CampaignSummary, design: Option<&str>, json: bool) -> ExitCode {
+    let Some(strategy) = design.and_then(|d| d.parse::<bench::design::Strategy>().ok()) else {
+        return match emit(&s, json, print_summary) {
             Ok(()) => ExitCode::SUCCESS,
             Err(code) => code,
-        },
-        Err(e) => failed(&e),
+        };
+    };
+    match bench::campaign::job::design_over(&s.dir, strategy) {
+        Ok(d) => {
+            let s = CampaignSummary {
+                design: Some(Box::new(d)),
+                ..s
+            };
+            match emit(&s, json, print_summary) {
+                Ok(()) => ExitCode::SUCCESS,
+                Err(code) => code,
+            }
+        }
+        Err(e) => {
+            let _ = emit(&s, json, print_summary);
+            super::run_failed(&e)
+        }
     }
 }
 
@@ -301,6 +344,14 @@ fn failed(e: &CampaignRunError) -> ExitCode {
 }
 
 fn print_summary(s: &CampaignSummary) {
+    print_campaign(s);
+    if let Some(d) = &s.design {
+        outln!();
+        super::design::print_summary(d);
+    }
+}
+
+fn print_campaign(s: &CampaignSummary) {
     outln!("campaign {}", s.dir.display());
     outln!(
         "  cells: {} done, {} pending, {} skipped of {}",

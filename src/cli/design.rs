@@ -149,7 +149,7 @@ fn opt_num(v: Option<f64>, digits: usize, unit: &str) -> String {
     v.map_or("none".into(), |v| format!("{v:.digits$}{unit}"))
 }
 
-fn print_summary(s: &DesignSummary) {
+pub(super) fn print_summary(s: &DesignSummary) {
     outln!(
         "bench design: {} controller `{}` ({:.2} s)",
         s.strategy,

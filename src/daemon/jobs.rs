@@ -43,6 +43,7 @@ pub(super) struct CampaignJob {
     campaign: Campaign,
     dir: PathBuf,
     threads: usize,
+    design: Option<crate::design::Strategy>,
 }
 
 impl JobSpec {
@@ -255,6 +256,7 @@ pub(super) fn job_spec(ctx: &Ctx, request: &JobRequest, id: u64) -> Result<Accep
             Ok(Accepted {
                 spec: JobSpec::Campaign(Box::new(CampaignJob {
                     campaign,
+                    design: req.design,
                     dir,
                     threads,
                 })),
@@ -330,10 +332,20 @@ pub(super) fn run(
                 stop,
                 on_cell: Some(&on_cell),
             };
-            start(job.campaign, Some(&job.dir))
+            let summary = start(job.campaign, Some(&job.dir))
                 .and_then(|ready| ready.run_parallel(&opts))
-                .map_err(|e| (campaign_answer(&e), None))
-                .and_then(json)
+                .map_err(|e| (campaign_answer(&e), None))?;
+            match job.design {
+                None => json(summary),
+                Some(strategy) => {
+                    let design = crate::campaign::job::design_over(&summary.dir, strategy)
+                        .map_err(answer)?;
+                    json(crate::campaign::run::CampaignSummary {
+                        design: Some(Box::new(design)),
+                        ..summary
+                    })
+                }
+            }
         }
     }
 }

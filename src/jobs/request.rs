@@ -267,6 +267,10 @@ pub struct CampaignRequest {
     /// Cells run at once, 1 … 64 [default: the runner's cores].
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub threads: Option<usize>,
+    /// Design one controller over every done cell at the end (`slow`,
+    /// `fast` or `auto`), as `bench campaign run --design` does.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub design: Option<crate::design::Strategy>,
 }
 
 /// What a local run may change besides its job request: the simulated
