@@ -162,6 +162,13 @@ impl Family {
         }
     }
 
+    /// The thesis-scaled start ([`Self::start`]) with the gain of `theta`.
+    pub fn start_scaled(&self, theta: &[f64]) -> Vec<f64> {
+        let mut t = self.start();
+        t[0] = theta[0];
+        t
+    }
+
     /// A name for reports: `slow` or `fast`.
     pub fn strategy(&self) -> &'static str {
         match self {

@@ -468,7 +468,32 @@ pub fn attempt(
             // Active set: search on the inputs that bind, judge on all, add
             // the ones that fail, until all pass (or the search itself
             // fails). Most inputs of a campaign never bind.
+            // Start with the first input and those that bound the pair
+            // (the highest u, the lowest v): they decide the notch.
             let mut active = vec![0usize];
+            let extreme = |key: fn(&modes::InputModes) -> Option<f64>, high: bool| {
+                modes
+                    .inputs
+                    .iter()
+                    .enumerate()
+                    .filter_map(|(i, m)| key(m).map(|f| (i, f)))
+                    .max_by(|a, b| {
+                        if high {
+                            a.1.total_cmp(&b.1)
+                        } else {
+                            b.1.total_cmp(&a.1)
+                        }
+                    })
+                    .map(|(i, _)| i)
+            };
+            for i in [extreme(|m| m.u_hz, true), extreme(|m| m.v_hz, false)]
+                .into_iter()
+                .flatten()
+            {
+                if i < frfs.len() && !active.contains(&i) {
+                    active.push(i);
+                }
+            }
             let mut start = fam.start();
             // The thesis' crossover, 287/179 of ω_R.
             start[0] = Problem::new(vec![&frfs[0]], tight, UNIT_PER_METRE).gain_for_crossover(
@@ -493,7 +518,14 @@ pub fn attempt(
                 let (theta, e) = if round == 0 {
                     search::search(&sub, fam, &start)
                 } else {
-                    search::polish(&sub, fam, &start)
+                    // Warm start from the last design; if that cannot meet
+                    // the grown set, the whole multi-start again.
+                    let (t, e) = search::polish(&sub, fam, &start);
+                    if e.feasible() {
+                        (t, e)
+                    } else {
+                        search::search(&sub, fam, &fam.start_scaled(&start))
+                    }
                 };
                 round += 1;
                 found = all.evaluate(e.controller.clone());

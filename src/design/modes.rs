@@ -116,28 +116,31 @@ impl PlantModes {
                 m.input, m.sign_sequence
             ));
         }
-        if let Some(m) = self.inputs.iter().find(|m| m.pair_signs != "alternating") {
+        if let Some(m) = self.inputs.iter().find(|m| m.pair_signs == "in phase") {
             return (
                 None,
                 format!(
-                    "{} on {} ({}): no out-of-phase pair to place a notch between: {conventional}",
-                    if m.pair_signs == "in phase" {
-                        "the pair's modes are in phase"
-                    } else {
-                        "no closely spaced pair"
-                    },
-                    m.input,
-                    m.sign_sequence
+                    "the pair's modes are in phase on {} ({}): no out-of-phase pair to place a notch between: {conventional}",
+                    m.input, m.sign_sequence
                 ),
             );
         }
-        let u = self
+        // Inputs where the pair does not show (at Y1o = 0 it leaves the
+        // actuator-to-probe path) do not constrain the notch.
+        let with_pair: Vec<&InputModes> = self
             .inputs
             .iter()
-            .filter_map(|m| m.u_hz)
-            .fold(0.0, f64::max);
-        let v = self
-            .inputs
+            .filter(|m| m.pair_signs == "alternating")
+            .collect();
+        if with_pair.is_empty() {
+            return (
+                None,
+                format!("no closely spaced pair in any input: {conventional}"),
+            );
+        }
+        let without = self.inputs.len() - with_pair.len();
+        let u = with_pair.iter().filter_map(|m| m.u_hz).fold(0.0, f64::max);
+        let v = with_pair
             .iter()
             .filter_map(|m| m.v_hz)
             .fold(f64::INFINITY, f64::min);
@@ -146,9 +149,14 @@ impl PlantModes {
         }
         let w = (2.0 * PI * u, 2.0 * PI * v);
         (Some(w), format!(
-            "alternating signs ({}) on all {} inputs: notch centred between u and v, in ({:.2}, {:.2}) Hz, so that u and v lie on opposite sides (thesis §6.1.2.1), lead for phase at crossover, low-pass roll-off (the Eq. 6-7 family)",
-            self.inputs[0].sign_sequence,
-            self.inputs.len(),
+            "alternating signs ({}) on all {} inputs that show the pair{}: notch centred between u and v, in ({:.2}, {:.2}) Hz, so that u and v lie on opposite sides (thesis §6.1.2.1), lead for phase at crossover, low-pass roll-off (the Eq. 6-7 family)",
+            with_pair[0].sign_sequence,
+            with_pair.len(),
+            if without > 0 {
+                format!(" ({without} without it, where the notch changes nothing)")
+            } else {
+                String::new()
+            },
             hz(w.0),
             hz(w.1)
         ))
