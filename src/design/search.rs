@@ -4,9 +4,9 @@
 //!
 //! The constraints are turned into one violation `v ≥ 0` (0: all met),
 //! each term scaled to about 1 per tolerable miss:
-//! `Σ_FRF [ Σ_crossings max(0, PM_min − PM_i)/10° + max(0, GM_min − GM)/6 dB
-//! + max(0, 20 log10(‖S‖∞/S_max))/1 dB + 10·(RHP closed-loop poles)
-//! + 10·(no crossover) + max(0, |L|_edge − EDGE_GAIN_MAX_DB)/6 dB ]`, and
+//! `Σ_FRF [ Σ_crossings max(0, PM_min − PM_i)/10° + max(0, GM_min − GM)/6 dB +
+//! max(0, 20 log10(‖S‖∞/S_max))/1 dB + 10·(RHP closed-loop poles) +
+//! 10·(no crossover) + max(0, |L|_edge − EDGE_GAIN_MAX_DB)/6 dB ]`, and
 //! the search minimises the exact penalty `−ln ω_B,min + 30 v` with the
 //! Nelder–Mead simplex (`argmin`'s; Nelder & Mead, *Comput. J.* 7, 1965),
 //! from the thesis-scaled start and [`STARTS`] − 1 starts around it drawn
