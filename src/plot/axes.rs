@@ -10,7 +10,7 @@ use plotters::prelude::*;
 
 use super::palette::{GRID_BOLD, GRID_LIGHT};
 use super::style::{DESC_SIZE, FONT, TICK_SIZE};
-use super::ticks::{linear_ticks, tick_formatter};
+use super::ticks::{fmt_tick, linear_ticks, log_ticks, tick_formatter};
 use super::{Area, BoxError};
 
 /// Width left of a panel's frame for the y tick labels and description, px.
@@ -31,7 +31,7 @@ pub(super) type Chart<'a, 'b, X> =
 
 /// A logarithmic frequency axis over `range` with ticks labelled at `bold`
 /// and grid lines also at `light`.
-pub(super) fn freq_axis(range: &Range<f64>, bold: &[f64], light: &[f64]) -> Ticked<LogCoord<f64>> {
+fn freq_axis(range: &Range<f64>, bold: &[f64], light: &[f64]) -> Ticked<LogCoord<f64>> {
     Ticked {
         inner: range.clone().log_scale().into(),
         bold: bold.to_vec(),
@@ -118,6 +118,19 @@ pub(super) fn plot_columns(area: &Area<'_>) -> (i32, i32) {
     (left, right)
 }
 
+/// The pixel rows (absolute) of the plotting area that [`panel_chart`]
+/// builds on `area` with `margin_top` and `bottom`, before it is built
+/// (for an equal aspect ratio).
+pub(super) fn plot_rows(area: &Area<'_>, margin_top: u32, bottom: bool) -> (i32, i32) {
+    let (_, y0) = area.get_base_pixel();
+    let (_, h) = area.dim_in_pixel();
+    let h = i32::try_from(h).unwrap_or(i32::MAX);
+    let below = if bottom { 10 + X_LABEL_AREA } else { 0 };
+    let top = y0 + i32::try_from(margin_top).unwrap_or(i32::MAX);
+    let end = (y0 + h - below as i32).max(top + 1);
+    (top, end)
+}
+
 /// Draws the grid, the tick labels (`x_fmt`, `y_fmt`) and the axis
 /// descriptions of `chart`; `x_desc` only on a bottom panel.
 pub(super) fn mesh<'a, 'b: 'a, X>(
@@ -155,6 +168,31 @@ pub(super) fn frame<X: Ranged<ValueType = f64>>(chart: &Chart<'_, '_, X>) -> Res
         BLACK.stroke_width(1),
     ))?;
     Ok(())
+}
+
+/// A panel on a logarithmic frequency axis over `x_range` (ticks from
+/// [`log_ticks`]) with its mesh drawn, labelled at `y_ticks`; `bottom`
+/// panels label the x axis with `x_desc`.
+#[allow(clippy::too_many_arguments)]
+pub(super) fn freq_chart<'a, 'b: 'a>(
+    area: &'a Area<'b>,
+    x_range: &Range<f64>,
+    y_range: &Range<f64>,
+    y_ticks: Vec<f64>,
+    top: u32,
+    bottom: bool,
+    x_desc: &str,
+    y_desc: &str,
+) -> Result<Chart<'a, 'b, Ticked<LogCoord<f64>>>, BoxError> {
+    let (x_bold, x_light) = log_ticks(x_range);
+    let y_fmt = tick_formatter(&y_ticks);
+    let x_fmt = |v: &f64| fmt_tick(*v);
+    let no_fmt = |_: &f64| String::new();
+    let x = freq_axis(x_range, &x_bold, &x_light);
+    let mut chart = panel_chart(area, x, y_range, y_ticks, top, bottom)?;
+    let x_fmt: &dyn Fn(&f64) -> String = if bottom { &x_fmt } else { &no_fmt };
+    mesh(&mut chart, bottom.then_some(x_desc), y_desc, x_fmt, &y_fmt)?;
+    Ok(chart)
 }
 
 /// A linear time panel with its mesh drawn; `bottom` panels label the x

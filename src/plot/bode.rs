@@ -9,13 +9,11 @@ use std::path::Path;
 use plotters::coord::ranged1d::Ranged;
 use plotters::prelude::*;
 
-use super::axes::{
-    frame, freq_axis, mesh, panel_chart, plot_columns, Chart, Ticked, MARGIN_TOP, X_LABEL_AREA,
-};
+use super::axes::{frame, freq_chart, plot_columns, Chart, Ticked, MARGIN_TOP, X_LABEL_AREA};
 use super::draw::{draw_polyline, draw_runs, hline, pairs, runs, shade, values_in, vline};
 use super::legend::{
     draw_marker_labels, entry, layout_marker_labels, legend_height, marker_row_height,
-    panel_legend, Swatch,
+    panel_legend, titled, Swatch,
 };
 use super::pair_zoom::{draw_no_pair, draw_pair_zoom, pair_window, PairZoom};
 use super::palette::{
@@ -23,11 +21,8 @@ use super::palette::{
     ZOOM_SHADE_ALPHA,
 };
 use super::png::{invalid, write_png_atomically};
-use super::style::{FONT, LINE_WIDTH, TITLE_SIZE};
-use super::ticks::{
-    fmt_sig, fmt_tick, linear_ticks, log_range, log_ticks, padded_range, phase_ticks,
-    positive_extent, tick_formatter,
-};
+use super::style::LINE_WIDTH;
+use super::ticks::{fmt_sig, linear_ticks, log_range, padded_range, phase_ticks, positive_extent};
 use super::{Area, BoxError, PlotError};
 use crate::ident::frf::MIN_COHERENCE;
 use crate::outputs::Existing;
@@ -181,7 +176,7 @@ fn check_series(path: &Path, which: &str, s: &BodeSeries<'_>) -> Result<(), Plot
 }
 
 /// Magnitude in dB (20·log10), NaN where it has no logarithm.
-fn to_db(m: f64) -> f64 {
+pub(super) fn to_db(m: f64) -> f64 {
     if m > 0.0 && m.is_finite() {
         20.0 * m.log10()
     } else {
@@ -347,15 +342,9 @@ fn draw_bode_main(
     x_range: &Range<f64>,
     window: Option<&Range<f64>>,
 ) -> Result<(), BoxError> {
-    let outer = area.margin(8, 0, 0, 0);
-    let body = if plot.title.is_empty() {
-        outer
-    } else {
-        outer.titled(plot.title, (FONT, TITLE_SIZE))?
-    };
+    let body = titled(area, plot.title)?;
     let meas = &plot.measured;
     let model = plot.model.as_ref();
-    let (x_bold, x_light) = log_ticks(x_range);
 
     let clip = |pts: &[(f64, f64)]| runs(pts, x_range, true);
     let (model_db, model_phase) = (clip(&c.model_db), clip(&c.model_phase));
@@ -423,8 +412,6 @@ fn draw_bode_main(
     let h_phase = (plot_h * 0.31) as u32 + MARGIN_TOP;
     let (mag_area, rest) = body.split_vertically(h_mag);
     let (phase_area, coh_area) = rest.split_vertically(h_phase);
-    let x_fmt = |v: &f64| fmt_tick(*v);
-    let no_fmt = |_: &f64| String::new();
     let shade_window =
         |chart: &mut Chart<'_, '_, Ticked<LogCoord<f64>>>, y: &Range<f64>| match window {
             Some(w) => shade(
@@ -440,10 +427,10 @@ fn draw_bode_main(
     // Magnitude.
     {
         let y_ticks = linear_ticks(&db_range, 8);
-        let y_fmt = tick_formatter(&y_ticks);
-        let x = freq_axis(x_range, &x_bold, &x_light);
-        let mut chart = panel_chart(&mag_area, x, &db_range, y_ticks, mag_top, false)?;
-        mesh(&mut chart, None, "Magnitude [dB re 1 m/A]", &no_fmt, &y_fmt)?;
+        let y_desc = "Magnitude [dB re 1 m/A]";
+        let mut chart = freq_chart(
+            &mag_area, x_range, &db_range, y_ticks, mag_top, false, "", y_desc,
+        )?;
         shade_window(&mut chart, &db_range)?;
         for &f in &markers {
             vline(&mut chart, f, &db_range, MARKER_COLOR, 1)?;
@@ -457,10 +444,16 @@ fn draw_bode_main(
     // Phase.
     {
         let y_ticks = phase_ticks(&phase_range);
-        let y_fmt = tick_formatter(&y_ticks);
-        let x = freq_axis(x_range, &x_bold, &x_light);
-        let mut chart = panel_chart(&phase_area, x, &phase_range, y_ticks, MARGIN_TOP, false)?;
-        mesh(&mut chart, None, "Phase [°]", &no_fmt, &y_fmt)?;
+        let mut chart = freq_chart(
+            &phase_area,
+            x_range,
+            &phase_range,
+            y_ticks,
+            MARGIN_TOP,
+            false,
+            "",
+            "Phase [°]",
+        )?;
         shade_window(&mut chart, &phase_range)?;
         for &f in &markers {
             vline(&mut chart, f, &phase_range, MARKER_COLOR, 1)?;
@@ -472,11 +465,16 @@ fn draw_bode_main(
     // Coherence.
     {
         let y_ticks: Vec<f64> = (0..=5).map(|i| f64::from(i) * 0.2).collect();
-        let y_fmt = tick_formatter(&y_ticks);
-        let x = freq_axis(x_range, &x_bold, &x_light);
-        let mut chart = panel_chart(&coh_area, x, &coh_range, y_ticks, coh_top, true)?;
-        let x_desc = Some("Frequency [Hz]");
-        mesh(&mut chart, x_desc, "Coherence [-]", &x_fmt, &y_fmt)?;
+        let mut chart = freq_chart(
+            &coh_area,
+            x_range,
+            &coh_range,
+            y_ticks,
+            coh_top,
+            true,
+            "Frequency [Hz]",
+            "Coherence [-]",
+        )?;
         shade_window(&mut chart, &coh_range)?;
         for &f in &markers {
             vline(&mut chart, f, &coh_range, MARKER_COLOR, 1)?;

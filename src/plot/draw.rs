@@ -28,29 +28,70 @@ pub(super) fn runs(
     x_range: &Range<f64>,
     log_x: bool,
 ) -> Vec<Vec<(f64, f64)>> {
+    split_and_clip(points, x_range, None, log_x)
+}
+
+/// [`runs`] on linear axes, clipped to the box `x_range` × `y_range`: a
+/// curve that leaves the box (a loop going to infinity) is cut at its edge.
+pub(super) fn runs_in_box(
+    points: &[(f64, f64)],
+    x_range: &Range<f64>,
+    y_range: &Range<f64>,
+) -> Vec<Vec<(f64, f64)>> {
+    split_and_clip(points, x_range, Some(y_range), false)
+}
+
+/// [`runs`], also clipped to `y_range` when given.
+fn split_and_clip(
+    points: &[(f64, f64)],
+    x_range: &Range<f64>,
+    y_range: Option<&Range<f64>>,
+    log_x: bool,
+) -> Vec<Vec<(f64, f64)>> {
     let mut out = Vec::new();
     let mut cur = Vec::new();
     for &(x, y) in points {
         if x.is_finite() && y.is_finite() && (!log_x || x > 0.0) {
             cur.push((x, y));
         } else if !cur.is_empty() {
-            out.extend(clip_x(&std::mem::take(&mut cur), x_range, log_x));
+            out.extend(clip(&std::mem::take(&mut cur), x_range, y_range, log_x));
         }
     }
     if !cur.is_empty() {
-        out.extend(clip_x(&cur, x_range, log_x));
+        out.extend(clip(&cur, x_range, y_range, log_x));
     }
     out
 }
 
-/// Clips a polyline of finite points to `x_range`.
-fn clip_x(seg: &[(f64, f64)], x_range: &Range<f64>, log_x: bool) -> Vec<Vec<(f64, f64)>> {
+/// The part `(t0, t1)` of the segment from `a` to `a + d` (parameter 0 to
+/// 1) inside `lo..=hi` (Liang–Barsky, one coordinate); `t0 > t1` when none.
+fn clip_param(a: f64, d: f64, lo: f64, hi: f64, (t0, t1): (f64, f64)) -> (f64, f64) {
+    if d == 0.0 {
+        if a < lo || a > hi {
+            (1.0, 0.0)
+        } else {
+            (t0, t1)
+        }
+    } else {
+        let (ta, tb) = ((lo - a) / d, (hi - a) / d);
+        (t0.max(ta.min(tb)), t1.min(ta.max(tb)))
+    }
+}
+
+/// Clips a polyline of finite points to `x_range` (and `y_range`).
+fn clip(
+    seg: &[(f64, f64)],
+    x_range: &Range<f64>,
+    y_range: Option<&Range<f64>>,
+    log_x: bool,
+) -> Vec<Vec<(f64, f64)>> {
     let tx = |x: f64| if log_x { x.ln() } else { x };
     let untx = |x: f64| if log_x { x.exp() } else { x };
     let (lo, hi) = (tx(x_range.start), tx(x_range.end));
+    let in_y = |y: f64| y_range.is_none_or(|r| y >= r.start && y <= r.end);
     if seg.len() == 1 {
         let x = tx(seg[0].0);
-        return if x >= lo && x <= hi {
+        return if x >= lo && x <= hi && in_y(seg[0].1) {
             vec![seg.to_vec()]
         } else {
             Vec::new()
@@ -62,17 +103,12 @@ fn clip_x(seg: &[(f64, f64)], x_range: &Range<f64>, log_x: bool) -> Vec<Vec<(f64
         let (a, b) = (w[0], w[1]);
         let (xa, xb) = (tx(a.0), tx(b.0));
         let dx = xb - xa;
-        let (mut t0, mut t1) = (0.0f64, 1.0f64);
-        if dx == 0.0 {
-            if xa < lo || xa > hi {
-                t0 = 1.0;
-                t1 = 0.0;
-            }
-        } else {
-            let (ta, tb) = ((lo - xa) / dx, (hi - xa) / dx);
-            t0 = t0.max(ta.min(tb));
-            t1 = t1.min(ta.max(tb));
+        let dy = b.1 - a.1;
+        let mut t = clip_param(xa, dx, lo, hi, (0.0, 1.0));
+        if let Some(r) = y_range {
+            t = clip_param(a.1, dy, r.start, r.end, t);
         }
+        let (t0, t1) = t;
         if t0 > t1 {
             if !cur.is_empty() {
                 out.push(std::mem::take(&mut cur));
@@ -85,7 +121,7 @@ fn clip_x(seg: &[(f64, f64)], x_range: &Range<f64>, log_x: bool) -> Vec<Vec<(f64
             } else if t >= 1.0 {
                 b
             } else {
-                (untx(xa + t * dx), a.1 + t * (b.1 - a.1))
+                (untx(xa + t * dx), a.1 + t * dy)
             }
         };
         let (p0, p1) = (at(t0), at(t1));
@@ -313,6 +349,30 @@ mod tests {
             assert!(col.iter().any(|&v| v >= 6.0), "column {c}: {col:?}");
         }
         assert_eq!(decimate(&pts[..30], &(0.0..1.0), 10), pts[..30].to_vec());
+    }
+
+    /// A curve through the box is cut at its edges; one that leaves and
+    /// comes back is two runs.
+    #[test]
+    fn plot_runs_in_box_cut_at_the_edges() {
+        let b = -1.0..1.0;
+        let r = runs_in_box(&[(-10.0, -10.0), (10.0, 10.0)], &b, &b);
+        assert_eq!(r, vec![vec![(-1.0, -1.0), (1.0, 1.0)]]);
+        let pts = [
+            (0.0, 0.0),
+            (0.0, 4.0),
+            (0.5, 0.5),
+            (f64::NAN, 0.0),
+            (0.2, 0.2),
+        ];
+        let r = runs_in_box(&pts, &b, &b);
+        assert_eq!(r.len(), 3, "{r:?}");
+        assert_eq!(r[0], vec![(0.0, 0.0), (0.0, 1.0)]);
+        // Back in where y = 1: t = 3/3.5 along (0, 4) → (0.5, 0.5).
+        assert!((r[1][0].0 - 3.0 / 7.0).abs() < 1e-12 && r[1][0].1 == 1.0);
+        assert_eq!(&r[1][1..], &[(0.5, 0.5)]);
+        assert_eq!(r[2], vec![(0.2, 0.2)]);
+        assert!(runs_in_box(&[(5.0, 0.0), (5.0, 1.0)], &b, &b).is_empty());
     }
 
     #[test]

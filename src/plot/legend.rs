@@ -1,7 +1,7 @@
-//! Text around the panels: legend strips above a panel (outside the
-//! plotted area, so they never hide a trace), labels above the frame at
-//! the x of a marker line (stacked in rows so they do not overlap), and
-//! header lines above a section.
+//! Text around the panels: the figure's title, legend strips above a
+//! panel or a row of panels (outside the plotted area, so they never hide
+//! a trace), labels above the frame at the x of a marker line (stacked in
+//! rows so they do not overlap), and header lines above a section.
 
 use plotters::coord::ranged1d::Ranged;
 use plotters::element::DashedPathElement;
@@ -9,7 +9,7 @@ use plotters::prelude::*;
 use plotters::style::text_anchor::{HPos, Pos, VPos};
 
 use super::axes::{plot_columns, Chart};
-use super::style::{FONT, HEADER_SIZE};
+use super::style::{FONT, HEADER_SIZE, TITLE_SIZE};
 use super::{Area, BoxError};
 
 /// Legend text, px.
@@ -138,6 +138,19 @@ pub(super) fn panel_legend<X: Ranged<ValueType = f64>>(
     draw_legend(root, entries, xs.start, xs.end - xs.start, top + 2)
 }
 
+/// Draws the legend strip of `entries` at the top of `area`, over the
+/// columns a panel built on `area` would plot in (a strip for several
+/// panels; its height is [`legend_height`]).
+pub(super) fn area_legend(
+    root: &Area<'_>,
+    area: &Area<'_>,
+    entries: &[Entry],
+) -> Result<(), BoxError> {
+    let (l, r) = plot_columns(area);
+    let (_, top) = area.get_base_pixel();
+    draw_legend(root, entries, l, r - l, top + 2)
+}
+
 /// A label placed above the frame of a panel, at the x of its marker.
 pub(super) struct MarkerLabel {
     x: f64,
@@ -147,7 +160,7 @@ pub(super) struct MarkerLabel {
 }
 
 /// A marker label in `color`, centred above its point.
-fn marker_style(color: RGBColor) -> TextStyle<'static> {
+pub(super) fn marker_style(color: RGBColor) -> TextStyle<'static> {
     let mut style = TextStyle::from((FONT, MARKER_LABEL_SIZE).into_font())
         .pos(Pos::new(HPos::Center, VPos::Bottom));
     style.color = color.to_backend_color();
@@ -212,6 +225,17 @@ pub(super) fn draw_marker_labels<X: Ranged<ValueType = f64>>(
         root.draw(&Text::new(l.text.clone(), (x, y), style))?;
     }
     Ok(())
+}
+
+/// The part of `area` below the figure's `title` (none when empty), with a
+/// margin above.
+pub(super) fn titled<'b>(area: &Area<'b>, title: &str) -> Result<Area<'b>, BoxError> {
+    let outer = area.margin(8, 0, 0, 0);
+    Ok(if title.is_empty() {
+        outer
+    } else {
+        outer.titled(title, (FONT, TITLE_SIZE))?
+    })
 }
 
 /// Draws lines of text left-aligned at the plot columns of `area`, from its

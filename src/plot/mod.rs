@@ -17,6 +17,12 @@
 //!   marked.
 //! * [`write_time_png`] (`time.rs`): one or more stacked time-series panels
 //!   sharing a time axis.
+//! * [`write_design_png`] (`design.rs`; `bench design`): the open loop of
+//!   every input FRF, 1400×1000 px: the Nyquist plane left (equal scales,
+//!   around −1, with the unit circle, the modulus-margin circle and the
+//!   phase-margin sector), |L|, ∠L and |S| on a logarithmic ω axis right;
+//!   the worst loop highlighted. It takes plain slices, not the design
+//!   job's types.
 //! * The model-analysis figures, 1400×1000 px, drawn with plotters' own
 //!   captions and series-label boxes: [`write_pole_zero_png`]
 //!   (`pole_zero.rs`) and [`write_decomposed_bode_png`] (`modes.rs`) of one
@@ -28,13 +34,14 @@
 //! text sizes, line width), `axes.rs` (panel geometry, axes with chosen
 //! ticks, mesh and frame), `ticks.rs` (axis ranges, tick positions, number
 //! formatting), `draw.rs` (curves and guide lines), `legend.rs` (legend
-//! strips, marker labels, header lines) and `png.rs` (writing the file).
+//! strips, marker labels, header lines, the title) and `png.rs` (writing
+//! the file).
 //! Unit tests of the figures as files are in `tests.rs`.
 //!
-//! In the Bode, step and time-series figures legends sit in strips above
-//! the panels, outside the plotted area, so they never hide a trace.
-//! Rendering uses the plotters bitmap backend with
-//! an embedded DejaVu Sans font, so no system font libraries are needed.
+//! In the Bode, step, time-series and design figures legends sit in strips
+//! above the panels, outside the plotted area, so they never hide a trace.
+//! Rendering uses the plotters bitmap backend with an embedded DejaVu Sans
+//! font, so no system font libraries are needed.
 //! Non-finite samples (and non-positive magnitudes or frequencies, which
 //! have no logarithm) are skipped and break the line instead of failing.
 //! Lines are drawn segment by segment, and time series are first reduced to
@@ -68,6 +75,7 @@ use plotters::prelude::*;
 
 mod axes;
 mod bode;
+mod design;
 mod draw;
 mod legend;
 mod map;
@@ -85,12 +93,13 @@ mod time;
 
 pub use crate::ident::frf::MIN_COHERENCE;
 pub use bode::{bode_curve, write_bode_png, BodePlot, BodeSeries};
+pub use design::{write_design_png, DesignLoop, DesignPlot};
 pub use map::{write_map_png, write_veering_png, MeasuredPoint};
 pub use modes::write_decomposed_bode_png;
 pub use pair_zoom::PairZoom;
 pub use palette::{
     COMMAND_COLOR, FAINT_COLOR, MAP_CNMP_BOTH, MAP_CNMP_UNDAMPED_ONLY, MARKER_COLOR,
-    MEASURED_COLOR, OVERSHOOT_COLOR, RISE_COLOR, SETTLE_COLOR,
+    MEASURED_COLOR, OTHER_LOOP_COLOR, OVERSHOOT_COLOR, RISE_COLOR, SETTLE_COLOR, WORST_LOOP_COLOR,
 };
 pub use pole_zero::write_pole_zero_png;
 pub use step::{write_step_png, StepPlot};

@@ -76,6 +76,20 @@ pub const OVERSHOOT_COLOR: RGBColor = BROWN;
 pub(super) const STEADY_COLOR: RGBColor = CYAN;
 
 // ---------------------------------------------------------------------------
+// Design figure
+
+/// Colour of the worst loop of the design figure (drawn thick, on top).
+pub const WORST_LOOP_COLOR: RGBColor = BLUE;
+/// Colour of the other loops of the design figure (drawn thin, below).
+pub const OTHER_LOOP_COLOR: RGBColor = RGBColor(150, 172, 196);
+/// The ‖S‖∞ limit: the modulus-margin circle and the s_max line.
+pub(super) const SENSITIVITY_LIMIT_COLOR: RGBColor = ORANGE;
+/// The phase-margin sector on the unit circle and the phase-margin line.
+pub(super) const PHASE_MARGIN_COLOR: RGBColor = PURPLE;
+/// The sensitivity bandwidth ω_B and the −3 dB line.
+pub(super) const BANDWIDTH_COLOR: RGBColor = GREEN;
+
+// ---------------------------------------------------------------------------
 // Model-analysis figures (pole-zero map, CNMP map)
 
 /// A CMP-CNMP zero; the mode-crossing line of the map.

@@ -11,7 +11,7 @@ use super::axes::{frame, plot_columns, time_chart, X_LABEL_AREA};
 use super::draw::{draw_trace, pairs, shade, staircase, values_in, vline};
 use super::legend::{
     draw_marker_labels, entry, layout_marker_labels, legend_height, marker_row_height,
-    panel_legend, Swatch,
+    panel_legend, titled, Swatch,
 };
 use super::palette::{
     BAND_ALPHA, BAND_COLOR, COMMAND_COLOR, ERROR_COLOR, MARKER_COLOR, OVERSHOOT_COLOR,
@@ -19,7 +19,7 @@ use super::palette::{
     STEADY_COLOR, ZOOM_SHADE, ZOOM_SHADE_ALPHA,
 };
 use super::png::{invalid, write_png_atomically};
-use super::style::{FONT, LINE_WIDTH, TITLE_SIZE};
+use super::style::LINE_WIDTH;
 use super::ticks::{fmt_sig, padded_range};
 use super::{Area, BoxError, PlotError};
 use crate::control::step_metrics::{StepEvents, StepMetrics, SETTLING_BAND, SMOOTHING_S};
@@ -144,12 +144,7 @@ fn fmt_ms(s: f64) -> String {
 
 /// Draws the figure of [`write_step_png`].
 fn draw_step(root: &Area<'_>, p: &StepPlot<'_>) -> Result<(), BoxError> {
-    let outer = root.margin(8, 0, 0, 0);
-    let body = if p.title.is_empty() {
-        outer
-    } else {
-        outer.titled(p.title, (FONT, TITLE_SIZE))?
-    };
+    let body = titled(root, p.title)?;
     let (m, e) = (p.metrics, p.events);
     let t = p.t_s;
     let t_at = |k: usize| t.get(k).copied().filter(|v| v.is_finite());

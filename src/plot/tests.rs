@@ -1,12 +1,14 @@
 //! The figures written as files: their sizes, the atomic write, invalid
-//! and degenerate inputs (the Bode and time-series figures), and the pair
-//! window rule. `plot_write_examples_to_tmp` writes example figures for
+//! and degenerate inputs (the Bode, time-series and design figures), the
+//! pair window rule, and where the design figure's worst loop lands in its
+//! Nyquist panel. `plot_write_examples_to_tmp` writes example figures for
 //! visual inspection.
 
 use super::pair_zoom::pair_window;
 use super::*;
 use crate::ident::frf::PairVerdict;
 use crate::outputs::Existing;
+use nalgebra::Complex;
 use std::f64::consts::PI;
 use std::fs;
 use std::path::Path;
@@ -413,8 +415,285 @@ fn plot_pair_window() {
     assert_eq!(w, 370.0..460.0);
 }
 
-/// Writes `/tmp/bode-example.png`, `/tmp/bode-pair-example.png` and
-/// `/tmp/time-example.png` for visual inspection:
+/// `L = k·e^(−sτ)/(s(s + 1))` on `omega` (rad/s): an integrator, a
+/// first-order lag and a dead time, crossing −1 at `k ≈ 1/τ` for small τ.
+fn integrator_loop(omega: &[f64], k: f64, delay_s: f64) -> Vec<Complex<f64>> {
+    omega
+        .iter()
+        .map(|&w| {
+            let s = Complex::new(0.0, w);
+            k * (-s * delay_s).exp() / (s * (s + 1.0))
+        })
+        .collect()
+}
+
+/// Loops of four inputs (the last the worst) and a model, on 0.05–50 rad/s.
+struct DesignExample {
+    omega: Vec<f64>,
+    gains: Vec<Vec<Complex<f64>>>,
+    model_omega: Vec<f64>,
+    model_gain: Vec<Complex<f64>>,
+}
+
+fn design_example() -> DesignExample {
+    let omega = log_grid(400, 0.05, 50.0);
+    let gains = [(0.6, 0.05), (0.8, 0.12), (1.0, 0.08), (1.5, 0.1)]
+        .iter()
+        .map(|&(k, delay_s)| integrator_loop(&omega, k, delay_s))
+        .collect();
+    let model_omega = log_grid(300, 0.02, 100.0);
+    let model_gain = integrator_loop(&model_omega, 1.1, 0.1);
+    DesignExample {
+        omega,
+        gains,
+        model_omega,
+        model_gain,
+    }
+}
+
+fn design_loops(e: &DesignExample) -> Vec<DesignLoop<'_>> {
+    let names = ["x1", "x2", "y1", "y2"];
+    e.gains
+        .iter()
+        .zip(names)
+        .enumerate()
+        .map(|(i, (g, label))| DesignLoop {
+            label,
+            omega_rad_s: &e.omega,
+            loop_gain: g,
+            worst: i == 3,
+        })
+        .collect()
+}
+
+fn design_plot<'a>(e: &'a DesignExample, loops: &'a [DesignLoop<'a>]) -> DesignPlot<'a> {
+    DesignPlot {
+        title: "bench design: loops of 4 inputs",
+        loops,
+        model: Some(DesignLoop {
+            label: "model",
+            omega_rad_s: &e.model_omega,
+            loop_gain: &e.model_gain,
+            worst: false,
+        }),
+        sensitivity_peak_max: 2.0,
+        phase_margin_min_deg: 30.0,
+        crossover_rad_s: Some(1.2),
+        sensitivity_bandwidth_rad_s: Some(0.6),
+    }
+}
+
+#[test]
+fn plot_design_writes_1400x1000_and_refuses_an_existing_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("design.png");
+    let e = design_example();
+    let loops = design_loops(&e);
+    write_design_png(&path, Existing::Refuse, &design_plot(&e, &loops)).unwrap();
+    assert_eq!(png_size(&path), (1400, 1000));
+    assert_eq!(dir_entries(dir.path()), vec!["design.png".to_string()]);
+
+    let before = fs::read(&path).unwrap();
+    let err = write_design_png(&path, Existing::Refuse, &design_plot(&e, &loops)).unwrap_err();
+    assert!(matches!(err, PlotError::Io { .. }), "{err:?}");
+    assert_eq!(fs::read(&path).unwrap(), before);
+    // Without a model, markers or other inputs, and with nothing at all.
+    let plot = DesignPlot {
+        model: None,
+        crossover_rad_s: None,
+        sensitivity_bandwidth_rad_s: Some(1e6),
+        ..design_plot(&e, &loops[3..])
+    };
+    write_design_png(&path, Existing::Replace, &plot).unwrap();
+    assert_eq!(png_size(&path), (1400, 1000));
+    let empty = DesignPlot {
+        model: None,
+        ..design_plot(&e, &[])
+    };
+    write_design_png(&path, Existing::Replace, &empty).unwrap();
+    assert_eq!(png_size(&path), (1400, 1000));
+    assert_eq!(dir_entries(dir.path()), vec!["design.png".to_string()]);
+}
+
+#[test]
+fn plot_design_rejects_bad_loops_naming_them() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("design.png");
+    let e = design_example();
+    let check = |plot: &DesignPlot<'_>, words: &[&str]| {
+        let err = write_design_png(&path, Existing::Refuse, plot).unwrap_err();
+        assert!(matches!(err, PlotError::InvalidData { .. }), "{err:?}");
+        let msg = err.to_string();
+        for w in words {
+            assert!(msg.contains(w), "{msg:?} lacks {w:?}");
+        }
+        assert!(!path.exists());
+    };
+    // Mismatched lengths.
+    let mut loops = design_loops(&e);
+    loops[1].loop_gain = &e.gains[1][1..];
+    check(
+        &design_plot(&e, &loops),
+        &["\"x2\"", "400 frequencies", "399"],
+    );
+    // A NaN loop gain.
+    let mut g = e.gains[2].clone();
+    g[17].im = f64::NAN;
+    let mut loops = design_loops(&e);
+    loops[2].loop_gain = &g;
+    check(&design_plot(&e, &loops), &["\"y1\"", "loop gain 17", "NaN"]);
+    // Frequencies not ascending, or not positive.
+    let mut w = e.omega.clone();
+    w.swap(5, 6);
+    let mut loops = design_loops(&e);
+    loops[0].omega_rad_s = &w;
+    check(&design_plot(&e, &loops), &["\"x1\"", "not ascending at 6"]);
+    let mut w = e.omega.clone();
+    w[0] = 0.0;
+    loops[0].omega_rad_s = &w;
+    check(&design_plot(&e, &loops), &["\"x1\"", "frequency 0 is 0"]);
+    // The model is named as such.
+    let loops = design_loops(&e);
+    let mut plot = design_plot(&e, &loops);
+    plot.model.as_mut().unwrap().loop_gain = &e.model_gain[..3];
+    check(&plot, &["model loop \"model\""]);
+    // The limits and markers.
+    let plot = DesignPlot {
+        sensitivity_peak_max: 0.0,
+        ..design_plot(&e, &loops)
+    };
+    check(&plot, &["sensitivity_peak_max"]);
+    let plot = DesignPlot {
+        phase_margin_min_deg: f64::NAN,
+        ..design_plot(&e, &loops)
+    };
+    check(&plot, &["phase_margin_min_deg"]);
+    let plot = DesignPlot {
+        crossover_rad_s: Some(-1.0),
+        ..design_plot(&e, &loops)
+    };
+    check(&plot, &["crossover_rad_s"]);
+}
+
+/// Pixel `p` is colour `c` within `tol` per channel.
+fn near(p: [u8; 3], c: plotters::style::RGBColor, tol: i32) -> bool {
+    (i32::from(p[0]) - i32::from(c.0)).abs() <= tol
+        && (i32::from(p[1]) - i32::from(c.1)).abs() <= tol
+        && (i32::from(p[2]) - i32::from(c.2)).abs() <= tol
+}
+
+/// The worst loop `L = 1/(s(s + 1))` lands where it should in the Nyquist
+/// panel: the panel's frame is found in the pixels (the black rows in the
+/// left column), mapped by the documented rule (equal scales, centred on
+/// −1, showing at least [−3, 1] × [−2, 2]), and the worst loop's colour is
+/// found near the analytic curve (`L(j1) = −0.5 − 0.5j`, `L(j0.5) = −0.8 −
+/// 1.6j`, `L(j2) = −0.2 − 0.1j`) and nowhere else inside the frame.
+#[test]
+fn plot_design_worst_loop_lands_on_its_nyquist_curve() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("nyquist.png");
+    let omega = log_grid(600, 0.05, 50.0);
+    let worst = integrator_loop(&omega, 1.0, 0.0);
+    let other = integrator_loop(&omega, 0.5, 0.2);
+    let loops = [
+        DesignLoop {
+            label: "other",
+            omega_rad_s: &omega,
+            loop_gain: &other,
+            worst: false,
+        },
+        DesignLoop {
+            label: "worst",
+            omega_rad_s: &omega,
+            loop_gain: &worst,
+            worst: true,
+        },
+    ];
+    let plot = DesignPlot {
+        title: "",
+        loops: &loops,
+        model: None,
+        sensitivity_peak_max: 2.0,
+        phase_margin_min_deg: 30.0,
+        crossover_rad_s: Some(0.79),
+        sensitivity_bandwidth_rad_s: None,
+    };
+    write_design_png(&path, Existing::Refuse, &plot).unwrap();
+    let img = image::open(&path).unwrap().to_rgb8();
+    assert_eq!(img.dimensions(), (1400, 1000));
+
+    // The Nyquist frame: rows with a black run over 300 px left of x = 700.
+    let mut rows = Vec::new();
+    for y in 0..img.height() {
+        let (mut run, mut best) = (0u32, (0u32, 0u32));
+        for x in 0..700 {
+            if img.get_pixel(x, y).0 == [0, 0, 0] {
+                run += 1;
+                if run > best.1 - best.0 {
+                    best = (x + 1 - run, x + 1);
+                }
+            } else {
+                run = 0;
+            }
+        }
+        if best.1 - best.0 > 300 {
+            rows.push((y, best));
+        }
+    }
+    let (top, (left, right)) = rows.first().copied().expect("a Nyquist frame");
+    let (bottom, _) = *rows.last().unwrap();
+    let (w, h) = (f64::from(right - left), f64::from(bottom - top));
+    assert!(h > 300.0 && w > 300.0, "{rows:?}");
+    let px_per_unit = (w / 4.0).min(h / 4.0);
+    let (cx, cy) = (f64::from(left + right) / 2.0, f64::from(top + bottom) / 2.0);
+    let to_px = |re: f64, im: f64| (cx + (re + 1.0) * px_per_unit, cy - im * px_per_unit);
+
+    let is_worst = |x: u32, y: u32| near(img.get_pixel(x, y).0, WORST_LOOP_COLOR, 8);
+    let found_near = |(px, py): (f64, f64), r: i64| {
+        (-r..=r)
+            .any(|dx| (-r..=r).any(|dy| is_worst((px as i64 + dx) as u32, (py as i64 + dy) as u32)))
+    };
+    for (re, im) in [(-0.5, -0.5), (-0.8, -1.6), (-0.2, -0.1)] {
+        assert!(
+            found_near(to_px(re, im), 3),
+            "no worst-loop pixel near L = {re} {im}j"
+        );
+    }
+    // Every worst-coloured pixel inside the frame is on the curve (the
+    // negative frequencies, the mirror image, are not drawn).
+    let curve: Vec<(f64, f64)> = log_grid(4000, 0.05, 50.0)
+        .iter()
+        .map(|&w| {
+            let l = integrator_loop(&[w], 1.0, 0.0)[0];
+            to_px(l.re, l.im)
+        })
+        .collect();
+    let mut count = 0;
+    for y in top + 2..bottom - 1 {
+        for x in left + 2..right - 1 {
+            if is_worst(x, y) {
+                count += 1;
+                let d = curve
+                    .iter()
+                    .map(|&(px, py)| (px - f64::from(x)).hypot(py - f64::from(y)))
+                    .fold(f64::INFINITY, f64::min);
+                assert!(
+                    d < 4.0,
+                    "worst-loop pixel ({x}, {y}) is {d:.1} px off the curve"
+                );
+            }
+        }
+    }
+    assert!(count > 500, "only {count} worst-loop pixels");
+    assert!(
+        !found_near(to_px(-0.5, 0.5), 6),
+        "the mirror image is drawn"
+    );
+}
+
+/// Writes `/tmp/bode-example.png`, `/tmp/bode-pair-example.png`,
+/// `/tmp/time-example.png` and `/tmp/design-example.png` for visual
+/// inspection:
 /// `cargo test --lib plot -- --ignored`.
 #[test]
 #[ignore]
@@ -451,6 +730,14 @@ fn plot_write_examples_to_tmp() {
         Existing::Replace,
         "Closed-loop step, X axis",
         &panels,
+    )
+    .unwrap();
+    let e = design_example();
+    let loops = design_loops(&e);
+    write_design_png(
+        Path::new("/tmp/design-example.png"),
+        Existing::Replace,
+        &design_plot(&e, &loops),
     )
     .unwrap();
 }

@@ -7,10 +7,10 @@ use plotters::prelude::*;
 
 use super::axes::{frame, time_chart, MARGIN_TOP, X_LABEL_AREA};
 use super::draw::{draw_trace, pairs, values_in};
-use super::legend::{entry, legend_height, panel_legend, Entry, Swatch};
+use super::legend::{entry, legend_height, panel_legend, titled, Entry, Swatch};
 use super::palette::SERIES;
 use super::png::{invalid, write_png_atomically};
-use super::style::{FONT, LINE_WIDTH, TITLE_SIZE};
+use super::style::LINE_WIDTH;
 use super::ticks::padded_range;
 use super::{Area, BoxError, PlotError};
 use crate::outputs::Existing;
@@ -71,12 +71,7 @@ pub fn write_time_png(
 
 /// Draws the panels of [`write_time_png`] under `title`.
 fn draw_time(root: &Area<'_>, title: &str, panels: &[TimePanel<'_>]) -> Result<(), BoxError> {
-    let outer = root.margin(8, 0, 0, 0);
-    let body = if title.is_empty() {
-        outer
-    } else {
-        outer.titled(title, (FONT, TITLE_SIZE))?
-    };
+    let body = titled(root, title)?;
     let t_all: Vec<f64> = panels
         .iter()
         .flat_map(|p| p.series.iter())
