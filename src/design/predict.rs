@@ -35,19 +35,17 @@ pub fn model_loop(
     controller: &ControllerConfig,
     delay_s: f64,
 ) -> Result<(Vec<f64>, Vec<C64>), DesignError> {
-    let model = Sr4dof::new(cfg.plant).map_err(|e| derr("config", e.to_string()))?;
+    let p = model_frf(cfg, delay_s)?;
     let t = cfg.loop_.period_ns() as f64 * 1e-9;
-    let plant = ZohPlant::new(&model, &cfg.actuator, t);
     let ctrl = DiscreteController::new(controller, t, cfg.actuator.peak_current_a);
     let k = ctrl.error_per_metre();
-    let grid = model_grid(t);
-    let l = grid
+    let l = p
+        .omega_rad_s
         .iter()
-        .map(|&w| {
-            ctrl.response(w, t) * plant.frf(w / (2.0 * PI)) * k * C64::from_polar(1.0, -w * delay_s)
-        })
+        .zip(&p.plant_m_per_a)
+        .map(|(&w, p)| ctrl.response(w, t) * p * k)
         .collect();
-    Ok((grid, l))
+    Ok((p.omega_rad_s, l))
 }
 
 /// The bench's model as one more "FRF" for the certificate: the

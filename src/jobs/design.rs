@@ -493,9 +493,78 @@ pub fn run_design(opts: &DesignOptions) -> Result<DesignSummary, RunError> {
         plot: None,
         design_time_s: t0.elapsed().as_secs_f64(),
     };
-    write_atomically(&out, opts.existing, |f| f.write_all(text.as_bytes()))
-        .map_err(|e| RunError::option("out", out.display(), e.to_string()))?;
+    // The figure first (a failure leaves no config behind), then the config.
+    let mut summary = summary;
+    if let Some(png) = &png {
+        write_figure(png, opts.existing, &frfs, &cfg, &summary, worst_index)?;
+        summary.plot = Some(png.clone());
+    }
+    write_atomically(&out, opts.existing, |f| f.write_all(text.as_bytes())).map_err(|e| {
+        if let Some(p) = &summary.plot {
+            let _ = std::fs::remove_file(p);
+        }
+        RunError::option("out", out.display(), e.to_string())
+    })?;
     Ok(summary)
+}
+
+/// The design figure: every input's loop with the discrete controller that
+/// will run, the model's loop dashed, the worst input highlighted.
+fn write_figure(
+    png: &Path,
+    existing: Existing,
+    frfs: &[crate::design::loops::DesignFrf],
+    cfg: &BenchConfig,
+    s: &DesignSummary,
+    worst: usize,
+) -> Result<(), RunError> {
+    use crate::plot::{write_design_png, DesignLoop, DesignPlot};
+    let t = cfg.loop_.period_ns() as f64 * 1e-9;
+    let d = crate::control::DiscreteController::new(&s.controller, t, cfg.actuator.peak_current_a);
+    let k = d.error_per_metre();
+    let loops: Vec<Vec<crate::ident::C64>> = frfs
+        .iter()
+        .map(|f| {
+            f.omega_rad_s
+                .iter()
+                .zip(&f.plant_m_per_a)
+                .map(|(w, p)| d.response(*w, t) * p * k)
+                .collect()
+        })
+        .collect();
+    let (mgrid, ml) = crate::design::predict::model_loop(cfg, &s.controller, s.computation_delay_s)
+        .map_err(|e| RunError::BadInput(e.to_string()))?;
+    let drawn: Vec<DesignLoop<'_>> = frfs
+        .iter()
+        .zip(&loops)
+        .enumerate()
+        .map(|(i, (f, l))| DesignLoop {
+            label: &f.label,
+            omega_rad_s: &f.omega_rad_s,
+            loop_gain: l,
+            worst: i == worst,
+        })
+        .collect();
+    let title = format!(
+        "bench design: {} controller `{}`, ω_B {:.0} rad/s, ‖S‖∞ {:.2}",
+        s.strategy, s.name, s.sensitivity_bandwidth_rad_s, s.sensitivity_peak
+    );
+    let plot = DesignPlot {
+        title: &title,
+        loops: &drawn,
+        model: Some(DesignLoop {
+            label: "model",
+            omega_rad_s: &mgrid,
+            loop_gain: &ml,
+            worst: false,
+        }),
+        sensitivity_peak_max: s.requirements.sensitivity_peak_max,
+        phase_margin_min_deg: s.requirements.phase_margin_min_deg,
+        crossover_rad_s: s.crossover_rad_s,
+        sensitivity_bandwidth_rad_s: Some(s.sensitivity_bandwidth_rad_s),
+    };
+    write_design_png(png, existing, &plot)
+        .map_err(|e| RunError::option("png", png.display(), e.to_string()))
 }
 
 /// `base` (a bench config's TOML) with `[controller.NAME]` added after its
