@@ -71,7 +71,16 @@ fn fast_design_on_the_chapter_5_model() {
         Some(modes.first_resonance_rad_s),
     )
     .unwrap();
-    let d = design(&frfs, None, &modes, &spec, t, cfg.actuator.peak_current_a).unwrap();
+    let d = design(
+        &frfs,
+        None,
+        None,
+        &modes,
+        &spec,
+        t,
+        cfg.actuator.peak_current_a,
+    )
+    .unwrap();
     eprintln!("design time {:.2} s", t0.elapsed().as_secs_f64());
     eprintln!("{}", d.why);
     for a in &d.attempts {
@@ -160,6 +169,7 @@ fn design_on(
     let d = design(
         &frfs,
         Some(&model),
+        None,
         &modes,
         &spec,
         t,

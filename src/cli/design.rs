@@ -42,6 +42,11 @@ pub(super) struct DesignArgs {
     /// [default: one loop period].
     #[arg(long, value_name = "S", allow_hyphen_values = true)]
     computation_delay_s: Option<f64>,
+    /// Longest 2 % settling of the step predicted on the model ([step] of
+    /// the config), s: among the search's candidates that meet the
+    /// margins, the highest ω_B that settles within it [default: no limit].
+    #[arg(long, value_name = "S", allow_hyphen_values = true)]
+    settling_max_s: Option<f64>,
     /// Name of the controller: the config written holds it as
     /// [controller.NAME], for `bench control --controller NAME`.
     #[arg(long, default_value = bench::jobs::design::NAME)]
@@ -84,6 +89,7 @@ impl DesignArgs {
             gm_min_db: Some(self.gm_min_db),
             s_max: Some(self.s_max),
             computation_delay_s: self.computation_delay_s,
+            settling_max_s: self.settling_max_s,
             name: Some(self.name.clone()),
             no_plot: self.no_plot,
         }

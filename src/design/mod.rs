@@ -372,6 +372,24 @@ fn median(mut v: Vec<f64>) -> Option<f64> {
     Some(v[v.len() / 2])
 }
 
+/// A limit on the step's 2 % settling time predicted on the bench's model
+/// (`--settling-max-s`): among the search's candidates that meet the
+/// margins, the one with the highest ω_B that settles within it (none
+/// does: the one that settles soonest, and the report says so).
+pub struct SettlingLimit<'a> {
+    /// The limit, s.
+    pub max_s: f64,
+    /// The predicted settling time of a controller, s (`None`: it does not
+    /// settle within the step's duration).
+    pub settling_s: &'a (dyn Fn(&ControllerConfig) -> Option<f64> + Sync),
+}
+
+impl SettlingLimit<'_> {
+    fn settling_s(&self, c: &ControllerConfig) -> Option<f64> {
+        (self.settling_s)(c)
+    }
+}
+
 /// The outcome of one strategy.
 #[derive(Debug, Clone)]
 pub struct Attempt {
@@ -396,6 +414,7 @@ pub const UNIT_PER_METRE: f64 = 1e6;
 pub fn attempt(
     frfs: &[DesignFrf],
     model: Option<&DesignFrf>,
+    settling: Option<&SettlingLimit<'_>>,
     modes: &PlantModes,
     strategy: Strategy,
     req: Requirements,
@@ -509,6 +528,7 @@ pub fn attempt(
                 .collect();
             let mut found;
             let mut round = 0;
+            let mut candidates: Vec<(Vec<f64>, Evaluation)>;
             loop {
                 let sub = Problem::new(
                     active.iter().map(|&i| &coarse[i]).collect(),
@@ -516,15 +536,18 @@ pub fn attempt(
                     UNIT_PER_METRE,
                 );
                 let (theta, e) = if round == 0 {
-                    search::search(&sub, fam, &start)
+                    candidates = search::search_all(&sub, fam, &start);
+                    candidates[0].clone()
                 } else {
                     // Warm start from the last design; if that cannot meet
                     // the grown set, the whole multi-start again.
                     let (t, e) = search::polish(&sub, fam, &start);
                     if e.feasible() {
+                        candidates = vec![(t.clone(), e.clone())];
                         (t, e)
                     } else {
-                        search::search(&sub, fam, &fam.start_scaled(&start))
+                        candidates = search::search_all(&sub, fam, &fam.start_scaled(&start));
+                        candidates[0].clone()
                     }
                 };
                 round += 1;
@@ -556,15 +579,54 @@ pub fn attempt(
             // the user's. A miss left (a skipped line, the discretisation)
             // is small: back the gain off by 2 % steps until it passes.
             let all = Problem::new(frfs.iter().chain(model).collect(), req, UNIT_PER_METRE);
-            let mut c = found.controller.clone();
-            let mut evaluation = certify(&all, c.clone(), period_s, peak_current_a);
-            for _ in 0..BACK_OFF_STEPS {
-                if evaluation.feasible() || found.violation > 0.5 {
-                    break;
+            let certified = |c0: &ControllerConfig, searched_violation: f64| {
+                let mut c = c0.clone();
+                let mut e = certify(&all, c.clone(), period_s, peak_current_a);
+                for _ in 0..BACK_OFF_STEPS {
+                    if e.feasible() || searched_violation > 0.5 {
+                        break;
+                    }
+                    c.gain *= 0.98;
+                    e = certify(&all, c.clone(), period_s, peak_current_a);
                 }
-                c.gain *= 0.98;
-                evaluation = certify(&all, c.clone(), period_s, peak_current_a);
-            }
+                e
+            };
+            // Every start's result is a candidate when the last round was a
+            // multi-start on the inputs that bind (else the one found).
+            let mut pool: Vec<Evaluation> = if found.feasible() && candidates.len() > 1 {
+                candidates
+                    .iter()
+                    .map(|(_, e)| certified(&e.controller, e.violation))
+                    .collect()
+            } else {
+                vec![certified(&found.controller, found.violation)]
+            };
+            // The highest ω_B that meets the margins, and the settling limit
+            // when one is set (the model's predicted step).
+            let by_wb = |a: &Evaluation, b: &Evaluation| {
+                b.sensitivity_bandwidth_min_rad_s
+                    .total_cmp(&a.sensitivity_bandwidth_min_rad_s)
+            };
+            pool.sort_by(by_wb);
+            let feasible: Vec<&Evaluation> = pool.iter().filter(|e| e.feasible()).collect();
+            let evaluation = match (settling, feasible.is_empty()) {
+                (_, true) => pool[0].clone(),
+                (None, false) => feasible[0].clone(),
+                (Some(limit), false) => {
+                    let timed: Vec<(f64, &Evaluation)> = feasible
+                        .iter()
+                        .map(|e| (limit.settling_s(&e.controller).unwrap_or(f64::INFINITY), *e))
+                        .collect();
+                    match timed.iter().find(|(t, _)| *t <= limit.max_s) {
+                        Some((_, e)) => (*e).clone(),
+                        None => timed
+                            .iter()
+                            .min_by(|a, b| a.0.total_cmp(&b.0))
+                            .map(|(_, e)| (*e).clone())
+                            .expect("non-empty"),
+                    }
+                }
+            };
             Attempt {
                 strategy: "fast",
                 evaluation,
@@ -605,13 +667,25 @@ pub struct Designed {
 pub fn design(
     frfs: &[DesignFrf],
     model: Option<&DesignFrf>,
+    settling: Option<&SettlingLimit<'_>>,
     modes: &PlantModes,
     spec: &DesignSpec,
     period_s: f64,
     peak_current_a: f64,
 ) -> Result<Designed, DesignError> {
     let req = spec.requirements;
-    let run = |s| attempt(frfs, model, modes, s, req, period_s, peak_current_a);
+    let run = |s| {
+        attempt(
+            frfs,
+            model,
+            settling,
+            modes,
+            s,
+            req,
+            period_s,
+            peak_current_a,
+        )
+    };
     let fail = |a: &Attempt| {
         let b = a.evaluation.binding.as_ref().map_or(
             "no constraint could be evaluated".to_string(),

@@ -393,6 +393,18 @@ pub fn polish(problem: &Problem<'_>, family: Family, start: &[f64]) -> (Vec<f64>
 /// gain already scaled) and their evaluation: [`STARTS`] deterministic
 /// starts, each run twice.
 pub fn search(problem: &Problem<'_>, family: Family, start: &[f64]) -> (Vec<f64>, Evaluation) {
+    search_all(problem, family, start)
+        .into_iter()
+        .next()
+        .expect("STARTS > 0")
+}
+
+/// Every start's result, best (lowest cost) first.
+pub fn search_all(
+    problem: &Problem<'_>,
+    family: Family,
+    start: &[f64],
+) -> Vec<(Vec<f64>, Evaluation)> {
     let n = start.len();
     let starts: Vec<Vec<f64>> = (0..STARTS)
         .map(|k| {
@@ -411,7 +423,8 @@ pub fn search(problem: &Problem<'_>, family: Family, start: &[f64]) -> (Vec<f64>
             s
         })
         .collect();
-    let best = starts
+    debug_assert!(n > 0);
+    let mut all: Vec<(Vec<f64>, Evaluation)> = starts
         .par_iter()
         .map(|s| {
             let a = nelder_mead(problem, family, s, 0.15);
@@ -419,9 +432,7 @@ pub fn search(problem: &Problem<'_>, family: Family, start: &[f64]) -> (Vec<f64>
             let e = problem.evaluate(family.controller(&b));
             (b, e)
         })
-        .collect::<Vec<_>>()
-        .into_iter()
-        .min_by(|a, b| a.1.cost().total_cmp(&b.1.cost()));
-    debug_assert!(n > 0);
-    best.expect("STARTS > 0")
+        .collect();
+    all.sort_by(|a, b| a.1.cost().total_cmp(&b.1.cost()));
+    all
 }

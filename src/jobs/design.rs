@@ -65,6 +65,11 @@ pub struct DesignRequest {
     /// Computation delay added to every FRF, s (default one loop period).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub computation_delay_s: Option<f64>,
+    /// Longest 2 % settling of the step predicted on the model, s: among
+    /// the search's candidates that meet the margins, the highest ω_B that
+    /// settles within it (default: no limit, the highest ω_B).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub settling_max_s: Option<f64>,
     /// Name of the controller (`[controller.NAME]`; default `designed`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub name: Option<String>,
@@ -87,6 +92,7 @@ impl Default for DesignRequest {
             gm_min_db: None,
             s_max: None,
             computation_delay_s: None,
+            settling_max_s: None,
             name: None,
             no_plot: false,
         }
@@ -352,6 +358,16 @@ pub fn run_design(opts: &DesignOptions) -> Result<DesignSummary, RunError> {
         computation_delay_s: req.computation_delay_s.unwrap_or(period_s),
     };
     spec.validate(period_s).map_err(design_error)?;
+    if let Some(t) = req.settling_max_s {
+        let longest = cfg.step.duration_s - cfg.step.settle_s;
+        if !t.is_finite() || t <= 0.0 || t > longest {
+            return Err(RunError::option(
+                "settling_max_s",
+                t,
+                format!("must be in (0, {longest}] s: the step the model predicts lasts [step] duration_s − settle_s"),
+            ));
+        }
+    }
     let nyquist = 0.5 / period_s;
     for f in &read.frfs {
         if let Some(top) = f.frf.frequency_hz.last().filter(|x| **x >= nyquist) {
@@ -403,9 +419,21 @@ pub fn run_design(opts: &DesignOptions) -> Result<DesignSummary, RunError> {
     .map_err(design_error)?;
     let model_loop =
         crate::design::predict::model_frf(&cfg, spec.computation_delay_s).map_err(design_error)?;
+    let settle_of = |c: &ControllerConfig| {
+        predict(&cfg, c, spec.computation_delay_s)
+            .ok()
+            .and_then(|p| p.step.settling_time_s)
+    };
+    let limit = req
+        .settling_max_s
+        .map(|max_s| crate::design::SettlingLimit {
+            max_s,
+            settling_s: &settle_of,
+        });
     let d = design(
         &frfs,
         Some(&model_loop),
+        limit.as_ref(),
         &modes,
         &spec,
         period_s,
