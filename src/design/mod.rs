@@ -65,6 +65,7 @@ use crate::ident::C64;
 use family::Family;
 use loops::DesignFrf;
 use modes::PlantModes;
+use rayon::prelude::*;
 use search::{Binding, Evaluation, Problem, Requirements};
 use serde::{Deserialize, Serialize};
 use std::f64::consts::PI;
@@ -595,7 +596,7 @@ pub fn attempt(
             // multi-start on the inputs that bind (else the one found).
             let mut pool: Vec<Evaluation> = if found.feasible() && candidates.len() > 1 {
                 candidates
-                    .iter()
+                    .par_iter()
                     .map(|(_, e)| certified(&e.controller, e.violation))
                     .collect()
             } else {

@@ -46,8 +46,10 @@ impl PlantModes {
     /// # Errors
     /// Naming the input whose fit fails or finds no mode.
     pub fn identify(inputs: &[InputFrf], path: Path) -> Result<Self, DesignError> {
-        let mut out = Vec::new();
-        for inp in inputs {
+        use rayon::prelude::*;
+        let out: Vec<InputModes> = inputs
+            .par_iter()
+            .map(|inp| -> Result<InputModes, DesignError> {
             let fit = modal_fit::fit(&FrfData::from_frf(&inp.frf), &path)
                 .map_err(|e| derr(&inp.label, format!("modal fit: {e}")))?;
             let in_path: Vec<_> = fit.modes.iter().filter(|m| m.in_path).collect();
@@ -68,7 +70,7 @@ impl PlantModes {
                 }
                 _ => "no pair",
             };
-            out.push(InputModes {
+            Ok(InputModes {
                 input: inp.label.clone(),
                 first_resonance_hz: first.frequency_hz,
                 first_resonance_sigma_hz: first
@@ -80,8 +82,9 @@ impl PlantModes {
                 sign_sequence: fit.sign_sequence.clone(),
                 pair_signs: pair_signs.into(),
                 fit_error: fit.rms_relative_error,
-            });
-        }
+            })
+            })
+            .collect::<Result<_, _>>()?;
         let mut f: Vec<f64> = out.iter().map(|m| m.first_resonance_hz).collect();
         f.sort_by(f64::total_cmp);
         Ok(Self {
