@@ -90,10 +90,10 @@ fn fast_design_on_the_chapter_5_model() {
             a.strategy,
             e.feasible(),
             e.sensitivity_bandwidth_min_rad_s,
-            e.figures[0].crossovers_rad_s,
-            e.figures[0].phase_margins_deg,
-            e.figures[0].gain_margin_db,
-            e.figures[0].sensitivity_peak,
+            e.figures[0].margins.crossovers_rad_s,
+            e.figures[0].margins.phase_margins_deg,
+            e.figures[0].margins.gain_margin_db,
+            e.figures[0].margins.sensitivity_peak,
             e.binding,
             e.controller
         );
@@ -114,9 +114,9 @@ fn fast_design_on_the_chapter_5_model() {
     eprintln!(
         "Eq. 6-7: ω_B {:.1}, crossovers {:?}, PMs {:?}, S {:.3}",
         thesis.sensitivity_bandwidth_min_rad_s,
-        f.crossovers_rad_s,
-        f.phase_margins_deg,
-        f.sensitivity_peak
+        f.margins.crossovers_rad_s,
+        f.margins.phase_margins_deg,
+        f.margins.sensitivity_peak
     );
     let _ = figures;
     let p = bench::design::predict::predict(&cfg, &d.chosen.evaluation.controller, t).unwrap();

@@ -215,10 +215,10 @@ pub(super) fn print_summary(s: &DesignSummary) {
             "  {:<40} {:>10} {:>10} {:>9} {:>8} {:>7.3}{mark}",
             f.input,
             opt_num(g.sensitivity_bandwidth_rad_s, 1, ""),
-            opt_num(g.crossovers_rad_s.first().copied(), 1, ""),
+            opt_num(g.margins.crossovers_rad_s.first().copied(), 1, ""),
             opt_num(g.phase_margin_min_deg, 1, ""),
-            opt_num(g.gain_margin_db, 2, ""),
-            g.sensitivity_peak
+            opt_num(g.margins.gain_margin_db, 2, ""),
+            g.margins.sensitivity_peak
         );
     }
     outln!(
@@ -238,7 +238,7 @@ pub(super) fn print_summary(s: &DesignSummary) {
         "on the model (to Nyquist): ω_B {} rad/s, least phase margin {}°, ‖S‖∞ {:.3}, closed loop {}",
         opt_num(m.figures.sensitivity_bandwidth_rad_s, 1, ""),
         opt_num(m.figures.phase_margin_min_deg, 1, ""),
-        m.figures.sensitivity_peak,
+        m.figures.margins.sensitivity_peak,
         if m.figures.rhp_closed_loop_poles == 0 { "stable".to_string() } else { format!("UNSTABLE ({} right-half-plane poles)", m.figures.rhp_closed_loop_poles) }
     );
     outln!(

@@ -26,6 +26,7 @@
 //! plane (the count returned). A step of more than 0.9π between two lines
 //! cannot be followed reliably and counts as one turn.
 
+use crate::control::loop_check::Margins;
 use crate::ident::C64;
 use serde::{Deserialize, Serialize};
 use std::f64::consts::PI;
@@ -71,27 +72,20 @@ impl DesignFrf {
     }
 }
 
-/// Figures of one open loop on one FRF (or the model).
+/// Figures of one open loop on one FRF (or the model): the loop check's
+/// [`Margins`] (every gain crossover with its phase margin, the gain
+/// margin, ‖S‖∞; on the lines, crossings interpolated) and what a design
+/// needs besides.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct LoopFigures {
-    /// Every gain crossover (|L| = 1), rad/s, ascending.
-    pub crossovers_rad_s: Vec<f64>,
-    /// The phase margin at each crossover, degrees (180° + ∠L, wrapped to
-    /// (−180°, 180°]).
-    pub phase_margins_deg: Vec<f64>,
+    /// Crossovers, phase margins (180° + ∠L, wrapped to (−180°, 180°]),
+    /// gain margin, ‖S‖∞ and where.
+    #[serde(flatten)]
+    pub margins: Margins,
     /// The smallest angle between L and −1 at a crossover, degrees: the
     /// least |phase margin| (a crossing at ∠L = +80° is 100° from −1
     /// whichever way L turns; `None`: no crossover).
     pub phase_margin_min_deg: Option<f64>,
-    /// Gain margin, dB: the smallest `−20 log10 |L|` where L crosses the
-    /// negative real axis inside the unit circle (`None`: no such crossing).
-    pub gain_margin_db: Option<f64>,
-    /// Where, rad/s.
-    pub gain_margin_at_rad_s: Option<f64>,
-    /// Modulus margin's inverse, `‖S‖∞ = max |1/(1 + L)|` over the lines.
-    pub sensitivity_peak: f64,
-    /// Where, rad/s.
-    pub sensitivity_peak_at_rad_s: f64,
     /// Sensitivity bandwidth ω_B: the lowest frequency at which |S| reaches
     /// 1/√2 (−3 dB) from below, rad/s (`None`: not within the lines).
     pub sensitivity_bandwidth_rad_s: Option<f64>,
@@ -174,12 +168,15 @@ pub fn figures(omega_rad_s: &[f64], l: &[C64], integrators: u32) -> LoopFigures 
     let turns = (phase / (2.0 * PI)).round().abs() as u32;
     LoopFigures {
         phase_margin_min_deg: pms.iter().map(|p: &f64| p.abs()).reduce(f64::min),
-        crossovers_rad_s: crossovers,
-        phase_margins_deg: pms,
-        gain_margin_db: gm.map(|g| g.0),
-        gain_margin_at_rad_s: gm.map(|g| g.1),
-        sensitivity_peak: s_peak,
-        sensitivity_peak_at_rad_s: s_at,
+        margins: Margins {
+            phase_margin_deg: pms.first().copied(),
+            crossovers_rad_s: crossovers,
+            phase_margins_deg: pms,
+            gain_margin_db: gm.map(|g| g.0),
+            gain_margin_at_rad_s: gm.map(|g| g.1),
+            sensitivity_peak: s_peak,
+            sensitivity_peak_at_rad_s: s_at,
+        },
         sensitivity_bandwidth_rad_s: if n > 0 && 1.0 / (l[0] + 1.0).norm() >= s_target {
             None
         } else {
@@ -282,9 +279,6 @@ mod tests {
         let f = figures(&w, &l, 1);
         let lookup = |x: f64| l[w.partition_point(|g| *g < x).min(w.len() - 1)];
         let m = crate::control::loop_check::margins(&lookup, &w, false);
-        assert_eq!(f.crossovers_rad_s, m.crossovers_rad_s);
-        assert_eq!(f.phase_margins_deg, m.phase_margins_deg);
-        assert_eq!(f.gain_margin_db, m.gain_margin_db);
-        assert_eq!(f.sensitivity_peak, m.sensitivity_peak);
+        assert_eq!(f.margins, m);
     }
 }

@@ -155,32 +155,32 @@ impl DesignSpec {
     pub fn validate(&self, period_s: f64) -> Result<(), DesignError> {
         let r = &self.requirements;
         let inside = |x: f64, (lo, hi): (f64, f64)| x.is_finite() && x >= lo && x <= hi;
-        if !inside(r.phase_margin_min_deg, PHASE_MARGIN_RANGE_DEG) {
-            return Err(derr(
+        for (key, value, range, unit) in [
+            (
                 "pm_min_deg",
-                format!(
-                    "must be in [{}, {}]°, got {}",
-                    PHASE_MARGIN_RANGE_DEG.0, PHASE_MARGIN_RANGE_DEG.1, r.phase_margin_min_deg
-                ),
-            ));
-        }
-        if !inside(r.gain_margin_min_db, GAIN_MARGIN_RANGE_DB) {
-            return Err(derr(
+                r.phase_margin_min_deg,
+                PHASE_MARGIN_RANGE_DEG,
+                "°",
+            ),
+            (
                 "gm_min_db",
-                format!(
-                    "must be in [{}, {}] dB, got {}",
-                    GAIN_MARGIN_RANGE_DB.0, GAIN_MARGIN_RANGE_DB.1, r.gain_margin_min_db
-                ),
-            ));
-        }
-        if !inside(r.sensitivity_peak_max, SENSITIVITY_PEAK_RANGE) {
-            return Err(derr(
+                r.gain_margin_min_db,
+                GAIN_MARGIN_RANGE_DB,
+                " dB",
+            ),
+            (
                 "s_max",
-                format!(
-                    "must be in [{}, {}] (a modulus margin of 0.83 to 0.25), got {}",
-                    SENSITIVITY_PEAK_RANGE.0, SENSITIVITY_PEAK_RANGE.1, r.sensitivity_peak_max
-                ),
-            ));
+                r.sensitivity_peak_max,
+                SENSITIVITY_PEAK_RANGE,
+                " (a modulus margin of 0.83 to 0.25)",
+            ),
+        ] {
+            if !inside(value, range) {
+                return Err(derr(
+                    key,
+                    format!("must be in [{}, {}]{unit}, got {value}", range.0, range.1),
+                ));
+            }
         }
         let max = MAX_DELAY_PERIODS * period_s;
         if !inside(self.computation_delay_s, (0.0, max)) {

@@ -222,7 +222,12 @@ impl<'a> Problem<'a> {
                 limit,
                 at_rad_s: at,
             };
-            for (w, pm) in f.crossovers_rad_s.iter().zip(&f.phase_margins_deg) {
+            for (w, pm) in f
+                .margins
+                .crossovers_rad_s
+                .iter()
+                .zip(&f.margins.phase_margins_deg)
+            {
                 let m = req.phase_margin_min_deg;
                 // The angle between L and −1, whichever way L turns.
                 let pm = pm.abs();
@@ -232,26 +237,26 @@ impl<'a> Problem<'a> {
                     b("phase margin", pm, m, Some(*w)),
                 );
             }
-            if f.crossovers_rad_s.is_empty() {
+            if f.margins.crossovers_rad_s.is_empty() {
                 judge(10.0, -10.0, b("no crossover", 0.0, 1.0, None));
             }
-            if let Some(gm) = f.gain_margin_db {
+            if let Some(gm) = f.margins.gain_margin_db {
                 let m = req.gain_margin_min_db;
                 judge(
                     (m - gm) / 6.0,
                     (gm - m) / 6.0,
-                    b("gain margin", gm, m, f.gain_margin_at_rad_s),
+                    b("gain margin", gm, m, f.margins.gain_margin_at_rad_s),
                 );
             }
-            let s_db = 20.0 * (f.sensitivity_peak / req.sensitivity_peak_max).log10();
+            let s_db = 20.0 * (f.margins.sensitivity_peak / req.sensitivity_peak_max).log10();
             judge(
                 s_db,
                 -s_db,
                 b(
                     "sensitivity peak",
-                    f.sensitivity_peak,
+                    f.margins.sensitivity_peak,
                     req.sensitivity_peak_max,
-                    Some(f.sensitivity_peak_at_rad_s),
+                    Some(f.margins.sensitivity_peak_at_rad_s),
                 ),
             );
             if f.rhp_closed_loop_poles > 0 {

@@ -448,7 +448,7 @@ pub fn run_design(opts: &DesignOptions) -> Result<DesignSummary, RunError> {
         d.chosen.strategy,
         e.sensitivity_bandwidth_min_rad_s,
         e.figures.iter().filter_map(|f| f.phase_margin_min_deg).fold(f64::INFINITY, f64::min),
-        e.figures.iter().map(|f| f.sensitivity_peak).fold(0.0, f64::max),
+        e.figures.iter().map(|f| f.margins.sensitivity_peak).fold(0.0, f64::max),
         frfs.len()
     );
     let model = predict(&cfg, &controller, spec.computation_delay_s).map_err(design_error)?;
@@ -486,7 +486,11 @@ pub fn run_design(opts: &DesignOptions) -> Result<DesignSummary, RunError> {
                 figures: g.clone(),
             })
             .collect(),
-        crossover_rad_s: e.figures[worst_index].crossovers_rad_s.first().copied(),
+        crossover_rad_s: e.figures[worst_index]
+            .margins
+            .crossovers_rad_s
+            .first()
+            .copied(),
         worst_input,
         binding: e.binding.clone(),
         sensitivity_bandwidth_rad_s: e.sensitivity_bandwidth_min_rad_s,
@@ -498,12 +502,12 @@ pub fn run_design(opts: &DesignOptions) -> Result<DesignSummary, RunError> {
         gain_margin_min_db: e
             .figures
             .iter()
-            .filter_map(|f| f.gain_margin_db)
+            .filter_map(|f| f.margins.gain_margin_db)
             .reduce(f64::min),
         sensitivity_peak: e
             .figures
             .iter()
-            .map(|f| f.sensitivity_peak)
+            .map(|f| f.margins.sensitivity_peak)
             .fold(0.0, f64::max),
         model,
         strategies: d
