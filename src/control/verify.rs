@@ -150,7 +150,11 @@ pub struct Envelope {
 
 impl Envelope {
     /// The envelope of `model` over `f_lo … f_hi` (Hz) with the amplitude
-    /// profile of `chirp`, on a log grid of `per_decade` points per decade.
+    /// profile of `chirp`: the largest value of each quantity on a log
+    /// grid of `per_decade` points per decade (at least
+    /// [`ENVELOPE_POINTS_PER_DECADE`]), refined between the grid points
+    /// around it by golden-section search (a peak between two points is
+    /// not missed by the grid's spacing).
     pub fn of(
         model: &ModelLoop<'_>,
         chirp: &Chirp,
@@ -160,44 +164,75 @@ impl Envelope {
     ) -> Self {
         let grid = log_grid(f_lo, f_hi, per_decade.max(ENVELOPE_POINTS_PER_DECADE));
         let period_s = model.plant.period_s;
-        let mut e = Self {
-            current_gain: 0.0,
-            current_gain_at_hz: f_lo,
-            excursion_m_per_a: 0.0,
-            excursion_at_hz: f_lo,
-            reading_step_m_per_a: 0.0,
-            reading_step_at_hz: f_lo,
-            ln_f: Vec::with_capacity(grid.len()),
-            s_magnitude: Vec::with_capacity(grid.len()),
-        };
-        for &f in &grid {
+        // The three quantities at f: s|S|, s|PS|, s|PS||1 − e^{−jωT}|.
+        let values = |f: f64| -> [f64; 3] {
             let scale = chirp.profile_scale(f);
             let p = model.plant(f);
             let s = C64::new(1.0, 0.0) / (model.controller(f) * p + 1.0);
             let ps = (p * s).norm();
             let per_tick = 2.0 * (PI * f * period_s).sin().abs();
-            for (v, at, x) in [
-                (
-                    &mut e.current_gain,
-                    &mut e.current_gain_at_hz,
-                    scale * s.norm(),
-                ),
-                (&mut e.excursion_m_per_a, &mut e.excursion_at_hz, scale * ps),
-                (
-                    &mut e.reading_step_m_per_a,
-                    &mut e.reading_step_at_hz,
-                    scale * ps * per_tick,
-                ),
-            ] {
-                if x > *v {
-                    *v = x;
-                    *at = f;
+            [scale * s.norm(), scale * ps, scale * ps * per_tick]
+        };
+        let mut best = [(0.0f64, 0usize); 3];
+        let mut ln_f = Vec::with_capacity(grid.len());
+        let mut s_magnitude = Vec::with_capacity(grid.len());
+        for (i, &f) in grid.iter().enumerate() {
+            let v = values(f);
+            for (b, x) in best.iter_mut().zip(v) {
+                if x > b.0 {
+                    *b = (x, i);
                 }
             }
-            e.ln_f.push(f.ln());
-            e.s_magnitude.push(s.norm());
+            ln_f.push(f.ln());
+            s_magnitude.push(model.sensitivity(f).norm());
         }
-        e
+        let refined = |q: usize| -> (f64, f64) {
+            let (v0, i) = best[q];
+            if grid.len() < 3 {
+                return (v0, grid.get(i).copied().unwrap_or(f_lo));
+            }
+            let (mut a, mut b) = (
+                grid[i.saturating_sub(1)].ln(),
+                grid[(i + 1).min(grid.len() - 1)].ln(),
+            );
+            let g = |x: f64| values(x.exp())[q];
+            let r = 0.5 * (5f64.sqrt() - 1.0);
+            let (mut c, mut d) = (b - r * (b - a), a + r * (b - a));
+            let (mut gc, mut gd) = (g(c), g(d));
+            for _ in 0..60 {
+                if gc > gd {
+                    b = d;
+                    (d, gd) = (c, gc);
+                    c = b - r * (b - a);
+                    gc = g(c);
+                } else {
+                    a = c;
+                    (c, gc) = (d, gd);
+                    d = a + r * (b - a);
+                    gd = g(d);
+                }
+            }
+            let x = 0.5 * (a + b);
+            let v = g(x);
+            if v > v0 {
+                (v, x.exp())
+            } else {
+                (v0, grid[i])
+            }
+        };
+        let (current_gain, current_gain_at_hz) = refined(0);
+        let (excursion_m_per_a, excursion_at_hz) = refined(1);
+        let (reading_step_m_per_a, reading_step_at_hz) = refined(2);
+        Self {
+            current_gain,
+            current_gain_at_hz,
+            excursion_m_per_a,
+            excursion_at_hz,
+            reading_step_m_per_a,
+            reading_step_at_hz,
+            ln_f,
+            s_magnitude,
+        }
     }
 
     /// `|S(f)|` of the model, interpolated linearly in `ln f` on the

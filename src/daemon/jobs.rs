@@ -294,7 +294,15 @@ pub(super) fn run(
         .and_then(json),
         JobSpec::Control(opts) => {
             run_control_from(&opts, stop, StageSource::Service(proxy), Some(ticks))
-                .map_err(answer_run)
+                .map_err(|e| match &e {
+                    // A parameter judged on the model before enable: named
+                    // as the request names it.
+                    RunError::BadOption {
+                        key: "verify_amplitude_a",
+                        ..
+                    } => answer(e),
+                    _ => answer_run(e),
+                })
                 .and_then(json)
         }
         JobSpec::Fit(opts) => run_fit(&opts).map_err(answer).and_then(json),

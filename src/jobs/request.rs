@@ -599,6 +599,71 @@ mod tests {
         assert_eq!(got, ch5());
     }
 
+    /// `verify`: the defaults (10 % of `chirp.amplitude_a`, 10 s), the
+    /// values given, their ranges, and neither without `verify`.
+    #[test]
+    fn verify_settings() {
+        let cfg = ch5();
+        let mut r = ControlRequest::new("fast");
+        assert_eq!(r.verify_settings(&cfg).unwrap(), None);
+        r.verify = true;
+        assert_eq!(
+            r.verify_settings(&cfg).unwrap(),
+            Some(VerifySettings {
+                amplitude_a: 0.05,
+                duration_s: 10.0
+            })
+        );
+        r.verify_amplitude_a = Some(0.2);
+        r.verify_duration_s = Some(3.0);
+        assert_eq!(
+            r.verify_settings(&cfg).unwrap(),
+            Some(VerifySettings {
+                amplitude_a: 0.2,
+                duration_s: 3.0
+            })
+        );
+        let field = |r: &ControlRequest| match r.apply(&mut ch5()) {
+            Err(RequestError::Field { field, .. }) => field,
+            other => panic!("{r:?}: {other:?}"),
+        };
+        for a in [f64::NAN, -1.0, 0.0, 9.9e-5, 9.981, f64::INFINITY] {
+            let mut bad = r.clone();
+            bad.verify_amplitude_a = Some(a);
+            assert_eq!(field(&bad), "verify_amplitude_a", "{a}");
+        }
+        for d in [f64::NAN, 0.0, 0.099, 600.1, -5.0] {
+            let mut bad = r.clone();
+            bad.verify_duration_s = Some(d);
+            assert_eq!(field(&bad), "verify_duration_s", "{d}");
+        }
+        // A run beyond the job's tick budget: 600 s at 100 kHz.
+        let mut fast_loop = ch5();
+        fast_loop.loop_.rate_hz = 100_000.0;
+        let mut long = r.clone();
+        long.verify_duration_s = Some(600.0);
+        assert!(matches!(
+            long.verify_settings(&fast_loop),
+            Err(RequestError::Field {
+                field: "verify_duration_s",
+                ..
+            })
+        ));
+        r.verify = false;
+        assert_eq!(field(&r), "verify_amplitude_a");
+        // The wire form carries them; absent, they stay out.
+        let wire = serde_json::to_value(JobRequest::Control(ControlRequest::new("fast"))).unwrap();
+        assert_eq!(
+            wire,
+            json!({ "cmd": "control", "params": { "controller": "fast", "override_check": false } })
+        );
+        let v: ControlRequest = serde_json::from_value(
+            json!({ "controller": "fast", "verify": true, "verify_amplitude_a": 0.1 }),
+        )
+        .unwrap();
+        assert!(v.verify && v.verify_amplitude_a == Some(0.1));
+    }
+
     #[test]
     fn local_overrides_land_on_their_keys() {
         let mut got = ch5();

@@ -629,6 +629,50 @@ fn run_control_with(
 
 #[cfg(test)]
 mod tests {
+    /// With the verify's chirp the job is the same step, then the same
+    /// controller plus the chirp: on the same readings the commands
+    /// differ by exactly the chirp's value from the end of the step on,
+    /// and `excitation_a` is NaN before it and the chirp after.
+    #[test]
+    fn the_injection_is_added_at_the_plant_input_after_the_step() {
+        use super::*;
+        use crate::control::verify::chirp_config;
+        let path =
+            std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("bench-config/sr4dof-ch5.toml");
+        let cfg = BenchConfig::load(&path).unwrap();
+        let t = 2e-4;
+        let ctrl = DiscreteController::new(&cfg.controller["fast"], t, 9.98);
+        let chirp = Chirp::new(&chirp_config(&cfg.chirp, 0.05, 1.0), t);
+        let mut plain = ControlJob::new(ctrl, 1e-5, 100, 0, 1_000);
+        let mut with = ControlJob::new(ctrl, 1e-5, 100, 0, 1_000).with_verify(chirp);
+        assert_eq!(with.step_ticks(), 1_000);
+        assert_eq!(with.total_ticks(), 1_000 + chirp.total_ticks());
+        let mut plain_done = false;
+        for k in 0..with.total_ticks() {
+            let sample = Sample {
+                seq: k,
+                device_time_ns: k * 200_000,
+                position_m: 1e-6 * (k as f64 * 0.01).sin(),
+                measured_current_a: f64::NAN,
+                flags: Default::default(),
+            };
+            let a = plain.tick(k, &sample);
+            let b = with.tick(k, &sample);
+            plain_done |= a.done;
+            assert_eq!(a.setpoint_m, b.setpoint_m, "tick {k}");
+            if k < 1_000 {
+                assert_eq!(a.command_a, b.command_a, "tick {k}");
+                assert!(b.excitation_a.is_nan() && !b.done, "tick {k}");
+            } else {
+                let d = chirp.value_a(k - 1_000);
+                assert_eq!(b.excitation_a, d, "tick {k}");
+                assert!((b.command_a - a.command_a - d).abs() < 1e-12, "tick {k}");
+            }
+            assert_eq!(b.done, k + 1 == with.total_ticks(), "tick {k}");
+        }
+        assert!(plain_done);
+    }
+
     mod property {
         use super::super::*;
         use crate::rt::supervisor::{Supervisor, SupervisorConfig};
