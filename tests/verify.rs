@@ -6,6 +6,8 @@
 //! during the injection; a verification that cannot agree (exit 8).
 
 mod common;
+#[path = "common/daemon.rs"]
+mod daemon_fixtures;
 
 use bench::config::BenchConfig;
 use bench::control::DiscreteController;
@@ -576,4 +578,61 @@ fn check_only_prints_the_plan_and_writes_nothing() {
     let o = run(&["control", "--fast", "--verify", "--check-only"]);
     let text = String::from_utf8_lossy(&o.stdout);
     assert!(text.contains("predicted before enable"), "{text}");
+}
+
+/// `--verify` through the daemon (`--daemon`, the request carries it): the
+/// same summary, the result, the files beside the daemon's recording and
+/// `/control/verify` in it; an amplitude the limits do not leave room for
+/// is refused before enable, naming the parameter.
+#[test]
+fn verify_through_the_daemon() {
+    let d = daemon_fixtures::Daemon::start();
+    let sock = d.sock();
+    let o = run(&[
+        "control",
+        "--fast",
+        "--daemon",
+        &sock,
+        "--duration-s",
+        "1",
+        "--verify",
+        "--verify-duration-s",
+        "2",
+        "--json",
+    ]);
+    let err = stderr(&o);
+    assert_eq!(o.status.code(), Some(0), "{err}");
+    let s = json_stdout(&o);
+    let v = &s["verify"];
+    assert_eq!(f64_at(v, "/plan/duration_s"), 2.0);
+    assert_eq!(v["result"]["flagged"], Value::Bool(false), "{v}");
+    let rec = d.dir.path().join("rec");
+    let path = |k: &str| PathBuf::from(v[k].as_str().unwrap());
+    for p in [path("csv"), path("plot")] {
+        assert!(p.starts_with(&rec) && p.exists(), "{}", p.display());
+    }
+    let recording = PathBuf::from(s["recording"].as_str().unwrap());
+    let msgs = mcap_messages(&recording);
+    assert!(msgs.iter().any(|m| m.0 == "/control/verify"));
+    // Over the socket: refused before enable, naming the parameter.
+    let mut c = d.client();
+    let r = c.call(
+        "control",
+        serde_json::json!({ "controller": "fast", "verify": true, "verify_amplitude_a": 5.0 }),
+    );
+    assert_eq!(r["error"]["kind"], "bad_params", "{r}");
+    let m = r["error"]["message"].as_str().unwrap();
+    assert!(
+        m.contains("params.verify_amplitude_a") && m.contains("nothing was enabled"),
+        "{m}"
+    );
+    let r = c.call(
+        "control",
+        serde_json::json!({ "controller": "fast", "verify_duration_s": 5.0 }),
+    );
+    assert_eq!(r["error"]["kind"], "bad_params", "{r}");
+    assert_eq!(
+        c.call("status", serde_json::json!({}))["result"]["fault"],
+        Value::Null
+    );
 }

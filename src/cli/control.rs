@@ -479,10 +479,12 @@ fn print_verify(v: &Verify) {
     let pr = &r.predicted;
     if let Some(m) = &r.measured {
         outln!(
-            "  ‖S‖∞   measured {:.3} ({:.2} dB) at {:.1} rad/s; predicted {:.3} ({:.2} dB) at {:.1} rad/s; {}",
+            "  ‖S‖∞   measured {:.3} ({:.2} dB) at {:.1} rad/s (γ² {}); predicted {:.3} ({:.2} dB) at {:.1} rad/s; {}",
             m.sensitivity_peak,
             db(m.sensitivity_peak),
             m.sensitivity_peak_at_rad_s,
+            r.sensitivity_peak_coherence
+                .map_or("–".to_string(), |g| format!("{g:.3}")),
             pr.sensitivity_peak,
             db(pr.sensitivity_peak),
             pr.sensitivity_peak_at_rad_s,

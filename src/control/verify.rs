@@ -410,6 +410,11 @@ pub struct VerifyResult {
     /// The model's largest |S| on the lines used (what the prediction
     /// gives on the measured band), dimensionless.
     pub model_sensitivity_peak_on_lines: Option<f64>,
+    /// The coherence γ²(d → u) of the line where the measured |S| peaks:
+    /// near the threshold the line's random error is large (about ±30 %
+    /// in |S| at γ² = 0.5 over 5 bins), and a short sweep's noisy lines
+    /// can set ‖S‖∞.
+    pub sensitivity_peak_coherence: Option<f64>,
     /// `20 log10(measured ‖S‖∞ / predicted ‖S‖∞)`, dB.
     pub sensitivity_peak_difference_db: Option<f64>,
     /// `measured / predicted − 1` of the first crossover, %.
@@ -454,6 +459,7 @@ impl VerifyResult {
             measured: None,
             predicted,
             model_sensitivity_peak_on_lines: None,
+            sensitivity_peak_coherence: None,
             sensitivity_peak_difference_db: None,
             crossover_difference_pct: None,
             s_model_difference_max_db: None,
@@ -490,6 +496,10 @@ impl VerifyResult {
             sq += db * db;
         }
         r.model_sensitivity_peak_on_lines = Some(model_peak);
+        r.sensitivity_peak_coherence = used
+            .iter()
+            .max_by(|&&a, &&b| frf.s[a].norm().total_cmp(&frf.s[b].norm()))
+            .map(|&i| frf.s_coherence[i]);
         r.s_model_difference_max_db = Some(worst);
         r.s_model_difference_rms_db = Some((sq / used.len() as f64).sqrt());
         let ds = 20.0 * (measured.sensitivity_peak / r.predicted.sensitivity_peak).log10();
