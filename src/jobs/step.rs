@@ -9,7 +9,11 @@
 //! reading smoothed over [`SMOOTHING_S`]; steady-state error over the final
 //! `steady_state_window_s`) are defined and computed in
 //! [`crate::control::step_metrics`], re-exported here; the step figure is
-//! [`crate::plot::write_step_png`].
+//! [`crate::plot::write_step_png`]. With `--verify` the job goes on after
+//! the step, holding its setpoint, with a chirp added at the plant input
+//! ([`ControlJob::with_verify`]; planned, checked and analysed in
+//! [`crate::jobs::verify`]); the step's metrics and figure are the step's
+//! ticks alone.
 
 use crate::config::BenchConfig;
 use crate::control::loop_check::{check_loop, LoopCheck, MeasuredFrf};
