@@ -301,10 +301,10 @@ pub(super) fn control(args: ControlArgs, stop: Arc<AtomicBool>) -> ExitCode {
 /// Exit 8 for a run whose verification disagrees with the prediction
 /// (said on stderr too); `None` otherwise.
 fn verify_status(s: &ControlSummary) -> Option<ExitCode> {
-    let r = s.verify.as_ref()?.result.as_ref()?;
-    if !r.flagged {
+    if !s.verify_failed() {
         return None;
     }
+    let r = s.verify.as_ref()?.result.as_ref()?;
     errln!(
         "error: bench control --verify: {} (the run completed; its recording and files are written)",
         r.verdict_line()

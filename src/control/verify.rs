@@ -164,27 +164,29 @@ impl Envelope {
     ) -> Self {
         let grid = log_grid(f_lo, f_hi, per_decade.max(ENVELOPE_POINTS_PER_DECADE));
         let period_s = model.plant.period_s;
-        // The three quantities at f: s|S|, s|PS|, s|PS||1 − e^{−jωT}|.
-        let values = |f: f64| -> [f64; 3] {
+        // The three quantities at f: s|S|, s|PS|, s|PS||1 − e^{−jωT}|;
+        // and |S|.
+        let values_and_s = |f: f64| -> ([f64; 3], f64) {
             let scale = chirp.profile_scale(f);
             let p = model.plant(f);
-            let s = C64::new(1.0, 0.0) / (model.controller(f) * p + 1.0);
-            let ps = (p * s).norm();
+            let s = (C64::new(1.0, 0.0) / (model.controller(f) * p + 1.0)).norm();
+            let ps = p.norm() * s;
             let per_tick = 2.0 * (PI * f * period_s).sin().abs();
-            [scale * s.norm(), scale * ps, scale * ps * per_tick]
+            ([scale * s, scale * ps, scale * ps * per_tick], s)
         };
+        let values = |f: f64| values_and_s(f).0;
         let mut best = [(0.0f64, 0usize); 3];
         let mut ln_f = Vec::with_capacity(grid.len());
         let mut s_magnitude = Vec::with_capacity(grid.len());
         for (i, &f) in grid.iter().enumerate() {
-            let v = values(f);
+            let (v, s) = values_and_s(f);
             for (b, x) in best.iter_mut().zip(v) {
                 if x > b.0 {
                     *b = (x, i);
                 }
             }
             ln_f.push(f.ln());
-            s_magnitude.push(model.sensitivity(f).norm());
+            s_magnitude.push(s);
         }
         let refined = |q: usize| -> (f64, f64) {
             let (v0, i) = best[q];

@@ -349,12 +349,16 @@ pub fn analyze(
     predicted: &Margins,
     model: &ModelLoop<'_>,
 ) -> Analysis {
-    let n = data.excitation_a.len().min(data.current_command_a.len());
+    let n = data
+        .excitation_a
+        .len()
+        .min(data.current_command_a.len())
+        .min(data.position_m.len());
     let start = start.min(n);
     let rec = VerifyRecord {
         d: &data.excitation_a[start..n],
         u: &data.current_command_a[start..n],
-        y: &data.position_m[start..n.min(data.position_m.len())],
+        y: &data.position_m[start..n],
         quiet_ticks: chirp.lead_in_ticks() as usize,
     };
     let frf = ClosedLoopFrf::estimate(
