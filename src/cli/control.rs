@@ -94,7 +94,7 @@ pub(super) struct ControlArgs {
     verify: bool,
     /// The injected chirp's amplitude at the plant input, A (before the
     /// [chirp] amplitude profile's scale) [default: 10 % of
-    /// chirp.amplitude_a, 0.05 A on the shipped benches]. Range: 0.1 mA to
+    /// chirp.amplitude_a, 0.05 A on the Chapter 5 bench]. Range: 0.1 mA to
     /// actuator.peak_current_a, and the room the limits leave (predicted).
     #[arg(
         long,

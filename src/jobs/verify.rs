@@ -31,7 +31,7 @@ use std::io::Write;
 use std::path::PathBuf;
 
 /// The default injection amplitude as a fraction of `chirp.amplitude_a`
-/// (0.05 A on the shipped benches; README, `--verify`).
+/// (0.05 A on the Chapter 5 bench; README, `--verify`).
 pub const DEFAULT_AMPLITUDE_OF_CHIRP: f64 = 0.1;
 
 /// The default sweep duration, s.
