@@ -93,6 +93,7 @@ fn control(c: &mut Criterion) {
         progress: false,
         inject: None,
         backend: None,
+        verify: None,
     };
     g.sample_size(10).measurement_time(Duration::from_secs(15));
     g.bench_function("closed_loop_step_4s_virtual", |b| {

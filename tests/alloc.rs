@@ -199,6 +199,43 @@ fn closed_loop_tick_allocates_nothing() {
     );
 }
 
+/// The same with `bench control --verify`'s injection: the step, then
+/// the chirp added to the controller's command at the plant input (its
+/// lead-in, sweep and tail), counted from tick 100 to the end.
+#[test]
+fn closed_loop_verify_tick_allocates_nothing() {
+    use bench::control::verify::chirp_config;
+    use bench::control::DiscreteController;
+    use bench::jobs::step::ControlJob;
+    let cfg = ch5();
+    let mut stage = SimStage::new(cfg.sim_params(7)).unwrap();
+    let info = stage.configure(cfg.loop_.period_ns()).unwrap();
+    let period_s = info.period_ns as f64 * 1e-9;
+    let ctrl = DiscreteController::new(&cfg.controller["fast"], period_s, info.peak_current_a);
+    let mut chirp_cfg = chirp_config(&cfg.chirp, 0.05, 2.0);
+    chirp_cfg.f_start_hz = 5.0;
+    chirp_cfg.tail_s = 0.5;
+    let chirp = Chirp::new(&chirp_cfg, period_s);
+    let job = ControlJob::new(ctrl, 1e-5, 1000, 0, 5_000).with_verify(chirp);
+    let total = job.total_ticks();
+    assert_eq!(total, 5_000 + chirp.total_ticks());
+    let opts = LoopOptions {
+        period_ns: info.period_ns,
+        pacing: Pacing::Virtual,
+        timing_interval_ticks: 500,
+        safety: cfg.supervisor(&info),
+        max_ticks: total,
+    };
+    let (report, allocations, records) = run_counted_job(stage, job, opts, info.clock);
+    assert_eq!(report.stop, StopReason::Finished);
+    assert!(records >= total);
+    assert_eq!(
+        allocations, 0,
+        "{allocations} allocations in {} closed-loop ticks with the injection",
+        report.ticks
+    );
+}
+
 /// The same over the serial backend (protocol encode/decode, pty I/O),
 /// against the emulator in lockstep on another thread (not counted).
 #[test]

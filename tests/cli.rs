@@ -334,6 +334,9 @@ fn help_lists_every_control_option() {
         "--override-check",
         "--seed",
         "--inject-fault",
+        "--verify",
+        "--verify-amplitude-a",
+        "--verify-duration-s",
     ] {
         assert!(help.contains(flag), "--help lacks {flag}");
     }

@@ -368,6 +368,66 @@ fn request_parameters_from_json() {
     assert!(failures.is_empty(), "{}", failures.join("\n"));
 }
 
+/// `bench control --verify`'s two values, which set no config key (the
+/// verify's chirp is `[chirp]` with its own amplitude and duration):
+/// README, *`--verify`*: the amplitude in [0.1 mA, actuator.peak_current_a]
+/// (9.98 A shipped), the sweep in [0.1 s, 600 s]. Every value is refused
+/// naming its parameter, or taken as given; the same from the daemon's
+/// JSON. (Whether the limits leave room for an amplitude is judged on the
+/// model before enable: `tests/verify.rs`.)
+#[test]
+fn verify_parameters_are_refused_naming_them_or_taken_as_given() {
+    const VERIFY_AMPLITUDE: Doc = doc(1e-4, true, 9.98, true);
+    const VERIFY_DURATION: Doc = doc(0.1, true, 600.0, true);
+    let mut failures = Vec::new();
+    let mut n = 0;
+    for (name, d) in [
+        ("verify_amplitude_a", VERIFY_AMPLITUDE),
+        ("verify_duration_s", VERIFY_DURATION),
+    ] {
+        for x in d.values() {
+            n += 1;
+            let mut r = ControlRequest::new("fast");
+            r.verify = true;
+            if name == "verify_amplitude_a" {
+                r.verify_amplitude_a = Some(x);
+            } else {
+                r.verify_duration_s = Some(x);
+            }
+            let mut c = ch5();
+            let applied = r.apply(&mut c).and_then(|_| r.verify_settings(&c));
+            match applied {
+                Ok(Some(v)) if d.contains(x) => {
+                    let got = if name == "verify_amplitude_a" {
+                        v.amplitude_a
+                    } else {
+                        v.duration_s
+                    };
+                    if got != x {
+                        failures.push(format!("{name} = {x:?}: taken as {got:?}"));
+                    }
+                }
+                Ok(_) => failures.push(format!("{name} = {x:?}: outside {d:?} but accepted")),
+                Err(e) if e.to_string().contains(name) => {}
+                Err(e) => failures.push(format!("{name} = {x:?}: refused without naming it: {e}")),
+            }
+            if x.is_finite() {
+                let job: JobRequest = serde_json::from_value(json!({
+                    "cmd": "control",
+                    "params": { "controller": "fast", "verify": true, name: x }
+                }))
+                .unwrap();
+                let JobRequest::Control(req) = job else {
+                    panic!("not a control job")
+                };
+                assert_eq!(req, r, "{name} = {x:?}: the wire form differs");
+            }
+        }
+    }
+    assert!(n > 30, "only {n}");
+    assert!(failures.is_empty(), "{}", failures.join("\n"));
+}
+
 /// A bad `chirp.taper_s` or `step.steady_state_window_s` in the config is
 /// not hidden by a request's duration (which shrinks them when valid).
 #[test]

@@ -422,6 +422,79 @@ fn bad_devices_are_refused_before_anything_is_enabled() {
     );
 }
 
+/// `bench control --verify` over the serial link: the same job and tick as
+/// on the simulator, nothing backend-specific. On the emulated bench the
+/// host's model describes, the measured loop agrees with the prediction
+/// (exit 0); on a device whose voice coil is 30 % stronger than the
+/// host's config says (the emulator runs `force_constant_n_per_a` × 1.3),
+/// the loop the host closes is not the one it predicted, and `--verify`
+/// says so: exit 8, the crossover named, every file written.
+#[test]
+fn verify_over_the_serial_link() {
+    let _g = one_at_a_time();
+    let dir = tmp();
+    let cfg = quiet_config(dir.path());
+    let cfg_s = cfg.display().to_string();
+    let args = ["--duration-s", "1", "--verify", "--verify-duration-s", "4"];
+    let emu = Emulator::lockstep(&cfg);
+    let out = path_in(dir.path(), "ser.mcap");
+    let o = control(&cfg_s, &out, Some(&emu.backend()), &args);
+    drop(emu);
+    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+    let s = json_stdout(&o);
+    assert!(s["backend"].as_str().unwrap().starts_with("serial:"));
+    let r = &s["verify"]["result"];
+    assert_eq!(r["flagged"], Value::Bool(false), "{r}");
+    eprintln!(
+        "serial: ‖S‖∞ {:+.3} dB, first crossover {:+.2} %, {} of {} lines",
+        r["sensitivity_peak_difference_db"],
+        r["crossover_difference_pct"],
+        r["lines_used"],
+        r["lines_total"]
+    );
+    assert!(dir.path().join("ser.verify.csv").exists());
+
+    let text = std::fs::read_to_string(&cfg).unwrap();
+    let k = ch5_force_constant(&text);
+    let device = dir.path().join("device.toml");
+    std::fs::write(
+        &device,
+        set_key(&text, "force_constant_n_per_a", &format!("{}", 1.3 * k)),
+    )
+    .unwrap();
+    let emu = Emulator::lockstep(&device);
+    let out = path_in(dir.path(), "mismatch.mcap");
+    let o = control(&cfg_s, &out, Some(&emu.backend()), &args);
+    drop(emu);
+    let err = stderr(&o);
+    assert_eq!(o.status.code(), Some(8), "{err}");
+    assert!(err.contains("VERIFY FAILED"), "{err}");
+    let r = &json_stdout(&o)["verify"]["result"];
+    assert_eq!(r["flagged"], Value::Bool(true), "{r}");
+    eprintln!("30 % stronger coil: {}", r["reasons"]);
+    assert!(
+        r["reasons"].to_string().contains("crossover"),
+        "{}",
+        r["reasons"]
+    );
+    for f in [
+        "mismatch.mcap",
+        "mismatch.verify.csv",
+        "mismatch.verify.png",
+    ] {
+        assert!(dir.path().join(f).exists(), "{f}");
+    }
+}
+
+/// `force_constant_n_per_a` of a config's text.
+fn ch5_force_constant(text: &str) -> f64 {
+    text.lines()
+        .find_map(|l| l.strip_prefix("force_constant_n_per_a = "))
+        .and_then(|v| v.split_whitespace().next())
+        .and_then(|v| v.parse().ok())
+        .expect("force_constant_n_per_a")
+}
+
 /// `bench emulate serial` as its own process (as a user runs it): it prints
 /// the pty path first, serves a `bench control --fast` run, and stops on
 /// SIGINT with its counters.

@@ -338,6 +338,7 @@ fn bode_plot_draws_low_coherence_points_faint() {
     let path = dir.path().join("coh.png");
     let plot = BodePlot {
         title: "low coherence",
+        magnitude_axis: bench::plot::MAGNITUDE_M_PER_A,
         measured: BodeSeries {
             label: "measured",
             frequency_hz: &f,
@@ -427,6 +428,7 @@ fn bode_plot_zooms_on_the_pair() {
     let dir = tempfile::tempdir().unwrap();
     let base = BodePlot {
         title: "pair",
+        magnitude_axis: bench::plot::MAGNITUDE_M_PER_A,
         measured: BodeSeries {
             label: "measured",
             frequency_hz: &f,

@@ -221,6 +221,27 @@ fn recorded_messages_match_their_channel_schemas() {
         ],
         0,
     );
+    // With --verify: /control/verify (its arrays and the summary's
+    // `verify`). Whether a 2 s sweep agrees with the prediction is not
+    // what is tested here: 0 or 8, the recording is complete either way.
+    let verified = dir.path().join("verified.mcap");
+    let o = run(&[
+        "control",
+        "--fast",
+        "--json",
+        "--out",
+        &p(&verified),
+        "--duration-s",
+        "1",
+        "--verify",
+        "--verify-duration-s",
+        "2",
+    ]);
+    assert!(
+        matches!(o.status.code(), Some(0 | 8)),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
     // A fault: the probe reads NaN (recorded as null), the fault event.
     bench_exits(
         &[
@@ -261,6 +282,37 @@ fn recorded_messages_match_their_channel_schemas() {
             ("/control/summary", "bench.ControlSummary"),
         ],
     );
+    let verified = validate_recording(&verified);
+    assert_topics(
+        &verified,
+        &[
+            ("/bench/sample", "bench.SampleBlock"),
+            ("/control/loop_check", "bench.LoopCheck"),
+            ("/control/metrics", "bench.StepMetrics"),
+            ("/control/verify", "bench.VerifyMessage"),
+            ("/control/summary", "bench.ControlSummary"),
+        ],
+    );
+    let v = &verified["/control/verify"];
+    let keys_of =
+        |v: &Value| -> BTreeSet<String> { v.as_object().unwrap().keys().cloned().collect() };
+    assert_eq!(
+        keys_of(&v.messages[0]),
+        BTreeSet::from_iter(
+            "verify frequency_hz s_magnitude s_phase_deg s_coherence t_magnitude t_phase_deg \
+             t_coherence ps_magnitude_m_per_a ps_phase_deg ps_coherence used model_s_magnitude \
+             model_s_phase_deg"
+                .split(' ')
+                .map(String::from)
+        )
+    );
+    let valid_v = |x: &Value| jsonschema::validator_for(&v.schema).unwrap().is_valid(x);
+    assert!(!valid_v(&replaced(
+        &v.messages[0],
+        "/verify/result/flagged",
+        json!("no")
+    )));
+    assert!(!valid_v(&replaced(&v.messages[0], "/used/0", json!(1.0))));
     let faulted = validate_recording(&faulted);
     assert_topics(
         &faulted,

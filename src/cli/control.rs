@@ -1,13 +1,14 @@
 //! `bench control`: its flags, the job request they make, and the printed
 //! loop check and step summary.
 
-use super::serve::via_daemon;
+use super::serve::via_daemon_then;
 use super::{
     bad_input, emit, job_thread, load_config, origin, recording_plan, refuse_local_only,
     refused_request, run_failed, run_failed_json, status, unclaimed_recording, CONFIG_HELP,
 };
 use bench::jobs::request::{parse_seed, ControlRequest, JobRequest};
 use bench::jobs::step::{run_control, ControlOptions, ControlSummary};
+use bench::jobs::verify::{Verify, VerifyOptions};
 use bench::outputs::beside;
 use bench::outputs::{Existing, OutputPlan};
 use bench::rt::backend::BackendSpec;
@@ -81,6 +82,36 @@ pub(super) struct ControlArgs {
     /// the config]. Hardware always runs in real time.
     #[arg(long, value_name = "BACKEND")]
     backend: Option<BackendSpec>,
+    /// After the step, holding its setpoint, inject a chirp (the band and
+    /// amplitude profile of [chirp]) at the plant input, added to the
+    /// controller's command, and measure the sensitivity S = u/d, T = 1 − S
+    /// and PS = y/d with coherence; report the measured ‖S‖∞ and
+    /// crossovers beside the loop check's. Exit 8 when they differ by more
+    /// than 1 dB or 5 % (the run and its files are complete). The
+    /// amplitude is checked on the model against the current, I²t and
+    /// position limits before anything is enabled.
+    #[arg(long)]
+    verify: bool,
+    /// The injected chirp's amplitude at the plant input, A (before the
+    /// [chirp] amplitude profile's scale) [default: 10 % of
+    /// chirp.amplitude_a, 0.05 A on the Chapter 5 bench]. Range: 0.1 mA to
+    /// actuator.peak_current_a, and the room the limits leave (predicted).
+    #[arg(
+        long,
+        value_name = "A",
+        allow_hyphen_values = true,
+        requires = "verify"
+    )]
+    verify_amplitude_a: Option<f64>,
+    /// The injected chirp's sweep duration, s [default: 10]. Range: 0.1 to
+    /// 600 s. The run grows by chirp.lead_in_s + this + chirp.tail_s.
+    #[arg(
+        long,
+        value_name = "S",
+        allow_hyphen_values = true,
+        requires = "verify"
+    )]
+    verify_duration_s: Option<f64>,
     /// Submit to a running `bench serve` instead of opening the bench here
     /// [SOCKET default: $XDG_RUNTIME_DIR/bench.sock, else
     /// /run/bench/bench.sock]. The daemon's config and backend apply.
@@ -110,6 +141,9 @@ impl ControlArgs {
             seed: self.seed,
             inject_fault: self.inject_fault.clone(),
             override_check: self.override_check,
+            verify: self.verify,
+            verify_amplitude_a: self.verify_amplitude_a,
+            verify_duration_s: self.verify_duration_s,
         }
     }
 
@@ -127,6 +161,8 @@ impl ControlArgs {
                 .inject_fault
                 .as_ref()
                 .map(|f| format!("--inject-fault {f}")),
+            "verify_amplitude_a" => Some("--verify-amplitude-a".into()),
+            "verify_duration_s" => Some("--verify-duration-s".into()),
             _ => None,
         }
     }
@@ -153,7 +189,7 @@ pub(super) fn control(args: ControlArgs, stop: Arc<AtomicBool>) -> ExitCode {
             return code;
         }
         let job = JobRequest::Control(args.request());
-        return via_daemon(sock, &job, args.json, print_control_summary);
+        return via_daemon_then(sock, &job, args.json, print_control_summary, verify_status);
     }
     let (mut cfg, config_path) = match load_config(args.config.as_deref()) {
         Ok(c) => c,
@@ -163,6 +199,15 @@ pub(super) fn control(args: ControlArgs, stop: Arc<AtomicBool>) -> ExitCode {
     let inject = match request.apply(&mut cfg) {
         Ok(f) => f,
         Err(e) => return refused_request(e, &config_path, |key| args.flag_for(key)),
+    };
+    let verify = match request.verify_settings(&cfg) {
+        Ok(v) => v,
+        Err(e) => return refused_request(e, &config_path, |key| args.flag_for(key)),
+    };
+    let companions: &[&str] = if verify.is_some() {
+        &[".step.png", ".verify.csv", ".verify.png"]
+    } else {
+        &[".step.png"]
     };
     let name = request.controller.clone();
     let prefix = format!("control-{name}");
@@ -178,7 +223,7 @@ pub(super) fn control(args: ControlArgs, stop: Arc<AtomicBool>) -> ExitCode {
         };
         (out, OutputPlan::new(Existing::Refuse))
     } else {
-        match recording_plan(args.out.as_deref(), &prefix, &[".step.png"], args.overwrite) {
+        match recording_plan(args.out.as_deref(), &prefix, companions, args.overwrite) {
             Ok(r) => r,
             Err(e) => return run_failed(&e),
         }
@@ -194,6 +239,18 @@ pub(super) fn control(args: ControlArgs, stop: Arc<AtomicBool>) -> ExitCode {
         .clone()
         .unwrap_or_else(|| beside(&out, ".step.png"));
     let outputs = outputs.with_output("plot", &plot, origin(args.plot.is_some()));
+    let verify = verify.map(|v| VerifyOptions {
+        amplitude_a: v.amplitude_a,
+        duration_s: v.duration_s,
+        csv: beside(&out, ".verify.csv"),
+        plot: beside(&out, ".verify.png"),
+    });
+    let outputs = match &verify {
+        Some(v) => outputs
+            .with_output("verify_csv", &v.csv, origin(false))
+            .with_output("verify_plot", &v.plot, origin(false)),
+        None => outputs,
+    };
     let opts = ControlOptions {
         plot,
         out,
@@ -208,6 +265,7 @@ pub(super) fn control(args: ControlArgs, stop: Arc<AtomicBool>) -> ExitCode {
         progress: std::io::stderr().is_terminal(),
         inject,
         backend: args.backend.clone(),
+        verify,
     };
     // Kept until the run has ended: the live view serves while it runs.
     let _live = match args.live.start(opts.config.loop_.cpu) {
@@ -234,10 +292,24 @@ pub(super) fn control(args: ControlArgs, stop: Arc<AtomicBool>) -> ExitCode {
                 );
                 return ExitCode::from(status::BAD_INPUT);
             }
-            ExitCode::SUCCESS
+            verify_status(&summary).unwrap_or(ExitCode::SUCCESS)
         }
         Err(e) => run_failed_json(&e, args.json),
     }
+}
+
+/// Exit 8 for a run whose verification disagrees with the prediction
+/// (said on stderr too); `None` otherwise.
+fn verify_status(s: &ControlSummary) -> Option<ExitCode> {
+    if !s.verify_failed() {
+        return None;
+    }
+    let r = s.verify.as_ref()?.result.as_ref()?;
+    errln!(
+        "error: bench control --verify: {} (the run completed; its recording and files are written)",
+        r.verdict_line()
+    );
+    Some(ExitCode::from(status::VERIFY_FAILED))
 }
 
 pub(super) fn print_margins(label: &str, m: &bench::control::loop_check::Margins) {
@@ -325,6 +397,9 @@ pub(super) fn print_control_summary(s: &ControlSummary) {
         );
         outln!("  peak command {:.3} A", m.peak_command_a);
     }
+    if let Some(v) = &s.verify {
+        print_verify(v);
+    }
     if s.disturbance_rms_n > 0.0 {
         outln!("disturbance: {:.4} N RMS", s.disturbance_rms_n);
     }
@@ -341,5 +416,106 @@ pub(super) fn print_control_summary(s: &ControlSummary) {
         for line in t.lines() {
             outln!("{line}");
         }
+    }
+}
+
+fn print_verify(v: &Verify) {
+    let p = &v.plan;
+    outln!(
+        "verify: chirp {:.3} A at the plant input, {}–{} Hz in {} s, from {:.2} s (lead-in {} s, tail {} s; run {:.2} s)",
+        p.amplitude_a,
+        p.f_start_hz,
+        p.f_end_hz,
+        p.duration_s,
+        p.start_s,
+        p.lead_in_s,
+        p.tail_s,
+        p.run_s
+    );
+    outln!(
+        "  predicted before enable: peak command {:.3} A of {} A (steady {:.3} A + |S| {:.2} at {:.1} Hz); peak excursion {:.1} µm of {:.1} µm (|PS| {:.2e} m/A at {:.1} Hz); {:.2} µm per tick of {:.1} µm; I²t {:.2} A²s of {:.1} A²s",
+        p.peak_current_a,
+        p.peak_current_limit_a,
+        p.steady_command_a,
+        p.sensitivity_envelope,
+        p.sensitivity_envelope_at_hz,
+        p.peak_excursion_m * 1e6,
+        p.position_limit_m * 1e6,
+        p.process_sensitivity_envelope_m_per_a,
+        p.process_sensitivity_envelope_at_hz,
+        p.reading_step_m * 1e6,
+        p.max_position_step_m * 1e6,
+        p.i2t_peak_a2s,
+        p.i2t_budget_a2s
+    );
+    let Some(r) = &v.result else {
+        return;
+    };
+    let band = r
+        .used_band_hz
+        .map_or(String::new(), |[a, b]| format!(", {a:.2}–{b:.2} Hz"));
+    outln!(
+        "  lines used: {} of {} with γ²(d → u) ≥ {}{band}{}",
+        r.lines_used,
+        r.lines_total,
+        r.coherence_threshold,
+        if r.lines_excluded_by_stalls > 0 {
+            format!("; {} more left out for stalls", r.lines_excluded_by_stalls)
+        } else {
+            String::new()
+        }
+    );
+    let rad = |v: &[f64]| {
+        if v.is_empty() {
+            "none".to_string()
+        } else {
+            v.iter()
+                .map(|w| format!("{w:.1}"))
+                .collect::<Vec<_>>()
+                .join(", ")
+        }
+    };
+    let db = |x: f64| 20.0 * x.log10();
+    let pr = &r.predicted;
+    if let Some(m) = &r.measured {
+        outln!(
+            "  ‖S‖∞   measured {:.3} ({:.2} dB) at {:.1} rad/s (γ² {}); predicted {:.3} ({:.2} dB) at {:.1} rad/s; {}",
+            m.sensitivity_peak,
+            db(m.sensitivity_peak),
+            m.sensitivity_peak_at_rad_s,
+            r.sensitivity_peak_coherence
+                .map_or("–".to_string(), |g| format!("{g:.3}")),
+            pr.sensitivity_peak,
+            db(pr.sensitivity_peak),
+            pr.sensitivity_peak_at_rad_s,
+            r.sensitivity_peak_difference_db
+                .map_or("–".to_string(), |d| format!("{d:+.2} dB"))
+        );
+        outln!(
+            "  crossover(s) measured {} rad/s; predicted {} rad/s; first {}",
+            rad(&m.crossovers_rad_s),
+            rad(&pr.crossovers_rad_s),
+            r.crossover_difference_pct
+                .map_or("–".to_string(), |d| format!("{d:+.2} %"))
+        );
+        outln!(
+            "  measured phase margin {}; gain margin {}",
+            m.phase_margin_deg
+                .map_or("–".to_string(), |p| format!("{p:.1}°")),
+            m.gain_margin_db
+                .map_or("∞ (none in the band)".to_string(), |g| format!(
+                    "{g:.1} dB"
+                ))
+        );
+    }
+    if let (Some(w), Some(rms)) = (r.s_model_difference_max_db, r.s_model_difference_rms_db) {
+        outln!("  |S| against the model at the lines used: at most {w:.2} dB, RMS {rms:.3} dB");
+    }
+    outln!("  → {}", r.verdict_line());
+    if let Some(p) = &v.csv {
+        outln!("verify CSV  {}", p.display());
+    }
+    if let Some(p) = &v.plot {
+        outln!("verify plot {}", p.display());
     }
 }

@@ -14,6 +14,7 @@
 //! | 5 | `--daemon`, `bench daemon`: the daemon refused (busy, or a latched fault) |
 //! | 6 | `bench daemon`: no daemon answers at the socket (no socket, a stale one, permission denied) |
 //! | 7 | `bench recover`: data lost (a damaged chunk dropped); the recovered recording holds everything intact |
+//! | 8 | `bench control --verify`: the run completed (recording and files written), but the measured ‖S‖∞ or crossover disagrees with the prediction |
 //! | 141 | the command succeeded, but the reader of its standard output went away (`bench … \| head`); what it wrote to files is complete |
 //!
 //! One file per command (`chirp.rs`, `control.rs`, `emulate.rs`,
@@ -170,6 +171,7 @@ pub(super) mod status {
     pub const DAEMON_REFUSED: u8 = 5;
     pub const NO_DAEMON: u8 = 6;
     pub const DATA_LOST: u8 = 7;
+    pub const VERIFY_FAILED: u8 = 8;
 }
 
 /// Logging to stderr, as the Rust ecosystem does it: the filter comes from

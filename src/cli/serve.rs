@@ -52,6 +52,19 @@ pub(super) fn via_daemon<T: serde::de::DeserializeOwned + serde::Serialize>(
     json: bool,
     human: fn(&T),
 ) -> ExitCode {
+    via_daemon_then(socket, job, json, human, |_| None)
+}
+
+/// [`via_daemon`], the exit status of a summary that printed decided by
+/// `status_of` (`None`: success), as the local run decides it (`bench
+/// control --verify`'s disagreement).
+pub(super) fn via_daemon_then<T: serde::de::DeserializeOwned + serde::Serialize>(
+    socket: &str,
+    job: &JobRequest,
+    json: bool,
+    human: fn(&T),
+    status_of: fn(&T) -> Option<ExitCode>,
+) -> ExitCode {
     let cmd = job.kind();
     let socket = if socket.is_empty() {
         bench::daemon::default_socket_path()
@@ -99,7 +112,7 @@ pub(super) fn via_daemon<T: serde::de::DeserializeOwned + serde::Serialize>(
                     }
                 }
                 match emit(&summary, json, human) {
-                    Ok(()) => ExitCode::SUCCESS,
+                    Ok(()) => status_of(&summary).unwrap_or(ExitCode::SUCCESS),
                     Err(code) => code,
                 }
             }

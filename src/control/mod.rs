@@ -11,7 +11,10 @@
 //! (allocation-free); [`loop_check`] judges a controller against the plant
 //! before anything is enabled, and [`step_metrics`] judges the closed-loop
 //! step it then runs (rise, settling, overshoot, steady-state error, from
-//! the recorded signals). The items are used through this module.
+//! the recorded signals); [`verify`] measures the loop that runs
+//! (`bench control --verify`: S, T and PS from a chirp injected at the
+//! plant input) and compares it with the loop check's prediction. The
+//! items are used through this module.
 //!
 //! May use `nalgebra` and `bench_hal::model`/`bench_hal::sim` (the plant
 //! the loop check closes the loop around); the loop check also reads the
@@ -93,6 +96,7 @@ mod discretize;
 pub mod loop_check;
 mod section;
 pub mod step_metrics;
+pub mod verify;
 
 pub use crate::config::controller::{
     ComplexPair, ControllerConfig, ControllerError, Discretization, ErrorUnit, Form, CORNER_RAD_S,

@@ -20,6 +20,7 @@ use crate::jobs::map::{run_map, MapOptions};
 use crate::jobs::request::{JobRequest, RequestError};
 use crate::jobs::session::Runner;
 use crate::jobs::step::{run_control_from, ControlOptions, StageSource};
+use crate::jobs::verify::VerifyOptions;
 use crate::outputs::{beside, Existing};
 use crate::rt::service::ServiceClient;
 use serde_json::Value;
@@ -150,8 +151,22 @@ pub(super) fn job_spec(ctx: &Ctx, request: &JobRequest, id: u64) -> Result<Accep
         }
         JobRequest::Control(req) => {
             let inject = req.apply(&mut cfg).map_err(bad)?;
+            let verify = req.verify_settings(&cfg).map_err(bad)?;
             let out = recording_path(&ctx.recordings, &format!("control-{}", req.controller), id);
-            let total = (cfg.step.duration_s / ctx.period_s).round() as u64;
+            let mut total = (cfg.step.duration_s / ctx.period_s).round() as u64;
+            let verify = verify.map(|v| {
+                let chirp = crate::ident::excitation::Chirp::new(
+                    &crate::control::verify::chirp_config(&cfg.chirp, v.amplitude_a, v.duration_s),
+                    ctx.period_s,
+                );
+                total = total.saturating_add(chirp.total_ticks());
+                VerifyOptions {
+                    amplitude_a: v.amplitude_a,
+                    duration_s: v.duration_s,
+                    csv: beside(&out, ".verify.csv"),
+                    plot: beside(&out, ".verify.png"),
+                }
+            });
             let opts = ControlOptions {
                 plot: beside(&out, ".step.png"),
                 out: out.clone(),
@@ -166,6 +181,7 @@ pub(super) fn job_spec(ctx: &Ctx, request: &JobRequest, id: u64) -> Result<Accep
                 backend: Some(ctx.spec.clone()),
                 config: cfg,
                 config_path: ctx.config_path.clone(),
+                verify,
             };
             Ok(Accepted {
                 spec: JobSpec::Control(Box::new(opts)),
@@ -315,7 +331,15 @@ pub(super) fn run(
         .and_then(json),
         JobSpec::Control(opts) => {
             run_control_from(&opts, stop, StageSource::Service(proxy), Some(ticks))
-                .map_err(answer_run)
+                .map_err(|e| match &e {
+                    // A parameter judged on the model before enable: named
+                    // as the request names it.
+                    RunError::BadOption {
+                        key: "verify_amplitude_a",
+                        ..
+                    } => answer(e),
+                    _ => answer_run(e),
+                })
                 .and_then(json)
         }
         JobSpec::Fit(opts) => run_fit(&opts).map_err(answer).and_then(json),

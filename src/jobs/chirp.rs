@@ -591,6 +591,7 @@ fn run_chirp_with(
                 outputs.existing(),
                 &BodePlot {
                     title: &title,
+                    magnitude_axis: crate::plot::MAGNITUDE_M_PER_A,
                     measured: BodeSeries::measured_h1(&frf),
                     coherence: &frf.coherence,
                     model: Some(BodeSeries {

@@ -534,6 +534,7 @@ fn write_plot(
         existing,
         &BodePlot {
             title: &title,
+            magnitude_axis: crate::plot::MAGNITUDE_M_PER_A,
             measured: BodeSeries::measured_h1(frf),
             coherence: &frf.coherence,
             model: Some(BodeSeries {

@@ -6,7 +6,9 @@
 //!
 //! - [`session`] runs any [`crate::rt::Job`] on a stage into a recording;
 //!   [`chirp`] and [`step`] are the identification and closed-loop step
-//!   jobs built on it (`bench chirp`, `bench control`).
+//!   jobs built on it (`bench chirp`, `bench control`); [`verify`] is
+//!   `bench control --verify`'s part of the step job (the injection
+//!   planned and checked before enable, the loop measured after).
 //! - [`fit`] (`bench fit`, with the model update), [`analyze`] (`bench
 //!   analyze`) and [`map`] (`bench map`, with the measured-verdict CSV)
 //!   compute from files and the model.
@@ -28,3 +30,4 @@ pub mod point;
 pub mod request;
 pub mod session;
 pub mod step;
+pub mod verify;

@@ -13,7 +13,8 @@ pub use super::design::DesignRequest;
 pub use super::fit::FitRequest;
 pub use super::map::MapRequest;
 pub use super::point::OperatingPoint;
-use crate::config::{BenchConfig, ChirpKind};
+use super::verify::{DEFAULT_AMPLITUDE_OF_CHIRP, DEFAULT_DURATION_S};
+use crate::config::{ranges, BenchConfig, ChirpKind};
 use bench_hal::sim::{FaultInjection, ScheduledFault};
 use serde::{Deserialize, Serialize};
 
@@ -175,6 +176,29 @@ pub struct ControlRequest {
     /// Run even when the loop check refuses (simulator only).
     #[serde(default)]
     pub override_check: bool,
+    /// After the step, inject a chirp at the plant input and measure the
+    /// loop ([`crate::jobs::verify`]).
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub verify: bool,
+    /// The injected chirp's amplitude, A (`verify` only) [default:
+    /// [`DEFAULT_AMPLITUDE_OF_CHIRP`] of `chirp.amplitude_a`, at least
+    /// 0.1 mA].
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub verify_amplitude_a: Option<f64>,
+    /// Its sweep duration, s (`verify` only) [default:
+    /// [`DEFAULT_DURATION_S`]].
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub verify_duration_s: Option<f64>,
+}
+
+/// The verify's amplitude (A) and sweep duration (s), resolved and
+/// checked ([`ControlRequest::verify_settings`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct VerifySettings {
+    /// Chirp amplitude at the plant input, A.
+    pub amplitude_a: f64,
+    /// Sweep duration, s.
+    pub duration_s: f64,
 }
 
 impl ControlRequest {
@@ -188,15 +212,103 @@ impl ControlRequest {
             seed: None,
             inject_fault: None,
             override_check: false,
+            verify: false,
+            verify_amplitude_a: None,
+            verify_duration_s: None,
         }
     }
 
-    /// Checks the controller against `cfg`, writes the step into it, checks
-    /// the whole config, and parses the fault to inject.
+    /// The verify's amplitude and duration on `cfg` (the request applied):
+    /// `None` without `verify`. The amplitude defaults to
+    /// [`DEFAULT_AMPLITUDE_OF_CHIRP`] of `chirp.amplitude_a` (at least the
+    /// 0.1 mA a chirp may have), the duration to [`DEFAULT_DURATION_S`].
+    /// Ranges, as `[chirp]`'s: amplitude in [0.1 mA,
+    /// `actuator.peak_current_a`], duration in [0.1 s, 600 s], and the
+    /// whole run (the step, the lead-in, the sweep, the tail) at most
+    /// [`ranges::JOB_TICKS_MAX`] ticks. Whether the limits leave room for
+    /// the amplitude is judged on the model before enable
+    /// ([`crate::jobs::verify::plan`]).
     ///
     /// # Errors
-    /// [`RequestError::Field`] for a controller the config does not have or
-    /// a fault that does not parse; [`RequestError::Invalid`] naming the
+    /// [`RequestError::Field`] naming `verify_amplitude_a` or
+    /// `verify_duration_s`: a value outside its range, or given without
+    /// `verify`.
+    pub fn verify_settings(
+        &self,
+        cfg: &BenchConfig,
+    ) -> Result<Option<VerifySettings>, RequestError> {
+        let field = |field: &'static str, v: f64, reason: String| RequestError::Field {
+            field,
+            value: v.to_string(),
+            reason,
+        };
+        if !self.verify {
+            for (name, v) in [
+                ("verify_amplitude_a", self.verify_amplitude_a),
+                ("verify_duration_s", self.verify_duration_s),
+            ] {
+                if let Some(v) = v {
+                    return Err(field(
+                        name,
+                        v,
+                        format!("{v} is given without verify (it sets the verify's chirp)"),
+                    ));
+                }
+            }
+            return Ok(None);
+        }
+        let peak = cfg.actuator.peak_current_a;
+        let a = self.verify_amplitude_a.unwrap_or(
+            (DEFAULT_AMPLITUDE_OF_CHIRP * cfg.chirp.amplitude_a).max(ranges::CHIRP_AMPLITUDE_MIN_A),
+        );
+        if !(a.is_finite() && a >= ranges::CHIRP_AMPLITUDE_MIN_A && a <= peak) {
+            return Err(field(
+                "verify_amplitude_a",
+                a,
+                format!(
+                    "{a:?} A is outside [{}, {peak}] A: the injected chirp's amplitude, at least 0.1 mA (as chirp.amplitude_a) and at most the amplifier's peak current actuator.peak_current_a",
+                    ranges::CHIRP_AMPLITUDE_MIN_A
+                ),
+            ));
+        }
+        let d = self.verify_duration_s.unwrap_or(DEFAULT_DURATION_S);
+        let (lo, hi) = ranges::CHIRP_DURATION_S;
+        if !(d.is_finite() && (lo..=hi).contains(&d)) {
+            return Err(field(
+                "verify_duration_s",
+                d,
+                format!(
+                    "{d:?} s is outside [{lo}, {hi}] s: the verify's sweep, as chirp.duration_s (0.1 s to 10 minutes)"
+                ),
+            ));
+        }
+        let run_s = cfg.step.duration_s + cfg.chirp.lead_in_s + d + cfg.chirp.tail_s;
+        let ticks = run_s * cfg.loop_.rate_hz;
+        if ticks > ranges::JOB_TICKS_MAX as f64 {
+            return Err(field(
+                "verify_duration_s",
+                d,
+                format!(
+                    "{d} s makes the run (step.duration_s + chirp.lead_in_s + the sweep + chirp.tail_s = {run_s} s) {ticks:.0} ticks at loop.rate_hz = {} Hz: a job is at most {} ticks",
+                    cfg.loop_.rate_hz,
+                    ranges::JOB_TICKS_MAX
+                ),
+            ));
+        }
+        Ok(Some(VerifySettings {
+            amplitude_a: a,
+            duration_s: d,
+        }))
+    }
+
+    /// Checks the controller against `cfg`, writes the step into it, checks
+    /// the whole config and the verify's settings
+    /// ([`Self::verify_settings`]), and parses the fault to inject.
+    ///
+    /// # Errors
+    /// [`RequestError::Field`] for a controller the config does not have,
+    /// a verify setting out of its range, or a fault that does not parse;
+    /// [`RequestError::Invalid`] naming the
     /// first offending config key (`cfg` keeps the request's values).
     pub fn apply(&self, cfg: &mut BenchConfig) -> Result<Option<ScheduledFault>, RequestError> {
         if !cfg.controller.contains_key(&self.controller) {
@@ -240,6 +352,7 @@ impl ControlRequest {
         }
         set(&mut s.smooth_s, self.smooth_s);
         check(cfg)?;
+        self.verify_settings(cfg)?;
         self.inject_fault
             .as_deref()
             .map(|f| {
@@ -494,6 +607,71 @@ mod tests {
             })
         );
         assert_eq!(got, ch5());
+    }
+
+    /// `verify`: the defaults (10 % of `chirp.amplitude_a`, 10 s), the
+    /// values given, their ranges, and neither without `verify`.
+    #[test]
+    fn verify_settings() {
+        let cfg = ch5();
+        let mut r = ControlRequest::new("fast");
+        assert_eq!(r.verify_settings(&cfg).unwrap(), None);
+        r.verify = true;
+        assert_eq!(
+            r.verify_settings(&cfg).unwrap(),
+            Some(VerifySettings {
+                amplitude_a: 0.05,
+                duration_s: 10.0
+            })
+        );
+        r.verify_amplitude_a = Some(0.2);
+        r.verify_duration_s = Some(3.0);
+        assert_eq!(
+            r.verify_settings(&cfg).unwrap(),
+            Some(VerifySettings {
+                amplitude_a: 0.2,
+                duration_s: 3.0
+            })
+        );
+        let field = |r: &ControlRequest| match r.apply(&mut ch5()) {
+            Err(RequestError::Field { field, .. }) => field,
+            other => panic!("{r:?}: {other:?}"),
+        };
+        for a in [f64::NAN, -1.0, 0.0, 9.9e-5, 9.981, f64::INFINITY] {
+            let mut bad = r.clone();
+            bad.verify_amplitude_a = Some(a);
+            assert_eq!(field(&bad), "verify_amplitude_a", "{a}");
+        }
+        for d in [f64::NAN, 0.0, 0.099, 600.1, -5.0] {
+            let mut bad = r.clone();
+            bad.verify_duration_s = Some(d);
+            assert_eq!(field(&bad), "verify_duration_s", "{d}");
+        }
+        // A run beyond the job's tick budget: 600 s at 100 kHz.
+        let mut fast_loop = ch5();
+        fast_loop.loop_.rate_hz = 100_000.0;
+        let mut long = r.clone();
+        long.verify_duration_s = Some(600.0);
+        assert!(matches!(
+            long.verify_settings(&fast_loop),
+            Err(RequestError::Field {
+                field: "verify_duration_s",
+                ..
+            })
+        ));
+        r.verify = false;
+        assert_eq!(field(&r), "verify_amplitude_a");
+        // The wire form carries them; absent, they stay out.
+        let wire = serde_json::to_value(JobRequest::Control(ControlRequest::new("fast"))).unwrap();
+        assert_eq!(
+            wire,
+            json!({ "cmd": "control", "params": { "controller": "fast", "override_check": false } })
+        );
+        let v: ControlRequest = serde_json::from_value(
+            json!({ "controller": "fast", "verify": true, "verify_amplitude_a": 0.1 }),
+        )
+        .unwrap();
+        assert!(v.verify && v.verify_amplitude_a == Some(0.1));
     }
 
     #[test]

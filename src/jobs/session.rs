@@ -148,6 +148,8 @@ pub struct Collected {
     pub setpoint_m: Vec<f64>,
     /// Command after the supervisor, A.
     pub current_command_a: Vec<f64>,
+    /// Excitation part of the command, A (NaN where none runs).
+    pub excitation_a: Vec<f64>,
     /// The FRF record, packed: excitation (A) + i · probe reading (m), 16
     /// bytes a tick, with room reserved for the FFT's zero padding
     /// ([`crate::ident::frf::Spectra::from_record`] transforms it in place).
@@ -167,6 +169,8 @@ pub struct Kept {
     pub setpoint_m: bool,
     /// [`Collected::current_command_a`]
     pub current_command_a: bool,
+    /// [`Collected::excitation_a`]
+    pub excitation_a: bool,
     /// [`Collected::frf_record`]
     pub frf_record: bool,
 }
@@ -179,6 +183,7 @@ impl Kept {
         position_m: false,
         setpoint_m: false,
         current_command_a: false,
+        excitation_a: false,
         frf_record: true,
     };
     /// A closed-loop step's metrics and plot: no excitation (32 bytes a
@@ -188,7 +193,14 @@ impl Kept {
         position_m: true,
         setpoint_m: true,
         current_command_a: true,
+        excitation_a: false,
         frf_record: false,
+    };
+    /// A closed-loop step followed by the verify's injection: the step's
+    /// columns and the injection (40 bytes a tick).
+    pub const STEP_VERIFY: Self = Self {
+        excitation_a: true,
+        ..Self::STEP
     };
 }
 
@@ -396,6 +408,7 @@ pub fn run_recorded<J: Job + Send + 'static>(
         position_m: reserve(keep.position_m),
         setpoint_m: reserve(keep.setpoint_m),
         current_command_a: reserve(keep.current_command_a),
+        excitation_a: reserve(keep.excitation_a),
         frf_record: Vec::with_capacity(if keep.frf_record {
             crate::ident::frf::fast_len(n)
         } else {
@@ -445,6 +458,7 @@ pub fn run_recorded<J: Job + Send + 'static>(
                     keep.current_command_a,
                     s.current_command_a,
                 );
+                push(&mut c.excitation_a, keep.excitation_a, s.excitation_a);
                 if keep.frf_record {
                     c.frf_record.push(C64::new(s.excitation_a, s.position_m));
                 }

@@ -9,7 +9,11 @@
 //! reading smoothed over [`SMOOTHING_S`]; steady-state error over the final
 //! `steady_state_window_s`) are defined and computed in
 //! [`crate::control::step_metrics`], re-exported here; the step figure is
-//! [`crate::plot::write_step_png`].
+//! [`crate::plot::write_step_png`]. With `--verify` the job goes on after
+//! the step, holding its setpoint, with a chirp added at the plant input
+//! ([`ControlJob::with_verify`]; planned, checked and analysed in
+//! [`crate::jobs::verify`]); the step's metrics and figure are the step's
+//! ticks alone.
 
 use crate::config::BenchConfig;
 use crate::control::loop_check::{check_loop, LoopCheck, MeasuredFrf};
@@ -17,19 +21,22 @@ use crate::control::step_metrics::{analyze_step, StepSignals};
 pub use crate::control::step_metrics::{
     StepAnalysis, StepEvents, StepMetrics, RISE_FROM, RISE_TO, SETTLING_BAND, SMOOTHING_S,
 };
+use crate::control::verify::ModelLoop;
 use crate::control::{ControllerConfig, DiscreteController};
 use crate::error::RunError;
+use crate::ident::excitation::Chirp;
 use crate::jobs::session::{
     finish, open_recording, run_recorded, Collected, Kept, Recorded, Runner, SessionOptions,
     TimingSummary,
 };
+use crate::jobs::verify::{self as verify, Verify, VerifyOptions};
 use crate::outputs::{Existing, Origin, OutputPlan};
 use crate::plot::{write_step_png, StepPlot};
 use crate::rt::backend::{self, BackendSpec};
 use crate::rt::service::{LoopReply, LoopRequest, ServiceClient};
 use crate::rt::{Job, JobOutput};
 use bench_hal::model::Sr4dof;
-use bench_hal::sim::ScheduledFault;
+use bench_hal::sim::{ScheduledFault, ZohPlant};
 use bench_hal::Sample;
 use serde::{Deserialize, Serialize};
 use std::f64::consts::PI;
@@ -37,7 +44,9 @@ use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, AtomicU64};
 use std::sync::Arc;
 
-/// The closed-loop step job. Real-time safe: no allocation in `tick`.
+/// The closed-loop step job, optionally followed by the verify's
+/// injection ([`ControlJob::with_verify`]). Real-time safe: no allocation
+/// in `tick` (the chirp is computed in closed form from the tick index).
 #[derive(Debug, Clone, Copy)]
 pub struct ControlJob {
     ctrl: DiscreteController,
@@ -46,6 +55,11 @@ pub struct ControlJob {
     settle_ticks: u64,
     smooth_ticks: u64,
     total_ticks: u64,
+    /// The verify's chirp, added to the command from `verify_start` on.
+    verify: Option<Chirp>,
+    /// The job tick the verify's record (its lead-in) starts at: the end
+    /// of the step.
+    verify_start: u64,
 }
 
 impl ControlJob {
@@ -65,6 +79,46 @@ impl ControlJob {
             settle_ticks,
             smooth_ticks,
             total_ticks,
+            verify: None,
+            verify_start: total_ticks,
+        }
+    }
+
+    /// The same step, then, holding its final setpoint, `chirp` (lead-in,
+    /// sweep, tail) added at the plant input: the command is the
+    /// controller's plus the chirp's value (`bench control --verify`). The
+    /// job runs `chirp.total_ticks()` longer.
+    pub fn with_verify(self, chirp: Chirp) -> Self {
+        let start = self.step_ticks();
+        Self {
+            verify: Some(chirp),
+            verify_start: start,
+            total_ticks: start.saturating_add(chirp.total_ticks()),
+            ..self
+        }
+    }
+
+    /// Ticks of the step (before the verify's injection, if any).
+    pub fn step_ticks(&self) -> u64 {
+        if self.verify.is_some() {
+            self.verify_start
+        } else {
+            self.total_ticks
+        }
+    }
+
+    /// Ticks of the whole job.
+    pub fn total_ticks(&self) -> u64 {
+        self.total_ticks
+    }
+
+    /// The injection at `tick`, A: the verify's chirp from the end of the
+    /// step on (0 in its lead-in and tail), NaN before it or without one.
+    #[inline]
+    pub fn injection_a(&self, tick: u64) -> f64 {
+        match self.verify {
+            Some(c) if tick >= self.verify_start => c.value_a(tick - self.verify_start),
+            _ => f64::NAN,
         }
     }
 
@@ -90,10 +144,12 @@ impl Job for ControlJob {
             self.start_m = Some(y);
         }
         let setpoint = self.start_m.unwrap_or(0.0) + self.profile_m(tick);
-        let command_a = self.ctrl.update(setpoint - y);
+        let d = self.injection_a(tick);
+        // u = C·e + d: the injection at the plant input.
+        let command_a = self.ctrl.update(setpoint - y) + if d.is_nan() { 0.0 } else { d };
         JobOutput {
             command_a,
-            excitation_a: f64::NAN,
+            excitation_a: d,
             setpoint_m: setpoint,
             done: tick + 1 >= self.total_ticks,
         }
@@ -158,6 +214,9 @@ pub struct ControlOptions {
     pub inject: Option<ScheduledFault>,
     /// `--backend` (else `[backend]` of the config).
     pub backend: Option<BackendSpec>,
+    /// `--verify`: after the step, the chirp injected at the plant input
+    /// and the loop measured ([`crate::jobs::verify`]).
+    pub verify: Option<VerifyOptions>,
 }
 
 /// Result of `bench control`.
@@ -190,6 +249,18 @@ pub struct ControlSummary {
     /// `--check-only`).
     #[serde(default)]
     pub current_limits: Option<crate::rt::supervisor::CurrentLimits>,
+    /// `--verify`: the injection planned, and the loop measured against
+    /// the prediction (absent without `--verify`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub verify: Option<Verify>,
+}
+
+impl ControlSummary {
+    /// Whether the run's verification disagrees with the prediction
+    /// (`bench control` then exits 8).
+    pub fn verify_failed(&self) -> bool {
+        self.verify.as_ref().is_some_and(Verify::flagged)
+    }
 }
 
 fn controller_config<'a>(
@@ -236,9 +307,15 @@ pub fn run_control(
 /// The outputs of a control run, none replaced (the daemon's jobs: their
 /// names are derived from the recording's).
 pub fn control_outputs(opts: &ControlOptions) -> OutputPlan {
-    OutputPlan::new(Existing::Refuse)
+    let plan = OutputPlan::new(Existing::Refuse)
         .with_recording(&opts.out, Origin::Default)
-        .with_output("plot", &opts.plot, Origin::Derived)
+        .with_output("plot", &opts.plot, Origin::Derived);
+    match &opts.verify {
+        Some(v) => plan
+            .with_output("verify_csv", &v.csv, Origin::Derived)
+            .with_output("verify_plot", &v.plot, Origin::Derived),
+        None => plan,
+    }
 }
 
 /// Where `bench control` gets its stage.
@@ -310,7 +387,25 @@ fn run_control_with(
         link: None,
         timing: None,
         current_limits: None,
+        verify: None,
     };
+    // The verify's injection, predicted on the model and checked against
+    // the host's limits before anything is opened (again below against
+    // the limits in force once the device has announced its own).
+    let plant = ZohPlant::new(&model, &cfg.actuator, period_s);
+    if let Some(v) = &opts.verify {
+        let model_loop = ModelLoop {
+            plant: &plant,
+            ctrl: &ctrl,
+        };
+        let (plan, _) = verify::plan(cfg, &model_loop, v, &verify::host_device(cfg))?;
+        summary.verify = Some(Verify {
+            plan,
+            result: None,
+            csv: None,
+            plot: None,
+        });
+    }
     if opts.check_only {
         return Ok(summary);
     }
@@ -383,6 +478,22 @@ fn run_control_with(
     let total = ticks("step.duration_s", step.duration_s)?;
     let settle = ticks("step.settle_s", step.settle_s)?;
     let smooth = ticks("step.smooth_s", step.smooth_s)?;
+    let mut job = ControlJob::new(ctrl, step.step_m, settle, smooth, total);
+    let model_loop = ModelLoop {
+        plant: &plant,
+        ctrl: &ctrl,
+    };
+    let verify_chirp = match &opts.verify {
+        Some(v) => {
+            let (plan, chirp) = verify::plan(cfg, &model_loop, v, &info)?;
+            if let Some(s) = summary.verify.as_mut() {
+                s.plan = plan;
+            }
+            job = job.with_verify(chirp);
+            Some(chirp)
+        }
+        None => None,
+    };
     let session = SessionOptions {
         command: "control",
         config_path: &opts.config_path,
@@ -391,8 +502,12 @@ fn run_control_with(
         realtime: opts.realtime || !spec.is_sim(),
         progress: opts.progress,
         seed: opts.seed,
-        max_ticks: total,
-        keep: Kept::STEP,
+        max_ticks: job.total_ticks(),
+        keep: if verify_chirp.is_some() {
+            Kept::STEP_VERIFY
+        } else {
+            Kept::STEP
+        },
         ticks: progress_ticks,
         // Closed loop: a stall longer than the loop's own bound (delay
         // margin, reach of the position limit) is the overruns or
@@ -408,7 +523,7 @@ fn run_control_with(
         recorder.add_channel_for::<LoopCheck>("/control/loop_check", "bench.LoopCheck")?;
     recorder.write(check_ch, 0, &check)?;
     recorder.flush_chunk()?;
-    let job = ControlJob::new(ctrl, step.step_m, settle, smooth, total);
+    let step_ticks = job.step_ticks() as usize;
     let recorded = run_recorded(&mut runner, job, cfg, recorder, &session, stop);
     let Recorded {
         mut recorder,
@@ -417,17 +532,24 @@ fn run_control_with(
         end_ns,
         link,
         current_limits,
-        ..
+        stalls,
     } = recorded?;
     summary.link = link;
     summary.current_limits = Some(current_limits);
 
+    // The step is judged on its own ticks: the verify's injection after
+    // it is not part of its steady state.
+    let n = step_ticks.min(data.position_m.len());
     let StepAnalysis {
         metrics,
         events,
         smoothed_position_m,
-    } = step_analysis(
-        &data,
+    } = analyze_step(
+        StepSignals {
+            position_m: &data.position_m[..n],
+            setpoint_m: &data.setpoint_m[..n],
+            current_command_a: &data.current_command_a[..n],
+        },
         step.settle_s,
         step.step_m,
         step.steady_state_window_s,
@@ -450,11 +572,11 @@ fn run_control_with(
         outputs.existing(),
         &StepPlot {
             title: &title,
-            t_s: &data.t_s,
-            setpoint_um: &um(&data.setpoint_m, y0),
-            position_um: &um(&data.position_m, y0),
+            t_s: &data.t_s[..n],
+            setpoint_um: &um(&data.setpoint_m[..n], y0),
+            position_um: &um(&data.position_m[..n], y0),
             smoothed_um: &um(&smoothed_position_m, y0),
-            command_a: &data.current_command_a,
+            command_a: &data.current_command_a[..n],
             metrics: &metrics,
             events: &events,
         },
@@ -466,6 +588,42 @@ fn run_control_with(
     summary.metrics = Some(metrics);
     summary.plot = Some(opts.plot.clone());
     summary.timing = Some(timing);
+    if let (Some(v), Some(chirp), Some(s)) = (&opts.verify, verify_chirp, summary.verify.as_mut()) {
+        let analysis = verify::analyze(
+            &data,
+            step_ticks,
+            &chirp,
+            cfg,
+            period_s,
+            &stalls,
+            &check.model,
+            &model_loop,
+        );
+        s.result = Some(analysis.result.clone());
+        s.csv = Some(v.csv.clone());
+        s.plot = Some(v.plot.clone());
+        let title = format!(
+            "S = u/d, bench control --controller {} --verify ({} A, seed {}): {}",
+            opts.controller,
+            v.amplitude_a,
+            opts.seed,
+            if analysis.result.flagged {
+                "VERIFY FAILED"
+            } else {
+                "agrees"
+            }
+        );
+        verify::write_outputs(
+            &mut recorder,
+            end_ns,
+            &analysis,
+            &model_loop,
+            s,
+            v,
+            outputs.existing(),
+            &title,
+        )?;
+    }
     let ch =
         recorder.add_channel_for::<ControlSummary>("/control/summary", "bench.ControlSummary")?;
     recorder.write(ch, end_ns, &summary)?;
@@ -475,6 +633,50 @@ fn run_control_with(
 
 #[cfg(test)]
 mod tests {
+    /// With the verify's chirp the job is the same step, then the same
+    /// controller plus the chirp: on the same readings the commands
+    /// differ by exactly the chirp's value from the end of the step on,
+    /// and `excitation_a` is NaN before it and the chirp after.
+    #[test]
+    fn the_injection_is_added_at_the_plant_input_after_the_step() {
+        use super::*;
+        use crate::control::verify::chirp_config;
+        let path =
+            std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("bench-config/sr4dof-ch5.toml");
+        let cfg = BenchConfig::load(&path).unwrap();
+        let t = 2e-4;
+        let ctrl = DiscreteController::new(&cfg.controller["fast"], t, 9.98);
+        let chirp = Chirp::new(&chirp_config(&cfg.chirp, 0.05, 1.0), t);
+        let mut plain = ControlJob::new(ctrl, 1e-5, 100, 0, 1_000);
+        let mut with = ControlJob::new(ctrl, 1e-5, 100, 0, 1_000).with_verify(chirp);
+        assert_eq!(with.step_ticks(), 1_000);
+        assert_eq!(with.total_ticks(), 1_000 + chirp.total_ticks());
+        let mut plain_done = false;
+        for k in 0..with.total_ticks() {
+            let sample = Sample {
+                seq: k,
+                device_time_ns: k * 200_000,
+                position_m: 1e-6 * (k as f64 * 0.01).sin(),
+                measured_current_a: f64::NAN,
+                flags: Default::default(),
+            };
+            let a = plain.tick(k, &sample);
+            let b = with.tick(k, &sample);
+            plain_done |= a.done;
+            assert_eq!(a.setpoint_m, b.setpoint_m, "tick {k}");
+            if k < 1_000 {
+                assert_eq!(a.command_a, b.command_a, "tick {k}");
+                assert!(b.excitation_a.is_nan() && !b.done, "tick {k}");
+            } else {
+                let d = chirp.value_a(k - 1_000);
+                assert_eq!(b.excitation_a, d, "tick {k}");
+                assert!((b.command_a - a.command_a - d).abs() < 1e-12, "tick {k}");
+            }
+            assert_eq!(b.done, k + 1 == with.total_ticks(), "tick {k}");
+        }
+        assert!(plain_done);
+    }
+
     mod property {
         use super::super::*;
         use crate::rt::supervisor::{Supervisor, SupervisorConfig};

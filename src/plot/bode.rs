@@ -94,7 +94,13 @@ pub struct BodePlot<'a> {
     /// The zoom on the closely spaced pair (`None`: no zoom section, and the
     /// figure is 1000 px high instead of 1650 px).
     pub pair: Option<PairZoom<'a>>,
+    /// The magnitude axis' label, with its unit: [`MAGNITUDE_M_PER_A`]
+    /// for a plant's response, e.g. `|S| [dB]` for a dimensionless one.
+    pub magnitude_axis: &'a str,
 }
+
+/// The magnitude axis of a response in m/A ([`BodePlot::magnitude_axis`]).
+pub const MAGNITUDE_M_PER_A: &str = "Magnitude [dB re 1 m/A]";
 
 /// Width of every figure, and height of the Bode figure's main panels, px.
 const BODE_SIZE: (u32, u32) = (1400, 1000);
@@ -105,8 +111,9 @@ const BODE_ZOOM_H: u32 = 650;
 /// Writes a Bode figure of `plot` as a PNG to `path`: 1400x1000 px, or
 /// 1400x1650 px with a pair zoom.
 ///
-/// Main panels from top to bottom: magnitude in dB re 1 m/A (20·log10 of
-/// the linear m/A magnitude), unwrapped phase in degrees and coherence
+/// Main panels from top to bottom: magnitude in dB (20·log10 of the
+/// linear magnitude; dB re 1 m/A for a plant, labelled by
+/// [`BodePlot::magnitude_axis`]), unwrapped phase in degrees and coherence
 /// (0..1.05, with the [`MIN_COHERENCE`] threshold dashed), all sharing a
 /// logarithmic frequency axis. The axis spans the measured frequencies (the
 /// model is clipped to that band); only if the measured series has no usable
@@ -427,9 +434,15 @@ fn draw_bode_main(
     // Magnitude.
     {
         let y_ticks = linear_ticks(&db_range, 8);
-        let y_desc = "Magnitude [dB re 1 m/A]";
         let mut chart = freq_chart(
-            &mag_area, x_range, &db_range, y_ticks, mag_top, false, "", y_desc,
+            &mag_area,
+            x_range,
+            &db_range,
+            y_ticks,
+            mag_top,
+            false,
+            "",
+            plot.magnitude_axis,
         )?;
         shade_window(&mut chart, &db_range)?;
         for &f in &markers {

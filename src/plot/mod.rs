@@ -92,7 +92,7 @@ mod ticks;
 mod time;
 
 pub use crate::ident::frf::MIN_COHERENCE;
-pub use bode::{bode_curve, write_bode_png, BodePlot, BodeSeries};
+pub use bode::{bode_curve, write_bode_png, BodePlot, BodeSeries, MAGNITUDE_M_PER_A};
 pub use design::{write_design_png, DesignLoop, DesignPlot};
 pub use map::{write_map_png, write_veering_png, MeasuredPoint};
 pub use modes::write_decomposed_bode_png;

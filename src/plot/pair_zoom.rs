@@ -188,7 +188,7 @@ pub(super) fn draw_pair_zoom(
         let y_fmt = tick_formatter(&y_ticks);
         let x = linear_axis(window, x_ticks.clone());
         let mut chart = panel_chart(&mag_area, x, &db_range, y_ticks, mag_top, false)?;
-        mesh(&mut chart, None, "Magnitude [dB re 1 m/A]", &no_fmt, &y_fmt)?;
+        mesh(&mut chart, None, plot.magnitude_axis, &no_fmt, &y_fmt)?;
         for &f in &modes {
             vline(&mut chart, f, &db_range, MARKER_COLOR, 1)?;
         }

@@ -92,6 +92,7 @@ fn example() -> Example {
 fn bode<'a>(e: &'a Example, markers: &'a [f64]) -> BodePlot<'a> {
     BodePlot {
         title: "X axis compliance, chirp 1–1000 Hz",
+        magnitude_axis: super::MAGNITUDE_M_PER_A,
         measured: BodeSeries {
             label: "measured",
             frequency_hz: &e.f,
@@ -212,6 +213,7 @@ fn plot_bode_survives_nan_zero_and_negative_points() {
     f[199] = f64::NAN;
     let plot = BodePlot {
         title: "NaN and zero points",
+        magnitude_axis: super::MAGNITUDE_M_PER_A,
         measured: BodeSeries {
             label: "measured",
             frequency_hz: &f,
@@ -266,6 +268,7 @@ fn plot_bode_degenerate_inputs_do_not_panic() {
     for (i, (f, m, p, c)) in cases.iter().enumerate() {
         let plot = BodePlot {
             title: "",
+            magnitude_axis: super::MAGNITUDE_M_PER_A,
             measured: BodeSeries {
                 label: "measured",
                 frequency_hz: f,

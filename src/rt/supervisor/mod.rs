@@ -198,6 +198,12 @@ impl Supervisor {
         self.i2t_a2s
     }
 
+    /// The I²t budget the accumulator is held to, A²·s:
+    /// `(I_peak² − I_cont²) · t_peak`.
+    pub fn i2t_budget_a2s(&self) -> f64 {
+        self.i2t_budget_a2s
+    }
+
     /// Current state.
     pub fn state(&self) -> SupervisorState {
         self.state
