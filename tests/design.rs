@@ -303,3 +303,45 @@ fn designs_on_random_benches_meet_the_margins_by_python_control() {
     }
     assert!(done >= 5, "only {done} of 6 random benches got a design");
 }
+
+/// The slow design on the Chapter 5 bench is the thesis' rule: crossover
+/// about 10 % of the first resonance with at least 60° of phase margin,
+/// and its crossover, phase margin and gain margin within 10 % of Eq. 6-6's
+/// on the same loop (the model with hold, amplifier and computation delay).
+#[test]
+fn the_slow_design_is_eq_6_6() {
+    let cfg = config();
+    let t = cfg.loop_.period_ns() as f64 * 1e-9;
+    let (c, why, got) = design_on(std::slice::from_ref(&cfg), Strategy::Slow).unwrap();
+    assert_eq!(got, "slow", "{why}");
+    let on_model = |c: &bench::control::ControllerConfig| {
+        let (w, l) = bench::design::predict::model_loop(&cfg, c, t).unwrap();
+        figures(&w, &l, c.integrators)
+    };
+    let (d, e) = (on_model(&c), on_model(&cfg.controller["slow"]));
+    let wr = 2.0 * std::f64::consts::PI * 29.27; // the bench's first resonance (bench analyze)
+    let wc = d.margins.crossovers_rad_s[0];
+    eprintln!(
+        "slow: ω_c {wc:.2} rad/s, PM {:?}, GM {:?}; Eq. 6-6: ω_c {:.2}, PM {:?}, GM {:?}",
+        d.margins.phase_margin_deg,
+        d.margins.gain_margin_db,
+        e.margins.crossovers_rad_s[0],
+        e.margins.phase_margin_deg,
+        e.margins.gain_margin_db
+    );
+    assert!(
+        (wc / (0.1 * wr) - 1.0).abs() < 0.05,
+        "crossover {wc} against 10 % of ω_R"
+    );
+    assert!(d.margins.phase_margin_deg.unwrap() >= 60.0);
+    let near = |a: f64, b: f64| (a / b - 1.0).abs() <= 0.10;
+    assert!(near(wc, e.margins.crossovers_rad_s[0]));
+    assert!(near(
+        d.margins.phase_margin_deg.unwrap(),
+        e.margins.phase_margin_deg.unwrap()
+    ));
+    assert!(near(
+        d.margins.gain_margin_db.unwrap(),
+        e.margins.gain_margin_db.unwrap()
+    ));
+}

@@ -345,3 +345,88 @@ fn a_campaign_ends_with_one_controller_for_all_its_cells() {
     );
     assert_eq!(json_stdout(&again)["controller"], d["controller"]);
 }
+
+fn draw(seed: u64, k: u64) -> f64 {
+    let x = bench::splitmix::splitmix64(seed.wrapping_add(k.wrapping_mul(bench::splitmix::GAMMA)));
+    (x >> 11) as f64 / (1u64 << 53) as f64
+}
+
+/// A random bench as a config file's text: the shipped bench with masses
+/// and stiffnesses ±20 %, operating point 0–9 % of L, asymmetry ±12 %.
+fn random_bench_toml(seed: u64) -> String {
+    let base = bench::config::BUILTIN_CONFIG_TOML;
+    let mut doc: toml_edit::DocumentMut = base.parse().unwrap();
+    let plant = doc["plant"].as_table_mut().unwrap();
+    let u = |k: u64| 0.8 + 0.4 * draw(seed, k);
+    for (i, key) in [
+        "m1_kg",
+        "m2_kg",
+        "m3_kg",
+        "m4_kg",
+        "m5_kg",
+        "k4_n_per_m",
+        "k5_n_per_m",
+        "parallelogram_stiffness_n_per_m",
+    ]
+    .iter()
+    .enumerate()
+    {
+        let v = plant[key].as_float().unwrap();
+        plant[key] = toml_edit::value(v * u(i as u64 + 1));
+    }
+    plant["operating_point_m"] = toml_edit::value(0.09 * draw(seed, 9) * 0.0475);
+    plant["mass_asymmetry"] = toml_edit::value(-0.12 + 0.24 * draw(seed, 10));
+    doc.to_string()
+}
+
+/// Designed controllers on random benches run as `bench control` runs
+/// them (the loop check, the supervisor, the simulated bench with its
+/// noise and disturbance): every step settles and none faults.
+#[test]
+fn designed_controllers_settle_on_random_benches_without_a_fault() {
+    let dir = tmp();
+    for seed in 1..=4u64 {
+        let cfg = path_in(dir.path(), &format!("b{seed}.toml"));
+        std::fs::write(&cfg, random_bench_toml(seed)).unwrap();
+        let mcap = path_in(dir.path(), &format!("c{seed}.mcap"));
+        let o = run(&["chirp", "--config", &cfg, "--out", &mcap, "--json"]);
+        assert!(
+            o.status.success(),
+            "seed {seed}: {}",
+            String::from_utf8_lossy(&o.stderr)
+        );
+        let out = path_in(dir.path(), &format!("d{seed}.toml"));
+        let o = run(&["design", &mcap, "--out", &out, "--no-plot", "--json"]);
+        assert!(
+            o.status.success(),
+            "seed {seed}: {}",
+            String::from_utf8_lossy(&o.stderr)
+        );
+        let d = json_stdout(&o);
+        if std::env::var_os("BENCH_KEEP").is_some() {
+            let _ = std::fs::create_dir_all("/tmp/rb");
+            std::fs::copy(&out, format!("/tmp/rb/d{seed}.toml")).unwrap();
+            std::fs::copy(&mcap, format!("/tmp/rb/c{seed}.mcap")).unwrap();
+        }
+        let o = run(&[
+            "control",
+            "--config",
+            &out,
+            "--controller",
+            "designed",
+            "--out",
+            &path_in(dir.path(), &format!("s{seed}.mcap")),
+            "--json",
+        ]);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(o.status.success(), "seed {seed} ({}): {err}", d["why"]);
+        let c = json_stdout(&o);
+        let settle = c["metrics"]["settling_time_s"].as_f64();
+        eprintln!(
+            "seed {seed}: {} ω_B {:.1} rad/s, settling {settle:?} s",
+            d["strategy"],
+            d["sensitivity_bandwidth_rad_s"].as_f64().unwrap()
+        );
+        assert!(settle.is_some(), "seed {seed}: the step never settles: {c}");
+    }
+}

@@ -414,7 +414,7 @@ pub const UNIT_PER_METRE: f64 = 1e6;
 #[allow(clippy::too_many_arguments)]
 pub fn attempt(
     frfs: &[DesignFrf],
-    model: Option<&DesignFrf>,
+    models: &[DesignFrf],
     settling: Option<&SettlingLimit<'_>>,
     modes: &PlantModes,
     strategy: Strategy,
@@ -429,7 +429,7 @@ pub fn attempt(
                 phase_margin_min_deg: req.phase_margin_min_deg.max(SLOW_PHASE_MARGIN_MIN_DEG),
                 ..req
             };
-            let problem = Problem::new(frfs.iter().chain(model).collect(), req, UNIT_PER_METRE);
+            let problem = Problem::new(frfs.iter().chain(models).collect(), req, UNIT_PER_METRE);
             let fam = Family::Slow {
                 first_resonance_rad_s: wr,
             };
@@ -579,7 +579,7 @@ pub fn attempt(
             // certificate judges the discrete controller on every line by
             // the user's. A miss left (a skipped line, the discretisation)
             // is small: back the gain off by 2 % steps until it passes.
-            let all = Problem::new(frfs.iter().chain(model).collect(), req, UNIT_PER_METRE);
+            let all = Problem::new(frfs.iter().chain(models).collect(), req, UNIT_PER_METRE);
             let certified = |c0: &ControllerConfig, searched_violation: f64| {
                 let mut c = c0.clone();
                 let mut e = certify(&all, c.clone(), period_s, peak_current_a);
@@ -675,10 +675,32 @@ pub fn design(
     peak_current_a: f64,
 ) -> Result<Designed, DesignError> {
     let req = spec.requirements;
+    // The computation delay is at most τ, not exactly τ (a command may reach
+    // the amplifier at once or one period later): every input and the model
+    // are judged with τ and with none. A controller that a delay stabilises
+    // (high gain near Nyquist, where e^{−jωT} turns L over) is refused.
+    let tau = spec.computation_delay_s;
+    let undelayed = |f: &DesignFrf| DesignFrf {
+        label: format!("{} (no computation delay)", f.label),
+        omega_rad_s: f.omega_rad_s.clone(),
+        plant_m_per_a: f
+            .plant_m_per_a
+            .iter()
+            .zip(&f.omega_rad_s)
+            .map(|(p, w)| p * C64::from_polar(1.0, w * tau))
+            .collect(),
+        lines_total: f.lines_total,
+    };
+    let mut all: Vec<DesignFrf> = frfs.to_vec();
+    let mut models: Vec<DesignFrf> = model.into_iter().cloned().collect();
+    if tau > 0.0 {
+        all.extend(frfs.iter().map(undelayed));
+        models.extend(model.map(undelayed));
+    }
     let run = |s| {
         attempt(
-            frfs,
-            model,
+            &all,
+            &models,
             settling,
             modes,
             s,
