@@ -430,3 +430,34 @@ fn designed_controllers_settle_on_random_benches_without_a_fault() {
         assert!(settle.is_some(), "seed {seed}: the step never settles: {c}");
     }
 }
+
+/// A campaign directory with no done cell (created, nothing run yet) is
+/// refused naming it, exit 2, nothing written.
+#[test]
+fn a_campaign_without_a_done_cell_is_refused() {
+    let dir = tmp();
+    std::fs::copy(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("bench-config/sr4dof-ch5.toml"),
+        dir.path().join("sr4dof-ch5.toml"),
+    )
+    .unwrap();
+    let file = dir.path().join("c.toml");
+    std::fs::write(
+        &file,
+        "config = \"sr4dof-ch5.toml\"\nseed = 1\n[grid]\noperating_point_pct = [4.0]\nmass_asymmetry = [0.10]\n",
+    )
+    .unwrap();
+    let out = dir.path().join("empty-campaign");
+    let campaign = bench::campaign::file::Campaign::load(&file).unwrap();
+    // Started (directory, copies, journal header), no cell run.
+    let _ready = bench::campaign::job::start(campaign, Some(&out)).unwrap();
+    let before = listing(&out);
+    let o = run(&["design", out.to_str().unwrap()]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("no done cell") && err.contains(out.to_str().unwrap()),
+        "{err}"
+    );
+    assert_eq!(listing(&out), before);
+}
