@@ -13,7 +13,7 @@
 //!   a campaign survive SIGKILL and power loss without losing a completed
 //!   cell or counting a half-finished one.
 //!
-//! Layer rule: may use `analysis`, `config`, `jobs`, `outputs`, `plot`, `rt`, `splitmix`.
+//! Layer rule: may use `analysis`, `config`, `design`, `error`, `jobs`, `outputs`, `plot`, `rt`, `splitmix`.
 
 pub mod file;
 pub mod job;
