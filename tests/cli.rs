@@ -542,3 +542,27 @@ fn the_densest_grid_post_processes_in_seconds_and_an_interrupt_there_finishes_it
     let want = ((500.0f64 / 0.1).log10() * 10_000.0).ceil() as usize + 1;
     assert_eq!(rows, want);
 }
+
+/// `--config` with `--daemon` is refused (exit 2, naming the flag), never
+/// silently dropped: the daemon runs the config it was started with. The
+/// refusal comes before any socket is opened.
+#[test]
+fn config_with_daemon_is_refused_not_ignored() {
+    let cfg = Path::new(env!("CARGO_MANIFEST_DIR")).join("bench-config/sr4dof-ch5.toml");
+    for cmd in [&["chirp"][..], &["control", "--fast"][..]] {
+        let mut args = cmd.to_vec();
+        args.extend([
+            "--daemon",
+            "/nonexistent.sock",
+            "--config",
+            cfg.to_str().unwrap(),
+        ]);
+        let o = run(&args);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(2), "{cmd:?}: {err}");
+        assert!(
+            err.contains("--config") && err.contains("bench serve --config"),
+            "{cmd:?}: {err}"
+        );
+    }
+}

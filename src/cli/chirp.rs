@@ -131,6 +131,10 @@ impl ChirpArgs {
 pub(super) fn chirp(args: ChirpArgs, stop: Arc<AtomicBool>) -> ExitCode {
     if let Some(sock) = &args.daemon {
         let mut local_only = vec![
+            (
+                args.config.is_some(),
+                "--config (the daemon runs the bench config it was started with: bench serve --config)",
+            ),
             (args.out.is_some(), "--out"),
             (args.frf_csv.is_some(), "--frf-csv"),
             (args.plot.is_some(), "--plot"),

@@ -171,6 +171,10 @@ impl ControlArgs {
 pub(super) fn control(args: ControlArgs, stop: Arc<AtomicBool>) -> ExitCode {
     if let Some(sock) = &args.daemon {
         let local_only = [
+            (
+                args.config.is_some(),
+                "--config (the daemon runs the bench config it was started with: bench serve --config)",
+            ),
             (args.out.is_some(), "--out"),
             (args.plot.is_some(), "--plot"),
             (args.overwrite, "--overwrite"),
