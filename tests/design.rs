@@ -118,7 +118,6 @@ fn fast_design_on_the_chapter_5_model() {
         f.margins.phase_margins_deg,
         f.margins.sensitivity_peak
     );
-    let _ = figures;
     let p = bench::design::predict::predict(&cfg, &d.chosen.evaluation.controller, t).unwrap();
     eprintln!(
         "PREDICTED ω_B {:.1} settling {:?} overshoot {:.1}",

@@ -286,6 +286,28 @@ fn the_daemon_designs_as_the_cli_does() {
     );
 }
 
+/// A campaign file `NAME.toml` in `dir` of the shipped Chapter 5 bench
+/// (copied beside it) at +10 % asymmetry over `operating_points_pct`.
+fn campaign_file(
+    dir: &Path,
+    name: &str,
+    seed: u64,
+    operating_points_pct: &str,
+) -> std::path::PathBuf {
+    std::fs::copy(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("bench-config/sr4dof-ch5.toml"),
+        dir.join("sr4dof-ch5.toml"),
+    )
+    .unwrap();
+    let file = dir.join(format!("{name}.toml"));
+    std::fs::write(
+        &file,
+        format!("config = \"sr4dof-ch5.toml\"\nseed = {seed}\n[grid]\noperating_point_pct = {operating_points_pct}\nmass_asymmetry = [0.10]\n"),
+    )
+    .unwrap();
+    file
+}
+
 /// `bench campaign run --design fast`: one controller over the thesis'
 /// 6.2.2 range (0–8 % of L at +10 %), meeting the margins on every cell's
 /// FRF, written into the campaign directory; `bench design DIR` gives the
@@ -293,17 +315,7 @@ fn the_daemon_designs_as_the_cli_does() {
 #[test]
 fn a_campaign_ends_with_one_controller_for_all_its_cells() {
     let dir = tmp();
-    std::fs::copy(
-        Path::new(env!("CARGO_MANIFEST_DIR")).join("bench-config/sr4dof-ch5.toml"),
-        dir.path().join("sr4dof-ch5.toml"),
-    )
-    .unwrap();
-    let file = dir.path().join("ws.toml");
-    std::fs::write(
-        &file,
-        "config = \"sr4dof-ch5.toml\"\nseed = 62\n[grid]\noperating_point_pct = [0.0, 4.0, 8.0]\nmass_asymmetry = [0.10]\n",
-    )
-    .unwrap();
+    let file = campaign_file(dir.path(), "ws", 62, "[0.0, 4.0, 8.0]");
     let out = dir.path().join("ws");
     let o = run(&[
         "campaign",
@@ -403,11 +415,6 @@ fn designed_controllers_settle_on_random_benches_without_a_fault() {
             String::from_utf8_lossy(&o.stderr)
         );
         let d = json_stdout(&o);
-        if std::env::var_os("BENCH_KEEP").is_some() {
-            let _ = std::fs::create_dir_all("/tmp/rb");
-            std::fs::copy(&out, format!("/tmp/rb/d{seed}.toml")).unwrap();
-            std::fs::copy(&mcap, format!("/tmp/rb/c{seed}.mcap")).unwrap();
-        }
         let o = run(&[
             "control",
             "--config",
@@ -436,17 +443,7 @@ fn designed_controllers_settle_on_random_benches_without_a_fault() {
 #[test]
 fn a_campaign_without_a_done_cell_is_refused() {
     let dir = tmp();
-    std::fs::copy(
-        Path::new(env!("CARGO_MANIFEST_DIR")).join("bench-config/sr4dof-ch5.toml"),
-        dir.path().join("sr4dof-ch5.toml"),
-    )
-    .unwrap();
-    let file = dir.path().join("c.toml");
-    std::fs::write(
-        &file,
-        "config = \"sr4dof-ch5.toml\"\nseed = 1\n[grid]\noperating_point_pct = [4.0]\nmass_asymmetry = [0.10]\n",
-    )
-    .unwrap();
+    let file = campaign_file(dir.path(), "c", 1, "[4.0]");
     let out = dir.path().join("empty-campaign");
     let campaign = bench::campaign::file::Campaign::load(&file).unwrap();
     // Started (directory, copies, journal header), no cell run.

@@ -106,6 +106,23 @@ pub struct StepAnalysis {
     pub smoothed_position_m: Vec<f64>,
 }
 
+/// The step's setpoint offset from the start position at `tick`, m: 0
+/// for `settle_ticks`, then `step_m`, reached over `smooth_ticks` by a
+/// raised cosine `step_m · ½ (1 − cos(π k / smooth_ticks))` (0: a sharp
+/// step). Real-time safe. The closed-loop step job runs it on the tick;
+/// `bench design` predicts its step with it.
+#[inline]
+pub fn step_profile_m(tick: u64, settle_ticks: u64, smooth_ticks: u64, step_m: f64) -> f64 {
+    if tick < settle_ticks {
+        0.0
+    } else if smooth_ticks == 0 || tick >= settle_ticks + smooth_ticks {
+        step_m
+    } else {
+        let x = (tick - settle_ticks) as f64 / smooth_ticks as f64;
+        step_m * 0.5 * (1.0 - (std::f64::consts::PI * x).cos())
+    }
+}
+
 /// The recorded signals a step is judged on, one value per sample (the
 /// columns the step job keeps).
 #[derive(Debug, Clone, Copy)]

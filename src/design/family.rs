@@ -58,15 +58,6 @@ fn logit(x: f64) -> f64 {
 }
 
 impl Family {
-    /// Number of parameters.
-    pub fn dimension(&self) -> usize {
-        match self {
-            Self::Slow { .. } => 1,
-            Self::Fast { pair: None, .. } => 7,
-            Self::Fast { pair: Some(_), .. } => 11,
-        }
-    }
-
     /// The controller for parameters `theta` (clamped into the family's
     /// ranges; the first entry is always `ln g`).
     pub fn controller(&self, theta: &[f64]) -> ControllerConfig {
@@ -167,14 +158,6 @@ impl Family {
         let mut t = self.start();
         t[0] = theta[0];
         t
-    }
-
-    /// A name for reports: `slow` or `fast`.
-    pub fn strategy(&self) -> &'static str {
-        match self {
-            Self::Slow { .. } => "slow",
-            Self::Fast { .. } => "fast",
-        }
     }
 }
 

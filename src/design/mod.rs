@@ -553,9 +553,6 @@ pub fn attempt(
                 };
                 round += 1;
                 found = all.evaluate(e.controller.clone());
-                if std::env::var_os("BENCH_DESIGN_DEBUG").is_some() {
-                    eprintln!("round {round}: coarse feasible {} ω_B {:.1}, full feasible {} ω_B {:.1} binding {:?}", e.feasible(), e.sensitivity_bandwidth_min_rad_s, found.feasible(), found.sensitivity_bandwidth_min_rad_s, found.binding);
-                }
                 start = theta;
                 if found.feasible() || !e.feasible() || active.len() == frfs.len() {
                     break;

@@ -7,7 +7,7 @@ use super::loops::{figures, LoopFigures};
 use super::{derr, DesignError};
 use crate::config::BenchConfig;
 use crate::control::loop_check::model_grid;
-use crate::control::step_metrics::{analyze_step, StepMetrics, StepSignals};
+use crate::control::step_metrics::{analyze_step, step_profile_m, StepMetrics, StepSignals};
 use crate::control::{ControllerConfig, DiscreteController};
 use crate::ident::C64;
 use bench_hal::model::Sr4dof;
@@ -72,7 +72,7 @@ pub fn model_frf(cfg: &BenchConfig, delay_s: f64) -> Result<super::loops::Design
 }
 
 /// The prediction of `controller` on `cfg`'s model with the computation
-/// delay `delay_s` (whole periods in the step).
+/// delay `delay_s`: the loop figures to Nyquist and [`predict_step`].
 ///
 /// # Errors
 /// The `[plant]` of `cfg` cannot be modelled.
@@ -82,15 +82,31 @@ pub fn predict(
     delay_s: f64,
 ) -> Result<ModelPrediction, DesignError> {
     let (grid, l) = model_loop(cfg, controller, delay_s)?;
-    let figures = figures(&grid, &l, controller.integrators);
+    Ok(ModelPrediction {
+        figures: figures(&grid, &l, controller.integrators),
+        step: predict_step(cfg, controller, delay_s)?,
+    })
+}
+
+/// The noise-free closed-loop step of `[step]` on `cfg`'s model
+/// (zero-order-hold plant with the amplifier), the command applied
+/// `delay_s` later (whole periods), judged by the step job's metrics.
+///
+/// # Errors
+/// The `[plant]` of `cfg` cannot be modelled.
+pub fn predict_step(
+    cfg: &BenchConfig,
+    controller: &ControllerConfig,
+    delay_s: f64,
+) -> Result<StepMetrics, DesignError> {
     let model = Sr4dof::new(cfg.plant).map_err(|e| derr("config", e.to_string()))?;
     let t = cfg.loop_.period_ns() as f64 * 1e-9;
     let plant = ZohPlant::new(&model, &cfg.actuator, t);
     let mut ctrl = DiscreteController::new(controller, t, cfg.actuator.peak_current_a);
     let s = &cfg.step;
     let n = (s.duration_s / t).round() as usize;
-    let settle = (s.settle_s / t).round() as usize;
-    let smooth = (s.smooth_s / t).round() as usize;
+    let settle = (s.settle_s / t).round() as u64;
+    let smooth = (s.smooth_s / t).round() as u64;
     let delay = (delay_s / t).round() as usize;
     let mut queue = vec![0.0; delay + 1];
     let mut x = nalgebra::SVector::<f64, STATES>::zeros();
@@ -100,13 +116,7 @@ pub fn predict(
         Vec::with_capacity(n),
     );
     for i in 0..n {
-        let setpoint = if i < settle {
-            0.0
-        } else if smooth == 0 || i >= settle + smooth {
-            s.step_m
-        } else {
-            s.step_m * 0.5 * (1.0 - (PI * (i - settle) as f64 / smooth as f64).cos())
-        };
+        let setpoint = step_profile_m(i as u64, settle, smooth, s.step_m);
         let pos = x[0];
         let cmd = ctrl.update(setpoint - pos);
         queue[i % (delay + 1)] = cmd;
@@ -116,7 +126,7 @@ pub fn predict(
         u.push(cmd);
         plant.step(&mut x, applied, 0.0);
     }
-    let step = analyze_step(
+    Ok(analyze_step(
         StepSignals {
             position_m: &y,
             setpoint_m: &r,
@@ -127,6 +137,5 @@ pub fn predict(
         s.steady_state_window_s,
         t,
     )
-    .metrics;
-    Ok(ModelPrediction { figures, step })
+    .metrics)
 }

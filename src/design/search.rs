@@ -125,7 +125,8 @@ pub struct Evaluation {
     /// |S| to rise no faster than a first-order high-pass of corner ω*,
     /// so the loop cannot buy a high −3 dB crossing with |S| hovering just
     /// under −3 dB far below it (a slow tail in the step: the thesis'
-    /// "deep" in T, §6.2.1). ω_B ≥ ω*/√(1 − 1/(4M²))·… ≈ 0.76 ω* for M = 2.
+    /// "deep" in T, §6.2.1). Where |S| = 1/√2 the weight's bound gives
+    /// ω_B ≥ ω*/√(2 − 1/M²) (≈ 0.76 ω* for M = 2).
     pub objective_rad_s: f64,
     /// The smallest frequency over the FRFs at which |S| first reaches
     /// −4.5 dB (1.5 dB inside the −3 dB of ω_B), rad/s.

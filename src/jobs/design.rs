@@ -420,9 +420,9 @@ pub fn run_design(opts: &DesignOptions) -> Result<DesignSummary, RunError> {
     let model_loop =
         crate::design::predict::model_frf(&cfg, spec.computation_delay_s).map_err(design_error)?;
     let settle_of = |c: &ControllerConfig| {
-        predict(&cfg, c, spec.computation_delay_s)
+        crate::design::predict::predict_step(&cfg, c, spec.computation_delay_s)
             .ok()
-            .and_then(|p| p.step.settling_time_s)
+            .and_then(|m| m.settling_time_s)
     };
     let limit = req
         .settling_max_s

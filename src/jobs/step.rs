@@ -17,7 +17,7 @@
 
 use crate::config::BenchConfig;
 use crate::control::loop_check::{check_loop, LoopCheck, MeasuredFrf};
-use crate::control::step_metrics::{analyze_step, StepSignals};
+use crate::control::step_metrics::{analyze_step, step_profile_m, StepSignals};
 pub use crate::control::step_metrics::{
     StepAnalysis, StepEvents, StepMetrics, RISE_FROM, RISE_TO, SETTLING_BAND, SMOOTHING_S,
 };
@@ -39,7 +39,6 @@ use bench_hal::model::Sr4dof;
 use bench_hal::sim::{ScheduledFault, ZohPlant};
 use bench_hal::Sample;
 use serde::{Deserialize, Serialize};
-use std::f64::consts::PI;
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, AtomicU64};
 use std::sync::Arc;
@@ -124,14 +123,7 @@ impl ControlJob {
 
     /// Setpoint offset from the start position at `tick`, m.
     pub fn profile_m(&self, tick: u64) -> f64 {
-        if tick < self.settle_ticks {
-            0.0
-        } else if self.smooth_ticks == 0 || tick >= self.settle_ticks + self.smooth_ticks {
-            self.step_m
-        } else {
-            let x = (tick - self.settle_ticks) as f64 / self.smooth_ticks as f64;
-            self.step_m * 0.5 * (1.0 - (PI * x).cos())
-        }
+        step_profile_m(tick, self.settle_ticks, self.smooth_ticks, self.step_m)
     }
 }
 
