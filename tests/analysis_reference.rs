@@ -192,8 +192,112 @@ fn sequences_are_consistent_with_table_3_3_and_p4_1_with_the_exact_verdict() {
         }
         checked += 1;
     }
+    // A few benches have a pair mode that barely shows in the path
+    // (`analysis::modal::VISIBILITY`): no R, u, v labels there.
     assert!(
-        checked >= 50 && decisive * 10 >= checked * 8,
+        checked >= 45 && decisive * 10 >= checked * 8,
         "{decisive} decisive of {checked} checked"
     );
+}
+
+/// Issue 28, "the pair is the pair in the path": random benches within
+/// ±25 % of the Chapter 5 bench (masses, X bearings, parallelogram
+/// stiffness) kept only where the X rigid-body mode and the Y mode of
+/// stages ①②③ come within 3 % of each other. The Y mode barely moves x1,
+/// so it is never `u` or `v`; `R` is the X rigid-body mode (the largest
+/// residue); and wherever Chapter 4's three-mode test says it is
+/// decisive, its verdict is the full model's (the zeros, which
+/// `frequencies_residues_and_zeros_match_scipy` checks against scipy).
+#[test]
+fn close_rigid_modes_never_become_the_pair_and_a_decisive_three_mode_test_is_right() {
+    use bench::analysis::three_mode::ThreeModeTest;
+    use rand::{Rng, SeedableRng};
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let base = BenchConfig::load(&root.join("bench-config/sr4dof-ch5.toml"))
+        .unwrap()
+        .plant;
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(2828);
+    let (mut close, mut decisive, mut tries, mut mixed) = (0, 0, 0, 0);
+    while close < 40 {
+        tries += 1;
+        assert!(tries < 200_000, "only {close} close benches in {tries}");
+        let mut s = |x: f64| x * rng.random_range(0.75..1.25);
+        let mut p = base;
+        p.m1_kg = s(p.m1_kg);
+        p.m2_kg = s(p.m2_kg);
+        p.m3_kg = p.m2_kg;
+        p.m4_kg = s(p.m4_kg);
+        p.m5_kg = s(p.m5_kg);
+        p.k4_n_per_m = s(p.k4_n_per_m);
+        p.k5_n_per_m = s(p.k5_n_per_m);
+        p.parallelogram_stiffness_n_per_m =
+            Some(s(p.parallelogram_stiffness_n_per_m.unwrap_or(8590.0)));
+        p.operating_point_m = p.beam.length_m * rng.random_range(0.02..0.09);
+        p.mass_asymmetry = rng.random_range(-0.1..0.12);
+        let Ok(model) = Sr4dof::new(p) else { continue };
+        let a = analyze(&model);
+        // The X rigid-body mode: the largest |residue|; the Y mode: the
+        // mode with the smallest x1 participation among the two lowest.
+        let x = (0..4)
+            .max_by(|&i, &j| {
+                a.modes[i]
+                    .residue_per_kg
+                    .abs()
+                    .total_cmp(&a.modes[j].residue_per_kg.abs())
+            })
+            .unwrap();
+        let y = (0..2)
+            .filter(|&i| i != x)
+            .min_by(|&i, &j| {
+                a.modes[i]
+                    .sensor_participation
+                    .abs()
+                    .total_cmp(&a.modes[j].sensor_participation.abs())
+            })
+            .unwrap();
+        let ratio = a.modes[x].frequency_hz / a.modes[y].frequency_hz;
+        if !(1.0 / 1.03..1.03).contains(&ratio) {
+            continue;
+        }
+        close += 1;
+        let what = format!(
+            "bench {tries}: X {:.2} Hz, Y {:.2} Hz, modes {:?}",
+            a.modes[x].frequency_hz,
+            a.modes[y].frequency_hz,
+            a.modes
+                .iter()
+                .map(|m| (m.label.clone(), m.frequency_hz, m.residue_per_kg))
+                .collect::<Vec<_>>()
+        );
+        // A mode that does not show in the path is never in the pair, and
+        // R is the X rigid-body mode unless it is in the pair itself (the
+        // X and Y modes mixed, both showing: then two close pairs, and the
+        // labels say they are unsure).
+        let labels = bench::analysis::modal::term_labels(&a.modes);
+        for m in &a.modes {
+            let i = m.mode - 1;
+            if m.label == "u" || m.label == "v" {
+                assert!(
+                    labels.strength[i] >= bench::analysis::modal::VISIBILITY,
+                    "mode {} is in the pair without showing: {what}",
+                    m.mode
+                );
+            }
+        }
+        if labels.strength[y] < bench::analysis::modal::VISIBILITY {
+            assert!(a.modes[y].label.starts_with('m'), "{what}");
+            if labels.pair.is_some() {
+                assert_eq!(a.modes[x].label, "R", "{what}");
+            }
+        } else {
+            mixed += 1;
+        }
+        let t: Option<&ThreeModeTest> = a.three_mode.as_ref();
+        if let Some(t) = t.filter(|t| t.p4_1_decisive) {
+            assert_eq!(t.p4_1_cnmp, a.cnmp, "decisive but wrong: {t:?}, {what}");
+            decisive += 1;
+        }
+    }
+    eprintln!("{close} benches with close rigid modes ({tries} drawn; {mixed} with the two mixed), {decisive} decisive, all right");
+    assert!(decisive * 2 >= close, "{decisive} decisive of {close}");
 }

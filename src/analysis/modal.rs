@@ -134,66 +134,201 @@ pub fn modal_terms(model: &Sr4dof) -> Vec<ModalTerm> {
     terms
 }
 
-/// Indices `(u, v)` into `terms` (ascending in frequency) of the closely
-/// spaced pair: the two adjacent modes with the smallest frequency ratio
-/// (thesis Assumption A3-7 / A4-4; in the SR4DoF the 3rd and 4th modes,
-/// dominated by the secondary stages). `None` with fewer than two modes.
+/// Indices `(u, v)` into `terms` (ascending in frequency) of the
+/// structurally closely spaced pair: the two adjacent modes with the
+/// smallest frequency ratio, whatever their residues (thesis Assumption
+/// A3-7 / A4-4; in the SR4DoF the 3rd and 4th modes, dominated by the
+/// secondary stages): the veering of `bench map`, where a mode hidden by
+/// symmetry still veers. The labels `u`, `v` of the path are
+/// [`pair_and_remainder`]'s. `None` with fewer than two modes.
 pub fn closely_spaced_pair(terms: &[ModalTerm]) -> Option<(usize, usize)> {
-    let f: Vec<f64> = terms.iter().map(|t| t.frequency_hz).collect();
-    let none = vec![0.0; f.len()];
-    pair_and_remainder(&f, &none, &vec![false; f.len()], f64::INFINITY).0
+    (1..terms.len())
+        .min_by(|&x, &y| {
+            let r = |i: usize| terms[i].frequency_hz / terms[i - 1].frequency_hz;
+            r(x).total_cmp(&r(y))
+        })
+        .map(|v| (v - 1, v))
 }
 
 /// Names the pair `u`, `v` and the remainder mode `R`
-/// ([`pair_and_remainder`] over the modes in the path).
+/// ([`pair_and_remainder`] over the model's modes).
 fn label_terms(terms: &mut [ModalTerm]) {
-    let f: Vec<f64> = terms.iter().map(|t| t.frequency_hz).collect();
-    let residue: Vec<f64> = terms.iter().map(|t| t.residue_per_kg).collect();
-    let in_path: Vec<bool> = terms.iter().map(|t| t.in_path).collect();
-    let (pair, r) = pair_and_remainder(&f, &residue, &in_path, f64::INFINITY);
-    if let Some((u, v)) = pair {
+    let l = term_labels(terms);
+    if let Some((u, v)) = l.pair {
         terms[u].label = "u".into();
         terms[v].label = "v".into();
     }
-    if let (Some(_), Some(r)) = (pair, r) {
+    if let (Some(_), Some(r)) = (l.pair, l.remainder) {
         terms[r].label = "R".into();
     }
 }
 
+/// [`pair_and_remainder`] of modal terms.
+pub fn term_labels(terms: &[ModalTerm]) -> PairLabels {
+    let f: Vec<f64> = terms.iter().map(|t| t.frequency_hz).collect();
+    let zeta: Vec<f64> = terms.iter().map(|t| t.damping_ratio).collect();
+    let residue: Vec<f64> = terms
+        .iter()
+        .map(|t| if t.in_path { t.residue_per_kg } else { 0.0 })
+        .collect();
+    let strength = visibility(&f, &zeta, &residue);
+    pair_and_remainder(
+        &f,
+        &residue,
+        &strength,
+        VISIBILITY,
+        crate::ident::frf::CLOSE_PAIR_RATIO,
+    )
+}
+
+/// How strongly each mode shows in the path (see [`VISIBILITY`]): modes
+/// of frequencies `f_hz` (Hz), damping ratios `zeta`, residues `residue`
+/// (0: outside the path).
+pub fn visibility(f_hz: &[f64], zeta: &[f64], residue: &[f64]) -> Vec<f64> {
+    let n = f_hz.len();
+    let w = |i: usize| 2.0 * PI * f_hz[i];
+    (0..n)
+        .map(|i| {
+            let wi = w(i);
+            let own = residue[i].abs() / (2.0 * zeta[i].max(VISIBILITY_MIN_DAMPING) * wi * wi);
+            let rest: Complex<f64> = (0..n)
+                .filter(|&j| j != i)
+                .map(|j| {
+                    let wj = w(j);
+                    Complex::new(residue[j], 0.0)
+                        / Complex::new(wj * wj - wi * wi, 2.0 * zeta[j] * wj * wi)
+                })
+                .sum();
+            if own == 0.0 {
+                0.0
+            } else {
+                own / rest.norm().max(f64::MIN_POSITIVE)
+            }
+        })
+        .collect()
+}
+
+/// A mode shows in the path when its resonant contribution
+/// `|αᵢ| / (2ζᵢωᵢ²)` is at least this fraction of the rest of the path at
+/// its frequency, `|Σⱼ≠ᵢ αⱼ / (ωⱼ² − ωᵢ² + 2jζⱼωⱼωᵢ)|`: it moves |H| by
+/// about 1 dB or more there. The Y mode of stages ①②③ (an x1 residue of
+/// about 1e-5 of the X rigid-body mode's) shows at about 1e-4 of this;
+/// the pair's weaker mode at 0.2 % mass asymmetry at about 2.5.
+pub const VISIBILITY: f64 = 0.1;
+
+/// Damping ratio floor of the visibility (an undamped model's modes would
+/// otherwise all show, however small their residue).
+const VISIBILITY_MIN_DAMPING: f64 = 1e-3;
+
+/// The labels of [`pair_and_remainder`].
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct PairLabels {
+    /// The closely spaced pair `(u, v)`.
+    pub pair: Option<(usize, usize)>,
+    /// The remainder mode `R`.
+    pub remainder: Option<usize>,
+    /// How strongly each mode shows in the path (the caller's measure:
+    /// [`visibility`] for the model, `|Aᵢ|/σ` for a fit).
+    pub strength: Vec<f64>,
+    /// Why the labels could be other ones (`None`: they are sure):
+    /// Chapter 4's three-mode test is then never decisive.
+    pub unsure: Option<String>,
+}
+
 /// The labels' rule, shared by `bench analyze` (model modes) and the modal
-/// fit (fitted modes). Modes ascending in frequency `f_hz` (Hz) with
-/// residues (or modal constants) `residue`, `in_path` the ones in the
-/// actuator-to-sensor path. Returns:
-/// - the closely spaced pair `(u, v)`: the two adjacent modes with the
-///   smallest frequency ratio, if it is at most `max_ratio` (thesis
+/// fit (fitted modes). Modes ascending in frequency `f_hz` (Hz), with
+/// residues (or modal constants) `residue` in the actuator-to-sensor path
+/// and a `strength` each: only modes at or above `threshold` show in the
+/// path and take part (the model: [`visibility`] against [`VISIBILITY`];
+/// a fit: `|Aᵢ|/σ` against its significance):
+/// - the closely spaced pair `(u, v)`: the two adjacent showing modes with
+///   the smallest frequency ratio, if it is at most `max_ratio` (thesis
 ///   Assumption A3-7 / A4-4);
-/// - the remainder mode `R`: with a pair, the mode in the path outside it
-///   with the largest contribution `|αᵢ / (ωᵢ² − ω²)|` at the pair's mean
+/// - the remainder mode `R`: with a pair, the showing mode outside it with
+///   the largest contribution `|αᵢ / (ωᵢ² − ω²)|` at the pair's mean
 ///   frequency ω (Assumption A4-4: the remainder is dominated by a single
 ///   mode); without one, the largest static contribution `|αᵢ / ωᵢ²|`.
+///
+/// The labels are unsure ([`PairLabels::unsure`]) when a mode that does
+/// not show lies closer to a mode of the pair than the pair's own ratio
+/// (a partner the threshold decided), when a labelled mode's visibility is
+/// within a factor 3 of the threshold, or when another two adjacent
+/// showing modes are within `max_ratio` too (two closely spaced pairs:
+/// Chapter 4 assumes one).
 ///
 /// # Panics
 /// If the three slices differ in length.
 pub fn pair_and_remainder(
     f_hz: &[f64],
     residue: &[f64],
-    in_path: &[bool],
+    strength: &[f64],
+    threshold: f64,
     max_ratio: f64,
-) -> (Option<(usize, usize)>, Option<usize>) {
-    assert!(f_hz.len() == residue.len() && f_hz.len() == in_path.len());
+) -> PairLabels {
+    assert!(f_hz.len() == residue.len() && f_hz.len() == strength.len());
+    let n = f_hz.len();
     let w = |i: usize| 2.0 * PI * f_hz[i];
-    let pair = (1..f_hz.len())
-        .min_by(|&x, &y| (f_hz[x] / f_hz[x - 1]).total_cmp(&(f_hz[y] / f_hz[y - 1])))
-        .filter(|&v| f_hz[v] / f_hz[v - 1] <= max_ratio)
-        .map(|v| (v - 1, v));
+    let visibility = strength;
+    let shows: Vec<usize> = (0..n).filter(|&i| visibility[i] >= threshold).collect();
+    // Adjacent showing modes by ratio, closest first.
+    let mut pairs: Vec<(f64, usize, usize)> = shows
+        .windows(2)
+        .map(|p| (f_hz[p[1]] / f_hz[p[0]], p[0], p[1]))
+        .collect();
+    pairs.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let pair = pairs
+        .first()
+        .filter(|p| p.0 <= max_ratio)
+        .map(|p| (p.1, p.2));
     let w2 = pair.map_or(0.0, |(u, v)| (0.5 * (w(u) + w(v))).powi(2));
-    let r = (0..f_hz.len())
-        .filter(|&i| in_path[i] && pair.is_none_or(|(u, v)| i != u && i != v))
+    let remainder = shows
+        .iter()
+        .copied()
+        .filter(|&i| pair.is_none_or(|(u, v)| i != u && i != v))
         .max_by(|&x, &y| {
             let c = |i: usize| (residue[i] / (w(i).powi(2) - w2)).abs();
             c(x).total_cmp(&c(y))
         });
-    (pair, r)
+    let mut unsure = None;
+    if let Some((u, v)) = pair {
+        let ratio = f_hz[v] / f_hz[u];
+        let name = |i: usize| format!("mode {} ({:.2} Hz)", i + 1, f_hz[i]);
+        if let Some(h) = (0..n).find(|&h| {
+            visibility[h] < threshold
+                && [u, v]
+                    .iter()
+                    .any(|&m| (f_hz[h] / f_hz[m]).max(f_hz[m] / f_hz[h]) < ratio)
+        }) {
+            unsure = Some(format!(
+                "{} does not show in the path (strength {:.1e}, threshold {threshold}) but lies closer to the pair than its own ratio {ratio:.4}: the pair could be another",
+                name(h),
+                visibility[h]
+            ));
+        } else if let Some(&m) = [Some(u), Some(v), remainder]
+            .iter()
+            .flatten()
+            .find(|&&m| visibility[m] < 3.0 * threshold)
+        {
+            unsure = Some(format!(
+                "{} barely shows in the path (strength {:.2}, threshold {threshold}): its label is not sure",
+                name(m),
+                visibility[m]
+            ));
+        } else if let Some(next) = pairs.get(1).filter(|p| p.0 <= max_ratio) {
+            unsure = Some(format!(
+                "{} and {} are a closely spaced pair too (ratio {:.4} against {ratio:.4}): Chapter 4 assumes one pair (A4-4), which one it means is not sure",
+                name(next.1),
+                name(next.2),
+                next.0
+            ));
+        }
+    }
+    PairLabels {
+        pair,
+        remainder,
+        strength: visibility.to_vec(),
+        unsure,
+    }
 }
 
 /// A zero of a transfer function with its type (thesis 3.2.1).

@@ -60,9 +60,14 @@ pub struct ThreeModeTest {
     /// `α_R ω_R²/(ω_u² − ω_R²)`, times the normalisation of Eq. 4-9. 1/kg.
     pub remainder_error_hat: f64,
     /// `b̂₂` is farther than `remainder_error_hat` from both critical
-    /// values (or they do not exist): the assumptions of P4-1 hold well
+    /// values (or they do not exist), and the labels R, u, v are sure
+    /// (`labels_unsure` is `None`): the assumptions of P4-1 hold well
     /// enough for its verdict to be decisive here.
     pub p4_1_decisive: bool,
+    /// Why the labels R, u, v could be other modes
+    /// ([`super::modal::PairLabels::unsure`]); `None` when they are sure.
+    #[serde(default)]
+    pub labels_unsure: Option<String>,
 }
 
 impl ThreeModeTest {
@@ -122,6 +127,7 @@ impl ThreeModeTest {
             frequency_r_hz: omega_r / (2.0 * std::f64::consts::PI),
             remainder_error_hat,
             p4_1_decisive,
+            labels_unsure: None,
         }
     }
 
@@ -131,14 +137,17 @@ impl ThreeModeTest {
     pub fn from_terms(terms: &[ModalTerm]) -> Option<Self> {
         let find = |l: &str| terms.iter().find(|t| t.label == l);
         let (r, u, v) = (find("R")?, find("u")?, find("v")?);
-        Some(Self::from_residues(
+        let mut t = Self::from_residues(
             r.residue_per_kg,
             u.residue_per_kg,
             v.residue_per_kg,
             r.omega_rad_s(),
             u.omega_rad_s(),
             v.omega_rad_s(),
-        ))
+        );
+        t.labels_unsure = super::modal::term_labels(terms).unsure;
+        t.p4_1_decisive &= t.labels_unsure.is_none();
+        Some(t)
     }
 }
 

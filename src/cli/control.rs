@@ -391,7 +391,12 @@ pub(super) fn print_control_summary(s: &ControlSummary) {
         };
         outln!("step of {:.2} µm:", m.step_m * 1e6);
         outln!("  rise time (10–90 %) {}", opt(m.rise_time_s, "s", 1.0));
-        outln!("  settling time (2 %) {}", opt(m.settling_time_s, "s", 1.0));
+        outln!(
+            "  settling time (2 %) {}{}",
+            opt(m.settling_time_s, "s", 1.0),
+            m.settling_margin
+                .map_or(String::new(), |g| format!(" ({})", g.describe()))
+        );
         outln!("  overshoot {:.1} %", m.overshoot_pct);
         outln!(
             "  steady-state error over the last {:.1} s: mean {:.1} nm, σ {:.1} nm",

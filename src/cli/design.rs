@@ -249,6 +249,9 @@ pub(super) fn print_summary(s: &DesignSummary) {
         m.step.overshoot_pct,
         m.step.peak_command_a
     );
+    if let Some(g) = m.step.settling_margin {
+        outln!("  settling margin: {}", g.describe());
+    }
     for o in &s.strategies {
         outln!(
             "  tried {}: {} (ω_B {:.1} rad/s)",

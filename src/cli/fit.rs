@@ -122,7 +122,23 @@ pub(super) fn fit(a: FitArgs) -> ExitCode {
         out: a.out.clone(),
         existing: Existing::overwrite(a.overwrite),
     };
-    finish(run_fit(&opts), a.json, print_result)
+    let result = run_fit(&opts);
+    let flagged = match &result {
+        Ok(FitResult::Fit(s)) if s.flagged() => Some(
+            s.update_not_written
+                .clone()
+                .unwrap_or_else(|| "the modal fit is flagged".to_string()),
+        ),
+        _ => None,
+    };
+    let code = finish(result, a.json, print_result);
+    match flagged {
+        Some(why) if code == ExitCode::SUCCESS => {
+            errln!("error: bench fit: FLAGGED, not to be trusted: {why} (every file asked for is written, except an updated bench)");
+            ExitCode::from(super::status::FLAGGED)
+        }
+        _ => code,
+    }
 }
 
 fn print_result(r: &FitResult) {
@@ -232,8 +248,14 @@ fn print_update(u: &Update, out: Option<&Path>) {
     if let Some(w) = &u.warning {
         outln!("  warning: {w}");
     }
+    for f in &u.flags {
+        outln!("  FLAGGED: {f}");
+    }
     match out {
         Some(p) => outln!("  updated bench {}", p.display()),
+        None if !u.flags.is_empty() => {
+            outln!("  no updated bench written: the update is flagged")
+        }
         None => outln!("  (no --out: nothing written)"),
     }
 }
@@ -279,6 +301,32 @@ pub(super) fn print_fit(f: &ModalFit) {
         .map(|z| format!("{:+.2}{:+.2}j Hz {}", z.re_hz, z.im_hz, z.kind))
         .collect();
     outln!("  zeros: {}", zeros.join(", "));
+    print_quality(f);
+}
+
+/// The fit's checks (`modal_fit::FitQuality`): the residual against the
+/// noise, its whiteness, and every flag.
+pub(super) fn print_quality(f: &ModalFit) {
+    let q = &f.quality;
+    if !q.checked {
+        return;
+    }
+    let chi2 = match (q.chi2_per_dof, q.chi2_per_dof_bound) {
+        (Some(c), Some(b)) => format!("χ²/ν {c:.2} (bound {b:.2})"),
+        _ => "no noise estimate per line: 1σ scaled by the residual".to_string(),
+    };
+    outln!(
+        "  checks over {} independent lines: {chi2}, whiteness Q {:.1} (bound {:.1})",
+        q.lines,
+        q.whiteness_q,
+        q.whiteness_q_bound
+    );
+    if let Some(u) = &f.labels_unsure {
+        outln!("  labels unsure: {u}");
+    }
+    for flag in &q.flags {
+        outln!("  FLAGGED: {flag}");
+    }
 }
 
 /// Prints the verdict with both tests.

@@ -172,6 +172,7 @@ pub(super) mod status {
     pub const NO_DAEMON: u8 = 6;
     pub const DATA_LOST: u8 = 7;
     pub const VERIFY_FAILED: u8 = 8;
+    pub const FLAGGED: u8 = 9;
 }
 
 /// Logging to stderr, as the Rust ecosystem does it: the filter comes from

@@ -6,7 +6,9 @@
 //! - rise time: from r = [`RISE_FROM`] (0.1) to r = [`RISE_TO`] (0.9)
 //!   (first crossings), s;
 //! - settling time: from the step until r stays within 1 ±
-//!   [`SETTLING_BAND`] (0.02), s;
+//!   [`SETTLING_BAND`] (0.02), s, with its margin ([`SettlingMargin`]:
+//!   how far inside the band r stays afterwards and how far outside its
+//!   last excursion went; fragile within 1 % of the band);
 //! - overshoot: `max r − 1`, % (0 when none);
 //!
 //! (these three on the reading smoothed by a centred moving average over
@@ -32,6 +34,10 @@ pub struct StepMetrics {
     pub rise_time_s: Option<f64>,
     /// 2 % settling time after the step, s (`None` if never settled).
     pub settling_time_s: Option<f64>,
+    /// How sure the settling time is ([`SettlingMargin`]); `None` if never
+    /// settled.
+    #[serde(default)]
+    pub settling_margin: Option<SettlingMargin>,
     /// Overshoot, % of the step.
     pub overshoot_pct: f64,
     /// Mean of `setpoint − position` over the final window, nm.
@@ -43,6 +49,55 @@ pub struct StepMetrics {
     /// Largest |command|, A.
     pub peak_command_a: f64,
 }
+
+/// How close the smoothed response comes to the settling band's edge, as
+/// fractions of the step: a settling time is fragile when a ripple misses
+/// the band, or stays in it, by a hair, because a slightly different run
+/// (noise, a 1 % different gain) would then settle a ripple period
+/// earlier or later.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
+pub struct SettlingMargin {
+    /// `band − max |r − 1|` after the settling instant, past the entry
+    /// into the band (from the first sample where `|r − 1|` stops
+    /// falling): how far inside the band the ripple stays from then on
+    /// (fraction of the step, ≥ 0).
+    pub inside: f64,
+    /// `max |r − 1| − band` over the last stretch outside the band, just
+    /// before the settling instant: how far outside the last excursion
+    /// went (fraction of the step, > 0; the whole approach for a response
+    /// that enters the band once); `None` when the response was inside
+    /// the band from the step on.
+    pub last_excursion: Option<f64>,
+    /// Either margin is within [`FRAGILE_MARGIN`] of the band: the settling
+    /// time could be a ripple period different on another run.
+    pub fragile: bool,
+}
+
+impl SettlingMargin {
+    /// The margins in words, in % of the step, e.g. `margin: stays 1.2 %
+    /// inside the band, last excursion 0.4 % outside` and, when fragile,
+    /// `FRAGILE: …`.
+    pub fn describe(&self) -> String {
+        let mut s = format!(
+            "stays {:.3} % of the step inside the band",
+            100.0 * self.inside
+        );
+        if let Some(e) = self.last_excursion {
+            s += &format!(", last excursion {:.3} % outside", 100.0 * e);
+        }
+        if self.fragile {
+            s += &format!(
+                "; FRAGILE: within {:.0} % of the band, another run could settle a ripple earlier or later",
+                100.0 * FRAGILE_MARGIN
+            );
+        }
+        s
+    }
+}
+
+/// A settling margin below this fraction of the band's half width (1 %)
+/// makes the settling time fragile ([`SettlingMargin::fragile`]).
+pub const FRAGILE_MARGIN: f64 = 0.01;
 
 /// Width of the centred moving average applied before the rise, settling
 /// and overshoot figures, s.
@@ -168,6 +223,36 @@ pub fn analyze_step(
         Some(_) => None,
     };
     let settling_time_s = settled.map(|k| (k - k0) as f64 * period_s);
+    let settling_margin = settled.map(|s| {
+        let dev = |k: usize| (r[k] - 1.0).abs();
+        // After the settling instant, past the entry into the band (while
+        // the deviation still falls): how close the ripple comes back.
+        let mut e = s;
+        while e + 1 < n && dev(e + 1) <= dev(e) {
+            e += 1;
+        }
+        let after = (e..n)
+            .map(dev)
+            .filter(|v| v.is_finite())
+            .fold(0.0_f64, f64::max);
+        let inside = (SETTLING_BAND - after).max(0.0);
+        // Before it: the last stretch outside the band, and its peak.
+        let last_excursion = (s > k0).then(|| {
+            let mut b = s - 1;
+            let mut peak = dev(b);
+            while b > k0 && dev(b - 1) > SETTLING_BAND {
+                b -= 1;
+                peak = peak.max(dev(b));
+            }
+            peak - SETTLING_BAND
+        });
+        let hair = FRAGILE_MARGIN * SETTLING_BAND;
+        SettlingMargin {
+            inside,
+            last_excursion,
+            fragile: inside < hair || last_excursion.is_some_and(|x| x < hair),
+        }
+    });
     // The first largest value; NaN readings (a dropped probe sample spreads
     // over the average) are no peak.
     let peak = (k0..n).fold(None, |best: Option<usize>, k| match best {
@@ -188,6 +273,7 @@ pub fn analyze_step(
         step_m,
         rise_time_s,
         settling_time_s,
+        settling_margin,
         overshoot_pct,
         steady_state_error_mean_nm: mean * 1e9,
         steady_state_error_std_nm: var.sqrt() * 1e9,
@@ -260,6 +346,57 @@ mod tests {
         assert!(m.overshoot_pct < 1e-6);
         assert!(m.steady_state_error_mean_nm.abs() < 1e-3);
         assert_eq!(m.peak_command_a, 0.1);
+    }
+
+    /// The settling margin of `r = 1 − e^{−t/τ} + a·sin(2π f t)·e^{−t/τ_r}`
+    /// style responses, built so that the last ripple peak outside the
+    /// band misses it by a known hair: an entry with no ripple is not
+    /// fragile; a ripple whose last peak outside is 2e-5 of the step above
+    /// the band (the slow loop's case, issue 28) is.
+    #[test]
+    fn settling_margin_flags_a_ripple_that_misses_the_band_by_a_hair() {
+        let dt = 1e-4;
+        let n = 20_000;
+        let run = |r: &dyn Fn(f64) -> f64| {
+            let mut d = Signals::default();
+            for k in 0..n {
+                let t = k as f64 * dt;
+                d.position_m.push(1e-5 * r(t));
+                d.setpoint_m.push(1e-5);
+                d.current_command_a.push(0.0);
+            }
+            // The setpoint starts at the step: y0 = 0 by the first sample.
+            d.setpoint_m[0] = 0.0;
+            analyze_step(d.view(), 0.0, 1e-5, 0.5, dt).metrics
+        };
+        let first_order = run(&|t| 1.0 - (-t / 0.02).exp());
+        let g = first_order.settling_margin.unwrap();
+        assert!(!g.fragile, "{g:?}");
+        assert!(g.last_excursion.unwrap() > 0.5, "{g:?}");
+        // A square ripple (flat tops, so the 2 ms average keeps their
+        // height): ±(band + 2e-5) until 0.3 s, then ±0.5 band.
+        let square = |t: f64, a: f64| if (t * 10.0).fract() < 0.5 { a } else { -a };
+        let hair = run(&|t| {
+            1.0 + if t < 0.3 {
+                square(t, SETTLING_BAND + 2e-5)
+            } else {
+                square(t, 0.5 * SETTLING_BAND)
+            }
+        });
+        let g = hair.settling_margin.unwrap();
+        assert!(g.fragile, "{g:?}");
+        assert!((g.last_excursion.unwrap() - 2e-5).abs() < 1e-9, "{g:?}");
+        assert!((g.inside - 0.5 * SETTLING_BAND).abs() < 1e-9, "{g:?}");
+        // The same with the peak 10 % of the band outside: not fragile.
+        let clear = run(&|t| {
+            1.0 + if t < 0.3 {
+                square(t, 1.1 * SETTLING_BAND)
+            } else {
+                square(t, 0.5 * SETTLING_BAND)
+            }
+        });
+        assert!(!clear.settling_margin.unwrap().fragile);
+        assert!((clear.settling_time_s.unwrap() - 0.3).abs() < 2e-3);
     }
 
     /// Overshoot of an underdamped second-order step response:

@@ -107,12 +107,24 @@ pub struct FrfData {
     pub response: Vec<C64>,
     /// γ², 0 … 1.
     pub coherence: Vec<f64>,
+    /// 1σ of the complex response per line, `√E|Ĥ − H|²`, m/A, estimated
+    /// from the data (the LPM's noise variance, or H1's from coherence).
+    /// NaN on any line: not estimated (an FRF CSV of four columns); the fit
+    /// then weights by coherence alone and scales its 1σ by the residual.
+    pub sigma_m_per_a: Vec<f64>,
+    /// Width of the band of DFT bins each line's estimate draws on, Hz:
+    /// lines whose bands do not overlap have independent errors. 0: every
+    /// line independent; NaN: unknown (the fit then thins only to
+    /// [`MAX_POINTS_PER_DECADE`]).
+    pub resolution_hz: Vec<f64>,
 }
 
 impl FrfData {
     /// From an estimated [`Frf`] (magnitude and unwrapped phase).
     pub fn from_frf(frf: &Frf) -> Self {
         Self {
+            sigma_m_per_a: vec![f64::NAN; frf.frequency_hz.len()],
+            resolution_hz: vec![f64::NAN; frf.frequency_hz.len()],
             frequency_hz: frf.frequency_hz.clone(),
             response: frf
                 .magnitude_m_per_a
@@ -252,6 +264,176 @@ pub struct ModalFit {
     pub zeros: Vec<FittedZero>,
     /// The fitted model has CMP-CNMP zeros.
     pub cmp_cnmp: bool,
+    /// How far the fit can be trusted: the residual against the noise and
+    /// the flags ([`FitQuality`]). Absent in JSON written before it
+    /// existed (read as unchecked).
+    #[serde(default)]
+    pub quality: FitQuality,
+    /// Why the labels R, u, v could be other modes
+    /// ([`crate::analysis::modal::PairLabels::unsure`]); `None` when sure.
+    #[serde(default)]
+    pub labels_unsure: Option<String>,
+}
+
+impl ModalFit {
+    /// The fit passed every check of [`FitQuality`].
+    pub fn trusted(&self) -> bool {
+        self.quality.checked && self.quality.flags.is_empty()
+    }
+}
+
+/// Lags of the whiteness test ([`FitQuality::whiteness_q`]).
+pub const WHITENESS_LAGS: usize = 10;
+
+/// Significance of the residual tests: a fit that explains the data is
+/// flagged by chance once in a thousand.
+pub const RESIDUAL_TEST_LEVEL: f64 = 1e-3;
+
+/// The checks of a fit that can be wrong without failing (issue 28: "no
+/// silent wrong answer"). Each flag names the mode or the statistic and
+/// the reason; a fit with any flag is not trusted
+/// ([`ModalFit::trusted`]): the verdict does not decide from it and
+/// `bench fit --update` does not write a config from it.
+///
+/// The residual tests run on the normalised residuals
+/// `eₖ = wₖ (Ĥₖ − Hₖ)` of the lines the fit used (independent lines,
+/// [`independent_lines`]), with `wₖ` the inverse standard deviation of
+/// line `k` ([`weights`]):
+/// - **χ² test** (only with a noise estimate per line): `χ² = Σ|eₖ|²`
+///   against its distribution with `ν = 2N − p` degrees of freedom
+///   (`N` lines, `p` parameters); flagged above the `1 − α` quantile,
+///   α = [`RESIDUAL_TEST_LEVEL`], by the Wilson–Hilferty approximation
+///   `ν (1 − 2/(9ν) + z_α √(2/(9ν)))³` (Johnson, Kotz & Balakrishnan,
+///   *Continuous Univariate Distributions* 1, Eq. 18.24).
+/// - **Whiteness along frequency** (Ljung–Box, for complex residuals):
+///   `ρⱼ = Σₖ eₖ e*ₖ₊ⱼ / Σₖ |eₖ|²`, `Q = 2N Σⱼ₌₁..h |ρⱼ|²` with
+///   h = [`WHITENESS_LAGS`]; for circular white residuals each `2N|ρⱼ|²`
+///   is χ²₂, so `Q ~ χ²(2h)` (Ljung & Box 1978, Biometrika 65); flagged
+///   above its `1 − α` quantile. Scale-free: it runs without a noise
+///   estimate too. A model that misses a mode or a shape leaves residuals
+///   that run in long same-signed stretches.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema, Default)]
+pub struct FitQuality {
+    /// The checks ran (false only for a fit read from JSON written before
+    /// they existed).
+    pub checked: bool,
+    /// The weights are inverse standard deviations estimated from the
+    /// data (LPM or H1 σ per line), so the 1σ are the noise's own; false:
+    /// only relative weights (an FRF CSV without σ), the 1σ scaled by the
+    /// residual.
+    pub noise_estimated: bool,
+    /// Lines the fit used (independent: their bands do not overlap).
+    pub lines: usize,
+    /// `χ²/ν` of the normalised residuals (≈ 1 when the model explains the
+    /// data to the noise); `null` without a noise estimate.
+    pub chi2_per_dof: Option<f64>,
+    /// The `1 − α` bound of `χ²/ν` at this `ν`.
+    pub chi2_per_dof_bound: Option<f64>,
+    /// Ljung–Box `Q` of the normalised residuals.
+    pub whiteness_q: f64,
+    /// Its `1 − α` bound (χ² with `2h` degrees of freedom).
+    pub whiteness_q_bound: f64,
+    /// Why the fit is not to be trusted; empty when it passed.
+    pub flags: Vec<String>,
+}
+
+/// Standard normal quantile at `1 − RESIDUAL_TEST_LEVEL` (3.0902).
+const Z_LEVEL: f64 = 3.090_232_306_167_813;
+
+/// The `1 − α` quantile of χ² with `nu` degrees of freedom
+/// (Wilson–Hilferty, [`FitQuality`]).
+pub fn chi2_quantile(nu: f64) -> f64 {
+    let a = 2.0 / (9.0 * nu);
+    nu * (1.0 - a + Z_LEVEL * a.sqrt()).powi(3)
+}
+
+/// Trial damping ratios of [`try_mode`]: a mode whose damping still
+/// equals one of them after the final refinement was never refined.
+const TRIAL_DAMPING: [f64; 3] = [0.003, 0.01, 0.03];
+
+/// The checks of [`FitQuality`] for parameters `p` on `data`.
+fn quality(prep: &Prepared, data: &FrfData, p: &Params) -> FitQuality {
+    let n = p.f_hz.len();
+    let mut flags = Vec::new();
+    let name = |i: usize| format!("mode {} at {:.2} Hz", i + 1, p.f_hz[i]);
+    // Never refined: the damping is a trial value to rounding.
+    for i in 0..n {
+        if TRIAL_DAMPING
+            .iter()
+            .any(|z| (p.zeta[i] / z - 1.0).abs() < 1e-9)
+        {
+            flags.push(format!(
+                "{}: damping ratio {} is the trial grid's starting value, never refined by the fit",
+                name(i),
+                p.zeta[i]
+            ));
+        }
+    }
+    // A split mode: two modes inside each other's half-power bands with
+    // opposite modal constants that cancel (their sum under half the
+    // larger): one resonance described as a difference of two.
+    for i in 1..n {
+        let (a, b) = (p.a[i - 1], p.a[i]);
+        let overlap =
+            p.f_hz[i] - p.f_hz[i - 1] < p.zeta[i - 1] * p.f_hz[i - 1] + p.zeta[i] * p.f_hz[i];
+        if overlap && a * b < 0.0 && (a + b).abs() < 0.5 * a.abs().max(b.abs()) {
+            flags.push(format!(
+                "{} and {}: inside each other's half-power band with opposite modal constants ({:.3e}, {:.3e} m/(A·s²)) that cancel: one mode split in two",
+                name(i - 1),
+                name(i),
+                a,
+                b
+            ));
+        }
+    }
+    // The residual tests over the lines used.
+    let e: Vec<C64> = (0..prep.len())
+        .map(|k| (prep.model(k, p) - prep.h[k]) * prep.scale[k])
+        .collect();
+    let lines = e.len();
+    let params = 3 * n + 3;
+    let nu = (2 * lines).saturating_sub(params).max(1) as f64;
+    let chi2: f64 = e.iter().map(|v| v.norm_sqr()).sum();
+    let (chi2_per_dof, chi2_per_dof_bound) = if prep.noise_estimated {
+        let bound = chi2_quantile(nu) / nu;
+        if chi2 / nu > bound {
+            flags.push(format!(
+                "the residual exceeds the estimated noise: χ²/ν = {:.2} over {lines} lines (bound {:.2} at the {} level): the model misses part of the response",
+                chi2 / nu,
+                bound,
+                RESIDUAL_TEST_LEVEL
+            ));
+        }
+        (Some(chi2 / nu), Some(bound))
+    } else {
+        (None, None)
+    };
+    let energy = chi2.max(f64::MIN_POSITIVE);
+    let q: f64 = (1..=WHITENESS_LAGS.min(lines.saturating_sub(1)))
+        .map(|j| {
+            let r: C64 = (0..lines - j).map(|k| e[k] * e[k + j].conj()).sum();
+            (r / energy).norm_sqr()
+        })
+        .sum::<f64>()
+        * 2.0
+        * lines as f64;
+    let q_bound = chi2_quantile(2.0 * WHITENESS_LAGS as f64);
+    if q > q_bound {
+        flags.push(format!(
+            "the residual is not white along frequency: Ljung–Box Q = {q:.1} over {WHITENESS_LAGS} lags (bound {q_bound:.1} at the {RESIDUAL_TEST_LEVEL} level): a structure the model does not have"
+        ));
+    }
+    let _ = data;
+    FitQuality {
+        checked: true,
+        noise_estimated: prep.noise_estimated,
+        lines,
+        chi2_per_dof,
+        chi2_per_dof_bound,
+        whiteness_q: q,
+        whiteness_q_bound: q_bound,
+        flags,
+    }
 }
 
 /// Why no fit could be made.
@@ -283,19 +465,57 @@ struct Params {
     tau_s: f64,
 }
 
-/// The weight of each point over its magnitude, `wₖ / |Hₖ|` with
-/// `wₖ = 1/√((1 − γₖ²)/γₖ² + ε²)` (the [module docs](self)): the residual
-/// of a model `Ĥ` at point `k` is `(Ĥₖ − Hₖ) ·` this.
-pub fn relative_weights(data: &FrfData) -> Vec<f64> {
-    data.response
-        .iter()
-        .zip(&data.coherence)
-        .map(|(h, g)| {
-            let g = g.clamp(1e-6, 1.0);
-            let var = (1.0 - g) / g + MODEL_ERROR_FLOOR * MODEL_ERROR_FLOOR;
-            1.0 / (var.sqrt() * h.norm().max(f64::MIN_POSITIVE))
-        })
-        .collect()
+/// The weight of each line: the residual of a model `Ĥ` at line `k` is
+/// `(Ĥₖ − Hₖ) · wₖ`.
+///
+/// - With a 1σ per line from the data ([`FrfData::sigma_m_per_a`] finite
+///   and positive on every line): `wₖ = 1/√(σₖ² + (ε|Hₖ|)²)`, the inverse
+///   standard deviation of the line (the maximum-likelihood weighting of
+///   Pintelon & Schoukens, *System Identification*, 2nd ed., §7.3 and
+///   ch. 9), with `ε` = [`MODEL_ERROR_FLOOR`] for what the model cannot
+///   represent; the residual is then in standard deviations.
+/// - Without: `wₖ = 1/(|Hₖ| √((1 − γₖ²)/γₖ² + ε²))`, the relative,
+///   coherence-weighted error (Bendat & Piersol, *Random Data*, Eq. 9.90),
+///   which knows the noise only up to a common scale.
+pub fn weights(data: &FrfData) -> Weights {
+    let noise_estimated = !data.sigma_m_per_a.is_empty()
+        && data.sigma_m_per_a.len() == data.response.len()
+        && data.sigma_m_per_a.iter().all(|s| s.is_finite() && *s > 0.0);
+    let scale = if noise_estimated {
+        data.response
+            .iter()
+            .zip(&data.sigma_m_per_a)
+            .map(|(h, s)| {
+                let floor = MODEL_ERROR_FLOOR * h.norm();
+                1.0 / (s * s + floor * floor).sqrt().max(f64::MIN_POSITIVE)
+            })
+            .collect()
+    } else {
+        data.response
+            .iter()
+            .zip(&data.coherence)
+            .map(|(h, g)| {
+                let g = g.clamp(1e-6, 1.0);
+                let var = (1.0 - g) / g + MODEL_ERROR_FLOOR * MODEL_ERROR_FLOOR;
+                1.0 / (var.sqrt() * h.norm().max(f64::MIN_POSITIVE))
+            })
+            .collect()
+    };
+    Weights {
+        scale,
+        noise_estimated,
+    }
+}
+
+/// The weights of [`weights`].
+#[derive(Debug, Clone)]
+pub struct Weights {
+    /// `wₖ` per line, A/m.
+    pub scale: Vec<f64>,
+    /// The weights are inverse standard deviations estimated from the data
+    /// (the weighted residual sum of squares is then a χ²); otherwise they
+    /// are relative and the noise level comes from the residual.
+    pub noise_estimated: bool,
 }
 
 /// Precomputed per-point data.
@@ -304,6 +524,8 @@ struct Prepared<'a> {
     h: &'a [C64],
     /// Weight over |H|: the residual is `scale · (Ĥ − H)`.
     scale: Vec<f64>,
+    /// The weights are inverse standard deviations ([`Weights`]).
+    noise_estimated: bool,
     gain: Vec<C64>,
     coherent: Vec<bool>,
 }
@@ -311,13 +533,17 @@ struct Prepared<'a> {
 impl<'a> Prepared<'a> {
     fn new(data: &'a FrfData, path: &Path) -> Self {
         let w: Vec<f64> = data.frequency_hz.iter().map(|f| 2.0 * PI * f).collect();
-        let scale = relative_weights(data);
+        let Weights {
+            scale,
+            noise_estimated,
+        } = weights(data);
         let gain = w.iter().map(|&w| path.gain(w)).collect();
         let coherent = data.coherence.iter().map(|g| *g >= MIN_COHERENCE).collect();
         Self {
             w,
             h: &data.response,
             scale,
+            noise_estimated,
             gain,
             coherent,
         }
@@ -562,7 +788,15 @@ fn sigmas(prep: &Prepared, p: &Params, period_s: f64) -> Vec<f64> {
     let j = problem.jacobian_of(p);
     let n = p.f_hz.len();
     let dof = (j.nrows() as f64 - j.ncols() as f64).max(1.0);
-    let s2 = prep.cost(p) / dof;
+    // With σ per line from the data the weighted cost is a χ² with `dof`
+    // degrees of freedom: the 1σ come from (JᵀJ)⁻¹ as they are, widened
+    // by χ²/ν when the model leaves more than the noise (Birge ratio);
+    // without, the noise level is the residual's.
+    let s2 = if prep.noise_estimated {
+        (prep.cost(p) / dof).max(1.0)
+    } else {
+        prep.cost(p) / dof
+    };
     let jtj = j.transpose() * &j;
     let unknown = DMatrix::from_element(3 * n + 3, 3 * n + 3, f64::INFINITY);
     let cov = if !jtj.iter().all(|v| v.is_finite()) {
@@ -824,26 +1058,55 @@ fn without(prep: &Prepared, p: &Params, i: usize, period_s: f64) -> Option<Param
     Some(sorted(refine(prep, &start, period_s)))
 }
 
-/// `data` on a grid no denser than `per_decade` points per decade: a
-/// point is kept when its frequency is at least `1 + ln 10 / per_decade`
-/// times the last one kept (the step of a log grid of `per_decade`
-/// points). `None` when every point is kept (a grid at or below that
-/// density, as the default 400 points per decade).
+/// The lines of `data` the fit uses: a line is kept when its frequency is
+/// at least `1 + ln 10 / per_decade` times the last one kept (the step of
+/// a log grid of `per_decade` points) and, where the lines' bands are
+/// known ([`FrfData::resolution_hz`]), its band does not overlap the last
+/// kept one's (`f − f_last ≥ (b + b_last)/2`): the kept lines' errors are
+/// independent, so their weighted residual is a χ² and the 1σ of the fit
+/// do not shrink with the density of the grid. `None` when every line is
+/// kept.
 fn thin(data: &FrfData, per_decade: f64) -> Option<FrfData> {
     let step = 1.0 + std::f64::consts::LN_10 / per_decade;
-    let mut keep = Vec::with_capacity(data.frequency_hz.len());
-    let mut last = f64::NEG_INFINITY;
+    let band = |k: usize| {
+        data.resolution_hz
+            .get(k)
+            .copied()
+            .filter(|b| b.is_finite())
+            .unwrap_or(0.0)
+    };
+    let mut keep: Vec<usize> = Vec::with_capacity(data.frequency_hz.len());
     for (k, &f) in data.frequency_hz.iter().enumerate() {
-        if keep.is_empty() || f >= last * step {
+        let fresh = keep.last().is_none_or(|&j| {
+            let last = data.frequency_hz[j];
+            f >= last * step && f - last >= 0.5 * (band(k) + band(j))
+        });
+        if fresh {
             keep.push(k);
-            last = f;
         }
     }
+    let pick = |v: &[f64]| -> Vec<f64> {
+        keep.iter()
+            .map(|&k| v.get(k).copied().unwrap_or(f64::NAN))
+            .collect()
+    };
     (keep.len() < data.frequency_hz.len()).then(|| FrfData {
-        frequency_hz: keep.iter().map(|&k| data.frequency_hz[k]).collect(),
+        frequency_hz: pick(&data.frequency_hz),
         response: keep.iter().map(|&k| data.response[k]).collect(),
-        coherence: keep.iter().map(|&k| data.coherence[k]).collect(),
+        coherence: pick(&data.coherence),
+        sigma_m_per_a: pick(&data.sigma_m_per_a),
+        resolution_hz: pick(&data.resolution_hz),
     })
+}
+
+/// The lines of `data` the fit and the model update use: no denser than
+/// [`MAX_POINTS_PER_DECADE`], and with independent errors where the lines'
+/// bands are known (see [`FrfData::resolution_hz`]).
+pub fn independent_lines(data: &FrfData) -> std::borrow::Cow<'_, FrfData> {
+    match thin(data, MAX_POINTS_PER_DECADE) {
+        Some(t) => std::borrow::Cow::Owned(t),
+        None => std::borrow::Cow::Borrowed(data),
+    }
 }
 
 /// First and last frequency with γ² ≥ [`MIN_COHERENCE`].
@@ -859,8 +1122,8 @@ fn coherent_band(prep: &Prepared, freq_hz: &[f64]) -> (f64, f64) {
 /// [`FitError::TooFewPoints`] when fewer than [`MIN_POINTS`] points have
 /// γ² ≥ [`MIN_COHERENCE`].
 pub fn fit(data: &FrfData, path: &Path) -> Result<ModalFit, FitError> {
-    let thinned = thin(data, MAX_POINTS_PER_DECADE);
-    let data = thinned.as_ref().unwrap_or(data);
+    let lines = independent_lines(data);
+    let data: &FrfData = &lines;
     let prep = Prepared::new(data, path);
     let coherent = prep.coherent.iter().filter(|c| **c).count();
     if coherent < MIN_POINTS {
@@ -944,6 +1207,10 @@ pub fn fit(data: &FrfData, path: &Path) -> Result<ModalFit, FitError> {
         break;
     }
     let current = prune(&prep, current, period_s);
+    // Every parameter refined together once more: a mode kept from its
+    // trial grid (the unrefined option of `add_mode`) gets its own
+    // frequency and damping here, or the quality check says it did not.
+    let current = sorted(refine(&prep, &current, period_s));
     Ok(summarise(&prep, data, &current, period_s))
 }
 
@@ -962,7 +1229,9 @@ fn summarise(prep: &Prepared, data: &FrfData, p: &Params, period_s: f64) -> Moda
     let path_z: Vec<f64> = path_idx.iter().map(|&i| p.zeta[i]).collect();
     let path_a: Vec<f64> = path_idx.iter().map(|&i| p.a[i]).collect();
     let mut labels: Vec<String> = (0..n).map(|i| format!("m{}", i + 1)).collect();
-    for (k, l) in self::labels(&path_f, &path_a).into_iter().enumerate() {
+    let path_sd: Vec<f64> = path_idx.iter().map(|&i| sd[2 * n + i]).collect();
+    let (path_labels, labels_unsure) = self::labels(&path_f, &path_a, &path_sd);
+    for (k, l) in path_labels.into_iter().enumerate() {
         if !l.starts_with('m') {
             labels[path_idx[k]] = l;
         }
@@ -1017,6 +1286,8 @@ fn summarise(prep: &Prepared, data: &FrfData, p: &Params, period_s: f64) -> Moda
         coherent_points: count,
         sign_sequence: seq.as_ref().map(|s| s.signs.clone()).unwrap_or_default(),
         dominant_sequence: seq.map(|s| s.notation).unwrap_or_default(),
+        quality: quality(prep, data, p),
+        labels_unsure,
         zeros: typed
             .iter()
             .map(|z| FittedZero {
@@ -1030,26 +1301,36 @@ fn summarise(prep: &Prepared, data: &FrfData, p: &Params, period_s: f64) -> Moda
 }
 
 /// Labels as `bench analyze` gives them
-/// ([`crate::analysis::modal::pair_and_remainder`], every mode in the
-/// path): the closely spaced pair (the adjacent modes with the smallest
-/// frequency ratio, at most `CLOSE_PAIR_RATIO` = 1.25) `u`, `v`; `R` the
-/// remainder mode; the rest `m<N>`.
-pub fn labels(f_hz: &[f64], a: &[f64]) -> Vec<String> {
+/// ([`crate::analysis::modal::pair_and_remainder`]) for fitted modes of
+/// frequencies `f_hz` and modal constants `a` with 1σ `a_sigma`: a mode
+/// shows in the path when its constant is at least [`MIN_SIGNIFICANCE`]
+/// standard deviations from zero (every mode the fit keeps); the closely
+/// spaced pair (the adjacent such modes with the smallest frequency
+/// ratio, at most `CLOSE_PAIR_RATIO` = 1.25) `u`, `v`; `R` the remainder
+/// mode; the rest `m<N>`. With the reason the labels are unsure, if they
+/// are.
+pub fn labels(f_hz: &[f64], a: &[f64], a_sigma: &[f64]) -> (Vec<String>, Option<String>) {
     let mut out: Vec<String> = (0..f_hz.len()).map(|i| format!("m{}", i + 1)).collect();
-    let (pair, r) = crate::analysis::modal::pair_and_remainder(
+    let strength: Vec<f64> = a
+        .iter()
+        .zip(a_sigma)
+        .map(|(a, s)| if *s > 0.0 { a.abs() / s } else { f64::INFINITY })
+        .collect();
+    let l = crate::analysis::modal::pair_and_remainder(
         f_hz,
         a,
-        &vec![true; f_hz.len()],
+        &strength,
+        MIN_SIGNIFICANCE,
         super::frf::CLOSE_PAIR_RATIO,
     );
-    if let Some((u, v)) = pair {
+    if let Some((u, v)) = l.pair {
         out[u] = "u".into();
         out[v] = "v".into();
     }
-    if let Some(r) = r {
+    if let Some(r) = l.remainder {
         out[r] = "R".into();
     }
-    out
+    (out, l.unsure)
 }
 
 /// Roots (rad/s) of the numerator of `Σᵢ Aᵢ / (s² + 2ζᵢωᵢ s + ωᵢ²)`,
@@ -1122,6 +1403,8 @@ mod tests {
             FrfData {
                 response: (0..n).map(|k| C64::new(k as f64, 0.0)).collect(),
                 coherence: vec![1.0; n],
+                sigma_m_per_a: vec![f64::NAN; n],
+                resolution_hz: vec![f64::NAN; n],
                 frequency_hz: f,
             }
         };
@@ -1166,6 +1449,8 @@ mod tests {
         let data = FrfData {
             response: f.iter().map(|&f| zoh.frf(f)).collect(),
             coherence: vec![1.0; f.len()],
+            sigma_m_per_a: vec![f64::NAN; f.len()],
+            resolution_hz: vec![f64::NAN; f.len()],
             frequency_hz: f,
         };
         let path = Path {
@@ -1241,8 +1526,10 @@ mod tests {
                 let m = fit
                     .modes
                     .iter()
-                    .find(|m| m.label == t.label)
-                    .unwrap_or_else(|| panic!("{op} {dm}: no {} in {:?}", t.label, fit.modes));
+                    .find(|m| (m.frequency_hz / t.frequency_hz - 1.0).abs() < 1e-3)
+                    .unwrap_or_else(|| {
+                        panic!("{op} {dm}: no {} Hz in {:?}", t.frequency_hz, fit.modes)
+                    });
                 assert!(
                     (m.frequency_hz / t.frequency_hz - 1.0).abs() < 1e-4,
                     "{m:?} {t:?}"

@@ -312,6 +312,14 @@ pub struct Update {
     /// Why the result should not be trusted, when it should not (the
     /// model does not explain the data, or a parameter is not determined).
     pub warning: Option<String>,
+    /// Why this update is not to be trusted (issue 28, no silent wrong
+    /// answer): the modal fit it started from is flagged
+    /// ([`ModalFit::trusted`]), or the updated model leaves more than the
+    /// estimated noise (the χ² test of [`modal_fit::FitQuality`] on its
+    /// residual). Empty: trusted. `bench fit --update` writes no config
+    /// from a flagged update.
+    #[serde(default)]
+    pub flags: Vec<String>,
     /// The updated bench (`None` in an update read back from JSON, which
     /// does not carry it).
     #[serde(skip)]
@@ -365,8 +373,10 @@ enum Target<'a> {
 struct Prepared<'a> {
     frequency_hz: &'a [f64],
     h: &'a [C64],
-    /// Weight over |H| (the modal fit's).
+    /// Weight of each line (the modal fit's, [`modal_fit::weights`]).
     scale: Vec<f64>,
+    /// The weights are inverse standard deviations from the data.
+    noise_estimated: bool,
     /// The path without its delay.
     gain: Vec<C64>,
     coherent: Vec<bool>,
@@ -375,10 +385,12 @@ struct Prepared<'a> {
 
 impl<'a> Prepared<'a> {
     fn new(data: &'a FrfData, path: &Path) -> Self {
+        let w = modal_fit::weights(data);
         Self {
             frequency_hz: &data.frequency_hz,
             h: &data.response,
-            scale: modal_fit::relative_weights(data),
+            scale: w.scale,
+            noise_estimated: w.noise_estimated,
             gain: data
                 .frequency_hz
                 .iter()
@@ -552,13 +564,26 @@ fn minimise(problem: Problem) -> (DVector<f64>, f64) {
 }
 
 /// The 1σ of each coordinate, `s² (JᵀJ)⁻¹` (`None` where not estimable).
-fn coordinate_sigmas(problem: &Problem, x: &DVector<f64>, cost: f64) -> Vec<Option<f64>> {
+/// `s²` is the residual variance per degree of freedom, or with
+/// `noise_estimated` (weights that are inverse standard deviations from
+/// the data, [`modal_fit::weights`]) `max(1, χ²/ν)`: the noise's own
+/// covariance, widened when the model leaves more than the noise.
+fn coordinate_sigmas(
+    problem: &Problem,
+    x: &DVector<f64>,
+    cost: f64,
+    noise_estimated: bool,
+) -> Vec<Option<f64>> {
     let n = x.len();
     let dof = problem.len() as f64 - n as f64;
     let Some(j) = problem.jacobian_at(x).filter(|_| dof > 0.0) else {
         return vec![None; n];
     };
-    let s2 = cost / dof;
+    let s2 = if noise_estimated {
+        (cost / dof).max(1.0)
+    } else {
+        cost / dof
+    };
     let jtj = j.transpose() * &j;
     match jtj.try_inverse() {
         Some(cov) => (0..n)
@@ -599,7 +624,7 @@ fn fit_frequencies(start: Bench, free: &[Parameter], measured_hz: &[f64]) -> Opt
             continue;
         }
         let problem = Problem::new(start, free, &target, 0.0);
-        let sig = coordinate_sigmas(&problem, &x, cost);
+        let sig = coordinate_sigmas(&problem, &x, cost, false);
         let bench = problem.bench_at(&x);
         let Target::Frequencies { mode, .. } = target else {
             unreachable!()
@@ -801,6 +826,7 @@ pub fn update_to_frequencies(
         cmp_cnmp: model.has_cnmp_zeros(),
         stiffness_over_beam: stiffness_over_beam(&bench),
         warning,
+        flags: Vec::new(),
         bench: Some(bench),
     })
 }
@@ -880,7 +906,8 @@ fn update_frf_once(
         return Err(UpdateError::NoFreeParameter);
     }
     let start_model = check_start(start)?;
-    let prep = Prepared::new(data, path);
+    let lines = modal_fit::independent_lines(data);
+    let prep = Prepared::new(&lines, path);
     let coherent = prep.coherent.iter().filter(|c| **c).count();
     if coherent < modal_fit::MIN_POINTS {
         return Err(UpdateError::TooFewCoherentPoints(coherent));
@@ -971,7 +998,7 @@ fn update_frf_once(
     let model = bench
         .model()
         .ok_or_else(|| UpdateError::NoFit("the result is outside the ranges".into()))?;
-    let sig = coordinate_sigmas(&problem, &x, cost);
+    let sig = coordinate_sigmas(&problem, &x, cost, prep.noise_estimated);
     // The σ of a log or scaled coordinate of `origin` maps to the unit the
     // same way as for `start` (the transforms do not depend on the values).
     let parameters = parameter_report(start, &bench, free, &sig);
@@ -980,6 +1007,25 @@ fn update_frf_once(
         pair_with_fit(&mut modes, f, &prep);
     }
     let rms = prep.rms_error(&bench, &model, tau);
+    let mut flags: Vec<String> = Vec::new();
+    if let Some(f) = fit.filter(|f| f.quality.checked && !f.quality.flags.is_empty()) {
+        flags.push(format!(
+            "the modal fit it starts from is flagged ({})",
+            f.quality.flags.join("; ")
+        ));
+    }
+    if prep.noise_estimated {
+        let nu = (problem.len() as f64 - x.len() as f64).max(1.0);
+        let bound = modal_fit::chi2_quantile(nu) / nu;
+        if cost / nu > bound {
+            flags.push(format!(
+                "the updated model leaves more than the estimated noise: χ²/ν = {:.2} over {} lines (bound {bound:.2} at the {} level): the SR4DoF with these free parameters does not explain this FRF",
+                cost / nu,
+                prep.h.len(),
+                modal_fit::RESIDUAL_TEST_LEVEL
+            ));
+        }
+    }
     let mut start_kf = *start;
     start_kf.force_constant_n_per_a = bench.force_constant_n_per_a;
     let start_rms = prep.rms_error(&start_kf, &start_model, tau);
@@ -1012,6 +1058,7 @@ fn update_frf_once(
         cmp_cnmp: model.has_cnmp_zeros(),
         stiffness_over_beam: stiffness_over_beam(&bench),
         warning,
+        flags,
         bench: Some(bench),
     })
 }

@@ -236,6 +236,11 @@ pub fn residue_test(fit: &ModalFit) -> ResidueTest {
         Some("the zeros of the fitted model could not be computed".to_string())
     } else if uncertain {
         Some("the fit's uncertainties could not be computed (singular Jacobian)".to_string())
+    } else if fit.quality.checked && !fit.quality.flags.is_empty() {
+        Some(format!(
+            "the fit is flagged: {}",
+            fit.quality.flags.join("; ")
+        ))
     } else if fit.rms_relative_error > MAX_FIT_ERROR {
         Some(format!(
             "the fit leaves an RMS relative error of {:.1} % (at most {:.0} % for a fit that explains the measurement)",

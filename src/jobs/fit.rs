@@ -103,6 +103,19 @@ pub struct FitSummary {
     /// Where the updated bench was written.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub updated_config: Option<PathBuf>,
+    /// Why the updated bench was not written although `update` was asked
+    /// for: the update is flagged ([`Update::flags`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub update_not_written: Option<String>,
+}
+
+impl FitSummary {
+    /// The fit or the update is flagged: a result not to be trusted
+    /// (`bench fit` exits 9).
+    pub fn flagged(&self) -> bool {
+        self.fit.as_ref().is_some_and(|f| !f.trusted())
+            || self.update.as_ref().is_some_and(|u| !u.flags.is_empty())
+    }
 }
 
 /// The result of an update to natural frequencies (`bench fit
@@ -439,6 +452,12 @@ fn fit_frf(opts: &FitOptions, input_path: &Path) -> Result<FitSummary, RunError>
             reason,
         })?;
     }
+    // A flagged update is reported, never written as a bench to use.
+    let update_not_written = update
+        .as_ref()
+        .filter(|u| !u.flags.is_empty() && out.is_some())
+        .map(|u| format!("the update is flagged: {}", u.flags.join("; ")));
+    let out = out.filter(|_| update_not_written.is_none());
     if let (Some(o), Some(u), Some(s)) = (&out, &update, &start) {
         write_updated(o, opts.existing, s, u, &input)?;
     }
@@ -452,6 +471,7 @@ fn fit_frf(opts: &FitOptions, input_path: &Path) -> Result<FitSummary, RunError>
         plot: plot.filter(|_| id.fit.is_some()),
         update,
         updated_config: out,
+        update_not_written,
     })
 }
 

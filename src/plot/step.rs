@@ -444,6 +444,7 @@ mod tests {
             step_m: 1e-5,
             rise_time_s: rise,
             settling_time_s: settle,
+            settling_margin: None,
             overshoot_pct: 0.0,
             steady_state_error_mean_nm: 0.0,
             steady_state_error_std_nm: 0.0,

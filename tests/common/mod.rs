@@ -232,9 +232,13 @@ pub fn noisy_frf(
             zoh.frf(f) * (C64::new(1.0, 0.0) + e)
         })
         .collect();
+    // Each line's own noise, independent of the others' (resolution 0).
+    let sigma = h.iter().map(|h| noise * h.norm()).collect();
     bench::ident::modal_fit::FrfData {
         response: h,
         coherence: vec![1.0 / (1.0 + noise * noise); f.len()],
+        sigma_m_per_a: sigma,
+        resolution_hz: vec![0.0; f.len()],
         frequency_hz: f,
     }
 }
