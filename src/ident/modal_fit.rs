@@ -123,8 +123,8 @@ impl FrfData {
     /// From an estimated [`Frf`] (magnitude and unwrapped phase).
     pub fn from_frf(frf: &Frf) -> Self {
         Self {
-            sigma_m_per_a: vec![f64::NAN; frf.frequency_hz.len()],
-            resolution_hz: vec![f64::NAN; frf.frequency_hz.len()],
+            sigma_m_per_a: frf.sigma_m_per_a.clone(),
+            resolution_hz: frf.resolution_hz.clone(),
             frequency_hz: frf.frequency_hz.clone(),
             response: frf
                 .magnitude_m_per_a
@@ -305,13 +305,16 @@ pub const RESIDUAL_TEST_LEVEL: f64 = 1e-3;
 ///   α = [`RESIDUAL_TEST_LEVEL`], by the Wilson–Hilferty approximation
 ///   `ν (1 − 2/(9ν) + z_α √(2/(9ν)))³` (Johnson, Kotz & Balakrishnan,
 ///   *Continuous Univariate Distributions* 1, Eq. 18.24).
-/// - **Whiteness along frequency** (Ljung–Box, for complex residuals):
-///   `ρⱼ = Σₖ eₖ e*ₖ₊ⱼ / Σₖ |eₖ|²`, `Q = 2N Σⱼ₌₁..h |ρⱼ|²` with
-///   h = [`WHITENESS_LAGS`]; for circular white residuals each `2N|ρⱼ|²`
-///   is χ²₂, so `Q ~ χ²(2h)` (Ljung & Box 1978, Biometrika 65); flagged
-///   above its `1 − α` quantile. Scale-free: it runs without a noise
-///   estimate too. A model that misses a mode or a shape leaves residuals
-///   that run in long same-signed stretches.
+/// - **Whiteness along frequency against the noise** (Ljung–Box, for
+///   complex residuals): `ρⱼ = Σₖ eₖ e*ₖ₊ⱼ / E`, `Q = 2N Σⱼ₌₁..h |ρⱼ|²`
+///   with h = [`WHITENESS_LAGS`]; for circular white residuals of unit
+///   variance each `2N|ρⱼ|²` is χ²₂, so `Q ~ χ²(2h)` (Ljung & Box 1978,
+///   Biometrika 65); flagged above its `1 − α` quantile. `E = max(Σ|eₖ|²,
+///   N)` with a noise estimate: correlation is measured against the
+///   noise, so a smooth model error far below the noise (which cannot
+///   move the parameters by their 1σ) does not flag; without one,
+///   `E = Σ|eₖ|²` (scale-free). A model that misses a mode or a shape
+///   leaves residuals that run in long same-signed stretches.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema, Default)]
 pub struct FitQuality {
     /// The checks ran (false only for a fit read from JSON written before
@@ -408,7 +411,16 @@ fn quality(prep: &Prepared, data: &FrfData, p: &Params) -> FitQuality {
     } else {
         (None, None)
     };
-    let energy = chi2.max(f64::MIN_POSITIVE);
+    // Against the estimated noise: the lag products are compared with
+    // what unit-variance noise gives (N), so a correlated residual far
+    // below the noise (χ²/ν ≪ 1: a model error the data cannot see) does
+    // not count; a residual above the noise is scaled to it (the χ² test
+    // has judged its size). Without a noise estimate: scale-free.
+    let energy = if prep.noise_estimated {
+        chi2.max(lines as f64)
+    } else {
+        chi2.max(f64::MIN_POSITIVE)
+    };
     let q: f64 = (1..=WHITENESS_LAGS.min(lines.saturating_sub(1)))
         .map(|j| {
             let r: C64 = (0..lines - j).map(|k| e[k] * e[k + j].conj()).sum();
