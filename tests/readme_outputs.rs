@@ -23,7 +23,9 @@ fn samples(readme: &str) -> Vec<(String, String)> {
         let end = after.find(" -->").expect("marker closed");
         let args = after[..end].to_string();
         let body = &after[end..];
-        let open = body.find("```text\n").expect("a ```text block after the marker");
+        let open = body
+            .find("```text\n")
+            .expect("a ```text block after the marker");
         let body = &body[open + "```text\n".len()..];
         let close = body.find("\n```").expect("block closed");
         out.push((args, body[..close].to_string()));
@@ -40,9 +42,15 @@ fn normalise(text: &str) -> Vec<String> {
             // Files: `  recording   /any/path/chirp-<stamp>.mcap` etc.
             if let Some(i) = t.find('/') {
                 let label = &t[..i];
-                if ["recording", "FRF (CSV)", "Bode plot", "plot", "updated bench"]
-                    .iter()
-                    .any(|k| label.trim() == *k)
+                if [
+                    "recording",
+                    "FRF (CSV)",
+                    "Bode plot",
+                    "plot",
+                    "updated bench",
+                ]
+                .iter()
+                .any(|k| label.trim() == *k)
                 {
                     return format!("{label}…");
                 }

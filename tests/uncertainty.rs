@@ -245,7 +245,17 @@ fn stated_uncertainties_cover_the_truth() {
         for r in runs.iter().filter(|r| flagged(r)) {
             let f = r.fit.as_ref().map(|f| f.quality.flags.clone());
             let u = r.update.as_ref().map(|u| u.flags.clone());
-            eprintln!("seed {}: fit {f:?} update {u:?}", r.seed);
+            let p = &r.truth.plant;
+            eprintln!(
+                "seed {}: stiffness {:?} asym {} op {} zr {} zc {} kf {}: fit {f:?} update {u:?}",
+                r.seed,
+                p.parallelogram_stiffness_n_per_m,
+                p.mass_asymmetry,
+                p.operating_point_m,
+                p.damping.zeta_rigid,
+                p.damping.zeta_csm,
+                r.truth.actuator.force_constant_n_per_a
+            );
         }
     }
     assert!(

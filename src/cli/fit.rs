@@ -316,12 +316,10 @@ pub(super) fn print_quality(f: &ModalFit) {
         (Some(c), Some(b)) => format!("χ²/ν {c:.2} (bound {b:.2})"),
         _ => "no noise estimate per line: 1σ scaled by the residual".to_string(),
     };
-    outln!(
-        "  checks over {} independent lines: {chi2}, whiteness Q {:.1} (bound {:.1})",
-        q.lines,
-        q.whiteness_q,
-        q.whiteness_q_bound
-    );
+    let white = q.whiteness_q.map_or(String::new(), |w| {
+        format!(", whiteness Q {w:.1} (bound {:.1})", q.whiteness_q_bound)
+    });
+    outln!("  checks over {} independent lines: {chi2}{white}", q.lines);
     if let Some(u) = &f.labels_unsure {
         outln!("  labels unsure: {u}");
     }

@@ -310,10 +310,11 @@ pub const RESIDUAL_TEST_LEVEL: f64 = 1e-3;
 ///   with h = [`WHITENESS_LAGS`]; for circular white residuals of unit
 ///   variance each `2N|ρⱼ|²` is χ²₂, so `Q ~ χ²(2h)` (Ljung & Box 1978,
 ///   Biometrika 65); flagged above its `1 − α` quantile. `E = max(Σ|eₖ|²,
-///   N)` with a noise estimate: correlation is measured against the
-///   noise, so a smooth model error far below the noise (which cannot
-///   move the parameters by their 1σ) does not flag; without one,
-///   `E = Σ|eₖ|²` (scale-free). A model that misses a mode or a shape
+///   N)`: correlation is measured against the noise, so a smooth model
+///   error far below the noise (which cannot move the parameters by their
+///   1σ) does not flag. Only with a noise estimate per line: without one
+///   there is nothing to judge a correlation against (a noise-free FRF's
+///   residual is all model error). A model that misses a mode or a shape
 ///   leaves residuals that run in long same-signed stretches.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema, Default)]
 pub struct FitQuality {
@@ -332,8 +333,9 @@ pub struct FitQuality {
     pub chi2_per_dof: Option<f64>,
     /// The `1 − α` bound of `χ²/ν` at this `ν`.
     pub chi2_per_dof_bound: Option<f64>,
-    /// Ljung–Box `Q` of the normalised residuals.
-    pub whiteness_q: f64,
+    /// Ljung–Box `Q` of the normalised residuals; `null` without a noise
+    /// estimate (nothing to judge a correlation against).
+    pub whiteness_q: Option<f64>,
     /// Its `1 − α` bound (χ² with `2h` degrees of freedom).
     pub whiteness_q_bound: f64,
     /// Why the fit is not to be trusted; empty when it passed.
@@ -355,7 +357,7 @@ pub fn chi2_quantile(nu: f64) -> f64 {
 const TRIAL_DAMPING: [f64; 3] = [0.003, 0.01, 0.03];
 
 /// The checks of [`FitQuality`] for parameters `p` on `data`.
-fn quality(prep: &Prepared, data: &FrfData, p: &Params) -> FitQuality {
+fn quality(prep: &Prepared, p: &Params) -> FitQuality {
     let n = p.f_hz.len();
     let mut flags = Vec::new();
     let name = |i: usize| format!("mode {} at {:.2} Hz", i + 1, p.f_hz[i]);
@@ -415,27 +417,25 @@ fn quality(prep: &Prepared, data: &FrfData, p: &Params) -> FitQuality {
     // what unit-variance noise gives (N), so a correlated residual far
     // below the noise (χ²/ν ≪ 1: a model error the data cannot see) does
     // not count; a residual above the noise is scaled to it (the χ² test
-    // has judged its size). Without a noise estimate: scale-free.
-    let energy = if prep.noise_estimated {
-        chi2.max(lines as f64)
-    } else {
-        chi2.max(f64::MIN_POSITIVE)
-    };
-    let q: f64 = (1..=WHITENESS_LAGS.min(lines.saturating_sub(1)))
-        .map(|j| {
-            let r: C64 = (0..lines - j).map(|k| e[k] * e[k + j].conj()).sum();
-            (r / energy).norm_sqr()
-        })
-        .sum::<f64>()
-        * 2.0
-        * lines as f64;
+    // has judged its size). Without a noise estimate there is nothing to
+    // judge a correlation against: not tested.
     let q_bound = chi2_quantile(2.0 * WHITENESS_LAGS as f64);
-    if q > q_bound {
+    let q = prep.noise_estimated.then(|| {
+        let energy = chi2.max(lines as f64);
+        (1..=WHITENESS_LAGS.min(lines.saturating_sub(1)))
+            .map(|j| {
+                let r: C64 = (0..lines - j).map(|k| e[k] * e[k + j].conj()).sum();
+                (r / energy).norm_sqr()
+            })
+            .sum::<f64>()
+            * 2.0
+            * lines as f64
+    });
+    if let Some(q) = q.filter(|q| *q > q_bound) {
         flags.push(format!(
             "the residual is not white along frequency: Ljung–Box Q = {q:.1} over {WHITENESS_LAGS} lags (bound {q_bound:.1} at the {RESIDUAL_TEST_LEVEL} level): a structure the model does not have"
         ));
     }
-    let _ = data;
     FitQuality {
         checked: true,
         noise_estimated: prep.noise_estimated,
@@ -1298,7 +1298,7 @@ fn summarise(prep: &Prepared, data: &FrfData, p: &Params, period_s: f64) -> Moda
         coherent_points: count,
         sign_sequence: seq.as_ref().map(|s| s.signs.clone()).unwrap_or_default(),
         dominant_sequence: seq.map(|s| s.notation).unwrap_or_default(),
-        quality: quality(prep, data, p),
+        quality: quality(prep, p),
         labels_unsure,
         zeros: typed
             .iter()
