@@ -499,3 +499,80 @@ fn short_sweeps_are_never_wrong() {
         }
     }
 }
+
+/// Issue 28, no silent wrong answer: an FRF whose stated noise is far
+/// below its real scatter (σ 1e-6 of |H| per line, scatter 1e-2, so the
+/// model cannot explain it within the noise) gives a flagged fit:
+/// `bench fit --update` prints the flag, writes the plot but no updated
+/// bench, and exits 9 — never 0 with a config a user would load.
+#[test]
+fn a_flagged_fit_exits_9_and_writes_no_updated_bench() {
+    use rand::{Rng, SeedableRng};
+    let dir = tempfile::tempdir().unwrap();
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(289);
+    let mut text = String::new();
+    for (i, line) in valid_csv_with(true).lines().enumerate() {
+        if i == 0 {
+            text += line;
+            text.push('\n');
+            continue;
+        }
+        let v: Vec<f64> = line.split(',').map(|x| x.parse().unwrap()).collect();
+        // |H| and phase scattered by 1 % / 0.57° RMS, σ stated as 1e-6 |H|.
+        let mag = v[1] * (1.0 + 1e-2 * (rng.random::<f64>() - 0.5) * 3.46);
+        let ph = v[2] + 0.57 * (rng.random::<f64>() - 0.5) * 3.46;
+        text += &format!(
+            "{},{:e},{},{},{:e},{}\n",
+            v[0],
+            mag,
+            ph,
+            v[3],
+            1e-6 * v[1],
+            v[5]
+        );
+    }
+    let csv = write(dir.path(), "frf.csv", &text);
+    let config = root().join("bench-config/sr4dof-ch5.toml");
+    let out = bench()
+        .args(["fit", csv.to_str().unwrap(), "--update", "--config"])
+        .arg(&config)
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(9), "{stdout}\n{stderr}");
+    assert!(
+        stdout.contains("FLAGGED: the residual exceeds the estimated noise"),
+        "{stdout}"
+    );
+    assert!(stderr.contains("FLAGGED"), "{stderr}");
+    assert!(!dir.path().join("frf.updated.toml").exists());
+    assert!(dir.path().join("frf.fit.png").exists());
+    // The same FRF with its honest σ (√2 · 1e-2 of |H|: both parts) is
+    // not flagged.
+    let honest = text
+        .lines()
+        .enumerate()
+        .map(|(i, l)| {
+            if i == 0 {
+                return l.to_string();
+            }
+            let mut v: Vec<String> = l.split(',').map(str::to_string).collect();
+            let s: f64 = v[4].parse().unwrap();
+            v[4] = format!("{:e}", s * 1.414e4);
+            v.join(",")
+        })
+        .collect::<Vec<_>>()
+        .join("\n");
+    let csv = write(dir.path(), "honest.csv", &(honest + "\n"));
+    let out = bench()
+        .args(["fit", csv.to_str().unwrap(), "--no-plot"])
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}\n{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
