@@ -464,6 +464,12 @@ fn documented(key: &str, c: &Value) -> Option<(Doc, bool)> {
             opt,
         ),
         "identification.min_bins" => (closed(3.0, 1000.0), opt),
+        // README: R in [0, 6]; n in [R + 2, 50] (q = 2n + 1 − 2(R + 1) ≥ 3).
+        "identification.lpm_degree" => (closed(0.0, 6.0), opt),
+        "identification.lpm_half_width_bins" => (
+            closed(num("identification.lpm_degree", 2.0) + 2.0, 50.0),
+            opt,
+        ),
         "step.step_m" => (
             Doc {
                 abs: true,

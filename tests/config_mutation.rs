@@ -39,6 +39,8 @@ enum Kind {
     Count,
     /// `i32`
     Int,
+    /// `usize` (a TOML integer, 0 … 2⁶³ − 1)
+    Size,
 }
 
 /// A documented range: `lo`/`hi` with closed or open ends.
@@ -277,6 +279,21 @@ fn specs() -> Vec<Spec> {
             // At most the CAN device's default peak, 9.98 A.
             Bounds::new(0.0, false, 9.98, true),
         ),
+        // The FRF's noise model: not a protection, but what the design's
+        // margins are judged against. R in [0, 6]; n in [R + 2, 50] at the
+        // shipped R = 2.
+        s(
+            "identification.lpm_degree",
+            Size,
+            false,
+            Bounds::new(0.0, true, 6.0, true),
+        ),
+        s(
+            "identification.lpm_half_width_bins",
+            Size,
+            false,
+            Bounds::new(4.0, true, 50.0, true),
+        ),
     ]
 }
 
@@ -349,6 +366,7 @@ fn numeric(kind: Kind, v: &Value) -> Option<f64> {
         (Kind::Real, Value::Integer(i)) => Some(*i as f64),
         (Kind::Count, Value::Integer(i)) if u32::try_from(*i).is_ok() => Some(*i as f64),
         (Kind::Int, Value::Integer(i)) if i32::try_from(*i).is_ok() => Some(*i as f64),
+        (Kind::Size, Value::Integer(i)) if usize::try_from(*i).is_ok() => Some(*i as f64),
         _ => None,
     }
 }
@@ -455,7 +473,7 @@ fn table_for(spec: &Spec) -> Vec<Mutation> {
             m.push(set(Value::Integer(i64::MAX)));
             m.push(set(Value::Integer(u32::MAX.into())));
         }
-        Kind::Count | Kind::Int => {
+        Kind::Count | Kind::Int | Kind::Size => {
             for i in [
                 i64::MIN,
                 -1,
@@ -574,7 +592,7 @@ proptest! {
         let spec = &specs[which % specs.len()];
         let value = match spec.kind {
             Kind::Real => Value::Float(real_near(spec, bits, mode, ulps, frac)),
-            Kind::Count | Kind::Int => Value::Integer(match mode % 4 {
+            Kind::Count | Kind::Int | Kind::Size => Value::Integer(match mode % 4 {
                 0 => wide,
                 1 => spec.range.lo as i64 + i64::from(ulps),
                 2 => spec.range.hi as i64 + i64::from(ulps),
@@ -1009,6 +1027,12 @@ fn a_refusal_between_two_keys_names_both() {
             "relative_resolution = 0.1  ",
             "identification.points_per_decade",
             "identification.relative_resolution",
+        ),
+        (
+            "lpm_degree = 2 ",
+            "lpm_degree = 5 ",
+            "identification.lpm_half_width_bins",
+            "identification.lpm_degree",
         ),
     ] {
         assert!(text.contains(from), "the shipped file has {from:?}");

@@ -162,4 +162,25 @@ pub mod ranges {
     pub const RELATIVE_RESOLUTION: (f64, f64) = (1e-4, 0.5);
     /// `identification.min_bins`.
     pub const MIN_BINS: (usize, usize) = (3, 1000);
+    /// `identification.lpm_degree`, R: 0 (the FRF and the transient locally
+    /// constant) to 6. Beyond a quadratic or cubic the local fit spends
+    /// degrees of freedom on detail a window narrow against the modes'
+    /// half-power bands does not have, and the monomials grow
+    /// ill-conditioned (Pintelon & Schoukens 2012, §7.2, and Pintelon et
+    /// al. 2010 work with R = 2).
+    pub const LPM_DEGREE: (usize, usize) = (0, 6);
+    /// `identification.lpm_half_width_bins`, n, at least: `R + 2`, so that
+    /// the local fit keeps `q = 2n + 1 − 2(R + 1) ≥ 3` degrees of freedom
+    /// for the noise variance (with q < 3 the estimated variance is too
+    /// uncertain to judge anything by: its relative spread is `1/√q`, and
+    /// `E[1/σ̂²]` is infinite for q = 1).
+    pub const LPM_HALF_WIDTH_OVER_DEGREE_MIN: usize = 2;
+    /// `identification.lpm_half_width_bins`, n, at most: 50 (a window of
+    /// 101 bins). Wider is not local: on the default 65.5 s record it is
+    /// 1.5 Hz, more than the half-power band `2ζf` of every mode of the
+    /// shipped benches (0.53–0.65 Hz), so the polynomials would smooth
+    /// across the resonances they are meant to follow. (At high frequency
+    /// `relative_resolution` widens the window in proportion to f, as the
+    /// modes' bands widen.)
+    pub const LPM_HALF_WIDTH_MAX: usize = 50;
 }

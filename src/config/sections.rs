@@ -325,6 +325,30 @@ fn default_kind() -> ChirpKind {
     ChirpKind::Exponential
 }
 
+/// The FRF estimator of `bench chirp` (`identification.estimator`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Estimator {
+    /// The local polynomial method ([`crate::ident::lpm`]): a noise
+    /// variance per line from the local fit's residual, transient and
+    /// leakage removed.
+    #[default]
+    Lpm,
+    /// H1 on frequency-smoothed spectra ([`crate::ident::frf`]), σ from
+    /// the coherence.
+    H1,
+}
+
+impl Estimator {
+    /// The config spelling: `"lpm"`, `"h1"`.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Lpm => "lpm",
+            Self::H1 => "h1",
+        }
+    }
+}
+
 /// `[identification]`
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -332,14 +356,27 @@ pub struct IdentificationConfig {
     /// Points of the log-spaced output grid per decade.
     #[serde(default = "default_ppd")]
     pub points_per_decade: usize,
-    /// Frequency resolution as a fraction of frequency (full width of the
-    /// smoothing window): 0.004 = 0.4 % of f.
+    /// Frequency resolution as a fraction of frequency: the full width of
+    /// H1's smoothing window, and of the LPM's local window where that is
+    /// wider than `2 lpm_half_width_bins + 1` bins: 0.004 = 0.4 % of f.
     #[serde(default = "default_resolution")]
     pub relative_resolution: f64,
     /// Fewest DFT bins averaged at any grid point (sets the resolution where
-    /// `relative_resolution · f` is finer than the record allows).
+    /// `relative_resolution · f` is finer than the record allows). H1 only.
     #[serde(default = "default_min_bins")]
     pub min_bins: usize,
+    /// The FRF estimator (default the LPM).
+    #[serde(default)]
+    pub estimator: Estimator,
+    /// LPM: least half width `n` of the local window, DFT bins (the window
+    /// is `2n + 1` bins, or `relative_resolution · f` where wider). Default
+    /// [`crate::ident::lpm::DEFAULT_HALF_WIDTH_BINS`].
+    #[serde(default = "default_lpm_half_width")]
+    pub lpm_half_width_bins: usize,
+    /// LPM: degree `R` of the local polynomials of the FRF and the
+    /// transient. Default [`crate::ident::lpm::DEFAULT_DEGREE`].
+    #[serde(default = "default_lpm_degree")]
+    pub lpm_degree: usize,
 }
 
 fn default_ppd() -> usize {
@@ -351,6 +388,12 @@ fn default_resolution() -> f64 {
 fn default_min_bins() -> usize {
     5
 }
+fn default_lpm_half_width() -> usize {
+    crate::ident::lpm::DEFAULT_HALF_WIDTH_BINS
+}
+fn default_lpm_degree() -> usize {
+    crate::ident::lpm::DEFAULT_DEGREE
+}
 
 impl Default for IdentificationConfig {
     fn default() -> Self {
@@ -358,6 +401,9 @@ impl Default for IdentificationConfig {
             points_per_decade: default_ppd(),
             relative_resolution: default_resolution(),
             min_bins: default_min_bins(),
+            estimator: Estimator::default(),
+            lpm_half_width_bins: default_lpm_half_width(),
+            lpm_degree: default_lpm_degree(),
         }
     }
 }

@@ -261,6 +261,32 @@ impl BenchConfig {
                 ),
             ));
         }
+        let (lo, hi) = ranges::LPM_DEGREE;
+        if !(lo..=hi).contains(&id.lpm_degree) {
+            return Err(ParamError::new(
+                "identification.lpm_degree",
+                format!(
+                    "must be {lo}–{hi} (the degree of the LPM's local polynomials; 2 is the \
+                     textbook choice), got {}",
+                    id.lpm_degree
+                ),
+            ));
+        }
+        let lo = id.lpm_degree + ranges::LPM_HALF_WIDTH_OVER_DEGREE_MIN;
+        let hi = ranges::LPM_HALF_WIDTH_MAX;
+        if !(lo..=hi).contains(&id.lpm_half_width_bins) {
+            return Err(ParamError::new(
+                "identification.lpm_half_width_bins",
+                format!(
+                    "must be {lo}–{hi} at identification.lpm_degree = {}, got {}: at least \
+                     lpm_degree + 2, so that the local window of 2n + 1 bins keeps 3 or more \
+                     degrees of freedom for the noise variance after the 2(R + 1) \
+                     coefficients; at most {hi} bins, or the window is no longer local against \
+                     the modes' half-power bands",
+                    id.lpm_degree, id.lpm_half_width_bins
+                ),
+            ));
+        }
         Ok(())
     }
 

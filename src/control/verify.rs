@@ -616,6 +616,7 @@ mod tests {
             points_per_decade: 50,
             relative_resolution: 0.004,
             min_bins: 5,
+            ..IdentificationConfig::default()
         };
         let rec = VerifyRecord {
             d: &d,

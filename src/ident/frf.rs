@@ -118,7 +118,9 @@ impl Spectra {
         let k_max = if f_max_hz.is_finite() {
             let top_hz =
                 f_max_hz + half_width_hz(cfg.relative_resolution, cfg.min_bins, bin_hz, f_max_hz);
-            (top_hz / bin_hz).ceil() as usize + 1
+            // H1's window, or the LPM's 2n + 1 bins around the nearest bin.
+            ((top_hz / bin_hz).ceil() as usize + 1)
+                .max((f_max_hz / bin_hz).round() as usize + cfg.lpm_half_width_bins + 1)
         } else {
             n / 2
         };
@@ -212,6 +214,96 @@ impl Spectra {
             equivalent_averages: sw * sw / sw2,
         }
     }
+}
+
+/// Why an FRF could not be estimated from a record.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[non_exhaustive]
+pub enum FrfError {
+    /// A sample of the record is NaN or infinite.
+    #[error(
+        "the record's {channel} is not finite at sample {index} ({value}): a spectrum of it \
+         would be NaN at every line"
+    )]
+    NonFiniteSample {
+        /// `"input u (A)"` or `"output y (m)"`.
+        channel: &'static str,
+        /// Sample index (tick from the record's start).
+        index: usize,
+        /// The value.
+        value: f64,
+    },
+    /// A DFT bin the estimate reads is NaN or infinite (a record that
+    /// was not checked with [`check_record`]).
+    #[error(
+        "the spectrum of the record's {channel} is not finite at {frequency_hz:.4} Hz: the record \
+         holds a NaN or infinite sample"
+    )]
+    NonFiniteSpectrum {
+        /// `"input u (A)"` or `"output y (m)"`.
+        channel: &'static str,
+        /// The bin's frequency, Hz.
+        frequency_hz: f64,
+    },
+    /// The band holds fewer DFT bins than the LPM's local window.
+    #[error(
+        "the record is too short for the LPM's local window: the band {f_lo_hz}–{f_hi_hz} Hz holds \
+         {band_bins} DFT bins of {bin_hz:.4} Hz (the record's length is 1/{bin_hz:.4} Hz = \
+         {record_s:.2} s), the window needs 2n + 1 = {window_bins} \
+         (identification.lpm_half_width_bins = {half_width_bins}): lengthen the record \
+         (chirp.duration_s, chirp.tail_s), widen the band, lower lpm_half_width_bins or use \
+         identification.estimator = \"h1\""
+    )]
+    TooShort {
+        /// Lowest grid frequency, Hz.
+        f_lo_hz: f64,
+        /// Highest grid frequency, Hz.
+        f_hi_hz: f64,
+        /// DFT bins in the band.
+        band_bins: usize,
+        /// Bin spacing, Hz.
+        bin_hz: f64,
+        /// `1 / bin_hz`, s (the padded record's length).
+        record_s: f64,
+        /// `2n + 1`.
+        window_bins: usize,
+        /// `n`.
+        half_width_bins: usize,
+    },
+    /// LPM options that leave the local fit too few degrees of freedom.
+    #[error(
+        "identification.lpm_half_width_bins = {half_width_bins} with identification.lpm_degree = \
+         {degree} leaves {dof} degrees of freedom for the noise variance (2n + 1 − 2(R + 1)); at \
+         least 3 are needed: lpm_half_width_bins ≥ lpm_degree + 2"
+    )]
+    Options {
+        /// `n`.
+        half_width_bins: usize,
+        /// `R`.
+        degree: usize,
+        /// `2n + 1 − 2(R + 1)` (negative: fewer bins than unknowns).
+        dof: i64,
+    },
+}
+
+/// Checks that every sample of a packed record `u[n] + i·y[n]` is finite.
+///
+/// # Errors
+/// [`FrfError::NonFiniteSample`] naming the first channel and sample
+/// that is not.
+pub fn check_record(record: &[C64]) -> Result<(), FrfError> {
+    for (index, z) in record.iter().enumerate() {
+        for (channel, value) in [("input u (A)", z.re), ("output y (m)", z.im)] {
+            if !value.is_finite() {
+                return Err(FrfError::NonFiniteSample {
+                    channel,
+                    index,
+                    value,
+                });
+            }
+        }
+    }
+    Ok(())
 }
 
 /// A measured frequency response on a grid: one entry per line in every
@@ -345,6 +437,30 @@ impl Frf {
                 .collect(),
             phase_deg,
             frequency_hz,
+        }
+    }
+
+    /// Estimates the FRF on the log grid `f_lo … f_hi` (Hz) with the
+    /// configured estimator (`cfg.estimator`): the LPM
+    /// ([`crate::ident::lpm::estimate`]) or H1 ([`Self::estimate`]).
+    ///
+    /// # Errors
+    /// The LPM's ([`FrfError`]); H1 has none.
+    pub fn from_spectra(
+        spectra: &Spectra,
+        f_lo: f64,
+        f_hi: f64,
+        cfg: &IdentificationConfig,
+    ) -> Result<Self, FrfError> {
+        match cfg.estimator {
+            crate::config::Estimator::Lpm => crate::ident::lpm::estimate(
+                spectra,
+                f_lo,
+                f_hi,
+                cfg.points_per_decade,
+                &crate::ident::lpm::LpmOptions::from_config(cfg),
+            ),
+            crate::config::Estimator::H1 => Ok(Self::estimate(spectra, f_lo, f_hi, cfg)),
         }
     }
 
@@ -846,6 +962,7 @@ mod tests {
             points_per_decade: 50,
             relative_resolution: 0.05,
             min_bins: 31,
+            ..IdentificationConfig::default()
         };
         let s = Spectra::new(&u, &y, fs, &cfg);
         let frf = Frf::estimate(&s, 1.0, 400.0, &cfg);

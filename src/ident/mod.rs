@@ -1,5 +1,6 @@
 //! Identification: the chirp excitation the loop plays, and the frequency
-//! response (H1 estimator, coherence) estimated from a recorded run.
+//! response estimated from a recorded run (the local polynomial method,
+//! or H1 with coherence), with its 1σ per line.
 //!
 //! May use `bench_hal::model` (the lumped model, for comparison) and the
 //! recording reader (an FRF from a recording, [`frf::read_frf`]); never the
@@ -13,6 +14,7 @@ pub type C64 = nalgebra::Complex<f64>;
 pub mod excitation;
 pub mod fft;
 pub mod frf;
+pub mod lpm;
 mod lsq;
 pub mod modal_fit;
 pub mod update;

@@ -440,6 +440,18 @@ fn run_chirp_with(
             crate::config::ranges::JOB_TICKS_MAX
         )));
     }
+    // The LPM's local window must fit in the band: checked on the record's
+    // bin spacing before anything is enabled.
+    if cfg.identification.estimator == crate::config::Estimator::Lpm {
+        let bin_hz = rate_hz / crate::ident::frf::fast_len(total_ticks as usize) as f64;
+        crate::ident::lpm::check_band(
+            bin_hz,
+            cfg.chirp.f_start_hz,
+            cfg.chirp.f_end_hz,
+            &crate::ident::lpm::LpmOptions::from_config(&cfg.identification),
+        )
+        .map_err(|e| RunError::BadInput(format!("config {}: {e}", opts.config_path.display())))?;
+    }
 
     let session = SessionOptions {
         command: "chirp",
@@ -493,13 +505,21 @@ fn run_chirp_with(
         z.im -= offset;
         peak_position_m = peak_position_m.max(z.im.abs());
     }
+    // With the estimator of `identification.estimator` (a NaN sample
+    // faults the run before it gets here; the check names it if not).
+    let estimate_failed = |e: crate::ident::frf::FrfError| RunError::Output {
+        path: opts.frf_csv.clone(),
+        reason: format!("the FRF could not be estimated: {e}"),
+    };
+    crate::ident::frf::check_record(&record).map_err(estimate_failed)?;
     let spectra = Spectra::from_record(record, rate_hz, &cfg.identification, cfg.chirp.f_end_hz);
-    let frf = Frf::estimate(
+    let frf = Frf::from_spectra(
         &spectra,
         cfg.chirp.f_start_hz,
         cfg.chirp.f_end_hz,
         &cfg.identification,
-    );
+    )
+    .map_err(estimate_failed)?;
     let stall_report = StallReport::of(
         &stalls,
         &chirp,
