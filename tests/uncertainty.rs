@@ -122,6 +122,15 @@ struct Run {
 fn run(base: &BenchConfig, seed: u64) -> Run {
     let truth = hidden(base, seed);
     let frf = measure(&truth, seed + 1);
+    if seed == 0 && std::env::var_os("BENCH_SHOW_FLAGS").is_some() {
+        eprintln!(
+            "estimator {:?}: line 1000 at {} Hz, σ {:e}, resolution {} Hz",
+            truth.identification.estimator,
+            frf.frequency_hz[1000],
+            frf.sigma_m_per_a[1000],
+            frf.resolution_hz[1000]
+        );
+    }
     let data = FrfData::from_frf(&frf);
     let path = FitPath {
         period_s: period_s(base),
@@ -264,6 +273,15 @@ fn stated_uncertainties_cover_the_truth() {
         trusted.len(),
         runs.len()
     );
+    if std::env::var_os("BENCH_SHOW_FLAGS").is_some() {
+        let c: Vec<String> = trusted
+            .iter()
+            .take(20)
+            .filter_map(|r| r.fit.as_ref()?.quality.chi2_per_dof)
+            .map(|c| format!("{c:.2}"))
+            .collect();
+        eprintln!("χ²/ν of the first fits: {}", c.join(" "));
+    }
     let mut table = std::collections::BTreeMap::<&str, Vec<f64>>::new();
     for r in &trusted {
         for (name, z) in fit_errors(r).into_iter().chain(update_errors(r)) {
