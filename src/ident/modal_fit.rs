@@ -77,6 +77,10 @@ pub const MIN_IMPROVEMENT: f64 = 0.05;
 /// Largest damping ratio of a fitted mode; a broader term is out-of-band
 /// dynamics for the residual terms.
 pub const MAX_DAMPING: f64 = 0.2;
+/// Smallest damping ratio of a fitted mode (1e-5: a quality factor of
+/// 50 000, far lighter than any flexure); below it the refinement has run
+/// a pole onto the axis between two measured lines.
+pub const MIN_DAMPING: f64 = 1e-5;
 /// A kept mode's modal constant is at least this many standard deviations
 /// from zero (its sign is then known).
 pub const MIN_SIGNIFICANCE: f64 = 3.0;
@@ -361,8 +365,9 @@ pub fn chi2_quantile(nu: f64) -> f64 {
 /// equals one of them after the final refinement was never refined.
 const TRIAL_DAMPING: [f64; 3] = [0.003, 0.01, 0.03];
 
-/// The checks of [`FitQuality`] for parameters `p` on `data`.
-fn quality(prep: &Prepared, p: &Params) -> FitQuality {
+/// The checks of [`FitQuality`] for parameters `p` with 1σ `sd`
+/// ([`sigmas`]).
+fn quality(prep: &Prepared, p: &Params, sd: &[f64]) -> FitQuality {
     let n = p.f_hz.len();
     let mut flags = Vec::new();
     let name = |i: usize| format!("mode {} at {:.2} Hz", i + 1, p.f_hz[i]);
@@ -376,6 +381,18 @@ fn quality(prep: &Prepared, p: &Params) -> FitQuality {
                 "{}: damping ratio {} is the trial grid's starting value, never refined by the fit",
                 name(i),
                 p.zeta[i]
+            ));
+        }
+    }
+    // A 1σ the data do not give (a singular JᵀJ).
+    for i in 0..n {
+        if [sd[i], sd[n + i], sd[2 * n + i]]
+            .iter()
+            .any(|v| !v.is_finite())
+        {
+            flags.push(format!(
+                "{}: its 1σ could not be computed (the data do not determine it)",
+                name(i)
             ));
         }
     }
@@ -795,7 +812,10 @@ fn refine(prep: &Prepared, start: &Params, period_s: f64) -> Params {
         .chain(&p.zeta)
         .chain(&p.a)
         .chain([&p.l, &p.u, &p.tau_s])
-        .all(|v| v.is_finite());
+        .all(|v| v.is_finite())
+        // An undamped pole (ln ζ run off to −∞) is no mode: a line fitted
+        // between two measured points.
+        && p.zeta.iter().all(|z| *z >= MIN_DAMPING);
     if ok && prep.cost(&p) <= prep.cost(start) {
         p
     } else {
@@ -1308,7 +1328,7 @@ fn summarise(prep: &Prepared, data: &FrfData, p: &Params, period_s: f64) -> Moda
         coherent_points: count,
         sign_sequence: seq.as_ref().map(|s| s.signs.clone()).unwrap_or_default(),
         dominant_sequence: seq.map(|s| s.notation).unwrap_or_default(),
-        quality: quality(prep, p),
+        quality: quality(prep, p, &sd),
         labels_unsure,
         zeros: typed
             .iter()
