@@ -1,10 +1,14 @@
 //! End-to-end `bench chirp` in virtual time (loop + MCAP + FRF + plot) on
 //! the default 0.1–500 Hz chirp, and the FRF estimation alone on a record of
-//! the same length.
+//! the same length: H1 with the resonance finder (as before), then the two
+//! estimators side by side, transform included (`frf_h1_default_record`,
+//! `frf_lpm_default_record`) and the lines alone, from the same spectra
+//! (`lines_h1`, `lines_lpm`).
 
 mod common;
 
 use bench::ident::frf::{find_resonances, Frf, Spectra};
+use bench::ident::lpm::{self, LpmOptions};
 use criterion::{criterion_group, criterion_main, Criterion};
 use std::time::Duration;
 
@@ -36,6 +40,36 @@ fn chirp(c: &mut Criterion) {
                 &cfg.identification,
             );
             find_resonances(&frf, &s, 3.0).len()
+        })
+    });
+    let id = &cfg.identification;
+    let (f_lo, f_hi) = (cfg.chirp.f_start_hz, cfg.chirp.f_end_hz);
+    let opts = LpmOptions::from_config(id);
+    g.bench_function("frf_h1_default_record", |b| {
+        b.iter(|| {
+            let s = Spectra::new(&u, &y, rate, id);
+            Frf::estimate(&s, f_lo, f_hi, id).frequency_hz.len()
+        })
+    });
+    g.bench_function("frf_lpm_default_record", |b| {
+        b.iter(|| {
+            let s = Spectra::new(&u, &y, rate, id);
+            lpm::estimate(&s, f_lo, f_hi, id.points_per_decade, &opts)
+                .unwrap()
+                .frequency_hz
+                .len()
+        })
+    });
+    let s = Spectra::new(&u, &y, rate, id);
+    g.bench_function("lines_h1", |b| {
+        b.iter(|| Frf::estimate(&s, f_lo, f_hi, id).frequency_hz.len())
+    });
+    g.bench_function("lines_lpm", |b| {
+        b.iter(|| {
+            lpm::estimate(&s, f_lo, f_hi, id.points_per_decade, &opts)
+                .unwrap()
+                .frequency_hz
+                .len()
         })
     });
     g.finish();

@@ -42,9 +42,11 @@
 //! σ_G(f)² = E|Ĝ(f) − G(f)|² = σ̂²_V aᵀ (Kᴴ K)⁻¹ a              (m²/A²)
 //! ```
 //! the variance of the complex estimate (circular: half in the real part,
-//! half in the imaginary). In the code the columns are scaled by the RMS of
-//! `U` and `Y` over the window before the normal equations are formed and
-//! solved by Cholesky; the results are scaled back.
+//! half in the imaginary). In the code `U` and `Y` are scaled by their RMS
+//! over the window, `Kᴴ K` and `Kᴴ Y` are formed from the window's moments
+//! (`Σ|U|² s^m`, `Σ U s^m`, `Σ s^m`, `Σ U* Y s^j`, `Σ Y s^j`: every entry is
+//! one of them) and solved by Cholesky, the residual is taken row by row,
+//! and the results are scaled back.
 //!
 //! **Grid and window.** The estimate is evaluated on the log grid of
 //! [`Frf::estimate`] (`points_per_decade`): for grid frequency `f`, the
@@ -284,11 +286,13 @@ impl LpmLine {
 pub struct Lpm<'s> {
     spectra: &'s Spectra,
     opts: LpmOptions,
-    /// Window: `U`, `Y` of the `2n + 1` bins.
+    /// Window: `U`, `Y` of the `2n + 1` bins (then scaled).
     u: Vec<C64>,
     y: Vec<C64>,
-    /// Regressor, row-major `(2n + 1) × 2(R + 1)`, scaled.
-    k: Vec<C64>,
+    /// The window's moments `Σ|Ũ|² s^m`, `Σ Ũ s^m`, `Σ s^m`, m = 0 … 2R.
+    m_uu: Vec<f64>,
+    m_u: Vec<C64>,
+    m_1: Vec<f64>,
     /// Cholesky factor of `Kᴴ K`, row-major lower triangle.
     l: Vec<C64>,
     /// `Kᴴ Y`, then θ.
@@ -310,12 +314,15 @@ impl<'s> Lpm<'s> {
             check_band_in(spectra.bin_hz(), 0.0, top, &opts, spectra.k_max())?;
         }
         let (w, p) = (opts.window_bins(), opts.unknowns());
+        let moments = 2 * opts.degree + 1;
         Ok(Self {
             spectra,
             opts,
             u: vec![C64::default(); w],
             y: vec![C64::default(); w],
-            k: vec![C64::default(); w * p],
+            m_uu: vec![0.0; moments],
+            m_u: vec![C64::default(); moments],
+            m_1: vec![0.0; moments],
             l: vec![C64::default(); p * p],
             b: vec![C64::default(); p],
             z: vec![C64::default(); p],
@@ -351,7 +358,6 @@ impl<'s> Lpm<'s> {
             // A wider window than any before (high frequency): grown once.
             self.u.resize(w, C64::default());
             self.y.resize(w, C64::default());
-            self.k.resize(w * p, C64::default());
         }
         let nearest = (x.round() as usize).clamp(1, k_max);
         // Inward at the edges: bins 1 … k_max, 2n + 1 of them (new()
@@ -383,33 +389,43 @@ impl<'s> Lpm<'s> {
         if us == 0.0 || !us.is_finite() || !ys.is_finite() {
             return Ok(LpmLine::nan(first, n));
         }
-        // Regressor rows [Ũ s^j | s^j], Ỹ = Y / ys.
+        // KᴴK and KᴴỸ of the regressor rows [Ũ s^j | s^j] (Ũ = U/us,
+        // Ỹ = Y/ys), from the window's moments: every entry is one of
+        // Σ|Ũ|² s^m (real), Σ Ũ s^m, Σ s^m (real), m = 0 … 2R, and the
+        // right-hand side Σ Ũ* Ỹ s^j, Σ Ỹ s^j, j = 0 … R.
+        self.m_uu.fill(0.0);
+        self.m_u.fill(C64::default());
+        self.m_1.fill(0.0);
+        self.b.fill(C64::default());
+        let inv_n = 1.0 / n as f64;
         for r in 0..w {
-            let s = (r as f64 - n as f64) / n as f64;
+            let s = (r as f64 - n as f64) * inv_n;
             let ut = self.u[r] / us;
+            let yt = self.y[r] / ys;
+            self.u[r] = ut;
+            self.y[r] = yt;
+            let (uu, uy) = (ut.norm_sqr(), ut.conj() * yt);
             let mut pw = 1.0;
-            for j in 0..p1 {
-                self.k[r * p + j] = ut * pw;
-                self.k[r * p + p1 + j] = C64::new(pw, 0.0);
+            for m in 0..=2 * self.opts.degree {
+                self.m_uu[m] += uu * pw;
+                self.m_u[m] += ut * pw;
+                self.m_1[m] += pw;
+                if m < p1 {
+                    self.b[m] += uy * pw;
+                    self.b[p1 + m] += yt * pw;
+                }
                 pw *= s;
             }
-            self.y[r] /= ys;
         }
-        // Normal equations: lower triangle of KᴴK, and Kᴴ Ỹ.
+        // Lower triangle: A[i][j] = Σ conj(K_ri) K_rj.
         for i in 0..p {
             for j in 0..=i {
-                let mut a = C64::default();
-                for r in 0..w {
-                    a += self.k[r * p + i].conj() * self.k[r * p + j];
-                }
-                // Row i, column j of the lower triangle: A[i][j] = Σ conj(K_ri) K_rj.
-                self.l[i * p + j] = a;
+                self.l[i * p + j] = match (i < p1, j < p1) {
+                    (true, _) => C64::new(self.m_uu[i + j], 0.0),
+                    (false, true) => self.m_u[i - p1 + j],
+                    (false, false) => C64::new(self.m_1[i - p1 + j - p1], 0.0),
+                };
             }
-            let mut bi = C64::default();
-            for r in 0..w {
-                bi += self.k[r * p + i].conj() * self.y[r];
-            }
-            self.b[i] = bi;
         }
         if !cholesky(&mut self.l, p) {
             return Ok(LpmLine::nan(first, n));
@@ -418,10 +434,17 @@ impl<'s> Lpm<'s> {
         forward(&self.l, p, &mut self.b);
         backward_conj(&self.l, p, &mut self.b);
         let theta = &self.b;
+        // The residual, row by row (not ‖Ỹ‖² − bᴴθ, which cancels when the
+        // fit is near exact): Ỹ − (G(s) Ũ + T(s)), Horner in s.
         let mut ss = 0.0;
-        for (row, y) in self.k.chunks_exact(p).zip(&self.y).take(w) {
-            let fit: C64 = row.iter().zip(theta).map(|(k, t)| k * t).sum();
-            ss += (y - fit).norm_sqr();
+        for r in 0..w {
+            let s = (r as f64 - n as f64) * inv_n;
+            let (mut g, mut t) = (theta[p1 - 1], theta[p - 1]);
+            for j in (0..p1 - 1).rev() {
+                g = g * s + theta[j];
+                t = t * s + theta[p1 + j];
+            }
+            ss += (self.y[r] - (g * self.u[r] + t)).norm_sqr();
         }
         let q = (w - p) as f64;
         // σ̂²_V in the scaled units, then m².

@@ -175,8 +175,9 @@ pub fn held_excitation_bias(f_hz: f64, hold_s: f64, rate_hz_per_s: f64) -> f64 {
 /// is at `f(t)`, so the record no longer shows exactly what the plant
 /// received there. A stall whose bias at the swept line
 /// ([`held_excitation_bias`]) exceeds [`STALL_BIAS_MAX`] (1 % of |H|) has
-/// its band left out: the FRF lines whose smoothing window meets the
-/// frequencies swept during the stall, widened by twice
+/// its band left out: the FRF lines whose window (`resolution_hz`: the
+/// LPM's local window or H1's smoothing window) meets the frequencies
+/// swept during the stall, widened by twice
 /// `identification.relative_resolution` on each side (from the FRF, its
 /// CSV and fit), counted here. Shorter stalls are counted only: a VM's
 /// ordinary one-period overruns bias no line by 1e-8.
@@ -235,10 +236,19 @@ impl StallReport {
         if self.bands_hz.is_empty() {
             return frf;
         }
+        // A line goes when its window (`resolution_hz` wide, centred on it;
+        // the line alone where unknown) meets a band.
         let keep: Vec<bool> = frf
             .frequency_hz
             .iter()
-            .map(|f| !self.bands_hz.iter().any(|[lo, hi]| f >= lo && f <= hi))
+            .zip(&frf.resolution_hz)
+            .map(|(f, r)| {
+                let half = if r.is_finite() { 0.5 * r } else { 0.0 };
+                !self
+                    .bands_hz
+                    .iter()
+                    .any(|[lo, hi]| f + half >= *lo && f - half <= *hi)
+            })
             .collect();
         self.excluded_lines = keep.iter().filter(|k| !**k).count() as u64;
         frf.select(|i| keep[i])
