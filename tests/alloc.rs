@@ -125,8 +125,8 @@ fn ch5() -> BenchConfig {
 
 fn run_counted(pacing: Pacing, seconds: f64) -> (u64, u64) {
     let mut cfg = ch5();
-    cfg.chirp.duration_s = seconds;
-    cfg.chirp.taper_s = 0.1;
+    cfg.chirp.duration_s = Some(seconds);
+    cfg.chirp.taper_s = Some(0.1);
     cfg.chirp.f_start_hz = 5.0;
     cfg.validate(Path::new("ch5")).unwrap();
     let mut stage = SimStage::new(cfg.sim_params(7)).unwrap();

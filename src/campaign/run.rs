@@ -614,7 +614,7 @@ fn run_cell(
                 amplitude_a: Some(c.amplitude_a),
                 f_start_hz: Some(c.f_start_hz),
                 f_end_hz: Some(c.f_end_hz),
-                duration_s: Some(c.duration_s),
+                duration_s: c.duration_s,
             });
             let v = submit(socket, &job)
                 .map_err(|e| cell_err(format!("daemon {}: {e}", socket.display())))?;
