@@ -595,6 +595,9 @@ fn run_cell(
                 out: cdir.join(CELL_FILES[0]),
                 frf_csv: cdir.join(CELL_FILES[1]),
                 plot: cdir.join(CELL_FILES[2]),
+                // A campaign keeps its cells' three files; a multisine
+                // cell's noise and distortion are in its summary.
+                bla_csv: None,
                 realtime: !matches!(bench, CellBench::Sim),
                 seed,
                 progress: false,

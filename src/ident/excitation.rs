@@ -214,6 +214,22 @@ impl Excitation {
         }
     }
 
+    /// The record length of [`Self::new`]'s excitation, ticks, without
+    /// computing a multisine's table.
+    ///
+    /// # Errors
+    /// As [`Self::new`].
+    pub fn total_ticks_of(
+        cfg: &crate::config::BenchConfig,
+        period_s: f64,
+    ) -> Result<u64, MultisineError> {
+        if cfg.chirp.kind.is_sweep() {
+            Ok(Chirp::new(&cfg.chirp, period_s).total_ticks())
+        } else {
+            Multisine::total_ticks_of(&cfg.chirp, &cfg.multisine.unwrap_or_default(), period_s)
+        }
+    }
+
     /// Total record length, ticks.
     pub fn total_ticks(&self) -> u64 {
         match self {

@@ -112,54 +112,14 @@ impl Multisine {
         tick_s: f64,
         seed: u64,
     ) -> Result<Self, MultisineError> {
-        use crate::config::ranges;
-        let n = ms
-            .period_ticks(chirp.f_start_hz, tick_s)
-            .ok_or_else(|| MultisineError {
-                key: "multisine.period_s",
-                reason: format!("not a whole number of ticks of {tick_s} s up to a job's length"),
-            })? as usize;
+        let Shape {
+            n,
+            lines,
+            lead_in_ticks,
+            tail_ticks,
+        } = Shape::of(chirp, ms, tick_s)?;
         let t_p = n as f64 * tick_s;
-        if t_p * chirp.f_start_hz < 1.0 - 1e-9 {
-            return Err(MultisineError {
-                key: "multisine.period_s",
-                reason: format!(
-                    "{t_p} s ({n} ticks of {tick_s} s) is shorter than 1 / chirp.f_start_hz = {} s",
-                    1.0 / chirp.f_start_hz
-                ),
-            });
-        }
-        let lines = ms.excited_lines(chirp.f_start_hz, chirp.f_end_hz, n as u64, tick_s);
-        if lines.len() < ranges::MULTISINE_LINES_MIN {
-            return Err(MultisineError {
-                key: "multisine.lines_per_decade",
-                reason: format!(
-                    "{} lines in {} … {} Hz with a period of {t_p} s: at least {}",
-                    lines.len(),
-                    chirp.f_start_hz,
-                    chirp.f_end_hz,
-                    ranges::MULTISINE_LINES_MIN
-                ),
-            });
-        }
         let m = ms.realizations.max(1) as usize;
-        let per = (ms.transient_periods + ms.periods) as usize;
-        let ticks = |s: f64| crate::config::ticks_in(s, tick_s).unwrap_or(u64::MAX);
-        let (lead_in_ticks, tail_ticks) = (ticks(chirp.lead_in_s), ticks(chirp.tail_s));
-        let body = (m * per) as u64 * n as u64;
-        if lead_in_ticks
-            .saturating_add(body)
-            .saturating_add(tail_ticks)
-            > ranges::JOB_TICKS_MAX
-        {
-            return Err(MultisineError {
-                key: "multisine.periods",
-                reason: format!(
-                    "the record (lead-in, {m} × {per} periods of {n} ticks, tail) is more than {} ticks",
-                    ranges::JOB_TICKS_MAX
-                ),
-            });
-        }
         // Relative amplitudes: the profile's scale at each line.
         let sweep = Chirp::new(chirp, tick_s);
         let rel: Vec<f64> = lines
@@ -207,6 +167,19 @@ impl Multisine {
             tick_s,
             table,
         })
+    }
+
+    /// The record length of [`Self::new`]'s multisine, ticks, without
+    /// computing its table (the daemon's progress total).
+    ///
+    /// # Errors
+    /// As [`Self::new`].
+    pub fn total_ticks_of(
+        chirp: &ChirpConfig,
+        ms: &MultisineConfig,
+        tick_s: f64,
+    ) -> Result<u64, MultisineError> {
+        Ok(Shape::of(chirp, ms, tick_s)?.total_ticks(ms))
     }
 
     /// Total record length, ticks (lead-in + every period + tail).
@@ -308,6 +281,83 @@ impl Multisine {
             lines: self.lines.clone(),
             tick_s: self.tick_s,
         }
+    }
+}
+
+/// The sizes of a multisine's record, checked.
+struct Shape {
+    /// Ticks per period.
+    n: usize,
+    lines: Vec<u64>,
+    lead_in_ticks: u64,
+    tail_ticks: u64,
+}
+
+impl Shape {
+    fn of(chirp: &ChirpConfig, ms: &MultisineConfig, tick_s: f64) -> Result<Self, MultisineError> {
+        use crate::config::ranges;
+        let n = ms
+            .period_ticks(chirp.f_start_hz, tick_s)
+            .ok_or_else(|| MultisineError {
+                key: "multisine.period_s",
+                reason: format!("not a whole number of ticks of {tick_s} s up to a job's length"),
+            })? as usize;
+        let t_p = n as f64 * tick_s;
+        if t_p * chirp.f_start_hz < 1.0 - 1e-9 {
+            return Err(MultisineError {
+                key: "multisine.period_s",
+                reason: format!(
+                    "{t_p} s ({n} ticks of {tick_s} s) is shorter than 1 / chirp.f_start_hz = {} s",
+                    1.0 / chirp.f_start_hz
+                ),
+            });
+        }
+        let lines = ms.excited_lines(chirp.f_start_hz, chirp.f_end_hz, n as u64, tick_s);
+        if lines.len() < ranges::MULTISINE_LINES_MIN {
+            return Err(MultisineError {
+                key: "multisine.lines_per_decade",
+                reason: format!(
+                    "{} lines in {} … {} Hz with a period of {t_p} s: at least {}",
+                    lines.len(),
+                    chirp.f_start_hz,
+                    chirp.f_end_hz,
+                    ranges::MULTISINE_LINES_MIN
+                ),
+            });
+        }
+        let per = u64::from(ms.transient_periods) + u64::from(ms.periods);
+        let ticks = |s: f64| crate::config::ticks_in(s, tick_s).unwrap_or(u64::MAX);
+        let (lead_in_ticks, tail_ticks) = (ticks(chirp.lead_in_s), ticks(chirp.tail_s));
+        let body = u64::from(ms.realizations.max(1))
+            .saturating_mul(per)
+            .saturating_mul(n as u64);
+        if lead_in_ticks
+            .saturating_add(body)
+            .saturating_add(tail_ticks)
+            > ranges::JOB_TICKS_MAX
+        {
+            return Err(MultisineError {
+                key: "multisine.periods",
+                reason: format!(
+                    "the record (lead-in, {} × {per} periods of {n} ticks, tail) is more than {} ticks",
+                    ms.realizations,
+                    ranges::JOB_TICKS_MAX
+                ),
+            });
+        }
+        Ok(Self {
+            n,
+            lines,
+            lead_in_ticks,
+            tail_ticks,
+        })
+    }
+
+    fn total_ticks(&self, ms: &MultisineConfig) -> u64 {
+        let per = u64::from(ms.transient_periods) + u64::from(ms.periods);
+        self.lead_in_ticks
+            + u64::from(ms.realizations.max(1)) * per * self.n as u64
+            + self.tail_ticks
     }
 }
 
