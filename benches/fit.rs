@@ -50,6 +50,9 @@ fn default_chirp_frf() -> (Frf, FitPath) {
         magnitude_m_per_a: h.iter().map(|h| h.norm()).collect(),
         phase_deg: phase,
         coherence: vec![1.0 / (1.0 + noise * noise); f.len()],
+        // E|e|² = (2/3)(1.22 noise)² ≈ noise²; independent lines.
+        sigma_m_per_a: h.iter().map(|h| h.norm() * noise).collect(),
+        resolution_hz: vec![f64::NAN; f.len()],
         frequency_hz: f,
     };
     let path = FitPath {

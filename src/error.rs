@@ -261,7 +261,7 @@ pub enum RecordError {
     /// The arrays given to [`crate::record::Recorder::write_frf`] differ in length.
     #[error(
         "FRF arrays differ in length: frequency {frequency}, magnitude {magnitude}, \
-         phase {phase}, coherence {coherence}"
+         phase {phase}, coherence {coherence}, sigma {sigma}, resolution {resolution}"
     )]
     FrfLength {
         /// Length of `frequency_hz`.
@@ -272,5 +272,9 @@ pub enum RecordError {
         phase: usize,
         /// Length of `coherence`.
         coherence: usize,
+        /// Length of `sigma_m_per_a`.
+        sigma: usize,
+        /// Length of `resolution_hz`.
+        resolution: usize,
     },
 }

@@ -38,6 +38,8 @@ fn model_frf(cfg: &BenchConfig) -> Frf {
         magnitude_m_per_a: h.iter().map(|h| h.norm()).collect(),
         phase_deg: phase,
         coherence: vec![1.0; f.len()],
+        sigma_m_per_a: vec![0.0; f.len()],
+        resolution_hz: vec![f64::NAN; f.len()],
         frequency_hz: f,
     }
 }

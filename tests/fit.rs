@@ -168,12 +168,23 @@ fn write(dir: &Path, name: &str, text: &str) -> std::path::PathBuf {
     p
 }
 
-/// A valid FRF CSV: the Chapter 5 bench's exact sampled response.
+/// A valid FRF CSV: the Chapter 5 bench's exact sampled response, in the
+/// 4-column form of earlier versions.
 fn valid_csv() -> String {
+    valid_csv_with(false)
+}
+
+/// A valid FRF CSV, with `sigma_m_per_a` (0.1 % of |H|) and
+/// `resolution_hz` (0.2 Hz) when `sigma`.
+fn valid_csv_with(sigma: bool) -> String {
     let cfg = BenchConfig::load(&root().join("bench-config/sr4dof-ch5.toml")).unwrap();
     let model = Sr4dof::new(cfg.plant).unwrap();
     let zoh = ZohPlant::new(&model, &cfg.actuator, cfg.loop_.period_ns() as f64 * 1e-9);
-    let mut s = String::from("frequency_hz,magnitude_m_per_a,phase_deg,coherence\n");
+    let mut s = String::from(if sigma {
+        "frequency_hz,magnitude_m_per_a,phase_deg,coherence,sigma_m_per_a,resolution_hz\n"
+    } else {
+        "frequency_hz,magnitude_m_per_a,phase_deg,coherence\n"
+    });
     let mut last = 0.0;
     let mut off = 0.0;
     for f in log_grid(1.0, 400.0, 200) {
@@ -188,7 +199,15 @@ fn valid_csv() -> String {
             off += 360.0;
         }
         last = p;
-        s.push_str(&format!("{f},{:e},{p},0.999\n", h.norm()));
+        if sigma {
+            s.push_str(&format!(
+                "{f},{:e},{p},0.999,{:e},0.2\n",
+                h.norm(),
+                1e-3 * h.norm()
+            ));
+        } else {
+            s.push_str(&format!("{f},{:e},{p},0.999\n", h.norm()));
+        }
     }
     s
 }
@@ -237,12 +256,27 @@ fn fit_cli_on_a_csv() {
 }
 
 /// Bad FRFs: exit 2 naming the file and the line or field, no PNG.
-/// Generated: every data line of a valid CSV broken in each column in
-/// several ways, plus the header, too few points and recordings without
-/// an FRF.
+/// Generated: every data line of a valid CSV (both forms: 6 columns, and
+/// the 4 of earlier versions) broken in each column in several ways, plus
+/// the header, too few points and recordings without an FRF.
 #[test]
 fn bad_frf_inputs_exit_2_naming_the_line() {
     let dir = tempfile::tempdir().unwrap();
+    let mut cases: Vec<(String, String, String)> = Vec::new(); // (text, must contain, what)
+    for with_sigma in [false, true] {
+        broken_lines(&valid_csv_with(with_sigma), &mut cases);
+    }
+    // The 6-column form read fine (the 4-column one is fit_cli_on_a_csv's).
+    let six = write(dir.path(), "six.csv", &valid_csv_with(true));
+    let out = bench()
+        .args(["fit", six.to_str().unwrap(), "--no-plot"])
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let good = valid_csv();
     let lines: Vec<&str> = good.lines().collect();
     let run = |name: &str, text: &str| {
@@ -257,20 +291,43 @@ fn bad_frf_inputs_exit_2_naming_the_line() {
             p,
         )
     };
-    let mut cases: Vec<(String, String, String)> = Vec::new(); // (text, must contain, what)
-    let columns = [
-        "frequency_hz",
-        "magnitude_m_per_a",
-        "phase_deg",
-        "coherence",
-    ];
+    cases.push((
+        good.replacen("coherence", "gamma2", 1),
+        "line 1".into(),
+        "wrong header".into(),
+    ));
+    cases.push((
+        lines[..6].join("\n"),
+        "at least".into(),
+        "too few points".into(),
+    ));
+    cases.push((String::new(), "empty".into(), "empty file".into()));
+    for (k, (text, needle, what)) in cases.iter().enumerate() {
+        let (code, err, p) = run(&format!("bad{k}.csv"), text);
+        assert_eq!(code, Some(2), "{what}: {err}");
+        assert!(err.contains(p.to_str().unwrap()), "{what}: {err}");
+        assert!(err.contains(needle.as_str()), "{what}: {err}");
+    }
+    assert!(cases.len() > 200, "{} cases", cases.len());
+    recordings_without_an_frf(dir.path(), &run);
+}
+
+/// Every 37th data line of the CSV `good` broken in each of its columns
+/// in several ways, a repeated frequency, an extra field: (text, what the
+/// error must contain, what was broken).
+fn broken_lines(good: &str, cases: &mut Vec<(String, String, String)>) {
+    let lines: Vec<&str> = good.lines().collect();
+    let columns: Vec<&str> = lines[0].split(',').collect();
     for li in (1..lines.len()).step_by(37) {
         for (c, col) in columns.iter().enumerate() {
             let bad_values: &[&str] = match c {
                 0 => &["NaN", "-1", "0", "x", "", "inf"],
                 1 => &["NaN", "-1e-6", "0", "x", ""],
                 2 => &["NaN", "inf", "x", ""],
-                _ => &["NaN", "-0.1", "1.5", "x", ""],
+                3 => &["NaN", "-0.1", "1.5", "x", ""],
+                // sigma_m_per_a: unknown (NaN) only in the 4-column form.
+                4 => &["NaN", "-1e-9", "inf", "x", ""],
+                _ => &["NaN", "0", "-0.1", "inf", "x", ""],
             };
             for bad in bad_values {
                 let mut l: Vec<String> = lines.iter().map(|s| s.to_string()).collect();
@@ -305,29 +362,19 @@ fn bad_frf_inputs_exit_2_naming_the_line() {
             "extra field".into(),
         ));
     }
-    cases.push((
-        good.replacen("coherence", "gamma2", 1),
-        "line 1".into(),
-        "wrong header".into(),
-    ));
-    cases.push((
-        lines[..6].join("\n"),
-        "at least".into(),
-        "too few points".into(),
-    ));
-    cases.push((String::new(), "empty".into(), "empty file".into()));
-    for (k, (text, needle, what)) in cases.iter().enumerate() {
-        let (code, err, p) = run(&format!("bad{k}.csv"), text);
-        assert_eq!(code, Some(2), "{what}: {err}");
-        assert!(err.contains(p.to_str().unwrap()), "{what}: {err}");
-        assert!(err.contains(needle.as_str()), "{what}: {err}");
-    }
-    assert!(cases.len() > 100, "{} cases", cases.len());
+}
+
+/// What `bench fit` on a file made: exit status, stderr, the file.
+type Outcome = (Option<i32>, String, std::path::PathBuf);
+
+/// A file that is not a recording, and recordings without an FRF, given
+/// to `run`: exit 2 naming the file.
+fn recordings_without_an_frf(dir: &Path, run: &dyn Fn(&str, &str) -> Outcome) {
     // A file that is not a recording, and a recording without /sysid/frf.
     let (code, err, _) = run("junk.mcap", "not an mcap");
     assert_eq!(code, Some(2), "{err}");
     assert!(err.contains("junk.mcap"), "{err}");
-    let rec = dir.path().join("nofrf.mcap");
+    let rec = dir.join("nofrf.mcap");
     {
         let mut w = mcap::Writer::new(std::io::BufWriter::new(
             std::fs::File::create(&rec).unwrap(),
@@ -364,7 +411,7 @@ fn bad_frf_inputs_exit_2_naming_the_line() {
         "{err}"
     );
     // No plot left by any refusal.
-    assert!(std::fs::read_dir(dir.path()).unwrap().all(|e| !e
+    assert!(std::fs::read_dir(dir).unwrap().all(|e| !e
         .unwrap()
         .file_name()
         .to_string_lossy()

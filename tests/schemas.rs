@@ -351,7 +351,7 @@ fn recorded_messages_match_their_channel_schemas() {
     assert_eq!(keys(&events[0]), names("tick t_s kind state fault value"));
     assert_eq!(
         keys(&chirp["/sysid/frf"].messages[0]),
-        names("frequency_hz magnitude_m_per_a phase_deg coherence")
+        names("frequency_hz magnitude_m_per_a phase_deg coherence sigma_m_per_a resolution_hz")
     );
     assert_eq!(
         keys(&control["/control/metrics"].messages[0]),
@@ -440,4 +440,13 @@ fn recorded_messages_match_their_channel_schemas() {
         &frf.schema,
         &replaced(&frf.messages[0], "/coherence/0", json!(true))
     ));
+    for pointer in ["/sigma_m_per_a/0", "/resolution_hz/0"] {
+        assert!(
+            !valid(
+                &frf.schema,
+                &replaced(&frf.messages[0], pointer, json!("1e-6"))
+            ),
+            "{pointer} as a string accepted"
+        );
+    }
 }

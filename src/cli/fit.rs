@@ -16,7 +16,8 @@ use std::process::ExitCode;
 #[derive(Debug, Args)]
 pub(super) struct FitArgs {
     /// The measured FRF: a `bench chirp` CSV
-    /// (frequency_hz,magnitude_m_per_a,phase_deg,coherence) or recording
+    /// (frequency_hz,magnitude_m_per_a,phase_deg,coherence,sigma_m_per_a,resolution_hz,
+    /// or the first four alone) or recording
     /// (`.mcap`, or the `.mcap.part` of a killed run; its /sysid/frf).
     #[arg(required_unless_present = "frequencies")]
     input: Option<PathBuf>,

@@ -509,7 +509,8 @@ pub struct MeasuredFrf {
 }
 
 impl MeasuredFrf {
-    /// Reads `frequency_hz,magnitude_m_per_a,phase_deg,coherence`.
+    /// Reads the FRF CSV of `bench chirp` ([`crate::ident::frf::Frf::read_csv`]:
+    /// 6 columns, or the 4 of earlier versions).
     ///
     /// # Errors
     /// [`RunError::BadOption`] naming `frf`, the file, the line and the

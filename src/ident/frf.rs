@@ -56,6 +56,9 @@ pub struct Estimate {
     pub response: C64,
     /// Magnitude-squared coherence, 0 … 1.
     pub coherence: f64,
+    /// Equivalent number of averages of the Hann weights,
+    /// `n_d = (Σ w_k)² / Σ w_k²` (bins; 1 for a single bin).
+    pub equivalent_averages: f64,
 }
 
 /// Smallest `n ≥ len` of the form 2^a 3^b 5^c (fast FFT sizes; the record
@@ -132,6 +135,21 @@ impl Spectra {
         self.bin_hz
     }
 
+    /// Highest DFT bin kept (the estimates read bins `0 ..= k_max`).
+    pub fn k_max(&self) -> usize {
+        self.spectrum.k_max()
+    }
+
+    /// `(U[k], Y[k])`: the unnormalised DFTs of the input (A) and the
+    /// output (m) at bin `k` (`Σ x[n] e^(−2πi kn/N)`), `N` the padded
+    /// record length.
+    ///
+    /// # Panics
+    /// If `k > k_max`.
+    pub fn bin(&self, k: usize) -> (C64, C64) {
+        self.spectrum.bin(k)
+    }
+
     /// Half width of the smoothing window at `f`, Hz.
     pub fn half_width_hz(&self, frequency_hz: f64) -> f64 {
         half_width_hz(
@@ -160,13 +178,17 @@ impl Spectra {
             return Estimate {
                 response: C64::new(f64::NAN, f64::NAN),
                 coherence: 0.0,
+                equivalent_averages: 0.0,
             };
         }
         let hi = top.min(self.spectrum.k_max());
         let (mut suu, mut syy, mut syu) = (0.0, 0.0, C64::new(0.0, 0.0));
+        let (mut sw, mut sw2) = (0.0, 0.0);
         for k in lo..=hi {
             let d = (k as f64 * self.bin_hz - frequency_hz) / half_width_hz;
             let w = (0.5 * PI * d).cos().powi(2);
+            sw += w;
+            sw2 += w * w;
             let (u, y) = self.spectrum.bin(k);
             suu += w * u.norm_sqr();
             syy += w * y.norm_sqr();
@@ -176,6 +198,7 @@ impl Spectra {
             return Estimate {
                 response: C64::new(f64::NAN, f64::NAN),
                 coherence: 0.0,
+                equivalent_averages: 0.0,
             };
         }
         let coherence = if syy > 0.0 {
@@ -186,21 +209,76 @@ impl Spectra {
         Estimate {
             response: syu / suu,
             coherence,
+            equivalent_averages: sw * sw / sw2,
         }
     }
 }
 
-/// A measured frequency response on a grid.
+/// A measured frequency response on a grid: one entry per line in every
+/// column (all of equal length).
 #[derive(Debug, Clone, Serialize)]
 pub struct Frf {
     /// Grid, Hz (ascending).
     pub frequency_hz: Vec<f64>,
-    /// |H1|, m/A.
+    /// |Ĥ|, m/A.
     pub magnitude_m_per_a: Vec<f64>,
-    /// arg H1, degrees, unwrapped along the grid.
+    /// arg Ĥ, degrees, unwrapped along the grid.
     pub phase_deg: Vec<f64>,
-    /// γ², 0 … 1.
+    /// γ², 0 … 1: the magnitude-squared coherence of H1, or the LPM's
+    /// signal-to-noise form `|Ĝ U|² / (|Ĝ U|² + σ̂²_V)`
+    /// ([`crate::ident::lpm`]).
     pub coherence: Vec<f64>,
+    /// 1σ of the complex response, `sqrt(E|Ĥ − H|²)` (circular complex
+    /// noise: real and imaginary parts each carry half), m/A, estimated
+    /// from the data: by the LPM from its residual
+    /// ([`crate::ident::lpm`]), for H1 from the coherence
+    /// ([`h1_sigma_m_per_a`]). NaN: unknown (an FRF read from the 4-column
+    /// CSV or from a recording made before the column existed).
+    pub sigma_m_per_a: Vec<f64>,
+    /// Width of the band of DFT bins the line's estimate draws on, Hz:
+    /// lines further apart than this have independent errors. LPM:
+    /// `(2n + 1) Δf`; H1: the Hann window's full width `2 h(f)`. NaN:
+    /// unknown (as for `sigma_m_per_a`).
+    pub resolution_hz: Vec<f64>,
+}
+
+/// The columns of the FRF CSV, in order.
+pub const CSV_COLUMNS: [&str; 6] = [
+    "frequency_hz",
+    "magnitude_m_per_a",
+    "phase_deg",
+    "coherence",
+    "sigma_m_per_a",
+    "resolution_hz",
+];
+
+/// The header of the FRF CSV `bench chirp` writes.
+pub const CSV_HEADER: &str =
+    "frequency_hz,magnitude_m_per_a,phase_deg,coherence,sigma_m_per_a,resolution_hz";
+
+/// The header of the 4-column FRF CSV of earlier versions, still read
+/// (σ and resolution unknown).
+pub const CSV_HEADER_4: &str = "frequency_hz,magnitude_m_per_a,phase_deg,coherence";
+
+/// The 1σ of an H1 estimate from its coherence, m/A:
+/// ```text
+/// E|Ĥ1 − H|² ≈ |H|² (1 − γ²) / (γ² n_d)
+/// ```
+/// the sum of the gain's and the phase's random errors,
+/// `ε[|Ĥ|] ≈ s.d.[φ̂] ≈ √(1 − γ²) / (|γ| √(2 n_d))` (Bendat & Piersol,
+/// *Random Data*, 4th ed. 2010, ch. 9, errors of frequency response
+/// function estimates), with `n_d` the equivalent number of averages
+/// ([`Estimate::equivalent_averages`]). First order in the error: for
+/// `γ² n_d ≫ 1`. Infinite for γ² = 0; NaN for a NaN response.
+pub fn h1_sigma_m_per_a(response: C64, coherence: f64, equivalent_averages: f64) -> f64 {
+    if coherence <= 0.0 || equivalent_averages <= 0.0 {
+        return if response.norm().is_nan() {
+            f64::NAN
+        } else {
+            f64::INFINITY
+        };
+    }
+    response.norm() * ((1.0 - coherence).max(0.0) / (coherence * equivalent_averages)).sqrt()
 }
 
 /// Log-spaced grid from `f_lo` to `f_hi` (Hz) with `per_decade` points per
@@ -246,7 +324,9 @@ impl Frf {
         self.phase_deg[i]
     }
 
-    /// Estimates the FRF on the log grid `f_lo … f_hi` (Hz).
+    /// Estimates the FRF with H1 on the log grid `f_lo … f_hi` (Hz), σ of
+    /// each line from its coherence ([`h1_sigma_m_per_a`]), resolution
+    /// the Hann window's full width `2 h(f)`.
     pub fn estimate(spectra: &Spectra, f_lo: f64, f_hi: f64, cfg: &IdentificationConfig) -> Self {
         let frequency_hz = log_grid(f_lo, f_hi, cfg.points_per_decade);
         let est: Vec<Estimate> = frequency_hz.iter().map(|&f| spectra.estimate(f)).collect();
@@ -255,13 +335,55 @@ impl Frf {
         Self {
             magnitude_m_per_a: est.iter().map(|e| e.response.norm()).collect(),
             coherence: est.iter().map(|e| e.coherence).collect(),
+            sigma_m_per_a: est
+                .iter()
+                .map(|e| h1_sigma_m_per_a(e.response, e.coherence, e.equivalent_averages))
+                .collect(),
+            resolution_hz: frequency_hz
+                .iter()
+                .map(|&f| 2.0 * spectra.half_width_hz(f))
+                .collect(),
             phase_deg,
             frequency_hz,
         }
     }
 
-    /// Writes the CSV `frequency_hz,magnitude_m_per_a,phase_deg,coherence`
-    /// to `path` through a temporary file renamed when complete
+    /// An empty FRF (no lines).
+    pub fn empty() -> Self {
+        Self {
+            frequency_hz: Vec::new(),
+            magnitude_m_per_a: Vec::new(),
+            phase_deg: Vec::new(),
+            coherence: Vec::new(),
+            sigma_m_per_a: Vec::new(),
+            resolution_hz: Vec::new(),
+        }
+    }
+
+    /// The lines for which `keep(i)` holds, every column alike.
+    pub fn select(&self, mut keep: impl FnMut(usize) -> bool) -> Self {
+        let mut out = Self::empty();
+        for i in 0..self.frequency_hz.len() {
+            if keep(i) {
+                out.frequency_hz.push(self.frequency_hz[i]);
+                out.magnitude_m_per_a.push(self.magnitude_m_per_a[i]);
+                out.phase_deg.push(self.phase_deg[i]);
+                out.coherence.push(self.coherence[i]);
+                out.sigma_m_per_a.push(self.sigma_m_per_a[i]);
+                out.resolution_hz.push(self.resolution_hz[i]);
+            }
+        }
+        out
+    }
+
+    /// The complex response of line `i`, m/A (from magnitude and phase).
+    pub fn response(&self, i: usize) -> C64 {
+        C64::from_polar(self.magnitude_m_per_a[i], self.phase_deg[i].to_radians())
+    }
+
+    /// Writes the CSV
+    /// `frequency_hz,magnitude_m_per_a,phase_deg,coherence,sigma_m_per_a,resolution_hz`
+    /// ([`CSV_HEADER`]) to `path` through a temporary file renamed when complete
     /// ([`outputs::write_atomically`](crate::outputs::write_atomically)):
     /// a failed write leaves nothing under `path`, and an existing `path`
     /// is replaced only with [`Existing::Replace`](crate::outputs::Existing::Replace).
@@ -280,60 +402,63 @@ impl Frf {
         })
     }
 
-    /// Reads the CSV `bench chirp` writes
-    /// (`frequency_hz,magnitude_m_per_a,phase_deg,coherence`), checking
+    /// Reads the CSV `bench chirp` writes ([`CSV_HEADER`]:
+    /// `frequency_hz,magnitude_m_per_a,phase_deg,coherence,sigma_m_per_a,resolution_hz`),
+    /// or the 4-column one of earlier versions ([`CSV_HEADER_4`], without
+    /// the last two: σ and resolution are then NaN, unknown), checking
     /// every field: frequencies positive, finite and ascending; magnitudes
-    /// positive and finite; phases finite; coherence in 0 … 1; at least
-    /// [`MIN_CSV_POINTS`] rows.
+    /// positive and finite; phases finite; coherence in 0 … 1; σ finite and
+    /// ≥ 0; resolution finite and > 0; at least [`MIN_CSV_POINTS`] rows.
     ///
     /// # Errors
     /// The reason, naming the line (1-based, the header is line 1) and the
     /// column.
     pub fn read_csv(text: &str) -> Result<Self, String> {
-        const HEADER: &str = "frequency_hz,magnitude_m_per_a,phase_deg,coherence";
-        const COLUMNS: [&str; 4] = [
-            "frequency_hz",
-            "magnitude_m_per_a",
-            "phase_deg",
-            "coherence",
-        ];
         let mut lines = text.lines();
-        match lines.next() {
-            Some(h) if h.trim_end() == HEADER => {}
+        let columns = match lines.next() {
+            Some(h) if h.trim_end() == CSV_HEADER => 6,
+            Some(h) if h.trim_end() == CSV_HEADER_4 => 4,
             Some(h) => {
                 return Err(format!(
-                    "line 1: the header is {h:?}, not {HEADER} (the CSV bench chirp writes)"
+                    "line 1: the header is {h:?}, not {CSV_HEADER} (the CSV bench chirp writes) \
+                     or {CSV_HEADER_4} (that of earlier versions)"
                 ))
             }
-            None => return Err("the file is empty (expected the header {HEADER})".into()),
-        }
-        let mut frf = Self {
-            frequency_hz: Vec::new(),
-            magnitude_m_per_a: Vec::new(),
-            phase_deg: Vec::new(),
-            coherence: Vec::new(),
+            None => {
+                return Err(format!(
+                    "the file is empty (expected the header {CSV_HEADER})"
+                ))
+            }
         };
+        let mut frf = Self::empty();
         for (i, line) in lines.enumerate() {
             let n = i + 2;
             if line.trim().is_empty() {
                 continue;
             }
             let fields: Vec<&str> = line.split(',').collect();
-            if fields.len() != 4 {
+            if fields.len() != columns {
                 return Err(format!(
-                    "line {n}: {} fields, expected 4 ({HEADER})",
-                    fields.len()
+                    "line {n}: {} fields, expected {columns} ({})",
+                    fields.len(),
+                    CSV_COLUMNS[..columns].join(",")
                 ));
             }
-            let mut v = [0.0; 4];
+            let mut v = [f64::NAN; 6];
             for (j, f) in fields.iter().enumerate() {
                 v[j] = f.trim().parse::<f64>().map_err(|e| {
                     format!(
                         "line {n}: {}: {:?} is not a number ({e})",
-                        COLUMNS[j],
+                        CSV_COLUMNS[j],
                         f.trim()
                     )
                 })?;
+                if j >= 4 && !v[j].is_finite() {
+                    return Err(format!(
+                        "line {n}: {}: {} is not finite (only the 4-column CSV leaves it unknown)",
+                        CSV_COLUMNS[j], v[j]
+                    ));
+                }
             }
             frf.push_checked(v).map_err(|e| format!("line {n}: {e}"))?;
         }
@@ -347,20 +472,16 @@ impl Frf {
     }
 
     /// Appends the point `[frequency_hz, magnitude_m_per_a, phase_deg,
-    /// coherence]` after checking it: all finite, frequency positive and
-    /// above the last one, magnitude positive, coherence in 0 … 1.
+    /// coherence, sigma_m_per_a, resolution_hz]` after checking it: the
+    /// first four finite, frequency positive and above the last one,
+    /// magnitude positive, coherence in 0 … 1; σ NaN (unknown) or finite
+    /// and ≥ 0; resolution NaN (unknown) or finite and > 0.
     ///
     /// # Errors
     /// The reason, naming the column; nothing is appended.
-    pub fn push_checked(&mut self, v: [f64; 4]) -> Result<(), String> {
-        const COLUMNS: [&str; 4] = [
-            "frequency_hz",
-            "magnitude_m_per_a",
-            "phase_deg",
-            "coherence",
-        ];
-        if let Some(j) = v.iter().position(|x| !x.is_finite()) {
-            return Err(format!("{}: {} is not finite", COLUMNS[j], v[j]));
+    pub fn push_checked(&mut self, v: [f64; 6]) -> Result<(), String> {
+        if let Some(j) = v[..4].iter().position(|x| !x.is_finite()) {
+            return Err(format!("{}: {} is not finite", CSV_COLUMNS[j], v[j]));
         }
         if v[0] <= 0.0 {
             return Err(format!("frequency_hz: {} is not positive", v[0]));
@@ -377,27 +498,43 @@ impl Frf {
         if !(0.0..=1.0).contains(&v[3]) {
             return Err(format!("coherence: {} is outside 0 … 1", v[3]));
         }
+        if !(v[4].is_nan() || (v[4].is_finite() && v[4] >= 0.0)) {
+            return Err(format!(
+                "sigma_m_per_a: {} is not a standard deviation (finite, ≥ 0)",
+                v[4]
+            ));
+        }
+        if !(v[5].is_nan() || (v[5].is_finite() && v[5] > 0.0)) {
+            return Err(format!(
+                "resolution_hz: {} is not a band width (finite, > 0)",
+                v[5]
+            ));
+        }
         self.frequency_hz.push(v[0]);
         self.magnitude_m_per_a.push(v[1]);
         self.phase_deg.push(v[2]);
         self.coherence.push(v[3]);
+        self.sigma_m_per_a.push(v[4]);
+        self.resolution_hz.push(v[5]);
         Ok(())
     }
 
-    /// Writes the CSV rows (with the header) to `w`.
+    /// Writes the CSV rows (with the header [`CSV_HEADER`]) to `w`.
     ///
     /// # Errors
     /// The writer's.
     pub fn write_csv_to(&self, w: &mut impl Write) -> std::io::Result<()> {
-        writeln!(w, "frequency_hz,magnitude_m_per_a,phase_deg,coherence")?;
+        writeln!(w, "{CSV_HEADER}")?;
         for i in 0..self.frequency_hz.len() {
             writeln!(
                 w,
-                "{:.6},{:.6e},{:.3},{:.5}",
+                "{:.6},{:.6e},{:.3},{:.5},{:.6e},{:.6e}",
                 self.frequency_hz[i],
                 self.magnitude_m_per_a[i],
                 self.phase_deg[i],
-                self.coherence[i]
+                self.coherence[i],
+                self.sigma_m_per_a[i],
+                self.resolution_hz[i]
             )?;
         }
         w.flush()
@@ -599,6 +736,12 @@ pub fn read_frf(bytes: &[u8]) -> Result<RecordedFrf, String> {
         magnitude_m_per_a: Vec<f64>,
         phase_deg: Vec<f64>,
         coherence: Vec<f64>,
+        // Absent in recordings made before the columns existed; a
+        // non-finite value is written as null.
+        #[serde(default)]
+        sigma_m_per_a: Option<Vec<Option<f64>>>,
+        #[serde(default)]
+        resolution_hz: Option<Vec<Option<f64>>>,
     }
     let read = crate::record::read_messages_tolerant(bytes);
     if read.messages.is_empty() {
@@ -627,10 +770,18 @@ pub fn read_frf(bytes: &[u8]) -> Result<RecordedFrf, String> {
         )
     })?;
     let n = p.frequency_hz.len();
+    let unknown = |v: Option<Vec<Option<f64>>>| -> Vec<f64> {
+        v.map(|v| v.into_iter().map(|x| x.unwrap_or(f64::NAN)).collect())
+            .unwrap_or_else(|| vec![f64::NAN; n])
+    };
+    let sigma = unknown(p.sigma_m_per_a);
+    let resolution = unknown(p.resolution_hz);
     for (name, len) in [
         ("magnitude_m_per_a", p.magnitude_m_per_a.len()),
         ("phase_deg", p.phase_deg.len()),
         ("coherence", p.coherence.len()),
+        ("sigma_m_per_a", sigma.len()),
+        ("resolution_hz", resolution.len()),
     ] {
         if len != n {
             return Err(format!(
@@ -639,18 +790,15 @@ pub fn read_frf(bytes: &[u8]) -> Result<RecordedFrf, String> {
             ));
         }
     }
-    let mut frf = Frf {
-        frequency_hz: Vec::with_capacity(n),
-        magnitude_m_per_a: Vec::with_capacity(n),
-        phase_deg: Vec::with_capacity(n),
-        coherence: Vec::with_capacity(n),
-    };
+    let mut frf = Frf::empty();
     for k in 0..n {
         frf.push_checked([
             p.frequency_hz[k],
             p.magnitude_m_per_a[k],
             p.phase_deg[k],
             p.coherence[k],
+            sigma[k],
+            resolution[k],
         ])
         .map_err(|e| format!("{}: point {}: {e}", crate::record::TOPIC_FRF, k + 1))?;
     }
@@ -715,6 +863,19 @@ mod tests {
         // With output noise of equal power, γ² ≈ |H|²/(|H|²+σ²/σu²).
         let ynoisy: Vec<f64> = y.iter().map(|v| v + rng.random_range(-1.0..1.0)).collect();
         let s = Spectra::new(&u, &ynoisy, fs, &cfg);
+        // With random excitation the coherence-based σ is honest: the mean
+        // of |Ĥ − H|²/σ² over the lines is 1 (lines overlap by about one
+        // window, so ~130 lines give a spread of ~10 %).
+        let frf = Frf::estimate(&s, 1.0, 400.0, &cfg);
+        let mut ratio = 0.0;
+        for (i, f) in frf.frequency_hz.iter().enumerate() {
+            let w = 2.0 * PI * f / fs;
+            let h = C64::new(1.0 - 0.5 * w.cos(), 0.5 * w.sin());
+            ratio += (frf.response(i) - h).norm_sqr() / frf.sigma_m_per_a[i].powi(2);
+            assert!((frf.resolution_hz[i] - 2.0 * s.half_width_hz(*f)).abs() < 1e-12);
+        }
+        let ratio = ratio / frf.frequency_hz.len() as f64;
+        assert!((0.75..=1.25).contains(&ratio), "mean |ΔH|²/σ² = {ratio}");
         let e = s.estimate(250.0);
         let h2 = C64::new(1.0 - 0.5 * (PI / 2.0).cos(), 0.5 * (PI / 2.0).sin()).norm_sqr();
         let expected = h2 / (h2 + 1.0);
@@ -723,6 +884,119 @@ mod tests {
             "{} vs {expected}",
             e.coherence
         );
+    }
+
+    /// An FRF of a few lines with σ and resolution.
+    fn small_frf() -> Frf {
+        let mut frf = Frf::empty();
+        for i in 0..12 {
+            let f = 1.0 + i as f64;
+            frf.push_checked([f, 1e-4 / f, -10.0 * f, 0.9, 1e-6 / f, 0.2])
+                .unwrap();
+        }
+        frf
+    }
+
+    #[test]
+    fn the_csv_round_trips_and_the_four_column_form_still_reads() {
+        let frf = small_frf();
+        let mut out = Vec::new();
+        frf.write_csv_to(&mut out).unwrap();
+        let text = String::from_utf8(out).unwrap();
+        assert!(text.starts_with(
+            "frequency_hz,magnitude_m_per_a,phase_deg,coherence,sigma_m_per_a,resolution_hz\n"
+        ));
+        let back = Frf::read_csv(&text).unwrap();
+        for i in 0..12 {
+            assert!((back.sigma_m_per_a[i] / frf.sigma_m_per_a[i] - 1.0).abs() < 1e-6);
+            assert!((back.resolution_hz[i] - 0.2).abs() < 1e-9);
+        }
+        // The 4-column form: σ and resolution unknown (NaN).
+        let four: String = text
+            .lines()
+            .map(|l| l.split(',').take(4).collect::<Vec<_>>().join(",") + "\n")
+            .collect();
+        let old = Frf::read_csv(&four).unwrap();
+        assert_eq!(old.frequency_hz, back.frequency_hz);
+        assert!(old.sigma_m_per_a.iter().all(|s| s.is_nan()));
+        assert!(old.resolution_hz.iter().all(|r| r.is_nan()));
+        // In the 6-column form σ and resolution must be given.
+        for (from, to, col) in [
+            (",1.000000e-6,", ",NaN,", "sigma_m_per_a"),
+            (",1.000000e-6,", ",-1e-9,", "sigma_m_per_a"),
+            (",2.000000e-1\n", ",0\n", "resolution_hz"),
+            (",2.000000e-1\n", ",inf\n", "resolution_hz"),
+        ] {
+            assert!(text.contains(from), "{from}");
+            let e = Frf::read_csv(&text.replacen(from, to, 1)).unwrap_err();
+            assert!(e.starts_with("line 2: ") && e.contains(col), "{to}: {e}");
+        }
+        // Four fields under the 6-column header, six under the 4-column one.
+        let e = Frf::read_csv(&text.replacen(",1.000000e-6,2.000000e-1", "", 1)).unwrap_err();
+        assert!(e.starts_with("line 2: 4 fields, expected 6"), "{e}");
+        let mixed = four.replacen("1.000000,", "1.000000,1,1,", 2);
+        assert!(Frf::read_csv(&mixed).is_err());
+    }
+
+    /// A recording written before σ and resolution existed: `read_frf`
+    /// gives them as unknown (NaN); one with them (a null: unknown too)
+    /// reads them back.
+    #[test]
+    fn recordings_with_and_without_sigma_read() {
+        let write = |payload: serde_json::Value| -> Vec<u8> {
+            let mut buf = std::io::Cursor::new(Vec::new());
+            {
+                let mut w = mcap::Writer::new(&mut buf).unwrap();
+                let ch = w
+                    .add_channel(
+                        0,
+                        crate::record::TOPIC_FRF,
+                        "json",
+                        &std::collections::BTreeMap::new(),
+                    )
+                    .unwrap();
+                w.write_to_known_channel(
+                    &mcap::records::MessageHeader {
+                        channel_id: ch,
+                        sequence: 0,
+                        log_time: 1,
+                        publish_time: 1,
+                    },
+                    &serde_json::to_vec(&payload).unwrap(),
+                )
+                .unwrap();
+                w.finish().unwrap();
+            }
+            buf.into_inner()
+        };
+        let frf = small_frf();
+        let old = serde_json::json!({
+            "frequency_hz": frf.frequency_hz,
+            "magnitude_m_per_a": frf.magnitude_m_per_a,
+            "phase_deg": frf.phase_deg,
+            "coherence": frf.coherence,
+        });
+        let r = read_frf(&write(old.clone())).unwrap().frf;
+        assert_eq!(r.frequency_hz, frf.frequency_hz);
+        assert!(r.sigma_m_per_a.iter().all(|s| s.is_nan()));
+        assert!(r.resolution_hz.iter().all(|s| s.is_nan()));
+        let mut new = old.clone();
+        let mut sigma: Vec<serde_json::Value> =
+            frf.sigma_m_per_a.iter().map(|s| (*s).into()).collect();
+        sigma[3] = serde_json::Value::Null;
+        new["sigma_m_per_a"] = sigma.into();
+        new["resolution_hz"] = frf.resolution_hz.clone().into();
+        let r = read_frf(&write(new.clone())).unwrap().frf;
+        assert_eq!(r.sigma_m_per_a[0], frf.sigma_m_per_a[0]);
+        assert!(r.sigma_m_per_a[3].is_nan());
+        assert_eq!(r.resolution_hz, frf.resolution_hz);
+        // Wrong lengths and values are refused naming the field.
+        new["resolution_hz"] = vec![0.2; 3].into();
+        let e = read_frf(&write(new.clone())).unwrap_err();
+        assert!(e.contains("resolution_hz has 3 values"), "{e}");
+        new["resolution_hz"] = vec![-0.2; 12].into();
+        let e = read_frf(&write(new)).unwrap_err();
+        assert!(e.contains("point 1: resolution_hz"), "{e}");
     }
 
     #[test]

@@ -415,18 +415,7 @@ impl StallReport {
             .map(|f| !self.bands_hz.iter().any(|[lo, hi]| f >= lo && f <= hi))
             .collect();
         self.excluded_lines = keep.iter().filter(|k| !**k).count() as u64;
-        let pick = |v: Vec<f64>| -> Vec<f64> {
-            v.into_iter()
-                .zip(&keep)
-                .filter_map(|(x, k)| k.then_some(x))
-                .collect()
-        };
-        Frf {
-            frequency_hz: pick(frf.frequency_hz),
-            magnitude_m_per_a: pick(frf.magnitude_m_per_a),
-            phase_deg: pick(frf.phase_deg),
-            coherence: pick(frf.coherence),
-        }
+        frf.select(|i| keep[i])
     }
 
     /// One line for the summary.
@@ -937,10 +926,14 @@ fn run_chirp_with(
         || -> Result<(), RunError> {
             recorder.write_frf(
                 end_ns,
-                &frf.frequency_hz,
-                &frf.magnitude_m_per_a,
-                &frf.phase_deg,
-                &frf.coherence,
+                &crate::record::FrfRecord {
+                    frequency_hz: &frf.frequency_hz,
+                    magnitude_m_per_a: &frf.magnitude_m_per_a,
+                    phase_deg: &frf.phase_deg,
+                    coherence: &frf.coherence,
+                    sigma_m_per_a: &frf.sigma_m_per_a,
+                    resolution_hz: &frf.resolution_hz,
+                },
             )?;
             let ch =
                 recorder.add_channel_for::<ChirpSummary>("/sysid/summary", "bench.ChirpSummary")?;

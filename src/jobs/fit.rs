@@ -33,7 +33,8 @@ pub const MAX_FREQUENCIES: usize = 4;
 #[serde(deny_unknown_fields)]
 pub struct FitRequest {
     /// The measured FRF: a `bench chirp` CSV
-    /// (`frequency_hz,magnitude_m_per_a,phase_deg,coherence`) or a
+    /// (`frequency_hz,magnitude_m_per_a,phase_deg,coherence,sigma_m_per_a,resolution_hz`,
+    /// or the 4-column one of earlier versions) or a
     /// recording (`.mcap`, or the `.mcap.part` of a killed run; its
     /// `/sysid/frf`). Absent with [`Self::frequencies_hz`].
     #[serde(default, skip_serializing_if = "Option::is_none")]

@@ -37,8 +37,10 @@
 //!   [`SupervisorState::as_str`] and [`FaultKind::as_str`] names.
 //! - `/sysid/frf`, schema `bench.Frf`: arrays of equal length, one entry per
 //!   frequency line: `frequency_hz` (Hz), `magnitude_m_per_a` (m/A),
-//!   `phase_deg` (deg), `coherence` (dimensionless, 0…1); see
-//!   [`Recorder::write_frf`].
+//!   `phase_deg` (deg), `coherence` (dimensionless, 0…1),
+//!   `sigma_m_per_a` (m/A, the 1σ of the complex response) and
+//!   `resolution_hz` (Hz, the band each line draws on; both absent in
+//!   recordings of earlier versions); see [`Recorder::write_frf`].
 //!
 //! The jobs add their results (e.g. `/sysid/summary`, `/control/metrics`)
 //! with [`Recorder::add_channel_for`], which registers the schema generated
@@ -114,7 +116,7 @@ pub use reader::{
     decode_sample, decode_samples, read_messages_tolerant, read_samples_tolerant, TolerantRead,
 };
 pub use schema::{nan_if_null, schema_of};
-pub use writer::{log_time_ns, Channel, ChunkPolicy, Recorder};
+pub use writer::{log_time_ns, Channel, ChunkPolicy, FrfRecord, Recorder};
 
 /// Topic of the per-tick samples.
 pub const TOPIC_SAMPLE: &str = "/bench/sample";

@@ -157,16 +157,23 @@ pub fn log_time_ns(t_s: f64) -> u64 {
 /// The identified frequency response current → position (`/sysid/frf`):
 /// arrays of equal length, one entry per frequency line. Non-finite numbers
 /// are written as null.
-#[derive(Serialize, JsonSchema)]
-struct FrfRecord<'a> {
+#[derive(Debug, Clone, Copy, Serialize, JsonSchema)]
+pub struct FrfRecord<'a> {
     /// Frequency of each line, Hz.
-    frequency_hz: &'a [f64],
+    pub frequency_hz: &'a [f64],
     /// Magnitude of the position/current response, m/A.
-    magnitude_m_per_a: &'a [f64],
+    pub magnitude_m_per_a: &'a [f64],
     /// Phase of the position/current response, deg.
-    phase_deg: &'a [f64],
-    /// Magnitude-squared coherence, dimensionless (0 … 1).
-    coherence: &'a [f64],
+    pub phase_deg: &'a [f64],
+    /// Magnitude-squared coherence (H1), or its signal-to-noise form
+    /// (LPM), dimensionless (0 … 1).
+    pub coherence: &'a [f64],
+    /// 1σ of the complex response, sqrt(E|Ĥ − H|²), m/A (absent in
+    /// recordings made before it existed: unknown).
+    pub sigma_m_per_a: &'a [f64],
+    /// Width of the band of DFT bins each line's estimate draws on, Hz
+    /// (absent in recordings made before it existed: unknown).
+    pub resolution_hz: &'a [f64],
 }
 
 /// A channel every recording opens with ([`base_channel_specs`]).
@@ -586,39 +593,36 @@ impl Recorder {
         self.time_origin_ns
     }
 
-    /// Writes the identified frequency response on `/sysid/frf` at
+    /// Writes the identified frequency response `frf` on `/sysid/frf` at
     /// `log_time_ns` (ns of loop time). Arrays: `frequency_hz` in Hz,
     /// `magnitude_m_per_a` in m/A, `phase_deg` in degrees, `coherence`
-    /// dimensionless (0…1); non-finite entries become `null`.
+    /// dimensionless (0…1), `sigma_m_per_a` in m/A, `resolution_hz` in Hz;
+    /// non-finite entries become `null`.
     ///
     /// # Errors
-    /// [`RecordError::FrfLength`] if the four slices differ in length;
+    /// [`RecordError::FrfLength`] if the six slices differ in length;
     /// [`RecordError::Json`] / [`RecordError::Mcap`].
-    pub fn write_frf(
-        &mut self,
-        log_time_ns: u64,
-        frequency_hz: &[f64],
-        magnitude_m_per_a: &[f64],
-        phase_deg: &[f64],
-        coherence: &[f64],
-    ) -> Result<(), RecordError> {
-        let n = frequency_hz.len();
-        if magnitude_m_per_a.len() != n || phase_deg.len() != n || coherence.len() != n {
+    pub fn write_frf(&mut self, log_time_ns: u64, frf: &FrfRecord<'_>) -> Result<(), RecordError> {
+        let n = frf.frequency_hz.len();
+        let lengths = [
+            frf.magnitude_m_per_a.len(),
+            frf.phase_deg.len(),
+            frf.coherence.len(),
+            frf.sigma_m_per_a.len(),
+            frf.resolution_hz.len(),
+        ];
+        if lengths.iter().any(|l| *l != n) {
             return Err(RecordError::FrfLength {
                 frequency: n,
-                magnitude: magnitude_m_per_a.len(),
-                phase: phase_deg.len(),
-                coherence: coherence.len(),
+                magnitude: lengths[0],
+                phase: lengths[1],
+                coherence: lengths[2],
+                sigma: lengths[3],
+                resolution: lengths[4],
             });
         }
-        let frf = FrfRecord {
-            frequency_hz,
-            magnitude_m_per_a,
-            phase_deg,
-            coherence,
-        };
         // The channel's type is `FrfRecord<'static>`; this one borrows.
-        self.write_at(self.frf.index, log_time_ns, &frf)
+        self.write_at(self.frf.index, log_time_ns, frf)
     }
 
     /// Writes an MCAP Metadata record `name` with string `entries` (e.g.

@@ -181,8 +181,17 @@ fn record_roundtrip_full_file() {
     let mag = [1e-3, 2e-3, f64::NAN];
     let phase = [-10.0, -20.0, -180.0];
     let coh = [0.99, 0.95, 0.5];
-    rec.write_frf(log_time_ns(0.2), &freq, &mag, &phase, &coh)
-        .unwrap();
+    let sigma = [1e-5, 2e-5, f64::NAN];
+    let resolution = [0.1, 0.1, 0.2];
+    let lines = FrfRecord {
+        frequency_hz: &freq,
+        magnitude_m_per_a: &mag,
+        phase_deg: &phase,
+        coherence: &coh,
+        sigma_m_per_a: &sigma,
+        resolution_hz: &resolution,
+    };
+    rec.write_frf(log_time_ns(0.2), &lines).unwrap();
     // Extra channel through the generic API.
     let ch = rec
         .add_channel_for::<Metrics>("/bench/metrics", "bench.Metrics")
@@ -190,8 +199,24 @@ fn record_roundtrip_full_file() {
     rec.write(ch, 42, &Metrics { rms_m: 1e-7 }).unwrap();
     rec.write(ch, 43, &Metrics { rms_m: f64::NAN }).unwrap();
     assert!(matches!(
-        rec.write_frf(0, &freq, &mag[..2], &phase, &coh),
+        rec.write_frf(
+            0,
+            &FrfRecord {
+                magnitude_m_per_a: &mag[..2],
+                ..lines
+            }
+        ),
         Err(RecordError::FrfLength { magnitude: 2, .. })
+    ));
+    assert!(matches!(
+        rec.write_frf(
+            0,
+            &FrfRecord {
+                sigma_m_per_a: &sigma[..1],
+                ..lines
+            }
+        ),
+        Err(RecordError::FrfLength { sigma: 1, .. })
     ));
 
     let out = rec.finish().unwrap();
@@ -331,6 +356,8 @@ fn record_roundtrip_full_file() {
     assert_eq!(f["frequency_hz"], json!([1.0, 2.0, 4.0]));
     assert_eq!(f["magnitude_m_per_a"], json!([1e-3, 2e-3, null]));
     assert_eq!(f["coherence"], json!([0.99, 0.95, 0.5]));
+    assert_eq!(f["sigma_m_per_a"], json!([1e-5, 2e-5, null]));
+    assert_eq!(f["resolution_hz"], json!([0.1, 0.1, 0.2]));
     let frf_msg = msgs.iter().find(|m| m.channel.topic == TOPIC_FRF).unwrap();
     assert_eq!(frf_msg.log_time, 200_000_000);
 

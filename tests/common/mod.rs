@@ -61,16 +61,26 @@ pub fn floats(v: &Value) -> Vec<f64> {
 
 /// Rows of the FRF CSV: (frequency_hz, magnitude_m_per_a, phase_deg, coherence).
 pub fn read_frf_csv(path: &Path) -> Vec<[f64; 4]> {
+    read_frf_csv_full(path)
+        .into_iter()
+        .map(|v| [v[0], v[1], v[2], v[3]])
+        .collect()
+}
+
+/// Rows of the FRF CSV, every column: (frequency_hz, magnitude_m_per_a,
+/// phase_deg, coherence, sigma_m_per_a, resolution_hz).
+pub fn read_frf_csv_full(path: &Path) -> Vec<[f64; 6]> {
     let text = std::fs::read_to_string(path).expect("FRF CSV");
     let mut lines = text.lines();
     assert_eq!(
         lines.next(),
-        Some("frequency_hz,magnitude_m_per_a,phase_deg,coherence")
+        Some("frequency_hz,magnitude_m_per_a,phase_deg,coherence,sigma_m_per_a,resolution_hz")
     );
     lines
         .map(|l| {
             let v: Vec<f64> = l.split(',').map(|x| x.parse().expect("number")).collect();
-            [v[0], v[1], v[2], v[3]]
+            assert_eq!(v.len(), 6, "{l}");
+            [v[0], v[1], v[2], v[3], v[4], v[5]]
         })
         .collect()
 }
