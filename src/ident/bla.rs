@@ -334,8 +334,11 @@ impl Bla {
         })
     }
 
-    /// The BLA as an [`Frf`] on its lines: magnitude, unwrapped phase and
-    /// the signal-to-noise coherence `|Ĝ|² / (|Ĝ|² + σ̂²_BLA)`.
+    /// The BLA as an [`Frf`] on its lines: magnitude, unwrapped phase,
+    /// the signal-to-noise coherence `|Ĝ|² / (|Ĝ|² + σ̂²_BLA)`,
+    /// `sigma_m_per_a` = `σ̂_BLA` (noise and distortion: what a fit
+    /// weights with) and `resolution_hz` = `1 / T_p` (each line is one DFT
+    /// bin of a period, so every two lines are independent).
     pub fn to_frf(&self) -> Frf {
         let mut phase_deg: Vec<f64> = self.response.iter().map(|g| g.arg().to_degrees()).collect();
         unwrap_deg(&mut phase_deg);
@@ -356,6 +359,8 @@ impl Bla {
                     }
                 })
                 .collect(),
+            sigma_m_per_a: self.sigma_bla_m_per_a.clone(),
+            resolution_hz: vec![self.resolution_hz; self.frequency_hz.len()],
         }
     }
 
