@@ -4,9 +4,12 @@
 //! (`rustfft`), the BLA of the simulated (linear) Chapter 5 bench against
 //! the model's exact ZOH response within its own σ, a synthetic system
 //! with a cubic nonlinearity against `tests/data/bla_reference.py`
-//! (numpy/scipy), and the refusals of keys that do not apply.
+//! (numpy/scipy), the refusals of keys that do not apply, and the
+//! daemon's chirp job on a multisine config.
 
 mod common;
+#[path = "common/daemon.rs"]
+mod daemon_fixtures;
 
 use bench::config::{BenchConfig, ChirpConfig, ChirpKind, MultisineConfig, MultisinePhases};
 use bench::ident::bla::Bla;
@@ -568,4 +571,51 @@ fn keys_of_the_other_kind_are_refused() {
     assert_eq!(s["multisine"]["period_s"].as_f64(), Some(0.2));
     assert_eq!(s["multisine"]["realizations"], 4);
     assert!(dir.path().join("i.bla.csv").exists());
+}
+
+/// `bench serve` with a multisine config runs it as its chirp job (the
+/// library job): the summary has the BLA, the BLA CSV lies beside the
+/// recording; a request's sweep duration is refused naming the key.
+#[test]
+fn the_daemon_plays_a_multisine_config() {
+    use daemon_fixtures::Daemon;
+    let d = Daemon::start_edited(
+        &[],
+        "\n[multisine]\nperiod_s = 0.2\nrealizations = 2\n",
+        |t| {
+            t.lines()
+                .filter(|l| !l.starts_with("duration_s =") && !l.starts_with("taper_s ="))
+                .map(|l| {
+                    if l.starts_with("kind = \"exponential\"") {
+                        "kind = \"multisine\"".to_string()
+                    } else if l.starts_with("f_start_hz =") {
+                        "f_start_hz = 5.0".to_string()
+                    } else {
+                        l.to_string()
+                    }
+                })
+                .collect::<Vec<_>>()
+                .join("\n")
+        },
+        |_| {},
+    );
+    let mut c = d.client();
+    let r = c.call("chirp", serde_json::json!({ "duration_s": 3.0 }));
+    assert_eq!(r["error"]["kind"], "bad_params", "{r}");
+    assert!(
+        r["error"]["message"]
+            .as_str()
+            .unwrap()
+            .contains("chirp.duration_s"),
+        "{r}"
+    );
+    let o = run(&["chirp", "--daemon", &d.sock(), "--json"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let s = json_stdout(&o);
+    assert_eq!(s["multisine"]["realizations"], 2, "{s}");
+    assert!((s["multisine"]["period_s"].as_f64().unwrap() - 0.2).abs() < 1e-12);
+    let bla = Path::new(s["multisine"]["bla_csv"].as_str().unwrap());
+    assert!(bla.exists(), "{}", bla.display());
+    let rec = Path::new(s["recording"].as_str().unwrap());
+    assert_eq!(bla.parent(), rec.parent());
 }
