@@ -619,3 +619,49 @@ fn the_daemon_plays_a_multisine_config() {
     let rec = Path::new(s["recording"].as_str().unwrap());
     assert_eq!(bla.parent(), rec.parent());
 }
+
+/// A host stall of 30 ms (real time) inside realization 1's measured
+/// periods leaves that realization out of the BLA, and the summary says
+/// so; the estimate comes from the other three.
+#[test]
+fn a_stall_leaves_its_realization_out() {
+    let dir = tmp();
+    let cfg = dir.path().join("ms.toml");
+    std::fs::write(
+        &cfg,
+        ch5_multisine(
+            &[
+                ("f_start_hz", 5.0.into()),
+                ("lead_in_s", 0.5.into()),
+                ("tail_s", 0.2.into()),
+            ],
+            &[("period_s", 0.2.into())],
+        ),
+    )
+    .unwrap();
+    // Lead-in 0.5 s, then 4 × (1 + 2) periods of 0.2 s: realization 1
+    // measures 1.3 … 1.7 s.
+    let out = path_in(dir.path(), "ms.mcap");
+    let o = run(&[
+        "chirp",
+        "--config",
+        cfg.to_str().unwrap(),
+        "--realtime",
+        "--inject-fault",
+        "stall:30@1.5",
+        "--json",
+        "--out",
+        &out,
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let s = json_stdout(&o);
+    assert!(
+        s["stalls"]["count"].as_u64().unwrap() >= 1,
+        "{}",
+        s["stalls"]
+    );
+    assert!(s["stalls"]["longest_s"].as_f64().unwrap() >= 0.03);
+    assert!(s["stalls"]["excluded_realizations"].as_u64().unwrap() >= 1);
+    let used = s["multisine"]["realizations_used"].as_u64().unwrap();
+    assert!((2..=3).contains(&used), "{}", s["multisine"]);
+}
