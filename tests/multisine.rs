@@ -67,9 +67,9 @@ fn crest_factor(s: &Multisine, n: usize, first_tick: u64) -> f64 {
 /// period); a sweep's crest factor is a sine's √2, and the band's abrupt
 /// edges add the Fresnel ripple of a knife edge, whose largest amplitude
 /// is √1.3704 = 1.1706 times the plateau (Born & Wolf, *Principles of
-/// Optics*, §8.7.3, Fig. 8.38: the intensity maximum 1.37 at v = 1.22).
-/// So the crest factor tends to √2 · 1.1706 = 1.6555 as F grows
-/// (Schroeder 1970 reports "about 1.7" for his flat examples). Random
+/// Optics*, Fresnel diffraction at a straight edge: the intensity
+/// maximum 1.3704 at v = 1.217).
+/// So the crest factor tends to √2 · 1.1706 = 1.6555 as F grows. Random
 /// phases give a nearly Gaussian signal, `√(2 ln 2F)` ≈ 3.5 for F = 300.
 /// The phases of `schroeder_phases` are synthesised here (rustfft); the
 /// played signal (refined by `lower_crest`) is never worse, and the RMS

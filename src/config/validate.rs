@@ -805,7 +805,17 @@ impl BenchConfig {
                 "at least 1 / chirp.f_start_hz (the lowest line 1 / period_s must reach down to the band's start) and at most 10 minutes",
             )?;
         }
-        let ticks = ms.period_ticks(c.f_start_hz, tick_s).unwrap_or(u64::MAX);
+        let Some(ticks) = ms.period_ticks(c.f_start_hz, tick_s) else {
+            return Err(ParamError::new(
+                "multisine.period_s",
+                format!(
+                    "{} s at loop.rate_hz = {} Hz is more ticks than a job may have ({})",
+                    ms.period_s.unwrap_or(lowest_s),
+                    self.loop_.rate_hz,
+                    ranges::JOB_TICKS_MAX
+                ),
+            ));
+        };
         let t_p = ticks as f64 * tick_s;
         if t_p * c.f_start_hz < 1.0 - 1e-9 {
             return Err(ParamError::new(

@@ -2,7 +2,7 @@
 //! record ([`crate::ident::multisine`]), with its noise and its stochastic
 //! nonlinear distortion told apart: the robust method of Pintelon &
 //! Schoukens, *System Identification: A Frequency Domain Approach*, 2nd
-//! ed., Wiley–IEEE 2012, §3.7 and §4.3 (and Schoukens, Pintelon &
+//! ed., Wiley–IEEE 2012, §3.7 and ch. 4 (and Schoukens, Pintelon &
 //! Rolain, "Identification of linear systems with nonlinear distortions",
 //! *Automatica* 41, 2005).
 //!
@@ -12,9 +12,9 @@
 //! `u` (A) and output `y` (m) at each excited line `k` gives
 //! `G^[m,p](k) = Y^[m,p](k) / U^[m,p](k)` (m/A). Then, per line:
 //! ```text
-//! Ĝ^[m]    = (1/P) Σ_p G^[m,p]                               (P&S Eq. 4-21)
+//! Ĝ^[m]    = (1/P) Σ_p G^[m,p]
 //! σ̂²_n[m]  = 1/(P(P−1)) Σ_p |G^[m,p] − Ĝ^[m]|²                 noise variance of Ĝ^[m]
-//! Ĝ_BLA    = (1/M) Σ_m Ĝ^[m]                                  (Eq. 4-22)
+//! Ĝ_BLA    = (1/M) Σ_m Ĝ^[m]
 //! σ̂²_BLA   = 1/(M(M−1)) Σ_m |Ĝ^[m] − Ĝ_BLA|²                  total variance of Ĝ_BLA
 //! σ̂²_n     = (1/M²) Σ_m σ̂²_n[m]                               its noise part
 //! σ̂²_S     = M (σ̂²_BLA − σ̂²_n), clipped at 0                  the distortion's variance
@@ -35,9 +35,9 @@
 //! Without distortion (`σ²_S = 0`) and with circular complex Gaussian
 //! noise, `F = σ̂²_BLA / σ̂²_n` follows Fisher's `F(2(M−1), 2M(P−1))` (the
 //! numerator is the spread of `M` means, the denominator the pooled
-//! spread of `M(P−1)` deviations; P&S 2012 §4.3.2). A line's p-value is
-//! `P(F ≥ f)`; it is distorted at level [`LINE_LEVEL`] (5 %) when below
-//! it. With `L` independent lines (distinct DFT lines are, asymptotically)
+//! spread of `M(P−1)` deviations, independent of it; P&S 2012 ch. 4). A
+//! line's p-value is `P(F ≥ f)`; it is distorted at level
+//! [`LINE_LEVEL`] (5 %) when below it. With `L` independent lines (distinct DFT lines are, asymptotically)
 //! the count `K` of such lines is binomial `B(L, 0.05)` when there is no
 //! distortion; nonlinear distortion is *detected* when
 //! `P(B(L, 0.05) ≥ K) <` [`DETECTION_LEVEL`] (0.1 %).
@@ -435,8 +435,9 @@ fn not_finite(what: &'static str, tick: usize, value: f64) -> BlaError {
 
 /// `P(F ≥ f)` for `F ~ F(2a, 2b)` with whole `a ≥ 1`, `b ≥ 1`:
 /// `1 − I_x(a, b)` with `x = a f / (a f + b)`, and for whole parameters
-/// `I_x(a, b) = P(B(a + b − 1, x) ≥ a)` (Abramowitz & Stegun 26.5.24 with
-/// 26.6.2 and 26.5.2), so `P(F ≥ f) = Σ_{j<a} C(n, j) x^j (1 − x)^{n−j}`,
+/// `I_x(a, b) = P(B(a + b − 1, x) ≥ a)` (the incomplete beta function of
+/// whole parameters as a binomial sum; Abramowitz & Stegun, *Handbook of
+/// Mathematical Functions*, ch. 26), so `P(F ≥ f) = Σ_{j<a} C(n, j) x^j (1 − x)^{n−j}`,
 /// `n = a + b − 1`: `a` terms, each in logarithms. 1 for `f ≤ 0`.
 pub fn f_upper_tail(f: f64, a: usize, b: usize) -> f64 {
     if a == 0 || b == 0 || f.is_nan() {
@@ -492,7 +493,7 @@ mod tests {
 
     /// The F tail against closed forms: `F(2, 2b)`: `(1 + f/b)^(−b)`;
     /// `F(4, 2b)`: `(1 + f·2/b... )` via the two-term sum written out, and
-    /// table values (Abramowitz & Stegun Table 26.9: F(2, 8) at 5 % is
+    /// table values (the 5 % points of Fisher's F: F(2, 8) is
     /// 4.46, F(6, 24) at 5 % is 2.51).
     #[test]
     fn f_tail_against_closed_forms_and_tables() {

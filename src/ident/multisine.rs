@@ -12,7 +12,7 @@
 //! [`MultisineConfig::excited_lines`]: every line from `⌈f_start T_p⌉` up
 //! to where the lines grow sparser than `lines_per_decade`, a log-spaced
 //! choice of them above, to `⌊f_end T_p⌋` (Pintelon & Schoukens, *System
-//! Identification*, 2nd ed. 2012, §5.2: a log-spaced multisine keeps the
+//! Identification*, 2nd ed. 2012, ch. 5: a log-spaced multisine keeps the
 //! power per line in a log band constant). The amplitudes follow
 //! `chirp.amplitude_profile`, `A_l ∝ s(f_l)` (1 without a profile), and
 //! are scaled together so that the largest `|u|` over every realization
@@ -24,7 +24,7 @@
 //! - `schroeder`: with `p_l = A_l² / Σ A_j²` the line's share of the power,
 //!   `φ_l = −2π Σ_{j<l} p_j (k_l − k_j)` (M. R. Schroeder, "Synthesis of
 //!   low-peak-factor signals and binary sequences with low
-//!   autocorrelation", *IEEE Trans. Inf. Theory* 16, 1970, Eq. 11, with
+//!   autocorrelation", *IEEE Trans. Inf. Theory* 16, 1970, with
 //!   the line numbers `k_l` in place of consecutive harmonics): the phase
 //!   of a sweep that spends a time proportional to `p_l` at each line, so
 //!   the signal's envelope is nearly flat. On many flat consecutive lines
@@ -467,7 +467,7 @@ pub fn crest_iterations(n: usize) -> usize {
 /// the time–frequency swapping algorithm (E. Van der Ouderaa, J.
 /// Schoukens, J. Renneboog, "Peak factor minimization using a
 /// time-frequency domain swapping algorithm", *IEEE Trans. Instrum.
-/// Meas.* 37, 1988; Pintelon & Schoukens 2012 §5.2.4): synthesise one
+/// Meas.* 37, 1988; Pintelon & Schoukens 2012, ch. 5): synthesise one
 /// period, clip it at 80 % of its peak, take the phases of the clipped
 /// signal's DFT at the lines (the amplitudes stay `a`), `iterations`
 /// times; the phases of the lowest peak seen (the start included) are
@@ -598,7 +598,7 @@ mod tests {
     }
 
     /// Schroeder's phases by hand for three flat consecutive lines
-    /// (`−π k(k−1)/F` up to a common linear phase: Schroeder 1970 Eq. 12),
+    /// (`−π k(k−1)/F`, Schroeder 1970's flat-spectrum phases),
     /// and for two unequal lines.
     #[test]
     fn schroeder_phases_by_hand() {
