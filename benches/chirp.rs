@@ -25,7 +25,8 @@ fn chirp(c: &mut Criterion) {
 
     // A record of the default length (lead-in + 60 s sweep + tail at 5 kHz).
     let rate = cfg.loop_.rate_hz;
-    let n = ((cfg.chirp.lead_in_s + cfg.chirp.duration_s + cfg.chirp.tail_s) * rate) as usize;
+    let sweep_s = cfg.chirp.duration_s.expect("the shipped chirp is a sweep");
+    let n = ((cfg.chirp.lead_in_s + sweep_s + cfg.chirp.tail_s) * rate) as usize;
     let u: Vec<f64> = (0..n).map(|k| (k as f64 * 0.37).sin()).collect();
     let y: Vec<f64> = (0..n)
         .map(|k| (k as f64 * 0.37 + 0.5).sin() * 1e-5)

@@ -1,5 +1,5 @@
 //! The real-time tick allocates nothing once running (copper-rs style
-//! counting allocator). Counts only on the loop's own thread, from the
+//! counting allocator): a chirp's, a multisine's, a closed loop's. Counts only on the loop's own thread, from the
 //! 100th tick on, across everything the tick does: HAL read (simulator
 //! step, noise), supervisor, job, HAL write, queue push, timing.
 
@@ -125,8 +125,8 @@ fn ch5() -> BenchConfig {
 
 fn run_counted(pacing: Pacing, seconds: f64) -> (u64, u64) {
     let mut cfg = ch5();
-    cfg.chirp.duration_s = seconds;
-    cfg.chirp.taper_s = 0.1;
+    cfg.chirp.duration_s = Some(seconds);
+    cfg.chirp.taper_s = Some(0.1);
     cfg.chirp.f_start_hz = 5.0;
     cfg.validate(Path::new("ch5")).unwrap();
     let mut stage = SimStage::new(cfg.sim_params(7)).unwrap();
@@ -166,6 +166,54 @@ fn tick_allocates_nothing() {
     );
     assert!(ticks > 2_000);
     assert_eq!(allocs, 0, "{allocs} allocations in {ticks} real-time ticks");
+}
+
+/// The same with a multisine (`chirp.kind = "multisine"`, random phases):
+/// the table is built before the loop, the tick reads it; counted from
+/// tick 100 through the lead-in's end, every realization's periods
+/// (transient and measured) and the tail.
+#[test]
+fn multisine_tick_allocates_nothing() {
+    use bench::config::{ChirpKind, MultisineConfig};
+    use bench::ident::excitation::Excitation;
+    let mut cfg = ch5();
+    cfg.chirp.kind = ChirpKind::Multisine;
+    cfg.chirp.duration_s = None;
+    cfg.chirp.taper_s = None;
+    cfg.chirp.f_start_hz = 5.0;
+    cfg.chirp.lead_in_s = 0.1;
+    cfg.chirp.tail_s = 0.1;
+    cfg.multisine = Some(MultisineConfig {
+        period_s: Some(0.2),
+        periods: 2,
+        realizations: 3,
+        transient_periods: 1,
+        ..Default::default()
+    });
+    cfg.validate(Path::new("ch5-multisine")).unwrap();
+    let mut stage = SimStage::new(cfg.sim_params(7)).unwrap();
+    let info = stage.configure(cfg.loop_.period_ns()).unwrap();
+    let excitation = Excitation::new(&cfg, info.period_ns as f64 * 1e-9, 7).unwrap();
+    assert!(matches!(excitation, Excitation::Multisine(_)));
+    let total = excitation.total_ticks();
+    assert_eq!(total, 500 + 3 * 3 * 1000 + 500);
+    let opts = LoopOptions {
+        period_ns: info.period_ns,
+        pacing: Pacing::Virtual,
+        timing_interval_ticks: 500,
+        safety: cfg.supervisor(&info),
+        max_ticks: total,
+    };
+    let (report, allocations, records) =
+        run_counted_job(stage, ChirpJob::new(excitation), opts, info.clock);
+    assert_eq!(report.stop, StopReason::Finished);
+    assert!(records >= report.ticks);
+    assert_eq!(report.ticks, total);
+    assert_eq!(
+        allocations, 0,
+        "{allocations} allocations in {} multisine ticks",
+        report.ticks
+    );
 }
 
 /// The same with the fast controller (Eq. 6-7) and the supervisor closing

@@ -306,6 +306,7 @@ fn help_lists_every_chirp_option() {
         "--f-end-hz",
         "--duration-s",
         "--chirp-kind",
+        "--bla-csv",
     ] {
         assert!(help.contains(flag), "--help lacks {flag}");
     }

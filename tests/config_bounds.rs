@@ -439,6 +439,19 @@ fn documented(key: &str, c: &Value) -> Option<(Doc, bool)> {
         "chirp.duration_s" => (closed(0.1f64.max(2.0 * f("chirp.taper_s")?), 600.0), req),
         "chirp.taper_s" => (closed(0.0, f("chirp.duration_s")? / 2.0), req),
         "chirp.lead_in_s" | "chirp.tail_s" => (closed(0.0, 60.0), req),
+        // [multisine] (README: the lowest line 1 / period_s at or below
+        // f_start_hz; random phases need two realizations).
+        "multisine.period_s" => (
+            Doc {
+                fuzzy: true,
+                ..closed(1.0 / f("chirp.f_start_hz")?, 600.0)
+            },
+            opt,
+        ),
+        "multisine.periods" => (closed(2.0, 1000.0), opt),
+        "multisine.realizations" => (closed(2.0, 1000.0), opt),
+        "multisine.transient_periods" => (closed(0.0, 100.0), opt),
+        "multisine.lines_per_decade" => (closed(10.0, 10_000.0), opt),
         // At most 10 points per smoothing window (README: 10 ln(10) /
         // relative_resolution), and at most 10 000.
         "identification.points_per_decade" => (
@@ -868,11 +881,30 @@ fn keys_of(base: &Value) -> Vec<(String, Kind, bool)> {
 
 /// Runs every mutation of every key of one shipped config.
 fn every_numeric_key_of(name: &str) {
-    let shipped = base(name);
+    every_numeric_key_in(name, base(name), |_| true, 40, 1000);
+}
+
+/// Runs every mutation of every key of `shipped` whose path `only` takes
+/// (at least `min_keys` keys and `min_mutations` mutations), and the
+/// unknown key in each of its tables `only` takes.
+fn every_numeric_key_in(
+    name: &str,
+    shipped: Value,
+    only: impl Fn(&str) -> bool,
+    min_keys: usize,
+    min_mutations: usize,
+) {
     let mut failures = Vec::new();
     let mut n = 0;
-    let keys = keys_of(&shipped);
-    assert!(keys.len() > 40, "{name}: only {} numeric keys", keys.len());
+    let keys: Vec<_> = keys_of(&shipped)
+        .into_iter()
+        .filter(|(k, _, _)| only(k))
+        .collect();
+    assert!(
+        keys.len() > min_keys,
+        "{name}: only {} numeric keys",
+        keys.len()
+    );
     for (key, kind, element) in &keys {
         // An optional key is mutated with the others at their shipped
         // values; its range is judged with the start value in place.
@@ -901,7 +933,7 @@ fn every_numeric_key_of(name: &str) {
     // An unknown key in every table.
     let mut ts = Vec::new();
     tables(&shipped, "", &mut ts);
-    for t in ts {
+    for t in ts.into_iter().filter(|t| only(t)) {
         n += 1;
         let key = if t.is_empty() {
             "bogus_key_x".to_string()
@@ -918,7 +950,7 @@ fn every_numeric_key_of(name: &str) {
             Err(why) => failures.push(format!("{key}: {why}")),
         }
     }
-    assert!(n > 1000, "{name}: only {n} mutations");
+    assert!(n > min_mutations, "{name}: only {n} mutations");
     assert!(
         failures.is_empty(),
         "{name}: {} of {n} mutations broke the rule:\n{}",
@@ -935,6 +967,133 @@ fn every_numeric_key_of_the_chapter_5_bench() {
 #[test]
 fn every_numeric_key_of_the_chapter_2_bench() {
     every_numeric_key_of(SHIPPED[1]);
+}
+
+/// The Chapter 5 bench with `chirp.kind = "multisine"`: the sweep's
+/// `duration_s` and `taper_s` deleted, `f_start_hz` 0.5 Hz, and a
+/// `[multisine]` table with every key.
+fn multisine_base() -> Value {
+    let mut b = base(SHIPPED[0]);
+    let c = b["chirp"].as_table_mut().unwrap();
+    c.remove("duration_s");
+    c.remove("taper_s");
+    c.insert("kind".into(), Value::String("multisine".into()));
+    c.insert("f_start_hz".into(), Value::Float(0.5));
+    let mut ms = Table::new();
+    ms.insert("period_s".into(), Value::Float(2.0));
+    ms.insert("periods".into(), Value::Integer(2));
+    ms.insert("realizations".into(), Value::Integer(4));
+    ms.insert("transient_periods".into(), Value::Integer(1));
+    ms.insert("lines_per_decade".into(), Value::Integer(300));
+    ms.insert("phases".into(), Value::String("random".into()));
+    b.as_table_mut()
+        .unwrap()
+        .insert("multisine".into(), Value::Table(ms));
+    b
+}
+
+/// Every `[chirp]` and `[multisine]` key of a multisine config, mutated as
+/// the shipped files' keys are.
+#[test]
+fn every_numeric_key_of_a_multisine_config() {
+    let b = multisine_base();
+    assert!(matches!(
+        evaluate(toml::to_string(&b).unwrap()),
+        Ok(Outcome::Accepted(_))
+    ));
+    every_numeric_key_in(
+        "multisine",
+        b,
+        |k| k.starts_with("multisine") || k.starts_with("chirp"),
+        15,
+        300,
+    );
+}
+
+/// Keys of the other kind are refused naming them, whatever their value
+/// (a sweep's `duration_s`, `taper_s` with a multisine; a `[multisine]`
+/// table with a sweep), as are Schroeder phases with more than one
+/// realization and an unknown phase law.
+#[test]
+fn keys_of_the_other_kind_are_refused_naming_them() {
+    let refused_naming = |text: String, key: &str, what: &str| match evaluate(text) {
+        Ok(Outcome::Refused { text, .. }) => assert!(text.contains(key), "{what}: {text}"),
+        Ok(Outcome::Accepted(_)) => panic!("{what}: accepted"),
+        Err(why) => panic!("{what}: {why}"),
+    };
+    let ms = multisine_base();
+    let mut n = 0;
+    for key in ["chirp.duration_s", "chirp.taper_s"] {
+        for v in [0.0, 0.5, 10.0, 60.0, -1.0, f64::NAN, 1e300] {
+            n += 1;
+            refused_naming(
+                mutate(&ms, key, &Mutation::Set(Value::Float(v))),
+                key,
+                &format!("{key} = {v} with a multisine"),
+            );
+        }
+    }
+    let sweep = base(SHIPPED[0]);
+    for (key, v) in [
+        ("multisine.periods", Value::Integer(3)),
+        ("multisine.realizations", Value::Integer(4)),
+        ("multisine.period_s", Value::Float(10.0)),
+        ("multisine.transient_periods", Value::Integer(0)),
+        ("multisine.lines_per_decade", Value::Integer(100)),
+        ("multisine.phases", Value::String("random".into())),
+    ] {
+        n += 1;
+        refused_naming(
+            mutate(&sweep, key, &Mutation::Set(v)),
+            "multisine",
+            &format!("{key} with a sweep"),
+        );
+    }
+    for m in [0i64, 2, 4, 1000] {
+        n += 1;
+        let schroeder = mutate(
+            &ms,
+            "multisine.phases",
+            &Mutation::Set(Value::String("schroeder".into())),
+        );
+        let t: Value = toml::from_str(&schroeder).unwrap();
+        refused_naming(
+            mutate(
+                &t,
+                "multisine.realizations",
+                &Mutation::Set(Value::Integer(m)),
+            ),
+            "multisine.realizations",
+            &format!("Schroeder with {m} realizations"),
+        );
+    }
+    let t = mutate(
+        &ms,
+        "multisine.phases",
+        &Mutation::Set(Value::String("schroeder".into())),
+    );
+    let t: Value = toml::from_str(&t).unwrap();
+    assert!(matches!(
+        evaluate(mutate(
+            &t,
+            "multisine.realizations",
+            &Mutation::Set(Value::Integer(1))
+        )),
+        Ok(Outcome::Accepted(_))
+    ));
+    for v in ["bogus", "Random", ""] {
+        n += 1;
+        refused_naming(
+            mutate(
+                &ms,
+                "multisine.phases",
+                &Mutation::Set(Value::String(v.into())),
+            ),
+            "phases",
+            &format!("phases = {v:?}"),
+        );
+    }
+    assert!(n > 20);
 }
 
 /// The shipped values are inside their documented ranges, and every

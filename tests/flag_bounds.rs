@@ -434,7 +434,7 @@ fn verify_parameters_are_refused_naming_them_or_taken_as_given() {
 fn a_request_duration_does_not_mask_an_invalid_config() {
     for taper in [f64::NAN, -1.0, 1e300, 31.0] {
         let mut c = ch5();
-        c.chirp.taper_s = taper;
+        c.chirp.taper_s = Some(taper);
         let e = chirp_request("duration_s", 1.0)
             .apply(&mut c)
             .unwrap_err()

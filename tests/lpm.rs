@@ -390,7 +390,7 @@ fn random_benches_agree_with_the_python_reference() {
         p.k5_n_per_m *= scale();
         let k = p.parallelogram_stiffness_n_per_m.unwrap() * scale();
         p.parallelogram_stiffness_n_per_m = Some(k);
-        cfg.chirp.duration_s = 20.0;
+        cfg.chirp.duration_s = Some(20.0);
         cfg.chirp.amplitude_a = 0.05;
         cfg.chirp.amplitude_profile.clear();
         cfg.identification.lpm_half_width_bins = opts.0;
@@ -614,8 +614,8 @@ fn sigma_is_honest_over_noise_seeds() {
     assert!((h.variance_ratio - 1.0).abs() <= 0.15, "H1: {h}");
 
     let mut short = cfg.clone();
-    short.chirp.duration_s = 4.0;
-    short.chirp.taper_s = 0.1;
+    short.chirp.duration_s = Some(4.0);
+    short.chirp.taper_s = Some(0.1);
     short.chirp.f_start_hz = 2.0;
     short.chirp.amplitude_a = 0.05;
     short.chirp.amplitude_profile.clear();

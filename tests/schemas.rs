@@ -258,18 +258,54 @@ fn recorded_messages_match_their_channel_schemas() {
         3,
     );
 
-    let chirp = validate_recording(&chirp);
-    assert_topics(
-        &chirp,
+    // A multisine: the summary's `multisine` (the BLA and its test).
+    let multisine = dir.path().join("multisine.mcap");
+    bench_exits(
         &[
-            ("/bench/sample", "bench.SampleBlock"),
-            ("/bench/envelope", "bench.Envelope"),
-            ("/bench/timing", "bench.Timing"),
-            ("/bench/event", "bench.Event"),
-            ("/sysid/frf", "bench.Frf"),
-            ("/sysid/summary", "bench.ChirpSummary"),
+            "chirp",
+            "--json",
+            "--out",
+            &p(&multisine),
+            "--chirp-kind",
+            "multisine",
+            "--f-start-hz",
+            "5",
         ],
+        0,
     );
+
+    let chirp = validate_recording(&chirp);
+    let chirp_topics = [
+        ("/bench/sample", "bench.SampleBlock"),
+        ("/bench/envelope", "bench.Envelope"),
+        ("/bench/timing", "bench.Timing"),
+        ("/bench/event", "bench.Event"),
+        ("/sysid/frf", "bench.Frf"),
+        ("/sysid/summary", "bench.ChirpSummary"),
+    ];
+    assert_topics(&chirp, &chirp_topics);
+    let multisine = validate_recording(&multisine);
+    assert_topics(&multisine, &chirp_topics);
+    let ms = &multisine["/sysid/summary"];
+    let summary = &ms.messages[0];
+    assert!(
+        summary["multisine"]["distortion"]["lines"]
+            .as_u64()
+            .unwrap()
+            >= 10
+    );
+    let valid_ms = |x: &Value| jsonschema::validator_for(&ms.schema).unwrap().is_valid(x);
+    assert!(valid_ms(summary));
+    assert!(!valid_ms(&replaced(
+        summary,
+        "/multisine/distortion/detected",
+        json!("no")
+    )));
+    assert!(!valid_ms(&replaced(
+        summary,
+        "/multisine/band_hz",
+        json!([1.0])
+    )));
     let control = validate_recording(&control);
     assert_topics(
         &control,

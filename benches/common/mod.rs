@@ -24,6 +24,7 @@ pub fn default_chirp(dir: &Path) -> ChirpOptions {
         out: dir.join("chirp.mcap"),
         frf_csv: dir.join("chirp.frf.csv"),
         plot: dir.join("chirp.bode.png"),
+        bla_csv: None,
         realtime: false,
         seed: 1,
         progress: false,

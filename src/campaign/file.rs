@@ -752,7 +752,7 @@ mass_asymmetry = { from = -0.08, to = 0.10, step = 0.02 }
             &format!("{FIG_5_10}\n[chirp]\nduration_s = 5.0\n"),
         ))
         .unwrap();
-        assert_eq!(c.config.chirp.duration_s, 5.0);
+        assert_eq!(c.config.chirp.duration_s, Some(5.0));
     }
 
     #[test]

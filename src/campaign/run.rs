@@ -595,6 +595,9 @@ fn run_cell(
                 out: cdir.join(CELL_FILES[0]),
                 frf_csv: cdir.join(CELL_FILES[1]),
                 plot: cdir.join(CELL_FILES[2]),
+                // A campaign keeps its cells' three files; a multisine
+                // cell's noise and distortion are in its summary.
+                bla_csv: None,
                 realtime: !matches!(bench, CellBench::Sim),
                 seed,
                 progress: false,
@@ -614,7 +617,7 @@ fn run_cell(
                 amplitude_a: Some(c.amplitude_a),
                 f_start_hz: Some(c.f_start_hz),
                 f_end_hz: Some(c.f_end_hz),
-                duration_s: Some(c.duration_s),
+                duration_s: c.duration_s,
             });
             let v = submit(socket, &job)
                 .map_err(|e| cell_err(format!("daemon {}: {e}", socket.display())))?;

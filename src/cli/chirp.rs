@@ -23,6 +23,7 @@ use std::sync::Arc;
 pub(super) enum KindArg {
     Exponential,
     Linear,
+    Multisine,
 }
 
 #[derive(Debug, Args)]
@@ -69,9 +70,18 @@ pub(super) struct ChirpArgs {
     /// Sweep duration, s (overrides chirp.duration_s).
     #[arg(long, value_name = "S", allow_hyphen_values = true)]
     duration_s: Option<f64>,
-    /// Sweep law (overrides chirp.kind).
+    /// What to play (overrides chirp.kind): a sweep law, or multisine
+    /// ([multisine] of the config, or its defaults; the config's
+    /// chirp.duration_s and chirp.taper_s are set aside). A sweep sets
+    /// aside the config's [multisine] and needs a chirp.duration_s (or
+    /// --duration-s); without chirp.taper_s it does not fade.
     #[arg(long, value_enum)]
     chirp_kind: Option<KindArg>,
+    /// The BLA CSV of a multisine run (per line: the estimate, its
+    /// total, noise and nonlinear 1σ, the distortion p-value) [default:
+    /// beside --out, <stem>.bla.csv]. Refused with a sweep.
+    #[arg(long, value_name = "FILE")]
+    bla_csv: Option<PathBuf>,
     /// Inject a simulator fault: KIND@T_S with KIND one of nan, frozen,
     /// drop (10 samples), jump (0.2 mm), out_of_range, stall:MS (the host
     /// stalls once for MS ms; with --realtime); e.g. stall:30@5.
@@ -108,6 +118,7 @@ impl ChirpArgs {
             chirp_kind: self.chirp_kind.map(|k| match k {
                 KindArg::Exponential => ChirpKind::Exponential,
                 KindArg::Linear => ChirpKind::Linear,
+                KindArg::Multisine => ChirpKind::Multisine,
             }),
         }
     }
@@ -138,6 +149,7 @@ pub(super) fn chirp(args: ChirpArgs, stop: Arc<AtomicBool>) -> ExitCode {
             (args.out.is_some(), "--out"),
             (args.frf_csv.is_some(), "--frf-csv"),
             (args.plot.is_some(), "--plot"),
+            (args.bla_csv.is_some(), "--bla-csv"),
             (args.overwrite, "--overwrite"),
             (
                 args.live.given(),
@@ -180,15 +192,23 @@ pub(super) fn chirp(args: ChirpArgs, stop: Arc<AtomicBool>) -> ExitCode {
     if let Err(e) = request.apply(&mut cfg) {
         return refused_request(e, &config_path, |key| args.flag_for(key));
     }
-    let (out, outputs) = match recording_plan(
-        args.out.as_deref(),
-        "chirp",
-        &[".frf.csv", ".bode.png"],
-        args.overwrite,
-    ) {
-        Ok(r) => r,
-        Err(e) => return run_failed(&e),
+    let multisine = !cfg.chirp.kind.is_sweep();
+    if args.bla_csv.is_some() && !multisine {
+        return bad_input(format!(
+            "--bla-csv: chirp.kind = \"{}\" plays a sweep, which has no BLA (chirp.kind = \"multisine\" or --chirp-kind multisine has)",
+            cfg.chirp.kind.as_str()
+        ));
+    }
+    let companions: &[&str] = if multisine {
+        &[".frf.csv", ".bode.png", ".bla.csv"]
+    } else {
+        &[".frf.csv", ".bode.png"]
     };
+    let (out, outputs) =
+        match recording_plan(args.out.as_deref(), "chirp", companions, args.overwrite) {
+            Ok(r) => r,
+            Err(e) => return run_failed(&e),
+        };
     if out.extension().and_then(|e| e.to_str()) != Some("mcap") {
         return bad_input(format!(
             "--out {}: the recording must end in .mcap",
@@ -206,9 +226,19 @@ pub(super) fn chirp(args: ChirpArgs, stop: Arc<AtomicBool>) -> ExitCode {
     let outputs = outputs
         .with_output("frf_csv", &frf_csv, origin(args.frf_csv.is_some()))
         .with_output("plot", &plot, origin(args.plot.is_some()));
+    let bla_csv = multisine.then(|| {
+        args.bla_csv
+            .clone()
+            .unwrap_or_else(|| beside(&out, ".bla.csv"))
+    });
+    let outputs = match &bla_csv {
+        Some(p) => outputs.with_output("bla_csv", p, origin(args.bla_csv.is_some())),
+        None => outputs,
+    };
     let opts = ChirpOptions {
         frf_csv,
         plot,
+        bla_csv,
         out,
         seed: request.seed.unwrap_or(cfg.sim.seed),
         config: cfg,
@@ -264,6 +294,14 @@ pub(super) fn print_summary(s: &ChirpSummary) {
     outln!("  recording   {}", s.recording.display());
     outln!("  FRF (CSV)   {}", s.frf_csv.display());
     outln!("  Bode plot   {}", s.plot.display());
+    if let Some(p) = s.multisine.as_ref().and_then(|m| m.bla_csv.as_ref()) {
+        outln!("  BLA (CSV)   {}", p.display());
+    }
+    if let Some(m) = &s.multisine {
+        for line in m.lines() {
+            outln!("{line}");
+        }
+    }
     match &s.fit {
         Some(fit) => super::fit::print_fit(fit),
         None => outln!("modal fit: none"),

@@ -118,6 +118,24 @@ pub mod ranges {
     pub const CHIRP_DURATION_S: (f64, f64) = (0.1, 600.0);
     /// `chirp.lead_in_s`, `chirp.tail_s`, s: at most a minute each.
     pub const CHIRP_QUIET_MAX_S: f64 = 60.0;
+    /// Longest `multisine.period_s`, s: 10 minutes, as a sweep (the
+    /// shortest is `1 / chirp.f_start_hz`, so the lowest line reaches
+    /// down to the band's start).
+    pub const MULTISINE_PERIOD_MAX_S: f64 = 600.0;
+    /// `multisine.periods`: two at least (the noise variance is the
+    /// spread over periods), at most 1000.
+    pub const MULTISINE_PERIODS: (u32, u32) = (2, 1000);
+    /// `multisine.realizations` with random phases: two at least (the
+    /// variance over realizations), at most 1000. With Schroeder phases
+    /// exactly 1.
+    pub const MULTISINE_REALIZATIONS: (u32, u32) = (2, 1000);
+    /// `multisine.transient_periods`: 0 to 100 discarded periods.
+    pub const MULTISINE_TRANSIENT_PERIODS: (u32, u32) = (0, 100);
+    /// `multisine.lines_per_decade`, as `identification.points_per_decade`.
+    pub const MULTISINE_LINES_PER_DECADE: (u32, u32) = (10, 10_000);
+    /// Fewest excited lines of a multisine: an FRF file needs 10 points
+    /// ([`crate::ident::frf::MIN_CSV_POINTS`]).
+    pub const MULTISINE_LINES_MIN: usize = 10;
     /// `step.duration_s`, s: at most an hour.
     pub const STEP_DURATION_MAX_S: f64 = 3600.0;
     /// `step.settle_s`, `step.smooth_s`, s: at most a minute each.

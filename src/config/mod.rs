@@ -146,6 +146,10 @@ pub struct BenchConfig {
     pub safety: SafetyConfig,
     /// Chirp excitation defaults.
     pub chirp: ChirpConfig,
+    /// The multisine of `chirp.kind = "multisine"` (absent: its defaults);
+    /// refused with a sweep kind.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub multisine: Option<MultisineConfig>,
     /// FRF estimation settings.
     #[serde(default)]
     pub identification: IdentificationConfig,

@@ -277,7 +277,8 @@ fn default_max_s() -> f64 {
     2.5
 }
 
-/// Sweep law of the chirp.
+/// What `bench chirp` plays (`[chirp] kind`): a sweep law, or a periodic
+/// multisine (`[multisine]`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum ChirpKind {
@@ -285,6 +286,38 @@ pub enum ChirpKind {
     Exponential,
     /// Linear sweep: constant df/dt.
     Linear,
+    /// A periodic multisine on the DFT lines of `[multisine] period_s`,
+    /// several periods of several random-phase realizations, for the best
+    /// linear approximation with its noise and nonlinear distortion
+    /// ([`crate::config::MultisineConfig`]).
+    Multisine,
+}
+
+impl ChirpKind {
+    /// A swept sine (exponential or linear), which `chirp.duration_s` and
+    /// `chirp.taper_s` describe.
+    pub fn is_sweep(self) -> bool {
+        !matches!(self, Self::Multisine)
+    }
+
+    /// The sweep law a sweep built from this `[chirp]` uses (the injection
+    /// of `bench control --verify`): the kind itself, exponential for a
+    /// multisine config.
+    pub fn sweep_law(self) -> Self {
+        match self {
+            Self::Multisine => Self::Exponential,
+            k => k,
+        }
+    }
+
+    /// The config spelling (`exponential`, `linear`, `multisine`).
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Exponential => "exponential",
+            Self::Linear => "linear",
+            Self::Multisine => "multisine",
+        }
+    }
 }
 
 /// Most breakpoints in `chirp.amplitude_profile`.
@@ -294,27 +327,39 @@ pub const MAX_PROFILE_POINTS: usize = 16;
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct ChirpConfig {
-    /// Sweep law.
+    /// What `bench chirp` plays: `exponential` or `linear` sweep, or
+    /// `multisine` (the `[multisine]` table).
     #[serde(default = "default_kind")]
     pub kind: ChirpKind,
-    /// Start frequency, Hz.
+    /// Start frequency, Hz: the sweep's, or the lowest excited line of a
+    /// multisine.
     pub f_start_hz: f64,
-    /// End frequency, Hz (below the Nyquist frequency).
+    /// End frequency, Hz (below the Nyquist frequency): the sweep's, or
+    /// the highest excited line of a multisine.
     pub f_end_hz: f64,
-    /// Current amplitude, A (at most the amplifier's peak current).
+    /// Current amplitude, A (at most the amplifier's peak current): the
+    /// sweep's largest amplitude, or the multisine's peak current.
     pub amplitude_a: f64,
-    /// Optional amplitude schedule over the sweep: `[frequency_hz, scale]`
-    /// breakpoints, ascending in frequency, scale in (0, 1]; the amplitude at
-    /// instantaneous frequency f is `amplitude_a · scale(f)`, interpolated
-    /// linearly in log f and held beyond the ends. Use it to pass a lightly
-    /// damped resonance gently while keeping the signal-to-noise ratio
-    /// elsewhere. Empty: constant amplitude.
+    /// Optional amplitude schedule: `[frequency_hz, scale]` breakpoints,
+    /// ascending in frequency, scale in (0, 1], interpolated linearly in
+    /// log f and held beyond the ends. A sweep's amplitude at instantaneous
+    /// frequency f is `amplitude_a · scale(f)`; a multisine's line at f has
+    /// an amplitude proportional to `scale(f)` (the whole signal then
+    /// scaled to the peak `amplitude_a`). Use it to pass a lightly damped
+    /// resonance gently while keeping the signal-to-noise ratio elsewhere.
+    /// Empty: constant amplitude.
     #[serde(default)]
     pub amplitude_profile: Vec<[f64; 2]>,
-    /// Sweep duration, s.
-    pub duration_s: f64,
+    /// Sweep duration, s. Required for a sweep; refused with
+    /// `kind = "multisine"` (its length is `[multisine]`'s).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub duration_s: Option<f64>,
     /// Raised-cosine fade-in and fade-out at each end of the sweep, s.
-    pub taper_s: f64,
+    /// Required for a sweep; refused with `kind = "multisine"` (a
+    /// periodic signal has no ends to fade; its transient periods are
+    /// discarded instead).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub taper_s: Option<f64>,
     /// Quiet time before the sweep (probe offset estimate), s.
     pub lead_in_s: f64,
     /// Quiet tail after the sweep for ring-down, s.
@@ -346,6 +391,154 @@ impl Estimator {
             Self::Lpm => "lpm",
             Self::H1 => "h1",
         }
+    }
+}
+
+/// Phases of the multisine's lines (`[multisine] phases`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum MultisinePhases {
+    /// Independent phases, uniform on [0, 2π), drawn from the run's seed:
+    /// each realization is a new draw, so the nonlinear distortion differs
+    /// between realizations and the best linear approximation can tell it
+    /// from the noise. Needs `realizations` ≥ 2.
+    #[default]
+    Random,
+    /// Schroeder's phases (deterministic, low crest factor): one signal,
+    /// so `realizations` must be 1 and the nonlinear distortion cannot be
+    /// told from the response (it stays in the estimate as a bias).
+    Schroeder,
+}
+
+impl MultisinePhases {
+    /// The config spelling.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Random => "random",
+            Self::Schroeder => "schroeder",
+        }
+    }
+}
+
+/// `[multisine]`: the periodic excitation of `chirp.kind = "multisine"`
+/// (its band and peak current are `[chirp]`'s `f_start_hz`, `f_end_hz`,
+/// `amplitude_a`, its line amplitudes follow `amplitude_profile`; its
+/// record is `chirp.lead_in_s | realizations × (transient_periods +
+/// periods) × period_s | chirp.tail_s`). The table is refused with a
+/// sweep kind (it would not be played). Ranges are in the README's
+/// configuration reference and [`super::ranges`].
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MultisineConfig {
+    /// Period T_p, s, rounded to whole loop ticks; the lines are at
+    /// `l / T_p`. Range: `[1 / chirp.f_start_hz, 600]` s (the lowest line
+    /// at or below `f_start_hz`). Absent: `1 / chirp.f_start_hz` rounded up
+    /// to whole ticks.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub period_s: Option<f64>,
+    /// Periods P measured in each realization (after the transient ones).
+    /// Range [2, 1000]: two at least for the noise variance. Default 2.
+    #[serde(default = "default_ms_periods")]
+    pub periods: u32,
+    /// Realizations M (independent phase draws). Range [2, 1000] with
+    /// random phases (two at least for the variance over realizations;
+    /// four or more recommended), exactly 1 with Schroeder phases.
+    /// Default 4.
+    #[serde(default = "default_ms_realizations")]
+    pub realizations: u32,
+    /// Periods played and discarded at the start of each realization,
+    /// while the plant's transient from the previous one decays (make it
+    /// several `1 / (ζ ω)` of the slowest mode). Range [0, 100]. Default 1.
+    #[serde(default = "default_ms_transient")]
+    pub transient_periods: u32,
+    /// `random` (default) or `schroeder`.
+    #[serde(default)]
+    pub phases: MultisinePhases,
+    /// Most excited lines per decade: every DFT line where the lines are
+    /// sparser than this (below `lines_per_decade / (T_p ln 10)` Hz), a
+    /// log-spaced choice above it, so each line keeps its power. Range
+    /// [10, 10 000]. Default 300.
+    #[serde(default = "default_ms_lines_per_decade")]
+    pub lines_per_decade: u32,
+}
+
+fn default_ms_periods() -> u32 {
+    2
+}
+fn default_ms_realizations() -> u32 {
+    4
+}
+fn default_ms_transient() -> u32 {
+    1
+}
+fn default_ms_lines_per_decade() -> u32 {
+    300
+}
+
+impl Default for MultisineConfig {
+    fn default() -> Self {
+        Self {
+            period_s: None,
+            periods: default_ms_periods(),
+            realizations: default_ms_realizations(),
+            transient_periods: default_ms_transient(),
+            phases: MultisinePhases::default(),
+            lines_per_decade: default_ms_lines_per_decade(),
+        }
+    }
+}
+
+impl MultisineConfig {
+    /// Ticks in one period at a loop period of `tick_s` (s): `period_s`
+    /// rounded to the nearest tick, or, absent, `1 / f_start_hz` rounded up.
+    /// `None` for a non-finite or non-positive result, or one above
+    /// [`super::ranges::JOB_TICKS_MAX`].
+    pub fn period_ticks(&self, f_start_hz: f64, tick_s: f64) -> Option<u64> {
+        let t = match self.period_s {
+            Some(p) => (p / tick_s).round(),
+            None => (1.0 / (f_start_hz * tick_s) * (1.0 - 1e-12)).ceil(),
+        };
+        (t.is_finite() && t >= 1.0 && t <= super::ranges::JOB_TICKS_MAX as f64).then_some(t as u64)
+    }
+
+    /// The excited DFT line indices `l` (line frequency `l / T_p`,
+    /// `T_p = period_ticks · tick_s`), ascending: from
+    /// `l_lo = ⌈f_start T_p⌉` to `l_hi = ⌊f_end T_p⌋` (to 1e-9 of a line),
+    /// the log-spaced grid `l_lo (l_hi / l_lo)^(i/n)`, `i = 0 … n`,
+    /// `n = ⌈lines_per_decade · log10(l_hi / l_lo)⌉`, each point rounded
+    /// to the nearest line, duplicates removed. Where the grid's step is
+    /// below one line (`l < 1 / (10^(1/lines_per_decade) − 1)`) it meets
+    /// every line, so all low lines are excited; above, about
+    /// `lines_per_decade` per decade. Empty when no line lies in the band.
+    pub fn excited_lines(
+        &self,
+        f_start_hz: f64,
+        f_end_hz: f64,
+        period_ticks: u64,
+        tick_s: f64,
+    ) -> Vec<u64> {
+        let t_p = period_ticks as f64 * tick_s;
+        let lo = (f_start_hz * t_p - 1e-9).ceil().max(1.0);
+        // Below Nyquist: a line at or above N/2 is not a sine of the table.
+        let nyquist_line = ((period_ticks as f64 - 1.0) / 2.0).floor();
+        let hi = (f_end_hz * t_p + 1e-9).floor().min(nyquist_line);
+        if !(lo.is_finite() && hi.is_finite()) || hi < lo {
+            return Vec::new();
+        }
+        let n = (f64::from(self.lines_per_decade) * (hi / lo).log10()).ceil() as u64;
+        let mut lines: Vec<u64> = Vec::new();
+        for i in 0..=n {
+            let g = if n == 0 {
+                lo
+            } else {
+                lo * (hi / lo).powf(i as f64 / n as f64)
+            };
+            let l = (g.round()).clamp(lo, hi) as u64;
+            if lines.last() != Some(&l) {
+                lines.push(l);
+            }
+        }
+        lines
     }
 }
 

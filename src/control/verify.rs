@@ -115,15 +115,28 @@ impl ModelLoop<'_> {
 /// The verify's chirp: the `[chirp]` definition (law, band, amplitude
 /// profile, fades, lead-in and tail) with the verify's `amplitude_a` (A)
 /// and sweep `duration_s` (s); each fade at most a quarter of the sweep,
-/// as a shortened `bench chirp` keeps them.
+/// as a shortened `bench chirp` keeps them. The injection is always a
+/// sweep: exponential when `chirp.kind = "multisine"`, with fades of
+/// [`VERIFY_TAPER_OF_DURATION`] of the sweep when `[chirp]` has no
+/// `taper_s`.
 pub fn chirp_config(chirp: &ChirpConfig, amplitude_a: f64, duration_s: f64) -> ChirpConfig {
     ChirpConfig {
+        kind: chirp.kind.sweep_law(),
         amplitude_a,
-        duration_s,
-        taper_s: chirp.taper_s.min(0.25 * duration_s),
+        duration_s: Some(duration_s),
+        taper_s: Some(
+            chirp
+                .taper_s
+                .unwrap_or(VERIFY_TAPER_OF_DURATION * duration_s)
+                .min(0.25 * duration_s),
+        ),
         ..chirp.clone()
     }
 }
+
+/// The injection's fades as a fraction of its duration when `[chirp]`
+/// has no `taper_s` (a multisine config): 5 % at each end.
+pub const VERIFY_TAPER_OF_DURATION: f64 = 0.05;
 
 /// The model's steady-state answer to the injection over the sweep band
 /// (see the module docs), per ampere of the chirp's amplitude.

@@ -128,11 +128,15 @@ pub(super) fn job_spec(ctx: &Ctx, request: &JobRequest, id: u64) -> Result<Accep
     match request {
         JobRequest::Chirp(req) => {
             req.apply(&mut cfg).map_err(bad)?;
-            let chirp = crate::ident::excitation::Chirp::new(&cfg.chirp, ctx.period_s);
+            // A multisine refused at the device's period is refused here,
+            // before the job is queued.
+            let total = crate::ident::excitation::Excitation::total_ticks_of(&cfg, ctx.period_s)
+                .map_err(|e| bad_params(format!("config: {e}")))?;
             let out = recording_path(&ctx.recordings, "chirp", id);
             let opts = ChirpOptions {
                 frf_csv: beside(&out, ".frf.csv"),
                 plot: beside(&out, ".bode.png"),
+                bla_csv: (!cfg.chirp.kind.is_sweep()).then(|| beside(&out, ".bla.csv")),
                 out: out.clone(),
                 seed: req.seed.unwrap_or(ctx.seed),
                 config: cfg,
@@ -145,7 +149,7 @@ pub(super) fn job_spec(ctx: &Ctx, request: &JobRequest, id: u64) -> Result<Accep
             Ok(Accepted {
                 spec: JobSpec::Chirp(Box::new(opts)),
                 kind,
-                total: chirp.total_ticks(),
+                total,
                 recording: Some(out),
             })
         }

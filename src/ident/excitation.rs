@@ -1,4 +1,6 @@
-//! Chirp excitation for identification (thesis §5.2.2; README, *Configuration reference*: `[chirp]`).
+//! Chirp excitation for identification (thesis §5.2.2; README, *Configuration reference*: `[chirp]`),
+//! and [`Excitation`], what `bench chirp` plays: this sweep or the
+//! multisine of [`crate::ident::multisine`].
 //!
 //! The record is `lead-in | sweep | tail`, all at the loop rate:
 //!
@@ -19,6 +21,7 @@
 //! closed form from the tick index: no tables, no allocation on the tick.
 
 use crate::config::{ChirpConfig, ChirpKind, MAX_PROFILE_POINTS};
+use crate::ident::multisine::{Multisine, MultisineError};
 use std::f64::consts::PI;
 
 /// A chirp sampled at the loop rate.
@@ -46,23 +49,27 @@ pub struct Chirp {
 
 impl Chirp {
     /// Builds the chirp for a loop of period `period_s` (s). The config is
-    /// assumed validated ([`crate::config::BenchConfig::validate`]).
+    /// assumed validated ([`crate::config::BenchConfig::validate`]): a
+    /// sweep's `duration_s` and `taper_s` are present (absent: a
+    /// one-tick sweep without taper). A multisine config's sweep (the
+    /// injection of `bench control --verify`, which sets its own
+    /// duration) is exponential ([`ChirpKind::sweep_law`]).
     pub fn new(cfg: &ChirpConfig, period_s: f64) -> Self {
         // Checked: a duration beyond the tick range saturates (the job
         // refuses more than `ranges::JOB_TICKS_MAX` ticks), never wraps.
         let ticks = |s: f64| crate::config::ticks_in(s, period_s).unwrap_or(u64::MAX);
-        let sweep_ticks = ticks(cfg.duration_s).max(1);
+        let sweep_ticks = ticks(cfg.duration_s.unwrap_or(0.0)).max(1);
         let mut profile = [(0.0, 1.0); MAX_PROFILE_POINTS];
         let profile_len = cfg.amplitude_profile.len().min(MAX_PROFILE_POINTS);
         for (slot, [f, scale]) in profile.iter_mut().zip(&cfg.amplitude_profile) {
             *slot = (f.ln(), *scale);
         }
         Self {
-            kind: cfg.kind,
+            kind: cfg.kind.sweep_law(),
             f_start_hz: cfg.f_start_hz,
             f_end_hz: cfg.f_end_hz,
             amplitude_a: cfg.amplitude_a,
-            taper_s: cfg.taper_s,
+            taper_s: cfg.taper_s.unwrap_or(0.0),
             profile,
             profile_len,
             period_s,
@@ -96,8 +103,8 @@ impl Chirp {
     /// (exponential) or `(f1 − f0) / T` (linear).
     pub fn sweep_rate_hz_per_s(&self, t: f64) -> f64 {
         match self.kind {
-            ChirpKind::Exponential => self.frequency_hz(t) * self.ln_ratio / self.sweep_s,
             ChirpKind::Linear => (self.f_end_hz - self.f_start_hz) / self.sweep_s,
+            _ => self.frequency_hz(t) * self.ln_ratio / self.sweep_s,
         }
     }
 
@@ -106,8 +113,8 @@ impl Chirp {
         let big_t = self.sweep_s;
         let (f0, f1) = (self.f_start_hz, self.f_end_hz);
         match self.kind {
-            ChirpKind::Exponential => f0 * (f1 / f0).powf(t / big_t),
             ChirpKind::Linear => f0 + (f1 - f0) * t / big_t,
+            _ => f0 * (f1 / f0).powf(t / big_t),
         }
     }
 
@@ -143,20 +150,18 @@ impl Chirp {
         let big_t = self.sweep_s;
         let (f0, f1) = (self.f_start_hz, self.f_end_hz);
         let theta = match self.kind {
-            ChirpKind::Exponential => {
+            ChirpKind::Linear => 2.0 * PI * (f0 * t + (f1 - f0) * t * t / (2.0 * big_t)),
+            _ => {
                 let ln_r = self.ln_ratio;
                 2.0 * PI * f0 * big_t / ln_r * ((t / big_t * ln_r).exp() - 1.0)
             }
-            ChirpKind::Linear => 2.0 * PI * (f0 * t + (f1 - f0) * t * t / (2.0 * big_t)),
         };
         // ln f(t) in closed form for the exponential sweep,
         // ln f0 + (t/T)·ln(f1/f0): no pow and no ln on the tick.
         let scale = match (self.profile_len, self.kind) {
             (0, _) => 1.0,
-            (_, ChirpKind::Exponential) => {
-                self.profile_scale_ln(self.ln_f_start + t / big_t * self.ln_ratio)
-            }
             (_, ChirpKind::Linear) => self.profile_scale(self.frequency_hz(t)),
+            _ => self.profile_scale_ln(self.ln_f_start + t / big_t * self.ln_ratio),
         };
         self.amplitude_a * scale * self.window(t, big_t) * theta.sin()
     }
@@ -175,6 +180,99 @@ impl Chirp {
     }
 }
 
+/// What `bench chirp` plays: a sweep ([`Chirp`]) or a multisine
+/// ([`Multisine`], `chirp.kind = "multisine"`).
+#[derive(Debug, Clone)]
+#[allow(
+    clippy::large_enum_variant,
+    reason = "one per job, moved once into the loop; a box would add an indirection to every tick"
+)]
+pub enum Excitation {
+    /// An exponential or linear sweep.
+    Sweep(Chirp),
+    /// A periodic multisine with its precomputed table.
+    Multisine(Multisine),
+}
+
+impl Excitation {
+    /// The excitation of `cfg` (`[chirp]`, and `[multisine]` or its
+    /// defaults) for a loop of period `period_s` (s), random phases from
+    /// `seed`. A multisine's table is computed here: call it before the
+    /// loop starts.
+    ///
+    /// # Errors
+    /// A multisine that cannot be built at this period
+    /// ([`Multisine::new`]).
+    pub fn new(
+        cfg: &crate::config::BenchConfig,
+        period_s: f64,
+        seed: u64,
+    ) -> Result<Self, MultisineError> {
+        if cfg.chirp.kind.is_sweep() {
+            Ok(Self::Sweep(Chirp::new(&cfg.chirp, period_s)))
+        } else {
+            let ms = cfg.multisine.unwrap_or_default();
+            Ok(Self::Multisine(Multisine::new(
+                &cfg.chirp, &ms, period_s, seed,
+            )?))
+        }
+    }
+
+    /// The record length of [`Self::new`]'s excitation, ticks, without
+    /// computing a multisine's table.
+    ///
+    /// # Errors
+    /// As [`Self::new`].
+    pub fn total_ticks_of(
+        cfg: &crate::config::BenchConfig,
+        period_s: f64,
+    ) -> Result<u64, MultisineError> {
+        if cfg.chirp.kind.is_sweep() {
+            Ok(Chirp::new(&cfg.chirp, period_s).total_ticks())
+        } else {
+            Multisine::total_ticks_of(&cfg.chirp, &cfg.multisine.unwrap_or_default(), period_s)
+        }
+    }
+
+    /// Total record length, ticks.
+    pub fn total_ticks(&self) -> u64 {
+        match self {
+            Self::Sweep(c) => c.total_ticks(),
+            Self::Multisine(m) => m.total_ticks(),
+        }
+    }
+
+    /// Ticks of quiet lead-in.
+    pub fn lead_in_ticks(&self) -> u64 {
+        match self {
+            Self::Sweep(c) => c.lead_in_ticks(),
+            Self::Multisine(m) => m.lead_in_ticks(),
+        }
+    }
+
+    /// Excitation current at `tick`, A. Real-time safe (a sweep in closed
+    /// form, a multisine by a table lookup).
+    #[inline]
+    pub fn value_a(&self, tick: u64) -> f64 {
+        match self {
+            Self::Sweep(c) => c.value_a(tick),
+            Self::Multisine(m) => m.value_a(tick),
+        }
+    }
+}
+
+impl From<Chirp> for Excitation {
+    fn from(c: Chirp) -> Self {
+        Self::Sweep(c)
+    }
+}
+
+impl From<Multisine> for Excitation {
+    fn from(m: Multisine) -> Self {
+        Self::Multisine(m)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -185,8 +283,8 @@ mod tests {
             f_start_hz: 1.0,
             f_end_hz: 100.0,
             amplitude_a: 0.5,
-            duration_s: 10.0,
-            taper_s: 0.5,
+            duration_s: Some(10.0),
+            taper_s: Some(0.5),
             lead_in_s: 0.2,
             tail_s: 1.0,
             amplitude_profile: Vec::new(),
@@ -214,8 +312,8 @@ mod tests {
                 let f_meas = 1.0 / (w[1] - w[0]);
                 // Analytic law, independent of the implementation.
                 let f_true = match kind {
-                    ChirpKind::Exponential => 100f64.powf(t_mid / 10.0),
                     ChirpKind::Linear => 1.0 + 99.0 * t_mid / 10.0,
+                    _ => 100f64.powf(t_mid / 10.0),
                 };
                 assert!(
                     (f_meas / f_true - 1.0).abs() < 0.01,

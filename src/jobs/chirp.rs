@@ -9,8 +9,10 @@
 
 use crate::config::BenchConfig;
 use crate::error::RunError;
-use crate::ident::excitation::Chirp;
+use crate::ident::bla::{Bla, DistortionTest};
+use crate::ident::excitation::{Chirp, Excitation};
 use crate::ident::frf::{Frf, PairVerdict, Resonance, Spectra};
+use crate::ident::multisine::{Layout, Multisine};
 use crate::jobs::session::{
     finish, open_recording, run_recorded, Kept, Recorded, Runner, SessionOptions, TimingSummary,
 };
@@ -29,28 +31,36 @@ use std::sync::Arc;
 /// Fewest points per decade of the model curve in the Bode plot.
 pub const MODEL_POINTS_PER_DECADE: usize = 2000;
 
-/// The chirp job: open loop, command = excitation.
-#[derive(Debug, Clone, Copy)]
+/// The chirp job: open loop, command = excitation (a sweep, or a
+/// multisine read from its precomputed table).
+#[derive(Debug, Clone)]
 pub struct ChirpJob {
-    chirp: Chirp,
+    excitation: Excitation,
+    total_ticks: u64,
 }
 
 impl ChirpJob {
-    /// Wraps a chirp.
-    pub fn new(chirp: Chirp) -> Self {
-        Self { chirp }
+    /// Wraps a sweep ([`Chirp`]) or any [`Excitation`].
+    pub fn new(excitation: impl Into<Excitation>) -> Self {
+        let excitation = excitation.into();
+        Self {
+            total_ticks: excitation.total_ticks(),
+            excitation,
+        }
     }
 }
 
 impl Job for ChirpJob {
+    /// Real-time safe: the sweep in closed form, the multisine by one
+    /// table lookup.
     #[inline]
     fn tick(&mut self, tick: u64, _sample: &Sample) -> JobOutput {
-        let e = self.chirp.value_a(tick);
+        let e = self.excitation.value_a(tick);
         JobOutput {
             command_a: e,
             excitation_a: e,
             setpoint_m: f64::NAN,
-            done: tick + 1 >= self.chirp.total_ticks(),
+            done: tick + 1 >= self.total_ticks,
         }
     }
 }
@@ -68,6 +78,9 @@ pub struct ChirpOptions {
     pub frf_csv: PathBuf,
     /// The Bode plot PNG.
     pub plot: PathBuf,
+    /// The BLA CSV of a multisine (`chirp.kind = "multisine"`:
+    /// [`Bla::CSV_HEADER`]); `None`: not written (a sweep ignores it).
+    pub bla_csv: Option<PathBuf>,
     /// Real-time pacing instead of virtual time.
     pub realtime: bool,
     /// Simulator noise seed.
@@ -151,6 +164,101 @@ pub struct ChirpSummary {
     /// The stalls the run saw and the FRF lines they cost.
     #[serde(default)]
     pub stalls: StallReport,
+    /// The multisine and its best linear approximation
+    /// (`chirp.kind = "multisine"`); absent for a sweep.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub multisine: Option<MultisineSummary>,
+}
+
+/// A multisine run: the signal played and what the best linear
+/// approximation ([`crate::ident::bla`]) made of it.
+#[derive(Debug, Clone, Serialize, Deserialize, schemars::JsonSchema)]
+pub struct MultisineSummary {
+    /// `random` or `schroeder`.
+    pub phases: String,
+    /// Period T_p, s (whole loop ticks).
+    pub period_s: f64,
+    /// Line spacing 1 / T_p, Hz.
+    pub resolution_hz: f64,
+    /// Excited lines, count.
+    pub lines: usize,
+    /// Lowest and highest excited line, Hz.
+    pub band_hz: [f64; 2],
+    /// Smallest and largest line amplitude, A.
+    pub line_amplitude_a: [f64; 2],
+    /// Peak / RMS of the played signal.
+    pub crest_factor: f64,
+    /// Measured periods per realization, P.
+    pub periods: usize,
+    /// Discarded periods at the start of each realization.
+    pub transient_periods: usize,
+    /// Realizations played, M.
+    pub realizations: usize,
+    /// Realizations in the estimate (stalls may leave some out).
+    pub realizations_used: usize,
+    /// What is left of the model's slowest modal transient, `e^{−ζω t}`,
+    /// at the first measured period of a realization (`t` = the transient
+    /// periods), dimensionless; a large value means more transient
+    /// periods are needed (it shows as noise and distortion).
+    pub model_transient_left: f64,
+    /// Median over the lines of `σ̂_BLA / |Ĝ|` (the estimate's total
+    /// relative 1σ), dimensionless.
+    pub median_sigma_bla_rel: f64,
+    /// Median of `σ̂_n / |Ĝ|` (its noise part), dimensionless.
+    pub median_sigma_noise_rel: f64,
+    /// Median of `σ̂_S / |Ĝ|` (one realization's nonlinear distortion;
+    /// `null` with one realization), dimensionless.
+    pub median_sigma_nonlinear_rel: Option<f64>,
+    /// The test for nonlinear distortion above the noise (`null` with one
+    /// realization: Schroeder phases cannot tell it).
+    pub distortion: Option<DistortionTest>,
+    /// The BLA CSV (per line: Ĝ, σ̂_BLA, σ̂_n, σ̂_S, p-value), if written.
+    pub bla_csv: Option<PathBuf>,
+}
+
+impl MultisineSummary {
+    /// Lines for the printed summary.
+    pub fn lines(&self) -> Vec<String> {
+        let mut v = vec![
+            format!(
+                "multisine: {} phases, {} lines {:.3}–{:.1} Hz (every {:.4} Hz at most), {} × ({} + {}) periods of {:.3} s, crest factor {:.2}, line amplitudes {:.2e}–{:.2e} A",
+                self.phases,
+                self.lines,
+                self.band_hz[0],
+                self.band_hz[1],
+                self.resolution_hz,
+                self.realizations,
+                self.transient_periods,
+                self.periods,
+                self.period_s,
+                self.crest_factor,
+                self.line_amplitude_a[0],
+                self.line_amplitude_a[1],
+            ),
+            format!(
+                "BLA from {} of {} realizations: median relative 1σ {:.2e} (noise {:.2e}{})",
+                self.realizations_used,
+                self.realizations,
+                self.median_sigma_bla_rel,
+                self.median_sigma_noise_rel,
+                match self.median_sigma_nonlinear_rel {
+                    Some(x) => format!(", one realization's nonlinear distortion {x:.2e}"),
+                    None => String::new(),
+                }
+            ),
+        ];
+        v.push(match &self.distortion {
+            Some(t) => t.line(),
+            None => "nonlinear distortion: not assessed (one realization: Schroeder phases cannot tell it from the response; use phases = \"random\")".into(),
+        });
+        if self.model_transient_left > 1e-3 {
+            v.push(format!(
+                "warning: {:.1e} of the model's slowest transient is left after {} transient period(s): raise multisine.transient_periods",
+                self.model_transient_left, self.transient_periods
+            ));
+        }
+        v
+    }
 }
 
 /// The largest relative bias, in power, a stall may leave at the swept
@@ -194,6 +302,27 @@ pub struct StallReport {
     pub bands_hz: Vec<[f64; 2]>,
     /// FRF lines left out, count.
     pub excluded_lines: u64,
+    /// Multisine realizations left out of the BLA, count.
+    #[serde(default)]
+    pub excluded_realizations: u64,
+}
+
+/// The relative bias, in power, a hold of `hold_s` leaves at the weakest
+/// line of a multisine: the held sample departs from the signal by at most
+/// `e = min(2π f_max h, 2) · peak` (Bernstein's inequality bounds the
+/// slope of a trigonometric polynomial of top frequency `f_max` by
+/// `2π f_max · peak`), an error whose DFT over one period is at most
+/// `e · h / T_s` against the line's `N A_min / 2`:
+/// `(2 e h / (T_p A_min))²`. Dimensionless.
+pub fn held_multisine_bias(
+    hold_s: f64,
+    f_max_hz: f64,
+    peak_a: f64,
+    min_line_a: f64,
+    period_s: f64,
+) -> f64 {
+    let e = (2.0 * std::f64::consts::PI * f_max_hz * hold_s).min(2.0) * peak_a;
+    (2.0 * e * hold_s / (period_s * min_line_a)).powi(2)
 }
 
 impl StallReport {
@@ -231,6 +360,51 @@ impl StallReport {
         rep
     }
 
+    /// The report of `stalls` (end tick, length s) on a multisine of
+    /// `plan` at `period_s`, and which realizations the BLA may use: a
+    /// stall whose bias at the weakest line ([`held_multisine_bias`])
+    /// exceeds [`STALL_BIAS_MAX`] leaves out the realization whose
+    /// measured periods it meets (a stall in a transient period, the
+    /// lead-in or the tail decays with the transient, or meets nothing).
+    fn of_multisine(
+        stalls: &[(u64, f64)],
+        plan: &MultisinePlan,
+        period_s: f64,
+    ) -> (Self, Vec<bool>) {
+        let mut rep = Self::default();
+        let layout = &plan.layout;
+        let mut keep = vec![true; layout.realizations];
+        for &(tick, len_s) in stalls {
+            if !(len_s.is_finite() && len_s > 0.0) {
+                continue;
+            }
+            rep.count += 1;
+            rep.longest_s = rep.longest_s.max(len_s);
+            rep.total_s += len_s;
+            let hold_s = len_s + period_s;
+            let bias = held_multisine_bias(
+                hold_s,
+                plan.f_max_hz,
+                plan.peak_a,
+                plan.line_amplitude_a[0],
+                layout.period_s(),
+            );
+            if bias <= STALL_BIAS_MAX {
+                continue;
+            }
+            let end = tick as usize;
+            let start = end.saturating_sub((hold_s / period_s).ceil() as usize);
+            for (m, k) in keep.iter_mut().enumerate() {
+                let span = layout.measured(m);
+                if start < span.end && end >= span.start {
+                    *k = false;
+                }
+            }
+        }
+        rep.excluded_realizations = keep.iter().filter(|k| !**k).count() as u64;
+        (rep, keep)
+    }
+
     /// `frf` without the lines in the stalls' bands (counted).
     pub fn exclude(&mut self, frf: Frf) -> Frf {
         if self.bands_hz.is_empty() {
@@ -264,8 +438,16 @@ impl StallReport {
             .iter()
             .map(|[a, b]| format!("{a:.2}–{b:.2} Hz"))
             .collect();
+        let realizations = if self.excluded_realizations > 0 {
+            format!(
+                "; {} multisine realization(s) left out",
+                self.excluded_realizations
+            )
+        } else {
+            String::new()
+        };
         format!(
-            "stalls: {} (longest {:.1} ms, {:.1} ms in all); {} FRF lines left out{}",
+            "stalls: {} (longest {:.1} ms, {:.1} ms in all); {} FRF lines left out{}{realizations}",
             self.count,
             self.longest_s * 1e3,
             self.total_s * 1e3,
@@ -276,6 +458,80 @@ impl StallReport {
                 format!(" ({})", bands.join(", "))
             }
         )
+    }
+}
+
+/// What a multisine run keeps of its excitation once the job (and its
+/// table) has moved to the loop.
+#[derive(Debug, Clone)]
+struct MultisinePlan {
+    layout: Layout,
+    phases: &'static str,
+    crest_factor: f64,
+    /// Smallest and largest line amplitude, A.
+    line_amplitude_a: [f64; 2],
+    band_hz: [f64; 2],
+    f_max_hz: f64,
+    peak_a: f64,
+}
+
+impl MultisinePlan {
+    fn of(m: &Multisine) -> Self {
+        let a = m.amplitudes_a();
+        let f = m.frequency_hz();
+        let peak_a = (0..m.realizations())
+            .flat_map(|r| m.period_a(r).iter())
+            .fold(0.0_f64, |p, x| p.max(x.abs()));
+        Self {
+            layout: m.layout(),
+            phases: m.phases().as_str(),
+            crest_factor: m.crest_factor(),
+            line_amplitude_a: [
+                a.iter().copied().fold(f64::INFINITY, f64::min),
+                a.iter().copied().fold(0.0, f64::max),
+            ],
+            band_hz: [f[0], f[f.len() - 1]],
+            f_max_hz: f[f.len() - 1],
+            peak_a,
+        }
+    }
+
+    fn summary(&self, bla: &Bla, model: &Sr4dof, bla_csv: Option<PathBuf>) -> MultisineSummary {
+        let l = &self.layout;
+        // The slowest modal decay rate ζω of the model, 1/s.
+        let slowest = model
+            .modes()
+            .iter()
+            .map(|md| md.zeta * 2.0 * std::f64::consts::PI * md.frequency_hz())
+            .filter(|r| r.is_finite() && *r > 0.0)
+            .fold(f64::INFINITY, f64::min);
+        let t = l.transient_periods as f64 * l.period_s();
+        let test = bla.distortion_test();
+        MultisineSummary {
+            phases: self.phases.to_string(),
+            period_s: l.period_s(),
+            resolution_hz: bla.resolution_hz,
+            lines: l.lines.len(),
+            band_hz: self.band_hz,
+            line_amplitude_a: self.line_amplitude_a,
+            crest_factor: self.crest_factor,
+            periods: l.periods,
+            transient_periods: l.transient_periods,
+            realizations: l.realizations,
+            realizations_used: bla.realizations,
+            model_transient_left: if slowest.is_finite() {
+                (-slowest * t).exp()
+            } else {
+                1.0
+            },
+            median_sigma_bla_rel: bla.median_relative(&bla.sigma_bla_m_per_a),
+            median_sigma_noise_rel: bla.median_relative(&bla.sigma_noise_m_per_a),
+            median_sigma_nonlinear_rel: test
+                .is_some()
+                .then(|| bla.median_relative(&bla.sigma_nonlinear_m_per_a)),
+            distortion: test,
+            bla_csv,
+        }
     }
 }
 
@@ -402,10 +658,16 @@ pub fn run_chirp(
 /// The outputs of a chirp, none replaced (the daemon's jobs: their names
 /// are derived from the recording's).
 pub fn chirp_outputs(opts: &ChirpOptions) -> OutputPlan {
-    OutputPlan::new(Existing::Refuse)
+    let plan = OutputPlan::new(Existing::Refuse)
         .with_recording(&opts.out, Origin::Default)
         .with_output("frf_csv", &opts.frf_csv, Origin::Derived)
-        .with_output("plot", &opts.plot, Origin::Derived)
+        .with_output("plot", &opts.plot, Origin::Derived);
+    match &opts.bla_csv {
+        Some(p) if !opts.config.chirp.kind.is_sweep() => {
+            plan.with_output("bla_csv", p, Origin::Derived)
+        }
+        _ => plan,
+    }
 }
 
 /// Runs the chirp on `runner` (a configured stage, which it leaves
@@ -441,8 +703,14 @@ fn run_chirp_with(
         .map_err(|e| RunError::BadInput(format!("config {}: {e}", opts.config_path.display())))?;
     let period_s = info.period_ns as f64 * 1e-9;
     let rate_hz = 1.0 / period_s;
-    let chirp = Chirp::new(&cfg.chirp, period_s);
-    let total_ticks = chirp.total_ticks();
+    // A multisine's table is computed here, before the loop starts.
+    let excitation = Excitation::new(cfg, period_s, opts.seed).map_err(|e| {
+        RunError::BadInput(format!(
+            "config {}: {e} (at the device's period of {period_s} s)",
+            opts.config_path.display()
+        ))
+    })?;
+    let total_ticks = excitation.total_ticks();
     if total_ticks > crate::config::ranges::JOB_TICKS_MAX {
         return Err(RunError::BadInput(format!(
             "config {}: chirp.duration_s: lead_in_s + duration_s + tail_s is more than {} ticks at the device's period",
@@ -450,9 +718,15 @@ fn run_chirp_with(
             crate::config::ranges::JOB_TICKS_MAX
         )));
     }
+    let lead_in_ticks = excitation.lead_in_ticks();
+    let (sweep, plan) = match &excitation {
+        Excitation::Sweep(c) => (Some(*c), None),
+        Excitation::Multisine(m) => (None, Some(MultisinePlan::of(m))),
+    };
     // The LPM's local window must fit in the band: checked on the record's
-    // bin spacing before anything is enabled.
-    if cfg.identification.estimator == crate::config::Estimator::Lpm {
+    // bin spacing before anything is enabled (a sweep's; a multisine's
+    // FRF is the BLA on its own lines).
+    if sweep.is_some() && cfg.identification.estimator == crate::config::Estimator::Lpm {
         let bin_hz = rate_hz / crate::ident::frf::fast_len(total_ticks as usize) as f64;
         crate::ident::lpm::check_band(
             bin_hz,
@@ -480,7 +754,14 @@ fn run_chirp_with(
         stall_source: "",
     };
     let recorder = open_recording(&session, cfg, info, outputs)?;
-    let run = run_recorded(runner, ChirpJob::new(chirp), cfg, recorder, &session, stop)?;
+    let run = run_recorded(
+        runner,
+        ChirpJob::new(excitation),
+        cfg,
+        recorder,
+        &session,
+        stop,
+    )?;
     let Recorded {
         mut recorder,
         data,
@@ -504,7 +785,7 @@ fn run_chirp_with(
     // lead-in's mean) comes off the position in place, and the FFT runs in
     // the packed record (16 bytes a tick at the peak).
     let mut record = data.frf_record;
-    let lead = (chirp.lead_in_ticks() as usize).min(record.len());
+    let lead = (lead_in_ticks as usize).min(record.len());
     let offset = if lead > 0 {
         record[..lead].iter().map(|z| z.im).sum::<f64>() / lead as f64
     } else {
@@ -521,23 +802,50 @@ fn run_chirp_with(
         path: opts.frf_csv.clone(),
         reason: format!("the FRF could not be estimated: {e}"),
     };
-    crate::ident::frf::check_record(&record).map_err(estimate_failed)?;
-    let spectra = Spectra::from_record(record, rate_hz, &cfg.identification, cfg.chirp.f_end_hz);
-    let frf = Frf::from_spectra(
-        &spectra,
-        cfg.chirp.f_start_hz,
-        cfg.chirp.f_end_hz,
-        &cfg.identification,
-    )
-    .map_err(estimate_failed)?;
-    let stall_report = StallReport::of(
-        &stalls,
-        &chirp,
-        period_s,
-        cfg.identification.relative_resolution,
-    );
-    let mut stall_report = stall_report;
-    let frf = stall_report.exclude(frf);
+    let (frf, stall_report, bla) = match (sweep, &plan) {
+        (Some(chirp), _) => {
+            crate::ident::frf::check_record(&record).map_err(estimate_failed)?;
+            let spectra =
+                Spectra::from_record(record, rate_hz, &cfg.identification, cfg.chirp.f_end_hz);
+            let frf = Frf::from_spectra(
+                &spectra,
+                cfg.chirp.f_start_hz,
+                cfg.chirp.f_end_hz,
+                &cfg.identification,
+            )
+            .map_err(estimate_failed)?;
+            let mut stall_report = StallReport::of(
+                &stalls,
+                &chirp,
+                period_s,
+                cfg.identification.relative_resolution,
+            );
+            let frf = stall_report.exclude(frf);
+            (frf, stall_report, None)
+        }
+        (None, Some(plan)) => {
+            let (stall_report, keep) = StallReport::of_multisine(&stalls, plan, period_s);
+            let bla = match Bla::estimate(&record, &plan.layout, &keep) {
+                Ok(b) => b,
+                Err(e) => {
+                    // The run is recorded: finish it, then say why there
+                    // is no estimate.
+                    let _ = early_sync.join();
+                    let recording = finish(recorder)?;
+                    return Err(RunError::Output {
+                        path: opts.frf_csv.clone(),
+                        reason: format!(
+                            "no best linear approximation: {e}; {}; recording {recording} finished",
+                            stall_report.line()
+                        ),
+                    });
+                }
+            };
+            drop(record);
+            (bla.to_frf(), stall_report, Some(bla))
+        }
+        (None, None) => unreachable!("an excitation is a sweep or a multisine"),
+    };
     if stall_report.count > 0 {
         tracing::warn!("{}", stall_report.line());
     }
@@ -562,6 +870,16 @@ fn run_chirp_with(
                 .map_err(|e| RunError::Output {
                     path: opts.frf_csv.clone(),
                     reason: e.to_string(),
+                })
+                .and_then(|()| match (&bla, &opts.bla_csv) {
+                    (Some(b), Some(path)) => {
+                        b.write_csv(path, outputs.existing())
+                            .map_err(|e| RunError::Output {
+                                path: path.clone(),
+                                reason: e.to_string(),
+                            })
+                    }
+                    _ => Ok(()),
                 });
             ((f, h), csv)
         },
@@ -590,6 +908,10 @@ fn run_chirp_with(
         timing,
         current_limits: Some(current_limits),
         stalls: stall_report,
+        multisine: plan
+            .as_ref()
+            .zip(bla.as_ref())
+            .map(|(plan, bla)| plan.summary(bla, &model, opts.bla_csv.clone())),
     };
     let markers: Vec<f64> = summary.resonances.iter().map(|r| r.frequency_hz).collect();
     let no_pair = PairZoom::reason_of(&summary.verdict.phase_test);
@@ -611,7 +933,11 @@ fn run_chirp_with(
                 &BodePlot {
                     title: &title,
                     magnitude_axis: crate::plot::MAGNITUDE_M_PER_A,
-                    measured: BodeSeries::measured_h1(&frf),
+                    measured: if bla.is_some() {
+                        BodeSeries::measured_bla(&frf)
+                    } else {
+                        BodeSeries::measured_h1(&frf)
+                    },
                     coherence: &frf.coherence,
                     model: Some(BodeSeries {
                         label: "model (ZOH)",
@@ -656,6 +982,50 @@ fn run_chirp_with(
 #[cfg(test)]
 mod stall_tests {
     use super::*;
+
+    /// The multisine's bias bound by hand, and the realization a stall
+    /// leaves out: a 30 ms hold in realization 1's measured periods drops
+    /// it, the same in a transient period or one period's hold drops none.
+    #[test]
+    fn a_long_stall_leaves_its_realization_out() {
+        // e = min(2π · 500 · 0.03, 2) · 0.5 A = 1 A;
+        // (2 · 1 · 0.03 / (2 · 1e-3))² = 30² = 900.
+        let b = held_multisine_bias(0.03, 500.0, 0.5, 1e-3, 2.0);
+        assert!((b - 900.0).abs() < 1e-9, "{b}");
+        // One 0.2 ms period at 500 Hz: (2 · 0.628 · 0.5 · 2e-4 / 2e-3)² = 3.9e-3.
+        let e = 2.0 * std::f64::consts::PI * 500.0 * 2e-4;
+        let by_hand = (2.0 * e * 0.5 * 2e-4 / (2.0 * 1e-3)).powi(2);
+        assert!((held_multisine_bias(2e-4, 500.0, 0.5, 1e-3, 2.0) - by_hand).abs() < 1e-15);
+        let plan = MultisinePlan {
+            layout: Layout {
+                lead_in_ticks: 100,
+                period_ticks: 1000,
+                transient_periods: 1,
+                periods: 2,
+                realizations: 3,
+                lines: vec![1, 2, 3],
+                tick_s: 1e-3,
+            },
+            phases: "random",
+            crest_factor: 3.0,
+            line_amplitude_a: [0.05, 0.1],
+            band_hz: [1.0, 3.0],
+            f_max_hz: 3.0,
+            peak_a: 0.5,
+        };
+        // Realization 1 measures ticks 100 + 4000 … 100 + 6000.
+        let (rep, keep) = StallReport::of_multisine(&[(4_600, 0.03)], &plan, 1e-3);
+        assert_eq!(keep, vec![true, false, true]);
+        assert_eq!(rep.excluded_realizations, 1);
+        assert!(rep.line().contains("1 multisine realization(s) left out"));
+        // In realization 1's transient period (3100 … 4100, the hold
+        // 31 ticks before 4050): none.
+        let (_, keep) = StallReport::of_multisine(&[(4_050, 0.03)], &plan, 1e-3);
+        assert_eq!(keep, vec![true; 3]);
+        // A one-tick overrun: its bias is far below 1e-4.
+        let (rep, keep) = StallReport::of_multisine(&[(4_600, 1e-3)], &plan, 1e-3);
+        assert_eq!((rep.count, keep), (1, vec![true; 3]));
+    }
 
     /// The bias formula's figures: a one-period hold (0.2 ms) at 100 Hz in
     /// a 20 s sweep of 0.1–500 Hz is 1.8e-8; 30 ms at 7.07 Hz in a 4 s

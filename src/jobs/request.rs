@@ -108,7 +108,9 @@ pub struct ChirpRequest {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub f_end_hz: Option<f64>,
     /// Sweep duration, s (`chirp.duration_s`). Each fade (`chirp.taper_s`)
-    /// shrinks to at most a quarter of it.
+    /// shrinks to at most a quarter of it. Refused with `chirp.kind =
+    /// "multisine"` (naming `chirp.duration_s`): a multisine's length is
+    /// its `[multisine]` table's.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub duration_s: Option<f64>,
 }
@@ -120,16 +122,16 @@ impl ChirpRequest {
     /// [`RequestError::Invalid`] naming the first offending config key
     /// (`cfg` keeps the request's values).
     pub fn apply(&self, cfg: &mut BenchConfig) -> Result<(), RequestError> {
-        if self.duration_s.is_some() {
+        if let (Some(_), Some(taper_s), Some(duration_s)) =
+            (self.duration_s, cfg.chirp.taper_s, cfg.chirp.duration_s)
+        {
             // The fades shrink below: the configured ones must be valid
             // first, or a short sweep would hide a bad chirp.taper_s.
-            let c = &cfg.chirp;
-            if !c.taper_s.is_finite() || c.taper_s < 0.0 || 2.0 * c.taper_s > c.duration_s {
+            if !taper_s.is_finite() || taper_s < 0.0 || 2.0 * taper_s > duration_s {
                 return Err(RequestError::Invalid {
                     key: "chirp.taper_s".into(),
                     reason: format!(
-                        "{} s is not a fade that fits in the configured chirp.duration_s = {} s",
-                        c.taper_s, c.duration_s
+                        "{taper_s} s is not a fade that fits in the configured chirp.duration_s = {duration_s} s"
                     ),
                 });
             }
@@ -139,10 +141,12 @@ impl ChirpRequest {
         set(&mut c.f_start_hz, self.f_start_hz);
         set(&mut c.f_end_hz, self.f_end_hz);
         if let Some(v) = self.duration_s {
-            c.duration_s = v;
+            // With chirp.kind = "multisine" the check below refuses it,
+            // naming chirp.duration_s (a multisine does not sweep).
+            c.duration_s = Some(v);
             // Keep the fades inside a short sweep.
             if v.is_finite() && v > 0.0 {
-                c.taper_s = c.taper_s.min(0.25 * v);
+                c.taper_s = c.taper_s.map(|t| t.min(0.25 * v));
             }
         }
         check(cfg)
@@ -395,7 +399,13 @@ pub struct LocalOverrides {
     pub operating_point: Option<OperatingPoint>,
     /// Mass asymmetry Δm23 = m2/m3 − 1 (`plant.mass_asymmetry`).
     pub mass_asymmetry: Option<f64>,
-    /// Sweep law (`chirp.kind`).
+    /// What `bench chirp` plays (`chirp.kind`). The keys of the other
+    /// kind are set aside with it, as the flag asks: a multisine drops
+    /// the sweep's `chirp.duration_s` and `chirp.taper_s` (and takes the
+    /// `[multisine]` table, or its defaults); a sweep drops the
+    /// `[multisine]` table, needs a `chirp.duration_s` (the config's or
+    /// `--duration-s`) and fades by the config's `chirp.taper_s`, 0 s
+    /// (none) when the config has none.
     pub chirp_kind: Option<ChirpKind>,
 }
 
@@ -407,7 +417,16 @@ impl LocalOverrides {
             cfg.plant.operating_point_m = op.metres(cfg.plant.beam.length_m);
         }
         set(&mut cfg.plant.mass_asymmetry, self.mass_asymmetry);
-        set(&mut cfg.chirp.kind, self.chirp_kind);
+        if let Some(kind) = self.chirp_kind {
+            cfg.chirp.kind = kind;
+            if kind.is_sweep() {
+                cfg.multisine = None;
+                cfg.chirp.taper_s.get_or_insert(0.0);
+            } else {
+                cfg.chirp.duration_s = None;
+                cfg.chirp.taper_s = None;
+            }
+        }
     }
 }
 
@@ -529,7 +548,7 @@ mod tests {
                     duration_s: Some(20.0),
                     ..Default::default()
                 },
-                |c| c.chirp.duration_s = 20.0,
+                |c| c.chirp.duration_s = Some(20.0),
             ),
             (
                 ChirpRequest {
@@ -537,8 +556,8 @@ mod tests {
                     ..Default::default()
                 },
                 |c| {
-                    c.chirp.duration_s = 1.0;
-                    c.chirp.taper_s = 0.25;
+                    c.chirp.duration_s = Some(1.0);
+                    c.chirp.taper_s = Some(0.25);
                 },
             ),
         ];

@@ -53,6 +53,15 @@ impl<'a> BodeSeries<'a> {
             phase_deg: &frf.phase_deg,
         }
     }
+
+    /// The best linear approximation of a multisine run
+    /// ([`crate::ident::bla`]) on its excited lines.
+    pub fn measured_bla(frf: &'a crate::ident::frf::Frf) -> Self {
+        Self {
+            label: "measured (BLA)",
+            ..Self::measured_h1(frf)
+        }
+    }
 }
 
 /// Magnitude (of `h`'s unit) and unwrapped phase (degrees) of the curve
