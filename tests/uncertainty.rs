@@ -122,15 +122,6 @@ struct Run {
 fn run(base: &BenchConfig, seed: u64) -> Run {
     let truth = hidden(base, seed);
     let frf = measure(&truth, seed + 1);
-    if seed == 0 && std::env::var_os("BENCH_SHOW_FLAGS").is_some() {
-        eprintln!(
-            "estimator {:?}: line 1000 at {} Hz, σ {:e}, resolution {} Hz",
-            truth.identification.estimator,
-            frf.frequency_hz[1000],
-            frf.sigma_m_per_a[1000],
-            frf.resolution_hz[1000]
-        );
-    }
     let data = FrfData::from_frf(&frf);
     let path = FitPath {
         period_s: period_s(base),

@@ -273,7 +273,7 @@ pub(super) fn print_fit(f: &ModalFit) {
     outln!("  mode  frequency (Hz)         damping ratio          modal constant (m/(A·s²))");
     for m in &f.modes {
         outln!(
-            "  {:<4}  {:>9.3} ± {:<9.3}  {:>8.5} ± {:<9.5}  {:>+11.4e} ± {:.1e}{}",
+            "  {:<4}  {:>9.4} ± {:<9.1e}  {:>8.6} ± {:<9.1e}  {:>+11.4e} ± {:.1e}{}",
             m.label,
             m.frequency_hz,
             m.frequency_sigma_hz,
