@@ -177,7 +177,7 @@ pub fn term_labels(terms: &[ModalTerm]) -> PairLabels {
         &residue,
         &strength,
         VISIBILITY,
-        crate::ident::frf::CLOSE_PAIR_RATIO,
+        CLOSE_PAIR_RATIO,
     )
 }
 
@@ -215,6 +215,10 @@ pub fn visibility(f_hz: &[f64], zeta: &[f64], residue: &[f64]) -> Vec<f64> {
 /// about 1e-5 of the X rigid-body mode's) shows at about 1e-4 of this;
 /// the pair's weaker mode at 0.2 % mass asymmetry at about 2.5.
 pub const VISIBILITY: f64 = 0.1;
+
+/// Largest ratio between two adjacent resonances for them to count as a
+/// closely spaced pair.
+pub const CLOSE_PAIR_RATIO: f64 = 1.25;
 
 /// Damping ratio floor of the visibility (an undamped model's modes would
 /// otherwise all show, however small their residue).

@@ -374,12 +374,12 @@ fn default_kind() -> ChirpKind {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Estimator {
-    /// The local polynomial method ([`crate::ident::lpm`]): a noise
+    /// The local polynomial method (`ident::lpm`): a noise
     /// variance per line from the local fit's residual, transient and
     /// leakage removed.
     #[default]
     Lpm,
-    /// H1 on frequency-smoothed spectra ([`crate::ident::frf`]), σ from
+    /// H1 on frequency-smoothed spectra (`ident::frf`), σ from
     /// the coherence.
     H1,
 }
@@ -563,11 +563,11 @@ pub struct IdentificationConfig {
     pub estimator: Estimator,
     /// LPM: least half width `n` of the local window, DFT bins (the window
     /// is `2n + 1` bins, or `relative_resolution · f` where wider). Default
-    /// [`crate::ident::lpm::DEFAULT_HALF_WIDTH_BINS`].
+    /// [`DEFAULT_LPM_HALF_WIDTH_BINS`].
     #[serde(default = "default_lpm_half_width")]
     pub lpm_half_width_bins: usize,
     /// LPM: degree `R` of the local polynomials of the FRF and the
-    /// transient. Default [`crate::ident::lpm::DEFAULT_DEGREE`].
+    /// transient. Default [`DEFAULT_LPM_DEGREE`].
     #[serde(default = "default_lpm_degree")]
     pub lpm_degree: usize,
 }
@@ -581,11 +581,18 @@ fn default_resolution() -> f64 {
 fn default_min_bins() -> usize {
     5
 }
+/// Default `n` of the LPM, the window's half width in DFT bins: with
+/// `R` = 2 the noise variance of a line has `q = 2n + 1 − 2(R + 1)` = 7
+/// degrees of freedom (Pintelon & Schoukens 2012, §7.2; `ident::lpm`).
+pub const DEFAULT_LPM_HALF_WIDTH_BINS: usize = 6;
+/// Default `R` of the LPM, the degree of the local polynomials.
+pub const DEFAULT_LPM_DEGREE: usize = 2;
+
 fn default_lpm_half_width() -> usize {
-    crate::ident::lpm::DEFAULT_HALF_WIDTH_BINS
+    DEFAULT_LPM_HALF_WIDTH_BINS
 }
 fn default_lpm_degree() -> usize {
-    crate::ident::lpm::DEFAULT_DEGREE
+    DEFAULT_LPM_DEGREE
 }
 
 impl Default for IdentificationConfig {

@@ -706,6 +706,12 @@ pub fn design(
             peak_current_a,
         )
     };
+    let inputs = frfs
+        .iter()
+        .map(|f| f.label.as_str())
+        .chain(model.map(|m| m.label.as_str()))
+        .collect::<Vec<_>>()
+        .join(", ");
     let fail = |a: &Attempt| {
         let b = a.evaluation.binding.as_ref().map_or(
             "no constraint could be evaluated".to_string(),
@@ -714,7 +720,7 @@ pub fn design(
         derr(
             "margins",
             format!(
-                "no {} controller of the family ({}) meets them: the best found misses by {}",
+                "no {} controller of the family ({}) meets them on {inputs}: the best found misses by {}",
                 a.strategy, a.structure, b
             ),
         )

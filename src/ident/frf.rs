@@ -825,9 +825,7 @@ pub struct PairVerdict {
     pub cmp_cnmp: bool,
 }
 
-/// Largest ratio between two adjacent resonances for them to count as a
-/// closely spaced pair.
-pub const CLOSE_PAIR_RATIO: f64 = 1.25;
+pub use crate::analysis::modal::CLOSE_PAIR_RATIO;
 
 /// The FRF and the bench config a `bench chirp` recording holds.
 #[derive(Debug, Clone)]

@@ -119,9 +119,9 @@ use crate::config::IdentificationConfig;
 use crate::ident::frf::{log_grid, unwrap_deg, Frf, FrfError, Spectra};
 
 /// Default `n`, the window's half width in DFT bins (see the module docs).
-pub const DEFAULT_HALF_WIDTH_BINS: usize = 6;
+pub use crate::config::DEFAULT_LPM_HALF_WIDTH_BINS as DEFAULT_HALF_WIDTH_BINS;
 /// Default `R`, the degree of the local polynomials.
-pub const DEFAULT_DEGREE: usize = 2;
+pub use crate::config::DEFAULT_LPM_DEGREE as DEFAULT_DEGREE;
 /// Fewest degrees of freedom `q` the local fit must leave for the noise
 /// variance.
 pub const MIN_DOF: i64 = 3;

@@ -829,16 +829,12 @@ fn sigmas(prep: &Prepared, p: &Params, period_s: f64) -> Vec<f64> {
     let problem = Problem::new(prep, p, period_s);
     let j = problem.jacobian_of(p);
     let n = p.f_hz.len();
-    let dof = (j.nrows() as f64 - j.ncols() as f64).max(1.0);
-    // With σ per line from the data the weighted cost is a χ² with `dof`
-    // degrees of freedom: the 1σ come from (JᵀJ)⁻¹ as they are, widened
-    // by χ²/ν when the model leaves more than the noise (Birge ratio);
-    // without, the noise level is the residual's.
-    let s2 = if prep.noise_estimated {
-        (prep.cost(p) / dof).max(1.0)
-    } else {
-        prep.cost(p) / dof
-    };
+    // With σ per line from the data the weighted cost is a χ² with
+    // 2m − (3n + 3) degrees of freedom: the 1σ come from (JᵀJ)⁻¹ as they
+    // are, widened by χ²/ν when the model leaves more than the noise
+    // (Birge ratio); without, the noise level is the residual's.
+    debug_assert_eq!(j.nrows(), 2 * prep.len());
+    let s2 = residual_variance(prep, p, prep.cost(p));
     let jtj = j.transpose() * &j;
     let unknown = DMatrix::from_element(3 * n + 3, 3 * n + 3, f64::INFINITY);
     let cov = if !jtj.iter().all(|v| v.is_finite()) {
@@ -1090,6 +1086,18 @@ fn prune(prep: &Prepared, mut p: Params, period_s: f64) -> Params {
     }
 }
 
+/// `s²` of the 1σ: the weighted cost per degree of freedom
+/// (`2m − (3n + 3)` for `m` lines and `n` modes), at least 1 when the
+/// weights are the data's own noise (see [`sigmas`]).
+fn residual_variance(prep: &Prepared, p: &Params, cost: f64) -> f64 {
+    let dof = (2.0 * prep.len() as f64 - (3 * p.f_hz.len() + 3) as f64).max(1.0);
+    if prep.noise_estimated {
+        (cost / dof).max(1.0)
+    } else {
+        cost / dof
+    }
+}
+
 /// `p` without mode `i`, the linear part re-solved and all refined.
 fn without(prep: &Prepared, p: &Params, i: usize, period_s: f64) -> Option<Params> {
     let mut f = p.f_hz.clone();
@@ -1194,6 +1202,11 @@ pub fn fit(data: &FrfData, path: &Path) -> Result<ModalFit, FitError> {
             .collect();
     start.sort_by(|a, b| a.0.total_cmp(&b.0));
     start.dedup_by(|b, a| b.0 / a.0 <= MIN_SEPARATION);
+    // A trial grid reaches 4 % past its peak: one at the edge of the
+    // coherent band (a short sweep's end) would make the whole start
+    // unacceptable.
+    let (band_lo, band_hi) = coherent_band(&prep, &data.frequency_hz);
+    start.retain(|(f, _)| (band_lo..=band_hi).contains(f));
     if let Some(s0) = with_linear(
         &prep,
         start.iter().map(|x| x.0).collect(),

@@ -109,6 +109,20 @@ pub fn phase_test(frf: &Frf, fit: &ModalFit, path_phase_deg: impl Fn(f64) -> f64
     let (Some(&first), Some(&last)) = (grid.first(), grid.last()) else {
         return undecided(None, "the FRF is empty".into());
     };
+    // The band comes from the fit's pair: a flagged fit's pair (split or
+    // unrefined modes) is not the plant's, nor are labels it is unsure of.
+    if fit.quality.checked && !fit.quality.flags.is_empty() {
+        return undecided(
+            None,
+            format!(
+                "the pair's band comes from a flagged fit: {}",
+                fit.quality.flags.join("; ")
+            ),
+        );
+    }
+    if let Some(why) = &fit.labels_unsure {
+        return undecided(None, format!("the fit's pair labels are unsure: {why}"));
+    }
     let below = fit.modes[..u].last().map_or(first, |m| m.frequency_hz);
     let above = fit.modes.get(v + 1).map_or(last, |m| m.frequency_hz);
     let band = ((below * fa).sqrt(), (fb * above).sqrt());
