@@ -172,13 +172,7 @@ pub fn term_labels(terms: &[ModalTerm]) -> PairLabels {
         .map(|t| if t.in_path { t.residue_per_kg } else { 0.0 })
         .collect();
     let strength = visibility(&f, &zeta, &residue);
-    pair_and_remainder(
-        &f,
-        &residue,
-        &strength,
-        VISIBILITY,
-        CLOSE_PAIR_RATIO,
-    )
+    pair_and_remainder(&f, &residue, &strength, VISIBILITY, CLOSE_PAIR_RATIO)
 }
 
 /// How strongly each mode shows in the path (see [`VISIBILITY`]): modes

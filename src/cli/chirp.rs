@@ -293,6 +293,9 @@ pub(super) fn print_summary(s: &ChirpSummary) {
     outln!("  peak |x1| = {:.1} µm", s.peak_position_m * 1e6);
     outln!("  recording   {}", s.recording.display());
     outln!("  FRF (CSV)   {}", s.frf_csv.display());
+    if let Some(note) = s.frf_estimator.as_ref().and_then(|e| e.note.as_ref()) {
+        outln!("  estimator   {note}");
+    }
     outln!("  Bode plot   {}", s.plot.display());
     if let Some(p) = s.multisine.as_ref().and_then(|m| m.bla_csv.as_ref()) {
         outln!("  BLA (CSV)   {}", p.display());

@@ -118,10 +118,10 @@ use super::C64;
 use crate::config::IdentificationConfig;
 use crate::ident::frf::{log_grid, unwrap_deg, Frf, FrfError, Spectra};
 
-/// Default `n`, the window's half width in DFT bins (see the module docs).
-pub use crate::config::DEFAULT_LPM_HALF_WIDTH_BINS as DEFAULT_HALF_WIDTH_BINS;
 /// Default `R`, the degree of the local polynomials.
 pub use crate::config::DEFAULT_LPM_DEGREE as DEFAULT_DEGREE;
+/// Default `n`, the window's half width in DFT bins (see the module docs).
+pub use crate::config::DEFAULT_LPM_HALF_WIDTH_BINS as DEFAULT_HALF_WIDTH_BINS;
 /// Fewest degrees of freedom `q` the local fit must leave for the noise
 /// variance.
 pub const MIN_DOF: i64 = 3;

@@ -78,10 +78,16 @@ fn lpm_or_h1(
     cfg: &BenchConfig,
     model: &Sr4dof,
     bin_hz: f64,
-) -> crate::config::IdentificationConfig {
+) -> (crate::config::IdentificationConfig, FrfEstimator) {
     let mut ident = cfg.identification;
     if ident.estimator != crate::config::Estimator::Lpm {
-        return ident;
+        return (
+            ident,
+            FrfEstimator {
+                name: "h1".into(),
+                note: None,
+            },
+        );
     }
     let window_hz = (2 * ident.lpm_half_width_bins + 1) as f64 * bin_hz;
     let narrowest = model
@@ -92,13 +98,39 @@ fn lpm_or_h1(
         .map(|(_, b)| b)
         .fold(f64::INFINITY, f64::min);
     if window_hz > 0.5 * narrowest {
-        tracing::warn!(
+        let note = format!(
             "the LPM's window ({window_hz:.3} Hz, {} bins of this record) is wider than half the narrowest half-power band of the config's modes ({narrowest:.3} Hz): the FRF is estimated with H1 (a longer sweep lets the LPM run)",
             2 * ident.lpm_half_width_bins + 1
         );
+        tracing::warn!("{note}");
         ident.estimator = crate::config::Estimator::H1;
+        return (
+            ident,
+            FrfEstimator {
+                name: "h1".into(),
+                note: Some(note),
+            },
+        );
     }
-    ident
+    (
+        ident,
+        FrfEstimator {
+            name: "lpm".into(),
+            note: None,
+        },
+    )
+}
+
+/// Which estimator made a run's FRF, and why when it is not the
+/// configured one.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
+pub struct FrfEstimator {
+    /// `"lpm"` (the local polynomial method), `"h1"` (smoothed spectra)
+    /// or `"bla"` (a multisine's best linear approximation).
+    pub name: String,
+    /// Why the estimator differs from `identification.estimator` (a sweep
+    /// too short for the LPM's window); `null` when it does not.
+    pub note: Option<String>,
 }
 
 /// Everything `bench chirp` needs, resolved from config and arguments.
@@ -187,6 +219,10 @@ pub struct ChirpSummary {
     pub verdict: crate::ident::verdict::Verdict,
     /// The model of the configured bench.
     pub model: ModelSummary,
+    /// The estimator that made the FRF (`null` in summaries of older
+    /// versions).
+    #[serde(default)]
+    pub frf_estimator: Option<FrfEstimator>,
     /// Link counters of a hardware backend (CRC errors, sequence gaps,
     /// late samples, timeouts); absent on the simulator.
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -838,19 +874,14 @@ fn run_chirp_with(
         path: opts.frf_csv.clone(),
         reason: format!("the FRF could not be estimated: {e}"),
     };
-    let (frf, stall_report, bla) = match (sweep, &plan) {
+    let (frf, stall_report, bla, frf_estimator) = match (sweep, &plan) {
         (Some(chirp), _) => {
             crate::ident::frf::check_record(&record).map_err(estimate_failed)?;
             let spectra =
                 Spectra::from_record(record, rate_hz, &cfg.identification, cfg.chirp.f_end_hz);
-            let ident = lpm_or_h1(cfg, &model, spectra.bin_hz());
-            let frf = Frf::from_spectra(
-                &spectra,
-                cfg.chirp.f_start_hz,
-                cfg.chirp.f_end_hz,
-                &ident,
-            )
-            .map_err(estimate_failed)?;
+            let (ident, estimator) = lpm_or_h1(cfg, &model, spectra.bin_hz());
+            let frf = Frf::from_spectra(&spectra, cfg.chirp.f_start_hz, cfg.chirp.f_end_hz, &ident)
+                .map_err(estimate_failed)?;
             let mut stall_report = StallReport::of(
                 &stalls,
                 &chirp,
@@ -858,7 +889,7 @@ fn run_chirp_with(
                 cfg.identification.relative_resolution,
             );
             let frf = stall_report.exclude(frf);
-            (frf, stall_report, None)
+            (frf, stall_report, None, estimator)
         }
         (None, Some(plan)) => {
             let (stall_report, keep) = StallReport::of_multisine(&stalls, plan, period_s);
@@ -879,7 +910,11 @@ fn run_chirp_with(
                 }
             };
             drop(record);
-            (bla.to_frf(), stall_report, Some(bla))
+            let estimator = FrfEstimator {
+                name: "bla".into(),
+                note: None,
+            };
+            (bla.to_frf(), stall_report, Some(bla), estimator)
         }
         (None, None) => unreachable!("an excitation is a sweep or a multisine"),
     };
@@ -941,6 +976,7 @@ fn run_chirp_with(
         fit: identified.fit,
         verdict: identified.verdict,
         model: model_summary(&model),
+        frf_estimator: Some(frf_estimator),
         link: run_link,
         timing,
         current_limits: Some(current_limits),
