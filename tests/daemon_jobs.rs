@@ -116,8 +116,20 @@ fn fit_analyze_map_and_a_campaign_through_the_daemon_equal_the_local_runs() {
             local.extend(["--update", "--out", out.as_str(), "--overwrite"]);
             remote.push("--update");
         }
+        // The recording's fit also exports its model (a MATLAB script).
+        let model = at("local_model.m");
+        if input == mcap.as_str() {
+            let export = ["--export-model", "ss", "--model-format", "matlab"];
+            local.extend(export);
+            local.extend(["--model-out", model.as_str()]);
+            remote.extend(export);
+        }
         let (l, r) = (summary(&local, &what), summary(&remote, &what));
-        let paths = ["plot", "updated_config"];
+        if input == mcap.as_str() {
+            in_recordings(&path_of(&r, "model"));
+            same_file(&path_of(&l, "model"), &path_of(&r, "model"));
+        }
+        let paths = ["plot", "updated_config", "model"];
         assert_eq!(without(&l, &paths), without(&r, &paths), "{what}");
         assert!(l["fit"].is_object(), "{what}: no fit in {l}");
         in_recordings(&path_of(&r, "plot"));

@@ -6,6 +6,11 @@
 //! with a cubic nonlinearity against `tests/data/bla_reference.py`
 //! (numpy/scipy), the refusals of keys that do not apply, and the
 //! daemon's chirp job on a multisine config.
+//!
+//! The tests run one at a time ([`common::one_at_a_time`]): the stall
+//! test's real-time run on a 2-core machine must not share the CPU with
+//! the others' simulations (a missed tick is a stall that leaves its
+//! realization out).
 
 mod common;
 #[path = "common/daemon.rs"]
@@ -76,6 +81,7 @@ fn crest_factor(s: &Multisine, n: usize, first_tick: u64) -> f64 {
 /// of its summary is the analytic `√(Σ A²/2)`.
 #[test]
 fn schroeder_crest_factor_is_the_fresnel_limit_of_a_sweep() {
+    let _one = one_at_a_time();
     use bench::ident::multisine::schroeder_phases;
     let limit = 2f64.sqrt() * 1.3704f64.sqrt();
     for f in [100u32, 300] {
@@ -156,6 +162,7 @@ fn schroeder_crest_factor_is_the_fresnel_limit_of_a_sweep() {
 /// nothing (to rounding); every period of a realization is the same.
 #[test]
 fn the_played_spectrum_has_energy_only_on_the_excited_lines() {
+    let _one = one_at_a_time();
     let mut c = band(0.5, 200.0);
     c.lead_in_s = 0.1;
     c.tail_s = 0.1;
@@ -236,6 +243,7 @@ fn ch5_multisine(chirp: &[(&str, toml::Value)], multisine: &[(&str, toml::Value)
 /// deviations of it. The distortion test finds nothing.
 #[test]
 fn bla_on_the_simulator_is_the_zoh_model_within_its_sigma() {
+    let _one = one_at_a_time();
     use bench_hal::model::Sr4dof;
     use bench_hal::sim::ZohPlant;
     let dir = tmp();
@@ -364,6 +372,7 @@ fn gaussian(seed: u64, n: usize) -> Vec<f64> {
 /// against the numpy/scipy reference on the same record.
 #[test]
 fn nonlinear_distortion_is_detected_and_agrees_with_numpy() {
+    let _one = one_at_a_time();
     let rate = 1000.0;
     let mut c = band(1.0, 200.0);
     c.lead_in_s = 0.05;
@@ -477,6 +486,7 @@ fn nonlinear_distortion_is_detected_and_agrees_with_numpy() {
 /// combinations; `--chirp-kind` switches the kind with its keys.
 #[test]
 fn keys_of_the_other_kind_are_refused() {
+    let _one = one_at_a_time();
     let dir = tmp();
     let write = |name: &str, text: &str| {
         let p = dir.path().join(name);
@@ -578,6 +588,7 @@ fn keys_of_the_other_kind_are_refused() {
 /// recording; a request's sweep duration is refused naming the key.
 #[test]
 fn the_daemon_plays_a_multisine_config() {
+    let _one = one_at_a_time();
     use daemon_fixtures::Daemon;
     let d = Daemon::start_edited(
         &[],
@@ -625,6 +636,7 @@ fn the_daemon_plays_a_multisine_config() {
 /// so; the estimate comes from the other three.
 #[test]
 fn a_stall_leaves_its_realization_out() {
+    let _one = one_at_a_time();
     let dir = tmp();
     let cfg = dir.path().join("ms.toml");
     std::fs::write(
@@ -641,27 +653,51 @@ fn a_stall_leaves_its_realization_out() {
     .unwrap();
     // Lead-in 0.5 s, then 4 × (1 + 2) periods of 0.2 s: realization 1
     // measures 1.3 … 1.7 s.
-    let out = path_in(dir.path(), "ms.mcap");
-    let o = run(&[
-        "chirp",
-        "--config",
-        cfg.to_str().unwrap(),
-        "--realtime",
-        "--inject-fault",
-        "stall:30@1.5",
-        "--json",
-        "--out",
-        &out,
-    ]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let s = json_stdout(&o);
-    assert!(
-        s["stalls"]["count"].as_u64().unwrap() >= 1,
-        "{}",
-        s["stalls"]
-    );
-    assert!(s["stalls"]["longest_s"].as_f64().unwrap() >= 0.03);
-    assert!(s["stalls"]["excluded_realizations"].as_u64().unwrap() >= 1);
-    let used = s["multisine"]["realizations_used"].as_u64().unwrap();
-    assert!((2..=3).contains(&used), "{}", s["multisine"]);
+    // The host's own stalls (a VM's vCPU taken away for a millisecond)
+    // can leave out more realizations, all of them on a bad day: the run
+    // then says so and fails; that attempt is tried again (at most 3), as
+    // an operator would measure again. The injected stall is never
+    // forgiven: every attempt must leave realization 1 out.
+    let mut last = String::new();
+    for attempt in 0..3 {
+        let out = path_in(dir.path(), &format!("ms{attempt}.mcap"));
+        let o = run(&[
+            "chirp",
+            "--config",
+            cfg.to_str().unwrap(),
+            "--realtime",
+            "--inject-fault",
+            "stall:30@1.5",
+            "--json",
+            "--out",
+            &out,
+        ]);
+        let err = String::from_utf8_lossy(&o.stderr).into_owned();
+        if !o.status.success() {
+            assert!(
+                err.contains("none of 4 left")
+                    && err.contains("4 multisine realization(s) left out"),
+                "{err}"
+            );
+            last = err;
+            continue;
+        }
+        let s = json_stdout(&o);
+        assert!(
+            s["stalls"]["count"].as_u64().unwrap() >= 1,
+            "{}",
+            s["stalls"]
+        );
+        assert!(s["stalls"]["longest_s"].as_f64().unwrap() >= 0.03);
+        let excluded = s["stalls"]["excluded_realizations"].as_u64().unwrap();
+        let used = s["multisine"]["realizations_used"].as_u64().unwrap();
+        assert!(excluded >= 1, "{}", s["stalls"]);
+        assert_eq!(used + excluded, 4, "{}\n{}", s["stalls"], s["multisine"]);
+        if s["stalls"]["count"].as_u64().unwrap() == 1 {
+            // Only the injected stall: exactly its realization is out.
+            assert_eq!(used, 3, "{}", s["multisine"]);
+        }
+        return;
+    }
+    panic!("3 attempts, each with every realization stalled by the host: {last}");
 }

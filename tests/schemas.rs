@@ -392,8 +392,9 @@ fn recorded_messages_match_their_channel_schemas() {
     assert_eq!(
         keys(&control["/control/metrics"].messages[0]),
         names(
-            "step_m rise_time_s settling_time_s overshoot_pct steady_state_error_mean_nm \
-             steady_state_error_std_nm steady_state_window_s peak_command_a"
+            "step_m rise_time_s settling_time_s settling_margin overshoot_pct \
+             steady_state_error_mean_nm steady_state_error_std_nm steady_state_window_s \
+             peak_command_a"
         )
     );
 

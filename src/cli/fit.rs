@@ -3,6 +3,7 @@
 
 use super::serve::via_daemon;
 use super::{bad_input, finish, refuse_local_only, CONFIG_HELP};
+use bench::ident::export::{ModelForm, ModelFormat};
 use bench::ident::modal_fit::ModalFit;
 use bench::ident::update::{Parameter, Update};
 use bench::ident::verdict::Verdict;
@@ -12,6 +13,28 @@ use bench::outputs::Existing;
 use clap::Args;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
+
+/// `--export-model`.
+#[derive(Debug, Clone, Copy, clap::ValueEnum)]
+enum FormArg {
+    /// Transfer function (num, den).
+    Tf,
+    /// Zeros, poles, gain.
+    Zpk,
+    /// State space, modal form.
+    Ss,
+}
+
+/// `--model-format`.
+#[derive(Debug, Clone, Copy, clap::ValueEnum)]
+enum FormatArg {
+    /// JSON.
+    Json,
+    /// MATLAB script (Control System Toolbox).
+    Matlab,
+    /// Python script (python-control).
+    Python,
+}
 
 #[derive(Debug, Args)]
 pub(super) struct FitArgs {
@@ -50,6 +73,21 @@ pub(super) struct FitArgs {
     /// Write no PNG.
     #[arg(long, conflicts_with = "png")]
     no_plot: bool,
+    /// Export the fitted model as a continuous-time linear system, SI
+    /// units: transfer function, zeros/poles/gain or state space (modal
+    /// form), from the demanded current (A) to x1 (m), with the fitted
+    /// delay as the input delay.
+    #[arg(long, value_name = "FORM", requires = "input")]
+    export_model: Option<FormArg>,
+    /// The exported model's format: JSON, a MATLAB script (tf/zpk/ss with
+    /// 'InputDelay') or a python-control script [default: json].
+    #[arg(long, value_name = "FORMAT", requires = "export_model")]
+    model_format: Option<FormatArg>,
+    /// The exported model's file [default: beside the input,
+    /// <stem>.model.json, or <stem>_model.m / _model.py with the stem made
+    /// an identifier].
+    #[arg(long, value_name = "FILE", requires = "export_model")]
+    model_out: Option<PathBuf>,
     /// Replace existing output files (regular files only).
     #[arg(long)]
     overwrite: bool,
@@ -88,6 +126,16 @@ impl FitArgs {
             frequencies_hz,
             free: self.free.clone(),
             no_plot: self.no_plot,
+            export_model: self.export_model.map(|f| match f {
+                FormArg::Tf => ModelForm::Tf,
+                FormArg::Zpk => ModelForm::Zpk,
+                FormArg::Ss => ModelForm::Ss,
+            }),
+            model_format: self.model_format.map(|f| match f {
+                FormatArg::Json => ModelFormat::Json,
+                FormatArg::Matlab => ModelFormat::Matlab,
+                FormatArg::Python => ModelFormat::Python,
+            }),
         })
     }
 }
@@ -102,6 +150,7 @@ pub(super) fn fit(a: FitArgs) -> ExitCode {
             &[
                 (a.out.is_some(), "--out"),
                 (a.png.is_some(), "--png"),
+                (a.model_out.is_some(), "--model-out"),
                 (a.overwrite, "--overwrite"),
             ],
             "the daemon writes its outputs in its recordings directory",
@@ -121,6 +170,7 @@ pub(super) fn fit(a: FitArgs) -> ExitCode {
         request,
         png: a.png.clone(),
         out: a.out.clone(),
+        model_out: a.model_out.clone(),
         existing: Existing::overwrite(a.overwrite),
     };
     let result = run_fit(&opts);
@@ -170,6 +220,9 @@ fn print_summary(s: &FitSummary) {
     print_verdict(&s.verdict);
     if let Some(p) = &s.plot {
         outln!("  Bode plot   {}", p.display());
+    }
+    if let Some(m) = &s.model {
+        outln!("  model       {}", m.display());
     }
     if let Some(u) = &s.update {
         print_update(u, s.updated_config.as_deref());

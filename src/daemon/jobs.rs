@@ -204,6 +204,9 @@ pub(super) fn job_spec(ctx: &Ctx, request: &JobRequest, id: u64) -> Result<Accep
                 // As a local run: the updated bench of an FRF update; an
                 // update to frequencies is only answered.
                 out: req.update.then(|| beside(&stem, ".updated.toml")),
+                model_out: req.export_model.map(|_| {
+                    crate::jobs::fit::model_path(&stem, req.model_format.unwrap_or_default())
+                }),
                 request: req.clone(),
                 existing: Existing::Refuse,
             };

@@ -15,6 +15,7 @@ pub type C64 = nalgebra::Complex<f64>;
 
 pub mod bla;
 pub mod excitation;
+pub mod export;
 pub mod fft;
 pub mod frf;
 pub mod lpm;

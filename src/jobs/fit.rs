@@ -11,6 +11,7 @@
 
 use crate::config::BenchConfig;
 use crate::error::RunError;
+use crate::ident::export::{export, ModelForm, ModelFormat};
 use crate::ident::frf::{log_grid, Frf};
 use crate::ident::modal_fit::{self, FittedMode, ModalFit};
 use crate::ident::update::{
@@ -61,6 +62,14 @@ pub struct FitRequest {
     /// Write no measured vs fitted Bode PNG.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub no_plot: bool,
+    /// Export the fitted model as a linear system in this form
+    /// ([`crate::ident::export`]: `tf`, `zpk` or `ss`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub export_model: Option<ModelForm>,
+    /// The exported model's file format (`json`, `matlab`, `python`;
+    /// default `json`). Only with [`Self::export_model`].
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub model_format: Option<ModelFormat>,
 }
 
 /// A fit to run: the request and where its outputs go.
@@ -75,9 +84,42 @@ pub struct FitOptions {
     /// input, `<stem>.updated.toml`; with frequencies none (the result is
     /// only returned).
     pub out: Option<PathBuf>,
+    /// The exported model (with `request.export_model`); `None`: beside
+    /// the input ([`model_path`]).
+    pub model_out: Option<PathBuf>,
     /// What to do with an existing output (`--overwrite`; the daemon
     /// always refuses).
     pub existing: Existing,
+}
+
+/// The default file of an exported model beside `input`:
+/// `<stem>.model.json`, or for a script `<stem>_model.m` / `.py` with the
+/// stem made an identifier (every character other than a letter, a digit
+/// or `_` becomes `_`, and an `m` goes before a leading digit): MATLAB
+/// runs a script by its name and Python imports a module by its name.
+pub fn model_path(input: &Path, format: ModelFormat) -> PathBuf {
+    if format == ModelFormat::Json {
+        return beside(input, ".model.json");
+    }
+    let plain = beside(input, "");
+    let stem = plain
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    let mut id: String = stem
+        .chars()
+        .map(|c| {
+            if c.is_ascii_alphanumeric() || c == '_' {
+                c
+            } else {
+                '_'
+            }
+        })
+        .collect();
+    if !id.starts_with(|c: char| c.is_ascii_alphabetic()) {
+        id.insert(0, 'm');
+    }
+    plain.with_file_name(format!("{id}_model.{}", format.extension()))
 }
 
 /// The result of a fit of an FRF (`bench fit INPUT`).
@@ -108,6 +150,9 @@ pub struct FitSummary {
     /// for: the update is flagged ([`Update::flags`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub update_not_written: Option<String>,
+    /// Where the exported model was written (`export_model`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub model: Option<PathBuf>,
 }
 
 impl FitSummary {
@@ -169,6 +214,20 @@ impl FitRequest {
         }
         if self.update && self.input.is_none() {
             return Err(RunError::option("update", "", "needs an input FRF"));
+        }
+        if self.model_format.is_some() && self.export_model.is_none() {
+            return Err(RunError::option(
+                "model_format",
+                "",
+                "only with export_model (tf, zpk or ss)",
+            ));
+        }
+        if self.export_model.is_some() && self.input.is_none() {
+            return Err(RunError::option(
+                "export_model",
+                "",
+                "needs an input FRF to fit (natural frequencies give no modal model)",
+            ));
         }
         if self.free.is_some() && !self.updating() {
             return Err(RunError::option(
@@ -324,6 +383,7 @@ fn check_outputs(
     existing: Existing,
     png: Option<(&Path, bool)>,
     out: Option<(&Path, bool)>,
+    model: Option<(&Path, bool)>,
 ) -> Result<(), RunError> {
     let origin = |given: bool| {
         if given {
@@ -339,6 +399,9 @@ fn check_outputs(
     if let Some((o, given)) = out {
         plan = plan.with_output("out", o, origin(given));
     }
+    if let Some((m, given)) = model {
+        plan = plan.with_output("model_out", m, origin(given));
+    }
     plan.check()
 }
 
@@ -351,11 +414,18 @@ fn fit_frequencies(opts: &FitOptions, measured: &[f64]) -> Result<FrequencySumma
             "not with natural frequencies (there is no FRF to plot)",
         ));
     }
+    if opts.model_out.is_some() {
+        return Err(RunError::option(
+            "model_out",
+            "",
+            "not with natural frequencies (there is no modal fit to export)",
+        ));
+    }
     let cfg = load_config(req.config.as_deref())?;
     check_frequencies(measured, 0.5 / sample_period_s(&cfg))?;
     let free = parse_free(req.free.as_deref(), &Parameter::FREQUENCIES_DEFAULT)?;
     if let Some(out) = &opts.out {
-        check_outputs(opts.existing, None, Some((out, true)))?;
+        check_outputs(opts.existing, None, Some((out, true)), None)?;
     }
     let start = start_toml(req.config.as_deref(), None)?;
     let update = match update_to_frequencies(&start_bench(&cfg), &free, measured) {
@@ -413,11 +483,25 @@ fn fit_frf(opts: &FitOptions, input_path: &Path) -> Result<FitSummary, RunError>
             .clone()
             .unwrap_or_else(|| beside(input_path, ".updated.toml"))
     });
+    if opts.model_out.is_some() && req.export_model.is_none() {
+        return Err(RunError::option(
+            "model_out",
+            "",
+            "only with export_model (tf, zpk or ss)",
+        ));
+    }
+    let format = req.model_format.unwrap_or_default();
+    let model_out = req.export_model.map(|_| {
+        opts.model_out
+            .clone()
+            .unwrap_or_else(|| model_path(input_path, format))
+    });
     // Every output checked before anything is computed.
     check_outputs(
         opts.existing,
         plot.as_deref().map(|p| (p, opts.png.is_some())),
         out.as_deref().map(|o| (o, opts.out.is_some())),
+        model_out.as_deref().map(|m| (m, opts.model_out.is_some())),
     )?;
     let start = match &out {
         Some(_) => Some(start_toml(
@@ -453,6 +537,35 @@ fn fit_frf(opts: &FitOptions, input_path: &Path) -> Result<FitSummary, RunError>
             reason,
         })?;
     }
+    // The model of a flagged fit is exported with its flags in the file
+    // (and the exit status says so); no fit, no model.
+    let exported = match (&model_out, req.export_model) {
+        (Some(m), Some(form)) => {
+            let fit = id.fit.as_ref().ok_or_else(|| {
+                RunError::option(
+                    "export_model",
+                    &input,
+                    format!(
+                        "no modal fit to export: {}",
+                        id.verdict.reason.as_deref().unwrap_or("the fit failed")
+                    ),
+                )
+            })?;
+            let model = export(fit, &id.path, form)
+                .map_err(|e| RunError::option("export_model", &input, e.to_string()))?;
+            let text = model.render(format, &input);
+            write_atomically(m, opts.existing, |f| {
+                use std::io::Write;
+                f.write_all(text.as_bytes())
+            })
+            .map_err(|e| RunError::Output {
+                path: m.clone(),
+                reason: e.to_string(),
+            })?;
+            Some(m.clone())
+        }
+        _ => None,
+    };
     // A flagged update is reported, never written as a bench to use.
     let update_not_written = update
         .as_ref()
@@ -473,6 +586,7 @@ fn fit_frf(opts: &FitOptions, input_path: &Path) -> Result<FitSummary, RunError>
         update,
         updated_config: out,
         update_not_written,
+        model: exported,
     })
 }
 
