@@ -3,7 +3,10 @@
 //!
 //! # Rules
 //!
-//! 1. **Nothing is replaced without `--overwrite`.** An output path that
+//! 1. **Nothing is replaced without `--overwrite`** but a product derived
+//!    from an input that stays ([`Origin::Regenerated`]: `bench fit`'s
+//!    default plot and exported model beside its FRF), which a rerun on
+//!    the same input replaces. An output path that
 //!    exists is refused before the run ([`Existing::Refuse`]), and the final
 //!    rename never replaces a file that appeared while the run was writing
 //!    ([`commit`] uses `renameat2(RENAME_NOREPLACE)`, or a hard link where
@@ -120,6 +123,13 @@ pub enum Origin {
     Derived,
     /// A default name chosen by `bench`.
     Default,
+    /// Derived from an input that stays (a fit's plot or exported model
+    /// beside its FRF): the input's own product, which a rerun on the same
+    /// input makes again. An existing regular file is replaced (once its
+    /// successor is complete) without `--overwrite`: a derived output never
+    /// blocks a rerun. Never a recording, an updated bench or anything a
+    /// user may have edited.
+    Regenerated,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -147,7 +157,7 @@ impl Output {
         let flag = flag(self.key);
         match self.role {
             Role::File(Origin::Given) => flag.to_string(),
-            Role::File(Origin::Derived) => {
+            Role::File(Origin::Derived | Origin::Regenerated) => {
                 format!("the default {flag} (derived from {derived_from})")
             }
             Role::File(Origin::Default) => format!("the default {flag}"),
@@ -440,6 +450,7 @@ impl OutputPlan {
                 )))
             }
             Ok(_) if o.role == Role::ClaimedPart => {}
+            Ok(_) if o.role == Role::File(Origin::Regenerated) => {}
             Ok(_) if self.existing == Existing::Refuse => {
                 return Err(bad(match o.role {
                     Role::Part => format!(

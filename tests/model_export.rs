@@ -211,3 +211,43 @@ fn bad_export_requests_are_refused_naming_the_option_and_nothing_is_written() {
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     assert!(dir.path().join("c_frf_model.m").exists(), "{:?}", listing());
 }
+
+/// Issue 29, results that travel: a rerun of `bench fit` on the same input
+/// replaces its own plot and model (derived outputs never block a rerun),
+/// `--update` after a plain fit works, and an updated bench that exists
+/// (which the user may have edited) is never replaced without
+/// `--overwrite`.
+#[test]
+fn a_rerun_of_fit_on_the_same_input_works() {
+    let dir = tmp();
+    let csv = chirp(dir.path());
+    let png = dir.path().join("c.frf.fit.png");
+    let model = dir.path().join("c.frf.model.json");
+    let ok = |args: &[&str]| {
+        let o = run(args);
+        assert!(
+            o.status.success(),
+            "{args:?}: {}",
+            String::from_utf8_lossy(&o.stderr)
+        );
+    };
+    ok(&["fit", &csv, "--export-model", "ss"]);
+    assert!(png.exists() && model.exists());
+    std::fs::write(&model, "stale").unwrap();
+    std::fs::write(&png, "stale").unwrap();
+    ok(&["fit", &csv, "--export-model", "ss"]);
+    assert!(std::fs::read_to_string(&model).unwrap().contains("\"ss\""));
+    assert_ne!(std::fs::read(&png).unwrap(), b"stale");
+    ok(&["fit", &csv, "--update"]);
+    let updated = dir.path().join("c.frf.updated.toml");
+    assert!(updated.exists());
+    std::fs::write(&updated, "# mine\n").unwrap();
+    let o = run(&["fit", &csv, "--update"]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("--out") && err.contains("--overwrite"),
+        "{err}"
+    );
+    assert_eq!(std::fs::read_to_string(&updated).unwrap(), "# mine\n");
+}

@@ -1,8 +1,9 @@
 //! `bench export`: a recording's channel as a CSV or Parquet table.
 
 use super::{bad_input, status};
+use bench::jobs::export::export_topic as export_table;
 use bench::outputs::Existing;
-use bench::record::export::{export as export_table, ExportError, ExportFormat};
+use bench::record::export::{ExportError, ExportFormat};
 use clap::{Args, ValueEnum};
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -22,7 +23,8 @@ pub(super) struct ExportArgs {
     to: FormatArg,
     /// The channel: /bench/sample (one row per tick), /bench/envelope (one
     /// per 5 ms), /bench/timing, /bench/event, /sysid/frf (one row
-    /// per frequency line), or any other recorded topic.
+    /// per frequency line; as CSV the FRF CSV of bench chirp, which bench
+    /// fit, design and control --frf read), or any other recorded topic.
     #[arg(long, value_name = "TOPIC", default_value = "/bench/sample")]
     topic: String,
     /// Output file [default: beside the recording, <stem>.<topic>.<csv|parquet>].

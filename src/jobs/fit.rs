@@ -392,15 +392,24 @@ fn check_outputs(
             Origin::Derived
         }
     };
+    // The plot and the model are the input's own products: a rerun
+    // replaces them; the updated bench may have been edited: never.
+    let product = |given: bool| {
+        if given {
+            Origin::Given
+        } else {
+            Origin::Regenerated
+        }
+    };
     let mut plan = OutputPlan::new(existing).derived_from("the input");
     if let Some((p, given)) = png {
-        plan = plan.with_output("png", p, origin(given));
+        plan = plan.with_output("png", p, product(given));
     }
     if let Some((o, given)) = out {
         plan = plan.with_output("out", o, origin(given));
     }
     if let Some((m, given)) = model {
-        plan = plan.with_output("model_out", m, origin(given));
+        plan = plan.with_output("model_out", m, product(given));
     }
     plan.check()
 }
@@ -531,10 +540,22 @@ fn fit_frf(opts: &FitOptions, input_path: &Path) -> Result<FitSummary, RunError>
         },
         None => None,
     };
+    // A default plot or model replaces the one an earlier run on the same
+    // input made (checked above: a regular file); a given path follows
+    // --overwrite.
+    let regenerated = |given: bool| {
+        if given {
+            opts.existing
+        } else {
+            Existing::Replace
+        }
+    };
     if let (Some(p), Some(f)) = (&plot, &id.fit) {
-        write_plot(p, opts.existing, &frf, f, &id).map_err(|reason| RunError::Output {
-            path: p.clone(),
-            reason,
+        write_plot(p, regenerated(opts.png.is_some()), &frf, f, &id).map_err(|reason| {
+            RunError::Output {
+                path: p.clone(),
+                reason,
+            }
         })?;
     }
     // The model of a flagged fit is exported with its flags in the file
@@ -554,7 +575,7 @@ fn fit_frf(opts: &FitOptions, input_path: &Path) -> Result<FitSummary, RunError>
             let model = export(fit, &id.path, form)
                 .map_err(|e| RunError::option("export_model", &input, e.to_string()))?;
             let text = model.render(format, &input);
-            write_atomically(m, opts.existing, |f| {
+            write_atomically(m, regenerated(opts.model_out.is_some()), |f| {
                 use std::io::Write;
                 f.write_all(text.as_bytes())
             })

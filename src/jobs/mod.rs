@@ -24,6 +24,7 @@
 pub mod analyze;
 pub mod chirp;
 pub mod design;
+pub mod export;
 pub mod fit;
 pub mod map;
 pub mod point;
