@@ -6,11 +6,31 @@
 //!   tests that mount a small tmpfs to fill a disk need
 //!   (`tests/outputs.rs`).
 //!
+//! - `cfg(bench_has_bash)`, `cfg(bench_has_man)`: `bash`, and `groff` or
+//!   `man`, are on `PATH` (`tests/first_hour.rs`: the completion script
+//!   checked with `bash -n`, the man page rendered).
+//!
 //! The probe runs when this file changes (`touch build.rs` after changing
-//! the user that builds).
+//! the user that builds or installing those programs).
+
+fn on_path(program: &str) -> bool {
+    std::env::var_os("PATH").is_some_and(|paths| {
+        std::env::split_paths(&paths).any(|dir| {
+            use std::os::unix::fs::PermissionsExt;
+            std::fs::metadata(dir.join(program))
+                .is_ok_and(|m| m.is_file() && m.permissions().mode() & 0o111 != 0)
+        })
+    })
+}
 
 fn main() {
-    println!("cargo::rustc-check-cfg=cfg(bench_root)");
+    println!("cargo::rustc-check-cfg=cfg(bench_root, bench_has_bash, bench_has_man)");
+    if on_path("bash") {
+        println!("cargo::rustc-cfg=bench_has_bash");
+    }
+    if on_path("groff") || on_path("man") {
+        println!("cargo::rustc-cfg=bench_has_man");
+    }
     println!("cargo::rerun-if-changed=build.rs");
     let root = std::fs::read_to_string("/proc/self/status")
         .ok()

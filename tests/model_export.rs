@@ -251,3 +251,62 @@ fn a_rerun_of_fit_on_the_same_input_works() {
     );
     assert_eq!(std::fs::read_to_string(&updated).unwrap(), "# mine\n");
 }
+
+/// Issue 29, the round trips a lab makes: a recording's FRF exported as
+/// CSV, fitted and updated from, and the updated bench's controller checked
+/// against the same exported FRF by `bench control --frf`; the updated
+/// bench's margins on the measured FRF are the ones the recording's own
+/// CSV gives.
+#[test]
+fn export_fit_update_and_control_frf_round_trip() {
+    let dir = tmp();
+    let csv = chirp(dir.path());
+    let rec = path_in(dir.path(), "c.mcap");
+    let exported = path_in(dir.path(), "exported.csv");
+    let o = run(&[
+        "export",
+        &rec,
+        "--to",
+        "csv",
+        "--topic",
+        "/sysid/frf",
+        "--out",
+        &exported,
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let updated = path_in(dir.path(), "updated.toml");
+    let o = run(&[
+        "fit",
+        &exported,
+        "--update",
+        "--no-plot",
+        "--out",
+        &updated,
+        "--json",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let s = json_stdout(&o);
+    assert!(
+        s["update"]["flags"].as_array().unwrap().is_empty(),
+        "{}",
+        s["update"]
+    );
+    let check = |frf: &str| {
+        let o = run(&[
+            "control",
+            "--fast",
+            "--config",
+            &updated,
+            "--frf",
+            frf,
+            "--check-only",
+            "--json",
+        ]);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        json_stdout(&o)
+    };
+    let (a, b) = (check(&exported), check(&csv));
+    let margins = |v: &Value| v["loop_check"]["measured"].clone();
+    assert!(!margins(&a).is_null(), "no measured margins: {a}");
+    assert_eq!(margins(&a), margins(&b));
+}
