@@ -397,7 +397,7 @@ pub(super) fn print_control_summary(s: &ControlSummary) {
             m.settling_margin
                 .map_or(String::new(), |g| format!(" ({})", g.describe()))
         );
-        outln!("  overshoot {:.1} %", m.overshoot_pct);
+        outln!("  overshoot {:.1} % (before settling)", m.overshoot_pct);
         outln!(
             "  steady-state error over the last {:.1} s: mean {:.1} nm, σ {:.1} nm",
             m.steady_state_window_s,

@@ -324,8 +324,10 @@ fn draw_step(root: &Area<'_>, p: &StepPlot<'_>) -> Result<(), BoxError> {
         )),
         _ => notes.push(entry("not settled by the end of the record", Swatch::Text)),
     }
-    match peak {
-        Some(pk) => items.push((
+    // The note says what the summary says (`m.overshoot_pct`); the marker
+    // only where the zoom shows the peak.
+    match (peak, m.overshoot_pct > 0.0) {
+        (Some(pk), _) => items.push((
             pk.0,
             format!(
                 "overshoot {:.1} % ({} µm at {})",
@@ -335,7 +337,17 @@ fn draw_step(root: &Area<'_>, p: &StepPlot<'_>) -> Result<(), BoxError> {
             ),
             OVERSHOOT_COLOR,
         )),
-        None => notes.push(entry("no overshoot", Swatch::Text)),
+        (None, true) => notes.push(entry(
+            format!(
+                "overshoot {:.1} % (its peak at {}, outside this zoom)",
+                m.overshoot_pct,
+                e.peak
+                    .and_then(t_at)
+                    .map_or("?".into(), |t| fmt_ms(t - t_step))
+            ),
+            Swatch::Text,
+        )),
+        (None, false) => notes.push(entry("no overshoot", Swatch::Text)),
     }
     let mut entries = vec![
         entry("setpoint", Swatch::Line(SETPOINT_COLOR, LINE_WIDTH)),
