@@ -1006,11 +1006,13 @@ fn run_chirp_with(
                 &BodePlot {
                     title: &title,
                     magnitude_axis: crate::plot::MAGNITUDE_M_PER_A,
-                    measured: if bla.is_some() {
-                        BodeSeries::measured_bla(&frf)
-                    } else {
-                        BodeSeries::measured_h1(&frf)
-                    },
+                    measured: BodeSeries::measured(
+                        &frf,
+                        summary
+                            .frf_estimator
+                            .as_ref()
+                            .map_or("", |e| e.name.as_str()),
+                    ),
                     coherence: &frf.coherence,
                     model: Some(BodeSeries {
                         label: "model (ZOH)",

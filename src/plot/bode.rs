@@ -43,23 +43,21 @@ pub struct BodeSeries<'a> {
 }
 
 impl<'a> BodeSeries<'a> {
-    /// The H1 estimate `frf` as a figure's measured curve, labelled
-    /// "measured (H1)".
-    pub fn measured_h1(frf: &'a crate::ident::frf::Frf) -> Self {
+    /// The measured `frf` as a figure's curve, labelled by the estimator
+    /// that made it (`estimator`: `"lpm"`, `"h1"`, `"bla"`, as
+    /// `ChirpSummary::frf_estimator`; anything else, e.g. a CSV of unknown
+    /// origin: "measured").
+    pub fn measured(frf: &'a crate::ident::frf::Frf, estimator: &str) -> Self {
         Self {
-            label: "measured (H1)",
+            label: match estimator {
+                "lpm" => "measured (LPM)",
+                "h1" => "measured (H1)",
+                "bla" => "measured (BLA)",
+                _ => "measured",
+            },
             frequency_hz: &frf.frequency_hz,
             magnitude: &frf.magnitude_m_per_a,
             phase_deg: &frf.phase_deg,
-        }
-    }
-
-    /// The best linear approximation of a multisine run
-    /// ([`crate::ident::bla`]) on its excited lines.
-    pub fn measured_bla(frf: &'a crate::ident::frf::Frf) -> Self {
-        Self {
-            label: "measured (BLA)",
-            ..Self::measured_h1(frf)
         }
     }
 }

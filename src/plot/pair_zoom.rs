@@ -173,10 +173,21 @@ pub(super) fn draw_pair_zoom(
             ),
             Swatch::Dashed(BAND_END_COLOR),
         ),
-        entry(
-            format!("difference {:.0}°", band_phase_deg.1 - band_phase_deg.0),
-            Swatch::Text,
-        ),
+        // The net phase of the summary, and how it follows from the two
+        // values above: their difference less the known path's
+        // (delay, hold, amplifier; `phase_test`).
+        {
+            let raw = band_phase_deg.1 - band_phase_deg.0;
+            entry(
+                format!(
+                    "net phase {:.0}° = {:.0}° − {:.0}° of the path (delay, hold, amplifier)",
+                    pair.net_phase_deg,
+                    raw,
+                    raw - pair.net_phase_deg
+                ),
+                Swatch::Text,
+            )
+        },
     ];
     let phase_top = legend_height(&panels, &phase_entries)? + 6;
     let (_, h) = panels.dim_in_pixel();
