@@ -928,6 +928,7 @@ fn write_map(
         &cells,
         None,
         &measured,
+        None,
     )
     .map_err(|e| CampaignRunError::Io {
         path: png.clone(),

@@ -148,7 +148,12 @@ pub fn run_analyze(opts: &AnalyzeOptions) -> Result<AnalyzeSummary, RunError> {
         reason: e.to_string(),
     };
     if let Some(path) = &opts.pole_zero_png {
-        let title = format!("Poles and zeros, force → x1 — {what}");
+        let verdict = match (a.cnmp, a.cnmp_damped) {
+            (_, true) => "CMP-CNMP zeros",
+            (true, false) => "CMP-CNMP zeros in the undamped model only",
+            (false, false) => "no CMP-CNMP zeros",
+        };
+        let title = format!("Poles and zeros, force → x1 — {what}: {verdict}");
         write_pole_zero_png(
             path,
             opts.existing,

@@ -621,6 +621,7 @@ pub fn run_map(opts: &MapOptions) -> Result<MapResult, RunError> {
         &cells,
         crossing,
         &points,
+        Some((p.operating_point_m, p.mass_asymmetry)),
     )
     .map_err(plot_failed)?;
     let csv = match &opts.csv {

@@ -32,7 +32,8 @@ pub struct MeasuredPoint {
 /// in both the undamped and the damped model black, in the undamped one
 /// only grey; a dashed vertical line at the mode-crossing operating point
 /// (of the symmetric stage); measured verdicts as squares (CMP-CNMP) and
-/// circles (none), as Fig 5-10.
+/// circles (none), as Fig 5-10; the configured bench (`configured`:
+/// operating point, m, and mass asymmetry) as a cross.
 ///
 /// # Errors
 /// [`PlotError`] as for every PNG.
@@ -47,6 +48,7 @@ pub fn write_map_png(
     cells: &[MapCell],
     crossing_operating_point_m: Option<f64>,
     measured: &[MeasuredPoint],
+    configured: Option<(f64, f64)>,
 ) -> Result<(), PlotError> {
     let pct_l = |m: f64| m / beam_length_m * 100.0;
     let step = |v: &[f64]| {
@@ -152,6 +154,37 @@ pub fn write_map_png(
                     }))?
                     .label("measured: none")
                     .legend(|(x, y)| Circle::new((x + 6, y), 6, MEASURED_COLOR.stroke_width(3)));
+            }
+            if let Some((op, dm)) = configured {
+                let p = (pct_l(op), dm * 100.0);
+                let cross = |(x, y): (i32, i32), r: i32| {
+                    [
+                        PathElement::new(
+                            [(x - r, y - r), (x + r, y + r)],
+                            CNMP_COLOR.stroke_width(3),
+                        ),
+                        PathElement::new(
+                            [(x - r, y + r), (x + r, y - r)],
+                            CNMP_COLOR.stroke_width(3),
+                        ),
+                    ]
+                };
+                let [a, b] = cross((0, 0), 8);
+                chart
+                    .draw_series(std::iter::once(
+                        EmptyElement::at(p)
+                            + Circle::new((0, 0), 11, WHITE.mix(0.8).filled())
+                            + a
+                            + b,
+                    ))?
+                    .label(format!(
+                        "configured bench ({:.2} % of L, Δm23 = {:+.1} %)",
+                        p.0, p.1
+                    ))
+                    .legend(move |(x, y)| {
+                        let [a, b] = cross((x + 6, y), 6);
+                        EmptyElement::at((0, 0)) + a + b
+                    });
             }
             chart
                 .configure_series_labels()

@@ -744,3 +744,53 @@ fn plot_write_examples_to_tmp() {
     )
     .unwrap();
 }
+
+/// Issue 29: the map marks the configured bench with a cross in the map's
+/// red, on top of everything else: the same map with the bench given has
+/// clearly more red pixels than without it (the crossing line is red in
+/// both).
+#[test]
+fn the_map_marks_the_configured_bench() {
+    use crate::analysis::map::MapCell;
+    let dir = tempfile::tempdir().unwrap();
+    let l = 0.0475;
+    let ops: Vec<f64> = (1..=10).map(|i| i as f64 * 0.01 * l).collect();
+    let dms: Vec<f64> = (-4..=5).map(|i| i as f64 * 0.02).collect();
+    let cells: Vec<MapCell> = ops
+        .iter()
+        .flat_map(|&op| {
+            dms.iter().map(move |&dm| MapCell {
+                operating_point_m: op,
+                mass_asymmetry: dm,
+                cnmp: dm > 0.0 && op > 0.05 * l,
+                cnmp_damped: dm > 0.0 && op > 0.06 * l,
+                discriminant: 0.0,
+            })
+        })
+        .collect();
+    let red = |configured: Option<(f64, f64)>, name: &str| {
+        let path = dir.path().join(name);
+        write_map_png(
+            &path,
+            Existing::Replace,
+            "map",
+            l,
+            &ops,
+            &dms,
+            &cells,
+            Some(0.0767 * l),
+            &[],
+            configured,
+        )
+        .unwrap();
+        let img = image::open(&path).unwrap().to_rgb8();
+        img.pixels()
+            .filter(|p| p.0[0] > 170 && p.0[1] < 70 && p.0[2] < 70)
+            .count()
+    };
+    let (without, with) = (red(None, "a.png"), red(Some((0.03 * l, -0.04)), "b.png"));
+    assert!(
+        with > without + 100,
+        "red pixels {with} with the bench, {without} without"
+    );
+}
