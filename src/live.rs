@@ -70,12 +70,17 @@ pub fn parse_addr(given: &str) -> Result<SocketAddr, LiveError> {
     })
 }
 
+/// How long a stopping live view waits for its clients' close handshakes.
+pub const CLOSE_WAIT: std::time::Duration = std::time::Duration::from_secs(2);
+
 /// A running live view; stops when dropped.
 pub struct LiveServer {
     handle: Option<foxglove::WebSocketServerHandle>,
     addr: SocketAddr,
-    /// Ends the server's thread when sent (or dropped).
-    shutdown: Option<tokio::sync::oneshot::Sender<()>>,
+    /// Ends the server's thread when sent (or dropped): with the server's
+    /// shutdown handle, once its clients are closed (at most
+    /// [`CLOSE_WAIT`]).
+    shutdown: Option<tokio::sync::oneshot::Sender<Option<foxglove::websocket::ShutdownHandle>>>,
     thread: Option<std::thread::JoinHandle<()>>,
 }
 
@@ -106,13 +111,21 @@ impl LiveServer {
             .build()
             .map_err(|e| fail(e.to_string()))?;
         let handle = rt.handle().clone();
-        let (tx, rx) = tokio::sync::oneshot::channel::<()>();
+        let (tx, rx) =
+            tokio::sync::oneshot::channel::<Option<foxglove::websocket::ShutdownHandle>>();
         let thread = std::thread::Builder::new()
             .name("bench-live".into())
             .spawn(move || {
                 bench_hal::os::keep_off_cpu(loop_cpu);
-                // Drives the server's tasks until shutdown.
-                let _ = rt.block_on(rx);
+                // Drives the server's tasks until shutdown, then lets them
+                // send every client its close frame (RFC 6455 §7: code 1001,
+                // going away) before the runtime ends; a client that does
+                // not answer is cut off after CLOSE_WAIT.
+                if let Ok(Some(closing)) = rt.block_on(rx) {
+                    rt.block_on(async {
+                        let _ = tokio::time::timeout(CLOSE_WAIT, closing.wait()).await;
+                    });
+                }
             })
             .map_err(|e| fail(e.to_string()))?;
         let server = WebSocketServer::new()
@@ -158,12 +171,12 @@ impl LiveServer {
 impl Drop for LiveServer {
     fn drop(&mut self) {
         SERVING.store(false, Ordering::Release);
-        if let Some(h) = self.handle.take() {
-            // The server's tasks end on the runtime thread, still running.
-            drop(h.stop());
-        }
+        // The server's tasks end on the runtime thread, still running:
+        // it waits for them (dropping the handle would abort them, and
+        // every client would see the connection reset, close code 1006).
+        let closing = self.handle.take().map(|h| h.stop());
         if let Some(tx) = self.shutdown.take() {
-            let _ = tx.send(());
+            let _ = tx.send(closing);
         }
         if let Some(t) = self.thread.take() {
             let _ = t.join();

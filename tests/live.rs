@@ -488,3 +488,64 @@ fn soak_chirps_and_fast_steps_with_two_clients() {
     );
     assert!(faults.is_empty(), "{faults:#?}");
 }
+
+/// Issue 29: when the run ends, a connected client gets the close
+/// handshake (a Close frame, RFC 6455 §5.5.1), not a reset connection
+/// (close code 1006 in a browser).
+#[test]
+fn a_client_connected_at_the_end_gets_a_close_frame() {
+    let _g = one_at_a_time();
+    let dir = tmp();
+    let cfg = quiet_config(dir.path(), 0.2, "");
+    let mut child = bench()
+        .args([
+            "chirp",
+            "--realtime",
+            "--duration-s",
+            "1.5",
+            "--f-start-hz",
+            "20",
+        ])
+        .args(["--live", "127.0.0.1:0", "--config"])
+        .arg(&cfg)
+        .arg("--out")
+        .arg(dir.path().join("run.mcap"))
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut err = BufReader::new(child.stderr.take().unwrap());
+    let mut line = String::new();
+    let url = loop {
+        line.clear();
+        assert!(err.read_line(&mut line).unwrap() > 0, "no live view line");
+        if let Some(rest) = line.strip_prefix("live view on ") {
+            break rest.split_whitespace().next().unwrap().to_string();
+        }
+    };
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .unwrap();
+    let end = rt.block_on(async {
+        let mut req = url.as_str().into_client_request().unwrap();
+        req.headers_mut()
+            .insert("Sec-WebSocket-Protocol", FOXGLOVE.parse().unwrap());
+        let (mut ws, _) = tokio_tungstenite::connect_async(req).await.unwrap();
+        let deadline = tokio::time::Instant::now() + Duration::from_secs(30);
+        loop {
+            match tokio::time::timeout_at(deadline, ws.next()).await {
+                Ok(Some(Ok(Message::Close(frame)))) => return format!("close {frame:?}"),
+                Ok(Some(Ok(_))) => continue,
+                Ok(Some(Err(e))) => return format!("error {e}"),
+                Ok(None) => return "ended without a close frame".to_string(),
+                Err(_) => return "no end within 30 s".to_string(),
+            }
+        }
+    });
+    let status = child.wait().unwrap();
+    let mut rest = String::new();
+    std::io::Read::read_to_string(&mut err, &mut rest).unwrap();
+    assert!(status.success(), "{rest}");
+    assert!(end.starts_with("close"), "{end}\n{rest}");
+}
