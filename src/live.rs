@@ -12,6 +12,12 @@
 //! the writer thread) for plots against time, and the `/bench/sample`
 //! blocks with every tick.
 //!
+//! The one-shot channels (one message per run: every `/sysid/…` and
+//! `/control/…` topic, e.g. `/sysid/summary`, `/control/metrics`) are
+//! latched ([`is_latched`]): a client that subscribes after the message
+//! was sent gets the latest one on subscribing, as a ROS latched topic
+//! would give it.
+//!
 //! The server binds to loopback by default ([`DEFAULT_ADDR`]); another
 //! address only when given explicitly ([`parse_addr`]).
 //!
@@ -19,9 +25,37 @@
 
 use std::net::{IpAddr, SocketAddr};
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::Arc;
+use std::sync::{Arc, Mutex};
 
+use foxglove::websocket::{ChannelView, Client, ServerListener};
 use foxglove::{ChannelBuilder, PartialMetadata, RawChannel, Schema, WebSocketServer};
+
+/// Whether `topic` is a one-shot channel whose latest message a late
+/// subscriber gets: every `/sysid/…` and `/control/…` topic (the FRF, the
+/// summaries, the loop check, the step metrics, the verification).
+pub fn is_latched(topic: &str) -> bool {
+    topic.starts_with("/sysid/") || topic.starts_with("/control/")
+}
+
+/// A latched message: the channel, the payload and its log time (ns).
+type Latched = (Arc<RawChannel>, Vec<u8>, u64);
+
+/// The latest message of each latched channel. Written by the recorder's
+/// writer thread, read by the server's thread when a client subscribes;
+/// never by the loop.
+static LATCHED: Mutex<Vec<Latched>> = Mutex::new(Vec::new());
+
+/// Gives a new subscriber of a latched channel its latest message.
+struct Latch;
+
+impl ServerListener for Latch {
+    fn on_subscribe(&self, client: Client, channel: ChannelView) {
+        let latched = LATCHED.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some((ch, data, t)) = latched.iter().find(|(c, _, _)| c.id() == channel.id()) {
+            ch.log_with_meta_to_sink(data, PartialMetadata::with_log_time(*t), client.sink_id());
+        }
+    }
+}
 
 /// The default address of the live view: loopback only.
 pub const DEFAULT_ADDR: &str = "127.0.0.1:8765";
@@ -132,6 +166,7 @@ impl LiveServer {
             .name(concat!("bench ", env!("CARGO_PKG_VERSION")))
             .bind(addr.ip().to_string(), addr.port())
             .message_backlog_size(MESSAGE_BACKLOG)
+            .listener(Arc::new(Latch))
             .tokio_runtime(&handle)
             .start_blocking();
         let mut live = Self {
@@ -225,6 +260,14 @@ impl LiveChannel {
     /// (ns since the Unix epoch) to the subscribed clients. Never blocks: a
     /// client whose queue is full loses its oldest messages.
     pub fn log(&self, data: &[u8], log_time_ns: u64) {
+        if is_latched(self.0.topic()) {
+            let mut latched = LATCHED.lock().unwrap_or_else(|e| e.into_inner());
+            let entry = (self.0.clone(), data.to_vec(), log_time_ns);
+            match latched.iter_mut().find(|(c, _, _)| c.id() == self.0.id()) {
+                Some(e) => *e = entry,
+                None => latched.push(entry),
+            }
+        }
         self.0
             .log_with_meta(data, PartialMetadata::with_log_time(log_time_ns));
     }

@@ -8,6 +8,8 @@
 //! 2 naming the flag.
 
 mod common;
+#[path = "common/daemon.rs"]
+mod daemon_fixtures;
 
 use common::*;
 use futures_util::{SinkExt, StreamExt};
@@ -548,4 +550,51 @@ fn a_client_connected_at_the_end_gets_a_close_frame() {
     std::io::Read::read_to_string(&mut err, &mut rest).unwrap();
     assert!(status.success(), "{rest}");
     assert!(end.starts_with("close"), "{end}\n{rest}");
+}
+
+/// Issue 29: the one-shot channels are latched. A client that connects to
+/// the daemon's live view after a chirp job has ended, and subscribes to
+/// `/sysid/summary` and `/sysid/frf`, gets the job's summary and FRF
+/// (which were sent before it connected), equal to what the job answered.
+#[test]
+fn a_late_subscriber_gets_the_one_shot_channels() {
+    let _g = one_at_a_time();
+    let port = std::net::TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port();
+    let addr = format!("127.0.0.1:{port}");
+    let d = daemon_fixtures::Daemon::start_with(&["--live", &addr], "");
+    let o = run(&[
+        "chirp",
+        "--daemon",
+        &d.sock(),
+        "--json",
+        "--duration-s",
+        "2",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let answered = json_stdout(&o);
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .unwrap();
+    let url = format!("ws://{addr}");
+    let topics = ["/sysid/summary", "/sysid/frf"];
+    let both = |f: &[Frame]| f.iter().any(|x| x.0 == 1) && f.iter().any(|x| x.0 == 2);
+    let (_, frames) = rt.block_on(subscribe(
+        &url,
+        FOXGLOVE,
+        &topics,
+        both,
+        Duration::from_secs(10),
+    ));
+    assert!(both(&frames), "late subscriber got {} frames", frames.len());
+    let summary: Value =
+        serde_json::from_slice(&frames.iter().find(|f| f.0 == 1).unwrap().2).unwrap();
+    assert_eq!(summary["recording"], answered["recording"], "{summary}");
+    assert_eq!(summary["seed"], answered["seed"]);
+    // Exactly once each: latched, not replayed to everyone.
+    assert_eq!(frames.iter().filter(|f| f.0 == 1).count(), 1);
 }
