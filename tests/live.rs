@@ -89,6 +89,19 @@ async fn subscribe(
     (advertised, frames)
 }
 
+/// The live view's URL, from the "live view on URL" line of a run's
+/// stderr.
+fn live_url(err: &mut BufReader<std::process::ChildStderr>) -> String {
+    let mut line = String::new();
+    loop {
+        line.clear();
+        assert!(err.read_line(&mut line).unwrap() > 0, "no live view line");
+        if let Some(rest) = line.strip_prefix("live view on ") {
+            return rest.split_whitespace().next().unwrap().to_string();
+        }
+    }
+}
+
 /// A client that subscribes to `topic` and then reads nothing more.
 async fn stall(
     url: &str,
@@ -147,14 +160,7 @@ fn live_clients_receive_the_samples_of_a_running_chirp() {
         .unwrap();
     // The URL, from stderr.
     let mut err = BufReader::new(child.stderr.take().unwrap());
-    let mut line = String::new();
-    let url = loop {
-        line.clear();
-        assert!(err.read_line(&mut line).unwrap() > 0, "no live view line");
-        if let Some(rest) = line.strip_prefix("live view on ") {
-            break rest.split_whitespace().next().unwrap().to_string();
-        }
-    };
+    let url = live_url(&mut err);
     assert!(url.starts_with("ws://127.0.0.1:"), "{url}");
     let rt = tokio::runtime::Builder::new_current_thread()
         .enable_all()
@@ -517,14 +523,7 @@ fn a_client_connected_at_the_end_gets_a_close_frame() {
         .spawn()
         .unwrap();
     let mut err = BufReader::new(child.stderr.take().unwrap());
-    let mut line = String::new();
-    let url = loop {
-        line.clear();
-        assert!(err.read_line(&mut line).unwrap() > 0, "no live view line");
-        if let Some(rest) = line.strip_prefix("live view on ") {
-            break rest.split_whitespace().next().unwrap().to_string();
-        }
-    };
+    let url = live_url(&mut err);
     let rt = tokio::runtime::Builder::new_current_thread()
         .enable_all()
         .build()
