@@ -121,10 +121,16 @@ fn assert_status_printed(o: &Output, s0: &Value, s1: &Value) {
         f["last recording"],
         s0["last_recording"].as_str().unwrap_or("none")
     );
-    // The printed digits of the daemon's reading, when the stage stood
-    // still across the two readings (it rings for seconds after a job, and
-    // its reading is quantised: at rest it repeats exactly); no number
-    // before the first reading (`null`: JSON has no NaN).
+}
+
+/// The printed position (µm) and current (A) are the daemon's reading to
+/// the printed digits, when the reading did not change between `s0` and
+/// `s1`; no number before the first reading (`null`: JSON has no NaN).
+/// `Err` says which differs: the stage rings for seconds after a job and
+/// its reading is quantised, so two equal readings around the printed one
+/// do not prove it stood still in between (the caller reads again).
+fn reading_printed(o: &Output, s0: &Value, s1: &Value) -> Result<(), String> {
+    let f = fields(o);
     let check = |printed: &str, unit: &str, key: &str, scale: f64, digit: f64| {
         let number = printed
             .strip_suffix(unit)
@@ -132,28 +138,41 @@ fn assert_status_printed(o: &Output, s0: &Value, s1: &Value) {
         match (s0[key].as_f64(), s1[key].as_f64()) {
             (Some(a), Some(b)) if a == b => {
                 let x = number.unwrap_or_else(|| panic!("{key}: {printed:?} is not a {unit}"));
-                assert!(
-                    (x - a * scale).abs() <= digit,
-                    "{key}: printed {x} {unit}, the daemon said {a}"
-                );
+                if (x - a * scale).abs() > digit {
+                    return Err(format!("{key}: printed {x} {unit}, the daemon said {a}"));
+                }
             }
             (None, None) => assert!(number.is_none(), "{key}: {printed:?}, no reading yet"),
             _ => {}
         }
+        Ok(())
     };
-    check(&f["position"], "µm", "position_m", 1e6, 1e-3);
-    check(&f["command"], "A", "command_a", 1.0, 1e-4);
+    check(&f["position"], "µm", "position_m", 1e6, 1e-3)?;
+    check(&f["command"], "A", "command_a", 1.0, 1e-4)
 }
 
 /// `status` printed and exited as the daemon's state says: 0 healthy, the
 /// fault status when a fault is latched; `--json` is the daemon's answer.
 fn check_status(d: &Daemon) -> Value {
-    let s0 = status_json(d);
-    let o = daemon_cmd(&d.socket, &["status"]);
-    let s1 = status_json(d);
-    let want = if s0["fault"].is_null() { 0 } else { FAULT };
-    assert_eq!(o.status.code(), Some(want), "{s0}\n{}", stderr(&o));
-    assert_status_printed(&o, &s0, &s1);
+    // The reading to the printed digits: read again while the stage still
+    // moves (20 tries over 2 s); a wrong printout fails every try.
+    let mut attempt = 0;
+    let (s0, want) = loop {
+        let s0 = status_json(d);
+        let o = daemon_cmd(&d.socket, &["status"]);
+        let s1 = status_json(d);
+        let want = if s0["fault"].is_null() { 0 } else { FAULT };
+        assert_eq!(o.status.code(), Some(want), "{s0}\n{}", stderr(&o));
+        assert_status_printed(&o, &s0, &s1);
+        match reading_printed(&o, &s0, &s1) {
+            Ok(()) => break (s0, want),
+            Err(e) if attempt >= 19 => panic!("{e} (20 tries)"),
+            Err(_) => {
+                attempt += 1;
+                std::thread::sleep(std::time::Duration::from_millis(100));
+            }
+        }
+    };
     // --json: the daemon's result itself (less what moves by the tick).
     let o = daemon_cmd(&d.socket, &["status", "--json"]);
     assert_eq!(o.status.code(), Some(want), "{}", stderr(&o));
