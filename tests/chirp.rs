@@ -279,3 +279,35 @@ fn same_seed_gives_bit_identical_samples() {
     assert!(a == b, "same seed, different samples");
     assert!(a != c, "different seeds gave the same noise");
 }
+
+/// A sweep too short for the LPM's window (13 bins of a 4.4 s record are
+/// 3 Hz, wider than half the X mode's 0.52 Hz half-power band) is
+/// estimated with H1 and says so; the default 60 s sweep (13 bins =
+/// 0.2 Hz) runs the configured LPM, with no note.
+#[test]
+fn a_sweep_too_short_for_the_lpm_says_it_used_h1() {
+    let dir = tmp();
+    let run_json = |name: &str, extra: &[&str]| {
+        let out = path_in(dir.path(), name);
+        let mut args = vec!["chirp", "--json", "--out", out.as_str()];
+        args.extend(extra);
+        let o = run(&args);
+        assert!(
+            o.status.success() || o.status.code() == Some(9),
+            "{}",
+            String::from_utf8_lossy(&o.stderr)
+        );
+        (
+            json_stdout(&o),
+            String::from_utf8_lossy(&o.stderr).into_owned(),
+        )
+    };
+    let (short, err) = run_json("short.mcap", &["--duration-s", "4"]);
+    assert_eq!(short["frf_estimator"]["name"], "h1", "{short}");
+    let note = short["frf_estimator"]["note"].as_str().unwrap();
+    assert!(note.contains("LPM's window"), "{note}");
+    assert!(err.contains("H1"), "a warning on stderr: {err}");
+    let (long, _) = run_json("long.mcap", &[]);
+    assert_eq!(long["frf_estimator"]["name"], "lpm", "{long}");
+    assert!(long["frf_estimator"]["note"].is_null());
+}

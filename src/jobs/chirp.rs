@@ -81,13 +81,7 @@ fn lpm_or_h1(
 ) -> (crate::config::IdentificationConfig, FrfEstimator) {
     let mut ident = cfg.identification;
     if ident.estimator != crate::config::Estimator::Lpm {
-        return (
-            ident,
-            FrfEstimator {
-                name: "h1".into(),
-                note: None,
-            },
-        );
+        return (ident, FrfEstimator::of(EstimatorName::H1));
     }
     let window_hz = (2 * ident.lpm_half_width_bins + 1) as f64 * bin_hz;
     let narrowest = model
@@ -104,21 +98,43 @@ fn lpm_or_h1(
         );
         tracing::warn!("{note}");
         ident.estimator = crate::config::Estimator::H1;
-        return (
-            ident,
-            FrfEstimator {
-                name: "h1".into(),
-                note: Some(note),
-            },
-        );
+        let used = FrfEstimator {
+            note: Some(note),
+            ..FrfEstimator::of(EstimatorName::H1)
+        };
+        return (ident, used);
     }
-    (
-        ident,
-        FrfEstimator {
-            name: "lpm".into(),
-            note: None,
-        },
-    )
+    (ident, FrfEstimator::of(EstimatorName::Lpm))
+}
+
+/// The estimators a run's FRF can come from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
+#[serde(rename_all = "lowercase")]
+pub enum EstimatorName {
+    /// The local polynomial method.
+    Lpm,
+    /// H1 on smoothed spectra.
+    H1,
+    /// A multisine's best linear approximation.
+    Bla,
+}
+
+impl EstimatorName {
+    /// The measured curve's legend label in a Bode plot.
+    pub fn plot_label(self) -> &'static str {
+        match self {
+            EstimatorName::Lpm => "measured (LPM)",
+            EstimatorName::H1 => "measured (H1)",
+            EstimatorName::Bla => "measured (BLA)",
+        }
+    }
+}
+
+impl FrfEstimator {
+    /// `name`, without a note.
+    fn of(name: EstimatorName) -> Self {
+        Self { name, note: None }
+    }
 }
 
 /// Which estimator made a run's FRF, and why when it is not the
@@ -127,7 +143,7 @@ fn lpm_or_h1(
 pub struct FrfEstimator {
     /// `"lpm"` (the local polynomial method), `"h1"` (smoothed spectra)
     /// or `"bla"` (a multisine's best linear approximation).
-    pub name: String,
+    pub name: EstimatorName,
     /// Why the estimator differs from `identification.estimator` (a sweep
     /// too short for the LPM's window); `null` when it does not.
     pub note: Option<String>,
@@ -910,10 +926,7 @@ fn run_chirp_with(
                 }
             };
             drop(record);
-            let estimator = FrfEstimator {
-                name: "bla".into(),
-                note: None,
-            };
+            let estimator = FrfEstimator::of(EstimatorName::Bla);
             (bla.to_frf(), stall_report, Some(bla), estimator)
         }
         (None, None) => unreachable!("an excitation is a sweep or a multisine"),
@@ -1011,7 +1024,7 @@ fn run_chirp_with(
                         summary
                             .frf_estimator
                             .as_ref()
-                            .map_or("", |e| e.name.as_str()),
+                            .map_or("measured", |e| e.name.plot_label()),
                     ),
                     coherence: &frf.coherence,
                     model: Some(BodeSeries {

@@ -691,7 +691,7 @@ fn write_plot(
         &BodePlot {
             title: &title,
             magnitude_axis: crate::plot::MAGNITUDE_M_PER_A,
-            measured: BodeSeries::measured(frf, ""),
+            measured: BodeSeries::measured(frf, "measured"),
             coherence: &frf.coherence,
             model: Some(BodeSeries {
                 label: "modal fit",

@@ -43,18 +43,11 @@ pub struct BodeSeries<'a> {
 }
 
 impl<'a> BodeSeries<'a> {
-    /// The measured `frf` as a figure's curve, labelled by the estimator
-    /// that made it (`estimator`: `"lpm"`, `"h1"`, `"bla"`, as
-    /// `ChirpSummary::frf_estimator`; anything else, e.g. a CSV of unknown
-    /// origin: "measured").
-    pub fn measured(frf: &'a crate::ident::frf::Frf, estimator: &str) -> Self {
+    /// The measured `frf` as a figure's curve with the legend `label`
+    /// (naming the estimator that made it where it is known).
+    pub fn measured(frf: &'a crate::ident::frf::Frf, label: &'a str) -> Self {
         Self {
-            label: match estimator {
-                "lpm" => "measured (LPM)",
-                "h1" => "measured (H1)",
-                "bla" => "measured (BLA)",
-                _ => "measured",
-            },
+            label,
             frequency_hz: &frf.frequency_hz,
             magnitude: &frf.magnitude_m_per_a,
             phase_deg: &frf.phase_deg,
