@@ -311,6 +311,57 @@ fn fig_5_11_asymmetry_is_recovered_through_the_simulator() {
     let beside = dir.path().join("run.updated.toml");
     assert_eq!(v["updated_config"].as_str(), beside.to_str());
     BenchConfig::load(&beside).unwrap();
+    // ...in the layout of the file the chirp ran with: its comments, and
+    // its lines but the updated ones.
+    let text = std::fs::read_to_string(&beside).unwrap();
+    let truth_text = std::fs::read_to_string(&truth).unwrap();
+    assert_keeps_layout(&truth_text, &text);
+    // The same from the built-in bench with an override on the command
+    // line: the updated file is the built-in text, comments and all, with
+    // the override and the update applied.
+    let rec = dir.path().join("builtin.mcap");
+    let o = bench()
+        .args(["chirp", "--mass-asymmetry", "-0.02", "--out"])
+        .arg(&rec)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let v = json(
+        &bench()
+            .arg("fit")
+            .arg(&rec)
+            .args(["--update", "--no-plot", "--json"])
+            .output()
+            .unwrap(),
+    );
+    let dm = param(&v, "mass_asymmetry");
+    assert_eq!(dm["start"].as_f64(), Some(-0.02), "{dm}");
+    let updated = dir.path().join("builtin.updated.toml");
+    let text = std::fs::read_to_string(&updated).unwrap();
+    assert_keeps_layout(&ch5, &text);
+    let cfg = BenchConfig::load(&updated).unwrap();
+    assert_eq!(cfg.plant.mass_asymmetry, dm["value"].as_f64().unwrap());
+}
+
+/// `updated` (a `bench fit --update` output) keeps every comment of
+/// `start` and all of its lines but a few values (the header aside).
+fn assert_keeps_layout(start: &str, updated: &str) {
+    let body: Vec<&str> = updated
+        .lines()
+        .skip_while(|l| l.starts_with('#'))
+        .collect();
+    let start_lines: Vec<&str> = start.lines().skip_while(|l| l.starts_with('#')).collect();
+    for c in start.lines().filter(|l| l.trim_start().starts_with('#')) {
+        assert!(updated.contains(c), "comment lost: {c}\n{updated}");
+    }
+    assert_eq!(body.len(), start_lines.len(), "{updated}");
+    let changed = body
+        .iter()
+        .zip(&start_lines)
+        .filter(|(a, b)| a != b)
+        .count();
+    // The free parameters of an FRF update, at most.
+    assert!(changed <= 6, "{changed} lines changed:\n{updated}");
 }
 
 /// Near zero operating point the Y modes barely couple into x1: the

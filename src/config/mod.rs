@@ -73,11 +73,13 @@ pub fn unit_hint(key: &str, value: f64, beam_length_m: f64) -> Option<String> {
 pub mod controller;
 pub mod limits;
 mod sections;
+mod source;
 mod validate;
 
 pub use controller::ControllerConfig;
 pub use limits::ranges;
 pub use sections::*;
+pub use source::in_source_layout;
 pub use validate::{ticks_in, toml_error_message};
 
 /// A configuration problem, with the file and the key.

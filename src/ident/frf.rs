@@ -832,8 +832,13 @@ pub use crate::analysis::modal::CLOSE_PAIR_RATIO;
 pub struct RecordedFrf {
     /// `/sysid/frf` (the last one if several).
     pub frf: Frf,
-    /// The `toml` entry of the `bench.config` metadata record, if present.
+    /// The `toml` entry of the `bench.config` metadata record (the
+    /// resolved config), if present.
     pub config_toml: Option<String>,
+    /// The `source` entry of the `bench.config` metadata record (the
+    /// config file's text as given, comments and all, before the command
+    /// line's overrides), if present.
+    pub config_source: Option<String>,
 }
 
 /// Reads the `/sysid/frf` message and the `bench.config` metadata of the
@@ -923,20 +928,22 @@ pub fn read_frf(bytes: &[u8]) -> Result<RecordedFrf, String> {
             MIN_CSV_POINTS
         ));
     }
-    let config_toml = mcap::read::LinearReader::new_with_options(
+    let config = mcap::read::LinearReader::new_with_options(
         bytes,
         mcap::read::Options::IgnoreEndMagic.into(),
     )
     .ok()
     .and_then(|r| {
         r.filter_map(Result::ok).find_map(|rec| match rec {
-            mcap::records::Record::Metadata(m) if m.name == "bench.config" => {
-                m.metadata.get("toml").cloned()
-            }
+            mcap::records::Record::Metadata(m) if m.name == "bench.config" => Some(m.metadata),
             _ => None,
         })
     });
-    Ok(RecordedFrf { frf, config_toml })
+    Ok(RecordedFrf {
+        frf,
+        config_toml: config.as_ref().and_then(|m| m.get("toml").cloned()),
+        config_source: config.and_then(|mut m| m.remove("source")),
+    })
 }
 
 #[cfg(test)]

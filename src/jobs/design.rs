@@ -253,7 +253,14 @@ fn read_inputs(inputs: &[DesignInput]) -> Result<ReadInputs, RunError> {
                         .map_err(|e| RunError::option("inputs", &label, e.to_string()))?;
                     let r = read_frf(&bytes).map_err(|e| RunError::option("inputs", &label, e))?;
                     if config_toml.is_none() {
-                        config_toml = r.config_toml.map(|t| (t, format!("recorded in {label}")));
+                        // In the layout of the file it was run with.
+                        let source = r.config_source;
+                        config_toml = r.config_toml.map(|t| {
+                            let text = source
+                                .and_then(|s| crate::config::in_source_layout(&s, &t).ok())
+                                .unwrap_or(t);
+                            (text, format!("recorded in {label}"))
+                        });
                     }
                     r.frf
                 } else {

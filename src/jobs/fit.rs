@@ -358,11 +358,20 @@ pub fn check_frequencies(f_hz: &[f64], nyquist_hz: f64) -> Result<(), RunError> 
 
 /// The start bench's TOML text: `config`, the recording's, or the
 /// built-in.
-fn start_toml(config: Option<&Path>, recorded: Option<&str>) -> Result<String, RunError> {
+fn start_toml(
+    config: Option<&Path>,
+    recorded: Option<&str>,
+    source: Option<&str>,
+) -> Result<String, RunError> {
     match (config, recorded) {
         (Some(p), _) => std::fs::read_to_string(p)
             .map_err(|e| RunError::option("config", p.display(), e.to_string())),
-        (None, Some(t)) => Ok(t.to_string()),
+        // The recording's config in the layout of the file it was run
+        // with (comments kept); the resolved text alone when the
+        // recording has no source or the two cannot be merged.
+        (None, Some(t)) => Ok(source
+            .and_then(|s| crate::config::in_source_layout(s, t).ok())
+            .unwrap_or_else(|| t.to_string())),
         (None, None) => Ok(crate::config::BUILTIN_CONFIG_TOML.to_string()),
     }
 }
@@ -436,7 +445,7 @@ fn fit_frequencies(opts: &FitOptions, measured: &[f64]) -> Result<FrequencySumma
     if let Some(out) = &opts.out {
         check_outputs(opts.existing, None, Some((out, true)), None)?;
     }
-    let start = start_toml(req.config.as_deref(), None)?;
+    let start = start_toml(req.config.as_deref(), None, None)?;
     let update = match update_to_frequencies(&start_bench(&cfg), &free, measured) {
         Ok(u) => u,
         Err(e @ (UpdateError::NotFromFrequencies(_) | UpdateError::NoFreeParameter)) => {
@@ -462,13 +471,13 @@ fn fit_frf(opts: &FitOptions, input_path: &Path) -> Result<FitSummary, RunError>
     let bad_input = |reason: String| RunError::option("input", &input, reason);
     let free = parse_free(req.free.as_deref(), &Parameter::FRF_DEFAULT)?;
     let bytes = std::fs::read(input_path).map_err(|e| bad_input(e.to_string()))?;
-    let (frf, recorded_config) = if is_recording(input_path) {
+    let (frf, recorded_config, recorded_source) = if is_recording(input_path) {
         let r = crate::ident::frf::read_frf(&bytes).map_err(bad_input)?;
-        (r.frf, r.config_toml)
+        (r.frf, r.config_toml, r.config_source)
     } else {
         let text =
             String::from_utf8(bytes).map_err(|_| bad_input("not a text CSV (not UTF-8)".into()))?;
-        (Frf::read_csv(&text).map_err(bad_input)?, None)
+        (Frf::read_csv(&text).map_err(bad_input)?, None, None)
     };
     let cfg = match (&req.config, &recorded_config) {
         (None, Some(toml)) => BenchConfig::from_toml(toml, input_path)
@@ -516,6 +525,7 @@ fn fit_frf(opts: &FitOptions, input_path: &Path) -> Result<FitSummary, RunError>
         Some(_) => Some(start_toml(
             req.config.as_deref(),
             recorded_config.as_deref(),
+            recorded_source.as_deref(),
         )?),
         None => None,
     };

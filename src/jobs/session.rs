@@ -290,6 +290,21 @@ impl Runner<'_> {
     }
 }
 
+/// The config file's text as given (comments and layout; recorded as
+/// `bench.config` `source`, so `bench fit --update` can keep them): the
+/// built-in text, or the file at `path` when it is a regular file of at
+/// most [`crate::config::MAX_CONFIG_BYTES`] (never a FIFO read twice).
+/// `None` when it cannot be read again.
+fn config_source(path: &Path) -> Option<String> {
+    if path == Path::new(crate::config::BUILTIN_CONFIG_NAME) {
+        return Some(crate::config::BUILTIN_CONFIG_TOML.to_string());
+    }
+    let meta = std::fs::metadata(path).ok()?;
+    (meta.is_file() && meta.len() <= crate::config::MAX_CONFIG_BYTES)
+        .then(|| std::fs::read_to_string(path).ok())
+        .flatten()
+}
+
 /// Creates the recording `opts.out` (as `.part`, by the rules of
 /// `outputs`: the claimed `.part` file if `outputs` holds one) with the
 /// resolved config and the run description as metadata.
@@ -322,6 +337,9 @@ pub fn open_recording(
     let mut meta = BTreeMap::new();
     meta.insert("toml".to_string(), toml);
     meta.insert("path".to_string(), opts.config_path.display().to_string());
+    if let Some(source) = config_source(opts.config_path) {
+        meta.insert("source".to_string(), source);
+    }
     meta.insert("sha256".to_string(), config_sha256.clone());
     recorder.write_metadata("bench.config", &meta)?;
     let mut run_meta = BTreeMap::new();
