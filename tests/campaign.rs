@@ -443,3 +443,258 @@ fn mutations_of_every_campaign_key_are_refused_by_name_or_in_range() {
     }
     assert!(mutations > 150, "{mutations}");
 }
+
+/// Bytes of the regular files under `dir`.
+fn bytes_under(dir: &Path) -> u64 {
+    let mut n = 0;
+    for e in std::fs::read_dir(dir).unwrap() {
+        let e = e.unwrap();
+        let m = e.metadata().unwrap();
+        n += if m.is_dir() {
+            bytes_under(&e.path())
+        } else {
+            m.len()
+        };
+    }
+    n
+}
+
+/// "1.03 MB" → bytes.
+fn parse_size(s: &str) -> f64 {
+    let (v, unit) = s.trim().split_once(' ').unwrap();
+    let scale = match unit {
+        "kB" => 1e3,
+        "MB" => 1e6,
+        "GB" => 1e9,
+        u => panic!("unit {u}"),
+    };
+    v.parse::<f64>().unwrap() * scale
+}
+
+/// The disk line a run prints first: (bytes a cell, keep).
+fn disk_line(stderr: &str) -> (f64, String) {
+    let line = stderr
+        .lines()
+        .find(|l| l.starts_with("disk: about "))
+        .unwrap_or_else(|| panic!("no disk line: {stderr}"));
+    let per_cell = line.split(" for ").nth(1).unwrap();
+    let per_cell = per_cell
+        .split('(')
+        .nth(1)
+        .unwrap()
+        .split(" a cell")
+        .next()
+        .unwrap();
+    let keep = line
+        .split("keep = ")
+        .nth(1)
+        .unwrap()
+        .split(')')
+        .next()
+        .unwrap();
+    assert!(line.contains("free there"), "{line}");
+    (parse_size(per_cell), keep.to_string())
+}
+
+/// `--keep` stores what it says per cell, the estimate printed before the
+/// run is within its ±10 % of the bytes the cells wrote, and a design
+/// over cells that keep no FRF is refused before anything runs.
+#[test]
+fn keep_stores_what_it_says_and_the_disk_estimate_holds() {
+    let tmp = tempfile::tempdir().unwrap();
+    let file = small_campaign(tmp.path());
+    let file = file.to_str().unwrap();
+    let expect: [(&str, &[&str]); 3] = [
+        (
+            "recording",
+            &["bode.png", "chirp.mcap", "frf.csv", "summary.json"],
+        ),
+        ("frf", &["frf.csv", "summary.json"]),
+        ("summary", &["summary.json"]),
+    ];
+    for (keep, files) in expect {
+        let out = run(
+            &[
+                "campaign",
+                "run",
+                file,
+                "--out",
+                keep,
+                "--keep",
+                keep,
+                "--threads",
+                "2",
+            ],
+            tmp.path(),
+        );
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(out.status.success(), "{keep}: {err}");
+        let (estimate, said) = disk_line(&err);
+        assert_eq!(said, keep);
+        let dir = tmp.path().join(keep);
+        let mut total = 0;
+        for cell in 0..12 {
+            let cdir = dir.join(format!("cells/{cell:03}"));
+            let mut names: Vec<String> = std::fs::read_dir(&cdir)
+                .unwrap()
+                .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+                .collect();
+            names.sort();
+            assert_eq!(names, files, "{keep}: cell {cell}");
+            total += bytes_under(&cdir);
+            let s: Value =
+                serde_json::from_slice(&std::fs::read(cdir.join("summary.json")).unwrap()).unwrap();
+            // The verdict is there whatever is kept; the files not kept
+            // are named as such.
+            assert!(s["verdict"].is_object(), "{s}");
+            if keep != "recording" {
+                assert_eq!(s["kept"], keep);
+                assert!(s["recording"].is_null());
+            }
+        }
+        let measured = total as f64 / 12.0;
+        assert!(
+            (measured / estimate - 1.0).abs() < 0.10,
+            "{keep}: {measured} B a cell measured, {estimate} B estimated"
+        );
+        // cells.csv names only the kept files, and status is clean.
+        let csv = std::fs::read_to_string(dir.join("cells.csv")).unwrap();
+        let row: Vec<&str> = csv.lines().nth(1).unwrap().split(',').collect();
+        assert_eq!(!row[9].is_empty(), keep == "recording", "{csv}");
+        assert_eq!(!row[10].is_empty(), keep != "summary", "{csv}");
+        let st = run(&["campaign", "status", keep], tmp.path());
+        assert!(
+            st.status.success(),
+            "{}",
+            String::from_utf8_lossy(&st.stderr)
+        );
+    }
+    // The campaign's copy records the choice.
+    let copy = std::fs::read_to_string(tmp.path().join("frf/campaign.toml")).unwrap();
+    assert!(copy.contains("keep = \"frf\""), "{copy}");
+    // A design needs the FRFs.
+    let out = run(
+        &[
+            "campaign", "run", file, "--out", "nodesign", "--keep", "summary", "--design", "slow",
+        ],
+        tmp.path(),
+    );
+    assert_eq!(out.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("--keep summary"));
+    assert!(!tmp.path().join("nodesign").exists());
+    let out = run(&["design", "summary"], tmp.path());
+    assert_eq!(out.status.code(), Some(2));
+    assert!(
+        String::from_utf8_lossy(&out.stderr).contains("kept its FRF"),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    // Bad values are refused naming the flag.
+    for bad in ["", "all", "FRF", "recording,frf", "none"] {
+        let out = run(
+            &["campaign", "run", file, "--out", "bad", "--keep", bad],
+            tmp.path(),
+        );
+        assert_eq!(out.status.code(), Some(2), "{bad}");
+        assert!(
+            String::from_utf8_lossy(&out.stderr).contains("--keep"),
+            "{bad}"
+        );
+        assert!(!tmp.path().join("bad").exists());
+    }
+}
+
+/// The shipped campaign is built in: `bench campaign default` prints it,
+/// and `bench campaign run` without a file runs it from an empty
+/// directory (stopped after a few cells here: 150 cells of 60 s chirps);
+/// a resume goes on with what it keeps.
+#[test]
+fn the_builtin_campaign_runs_from_an_empty_directory() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = run(&["campaign", "default"], tmp.path());
+    assert!(out.status.success());
+    let shipped = std::fs::read_to_string(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("bench-config/campaign-fig5-10.toml"),
+    )
+    .unwrap();
+    assert_eq!(String::from_utf8_lossy(&out.stdout), shipped);
+    let done = |dir: &Path| -> usize {
+        std::fs::read_to_string(dir.join("journal.jsonl"))
+            .map(|j| {
+                j.lines()
+                    .filter(|l| l.contains("\"entry\":\"done\""))
+                    .count()
+            })
+            .unwrap_or(0)
+    };
+    let dir = tmp.path().join("fig");
+    for (round, args) in [
+        (
+            1,
+            vec![
+                "campaign",
+                "run",
+                "--out",
+                "fig",
+                "--keep",
+                "frf",
+                "--threads",
+                "1",
+            ],
+        ),
+        (2, vec!["campaign", "resume", "fig", "--threads", "1"]),
+    ] {
+        let mut child = bench()
+            .args(&args)
+            .current_dir(tmp.path())
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap();
+        let t0 = Instant::now();
+        while done(&dir) < 2 * round {
+            assert!(t0.elapsed() < Duration::from_secs(300), "no cells done");
+            std::thread::sleep(Duration::from_millis(50));
+        }
+        unsafe { libc::kill(child.id() as i32, libc::SIGINT) };
+        let status = child.wait().unwrap();
+        let mut err = String::new();
+        use std::io::Read;
+        child
+            .stderr
+            .take()
+            .unwrap()
+            .read_to_string(&mut err)
+            .unwrap();
+        assert_eq!(status.code(), Some(130), "{err}");
+        let (_, keep) = disk_line(&err);
+        assert_eq!(keep, "frf");
+        assert!(
+            err.contains(if round == 1 {
+                "for 150 cells"
+            } else {
+                "cells ("
+            }),
+            "{err}"
+        );
+    }
+    // Every done cell, before and after the resume, kept the FRF only.
+    for e in std::fs::read_dir(dir.join("cells")).unwrap() {
+        let cdir = e.unwrap().path();
+        if cdir.join("summary.json").exists() {
+            assert!(cdir.join("frf.csv").exists());
+            assert!(!cdir.join("chirp.mcap").exists(), "{}", cdir.display());
+        }
+    }
+    let origin = std::fs::read_to_string(dir.join("origin.json")).unwrap();
+    assert!(
+        origin.contains("\"built-in (campaign-fig5-10)\""),
+        "{origin}"
+    );
+    let st = run(&["campaign", "status", "fig"], tmp.path());
+    assert!(
+        st.status.success(),
+        "{}",
+        String::from_utf8_lossy(&st.stderr)
+    );
+}

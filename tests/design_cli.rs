@@ -447,7 +447,7 @@ fn a_campaign_without_a_done_cell_is_refused() {
     let out = dir.path().join("empty-campaign");
     let campaign = bench::campaign::file::Campaign::load(&file).unwrap();
     // Started (directory, copies, journal header), no cell run.
-    let _ready = bench::campaign::job::start(campaign, Some(&out)).unwrap();
+    let _ready = bench::campaign::job::start(campaign, Some(&out), 1).unwrap();
     let before = listing(&out);
     let o = run(&["design", out.to_str().unwrap()]);
     let err = String::from_utf8_lossy(&o.stderr);

@@ -346,10 +346,7 @@ fn fig_5_11_asymmetry_is_recovered_through_the_simulator() {
 /// `updated` (a `bench fit --update` output) keeps every comment of
 /// `start` and all of its lines but a few values (the header aside).
 fn assert_keeps_layout(start: &str, updated: &str) {
-    let body: Vec<&str> = updated
-        .lines()
-        .skip_while(|l| l.starts_with('#'))
-        .collect();
+    let body: Vec<&str> = updated.lines().skip_while(|l| l.starts_with('#')).collect();
     let start_lines: Vec<&str> = start.lines().skip_while(|l| l.starts_with('#')).collect();
     for c in start.lines().filter(|l| l.trim_start().starts_with('#')) {
         assert!(updated.contains(c), "comment lost: {c}\n{updated}");

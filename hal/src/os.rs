@@ -1,7 +1,8 @@
 //! Every call into the operating system that timing depends on, in one
 //! place: the clock (`CLOCK_MONOTONIC` time and absolute sleeps on it),
 //! scheduling (SCHED_FIFO, CPU affinity, niceness), memory locking and the
-//! CPU wake-up latency request (`/dev/cpu_dma_latency`). The host backends,
+//! CPU wake-up latency request (`/dev/cpu_dma_latency`), and the free space
+//! of a file system ([`available_bytes`]). The host backends,
 //! the emulators and the bench's real-time loop, recorder and live view use
 //! it; it depends on nothing else in the crate.
 //!
@@ -186,6 +187,25 @@ impl CpuDmaLatency {
             ),
         }
     }
+}
+
+/// Bytes an unprivileged process may still write on the file system that
+/// holds `path` (`statvfs(3)`: `f_bavail × f_frsize`).
+///
+/// # Errors
+/// The OS error: `path` does not exist, or is not valid for the call.
+pub fn available_bytes(path: &std::path::Path) -> std::io::Result<u64> {
+    use std::os::unix::ffi::OsStrExt;
+    let c = std::ffi::CString::new(path.as_os_str().as_bytes())
+        .map_err(|_| std::io::Error::new(std::io::ErrorKind::InvalidInput, "a NUL in the path"))?;
+    // SAFETY: statvfs is plain old data; zeroed is a valid value.
+    let mut st: libc::statvfs = unsafe { std::mem::zeroed() };
+    // SAFETY: `c` is a valid NUL-terminated path, `st` a valid out-pointer.
+    if unsafe { libc::statvfs(c.as_ptr(), &mut st) } != 0 {
+        return Err(std::io::Error::last_os_error());
+    }
+    #[allow(clippy::unnecessary_cast)]
+    Ok((st.f_bavail as u64).saturating_mul(st.f_frsize as u64))
 }
 
 #[cfg(test)]

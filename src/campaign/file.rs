@@ -28,6 +28,90 @@ use serde::Deserialize;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
+/// The shipped campaign (`bench-config/campaign-fig5-10.toml`, the
+/// thesis' Fig 5-10 grid on the Chapter 5 bench), built in: `bench campaign
+/// run` without a file runs it with the built-in bench config, and `bench
+/// campaign default` prints it.
+pub const BUILTIN_CAMPAIGN_TOML: &str = include_str!("../../bench-config/campaign-fig5-10.toml");
+
+/// How messages and the campaign directory's origin name the built-in
+/// campaign.
+pub const BUILTIN_CAMPAIGN_NAME: &str = "built-in (campaign-fig5-10)";
+
+/// What each cell keeps on disk (`keep` in the campaign file, `--keep` on
+/// `bench campaign run`). The summary (`summary.json`, with the verdict,
+/// the modal fit and the FRF's figures) is always kept.
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, Default, Deserialize, serde::Serialize, schemars::JsonSchema,
+)]
+#[serde(rename_all = "lowercase")]
+pub enum Keep {
+    /// Everything a `bench chirp` writes: the recording (`chirp.mcap`), the
+    /// FRF CSV, the Bode plot and the summary (a default 60 s cell: 5.8 MB).
+    #[default]
+    Recording,
+    /// The FRF CSV and the summary (~100 kB a cell): enough for `bench
+    /// fit`, `bench design` and `bench plot` on the cells, not to look at
+    /// the time series again.
+    Frf,
+    /// The summary only (~6.5 kB a cell): the verdicts and the map.
+    Summary,
+}
+
+impl Keep {
+    /// The name in files and on the command line.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Recording => "recording",
+            Self::Frf => "frf",
+            Self::Summary => "summary",
+        }
+    }
+
+    /// Whether a cell keeps its `i`th file of
+    /// [`crate::campaign::run::CELL_FILES`] (recording, FRF CSV, plot,
+    /// summary).
+    pub fn keeps(self, i: usize) -> bool {
+        match self {
+            Self::Recording => true,
+            Self::Frf => i == 1 || i == 3,
+            Self::Summary => i == 3,
+        }
+    }
+}
+
+impl std::str::FromStr for Keep {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "recording" => Ok(Self::Recording),
+            "frf" => Ok(Self::Frf),
+            "summary" => Ok(Self::Summary),
+            _ => Err(format!(
+                "{s:?} is not one of recording, frf, summary (what each cell keeps)"
+            )),
+        }
+    }
+}
+
+/// Where a campaign's bench config is read from.
+#[derive(Debug, Clone, Copy)]
+pub enum ConfigFrom<'a> {
+    /// The file the campaign's `config` key names (relative to the
+    /// campaign file).
+    Named,
+    /// This file instead (a campaign directory's copy).
+    File(&'a Path),
+    /// This text, named `name` in messages (the built-in config, or a
+    /// text already read).
+    Text {
+        /// How messages name it.
+        name: &'a Path,
+        /// The TOML.
+        text: &'a str,
+    },
+}
+
 /// Most cells of one campaign: 10 000 chirps of 60 s are a week of bench
 /// time; a larger grid is a typo.
 pub const MAX_CELLS: usize = 10_000;
@@ -156,6 +240,9 @@ pub struct CampaignSpec {
     /// ranges).
     #[serde(default)]
     pub chirp: Option<toml::Table>,
+    /// What each cell keeps on disk.
+    #[serde(default)]
+    pub keep: Keep,
 }
 
 fn default_mass_increment() -> f64 {
@@ -280,6 +367,77 @@ impl Campaign {
         text: String,
         config_file: Option<&Path>,
     ) -> Result<Self, CampaignError> {
+        Self::from_parts(
+            path,
+            text,
+            config_file.map_or(ConfigFrom::Named, ConfigFrom::File),
+        )
+    }
+
+    /// The built-in campaign ([`BUILTIN_CAMPAIGN_TOML`]) on the built-in
+    /// bench config ([`crate::config::BUILTIN_CONFIG_TOML`]).
+    ///
+    /// # Errors
+    /// None for the shipped texts (tested); as [`Self::load`] otherwise.
+    pub fn builtin() -> Result<Self, CampaignError> {
+        Self::from_parts(
+            Path::new(BUILTIN_CAMPAIGN_NAME),
+            BUILTIN_CAMPAIGN_TOML.to_string(),
+            ConfigFrom::Text {
+                name: Path::new(crate::config::BUILTIN_CONFIG_NAME),
+                text: crate::config::BUILTIN_CONFIG_TOML,
+            },
+        )
+    }
+
+    /// Whether this is the built-in campaign.
+    pub fn is_builtin(&self) -> bool {
+        self.path == Path::new(BUILTIN_CAMPAIGN_NAME)
+    }
+
+    /// This campaign with `keep` set in its text (a comment says it came
+    /// from the command line), so that the campaign directory's copy, and
+    /// a resume, keep the same files.
+    ///
+    /// # Errors
+    /// As [`Self::load`] (cannot fail for a campaign that loaded).
+    pub fn with_keep(self, keep: Keep) -> Result<Self, CampaignError> {
+        if keep == self.spec.keep {
+            return Ok(self);
+        }
+        let mut doc: toml_edit::DocumentMut =
+            self.text
+                .parse()
+                .map_err(|e: toml_edit::TomlError| CampaignError::Parse {
+                    path: self.path.clone(),
+                    message: e.to_string(),
+                })?;
+        let mut v = toml_edit::Value::from(keep.name());
+        v.decor_mut()
+            .set_suffix("   # what each cell keeps (set by --keep): recording, frf or summary");
+        // A top-level value is written before the tables.
+        doc.insert("keep", toml_edit::Item::Value(v));
+        let text = doc.to_string();
+        Self::from_parts(
+            &self.path,
+            text,
+            ConfigFrom::Text {
+                name: &self.config_path,
+                text: &self.config_text,
+            },
+        )
+    }
+
+    /// [`Self::load`] from its parts: the campaign's path and text, and
+    /// where its bench config comes from.
+    ///
+    /// # Errors
+    /// As [`Self::load`].
+    pub fn from_parts(
+        path: &Path,
+        text: String,
+        config_from: ConfigFrom<'_>,
+    ) -> Result<Self, CampaignError> {
         let invalid = |key: &str, reason: String| CampaignError::Invalid {
             path: path.to_path_buf(),
             key: key.to_string(),
@@ -310,25 +468,34 @@ impl Campaign {
             ));
         }
         let dir = path.parent().unwrap_or(Path::new("."));
-        let config_path = if let Some(p) = config_file {
-            p.to_path_buf()
-        } else if spec.config.is_absolute() {
-            spec.config.clone()
-        } else {
-            dir.join(&spec.config)
-        };
         let config_err = |source| CampaignError::Config {
             path: path.to_path_buf(),
             source,
         };
-        // Read through BenchConfig::load's checks (regular file, size).
-        BenchConfig::load(&config_path).map_err(config_err)?;
-        let config_text = std::fs::read_to_string(&config_path).map_err(|source| {
-            config_err(crate::config::ConfigError::Read {
-                path: config_path.clone(),
-                source,
-            })
-        })?;
+        let (config_path, config_text) = match config_from {
+            ConfigFrom::Text { name, text } => {
+                BenchConfig::from_toml(text, name).map_err(config_err)?;
+                (name.to_path_buf(), text.to_string())
+            }
+            ConfigFrom::File(_) | ConfigFrom::Named => {
+                let config_path = if let ConfigFrom::File(p) = config_from {
+                    p.to_path_buf()
+                } else if spec.config.is_absolute() {
+                    spec.config.clone()
+                } else {
+                    dir.join(&spec.config)
+                };
+                // Read through BenchConfig::load's checks (regular file, size).
+                BenchConfig::load(&config_path).map_err(config_err)?;
+                let config_text = std::fs::read_to_string(&config_path).map_err(|source| {
+                    config_err(crate::config::ConfigError::Read {
+                        path: config_path.clone(),
+                        source,
+                    })
+                })?;
+                (config_path, config_text)
+            }
+        };
         let mut table: toml::Table = toml::from_str(&config_text).map_err(|e| {
             config_err(crate::config::ConfigError::Parse {
                 path: config_path.clone(),

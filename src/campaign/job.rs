@@ -6,7 +6,8 @@
 //! ([`crate::jobs::request::CampaignRequest`]) starts a new campaign in its
 //! recordings directory and runs it on the simulator.
 
-use super::file::Campaign;
+use super::disk::DiskEstimate;
+use super::file::{Campaign, Keep};
 use super::journal::{Journal, ReadJournal};
 use super::run::{
     adopt_changed, create, damaged_cells, load_dir, run_attended, run_cells, CampaignRunError,
@@ -47,8 +48,58 @@ pub struct Ready {
     /// What the operator should know before it goes on (the original
     /// files changed since `run`; the copies are used).
     pub note: Option<String>,
+    /// The disk its cells still to run will use, and the space left.
+    pub disk: DiskEstimate,
     journal: Journal,
     read: ReadJournal,
+}
+
+/// The campaign to run: `file`, or the built-in one
+/// ([`Campaign::builtin`]) when `None`; with `keep` set when given; and
+/// checked against `design` (a design needs the cells' FRFs, which `keep =
+/// "summary"` does not keep).
+///
+/// # Errors
+/// [`CampaignRunError::BadInput`] naming the file and key;
+/// [`CampaignRunError::BadOption`] naming `keep` for a design without
+/// FRFs.
+pub fn prepare(
+    file: Option<&Path>,
+    keep: Option<Keep>,
+    design: bool,
+) -> Result<Campaign, CampaignRunError> {
+    let bad = |e: super::file::CampaignError| CampaignRunError::BadInput(e.to_string());
+    let mut campaign = match file {
+        Some(f) => Campaign::load(f).map_err(bad)?,
+        None => Campaign::builtin().map_err(bad)?,
+    };
+    if let Some(k) = keep {
+        campaign = campaign.with_keep(k).map_err(bad)?;
+    }
+    if design && campaign.spec.keep == Keep::Summary {
+        return Err(CampaignRunError::BadOption {
+            key: "keep",
+            value: "summary".into(),
+            reason: "keeps no cell's FRF, and the design at the end needs them: keep frf or recording, or design later".into(),
+        });
+    }
+    Ok(campaign)
+}
+
+/// Refuses a campaign whose cells cannot fit on the disk ([`DiskEstimate::too_big`]).
+fn check_disk(disk: &DiskEstimate, threads: usize, dir: &Path) -> Result<(), CampaignRunError> {
+    if disk.too_big(threads) {
+        return Err(CampaignRunError::BadOption {
+            key: "keep",
+            value: disk.keep.name().into(),
+            reason: format!(
+                "{}: the cells will not fit ({}); keep less per cell (frf: the FRF CSV and the summary; summary: the summary only), or free space",
+                dir.display(),
+                disk.describe()
+            ),
+        });
+    }
+    Ok(())
 }
 
 /// Starts a new campaign of `campaign` in `dir` (`None`: the campaign
@@ -58,7 +109,11 @@ pub struct Ready {
 /// # Errors
 /// [`CampaignRunError::BadOption`] naming `out` when there is no
 /// directory or it cannot hold a new campaign; journal and I/O errors.
-pub fn start(campaign: Campaign, dir: Option<&Path>) -> Result<Ready, CampaignRunError> {
+pub fn start(
+    campaign: Campaign,
+    dir: Option<&Path>,
+    threads: usize,
+) -> Result<Ready, CampaignRunError> {
     let Some(dir) = dir
         .map(Path::to_path_buf)
         .or_else(|| campaign.spec.out.clone())
@@ -72,12 +127,16 @@ pub fn start(campaign: Campaign, dir: Option<&Path>) -> Result<Ready, CampaignRu
             ),
         });
     };
+    super::run::check_new_dir(&dir)?;
+    let disk = DiskEstimate::of(&campaign, campaign.cells().len(), &dir);
+    check_disk(&disk, threads, &dir)?;
     create(&campaign, &dir)?;
     let (journal, read) = Journal::open(&dir)?;
     Ok(Ready {
         campaign,
         dir,
         note: None,
+        disk,
         journal,
         read,
     })
@@ -94,8 +153,15 @@ pub fn resume(
     dir: &Path,
     campaign_file: Option<&Path>,
     force: bool,
+    threads: usize,
 ) -> Result<Ready, CampaignRunError> {
-    let (campaign, _, note) = load_dir(dir, campaign_file, force)?;
+    let (campaign, j, note) = load_dir(dir, campaign_file, force)?;
+    let left = campaign
+        .cells()
+        .len()
+        .saturating_sub(j.done().len() + j.skipped().len());
+    let disk = DiskEstimate::of(&campaign, left, dir);
+    check_disk(&disk, threads, dir)?;
     let (mut journal, read) = Journal::open(dir)?;
     if force {
         adopt_changed(dir, &mut journal, &campaign)?;
@@ -116,6 +182,7 @@ pub fn resume(
         campaign,
         dir: dir.to_path_buf(),
         note,
+        disk,
         journal,
         read,
     })
@@ -212,17 +279,29 @@ pub fn design_input(dir: &Path) -> Result<crate::jobs::design::DesignInput, Camp
             dir.display()
         )));
     }
-    let cells = j
+    // The done cells that kept their FRF (`keep = "summary"` keeps none).
+    let cells: Vec<(usize, std::path::PathBuf)> = j
         .done()
-        .keys()
-        .map(|&i| {
-            (
-                i,
-                dir.join(super::run::cell_dir(i))
-                    .join(super::run::CELL_FILES[1]),
-            )
+        .iter()
+        .filter_map(|(&i, e)| {
+            let rel = format!("{}/{}", super::run::cell_dir(i), super::run::CELL_FILES[1]);
+            match e {
+                super::journal::Entry::Done { files, .. }
+                    if files.iter().any(|f| f.path == rel) =>
+                {
+                    Some((i, dir.join(rel)))
+                }
+                _ => None,
+            }
         })
         .collect();
+    if cells.is_empty() && !j.done().is_empty() {
+        return Err(CampaignRunError::BadInput(format!(
+            "{}: no done cell kept its FRF (the campaign keeps {}): run it with keep = \"frf\" or \"recording\" to design over it",
+            dir.display(),
+            campaign.spec.keep.name()
+        )));
+    }
     Ok(crate::jobs::design::DesignInput::Cells {
         dir: dir.to_path_buf(),
         config_toml: campaign.config_text.clone(),

@@ -9,12 +9,14 @@
 //!   simulator, or attended on hardware), the results.
 //! - [`job`]: a campaign started or resumed and run, as the CLI and the
 //!   daemon's `campaign` job do it.
+//! - [`disk`]: the disk a campaign will use, estimated before it starts.
 //! - [`journal`]: the append-only, fsync'd, checksummed journal that makes
 //!   a campaign survive SIGKILL and power loss without losing a completed
 //!   cell or counting a half-finished one.
 //!
-//! Layer rule: may use `analysis`, `config`, `design`, `error`, `jobs`, `outputs`, `plot`, `rt`, `splitmix`.
+//! Layer rule: may use `analysis`, `config`, `design`, `error`, `ident`, `jobs`, `outputs`, `plot`, `rt`, `splitmix`.
 
+pub mod disk;
 pub mod file;
 pub mod job;
 pub mod journal;

@@ -21,7 +21,7 @@
 //! carries their SHA-256 checksums. A cell directory without one is
 //! removed and the cell run again from scratch.
 
-use super::file::{changed_keys, Campaign, Cell};
+use super::file::{changed_keys, Campaign, Cell, Keep};
 use super::journal::{self, file_sum, sha256_hex, Entry, Journal, JournalError, ReadJournal};
 use crate::analysis::map::{agreement, cnmp_map, linspace, model_at, MapCell};
 use crate::analysis::modal::model_cnmp_damped;
@@ -253,7 +253,15 @@ pub fn create(campaign: &Campaign, dir: &Path) -> Result<(), CampaignRunError> {
     };
     put(CAMPAIGN_COPY, &campaign.text)?;
     put(CONFIG_COPY, &campaign.config_text)?;
-    let abs = |p: &Path| std::path::absolute(p).unwrap_or_else(|_| p.to_path_buf());
+    // A built-in text is named as such, not as a file here.
+    let abs = |p: &Path| {
+        if p == Path::new(super::file::BUILTIN_CAMPAIGN_NAME)
+            || p == Path::new(crate::config::BUILTIN_CONFIG_NAME)
+        {
+            return p.to_path_buf();
+        }
+        std::path::absolute(p).unwrap_or_else(|_| p.to_path_buf())
+    };
     let origin = Origin {
         campaign_file: abs(&campaign.path),
         config_file: abs(&campaign.config_path),
@@ -561,6 +569,7 @@ fn run_cell(
 ) -> Result<(), CampaignRunError> {
     let rel = cell_dir(cell.index);
     let cdir = dir.join(&rel);
+    let keep = campaign.spec.keep;
     // Whatever an interrupted attempt left is not a result.
     if cdir.exists() {
         fs::remove_dir_all(&cdir).map_err(io_at(&cdir))?;
@@ -607,8 +616,16 @@ fn run_cell(
                 },
                 inject: None,
             };
-            run_chirp(&opts, chirp_outputs(&opts), stop.clone(), None)
-                .map_err(|e| cell_err(e.to_string()))?
+            let summary = run_chirp(&opts, chirp_outputs(&opts), stop.clone(), None)
+                .map_err(|e| cell_err(e.to_string()))?;
+            // What the campaign does not keep goes once the chirp is done
+            // (a cell's recording is on disk while it runs).
+            for (i, path) in [(0, &opts.out), (1, &opts.frf_csv), (2, &opts.plot)] {
+                if !keep.keeps(i) {
+                    fs::remove_file(path).map_err(io_at(path))?;
+                }
+            }
+            summary
         }
         CellBench::Daemon(socket, submit) => {
             let c = &config.chirp;
@@ -625,11 +642,11 @@ fn run_cell(
                 .map_err(|e| cell_err(format!("the daemon's summary does not parse: {e}")))?;
             // The FRF and the plot beside the cell's summary; the
             // recording stays where the daemon wrote it.
-            for (from, name) in [
-                (&summary.frf_csv, CELL_FILES[1]),
-                (&summary.plot, CELL_FILES[2]),
-            ] {
-                let to = cdir.join(name);
+            for (from, i) in [(&summary.frf_csv, 1), (&summary.plot, 2)] {
+                if !keep.keeps(i) {
+                    continue;
+                }
+                let to = cdir.join(CELL_FILES[i]);
                 fs::copy(from, &to).map_err(|e| {
                     cell_err(format!(
                         "copying the daemon's {} to {}: {e}",
@@ -653,7 +670,18 @@ fn run_cell(
         ),
     };
     let summary_path = cdir.join(CELL_FILES[3]);
-    let json = serde_json::to_string_pretty(&summary).expect("summaries serialise") + "\n";
+    let mut value = serde_json::to_value(&summary).expect("summaries serialise");
+    if keep != Keep::Recording {
+        // The files the cell did not keep are named as not kept.
+        for (i, key) in [(0, "recording"), (1, "frf_csv"), (2, "plot")] {
+            let daemon_recording = i == 0 && matches!(bench, CellBench::Daemon(..));
+            if !(keep.keeps(i) || daemon_recording) {
+                value[key] = serde_json::Value::Null;
+            }
+        }
+        value["kept"] = keep.name().into();
+    }
+    let json = serde_json::to_string_pretty(&value).expect("summaries serialise") + "\n";
     write_atomically(&summary_path, Existing::Refuse, |f| {
         f.write_all(json.as_bytes())
     })
@@ -661,6 +689,12 @@ fn run_cell(
     // Every output synced before the entry that counts it.
     let mut files = Vec::new();
     for (i, name) in CELL_FILES.iter().enumerate() {
+        // The daemon keeps its recording (in its own directory) whatever
+        // the campaign keeps.
+        let daemon_recording = i == 0 && matches!(bench, CellBench::Daemon(..));
+        if !(keep.keeps(i) || daemon_recording) {
+            continue;
+        }
         let path = if i == 0 {
             recording.clone()
         } else {
@@ -817,6 +851,7 @@ pub fn write_results(campaign: &Campaign, dir: &Path) -> Result<CampaignSummary,
     let mut csv = String::from(
         "index,operating_point_m,mass_asymmetry,status,verdict,model_cnmp,agrees,seed,reason,recording,frf_csv,summary\n",
     );
+    let done = j.done();
     for r in &summary.results {
         let verdict = r.verdict.map(|v| v.to_string()).unwrap_or_default();
         let agrees = r
@@ -828,12 +863,20 @@ pub fn write_results(campaign: &Campaign, dir: &Path) -> Result<CampaignSummary,
             .clone()
             .unwrap_or_default()
             .replace(['"', ','], ";");
-        let file = |i: usize| {
-            if r.status == "done" {
-                format!("{}/{}", r.dir, CELL_FILES[i])
-            } else {
-                String::new()
+        // The files the done entry counts (a cell keeps what the
+        // campaign's `keep` said when it ran).
+        let kept: Vec<&str> = match done.get(&r.index) {
+            Some(Entry::Done { files, .. }) if r.status == "done" => {
+                files.iter().map(|f| f.path.as_str()).collect()
             }
+            _ => Vec::new(),
+        };
+        let file = |i: usize| {
+            let rel = format!("{}/{}", r.dir, CELL_FILES[i]);
+            let named = kept
+                .iter()
+                .find(|p| **p == rel || (i == 0 && p.ends_with(".mcap")));
+            named.map(|p| p.to_string()).unwrap_or_default()
         };
         csv.push_str(&format!(
             "{},{},{},{},{},{},{},{},{},{},{},{}\n",

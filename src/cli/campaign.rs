@@ -2,8 +2,8 @@
 //! simulator, resumable after a crash; its status and its map.
 
 use super::serve::via_daemon;
-use super::{bad_input, emit, status};
-use bench::campaign::file::Campaign;
+use super::{emit, status};
+use bench::campaign::file::{Campaign, Keep};
 use bench::campaign::job::{self, Ready};
 use bench::campaign::run::{
     damaged_cells, load_dir, summarize, write_results, CampaignRunError, CampaignSummary,
@@ -31,13 +31,24 @@ pub(super) enum CampaignCommand {
     /// Write the campaign's cells.csv and its map (measured verdicts on
     /// the model's CNMP map, thesis Fig 5-10) again from its journal.
     Map(DirArgs),
+    /// Print the built-in campaign file (the thesis' Fig 5-10 grid on the
+    /// built-in bench; `bench campaign run` without a file runs it).
+    Default,
 }
 
 #[derive(Debug, Args)]
 pub(super) struct RunArgs {
-    /// The campaign file (TOML; `bench-config/campaign-fig5-10.toml` is
-    /// the thesis' grid).
-    file: PathBuf,
+    /// The campaign file (TOML) [default: the built-in campaign, the
+    /// thesis' Fig 5-10 grid on the built-in bench; `bench campaign
+    /// default` prints it].
+    file: Option<PathBuf>,
+    /// What each cell keeps: recording (everything: recording, FRF CSV,
+    /// Bode plot, summary; 5.8 MB a default cell), frf (the FRF CSV and
+    /// the summary, ~100 kB) or summary (~6.5 kB) [default: the campaign
+    /// file's `keep`, else recording]. Recorded in the campaign's copy of
+    /// the file, so a resume keeps the same.
+    #[arg(long, value_name = "WHAT", value_parser = parse_keep)]
+    keep: Option<Keep>,
     /// Campaign directory: must not exist or be empty [default: the
     /// file's `out`].
     #[arg(long, value_name = "DIR")]
@@ -114,14 +125,23 @@ pub(super) fn campaign(cmd: CampaignCommand, stop: Arc<AtomicBool>) -> ExitCode 
         CampaignCommand::Resume(a) => resume(a, stop),
         CampaignCommand::Status(a) => status_cmd(a),
         CampaignCommand::Map(a) => map_cmd(a),
+        CampaignCommand::Default => {
+            print!("{}", bench::campaign::file::BUILTIN_CAMPAIGN_TOML);
+            ExitCode::SUCCESS
+        }
     }
+}
+
+fn parse_keep(s: &str) -> Result<Keep, String> {
+    s.parse()
 }
 
 fn run(a: RunArgs, stop: Arc<AtomicBool>) -> ExitCode {
     if let Some(sock) = &a.submit {
         let request = CampaignRequest {
-            file: super::absolute_path(&a.file),
+            file: a.file.as_deref().map(super::absolute_path),
             threads: a.how.threads,
+            keep: a.keep.map(|k| k.name().to_string()),
             design: a.how.design.as_deref().and_then(|s| s.parse().ok()),
         };
         return via_daemon(
@@ -135,12 +155,12 @@ fn run(a: RunArgs, stop: Arc<AtomicBool>) -> ExitCode {
         Ok(n) => n,
         Err(e) => return failed(&e),
     };
-    let campaign = match Campaign::load(&a.file) {
+    let campaign = match job::prepare(a.file.as_deref(), a.keep, a.how.design.is_some()) {
         Ok(c) => c,
-        Err(e) => return bad_input(e),
+        Err(e) => return failed(&e),
     };
     let bench = target(a.how.backend.as_ref(), a.how.daemon.as_deref(), &campaign);
-    match job::start(campaign, a.out.as_deref()) {
+    match job::start(campaign, a.out.as_deref(), threads) {
         Ok(ready) => go(
             ready,
             threads,
@@ -158,7 +178,7 @@ fn resume(a: ResumeArgs, stop: Arc<AtomicBool>) -> ExitCode {
         Ok(n) => n,
         Err(e) => return failed(&e),
     };
-    let ready = match job::resume(&a.dir, a.campaign.as_deref(), a.force) {
+    let ready = match job::resume(&a.dir, a.campaign.as_deref(), a.force, threads) {
         Ok(r) => r,
         Err(e) => return failed(&e),
     };
@@ -209,6 +229,8 @@ fn go(
     json: bool,
     design: Option<&str>,
 ) -> ExitCode {
+    // Before anything runs: what the cells will take, and what is left.
+    errln!("{}", ready.disk.describe());
     let on = match &bench {
         CellBench::Sim => None,
         CellBench::Daemon(s, _) => Some(format!("the daemon at {}", s.display())),

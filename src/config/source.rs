@@ -64,9 +64,7 @@ fn patch(doc: &mut Table, resolved: &Table, have: &toml::Table, want: &toml::Tab
                     Some(toml::Value::Table(t)) => t,
                     _ => &empty,
                 };
-                let entry = doc
-                    .entry(key)
-                    .or_insert_with(|| Item::Table(Table::new()));
+                let entry = doc.entry(key).or_insert_with(|| Item::Table(Table::new()));
                 match entry {
                     Item::Table(t) => patch(t, sub, ht, wt),
                     // An inline table or a dotted key in the source:
@@ -104,7 +102,11 @@ mod tests {
         let merged = in_source_layout(source, &cfg.to_toml()).unwrap();
         let back = BenchConfig::from_toml(&merged, Path::new("x")).unwrap();
         assert_eq!(back.plant.mass_asymmetry, -0.02);
-        let comments = |t: &str| t.lines().filter(|l| l.trim_start().starts_with('#')).count();
+        let comments = |t: &str| {
+            t.lines()
+                .filter(|l| l.trim_start().starts_with('#'))
+                .count()
+        };
         assert_eq!(comments(&merged), comments(source));
         // One line changed.
         let changed = merged

@@ -9,7 +9,7 @@
 use super::protocol::{to_json, ApiError, ApiErrorKind};
 use super::Ctx;
 use crate::campaign::file::Campaign;
-use crate::campaign::job::{start, threads};
+use crate::campaign::job::{prepare, start, threads};
 use crate::campaign::run::{CampaignRunError, RunOptions};
 use crate::error::RunError;
 use crate::jobs::analyze::{run_analyze, AnalyzeOptions};
@@ -269,10 +269,19 @@ pub(super) fn job_spec(ctx: &Ctx, request: &JobRequest, id: u64) -> Result<Accep
             })
         }
         JobRequest::Campaign(req) => {
-            absolute("file", Some(&req.file))?;
+            absolute("file", req.file.as_deref())?;
             let threads = threads(req.threads).map_err(|e| campaign_answer(&e))?;
+            let keep = req
+                .keep
+                .as_deref()
+                .map(str::parse::<crate::campaign::file::Keep>)
+                .transpose()
+                .map_err(|e| bad_params(format!("params.keep: {e}")))?;
             let campaign =
-                Campaign::load(&req.file).map_err(|e| bad_params(format!("params.file: {e}")))?;
+                prepare(req.file.as_deref(), keep, req.design.is_some()).map_err(|e| match e {
+                    CampaignRunError::BadInput(m) => bad_params(format!("params.file: {m}")),
+                    e => campaign_answer(&e),
+                })?;
             let total = campaign.cells().len() as u64;
             // `campaign-<stamp>-job<id>`: a new, empty directory.
             let dir = beside(&recording_path(&ctx.recordings, "campaign", id), "");
@@ -363,7 +372,7 @@ pub(super) fn run(
                 stop,
                 on_cell: Some(&on_cell),
             };
-            let summary = start(job.campaign, Some(&job.dir))
+            let summary = start(job.campaign, Some(&job.dir), job.threads)
                 .and_then(|ready| ready.run_parallel(&opts))
                 .map_err(|e| (campaign_answer(&e), None))?;
             match job.design {

@@ -379,11 +379,18 @@ impl ControlRequest {
 #[serde(deny_unknown_fields)]
 pub struct CampaignRequest {
     /// The campaign file (TOML; its `config` relative to it). The daemon
-    /// takes an absolute path.
-    pub file: std::path::PathBuf,
+    /// takes an absolute path. `None`: the built-in campaign (thesis Fig
+    /// 5-10 on the built-in bench).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub file: Option<std::path::PathBuf>,
     /// Cells run at once, 1 … 64 [default: the runner's cores].
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub threads: Option<usize>,
+    /// What each cell keeps: `recording`, `frf` or `summary` [default: the
+    /// campaign file's `keep`, else `recording`]
+    /// (`crate::campaign::file::Keep`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub keep: Option<String>,
     /// Design one controller over every done cell at the end (`slow`,
     /// `fast` or `auto`), as `bench campaign run --design` does.
     #[serde(default, skip_serializing_if = "Option::is_none")]
