@@ -26,11 +26,11 @@ pub(super) struct AnalyzeArgs {
     point: PointArgs,
     /// Pole-zero map PNG [default: analyze-<UTC time>.pole-zero.png in the
     /// recordings directory].
-    #[arg(long, value_name = "FILE.png")]
+    #[arg(long, value_name = "FILE.png|svg|pdf")]
     pole_zero_png: Option<PathBuf>,
     /// Decomposed-mode Bode PNG [default: analyze-<UTC time>.modes.png in
     /// the recordings directory].
-    #[arg(long, value_name = "FILE.png")]
+    #[arg(long, value_name = "FILE.png|svg|pdf")]
     modes_png: Option<PathBuf>,
     /// Write no PNG.
     #[arg(long, conflicts_with_all = ["pole_zero_png", "modes_png"])]
@@ -306,7 +306,7 @@ pub(super) struct MapArgs {
     localisation_at_pct: Vec<f64>,
     /// The map (or veering) PNG [default: map-<UTC time>.png or
     /// veering-<UTC time>.png in the recordings directory].
-    #[arg(long, value_name = "FILE.png")]
+    #[arg(long, value_name = "FILE.png|svg|pdf")]
     png: Option<PathBuf>,
     /// One row per cell: operating_point_m,mass_asymmetry,cnmp,cnmp_damped
     /// [FILE default: the PNG's name with .csv; with --daemon give no

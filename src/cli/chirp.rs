@@ -38,7 +38,7 @@ pub(super) struct ChirpArgs {
     #[arg(long, value_name = "FILE")]
     frf_csv: Option<PathBuf>,
     /// Bode plot PNG [default: beside --out, <stem>.bode.png].
-    #[arg(long, value_name = "FILE.png")]
+    #[arg(long, value_name = "FILE.png|svg|pdf")]
     plot: Option<PathBuf>,
     /// Replace existing output files (regular files only), each once its
     /// successor is complete. Without it an existing output is refused.

@@ -48,7 +48,7 @@ pub(super) struct ControlArgs {
     #[arg(long, value_name = "FILE.mcap")]
     out: Option<PathBuf>,
     /// Step plot PNG [default: beside --out, <stem>.step.png].
-    #[arg(long, value_name = "FILE.png")]
+    #[arg(long, value_name = "FILE.png|svg|pdf")]
     plot: Option<PathBuf>,
     /// Replace existing output files (regular files only), each once its
     /// successor is complete. Without it an existing output is refused.

@@ -60,7 +60,7 @@ pub(super) struct DesignArgs {
     /// The figure: Nyquist of every input's loop with the modulus-margin
     /// circle, Bode of L and S, the worst input highlighted [default:
     /// beside --out, <stem>.png].
-    #[arg(long, value_name = "FILE.png")]
+    #[arg(long, value_name = "FILE.png|svg|pdf")]
     png: Option<PathBuf>,
     /// Write no figure.
     #[arg(long, conflicts_with = "png")]

@@ -68,7 +68,7 @@ pub(super) struct FitArgs {
     out: Option<PathBuf>,
     /// Measured vs fitted Bode PNG with the pair zoom [default: beside the
     /// input, <stem>.fit.png].
-    #[arg(long, value_name = "FILE.png")]
+    #[arg(long, value_name = "FILE.png|svg|pdf")]
     png: Option<PathBuf>,
     /// Write no PNG.
     #[arg(long, conflicts_with = "png")]

@@ -27,7 +27,7 @@ pub(super) const MARGIN_TOP: u32 = 12;
 
 /// A panel: a chart on the bitmap with a [`Ticked`] linear y axis.
 pub(super) type Chart<'a, 'b, X> =
-    ChartContext<'a, BitMapBackend<'b>, Cartesian2d<X, Ticked<RangedCoordf64>>>;
+    ChartContext<'a, super::canvas::Canvas<'b>, Cartesian2d<X, Ticked<RangedCoordf64>>>;
 
 /// A logarithmic frequency axis over `range` with ticks labelled at `bold`
 /// and grid lines also at `light`.

@@ -5,6 +5,7 @@
 use std::path::Path;
 
 use plotters::prelude::*;
+use plotters::style::text_anchor::{HPos, Pos, VPos};
 
 use super::palette::{
     CNMP_COLOR, MAP_CNMP_BOTH, MAP_CNMP_UNDAMPED_ONLY, MEASURED_COLOR, MODE_SERIES,
@@ -71,7 +72,15 @@ pub fn write_map_png(
         existing,
         ANALYSIS_SIZE,
         |root: &Area<'_>| -> Result<(), BoxError> {
-            let mut chart = ChartBuilder::on(root)
+            // The legend in a strip below the map, off the cells.
+            let mut legend: Vec<(String, MapSwatch)> = Vec::new();
+            let rows = 2
+                + u32::from(crossing_operating_point_m.is_some())
+                + 2 * u32::from(!measured.is_empty())
+                + u32::from(configured.is_some());
+            let legend_h = LEGEND_ROW_PX * rows.div_ceil(2) + 20;
+            let (top, strip) = root.split_vertically(ANALYSIS_SIZE.1 - legend_h);
+            let mut chart = ChartBuilder::on(&top)
                 .caption(title, analysis_font(ANALYSIS_TITLE_SIZE))
                 .margin(20)
                 .x_label_area_size(60)
@@ -97,63 +106,52 @@ pub fn write_map_png(
                     "CMP-CNMP zeros (undamped model only)",
                 ),
             ] {
-                chart
-                    .draw_series(
-                        cells
-                            .iter()
-                            .filter(|c| (c.cnmp, c.cnmp_damped) == pick)
-                            .map(|c| {
-                                let x = pct_l(c.operating_point_m);
-                                let y = c.mass_asymmetry * 100.0;
-                                Rectangle::new(
-                                    [(x - 0.5 * dx, y - 0.5 * dy), (x + 0.5 * dx, y + 0.5 * dy)],
-                                    shade.filled(),
-                                )
-                            }),
-                    )?
-                    .label(label)
-                    .legend(move |(x, y)| {
-                        Rectangle::new([(x, y - 6), (x + 14, y + 6)], shade.filled())
-                    });
+                chart.draw_series(
+                    cells
+                        .iter()
+                        .filter(|c| (c.cnmp, c.cnmp_damped) == pick)
+                        .map(|c| {
+                            let x = pct_l(c.operating_point_m);
+                            let y = c.mass_asymmetry * 100.0;
+                            Rectangle::new(
+                                [(x - 0.5 * dx, y - 0.5 * dy), (x + 0.5 * dx, y + 0.5 * dy)],
+                                shade.filled(),
+                            )
+                        }),
+                )?;
+                legend.push((label.to_string(), MapSwatch::Fill(shade)));
             }
             if let Some(op) = crossing_operating_point_m {
                 let x = pct_l(op);
-                chart
-                    .draw_series(DashedLineSeries::new(
-                        [(x, yr.start), (x, yr.end)],
-                        10,
-                        6,
-                        CNMP_COLOR.stroke_width(2),
-                    ))?
-                    .label(format!("mode crossing (Δm23 = 0) at {x:.2} % of L"))
-                    .legend(|(x, y)| {
-                        PathElement::new([(x, y), (x + 20, y)], CNMP_COLOR.stroke_width(2))
-                    });
+                chart.draw_series(DashedLineSeries::new(
+                    [(x, yr.start), (x, yr.end)],
+                    10,
+                    6,
+                    CNMP_COLOR.stroke_width(2),
+                ))?;
+                legend.push((
+                    format!("mode crossing (Δm23 = 0) at {x:.2} % of L"),
+                    MapSwatch::Dashed(CNMP_COLOR),
+                ));
             }
             if !measured.is_empty() {
-                chart
-                    .draw_series(measured.iter().filter(|m| m.cnmp).map(|m| {
-                        let p = (pct_l(m.operating_point_m), m.mass_asymmetry * 100.0);
-                        EmptyElement::at(p)
-                            + Rectangle::new([(-8, -8), (8, 8)], WHITE.filled())
-                            + Rectangle::new([(-8, -8), (8, 8)], MEASURED_COLOR.stroke_width(3))
-                    }))?
-                    .label("measured: CMP-CNMP")
-                    .legend(|(x, y)| {
-                        Rectangle::new(
-                            [(x, y - 6), (x + 12, y + 6)],
-                            MEASURED_COLOR.stroke_width(3),
-                        )
-                    });
-                chart
-                    .draw_series(measured.iter().filter(|m| !m.cnmp).map(|m| {
-                        let p = (pct_l(m.operating_point_m), m.mass_asymmetry * 100.0);
-                        EmptyElement::at(p)
-                            + Circle::new((0, 0), 8, WHITE.filled())
-                            + Circle::new((0, 0), 8, MEASURED_COLOR.stroke_width(3))
-                    }))?
-                    .label("measured: none")
-                    .legend(|(x, y)| Circle::new((x + 6, y), 6, MEASURED_COLOR.stroke_width(3)));
+                chart.draw_series(measured.iter().filter(|m| m.cnmp).map(|m| {
+                    let p = (pct_l(m.operating_point_m), m.mass_asymmetry * 100.0);
+                    EmptyElement::at(p)
+                        + Rectangle::new([(-8, -8), (8, 8)], WHITE.filled())
+                        + Rectangle::new([(-8, -8), (8, 8)], MEASURED_COLOR.stroke_width(3))
+                }))?;
+                legend.push((
+                    "measured: CMP-CNMP".into(),
+                    MapSwatch::Square(MEASURED_COLOR),
+                ));
+                chart.draw_series(measured.iter().filter(|m| !m.cnmp).map(|m| {
+                    let p = (pct_l(m.operating_point_m), m.mass_asymmetry * 100.0);
+                    EmptyElement::at(p)
+                        + Circle::new((0, 0), 8, WHITE.filled())
+                        + Circle::new((0, 0), 8, MEASURED_COLOR.stroke_width(3))
+                }))?;
+                legend.push(("measured: none".into(), MapSwatch::Circle(MEASURED_COLOR)));
             }
             if let Some((op, dm)) = configured {
                 let p = (pct_l(op), dm * 100.0);
@@ -170,29 +168,15 @@ pub fn write_map_png(
                     ]
                 };
                 let [a, b] = cross((0, 0), 8);
-                chart
-                    .draw_series(std::iter::once(
-                        EmptyElement::at(p)
-                            + Circle::new((0, 0), 11, WHITE.mix(0.8).filled())
-                            + a
-                            + b,
-                    ))?
-                    .label(format!(
-                        "configured bench ({:.2} % of L, Δm23 = {:+.1} %)",
-                        p.0, p.1
-                    ))
-                    .legend(move |(x, y)| {
-                        let [a, b] = cross((x + 6, y), 6);
-                        EmptyElement::at((0, 0)) + a + b
-                    });
+                chart.draw_series(std::iter::once(
+                    EmptyElement::at(p) + Circle::new((0, 0), 11, WHITE.mix(0.8).filled()) + a + b,
+                ))?;
+                legend.push((
+                    format!("configured bench ({:.2} % of L, Δm23 = {:+.1} %)", p.0, p.1),
+                    MapSwatch::Cross(CNMP_COLOR),
+                ));
             }
-            chart
-                .configure_series_labels()
-                .position(SeriesLabelPosition::LowerLeft)
-                .background_style(WHITE.mix(0.9))
-                .border_style(BLACK.mix(0.4))
-                .label_font(analysis_font(ANALYSIS_LABEL_SIZE - 2))
-                .draw()?;
+            draw_map_legend(&strip, &legend)?;
             Ok(())
         },
     )
@@ -338,4 +322,73 @@ pub fn write_veering_png(
             Ok(())
         },
     )
+}
+
+/// Height of a row of the map's legend strip, px.
+const LEGEND_ROW_PX: u32 = 28;
+
+/// The swatch of a map legend entry.
+#[derive(Clone, Copy)]
+enum MapSwatch {
+    /// A filled cell.
+    Fill(RGBColor),
+    /// A dashed line.
+    Dashed(RGBColor),
+    /// An open square (a measured CMP-CNMP cell).
+    Square(RGBColor),
+    /// An open circle (a measured cell without).
+    Circle(RGBColor),
+    /// A cross (the configured bench).
+    Cross(RGBColor),
+}
+
+/// The map's legend in `strip` (below the map): two columns of entries,
+/// each a swatch and its text.
+fn draw_map_legend(strip: &Area<'_>, entries: &[(String, MapSwatch)]) -> Result<(), BoxError> {
+    let (w, _) = strip.dim_in_pixel();
+    let left = 110_i32;
+    let col_w = (i32::try_from(w)? - left) / 2;
+    let half = entries.len().div_ceil(2);
+    for (k, (text, swatch)) in entries.iter().enumerate() {
+        let x = left + col_w * i32::try_from(k / half)?;
+        let y = 14 + i32::try_from(LEGEND_ROW_PX)? * i32::try_from(k % half)?;
+        match *swatch {
+            MapSwatch::Fill(c) => {
+                strip.draw(&Rectangle::new([(x, y - 8), (x + 20, y + 8)], c.filled()))?;
+            }
+            MapSwatch::Dashed(c) => {
+                for d in [0, 12] {
+                    strip.draw(&PathElement::new(
+                        [(x + d, y), (x + d + 8, y)],
+                        c.stroke_width(2),
+                    ))?;
+                }
+            }
+            MapSwatch::Square(c) => {
+                strip.draw(&Rectangle::new(
+                    [(x + 2, y - 8), (x + 18, y + 8)],
+                    c.stroke_width(3),
+                ))?;
+            }
+            MapSwatch::Circle(c) => {
+                strip.draw(&Circle::new((x + 10, y), 8, c.stroke_width(3)))?;
+            }
+            MapSwatch::Cross(c) => {
+                strip.draw(&PathElement::new(
+                    [(x + 2, y - 8), (x + 18, y + 8)],
+                    c.stroke_width(3),
+                ))?;
+                strip.draw(&PathElement::new(
+                    [(x + 2, y + 8), (x + 18, y - 8)],
+                    c.stroke_width(3),
+                ))?;
+            }
+        }
+        strip.draw(&Text::new(
+            text.clone(),
+            (x + 30, y),
+            analysis_font(ANALYSIS_LABEL_SIZE - 2).pos(Pos::new(HPos::Left, VPos::Center)),
+        ))?;
+    }
+    Ok(())
 }

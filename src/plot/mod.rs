@@ -36,12 +36,15 @@
 //! formatting), `draw.rs` (curves and guide lines), `legend.rs` (legend
 //! strips, marker labels, header lines, the title) and `png.rs` (writing
 //! the file).
-//! Unit tests of the figures as files are in `tests.rs`.
+//! Unit tests of the figures as files are in `tests.rs`. The `write_*_png`
+//! functions write SVG and PDF as well, by the path's extension.
 //!
 //! In the Bode, step, time-series and design figures legends sit in strips
 //! above the panels, outside the plotted area, so they never hide a trace.
-//! Rendering uses the plotters bitmap backend with an embedded DejaVu Sans
-//! font, so no system font libraries are needed.
+//! Rendering draws on a [`canvas::Canvas`] (`canvas.rs`): the plotters
+//! bitmap backend for a PNG, its SVG backend for `.svg` and `.pdf` (the
+//! SVG converted by svg2pdf), chosen by the file's extension, with an
+//! embedded DejaVu Sans font, so no system font libraries are needed.
 //! Non-finite samples (and non-positive magnitudes or frequencies, which
 //! have no logarithm) are skipped and break the line instead of failing.
 //! Lines are drawn segment by segment, and time series are first reduced to
@@ -75,6 +78,7 @@ use plotters::prelude::*;
 
 mod axes;
 mod bode;
+mod canvas;
 mod design;
 mod draw;
 mod legend;
@@ -144,4 +148,4 @@ pub enum PlotError {
 /// fit); becomes [`PlotError::Draw`].
 type BoxError = Box<dyn StdError>;
 /// The whole image, or a part of it split off for a panel.
-type Area<'b> = DrawingArea<BitMapBackend<'b>, Shift>;
+type Area<'b> = DrawingArea<canvas::Canvas<'b>, Shift>;

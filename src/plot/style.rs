@@ -16,7 +16,7 @@ use super::PlotError;
 /// The family name the embedded font is registered under.
 pub(super) const FONT: &str = "sans-serif";
 /// DejaVu Sans, embedded.
-static FONT_BYTES: &[u8] = include_bytes!("../../assets/DejaVuSans.ttf");
+pub(super) static FONT_BYTES: &[u8] = include_bytes!("../../assets/DejaVuSans.ttf");
 
 /// Registers the embedded font with plotters (once per process).
 ///

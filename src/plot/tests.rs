@@ -794,3 +794,65 @@ fn the_map_marks_the_configured_bench() {
         "red pixels {with} with the bench, {without} without"
     );
 }
+
+/// `.svg` and `.pdf` give vector figures of the same drawing: an SVG of
+/// the PNG's size whose text is text (the verdict line searchable), that
+/// usvg parses; a one-page PDF of that size in points (× 0.75) with the
+/// font embedded. A failed write leaves nothing.
+#[test]
+fn plot_vector_formats_by_extension() {
+    use svg2pdf::usvg;
+    let dir = tempfile::tempdir().unwrap();
+    let e = example();
+    let plot = BodePlot {
+        pair: Some(example_pair()),
+        ..bode(&e, &[70.9, 400.0, 430.0])
+    };
+    let svg_path = dir.path().join("bode.svg");
+    write_bode_png(&svg_path, Existing::Refuse, &plot).unwrap();
+    let svg = fs::read_to_string(&svg_path).unwrap();
+    assert!(
+        svg.starts_with("<svg width=\"1400\" height=\"1650\""),
+        "{}",
+        &svg[..80]
+    );
+    assert!(svg.contains("<text"), "no text elements");
+    assert!(svg.contains("Coherence"), "the panel titles are text");
+    let tree = usvg::Tree::from_str(&svg, &usvg::Options::default()).unwrap();
+    assert_eq!(
+        (tree.size().width(), tree.size().height()),
+        (1400.0, 1650.0)
+    );
+
+    let pdf_path = dir.path().join("bode.PDF");
+    write_bode_png(&pdf_path, Existing::Refuse, &plot).unwrap();
+    let pdf = fs::read(&pdf_path).unwrap();
+    assert!(pdf.starts_with(b"%PDF-"));
+    let text = String::from_utf8_lossy(&pdf);
+    assert_eq!(
+        text.matches("/Type /Page\n").count()
+            + text.matches("/Type /Page/").count()
+            + text.matches("/Type /Page ").count(),
+        1,
+        "one page"
+    );
+    assert!(
+        text.contains("/MediaBox [0 0 1050 1237.5]"),
+        "1400 × 1650 px at 96 dpi"
+    );
+    assert!(text.contains("/FontFile2"), "the font is embedded");
+    assert!(text.contains("DejaVu"), "in DejaVu Sans");
+    // The PNG of the same plot is still a PNG.
+    let png = dir.path().join("bode.png");
+    write_bode_png(&png, Existing::Refuse, &plot).unwrap();
+    assert_eq!(png_size(&png), (1400, 1650));
+    // A vector figure into a missing directory writes nothing.
+    let missing = dir.path().join("nope/bode.pdf");
+    assert!(matches!(
+        write_bode_png(&missing, Existing::Refuse, &plot),
+        Err(PlotError::Io { .. })
+    ));
+    let mut names = dir_entries(dir.path());
+    names.sort();
+    assert_eq!(names, ["bode.PDF", "bode.png", "bode.svg"]);
+}
