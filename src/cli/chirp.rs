@@ -198,6 +198,12 @@ pub(super) fn chirp(args: ChirpArgs, stop: Arc<AtomicBool>) -> ExitCode {
     if let Err(e) = request.apply(&mut cfg) {
         return refused_request(e, &config_path, |key| args.flag_for(key));
     }
+    // Before any output is claimed.
+    let backend = BackendSpec::resolve(args.backend.as_ref(), &cfg);
+    let pace = match args.pace.local(args.realtime, args.live.given(), &backend) {
+        Ok(p) => p,
+        Err(code) => return code,
+    };
     let multisine = !cfg.chirp.kind.is_sweep();
     if args.bla_csv.is_some() && !multisine {
         return bad_input(format!(
@@ -240,11 +246,6 @@ pub(super) fn chirp(args: ChirpArgs, stop: Arc<AtomicBool>) -> ExitCode {
     let outputs = match &bla_csv {
         Some(p) => outputs.with_output("bla_csv", p, origin(args.bla_csv.is_some())),
         None => outputs,
-    };
-    let backend = BackendSpec::resolve(args.backend.as_ref(), &cfg);
-    let pace = match args.pace.local(args.realtime, args.live.given(), &backend) {
-        Ok(p) => p,
-        Err(code) => return code,
     };
     let opts = ChirpOptions {
         frf_csv,

@@ -214,6 +214,14 @@ pub(super) fn control(args: ControlArgs, stop: Arc<AtomicBool>) -> ExitCode {
         Ok(v) => v,
         Err(e) => return refused_request(e, &config_path, |key| args.flag_for(key)),
     };
+    // Before any output is claimed. --check-only runs no loop: nothing to
+    // pace.
+    let backend = BackendSpec::resolve(args.backend.as_ref(), &cfg);
+    let live_run = args.live.given() && !args.check_only;
+    let pace = match args.pace.local(args.realtime, live_run, &backend) {
+        Ok(p) => p,
+        Err(code) => return code,
+    };
     let companions: &[&str] = if verify.is_some() {
         &[".step.png", ".verify.csv", ".verify.png"]
     } else {
@@ -260,13 +268,6 @@ pub(super) fn control(args: ControlArgs, stop: Arc<AtomicBool>) -> ExitCode {
             .with_output("verify_csv", &v.csv, origin(false))
             .with_output("verify_plot", &v.plot, origin(false)),
         None => outputs,
-    };
-    let backend = BackendSpec::resolve(args.backend.as_ref(), &cfg);
-    // --check-only runs no loop: nothing to pace.
-    let live_run = args.live.given() && !args.check_only;
-    let pace = match args.pace.local(args.realtime, live_run, &backend) {
-        Ok(p) => p,
-        Err(code) => return code,
     };
     let opts = ControlOptions {
         plot,
