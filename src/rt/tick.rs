@@ -307,9 +307,11 @@ impl<'s, S: Stage> Loop<'s, S> {
     /// loop, and real time again after it). Leaving real time, the thread
     /// leaves SCHED_FIFO (a virtual-time job has no deadline to meet, and
     /// an unpaced one would hold a CPU at real-time priority for its whole
-    /// run); back in real time it takes its FIFO priority again, and the
-    /// next deadline is a period from now. Between jobs, not on a tick; no
-    /// allocation.
+    /// run); back in real time it takes its FIFO priority again (the
+    /// daemon was permitted it when it started; were that withdrawn since,
+    /// the loop would go on without it, on a simulator daemon, the only
+    /// kind that runs jobs in virtual time), and the next deadline is a
+    /// period from now. Between jobs, not on a tick; no allocation.
     pub fn set_pacing(&mut self, pacing: Pacing) {
         let realtime = matches!(pacing, Pacing::RealTime { .. });
         self.host_paced = realtime && self.clock == Clock::Host;
