@@ -89,6 +89,7 @@ fn control(c: &mut Criterion) {
         out: dir.path().join("run.mcap"),
         plot: dir.path().join("run.step.png"),
         realtime: false,
+        pace: None,
         seed: 1,
         progress: false,
         inject: None,

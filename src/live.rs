@@ -219,6 +219,54 @@ impl Drop for LiveServer {
     }
 }
 
+/// Which clients the live view serves, and which it refuses: what the log
+/// says when a client's handshake fails ([`refused_handshake`]) and the
+/// README says in *Live view*. The `foxglove` crate (0.30) negotiates only
+/// `foxglove.sdk.v1` and `foxglove.sdk.v1.1`
+/// (`websocket::handshake::Subprotocol::from_name`, crate-private): no
+/// option of its `WebSocketServer` builder and no [`ServerListener`]
+/// callback sees the handshake (the listener's first call,
+/// `on_client_connect`, comes after it), so `foxglove.websocket.v1` cannot
+/// be added; the crate answers such a client HTTP 400.
+pub const CLIENTS: &str = "the live view speaks the Foxglove WebSocket subprotocols foxglove.sdk.v1 and foxglove.sdk.v1.1 only: the foxglove crate it is built on (0.30) negotiates nothing else and has no option to, so a client that offers only foxglove.websocket.v1 gets HTTP 400. Refused: Lichtblick before 1.22.0, Foxglove apps from before the Foxglove SDK, and clients built on @foxglove/ws-protocol or written to its foxglove.websocket.v1 spec (the foxglove-websocket Python package is a server and has no client). Served: the Foxglove app, Lichtblick 1.22.0 or later (PR #819), and any client that offers foxglove.sdk.v1, whose messages are those of foxglove.websocket.v1";
+
+/// The address of the client whose handshake the `foxglove` crate's
+/// server refused, if `event` is its log line (`Dropping client ADDR:
+/// handshake failed`, target `foxglove::websocket…`). The crate does not
+/// say why; a handshake fails when the client offers none of the
+/// subprotocols it speaks (see [`CLIENTS`]) or is not a WebSocket
+/// handshake at all. For the CLI's log, which says [`CLIENTS`] instead.
+pub fn refused_handshake(event: &tracing::Event<'_>) -> Option<String> {
+    if !event.metadata().target().starts_with("foxglove::websocket") {
+        return None;
+    }
+    struct Message(Option<String>);
+    impl tracing::field::Visit for Message {
+        fn record_str(&mut self, field: &tracing::field::Field, value: &str) {
+            if field.name() == "message" {
+                self.0 = Some(value.to_string());
+            }
+        }
+        fn record_debug(&mut self, field: &tracing::field::Field, value: &dyn std::fmt::Debug) {
+            if field.name() == "message" {
+                self.0 = Some(format!("{value:?}"));
+            }
+        }
+    }
+    let mut m = Message(None);
+    event.record(&mut m);
+    let text = m.0?;
+    let addr = text
+        .strip_prefix("Dropping client ")?
+        .strip_suffix(": handshake failed")?;
+    Some(addr.to_string())
+}
+
+/// The log line of a refused handshake (see [`refused_handshake`]).
+pub fn refusal_message(addr: &str) -> String {
+    format!("live view: refused the client at {addr}: its WebSocket handshake offered no subprotocol this server speaks (or was no WebSocket handshake); {CLIENTS} (README, Live view)")
+}
+
 /// One recorder channel's live twin.
 #[derive(Clone)]
 pub struct LiveChannel(Arc<RawChannel>);

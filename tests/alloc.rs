@@ -1,5 +1,7 @@
 //! The real-time tick allocates nothing once running (copper-rs style
-//! counting allocator): a chirp's, a multisine's, a closed loop's. Counts only on the loop's own thread, from the
+//! counting allocator): a chirp's (virtual time, paced virtual time, real
+//! time), a multisine's, a closed loop's, the daemon's hold and its switch
+//! to a paced job and back. Counts only on the loop's own thread, from the
 //! 100th tick on, across everything the tick does: HAL read (simulator
 //! step, noise), supervisor, job, HAL write, queue push, timing.
 
@@ -166,6 +168,77 @@ fn tick_allocates_nothing() {
     );
     assert!(ticks > 2_000);
     assert_eq!(allocs, 0, "{allocs} allocations in {ticks} real-time ticks");
+    // Paced virtual time: its releases and sleeps (20× real time, 1 ms
+    // batches of 100 ticks).
+    let (allocs, ticks) = run_counted(Pacing::Paced { factor: 20.0 }, 1.0);
+    assert!(ticks > 5_000);
+    assert_eq!(allocs, 0, "{allocs} allocations in {ticks} paced ticks");
+}
+
+/// The daemon's loop runs a paced job on its real-time loop and goes back
+/// to real time for the hold ([`rt::Loop::set_pacing`], between jobs on
+/// the loop's thread): the switches, the paced job's ticks and the hold
+/// after it allocate nothing.
+#[test]
+fn a_paced_job_on_a_real_time_loop_and_back_allocate_nothing() {
+    let mut cfg = ch5();
+    cfg.chirp.duration_s = Some(0.5);
+    cfg.chirp.taper_s = Some(0.1);
+    cfg.chirp.lead_in_s = 0.1;
+    cfg.chirp.tail_s = 0.1;
+    cfg.validate(Path::new("ch5")).unwrap();
+    let mut stage = SimStage::new(cfg.sim_params(7)).unwrap();
+    let info = stage.configure(cfg.loop_.period_ns()).unwrap();
+    let chirp = Chirp::new(&cfg.chirp, info.period_ns as f64 * 1e-9);
+    let opts = LoopOptions {
+        period_ns: info.period_ns,
+        pacing: Pacing::RealTime {
+            priority: 10,
+            cpu: None,
+        },
+        timing_interval_ticks: 500,
+        safety: bench::rt::supervisor::SupervisorConfig {
+            max_missed_deadlines: u64::MAX,
+            ..cfg.supervisor(&info)
+        },
+        max_ticks: chirp.total_ticks(),
+    };
+    let (mut producer, mut consumer) = rt::RecordQueue::new(1 << 16);
+    let room = std::sync::Arc::clone(&producer.room);
+    let drain = std::thread::spawn(move || {
+        while !consumer.is_abandoned() || !consumer.is_empty() {
+            while consumer.pop().is_ok() {}
+            room.made_room(0, 1 << 16);
+            std::thread::sleep(std::time::Duration::from_millis(1));
+        }
+    });
+    let (end, allocations) = std::thread::spawn(move || {
+        let mut lp = rt::Loop::new(&mut stage, &opts, info.clock);
+        let mut job = ChirpJob::new(chirp);
+        COUNTING.with(|c| c.set(true));
+        lp.set_pacing(Pacing::Paced { factor: 10.0 });
+        let end = lp.run_job(
+            &mut job,
+            &mut producer,
+            opts.max_ticks,
+            &AtomicBool::new(false),
+            &AtomicU64::new(0),
+        );
+        lp.set_pacing(opts.pacing);
+        let mut n = 0u64;
+        lp.hold(&mut rt::HoldJob, |_| {
+            n += 1;
+            n >= 1_000
+        });
+        let allocations = stop_counting();
+        (end.into_report(Vec::new()), allocations)
+    })
+    .join()
+    .unwrap();
+    drain.join().unwrap();
+    assert_eq!(end.stop, StopReason::Finished);
+    assert!(end.ticks > 3_000 && end.timing.wake.count > 0);
+    assert_eq!(allocations, 0, "{allocations} allocations");
 }
 
 /// The same with a multisine (`chirp.kind = "multisine"`, random phases):

@@ -5,7 +5,11 @@
 //! connect to a running real-time chirp, subscribe to the samples
 //! and receive them with increasing timestamps; a client that subscribes
 //! and then never reads does not hold the run up; bad `--live` values exit
-//! 2 naming the flag.
+//! 2 naming the flag. A chirp in virtual time with `--live` is paced at
+//! real time by default and seen live for as long as its loop time; a
+//! client that offers only `foxglove.websocket.v1` is refused (HTTP 400),
+//! the run goes on, and the log says which clients are served, as the
+//! README does.
 
 mod common;
 #[path = "common/daemon.rs"]
@@ -596,4 +600,222 @@ fn a_late_subscriber_gets_the_one_shot_channels() {
     assert_eq!(summary["seed"], answered["seed"]);
     // Exactly once each: latched, not replayed to everyone.
     assert_eq!(frames.iter().filter(|f| f.0 == 1).count(), 1);
+}
+
+/// Connects to `url` offering `foxglove.sdk.v1`, subscribes to `topics`
+/// (subscription id = index + 1) and notes when each MessageData frame
+/// arrives, until the server closes the connection or `timeout` passes.
+async fn arrivals(url: &str, topics: &[&str], timeout: Duration) -> Vec<(u32, std::time::Instant)> {
+    let mut req = url.into_client_request().unwrap();
+    req.headers_mut()
+        .insert("Sec-WebSocket-Protocol", FOXGLOVE.parse().unwrap());
+    let (mut ws, _) = tokio_tungstenite::connect_async(req).await.unwrap();
+    let mut out = Vec::new();
+    let deadline = tokio::time::Instant::now() + timeout;
+    loop {
+        let msg = match tokio::time::timeout_at(deadline, ws.next()).await {
+            Ok(Some(Ok(m))) => m,
+            _ => break,
+        };
+        match msg {
+            Message::Text(t) => {
+                let v: Value = serde_json::from_str(&t).unwrap();
+                if v["op"] != "advertise" {
+                    continue;
+                }
+                for ch in v["channels"].as_array().unwrap() {
+                    if let Some(i) = topics.iter().position(|t| ch["topic"] == *t) {
+                        let sub = json!({"op": "subscribe", "subscriptions": [
+                            {"id": i + 1, "channelId": ch["id"]}
+                        ]});
+                        ws.send(Message::Text(sub.to_string().into()))
+                            .await
+                            .unwrap();
+                    }
+                }
+            }
+            Message::Binary(b) if b[0] == 1 => {
+                let sub = u32::from_le_bytes(b[1..5].try_into().unwrap());
+                out.push((sub, std::time::Instant::now()));
+            }
+            Message::Close(_) => break,
+            _ => {}
+        }
+    }
+    out
+}
+
+/// The live view's URL and the stderr lines before it.
+fn live_url_and_lines(err: &mut BufReader<std::process::ChildStderr>) -> (String, String) {
+    let mut before = String::new();
+    let mut line = String::new();
+    loop {
+        line.clear();
+        assert!(
+            err.read_line(&mut line).unwrap() > 0,
+            "no live view line: {before}"
+        );
+        if let Some(rest) = line.strip_prefix("live view on ") {
+            return (rest.split_whitespace().next().unwrap().to_string(), before);
+        }
+        before.push_str(&line);
+    }
+}
+
+/// The requirement: `--live` without `--realtime` paces virtual
+/// time at 1× by default (and says so), so a chirp of 10 s of loop time is
+/// seen by a client for at least 9 s of wall time, first message to last,
+/// with samples and envelopes in every second of it.
+#[test]
+fn a_paced_chirp_is_seen_live_for_its_loop_time() {
+    let _g = one_at_a_time();
+    let dir = tmp();
+    // Lead-in 0.5 s + sweep 9 s + tail 0.5 s: 10 s of loop time.
+    let cfg = quiet_config(dir.path(), 0.5, "");
+    let rec = dir.path().join("run.mcap");
+    let mut child = bench()
+        .args(["chirp", "--json", "--duration-s", "9"])
+        .args(["--live", "127.0.0.1:0", "--config"])
+        .arg(&cfg)
+        .arg("--out")
+        .arg(&rec)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut err = BufReader::new(child.stderr.take().unwrap());
+    let (url, before) = live_url_and_lines(&mut err);
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .unwrap();
+    let seen = rt.block_on(arrivals(
+        &url,
+        &["/bench/sample", "/bench/envelope"],
+        Duration::from_secs(60),
+    ));
+    let out = child.wait_with_output().unwrap();
+    let mut rest = String::new();
+    std::io::Read::read_to_string(&mut err, &mut rest).unwrap();
+    assert!(out.status.success(), "{rest}");
+    let all_err = before + &rest;
+    assert!(
+        all_err.contains("paced at 1× real time") && all_err.contains("--pace off"),
+        "{all_err}"
+    );
+    let s: Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(s["timing"]["mode"], "paced", "{}", s["timing"]);
+    assert_eq!(s["timing"]["pace_factor"], 1.0);
+    let loop_s = s["timing"]["ticks"].as_f64().unwrap() / s["timing"]["rate_hz"].as_f64().unwrap();
+    assert!((loop_s - 10.0).abs() < 1e-3, "{loop_s}");
+    let (first, last) = (seen.first().unwrap().1, seen.last().unwrap().1);
+    let span = last - first;
+    eprintln!(
+        "a paced chirp of {loop_s} s of loop time: seen live for {:.3} s ({} messages)",
+        span.as_secs_f64(),
+        seen.len()
+    );
+    assert!(span >= Duration::from_secs(9), "seen for {span:?} only");
+    // Throughout: samples (id 1) and envelopes (id 2) in every second.
+    let mut from = first;
+    while from + Duration::from_secs(1) <= last {
+        let to = from + Duration::from_secs(1);
+        let in_bin = |id: u32| {
+            seen.iter()
+                .filter(|(i, t)| *i == id && *t >= from && *t < to)
+                .count()
+        };
+        assert!(
+            in_bin(1) > 0 && in_bin(2) > 0,
+            "a second without samples or envelopes at +{:?}",
+            from - first
+        );
+        from = to;
+    }
+    assert_eq!(s["timing"]["dropped_records"], 0);
+}
+
+/// A client that offers only `foxglove.websocket.v1` (Lichtblick before
+/// 1.22.0, @foxglove/ws-protocol's client) is refused with HTTP 400 — the
+/// `foxglove` crate negotiates nothing else and has no hook to — while a
+/// `foxglove.sdk.v1` client of the same run gets its samples and the run
+/// ends complete. The log says which clients are served
+/// ([`bench::live::CLIENTS`], word for word what the README's *Live view*
+/// says), instead of the crate's bare "handshake failed".
+#[test]
+fn a_legacy_client_is_refused_and_the_log_says_why() {
+    let _g = one_at_a_time();
+    let dir = tmp();
+    let cfg = quiet_config(dir.path(), 0.5, "");
+    let mut child = bench()
+        .env_remove("RUST_LOG")
+        .env_remove("BENCH_LOG")
+        .args(["chirp", "--json", "--duration-s", "2", "--pace", "1"])
+        .args(["--live", "127.0.0.1:0", "--config"])
+        .arg(&cfg)
+        .arg("--out")
+        .arg(dir.path().join("run.mcap"))
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut err = BufReader::new(child.stderr.take().unwrap());
+    let url = live_url(&mut err);
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .unwrap();
+    let (refused, good) = rt.block_on(async {
+        let legacy = async {
+            let mut req = url.as_str().into_client_request().unwrap();
+            req.headers_mut().insert(
+                "Sec-WebSocket-Protocol",
+                "foxglove.websocket.v1".parse().unwrap(),
+            );
+            tokio_tungstenite::connect_async(req).await.map(|_| ())
+        };
+        tokio::join!(
+            legacy,
+            arrivals(&url, &["/bench/sample"], Duration::from_secs(30))
+        )
+    });
+    match refused {
+        Err(tokio_tungstenite::tungstenite::Error::Http(resp)) => {
+            assert_eq!(resp.status(), 400)
+        }
+        other => panic!("a foxglove.websocket.v1 client was not refused: {other:?}"),
+    }
+    assert!(
+        good.len() > 10,
+        "the foxglove.sdk.v1 client got {} messages",
+        good.len()
+    );
+    let out = child.wait_with_output().unwrap();
+    let mut rest = String::new();
+    std::io::Read::read_to_string(&mut err, &mut rest).unwrap();
+    assert!(out.status.success(), "{rest}");
+    let s: Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(s["timing"]["dropped_records"], 0);
+    let line = rest
+        .lines()
+        .find(|l| l.contains("live view: refused the client at 127.0.0.1:"))
+        .unwrap_or_else(|| panic!("no refusal in the log:\n{rest}"));
+    assert!(line.contains(" WARN "), "{line}");
+    assert!(line.contains(bench::live::CLIENTS), "{line}");
+    assert!(!rest.contains("Dropping client"), "{rest}");
+    // The README says the same, word for word (markup and line breaks
+    // aside).
+    let readme =
+        std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/README.md")).unwrap();
+    let words = |t: &str| {
+        t.replace('`', "")
+            .split_whitespace()
+            .collect::<Vec<_>>()
+            .join(" ")
+    };
+    assert!(
+        words(&readme).contains(&words(bench::live::CLIENTS)),
+        "README.md does not say: {}",
+        bench::live::CLIENTS
+    );
 }

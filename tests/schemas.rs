@@ -1,12 +1,14 @@
-//! Every message of a recorded chirp run and of recorded control runs (one
-//! clean, one with a fault) on the simulator is valid against its channel's
-//! schema, checked with independent implementations: JSON channels against
-//! their JSON Schema (`jsonschema`), the protobuf channels (`/bench/sample`
+//! Every message of a recorded chirp run (paced, `--pace 50`) and of
+//! recorded control runs (one clean, one with a fault) on the simulator is
+//! valid against its channel's schema, checked with independent
+//! implementations: JSON channels against their JSON Schema
+//! (`jsonschema`), the protobuf channels (`/bench/sample`
 //! blocks, `/bench/envelope`) decoded against the recorded
 //! `FileDescriptorSet` by `prost-reflect` (no unknown field, every enum
 //! value defined, every column of a block as long as the block); every
 //! field of every JSON schema has a description; and the validators do
-//! reject wrong messages.
+//! reject wrong messages (a summary's pacing mode outside `virtual`, `paced`,
+//! `realtime` among them).
 
 mod common;
 
@@ -196,6 +198,7 @@ fn recorded_messages_match_their_channel_schemas() {
     let faulted = dir.path().join("faulted.mcap");
     let p = |f: &Path| f.display().to_string();
     let (chirp_s, control_s, faulted_s) = (p(&chirp), p(&control), p(&faulted));
+    // Paced (its summary's timing says so).
     bench_exits(
         &[
             "chirp",
@@ -206,6 +209,8 @@ fn recorded_messages_match_their_channel_schemas() {
             "2",
             "--f-start-hz",
             "5",
+            "--pace",
+            "50",
         ],
         0,
     );
@@ -284,6 +289,35 @@ fn recorded_messages_match_their_channel_schemas() {
         ("/sysid/summary", "bench.ChirpSummary"),
     ];
     assert_topics(&chirp, &chirp_topics);
+    // The pacing in the summary: a paced run says `paced`, its factor and
+    // its batch; the schema knows three modes and nothing else.
+    let cs = &chirp["/sysid/summary"];
+    let paced = &cs.messages[0];
+    assert_eq!(paced["timing"]["mode"], "paced", "{}", paced["timing"]);
+    assert_eq!(paced["timing"]["pace_factor"], 50.0);
+    assert_eq!(paced["timing"]["pace_batch_ticks"], 250);
+    let valid_cs = |x: &Value| jsonschema::validator_for(&cs.schema).unwrap().is_valid(x);
+    assert!(valid_cs(paced));
+    for (pointer, wrong) in [
+        ("/timing/mode", json!("fast")),
+        ("/timing/mode", json!("Paced")),
+        ("/timing/mode", json!(1)),
+        ("/timing/pace_factor", json!("50")),
+        ("/timing/pace_batch_ticks", json!(-1)),
+        ("/timing/pace_batch_ticks", json!(2.5)),
+    ] {
+        assert!(
+            !valid_cs(&replaced(paced, pointer, wrong.clone())),
+            "{pointer} = {wrong} accepted"
+        );
+    }
+    for mode in ["virtual", "realtime"] {
+        let mut other = replaced(paced, "/timing/mode", json!(mode));
+        let t = other["timing"].as_object_mut().unwrap();
+        t.remove("pace_factor");
+        t.remove("pace_batch_ticks");
+        assert!(valid_cs(&other), "{mode}");
+    }
     let multisine = validate_recording(&multisine);
     assert_topics(&multisine, &chirp_topics);
     let ms = &multisine["/sysid/summary"];

@@ -26,6 +26,7 @@ pub fn default_chirp(dir: &Path) -> ChirpOptions {
         plot: dir.join("chirp.bode.png"),
         bla_csv: None,
         realtime: false,
+        pace: None,
         seed: 1,
         progress: false,
         backend: None,

@@ -98,6 +98,24 @@ pub fn set_fifo_priority(priority: i32) -> bool {
     unsafe { libc::pthread_setschedparam(libc::pthread_self(), libc::SCHED_FIFO, &param) == 0 }
 }
 
+/// The SCHED_FIFO priority of the calling thread, `None` when it runs
+/// under another policy (normal scheduling).
+pub fn fifo_priority() -> Option<i32> {
+    let mut policy = 0;
+    let mut param = libc::sched_param { sched_priority: 0 };
+    // SAFETY: plain call on the current thread with valid out-pointers.
+    let r = unsafe { libc::pthread_getschedparam(libc::pthread_self(), &mut policy, &mut param) };
+    (r == 0 && policy == libc::SCHED_FIFO).then_some(param.sched_priority)
+}
+
+/// Returns the calling thread to normal scheduling (SCHED_OTHER). Always
+/// permitted (lowering needs no privilege); returns whether it took.
+pub fn set_normal_scheduling() -> bool {
+    let param = libc::sched_param { sched_priority: 0 };
+    // SAFETY: plain call on the current thread with a valid parameter.
+    unsafe { libc::pthread_setschedparam(libc::pthread_self(), libc::SCHED_OTHER, &param) == 0 }
+}
+
 /// The CPUs online (at least 1).
 pub fn online_cpus() -> usize {
     // SAFETY: sysconf has no preconditions.

@@ -608,6 +608,7 @@ fn run_cell(
                 // cell's noise and distortion are in its summary.
                 bla_csv: None,
                 realtime: !matches!(bench, CellBench::Sim),
+                pace: None,
                 seed,
                 progress: false,
                 backend: match bench {
@@ -635,6 +636,7 @@ fn run_cell(
                 f_start_hz: Some(c.f_start_hz),
                 f_end_hz: Some(c.f_end_hz),
                 duration_s: c.duration_s,
+                pace: None,
             });
             let v = submit(socket, &job)
                 .map_err(|e| cell_err(format!("daemon {}: {e}", socket.display())))?;

@@ -50,6 +50,8 @@ pub(super) struct ChirpArgs {
     realtime: bool,
     #[command(flatten)]
     live: super::LiveArgs,
+    #[command(flatten)]
+    pace: super::PaceArgs,
     /// Simulator noise seed [default: sim.seed from the config].
     #[arg(long, value_name = "N", allow_hyphen_values = true, value_parser = parse_seed)]
     seed: Option<u64>,
@@ -107,6 +109,7 @@ impl ChirpArgs {
             f_start_hz: self.f_start_hz,
             f_end_hz: self.f_end_hz,
             duration_s: self.duration_s,
+            pace: self.pace.given(),
         }
     }
 
@@ -140,6 +143,9 @@ impl ChirpArgs {
 }
 
 pub(super) fn chirp(args: ChirpArgs, stop: Arc<AtomicBool>) -> ExitCode {
+    if let Err(code) = args.pace.check_realtime(args.realtime) {
+        return code;
+    }
     if let Some(sock) = &args.daemon {
         let mut local_only = vec![
             (
@@ -192,6 +198,12 @@ pub(super) fn chirp(args: ChirpArgs, stop: Arc<AtomicBool>) -> ExitCode {
     if let Err(e) = request.apply(&mut cfg) {
         return refused_request(e, &config_path, |key| args.flag_for(key));
     }
+    // Before any output is claimed.
+    let backend = BackendSpec::resolve(args.backend.as_ref(), &cfg);
+    let pace = match args.pace.local(args.realtime, args.live.given(), &backend) {
+        Ok(p) => p,
+        Err(code) => return code,
+    };
     let multisine = !cfg.chirp.kind.is_sweep();
     if args.bla_csv.is_some() && !multisine {
         return bad_input(format!(
@@ -244,6 +256,7 @@ pub(super) fn chirp(args: ChirpArgs, stop: Arc<AtomicBool>) -> ExitCode {
         config: cfg,
         config_path,
         realtime: args.realtime,
+        pace,
         progress: std::io::stderr().is_terminal(),
         backend: args.backend.clone(),
         inject,

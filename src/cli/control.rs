@@ -62,6 +62,8 @@ pub(super) struct ControlArgs {
     realtime: bool,
     #[command(flatten)]
     live: super::LiveArgs,
+    #[command(flatten)]
+    pace: super::PaceArgs,
     /// Print the loop check and exit without enabling anything.
     #[arg(long)]
     check_only: bool,
@@ -144,6 +146,7 @@ impl ControlArgs {
             verify: self.verify,
             verify_amplitude_a: self.verify_amplitude_a,
             verify_duration_s: self.verify_duration_s,
+            pace: self.pace.given(),
         }
     }
 
@@ -169,6 +172,9 @@ impl ControlArgs {
 }
 
 pub(super) fn control(args: ControlArgs, stop: Arc<AtomicBool>) -> ExitCode {
+    if let Err(code) = args.pace.check_realtime(args.realtime) {
+        return code;
+    }
     if let Some(sock) = &args.daemon {
         let local_only = [
             (
@@ -207,6 +213,14 @@ pub(super) fn control(args: ControlArgs, stop: Arc<AtomicBool>) -> ExitCode {
     let verify = match request.verify_settings(&cfg) {
         Ok(v) => v,
         Err(e) => return refused_request(e, &config_path, |key| args.flag_for(key)),
+    };
+    // Before any output is claimed. --check-only runs no loop: nothing to
+    // pace.
+    let backend = BackendSpec::resolve(args.backend.as_ref(), &cfg);
+    let live_run = args.live.given() && !args.check_only;
+    let pace = match args.pace.local(args.realtime, live_run, &backend) {
+        Ok(p) => p,
+        Err(code) => return code,
     };
     let companions: &[&str] = if verify.is_some() {
         &[".step.png", ".verify.csv", ".verify.png"]
@@ -266,6 +280,7 @@ pub(super) fn control(args: ControlArgs, stop: Arc<AtomicBool>) -> ExitCode {
         frf: args.frf.clone(),
         override_check: request.override_check,
         realtime: args.realtime,
+        pace,
         progress: std::io::stderr().is_terminal(),
         inject,
         backend: args.backend.clone(),

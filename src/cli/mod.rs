@@ -201,13 +201,49 @@ fn init_logging(daemon: bool) {
     // `log_internal_errors(false)`: a failed write to stderr is dropped;
     // with it, tracing reports the failure with `eprintln!`, which panics
     // on that same stderr.
+    let format = tracing_subscriber::fmt::format()
+        .with_ansi(ansi)
+        .with_target(false);
     tracing_subscriber::fmt()
         .with_writer(std::io::stderr)
         .log_internal_errors(false)
         .with_env_filter(filter)
         .with_ansi(ansi)
-        .with_target(false)
+        .event_format(ExplainRefusals(format))
         .init();
+}
+
+/// The log's format, except for the `foxglove` crate's "Dropping client
+/// ADDR: handshake failed", which says nothing of why: that line becomes
+/// a warning that says which clients the live view serves
+/// ([`bench::live::refusal_message`]).
+struct ExplainRefusals<F>(F);
+
+impl<S, N, F> tracing_subscriber::fmt::FormatEvent<S, N> for ExplainRefusals<F>
+where
+    S: tracing::Subscriber + for<'a> tracing_subscriber::registry::LookupSpan<'a>,
+    N: for<'a> tracing_subscriber::fmt::FormatFields<'a> + 'static,
+    F: tracing_subscriber::fmt::FormatEvent<S, N>,
+{
+    fn format_event(
+        &self,
+        ctx: &tracing_subscriber::fmt::FmtContext<'_, S, N>,
+        mut w: tracing_subscriber::fmt::format::Writer<'_>,
+        event: &tracing::Event<'_>,
+    ) -> std::fmt::Result {
+        use tracing_subscriber::fmt::time::FormatTime;
+        let Some(addr) = bench::live::refused_handshake(event) else {
+            return self.0.format_event(ctx, w, event);
+        };
+        // As the default format lays a line out: time, level, message.
+        tracing_subscriber::fmt::time::SystemTime.format_time(&mut w)?;
+        let level = if w.has_ansi_escapes() {
+            "\x1b[33m WARN\x1b[0m"
+        } else {
+            " WARN"
+        };
+        writeln!(w, " {level} {}", bench::live::refusal_message(&addr))
+    }
 }
 
 pub fn main() -> ExitCode {
@@ -294,6 +330,65 @@ impl LiveArgs {
         Ok(Some(server))
     }
 }
+
+/// `--pace FACTOR|off`, shared by `chirp` and `control`.
+#[derive(Debug, clap::Args)]
+pub(super) struct PaceArgs {
+    /// Pace the simulator's virtual time against the wall clock: a factor
+    /// of real time from 0.01 to 100 (1: real time, 0.1: ten times slower,
+    /// 10: ten times faster), or off (as fast as it goes) [default: 1 with
+    /// --live, else off]. The loop sleeps once per ~1 ms batch of ticks; a
+    /// late batch is caught up, never a fault. Not with --realtime; the
+    /// simulator only (hardware always runs in real time).
+    #[arg(long, value_name = "FACTOR|off", allow_hyphen_values = true, value_parser = bench::jobs::request::parse_pace)]
+    pace: Option<bench::jobs::request::Pace>,
+}
+
+impl PaceArgs {
+    /// The pace as given.
+    pub(super) fn given(&self) -> Option<bench::jobs::request::Pace> {
+        self.pace
+    }
+
+    /// Exit 2 naming both flags when `--pace` comes with `--realtime`.
+    pub(super) fn check_realtime(&self, realtime: bool) -> Result<(), ExitCode> {
+        match self.pace {
+            Some(p) if realtime => Err(bad_input(format!(
+                "--pace {p} cannot be used with --realtime: --realtime runs the loop on absolute deadlines in real time (SCHED_FIFO), --pace paces the simulator's virtual time; give one of them"
+            ))),
+            _ => Ok(()),
+        }
+    }
+
+    /// The pace of a local run (the factor, `None`: unpaced or real time)
+    /// on `backend`: `--pace` as given; without it, 1 (real time) when a
+    /// live view (`live`) watches a run in virtual time, said on stderr
+    /// with how to run unpaced. Exit 2 naming `--pace` on hardware, which
+    /// runs in real time.
+    pub(super) fn local(
+        &self,
+        realtime: bool,
+        live: bool,
+        backend: &bench::rt::backend::BackendSpec,
+    ) -> Result<Option<f64>, ExitCode> {
+        match self.pace {
+            Some(p) if !backend.is_sim() => Err(bad_input(format!(
+                "--pace {p}: {}",
+                bench::jobs::request::pace_on_hardware(&backend.to_string())
+            ))),
+            Some(p) => Ok(p.factor()),
+            None if live && !realtime && backend.is_sim() => {
+                errln!("{DEFAULT_LIVE_PACE_NOTE}");
+                Ok(Some(1.0))
+            }
+            None => Ok(None),
+        }
+    }
+}
+
+/// What a run with `--live` in virtual time and no `--pace` says on
+/// stderr.
+pub(super) const DEFAULT_LIVE_PACE_NOTE: &str = "note: --live without --realtime: the simulator's virtual time is paced at 1× real time so the live view shows the run as it happens (--pace FACTOR for another pace, --pace off to run as fast as possible)";
 
 pub(super) fn bad_input(msg: impl std::fmt::Display) -> ExitCode {
     errln!("error: {msg}");

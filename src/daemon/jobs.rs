@@ -17,7 +17,7 @@ use crate::jobs::chirp::{run_chirp_on, ChirpOptions};
 use crate::jobs::design::{run_design, DesignInput, DesignOptions};
 use crate::jobs::fit::{run_fit, FitOptions};
 use crate::jobs::map::{run_map, MapOptions};
-use crate::jobs::request::{JobRequest, RequestError};
+use crate::jobs::request::{check_pace, pace_on_hardware, JobRequest, Pace, RequestError};
 use crate::jobs::session::Runner;
 use crate::jobs::step::{run_control_from, ControlOptions, StageSource};
 use crate::jobs::verify::VerifyOptions;
@@ -125,8 +125,22 @@ pub(super) fn job_spec(ctx: &Ctx, request: &JobRequest, id: u64) -> Result<Accep
         bad_params(message)
     };
     let kind = request.kind();
+    // A bench job's pace, checked as `--pace` is: the daemon's jobs run in
+    // its loop's real time unless they ask for virtual time, which only a
+    // simulator has.
+    let pace = |p: Option<Pace>| -> Result<Option<Pace>, ApiError> {
+        let p = check_pace(p).map_err(bad)?;
+        match p {
+            Some(p) if !ctx.spec.is_sim() => Err(bad_params(format!(
+                "params.pace {p}: {}",
+                pace_on_hardware(&ctx.spec.to_string())
+            ))),
+            p => Ok(p),
+        }
+    };
     match request {
         JobRequest::Chirp(req) => {
+            let pace = pace(req.pace)?;
             req.apply(&mut cfg).map_err(bad)?;
             // A multisine refused at the device's period is refused here,
             // before the job is queued.
@@ -141,7 +155,8 @@ pub(super) fn job_spec(ctx: &Ctx, request: &JobRequest, id: u64) -> Result<Accep
                 seed: req.seed.unwrap_or(ctx.seed),
                 config: cfg,
                 config_path: ctx.config_path.clone(),
-                realtime: true,
+                realtime: pace.is_none(),
+                pace: pace.and_then(Pace::factor),
                 progress: false,
                 backend: Some(ctx.spec.clone()),
                 inject: None,
@@ -154,6 +169,7 @@ pub(super) fn job_spec(ctx: &Ctx, request: &JobRequest, id: u64) -> Result<Accep
             })
         }
         JobRequest::Control(req) => {
+            let pace = pace(req.pace)?;
             let inject = req.apply(&mut cfg).map_err(bad)?;
             let verify = req.verify_settings(&cfg).map_err(bad)?;
             let out = recording_path(&ctx.recordings, &format!("control-{}", req.controller), id);
@@ -178,7 +194,8 @@ pub(super) fn job_spec(ctx: &Ctx, request: &JobRequest, id: u64) -> Result<Accep
                 check_only: false,
                 frf: None,
                 override_check: req.override_check,
-                realtime: true,
+                realtime: pace.is_none(),
+                pace: pace.and_then(Pace::factor),
                 seed: req.seed.unwrap_or(ctx.seed),
                 progress: false,
                 inject,

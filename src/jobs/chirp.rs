@@ -167,6 +167,10 @@ pub struct ChirpOptions {
     pub bla_csv: Option<PathBuf>,
     /// Real-time pacing instead of virtual time.
     pub realtime: bool,
+    /// Virtual time paced at this factor of real time
+    /// ([`crate::rt::Pacing::Paced`]); `None`: as fast as it goes. Not with
+    /// `realtime`, not on hardware (refused, naming `pace`).
+    pub pace: Option<f64>,
     /// Simulator noise seed.
     pub seed: u64,
     /// Show a progress bar (real-time mode, on a terminal).
@@ -825,12 +829,20 @@ fn run_chirp_with(
         .map_err(|e| RunError::BadInput(format!("config {}: {e}", opts.config_path.display())))?;
     }
 
+    if let (Some(f), true) = (opts.pace, hardware) {
+        return Err(RunError::option(
+            "pace",
+            f,
+            crate::jobs::request::pace_on_hardware(&info.name),
+        ));
+    }
     let session = SessionOptions {
         command: "chirp",
         config_path: &opts.config_path,
         out: &opts.out,
         // Hardware runs in real time whatever the flag says.
         realtime: opts.realtime || hardware,
+        pace: opts.pace,
         progress: opts.progress,
         seed: opts.seed,
         max_ticks: total_ticks,

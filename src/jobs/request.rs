@@ -113,6 +113,12 @@ pub struct ChirpRequest {
     /// its `[multisine]` table's.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub duration_s: Option<f64>,
+    /// Pacing on the simulator ([`Pace`]: a factor of real time, or
+    /// `"off"`); checked by [`check_pace`]. Absent: the runner's default
+    /// (a local run in virtual time, unpaced unless it serves a live view;
+    /// a daemon's job in real time).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub pace: Option<Pace>,
 }
 
 impl ChirpRequest {
@@ -193,6 +199,9 @@ pub struct ControlRequest {
     /// [`DEFAULT_DURATION_S`]].
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub verify_duration_s: Option<f64>,
+    /// Pacing on the simulator, as [`ChirpRequest::pace`].
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub pace: Option<Pace>,
 }
 
 /// The verify's amplitude (A) and sweep duration (s), resolved and
@@ -219,6 +228,7 @@ impl ControlRequest {
             verify: false,
             verify_amplitude_a: None,
             verify_duration_s: None,
+            pace: None,
         }
     }
 
@@ -465,6 +475,156 @@ pub fn parse_seed(s: &str) -> Result<u64, String> {
     })
 }
 
+/// The slowest pace, × real time: a hundredth (a 10 s sweep takes about
+/// 17 minutes; a 10 kHz loop releases 100 ticks a second).
+pub const PACE_MIN: f64 = 0.01;
+/// The fastest pace, × real time. Past it a pace has nothing left to show
+/// (a 10 s sweep passes in a tenth of a second) and comes near the
+/// machine's own speed: the default chirp's loop runs 650–1 300× real time
+/// unpaced on a 2-core VM (README, *Measured performance*), where a pace
+/// would no longer pace; `off` runs as fast as it goes and says so.
+pub const PACE_MAX: f64 = 100.0;
+
+/// How a run on the simulator is paced against the wall clock (`--pace`,
+/// the request's `pace`): in JSON a number (the factor) or `"off"`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Pace {
+    /// Virtual time as fast as it goes ([`crate::rt::Pacing::Virtual`]).
+    Off,
+    /// Virtual time at this factor of real time
+    /// ([`crate::rt::Pacing::Paced`]): 1 real time, 0.1 ten times slower,
+    /// 10 ten times faster. In [[`PACE_MIN`], [`PACE_MAX`]] once checked
+    /// ([`check_pace`]).
+    Factor(f64),
+}
+
+impl Pace {
+    /// The factor of real time, `None` for [`Pace::Off`].
+    pub fn factor(self) -> Option<f64> {
+        match self {
+            Self::Off => None,
+            Self::Factor(f) => Some(f),
+        }
+    }
+}
+
+impl std::fmt::Display for Pace {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Self::Off => f.write_str("off"),
+            Self::Factor(x) => write!(f, "{x}"),
+        }
+    }
+}
+
+impl Serialize for Pace {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        match self {
+            Self::Off => s.serialize_str("off"),
+            Self::Factor(x) => s.serialize_f64(*x),
+        }
+    }
+}
+
+impl<'de> Deserialize<'de> for Pace {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        struct V;
+        impl serde::de::Visitor<'_> for V {
+            type Value = Pace;
+            fn expecting(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+                f.write_str("a factor of real time (a number, 1: real time) or \"off\"")
+            }
+            fn visit_f64<E: serde::de::Error>(self, v: f64) -> Result<Pace, E> {
+                Ok(Pace::Factor(v))
+            }
+            fn visit_i64<E: serde::de::Error>(self, v: i64) -> Result<Pace, E> {
+                Ok(Pace::Factor(v as f64))
+            }
+            fn visit_u64<E: serde::de::Error>(self, v: u64) -> Result<Pace, E> {
+                Ok(Pace::Factor(v as f64))
+            }
+            fn visit_str<E: serde::de::Error>(self, v: &str) -> Result<Pace, E> {
+                if v == "off" {
+                    Ok(Pace::Off)
+                } else {
+                    Err(E::invalid_value(serde::de::Unexpected::Str(v), &self))
+                }
+            }
+        }
+        d.deserialize_any(V)
+    }
+}
+
+/// Why `factor` is not a pace, or the factor: in [[`PACE_MIN`],
+/// [`PACE_MAX`]], finite. The one check of `--pace` and of a request's
+/// `pace`.
+///
+/// # Errors
+/// The reason, and what a pace is (the caller names the flag or field).
+pub fn check_pace_factor(factor: f64) -> Result<f64, String> {
+    let why = if factor.is_nan() {
+        "not a number".to_string()
+    } else if factor <= 0.0 {
+        format!("{factor}× would stop time or run it backwards")
+    } else if factor > PACE_MAX {
+        format!(
+            "{factor}× is faster than a pace can serve: past {PACE_MAX}× a live view shows nothing (a 10 s sweep passes in a tenth of a second) and the loop nears its unpaced speed (650–1 300× real time on a 2-core VM; give off to run as fast as it goes)"
+        )
+    } else if factor < PACE_MIN {
+        format!("{factor}× is slower than a hundredth of real time (at {PACE_MIN}× a 10 s sweep already takes 17 minutes)")
+    } else {
+        return Ok(factor);
+    };
+    Err(format!(
+        "{why}; a pace is a factor of real time from {PACE_MIN} to {PACE_MAX} (1: real time, 0.1: ten times slower, 10: ten times faster) or off (virtual time as fast as it goes)"
+    ))
+}
+
+/// Parses a pace (`--pace`): `off`, or a factor of real time checked by
+/// [`check_pace_factor`].
+///
+/// # Errors
+/// Why it is not a pace (the caller names the flag).
+pub fn parse_pace(s: &str) -> Result<Pace, String> {
+    let t = s.trim();
+    if t == "off" {
+        return Ok(Pace::Off);
+    }
+    let factor: f64 = t.parse().map_err(|_| {
+        format!(
+            "{s:?} is not a number; a pace is a factor of real time from {PACE_MIN} to {PACE_MAX} (1: real time, 0.1: ten times slower, 10: ten times faster) or off"
+        )
+    })?;
+    check_pace_factor(factor).map(Pace::Factor)
+}
+
+/// A request's `pace`, checked as `--pace` is ([`check_pace_factor`]).
+///
+/// # Errors
+/// [`RequestError::Field`] naming `pace`.
+pub fn check_pace(pace: Option<Pace>) -> Result<Option<Pace>, RequestError> {
+    match pace {
+        Some(Pace::Factor(f)) => {
+            check_pace_factor(f)
+                .map(|f| Some(Pace::Factor(f)))
+                .map_err(|reason| RequestError::Field {
+                    field: "pace",
+                    value: f.to_string(),
+                    reason,
+                })
+        }
+        other => Ok(other),
+    }
+}
+
+/// Why a pace is refused on a hardware backend (`backend` as named, e.g.
+/// `serial:/dev/ttyUSB0`): hardware runs in real time.
+pub fn pace_on_hardware(backend: &str) -> String {
+    format!(
+        "the {backend} backend runs in real time, always: a physical plant moves at its own pace, so the loop keeps its deadlines and cannot run slower or faster than the wall clock; a pace applies to the simulator (backend sim)"
+    )
+}
+
 /// Parses a simulator fault `KIND@T_S`: KIND one of nan, frozen, drop (10
 /// samples), jump (0.2 mm), out_of_range, or `stall:MS` (the host stalls
 /// once for MS milliseconds, 0 < MS ≤ 10 000); T_S the loop time, s.
@@ -523,6 +683,55 @@ mod tests {
     }
 
     type Expect = fn(&mut BenchConfig);
+
+    /// `pace` in JSON: a number or "off", checked as `--pace` is; it
+    /// writes nothing into the config.
+    #[test]
+    fn pace_reads_a_number_or_off_and_is_checked_as_the_flag() {
+        let r: ChirpRequest = serde_json::from_value(json!({"pace": 0.5})).unwrap();
+        assert_eq!(r.pace, Some(Pace::Factor(0.5)));
+        assert_eq!(check_pace(r.pace), Ok(Some(Pace::Factor(0.5))));
+        let r: ControlRequest =
+            serde_json::from_value(json!({"controller": "fast", "pace": "off"})).unwrap();
+        assert_eq!(r.pace, Some(Pace::Off));
+        assert_eq!(serde_json::to_value(&r).unwrap()["pace"], json!("off"));
+        let r: ChirpRequest = serde_json::from_value(json!({"pace": 2})).unwrap();
+        assert_eq!(serde_json::to_value(&r).unwrap()["pace"], json!(2.0));
+        for bad in [
+            json!("fast"),
+            json!("1"),
+            json!(true),
+            json!([1]),
+            json!({}),
+        ] {
+            assert!(serde_json::from_value::<ChirpRequest>(json!({ "pace": bad })).is_err());
+        }
+        for f in [0.0, -1.0, 1e-3, 100.5, 1e300, f64::INFINITY, f64::NAN] {
+            let e = check_pace(Some(Pace::Factor(f))).unwrap_err();
+            let RequestError::Field { field, reason, .. } = &e else {
+                panic!("{e:?}")
+            };
+            assert_eq!(*field, "pace");
+            // The flag's reason, word for word.
+            assert_eq!(Err(reason.clone()), check_pace_factor(f));
+        }
+        for (given, want) in [
+            ("off", Pace::Off),
+            ("1", Pace::Factor(1.0)),
+            (" 0.01 ", Pace::Factor(0.01)),
+            ("100", Pace::Factor(100.0)),
+        ] {
+            assert_eq!(parse_pace(given), Ok(want), "{given}");
+        }
+        let mut got = ch5();
+        ChirpRequest {
+            pace: Some(Pace::Factor(3.0)),
+            ..Default::default()
+        }
+        .apply(&mut got)
+        .unwrap();
+        assert_eq!(got, ch5());
+    }
 
     /// Each field lands on its config key and nowhere else.
     #[test]

@@ -23,22 +23,59 @@ use std::time::{Duration, Instant};
 /// Capacity of the record queue, records (≈ 13 s at 5 kHz).
 const QUEUE_CAPACITY: usize = 1 << 16;
 
+/// How the loop of a run was paced, as its summary says.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
+#[serde(rename_all = "lowercase")]
+pub enum PacingMode {
+    /// Virtual time, as fast as it goes ([`Pacing::Virtual`]).
+    Virtual,
+    /// Virtual time paced against the wall clock at `pace_factor` × real
+    /// time ([`Pacing::Paced`]).
+    Paced,
+    /// Real time: absolute deadlines ([`Pacing::RealTime`]).
+    Realtime,
+}
+
+impl PacingMode {
+    /// The mode's name, as serialised (`virtual`, `paced`, `realtime`).
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Virtual => "virtual",
+            Self::Paced => "paced",
+            Self::Realtime => "realtime",
+        }
+    }
+}
+
 /// Loop timing in the summary.
 #[derive(Debug, Clone, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct TimingSummary {
     /// Ticks run.
     pub ticks: u64,
-    /// Pacing: `virtual` or `realtime`.
-    pub mode: String,
+    /// Pacing: `virtual` (virtual time as fast as it goes), `paced`
+    /// (virtual time paced against the wall clock at `pace_factor`) or
+    /// `realtime` (absolute deadlines).
+    pub mode: PacingMode,
+    /// The factor of real time a `paced` run was paced at (1: real time,
+    /// 0.1: ten times slower, 10: ten times faster); absent otherwise.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub pace_factor: Option<f64>,
+    /// Ticks a `paced` run released per sleep (as many as fit in 1 ms of
+    /// wall time, at least 1; [`crate::rt::pace_batch_ticks`]); absent
+    /// otherwise.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub pace_batch_ticks: Option<u64>,
     /// Loop rate, Hz.
     pub rate_hz: f64,
     /// Median wake-up latency (actual wake − deadline), µs: the headline
-    /// figure (0 in virtual time). Quantiles come from an HDR histogram and
-    /// are at most 1 % above the true value.
+    /// figure. 0 in unpaced virtual time; in `paced` mode, how late each
+    /// batch was released behind its schedule (one value per batch; caught
+    /// up, never a fault: virtual time has no deadline). Quantiles come
+    /// from an HDR histogram and are at most 1 % above the true value.
     pub wake_latency_p50_us: f64,
-    /// Wake-up latency p99, µs (0 in virtual time).
+    /// Wake-up latency p99, µs (0 in unpaced virtual time).
     pub wake_latency_p99_us: f64,
-    /// Wake-up latency p99.9, µs (0 in virtual time).
+    /// Wake-up latency p99.9, µs (0 in unpaced virtual time).
     pub wake_latency_p999_us: f64,
     /// Largest wake-up latency, µs (exact).
     pub wake_latency_max_us: f64,
@@ -76,23 +113,31 @@ impl TimingSummary {
         let q = |p50: f64, p99: f64, p999: f64, max: f64, mean: f64| {
             format!("p50 {p50:.2} µs, p99 {p99:.2} µs, p99.9 {p999:.2} µs, max {max:.1} µs (mean {mean:.2} µs)")
         };
-        let wake = if self.mode == "virtual" {
-            "none (virtual time)".to_string()
-        } else {
-            q(
-                self.wake_latency_p50_us,
-                self.wake_latency_p99_us,
-                self.wake_latency_p999_us,
-                self.wake_latency_max_us,
-                self.wake_latency_mean_us,
-            )
+        let measured = q(
+            self.wake_latency_p50_us,
+            self.wake_latency_p99_us,
+            self.wake_latency_p999_us,
+            self.wake_latency_max_us,
+            self.wake_latency_mean_us,
+        );
+        let factor = self.pace_factor.unwrap_or(f64::NAN);
+        let (mode, wake) = match self.mode {
+            PacingMode::Virtual => ("virtual".to_string(), "none (virtual time)".to_string()),
+            PacingMode::Paced => (
+                format!("virtual, paced at {factor}× real time"),
+                format!(
+                    "{measured}: behind the paced schedule, one release per {} ticks (caught up; virtual time has no deadline)",
+                    self.pace_batch_ticks.unwrap_or(1)
+                ),
+            ),
+            PacingMode::Realtime => ("realtime".to_string(), measured),
         };
         vec![
             format!(
                 "loop: {} ticks at {:.0} Hz ({}), {:.2} s wall; overruns {}; dropped {}; /dev/cpu_dma_latency {}",
                 self.ticks,
                 self.rate_hz,
-                self.mode,
+                mode,
                 self.wall_s,
                 self.overruns,
                 self.dropped_records,
@@ -112,12 +157,19 @@ impl TimingSummary {
         ]
     }
 
-    fn new(r: &LoopReport, realtime: bool, rate_hz: f64, wall_s: f64) -> Self {
+    fn new(r: &LoopReport, pacing: Pacing, period_ns: u64, wall_s: f64) -> Self {
         let t = &r.timing;
+        let (mode, pace_factor) = match pacing {
+            Pacing::Virtual => (PacingMode::Virtual, None),
+            Pacing::Paced { factor } => (PacingMode::Paced, Some(factor)),
+            Pacing::RealTime { .. } => (PacingMode::Realtime, None),
+        };
         Self {
             ticks: r.ticks,
-            mode: if realtime { "realtime" } else { "virtual" }.to_string(),
-            rate_hz,
+            mode,
+            pace_factor,
+            pace_batch_ticks: pace_factor.map(|f| crate::rt::pace_batch_ticks(period_ns, f)),
+            rate_hz: 1e9 / period_ns as f64,
             wake_latency_p50_us: t.wake.p50_ns * 1e-3,
             wake_latency_p99_us: t.wake.p99_ns * 1e-3,
             wake_latency_p999_us: t.wake.p999_ns * 1e-3,
@@ -224,7 +276,10 @@ pub struct SessionOptions<'a> {
     pub out: &'a Path,
     /// Real-time pacing.
     pub realtime: bool,
-    /// Show a progress bar (real-time mode).
+    /// Without `realtime`: virtual time paced at this factor of real time
+    /// ([`Pacing::Paced`]); `None`: as fast as it goes.
+    pub pace: Option<f64>,
+    /// Show a progress bar (real-time or paced).
     pub progress: bool,
     /// Simulator seed.
     pub seed: u64,
@@ -244,6 +299,30 @@ pub struct SessionOptions<'a> {
     /// Where the stall bound comes from, for fault messages (empty: the
     /// config keys).
     pub stall_source: &'a str,
+}
+
+impl SessionOptions<'_> {
+    /// How the loop runs: real time, paced virtual time or virtual time.
+    pub fn pacing(&self, cfg: &BenchConfig) -> Pacing {
+        match (self.realtime, self.pace) {
+            (true, _) => Pacing::RealTime {
+                priority: cfg.loop_.priority,
+                cpu: cfg.loop_.cpu,
+            },
+            (false, Some(factor)) => Pacing::Paced { factor },
+            (false, None) => Pacing::Virtual,
+        }
+    }
+
+    /// The mode of [`Self::pacing`], as the summary and the recording
+    /// name it.
+    pub fn pacing_mode(&self) -> PacingMode {
+        match (self.realtime, self.pace) {
+            (true, _) => PacingMode::Realtime,
+            (false, Some(_)) => PacingMode::Paced,
+            (false, None) => PacingMode::Virtual,
+        }
+    }
 }
 
 /// A run that finished its job.
@@ -346,10 +425,11 @@ pub fn open_recording(
     run_meta.insert("command".to_string(), opts.command.to_string());
     run_meta.insert("backend".to_string(), info.name.clone());
     run_meta.insert("seed".to_string(), opts.seed.to_string());
-    run_meta.insert(
-        "mode".to_string(),
-        if opts.realtime { "realtime" } else { "virtual" }.to_string(),
-    );
+    let mode = opts.pacing_mode();
+    run_meta.insert("mode".to_string(), mode.as_str().to_string());
+    if let (PacingMode::Paced, Some(f)) = (mode, opts.pace) {
+        run_meta.insert("pace_factor".to_string(), f.to_string());
+    }
     run_meta.insert(
         "rate_hz".to_string(),
         (1e9 / info.period_ns as f64).to_string(),
@@ -414,7 +494,6 @@ pub fn run_recorded<J: Job + Send + 'static>(
 ) -> Result<Recorded, RunError> {
     let info = runner.info().clone();
     let period_s = info.period_ns as f64 * 1e-9;
-    let rate_hz = 1.0 / period_s;
     let (producer, consumer) = RecordQueue::new(QUEUE_CAPACITY);
     // The config bounds a job to `ranges::JOB_TICKS_MAX` ticks; reserve
     // only the columns the job reads.
@@ -486,14 +565,7 @@ pub fn run_recorded<J: Job + Send + 'static>(
 
     let loop_opts = LoopOptions {
         period_ns: info.period_ns,
-        pacing: if opts.realtime {
-            Pacing::RealTime {
-                priority: cfg.loop_.priority,
-                cpu: cfg.loop_.cpu,
-            }
-        } else {
-            Pacing::Virtual
-        },
+        pacing: opts.pacing(cfg),
         timing_interval_ticks: ((cfg.loop_.timing_interval_s / period_s).round() as u64).max(1),
         safety: cfg.supervisor(&info),
         max_ticks: opts.max_ticks,
@@ -524,6 +596,9 @@ pub fn run_recorded<J: Job + Send + 'static>(
                 max_ticks: opts.max_ticks,
                 seed: opts.seed,
                 stall,
+                // A job in virtual time (paced or not) on the daemon's
+                // real-time loop.
+                pacing: (!opts.realtime).then_some(loop_opts.pacing),
                 stop: Arc::clone(&stop),
                 progress: Arc::clone(&progress),
                 end: None,
@@ -576,7 +651,7 @@ pub fn run_recorded<J: Job + Send + 'static>(
             })
         }
     };
-    let timing = TimingSummary::new(&report, opts.realtime, rate_hz, wall_s);
+    let timing = TimingSummary::new(&report, loop_opts.pacing, info.period_ns, wall_s);
     for w in &timing.warnings {
         tracing::warn!("{w}");
     }
@@ -685,7 +760,7 @@ fn run_local<J: Job + Send>(
                 )
             })
             .map_err(|e| RunError::Thread(format!("cannot spawn the real-time thread: {e}")))?;
-        if opts.realtime && opts.progress {
+        if (opts.realtime || opts.pace.is_some()) && opts.progress {
             let bar = indicatif::ProgressBar::new(opts.max_ticks);
             bar.set_style(
                 indicatif::ProgressStyle::with_template(

@@ -198,6 +198,9 @@ pub struct ControlOptions {
     pub plot: PathBuf,
     /// Real-time pacing.
     pub realtime: bool,
+    /// Virtual time paced at this factor of real time, as
+    /// [`crate::jobs::chirp::ChirpOptions::pace`].
+    pub pace: Option<f64>,
     /// Seed.
     pub seed: u64,
     /// Progress bar.
@@ -486,12 +489,20 @@ fn run_control_with(
         }
         None => None,
     };
+    if let (Some(f), false) = (opts.pace, spec.is_sim()) {
+        return Err(RunError::option(
+            "pace",
+            f,
+            crate::jobs::request::pace_on_hardware(&info.name),
+        ));
+    }
     let session = SessionOptions {
         command: "control",
         config_path: &opts.config_path,
         out: &opts.out,
         // Hardware runs in real time whatever the flag says.
         realtime: opts.realtime || !spec.is_sim(),
+        pace: opts.pace,
         progress: opts.progress,
         seed: opts.seed,
         max_ticks: job.total_ticks(),

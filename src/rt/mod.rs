@@ -18,6 +18,6 @@ mod tick;
 pub mod timing;
 
 pub use crate::record::queue::{Emitter, QueueRoom, RecordQueue};
-pub use job::{HoldJob, Job, JobOutput, LoopOptions, Pacing};
+pub use job::{pace_batch_ticks, HoldJob, Job, JobOutput, LoopOptions, Pacing, PACE_BATCH_NS};
 pub use report::{JobEnd, LoopReport, RawStop, StopReason};
 pub use tick::{run, HalFailure, Loop, Read, TickResult};

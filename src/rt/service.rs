@@ -10,7 +10,7 @@
 //! off the real-time thread; errors come back unformatted.
 
 use crate::rt::backend::{AnyError, AnyStage, LinkCounters};
-use crate::rt::{HalFailure, HoldJob, Job, JobEnd, Loop, LoopOptions};
+use crate::rt::{HalFailure, HoldJob, Job, JobEnd, Loop, LoopOptions, Pacing};
 use crate::vocab::{FaultKind, SupervisorState};
 use bench_hal::sim::ScheduledFault;
 use bench_hal::Clock;
@@ -32,6 +32,11 @@ pub struct JobTicket {
     /// job's first sample ([`AnyStage::reseed`]), so the job records what a
     /// local run with that seed records. Ignored on hardware.
     pub seed: u64,
+    /// How the job is paced when not in the loop's real time: virtual
+    /// time, paced or not, on a simulator daemon ([`Loop::set_pacing`];
+    /// the loop is back in real time for the hold after it). `None`: the
+    /// loop's own real time.
+    pub pacing: Option<Pacing>,
     /// Raised to stop the job safely.
     pub stop: Arc<AtomicBool>,
     /// The job's tick count.
@@ -221,7 +226,13 @@ pub fn run_service(
                 // The job's stall bounds while it runs, the hold's after.
                 let hold_bounds = lp.supervisor().stall_bounds();
                 lp.set_stall_bounds(t.stall);
+                if let Some(p) = t.pacing {
+                    lp.set_pacing(p);
+                }
                 t.end = Some(lp.run_job(&mut t.job, &mut t.out, t.max_ticks, &t.stop, &t.progress));
+                if t.pacing.is_some() {
+                    lp.set_pacing(opts.pacing);
+                }
                 lp.set_stall_bounds(hold_bounds);
                 t.link = before.zip(lp.stage().link_counters());
                 reply(LoopReply::JobDone(ticket), &mut replies);

@@ -9,7 +9,11 @@
 //!
 //! 1. **wait** ([`Loop::wait`]): real-time mode sleeps until the tick's
 //!    absolute deadline (`clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME)`);
-//!    virtual time does not wait; a device-clocked backend waits inside
+//!    virtual time does not wait, except when paced
+//!    ([`Pacing::Paced`]): then the first tick of each batch of about 1 ms
+//!    of wall time sleeps until the batch's last tick is due (tick `k` at
+//!    `start + k·period/factor`), and how late that release came goes into
+//!    the wake-up latency; a device-clocked backend waits inside
 //!    `read_sample`;
 //! 2. **read** the sample ([`Loop::read`]). A failed read goes to the
 //!    supervisor's one HAL-error rule ([`Supervisor::hal_error`]): a read
@@ -58,7 +62,7 @@ use crate::record::queue::{Emitter, RecordQueue};
 use crate::record::topics::{
     EventKind, EventRecord, FaultKind, Record, SampleRecord, SupervisorState, TimingRecord,
 };
-use crate::rt::job::{Job, JobOutput, LoopOptions, Pacing};
+use crate::rt::job::{pace_batch_ticks, Job, JobOutput, LoopOptions, Pacing};
 use crate::rt::report::{JobEnd, LoopReport, RawStop};
 use crate::rt::supervisor::{HalCall, HalVerdict, StallBounds, Supervisor};
 use crate::rt::timing::TickTiming;
@@ -73,6 +77,55 @@ use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 /// tick were a quarter of the virtual-time loop's CPU. Real time measures
 /// every tick.
 pub const VIRTUAL_TIMING_STRIDE: u64 = 16;
+
+/// The schedule of paced virtual time ([`Pacing::Paced`]): when each tick
+/// of the current job is due on the wall clock. It decides when ticks run,
+/// never whether they may: no rule of the supervisor reads it, and a
+/// release that comes late is caught up (the simulated plant advances by
+/// the period whatever the wall clock did).
+#[derive(Debug, Clone, Copy)]
+struct PaceClock {
+    /// Wall time per tick, ns (`period / factor`).
+    tick_ns: f64,
+    /// Ticks released per sleep ([`pace_batch_ticks`]).
+    batch: u64,
+    /// Monotonic time of the job's tick 0, ns (set when it is released).
+    origin_ns: Option<u64>,
+}
+
+impl PaceClock {
+    /// The schedule of `pacing`, if it is paced.
+    fn of(pacing: Pacing, period_ns: u64) -> Option<Self> {
+        match pacing {
+            Pacing::Paced { factor } => Some(Self {
+                tick_ns: period_ns as f64 / factor,
+                batch: pace_batch_ticks(period_ns, factor),
+                origin_ns: None,
+            }),
+            _ => None,
+        }
+    }
+
+    /// Releases `tick` (job ticks): the first tick of a batch sleeps until
+    /// the batch's last tick is due, so no tick runs before its time and
+    /// the loop sleeps once per batch. Returns how late the batch was
+    /// released, ns (after the sleep, or at once when already behind), on
+    /// a batch's first tick; `None` on the others. No allocation.
+    #[inline]
+    fn release(&mut self, tick: u64) -> Option<u64> {
+        if !tick.is_multiple_of(self.batch) {
+            return None;
+        }
+        let now = now_ns();
+        let origin = *self.origin_ns.get_or_insert(now);
+        let due = origin + ((tick + self.batch - 1) as f64 * self.tick_ns) as u64;
+        if now >= due {
+            return Some(now - due);
+        }
+        sleep_until_ns(due);
+        Some(now_ns().saturating_sub(due))
+    }
+}
 
 /// Records one event with the supervisor's state (and its fault, for a
 /// fault event). Real-time safe.
@@ -157,6 +210,11 @@ pub struct Loop<'s, S: Stage> {
     clock: Clock,
     host_paced: bool,
     backpressure: bool,
+    /// Paced virtual time's schedule ([`Pacing::Paced`]).
+    pace: Option<PaceClock>,
+    /// The thread's SCHED_FIFO priority as real-time pacing set it up
+    /// (restored by [`Loop::set_pacing`] after a job in virtual time).
+    fifo_priority: Option<i32>,
     /// Deadline of the next tick, ns (host-paced).
     next_deadline_ns: u64,
     last_good: Option<Sample>,
@@ -202,9 +260,11 @@ impl<'s, S: Stage> Loop<'s, S> {
     /// must be the one that runs the ticks.
     pub fn new(stage: &'s mut S, opts: &LoopOptions, clock: Clock) -> Self {
         let mut warnings = Vec::new();
+        let mut fifo_priority = None;
         let (dma_guard, dma_latency) = match opts.pacing {
             Pacing::RealTime { priority, cpu } => {
                 warnings.extend(make_realtime(priority, cpu));
+                fifo_priority = bench_hal::os::fifo_priority();
                 let (guard, status) = CpuDmaLatency::try_hold();
                 if guard.is_none() {
                     warnings.push(format!(
@@ -214,7 +274,7 @@ impl<'s, S: Stage> Loop<'s, S> {
                 }
                 (guard, status)
             }
-            Pacing::Virtual => (None, DmaLatency::NotRequested),
+            Pacing::Virtual | Pacing::Paced { .. } => (None, DmaLatency::NotRequested),
         };
         Self {
             stage,
@@ -224,7 +284,9 @@ impl<'s, S: Stage> Loop<'s, S> {
             timing_interval_ticks: opts.timing_interval_ticks.max(1),
             clock,
             host_paced: matches!(opts.pacing, Pacing::RealTime { .. }) && clock == Clock::Host,
-            backpressure: opts.pacing == Pacing::Virtual,
+            backpressure: !matches!(opts.pacing, Pacing::RealTime { .. }),
+            pace: PaceClock::of(opts.pacing, opts.period_ns),
+            fifo_priority,
             next_deadline_ns: now_ns() + opts.period_ns,
             last_good: None,
             hal_error: None,
@@ -238,6 +300,31 @@ impl<'s, S: Stage> Loop<'s, S> {
             _dma_guard: dma_guard,
             dma_latency,
         }
+    }
+
+    /// Paces the ticks from now on by `pacing` instead of the loop's own
+    /// (the daemon: a job in virtual time, paced or not, on its real-time
+    /// loop, and real time again after it). Leaving real time, the thread
+    /// leaves SCHED_FIFO (a virtual-time job has no deadline to meet, and
+    /// an unpaced one would hold a CPU at real-time priority for its whole
+    /// run); back in real time it takes its FIFO priority again (the
+    /// daemon was permitted it when it started; were that withdrawn since,
+    /// the loop would go on without it, on a simulator daemon, the only
+    /// kind that runs jobs in virtual time), and the next deadline is a
+    /// period from now. Between jobs, not on a tick; no allocation.
+    pub fn set_pacing(&mut self, pacing: Pacing) {
+        let realtime = matches!(pacing, Pacing::RealTime { .. });
+        self.host_paced = realtime && self.clock == Clock::Host;
+        self.backpressure = !realtime;
+        self.pace = PaceClock::of(pacing, self.period_ns);
+        if let Some(priority) = self.fifo_priority {
+            if realtime {
+                bench_hal::os::set_fifo_priority(priority);
+            } else {
+                bench_hal::os::set_normal_scheduling();
+            }
+        }
+        self.next_deadline_ns = now_ns() + self.period_ns;
     }
 
     /// Whether this loop holds `/dev/cpu_dma_latency` at 0.
@@ -434,8 +521,12 @@ impl<'s, S: Stage> Loop<'s, S> {
             0
         };
         let compute_ns = end.saturating_sub(wake).saturating_sub(self.clock_read_ns);
+        // Paced virtual time records its releases instead (`tick`).
+        let paced = self.pace.is_some();
         for t in [&mut self.window, &mut self.total] {
-            t.wake.record(wake_ns);
+            if !paced {
+                t.wake.record(wake_ns);
+            }
             t.compute.record(compute_ns);
         }
         let mut next = deadline + self.period_ns;
@@ -471,6 +562,12 @@ impl<'s, S: Stage> Loop<'s, S> {
         cur: &mut JobCursor,
         em: &mut Emitter<'_>,
     ) -> TickResult {
+        // Paced virtual time: the batch's release, and how late it came.
+        if let Some(late_ns) = self.pace.as_mut().and_then(|p| p.release(cur.tick)) {
+            for t in [&mut self.window, &mut self.total] {
+                t.wake.record(late_ns);
+            }
+        }
         let deadline = self.wait();
         // Virtual time times one tick in VIRTUAL_TIMING_STRIDE.
         let timed = !self.backpressure || cur.tick.is_multiple_of(VIRTUAL_TIMING_STRIDE);
@@ -620,6 +717,10 @@ impl<'s, S: Stage> Loop<'s, S> {
     fn cursor(&mut self) -> JobCursor {
         self.total.reset();
         self.window.reset();
+        if let Some(p) = self.pace.as_mut() {
+            // Each job's schedule starts at its own first tick.
+            p.origin_ns = None;
+        }
         JobCursor {
             tick: 0,
             // A job on a running loop counts its time from the last sample.

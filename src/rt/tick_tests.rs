@@ -610,3 +610,172 @@ fn a_latched_fault_refuses_the_next_job_and_a_failed_enable_is_a_hal_stop() {
         "{stop:?}"
     );
 }
+
+/// Notes the monotonic time of each tick; sleeps `stall` in tick
+/// `stall_at` (the host stalled), done after `n` ticks.
+struct Clocked {
+    n: u64,
+    at_ns: Vec<u64>,
+    stall_at: u64,
+    stall: std::time::Duration,
+}
+
+impl Job for Clocked {
+    fn tick(&mut self, tick: u64, _s: &Sample) -> JobOutput {
+        if tick == self.stall_at {
+            std::thread::sleep(self.stall);
+        }
+        self.at_ns.push(now_ns());
+        JobOutput {
+            command_a: 0.1,
+            excitation_a: 0.1,
+            setpoint_m: f64::NAN,
+            done: tick + 1 >= self.n,
+        }
+    }
+}
+
+/// Paced virtual time releases no tick before `start + k·period/factor`:
+/// at factor 2 and 200 µs, 100 µs of wall time a tick, 10 ticks a batch
+/// (1 ms), one sleep (and one wake-up latency) per batch. `start` is no
+/// earlier than the time taken before the job.
+#[test]
+fn paced_time_releases_no_tick_before_its_time() {
+    let mut o = opts();
+    o.pacing = Pacing::Paced { factor: 2.0 };
+    assert_eq!(pace_batch_ticks(o.period_ns, 2.0), 10);
+    let mut st = Script::new([]);
+    let mut lp = Loop::new(&mut st, &o, Clock::Host);
+    assert!(!lp.host_paced && lp.backpressure);
+    let (mut tx, _rx) = RecordQueue::new(4096);
+    let mut job = Clocked {
+        n: 400,
+        at_ns: Vec::with_capacity(400),
+        stall_at: u64::MAX,
+        stall: std::time::Duration::ZERO,
+    };
+    let before = now_ns();
+    let end = lp.run_job(
+        &mut job,
+        &mut tx,
+        1000,
+        &AtomicBool::new(false),
+        &AtomicU64::new(0),
+    );
+    assert!(matches!(end.stop, RawStop::Finished));
+    assert_eq!(end.ticks, 400);
+    for (k, t) in job.at_ns.iter().enumerate() {
+        let due = before + k as u64 * 100_000;
+        assert!(*t >= due, "tick {k} ran {} ns early", due - t);
+    }
+    // One release measured per batch of 10.
+    assert_eq!(lp.total.wake.count(), 40);
+    // A new job starts its own schedule, at its own first tick, not the
+    // first job's.
+    std::thread::sleep(std::time::Duration::from_millis(40));
+    let second = now_ns();
+    let end = run_constant(&mut lp, &mut tx);
+    assert!(matches!(end.stop, RawStop::Finished));
+    assert!(lp.pace.unwrap().origin_ns.unwrap() >= second);
+}
+
+/// A late paced release is no fault: a 30 ms host stall in a paced job,
+/// with the tightest stall bound the supervisor has (1 missed deadline),
+/// is caught up, recorded as wake-up latency, and the job finishes with
+/// no stall or fault event. The same stall in real time is the overruns
+/// fault (the supervisor's rule, the only one).
+#[test]
+fn a_late_paced_release_is_caught_up_and_no_fault() {
+    let stall = std::time::Duration::from_millis(30);
+    let mut o = opts();
+    o.safety.max_missed_deadlines = 1;
+    o.pacing = Pacing::Paced { factor: 1.0 };
+    let mut st = Script::new([]);
+    let mut lp = Loop::new(&mut st, &o, Clock::Host);
+    let (mut tx, rx) = RecordQueue::new(8192);
+    let mut job = Clocked {
+        n: 500,
+        at_ns: Vec::with_capacity(500),
+        stall_at: 100,
+        stall,
+    };
+    let end = lp.run_job(
+        &mut job,
+        &mut tx,
+        1000,
+        &AtomicBool::new(false),
+        &AtomicU64::new(0),
+    );
+    assert!(matches!(end.stop, RawStop::Finished), "{:?}", end.stop);
+    assert_eq!(end.ticks, 500);
+    assert_eq!(end.timing.overruns, 0);
+    // The batch after the stall was released ~30 ms behind its schedule.
+    assert!(end.timing.wake.max_ns >= 25e6, "{:?}", end.timing.wake);
+    let ev = events(&records(rx));
+    assert!(
+        !ev.contains(&EventKind::Stall) && !ev.contains(&EventKind::Fault),
+        "{ev:?}"
+    );
+    assert_eq!(lp.supervisor().state(), SupervisorState::Disabled);
+    drop(lp);
+    // Real time, the same stall: the overruns fault.
+    let mut st = Script::new([]);
+    let mut lp = Loop::new(&mut st, &opts(), Clock::Host);
+    lp.host_paced = true;
+    lp.backpressure = false;
+    lp.sup = Supervisor::new(SupervisorConfig {
+        max_missed_deadlines: 1,
+        ..opts().safety
+    });
+    lp.next_deadline_ns = now_ns() + 200_000;
+    let (mut tx, _rx) = RecordQueue::new(8192);
+    let mut job = Clocked {
+        n: 500,
+        at_ns: Vec::with_capacity(500),
+        stall_at: 100,
+        stall,
+    };
+    let end = lp.run_job(
+        &mut job,
+        &mut tx,
+        1000,
+        &AtomicBool::new(false),
+        &AtomicU64::new(0),
+    );
+    assert!(
+        matches!(
+            end.stop,
+            RawStop::Fault {
+                kind: FaultKind::Overruns,
+                ..
+            }
+        ),
+        "{:?}",
+        end.stop
+    );
+}
+
+/// The daemon's switch: a loop in real time runs a job paced, then is
+/// back in real time (host-paced, its next deadline a period from now),
+/// and the other way round.
+#[test]
+fn set_pacing_switches_a_loop_and_back() {
+    let mut st = Script::new([]);
+    let mut lp = Loop::new(&mut st, &opts(), Clock::Host);
+    lp.set_pacing(Pacing::Paced { factor: 5.0 });
+    assert!(!lp.host_paced && lp.backpressure && lp.pace.is_some());
+    let (mut tx, _rx) = RecordQueue::new(1024);
+    let end = run_constant(&mut lp, &mut tx);
+    assert!(matches!(end.stop, RawStop::Finished));
+    // 25 ticks at 40 µs, 25 a batch: one release.
+    assert_eq!(end.timing.wake.count, 1);
+    lp.set_pacing(Pacing::RealTime {
+        priority: 10,
+        cpu: None,
+    });
+    let now = now_ns();
+    assert!(lp.host_paced && !lp.backpressure && lp.pace.is_none());
+    assert!(lp.next_deadline_ns > now && lp.next_deadline_ns <= now + 200_000);
+    lp.set_pacing(Pacing::Virtual);
+    assert!(!lp.host_paced && lp.backpressure && lp.pace.is_none());
+}
