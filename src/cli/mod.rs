@@ -111,8 +111,8 @@ enum Command {
     #[command(subcommand)]
     Emulate(EmulateCommand),
     /// Own the bench: keep it safe between jobs and serve every job (chirp,
-    /// control, fit, analyze, map, campaign), one at a time, as JSON lines
-    /// on a Unix socket.
+    /// control, fit, design, analyze, map, plot, campaign), one at a time,
+    /// as JSON lines on a Unix socket.
     Serve(ServeArgs),
     /// Talk to a running `bench serve` without writing JSON: show its
     /// status, reset a latched fault, enable or disable the amplifier,

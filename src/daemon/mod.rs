@@ -10,7 +10,7 @@
 //! before it reaches the loop. What each request becomes (its options,
 //! with the daemon's output names) and the library job that runs it live
 //! in `jobs.rs`: chirp and control drive the bench through the loop; fit,
-//! analyze, map and campaign only compute (from files and the model, a
+//! design, analyze, map, plot and campaign only compute (from files and the model, a
 //! campaign on the simulator) and never touch the bench, but they hold
 //! the one job slot all the same. The **socket side** (`socket.rs`) is a single-threaded tokio
 //! runtime serving JSON lines on a Unix domain socket; it talks to the
