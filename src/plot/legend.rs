@@ -346,7 +346,8 @@ fn wrapped(text: &str, width: i32, max_lines: usize) -> Result<Vec<String>, BoxE
             lines.push(truncated(&rest, width)?);
             return Ok(lines);
         }
-        lines.push(std::mem::take(&mut cur));
+        // A single word wider than a line is cut.
+        lines.push(truncated(&std::mem::take(&mut cur), width)?);
         cur = (*w).to_string();
     }
     lines.push(truncated(&cur, width)?);

@@ -347,14 +347,22 @@ fn overlay_legend_rows_set_the_height() {
             .collect()
     };
     let long: &'static str = Box::leak(long.into_boxed_str());
-    for (n, legend, note, rows) in [
+    // Words wider than a line: each cut to it.
+    let word: &'static str = Box::leak("x".repeat(300).into_boxed_str());
+    let words: &'static str = Box::leak(format!("{word} {word} {word}").into_boxed_str());
+    for (k, (n, legend, note, rows)) in [
         (1, "one", None, 1),
         (1, long, None, 2),
+        (1, word, None, 1),
+        (1, words, None, 2),
         (12, "one", Some("colours"), 13),
         (20, "one", None, 10),
         (20, "one", Some("colours"), 11),
         (60, "one", None, 20),
-    ] {
+    ]
+    .into_iter()
+    .enumerate()
+    {
         let traces = make(n, legend);
         let plot = OverlayPlot {
             title: "",
@@ -362,7 +370,7 @@ fn overlay_legend_rows_set_the_height() {
             colors_note: note,
             model: None,
         };
-        let path = dir.path().join(format!("{n}-{rows}.png"));
+        let path = dir.path().join(format!("{k}.png"));
         write_bode_overlay_png(&path, Existing::Refuse, &plot).unwrap();
         let img = image::open(&path).unwrap();
         assert_eq!(
