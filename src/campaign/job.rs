@@ -309,6 +309,50 @@ pub fn design_input(dir: &Path) -> Result<crate::jobs::design::DesignInput, Camp
     })
 }
 
+/// The campaign in `dir` as an input of `bench plot`: its bench config's
+/// text and the FRF of every done cell with the cell's operating point and
+/// mass asymmetry (the asymmetry the trim masses gave, on hardware), each
+/// cell checked against the journal's checksum as [`design_input`] does.
+///
+/// # Errors
+/// As [`design_input`].
+pub fn plot_input(dir: &Path) -> Result<crate::jobs::plot::PlotInput, CampaignRunError> {
+    use super::journal::Entry;
+    let (campaign, j, _) = load_dir(dir, None, false)?;
+    if let Some((cell, why)) = damaged_cells(dir, &j).into_iter().next() {
+        return Err(CampaignRunError::BadInput(format!(
+            "{}: cell {cell:03}: {why} (bench campaign resume runs it again)",
+            dir.display()
+        )));
+    }
+    let cells = j
+        .done()
+        .into_iter()
+        .filter_map(|(i, e)| match e {
+            Entry::Done {
+                operating_point_m,
+                mass_asymmetry,
+                achieved_mass_asymmetry,
+                ..
+            } => Some(crate::jobs::plot::PlotCell {
+                index: i,
+                operating_point_m: *operating_point_m,
+                mass_asymmetry: achieved_mass_asymmetry.unwrap_or(*mass_asymmetry),
+                frf_csv: dir
+                    .join(super::run::cell_dir(i))
+                    .join(super::run::CELL_FILES[1]),
+            }),
+            _ => None,
+        })
+        .collect();
+    Ok(crate::jobs::plot::PlotInput::Cells {
+        dir: dir.to_path_buf(),
+        config_toml: campaign.config_text.clone(),
+        beam_length_m: campaign.config.plant.beam.length_m,
+        cells,
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -15,6 +15,7 @@
 //! | 6 | `bench daemon`: no daemon answers at the socket (no socket, a stale one, permission denied) |
 //! | 7 | `bench recover`: data lost (a damaged chunk dropped); the recovered recording holds everything intact |
 //! | 8 | `bench control --verify`: the run completed (recording and files written), but the measured ‖S‖∞ or crossover disagrees with the prediction |
+//! | 9 | `bench fit`, `bench plot`: every file is written, but a modal fit is flagged, not to be trusted |
 //! | 141 | the command succeeded, but the reader of its standard output went away (`bench … \| head`); what it wrote to files is complete |
 //!
 //! One file per command (`chirp.rs`, `control.rs`, `emulate.rs`,
@@ -57,6 +58,7 @@ mod emulate;
 mod export;
 mod fit;
 mod job_thread;
+mod plot;
 mod point;
 mod recover;
 mod serve;
@@ -109,8 +111,8 @@ enum Command {
     #[command(subcommand)]
     Emulate(EmulateCommand),
     /// Own the bench: keep it safe between jobs and serve every job (chirp,
-    /// control, fit, analyze, map, campaign), one at a time, as JSON lines
-    /// on a Unix socket.
+    /// control, fit, design, analyze, map, plot, campaign), one at a time,
+    /// as JSON lines on a Unix socket.
     Serve(ServeArgs),
     /// Talk to a running `bench serve` without writing JSON: show its
     /// status, reset a latched fault, enable or disable the amplifier,
@@ -147,6 +149,12 @@ enum Command {
     /// bench config with [controller.NAME]; report, figure and the step
     /// predicted on the model.
     Design(design::DesignArgs),
+    /// Overlay several measured FRFs (CSVs, recordings, a campaign's
+    /// cells) on one Bode or Nyquist figure, each fitted as `bench fit`
+    /// fits it and labelled with its CMP-CNMP verdict, with the model and
+    /// the zoom on the closely spaced pairs.
+    #[command(subcommand)]
+    Plot(plot::PlotCommand),
     /// Export a recording's channel as a CSV or Parquet table (one column
     /// per field, the unit in its name) for numpy and pandas.
     Export(ExportArgs),
@@ -267,6 +275,7 @@ pub fn main() -> ExitCode {
         Command::Export(args) => export(args),
         Command::Fit(args) => fit::fit(args),
         Command::Design(args) => design::design(args),
+        Command::Plot(cmd) => plot::plot(cmd),
         Command::Config(cmd) => config_command(cmd),
         Command::Completions(args) => completions(&args),
         Command::Man(args) => man(&args),
@@ -581,12 +590,13 @@ pub(super) fn refused_request(
 /// The flag of a run option or request field (`RunError::BadOption`'s
 /// key): `--` and the key with `-` for `_` (`frf_csv` → `--frf-csv`,
 /// `operating_point_pct` → `--operating-point-pct`), but for
-/// `frequencies_hz` (`--frequencies`) and the positional `input` (`""`:
-/// its value names it).
+/// `frequencies_hz` (`--frequencies`), `labels` (`--label`) and the
+/// positional `input` (`""`: its value names it).
 pub(super) fn option_flag(key: &str) -> String {
     match key {
         "input" | "inputs" => String::new(),
         "frequencies_hz" => "--frequencies".into(),
+        "labels" => "--label".into(),
         key => format!("--{}", key.replace('_', "-")),
     }
 }

@@ -2,7 +2,7 @@
 //! daemon's own output names ([`job_spec`], checked when the request
 //! arrives, the same checks as the CLI's), and the library job that runs
 //! them on a worker thread ([`run`]). Chirp and control run on the
-//! daemon's loop and record; fit, analyze, map and campaign compute from
+//! daemon's loop and record; fit, design, analyze, map, plot and campaign compute from
 //! files and the model and never touch the bench (their paths must be
 //! absolute: the daemon's working directory is not its clients').
 
@@ -17,6 +17,7 @@ use crate::jobs::chirp::{run_chirp_on, ChirpOptions};
 use crate::jobs::design::{run_design, DesignInput, DesignOptions};
 use crate::jobs::fit::{run_fit, FitOptions};
 use crate::jobs::map::{run_map, MapOptions};
+use crate::jobs::plot::{run_plot, PlotInput, PlotOptions};
 use crate::jobs::request::{check_pace, pace_on_hardware, JobRequest, Pace, RequestError};
 use crate::jobs::session::Runner;
 use crate::jobs::step::{run_control_from, ControlOptions, StageSource};
@@ -36,6 +37,7 @@ pub(super) enum JobSpec {
     Design(Box<DesignOptions>),
     Analyze(Box<AnalyzeOptions>),
     Map(Box<MapOptions>),
+    Plot(Box<PlotOptions>),
     Campaign(Box<CampaignJob>),
 }
 
@@ -267,6 +269,38 @@ pub(super) fn job_spec(ctx: &Ctx, request: &JobRequest, id: u64) -> Result<Accep
                 recording: None,
             })
         }
+        JobRequest::Plot(req) => {
+            for p in &req.inputs {
+                absolute("inputs", Some(p))?;
+            }
+            absolute("config", req.config.as_deref())?;
+            req.check().map_err(|e| refused(&e))?;
+            let inputs = req
+                .inputs
+                .iter()
+                .map(|p| {
+                    if p.is_dir() {
+                        crate::campaign::job::plot_input(p)
+                            .map_err(|e| bad_params(format!("params.inputs: {e}")))
+                    } else {
+                        Ok(PlotInput::File(p.clone()))
+                    }
+                })
+                .collect::<Result<Vec<_>, _>>()?;
+            let stem = recording_path(&ctx.recordings, "plot", id);
+            let opts = PlotOptions {
+                out: Some(beside(&stem, &format!(".{}.png", req.kind.as_str()))),
+                request: req.clone(),
+                inputs,
+                existing: Existing::Refuse,
+            };
+            Ok(Accepted {
+                spec: JobSpec::Plot(Box::new(opts)),
+                kind,
+                total: 0,
+                recording: None,
+            })
+        }
         JobRequest::Analyze(req) => {
             absolute("config", req.config.as_deref())?;
             req.plant().map_err(|e| refused(&e))?;
@@ -379,6 +413,7 @@ pub(super) fn run(
         JobSpec::Design(opts) => run_design(&opts).map_err(answer).and_then(json),
         JobSpec::Analyze(opts) => run_analyze(&opts).map_err(answer).and_then(json),
         JobSpec::Map(opts) => run_map(&opts).map_err(answer).and_then(json),
+        JobSpec::Plot(opts) => run_plot(&opts).map_err(answer).and_then(json),
         JobSpec::Campaign(job) => {
             // Progress: the cells done.
             let on_cell = |done: usize, _cells: usize| {

@@ -10,7 +10,7 @@
 //! before it reaches the loop. What each request becomes (its options,
 //! with the daemon's output names) and the library job that runs it live
 //! in `jobs.rs`: chirp and control drive the bench through the loop; fit,
-//! analyze, map and campaign only compute (from files and the model, a
+//! design, analyze, map, plot and campaign only compute (from files and the model, a
 //! campaign on the simulator) and never touch the bench, but they hold
 //! the one job slot all the same. The **socket side** (`socket.rs`) is a single-threaded tokio
 //! runtime serving JSON lines on a Unix domain socket; it talks to the
@@ -38,6 +38,7 @@
 //! | `design` | the fields of a [`DesignRequest`], and `detach` | the `bench design --json` summary |
 //! | `analyze` | the fields of an [`AnalyzeRequest`], and `detach` | the `bench analyze --json` summary |
 //! | `map` | the fields of a [`MapRequest`], and `detach` | the `bench map --json` summary |
+//! | `plot` | the fields of a [`PlotRequest`], and `detach` | the `bench plot bode\|nyquist --json` summary |
 //! | `campaign` | the fields of a [`CampaignRequest`], and `detach` | the `bench campaign run --json` summary |
 //! | `stop` | – | the running job stops safely (0 A, recording finished) |
 //! | `subscribe` | – | this connection receives every event from now on |
@@ -49,13 +50,14 @@
 //! [`DesignRequest`]: crate::jobs::design::DesignRequest
 //! [`AnalyzeRequest`]: crate::jobs::analyze::AnalyzeRequest
 //! [`MapRequest`]: crate::jobs::map::MapRequest
+//! [`PlotRequest`]: crate::jobs::plot::PlotRequest
 //! [`CampaignRequest`]: crate::jobs::request::CampaignRequest
 //!
 //! The jobs that compute take their files by absolute path (the daemon's
 //! working directory is not its clients'), read them with the daemon's
 //! permissions, and write their outputs in the recordings directory under
 //! stamped names (`fit-<UTC>-job<N>.fit.png`, `analyze-…-job<N>.modes.png`,
-//! `map-…-job<N>.png`, `campaign-…-job<N>/`); the request names none.
+//! `map-…-job<N>.png`, `plot-…-job<N>.bode.png`, `campaign-…-job<N>/`); the request names none.
 //! Their summaries are the local run's.
 //!
 //! Lines are at most [`MAX_LINE_BYTES`], UTF-8, one JSON object with no

@@ -220,6 +220,7 @@ pub(super) fn job_request(cmd: &str, params: &Value) -> Result<(JobRequest, bool
         "design" => JobRequest::Design(from_params(params)?),
         "analyze" => JobRequest::Analyze(from_params(params)?),
         "map" => JobRequest::Map(from_params(params)?),
+        "plot" => JobRequest::Plot(from_params(params)?),
         "campaign" => JobRequest::Campaign(from_params(params)?),
         other => {
             return Err(ApiError::new(

@@ -465,32 +465,89 @@ fn fit_frequencies(opts: &FitOptions, measured: &[f64]) -> Result<FrequencySumma
     })
 }
 
+/// An FRF as `bench fit` reads its input ([`read_frf_input`]).
+#[derive(Debug, Clone)]
+pub struct FrfInput {
+    /// The FRF: the CSV's lines, or the recording's `/sysid/frf`.
+    pub frf: Frf,
+    /// The bench config (TOML) a recording holds (`None` for a CSV).
+    pub recorded_config: Option<String>,
+    /// The config file's text a recording holds (`bench.config` `source`:
+    /// comments and layout), when it does.
+    pub recorded_source: Option<String>,
+}
+
+/// Reads `path` as `bench fit` reads its input: a recording (`.mcap`,
+/// `.mcap.part`: its `/sysid/frf` and recorded config) or else an FRF CSV
+/// ([`Frf::read_csv`]).
+///
+/// # Errors
+/// Why it is not an FRF (unreadable, not UTF-8, a bad header or line, a
+/// recording without `/sysid/frf`); the caller names the field.
+pub fn read_frf_input(path: &Path) -> Result<FrfInput, String> {
+    let bytes = std::fs::read(path).map_err(|e| e.to_string())?;
+    if is_recording(path) {
+        let r = crate::ident::frf::read_frf(&bytes)?;
+        Ok(FrfInput {
+            frf: r.frf,
+            recorded_config: r.config_toml,
+            recorded_source: r.config_source,
+        })
+    } else {
+        let text =
+            String::from_utf8(bytes).map_err(|_| "not a text CSV (not UTF-8)".to_string())?;
+        Ok(FrfInput {
+            frf: Frf::read_csv(&text)?,
+            recorded_config: None,
+            recorded_source: None,
+        })
+    }
+}
+
+/// The modal fit and CMP-CNMP verdict of `frf` on the path of `cfg` (its
+/// loop period and amplifier bandwidth): what `bench fit` reports for it.
+///
+/// # Errors
+/// The FRF reaches the Nyquist frequency of `cfg`'s loop rate (the
+/// reason, naming `frequency_hz`): it was measured on another loop.
+pub fn fit_on(frf: &Frf, cfg: &BenchConfig) -> Result<Identified, String> {
+    below_nyquist(frf, cfg)?;
+    Ok(identify(
+        frf,
+        sample_period_s(cfg),
+        cfg.actuator.bandwidth_hz,
+    ))
+}
+
+/// Refuses an FRF that reaches the Nyquist frequency of `cfg`'s loop.
+fn below_nyquist(frf: &Frf, cfg: &BenchConfig) -> Result<(), String> {
+    let nyquist = 0.5 / sample_period_s(cfg);
+    match frf.frequency_hz.last().filter(|f| **f >= nyquist) {
+        Some(f) => Err(format!(
+            "frequency_hz: {f} Hz is at or above the Nyquist frequency {nyquist} Hz of the config's loop rate"
+        )),
+        None => Ok(()),
+    }
+}
+
 fn fit_frf(opts: &FitOptions, input_path: &Path) -> Result<FitSummary, RunError> {
     let req = &opts.request;
     let input = input_path.display().to_string();
     let bad_input = |reason: String| RunError::option("input", &input, reason);
     let free = parse_free(req.free.as_deref(), &Parameter::FRF_DEFAULT)?;
-    let bytes = std::fs::read(input_path).map_err(|e| bad_input(e.to_string()))?;
-    let (frf, recorded_config, recorded_source) = if is_recording(input_path) {
-        let r = crate::ident::frf::read_frf(&bytes).map_err(bad_input)?;
-        (r.frf, r.config_toml, r.config_source)
-    } else {
-        let text =
-            String::from_utf8(bytes).map_err(|_| bad_input("not a text CSV (not UTF-8)".into()))?;
-        (Frf::read_csv(&text).map_err(bad_input)?, None, None)
-    };
+    let FrfInput {
+        frf,
+        recorded_config,
+        recorded_source,
+    } = read_frf_input(input_path).map_err(bad_input)?;
     let cfg = match (&req.config, &recorded_config) {
         (None, Some(toml)) => BenchConfig::from_toml(toml, input_path)
             .map_err(|e| bad_input(format!("its recorded bench.config: {e}")))?,
         (path, _) => load_config(path.as_deref())?,
     };
     let period_s = sample_period_s(&cfg);
-    let nyquist = 0.5 / period_s;
-    if let Some(f) = frf.frequency_hz.last().filter(|f| **f >= nyquist) {
-        return Err(bad_input(format!(
-            "frequency_hz: {f} Hz is at or above the Nyquist frequency {nyquist} Hz of the config's loop rate"
-        )));
-    }
+    // Refused before any output is checked.
+    below_nyquist(&frf, &cfg).map_err(bad_input)?;
     let plot = (!req.no_plot).then(|| {
         opts.png
             .clone()
@@ -529,7 +586,7 @@ fn fit_frf(opts: &FitOptions, input_path: &Path) -> Result<FitSummary, RunError>
         )?),
         None => None,
     };
-    let id = identify(&frf, period_s, cfg.actuator.bandwidth_hz);
+    let id = fit_on(&frf, &cfg).map_err(bad_input)?;
     let update = match &start {
         Some(_) => match update_to_frf(
             &start_bench(&cfg),

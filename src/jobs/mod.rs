@@ -12,6 +12,8 @@
 //! - [`fit`] (`bench fit`, with the model update), [`analyze`] (`bench
 //!   analyze`) and [`map`] (`bench map`, with the measured-verdict CSV)
 //!   compute from files and the model.
+//! - [`plot`] (`bench plot bode|nyquist`) draws several FRFs on one
+//!   figure, each fitted as [`fit`] fits it.
 //! - A campaign's request is here ([`request::CampaignRequest`]); the
 //!   campaign job itself is [`crate::campaign::job`].
 //! - [`point`]: the operating point and asymmetry every job that takes
@@ -27,6 +29,7 @@ pub mod design;
 pub mod export;
 pub mod fit;
 pub mod map;
+pub mod plot;
 pub mod point;
 pub mod request;
 pub mod session;

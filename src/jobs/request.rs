@@ -12,6 +12,7 @@ pub use super::analyze::AnalyzeRequest;
 pub use super::design::DesignRequest;
 pub use super::fit::FitRequest;
 pub use super::map::MapRequest;
+pub use super::plot::PlotRequest;
 pub use super::point::OperatingPoint;
 use super::verify::{DEFAULT_AMPLITUDE_OF_CHIRP, DEFAULT_DURATION_S};
 use crate::config::{ranges, BenchConfig, ChirpKind};
@@ -58,14 +59,16 @@ pub enum JobRequest {
     Analyze(AnalyzeRequest),
     /// `bench map`.
     Map(MapRequest),
+    /// `bench plot bode|nyquist`.
+    Plot(PlotRequest),
     /// `bench campaign run --submit`.
     Campaign(CampaignRequest),
 }
 
 impl JobRequest {
     /// Every job kind, as the daemon's `cmd`.
-    pub const KINDS: [&'static str; 7] = [
-        "chirp", "control", "fit", "design", "analyze", "map", "campaign",
+    pub const KINDS: [&'static str; 8] = [
+        "chirp", "control", "fit", "design", "analyze", "map", "plot", "campaign",
     ];
 
     /// The job kind, as the daemon's `cmd`: one of [`Self::KINDS`].
@@ -77,6 +80,7 @@ impl JobRequest {
             Self::Design(_) => "design",
             Self::Analyze(_) => "analyze",
             Self::Map(_) => "map",
+            Self::Plot(_) => "plot",
             Self::Campaign(_) => "campaign",
         }
     }

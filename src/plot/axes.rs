@@ -112,6 +112,11 @@ pub(super) fn panel_chart<'a, 'b: 'a, X: Ranged<ValueType = f64>>(
 pub(super) fn plot_columns(area: &Area<'_>) -> (i32, i32) {
     let (x0, _) = area.get_base_pixel();
     let (w, _) = area.dim_in_pixel();
+    plot_columns_at(x0, w)
+}
+
+/// [`plot_columns`] of an area `w` px wide starting at column `x0`.
+pub(super) fn plot_columns_at(x0: i32, w: u32) -> (i32, i32) {
     let w = i32::try_from(w).unwrap_or(i32::MAX);
     let left = x0 + (MARGIN_LEFT + Y_LABEL_AREA) as i32;
     let right = (x0 + w - MARGIN_RIGHT as i32).max(left + 1);

@@ -263,8 +263,42 @@ pub(super) fn draw_measured<X: Ranged<ValueType = f64>>(
     log_x: bool,
     dots: bool,
 ) -> Result<(), BoxError> {
-    for run in runs(pts, x_range, log_x) {
-        draw_polyline(chart, &run, FAINT_COLOR, LINE_WIDTH)?;
+    let style = MeasuredStyle {
+        color: MEASURED_COLOR,
+        faint: Some(FAINT_COLOR),
+        width: LINE_WIDTH,
+        dots,
+    };
+    draw_measured_as(chart, pts, good, x_range, log_x, &style)
+}
+
+/// How a measured curve is drawn ([`draw_measured_as`]).
+#[derive(Debug, Clone, Copy)]
+pub(super) struct MeasuredStyle {
+    /// The points of good coherence.
+    pub(super) color: RGBColor,
+    /// The points below [`MIN_COHERENCE`] (`None`: not drawn, e.g.
+    /// drawn for every curve first, under all the good points).
+    pub(super) faint: Option<RGBColor>,
+    /// Line width, px.
+    pub(super) width: u32,
+    /// A dot on each grid point.
+    pub(super) dots: bool,
+}
+
+/// [`draw_measured`] in `style`'s colours and width.
+pub(super) fn draw_measured_as<X: Ranged<ValueType = f64>>(
+    chart: &mut Chart<'_, '_, X>,
+    pts: &[(f64, f64)],
+    good: &[bool],
+    x_range: &Range<f64>,
+    log_x: bool,
+    style: &MeasuredStyle,
+) -> Result<(), BoxError> {
+    if let Some(faint) = style.faint {
+        for run in runs(pts, x_range, log_x) {
+            draw_polyline(chart, &run, faint, style.width)?;
+        }
     }
     let solid: Vec<(f64, f64)> = pts
         .iter()
@@ -272,20 +306,20 @@ pub(super) fn draw_measured<X: Ranged<ValueType = f64>>(
         .map(|(p, g)| if *g { *p } else { (p.0, f64::NAN) })
         .collect();
     for run in runs(&solid, x_range, log_x) {
-        draw_polyline(chart, &run, MEASURED_COLOR, LINE_WIDTH)?;
+        draw_polyline(chart, &run, style.color, style.width)?;
     }
-    if dots {
+    if style.dots {
         let inside = |p: &(f64, f64)| p.0 >= x_range.start && p.0 <= x_range.end && p.1.is_finite();
         chart.draw_series(
             pts.iter()
                 .zip(good)
-                .filter(|(p, _)| inside(p))
+                .filter(|(p, g)| inside(p) && (**g || style.faint.is_some()))
                 .map(|(p, g)| {
-                    Circle::new(
-                        *p,
-                        3,
-                        if *g { MEASURED_COLOR } else { FAINT_COLOR }.filled(),
-                    )
+                    let c = match (g, style.faint) {
+                        (false, Some(f)) => f,
+                        _ => style.color,
+                    };
+                    Circle::new(*p, 3, c.filled())
                 }),
         )?;
     }

@@ -30,7 +30,9 @@ use super::palette::{
 };
 use super::png::{invalid, write_png_atomically};
 use super::style::LINE_WIDTH;
-use super::ticks::{fmt_sig, fmt_tick, linear_ticks, log_range, padded_range, phase_ticks};
+use super::ticks::{
+    fmt_sig, fmt_tick, linear_ticks, log_range, padded_range, phase_ticks, ticks_every,
+};
 use super::{Area, BoxError, PlotError};
 use crate::outputs::Existing;
 
@@ -353,15 +355,6 @@ fn arc(centre: (f64, f64), radius: f64, a0: f64, a1: f64) -> Vec<(f64, f64)> {
     (0..=n)
         .map(|i| on_circle(centre, radius, a0 + (a1 - a0) * i as f64 / n as f64))
         .collect()
-}
-
-/// Ticks at the multiples of `step` inside `r`.
-fn ticks_every(r: &Range<f64>, step: f64) -> Vec<f64> {
-    let (first, last) = (
-        (r.start / step).ceil() as i64,
-        (r.end / step).floor() as i64,
-    );
-    (first..=last).map(|k| k as f64 * step).collect()
 }
 
 /// The axes of the Nyquist panel with its frame spanning `cols` × `rows`

@@ -89,6 +89,24 @@ pub(super) fn legend_height(area: &Area<'_>, entries: &[Entry]) -> Result<u32, B
     Ok(u32::try_from(rows)? * LEGEND_ROW_H)
 }
 
+/// Draws `swatch` from (`x`, `y`) (absolute pixels, the middle of its row);
+/// returns the x where its text starts.
+fn draw_swatch(root: &Area<'_>, swatch: Swatch, x: i32, y: i32) -> Result<i32, BoxError> {
+    let seg = vec![(x, y), (x + SWATCH_W, y)];
+    match swatch {
+        Swatch::Line(c, w) => root.draw(&PathElement::new(seg, c.stroke_width(w)))?,
+        Swatch::Dashed(c) => {
+            root.draw(&DashedPathElement::new(seg, 8, 5, c.stroke_width(2)))?;
+        }
+        Swatch::Fill(c, a) => root.draw(&Rectangle::new(
+            [(x, y - 7), (x + SWATCH_W, y + 7)],
+            c.mix(a).filled(),
+        ))?,
+        Swatch::Text => return Ok(x),
+    }
+    Ok(x + SWATCH_W + 6)
+}
+
 /// Draws the legend strip of `entries` with its top-left corner at
 /// (`x0`, `y_top`) (absolute pixels), wrapping at `width`.
 fn draw_legend(
@@ -103,23 +121,7 @@ fn draw_legend(
     for (e, (dx, row)) in entries.iter().zip(pos) {
         let x = x0 + dx;
         let y = y_top + i32::try_from(row)? * row_h + row_h / 2;
-        let seg = vec![(x, y), (x + SWATCH_W, y)];
-        match e.swatch {
-            Swatch::Line(c, w) => root.draw(&PathElement::new(seg, c.stroke_width(w)))?,
-            Swatch::Dashed(c) => {
-                root.draw(&DashedPathElement::new(seg, 8, 5, c.stroke_width(2)))?;
-            }
-            Swatch::Fill(c, a) => root.draw(&Rectangle::new(
-                [(x, y - 7), (x + SWATCH_W, y + 7)],
-                c.mix(a).filled(),
-            ))?,
-            Swatch::Text => {}
-        }
-        let tx = if matches!(e.swatch, Swatch::Text) {
-            x
-        } else {
-            x + SWATCH_W + 6
-        };
+        let tx = draw_swatch(root, e.swatch, x, y)?;
         root.draw(&Text::new(e.text.clone(), (tx, y), legend_style()))?;
     }
     Ok(())
@@ -259,4 +261,157 @@ pub(super) fn header_lines(
 /// Height of `n` header lines, px.
 pub(super) fn header_height(n: usize) -> u32 {
     u32::try_from(n).unwrap_or(0) * (HEADER_SIZE as u32 + 8) + 6
+}
+
+/// A legend of many entries in columns (the traces of an overlay), laid
+/// out before the image exists ([`table_layout`]), so the figure can be
+/// made as tall as its legend needs.
+pub(super) struct Table {
+    /// `(x offset, first row, text lines, swatch)` of each entry.
+    cells: Vec<(i32, usize, Vec<String>, Swatch)>,
+    /// Rows in all.
+    rows: usize,
+}
+
+impl Table {
+    /// This table with `below` under it.
+    pub(super) fn above(mut self, below: Table) -> Table {
+        let shift = self.rows;
+        self.cells.extend(
+            below
+                .cells
+                .into_iter()
+                .map(|(x, row, lines, swatch)| (x, row + shift, lines, swatch)),
+        );
+        self.rows += below.rows;
+        self
+    }
+
+    /// Height of the table, px.
+    pub(super) fn height(&self) -> u32 {
+        u32::try_from(self.rows).unwrap_or(u32::MAX) * LEGEND_ROW_H
+    }
+}
+
+/// Width of `text` in the legend's font, px.
+fn legend_text_width(text: &str) -> Result<i32, BoxError> {
+    let (w, _) = (FONT, LEGEND_SIZE).into_font().box_size(text)?;
+    Ok(i32::try_from(w)?)
+}
+
+/// `text` cut to fit in `width` px, with `…` where it was cut.
+fn truncated(text: &str, width: i32) -> Result<String, BoxError> {
+    if legend_text_width(text)? <= width {
+        return Ok(text.to_string());
+    }
+    let chars: Vec<char> = text.chars().collect();
+    // The longest prefix that fits with the ellipsis (binary search).
+    let (mut lo, mut hi) = (0, chars.len());
+    while lo < hi {
+        let mid = (lo + hi).div_ceil(2);
+        let s: String = chars[..mid].iter().collect::<String>() + "…";
+        if legend_text_width(&s)? <= width {
+            lo = mid;
+        } else {
+            hi = mid - 1;
+        }
+    }
+    Ok(chars[..lo]
+        .iter()
+        .collect::<String>()
+        .trim_end()
+        .to_string()
+        + "…")
+}
+
+/// `text` broken at spaces into lines of at most `width` px, at most
+/// `max_lines` of them (the last cut with `…` when the text goes on).
+fn wrapped(text: &str, width: i32, max_lines: usize) -> Result<Vec<String>, BoxError> {
+    let mut lines: Vec<String> = Vec::new();
+    let mut cur = String::new();
+    let words: Vec<&str> = text.split(' ').collect();
+    for (i, w) in words.iter().enumerate() {
+        let candidate = if cur.is_empty() {
+            (*w).to_string()
+        } else {
+            format!("{cur} {w}")
+        };
+        if cur.is_empty() || legend_text_width(&candidate)? <= width {
+            cur = candidate;
+            continue;
+        }
+        if lines.len() + 1 == max_lines.max(1) {
+            // The last line allowed: the rest of the text, cut to fit.
+            let rest = format!("{cur} {}", words[i..].join(" "));
+            lines.push(truncated(&rest, width)?);
+            return Ok(lines);
+        }
+        // A single word wider than a line is cut.
+        lines.push(truncated(&std::mem::take(&mut cur), width)?);
+        cur = (*w).to_string();
+    }
+    lines.push(truncated(&cur, width)?);
+    Ok(lines)
+}
+
+/// Lays `entries` (text, swatch) out in `columns` columns over `width` px,
+/// filled top to bottom, then left to right: with one column each entry
+/// wraps onto at most `max_lines` rows; with more, each takes one row, cut
+/// to its column with `…`.
+pub(super) fn table_layout(
+    entries: &[(String, Swatch)],
+    width: i32,
+    columns: usize,
+    max_lines: usize,
+) -> Result<Table, BoxError> {
+    let columns = columns.clamp(1, entries.len().max(1));
+    let col_w = width / i32::try_from(columns)?;
+    let text_w = |s: &Swatch| {
+        col_w
+            - 12
+            - if matches!(s, Swatch::Text) {
+                0
+            } else {
+                SWATCH_W + 6
+            }
+    };
+    let mut cells = Vec::with_capacity(entries.len());
+    if columns == 1 {
+        let mut row = 0;
+        for (text, swatch) in entries {
+            let lines = wrapped(text, text_w(swatch), max_lines)?;
+            let n = lines.len();
+            cells.push((0, row, lines, *swatch));
+            row += n;
+        }
+        return Ok(Table { cells, rows: row });
+    }
+    let rows = entries.len().div_ceil(columns);
+    for (i, (text, swatch)) in entries.iter().enumerate() {
+        let (col, row) = (i / rows, i % rows);
+        let line = truncated(text, text_w(swatch))?;
+        cells.push((i32::try_from(col)? * col_w, row, vec![line], *swatch));
+    }
+    Ok(Table { cells, rows })
+}
+
+/// Draws `table` with its top-left corner at (`x0`, `y_top`) (absolute
+/// pixels): each entry's swatch on its first row, its lines after it.
+pub(super) fn draw_table(
+    root: &Area<'_>,
+    table: &Table,
+    x0: i32,
+    y_top: i32,
+) -> Result<(), BoxError> {
+    let row_h = i32::try_from(LEGEND_ROW_H)?;
+    for (dx, row, lines, swatch) in &table.cells {
+        let x = x0 + dx;
+        let y = y_top + i32::try_from(*row)? * row_h + row_h / 2;
+        let tx = draw_swatch(root, *swatch, x, y)?;
+        for (k, line) in lines.iter().enumerate() {
+            let ly = y + i32::try_from(k)? * row_h;
+            root.draw(&Text::new(line.clone(), (tx, ly), legend_style()))?;
+        }
+    }
+    Ok(())
 }

@@ -23,6 +23,16 @@
 //!   phase-margin sector), |L|, ∠L and |S| on a logarithmic ω axis right;
 //!   the worst loop highlighted. It takes plain slices, not the design
 //!   job's types.
+//! * [`write_bode_overlay_png`] (`bode_overlay.rs`; `bench plot bode`):
+//!   several measured FRFs on the Bode figure's three panels, each in its
+//!   colour with its verdict in a legend table above (as tall as it needs
+//!   to be), the model once, and the zoom on all their closely spaced
+//!   pairs below. [`write_nyquist_png`] (`nyquist.rs`; `bench plot
+//!   nyquist`): the same FRFs in the complex plane with equal scales, the
+//!   whole band and the pairs' band side by side, with direction arrows
+//!   and the fitted modes marked. Both take an [`OverlayPlot`]
+//!   (`overlay.rs`, with what they share); the colours are
+//!   [`overlay_colors`].
 //! * The model-analysis figures, 1400×1000 px, drawn with plotters' own
 //!   captions and series-label boxes: [`write_pole_zero_png`]
 //!   (`pole_zero.rs`) and [`write_decomposed_bode_png`] (`modes.rs`) of one
@@ -36,10 +46,11 @@
 //! formatting), `draw.rs` (curves and guide lines), `legend.rs` (legend
 //! strips, marker labels, header lines, the title) and `png.rs` (writing
 //! the file).
-//! Unit tests of the figures as files are in `tests.rs`. The `write_*_png`
-//! functions write SVG and PDF as well, by the path's extension.
+//! Unit tests of the figures as files are in `tests.rs`, of the overlays
+//! in `overlay_tests.rs`. The `write_*_png` functions write SVG and PDF
+//! as well, by the path's extension.
 //!
-//! In the Bode, step, time-series and design figures legends sit in strips
+//! In the Bode, step, time-series, design and overlay figures legends sit in strips
 //! above the panels, outside the plotted area, so they never hide a trace.
 //! Rendering draws on a [`canvas::Canvas`] (`canvas.rs`): the plotters
 //! bitmap backend for a PNG, its SVG backend for `.svg` and `.pdf` (the
@@ -78,12 +89,17 @@ use plotters::prelude::*;
 
 mod axes;
 mod bode;
+mod bode_overlay;
 mod canvas;
 mod design;
 mod draw;
 mod legend;
 mod map;
 mod modes;
+mod nyquist;
+mod overlay;
+#[cfg(test)]
+mod overlay_tests;
 mod pair_zoom;
 mod palette;
 mod png;
@@ -97,13 +113,17 @@ mod time;
 
 pub use crate::ident::frf::MIN_COHERENCE;
 pub use bode::{bode_curve, write_bode_png, BodePlot, BodeSeries, MAGNITUDE_M_PER_A};
+pub use bode_overlay::write_bode_overlay_png;
 pub use design::{write_design_png, DesignLoop, DesignPlot};
 pub use map::{write_map_png, write_veering_png, MeasuredPoint};
 pub use modes::write_decomposed_bode_png;
+pub use nyquist::write_nyquist_png;
+pub use overlay::{OverlayModel, OverlayPlot, OverlayTrace, FULL_LEGEND_MAX, MAX_OVERLAY_TRACES};
 pub use pair_zoom::PairZoom;
 pub use palette::{
-    COMMAND_COLOR, FAINT_COLOR, MAP_CNMP_BOTH, MAP_CNMP_UNDAMPED_ONLY, MARKER_COLOR,
-    MEASURED_COLOR, OTHER_LOOP_COLOR, OVERSHOOT_COLOR, RISE_COLOR, SETTLE_COLOR, WORST_LOOP_COLOR,
+    faint, overlay_colors, viridis, OverlayPalette, COMMAND_COLOR, FAINT_COLOR, MAP_CNMP_BOTH,
+    MAP_CNMP_UNDAMPED_ONLY, MARKER_COLOR, MEASURED_COLOR, MODEL_COLOR, OTHER_LOOP_COLOR,
+    OVERLAY_QUALITATIVE, OVERSHOOT_COLOR, RISE_COLOR, SETTLE_COLOR, WORST_LOOP_COLOR,
 };
 pub use pole_zero::write_pole_zero_png;
 pub use step::{write_step_png, StepPlot};

@@ -14,6 +14,7 @@ const PURPLE: RGBColor = RGBColor(148, 103, 189);
 const BROWN: RGBColor = RGBColor(140, 86, 75);
 const PINK: RGBColor = RGBColor(227, 119, 194);
 const CYAN: RGBColor = RGBColor(23, 190, 207);
+const OLIVE: RGBColor = RGBColor(188, 189, 34);
 
 // ---------------------------------------------------------------------------
 // Panels
@@ -40,8 +41,8 @@ pub const MEASURED_COLOR: RGBColor = BLUE;
 /// [`MIN_COHERENCE`](crate::ident::frf::MIN_COHERENCE) (the measured
 /// colour at 30 % on white).
 pub const FAINT_COLOR: RGBColor = RGBColor(188, 214, 233);
-/// The model overlay (dashed).
-pub(super) const MODEL_COLOR: RGBColor = RED;
+/// Colour of the model overlay (dashed).
+pub const MODEL_COLOR: RGBColor = RED;
 /// The phase at the start of the pair's band (pair zoom).
 pub(super) const BAND_START_COLOR: RGBColor = GREEN;
 /// The phase at the end of the pair's band (pair zoom).
@@ -112,3 +113,81 @@ pub(super) const SERIES: [RGBColor; 8] = [BLUE, RED, GREEN, ORANGE, PURPLE, BROW
 /// veering plot, in order (cycled): the same colours without red, which
 /// marks CMP-CNMP in the model-analysis figures, and pink.
 pub(super) const MODE_SERIES: [RGBColor; 6] = [BLUE, ORANGE, GREEN, PURPLE, BROWN, CYAN];
+
+// ---------------------------------------------------------------------------
+// Overlays of several FRFs (`bench plot`)
+
+/// The traces of an overlay of a few FRFs, in order: Tableau 10 without
+/// red (the model, dashed) and grey (the markers). Up to eight traces get
+/// one each ([`overlay_colors`]).
+pub const OVERLAY_QUALITATIVE: [RGBColor; 8] =
+    [BLUE, ORANGE, GREEN, PURPLE, BROWN, PINK, OLIVE, CYAN];
+
+/// matplotlib's viridis at 0, 0.1, …, 1 (its published 256-entry table,
+/// every 25.5th entry): perceptually uniform, readable in grey and by the
+/// colour-blind.
+const VIRIDIS: [(u8, u8, u8); 11] = [
+    (0x44, 0x01, 0x54),
+    (0x48, 0x24, 0x75),
+    (0x41, 0x44, 0x87),
+    (0x35, 0x5f, 0x8d),
+    (0x2a, 0x78, 0x8e),
+    (0x21, 0x91, 0x8c),
+    (0x22, 0xa8, 0x84),
+    (0x44, 0xbf, 0x70),
+    (0x7a, 0xd1, 0x51),
+    (0xbd, 0xdf, 0x26),
+    (0xfd, 0xe7, 0x25),
+];
+
+/// The end of viridis a trace may take: beyond it the yellow is too light
+/// to read as a line on white.
+const VIRIDIS_END: f64 = 0.85;
+
+/// viridis at `t` (0 … 1, clamped) linearly between its tabulated
+/// points, on the part up to [`VIRIDIS_END`].
+pub fn viridis(t: f64) -> RGBColor {
+    let t = if t.is_finite() {
+        t.clamp(0.0, 1.0)
+    } else {
+        0.0
+    } * VIRIDIS_END;
+    let x = t * (VIRIDIS.len() - 1) as f64;
+    let i = (x.floor() as usize).min(VIRIDIS.len() - 2);
+    let f = x - i as f64;
+    let (a, b) = (VIRIDIS[i], VIRIDIS[i + 1]);
+    let mix = |p: u8, q: u8| (f64::from(p) + f * (f64::from(q) - f64::from(p))).round() as u8;
+    RGBColor(mix(a.0, b.0), mix(a.1, b.1), mix(a.2, b.2))
+}
+
+/// How the traces of an overlay are coloured.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum OverlayPalette {
+    /// [`OVERLAY_QUALITATIVE`] in order: a few unrelated FRFs.
+    Qualitative,
+    /// [`viridis`] from its dark end to [`VIRIDIS_END`] in the traces'
+    /// order: many FRFs, or FRFs ordered by a quantity (a campaign's cells
+    /// by asymmetry and operating point).
+    Sequential,
+}
+
+/// The colours of `n` overlaid traces: [`OVERLAY_QUALITATIVE`] (cycled
+/// beyond eight, which [`OverlayPalette::Sequential`] is for), or
+/// [`viridis`] spread evenly over its part (one trace: its middle).
+pub fn overlay_colors(palette: OverlayPalette, n: usize) -> Vec<RGBColor> {
+    match palette {
+        OverlayPalette::Qualitative => (0..n)
+            .map(|i| OVERLAY_QUALITATIVE[i % OVERLAY_QUALITATIVE.len()])
+            .collect(),
+        OverlayPalette::Sequential if n == 1 => vec![viridis(0.5)],
+        OverlayPalette::Sequential => (0..n).map(|i| viridis(i as f64 / (n - 1) as f64)).collect(),
+    }
+}
+
+/// `c` at 30 % on white: the colour of a trace's points below
+/// [`MIN_COHERENCE`](crate::ident::frf::MIN_COHERENCE) (as
+/// [`FAINT_COLOR`] is of [`MEASURED_COLOR`]).
+pub fn faint(c: RGBColor) -> RGBColor {
+    let f = |v: u8| (0.3 * f64::from(v) + 0.7 * 255.0).round() as u8;
+    RGBColor(f(c.0), f(c.1), f(c.2))
+}

@@ -143,6 +143,15 @@ pub(super) fn linear_ticks(r: &Range<f64>, max_n: usize) -> Vec<f64> {
     (first..=last).map(|k| k as f64 * step).collect()
 }
 
+/// Ticks at the multiples of `step` inside `r`.
+pub(super) fn ticks_every(r: &Range<f64>, step: f64) -> Vec<f64> {
+    let (first, last) = (
+        (r.start / step).ceil() as i64,
+        (r.end / step).floor() as i64,
+    );
+    (first..=last).map(|k| k as f64 * step).collect()
+}
+
 /// Phase ticks at multiples of 15, 45, 90, 180, 360, ... degrees.
 pub(super) fn phase_ticks(r: &Range<f64>) -> Vec<f64> {
     let span = r.end - r.start;
