@@ -608,7 +608,7 @@ fn bad_inputs_are_refused_naming_the_input_and_nothing_is_written() {
     let file = campaign_file(d, 1, "[4.0]", 1000.0);
     let undone = d.join("undone");
     let campaign = bench::campaign::file::Campaign::load(&file).unwrap();
-    drop(bench::campaign::job::start(campaign, Some(&undone)).unwrap());
+    drop(bench::campaign::job::start(campaign, Some(&undone), 1).unwrap());
     for (what, p, expect) in [
         ("missing", path_in(d, "missing.csv"), "No such file"),
         ("a text file", text_file.clone(), "header"),
