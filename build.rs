@@ -10,6 +10,9 @@
 //!   `man`, are on `PATH` (`tests/first_hour.rs`: the completion script
 //!   checked with `bash -n`, the man page rendered).
 //!
+//! - `cfg(bench_has_vcan0)`: a virtual CAN interface `vcan0` exists
+//!   (`tests/readme_examples.rs`: the README's CAN examples).
+//!
 //! The probe runs when this file changes (`touch build.rs` after changing
 //! the user that builds or installing those programs).
 
@@ -24,7 +27,12 @@ fn on_path(program: &str) -> bool {
 }
 
 fn main() {
-    println!("cargo::rustc-check-cfg=cfg(bench_root, bench_has_bash, bench_has_man)");
+    println!(
+        "cargo::rustc-check-cfg=cfg(bench_root, bench_has_bash, bench_has_man, bench_has_vcan0)"
+    );
+    if std::path::Path::new("/sys/class/net/vcan0").exists() {
+        println!("cargo::rustc-cfg=bench_has_vcan0");
+    }
     if on_path("bash") {
         println!("cargo::rustc-cfg=bench_has_bash");
     }

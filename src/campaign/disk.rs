@@ -111,6 +111,9 @@ impl DiskEstimate {
             .map_or("free space unknown".to_string(), |a| {
                 format!("{} free there", human(a as f64))
             });
+        if self.cells == 0 {
+            return format!("disk: no cell left to run; {free}");
+        }
         format!(
             "disk: about {} for {} cells ({} a cell, ±{:.0} %, keep = {}); {free}",
             human(self.total_bytes),
