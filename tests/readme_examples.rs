@@ -183,7 +183,7 @@ fn scratch() -> (tempfile::TempDir, PathBuf) {
 /// Runs `lines` (README line number, text) as one bash script in a
 /// scratch directory; panics naming the first line that failed, with the
 /// tail of its output.
-fn run_lines(lines: &[(usize, String)]) {
+fn run_lines(lines: &[(usize, String)]) -> String {
     let (dir, work) = scratch();
     let mut script = String::from(
         "set -a -u -o pipefail\ntrap 'kill $(jobs -p) 2>/dev/null; wait 2>/dev/null' EXIT\n",
@@ -249,6 +249,34 @@ fn run_lines(lines: &[(usize, String)]) {
         .filter(|l| l.starts_with("::: README.md:"))
         .count();
     assert_eq!(ran, lines.len());
+    err.into_owned()
+}
+
+/// The README's one-line stderr samples (```text blocks of one line
+/// starting with one of `starts`), each with what depends on the machine
+/// (the free space) cut off.
+fn stderr_samples(starts: &[&str]) -> Vec<String> {
+    let readme = std::fs::read_to_string(root().join("README.md")).unwrap();
+    let mut out = Vec::new();
+    let mut rest = readme.as_str();
+    while let Some(i) = rest.find("```text\n") {
+        let body = &rest[i + "```text\n".len()..];
+        let end = body.find("```").unwrap();
+        let block = body[..end].trim_end();
+        if !block.contains('\n') && starts.iter().any(|s| block.starts_with(s)) {
+            out.push(machine_free(block));
+        }
+        rest = &body[end + 3..];
+    }
+    out
+}
+
+/// `line` without its `; … free there` tail (the machine's free space).
+fn machine_free(line: &str) -> String {
+    line.split("; ")
+        .filter(|p| !p.ends_with("free there"))
+        .collect::<Vec<_>>()
+        .join("; ")
 }
 
 /// Every example a reader can run on this machine.
@@ -267,7 +295,24 @@ fn every_readme_example_runs() {
         "{} lines: the README lost its examples?",
         lines.len()
     );
-    run_lines(&lines);
+    let err = run_lines(&lines);
+    // The README's stderr samples are what the examples printed: the
+    // campaign's disk estimate, the live view's pacing note.
+    let samples = stderr_samples(&["disk: about", "note: --live without"]);
+    assert_eq!(samples.len(), 2, "{samples:?}");
+    let printed: Vec<String> = err.lines().map(machine_free).collect();
+    for s in samples {
+        assert!(
+            printed.contains(&s),
+            "the README's sample is not what the binary prints:\n  {s}\nprinted:\n{}",
+            printed
+                .iter()
+                .filter(|l| l.starts_with(&s[..10]))
+                .cloned()
+                .collect::<Vec<_>>()
+                .join("\n")
+        );
+    }
 }
 
 /// The CAN examples: the emulator and a chirp over `vcan0`.
