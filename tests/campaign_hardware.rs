@@ -156,6 +156,21 @@ fn the_operator_is_told_each_change_and_nothing_moves_before_the_answer() {
         third.contains("2 on stage 2 (add 2), 0 on stage 3 (remove 2)"),
         "{third}"
     );
+    // The README's sample prompt is one the operator was shown.
+    let readme =
+        std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("README.md")).unwrap();
+    let start = readme
+        .find("```text\ncell 3 of 4")
+        .expect("the README's prompt sample")
+        + 8;
+    let sample = &readme[start..start + readme[start..].find("```").unwrap()];
+    let shown = err.text();
+    for line in sample.lines() {
+        assert!(
+            shown.contains(line.trim_end()),
+            "the README's prompt line is not what the operator is shown:\n{line}\nshown:\n{shown}"
+        );
+    }
     // Redo the previous (skipped) cell: it is asked again.
     stdin.write_all(b"r\n").unwrap();
     let t = err.prompts(4);
