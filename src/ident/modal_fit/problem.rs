@@ -1,0 +1,420 @@
+//! The least-squares problem of the fit: the parameters, the weight of each
+//! line, the model on the grid with its linear part solved for fixed poles
+//! (variable projection), the Levenberg-Marquardt refinement and the 1σ
+//! from the Jacobian.
+
+use super::*;
+
+/// Full parameter set: nonlinear (per mode f, ζ; delay) and linear.
+#[derive(Debug, Clone, PartialEq)]
+pub(super) struct Params {
+    pub(super) f_hz: Vec<f64>,
+    pub(super) zeta: Vec<f64>,
+    pub(super) a: Vec<f64>,
+    pub(super) l: f64,
+    pub(super) u: f64,
+    pub(super) tau_s: f64,
+}
+
+/// The weight of each line: the residual of a model `Ĥ` at line `k` is
+/// `(Ĥₖ − Hₖ) · wₖ`.
+///
+/// - With a 1σ per line from the data ([`FrfData::sigma_m_per_a`] finite
+///   and positive on every line): `wₖ = √2/√(σₖ² + (ε|Hₖ|)²)`, the inverse
+///   standard deviation of each of the line's real and imaginary parts
+///   (σ² is `E|ΔH|²` of circular complex noise, half in each part; the
+///   maximum-likelihood weighting of
+///   Pintelon & Schoukens, *System Identification*, 2nd ed., §7.3 and
+///   ch. 9), with `ε` = [`MODEL_ERROR_FLOOR`] for what the model cannot
+///   represent; the residual is then in standard deviations.
+/// - Without: `wₖ = 1/(|Hₖ| √((1 − γₖ²)/γₖ² + ε²))`, the relative,
+///   coherence-weighted error (Bendat & Piersol, *Random Data*, Eq. 9.90),
+///   which knows the noise only up to a common scale.
+pub fn weights(data: &FrfData) -> Weights {
+    let noise_estimated = !data.sigma_m_per_a.is_empty()
+        && data.sigma_m_per_a.len() == data.response.len()
+        && data.sigma_m_per_a.iter().all(|s| s.is_finite() && *s > 0.0);
+    let scale = if noise_estimated {
+        data.response
+            .iter()
+            .zip(&data.sigma_m_per_a)
+            .map(|(h, s)| {
+                // σ² is E|ΔH|² of circular complex noise: half in each of
+                // the real and imaginary parts, which are the residuals.
+                let floor = MODEL_ERROR_FLOOR * h.norm();
+                (2.0 / (s * s + floor * floor)).sqrt().min(f64::MAX)
+            })
+            .collect()
+    } else {
+        data.response
+            .iter()
+            .zip(&data.coherence)
+            .map(|(h, g)| {
+                let g = g.clamp(1e-6, 1.0);
+                let var = (1.0 - g) / g + MODEL_ERROR_FLOOR * MODEL_ERROR_FLOOR;
+                1.0 / (var.sqrt() * h.norm().max(f64::MIN_POSITIVE))
+            })
+            .collect()
+    };
+    Weights {
+        scale,
+        noise_estimated,
+    }
+}
+
+/// The weights of [`weights`].
+#[derive(Debug, Clone)]
+pub struct Weights {
+    /// `wₖ` per line, A/m.
+    pub scale: Vec<f64>,
+    /// The weights are inverse standard deviations estimated from the data
+    /// (the weighted residual sum of squares is then a χ²); otherwise they
+    /// are relative and the noise level comes from the residual.
+    pub noise_estimated: bool,
+}
+
+/// Precomputed per-point data.
+pub(super) struct Prepared<'a> {
+    pub(super) w: Vec<f64>,
+    pub(super) h: &'a [C64],
+    /// Weight over |H|: the residual is `scale · (Ĥ − H)`.
+    pub(super) scale: Vec<f64>,
+    /// The weights are inverse standard deviations ([`Weights`]).
+    pub(super) noise_estimated: bool,
+    pub(super) gain: Vec<C64>,
+    pub(super) coherent: Vec<bool>,
+}
+
+impl<'a> Prepared<'a> {
+    pub(super) fn new(data: &'a FrfData, path: &Path) -> Self {
+        let w: Vec<f64> = data.frequency_hz.iter().map(|f| 2.0 * PI * f).collect();
+        let Weights {
+            scale,
+            noise_estimated,
+        } = weights(data);
+        let gain = w.iter().map(|&w| path.gain(w)).collect();
+        let coherent = data.coherence.iter().map(|g| *g >= MIN_COHERENCE).collect();
+        Self {
+            w,
+            h: &data.response,
+            scale,
+            noise_estimated,
+            gain,
+            coherent,
+        }
+    }
+
+    pub(super) fn len(&self) -> usize {
+        self.w.len()
+    }
+
+    /// `D(jω)` at point `k` with delay `tau_s`.
+    pub(super) fn d(&self, k: usize, tau_s: f64) -> C64 {
+        self.gain[k] * C64::from_polar(1.0, -self.w[k] * tau_s)
+    }
+
+    /// The linear basis at point `k` (before `D`): modes, `1/s²`, `1`.
+    pub(super) fn basis(&self, k: usize, f_hz: &[f64], zeta: &[f64], out: &mut Vec<C64>) {
+        out.clear();
+        let s = C64::new(0.0, self.w[k]);
+        for (f, z) in f_hz.iter().zip(zeta) {
+            let wn = 2.0 * PI * f;
+            out.push(C64::new(1.0, 0.0) / (s * s + s * (2.0 * z * wn) + wn * wn));
+        }
+        out.push(C64::new(1.0, 0.0) / (s * s));
+        out.push(C64::new(1.0, 0.0));
+    }
+
+    /// Solves the linear coefficients for fixed poles and delay (weighted
+    /// least squares over all points, by the normal equations of the
+    /// column-scaled basis, solved by SVD); returns them and the cost.
+    pub(super) fn solve_linear(
+        &self,
+        f_hz: &[f64],
+        zeta: &[f64],
+        tau_s: f64,
+    ) -> Option<(Vec<f64>, f64)> {
+        self.solve_linear_in(0..self.len(), f_hz, zeta, tau_s)
+    }
+
+    /// [`Self::solve_linear`] over the points `range` only.
+    pub(super) fn solve_linear_in(
+        &self,
+        range: std::ops::Range<usize>,
+        f_hz: &[f64],
+        zeta: &[f64],
+        tau_s: f64,
+    ) -> Option<(Vec<f64>, f64)> {
+        let p = f_hz.len() + 2;
+        let mut g = DMatrix::<f64>::zeros(p, p);
+        let mut rhs = DVector::<f64>::zeros(p);
+        let mut row = Vec::with_capacity(p);
+        for k in range.clone() {
+            let d = self.d(k, tau_s) * self.scale[k];
+            self.basis(k, f_hz, zeta, &mut row);
+            row.iter_mut().for_each(|c| *c *= d);
+            let t = self.h[k] * self.scale[k];
+            for i in 0..p {
+                let ci = row[i].conj();
+                rhs[i] += (ci * t).re;
+                for j in i..p {
+                    g[(i, j)] += (ci * row[j]).re;
+                }
+            }
+        }
+        for i in 0..p {
+            for j in 0..i {
+                g[(i, j)] = g[(j, i)];
+            }
+        }
+        let norms: Vec<f64> = (0..p)
+            .map(|j| g[(j, j)].sqrt().max(f64::MIN_POSITIVE))
+            .collect();
+        for i in 0..p {
+            rhs[i] /= norms[i];
+            for j in 0..p {
+                g[(i, j)] /= norms[i] * norms[j];
+            }
+        }
+        if !(g.iter().chain(rhs.iter()).all(|v| v.is_finite())) {
+            return None;
+        }
+        // Bounded iterations: nalgebra's SVD never returns on some inputs.
+        let x = g
+            .try_svd(true, true, f64::EPSILON, 500)?
+            .solve(&rhs, 1e-13)
+            .ok()?;
+        let coef: Vec<f64> = x.iter().zip(&norms).map(|(v, n)| v / n).collect();
+        let mut cost = 0.0;
+        for k in range {
+            let d = self.d(k, tau_s) * self.scale[k];
+            self.basis(k, f_hz, zeta, &mut row);
+            let m: C64 = row.iter().zip(&coef).map(|(c, x)| c * x).sum();
+            cost += (m * d - self.h[k] * self.scale[k]).norm_sqr();
+        }
+        cost.is_finite().then_some((coef, cost))
+    }
+
+    /// The model at point `k`.
+    pub(super) fn model(&self, k: usize, p: &Params) -> C64 {
+        let s = C64::new(0.0, self.w[k]);
+        let mut m = C64::new(p.l, 0.0) / (s * s) + p.u;
+        for i in 0..p.f_hz.len() {
+            let wn = 2.0 * PI * p.f_hz[i];
+            m += p.a[i] / (s * s + s * (2.0 * p.zeta[i] * wn) + wn * wn);
+        }
+        self.d(k, p.tau_s) * m
+    }
+
+    pub(super) fn cost(&self, p: &Params) -> f64 {
+        (0..self.len())
+            .map(|k| ((self.model(k, p) - self.h[k]) * self.scale[k]).norm_sqr())
+            .sum()
+    }
+}
+
+/// The Levenberg-Marquardt problem over all parameters:
+/// `[ln f₁…, ln ζ₁…, A₁…, L, U, τ/T]`, with `A`, `L`, `U` scaled by their
+/// starting magnitudes.
+pub(super) struct Problem<'p, 'a> {
+    pub(super) prep: &'p Prepared<'a>,
+    pub(super) n_modes: usize,
+    /// The start's coordinates.
+    pub(super) x0: DVector<f64>,
+    /// Scales of A₁…, L, U.
+    pub(super) lin_scale: Vec<f64>,
+    pub(super) period_s: f64,
+}
+
+impl Problem<'_, '_> {
+    pub(super) fn new<'p, 'a>(
+        prep: &'p Prepared<'a>,
+        p: &Params,
+        period_s: f64,
+    ) -> Problem<'p, 'a> {
+        let n = p.f_hz.len();
+        let lin: Vec<f64> = p.a.iter().chain([&p.l, &p.u]).copied().collect();
+        let lin_scale: Vec<f64> = lin.iter().map(|v| v.abs().max(1e-30)).collect();
+        let mut x = DVector::<f64>::zeros(3 * n + 3);
+        for i in 0..n {
+            x[i] = p.f_hz[i].ln();
+            x[n + i] = p.zeta[i].ln();
+        }
+        for (j, v) in lin.iter().enumerate() {
+            x[2 * n + j] = v / lin_scale[j];
+        }
+        x[3 * n + 2] = p.tau_s / period_s;
+        Problem {
+            prep,
+            n_modes: n,
+            x0: x,
+            lin_scale,
+            period_s,
+        }
+    }
+
+    /// The parameters at coordinates `x`.
+    pub(super) fn params_at(&self, x: &DVector<f64>) -> Params {
+        let n = self.n_modes;
+        Params {
+            f_hz: (0..n).map(|i| x[i].exp()).collect(),
+            zeta: (0..n).map(|i| x[n + i].exp()).collect(),
+            a: (0..n).map(|i| x[2 * n + i] * self.lin_scale[i]).collect(),
+            l: x[3 * n] * self.lin_scale[n],
+            u: x[3 * n + 1] * self.lin_scale[n + 1],
+            tau_s: x[3 * n + 2] * self.period_s,
+        }
+    }
+
+    /// The Jacobian of the residuals with respect to `x` (analytic).
+    pub(super) fn jacobian_of(&self, p: &Params) -> DMatrix<f64> {
+        let n = self.n_modes;
+        let m = self.prep.len();
+        let mut j = DMatrix::<f64>::zeros(2 * m, 3 * n + 3);
+        for k in 0..m {
+            let s = C64::new(0.0, self.prep.w[k]);
+            let sc = self.prep.scale[k];
+            let d = self.prep.d(k, p.tau_s) * sc;
+            let mut put = |col: usize, v: C64| {
+                j[(2 * k, col)] = v.re;
+                j[(2 * k + 1, col)] = v.im;
+            };
+            let mut total = C64::new(p.l, 0.0) / (s * s) + p.u;
+            for i in 0..n {
+                let wn = 2.0 * PI * p.f_hz[i];
+                let den = s * s + s * (2.0 * p.zeta[i] * wn) + wn * wn;
+                let inv = C64::new(1.0, 0.0) / den;
+                total += p.a[i] * inv;
+                let inv2 = inv * inv;
+                // ∂/∂ln f = ω ∂/∂ω: −A (2ζ s ω + 2ω²) / den².
+                put(
+                    i,
+                    -d * p.a[i] * (s * (2.0 * p.zeta[i] * wn) + 2.0 * wn * wn) * inv2,
+                );
+                // ∂/∂ln ζ = ζ ∂/∂ζ: −A 2ζω s / den².
+                put(n + i, -d * p.a[i] * s * (2.0 * p.zeta[i] * wn) * inv2);
+                put(2 * n + i, d * inv * self.lin_scale[i]);
+            }
+            put(3 * n, d / (s * s) * self.lin_scale[n]);
+            put(3 * n + 1, d * self.lin_scale[n + 1]);
+            put(3 * n + 2, -s * d * total * self.period_s);
+        }
+        j
+    }
+}
+
+impl Residuals for Problem<'_, '_> {
+    fn residuals(&self, x: &DVector<f64>) -> Option<DVector<f64>> {
+        let p = self.params_at(x);
+        if p.zeta.iter().any(|z| !(z.is_finite() && *z < 10.0)) {
+            return None;
+        }
+        let m = self.prep.len();
+        let mut r = DVector::<f64>::zeros(2 * m);
+        for k in 0..m {
+            let e = (self.prep.model(k, &p) - self.prep.h[k]) * self.prep.scale[k];
+            r[2 * k] = e.re;
+            r[2 * k + 1] = e.im;
+        }
+        r.iter().all(|v| v.is_finite()).then_some(r)
+    }
+
+    fn jacobian(&self, x: &DVector<f64>) -> Option<DMatrix<f64>> {
+        let j = self.jacobian_of(&self.params_at(x));
+        j.iter().all(|v| v.is_finite()).then_some(j)
+    }
+}
+
+/// Refines all parameters from `start` by Levenberg-Marquardt; returns the
+/// refined parameters (or `start` if the refinement made it worse).
+pub(super) fn refine(prep: &Prepared, start: &Params, period_s: f64) -> Params {
+    let problem = Problem::new(prep, start, period_s);
+    let x = lsq::minimise(&problem, problem.x0.clone(), 20);
+    let p = problem.params_at(&x);
+    let ok = p
+        .f_hz
+        .iter()
+        .chain(&p.zeta)
+        .chain(&p.a)
+        .chain([&p.l, &p.u, &p.tau_s])
+        .all(|v| v.is_finite())
+        // An undamped pole (ln ζ run off to −∞) is no mode: a line fitted
+        // between two measured points.
+        && p.zeta.iter().all(|z| *z >= MIN_DAMPING);
+    if ok && prep.cost(&p) <= prep.cost(start) {
+        p
+    } else {
+        start.clone()
+    }
+}
+
+/// 1σ of every parameter in natural units (`[f…, ζ…, A…, L, U, τ]`),
+/// from `s² (JᵀJ)⁻¹`.
+pub(super) fn sigmas(prep: &Prepared, p: &Params, period_s: f64) -> Vec<f64> {
+    let problem = Problem::new(prep, p, period_s);
+    let j = problem.jacobian_of(p);
+    let n = p.f_hz.len();
+    // With σ per line from the data the weighted cost is a χ² with
+    // 2m − (3n + 3) degrees of freedom: the 1σ come from (JᵀJ)⁻¹ as they
+    // are, widened by χ²/ν when the model leaves more than the noise
+    // (Birge ratio); without, the noise level is the residual's.
+    debug_assert_eq!(j.nrows(), 2 * prep.len());
+    let s2 = residual_variance(prep, p, prep.cost(p));
+    let jtj = j.transpose() * &j;
+    let unknown = DMatrix::from_element(3 * n + 3, 3 * n + 3, f64::INFINITY);
+    let cov = if !jtj.iter().all(|v| v.is_finite()) {
+        unknown
+    } else {
+        match jtj.clone().try_inverse() {
+            Some(c) => c,
+            None => jtj
+                .clone()
+                .try_svd(true, true, f64::EPSILON, 500)
+                .and_then(|svd| svd.pseudo_inverse(1e-300).ok())
+                .unwrap_or(unknown),
+        }
+    };
+    // A variance that is not positive comes from a (near-)singular JᵀJ:
+    // the parameter is not determined by the data, its 1σ unknown (never 0).
+    let sd = |i: usize| {
+        let v = s2 * cov[(i, i)];
+        if v > 0.0 && v.is_finite() {
+            v.sqrt()
+        } else {
+            f64::INFINITY
+        }
+    };
+    let mut out = Vec::with_capacity(3 * n + 3);
+    for i in 0..n {
+        out.push(sd(i) * p.f_hz[i]);
+    }
+    for i in 0..n {
+        out.push(sd(n + i) * p.zeta[i]);
+    }
+    for i in 0..n {
+        out.push(sd(2 * n + i) * problem.lin_scale[i]);
+    }
+    out.push(sd(3 * n) * problem.lin_scale[n]);
+    out.push(sd(3 * n + 1) * problem.lin_scale[n + 1]);
+    out.push(sd(3 * n + 2) * period_s);
+    out
+}
+
+/// Parameters with the linear part re-solved for the given poles/delay.
+pub(super) fn with_linear(
+    prep: &Prepared,
+    f_hz: Vec<f64>,
+    zeta: Vec<f64>,
+    tau_s: f64,
+) -> Option<Params> {
+    let (coef, _) = prep.solve_linear(&f_hz, &zeta, tau_s)?;
+    let n = f_hz.len();
+    Some(Params {
+        a: coef[..n].to_vec(),
+        l: coef[n],
+        u: coef[n + 1],
+        f_hz,
+        zeta,
+        tau_s,
+    })
+}

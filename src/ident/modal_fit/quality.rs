@@ -1,0 +1,186 @@
+//! The checks of a fit that can be wrong without failing: the χ² and
+//! whiteness tests of the normalised residuals, and the per-mode flags
+//! ([`FitQuality`]).
+
+use super::*;
+
+/// Lags of the whiteness test ([`FitQuality::whiteness_q`]).
+pub const WHITENESS_LAGS: usize = 10;
+
+/// Significance of the residual tests: a fit that explains the data is
+/// flagged by chance once in a thousand.
+pub const RESIDUAL_TEST_LEVEL: f64 = 1e-3;
+
+/// The checks of a fit that can be wrong without failing (issue 28: "no
+/// silent wrong answer"). Each flag names the mode or the statistic and
+/// the reason; a fit with any flag is not trusted
+/// ([`ModalFit::trusted`]): the verdict does not decide from it and
+/// `bench fit --update` does not write a config from it.
+///
+/// The residual tests run on the normalised residuals
+/// `eₖ = wₖ (Ĥₖ − Hₖ)` of the lines the fit used (independent lines,
+/// [`independent_lines`]), with `wₖ` the inverse standard deviation of
+/// line `k` ([`weights`]):
+/// - **χ² test** (only with a noise estimate per line): `χ² = Σ|eₖ|²`
+///   against its distribution with `ν = 2N − p` degrees of freedom
+///   (`N` lines, `p` parameters); flagged above the `1 − α` quantile,
+///   α = [`RESIDUAL_TEST_LEVEL`], by the Wilson–Hilferty approximation
+///   `ν (1 − 2/(9ν) + z_α √(2/(9ν)))³` (Johnson, Kotz & Balakrishnan,
+///   *Continuous Univariate Distributions* 1, Eq. 18.24).
+/// - **Whiteness along frequency against the noise** (Ljung–Box, for
+///   complex residuals): `ρⱼ = Σₖ eₖ e*ₖ₊ⱼ / E`, `Q = 2N Σⱼ₌₁..h |ρⱼ|²`
+///   with h = [`WHITENESS_LAGS`]; for circular white residuals each
+///   `2N|ρⱼ|²` is χ²₂, so `Q ~ χ²(2h)` (Ljung & Box 1978,
+///   Biometrika 65); flagged above its `1 − α` quantile. `E = max(Σ|eₖ|²,
+///   2N)` (each part of `eₖ` has unit variance under the noise alone):
+///   correlation is measured against the noise, so a smooth model
+///   error far below the noise (which cannot move the parameters by their
+///   1σ) does not flag. Only with a noise estimate per line: without one
+///   there is nothing to judge a correlation against (a noise-free FRF's
+///   residual is all model error). A model that misses a mode or a shape
+///   leaves residuals that run in long same-signed stretches.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema, Default)]
+pub struct FitQuality {
+    /// The checks ran (false only for a fit read from JSON written before
+    /// they existed).
+    pub checked: bool,
+    /// The weights are inverse standard deviations estimated from the
+    /// data (LPM or H1 σ per line), so the 1σ are the noise's own; false:
+    /// only relative weights (an FRF CSV without σ), the 1σ scaled by the
+    /// residual.
+    pub noise_estimated: bool,
+    /// Lines the fit used (independent: their bands do not overlap).
+    pub lines: usize,
+    /// `χ²/ν` of the normalised residuals (≈ 1 when the model explains the
+    /// data to the noise); `null` without a noise estimate.
+    pub chi2_per_dof: Option<f64>,
+    /// The `1 − α` bound of `χ²/ν` at this `ν`.
+    pub chi2_per_dof_bound: Option<f64>,
+    /// Ljung–Box `Q` of the normalised residuals; `null` without a noise
+    /// estimate (nothing to judge a correlation against).
+    pub whiteness_q: Option<f64>,
+    /// Its `1 − α` bound (χ² with `2h` degrees of freedom).
+    pub whiteness_q_bound: f64,
+    /// Why the fit is not to be trusted; empty when it passed.
+    pub flags: Vec<String>,
+}
+
+/// Standard normal quantile at `1 − RESIDUAL_TEST_LEVEL` (3.0902).
+pub(super) const Z_LEVEL: f64 = 3.090_232_306_167_813;
+
+/// The `1 − α` quantile of χ² with `nu` degrees of freedom
+/// (Wilson–Hilferty, [`FitQuality`]).
+pub fn chi2_quantile(nu: f64) -> f64 {
+    let a = 2.0 / (9.0 * nu);
+    nu * (1.0 - a + Z_LEVEL * a.sqrt()).powi(3)
+}
+
+/// Trial damping ratios of [`try_mode`]: a mode whose damping still
+/// equals one of them after the final refinement was never refined.
+pub(super) const TRIAL_DAMPING: [f64; 3] = [0.003, 0.01, 0.03];
+
+/// The checks of [`FitQuality`] for parameters `p` with 1σ `sd`
+/// ([`sigmas`]).
+pub(super) fn quality(prep: &Prepared, p: &Params, sd: &[f64]) -> FitQuality {
+    let n = p.f_hz.len();
+    let mut flags = Vec::new();
+    let name = |i: usize| format!("mode {} at {:.2} Hz", i + 1, p.f_hz[i]);
+    // Never refined: the damping is a trial value to rounding.
+    for i in 0..n {
+        if TRIAL_DAMPING
+            .iter()
+            .any(|z| (p.zeta[i] / z - 1.0).abs() < 1e-9)
+        {
+            flags.push(format!(
+                "{}: damping ratio {} is the trial grid's starting value, never refined by the fit",
+                name(i),
+                p.zeta[i]
+            ));
+        }
+    }
+    // A 1σ the data do not give (a singular JᵀJ).
+    for i in 0..n {
+        if [sd[i], sd[n + i], sd[2 * n + i]]
+            .iter()
+            .any(|v| !v.is_finite())
+        {
+            flags.push(format!(
+                "{}: its 1σ could not be computed (the data do not determine it)",
+                name(i)
+            ));
+        }
+    }
+    // A split mode: two modes inside each other's half-power bands with
+    // opposite modal constants that cancel (their sum under half the
+    // larger): one resonance described as a difference of two.
+    for i in 1..n {
+        let (a, b) = (p.a[i - 1], p.a[i]);
+        let overlap =
+            p.f_hz[i] - p.f_hz[i - 1] < p.zeta[i - 1] * p.f_hz[i - 1] + p.zeta[i] * p.f_hz[i];
+        if overlap && a * b < 0.0 && (a + b).abs() < 0.5 * a.abs().max(b.abs()) {
+            flags.push(format!(
+                "{} and {}: inside each other's half-power band with opposite modal constants ({:.3e}, {:.3e} m/(A·s²)) that cancel: one mode split in two",
+                name(i - 1),
+                name(i),
+                a,
+                b
+            ));
+        }
+    }
+    // The residual tests over the lines used.
+    let e: Vec<C64> = (0..prep.len())
+        .map(|k| (prep.model(k, p) - prep.h[k]) * prep.scale[k])
+        .collect();
+    let lines = e.len();
+    let params = 3 * n + 3;
+    let nu = (2 * lines).saturating_sub(params).max(1) as f64;
+    let chi2: f64 = e.iter().map(|v| v.norm_sqr()).sum();
+    let (chi2_per_dof, chi2_per_dof_bound) = if prep.noise_estimated {
+        let bound = chi2_quantile(nu) / nu;
+        if chi2 / nu > bound {
+            flags.push(format!(
+                "the residual exceeds the estimated noise: χ²/ν = {:.2} over {lines} lines (bound {:.2} at the {} level): the model misses part of the response",
+                chi2 / nu,
+                bound,
+                RESIDUAL_TEST_LEVEL
+            ));
+        }
+        (Some(chi2 / nu), Some(bound))
+    } else {
+        (None, None)
+    };
+    // Against the estimated noise: the lag products are compared with
+    // what unit-variance noise gives (N), so a correlated residual far
+    // below the noise (χ²/ν ≪ 1: a model error the data cannot see) does
+    // not count; a residual above the noise is scaled to it (the χ² test
+    // has judged its size). Without a noise estimate there is nothing to
+    // judge a correlation against: not tested.
+    let q_bound = chi2_quantile(2.0 * WHITENESS_LAGS as f64);
+    let q = prep.noise_estimated.then(|| {
+        // Unit variance in each part: E|eₖ|² = 2 under the noise alone.
+        let energy = chi2.max(2.0 * lines as f64);
+        (1..=WHITENESS_LAGS.min(lines.saturating_sub(1)))
+            .map(|j| {
+                let r: C64 = (0..lines - j).map(|k| e[k] * e[k + j].conj()).sum();
+                (r / energy).norm_sqr()
+            })
+            .sum::<f64>()
+            * 2.0
+            * lines as f64
+    });
+    if let Some(q) = q.filter(|q| *q > q_bound) {
+        flags.push(format!(
+            "the residual is not white along frequency: Ljung–Box Q = {q:.1} over {WHITENESS_LAGS} lags (bound {q_bound:.1} at the {RESIDUAL_TEST_LEVEL} level): a structure the model does not have"
+        ));
+    }
+    FitQuality {
+        checked: true,
+        noise_estimated: prep.noise_estimated,
+        lines,
+        chi2_per_dof,
+        chi2_per_dof_bound,
+        whiteness_q: q,
+        whiteness_q_bound: q_bound,
+        flags,
+    }
+}

@@ -1,0 +1,154 @@
+use super::*;
+
+#[test]
+fn a_grid_denser_than_the_fit_uses_is_thinned_and_a_default_one_is_not() {
+    let data = |per_decade| {
+        let f = crate::ident::frf::log_grid(0.1, 500.0, per_decade);
+        let n = f.len();
+        FrfData {
+            response: (0..n).map(|k| C64::new(k as f64, 0.0)).collect(),
+            coherence: vec![1.0; n],
+            sigma_m_per_a: vec![f64::NAN; n],
+            resolution_hz: vec![f64::NAN; n],
+            frequency_hz: f,
+        }
+    };
+    for per_decade in [10, 400, 1000] {
+        assert!(thin(&data(per_decade), MAX_POINTS_PER_DECADE).is_none());
+    }
+    let dense = data(10_000);
+    let t = thin(&dense, MAX_POINTS_PER_DECADE).unwrap();
+    // 3.7 decades: about 3 700 points, every 10th, each with its own
+    // response and coherence.
+    let decades = (500.0_f64 / 0.1).log10();
+    assert!((t.frequency_hz.len() as f64 - decades * 1000.0).abs() < 10.0);
+    for w in t.frequency_hz.windows(2) {
+        assert!(w[1] / w[0] >= 1.0 + std::f64::consts::LN_10 / 1000.0);
+    }
+    for (f, h) in t.frequency_hz.iter().zip(&t.response) {
+        assert_eq!(dense.frequency_hz[h.re as usize], *f);
+    }
+}
+use crate::analysis::modal::modal_terms;
+use crate::config::BenchConfig;
+use bench_hal::model::Sr4dof;
+use bench_hal::sim::ZohPlant;
+
+fn ch5() -> BenchConfig {
+    let path =
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("bench-config/sr4dof-ch5.toml");
+    BenchConfig::load(&path).unwrap()
+}
+
+/// The exact sampled response of the Chapter 5 bench (ZOH plant with
+/// the amplifier), noise-free, on the chirp's grid.
+fn exact(op: f64, dm: f64) -> (FrfData, Sr4dof, Path, f64) {
+    let cfg = ch5();
+    let mut p = cfg.plant;
+    p.operating_point_m = op * p.beam.length_m;
+    p.mass_asymmetry = dm;
+    let model = Sr4dof::new(p).unwrap();
+    let period_s = cfg.loop_.period_ns() as f64 * 1e-9;
+    let zoh = ZohPlant::new(&model, &cfg.actuator, period_s);
+    let f = super::super::frf::log_grid(0.1, 500.0, 400);
+    let data = FrfData {
+        response: f.iter().map(|&f| zoh.frf(f)).collect(),
+        coherence: vec![1.0; f.len()],
+        sigma_m_per_a: vec![f64::NAN; f.len()],
+        resolution_hz: vec![f64::NAN; f.len()],
+        frequency_hz: f,
+    };
+    let path = Path {
+        period_s,
+        amplifier_bandwidth_hz: cfg.actuator.bandwidth_hz,
+    };
+    (data, model, path, cfg.actuator.force_constant_n_per_a)
+}
+
+/// A mode split in two (a duplicate 0.01 % above the 29 Hz mode, as the
+/// growth's refits can leave) is merged back by pruning: the modes come
+/// out as the model's, each once, and no 1σ is 0.
+#[test]
+fn pruning_merges_a_split_mode() {
+    let (data, model, path, _) = exact(0.08, 0.1);
+    let terms: Vec<_> = modal_terms(&model)
+        .into_iter()
+        .filter(|t| t.in_path)
+        .collect();
+    let mut f: Vec<f64> = terms.iter().map(|t| t.frequency_hz).collect();
+    let mut zeta: Vec<f64> = terms.iter().map(|t| t.damping_ratio).collect();
+    let rigid = (0..f.len()).min_by(|&a, &b| f[a].total_cmp(&f[b])).unwrap();
+    f.push(f[rigid] * 1.0001);
+    zeta.push(zeta[rigid]);
+    let prep = Prepared::new(&data, &path);
+    let start = sorted(with_linear(&prep, f, zeta, 0.5 * path.period_s).unwrap());
+    let p = prune(&prep, start, path.period_s);
+    assert_eq!(p.f_hz.len(), terms.len(), "{:?}", p.f_hz);
+    for t in &terms {
+        assert!(
+            p.f_hz
+                .iter()
+                .any(|f| (f / t.frequency_hz - 1.0).abs() < 1e-4),
+            "{} Hz not in {:?}",
+            t.frequency_hz,
+            p.f_hz
+        );
+    }
+    let sd = sigmas(&prep, &p, path.period_s);
+    assert!(sd.iter().all(|s| *s > 0.0), "{sd:?}");
+}
+
+/// An undetermined 1σ is `null` in JSON and reads back as unknown.
+#[test]
+fn unknown_sigma_is_null_in_json() {
+    #[derive(Serialize, Deserialize)]
+    struct S {
+        #[serde(with = "sigma")]
+        v: f64,
+    }
+    let text = serde_json::to_string(&S { v: f64::INFINITY }).unwrap();
+    assert_eq!(text, r#"{"v":null}"#);
+    let back: S = serde_json::from_str(&text).unwrap();
+    assert!(back.v.is_infinite());
+    let back: S = serde_json::from_str(r#"{"v":0.5}"#).unwrap();
+    assert_eq!(back.v, 0.5);
+}
+
+/// The exact sampled response of the Chapter 5 bench on both sides of
+/// the CMP-CNMP boundary: the fitted modes are the model's (frequency
+/// 1e-4, damping 2 %, modal constant 1 % = force constant × residue of
+/// Eq. 4-15), and so is the CMP-CNMP answer.
+#[test]
+fn exact_response_gives_the_model_modes() {
+    for (op, dm) in [(0.08, 0.1), (0.006, -0.08)] {
+        let (data, model, path, kf) = exact(op, dm);
+        let fit = fit(&data, &path).unwrap();
+        let terms: Vec<_> = modal_terms(&model)
+            .into_iter()
+            .filter(|t| t.in_path)
+            .collect();
+        for t in &terms {
+            let m = fit
+                .modes
+                .iter()
+                .find(|m| (m.frequency_hz / t.frequency_hz - 1.0).abs() < 1e-3)
+                .unwrap_or_else(|| {
+                    panic!("{op} {dm}: no {} Hz in {:?}", t.frequency_hz, fit.modes)
+                });
+            assert!(
+                (m.frequency_hz / t.frequency_hz - 1.0).abs() < 1e-4,
+                "{m:?} {t:?}"
+            );
+            assert!(
+                (m.damping_ratio / t.damping_ratio - 1.0).abs() < 0.02,
+                "{m:?} {t:?}"
+            );
+            let a = t.residue_per_kg * kf;
+            assert!((m.modal_constant / a - 1.0).abs() < 0.01, "{m:?} {t:?}");
+        }
+        assert_eq!(
+            fit.cmp_cnmp,
+            crate::analysis::modal::model_cnmp_damped(&model)
+        );
+    }
+}
