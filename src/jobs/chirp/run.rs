@@ -1,0 +1,447 @@
+//! Running `bench chirp` end to end: the outputs, the recording, the loop,
+//! the estimate (a sweep's LPM or H1, a multisine's BLA) and its files.
+
+use super::*;
+
+/// What a multisine run keeps of its excitation once the job (and its
+/// table) has moved to the loop.
+#[derive(Debug, Clone)]
+pub(super) struct MultisinePlan {
+    pub(super) layout: Layout,
+    pub(super) phases: &'static str,
+    pub(super) crest_factor: f64,
+    /// Smallest and largest line amplitude, A.
+    pub(super) line_amplitude_a: [f64; 2],
+    pub(super) band_hz: [f64; 2],
+    pub(super) f_max_hz: f64,
+    pub(super) peak_a: f64,
+}
+
+impl MultisinePlan {
+    pub(super) fn of(m: &Multisine) -> Self {
+        let a = m.amplitudes_a();
+        let f = m.frequency_hz();
+        let peak_a = (0..m.realizations())
+            .flat_map(|r| m.period_a(r).iter())
+            .fold(0.0_f64, |p, x| p.max(x.abs()));
+        Self {
+            layout: m.layout(),
+            phases: m.phases().as_str(),
+            crest_factor: m.crest_factor(),
+            line_amplitude_a: [
+                a.iter().copied().fold(f64::INFINITY, f64::min),
+                a.iter().copied().fold(0.0, f64::max),
+            ],
+            band_hz: [f[0], f[f.len() - 1]],
+            f_max_hz: f[f.len() - 1],
+            peak_a,
+        }
+    }
+
+    pub(super) fn summary(
+        &self,
+        bla: &Bla,
+        model: &Sr4dof,
+        bla_csv: Option<PathBuf>,
+    ) -> MultisineSummary {
+        let l = &self.layout;
+        // The slowest modal decay rate ζω of the model, 1/s.
+        let slowest = model
+            .modes()
+            .iter()
+            .map(|md| md.zeta * 2.0 * std::f64::consts::PI * md.frequency_hz())
+            .filter(|r| r.is_finite() && *r > 0.0)
+            .fold(f64::INFINITY, f64::min);
+        let t = l.transient_periods as f64 * l.period_s();
+        let test = bla.distortion_test();
+        MultisineSummary {
+            phases: self.phases.to_string(),
+            period_s: l.period_s(),
+            resolution_hz: bla.resolution_hz,
+            lines: l.lines.len(),
+            band_hz: self.band_hz,
+            line_amplitude_a: self.line_amplitude_a,
+            crest_factor: self.crest_factor,
+            periods: l.periods,
+            transient_periods: l.transient_periods,
+            realizations: l.realizations,
+            realizations_used: bla.realizations,
+            model_transient_left: if slowest.is_finite() {
+                (-slowest * t).exp()
+            } else {
+                1.0
+            },
+            median_sigma_bla_rel: bla.median_relative(&bla.sigma_bla_m_per_a),
+            median_sigma_noise_rel: bla.median_relative(&bla.sigma_noise_m_per_a),
+            median_sigma_nonlinear_rel: test
+                .is_some()
+                .then(|| bla.median_relative(&bla.sigma_nonlinear_m_per_a)),
+            distortion: test,
+            bla_csv,
+        }
+    }
+}
+
+/// Runs `bench chirp` end to end on the backend of `opts`, writing the
+/// outputs of `outputs` (the paths of `opts`; see [`crate::outputs`]), which
+/// are checked before the backend is opened.
+///
+/// `stop` is raised by SIGINT/SIGTERM; `ticks`, if given, follows the
+/// loop's tick count (progress, and the CLI's preparation watch).
+///
+/// # Errors
+/// See [`RunError`]; on every error after the loop started the recording is
+/// finished and the amplifier left disabled.
+pub fn run_chirp(
+    opts: &ChirpOptions,
+    mut outputs: OutputPlan,
+    stop: Arc<AtomicBool>,
+    ticks: Option<&Arc<AtomicU64>>,
+) -> Result<ChirpSummary, RunError> {
+    outputs.check()?;
+    let spec = BackendSpec::resolve(opts.backend.as_ref(), &opts.config);
+    let (mut stage, info) = backend::open(
+        &spec,
+        &opts.config,
+        &opts.config_path,
+        opts.seed,
+        opts.inject,
+    )?;
+    let mut runner = Runner::Local {
+        stage: &mut stage,
+        info: &info,
+    };
+    run_chirp_with(&mut runner, !spec.is_sim(), opts, &mut outputs, stop, ticks)
+}
+
+/// The outputs of a chirp, none replaced (the daemon's jobs: their names
+/// are derived from the recording's).
+pub fn chirp_outputs(opts: &ChirpOptions) -> OutputPlan {
+    let plan = OutputPlan::new(Existing::Refuse)
+        .with_recording(&opts.out, Origin::Default)
+        .with_output("frf_csv", &opts.frf_csv, Origin::Derived)
+        .with_output("plot", &opts.plot, Origin::Derived);
+    match &opts.bla_csv {
+        Some(p) if !opts.config.chirp.kind.is_sweep() => {
+            plan.with_output("bla_csv", p, Origin::Derived)
+        }
+        _ => plan,
+    }
+}
+
+/// Runs the chirp on `runner` (a configured stage, which it leaves
+/// configured, disabled at 0 A; or the daemon's loop), with the outputs of
+/// [`chirp_outputs`]. `hardware` forces real-time pacing; `ticks`, if
+/// given, follows the loop's tick count (progress).
+///
+/// # Errors
+/// As [`run_chirp`].
+pub fn run_chirp_on(
+    runner: &mut Runner<'_>,
+    hardware: bool,
+    opts: &ChirpOptions,
+    stop: Arc<AtomicBool>,
+    ticks: Option<&Arc<AtomicU64>>,
+) -> Result<ChirpSummary, RunError> {
+    let mut outputs = chirp_outputs(opts);
+    run_chirp_with(runner, hardware, opts, &mut outputs, stop, ticks)
+}
+
+pub(super) fn run_chirp_with(
+    runner: &mut Runner<'_>,
+    hardware: bool,
+    opts: &ChirpOptions,
+    outputs: &mut OutputPlan,
+    stop: Arc<AtomicBool>,
+    ticks: Option<&Arc<AtomicU64>>,
+) -> Result<ChirpSummary, RunError> {
+    let cfg = &opts.config;
+    let info = &runner.info().clone();
+    outputs.check()?;
+    let model = Sr4dof::new(cfg.plant)
+        .map_err(|e| RunError::BadInput(format!("config {}: {e}", opts.config_path.display())))?;
+    let period_s = info.period_ns as f64 * 1e-9;
+    let rate_hz = 1.0 / period_s;
+    // A multisine's table is computed here, before the loop starts.
+    let excitation = Excitation::new(cfg, period_s, opts.seed).map_err(|e| {
+        RunError::BadInput(format!(
+            "config {}: {e} (at the device's period of {period_s} s)",
+            opts.config_path.display()
+        ))
+    })?;
+    let total_ticks = excitation.total_ticks();
+    if total_ticks > crate::config::ranges::JOB_TICKS_MAX {
+        return Err(RunError::BadInput(format!(
+            "config {}: chirp.duration_s: lead_in_s + duration_s + tail_s is more than {} ticks at the device's period",
+            opts.config_path.display(),
+            crate::config::ranges::JOB_TICKS_MAX
+        )));
+    }
+    let lead_in_ticks = excitation.lead_in_ticks();
+    let (sweep, plan) = match &excitation {
+        Excitation::Sweep(c) => (Some(*c), None),
+        Excitation::Multisine(m) => (None, Some(MultisinePlan::of(m))),
+    };
+    // The LPM's local window must fit in the band: checked on the record's
+    // bin spacing before anything is enabled (a sweep's; a multisine's
+    // FRF is the BLA on its own lines).
+    if sweep.is_some() && cfg.identification.estimator == crate::config::Estimator::Lpm {
+        let bin_hz = rate_hz / crate::ident::frf::fast_len(total_ticks as usize) as f64;
+        crate::ident::lpm::check_band(
+            bin_hz,
+            cfg.chirp.f_start_hz,
+            cfg.chirp.f_end_hz,
+            &crate::ident::lpm::LpmOptions::from_config(&cfg.identification),
+        )
+        .map_err(|e| RunError::BadInput(format!("config {}: {e}", opts.config_path.display())))?;
+    }
+
+    if let (Some(f), true) = (opts.pace, hardware) {
+        return Err(RunError::option(
+            "pace",
+            f,
+            crate::jobs::request::pace_on_hardware(&info.name),
+        ));
+    }
+    let session = SessionOptions {
+        command: "chirp",
+        config_path: &opts.config_path,
+        out: &opts.out,
+        // Hardware runs in real time whatever the flag says.
+        realtime: opts.realtime || hardware,
+        pace: opts.pace,
+        progress: opts.progress,
+        seed: opts.seed,
+        max_ticks: total_ticks,
+        keep: Kept::CHIRP,
+        ticks,
+        // Open loop: a stall distorts the record, it endangers nothing; it
+        // is recorded and its span left out of the FRF.
+        stall: None,
+        stall_source: "",
+    };
+    let recorder = open_recording(&session, cfg, info, outputs)?;
+    let run = run_recorded(
+        runner,
+        ChirpJob::new(excitation),
+        cfg,
+        recorder,
+        &session,
+        stop,
+    )?;
+    let Recorded {
+        mut recorder,
+        data,
+        timing,
+        end_ns,
+        link: run_link,
+        current_limits,
+        stalls,
+    } = run;
+    // The samples go to the disk while the FRF and the fit are computed: an
+    // fsync of the part file now (any descriptor of a file syncs it) leaves
+    // the one in `finish` only the tail, the summary and the index.
+    // Durability is unchanged: `finish` still syncs before the rename, and
+    // reports the errors.
+    let early_sync = {
+        let part = recorder.part_path().to_path_buf();
+        std::thread::spawn(move || std::fs::File::open(part).and_then(|f| f.sync_data()))
+    };
+
+    // Identification, in the record's own memory: the probe offset (the
+    // lead-in's mean) comes off the position in place, and the FFT runs in
+    // the packed record (16 bytes a tick at the peak).
+    let mut record = data.frf_record;
+    let lead = (lead_in_ticks as usize).min(record.len());
+    let offset = if lead > 0 {
+        record[..lead].iter().map(|z| z.im).sum::<f64>() / lead as f64
+    } else {
+        0.0
+    };
+    let mut peak_position_m = 0.0_f64;
+    for z in &mut record {
+        z.im -= offset;
+        peak_position_m = peak_position_m.max(z.im.abs());
+    }
+    // With the estimator of `identification.estimator` (a NaN sample
+    // faults the run before it gets here; the check names it if not).
+    let estimate_failed = |e: crate::ident::frf::FrfError| RunError::Output {
+        path: opts.frf_csv.clone(),
+        reason: format!("the FRF could not be estimated: {e}"),
+    };
+    let (frf, stall_report, bla, frf_estimator) = match (sweep, &plan) {
+        (Some(chirp), _) => {
+            crate::ident::frf::check_record(&record).map_err(estimate_failed)?;
+            let spectra =
+                Spectra::from_record(record, rate_hz, &cfg.identification, cfg.chirp.f_end_hz);
+            let (ident, estimator) = lpm_or_h1(cfg, &model, spectra.bin_hz());
+            let frf = Frf::from_spectra(&spectra, cfg.chirp.f_start_hz, cfg.chirp.f_end_hz, &ident)
+                .map_err(estimate_failed)?;
+            let mut stall_report = StallReport::of(
+                &stalls,
+                &chirp,
+                period_s,
+                cfg.identification.relative_resolution,
+            );
+            let frf = stall_report.exclude(frf);
+            (frf, stall_report, None, estimator)
+        }
+        (None, Some(plan)) => {
+            let (stall_report, keep) = StallReport::of_multisine(&stalls, plan, period_s);
+            let bla = match Bla::estimate(&record, &plan.layout, &keep) {
+                Ok(b) => b,
+                Err(e) => {
+                    // The run is recorded: finish it, then say why there
+                    // is no estimate.
+                    let _ = early_sync.join();
+                    let recording = finish(recorder)?;
+                    return Err(RunError::Output {
+                        path: opts.frf_csv.clone(),
+                        reason: format!(
+                            "no best linear approximation: {e}; {}; recording {recording} finished",
+                            stall_report.line()
+                        ),
+                    });
+                }
+            };
+            drop(record);
+            let estimator = FrfEstimator::of(EstimatorName::Bla);
+            (bla.to_frf(), stall_report, Some(bla), estimator)
+        }
+        (None, None) => unreachable!("an excitation is a sweep or a multisine"),
+    };
+    if stall_report.count > 0 {
+        tracing::warn!("{}", stall_report.line());
+    }
+    let zoh = ZohPlant::new(&model, &cfg.actuator, period_s);
+    // The fit and the model's curve for the plot, side by side. The model
+    // is drawn on a grid at least as dense as MODEL_POINTS_PER_DECADE, so
+    // its lightly damped peaks keep their shape in the plot's pair zoom.
+    // ... and the FRF CSV is written beside them.
+    let (identified, ((model_f, model_h), csv)) = rayon::join(
+        || identify(&frf, period_s, cfg.actuator.bandwidth_hz),
+        || {
+            let f = crate::ident::frf::log_grid(
+                cfg.chirp.f_start_hz,
+                cfg.chirp.f_end_hz,
+                cfg.identification
+                    .points_per_decade
+                    .max(MODEL_POINTS_PER_DECADE),
+            );
+            let h: Vec<_> = f.iter().map(|&f| zoh.frf(f)).collect();
+            let csv = frf
+                .write_csv(&opts.frf_csv, outputs.existing())
+                .map_err(|e| RunError::Output {
+                    path: opts.frf_csv.clone(),
+                    reason: e.to_string(),
+                })
+                .and_then(|()| match (&bla, &opts.bla_csv) {
+                    (Some(b), Some(path)) => {
+                        b.write_csv(path, outputs.existing())
+                            .map_err(|e| RunError::Output {
+                                path: path.clone(),
+                                reason: e.to_string(),
+                            })
+                    }
+                    _ => Ok(()),
+                });
+            ((f, h), csv)
+        },
+    );
+    csv?;
+
+    let (model_mag, model_phase) = bode_curve(&model_h, frf.phase_deg.first().copied());
+
+    let summary = ChirpSummary {
+        recording: opts.out.clone(),
+        frf_csv: opts.frf_csv.clone(),
+        plot: opts.plot.clone(),
+        backend: info.name.clone(),
+        seed: opts.seed,
+        operating_point_m: cfg.plant.operating_point_m,
+        operating_point_fraction_of_l: cfg.plant.operating_point_m / cfg.plant.beam.length_m,
+        mass_asymmetry: cfg.plant.mass_asymmetry,
+        cmp_cnmp: identified.verdict.cmp_cnmp,
+        peak_position_m,
+        resonances: identified.resonances,
+        closely_spaced_pair: identified.verdict.phase_test.pair,
+        fit: identified.fit,
+        verdict: identified.verdict,
+        model: model_summary(&model),
+        frf_estimator: Some(frf_estimator),
+        link: run_link,
+        timing,
+        current_limits: Some(current_limits),
+        stalls: stall_report,
+        multisine: plan
+            .as_ref()
+            .zip(bla.as_ref())
+            .map(|(plan, bla)| plan.summary(bla, &model, opts.bla_csv.clone())),
+    };
+    let markers: Vec<f64> = summary.resonances.iter().map(|r| r.frequency_hz).collect();
+    let no_pair = PairZoom::reason_of(&summary.verdict.phase_test);
+    let pair_zoom = PairZoom::of(&summary.verdict.phase_test, &frf, &no_pair);
+    let title = format!(
+        "x1 / current, Y1o = {:.1} % of L, Δm23 = {:+.0} % (seed {})",
+        100.0 * cfg.plant.operating_point_m / cfg.plant.beam.length_m,
+        100.0 * cfg.plant.mass_asymmetry,
+        opts.seed
+    );
+    // The plot is rendered while the recording is finished (its tail, the
+    // summary and the index written and synced, then renamed): a failed
+    // plot still leaves the recording complete.
+    let (plotted, finished) = rayon::join(
+        || {
+            write_bode_png(
+                &opts.plot,
+                outputs.existing(),
+                &BodePlot {
+                    title: &title,
+                    magnitude_axis: crate::plot::MAGNITUDE_M_PER_A,
+                    measured: BodeSeries::measured(
+                        &frf,
+                        summary
+                            .frf_estimator
+                            .as_ref()
+                            .map_or("measured", |e| e.name.plot_label()),
+                    ),
+                    coherence: &frf.coherence,
+                    model: Some(BodeSeries {
+                        label: "model (ZOH)",
+                        frequency_hz: &model_f,
+                        magnitude: &model_mag,
+                        phase_deg: &model_phase,
+                    }),
+                    markers_hz: &markers,
+                    pair: Some(pair_zoom),
+                },
+            )
+            .map_err(|e| RunError::Output {
+                path: opts.plot.clone(),
+                reason: e.to_string(),
+            })
+        },
+        || -> Result<(), RunError> {
+            recorder.write_frf(
+                end_ns,
+                &crate::record::FrfRecord {
+                    frequency_hz: &frf.frequency_hz,
+                    magnitude_m_per_a: &frf.magnitude_m_per_a,
+                    phase_deg: &frf.phase_deg,
+                    coherence: &frf.coherence,
+                    sigma_m_per_a: &frf.sigma_m_per_a,
+                    resolution_hz: &frf.resolution_hz,
+                },
+            )?;
+            let ch =
+                recorder.add_channel_for::<ChirpSummary>("/sysid/summary", "bench.ChirpSummary")?;
+            recorder.write(ch, end_ns, &summary)?;
+            let _ = early_sync.join();
+            finish(recorder)?;
+            Ok(())
+        },
+    );
+    finished?;
+    plotted?;
+    Ok(summary)
+}
