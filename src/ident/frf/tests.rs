@@ -1,0 +1,184 @@
+use super::*;
+
+/// A second-order system driven by white noise: the estimate matches the
+/// analytic FRF (independent reference) and coherence tracks the SNR.
+#[test]
+fn h1_of_a_known_filter() {
+    use rand::{Rng, SeedableRng};
+    let fs = 1000.0;
+    let n = 200_000;
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+    let u: Vec<f64> = (0..n).map(|_| rng.random_range(-1.0..1.0)).collect();
+    // y[n] = u[n] − 0.5 u[n−1]: H(e^{jω}) = 1 − 0.5 e^{−jω}.
+    let y: Vec<f64> = (0..n)
+        .map(|k| u[k] - if k > 0 { 0.5 * u[k - 1] } else { 0.0 })
+        .collect();
+    let cfg = IdentificationConfig {
+        points_per_decade: 50,
+        relative_resolution: 0.05,
+        min_bins: 31,
+        ..IdentificationConfig::default()
+    };
+    let s = Spectra::new(&u, &y, fs, &cfg);
+    let frf = Frf::estimate(&s, 1.0, 400.0, &cfg);
+    for (i, f) in frf.frequency_hz.iter().enumerate() {
+        let w = 2.0 * PI * f / fs;
+        let h = C64::new(1.0 - 0.5 * w.cos(), 0.5 * w.sin());
+        assert!(
+            (frf.magnitude_m_per_a[i] / h.norm() - 1.0).abs() < 0.02,
+            "{f} Hz"
+        );
+        let dphi = frf.phase_deg[i] - h.arg().to_degrees();
+        assert!(dphi.abs() < 1.0, "{f} Hz phase {dphi}");
+        assert!(frf.coherence[i] > 0.999);
+    }
+    // With output noise of equal power, γ² ≈ |H|²/(|H|²+σ²/σu²).
+    let ynoisy: Vec<f64> = y.iter().map(|v| v + rng.random_range(-1.0..1.0)).collect();
+    let s = Spectra::new(&u, &ynoisy, fs, &cfg);
+    // With random excitation the coherence-based σ is honest: the mean
+    // of |Ĥ − H|²/σ² over the lines is 1 (lines overlap by about one
+    // window, so ~130 lines give a spread of ~10 %).
+    let frf = Frf::estimate(&s, 1.0, 400.0, &cfg);
+    let mut ratio = 0.0;
+    for (i, f) in frf.frequency_hz.iter().enumerate() {
+        let w = 2.0 * PI * f / fs;
+        let h = C64::new(1.0 - 0.5 * w.cos(), 0.5 * w.sin());
+        ratio += (frf.response(i) - h).norm_sqr() / frf.sigma_m_per_a[i].powi(2);
+        assert!((frf.resolution_hz[i] - 2.0 * s.half_width_hz(*f)).abs() < 1e-12);
+    }
+    let ratio = ratio / frf.frequency_hz.len() as f64;
+    assert!((0.75..=1.25).contains(&ratio), "mean |ΔH|²/σ² = {ratio}");
+    let e = s.estimate(250.0);
+    let h2 = C64::new(1.0 - 0.5 * (PI / 2.0).cos(), 0.5 * (PI / 2.0).sin()).norm_sqr();
+    let expected = h2 / (h2 + 1.0);
+    assert!(
+        (e.coherence - expected).abs() < 0.05,
+        "{} vs {expected}",
+        e.coherence
+    );
+}
+
+/// An FRF of a few lines with σ and resolution.
+fn small_frf() -> Frf {
+    let mut frf = Frf::empty();
+    for i in 0..12 {
+        let f = 1.0 + i as f64;
+        frf.push_checked([f, 1e-4 / f, -10.0 * f, 0.9, 1e-6 / f, 0.2])
+            .unwrap();
+    }
+    frf
+}
+
+#[test]
+fn the_csv_round_trips_and_the_four_column_form_still_reads() {
+    let frf = small_frf();
+    let mut out = Vec::new();
+    frf.write_csv_to(&mut out).unwrap();
+    let text = String::from_utf8(out).unwrap();
+    assert!(text.starts_with(
+        "frequency_hz,magnitude_m_per_a,phase_deg,coherence,sigma_m_per_a,resolution_hz\n"
+    ));
+    let back = Frf::read_csv(&text).unwrap();
+    for i in 0..12 {
+        assert!((back.sigma_m_per_a[i] / frf.sigma_m_per_a[i] - 1.0).abs() < 1e-6);
+        assert!((back.resolution_hz[i] - 0.2).abs() < 1e-9);
+    }
+    // The 4-column form: σ and resolution unknown (NaN).
+    let four: String = text
+        .lines()
+        .map(|l| l.split(',').take(4).collect::<Vec<_>>().join(",") + "\n")
+        .collect();
+    let old = Frf::read_csv(&four).unwrap();
+    assert_eq!(old.frequency_hz, back.frequency_hz);
+    assert!(old.sigma_m_per_a.iter().all(|s| s.is_nan()));
+    assert!(old.resolution_hz.iter().all(|r| r.is_nan()));
+    // In the 6-column form σ and resolution must be given.
+    for (from, to, col) in [
+        (",1.000000e-6,", ",NaN,", "sigma_m_per_a"),
+        (",1.000000e-6,", ",-1e-9,", "sigma_m_per_a"),
+        (",2.000000e-1\n", ",0\n", "resolution_hz"),
+        (",2.000000e-1\n", ",inf\n", "resolution_hz"),
+    ] {
+        assert!(text.contains(from), "{from}");
+        let e = Frf::read_csv(&text.replacen(from, to, 1)).unwrap_err();
+        assert!(e.starts_with("line 2: ") && e.contains(col), "{to}: {e}");
+    }
+    // Four fields under the 6-column header, six under the 4-column one.
+    let e = Frf::read_csv(&text.replacen(",1.000000e-6,2.000000e-1", "", 1)).unwrap_err();
+    assert!(e.starts_with("line 2: 4 fields, expected 6"), "{e}");
+    let mixed = four.replacen("1.000000,", "1.000000,1,1,", 2);
+    assert!(Frf::read_csv(&mixed).is_err());
+}
+
+/// A recording written before σ and resolution existed: `read_frf`
+/// gives them as unknown (NaN); one with them (a null: unknown too)
+/// reads them back.
+#[test]
+fn recordings_with_and_without_sigma_read() {
+    let write = |payload: serde_json::Value| -> Vec<u8> {
+        let mut buf = std::io::Cursor::new(Vec::new());
+        {
+            let mut w = mcap::Writer::new(&mut buf).unwrap();
+            let ch = w
+                .add_channel(
+                    0,
+                    crate::record::TOPIC_FRF,
+                    "json",
+                    &std::collections::BTreeMap::new(),
+                )
+                .unwrap();
+            w.write_to_known_channel(
+                &mcap::records::MessageHeader {
+                    channel_id: ch,
+                    sequence: 0,
+                    log_time: 1,
+                    publish_time: 1,
+                },
+                &serde_json::to_vec(&payload).unwrap(),
+            )
+            .unwrap();
+            w.finish().unwrap();
+        }
+        buf.into_inner()
+    };
+    let frf = small_frf();
+    let old = serde_json::json!({
+        "frequency_hz": frf.frequency_hz,
+        "magnitude_m_per_a": frf.magnitude_m_per_a,
+        "phase_deg": frf.phase_deg,
+        "coherence": frf.coherence,
+    });
+    let r = read_frf(&write(old.clone())).unwrap().frf;
+    assert_eq!(r.frequency_hz, frf.frequency_hz);
+    assert!(r.sigma_m_per_a.iter().all(|s| s.is_nan()));
+    assert!(r.resolution_hz.iter().all(|s| s.is_nan()));
+    let mut new = old.clone();
+    let mut sigma: Vec<serde_json::Value> = frf.sigma_m_per_a.iter().map(|s| (*s).into()).collect();
+    sigma[3] = serde_json::Value::Null;
+    new["sigma_m_per_a"] = sigma.into();
+    new["resolution_hz"] = frf.resolution_hz.clone().into();
+    let r = read_frf(&write(new.clone())).unwrap().frf;
+    assert_eq!(r.sigma_m_per_a[0], frf.sigma_m_per_a[0]);
+    assert!(r.sigma_m_per_a[3].is_nan());
+    assert_eq!(r.resolution_hz, frf.resolution_hz);
+    // Wrong lengths and values are refused naming the field.
+    new["resolution_hz"] = vec![0.2; 3].into();
+    let e = read_frf(&write(new.clone())).unwrap_err();
+    assert!(e.contains("resolution_hz has 3 values"), "{e}");
+    new["resolution_hz"] = vec![-0.2; 12].into();
+    let e = read_frf(&write(new)).unwrap_err();
+    assert!(e.contains("point 1: resolution_hz"), "{e}");
+}
+
+#[test]
+fn unwrap_and_grid() {
+    let mut p = vec![170.0, -170.0, -10.0, 175.0, -175.0];
+    unwrap_deg(&mut p);
+    // Each step takes the representative nearest the previous value.
+    assert_eq!(p, vec![170.0, 190.0, 350.0, 175.0, 185.0]);
+    let g = log_grid(1.0, 1000.0, 10);
+    assert_eq!(g.len(), 31);
+    assert!((g[10] - 10.0).abs() < 1e-9 && (g[30] - 1000.0).abs() < 1e-9);
+    assert_eq!(fast_len(7), 8);
+    assert_eq!(fast_len(121), 125);
+}
