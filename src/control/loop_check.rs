@@ -73,75 +73,106 @@ fn wrap180(d: f64) -> f64 {
 /// crossing by bisection when `refine` is true (a function defined between
 /// grid points) or by linear interpolation otherwise (measured data).
 pub fn margins(l: &dyn Fn(f64) -> Complex<f64>, grid_rad_s: &[f64], refine: bool) -> Margins {
-    let vals: Vec<Complex<f64>> = grid_rad_s.iter().map(|&w| l(w)).collect();
-    let bisect = |f: &dyn Fn(Complex<f64>) -> f64, mut a: f64, mut b: f64| {
-        let fa0 = f(l(a));
-        for _ in 0..60 {
-            let m = (a * b).sqrt();
-            if (f(l(m)) > 0.0) == (fa0 > 0.0) {
-                a = m;
-            } else {
-                b = m;
+    let mut scan = MarginScan::default();
+    for &w in grid_rad_s {
+        scan.push(w, l(w), refine.then_some(l));
+    }
+    scan.finish()
+}
+
+/// The figures of [`Margins`] accumulated over an ascending grid of the
+/// loop `L`, one line at a time: a gain crossover where `ln |L|` changes
+/// sign between two lines, a phase crossover where `Im L` does with
+/// `Re L < 0` (its gain margin kept when `|L| < 1`, the smallest), and the
+/// peak of `|S| = 1/|1 + L|`. Each crossing is placed by linear
+/// interpolation in `log ω` (of `ln |L|`, of `Im L`, and `L` between the
+/// two lines), or, given `L(ω)` itself, by 60 bisections in `log ω`.
+/// [`margins`] and the design's one-pass figures
+/// ([`crate::design::loops::figures`]) both use it.
+#[derive(Debug, Clone, Default)]
+pub struct MarginScan {
+    crossovers: Vec<f64>,
+    pms: Vec<f64>,
+    gm: Option<(f64, f64)>,
+    s_peak: f64,
+    s_at: f64,
+    prev: Option<(f64, Complex<f64>)>,
+}
+
+impl MarginScan {
+    /// Adds the line `w_rad_s` (above the previous one) with `L = lw`;
+    /// `l`, when given, is `L(ω)` for the bisection of crossings.
+    pub fn push(
+        &mut self,
+        w_rad_s: f64,
+        lw: Complex<f64>,
+        l: Option<&dyn Fn(f64) -> Complex<f64>>,
+    ) {
+        let s = 1.0 / (lw + 1.0).norm();
+        if self.prev.is_none() {
+            self.s_at = w_rad_s;
+        }
+        if s > self.s_peak {
+            self.s_peak = s;
+            self.s_at = w_rad_s;
+        }
+        let Some((w0, l0)) = self.prev.replace((w_rad_s, lw)) else {
+            return;
+        };
+        let (w1, l1) = (w_rad_s, lw);
+        // The crossing of `f` between the two lines: bisected on `l`, or
+        // interpolated at the fraction `t` of the way.
+        let place = |f: &dyn Fn(Complex<f64>) -> f64, t: f64| match l {
+            Some(l) => {
+                let (mut a, mut b) = (w0, w1);
+                let fa0 = f(l(a));
+                for _ in 0..60 {
+                    let m = (a * b).sqrt();
+                    if (f(l(m)) > 0.0) == (fa0 > 0.0) {
+                        a = m;
+                    } else {
+                        b = m;
+                    }
+                }
+                let w = (a * b).sqrt();
+                (w, l(w))
             }
-        }
-        (a * b).sqrt()
-    };
-    let mut crossovers = Vec::new();
-    let mut pms = Vec::new();
-    let mut gm: Option<(f64, f64)> = None;
-    let (mut s_peak, mut s_at) = (0.0, grid_rad_s.first().copied().unwrap_or(0.0));
-    for i in 0..vals.len() {
-        let s = 1.0 / (vals[i] + 1.0).norm();
-        if s > s_peak {
-            s_peak = s;
-            s_at = grid_rad_s[i];
-        }
-        if i == 0 {
-            continue;
-        }
-        let (w0, w1) = (grid_rad_s[i - 1], grid_rad_s[i]);
-        let (l0, l1) = (vals[i - 1], vals[i]);
+            None => (
+                (w0.ln() + t * (w1.ln() - w0.ln())).exp(),
+                l0 + (l1 - l0) * t,
+            ),
+        };
         // Gain crossover.
         let g0 = l0.norm().ln();
         let g1 = l1.norm().ln();
         if g0.is_finite() && g1.is_finite() && (g0 > 0.0) != (g1 > 0.0) {
-            let (w, lw) = if refine {
-                let w = bisect(&|v| v.norm().ln(), w0, w1);
-                (w, l(w))
-            } else {
-                let t = g0 / (g0 - g1);
-                let w = (w0.ln() + t * (w1.ln() - w0.ln())).exp();
-                (w, l0 + (l1 - l0) * t)
-            };
-            crossovers.push(w);
-            pms.push(wrap180(lw.arg().to_degrees() + 180.0));
+            let (w, lw) = place(&|v| v.norm().ln(), g0 / (g0 - g1));
+            self.crossovers.push(w);
+            self.pms.push(wrap180(lw.arg().to_degrees() + 180.0));
         }
         // Phase crossover: Im L changes sign with Re L < 0.
         if (l0.im > 0.0) != (l1.im > 0.0) && (l0.re < 0.0 || l1.re < 0.0) {
-            let (w, lw) = if refine {
-                let w = bisect(&|v| v.im, w0, w1);
-                (w, l(w))
-            } else {
-                let t = l0.im / (l0.im - l1.im);
-                let w = (w0.ln() + t * (w1.ln() - w0.ln())).exp();
-                (w, l0 + (l1 - l0) * t)
-            };
+            let (w, lw) = place(&|v| v.im, l0.im / (l0.im - l1.im));
             if lw.re < 0.0 && lw.norm() < 1.0 {
                 let g = -20.0 * lw.norm().log10();
-                if gm.is_none_or(|(best, _)| g < best) {
-                    gm = Some((g, w));
+                if self.gm.is_none_or(|(best, _)| g < best) {
+                    self.gm = Some((g, w));
                 }
             }
         }
     }
-    Margins {
-        phase_margin_deg: pms.first().copied(),
-        crossovers_rad_s: crossovers,
-        phase_margins_deg: pms,
-        gain_margin_db: gm.map(|g| g.0),
-        gain_margin_at_rad_s: gm.map(|g| g.1),
-        sensitivity_peak: s_peak,
-        sensitivity_peak_at_rad_s: s_at,
+
+    /// The margins of the lines pushed.
+    pub fn finish(self) -> Margins {
+        Margins {
+            phase_margin_deg: self.pms.first().copied(),
+            crossovers_rad_s: self.crossovers,
+            phase_margins_deg: self.pms,
+            gain_margin_db: self.gm.map(|g| g.0),
+            gain_margin_at_rad_s: self.gm.map(|g| g.1),
+            sensitivity_peak: self.s_peak,
+            sensitivity_peak_at_rad_s: self.s_at,
+        }
     }
 }
 

@@ -26,7 +26,7 @@
 //! plane (the count returned). A step of more than 0.9π between two lines
 //! cannot be followed reliably and counts as one turn.
 
-use crate::control::loop_check::Margins;
+use crate::control::loop_check::{MarginScan, Margins};
 use crate::ident::C64;
 use serde::{Deserialize, Serialize};
 use std::f64::consts::PI;
@@ -100,36 +100,27 @@ pub struct LoopFigures {
 
 /// The figures of the loop `l` (one value per line of `omega_rad_s`,
 /// ascending) of a controller with `integrators` poles at s = 0, in one
-/// pass over the lines. Crossings between two lines are placed by linear
-/// interpolation in log ω (gain crossovers in log |L|, phase crossovers in
-/// Im L), as [`crate::control::loop_check::measured_margins`] does; the
-/// figures agree with it (`figures_agree_with_the_loop_check`).
+/// pass over the lines. The margins are the loop check's own
+/// ([`MarginScan`], crossings placed by linear interpolation in log ω, as
+/// [`crate::control::loop_check::measured_margins`] places them); the test
+/// `figures_agree_with_the_loop_check` compares the two.
 pub fn figures(omega_rad_s: &[f64], l: &[C64], integrators: u32) -> LoopFigures {
     let n = l.len();
-    let mut crossovers = Vec::new();
-    let mut pms = Vec::new();
-    let mut gm: Option<(f64, f64)> = None;
-    let (mut s_peak, mut s_at) = (0.0, omega_rad_s.first().copied().unwrap_or(0.0));
+    let mut scan = MarginScan::default();
     let mut wb: Option<f64> = None;
     let s_target = 0.5f64.sqrt();
     // Nyquist: the phase of 1 + L, unwrapped (see `nyquist_count`).
     let mut phase = 0.0;
     let mut ambiguous = false;
-    let mut prev_g = 0.0;
     for k in 0..n {
         let lk = l[k];
+        scan.push(omega_rad_s[k], lk, None);
         let one = lk + 1.0;
         let s = 1.0 / one.norm();
-        let g = lk.norm().ln();
-        if s > s_peak {
-            s_peak = s;
-            s_at = omega_rad_s[k];
-        }
         if k == 0 {
             let start = -(integrators as f64) * PI / 2.0;
             phase = one.arg();
             phase += 2.0 * PI * ((start - phase) / (2.0 * PI)).round();
-            prev_g = g;
             continue;
         }
         let (w0, w1) = (omega_rad_s[k - 1].ln(), omega_rad_s[k].ln());
@@ -147,36 +138,16 @@ pub fn figures(omega_rad_s: &[f64], l: &[C64], integrators: u32) -> LoopFigures 
         let d = (one / (l0 + 1.0)).arg();
         ambiguous |= d.abs() > 0.9 * PI;
         phase += d;
-        if prev_g.is_finite() && g.is_finite() && (prev_g > 0.0) != (g > 0.0) {
-            let t = prev_g / (prev_g - g);
-            crossovers.push((w0 + t * (w1 - w0)).exp());
-            let lw = l0 + (lk - l0) * t;
-            pms.push(wrap180(lw.arg().to_degrees() + 180.0));
-        }
-        if (l0.im > 0.0) != (lk.im > 0.0) && (l0.re < 0.0 || lk.re < 0.0) {
-            let t = l0.im / (l0.im - lk.im);
-            let lw = l0 + (lk - l0) * t;
-            if lw.re < 0.0 && lw.norm() < 1.0 {
-                let gdb = -20.0 * lw.norm().log10();
-                if gm.is_none_or(|(best, _)| gdb < best) {
-                    gm = Some((gdb, (w0 + t * (w1 - w0)).exp()));
-                }
-            }
-        }
-        prev_g = g;
     }
     let turns = (phase / (2.0 * PI)).round().abs() as u32;
+    let margins = scan.finish();
     LoopFigures {
-        phase_margin_min_deg: pms.iter().map(|p: &f64| p.abs()).reduce(f64::min),
-        margins: Margins {
-            phase_margin_deg: pms.first().copied(),
-            crossovers_rad_s: crossovers,
-            phase_margins_deg: pms,
-            gain_margin_db: gm.map(|g| g.0),
-            gain_margin_at_rad_s: gm.map(|g| g.1),
-            sensitivity_peak: s_peak,
-            sensitivity_peak_at_rad_s: s_at,
-        },
+        phase_margin_min_deg: margins
+            .phase_margins_deg
+            .iter()
+            .map(|p: &f64| p.abs())
+            .reduce(f64::min),
+        margins,
         sensitivity_bandwidth_rad_s: if n > 0 && 1.0 / (l[0] + 1.0).norm() >= s_target {
             None
         } else {
@@ -184,16 +155,6 @@ pub fn figures(omega_rad_s: &[f64], l: &[C64], integrators: u32) -> LoopFigures 
         },
         rhp_closed_loop_poles: 2 * turns.max(u32::from(ambiguous)),
         edge_gain_db: 20.0 * l.last().map_or(0.0, |v| v.norm()).log10(),
-    }
-}
-
-/// Wraps degrees to (−180, 180].
-fn wrap180(d: f64) -> f64 {
-    let w = (d + 180.0).rem_euclid(360.0) - 180.0;
-    if w <= -180.0 {
-        w + 360.0
-    } else {
-        w
     }
 }
 
