@@ -577,6 +577,23 @@ fn temp_path(path: &Path) -> PathBuf {
     parent_dir(path).join(name)
 }
 
+/// [`write_atomically`] through a buffer: `write` gets a buffered writer
+/// of the temporary file, flushed before the file is synced.
+///
+/// # Errors
+/// As [`write_atomically`].
+pub fn write_buffered_atomically(
+    path: &Path,
+    existing: Existing,
+    write: impl FnOnce(&mut io::BufWriter<&mut File>) -> io::Result<()>,
+) -> io::Result<()> {
+    write_atomically(path, existing, |f| {
+        let mut w = io::BufWriter::new(f);
+        write(&mut w)?;
+        io::Write::flush(&mut w)
+    })
+}
+
 /// Writes `path` through a temporary file beside it (rule 4 of the
 /// [module docs](self)): `write` fills the temporary file (mode
 /// [`FILE_MODE`]), which is synced, [`commit`]ted to `path`, and the

@@ -21,11 +21,7 @@ impl Frf {
         path: &Path,
         existing: crate::outputs::Existing,
     ) -> std::io::Result<()> {
-        crate::outputs::write_atomically(path, existing, |f| {
-            let mut w = std::io::BufWriter::new(f);
-            self.write_csv_to(&mut w)?;
-            w.flush()
-        })
+        crate::outputs::write_buffered_atomically(path, existing, |w| self.write_csv_to(w))
     }
 
     /// Reads the CSV `bench chirp` writes ([`CSV_HEADER`]:
