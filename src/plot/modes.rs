@@ -6,6 +6,7 @@ use std::f64::consts::PI;
 use std::path::Path;
 
 use nalgebra::Complex;
+use plotters::coord::ranged1d::{AsRangedCoord, ValueFormatter};
 use plotters::prelude::*;
 
 use super::palette::MODE_SERIES;
@@ -131,90 +132,18 @@ pub fn write_decomposed_bode_png(
             for (k, (caption, xr, log)) in panels.into_iter().enumerate() {
                 let sel = |f: f64| f >= xr.start && f <= xr.end;
                 let yr = mag_range(&sel);
-                let area = &areas[k];
+                let panel = MagnitudePanel {
+                    caption,
+                    sel: &sel,
+                    yr,
+                    freqs: &freqs,
+                    series: &series,
+                    total_db: &total_db,
+                };
                 if log {
-                    let mut chart = ChartBuilder::on(area)
-                        .caption(caption, analysis_font(ANALYSIS_LABEL_SIZE))
-                        .margin(10)
-                        .x_label_area_size(40)
-                        .y_label_area_size(80)
-                        .build_cartesian_2d((xr.clone()).log_scale(), yr.clone())?;
-                    chart
-                        .configure_mesh()
-                        .x_desc("frequency (Hz)")
-                        .y_desc("dB re 1 m/N")
-                        .label_style(analysis_font(ANALYSIS_LABEL_SIZE - 4))
-                        .axis_desc_style(analysis_font(ANALYSIS_LABEL_SIZE - 2))
-                        .draw()?;
-                    for (i, (label, s)) in series.iter().enumerate() {
-                        let c = MODE_SERIES[i % MODE_SERIES.len()];
-                        chart
-                            .draw_series(LineSeries::new(
-                                freqs
-                                    .iter()
-                                    .copied()
-                                    .zip(s.iter().copied())
-                                    .filter(|(f, v)| sel(*f) && yr.contains(v)),
-                                c.stroke_width(2),
-                            ))?
-                            .label(label.clone())
-                            .legend(move |(x, y)| {
-                                PathElement::new([(x, y), (x + 20, y)], c.stroke_width(2))
-                            });
-                    }
-                    chart
-                        .draw_series(LineSeries::new(
-                            freqs
-                                .iter()
-                                .copied()
-                                .zip(total_db.iter().copied())
-                                .filter(|(f, v)| sel(*f) && yr.contains(v)),
-                            BLACK.stroke_width(3),
-                        ))?
-                        .label("total G(s)")
-                        .legend(|(x, y)| {
-                            PathElement::new([(x, y), (x + 20, y)], BLACK.stroke_width(3))
-                        });
-                    chart
-                        .configure_series_labels()
-                        .position(SeriesLabelPosition::LowerLeft)
-                        .background_style(WHITE.mix(0.85))
-                        .border_style(BLACK.mix(0.3))
-                        .label_font(analysis_font(ANALYSIS_LABEL_SIZE - 4))
-                        .draw()?;
+                    panel.draw(&areas[k], xr.clone().log_scale(), true)?;
                 } else {
-                    let mut chart = ChartBuilder::on(area)
-                        .caption(caption, analysis_font(ANALYSIS_LABEL_SIZE))
-                        .margin(10)
-                        .x_label_area_size(40)
-                        .y_label_area_size(80)
-                        .build_cartesian_2d(xr.clone(), yr.clone())?;
-                    chart
-                        .configure_mesh()
-                        .x_desc("frequency (Hz)")
-                        .y_desc("dB re 1 m/N")
-                        .label_style(analysis_font(ANALYSIS_LABEL_SIZE - 4))
-                        .axis_desc_style(analysis_font(ANALYSIS_LABEL_SIZE - 2))
-                        .draw()?;
-                    for (i, (_, s)) in series.iter().enumerate() {
-                        let c = MODE_SERIES[i % MODE_SERIES.len()];
-                        chart.draw_series(LineSeries::new(
-                            freqs
-                                .iter()
-                                .copied()
-                                .zip(s.iter().copied())
-                                .filter(|(f, v)| sel(*f) && yr.contains(v)),
-                            c.stroke_width(2),
-                        ))?;
-                    }
-                    chart.draw_series(LineSeries::new(
-                        freqs
-                            .iter()
-                            .copied()
-                            .zip(total_db.iter().copied())
-                            .filter(|(f, v)| sel(*f) && yr.contains(v)),
-                        BLACK.stroke_width(3),
-                    ))?;
+                    panel.draw(&areas[k], xr.clone(), false)?;
                 }
             }
             let pr = span(phase.iter().copied(), 0.1, 90.0);
@@ -238,4 +167,73 @@ pub fn write_decomposed_bode_png(
             Ok(())
         },
     )
+}
+
+/// One magnitude panel of [`write_decomposed_bode_png`]: each mode's
+/// contribution and the total (dB re 1 m/N) over the frequencies `sel`
+/// keeps, clipped to `yr`.
+struct MagnitudePanel<'a> {
+    caption: &'a str,
+    sel: &'a dyn Fn(f64) -> bool,
+    yr: std::ops::Range<f64>,
+    freqs: &'a [f64],
+    series: &'a [(String, Vec<f64>)],
+    total_db: &'a [f64],
+}
+
+impl MagnitudePanel<'_> {
+    /// Draws the panel on `area` over the frequency axis `x` (logarithmic
+    /// or linear), with the series' legend at lower left when `legend`.
+    fn draw<X>(&self, area: &Area<'_>, x: X, legend: bool) -> Result<(), BoxError>
+    where
+        X: AsRangedCoord<Value = f64>,
+        X::CoordDescType: ValueFormatter<f64>,
+    {
+        let (sel, yr) = (self.sel, &self.yr);
+        let mut chart = ChartBuilder::on(area)
+            .caption(self.caption, analysis_font(ANALYSIS_LABEL_SIZE))
+            .margin(10)
+            .x_label_area_size(40)
+            .y_label_area_size(80)
+            .build_cartesian_2d(x, yr.clone())?;
+        chart
+            .configure_mesh()
+            .x_desc("frequency (Hz)")
+            .y_desc("dB re 1 m/N")
+            .label_style(analysis_font(ANALYSIS_LABEL_SIZE - 4))
+            .axis_desc_style(analysis_font(ANALYSIS_LABEL_SIZE - 2))
+            .draw()?;
+        let line = |values: &[f64]| {
+            self.freqs
+                .iter()
+                .copied()
+                .zip(values.iter().copied())
+                .filter(|(f, v)| sel(*f) && yr.contains(v))
+                .collect::<Vec<_>>()
+        };
+        for (i, (label, s)) in self.series.iter().enumerate() {
+            let c = MODE_SERIES[i % MODE_SERIES.len()];
+            let drawn = chart.draw_series(LineSeries::new(line(s), c.stroke_width(2)))?;
+            if legend {
+                drawn.label(label.clone()).legend(move |(x, y)| {
+                    PathElement::new([(x, y), (x + 20, y)], c.stroke_width(2))
+                });
+            }
+        }
+        let drawn =
+            chart.draw_series(LineSeries::new(line(self.total_db), BLACK.stroke_width(3)))?;
+        if legend {
+            drawn
+                .label("total G(s)")
+                .legend(|(x, y)| PathElement::new([(x, y), (x + 20, y)], BLACK.stroke_width(3)));
+            chart
+                .configure_series_labels()
+                .position(SeriesLabelPosition::LowerLeft)
+                .background_style(WHITE.mix(0.85))
+                .border_style(BLACK.mix(0.3))
+                .label_font(analysis_font(ANALYSIS_LABEL_SIZE - 4))
+                .draw()?;
+        }
+        Ok(())
+    }
 }
