@@ -5,7 +5,7 @@ use super::point::PointArgs;
 use super::serve::via_daemon;
 use super::{
     bad_input, emit, job_thread, load_config, origin, recording_plan, refuse_local_only,
-    refused_request, run_failed, run_failed_json, CONFIG_HELP,
+    refuse_non_mcap, refused_request, run_failed, run_failed_json, CONFIG_HELP,
 };
 use bench::config::ChirpKind;
 use bench::jobs::chirp::{run_chirp, ChirpOptions, ChirpSummary};
@@ -221,11 +221,8 @@ pub(super) fn chirp(args: ChirpArgs, stop: Arc<AtomicBool>) -> ExitCode {
             Ok(r) => r,
             Err(e) => return run_failed(&e),
         };
-    if out.extension().and_then(|e| e.to_str()) != Some("mcap") {
-        return bad_input(format!(
-            "--out {}: the recording must end in .mcap",
-            out.display()
-        ));
+    if let Some(code) = refuse_non_mcap(&out) {
+        return code;
     }
     let frf_csv = args
         .frf_csv

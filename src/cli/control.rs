@@ -4,7 +4,8 @@
 use super::serve::via_daemon_then;
 use super::{
     bad_input, emit, job_thread, load_config, origin, recording_plan, refuse_local_only,
-    refused_request, run_failed, run_failed_json, status, unclaimed_recording, CONFIG_HELP,
+    refuse_non_mcap, refused_request, run_failed, run_failed_json, status, unclaimed_recording,
+    CONFIG_HELP,
 };
 use bench::jobs::request::{parse_seed, ControlRequest, JobRequest};
 use bench::jobs::step::{run_control, ControlOptions, ControlSummary};
@@ -246,11 +247,8 @@ pub(super) fn control(args: ControlArgs, stop: Arc<AtomicBool>) -> ExitCode {
             Err(e) => return run_failed(&e),
         }
     };
-    if out.extension().and_then(|e| e.to_str()) != Some("mcap") {
-        return bad_input(format!(
-            "--out {}: the recording must end in .mcap",
-            out.display()
-        ));
+    if let Some(code) = refuse_non_mcap(&out) {
+        return code;
     }
     let plot = args
         .plot

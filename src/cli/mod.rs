@@ -477,6 +477,16 @@ pub(super) fn recording_plan(
     })
 }
 
+/// `--out` must name an MCAP recording: exit 2 naming it otherwise.
+pub(super) fn refuse_non_mcap(out: &Path) -> Option<ExitCode> {
+    (out.extension().and_then(|e| e.to_str()) != Some("mcap")).then(|| {
+        bad_input(format!(
+            "--out {}: the recording must end in .mcap",
+            out.display()
+        ))
+    })
+}
+
 /// With `--daemon`: exit 2 for the first of `flags` (`(given, "--flag")`)
 /// that only a local run takes, saying `why`.
 pub(super) fn refuse_local_only(flags: &[(bool, &str)], why: &str) -> Option<ExitCode> {
