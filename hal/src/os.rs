@@ -1,7 +1,7 @@
 //! Every call into the operating system that timing depends on, in one
 //! place: the clock (`CLOCK_MONOTONIC` time and absolute sleeps on it),
-//! scheduling (SCHED_FIFO, CPU affinity, niceness), memory locking and the
-//! CPU wake-up latency request (`/dev/cpu_dma_latency`), and the free space
+//! scheduling (SCHED_FIFO, CPU affinity, niceness), memory locking, waiting on a file descriptor
+//! ([`poll_until`]) and the CPU wake-up latency request (`/dev/cpu_dma_latency`), and the free space
 //! of a file system ([`available_bytes`]). The host backends,
 //! the emulators and the bench's real-time loop, recorder and live view use
 //! it; it depends on nothing else in the crate.
@@ -27,6 +27,45 @@ pub fn monotonic_ns() -> u64 {
     // SAFETY: valid pointer; CLOCK_MONOTONIC always exists.
     unsafe { libc::clock_gettime(libc::CLOCK_MONOTONIC, &mut ts) };
     ts.tv_sec as u64 * 1_000_000_000 + ts.tv_nsec as u64
+}
+
+/// Waits until `fd` reports one of `events` (`POLLIN`, `POLLOUT`) or an
+/// error condition, or `CLOCK_MONOTONIC` reaches `deadline_ns` (absolute),
+/// with `ppoll`; a signal resumes the wait with the time left. `Ok(None)`
+/// on timeout, else the returned events (`revents`: also `POLLHUP`,
+/// `POLLERR`, `POLLNVAL`, which the caller judges).
+///
+/// # Errors
+/// The OS error of `ppoll` other than `EINTR`.
+pub fn poll_until(
+    fd: std::os::fd::RawFd,
+    events: libc::c_short,
+    deadline_ns: u64,
+) -> std::io::Result<Option<libc::c_short>> {
+    loop {
+        let left = deadline_ns.saturating_sub(monotonic_ns());
+        let ts = libc::timespec {
+            tv_sec: (left / 1_000_000_000) as libc::time_t,
+            tv_nsec: (left % 1_000_000_000) as libc::c_long,
+        };
+        let mut pfd = libc::pollfd {
+            fd,
+            events,
+            revents: 0,
+        };
+        // SAFETY: one valid pollfd, a valid timespec, no signal mask.
+        let r = unsafe { libc::ppoll(&mut pfd, 1, &ts, std::ptr::null()) };
+        if r > 0 {
+            return Ok(Some(pfd.revents));
+        }
+        if r == 0 {
+            return Ok(None);
+        }
+        let e = std::io::Error::last_os_error();
+        if e.raw_os_error() != Some(libc::EINTR) {
+            return Err(e);
+        }
+    }
 }
 
 /// Sleeps until `CLOCK_MONOTONIC` reaches `deadline_ns` (absolute, so

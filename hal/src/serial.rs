@@ -449,32 +449,15 @@ impl SerialStage {
     /// `Ok(true)` ready, `Ok(false)` timed out.
     fn poll(&self, events: libc::c_short, deadline: u64) -> Result<bool, SerialError> {
         loop {
-            let now = monotonic_ns();
-            let left = deadline.saturating_sub(now);
-            let ts = libc::timespec {
-                tv_sec: (left / 1_000_000_000) as libc::time_t,
-                tv_nsec: (left % 1_000_000_000) as libc::c_long,
+            let revents = match crate::os::poll_until(self.fd, events, deadline) {
+                Err(_) => return Err(SerialError::Disconnected("poll failed")),
+                Ok(None) => return Ok(false),
+                Ok(Some(r)) => r,
             };
-            let mut pfd = libc::pollfd {
-                fd: self.fd,
-                events,
-                revents: 0,
-            };
-            // SAFETY: one valid pollfd, valid timespec, no signal mask.
-            let r = unsafe { libc::ppoll(&mut pfd, 1, &ts, std::ptr::null()) };
-            if r < 0 {
-                if std::io::Error::last_os_error().raw_os_error() == Some(libc::EINTR) {
-                    continue;
-                }
-                return Err(SerialError::Disconnected("poll failed"));
-            }
-            if r == 0 {
-                return Ok(false);
-            }
-            if pfd.revents & events != 0 {
+            if revents & events != 0 {
                 return Ok(true);
             }
-            if pfd.revents & (libc::POLLHUP | libc::POLLERR | libc::POLLNVAL) != 0 {
+            if revents & (libc::POLLHUP | libc::POLLERR | libc::POLLNVAL) != 0 {
                 return Err(SerialError::Disconnected("device hung up"));
             }
         }

@@ -23,31 +23,7 @@ pub(crate) fn errno(e: &io::Error) -> i32 {
 /// Waits until the socket is readable (`POLLIN`) or writable (`POLLOUT`),
 /// or `deadline_ns` passes. `Ok(false)` on timeout.
 pub(crate) fn wait_fd(fd: RawFd, events: libc::c_short, deadline_ns: u64) -> io::Result<bool> {
-    loop {
-        let now = monotonic_ns();
-        let left = deadline_ns.saturating_sub(now);
-        let ts = libc::timespec {
-            tv_sec: (left / 1_000_000_000) as libc::time_t,
-            tv_nsec: (left % 1_000_000_000) as libc::c_long,
-        };
-        let mut pfd = libc::pollfd {
-            fd,
-            events,
-            revents: 0,
-        };
-        // SAFETY: one valid pollfd, a valid timespec, no signal mask.
-        let r = unsafe { libc::ppoll(&mut pfd, 1, &ts, std::ptr::null()) };
-        if r > 0 {
-            return Ok(true);
-        }
-        if r == 0 {
-            return Ok(false);
-        }
-        let e = io::Error::last_os_error();
-        if errno(&e) != libc::EINTR {
-            return Err(e);
-        }
-    }
+    Ok(crate::os::poll_until(fd, events, deadline_ns)?.is_some())
 }
 
 /// Reads one datagram without blocking; `Ok(None)` when none is queued.
