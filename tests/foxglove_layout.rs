@@ -24,7 +24,9 @@
 //!   an array sliced with `[:]` against a custom x axis from the same
 //!   message), a number or string for State Transitions and the Indicator,
 //!   a `foxglove.Log` channel for the Log panel;
-//! - every channel a panel shows carried messages in those runs.
+//! - every channel a panel shows carried messages in those runs;
+//! - the README's table of the layout (*Live view*, *The layout*) has one
+//!   row per panel, by its title, naming what the panel shows.
 //!
 //! The checker is shown to catch mistakes: the tests at the end break the
 //! layout one way each (a renamed field, an unknown topic, an unsliced
@@ -340,9 +342,11 @@ fn resolve(path: &str, chans: &Channels) -> Result<Resolved, String> {
                     "`{path}`: {where_} is an array: slice it ([:] or [i]) before .{name}"
                 ))
             }
-            Shape::Any => return Err(format!(
+            Shape::Any => {
+                return Err(format!(
                 "`{path}`: the schema does not say what {where_} holds: .{name} cannot be checked"
-            )),
+            ))
+            }
             _ => return Err(format!("`{path}`: {where_} has no fields (.{name})")),
         };
         shape = fields.get(name).cloned().ok_or_else(|| {
@@ -897,4 +901,70 @@ fn a_misspelt_key_and_a_lost_panel_are_reported() {
                 .any(|e| e.contains("RawMessages!chirp_summary is not in the layout tree")),
         "{errs:#?}"
     );
+}
+
+/// The message paths a panel shows (its series, its topic), not its x
+/// axis.
+fn shown_paths(cfg: &Value) -> Vec<String> {
+    let mut out: Vec<String> = cfg["paths"]
+        .as_array()
+        .into_iter()
+        .flatten()
+        .filter_map(|s| s["value"].as_str().map(str::to_string))
+        .collect();
+    for k in ["topicPath", "topicToRender", "path"] {
+        if let Some(p) = cfg[k].as_str() {
+            out.push(p.to_string());
+        }
+    }
+    out
+}
+
+/// The README's table of the layout (*Live view*, *The layout*) has one
+/// row per panel, by its title, and the row names what the panel shows:
+/// each of its paths from the first `.` on (the topic alone for a path
+/// without fields).
+#[test]
+fn the_readme_describes_every_panel() {
+    let readme = std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("README.md"))
+        .expect("README.md");
+    let start = readme
+        .find("### The layout: `foxglove/bench-layout.json`")
+        .expect("README: Live view, The layout");
+    let section = &readme[start..];
+    let end = ["\n## ", "\n### "]
+        .iter()
+        .filter_map(|h| section[4..].find(h))
+        .min()
+        .map_or(section.len(), |i| i + 4);
+    let section = &section[..end];
+    let rows: BTreeMap<String, String> = section
+        .lines()
+        .filter(|l| l.starts_with("| ") && !l.starts_with("| panel"))
+        .map(|l| {
+            let title = l[2..].split(" | ").next().unwrap_or("").to_string();
+            (title, l.to_string())
+        })
+        .collect();
+    let layout = layout();
+    let configs = layout["configById"].as_object().unwrap();
+    let titles: BTreeSet<String> = configs
+        .values()
+        .map(|c| c["foxglovePanelTitle"].as_str().unwrap_or("").to_string())
+        .collect();
+    assert_eq!(
+        rows.keys().cloned().collect::<BTreeSet<_>>(),
+        titles,
+        "the README's table rows against the panels' titles"
+    );
+    for (id, cfg) in configs {
+        let row = &rows[cfg["foxglovePanelTitle"].as_str().unwrap()];
+        for p in shown_paths(cfg) {
+            let named = p.find('.').map_or(p.as_str(), |i| &p[i..]);
+            assert!(
+                row.contains(named),
+                "README row of {id} does not name {named}: {row}"
+            );
+        }
+    }
 }
