@@ -363,7 +363,15 @@ pub fn serve(opts: ServeOptions) -> Result<(), ServeError> {
         std::thread::Builder::new()
             .name("bench-rt".into())
             .spawn(move || {
-                run_service(&mut stage, &loop_opts, clock, req_rx, rep_tx, &loop_status);
+                run_service(
+                    &mut stage,
+                    &loop_opts,
+                    clock,
+                    req_rx,
+                    rep_tx,
+                    &loop_status,
+                    None,
+                );
                 drop(stage);
             })
             .map_err(|e| ServeError::Other(format!("cannot start the real-time thread: {e}")))?

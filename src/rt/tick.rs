@@ -62,9 +62,11 @@ use crate::record::queue::{Emitter, RecordQueue};
 use crate::record::topics::{
     EventKind, EventRecord, FaultKind, Record, SampleRecord, SupervisorState, TimingRecord,
 };
+use crate::rt::backend::LinkCounters;
 use crate::rt::job::{pace_batch_ticks, Job, JobOutput, LoopOptions, Pacing};
 use crate::rt::report::{JobEnd, LoopReport, RawStop};
 use crate::rt::supervisor::{HalCall, HalVerdict, StallBounds, Supervisor};
+use crate::rt::tap::LoopTap;
 use crate::rt::timing::TickTiming;
 use bench_hal::os::{
     make_realtime, monotonic_ns as now_ns, sleep_until_ns, CpuDmaLatency, DmaLatency,
@@ -239,6 +241,11 @@ pub struct Loop<'s, S: Stage> {
     /// The `/dev/cpu_dma_latency` request, held while the loop lives.
     _dma_guard: Option<CpuDmaLatency>,
     dma_latency: DmaLatency,
+    /// The daemon's metrics: counts of the real-time ticks, handed off
+    /// wait-free ([`Loop::set_tap`]).
+    tap: Option<LoopTap>,
+    /// Reads the backend's link counters for the tap (hardware).
+    link_probe: Option<fn(&S) -> Option<LinkCounters>>,
 }
 
 /// The cost of one `CLOCK_MONOTONIC` read, ns: the smallest difference of
@@ -299,6 +306,26 @@ impl<'s, S: Stage> Loop<'s, S> {
             clock_read_ns: clock_read_cost_ns(),
             _dma_guard: dma_guard,
             dma_latency,
+            tap: None,
+            link_probe: None,
+        }
+    }
+
+    /// Counts every tick the loop runs in real time into `tap` from now
+    /// on, for the daemon's metrics ([`crate::rt::tap`]); `link_probe`
+    /// reads the backend's link counters at each offer. Not on a tick.
+    pub fn set_tap(&mut self, tap: LoopTap, link_probe: Option<fn(&S) -> Option<LinkCounters>>) {
+        self.tap = Some(tap);
+        self.link_probe = link_probe;
+    }
+
+    /// Offers the tap's counts now (with the link counters). No
+    /// allocation.
+    #[inline]
+    fn offer_tap(&mut self) {
+        if let Some(tap) = self.tap.as_mut() {
+            let link = self.link_probe.and_then(|probe| probe(&*self.stage));
+            tap.offer(link);
         }
     }
 
@@ -529,6 +556,10 @@ impl<'s, S: Stage> Loop<'s, S> {
             }
             t.compute.record(compute_ns);
         }
+        // The metrics count real-time ticks only.
+        if let (Some(tap), false) = (self.tap.as_mut(), self.backpressure) {
+            tap.timed(wake_ns, compute_ns, overran);
+        }
         let mut next = deadline + self.period_ns;
         // Deadlines this tick made the loop miss (0 on time).
         let mut missed = 0;
@@ -654,6 +685,12 @@ impl<'s, S: Stage> Loop<'s, S> {
         } else {
             (0, false)
         };
+        if let (Some(tap), false) = (self.tap.as_mut(), self.backpressure) {
+            let late = sample.is_some_and(|s| s.flags.command_late);
+            if tap.ticked(em.records(), late) {
+                self.offer_tap();
+            }
+        }
         if missed > 0 {
             em.event(
                 cur.tick,
@@ -847,6 +884,8 @@ impl<'s, S: Stage> Loop<'s, S> {
             ));
         }
         em.event(last, t_end, EventKind::LoopStopped, &self.sup, f64::NAN);
+        // The job's last ticks reach the metrics now, not 0.1 s later.
+        self.offer_tap();
         JobEnd {
             ticks: cur.tick,
             stop: stop_reason.unwrap_or(RawStop::TickLimit),
