@@ -1,0 +1,150 @@
+#!/usr/bin/env bash
+# What `bench serve --metrics` scraped every second costs the real-time
+# loop: the p99 wake-up latency of daemon jobs on a daemon without
+# `--metrics`, and on one with `--metrics` and a scraper fetching
+# /metrics every second for the whole job, run alternately (without,
+# with, with, without, ...) so that both see the same machine. Prints
+# each job's p99 and, at the end, the medians and their ratio with /
+# without (the bar: within 1.10).
+#
+# What is compared: `timing.wake_latency_p99_us` of each job's summary
+# (`bench chirp --daemon --json`): the loop's own wake-up latency over the
+# job's ticks (HDR histogram, <= 1 % above the true order statistic). The
+# jobs are real-time chirps on the daemon's SCHED_FIFO loop (the shipped
+# Chapter 5 bench, 5 kHz, pinned to one CPU), the same request each time.
+# The scraper is curl, once a second, on the same machine (as a Prometheus
+# beside the bench would be); its own work (a process start, the HTTP
+# request) is part of what is measured.
+#
+# Usage: benches/metrics-overhead.sh [-d SECONDS] [-r ROUNDS] [-c CPU]
+#            [-i INTERVAL_S] [-B BENCH]
+#   -d  chirp sweep of each job, s (default 20; the job adds 5.5 s of
+#       lead-in and tail)
+#   -r  rounds; each runs one job without and one with metrics, the order
+#       alternating (default 5)
+#   -c  CPU the loop is pinned to (default: the last one online)
+#   -i  scrape interval, s (default 1)
+#   -B  use this bench binary instead of building it in release (a quick
+#       check of the script; figures come from a release build)
+# Needs root (or the rights to SCHED_FIFO and /dev/cpu_dma_latency), curl
+# and python3. Run it on a quiet machine.
+set -euo pipefail
+
+duration=20
+rounds=5
+cpu=$(( $(nproc) - 1 ))
+interval=1
+bench=
+while getopts "d:r:c:i:B:h" opt; do
+    case $opt in
+        d) duration=$OPTARG ;;
+        r) rounds=$OPTARG ;;
+        c) cpu=$OPTARG ;;
+        i) interval=$OPTARG ;;
+        B) bench=$OPTARG ;;
+        *) sed -n '2,30p' "$0"; exit 2 ;;
+    esac
+done
+shift $((OPTIND - 1))
+
+die() { echo "metrics-overhead: $*" >&2; exit 2; }
+[[ $duration =~ ^[0-9]+$ ]] && [ "$duration" -ge 1 ] || die "-d: whole seconds, at least 1 (got $duration)"
+[[ $rounds =~ ^[0-9]+$ ]] && [ "$rounds" -ge 1 ] || die "-r: at least 1 round (got $rounds)"
+[[ $cpu =~ ^[0-9]+$ ]] && [ "$cpu" -lt "$(nproc)" ] || die "-c: a CPU from 0 to $(( $(nproc) - 1 )) (got $cpu)"
+[[ $interval =~ ^[0-9.]+$ ]] || die "-i: seconds (got $interval)"
+command -v curl >/dev/null || die "curl not found"
+command -v python3 >/dev/null || die "python3 not found (parses the JSON summaries)"
+[ "$(id -u)" -eq 0 ] || echo "metrics-overhead: not root: SCHED_FIFO or /dev/cpu_dma_latency may be refused (the daemon would warn)" >&2
+
+root=$(cd "$(dirname "$0")/.." && pwd)
+if [ -z "$bench" ]; then
+    cargo build --release --quiet --manifest-path "$root/Cargo.toml" --bin bench
+    target=$(cargo metadata --format-version 1 --no-deps --manifest-path "$root/Cargo.toml" |
+        python3 -c 'import json, sys; print(json.load(sys.stdin)["target_directory"])')
+    bench="$target/release/bench"
+fi
+[ -x "$bench" ] || die "-B: $bench is not an executable"
+work=$(mktemp -d)
+daemon=
+scraper=
+cleanup() {
+    [ -n "$scraper" ] && kill "$scraper" 2>/dev/null
+    [ -n "$daemon" ] && kill "$daemon" 2>/dev/null
+    wait 2>/dev/null
+    rm -rf "$work"
+}
+trap cleanup EXIT
+
+# The shipped bench, its loop pinned to $cpu.
+cfg="$work/bench.toml"
+sed -e "s/^# cpu = .*/cpu = $cpu/" -e "s/^cpu = .*/cpu = $cpu/" \
+    "$root/bench-config/sr4dof-ch5.toml" >"$cfg"
+sock="$work/bench.sock"
+
+# Starts a daemon (with extra arguments); sets $daemon and, with
+# --metrics, $url.
+start_daemon() {
+    rm -f "$work/serve.err"
+    "$bench" serve --config "$cfg" --socket "$sock" --recordings "$work/rec" "$@" \
+        2>"$work/serve.err" &
+    daemon=$!
+    for _ in $(seq 200); do
+        [ -S "$sock" ] && break
+        sleep 0.05
+    done
+    [ -S "$sock" ] || die "the daemon did not start: $(cat "$work/serve.err")"
+    url=$(sed -n 's/^bench serve: metrics on //p' "$work/serve.err")
+}
+
+stop_daemon() {
+    "$bench" daemon shutdown --socket "$sock" >/dev/null
+    wait "$daemon" 2>/dev/null || true
+    daemon=
+    rm -rf "$work/rec"
+}
+
+# One chirp job on the running daemon; prints its p99 wake-up latency, µs.
+job_p99() {
+    "$bench" chirp --daemon "$sock" --duration-s "$duration" --json >"$work/job.json"
+    python3 -c 'import json, sys; print("%.1f" % json.load(open(sys.argv[1]))["timing"]["wake_latency_p99_us"])' "$work/job.json"
+}
+
+run() { # $1: without | with
+    if [ "$1" = with ]; then
+        start_daemon --metrics 127.0.0.1:0
+        [ -n "$url" ] || die "no metrics address in: $(cat "$work/serve.err")"
+        ( while :; do curl -s -o /dev/null "$url" || true; sleep "$interval"; done ) &
+        scraper=$!
+    else
+        start_daemon
+    fi
+    p99=$(job_p99)
+    if [ -n "$scraper" ]; then
+        kill "$scraper" 2>/dev/null; wait "$scraper" 2>/dev/null || true
+        scraper=
+        # The scrapes reached the daemon: its counters saw the job.
+        curl -s "$url" | grep -q '^bench_jobs_total{kind="chirp",outcome="ok"} 1' ||
+            die "the metrics did not count the job"
+    fi
+    stop_daemon
+}
+
+without=(); with=()
+for round in $(seq 1 "$rounds"); do
+    if [ $((round % 2)) -eq 1 ]; then order=(without with); else order=(with without); fi
+    for mode in "${order[@]}"; do
+        run "$mode"
+        if [ "$mode" = with ]; then with+=("$p99"); else without+=("$p99"); fi
+        printf 'round %d %-7s metrics: p99 wake-up latency %s µs\n' "$round" "$mode" "$p99"
+    done
+done
+
+python3 - "${without[*]}" "${with[*]}" <<'EOF'
+import statistics, sys
+a = [float(x) for x in sys.argv[1].split()]
+b = [float(x) for x in sys.argv[2].split()]
+ma, mb = statistics.median(a), statistics.median(b)
+print(f"median p99 wake-up latency: without metrics {ma:.1f} µs, with a scrape every second {mb:.1f} µs: ratio {mb / ma:.3f} (bar: 1.10)")
+print(f"  without: {' '.join(f'{x:.1f}' for x in sorted(a))}")
+print(f"  with:    {' '.join(f'{x:.1f}' for x in sorted(b))}")
+EOF
