@@ -12,18 +12,21 @@
 # job's ticks (HDR histogram, <= 1 % above the true order statistic). The
 # jobs are real-time chirps on the daemon's SCHED_FIFO loop (the shipped
 # Chapter 5 bench, 5 kHz, pinned to one CPU), the same request each time.
-# The scraper is curl, once a second, on the same machine (as a Prometheus
-# beside the bench would be); its own work (a process start, the HTTP
-# request) is part of what is measured.
+# The scraper is one python3 process fetching /metrics once a second (a new
+# connection each time), on the same machine, as a Prometheus beside the
+# bench would be: its own work (the HTTP request, the loopback network
+# stack) is part of what is measured. With -o it runs off the loop's CPU,
+# as anything else should on a bench whose loop CPU is isolated.
 #
 # Usage: benches/metrics-overhead.sh [-d SECONDS] [-r ROUNDS] [-c CPU]
-#            [-i INTERVAL_S] [-B BENCH]
+#            [-i INTERVAL_S] [-o] [-B BENCH]
 #   -d  chirp sweep of each job, s (default 20; the job adds 5.5 s of
 #       lead-in and tail)
 #   -r  rounds; each runs one job without and one with metrics, the order
 #       alternating (default 5)
 #   -c  CPU the loop is pinned to (default: the last one online)
 #   -i  scrape interval, s (default 1)
+#   -o  run the scraper off the loop's CPU (taskset)
 #   -B  use this bench binary instead of building it in release (a quick
 #       check of the script; figures come from a release build)
 # Needs root (or the rights to SCHED_FIFO and /dev/cpu_dma_latency), curl
@@ -34,13 +37,15 @@ duration=20
 rounds=5
 cpu=$(( $(nproc) - 1 ))
 interval=1
+off_cpu=
 bench=
-while getopts "d:r:c:i:B:h" opt; do
+while getopts "d:r:c:i:oB:h" opt; do
     case $opt in
         d) duration=$OPTARG ;;
         r) rounds=$OPTARG ;;
         c) cpu=$OPTARG ;;
         i) interval=$OPTARG ;;
+        o) off_cpu=1 ;;
         B) bench=$OPTARG ;;
         *) sed -n '2,30p' "$0"; exit 2 ;;
     esac
@@ -53,6 +58,11 @@ die() { echo "metrics-overhead: $*" >&2; exit 2; }
 [[ $cpu =~ ^[0-9]+$ ]] && [ "$cpu" -lt "$(nproc)" ] || die "-c: a CPU from 0 to $(( $(nproc) - 1 )) (got $cpu)"
 [[ $interval =~ ^[0-9.]+$ ]] || die "-i: seconds (got $interval)"
 command -v curl >/dev/null || die "curl not found"
+if [ -n "$off_cpu" ]; then
+    command -v taskset >/dev/null || die "-o: taskset not found (util-linux)"
+    others=$(seq 0 $(( $(nproc) - 1 )) | grep -vx "$cpu" | paste -sd,)
+    [ -n "$others" ] || die "-o: no CPU but the loop's"
+fi
 command -v python3 >/dev/null || die "python3 not found (parses the JSON summaries)"
 [ "$(id -u)" -eq 0 ] || echo "metrics-overhead: not root: SCHED_FIFO or /dev/cpu_dma_latency may be refused (the daemon would warn)" >&2
 
@@ -113,7 +123,20 @@ run() { # $1: without | with
     if [ "$1" = with ]; then
         start_daemon --metrics 127.0.0.1:0
         [ -n "$url" ] || die "no metrics address in: $(cat "$work/serve.err")"
-        ( while :; do curl -s -o /dev/null "$url" || true; sleep "$interval"; done ) &
+        scrape=(python3 -c '
+import sys, time, urllib.request
+url, every = sys.argv[1], float(sys.argv[2])
+next_t = time.monotonic()
+while True:
+    try:
+        urllib.request.urlopen(url, timeout=5).read()
+    except OSError:
+        pass
+    next_t += every
+    time.sleep(max(0.0, next_t - time.monotonic()))
+' "$url" "$interval")
+        if [ -n "$off_cpu" ]; then scrape=(taskset -c "$others" "${scrape[@]}"); fi
+        "${scrape[@]}" &
         scraper=$!
     else
         start_daemon
@@ -123,7 +146,9 @@ run() { # $1: without | with
         kill "$scraper" 2>/dev/null; wait "$scraper" 2>/dev/null || true
         scraper=
         # The scrapes reached the daemon: its counters saw the job.
-        curl -s "$url" | grep -q '^bench_jobs_total{kind="chirp",outcome="ok"} 1' ||
+        # (Read whole first: grep -q would close the pipe on curl.)
+        text=$(curl -s "$url")
+        grep -q '^bench_jobs_total{kind="chirp",outcome="ok"} 1' <<<"$text" ||
             die "the metrics did not count the job"
     fi
     stop_daemon
