@@ -4,8 +4,9 @@
 # `--metrics`, and on one with `--metrics` and a scraper fetching
 # /metrics every second for the whole job, run alternately (without,
 # with, with, without, ...) so that both see the same machine. Prints
-# each job's p99 and, at the end, the medians and their ratio with /
-# without (the bar: within 1.10).
+# each job's p99 and, at the end, the medians and their ratio to without
+# (the bar: within 1.10). A third kind of daemon, with `--metrics` and no
+# scraper, separates what the metrics cost from what the scraping does.
 #
 # What is compared: `timing.wake_latency_p99_us` of each job's summary
 # (`bench chirp --daemon --json`): the loop's own wake-up latency over the
@@ -22,8 +23,8 @@
 #            [-i INTERVAL_S] [-o] [-B BENCH]
 #   -d  chirp sweep of each job, s (default 20; the job adds 5.5 s of
 #       lead-in and tail)
-#   -r  rounds; each runs one job without and one with metrics, the order
-#       alternating (default 5)
+#   -r  rounds; each runs one job on each kind of daemon, the order
+#       rotating (default 6)
 #   -c  CPU the loop is pinned to (default: the last one online)
 #   -i  scrape interval, s (default 1)
 #   -o  run the scraper off the loop's CPU (taskset)
@@ -34,7 +35,7 @@
 set -euo pipefail
 
 duration=20
-rounds=5
+rounds=6
 cpu=$(( $(nproc) - 1 ))
 interval=1
 off_cpu=
@@ -119,10 +120,14 @@ job_p99() {
     python3 -c 'import json, sys; print("%.1f" % json.load(open(sys.argv[1]))["timing"]["wake_latency_p99_us"])' "$work/job.json"
 }
 
-run() { # $1: without | with
-    if [ "$1" = with ]; then
+run() { # $1: without | unscraped | with
+    if [ "$1" = without ]; then
+        start_daemon
+    else
         start_daemon --metrics 127.0.0.1:0
         [ -n "$url" ] || die "no metrics address in: $(cat "$work/serve.err")"
+    fi
+    if [ "$1" = with ]; then
         scrape=(python3 -c '
 import sys, time, urllib.request
 url, every = sys.argv[1], float(sys.argv[2])
@@ -138,15 +143,15 @@ while True:
         if [ -n "$off_cpu" ]; then scrape=(taskset -c "$others" "${scrape[@]}"); fi
         "${scrape[@]}" &
         scraper=$!
-    else
-        start_daemon
     fi
     p99=$(job_p99)
     if [ -n "$scraper" ]; then
         kill "$scraper" 2>/dev/null; wait "$scraper" 2>/dev/null || true
         scraper=
-        # The scrapes reached the daemon: its counters saw the job.
-        # (Read whole first: grep -q would close the pipe on curl.)
+    fi
+    if [ "$1" != without ]; then
+        # The metrics saw the job. (Read whole first: grep -q would close
+        # the pipe on curl.)
         text=$(curl -s "$url")
         grep -q '^bench_jobs_total{kind="chirp",outcome="ok"} 1' <<<"$text" ||
             die "the metrics did not count the job"
@@ -154,22 +159,28 @@ while True:
     stop_daemon
 }
 
-without=(); with=()
+# Three kinds of daemon, in a rotating order (a Latin square over the
+# rounds): without --metrics; with --metrics, nobody scraping (the tap and
+# the server alone); with --metrics scraped every second (the bar).
+modes=(without unscraped with)
+declare -A results
 for round in $(seq 1 "$rounds"); do
-    if [ $((round % 2)) -eq 1 ]; then order=(without with); else order=(with without); fi
+    k=$(( (round - 1) % 3 ))
+    order=("${modes[@]:$k}" "${modes[@]:0:$k}")
     for mode in "${order[@]}"; do
         run "$mode"
-        if [ "$mode" = with ]; then with+=("$p99"); else without+=("$p99"); fi
-        printf 'round %d %-7s metrics: p99 wake-up latency %s µs\n' "$round" "$mode" "$p99"
+        results[$mode]+="$p99 "
+        printf 'round %d %-9s p99 wake-up latency %s µs\n' "$round" "$mode" "$p99"
     done
 done
 
-python3 - "${without[*]}" "${with[*]}" <<'EOF'
+python3 - "${results[without]}" "${results[unscraped]}" "${results[with]}" <<'EOF'
 import statistics, sys
-a = [float(x) for x in sys.argv[1].split()]
-b = [float(x) for x in sys.argv[2].split()]
-ma, mb = statistics.median(a), statistics.median(b)
-print(f"median p99 wake-up latency: without metrics {ma:.1f} µs, with a scrape every second {mb:.1f} µs: ratio {mb / ma:.3f} (bar: 1.10)")
-print(f"  without: {' '.join(f'{x:.1f}' for x in sorted(a))}")
-print(f"  with:    {' '.join(f'{x:.1f}' for x in sorted(b))}")
+names = ["without --metrics", "--metrics, unscraped", "--metrics, scraped every second"]
+runs = [[float(x) for x in a.split()] for a in sys.argv[1:]]
+base = statistics.median(runs[0])
+for name, r in zip(names, runs):
+    m = statistics.median(r)
+    print(f"{name:32s} median p99 {m:6.1f} µs  ratio {m / base:.3f}  ({' '.join(f'{x:.1f}' for x in sorted(r))})")
+print("bar: scraped every second within 1.10 of without")
 EOF
