@@ -501,6 +501,90 @@ fn hold_and_a_fault_between_jobs_allocate_nothing() {
     assert_eq!(allocations, 0, "{allocations} allocations in the hold");
 }
 
+/// The daemon's metrics tap (`bench serve --metrics`) on the real-time
+/// tick allocates nothing: a job and the hold after it, counted into the
+/// buckets and offered every 0.1 s of loop time, the queue drained by
+/// another thread (not counted), the offers at the job's end included.
+#[test]
+fn the_metrics_tap_allocates_nothing() {
+    let mut cfg = ch5();
+    cfg.chirp.duration_s = Some(0.5);
+    cfg.chirp.taper_s = Some(0.1);
+    cfg.chirp.lead_in_s = 0.1;
+    cfg.chirp.tail_s = 0.1;
+    cfg.validate(Path::new("ch5")).unwrap();
+    let mut stage = SimStage::new(cfg.sim_params(7)).unwrap();
+    let info = stage.configure(cfg.loop_.period_ns()).unwrap();
+    let chirp = Chirp::new(&cfg.chirp, info.period_ns as f64 * 1e-9);
+    let opts = LoopOptions {
+        period_ns: info.period_ns,
+        pacing: Pacing::RealTime {
+            priority: 10,
+            cpu: None,
+        },
+        timing_interval_ticks: 500,
+        safety: bench::rt::supervisor::SupervisorConfig {
+            max_missed_deadlines: u64::MAX,
+            ..cfg.supervisor(&info)
+        },
+        max_ticks: chirp.total_ticks(),
+    };
+    let (tap, mut counts) = rt::tap::loop_tap(info.period_ns);
+    let (mut producer, mut consumer) = rt::RecordQueue::new(1 << 16);
+    let room = std::sync::Arc::clone(&producer.room);
+    let loop_done = std::sync::Arc::new(AtomicBool::new(false));
+    let done = std::sync::Arc::clone(&loop_done);
+    let drain = std::thread::spawn(move || {
+        let mut total = rt::tap::LoopCounts::default();
+        let mut batches = 0u64;
+        while !done.load(std::sync::atomic::Ordering::Acquire) || !counts.is_empty() {
+            while consumer.pop().is_ok() {}
+            room.made_room(0, 1 << 16);
+            while let Ok(c) = counts.pop() {
+                total.add(&c);
+                batches += 1;
+            }
+            std::thread::sleep(std::time::Duration::from_millis(1));
+        }
+        (total, batches)
+    });
+    let (end, allocations) = std::thread::spawn(move || {
+        let mut lp = rt::Loop::new(&mut stage, &opts, info.clock);
+        lp.set_tap(tap, Some(|_: &SimStage| None));
+        let mut job = Counted {
+            inner: ChirpJob::new(chirp),
+            from_tick: 100,
+        };
+        let end = lp.run_job(
+            &mut job,
+            &mut producer,
+            opts.max_ticks,
+            &AtomicBool::new(false),
+            &AtomicU64::new(0),
+        );
+        // 0.4 s of hold: four more offers.
+        let mut n = 0u64;
+        lp.hold(&mut rt::HoldJob, |_| {
+            n += 1;
+            n >= 2_000
+        });
+        let allocations = stop_counting();
+        (end.into_report(Vec::new()), allocations)
+    })
+    .join()
+    .unwrap();
+    loop_done.store(true, std::sync::atomic::Ordering::Release);
+    let (total, batches) = drain.join().unwrap();
+    assert_eq!(end.stop, StopReason::Finished);
+    assert_eq!(allocations, 0, "{allocations} allocations");
+    // Every tick reached the reader: the job's and the hold's, offered
+    // about every 500 ticks (0.1 s at 5 kHz).
+    assert_eq!(total.job_ticks, end.ticks);
+    assert_eq!(total.hold_ticks, 2_000);
+    assert_eq!(total.wake.count(), end.ticks + 2_000);
+    assert!(batches >= (end.ticks + 2_000) / 500, "{batches} batches");
+}
+
 /// The counter does count: a tick that allocates is caught.
 #[test]
 fn counter_sees_an_allocating_job() {

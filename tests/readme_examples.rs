@@ -135,9 +135,16 @@ fn adapt(line: &str, campaign_done: &mut bool) -> (Vec<String>, String) {
     }
     // A system daemon's socket: this daemon's.
     l = l.replace("/run/bench/bench.sock", "$XDG_RUNTIME_DIR/bench.sock");
-    // A daemon in the background: wait for its socket.
-    if l.starts_with("bench serve --socket") && l.trim_end().ends_with('&') {
-        l = format!("{} wait_for \"$XDG_RUNTIME_DIR/bench.sock\"", l.trim_end());
+    // A daemon in the background: wait for its socket (the one it names).
+    if l.starts_with("bench serve --socket") {
+        let code = l.split(" #").next().unwrap_or("").trim_end().to_string();
+        if code.ends_with('&') {
+            let socket = code
+                .split('"')
+                .nth(1)
+                .unwrap_or("$XDG_RUNTIME_DIR/bench.sock");
+            l = format!("{code} wait_for \"{socket}\"");
+        }
     }
     // An exit the example's comment announces (9: a flagged fit, the
     // figure written).

@@ -40,6 +40,16 @@ pub(super) struct ServeArgs {
     /// jump, out_of_range.
     #[arg(long, value_name = "KIND@T_S")]
     inject_fault: Option<String>,
+    /// Serve Prometheus metrics at http://ADDR/metrics while the daemon
+    /// runs (loop timing histograms, overruns, faults, supervisor state,
+    /// jobs, recorder, link; off the loop's thread). ADDR: PORT or
+    /// localhost:PORT (loopback), or IP:PORT to listen on another
+    /// interface, which must be written out (0.0.0.0:9464: every
+    /// interface); host names are refused. Without a value
+    /// 127.0.0.1:9464. Port 0: the OS picks one (printed). An address in
+    /// use stops the daemon before it opens the bench (exit 2).
+    #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = bench::daemon::metrics::DEFAULT_ADDR)]
+    metrics: Option<String>,
     #[command(flatten)]
     live: super::LiveArgs,
 }
@@ -180,6 +190,15 @@ pub(super) fn serve(args: ServeArgs) -> ExitCode {
         Ok(f) => f,
         Err(e) => return bad_input(format!("--inject-fault: {e}")),
     };
+    let metrics = match args
+        .metrics
+        .as_deref()
+        .map(|a| bench::daemon::metrics::parse_addr(a).map_err(|e| format!("--metrics {a:?}: {e}")))
+        .transpose()
+    {
+        Ok(m) => m,
+        Err(e) => return bad_input(e),
+    };
     // On while the daemon runs: every job's channels, as they are written.
     let _live = match args.live.start(cfg.loop_.cpu) {
         Ok(l) => l,
@@ -196,6 +215,7 @@ pub(super) fn serve(args: ServeArgs) -> ExitCode {
         socket_group: args.socket_group,
         recordings,
         backend: args.backend,
+        metrics,
     };
     match bench::daemon::serve(opts) {
         Ok(()) => ExitCode::SUCCESS,

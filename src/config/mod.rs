@@ -291,6 +291,19 @@ impl BenchConfig {
     pub fn to_toml(&self) -> String {
         toml::to_string(self).unwrap_or_else(|e| format!("# not serialisable: {e}"))
     }
+
+    /// SHA-256 of [`Self::to_toml`], 64 lower-case hex digits: the config
+    /// hash a recording holds (`bench.config` `sha256`, `bench.run`
+    /// `config_sha256`) and `bench serve --metrics` reports
+    /// (`bench_build_info{config_hash}`). Two configs that resolve to the
+    /// same keys and values have the same hash, whatever their comments.
+    pub fn sha256_hex(&self) -> String {
+        use sha2::Digest;
+        sha2::Sha256::digest(self.to_toml().as_bytes())
+            .iter()
+            .map(|b| format!("{b:02x}"))
+            .collect()
+    }
 }
 
 #[cfg(test)]

@@ -16,6 +16,9 @@
 //! runtime serving JSON lines on a Unix domain socket; it talks to the
 //! owner through a channel, so nothing on it can block the loop. The wire
 //! format lives in `protocol.rs`, the client of `--daemon` in [`client`].
+//! With `--metrics`, [`metrics`] serves Prometheus metrics from a thread
+//! and runtime of its own: the loop hands it its counts wait-free
+//! ([`crate::rt::tap`]), the owner thread its jobs and faults.
 //! The CLI uses it (its layer rule is at the end of this header).
 //!
 //! # Protocol
@@ -84,6 +87,7 @@
 
 pub mod client;
 mod jobs;
+pub mod metrics;
 mod owner;
 mod protocol;
 mod socket;
@@ -183,6 +187,9 @@ pub struct ServeOptions {
     /// A simulator fault to inject, `at_s` after the daemon starts (tests
     /// of supervision between jobs).
     pub inject: Option<bench_hal::sim::ScheduledFault>,
+    /// Serve Prometheus metrics on this address (`--metrics`,
+    /// [`metrics::parse_addr`]); `None`: no metrics server.
+    pub metrics: Option<std::net::SocketAddr>,
 }
 
 /// Why the daemon did not start or stopped with an error.
@@ -273,6 +280,14 @@ fn hold_factory(
 /// [`ServeError::Input`] for an unusable socket path, a busy socket, a
 /// device that cannot be opened; [`ServeError::Other`] otherwise.
 pub fn serve(opts: ServeOptions) -> Result<(), ServeError> {
+    // First: an address in use stops the daemon before anything else.
+    let metrics_listener = opts
+        .metrics
+        .map(|addr| {
+            metrics::bind(addr)
+                .map_err(|reason| ServeError::Input(RunError::option("metrics", addr, reason)))
+        })
+        .transpose()?;
     prepare_socket(&opts.socket, opts.socket_group.as_deref())?;
     // The recordings directory follows the files' policy (owner writes,
     // group reads; `outputs::DIR_MODE`), whatever the umask lets through.
@@ -309,6 +324,7 @@ pub fn serve(opts: ServeOptions) -> Result<(), ServeError> {
     )
     .map_err(ServeError::Input)?;
     let (events, _) = broadcast::channel::<String>(1024);
+    let backend_name = info.name.clone();
     let status = Arc::new(Mutex::new(Status {
         state: "disabled",
         fault: None,
@@ -357,13 +373,48 @@ pub fn serve(opts: ServeOptions) -> Result<(), ServeError> {
         safety,
         max_ticks: u64::MAX,
     };
+    // The metrics: the loop's counts handed off wait-free to the
+    // metrics thread, which serves them with the owner's.
+    let (tap, metrics) = match metrics_listener {
+        Some(listener) => {
+            let (tap, counts) = crate::rt::tap::loop_tap(info.period_ns);
+            let m = Arc::new(metrics::Metrics::new(
+                Arc::clone(&status),
+                counts,
+                metrics::BuildInfo {
+                    version: env!("CARGO_PKG_VERSION"),
+                    config_hash: opts.config.sha256_hex(),
+                    backend: backend_name,
+                },
+            ));
+            let server =
+                metrics::MetricsServer::start(listener, Arc::clone(&m), opts.config.loop_.cpu)
+                    .map_err(ServeError::Other)?;
+            // Never a panic on a stderr that cannot be written.
+            let _ = writeln!(
+                std::io::stderr(),
+                "bench serve: metrics on {}",
+                server.url()
+            );
+            (Some(tap), Some((m, server)))
+        }
+        None => (None, None),
+    };
     let rt_thread = {
         let loop_status = Arc::clone(&loop_status);
         let clock = info.clock;
         std::thread::Builder::new()
             .name("bench-rt".into())
             .spawn(move || {
-                run_service(&mut stage, &loop_opts, clock, req_rx, rep_tx, &loop_status);
+                run_service(
+                    &mut stage,
+                    &loop_opts,
+                    clock,
+                    req_rx,
+                    rep_tx,
+                    &loop_status,
+                    tap,
+                );
                 drop(stage);
             })
             .map_err(|e| ServeError::Other(format!("cannot start the real-time thread: {e}")))?
@@ -375,6 +426,7 @@ pub fn serve(opts: ServeOptions) -> Result<(), ServeError> {
             events: events.clone(),
             safety: loop_opts.safety,
             hold,
+            metrics: metrics.as_ref().map(|(m, _)| Arc::clone(m)),
         };
         std::thread::Builder::new()
             .name("bench-owner".into())
@@ -445,6 +497,8 @@ pub fn serve(opts: ServeOptions) -> Result<(), ServeError> {
     // The owner finishes the job (its recording) before it sees Shutdown.
     let _ = owner_thread.join();
     let _ = rt_thread.join();
+    // The metrics are served until the loop has stopped.
+    drop(metrics);
     let _ = std::fs::remove_file(&opts.socket);
     result
 }

@@ -46,6 +46,8 @@ pub(super) struct OwnerShared {
     /// Makes a fresh hold job for each `enable` (`[daemon]
     /// hold_controller`), if one is configured.
     pub(super) hold: Option<HoldFactory>,
+    /// `--metrics`: jobs, faults and the recorder are counted here.
+    pub(super) metrics: Option<Arc<super::metrics::Metrics>>,
 }
 
 /// Makes the hold controller's job: the controller holds the position the
@@ -197,7 +199,12 @@ impl Active {
     /// far within [`PREPARATION_STOP_GRACE`], it is abandoned: it never
     /// touched the stage. With `shutting_down` a job the loop already gave
     /// back is not waited for either.
-    fn step(&mut self, client: &mut ServiceClient, shutting_down: bool) -> Option<Outcome> {
+    fn step(
+        &mut self,
+        client: &mut ServiceClient,
+        shutting_down: bool,
+        metrics: Option<&super::metrics::Metrics>,
+    ) -> Option<Outcome> {
         let stopped = || self.handle.stop.load(std::sync::atomic::Ordering::Relaxed);
         while let Ok(req) = self.requests.pop() {
             let reply = match req {
@@ -218,10 +225,18 @@ impl Active {
                 }
                 LoopRequest::Job(ticket) => {
                     self.in_loop = true;
+                    if let Some(m) = metrics {
+                        m.job_in_loop(Arc::clone(&ticket.out.room));
+                    }
                     let r = client.call(LoopRequest::Job(ticket));
                     self.loop_done = true;
                     match r {
-                        Some(r) => r,
+                        Some(r) => {
+                            if let (Some(m), LoopReply::JobDone(t)) = (metrics, &r) {
+                                m.job_out_of_loop(t.end.as_ref().map_or(0, |e| e.dropped_records));
+                            }
+                            r
+                        }
                         None => return Some(Outcome::Finished(Err(gone_loop()))),
                     }
                 }
@@ -273,8 +288,14 @@ pub(super) fn owner(mut client: ServiceClient, rx: mpsc::Receiver<OwnerCmd>, sha
         events,
         safety,
         hold,
+        metrics,
     } = shared;
+    let metrics = metrics.as_deref();
     let set_state = |state: &'static str, fault: Option<FaultStatus>| {
+        // Every latch comes here once, with its fault.
+        if let (Some(m), "faulted", Some(f)) = (metrics, state, fault.as_ref()) {
+            m.fault(f.kind);
+        }
         let mut s = lock(&status);
         s.state = state;
         if fault.is_some() || state != "faulted" {
@@ -390,7 +411,7 @@ pub(super) fn owner(mut client: ServiceClient, rx: mpsc::Receiver<OwnerCmd>, sha
                     .stop
                     .store(true, std::sync::atomic::Ordering::Relaxed);
             }
-            match a.step(&mut client, shutting_down) {
+            match a.step(&mut client, shutting_down, metrics) {
                 None => {}
                 Some(Outcome::Finished(result)) => {
                     let (reply, compute) = match active.take() {
@@ -400,6 +421,14 @@ pub(super) fn owner(mut client: ServiceClient, rx: mpsc::Receiver<OwnerCmd>, sha
                     {
                         let mut s = lock(&status);
                         s.jobs_run += 1;
+                        if let (Some(m), Some(j)) = (metrics, s.job.as_ref()) {
+                            let outcome = match &result {
+                                Ok(_) => "ok",
+                                Err((api, _)) => api.kind.as_str(),
+                            };
+                            let rec = j.recording.as_deref().map(std::path::Path::new);
+                            m.job_finished(j.kind, outcome, rec);
+                        }
                         if let Some(j) = s.job.take() {
                             match &result {
                                 Ok(_) => tracing::info!(
@@ -478,6 +507,13 @@ pub(super) fn owner(mut client: ServiceClient, rx: mpsc::Receiver<OwnerCmd>, sha
                         .as_ref()
                         .and_then(|j| j.recording.clone())
                         .unwrap_or_default();
+                    if let (Some(m), Some(kind)) =
+                        (metrics, lock(&status).job.as_ref().map(|j| j.kind))
+                    {
+                        let rec = Some(std::path::Path::new(&recording))
+                            .filter(|_| !recording.is_empty());
+                        m.job_finished(kind, ApiErrorKind::Interrupted.as_str(), rec);
+                    }
                     tracing::warn!(
                         job = handle.id,
                         recording = %recording,

@@ -38,6 +38,22 @@ pub enum ApiErrorKind {
 }
 
 impl ApiErrorKind {
+    /// The kind's name on the wire (`bad_params`, `fault`, …).
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::BadRequest => "bad_request",
+            Self::UnknownCommand => "unknown_command",
+            Self::BadParams => "bad_params",
+            Self::Busy => "busy",
+            Self::Faulted => "faulted",
+            Self::Refused => "refused",
+            Self::Fault => "fault",
+            Self::Hal => "hal",
+            Self::Interrupted => "interrupted",
+            Self::Error => "error",
+        }
+    }
+
     /// The kind a run's error answers with.
     pub fn of_run(e: &RunError) -> Self {
         match e {
@@ -413,6 +429,25 @@ mod tests {
         match parse_request(line) {
             Ok(_) => panic!("accepted {:?}", String::from_utf8_lossy(line)),
             Err((id, e)) => (id.get().to_string(), e),
+        }
+    }
+
+    #[test]
+    fn error_kind_names_are_the_wire_names() {
+        use ApiErrorKind as K;
+        for k in [
+            K::BadRequest,
+            K::UnknownCommand,
+            K::BadParams,
+            K::Busy,
+            K::Faulted,
+            K::Refused,
+            K::Fault,
+            K::Hal,
+            K::Interrupted,
+            K::Error,
+        ] {
+            assert_eq!(serde_json::to_value(k).unwrap(), json!(k.as_str()));
         }
     }
 

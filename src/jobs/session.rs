@@ -405,14 +405,7 @@ pub fn open_recording(
     let start_ns = u64::try_from(start.as_nanos()).unwrap_or(u64::MAX);
     recorder.set_time_origin_ns(start_ns);
     let toml = cfg.to_toml();
-    let config_sha256 = {
-        use sha2::Digest;
-        let digest = sha2::Sha256::digest(toml.as_bytes());
-        digest
-            .iter()
-            .map(|b| format!("{b:02x}"))
-            .collect::<String>()
-    };
+    let config_sha256 = cfg.sha256_hex();
     let mut meta = BTreeMap::new();
     meta.insert("toml".to_string(), toml);
     meta.insert("path".to_string(), opts.config_path.display().to_string());

@@ -152,7 +152,9 @@ fn write_queue<F: FnMut(&Record)>(
         // Read `done` before looking at the queue: if it was set, every
         // record pushed before it is visible to the `slots()` below.
         let finishing = done.load(Ordering::Acquire) || consumer.is_abandoned();
-        let n = consumer.slots().min(MAX_BATCH);
+        let queued = consumer.slots();
+        room.observe_queue(queued, consumer.buffer().capacity());
+        let n = queued.min(MAX_BATCH);
         if n > 0 {
             let chunk = consumer
                 .read_chunk(n)
@@ -173,6 +175,7 @@ fn write_queue<F: FnMut(&Record)>(
                 {
                     recorder.flush_chunk()?;
                     stats.chunks_flushed += 1;
+                    flushed(recorder, room);
                     dirty = false;
                     last_flush_log = Some(t);
                     last_flush_wall = Instant::now();
@@ -184,6 +187,7 @@ fn write_queue<F: FnMut(&Record)>(
         if dirty && last_flush_wall.elapsed() >= chunk_interval {
             recorder.flush_chunk()?;
             stats.chunks_flushed += 1;
+            flushed(recorder, room);
             dirty = false;
             last_flush_wall = Instant::now();
             last_flush_log = last_written_log;
@@ -198,8 +202,17 @@ fn write_queue<F: FnMut(&Record)>(
     if dirty {
         recorder.flush_chunk()?;
         stats.chunks_flushed += 1;
+        flushed(recorder, room);
     }
     Ok(stats)
+}
+
+/// After a chunk flush: the recording's size on disk, for the daemon's
+/// metrics (one `stat`, on the writer thread).
+fn flushed(recorder: &Recorder, room: &QueueRoom) {
+    if let Ok(m) = std::fs::metadata(recorder.part_path()) {
+        room.set_file_bytes(m.len());
+    }
 }
 
 fn record_tick_time(r: &Record) -> (u64, f64) {

@@ -23,6 +23,12 @@ pub const ROOM_WAIT_TIMEOUT: std::time::Duration = std::time::Duration::from_mil
 /// slots, fences, then takes `waiting`. Either the loop sees the room, or
 /// the writer sees the flag and unparks (an unpark before the park makes
 /// the park return at once).
+///
+/// The writer also leaves here what it last saw, for the daemon's metrics
+/// (read by another thread, never by the loop): how full the queue was
+/// when it came for a batch ([`QueueRoom::fill_ratio`]) and how many bytes
+/// of the recording were on disk at its last chunk flush
+/// ([`QueueRoom::file_bytes`]).
 #[derive(Debug, Default)]
 pub struct QueueRoom {
     waiting: AtomicBool,
@@ -31,6 +37,12 @@ pub struct QueueRoom {
     unparks: AtomicU64,
     /// Parks that ended on [`ROOM_WAIT_TIMEOUT`] instead of a wake-up.
     timeouts: AtomicU64,
+    /// Records waiting when the writer last came for a batch.
+    queued: AtomicU64,
+    /// The queue's capacity, records (0 until the writer's first look).
+    capacity: AtomicU64,
+    /// Bytes of the recording file at the writer's last chunk flush.
+    file_bytes: AtomicU64,
 }
 
 impl QueueRoom {
@@ -90,6 +102,32 @@ impl QueueRoom {
             self.unparks.load(Ordering::Relaxed),
             self.timeouts.load(Ordering::Relaxed),
         )
+    }
+
+    /// Writer side, as it comes for a batch: `queued` records wait, out
+    /// of `capacity`.
+    pub fn observe_queue(&self, queued: usize, capacity: usize) {
+        self.queued.store(queued as u64, Ordering::Relaxed);
+        self.capacity.store(capacity as u64, Ordering::Relaxed);
+    }
+
+    /// How full the queue was when the writer last came for a batch, 0 to
+    /// 1 (0 before its first look).
+    pub fn fill_ratio(&self) -> f64 {
+        match self.capacity.load(Ordering::Relaxed) {
+            0 => 0.0,
+            c => self.queued.load(Ordering::Relaxed) as f64 / c as f64,
+        }
+    }
+
+    /// Writer side, after a chunk flush: the recording file's size, bytes.
+    pub fn set_file_bytes(&self, bytes: u64) {
+        self.file_bytes.store(bytes, Ordering::Relaxed);
+    }
+
+    /// Bytes of the recording file at the writer's last chunk flush.
+    pub fn file_bytes(&self) -> u64 {
+        self.file_bytes.load(Ordering::Relaxed)
     }
 }
 

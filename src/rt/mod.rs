@@ -14,6 +14,7 @@ mod job;
 mod report;
 pub mod service;
 pub mod supervisor;
+pub mod tap;
 mod tick;
 pub mod timing;
 

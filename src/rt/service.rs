@@ -131,7 +131,9 @@ impl LoopStatus {
 
 /// Runs the daemon's loop on the calling thread until
 /// [`LoopRequest::Shutdown`] (or the request queue's other end is gone).
-/// Leaves the stage at 0 A, disabled.
+/// Leaves the stage at 0 A, disabled. With `tap`, every real-time tick
+/// is counted for the daemon's metrics, with the backend's link counters
+/// ([`crate::rt::tap`]).
 pub fn run_service(
     stage: &mut AnyStage,
     opts: &LoopOptions,
@@ -139,8 +141,12 @@ pub fn run_service(
     mut requests: rtrb::Consumer<LoopRequest>,
     mut replies: rtrb::Producer<LoopReply>,
     status: &LoopStatus,
+    tap: Option<crate::rt::tap::LoopTap>,
 ) {
     let mut lp = Loop::new(stage, opts, clock);
+    if let Some(tap) = tap {
+        lp.set_tap(tap, Some(AnyStage::link_counters));
+    }
     for w in lp.warnings() {
         tracing::warn!("{w}");
     }

@@ -62,9 +62,11 @@ use crate::record::queue::{Emitter, RecordQueue};
 use crate::record::topics::{
     EventKind, EventRecord, FaultKind, Record, SampleRecord, SupervisorState, TimingRecord,
 };
+use crate::rt::backend::LinkCounters;
 use crate::rt::job::{pace_batch_ticks, Job, JobOutput, LoopOptions, Pacing};
 use crate::rt::report::{JobEnd, LoopReport, RawStop};
 use crate::rt::supervisor::{HalCall, HalVerdict, StallBounds, Supervisor};
+use crate::rt::tap::LoopTap;
 use crate::rt::timing::TickTiming;
 use bench_hal::os::{
     make_realtime, monotonic_ns as now_ns, sleep_until_ns, CpuDmaLatency, DmaLatency,
@@ -242,6 +244,11 @@ pub struct Loop<'s, S: Stage> {
     /// The `/dev/cpu_dma_latency` request, held while the loop lives.
     _dma_guard: Option<CpuDmaLatency>,
     dma_latency: DmaLatency,
+    /// The daemon's metrics: counts of the real-time ticks, handed off
+    /// wait-free ([`Loop::set_tap`]).
+    tap: Option<LoopTap>,
+    /// Reads the backend's link counters for the tap (hardware).
+    link_probe: Option<fn(&S) -> Option<LinkCounters>>,
 }
 
 /// The cost of one `CLOCK_MONOTONIC` read, ns: the smallest difference of
@@ -302,6 +309,26 @@ impl<'s, S: Stage> Loop<'s, S> {
             clock_read_ns: clock_read_cost_ns(),
             _dma_guard: dma_guard,
             dma_latency,
+            tap: None,
+            link_probe: None,
+        }
+    }
+
+    /// Counts every tick the loop runs in real time into `tap` from now
+    /// on, for the daemon's metrics ([`crate::rt::tap`]); `link_probe`
+    /// reads the backend's link counters at each offer. Not on a tick.
+    pub fn set_tap(&mut self, tap: LoopTap, link_probe: Option<fn(&S) -> Option<LinkCounters>>) {
+        self.tap = Some(tap);
+        self.link_probe = link_probe;
+    }
+
+    /// Offers the tap's counts now (with the link counters). No
+    /// allocation.
+    #[inline]
+    fn offer_tap(&mut self) {
+        if let Some(tap) = self.tap.as_mut() {
+            let link = self.link_probe.and_then(|probe| probe(&*self.stage));
+            tap.offer(link);
         }
     }
 
@@ -531,6 +558,10 @@ impl<'s, S: Stage> Loop<'s, S> {
                 t.wake.record(wake_ns);
             }
             t.compute.record(compute_ns);
+        }
+        // The metrics count real-time ticks only.
+        if let (Some(tap), false) = (self.tap.as_mut(), self.backpressure) {
+            tap.timed(wake_ns, compute_ns, overran);
         }
         let mut next = deadline + self.period_ns;
         // Deadlines this tick made the loop miss (0 on time).

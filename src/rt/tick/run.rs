@@ -105,6 +105,12 @@ impl<'s, S: Stage> Loop<'s, S> {
         } else {
             (0, false)
         };
+        if let (Some(tap), false) = (self.tap.as_mut(), self.backpressure) {
+            let late = sample.is_some_and(|s| s.flags.command_late);
+            if tap.ticked(em.records(), late) {
+                self.offer_tap();
+            }
+        }
         if missed > 0 {
             em.event(
                 cur.tick,
@@ -298,6 +304,8 @@ impl<'s, S: Stage> Loop<'s, S> {
             ));
         }
         em.event(last, t_end, EventKind::LoopStopped, &self.sup, f64::NAN);
+        // The job's last ticks reach the metrics now, not 0.1 s later.
+        self.offer_tap();
         JobEnd {
             ticks: cur.tick,
             stop: stop_reason.unwrap_or(RawStop::TickLimit),
