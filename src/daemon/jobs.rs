@@ -162,6 +162,7 @@ pub(super) fn job_spec(ctx: &Ctx, request: &JobRequest, id: u64) -> Result<Accep
                 progress: false,
                 backend: Some(ctx.spec.clone()),
                 inject: None,
+                catalogue: true,
             };
             Ok(Accepted {
                 spec: JobSpec::Chirp(Box::new(opts)),
@@ -205,6 +206,7 @@ pub(super) fn job_spec(ctx: &Ctx, request: &JobRequest, id: u64) -> Result<Accep
                 config: cfg,
                 config_path: ctx.config_path.clone(),
                 verify,
+                catalogue: true,
             };
             Ok(Accepted {
                 spec: JobSpec::Control(Box::new(opts)),
