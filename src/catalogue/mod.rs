@@ -268,9 +268,9 @@ use ColumnType::{Count, Flag, Real, Text, TimestampUtc, Unsigned};
 
 /// Every column, in file order (the README's *Run catalogue* table).
 pub const COLUMNS: &[Column] = &[
-    col("start_utc", TimestampUtc, "µs, UTC", "`bench.run` `start_time_unix_ns`"),
+    col("start_utc", TimestampUtc, "instant (UTC)", "`bench.run` `start_time_unix_ns`: the run's start"),
     col("host", Text, "—", "`bench.run` `host`"),
-    col("bench_name", Text, "—", "the stem of `bench.config` `path` (`sr4dof-ch5`; the built-in bench: `sr4dof-ch5`)"),
+    col("bench_name", Text, "—", "the stem of `bench.config` `path` (`bench-config/sr4dof-ch2.toml` → `sr4dof-ch2`; the built-in bench → `sr4dof-ch5`)"),
     col("config_sha256", Text, "—", "`bench.run` `config_sha256`: SHA-256 (hex) of the resolved config TOML"),
     col("bench_version", Text, "—", "`bench.run` `version`"),
     col("job_kind", Text, "—", "`bench.run` `command`: `chirp` or `control`"),

@@ -83,11 +83,8 @@ pub fn catalogue_run(recording: &Path) -> CatalogueEntry {
             warning: None,
         },
         Err(e) => {
-            let warning = format!(
-                "the catalogue row was not written: {}",
-                crate::error::error_chain(&e)
-            );
-            tracing::warn!("{warning}; the run is unaffected (`bench catalogue` rebuilds the catalogue from the recordings)");
+            let warning = crate::error::error_chain(&e);
+            tracing::warn!("the catalogue row was not written: {warning}; the run is unaffected (`bench catalogue` rebuilds the catalogue from the recordings)");
             CatalogueEntry {
                 row: None,
                 warning: Some(warning),
