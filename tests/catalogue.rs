@@ -857,7 +857,8 @@ fn bad_catalogue_flags_exit_2_naming_the_flag_and_write_nothing() {
         (p("missing"), "does not exist"),
         (p("plain-file"), "not a directory"),
         (p("missing/deeper"), "does not exist"),
-        (String::new(), "does not exist"),
+        // The parser refuses an empty value.
+        (String::new(), "value"),
     ] {
         cases.push((
             vec![
@@ -879,7 +880,7 @@ fn bad_catalogue_flags_exit_2_naming_the_flag_and_write_nothing() {
         (p("missing/new.parquet"), None, "directory"),
         (format!("{}/", p("new.parquet")), None, "not a file path"),
         ("/dev/null".into(), Some("--overwrite"), "parquet"),
-        (String::new(), None, "parquet"),
+        (String::new(), None, "value"),
     ] {
         let mut a = vec!["--recordings".into(), recs.clone(), "--out".into(), out];
         a.extend(extra.map(String::from));
