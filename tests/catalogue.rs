@@ -918,3 +918,126 @@ fn bad_catalogue_flags_exit_2_naming_the_flag_and_write_nothing() {
         stderr(&o)
     );
 }
+
+#[path = "common/daemon.rs"]
+mod daemon_fixtures;
+
+/// The daemon's chirp and control jobs append their rows in its
+/// recordings directory (each matching the job's result), and its
+/// `catalogue` job (`bench catalogue --daemon`) gives the rows a local
+/// `bench catalogue` gives over the same directory; its parameters are
+/// checked as the flags are.
+#[test]
+fn the_daemons_jobs_append_rows_and_its_catalogue_job_is_the_local_one() {
+    let d = daemon_fixtures::Daemon::start();
+    let mut c = d.client();
+    let step = c.call(
+        "control",
+        json!({"controller": "fast", "duration_s": 1, "seed": 5, "pace": "off"}),
+    );
+    assert_eq!(step["ok"], true, "{step}");
+    let chirp = c.call(
+        "chirp",
+        json!({"duration_s": 2, "f_start_hz": 5, "seed": 6, "pace": "off"}),
+    );
+    assert_eq!(chirp["ok"], true, "{chirp}");
+    let recordings = d.dir.path().join("rec");
+    for (job, seed) in [(&step["result"], 5), (&chirp["result"], 6)] {
+        let rec = PathBuf::from(job["recording"].as_str().unwrap());
+        assert_eq!(rec.parent().unwrap(), recordings);
+        let row_file = PathBuf::from(job["catalogue"]["row"].as_str().unwrap());
+        assert_eq!(row_file, bench::catalogue::row_path(&rec));
+        let rows = read_rows(&row_file).unwrap();
+        assert_eq!(rows.len(), 1);
+        let row = &rows[0];
+        assert_eq!(text(row, "recording"), Some(rec.display().to_string()));
+        assert_eq!(text(row, "outcome").as_deref(), Some("ok"));
+        assert_eq!(row["seed"], Cell::Unsigned(Some(seed)));
+        let t = &job["timing"];
+        close(
+            real(row, "duration_s"),
+            Some(t["ticks"].as_f64().unwrap() / t["rate_hz"].as_f64().unwrap()),
+            "daemon job",
+        );
+    }
+    close(
+        real(
+            &read_rows(&bench::catalogue::row_path(Path::new(
+                step["result"]["recording"].as_str().unwrap(),
+            )))
+            .unwrap()[0],
+            "phase_margin_deg",
+        ),
+        step["result"]["loop_check"]["model"]["phase_margin_deg"].as_f64(),
+        "daemon step",
+    );
+
+    // The daemon's catalogue job, through the CLI, against a local one.
+    let here = tmp();
+    let o = bench_in(here.path(), &["catalogue", "--daemon", &d.sock(), "--json"]);
+    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+    let remote = json_stdout(&o);
+    let remote_file = PathBuf::from(remote["catalogue"].as_str().unwrap());
+    assert_eq!(remote_file.parent().unwrap(), recordings);
+    let name = remote_file.file_name().unwrap().to_str().unwrap();
+    assert!(
+        name.starts_with("catalogue-") && name.ends_with("-job3.parquet"),
+        "{name}"
+    );
+    let local_file = here.path().join("local.parquet");
+    let o = bench_in(
+        here.path(),
+        &[
+            "catalogue",
+            "--recordings",
+            recordings.to_str().unwrap(),
+            "--out",
+            local_file.to_str().unwrap(),
+            "--json",
+        ],
+    );
+    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+    let local = json_stdout(&o);
+    assert_eq!(remote["rows"], 2);
+    for key in ["rows", "outcomes", "skipped", "recordings"] {
+        assert_eq!(remote[key], local[key], "{key}");
+    }
+    assert_eq!(
+        read_rows(&remote_file).unwrap(),
+        read_rows(&local_file).unwrap()
+    );
+
+    // Its parameters, checked as the flags are.
+    let r = c.call("catalogue", json!({"recordings": "rec"}));
+    assert_eq!(r["error"]["kind"], "bad_params", "{r}");
+    assert!(
+        r["error"]["message"]
+            .as_str()
+            .unwrap()
+            .starts_with("params.recordings"),
+        "{r}"
+    );
+    let missing = d.dir.path().join("missing");
+    let r = c.call("catalogue", json!({"recordings": missing}));
+    assert_eq!(r["error"]["kind"], "bad_params", "{r}");
+    let m = r["error"]["message"].as_str().unwrap();
+    assert!(
+        m.starts_with("params.recordings") && m.contains("does not exist"),
+        "{r}"
+    );
+    let r = c.call("catalogue", json!({"out": "x.parquet"}));
+    assert_eq!(r["error"]["kind"], "bad_params", "{r}");
+    assert!(
+        r["error"]["message"].as_str().unwrap().contains("out"),
+        "{r}"
+    );
+    for flag in ["--out", "--overwrite"] {
+        let mut args = vec!["catalogue", "--daemon", d.socket.to_str().unwrap(), flag];
+        if flag == "--out" {
+            args.push("x.parquet");
+        }
+        let o = bench_in(here.path(), &args);
+        assert_eq!(o.status.code(), Some(2), "{flag}: {}", stderr(&o));
+        assert!(stderr(&o).contains(flag), "{}", stderr(&o));
+    }
+}

@@ -1,9 +1,11 @@
 //! `bench catalogue`: rebuild the run catalogue of a recordings directory
 //! as one compacted Parquet file.
 
-use super::{default_recordings, emit, origin, run_failed, ExitCode};
+use super::serve::via_daemon;
+use super::{default_recordings, emit, origin, refuse_local_only, run_failed, ExitCode};
 use bench::catalogue::COMPACTED_NAME;
-use bench::jobs::catalogue::{run_catalogue, CatalogueOptions, CatalogueSummary};
+use bench::jobs::catalogue::{run_catalogue, CatalogueOptions, CatalogueRequest, CatalogueSummary};
+use bench::jobs::request::JobRequest;
 use bench::outputs::Existing;
 use clap::Args;
 use std::path::PathBuf;
@@ -26,9 +28,27 @@ pub(super) struct CatalogueArgs {
     /// Print the summary as one JSON object.
     #[arg(long)]
     json: bool,
+    /// Submit to a running `bench serve` instead of reading here [SOCKET
+    /// default: $XDG_RUNTIME_DIR/bench.sock, else /run/bench/bench.sock].
+    /// The daemon reads --recordings (default: its own) with its own
+    /// permissions and writes the catalogue in its recordings directory.
+    #[arg(long, value_name = "SOCKET", num_args = 0..=1, default_missing_value = "")]
+    daemon: Option<String>,
 }
 
 pub(super) fn catalogue(a: CatalogueArgs) -> ExitCode {
+    if let Some(sock) = &a.daemon {
+        if let Some(code) = refuse_local_only(
+            &[(a.out.is_some(), "--out"), (a.overwrite, "--overwrite")],
+            "the daemon names its catalogue in its recordings directory",
+        ) {
+            return code;
+        }
+        let request = CatalogueRequest {
+            recordings: a.recordings.as_deref().map(super::absolute_path),
+        };
+        return via_daemon(sock, &JobRequest::Catalogue(request), a.json, print_summary);
+    }
     let recordings = match a.recordings {
         Some(d) => d,
         None => match default_recordings(false, "--recordings DIR") {

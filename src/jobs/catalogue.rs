@@ -110,6 +110,18 @@ pub fn catalogue_ended_run(error: &RunError, recording: &Path) {
     }
 }
 
+/// `bench catalogue` as a job request (the daemon's `catalogue`; the CLI
+/// runs [`CatalogueOptions`] made from its flags).
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CatalogueRequest {
+    /// The directory whose recordings are catalogued (the daemon takes an
+    /// absolute path); `None`: the runner's recordings directory (the
+    /// daemon's `--recordings`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub recordings: Option<PathBuf>,
+}
+
 /// What `bench catalogue` rebuilds.
 #[derive(Debug, Clone)]
 pub struct CatalogueOptions {
