@@ -1041,3 +1041,78 @@ fn the_daemons_jobs_append_rows_and_its_catalogue_job_is_the_local_one() {
         assert!(stderr(&o).contains(flag), "{}", stderr(&o));
     }
 }
+
+/// A killed run appends no row (its recording never finished); once
+/// `bench recover` has made its `.part` a recording, the rebuild gives it
+/// an `error` row with no duration (its loop never stopped), and the
+/// start, seed and operating point it recorded.
+#[test]
+fn a_killed_runs_recovered_recording_is_an_error_row_without_a_duration() {
+    let dir = tmp();
+    let d = dir.path();
+    let before_us = now_us();
+    let mut child = bench()
+        .current_dir(d)
+        .args([
+            "chirp",
+            "--pace",
+            "1",
+            "--duration-s",
+            "20",
+            "--seed",
+            "45",
+            "--out",
+            "killed.mcap",
+        ])
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let part = d.join("killed.mcap.part");
+    let t0 = Instant::now();
+    while !part.exists() {
+        assert!(
+            t0.elapsed() < Duration::from_secs(20),
+            "the paced chirp never started"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    std::thread::sleep(Duration::from_millis(1000));
+    child.kill().unwrap();
+    child.wait().unwrap();
+    assert!(!d.join("catalogue").exists(), "a killed run appends no row");
+    let o = bench_in(
+        d,
+        &["recover", "killed.mcap.part", "--out", "recovered.mcap"],
+    );
+    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+    std::fs::remove_file(&part).unwrap();
+    let o = bench_in(d, &["catalogue", "--recordings", ".", "--json"]);
+    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+    let s = json_stdout(&o);
+    assert_eq!(s["rows"], 1, "{s}");
+    assert_eq!(s["outcomes"], json!({"error": 1}), "{s}");
+    let rows = read_rows(&d.join("catalogue.parquet")).unwrap();
+    let row = &rows[0];
+    assert_eq!(row["duration_s"], Cell::Real(None));
+    assert_eq!(row["seed"], Cell::Unsigned(Some(45)));
+    assert_eq!(row["fault_kind"], Cell::Text(None));
+    close(
+        real(row, "operating_point_m"),
+        Some(DEFAULT_POINT.0),
+        "recovered",
+    );
+    let Cell::TimestampUtc(Some(start)) = row["start_utc"] else {
+        panic!("no start")
+    };
+    assert!(start >= before_us && start <= now_us());
+    assert_eq!(
+        text(row, "recording"),
+        Some(
+            std::path::absolute(d.join("recovered.mcap"))
+                .unwrap()
+                .display()
+                .to_string()
+        )
+    );
+}

@@ -268,13 +268,13 @@ fn row_of(
         Outcome::Error
     };
     row.outcome = Some(outcome.as_str().to_string());
-    let t_s = |e: &Json| e.get("t_s").and_then(Json::as_f64);
+    // Unknown (null) when the loop never stopped: a killed run's recording
+    // recovered by `bench recover`.
     row.duration_s = events
         .iter()
         .rev()
         .find(|e| kind(e).as_deref() == Some("loop_stopped"))
-        .and_then(t_s)
-        .or_else(|| events.iter().filter_map(t_s).reduce(f64::max));
+        .and_then(|e| num(e, "t_s"));
 
     if let Some(s) = chirp {
         chirp_results(&mut row, s);
@@ -439,12 +439,20 @@ mod tests {
     #[test]
     fn without_a_summary_or_a_fault_a_run_is_an_error_and_interrupted_is_stopped() {
         let mut m: BTreeMap<&str, Vec<Json>> = BTreeMap::new();
+        // A killed run, recovered: it never stopped its loop.
         m.insert(
             TOPIC_EVENT,
-            vec![json!({"kind": "loop_stopped", "t_s": 1.0})],
+            vec![json!({"kind": "job_started", "t_s": 0.0})],
         );
         let row = row_of(&run_meta(), None, &m, String::new());
         assert_eq!(row.outcome.as_deref(), Some("error"));
+        assert_eq!(row.duration_s, None);
+        m.get_mut(TOPIC_EVENT)
+            .unwrap()
+            .push(json!({"kind": "loop_stopped", "t_s": 1.0}));
+        let row = row_of(&run_meta(), None, &m, String::new());
+        assert_eq!(row.outcome.as_deref(), Some("error"));
+        assert_eq!(row.duration_s, Some(1.0));
         m.get_mut(TOPIC_EVENT)
             .unwrap()
             .insert(0, json!({"kind": "interrupted", "t_s": 0.5}));

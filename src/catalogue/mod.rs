@@ -51,7 +51,8 @@ pub enum Outcome {
     /// hardware error): 0 A, amplifier disabled.
     Fault,
     /// The loop ended without a fault and without the job's results: its
-    /// tick budget ran out, or its results could not be computed.
+    /// tick budget ran out, or its results could not be computed; or the
+    /// run was killed (its recording recovered by `bench recover`).
     Error,
     /// Stopped by SIGINT/SIGTERM, `stop`, or a daemon client that left.
     Stopped,
@@ -281,8 +282,8 @@ pub const COLUMNS: &[Column] = &[
     col("operating_point_fraction_of_l", Real, "1", "`plant.operating_point_m` / `plant.beam.length_m`"),
     col("mass_asymmetry", Real, "1", "`plant.mass_asymmetry` (Δm23 = m2/m3 − 1)"),
     col("seed", Unsigned, "—", "`bench.run` `seed`"),
-    col("duration_s", Real, "s", "loop time: the `loop_stopped` event's `t_s` (ticks × period)"),
-    col("outcome", Text, "—", "`ok` (the job's summary is recorded), `fault` (a `fault` event), `stopped` (an `interrupted` event), `error` (none of these: the tick budget ran out, or no result could be computed)"),
+    col("duration_s", Real, "s", "loop time: the `loop_stopped` event's `t_s` (ticks × period); null when the loop never stopped (a killed run's recording recovered by `bench recover`)"),
+    col("outcome", Text, "—", "`ok` (the job's summary is recorded), `fault` (a `fault` event), `stopped` (an `interrupted` event), `error` (none of these: the tick budget ran out, no result could be computed, or the run was killed and its recording recovered by `bench recover`)"),
     col("fault_kind", Text, "—", "the first `fault` event's `fault` (`position_limit`, `i2t`, `hal`, …)"),
     col("fit_modes", Count, "—", "chirp: modes of the modal fit (`/sysid/summary` `fit.modes`)"),
     col("mode1_frequency_hz", Real, "Hz", "chirp: the fit's 1st mode by frequency, `frequency_hz`"),
