@@ -612,6 +612,33 @@ fn the_rebuild_gives_the_same_rows_and_skips_what_is_no_recording() {
         "{out_text}"
     );
     assert_eq!(read_rows(&out).unwrap(), rebuilt);
+    // Recordings kept in a bucket: the rows name their objects.
+    let o = bench_in(
+        d,
+        &[
+            "catalogue",
+            "--recordings",
+            ".",
+            "--out",
+            "urls.parquet",
+            "--recording-url",
+            "s3://lab-bench/recordings/",
+        ],
+    );
+    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+    let urls = read_rows(&d.join("urls.parquet")).unwrap();
+    assert_eq!(urls.len(), rebuilt.len());
+    for (u, r) in urls.iter().zip(&rebuilt) {
+        let local = text(r, "recording").unwrap();
+        let name = Path::new(&local).file_name().unwrap().to_str().unwrap();
+        assert_eq!(
+            text(u, "recording"),
+            Some(format!("s3://lab-bench/recordings/{name}"))
+        );
+        let mut u = u.clone();
+        u.insert("recording".into(), r["recording"].clone());
+        assert_eq!(&u, r);
+    }
 }
 
 /// The interpreter of the Python checks: `$BENCH_PYTHON`, else `python3`.
@@ -886,6 +913,26 @@ fn bad_catalogue_flags_exit_2_naming_the_flag_and_write_nothing() {
         a.extend(extra.map(String::from));
         cases.push((a, "--out", reason));
     }
+    for url in [
+        "lab-bench/recordings",
+        "s3://",
+        "3s://b",
+        "s3://a b",
+        "://b",
+    ] {
+        cases.push((
+            vec![
+                "--recordings".into(),
+                recs.clone(),
+                "--out".into(),
+                p("new.parquet"),
+                "--recording-url".into(),
+                url.into(),
+            ],
+            "--recording-url",
+            "URL",
+        ));
+    }
     // The parser's own refusals name the flag too.
     cases.push((vec!["--recordings".into()], "--recordings", "value"));
     cases.push((vec!["--out".into()], "--out", "value"));
@@ -1023,6 +1070,16 @@ fn the_daemons_jobs_append_rows_and_its_catalogue_job_is_the_local_one() {
     let m = r["error"]["message"].as_str().unwrap();
     assert!(
         m.starts_with("params.recordings") && m.contains("does not exist"),
+        "{r}"
+    );
+    let r = c.call(
+        "catalogue",
+        json!({"recording_url": "lab-bench/recordings"}),
+    );
+    assert_eq!(r["error"]["kind"], "bad_params", "{r}");
+    let m = r["error"]["message"].as_str().unwrap();
+    assert!(
+        m.starts_with("params.recording_url") && m.contains("URL"),
         "{r}"
     );
     let r = c.call("catalogue", json!({"out": "x.parquet"}));

@@ -313,7 +313,7 @@ pub const COLUMNS: &[Column] = &[
     col("steady_state_error_std_m", Real, "m", "control: `steady_state_error_std_nm` × 1e-9"),
     col("peak_command_a", Real, "A", "control: `peak_command_a`"),
     col("verify_flagged", Flag, "—", "control `--verify`: `/control/summary` `verify.result.flagged` (null without `--verify`)"),
-    col("recording", Text, "—", "the recording's absolute path"),
+    col("recording", Text, "—", "the recording's absolute path (`bench catalogue --recording-url`: its object's URL)"),
 ];
 
 impl CatalogueRow {

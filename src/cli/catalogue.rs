@@ -25,6 +25,11 @@ pub(super) struct CatalogueArgs {
     /// complete.
     #[arg(long)]
     overwrite: bool,
+    /// Where the recordings are kept as objects (e.g.
+    /// s3://lab-bench/recordings): each row's recording is then this
+    /// prefix and the file's name instead of its local path.
+    #[arg(long, value_name = "URL")]
+    recording_url: Option<String>,
     /// Print the summary as one JSON object.
     #[arg(long)]
     json: bool,
@@ -46,6 +51,7 @@ pub(super) fn catalogue(a: CatalogueArgs) -> ExitCode {
         }
         let request = CatalogueRequest {
             recordings: a.recordings.as_deref().map(super::absolute_path),
+            recording_url: a.recording_url.clone(),
         };
         return via_daemon(sock, &JobRequest::Catalogue(request), a.json, print_summary);
     }
@@ -64,6 +70,7 @@ pub(super) fn catalogue(a: CatalogueArgs) -> ExitCode {
         out_origin: origin(a.out.is_some()),
         recordings,
         existing: Existing::overwrite(a.overwrite),
+        recording_url: a.recording_url.clone(),
     };
     match run_catalogue(&opts) {
         Ok(summary) => match emit(&summary, a.json, print_summary) {

@@ -316,6 +316,7 @@ pub(super) fn job_spec(ctx: &Ctx, request: &JobRequest, id: u64) -> Result<Accep
                 out: beside(&stem, ".parquet"),
                 out_origin: Origin::Default,
                 existing: Existing::Refuse,
+                recording_url: req.recording_url.clone(),
             };
             check_options(&opts).map_err(|e| refused(&e))?;
             Ok(Accepted {

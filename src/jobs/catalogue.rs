@@ -120,6 +120,11 @@ pub struct CatalogueRequest {
     /// daemon's `--recordings`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub recordings: Option<PathBuf>,
+    /// Where the recordings are kept as objects (`s3://lab-bench/recordings`):
+    /// each row's `recording` is then this prefix and the file's name
+    /// ([`object_url`]) instead of its local path.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub recording_url: Option<String>,
 }
 
 /// What `bench catalogue` rebuilds.
@@ -135,6 +140,59 @@ pub struct CatalogueOptions {
     pub out_origin: Origin,
     /// What to do with an existing `out`.
     pub existing: Existing,
+    /// The recordings' object prefix, if they are kept in a bucket (see
+    /// [`CatalogueRequest::recording_url`]).
+    pub recording_url: Option<String>,
+}
+
+/// The object URL of the file `name` under `prefix`: `prefix/name`, one
+/// `/` between them, the name percent-encoded but for RFC 3986's
+/// unreserved characters (`A–Z a–z 0–9 - . _ ~`).
+pub fn object_url(prefix: &str, name: &str) -> String {
+    let mut url = prefix.trim_end_matches('/').to_string();
+    url.push('/');
+    for b in name.bytes() {
+        if b.is_ascii_alphanumeric() || b"-._~".contains(&b) {
+            url.push(char::from(b));
+        } else {
+            url.push_str(&format!("%{b:02X}"));
+        }
+    }
+    url
+}
+
+/// Checks a recordings' object prefix: `SCHEME://REST`, the scheme a
+/// letter then letters, digits, `+`, `-` or `.` (RFC 3986), something
+/// after `://`, and no space or control character.
+///
+/// # Errors
+/// [`RunError::BadOption`] naming `recording_url` and the reason.
+pub fn check_recording_url(url: &str) -> Result<(), RunError> {
+    let bad = |reason: &str| RunError::option("recording_url", url, reason);
+    let Some((scheme, rest)) = url.split_once("://") else {
+        return Err(bad(
+            "is not a URL prefix SCHEME://…, e.g. s3://lab-bench/recordings",
+        ));
+    };
+    let mut chars = scheme.chars();
+    let scheme_ok = chars.next().is_some_and(|c| c.is_ascii_alphabetic())
+        && chars.all(|c| c.is_ascii_alphanumeric() || "+-.".contains(c));
+    if !scheme_ok {
+        return Err(bad(&format!(
+            "{scheme:?} is not a URL scheme (a letter, then letters, digits, +, - or .)"
+        )));
+    }
+    if rest.trim_matches('/').is_empty() {
+        return Err(bad(
+            "names no bucket or host after :// (a URL prefix such as s3://lab-bench/recordings)",
+        ));
+    }
+    if url.chars().any(|c| c.is_whitespace() || c.is_control()) {
+        return Err(bad(
+            "holds a space or a control character, which a URL prefix cannot",
+        ));
+    }
+    Ok(())
 }
 
 /// A recording left out of the rebuilt catalogue.
@@ -245,6 +303,9 @@ pub fn check_options(opts: &CatalogueOptions) -> Result<(), RunError> {
         }
         Err(e) => return Err(RunError::option("recordings", dir.display(), e.to_string())),
     }
+    if let Some(url) = &opts.recording_url {
+        check_recording_url(url)?;
+    }
     if opts.out.extension().and_then(|e| e.to_str()) != Some("parquet") {
         return Err(RunError::option(
             "out",
@@ -259,7 +320,8 @@ pub fn check_options(opts: &CatalogueOptions) -> Result<(), RunError> {
 }
 
 /// `bench catalogue`: one row per recording of `opts.recordings` (as
-/// each run appended it: [`row_of_recording`]), sorted by start time,
+/// each run appended it: [`row_of_recording`]; with
+/// `opts.recording_url`, `recording` is the object's URL), sorted by start time,
 /// written atomically to `opts.out` as one Parquet file. A recording that
 /// gives no row is skipped, named and counted in the summary, never a
 /// failure of the rebuild.
@@ -280,7 +342,12 @@ pub fn run_catalogue(opts: &CatalogueOptions) -> Result<CatalogueSummary, RunErr
     let mut skipped = Vec::new();
     for (path, r) in recordings.iter().zip(read) {
         match r {
-            Ok(row) => rows.push(row),
+            Ok(mut row) => {
+                if let (Some(url), Some(name)) = (&opts.recording_url, path.file_name()) {
+                    row.recording = Some(object_url(url, &name.to_string_lossy()));
+                }
+                rows.push(row)
+            }
             Err(e) => {
                 let reason = match &e {
                     CatalogueError::Io { source, .. } => source.to_string(),
@@ -319,4 +386,55 @@ pub fn run_catalogue(opts: &CatalogueOptions) -> Result<CatalogueSummary, RunErr
         skipped,
         elapsed_s: started.elapsed().as_secs_f64(),
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn an_object_url_is_the_prefix_and_the_encoded_name() {
+        assert_eq!(
+            object_url("s3://lab/recordings/", "chirp-20261124T041336.739Z.mcap"),
+            "s3://lab/recordings/chirp-20261124T041336.739Z.mcap"
+        );
+        assert_eq!(
+            object_url("gs://b", "a b+ü.mcap"),
+            "gs://b/a%20b%2B%C3%BC.mcap"
+        );
+    }
+
+    #[test]
+    fn a_recording_url_must_be_a_url_prefix() {
+        for ok in [
+            "s3://lab-bench/recordings",
+            "https://minio.lab:9000/bench/",
+            "gs://b",
+        ] {
+            assert!(check_recording_url(ok).is_ok(), "{ok}");
+        }
+        for bad in [
+            "",
+            "lab-bench/recordings",
+            "s3://",
+            "s3:///",
+            "3s://b",
+            "s 3://b",
+            "s3://a b",
+            "s3://a\tb",
+            "://b",
+        ] {
+            let e = check_recording_url(bad).unwrap_err();
+            assert!(
+                matches!(
+                    e,
+                    RunError::BadOption {
+                        key: "recording_url",
+                        ..
+                    }
+                ),
+                "{bad}: {e}"
+            );
+        }
+    }
 }
