@@ -2,7 +2,7 @@
 //! index: the footer, the summary section, the two metadata records and
 //! only the chunks that hold an event or a result (the first and the last
 //! few of a run, whatever its length), so a 10-minute recording costs
-//! about what a 1-second one does.
+//! about what a 1-second one does, and memory holds one chunk at a time.
 
 use super::{finite, CatalogueRow, Outcome, MODE_COLUMNS};
 use crate::record::TOPIC_EVENT;
@@ -59,36 +59,35 @@ pub enum CatalogueError {
     },
 }
 
-/// The file, read only where asked: a buffer of the file's length, zero
-/// (pages never touched cost nothing) but for the ranges read into it.
-struct Sparse {
-    file: File,
-    buf: Vec<u8>,
-}
-
-impl Sparse {
-    fn read(&mut self, start: u64, len: u64) -> std::io::Result<()> {
-        let end = start.saturating_add(len).min(self.buf.len() as u64);
-        let start = start.min(end);
-        self.file
-            .read_exact_at(&mut self.buf[start as usize..end as usize], start)
-    }
-}
-
 /// Magic at both ends of an MCAP file.
 const MAGIC: &[u8] = b"\x89MCAP0\r\n";
-/// The footer record (opcode, length, three fields) and the closing magic.
-const TAIL_BYTES: u64 = 1 + 8 + 8 + 8 + 4 + 8;
+
+/// `len` bytes of `file` at `offset`, which must lie within its `size`
+/// bytes (an index pointing past the end is a damaged file, not a reason
+/// to allocate what it says).
+fn read_at(file: &File, size: u64, offset: u64, len: u64) -> Result<Vec<u8>, String> {
+    if offset.checked_add(len).is_none_or(|end| end > size) {
+        return Err(format!(
+            "its index points past its end ({len} bytes at byte {offset} of {size})"
+        ));
+    }
+    let mut buf = vec![0; len as usize];
+    file.read_exact_at(&mut buf, offset)
+        .map_err(|e| e.to_string())?;
+    Ok(buf)
+}
 
 /// The catalogue row of the finished recording at `path` (see the module
 /// docs of [`super`] for every column's source); `recording` is the path
-/// as given, made absolute.
+/// as given, made absolute. Memory: the summary section and one chunk at
+/// a time.
 ///
 /// # Errors
-/// [`CatalogueError::Io`] when the file cannot be read;
+/// [`CatalogueError::Io`] when the file cannot be opened;
 /// [`CatalogueError::Recording`] when it is not an MCAP file with a
-/// summary section (an unfinished `.part`: `bench recover` it first) or
-/// not a recording of `bench` (no `bench.run` metadata).
+/// summary section (an unfinished `.part`: `bench recover` it first), its
+/// index or a chunk it needs is damaged, or it is not a recording of
+/// `bench` (no `bench.run` metadata).
 pub fn row_of_recording(path: &Path) -> Result<CatalogueRow, CatalogueError> {
     let io = |source| CatalogueError::Io {
         path: path.to_path_buf(),
@@ -98,45 +97,60 @@ pub fn row_of_recording(path: &Path) -> Result<CatalogueRow, CatalogueError> {
         path: path.to_path_buf(),
         reason,
     };
-    let file = File::open(path).map_err(io)?;
+    let mut file = File::open(path).map_err(io)?;
     let meta = file.metadata().map_err(io)?;
     if !meta.is_file() {
         return Err(bad("not a regular file".into()));
     }
-    let len = meta.len();
-    if len < MAGIC.len() as u64 + TAIL_BYTES {
-        return Err(bad(format!("{len} bytes: too short for an MCAP file")));
+    let size = meta.len();
+    let magic = MAGIC.len() as u64;
+    if size < 2 * magic {
+        return Err(bad(format!("{size} bytes: too short for an MCAP file")));
     }
-    let mut f = Sparse {
-        file,
-        buf: vec![0; usize::try_from(len).map_err(|_| bad("too large".into()))?],
-    };
-    f.read(0, MAGIC.len() as u64).map_err(io)?;
-    f.read(len - TAIL_BYTES, TAIL_BYTES).map_err(io)?;
-    if &f.buf[..MAGIC.len()] != MAGIC || &f.buf[f.buf.len() - MAGIC.len()..] != MAGIC {
+    let (head, tail) = (
+        read_at(&file, size, 0, magic).map_err(bad)?,
+        read_at(&file, size, size - magic, magic).map_err(bad)?,
+    );
+    if head != MAGIC || tail != MAGIC {
         return Err(bad(
             "not a finished MCAP recording (no MCAP magic at its start and end; a killed run's .part needs `bench recover`)".into(),
         ));
     }
-    let footer = mcap::read::footer(&f.buf).map_err(|e| bad(format!("its footer: {e}")))?;
-    if footer.summary_start == 0 || footer.summary_start >= len {
-        return Err(bad(
-            "no summary section (not finished by bench; `bench recover` makes one)".into(),
-        ));
-    }
-    f.read(footer.summary_start, len - footer.summary_start)
-        .map_err(io)?;
-    let summary = mcap::Summary::read(&f.buf)
-        .map_err(|e| bad(format!("its summary section: {e}")))?
-        .ok_or_else(|| bad("no summary section".into()))?;
+    // The summary section, as mcap's own `Summary::read` reads it, from
+    // the file instead of a buffer of it.
+    let summary = {
+        use mcap::sans_io::{SummaryReadEvent, SummaryReader, SummaryReaderOptions};
+        use std::io::{Read, Seek};
+        let mut reader =
+            SummaryReader::new_with_options(SummaryReaderOptions::default().with_file_size(size));
+        while let Some(event) = reader.next_event() {
+            match event.map_err(|e| bad(format!("its summary section: {e}")))? {
+                SummaryReadEvent::ReadRequest(n) => {
+                    let read = file.read(reader.insert(n)).map_err(io)?;
+                    reader.notify_read(read);
+                }
+                SummaryReadEvent::SeekRequest(to) => {
+                    let at = file.seek(to).map_err(io)?;
+                    reader.notify_seeked(at);
+                }
+            }
+        }
+        reader.finish().ok_or_else(|| {
+            bad("no summary section (not finished by bench; `bench recover` makes one)".into())
+        })?
+    };
 
     let mut metadata: BTreeMap<String, BTreeMap<String, String>> = BTreeMap::new();
     for index in &summary.metadata_indexes {
         if index.name != "bench.run" && index.name != "bench.config" {
             continue;
         }
-        f.read(index.offset, index.length).map_err(io)?;
-        let m = mcap::read::metadata(&f.buf, index)
+        let buf = read_at(&file, size, index.offset, index.length).map_err(bad)?;
+        let local = mcap::records::MetadataIndex {
+            offset: 0,
+            ..index.clone()
+        };
+        let m = mcap::read::metadata(&buf, &local)
             .map_err(|e| bad(format!("metadata {}: {e}", index.name)))?;
         metadata.insert(m.name, m.metadata);
     }
@@ -165,14 +179,15 @@ pub fn row_of_recording(path: &Path) -> Result<CatalogueRow, CatalogueError> {
         .collect();
     chunks.sort_by_key(|c| c.chunk_start_offset);
     for chunk in chunks {
-        f.read(chunk.chunk_start_offset, chunk.chunk_length)
-            .map_err(io)?;
-        let stream = summary
-            .stream_chunk(&f.buf, chunk)
-            .map_err(|e| bad(format!("chunk at byte {}: {e}", chunk.chunk_start_offset)))?;
-        for m in stream {
-            let m =
-                m.map_err(|e| bad(format!("chunk at byte {}: {e}", chunk.chunk_start_offset)))?;
+        let at = chunk.chunk_start_offset;
+        let damaged = |e: mcap::McapError| bad(format!("the chunk at byte {at}: {e}"));
+        let buf = read_at(&file, size, at, chunk.chunk_length).map_err(bad)?;
+        let local = mcap::records::ChunkIndex {
+            chunk_start_offset: 0,
+            ..chunk.clone()
+        };
+        for m in summary.stream_chunk(&buf, &local).map_err(damaged)? {
+            let m = m.map_err(damaged)?;
             let Some(topic) = wanted.get(&m.channel.id) else {
                 continue;
             };
