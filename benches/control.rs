@@ -95,6 +95,7 @@ fn control(c: &mut Criterion) {
         inject: None,
         backend: None,
         verify: None,
+        catalogue: false,
     };
     g.sample_size(10).measurement_time(Duration::from_secs(15));
     g.bench_function("closed_loop_step_4s_virtual", |b| {

@@ -12,6 +12,7 @@
 
 pub mod analysis;
 pub mod campaign;
+pub mod catalogue;
 pub mod config;
 pub mod control;
 pub mod daemon;

@@ -161,13 +161,18 @@ fn three_default_runs_in_one_second_give_three_complete_recordings() {
     assert_eq!(pngs, 3, "{all:?}");
     assert_eq!(
         all.len(),
-        6,
-        "nothing else (no .part, no temporary file): {all:?}"
+        7,
+        "nothing else (no .part, no temporary file) but the catalogue: {all:?}"
     );
+    // One catalogue row per run, named after its recording.
+    let rows = names(&rec.join("catalogue"));
     for m in mcaps {
         assert!(m.starts_with("control-fast-"), "{m}");
         assert_complete_control_recording(&rec.join(m));
+        let row = format!("{}.parquet", m.strip_suffix(".mcap").unwrap());
+        assert!(rows.contains(&row), "{row} not in {rows:?}");
     }
+    assert_eq!(rows.len(), 3, "{rows:?}");
 }
 
 #[test]
@@ -191,6 +196,7 @@ fn existing_outputs_are_refused_and_kept_unless_overwrite() {
         assert!(o.status.success(), "{}", stderr(&o));
         assert_ne!(std::fs::read(&path).unwrap(), b"precious");
         assert_complete_control_recording(&d.join("run.mcap"));
+        std::fs::remove_dir_all(d.join("catalogue")).unwrap();
         for f in names(d) {
             std::fs::remove_file(d.join(f)).unwrap();
         }
@@ -225,11 +231,15 @@ fn existing_outputs_are_refused_and_kept_unless_overwrite() {
     assert!(o.status.success(), "{}", stderr(&o));
     let rows = read_frf_csv(&csv);
     assert!(rows.len() > 100);
-    assert_eq!(names(d), ["c.bode.png", "c.mcap", "frf.csv"]);
-    // Every output of a local run is rw-r----- (opened so, umask 0 here).
+    assert_eq!(names(d), ["c.bode.png", "c.mcap", "catalogue", "frf.csv"]);
+    // Every output of a local run is rw-r----- (opened so, umask 0 here),
+    // the catalogue's directory rwxr-x---.
     for f in names(d) {
-        assert_eq!(mode(&d.join(&f)), 0o640, "{f}");
+        let want = if f == "catalogue" { 0o750 } else { 0o640 };
+        assert_eq!(mode(&d.join(&f)), want, "{f}");
     }
+    assert_eq!(names(&d.join("catalogue")), ["c.parquet"]);
+    assert_eq!(mode(&d.join("catalogue/c.parquet")), 0o640);
 }
 
 /// A kind of special file: its name, how to make one, how to recognise

@@ -46,6 +46,7 @@ fn normalise(text: &str) -> Vec<String> {
                     "recording",
                     "FRF (CSV)",
                     "Bode plot",
+                    "catalogue",
                     "plot",
                     "updated bench",
                 ]

@@ -31,6 +31,7 @@ pub fn default_chirp(dir: &Path) -> ChirpOptions {
         progress: false,
         backend: None,
         inject: None,
+        catalogue: false,
     }
 }
 

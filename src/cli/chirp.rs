@@ -257,6 +257,7 @@ pub(super) fn chirp(args: ChirpArgs, stop: Arc<AtomicBool>) -> ExitCode {
         progress: std::io::stderr().is_terminal(),
         backend: args.backend.clone(),
         inject,
+        catalogue: true,
     };
     // On a worker thread, with the loop's tick count for the preparation
     // watch (a stop before the first tick ends the run at once).
@@ -307,6 +308,9 @@ pub(super) fn print_summary(s: &ChirpSummary) {
         outln!("  estimator   {note}");
     }
     outln!("  Bode plot   {}", s.plot.display());
+    if let Some(c) = &s.catalogue {
+        outln!("  {}", c.line());
+    }
     if let Some(p) = s.multisine.as_ref().and_then(|m| m.bla_csv.as_ref()) {
         outln!("  BLA (CSV)   {}", p.display());
     }

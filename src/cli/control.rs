@@ -283,6 +283,7 @@ pub(super) fn control(args: ControlArgs, stop: Arc<AtomicBool>) -> ExitCode {
         inject,
         backend: args.backend.clone(),
         verify,
+        catalogue: true,
     };
     // Kept until the run has ended: the live view serves while it runs.
     let _live = match args.live.start(opts.config.loop_.cpu) {
@@ -433,6 +434,9 @@ pub(super) fn print_control_summary(s: &ControlSummary) {
     }
     if let Some(p) = &s.plot {
         outln!("step plot   {}", p.display());
+    }
+    if let Some(c) = &s.catalogue {
+        outln!("{}", c.line());
     }
     if let Some(t) = &s.timing {
         for line in t.lines() {

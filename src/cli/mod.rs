@@ -47,6 +47,7 @@ macro_rules! errln {
 
 mod analyze;
 mod campaign;
+mod catalogue;
 mod chirp;
 mod config_cmd;
 mod console;
@@ -70,6 +71,7 @@ use bench::error::RunError;
 use bench::jobs::request::RequestError;
 use bench::outputs::{claim_recording, Existing, Origin, OutputPlan};
 use campaign::{campaign, CampaignCommand};
+use catalogue::{catalogue, CatalogueArgs};
 use chirp::{chirp, ChirpArgs};
 use clap::{Parser, Subcommand};
 use config_cmd::{config_command, ConfigCommand};
@@ -158,6 +160,11 @@ enum Command {
     /// Export a recording's channel as a CSV or Parquet table (one column
     /// per field, the unit in its name) for numpy and pandas.
     Export(ExportArgs),
+    /// Rebuild the run catalogue (one Parquet row per run: when, where,
+    /// which bench and operating point, how it ended, the fitted modes,
+    /// margins and step figures) from a directory's recordings, as one
+    /// compacted file for DuckDB or pandas.
+    Catalogue(CatalogueArgs),
     /// The built-in bench description: print it as a commented TOML file
     /// to start from, or check a file.
     #[command(subcommand)]
@@ -273,6 +280,7 @@ pub fn main() -> ExitCode {
         Command::Map(args) => map(args),
         Command::Campaign(cmd) => campaign(cmd, stop),
         Command::Export(args) => export(args),
+        Command::Catalogue(args) => catalogue(args),
         Command::Fit(args) => fit::fit(args),
         Command::Design(args) => design::design(args),
         Command::Plot(cmd) => plot::plot(cmd),

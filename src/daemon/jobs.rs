@@ -13,6 +13,7 @@ use crate::campaign::job::{prepare, start, threads};
 use crate::campaign::run::{CampaignRunError, RunOptions};
 use crate::error::RunError;
 use crate::jobs::analyze::{run_analyze, AnalyzeOptions};
+use crate::jobs::catalogue::{check_options, run_catalogue, CatalogueOptions};
 use crate::jobs::chirp::{run_chirp_on, ChirpOptions};
 use crate::jobs::design::{run_design, DesignInput, DesignOptions};
 use crate::jobs::fit::{run_fit, FitOptions};
@@ -22,7 +23,7 @@ use crate::jobs::request::{check_pace, pace_on_hardware, JobRequest, Pace, Reque
 use crate::jobs::session::Runner;
 use crate::jobs::step::{run_control_from, ControlOptions, StageSource};
 use crate::jobs::verify::VerifyOptions;
-use crate::outputs::{beside, Existing};
+use crate::outputs::{beside, Existing, Origin};
 use crate::rt::service::ServiceClient;
 use serde_json::Value;
 use std::path::{Path, PathBuf};
@@ -39,6 +40,7 @@ pub(super) enum JobSpec {
     Map(Box<MapOptions>),
     Plot(Box<PlotOptions>),
     Campaign(Box<CampaignJob>),
+    Catalogue(Box<CatalogueOptions>),
 }
 
 /// A campaign to start: the loaded file, its new directory, the threads.
@@ -162,6 +164,7 @@ pub(super) fn job_spec(ctx: &Ctx, request: &JobRequest, id: u64) -> Result<Accep
                 progress: false,
                 backend: Some(ctx.spec.clone()),
                 inject: None,
+                catalogue: true,
             };
             Ok(Accepted {
                 spec: JobSpec::Chirp(Box::new(opts)),
@@ -205,6 +208,7 @@ pub(super) fn job_spec(ctx: &Ctx, request: &JobRequest, id: u64) -> Result<Accep
                 config: cfg,
                 config_path: ctx.config_path.clone(),
                 verify,
+                catalogue: true,
             };
             Ok(Accepted {
                 spec: JobSpec::Control(Box::new(opts)),
@@ -296,6 +300,27 @@ pub(super) fn job_spec(ctx: &Ctx, request: &JobRequest, id: u64) -> Result<Accep
             };
             Ok(Accepted {
                 spec: JobSpec::Plot(Box::new(opts)),
+                kind,
+                total: 0,
+                recording: None,
+            })
+        }
+        JobRequest::Catalogue(req) => {
+            absolute("recordings", req.recordings.as_deref())?;
+            let stem = recording_path(&ctx.recordings, "catalogue", id);
+            let opts = CatalogueOptions {
+                recordings: req
+                    .recordings
+                    .clone()
+                    .unwrap_or_else(|| ctx.recordings.clone()),
+                out: beside(&stem, ".parquet"),
+                out_origin: Origin::Default,
+                existing: Existing::Refuse,
+                recording_url: req.recording_url.clone(),
+            };
+            check_options(&opts).map_err(|e| refused(&e))?;
+            Ok(Accepted {
+                spec: JobSpec::Catalogue(Box::new(opts)),
                 kind,
                 total: 0,
                 recording: None,
@@ -412,6 +437,7 @@ pub(super) fn run(
         JobSpec::Fit(opts) => run_fit(&opts).map_err(answer).and_then(json),
         JobSpec::Design(opts) => run_design(&opts).map_err(answer).and_then(json),
         JobSpec::Analyze(opts) => run_analyze(&opts).map_err(answer).and_then(json),
+        JobSpec::Catalogue(opts) => run_catalogue(&opts).map_err(answer).and_then(json),
         JobSpec::Map(opts) => run_map(&opts).map_err(answer).and_then(json),
         JobSpec::Plot(opts) => run_plot(&opts).map_err(answer).and_then(json),
         JobSpec::Campaign(job) => {

@@ -43,6 +43,7 @@
 //! | `map` | the fields of a [`MapRequest`], and `detach` | the `bench map --json` summary |
 //! | `plot` | the fields of a [`PlotRequest`], and `detach` | the `bench plot bode\|nyquist --json` summary |
 //! | `campaign` | the fields of a [`CampaignRequest`], and `detach` | the `bench campaign run --json` summary |
+//! | `catalogue` | the fields of a [`CatalogueRequest`], and `detach` | the `bench catalogue --json` summary |
 //! | `stop` | – | the running job stops safely (0 A, recording finished) |
 //! | `subscribe` | – | this connection receives every event from now on |
 //! | `shutdown` | – | stops the job, then the daemon |
@@ -55,12 +56,14 @@
 //! [`MapRequest`]: crate::jobs::map::MapRequest
 //! [`PlotRequest`]: crate::jobs::plot::PlotRequest
 //! [`CampaignRequest`]: crate::jobs::request::CampaignRequest
+//! [`CatalogueRequest`]: crate::jobs::catalogue::CatalogueRequest
 //!
 //! The jobs that compute take their files by absolute path (the daemon's
 //! working directory is not its clients'), read them with the daemon's
 //! permissions, and write their outputs in the recordings directory under
 //! stamped names (`fit-<UTC>-job<N>.fit.png`, `analyze-…-job<N>.modes.png`,
-//! `map-…-job<N>.png`, `plot-…-job<N>.bode.png`, `campaign-…-job<N>/`); the request names none.
+//! `map-…-job<N>.png`, `plot-…-job<N>.bode.png`, `campaign-…-job<N>/`,
+//! `catalogue-…-job<N>.parquet`); the request names none.
 //! Their summaries are the local run's.
 //!
 //! Lines are at most [`MAX_LINE_BYTES`], UTF-8, one JSON object with no

@@ -238,6 +238,7 @@ pub(super) fn job_request(cmd: &str, params: &Value) -> Result<(JobRequest, bool
         "map" => JobRequest::Map(from_params(params)?),
         "plot" => JobRequest::Plot(from_params(params)?),
         "campaign" => JobRequest::Campaign(from_params(params)?),
+        "catalogue" => JobRequest::Catalogue(from_params(params)?),
         other => {
             return Err(ApiError::new(
                 ApiErrorKind::UnknownCommand,

@@ -16,14 +16,18 @@
 //!   figure, each fitted as [`fit`] fits it.
 //! - A campaign's request is here ([`request::CampaignRequest`]); the
 //!   campaign job itself is [`crate::campaign::job`].
+//! - [`catalogue`]: the row every chirp and control run appends to the
+//!   run catalogue, and `bench catalogue`, which rebuilds it from the
+//!   recordings.
 //! - [`point`]: the operating point and asymmetry every job that takes
 //!   one shares (% of L to metres, the range checks).
 //!
 //! May use everything below it; never the CLI, the daemon or a campaign.
 //!
-//! Layer rule: may use `analysis`, `config`, `control`, `design`, `error`, `ident`, `outputs`, `plot`, `record`, `rt`, `vocab`.
+//! Layer rule: may use `analysis`, `catalogue`, `config`, `control`, `design`, `error`, `ident`, `outputs`, `plot`, `record`, `rt`, `vocab`.
 
 pub mod analyze;
+pub mod catalogue;
 pub mod chirp;
 pub mod design;
 pub mod export;

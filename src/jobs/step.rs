@@ -212,6 +212,9 @@ pub struct ControlOptions {
     /// `--verify`: after the step, the chirp injected at the plant input
     /// and the loop measured ([`crate::jobs::verify`]).
     pub verify: Option<VerifyOptions>,
+    /// Append the run's row to the run catalogue beside its recording
+    /// once the recording is finished ([`crate::jobs::catalogue`]).
+    pub catalogue: bool,
 }
 
 /// Result of `bench control`.
@@ -248,6 +251,11 @@ pub struct ControlSummary {
     /// the prediction (absent without `--verify`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub verify: Option<Verify>,
+    /// The run's row in the run catalogue, or why it was not written;
+    /// absent when nothing was recorded (`--check-only`) and in the
+    /// summary recorded in the recording, which the row is read from.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub catalogue: Option<crate::jobs::catalogue::CatalogueEntry>,
 }
 
 impl ControlSummary {
@@ -296,7 +304,33 @@ pub fn run_control(
     stop: Arc<AtomicBool>,
     ticks: Option<&Arc<AtomicU64>>,
 ) -> Result<ControlSummary, RunError> {
-    run_control_with(opts, &mut outputs, stop, StageSource::Open, ticks)
+    let result = run_control_with(opts, &mut outputs, stop, StageSource::Open, ticks);
+    catalogued(opts, result)
+}
+
+/// `result` with the run's row appended to the catalogue (when
+/// `opts.catalogue` and a recording was made): a summary reports it; an
+/// error whose recording was finished appends it too. Never changes the
+/// outcome.
+fn catalogued(
+    opts: &ControlOptions,
+    result: Result<ControlSummary, RunError>,
+) -> Result<ControlSummary, RunError> {
+    if !opts.catalogue {
+        return result;
+    }
+    match result {
+        Ok(mut summary) => {
+            if summary.recording.is_some() {
+                summary.catalogue = Some(crate::jobs::catalogue::catalogue_run(&opts.out));
+            }
+            Ok(summary)
+        }
+        Err(e) => {
+            crate::jobs::catalogue::catalogue_ended_run(&e, &opts.out);
+            Err(e)
+        }
+    }
 }
 
 /// The outputs of a control run, none replaced (the daemon's jobs: their
@@ -334,7 +368,8 @@ pub fn run_control_from(
     progress_ticks: Option<&Arc<AtomicU64>>,
 ) -> Result<ControlSummary, RunError> {
     let mut outputs = control_outputs(opts);
-    run_control_with(opts, &mut outputs, stop, source, progress_ticks)
+    let result = run_control_with(opts, &mut outputs, stop, source, progress_ticks);
+    catalogued(opts, result)
 }
 
 fn run_control_with(
@@ -383,6 +418,7 @@ fn run_control_with(
         timing: None,
         current_limits: None,
         verify: None,
+        catalogue: None,
     };
     // The verify's injection, predicted on the model and checked against
     // the host's limits before anything is opened (again below against

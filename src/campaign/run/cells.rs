@@ -171,6 +171,8 @@ pub(super) fn run_cell(
                     _ => None,
                 },
                 inject: None,
+                // A campaign keeps its own results (journal, cells CSV).
+                catalogue: false,
             };
             let summary = run_chirp(&opts, chirp_outputs(&opts), stop.clone(), None)
                 .map_err(|e| cell_err(e.to_string()))?;

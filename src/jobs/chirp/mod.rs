@@ -186,6 +186,11 @@ pub struct ChirpOptions {
     pub backend: Option<BackendSpec>,
     /// A simulator fault to inject (local runs on the simulator only).
     pub inject: Option<bench_hal::sim::ScheduledFault>,
+    /// Append the run's row to the run catalogue beside its recording
+    /// once the recording is finished ([`crate::jobs::catalogue`]): the
+    /// CLI's and the daemon's runs; not a campaign's cells (the campaign
+    /// keeps its own results).
+    pub catalogue: bool,
 }
 
 /// The model's view of the same bench, for comparison.
@@ -267,6 +272,11 @@ pub struct ChirpSummary {
     /// (`chirp.kind = "multisine"`); absent for a sweep.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub multisine: Option<MultisineSummary>,
+    /// The run's row in the run catalogue, or why it was not written;
+    /// absent when the run is not catalogued (a campaign's cells, and the
+    /// summary recorded in the recording, which the row is read from).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub catalogue: Option<crate::jobs::catalogue::CatalogueEntry>,
 }
 
 /// A multisine run: the signal played and what the best linear

@@ -111,7 +111,30 @@ pub fn run_chirp(
         stage: &mut stage,
         info: &info,
     };
-    run_chirp_with(&mut runner, !spec.is_sim(), opts, &mut outputs, stop, ticks)
+    let result = run_chirp_with(&mut runner, !spec.is_sim(), opts, &mut outputs, stop, ticks);
+    catalogued(opts, result)
+}
+
+/// `result` with the run's row appended to the catalogue (when
+/// `opts.catalogue`): a summary reports it; an error whose recording was
+/// finished appends it too. Never changes the outcome.
+fn catalogued(
+    opts: &ChirpOptions,
+    result: Result<ChirpSummary, RunError>,
+) -> Result<ChirpSummary, RunError> {
+    if !opts.catalogue {
+        return result;
+    }
+    match result {
+        Ok(mut summary) => {
+            summary.catalogue = Some(crate::jobs::catalogue::catalogue_run(&opts.out));
+            Ok(summary)
+        }
+        Err(e) => {
+            crate::jobs::catalogue::catalogue_ended_run(&e, &opts.out);
+            Err(e)
+        }
+    }
 }
 
 /// The outputs of a chirp, none replaced (the daemon's jobs: their names
@@ -144,7 +167,8 @@ pub fn run_chirp_on(
     ticks: Option<&Arc<AtomicU64>>,
 ) -> Result<ChirpSummary, RunError> {
     let mut outputs = chirp_outputs(opts);
-    run_chirp_with(runner, hardware, opts, &mut outputs, stop, ticks)
+    let result = run_chirp_with(runner, hardware, opts, &mut outputs, stop, ticks);
+    catalogued(opts, result)
 }
 
 pub(super) fn run_chirp_with(
@@ -377,6 +401,7 @@ pub(super) fn run_chirp_with(
             .as_ref()
             .zip(bla.as_ref())
             .map(|(plan, bla)| plan.summary(bla, &model, opts.bla_csv.clone())),
+        catalogue: None,
     };
     let markers: Vec<f64> = summary.resonances.iter().map(|r| r.frequency_hz).collect();
     let no_pair = PairZoom::reason_of(&summary.verdict.phase_test);

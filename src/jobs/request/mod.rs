@@ -9,6 +9,7 @@
 //! flag: only the CLI knows its flags.
 
 pub use super::analyze::AnalyzeRequest;
+pub use super::catalogue::CatalogueRequest;
 pub use super::design::DesignRequest;
 pub use super::fit::FitRequest;
 pub use super::map::MapRequest;
@@ -66,12 +67,22 @@ pub enum JobRequest {
     Plot(PlotRequest),
     /// `bench campaign run --submit`.
     Campaign(CampaignRequest),
+    /// `bench catalogue`.
+    Catalogue(CatalogueRequest),
 }
 
 impl JobRequest {
     /// Every job kind, as the daemon's `cmd`.
-    pub const KINDS: [&'static str; 8] = [
-        "chirp", "control", "fit", "design", "analyze", "map", "plot", "campaign",
+    pub const KINDS: [&'static str; 9] = [
+        "chirp",
+        "control",
+        "fit",
+        "design",
+        "analyze",
+        "map",
+        "plot",
+        "campaign",
+        "catalogue",
     ];
 
     /// The job kind, as the daemon's `cmd`: one of [`Self::KINDS`].
@@ -85,6 +96,7 @@ impl JobRequest {
             Self::Map(_) => "map",
             Self::Plot(_) => "plot",
             Self::Campaign(_) => "campaign",
+            Self::Catalogue(_) => "catalogue",
         }
     }
 

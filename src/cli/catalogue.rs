@@ -1,0 +1,88 @@
+//! `bench catalogue`: rebuild the run catalogue of a recordings directory
+//! as one compacted Parquet file.
+
+use super::serve::via_daemon;
+use super::{default_recordings, emit, origin, refuse_local_only, run_failed, ExitCode};
+use bench::catalogue::COMPACTED_NAME;
+use bench::jobs::catalogue::{run_catalogue, CatalogueOptions, CatalogueRequest, CatalogueSummary};
+use bench::jobs::request::JobRequest;
+use bench::outputs::Existing;
+use clap::Args;
+use std::path::PathBuf;
+
+#[derive(Debug, Args)]
+pub(super) struct CatalogueArgs {
+    /// The recordings to catalogue: every *.mcap in this directory (not
+    /// its subdirectories) [default: ./recordings if it exists, else
+    /// $XDG_DATA_HOME/bench/recordings].
+    #[arg(long, value_name = "DIR")]
+    recordings: Option<PathBuf>,
+    /// The catalogue to write (.parquet) [default: catalogue.parquet in
+    /// the recordings directory, beside its catalogue/ of per-run rows].
+    #[arg(long, value_name = "FILE")]
+    out: Option<PathBuf>,
+    /// Replace an existing catalogue (a regular file) once the new one is
+    /// complete.
+    #[arg(long)]
+    overwrite: bool,
+    /// Where the recordings are kept as objects (e.g.
+    /// s3://lab-bench/recordings): each row's recording is then this
+    /// prefix and the file's name instead of its local path.
+    #[arg(long, value_name = "URL")]
+    recording_url: Option<String>,
+    /// Print the summary as one JSON object.
+    #[arg(long)]
+    json: bool,
+    /// Submit to a running `bench serve` instead of reading here [SOCKET
+    /// default: $XDG_RUNTIME_DIR/bench.sock, else /run/bench/bench.sock].
+    /// The daemon reads --recordings (default: its own) with its own
+    /// permissions and writes the catalogue in its recordings directory.
+    #[arg(long, value_name = "SOCKET", num_args = 0..=1, default_missing_value = "")]
+    daemon: Option<String>,
+}
+
+pub(super) fn catalogue(a: CatalogueArgs) -> ExitCode {
+    if let Some(sock) = &a.daemon {
+        if let Some(code) = refuse_local_only(
+            &[(a.out.is_some(), "--out"), (a.overwrite, "--overwrite")],
+            "the daemon names its catalogue in its recordings directory",
+        ) {
+            return code;
+        }
+        let request = CatalogueRequest {
+            recordings: a.recordings.as_deref().map(super::absolute_path),
+            recording_url: a.recording_url.clone(),
+        };
+        return via_daemon(sock, &JobRequest::Catalogue(request), a.json, print_summary);
+    }
+    let recordings = match a.recordings {
+        Some(d) => d,
+        None => match default_recordings(false, "--recordings DIR") {
+            Ok(d) => d,
+            Err(reason) => return super::bad_input(format!("--recordings: {reason}")),
+        },
+    };
+    let opts = CatalogueOptions {
+        out: a
+            .out
+            .clone()
+            .unwrap_or_else(|| recordings.join(COMPACTED_NAME)),
+        out_origin: origin(a.out.is_some()),
+        recordings,
+        existing: Existing::overwrite(a.overwrite),
+        recording_url: a.recording_url.clone(),
+    };
+    match run_catalogue(&opts) {
+        Ok(summary) => match emit(&summary, a.json, print_summary) {
+            Ok(()) => ExitCode::SUCCESS,
+            Err(code) => code,
+        },
+        Err(e) => run_failed(&e),
+    }
+}
+
+fn print_summary(s: &CatalogueSummary) {
+    for line in s.lines() {
+        outln!("{line}");
+    }
+}
