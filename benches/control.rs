@@ -1,6 +1,7 @@
 //! Closed-loop costs: per-tick compute of the fast controller (Eq. 6-7)
 //! plus the supervisor, with its p50/p99 from a histogram of single ticks,
-//! and a whole closed-loop step in virtual time (simulated seconds per wall
+//! what the metrics tap of `bench serve --metrics` adds to a tick, and a
+//! whole closed-loop step in virtual time (simulated seconds per wall
 //! second).
 
 use bench::config::BenchConfig;
@@ -75,6 +76,22 @@ fn control(c: &mut Criterion) {
             sup.check_sample(&s);
             let out = job.tick(k, &s);
             sup.command(out.command_a)
+        })
+    });
+
+    // The metrics tap's work on a real-time tick: two bucket searches, the
+    // counters, and an offer (a 700-byte push) every 500 ticks; the reader
+    // drains the queue as the daemon's metrics thread does.
+    let (mut tap, mut counts) = bench::rt::tap::loop_tap(200_000);
+    let mut k = 0u64;
+    g.bench_function("metrics_tap_tick", |b| {
+        b.iter(|| {
+            k += 1;
+            tap.timed(black_box(5_000 + (k * 7919) % 40_000), black_box(1_800), false);
+            if tap.ticked(true, false) {
+                tap.offer(None);
+                while counts.pop().is_ok() {}
+            }
         })
     });
 
