@@ -87,7 +87,11 @@ fn control(c: &mut Criterion) {
     g.bench_function("metrics_tap_tick", |b| {
         b.iter(|| {
             k += 1;
-            tap.timed(black_box(5_000 + (k * 7919) % 40_000), black_box(1_800), false);
+            tap.timed(
+                black_box(5_000 + (k * 7919) % 40_000),
+                black_box(1_800),
+                false,
+            );
             if tap.ticked(true, false) {
                 tap.offer(None);
                 while counts.pop().is_ok() {}
