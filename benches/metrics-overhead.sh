@@ -28,6 +28,8 @@
 #   -c  CPU the loop is pinned to (default: the last one online)
 #   -i  scrape interval, s (default 1)
 #   -o  run the scraper off the loop's CPU (taskset)
+#   -m  the kinds of daemon, comma-separated (default
+#       without,unscraped,with)
 #   -B  use this bench binary instead of building it in release (a quick
 #       check of the script; figures come from a release build)
 # Needs root (or the rights to SCHED_FIFO and /dev/cpu_dma_latency), curl
@@ -39,14 +41,16 @@ rounds=6
 cpu=$(( $(nproc) - 1 ))
 interval=1
 off_cpu=
+modes=(without unscraped with)
 bench=
-while getopts "d:r:c:i:oB:h" opt; do
+while getopts "d:r:c:i:om:B:h" opt; do
     case $opt in
         d) duration=$OPTARG ;;
         r) rounds=$OPTARG ;;
         c) cpu=$OPTARG ;;
         i) interval=$OPTARG ;;
         o) off_cpu=1 ;;
+        m) IFS=, read -r -a modes <<<"$OPTARG" ;;
         B) bench=$OPTARG ;;
         *) sed -n '2,30p' "$0"; exit 2 ;;
     esac
@@ -58,6 +62,9 @@ die() { echo "metrics-overhead: $*" >&2; exit 2; }
 [[ $rounds =~ ^[0-9]+$ ]] && [ "$rounds" -ge 1 ] || die "-r: at least 1 round (got $rounds)"
 [[ $cpu =~ ^[0-9]+$ ]] && [ "$cpu" -lt "$(nproc)" ] || die "-c: a CPU from 0 to $(( $(nproc) - 1 )) (got $cpu)"
 [[ $interval =~ ^[0-9.]+$ ]] || die "-i: seconds (got $interval)"
+for m in "${modes[@]}"; do
+    [[ $m =~ ^(without|unscraped|with)$ ]] || die "-m: without, unscraped or with (got $m)"
+done
 command -v curl >/dev/null || die "curl not found"
 if [ -n "$off_cpu" ]; then
     command -v taskset >/dev/null || die "-o: taskset not found (util-linux)"
@@ -159,13 +166,12 @@ while True:
     stop_daemon
 }
 
-# Three kinds of daemon, in a rotating order (a Latin square over the
+# The kinds of daemon, in a rotating order (a Latin square over the
 # rounds): without --metrics; with --metrics, nobody scraping (the tap and
 # the server alone); with --metrics scraped every second (the bar).
-modes=(without unscraped with)
 declare -A results
 for round in $(seq 1 "$rounds"); do
-    k=$(( (round - 1) % 3 ))
+    k=$(( (round - 1) % ${#modes[@]} ))
     order=("${modes[@]:$k}" "${modes[@]:0:$k}")
     for mode in "${order[@]}"; do
         run "$mode"
@@ -174,13 +180,17 @@ for round in $(seq 1 "$rounds"); do
     done
 done
 
-python3 - "${results[without]}" "${results[unscraped]}" "${results[with]}" <<'EOF'
+python3 - "${results[without]:-}" "${results[unscraped]:-}" "${results[with]:-}" <<'EOF'
 import statistics, sys
 names = ["without --metrics", "--metrics, unscraped", "--metrics, scraped every second"]
 runs = [[float(x) for x in a.split()] for a in sys.argv[1:]]
-base = statistics.median(runs[0])
+base = statistics.median(runs[0]) if runs[0] else None
 for name, r in zip(names, runs):
+    if not r:
+        continue
     m = statistics.median(r)
+    if base is None:
+        base = m
     print(f"{name:32s} median p99 {m:6.1f} µs  ratio {m / base:.3f}  ({' '.join(f'{x:.1f}' for x in sorted(r))})")
 print("bar: scraped every second within 1.10 of without")
 EOF
