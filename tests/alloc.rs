@@ -125,6 +125,36 @@ fn ch5() -> BenchConfig {
     BenchConfig::load(&path).unwrap()
 }
 
+/// A 0.8 s chirp (0.5 s sweep) on the simulator with real-time loop
+/// options (no overrun fault: a test host may stall), for the tests of the
+/// daemon's loop: the configured stage, its device info, the
+/// chirp and the loop options.
+fn short_real_time_chirp() -> (SimStage, bench_hal::DeviceInfo, Chirp, LoopOptions) {
+    let mut cfg = ch5();
+    cfg.chirp.duration_s = Some(0.5);
+    cfg.chirp.taper_s = Some(0.1);
+    cfg.chirp.lead_in_s = 0.1;
+    cfg.chirp.tail_s = 0.1;
+    cfg.validate(Path::new("ch5")).unwrap();
+    let mut stage = SimStage::new(cfg.sim_params(7)).unwrap();
+    let info = stage.configure(cfg.loop_.period_ns()).unwrap();
+    let chirp = Chirp::new(&cfg.chirp, info.period_ns as f64 * 1e-9);
+    let opts = LoopOptions {
+        period_ns: info.period_ns,
+        pacing: Pacing::RealTime {
+            priority: 10,
+            cpu: None,
+        },
+        timing_interval_ticks: 500,
+        safety: bench::rt::supervisor::SupervisorConfig {
+            max_missed_deadlines: u64::MAX,
+            ..cfg.supervisor(&info)
+        },
+        max_ticks: chirp.total_ticks(),
+    };
+    (stage, info, chirp, opts)
+}
+
 fn run_counted(pacing: Pacing, seconds: f64) -> (u64, u64) {
     let mut cfg = ch5();
     cfg.chirp.duration_s = Some(seconds);
@@ -181,28 +211,7 @@ fn tick_allocates_nothing() {
 /// after it allocate nothing.
 #[test]
 fn a_paced_job_on_a_real_time_loop_and_back_allocate_nothing() {
-    let mut cfg = ch5();
-    cfg.chirp.duration_s = Some(0.5);
-    cfg.chirp.taper_s = Some(0.1);
-    cfg.chirp.lead_in_s = 0.1;
-    cfg.chirp.tail_s = 0.1;
-    cfg.validate(Path::new("ch5")).unwrap();
-    let mut stage = SimStage::new(cfg.sim_params(7)).unwrap();
-    let info = stage.configure(cfg.loop_.period_ns()).unwrap();
-    let chirp = Chirp::new(&cfg.chirp, info.period_ns as f64 * 1e-9);
-    let opts = LoopOptions {
-        period_ns: info.period_ns,
-        pacing: Pacing::RealTime {
-            priority: 10,
-            cpu: None,
-        },
-        timing_interval_ticks: 500,
-        safety: bench::rt::supervisor::SupervisorConfig {
-            max_missed_deadlines: u64::MAX,
-            ..cfg.supervisor(&info)
-        },
-        max_ticks: chirp.total_ticks(),
-    };
+    let (mut stage, info, chirp, opts) = short_real_time_chirp();
     let (mut producer, mut consumer) = rt::RecordQueue::new(1 << 16);
     let room = std::sync::Arc::clone(&producer.room);
     let drain = std::thread::spawn(move || {
@@ -507,28 +516,7 @@ fn hold_and_a_fault_between_jobs_allocate_nothing() {
 /// another thread (not counted), the offers at the job's end included.
 #[test]
 fn the_metrics_tap_allocates_nothing() {
-    let mut cfg = ch5();
-    cfg.chirp.duration_s = Some(0.5);
-    cfg.chirp.taper_s = Some(0.1);
-    cfg.chirp.lead_in_s = 0.1;
-    cfg.chirp.tail_s = 0.1;
-    cfg.validate(Path::new("ch5")).unwrap();
-    let mut stage = SimStage::new(cfg.sim_params(7)).unwrap();
-    let info = stage.configure(cfg.loop_.period_ns()).unwrap();
-    let chirp = Chirp::new(&cfg.chirp, info.period_ns as f64 * 1e-9);
-    let opts = LoopOptions {
-        period_ns: info.period_ns,
-        pacing: Pacing::RealTime {
-            priority: 10,
-            cpu: None,
-        },
-        timing_interval_ticks: 500,
-        safety: bench::rt::supervisor::SupervisorConfig {
-            max_missed_deadlines: u64::MAX,
-            ..cfg.supervisor(&info)
-        },
-        max_ticks: chirp.total_ticks(),
-    };
+    let (mut stage, info, chirp, opts) = short_real_time_chirp();
     let (tap, mut counts) = rt::tap::loop_tap(info.period_ns);
     let (mut producer, mut consumer) = rt::RecordQueue::new(1 << 16);
     let room = std::sync::Arc::clone(&producer.room);
