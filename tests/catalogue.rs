@@ -165,14 +165,7 @@ fn fixture() -> &'static Fixture {
             .spawn()
             .unwrap();
         let part = d.join("chirp-stopped.mcap.part");
-        let t0 = Instant::now();
-        while !part.exists() {
-            assert!(
-                t0.elapsed() < Duration::from_secs(20),
-                "the paced chirp never started"
-            );
-            std::thread::sleep(Duration::from_millis(20));
-        }
+        wait_until_started(&part);
         std::thread::sleep(Duration::from_millis(1500));
         // SAFETY: a plain signal to the child we started.
         unsafe { libc::kill(child.id() as i32, libc::SIGINT) };
@@ -1126,14 +1119,7 @@ fn a_killed_runs_recovered_recording_is_an_error_row_without_a_duration() {
         .spawn()
         .unwrap();
     let part = d.join("killed.mcap.part");
-    let t0 = Instant::now();
-    while !part.exists() {
-        assert!(
-            t0.elapsed() < Duration::from_secs(20),
-            "the paced chirp never started"
-        );
-        std::thread::sleep(Duration::from_millis(20));
-    }
+    wait_until_started(&part);
     std::thread::sleep(Duration::from_millis(1000));
     child.kill().unwrap();
     child.wait().unwrap();
@@ -1172,4 +1158,17 @@ fn a_killed_runs_recovered_recording_is_an_error_row_without_a_duration() {
                 .to_string()
         )
     );
+}
+
+/// Waits (at most 20 s) until the paced chirp has claimed its recording
+/// `part` (the `.part` file exists).
+fn wait_until_started(part: &Path) {
+    let t0 = Instant::now();
+    while !part.exists() {
+        assert!(
+            t0.elapsed() < Duration::from_secs(20),
+            "the paced chirp never started"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
 }
