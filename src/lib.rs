@@ -26,4 +26,5 @@ pub mod plot;
 pub mod record;
 pub mod rt;
 pub mod splitmix;
+pub mod upload;
 pub mod vocab;

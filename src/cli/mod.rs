@@ -63,6 +63,7 @@ mod plot;
 mod point;
 mod recover;
 mod serve;
+mod upload;
 
 use analyze::{analyze, map, AnalyzeArgs, MapArgs};
 use anyhow::Context;
@@ -165,6 +166,10 @@ enum Command {
     /// margins and step figures) from a directory's recordings, as one
     /// compacted file for DuckDB or pandas.
     Catalogue(CatalogueArgs),
+    /// Copy finished recordings, with their FRF CSVs, plots, summaries and
+    /// catalogue rows, to an S3-compatible store or a directory; each
+    /// object confirmed by its SHA-256 read back, none uploaded twice.
+    Upload(upload::UploadArgs),
     /// The built-in bench description: print it as a commented TOML file
     /// to start from, or check a file.
     #[command(subcommand)]
@@ -281,6 +286,7 @@ pub fn main() -> ExitCode {
         Command::Campaign(cmd) => campaign(cmd, stop),
         Command::Export(args) => export(args),
         Command::Catalogue(args) => catalogue(args),
+        Command::Upload(args) => upload::upload(args),
         Command::Fit(args) => fit::fit(args),
         Command::Design(args) => design::design(args),
         Command::Plot(cmd) => plot::plot(cmd),

@@ -50,6 +50,19 @@ pub(super) struct ServeArgs {
     /// use stops the daemon before it opens the bench (exit 2).
     #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = bench::daemon::metrics::DEFAULT_ADDR)]
     metrics: Option<String>,
+    /// Copy each finished job's recording, with its FRF CSV, plots,
+    /// summary (<stem>.summary.json) and catalogue row, to a store:
+    /// s3://BUCKET[/PREFIX] (an S3-compatible store; endpoint, region and
+    /// credentials from AWS_ENDPOINT, AWS_REGION, AWS_ACCESS_KEY_ID,
+    /// AWS_SECRET_ACCESS_KEY, AWS_ALLOW_HTTP) or file:///DIRECTORY. Off
+    /// the loop's thread; journalled in <recordings>/upload-journal.jsonl
+    /// and retried with a backoff (1 s doubling to 60 s) across restarts
+    /// until the store confirms each file by its SHA-256 read back; local
+    /// copies are kept. A store that refuses (no such bucket, credentials
+    /// refused) stops the daemon before it opens the bench (exit 2); one
+    /// that does not answer only delays the uploads.
+    #[arg(long, value_name = "URL")]
+    upload: Option<String>,
     #[command(flatten)]
     live: super::LiveArgs,
 }
@@ -199,6 +212,15 @@ pub(super) fn serve(args: ServeArgs) -> ExitCode {
         Ok(m) => m,
         Err(e) => return bad_input(e),
     };
+    let upload = match args
+        .upload
+        .as_deref()
+        .map(|u| bench::upload::StoreUrl::parse(u).map_err(|e| format!("--upload {u:?}: {e}")))
+        .transpose()
+    {
+        Ok(u) => u,
+        Err(e) => return bad_input(e),
+    };
     // On while the daemon runs: every job's channels, as they are written.
     let _live = match args.live.start(cfg.loop_.cpu) {
         Ok(l) => l,
@@ -216,6 +238,7 @@ pub(super) fn serve(args: ServeArgs) -> ExitCode {
         recordings,
         backend: args.backend,
         metrics,
+        upload,
     };
     match bench::daemon::serve(opts) {
         Ok(()) => ExitCode::SUCCESS,

@@ -86,7 +86,7 @@
 //! of input, as `socat` does) still gets its job's events and answer, and
 //! the daemon closes the connection once everything is answered.
 //!
-//! Layer rule: may use `analysis`, `campaign`, `config`, `control`, `design`, `error`, `ident`, `jobs`, `outputs`, `plot`, `record`, `rt`, `vocab`.
+//! Layer rule: may use `analysis`, `campaign`, `config`, `control`, `design`, `error`, `ident`, `jobs`, `outputs`, `plot`, `record`, `rt`, `upload`, `vocab`.
 
 pub mod client;
 mod jobs;
@@ -95,6 +95,7 @@ mod owner;
 mod protocol;
 mod socket;
 pub mod testing;
+mod uploads;
 
 /// The longest request line the daemon reads, in bytes (the newline not
 /// counted). A longer line gets a `bad_request` answer naming this limit
@@ -193,6 +194,9 @@ pub struct ServeOptions {
     /// Serve Prometheus metrics on this address (`--metrics`,
     /// [`metrics::parse_addr`]); `None`: no metrics server.
     pub metrics: Option<std::net::SocketAddr>,
+    /// Upload each finished job's recording, companions, summary and
+    /// catalogue row to this store (`--upload`); `None`: no uploads.
+    pub upload: Option<crate::upload::StoreUrl>,
 }
 
 /// Why the daemon did not start or stopped with an error.
@@ -317,6 +321,15 @@ pub fn serve(opts: ServeOptions) -> Result<(), ServeError> {
             e.to_string(),
         ))
     })?;
+    let (events, _) = broadcast::channel::<String>(1024);
+    // The store refuses (no bucket, credentials): stop before the bench
+    // is opened; an outage only delays the uploads.
+    let uploader = opts
+        .upload
+        .clone()
+        .map(|url| uploads::start(url, &recordings, opts.config.loop_.cpu, events.clone()))
+        .transpose()
+        .map_err(ServeError::Input)?;
     let spec = BackendSpec::resolve(opts.backend.as_ref(), &opts.config);
     let (mut stage, info) = backend::open(
         &spec,
@@ -326,7 +339,6 @@ pub fn serve(opts: ServeOptions) -> Result<(), ServeError> {
         opts.inject,
     )
     .map_err(ServeError::Input)?;
-    let (events, _) = broadcast::channel::<String>(1024);
     let backend_name = info.name.clone();
     let status = Arc::new(Mutex::new(Status {
         state: "disabled",
@@ -430,6 +442,7 @@ pub fn serve(opts: ServeOptions) -> Result<(), ServeError> {
             safety: loop_opts.safety,
             hold,
             metrics: metrics.as_ref().map(|(m, _)| Arc::clone(m)),
+            uploader,
         };
         std::thread::Builder::new()
             .name("bench-owner".into())
@@ -497,6 +510,10 @@ pub fn serve(opts: ServeOptions) -> Result<(), ServeError> {
         let _ = lock(&ctx.owner).send(OwnerCmd::Shutdown);
         Ok::<(), ServeError>(())
     });
+    // Also when the block above ended early with an error (the socket
+    // could not be bound): the owner must see Shutdown, or the joins below
+    // wait for ever.
+    let _ = lock(&ctx.owner).send(OwnerCmd::Shutdown);
     // The owner finishes the job (its recording) before it sees Shutdown.
     let _ = owner_thread.join();
     let _ = rt_thread.join();

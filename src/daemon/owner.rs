@@ -48,6 +48,8 @@ pub(super) struct OwnerShared {
     pub(super) hold: Option<HoldFactory>,
     /// `--metrics`: jobs, faults and the recorder are counted here.
     pub(super) metrics: Option<Arc<super::metrics::Metrics>>,
+    /// `--upload`: each finished job's recording is queued here.
+    pub(super) uploader: Option<crate::upload::worker::Uploader>,
 }
 
 /// Makes the hold controller's job: the controller holds the position the
@@ -289,6 +291,7 @@ pub(super) fn owner(mut client: ServiceClient, rx: mpsc::Receiver<OwnerCmd>, sha
         safety,
         hold,
         metrics,
+        uploader,
     } = shared;
     let metrics = metrics.as_deref();
     let set_state = |state: &'static str, fault: Option<FaultStatus>| {
@@ -418,6 +421,7 @@ pub(super) fn owner(mut client: ServiceClient, rx: mpsc::Receiver<OwnerCmd>, sha
                         Some(a) => (Some(a.reply), a.compute),
                         None => (None, None),
                     };
+                    let mut finished_recording = None;
                     {
                         let mut s = lock(&status);
                         s.jobs_run += 1;
@@ -464,9 +468,13 @@ pub(super) fn owner(mut client: ServiceClient, rx: mpsc::Receiver<OwnerCmd>, sha
                                 ),
                             }
                             if j.recording.is_some() {
+                                finished_recording.clone_from(&j.recording);
                                 s.last_recording = j.recording;
                             }
                         }
+                    }
+                    if let (Some(u), Some(rec)) = (uploader.as_ref(), finished_recording) {
+                        super::uploads::after_job(u, std::path::Path::new(&rec), &result);
                     }
                     match &result {
                         // The latched fault is reported by its supervisor name.

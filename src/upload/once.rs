@@ -1,0 +1,216 @@
+//! `bench upload --to URL RECORDING…`: finished recordings to the store
+//! now, from the command line, retried with the uploader's backoff for at
+//! most `--retry-for` seconds. Without a journal: a second run over the
+//! same recordings finds what the first confirmed in the store (same
+//! SHA-256, read back) and uploads only the rest.
+
+use super::store::{ProbeError, Store, StoreUrl};
+use super::transfer::{transfer, upload_set, Item, TransferError, Transferred};
+use super::worker::{FIRST_BACKOFF_S, MAX_BACKOFF_S};
+use serde::{Deserialize, Serialize};
+use std::path::PathBuf;
+use std::time::{Duration, Instant};
+
+/// The longest `--retry-for`, s (a day).
+pub const MAX_RETRY_FOR_S: f64 = 86_400.0;
+
+/// What `bench upload` does.
+#[derive(Debug, Clone)]
+pub struct UploadOptions {
+    /// The store (`--to`).
+    pub to: StoreUrl,
+    /// The finished recordings.
+    pub recordings: Vec<PathBuf>,
+    /// How long a failing store is retried, s (`--retry-for`, 0 to
+    /// [`MAX_RETRY_FOR_S`]).
+    pub retry_for_s: f64,
+}
+
+/// An item that did not go up.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
+pub struct NotUploaded {
+    /// The object's key.
+    pub key: String,
+    /// The local file (or, for a catalogue row, its recording).
+    pub local: PathBuf,
+    /// Why.
+    pub reason: String,
+}
+
+/// What `bench upload` did.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
+pub struct UploadSummary {
+    /// The store.
+    pub store: String,
+    /// Each item confirmed by the store (uploaded now or found there).
+    pub confirmed: Vec<Transferred>,
+    /// Items the store could not take in `retry_for_s` (still local).
+    pub failed: Vec<NotUploaded>,
+    /// Items that cannot go up (another object of the name in the store;
+    /// the local file is kept).
+    pub dropped: Vec<NotUploaded>,
+    /// Wall time, s.
+    pub elapsed_s: f64,
+}
+
+impl UploadSummary {
+    /// The summary's lines.
+    pub fn lines(&self) -> Vec<String> {
+        let mut out = Vec::new();
+        for t in &self.confirmed {
+            out.push(format!(
+                "{}  {}  {} bytes  sha256 {}",
+                if t.uploaded { "uploaded" } else { "in store" },
+                t.url,
+                t.size_bytes,
+                t.sha256
+            ));
+        }
+        for (what, list) in [("FAILED  ", &self.failed), ("DROPPED ", &self.dropped)] {
+            for n in list {
+                out.push(format!(
+                    "{what}{} ({}): {}",
+                    n.key,
+                    n.local.display(),
+                    n.reason
+                ));
+            }
+        }
+        let uploaded = self.confirmed.iter().filter(|t| t.uploaded).count();
+        out.push(format!(
+            "{} confirmed in {} ({} uploaded, {} already there), {} failed, {} dropped, {:.1} s; local copies kept",
+            self.confirmed.len(),
+            self.store,
+            uploaded,
+            self.confirmed.len() - uploaded,
+            self.failed.len(),
+            self.dropped.len(),
+            self.elapsed_s
+        ));
+        out
+    }
+
+    /// Everything confirmed.
+    pub fn complete(&self) -> bool {
+        self.failed.is_empty() && self.dropped.is_empty()
+    }
+}
+
+/// Why `bench upload` did not start.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum UploadError {
+    /// A recording that is not a finished recording (nothing uploaded).
+    #[error("{path}: {reason}")]
+    Recording {
+        /// The argument.
+        path: PathBuf,
+        /// Why.
+        reason: String,
+    },
+    /// `--to`: the store cannot be opened or refused (no bucket, wrong
+    /// credentials).
+    #[error("{0}")]
+    Store(String),
+    /// `--retry-for` out of range.
+    #[error("{0}")]
+    RetryFor(String),
+}
+
+fn local_of(item: &Item) -> PathBuf {
+    match &item.source {
+        super::Source::File(p) => p.clone(),
+        super::Source::CatalogueRow { recording, .. } => recording.clone(),
+    }
+}
+
+/// Uploads the recordings of `opts` with their companions and rows.
+///
+/// # Errors
+/// [`UploadError`]: a recording is not finished, `--retry-for` is out of
+/// range, or the store cannot be opened or refuses (before anything
+/// is uploaded).
+pub fn upload_recordings(opts: &UploadOptions) -> Result<UploadSummary, UploadError> {
+    let started = Instant::now();
+    if !(0.0..=MAX_RETRY_FOR_S).contains(&opts.retry_for_s) {
+        return Err(UploadError::RetryFor(format!(
+            "{} s is out of range (0 to {MAX_RETRY_FOR_S} s)",
+            opts.retry_for_s
+        )));
+    }
+    let mut items = Vec::new();
+    for r in &opts.recordings {
+        let set = upload_set(&opts.to, r).map_err(|reason| UploadError::Recording {
+            path: r.clone(),
+            reason,
+        })?;
+        for i in set {
+            if !items.iter().any(|j: &Item| j.key == i.key) {
+                items.push(i);
+            }
+        }
+    }
+    let store = Store::open(opts.to.clone()).map_err(UploadError::Store)?;
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .map_err(|e| UploadError::Store(format!("tokio: {e}")))?;
+    rt.block_on(async {
+        if let Err(ProbeError::Refused(m)) = store.probe().await {
+            return Err(UploadError::Store(m));
+        }
+        let deadline = started + Duration::from_secs_f64(opts.retry_for_s);
+        let mut summary = UploadSummary {
+            store: opts.to.to_string(),
+            confirmed: Vec::new(),
+            failed: Vec::new(),
+            dropped: Vec::new(),
+            elapsed_s: 0.0,
+        };
+        let mut backoff_s = FIRST_BACKOFF_S;
+        let mut given_up = false;
+        for item in &items {
+            loop {
+                if given_up {
+                    summary.failed.push(NotUploaded {
+                        key: item.key.clone(),
+                        local: local_of(item),
+                        reason: "not tried: the store failed before it".into(),
+                    });
+                    break;
+                }
+                match transfer(&store, item).await {
+                    Ok(t) => {
+                        backoff_s = FIRST_BACKOFF_S;
+                        summary.confirmed.push(t);
+                        break;
+                    }
+                    Err(TransferError::Drop(reason)) => {
+                        summary.dropped.push(NotUploaded {
+                            key: item.key.clone(),
+                            local: local_of(item),
+                            reason,
+                        });
+                        break;
+                    }
+                    Err(TransferError::Retry(reason)) => {
+                        let now = Instant::now();
+                        if now + Duration::from_secs_f64(backoff_s) > deadline {
+                            given_up = true;
+                            summary.failed.push(NotUploaded {
+                                key: item.key.clone(),
+                                local: local_of(item),
+                                reason,
+                            });
+                            break;
+                        }
+                        tracing::warn!("{}: {reason}; again in {backoff_s} s", item.key);
+                        tokio::time::sleep(Duration::from_secs_f64(backoff_s)).await;
+                        backoff_s = (backoff_s * 2.0).min(MAX_BACKOFF_S);
+                    }
+                }
+            }
+        }
+        summary.elapsed_s = started.elapsed().as_secs_f64();
+        Ok(summary)
+    })
+}

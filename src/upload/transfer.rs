@@ -1,0 +1,318 @@
+//! One file to the store and its confirmation: what a recording's upload
+//! consists of ([`upload_set`]) and how one item goes up ([`transfer`]).
+
+use super::store::{classify, ProbeError, Store, StoreUrl};
+use super::{MULTIPART_THRESHOLD_BYTES, PART_BYTES};
+use crate::catalogue::file::write_rows;
+use crate::catalogue::{row_of_recording, CATALOGUE_DIR};
+use futures_util::StreamExt;
+use object_store::{ObjectStoreExt, PutPayload, WriteMultipart};
+use serde::{Deserialize, Serialize};
+use sha2::{Digest, Sha256};
+use std::io::Read;
+use std::path::{Path, PathBuf};
+
+/// Where an item's bytes come from.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Source {
+    /// A local file, as it is.
+    File(PathBuf),
+    /// The catalogue row of `recording` ([`row_of_recording`]), its
+    /// `recording` column set to `recording_url` (the recording's object):
+    /// built when it is uploaded, from the recording alone, so it is the
+    /// same row every time.
+    CatalogueRow {
+        /// The finished recording.
+        recording: PathBuf,
+        /// Its object's URL.
+        recording_url: String,
+    },
+}
+
+/// One object to upload: its key under the store's root and its source.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Item {
+    /// The object's key (the store's prefix included).
+    pub key: String,
+    /// Where its bytes come from.
+    pub source: Source,
+}
+
+/// What a recording's upload consists of, in order: the recording
+/// `DIR/STEM.mcap`, every regular file `DIR/STEM.*` beside it (its FRF
+/// CSV, plots, summary; never a `.part` or a temporary file), and its
+/// catalogue row (`catalogue/STEM.parquet`, whose `recording` is the
+/// recording's object URL), each under the store's prefix by its name.
+///
+/// # Errors
+/// Why `recording` is not a finished recording of `bench` (a `.part`, a
+/// file that is not MCAP, one without `bench`'s metadata, a missing file).
+pub fn upload_set(url: &StoreUrl, recording: &Path) -> Result<Vec<Item>, String> {
+    let name = recording
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    let Some(stem) = name.strip_suffix(".mcap") else {
+        return Err(format!(
+            "{} is not a finished recording (a recording's name ends in .mcap; a .part is a run still running or killed: `bench recover` it first)",
+            recording.display()
+        ));
+    };
+    row_of_recording(recording).map_err(|e| crate::error::error_chain(&e))?;
+    let recording = std::path::absolute(recording).map_err(|e| e.to_string())?;
+    let dir = recording.parent().unwrap_or(Path::new("/")).to_path_buf();
+    let key = url.key_of(&name);
+    let recording_url = url.object_url(&key);
+    let mut items = vec![Item {
+        key,
+        source: Source::File(recording.clone()),
+    }];
+    let mut siblings = Vec::new();
+    let with_dot = format!("{stem}.");
+    for entry in std::fs::read_dir(&dir).map_err(|e| format!("{}: {e}", dir.display()))? {
+        let entry = entry.map_err(|e| format!("{}: {e}", dir.display()))?;
+        let n = entry.file_name().to_string_lossy().into_owned();
+        if n == name
+            || !n.starts_with(&with_dot)
+            || n.ends_with(crate::outputs::PART_SUFFIX)
+            || n.ends_with(".tmp")
+            || !entry.file_type().is_ok_and(|t| t.is_file())
+        {
+            continue;
+        }
+        siblings.push(n);
+    }
+    siblings.sort();
+    items.extend(siblings.into_iter().map(|n| Item {
+        key: url.key_of(&n),
+        source: Source::File(dir.join(&n)),
+    }));
+    items.push(Item {
+        key: url.key_of(&format!("{CATALOGUE_DIR}/{stem}.parquet")),
+        source: Source::CatalogueRow {
+            recording,
+            recording_url,
+        },
+    });
+    Ok(items)
+}
+
+/// An item the store confirmed.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
+pub struct Transferred {
+    /// The object's key.
+    pub key: String,
+    /// Its URL.
+    pub url: String,
+    /// Its size, bytes.
+    pub size_bytes: u64,
+    /// The SHA-256 (hex) of the local bytes, equal to the object's as read
+    /// back from the store.
+    pub sha256: String,
+    /// `true`: uploaded now; `false`: already in the store with the same
+    /// checksum (not uploaded again).
+    pub uploaded: bool,
+}
+
+/// Why an item did not go up.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum TransferError {
+    /// The store failed or did not answer: tried again later.
+    #[error("{0}")]
+    Retry(String),
+    /// The item cannot go up (its local file is gone, an object of the
+    /// same name holds other contents): dropped from the queue, the local
+    /// file kept.
+    #[error("{0}")]
+    Drop(String),
+}
+
+/// The local bytes of an item: a file (read as it goes up) or a built row.
+enum Local {
+    File(PathBuf, u64),
+    Bytes(Vec<u8>),
+}
+
+fn local_of(source: &Source) -> Result<Local, TransferError> {
+    match source {
+        Source::File(p) => match std::fs::metadata(p) {
+            Ok(m) if m.is_file() => Ok(Local::File(p.clone(), m.len())),
+            Ok(_) => Err(TransferError::Drop(format!(
+                "{} is no longer a regular file",
+                p.display()
+            ))),
+            Err(e) => Err(TransferError::Drop(format!("{}: {e}", p.display()))),
+        },
+        Source::CatalogueRow {
+            recording,
+            recording_url,
+        } => {
+            let mut row = row_of_recording(recording)
+                .map_err(|e| TransferError::Drop(crate::error::error_chain(&e)))?;
+            row.recording = Some(recording_url.clone());
+            let mut buf = Vec::new();
+            write_rows(std::slice::from_ref(&row), &mut buf)
+                .map_err(|e| TransferError::Drop(format!("the catalogue row: {e}")))?;
+            Ok(Local::Bytes(buf))
+        }
+    }
+}
+
+fn hex(d: &[u8]) -> String {
+    d.iter().map(|b| format!("{b:02x}")).collect()
+}
+
+/// SHA-256 and size of the local bytes.
+fn local_digest(local: &Local) -> Result<(u64, String), TransferError> {
+    match local {
+        Local::Bytes(b) => Ok((b.len() as u64, hex(&Sha256::digest(b)))),
+        Local::File(p, _) => {
+            let gone = |e: std::io::Error| TransferError::Drop(format!("{}: {e}", p.display()));
+            let mut f = std::fs::File::open(p).map_err(gone)?;
+            let mut h = Sha256::new();
+            let mut buf = vec![0u8; 1 << 20];
+            let mut n_total = 0u64;
+            loop {
+                let n = f.read(&mut buf).map_err(gone)?;
+                if n == 0 {
+                    break;
+                }
+                n_total += n as u64;
+                h.update(&buf[..n]);
+            }
+            Ok((n_total, hex(&h.finalize())))
+        }
+    }
+}
+
+fn store_error(what: &str, e: &object_store::Error) -> TransferError {
+    TransferError::Retry(match classify(e) {
+        ProbeError::Refused(m) | ProbeError::Unreachable(m) => format!("{what}: {m}"),
+    })
+}
+
+/// SHA-256 and size of the object at `key`, read back from the store.
+async fn remote_digest(store: &Store, key: &str) -> Result<(u64, String), TransferError> {
+    let get = store
+        .inner
+        .get(&Store::path(key))
+        .await
+        .map_err(|e| store_error("reading the object back", &e))?;
+    let mut stream = get.into_stream();
+    let mut h = Sha256::new();
+    let mut n = 0u64;
+    while let Some(chunk) = stream.next().await {
+        let chunk = chunk.map_err(|e| store_error("reading the object back", &e))?;
+        n += chunk.len() as u64;
+        h.update(&chunk);
+    }
+    Ok((n, hex(&h.finalize())))
+}
+
+/// Puts the bytes of `local` at `key`: one PUT, or a multipart upload for
+/// a file over [`MULTIPART_THRESHOLD_BYTES`] (aborted on an error).
+async fn put(store: &Store, key: &str, local: &Local) -> Result<(), TransferError> {
+    let path = Store::path(key);
+    match local {
+        Local::Bytes(b) => {
+            store
+                .inner
+                .put(&path, PutPayload::from(b.clone()))
+                .await
+                .map_err(|e| store_error("uploading", &e))?;
+        }
+        Local::File(p, size) if *size <= MULTIPART_THRESHOLD_BYTES => {
+            let bytes = std::fs::read(p)
+                .map_err(|e| TransferError::Drop(format!("{}: {e}", p.display())))?;
+            store
+                .inner
+                .put(&path, PutPayload::from(bytes))
+                .await
+                .map_err(|e| store_error("uploading", &e))?;
+        }
+        Local::File(p, _) => {
+            let gone = |e: std::io::Error| TransferError::Drop(format!("{}: {e}", p.display()));
+            let upload = store
+                .inner
+                .put_multipart(&path)
+                .await
+                .map_err(|e| store_error("starting the multipart upload", &e))?;
+            let mut w = WriteMultipart::new_with_chunk_size(upload, PART_BYTES);
+            let mut f = std::fs::File::open(p).map_err(gone)?;
+            let mut buf = vec![0u8; PART_BYTES];
+            loop {
+                let mut filled = 0;
+                while filled < buf.len() {
+                    match f.read(&mut buf[filled..]) {
+                        Ok(0) => break,
+                        Ok(n) => filled += n,
+                        Err(e) => {
+                            let _ = w.abort().await;
+                            return Err(gone(e));
+                        }
+                    }
+                }
+                if filled == 0 {
+                    break;
+                }
+                if let Err(e) = w.wait_for_capacity(2).await {
+                    let _ = w.abort().await;
+                    return Err(store_error("uploading a part", &e));
+                }
+                w.write(&buf[..filled]);
+                if filled < buf.len() {
+                    break;
+                }
+            }
+            w.finish()
+                .await
+                .map_err(|e| store_error("completing the multipart upload", &e))?;
+        }
+    }
+    Ok(())
+}
+
+/// Uploads `item` unless the store holds it already, and confirms it by
+/// reading the object back: its size and SHA-256 must equal the local
+/// bytes'. An object that differs after the upload is deleted and the
+/// item retried.
+///
+/// # Errors
+/// [`TransferError::Retry`] when the store fails or does not answer;
+/// [`TransferError::Drop`] when the local file is gone or the store holds
+/// another object of the same name.
+pub async fn transfer(store: &Store, item: &Item) -> Result<Transferred, TransferError> {
+    let local = local_of(&item.source)?;
+    let (size_bytes, sha256) = local_digest(&local)?;
+    let confirmed = |uploaded| Transferred {
+        key: item.key.clone(),
+        url: store.url.object_url(&item.key),
+        size_bytes,
+        sha256: sha256.clone(),
+        uploaded,
+    };
+    match store.inner.head(&Store::path(&item.key)).await {
+        Ok(meta) => {
+            if meta.size == size_bytes && remote_digest(store, &item.key).await?.1 == sha256 {
+                return Ok(confirmed(false));
+            }
+            return Err(TransferError::Drop(format!(
+                "{} already holds another object ({} bytes); it is not overwritten",
+                store.url.object_url(&item.key),
+                meta.size
+            )));
+        }
+        Err(object_store::Error::NotFound { .. }) => {}
+        Err(e) => return Err(store_error("asking for the object", &e)),
+    }
+    put(store, &item.key, &local).await?;
+    let (n, sum) = remote_digest(store, &item.key).await?;
+    if n != size_bytes || sum != sha256 {
+        let _ = store.inner.delete(&Store::path(&item.key)).await;
+        return Err(TransferError::Retry(format!(
+            "the object read back ({n} bytes, SHA-256 {sum}) differs from the local file ({size_bytes} bytes, {sha256}); deleted, to be uploaded again"
+        )));
+    }
+    Ok(confirmed(true))
+}
