@@ -39,10 +39,10 @@ pub mod worker;
 pub use store::{ProbeError, Store, StoreUrl};
 pub use transfer::{upload_set, Item, Source, Transferred};
 
-/// Files larger than this go up as a multipart upload (8 MiB parts),
+/// Files larger than this go up as a multipart upload (5 MiB parts),
 /// smaller ones in one PUT.
-pub const MULTIPART_THRESHOLD_BYTES: u64 = 16 * 1024 * 1024;
+pub const MULTIPART_THRESHOLD_BYTES: u64 = 8 * 1024 * 1024;
 
-/// The part size of a multipart upload: S3's smallest part is 5 MiB
+/// The part size of a multipart upload: S3's smallest part, 5 MiB
 /// (but for the last).
-pub const PART_BYTES: usize = 8 * 1024 * 1024;
+pub const PART_BYTES: usize = 5 * 1024 * 1024;
