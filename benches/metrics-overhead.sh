@@ -7,6 +7,13 @@
 # each job's p99 and, at the end, the medians and their ratio to without
 # (the bar: within 1.10). A third kind of daemon, with `--metrics` and no
 # scraper, separates what the metrics cost from what the scraping does.
+# A fourth, `uploading` (-U URL), is `with` and `--upload URL` besides, with
+# uploads running while the job does: before the measured job it runs
+# -n unpaced 150 s chirps (about 13 MB of recording each), whose uploads
+# (and their read-back checksums) the daemon's upload thread is still
+# doing when the measured job starts; the script reports how many files
+# the store confirmed during the measured job (none: the uploads had
+# already finished, and the figure says nothing about them).
 #
 # What is compared: `timing.wake_latency_p99_us` of each job's summary
 # (`bench chirp --daemon --json`): the loop's own wake-up latency over the
@@ -29,7 +36,10 @@
 #   -i  scrape interval, s (default 1)
 #   -o  run the scraper off the loop's CPU (taskset)
 #   -m  the kinds of daemon, comma-separated (default
-#       without,unscraped,with)
+#       without,unscraped,with; with -U also uploading)
+#   -U  the store of the `uploading` daemon (s3://BUCKET/PREFIX with the
+#       AWS_* environment, or file:///DIR)
+#   -n  recordings queued for upload before each measured job (default 3)
 #   -B  use this bench binary instead of building it in release (a quick
 #       check of the script; figures come from a release build)
 # Needs root (or the rights to SCHED_FIFO and /dev/cpu_dma_latency), curl
@@ -42,15 +52,20 @@ cpu=$(( $(nproc) - 1 ))
 interval=1
 off_cpu=
 modes=(without unscraped with)
+modes_given=
 bench=
-while getopts "d:r:c:i:om:B:h" opt; do
+upload_url=
+backlog=3
+while getopts "d:r:c:i:om:B:U:n:h" opt; do
     case $opt in
         d) duration=$OPTARG ;;
         r) rounds=$OPTARG ;;
         c) cpu=$OPTARG ;;
         i) interval=$OPTARG ;;
         o) off_cpu=1 ;;
-        m) IFS=, read -r -a modes <<<"$OPTARG" ;;
+        m) IFS=, read -r -a modes <<<"$OPTARG"; modes_given=1 ;;
+        U) upload_url=$OPTARG ;;
+        n) backlog=$OPTARG ;;
         B) bench=$OPTARG ;;
         *) sed -n '2,30p' "$0"; exit 2 ;;
     esac
@@ -62,9 +77,12 @@ die() { echo "metrics-overhead: $*" >&2; exit 2; }
 [[ $rounds =~ ^[0-9]+$ ]] && [ "$rounds" -ge 1 ] || die "-r: at least 1 round (got $rounds)"
 [[ $cpu =~ ^[0-9]+$ ]] && [ "$cpu" -lt "$(nproc)" ] || die "-c: a CPU from 0 to $(( $(nproc) - 1 )) (got $cpu)"
 [[ $interval =~ ^[0-9.]+$ ]] || die "-i: seconds (got $interval)"
+if [ -n "$upload_url" ] && [ -z "$modes_given" ]; then modes+=(uploading); fi
 for m in "${modes[@]}"; do
-    [[ $m =~ ^(without|unscraped|with)$ ]] || die "-m: without, unscraped or with (got $m)"
+    [[ $m =~ ^(without|unscraped|with|uploading)$ ]] || die "-m: without, unscraped, with or uploading (got $m)"
+    [ "$m" != uploading ] || [ -n "$upload_url" ] || die "-m uploading needs -U URL"
 done
+[[ $backlog =~ ^[0-9]+$ ]] || die "-n: a number of recordings (got $backlog)"
 command -v curl >/dev/null || die "curl not found"
 if [ -n "$off_cpu" ]; then
     command -v taskset >/dev/null || die "-o: taskset not found (util-linux)"
@@ -127,14 +145,34 @@ job_p99() {
     python3 -c 'import json, sys; print("%.1f" % json.load(open(sys.argv[1]))["timing"]["wake_latency_p99_us"])' "$work/job.json"
 }
 
-run() { # $1: without | unscraped | with
+# Files the store confirmed between the UTC times $1 and $2 (the journal).
+confirmed_between() {
+    python3 - "$work/rec/upload-journal.jsonl" "$1" "$2" <<'PY'
+import json, sys
+a, b = sys.argv[2], sys.argv[3]
+n = 0
+for line in open(sys.argv[1]):
+    l = json.loads(line)
+    if l["op"] == "confirmed" and a <= l["time_utc"][:19] <= b:
+        n += 1
+print(n)
+PY
+}
+
+run() { # $1: without | unscraped | with | uploading
     if [ "$1" = without ]; then
         start_daemon
+    elif [ "$1" = uploading ]; then
+        start_daemon --metrics 127.0.0.1:0 --upload "$upload_url"
+        [ -n "$url" ] || die "no metrics address in: $(cat "$work/serve.err")"
+        for _ in $(seq "$backlog"); do
+            "$bench" chirp --daemon "$sock" --duration-s 150 --pace off --json >/dev/null
+        done
     else
         start_daemon --metrics 127.0.0.1:0
         [ -n "$url" ] || die "no metrics address in: $(cat "$work/serve.err")"
     fi
-    if [ "$1" = with ]; then
+    if [ "$1" = with ] || [ "$1" = uploading ]; then
         scrape=(python3 -c '
 import sys, time, urllib.request
 url, every = sys.argv[1], float(sys.argv[2])
@@ -151,7 +189,12 @@ while True:
         "${scrape[@]}" &
         scraper=$!
     fi
+    t0=$(date -u +%Y-%m-%dT%H:%M:%S)
     p99=$(job_p99)
+    t1=$(date -u +%Y-%m-%dT%H:%M:%S)
+    if [ "$1" = uploading ]; then
+        echo "  (uploading: $(confirmed_between "$t0" "$t1") file(s) confirmed by the store during the measured job)" >&2
+    fi
     if [ -n "$scraper" ]; then
         kill "$scraper" 2>/dev/null; wait "$scraper" 2>/dev/null || true
         scraper=
@@ -160,7 +203,7 @@ while True:
         # The metrics saw the job. (Read whole first: grep -q would close
         # the pipe on curl.)
         text=$(curl -s "$url")
-        grep -q '^bench_jobs_total{kind="chirp",outcome="ok"} 1' <<<"$text" ||
+        grep -q '^bench_jobs_total{kind="chirp",outcome="ok"} [1-9]' <<<"$text" ||
             die "the metrics did not count the job"
     fi
     stop_daemon
@@ -180,9 +223,9 @@ for round in $(seq 1 "$rounds"); do
     done
 done
 
-python3 - "${results[without]:-}" "${results[unscraped]:-}" "${results[with]:-}" <<'EOF'
+python3 - "${results[without]:-}" "${results[unscraped]:-}" "${results[with]:-}" "${results[uploading]:-}" <<'EOF'
 import statistics, sys
-names = ["without --metrics", "--metrics, unscraped", "--metrics, scraped every second"]
+names = ["without --metrics", "--metrics, unscraped", "--metrics, scraped every second", "scraped, and uploads running"]
 runs = [[float(x) for x in a.split()] for a in sys.argv[1:]]
 base = statistics.median(runs[0]) if runs[0] else None
 for name, r in zip(names, runs):
@@ -192,5 +235,5 @@ for name, r in zip(names, runs):
     if base is None:
         base = m
     print(f"{name:32s} median p99 {m:6.1f} µs  ratio {m / base:.3f}  ({' '.join(f'{x:.1f}' for x in sorted(r))})")
-print("bar: scraped every second within 1.10 of without")
+print("bar: scraped every second (and uploading) within 1.10 of without")
 EOF

@@ -537,6 +537,7 @@ fn the_daemon_uploads_after_an_outage_and_a_kill_from_its_journal_once() {
     }
     let objects = m.objects("daemon/");
     assert_uploaded(&objects, "daemon", &rec);
+    readme_bucket_query(&m, &rec);
     // Restarted once more: nothing pending, nothing sent again.
     d.kill().unwrap();
     d.wait().unwrap();
@@ -554,6 +555,34 @@ fn the_daemon_uploads_after_an_outage_and_a_kill_from_its_journal_once() {
     );
     assert_eq!(journal_lines(&recordings).len(), lines);
     assert_eq!(m.objects("daemon/"), objects);
+}
+
+/// The README's bucket query (`<!-- upload example: bucket-query -->`),
+/// over the daemon's uploads under `daemon/`: the chirp's row, with its
+/// object's URL, and one ok run.
+fn readme_bucket_query(m: &Moto, rec: &Path) {
+    let readme =
+        std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("README.md")).unwrap();
+    let block = readme
+        .split("<!-- upload example: bucket-query -->\n```python\n")
+        .nth(1)
+        .and_then(|r| r.split("```").next())
+        .expect("the README's bucket query");
+    let script = format!(
+        "{}\nimport json\nprint(json.dumps({{\"recordings\": list(runs.recording), \"ok\": int(per_host.runs.sum())}}))\n",
+        block.replace("lab-bench/recordings/bench3/", "lab-bench/daemon/")
+    );
+    let mut c = Command::new(python());
+    aws_env(&mut c, &m.endpoint(), &m.id, &m.secret);
+    let o = c.args(["-c", &script]).output().unwrap();
+    assert!(o.status.success(), "{}\n{script}", stderr(&o));
+    let v: Value = serde_json::from_slice(&o.stdout).unwrap();
+    let name = rec.file_name().unwrap().to_str().unwrap();
+    assert_eq!(
+        v,
+        json!({"recordings": [format!("s3://lab-bench/daemon/{name}")], "ok": 1}),
+        "{script}"
+    );
 }
 
 #[test]

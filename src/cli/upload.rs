@@ -19,7 +19,12 @@ pub(super) struct UploadArgs {
     /// backoff from 1 s doubling to 60 s, seconds (0 to 86400). What is
     /// still not confirmed then is reported (exit 1); the local files are
     /// kept and a second run uploads only what is missing.
-    #[arg(long, value_name = "SECONDS", default_value_t = 60.0, allow_negative_numbers = true)]
+    #[arg(
+        long,
+        value_name = "SECONDS",
+        default_value_t = 60.0,
+        allow_negative_numbers = true
+    )]
     retry_for: f64,
     /// Print the summary as one JSON object.
     #[arg(long)]
