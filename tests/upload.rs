@@ -467,6 +467,27 @@ fn a_multipart_upload_survives_the_store_going_away_in_the_middle() {
     assert_uploaded(&m.objects("big/"), "big", &rec);
 }
 
+/// The daemon's metrics, from the address it printed on stderr.
+fn scrape(d: &mut Child) -> String {
+    use std::io::BufRead;
+    let err = d.stderr.as_mut().unwrap();
+    let mut r = std::io::BufReader::new(err);
+    let mut line = String::new();
+    let url = loop {
+        line.clear();
+        assert!(r.read_line(&mut line).unwrap() > 0, "no metrics address");
+        if let Some(u) = line.trim().strip_prefix("bench serve: metrics on http://") {
+            break u.to_string();
+        }
+    };
+    let (addr, path) = url.split_once('/').unwrap();
+    let mut s = TcpStream::connect(addr).unwrap();
+    write!(s, "GET /{path} HTTP/1.0\r\nHost: {addr}\r\n\r\n").unwrap();
+    let mut text = String::new();
+    s.read_to_string(&mut text).unwrap();
+    text
+}
+
 fn journal_lines(recordings: &Path) -> Vec<Value> {
     std::fs::read_to_string(recordings.join("upload-journal.jsonl"))
         .unwrap_or_default()
@@ -488,7 +509,12 @@ fn the_daemon_uploads_after_an_outage_and_a_kill_from_its_journal_once() {
             &config,
             &socket,
             &recordings,
-            &["--upload", "s3://lab-bench/daemon"],
+            &[
+                "--upload",
+                "s3://lab-bench/daemon",
+                "--metrics",
+                "127.0.0.1:0",
+            ],
             |c| aws_env(c, &proxy.endpoint(), &m.id, &m.secret),
         )
     };
@@ -538,6 +564,15 @@ fn the_daemon_uploads_after_an_outage_and_a_kill_from_its_journal_once() {
     let objects = m.objects("daemon/");
     assert_uploaded(&objects, "daemon", &rec);
     readme_bucket_query(&m, &rec);
+    // The metrics count them: every file confirmed, none pending.
+    let text = scrape(&mut d);
+    assert!(
+        text.contains(&format!(
+            "bench_uploads_total{{outcome=\"confirmed\"}} {}",
+            queued.len()
+        )) && text.contains("bench_upload_pending 0"),
+        "{text}"
+    );
     // Restarted once more: nothing pending, nothing sent again.
     d.kill().unwrap();
     d.wait().unwrap();

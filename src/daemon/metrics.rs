@@ -183,6 +183,8 @@ pub(super) struct Metrics {
 
 struct Shared {
     status: Arc<Mutex<Status>>,
+    /// `--upload`'s counts, if the daemon uploads.
+    uploads: Option<Arc<crate::upload::worker::UploadCounts>>,
     recorder: Mutex<RecorderState>,
     loop_: Mutex<LoopState>,
 }
@@ -210,6 +212,7 @@ impl Metrics {
         status: Arc<Mutex<Status>>,
         rx: rtrb::Consumer<LoopCounts>,
         build: BuildInfo,
+        uploads: Option<Arc<crate::upload::worker::UploadCounts>>,
     ) -> Self {
         let mut registry = Registry::with_prefix("bench");
         registry.register(
@@ -242,6 +245,7 @@ impl Metrics {
         );
         let state = Arc::new(Shared {
             status,
+            uploads,
             recorder: Mutex::new(RecorderState::default()),
             loop_: Mutex::new(LoopState {
                 total: LoopCounts::default(),
@@ -471,6 +475,28 @@ impl Collector for Scrape {
             None,
             dropped,
         )?;
+        if let Some(u) = &self.0.uploads {
+            use std::sync::atomic::Ordering::Relaxed;
+            labelled_counter(
+                &mut enc,
+                "uploads",
+                "`--upload`: files the store confirmed (SHA-256 read back), failed tries \
+                 (each retried after a backoff) and files dropped (another object of the \
+                 name in the store, the local file gone).",
+                "outcome",
+                &[
+                    ("confirmed", u.confirmed.load(Relaxed)),
+                    ("failed", u.failed.load(Relaxed)),
+                    ("dropped", u.dropped.load(Relaxed)),
+                ],
+            )?;
+            ConstGauge::new(u.pending.load(Relaxed) as i64).encode(enc.encode_descriptor(
+                "upload_pending",
+                "`--upload`: files queued (in the journal) and not yet confirmed or dropped.",
+                None,
+                MetricType::Gauge,
+            )?)?;
+        }
         if let Some(link) = total.link {
             let (bad, timeouts, missed) = link_figures(link);
             labelled_counter(

@@ -401,6 +401,9 @@ pub fn serve(opts: ServeOptions) -> Result<(), ServeError> {
                     config_hash: opts.config.sha256_hex(),
                     backend: backend_name,
                 },
+                uploader
+                    .as_ref()
+                    .map(crate::upload::worker::Uploader::counts),
             ));
             let server =
                 metrics::MetricsServer::start(listener, Arc::clone(&m), opts.config.loop_.cpu)

@@ -17,7 +17,7 @@ use super::transfer::{transfer, upload_set, Item, TransferError, Transferred};
 use super::Store;
 use std::collections::VecDeque;
 use std::path::Path;
-use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 use tokio::sync::mpsc;
@@ -53,6 +53,20 @@ pub enum UploadEvent {
 /// The callback that receives [`UploadEvent`]s (on the uploader's thread).
 pub type OnEvent = Box<dyn Fn(UploadEvent) + Send>;
 
+/// The uploader's counts since it started (the daemon's metrics:
+/// `bench_uploads_total{outcome}`, `bench_upload_pending`).
+#[derive(Debug, Default)]
+pub struct UploadCounts {
+    /// Items the store confirmed.
+    pub confirmed: AtomicU64,
+    /// Failed tries (each retried).
+    pub failed: AtomicU64,
+    /// Items dropped.
+    pub dropped: AtomicU64,
+    /// Items queued and not yet confirmed or dropped.
+    pub pending: AtomicUsize,
+}
+
 enum Msg {
     Items(Vec<Item>),
 }
@@ -63,7 +77,7 @@ pub struct Uploader {
     store: Store,
     journal: Arc<Mutex<Journal>>,
     tx: Option<mpsc::UnboundedSender<Msg>>,
-    pending: Arc<AtomicUsize>,
+    counts: Arc<UploadCounts>,
     stop: Option<tokio::sync::oneshot::Sender<()>>,
     thread: Option<std::thread::JoinHandle<()>>,
 }
@@ -105,7 +119,10 @@ impl Uploader {
             );
         }
         let journal = Arc::new(Mutex::new(journal));
-        let count = Arc::new(AtomicUsize::new(mine.len()));
+        let count = Arc::new(UploadCounts {
+            pending: AtomicUsize::new(mine.len()),
+            ..UploadCounts::default()
+        });
         let (tx, rx) = mpsc::unbounded_channel();
         let (stop, stopped) = tokio::sync::oneshot::channel();
         let rt = tokio::runtime::Builder::new_current_thread()
@@ -132,7 +149,7 @@ impl Uploader {
             store,
             journal,
             tx: Some(tx),
-            pending: count,
+            counts: count,
             stop: Some(stop),
             thread: Some(thread),
         })
@@ -159,7 +176,7 @@ impl Uploader {
             }
         }
         let n = items.len();
-        self.pending.fetch_add(n, Ordering::Relaxed);
+        self.counts.pending.fetch_add(n, Ordering::Relaxed);
         if let Some(tx) = &self.tx {
             let _ = tx.send(Msg::Items(items));
         }
@@ -168,7 +185,12 @@ impl Uploader {
 
     /// Items not yet confirmed or dropped.
     pub fn pending(&self) -> usize {
-        self.pending.load(Ordering::Relaxed)
+        self.counts.pending.load(Ordering::Relaxed)
+    }
+
+    /// Its counts, shared.
+    pub fn counts(&self) -> Arc<UploadCounts> {
+        Arc::clone(&self.counts)
     }
 
     /// The store's URL.
@@ -194,7 +216,7 @@ impl Drop for Uploader {
 async fn run(
     store: &Store,
     journal: &Mutex<Journal>,
-    count: &AtomicUsize,
+    count: &UploadCounts,
     mut queue: VecDeque<Item>,
     mut rx: mpsc::UnboundedReceiver<Msg>,
     on_event: &OnEvent,
@@ -217,6 +239,7 @@ async fn run(
         let journal_line = match transfer(store, &item).await {
             Ok(t) => {
                 backoff_s = FIRST_BACKOFF_S;
+                count.confirmed.fetch_add(1, Ordering::Relaxed);
                 let line = Line::Confirmed {
                     store: url.clone(),
                     key: t.key.clone(),
@@ -229,6 +252,7 @@ async fn run(
                 line
             }
             Err(TransferError::Drop(reason)) => {
+                count.dropped.fetch_add(1, Ordering::Relaxed);
                 on_event(UploadEvent::Dropped {
                     key: item.key.clone(),
                     reason: reason.clone(),
@@ -241,6 +265,7 @@ async fn run(
                 }
             }
             Err(TransferError::Retry(error)) => {
+                count.failed.fetch_add(1, Ordering::Relaxed);
                 on_event(UploadEvent::Failed {
                     key: item.key.clone(),
                     error,
@@ -257,6 +282,6 @@ async fn run(
             tracing::error!("{e}");
         }
         queue.pop_front();
-        count.fetch_sub(1, Ordering::Relaxed);
+        count.pending.fetch_sub(1, Ordering::Relaxed);
     }
 }
