@@ -564,6 +564,16 @@ fn the_daemon_uploads_after_an_outage_and_a_kill_from_its_journal_once() {
     let objects = m.objects("daemon/");
     assert_uploaded(&objects, "daemon", &rec);
     readme_bucket_query(&m, &rec);
+    // The event log says so: the failures while the store was away, each
+    // confirmation after.
+    let log = std::fs::read_to_string(recordings.join("daemon-events.jsonl")).unwrap();
+    let events: Vec<Value> = log
+        .lines()
+        .filter_map(|l| serde_json::from_str(l).ok())
+        .collect();
+    let count = |kind: &str| events.iter().filter(|e| e["event"] == kind).count();
+    assert!(count("upload_failed") >= 1, "{log}");
+    assert_eq!(count("upload_confirmed"), queued.len(), "{log}");
     // The metrics count them: every file confirmed, none pending.
     let text = scrape(&mut d);
     assert!(
