@@ -3,7 +3,8 @@
 //! file queued, confirmed or dropped, each written and synced
 //! (`fdatasync`) before the daemon goes on. What was queued and is neither
 //! confirmed nor dropped is pending: after a restart the daemon uploads it
-//! first. A line torn by a crash (the last, incomplete) is ignored.
+//! first. A line torn by a crash (the last, incomplete) is cut off when
+//! the journal is next opened.
 //!
 //! A line:
 //! - `{"op":"queued","store":URL,"item":{"key":…,"source":…},"time_utc":…}`
@@ -18,7 +19,7 @@ use super::transfer::Item;
 use crate::outputs::{write_buffered_atomically, Existing, FILE_MODE};
 use serde::{Deserialize, Serialize};
 use std::fs::{File, OpenOptions};
-use std::io::{BufRead, Write};
+use std::io::Write;
 use std::os::unix::fs::OpenOptionsExt;
 use std::path::{Path, PathBuf};
 
@@ -104,21 +105,26 @@ impl Journal {
         let ctx = |e: std::io::Error| format!("the upload journal {}: {e}", path.display());
         let mut pending: Vec<Pending> = Vec::new();
         let mut size = 0;
-        if let Ok(f) = File::open(path) {
-            size = f.metadata().map_err(ctx)?.len();
-            let lines: Vec<String> = std::io::BufReader::new(f)
-                .lines()
-                .collect::<Result<_, _>>()
-                .map_err(ctx)?;
-            let last = lines.len().saturating_sub(1);
-            for (i, l) in lines.iter().enumerate() {
+        // Where a torn last line starts (cut off below).
+        let mut torn_at = None;
+        if let Ok(bytes) = std::fs::read(path) {
+            size = bytes.len() as u64;
+            let mut at = 0usize;
+            let n_lines = bytes.split(|b| *b == b'\n').count();
+            for (i, raw) in bytes.split(|b| *b == b'\n').enumerate() {
+                let start = at;
+                at += raw.len() + 1;
+                let l = String::from_utf8_lossy(raw);
                 if l.trim().is_empty() {
                     continue;
                 }
-                let line: Line = match serde_json::from_str(l) {
+                let line: Line = match serde_json::from_str(&l) {
                     Ok(line) => line,
                     // A crash while appending: the torn last line.
-                    Err(_) if i == last => break,
+                    Err(_) if i + 1 == n_lines => {
+                        torn_at = Some(start as u64);
+                        break;
+                    }
                     Err(e) => {
                         return Err(format!(
                             "the upload journal {} line {}: {e}",
@@ -137,6 +143,11 @@ impl Journal {
                     }
                 }
             }
+        }
+        if let Some(at) = torn_at {
+            let f = OpenOptions::new().write(true).open(path).map_err(ctx)?;
+            f.set_len(at).and_then(|()| f.sync_data()).map_err(ctx)?;
+            size = at;
         }
         if size > COMPACT_BYTES {
             let time_utc = now_utc();
@@ -160,22 +171,13 @@ impl Journal {
             .mode(FILE_MODE)
             .open(path)
             .map_err(ctx)?;
-        let mut j = Self {
-            path: path.to_path_buf(),
-            file,
-        };
-        // A torn last line is ended, so the next line starts clean.
-        j.end_torn_line().map_err(ctx)?;
-        Ok((j, pending))
-    }
-
-    fn end_torn_line(&mut self) -> std::io::Result<()> {
-        let bytes = std::fs::read(&self.path)?;
-        if bytes.last().is_some_and(|b| *b != b'\n') {
-            self.file.write_all(b"\n")?;
-            self.file.sync_data()?;
-        }
-        Ok(())
+        Ok((
+            Self {
+                path: path.to_path_buf(),
+                file,
+            },
+            pending,
+        ))
     }
 
     /// Appends `line` and syncs it to the disk.
