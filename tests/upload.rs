@@ -820,6 +820,26 @@ fn bad_stores_and_bad_files_exit_2_naming_the_flag_and_upload_nothing() {
         );
         assert!(!socket.exists(), "{what}: the daemon opened its socket");
     }
+    // A journal with a bad line in its middle: refused, naming the line.
+    let rec_dir = dir.path().join("rec");
+    std::fs::create_dir_all(&rec_dir).unwrap();
+    let journal = rec_dir.join("upload-journal.jsonl");
+    std::fs::write(&journal, "{\"op\":\"queued\"}\n{}\n").unwrap();
+    let mut c = bench();
+    aws_env(&mut c, &ep, &m.id, &m.secret);
+    let o = c
+        .args(["serve", "--config", config.to_str().unwrap(), "--socket"])
+        .arg(&socket)
+        .arg("--recordings")
+        .arg(&rec_dir)
+        .args(["--upload", "s3://lab-bench/d"])
+        .output()
+        .unwrap();
+    let err = stderr(&o);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(err.contains("--upload") && err.contains("line 1"), "{err}");
+    assert!(!socket.exists());
+    std::fs::remove_file(&journal).unwrap();
     let unreachable = format!("http://127.0.0.1:{}", free_port());
     let mut d = daemon_fixtures::spawn_serve_with(
         &config,
