@@ -658,6 +658,8 @@ fn bad_stores_and_bad_files_exit_2_naming_the_flag_and_upload_nothing() {
     let bytes = std::fs::read(&rec).unwrap();
     std::fs::write(&truncated, &bytes[..bytes.len() / 2]).unwrap();
     let csv = dir.path().join("ok.frf.csv");
+    let spaced = dir.path().join("my run é.mcap");
+    std::fs::copy(&rec, &spaced).unwrap();
     let cases: Vec<Case> = vec![
         (
             "wrong secret",
@@ -748,6 +750,14 @@ fn bad_stores_and_bad_files_exit_2_naming_the_flag_and_upload_nothing() {
             2,
             "RECORDING",
             "No such file",
+        ),
+        (
+            "a space in the name",
+            Box::new(none),
+            vec!["--to", "s3://lab-bench/x", spaced.to_str().unwrap()],
+            2,
+            "RECORDING",
+            "rename it",
         ),
         (
             "negative retry",

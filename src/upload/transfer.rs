@@ -59,6 +59,7 @@ pub fn upload_set(url: &StoreUrl, recording: &Path) -> Result<Vec<Item>, String>
             recording.display()
         ));
     };
+    check_name(&name)?;
     row_of_recording(recording).map_err(|e| crate::error::error_chain(&e))?;
     let recording = std::path::absolute(recording).map_err(|e| e.to_string())?;
     let dir = recording.parent().unwrap_or(Path::new("/")).to_path_buf();
@@ -81,6 +82,7 @@ pub fn upload_set(url: &StoreUrl, recording: &Path) -> Result<Vec<Item>, String>
         {
             continue;
         }
+        check_name(&n)?;
         siblings.push(n);
     }
     siblings.sort();
@@ -96,6 +98,22 @@ pub fn upload_set(url: &StoreUrl, recording: &Path) -> Result<Vec<Item>, String>
         },
     });
     Ok(items)
+}
+
+/// A file name every store keeps as it is, and its URL too: ASCII letters,
+/// digits, `-`, `_` and `.` (`bench`'s own names are). A directory store
+/// (`object_store`'s local file system) would encode other characters in
+/// the file's name, and a URL encodes them in its own way.
+fn check_name(name: &str) -> Result<(), String> {
+    match name
+        .chars()
+        .find(|c| !(c.is_ascii_alphanumeric() || "-_.".contains(*c)))
+    {
+        None => Ok(()),
+        Some(c) => Err(format!(
+            "{name:?}: {c:?} cannot be in the name of a file that is uploaded (ASCII letters, digits, -, _ and . only, as bench names its recordings): rename it"
+        )),
+    }
 }
 
 /// An item the store confirmed.
