@@ -54,7 +54,7 @@ pub enum EthercatError {
         found: u16,
     },
     /// The slave found is not the one configured.
-    #[error("{key}: the slave on `{interface}` has {what} 0x{found:08X}, the config expects 0x{expected:08X}; nothing was enabled")]
+    #[error("{key}: the slave on `{interface}` has {what} 0x{found:08X}, the config expects 0x{expected:08X}")]
     Identity {
         /// The config key (`backend.ethercat.vendor_id`/`product_id`).
         key: &'static str,
@@ -69,7 +69,7 @@ pub enum EthercatError {
     },
     /// The slave refused an SDO download (its abort code, ETG.1000.6
     /// Table 41).
-    #[error("{key}: the slave refused 0x{index:04X}:{subindex:02X} = 0x{value:X} ({reason}); nothing was enabled")]
+    #[error("{key}: the slave refused 0x{index:04X}:{subindex:02X} = 0x{value:X} ({reason})")]
     Refused {
         /// The config key the value comes from.
         key: String,
@@ -83,9 +83,7 @@ pub enum EthercatError {
         reason: String,
     },
     /// A bring-up step failed.
-    #[error(
-        "EtherCAT bring-up on `{interface}` failed while {step}: {reason}; nothing was enabled"
-    )]
+    #[error("EtherCAT bring-up on `{interface}` failed while {step}: {reason}")]
     Bringup {
         /// The interface.
         interface: String,
@@ -95,7 +93,7 @@ pub enum EthercatError {
         reason: String,
     },
     /// The bring-up did not finish in `bringup_timeout_ms`.
-    #[error("EtherCAT bring-up on `{interface}` did not finish within {waited_ms} ms (step: {step}; backend.ethercat.bringup_timeout_ms); nothing was enabled")]
+    #[error("EtherCAT bring-up on `{interface}` did not finish within {waited_ms} ms (step: {step}; backend.ethercat.bringup_timeout_ms)")]
     BringupTimeout {
         /// The interface.
         interface: String,
