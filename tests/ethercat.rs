@@ -327,6 +327,14 @@ fn chirp_over_ethercat_is_the_simulator_one_period_late() {
     );
 }
 
+/// Whether a run ended in the supervisor's overrun rule: this 2-core VM
+/// stalls even SCHED_FIFO threads for tens of ms at times (another build
+/// running), which the loop rightly refuses; the tests that compare
+/// physics retry such a run (at most twice) rather than fail on the VM.
+fn vm_stall(o: &Output) -> bool {
+    !o.status.success() && stderr(o).contains("safety fault: overruns")
+}
+
 fn control(seg: &Segment, cfg: &str, out: &str, extra: &[&str]) -> Output {
     let b = backend();
     let mut args = vec![
@@ -363,7 +371,14 @@ fn fast_step_over_ethercat_matches_the_simulator_within_a_period() {
     assert!(o.status.success(), "{}", stderr(&o));
     let sim = json_stdout(&o);
     let slave = Slave::start(&seg, &cfg, vec![], None);
-    let o = control(&seg, &cfg_s, &path_in(dir.path(), "ecat.mcap"), &[]);
+    let mut o = control(&seg, &cfg_s, &path_in(dir.path(), "ecat.mcap"), &[]);
+    for _ in 0..2 {
+        if !vm_stall(&o) {
+            break;
+        }
+        eprintln!("retrying a run the VM stalled: {}", stderr(&o));
+        o = control(&seg, &cfg_s, &path_in(dir.path(), "ecat.mcap"), &[]);
+    }
     assert!(o.status.success(), "{}", stderr(&o));
     let ec = json_stdout(&o);
     assert_eq!(slave.status.commanded_current_a(), 0.0);
@@ -400,27 +415,36 @@ fn faults_in_the_slave_end_the_run_at_zero_amps_latched() {
         (SlaveFault::DriveFault, "drive reports a fault", 3u8),
         (SlaveFault::LeaveOp, "left its AL state", 0),
         (SlaveFault::WrongWkc { frames: 1 }, "working counter", 0),
-        (SlaveFault::Drop { frames: 3 }, "frame lost", 0),
+        (SlaveFault::Drop { frames: 1 }, "frame lost", 0),
     ] {
         let Some(seg) = Segment::new() else { return };
         let dir = tmp();
         let cfg = quiet_config(dir.path());
-        let slave = Slave::start(
-            &seg,
-            &cfg,
-            vec![ScheduledSlaveFault {
-                at_s: 1.0,
-                kind: fault,
-            }],
-            None,
-        );
         let out = dir.path().join("run.mcap");
-        let o = control(
-            &seg,
-            &cfg.display().to_string(),
-            &out.display().to_string(),
-            &["--duration-s", "4"],
-        );
+        let mut attempt = 0;
+        let (slave, o) = loop {
+            let slave = Slave::start(
+                &seg,
+                &cfg,
+                vec![ScheduledSlaveFault {
+                    at_s: 1.0,
+                    kind: fault,
+                }],
+                None,
+            );
+            let o = control(
+                &seg,
+                &cfg.display().to_string(),
+                &out.display().to_string(),
+                &["--duration-s", "4"],
+            );
+            attempt += 1;
+            if vm_stall(&o) && attempt < 3 {
+                eprintln!("{fault:?}: retrying a run the VM stalled: {}", stderr(&o));
+                continue;
+            }
+            break (slave, o);
+        };
         let err = stderr(&o);
         assert!(
             !o.status.success(),
@@ -463,35 +487,54 @@ fn killing_the_host_leaves_the_drive_at_zero_amps_within_the_sm_watchdog() {
     let Some(seg) = Segment::new() else { return };
     let dir = tmp();
     let cfg = quiet_config(dir.path());
-    let slave = Slave::start(&seg, &cfg, vec![], None);
     let b = backend();
-    let mut child = seg
-        .bench_in_master(&[
-            "control",
-            "--fast",
-            "--config",
-            &cfg.display().to_string(),
-            "--duration-s",
-            "20",
-            "--out",
-            &path_in(dir.path(), "run.mcap"),
-            "--backend",
-            &b,
-        ])
-        .stdout(Stdio::null())
-        .stderr(Stdio::null())
-        .spawn()
-        .unwrap();
-    let t0 = Instant::now();
-    while slave.status.commands_received.load(Ordering::Relaxed) < 5000
-        || slave.status.commanded_current_a() == 0.0
-    {
+    let err_path = dir.path().join("host.err");
+    let mut attempt = 0;
+    let (slave, mut child) = loop {
+        attempt += 1;
+        let slave = Slave::start(&seg, &cfg, vec![], None);
+        let mut child = seg
+            .bench_in_master(&[
+                "control",
+                "--fast",
+                "--config",
+                &cfg.display().to_string(),
+                "--duration-s",
+                "20",
+                "--out",
+                &path_in(dir.path(), "run.mcap"),
+                "--backend",
+                &b,
+            ])
+            .stdout(Stdio::null())
+            .stderr(std::fs::File::create(&err_path).unwrap())
+            .spawn()
+            .unwrap();
+        let t0 = Instant::now();
+        let mut exited = false;
+        while slave.status.commands_received.load(Ordering::Relaxed) < 5000
+            || slave.status.commanded_current_a() == 0.0
+        {
+            assert!(
+                t0.elapsed() < Duration::from_secs(20),
+                "the host never drove the drive"
+            );
+            if child.try_wait().unwrap().is_some() {
+                exited = true;
+                break;
+            }
+            std::thread::sleep(Duration::from_millis(5));
+        }
+        if !exited {
+            break (slave, child);
+        }
+        let err = std::fs::read_to_string(&err_path).unwrap_or_default();
         assert!(
-            t0.elapsed() < Duration::from_secs(20),
-            "the host never drove the drive"
+            attempt < 3 && err.contains("safety fault: overruns"),
+            "the host stopped before driving the drive: {err}"
         );
-        std::thread::sleep(Duration::from_millis(5));
-    }
+        eprintln!("retrying a run the VM stalled: {err}");
+    };
     // SIGKILL to `ip netns exec`, which exec'd bench: no disable, no goodbye.
     child.kill().unwrap();
     child.wait().unwrap();
