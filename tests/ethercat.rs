@@ -528,6 +528,7 @@ fn killing_the_host_leaves_the_drive_at_zero_amps_within_the_sm_watchdog() {
         if !exited {
             break (slave, child);
         }
+        let _ = child.wait();
         let err = std::fs::read_to_string(&err_path).unwrap_or_default();
         assert!(
             attempt < 3 && err.contains("safety fault: overruns"),

@@ -409,3 +409,67 @@ fn bad_input_is_refused_with_the_key_and_nothing_enabled() {
     assert!(!slave.status.enabled.load(Ordering::Acquire));
     eprintln!("{e}");
 }
+
+/// The benchmark of the issue: one process-data round trip (the tick's
+/// `write_command`: frame out, through the virtual slave, back) over the
+/// veth pair, p50 and p99 against the loop period at 5, 10 and 20 kHz,
+/// 5 000 paced ticks each, the slave thread at SCHED_FIFO 70 when
+/// permitted. Printed (README, *Measured performance*); the assertion is
+/// only that the median round trip fits in the period at 5 kHz.
+#[test]
+fn round_trip_p50_p99_against_the_loop_period() {
+    let _g = serial();
+    let Some(v) = Veth::new() else { return };
+    let mut rows = Vec::new();
+    for rate_hz in [5_000u64, 10_000, 20_000] {
+        let period_ns = 1_000_000_000 / rate_hz;
+        let sock = RawSocket::open(&v.slave).expect("slave socket");
+        let core = DeviceCore::new(sim_params(), period_ns, u64::MAX / 4).unwrap();
+        let stop = Arc::new(AtomicBool::new(false));
+        let status = Arc::new(EmulatorStatus::default());
+        let (s, st, c) = (Arc::clone(&stop), Arc::clone(&status), host_cfg(&v.slave));
+        let t = std::thread::spawn(move || {
+            bench_hal::os::make_realtime(70, None);
+            run_slave(&sock, &c, core, default_id(), &[], &s, &st)
+        });
+        let mut stage = EthercatStage::open(&host_cfg(&v.master)).unwrap();
+        stage.configure(period_ns).unwrap();
+        stage.enable().unwrap();
+        let n = 5000;
+        let mut rt = Vec::with_capacity(n);
+        let mut next = bench_hal::os::monotonic_ns();
+        for _ in 0..n {
+            next += period_ns;
+            bench_hal::os::sleep_until_ns(next);
+            let s = stage.read_sample().unwrap();
+            let t0 = bench_hal::os::monotonic_ns();
+            stage
+                .write_command(Command {
+                    current_a: 0.0,
+                    answers_seq: s.seq,
+                })
+                .unwrap();
+            rt.push(bench_hal::os::monotonic_ns() - t0);
+        }
+        stage.disable().unwrap();
+        drop(stage);
+        stop.store(true, Ordering::Release);
+        t.join().unwrap().unwrap();
+        rt.sort_unstable();
+        let p = |q: f64| rt[((n as f64 - 1.0) * q).round() as usize] as f64 * 1e-3;
+        rows.push((rate_hz, period_ns, p(0.5), p(0.99), p(1.0)));
+    }
+    eprintln!("| loop rate | period | round trip p50 | p99 | max |");
+    eprintln!("|---|---|---|---|---|");
+    for (rate, period, p50, p99, max) in &rows {
+        eprintln!(
+            "| {} kHz | {} µs | {p50:.1} µs | {p99:.1} µs | {max:.1} µs |",
+            rate / 1000,
+            period / 1000
+        );
+    }
+    assert!(
+        rows[0].2 < rows[0].1 as f64 * 1e-3,
+        "median round trip above the 5 kHz period"
+    );
+}
