@@ -22,6 +22,33 @@ use std::time::{Duration, Instant};
 
 const PERIOD_NS: u64 = 200_000;
 
+/// Counts the allocations of the threads that ask for it (the loop's
+/// ticks must make none).
+struct Counting;
+
+thread_local! {
+    static COUNT_HERE: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
+}
+static ALLOCATIONS: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
+
+// SAFETY: forwards to the system allocator.
+unsafe impl std::alloc::GlobalAlloc for Counting {
+    unsafe fn alloc(&self, layout: std::alloc::Layout) -> *mut u8 {
+        if COUNT_HERE.with(|c| c.get()) {
+            ALLOCATIONS.fetch_add(1, Ordering::Relaxed);
+        }
+        // SAFETY: the caller's contract.
+        unsafe { std::alloc::System.alloc(layout) }
+    }
+    unsafe fn dealloc(&self, ptr: *mut u8, layout: std::alloc::Layout) {
+        // SAFETY: the caller's contract.
+        unsafe { std::alloc::System.dealloc(ptr, layout) }
+    }
+}
+
+#[global_allocator]
+static GLOBAL: Counting = Counting;
+
 fn sim_params() -> SimParams {
     common::ch5_bench(0.08, 0.0, 1)
 }
@@ -158,6 +185,7 @@ fn the_plant_behind_the_slave_is_the_simulator_one_period_late() {
     let n = 600;
     let mut host = Vec::with_capacity(n);
     let s0 = stage.read_sample().unwrap();
+    COUNT_HERE.with(|c| c.set(true));
     for k in 0..n {
         let s = stage.read_sample().unwrap();
         host.push(s.position_m);
@@ -168,6 +196,13 @@ fn the_plant_behind_the_slave_is_the_simulator_one_period_late() {
             })
             .unwrap();
     }
+    COUNT_HERE.with(|c| c.set(false));
+    // `host` was allocated before; the ticks themselves allocate nothing.
+    assert_eq!(
+        ALLOCATIONS.load(Ordering::Relaxed),
+        0,
+        "the ticks allocated"
+    );
     stage.disable().unwrap();
     assert!(!slave.status.enabled.load(Ordering::Acquire));
     assert_eq!(slave.status.commanded_current_a(), 0.0);

@@ -896,21 +896,30 @@ impl Stage for EthercatStage {
         self.exchange()
     }
 
-    /// 0 A with "disable voltage" in one exchange, then the slave back to
-    /// SAFE-OP (outputs no longer in force). Idempotent; bounded.
+    /// The drive's quick stop at 0 A (controlword 0x02: OPERATION ENABLED
+    /// → QUICK STOP ACTIVE, the current to 0 at once), then "disable
+    /// voltage" (→ SWITCH ON DISABLED), one exchange each, then the slave
+    /// back to SAFE-OP (outputs no longer in force). Idempotent; bounded
+    /// (each exchange at most max(`exchange_timeout_ms`, 10 ms)).
     fn disable(&mut self) -> Result<(), EthercatError> {
         self.enabled = false;
         if self.group.is_none() {
             return Ok(());
         }
-        self.set_outputs(CW_DISABLE_VOLTAGE, 0.0);
         let r = if matches!(self.group, Some(Running::Op(_))) {
             let saved = self.timeout_ns;
             self.timeout_ns = self.timeout_ns.max(10_000_000);
-            let r = self.exchange();
+            let mut r = Ok(());
+            for cw in [CW_QUICK_STOP, CW_DISABLE_VOLTAGE] {
+                self.set_outputs(cw, 0.0);
+                if let Err(e) = self.exchange() {
+                    r = Err(e);
+                }
+            }
             self.timeout_ns = saved;
             r
         } else {
+            self.set_outputs(CW_DISABLE_VOLTAGE, 0.0);
             Ok(())
         };
         let s = self.back_to_safe_op();
