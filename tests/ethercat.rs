@@ -406,6 +406,70 @@ fn fast_step_over_ethercat_matches_the_simulator_within_a_period() {
     }
 }
 
+/// The analog-terminal profile (16-bit ADC for the probe, 16-bit DAC for
+/// the amplifier, an enable output, a status input) under the same fast
+/// step: the times within 5 % or two periods of the simulator's (the ADC's
+/// 30.5 nm count is the probe's own resolution here).
+#[test]
+fn fast_step_over_analog_terminals_matches_the_simulator_within_a_period() {
+    let _g = one_at_a_time();
+    let Some(seg) = Segment::new() else { return };
+    let dir = tmp();
+    let cfg = common::quiet_config(
+        dir.path(),
+        2.0,
+        &format!(
+            "\n[backend.ethercat]\ninterface = \"{MASTER_IF}\"\nprofile = \"analog\"\nexchange_timeout_ms = 20.0\nwatchdog_ms = 50.0\n"
+        ),
+    );
+    let cfg_s = cfg.display().to_string();
+    let o = run(&[
+        "control",
+        "--fast",
+        "--config",
+        &cfg_s,
+        "--json",
+        "--out",
+        &path_in(dir.path(), "sim.mcap"),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let sim = json_stdout(&o);
+    let slave = SlaveProcess::start(&seg, &cfg, &[]);
+    let mut o = control(&seg, &cfg_s, &path_in(dir.path(), "ecat.mcap"), &[]);
+    for _ in 0..2 {
+        if !vm_stall(&o) {
+            break;
+        }
+        eprintln!("retrying a run the VM stalled: {}", stderr(&o));
+        o = control(&seg, &cfg_s, &path_in(dir.path(), "ecat.mcap"), &[]);
+    }
+    drop(slave);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let ec = json_stdout(&o);
+    assert!(ec["backend"].as_str().unwrap().contains("analog"), "{ec}");
+    let m = |s: &Value, k: &str| s["metrics"][k].as_f64().unwrap_or(f64::NAN);
+    for k in [
+        "rise_time_s",
+        "settling_time_s",
+        "overshoot_pct",
+        "steady_state_error_std_nm",
+    ] {
+        eprintln!(
+            "analog {k}: EtherCAT {} vs direct {}",
+            m(&ec, k),
+            m(&sim, k)
+        );
+    }
+    for k in ["rise_time_s", "settling_time_s"] {
+        let (a, b) = (m(&sim, k), m(&ec, k));
+        assert!(
+            (b - a).abs() <= (0.05 * a.abs()).max(2.0 * 2e-4),
+            "{k}: EtherCAT {b} vs direct {a} (link {})",
+            ec["link"]
+        );
+    }
+}
+
 /// A 4 s fast step with `fault` injected in the slave 1 s after it
 /// entered OP; the recording is `run.mcap` beside `cfg`.
 #[test]
@@ -439,7 +503,11 @@ fn faults_in_the_slave_end_the_run_at_zero_amps_latched() {
                 &["--duration-s", "4"],
             );
             attempt += 1;
-            if vm_stall(&o) && attempt < 3 {
+            // A VM stall can also outlast the 20 ms round-trip bound (a
+            // lost frame) before the injected fault.
+            let stalled =
+                vm_stall(&o) || (!stderr(&o).contains(needle) && stderr(&o).contains("frame lost"));
+            if stalled && attempt < 3 {
                 eprintln!("{fault:?}: retrying a run the VM stalled: {}", stderr(&o));
                 continue;
             }

@@ -508,3 +508,92 @@ fn round_trip_p50_p99_against_the_loop_period() {
         "median round trip above the 5 kHz period"
     );
 }
+
+fn analog_cfg(iface: &str) -> EthercatConfig {
+    EthercatConfig {
+        profile: bench_hal::ethercat::Profile::Analog,
+        ..host_cfg(iface)
+    }
+}
+
+#[test]
+fn analog_terminals_drive_the_plant_one_period_late_and_report_faults() {
+    let _g = serial();
+    let Some(v) = Veth::new() else { return };
+    let c = analog_cfg(&v.slave);
+    let id = SlaveIdentity {
+        vendor_id: c.vendor_id,
+        product_id: c.expected_product_id(),
+    };
+    assert_eq!(id.product_id, 0x0A10);
+    let faults = vec![ScheduledSlaveFault {
+        at_s: 0.5,
+        kind: SlaveFault::DriveFault,
+    }];
+    let slave = Slave::start(&v.slave, &c, id, faults);
+    let mut stage = EthercatStage::open(&analog_cfg(&v.master)).unwrap();
+    let info = stage.configure(PERIOD_NS).unwrap();
+    assert!(info.name.contains("analog"), "{}", info.name);
+    // The CiA 402 drive's identity is refused by an analog config and the
+    // reverse; here the identity matches.
+    stage.enable().unwrap();
+    assert!(slave.status.enabled.load(Ordering::Acquire));
+    let n = 600;
+    let mut host = Vec::with_capacity(n);
+    for k in 0..n {
+        let s = stage.read_sample().unwrap();
+        assert!(s.flags.amplifier_enabled && !s.flags.amplifier_fault);
+        host.push(s.position_m);
+        stage
+            .write_command(Command {
+                current_a: current(k),
+                answers_seq: s.seq,
+            })
+            .unwrap();
+    }
+    // The direct simulator, the same DAC-quantised currents one period
+    // later, read through the same 16-bit ADC.
+    let dac = |i: f64| (i / 9.98 * 32767.0).round() / 32767.0 * 9.98;
+    let adc = |x: f64| (x / 1e-3 * 32767.0).round() / 32767.0 * 1e-3;
+    let mut sim = SimStage::new(sim_params()).unwrap();
+    sim.configure(PERIOD_NS).unwrap();
+    sim.enable().unwrap();
+    let mut worst = 0.0f64;
+    let mut peak = 0.0f64;
+    let (mut x0, mut d0) = (0.0, 0.0);
+    for (k, h) in host.iter().enumerate() {
+        let s = sim.read_sample().unwrap();
+        let d = adc(s.position_m);
+        if k == 0 {
+            (x0, d0) = (*h, d);
+        }
+        worst = worst.max(((h - x0) - (d - d0)).abs());
+        peak = peak.max((d - d0).abs());
+        let i = if k == 0 { 0.0 } else { dac(current(k - 1)) };
+        sim.write_command(Command {
+            current_a: i,
+            answers_seq: s.seq,
+        })
+        .unwrap();
+    }
+    eprintln!(
+        "analog: peak motion {:.3} µm, worst difference {:.3} nm (ADC count 30.5 nm)",
+        peak * 1e6,
+        worst * 1e9
+    );
+    assert!(peak > 1e-7);
+    assert!(worst <= 1e-3 / 32767.0 + 1e-12, "worst {worst} m");
+    // The amplifier fault on the status input fails the tick.
+    let (err, _) = run_until_error(&mut stage, 0.3, 20_000);
+    let err = err.expect("the injected amplifier fault");
+    assert_eq!(err.kind(), ErrorKind::AmplifierFault, "{err}");
+    let _ = stage.zero_and_disable(0);
+    assert_eq!(slave.status.commanded_current_a(), 0.0);
+    assert_eq!(slave.status.fault_code.load(Ordering::Acquire), 3);
+    // A new enable edge clears it.
+    stage.configure(PERIOD_NS).unwrap();
+    stage.enable().unwrap();
+    assert_eq!(slave.status.fault_code.load(Ordering::Acquire), 0);
+    stage.disable().unwrap();
+    assert!(!slave.status.enabled.load(Ordering::Acquire));
+}

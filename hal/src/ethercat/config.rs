@@ -13,6 +13,11 @@ pub enum Profile {
     /// (0x6060 = 10), driving the voice coil's current.
     #[default]
     Cia402,
+    /// Analog terminals: a 16-bit ADC channel reading the probe, a 16-bit
+    /// DAC channel commanding the current amplifier, a digital output
+    /// enabling it and (optional) a digital input with the amplifier's
+    /// ready and fault lines.
+    Analog,
 }
 
 impl Profile {
@@ -20,6 +25,7 @@ impl Profile {
     pub fn as_str(self) -> &'static str {
         match self {
             Self::Cia402 => "cia402",
+            Self::Analog => "analog",
         }
     }
 
@@ -28,6 +34,7 @@ impl Profile {
     pub fn product_id(self) -> u32 {
         match self {
             Self::Cia402 => 0x0000_0402,
+            Self::Analog => 0x0000_0A10,
         }
     }
 }
@@ -90,6 +97,35 @@ pub const CURRENT_ACTUAL: PdoEntry = PdoEntry::new(0x6078, 16);
 /// Manufacturer-specific current actual value (0x2078, i32, µA; TxPDO).
 pub const CURRENT_ACTUAL_UA: PdoEntry = PdoEntry::new(0x2078, 32);
 
+/// Analog terminal: DAC channel 1 (0x7000:01, i16, ±32767 = ±
+/// `dac_full_scale_a`; RxPDO): the amplifier's current command.
+pub const DAC_OUTPUT: PdoEntry = PdoEntry {
+    index: 0x7000,
+    subindex: 1,
+    bits: 16,
+};
+/// Analog terminal: digital output (0x7010:01, u8, bit 0 = enable the
+/// amplifier; RxPDO).
+pub const ENABLE_OUTPUT: PdoEntry = PdoEntry {
+    index: 0x7010,
+    subindex: 1,
+    bits: 8,
+};
+/// Analog terminal: ADC channel 1 value (0x6000:11, i16, ±32767 = ±
+/// `adc_full_scale_m`; TxPDO): the probe.
+pub const ADC_INPUT: PdoEntry = PdoEntry {
+    index: 0x6000,
+    subindex: 0x11,
+    bits: 16,
+};
+/// Analog terminal: digital input (0x6020:01, u8, bit 0 amplifier ready
+/// (enabled), bit 1 amplifier fault; TxPDO, optional).
+pub const STATUS_INPUT: PdoEntry = PdoEntry {
+    index: 0x6020,
+    subindex: 1,
+    bits: 8,
+};
+
 /// The largest process image of one direction, bytes.
 pub const MAX_PDO_BYTES: usize = 32;
 
@@ -140,6 +176,14 @@ pub struct EthercatConfig {
     pub probe_range_m: f64,
     /// One count of the position actual value 0x6064, m (default 1e-10).
     pub position_lsb_m: f64,
+    /// Analog profile: the position at ADC full scale (+32767 counts), m
+    /// (default 1e-3: the probe's ±1 mm on the ADC's ±10 V, 30.5 nm per
+    /// count). A reading at ±32767 is out of range.
+    pub adc_full_scale_m: f64,
+    /// Analog profile: the current at DAC full scale (+32767 counts), A
+    /// (default 9.98: the amplifier's ±10 V input at its peak current,
+    /// 0.30 mA per count).
+    pub dac_full_scale_a: f64,
 }
 
 impl Default for EthercatConfig {
@@ -158,6 +202,8 @@ impl Default for EthercatConfig {
             continuous_current_a: 2.34,
             probe_range_m: 1e-3,
             position_lsb_m: 1e-10,
+            adc_full_scale_m: 1e-3,
+            dac_full_scale_a: 9.98,
         }
     }
 }
@@ -166,6 +212,9 @@ impl Default for EthercatConfig {
 pub const VIRTUAL_VENDOR_ID: u32 = 0x00BE_C0DE;
 
 /// Where the host finds each value in the process images (byte offsets).
+/// In the analog profile the controlword is the enable output, the target
+/// the DAC, the statusword the status input (`usize::MAX` when not mapped)
+/// and the position the ADC.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct ImageLayout {
     /// Output image length, bytes.
@@ -201,19 +250,40 @@ impl EthercatConfig {
 
     /// RxPDO entries in force.
     pub fn rx_entries(&self) -> Vec<PdoEntry> {
-        if self.rx_pdo.is_empty() {
-            vec![CONTROLWORD, TARGET_CURRENT]
-        } else {
-            self.rx_pdo.clone()
+        match (self.rx_pdo.is_empty(), self.profile) {
+            (false, _) => self.rx_pdo.clone(),
+            (true, Profile::Cia402) => vec![CONTROLWORD, TARGET_CURRENT],
+            (true, Profile::Analog) => vec![DAC_OUTPUT, ENABLE_OUTPUT],
         }
     }
 
     /// TxPDO entries in force.
     pub fn tx_entries(&self) -> Vec<PdoEntry> {
-        if self.tx_pdo.is_empty() {
-            vec![STATUSWORD, POSITION_ACTUAL, CURRENT_ACTUAL_UA]
-        } else {
-            self.tx_pdo.clone()
+        match (self.tx_pdo.is_empty(), self.profile) {
+            (false, _) => self.tx_pdo.clone(),
+            (true, Profile::Cia402) => vec![STATUSWORD, POSITION_ACTUAL, CURRENT_ACTUAL_UA],
+            (true, Profile::Analog) => vec![ADC_INPUT, STATUS_INPUT],
+        }
+    }
+
+    /// The host's known objects of a direction: entry and name.
+    fn known(&self, rx: bool) -> &'static [(PdoEntry, &'static str)] {
+        match (self.profile, rx) {
+            (Profile::Cia402, true) => &[
+                (CONTROLWORD, "controlword"),
+                (TARGET_TORQUE, "target torque"),
+                (TARGET_CURRENT, "target current"),
+            ],
+            (Profile::Cia402, false) => &[
+                (STATUSWORD, "statusword"),
+                (POSITION_ACTUAL, "position actual"),
+                (CURRENT_ACTUAL, "current actual"),
+                (CURRENT_ACTUAL_UA, "current actual (µA)"),
+            ],
+            (Profile::Analog, true) => {
+                &[(DAC_OUTPUT, "DAC output"), (ENABLE_OUTPUT, "enable output")]
+            }
+            (Profile::Analog, false) => &[(ADC_INPUT, "ADC input"), (STATUS_INPUT, "status input")],
         }
     }
 
@@ -275,6 +345,17 @@ impl EthercatConfig {
         )?;
         positive(&format!("{prefix}.probe_range_m"), self.probe_range_m)?;
         positive(&format!("{prefix}.position_lsb_m"), self.position_lsb_m)?;
+        positive(&format!("{prefix}.adc_full_scale_m"), self.adc_full_scale_m)?;
+        positive(&format!("{prefix}.dac_full_scale_a"), self.dac_full_scale_a)?;
+        if self.profile == Profile::Analog && self.dac_full_scale_a < self.peak_current_a {
+            return Err(ParamError::new(
+                format!("{prefix}.dac_full_scale_a"),
+                format!(
+                    "{} A at full scale cannot command the peak current {} A",
+                    self.dac_full_scale_a, self.peak_current_a
+                ),
+            ));
+        }
         if self.probe_range_m / self.position_lsb_m > f64::from(i32::MAX) {
             return Err(ParamError::new(
                 format!("{prefix}.position_lsb_m"),
@@ -325,20 +406,7 @@ impl EthercatConfig {
                         format!("0x{:04X}:{:02X} is mapped twice", e.index, e.subindex),
                     ));
                 }
-                let known: &[(PdoEntry, &str)] = if dir == "rx_pdo" {
-                    &[
-                        (CONTROLWORD, "controlword"),
-                        (TARGET_TORQUE, "target torque"),
-                        (TARGET_CURRENT, "target current"),
-                    ]
-                } else {
-                    &[
-                        (STATUSWORD, "statusword"),
-                        (POSITION_ACTUAL, "position actual"),
-                        (CURRENT_ACTUAL, "current actual"),
-                        (CURRENT_ACTUAL_UA, "current actual (µA)"),
-                    ]
-                };
+                let known = self.known(dir == "rx_pdo");
                 if let Some((k, name)) = known
                     .iter()
                     .find(|(k, _)| k.index == e.index && k.subindex == e.subindex)
@@ -353,7 +421,10 @@ impl EthercatConfig {
                         ));
                     }
                     match (dir, e.index) {
-                        ("rx_pdo", 0x6040) => l.controlword = offset,
+                        ("rx_pdo", 0x6040 | 0x7010) => l.controlword = offset,
+                        ("rx_pdo", 0x7000) => l.target = (offset, false),
+                        ("tx_pdo", 0x6020) => l.statusword = offset,
+                        ("tx_pdo", 0x6000) => l.position = offset,
                         ("rx_pdo", 0x6071 | 0x2071) => {
                             if l.target.0 != usize::MAX {
                                 return Err(ParamError::new(
@@ -394,20 +465,39 @@ impl EthercatConfig {
         let missing = |dir: &str, what: &str| {
             ParamError::new(format!("{prefix}.{dir}"), format!("the map has no {what}"))
         };
+        let analog = self.profile == Profile::Analog;
         if l.controlword == usize::MAX {
-            return Err(missing("rx_pdo", "controlword 0x6040"));
+            return Err(missing(
+                "rx_pdo",
+                if analog {
+                    "enable output 0x7010:01"
+                } else {
+                    "controlword 0x6040"
+                },
+            ));
         }
         if l.target.0 == usize::MAX {
             return Err(missing(
                 "rx_pdo",
-                "target (0x6071 target torque or 0x2071 target current)",
+                if analog {
+                    "DAC output 0x7000:01"
+                } else {
+                    "target (0x6071 target torque or 0x2071 target current)"
+                },
             ));
         }
-        if l.statusword == usize::MAX {
+        if l.statusword == usize::MAX && !analog {
             return Err(missing("tx_pdo", "statusword 0x6041"));
         }
         if l.position == usize::MAX {
-            return Err(missing("tx_pdo", "position actual 0x6064"));
+            return Err(missing(
+                "tx_pdo",
+                if analog {
+                    "ADC input 0x6000:11"
+                } else {
+                    "position actual 0x6064"
+                },
+            ));
         }
         Ok(l)
     }

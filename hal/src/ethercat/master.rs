@@ -254,12 +254,33 @@ impl EthercatStage {
         &self.cfg
     }
 
-    /// The statusword of the latest exchange.
+    /// The statusword of the latest exchange (analog profile: the status
+    /// input, 0 when not mapped).
     pub fn statusword(&self) -> u16 {
-        u16::from_le_bytes([
-            self.inp[self.layout.statusword],
-            self.inp[self.layout.statusword + 1],
-        ])
+        let at = self.layout.statusword;
+        if self.analog() {
+            return if at == usize::MAX {
+                0
+            } else {
+                u16::from(self.inp[at])
+            };
+        }
+        u16::from_le_bytes([self.inp[at], self.inp[at + 1]])
+    }
+
+    fn analog(&self) -> bool {
+        self.cfg.profile == super::config::Profile::Analog
+    }
+
+    /// The amplifier is enabled and not faulted, as its status says
+    /// (analog without a status input: as commanded).
+    fn status_ok(&self) -> bool {
+        let sw = self.statusword();
+        if self.analog() {
+            self.layout.statusword == usize::MAX || sw & 0x03 == 0x01
+        } else {
+            sw & SW_FAULT == 0 && sw & STATE_MASK == 0x27
+        }
     }
 
     fn md(&self) -> &MainDevice<'static> {
@@ -392,16 +413,20 @@ impl EthercatStage {
             self.sdo(&group, md, assign, 1, pdo, key(None), deadline)?;
             self.sdo(&group, md, assign, 0, 1u8, key(None), deadline)?;
         }
-        self.sdo(
-            &group,
-            md,
-            0x6060,
-            0,
-            MODE_CST,
-            "backend.ethercat.profile".into(),
-            deadline,
-        )?;
-        if !self.layout.target.1 || matches!(self.layout.current, Some((_, false))) {
+        if !self.analog() {
+            self.sdo(
+                &group,
+                md,
+                0x6060,
+                0,
+                MODE_CST,
+                "backend.ethercat.profile".into(),
+                deadline,
+            )?;
+        }
+        if !self.analog()
+            && (!self.layout.target.1 || matches!(self.layout.current, Some((_, false))))
+        {
             // Torque / current in ‰ of the motor rated current 0x6075 (mA).
             let sd = group
                 .subdevice(md, 0)
@@ -591,10 +616,11 @@ impl EthercatStage {
         self.stats.exchanges += 1;
         self.seq += 1;
         self.fresh = true;
-        let sw = self.statusword();
-        if self.enabled && (sw & SW_FAULT != 0 || sw & STATE_MASK != 0x27) {
+        if self.enabled && !self.status_ok() {
             self.enabled = false;
-            return Err(EthercatError::DriveFault { statusword: sw });
+            return Err(EthercatError::DriveFault {
+                statusword: self.statusword(),
+            });
         }
         Ok(())
     }
@@ -602,8 +628,17 @@ impl EthercatStage {
     fn set_outputs(&mut self, controlword: u16, current_a: f64) {
         self.controlword = controlword;
         let l = self.layout;
-        self.out[l.controlword..l.controlword + 2].copy_from_slice(&controlword.to_le_bytes());
         let (at, micro) = l.target;
+        if self.analog() {
+            // Enable output bit 0; DAC ±32767 = ± dac_full_scale_a.
+            self.out[l.controlword] = u8::from(controlword & 1 != 0);
+            let v = (current_a / self.cfg.dac_full_scale_a * 32767.0)
+                .round()
+                .clamp(-32767.0, 32767.0) as i16;
+            self.out[at..at + 2].copy_from_slice(&v.to_le_bytes());
+            return;
+        }
+        self.out[l.controlword..l.controlword + 2].copy_from_slice(&controlword.to_le_bytes());
         if micro {
             let v = (current_a * 1e6).round().clamp(-2.0e9, 2.0e9) as i32;
             self.out[at..at + 4].copy_from_slice(&v.to_le_bytes());
@@ -618,8 +653,24 @@ impl EthercatStage {
     fn sample(&self) -> Sample {
         let l = self.layout;
         let sw = self.statusword();
-        let counts = entry_i64(&self.inp, l.position, true);
-        let position_m = counts as f64 * self.cfg.position_lsb_m;
+        let (position_m, out_of_range, enabled, fault) = if self.analog() {
+            let v = entry_i64(&self.inp, l.position, false);
+            let known = l.statusword != usize::MAX;
+            (
+                v as f64 / 32767.0 * self.cfg.adc_full_scale_m,
+                v.abs() >= 32767,
+                if known { sw & 1 != 0 } else { self.enabled },
+                known && sw & 2 != 0,
+            )
+        } else {
+            let x = entry_i64(&self.inp, l.position, true) as f64 * self.cfg.position_lsb_m;
+            (
+                x,
+                x.abs() > self.cfg.probe_range_m,
+                sw & STATE_MASK == 0x27,
+                sw & SW_FAULT != 0,
+            )
+        };
         let measured_current_a = match l.current {
             Some((at, true)) => entry_i64(&self.inp, at, true) as f64 * 1e-6,
             Some((at, false)) => {
@@ -633,9 +684,9 @@ impl EthercatStage {
             position_m,
             measured_current_a,
             flags: SampleFlags {
-                out_of_range: position_m.abs() > self.cfg.probe_range_m,
-                amplifier_enabled: sw & STATE_MASK == 0x27,
-                amplifier_fault: sw & SW_FAULT != 0,
+                out_of_range,
+                amplifier_enabled: enabled,
+                amplifier_fault: fault,
                 command_late: false,
             },
         }
@@ -826,7 +877,15 @@ impl Stage for EthercatStage {
             self.group = Some(Running::Op(g));
         }
         let deadline = monotonic_ns() + 500_000_000;
+        let analog = self.analog();
         let ok = (|| -> Result<bool, EthercatError> {
+            if analog {
+                // The enable output's rising edge (it clears a latched
+                // fault); the status input, if mapped, must say ready.
+                self.drive_to(0, |_| true, deadline)?;
+                let known = self.layout.statusword != usize::MAX;
+                return self.drive_to(1, |st| !known || st & 0x03 == 0x01, deadline);
+            }
             if self.statusword() & SW_FAULT != 0 {
                 self.drive_to(CW_DISABLE_VOLTAGE, |_| true, deadline)?;
                 if !self.drive_to(CW_FAULT_RESET, |sw| sw & SW_FAULT == 0, deadline)? {

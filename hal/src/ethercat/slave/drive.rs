@@ -29,10 +29,24 @@
 //! Mapping an object not marked Rx/Tx in that direction, or at another
 //! width, is refused with abort 0x0604_0041; more than 8 entries or 32
 //! bytes with 0x0604_0042.
+//!
+//! # The analog-terminal profile
+//!
+//! The same ESC with analog I/O instead of the drive (device type
+//! 0x0000_0191), the amplifier behind the DAC:
+//!
+//! | index:sub | type | access | meaning |
+//! |---|---|---|---|
+//! | 0x7000:01 | i16 | Rx | DAC channel 1: ±32767 = ± `dac_full_scale_a` |
+//! | 0x7010:01 | u8 | Rx | digital output, bit 0: amplifier enable (a rising edge enables and clears a latched fault) |
+//! | 0x6000:11 | i16 | ro, Tx | ADC channel 1: ±32767 = ± `adc_full_scale_m` (saturated) |
+//! | 0x6020:01 | u8 | ro, Tx | digital input: bit 0 amplifier ready (enabled), bit 1 amplifier fault |
+//!
+//! plus 0x1018, 0x1600/0x1A00, 0x1C12/0x1C13 as above.
 
 use super::sii::MBX_SIZE;
 use crate::emulator::{DeviceCore, DeviceFault};
-use crate::ethercat::config::{EthercatConfig, PdoEntry, MAX_PDO_BYTES};
+use crate::ethercat::config::{EthercatConfig, PdoEntry, Profile, MAX_PDO_BYTES};
 use crate::ethercat::wire::cia402::*;
 use crate::ethercat::wire::le16;
 use crate::{Command, Sample};
@@ -110,6 +124,14 @@ const TX_MAPPABLE: [PdoEntry; 4] = [
     crate::ethercat::config::CURRENT_ACTUAL,
     crate::ethercat::config::CURRENT_ACTUAL_UA,
 ];
+const RX_MAPPABLE_ANALOG: [PdoEntry; 2] = [
+    crate::ethercat::config::DAC_OUTPUT,
+    crate::ethercat::config::ENABLE_OUTPUT,
+];
+const TX_MAPPABLE_ANALOG: [PdoEntry; 2] = [
+    crate::ethercat::config::ADC_INPUT,
+    crate::ethercat::config::STATUS_INPUT,
+];
 
 /// A PDO mapping object (0x1600 or 0x1A00) and its assignment.
 #[derive(Debug, Clone)]
@@ -147,6 +169,10 @@ impl Pdo {
 #[derive(Debug)]
 pub struct Drive {
     pub(super) core: DeviceCore,
+    profile: Profile,
+    adc_full_scale_m: f64,
+    dac_full_scale_a: f64,
+    enable_bit: bool,
     state: State402,
     controlword: u16,
     mode: i8,
@@ -172,20 +198,22 @@ fn entry_value(bytes: &[u8], at: usize, bits: u8) -> i64 {
 impl Drive {
     /// A drive around `core`, its PDO map the defaults of `cfg`.
     pub fn new(core: DeviceCore, cfg: &EthercatConfig, vendor_id: u32, product_id: u32) -> Self {
+        // The device's own defaults (not the host's map).
+        let defaults = EthercatConfig {
+            profile: cfg.profile,
+            ..EthercatConfig::default()
+        };
         Self {
             core,
+            profile: cfg.profile,
+            adc_full_scale_m: cfg.adc_full_scale_m,
+            dac_full_scale_a: cfg.dac_full_scale_a,
+            enable_bit: false,
             state: State402::SwitchOnDisabled,
             controlword: 0,
             mode: 0,
-            rx: Pdo::new(&[
-                crate::ethercat::config::CONTROLWORD,
-                crate::ethercat::config::TARGET_CURRENT,
-            ]),
-            tx: Pdo::new(&[
-                crate::ethercat::config::STATUSWORD,
-                crate::ethercat::config::POSITION_ACTUAL,
-                crate::ethercat::config::CURRENT_ACTUAL_UA,
-            ]),
+            rx: Pdo::new(&defaults.rx_entries()),
+            tx: Pdo::new(&defaults.tx_entries()),
             vendor_id,
             product_id,
             rated_current_a: cfg.continuous_current_a,
@@ -310,6 +338,9 @@ impl Drive {
     /// disable), then the plant advances one period and the inputs are
     /// written to `inputs`.
     pub fn cycle(&mut self, outputs: Option<&[u8]>, inputs: &mut [u8], now_ns: u64) {
+        if self.profile == Profile::Analog {
+            return self.analog_cycle(outputs, inputs, now_ns);
+        }
         let mut cw = CW_DISABLE_VOLTAGE;
         let mut target_a = 0.0;
         if let Some(out) = outputs {
@@ -351,6 +382,56 @@ impl Drive {
         self.write_inputs(inputs);
     }
 
+    /// The analog terminals' cycle: the enable output's rising edge enables
+    /// the amplifier (clearing a latched fault), its 0 disables it; the DAC
+    /// value is the current while enabled; then the plant advances and the
+    /// ADC and the status input are latched.
+    fn analog_cycle(&mut self, outputs: Option<&[u8]>, inputs: &mut [u8], now_ns: u64) {
+        let mut dac = 0i64;
+        let mut en = false;
+        if let Some(out) = outputs {
+            let mut at = 0;
+            for raw in &self.rx.entries[..usize::from(self.rx.count)] {
+                let e = PdoEntry::from_raw(*raw);
+                if at + usize::from(e.bits / 8) > out.len() {
+                    break;
+                }
+                let v = entry_value(out, at, e.bits);
+                match e.index {
+                    0x7000 => dac = v,
+                    0x7010 => en = v & 1 != 0,
+                    _ => {}
+                }
+                at += usize::from(e.bits / 8);
+            }
+        }
+        if en && !self.enable_bit {
+            self.core.enable(now_ns);
+        } else if !en && self.core.is_enabled() {
+            self.core.disable();
+        }
+        self.enable_bit = en;
+        let current_a = dac as f64 / 32767.0 * self.dac_full_scale_a;
+        self.demand_a = if self.core.is_enabled() {
+            current_a
+        } else {
+            0.0
+        };
+        if self.core.is_enabled() {
+            let seq = self.last.map_or(0, |s| s.seq);
+            self.core.command(
+                Command {
+                    current_a,
+                    answers_seq: seq,
+                },
+                now_ns,
+            );
+        }
+        let s = self.core.tick(now_ns);
+        self.last = Some(s);
+        self.write_inputs(inputs);
+    }
+
     /// Writes the inputs of the latest sample and state (also before the
     /// first cycle).
     pub fn write_inputs(&self, inputs: &mut [u8]) {
@@ -375,6 +456,12 @@ impl Drive {
                     .round()
                     .clamp(-32767.0, 32767.0) as i64,
                 0x2078 => (cur * 1e6).round().clamp(-2e9, 2e9) as i64,
+                0x6000 => (pos / self.adc_full_scale_m * 32767.0)
+                    .round()
+                    .clamp(-32767.0, 32767.0) as i64,
+                0x6020 => {
+                    i64::from(self.core.is_enabled()) | i64::from(self.core.fault().is_some()) << 1
+                }
                 _ => 0,
             };
             inputs[at..at + n].copy_from_slice(&v.to_le_bytes()[..n]);
@@ -385,6 +472,35 @@ impl Drive {
     /// The current the drive commands now, A.
     pub fn current_a(&self) -> f64 {
         self.core.commanded_current_a()
+    }
+
+    /// The communication objects both profiles have.
+    fn upload_common(&self, index: u16, sub: u8) -> Result<(u32, u8), u32> {
+        let pdo = |p: &Pdo| match sub {
+            0 => Ok((u32::from(p.count), 1)),
+            1..=8 => Ok((p.entries[usize::from(sub - 1)], 4)),
+            _ => Err(abort::NO_SUBINDEX),
+        };
+        let assign = |p: &Pdo, which: u16| match sub {
+            0 => Ok((u32::from(p.assigned), 1)),
+            1 => Ok((u32::from(which), 2)),
+            _ => Err(abort::NO_SUBINDEX),
+        };
+        match index {
+            0x1018 => match sub {
+                0 => Ok((4, 1)),
+                1 => Ok((self.vendor_id, 4)),
+                2 => Ok((self.product_id, 4)),
+                3 => Ok((0x0001_0000, 4)),
+                4 => Ok((1, 4)),
+                _ => Err(abort::NO_SUBINDEX),
+            },
+            0x1600 => pdo(&self.rx),
+            0x1A00 => pdo(&self.tx),
+            0x1C12 => assign(&self.rx, 0x1600),
+            0x1C13 => assign(&self.tx, 0x1A00),
+            _ => Err(abort::NO_OBJECT),
+        }
     }
 
     /// SDO upload of `index`:`sub`: value and its size in bytes.
@@ -407,6 +523,30 @@ impl Drive {
             }
         };
         let cur = self.current_a();
+        if self.profile == Profile::Analog {
+            return match index {
+                0x1000 => one(0x0000_0191, 4),
+                0x1018 | 0x1600 | 0x1A00 | 0x1C12 | 0x1C13 => self.upload_common(index, sub),
+                0x7000 if sub == 1 => Ok((
+                    ((self.demand_a / self.dac_full_scale_a * 32767.0).round() as i16) as u16
+                        as u32,
+                    2,
+                )),
+                0x7010 if sub == 1 => Ok((u32::from(self.enable_bit), 1)),
+                0x6000 if sub == 0x11 => Ok((
+                    (self.last.map_or(0.0, |s| s.position_m) / self.adc_full_scale_m * 32767.0)
+                        .round()
+                        .clamp(-32767.0, 32767.0) as i16 as u16 as u32,
+                    2,
+                )),
+                0x6020 if sub == 1 => Ok((
+                    u32::from(self.core.is_enabled()) | u32::from(self.core.fault().is_some()) << 1,
+                    1,
+                )),
+                0x7000 | 0x7010 | 0x6000 | 0x6020 => Err(abort::NO_SUBINDEX),
+                _ => Err(abort::NO_OBJECT),
+            };
+        }
         match index {
             0x1000 => one(0x0002_0192, 4),
             0x1018 => match sub {
@@ -473,7 +613,13 @@ impl Drive {
                     return Err(abort::STATE);
                 }
                 let rx = index == 0x1600;
-                let mappable: &[PdoEntry] = if rx { &RX_MAPPABLE } else { &TX_MAPPABLE };
+                let analog = self.profile == Profile::Analog;
+                let mappable: &[PdoEntry] = match (rx, analog) {
+                    (true, false) => &RX_MAPPABLE,
+                    (false, false) => &TX_MAPPABLE,
+                    (true, true) => &RX_MAPPABLE_ANALOG,
+                    (false, true) => &TX_MAPPABLE_ANALOG,
+                };
                 let p = if rx { &mut self.rx } else { &mut self.tx };
                 match sub {
                     0 => {
@@ -535,6 +681,9 @@ impl Drive {
                     _ => Err(abort::NO_SUBINDEX),
                 }
             }
+            (0x6000 | 0x6020, _) if self.profile == Profile::Analog => Err(abort::READ_ONLY),
+            (0x7000 | 0x7010, _) if self.profile == Profile::Analog => Err(abort::STATE),
+            (_, _) if self.profile == Profile::Analog => Err(abort::NO_OBJECT),
             (0x6060, 0) => {
                 want(1)?;
                 if value as u8 as i8 != MODE_CST {

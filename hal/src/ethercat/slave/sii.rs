@@ -14,8 +14,10 @@ pub const MBX_SIZE: u16 = 128;
 pub const PD_OUT_START: u16 = 0x1100;
 /// Input process data (SM3) start address.
 pub const PD_IN_START: u16 = 0x1180;
-/// Device name (SII strings, object 0x1008).
+/// Device name of the CiA 402 profile (SII strings).
 pub const DEVICE_NAME: &str = "bench CiA402 CST drive";
+/// Device name of the analog-terminal profile (SII strings).
+pub const DEVICE_NAME_ANALOG: &str = "bench analog terminals";
 
 fn push16(v: &mut Vec<u8>, x: u16) {
     v.extend_from_slice(&x.to_le_bytes());
@@ -52,7 +54,10 @@ fn category(v: &mut Vec<u8>, kind: u16, mut data: Vec<u8>) {
 
 /// The EEPROM contents of the virtual slave with `vendor_id`/`product_id`.
 pub fn image(cfg: &EthercatConfig, vendor_id: u32, product_id: u32) -> Vec<u8> {
-    let _ = cfg;
+    let name = match cfg.profile {
+        crate::ethercat::config::Profile::Cia402 => DEVICE_NAME,
+        crate::ethercat::config::Profile::Analog => DEVICE_NAME_ANALOG,
+    };
     let mut v = Vec::with_capacity(512);
     // 0x0000: PDI control, PDI configuration, SYNC impulse length, PDI
     // configuration 2, configured station alias, reserved (4 bytes).
@@ -78,8 +83,8 @@ pub fn image(cfg: &EthercatConfig, vendor_id: u32, product_id: u32) -> Vec<u8> {
     push16(&mut v, 3);
     push16(&mut v, 1);
     // Categories.
-    let mut strings = vec![1u8, DEVICE_NAME.len() as u8];
-    strings.extend_from_slice(DEVICE_NAME.as_bytes());
+    let mut strings = vec![1u8, name.len() as u8];
+    strings.extend_from_slice(name.as_bytes());
     category(&mut v, 10, strings);
     // General (ETG.1000.6 Table 21): group, image, order, name string
     // indices; reserved; CoE details (SDO, PDO assign, PDO config:
