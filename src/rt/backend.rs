@@ -64,6 +64,17 @@ impl BackendSpec {
     pub fn is_sim(&self) -> bool {
         matches!(self, Self::Sim)
     }
+
+    /// The pure delay the link adds to the loop at a loop period of
+    /// `period_s`, s: one period for EtherCAT (the drive cycles
+    /// SM-synchronously: a target acts in the cycle after its frame, see
+    /// `bench_hal::ethercat`), 0 for the others.
+    pub fn process_data_delay_s(&self, period_s: f64) -> f64 {
+        match self {
+            Self::Ethercat(_) => period_s,
+            _ => 0.0,
+        }
+    }
 }
 
 impl fmt::Display for BackendSpec {
