@@ -5,8 +5,12 @@
 //! read-multiple-write, with their working-counter increments), the AL
 //! state machine (ETG.1000.6 §5.3), SII EEPROM access (0x0500–0x050F),
 //! the mailbox sync managers SM0/SM1 carrying CoE to the [`Drive`], the
-//! process-data sync managers SM2/SM3 mapped by FMMUs (0x0600..), and the
-//! SM watchdog (0x0400, 0x0420, 0x0440).
+//! process-data sync managers SM2/SM3 mapped by FMMUs (0x0600..), the
+//! SM watchdog (0x0400, 0x0420, 0x0440), and the distributed clock's
+//! registers: receive times latched by a write to 0x0900, the system time
+//! 0x0910 = local time + offset 0x0920, delay 0x0928, SYNC0 start 0x0990
+//! and cycle 0x09A0 (stored; the drive cycles on the frame, see
+//! [`super`]).
 
 use super::drive::Drive;
 use super::sii::{MBX_IN_START, MBX_OUT_START, MBX_SIZE, PD_IN_START, PD_OUT_START};
@@ -16,12 +20,14 @@ use crate::ethercat::wire::{al, cmd, le16, le32, reg, DATAGRAM_HEADER, WKC_LEN};
 pub const MEM: usize = 0x2000;
 
 /// Registers the master cannot write (restored after every write).
-const READ_ONLY: [(usize, usize); 5] = [
+const READ_ONLY: [(usize, usize); 7] = [
     (0x0000, 0x0010),
     (0x0110, 0x0112),
     (0x0130, 0x0136),
     (0x0440, 0x0442),
     (0x0508, 0x0510),
+    (0x0900, 0x0910),
+    (0x0918, 0x0920),
 ];
 
 /// A frame whose datagrams run past its end.
@@ -45,6 +51,20 @@ pub struct Esc {
     /// The drive (application).
     pub drive: Drive,
     al_state: u8,
+    /// The ESC's local clock at the frame being processed, ns.
+    local_ns: u64,
+}
+
+/// DC registers (ETG.1000.4 §6.8, ESC datasheet section II 0x0900..).
+mod dc {
+    /// Receive time port 0 (u32), latched by a write to it.
+    pub const PORT0: usize = 0x0900;
+    /// System time (u64): local time + offset.
+    pub const SYSTEM_TIME: usize = 0x0910;
+    /// Receive time of the processing unit (u64), latched with port 0.
+    pub const RECEIVE_TIME_PU: usize = 0x0918;
+    /// System time offset (u64).
+    pub const OFFSET: usize = 0x0920;
 }
 
 impl Esc {
@@ -55,6 +75,8 @@ impl Esc {
         mem[reg::FMMU_COUNT as usize] = 3;
         mem[reg::SM_COUNT as usize] = 4;
         mem[reg::RAM_SIZE as usize] = 8;
+        // Features: distributed clocks (bit 2), 64-bit (bit 3).
+        mem[reg::FEATURES as usize] = 0x0C;
         // DL status: PDI operational, link and communication on port 0.
         mem[0x0110..0x0112].copy_from_slice(&0x0211u16.to_le_bytes());
         mem[0x0400..0x0402].copy_from_slice(&2498u16.to_le_bytes());
@@ -66,6 +88,7 @@ impl Esc {
             sii,
             drive,
             al_state: al::INIT,
+            local_ns: 0,
         };
         esc.set_al(al::INIT, 0);
         esc
@@ -276,6 +299,11 @@ impl Esc {
         if !Self::phys_ok(ado, data.len()) {
             return false;
         }
+        if ado < dc::SYSTEM_TIME + 8 && ado + data.len() > dc::SYSTEM_TIME {
+            let offset = u64::from_le_bytes(self.mem[dc::OFFSET..dc::OFFSET + 8].try_into().unwrap_or([0; 8]));
+            let t = self.local_ns.wrapping_add(offset);
+            self.mem[dc::SYSTEM_TIME..dc::SYSTEM_TIME + 8].copy_from_slice(&t.to_le_bytes());
+        }
         let src = &self.mem[ado..ado + data.len()];
         if or {
             for (d, s) in data.iter_mut().zip(src) {
@@ -314,6 +342,14 @@ impl Esc {
         }
         let range = ado..ado + data.len();
         let touches = |a: u16| range.contains(&usize::from(a));
+        if range.contains(&dc::PORT0) {
+            // A write to receive time port 0 latches the local time of
+            // the frame (one port: the others stay 0).
+            let t = self.local_ns;
+            self.mem[dc::PORT0..dc::PORT0 + 16].fill(0);
+            self.mem[dc::PORT0..dc::PORT0 + 4].copy_from_slice(&(t as u32).to_le_bytes());
+            self.mem[dc::RECEIVE_TIME_PU..dc::RECEIVE_TIME_PU + 8].copy_from_slice(&t.to_le_bytes());
+        }
         if touches(reg::AL_CONTROL) {
             self.al_control();
         }
@@ -377,7 +413,15 @@ impl Esc {
     /// Processes the datagrams of one EtherCAT frame payload (after the
     /// 2-byte EtherCAT header) in place: data read, addresses incremented,
     /// working counters. [`Malformed`] for a frame cut short.
-    pub fn process(&mut self, pdus: &mut [u8], pd: &mut PdAccess) -> Result<(), Malformed> {
+    /// `local_ns` is the ESC's local clock when the frame passes (the DC
+    /// registers' time base).
+    pub fn process(
+        &mut self,
+        pdus: &mut [u8],
+        pd: &mut PdAccess,
+        local_ns: u64,
+    ) -> Result<(), Malformed> {
+        self.local_ns = local_ns;
         let mut at = 0;
         loop {
             if at + DATAGRAM_HEADER + WKC_LEN > pdus.len() {

@@ -33,7 +33,8 @@
 //! the working counter one short, `leave_op` drops to SAFE-OP + ERROR
 //! (outputs no longer valid: the drive disables), `drive_fault` latches a
 //! drive fault (0 A, statusword bit 3), `disconnect` stops answering for
-//! good (the SM watchdog then trips).
+//! good (the SM watchdog then trips), `dc_drift:PPM` makes the slave's
+//! local clock (the distributed clocks' reference) run PPM fast.
 
 pub mod drive;
 pub mod esc;
@@ -53,7 +54,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 const POLL_NS: u64 = 10_000_000;
 
 /// A fault the virtual slave can inject.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq)]
 pub enum SlaveFault {
     /// Answer none of the next `frames` process-data frames.
     Drop {
@@ -72,11 +73,17 @@ pub enum SlaveFault {
     DriveFault,
     /// Stop answering for good.
     Disconnect,
+    /// The slave's local clock (the DC reference) runs `ppm` parts per
+    /// million fast from then on.
+    DcDrift {
+        /// Rate error, ppm.
+        ppm: f64,
+    },
 }
 
 impl SlaveFault {
     /// Parses `drop:FRAMES`, `wkc:FRAMES`, `leave_op`, `drive_fault`,
-    /// `disconnect`.
+    /// `disconnect`, `dc_drift:PPM`.
     ///
     /// # Errors
     /// A message naming what does not parse.
@@ -94,8 +101,15 @@ impl SlaveFault {
             "leave_op" if arg.is_empty() => Ok(Self::LeaveOp),
             "drive_fault" if arg.is_empty() => Ok(Self::DriveFault),
             "disconnect" if arg.is_empty() => Ok(Self::Disconnect),
+            "dc_drift" => Ok(Self::DcDrift {
+                ppm: arg
+                    .parse::<f64>()
+                    .ok()
+                    .filter(|p| p.is_finite() && p.abs() <= 1e6)
+                    .ok_or_else(|| format!("dc_drift: `{arg}` is not a rate error in ppm"))?,
+            }),
             _ => Err(format!(
-                "unknown EtherCAT slave fault `{s}` (expected drop:FRAMES, wkc:FRAMES, leave_op, drive_fault or disconnect)"
+                "unknown EtherCAT slave fault `{s}` (expected drop:FRAMES, wkc:FRAMES, leave_op, drive_fault, disconnect or dc_drift:PPM)"
             )),
         }
     }
@@ -159,6 +173,9 @@ pub fn run_slave(
     let t0 = monotonic_ns();
     let mut op_since: Option<u64> = None;
     let mut last_pd_ns: Option<u64> = None;
+    // The local clock: (monotonic, local) at the last rate change, rate.
+    let mut clock = (t0, 0u64, 1.0f64);
+    let local = |c: (u64, u64, f64), now: u64| c.1 + ((now - c.0) as f64 * c.2) as u64;
     status.publish(&esc.drive.core);
     let io = |source| EthercatError::Io {
         op: "slave socket",
@@ -180,6 +197,9 @@ pub fn run_slave(
                     }
                     SlaveFault::DriveFault => esc.drive.fault(DeviceFault::Amplifier),
                     SlaveFault::Disconnect => f.disconnected = true,
+                    SlaveFault::DcDrift { ppm } => {
+                        clock = (now, local(clock, now), 1.0 + ppm * 1e-6);
+                    }
                 }
                 status.publish(&esc.drive.core);
                 next_fault += 1;
@@ -231,28 +251,25 @@ pub fn run_slave(
                 status.bad_frames.fetch_add(1, Ordering::Relaxed);
                 continue;
             }
-            let pd_frame = len > 0 && frame[start] == cmd::LRW;
+            let lrw = find_datagram(&frame[start..start + len], cmd::LRW);
+            let pd_frame = lrw.is_some();
             if pd_frame && f.drop_left > 0 {
                 f.drop_left -= 1;
                 continue;
             }
             let mut pd = PdAccess::default();
             if esc
-                .process(&mut frame[start..start + len], &mut pd)
+                .process(&mut frame[start..start + len], &mut pd, local(clock, now))
                 .is_err()
             {
                 status.bad_frames.fetch_add(1, Ordering::Relaxed);
                 continue;
             }
-            if pd_frame && f.wkc_left > 0 {
+            if let (Some(w), true) = (lrw, f.wkc_left > 0) {
                 f.wkc_left -= 1;
-                let dlen =
-                    usize::from(u16::from_le_bytes([frame[start + 6], frame[start + 7]]) & 0x07FF);
-                let w = start + 10 + dlen;
-                if w + 2 <= n {
-                    let wkc = u16::from_le_bytes([frame[w], frame[w + 1]]).wrapping_sub(1);
-                    frame[w..w + 2].copy_from_slice(&wkc.to_le_bytes());
-                }
+                let w = start + w;
+                let wkc = u16::from_le_bytes([frame[w], frame[w + 1]]).wrapping_sub(1);
+                frame[w..w + 2].copy_from_slice(&wkc.to_le_bytes());
             }
             // The first slave sets the locally administered bit of the
             // source address (what masters use to tell answers apart).
@@ -282,4 +299,27 @@ pub fn run_slave(
     esc.drive.fault_free_disable();
     status.publish(&esc.drive.core);
     Ok(())
+}
+
+/// The offset of the working counter of the first datagram with command
+/// `command` in a frame's datagrams, if any.
+fn find_datagram(pdus: &[u8], command: u8) -> Option<usize> {
+    use super::wire::{DATAGRAM_HEADER, WKC_LEN};
+    let mut at = 0;
+    while at + DATAGRAM_HEADER + WKC_LEN <= pdus.len() {
+        let lenf = u16::from_le_bytes([pdus[at + 6], pdus[at + 7]]);
+        let len = usize::from(lenf & 0x07FF);
+        let wkc = at + DATAGRAM_HEADER + len;
+        if wkc + WKC_LEN > pdus.len() {
+            return None;
+        }
+        if pdus[at] == command {
+            return Some(wkc);
+        }
+        if lenf & 0x8000 == 0 {
+            return None;
+        }
+        at = wkc + WKC_LEN;
+    }
+    None
 }
