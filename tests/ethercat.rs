@@ -480,6 +480,11 @@ fn faults_in_the_slave_end_the_run_at_zero_amps_latched() {
         (SlaveFault::LeaveOp, "left its AL state", 0),
         (SlaveFault::WrongWkc { frames: 1 }, "working counter", 0),
         (SlaveFault::Drop { frames: 1 }, "frame lost", 0),
+        (
+            SlaveFault::DcDrift { ppm: 2000.0 },
+            "distributed clock moved",
+            0,
+        ),
     ] {
         let Some(seg) = Segment::new() else { return };
         let dir = tmp();

@@ -208,6 +208,9 @@ fn the_plant_behind_the_slave_is_the_simulator_one_period_late() {
     assert_eq!(slave.status.commanded_current_a(), 0.0);
     let stats = stage.stats();
     eprintln!("{stats:?}, first sample seq {}", s0.seq);
+    // Distributed clocks on (the default): the slave's system time came
+    // back in every frame and kept to the host's clock.
+    assert!(stats.max_dc_offset_change_ns < 100_000, "{stats:?}");
     drop(stage);
     drop(slave);
     // The direct simulator: the same currents, one period later. Before
@@ -280,6 +283,7 @@ fn faults_in_the_slave_fail_the_tick_with_their_kind_and_leave_zero_amps() {
         (SlaveFault::LeaveOp, ErrorKind::Link, None),
         (SlaveFault::WrongWkc { frames: 1 }, ErrorKind::Link, None),
         (SlaveFault::Drop { frames: 1 }, ErrorKind::Timeout, None),
+        (SlaveFault::DcDrift { ppm: 2000.0 }, ErrorKind::Link, None),
     ] {
         let Some(v) = Veth::new() else { return };
         let faults = vec![ScheduledSlaveFault {

@@ -176,6 +176,16 @@ pub struct EthercatConfig {
     pub probe_range_m: f64,
     /// One count of the position actual value 0x6064, m (default 1e-10).
     pub position_lsb_m: f64,
+    /// Distributed clocks (default true): the slave's SYNC0 at the loop
+    /// period (0x0990/0x09A0 through ethercrab), its system time read in
+    /// every process-data frame (`FRMW` 0x0910) and checked against the
+    /// host's clock.
+    pub distributed_clocks: bool,
+    /// The largest rate error allowed between the distributed clock and the
+    /// host's clock, ppm: within any one-second window the clocks' offset
+    /// may move by at most this × 1 s (default 100 ppm: 100 µs, beyond any
+    /// crystal's tolerance); more is a fault. Range [1, 10 000].
+    pub dc_drift_max_ppm: f64,
     /// Analog profile: the position at ADC full scale (+32767 counts), m
     /// (default 1e-3: the probe's ±1 mm on the ADC's ±10 V, 30.5 nm per
     /// count). A reading at ±32767 is out of range.
@@ -202,6 +212,8 @@ impl Default for EthercatConfig {
             continuous_current_a: 2.34,
             probe_range_m: 1e-3,
             position_lsb_m: 1e-10,
+            distributed_clocks: true,
+            dc_drift_max_ppm: 100.0,
             adc_full_scale_m: 1e-3,
             dac_full_scale_a: 9.98,
         }
@@ -345,6 +357,13 @@ impl EthercatConfig {
         )?;
         positive(&format!("{prefix}.probe_range_m"), self.probe_range_m)?;
         positive(&format!("{prefix}.position_lsb_m"), self.position_lsb_m)?;
+        if !(self.dc_drift_max_ppm.is_finite() && (1.0..=10_000.0).contains(&self.dc_drift_max_ppm))
+        {
+            return Err(ParamError::new(
+                format!("{prefix}.dc_drift_max_ppm"),
+                format!("must be in [1, 10000] ppm, got {}", self.dc_drift_max_ppm),
+            ));
+        }
         positive(&format!("{prefix}.adc_full_scale_m"), self.adc_full_scale_m)?;
         positive(&format!("{prefix}.dac_full_scale_a"), self.dac_full_scale_a)?;
         if self.profile == Profile::Analog && self.dac_full_scale_a < self.peak_current_a {

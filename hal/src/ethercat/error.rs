@@ -126,6 +126,15 @@ pub enum EthercatError {
         /// AL state (AL status register 0x0130, bits 0–3).
         state: u8,
     },
+    /// The distributed clock drifted from the host's clock beyond
+    /// `dc_drift_max_ppm`.
+    #[error("the distributed clock moved {} µs against the host's clock within {:.3} s (backend.ethercat.dc_drift_max_ppm)", *.moved_ns as f64 * 1e-3, *.within_ns as f64 * 1e-9)]
+    DcDrift {
+        /// Offset change beyond the round-trip bounds, ns.
+        moved_ns: u64,
+        /// Over this long, ns.
+        within_ns: u64,
+    },
     /// The drive reports a fault (statusword bit 3), or did not enable.
     #[error("the drive reports a fault (statusword 0x{statusword:04X})")]
     DriveFault {
@@ -164,6 +173,7 @@ impl crate::Error for EthercatError {
             | Self::Bringup { .. }
             | Self::WorkingCounter { .. }
             | Self::NotOp { .. }
+            | Self::DcDrift { .. }
             | Self::Exchange(_) => ErrorKind::Link,
             Self::Identity { .. } | Self::Refused { .. } => ErrorKind::Protocol,
             Self::Timeout { .. } => ErrorKind::Timeout,

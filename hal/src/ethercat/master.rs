@@ -16,7 +16,7 @@ use crate::{Clock, Command, DeviceInfo, LifecycleError, Sample, SampleFlags, Sta
 use core::future::Future;
 use core::pin::pin;
 use core::task::{Context, Poll, Waker};
-use ethercrab::subdevice_group::{NoDc, Op, PreOp, SafeOp};
+use ethercrab::subdevice_group::{DcConfiguration, HasDc, NoDc, Op, PreOp, SafeOp};
 use ethercrab::{
     Command as EcCommand, DefaultLock, MainDevice, MainDeviceConfig, PduLoop, PduRx, PduStorage,
     PduTx, RegisterAddress, SubDeviceGroup, SubDeviceState, Timeouts,
@@ -125,13 +125,35 @@ impl Link {
     }
 }
 
-type Group<S> = SubDeviceGroup<2, MAX_PDI, DefaultLock, S, NoDc>;
+type Group<S, D = NoDc> = SubDeviceGroup<2, MAX_PDI, DefaultLock, S, D>;
 
 /// The group in its AL state: SAFE-OP while disabled (inputs valid, the
 /// outputs and the SM watchdog not in force), OP while enabled.
 enum Running {
     SafeOp(Group<SafeOp>),
     Op(Group<Op>),
+    /// With distributed clocks (SYNC0 at the loop period).
+    SafeOpDc(Group<SafeOp, HasDc>),
+    /// With distributed clocks.
+    OpDc(Group<Op, HasDc>),
+}
+
+impl Running {
+    fn is_op(&self) -> bool {
+        matches!(self, Self::Op(_) | Self::OpDc(_))
+    }
+}
+
+/// Applies `$body` to the group of any variant of a `Running`.
+macro_rules! on_group {
+    ($r:expr, $g:ident => $body:expr) => {
+        match $r {
+            Running::SafeOp($g) => $body,
+            Running::Op($g) => $body,
+            Running::SafeOpDc($g) => $body,
+            Running::OpDc($g) => $body,
+        }
+    };
 }
 
 /// Link counters of an [`EthercatStage`] (since it was opened).
@@ -147,6 +169,9 @@ pub struct EthercatStats {
     pub state_errors: u64,
     /// Largest round trip, ns.
     pub max_round_trip_ns: u64,
+    /// Largest change of the distributed clock's offset to the host's
+    /// clock seen within a one-second window, ns (0 without DC).
+    pub max_dc_offset_change_ns: u64,
 }
 
 /// The EtherCAT stage (host side): one CiA 402 drive in cyclic synchronous
@@ -169,6 +194,8 @@ pub struct EthercatStage {
     inp: [u8; MAX_PDO_BYTES],
     controlword: u16,
     rated_current_a: f64,
+    /// DC offset to the host clock, bounds [a, b] ns, and when taken.
+    dc_base: Option<(i128, i128, u64)>,
     stats: EthercatStats,
 }
 
@@ -216,7 +243,7 @@ impl EthercatStage {
             parts.pdu_loop,
             timeouts,
             MainDeviceConfig {
-                dc_static_sync_iterations: 0,
+                dc_static_sync_iterations: if cfg.distributed_clocks { 100 } else { 0 },
                 ..MainDeviceConfig::default()
             },
         );
@@ -240,6 +267,7 @@ impl EthercatStage {
             inp: [0; MAX_PDO_BYTES],
             controlword: CW_DISABLE_VOLTAGE,
             rated_current_a: cfg.continuous_current_a,
+            dc_base: None,
             stats: EthercatStats::default(),
         })
     }
@@ -319,7 +347,7 @@ impl EthercatStage {
     }
 
     /// INIT → PRE-OP → (PDO map, mode, watchdog) → SAFE-OP.
-    fn bring_up(&mut self) -> Result<Group<SafeOp>, EthercatError> {
+    fn bring_up(&mut self, period_ns: u64) -> Result<Running, EthercatError> {
         let start = monotonic_ns();
         let deadline = start + (self.cfg.bringup_timeout_ms * 1e6) as u64;
         // 1. Is anyone there? A broadcast read comes back only through a
@@ -471,40 +499,55 @@ impl EthercatStage {
                 )
             })?;
         }
-        // 5. PRE-OP → SAFE-OP: FMMUs and SMs from the map read back.
-        let group = self
-            .run(
-                group.into_safe_op(md),
-                deadline,
-                "bringing the slave to SAFE-OP",
-            )?
-            .map_err(|e| {
-                self.bringup_err(
-                    "bringing the slave to SAFE-OP (the slave checks SM2/SM3 against its PDO map)",
-                    e,
-                )
-            })?;
-        {
-            let sd = group
-                .subdevice(md, 0)
-                .map_err(|e| self.bringup_err("reading the process image", e))?;
-            let io = sd.io_raw();
-            if io.outputs().len() != self.layout.out_len || io.inputs().len() != self.layout.in_len
-            {
-                return Err(EthercatError::Bringup {
-                    interface: self.cfg.interface.clone(),
-                    step: "checking the process image",
-                    reason: format!(
-                        "the slave maps {} output and {} input bytes, the config {} and {}",
-                        io.outputs().len(),
-                        io.inputs().len(),
-                        self.layout.out_len,
-                        self.layout.in_len
-                    ),
-                });
+        // 5. PRE-OP → SAFE-OP: FMMUs and SMs from the map read back; with
+        //    distributed clocks, SYNC0 at the loop period first.
+        let step = "bringing the slave to SAFE-OP (the slave checks SM2/SM3 against its PDO map)";
+        let running = if self.cfg.distributed_clocks {
+            let mut group = group;
+            for mut sd in group.iter_mut(md) {
+                sd.set_dc_sync(ethercrab::DcSync::Sync0);
             }
+            let dc = DcConfiguration {
+                start_delay: Duration::from_millis(10),
+                sync0_period: Duration::from_nanos(period_ns),
+                sync0_shift: Duration::ZERO,
+            };
+            let sync = "configuring distributed-clock SYNC0 at the loop period";
+            // FMMUs and SMs first (the PDI), then SYNC0.
+            let group = self
+                .run(group.into_pre_op_pdi(md), deadline, step)?
+                .map_err(|e| self.bringup_err(step, e))?;
+            let g = self
+                .run(group.configure_dc_sync(md, dc), deadline, sync)?
+                .map_err(|e| self.bringup_err(sync, e))?;
+            let g = self
+                .run(g.into_safe_op(md), deadline, step)?
+                .map_err(|e| self.bringup_err(step, e))?;
+            Running::SafeOpDc(g)
+        } else {
+            let g = self
+                .run(group.into_safe_op(md), deadline, step)?
+                .map_err(|e| self.bringup_err(step, e))?;
+            Running::SafeOp(g)
+        };
+        let sizes = on_group!(&running, g => g
+        .subdevice(md, 0)
+        .map(|sd| {
+            let io = sd.io_raw();
+            (io.outputs().len(), io.inputs().len())
+        }))
+        .map_err(|e| self.bringup_err("reading the process image", e))?;
+        if sizes != (self.layout.out_len, self.layout.in_len) {
+            return Err(EthercatError::Bringup {
+                interface: self.cfg.interface.clone(),
+                step: "checking the process image",
+                reason: format!(
+                    "the slave maps {} output and {} input bytes, the config {} and {}",
+                    sizes.0, sizes.1, self.layout.out_len, self.layout.in_len
+                ),
+            });
         }
-        Ok(group)
+        Ok(running)
     }
 
     /// One expedited SDO download during bring-up; an abort names `key`.
@@ -549,31 +592,53 @@ impl EthercatStage {
         // while borrowed here; `self.link` is a distinct field.
         let md: &MainDevice<'static> = unsafe { &*md };
         let (out_len, in_len) = (self.layout.out_len, self.layout.in_len);
-        let op = matches!(self.group, Some(Running::Op(_)));
+        let Some(group) = self.group.as_ref() else {
+            return Err(LifecycleError::NotConfigured.into());
+        };
+        let op = group.is_op();
+        if op {
+            on_group!(group, g => if let Ok(sd) = g.subdevice(md, 0) {
+                sd.outputs_raw_mut()[..out_len].copy_from_slice(&self.out[..out_len]);
+            });
+        }
         let start = monotonic_ns();
         let deadline = start + self.timeout_ns;
-        let result = match self.group.as_ref() {
-            Some(Running::Op(g)) => {
-                if let Ok(sd) = g.subdevice(md, 0) {
-                    sd.outputs_raw_mut()[..out_len].copy_from_slice(&self.out[..out_len]);
-                }
-                let r = self.link.block_on(g.tx_rx(md), deadline, u64::MAX);
-                if let Ok(sd) = g.subdevice(md, 0) {
-                    self.inp[..in_len].copy_from_slice(&sd.inputs_raw()[..in_len]);
-                }
-                r
+        // (working counter, AL state of the slave, DC system time).
+        let result = match group {
+            Running::SafeOp(g) => self
+                .link
+                .block_on(g.tx_rx(md), deadline, u64::MAX)
+                .map(|r| r.map(|r| (r.working_counter, r.subdevice_states.first().copied(), None))),
+            Running::Op(g) => self
+                .link
+                .block_on(g.tx_rx(md), deadline, u64::MAX)
+                .map(|r| r.map(|r| (r.working_counter, r.subdevice_states.first().copied(), None))),
+            Running::SafeOpDc(g) => {
+                self.link
+                    .block_on(g.tx_rx_dc(md), deadline, u64::MAX)
+                    .map(|r| {
+                        r.map(|r| {
+                            let t = Some(r.extra.dc_system_time);
+                            (r.working_counter, r.subdevice_states.first().copied(), t)
+                        })
+                    })
             }
-            Some(Running::SafeOp(g)) => {
-                let r = self.link.block_on(g.tx_rx(md), deadline, u64::MAX);
-                if let Ok(sd) = g.subdevice(md, 0) {
-                    self.inp[..in_len].copy_from_slice(&sd.inputs_raw()[..in_len]);
-                }
-                r
-            }
-            None => return Err(LifecycleError::NotConfigured.into()),
+            Running::OpDc(g) => self
+                .link
+                .block_on(g.tx_rx_dc(md), deadline, u64::MAX)
+                .map(|r| {
+                    r.map(|r| {
+                        let t = Some(r.extra.dc_system_time);
+                        (r.working_counter, r.subdevice_states.first().copied(), t)
+                    })
+                }),
         };
-        let rt = monotonic_ns() - start;
-        let resp = match result {
+        let end = monotonic_ns();
+        on_group!(group, g => if let Ok(sd) = g.subdevice(md, 0) {
+            self.inp[..in_len].copy_from_slice(&sd.inputs_raw()[..in_len]);
+        });
+        let rt = end - start;
+        let (working_counter, state, dc_time) = match result {
             Ok(Ok(r)) => r,
             Ok(Err(e)) => return Err(EthercatError::Exchange(e)),
             Err(Stall::Deadline) => {
@@ -593,11 +658,7 @@ impl EthercatStage {
         } else {
             SubDeviceState::SafeOp
         };
-        let state = resp
-            .subdevice_states
-            .first()
-            .copied()
-            .unwrap_or(SubDeviceState::None);
+        let state = state.unwrap_or(SubDeviceState::None);
         if state != want {
             self.stats.state_errors += 1;
             return Err(EthercatError::NotOp {
@@ -606,12 +667,15 @@ impl EthercatStage {
         }
         // Inputs read +1, outputs written +2 (ETG.1000.4 §5.4.3.4).
         let expected = if op { 3 } else { 1 };
-        if resp.working_counter != expected {
+        if working_counter != expected {
             self.stats.wkc_errors += 1;
             return Err(EthercatError::WorkingCounter {
                 expected,
-                got: resp.working_counter,
+                got: working_counter,
             });
+        }
+        if let Some(t) = dc_time {
+            self.check_dc(t, start, end)?;
         }
         self.stats.exchanges += 1;
         self.seq += 1;
@@ -621,6 +685,43 @@ impl EthercatStage {
             return Err(EthercatError::DriveFault {
                 statusword: self.statusword(),
             });
+        }
+        Ok(())
+    }
+
+    /// The distributed clock against the host's: the slave's system time
+    /// `t` was read while the frame passed it, between `sent` and `back`
+    /// (host `CLOCK_MONOTONIC`), so its offset to the host clock lies in
+    /// [t − back, t − sent] whatever the round trip. Within each one-second
+    /// window that offset may move by at most `dc_drift_max_ppm` × 1 s
+    /// beyond those bounds; more is [`EthercatError::DcDrift`].
+    fn check_dc(&mut self, t: u64, sent: u64, back: u64) -> Result<(), EthercatError> {
+        let a = i128::from(t) - i128::from(back);
+        let b = i128::from(t) - i128::from(sent);
+        let bound = (self.cfg.dc_drift_max_ppm * 1e3) as i128;
+        match self.dc_base {
+            Some((a0, b0, since)) => {
+                let moved = if a > b0 {
+                    a - b0
+                } else if b < a0 {
+                    a0 - b
+                } else {
+                    0
+                };
+                self.stats.max_dc_offset_change_ns =
+                    self.stats.max_dc_offset_change_ns.max(moved as u64);
+                if moved > bound {
+                    self.dc_base = None;
+                    return Err(EthercatError::DcDrift {
+                        moved_ns: moved as u64,
+                        within_ns: sent - since,
+                    });
+                }
+                if sent - since > 1_000_000_000 {
+                    self.dc_base = Some((a, b, sent));
+                }
+            }
+            None => self.dc_base = Some((a, b, sent)),
         }
         Ok(())
     }
@@ -726,33 +827,43 @@ impl EthercatStage {
         let deadline = monotonic_ns() + (self.cfg.bringup_timeout_ms * 1e6) as u64;
         let step = "acknowledging the slave's AL status";
         let sd = match self.group.as_ref() {
-            Some(Running::Op(g)) => g.subdevice(md, 0),
-            Some(Running::SafeOp(g)) => g.subdevice(md, 0),
+            Some(r) => on_group!(r, g => g.subdevice(md, 0).map(|sd| sd.configured_address())),
             None => return Ok(()),
         }
         .map_err(|e| bringup_err(&self.cfg, step, e))?;
         run_in(
             &mut self.link,
             &self.cfg,
-            sd.register_write(0x0120u16, 0x0014u16),
+            EcCommand::fpwr(sd, RegisterAddress::AlControl.into()).send(md, 0x0014u16),
             deadline,
             step,
         )?
         .map_err(|e| bringup_err(&self.cfg, step, e))?;
-        if !matches!(self.group, Some(Running::Op(_))) {
-            return Ok(());
-        }
-        if let Some(Running::Op(g)) = self.group.take() {
-            let step = "bringing the slave back to SAFE-OP";
-            let g = run_in(
-                &mut self.link,
-                &self.cfg,
-                g.into_safe_op(md),
-                deadline,
-                step,
-            )?
-            .map_err(|e| bringup_err(&self.cfg, step, e))?;
-            self.group = Some(Running::SafeOp(g));
+        let step = "bringing the slave back to SAFE-OP";
+        match self.group.take() {
+            Some(Running::Op(g)) => {
+                let g = run_in(
+                    &mut self.link,
+                    &self.cfg,
+                    g.into_safe_op(md),
+                    deadline,
+                    step,
+                )?
+                .map_err(|e| bringup_err(&self.cfg, step, e))?;
+                self.group = Some(Running::SafeOp(g));
+            }
+            Some(Running::OpDc(g)) => {
+                let g = run_in(
+                    &mut self.link,
+                    &self.cfg,
+                    g.into_safe_op(md),
+                    deadline,
+                    step,
+                )?
+                .map_err(|e| bringup_err(&self.cfg, step, e))?;
+                self.group = Some(Running::SafeOpDc(g));
+            }
+            other => self.group = other,
         }
         Ok(())
     }
@@ -819,10 +930,11 @@ impl Stage for EthercatStage {
         if self.group.is_some() {
             self.back_to_safe_op()?;
         } else {
-            let g = self.bring_up()?;
-            self.group = Some(Running::SafeOp(g));
+            let g = self.bring_up(period_ns)?;
+            self.group = Some(g);
         }
         self.seq = 0;
+        self.dc_base = None;
         self.set_outputs(CW_DISABLE_VOLTAGE, 0.0);
         let deadline = monotonic_ns() + (self.cfg.bringup_timeout_ms * 1e6) as u64;
         loop {
@@ -862,19 +974,25 @@ impl Stage for EthercatStage {
         if !self.configured {
             return Err(LifecycleError::NotConfigured.into());
         }
-        if matches!(self.group, Some(Running::Op(_))) {
-            // Already in OP.
-        } else if let Some(Running::SafeOp(g)) = self.group.take() {
-            let md: *const MainDevice<'static> = self.md();
-            // SAFETY: as in `bring_up`.
-            let md: &MainDevice<'static> = unsafe { &*md };
-            let deadline = monotonic_ns() + (self.cfg.bringup_timeout_ms * 1e6) as u64;
-            let g = match self.run(g.into_op(md), deadline, "bringing the slave to OP") {
-                Ok(Ok(g)) => g,
-                Ok(Err(e)) => return Err(self.bringup_err("bringing the slave to OP", e)),
+        let md: *const MainDevice<'static> = self.md();
+        // SAFETY: as in `bring_up`.
+        let md: &MainDevice<'static> = unsafe { &*md };
+        let deadline = monotonic_ns() + (self.cfg.bringup_timeout_ms * 1e6) as u64;
+        let step = "bringing the slave to OP";
+        // The outputs in force when OP starts: 0 A, disabled.
+        self.set_outputs(CW_DISABLE_VOLTAGE, 0.0);
+        match self.group.take() {
+            Some(Running::SafeOp(g)) => match self.run(g.into_op(md), deadline, step) {
+                Ok(Ok(g)) => self.group = Some(Running::Op(g)),
+                Ok(Err(e)) => return Err(self.bringup_err(step, e)),
                 Err(e) => return Err(e),
-            };
-            self.group = Some(Running::Op(g));
+            },
+            Some(Running::SafeOpDc(g)) => match self.run(g.into_op(md), deadline, step) {
+                Ok(Ok(g)) => self.group = Some(Running::OpDc(g)),
+                Ok(Err(e)) => return Err(self.bringup_err(step, e)),
+                Err(e) => return Err(e),
+            },
+            other => self.group = other,
         }
         let deadline = monotonic_ns() + 500_000_000;
         let analog = self.analog();
@@ -965,7 +1083,7 @@ impl Stage for EthercatStage {
         if self.group.is_none() {
             return Ok(());
         }
-        let r = if matches!(self.group, Some(Running::Op(_))) {
+        let r = if self.group.as_ref().is_some_and(Running::is_op) {
             let saved = self.timeout_ns;
             self.timeout_ns = self.timeout_ns.max(10_000_000);
             let mut r = Ok(());

@@ -300,7 +300,11 @@ impl Esc {
             return false;
         }
         if ado < dc::SYSTEM_TIME + 8 && ado + data.len() > dc::SYSTEM_TIME {
-            let offset = u64::from_le_bytes(self.mem[dc::OFFSET..dc::OFFSET + 8].try_into().unwrap_or([0; 8]));
+            let offset = u64::from_le_bytes(
+                self.mem[dc::OFFSET..dc::OFFSET + 8]
+                    .try_into()
+                    .unwrap_or([0; 8]),
+            );
             let t = self.local_ns.wrapping_add(offset);
             self.mem[dc::SYSTEM_TIME..dc::SYSTEM_TIME + 8].copy_from_slice(&t.to_le_bytes());
         }
@@ -348,7 +352,8 @@ impl Esc {
             let t = self.local_ns;
             self.mem[dc::PORT0..dc::PORT0 + 16].fill(0);
             self.mem[dc::PORT0..dc::PORT0 + 4].copy_from_slice(&(t as u32).to_le_bytes());
-            self.mem[dc::RECEIVE_TIME_PU..dc::RECEIVE_TIME_PU + 8].copy_from_slice(&t.to_le_bytes());
+            self.mem[dc::RECEIVE_TIME_PU..dc::RECEIVE_TIME_PU + 8]
+                .copy_from_slice(&t.to_le_bytes());
         }
         if touches(reg::AL_CONTROL) {
             self.al_control();
