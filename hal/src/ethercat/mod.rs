@@ -35,8 +35,10 @@
 //!   (station address, SII identity checked against `vendor_id` /
 //!   `product_id`, mailboxes); over CoE the PDO map, 0x6060 = 10 (CST)
 //!   and the SM watchdog (0x0400 = 2498: 100 µs steps; 0x0420 =
-//!   `watchdog_ms` × 10); PRE-OP → SAFE-OP (ethercrab reads the map back
-//!   and sets SM2/SM3 and the FMMUs; the slave refuses sizes that do not
+//!   `watchdog_ms` × 10); ethercrab reads the map back and sets SM2/SM3
+//!   and the FMMUs; with `distributed_clocks` SYNC0 at the loop period
+//!   (receive-time latch, offsets, 100 static-drift frames at init);
+//!   PRE-OP → SAFE-OP (the slave refuses sync-manager sizes that do not
 //!   match its map); one exchange. An SDO abort names the config key
 //!   ([`EthercatError::Refused`]). Nothing is enabled on any error.
 //! * [`Stage::enable`](crate::Stage::enable): SAFE-OP → OP, then the CiA
@@ -61,11 +63,19 @@
 //! | frame not back in time (lost) | [`EthercatError::Timeout`] | `Timeout` |
 //! | working counter ≠ 3 in OP (1 in SAFE-OP) | [`EthercatError::WorkingCounter`] | `Link` |
 //! | slave not in OP (AL status in the same frame) | [`EthercatError::NotOp`] | `Link` |
-//! | statusword fault bit, or the drive left OPERATION ENABLED | [`EthercatError::DriveFault`] | `AmplifierFault` |
+//! | the distributed clock moved against the host's clock beyond `dc_drift_max_ppm` × 1 s within a second | [`EthercatError::DcDrift`] | `Link` |
+//! | statusword fault bit, or the drive left OPERATION ENABLED (analog: the status input's fault bit, or not ready) | [`EthercatError::DriveFault`] | `AmplifierFault` |
 //!
 //! They come out of `write_command`, which the loop's one supervisor turns
 //! into a latched fault and the safe stop (0 A and disable) in the same
 //! tick; no rule is kept here.
+//!
+//! # The analog-terminal profile
+//!
+//! `profile = "analog"`: DAC 0x7000:01 (i16, ± `dac_full_scale_a`), enable
+//! output 0x7010:01 (bit 0), ADC 0x6000:11 (i16, ± `adc_full_scale_m`),
+//! status input 0x6020:01 (bit 0 ready, bit 1 fault; optional). `enable`
+//! gives the enable output a rising edge and waits for ready.
 //!
 //! # Timing
 //!
