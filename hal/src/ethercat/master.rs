@@ -194,6 +194,8 @@ pub struct EthercatStage {
     inp: [u8; MAX_PDO_BYTES],
     controlword: u16,
     rated_current_a: f64,
+    /// The `log` level before the stage muted ethercrab (restored on drop).
+    log_level: log::LevelFilter,
     /// DC offset to the host clock, bounds [a, b] ns, and when taken.
     dc_base: Option<(i128, i128, u64)>,
     stats: EthercatStats,
@@ -230,6 +232,12 @@ impl EthercatStage {
         cfg.validate("backend.ethercat")?;
         let sock = RawSocket::open(&cfg.interface)?;
         let parts = take_parts()?;
+        // ethercrab reports through the `log` crate, also from the PDU
+        // loop the tick drives (a late answer to an abandoned frame): the
+        // tick must not log, and every failure comes back as an error
+        // here. Muted while the stage is open.
+        let log_level = log::max_level();
+        log::set_max_level(log::LevelFilter::Off);
         let timeouts = Timeouts {
             // Never: the deadline of every exchange is ours (no timer).
             pdu: Duration::MAX,
@@ -267,6 +275,7 @@ impl EthercatStage {
             inp: [0; MAX_PDO_BYTES],
             controlword: CW_DISABLE_VOLTAGE,
             rated_current_a: cfg.continuous_current_a,
+            log_level,
             dc_base: None,
             stats: EthercatStats::default(),
         })
@@ -311,41 +320,6 @@ impl EthercatStage {
         }
     }
 
-    fn md(&self) -> &MainDevice<'static> {
-        self.md
-            .as_ref()
-            .expect("the main device lives as long as the stage")
-    }
-
-    /// Runs a bring-up future to completion within `deadline_ns`.
-    fn run<F: Future>(
-        &mut self,
-        fut: F,
-        deadline_ns: u64,
-        step: &'static str,
-    ) -> Result<F::Output, EthercatError> {
-        match self.link.block_on(fut, deadline_ns, 1_000_000) {
-            Ok(v) => Ok(v),
-            Err(Stall::Io(source)) => Err(EthercatError::Io {
-                op: "send/recv",
-                source,
-            }),
-            Err(Stall::Deadline) => Err(EthercatError::BringupTimeout {
-                interface: self.cfg.interface.clone(),
-                step,
-                waited_ms: self.cfg.bringup_timeout_ms as u64,
-            }),
-        }
-    }
-
-    fn bringup_err(&self, step: &'static str, e: ethercrab::error::Error) -> EthercatError {
-        EthercatError::Bringup {
-            interface: self.cfg.interface.clone(),
-            step,
-            reason: e.to_string(),
-        }
-    }
-
     /// INIT → PRE-OP → (PDO map, mode, watchdog) → SAFE-OP.
     fn bring_up(&mut self, period_ns: u64) -> Result<Running, EthercatError> {
         let start = monotonic_ns();
@@ -353,17 +327,16 @@ impl EthercatStage {
         // 1. Is anyone there? A broadcast read comes back only through a
         //    slave.
         let probe_ns = 500_000_000u64.min(deadline - start);
-        let md: *const MainDevice<'static> = self.md();
-        // SAFETY: `md` lives in `self.md` for the whole call and is not
-        // moved or dropped while the futures below borrow it; only
-        // `self.link` is borrowed mutably alongside.
-        let md: &MainDevice<'static> = unsafe { &*md };
+        let md = self
+            .md
+            .as_ref()
+            .expect("the main device lives as long as the stage");
         let probe = EcCommand::brd(RegisterAddress::Type.into())
             .ignore_wkc()
             .receive::<u8>(md);
         match self.link.block_on(probe, start + probe_ns, 1_000_000) {
             Ok(Ok(_)) => {}
-            Ok(Err(e)) => return Err(self.bringup_err("probing the segment", e)),
+            Ok(Err(e)) => return Err(bringup_err(&self.cfg, "probing the segment", e)),
             Err(Stall::Io(source)) => {
                 return Err(EthercatError::Io {
                     op: "send/recv",
@@ -378,13 +351,14 @@ impl EthercatStage {
             }
         }
         // 2. INIT → PRE-OP: addresses, SII, mailboxes.
-        let group: Group<PreOp> = self
-            .run(
-                md.init_single_group::<2, MAX_PDI>(ethercrab::std::ethercat_now),
-                deadline,
-                "bringing the slave to PRE-OP",
-            )?
-            .map_err(|e| self.bringup_err("bringing the slave to PRE-OP", e))?;
+        let group: Group<PreOp> = run_in(
+            &mut self.link,
+            &self.cfg,
+            md.init_single_group::<2, MAX_PDI>(ethercrab::std::ethercat_now),
+            deadline,
+            "bringing the slave to PRE-OP",
+        )?
+        .map_err(|e| bringup_err(&self.cfg, "bringing the slave to PRE-OP", e))?;
         let n = md.num_subdevices();
         if n != 1 {
             return Err(EthercatError::SlaveCount {
@@ -395,7 +369,7 @@ impl EthercatStage {
         // 3. Identity.
         let id = group
             .subdevice(md, 0)
-            .map_err(|e| self.bringup_err("reading the identity", e))?
+            .map_err(|e| bringup_err(&self.cfg, "reading the identity", e))?
             .identity();
         if id.vendor_id != self.cfg.vendor_id {
             return Err(EthercatError::Identity {
@@ -424,10 +398,32 @@ impl EthercatStage {
                 Some(i) => format!("backend.ethercat.{dir}[{i}]"),
                 None => format!("backend.ethercat.{dir}"),
             };
-            self.sdo(&group, md, assign, 0, 0u8, key(None), deadline)?;
-            self.sdo(&group, md, pdo, 0, 0u8, key(None), deadline)?;
+            sdo_in(
+                &mut self.link,
+                &self.cfg,
+                &group,
+                md,
+                assign,
+                0,
+                0u8,
+                key(None),
+                deadline,
+            )?;
+            sdo_in(
+                &mut self.link,
+                &self.cfg,
+                &group,
+                md,
+                pdo,
+                0,
+                0u8,
+                key(None),
+                deadline,
+            )?;
             for (i, e) in entries.iter().enumerate() {
-                self.sdo(
+                sdo_in(
+                    &mut self.link,
+                    &self.cfg,
                     &group,
                     md,
                     pdo,
@@ -437,12 +433,44 @@ impl EthercatStage {
                     deadline,
                 )?;
             }
-            self.sdo(&group, md, pdo, 0, entries.len() as u8, key(None), deadline)?;
-            self.sdo(&group, md, assign, 1, pdo, key(None), deadline)?;
-            self.sdo(&group, md, assign, 0, 1u8, key(None), deadline)?;
+            sdo_in(
+                &mut self.link,
+                &self.cfg,
+                &group,
+                md,
+                pdo,
+                0,
+                entries.len() as u8,
+                key(None),
+                deadline,
+            )?;
+            sdo_in(
+                &mut self.link,
+                &self.cfg,
+                &group,
+                md,
+                assign,
+                1,
+                pdo,
+                key(None),
+                deadline,
+            )?;
+            sdo_in(
+                &mut self.link,
+                &self.cfg,
+                &group,
+                md,
+                assign,
+                0,
+                1u8,
+                key(None),
+                deadline,
+            )?;
         }
         if !self.analog() {
-            self.sdo(
+            sdo_in(
+                &mut self.link,
+                &self.cfg,
                 &group,
                 md,
                 0x6060,
@@ -458,14 +486,15 @@ impl EthercatStage {
             // Torque / current in ‰ of the motor rated current 0x6075 (mA).
             let sd = group
                 .subdevice(md, 0)
-                .map_err(|e| self.bringup_err("reading 0x6075", e))?;
-            let ma: u32 = self
-                .run(
-                    sd.sdo_read(0x6075, 0),
-                    deadline,
-                    "reading the motor rated current 0x6075",
-                )?
-                .map_err(|e| self.bringup_err("reading the motor rated current 0x6075", e))?;
+                .map_err(|e| bringup_err(&self.cfg, "reading 0x6075", e))?;
+            let ma: u32 = run_in(
+                &mut self.link,
+                &self.cfg,
+                sd.sdo_read(0x6075, 0),
+                deadline,
+                "reading the motor rated current 0x6075",
+            )?
+            .map_err(|e| bringup_err(&self.cfg, "reading the motor rated current 0x6075", e))?;
             if ma == 0 {
                 return Err(EthercatError::Bringup {
                     interface: self.cfg.interface.clone(),
@@ -480,20 +509,25 @@ impl EthercatStage {
         {
             let sd = group
                 .subdevice(md, 0)
-                .map_err(|e| self.bringup_err("setting the SM watchdog", e))?;
-            self.run(
+                .map_err(|e| bringup_err(&self.cfg, "setting the SM watchdog", e))?;
+            run_in(
+                &mut self.link,
+                &self.cfg,
                 sd.register_write(0x0400u16, 2498u16),
                 deadline,
                 "setting the SM watchdog",
             )?
-            .map_err(|e| self.bringup_err("setting the SM watchdog divider 0x0400", e))?;
-            self.run(
+            .map_err(|e| bringup_err(&self.cfg, "setting the SM watchdog divider 0x0400", e))?;
+            run_in(
+                &mut self.link,
+                &self.cfg,
                 sd.register_write(0x0420u16, steps),
                 deadline,
                 "setting the SM watchdog",
             )?
             .map_err(|e| {
-                self.bringup_err(
+                bringup_err(
+                    &self.cfg,
                     "setting the SM watchdog time 0x0420 (backend.ethercat.watchdog_ms)",
                     e,
                 )
@@ -514,20 +548,40 @@ impl EthercatStage {
             };
             let sync = "configuring distributed-clock SYNC0 at the loop period";
             // FMMUs and SMs first (the PDI), then SYNC0.
-            let group = self
-                .run(group.into_pre_op_pdi(md), deadline, step)?
-                .map_err(|e| self.bringup_err(step, e))?;
-            let g = self
-                .run(group.configure_dc_sync(md, dc), deadline, sync)?
-                .map_err(|e| self.bringup_err(sync, e))?;
-            let g = self
-                .run(g.into_safe_op(md), deadline, step)?
-                .map_err(|e| self.bringup_err(step, e))?;
+            let group = run_in(
+                &mut self.link,
+                &self.cfg,
+                group.into_pre_op_pdi(md),
+                deadline,
+                step,
+            )?
+            .map_err(|e| bringup_err(&self.cfg, step, e))?;
+            let g = run_in(
+                &mut self.link,
+                &self.cfg,
+                group.configure_dc_sync(md, dc),
+                deadline,
+                sync,
+            )?
+            .map_err(|e| bringup_err(&self.cfg, sync, e))?;
+            let g = run_in(
+                &mut self.link,
+                &self.cfg,
+                g.into_safe_op(md),
+                deadline,
+                step,
+            )?
+            .map_err(|e| bringup_err(&self.cfg, step, e))?;
             Running::SafeOpDc(g)
         } else {
-            let g = self
-                .run(group.into_safe_op(md), deadline, step)?
-                .map_err(|e| self.bringup_err(step, e))?;
+            let g = run_in(
+                &mut self.link,
+                &self.cfg,
+                group.into_safe_op(md),
+                deadline,
+                step,
+            )?
+            .map_err(|e| bringup_err(&self.cfg, step, e))?;
             Running::SafeOp(g)
         };
         let sizes = on_group!(&running, g => g
@@ -536,7 +590,7 @@ impl EthercatStage {
             let io = sd.io_raw();
             (io.outputs().len(), io.inputs().len())
         }))
-        .map_err(|e| self.bringup_err("reading the process image", e))?;
+        .map_err(|e| bringup_err(&self.cfg, "reading the process image", e))?;
         if sizes != (self.layout.out_len, self.layout.in_len) {
             return Err(EthercatError::Bringup {
                 interface: self.cfg.interface.clone(),
@@ -550,47 +604,16 @@ impl EthercatStage {
         Ok(running)
     }
 
-    /// One expedited SDO download during bring-up; an abort names `key`.
-    #[allow(clippy::too_many_arguments)]
-    fn sdo<T: ethercrab::EtherCrabWireWrite + Copy + Into<i64>>(
-        &mut self,
-        group: &Group<PreOp>,
-        md: &MainDevice<'static>,
-        index: u16,
-        subindex: u8,
-        value: T,
-        key: String,
-        deadline: u64,
-    ) -> Result<(), EthercatError> {
-        let sd = group
-            .subdevice(md, 0)
-            .map_err(|e| self.bringup_err("writing the object dictionary", e))?;
-        match self.run(
-            sd.sdo_write(index, subindex, value),
-            deadline,
-            "writing the object dictionary",
-        )? {
-            Ok(()) => Ok(()),
-            Err(e) => Err(EthercatError::Refused {
-                key,
-                index,
-                subindex,
-                value: value.into() as u32,
-                reason: e.to_string(),
-            }),
-        }
-    }
-
     /// One process-data round trip: the outputs `self.out` go out, the
     /// inputs come back into `self.inp`; working counter, AL state and
     /// the drive's fault bit are checked. Real-time safe (no allocation,
     /// one uncontended lock of ethercrab's process image, the wait bounded
     /// by the exchange timeout).
     fn exchange(&mut self) -> Result<(), EthercatError> {
-        let md: *const MainDevice<'static> = self.md();
-        // SAFETY: as in `bring_up`: `self.md` is neither moved nor dropped
-        // while borrowed here; `self.link` is a distinct field.
-        let md: &MainDevice<'static> = unsafe { &*md };
+        let md = self
+            .md
+            .as_ref()
+            .expect("the main device lives as long as the stage");
         let (out_len, in_len) = (self.layout.out_len, self.layout.in_len);
         let Some(group) = self.group.as_ref() else {
             return Err(LifecycleError::NotConfigured.into());
@@ -821,9 +844,10 @@ impl EthercatStage {
     /// 0x0014: ETG.1000.6 §5.3.2, an error must be acknowledged before the
     /// slave goes up again), then waits for SAFE-OP.
     fn back_to_safe_op(&mut self) -> Result<(), EthercatError> {
-        let md: *const MainDevice<'static> = self.md();
-        // SAFETY: as in `bring_up`.
-        let md: &MainDevice<'static> = unsafe { &*md };
+        let md = self
+            .md
+            .as_ref()
+            .expect("the main device lives as long as the stage");
         let deadline = monotonic_ns() + (self.cfg.bringup_timeout_ms * 1e6) as u64;
         let step = "acknowledging the slave's AL status";
         let sd = match self.group.as_ref() {
@@ -866,6 +890,41 @@ impl EthercatStage {
             other => self.group = other,
         }
         Ok(())
+    }
+}
+
+/// One expedited SDO download during bring-up; an abort names `key`.
+#[allow(clippy::too_many_arguments)]
+fn sdo_in<T: ethercrab::EtherCrabWireWrite + Copy + Into<i64>>(
+    link: &mut Link,
+    cfg: &EthercatConfig,
+    group: &Group<PreOp>,
+    md: &MainDevice<'static>,
+    index: u16,
+    subindex: u8,
+    value: T,
+    key: String,
+    deadline: u64,
+) -> Result<(), EthercatError> {
+    let step = "writing the object dictionary";
+    let sd = group
+        .subdevice(md, 0)
+        .map_err(|e| bringup_err(cfg, step, e))?;
+    match run_in(
+        link,
+        cfg,
+        sd.sdo_write(index, subindex, value),
+        deadline,
+        step,
+    )? {
+        Ok(()) => Ok(()),
+        Err(e) => Err(EthercatError::Refused {
+            key,
+            index,
+            subindex,
+            value: value.into() as u32,
+            reason: e.to_string(),
+        }),
     }
 }
 
@@ -974,24 +1033,29 @@ impl Stage for EthercatStage {
         if !self.configured {
             return Err(LifecycleError::NotConfigured.into());
         }
-        let md: *const MainDevice<'static> = self.md();
-        // SAFETY: as in `bring_up`.
-        let md: &MainDevice<'static> = unsafe { &*md };
-        let deadline = monotonic_ns() + (self.cfg.bringup_timeout_ms * 1e6) as u64;
-        let step = "bringing the slave to OP";
         // The outputs in force when OP starts: 0 A, disabled.
         self.set_outputs(CW_DISABLE_VOLTAGE, 0.0);
+        let md = self
+            .md
+            .as_ref()
+            .expect("the main device lives as long as the stage");
+        let deadline = monotonic_ns() + (self.cfg.bringup_timeout_ms * 1e6) as u64;
+        let step = "bringing the slave to OP";
         match self.group.take() {
-            Some(Running::SafeOp(g)) => match self.run(g.into_op(md), deadline, step) {
-                Ok(Ok(g)) => self.group = Some(Running::Op(g)),
-                Ok(Err(e)) => return Err(self.bringup_err(step, e)),
-                Err(e) => return Err(e),
-            },
-            Some(Running::SafeOpDc(g)) => match self.run(g.into_op(md), deadline, step) {
-                Ok(Ok(g)) => self.group = Some(Running::OpDc(g)),
-                Ok(Err(e)) => return Err(self.bringup_err(step, e)),
-                Err(e) => return Err(e),
-            },
+            Some(Running::SafeOp(g)) => {
+                match run_in(&mut self.link, &self.cfg, g.into_op(md), deadline, step) {
+                    Ok(Ok(g)) => self.group = Some(Running::Op(g)),
+                    Ok(Err(e)) => return Err(bringup_err(&self.cfg, step, e)),
+                    Err(e) => return Err(e),
+                }
+            }
+            Some(Running::SafeOpDc(g)) => {
+                match run_in(&mut self.link, &self.cfg, g.into_op(md), deadline, step) {
+                    Ok(Ok(g)) => self.group = Some(Running::OpDc(g)),
+                    Ok(Err(e)) => return Err(bringup_err(&self.cfg, step, e)),
+                    Err(e) => return Err(e),
+                }
+            }
             other => self.group = other,
         }
         let deadline = monotonic_ns() + 500_000_000;
@@ -1116,5 +1180,6 @@ impl Drop for EthercatStage {
             let mut pool = POOL.lock().unwrap_or_else(|e| e.into_inner());
             *pool = Some(Parts { tx, rx, pdu_loop });
         }
+        log::set_max_level(self.log_level);
     }
 }
