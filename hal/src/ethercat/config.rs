@@ -561,6 +561,44 @@ mod tests {
             "backend.ethercat.watchdog_ms"
         );
         assert_eq!(PdoEntry::from_raw(CONTROLWORD.raw()), CONTROLWORD);
+        // The analog profile: DAC + enable out, ADC + status in.
+        let a = EthercatConfig {
+            profile: Profile::Analog,
+            ..EthercatConfig::default()
+        };
+        let l = a.layout("k").unwrap();
+        assert_eq!((l.out_len, l.in_len), (3, 3));
+        assert_eq!(
+            (l.target, l.controlword, l.position, l.statusword),
+            ((0, false), 2, 0, 2)
+        );
+        assert_eq!(a.expected_product_id(), 0x0A10);
+        let a = EthercatConfig {
+            profile: Profile::Analog,
+            dac_full_scale_a: 5.0,
+            ..EthercatConfig::default()
+        };
+        assert_eq!(
+            a.validate("backend.ethercat").unwrap_err().key,
+            "backend.ethercat.dac_full_scale_a"
+        );
+        let d = EthercatConfig {
+            dc_drift_max_ppm: 0.5,
+            ..EthercatConfig::default()
+        };
+        assert_eq!(
+            d.validate("backend.ethercat").unwrap_err().key,
+            "backend.ethercat.dc_drift_max_ppm"
+        );
+        // The default round-trip bound: 5 ms, or a period if longer.
+        assert_eq!(
+            EthercatConfig::default().exchange_timeout_ns(200_000),
+            5_000_000
+        );
+        assert_eq!(
+            EthercatConfig::default().exchange_timeout_ns(10_000_000),
+            10_000_000
+        );
         assert_eq!(CONTROLWORD.raw(), 0x6040_0010);
     }
 }
