@@ -40,6 +40,11 @@
 #   -U  the store of the `uploading` daemon (s3://BUCKET/PREFIX with the
 #       AWS_* environment, or file:///DIR)
 #   -n  recordings queued for upload before each measured job (default 3)
+#   -T  with an s3:// -U: uploads paced to this many MB/s by a proxy the
+#       script runs in front of AWS_ENDPOINT (off the loop's CPU with -o),
+#       so that they last through the measured job as a store across a
+#       lab network would make them (a store on loopback takes 13 MB in
+#       0.15 s)
 #   -B  use this bench binary instead of building it in release (a quick
 #       check of the script; figures come from a release build)
 # Needs root (or the rights to SCHED_FIFO and /dev/cpu_dma_latency), curl
@@ -56,7 +61,8 @@ modes_given=
 bench=
 upload_url=
 backlog=3
-while getopts "d:r:c:i:om:B:U:n:h" opt; do
+throttle=
+while getopts "d:r:c:i:om:B:U:n:T:h" opt; do
     case $opt in
         d) duration=$OPTARG ;;
         r) rounds=$OPTARG ;;
@@ -66,6 +72,7 @@ while getopts "d:r:c:i:om:B:U:n:h" opt; do
         m) IFS=, read -r -a modes <<<"$OPTARG"; modes_given=1 ;;
         U) upload_url=$OPTARG ;;
         n) backlog=$OPTARG ;;
+        T) throttle=$OPTARG ;;
         B) bench=$OPTARG ;;
         *) sed -n '2,30p' "$0"; exit 2 ;;
     esac
@@ -83,6 +90,11 @@ for m in "${modes[@]}"; do
     [ "$m" != uploading ] || [ -n "$upload_url" ] || die "-m uploading needs -U URL"
 done
 [[ $backlog =~ ^[0-9]+$ ]] || die "-n: a number of recordings (got $backlog)"
+if [ -n "$throttle" ]; then
+    [[ $throttle =~ ^[0-9.]+$ ]] || die "-T: MB/s (got $throttle)"
+    [[ $upload_url == s3://* ]] || die "-T needs an s3:// store (-U)"
+    [[ ${AWS_ENDPOINT:-} =~ ^http://([^:/]+):([0-9]+)/?$ ]] || die "-T needs AWS_ENDPOINT=http://HOST:PORT (got ${AWS_ENDPOINT:-nothing})"
+fi
 command -v curl >/dev/null || die "curl not found"
 if [ -n "$off_cpu" ]; then
     command -v taskset >/dev/null || die "-o: taskset not found (util-linux)"
@@ -103,13 +115,51 @@ fi
 work=$(mktemp -d)
 daemon=
 scraper=
+proxy=
 cleanup() {
     [ -n "$scraper" ] && kill "$scraper" 2>/dev/null
     [ -n "$daemon" ] && kill "$daemon" 2>/dev/null
+    [ -n "$proxy" ] && kill "$proxy" 2>/dev/null
     wait 2>/dev/null
     rm -rf "$work"
 }
 trap cleanup EXIT
+
+# The pacing proxy of -T: every connection to the store forwarded, what
+# goes to the store paced to $throttle MB/s per connection (a multipart
+# upload has up to two parts in flight).
+proxy=
+if [ -n "$throttle" ]; then
+    pace=(python3 -u -c '
+import asyncio, sys
+host, port, rate = sys.argv[1], int(sys.argv[2]), float(sys.argv[3]) * 1e6
+async def pump(r, w, paced):
+    try:
+        while data := await r.read(65536):
+            if paced:
+                await asyncio.sleep(len(data) / rate)
+            w.write(data)
+            await w.drain()
+    except OSError:
+        pass
+    finally:
+        w.close()
+async def serve(cr, cw):
+    sr, sw = await asyncio.open_connection(host, port)
+    await asyncio.gather(pump(cr, sw, True), pump(sr, cw, False))
+async def main():
+    srv = await asyncio.start_server(serve, "127.0.0.1", 0)
+    print(srv.sockets[0].getsockname()[1], flush=True)
+    await srv.serve_forever()
+asyncio.run(main())
+' "${BASH_REMATCH[1]}" "${BASH_REMATCH[2]}" "$throttle")
+    if [ -n "$off_cpu" ]; then pace=(taskset -c "$others" "${pace[@]}"); fi
+    "${pace[@]}" >"$work/proxy.port" &
+    proxy=$!
+    for _ in $(seq 100); do [ -s "$work/proxy.port" ] && break; sleep 0.05; done
+    [ -s "$work/proxy.port" ] || die "-T: the pacing proxy did not start"
+    export AWS_ENDPOINT="http://127.0.0.1:$(cat "$work/proxy.port")"
+fi
 
 # The shipped bench, its loop pinned to $cpu.
 cfg="$work/bench.toml"
@@ -145,17 +195,21 @@ job_p99() {
     python3 -c 'import json, sys; print("%.1f" % json.load(open(sys.argv[1]))["timing"]["wake_latency_p99_us"])' "$work/job.json"
 }
 
-# Files the store confirmed between the UTC times $1 and $2 (the journal).
-confirmed_between() {
-    python3 - "$work/rec/upload-journal.jsonl" "$1" "$2" <<'PY'
-import json, sys
-a, b = sys.argv[2], sys.argv[3]
-n = 0
-for line in open(sys.argv[1]):
-    l = json.loads(line)
-    if l["op"] == "confirmed" and a <= l["time_utc"][:19] <= b:
-        n += 1
-print(n)
+# The backlog's uploads against the measured job (its files are
+# `-job<backlog+1>.`), from the journal: how many of the backlog's files
+# the store confirmed between the UTC times $1 and $2, and when the last
+# of them was confirmed, s after $1.
+backlog_during() {
+    python3 - "$work/rec/upload-journal.jsonl" "$1" "$2" "-job$((backlog + 1))." <<'PY'
+import datetime, json, sys
+path, a, b, mine = sys.argv[1:5]
+t = lambda s: datetime.datetime.fromisoformat(s.replace("Z", "+00:00")).timestamp()
+ta, tb = t(a + "Z"), t(b + "Z")
+times = [t(l["time_utc"]) for l in map(json.loads, open(path))
+         if l["op"] == "confirmed" and mine not in l["key"]]
+during = [x for x in times if ta <= x <= tb + 1]
+last = max(times) - ta if times else float("nan")
+print(f"{len(during)} of {len(times)} backlog files confirmed during the {tb - ta:.0f} s job, the last at {last:+.1f} s")
 PY
 }
 
@@ -193,7 +247,7 @@ while True:
     p99=$(job_p99)
     t1=$(date -u +%Y-%m-%dT%H:%M:%S)
     if [ "$1" = uploading ]; then
-        echo "  (uploading: $(confirmed_between "$t0" "$t1") file(s) confirmed by the store during the measured job)" >&2
+        echo "  (uploading: $(backlog_during "$t0" "$t1"))" >&2
     fi
     if [ -n "$scraper" ]; then
         kill "$scraper" 2>/dev/null; wait "$scraper" 2>/dev/null || true

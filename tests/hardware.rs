@@ -410,7 +410,7 @@ fn bad_devices_are_refused_before_anything_is_enabled() {
     assert!(!Path::new(&out).exists());
 
     // A backend that is not one.
-    let o = control(&cfg_s, &out, Some("ethercat:eth0"), &[]);
+    let o = control(&cfg_s, &out, Some("profinet:eth0"), &[]);
     assert_eq!(o.status.code(), Some(2));
     assert!(stderr(&o).contains("unknown backend"), "{}", stderr(&o));
 

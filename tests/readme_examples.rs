@@ -12,6 +12,7 @@
 //! stopped after a few seconds and must have been running. The lines a
 //! machine may not be able to run are their own tests, ignored with the
 //! reason where it cannot: the CAN examples (a `vcan0` interface), the
+//! EtherCAT examples (root, for network namespaces: skipped otherwise), the
 //! latency soak (minutes, run by hand) and the `cargo` lines of the quick
 //! start (what `.ci/run` itself runs).
 
@@ -47,6 +48,8 @@ enum Runner {
     Main,
     /// Needs `vcan0`.
     Can,
+    /// Needs root: network namespaces and a veth pair (EtherCAT).
+    Ethercat,
     /// The latency soak.
     Soak,
     /// The quick start's `cargo` lines.
@@ -58,6 +61,8 @@ fn runner(line: &str) -> Runner {
         Runner::Cargo
     } else if line.contains("vcan0") {
         Runner::Can
+    } else if line.contains(" ecm") || line.contains(" ecs") {
+        Runner::Ethercat
     } else if line.contains("benches/latency-vs-cyclictest.sh") {
         Runner::Soak
     } else {
@@ -343,6 +348,42 @@ fn readme_can_examples_run() {
         })
         .collect();
     assert_eq!(lines.len(), 2);
+    run_lines(&lines);
+}
+
+/// The EtherCAT examples: two namespaces, a veth pair, the virtual slave
+/// and a short chirp (root only; `tests/ethercat.rs` runs the same and
+/// more). The namespaces get names of this run.
+#[test]
+fn readme_ethercat_examples_run() {
+    // SAFETY: no preconditions.
+    if unsafe { libc::geteuid() } != 0 {
+        eprintln!("SKIPPED: not root (network namespaces, veth, raw sockets)");
+        return;
+    }
+    let id = std::process::id();
+    let lines: Vec<(usize, String)> = examples()
+        .into_iter()
+        .filter(|(_, l)| runner(l) == Runner::Ethercat)
+        .map(|(n, l)| {
+            let l = l
+                .replace("ecm ", &format!("ecm{id} "))
+                .replace("ecs ", &format!("ecs{id} "));
+            let l = if l.ends_with(" ecs") {
+                format!("{l}{id}")
+            } else {
+                l
+            };
+            // The slave runs in the background for the chirp.
+            let l = if l.ends_with('&') {
+                format!("{l} sleep 1")
+            } else {
+                l
+            };
+            (n, l)
+        })
+        .collect();
+    assert_eq!(lines.len(), 6, "{lines:?}");
     run_lines(&lines);
 }
 

@@ -33,6 +33,8 @@
 //! * Host backends: [`serial`] ([`serial::SerialStage`]) and [`can`]
 //!   ([`can::CanStage`], with the CAN frame map and socket primitives the
 //!   CAN emulator shares).
+//! * [`ethercat`]: the EtherCAT backend ([`ethercat::EthercatStage`], on
+//!   `ethercrab`) and its virtual slave.
 //! * [`emulator`]: the device side of the wire ([`emulator::DeviceCore`]
 //!   and its serial and CAN transports); never used by a host backend
 //!   except for the wire fault codes ([`emulator::DeviceFault`]).
@@ -40,6 +42,7 @@
 
 pub mod can;
 pub mod emulator;
+pub mod ethercat;
 pub mod model;
 pub mod os;
 pub mod protocol;

@@ -72,7 +72,7 @@ pub(super) struct HowArgs {
     /// cores].
     #[arg(long, value_name = "N")]
     threads: Option<usize>,
-    /// Hardware: serial:PATH or socketcan:IFACE (else `[backend]` of the
+    /// Hardware: serial:PATH, socketcan:IFACE or ethercat:IFACE (else `[backend]` of the
     /// bench config). On hardware the cells run one at a time, each after
     /// the operator has made and confirmed the setup they are told.
     #[arg(long, value_name = "SPEC")]

@@ -89,7 +89,7 @@ pub(super) struct ChirpArgs {
     /// stalls once for MS ms; with --realtime); e.g. stall:30@5.
     #[arg(long, value_name = "KIND@T_S")]
     inject_fault: Option<String>,
-    /// Backend: sim, serial:PATH or socketcan:IFACE [default: [backend] of
+    /// Backend: sim, serial:PATH, socketcan:IFACE or ethercat:IFACE [default: [backend] of
     /// the config]. Hardware always runs in real time.
     #[arg(long, value_name = "BACKEND")]
     backend: Option<BackendSpec>,

@@ -81,7 +81,7 @@ pub(super) struct ControlArgs {
     /// drop (10 samples), jump (0.2 mm), out_of_range; e.g. nan@1.5.
     #[arg(long, value_name = "KIND@T_S")]
     inject_fault: Option<String>,
-    /// Backend: sim, serial:PATH or socketcan:IFACE [default: [backend] of
+    /// Backend: sim, serial:PATH, socketcan:IFACE or ethercat:IFACE [default: [backend] of
     /// the config]. Hardware always runs in real time.
     #[arg(long, value_name = "BACKEND")]
     backend: Option<BackendSpec>,

@@ -1,4 +1,5 @@
-//! `bench emulate serial|can`: the simulated plant as a DAQ device.
+//! `bench emulate serial|can|ethercat`: the simulated plant as a DAQ
+//! device (or, on EtherCAT, as a CiA 402 drive).
 
 use super::{bad_input, load_config, status, CONFIG_HELP};
 use bench::jobs::request::parse_fault;
@@ -24,6 +25,33 @@ pub(super) enum EmulateCommand {
         #[command(flatten)]
         common: EmulateArgs,
     },
+    /// Virtual EtherCAT slave (a CiA 402 drive in CST around the plant) on
+    /// a network interface (raw socket: needs CAP_NET_RAW). Faults:
+    /// drop:FRAMES, wkc:FRAMES, leave_op, drive_fault, disconnect, at
+    /// seconds after the slave first enters OP.
+    Ethercat {
+        /// Network interface, e.g. a veth end.
+        #[arg(value_name = "IFACE")]
+        iface: String,
+        /// Vendor id to carry in the SII and 0x1018:01 [default:
+        /// backend.ethercat.vendor_id] (for testing the identity check).
+        #[arg(long, value_name = "ID", value_parser = parse_u32)]
+        vendor_id: Option<u32>,
+        /// Product code [default: the profile's].
+        #[arg(long, value_name = "ID", value_parser = parse_u32)]
+        product_id: Option<u32>,
+        #[command(flatten)]
+        common: EmulateArgs,
+    },
+}
+
+/// A u32 in decimal or 0x-hex.
+fn parse_u32(s: &str) -> Result<u32, String> {
+    let r = match s.strip_prefix("0x").or_else(|| s.strip_prefix("0X")) {
+        Some(h) => u32::from_str_radix(h, 16),
+        None => s.parse(),
+    };
+    r.map_err(|e| format!("{s:?} is not a 32-bit number (decimal or 0x-hex): {e}"))
 }
 
 #[derive(Debug, Args)]
@@ -105,6 +133,12 @@ pub(super) fn emulate(cmd: EmulateCommand, stop: Arc<AtomicBool>) -> ExitCode {
     let (args, can_iface) = match cmd {
         EmulateCommand::Serial(a) => (a, None),
         EmulateCommand::Can { iface, common } => (common, Some(iface)),
+        EmulateCommand::Ethercat {
+            iface,
+            vendor_id,
+            product_id,
+            common,
+        } => return emulate_ethercat(&iface, vendor_id, product_id, common, stop),
     };
     let (cfg, config_path) = match load_config(args.config.as_deref())
         .and_then(|(c, p)| c.validate(&p).map(|_| (c, p)))
@@ -226,6 +260,127 @@ pub(super) fn emulate(cmd: EmulateCommand, stop: Arc<AtomicBool>) -> ExitCode {
         status.bad_frames.load(Relaxed),
         status.late_commands.load(Relaxed),
         status.max_tick_lateness_ns.load(Relaxed) / 1000,
+        if status.watchdog_trip_mono_ns.load(Relaxed) != 0 {
+            "tripped"
+        } else {
+            "never tripped"
+        }
+    );
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            errln!("error: emulator: {e}");
+            ExitCode::from(status::ERROR)
+        }
+    }
+}
+
+/// `bench emulate ethercat IFACE`.
+fn emulate_ethercat(
+    iface: &str,
+    vendor_id: Option<u32>,
+    product_id: Option<u32>,
+    args: EmulateArgs,
+    stop: Arc<AtomicBool>,
+) -> ExitCode {
+    use bench_hal::ethercat::slave::{ScheduledSlaveFault, SlaveFault, SlaveIdentity};
+    let (cfg, config_path) = match load_config(args.config.as_deref())
+        .and_then(|(c, p)| c.validate(&p).map(|_| (c, p)))
+    {
+        Ok(c) => c,
+        Err(e) => return bad_input(e),
+    };
+    if args.protocol_version.is_some() || args.announce_currents_a.is_some() || args.lockstep {
+        return bad_input(
+            "--protocol-version, --announce-currents-a, --lockstep: only the serial emulator has them",
+        );
+    }
+    let mut slave_faults = Vec::new();
+    let mut plant_faults = Vec::new();
+    for f in &args.faults {
+        let Some((kind, at)) = f.rsplit_once('@') else {
+            return bad_input(format!("--fault {f}: expected KIND@T_S, e.g. drop:3@1.5"));
+        };
+        let Some(at_s) = at
+            .parse::<f64>()
+            .ok()
+            .filter(|t| t.is_finite() && *t >= 0.0)
+        else {
+            return bad_input(format!(
+                "--fault {f}: time {at:?} is not a non-negative number of seconds"
+            ));
+        };
+        match SlaveFault::parse(kind) {
+            Ok(kind) => slave_faults.push(ScheduledSlaveFault { at_s, kind }),
+            Err(slave_err) => match parse_fault(f) {
+                Ok(p) => plant_faults.push(p),
+                Err(_) => {
+                    return bad_input(format!(
+                        "--fault {f}: {slave_err}; or a plant fault nan, frozen, drop, jump, out_of_range"
+                    ))
+                }
+            },
+        }
+    }
+    if let Some(d) = args.duration_s {
+        if !(d.is_finite() && d > 0.0) {
+            return bad_input(format!(
+                "--duration-s {d}: must be a positive number of seconds"
+            ));
+        }
+        let stop = Arc::clone(&stop);
+        std::thread::spawn(move || {
+            std::thread::sleep(std::time::Duration::from_secs_f64(d));
+            stop.store(true, std::sync::atomic::Ordering::Relaxed);
+        });
+    }
+    let seed = args.seed.unwrap_or(cfg.sim.seed);
+    // The drive's watchdog is the ESC's SM watchdog, set by the master.
+    let mut core = match DeviceCore::new(cfg.sim_params(seed), cfg.loop_.period_ns(), u64::MAX / 4)
+    {
+        Ok(c) => c,
+        Err(e) => return bad_input(format!("config {}: {e}", config_path.display())),
+    };
+    for f in plant_faults {
+        core.inject(f);
+    }
+    let ecfg = cfg.backend.ethercat.clone();
+    let id = SlaveIdentity {
+        vendor_id: vendor_id.unwrap_or(ecfg.vendor_id),
+        product_id: product_id.unwrap_or(ecfg.expected_product_id()),
+    };
+    let sock = match bench_hal::ethercat::socket::RawSocket::open(iface) {
+        Ok(s) => s,
+        Err(e) => return bad_input(format!("IFACE {iface}: {e}")),
+    };
+    outln!("{iface}");
+    errln!(
+        "EtherCAT virtual slave ({} CST drive, vendor 0x{:08X} product 0x{:08X}) on {iface}, cycling on each process-data frame; connect with --backend ethercat:PEER; Ctrl-C stops",
+        ecfg.profile.as_str(),
+        id.vendor_id,
+        id.product_id
+    );
+    let priority = (cfg.emulator.priority > 0).then_some(cfg.emulator.priority);
+    let status = Arc::new(EmulatorStatus::default());
+    let st = Arc::clone(&status);
+    let s = Arc::clone(&stop);
+    let result = std::thread::Builder::new()
+        .name("bench-emulator".into())
+        .spawn(move || {
+            if let Some(p) = priority {
+                bench_hal::os::make_realtime(p, None);
+            }
+            bench_hal::ethercat::slave::run_slave(&sock, &ecfg, core, id, &slave_faults, &s, &st)
+        })
+        .map_err(|e| e.to_string())
+        .and_then(|t| t.join().map_err(|_| "emulator thread panicked".to_string()))
+        .and_then(|r| r.map_err(|e| e.to_string()));
+    use std::sync::atomic::Ordering::Relaxed;
+    errln!(
+        "emulator stopped: {} process-data frames, {} output writes, {} bad frames, watchdog {}",
+        status.samples_sent.load(Relaxed),
+        status.commands_received.load(Relaxed),
+        status.bad_frames.load(Relaxed),
         if status.watchdog_trip_mono_ns.load(Relaxed) != 0 {
             "tripped"
         } else {

@@ -29,6 +29,8 @@ pub enum BackendKind {
     Serial,
     /// A CAN analog I/O module on SocketCAN.
     Socketcan,
+    /// A CiA 402 drive on EtherCAT (`bench_hal::ethercat`).
+    Ethercat,
 }
 
 /// `[backend]`: which hardware runs the jobs. `--backend` overrides `kind`
@@ -36,7 +38,7 @@ pub enum BackendKind {
 #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct BackendConfig {
-    /// `sim`, `serial` or `socketcan`.
+    /// `sim`, `serial`, `socketcan` or `ethercat`.
     #[serde(default)]
     pub kind: BackendKind,
     /// `[backend.serial]`: the serial DAQ. Safety ranges:
@@ -54,6 +56,12 @@ pub struct BackendConfig {
     /// `[actuator]`.
     #[serde(default)]
     pub can: bench_hal::can::CanConfig,
+    /// `[backend.ethercat]`: the EtherCAT segment, profile, identity, PDO
+    /// map and SM watchdog (`bench_hal::ethercat::EthercatConfig`). Safety
+    /// ranges: `watchdog_ms` in [max(0.2 ms, two loop periods), 1000] ms,
+    /// currents as for `[actuator]`.
+    #[serde(default)]
+    pub ethercat: bench_hal::ethercat::EthercatConfig,
 }
 
 /// `[emulator]`: the device side run by `bench emulate`.

@@ -391,6 +391,14 @@ fn link_figures(l: LinkCounters) -> (Vec<(&'static str, u64)>, u64, u64) {
             c.timeouts,
             c.lost_samples,
         ),
+        LinkCounters::Ethercat(e) => (
+            vec![
+                ("working_counter", e.wkc_errors),
+                ("al_state", e.state_errors),
+            ],
+            e.lost_frames,
+            e.lost_frames,
+        ),
     }
 }
 

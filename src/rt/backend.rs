@@ -1,5 +1,6 @@
 //! Backend selection: `[backend] kind` in the config, overridden by
-//! `--backend sim|serial:PATH|socketcan:IFACE` on the command line.
+//! `--backend sim|serial:PATH|socketcan:IFACE|ethercat:IFACE` on the
+//! command line.
 //!
 //! [`AnyStage`] puts the backends behind one concrete type, so the loop
 //! stays monomorphic (no dynamic dispatch or boxing on the tick).
@@ -21,6 +22,8 @@ pub enum BackendSpec {
     Serial(String),
     /// `socketcan:IFACE`
     Socketcan(String),
+    /// `ethercat:IFACE`
+    Ethercat(String),
 }
 
 impl FromStr for BackendSpec {
@@ -32,10 +35,12 @@ impl FromStr for BackendSpec {
             ("sim", "") => Ok(Self::Sim),
             ("serial", p) if !p.is_empty() => Ok(Self::Serial(p.into())),
             ("socketcan", i) if !i.is_empty() => Ok(Self::Socketcan(i.into())),
+            ("ethercat", i) if !i.is_empty() => Ok(Self::Ethercat(i.into())),
             ("serial", _) => Err("serial needs a device path: serial:/dev/ttyACM0".into()),
             ("socketcan", _) => Err("socketcan needs an interface: socketcan:can0".into()),
+            ("ethercat", _) => Err("ethercat needs a network interface: ethercat:eth1".into()),
             _ => Err(format!(
-                "unknown backend `{s}` (expected sim, serial:PATH or socketcan:IFACE)"
+                "unknown backend `{s}` (expected sim, serial:PATH, socketcan:IFACE or ethercat:IFACE)"
             )),
         }
     }
@@ -50,6 +55,7 @@ impl BackendSpec {
                 BackendKind::Sim => Self::Sim,
                 BackendKind::Serial => Self::Serial(cfg.backend.serial.path.clone()),
                 BackendKind::Socketcan => Self::Socketcan(cfg.backend.can.interface.clone()),
+                BackendKind::Ethercat => Self::Ethercat(cfg.backend.ethercat.interface.clone()),
             },
         }
     }
@@ -57,6 +63,17 @@ impl BackendSpec {
     /// Whether this is the in-process simulator.
     pub fn is_sim(&self) -> bool {
         matches!(self, Self::Sim)
+    }
+
+    /// The pure delay the link adds to the loop at a loop period of
+    /// `period_s`, s: one period for EtherCAT (the drive cycles
+    /// SM-synchronously: a target acts in the cycle after its frame, see
+    /// `bench_hal::ethercat`), 0 for the others.
+    pub fn process_data_delay_s(&self, period_s: f64) -> f64 {
+        match self {
+            Self::Ethercat(_) => period_s,
+            _ => 0.0,
+        }
     }
 }
 
@@ -66,6 +83,7 @@ impl fmt::Display for BackendSpec {
             Self::Sim => write!(f, "sim"),
             Self::Serial(p) => write!(f, "serial:{p}"),
             Self::Socketcan(i) => write!(f, "socketcan:{i}"),
+            Self::Ethercat(i) => write!(f, "ethercat:{i}"),
         }
     }
 }
@@ -79,6 +97,8 @@ pub enum AnyStage {
     Serial(Box<SerialStage>),
     /// A SocketCAN module.
     Can(Box<bench_hal::can::CanStage>),
+    /// An EtherCAT drive.
+    Ethercat(Box<bench_hal::ethercat::EthercatStage>),
 }
 
 /// Any backend's error.
@@ -93,6 +113,9 @@ pub enum AnyError {
     /// From the SocketCAN backend.
     #[error(transparent)]
     Can(bench_hal::can::CanError),
+    /// From the EtherCAT backend.
+    #[error(transparent)]
+    Ethercat(bench_hal::ethercat::EthercatError),
 }
 
 impl bench_hal::Error for AnyError {
@@ -101,6 +124,7 @@ impl bench_hal::Error for AnyError {
             Self::Sim(e) => e.kind(),
             Self::Serial(e) => e.kind(),
             Self::Can(e) => e.kind(),
+            Self::Ethercat(e) => e.kind(),
         }
     }
 }
@@ -111,6 +135,7 @@ macro_rules! each {
             AnyStage::Sim($s) => $e.map_err(AnyError::Sim),
             AnyStage::Serial($s) => $e.map_err(AnyError::Serial),
             AnyStage::Can($s) => $e.map_err(AnyError::Can),
+            AnyStage::Ethercat($s) => $e.map_err(AnyError::Ethercat),
         }
     };
 }
@@ -181,6 +206,7 @@ impl AnyStage {
             Self::Sim(_) => None,
             Self::Serial(s) => Some(LinkCounters::Serial(s.stats())),
             Self::Can(s) => Some(LinkCounters::Can(s.stats())),
+            Self::Ethercat(s) => Some(LinkCounters::Ethercat(s.stats())),
         }
     }
 
@@ -198,6 +224,8 @@ pub enum LinkCounters {
     Serial(bench_hal::serial::SerialStats),
     /// SocketCAN module.
     Can(bench_hal::can::CanStats),
+    /// EtherCAT drive.
+    Ethercat(bench_hal::ethercat::EthercatStats),
 }
 
 impl LinkCounters {
@@ -206,6 +234,7 @@ impl LinkCounters {
         match self {
             Self::Serial(s) => serde_json::to_value(s),
             Self::Can(s) => serde_json::to_value(s),
+            Self::Ethercat(s) => serde_json::to_value(s),
         }
         .unwrap_or(serde_json::Value::Null)
     }
@@ -309,6 +338,15 @@ fn open_stage(
             let mut stage = bench_hal::can::CanStage::open(&ccfg).map_err(|e| bad(&e))?;
             let info = stage.configure(period_ns).map_err(|e| bad(&e))?;
             Ok((AnyStage::Can(Box::new(stage)), info))
+        }
+        BackendSpec::Ethercat(iface) => {
+            let ecfg = bench_hal::ethercat::EthercatConfig {
+                interface: iface.clone(),
+                ..cfg.backend.ethercat.clone()
+            };
+            let mut stage = bench_hal::ethercat::EthercatStage::open(&ecfg).map_err(|e| bad(&e))?;
+            let info = stage.configure(period_ns).map_err(|e| bad(&e))?;
+            Ok((AnyStage::Ethercat(Box::new(stage)), info))
         }
     }
 }

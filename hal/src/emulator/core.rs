@@ -28,6 +28,9 @@ pub enum DeviceFault {
     Watchdog,
     /// A command while disabled or a non-finite command.
     BadCommand,
+    /// The amplifier (drive) itself faulted (over-current, over-temperature;
+    /// injected in the EtherCAT virtual slave).
+    Amplifier,
 }
 
 impl DeviceFault {
@@ -36,6 +39,7 @@ impl DeviceFault {
         match self {
             Self::Watchdog => 1,
             Self::BadCommand => 2,
+            Self::Amplifier => 3,
         }
     }
 
@@ -44,6 +48,7 @@ impl DeviceFault {
         match code {
             1 => Some(Self::Watchdog),
             2 => Some(Self::BadCommand),
+            3 => Some(Self::Amplifier),
             _ => None,
         }
     }
@@ -53,6 +58,7 @@ impl DeviceFault {
         match self {
             Self::Watchdog => "watchdog",
             Self::BadCommand => "bad_command",
+            Self::Amplifier => "amplifier",
         }
     }
 }
@@ -167,6 +173,15 @@ impl DeviceCore {
             self.demand_a = i.clamp(-peak, peak);
         }
         true
+    }
+
+    /// Trips `fault` now: 0 A, amplifier disabled, fault latched until the
+    /// next [`enable`](Self::enable). For rules kept outside the core (the
+    /// SM watchdog of an EtherCAT slave controller, an injected drive
+    /// fault).
+    pub fn trip(&mut self, fault: DeviceFault) {
+        self.fault = Some(fault);
+        self.disable();
     }
 
     /// Applies the watchdog rule at device time `now_ns` without advancing

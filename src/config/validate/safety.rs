@@ -266,6 +266,23 @@ impl BenchConfig {
                 ));
             }
         }
+        let ec = &self.backend.ethercat;
+        self.check_current_ratings(
+            "backend.ethercat",
+            ec.peak_current_a,
+            ec.continuous_current_a,
+        )?;
+        ec.validate("backend.ethercat")?;
+        in_range(
+            "backend.ethercat.watchdog_ms",
+            ec.watchdog_ms,
+            Range::closed(
+                0.2f64.max(2e3 * self.loop_.period_ns() as f64 * 1e-9),
+                limits::WATCHDOG_MAX_MS,
+            ),
+            "ms",
+            "at least two loop periods (the drive must not trip between frames), at most 1 s of current after the host is gone",
+        )?;
         let e = &self.emulator;
         in_range(
             "emulator.watchdog_ms",
