@@ -41,15 +41,6 @@ pub(super) fn upload(a: UploadArgs) -> ExitCode {
         Ok(u) => u,
         Err(reason) => return bad_input(format!("--to {:?}: {reason}", a.to)),
     };
-    if !a.retry_for.is_finite()
-        || !(0.0..=bench::upload::once::MAX_RETRY_FOR_S).contains(&a.retry_for)
-    {
-        return bad_input(format!(
-            "--retry-for {}: out of range (0 to {} s)",
-            a.retry_for,
-            bench::upload::once::MAX_RETRY_FOR_S
-        ));
-    }
     let opts = UploadOptions {
         to,
         recordings: a.recordings,

@@ -67,16 +67,12 @@ pub struct UploadCounts {
     pub pending: AtomicUsize,
 }
 
-enum Msg {
-    Items(Vec<Item>),
-}
-
 /// The running uploader; dropping it stops it (an item in flight is
 /// abandoned and stays pending in the journal).
 pub struct Uploader {
     store: Store,
     journal: Arc<Mutex<Journal>>,
-    tx: Option<mpsc::UnboundedSender<Msg>>,
+    tx: Option<mpsc::UnboundedSender<Vec<Item>>>,
     counts: Arc<UploadCounts>,
     stop: Option<tokio::sync::oneshot::Sender<()>>,
     thread: Option<std::thread::JoinHandle<()>>,
@@ -178,7 +174,7 @@ impl Uploader {
         let n = items.len();
         self.counts.pending.fetch_add(n, Ordering::Relaxed);
         if let Some(tx) = &self.tx {
-            let _ = tx.send(Msg::Items(items));
+            let _ = tx.send(items);
         }
         Ok(n)
     }
@@ -218,18 +214,18 @@ async fn run(
     journal: &Mutex<Journal>,
     count: &UploadCounts,
     mut queue: VecDeque<Item>,
-    mut rx: mpsc::UnboundedReceiver<Msg>,
+    mut rx: mpsc::UnboundedReceiver<Vec<Item>>,
     on_event: &OnEvent,
 ) {
     let url = store.url.to_string();
     let mut backoff_s = FIRST_BACKOFF_S;
     loop {
-        while let Ok(Msg::Items(items)) = rx.try_recv() {
+        while let Ok(items) = rx.try_recv() {
             queue.extend(items);
         }
         let Some(item) = queue.front().cloned() else {
             match rx.recv().await {
-                Some(Msg::Items(items)) => {
+                Some(items) => {
                     queue.extend(items);
                     continue;
                 }
