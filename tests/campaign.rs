@@ -2,6 +2,8 @@
 //! killed with SIGKILL at random moments and resumed each time (issue 15),
 //! a changed campaign refused on resume, and bad input.
 
+use bench::catalogue::file::read_rows;
+use bench::catalogue::Value as Cell;
 use rand::{Rng, SeedableRng};
 use serde_json::Value;
 use std::collections::BTreeMap;
@@ -76,6 +78,18 @@ fn results(dir: &Path) -> (String, BTreeMap<usize, Vec<String>>) {
     for (cell, n) in &done_count {
         assert_eq!(*n, 1, "cell {cell} was run to completion {n} times");
     }
+    // One catalogue row a done cell, and none of a cell an interrupted
+    // attempt left.
+    let mut rows: Vec<String> = std::fs::read_dir(dir.join("catalogue"))
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    rows.sort();
+    let want: Vec<String> = done_count
+        .keys()
+        .map(|c| format!("cell-{c:03}.parquet"))
+        .collect();
+    assert_eq!(rows, want, "{}", dir.display());
     (csv, sums)
 }
 
@@ -551,6 +565,39 @@ fn keep_stores_what_it_says_and_the_disk_estimate_holds() {
                 assert_eq!(s["kept"], keep);
                 assert!(s["recording"].is_null());
             }
+            // The cell's row in the campaign's catalogue, whatever is
+            // kept: the cell's point, seed and fit, and its recording
+            // when kept.
+            let row_file = dir.join(format!("catalogue/cell-{cell:03}.parquet"));
+            total += std::fs::metadata(&row_file).unwrap().len();
+            assert_eq!(
+                s["catalogue"]["row"].as_str(),
+                Some(std::path::absolute(&row_file).unwrap().to_str().unwrap()),
+                "{s}"
+            );
+            let rows = read_rows(&row_file).unwrap();
+            assert_eq!(rows.len(), 1);
+            let row = &rows[0];
+            assert_eq!(row["job_kind"], Cell::Text(Some("chirp".into())));
+            assert_eq!(row["outcome"], Cell::Text(Some("ok".into())));
+            assert_eq!(row["seed"], Cell::Unsigned(s["seed"].as_u64()));
+            for key in ["operating_point_m", "mass_asymmetry"] {
+                let Cell::Real(Some(x)) = row[key] else {
+                    panic!("{key}: {:?}", row[key])
+                };
+                assert!((x - s[key].as_f64().unwrap()).abs() < 1e-15, "{key}");
+            }
+            assert_eq!(
+                row["fit_modes"],
+                Cell::Count(s["fit"]["modes"].as_array().map(|m| m.len() as i64)),
+                "{s}"
+            );
+            let rec = std::path::absolute(cdir.join("chirp.mcap")).unwrap();
+            assert_eq!(
+                row["recording"],
+                Cell::Text((keep == "recording").then(|| rec.display().to_string())),
+                "{keep}"
+            );
         }
         let measured = total as f64 / 12.0;
         assert!(
@@ -569,6 +616,46 @@ fn keep_stores_what_it_says_and_the_disk_estimate_holds() {
             String::from_utf8_lossy(&st.stderr)
         );
     }
+    // `bench catalogue` over the three campaigns: every cell once, the
+    // kept recordings' rows rebuilt from them, the others carried from
+    // the campaigns' catalogue folders; the same rows as the cells wrote.
+    let all = tmp.path().join("all.parquet");
+    let out = run(
+        &[
+            "catalogue",
+            "--recordings",
+            tmp.path().to_str().unwrap(),
+            "--out",
+            all.to_str().unwrap(),
+            "--json",
+        ],
+        tmp.path(),
+    );
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let summary: Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(summary["rows"], 36, "{summary}");
+    assert_eq!(summary["carried"], 24, "{summary}");
+    assert_eq!(summary["skipped"], serde_json::json!([]), "{summary}");
+    let as_text = |rows: Vec<bench::catalogue::file::ReadRow>| {
+        let mut v: Vec<String> = rows.iter().map(|r| format!("{r:?}")).collect();
+        v.sort();
+        v
+    };
+    let mut cells = Vec::new();
+    for keep in ["recording", "frf", "summary"] {
+        for cell in 0..12 {
+            let f = tmp
+                .path()
+                .join(format!("{keep}/catalogue/cell-{cell:03}.parquet"));
+            cells.extend(read_rows(&f).unwrap());
+        }
+    }
+    assert_eq!(as_text(read_rows(&all).unwrap()), as_text(cells));
+
     // The campaign's copy records the choice.
     let copy = std::fs::read_to_string(tmp.path().join("frf/campaign.toml")).unwrap();
     assert!(copy.contains("keep = \"frf\""), "{copy}");

@@ -1091,6 +1091,41 @@ fn the_daemons_jobs_append_rows_and_its_catalogue_job_is_the_local_one() {
         assert_eq!(o.status.code(), Some(2), "{flag}: {}", stderr(&o));
         assert!(stderr(&o).contains(flag), "{}", stderr(&o));
     }
+
+    // A daemon job that ends on a fault: the client's --json is the local
+    // run's (outcome, fault, recording), with the row the daemon wrote.
+    let o = bench_in(
+        here.path(),
+        &[
+            "control",
+            "--daemon",
+            &d.sock(),
+            "--fast",
+            "--duration-s",
+            "2",
+            "--inject-fault",
+            "jump@1.0",
+            "--pace",
+            "off",
+            "--json",
+        ],
+    );
+    assert_eq!(o.status.code(), Some(3), "{}", stderr(&o));
+    let s = json_stdout(&o);
+    assert_eq!(s["outcome"], "fault", "{s}");
+    assert!(s["fault"]["kind"].is_string(), "{s}");
+    let rec = PathBuf::from(s["recording"].as_str().unwrap());
+    assert_eq!(rec.parent().unwrap(), recordings, "{s}");
+    let row_file = PathBuf::from(s["catalogue"]["row"].as_str().unwrap());
+    assert_eq!(row_file, bench::catalogue::row_path(&rec), "{s}");
+    let rows = read_rows(&row_file).unwrap();
+    assert_eq!(rows.len(), 1);
+    assert_eq!(text(&rows[0], "outcome").as_deref(), Some("fault"));
+    assert_eq!(
+        text(&rows[0], "fault_kind"),
+        s["fault"]["kind"].as_str().map(str::to_string)
+    );
+    assert_eq!(text(&rows[0], "recording"), Some(rec.display().to_string()));
 }
 
 /// A killed run appends no row (its recording never finished); once

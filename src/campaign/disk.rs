@@ -11,7 +11,8 @@
 //! * the FRF CSV: [`FRF_CSV_BYTES`] (its lines are the estimator's, about
 //!   1 500 whatever the duration);
 //! * the Bode plot: [`PLOT_BYTES`];
-//! * the summary: [`SUMMARY_BYTES`].
+//! * the summary: [`SUMMARY_BYTES`];
+//! * the cell's catalogue row: [`CATALOGUE_ROW_BYTES`], whatever is kept.
 //!
 //! The estimate is stated ±[`ESTIMATE_REL_UNCERTAINTY`]: compression
 //! depends on the noise, a plot on what it shows. `tests/campaign.rs`
@@ -32,6 +33,9 @@ pub const FRF_CSV_BYTES: f64 = 91_000.0;
 pub const PLOT_BYTES: f64 = 258_000.0;
 /// A cell's `summary.json` (pretty-printed), bytes, measured.
 pub const SUMMARY_BYTES: f64 = 6_500.0;
+/// A cell's catalogue row (`catalogue/cell-NNN.parquet`, one Parquet row
+/// of every column), bytes, measured: kept whatever `keep` says.
+pub const CATALOGUE_ROW_BYTES: f64 = 9_000.0;
 /// Relative uncertainty of the estimate (1σ-like bound, from the spread
 /// of the measured sizes).
 pub const ESTIMATE_REL_UNCERTAINTY: f64 = 0.10;
@@ -72,7 +76,11 @@ impl DiskEstimate {
             SUMMARY_BYTES,
         ];
         let keep = campaign.spec.keep;
-        let cell_bytes: f64 = (0..4).filter(|&i| keep.keeps(i)).map(|i| files[i]).sum();
+        let cell_bytes: f64 = (0..4)
+            .filter(|&i| keep.keeps(i))
+            .map(|i| files[i])
+            .sum::<f64>()
+            + CATALOGUE_ROW_BYTES;
         let available_bytes = dir
             .ancestors()
             .map(|p| {
@@ -90,7 +98,7 @@ impl DiskEstimate {
             cell_bytes,
             total_bytes: cell_bytes * cells as f64,
             rel_uncertainty: ESTIMATE_REL_UNCERTAINTY,
-            peak_cell_bytes: files.iter().sum(),
+            peak_cell_bytes: files.iter().sum::<f64>() + CATALOGUE_ROW_BYTES,
             available_bytes,
         }
     }
@@ -157,7 +165,7 @@ mod tests {
         assert!(e.available_bytes.is_some());
         let s = c.clone().with_keep(Keep::Summary).unwrap();
         let e = DiskEstimate::of(&s, 150, Path::new("."));
-        assert_eq!(e.cell_bytes, SUMMARY_BYTES);
+        assert_eq!(e.cell_bytes, SUMMARY_BYTES + CATALOGUE_ROW_BYTES);
         assert!(e.describe().contains("keep = summary"), "{}", e.describe());
     }
 

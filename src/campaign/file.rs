@@ -54,7 +54,8 @@ pub enum Keep {
     /// fit`, `bench design` and `bench plot` on the cells, not to look at
     /// the time series again.
     Frf,
-    /// The summary only (~6.5 kB a cell): the verdicts and the map.
+    /// The summary only (~6.5 kB a cell, and its 9 kB catalogue row): the
+    /// verdicts and the map.
     Summary,
 }
 

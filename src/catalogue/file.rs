@@ -62,6 +62,24 @@ fn schema() -> parquet::errors::Result<Arc<Type>> {
 /// The writer's I/O error, or the Parquet writer's as
 /// [`io::ErrorKind::Other`].
 pub fn write_rows(rows: &[CatalogueRow], w: impl Write + Send) -> io::Result<()> {
+    let cells: Vec<Vec<Value>> = rows.iter().map(CatalogueRow::values).collect();
+    write_values(&cells, w)
+}
+
+/// As [`write_rows`], for rows given as their cells in [`COLUMNS`] order
+/// ([`CatalogueRow::values`], or a row read back by [`read_rows`] through
+/// [`in_column_order`]).
+///
+/// # Errors
+/// As [`write_rows`]; a row whose length is not the columns' is
+/// [`io::ErrorKind::InvalidInput`].
+pub fn write_values(cells: &[Vec<Value>], w: impl Write + Send) -> io::Result<()> {
+    if cells.iter().any(|r| r.len() != COLUMNS.len()) {
+        return Err(io::Error::new(
+            io::ErrorKind::InvalidInput,
+            "a catalogue row with another number of cells than the columns",
+        ));
+    }
     let props = WriterProperties::builder()
         .set_compression(Compression::SNAPPY)
         .set_dictionary_enabled(false)
@@ -74,7 +92,6 @@ pub fn write_rows(rows: &[CatalogueRow], w: impl Write + Send) -> io::Result<()>
         });
     let mut writer =
         SerializedFileWriter::new(w, schema().map_err(pq)?, Arc::new(props.build())).map_err(pq)?;
-    let cells: Vec<Vec<Value>> = rows.iter().map(CatalogueRow::values).collect();
     let mut rg = writer.next_row_group().map_err(pq)?;
     for (i, _) in COLUMNS.iter().enumerate() {
         let mut col = rg
@@ -177,6 +194,20 @@ pub fn read_rows(path: &Path) -> io::Result<Vec<ReadRow>> {
         out.push(map);
     }
     Ok(out)
+}
+
+/// A row read back ([`read_rows`]) as its cells in [`COLUMNS`] order, for
+/// [`write_values`]; `None` when a column is missing or of another type
+/// (a file of another catalogue version).
+pub fn in_column_order(row: &ReadRow) -> Option<Vec<Value>> {
+    COLUMNS
+        .iter()
+        .map(|c| {
+            row.get(c.name)
+                .filter(|v| v.column_type() == c.column_type)
+                .cloned()
+        })
+        .collect()
 }
 
 /// A row's cells by column name, as [`read_rows`] gives them.

@@ -44,7 +44,8 @@ pub(super) struct RunArgs {
     file: Option<PathBuf>,
     /// What each cell keeps: recording (everything: recording, FRF CSV,
     /// Bode plot, summary; 5.8 MB a default cell), frf (the FRF CSV and
-    /// the summary, ~100 kB) or summary (~6.5 kB) [default: the campaign
+    /// the summary, ~100 kB) or summary (~6.5 kB); each cell also writes
+    /// its 9 kB catalogue row [default: the campaign
     /// file's `keep`, else recording]. Recorded in the campaign's copy of
     /// the file, so a resume keeps the same.
     #[arg(long, value_name = "WHAT", value_parser = parse_keep)]

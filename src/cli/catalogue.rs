@@ -12,9 +12,10 @@ use std::path::PathBuf;
 
 #[derive(Debug, Args)]
 pub(super) struct CatalogueArgs {
-    /// The recordings to catalogue: every *.mcap in this directory (not
-    /// its subdirectories) [default: ./recordings if it exists, else
-    /// $XDG_DATA_HOME/bench/recordings].
+    /// The recordings to catalogue: every *.mcap in this directory and
+    /// its subdirectories (campaign cells), with the rows of campaign
+    /// cells whose recordings were not kept [default: ./recordings if it
+    /// exists, else $XDG_DATA_HOME/bench/recordings].
     #[arg(long, value_name = "DIR")]
     recordings: Option<PathBuf>,
     /// The catalogue to write (.parquet) [default: catalogue.parquet in

@@ -629,18 +629,7 @@ pub(super) fn option_flag(key: &str) -> String {
 /// ([`RunError::summary_json`]) on stdout first.
 pub(super) fn run_failed_json(e: &RunError, json: bool) -> ExitCode {
     if json {
-        if let Some(mut v) = e.summary_json() {
-            // The run's catalogue row, when its finished recording has one
-            // (as an ok run's summary names it).
-            let row = v
-                .get("recording")
-                .and_then(|r| r.as_str())
-                .map(|r| bench::catalogue::row_path(std::path::Path::new(r)))
-                .filter(|p| p.is_file());
-            if let (Some(o), Some(row)) = (v.as_object_mut(), row) {
-                let row = std::path::absolute(&row).unwrap_or(row);
-                o.insert("catalogue".into(), serde_json::json!({ "row": row }));
-            }
+        if let Some(v) = bench::jobs::catalogue::ended_run_summary(e) {
             outln!("{v}");
         }
     }

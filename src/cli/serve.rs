@@ -145,16 +145,28 @@ pub(super) fn via_daemon_then<T: serde::de::DeserializeOwned + serde::Serialize>
             }
         },
         Err(e) => {
-            if let (true, ClientError::Api { kind, message }) = (json, &e) {
+            if let (
+                true,
+                ClientError::Api {
+                    kind,
+                    message,
+                    summary,
+                },
+            ) = (json, &e)
+            {
                 // A job that ended without its summary (fault, HAL error,
-                // interrupted): its outcome on stdout, as a local run's.
+                // interrupted): its outcome on stdout, as a local run's
+                // (the daemon's `error.summary`: recording and catalogue
+                // row included).
                 if matches!(
                     kind,
                     ApiErrorKind::Fault | ApiErrorKind::Hal | ApiErrorKind::Interrupted
                 ) {
-                    let v = serde_json::json!({
-                        "outcome": kind,
-                        "error": message,
+                    let v = summary.clone().unwrap_or_else(|| {
+                        serde_json::json!({
+                            "outcome": kind,
+                            "error": message,
+                        })
                     });
                     outln!("{v}");
                 }

@@ -621,9 +621,64 @@ impl Default for IdentificationConfig {
 #[serde(deny_unknown_fields)]
 pub struct SimConfig {
     /// Seed of the simulator's noise generator (default 1, with or without
-    /// a `[sim]` table).
-    #[serde(default = "default_seed")]
+    /// a `[sim]` table): any u64. TOML's integers are signed 64-bit, so a
+    /// seed from 2^63 up is written (and read) as a string of decimal
+    /// digits, `seed = "11494561977276947931"` ([`seed_toml`]): a
+    /// campaign's cell seeds span the whole range, and each cell's
+    /// recording holds its resolved config.
+    #[serde(default = "default_seed", with = "seed_toml")]
     pub seed: u64,
+}
+
+/// `[sim] seed` in TOML: an integer 0 ..= 2^63 − 1, or a string of decimal
+/// digits 0 ..= 2^64 − 1 (written as one only when the integer cannot be).
+pub mod seed_toml {
+    use serde::{de, Deserializer, Serializer};
+    use std::fmt;
+
+    /// What the key takes, as its errors say.
+    pub const EXPECTED: &str =
+        "a seed: an integer 0 ..= 2^63 - 1, or a string of decimal digits 0 ..= 18446744073709551615 (2^64 - 1)";
+
+    /// An integer when it fits TOML's, else the decimal string.
+    ///
+    /// # Errors
+    /// The serializer's.
+    pub fn serialize<S: Serializer>(seed: &u64, s: S) -> Result<S::Ok, S::Error> {
+        match i64::try_from(*seed) {
+            Ok(i) => s.serialize_i64(i),
+            Err(_) => s.serialize_str(&seed.to_string()),
+        }
+    }
+
+    /// Either form.
+    ///
+    /// # Errors
+    /// A negative integer, a string that is not decimal digits of a u64,
+    /// or another type, each saying [`EXPECTED`].
+    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<u64, D::Error> {
+        struct Seed;
+        impl de::Visitor<'_> for Seed {
+            type Value = u64;
+            fn expecting(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+                f.write_str(EXPECTED)
+            }
+            fn visit_u64<E: de::Error>(self, v: u64) -> Result<u64, E> {
+                Ok(v)
+            }
+            fn visit_i64<E: de::Error>(self, v: i64) -> Result<u64, E> {
+                u64::try_from(v).map_err(|_| E::invalid_value(de::Unexpected::Signed(v), &self))
+            }
+            fn visit_str<E: de::Error>(self, v: &str) -> Result<u64, E> {
+                if v.is_empty() || !v.bytes().all(|b| b.is_ascii_digit()) {
+                    return Err(E::invalid_value(de::Unexpected::Str(v), &self));
+                }
+                v.parse::<u64>()
+                    .map_err(|_| E::invalid_value(de::Unexpected::Str(v), &self))
+            }
+        }
+        d.deserialize_any(Seed)
+    }
 }
 
 fn default_seed() -> u64 {

@@ -37,6 +37,11 @@ pub enum ClientError {
         kind: ApiErrorKind,
         /// Message.
         message: String,
+        /// The run's summary, for a job that ended without its own (a
+        /// fault, a HAL error, a stop) but with a finished recording: the
+        /// outcome, the fault, the recording and its catalogue row, as a
+        /// local run's `--json` prints it.
+        summary: Option<Value>,
     },
     /// The connection broke or the daemon sent something unexpected.
     #[error("daemon connection: {0}")]
@@ -114,6 +119,7 @@ fn exchange(
                 kind: serde_json::from_value(v["error"]["kind"].clone())
                     .unwrap_or(ApiErrorKind::Error),
                 message: v["error"]["message"].as_str().unwrap_or("").to_string(),
+                summary: v["error"].get("summary").filter(|s| s.is_object()).cloned(),
             });
         }
     }

@@ -27,7 +27,10 @@
 //! `{"id": ANY, "cmd": NAME, "params": {...}}` (`id` and `params` optional).
 //! Each request gets exactly one response with the same `id`:
 //! `{"id": .., "ok": true, "result": {...}}` or
-//! `{"id": .., "ok": false, "error": {"kind": KIND, "message": ".."}}`.
+//! `{"id": .., "ok": false, "error": {"kind": KIND, "message": ".."}}`;
+//! a job that ended on a fault, a HAL error or a stop, with its recording
+//! finished, adds `"summary"` to the error: the run's outcome, fault,
+//! recording and catalogue row, as the local CLI's `--json` prints them.
 //! Events are lines with an `"event"` key and no `id`.
 //!
 //! | cmd | params | result |

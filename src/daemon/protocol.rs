@@ -71,11 +71,17 @@ impl ApiErrorKind {
     }
 }
 
-/// An error response: `{"kind": KIND, "message": ".."}`.
+/// An error response: `{"kind": KIND, "message": "..", "summary": {..}}`,
+/// `summary` only for a job that ended without its own summary but with
+/// a finished recording (fault, HAL error, stop, tick budget): the run's
+/// outcome, fault, recording and catalogue row, as the local CLI's `--json`
+/// prints them ([`crate::jobs::catalogue::ended_run_summary`]).
 #[derive(Debug, Clone, Serialize)]
 pub(super) struct ApiError {
     pub(super) kind: ApiErrorKind,
     pub(super) message: String,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub(super) summary: Option<Value>,
 }
 
 impl ApiError {
@@ -83,11 +89,15 @@ impl ApiError {
         Self {
             kind,
             message: message.into(),
+            summary: None,
         }
     }
 
     pub(super) fn from_run(e: &RunError) -> Self {
-        Self::new(ApiErrorKind::of_run(e), format!("{e:#}"))
+        Self {
+            summary: crate::jobs::catalogue::ended_run_summary(e),
+            ..Self::new(ApiErrorKind::of_run(e), format!("{e:#}"))
+        }
     }
 }
 

@@ -83,8 +83,8 @@ pub(super) fn start(
 /// After a job that wrote `recording`: when the recording is finished
 /// (the file exists; a job that never started or was killed left none or
 /// a `.part`), writes the job's summary beside it (`<stem>.summary.json`:
-/// the summary a client got, or `{"outcome", "error"}` as `--json`
-/// prints a run that ended without one) and queues them for the store.
+/// the summary a client got, or for a run that ended without one the
+/// `error.summary` the daemon answered with, as `--json` prints it) and queues them for the store.
 /// Never fails the job: a problem is logged.
 pub(super) fn after_job(uploader: &Uploader, recording: &Path, result: &JobResult) {
     if !recording.is_file() {
@@ -98,10 +98,12 @@ pub(super) fn after_job(uploader: &Uploader, recording: &Path, result: &JobResul
             }
             v
         }
-        Err((api, _)) => json!({
-            "outcome": api.kind,
-            "error": api.message,
-            "recording": recording,
+        Err((api, _)) => api.summary.clone().unwrap_or_else(|| {
+            json!({
+                "outcome": api.kind,
+                "error": api.message,
+                "recording": recording,
+            })
         }),
     };
     let path = crate::outputs::beside(recording, ".summary.json");

@@ -9,8 +9,8 @@
 //! `catalogue.warning`), and the run's outcome and exit status are the
 //! run's own.
 
-use crate::catalogue::file::write_rows;
-use crate::catalogue::{row_of_recording, row_path, CatalogueError, CatalogueRow};
+use crate::catalogue::file::{in_column_order, write_rows, write_values};
+use crate::catalogue::{row_of_recording, row_path, CatalogueError, CatalogueRow, Value, COLUMNS};
 use crate::error::RunError;
 use crate::outputs::{write_buffered_atomically, Existing, Origin, OutputPlan, DIR_MODE};
 use serde::{Deserialize, Serialize};
@@ -54,9 +54,18 @@ impl CatalogueEntry {
 /// be written.
 pub fn append_run(recording: &Path) -> Result<PathBuf, CatalogueError> {
     let row = row_of_recording(recording)?;
-    let path = row_path(recording);
+    write_row_file(&row, &row_path(recording))
+}
+
+/// Writes `row` alone to the row file `path`, atomically (creating its
+/// directory with mode [`DIR_MODE`]; an existing file is replaced).
+/// Returns `path`, absolute.
+///
+/// # Errors
+/// [`CatalogueError::Write`].
+pub fn write_row_file(row: &CatalogueRow, path: &Path) -> Result<PathBuf, CatalogueError> {
     let write = |source| CatalogueError::Write {
-        path: path.clone(),
+        path: path.to_path_buf(),
         source,
     };
     if let Some(dir) = path.parent() {
@@ -67,11 +76,42 @@ pub fn append_run(recording: &Path) -> Result<PathBuf, CatalogueError> {
             .create(dir)
             .map_err(write)?;
     }
-    write_buffered_atomically(&path, Existing::Replace, |w| {
-        write_rows(std::slice::from_ref(&row), w)
+    write_buffered_atomically(path, Existing::Replace, |w| {
+        write_rows(std::slice::from_ref(row), w)
     })
     .map_err(write)?;
-    Ok(std::path::absolute(&path).unwrap_or(path))
+    Ok(std::path::absolute(path).unwrap_or_else(|_| path.to_path_buf()))
+}
+
+/// A campaign cell's row: read from the cell's finished `recording` and
+/// written to `row_file` (the campaign's `catalogue/cell-NNN.parquet`),
+/// its `recording` the recording's absolute path when the campaign keeps
+/// it, else null (the cell's results are in the row, its recording is
+/// about to be removed). Never fails the cell: a failure is a warning,
+/// logged and returned.
+pub fn catalogue_cell(recording: &Path, row_file: &Path, keeps_recording: bool) -> CatalogueEntry {
+    let written = row_of_recording(recording).and_then(|mut row| {
+        if !keeps_recording {
+            row.recording = None;
+        }
+        write_row_file(&row, row_file)
+    });
+    match written {
+        Ok(row) => CatalogueEntry {
+            row: Some(row),
+            warning: None,
+        },
+        Err(e) => {
+            let warning = crate::error::error_chain(&e);
+            tracing::warn!(
+                "the cell's catalogue row was not written: {warning}; the cell is unaffected"
+            );
+            CatalogueEntry {
+                row: None,
+                warning: Some(warning),
+            }
+        }
+    }
 }
 
 /// [`append_run`] as a run reports it: the row, or a warning (logged,
@@ -110,6 +150,27 @@ pub fn catalogue_ended_run(error: &RunError, recording: &Path) {
     }
 }
 
+/// The `--json` summary of a run that ended with `error` and without its
+/// job's summary ([`RunError::summary_json`]: outcome, fault, recording),
+/// with the run's catalogue row as an ok run's summary names it
+/// (`"catalogue": {"row": PATH}`) when its finished recording has one.
+/// The local CLI prints it, and the daemon answers with it
+/// (`error.summary`), so that a client's `--json` is the same either way.
+/// `None` for errors before anything ran.
+pub fn ended_run_summary(error: &RunError) -> Option<serde_json::Value> {
+    let mut v = error.summary_json()?;
+    let row = v
+        .get("recording")
+        .and_then(|r| r.as_str())
+        .map(|r| row_path(Path::new(r)))
+        .filter(|p| p.is_file());
+    if let (Some(o), Some(row)) = (v.as_object_mut(), row) {
+        let row = std::path::absolute(&row).unwrap_or(row);
+        o.insert("catalogue".into(), serde_json::json!({ "row": row }));
+    }
+    Some(v)
+}
+
 /// `bench catalogue` as a job request (the daemon's `catalogue`; the CLI
 /// runs [`CatalogueOptions`] made from its flags).
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
@@ -131,8 +192,8 @@ pub struct CatalogueRequest {
 #[derive(Debug, Clone)]
 pub struct CatalogueOptions {
     /// The directory whose recordings (`*.mcap`, not the `.part` of a
-    /// running or killed run) are catalogued; its subdirectories are not
-    /// read.
+    /// running or killed run) are catalogued, with its subdirectories
+    /// ([`sources_in`]: campaign cells).
     pub recordings: PathBuf,
     /// The compacted catalogue to write (a `.parquet` file).
     pub out: PathBuf,
@@ -160,6 +221,39 @@ pub fn object_url(prefix: &str, name: &str) -> String {
     }
     url
 }
+
+/// The object URL of the file at `rel` (a path relative to the
+/// recordings directory) under `prefix`: [`object_url`] of each path
+/// segment, joined by `/`.
+pub fn object_url_of_path(prefix: &str, rel: &Path) -> String {
+    let mut url = prefix.trim_end_matches('/').to_string();
+    for c in rel.components() {
+        url = object_url(&url, &c.as_os_str().to_string_lossy());
+    }
+    url
+}
+
+/// Index of a column in [`COLUMNS`] (a name in the list: checked by a test).
+const fn column(name: &str) -> usize {
+    let mut i = 0;
+    while i < COLUMNS.len() {
+        let (a, b) = (COLUMNS[i].name.as_bytes(), name.as_bytes());
+        if a.len() == b.len() {
+            let mut j = 0;
+            while j < a.len() && a[j] == b[j] {
+                j += 1;
+            }
+            if j == a.len() {
+                return i;
+            }
+        }
+        i += 1;
+    }
+    panic!("no such catalogue column")
+}
+const START_COLUMN: usize = column("start_utc");
+const OUTCOME_COLUMN: usize = column("outcome");
+const RECORDING_COLUMN: usize = column("recording");
 
 /// Checks a recordings' object prefix: `SCHEME://REST`, the scheme a
 /// letter then letters, digits, `+`, `-` or `.` (RFC 3986), something
@@ -211,8 +305,14 @@ pub struct CatalogueSummary {
     pub catalogue: PathBuf,
     /// The directory read (absolute).
     pub recordings: PathBuf,
-    /// Rows written: one per recording read.
+    /// Rows written: one per recording read, and one per campaign cell
+    /// whose recording the campaign did not keep (`carried`).
     pub rows: usize,
+    /// Rows of campaign cells whose recordings were not kept (`keep =
+    /// "frf"` or `"summary"`): not rebuilt (there is no recording) but taken
+    /// as they are from the campaign's `catalogue/` folder.
+    #[serde(default)]
+    pub carried: usize,
     /// Rows by outcome (`ok`, `fault`, `error`, `stopped`).
     pub outcomes: BTreeMap<String, usize>,
     /// Recordings that gave no row (unreadable, not MCAP, not finished, not
@@ -243,6 +343,12 @@ impl CatalogueSummary {
             ),
             format!("  catalogue   {}", self.catalogue.display()),
         ];
+        if self.carried > 0 {
+            v.push(format!(
+                "  {} of them campaign cells whose recordings were not kept (their rows taken from the campaigns' catalogue folders)",
+                self.carried
+            ));
+        }
         if !self.skipped.is_empty() {
             v.push(format!(
                 "  skipped {} recording(s) that gave no row:",
@@ -256,25 +362,79 @@ impl CatalogueSummary {
     }
 }
 
-/// The recordings `bench catalogue` reads in `dir`: every regular
-/// `*.mcap` file (not a link, not a `.part`), sorted by name.
+/// How deep `bench catalogue` looks below its recordings directory (a
+/// daemon's campaign cell is `DIR/campaign-…/cells/NNN/chirp.mcap`, 3 below).
+pub const MAX_DEPTH: usize = 8;
+
+/// What `bench catalogue` reads below a directory ([`sources_in`]).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct CatalogueSources {
+    /// Every regular `*.mcap` file (not a link, not a `.part`), in this
+    /// directory and its subdirectories (campaign cells), sorted by path.
+    pub recordings: Vec<PathBuf>,
+    /// The row files of campaigns' catalogue folders
+    /// (`CAMPAIGN/catalogue/*.parquet`, a campaign directory being one
+    /// with a campaign journal), sorted by path.
+    pub campaign_rows: Vec<PathBuf>,
+    /// Subdirectories that could not be read, with the reason.
+    pub unreadable: Vec<SkippedRecording>,
+}
+
+/// The recordings and campaign rows `bench catalogue` reads under `dir`,
+/// at most [`MAX_DEPTH`] directories down; links are not followed, and a
+/// recordings directory's own `catalogue/` folder (the per-run rows,
+/// which the rebuild replaces) is not read.
 ///
 /// # Errors
-/// [`RunError::BadOption`] naming `recordings` when `dir` cannot be read.
-pub fn recordings_in(dir: &Path) -> Result<Vec<PathBuf>, RunError> {
-    let bad = |reason: String| RunError::option("recordings", dir.display(), reason);
-    let entries = std::fs::read_dir(dir).map_err(|e| bad(e.to_string()))?;
-    let mut out = Vec::new();
-    for e in entries {
-        let e = e.map_err(|e| bad(e.to_string()))?;
+/// [`RunError::BadOption`] naming `recordings` when `dir` itself cannot
+/// be read (a subdirectory that cannot is listed in `unreadable`).
+pub fn sources_in(dir: &Path) -> Result<CatalogueSources, RunError> {
+    let mut out = CatalogueSources::default();
+    walk(dir, 0, &mut out)
+        .map_err(|e| RunError::option("recordings", dir.display(), e.to_string()))?;
+    out.recordings.sort();
+    out.campaign_rows.sort();
+    Ok(out)
+}
+
+fn walk(dir: &Path, depth: usize, out: &mut CatalogueSources) -> std::io::Result<()> {
+    let campaign = dir.join(crate::campaign::journal::JOURNAL_FILE).is_file();
+    for e in std::fs::read_dir(dir)? {
+        let e = e?;
         let path = e.path();
-        let is_file = e.file_type().is_ok_and(|t| t.is_file());
-        if is_file && path.extension().is_some_and(|x| x == "mcap") {
-            out.push(path);
+        let Ok(t) = e.file_type() else { continue };
+        if t.is_file() && path.extension().is_some_and(|x| x == "mcap") {
+            out.recordings.push(path);
+        } else if t.is_dir() && e.file_name() == crate::catalogue::CATALOGUE_DIR {
+            if campaign {
+                let rows = std::fs::read_dir(&path).and_then(|d| {
+                    d.map(|e| e.map(|e| (e.path(), e.file_type())))
+                        .collect::<std::io::Result<Vec<_>>>()
+                });
+                match rows {
+                    Ok(rows) => out
+                        .campaign_rows
+                        .extend(rows.into_iter().filter_map(|(p, t)| {
+                            (t.is_ok_and(|t| t.is_file())
+                                && p.extension().is_some_and(|x| x == "parquet"))
+                            .then_some(p)
+                        })),
+                    Err(e) => out.unreadable.push(SkippedRecording {
+                        recording: path,
+                        reason: e.to_string(),
+                    }),
+                }
+            }
+        } else if t.is_dir() && depth < MAX_DEPTH {
+            if let Err(e) = walk(&path, depth + 1, out) {
+                out.unreadable.push(SkippedRecording {
+                    recording: path,
+                    reason: e.to_string(),
+                });
+            }
         }
     }
-    out.sort();
-    Ok(out)
+    Ok(())
 }
 
 /// Checks the options of `bench catalogue` before anything is read:
@@ -333,20 +493,22 @@ pub fn check_options(opts: &CatalogueOptions) -> Result<(), RunError> {
 pub fn run_catalogue(opts: &CatalogueOptions) -> Result<CatalogueSummary, RunError> {
     let started = Instant::now();
     check_options(opts)?;
-    let recordings = recordings_in(&opts.recordings)?;
+    let sources = sources_in(&opts.recordings)?;
+    let recordings = &sources.recordings;
     let read: Vec<Result<CatalogueRow, CatalogueError>> = {
         use rayon::prelude::*;
         recordings.par_iter().map(|p| row_of_recording(p)).collect()
     };
-    let mut rows = Vec::with_capacity(read.len());
-    let mut skipped = Vec::new();
+    let mut rows: Vec<Vec<Value>> = Vec::with_capacity(read.len());
+    let mut skipped = sources.unreadable.clone();
     for (path, r) in recordings.iter().zip(read) {
         match r {
             Ok(mut row) => {
-                if let (Some(url), Some(name)) = (&opts.recording_url, path.file_name()) {
-                    row.recording = Some(object_url(url, &name.to_string_lossy()));
+                if let Some(url) = &opts.recording_url {
+                    let rel = path.strip_prefix(&opts.recordings).unwrap_or(path);
+                    row.recording = Some(object_url_of_path(url, rel));
                 }
-                rows.push(row)
+                rows.push(row.values())
             }
             Err(e) => {
                 let reason = match &e {
@@ -362,26 +524,64 @@ pub fn run_catalogue(opts: &CatalogueOptions) -> Result<CatalogueSummary, RunErr
             }
         }
     }
+    // Campaign cells whose recordings were not kept: their rows as the
+    // campaign wrote them (the others are rebuilt from their recordings).
+    let mut carried = 0;
+    for path in &sources.campaign_rows {
+        let read = crate::catalogue::file::read_rows(path).and_then(|rs| {
+            rs.iter()
+                .map(|r| {
+                    in_column_order(r).ok_or_else(|| {
+                        std::io::Error::other("its columns are not this catalogue's")
+                    })
+                })
+                .collect::<std::io::Result<Vec<_>>>()
+        });
+        match read {
+            Ok(read) => {
+                for row in read {
+                    if row[RECORDING_COLUMN].is_null() {
+                        rows.push(row);
+                        carried += 1;
+                    }
+                }
+            }
+            Err(e) => {
+                tracing::warn!("skipped {}: {e}", path.display());
+                skipped.push(SkippedRecording {
+                    recording: std::path::absolute(path).unwrap_or_else(|_| path.clone()),
+                    reason: e.to_string(),
+                });
+            }
+        }
+    }
     // By start time (then the recording): a reader's time filter then
     // meets sorted statistics.
-    rows.sort_by(|a, b| (a.start_utc_us, &a.recording).cmp(&(b.start_utc_us, &b.recording)));
+    let key = |r: &Vec<Value>| match (&r[START_COLUMN], &r[RECORDING_COLUMN]) {
+        (Value::TimestampUtc(t), Value::Text(rec)) => (*t, rec.clone()),
+        _ => (None, None),
+    };
+    rows.sort_by_key(key);
     let mut outcomes = BTreeMap::new();
     for r in &rows {
-        *outcomes
-            .entry(r.outcome.clone().unwrap_or_else(|| "unknown".into()))
-            .or_insert(0) += 1;
+        let outcome = match &r[OUTCOME_COLUMN] {
+            Value::Text(Some(o)) => o.clone(),
+            _ => "unknown".into(),
+        };
+        *outcomes.entry(outcome).or_insert(0) += 1;
     }
-    write_buffered_atomically(&opts.out, opts.existing, |w| write_rows(&rows, w)).map_err(|e| {
-        RunError::Output {
+    write_buffered_atomically(&opts.out, opts.existing, |w| write_values(&rows, w)).map_err(
+        |e| RunError::Output {
             path: opts.out.clone(),
             reason: e.to_string(),
-        }
-    })?;
+        },
+    )?;
     let abs = |p: &Path| std::path::absolute(p).unwrap_or_else(|_| p.to_path_buf());
     Ok(CatalogueSummary {
         catalogue: abs(&opts.out),
         recordings: abs(&opts.recordings),
         rows: rows.len(),
+        carried,
         outcomes,
         skipped,
         elapsed_s: started.elapsed().as_secs_f64(),

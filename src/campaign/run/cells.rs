@@ -129,6 +129,13 @@ pub(super) fn run_cell(
     if cdir.exists() {
         fs::remove_dir_all(&cdir).map_err(io_at(&cdir))?;
     }
+    let row_file = dir.join(cell_row(cell.index));
+    match fs::remove_file(&row_file) {
+        Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
+            return Err(io_at(&row_file)(e));
+        }
+        _ => {}
+    }
     fs::create_dir_all(&cdir).map_err(io_at(&cdir))?;
     journal
         .lock()
@@ -171,11 +178,19 @@ pub(super) fn run_cell(
                     _ => None,
                 },
                 inject: None,
-                // A campaign keeps its own results (journal, cells CSV).
+                // The cell's row goes to the campaign's catalogue folder
+                // (below), not beside its recording.
                 catalogue: false,
             };
-            let summary = run_chirp(&opts, chirp_outputs(&opts), stop.clone(), None)
+            let mut summary = run_chirp(&opts, chirp_outputs(&opts), stop.clone(), None)
                 .map_err(|e| cell_err(e.to_string()))?;
+            // Its row, read from the recording before what is not kept
+            // goes.
+            summary.catalogue = Some(crate::jobs::catalogue::catalogue_cell(
+                &opts.out,
+                &row_file,
+                keep.keeps(0),
+            ));
             // What the campaign does not keep goes once the chirp is done
             // (a cell's recording is on disk while it runs).
             for (i, path) in [(0, &opts.out), (1, &opts.frf_csv), (2, &opts.plot)] {

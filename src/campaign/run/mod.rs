@@ -188,6 +188,16 @@ pub fn cell_dir(index: usize) -> String {
     format!("cells/{index:03}")
 }
 
+/// A cell's row in the run catalogue, relative to the campaign directory:
+/// `catalogue/cell-NNN.parquet` (the campaign's own catalogue folder; `bench
+/// catalogue` reads it, and a glob `DIR/**/catalogue/*.parquet` finds it).
+pub fn cell_row(index: usize) -> String {
+    format!(
+        "{}/cell-{index:03}.parquet",
+        crate::catalogue::CATALOGUE_DIR
+    )
+}
+
 /// The files of a done cell, relative to its directory.
 pub const CELL_FILES: [&str; 4] = ["chirp.mcap", "frf.csv", "bode.png", "summary.json"];
 
