@@ -968,3 +968,177 @@ fn generated_bad_store_urls_exit_2_naming_the_flag() {
         assert!(!socket.exists());
     }
 }
+
+/// A small campaign (2 cells, 1 s chirps) in `dir/NAME` keeping `keep`.
+fn campaign(dir: &Path, name: &str, keep: &str) -> PathBuf {
+    std::fs::copy(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("bench-config/sr4dof-ch5.toml"),
+        dir.join("sr4dof-ch5.toml"),
+    )
+    .unwrap();
+    let file = dir.join("two.toml");
+    std::fs::write(
+        &file,
+        "config = \"sr4dof-ch5.toml\"\nseed = 4\n[grid]\noperating_point_pct = [4.0, 8.0]\nmass_asymmetry = [0.1]\n[chirp]\nduration_s = 1.0\n",
+    )
+    .unwrap();
+    let o = bench()
+        .current_dir(dir)
+        .args([
+            "campaign",
+            "run",
+            "two.toml",
+            "--threads",
+            "1",
+            "--out",
+            name,
+            "--keep",
+            keep,
+        ])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", stderr(&o));
+    dir.join(name)
+}
+
+/// The regular files below `dir`, relative, hidden ones left out.
+fn files_below(dir: &Path, rel: &Path, out: &mut Vec<PathBuf>) {
+    for e in std::fs::read_dir(dir.join(rel)).unwrap() {
+        let e = e.unwrap();
+        let n = e.file_name();
+        if n.to_str().unwrap().starts_with('.') {
+            continue;
+        }
+        if e.file_type().unwrap().is_dir() {
+            files_below(dir, &rel.join(&n), out);
+        } else {
+            out.push(rel.join(&n));
+        }
+    }
+}
+
+/// Every file of campaign `dir` is an object `PREFIX/NAME/RELATIVE PATH`
+/// with its size and SHA-256, but the rows of cells whose recordings went
+/// up, which name the recording's object; nothing else is under
+/// `PREFIX/NAME/`.
+fn assert_campaign_uploaded(objects: &serde_json::Map<String, Value>, prefix: &str, dir: &Path) {
+    let name = dir.file_name().unwrap().to_str().unwrap();
+    let mut files = Vec::new();
+    files_below(dir, Path::new(""), &mut files);
+    let mine: Vec<&String> = objects
+        .keys()
+        .filter(|k| k.starts_with(&format!("{prefix}/{name}/")))
+        .collect();
+    assert_eq!(mine.len(), files.len(), "{mine:?} vs {files:?}");
+    let mut rows = 0;
+    for rel in &files {
+        let rel_s = rel.to_str().unwrap();
+        let key = format!("{prefix}/{name}/{rel_s}");
+        let o = &objects
+            .get(&key)
+            .unwrap_or_else(|| panic!("{key} not in the store: {objects:?}"));
+        if let Some(cell) = rel_s
+            .strip_prefix("catalogue/cell-")
+            .and_then(|r| r.strip_suffix(".parquet"))
+        {
+            rows += 1;
+            let rec = dir.join(format!("cells/{cell}/chirp.mcap"));
+            if rec.is_file() {
+                assert_eq!(
+                    o["recording"],
+                    json!(format!(
+                        "s3://lab-bench/{prefix}/{name}/cells/{cell}/chirp.mcap"
+                    )),
+                    "{key}"
+                );
+                continue;
+            }
+            assert_eq!(o["recording"], Value::Null, "{key}");
+        }
+        let f = dir.join(rel);
+        assert_eq!(
+            o["size"],
+            json!(std::fs::metadata(&f).unwrap().len()),
+            "{key}"
+        );
+        assert_eq!(o["sha256"], json!(sha256_of(&f)), "{key}");
+    }
+    assert_eq!(rows, 2, "{files:?}");
+}
+
+/// A campaign directory goes up whole with `bench upload` (the cells'
+/// rows naming their recordings' objects, or null when not kept), and a
+/// daemon with `--upload` uploads the campaign jobs it ran.
+#[test]
+fn campaigns_go_up_whole_from_the_cli_and_the_daemon() {
+    let m = Moto::start();
+    let dir = tmp();
+    let kept = campaign(dir.path(), "kept", "recording");
+    let small = campaign(dir.path(), "small", "summary");
+    let o = upload(
+        &m.endpoint(),
+        &m,
+        &[
+            "--to",
+            "s3://lab-bench/camp",
+            "--json",
+            kept.to_str().unwrap(),
+            small.to_str().unwrap(),
+        ],
+    );
+    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+    let objects = m.objects("camp/");
+    assert_campaign_uploaded(&objects, "camp", &kept);
+    assert_campaign_uploaded(&objects, "camp", &small);
+    // A directory that is no campaign is refused, naming it; nothing goes up.
+    let o = upload(
+        &m.endpoint(),
+        &m,
+        &["--to", "s3://lab-bench/none", dir.path().to_str().unwrap()],
+    );
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    assert!(
+        stderr(&o).contains("not a campaign directory"),
+        "{}",
+        stderr(&o)
+    );
+    assert!(m.objects("none/").is_empty());
+
+    // The daemon's campaign job.
+    let config = common::quiet_config(dir.path(), 1.0, "");
+    let socket = dir.path().join("bench.sock");
+    let recordings = dir.path().join("rec");
+    let mut d = daemon_fixtures::spawn_serve_with(
+        &config,
+        &socket,
+        &recordings,
+        &["--upload", "s3://lab-bench/daemon"],
+        |c| aws_env(c, &m.endpoint(), &m.id, &m.secret),
+    );
+    let mut c = daemon_fixtures::Client::new(&socket);
+    let r = c.call(
+        "campaign",
+        json!({"file": dir.path().join("two.toml"), "threads": 1, "keep": "frf"}),
+    );
+    assert_eq!(r["ok"], true, "{r}");
+    let cdir = PathBuf::from(r["result"]["dir"].as_str().unwrap());
+    let mut files = Vec::new();
+    files_below(&cdir, Path::new(""), &mut files);
+    let t0 = Instant::now();
+    while journal_lines(&recordings)
+        .iter()
+        .filter(|l| l["op"] == "confirmed")
+        .count()
+        < files.len()
+    {
+        assert!(
+            t0.elapsed() < Duration::from_secs(60),
+            "{:?}",
+            journal_lines(&recordings)
+        );
+        std::thread::sleep(Duration::from_millis(200));
+    }
+    d.kill().unwrap();
+    d.wait().unwrap();
+    assert_campaign_uploaded(&m.objects("daemon/"), "daemon", &cdir);
+}

@@ -31,7 +31,9 @@ pub(super) struct UploadArgs {
     json: bool,
     /// Finished recordings (*.mcap, not a .part): each goes up with every
     /// file of its stem beside it (FRF CSV, plots, summary) and its
-    /// catalogue row, whose recording is the object's URL.
+    /// catalogue row, whose recording is the object's URL. Or campaign
+    /// directories: each goes up whole as PREFIX/NAME/…, its cells' rows
+    /// naming their recordings' objects.
     #[arg(value_name = "RECORDING", required = true)]
     recordings: Vec<PathBuf>,
 }

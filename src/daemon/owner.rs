@@ -349,7 +349,7 @@ pub(super) fn owner(mut client: ServiceClient, rx: mpsc::Receiver<OwnerCmd>, sha
                             "faulted",
                             Some(FaultStatus {
                                 kind: FaultKind::Hal.as_str(),
-                                message: api.message.clone(),
+                                message: api.message.to_string(),
                             }),
                         );
                         Err(api)
@@ -422,8 +422,10 @@ pub(super) fn owner(mut client: ServiceClient, rx: mpsc::Receiver<OwnerCmd>, sha
                         None => (None, None),
                     };
                     let mut finished_recording = None;
+                    let is_campaign;
                     {
                         let mut s = lock(&status);
+                        is_campaign = s.job.as_ref().is_some_and(|j| j.kind == "campaign");
                         s.jobs_run += 1;
                         if let (Some(m), Some(j)) = (metrics, s.job.as_ref()) {
                             let outcome = match &result {
@@ -475,20 +477,22 @@ pub(super) fn owner(mut client: ServiceClient, rx: mpsc::Receiver<OwnerCmd>, sha
                     }
                     if let (Some(u), Some(rec)) = (uploader.as_ref(), finished_recording) {
                         super::uploads::after_job(u, std::path::Path::new(&rec), &result);
+                    } else if let (Some(u), true) = (uploader.as_ref(), is_campaign) {
+                        super::uploads::after_campaign(u, &result);
                     }
                     match &result {
                         // The latched fault is reported by its supervisor name.
                         Err((api, Some(RunError::Fault { kind, .. }))) => {
                             let fault = FaultStatus {
                                 kind,
-                                message: api.message.clone(),
+                                message: api.message.to_string(),
                             };
                             set_state("faulted", Some(fault));
                         }
                         Err((api, Some(RunError::Hal { .. }))) => {
                             let fault = FaultStatus {
                                 kind: FaultKind::Hal.as_str(),
-                                message: api.message.clone(),
+                                message: api.message.to_string(),
                             };
                             set_state("faulted", Some(fault));
                         }

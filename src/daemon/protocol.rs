@@ -79,23 +79,24 @@ impl ApiErrorKind {
 #[derive(Debug, Clone, Serialize)]
 pub(super) struct ApiError {
     pub(super) kind: ApiErrorKind,
-    pub(super) message: String,
+    /// (Boxed, as the summary: a job's error travels in every `JobResult`.)
+    pub(super) message: Box<str>,
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub(super) summary: Option<Value>,
+    pub(super) summary: Option<Box<Value>>,
 }
 
 impl ApiError {
     pub(super) fn new(kind: ApiErrorKind, message: impl Into<String>) -> Self {
         Self {
             kind,
-            message: message.into(),
+            message: message.into().into_boxed_str(),
             summary: None,
         }
     }
 
     pub(super) fn from_run(e: &RunError) -> Self {
         Self {
-            summary: crate::jobs::catalogue::ended_run_summary(e),
+            summary: crate::jobs::catalogue::ended_run_summary(e).map(Box::new),
             ..Self::new(ApiErrorKind::of_run(e), format!("{e:#}"))
         }
     }
@@ -504,7 +505,7 @@ mod tests {
         ] {
             let (_, e) = refused(line);
             assert_eq!(e.kind, ApiErrorKind::BadRequest);
-            assert_eq!(e.message, format!("duplicate key {key:?} in {at}"));
+            assert_eq!(&*e.message, format!("duplicate key {key:?} in {at}"));
         }
         // The id is echoed when the duplicate is elsewhere.
         let (id, _) = refused(br#"{"id":"x","cmd":"s","params":{"a":1,"a":2}}"#);
@@ -518,10 +519,7 @@ mod tests {
         let (_, e) = refused(b"[1]");
         assert_eq!(e.kind, ApiErrorKind::BadRequest);
         let (id, e) = refused(br#"{"id":2,"cmd":7}"#);
-        assert_eq!(
-            (id.as_str(), e.message.as_str()),
-            ("2", "no \"cmd\" string")
-        );
+        assert_eq!((id.as_str(), &*e.message), ("2", "no \"cmd\" string"));
         let (_, e) = refused(br#"{"id":2,"cmd":"chirp","params":{"duration_s":1e400}}"#);
         assert_eq!(e.kind, ApiErrorKind::BadParams);
         let deep = format!(

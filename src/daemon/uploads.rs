@@ -98,7 +98,7 @@ pub(super) fn after_job(uploader: &Uploader, recording: &Path, result: &JobResul
             }
             v
         }
-        Err((api, _)) => api.summary.clone().unwrap_or_else(|| {
+        Err((api, _)) => api.summary.as_deref().cloned().unwrap_or_else(|| {
             json!({
                 "outcome": api.kind,
                 "error": api.message,
@@ -122,6 +122,47 @@ pub(super) fn after_job(uploader: &Uploader, recording: &Path, result: &JobResul
         ),
         Err(e) => tracing::error!(
             recording = %recording.display(),
+            "not queued for {}: {e}",
+            uploader.url()
+        ),
+    }
+}
+
+/// After a campaign job: a campaign that finished (every cell done) is
+/// queued as its directory ([`crate::upload::campaign_upload_set`]: the
+/// cells' kept files, their catalogue rows, the campaign's results). One
+/// that was stopped or failed is not (its results would change when it
+/// is resumed, and the store never overwrites): the log says so, and
+/// `bench upload --to URL DIR` uploads it once `bench campaign resume`
+/// has finished it. Never fails the job.
+pub(super) fn after_campaign(uploader: &Uploader, result: &JobResult) {
+    let dir = match result {
+        Ok(v) => v
+            .get("dir")
+            .and_then(|d| d.as_str())
+            .map(std::path::PathBuf::from),
+        Err((api, _)) => {
+            tracing::warn!(
+                "the campaign did not finish ({}): not queued for {}; `bench campaign resume` it, then `bench upload --to {} DIR`",
+                api.message,
+                uploader.url(),
+                uploader.url()
+            );
+            return;
+        }
+    };
+    let Some(dir) = dir else {
+        tracing::error!("the campaign's summary names no directory: not queued");
+        return;
+    };
+    match uploader.queue_recording(&dir) {
+        Ok(n) => tracing::info!(
+            campaign = %dir.display(),
+            "{n} file(s) queued for {}",
+            uploader.url()
+        ),
+        Err(e) => tracing::error!(
+            campaign = %dir.display(),
             "not queued for {}: {e}",
             uploader.url()
         ),

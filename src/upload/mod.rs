@@ -37,7 +37,7 @@ pub mod transfer;
 pub mod worker;
 
 pub use store::{ProbeError, Store, StoreUrl};
-pub use transfer::{upload_set, Item, Source, Transferred};
+pub use transfer::{campaign_upload_set, upload_set, upload_set_of, Item, Source, Transferred};
 
 /// Files larger than this go up as a multipart upload (5 MiB parts),
 /// smaller ones in one PUT.

@@ -1,11 +1,12 @@
-//! `bench upload --to URL RECORDING…`: finished recordings to the store
+//! `bench upload --to URL RECORDING…`: finished recordings (and campaign
+//! directories) to the store
 //! now, from the command line, retried with the uploader's backoff for at
 //! most `--retry-for` seconds. Without a journal: a second run over the
 //! same recordings finds what the first confirmed in the store (same
 //! SHA-256, read back) and uploads only the rest.
 
 use super::store::{ProbeError, Store, StoreUrl};
-use super::transfer::{transfer, upload_set, Item, TransferError, Transferred};
+use super::transfer::{transfer, upload_set_of, Item, TransferError, Transferred};
 use super::worker::{FIRST_BACKOFF_S, MAX_BACKOFF_S};
 use serde::{Deserialize, Serialize};
 use std::path::PathBuf;
@@ -19,7 +20,8 @@ pub const MAX_RETRY_FOR_S: f64 = 86_400.0;
 pub struct UploadOptions {
     /// The store (`--to`).
     pub to: StoreUrl,
-    /// The finished recordings.
+    /// The finished recordings, and campaign directories
+    /// ([`super::campaign_upload_set`]).
     pub recordings: Vec<PathBuf>,
     /// How long a failing store is retried, s (`--retry-for`, 0 to
     /// [`MAX_RETRY_FOR_S`]).
@@ -139,7 +141,7 @@ pub fn upload_recordings(opts: &UploadOptions) -> Result<UploadSummary, UploadEr
     }
     let mut items = Vec::new();
     for r in &opts.recordings {
-        let set = upload_set(&opts.to, r).map_err(|reason| UploadError::Recording {
+        let set = upload_set_of(&opts.to, r).map_err(|reason| UploadError::Recording {
             path: r.clone(),
             reason,
         })?;

@@ -100,6 +100,124 @@ pub fn upload_set(url: &StoreUrl, recording: &Path) -> Result<Vec<Item>, String>
     Ok(items)
 }
 
+/// What a path's upload consists of: a campaign directory's
+/// ([`campaign_upload_set`]) or a recording's ([`upload_set`]).
+///
+/// # Errors
+/// As those: not a finished recording, not a campaign directory, or a
+/// name a store cannot keep.
+pub fn upload_set_of(url: &StoreUrl, path: &Path) -> Result<Vec<Item>, String> {
+    if path.is_dir() {
+        campaign_upload_set(url, path)
+    } else {
+        upload_set(url, path)
+    }
+}
+
+/// How deep a campaign directory's files are looked for
+/// (`cells/NNN/chirp.mcap` is 2 below it).
+const CAMPAIGN_DEPTH: usize = 4;
+
+/// What a campaign directory's upload consists of: every regular file
+/// below it (its cells' kept files, `cells.csv`, `summary.json`, the map,
+/// the journal, its copy of the campaign and bench files, its catalogue
+/// rows; never a `.part`, a temporary or hidden file, or a link), each
+/// under the store's prefix as `CAMPAIGN/RELATIVE PATH`, CAMPAIGN being
+/// the directory's name. A cell's row whose recording was kept goes up
+/// with `recording` set to the recording's object URL (as a recording's
+/// row, [`Source::CatalogueRow`]); the row of a cell whose recording was
+/// not kept goes up as it is (`recording` null). The cells' files first,
+/// then the rows, then the campaign's own files.
+///
+/// # Errors
+/// `dir` is not a campaign directory (no `journal.jsonl`), cannot be
+/// read, or holds a name a store cannot keep.
+pub fn campaign_upload_set(url: &StoreUrl, dir: &Path) -> Result<Vec<Item>, String> {
+    let dir = std::path::absolute(dir).map_err(|e| e.to_string())?;
+    if !dir.join(crate::campaign::journal::JOURNAL_FILE).is_file() {
+        return Err(format!(
+            "{} is not a campaign directory (no {}) nor a finished recording",
+            dir.display(),
+            crate::campaign::journal::JOURNAL_FILE
+        ));
+    }
+    let name = dir
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    check_name(&name)?;
+    let mut files = Vec::new();
+    collect_files(&dir, Path::new(""), 0, &mut files)?;
+    // Cells, then rows, then the campaign's own files; by path within.
+    let rank = |rel: &Path| match rel.components().next() {
+        Some(c) if c.as_os_str() == "cells" => 0,
+        Some(c) if c.as_os_str() == CATALOGUE_DIR && rel.components().count() == 2 => 1,
+        _ => 2,
+    };
+    files.sort_by(|a, b| (rank(a), a).cmp(&(rank(b), b)));
+    let key_of = |rel: &Path| {
+        let segs: Vec<String> = rel
+            .components()
+            .map(|c| c.as_os_str().to_string_lossy().into_owned())
+            .collect();
+        url.key_of(&format!("{name}/{}", segs.join("/")))
+    };
+    let mut items = Vec::with_capacity(files.len());
+    for rel in files {
+        let key = key_of(&rel);
+        let cell_recording = (rank(&rel) == 1)
+            .then(|| {
+                rel.file_name()?
+                    .to_str()?
+                    .strip_prefix("cell-")?
+                    .strip_suffix(".parquet")
+            })
+            .flatten()
+            .map(|n| {
+                Path::new("cells")
+                    .join(n)
+                    .join(crate::campaign::run::CELL_FILES[0])
+            })
+            .filter(|r| dir.join(r).is_file());
+        let source = match cell_recording {
+            Some(r) => Source::CatalogueRow {
+                recording: dir.join(&r),
+                recording_url: url.object_url(&key_of(&r)),
+            },
+            None => Source::File(dir.join(&rel)),
+        };
+        items.push(Item { key, source });
+    }
+    Ok(items)
+}
+
+/// The regular files below `root.join(rel)` (paths relative to `root`).
+fn collect_files(
+    root: &Path,
+    rel: &Path,
+    depth: usize,
+    out: &mut Vec<PathBuf>,
+) -> Result<(), String> {
+    let dir = root.join(rel);
+    let entries = std::fs::read_dir(&dir).map_err(|e| format!("{}: {e}", dir.display()))?;
+    for entry in entries {
+        let entry = entry.map_err(|e| format!("{}: {e}", dir.display()))?;
+        let n = entry.file_name().to_string_lossy().into_owned();
+        let Ok(t) = entry.file_type() else { continue };
+        if n.starts_with('.') || n.ends_with(crate::outputs::PART_SUFFIX) || n.ends_with(".tmp") {
+            continue;
+        }
+        if t.is_file() {
+            check_name(&n)?;
+            out.push(rel.join(&n));
+        } else if t.is_dir() && depth < CAMPAIGN_DEPTH {
+            check_name(&n)?;
+            collect_files(root, &rel.join(&n), depth + 1, out)?;
+        }
+    }
+    Ok(())
+}
+
 /// A file name every store keeps as it is, and its URL too: ASCII letters,
 /// digits, `-`, `_` and `.` (`bench`'s own names are). A directory store
 /// (`object_store`'s local file system) would encode other characters in

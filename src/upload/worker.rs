@@ -13,7 +13,7 @@
 //! daemon's event stream and log).
 
 use super::journal::{now_utc, Journal, Line, Pending};
-use super::transfer::{transfer, upload_set, Item, TransferError, Transferred};
+use super::transfer::{transfer, upload_set_of, Item, TransferError, Transferred};
 use super::Store;
 use std::collections::VecDeque;
 use std::path::Path;
@@ -152,14 +152,15 @@ impl Uploader {
     }
 
     /// Queues the finished recording `recording` with its companions and
-    /// catalogue row ([`upload_set`]): journalled (synced) before this
+    /// catalogue row ([`super::upload_set`]), or a campaign directory's files
+    /// ([`super::campaign_upload_set`]): journalled (synced) before this
     /// returns. Returns the number of items queued.
     ///
     /// # Errors
-    /// `recording` is not a finished recording, or the journal cannot be
-    /// written (nothing queued then).
+    /// `recording` is neither a finished recording nor a campaign
+    /// directory, or the journal cannot be written (nothing queued then).
     pub fn queue_recording(&self, recording: &Path) -> Result<usize, String> {
-        let items = upload_set(&self.store.url, recording)?;
+        let items = upload_set_of(&self.store.url, recording)?;
         let store = self.store.url.to_string();
         {
             let mut j = lock(&self.journal);
