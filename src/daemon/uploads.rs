@@ -114,14 +114,20 @@ pub(super) fn after_job(uploader: &Uploader, recording: &Path, result: &JobResul
     if let Err(e) = written {
         tracing::warn!("the summary {} was not written: {e}", path.display());
     }
-    match uploader.queue_recording(recording) {
+    queue(uploader, recording);
+}
+
+/// Queues `path` (a recording or a campaign directory), saying so in the
+/// log; a failure is logged, never the job's.
+fn queue(uploader: &Uploader, path: &Path) {
+    match uploader.queue_recording(path) {
         Ok(n) => tracing::info!(
-            recording = %recording.display(),
+            path = %path.display(),
             "{n} file(s) queued for {}",
             uploader.url()
         ),
         Err(e) => tracing::error!(
-            recording = %recording.display(),
+            path = %path.display(),
             "not queued for {}: {e}",
             uploader.url()
         ),
@@ -155,16 +161,5 @@ pub(super) fn after_campaign(uploader: &Uploader, result: &JobResult) {
         tracing::error!("the campaign's summary names no directory: not queued");
         return;
     };
-    match uploader.queue_recording(&dir) {
-        Ok(n) => tracing::info!(
-            campaign = %dir.display(),
-            "{n} file(s) queued for {}",
-            uploader.url()
-        ),
-        Err(e) => tracing::error!(
-            campaign = %dir.display(),
-            "not queued for {}: {e}",
-            uploader.url()
-        ),
-    }
+    queue(uploader, &dir);
 }
