@@ -22,8 +22,9 @@ use std::io::{self, Read, Write};
 use std::os::unix::fs::OpenOptionsExt;
 use std::path::{Path, PathBuf};
 
-/// Name of the journal file in a campaign directory.
-pub const JOURNAL_FILE: &str = "journal.jsonl";
+/// Name of the journal file in a campaign directory (the catalogue and the
+/// uploads know a campaign directory by it).
+pub const JOURNAL_FILE: &str = crate::catalogue::CAMPAIGN_JOURNAL_FILE;
 
 /// Journal format version written in the header.
 pub const JOURNAL_VERSION: u32 = 1;

@@ -37,6 +37,39 @@ use std::path::{Path, PathBuf};
 /// The directory beside the recordings that holds one row file per run.
 pub const CATALOGUE_DIR: &str = "catalogue";
 
+/// A campaign directory's journal: what makes a directory a campaign's
+/// for `bench catalogue` and `bench upload` (`crate::campaign` lays its
+/// directory out with these names).
+pub const CAMPAIGN_JOURNAL_FILE: &str = "journal.jsonl";
+/// A campaign's cells, each in `cells/NNN/`.
+pub const CAMPAIGN_CELLS_DIR: &str = "cells";
+/// A cell's recording, in its directory.
+pub const CELL_RECORDING_FILE: &str = "chirp.mcap";
+
+/// A campaign cell's row, relative to the campaign directory:
+/// `catalogue/cell-NNN.parquet` (the campaign's own catalogue folder).
+pub fn cell_row(index: usize) -> String {
+    format!("{CATALOGUE_DIR}/cell-{index:03}.parquet")
+}
+
+/// A campaign cell's directory, relative to the campaign directory:
+/// `cells/NNN`.
+pub fn cell_dir(index: usize) -> String {
+    format!("{CAMPAIGN_CELLS_DIR}/{index:03}")
+}
+
+/// The recording, relative to the campaign directory, of the cell whose
+/// row file is named `row_name` (`cell-003.parquet` → `cells/003/chirp.mcap`);
+/// `None` for another name.
+pub fn cell_recording_of_row(row_name: &str) -> Option<PathBuf> {
+    let n = row_name.strip_prefix("cell-")?.strip_suffix(".parquet")?;
+    (!n.is_empty() && n.bytes().all(|b| b.is_ascii_digit())).then(|| {
+        Path::new(CAMPAIGN_CELLS_DIR)
+            .join(n)
+            .join(CELL_RECORDING_FILE)
+    })
+}
+
 /// The default name of the compacted catalogue `bench catalogue` writes
 /// in the recordings directory (beside [`CATALOGUE_DIR`], not in it, so a
 /// query over `catalogue/*.parquet` never counts a run twice).

@@ -398,7 +398,7 @@ pub fn sources_in(dir: &Path) -> Result<CatalogueSources, RunError> {
 }
 
 fn walk(dir: &Path, depth: usize, out: &mut CatalogueSources) -> std::io::Result<()> {
-    let campaign = dir.join(crate::campaign::journal::JOURNAL_FILE).is_file();
+    let campaign = dir.join(crate::catalogue::CAMPAIGN_JOURNAL_FILE).is_file();
     for e in std::fs::read_dir(dir)? {
         let e = e?;
         let path = e.path();

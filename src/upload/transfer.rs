@@ -134,11 +134,11 @@ const CAMPAIGN_DEPTH: usize = 4;
 /// read, or holds a name a store cannot keep.
 pub fn campaign_upload_set(url: &StoreUrl, dir: &Path) -> Result<Vec<Item>, String> {
     let dir = std::path::absolute(dir).map_err(|e| e.to_string())?;
-    if !dir.join(crate::campaign::journal::JOURNAL_FILE).is_file() {
+    if !dir.join(crate::catalogue::CAMPAIGN_JOURNAL_FILE).is_file() {
         return Err(format!(
             "{} is not a campaign directory (no {}) nor a finished recording",
             dir.display(),
-            crate::campaign::journal::JOURNAL_FILE
+            crate::catalogue::CAMPAIGN_JOURNAL_FILE
         ));
     }
     let name = dir
@@ -150,7 +150,7 @@ pub fn campaign_upload_set(url: &StoreUrl, dir: &Path) -> Result<Vec<Item>, Stri
     collect_files(&dir, Path::new(""), 0, &mut files)?;
     // Cells, then rows, then the campaign's own files; by path within.
     let rank = |rel: &Path| match rel.components().next() {
-        Some(c) if c.as_os_str() == "cells" => 0,
+        Some(c) if c.as_os_str() == crate::catalogue::CAMPAIGN_CELLS_DIR => 0,
         Some(c) if c.as_os_str() == CATALOGUE_DIR && rel.components().count() == 2 => 1,
         _ => 2,
     };
@@ -166,18 +166,8 @@ pub fn campaign_upload_set(url: &StoreUrl, dir: &Path) -> Result<Vec<Item>, Stri
     for rel in files {
         let key = key_of(&rel);
         let cell_recording = (rank(&rel) == 1)
-            .then(|| {
-                rel.file_name()?
-                    .to_str()?
-                    .strip_prefix("cell-")?
-                    .strip_suffix(".parquet")
-            })
+            .then(|| crate::catalogue::cell_recording_of_row(rel.file_name()?.to_str()?))
             .flatten()
-            .map(|n| {
-                Path::new("cells")
-                    .join(n)
-                    .join(crate::campaign::run::CELL_FILES[0])
-            })
             .filter(|r| dir.join(r).is_file());
         let source = match cell_recording {
             Some(r) => Source::CatalogueRow {

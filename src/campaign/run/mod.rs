@@ -183,23 +183,20 @@ pub struct CampaignSummary {
     pub design: Option<Box<crate::jobs::design::DesignSummary>>,
 }
 
-/// The directory of cell `index`, relative to the campaign directory.
-pub fn cell_dir(index: usize) -> String {
-    format!("cells/{index:03}")
-}
-
-/// A cell's row in the run catalogue, relative to the campaign directory:
-/// `catalogue/cell-NNN.parquet` (the campaign's own catalogue folder; `bench
-/// catalogue` reads it, and a glob `DIR/**/catalogue/*.parquet` finds it).
-pub fn cell_row(index: usize) -> String {
-    format!(
-        "{}/cell-{index:03}.parquet",
-        crate::catalogue::CATALOGUE_DIR
-    )
-}
+/// The directory of cell `index`, relative to the campaign directory
+/// (`cells/NNN`), and its row in the run catalogue
+/// (`catalogue/cell-NNN.parquet`: the campaign's own catalogue folder;
+/// `bench catalogue` reads it, and a glob `DIR/**/catalogue/*.parquet`
+/// finds it). The catalogue owns these names: it finds the cells by them.
+pub use crate::catalogue::{cell_dir, cell_row};
 
 /// The files of a done cell, relative to its directory.
-pub const CELL_FILES: [&str; 4] = ["chirp.mcap", "frf.csv", "bode.png", "summary.json"];
+pub const CELL_FILES: [&str; 4] = [
+    crate::catalogue::CELL_RECORDING_FILE,
+    "frf.csv",
+    "bode.png",
+    "summary.json",
+];
 
 #[cfg(test)]
 mod tests;
