@@ -6,8 +6,25 @@
 //! the cyclic exchange: ethercrab's PDU timeout is set to never
 //! (`Duration::MAX`, so `async_io` registers no timer) and the deadline is
 //! ours.
+//!
+//! No lock either. What the tick runs through ethercrab 0.7.1, read in its
+//! source: `SubDeviceGroup::tx_rx` / `tx_rx_dc` take the process image's
+//! write guard (here [`BorrowFlag`]: one atomic, never waits);
+//! `PduLoop::alloc_frame` claims a storage slot by atomic
+//! compare-exchange over at most twice the slots, no retry loop;
+//! `wake_sender` and the frame future's waker are `atomic_waker`
+//! (compare-exchange, no spin; the waker is `Waker::noop`);
+//! `ReceiveFrameFut::poll` swaps the slot's atomic state and polls a
+//! never-firing `async_io::Timer` (no reactor); `PduRx::receive_frame`
+//! and `SendableFrame::send_blocking` are atomics and copies; `log`
+//! macros read one atomic level (muted). Every `thread::yield_now` and
+//! `futures_lite::yield_now` in ethercrab's PDU loop is in its tests; the
+//! only other yields (`subdevice_group` ~1409/1624, `timer_factory` 142)
+//! are in tests and in `loop_tick` for bring-up. The test
+//! `the_ticks_make_no_futex_or_sched_yield_call` traces the loop thread.
 
 use super::config::{EthercatConfig, ImageLayout, MAX_PDO_BYTES};
+use super::image_lock::BorrowFlag;
 use super::socket::RawSocket;
 use super::wire::cia402::*;
 use super::EthercatError;
@@ -18,8 +35,8 @@ use core::pin::pin;
 use core::task::{Context, Poll, Waker};
 use ethercrab::subdevice_group::{DcConfiguration, HasDc, NoDc, Op, PreOp, SafeOp};
 use ethercrab::{
-    Command as EcCommand, DefaultLock, MainDevice, MainDeviceConfig, PduLoop, PduRx, PduStorage,
-    PduTx, RegisterAddress, SubDeviceGroup, SubDeviceState, Timeouts,
+    Command as EcCommand, MainDevice, MainDeviceConfig, PduLoop, PduRx, PduStorage, PduTx,
+    RegisterAddress, SubDevice, SubDeviceGroup, SubDeviceGroupHandle, SubDeviceState, Timeouts,
 };
 use std::sync::Mutex;
 use std::time::Duration;
@@ -125,7 +142,17 @@ impl Link {
     }
 }
 
-type Group<S, D = NoDc> = SubDeviceGroup<2, MAX_PDI, DefaultLock, S, D>;
+/// The group, its process image behind [`BorrowFlag`] (never waits), not
+/// ethercrab's default spin lock (which yields when contended).
+type Group<S, D = NoDc> = SubDeviceGroup<2, MAX_PDI, BorrowFlag, S, D>;
+
+/// `MainDevice::init`'s group filter: every slave into the one group.
+fn the_group<'g>(
+    g: &'g Group<PreOp>,
+    _: &SubDevice,
+) -> Result<&'g dyn SubDeviceGroupHandle, ethercrab::error::Error> {
+    Ok(g)
+}
 
 /// The group in its AL state: SAFE-OP while disabled (inputs valid, the
 /// outputs and the SM watchdog not in force), OP while enabled.
@@ -354,7 +381,11 @@ impl EthercatStage {
         let group: Group<PreOp> = run_in(
             &mut self.link,
             &self.cfg,
-            md.init_single_group::<2, MAX_PDI>(ethercrab::std::ethercat_now),
+            md.init::<2, _>(
+                ethercrab::std::ethercat_now,
+                Group::<PreOp>::default(),
+                the_group,
+            ),
             deadline,
             "bringing the slave to PRE-OP",
         )?
@@ -606,9 +637,9 @@ impl EthercatStage {
 
     /// One process-data round trip: the outputs `self.out` go out, the
     /// inputs come back into `self.inp`; working counter, AL state and
-    /// the drive's fault bit are checked. Real-time safe (no allocation,
-    /// one uncontended lock of ethercrab's process image, the wait bounded
-    /// by the exchange timeout).
+    /// the drive's fault bit are checked. Real-time safe: no allocation,
+    /// no lock (the image's [`BorrowFlag`] is one atomic that never
+    /// waits), the wait bounded by the exchange timeout.
     fn exchange(&mut self) -> Result<(), EthercatError> {
         let md = self
             .md
