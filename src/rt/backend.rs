@@ -65,14 +65,14 @@ impl BackendSpec {
         matches!(self, Self::Sim)
     }
 
-    /// The pure delay the link adds to the loop at a loop period of
-    /// `period_s`, s: one period for EtherCAT (the drive cycles
-    /// SM-synchronously: a target acts in the cycle after its frame, see
-    /// `bench_hal::ethercat`), 0 for the others.
-    pub fn process_data_delay_s(&self, period_s: f64) -> f64 {
+    /// The pure delay the link adds to the loop, whole loop periods: one
+    /// for EtherCAT (the drive cycles SM-synchronously: a target acts in
+    /// the cycle after its frame, see `bench_hal::ethercat`), 0 for the
+    /// others. The loop check (`check_loop`) puts `z^{−d}` in the loop.
+    pub fn process_data_delay_periods(&self) -> u32 {
         match self {
-            Self::Ethercat(_) => period_s,
-            _ => 0.0,
+            Self::Ethercat(_) => 1,
+            _ => 0,
         }
     }
 }
