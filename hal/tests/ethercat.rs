@@ -345,6 +345,48 @@ fn the_ticks_make_no_futex_or_sched_yield_call() {
     );
 }
 
+/// The exchange deadline follows the loop's stall bound: with
+/// `exchange_timeout_ms` unset it is the bound handed to the stage (3 ms),
+/// capped by the SM watchdog (100 ms here) when the bound is longer or
+/// absent, and at least a period; it follows a bound given after
+/// `configure` too; an explicit key overrides it.
+#[test]
+fn the_exchange_deadline_follows_the_stall_bound_unless_the_key_is_set() {
+    let _g = serial();
+    let Some(v) = Veth::new() else { return };
+    let slave = Slave::start(&v.slave, &host_cfg(&v.slave), default_id(), vec![]);
+    let derived = EthercatConfig {
+        exchange_timeout_ms: None,
+        ..host_cfg(&v.master)
+    };
+    let mut stage = EthercatStage::open(&derived).unwrap();
+    assert_eq!(stage.exchange_timeout_ns(), 0, "not configured");
+    stage.set_stall_bound_s(3e-3);
+    stage.configure(PERIOD_NS).unwrap();
+    assert_eq!(stage.exchange_timeout_ns(), 3_000_000);
+    stage.set_stall_bound_s(0.5);
+    assert_eq!(
+        stage.exchange_timeout_ns(),
+        100_000_000,
+        "the watchdog caps it"
+    );
+    stage.set_stall_bound_s(f64::INFINITY);
+    assert_eq!(
+        stage.exchange_timeout_ns(),
+        100_000_000,
+        "no bound: the watchdog"
+    );
+    stage.set_stall_bound_s(50e-6);
+    assert_eq!(stage.exchange_timeout_ns(), PERIOD_NS, "at least a period");
+    drop(stage);
+    let mut stage = EthercatStage::open(&host_cfg(&v.master)).unwrap();
+    stage.set_stall_bound_s(3e-3);
+    stage.configure(PERIOD_NS).unwrap();
+    assert_eq!(stage.exchange_timeout_ns(), 50_000_000, "the key overrides");
+    drop(stage);
+    drop(slave);
+}
+
 /// Runs paced exchanges at `current_a` until one fails or `max` pass;
 /// returns the error and the number of good ticks.
 fn run_until_error(
@@ -429,6 +471,8 @@ fn a_silent_host_is_stopped_by_the_sm_watchdog_within_its_time() {
     let slave = Slave::start(&v.slave, &host_cfg(&v.slave), default_id(), vec![]);
     let mut cfg = host_cfg(&v.master);
     cfg.watchdog_ms = 20.0;
+    // Not beyond the watchdog (a frame later finds the drive stopped).
+    cfg.exchange_timeout_ms = Some(20.0);
     let mut stage = EthercatStage::open(&cfg).unwrap();
     stage.configure(PERIOD_NS).unwrap();
     stage.enable().unwrap();

@@ -348,6 +348,8 @@ pub fn serve(opts: ServeOptions) -> Result<(), ServeError> {
         &opts.config_path,
         opts.seed,
         opts.inject,
+        // Until the hold controller's bound is known (below): the user's.
+        opts.config.safety.max_overrun_s.unwrap_or(f64::INFINITY),
     )
     .map_err(ServeError::Input)?;
     let backend_name = info.name.clone();
@@ -382,6 +384,14 @@ pub fn serve(opts: ServeOptions) -> Result<(), ServeError> {
             Some((h, b)) => (Some(h), Some(b)),
             None => (None, None),
         };
+    // The link's wait follows the hold controller's stall bound (the
+    // daemon's loop between jobs; a job's own bound is judged by the
+    // supervisor).
+    if let Some(b) = hold_bounds {
+        if b.max_missed_deadlines != u64::MAX {
+            stage.set_stall_bound_s(b.max_missed_deadlines as f64 * period_s);
+        }
+    }
     let mut safety = opts.config.supervisor(&info);
     if let Some(b) = hold_bounds {
         // Between jobs only the hold controller drives the stage (the

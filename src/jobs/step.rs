@@ -461,7 +461,14 @@ fn run_control_with(
     let opened_info;
     let mut runner = match source {
         StageSource::Open => {
-            let (s, i) = backend::open(&spec, cfg, &opts.config_path, opts.seed, opts.inject)?;
+            let (s, i) = backend::open(
+                &spec,
+                cfg,
+                &opts.config_path,
+                opts.seed,
+                opts.inject,
+                check.stall.bound_s,
+            )?;
             opened = s;
             opened_info = i;
             Runner::Local {

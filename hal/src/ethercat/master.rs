@@ -213,6 +213,8 @@ pub struct EthercatStage {
     group: Option<Running>,
     period_ns: u64,
     timeout_ns: u64,
+    /// The loop's stall tolerance, ns (`None`: none given).
+    stall_bound_ns: Option<u64>,
     configured: bool,
     enabled: bool,
     fresh: bool,
@@ -294,6 +296,7 @@ impl EthercatStage {
             group: None,
             period_ns: 0,
             timeout_ns: 0,
+            stall_bound_ns: None,
             configured: false,
             enabled: false,
             fresh: false,
@@ -311,6 +314,28 @@ impl EthercatStage {
     /// The link counters.
     pub fn stats(&self) -> EthercatStats {
         self.stats
+    }
+
+    /// Tells the stage how long the loop's supervisor tolerates going
+    /// without a fresh sample, s (its stall bound; infinite: none): the
+    /// default exchange deadline follows it
+    /// ([`EthercatConfig::exchange_timeout_ns`]). Applies at once if
+    /// configured, else at [`Stage::configure`]. Not real-time: call it
+    /// before the loop runs.
+    pub fn set_stall_bound_s(&mut self, stall_bound_s: f64) {
+        self.stall_bound_ns = (stall_bound_s.is_finite() && stall_bound_s >= 0.0)
+            .then(|| (stall_bound_s * 1e9) as u64);
+        if self.period_ns > 0 {
+            self.timeout_ns = self
+                .cfg
+                .exchange_timeout_ns(self.period_ns, self.stall_bound_ns);
+        }
+    }
+
+    /// The deadline of one process-data exchange in force, ns (0 before
+    /// [`Stage::configure`]).
+    pub fn exchange_timeout_ns(&self) -> u64 {
+        self.timeout_ns
     }
 
     /// The configuration in force.
@@ -1016,7 +1041,7 @@ impl Stage for EthercatStage {
         self.configured = false;
         self.enabled = false;
         self.period_ns = period_ns;
-        self.timeout_ns = self.cfg.exchange_timeout_ns(period_ns);
+        self.timeout_ns = self.cfg.exchange_timeout_ns(period_ns, self.stall_bound_ns);
         if self.group.is_some() {
             self.back_to_safe_op()?;
         } else {

@@ -49,7 +49,10 @@
 //!   the target and does the tick's one process-data round trip (ethercrab's
 //!   `SubDeviceGroup::tx_rx`: one frame with the `LRW` of the image and an
 //!   `FPRD` of the AL status), driven on the loop thread by the stage's
-//!   own poll loop with a deadline (`exchange_timeout_ms`, default 5 ms):
+//!   own poll loop with a deadline (`exchange_timeout_ms`; by default
+//!   the loop's stall bound given by
+//!   [`EthercatStage::set_stall_bound_s`], capped by the SM watchdog:
+//!   [`EthercatConfig::exchange_timeout_ns`]):
 //!   no allocation, no thread hand-off, no timer, no lock (the process
 //!   image sits behind [`image_lock::BorrowFlag`], which never waits).
 //!   [`Stage::read_sample`](crate::Stage::read_sample) returns the inputs of that round trip (and
