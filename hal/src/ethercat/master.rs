@@ -324,7 +324,7 @@ impl EthercatStage {
     /// before the loop runs.
     pub fn set_stall_bound_s(&mut self, stall_bound_s: f64) {
         self.stall_bound_ns = (stall_bound_s.is_finite() && stall_bound_s >= 0.0)
-            .then(|| (stall_bound_s * 1e9) as u64);
+            .then_some((stall_bound_s * 1e9) as u64);
         if self.period_ns > 0 {
             self.timeout_ns = self
                 .cfg
