@@ -480,20 +480,11 @@ fn a_silent_host_is_stopped_by_the_sm_watchdog_within_its_time() {
     assert!(err.is_none(), "{err:?}");
     assert!(slave.status.commanded_current_a() > 0.29);
     // The host goes silent (as if killed): no disable, no frame.
-    let t0 = Instant::now();
-    while slave.status.watchdog_trip_mono_ns.load(Ordering::Acquire) == 0 {
-        assert!(
-            t0.elapsed() < Duration::from_secs(2),
-            "the SM watchdog never tripped"
-        );
-        std::thread::sleep(Duration::from_millis(1));
-    }
-    let last = slave.status.last_command_mono_ns.load(Ordering::Acquire);
-    let trip = slave.status.watchdog_trip_mono_ns.load(Ordering::Acquire);
-    let deadline = slave
-        .status
-        .watchdog_trip_deadline_mono_ns
-        .load(Ordering::Acquire);
+    let common::WatchdogTrip {
+        last_command_ns: last,
+        trip_ns: trip,
+        deadline_ns: deadline,
+    } = common::wait_for_watchdog_trip(&slave.status, Duration::from_secs(2), "SM");
     assert_eq!(
         deadline - last,
         20_000_000,
