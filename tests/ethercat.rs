@@ -612,20 +612,11 @@ fn killing_the_host_leaves_the_drive_at_zero_amps_within_the_sm_watchdog() {
     // SIGKILL to `ip netns exec`, which exec'd bench: no disable, no goodbye.
     child.kill().unwrap();
     child.wait().unwrap();
-    let t0 = Instant::now();
-    while slave.status.watchdog_trip_mono_ns.load(Ordering::Acquire) == 0 {
-        assert!(
-            t0.elapsed() < Duration::from_secs(2),
-            "the SM watchdog never tripped"
-        );
-        std::thread::sleep(Duration::from_millis(1));
-    }
-    let last = slave.status.last_command_mono_ns.load(Ordering::Acquire);
-    let trip = slave.status.watchdog_trip_mono_ns.load(Ordering::Acquire);
-    let deadline = slave
-        .status
-        .watchdog_trip_deadline_mono_ns
-        .load(Ordering::Acquire);
+    let WatchdogTrip {
+        last_command_ns: last,
+        trip_ns: trip,
+        deadline_ns: deadline,
+    } = wait_for_watchdog_trip(&slave.status, Duration::from_secs(2), "SM");
     // The time the host wrote (0x0420 in 100 µs steps): 50 ms.
     assert_eq!(deadline - last, 50_000_000);
     // 0 A within the watchdog time plus one period in the slave's clock,
