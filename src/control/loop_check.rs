@@ -907,6 +907,13 @@ mod thesis {
         assert!((dm - 270f64.to_radians() / 100.0).abs() < 1e-12);
     }
 
+    /// The shipped Chapter 5 bench.
+    fn ch5() -> BenchConfig {
+        let p =
+            std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("bench-config/sr4dof-ch5.toml");
+        BenchConfig::load(&p).unwrap()
+    }
+
     /// The link's pure delay of d periods in the loop: |L| and so every
     /// crossover stay, each phase margin drops by exactly ω_c·dT, the
     /// delay margin and the stall bound by exactly dT (Skogestad &
@@ -915,9 +922,7 @@ mod thesis {
     /// with one period (README: 2.3 ms of delay margin, 2.1 ms left).
     #[test]
     fn the_link_delay_turns_each_margin_by_omega_c_d_t() {
-        let p =
-            std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("bench-config/sr4dof-ch5.toml");
-        let cfg = BenchConfig::load(&p).unwrap();
+        let cfg = ch5();
         let model = Sr4dof::new(cfg.plant).unwrap();
         let t = cfg.loop_.period_ns() as f64 * 1e-9;
         assert_eq!(t, 2e-4);
@@ -968,9 +973,7 @@ mod thesis {
     /// (`tests/loop_reference.rs` checks the same against python-control).
     #[test]
     fn a_controller_the_delay_breaks_is_refused_naming_the_delay() {
-        let p =
-            std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("bench-config/sr4dof-ch5.toml");
-        let mut cfg = BenchConfig::load(&p).unwrap();
+        let mut cfg = ch5();
         let model = Sr4dof::new(cfg.plant).unwrap();
         let t = 2e-4;
         let mut fast = cfg.controller["fast"].clone();

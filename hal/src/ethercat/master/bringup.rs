@@ -38,7 +38,7 @@ impl EthercatStage {
             }
         }
         // 2. INIT → PRE-OP: addresses, SII, mailboxes.
-        let group: Group<PreOp> = run_in(
+        let group: Group<PreOp> = step_in(
             &mut self.link,
             &self.cfg,
             md.init::<2, _>(
@@ -48,8 +48,7 @@ impl EthercatStage {
             ),
             deadline,
             "bringing the slave to PRE-OP",
-        )?
-        .map_err(|e| bringup_err(&self.cfg, "bringing the slave to PRE-OP", e))?;
+        )?;
         let n = md.num_subdevices();
         if n != 1 {
             return Err(EthercatError::SlaveCount {
@@ -89,74 +88,31 @@ impl EthercatStage {
                 Some(i) => format!("backend.ethercat.{dir}[{i}]"),
                 None => format!("backend.ethercat.{dir}"),
             };
-            sdo_in(
-                &mut self.link,
-                &self.cfg,
-                &group,
-                md,
-                assign,
-                0,
-                0u8,
-                key(None),
-                deadline,
-            )?;
-            sdo_in(
-                &mut self.link,
-                &self.cfg,
-                &group,
-                md,
-                pdo,
-                0,
-                0u8,
-                key(None),
-                deadline,
-            )?;
+            // Clear the assignment and the map, write the entries, their
+            // count, then assign the PDO (the CoE mapping sequence).
+            let mut writes = vec![(assign, 0, Sdo::U8(0), None), (pdo, 0, Sdo::U8(0), None)];
             for (i, e) in entries.iter().enumerate() {
+                writes.push((pdo, i as u8 + 1, Sdo::U32(e.raw()), Some(i)));
+            }
+            writes.extend([
+                (pdo, 0, Sdo::U8(entries.len() as u8), None),
+                (assign, 1, Sdo::U16(pdo), None),
+                (assign, 0, Sdo::U8(1), None),
+            ]);
+            for (index, subindex, value, i) in writes {
+                let (link, cfg) = (&mut self.link, &self.cfg);
                 sdo_in(
-                    &mut self.link,
-                    &self.cfg,
+                    link,
+                    cfg,
                     &group,
                     md,
-                    pdo,
-                    i as u8 + 1,
-                    e.raw(),
-                    key(Some(i)),
+                    index,
+                    subindex,
+                    value,
+                    key(i),
                     deadline,
                 )?;
             }
-            sdo_in(
-                &mut self.link,
-                &self.cfg,
-                &group,
-                md,
-                pdo,
-                0,
-                entries.len() as u8,
-                key(None),
-                deadline,
-            )?;
-            sdo_in(
-                &mut self.link,
-                &self.cfg,
-                &group,
-                md,
-                assign,
-                1,
-                pdo,
-                key(None),
-                deadline,
-            )?;
-            sdo_in(
-                &mut self.link,
-                &self.cfg,
-                &group,
-                md,
-                assign,
-                0,
-                1u8,
-                key(None),
-                deadline,
-            )?;
         }
         if !self.analog() {
             sdo_in(
@@ -166,7 +122,7 @@ impl EthercatStage {
                 md,
                 0x6060,
                 0,
-                MODE_CST,
+                Sdo::I8(MODE_CST),
                 "backend.ethercat.profile".into(),
                 deadline,
             )?;
@@ -178,14 +134,13 @@ impl EthercatStage {
             let sd = group
                 .subdevice(md, 0)
                 .map_err(|e| bringup_err(&self.cfg, "reading 0x6075", e))?;
-            let ma: u32 = run_in(
+            let ma: u32 = step_in(
                 &mut self.link,
                 &self.cfg,
                 sd.sdo_read(0x6075, 0),
                 deadline,
                 "reading the motor rated current 0x6075",
-            )?
-            .map_err(|e| bringup_err(&self.cfg, "reading the motor rated current 0x6075", e))?;
+            )?;
             if ma == 0 {
                 return Err(EthercatError::Bringup {
                     interface: self.cfg.interface.clone(),
@@ -239,40 +194,36 @@ impl EthercatStage {
             };
             let sync = "configuring distributed-clock SYNC0 at the loop period";
             // FMMUs and SMs first (the PDI), then SYNC0.
-            let group = run_in(
+            let group = step_in(
                 &mut self.link,
                 &self.cfg,
                 group.into_pre_op_pdi(md),
                 deadline,
                 step,
-            )?
-            .map_err(|e| bringup_err(&self.cfg, step, e))?;
-            let g = run_in(
+            )?;
+            let g = step_in(
                 &mut self.link,
                 &self.cfg,
                 group.configure_dc_sync(md, dc),
                 deadline,
                 sync,
-            )?
-            .map_err(|e| bringup_err(&self.cfg, sync, e))?;
-            let g = run_in(
+            )?;
+            let g = step_in(
                 &mut self.link,
                 &self.cfg,
                 g.into_safe_op(md),
                 deadline,
                 step,
-            )?
-            .map_err(|e| bringup_err(&self.cfg, step, e))?;
+            )?;
             Running::SafeOpDc(g)
         } else {
-            let g = run_in(
+            let g = step_in(
                 &mut self.link,
                 &self.cfg,
                 group.into_safe_op(md),
                 deadline,
                 step,
-            )?
-            .map_err(|e| bringup_err(&self.cfg, step, e))?;
+            )?;
             Running::SafeOp(g)
         };
         let sizes = on_group!(&running, g => g
@@ -310,36 +261,22 @@ impl EthercatStage {
             None => return Ok(()),
         }
         .map_err(|e| bringup_err(&self.cfg, step, e))?;
-        run_in(
+        step_in(
             &mut self.link,
             &self.cfg,
             EcCommand::fpwr(sd, RegisterAddress::AlControl.into()).send(md, 0x0014u16),
             deadline,
             step,
-        )?
-        .map_err(|e| bringup_err(&self.cfg, step, e))?;
+        )?;
         let step = "bringing the slave back to SAFE-OP";
+        let (link, cfg) = (&mut self.link, &self.cfg);
         match self.group.take() {
             Some(Running::Op(g)) => {
-                let g = run_in(
-                    &mut self.link,
-                    &self.cfg,
-                    g.into_safe_op(md),
-                    deadline,
-                    step,
-                )?
-                .map_err(|e| bringup_err(&self.cfg, step, e))?;
+                let g = step_in(link, cfg, g.into_safe_op(md), deadline, step)?;
                 self.group = Some(Running::SafeOp(g));
             }
             Some(Running::OpDc(g)) => {
-                let g = run_in(
-                    &mut self.link,
-                    &self.cfg,
-                    g.into_safe_op(md),
-                    deadline,
-                    step,
-                )?
-                .map_err(|e| bringup_err(&self.cfg, step, e))?;
+                let g = step_in(link, cfg, g.into_safe_op(md), deadline, step)?;
                 self.group = Some(Running::SafeOpDc(g));
             }
             other => self.group = other,
@@ -348,16 +285,37 @@ impl EthercatStage {
     }
 }
 
+/// A value for an expedited SDO download.
+#[derive(Debug, Clone, Copy)]
+pub(super) enum Sdo {
+    I8(i8),
+    U8(u8),
+    U16(u16),
+    U32(u32),
+}
+
+impl Sdo {
+    /// The value as the abort message shows it.
+    fn raw(self) -> u32 {
+        match self {
+            Self::I8(v) => v as u32,
+            Self::U8(v) => v.into(),
+            Self::U16(v) => v.into(),
+            Self::U32(v) => v,
+        }
+    }
+}
+
 /// One expedited SDO download during bring-up; an abort names `key`.
 #[allow(clippy::too_many_arguments)]
-pub(super) fn sdo_in<T: ethercrab::EtherCrabWireWrite + Copy + Into<i64>>(
+pub(super) fn sdo_in(
     link: &mut Link,
     cfg: &EthercatConfig,
     group: &Group<PreOp>,
     md: &MainDevice<'static>,
     index: u16,
     subindex: u8,
-    value: T,
+    value: Sdo,
     key: String,
     deadline: u64,
 ) -> Result<(), EthercatError> {
@@ -365,22 +323,19 @@ pub(super) fn sdo_in<T: ethercrab::EtherCrabWireWrite + Copy + Into<i64>>(
     let sd = group
         .subdevice(md, 0)
         .map_err(|e| bringup_err(cfg, step, e))?;
-    match run_in(
-        link,
-        cfg,
-        sd.sdo_write(index, subindex, value),
-        deadline,
-        step,
-    )? {
-        Ok(()) => Ok(()),
-        Err(e) => Err(EthercatError::Refused {
-            key,
-            index,
-            subindex,
-            value: value.into() as u32,
-            reason: e.to_string(),
-        }),
-    }
+    let r = match value {
+        Sdo::I8(v) => run_in(link, cfg, sd.sdo_write(index, subindex, v), deadline, step)?,
+        Sdo::U8(v) => run_in(link, cfg, sd.sdo_write(index, subindex, v), deadline, step)?,
+        Sdo::U16(v) => run_in(link, cfg, sd.sdo_write(index, subindex, v), deadline, step)?,
+        Sdo::U32(v) => run_in(link, cfg, sd.sdo_write(index, subindex, v), deadline, step)?,
+    };
+    r.map_err(|e| EthercatError::Refused {
+        key,
+        index,
+        subindex,
+        value: value.raw(),
+        reason: e.to_string(),
+    })
 }
 
 pub(super) fn bringup_err(
@@ -393,6 +348,18 @@ pub(super) fn bringup_err(
         step,
         reason: e.to_string(),
     }
+}
+
+/// Runs a bring-up step's future within `deadline_ns`; its error names
+/// `step`.
+pub(super) fn step_in<T, F: Future<Output = Result<T, ethercrab::error::Error>>>(
+    link: &mut Link,
+    cfg: &EthercatConfig,
+    fut: F,
+    deadline_ns: u64,
+    step: &'static str,
+) -> Result<T, EthercatError> {
+    run_in(link, cfg, fut, deadline_ns, step)?.map_err(|e| bringup_err(cfg, step, e))
 }
 
 /// Runs a bring-up future to completion within `deadline_ns`.

@@ -46,7 +46,7 @@ mod exchange;
 mod group;
 mod link;
 
-use bringup::{bringup_err, run_in};
+use bringup::step_in;
 use group::{on_group, Running};
 use link::{take_parts, Link, Parts, POOL};
 
@@ -321,18 +321,12 @@ impl Stage for EthercatStage {
         let step = "bringing the slave to OP";
         match self.group.take() {
             Some(Running::SafeOp(g)) => {
-                match run_in(&mut self.link, &self.cfg, g.into_op(md), deadline, step) {
-                    Ok(Ok(g)) => self.group = Some(Running::Op(g)),
-                    Ok(Err(e)) => return Err(bringup_err(&self.cfg, step, e)),
-                    Err(e) => return Err(e),
-                }
+                let g = step_in(&mut self.link, &self.cfg, g.into_op(md), deadline, step)?;
+                self.group = Some(Running::Op(g));
             }
             Some(Running::SafeOpDc(g)) => {
-                match run_in(&mut self.link, &self.cfg, g.into_op(md), deadline, step) {
-                    Ok(Ok(g)) => self.group = Some(Running::OpDc(g)),
-                    Ok(Err(e)) => return Err(bringup_err(&self.cfg, step, e)),
-                    Err(e) => return Err(e),
-                }
+                let g = step_in(&mut self.link, &self.cfg, g.into_op(md), deadline, step)?;
+                self.group = Some(Running::OpDc(g));
             }
             other => self.group = other,
         }
