@@ -667,7 +667,7 @@ fn evaluate_here(text: &str) -> Result<Outcome, String> {
     let period = c.loop_.period_ns() as f64 * 1e-9;
     for (name, cc) in &c.controller {
         let ctrl = DiscreteController::new(cc, period, c.actuator.peak_current_a);
-        let check = check_loop(&c, &model, name, &ctrl, period, None, c.step.step_m);
+        let check = check_loop(&c, &model, name, &ctrl, period, None, c.step.step_m, 0);
         if check.passed() {
             // A pass means what the [safety] margins say.
             let pm = check.model.phase_margin_deg.unwrap_or(f64::NAN);

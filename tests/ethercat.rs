@@ -612,20 +612,11 @@ fn killing_the_host_leaves_the_drive_at_zero_amps_within_the_sm_watchdog() {
     // SIGKILL to `ip netns exec`, which exec'd bench: no disable, no goodbye.
     child.kill().unwrap();
     child.wait().unwrap();
-    let t0 = Instant::now();
-    while slave.status.watchdog_trip_mono_ns.load(Ordering::Acquire) == 0 {
-        assert!(
-            t0.elapsed() < Duration::from_secs(2),
-            "the SM watchdog never tripped"
-        );
-        std::thread::sleep(Duration::from_millis(1));
-    }
-    let last = slave.status.last_command_mono_ns.load(Ordering::Acquire);
-    let trip = slave.status.watchdog_trip_mono_ns.load(Ordering::Acquire);
-    let deadline = slave
-        .status
-        .watchdog_trip_deadline_mono_ns
-        .load(Ordering::Acquire);
+    let WatchdogTrip {
+        last_command_ns: last,
+        trip_ns: trip,
+        deadline_ns: deadline,
+    } = wait_for_watchdog_trip(&slave.status, Duration::from_secs(2), "SM");
     // The time the host wrote (0x0420 in 100 µs steps): 50 ms.
     assert_eq!(deadline - last, 50_000_000);
     // 0 A within the watchdog time plus one period in the slave's clock,
@@ -760,4 +751,59 @@ fn bad_input_is_refused_naming_the_key_with_nothing_enabled() {
         stderr(&o)
     );
     let _ = EthercatConfig::default();
+}
+
+/// The loop check holds the link's one period of pure delay (issue 31)
+/// and answers before anything is opened. Eq. (6-7) with its gain ×1.1
+/// (‖S‖∞ 2.44 without the delay, 2.67 with it; python-control agrees,
+/// `tests/loop_reference.rs`) passes the check on the simulator and is
+/// refused on `ethercat:` (exit 2, the message naming the link's delay)
+/// with an interface that does not exist: the check said no first. The
+/// shipped Eq. (6-7) passes there and gets as far as the interface (not
+/// found). Needs no root: nothing reaches a network.
+#[test]
+fn a_controller_the_link_delay_breaks_is_refused_before_anything_is_opened() {
+    let (hot_dir, shipped_dir) = (tmp(), tmp());
+    let hot = common::quiet_config_edited(hot_dir.path(), 2.0, "", |t| {
+        assert!(t.contains("\ngain = 51110.0 "), "the shipped Eq. (6-7)");
+        t.replace("\ngain = 51110.0 ", "\ngain = 56221.0 ")
+    });
+    let shipped = common::quiet_config(shipped_dir.path(), 2.0, "");
+    let out = path_in(hot_dir.path(), "run.mcap");
+    let control = |backend: &str, cfg: &Path, extra: &[&str]| {
+        let cfg = cfg.display().to_string();
+        let mut args = vec!["control", "--fast", "--config", &cfg, "--out", &out];
+        args.extend(["--backend", backend]);
+        args.extend(extra);
+        run(&args)
+    };
+    let json = |o: &Output| -> Value {
+        serde_json::from_slice(&o.stdout).unwrap_or_else(|e| panic!("{e}: {}", stderr(o)))
+    };
+    // The simulator: no link delay, the check passes.
+    let o = control("sim", &hot, &["--check-only", "--json"]);
+    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+    let j = json(&o);
+    assert_eq!(j["loop_check"]["link_delay_periods"], 0, "{j}");
+    assert_eq!(j["loop_check"]["failures"], Value::Array(vec![]), "{j}");
+    // EtherCAT: one period assumed, and the check refuses.
+    let o = control("ethercat:noecat7", &hot, &["--check-only", "--json"]);
+    let j = json(&o);
+    assert_eq!(j["loop_check"]["link_delay_periods"], 1, "{j}");
+    assert!((j["loop_check"]["link_delay_s"].as_f64().unwrap() - 2e-4).abs() < 1e-12);
+    let o = control("ethercat:noecat7", &hot, &[]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    let e = stderr(&o);
+    assert!(
+        e.contains("loop check refused")
+            && e.contains("link's pure delay")
+            && !e.contains("not found"),
+        "{e}"
+    );
+    // The shipped Eq. (6-7) passes with the delay and reaches the
+    // interface.
+    let o = control("ethercat:noecat7", &shipped, &[]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    let e = stderr(&o);
+    assert!(e.contains("noecat7") && e.contains("not found"), "{e}");
 }

@@ -234,20 +234,11 @@ fn killing_the_host_leaves_the_device_at_zero_amps_latched() {
     // SIGKILL: no disable, no goodbye.
     child.kill().unwrap();
     child.wait().unwrap();
-    let t0 = Instant::now();
-    while emu.status.watchdog_trip_mono_ns.load(Ordering::Acquire) == 0 {
-        assert!(
-            t0.elapsed() < Duration::from_secs(2),
-            "the watchdog never tripped"
-        );
-        std::thread::sleep(Duration::from_millis(1));
-    }
-    let last = emu.status.last_command_mono_ns.load(Ordering::Relaxed);
-    let trip = emu.status.watchdog_trip_mono_ns.load(Ordering::Relaxed);
-    let deadline = emu
-        .status
-        .watchdog_trip_deadline_mono_ns
-        .load(Ordering::Relaxed);
+    let common::WatchdogTrip {
+        last_command_ns: last,
+        trip_ns: trip,
+        deadline_ns: deadline,
+    } = common::wait_for_watchdog_trip(&emu.status, Duration::from_secs(2), "serial device");
     // In device time (the tick's scheduled time): within watchdog + one
     // period, as the device guarantees.
     let dt_ns = deadline.saturating_sub(last);

@@ -104,10 +104,15 @@ fn period_s(cfg: &BenchConfig) -> f64 {
 
 /// The tool's loop check of `name` on `cfg` (model only).
 fn tool(cfg: &BenchConfig, name: &str) -> LoopCheck {
+    tool_with_link(cfg, name, 0)
+}
+
+/// The same with the link's pure delay of `periods` loop periods.
+fn tool_with_link(cfg: &BenchConfig, name: &str, periods: u32) -> LoopCheck {
     let model = Sr4dof::new(cfg.plant).expect("a valid plant");
     let t = period_s(cfg);
     let ctrl = DiscreteController::new(&cfg.controller[name], t, cfg.actuator.peak_current_a);
-    check_loop(cfg, &model, name, &ctrl, t, None, 0.0)
+    check_loop(cfg, &model, name, &ctrl, t, None, 0.0, periods)
 }
 
 /// The difference of two angles on the circle, degrees in [0, 180].
@@ -549,4 +554,116 @@ fn a_designed_controller_near_nyquist_is_judged_as_python_control_judges_it() {
         "{} against {z}",
         check.largest_pole_magnitude
     );
+}
+
+/// The loop on EtherCAT (issue 31): one period of the link's pure delay
+/// in the loop. Eq. (6-6), Eq. (6-7), and Eq. (6-7) with its gain ×1.1,
+/// each with d = 1: the tool's margins agree with python-control's
+/// continuous loop times `e^{−sT}` ([`RUNNING_LOOP`]; on the unit circle
+/// `z^{−1}` is `e^{−jωT}` exactly, so the tolerances are unchanged), its
+/// stability verdict with the reference's sampled loop times a discrete
+/// `z^{−1}` and the largest |z| with it to 1e-3 (the reference's
+/// controller is Tustin, the tool's `least_squares`; the largest pole is
+/// the slow plant mode, which both place alike). And the verdict the tool
+/// gives the ×1.1 controller, the reference gives it too: ‖S‖∞ within
+/// `safety.max_sensitivity_peak` without the delay, beyond it with.
+#[test]
+fn the_link_delay_agrees_with_python_control() {
+    let base = shipped();
+    let max_s = base.safety.max_sensitivity_peak;
+    let mut hot = base.controller["fast"].clone();
+    hot.gain *= 1.1;
+    let loops = [
+        ("slow", base.controller["slow"].clone()),
+        ("fast", base.controller["fast"].clone()),
+        ("fast × 1.1", hot),
+    ];
+    let mut cases = Vec::new();
+    for (n, c) in &loops {
+        cases.push(
+            Case::new(*n, &base, c, 0.0)
+                .with_link_delay(1)
+                .with_discrete_margins(),
+        );
+        cases.push(Case::new(format!("{n}, no link"), &base, c, 0.0));
+    }
+    let refs = python_reference(&cases);
+    let mut problems = Vec::new();
+    let mut worst = Worst::default();
+    for (i, (n, c)) in loops.iter().enumerate() {
+        let (with, without) = (&refs[2 * i], &refs[2 * i + 1]);
+        let mut cfg = base.clone();
+        let name = if i == 0 { "slow" } else { "fast" };
+        cfg.controller.insert(name.to_string(), c.clone());
+        let check = tool_with_link(&cfg, name, 1);
+        let plain = tool(&cfg, name);
+        table(
+            &format!("{n}, the link's delay of one period (200 µs)"),
+            &[
+                ("tool: sampled loop × z⁻¹", Some(&check.model), None),
+                ("reference: exact hold × e^{−sT}", None, Some(&with.margins)),
+                ("reference: sampled × z⁻¹", None, with.discrete.as_ref()),
+                ("tool: without the link", Some(&plain.model), None),
+                ("reference: without the link", None, Some(&without.margins)),
+            ],
+        );
+        stability_line(n, Some(&check), with);
+        problems.extend(disagreements(
+            n,
+            &check.model,
+            &with.margins,
+            RUNNING_LOOP,
+            &mut worst,
+        ));
+        if Some(check.closed_loop_stable) != with.stable_discrete {
+            problems.push(format!(
+                "{n}: stability verdicts differ with the link's delay"
+            ));
+        }
+        let z = with.largest_pole_magnitude.expect("with the hold");
+        if (check.largest_pole_magnitude - z).abs() > 1e-3 {
+            problems.push(format!(
+                "{n}: largest |z| {} (tool) against {z} (reference)",
+                check.largest_pole_magnitude
+            ));
+        }
+        // The reference's verdict on ‖S‖∞ is the tool's, both ways.
+        for (what, tool_s, ref_s) in [
+            (
+                "with the link",
+                check.model.sensitivity_peak,
+                with.margins.sensitivity_peak,
+            ),
+            (
+                "without",
+                plain.model.sensitivity_peak,
+                without.margins.sensitivity_peak,
+            ),
+        ] {
+            if (tool_s > max_s) != (ref_s > max_s) {
+                problems.push(format!(
+                    "{n} {what}: ‖S‖∞ {tool_s:.3} (tool) and {ref_s:.3} (reference) on two sides of {max_s}"
+                ));
+            }
+        }
+        if i == 2 {
+            if !plain.passed() || check.passed() {
+                problems.push(format!(
+                    "{n}: expected to pass without the link and be refused with it: {:?} / {:?}",
+                    plain.failures, check.failures
+                ));
+            }
+            if !(without.margins.sensitivity_peak <= max_s && with.margins.sensitivity_peak > max_s)
+            {
+                problems.push(format!(
+                    "{n}: the reference's ‖S‖∞ {:.3} → {:.3} does not cross {max_s}",
+                    without.margins.sensitivity_peak, with.margins.sensitivity_peak
+                ));
+            }
+        } else if !check.passed() {
+            problems.push(format!("{n}: refused with the link: {:?}", check.failures));
+        }
+    }
+    worst.line("with the link's delay (tool sampled × z⁻¹, reference exact hold × e^{−sT})");
+    assert!(problems.is_empty(), "{}", problems.join("\n"));
 }

@@ -598,16 +598,8 @@ fn watchdog_trips(sync: bool) {
     rig.run(50, 0.3);
     assert!(approx(rig.status.commanded_current_a(), 0.3, 1e-6));
     // The host goes quiet (still alive: no disable from Drop).
-    assert!(
-        wait_for(Duration::from_secs(3), || rig
-            .status
-            .watchdog_trip_mono_ns
-            .load(Ordering::Acquire)
-            != 0),
-        "the watchdog never tripped"
-    );
-    let last = rig.status.last_command_mono_ns.load(Ordering::Acquire);
-    let trip = rig.status.watchdog_trip_mono_ns.load(Ordering::Acquire);
+    let w = common::wait_for_watchdog_trip(&rig.status, Duration::from_secs(3), "CAN device");
+    let (last, trip) = (w.last_command_ns, w.trip_ns);
     let wd = WATCHDOG_NS;
     let dt = trip - last;
     println!(
@@ -719,11 +711,7 @@ fn disconnect_is_bus_off_and_a_link_error() {
     );
     assert_eq!(rig.stage.stats().bus_off, 1);
     // The silent device's watchdog drops the current.
-    assert!(wait_for(Duration::from_secs(3), || rig
-        .status
-        .watchdog_trip_mono_ns
-        .load(Ordering::Acquire)
-        != 0));
+    common::wait_for_watchdog_trip(&rig.status, Duration::from_secs(3), "CAN device");
     assert_eq!(rig.status.commanded_current_a(), 0.0);
     rig.stop().unwrap();
 }

@@ -250,6 +250,143 @@ fn the_plant_behind_the_slave_is_the_simulator_one_period_late() {
     );
 }
 
+/// The ticks take no lock: the loop thread runs 2 000 paced ticks in OP
+/// (with distributed clocks, the default: `tx_rx_dc`) under `strace -p
+/// TID -e trace=futex,sched_yield`, and between two marker
+/// `sched_yield`s the thread made no `futex` (what a contended mutex,
+/// condvar, channel or park waits in) and no `sched_yield` (what
+/// ethercrab's default spin lock calls when contended). The markers prove
+/// the tracer saw the thread. Skipped without strace.
+#[test]
+fn the_ticks_make_no_futex_or_sched_yield_call() {
+    let _g = serial();
+    let Some(v) = Veth::new() else { return };
+    if Cmd::new("strace").arg("-V").output().is_err() {
+        eprintln!("SKIPPED: no strace (apt-get install strace)");
+        return;
+    }
+    let slave = Slave::start(&v.slave, &host_cfg(&v.slave), default_id(), vec![]);
+    let mut stage = EthercatStage::open(&host_cfg(&v.master)).unwrap();
+    stage.configure(PERIOD_NS).unwrap();
+    stage.enable().unwrap();
+    // SAFETY: gettid has no preconditions.
+    let tid = unsafe { libc::gettid() };
+    let log = std::env::temp_dir().join(format!("bench-ec-strace-{tid}.txt"));
+    let mut strace = Cmd::new("strace")
+        .args(["-qq", "-e", "trace=futex,sched_yield", "-o"])
+        .arg(&log)
+        .args(["-p", &tid.to_string()])
+        .spawn()
+        .unwrap();
+    // Attached when this thread's TracerPid is strace's.
+    let status = format!("/proc/self/task/{tid}/status");
+    let t0 = Instant::now();
+    while !std::fs::read_to_string(&status)
+        .unwrap()
+        .lines()
+        .any(|l| l.starts_with("TracerPid:") && l.split_whitespace().nth(1) != Some("0"))
+    {
+        assert!(
+            t0.elapsed() < Duration::from_secs(10),
+            "strace did not attach"
+        );
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    // SAFETY: sched_yield has no preconditions.
+    unsafe { libc::sched_yield() };
+    let n = 2000;
+    let mut next = bench_hal::os::monotonic_ns();
+    let mut ticks = 0;
+    for _ in 0..n {
+        next += PERIOD_NS;
+        bench_hal::os::sleep_until_ns(next);
+        let Ok(s) = stage.read_sample() else { break };
+        let ok = stage
+            .write_command(Command {
+                current_a: 0.1,
+                answers_seq: s.seq,
+            })
+            .is_ok();
+        ticks += usize::from(ok);
+        if !ok {
+            break;
+        }
+    }
+    // SAFETY: as above.
+    unsafe { libc::sched_yield() };
+    // SIGINT detaches strace (kill and waitpid are no futex).
+    // SAFETY: kill on our child's pid.
+    unsafe { libc::kill(strace.id() as i32, libc::SIGINT) };
+    strace.wait().unwrap();
+    stage.disable().unwrap();
+    drop(stage);
+    drop(slave);
+    let text = std::fs::read_to_string(&log).unwrap();
+    let _ = std::fs::remove_file(&log);
+    let calls: Vec<&str> = text
+        .lines()
+        .filter(|l| l.starts_with("futex") || l.starts_with("sched_yield"))
+        .collect();
+    let first = calls.iter().position(|l| l.starts_with("sched_yield"));
+    let last = calls.iter().rposition(|l| l.starts_with("sched_yield"));
+    let (Some(first), Some(last)) = (first, last) else {
+        panic!("the tracer did not see the marker calls:\n{text}");
+    };
+    assert!(last > first, "one marker only:\n{text}");
+    eprintln!(
+        "{ticks} ticks traced; futex/sched_yield calls between the markers: {}",
+        last - first - 1
+    );
+    assert_eq!(ticks, n, "the ticks stopped early");
+    assert_eq!(
+        &calls[first + 1..last],
+        &[] as &[&str],
+        "the loop thread waited in the ticks"
+    );
+}
+
+/// The exchange deadline follows the loop's stall bound: with
+/// `exchange_timeout_ms` unset it is the bound handed to the stage (3 ms),
+/// capped by the SM watchdog (100 ms here) when the bound is longer or
+/// absent, and at least a period; it follows a bound given after
+/// `configure` too; an explicit key overrides it.
+#[test]
+fn the_exchange_deadline_follows_the_stall_bound_unless_the_key_is_set() {
+    let _g = serial();
+    let Some(v) = Veth::new() else { return };
+    let slave = Slave::start(&v.slave, &host_cfg(&v.slave), default_id(), vec![]);
+    let derived = EthercatConfig {
+        exchange_timeout_ms: None,
+        ..host_cfg(&v.master)
+    };
+    let mut stage = EthercatStage::open(&derived).unwrap();
+    assert_eq!(stage.exchange_timeout_ns(), 0, "not configured");
+    stage.set_stall_bound_s(3e-3);
+    stage.configure(PERIOD_NS).unwrap();
+    assert_eq!(stage.exchange_timeout_ns(), 3_000_000);
+    stage.set_stall_bound_s(0.5);
+    assert_eq!(
+        stage.exchange_timeout_ns(),
+        100_000_000,
+        "the watchdog caps it"
+    );
+    stage.set_stall_bound_s(f64::INFINITY);
+    assert_eq!(
+        stage.exchange_timeout_ns(),
+        100_000_000,
+        "no bound: the watchdog"
+    );
+    stage.set_stall_bound_s(50e-6);
+    assert_eq!(stage.exchange_timeout_ns(), PERIOD_NS, "at least a period");
+    drop(stage);
+    let mut stage = EthercatStage::open(&host_cfg(&v.master)).unwrap();
+    stage.set_stall_bound_s(3e-3);
+    stage.configure(PERIOD_NS).unwrap();
+    assert_eq!(stage.exchange_timeout_ns(), 50_000_000, "the key overrides");
+    drop(stage);
+    drop(slave);
+}
+
 /// Runs paced exchanges at `current_a` until one fails or `max` pass;
 /// returns the error and the number of good ticks.
 fn run_until_error(
@@ -334,6 +471,8 @@ fn a_silent_host_is_stopped_by_the_sm_watchdog_within_its_time() {
     let slave = Slave::start(&v.slave, &host_cfg(&v.slave), default_id(), vec![]);
     let mut cfg = host_cfg(&v.master);
     cfg.watchdog_ms = 20.0;
+    // Not beyond the watchdog (a frame later finds the drive stopped).
+    cfg.exchange_timeout_ms = Some(20.0);
     let mut stage = EthercatStage::open(&cfg).unwrap();
     stage.configure(PERIOD_NS).unwrap();
     stage.enable().unwrap();
@@ -341,20 +480,11 @@ fn a_silent_host_is_stopped_by_the_sm_watchdog_within_its_time() {
     assert!(err.is_none(), "{err:?}");
     assert!(slave.status.commanded_current_a() > 0.29);
     // The host goes silent (as if killed): no disable, no frame.
-    let t0 = Instant::now();
-    while slave.status.watchdog_trip_mono_ns.load(Ordering::Acquire) == 0 {
-        assert!(
-            t0.elapsed() < Duration::from_secs(2),
-            "the SM watchdog never tripped"
-        );
-        std::thread::sleep(Duration::from_millis(1));
-    }
-    let last = slave.status.last_command_mono_ns.load(Ordering::Acquire);
-    let trip = slave.status.watchdog_trip_mono_ns.load(Ordering::Acquire);
-    let deadline = slave
-        .status
-        .watchdog_trip_deadline_mono_ns
-        .load(Ordering::Acquire);
+    let common::WatchdogTrip {
+        last_command_ns: last,
+        trip_ns: trip,
+        deadline_ns: deadline,
+    } = common::wait_for_watchdog_trip(&slave.status, Duration::from_secs(2), "SM");
     assert_eq!(
         deadline - last,
         20_000_000,

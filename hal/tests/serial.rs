@@ -133,17 +133,11 @@ fn quiet_host_trips_the_watchdog_within_its_time_plus_one_period() {
             .unwrap();
     }
     // The host goes quiet (no disable, no commands).
-    assert!(wait_until(Duration::from_secs(2), || emu
-        .status
-        .watchdog_trip_mono_ns
-        .load(Ordering::Acquire)
-        != 0));
-    let last = emu.status.last_command_mono_ns.load(Ordering::Relaxed);
-    let trip = emu.status.watchdog_trip_mono_ns.load(Ordering::Relaxed);
-    let deadline = emu
-        .status
-        .watchdog_trip_deadline_mono_ns
-        .load(Ordering::Relaxed);
+    let common::WatchdogTrip {
+        last_command_ns: last,
+        trip_ns: trip,
+        deadline_ns: deadline,
+    } = common::wait_for_watchdog_trip(&emu.status, Duration::from_secs(2), "serial device");
     // In device time (the scheduled time of the tick that tripped): within
     // the watchdog time plus one period.
     let dt = deadline.saturating_sub(last);

@@ -368,6 +368,13 @@ pub(super) fn print_control_summary(s: &ControlSummary) {
         d.up_to_hz,
         d.above_band_max_excess_db
     );
+    if c.link_delay_periods > 0 {
+        outln!(
+            "  the link's pure delay in the loop: {} period(s), {:.0} µs (model, measured FRF, poles and stall bound with it)",
+            c.link_delay_periods,
+            c.link_delay_s * 1e6
+        );
+    }
     print_margins("model, amplifier included", &c.model);
     print_margins(
         "model, amplifier lag excluded",

@@ -1,11 +1,16 @@
 //! The loop check run before the amplifier is enabled (README, *`bench control`*; thesis §6.2.1).
 //!
-//! Open loop `L(e^{jωT}) = C_d(e^{jωT}) · P(e^{jωT}) · u`, where `C_d` is
-//! the discrete controller that will run (A per error unit), `P` the plant
-//! from current demand to x1 (m/A) and `u` the error unit per metre (10⁶
-//! for µm). With the model, `P` is the exact zero-order-hold plant the
-//! simulator runs, with the amplifier lag and without it; with a measured
-//! FRF (`bench chirp` CSV), `P` is the measurement on its grid.
+//! Open loop `L(e^{jωT}) = C_d(e^{jωT}) · P(e^{jωT}) · u · e^{−jωdT}`,
+//! where `C_d` is the discrete controller that will run (A per error
+//! unit), `P` the plant from current demand to x1 (m/A), `u` the error
+//! unit per metre (10⁶ for µm) and `z^{−d}` the link's pure delay of `d`
+//! whole loop periods (the backend's process data:
+//! `BackendSpec::process_data_delay_periods`, 1 on EtherCAT, 0 elsewhere).
+//! With the model, `P` is the exact zero-order-hold plant the simulator
+//! runs, with the amplifier lag and without it; with a measured FRF
+//! (`bench chirp` CSV), `P` is the measurement on its grid, taken as the
+//! plant without the link (an FRF measured over EtherCAT already holds
+//! its period, which is then counted twice: the safe side).
 //!
 //! Figures (Skogestad & Postlethwaite, *Multivariable Feedback Control*,
 //! §2.4):
@@ -18,8 +23,15 @@
 //!   axis with |L| < 1 (the smallest; none: infinite);
 //! - modulus margin: `‖S‖∞ = max |1/(1 + L)|` up to Nyquist;
 //! - closed-loop stability (model only): the eigenvalues of the discrete
-//!   closed loop (plant ⊕ controller state space, negative feedback), stable
-//!   when all lie inside the unit circle.
+//!   closed loop (plant ⊕ controller ⊕ `d` delay states `z^{−1}` on the
+//!   command, negative feedback), stable when all lie inside the unit
+//!   circle.
+//!
+//! The delay leaves |L| and so the crossovers unchanged and turns the
+//! phase at ω by −ωdT: each phase margin drops by ω_c·dT and the delay
+//! margin by exactly dT (Skogestad & Postlethwaite §2.4). The margins
+//! without the amplifier lag and the continuous ones (the thesis' figures)
+//! stay without the link's delay.
 //!
 //! [`check_loop`] computes these for one controller, on the model and, if
 //! given, on a [`MeasuredFrf`], and judges them by the `[safety]` limits
@@ -185,22 +197,33 @@ pub fn model_grid(period_s: f64) -> Vec<f64> {
         .collect()
 }
 
-/// Margins of controller × ZOH model plant.
-pub fn model_margins(plant: &ZohPlant, ctrl: &DiscreteController) -> Margins {
+/// The link's pure delay of `delay_periods` loop periods at `w_rad_s`:
+/// `z^{−d}` on the unit circle, `e^{−jωdT}` (dimensionless).
+pub fn link_delay(w_rad_s: f64, period_s: f64, delay_periods: u32) -> Complex<f64> {
+    Complex::from_polar(1.0, -w_rad_s * period_s * f64::from(delay_periods))
+}
+
+/// Margins of controller × ZOH model plant × `z^{−d}`, `d` =
+/// `delay_periods` (the link's pure delay in loop periods; 0: none).
+pub fn model_margins(plant: &ZohPlant, ctrl: &DiscreteController, delay_periods: u32) -> Margins {
     let t = plant.period_s;
     let k = ctrl.error_per_metre();
-    let l = |w: f64| ctrl.response(w, t) * plant.frf(w / (2.0 * PI)) * k;
+    let l = |w: f64| {
+        ctrl.response(w, t) * plant.frf(w / (2.0 * PI)) * k * link_delay(w, t, delay_periods)
+    };
     margins(&l, &model_grid(t), true)
 }
 
 /// Margins of controller × a measured FRF (`frequency_hz`, magnitude m/A,
-/// phase degrees).
+/// phase degrees) × `z^{−d}`, `d` = `delay_periods` (the link's pure delay
+/// in periods of `period_s`; 0: none).
 pub fn measured_margins(
     ctrl: &DiscreteController,
     period_s: f64,
     frequency_hz: &[f64],
     magnitude_m_per_a: &[f64],
     phase_deg: &[f64],
+    delay_periods: u32,
 ) -> Margins {
     let k = ctrl.error_per_metre();
     let grid: Vec<f64> = frequency_hz.iter().map(|f| 2.0 * PI * f).collect();
@@ -208,7 +231,10 @@ pub fn measured_margins(
         .iter()
         .zip(magnitude_m_per_a.iter().zip(phase_deg))
         .map(|(w, (m, p))| {
-            ctrl.response(*w, period_s) * Complex::from_polar(*m, p.to_radians()) * k
+            ctrl.response(*w, period_s)
+                * Complex::from_polar(*m, p.to_radians())
+                * k
+                * link_delay(*w, period_s, delay_periods)
         })
         .collect();
     let lookup = |w: f64| {
@@ -219,29 +245,58 @@ pub fn measured_margins(
 }
 
 /// Eigenvalues of the discrete closed loop (ZOH plant, controller,
-/// negative feedback, zero reference), and whether all are inside the unit
-/// circle. Non-finite matrices or an eigenvalue iteration that does not
-/// converge in [`MAX_EIGEN_ITERATIONS`] give no poles and "unstable".
-pub fn closed_loop_poles(plant: &ZohPlant, ctrl: &DiscreteController) -> (Vec<Complex<f64>>, bool) {
+/// `delay_periods` = d unit delays `z^{−1}` between the controller's output
+/// and the plant's input, negative feedback, zero reference), and whether
+/// all are inside the unit circle. The state is `[x; x_c; q_1 … q_d]`,
+/// `q_1(k+1) = u(k)`, `q_{i+1}(k+1) = q_i(k)`, the plant driven by `q_d`
+/// (by `u` itself when d = 0); the d delay states add d eigenvalues and
+/// turn the loop's phase by −ωdT. Non-finite matrices or an eigenvalue
+/// iteration that does not converge in [`MAX_EIGEN_ITERATIONS`] give no
+/// poles and "unstable".
+pub fn closed_loop_poles(
+    plant: &ZohPlant,
+    ctrl: &DiscreteController,
+    delay_periods: u32,
+) -> (Vec<Complex<f64>>, bool) {
     let (ac, bc, cc, dc) = ctrl.state_space();
     let k = ctrl.error_per_metre();
     let np = STATES;
     let nc = ac.nrows();
-    let mut a = DMatrix::<f64>::zeros(np + nc, np + nc);
-    // e = −k x1 (error unit), u = Cc xc + Dc e.
+    let nd = delay_periods as usize;
+    let n = np + nc + nd;
+    let mut a = DMatrix::<f64>::zeros(n, n);
+    // e = −k x1 (error unit), u = Cc xc + Dc e: the row that computes u
+    // from the state, added into the plant's input (d = 0) or into q_1.
+    let mut u_row = vec![0.0; n];
+    u_row[0] = -dc * k;
+    for j in 0..nc {
+        u_row[np + j] = cc[(0, j)];
+    }
     for i in 0..np {
         for j in 0..np {
             a[(i, j)] = plant.phi[(i, j)];
         }
-        a[(i, 0)] += -plant.gamma[(i, 0)] * dc * k;
-        for j in 0..nc {
-            a[(i, np + j)] = plant.gamma[(i, 0)] * cc[(0, j)];
+        if nd == 0 {
+            for j in 0..n {
+                a[(i, j)] += plant.gamma[(i, 0)] * u_row[j];
+            }
+        } else {
+            a[(i, n - 1)] = plant.gamma[(i, 0)];
         }
     }
     for i in 0..nc {
         a[(np + i, 0)] = -bc[(i, 0)] * k;
         for j in 0..nc {
             a[(np + i, np + j)] = ac[(i, j)];
+        }
+    }
+    if nd > 0 {
+        let q1 = np + nc;
+        for (j, v) in u_row.iter().enumerate() {
+            a[(q1, j)] = *v;
+        }
+        for i in 1..nd {
+            a[(q1 + i, q1 + i - 1)] = 1.0;
         }
     }
     if a.iter().any(|v| !v.is_finite()) {
@@ -315,7 +370,18 @@ fn balance(a: &mut DMatrix<f64>) {
 pub struct LoopCheck {
     /// Controller name.
     pub controller: String,
-    /// Margins with the model plant, amplifier included (what runs).
+    /// The link's pure delay assumed, whole loop periods `d` (the
+    /// backend's process data: 1 on EtherCAT, 0 on sim, serial and CAN):
+    /// `model`, `measured`, the closed-loop poles and the stall bound are
+    /// those of the loop with `z^{−d}` in it. (0 in recordings made before
+    /// the field existed, which checked without it.)
+    #[serde(default)]
+    pub link_delay_periods: u32,
+    /// The same in seconds: `d` × the loop period.
+    #[serde(default)]
+    pub link_delay_s: f64,
+    /// Margins with the model plant, amplifier included, and the link's
+    /// delay (what runs).
     pub model: Margins,
     /// Margins with the model plant, amplifier lag excluded (the thesis'
     /// Figs 6-8, 6-10), discrete: the controller that runs and the held
@@ -330,7 +396,7 @@ pub struct LoopCheck {
     pub closed_loop_stable: bool,
     /// Largest closed-loop pole magnitude |z|, dimensionless.
     pub largest_pole_magnitude: f64,
-    /// Margins on a measured FRF, when given.
+    /// Margins on a measured FRF (times the link's delay), when given.
     pub measured: Option<Margins>,
     /// The discretisation that runs and its error against the continuous
     /// design up to f_s/10.
@@ -433,10 +499,12 @@ pub fn reach_time_s(plant: &ZohPlant, current_a: f64, room_m: f64) -> Option<f64
 
 impl StallLimit {
     /// The stall limit of controller `name` on `model` (the margins of the
-    /// loop that runs, `measured` too when given), for a job whose farthest
-    /// setpoint is `setpoint_max_m` from its start, judged against the
-    /// user's upper limits in `cfg.safety`; failures (a key above the
-    /// derived bound) go to `failures`.
+    /// loop that runs, the link's pure delay of `link_delay_s` in them;
+    /// `measured` too when given), for a job whose farthest setpoint is
+    /// `setpoint_max_m` from its start, judged against the user's upper
+    /// limits in `cfg.safety`; failures (a key above the derived bound) go
+    /// to `failures`. A stall adds to the link's delay: the delay margin of
+    /// the loop with the link's delay is what a stall may still use.
     #[allow(clippy::too_many_arguments)]
     pub fn of(
         cfg: &BenchConfig,
@@ -445,6 +513,7 @@ impl StallLimit {
         model: &Margins,
         measured: Option<&Margins>,
         setpoint_max_m: f64,
+        link_delay_s: f64,
         failures: &mut Vec<String>,
     ) -> Self {
         let at = format!(
@@ -465,8 +534,13 @@ impl StallLimit {
         let delay_bound = dm.map(|(d, w, _)| d + 2.0 * PI / w);
         if let (Some((d, w, what)), Some(b)) = (dm, delay_bound) {
             bound = b;
+            let link = if link_delay_s > 0.0 {
+                format!(", the link's {:.0} µs delay included", link_delay_s * 1e6)
+            } else {
+                String::new()
+            };
             source = format!(
-                "delay margin {:.1} ms of controller {name} at {at} ({what}, {w:.0} rad/s) + one period of that crossover, {:.1} ms",
+                "delay margin {:.1} ms of controller {name} at {at} ({what}, {w:.0} rad/s{link}) + one period of that crossover, {:.1} ms",
                 d * 1e3,
                 2.0 * PI / w * 1e3
             );
@@ -564,7 +638,11 @@ impl MeasuredFrf {
 ///
 /// `setpoint_max_m` is the job's farthest setpoint from its start position
 /// (the step; 0 for a hold), for the stall limit's reach time
-/// ([`StallLimit`]).
+/// ([`StallLimit`]). `link_delay_periods` is the backend's pure delay `d`
+/// in loop periods (`BackendSpec::process_data_delay_periods`): the
+/// margins, the closed-loop poles and the stall bound are those of the
+/// loop with `z^{−d}` in it, and a failure it causes says so.
+#[allow(clippy::too_many_arguments)]
 pub fn check_loop(
     cfg: &BenchConfig,
     model: &Sr4dof,
@@ -573,7 +651,9 @@ pub fn check_loop(
     period_s: f64,
     measured: Option<&MeasuredFrf>,
     setpoint_max_m: f64,
+    link_delay_periods: u32,
 ) -> LoopCheck {
+    let d = link_delay_periods;
     let continuous = cfg.controller.get(name).map(|c| {
         let per_unit = c.error_unit.per_metre() * cfg.actuator.force_constant_n_per_a;
         let l = |w: f64| c.response(w) * model.force_frf(w / (2.0 * PI)) * per_unit;
@@ -581,8 +661,8 @@ pub fn check_loop(
     });
     let plant = ZohPlant::new(model, &cfg.actuator, period_s);
     let ideal = ZohPlant::without_amplifier_lag(model, &cfg.actuator, period_s);
-    let model = model_margins(&plant, ctrl);
-    let (poles, stable) = closed_loop_poles(&plant, ctrl);
+    let model = model_margins(&plant, ctrl, d);
+    let (poles, stable) = closed_loop_poles(&plant, ctrl, d);
     let largest = poles.iter().map(|p| p.norm()).fold(0.0, f64::max);
     let measured = measured.map(|m| {
         measured_margins(
@@ -591,8 +671,20 @@ pub fn check_loop(
             &m.frequency_hz,
             &m.magnitude_m_per_a,
             &m.phase_deg,
+            d,
         )
     });
+    let link_delay_s = f64::from(d) * period_s;
+    // Said in every failure the link's delay takes part in.
+    let with_delay = if d > 0 {
+        format!(
+            ", with the link's pure delay of {d} period{} ({:.0} µs of process data) included",
+            if d == 1 { "" } else { "s" },
+            link_delay_s * 1e6
+        )
+    } else {
+        String::new()
+    };
     let mut failures = Vec::new();
     if poles.is_empty() {
         failures.push(format!(
@@ -600,7 +692,7 @@ pub fn check_loop(
         ));
     } else if !stable {
         failures.push(format!(
-            "closed loop unstable on the model: largest pole |z| = {largest:.4} (must be < 1)"
+            "closed loop unstable on the model{with_delay}: largest pole |z| = {largest:.4} (must be < 1)"
         ));
     }
     let min_pm = cfg.safety.min_phase_margin_deg;
@@ -609,7 +701,7 @@ pub fn check_loop(
         let Some(m) = m else { continue };
         match m.phase_margin_deg {
             Some(pm) if pm < min_pm => failures.push(format!(
-                "phase margin {pm:.1}° at {:.1} rad/s ({what}) is below safety.min_phase_margin_deg = {min_pm}°",
+                "phase margin {pm:.1}° at {:.1} rad/s ({what}{with_delay}) is below safety.min_phase_margin_deg = {min_pm}°",
                 m.crossovers_rad_s[0]
             )),
             None => failures.push(format!("no gain crossover ({what}): the loop never reaches |L| = 1")),
@@ -617,7 +709,7 @@ pub fn check_loop(
         }
         if m.sensitivity_peak > max_s {
             failures.push(format!(
-                "sensitivity peak |S| = {:.2} ({:.1} dB) at {:.1} rad/s ({what}) is above safety.max_sensitivity_peak = {max_s}",
+                "sensitivity peak |S| = {:.2} ({:.1} dB) at {:.1} rad/s ({what}{with_delay}) is above safety.max_sensitivity_peak = {max_s}",
                 m.sensitivity_peak,
                 20.0 * m.sensitivity_peak.log10(),
                 m.sensitivity_peak_at_rad_s
@@ -631,13 +723,16 @@ pub fn check_loop(
         &model,
         measured.as_ref(),
         setpoint_max_m,
+        link_delay_s,
         &mut failures,
     );
     LoopCheck {
         controller: name.to_string(),
+        link_delay_periods: d,
+        link_delay_s,
         stall,
         model,
-        model_without_amplifier_lag: model_margins(&ideal, ctrl),
+        model_without_amplifier_lag: model_margins(&ideal, ctrl, 0),
         continuous,
         closed_loop_stable: stable,
         largest_pole_magnitude: largest,
@@ -707,7 +802,7 @@ mod thesis {
         let check = |name: &str, wc: f64, wc_tol: f64, pm: f64| {
             let c = DiscreteController::new(&cfg.controller[name], t, cfg.actuator.peak_current_a);
             let ideal = ZohPlant::without_amplifier_lag(stage.model(), &cfg.actuator, t);
-            let m = model_margins(&ideal, &c);
+            let m = model_margins(&ideal, &c, 0);
             let w = m.crossovers_rad_s[0];
             let p = m.phase_margin_deg.unwrap();
             eprintln!("{name}: ω_c = {w:.2} rad/s, PM = {p:.2}° (no amplifier lag)");
@@ -715,11 +810,11 @@ mod thesis {
             assert!((p - pm).abs() <= 3.0, "{name}: phase margin {p}");
             let real = ZohPlant::new(stage.model(), &cfg.actuator, t);
             assert!(
-                closed_loop_poles(&real, &c).1,
+                closed_loop_poles(&real, &c, 0).1,
                 "{name} unstable with the amplifier"
             );
             assert!(
-                closed_loop_poles(&ideal, &c).1,
+                closed_loop_poles(&ideal, &c, 0).1,
                 "{name} unstable without the amplifier lag"
             );
         };
@@ -739,7 +834,7 @@ mod thesis {
         fast.gain *= 10.0;
         let c = DiscreteController::new(&fast, t, 9.98);
         let plant = ZohPlant::new(stage.model(), &cfg.actuator, t);
-        let (poles, stable) = closed_loop_poles(&plant, &c);
+        let (poles, stable) = closed_loop_poles(&plant, &c, 0);
         assert!(!stable);
         assert!(poles.iter().any(|p| p.norm() > 1.0));
     }
@@ -762,7 +857,7 @@ mod thesis {
             let model = model.clone();
             std::thread::spawn(move || {
                 let c = DiscreteController::new(&slow, t, 9.98);
-                let _ = tx.send(check_loop(&cfg, &model, "slow", &c, t, None, 0.0));
+                let _ = tx.send(check_loop(&cfg, &model, "slow", &c, t, None, 0.0, 0));
             });
             let check = rx
                 .recv_timeout(std::time::Duration::from_secs(10))
@@ -810,6 +905,90 @@ mod thesis {
         let (dm, at) = delay_margin(&m).unwrap();
         assert_eq!(at, 100.0);
         assert!((dm - 270f64.to_radians() / 100.0).abs() < 1e-12);
+    }
+
+    /// The shipped Chapter 5 bench.
+    fn ch5() -> BenchConfig {
+        let p =
+            std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("bench-config/sr4dof-ch5.toml");
+        BenchConfig::load(&p).unwrap()
+    }
+
+    /// The link's pure delay of d periods in the loop: |L| and so every
+    /// crossover stay, each phase margin drops by exactly ω_c·dT, the
+    /// delay margin and the stall bound by exactly dT (Skogestad &
+    /// Postlethwaite §2.4: a delay τ turns L by −ωτ); the closed loop has
+    /// d more poles. The shipped fast controller at 5 kHz keeps its pass
+    /// with one period (README: 2.3 ms of delay margin, 2.1 ms left).
+    #[test]
+    fn the_link_delay_turns_each_margin_by_omega_c_d_t() {
+        let cfg = ch5();
+        let model = Sr4dof::new(cfg.plant).unwrap();
+        let t = cfg.loop_.period_ns() as f64 * 1e-9;
+        assert_eq!(t, 2e-4);
+        for name in ["slow", "fast"] {
+            let c = DiscreteController::new(&cfg.controller[name], t, 9.98);
+            let a = check_loop(&cfg, &model, name, &c, t, None, 0.0, 0);
+            let plant = ZohPlant::new(&model, &cfg.actuator, t);
+            let n0 = closed_loop_poles(&plant, &c, 0).0.len();
+            for d in [1u32, 3] {
+                let b = check_loop(&cfg, &model, name, &c, t, None, 0.0, d);
+                let dt = f64::from(d) * t;
+                assert_eq!((b.link_delay_periods, b.link_delay_s), (d, dt));
+                assert_eq!(b.model.crossovers_rad_s, a.model.crossovers_rad_s);
+                for (i, w) in a.model.crossovers_rad_s.iter().enumerate() {
+                    let want = wrap180(a.model.phase_margins_deg[i] - (w * dt).to_degrees());
+                    let got = b.model.phase_margins_deg[i];
+                    assert!(
+                        (got - want).abs() < 1e-9,
+                        "{name} d {d}: {got} against {want}"
+                    );
+                }
+                let (dm0, dm1) = (
+                    a.stall.delay_margin_s.unwrap(),
+                    b.stall.delay_margin_s.unwrap(),
+                );
+                assert!(
+                    (dm0 - dm1 - dt).abs() < 1e-12,
+                    "{name} d {d}: {dm0} → {dm1}"
+                );
+                assert!((a.stall.derived_bound_s - b.stall.derived_bound_s - dt).abs() < 1e-12);
+                assert_eq!(closed_loop_poles(&plant, &c, d).0.len(), n0 + d as usize);
+                // The continuous and the amplifier-free figures are the
+                // thesis' and stay without the link.
+                assert_eq!(b.continuous, a.continuous);
+                assert_eq!(b.model_without_amplifier_lag, a.model_without_amplifier_lag);
+            }
+        }
+        let c = DiscreteController::new(&cfg.controller["fast"], t, 9.98);
+        let b = check_loop(&cfg, &model, "fast", &c, t, None, cfg.step.step_m, 1);
+        assert!(b.passed(), "{:?}", b.failures);
+        let dm = b.stall.delay_margin_s.unwrap();
+        assert!((dm - 2.1e-3).abs() < 0.1e-3, "{dm}");
+    }
+
+    /// The fast controller with its gain ×1.1 passes without the link's
+    /// delay (‖S‖∞ 2.44 ≤ 2.5) and is refused with one period of it
+    /// (2.67), the failure saying the delay was included
+    /// (`tests/loop_reference.rs` checks the same against python-control).
+    #[test]
+    fn a_controller_the_delay_breaks_is_refused_naming_the_delay() {
+        let mut cfg = ch5();
+        let model = Sr4dof::new(cfg.plant).unwrap();
+        let t = 2e-4;
+        let mut fast = cfg.controller["fast"].clone();
+        fast.gain *= 1.1;
+        cfg.controller.insert("fast".into(), fast.clone());
+        let c = DiscreteController::new(&fast, t, 9.98);
+        let a = check_loop(&cfg, &model, "fast", &c, t, None, 0.0, 0);
+        let b = check_loop(&cfg, &model, "fast", &c, t, None, 0.0, 1);
+        assert!(a.passed(), "{:?}", a.failures);
+        assert!(!b.passed());
+        assert!(
+            b.failures.iter().all(|f| f.contains("link's pure delay")),
+            "{:?}",
+            b.failures
+        );
     }
 
     /// The reach time is when the simulated bench (`SimStage`, the plant

@@ -655,7 +655,7 @@ mod tests {
             let tt = C64::new(1.0, 0.0) - s;
             assert!(((frf.t[i] - tt) / tt).norm() < 0.05, "{f} Hz: T");
         }
-        let predicted = crate::control::loop_check::model_margins(&plant, &ctrl);
+        let predicted = crate::control::loop_check::model_margins(&plant, &ctrl, 0);
         let keep = vec![true; frf.frequency_hz.len()];
         let r = VerifyResult::of(&frf, &keep, &predicted, &ml);
         assert!(!r.flagged, "{:?}", r.reasons);
@@ -674,7 +674,7 @@ mod tests {
             plant: &plant,
             ctrl: &ctrl,
         };
-        let predicted = crate::control::loop_check::model_margins(&plant, &ctrl);
+        let predicted = crate::control::loop_check::model_margins(&plant, &ctrl, 0);
         let f = log_grid(1.0, 500.0, 400);
         // A measured loop with its gain scaled by k: S = 1/(1 + k L).
         let measured = |k: f64| ClosedLoopFrf {

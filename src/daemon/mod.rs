@@ -239,10 +239,12 @@ fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
 /// pass the loop check on the model (at the device's rate and current
 /// limit), or the daemon does not start. With it, its stall bounds (the
 /// loop check's [`crate::control::loop_check::StallLimit`]), which apply
-/// between jobs while it drives the stage.
+/// between jobs while it drives the stage. The loop is checked with the
+/// link's pure delay of `link_delay_periods` loop periods in it.
 fn hold_factory(
     cfg: &BenchConfig,
     info: &bench_hal::DeviceInfo,
+    link_delay_periods: u32,
 ) -> Result<Option<(owner::HoldFactory, crate::rt::supervisor::StallBounds)>, ServeError> {
     let Some(name) = cfg.daemon.hold_controller.clone() else {
         return Ok(None);
@@ -266,7 +268,16 @@ fn hold_factory(
     }
     let model = bench_hal::model::Sr4dof::new(cfg.plant).map_err(|e| refuse(e.to_string()))?;
     let ctrl = DiscreteController::new(ccfg, period_s, cfg.current_limits(info).peak_current_a);
-    let check = check_loop(cfg, &model, &name, &ctrl, period_s, None, 0.0);
+    let check = check_loop(
+        cfg,
+        &model,
+        &name,
+        &ctrl,
+        period_s,
+        None,
+        0.0,
+        link_delay_periods,
+    );
     if !check.passed() {
         return Err(refuse(format!(
             "the loop check refused it: {}",
@@ -340,6 +351,8 @@ pub fn serve(opts: ServeOptions) -> Result<(), ServeError> {
         &opts.config_path,
         opts.seed,
         opts.inject,
+        // Until the hold controller's bound is known (below): the user's.
+        opts.config.safety.max_overrun_s.unwrap_or(f64::INFINITY),
     )
     .map_err(ServeError::Input)?;
     let backend_name = info.name.clone();
@@ -369,10 +382,19 @@ pub fn serve(opts: ServeOptions) -> Result<(), ServeError> {
     let (req_tx, req_rx) = rtrb::RingBuffer::<LoopRequest>::new(16);
     let (rep_tx, rep_rx) = rtrb::RingBuffer::<LoopReply>::new(64);
     let period_s = info.period_ns as f64 * 1e-9;
-    let (hold, hold_bounds) = match hold_factory(&opts.config, &info)? {
-        Some((h, b)) => (Some(h), Some(b)),
-        None => (None, None),
-    };
+    let (hold, hold_bounds) =
+        match hold_factory(&opts.config, &info, spec.process_data_delay_periods())? {
+            Some((h, b)) => (Some(h), Some(b)),
+            None => (None, None),
+        };
+    // The link's wait follows the hold controller's stall bound (the
+    // daemon's loop between jobs; a job's own bound is judged by the
+    // supervisor).
+    if let Some(b) = hold_bounds {
+        if b.max_missed_deadlines != u64::MAX {
+            stage.set_stall_bound_s(b.max_missed_deadlines as f64 * period_s);
+        }
+    }
     let mut safety = opts.config.supervisor(&info);
     if let Some(b) = hold_bounds {
         // Between jobs only the hold controller drives the stage (the

@@ -395,7 +395,8 @@ fn run_control_with(
     // The loop check needs no device: with --check-only nothing is opened.
     let period_s = cfg.loop_.period_ns() as f64 * 1e-9;
     let ctrl = DiscreteController::new(ccfg, period_s, cfg.actuator.peak_current_a);
-    let mut check = check_loop(
+    // The link's pure delay (EtherCAT: one period) is in the loop checked.
+    let check = check_loop(
         cfg,
         &model,
         &opts.controller,
@@ -403,10 +404,8 @@ fn run_control_with(
         period_s,
         measured.as_ref(),
         cfg.step.step_m,
+        spec.process_data_delay_periods(),
     );
-    if let Some(f) = link_delay_failure(&check, spec.process_data_delay_s(period_s)) {
-        check.failures.push(f);
-    }
     let mut summary = ControlSummary {
         controller: opts.controller.clone(),
         description: ccfg.description.clone(),
@@ -462,7 +461,14 @@ fn run_control_with(
     let opened_info;
     let mut runner = match source {
         StageSource::Open => {
-            let (s, i) = backend::open(&spec, cfg, &opts.config_path, opts.seed, opts.inject)?;
+            let (s, i) = backend::open(
+                &spec,
+                cfg,
+                &opts.config_path,
+                opts.seed,
+                opts.inject,
+                check.stall.bound_s,
+            )?;
             opened = s;
             opened_info = i;
             Runner::Local {
@@ -673,51 +679,8 @@ fn run_control_with(
     Ok(summary)
 }
 
-/// The link's own pure delay (EtherCAT's process data: one period) eats
-/// into the delay margin of the loop that runs: the loop must keep some.
-/// `None` when the loop's delay margin (on the model and, when given, the
-/// measured FRF) exceeds `link_delay_s`, or the link adds none.
-fn link_delay_failure(check: &LoopCheck, link_delay_s: f64) -> Option<String> {
-    if link_delay_s <= 0.0 {
-        return None;
-    }
-    let dm = [Some(&check.model), check.measured.as_ref()]
-        .into_iter()
-        .flatten()
-        .filter_map(crate::control::loop_check::delay_margin)
-        .map(|(d, _)| d)
-        .fold(f64::INFINITY, f64::min);
-    (dm <= link_delay_s).then(|| {
-        format!(
-            "the link adds {:.1} µs of pure delay (EtherCAT process data: one loop period) and the loop's delay margin is only {:.1} µs",
-            link_delay_s * 1e6,
-            dm * 1e6
-        )
-    })
-}
-
 #[cfg(test)]
 mod tests {
-    /// The shipped fast controller keeps 2.3 ms of delay margin: one
-    /// 200 µs period of process data passes, 3 ms does not.
-    #[test]
-    fn the_link_delay_must_fit_in_the_delay_margin() {
-        use super::*;
-        let path =
-            std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("bench-config/sr4dof-ch5.toml");
-        let cfg = BenchConfig::load(&path).unwrap();
-        let t = 2e-4;
-        let model = Sr4dof::new(cfg.plant).unwrap();
-        let ctrl = DiscreteController::new(&cfg.controller["fast"], t, 9.98);
-        let check = check_loop(&cfg, &model, "fast", &ctrl, t, None, cfg.step.step_m);
-        let (dm, _) = crate::control::loop_check::delay_margin(&check.model).unwrap();
-        assert!(dm > 1e-3 && dm < 5e-3, "{dm}");
-        assert_eq!(link_delay_failure(&check, 0.0), None);
-        assert_eq!(link_delay_failure(&check, t), None);
-        let f = link_delay_failure(&check, dm + 1e-6).unwrap();
-        assert!(f.contains("delay margin"), "{f}");
-    }
-
     /// With the verify's chirp the job is the same step, then the same
     /// controller plus the chirp: on the same readings the commands
     /// differ by exactly the chirp's value from the end of the step on,

@@ -65,14 +65,14 @@ impl BackendSpec {
         matches!(self, Self::Sim)
     }
 
-    /// The pure delay the link adds to the loop at a loop period of
-    /// `period_s`, s: one period for EtherCAT (the drive cycles
-    /// SM-synchronously: a target acts in the cycle after its frame, see
-    /// `bench_hal::ethercat`), 0 for the others.
-    pub fn process_data_delay_s(&self, period_s: f64) -> f64 {
+    /// The pure delay the link adds to the loop, whole loop periods: one
+    /// for EtherCAT (the drive cycles SM-synchronously: a target acts in
+    /// the cycle after its frame, see `bench_hal::ethercat`), 0 for the
+    /// others. The loop check (`check_loop`) puts `z^{−d}` in the loop.
+    pub fn process_data_delay_periods(&self) -> u32 {
         match self {
-            Self::Ethercat(_) => period_s,
-            _ => 0.0,
+            Self::Ethercat(_) => 1,
+            _ => 0,
         }
     }
 }
@@ -167,6 +167,15 @@ impl Stage for AnyStage {
 }
 
 impl AnyStage {
+    /// Tells a backend that waits for its link how long the loop's
+    /// supervisor tolerates going without a fresh sample, s (infinite:
+    /// none); see [`open`]. The others ignore it. Not real-time.
+    pub fn set_stall_bound_s(&mut self, stall_bound_s: f64) {
+        if let Self::Ethercat(s) = self {
+            s.set_stall_bound_s(stall_bound_s);
+        }
+    }
+
     /// Schedules a simulator fault `fault.at_s` seconds from now (tests,
     /// `--inject-fault`).
     ///
@@ -268,12 +277,18 @@ impl LinkCounters {
 /// outside the physical ranges
 /// ([`crate::rt::supervisor::check_announced`]), or its configuration is
 /// invalid. Nothing is enabled.
+///
+/// `stall_bound_s` is how long the job's supervisor tolerates the loop
+/// without a fresh sample (its stall bound, s; infinite: none): a backend
+/// that waits for its link bounds the wait by it (EtherCAT's default
+/// `exchange_timeout_ms`).
 pub fn open(
     spec: &BackendSpec,
     cfg: &BenchConfig,
     config_path: &std::path::Path,
     seed: u64,
     inject: Option<ScheduledFault>,
+    stall_bound_s: f64,
 ) -> Result<(AnyStage, DeviceInfo), RunError> {
     if inject.is_some() && !spec.is_sim() {
         return Err(RunError::option(
@@ -282,7 +297,7 @@ pub fn open(
             format!("only the sim backend injects faults (use `bench emulate --fault` for a device), not {spec}"),
         ));
     }
-    let (mut stage, info) = open_stage(spec, cfg, config_path, seed, inject)?;
+    let (mut stage, info) = open_stage(spec, cfg, config_path, seed, inject, stall_bound_s)?;
     // The device's announcement is checked before anything can be
     // enabled; the loop then runs on the smaller of its limits and the
     // host's (`BenchConfig::current_limits`).
@@ -303,6 +318,7 @@ fn open_stage(
     config_path: &std::path::Path,
     seed: u64,
     inject: Option<ScheduledFault>,
+    stall_bound_s: f64,
 ) -> Result<(AnyStage, DeviceInfo), RunError> {
     let period_ns = cfg.loop_.period_ns();
     let bad = |e: &dyn fmt::Display| {
@@ -345,6 +361,7 @@ fn open_stage(
                 ..cfg.backend.ethercat.clone()
             };
             let mut stage = bench_hal::ethercat::EthercatStage::open(&ecfg).map_err(|e| bad(&e))?;
+            stage.set_stall_bound_s(stall_bound_s);
             let info = stage.configure(period_ns).map_err(|e| bad(&e))?;
             Ok((AnyStage::Ethercat(Box::new(stage)), info))
         }

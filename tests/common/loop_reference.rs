@@ -37,6 +37,9 @@ pub struct Case {
     pub rate_hz: f64,
     /// Computation delay τ between the sample and the command, s.
     pub computation_delay_s: f64,
+    /// The link's pure delay d, whole loop periods (`e^{−sdT}`; sampled
+    /// `z^{−d}`): 1 for EtherCAT's process data.
+    pub link_delay_periods: u32,
     /// The controller as designed (continuous; its `discretization` is
     /// ignored: the reference checks the design).
     pub controller: ControllerConfig,
@@ -64,6 +67,7 @@ impl Case {
             actuator: cfg.actuator,
             rate_hz: cfg.loop_.rate_hz,
             computation_delay_s,
+            link_delay_periods: 0,
             controller: controller.clone(),
             hold: true,
             amplifier: true,
@@ -77,6 +81,13 @@ impl Case {
         self.hold = false;
         self.amplifier = false;
         self.computation_delay_s = 0.0;
+        self.link_delay_periods = 0;
+        self
+    }
+
+    /// With the link's pure delay of `periods` loop periods.
+    pub fn with_link_delay(mut self, periods: u32) -> Self {
+        self.link_delay_periods = periods;
         self
     }
 

@@ -4,6 +4,10 @@
 
 pub mod emulator;
 pub mod loop_reference;
+#[path = "../../hal/tests/common/watchdog.rs"]
+mod watchdog;
+#[allow(unused_imports)] // not every test file waits for a watchdog
+pub use watchdog::{wait_for_watchdog_trip, WatchdogTrip};
 
 use serde_json::Value;
 use std::path::{Path, PathBuf};

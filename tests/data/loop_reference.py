@@ -17,6 +17,8 @@ Input (argv[1], JSON): {"cases": [case, ...]} with each case
      "actuator": {"force_constant_n_per_a", "bandwidth_hz", ...},
      "rate_hz": loop rate f_s = 1/T, Hz,
      "computation_delay_s": tau, s (default 0),
+     "link_delay_periods": d, whole loop periods of pure delay the link
+              adds (EtherCAT's process data: 1; default 0),
      "controller": a [controller.NAME] table (error_unit "m"|"um"|"nm",
               form "monic"|"unity_dc", gain, integrators, real_zeros_rad_s,
               real_poles_rad_s, complex_zeros / complex_poles
@@ -37,7 +39,7 @@ this script with `$BENCH_PYTHON`, else `python3`).
 
 The loop (negative feedback, error in metres):
 
-    L(s) = C(s) * u * k_f * G(s) * A(s) * H(s) * exp(-s tau)
+    L(s) = C(s) * u * k_f * G(s) * A(s) * H(s) * exp(-s tau) * exp(-s d T)
 
 - G(s): force (N) -> x1 (m) of Eq. (2-5), M z'' + C z' + K z = q P, built by
   `make_reference.sr4dof` (this directory's independent model reference:
@@ -51,6 +53,8 @@ The loop (negative feedback, error in metres):
   integrators by its value at s = 0. u: error units per metre (1, 1e6, 1e9).
 - H(s) = (1 - exp(-sT)) / (sT): the zero-order hold, exact in the frequency
   domain (left out with "hold": false). exp(-s tau): computation delay.
+  exp(-s d T): the link's pure delay of d periods (sampled: z^-d, the
+  same on the unit circle).
 
 Figures (Skogestad & Postlethwaite, Multivariable Feedback Control, 2nd ed.,
 §2.4.3: gain, phase and modulus margins and the peak M_S of |S|; §2.4.5:
@@ -75,7 +79,7 @@ grid; https://python-control.readthedocs.io/en/stable/generated/control.stabilit
 - stable_continuous_pade, largest_real_part_rad_s: the closed-loop poles
   (`control.feedback`, `control.poles`) of the continuous loop with the
   total delay theta = T/2 (the hold, to first order: H(s) ~ exp(-sT/2)) +
-  tau replaced by a Padé approximant (`control.pade`) of the lowest order
+  tau + d T replaced by a Padé approximant (`control.pade`) of the lowest order
   whose phase is within 1 degree of exp(-jw theta) up to the Nyquist
   frequency (pade_order; 0 when theta = 0). The hold's sinc magnitude
   (-3.9 dB at Nyquist) is left out of this check; the discrete one has it;
@@ -83,7 +87,8 @@ grid; https://python-control.readthedocs.io/en/stable/generated/control.stabilit
   sampled loop: the plant k_f G A discretised with a zero-order hold
   (`control.sample_system`, 'zoh'), the controller with Tustin
   (`control.sample_system`, 'tustin', no pre-warping), the computation
-  delay tau = (k + f) T as z^-k and, for a fractional part f, the
+  delay tau = (k + f) T as z^-k, the link's delay as a further discrete
+  z^-d (`control.tf([1], [1, 0, ..., 0], T)`), and, for a fractional part f, the
   zero-order-hold plant with that input delay (Phi, Gamma_0 =
   int_0^{(1-f)T} e^{As} ds B, Gamma_1 = e^{A(1-f)T} int_0^{fT} e^{As} ds B:
   Åström & Wittenmark, Computer-Controlled Systems, 3rd ed., ch. 2,
@@ -295,6 +300,7 @@ def zoh_with_input_delay(plant, period_s, frac):
 def run_case(case):
     t = 1.0 / case["rate_hz"]
     tau = float(case.get("computation_delay_s", 0.0))
+    d_link = int(case.get("link_delay_periods", 0))
     hold = bool(case.get("hold", True))
     amp = bool(case.get("amplifier", True))
     c = case["controller"]
@@ -315,12 +321,12 @@ def run_case(case):
         l = ct.frequency_response(rational, w).complex.reshape(-1)
         if hold:
             l = l * (-np.expm1(-s * t)) / (s * t)
-        return l * np.exp(-s * tau)
+        return l * np.exp(-s * (tau + d_link * t))
 
     out = {"name": case["name"]}
     out.update(margins(omega, exact(omega), exact))
 
-    theta = (t / 2.0 if hold else 0.0) + tau
+    theta = (t / 2.0 if hold else 0.0) + tau + d_link * t
     order, pade = pade_for(theta, omega)
     cl = ct.feedback(rational * pade, 1)
     poles = ct.poles(cl)
@@ -339,6 +345,9 @@ def run_case(case):
             pd = zoh_with_input_delay(plant, t, frac)
         if k:
             pd = pd * ct.ss(ct.tf([1.0], [1.0] + [0.0] * k, t))
+        if d_link:
+            # The link's pure delay: z^-d on the plant's input.
+            pd = pd * ct.ss(ct.tf([1.0], [1.0] + [0.0] * d_link, t))
         cd = ct.sample_system(ctrl, t, method="tustin")
         ld = cd * pd
         poles_d = ct.poles(ct.feedback(ld, 1))

@@ -161,10 +161,14 @@ pub struct EthercatConfig {
     /// 0 A and latches a fault. Range [0.2, 1000] ms and at least two loop
     /// periods (checked by the bench config).
     pub watchdog_ms: f64,
-    /// Bound on one process-data round trip, ms (default: 5 ms, or one
-    /// loop period if longer). A frame not back in time is lost: kind
-    /// `Timeout`. One back later than the period but within this bound
-    /// makes the tick late, which the supervisor's overrun rule judges.
+    /// Bound on one process-data round trip, ms. A frame not back in
+    /// time is lost: kind `Timeout`. One back later than the period but
+    /// within this bound makes the tick late, which the supervisor's
+    /// overrun rule judges. Default (unset): the loop's own stall
+    /// tolerance, capped by the SM watchdog, at least one period
+    /// ([`Self::exchange_timeout_ns`]); set, it overrides that. Range
+    /// [0.01, `watchdog_ms`] ms: a frame later than the watchdog finds the
+    /// drive already stopped on its own.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub exchange_timeout_ms: Option<f64>,
     /// Bound on the whole bring-up INIT → OP, ms (default 5000).
@@ -301,11 +305,28 @@ impl EthercatConfig {
         }
     }
 
-    /// The bound on one round trip at `period_ns`, ns.
-    pub fn exchange_timeout_ns(&self, period_ns: u64) -> u64 {
+    /// The bound on one round trip at `period_ns`, ns, for a loop whose
+    /// supervisor tolerates `stall_bound_ns` without a fresh sample
+    /// (`None`: no bound, as in open-loop identification).
+    ///
+    /// `exchange_timeout_ms` when set; else `max(period, min(stall bound,
+    /// watchdog))`. Why: while the tick waits for its frame the loop gets
+    /// no fresh sample, so the wait is a stall; a frame late by less than
+    /// the stall bound is a late tick the supervisor's overrun rule judges
+    /// (and tolerates), and one later than that would be a fault whatever
+    /// it brings, so waiting longer is pointless. Past the SM watchdog
+    /// (`watchdog_ms`) the drive has dropped the current on its own. A
+    /// bound below one period would cut round trips that are on time.
+    pub fn exchange_timeout_ns(&self, period_ns: u64, stall_bound_ns: Option<u64>) -> u64 {
         match self.exchange_timeout_ms {
             Some(ms) => (ms * 1e6) as u64,
-            None => period_ns.max(5_000_000),
+            None => {
+                let watchdog_ns = (self.watchdog_ms * 1e6) as u64;
+                stall_bound_ns
+                    .unwrap_or(u64::MAX)
+                    .min(watchdog_ns)
+                    .max(period_ns)
+            }
         }
     }
 
@@ -334,10 +355,13 @@ impl EthercatConfig {
             ));
         }
         if let Some(ms) = self.exchange_timeout_ms {
-            if !(ms.is_finite() && (0.01..=200.0).contains(&ms)) {
+            if !(ms.is_finite() && (0.01..=self.watchdog_ms).contains(&ms)) {
                 return Err(ParamError::new(
                     format!("{prefix}.exchange_timeout_ms"),
-                    format!("must be in [0.01, 200] ms, got {ms}"),
+                    format!(
+                        "must be in [0.01, {}] ms (up to {prefix}.watchdog_ms: a frame later than the SM watchdog finds the drive already stopped), got {ms}",
+                        self.watchdog_ms
+                    ),
                 ));
             }
         }
@@ -590,15 +614,31 @@ mod tests {
             d.validate("backend.ethercat").unwrap_err().key,
             "backend.ethercat.dc_drift_max_ppm"
         );
-        // The default round-trip bound: 5 ms, or a period if longer.
+        // The default round-trip bound follows the loop's stall bound,
+        // capped by the SM watchdog (20 ms), at least a period.
+        let c = EthercatConfig::default();
+        assert_eq!(c.exchange_timeout_ns(200_000, Some(3_000_000)), 3_000_000);
+        assert_eq!(c.exchange_timeout_ns(200_000, Some(24_200_000)), 20_000_000);
+        assert_eq!(c.exchange_timeout_ns(200_000, None), 20_000_000);
+        assert_eq!(c.exchange_timeout_ns(200_000, Some(100_000)), 200_000);
         assert_eq!(
-            EthercatConfig::default().exchange_timeout_ns(200_000),
-            5_000_000
+            c.exchange_timeout_ns(30_000_000, Some(3_000_000)),
+            30_000_000
         );
-        assert_eq!(
-            EthercatConfig::default().exchange_timeout_ns(10_000_000),
-            10_000_000
-        );
+        // An explicit key overrides it; out of range it is refused.
+        let c = EthercatConfig {
+            exchange_timeout_ms: Some(7.5),
+            ..EthercatConfig::default()
+        };
+        assert_eq!(c.exchange_timeout_ns(200_000, Some(3_000_000)), 7_500_000);
+        for bad in [0.001, 20.5, f64::NAN] {
+            let c = EthercatConfig {
+                exchange_timeout_ms: Some(bad),
+                ..EthercatConfig::default()
+            };
+            let e = c.validate("backend.ethercat").unwrap_err();
+            assert_eq!(e.key, "backend.ethercat.exchange_timeout_ms", "{bad}");
+        }
         assert_eq!(CONTROLWORD.raw(), 0x6040_0010);
     }
 }

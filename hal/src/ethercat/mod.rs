@@ -49,7 +49,12 @@
 //!   the target and does the tick's one process-data round trip (ethercrab's
 //!   `SubDeviceGroup::tx_rx`: one frame with the `LRW` of the image and an
 //!   `FPRD` of the AL status), driven on the loop thread by the stage's
-//!   own poll loop with a deadline (`exchange_timeout_ms`, default 5 ms): no allocation, no thread hand-off, no timer.
+//!   own poll loop with a deadline (`exchange_timeout_ms`; by default
+//!   the loop's stall bound given by
+//!   [`EthercatStage::set_stall_bound_s`], capped by the SM watchdog:
+//!   [`EthercatConfig::exchange_timeout_ns`]):
+//!   no allocation, no thread hand-off, no timer, no lock (the process
+//!   image sits behind [`image_lock::BorrowFlag`], which never waits).
 //!   [`Stage::read_sample`](crate::Stage::read_sample) returns the inputs of that round trip (and
 //!   exchanges only if none happened since the last read).
 //! * [`Stage::disable`](crate::Stage::disable): "disable voltage" with
@@ -88,6 +93,7 @@
 
 pub mod config;
 mod error;
+pub mod image_lock;
 mod master;
 pub mod slave;
 pub mod socket;

@@ -5,6 +5,10 @@
 use bench_hal::model::{Beam, Damping, Sr4dofParams};
 use bench_hal::sim::{ActuatorParams, ProbeParams, SimParams};
 
+mod watchdog;
+#[allow(unused_imports)] // not every test file waits for a watchdog
+pub use watchdog::{wait_for_watchdog_trip, WatchdogTrip};
+
 /// Table 2-1 parameters at operating point `y1o_frac` of L.
 pub fn ch2(y1o_frac: f64, dm23: f64, kp: Option<f64>) -> Sr4dofParams {
     Sr4dofParams {

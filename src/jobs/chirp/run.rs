@@ -106,6 +106,8 @@ pub fn run_chirp(
         &opts.config_path,
         opts.seed,
         opts.inject,
+        // Open loop: no stall bound of its own, only the user's.
+        opts.config.safety.max_overrun_s.unwrap_or(f64::INFINITY),
     )?;
     let mut runner = Runner::Local {
         stage: &mut stage,

@@ -1,0 +1,385 @@
+//! Bring-up (INIT → PRE-OP → PDO map, mode, SM watchdog → SAFE-OP) and the
+//! way back to SAFE-OP, with the helpers that name the step or the key
+//! of a failure.
+
+use super::group::{the_group, Group};
+use super::link::Stall;
+use super::*;
+
+impl EthercatStage {
+    /// INIT → PRE-OP → (PDO map, mode, watchdog) → SAFE-OP.
+    pub(super) fn bring_up(&mut self, period_ns: u64) -> Result<Running, EthercatError> {
+        let start = monotonic_ns();
+        let deadline = start + (self.cfg.bringup_timeout_ms * 1e6) as u64;
+        // 1. Is anyone there? A broadcast read comes back only through a
+        //    slave.
+        let probe_ns = 500_000_000u64.min(deadline - start);
+        let md = self
+            .md
+            .as_ref()
+            .expect("the main device lives as long as the stage");
+        let probe = EcCommand::brd(RegisterAddress::Type.into())
+            .ignore_wkc()
+            .receive::<u8>(md);
+        match self.link.block_on(probe, start + probe_ns, 1_000_000) {
+            Ok(Ok(_)) => {}
+            Ok(Err(e)) => return Err(bringup_err(&self.cfg, "probing the segment", e)),
+            Err(Stall::Io(source)) => {
+                return Err(EthercatError::Io {
+                    op: "send/recv",
+                    source,
+                })
+            }
+            Err(Stall::Deadline) => {
+                return Err(EthercatError::NoSlave {
+                    interface: self.cfg.interface.clone(),
+                    waited_ms: probe_ns / 1_000_000,
+                })
+            }
+        }
+        // 2. INIT → PRE-OP: addresses, SII, mailboxes.
+        let group: Group<PreOp> = step_in(
+            &mut self.link,
+            &self.cfg,
+            md.init::<2, _>(
+                ethercrab::std::ethercat_now,
+                Group::<PreOp>::default(),
+                the_group,
+            ),
+            deadline,
+            "bringing the slave to PRE-OP",
+        )?;
+        let n = md.num_subdevices();
+        if n != 1 {
+            return Err(EthercatError::SlaveCount {
+                interface: self.cfg.interface.clone(),
+                found: n as u16,
+            });
+        }
+        // 3. Identity.
+        let id = group
+            .subdevice(md, 0)
+            .map_err(|e| bringup_err(&self.cfg, "reading the identity", e))?
+            .identity();
+        if id.vendor_id != self.cfg.vendor_id {
+            return Err(EthercatError::Identity {
+                key: "backend.ethercat.vendor_id",
+                interface: self.cfg.interface.clone(),
+                what: "vendor id",
+                found: id.vendor_id,
+                expected: self.cfg.vendor_id,
+            });
+        }
+        if id.product_id != self.cfg.expected_product_id() {
+            return Err(EthercatError::Identity {
+                key: "backend.ethercat.product_id",
+                interface: self.cfg.interface.clone(),
+                what: "product code",
+                found: id.product_id,
+                expected: self.cfg.expected_product_id(),
+            });
+        }
+        // 4. PDO map, mode, SM watchdog (PRE-OP, over CoE).
+        for (dir, assign, pdo, entries) in [
+            ("rx_pdo", 0x1C12u16, 0x1600u16, self.cfg.rx_entries()),
+            ("tx_pdo", 0x1C13, 0x1A00, self.cfg.tx_entries()),
+        ] {
+            let key = |i: Option<usize>| match i {
+                Some(i) => format!("backend.ethercat.{dir}[{i}]"),
+                None => format!("backend.ethercat.{dir}"),
+            };
+            // Clear the assignment and the map, write the entries, their
+            // count, then assign the PDO (the CoE mapping sequence).
+            let mut writes = vec![(assign, 0, Sdo::U8(0), None), (pdo, 0, Sdo::U8(0), None)];
+            for (i, e) in entries.iter().enumerate() {
+                writes.push((pdo, i as u8 + 1, Sdo::U32(e.raw()), Some(i)));
+            }
+            writes.extend([
+                (pdo, 0, Sdo::U8(entries.len() as u8), None),
+                (assign, 1, Sdo::U16(pdo), None),
+                (assign, 0, Sdo::U8(1), None),
+            ]);
+            for (index, subindex, value, i) in writes {
+                let (link, cfg) = (&mut self.link, &self.cfg);
+                sdo_in(
+                    link,
+                    cfg,
+                    &group,
+                    md,
+                    index,
+                    subindex,
+                    value,
+                    key(i),
+                    deadline,
+                )?;
+            }
+        }
+        if !self.analog() {
+            sdo_in(
+                &mut self.link,
+                &self.cfg,
+                &group,
+                md,
+                0x6060,
+                0,
+                Sdo::I8(MODE_CST),
+                "backend.ethercat.profile".into(),
+                deadline,
+            )?;
+        }
+        if !self.analog()
+            && (!self.layout.target.1 || matches!(self.layout.current, Some((_, false))))
+        {
+            // Torque / current in ‰ of the motor rated current 0x6075 (mA).
+            let sd = group
+                .subdevice(md, 0)
+                .map_err(|e| bringup_err(&self.cfg, "reading 0x6075", e))?;
+            let ma: u32 = step_in(
+                &mut self.link,
+                &self.cfg,
+                sd.sdo_read(0x6075, 0),
+                deadline,
+                "reading the motor rated current 0x6075",
+            )?;
+            if ma == 0 {
+                return Err(EthercatError::Bringup {
+                    interface: self.cfg.interface.clone(),
+                    step: "reading the motor rated current 0x6075",
+                    reason: "the drive reports 0 mA".into(),
+                });
+            }
+            self.rated_current_a = f64::from(ma) * 1e-3;
+        }
+        // SM watchdog: 100 µs steps ((2498 + 2) × 40 ns).
+        let steps = (self.cfg.watchdog_ms * 10.0).round().clamp(1.0, 65535.0) as u16;
+        {
+            let sd = group
+                .subdevice(md, 0)
+                .map_err(|e| bringup_err(&self.cfg, "setting the SM watchdog", e))?;
+            run_in(
+                &mut self.link,
+                &self.cfg,
+                sd.register_write(0x0400u16, 2498u16),
+                deadline,
+                "setting the SM watchdog",
+            )?
+            .map_err(|e| bringup_err(&self.cfg, "setting the SM watchdog divider 0x0400", e))?;
+            run_in(
+                &mut self.link,
+                &self.cfg,
+                sd.register_write(0x0420u16, steps),
+                deadline,
+                "setting the SM watchdog",
+            )?
+            .map_err(|e| {
+                bringup_err(
+                    &self.cfg,
+                    "setting the SM watchdog time 0x0420 (backend.ethercat.watchdog_ms)",
+                    e,
+                )
+            })?;
+        }
+        // 5. PRE-OP → SAFE-OP: FMMUs and SMs from the map read back; with
+        //    distributed clocks, SYNC0 at the loop period first.
+        let step = "bringing the slave to SAFE-OP (the slave checks SM2/SM3 against its PDO map)";
+        let running = if self.cfg.distributed_clocks {
+            let mut group = group;
+            for mut sd in group.iter_mut(md) {
+                sd.set_dc_sync(ethercrab::DcSync::Sync0);
+            }
+            let dc = DcConfiguration {
+                start_delay: Duration::from_millis(10),
+                sync0_period: Duration::from_nanos(period_ns),
+                sync0_shift: Duration::ZERO,
+            };
+            let sync = "configuring distributed-clock SYNC0 at the loop period";
+            // FMMUs and SMs first (the PDI), then SYNC0.
+            let group = step_in(
+                &mut self.link,
+                &self.cfg,
+                group.into_pre_op_pdi(md),
+                deadline,
+                step,
+            )?;
+            let g = step_in(
+                &mut self.link,
+                &self.cfg,
+                group.configure_dc_sync(md, dc),
+                deadline,
+                sync,
+            )?;
+            let g = step_in(
+                &mut self.link,
+                &self.cfg,
+                g.into_safe_op(md),
+                deadline,
+                step,
+            )?;
+            Running::SafeOpDc(g)
+        } else {
+            let g = step_in(
+                &mut self.link,
+                &self.cfg,
+                group.into_safe_op(md),
+                deadline,
+                step,
+            )?;
+            Running::SafeOp(g)
+        };
+        let sizes = on_group!(&running, g => g
+        .subdevice(md, 0)
+        .map(|sd| {
+            let io = sd.io_raw();
+            (io.outputs().len(), io.inputs().len())
+        }))
+        .map_err(|e| bringup_err(&self.cfg, "reading the process image", e))?;
+        if sizes != (self.layout.out_len, self.layout.in_len) {
+            return Err(EthercatError::Bringup {
+                interface: self.cfg.interface.clone(),
+                step: "checking the process image",
+                reason: format!(
+                    "the slave maps {} output and {} input bytes, the config {} and {}",
+                    sizes.0, sizes.1, self.layout.out_len, self.layout.in_len
+                ),
+            });
+        }
+        Ok(running)
+    }
+
+    /// Acknowledges a slave error and requests SAFE-OP (AL control
+    /// 0x0014: ETG.1000.6 §5.3.2, an error must be acknowledged before the
+    /// slave goes up again), then waits for SAFE-OP.
+    pub(super) fn back_to_safe_op(&mut self) -> Result<(), EthercatError> {
+        let md = self
+            .md
+            .as_ref()
+            .expect("the main device lives as long as the stage");
+        let deadline = monotonic_ns() + (self.cfg.bringup_timeout_ms * 1e6) as u64;
+        let step = "acknowledging the slave's AL status";
+        let sd = match self.group.as_ref() {
+            Some(r) => on_group!(r, g => g.subdevice(md, 0).map(|sd| sd.configured_address())),
+            None => return Ok(()),
+        }
+        .map_err(|e| bringup_err(&self.cfg, step, e))?;
+        step_in(
+            &mut self.link,
+            &self.cfg,
+            EcCommand::fpwr(sd, RegisterAddress::AlControl.into()).send(md, 0x0014u16),
+            deadline,
+            step,
+        )?;
+        let step = "bringing the slave back to SAFE-OP";
+        let (link, cfg) = (&mut self.link, &self.cfg);
+        match self.group.take() {
+            Some(Running::Op(g)) => {
+                let g = step_in(link, cfg, g.into_safe_op(md), deadline, step)?;
+                self.group = Some(Running::SafeOp(g));
+            }
+            Some(Running::OpDc(g)) => {
+                let g = step_in(link, cfg, g.into_safe_op(md), deadline, step)?;
+                self.group = Some(Running::SafeOpDc(g));
+            }
+            other => self.group = other,
+        }
+        Ok(())
+    }
+}
+
+/// A value for an expedited SDO download.
+#[derive(Debug, Clone, Copy)]
+pub(super) enum Sdo {
+    I8(i8),
+    U8(u8),
+    U16(u16),
+    U32(u32),
+}
+
+impl Sdo {
+    /// The value as the abort message shows it.
+    fn raw(self) -> u32 {
+        match self {
+            Self::I8(v) => v as u32,
+            Self::U8(v) => v.into(),
+            Self::U16(v) => v.into(),
+            Self::U32(v) => v,
+        }
+    }
+}
+
+/// One expedited SDO download during bring-up; an abort names `key`.
+#[allow(clippy::too_many_arguments)]
+pub(super) fn sdo_in(
+    link: &mut Link,
+    cfg: &EthercatConfig,
+    group: &Group<PreOp>,
+    md: &MainDevice<'static>,
+    index: u16,
+    subindex: u8,
+    value: Sdo,
+    key: String,
+    deadline: u64,
+) -> Result<(), EthercatError> {
+    let step = "writing the object dictionary";
+    let sd = group
+        .subdevice(md, 0)
+        .map_err(|e| bringup_err(cfg, step, e))?;
+    let r = match value {
+        Sdo::I8(v) => run_in(link, cfg, sd.sdo_write(index, subindex, v), deadline, step)?,
+        Sdo::U8(v) => run_in(link, cfg, sd.sdo_write(index, subindex, v), deadline, step)?,
+        Sdo::U16(v) => run_in(link, cfg, sd.sdo_write(index, subindex, v), deadline, step)?,
+        Sdo::U32(v) => run_in(link, cfg, sd.sdo_write(index, subindex, v), deadline, step)?,
+    };
+    r.map_err(|e| EthercatError::Refused {
+        key,
+        index,
+        subindex,
+        value: value.raw(),
+        reason: e.to_string(),
+    })
+}
+
+pub(super) fn bringup_err(
+    cfg: &EthercatConfig,
+    step: &'static str,
+    e: ethercrab::error::Error,
+) -> EthercatError {
+    EthercatError::Bringup {
+        interface: cfg.interface.clone(),
+        step,
+        reason: e.to_string(),
+    }
+}
+
+/// Runs a bring-up step's future within `deadline_ns`; its error names
+/// `step`.
+pub(super) fn step_in<T, F: Future<Output = Result<T, ethercrab::error::Error>>>(
+    link: &mut Link,
+    cfg: &EthercatConfig,
+    fut: F,
+    deadline_ns: u64,
+    step: &'static str,
+) -> Result<T, EthercatError> {
+    run_in(link, cfg, fut, deadline_ns, step)?.map_err(|e| bringup_err(cfg, step, e))
+}
+
+/// Runs a bring-up future to completion within `deadline_ns`.
+pub(super) fn run_in<F: Future>(
+    link: &mut Link,
+    cfg: &EthercatConfig,
+    fut: F,
+    deadline_ns: u64,
+    step: &'static str,
+) -> Result<F::Output, EthercatError> {
+    match link.block_on(fut, deadline_ns, 1_000_000) {
+        Ok(v) => Ok(v),
+        Err(Stall::Io(source)) => Err(EthercatError::Io {
+            op: "send/recv",
+            source,
+        }),
+        Err(Stall::Deadline) => Err(EthercatError::BringupTimeout {
+            interface: cfg.interface.clone(),
+            step,
+            waited_ms: cfg.bringup_timeout_ms as u64,
+        }),
+    }
+}
