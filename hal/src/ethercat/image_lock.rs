@@ -121,7 +121,6 @@ mod tests {
     fn a_borrow_of_a_borrowed_image_panics_at_once_naming_the_flag() {
         let image = Image::new([0; 4]);
         let _w = image.write();
-        let t0 = std::time::Instant::now();
         let err = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
             let _r = image.read();
         }))
@@ -133,7 +132,6 @@ mod tests {
         );
         // A failed shared attempt leaves the exclusive borrow intact.
         assert!(image.is_locked_exclusive());
-        assert!(t0.elapsed() < std::time::Duration::from_secs(1));
         let err = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
             let _w2 = image.write();
         }))
