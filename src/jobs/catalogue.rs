@@ -96,6 +96,13 @@ pub fn catalogue_cell(recording: &Path, row_file: &Path, keeps_recording: bool) 
         }
         write_row_file(&row, row_file)
     });
+    entry_of(written, "the cell is unaffected")
+}
+
+/// A row's file as the run or cell reports it, or the warning (logged:
+/// the row was not written; `unaffected` says what is not) that never
+/// fails it.
+fn entry_of(written: Result<PathBuf, CatalogueError>, unaffected: &str) -> CatalogueEntry {
     match written {
         Ok(row) => CatalogueEntry {
             row: Some(row),
@@ -103,9 +110,7 @@ pub fn catalogue_cell(recording: &Path, row_file: &Path, keeps_recording: bool) 
         },
         Err(e) => {
             let warning = crate::error::error_chain(&e);
-            tracing::warn!(
-                "the cell's catalogue row was not written: {warning}; the cell is unaffected"
-            );
+            tracing::warn!("the catalogue row was not written: {warning}; {unaffected}");
             CatalogueEntry {
                 row: None,
                 warning: Some(warning),
@@ -117,20 +122,10 @@ pub fn catalogue_cell(recording: &Path, row_file: &Path, keeps_recording: bool) 
 /// [`append_run`] as a run reports it: the row, or a warning (logged,
 /// and returned for the summary) that never fails the run.
 pub fn catalogue_run(recording: &Path) -> CatalogueEntry {
-    match append_run(recording) {
-        Ok(row) => CatalogueEntry {
-            row: Some(row),
-            warning: None,
-        },
-        Err(e) => {
-            let warning = crate::error::error_chain(&e);
-            tracing::warn!("the catalogue row was not written: {warning}; the run is unaffected (`bench catalogue` rebuilds the catalogue from the recordings)");
-            CatalogueEntry {
-                row: None,
-                warning: Some(warning),
-            }
-        }
-    }
+    entry_of(
+        append_run(recording),
+        "the run is unaffected (`bench catalogue` rebuilds the catalogue from the recordings)",
+    )
 }
 
 /// The row of a run that ended with `error`: appended when the error
@@ -233,27 +228,13 @@ pub fn object_url_of_path(prefix: &str, rel: &Path) -> String {
     url
 }
 
-/// Index of a column in [`COLUMNS`] (a name in the list: checked by a test).
-const fn column(name: &str) -> usize {
-    let mut i = 0;
-    while i < COLUMNS.len() {
-        let (a, b) = (COLUMNS[i].name.as_bytes(), name.as_bytes());
-        if a.len() == b.len() {
-            let mut j = 0;
-            while j < a.len() && a[j] == b[j] {
-                j += 1;
-            }
-            if j == a.len() {
-                return i;
-            }
-        }
-        i += 1;
-    }
-    panic!("no such catalogue column")
+/// Index of the column `name` in [`COLUMNS`] (one of its names).
+fn column(name: &str) -> usize {
+    COLUMNS
+        .iter()
+        .position(|c| c.name == name)
+        .unwrap_or_else(|| unreachable!("{name} is a catalogue column"))
 }
-const START_COLUMN: usize = column("start_utc");
-const OUTCOME_COLUMN: usize = column("outcome");
-const RECORDING_COLUMN: usize = column("recording");
 
 /// Checks a recordings' object prefix: `SCHEME://REST`, the scheme a
 /// letter then letters, digits, `+`, `-` or `.` (RFC 3986), something
@@ -526,6 +507,8 @@ pub fn run_catalogue(opts: &CatalogueOptions) -> Result<CatalogueSummary, RunErr
     }
     // Campaign cells whose recordings were not kept: their rows as the
     // campaign wrote them (the others are rebuilt from their recordings).
+    let (start_col, outcome_col, recording_col) =
+        (column("start_utc"), column("outcome"), column("recording"));
     let mut carried = 0;
     for path in &sources.campaign_rows {
         let read = crate::catalogue::file::read_rows(path).and_then(|rs| {
@@ -540,7 +523,7 @@ pub fn run_catalogue(opts: &CatalogueOptions) -> Result<CatalogueSummary, RunErr
         match read {
             Ok(read) => {
                 for row in read {
-                    if row[RECORDING_COLUMN].is_null() {
+                    if row[recording_col].is_null() {
                         rows.push(row);
                         carried += 1;
                     }
@@ -557,14 +540,14 @@ pub fn run_catalogue(opts: &CatalogueOptions) -> Result<CatalogueSummary, RunErr
     }
     // By start time (then the recording): a reader's time filter then
     // meets sorted statistics.
-    let key = |r: &Vec<Value>| match (&r[START_COLUMN], &r[RECORDING_COLUMN]) {
+    let key = |r: &Vec<Value>| match (&r[start_col], &r[recording_col]) {
         (Value::TimestampUtc(t), Value::Text(rec)) => (*t, rec.clone()),
         _ => (None, None),
     };
     rows.sort_by_key(key);
     let mut outcomes = BTreeMap::new();
     for r in &rows {
-        let outcome = match &r[OUTCOME_COLUMN] {
+        let outcome = match &r[outcome_col] {
             Value::Text(Some(o)) => o.clone(),
             _ => "unknown".into(),
         };
