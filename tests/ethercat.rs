@@ -807,3 +807,142 @@ fn a_controller_the_link_delay_breaks_is_refused_before_anything_is_opened() {
     let e = stderr(&o);
     assert!(e.contains("noecat7") && e.contains("not found"), "{e}");
 }
+
+/// `bench serve` over EtherCAT runs job after job (each enables the drive
+/// through OP and the CiA 402 state machine, and disables it back to
+/// SAFE-OP), and each job's process-data deadline is its own stall bound,
+/// not the hold controller's. Hold controller `slow` (bound 50.8 ms), SM
+/// watchdog 100 ms: a chirp (no stall bound) waits up to the watchdog,
+/// 100 ms; a fast step up to its own bound (24.2 ms on EtherCAT, in whole
+/// periods), the same deadline a local `bench control --fast` gets.
+#[test]
+fn daemon_jobs_wait_for_the_link_as_long_as_their_own_stall_bound() {
+    let _g = one_at_a_time();
+    let Some(seg) = Segment::new() else { return };
+    let dir = tmp();
+    let cfg = common::quiet_config(
+        dir.path(),
+        2.0,
+        &format!(
+            "\n[backend.ethercat]\ninterface = \"{MASTER_IF}\"\nwatchdog_ms = 100.0\n\n[daemon]\nhold_controller = \"slow\"\n"
+        ),
+    );
+    let cfg_s = cfg.display().to_string();
+    let b = backend();
+    let deadline_ms = |v: &Value| v["link"]["exchange_timeout_ns"].as_f64().unwrap() * 1e-6;
+    let check = |controller: &str| {
+        let o = run(&[
+            "control",
+            "--controller",
+            controller,
+            "--check-only",
+            "--json",
+            "--config",
+            &cfg_s,
+            "--backend",
+            &b,
+        ]);
+        assert!(o.status.success(), "{}", stderr(&o));
+        json_stdout(&o)["loop_check"]["stall"]["bound_s"]
+            .as_f64()
+            .unwrap()
+            * 1e3
+    };
+    let (slow_ms, fast_ms) = (check("slow"), check("fast"));
+    assert!(
+        slow_ms > 50.0 && fast_ms < 30.0,
+        "slow {slow_ms} ms, fast {fast_ms} ms"
+    );
+
+    let slave = Slave::start(&seg, &cfg, vec![], None);
+    let sock = dir.path().join("b.sock");
+    let mut serve = seg
+        .bench_in_master(&[
+            "serve",
+            "--config",
+            &cfg_s,
+            "--socket",
+            sock.to_str().unwrap(),
+            "--recordings",
+            &path_in(dir.path(), "rec"),
+            "--backend",
+            &b,
+        ])
+        .env("RUST_LOG", "warn")
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    let t0 = Instant::now();
+    while std::os::unix::net::UnixStream::connect(&sock).is_err() {
+        assert!(
+            t0.elapsed() < Duration::from_secs(20),
+            "the daemon did not come up"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let s = sock.display().to_string();
+    let job = |args: &[&str]| {
+        let mut o = run(args);
+        for _ in 0..2 {
+            if !vm_stall(&o) {
+                break;
+            }
+            o = run(args);
+        }
+        assert!(o.status.success(), "{args:?}: {}", stderr(&o));
+        json_stdout(&o)
+    };
+    let chirp = job(&[
+        "chirp",
+        "--daemon",
+        &s,
+        "--json",
+        "--f-start-hz",
+        "5",
+        "--duration-s",
+        "1",
+    ]);
+    let step = job(&["control", "--fast", "--daemon", &s, "--json"]);
+    let chirp2 = job(&[
+        "chirp",
+        "--daemon",
+        &s,
+        "--json",
+        "--f-start-hz",
+        "5",
+        "--duration-s",
+        "1",
+    ]);
+    let _ = serve.kill();
+    let _ = serve.wait();
+    // The local fast step's deadline.
+    let mut o = control(&seg, &cfg_s, &path_in(dir.path(), "local.mcap"), &[]);
+    for _ in 0..2 {
+        if !vm_stall(&o) {
+            break;
+        }
+        o = control(&seg, &cfg_s, &path_in(dir.path(), "local.mcap"), &[]);
+    }
+    assert!(o.status.success(), "{}", stderr(&o));
+    let local_ms = deadline_ms(&json_stdout(&o));
+    // The bound in whole loop periods (0.2 ms), as the supervisor counts.
+    assert!(
+        local_ms <= fast_ms + 1e-9 && fast_ms - local_ms < 0.2,
+        "local {local_ms} ms, bound {fast_ms} ms"
+    );
+
+    drop(slave);
+    for (name, v, want_ms) in [
+        ("chirp", &chirp, 100.0),
+        ("fast step", &step, local_ms),
+        ("chirp after the step", &chirp2, 100.0),
+    ] {
+        let got = deadline_ms(v);
+        assert!(
+            (got - want_ms).abs() < 1e-6,
+            "{name}: deadline {got} ms, want {want_ms} ms (hold {slow_ms} ms): {}",
+            v["link"]
+        );
+    }
+}

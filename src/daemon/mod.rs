@@ -387,13 +387,10 @@ pub fn serve(opts: ServeOptions) -> Result<(), ServeError> {
             Some((h, b)) => (Some(h), Some(b)),
             None => (None, None),
         };
-    // The link's wait follows the hold controller's stall bound (the
-    // daemon's loop between jobs; a job's own bound is judged by the
-    // supervisor).
+    // The link's wait follows the hold controller's stall bound between
+    // jobs, each job's own while it runs (`run_service`).
     if let Some(b) = hold_bounds {
-        if b.max_missed_deadlines != u64::MAX {
-            stage.set_stall_bound_s(b.max_missed_deadlines as f64 * period_s);
-        }
+        stage.set_stall_bound_s(b.missed_deadlines_s(period_s));
     }
     let mut safety = opts.config.supervisor(&info);
     if let Some(b) = hold_bounds {

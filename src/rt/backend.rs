@@ -169,7 +169,8 @@ impl Stage for AnyStage {
 impl AnyStage {
     /// Tells a backend that waits for its link how long the loop's
     /// supervisor tolerates going without a fresh sample, s (infinite:
-    /// none); see [`open`]. The others ignore it. Not real-time.
+    /// none); see [`open`]. The others ignore it. Allocates nothing: the
+    /// daemon's loop calls it as a job starts and ends.
     pub fn set_stall_bound_s(&mut self, stall_bound_s: f64) {
         if let Self::Ethercat(s) = self {
             s.set_stall_bound_s(stall_bound_s);
@@ -238,6 +239,9 @@ pub enum LinkCounters {
 }
 
 impl LinkCounters {
+    /// Fields of the stats that are settings, not counters.
+    pub const SETTINGS: &'static [&'static str] = &["exchange_timeout_ns"];
+
     /// The counters as a JSON object (field names of the backend's stats).
     pub fn to_json(self) -> serde_json::Value {
         match self {
@@ -250,12 +254,13 @@ impl LinkCounters {
 
     /// The counters of what happened between `before` and `after` (one
     /// job on a device that stays open): every counter is the difference;
-    /// the `max_*` figures are the largest since the device was opened.
+    /// the `max_*` figures are the largest since the device was opened, and
+    /// the settings ([`Self::SETTINGS`]) those in force at `after`.
     pub fn between(before: Self, after: Self) -> serde_json::Value {
         let (b, mut a) = (before.to_json(), after.to_json());
         if let (Some(b), Some(a)) = (b.as_object(), a.as_object_mut()) {
             for (k, v) in a.iter_mut() {
-                if k.starts_with("max_") {
+                if k.starts_with("max_") || Self::SETTINGS.contains(&k.as_str()) {
                     continue;
                 }
                 if let (Some(x), Some(y)) = (v.as_u64(), b.get(k).and_then(|v| v.as_u64())) {
@@ -361,7 +366,13 @@ fn open_stage(
                 ..cfg.backend.ethercat.clone()
             };
             let mut stage = bench_hal::ethercat::EthercatStage::open(&ecfg).map_err(|e| bad(&e))?;
-            stage.set_stall_bound_s(stall_bound_s);
+            // In whole periods, as the supervisor counts it (the daemon's
+            // jobs hand theirs over the same way).
+            let period_s = period_ns as f64 * 1e-9;
+            stage.set_stall_bound_s(
+                crate::rt::supervisor::StallBounds::of(stall_bound_s, period_s)
+                    .missed_deadlines_s(period_s),
+            );
             let info = stage.configure(period_ns).map_err(|e| bad(&e))?;
             Ok((AnyStage::Ethercat(Box::new(stage)), info))
         }

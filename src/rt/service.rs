@@ -143,6 +143,7 @@ pub fn run_service(
     status: &LoopStatus,
     tap: Option<crate::rt::tap::LoopTap>,
 ) {
+    let period_s = opts.period_ns as f64 * 1e-9;
     let mut lp = Loop::new(stage, opts, clock);
     if let Some(tap) = tap {
         lp.set_tap(tap, Some(AnyStage::link_counters));
@@ -232,6 +233,10 @@ pub fn run_service(
                 // The job's stall bounds while it runs, the hold's after.
                 let hold_bounds = lp.supervisor().stall_bounds();
                 lp.set_stall_bounds(t.stall);
+                // A link's exchange deadline follows the job's bound too
+                // (arithmetic on the stage; the loop is between ticks).
+                lp.stage()
+                    .set_stall_bound_s(t.stall.missed_deadlines_s(period_s));
                 if let Some(p) = t.pacing {
                     lp.set_pacing(p);
                 }
@@ -239,8 +244,10 @@ pub fn run_service(
                 if t.pacing.is_some() {
                     lp.set_pacing(opts.pacing);
                 }
-                lp.set_stall_bounds(hold_bounds);
                 t.link = before.zip(lp.stage().link_counters());
+                lp.set_stall_bounds(hold_bounds);
+                lp.stage()
+                    .set_stall_bound_s(hold_bounds.missed_deadlines_s(period_s));
                 reply(LoopReply::JobDone(ticket), &mut replies);
             }
             LoopRequest::Shutdown => break,

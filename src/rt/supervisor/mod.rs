@@ -214,10 +214,15 @@ impl Supervisor {
         self.fault
     }
 
-    /// The amplifier was enabled. Ignored while faulted.
+    /// The amplifier was enabled. Ignored while faulted. The sequence
+    /// starts again from the next sample: a backend that exchanges its own
+    /// frames to enable (the CiA 402 state machine over EtherCAT, one
+    /// frame per step) used samples the loop never read, which are not
+    /// samples the link lost.
     pub fn enabled(&mut self) {
         if self.state == SupervisorState::Disabled {
             self.state = SupervisorState::Enabled;
+            self.last_seq = None;
         }
     }
 
@@ -228,10 +233,13 @@ impl Supervisor {
         }
     }
 
-    /// The amplifier was disabled normally. Ignored while faulted.
+    /// The amplifier was disabled normally. Ignored while faulted. The
+    /// sequence starts again from the next sample, as after
+    /// [`Self::enabled`].
     pub fn disabled(&mut self) {
         if self.state != SupervisorState::Faulted {
             self.state = SupervisorState::Disabled;
+            self.last_seq = None;
         }
     }
 

@@ -34,6 +34,19 @@ impl StallBounds {
             max_late_commands: n,
         }
     }
+
+    /// How long the missed-deadline rule lets the loop go without a fresh
+    /// sample at a loop period of `period_s`, s: `max_missed_deadlines ×
+    /// period_s` (infinite when unbounded). What a backend that waits for
+    /// its link may wait before the wait is a fault anyway
+    /// ([`AnyStage::set_stall_bound_s`](crate::rt::backend::AnyStage::set_stall_bound_s)).
+    pub fn missed_deadlines_s(&self, period_s: f64) -> f64 {
+        if self.max_missed_deadlines == u64::MAX {
+            f64::INFINITY
+        } else {
+            self.max_missed_deadlines as f64 * period_s
+        }
+    }
 }
 
 /// Points of a [`ReachEnvelope`].

@@ -248,6 +248,34 @@ fn ticks_without_a_sample_and_the_gap_they_leave_count_once() {
     assert_eq!(s.fault().map(|f| f.0), Some(FaultKind::Link));
 }
 
+/// The frames a backend exchanges inside `enable` and `disable` (the CiA
+/// 402 state machine over EtherCAT) are not samples the link lost: the
+/// sequence starts again after each, while the same gap anywhere else is
+/// the `link` fault (K = 3 here).
+#[test]
+fn a_sequence_jump_across_enable_or_disable_is_no_gap() {
+    let mut s = Supervisor::new(config());
+    assert_eq!(s.check_sample(&seq_sample(0, 0.0, false)), None);
+    // Eight frames of the enable's state machine.
+    s.enabled();
+    assert_eq!(s.check_sample(&seq_sample(9, 0.0, false)), None);
+    s.running();
+    assert_eq!(s.check_sample(&seq_sample(10, 0.0, false)), None);
+    // The disable's frames.
+    s.disabled();
+    assert_eq!(s.check_sample(&seq_sample(16, 0.0, false)), None);
+    s.enabled();
+    assert_eq!(s.check_sample(&seq_sample(30, 0.0, false)), None);
+    assert_eq!(s.missing_samples(), 0);
+    // The same jump while running: more than K missing.
+    s.running();
+    assert_eq!(
+        s.check_sample(&seq_sample(38, 0.0, false)),
+        Some(FaultKind::Link)
+    );
+    assert_eq!(s.fault(), Some((FaultKind::Link, 7.0)));
+}
+
 /// "More than K" means the same for corrupt and dropped frames: K of
 /// either are tolerated, K + 1 trip, at any K; a bad read and the gap
 /// it leaves count once.

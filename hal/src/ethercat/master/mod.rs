@@ -66,6 +66,10 @@ pub struct EthercatStats {
     /// Largest change of the distributed clock's offset to the host's
     /// clock seen within a one-second window, ns (0 without DC).
     pub max_dc_offset_change_ns: u64,
+    /// The deadline of one round trip in force when the counters were
+    /// read, ns ([`EthercatStage::exchange_timeout_ns`]): a setting, not a
+    /// counter.
+    pub exchange_timeout_ns: u64,
 }
 
 /// The EtherCAT stage (host side): one CiA 402 drive in cyclic synchronous
@@ -180,15 +184,19 @@ impl EthercatStage {
 
     /// The link counters.
     pub fn stats(&self) -> EthercatStats {
-        self.stats
+        EthercatStats {
+            exchange_timeout_ns: self.timeout_ns,
+            ..self.stats
+        }
     }
 
     /// Tells the stage how long the loop's supervisor tolerates going
     /// without a fresh sample, s (its stall bound; infinite: none): the
     /// default exchange deadline follows it
     /// ([`EthercatConfig::exchange_timeout_ns`]). Applies at once if
-    /// configured, else at [`Stage::configure`]. Not real-time: call it
-    /// before the loop runs.
+    /// configured, else at [`Stage::configure`]. Arithmetic only (no
+    /// allocation, no call into the link): the daemon's loop calls it
+    /// between jobs.
     pub fn set_stall_bound_s(&mut self, stall_bound_s: f64) {
         self.stall_bound_ns = (stall_bound_s.is_finite() && stall_bound_s >= 0.0)
             .then_some((stall_bound_s * 1e9) as u64);

@@ -18,7 +18,8 @@
 //!
 //! The SM2 (outputs) watchdog of the ESC (registers 0x0400 divider, 0x0420
 //! time, 0x0440 status; the watchdog bit 0x40 of the SM2 control byte from
-//! the SII) restarts on every write of the outputs in OP. When it expires
+//! the SII) restarts on every write of the outputs in OP; it runs only in
+//! OP, from the first output write after each entry to OP. When it expires
 //! (checked on the emulator's own clock, so also when frames stop) the
 //! drive drops the current to 0 A and latches a fault (statusword bit 3,
 //! [`DeviceFault::Watchdog`]), 0x0440 bit 0 clears and the slave goes to
@@ -281,6 +282,13 @@ pub fn run_slave(
             }
             if esc.al_state() == al::OP && op_since.is_none() {
                 op_since = Some(now);
+            }
+            if esc.al_state() != al::OP {
+                // Out of OP the outputs are not written and the watchdog
+                // does not run; back in OP it is armed again by the first
+                // output write, as on the first entry (a host that
+                // disabled between two jobs and enables again).
+                last_pd_ns = None;
             }
             if pd.outputs_written {
                 last_pd_ns = Some(now);
