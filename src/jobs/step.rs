@@ -430,6 +430,7 @@ fn run_control_with(
         let model_loop = ModelLoop {
             plant: &plant,
             ctrl: &ctrl,
+            link_delay_periods: spec.process_data_delay_periods(),
         };
         let (plan, _) = verify::plan(cfg, &model_loop, v, &verify::host_device(cfg))?;
         summary.verify = Some(Verify {
@@ -522,6 +523,7 @@ fn run_control_with(
     let model_loop = ModelLoop {
         plant: &plant,
         ctrl: &ctrl,
+        link_delay_periods: spec.process_data_delay_periods(),
     };
     let verify_chirp = match &opts.verify {
         Some(v) => {
