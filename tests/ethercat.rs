@@ -335,6 +335,29 @@ fn vm_stall(o: &Output) -> bool {
     !o.status.success() && stderr(o).contains("safety fault: overruns")
 }
 
+/// `run(attempt)`, run again (at most twice) while this VM's scheduling
+/// stalls fault it on `overruns`; `attempt` counts from 0 (a run writes
+/// a new recording each time: [`attempt_path`]).
+fn retrying_vm_stalls(mut run: impl FnMut(u32) -> Output) -> Output {
+    let mut o = run(0);
+    for attempt in 1..3 {
+        if !vm_stall(&o) {
+            break;
+        }
+        eprintln!("retrying a run the VM stalled: {}", stderr(&o));
+        o = run(attempt);
+    }
+    o
+}
+
+/// `NAME.mcap` in `dir` on the first attempt, `NAME-retryN.mcap` after.
+fn attempt_path(dir: &Path, name: &str, attempt: u32) -> String {
+    match attempt {
+        0 => path_in(dir, &format!("{name}.mcap")),
+        n => path_in(dir, &format!("{name}-retry{n}.mcap")),
+    }
+}
+
 fn control(seg: &Segment, cfg: &str, out: &str, extra: &[&str]) -> Output {
     let b = backend();
     let mut args = vec![
@@ -371,14 +394,8 @@ fn fast_step_over_ethercat_matches_the_simulator_within_a_period() {
     assert!(o.status.success(), "{}", stderr(&o));
     let sim = json_stdout(&o);
     let slave = Slave::start(&seg, &cfg, vec![], None);
-    let mut o = control(&seg, &cfg_s, &path_in(dir.path(), "ecat.mcap"), &[]);
-    for _ in 0..2 {
-        if !vm_stall(&o) {
-            break;
-        }
-        eprintln!("retrying a run the VM stalled: {}", stderr(&o));
-        o = control(&seg, &cfg_s, &path_in(dir.path(), "ecat.mcap"), &[]);
-    }
+    let o =
+        retrying_vm_stalls(|a| control(&seg, &cfg_s, &attempt_path(dir.path(), "ecat", a), &[]));
     assert!(o.status.success(), "{}", stderr(&o));
     let ec = json_stdout(&o);
     assert_eq!(slave.status.commanded_current_a(), 0.0);
@@ -435,14 +452,8 @@ fn fast_step_over_analog_terminals_matches_the_simulator_within_a_period() {
     assert!(o.status.success(), "{}", stderr(&o));
     let sim = json_stdout(&o);
     let slave = SlaveProcess::start(&seg, &cfg, &[]);
-    let mut o = control(&seg, &cfg_s, &path_in(dir.path(), "ecat.mcap"), &[]);
-    for _ in 0..2 {
-        if !vm_stall(&o) {
-            break;
-        }
-        eprintln!("retrying a run the VM stalled: {}", stderr(&o));
-        o = control(&seg, &cfg_s, &path_in(dir.path(), "ecat.mcap"), &[]);
-    }
+    let o =
+        retrying_vm_stalls(|a| control(&seg, &cfg_s, &attempt_path(dir.path(), "ecat", a), &[]));
     drop(slave);
     assert!(o.status.success(), "{}", stderr(&o));
     let ec = json_stdout(&o);
@@ -883,13 +894,7 @@ fn daemon_jobs_wait_for_the_link_as_long_as_their_own_stall_bound() {
     }
     let s = sock.display().to_string();
     let job = |args: &[&str]| {
-        let mut o = run(args);
-        for _ in 0..2 {
-            if !vm_stall(&o) {
-                break;
-            }
-            o = run(args);
-        }
+        let o = retrying_vm_stalls(|_| run(args));
         assert!(o.status.success(), "{args:?}: {}", stderr(&o));
         json_stdout(&o)
     };
@@ -917,13 +922,8 @@ fn daemon_jobs_wait_for_the_link_as_long_as_their_own_stall_bound() {
     let _ = serve.kill();
     let _ = serve.wait();
     // The local fast step's deadline.
-    let mut o = control(&seg, &cfg_s, &path_in(dir.path(), "local.mcap"), &[]);
-    for _ in 0..2 {
-        if !vm_stall(&o) {
-            break;
-        }
-        o = control(&seg, &cfg_s, &path_in(dir.path(), "local.mcap"), &[]);
-    }
+    let o =
+        retrying_vm_stalls(|a| control(&seg, &cfg_s, &attempt_path(dir.path(), "local", a), &[]));
     assert!(o.status.success(), "{}", stderr(&o));
     let local_ms = deadline_ms(&json_stdout(&o));
     // The bound in whole loop periods (0.2 ms), as the supervisor counts.
@@ -974,15 +974,7 @@ fn verify_over_ethercat_predicts_the_loop_with_the_links_delay() {
     let want = reference[0].discrete.clone().expect("sampled margins");
     let slave = Slave::start(&seg, &cfg, vec![], None);
     let args = ["--duration-s", "1", "--verify", "--verify-duration-s", "4"];
-    let out = path_in(dir.path(), "v.mcap");
-    let mut o = control(&seg, &cfg_s, &out, &args);
-    for _ in 0..2 {
-        if !vm_stall(&o) {
-            break;
-        }
-        eprintln!("retrying a run the VM stalled: {}", stderr(&o));
-        o = control(&seg, &cfg_s, &out, &args);
-    }
+    let o = retrying_vm_stalls(|a| control(&seg, &cfg_s, &attempt_path(dir.path(), "v", a), &args));
     drop(slave);
     assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
     let s = json_stdout(&o);
