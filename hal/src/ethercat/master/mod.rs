@@ -25,6 +25,7 @@
 
 use super::config::{EthercatConfig, ImageLayout, MAX_PDO_BYTES};
 use super::image_lock::BorrowFlag;
+use super::rack::RackLayout;
 use super::socket::RawSocket;
 use super::wire::cia402::*;
 use super::EthercatError;
@@ -75,6 +76,10 @@ pub struct EthercatStats {
 pub struct EthercatStage {
     cfg: EthercatConfig,
     layout: ImageLayout,
+    /// The rack's signals (`None`: the single device).
+    rack: Option<RackLayout>,
+    /// The group's working counter expected in SAFE-OP and in OP.
+    wkc: (u16, u16),
     link: Link,
     md: Option<MainDevice<'static>>,
     group: Option<Running>,
@@ -126,6 +131,7 @@ impl EthercatStage {
     pub fn open(cfg: &EthercatConfig) -> Result<Self, EthercatError> {
         let layout = cfg.layout("backend.ethercat")?;
         cfg.validate("backend.ethercat")?;
+        let rack = cfg.rack("backend.ethercat")?;
         let sock = RawSocket::open(&cfg.interface)?;
         let parts = take_parts()?;
         // ethercrab reports through the `log` crate, also from the PDU
@@ -154,6 +160,8 @@ impl EthercatStage {
         Ok(Self {
             cfg: cfg.clone(),
             layout,
+            rack,
+            wkc: (1, 3),
             link: Link {
                 sock,
                 ends: Some((parts.tx, parts.rx)),
