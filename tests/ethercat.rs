@@ -807,3 +807,75 @@ fn a_controller_the_link_delay_breaks_is_refused_before_anything_is_opened() {
     let e = stderr(&o);
     assert!(e.contains("noecat7") && e.contains("not found"), "{e}");
 }
+
+/// The README's Beckhoff rack (*A rack of terminals*: EK1100, EL3102,
+/// EL4132, EL2002, EL1002), as written there, drives the same fast step
+/// through `bench emulate ethercat` emulating that rack from the same
+/// config: the times within 5 % or two periods of the simulator's, as for
+/// the single analog device.
+#[test]
+fn fast_step_over_the_readmes_beckhoff_rack_matches_the_simulator() {
+    let _g = one_at_a_time();
+    let readme =
+        std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("README.md")).unwrap();
+    let block = readme
+        .split("```toml\n")
+        .skip(1)
+        .filter_map(|b| b.split("```").next())
+        .find(|b| b.contains("[[backend.ethercat.slaves]]"))
+        .expect("the README's rack example");
+    assert!(block.contains("interface = \"eth1\"\nprofile = \"analog\"\n"));
+    let text = block.replace(
+        "interface = \"eth1\"\nprofile = \"analog\"\n",
+        &format!(
+            "interface = \"{MASTER_IF}\"\nprofile = \"analog\"\nexchange_timeout_ms = 20.0\nwatchdog_ms = 50.0\n"
+        ),
+    );
+    let Some(seg) = Segment::new() else { return };
+    let dir = tmp();
+    let cfg = common::quiet_config(dir.path(), 2.0, &format!("\n{text}"));
+    // The README's rack is the one the unit tests lay out.
+    let loaded = bench::config::BenchConfig::load(&cfg).unwrap();
+    assert_eq!(
+        loaded.backend.ethercat.slaves,
+        bench_hal::ethercat::rack::beckhoff_example()
+    );
+    let cfg_s = cfg.display().to_string();
+    let o = run(&[
+        "control",
+        "--fast",
+        "--config",
+        &cfg_s,
+        "--json",
+        "--out",
+        &path_in(dir.path(), "sim.mcap"),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let sim = json_stdout(&o);
+    let slave = SlaveProcess::start(&seg, &cfg, &[]);
+    let mut o = control(&seg, &cfg_s, &path_in(dir.path(), "ecat.mcap"), &[]);
+    for _ in 0..2 {
+        if !vm_stall(&o) {
+            break;
+        }
+        eprintln!("retrying a run the VM stalled: {}", stderr(&o));
+        o = control(&seg, &cfg_s, &path_in(dir.path(), "ecat.mcap"), &[]);
+    }
+    drop(slave);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let ec = json_stdout(&o);
+    assert!(
+        ec["backend"].as_str().unwrap().contains("rack of 5 slaves"),
+        "{ec}"
+    );
+    let m = |s: &Value, k: &str| s["metrics"][k].as_f64().unwrap_or(f64::NAN);
+    for k in ["rise_time_s", "settling_time_s"] {
+        let (a, b) = (m(&sim, k), m(&ec, k));
+        eprintln!("rack {k}: EtherCAT {b} vs direct {a}");
+        assert!(
+            (b - a).abs() <= (0.05 * a.abs()).max(2.0 * 2e-4),
+            "{k}: EtherCAT {b} vs direct {a} (link {})",
+            ec["link"]
+        );
+    }
+}

@@ -291,13 +291,19 @@ impl Stage for EthercatStage {
         }
         self.configured = true;
         Ok(DeviceInfo {
-            name: format!(
-                "ethercat:{} {} 0x{:08X}:0x{:08X}",
-                self.cfg.interface,
-                self.cfg.profile.as_str(),
-                self.cfg.vendor_id,
-                self.cfg.expected_product_id()
-            ),
+            name: match self.rack {
+                Some(r) => format!(
+                    "ethercat:{} analog rack of {} slaves",
+                    self.cfg.interface, r.slaves
+                ),
+                None => format!(
+                    "ethercat:{} {} 0x{:08X}:0x{:08X}",
+                    self.cfg.interface,
+                    self.cfg.profile.as_str(),
+                    self.cfg.vendor_id,
+                    self.cfg.expected_product_id()
+                ),
+            },
             clock: Clock::Host,
             period_ns,
             peak_current_a: self.cfg.peak_current_a,
