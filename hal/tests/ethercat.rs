@@ -270,8 +270,8 @@ fn the_plant_behind_the_slave_is_the_simulator_one_period_late() {
     );
 }
 
-/// The ticks take no lock: the loop thread runs 2 000 paced ticks in OP
-/// (with distributed clocks, the default: `tx_rx_dc`) under `strace -p
+/// The ticks take no lock (the single drive, then the rack): the loop
+/// thread runs 2 000 paced ticks in OP (with distributed clocks, the default: `tx_rx_dc`) under `strace -p
 /// TID -e trace=futex,sched_yield`, and between two marker
 /// `sched_yield`s the thread made no `futex` (what a contended mutex,
 /// condvar, channel or park waits in) and no `sched_yield` (what
@@ -285,84 +285,98 @@ fn the_ticks_make_no_futex_or_sched_yield_call() {
         eprintln!("SKIPPED: no strace (apt-get install strace)");
         return;
     }
-    let slave = Slave::start(&v.slave, &host_cfg(&v.slave), default_id(), vec![]);
-    let mut stage = EthercatStage::open(&host_cfg(&v.master)).unwrap();
-    stage.configure(PERIOD_NS).unwrap();
-    stage.enable().unwrap();
-    // SAFETY: gettid has no preconditions.
-    let tid = unsafe { libc::gettid() };
-    let log = std::env::temp_dir().join(format!("bench-ec-strace-{tid}.txt"));
-    let mut strace = Cmd::new("strace")
-        .args(["-qq", "-e", "trace=futex,sched_yield", "-o"])
-        .arg(&log)
-        .args(["-p", &tid.to_string()])
-        .spawn()
-        .unwrap();
-    // Attached when this thread's TracerPid is strace's.
-    let status = format!("/proc/self/task/{tid}/status");
-    let t0 = Instant::now();
-    while !std::fs::read_to_string(&status)
-        .unwrap()
-        .lines()
-        .any(|l| l.starts_with("TracerPid:") && l.split_whitespace().nth(1) != Some("0"))
-    {
-        assert!(
-            t0.elapsed() < Duration::from_secs(10),
-            "strace did not attach"
-        );
-        std::thread::sleep(Duration::from_millis(10));
-    }
-    // SAFETY: sched_yield has no preconditions.
-    unsafe { libc::sched_yield() };
-    let n = 2000;
-    let mut next = bench_hal::os::monotonic_ns();
-    let mut ticks = 0;
-    for _ in 0..n {
-        next += PERIOD_NS;
-        bench_hal::os::sleep_until_ns(next);
-        let Ok(s) = stage.read_sample() else { break };
-        let ok = stage
-            .write_command(Command {
-                current_a: 0.1,
-                answers_seq: s.seq,
-            })
-            .is_ok();
-        ticks += usize::from(ok);
-        if !ok {
-            break;
+    // The single drive, then the rack of five terminals (one
+    // `outputs_raw_mut`/`inputs_raw` per signal: the same atomic flag).
+    for rack in [false, true] {
+        let (slave, cfg) = if rack {
+            (
+                Slave::start_rack(&v.slave, &rack_cfg(&v.slave), vec![]),
+                rack_cfg(&v.master),
+            )
+        } else {
+            (
+                Slave::start(&v.slave, &host_cfg(&v.slave), default_id(), vec![]),
+                host_cfg(&v.master),
+            )
+        };
+        let mut stage = EthercatStage::open(&cfg).unwrap();
+        stage.configure(PERIOD_NS).unwrap();
+        stage.enable().unwrap();
+        // SAFETY: gettid has no preconditions.
+        let tid = unsafe { libc::gettid() };
+        let log = std::env::temp_dir().join(format!("bench-ec-strace-{tid}.txt"));
+        let mut strace = Cmd::new("strace")
+            .args(["-qq", "-e", "trace=futex,sched_yield", "-o"])
+            .arg(&log)
+            .args(["-p", &tid.to_string()])
+            .spawn()
+            .unwrap();
+        // Attached when this thread's TracerPid is strace's.
+        let status = format!("/proc/self/task/{tid}/status");
+        let t0 = Instant::now();
+        while !std::fs::read_to_string(&status)
+            .unwrap()
+            .lines()
+            .any(|l| l.starts_with("TracerPid:") && l.split_whitespace().nth(1) != Some("0"))
+        {
+            assert!(
+                t0.elapsed() < Duration::from_secs(10),
+                "strace did not attach"
+            );
+            std::thread::sleep(Duration::from_millis(10));
         }
+        // SAFETY: sched_yield has no preconditions.
+        unsafe { libc::sched_yield() };
+        let n = 2000;
+        let mut next = bench_hal::os::monotonic_ns();
+        let mut ticks = 0;
+        for _ in 0..n {
+            next += PERIOD_NS;
+            bench_hal::os::sleep_until_ns(next);
+            let Ok(s) = stage.read_sample() else { break };
+            let ok = stage
+                .write_command(Command {
+                    current_a: 0.1,
+                    answers_seq: s.seq,
+                })
+                .is_ok();
+            ticks += usize::from(ok);
+            if !ok {
+                break;
+            }
+        }
+        // SAFETY: as above.
+        unsafe { libc::sched_yield() };
+        // SIGINT detaches strace (kill and waitpid are no futex).
+        // SAFETY: kill on our child's pid.
+        unsafe { libc::kill(strace.id() as i32, libc::SIGINT) };
+        strace.wait().unwrap();
+        stage.disable().unwrap();
+        drop(stage);
+        drop(slave);
+        let text = std::fs::read_to_string(&log).unwrap();
+        let _ = std::fs::remove_file(&log);
+        let calls: Vec<&str> = text
+            .lines()
+            .filter(|l| l.starts_with("futex") || l.starts_with("sched_yield"))
+            .collect();
+        let first = calls.iter().position(|l| l.starts_with("sched_yield"));
+        let last = calls.iter().rposition(|l| l.starts_with("sched_yield"));
+        let (Some(first), Some(last)) = (first, last) else {
+            panic!("the tracer did not see the marker calls:\n{text}");
+        };
+        assert!(last > first, "one marker only:\n{text}");
+        eprintln!(
+            "{ticks} ticks traced; futex/sched_yield calls between the markers: {}",
+            last - first - 1
+        );
+        assert_eq!(ticks, n, "the ticks stopped early");
+        assert_eq!(
+            &calls[first + 1..last],
+            &[] as &[&str],
+            "the loop thread waited in the ticks"
+        );
     }
-    // SAFETY: as above.
-    unsafe { libc::sched_yield() };
-    // SIGINT detaches strace (kill and waitpid are no futex).
-    // SAFETY: kill on our child's pid.
-    unsafe { libc::kill(strace.id() as i32, libc::SIGINT) };
-    strace.wait().unwrap();
-    stage.disable().unwrap();
-    drop(stage);
-    drop(slave);
-    let text = std::fs::read_to_string(&log).unwrap();
-    let _ = std::fs::remove_file(&log);
-    let calls: Vec<&str> = text
-        .lines()
-        .filter(|l| l.starts_with("futex") || l.starts_with("sched_yield"))
-        .collect();
-    let first = calls.iter().position(|l| l.starts_with("sched_yield"));
-    let last = calls.iter().rposition(|l| l.starts_with("sched_yield"));
-    let (Some(first), Some(last)) = (first, last) else {
-        panic!("the tracer did not see the marker calls:\n{text}");
-    };
-    assert!(last > first, "one marker only:\n{text}");
-    eprintln!(
-        "{ticks} ticks traced; futex/sched_yield calls between the markers: {}",
-        last - first - 1
-    );
-    assert_eq!(ticks, n, "the ticks stopped early");
-    assert_eq!(
-        &calls[first + 1..last],
-        &[] as &[&str],
-        "the loop thread waited in the ticks"
-    );
 }
 
 /// The exchange deadline follows the loop's stall bound: with
@@ -849,8 +863,8 @@ fn a_rack_of_five_terminals_drives_the_plant_one_period_late() {
 }
 
 /// A terminal with another identity is refused naming its position and
-/// key, a segment with fewer slaves than configured naming the count;
-/// nothing is enabled.
+/// key, a segment with fewer or more slaves than configured naming the
+/// count; nothing is enabled.
 #[test]
 fn a_rack_with_a_wrong_terminal_or_count_is_refused_and_nothing_enabled() {
     let _g = serial();
@@ -899,11 +913,36 @@ fn a_rack_with_a_wrong_terminal_or_count_is_refused_and_nothing_enabled() {
         assert_eq!(e.kind(), ErrorKind::Link);
         assert!(!slave.status.enabled.load(Ordering::Acquire));
     }
+    // A sixth terminal the config does not know (another EL1002).
+    let mut sc = rack_cfg(&v.slave);
+    let mut extra = sc.slaves[4].clone();
+    extra.position = 5;
+    extra.status = None;
+    extra.fault = None;
+    sc.slaves.push(extra);
+    {
+        let slave = Slave::start_rack(&v.slave, &sc, vec![]);
+        let mut stage = EthercatStage::open(&rack_cfg(&v.master)).unwrap();
+        let e = stage.configure(PERIOD_NS).unwrap_err();
+        assert!(
+            matches!(
+                e,
+                EthercatError::SlaveCount {
+                    found: 6,
+                    expected: 5,
+                    ..
+                }
+            ),
+            "{e}"
+        );
+        assert!(!slave.status.enabled.load(Ordering::Acquire));
+    }
 }
 
 /// A terminal that leaves OP (the EL2002 with the enable, the EL4132 with
-/// the DAC, the coupler-side ADC), a wrong working counter and a lost
-/// frame: each fails the tick with its kind, and the safe stop leaves 0 A.
+/// the DAC, the EL3102 with the ADC), a wrong working counter, a lost
+/// frame and the distributed clock drifting 2000 ppm: each fails the tick
+/// with its kind, and the safe stop leaves 0 A.
 #[test]
 fn a_terminal_leaving_op_fails_the_tick_and_leaves_zero_amps() {
     let _g = serial();
@@ -913,6 +952,7 @@ fn a_terminal_leaving_op_fails_the_tick_and_leaves_zero_amps() {
         (SlaveFault::LeaveOpAt { position: 1 }, ErrorKind::Link),
         (SlaveFault::WrongWkc { frames: 1 }, ErrorKind::Link),
         (SlaveFault::Drop { frames: 1 }, ErrorKind::Timeout),
+        (SlaveFault::DcDrift { ppm: 2000.0 }, ErrorKind::Link),
     ] {
         let Some(v) = Veth::new() else { return };
         let faults = vec![ScheduledSlaveFault {
