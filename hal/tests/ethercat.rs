@@ -913,6 +913,32 @@ fn a_rack_with_a_wrong_terminal_or_count_is_refused_and_nothing_enabled() {
         assert_eq!(e.kind(), ErrorKind::Link);
         assert!(!slave.status.enabled.load(Ordering::Acquire));
     }
+    // The EL2002 is an EL2004 (4 outputs, its fixed map in the SII) with
+    // the EL2002's product code: its image is not the one configured.
+    let mut sc = rack_cfg(&v.slave);
+    let e = sc.slaves[3].rx_pdo[0];
+    sc.slaves[3].rx_pdo = (0..8u16)
+        .map(|k| PdoEntry {
+            index: 0x7000 + 0x10 * k,
+            ..e
+        })
+        .chain([PdoEntry {
+            index: 0,
+            subindex: 0,
+            bits: 1,
+        }])
+        .collect();
+    {
+        let slave = Slave::start_rack(&v.slave, &sc, vec![]);
+        let mut stage = EthercatStage::open(&rack_cfg(&v.master)).unwrap();
+        let e = stage.configure(PERIOD_NS).unwrap_err();
+        let text = e.to_string();
+        assert!(
+            text.contains("position 3 maps 2 output") && text.contains("config 1 and 0"),
+            "{e}"
+        );
+        assert!(!slave.status.enabled.load(Ordering::Acquire));
+    }
     // A sixth terminal the config does not know (another EL1002).
     let mut sc = rack_cfg(&v.slave);
     let mut extra = sc.slaves[4].clone();
@@ -1014,6 +1040,10 @@ fn a_silent_host_is_stopped_by_the_dac_terminals_watchdog() {
         "the watchdog time the host wrote"
     );
     let dt = trip - last;
+    eprintln!(
+        "rack: 0 A {:.3} ms after the last output write (watchdog 20 ms, period 0.2 ms)",
+        dt as f64 * 1e-6
+    );
     assert!(
         (20_000_000..=20_000_000 + 25_000_000).contains(&dt),
         "0 A {:.3} ms after the last output write",
@@ -1021,6 +1051,8 @@ fn a_silent_host_is_stopped_by_the_dac_terminals_watchdog() {
     );
     assert_eq!(slave.status.commanded_current_a(), 0.0);
     assert!(!slave.status.enabled.load(Ordering::Acquire));
+    // The DAC terminal's watchdog latched the amplifier's fault (code 1).
+    assert_eq!(slave.status.fault_code.load(Ordering::Acquire), 1);
     let e = stage
         .write_command(Command {
             current_a: 0.3,

@@ -25,9 +25,11 @@ pub(super) enum EmulateCommand {
         #[command(flatten)]
         common: EmulateArgs,
     },
-    /// Virtual EtherCAT slave (a CiA 402 drive in CST around the plant) on
-    /// a network interface (raw socket: needs CAP_NET_RAW). Faults:
-    /// drop:FRAMES, wkc:FRAMES, leave_op, drive_fault, disconnect, at
+    /// Virtual EtherCAT slave (a CiA 402 drive in CST around the plant, or
+    /// the analog profile's terminals; with [[backend.ethercat.slaves]] a
+    /// rack of them on one segment) on a network interface (raw socket:
+    /// needs CAP_NET_RAW). Faults: drop:FRAMES, wkc:FRAMES, leave_op,
+    /// leave_op:POSITION (a rack's terminal), drive_fault, disconnect, at
     /// seconds after the slave first enters OP.
     Ethercat {
         /// Network interface, e.g. a veth end.
