@@ -51,7 +51,7 @@
 //! SAFE-OP + ERROR, `leave_op:N` the terminal at position N.
 
 use super::drive::{abort, serve_sdo, SdoRequest};
-use super::esc::{App, Esc, PdAccess};
+use super::esc::{App, Esc, Malformed, PdAccess};
 use super::sii;
 use super::{find_datagram, Faults, ScheduledSlaveFault, SlaveFault};
 use crate::emulator::{DeviceCore, DeviceFault, EmulatorStatus};
@@ -378,6 +378,25 @@ impl Rack {
     }
 }
 
+/// One frame's datagrams (`pdus`, after the EtherCAT header) through ESC
+/// 0, 1, … in order, as on a segment (see the [module docs](self)); what
+/// each did to its process data in `pd` (by position). A malformed frame
+/// stops at the first ESC ([`Malformed`]: no answer).
+///
+/// # Errors
+/// [`Malformed`] for datagrams that run past the frame.
+pub fn through_chain<A: App>(
+    escs: &mut [Esc<A>],
+    pdus: &mut [u8],
+    local_ns: u64,
+    pd: &mut [PdAccess],
+) -> Result<(), Malformed> {
+    for (esc, pd) in escs.iter_mut().zip(pd.iter_mut()) {
+        esc.process(pdus, pd, local_ns)?;
+    }
+    Ok(())
+}
+
 /// Runs the virtual rack of `cfg.slaves` on `sock` until `stop` is raised
 /// (see the [module docs](self)): the plant of `core` (no watchdog of its
 /// own: the terminals' SM watchdogs act), the faults of `faults`, the
@@ -550,28 +569,21 @@ pub fn run_rack(
                 continue;
             }
             // Through ESC 0, 1, … in order.
+            let mut pd = [PdAccess::default(); MAX_RACK];
+            let pdus = &mut frame[start..start + plen];
+            if through_chain(&mut rack.escs, pdus, local(clock, now), &mut pd).is_err() {
+                status.bad_frames.fetch_add(1, Ordering::Relaxed);
+                continue;
+            }
             let mut touched = false;
             let mut dac_written = false;
-            let mut bad = false;
-            for (p, esc) in rack.escs.iter_mut().enumerate() {
-                let mut pd = PdAccess::default();
-                if esc
-                    .process(&mut frame[start..start + plen], &mut pd, local(clock, now))
-                    .is_err()
-                {
-                    bad = true;
-                    break;
-                }
+            for (p, (esc, pd)) in rack.escs.iter_mut().zip(pd).enumerate() {
                 if pd.outputs_written {
                     last_out[p] = Some(now);
                     esc.set_watchdog_expired(false);
                     dac_written |= p == rack.dac;
                 }
                 touched |= pd.outputs_written || pd.inputs_read;
-            }
-            if bad {
-                status.bad_frames.fetch_add(1, Ordering::Relaxed);
-                continue;
             }
             if let (Some(w), true) = (lrw, f.wkc_left > 0) {
                 f.wkc_left -= 1;
@@ -610,6 +622,99 @@ pub fn run_rack(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// One datagram: command, address (ADP, ADO), data; `more` another
+    /// follows (ETG.1000.4 §5.4.1.2: 10-byte header, data, 2-byte WKC).
+    fn datagram(f: &mut Vec<u8>, command: u8, adp: u16, ado: u16, data: &[u8], more: bool) {
+        f.extend_from_slice(&[command, 0]);
+        f.extend_from_slice(&adp.to_le_bytes());
+        f.extend_from_slice(&ado.to_le_bytes());
+        let len = data.len() as u16 | if more { 0x8000 } else { 0 };
+        f.extend_from_slice(&len.to_le_bytes());
+        f.extend_from_slice(&[0, 0]);
+        f.extend_from_slice(data);
+        f.extend_from_slice(&[0, 0]);
+    }
+
+    /// (ADP, data, WKC) of the `k`-th datagram of a frame.
+    fn answer(f: &[u8], k: usize) -> (u16, Vec<u8>, u16) {
+        let mut at = 0;
+        for _ in 0..k {
+            let len = usize::from(u16::from_le_bytes([f[at + 6], f[at + 7]]) & 0x07FF);
+            at += 10 + len + 2;
+        }
+        let len = usize::from(u16::from_le_bytes([f[at + 6], f[at + 7]]) & 0x07FF);
+        let d = f[at + 10..at + 10 + len].to_vec();
+        let w = u16::from_le_bytes([f[at + 10 + len], f[at + 11 + len]]);
+        (u16::from_le_bytes([f[at + 2], f[at + 3]]), d, w)
+    }
+
+    /// The chain as ETG.1000.4 §5.4 has it: a broadcast read is answered by
+    /// each slave (WKC 5), an auto-increment address reaches the slave
+    /// where it counts up to 0 (−2: the third) and comes back incremented
+    /// by each, a configured address matches one slave, and a broadcast
+    /// write counts each slave once.
+    #[test]
+    fn a_frame_passes_the_slaves_in_order_with_their_working_counters() {
+        let rack = crate::ethercat::rack::beckhoff_example();
+        let mut escs: Vec<Esc<Terminal>> = rack
+            .iter()
+            .enumerate()
+            .map(|(p, s)| {
+                let t = Terminal::new(s);
+                let coe = t.coe;
+                let sii = sii::terminal_image(&s.name, 2, s.product_id, coe, &[], &[]);
+                Esc::in_chain(sii, t, coe, p + 1 < rack.len(), coe)
+            })
+            .collect();
+        let n = escs.len() as u16;
+        let mut f = Vec::new();
+        // BRD of the ESC type; APWR of station address 0x1003 to the third
+        // slave (ADP −2); BWR of 0 to 0x0120 (AL control: INIT).
+        datagram(&mut f, cmd::BRD, 0, 0x0000, &[0], true);
+        datagram(
+            &mut f,
+            cmd::APWR,
+            0u16.wrapping_sub(2),
+            0x0010,
+            &0x1003u16.to_le_bytes(),
+            true,
+        );
+        datagram(&mut f, cmd::BWR, 0, 0x0120, &[1, 0], false);
+        let mut pd = [PdAccess::default(); MAX_RACK];
+        through_chain(&mut escs, &mut f, 0, &mut pd).unwrap();
+        assert_eq!(answer(&f, 0), (n, vec![0x11], n));
+        assert_eq!(answer(&f, 1).0, 0u16.wrapping_sub(2).wrapping_add(n));
+        assert_eq!(answer(&f, 1).2, 1);
+        assert_eq!(answer(&f, 2).2, n);
+        // FPRD of the station address: only the third slave answers.
+        let mut f = Vec::new();
+        datagram(&mut f, cmd::FPRD, 0x1003, 0x0010, &[0, 0], false);
+        through_chain(&mut escs, &mut f, 0, &mut pd).unwrap();
+        assert_eq!(answer(&f, 0), (0x1003, 0x1003u16.to_le_bytes().to_vec(), 1));
+        // APRD of the DL status: the last slave has no link on port 1,
+        // the others do (port 1 bit 5).
+        for p in 0..n {
+            let mut f = Vec::new();
+            datagram(
+                &mut f,
+                cmd::APRD,
+                0u16.wrapping_sub(p),
+                0x0110,
+                &[0, 0],
+                false,
+            );
+            through_chain(&mut escs, &mut f, 0, &mut pd).unwrap();
+            let (_, d, w) = answer(&f, 0);
+            assert_eq!(w, 1);
+            assert_eq!(d[0] & 0x20 != 0, p + 1 < n, "slave {p}");
+        }
+        // A frame cut short is no answer.
+        let mut f = Vec::new();
+        datagram(&mut f, cmd::BRD, 0, 0, &[0; 4], false);
+        f.truncate(f.len() - 3);
+        assert!(through_chain(&mut escs, &mut f, 0, &mut pd).is_err());
+    }
 
     #[test]
     fn bits_go_in_and_out_at_their_offsets() {
