@@ -854,8 +854,15 @@ fn fast_step_over_the_readmes_beckhoff_rack_matches_the_simulator() {
     let sim = json_stdout(&o);
     let slave = SlaveProcess::start(&seg, &cfg, &[]);
     let mut o = control(&seg, &cfg_s, &path_in(dir.path(), "ecat.mcap"), &[]);
+    // A stall of either process (the VM's other work) shows as the
+    // overrun rule or, for the emulator's process, as one frame not back
+    // within the 20 ms bound: retried as the VM's, at most twice (the hal
+    // tests run the same rack for thousands of ticks without a loss).
+    let stalled = |o: &Output| {
+        vm_stall(o) || (!o.status.success() && stderr(o).contains("process-data frame lost"))
+    };
     for _ in 0..2 {
-        if !vm_stall(&o) {
+        if !stalled(&o) {
             break;
         }
         eprintln!("retrying a run the VM stalled: {}", stderr(&o));
