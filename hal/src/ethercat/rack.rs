@@ -8,7 +8,7 @@
 //!
 //! | key | type | meaning |
 //! |---|---|---|
-//! | `position` | integer | 0-based position on the segment (ETG.1000.4 §5.3.1 auto-increment order: 0 is the slave next to the master) |
+//! | `position` | integer | 0-based position on the segment (auto-increment order: 0 is the slave next to the master) |
 //! | `vendor_id` | integer | expected vendor id (SII word 0x0008; Beckhoff: 0x2) |
 //! | `product_id` | integer | expected product code (SII word 0x000A; EL3102: 0x0C1E3052) |
 //! | `name` | string | optional, for messages (`"EL3102"`) |

@@ -5,6 +5,7 @@ use super::group::Cycle;
 use super::link::Stall;
 use super::*;
 use crate::ethercat::rack::SignalAt;
+use crate::ethercat::wire::{get_bits, set_bits};
 
 impl EthercatStage {
     /// One process-data round trip: the outputs `self.out` go out, the
@@ -246,34 +247,6 @@ impl EthercatStage {
             }
             if monotonic_ns() >= deadline_ns {
                 return Ok(false);
-            }
-        }
-    }
-}
-
-/// `n` bits (LSB first) of `b` from bit `bit` (ETG.1000.4 §5.4.3.3: the
-/// logical image is little-endian, bit 0 the least significant bit of
-/// byte 0).
-pub(super) fn get_bits(b: &[u8], bit: usize, n: usize) -> u32 {
-    let mut v = 0u32;
-    for k in 0..n {
-        let at = bit + k;
-        if b.get(at / 8).is_some_and(|x| x >> (at % 8) & 1 != 0) {
-            v |= 1 << k;
-        }
-    }
-    v
-}
-
-/// Writes `n` bits of `v` into `b` from bit `bit`, the others untouched.
-pub(super) fn set_bits(b: &mut [u8], bit: usize, n: usize, v: u32) {
-    for k in 0..n {
-        let at = bit + k;
-        if let Some(x) = b.get_mut(at / 8) {
-            if v >> k & 1 != 0 {
-                *x |= 1 << (at % 8);
-            } else {
-                *x &= !(1 << (at % 8));
             }
         }
     }

@@ -727,7 +727,7 @@ impl Drive {
     }
 }
 
-/// One SDO request of a CoE mailbox (ETG.1000.6 §5.6.2).
+/// One SDO request of a CoE mailbox (ETG.1000.6 §5.6).
 #[derive(Debug, Clone, Copy)]
 pub(super) enum SdoRequest {
     /// Upload (read) of `index`:`sub`.
@@ -755,7 +755,7 @@ pub(super) enum SdoRequest {
 /// is the abort code) and writes the response mailbox to `resp` (all of
 /// it, [`MBX_SIZE`] bytes). Returns `false` when the request is not CoE
 /// SDO (no response). Expedited transfers only; complete access is
-/// refused (ETG.1000.6 §5.6.2.1–5.6.2.7).
+/// refused (ETG.1000.6 §5.6).
 pub(super) fn serve_sdo(
     req: &[u8],
     resp: &mut [u8],

@@ -205,7 +205,7 @@ impl<A: App> Esc<A> {
 
     /// Sets the receive time of port 1 to `delay_ns` after port 0's at
     /// every latch: the frame's loop through the slaves behind this one
-    /// (ETG.1000.4 §6.8.2; 0 at the end of the chain).
+    /// (ETG.1000.4 §6.8; 0 at the end of the chain).
     pub fn set_loop_delay_ns(&mut self, delay_ns: u64) {
         self.loop_delay_ns = delay_ns;
     }

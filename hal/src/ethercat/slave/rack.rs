@@ -58,7 +58,7 @@ use crate::emulator::{DeviceCore, DeviceFault, EmulatorStatus};
 use crate::ethercat::config::{EthercatConfig, PdoEntry};
 use crate::ethercat::rack::{RackSlave, MAX_RACK};
 use crate::ethercat::socket::RawSocket;
-use crate::ethercat::wire::{al, cmd, ECAT_HEADER, ETHERTYPE, ETH_HEADER};
+use crate::ethercat::wire::{al, cmd, get_bits, set_bits, ECAT_HEADER, ETHERTYPE, ETH_HEADER};
 use crate::ethercat::EthercatError;
 use crate::os::monotonic_ns;
 use crate::Command;
@@ -266,30 +266,6 @@ impl App for Terminal {
     fn write_inputs(&self, _inputs: &mut [u8]) {}
     /// The rack runs the plant (shared by the terminals).
     fn cycle(&mut self, _outputs: Option<&[u8]>, _inputs: &mut [u8], _now_ns: u64) {}
-}
-
-fn get_bits(b: &[u8], bit: usize, n: usize) -> u32 {
-    let mut v = 0u32;
-    for k in 0..n {
-        let at = bit + k;
-        if b.get(at / 8).is_some_and(|x| x >> (at % 8) & 1 != 0) {
-            v |= 1 << k;
-        }
-    }
-    v
-}
-
-fn set_bits(b: &mut [u8], bit: usize, n: usize, v: u32) {
-    for k in 0..n {
-        let at = bit + k;
-        if let Some(x) = b.get_mut(at / 8) {
-            if v >> k & 1 != 0 {
-                *x |= 1 << (at % 8);
-            } else {
-                *x &= !(1 << (at % 8));
-            }
-        }
-    }
 }
 
 /// The rack: its ESCs in position order and the plant.
@@ -714,15 +690,5 @@ mod tests {
         datagram(&mut f, cmd::BRD, 0, 0, &[0; 4], false);
         f.truncate(f.len() - 3);
         assert!(through_chain(&mut escs, &mut f, 0, &mut pd).is_err());
-    }
-
-    #[test]
-    fn bits_go_in_and_out_at_their_offsets() {
-        let mut b = [0u8; 4];
-        set_bits(&mut b, 3, 16, 0xBEEF);
-        assert_eq!(get_bits(&b, 3, 16), 0xBEEF);
-        assert_eq!(b[0] & 0x07, 0, "bits below the offset untouched");
-        set_bits(&mut b, 3, 16, 0);
-        assert_eq!(b, [0; 4]);
     }
 }
