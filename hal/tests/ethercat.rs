@@ -863,8 +863,9 @@ fn a_rack_of_five_terminals_drives_the_plant_one_period_late() {
 }
 
 /// A terminal with another identity is refused naming its position and
-/// key, a segment with fewer or more slaves than configured naming the
-/// count; nothing is enabled.
+/// key, a map a fixed-PDO terminal refuses naming the entry, a segment
+/// with fewer or more slaves than configured naming the count; nothing
+/// is enabled.
 #[test]
 fn a_rack_with_a_wrong_terminal_or_count_is_refused_and_nothing_enabled() {
     let _g = serial();
@@ -889,6 +890,35 @@ fn a_rack_with_a_wrong_terminal_or_count_is_refused_and_nothing_enabled() {
         assert!(stage.enable().is_err());
         assert!(!slave.status.enabled.load(Ordering::Acquire));
         assert_eq!(slave.status.commands_received.load(Ordering::Relaxed), 0);
+    }
+    // Analog terminals whose PDO contents are fixed (as Beckhoff's): a
+    // host that writes the map is refused naming the entry; one told
+    // `fixed_pdo` takes their assignment and runs.
+    let mut sc = rack_cfg(&v.slave);
+    sc.slaves[1].fixed_pdo = true;
+    sc.slaves[2].fixed_pdo = true;
+    {
+        let slave = Slave::start_rack(&v.slave, &sc, vec![]);
+        let mut stage = EthercatStage::open(&rack_cfg(&v.master)).unwrap();
+        let e = stage.configure(PERIOD_NS).unwrap_err();
+        assert_eq!(e.kind(), ErrorKind::Protocol, "{e}");
+        assert!(
+            e.to_string()
+                .starts_with("backend.ethercat.slaves[1].tx_pdo"),
+            "{e}"
+        );
+        assert!(!slave.status.enabled.load(Ordering::Acquire));
+        drop(stage);
+        let mut hc = rack_cfg(&v.master);
+        hc.slaves[1].fixed_pdo = true;
+        hc.slaves[2].fixed_pdo = true;
+        let mut stage = EthercatStage::open(&hc).unwrap();
+        stage.configure(PERIOD_NS).unwrap();
+        stage.enable().unwrap();
+        let (err, _) = run_until_error(&mut stage, 0.3, 200);
+        assert!(err.is_none(), "{err:?}");
+        assert!((slave.status.commanded_current_a() - 0.3).abs() < 1e-3);
+        stage.disable().unwrap();
     }
     // The digital-input terminal missing: four slaves answer.
     let mut sc = rack_cfg(&v.slave);

@@ -19,6 +19,7 @@
 //! | `enable` | `{index, subindex, bits}` | the amplifier's enable output, bit 0 of an entry of `rx_pdo` |
 //! | `status` | `{index, subindex, bits}` | optional: the amplifier's ready line, bit 0 of an entry of `tx_pdo` (with 2 bits or more, bit 1 is its fault line) |
 //! | `fault` | `{index, subindex, bits}` | optional: the amplifier's fault line, bit 0 of an entry of `tx_pdo`, when `status` is 1 bit wide |
+//! | `fixed_pdo` | bool | the terminal's PDO contents are fixed: no map written over CoE, its own assignment taken (default false) |
 //!
 //! An entry's `bits` is 1 to 32; index 0 is a gap (padding). The entries
 //! of one slave and direction lie in its image back to back from bit 0
@@ -27,9 +28,9 @@
 //!
 //! A slave with a CoE mailbox gets its map written over SDO in PRE-OP
 //! (0x1C12/0x1C13 cleared, 0x1600/0x1A00 entries, count, assignment: the
-//! single device's sequence); one without a mailbox (EL1xxx, EL2xxx)
-//! keeps the fixed map of its SII, which must be the one configured
-//! (checked by its size at SAFE-OP).
+//! single device's sequence), unless `fixed_pdo`; one without a mailbox
+//! (EL1xxx, EL2xxx) keeps the fixed map of its SII. Either way the image
+//! found must be the one configured (checked by its size at SAFE-OP).
 //!
 //! # Validation ([`EthercatConfig::rack`])
 //!
@@ -86,6 +87,14 @@ pub struct RackSlave {
     /// The amplifier's fault line (bit 0, input), beside a 1-bit `status`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub fault: Option<PdoEntry>,
+    /// The terminal's PDO contents are fixed (Beckhoff's analog terminals:
+    /// one PDO per channel, 0x1600/0x1601, 0x1A00/0x1A02, not writable):
+    /// the host writes no map over CoE and takes the terminal's own
+    /// assignment, which must lay out as `rx_pdo`/`tx_pdo` (checked by
+    /// size). Default false: a slave with a CoE mailbox gets its map
+    /// written.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub fixed_pdo: bool,
 }
 
 impl RackSlave {

@@ -72,7 +72,9 @@ impl EthercatStage {
                     s.product_id,
                     key.clone(),
                 ));
-                maps.push((usize::from(s.position), key, s.rx_entries(), s.tx_entries()));
+                if !s.fixed_pdo {
+                    maps.push((usize::from(s.position), key, s.rx_entries(), s.tx_entries()));
+                }
             }
         } else {
             let key = "backend.ethercat".to_string();

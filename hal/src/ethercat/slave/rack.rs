@@ -23,7 +23,8 @@
 //! A slave carrying `adc` or `dac` is an analog terminal with a CoE
 //! mailbox (its map written by the master, objects 0x1018, 0x1600,
 //! 0x1A00, 0x1C12, 0x1C13; the entries it may map are those of its
-//! configured map) and distributed clocks; the others (coupler, digital
+//! configured map; with `fixed_pdo` none: its objects are read-only, as
+//! on Beckhoff's analog terminals) and distributed clocks; the others (coupler, digital
 //! I/O) have no mailbox and their configured map as fixed PDOs in the
 //! SII. Each cycle (after a frame that read or wrote process data) the
 //! DAC terminal's value commands the current, the enable output's rising
@@ -171,6 +172,8 @@ impl Terminal {
         };
         match index {
             0x1600 | 0x1A00 | 0x1C12 | 0x1C13 if !preop => Err(abort::STATE),
+            // Fixed PDO contents (and assignment): read-only.
+            0x1600 | 0x1A00 | 0x1C12 | 0x1C13 if self.slave.fixed_pdo => Err(abort::READ_ONLY),
             0x1600 | 0x1A00 => {
                 let m = if index == 0x1600 {
                     &mut self.rx
