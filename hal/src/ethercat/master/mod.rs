@@ -70,9 +70,11 @@ pub struct EthercatStats {
 }
 
 /// The EtherCAT stage (host side): one CiA 402 drive in cyclic synchronous
-/// torque mode, brought up to SAFE-OP by [`Stage::configure`] and to OP
-/// and OPERATION ENABLED by [`Stage::enable`]; one process-data exchange
-/// per tick (see the [module docs](super)).
+/// torque mode, or analog terminals (one slave, or a rack of them:
+/// `[[backend.ethercat.slaves]]`), brought up to SAFE-OP by
+/// [`Stage::configure`] and to OP and OPERATION ENABLED (the enable
+/// output) by [`Stage::enable`]; one process-data exchange per tick (see
+/// the [module docs](super)).
 pub struct EthercatStage {
     cfg: EthercatConfig,
     layout: ImageLayout,
