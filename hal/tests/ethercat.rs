@@ -131,6 +131,26 @@ impl Slave {
     }
 }
 
+impl Slave {
+    /// The virtual rack of `cfg.slaves` (each slave's identity and map
+    /// from it).
+    fn start_rack(iface: &str, cfg: &EthercatConfig, faults: Vec<ScheduledSlaveFault>) -> Self {
+        let sock = RawSocket::open(iface).expect("slave socket");
+        let core = DeviceCore::new(sim_params(), PERIOD_NS, u64::MAX / 4).unwrap();
+        let stop = Arc::new(AtomicBool::new(false));
+        let status = Arc::new(EmulatorStatus::default());
+        let (s, st, c) = (Arc::clone(&stop), Arc::clone(&status), cfg.clone());
+        let thread = std::thread::spawn(move || {
+            bench_hal::ethercat::slave::rack::run_rack(&sock, &c, core, &faults, &s, &st)
+        });
+        Self {
+            stop,
+            status,
+            thread: Some(thread),
+        }
+    }
+}
+
 impl Drop for Slave {
     fn drop(&mut self) {
         self.stop.store(true, Ordering::Release);
@@ -250,8 +270,8 @@ fn the_plant_behind_the_slave_is_the_simulator_one_period_late() {
     );
 }
 
-/// The ticks take no lock: the loop thread runs 2 000 paced ticks in OP
-/// (with distributed clocks, the default: `tx_rx_dc`) under `strace -p
+/// The ticks take no lock (the single drive, then the rack): the loop
+/// thread runs 2 000 paced ticks in OP (with distributed clocks, the default: `tx_rx_dc`) under `strace -p
 /// TID -e trace=futex,sched_yield`, and between two marker
 /// `sched_yield`s the thread made no `futex` (what a contended mutex,
 /// condvar, channel or park waits in) and no `sched_yield` (what
@@ -265,84 +285,98 @@ fn the_ticks_make_no_futex_or_sched_yield_call() {
         eprintln!("SKIPPED: no strace (apt-get install strace)");
         return;
     }
-    let slave = Slave::start(&v.slave, &host_cfg(&v.slave), default_id(), vec![]);
-    let mut stage = EthercatStage::open(&host_cfg(&v.master)).unwrap();
-    stage.configure(PERIOD_NS).unwrap();
-    stage.enable().unwrap();
-    // SAFETY: gettid has no preconditions.
-    let tid = unsafe { libc::gettid() };
-    let log = std::env::temp_dir().join(format!("bench-ec-strace-{tid}.txt"));
-    let mut strace = Cmd::new("strace")
-        .args(["-qq", "-e", "trace=futex,sched_yield", "-o"])
-        .arg(&log)
-        .args(["-p", &tid.to_string()])
-        .spawn()
-        .unwrap();
-    // Attached when this thread's TracerPid is strace's.
-    let status = format!("/proc/self/task/{tid}/status");
-    let t0 = Instant::now();
-    while !std::fs::read_to_string(&status)
-        .unwrap()
-        .lines()
-        .any(|l| l.starts_with("TracerPid:") && l.split_whitespace().nth(1) != Some("0"))
-    {
-        assert!(
-            t0.elapsed() < Duration::from_secs(10),
-            "strace did not attach"
-        );
-        std::thread::sleep(Duration::from_millis(10));
-    }
-    // SAFETY: sched_yield has no preconditions.
-    unsafe { libc::sched_yield() };
-    let n = 2000;
-    let mut next = bench_hal::os::monotonic_ns();
-    let mut ticks = 0;
-    for _ in 0..n {
-        next += PERIOD_NS;
-        bench_hal::os::sleep_until_ns(next);
-        let Ok(s) = stage.read_sample() else { break };
-        let ok = stage
-            .write_command(Command {
-                current_a: 0.1,
-                answers_seq: s.seq,
-            })
-            .is_ok();
-        ticks += usize::from(ok);
-        if !ok {
-            break;
+    // The single drive, then the rack of five terminals (one
+    // `outputs_raw_mut`/`inputs_raw` per signal: the same atomic flag).
+    for rack in [false, true] {
+        let (slave, cfg) = if rack {
+            (
+                Slave::start_rack(&v.slave, &rack_cfg(&v.slave), vec![]),
+                rack_cfg(&v.master),
+            )
+        } else {
+            (
+                Slave::start(&v.slave, &host_cfg(&v.slave), default_id(), vec![]),
+                host_cfg(&v.master),
+            )
+        };
+        let mut stage = EthercatStage::open(&cfg).unwrap();
+        stage.configure(PERIOD_NS).unwrap();
+        stage.enable().unwrap();
+        // SAFETY: gettid has no preconditions.
+        let tid = unsafe { libc::gettid() };
+        let log = std::env::temp_dir().join(format!("bench-ec-strace-{tid}.txt"));
+        let mut strace = Cmd::new("strace")
+            .args(["-qq", "-e", "trace=futex,sched_yield", "-o"])
+            .arg(&log)
+            .args(["-p", &tid.to_string()])
+            .spawn()
+            .unwrap();
+        // Attached when this thread's TracerPid is strace's.
+        let status = format!("/proc/self/task/{tid}/status");
+        let t0 = Instant::now();
+        while !std::fs::read_to_string(&status)
+            .unwrap()
+            .lines()
+            .any(|l| l.starts_with("TracerPid:") && l.split_whitespace().nth(1) != Some("0"))
+        {
+            assert!(
+                t0.elapsed() < Duration::from_secs(10),
+                "strace did not attach"
+            );
+            std::thread::sleep(Duration::from_millis(10));
         }
+        // SAFETY: sched_yield has no preconditions.
+        unsafe { libc::sched_yield() };
+        let n = 2000;
+        let mut next = bench_hal::os::monotonic_ns();
+        let mut ticks = 0;
+        for _ in 0..n {
+            next += PERIOD_NS;
+            bench_hal::os::sleep_until_ns(next);
+            let Ok(s) = stage.read_sample() else { break };
+            let ok = stage
+                .write_command(Command {
+                    current_a: 0.1,
+                    answers_seq: s.seq,
+                })
+                .is_ok();
+            ticks += usize::from(ok);
+            if !ok {
+                break;
+            }
+        }
+        // SAFETY: as above.
+        unsafe { libc::sched_yield() };
+        // SIGINT detaches strace (kill and waitpid are no futex).
+        // SAFETY: kill on our child's pid.
+        unsafe { libc::kill(strace.id() as i32, libc::SIGINT) };
+        strace.wait().unwrap();
+        stage.disable().unwrap();
+        drop(stage);
+        drop(slave);
+        let text = std::fs::read_to_string(&log).unwrap();
+        let _ = std::fs::remove_file(&log);
+        let calls: Vec<&str> = text
+            .lines()
+            .filter(|l| l.starts_with("futex") || l.starts_with("sched_yield"))
+            .collect();
+        let first = calls.iter().position(|l| l.starts_with("sched_yield"));
+        let last = calls.iter().rposition(|l| l.starts_with("sched_yield"));
+        let (Some(first), Some(last)) = (first, last) else {
+            panic!("the tracer did not see the marker calls:\n{text}");
+        };
+        assert!(last > first, "one marker only:\n{text}");
+        eprintln!(
+            "{ticks} ticks traced; futex/sched_yield calls between the markers: {}",
+            last - first - 1
+        );
+        assert_eq!(ticks, n, "the ticks stopped early");
+        assert_eq!(
+            &calls[first + 1..last],
+            &[] as &[&str],
+            "the loop thread waited in the ticks"
+        );
     }
-    // SAFETY: as above.
-    unsafe { libc::sched_yield() };
-    // SIGINT detaches strace (kill and waitpid are no futex).
-    // SAFETY: kill on our child's pid.
-    unsafe { libc::kill(strace.id() as i32, libc::SIGINT) };
-    strace.wait().unwrap();
-    stage.disable().unwrap();
-    drop(stage);
-    drop(slave);
-    let text = std::fs::read_to_string(&log).unwrap();
-    let _ = std::fs::remove_file(&log);
-    let calls: Vec<&str> = text
-        .lines()
-        .filter(|l| l.starts_with("futex") || l.starts_with("sched_yield"))
-        .collect();
-    let first = calls.iter().position(|l| l.starts_with("sched_yield"));
-    let last = calls.iter().rposition(|l| l.starts_with("sched_yield"));
-    let (Some(first), Some(last)) = (first, last) else {
-        panic!("the tracer did not see the marker calls:\n{text}");
-    };
-    assert!(last > first, "one marker only:\n{text}");
-    eprintln!(
-        "{ticks} ticks traced; futex/sched_yield calls between the markers: {}",
-        last - first - 1
-    );
-    assert_eq!(ticks, n, "the ticks stopped early");
-    assert_eq!(
-        &calls[first + 1..last],
-        &[] as &[&str],
-        "the loop thread waited in the ticks"
-    );
 }
 
 /// The exchange deadline follows the loop's stall bound: with
@@ -730,4 +764,330 @@ fn analog_terminals_drive_the_plant_one_period_late_and_report_faults() {
     assert_eq!(slave.status.fault_code.load(Ordering::Acquire), 0);
     stage.disable().unwrap();
     assert!(!slave.status.enabled.load(Ordering::Acquire));
+}
+
+/// The Beckhoff rack of the docs (EK1100, EL3102, EL4132, EL2002, EL1002)
+/// on `iface`.
+fn rack_cfg(iface: &str) -> EthercatConfig {
+    EthercatConfig {
+        slaves: bench_hal::ethercat::rack::beckhoff_example(),
+        ..analog_cfg(iface)
+    }
+}
+
+/// Five slaves on one segment: each passes every frame on, the host finds
+/// each signal in its own terminal, and the plant behind them is the
+/// simulator one period late, read through the 16-bit ADC, as for the
+/// single device; the ticks allocate nothing; the status terminal's fault
+/// line fails the tick.
+#[test]
+fn a_rack_of_five_terminals_drives_the_plant_one_period_late() {
+    let _g = serial();
+    let Some(v) = Veth::new() else { return };
+    let faults = vec![ScheduledSlaveFault {
+        at_s: 1.0,
+        kind: SlaveFault::DriveFault,
+    }];
+    let slave = Slave::start_rack(&v.slave, &rack_cfg(&v.slave), faults);
+    let mut stage = EthercatStage::open(&rack_cfg(&v.master)).unwrap();
+    let t0 = Instant::now();
+    let info = stage.configure(PERIOD_NS).unwrap();
+    eprintln!(
+        "rack bring-up to SAFE-OP in {:?}: {}",
+        t0.elapsed(),
+        info.name
+    );
+    stage.enable().unwrap();
+    assert!(slave.status.enabled.load(Ordering::Acquire));
+    let n = 600;
+    let mut host = Vec::with_capacity(n);
+    COUNT_HERE.with(|c| c.set(true));
+    for k in 0..n {
+        let s = stage.read_sample().unwrap();
+        assert!(s.flags.amplifier_enabled && !s.flags.amplifier_fault);
+        host.push(s.position_m);
+        stage
+            .write_command(Command {
+                current_a: current(k),
+                answers_seq: s.seq,
+            })
+            .unwrap();
+    }
+    COUNT_HERE.with(|c| c.set(false));
+    assert_eq!(
+        ALLOCATIONS.load(Ordering::Relaxed),
+        0,
+        "the ticks allocated"
+    );
+    let stats = stage.stats();
+    eprintln!("{stats:?}");
+    assert_eq!(stats.wkc_errors, 0);
+    assert!(stats.max_dc_offset_change_ns < 100_000, "{stats:?}");
+    let dac = |i: f64| (i / 9.98 * 32767.0).round() / 32767.0 * 9.98;
+    let adc = |x: f64| (x / 1e-3 * 32767.0).round() / 32767.0 * 1e-3;
+    let mut sim = SimStage::new(sim_params()).unwrap();
+    sim.configure(PERIOD_NS).unwrap();
+    sim.enable().unwrap();
+    let mut worst = 0.0f64;
+    let mut peak = 0.0f64;
+    let (mut x0, mut d0) = (0.0, 0.0);
+    for (k, h) in host.iter().enumerate() {
+        let s = sim.read_sample().unwrap();
+        let d = adc(s.position_m);
+        if k == 0 {
+            (x0, d0) = (*h, d);
+        }
+        worst = worst.max(((h - x0) - (d - d0)).abs());
+        peak = peak.max((d - d0).abs());
+        let i = if k == 0 { 0.0 } else { dac(current(k - 1)) };
+        sim.write_command(Command {
+            current_a: i,
+            answers_seq: s.seq,
+        })
+        .unwrap();
+    }
+    eprintln!(
+        "rack: peak motion {:.3} µm, worst difference {:.3} nm (ADC count 30.5 nm)",
+        peak * 1e6,
+        worst * 1e9
+    );
+    assert!(peak > 1e-7, "the plant did not move ({peak} m)");
+    assert!(worst <= 1e-3 / 32767.0 + 1e-12, "worst {worst} m");
+    // The amplifier's fault line on the EL1002 fails the tick.
+    let (err, _) = run_until_error(&mut stage, 0.3, 20_000);
+    let err = err.expect("the injected amplifier fault");
+    assert_eq!(err.kind(), ErrorKind::AmplifierFault, "{err}");
+    let _ = stage.zero_and_disable(0);
+    assert_eq!(slave.status.commanded_current_a(), 0.0);
+    assert!(!slave.status.enabled.load(Ordering::Acquire));
+}
+
+/// A terminal with another identity is refused naming its position and
+/// key, a map a fixed-PDO terminal refuses naming the entry, a segment
+/// with fewer or more slaves than configured naming the count; nothing
+/// is enabled.
+#[test]
+fn a_rack_with_a_wrong_terminal_or_count_is_refused_and_nothing_enabled() {
+    let _g = serial();
+    let Some(v) = Veth::new() else { return };
+    // An EL4134 where the EL4132 is expected (position 2).
+    let mut sc = rack_cfg(&v.slave);
+    sc.slaves[2].product_id = 0x1026_3052;
+    {
+        let slave = Slave::start_rack(&v.slave, &sc, vec![]);
+        let mut stage = EthercatStage::open(&rack_cfg(&v.master)).unwrap();
+        let e = stage.configure(PERIOD_NS).unwrap_err();
+        assert_eq!(e.kind(), ErrorKind::Protocol, "{e}");
+        let text = e.to_string();
+        assert!(
+            text.starts_with("backend.ethercat.slaves[2].product_id"),
+            "{e}"
+        );
+        assert!(
+            text.contains("position 2") && text.contains("0x10263052"),
+            "{e}"
+        );
+        assert!(stage.enable().is_err());
+        assert!(!slave.status.enabled.load(Ordering::Acquire));
+        assert_eq!(slave.status.commands_received.load(Ordering::Relaxed), 0);
+    }
+    // Analog terminals whose PDO contents are fixed (as Beckhoff's): a
+    // host that writes the map is refused naming the entry; one told
+    // `fixed_pdo` takes their assignment and runs.
+    let mut sc = rack_cfg(&v.slave);
+    sc.slaves[1].fixed_pdo = true;
+    sc.slaves[2].fixed_pdo = true;
+    {
+        let slave = Slave::start_rack(&v.slave, &sc, vec![]);
+        let mut stage = EthercatStage::open(&rack_cfg(&v.master)).unwrap();
+        let e = stage.configure(PERIOD_NS).unwrap_err();
+        assert_eq!(e.kind(), ErrorKind::Protocol, "{e}");
+        assert!(
+            e.to_string()
+                .starts_with("backend.ethercat.slaves[1].tx_pdo"),
+            "{e}"
+        );
+        assert!(!slave.status.enabled.load(Ordering::Acquire));
+        drop(stage);
+        let mut hc = rack_cfg(&v.master);
+        hc.slaves[1].fixed_pdo = true;
+        hc.slaves[2].fixed_pdo = true;
+        let mut stage = EthercatStage::open(&hc).unwrap();
+        stage.configure(PERIOD_NS).unwrap();
+        stage.enable().unwrap();
+        let (err, _) = run_until_error(&mut stage, 0.3, 200);
+        assert!(err.is_none(), "{err:?}");
+        assert!((slave.status.commanded_current_a() - 0.3).abs() < 1e-3);
+        stage.disable().unwrap();
+    }
+    // The digital-input terminal missing: four slaves answer.
+    let mut sc = rack_cfg(&v.slave);
+    sc.slaves.pop();
+    sc.slaves[3].status = None;
+    sc.slaves[3].fault = None;
+    {
+        let slave = Slave::start_rack(&v.slave, &sc, vec![]);
+        let mut stage = EthercatStage::open(&rack_cfg(&v.master)).unwrap();
+        let e = stage.configure(PERIOD_NS).unwrap_err();
+        assert!(
+            matches!(
+                e,
+                EthercatError::SlaveCount {
+                    found: 4,
+                    expected: 5,
+                    ..
+                }
+            ),
+            "{e}"
+        );
+        assert_eq!(e.kind(), ErrorKind::Link);
+        assert!(!slave.status.enabled.load(Ordering::Acquire));
+    }
+    // The EL2002 is an EL2004 (4 outputs, its fixed map in the SII) with
+    // the EL2002's product code: its image is not the one configured.
+    let mut sc = rack_cfg(&v.slave);
+    let e = sc.slaves[3].rx_pdo[0];
+    sc.slaves[3].rx_pdo = (0..8u16)
+        .map(|k| PdoEntry {
+            index: 0x7000 + 0x10 * k,
+            ..e
+        })
+        .chain([PdoEntry {
+            index: 0,
+            subindex: 0,
+            bits: 1,
+        }])
+        .collect();
+    {
+        let slave = Slave::start_rack(&v.slave, &sc, vec![]);
+        let mut stage = EthercatStage::open(&rack_cfg(&v.master)).unwrap();
+        let e = stage.configure(PERIOD_NS).unwrap_err();
+        let text = e.to_string();
+        assert!(
+            text.contains("position 3 maps 2 output") && text.contains("config 1 and 0"),
+            "{e}"
+        );
+        assert!(!slave.status.enabled.load(Ordering::Acquire));
+    }
+    // A sixth terminal the config does not know (another EL1002).
+    let mut sc = rack_cfg(&v.slave);
+    let mut extra = sc.slaves[4].clone();
+    extra.position = 5;
+    extra.status = None;
+    extra.fault = None;
+    sc.slaves.push(extra);
+    {
+        let slave = Slave::start_rack(&v.slave, &sc, vec![]);
+        let mut stage = EthercatStage::open(&rack_cfg(&v.master)).unwrap();
+        let e = stage.configure(PERIOD_NS).unwrap_err();
+        assert!(
+            matches!(
+                e,
+                EthercatError::SlaveCount {
+                    found: 6,
+                    expected: 5,
+                    ..
+                }
+            ),
+            "{e}"
+        );
+        assert!(!slave.status.enabled.load(Ordering::Acquire));
+    }
+}
+
+/// A terminal that leaves OP (the EL2002 with the enable, the EL4132 with
+/// the DAC, the EL3102 with the ADC), a wrong working counter, a lost
+/// frame and the distributed clock drifting 2000 ppm: each fails the tick
+/// with its kind, and the safe stop leaves 0 A.
+#[test]
+fn a_terminal_leaving_op_fails_the_tick_and_leaves_zero_amps() {
+    let _g = serial();
+    for (fault, kind) in [
+        (SlaveFault::LeaveOpAt { position: 3 }, ErrorKind::Link),
+        (SlaveFault::LeaveOp, ErrorKind::Link),
+        (SlaveFault::LeaveOpAt { position: 1 }, ErrorKind::Link),
+        (SlaveFault::WrongWkc { frames: 1 }, ErrorKind::Link),
+        (SlaveFault::Drop { frames: 1 }, ErrorKind::Timeout),
+        (SlaveFault::DcDrift { ppm: 2000.0 }, ErrorKind::Link),
+    ] {
+        let Some(v) = Veth::new() else { return };
+        let faults = vec![ScheduledSlaveFault {
+            at_s: 0.2,
+            kind: fault,
+        }];
+        let slave = Slave::start_rack(&v.slave, &rack_cfg(&v.slave), faults);
+        let mut cfg = rack_cfg(&v.master);
+        cfg.exchange_timeout_ms = Some(5.0);
+        let mut stage = EthercatStage::open(&cfg).unwrap();
+        stage.configure(PERIOD_NS).unwrap();
+        stage.enable().unwrap();
+        let (err, ticks) = run_until_error(&mut stage, 0.3, 20_000);
+        let err = err.unwrap_or_else(|| panic!("{fault:?}: no error in {ticks} ticks"));
+        assert_eq!(err.kind(), kind, "{fault:?}: {err}");
+        assert!(
+            ticks > 100,
+            "{fault:?}: failed after only {ticks} ticks: {err}"
+        );
+        if let Err(e) = stage.zero_and_disable(0) {
+            eprintln!("{fault:?}: the safe stop reports {e}");
+        }
+        assert_eq!(slave.status.commanded_current_a(), 0.0, "{fault:?}");
+        assert!(!slave.status.enabled.load(Ordering::Acquire), "{fault:?}");
+        eprintln!("{fault:?}: {err} after {ticks} ticks");
+        // It recovers: configure and enable again.
+        stage.configure(PERIOD_NS).unwrap();
+        stage.enable().unwrap();
+        assert!(slave.status.enabled.load(Ordering::Acquire), "{fault:?}");
+        stage.disable().unwrap();
+    }
+}
+
+/// The host goes silent: the DAC terminal's SM watchdog (and the enable
+/// terminal's) stop the current within the watchdog time plus the slave
+/// thread's wake-up.
+#[test]
+fn a_silent_host_is_stopped_by_the_dac_terminals_watchdog() {
+    let _g = serial();
+    let Some(v) = Veth::new() else { return };
+    let slave = Slave::start_rack(&v.slave, &rack_cfg(&v.slave), vec![]);
+    let mut cfg = rack_cfg(&v.master);
+    cfg.watchdog_ms = 20.0;
+    cfg.exchange_timeout_ms = Some(20.0);
+    let mut stage = EthercatStage::open(&cfg).unwrap();
+    stage.configure(PERIOD_NS).unwrap();
+    stage.enable().unwrap();
+    let (err, _) = run_until_error(&mut stage, 0.3, 500);
+    assert!(err.is_none(), "{err:?}");
+    assert!(slave.status.commanded_current_a() > 0.29);
+    let common::WatchdogTrip {
+        last_command_ns: last,
+        trip_ns: trip,
+        deadline_ns: deadline,
+    } = common::wait_for_watchdog_trip(&slave.status, Duration::from_secs(2), "SM");
+    assert_eq!(
+        deadline - last,
+        20_000_000,
+        "the watchdog time the host wrote"
+    );
+    let dt = trip - last;
+    eprintln!(
+        "rack: 0 A {:.3} ms after the last output write (watchdog 20 ms, period 0.2 ms)",
+        dt as f64 * 1e-6
+    );
+    assert!(
+        (20_000_000..=20_000_000 + 25_000_000).contains(&dt),
+        "0 A {:.3} ms after the last output write",
+        dt as f64 * 1e-6
+    );
+    assert_eq!(slave.status.commanded_current_a(), 0.0);
+    assert!(!slave.status.enabled.load(Ordering::Acquire));
+    // The DAC terminal's watchdog latched the amplifier's fault (code 1).
+    assert_eq!(slave.status.fault_code.load(Ordering::Acquire), 1);
+    let e = stage
+        .write_command(Command {
+            current_a: 0.3,
+            answers_seq: 0,
+        })
+        .unwrap_err();
+    assert_eq!(e.kind(), ErrorKind::Link, "{e}");
 }

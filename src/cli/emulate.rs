@@ -25,9 +25,11 @@ pub(super) enum EmulateCommand {
         #[command(flatten)]
         common: EmulateArgs,
     },
-    /// Virtual EtherCAT slave (a CiA 402 drive in CST around the plant) on
-    /// a network interface (raw socket: needs CAP_NET_RAW). Faults:
-    /// drop:FRAMES, wkc:FRAMES, leave_op, drive_fault, disconnect, at
+    /// Virtual EtherCAT slave (a CiA 402 drive in CST around the plant, or
+    /// the analog profile's terminals; with [[backend.ethercat.slaves]] a
+    /// rack of them on one segment) on a network interface (raw socket:
+    /// needs CAP_NET_RAW). Faults: drop:FRAMES, wkc:FRAMES, leave_op,
+    /// leave_op:POSITION (a rack's terminal), drive_fault, disconnect, at
     /// seconds after the slave first enters OP.
     Ethercat {
         /// Network interface, e.g. a veth end.
@@ -353,13 +355,32 @@ fn emulate_ethercat(
         Ok(s) => s,
         Err(e) => return bad_input(format!("IFACE {iface}: {e}")),
     };
+    let rack = !ecfg.slaves.is_empty();
+    if rack && (vendor_id.is_some() || product_id.is_some()) {
+        return bad_input(
+            "--vendor-id/--product-id: a rack's identities are in [[backend.ethercat.slaves]]",
+        );
+    }
     outln!("{iface}");
-    errln!(
-        "EtherCAT virtual slave ({} CST drive, vendor 0x{:08X} product 0x{:08X}) on {iface}, cycling on each process-data frame; connect with --backend ethercat:PEER; Ctrl-C stops",
-        ecfg.profile.as_str(),
-        id.vendor_id,
-        id.product_id
-    );
+    if rack {
+        let names: Vec<String> = ecfg
+            .rack_slaves()
+            .iter()
+            .map(|s| format!("{} 0x{:X}:0x{:08X}", s.label(), s.vendor_id, s.product_id))
+            .collect();
+        errln!(
+            "EtherCAT virtual rack of {} slaves ({}) on {iface}, cycling on each process-data frame; connect with --backend ethercat:PEER; Ctrl-C stops",
+            names.len(),
+            names.join(", ")
+        );
+    } else {
+        errln!(
+            "EtherCAT virtual slave ({} profile, vendor 0x{:08X} product 0x{:08X}) on {iface}, cycling on each process-data frame; connect with --backend ethercat:PEER; Ctrl-C stops",
+            ecfg.profile.as_str(),
+            id.vendor_id,
+            id.product_id
+        );
+    }
     let priority = (cfg.emulator.priority > 0).then_some(cfg.emulator.priority);
     let status = Arc::new(EmulatorStatus::default());
     let st = Arc::clone(&status);
@@ -370,7 +391,26 @@ fn emulate_ethercat(
             if let Some(p) = priority {
                 bench_hal::os::make_realtime(p, None);
             }
-            bench_hal::ethercat::slave::run_slave(&sock, &ecfg, core, id, &slave_faults, &s, &st)
+            if rack {
+                bench_hal::ethercat::slave::rack::run_rack(
+                    &sock,
+                    &ecfg,
+                    core,
+                    &slave_faults,
+                    &s,
+                    &st,
+                )
+            } else {
+                bench_hal::ethercat::slave::run_slave(
+                    &sock,
+                    &ecfg,
+                    core,
+                    id,
+                    &slave_faults,
+                    &s,
+                    &st,
+                )
+            }
         })
         .map_err(|e| e.to_string())
         .and_then(|t| t.join().map_err(|_| "emulator thread panicked".to_string()))

@@ -2,6 +2,7 @@
 //! profile, expected identity, PDO map, SM watchdog, scalings, and its
 //! validation. Shared by the host backend and the virtual slave.
 
+use super::rack::RackSlave;
 use crate::model::{positive, ParamError};
 use serde::{Deserialize, Serialize};
 
@@ -200,6 +201,13 @@ pub struct EthercatConfig {
     /// (default 9.98: the amplifier's ±10 V input at its peak current,
     /// 0.30 mA per count).
     pub dac_full_scale_a: f64,
+    /// Analog profile as a rack of separate terminals
+    /// (`[[backend.ethercat.slaves]]`, one table per slave of the segment,
+    /// the coupler counted): each slave's position, identity, map and the
+    /// signals it carries ([`super::rack`]). Empty (the default): one slave
+    /// carries all four signals.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub slaves: Vec<RackSlave>,
 }
 
 impl Default for EthercatConfig {
@@ -222,6 +230,7 @@ impl Default for EthercatConfig {
             dc_drift_max_ppm: 100.0,
             adc_full_scale_m: 1e-3,
             dac_full_scale_a: 9.98,
+            slaves: Vec::new(),
         }
     }
 }
@@ -410,6 +419,7 @@ impl EthercatConfig {
                 ),
             ));
         }
+        self.rack(prefix)?;
         self.layout(prefix).map(|_| ())
     }
 
@@ -543,6 +553,14 @@ impl EthercatConfig {
                     "position actual 0x6064"
                 },
             ));
+        }
+        if !self.slaves.is_empty() {
+            // A rack: the host's scratch image is the single analog
+            // device's (DAC, enable; ADC, status), gathered from and
+            // scattered to the terminals; without a status line, none.
+            if self.slaves.iter().all(|s| s.status.is_none()) {
+                l.statusword = usize::MAX;
+            }
         }
         Ok(l)
     }

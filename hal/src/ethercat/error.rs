@@ -45,19 +45,25 @@ pub enum EthercatError {
         /// How long the master waited, ms.
         waited_ms: u64,
     },
-    /// The segment holds another number of slaves than one.
-    #[error("{found} EtherCAT slaves answered on `{interface}`; the backend drives exactly one")]
+    /// The segment holds another number of slaves than configured (one,
+    /// or the rack's `[[backend.ethercat.slaves]]`).
+    #[error("{found} EtherCAT slaves answered on `{interface}`; the config expects {expected} (backend.ethercat.slaves)")]
     SlaveCount {
         /// The interface.
         interface: String,
         /// Slaves counted (working counter of a broadcast read).
         found: u16,
+        /// Slaves configured.
+        expected: u16,
     },
     /// The slave found is not the one configured.
-    #[error("{key}: the slave on `{interface}` has {what} 0x{found:08X}, the config expects 0x{expected:08X}")]
+    #[error("{key}: the slave at position {position} on `{interface}` has {what} 0x{found:08X}, the config expects 0x{expected:08X}")]
     Identity {
-        /// The config key (`backend.ethercat.vendor_id`/`product_id`).
-        key: &'static str,
+        /// The config key (`backend.ethercat.vendor_id`/`product_id`, or
+        /// `backend.ethercat.slaves[i].vendor_id`/`product_id`).
+        key: String,
+        /// The slave's position on the segment (0: next to the master).
+        position: u16,
         /// The interface.
         interface: String,
         /// `"vendor id"` or `"product code"`.

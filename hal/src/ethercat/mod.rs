@@ -31,7 +31,8 @@
 //! # Lifecycle
 //!
 //! * [`Stage::configure`](crate::Stage::configure): a broadcast read
-//!   finds the slave (none: [`EthercatError::NoSlave`]); INIT → PRE-OP
+//!   finds the slave (none: [`EthercatError::NoSlave`]; a rack: see
+//!   below); INIT → PRE-OP
 //!   (station address, SII identity checked against `vendor_id` /
 //!   `product_id`, mailboxes); over CoE the PDO map, 0x6060 = 10 (CST)
 //!   and the SM watchdog (0x0400 = 2498: 100 µs steps; 0x0420 =
@@ -65,8 +66,8 @@
 //! | event | error | kind |
 //! |---|---|---|
 //! | frame not back in time (lost) | [`EthercatError::Timeout`] | `Timeout` |
-//! | working counter ≠ 3 in OP (1 in SAFE-OP) | [`EthercatError::WorkingCounter`] | `Link` |
-//! | slave not in OP (AL status in the same frame) | [`EthercatError::NotOp`] | `Link` |
+//! | working counter ≠ the group's sum (ETG.1000.4 §5.4.3.4: +1 per slave whose inputs are read, +2 per slave whose outputs are written; the single device 3 in OP, 1 in SAFE-OP) | [`EthercatError::WorkingCounter`] | `Link` |
+//! | a slave not in OP (AL status of each in the same frame) | [`EthercatError::NotOp`] | `Link` |
 //! | the distributed clock moved against the host's clock beyond `dc_drift_max_ppm` × 1 s within a second | [`EthercatError::DcDrift`] | `Link` |
 //! | statusword fault bit, or the drive left OPERATION ENABLED (analog: the status input's fault bit, or not ready) | [`EthercatError::DriveFault`] | `AmplifierFault` |
 //!
@@ -80,6 +81,24 @@
 //! output 0x7010:01 (bit 0), ADC 0x6000:11 (i16, ± `adc_full_scale_m`),
 //! status input 0x6020:01 (bit 0 ready, bit 1 fault; optional). `enable`
 //! gives the enable output a rising edge and waits for ready.
+//!
+//! # The analog profile as a rack of terminals
+//!
+//! `[[backend.ethercat.slaves]]` ([`rack`], [`RackSlave`]): several
+//! slaves on the segment (a coupler, an ADC, a DAC, digital output and
+//! input terminals), each with its expected identity, its map and the
+//! signals it carries. [`Stage::configure`](crate::Stage::configure)
+//! brings them all up in one ethercrab group: the count
+//! ([`EthercatError::SlaveCount`]) and each identity
+//! ([`EthercatError::Identity`], naming `backend.ethercat.slaves[i]` and
+//! the position) checked, the map written over CoE to each slave whose SII
+//! offers a CoE mailbox (word 0x001C bit 2) and the fixed map of the
+//! others taken (each slave's image size checked at SAFE-OP), the SM
+//! watchdog written to each slave with outputs. The tick scatters the DAC
+//! value and the enable bit into their terminals' outputs and gathers the
+//! ADC value and the ready/fault lines at their bit offsets ([`RackLayout`],
+//! no allocation, no lock); above that the stage is the single analog
+//! device's.
 //!
 //! # Timing
 //!
@@ -95,6 +114,7 @@ pub mod config;
 mod error;
 pub mod image_lock;
 mod master;
+pub mod rack;
 pub mod slave;
 pub mod socket;
 pub mod wire;
@@ -102,3 +122,4 @@ pub mod wire;
 pub use config::{EthercatConfig, PdoEntry, Profile};
 pub use error::EthercatError;
 pub use master::{EthercatStage, EthercatStats};
+pub use rack::{RackLayout, RackSlave, SignalAt};

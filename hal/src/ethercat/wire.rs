@@ -180,3 +180,52 @@ pub fn le16(b: &[u8], at: usize) -> u16 {
 pub fn le32(b: &[u8], at: usize) -> u32 {
     u32::from_le_bytes([b[at], b[at + 1], b[at + 2], b[at + 3]])
 }
+
+/// `n` bits (≤ 32) of a process image `b` from bit `bit`, least
+/// significant first (the image's bit order: bit 0 is the least
+/// significant bit of byte 0). Bits beyond `b` read 0.
+pub fn get_bits(b: &[u8], bit: usize, n: usize) -> u32 {
+    let mut v = 0u32;
+    for k in 0..n.min(32) {
+        let at = bit + k;
+        if b.get(at / 8).is_some_and(|x| x >> (at % 8) & 1 != 0) {
+            v |= 1 << k;
+        }
+    }
+    v
+}
+
+/// Writes the `n` low bits (≤ 32) of `v` into `b` from bit `bit`, the
+/// other bits untouched; bits beyond `b` are dropped.
+pub fn set_bits(b: &mut [u8], bit: usize, n: usize, v: u32) {
+    for k in 0..n.min(32) {
+        let at = bit + k;
+        if let Some(x) = b.get_mut(at / 8) {
+            if v >> k & 1 != 0 {
+                *x |= 1 << (at % 8);
+            } else {
+                *x &= !(1 << (at % 8));
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn bits_go_in_and_out_at_their_offsets() {
+        let mut b = [0u8; 4];
+        set_bits(&mut b, 3, 16, 0xBEEF);
+        assert_eq!(get_bits(&b, 3, 16), 0xBEEF);
+        // 0xBEEF << 3 = 0x5F778: bytes 0x78, 0xF7, 0x05.
+        assert_eq!(b, [0x78, 0xF7, 0x05, 0]);
+        set_bits(&mut b, 3, 16, 0);
+        assert_eq!(b, [0; 4]);
+        // Past the end: read as 0, written nowhere.
+        set_bits(&mut b, 30, 4, 0xF);
+        assert_eq!(b, [0, 0, 0, 0xC0]);
+        assert_eq!(get_bits(&b, 30, 4), 0x3);
+    }
+}

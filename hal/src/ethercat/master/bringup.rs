@@ -5,6 +5,7 @@
 use super::group::{the_group, Group};
 use super::link::Stall;
 use super::*;
+use crate::ethercat::rack::MAX_RACK;
 
 impl EthercatStage {
     /// INIT → PRE-OP → (PDO map, mode, watchdog) → SAFE-OP.
@@ -41,7 +42,7 @@ impl EthercatStage {
         let group: Group<PreOp> = step_in(
             &mut self.link,
             &self.cfg,
-            md.init::<2, _>(
+            md.init::<MAX_RACK, _>(
                 ethercrab::std::ethercat_now,
                 Group::<PreOp>::default(),
                 the_group,
@@ -50,68 +51,121 @@ impl EthercatStage {
             "bringing the slave to PRE-OP",
         )?;
         let n = md.num_subdevices();
-        if n != 1 {
+        let expected = self.rack.map_or(1, |r| r.slaves);
+        if n != expected {
             return Err(EthercatError::SlaveCount {
                 interface: self.cfg.interface.clone(),
                 found: n as u16,
+                expected: expected as u16,
             });
         }
-        // 3. Identity.
-        let id = group
-            .subdevice(md, 0)
-            .map_err(|e| bringup_err(&self.cfg, "reading the identity", e))?
-            .identity();
-        if id.vendor_id != self.cfg.vendor_id {
-            return Err(EthercatError::Identity {
-                key: "backend.ethercat.vendor_id",
-                interface: self.cfg.interface.clone(),
-                what: "vendor id",
-                found: id.vendor_id,
-                expected: self.cfg.vendor_id,
-            });
-        }
-        if id.product_id != self.cfg.expected_product_id() {
-            return Err(EthercatError::Identity {
-                key: "backend.ethercat.product_id",
-                interface: self.cfg.interface.clone(),
-                what: "product code",
-                found: id.product_id,
-                expected: self.cfg.expected_product_id(),
-            });
-        }
-        // 4. PDO map, mode, SM watchdog (PRE-OP, over CoE).
-        for (dir, assign, pdo, entries) in [
-            ("rx_pdo", 0x1C12u16, 0x1600u16, self.cfg.rx_entries()),
-            ("tx_pdo", 0x1C13, 0x1A00, self.cfg.tx_entries()),
-        ] {
-            let key = |i: Option<usize>| match i {
-                Some(i) => format!("backend.ethercat.{dir}[{i}]"),
-                None => format!("backend.ethercat.{dir}"),
-            };
-            // Clear the assignment and the map, write the entries, their
-            // count, then assign the PDO (the CoE mapping sequence).
-            let mut writes = vec![(assign, 0, Sdo::U8(0), None), (pdo, 0, Sdo::U8(0), None)];
-            for (i, e) in entries.iter().enumerate() {
-                writes.push((pdo, i as u8 + 1, Sdo::U32(e.raw()), Some(i)));
+        // 3. Identity of each slave; 4. the PDO map of each over CoE.
+        let cfg = self.cfg.clone();
+        let mut maps = Vec::new();
+        let mut idents = Vec::new();
+        if self.rack.is_some() {
+            for (i, s) in cfg.slaves.iter().enumerate() {
+                let key = format!("backend.ethercat.slaves[{i}]");
+                idents.push((
+                    usize::from(s.position),
+                    s.vendor_id,
+                    s.product_id,
+                    key.clone(),
+                ));
+                if !s.fixed_pdo {
+                    maps.push((usize::from(s.position), key, s.rx_entries(), s.tx_entries()));
+                }
             }
-            writes.extend([
-                (pdo, 0, Sdo::U8(entries.len() as u8), None),
-                (assign, 1, Sdo::U16(pdo), None),
-                (assign, 0, Sdo::U8(1), None),
-            ]);
-            for (index, subindex, value, i) in writes {
-                let (link, cfg) = (&mut self.link, &self.cfg);
-                sdo_in(
-                    link,
-                    cfg,
-                    &group,
-                    md,
-                    index,
-                    subindex,
-                    value,
-                    key(i),
+        } else {
+            let key = "backend.ethercat".to_string();
+            idents.push((0, cfg.vendor_id, cfg.expected_product_id(), key.clone()));
+            maps.push((0, key, cfg.rx_entries(), cfg.tx_entries()));
+        }
+        for (position, vendor_id, product_id, key) in idents {
+            let id = group
+                .subdevice(md, position)
+                .map_err(|e| bringup_err(&self.cfg, "reading the identity", e))?
+                .identity();
+            for (what, k, found, want) in [
+                ("vendor id", "vendor_id", id.vendor_id, vendor_id),
+                ("product code", "product_id", id.product_id, product_id),
+            ] {
+                if found != want {
+                    return Err(EthercatError::Identity {
+                        key: format!("{key}.{k}"),
+                        position: position as u16,
+                        interface: self.cfg.interface.clone(),
+                        what,
+                        found,
+                        expected: want,
+                    });
+                }
+            }
+        }
+        for (position, key, rx, tx) in maps {
+            // A slave without a CoE mailbox keeps its fixed map (SII word
+            // 0x001C: mailbox protocols, bit 2 CoE; 0x001B: its send
+            // mailbox size, as ethercrab decides).
+            if self.rack.is_some() {
+                let sd = group
+                    .subdevice(md, position)
+                    .map_err(|e| bringup_err(&self.cfg, "reading the SII", e))?;
+                let step = "reading the SII mailbox protocols (word 0x001C)";
+                let protocols: u16 = step_in(
+                    &mut self.link,
+                    &self.cfg,
+                    sd.eeprom_read(md, 0x001C),
                     deadline,
+                    step,
                 )?;
+                let send: u16 = step_in(
+                    &mut self.link,
+                    &self.cfg,
+                    sd.eeprom_read(md, 0x001B),
+                    deadline,
+                    step,
+                )?;
+                if protocols & 0x0004 == 0 || send == 0 {
+                    continue;
+                }
+            }
+            for (dir, assign, pdo, entries) in [
+                ("rx_pdo", 0x1C12u16, 0x1600u16, rx),
+                ("tx_pdo", 0x1C13, 0x1A00, tx),
+            ] {
+                if entries.is_empty() && self.rack.is_some() {
+                    continue;
+                }
+                let key = |i: Option<usize>| match i {
+                    Some(i) => format!("{key}.{dir}[{i}]"),
+                    None => format!("{key}.{dir}"),
+                };
+                // Clear the assignment and the map, write the entries,
+                // their count, then assign the PDO (the CoE mapping
+                // sequence).
+                let mut writes = vec![(assign, 0, Sdo::U8(0), None), (pdo, 0, Sdo::U8(0), None)];
+                for (i, e) in entries.iter().enumerate() {
+                    writes.push((pdo, i as u8 + 1, Sdo::U32(e.raw()), Some(i)));
+                }
+                writes.extend([
+                    (pdo, 0, Sdo::U8(entries.len() as u8), None),
+                    (assign, 1, Sdo::U16(pdo), None),
+                    (assign, 0, Sdo::U8(1), None),
+                ]);
+                for (index, subindex, value, i) in writes {
+                    let (link, cfg) = (&mut self.link, &self.cfg);
+                    sdo_in(
+                        link,
+                        cfg,
+                        &group,
+                        md,
+                        position,
+                        (index, subindex),
+                        value,
+                        key(i),
+                        deadline,
+                    )?;
+                }
             }
         }
         if !self.analog() {
@@ -120,8 +174,8 @@ impl EthercatStage {
                 &self.cfg,
                 &group,
                 md,
-                0x6060,
                 0,
+                (0x6060, 0),
                 Sdo::I8(MODE_CST),
                 "backend.ethercat.profile".into(),
                 deadline,
@@ -152,9 +206,14 @@ impl EthercatStage {
         }
         // SM watchdog: 100 µs steps ((2498 + 2) × 40 ns).
         let steps = (self.cfg.watchdog_ms * 10.0).round().clamp(1.0, 65535.0) as u16;
+        for (position, _) in self
+            .images()
+            .iter()
+            .enumerate()
+            .filter(|(_, (o, _))| *o > 0)
         {
             let sd = group
-                .subdevice(md, 0)
+                .subdevice(md, position)
                 .map_err(|e| bringup_err(&self.cfg, "setting the SM watchdog", e))?;
             run_in(
                 &mut self.link,
@@ -226,24 +285,50 @@ impl EthercatStage {
             )?;
             Running::SafeOp(g)
         };
-        let sizes = on_group!(&running, g => g
-        .subdevice(md, 0)
-        .map(|sd| {
-            let io = sd.io_raw();
-            (io.outputs().len(), io.inputs().len())
-        }))
-        .map_err(|e| bringup_err(&self.cfg, "reading the process image", e))?;
-        if sizes != (self.layout.out_len, self.layout.in_len) {
-            return Err(EthercatError::Bringup {
-                interface: self.cfg.interface.clone(),
-                step: "checking the process image",
-                reason: format!(
-                    "the slave maps {} output and {} input bytes, the config {} and {}",
-                    sizes.0, sizes.1, self.layout.out_len, self.layout.in_len
-                ),
-            });
+        // Each slave's image as configured; the working counters of the
+        // group's LRW (ETG.1000.4 §5.4.3.4: +1 per slave whose inputs are
+        // read, +2 per slave whose outputs are written).
+        let images = self.images();
+        for (position, want) in images.iter().enumerate() {
+            let sizes = on_group!(&running, g => g
+            .subdevice(md, position)
+            .map(|sd| {
+                let io = sd.io_raw();
+                (io.outputs().len(), io.inputs().len())
+            }))
+            .map_err(|e| bringup_err(&self.cfg, "reading the process image", e))?;
+            if sizes != *want {
+                return Err(EthercatError::Bringup {
+                    interface: self.cfg.interface.clone(),
+                    step: "checking the process image",
+                    reason: format!(
+                        "the slave at position {position} maps {} output and {} input bytes, the config {} and {}{}",
+                        sizes.0,
+                        sizes.1,
+                        want.0,
+                        want.1,
+                        if self.rack.is_some() {
+                            " (its map in [[backend.ethercat.slaves]])"
+                        } else {
+                            ""
+                        }
+                    ),
+                });
+            }
         }
+        let reads = images.iter().filter(|(_, i)| *i > 0).count() as u16;
+        let writes = images.iter().filter(|(o, _)| *o > 0).count() as u16;
+        self.wkc = (reads, reads + 2 * writes);
         Ok(running)
+    }
+
+    /// Each slave's image bytes (outputs, inputs) by position, as
+    /// configured.
+    pub(super) fn images(&self) -> Vec<(usize, usize)> {
+        match self.rack {
+            Some(r) => r.image[..r.slaves].to_vec(),
+            None => vec![(self.layout.out_len, self.layout.in_len)],
+        }
     }
 
     /// Acknowledges a slave error and requests SAFE-OP (AL control
@@ -256,18 +341,23 @@ impl EthercatStage {
             .expect("the main device lives as long as the stage");
         let deadline = monotonic_ns() + (self.cfg.bringup_timeout_ms * 1e6) as u64;
         let step = "acknowledging the slave's AL status";
-        let sd = match self.group.as_ref() {
-            Some(r) => on_group!(r, g => g.subdevice(md, 0).map(|sd| sd.configured_address())),
-            None => return Ok(()),
+        let n = self.images().len();
+        for position in 0..n {
+            let sd = match self.group.as_ref() {
+                Some(r) => on_group!(r, g => g
+                    .subdevice(md, position)
+                    .map(|sd| sd.configured_address())),
+                None => return Ok(()),
+            }
+            .map_err(|e| bringup_err(&self.cfg, step, e))?;
+            step_in(
+                &mut self.link,
+                &self.cfg,
+                EcCommand::fpwr(sd, RegisterAddress::AlControl.into()).send(md, 0x0014u16),
+                deadline,
+                step,
+            )?;
         }
-        .map_err(|e| bringup_err(&self.cfg, step, e))?;
-        step_in(
-            &mut self.link,
-            &self.cfg,
-            EcCommand::fpwr(sd, RegisterAddress::AlControl.into()).send(md, 0x0014u16),
-            deadline,
-            step,
-        )?;
         let step = "bringing the slave back to SAFE-OP";
         let (link, cfg) = (&mut self.link, &self.cfg);
         match self.group.take() {
@@ -313,15 +403,15 @@ pub(super) fn sdo_in(
     cfg: &EthercatConfig,
     group: &Group<PreOp>,
     md: &MainDevice<'static>,
-    index: u16,
-    subindex: u8,
+    position: usize,
+    (index, subindex): (u16, u8),
     value: Sdo,
     key: String,
     deadline: u64,
 ) -> Result<(), EthercatError> {
     let step = "writing the object dictionary";
     let sd = group
-        .subdevice(md, 0)
+        .subdevice(md, position)
         .map_err(|e| bringup_err(cfg, step, e))?;
     let r = match value {
         Sdo::I8(v) => run_in(link, cfg, sd.sdo_write(index, subindex, v), deadline, step)?,

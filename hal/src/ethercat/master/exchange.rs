@@ -4,6 +4,8 @@
 use super::group::Cycle;
 use super::link::Stall;
 use super::*;
+use crate::ethercat::rack::SignalAt;
+use crate::ethercat::wire::{get_bits, set_bits};
 
 impl EthercatStage {
     /// One process-data round trip: the outputs `self.out` go out, the
@@ -21,7 +23,20 @@ impl EthercatStage {
             return Err(LifecycleError::NotConfigured.into());
         };
         let op = group.is_op();
-        if op {
+        if let (true, Some(r)) = (op, self.rack) {
+            // Scattered to the terminals: the DAC's i16, the enable bit.
+            let l = self.layout;
+            let dac = u32::from(u16::from_le_bytes([
+                self.out[l.target.0],
+                self.out[l.target.0 + 1],
+            ]));
+            let en = u32::from(self.out[l.controlword] & 1);
+            for (at, v) in [(r.dac, dac), (r.enable, en)] {
+                on_group!(group, g => if let Ok(sd) = g.subdevice(md, at.slave) {
+                    set_bits(&mut sd.outputs_raw_mut(), at.bit, usize::from(at.bits.min(16)), v);
+                });
+            }
+        } else if op {
             on_group!(group, g => if let Ok(sd) = g.subdevice(md, 0) {
                 sd.outputs_raw_mut()[..out_len].copy_from_slice(&self.out[..out_len]);
             });
@@ -31,9 +46,30 @@ impl EthercatStage {
         // (working counter, AL state of the slave, DC system time).
         let result = on_group!(group, g => self.link.block_on(g.cycle(md), deadline, u64::MAX));
         let end = monotonic_ns();
-        on_group!(group, g => if let Ok(sd) = g.subdevice(md, 0) {
-            self.inp[..in_len].copy_from_slice(&sd.inputs_raw()[..in_len]);
-        });
+        if let Some(r) = self.rack {
+            // Gathered from the terminals: the ADC's i16, the ready and
+            // fault lines as the single device's status bits 0 and 1.
+            let l = self.layout;
+            let bits = |at: SignalAt, n: usize| {
+                on_group!(group, g => g
+                    .subdevice(md, at.slave)
+                    .map_or(0, |sd| get_bits(&sd.inputs_raw(), at.bit, n)))
+            };
+            let adc = bits(r.adc, 16) as u16;
+            self.inp[l.position..l.position + 2].copy_from_slice(&adc.to_le_bytes());
+            if let Some(st) = r.status {
+                let wide = st.bits >= 2;
+                let mut v = bits(st, if wide { 2 } else { 1 });
+                if let Some(f) = r.fault {
+                    v |= bits(f, 1) << 1;
+                }
+                self.inp[l.statusword] = v as u8;
+            }
+        } else {
+            on_group!(group, g => if let Ok(sd) = g.subdevice(md, 0) {
+                self.inp[..in_len].copy_from_slice(&sd.inputs_raw()[..in_len]);
+            });
+        }
         let rt = end - start;
         let (working_counter, state, dc_time) = match result {
             Ok(Ok(r)) => r,
@@ -62,8 +98,9 @@ impl EthercatStage {
                 state: u8::from(state),
             });
         }
-        // Inputs read +1, outputs written +2 (ETG.1000.4 §5.4.3.4).
-        let expected = if op { 3 } else { 1 };
+        // Per slave: inputs read +1, outputs written +2 (ETG.1000.4
+        // §5.4.3.4); the group's sum (found at bring-up).
+        let expected = if op { self.wkc.1 } else { self.wkc.0 };
         if working_counter != expected {
             self.stats.wkc_errors += 1;
             return Err(EthercatError::WorkingCounter {

@@ -4,11 +4,12 @@
 
 use super::link::MAX_PDI;
 use super::*;
+use crate::ethercat::rack::MAX_RACK;
 use ethercrab::subdevice_group::HasPdi;
 
 /// The group, its process image behind [`BorrowFlag`] (never waits), not
 /// ethercrab's default spin lock (which yields when contended).
-pub(super) type Group<S, D = NoDc> = SubDeviceGroup<2, MAX_PDI, BorrowFlag, S, D>;
+pub(super) type Group<S, D = NoDc> = SubDeviceGroup<MAX_RACK, MAX_PDI, BorrowFlag, S, D>;
 
 /// `MainDevice::init`'s group filter: every slave into the one group.
 pub(super) fn the_group<'g>(
@@ -49,8 +50,9 @@ macro_rules! on_group {
 pub(super) use on_group;
 
 /// What one process-data round trip tells: the working counter, the
-/// slave's AL state (read in the same frame), and the distributed clock's
-/// system time (`None` without DC).
+/// lowest AL state of the slaves (read in the same frame: one slave out of
+/// OP makes it SAFE-OP or below), and the distributed clock's system time
+/// (`None` without DC).
 pub(super) type CycleResult = (u16, Option<SubDeviceState>, Option<u64>);
 
 /// One process-data round trip of the group in any of its states, so the
@@ -71,7 +73,7 @@ impl<S: HasPdi> Cycle for Group<S, NoDc> {
         md: &'a MainDevice<'a>,
     ) -> Result<CycleResult, ethercrab::error::Error> {
         let r = self.tx_rx(md).await?;
-        Ok((r.working_counter, r.subdevice_states.first().copied(), None))
+        Ok((r.working_counter, lowest(&r.subdevice_states), None))
     }
 }
 
@@ -82,6 +84,11 @@ impl<S: HasPdi> Cycle for Group<S, HasDc> {
     ) -> Result<CycleResult, ethercrab::error::Error> {
         let r = self.tx_rx_dc(md).await?;
         let t = Some(r.extra.dc_system_time);
-        Ok((r.working_counter, r.subdevice_states.first().copied(), t))
+        Ok((r.working_counter, lowest(&r.subdevice_states), t))
     }
+}
+
+/// The lowest AL state of a group (INIT 1 < PRE-OP 2 < SAFE-OP 4 < OP 8).
+fn lowest(states: &[SubDeviceState]) -> Option<SubDeviceState> {
+    states.iter().copied().min_by_key(|s| u8::from(*s))
 }

@@ -25,6 +25,7 @@
 
 use super::config::{EthercatConfig, ImageLayout, MAX_PDO_BYTES};
 use super::image_lock::BorrowFlag;
+use super::rack::RackLayout;
 use super::socket::RawSocket;
 use super::wire::cia402::*;
 use super::EthercatError;
@@ -73,12 +74,18 @@ pub struct EthercatStats {
 }
 
 /// The EtherCAT stage (host side): one CiA 402 drive in cyclic synchronous
-/// torque mode, brought up to SAFE-OP by [`Stage::configure`] and to OP
-/// and OPERATION ENABLED by [`Stage::enable`]; one process-data exchange
-/// per tick (see the [module docs](super)).
+/// torque mode, or analog terminals (one slave, or a rack of them:
+/// `[[backend.ethercat.slaves]]`), brought up to SAFE-OP by
+/// [`Stage::configure`] and to OP and OPERATION ENABLED (the enable
+/// output) by [`Stage::enable`]; one process-data exchange per tick (see
+/// the [module docs](super)).
 pub struct EthercatStage {
     cfg: EthercatConfig,
     layout: ImageLayout,
+    /// The rack's signals (`None`: the single device).
+    rack: Option<RackLayout>,
+    /// The group's working counter expected in SAFE-OP and in OP.
+    wkc: (u16, u16),
     link: Link,
     md: Option<MainDevice<'static>>,
     group: Option<Running>,
@@ -130,6 +137,7 @@ impl EthercatStage {
     pub fn open(cfg: &EthercatConfig) -> Result<Self, EthercatError> {
         let layout = cfg.layout("backend.ethercat")?;
         cfg.validate("backend.ethercat")?;
+        let rack = cfg.rack("backend.ethercat")?;
         let sock = RawSocket::open(&cfg.interface)?;
         let parts = take_parts()?;
         // ethercrab reports through the `log` crate, also from the PDU
@@ -158,6 +166,8 @@ impl EthercatStage {
         Ok(Self {
             cfg: cfg.clone(),
             layout,
+            rack,
+            wkc: (1, 3),
             link: Link {
                 sock,
                 ends: Some((parts.tx, parts.rx)),
@@ -291,13 +301,19 @@ impl Stage for EthercatStage {
         }
         self.configured = true;
         Ok(DeviceInfo {
-            name: format!(
-                "ethercat:{} {} 0x{:08X}:0x{:08X}",
-                self.cfg.interface,
-                self.cfg.profile.as_str(),
-                self.cfg.vendor_id,
-                self.cfg.expected_product_id()
-            ),
+            name: match self.rack {
+                Some(r) => format!(
+                    "ethercat:{} analog rack of {} slaves",
+                    self.cfg.interface, r.slaves
+                ),
+                None => format!(
+                    "ethercat:{} {} 0x{:08X}:0x{:08X}",
+                    self.cfg.interface,
+                    self.cfg.profile.as_str(),
+                    self.cfg.vendor_id,
+                    self.cfg.expected_product_id()
+                ),
+            },
             clock: Clock::Host,
             period_ns,
             peak_current_a: self.cfg.peak_current_a,

@@ -713,59 +713,128 @@ impl Drive {
     /// bytes). Returns `false` when the request is not CoE SDO (no
     /// response).
     pub fn mailbox(&mut self, req: &[u8], resp: &mut [u8], preop: bool) -> bool {
-        if req.len() < 16 || resp.len() < usize::from(MBX_SIZE) {
-            return false;
-        }
-        let mbx_type = req[5] & 0x0F;
-        let counter = req[5] & 0x70;
-        let service = le16(req, 6) >> 12;
-        if mbx_type != 3 || service != 2 {
-            return false;
-        }
-        let sdo = req[8];
-        let index = le16(req, 9);
-        let sub = req[11];
-        let data = crate::ethercat::wire::le32(req, 12);
-        let command = sdo >> 5;
-        let complete_access = sdo & 0x10 != 0;
-        let result: Result<(u8, u32), u32> = if complete_access {
-            Err(abort::COMMAND)
-        } else {
-            match command {
-                // Upload request.
-                2 => self
-                    .upload(index, sub)
-                    .map(|(v, size)| (0x40 | ((4 - size) << 2) | 0x03, v)),
-                // Download request, expedited.
-                1 if sdo & 0x02 != 0 => {
-                    let size = if sdo & 0x01 != 0 {
-                        4 - ((sdo >> 2) & 0x03)
-                    } else {
-                        4
-                    };
-                    let mask = if size == 4 {
-                        u32::MAX
-                    } else {
-                        (1u32 << (8 * size)) - 1
-                    };
-                    self.download(index, sub, data & mask, size, preop)
-                        .map(|()| (0x60, 0))
-                }
-                _ => Err(abort::COMMAND),
+        serve_sdo(req, resp, |r| match r {
+            SdoRequest::Upload { index, sub } => self.upload(index, sub),
+            SdoRequest::Download {
+                index,
+                sub,
+                value,
+                size,
+            } => self
+                .download(index, sub, value, size, preop)
+                .map(|()| (0, 0)),
+        })
+    }
+}
+
+/// One SDO request of a CoE mailbox (ETG.1000.6 §5.6).
+#[derive(Debug, Clone, Copy)]
+pub(super) enum SdoRequest {
+    /// Upload (read) of `index`:`sub`.
+    Upload {
+        /// Object index.
+        index: u16,
+        /// Subindex.
+        sub: u8,
+    },
+    /// Expedited download (write) of `value`, `size` bytes.
+    Download {
+        /// Object index.
+        index: u16,
+        /// Subindex.
+        sub: u8,
+        /// The value.
+        value: u32,
+        /// Its size, bytes.
+        size: u8,
+    },
+}
+
+/// Serves one CoE mailbox request `req` (mailbox header included) with
+/// `handle` (an upload answers the value and its size in bytes; an error
+/// is the abort code) and writes the response mailbox to `resp` (all of
+/// it, [`MBX_SIZE`] bytes). Returns `false` when the request is not CoE
+/// SDO (no response). Expedited transfers only; complete access is
+/// refused (ETG.1000.6 §5.6).
+pub(super) fn serve_sdo(
+    req: &[u8],
+    resp: &mut [u8],
+    mut handle: impl FnMut(SdoRequest) -> Result<(u32, u8), u32>,
+) -> bool {
+    if req.len() < 16 || resp.len() < usize::from(MBX_SIZE) {
+        return false;
+    }
+    let mbx_type = req[5] & 0x0F;
+    let counter = req[5] & 0x70;
+    let service = le16(req, 6) >> 12;
+    if mbx_type != 3 || service != 2 {
+        return false;
+    }
+    let sdo = req[8];
+    let index = le16(req, 9);
+    let sub = req[11];
+    let data = crate::ethercat::wire::le32(req, 12);
+    let command = sdo >> 5;
+    let complete_access = sdo & 0x10 != 0;
+    let result: Result<(u8, u32), u32> = if complete_access {
+        Err(abort::COMMAND)
+    } else {
+        match command {
+            // Upload request.
+            2 => handle(SdoRequest::Upload { index, sub })
+                .map(|(v, size)| (0x40 | ((4 - size) << 2) | 0x03, v)),
+            // Download request, expedited.
+            1 if sdo & 0x02 != 0 => {
+                let size = if sdo & 0x01 != 0 {
+                    4 - ((sdo >> 2) & 0x03)
+                } else {
+                    4
+                };
+                let mask = if size == 4 {
+                    u32::MAX
+                } else {
+                    (1u32 << (8 * size)) - 1
+                };
+                handle(SdoRequest::Download {
+                    index,
+                    sub,
+                    value: data & mask,
+                    size,
+                })
+                .map(|_| (0x60, 0))
             }
-        };
-        let (head, payload) = match result {
-            Ok(x) => x,
-            Err(code) => (0x80, code),
-        };
-        resp[..usize::from(MBX_SIZE)].fill(0);
-        resp[0..2].copy_from_slice(&10u16.to_le_bytes());
-        resp[5] = 0x03 | counter;
-        resp[6..8].copy_from_slice(&(3u16 << 12).to_le_bytes());
-        resp[8] = head;
-        resp[9..11].copy_from_slice(&index.to_le_bytes());
-        resp[11] = sub;
-        resp[12..16].copy_from_slice(&payload.to_le_bytes());
-        true
+            _ => Err(abort::COMMAND),
+        }
+    };
+    let (head, payload) = match result {
+        Ok(x) => x,
+        Err(code) => (0x80, code),
+    };
+    resp[..usize::from(MBX_SIZE)].fill(0);
+    resp[0..2].copy_from_slice(&10u16.to_le_bytes());
+    resp[5] = 0x03 | counter;
+    resp[6..8].copy_from_slice(&(3u16 << 12).to_le_bytes());
+    resp[8] = head;
+    resp[9..11].copy_from_slice(&index.to_le_bytes());
+    resp[11] = sub;
+    resp[12..16].copy_from_slice(&payload.to_le_bytes());
+    true
+}
+
+impl super::esc::App for Drive {
+    fn rx_bytes(&self) -> usize {
+        Drive::rx_bytes(self)
+    }
+    fn tx_bytes(&self) -> usize {
+        Drive::tx_bytes(self)
+    }
+    fn mailbox(&mut self, req: &[u8], resp: &mut [u8], preop: bool) -> bool {
+        Drive::mailbox(self, req, resp, preop)
+    }
+    fn write_inputs(&self, inputs: &mut [u8]) {
+        Drive::write_inputs(self, inputs)
+    }
+    fn cycle(&mut self, outputs: Option<&[u8]>, inputs: &mut [u8], now_ns: u64) {
+        Drive::cycle(self, outputs, inputs, now_ns)
     }
 }

@@ -4,7 +4,7 @@
 //! broadcast and logical addressing, read/write/read-write and
 //! read-multiple-write, with their working-counter increments), the AL
 //! state machine (ETG.1000.6 §5.3), SII EEPROM access (0x0500–0x050F),
-//! the mailbox sync managers SM0/SM1 carrying CoE to the [`Drive`], the
+//! the mailbox sync managers SM0/SM1 carrying CoE to the [`Drive`](super::drive::Drive), the
 //! process-data sync managers SM2/SM3 mapped by FMMUs (0x0600..), the
 //! SM watchdog (0x0400, 0x0420, 0x0440), and the distributed clock's
 //! registers: receive times latched by a write to 0x0900, the system time
@@ -12,7 +12,6 @@
 //! and cycle 0x09A0 (stored; the drive cycles on the frame, see
 //! [`super`]).
 
-use super::drive::Drive;
 use super::sii::{MBX_IN_START, MBX_OUT_START, MBX_SIZE, PD_IN_START, PD_OUT_START};
 use crate::ethercat::wire::{al, cmd, le16, le32, reg, DATAGRAM_HEADER, WKC_LEN};
 
@@ -43,13 +42,35 @@ pub struct PdAccess {
     pub inputs_read: bool,
 }
 
-/// The ESC and the drive behind it.
+/// The application behind an ESC (its PDI side): the CiA 402 drive
+/// ([`super::drive::Drive`]) or a terminal of a rack
+/// ([`super::rack::Terminal`]).
+pub trait App {
+    /// SM2 (outputs) length its PDO map needs, bytes.
+    fn rx_bytes(&self) -> usize;
+    /// SM3 (inputs) length its PDO map needs, bytes.
+    fn tx_bytes(&self) -> usize;
+    /// Serves one mailbox request (ETG.1000.6 §5.6); `false`: no answer.
+    fn mailbox(&mut self, req: &[u8], resp: &mut [u8], preop: bool) -> bool;
+    /// Writes its inputs (at SAFE-OP entry and after each cycle).
+    fn write_inputs(&self, inputs: &mut [u8]);
+    /// One SM-synchronous cycle: the outputs (`None` outside OP), then the
+    /// inputs.
+    fn cycle(&mut self, outputs: Option<&[u8]>, inputs: &mut [u8], now_ns: u64);
+}
+
+/// The ESC and the application behind it.
 #[derive(Debug)]
-pub struct Esc {
+pub struct Esc<A = super::drive::Drive> {
     mem: Box<[u8; MEM]>,
     sii: Vec<u8>,
-    /// The drive (application).
-    pub drive: Drive,
+    /// The application (the drive, a terminal).
+    pub app: A,
+    /// The ESC has mailbox sync managers (SM0/SM1); without, INIT →
+    /// PRE-OP does not check them (ETG.1000.6 §5.3.2).
+    has_mailbox: bool,
+    /// Port 1's receive time after port 0's, ns (0: port 1 closed).
+    loop_delay_ns: u64,
     al_state: u8,
     /// The ESC's local clock at the frame being processed, ns.
     local_ns: u64,
@@ -67,18 +88,27 @@ mod dc {
     pub const OFFSET: usize = 0x0920;
 }
 
-impl Esc {
-    /// An ESC in INIT with `sii` as EEPROM.
-    pub fn new(sii: Vec<u8>, drive: Drive) -> Self {
+impl<A: App> Esc<A> {
+    /// An ESC in INIT with `sii` as EEPROM, with mailbox.
+    pub fn new(sii: Vec<u8>, app: A) -> Self {
+        Self::in_chain(sii, app, true, false, true)
+    }
+
+    /// An ESC in INIT at a place in a chain: `has_mailbox` (SM0/SM1),
+    /// `downstream` (a slave follows on port 1: DL status link on port 1),
+    /// `dc` (distributed clocks supported, ESC register 0x0008 bit 2).
+    pub fn in_chain(sii: Vec<u8>, app: A, has_mailbox: bool, downstream: bool, dc: bool) -> Self {
         let mut mem = Box::new([0u8; MEM]);
         mem[reg::TYPE as usize] = 0x11;
-        mem[reg::FMMU_COUNT as usize] = 3;
+        mem[reg::FMMU_COUNT as usize] = 4;
         mem[reg::SM_COUNT as usize] = 4;
         mem[reg::RAM_SIZE as usize] = 8;
         // Features: distributed clocks (bit 2), 64-bit (bit 3).
-        mem[reg::FEATURES as usize] = 0x0C;
-        // DL status: PDI operational, link and communication on port 0.
-        mem[0x0110..0x0112].copy_from_slice(&0x0211u16.to_le_bytes());
+        mem[reg::FEATURES as usize] = if dc { 0x0C } else { 0 };
+        // DL status: PDI operational, link and communication on port 0
+        // (and port 1 when a slave follows).
+        let dl: u16 = if downstream { 0x0A31 } else { 0x0211 };
+        mem[0x0110..0x0112].copy_from_slice(&dl.to_le_bytes());
         mem[0x0400..0x0402].copy_from_slice(&2498u16.to_le_bytes());
         mem[0x0420..0x0422].copy_from_slice(&1000u16.to_le_bytes());
         mem[0x0440..0x0442].copy_from_slice(&1u16.to_le_bytes());
@@ -86,7 +116,9 @@ impl Esc {
         let mut esc = Self {
             mem,
             sii,
-            drive,
+            app,
+            has_mailbox,
+            loop_delay_ns: 0,
             al_state: al::INIT,
             local_ns: 0,
         };
@@ -157,6 +189,27 @@ impl Esc {
         (self.sm(2).1 as usize, self.sm(3).1 as usize)
     }
 
+    /// The output image (SM2) while in OP (outputs valid), else `None`.
+    pub fn outputs(&self) -> Option<&[u8]> {
+        let o = PD_OUT_START as usize;
+        let n = self.pd_lengths().0.min(64);
+        (self.al_state == al::OP).then(|| &self.mem[o..o + n])
+    }
+
+    /// The input image (SM3), for the application to latch its inputs.
+    pub fn inputs_mut(&mut self) -> &mut [u8] {
+        let i = PD_IN_START as usize;
+        let n = self.pd_lengths().1.min(64);
+        &mut self.mem[i..i + n]
+    }
+
+    /// Sets the receive time of port 1 to `delay_ns` after port 0's at
+    /// every latch: the frame's loop through the slaves behind this one
+    /// (ETG.1000.4 §6.8; 0 at the end of the chain).
+    pub fn set_loop_delay_ns(&mut self, delay_ns: u64) {
+        self.loop_delay_ns = delay_ns;
+    }
+
     /// Runs one drive cycle on the process images (after an exchange).
     pub fn cycle(&mut self, now_ns: u64) {
         let (out_len, in_len) = self.pd_lengths();
@@ -167,7 +220,7 @@ impl Esc {
         outputs[..out_len].copy_from_slice(&self.mem[o..o + out_len]);
         let in_len = in_len.min(64);
         let op = self.al_state == al::OP;
-        self.drive.cycle(
+        self.app.cycle(
             op.then_some(&outputs[..out_len]),
             &mut self.mem[i..i + in_len],
             now_ns,
@@ -190,7 +243,7 @@ impl Esc {
         let code = match req {
             al::INIT => 0,
             al::PRE_OP => {
-                if cur == al::INIT && !self.mailbox_ok() {
+                if cur == al::INIT && self.has_mailbox && !self.mailbox_ok() {
                     al::CODE_INVALID_MAILBOX
                 } else {
                     0
@@ -230,7 +283,7 @@ impl Esc {
             // Inputs are valid from SAFE-OP on.
             let i = PD_IN_START as usize;
             let n = (self.sm(3).1 as usize).min(64);
-            self.drive.write_inputs(&mut self.mem[i..i + n]);
+            self.app.write_inputs(&mut self.mem[i..i + n]);
         }
     }
 
@@ -244,11 +297,12 @@ impl Esc {
     fn pd_check(&self) -> u16 {
         let (s2, l2, _, e2) = self.sm(2);
         let (s3, l3, _, e3) = self.sm(3);
-        let rx = self.drive.rx_bytes();
-        let tx = self.drive.tx_bytes();
-        if s2 != PD_OUT_START || usize::from(l2) != rx || (rx > 0 && !e2) {
+        let rx = self.app.rx_bytes();
+        let tx = self.app.tx_bytes();
+        // A direction without process data needs no sync manager.
+        if usize::from(l2) != rx || (rx > 0 && (s2 != PD_OUT_START || !e2)) {
             al::CODE_INVALID_OUTPUTS
-        } else if s3 != PD_IN_START || usize::from(l3) != tx || (tx > 0 && !e3) {
+        } else if usize::from(l3) != tx || (tx > 0 && (s3 != PD_IN_START || !e3)) {
             al::CODE_INVALID_INPUTS
         } else {
             0
@@ -283,7 +337,7 @@ impl Esc {
         req[..n].copy_from_slice(&self.mem[o..o + n]);
         let mut resp = [0u8; 128];
         let preop = self.al_state == al::PRE_OP;
-        if self.drive.mailbox(&req[..n], &mut resp[..n], preop) {
+        if self.app.mailbox(&req[..n], &mut resp[..n], preop) {
             self.mem[i..i + n].copy_from_slice(&resp[..n]);
             *self.sm_status(1) |= 0x08;
         }
@@ -352,6 +406,10 @@ impl Esc {
             let t = self.local_ns;
             self.mem[dc::PORT0..dc::PORT0 + 16].fill(0);
             self.mem[dc::PORT0..dc::PORT0 + 4].copy_from_slice(&(t as u32).to_le_bytes());
+            if self.loop_delay_ns > 0 {
+                let t1 = t + self.loop_delay_ns;
+                self.mem[dc::PORT0 + 4..dc::PORT0 + 8].copy_from_slice(&(t1 as u32).to_le_bytes());
+            }
             self.mem[dc::RECEIVE_TIME_PU..dc::RECEIVE_TIME_PU + 8]
                 .copy_from_slice(&t.to_le_bytes());
         }
@@ -361,7 +419,7 @@ impl Esc {
         if touches(reg::SII_CONTROL) || touches(reg::SII_CONTROL + 1) {
             self.sii_control();
         }
-        if touches(MBX_OUT_START + MBX_SIZE - 1) && self.al_state != al::INIT {
+        if self.has_mailbox && touches(MBX_OUT_START + MBX_SIZE - 1) && self.al_state != al::INIT {
             *self.sm_status(0) |= 0x08;
             self.mailbox_request();
         }
@@ -377,7 +435,7 @@ impl Esc {
         let reads = matches!(command, cmd::LRD | cmd::LRW);
         let writes = matches!(command, cmd::LWR | cmd::LRW) && self.al_state == al::OP;
         let (mut r, mut w) = (false, false);
-        for f in 0..3 {
+        for f in 0..usize::from(self.mem[reg::FMMU_COUNT as usize]) {
             let b = reg::FMMU0 as usize + 16 * f;
             let m = &self.mem[b..b + 16];
             if m[12] & 1 == 0 {

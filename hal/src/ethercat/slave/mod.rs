@@ -39,6 +39,7 @@
 
 pub mod drive;
 pub mod esc;
+pub mod rack;
 pub mod sii;
 
 use self::drive::Drive;
@@ -68,8 +69,15 @@ pub enum SlaveFault {
         /// Frames affected.
         frames: u32,
     },
-    /// Leave OP (SAFE-OP + ERROR, AL status code 0x0001).
+    /// Leave OP (SAFE-OP + ERROR, AL status code 0x0001); in a rack, the
+    /// DAC terminal.
     LeaveOp,
+    /// In a rack: the terminal at `position` leaves OP (`leave_op:N`;
+    /// the single device: as [`Self::LeaveOp`]).
+    LeaveOpAt {
+        /// Position on the segment.
+        position: u16,
+    },
     /// The drive faults (statusword bit 3, 0 A).
     DriveFault,
     /// Stop answering for good.
@@ -83,7 +91,7 @@ pub enum SlaveFault {
 }
 
 impl SlaveFault {
-    /// Parses `drop:FRAMES`, `wkc:FRAMES`, `leave_op`, `drive_fault`,
+    /// Parses `drop:FRAMES`, `wkc:FRAMES`, `leave_op`, `leave_op:POSITION`, `drive_fault`,
     /// `disconnect`, `dc_drift:PPM`.
     ///
     /// # Errors
@@ -100,6 +108,11 @@ impl SlaveFault {
             "drop" => Ok(Self::Drop { frames: frames()? }),
             "wkc" => Ok(Self::WrongWkc { frames: frames()? }),
             "leave_op" if arg.is_empty() => Ok(Self::LeaveOp),
+            "leave_op" => Ok(Self::LeaveOpAt {
+                position: arg
+                    .parse::<u16>()
+                    .map_err(|_| format!("leave_op: position `{arg}` is not a slave position"))?,
+            }),
             "drive_fault" if arg.is_empty() => Ok(Self::DriveFault),
             "disconnect" if arg.is_empty() => Ok(Self::Disconnect),
             "dc_drift" => Ok(Self::DcDrift {
@@ -110,7 +123,7 @@ impl SlaveFault {
                     .ok_or_else(|| format!("dc_drift: `{arg}` is not a rate error in ppm"))?,
             }),
             _ => Err(format!(
-                "unknown EtherCAT slave fault `{s}` (expected drop:FRAMES, wkc:FRAMES, leave_op, drive_fault, disconnect or dc_drift:PPM)"
+                "unknown EtherCAT slave fault `{s}` (expected drop:FRAMES, wkc:FRAMES, leave_op[:POSITION], drive_fault, disconnect or dc_drift:PPM)"
             )),
         }
     }
@@ -177,7 +190,7 @@ pub fn run_slave(
     // The local clock: (monotonic, local) at the last rate change, rate.
     let mut clock = (t0, 0u64, 1.0f64);
     let local = |c: (u64, u64, f64), now: u64| c.1 + ((now - c.0) as f64 * c.2) as u64;
-    status.publish(&esc.drive.core);
+    status.publish(&esc.app.core);
     let io = |source| EthercatError::Io {
         op: "slave socket",
         source,
@@ -192,17 +205,17 @@ pub fn run_slave(
                 match s.kind {
                     SlaveFault::Drop { frames } => f.drop_left += frames,
                     SlaveFault::WrongWkc { frames } => f.wkc_left += frames,
-                    SlaveFault::LeaveOp => {
+                    SlaveFault::LeaveOp | SlaveFault::LeaveOpAt { .. } => {
                         esc.error(al::SAFE_OP, 0x0001);
-                        esc.drive.outputs_invalid(now - t0);
+                        esc.app.outputs_invalid(now - t0);
                     }
-                    SlaveFault::DriveFault => esc.drive.fault(DeviceFault::Amplifier),
+                    SlaveFault::DriveFault => esc.app.fault(DeviceFault::Amplifier),
                     SlaveFault::Disconnect => f.disconnected = true,
                     SlaveFault::DcDrift { ppm } => {
                         clock = (now, local(clock, now), 1.0 + ppm * 1e-6);
                     }
                 }
-                status.publish(&esc.drive.core);
+                status.publish(&esc.app.core);
                 next_fault += 1;
             }
         }
@@ -210,10 +223,10 @@ pub fn run_slave(
         let wd = esc.watchdog_ns();
         if let Some(last) = last_pd_ns {
             if wd > 0 && esc.al_state() == al::OP && now > last + wd {
-                esc.drive.fault(DeviceFault::Watchdog);
+                esc.app.fault(DeviceFault::Watchdog);
                 esc.set_watchdog_expired(true);
                 esc.error(al::SAFE_OP, al::CODE_SM_WATCHDOG);
-                status.publish(&esc.drive.core);
+                status.publish(&esc.app.core);
                 status
                     .watchdog_trip_deadline_mono_ns
                     .store(last + wd, Ordering::Release);
@@ -301,11 +314,11 @@ pub fn run_slave(
                 esc.cycle(now - t0);
                 status.samples_sent.fetch_add(1, Ordering::Relaxed);
             }
-            status.publish(&esc.drive.core);
+            status.publish(&esc.app.core);
         }
     }
-    esc.drive.fault_free_disable();
-    status.publish(&esc.drive.core);
+    esc.app.fault_free_disable();
+    status.publish(&esc.app.core);
     Ok(())
 }
 

@@ -2,7 +2,7 @@
 //! the information area (words 0x0000–0x003F) and the categories from word
 //! 0x0040 (strings, general, FMMU, sync managers, end).
 
-use crate::ethercat::config::EthercatConfig;
+use crate::ethercat::config::{EthercatConfig, PdoEntry};
 
 /// Write mailbox (SM0, master → slave) start address in ESC memory.
 pub const MBX_OUT_START: u16 = 0x1000;
@@ -58,6 +58,31 @@ pub fn image(cfg: &EthercatConfig, vendor_id: u32, product_id: u32) -> Vec<u8> {
         crate::ethercat::config::Profile::Cia402 => DEVICE_NAME,
         crate::ethercat::config::Profile::Analog => DEVICE_NAME_ANALOG,
     };
+    build(name, vendor_id, product_id, true, None)
+}
+
+/// The EEPROM contents of a terminal of a rack: with a CoE mailbox
+/// (`coe`), or without one and then with its fixed PDOs in the TxPDO
+/// (50) and RxPDO (51) categories (ETG2010 Table 14: the master sizes the
+/// process data from them), `rx` assigned to SM2 and `tx` to SM3.
+pub fn terminal_image(
+    name: &str,
+    vendor_id: u32,
+    product_id: u32,
+    coe: bool,
+    rx: &[PdoEntry],
+    tx: &[PdoEntry],
+) -> Vec<u8> {
+    build(name, vendor_id, product_id, coe, (!coe).then_some((rx, tx)))
+}
+
+fn build(
+    name: &str,
+    vendor_id: u32,
+    product_id: u32,
+    mailbox: bool,
+    fixed: Option<(&[PdoEntry], &[PdoEntry])>,
+) -> Vec<u8> {
     let mut v = Vec::with_capacity(512);
     // 0x0000: PDI control, PDI configuration, SYNC impulse length, PDI
     // configuration 2, configured station alias, reserved (4 bytes).
@@ -75,7 +100,12 @@ pub fn image(cfg: &EthercatConfig, vendor_id: u32, product_id: u32) -> Vec<u8> {
     v.resize(0x18 * 2, 0);
     // 0x0018: standard mailbox: receive offset/size, send offset/size,
     // protocols (0x0004: CoE).
-    for w in [MBX_OUT_START, MBX_SIZE, MBX_IN_START, MBX_SIZE, 0x0004] {
+    let words = if mailbox {
+        [MBX_OUT_START, MBX_SIZE, MBX_IN_START, MBX_SIZE, 0x0004]
+    } else {
+        [0; 5]
+    };
+    for w in words {
         push16(&mut v, w);
     }
     v.resize(0x3E * 2, 0);
@@ -90,24 +120,50 @@ pub fn image(cfg: &EthercatConfig, vendor_id: u32, product_id: u32) -> Vec<u8> {
     // indices; reserved; CoE details (SDO, PDO assign, PDO config:
     // 0x0D); FoE, EoE; SoE, DS402, sysman; flags; e-bus current; pad to 32
     // bytes.
-    let mut general = vec![0u8, 0, 0, 1, 0, 0x0D, 0, 0, 0, 1, 0, 0];
+    let coe_details = if mailbox { 0x0D } else { 0 };
+    let mut general = vec![0u8, 0, 0, 1, 0, coe_details, 0, 0, 0, 1, 0, 0];
     general.resize(32, 0);
     category(&mut v, 30, general);
     // FMMU usage: 1 outputs, 2 inputs, 3 SM status.
     category(&mut v, 40, vec![0x01, 0x02, 0x03, 0xFF]);
     // Sync managers: start, length, control, reserved, enable, type.
     let mut sm = Vec::new();
-    for (start, len, control, kind) in [
-        (MBX_OUT_START, MBX_SIZE, 0x26u8, 1u8),
-        (MBX_IN_START, MBX_SIZE, 0x22, 2),
-        (PD_OUT_START, 0, 0x64, 3),
-        (PD_IN_START, 0, 0x20, 4),
+    // Without a mailbox SM0/SM1 are unused (type 0), so the process data
+    // stay on SM2/SM3.
+    let (mbx_enable, mbx_out, mbx_in) = if mailbox { (1, 1, 2) } else { (0, 0, 0) };
+    for (start, len, control, enable, kind) in [
+        (MBX_OUT_START, MBX_SIZE, 0x26u8, mbx_enable, mbx_out),
+        (MBX_IN_START, MBX_SIZE, 0x22, mbx_enable, mbx_in),
+        (PD_OUT_START, 0, 0x64, 1, 3u8),
+        (PD_IN_START, 0, 0x20, 1, 4),
     ] {
+        let len = if mailbox || kind > 2 { len } else { 0 };
         push16(&mut sm, start);
         push16(&mut sm, len);
-        sm.extend_from_slice(&[control, 0, 1, kind]);
+        sm.extend_from_slice(&[control, 0, enable, kind]);
     }
     category(&mut v, 41, sm);
+    // Fixed PDOs (ETG2010 Table 14): 0x1A00 on SM3 (TxPDO, 50), 0x1600
+    // on SM2 (RxPDO, 51); entry: index, subindex, name, data type, bit
+    // length, flags.
+    if let Some((rx, tx)) = fixed {
+        for (kind, pdo, sm_index, entries) in [(50u16, 0x1A00u16, 3u8, tx), (51, 0x1600, 2, rx)] {
+            if entries.is_empty() {
+                continue;
+            }
+            let mut d = Vec::new();
+            push16(&mut d, pdo);
+            d.extend_from_slice(&[entries.len() as u8, sm_index, 0, 0]);
+            push16(&mut d, 0);
+            for e in entries {
+                push16(&mut d, e.index);
+                let data_type = if e.bits == 1 { 0x01 } else { 0x00 };
+                d.extend_from_slice(&[e.subindex, 0, data_type, e.bits]);
+                push16(&mut d, 0);
+            }
+            category(&mut v, kind, d);
+        }
+    }
     push16(&mut v, 0xFFFF);
     push16(&mut v, 0);
     v.resize(512, 0xFF);
