@@ -891,15 +891,17 @@ fn a_rack_with_a_wrong_terminal_or_count_is_refused_and_nothing_enabled() {
         assert!(!slave.status.enabled.load(Ordering::Acquire));
         assert_eq!(slave.status.commands_received.load(Ordering::Relaxed), 0);
     }
-    // Analog terminals whose PDO contents are fixed (as Beckhoff's): a
-    // host that writes the map is refused naming the entry; one told
-    // `fixed_pdo` takes their assignment and runs.
-    let mut sc = rack_cfg(&v.slave);
-    sc.slaves[1].fixed_pdo = true;
-    sc.slaves[2].fixed_pdo = true;
+    // Analog terminals whose PDO contents are fixed (as Beckhoff's, the
+    // rack of `rack_cfg`): a host that writes the map is refused naming
+    // the entry; one told `fixed_pdo` takes their assignment and runs
+    // (the other tests). Terminals that take a written map get it over
+    // CoE and run.
     {
-        let slave = Slave::start_rack(&v.slave, &sc, vec![]);
-        let mut stage = EthercatStage::open(&rack_cfg(&v.master)).unwrap();
+        let slave = Slave::start_rack(&v.slave, &rack_cfg(&v.slave), vec![]);
+        let mut hc = rack_cfg(&v.master);
+        hc.slaves[1].fixed_pdo = false;
+        hc.slaves[2].fixed_pdo = false;
+        let mut stage = EthercatStage::open(&hc).unwrap();
         let e = stage.configure(PERIOD_NS).unwrap_err();
         assert_eq!(e.kind(), ErrorKind::Protocol, "{e}");
         assert!(
@@ -907,11 +909,17 @@ fn a_rack_with_a_wrong_terminal_or_count_is_refused_and_nothing_enabled() {
                 .starts_with("backend.ethercat.slaves[1].tx_pdo"),
             "{e}"
         );
+        assert!(stage.enable().is_err());
         assert!(!slave.status.enabled.load(Ordering::Acquire));
-        drop(stage);
+    }
+    let mut mappable = rack_cfg(&v.slave);
+    mappable.slaves[1].fixed_pdo = false;
+    mappable.slaves[2].fixed_pdo = false;
+    {
+        let slave = Slave::start_rack(&v.slave, &mappable, vec![]);
         let mut hc = rack_cfg(&v.master);
-        hc.slaves[1].fixed_pdo = true;
-        hc.slaves[2].fixed_pdo = true;
+        hc.slaves[1].fixed_pdo = false;
+        hc.slaves[2].fixed_pdo = false;
         let mut stage = EthercatStage::open(&hc).unwrap();
         stage.configure(PERIOD_NS).unwrap();
         stage.enable().unwrap();

@@ -402,7 +402,8 @@ impl EthercatConfig {
 
 /// The Beckhoff rack of the docs: EK1100 coupler, EL3102 ADC, EL4132 DAC,
 /// EL2002 digital outputs, EL1002 digital inputs (vendor 0x2; product
-/// codes from Beckhoff's ESI files), with the terminals' own maps.
+/// codes from Beckhoff's ESI files), with the terminals' own maps; the
+/// analog terminals' PDO contents fixed (`fixed_pdo`), as Beckhoff's are.
 pub fn beckhoff_example() -> Vec<RackSlave> {
     let e = |index: u16, subindex: u8, bits: u8| PdoEntry {
         index,
@@ -426,11 +427,13 @@ pub fn beckhoff_example() -> Vec<RackSlave> {
             e(0x6010, 0x11, 16),
         ],
         adc: Some(e(0x6000, 0x11, 16)),
+        fixed_pdo: true,
         ..slave(1, 0x0C1E_3052, "EL3102")
     };
     let dac = RackSlave {
         rx_pdo: vec![e(0x7000, 0x01, 16), e(0x7010, 0x01, 16)],
         dac: Some(e(0x7000, 0x01, 16)),
+        fixed_pdo: true,
         ..slave(2, 0x1024_3052, "EL4132")
     };
     let out = RackSlave {
