@@ -1099,3 +1099,52 @@ fn a_silent_host_is_stopped_by_the_dac_terminals_watchdog() {
         .unwrap_err();
     assert_eq!(e.kind(), ErrorKind::Link, "{e}");
 }
+
+/// Enabled, disabled, left idle in SAFE-OP for longer than the SM
+/// watchdog (a daemon between two jobs), enabled again: the watchdog runs
+/// only in OP, from the first output write after each entry to OP, so the
+/// second enable runs (no trip on entering OP), on the CiA 402 drive and
+/// on the rack's DAC and digital-output terminals alike; and it still
+/// trips when the host then goes silent in OP.
+#[test]
+fn enable_after_an_idle_spell_longer_than_the_watchdog_runs() {
+    let _g = serial();
+    let Some(v) = Veth::new() else { return };
+    for rack in [false, true] {
+        let (slave, cfg) = if rack {
+            (
+                Slave::start_rack(&v.slave, &rack_cfg(&v.slave), vec![]),
+                rack_cfg(&v.master),
+            )
+        } else {
+            (
+                Slave::start(&v.slave, &host_cfg(&v.slave), default_id(), vec![]),
+                host_cfg(&v.master),
+            )
+        };
+        let idle = Duration::from_secs_f64(2.0 * cfg.watchdog_ms * 1e-3);
+        let mut stage = EthercatStage::open(&cfg).unwrap();
+        stage.configure(PERIOD_NS).unwrap();
+        for round in 0..2 {
+            stage.enable().unwrap();
+            let (err, _) = run_until_error(&mut stage, 0.2, 200);
+            assert!(err.is_none(), "rack {rack}, round {round}: {err:?}");
+            assert!((slave.status.commanded_current_a() - 0.2).abs() < 1e-3);
+            stage.disable().unwrap();
+            assert_eq!(slave.status.commanded_current_a(), 0.0);
+            std::thread::sleep(idle);
+        }
+        // Silent in OP: the watchdog still trips.
+        stage.enable().unwrap();
+        let (err, _) = run_until_error(&mut stage, 0.2, 50);
+        assert!(err.is_none(), "rack {rack}: {err:?}");
+        std::thread::sleep(idle);
+        assert_eq!(
+            slave.status.commanded_current_a(),
+            0.0,
+            "rack {rack}: current after the host went silent in OP"
+        );
+        assert!(slave.status.watchdog_trip_mono_ns.load(Ordering::Acquire) > 0);
+        drop(stage);
+    }
+}
