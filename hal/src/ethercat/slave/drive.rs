@@ -600,13 +600,7 @@ impl Drive {
         size: u8,
         preop: bool,
     ) -> Result<(), u32> {
-        let want = |n: u8| {
-            if size == n {
-                Ok(())
-            } else {
-                Err(abort::LENGTH)
-            }
-        };
+        let want = |n: u8| want_size(size, n);
         match (index, sub) {
             (0x1600 | 0x1A00, _) => {
                 if !preop {
@@ -707,23 +701,68 @@ impl Drive {
             },
         }
     }
+}
+
+/// An object dictionary served over CoE SDO ([`serve_sdo`]): the drive's,
+/// an analog terminal's.
+pub(super) trait Dictionary {
+    /// Upload of `index`:`sub`: the value and its size, bytes; else the
+    /// abort code.
+    fn sdo_upload(&self, index: u16, sub: u8) -> Result<(u32, u8), u32>;
+
+    /// Expedited download of `value` (`size` bytes) to `index`:`sub`, in
+    /// PRE-OP when `preop`; else the abort code.
+    fn sdo_download(
+        &mut self,
+        index: u16,
+        sub: u8,
+        value: u32,
+        size: u8,
+        preop: bool,
+    ) -> Result<(), u32>;
 
     /// Serves one CoE mailbox request `req` (mailbox header included);
     /// writes the response mailbox to `resp` (all of it, [`MBX_SIZE`]
     /// bytes). Returns `false` when the request is not CoE SDO (no
     /// response).
-    pub fn mailbox(&mut self, req: &[u8], resp: &mut [u8], preop: bool) -> bool {
+    fn serve_mailbox(&mut self, req: &[u8], resp: &mut [u8], preop: bool) -> bool {
         serve_sdo(req, resp, |r| match r {
-            SdoRequest::Upload { index, sub } => self.upload(index, sub),
+            SdoRequest::Upload { index, sub } => self.sdo_upload(index, sub),
             SdoRequest::Download {
                 index,
                 sub,
                 value,
                 size,
             } => self
-                .download(index, sub, value, size, preop)
+                .sdo_download(index, sub, value, size, preop)
                 .map(|()| (0, 0)),
         })
+    }
+}
+
+/// A download's size check: `size` bytes where the object has `n`
+/// (abort 0x06070010 otherwise).
+pub(super) fn want_size(size: u8, n: u8) -> Result<(), u32> {
+    if size == n {
+        Ok(())
+    } else {
+        Err(abort::LENGTH)
+    }
+}
+
+impl Dictionary for Drive {
+    fn sdo_upload(&self, index: u16, sub: u8) -> Result<(u32, u8), u32> {
+        self.upload(index, sub)
+    }
+    fn sdo_download(
+        &mut self,
+        index: u16,
+        sub: u8,
+        value: u32,
+        size: u8,
+        preop: bool,
+    ) -> Result<(), u32> {
+        self.download(index, sub, value, size, preop)
     }
 }
 
@@ -829,7 +868,7 @@ impl super::esc::App for Drive {
         Drive::tx_bytes(self)
     }
     fn mailbox(&mut self, req: &[u8], resp: &mut [u8], preop: bool) -> bool {
-        Drive::mailbox(self, req, resp, preop)
+        self.serve_mailbox(req, resp, preop)
     }
     fn write_inputs(&self, inputs: &mut [u8]) {
         Drive::write_inputs(self, inputs)

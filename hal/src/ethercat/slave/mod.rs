@@ -187,9 +187,7 @@ pub fn run_slave(
     let t0 = monotonic_ns();
     let mut op_since: Option<u64> = None;
     let mut last_pd_ns: Option<u64> = None;
-    // The local clock: (monotonic, local) at the last rate change, rate.
-    let mut clock = (t0, 0u64, 1.0f64);
-    let local = |c: (u64, u64, f64), now: u64| c.1 + ((now - c.0) as f64 * c.2) as u64;
+    let mut clock = LocalClock::new(t0);
     status.publish(&esc.app.core);
     let io = |source| EthercatError::Io {
         op: "slave socket",
@@ -211,9 +209,7 @@ pub fn run_slave(
                     }
                     SlaveFault::DriveFault => esc.app.fault(DeviceFault::Amplifier),
                     SlaveFault::Disconnect => f.disconnected = true,
-                    SlaveFault::DcDrift { ppm } => {
-                        clock = (now, local(clock, now), 1.0 + ppm * 1e-6);
-                    }
+                    SlaveFault::DcDrift { ppm } => clock.drift(now, ppm),
                 }
                 status.publish(&esc.app.core);
                 next_fault += 1;
@@ -251,29 +247,17 @@ pub fn run_slave(
                 continue;
             }
             let frame = &mut buf[..n];
-            if n < ETH_HEADER + ECAT_HEADER
-                || u16::from_be_bytes([frame[12], frame[13]]) != ETHERTYPE
-                || frame[6] & 0x02 != 0
-            {
-                // Not EtherCAT, or already through a slave (ours).
+            let Some(pdus) = intake(frame, status) else {
                 continue;
-            }
-            let h = u16::from_le_bytes([frame[14], frame[15]]);
-            let len = usize::from(h & 0x07FF);
-            let start = ETH_HEADER + ECAT_HEADER;
-            if h >> 12 != 1 || start + len > n {
-                status.bad_frames.fetch_add(1, Ordering::Relaxed);
-                continue;
-            }
-            let lrw = find_datagram(&frame[start..start + len], cmd::LRW);
-            let pd_frame = lrw.is_some();
-            if pd_frame && f.drop_left > 0 {
+            };
+            let lrw = find_datagram(&frame[pdus.clone()], cmd::LRW);
+            if lrw.is_some() && f.drop_left > 0 {
                 f.drop_left -= 1;
                 continue;
             }
             let mut pd = PdAccess::default();
             if esc
-                .process(&mut frame[start..start + len], &mut pd, local(clock, now))
+                .process(&mut frame[pdus.clone()], &mut pd, clock.at(now))
                 .is_err()
             {
                 status.bad_frames.fetch_add(1, Ordering::Relaxed);
@@ -281,18 +265,9 @@ pub fn run_slave(
             }
             if let (Some(w), true) = (lrw, f.wkc_left > 0) {
                 f.wkc_left -= 1;
-                let w = start + w;
-                let wkc = u16::from_le_bytes([frame[w], frame[w + 1]]).wrapping_sub(1);
-                frame[w..w + 2].copy_from_slice(&wkc.to_le_bytes());
+                short_wkc(frame, pdus.start + w);
             }
-            // The first slave sets the locally administered bit of the
-            // source address (what masters use to tell answers apart).
-            frame[6] |= 0x02;
-            match sock.send(frame) {
-                Ok(_) => {}
-                Err(e) if matches!(e.raw_os_error(), Some(libc::EAGAIN | libc::ENOBUFS)) => {}
-                Err(e) => return Err(io(e)),
-            }
+            answer(sock, frame).map_err(io)?;
             if esc.al_state() == al::OP && op_since.is_none() {
                 op_since = Some(now);
             }
@@ -320,6 +295,81 @@ pub fn run_slave(
     esc.app.fault_free_disable();
     status.publish(&esc.app.core);
     Ok(())
+}
+
+/// Where the datagrams of `frame` lie (ETG.1000.4 §5.3: the Ethernet
+/// header, the 2-byte EtherCAT header with length and type 1, then the
+/// datagrams), shared by the single device and the rack. `None` for a
+/// frame not to answer: not EtherCAT, already through a slave (ours), or
+/// cut short or of another type (counted in `status.bad_frames`).
+fn intake(frame: &[u8], status: &EmulatorStatus) -> Option<std::ops::Range<usize>> {
+    let n = frame.len();
+    if n < ETH_HEADER + ECAT_HEADER
+        || u16::from_be_bytes([frame[12], frame[13]]) != ETHERTYPE
+        || frame[6] & 0x02 != 0
+    {
+        return None;
+    }
+    let h = u16::from_le_bytes([frame[14], frame[15]]);
+    let len = usize::from(h & 0x07FF);
+    let start = ETH_HEADER + ECAT_HEADER;
+    if h >> 12 != 1 || start + len > n {
+        status.bad_frames.fetch_add(1, Ordering::Relaxed);
+        return None;
+    }
+    Some(start..start + len)
+}
+
+/// One short of the working counter at `at` in `frame` (the `wkc:N`
+/// fault).
+fn short_wkc(frame: &mut [u8], at: usize) {
+    let wkc = u16::from_le_bytes([frame[at], frame[at + 1]]).wrapping_sub(1);
+    frame[at..at + 2].copy_from_slice(&wkc.to_le_bytes());
+}
+
+/// Sends the processed `frame` back: the first slave sets the locally
+/// administered bit of the source address (what masters use to tell
+/// answers apart); a full socket buffer drops the answer as a lost frame.
+fn answer(sock: &RawSocket, frame: &mut [u8]) -> std::io::Result<()> {
+    frame[6] |= 0x02;
+    match sock.send(frame) {
+        Ok(_) => Ok(()),
+        Err(e) if matches!(e.raw_os_error(), Some(libc::EAGAIN | libc::ENOBUFS)) => Ok(()),
+        Err(e) => Err(e),
+    }
+}
+
+/// The slave's local clock (the distributed clocks' reference): the
+/// monotonic and local times at the last rate change, and the rate.
+#[derive(Debug, Clone, Copy)]
+struct LocalClock {
+    at_mono_ns: u64,
+    at_local_ns: u64,
+    rate: f64,
+}
+
+impl LocalClock {
+    fn new(t0_ns: u64) -> Self {
+        Self {
+            at_mono_ns: t0_ns,
+            at_local_ns: 0,
+            rate: 1.0,
+        }
+    }
+
+    /// The local time at monotonic time `now_ns`, ns.
+    fn at(&self, now_ns: u64) -> u64 {
+        self.at_local_ns + ((now_ns - self.at_mono_ns) as f64 * self.rate) as u64
+    }
+
+    /// From `now_ns` on, `ppm` parts per million fast (`dc_drift:PPM`).
+    fn drift(&mut self, now_ns: u64, ppm: f64) {
+        *self = Self {
+            at_mono_ns: now_ns,
+            at_local_ns: self.at(now_ns),
+            rate: 1.0 + ppm * 1e-6,
+        };
+    }
 }
 
 /// The offset of the working counter of the first datagram with command

@@ -51,15 +51,17 @@
 //! `dc_drift` on the slaves' clock, `leave_op` takes the DAC terminal to
 //! SAFE-OP + ERROR, `leave_op:N` the terminal at position N.
 
-use super::drive::{abort, serve_sdo, SdoRequest};
+use super::drive::{abort, want_size, Dictionary};
 use super::esc::{App, Esc, Malformed, PdAccess};
 use super::sii;
-use super::{find_datagram, Faults, ScheduledSlaveFault, SlaveFault};
+use super::{
+    answer, find_datagram, intake, short_wkc, Faults, LocalClock, ScheduledSlaveFault, SlaveFault,
+};
 use crate::emulator::{DeviceCore, DeviceFault, EmulatorStatus};
 use crate::ethercat::config::{EthercatConfig, PdoEntry};
 use crate::ethercat::rack::{RackSlave, MAX_RACK};
 use crate::ethercat::socket::RawSocket;
-use crate::ethercat::wire::{al, cmd, get_bits, set_bits, ECAT_HEADER, ETHERTYPE, ETH_HEADER};
+use crate::ethercat::wire::{al, cmd, get_bits, set_bits};
 use crate::ethercat::EthercatError;
 use crate::os::monotonic_ns;
 use crate::Command;
@@ -127,8 +129,10 @@ impl Terminal {
             slave: slave.clone(),
         }
     }
+}
 
-    fn upload(&self, index: u16, sub: u8) -> Result<(u32, u8), u32> {
+impl Dictionary for Terminal {
+    fn sdo_upload(&self, index: u16, sub: u8) -> Result<(u32, u8), u32> {
         let map = |m: &Map| match sub {
             0 => Ok((m.entries.len() as u32, 1)),
             s if usize::from(s) <= m.entries.len() => Ok((m.entries[usize::from(s) - 1].raw(), 4)),
@@ -155,7 +159,7 @@ impl Terminal {
         }
     }
 
-    fn download(
+    fn sdo_download(
         &mut self,
         index: u16,
         sub: u8,
@@ -163,13 +167,7 @@ impl Terminal {
         size: u8,
         preop: bool,
     ) -> Result<(), u32> {
-        let want = |n: u8| {
-            if size == n {
-                Ok(())
-            } else {
-                Err(abort::LENGTH)
-            }
-        };
+        let want = |n: u8| want_size(size, n);
         match index {
             0x1600 | 0x1A00 | 0x1C12 | 0x1C13 if !preop => Err(abort::STATE),
             // Fixed PDO contents (and assignment): read-only.
@@ -250,20 +248,7 @@ impl App for Terminal {
         self.tx.bits().div_ceil(8)
     }
     fn mailbox(&mut self, req: &[u8], resp: &mut [u8], preop: bool) -> bool {
-        if !self.coe {
-            return false;
-        }
-        serve_sdo(req, resp, |r| match r {
-            SdoRequest::Upload { index, sub } => self.upload(index, sub),
-            SdoRequest::Download {
-                index,
-                sub,
-                value,
-                size,
-            } => self
-                .download(index, sub, value, size, preop)
-                .map(|()| (0, 0)),
-        })
+        self.coe && self.serve_mailbox(req, resp, preop)
     }
     /// The rack latches the inputs (the plant is shared).
     fn write_inputs(&self, _inputs: &mut [u8]) {}
@@ -444,8 +429,7 @@ pub fn run_rack(
     let t0 = monotonic_ns();
     let mut op_since: Option<u64> = None;
     let mut last_out: [Option<u64>; MAX_RACK] = [None; MAX_RACK];
-    let mut clock = (t0, 0u64, 1.0f64);
-    let local = |c: (u64, u64, f64), now: u64| c.1 + ((now - c.0) as f64 * c.2) as u64;
+    let mut clock = LocalClock::new(t0);
     status.publish(&rack.core);
     let io = |source| EthercatError::Io {
         op: "slave socket",
@@ -475,9 +459,7 @@ pub fn run_rack(
                     }
                     SlaveFault::DriveFault => rack.core.trip(DeviceFault::Amplifier),
                     SlaveFault::Disconnect => f.disconnected = true,
-                    SlaveFault::DcDrift { ppm } => {
-                        clock = (now, local(clock, now), 1.0 + ppm * 1e-6);
-                    }
+                    SlaveFault::DcDrift { ppm } => clock.drift(now, ppm),
                 }
                 status.publish(&rack.core);
                 next_fault += 1;
@@ -529,28 +511,18 @@ pub fn run_rack(
                 continue;
             }
             let frame = &mut buf[..len];
-            if len < ETH_HEADER + ECAT_HEADER
-                || u16::from_be_bytes([frame[12], frame[13]]) != ETHERTYPE
-                || frame[6] & 0x02 != 0
-            {
+            let Some(pdus) = intake(frame, status) else {
                 continue;
-            }
-            let h = u16::from_le_bytes([frame[14], frame[15]]);
-            let plen = usize::from(h & 0x07FF);
-            let start = ETH_HEADER + ECAT_HEADER;
-            if h >> 12 != 1 || start + plen > len {
-                status.bad_frames.fetch_add(1, Ordering::Relaxed);
-                continue;
-            }
-            let lrw = find_datagram(&frame[start..start + plen], cmd::LRW);
+            };
+            let lrw = find_datagram(&frame[pdus.clone()], cmd::LRW);
             if lrw.is_some() && f.drop_left > 0 {
                 f.drop_left -= 1;
                 continue;
             }
             // Through ESC 0, 1, … in order.
             let mut pd = [PdAccess::default(); MAX_RACK];
-            let pdus = &mut frame[start..start + plen];
-            if through_chain(&mut rack.escs, pdus, local(clock, now), &mut pd).is_err() {
+            let start = pdus.start;
+            if through_chain(&mut rack.escs, &mut frame[pdus], clock.at(now), &mut pd).is_err() {
                 status.bad_frames.fetch_add(1, Ordering::Relaxed);
                 continue;
             }
@@ -572,16 +544,9 @@ pub fn run_rack(
             }
             if let (Some(w), true) = (lrw, f.wkc_left > 0) {
                 f.wkc_left -= 1;
-                let w = start + w;
-                let wkc = u16::from_le_bytes([frame[w], frame[w + 1]]).wrapping_sub(1);
-                frame[w..w + 2].copy_from_slice(&wkc.to_le_bytes());
+                short_wkc(frame, start + w);
             }
-            frame[6] |= 0x02;
-            match sock.send(frame) {
-                Ok(_) => {}
-                Err(e) if matches!(e.raw_os_error(), Some(libc::EAGAIN | libc::ENOBUFS)) => {}
-                Err(e) => return Err(io(e)),
-            }
+            answer(sock, frame).map_err(io)?;
             if op_since.is_none() && rack.escs.iter().any(|e| e.al_state() == al::OP) {
                 op_since = Some(now);
             }
