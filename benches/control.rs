@@ -42,6 +42,7 @@ fn control(c: &mut Criterion) {
         peak_current_a: cfg.actuator.peak_current_a,
         continuous_current_a: cfg.actuator.continuous_current_a,
         probe_range_m: cfg.probe.range_m,
+        probe_lsb_m: 0.0,
         watchdog_s: None,
     };
     let ctrl = DiscreteController::new(&cfg.controller["fast"], 2e-4, info.peak_current_a);

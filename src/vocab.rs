@@ -135,11 +135,18 @@ pub enum FaultKind {
     /// The recording failed (a write error such as a full disk killed the
     /// writer): the run cannot keep its promise to record, so it stops.
     Recording,
+    /// The probe's reading stayed bit-identical over more fresh samples
+    /// than its noise makes plausible (value: how many).
+    ProbeFrozen,
+    /// The current moved the stage, by the plant's quasi-static
+    /// compliance, and the probe did not see it (value: the predicted
+    /// motion, m).
+    ProbeImplausible,
 }
 
 impl FaultKind {
     /// Every fault.
-    pub const ALL: [Self; 12] = [
+    pub const ALL: [Self; 14] = [
         Self::PositionLimit,
         Self::ProbeOutOfRange,
         Self::ProbeNotFinite,
@@ -152,6 +159,8 @@ impl FaultKind {
         Self::Link,
         Self::LinkLatency,
         Self::Recording,
+        Self::ProbeFrozen,
+        Self::ProbeImplausible,
     ];
 
     /// Snake-case name used in recordings and exit messages.
@@ -169,6 +178,8 @@ impl FaultKind {
             Self::Link => "link",
             Self::LinkLatency => "link_latency",
             Self::Recording => "recording",
+            Self::ProbeFrozen => "probe_frozen",
+            Self::ProbeImplausible => "probe_implausible",
         }
     }
 }

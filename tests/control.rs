@@ -326,3 +326,89 @@ fn noise_free_steps_reproduce_chapter_6() {
         eprintln!("{flag}: settling {ts} s, continuous PM {pm:.1}°");
     }
 }
+
+/// A dead probe under closed loop (issue 46, finding 1): the probe reads
+/// 0 m without noise (`dead`: what an analog input shows of dead probe
+/// electronics), or its own noise without the stage (`blind`: the target
+/// came loose), from before the step on, so each controller winds its
+/// integrator up against a reading that never comes. The supervisor stops
+/// it at 0 A, naming the reason, before the current reaches the coil's
+/// continuous rating (2.34 A on the Chapter 5 bench): `probe_frozen` within
+/// the number of bit-identical readings the probe's noise makes plausible
+/// (29 at σ 40 nm, q 30 nm: p = q / (σ √(2π)) = 0.299, ⌈ln 1e-15 / ln p⌉),
+/// `probe_implausible` once the quasi-static motion predicted from the
+/// model's compliance reaches that of a quarter of the rating. Without
+/// probe noise the frozen rule cannot decide and plausibility catches
+/// the dead probe as well.
+#[test]
+fn a_dead_probe_stops_before_the_continuous_rating() {
+    let dir = tmp();
+    let noiseless = {
+        let text = set_key(&shipped_ch5(), "noise_rms_m", "0.0");
+        let p = dir.path().join("noiseless.toml");
+        std::fs::write(&p, text).unwrap();
+        p.to_string_lossy().into_owned()
+    };
+    let ch5 = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join(CH5)
+        .to_string_lossy()
+        .into_owned();
+    let continuous_a = 2.34;
+    for (config, kind, fault) in [
+        (&ch5, "dead", "probe_frozen"),
+        (&ch5, "blind", "probe_implausible"),
+        (&noiseless, "dead", "probe_implausible"),
+    ] {
+        for c in ["--fast", "--slow"] {
+            let case = format!("{kind} {c} {config}");
+            let sub = dir.path().join(format!("{kind}{c}{}", config.len()));
+            std::fs::create_dir(&sub).unwrap();
+            let (o, err) = control(
+                &sub,
+                &[
+                    c,
+                    "--config",
+                    config,
+                    "--duration-s",
+                    "3",
+                    "--inject-fault",
+                    &format!("{kind}@0.1"),
+                ],
+            );
+            assert_eq!(o.status.code(), Some(3), "{case}: {err}");
+            assert!(err.contains(fault), "{case}: {err}");
+            let msgs = mcap_messages(&sub.join("run.mcap"));
+            let ev = msgs
+                .iter()
+                .find(|m| m.0 == "/bench/event" && m.2["kind"] == "fault")
+                .unwrap_or_else(|| panic!("{case}: no fault event"));
+            assert_eq!(ev.2["fault"], fault, "{case}");
+            let tick = ev.2["tick"].as_u64().unwrap();
+            let samples: Vec<&Value> = msgs
+                .iter()
+                .filter(|m| m.0 == "/bench/sample")
+                .map(|m| &m.2)
+                .collect();
+            let peak_a = samples
+                .iter()
+                .filter(|s| s["tick"].as_u64().unwrap() < tick)
+                .map(|s| s["current_command_a"].as_f64().unwrap().abs())
+                .fold(0.0, f64::max);
+            assert!(
+                peak_a < continuous_a,
+                "{case}: {peak_a} A before the fault at tick {tick}"
+            );
+            if fault == "probe_frozen" {
+                // 0.1 s at 5 kHz, then 29 identical readings (the first
+                // dead one counts as the first of them).
+                assert!((500..=500 + 29).contains(&tick), "{case}: tick {tick}");
+            }
+            for s in samples
+                .iter()
+                .filter(|s| s["tick"].as_u64().unwrap() >= tick)
+            {
+                assert_eq!(s["current_command_a"].as_f64(), Some(0.0), "{case}: {s}");
+            }
+        }
+    }
+}

@@ -34,6 +34,7 @@ fn info(period_ns: u64) -> bench_hal::DeviceInfo {
         peak_current_a: 9.98,
         continuous_current_a: 2.34,
         probe_range_m: 1e-3,
+        probe_lsb_m: 0.0,
         watchdog_s: None,
     }
 }

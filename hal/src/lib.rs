@@ -120,6 +120,14 @@ pub struct DeviceInfo {
     pub continuous_current_a: f64,
     /// The probe reads positions in `[-probe_range_m, +probe_range_m]`.
     pub probe_range_m: f64,
+    /// The reading's count on the link, m: the step between two readings
+    /// the link can carry (serial: the hello's `position_lsb_m`; CAN: the
+    /// position field's scale; EtherCAT: the ADC's full scale / 32767 or
+    /// the drive's `position_lsb_m`); 0 when the link carries the value
+    /// itself (the simulator, whose own quantisation is
+    /// `probe.quantization_m`). With the probe's noise it says how long a
+    /// live probe can read one value ([`Sample::position_m`] bit-identical).
+    pub probe_lsb_m: f64,
     /// The device's own watchdog, s, when it announces one: with no valid
     /// command for this long while enabled, the device drops the current to
     /// 0 A and latches a fault (serial: the hello's `watchdog_ms`). `None`:

@@ -682,6 +682,7 @@ impl Stage for SerialStage {
             peak_current_a: hello.peak_current_a.into(),
             continuous_current_a: hello.continuous_current_a.into(),
             probe_range_m: hello.probe_range_m.into(),
+            probe_lsb_m: f64::from(hello.position_lsb_m).abs(),
             watchdog_s: (hello.watchdog_ms != u32::MAX)
                 .then(|| f64::from(hello.watchdog_ms) * 1e-3),
         })

@@ -319,6 +319,15 @@ pub enum FaultInjection {
     Jump(f64),
     /// The probe reports out of range from then on.
     OutOfRange,
+    /// The probe's electronics died from then on: it reads 0 m (0 V at
+    /// the acquisition), without noise, while the sequence advances, the
+    /// device flagging nothing (what an analog input shows of a dead
+    /// probe).
+    Dead,
+    /// The probe no longer sees the stage from then on (its target came
+    /// loose): it reads its own noise around the reading it had, while the
+    /// sequence advances and the stage moves.
+    Blind,
     /// The host stalls once for this long, s: the read blocks (the
     /// calling thread sleeps), as a host that was not scheduled would
     /// (tests of the loop's stall rules; the plant advances one period per
@@ -446,6 +455,8 @@ pub struct SimStage {
     disturbance: Option<DisturbanceSource>,
     /// A [`SimStage::reseed`] that takes effect at the next sample.
     reseed_at_next: Option<u64>,
+    /// Where a [`FaultInjection::Blind`] probe stays, m.
+    blind_at_m: Option<f64>,
 }
 
 impl SimStage {
@@ -476,6 +487,7 @@ impl SimStage {
             last_sample: None,
             disturbance: None,
             reseed_at_next: None,
+            blind_at_m: None,
         })
     }
 
@@ -527,6 +539,7 @@ impl SimStage {
     pub fn inject(&mut self, fault: ScheduledFault) {
         self.fault = Some(fault);
         self.drop_done = false;
+        self.blind_at_m = None;
     }
 
     /// The injected fault in force at this sample. A drop or a jump is an
@@ -613,6 +626,7 @@ impl Stage for SimStage {
             peak_current_a: self.params.actuator.peak_current_a,
             continuous_current_a: self.params.actuator.continuous_current_a,
             probe_range_m: self.params.probe.range_m,
+            probe_lsb_m: 0.0,
             watchdog_s: None,
         })
     }
@@ -669,7 +683,12 @@ impl Stage for SimStage {
             Some(FaultInjection::Jump(dx)) => dx,
             _ => 0.0,
         };
-        let mut y = self.x[0] + offset + p.noise_rms_m * noise;
+        let seen_m = if fault == Some(FaultInjection::Blind) {
+            *self.blind_at_m.get_or_insert(self.x[0])
+        } else {
+            self.x[0]
+        };
+        let mut y = seen_m + offset + p.noise_rms_m * noise;
         if p.quantization_m > 0.0 {
             y = (y / p.quantization_m).round() * p.quantization_m;
         }
@@ -680,6 +699,10 @@ impl Stage for SimStage {
         }
         if fault == Some(FaultInjection::Nan) {
             y = f64::NAN;
+            out_of_range = false;
+        }
+        if fault == Some(FaultInjection::Dead) {
+            y = 0.0;
             out_of_range = false;
         }
         let sample = Sample {

@@ -85,7 +85,7 @@ pub(super) struct ChirpArgs {
     #[arg(long, value_name = "FILE")]
     bla_csv: Option<PathBuf>,
     /// Inject a simulator fault: KIND@T_S with KIND one of nan, frozen,
-    /// drop (10 samples), jump (0.2 mm), out_of_range, stall:MS (the host
+    /// drop (10 samples), jump (0.2 mm), out_of_range, dead, blind, stall:MS (the host
     /// stalls once for MS ms; with --realtime); e.g. stall:30@5.
     #[arg(long, value_name = "KIND@T_S")]
     inject_fault: Option<String>,

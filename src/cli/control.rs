@@ -78,7 +78,9 @@ pub(super) struct ControlArgs {
     #[arg(long, value_name = "N", allow_hyphen_values = true, value_parser = parse_seed)]
     seed: Option<u64>,
     /// Inject a simulator fault: KIND@T_S with KIND one of nan, frozen,
-    /// drop (10 samples), jump (0.2 mm), out_of_range; e.g. nan@1.5.
+    /// drop (10 samples), jump (0.2 mm), out_of_range, dead (the probe reads
+    /// 0 m without noise), blind (it reads its noise, not the stage); e.g.
+    /// nan@1.5.
     #[arg(long, value_name = "KIND@T_S")]
     inject_fault: Option<String>,
     /// Backend: sim, serial:PATH, socketcan:IFACE or ethercat:IFACE [default: [backend] of

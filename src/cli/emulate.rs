@@ -67,7 +67,7 @@ pub(super) struct EmulateArgs {
     /// Inject a fault at device time T_S (repeatable): link faults
     /// bitflip:BITS[xFRAMES], drop:FRAMES, delay:S, hold:S (frames held
     /// back once, then sent together), stall:S, disconnect;
-    /// plant faults nan, frozen, jump, out_of_range. E.g. stall:0.5@2.
+    /// plant faults nan, frozen, jump, out_of_range, dead, blind. E.g. stall:0.5@2.
     #[arg(long = "fault", value_name = "KIND@T_S")]
     faults: Vec<String>,
     /// Protocol version to announce (serial; for testing refusal).
@@ -120,7 +120,7 @@ pub(super) fn parse_emulator_fault(s: &str) -> Result<EmulatorFault, String> {
         Err(link_err) => match parse_fault(s) {
             Ok(f) => Ok(EmulatorFault::Plant(f)),
             Err(_) => Err(format!(
-                "--fault {s}: {link_err}; or a plant fault nan, frozen, drop, jump, out_of_range"
+                "--fault {s}: {link_err}; or a plant fault nan, frozen, drop, jump, out_of_range, dead, blind"
             )),
         },
     }
@@ -318,7 +318,7 @@ fn emulate_ethercat(
                 Ok(p) => plant_faults.push(p),
                 Err(_) => {
                     return bad_input(format!(
-                        "--fault {f}: {slave_err}; or a plant fault nan, frozen, drop, jump, out_of_range"
+                        "--fault {f}: {slave_err}; or a plant fault nan, frozen, drop, jump, out_of_range, dead, blind"
                     ))
                 }
             },

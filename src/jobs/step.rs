@@ -773,6 +773,7 @@ mod tests {
                     period_s: 2e-4,
                     reach: crate::rt::supervisor::ReachEnvelope::NONE,
                     watchdog_s: None,
+                    probe: crate::rt::supervisor::ProbeValidity::OFF,
                 });
                 sup.enabled();
                 sup.running();

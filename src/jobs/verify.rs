@@ -141,6 +141,7 @@ pub fn host_device(cfg: &BenchConfig) -> DeviceInfo {
         peak_current_a: cfg.actuator.peak_current_a,
         continuous_current_a: cfg.actuator.continuous_current_a,
         probe_range_m: cfg.probe.range_m,
+        probe_lsb_m: 0.0,
         watchdog_s: None,
     }
 }

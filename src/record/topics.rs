@@ -259,6 +259,8 @@ fn variant_index(r: (SupervisorState, EventKind, FaultKind)) -> (usize, usize, u
         F::Link => 9,
         F::LinkLatency => 10,
         F::Recording => 11,
+        F::ProbeFrozen => 12,
+        F::ProbeImplausible => 13,
     };
     (s, e, f)
 }

@@ -405,6 +405,7 @@ impl Stage for CanStage {
             peak_current_a: self.cfg.peak_current_a,
             continuous_current_a: self.cfg.continuous_current_a,
             probe_range_m: self.cfg.probe_range_m,
+            probe_lsb_m: self.cfg.sample.position.scale.abs(),
             watchdog_s: None,
         })
     }

@@ -31,6 +31,9 @@ pub enum DeviceFault {
     /// The amplifier (drive) itself faulted (over-current, over-temperature;
     /// injected in the EtherCAT virtual slave).
     Amplifier,
+    /// The position feedback failed (the probe has no valid reading): a
+    /// servo drive faults on it (the EtherCAT virtual CiA 402 drive).
+    Sensor,
 }
 
 impl DeviceFault {
@@ -40,6 +43,7 @@ impl DeviceFault {
             Self::Watchdog => 1,
             Self::BadCommand => 2,
             Self::Amplifier => 3,
+            Self::Sensor => 4,
         }
     }
 
@@ -49,6 +53,7 @@ impl DeviceFault {
             1 => Some(Self::Watchdog),
             2 => Some(Self::BadCommand),
             3 => Some(Self::Amplifier),
+            4 => Some(Self::Sensor),
             _ => None,
         }
     }
@@ -59,6 +64,7 @@ impl DeviceFault {
             Self::Watchdog => "watchdog",
             Self::BadCommand => "bad_command",
             Self::Amplifier => "amplifier",
+            Self::Sensor => "sensor",
         }
     }
 }

@@ -119,6 +119,16 @@ pub const ADC_INPUT: PdoEntry = PdoEntry {
     subindex: 0x11,
     bits: 16,
 };
+/// Analog terminal: ADC channel 1 status (0x6000:01..0x6000:10 as one u16,
+/// EL31xx layout: bit 0 underrange, bit 1 overrange, bit 6 error;
+/// [`crate::ethercat::wire::adc_status`]; TxPDO, optional). An error makes
+/// the reading NaN (no valid reading), under- or overrange flags it out of
+/// range.
+pub const ADC_STATUS: PdoEntry = PdoEntry {
+    index: 0x6000,
+    subindex: 0x01,
+    bits: 16,
+};
 /// Analog terminal: digital input (0x6020:01, u8, bit 0 amplifier ready
 /// (enabled), bit 1 amplifier fault; TxPDO, optional).
 pub const STATUS_INPUT: PdoEntry = PdoEntry {
@@ -259,6 +269,9 @@ pub struct ImageLayout {
     /// Current actual: offset and whether it is 0x2078 (µA) rather than
     /// 0x6078 (‰), if mapped.
     pub current: Option<(usize, bool)>,
+    /// The analog input's status word (0x6000:01, u16), if mapped: in a
+    /// rack, where the host gathers the terminal's `adc_status`.
+    pub adc_status: Option<usize>,
 }
 
 impl EthercatConfig {
@@ -289,7 +302,7 @@ impl EthercatConfig {
         match (self.tx_pdo.is_empty(), self.profile) {
             (false, _) => self.tx_pdo.clone(),
             (true, Profile::Cia402) => vec![STATUSWORD, POSITION_ACTUAL, CURRENT_ACTUAL_UA],
-            (true, Profile::Analog) => vec![ADC_INPUT, STATUS_INPUT],
+            (true, Profile::Analog) => vec![ADC_INPUT, STATUS_INPUT, ADC_STATUS],
         }
     }
 
@@ -310,7 +323,11 @@ impl EthercatConfig {
             (Profile::Analog, true) => {
                 &[(DAC_OUTPUT, "DAC output"), (ENABLE_OUTPUT, "enable output")]
             }
-            (Profile::Analog, false) => &[(ADC_INPUT, "ADC input"), (STATUS_INPUT, "status input")],
+            (Profile::Analog, false) => &[
+                (ADC_INPUT, "ADC input"),
+                (STATUS_INPUT, "status input"),
+                (ADC_STATUS, "ADC status"),
+            ],
         }
     }
 
@@ -441,6 +458,7 @@ impl EthercatConfig {
             statusword: usize::MAX,
             position: usize::MAX,
             current: None,
+            adc_status: None,
         };
         for (dir, entries) in [("rx_pdo", self.rx_entries()), ("tx_pdo", self.tx_entries())] {
             let mut offset = 0usize;
@@ -479,6 +497,9 @@ impl EthercatConfig {
                         ("rx_pdo", 0x6040 | 0x7010) => l.controlword = offset,
                         ("rx_pdo", 0x7000) => l.target = (offset, false),
                         ("tx_pdo", 0x6020) => l.statusword = offset,
+                        ("tx_pdo", 0x6000) if e.subindex == ADC_STATUS.subindex => {
+                            l.adc_status = Some(offset)
+                        }
                         ("tx_pdo", 0x6000) => l.position = offset,
                         ("rx_pdo", 0x6071 | 0x2071) => {
                             if l.target.0 != usize::MAX {
@@ -560,6 +581,9 @@ impl EthercatConfig {
             // scattered to the terminals; without a status line, none.
             if self.slaves.iter().all(|s| s.status.is_none()) {
                 l.statusword = usize::MAX;
+            }
+            if self.slaves.iter().all(|s| s.adc_status.is_none()) {
+                l.adc_status = None;
             }
         }
         Ok(l)

@@ -19,6 +19,7 @@
 //! | `enable` | `{index, subindex, bits}` | the amplifier's enable output, bit 0 of an entry of `rx_pdo` |
 //! | `status` | `{index, subindex, bits}` | optional: the amplifier's ready line, bit 0 of an entry of `tx_pdo` (with 2 bits or more, bit 1 is its fault line) |
 //! | `fault` | `{index, subindex, bits}` | optional: the amplifier's fault line, bit 0 of an entry of `tx_pdo`, when `status` is 1 bit wide |
+//! | `adc_status` | `{index, subindex, bits = 16}` | optional: the ADC channel's status word (EL31xx: 0x6000:01..0x6000:10 as one 16-bit entry; bit 0 underrange, bit 1 overrange, bit 6 error), an entry of `tx_pdo`. An error makes the reading NaN (no valid reading: `probe_not_finite`), under- or overrange flags it out of range (`probe_out_of_range`) |
 //! | `fixed_pdo` | bool | the terminal's PDO contents are fixed: no map written over CoE, its own assignment taken (default false) |
 //!
 //! An entry's `bits` is 1 to 32; index 0 is a gap (padding). The entries
@@ -87,6 +88,10 @@ pub struct RackSlave {
     /// The amplifier's fault line (bit 0, input), beside a 1-bit `status`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub fault: Option<PdoEntry>,
+    /// The probe's ADC channel status word (16 bits, input; EL31xx layout:
+    /// bit 0 underrange, bit 1 overrange, bit 6 error).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub adc_status: Option<PdoEntry>,
     /// The terminal's PDO contents are fixed (Beckhoff's analog terminals:
     /// one PDO per channel, 0x1600/0x1601, 0x1A00/0x1A02, not writable):
     /// the host writes no map over CoE and takes the terminal's own
@@ -110,7 +115,7 @@ impl RackSlave {
     /// The inputs in force: `tx_pdo`, or the slave's input signals.
     pub fn tx_entries(&self) -> Vec<PdoEntry> {
         if self.tx_pdo.is_empty() {
-            [self.adc, self.status, self.fault]
+            [self.adc_status, self.adc, self.status, self.fault]
                 .into_iter()
                 .flatten()
                 .collect()
@@ -167,17 +172,20 @@ pub struct RackLayout {
     pub status: Option<SignalAt>,
     /// Fault line (input, bit 0).
     pub fault: Option<SignalAt>,
+    /// The ADC channel's status word (input, 16 bits).
+    pub adc_status: Option<SignalAt>,
     /// Per position: output and input image bytes.
     pub image: [(usize, usize); MAX_RACK],
 }
 
 /// The signals by key, their direction (`true`: output) and width rule.
-const SIGNALS: [(&str, bool); 5] = [
+const SIGNALS: [(&str, bool); 6] = [
     ("adc", false),
     ("dac", true),
     ("enable", true),
     ("status", false),
     ("fault", false),
+    ("adc_status", false),
 ];
 
 fn signal(s: &RackSlave, name: &str) -> Option<PdoEntry> {
@@ -186,6 +194,7 @@ fn signal(s: &RackSlave, name: &str) -> Option<PdoEntry> {
         "dac" => s.dac,
         "enable" => s.enable,
         "status" => s.status,
+        "adc_status" => s.adc_status,
         _ => s.fault,
     }
 }
@@ -258,7 +267,7 @@ impl EthercatConfig {
             at_position[p] = i;
         }
         let mut image = [(0usize, 0usize); MAX_RACK];
-        let mut found: [Option<(usize, SignalAt)>; 5] = [None; 5];
+        let mut found: [Option<(usize, SignalAt)>; 6] = [None; 6];
         for (i, s) in self.slaves.iter().enumerate() {
             let sk = format!("{prefix}.slaves[{i}]");
             for (dir, entries) in [("rx_pdo", s.rx_entries()), ("tx_pdo", s.tx_entries())] {
@@ -302,7 +311,7 @@ impl EthercatConfig {
                         ),
                     );
                 }
-                let wide = matches!(*name, "adc" | "dac");
+                let wide = matches!(*name, "adc" | "dac" | "adc_status");
                 if wide && e.bits != 16 {
                     return err(
                         key,
@@ -395,6 +404,7 @@ impl EthercatConfig {
             enable,
             status: get(3),
             fault: get(4),
+            adc_status: get(5),
             image,
         }))
     }
@@ -418,15 +428,17 @@ pub fn beckhoff_example() -> Vec<RackSlave> {
         ..RackSlave::default()
     };
     // EL3102: per channel 0x6000:01..0x6000:10 status bits (16 bits in
-    // all, written here as one gap) then 0x6000:11 the value.
+    // all, written here as one entry: `adc_status`) then 0x6000:11 the
+    // value.
     let adc = RackSlave {
         tx_pdo: vec![
-            e(0, 0, 16),
+            e(0x6000, 0x01, 16),
             e(0x6000, 0x11, 16),
             e(0, 0, 16),
             e(0x6010, 0x11, 16),
         ],
         adc: Some(e(0x6000, 0x11, 16)),
+        adc_status: Some(e(0x6000, 0x01, 16)),
         fixed_pdo: true,
         ..slave(1, 0x0C1E_3052, "EL3102")
     };

@@ -171,6 +171,36 @@ pub mod cia402 {
     pub const MODE_CST: i8 = 10;
 }
 
+/// The status word of an analog input channel (Beckhoff EL31xx, objects
+/// 0x6000:01..0x6000:10 read as one u16: the terminals' documented layout).
+pub mod adc_status {
+    /// The input is below the measuring range (0x6000:01).
+    pub const UNDERRANGE: u16 = 1 << 0;
+    /// The input is above the measuring range (0x6000:02).
+    pub const OVERRANGE: u16 = 1 << 1;
+    /// The channel has no valid value: wire break, overload, converter
+    /// error (0x6000:07).
+    pub const ERROR: u16 = 1 << 6;
+
+    /// The status a terminal reports for a reading `position_m` of a probe
+    /// flagged out of range or not (`out_of_range`) at full scale
+    /// `full_scale_m`: error when the reading is not a number, under- or
+    /// overrange by its sign when out of range or beyond full scale.
+    pub fn of(position_m: f64, out_of_range: bool, full_scale_m: f64) -> u16 {
+        if !position_m.is_finite() {
+            return ERROR;
+        }
+        if out_of_range || position_m.abs() >= full_scale_m {
+            return if position_m < 0.0 {
+                UNDERRANGE
+            } else {
+                OVERRANGE
+            };
+        }
+        0
+    }
+}
+
 /// Reads a little-endian u16 at `at`.
 pub fn le16(b: &[u8], at: usize) -> u16 {
     u16::from_le_bytes([b[at], b[at + 1]])

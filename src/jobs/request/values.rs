@@ -169,7 +169,8 @@ pub fn pace_on_hardware(backend: &str) -> String {
 }
 
 /// Parses a simulator fault `KIND@T_S`: KIND one of nan, frozen, drop (10
-/// samples), jump (0.2 mm), out_of_range, or `stall:MS` (the host stalls
+/// samples), jump (0.2 mm), out_of_range, dead (reads 0 m, no noise),
+/// blind (reads its noise, not the stage), or `stall:MS` (the host stalls
 /// once for MS milliseconds, 0 < MS ≤ 10 000); T_S the loop time, s.
 ///
 /// # Errors
@@ -189,6 +190,8 @@ pub fn parse_fault(s: &str) -> Result<ScheduledFault, String> {
         "drop" => FaultInjection::Drop(10),
         "jump" => FaultInjection::Jump(0.2e-3),
         "out_of_range" => FaultInjection::OutOfRange,
+        "dead" => FaultInjection::Dead,
+        "blind" => FaultInjection::Blind,
         other => {
             match other.strip_prefix("stall:") {
                 Some(ms) => {
@@ -203,7 +206,7 @@ pub fn parse_fault(s: &str) -> Result<ScheduledFault, String> {
                 }
                 None => {
                     return Err(format!(
-                        "unknown kind {other:?} (nan, frozen, drop, jump, out_of_range, stall:MS)"
+                        "unknown kind {other:?} (nan, frozen, drop, jump, out_of_range, dead, blind, stall:MS)"
                     ))
                 }
             }

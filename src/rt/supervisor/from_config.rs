@@ -34,6 +34,42 @@ impl crate::config::BenchConfig {
         }
     }
 
+    /// The dead-probe rules for a configured backend (`info`) at
+    /// `period_s`, with a coil of continuous rating `continuous_current_a`:
+    /// the probe's noise and quantisation (`[probe]`) with the link's count
+    /// ([`bench_hal::DeviceInfo::probe_lsb_m`]), and the model's
+    /// quasi-static compliance G(0) and lowest mode
+    /// ([`crate::rt::supervisor::ProbeValidity::derive`]). Without a model
+    /// (refused by validation before any job), the plausibility rule is
+    /// off.
+    pub fn probe_validity(
+        &self,
+        info: &bench_hal::DeviceInfo,
+        continuous_current_a: f64,
+    ) -> crate::rt::supervisor::ProbeValidity {
+        let period_s = info.period_ns as f64 * 1e-9;
+        let (dc_gain, lowest_hz) = match bench_hal::model::Sr4dof::new(self.plant) {
+            Ok(m) => (
+                bench_hal::sim::ZohPlant::new(&m, &self.actuator, period_s)
+                    .frf_continuous(0.0)
+                    .re,
+                m.modes()
+                    .iter()
+                    .map(|m| m.frequency_hz())
+                    .fold(f64::INFINITY, f64::min),
+            ),
+            Err(_) => (f64::NAN, f64::NAN),
+        };
+        crate::rt::supervisor::ProbeValidity::derive(
+            self.probe.noise_rms_m,
+            self.probe.quantization_m + info.probe_lsb_m,
+            dc_gain,
+            lowest_hz,
+            continuous_current_a,
+            period_s,
+        )
+    }
+
     /// The supervisor's limits for a configured backend (`info`) at its
     /// period; the currents are [`Self::current_limits`].
     pub fn supervisor(
@@ -57,6 +93,7 @@ impl crate::config::BenchConfig {
             watchdog_s: info.watchdog_s,
             i2t_peak_duration_s: self.safety.i2t_peak_duration_s,
             period_s: info.period_ns as f64 * 1e-9,
+            probe: self.probe_validity(info, currents.continuous_current_a),
         }
     }
 }

@@ -51,7 +51,27 @@ pub fn fault_message(
             "probe out of range: reading {:.1} µm at the end of its range (probe.range_m)",
             um(value)
         ),
-        FaultKind::ProbeNotFinite => format!("probe reading {value} m is not a number"),
+        FaultKind::ProbeNotFinite => format!(
+            "probe reading {value} m is not a number (or the device flags that it has no valid reading)"
+        ),
+        FaultKind::ProbeFrozen => format!(
+            "probe reading bit-identical for {value} samples in a row ≥ {} that its noise makes plausible (probe.noise_rms_m, probe.quantization_m and the link's count: a false alarm below {:.0e} per sample): the probe is dead or its value frozen",
+            cfg.probe.frozen_samples,
+            super::FROZEN_FALSE_ALARM
+        ),
+        FaultKind::ProbeImplausible => match cfg.probe.plausibility {
+            Some(p) => format!(
+                "the current moved the stage by {:.1} µm quasi-static (model compliance {:.1} µm/A, below {:.2} Hz) and the probe saw less than {:.0} % of it: the probe does not see the stage (decided at {:.1} µm: {:.0} % of the {:.2} A continuous rating)",
+                um(value),
+                um(p.dc_gain_m_per_a),
+                p.corner_hz,
+                super::IMPLAUSIBLE_SEEN_FRACTION * 100.0,
+                um(p.decide_m),
+                super::IMPLAUSIBLE_CURRENT_FRACTION * 100.0,
+                cfg.continuous_current_a
+            ),
+            None => format!("the current moved the stage by {:.1} µm and the probe did not see it", um(value)),
+        },
         FaultKind::CommandNotFinite => {
             format!("controller output {value} A is not a number (0 A sent instead)")
         }

@@ -27,8 +27,14 @@
 //! sample; more than `safety.max_command_latency_s` of those in a row is
 //! `link_latency`: a uniformly late link is as unsafe as a lost one, since
 //! the loop check assumed one period of delay), probe value
-//! finite, probe in range, |position| within the software limit, change
-//! since the last sample plausible (`max_position_step_m` per tick); on each
+//! finite (a device flags a reading it has none of as NaN: serial's
+//! invalid position, CAN's reserved code, an EtherCAT analog terminal's
+//! error bit), probe in range (the device's flag: over- and underrange),
+//! |position| within the software limit, change
+//! since the last sample plausible (`max_position_step_m` per tick), and,
+//! while a job drives the stage, the probe alive: not frozen, and seeing
+//! the motion the current makes ([`ProbeValidity`]: `probe_frozen`,
+//! `probe_implausible`); on each
 //! command: finite, I²t budget not spent; on each tick in real-time mode:
 //! deadlines missed in a row for at most `safety.max_overrun_s` (counted in
 //! whole periods, so a stall is judged by its length whatever the rate;
@@ -47,11 +53,16 @@ use crate::vocab::{FaultKind, SupervisorState};
 mod from_config;
 mod limits;
 mod message;
+mod probe;
 mod stall;
 
 use bench_hal::{ErrorKind, Sample};
 pub use limits::{check_announced, CurrentLimits, LimitSource, ANNOUNCED_CURRENT_MAX_A};
 pub use message::fault_message;
+pub use probe::{
+    frozen_samples, LowPass, Plausibility, ProbeValidity, FROZEN_FALSE_ALARM,
+    IMPLAUSIBLE_CURRENT_FRACTION, IMPLAUSIBLE_SEEN_FRACTION, QUASI_STATIC_CORNER,
+};
 pub use stall::{ReachEnvelope, StallBounds, StallRule, REACH_POINTS, REACH_SPAN_S};
 
 /// The HAL call that failed (see [`Supervisor::hal_error`]).
@@ -140,6 +151,9 @@ pub struct SupervisorConfig {
     /// link has been silent ([`Supervisor::link_silent`]); without it, a
     /// timed-out read is a missing sample (K rule).
     pub watchdog_s: Option<f64>,
+    /// The dead-probe rules (`probe_frozen`, `probe_implausible`), derived
+    /// from the probe, the link and the plant ([`ProbeValidity::derive`]).
+    pub probe: ProbeValidity,
 }
 
 /// The supervisor. All methods are real-time safe.
@@ -168,6 +182,8 @@ pub struct Supervisor {
     /// The bound the latched stall fault broke, s, which rule, and the
     /// command held, A.
     stall_bound: Option<(f64, StallRule, f64)>,
+    /// The dead-probe rules' state.
+    watch: probe::ProbeWatch,
 }
 
 impl Supervisor {
@@ -190,7 +206,14 @@ impl Supervisor {
                 * cfg.i2t_peak_duration_s,
             last_command_a: 0.0,
             stall_bound: None,
+            watch: probe::ProbeWatch::default(),
         }
+    }
+
+    /// The dead-probe rules' last predicted and seen quasi-static motions,
+    /// m (0 before a job drives the stage; see [`ProbeValidity`]).
+    pub fn probe_motion_m(&self) -> (f64, f64) {
+        (self.watch.predicted_m, self.watch.seen_m)
     }
 
     /// The I²t accumulator, A²·s (0 when cold).
@@ -223,6 +246,7 @@ impl Supervisor {
         if self.state == SupervisorState::Disabled {
             self.state = SupervisorState::Enabled;
             self.last_seq = None;
+            self.watch.reset();
         }
     }
 
@@ -230,6 +254,7 @@ impl Supervisor {
     pub fn running(&mut self) {
         if self.state == SupervisorState::Enabled {
             self.state = SupervisorState::Running;
+            self.watch.reset();
         }
     }
 
@@ -240,6 +265,7 @@ impl Supervisor {
         if self.state != SupervisorState::Faulted {
             self.state = SupervisorState::Disabled;
             self.last_seq = None;
+            self.watch.reset();
         }
     }
 
@@ -289,6 +315,7 @@ impl Supervisor {
         self.silent_reads = 0;
         self.late = 0;
         self.stall_bound = None;
+        self.watch.reset();
     }
 
     /// The bound the latched `overruns` or `link_latency` fault broke: the
@@ -477,6 +504,15 @@ impl Supervisor {
         } else {
             None
         };
+        // The dead-probe rules, on fresh readings while a job drives the
+        // stage, with the command in force over the period that ended here.
+        let probe = match (fault, stale, self.state) {
+            (None, false, SupervisorState::Running) => {
+                self.watch.check(&self.cfg.probe, x, self.last_command_a)
+            }
+            _ => None,
+        };
+        let fault = fault.or(probe.map(|p| p.0));
         if !stale && x.is_finite() {
             self.last_position_m = x;
         }
@@ -487,6 +523,8 @@ impl Supervisor {
             Some(FaultKind::LinkLatency) => self.late as f64 * self.cfg.period_s,
             // How far the reading moved per tick, m.
             Some(FaultKind::PositionJump) => jump / ticks_since as f64,
+            // How many readings in a row, or the predicted motion, m.
+            Some(FaultKind::ProbeFrozen | FaultKind::ProbeImplausible) => probe.map_or(x, |p| p.1),
             _ => x,
         };
         fault.filter(|k| self.trip(*k, value))

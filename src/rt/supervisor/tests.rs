@@ -14,6 +14,7 @@ fn config() -> SupervisorConfig {
         period_s: 2e-4,
         reach: crate::rt::supervisor::ReachEnvelope::NONE,
         watchdog_s: None,
+        probe: ProbeValidity::OFF,
     }
 }
 

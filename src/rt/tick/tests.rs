@@ -94,6 +94,7 @@ fn opts() -> LoopOptions {
             period_s: 2e-4,
             reach: crate::rt::supervisor::ReachEnvelope::NONE,
             watchdog_s: None,
+            probe: crate::rt::supervisor::ProbeValidity::OFF,
         },
         max_ticks: 1000,
     }

@@ -5,7 +5,7 @@ use super::group::Cycle;
 use super::link::Stall;
 use super::*;
 use crate::ethercat::rack::SignalAt;
-use crate::ethercat::wire::{get_bits, set_bits};
+use crate::ethercat::wire::{adc_status, get_bits, set_bits};
 
 impl EthercatStage {
     /// One process-data round trip: the outputs `self.out` go out, the
@@ -57,6 +57,10 @@ impl EthercatStage {
             };
             let adc = bits(r.adc, 16) as u16;
             self.inp[l.position..l.position + 2].copy_from_slice(&adc.to_le_bytes());
+            if let (Some(st), Some(at)) = (r.adc_status, l.adc_status) {
+                let v = bits(st, 16) as u16;
+                self.inp[at..at + 2].copy_from_slice(&v.to_le_bytes());
+            }
             if let Some(st) = r.status {
                 let wide = st.bits >= 2;
                 let mut v = bits(st, if wide { 2 } else { 1 });
@@ -191,9 +195,20 @@ impl EthercatStage {
         let (position_m, out_of_range, enabled, fault) = if self.analog() {
             let v = entry_i64(&self.inp, l.position, false);
             let known = l.statusword != usize::MAX;
+            // The channel's status word, if mapped: an error is no valid
+            // reading (NaN, as the serial and CAN links report one), under-
+            // or overrange is out of range.
+            let st = l
+                .adc_status
+                .map_or(0, |at| u16::from_le_bytes([self.inp[at], self.inp[at + 1]]));
+            let x = if st & adc_status::ERROR != 0 {
+                f64::NAN
+            } else {
+                v as f64 / 32767.0 * self.cfg.adc_full_scale_m
+            };
             (
-                v as f64 / 32767.0 * self.cfg.adc_full_scale_m,
-                v.abs() >= 32767,
+                x,
+                v.abs() >= 32767 || st & (adc_status::UNDERRANGE | adc_status::OVERRANGE) != 0,
                 if known { sw & 1 != 0 } else { self.enabled },
                 known && sw & 2 != 0,
             )

@@ -319,6 +319,11 @@ impl Stage for EthercatStage {
             peak_current_a: self.cfg.peak_current_a,
             continuous_current_a: self.cfg.continuous_current_a,
             probe_range_m: self.cfg.probe_range_m,
+            probe_lsb_m: if self.analog() {
+                self.cfg.adc_full_scale_m / 32767.0
+            } else {
+                self.cfg.position_lsb_m
+            },
             watchdog_s: Some(self.cfg.watchdog_ms * 1e-3),
         })
     }

@@ -39,7 +39,8 @@
 //! |---|---|---|---|
 //! | 0x7000:01 | i16 | Rx | DAC channel 1: ±32767 = ± `dac_full_scale_a` |
 //! | 0x7010:01 | u8 | Rx | digital output, bit 0: amplifier enable (a rising edge enables and clears a latched fault) |
-//! | 0x6000:11 | i16 | ro, Tx | ADC channel 1: ±32767 = ± `adc_full_scale_m` (saturated) |
+//! | 0x6000:11 | i16 | ro, Tx | ADC channel 1: ±32767 = ± `adc_full_scale_m` (saturated; 0 with the error bit) |
+//! | 0x6000:01 | u16 | ro, Tx | ADC channel 1 status (EL31xx layout): bit 0 underrange, bit 1 overrange, bit 6 error (the probe has no valid reading) |
 //! | 0x6020:01 | u8 | ro, Tx | digital input: bit 0 amplifier ready (enabled), bit 1 amplifier fault |
 //!
 //! plus 0x1018, 0x1600/0x1A00, 0x1C12/0x1C13 as above.
@@ -48,7 +49,7 @@ use super::sii::MBX_SIZE;
 use crate::emulator::{DeviceCore, DeviceFault};
 use crate::ethercat::config::{EthercatConfig, PdoEntry, Profile, MAX_PDO_BYTES};
 use crate::ethercat::wire::cia402::*;
-use crate::ethercat::wire::le16;
+use crate::ethercat::wire::{adc_status, le16};
 use crate::{Command, Sample};
 
 /// SDO abort codes (ETG.1000.6 Table 41).
@@ -128,9 +129,10 @@ const RX_MAPPABLE_ANALOG: [PdoEntry; 2] = [
     crate::ethercat::config::DAC_OUTPUT,
     crate::ethercat::config::ENABLE_OUTPUT,
 ];
-const TX_MAPPABLE_ANALOG: [PdoEntry; 2] = [
+const TX_MAPPABLE_ANALOG: [PdoEntry; 3] = [
     crate::ethercat::config::ADC_INPUT,
     crate::ethercat::config::STATUS_INPUT,
+    crate::ethercat::config::ADC_STATUS,
 ];
 
 /// A PDO mapping object (0x1600 or 0x1A00) and its assignment.
@@ -375,6 +377,11 @@ impl Drive {
             self.demand_a = 0.0;
         }
         let s = self.core.tick(now_ns);
+        if !s.position_m.is_finite() && self.core.fault().is_none() {
+            // The drive's feedback failed: a servo drive faults on it
+            // (position actual value not valid), dropping the current.
+            self.core.trip(DeviceFault::Sensor);
+        }
         if self.core.fault().is_some() && self.state == State402::OperationEnabled {
             self.state = State402::Fault;
         }
@@ -439,6 +446,9 @@ impl Drive {
         let (pos, cur) = self.last.map_or((0.0, 0.0), |s| {
             (s.position_m, self.core.commanded_current_a())
         });
+        let adc_status = self.last.map_or(0, |s| {
+            adc_status::of(s.position_m, s.flags.out_of_range, self.adc_full_scale_m)
+        });
         let mut at = 0;
         for raw in &self.tx.entries[..usize::from(self.tx.count)] {
             let e = PdoEntry::from_raw(*raw);
@@ -456,6 +466,7 @@ impl Drive {
                     .round()
                     .clamp(-32767.0, 32767.0) as i64,
                 0x2078 => (cur * 1e6).round().clamp(-2e9, 2e9) as i64,
+                0x6000 if e.subindex == 0x01 => i64::from(adc_status),
                 0x6000 => (pos / self.adc_full_scale_m * 32767.0)
                     .round()
                     .clamp(-32767.0, 32767.0) as i64,
@@ -533,6 +544,12 @@ impl Drive {
                     2,
                 )),
                 0x7010 if sub == 1 => Ok((u32::from(self.enable_bit), 1)),
+                0x6000 if sub == 0x01 => Ok((
+                    u32::from(self.last.map_or(0, |s| {
+                        adc_status::of(s.position_m, s.flags.out_of_range, self.adc_full_scale_m)
+                    })),
+                    2,
+                )),
                 0x6000 if sub == 0x11 => Ok((
                     (self.last.map_or(0.0, |s| s.position_m) / self.adc_full_scale_m * 32767.0)
                         .round()

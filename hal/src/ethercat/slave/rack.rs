@@ -61,7 +61,7 @@ use crate::emulator::{DeviceCore, DeviceFault, EmulatorStatus};
 use crate::ethercat::config::{EthercatConfig, PdoEntry};
 use crate::ethercat::rack::{RackSlave, MAX_RACK};
 use crate::ethercat::socket::RawSocket;
-use crate::ethercat::wire::{al, cmd, get_bits, set_bits};
+use crate::ethercat::wire::{adc_status, al, cmd, get_bits, set_bits};
 use crate::ethercat::EthercatError;
 use crate::os::monotonic_ns;
 use crate::Command;
@@ -268,8 +268,11 @@ struct Rack {
     enable: usize,
     status: Option<usize>,
     fault: Option<usize>,
+    adc_status: Option<usize>,
     enable_bit: bool,
     position_m: f64,
+    /// The ADC channel's status word of the last sample (EL31xx layout).
+    adc_status_bits: u16,
 }
 
 impl Rack {
@@ -284,7 +287,10 @@ impl Rack {
     /// One SM-synchronous cycle of the plant under the terminals' outputs.
     fn cycle(&mut self, now_ns: u64) {
         self.apply(now_ns);
-        self.position_m = self.core.tick(now_ns).position_m;
+        let s = self.core.tick(now_ns);
+        self.position_m = s.position_m;
+        self.adc_status_bits =
+            adc_status::of(s.position_m, s.flags.out_of_range, self.adc_full_scale_m);
         self.latch();
     }
 
@@ -338,6 +344,9 @@ impl Rack {
         }
         if let Some(f) = self.fault {
             put(f, |s| s.fault, fault);
+        }
+        if let Some(a) = self.adc_status {
+            put(a, |s| s.adc_status, u32::from(self.adc_status_bits));
         }
     }
 }
@@ -418,6 +427,8 @@ pub fn run_rack(
         enable: layout.enable.slave,
         status: layout.status.map(|s| s.slave),
         fault: layout.fault.map(|s| s.slave),
+        adc_status: layout.adc_status.map(|s| s.slave),
+        adc_status_bits: 0,
         enable_bit: false,
         position_m: 0.0,
     };
