@@ -1095,3 +1095,101 @@ fn fast_step_over_the_readmes_beckhoff_rack_matches_the_simulator() {
         );
     }
 }
+
+/// The README's rack block with the tests' interface and bounds, as TOML
+/// to append to a config.
+fn readme_rack_toml() -> String {
+    let readme =
+        std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("README.md")).unwrap();
+    let block = readme
+        .split("```toml\n")
+        .skip(1)
+        .filter_map(|b| b.split("```").next())
+        .find(|b| b.contains("[[backend.ethercat.slaves]]"))
+        .expect("the README's rack example")
+        .to_string();
+    block.replace(
+        "interface = \"eth1\"\nprofile = \"analog\"\n",
+        &format!(
+            "interface = \"{MASTER_IF}\"\nprofile = \"analog\"\nexchange_timeout_ms = 20.0\nwatchdog_ms = 50.0\n"
+        ),
+    )
+}
+
+/// A failing probe behind each EtherCAT profile (issue 46, finding 1),
+/// injected in `bench emulate ethercat` 0.5 s into a fast step with the
+/// probe's noise (40 nm) on: the supervisor stops the run at 0 A naming
+/// the reason. A reading the device cannot make (`nan`) is the analog
+/// terminal's error bit, so the host reads no number (`probe_not_finite`),
+/// and the CiA 402 drive faults on its feedback (`drive reports a fault`);
+/// a dead probe that reads 0 V (`dead`) is bit-identical from one sample
+/// to the next (`probe_frozen`: 69 samples with the ADC's 30.5 nm count,
+/// 29 with the drive's 0.1 nm); a reading beyond the ADC's range sets its
+/// overrange bit (`probe_out_of_range`).
+#[test]
+fn a_failing_probe_behind_every_profile_stops_at_zero_amps_naming_it() {
+    let _g = one_at_a_time();
+    let Some(seg) = Segment::new() else { return };
+    let noisy = |t: &str| set_key(t, "noise_rms_m", "4.0e-8");
+    let analog = format!(
+        "\n[backend.ethercat]\ninterface = \"{MASTER_IF}\"\nprofile = \"analog\"\nexchange_timeout_ms = 20.0\nwatchdog_ms = 50.0\n"
+    );
+    let cia402 = format!(
+        "\n[backend.ethercat]\ninterface = \"{MASTER_IF}\"\nexchange_timeout_ms = 20.0\nwatchdog_ms = 50.0\n"
+    );
+    let rack = format!("\n{}", readme_rack_toml());
+    for (profile, extra, fault, needle) in [
+        ("analog", &analog, "nan", "probe_not_finite"),
+        ("analog", &analog, "dead", "probe_frozen"),
+        ("analog", &analog, "out_of_range", "probe_out_of_range"),
+        ("rack", &rack, "nan", "probe_not_finite"),
+        ("rack", &rack, "dead", "probe_frozen"),
+        ("cia402", &cia402, "nan", "drive reports a fault"),
+        ("cia402", &cia402, "dead", "probe_frozen"),
+    ] {
+        let case = format!("{profile} {fault}");
+        let dir = tmp();
+        let cfg = common::quiet_config_edited(dir.path(), 2.0, extra, noisy);
+        let cfg_s = cfg.display().to_string();
+        let inject = format!("{fault}@0.5");
+        let last = std::cell::Cell::new(0);
+        let o = retrying_while(
+            |o| !stderr(o).contains(needle) && (vm_stall(o) || stderr(o).contains("frame lost")),
+            |a| {
+                last.set(a);
+                let _slave = SlaveProcess::start(&seg, &cfg, &["--fault", &inject]);
+                control(
+                    &seg,
+                    &cfg_s,
+                    &attempt_path(dir.path(), "run", a),
+                    &["--duration-s", "2"],
+                )
+            },
+        );
+        let err = stderr(&o);
+        assert!(matches!(o.status.code(), Some(3 | 4)), "{case}: {err}");
+        assert!(err.contains(needle), "{case}: {err}");
+        let msgs = mcap_messages(Path::new(&attempt_path(dir.path(), "run", last.get())));
+        let ev = msgs
+            .iter()
+            .find(|m| m.0 == "/bench/event" && m.2["kind"] == "fault")
+            .unwrap_or_else(|| panic!("{case}: no fault event: {err}"));
+        let tick = ev.2["tick"].as_u64().unwrap();
+        let samples: Vec<&Value> = msgs
+            .iter()
+            .filter(|m| m.0 == "/bench/sample")
+            .map(|m| &m.2)
+            .collect();
+        let peak_a = samples
+            .iter()
+            .filter(|s| s["tick"].as_u64().unwrap() < tick)
+            .map(|s| s["current_command_a"].as_f64().unwrap().abs())
+            .fold(0.0, f64::max);
+        // Below the coil's continuous rating, 2.34 A.
+        assert!(peak_a < 2.34, "{case}: {peak_a} A before the fault");
+        for s in samples.iter().filter(|s| s["tick"].as_u64().unwrap() >= tick) {
+            assert_eq!(s["current_command_a"].as_f64(), Some(0.0), "{case}: {s}");
+        }
+        eprintln!("{case}: {} at tick {tick}, peak {peak_a:.3} A before", ev.2["fault"]);
+    }
+}
