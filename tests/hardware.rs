@@ -558,3 +558,80 @@ fn bad_can_interfaces_are_refused() {
     assert_eq!(o.status.code(), Some(2));
     assert!(stderr(&o).contains("melt"), "{}", stderr(&o));
 }
+
+/// A failing probe behind the serial link (issue 46, finding 1): `bench
+/// emulate serial` injects it 0.3 s into a fast step (before the step at
+/// 0.5 s), the probe's noise (40 nm) on. No reading (`nan`) is
+/// `probe_not_finite`; a dead probe reading 0 V (`dead`) is
+/// `probe_frozen` after 29 bit-identical samples (30 nm quantisation and
+/// the link's 0.1 nm count at σ 40 nm); a probe that no longer sees the
+/// stage (`blind`) is `probe_implausible` once the step's current should
+/// have moved the stage by a quarter of the rating's quasi-static motion.
+/// Each stops at 0 A, below the coil's continuous rating (2.34 A).
+#[test]
+fn a_failing_probe_behind_the_serial_link_stops_at_zero_amps_naming_it() {
+    let _g = one_at_a_time();
+    for (fault, kind) in [
+        ("nan", "probe_not_finite"),
+        ("dead", "probe_frozen"),
+        ("blind", "probe_implausible"),
+    ] {
+        let dir = tmp();
+        let cfg = common::quiet_config_edited(
+            dir.path(),
+            2.0,
+            "\n[backend.serial]\nsample_timeout_periods = 200.0\n\n[emulator]\nwatchdog_ms = 300.0\n",
+            |t| set_key(t, "noise_rms_m", "4.0e-8"),
+        );
+        let cfg_s = cfg.display().to_string();
+        let mut emu = bench()
+            .args(["emulate", "serial", "--lockstep", "--config", &cfg_s])
+            .args(["--fault", &format!("{fault}@0.3")])
+            .stdout(std::process::Stdio::piped())
+            .stderr(std::process::Stdio::null())
+            .spawn()
+            .unwrap();
+        let mut line = String::new();
+        std::io::BufRead::read_line(
+            &mut std::io::BufReader::new(emu.stdout.take().unwrap()),
+            &mut line,
+        )
+        .unwrap();
+        let out = dir.path().join("run.mcap");
+        let o = control(
+            &cfg_s,
+            &out.display().to_string(),
+            Some(&format!("serial:{}", line.trim())),
+            &["--duration-s", "2"],
+        );
+        // SAFETY: plain kill(2) on our child.
+        unsafe { libc::kill(emu.id() as i32, libc::SIGINT) };
+        let _ = emu.wait();
+        let err = stderr(&o);
+        assert_eq!(o.status.code(), Some(3), "{fault}: {err}");
+        assert_eq!(json_stdout(&o)["fault"]["kind"], kind, "{fault}: {err}");
+        let msgs = mcap_messages(&out);
+        let tick = msgs
+            .iter()
+            .find(|m| m.0 == "/bench/event" && m.2["kind"] == "fault")
+            .unwrap_or_else(|| panic!("{fault}: no fault event"))
+            .2["tick"]
+            .as_u64()
+            .unwrap();
+        let samples: Vec<&Value> = msgs
+            .iter()
+            .filter(|m| m.0 == "/bench/sample")
+            .map(|m| &m.2)
+            .collect();
+        let peak_a = samples
+            .iter()
+            .filter(|s| s["tick"].as_u64().unwrap() < tick)
+            .map(|s| s["current_command_a"].as_f64().unwrap().abs())
+            .fold(0.0, f64::max);
+        assert!(peak_a < 2.34, "{fault}: {peak_a} A before the fault");
+        for s in samples.iter().filter(|s| s["tick"].as_u64().unwrap() >= tick) {
+            assert_eq!(s["current_command_a"].as_f64(), Some(0.0), "{fault}: {s}");
+        }
+        eprintln!("{fault}: {kind} at tick {tick}, peak {peak_a:.3} A before");
+    }
+}

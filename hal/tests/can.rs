@@ -378,9 +378,21 @@ impl Rig {
         cfg: &CanConfig,
         faults: Vec<(f64, LinkFault)>,
     ) -> Self {
+        let core = DeviceCore::new(sim_params(), PERIOD_NS, WATCHDOG_NS).unwrap();
+        Self::start_core(host, device, cfg, faults, core)
+    }
+
+    /// As [`Rig::start_at`], the emulator running `core` (plant faults
+    /// injected in it).
+    fn start_core(
+        host: CanSocket,
+        device: CanSocket,
+        cfg: &CanConfig,
+        faults: Vec<(f64, LinkFault)>,
+        core: DeviceCore,
+    ) -> Self {
         let status = Arc::new(EmulatorStatus::default());
         let stop = Arc::new(AtomicBool::new(false));
-        let core = DeviceCore::new(sim_params(), PERIOD_NS, WATCHDOG_NS).unwrap();
         let faults: Vec<ScheduledLinkFault> = faults
             .into_iter()
             .map(|(at_s, kind)| ScheduledLinkFault { at_s, kind })
@@ -1093,4 +1105,51 @@ fn round_trip_on_vcan0() {
     };
     round_trip(&mut rig, false);
     rig.stop().unwrap();
+}
+
+/// A failing probe behind the CAN link reaches the host as what it is, so
+/// the supervisor's one rule judges it (issue 46, finding 1; the rule
+/// itself is tested on the simulator, the serial link and EtherCAT): no
+/// reading is NaN (the field's reserved code), a reading beyond the range
+/// is flagged out of range by the status byte, a dead probe reads 0 m
+/// bit-identically while the sequence advances, and the link's count
+/// (the position field's scale, 0.1 nm) is what the host reports for the
+/// frozen rule's code width.
+#[test]
+fn a_failing_probe_reaches_the_host_as_nan_out_of_range_or_frozen() {
+    use bench_hal::sim::{FaultInjection, ScheduledFault};
+    let _g = serial();
+    for kind in [
+        FaultInjection::Nan,
+        FaultInjection::OutOfRange,
+        FaultInjection::Dead,
+    ] {
+        let mut core = DeviceCore::new(sim_params(), PERIOD_NS, WATCHDOG_NS).unwrap();
+        core.inject(ScheduledFault { at_s: 0.05, kind });
+        let (h, d) = pair();
+        let mut rig = Rig::start_core(h, d, &cfg(true), vec![], core);
+        let info = rig.stage.configure(PERIOD_NS).unwrap();
+        assert_eq!(info.probe_lsb_m, 1e-10, "{kind:?}");
+        rig.stage.enable().unwrap();
+        let samples = rig.run(150, 0.3);
+        let after: Vec<_> = samples.iter().filter(|s| s.device_time_ns >= 60_000_000).collect();
+        assert!(after.len() > 50, "{kind:?}: {} samples after the fault", after.len());
+        let before = samples.iter().filter(|s| s.device_time_ns < 50_000_000);
+        assert!(
+            before.clone().all(|s| s.position_m.is_finite() && !s.flags.out_of_range),
+            "{kind:?}"
+        );
+        match kind {
+            FaultInjection::Nan => assert!(after.iter().all(|s| s.position_m.is_nan())),
+            FaultInjection::OutOfRange => assert!(after.iter().all(|s| s.flags.out_of_range)),
+            _ => {
+                assert!(after.iter().all(|s| s.position_m.to_bits() == 0f64.to_bits()));
+                assert!(after.windows(2).all(|w| w[1].seq > w[0].seq));
+                // A live probe at +0.3 A is tens of µm away from 0.
+                assert!(before.map(|s| s.position_m.abs()).fold(0.0, f64::max) > 1e-6);
+            }
+        }
+        rig.stage.disable().unwrap();
+        rig.stop().unwrap();
+    }
 }

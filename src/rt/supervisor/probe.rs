@@ -15,7 +15,7 @@
 //!   samples, so a healthy probe trips it once in 600 000 years. The
 //!   shipped bench (σ 40 nm, q 30 nm): p = 0.30, N = 29 samples (5.8 ms at
 //!   5 kHz); over EtherCAT (the ADC's 30.5 nm count added): p = 0.60,
-//!   N = 68 (13.6 ms). Without noise (σ = 0) or with codes coarser than
+//!   N = 69 (13.8 ms). Without noise (σ = 0) or with codes coarser than
 //!   the noise (p ≥ 1) a still stage reads one code for ever and the rule
 //!   cannot decide: it is off, and the plausibility rule remains.
 //! - **Implausible** ([`FaultKind::ProbeImplausible`]): the current moved
@@ -32,7 +32,7 @@
 //!   predicted direction: a healthy stage would have to be 5× stiffer
 //!   than its model. The shipped bench's G(0) is 154 µm/A, so the rule
 //!   decides at 90 µm predicted (0.585 A filtered), 2 250 σ of the probe's
-//!   noise; the filter's group delay (√2 / (2π f_c) = 0.16 s) lets a
+//!   noise; the filter's group delay (√2 / (2π f_c) = 0.20 s at f_c = 1.13 Hz) lets a
 //!   controller winding up at 4.5 A/s (a dead probe under the fast loop)
 //!   reach about 1.3 A, below the 2.34 A continuous rating. Thermal drift
 //!   the loop holds against counts as predicted motion the probe does not
