@@ -393,7 +393,9 @@ fn random_bench_toml(seed: u64) -> String {
 
 /// Designed controllers on random benches run as `bench control` runs
 /// them (the loop check, the supervisor, the simulated bench with its
-/// noise and disturbance): every step settles and none faults.
+/// noise and disturbance): every step settles and none faults. The chirp
+/// and the thesis' slow and fast controllers on the same benches never
+/// trip the probe-validity rules (frozen, implausible).
 #[test]
 fn designed_controllers_settle_on_random_benches_without_a_fault() {
     let dir = tmp();
@@ -435,6 +437,23 @@ fn designed_controllers_settle_on_random_benches_without_a_fault() {
             d["sensitivity_bandwidth_rad_s"].as_f64().unwrap()
         );
         assert!(settle.is_some(), "seed {seed}: the step never settles: {c}");
+        // The thesis' controllers on the same bench: whatever their
+        // outcome on a bench they were not designed for, never a probe
+        // fault (issue 46: no good run trips the probe-validity rules).
+        for flag in ["--slow", "--fast"] {
+            let o = run(&[
+                "control",
+                "--config",
+                &cfg,
+                flag,
+                "--out",
+                &path_in(dir.path(), &format!("t{seed}{flag}.mcap")),
+                "--json",
+            ]);
+            let err = String::from_utf8_lossy(&o.stderr);
+            assert!(!err.contains("probe_"), "seed {seed} {flag}: {err}");
+            eprintln!("seed {seed} {flag}: exit {:?}", o.status.code());
+        }
     }
 }
 
