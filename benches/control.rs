@@ -80,6 +80,33 @@ fn control(c: &mut Criterion) {
         })
     });
 
+    // The probe-validity rules' share of the supervisor's sample check:
+    // the same check with the rules on (the shipped bench's settings) and
+    // off; the difference is their cost per tick (issue 46: ≤ 50 ns). The
+    // reading follows the quasi-static model at 0.1 A with the probe's
+    // noise-sized wiggle, so neither rule trips and both run in full.
+    let mut on_cfg = cfg.supervisor(&info);
+    on_cfg.probe = cfg.probe_validity(&info, info.continuous_current_a);
+    assert!(on_cfg.probe.plausibility.is_some() && on_cfg.probe.frozen_samples < 100);
+    let mut off_cfg = on_cfg.clone();
+    off_cfg.probe = bench::rt::supervisor::ProbeValidity::OFF;
+    for (name, sc) in [("probe_validity_on", on_cfg), ("probe_validity_off", off_cfg)] {
+        let mut sup = Supervisor::new(sc);
+        sup.enabled();
+        sup.running();
+        let mut k = 0u64;
+        g.bench_function(name, |b| {
+            b.iter(|| {
+                k += 1;
+                let mut s = sample(k);
+                s.position_m = 15.44e-6 + 4e-8 * ((k % 89) as f64 * 0.7).sin();
+                black_box(sup.check_sample(black_box(&s)));
+                sup.command(black_box(0.1))
+            })
+        });
+        assert!(sup.fault().is_none(), "{name}: {:?}", sup.fault());
+    }
+
     // The metrics tap's work on a real-time tick: two bucket searches, the
     // counters, and an offer (a 700-byte push) every 500 ticks; the reader
     // drains the queue as the daemon's metrics thread does.
