@@ -627,13 +627,15 @@ mod tests {
             "backend.ethercat.watchdog_ms"
         );
         assert_eq!(PdoEntry::from_raw(CONTROLWORD.raw()), CONTROLWORD);
-        // The analog profile: DAC + enable out, ADC + status in.
+        // The analog profile: DAC (i16) + enable (u8) out; ADC (i16) +
+        // status (u8) + the ADC's status word (u16) in.
         let a = EthercatConfig {
             profile: Profile::Analog,
             ..EthercatConfig::default()
         };
         let l = a.layout("k").unwrap();
-        assert_eq!((l.out_len, l.in_len), (3, 3));
+        assert_eq!((l.out_len, l.in_len), (3, 5));
+        assert_eq!(l.adc_status, Some(3));
         assert_eq!(
             (l.target, l.controlword, l.position, l.statusword),
             ((0, false), 2, 0, 2)

@@ -537,15 +537,17 @@ mod tests {
                     1 => s.dac = v,
                     2 => s.enable = v,
                     3 => s.status = v,
-                    _ => s.fault = v,
+                    4 => s.fault = v,
+                    _ => s.adc_status = v,
                 };
                 // Removed.
                 let mut s = base.clone();
                 set(&mut s[i], None);
                 let want = match *name {
                     "status" => key(i, "fault"),
-                    "fault" => {
-                        // Without a fault line the rack is whole.
+                    "fault" | "adc_status" => {
+                        // Without a fault line or the ADC's status word
+                        // the rack is whole.
                         assert!(rack(s.clone()).validate(P).is_ok());
                         continue;
                     }
