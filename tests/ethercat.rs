@@ -1125,7 +1125,10 @@ fn readme_rack_toml() -> String {
 /// a dead probe that reads 0 V (`dead`) is bit-identical from one sample
 /// to the next (`probe_frozen`: 69 samples with the ADC's 30.5 nm count,
 /// 29 with the drive's 0.1 nm); a reading beyond the ADC's range sets its
-/// overrange bit (`probe_out_of_range`).
+/// overrange bit (`probe_out_of_range`); a reading that repeats (`frozen`:
+/// no sequence number crosses this link) is `probe_frozen` too; a probe
+/// that no longer sees the stage (`blind`) as the step drives it is
+/// `probe_implausible`; a jump is `position_jump`.
 #[test]
 fn a_failing_probe_behind_every_profile_stops_at_zero_amps_naming_it() {
     let _g = one_at_a_time();
@@ -1142,6 +1145,9 @@ fn a_failing_probe_behind_every_profile_stops_at_zero_amps_naming_it() {
         ("analog", &analog, "nan", "probe_not_finite"),
         ("analog", &analog, "dead", "probe_frozen"),
         ("analog", &analog, "out_of_range", "probe_out_of_range"),
+        ("analog", &analog, "frozen", "probe_frozen"),
+        ("analog", &analog, "blind", "probe_implausible"),
+        ("analog", &analog, "jump", "position_jump"),
         ("rack", &rack, "nan", "probe_not_finite"),
         ("rack", &rack, "dead", "probe_frozen"),
         ("cia402", &cia402, "nan", "drive reports a fault"),
@@ -1151,7 +1157,10 @@ fn a_failing_probe_behind_every_profile_stops_at_zero_amps_naming_it() {
         let dir = tmp();
         let cfg = common::quiet_config_edited(dir.path(), 2.0, extra, noisy);
         let cfg_s = cfg.display().to_string();
-        let inject = format!("{fault}@0.5");
+        // A blind probe only shows once a controller drives the stage:
+        // from before the step.
+        let at = if fault == "blind" { 0.1 } else { 0.5 };
+        let inject = format!("{fault}@{at}");
         let last = std::cell::Cell::new(0);
         let o = retrying_while(
             |o| !stderr(o).contains(needle) && (vm_stall(o) || stderr(o).contains("frame lost")),

@@ -567,7 +567,9 @@ fn bad_can_interfaces_are_refused() {
 /// the link's 0.1 nm count at σ 40 nm); a probe that no longer sees the
 /// stage (`blind`) is `probe_implausible` once the step's current should
 /// have moved the stage by a quarter of the rating's quasi-static motion.
-/// Each stops at 0 A, below the coil's continuous rating (2.34 A).
+/// The device's out-of-range flag is `probe_out_of_range`; a repeated
+/// sample (same sequence number) is `stale_sample`. Each stops at 0 A,
+/// below the coil's continuous rating (2.34 A).
 #[test]
 fn a_failing_probe_behind_the_serial_link_stops_at_zero_amps_naming_it() {
     let _g = one_at_a_time();
@@ -575,6 +577,8 @@ fn a_failing_probe_behind_the_serial_link_stops_at_zero_amps_naming_it() {
         ("nan", "probe_not_finite"),
         ("dead", "probe_frozen"),
         ("blind", "probe_implausible"),
+        ("out_of_range", "probe_out_of_range"),
+        ("frozen", "stale_sample"),
     ] {
         let dir = tmp();
         let cfg = common::quiet_config_edited(
