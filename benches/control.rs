@@ -88,9 +88,12 @@ fn control(c: &mut Criterion) {
     let mut on_cfg = cfg.supervisor(&info);
     on_cfg.probe = cfg.probe_validity(&info, info.continuous_current_a);
     assert!(on_cfg.probe.plausibility.is_some() && on_cfg.probe.frozen_samples < 100);
-    let mut off_cfg = on_cfg.clone();
+    let mut off_cfg = on_cfg;
     off_cfg.probe = bench::rt::supervisor::ProbeValidity::OFF;
-    for (name, sc) in [("probe_validity_on", on_cfg), ("probe_validity_off", off_cfg)] {
+    for (name, sc) in [
+        ("probe_validity_on", on_cfg),
+        ("probe_validity_off", off_cfg),
+    ] {
         let mut sup = Supervisor::new(sc);
         sup.enabled();
         sup.running();

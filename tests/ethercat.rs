@@ -1196,9 +1196,15 @@ fn a_failing_probe_behind_every_profile_stops_at_zero_amps_naming_it() {
             .fold(0.0, f64::max);
         // Below the coil's continuous rating, 2.34 A.
         assert!(peak_a < 2.34, "{case}: {peak_a} A before the fault");
-        for s in samples.iter().filter(|s| s["tick"].as_u64().unwrap() >= tick) {
+        for s in samples
+            .iter()
+            .filter(|s| s["tick"].as_u64().unwrap() >= tick)
+        {
             assert_eq!(s["current_command_a"].as_f64(), Some(0.0), "{case}: {s}");
         }
-        eprintln!("{case}: {} at tick {tick}, peak {peak_a:.3} A before", ev.2["fault"]);
+        eprintln!(
+            "{case}: {} at tick {tick}, peak {peak_a:.3} A before",
+            ev.2["fault"]
+        );
     }
 }

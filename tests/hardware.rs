@@ -633,7 +633,10 @@ fn a_failing_probe_behind_the_serial_link_stops_at_zero_amps_naming_it() {
             .map(|s| s["current_command_a"].as_f64().unwrap().abs())
             .fold(0.0, f64::max);
         assert!(peak_a < 2.34, "{fault}: {peak_a} A before the fault");
-        for s in samples.iter().filter(|s| s["tick"].as_u64().unwrap() >= tick) {
+        for s in samples
+            .iter()
+            .filter(|s| s["tick"].as_u64().unwrap() >= tick)
+        {
             assert_eq!(s["current_command_a"].as_f64(), Some(0.0), "{fault}: {s}");
         }
         eprintln!("{fault}: {kind} at tick {tick}, peak {peak_a:.3} A before");

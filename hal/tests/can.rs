@@ -1132,18 +1132,29 @@ fn a_failing_probe_reaches_the_host_as_nan_out_of_range_or_frozen() {
         assert_eq!(info.probe_lsb_m, 1e-10, "{kind:?}");
         rig.stage.enable().unwrap();
         let samples = rig.run(150, 0.3);
-        let after: Vec<_> = samples.iter().filter(|s| s.device_time_ns >= 60_000_000).collect();
-        assert!(after.len() > 50, "{kind:?}: {} samples after the fault", after.len());
+        let after: Vec<_> = samples
+            .iter()
+            .filter(|s| s.device_time_ns >= 60_000_000)
+            .collect();
+        assert!(
+            after.len() > 50,
+            "{kind:?}: {} samples after the fault",
+            after.len()
+        );
         let before = samples.iter().filter(|s| s.device_time_ns < 50_000_000);
         assert!(
-            before.clone().all(|s| s.position_m.is_finite() && !s.flags.out_of_range),
+            before
+                .clone()
+                .all(|s| s.position_m.is_finite() && !s.flags.out_of_range),
             "{kind:?}"
         );
         match kind {
             FaultInjection::Nan => assert!(after.iter().all(|s| s.position_m.is_nan())),
             FaultInjection::OutOfRange => assert!(after.iter().all(|s| s.flags.out_of_range)),
             _ => {
-                assert!(after.iter().all(|s| s.position_m.to_bits() == 0f64.to_bits()));
+                assert!(after
+                    .iter()
+                    .all(|s| s.position_m.to_bits() == 0f64.to_bits()));
                 assert!(after.windows(2).all(|w| w[1].seq > w[0].seq));
                 // A live probe at +0.3 A is tens of µm away from 0.
                 assert!(before.map(|s| s.position_m.abs()).fold(0.0, f64::max) > 1e-6);

@@ -296,7 +296,12 @@ mod tests {
         // Over the analog terminal: the ADC's count (1 mm / 32767) added.
         assert_eq!(frozen_samples(40e-9, 30e-9 + 1e-3 / 32767.0), 69);
         // No noise, codes coarser than the noise, nonsense: off.
-        for (s, q) in [(0.0, 30e-9), (10e-9, 30e-9), (f64::NAN, 1e-9), (1e-9, f64::INFINITY)] {
+        for (s, q) in [
+            (0.0, 30e-9),
+            (10e-9, 30e-9),
+            (f64::NAN, 1e-9),
+            (1e-9, f64::INFINITY),
+        ] {
             assert_eq!(frozen_samples(s, q), u64::MAX, "σ {s}, q {q}");
         }
         // An unquantised reading: two identical readings are implausible.
@@ -324,7 +329,10 @@ mod tests {
                     prev = c;
                 }
                 let f = same as f64 / n as f64;
-                assert!(f <= p + 0.005, "σ {sigma}, q {q}, offset {offset}: {f} > {p}");
+                assert!(
+                    f <= p + 0.005,
+                    "σ {sigma}, q {q}, offset {offset}: {f} > {p}"
+                );
                 // And the bound is not loose by orders: at least half.
                 assert!(f >= 0.5 * p, "σ {sigma}, q {q}, offset {offset}: {f} ≪ {p}");
             }
@@ -351,7 +359,11 @@ mod tests {
         assert!((h(0.0) - 1.0).abs() < 1e-8, "{}", h(0.0));
         for f in [0.01, 0.3, fc, 3.0, 22.6, 100.0] {
             let analog = 1.0 / (1.0 + (f / fc).powi(4)).sqrt();
-            assert!((h(f) / analog - 1.0).abs() < 0.01, "{f} Hz: {} vs {analog}", h(f));
+            assert!(
+                (h(f) / analog - 1.0).abs() < 0.01,
+                "{f} Hz: {} vs {analog}",
+                h(f)
+            );
         }
         assert!((1.0 / h(22.6) - 400.0).abs() < 5.0, "{}", 1.0 / h(22.6));
         // The state steps as the coefficients say: a constant passes.
@@ -420,7 +432,10 @@ mod tests {
         for _ in 0..3 {
             assert_eq!(w.check(&cfg, 1.03e-6, 0.1), None);
         }
-        assert_eq!(w.check(&cfg, 1.03e-6, 0.1), Some((FaultKind::ProbeFrozen, 5.0)));
+        assert_eq!(
+            w.check(&cfg, 1.03e-6, 0.1),
+            Some((FaultKind::ProbeFrozen, 5.0))
+        );
         // 0.0 and -0.0 differ in bits: a sign flip is a change.
         w.reset();
         for k in 0..10 {
