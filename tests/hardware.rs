@@ -492,6 +492,30 @@ fn ch5_force_constant(text: &str) -> f64 {
         .expect("force_constant_n_per_a")
 }
 
+/// `bench emulate serial --lockstep --config CFG EXTRA` as its own
+/// process, its stderr to `stderr`; returns it and the pty path it prints
+/// first.
+fn emulate_serial(
+    cfg: &str,
+    extra: &[&str],
+    stderr: std::process::Stdio,
+) -> (std::process::Child, String) {
+    let mut emu = bench()
+        .args(["emulate", "serial", "--lockstep", "--config", cfg])
+        .args(extra)
+        .stdout(std::process::Stdio::piped())
+        .stderr(stderr)
+        .spawn()
+        .unwrap();
+    let mut line = String::new();
+    std::io::BufRead::read_line(
+        &mut std::io::BufReader::new(emu.stdout.take().unwrap()),
+        &mut line,
+    )
+    .unwrap();
+    (emu, line.trim().to_string())
+}
+
 /// `bench emulate serial` as its own process (as a user runs it): it prints
 /// the pty path first, serves a `bench control --fast` run, and stops on
 /// SIGINT with its counters.
@@ -501,20 +525,8 @@ fn bench_emulate_serial_serves_bench_control() {
     let dir = tmp();
     let cfg = quiet_config(dir.path());
     let cfg_s = cfg.display().to_string();
-    let mut emu = bench()
-        .args(["emulate", "serial", "--lockstep", "--config", &cfg_s])
-        .stdout(std::process::Stdio::piped())
-        .stderr(std::process::Stdio::piped())
-        .spawn()
-        .unwrap();
-    let mut line = String::new();
-    std::io::BufRead::read_line(
-        &mut std::io::BufReader::new(emu.stdout.take().unwrap()),
-        &mut line,
-    )
-    .unwrap();
-    let path = line.trim().to_string();
-    assert!(path.starts_with("/dev/pts/"), "first line: {line:?}");
+    let (emu, path) = emulate_serial(&cfg_s, &[], std::process::Stdio::piped());
+    assert!(path.starts_with("/dev/pts/"), "first line: {path:?}");
     let o = control(
         &cfg_s,
         &path_in(dir.path(), "run.mcap"),
@@ -588,24 +600,14 @@ fn a_failing_probe_behind_the_serial_link_stops_at_zero_amps_naming_it() {
             |t| set_key(t, "noise_rms_m", "4.0e-8"),
         );
         let cfg_s = cfg.display().to_string();
-        let mut emu = bench()
-            .args(["emulate", "serial", "--lockstep", "--config", &cfg_s])
-            .args(["--fault", &format!("{fault}@0.3")])
-            .stdout(std::process::Stdio::piped())
-            .stderr(std::process::Stdio::null())
-            .spawn()
-            .unwrap();
-        let mut line = String::new();
-        std::io::BufRead::read_line(
-            &mut std::io::BufReader::new(emu.stdout.take().unwrap()),
-            &mut line,
-        )
-        .unwrap();
+        let inject = format!("{fault}@0.3");
+        let (mut emu, path) =
+            emulate_serial(&cfg_s, &["--fault", &inject], std::process::Stdio::null());
         let out = dir.path().join("run.mcap");
         let o = control(
             &cfg_s,
             &out.display().to_string(),
-            Some(&format!("serial:{}", line.trim())),
+            Some(&format!("serial:{path}")),
             &["--duration-s", "2"],
         );
         // SAFETY: plain kill(2) on our child.
@@ -614,31 +616,9 @@ fn a_failing_probe_behind_the_serial_link_stops_at_zero_amps_naming_it() {
         let err = stderr(&o);
         assert_eq!(o.status.code(), Some(3), "{fault}: {err}");
         assert_eq!(json_stdout(&o)["fault"]["kind"], kind, "{fault}: {err}");
-        let msgs = mcap_messages(&out);
-        let tick = msgs
-            .iter()
-            .find(|m| m.0 == "/bench/event" && m.2["kind"] == "fault")
-            .unwrap_or_else(|| panic!("{fault}: no fault event"))
-            .2["tick"]
-            .as_u64()
-            .unwrap();
-        let samples: Vec<&Value> = msgs
-            .iter()
-            .filter(|m| m.0 == "/bench/sample")
-            .map(|m| &m.2)
-            .collect();
-        let peak_a = samples
-            .iter()
-            .filter(|s| s["tick"].as_u64().unwrap() < tick)
-            .map(|s| s["current_command_a"].as_f64().unwrap().abs())
-            .fold(0.0, f64::max);
+        let (ev, peak_a) = fault_and_peak_before(&out, fault);
+        let tick = ev["tick"].as_u64().unwrap();
         assert!(peak_a < 2.34, "{fault}: {peak_a} A before the fault");
-        for s in samples
-            .iter()
-            .filter(|s| s["tick"].as_u64().unwrap() >= tick)
-        {
-            assert_eq!(s["current_command_a"].as_f64(), Some(0.0), "{fault}: {s}");
-        }
         eprintln!("{fault}: {kind} at tick {tick}, peak {peak_a:.3} A before");
     }
 }

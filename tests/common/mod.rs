@@ -114,6 +114,31 @@ pub fn files_in(dir: &Path) -> Vec<PathBuf> {
     v
 }
 
+/// A faulted run's recording at `path`: its fault event (`case` names the
+/// run in messages) and the peak |current command| before the fault's
+/// tick, A; asserts 0 A commanded from that tick on.
+#[allow(dead_code)]
+pub fn fault_and_peak_before(path: &Path, case: &str) -> (Value, f64) {
+    let msgs = mcap_messages(path);
+    let ev = msgs
+        .iter()
+        .find(|m| m.0 == "/bench/event" && m.2["kind"] == "fault")
+        .unwrap_or_else(|| panic!("{case}: no fault event"))
+        .2
+        .clone();
+    let tick = ev["tick"].as_u64().unwrap();
+    let mut peak_a: f64 = 0.0;
+    for s in msgs.iter().filter(|m| m.0 == "/bench/sample").map(|m| &m.2) {
+        let i = s["current_command_a"].as_f64().unwrap();
+        if s["tick"].as_u64().unwrap() < tick {
+            peak_a = peak_a.max(i.abs());
+        } else {
+            assert_eq!(i, 0.0, "{case}: {s}");
+        }
+    }
+    (ev, peak_a)
+}
+
 /// All messages of an MCAP file by topic: (topic, log_time, JSON value).
 pub fn mcap_messages(path: &Path) -> Vec<(String, u64, Value)> {
     let bytes = std::fs::read(path).expect("recording");
