@@ -622,10 +622,22 @@ fn config_check_refuses_the_damping_every_run_refuses() {
         std::fs::write(&f, with_damping(zr, zc)).unwrap();
         let o = common::run(&["config", "check", &f]);
         let err = String::from_utf8_lossy(&o.stderr);
-        assert_eq!(o.status.code(), Some(2), "({zr}, {zc}): config check: {err}");
+        assert_eq!(
+            o.status.code(),
+            Some(2),
+            "({zr}, {zc}): config check: {err}"
+        );
         assert!(err.contains("plant.damping.zeta_rigid"), "{err}");
         let out = common::path_in(dir.path(), &format!("run{i}.mcap"));
-        let o = common::run(&["chirp", "--config", &f, "--duration-s", "0.2", "--out", &out]);
+        let o = common::run(&[
+            "chirp",
+            "--config",
+            &f,
+            "--duration-s",
+            "0.2",
+            "--out",
+            &out,
+        ]);
         let err = String::from_utf8_lossy(&o.stderr);
         assert_eq!(o.status.code(), Some(2), "({zr}, {zc}): chirp: {err}");
         judge_damping(zr, zc).unwrap();
@@ -645,7 +657,10 @@ fn config_check_refuses_the_damping_every_run_refuses() {
             }
         }
     }
-    assert!(accepted > 20 && refused > 20, "{accepted} accepted, {refused} refused");
+    assert!(
+        accepted > 20 && refused > 20,
+        "{accepted} accepted, {refused} refused"
+    );
 }
 
 /// A real value for key `spec`: any bit pattern, or near one of the bounds
