@@ -1,11 +1,139 @@
 //! How a run ends when it does not produce a summary: one error type for
 //! every job, mapped to exit statuses by the CLI and to error kinds by the
-//! daemon.
+//! daemon; and the table of those exit statuses ([`EXIT_STATUSES`]).
 //!
 //! Layer rule: may use nothing of the crate.
 
 use std::io;
 use std::path::PathBuf;
+
+/// The exit statuses of the `bench` command line, by name: the codes of
+/// [`EXIT_STATUSES`].
+pub mod exit {
+    /// Success.
+    pub const SUCCESS: u8 = 0;
+    /// An unexpected error (I/O after the run, internal).
+    pub const ERROR: u8 = 1;
+    /// Bad input: config or arguments; nothing was enabled.
+    pub const BAD_INPUT: u8 = 2;
+    /// A safety fault: the supervisor latched.
+    pub const FAULT: u8 = 3;
+    /// A hardware (HAL) error.
+    pub const HAL: u8 = 4;
+    /// `--daemon`, `bench daemon`: the daemon refused.
+    pub const DAEMON_REFUSED: u8 = 5;
+    /// `bench daemon`: no daemon answers at the socket.
+    pub const NO_DAEMON: u8 = 6;
+    /// `bench recover`: data was lost.
+    pub const DATA_LOST: u8 = 7;
+    /// `bench control --verify`: the measured loop disagrees.
+    pub const VERIFY_FAILED: u8 = 8;
+    /// `bench fit`, `bench plot`: a fit is flagged.
+    pub const FLAGGED: u8 = 9;
+    /// Interrupted by SIGINT or SIGTERM (128 + SIGINT).
+    pub const INTERRUPTED: u8 = 130;
+    /// The reader of standard output went away (128 + SIGPIPE).
+    pub const STDOUT_CLOSED: u8 = 141;
+}
+
+/// One exit status of the `bench` command line.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ExitStatus {
+    /// The status.
+    pub code: u8,
+    /// The commands that exit with it (`daemon` for `bench daemon …`);
+    /// empty: any command.
+    pub commands: &'static [&'static str],
+    /// What it means, in a few words (`bench --help` lists them; the
+    /// README's table says more, in a row that holds these words).
+    pub meaning: &'static str,
+}
+
+/// Every exit status of the `bench` command line, ascending: the one
+/// table the command line's exit codes ([`exit`]), `bench --help`, each
+/// command's `--help` and the README's *Exit status* table follow (a test
+/// holds each of them to it).
+pub const EXIT_STATUSES: &[ExitStatus] = &[
+    ExitStatus {
+        code: exit::SUCCESS,
+        commands: &[],
+        meaning: "success",
+    },
+    ExitStatus {
+        code: exit::ERROR,
+        commands: &[],
+        meaning: "unexpected error",
+    },
+    ExitStatus {
+        code: exit::BAD_INPUT,
+        commands: &[],
+        meaning: "bad input",
+    },
+    ExitStatus {
+        code: exit::FAULT,
+        commands: &["chirp", "control", "campaign", "daemon"],
+        meaning: "safety fault",
+    },
+    ExitStatus {
+        code: exit::HAL,
+        commands: &["chirp", "control", "campaign"],
+        meaning: "hardware (HAL) error",
+    },
+    ExitStatus {
+        code: exit::DAEMON_REFUSED,
+        // `bench daemon`, and every command that submits with `--daemon`.
+        commands: &[
+            "daemon",
+            "chirp",
+            "control",
+            "analyze",
+            "map",
+            "campaign",
+            "catalogue",
+            "fit",
+            "design",
+            "plot",
+        ],
+        meaning: "the daemon refused",
+    },
+    ExitStatus {
+        code: exit::NO_DAEMON,
+        commands: &["daemon"],
+        meaning: "no daemon answers at the socket",
+    },
+    ExitStatus {
+        code: exit::DATA_LOST,
+        commands: &["recover"],
+        meaning: "data was lost",
+    },
+    ExitStatus {
+        code: exit::VERIFY_FAILED,
+        commands: &["control"],
+        meaning: "the measured loop disagrees with the prediction",
+    },
+    ExitStatus {
+        code: exit::FLAGGED,
+        commands: &["fit", "plot"],
+        meaning: "a fit is flagged, not to be trusted",
+    },
+    ExitStatus {
+        code: exit::INTERRUPTED,
+        commands: &[],
+        meaning: "interrupted by SIGINT or SIGTERM",
+    },
+    ExitStatus {
+        code: exit::STDOUT_CLOSED,
+        commands: &[],
+        meaning: "the reader of its standard output went away",
+    },
+];
+
+/// `Exit status: 0 …; 7 …`: a command's `--help` paragraph on its exit
+/// statuses, each code with what it means for that command.
+pub fn exit_status_help(items: &[(u8, &str)]) -> String {
+    let items: Vec<String> = items.iter().map(|(c, m)| format!("{c} {m}")).collect();
+    format!("Exit status: {}.", items.join("; "))
+}
 
 /// Why a run did not produce a summary.
 #[derive(Debug, thiserror::Error)]

@@ -571,3 +571,143 @@ fn config_with_daemon_is_refused_not_ignored() {
         );
     }
 }
+
+/// The subcommands a `--help` lists (its `Commands:` section), `help` left
+/// out.
+fn subcommands(help: &str) -> Vec<String> {
+    help.lines()
+        .skip_while(|l| l.trim() != "Commands:")
+        .skip(1)
+        .take_while(|l| !l.trim().is_empty())
+        .filter(|l| l.starts_with("  ") && !l.starts_with("   "))
+        .filter_map(|l| l.split_whitespace().next().map(String::from))
+        .filter(|c| c != "help")
+        .collect()
+}
+
+/// The exit statuses a text names: `exit N`, `exits N`, `status N`, and
+/// each `N …` item of an `Exit status: N …; M …. K …` paragraph.
+fn codes_named(text: &str) -> Vec<u8> {
+    let mut codes = Vec::new();
+    let number = |w: &str| -> Option<u8> {
+        let digits: String = w.chars().take_while(char::is_ascii_digit).collect();
+        digits.parse().ok()
+    };
+    let words: Vec<&str> = text.split_whitespace().collect();
+    for w in words.windows(2) {
+        let word = w[0]
+            .trim_matches(|c: char| !c.is_alphanumeric())
+            .to_lowercase();
+        if ["exit", "exits", "status"].contains(&word.as_str()) {
+            codes.extend(number(w[1].trim_start_matches("**")));
+        }
+    }
+    for (i, _) in text.match_indices("Exit status:") {
+        let para = text[i + "Exit status:".len()..]
+            .split("\n\n")
+            .next()
+            .unwrap_or("");
+        for item in para.split(';').flat_map(|i| i.split(". ")) {
+            codes.extend(number(item.trim()));
+        }
+    }
+    codes
+}
+
+/// Every exit status the command line documents is one of the one table,
+/// `bench::error::EXIT_STATUSES`, and for a command it lists: each
+/// command's and subcommand's `--help` (`Exit status: N …; M …`, `exit
+/// N`); `bench --help` lists the table; the README's *Exit status* table
+/// has its codes in its order, each row holding the table's words and
+/// naming only commands the table lists for it; and every `exit N` in the
+/// README is one of its codes (issue 46: `bench recover --help` said 6
+/// for lost data, where it exits 7).
+#[test]
+fn exit_statuses_follow_the_one_table() {
+    use bench::error::EXIT_STATUSES;
+    let allowed = |command: &str, code: u8| {
+        EXIT_STATUSES
+            .iter()
+            .any(|s| s.code == code && (s.commands.is_empty() || s.commands.contains(&command)))
+    };
+    let help = |args: &[&str]| {
+        let mut a = args.to_vec();
+        a.push("--help");
+        let o = run(&a);
+        assert!(o.status.success(), "{a:?}");
+        String::from_utf8(o.stdout).unwrap()
+    };
+    // `bench --help`: the table, generated from it.
+    let top = help(&[]);
+    for s in EXIT_STATUSES {
+        assert!(
+            top.contains(&format!("{:>3}  {}", s.code, s.meaning)),
+            "bench --help lacks {} {}:\n{top}",
+            s.code,
+            s.meaning
+        );
+    }
+    // Every command's and subcommand's --help.
+    let mut checked = 0;
+    for command in subcommands(&top) {
+        let text = help(&[&command]);
+        let mut texts = vec![(command.clone(), text.clone())];
+        for sub in subcommands(&text) {
+            texts.push((format!("{command} {sub}"), help(&[&command, &sub])));
+        }
+        for (name, text) in texts {
+            for code in codes_named(&text) {
+                checked += 1;
+                assert!(
+                    allowed(&command, code),
+                    "bench {name} --help names exit status {code}, which the table does not give `bench {command}`:\n{text}"
+                );
+            }
+        }
+    }
+    assert!(checked >= 30, "only {checked} statuses named in --help");
+    let recover = help(&["recover"]);
+    assert!(recover.contains("7 when data was lost"), "{recover}");
+    // The README's table: the codes in order, the table's words, the
+    // commands it lists.
+    let readme =
+        std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("README.md")).unwrap();
+    let at = readme
+        .find("**Exit status.**")
+        .expect("the README's exit status table");
+    let rows: Vec<&str> = readme[at..]
+        .lines()
+        .skip_while(|l| !l.starts_with("| status |"))
+        .skip(2)
+        .take_while(|l| l.starts_with('|'))
+        .collect();
+    let codes: Vec<u8> = rows
+        .iter()
+        .map(|r| r.split('|').nth(1).unwrap().trim().parse().unwrap())
+        .collect();
+    let table: Vec<u8> = EXIT_STATUSES.iter().map(|s| s.code).collect();
+    assert_eq!(codes, table, "the README's exit statuses");
+    for (row, s) in rows.iter().zip(EXIT_STATUSES) {
+        assert!(row.contains(s.meaning), "{row}\nlacks {:?}", s.meaning);
+        if s.commands.is_empty() {
+            continue;
+        }
+        let named: Vec<&str> = row
+            .match_indices("`bench ")
+            .filter_map(|(i, _)| row[i + 7..].split([' ', '`']).next())
+            .collect();
+        assert!(
+            !named.is_empty() || row.contains("--daemon"),
+            "{row}: names no command"
+        );
+        for c in named {
+            assert!(s.commands.contains(&c), "{row}: names bench {c}");
+        }
+    }
+    for code in codes_named(&readme) {
+        assert!(
+            table.contains(&code),
+            "the README names exit status {code}, not in the table"
+        );
+    }
+}

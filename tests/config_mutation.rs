@@ -5,7 +5,11 @@
 //! outside and just inside each documented bound, wrong types and deletion,
 //! plus property-based values (any bit pattern, and values clustered around
 //! the bounds). For each: refused naming the key, or accepted with the value
-//! inside its documented range.
+//! inside its documented range, and then accepted by a run's setup too (the
+//! simulator opened, the model built): `bench config check` refuses what the
+//! runs refuse. For the damping pair, whose Rayleigh fit can give a mode
+//! negative damping, generated pairs are accepted by the check exactly when
+//! a run's setup accepts them.
 //!
 //! The ranges here are written from the documentation (README,
 //! *Configuration reference*; the comments in the shipped files), not taken
@@ -15,6 +19,8 @@
 mod common;
 
 use bench::config::{BenchConfig, ConfigError};
+use bench::rt::backend::{self, BackendSpec};
+use bench_hal::model::Sr4dof;
 use proptest::prelude::*;
 use std::path::{Path, PathBuf};
 use toml::{Table, Value};
@@ -344,6 +350,19 @@ fn load(text: &str) -> Result<BenchConfig, ConfigError> {
     Ok(c)
 }
 
+/// What a run does with a config before anything is enabled, past the
+/// config's validation: the simulator opened and configured as `bench
+/// chirp` and `bench control` open it (its model built and discretised),
+/// and the model the loop check and the predictions build. `bench config
+/// check` must refuse every config this refuses (one validation path).
+fn run_setup(c: &BenchConfig) -> Result<(), String> {
+    let p = Path::new("mutated.toml");
+    Sr4dof::new(c.plant).map_err(|e| format!("the model: {e}"))?;
+    backend::open(&BackendSpec::Sim, c, p, 1, None, f64::INFINITY)
+        .map(drop)
+        .map_err(|e| format!("the simulator: {e}"))
+}
+
 /// The value of `key` in a loaded config (`None` if unset).
 fn value_of(c: &BenchConfig, key: &str) -> Option<f64> {
     let v: Value = toml::from_str(&c.to_toml()).expect("resolved config");
@@ -398,7 +417,8 @@ fn judge(spec: &Spec, m: &Mutation) -> Result<(), String> {
         // refused for another key's cross-check (e.g. a peak current below
         // the continuous rating), never for this key.
         (Some((x, true)), Ok(c)) => match value_of(&c, spec.key) {
-            Some(v) if v == x => Ok(()),
+            Some(v) if v == x => run_setup(&c)
+                .map_err(|e| format!("{x:?} passes the config check, but a run refuses it: {e}")),
             other => Err(format!("accepted {x:?} but loaded {other:?}")),
         },
         (Some((x, true)), Err(ConfigError::Invalid { key, reason, .. })) => {
@@ -554,6 +574,95 @@ fn every_mutation_of_every_safety_key_is_refused_naming_it_or_stays_in_range() {
     );
 }
 
+/// The shipped config with `plant.damping` set to `zeta_rigid`,
+/// `zeta_csm`.
+fn with_damping(zeta_rigid: f64, zeta_csm: f64) -> String {
+    let mut t = shipped_table();
+    let (d, _) = slot(&mut t, "plant.damping.zeta_rigid");
+    d.insert("zeta_rigid".into(), Value::Float(zeta_rigid));
+    d.insert("zeta_csm".into(), Value::Float(zeta_csm));
+    toml::to_string(&t).expect("serialisable")
+}
+
+/// `bench config check` and the runs judge a damping pair alike: accepted
+/// by both, or refused by both, the check naming `plant.damping`.
+fn judge_damping(zeta_rigid: f64, zeta_csm: f64) -> Result<(), String> {
+    let p = Path::new("mutated.toml");
+    let c = BenchConfig::from_toml(&with_damping(zeta_rigid, zeta_csm), p)
+        .map_err(|e| format!("not parsed: {e}"))?;
+    match (c.validate(p), run_setup(&c)) {
+        (Ok(()), Ok(())) => Ok(()),
+        (Err(ConfigError::Invalid { key, .. }), Err(_)) if key.starts_with("plant.damping.") => {
+            Ok(())
+        }
+        (Err(e), Err(_)) => Err(format!("refused, but not naming plant.damping: {e}")),
+        (Ok(()), Err(e)) => Err(format!("config check accepts it, a run refuses it: {e}")),
+        (Err(e), Ok(())) => Err(format!("a run accepts it, config check refuses it: {e}")),
+    }
+}
+
+/// Issue 46's six damping pairs, which `bench config check` accepted and
+/// every run refused (the Rayleigh fit through them gives a mode negative
+/// damping): refused by `bench config check` and by a run alike, exit 2
+/// naming `plant.damping`; and the in-process rule holds for them and for
+/// a grid of pairs over [0, 1)² that both sides of the line cross.
+#[test]
+fn config_check_refuses_the_damping_every_run_refuses() {
+    const AUDIT: [(f64, f64); 6] = [
+        (0.9, 0.001),
+        (0.001, 0.9),
+        (0.5, 0.0),
+        (0.0, 0.5),
+        (0.99, 0.0),
+        (0.0, 0.99),
+    ];
+    let dir = common::tmp();
+    for (i, (zr, zc)) in AUDIT.into_iter().enumerate() {
+        let f = common::path_in(dir.path(), &format!("damping{i}.toml"));
+        std::fs::write(&f, with_damping(zr, zc)).unwrap();
+        let o = common::run(&["config", "check", &f]);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(
+            o.status.code(),
+            Some(2),
+            "({zr}, {zc}): config check: {err}"
+        );
+        assert!(err.contains("plant.damping.zeta_rigid"), "{err}");
+        let out = common::path_in(dir.path(), &format!("run{i}.mcap"));
+        let o = common::run(&[
+            "chirp",
+            "--config",
+            &f,
+            "--duration-s",
+            "0.2",
+            "--out",
+            &out,
+        ]);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(2), "({zr}, {zc}): chirp: {err}");
+        judge_damping(zr, zc).unwrap();
+    }
+    let (mut accepted, mut refused) = (0, 0);
+    for i in 0..20 {
+        for j in 0..20 {
+            let (zr, zc) = (f64::from(i) * 0.05, f64::from(j) * 0.05);
+            if let Err(why) = judge_damping(zr, zc) {
+                panic!("({zr}, {zc}): {why}");
+            }
+            let c = BenchConfig::from_toml(&with_damping(zr, zc), Path::new("x.toml")).unwrap();
+            if run_setup(&c).is_ok() {
+                accepted += 1;
+            } else {
+                refused += 1;
+            }
+        }
+    }
+    assert!(
+        accepted > 20 && refused > 20,
+        "{accepted} accepted, {refused} refused"
+    );
+}
+
 /// A real value for key `spec`: any bit pattern, or near one of the bounds
 /// (a few ulps, or a relative nudge), or anywhere inside.
 fn real_near(spec: &Spec, bits: u64, mode: u8, ulps: i32, frac: f64) -> f64 {
@@ -572,6 +681,18 @@ fn real_near(spec: &Spec, bits: u64, mode: u8, ulps: i32, frac: f64) -> f64 {
         3 => r.lo + frac * (hi - r.lo),
         _ => hi * (1.0 + (frac - 0.5) * 1e-6 * f64::from(ulps)),
     }
+}
+
+/// A damping ratio: any bit pattern, anywhere in or around [0, 1), or
+/// near either end of it.
+fn damping_ratio() -> impl Strategy<Value = f64> {
+    prop_oneof![
+        any::<u64>().prop_map(f64::from_bits),
+        -0.1f64..1.1,
+        0.0f64..0.05,
+        (0u32..8).prop_map(|n| (0..n).fold(1.0f64, |x, _| x.next_down())),
+        (0u32..8).prop_map(|n| (0..n).fold(0.0f64, |x, _| x.next_up())),
+    ]
 }
 
 proptest! {
@@ -602,6 +723,19 @@ proptest! {
         let m = Mutation::Set(value);
         if let Err(why) = judge(spec, &m) {
             prop_assert!(false, "{} = {:?}: {}", spec.key, m, why);
+        }
+    }
+
+    /// Property: for any pair of damping ratios (any bit pattern, or
+    /// anywhere in and around [0, 1)), `bench config check` accepts the
+    /// config exactly when a run's setup does.
+    #[test]
+    fn config_check_accepts_a_damping_pair_exactly_when_the_runs_do(
+        zr in damping_ratio(),
+        zc in damping_ratio(),
+    ) {
+        if let Err(why) = judge_damping(zr, zc) {
+            prop_assert!(false, "({:?}, {:?}): {}", zr, zc, why);
         }
     }
 

@@ -392,3 +392,79 @@ fn a_dead_probe_stops_before_the_continuous_rating() {
         }
     }
 }
+
+/// Every bench config shipped in `bench-config/` runs its default chirp
+/// (whole, as shipped) and both controllers (a 1 s step each): exit 0, no
+/// fault, and the chirp's peak |x1| at most half the position limit (the
+/// sweep's peak at resonance inside the stroke with margin). A campaign
+/// file there runs the bench it names, which is one of these (issue 46:
+/// the Chapter 2 bench's chirp tripped the position limit, exit 3, and it
+/// had no controller).
+#[test]
+fn every_shipped_bench_runs_its_default_chirp_and_both_controllers() {
+    let shipped = Path::new(env!("CARGO_MANIFEST_DIR")).join("bench-config");
+    let mut benches = Vec::new();
+    let mut campaigns = Vec::new();
+    for p in files_in(&shipped) {
+        if p.extension().is_none_or(|e| e != "toml") {
+            continue;
+        }
+        let text = std::fs::read_to_string(&p).unwrap();
+        let table: toml::Table = text.parse().unwrap();
+        if table.contains_key("grid") {
+            campaigns.push((p, table));
+        } else {
+            benches.push(p);
+        }
+    }
+    assert!(benches.len() >= 2, "{benches:?}");
+    for (p, table) in &campaigns {
+        let bench = table["config"].as_str().unwrap();
+        assert!(
+            benches.contains(&shipped.join(bench)),
+            "{}: its bench {bench} is not a shipped bench config",
+            p.display()
+        );
+    }
+    let dir = tmp();
+    for (i, cfg) in benches.iter().enumerate() {
+        let name = cfg.display().to_string();
+        let limit_m = bench::config::BenchConfig::load(cfg)
+            .unwrap()
+            .safety
+            .position_limit_m;
+        let out = path_in(dir.path(), &format!("chirp{i}.mcap"));
+        let o = run(&["chirp", "--config", &name, "--out", &out, "--json"]);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(o.status.success(), "{name}: chirp {:?}: {err}", o.status);
+        let s = json_stdout(&o);
+        let peak = s["peak_position_m"].as_f64().unwrap();
+        assert!(
+            peak <= 0.5 * limit_m,
+            "{name}: the chirp peaks at {peak} m, more than half the position limit {limit_m} m"
+        );
+        for c in ["--slow", "--fast"] {
+            let out = path_in(dir.path(), &format!("control{i}{c}.mcap"));
+            let o = run(&[
+                "control",
+                c,
+                "--config",
+                &name,
+                "--duration-s",
+                "1",
+                "--out",
+                &out,
+                "--json",
+            ]);
+            let err = String::from_utf8_lossy(&o.stderr);
+            assert!(
+                o.status.success(),
+                "{name}: control {c} {:?}: {err}",
+                o.status
+            );
+            let s = json_stdout(&o);
+            assert!(s["fault"].is_null(), "{name}: control {c}: {s}");
+            assert_eq!(s["loop_check"]["closed_loop_stable"], Value::Bool(true));
+        }
+    }
+}

@@ -43,8 +43,8 @@ pub fn write_err(args: std::fmt::Arguments<'_>) {
 pub fn status(success: bool) -> Option<u8> {
     let e = ERROR.get()?;
     if e.kind() == std::io::ErrorKind::BrokenPipe {
-        return success.then_some(141);
+        return success.then_some(super::status::STDOUT_CLOSED);
     }
     errln!("error: standard output: {e}");
-    success.then_some(1)
+    success.then_some(super::status::ERROR)
 }

@@ -1,22 +1,9 @@
 //! The `bench` command line (flag parsing and printing; may use the whole
 //! library, and is the only place that maps config keys to flag names and
 //! outcomes to exit statuses). `main` is the one place that turns outcomes
-//! into exit statuses:
-//!
-//! | status | meaning |
-//! |---|---|
-//! | 0 | success |
-//! | 1 | unexpected error (I/O after the run, internal) |
-//! | 2 | bad input: config or arguments; nothing was enabled, no recording left |
-//! | 3 | safety fault: the supervisor latched; 0 A, amplifier disabled, recording finished (`bench daemon status`: a fault is latched) |
-//! | 4 | hardware (HAL) error; 0 A, amplifier disabled, recording finished |
-//! | 130 | interrupted by SIGINT/SIGTERM; 0 A, amplifier disabled, recording finished |
-//! | 5 | `--daemon`, `bench daemon`: the daemon refused (busy, or a latched fault) |
-//! | 6 | `bench daemon`: no daemon answers at the socket (no socket, a stale one, permission denied) |
-//! | 7 | `bench recover`: data lost (a damaged chunk dropped); the recovered recording holds everything intact |
-//! | 8 | `bench control --verify`: the run completed (recording and files written), but the measured ‖S‖∞ or crossover disagrees with the prediction |
-//! | 9 | `bench fit`, `bench plot`: every file is written, but a modal fit is flagged, not to be trusted |
-//! | 141 | the command succeeded, but the reader of its standard output went away (`bench … \| head`); what it wrote to files is complete |
+//! into exit statuses, by the one table of them,
+//! [`bench::error::EXIT_STATUSES`] (`bench --help` lists it; the README's
+//! *Exit status* table and every command's `--help` are tested against it).
 //!
 //! One file per command (`chirp.rs`, `control.rs`, `emulate.rs`,
 //! `serve.rs`: its flags and its printing); this file holds the command
@@ -93,7 +80,7 @@ use std::sync::Arc;
 /// identification in a real-time loop, recorded to MCAP. Without hardware it
 /// runs the thesis' lumped model as a simulated plant.
 #[derive(Debug, Parser)]
-#[command(name = "bench", version, about, long_about = None)]
+#[command(name = "bench", version, about, long_about = None, after_help = exit_statuses_help())]
 struct Cli {
     #[command(subcommand)]
     command: Command,
@@ -181,18 +168,25 @@ enum Command {
     Man(ManArgs),
 }
 
-/// Exit statuses (see the module docs).
-pub(super) mod status {
-    pub const ERROR: u8 = 1;
-    pub const BAD_INPUT: u8 = 2;
-    pub const FAULT: u8 = 3;
-    pub const HAL: u8 = 4;
-    pub const INTERRUPTED: u8 = 130;
-    pub const DAEMON_REFUSED: u8 = 5;
-    pub const NO_DAEMON: u8 = 6;
-    pub const DATA_LOST: u8 = 7;
-    pub const VERIFY_FAILED: u8 = 8;
-    pub const FLAGGED: u8 = 9;
+/// Exit statuses: the codes of [`bench::error::EXIT_STATUSES`].
+pub(super) use bench::error::exit as status;
+
+/// `bench --help`'s list of the exit statuses, from
+/// [`bench::error::EXIT_STATUSES`].
+fn exit_statuses_help() -> String {
+    let rows: Vec<String> = bench::error::EXIT_STATUSES
+        .iter()
+        .map(|s| {
+            let who = if s.commands.is_empty() {
+                String::new()
+            } else {
+                let names: Vec<String> = s.commands.iter().map(|c| format!("bench {c}")).collect();
+                format!(" ({})", names.join(", "))
+            };
+            format!("  {:>3}  {}{who}", s.code, s.meaning)
+        })
+        .collect();
+    format!("Exit status:\n{}", rows.join("\n"))
 }
 
 /// Logging to stderr, as the Rust ecosystem does it: the filter comes from

@@ -11,18 +11,7 @@ use std::process::ExitCode;
 
 /// `bench recover` arguments.
 #[derive(Debug, Args)]
-#[command(after_help = "\
-Every chunk is checked on its own (length, lz4, CRC of its records, its log \
-times); a damaged chunk is dropped whole and every intact chunk after it is \
-kept. The summary and the `bench.recovered` metadata name what was dropped \
-(chunk index, byte offset, messages and loop time when known, reason).
-
-Exit status: 0 when everything written was recovered; the chunk cut by the \
-kill (the one being written, incomplete at the end of the file) is expected \
-and named, not a loss. 6 when data was lost: a damaged chunk, metadata \
-record or unreadable bytes were dropped (the recording is still written, \
-with everything intact). 2 for input that is no recording or an output \
-refused, 1 when writing the output failed.")]
+#[command(after_help = after_help())]
 pub struct RecoverArgs {
     /// The `.part` file a killed or failed run left (`<name>.mcap.part`).
     part: PathBuf,
@@ -36,6 +25,34 @@ pub struct RecoverArgs {
     /// Print the result as JSON on stdout.
     #[arg(long)]
     json: bool,
+}
+
+/// `bench recover --help`'s closing paragraphs: what is checked, and the
+/// exit statuses (their codes from [`status`]).
+fn after_help() -> String {
+    let exit = bench::error::exit_status_help(&[
+        (
+            status::SUCCESS,
+            "when everything written was recovered (the chunk cut by the kill, the one being \
+             written, incomplete at the end of the file, is expected and named, not a loss)",
+        ),
+        (
+            status::DATA_LOST,
+            "when data was lost: a damaged chunk, metadata record or unreadable bytes were \
+             dropped (the recording is still written, with everything intact)",
+        ),
+        (
+            status::BAD_INPUT,
+            "for input that is no recording or an output refused",
+        ),
+        (status::ERROR, "when writing the output failed"),
+    ]);
+    format!(
+        "Every chunk is checked on its own (length, lz4, CRC of its records, its log times); a \
+         damaged chunk is dropped whole and every intact chunk after it is kept. The summary \
+         and the `bench.recovered` metadata name what was dropped (chunk index, byte offset, \
+         messages and loop time when known, reason).\n\n{exit}"
+    )
 }
 
 /// The default output: `x.mcap.part` → `x.mcap`.

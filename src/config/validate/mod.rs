@@ -81,6 +81,12 @@ impl BenchConfig {
             }
             e
         })?;
+        // The model every run builds (the simulator, the loop check, the
+        // predictions), built here by the same constructor: a config is
+        // refused by this check for exactly what the runs refuse in it
+        // (a Rayleigh fit that gives a mode negative damping, matrices
+        // that are not positive definite, modes that do not converge).
+        bench_hal::model::Sr4dof::new(self.plant)?;
         let nyquist = self.loop_.rate_hz / 2.0;
         if let Some(d) = &self.plant.disturbance {
             if d.band_hz[1] >= nyquist {

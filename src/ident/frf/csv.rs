@@ -6,6 +6,32 @@ use super::*;
 /// Fewest rows of an FRF CSV.
 pub const MIN_CSV_POINTS: usize = 10;
 
+/// The frequencies an FRF line may have, Hz: from a decade below the
+/// lowest line any bench job measures (a multisine of the longest period,
+/// 600 s: 1.7 mHz; a sweep starts at 0.01 Hz at the lowest) to the
+/// Nyquist frequency of the fastest loop (`loop.rate_hz` ≤ 100 kHz). Each
+/// command then refuses lines at or above its own loop's Nyquist
+/// frequency.
+pub const FREQUENCY_RANGE_HZ: (f64, f64) = (1e-4, 5e4);
+
+/// The magnitudes an FRF line may have, m/A. Above: 10 times what any
+/// bench the config's ranges allow can measure (the widest probe range,
+/// 10 mm, over the least current a sweep plays, 0.1 mA at a profile scale
+/// of 0.001: 1e5 m/A). Below: 1e-20 m/A is 2e-19 m at the largest coil
+/// current (20 A), four decades under the finest displacement a probe
+/// resolves with the longest averaging. Within these bounds every number
+/// the fit and the design compute from the lines (|H|², the weights
+/// 1/|H|, the normal equations of the fit, a controller's gain for a
+/// crossover) stays far inside f64: at 1e196 m/A the fit's squares
+/// underflowed and its solve failed.
+pub const MAGNITUDE_RANGE_M_PER_A: (f64, f64) = (1e-20, 1e6);
+
+/// Largest |phase| of an FRF line, degrees (2778 turns): an unwrapped
+/// phase grows by less than 180° per line, and no FRF a bench measures
+/// comes near it; up to it an f64 holds the phase to 1e-10°, where
+/// beyond 1e15° it cannot even tell a degree.
+pub const MAX_ABS_PHASE_DEG: f64 = 1e6;
+
 impl Frf {
     /// Writes the CSV
     /// `frequency_hz,magnitude_m_per_a,phase_deg,coherence,sigma_m_per_a,resolution_hz`
@@ -28,9 +54,12 @@ impl Frf {
     /// `frequency_hz,magnitude_m_per_a,phase_deg,coherence,sigma_m_per_a,resolution_hz`),
     /// or the 4-column one of earlier versions ([`CSV_HEADER_4`], without
     /// the last two: σ and resolution are then NaN, unknown), checking
-    /// every field: frequencies positive, finite and ascending; magnitudes
-    /// positive and finite; phases finite; coherence in 0 … 1; σ finite and
-    /// ≥ 0; resolution finite and > 0; at least [`MIN_CSV_POINTS`] rows.
+    /// every field ([`Self::push_checked`]): frequencies in
+    /// [`FREQUENCY_RANGE_HZ`] and ascending; magnitudes in
+    /// [`MAGNITUDE_RANGE_M_PER_A`]; phases within ±[`MAX_ABS_PHASE_DEG`];
+    /// coherence in 0 … 1; σ in 0 … the largest magnitude; resolution
+    /// above 0 and at most the highest frequency; at least
+    /// [`MIN_CSV_POINTS`] rows.
     ///
     /// # Errors
     /// The reason, naming the line (1-based, the header is line 1) and the
@@ -78,7 +107,8 @@ impl Frf {
                 if j >= 4 && !v[j].is_finite() {
                     return Err(format!(
                         "line {n}: {}: {} is not finite (only the 4-column CSV leaves it unknown)",
-                        CSV_COLUMNS[j], v[j]
+                        CSV_COLUMNS[j],
+                        show(v[j])
                     ));
                 }
             }
@@ -95,18 +125,29 @@ impl Frf {
 
     /// Appends the point `[frequency_hz, magnitude_m_per_a, phase_deg,
     /// coherence, sigma_m_per_a, resolution_hz]` after checking it: the
-    /// first four finite, frequency positive and above the last one,
-    /// magnitude positive, coherence in 0 … 1; σ NaN (unknown) or finite
-    /// and ≥ 0; resolution NaN (unknown) or finite and > 0.
+    /// first four finite; frequency in [`FREQUENCY_RANGE_HZ`] and above the
+    /// last one; magnitude in [`MAGNITUDE_RANGE_M_PER_A`]; |phase| at most
+    /// [`MAX_ABS_PHASE_DEG`]; coherence in 0 … 1; σ NaN (unknown) or in 0 …
+    /// the largest magnitude; resolution NaN (unknown) or above 0 and at
+    /// most the highest frequency. The one check of every FRF read (CSV,
+    /// recording).
     ///
     /// # Errors
-    /// The reason, naming the column; nothing is appended.
+    /// The reason, naming the column and the range; nothing is appended.
     pub fn push_checked(&mut self, v: [f64; 6]) -> Result<(), String> {
         if let Some(j) = v[..4].iter().position(|x| !x.is_finite()) {
-            return Err(format!("{}: {} is not finite", CSV_COLUMNS[j], v[j]));
+            return Err(format!("{}: {} is not finite", CSV_COLUMNS[j], show(v[j])));
         }
+        let (f_lo, f_hi) = FREQUENCY_RANGE_HZ;
         if v[0] <= 0.0 {
-            return Err(format!("frequency_hz: {} is not positive", v[0]));
+            return Err(format!("frequency_hz: {} is not positive", show(v[0])));
+        }
+        if !(f_lo..=f_hi).contains(&v[0]) {
+            return Err(format!(
+                "frequency_hz: {} is outside {f_lo:e} … {f_hi:e} Hz (no bench measures a line \
+                 there; README, FRF CSV)",
+                show(v[0])
+            ));
         }
         if let Some(last) = self.frequency_hz.last().filter(|f| **f >= v[0]) {
             return Err(format!(
@@ -114,22 +155,37 @@ impl Frf {
                 v[0]
             ));
         }
+        let (m_lo, m_hi) = MAGNITUDE_RANGE_M_PER_A;
         if v[1] <= 0.0 {
-            return Err(format!("magnitude_m_per_a: {} is not positive", v[1]));
+            return Err(format!("magnitude_m_per_a: {} is not positive", show(v[1])));
         }
-        if !(0.0..=1.0).contains(&v[3]) {
-            return Err(format!("coherence: {} is outside 0 … 1", v[3]));
-        }
-        if !(v[4].is_nan() || (v[4].is_finite() && v[4] >= 0.0)) {
+        if !(m_lo..=m_hi).contains(&v[1]) {
             return Err(format!(
-                "sigma_m_per_a: {} is not a standard deviation (finite, ≥ 0)",
-                v[4]
+                "magnitude_m_per_a: {} is outside {m_lo:e} … {m_hi:e} m/A (no bench measures \
+                 a response there; README, FRF CSV)",
+                show(v[1])
             ));
         }
-        if !(v[5].is_nan() || (v[5].is_finite() && v[5] > 0.0)) {
+        if v[2].abs() > MAX_ABS_PHASE_DEG {
             return Err(format!(
-                "resolution_hz: {} is not a band width (finite, > 0)",
-                v[5]
+                "phase_deg: {} is beyond ±{MAX_ABS_PHASE_DEG:e}° (2778 turns; no FRF a bench \
+                 measures unwraps that far; README, FRF CSV)",
+                show(v[2])
+            ));
+        }
+        if !(0.0..=1.0).contains(&v[3]) {
+            return Err(format!("coherence: {} is outside 0 … 1", show(v[3])));
+        }
+        if !(v[4].is_nan() || (0.0..=m_hi).contains(&v[4])) {
+            return Err(format!(
+                "sigma_m_per_a: {} is not a standard deviation of a response (0 … {m_hi:e} m/A)",
+                show(v[4])
+            ));
+        }
+        if !(v[5].is_nan() || (v[5] > 0.0 && v[5] <= f_hi)) {
+            return Err(format!(
+                "resolution_hz: {} is not a band width (above 0, at most {f_hi:e} Hz)",
+                show(v[5])
             ));
         }
         self.frequency_hz.push(v[0]);
@@ -160,5 +216,16 @@ impl Frf {
             )?;
         }
         w.flush()
+    }
+}
+
+/// `v` in the shorter of its plain and exponent forms (`1e-300`, not 300
+/// zeros; `0.5`, not `5e-1`), as the value in an error is quoted.
+fn show(v: f64) -> String {
+    let (plain, exp) = (format!("{v}"), format!("{v:e}"));
+    if plain.len() <= exp.len() {
+        plain
+    } else {
+        exp
     }
 }

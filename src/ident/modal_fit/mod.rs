@@ -312,6 +312,21 @@ pub enum FitError {
         /// Needed.
         needed: usize,
     },
+    /// The residual terms alone (the start of every fit) have no finite
+    /// least-squares solution on the data: numbers the fit cannot compute
+    /// with (the FRF readers refuse them first:
+    /// [`crate::ident::frf::MAGNITUDE_RANGE_M_PER_A`]).
+    #[error("the FRF's numbers leave the fit no finite solution (magnitudes from {lo:e} to {hi:e} m/A, frequencies from {f_lo:e} to {f_hi:e} Hz)")]
+    NoSolution {
+        /// Smallest |H|, m/A.
+        lo: f64,
+        /// Largest |H|, m/A.
+        hi: f64,
+        /// Lowest frequency, Hz.
+        f_lo: f64,
+        /// Highest frequency, Hz.
+        f_hi: f64,
+    },
 }
 
 /// Fewest coherent points a fit needs.
@@ -321,7 +336,8 @@ pub const MIN_POINTS: usize = 20;
 ///
 /// # Errors
 /// [`FitError::TooFewPoints`] when fewer than [`MIN_POINTS`] points have
-/// γ² ≥ [`MIN_COHERENCE`].
+/// γ² ≥ [`MIN_COHERENCE`]; [`FitError::NoSolution`] when even the residual
+/// terms alone have no finite solution on the data.
 pub fn fit(data: &FrfData, path: &Path) -> Result<ModalFit, FitError> {
     let lines = independent_lines(data);
     let data: &FrfData = &lines;
@@ -338,8 +354,16 @@ pub fn fit(data: &FrfData, path: &Path) -> Result<ModalFit, FitError> {
     // The residual terms alone, the delay at the hold's half period (a
     // delay fitted without any mode would wander off to explain the
     // resonances' phase).
-    let mut current = with_linear(&prep, Vec::new(), Vec::new(), 0.5 * period_s)
-        .expect("the residual terms alone always solve");
+    let Some(mut current) = with_linear(&prep, Vec::new(), Vec::new(), 0.5 * period_s) else {
+        let mags = || data.response.iter().map(|h| h.norm());
+        let f = &data.frequency_hz;
+        return Err(FitError::NoSolution {
+            lo: mags().fold(f64::INFINITY, f64::min),
+            hi: mags().fold(0.0, f64::max),
+            f_lo: f.first().copied().unwrap_or(f64::NAN),
+            f_hi: f.last().copied().unwrap_or(f64::NAN),
+        });
+    };
     let mut cost = prep.cost(&current);
     // Peak picking: every peak at least 1 dB above its flanks at once, each
     // placed by its own grid, then all refined together (one at a time, a

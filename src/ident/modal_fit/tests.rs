@@ -152,3 +152,43 @@ fn exact_response_gives_the_model_modes() {
         );
     }
 }
+
+/// Magnitudes the fit cannot compute with (its squares underflow or
+/// overflow: issue 46's 1e200 m/A, which panicked here) end in
+/// [`FitError::NoSolution`] naming the range, never a panic; the same
+/// response at a scale the FRF readers accept fits as it does unscaled.
+#[test]
+fn magnitudes_beyond_the_fits_numbers_are_an_error_not_a_panic() {
+    let (data, _, path, _) = exact(0.08, 0.10);
+    let scaled = |k: f64| FrfData {
+        response: data.response.iter().map(|h| h * k).collect(),
+        ..data.clone()
+    };
+    for k in [1e200, 1e300, 1e-290, f64::MAX] {
+        match fit(&scaled(k), &path) {
+            Err(e @ FitError::NoSolution { .. }) => {
+                assert!(e.to_string().contains("m/A"), "{e}")
+            }
+            other => panic!("×{k:e}: {other:?}"),
+        }
+    }
+    let base = fit(&data, &path).unwrap();
+    let (lo, hi) = crate::ident::frf::MAGNITUDE_RANGE_M_PER_A;
+    // Scaled to either end of the range the readers accept.
+    let (min, max) = data
+        .response
+        .iter()
+        .fold((f64::INFINITY, 0.0_f64), |(a, b), h| {
+            (a.min(h.norm()), b.max(h.norm()))
+        });
+    for k in [hi / max, lo / min] {
+        let f = fit(&scaled(k), &path).unwrap();
+        assert_eq!(f.modes.len(), base.modes.len(), "×{k:e}");
+        for (a, b) in f.modes.iter().zip(&base.modes) {
+            assert!(
+                (a.frequency_hz / b.frequency_hz - 1.0).abs() < 1e-6,
+                "×{k:e}"
+            );
+        }
+    }
+}
