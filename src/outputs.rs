@@ -33,11 +33,18 @@
 //!    (`./a` and `a`, `d/../a`, a linked directory): [`OutputPlan::check`]
 //!    compares the canonical directory and the file name of every output,
 //!    the recording's `.part` name included, and refuses the run.
-//! 6. **Paths are checked before anything is enabled**
+//! 6. **An output never replaces an input**, even with `--overwrite`: an
+//!    output path (given, derived or a `.part` name) that is one of the
+//!    job's input files ([`OutputPlan::with_input`]: the FRFs, the
+//!    config, the recording it reads) is refused. Files are compared by
+//!    device and inode (links followed) and by canonical path, so `./X.csv`,
+//!    `d/../X.csv`, a symbolic link to it and a hard link of it are all
+//!    `X.csv`.
+//! 7. **Paths are checked before anything is enabled**
 //!    ([`OutputPlan::check`]): valid UTF-8 (summaries and recordings carry
 //!    them as JSON strings), a file name, an existing directory that can be
-//!    written, and rules 1, 2 and 5.
-//! 7. **Files are created with mode [`FILE_MODE`] (0640)**, given to the
+//!    written, and rules 1, 2, 5 and 6.
+//! 8. **Files are created with mode [`FILE_MODE`] (0640)**, given to the
 //!    open call (never a chmod afterwards, so no instant is world-readable),
 //!    and narrowed further by the umask: the owner writes, the owner's group
 //!    may read, others get nothing. This follows the daemon's socket, which
@@ -299,13 +306,38 @@ fn claim_with_stamp(
     ))
 }
 
+/// An input of the run ([`OutputPlan::with_input`]), which no output may
+/// be.
+#[derive(Debug)]
+struct Input {
+    key: &'static str,
+    path: PathBuf,
+}
+
+/// How a message names an input: its flag, or `the input` for a
+/// positional argument.
+fn input_name(key: &str) -> String {
+    match key {
+        "config" | "frf" | "measured" | "campaign" => format!("--{key}"),
+        "recording" | "part" => "the recording read".into(),
+        _ => "the input".into(),
+    }
+}
+
+/// The identity of an existing file: (device, inode), links followed.
+fn file_id(path: &Path) -> Option<(u64, u64)> {
+    use std::os::unix::fs::MetadataExt;
+    fs::metadata(path).ok().map(|m| (m.dev(), m.ino()))
+}
+
 /// The outputs of one run, checked together before anything is enabled
-/// (rules 1, 2, 5 and 6 of the [module docs](self)), and the policy their
-/// writers follow.
+/// (rules 1, 2, 5, 6 and 7 of the [module docs](self)), and the policy
+/// their writers follow.
 #[derive(Debug)]
 pub struct OutputPlan {
     existing: Existing,
     outputs: Vec<Output>,
+    inputs: Vec<Input>,
     claim: Option<Claim>,
     derived_from: &'static str,
 }
@@ -317,6 +349,7 @@ impl OutputPlan {
         Self {
             existing,
             outputs: Vec::new(),
+            inputs: Vec::new(),
             claim: None,
             derived_from: "--out",
         }
@@ -371,6 +404,72 @@ impl OutputPlan {
         self
     }
 
+    /// Adds an input of the run, named by `key` (`inputs`, `config`,
+    /// `frf`, `recording`, …): [`check`](Self::check) refuses any output
+    /// that is the same file (rule 6 of the [module docs](self)). A path
+    /// that does not exist (the built-in config's name) is no file, and
+    /// nothing can be written over it.
+    pub fn with_input(mut self, key: &'static str, path: &Path) -> Self {
+        self.add_input(key, path);
+        self
+    }
+
+    /// [`with_input`](Self::with_input) on a plan built elsewhere.
+    pub fn add_input(&mut self, key: &'static str, path: &Path) {
+        self.inputs.push(Input {
+            key,
+            path: path.to_path_buf(),
+        });
+    }
+
+    /// [`with_input`](Self::with_input) for each of `paths`.
+    pub fn with_inputs<P: AsRef<Path>>(
+        mut self,
+        key: &'static str,
+        paths: impl IntoIterator<Item = P>,
+    ) -> Self {
+        for p in paths {
+            self.add_input(key, p.as_ref());
+        }
+        self
+    }
+
+    /// Refuses `o` when it is one of the inputs (rule 6): the same device
+    /// and inode as an existing input (links followed: a symbolic or hard
+    /// link is the file), or the same canonical path.
+    fn check_not_an_input(&self, o: &Output) -> Result<(), RunError> {
+        if self.inputs.is_empty() {
+            return Ok(());
+        }
+        let out_id = file_id(&o.path);
+        let out_canonical = o.path.canonicalize().ok().or_else(|| {
+            let name = o.path.file_name()?;
+            Some(parent_dir(&o.path).canonicalize().ok()?.join(name))
+        });
+        for i in &self.inputs {
+            let same_inode = out_id.is_some() && out_id == file_id(&i.path);
+            let same_path = out_canonical.is_some() && out_canonical == i.path.canonicalize().ok();
+            if same_inode || same_path {
+                let what = match o.role {
+                    Role::Part | Role::ClaimedPart => {
+                        format!("the temporary name {} of the recording", o.path.display())
+                    }
+                    Role::File(_) => "the output".into(),
+                };
+                return Err(RunError::option(
+                    o.key,
+                    o.path.display(),
+                    format!(
+                        "{what} is the same file as {} {}; bench never writes over a file it reads, even with --overwrite",
+                        input_name(i.key),
+                        i.path.display()
+                    ),
+                ));
+            }
+        }
+        Ok(())
+    }
+
     /// What the writers do with a file that exists.
     pub fn existing(&self) -> Existing {
         self.existing
@@ -382,15 +481,20 @@ impl OutputPlan {
         self.claim.as_mut().and_then(|c| c.file.take())
     }
 
-    /// Checks every output, then every pair (rules 1, 2, 5, 6).
+    /// Checks every output against the inputs, then alone, then every
+    /// pair (rules 1, 2, 5, 6, 7).
     ///
     /// # Errors
-    /// [`RunError::BadOption`] naming the output's option and path: not
-    /// UTF-8; no file name; directory missing, not a directory or not
-    /// writable; an existing symlink or non-regular file; an existing file
-    /// without [`Existing::Replace`]; the same file as another output (the
-    /// reason names it).
+    /// [`RunError::BadOption`] naming the output's option and path: the
+    /// same file as an input (the reason names it; with or without
+    /// `--overwrite`); not UTF-8; no file name; directory missing, not a
+    /// directory or not writable; an existing symlink or non-regular file;
+    /// an existing file without [`Existing::Replace`]; the same file as
+    /// another output (the reason names it).
     pub fn check(&self) -> Result<(), RunError> {
+        for o in &self.outputs {
+            self.check_not_an_input(o)?;
+        }
         let mut seen: Vec<(&Output, (PathBuf, OsString))> = Vec::with_capacity(self.outputs.len());
         for o in &self.outputs {
             let id = self.check_one(o)?;

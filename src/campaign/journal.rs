@@ -110,6 +110,14 @@ pub enum JournalError {
         /// The OS error.
         source: io::Error,
     },
+    /// The journal is not a regular file, or larger than
+    /// [`Kind::CampaignState`](crate::input_file::Kind::CampaignState)'s
+    /// limit ([`crate::input_file`]).
+    #[error("journal {}: {}", source.path.display(), source.reason())]
+    Refused {
+        /// Why.
+        source: crate::input_file::InputError,
+    },
     /// The journal has no valid header line.
     #[error("journal {}: {reason}", path.display())]
     NotAJournal {
@@ -245,10 +253,16 @@ pub fn parse(bytes: &[u8]) -> ReadJournal {
 /// [`JournalError::Io`] if it cannot be read, [`JournalError::NotAJournal`]
 /// if its valid prefix does not start with a header.
 pub fn read(dir: &Path) -> Result<ReadJournal, JournalError> {
+    use crate::input_file::{Kind, Problem};
     let path = dir.join(JOURNAL_FILE);
-    let bytes = std::fs::read(&path).map_err(|source| JournalError::Io {
-        path: path.clone(),
-        source,
+    let bytes = crate::input_file::read(&path, Kind::CampaignState, "dir").map_err(|e| match e
+        .problem
+    {
+        Problem::Open(source) | Problem::Read(source) => JournalError::Io {
+            path: path.clone(),
+            source,
+        },
+        _ => JournalError::Refused { source: e },
     })?;
     let j = parse(&bytes);
     if j.header().is_none() {

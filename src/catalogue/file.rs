@@ -157,7 +157,17 @@ pub type ReadRow = BTreeMap<String, Value>;
 /// # Errors
 /// The I/O or Parquet error, as [`io::Error`].
 pub fn read_rows(path: &Path) -> io::Result<Vec<ReadRow>> {
-    let reader = SerializedFileReader::new(std::fs::File::open(path)?).map_err(pq)?;
+    // A regular file within a catalogue row's limit (crate::input_file):
+    // never a FIFO waited on.
+    let file = crate::input_file::open(path, crate::input_file::Kind::CatalogueRow, "recordings")
+        .map_err(|e| match e.problem {
+            crate::input_file::Problem::Open(source) | crate::input_file::Problem::Read(source) => {
+                source
+            }
+            _ => io::Error::new(io::ErrorKind::InvalidInput, e.reason()),
+        })?
+        .into_file();
+    let reader = SerializedFileReader::new(file).map_err(pq)?;
     let types: BTreeMap<&str, ColumnType> =
         COLUMNS.iter().map(|c| (c.name, c.column_type)).collect();
     let mut out = Vec::new();

@@ -475,6 +475,12 @@ pub fn run_catalogue(opts: &CatalogueOptions) -> Result<CatalogueSummary, RunErr
     let started = Instant::now();
     check_options(opts)?;
     let sources = sources_in(&opts.recordings)?;
+    // Never written over a row it reads (rule 6 of crate::outputs; the
+    // recordings end in .mcap, `out` in .parquet).
+    OutputPlan::new(opts.existing)
+        .with_output("out", &opts.out, opts.out_origin)
+        .with_inputs("recordings", &sources.campaign_rows)
+        .check()?;
     let recordings = &sources.recordings;
     let read: Vec<Result<CatalogueRow, CatalogueError>> = {
         use rayon::prelude::*;

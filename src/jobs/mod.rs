@@ -24,7 +24,7 @@
 //!
 //! May use everything below it; never the CLI, the daemon or a campaign.
 //!
-//! Layer rule: may use `analysis`, `catalogue`, `config`, `control`, `design`, `error`, `ident`, `outputs`, `plot`, `record`, `rt`, `vocab`.
+//! Layer rule: may use `analysis`, `catalogue`, `config`, `control`, `design`, `error`, `ident`, `input_file`, `outputs`, `plot`, `record`, `rt`, `vocab`.
 
 pub mod analyze;
 pub mod catalogue;

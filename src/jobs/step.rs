@@ -457,6 +457,11 @@ fn run_control_with(
         );
     }
     let step = &cfg.step;
+    // No output may be a file the run reads (rule 6 of crate::outputs).
+    outputs.add_input("config", &opts.config_path);
+    if let Some(frf) = &opts.frf {
+        outputs.add_input("frf", frf);
+    }
     outputs.check()?;
     let mut opened;
     let opened_info;
