@@ -196,6 +196,16 @@ impl InputError {
     pub fn is_open_error(&self) -> bool {
         matches!(self.problem, Problem::Open(_))
     }
+
+    /// As an [`io::Error`], for readers whose errors are I/O errors: the
+    /// OS's error as it was, a refusal as [`io::ErrorKind::InvalidInput`]
+    /// with [`reason`](Self::reason) as its text.
+    pub fn into_io(self) -> io::Error {
+        match self.problem {
+            Problem::Open(e) | Problem::Read(e) => e,
+            _ => io::Error::new(io::ErrorKind::InvalidInput, self.reason()),
+        }
+    }
 }
 
 /// A file type in words (`a FIFO`), `None` for a regular file.

@@ -138,12 +138,20 @@ pub fn sha256_hex(bytes: &[u8]) -> String {
     s
 }
 
-/// SHA-256 and size of a file, streamed.
+/// SHA-256 and size of a file, streamed: a cell's file, opened as every
+/// input is ([`crate::input_file`]: a regular file, never a FIFO waited on
+/// or a device read forever, of at most a recording's limit, the largest
+/// file a cell holds).
 ///
 /// # Errors
-/// The OS error of opening or reading it.
+/// The OS error of opening or reading it; a refusal as
+/// [`io::ErrorKind::InvalidInput`].
 pub fn file_sum(dir: &Path, relative: &str) -> io::Result<FileSum> {
-    let mut f = File::open(dir.join(relative))?;
+    use crate::input_file::{open, InputError, Kind};
+    let mut f = open(&dir.join(relative), Kind::Recording, "dir")
+        .map_err(InputError::into_io)?
+        .into_file()
+        .take(Kind::Recording.limit_bytes());
     let mut h = Sha256::new();
     let mut buf = vec![0u8; 1 << 16];
     let mut bytes = 0u64;

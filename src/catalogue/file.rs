@@ -160,12 +160,7 @@ pub fn read_rows(path: &Path) -> io::Result<Vec<ReadRow>> {
     // A regular file within a catalogue row's limit (crate::input_file):
     // never a FIFO waited on.
     let file = crate::input_file::open(path, crate::input_file::Kind::CatalogueRow, "recordings")
-        .map_err(|e| match e.problem {
-            crate::input_file::Problem::Open(source) | crate::input_file::Problem::Read(source) => {
-                source
-            }
-            _ => io::Error::new(io::ErrorKind::InvalidInput, e.reason()),
-        })?
+        .map_err(crate::input_file::InputError::into_io)?
         .into_file();
     let reader = SerializedFileReader::new(file).map_err(pq)?;
     let types: BTreeMap<&str, ColumnType> =
