@@ -37,9 +37,9 @@
 //!    output path (given, derived or a `.part` name) that is one of the
 //!    job's input files ([`OutputPlan::with_input`]: the FRFs, the
 //!    config, the recording it reads) is refused. Files are compared by
-//!    device and inode (links followed) and by canonical path, so `./X.csv`,
-//!    `d/../X.csv`, a symbolic link to it and a hard link of it are all
-//!    `X.csv`.
+//!    device and inode, links followed (by canonical path for an input
+//!    that cannot be looked at), so `./X.csv`, `d/../X.csv`, a symbolic
+//!    link to it and a hard link of it are all `X.csv`.
 //! 7. **Paths are checked before anything is enabled**
 //!    ([`OutputPlan::check`]): valid UTF-8 (summaries and recordings carry
 //!    them as JSON strings), a file name, an existing directory that can be
@@ -319,7 +319,7 @@ struct Input {
 fn input_name(key: &str) -> String {
     match key {
         "config" | "frf" | "measured" | "campaign" => format!("--{key}"),
-        "recording" | "part" => "the recording read".into(),
+        "recording" | "recordings" | "part" => "the recording".into(),
         _ => "the input".into(),
     }
 }
@@ -436,20 +436,37 @@ impl OutputPlan {
 
     /// Refuses `o` when it is one of the inputs (rule 6): the same device
     /// and inode as an existing input (links followed: a symbolic or hard
-    /// link is the file), or the same canonical path.
+    /// link is the file); for an input that cannot be looked at, the same
+    /// canonical path. One `stat` per input: a catalogue's thousands of
+    /// recordings cost milliseconds.
     fn check_not_an_input(&self, o: &Output) -> Result<(), RunError> {
         if self.inputs.is_empty() {
             return Ok(());
         }
         let out_id = file_id(&o.path);
-        let out_canonical = o.path.canonicalize().ok().or_else(|| {
-            let name = o.path.file_name()?;
-            Some(parent_dir(&o.path).canonicalize().ok()?.join(name))
-        });
+        let out_canonical = std::cell::OnceCell::new();
+        let out_canonical = || {
+            out_canonical
+                .get_or_init(|| {
+                    o.path.canonicalize().ok().or_else(|| {
+                        let name = o.path.file_name()?;
+                        Some(parent_dir(&o.path).canonicalize().ok()?.join(name))
+                    })
+                })
+                .clone()
+        };
         for i in &self.inputs {
-            let same_inode = out_id.is_some() && out_id == file_id(&i.path);
-            let same_path = out_canonical.is_some() && out_canonical == i.path.canonicalize().ok();
-            if same_inode || same_path {
+            let in_id = file_id(&i.path);
+            let same = match (out_id, in_id) {
+                // Two files that exist: one file when one inode.
+                (Some(a), Some(b)) => a == b,
+                // A new output is no input that exists.
+                (None, Some(_)) => false,
+                // An input that could not be looked at: by the canonical
+                // path.
+                (_, None) => out_canonical().is_some_and(|c| Some(c) == i.path.canonicalize().ok()),
+            };
+            if same {
                 let what = match o.role {
                     Role::Part | Role::ClaimedPart => {
                         format!("the temporary name {} of the recording", o.path.display())
@@ -1053,5 +1070,64 @@ mod tests {
             }
             prop_assert_eq!(names(dir.path()), ["link", "sub"]);
         }
+    }
+
+    /// Rule 6: every spelling of an input, a symbolic link to it and a
+    /// hard link of it are refused as any output, even with
+    /// `--overwrite`; another file is not, nor is an input that does not
+    /// exist (the built-in config's name).
+    #[test]
+    fn no_spelling_or_link_of_an_input_is_an_output() {
+        let dir = tempfile::tempdir().unwrap();
+        fs::create_dir(dir.path().join("sub")).unwrap();
+        std::os::unix::fs::symlink("sub", dir.path().join("link")).unwrap();
+        let input = dir.path().join("sub/x.csv");
+        fs::write(&input, b"measured").unwrap();
+        std::os::unix::fs::symlink(&input, dir.path().join("sym.csv")).unwrap();
+        fs::hard_link(&input, dir.path().join("hard.csv")).unwrap();
+        let mut outs: Vec<PathBuf> = (0..12)
+            .map(|how| spelling(dir.path(), "x.csv", how))
+            .collect();
+        outs.push(dir.path().join("sym.csv"));
+        outs.push(dir.path().join("hard.csv"));
+        for out in &outs {
+            for key in ["out", "png", "frf_csv"] {
+                for existing in [Existing::Refuse, Existing::Replace] {
+                    let plan = OutputPlan::new(existing)
+                        .with_output(key, out, Origin::Given)
+                        .with_input("inputs", &spelling(dir.path(), "x.csv", 3))
+                        .with_input("config", Path::new("(built-in)"));
+                    let msg = err_text(plan.check());
+                    assert!(
+                        msg.starts_with(&format!("{key} {}", out.display())),
+                        "{msg}"
+                    );
+                    assert!(
+                        msg.contains("the output is the same file as the input")
+                            && msg.contains("even with --overwrite"),
+                        "{msg}"
+                    );
+                }
+            }
+            // Another output, whichever spelling names the input.
+            let plan = OutputPlan::new(Existing::Replace)
+                .with_output("out", &dir.path().join("other.csv"), Origin::Given)
+                .with_input("config", out);
+            assert!(plan.check().is_ok(), "{out:?}");
+        }
+        let part_input = dir.path().join("sub/r.mcap.part");
+        fs::write(&part_input, b"killed run").unwrap();
+        let msg = err_text(
+            OutputPlan::new(Existing::Replace)
+                .with_recording(&dir.path().join("link/r.mcap"), Origin::Given)
+                .with_input("part", &part_input)
+                .check(),
+        );
+        assert!(
+            msg.contains("temporary name") && msg.contains("same file as the recording"),
+            "{msg}"
+        );
+        assert_eq!(fs::read(&input).unwrap(), b"measured");
+        assert_eq!(fs::read(&part_input).unwrap(), b"killed run");
     }
 }
