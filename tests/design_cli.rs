@@ -528,10 +528,28 @@ fn an_over_long_frf_is_refused_at_once() {
 /// read until the daemon was OOM-killed, and a FIFO held its only job slot.
 /// Both, and a FIFO or /dev/zero as `config`, are answered at once with
 /// `bad_params` naming the field, the file and what it is; the daemon
-/// stays at 0 A between jobs and serves the next request.
+/// stays at 0 A between jobs and serves the next request. The daemon's
+/// data is limited to 1 GiB (`RLIMIT_DATA`) and the client waits at most
+/// 5 s for an answer, so a daemon that reads /dev/zero fails the test
+/// without taking the machine's memory.
 #[test]
 fn the_daemon_refuses_a_device_or_a_fifo_as_a_design_input_and_keeps_serving() {
-    let d = Daemon::start();
+    use std::os::unix::process::CommandExt;
+    let d = Daemon::start_adjusted(&[], "", |cmd| {
+        // SAFETY: only setrlimit between fork and exec.
+        unsafe {
+            cmd.pre_exec(|| {
+                let lim = libc::rlimit {
+                    rlim_cur: 1 << 30,
+                    rlim_max: 1 << 30,
+                };
+                if libc::setrlimit(libc::RLIMIT_DATA, &lim) != 0 {
+                    return Err(std::io::Error::last_os_error());
+                }
+                Ok(())
+            });
+        }
+    });
     let dir = d.dir.path();
     let fifo = dir.join("fifo.csv");
     let c = std::ffi::CString::new(fifo.display().to_string()).unwrap();
@@ -541,6 +559,8 @@ fn the_daemon_refuses_a_device_or_a_fifo_as_a_design_input_and_keeps_serving() {
     let fifo = fifo.display().to_string();
     let csv = csv.display().to_string();
     let mut c = d.client();
+    c.w.set_read_timeout(Some(std::time::Duration::from_secs(5)))
+        .unwrap();
     for (params, field, file, what) in [
         (
             serde_json::json!({ "inputs": ["/dev/zero"] }),
