@@ -61,7 +61,7 @@ impl AnalyzeRequest {
             Some(p) => BenchConfig::load(p),
             None => BenchConfig::builtin(),
         }
-        .map_err(|e| RunError::BadInput(e.to_string()))?;
+        .map_err(super::config_error)?;
         let point = self.point;
         point.check().map_err(field_error)?;
         let mut p = cfg.plant;

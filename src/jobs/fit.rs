@@ -282,7 +282,7 @@ fn load_config(path: Option<&Path>) -> Result<BenchConfig, RunError> {
         Some(p) => BenchConfig::load(p),
         None => BenchConfig::builtin(),
     }
-    .map_err(|e| RunError::BadInput(e.to_string()))
+    .map_err(super::config_error)
 }
 
 /// The `free` list, or `default`.

@@ -362,7 +362,7 @@ impl MapRequest {
                 crate::config::BUILTIN_CONFIG_NAME.to_string(),
             ),
         };
-        let p = cfg.map_err(|e| RunError::BadInput(e.to_string()))?.plant;
+        let p = cfg.map_err(super::config_error)?.plant;
         let (ops, dms) = self.grid(&p)?;
         self.check_combinations()?;
         for (op, dm) in [

@@ -315,10 +315,8 @@ fn given_config(path: &Path) -> Result<(BenchConfig, String), RunError> {
     BenchConfig::load(path)
         .map(|c| (c, path.display().to_string()))
         .map_err(|e| match e {
-            // Already `--config PATH: why` (crate::input_file's refusal).
-            e @ crate::config::ConfigError::NotAConfigFile { .. } => {
-                RunError::BadInput(e.to_string())
-            }
+            // Refused as an input (crate::input_file): `config PATH: why`.
+            e @ crate::config::ConfigError::NotAConfigFile { .. } => super::config_error(e),
             e => RunError::option("config", path.display(), e.to_string()),
         })
 }
