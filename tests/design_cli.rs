@@ -526,14 +526,16 @@ fn an_over_long_frf_is_refused_at_once() {
 
 /// Issue 46, items 2–4: `{"cmd":"design","params":{"inputs":["/dev/zero"]}}`
 /// read until the daemon was OOM-killed, and a FIFO held its only job slot.
-/// Both, and a FIFO or /dev/zero as `config`, are answered at once with
-/// `bad_params` naming the field, the file and what it is; the daemon
+/// Both, a FIFO or /dev/zero as `config`, and as the files of the other
+/// jobs that read one (`fit`, `plot`, `analyze`, `map`, `campaign`), are
+/// answered at once with `bad_params` naming the field, the file and what
+/// it is; the daemon
 /// stays at 0 A between jobs and serves the next request. The daemon's
 /// data is limited to 1 GiB (`RLIMIT_DATA`) and the client waits at most
 /// 5 s for an answer, so a daemon that reads /dev/zero fails the test
 /// without taking the machine's memory.
 #[test]
-fn the_daemon_refuses_a_device_or_a_fifo_as_a_design_input_and_keeps_serving() {
+fn the_daemon_refuses_a_device_or_a_fifo_as_any_file_and_keeps_serving() {
     use std::os::unix::process::CommandExt;
     let d = Daemon::start_adjusted(&[], "", |cmd| {
         // SAFETY: only setrlimit between fork and exec.
@@ -561,46 +563,112 @@ fn the_daemon_refuses_a_device_or_a_fifo_as_a_design_input_and_keeps_serving() {
     let mut c = d.client();
     c.w.set_read_timeout(Some(std::time::Duration::from_secs(5)))
         .unwrap();
-    for (params, field, file, what) in [
+    use serde_json::json;
+    let zero = "/dev/zero";
+    // (job, its parameters, the field named, the file, what it is)
+    let cases = [
         (
-            serde_json::json!({ "inputs": ["/dev/zero"] }),
+            "design",
+            json!({ "inputs": [zero] }),
             "inputs",
-            "/dev/zero",
+            zero,
             "a character device",
         ),
         (
-            serde_json::json!({ "inputs": [fifo] }),
+            "design",
+            json!({ "inputs": [fifo] }),
             "inputs",
             fifo.as_str(),
             "a FIFO",
         ),
         (
-            serde_json::json!({ "inputs": [csv], "config": "/dev/zero" }),
+            "design",
+            json!({ "inputs": [csv], "config": zero }),
             "config",
-            "/dev/zero",
+            zero,
             "a character device",
         ),
         (
-            serde_json::json!({ "inputs": [csv], "config": fifo }),
+            "design",
+            json!({ "inputs": [csv], "config": fifo }),
             "config",
             fifo.as_str(),
             "a FIFO",
         ),
-    ] {
+        // The other jobs that read a named file.
+        (
+            "fit",
+            json!({ "input": fifo }),
+            "input",
+            fifo.as_str(),
+            "a FIFO",
+        ),
+        (
+            "fit",
+            json!({ "input": csv, "config": zero }),
+            "config",
+            zero,
+            "a character device",
+        ),
+        (
+            "plot",
+            json!({ "kind": "bode", "inputs": [zero] }),
+            "inputs",
+            zero,
+            "a character device",
+        ),
+        (
+            "plot",
+            json!({ "kind": "bode", "inputs": [csv], "config": fifo }),
+            "config",
+            fifo.as_str(),
+            "a FIFO",
+        ),
+        (
+            "analyze",
+            json!({ "config": fifo }),
+            "config",
+            fifo.as_str(),
+            "a FIFO",
+        ),
+        (
+            "map",
+            json!({ "config": zero }),
+            "config",
+            zero,
+            "a character device",
+        ),
+        (
+            "map",
+            json!({ "measured": fifo }),
+            "measured",
+            fifo.as_str(),
+            "a FIFO",
+        ),
+        (
+            "campaign",
+            json!({ "file": zero }),
+            "file",
+            zero,
+            "a character device",
+        ),
+    ];
+    for (job, params, field, file, what) in cases {
         let t0 = std::time::Instant::now();
-        let r = c.call("design", params.clone());
+        let r = c.call(job, params.clone());
         assert!(
             t0.elapsed() < std::time::Duration::from_secs(1),
             "{params}: {:?}",
             t0.elapsed()
         );
-        assert_eq!(r["error"]["kind"], "bad_params", "{params}: {r}");
+        assert_eq!(r["error"]["kind"], "bad_params", "{job} {params}: {r}");
         let msg = r["error"]["message"].as_str().unwrap();
+        // `params.FIELD PATH: why` (a campaign: `params.file: campaign
+        // file PATH: why`).
         assert!(
-            msg.contains(&format!(
-                "params.{field} {file}: not a regular file ({what})"
-            )),
-            "{params}: {msg}"
+            msg.starts_with(&format!("params.{field}"))
+                && msg.contains(&format!("{file}: not a regular file ({what})")),
+            "{job} {params}: {msg}"
         );
         let s = c.call("status", serde_json::json!({}))["result"].clone();
         assert_eq!(s["state"], "disabled", "{s}");
