@@ -2,7 +2,7 @@
 //! every job, mapped to exit statuses by the CLI and to error kinds by the
 //! daemon; and the table of those exit statuses ([`EXIT_STATUSES`]).
 //!
-//! Layer rule: may use nothing of the crate.
+//! Layer rule: may use `input_file`.
 
 use std::io;
 use std::path::PathBuf;
@@ -315,6 +315,15 @@ impl RunError {
             subject: subject.to_string(),
             reason: reason.into(),
         }
+    }
+}
+
+impl From<crate::input_file::InputError> for RunError {
+    /// An input file refused ([`crate::input_file`]): a
+    /// [`RunError::BadOption`] naming its argument, the file and the
+    /// reason (exit 2).
+    fn from(e: crate::input_file::InputError) -> Self {
+        Self::option(e.key, e.path.display(), e.reason())
     }
 }
 

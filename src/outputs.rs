@@ -33,11 +33,18 @@
 //!    (`./a` and `a`, `d/../a`, a linked directory): [`OutputPlan::check`]
 //!    compares the canonical directory and the file name of every output,
 //!    the recording's `.part` name included, and refuses the run.
-//! 6. **Paths are checked before anything is enabled**
+//! 6. **An output never replaces an input**, even with `--overwrite`: an
+//!    output path (given, derived or a `.part` name) that is one of the
+//!    job's input files ([`OutputPlan::with_input`]: the FRFs, the
+//!    config, the recording it reads) is refused. Files are compared by
+//!    device and inode, links followed (by canonical path for an input
+//!    that cannot be looked at), so `./X.csv`, `d/../X.csv`, a symbolic
+//!    link to it and a hard link of it are all `X.csv`.
+//! 7. **Paths are checked before anything is enabled**
 //!    ([`OutputPlan::check`]): valid UTF-8 (summaries and recordings carry
 //!    them as JSON strings), a file name, an existing directory that can be
-//!    written, and rules 1, 2 and 5.
-//! 7. **Files are created with mode [`FILE_MODE`] (0640)**, given to the
+//!    written, and rules 1, 2, 5 and 6.
+//! 8. **Files are created with mode [`FILE_MODE`] (0640)**, given to the
 //!    open call (never a chmod afterwards, so no instant is world-readable),
 //!    and narrowed further by the umask: the owner writes, the owner's group
 //!    may read, others get nothing. This follows the daemon's socket, which
@@ -299,13 +306,38 @@ fn claim_with_stamp(
     ))
 }
 
+/// An input of the run ([`OutputPlan::with_input`]), which no output may
+/// be.
+#[derive(Debug)]
+struct Input {
+    key: &'static str,
+    path: PathBuf,
+}
+
+/// How a message names an input: its flag, or `the input` for a
+/// positional argument.
+fn input_name(key: &str) -> String {
+    match key {
+        "config" | "frf" | "measured" | "campaign" => format!("--{key}"),
+        "recording" | "recordings" | "part" => "the recording".into(),
+        _ => "the input".into(),
+    }
+}
+
+/// The identity of an existing file: (device, inode), links followed.
+fn file_id(path: &Path) -> Option<(u64, u64)> {
+    use std::os::unix::fs::MetadataExt;
+    fs::metadata(path).ok().map(|m| (m.dev(), m.ino()))
+}
+
 /// The outputs of one run, checked together before anything is enabled
-/// (rules 1, 2, 5 and 6 of the [module docs](self)), and the policy their
-/// writers follow.
+/// (rules 1, 2, 5, 6 and 7 of the [module docs](self)), and the policy
+/// their writers follow.
 #[derive(Debug)]
 pub struct OutputPlan {
     existing: Existing,
     outputs: Vec<Output>,
+    inputs: Vec<Input>,
     claim: Option<Claim>,
     derived_from: &'static str,
 }
@@ -317,6 +349,7 @@ impl OutputPlan {
         Self {
             existing,
             outputs: Vec::new(),
+            inputs: Vec::new(),
             claim: None,
             derived_from: "--out",
         }
@@ -371,6 +404,89 @@ impl OutputPlan {
         self
     }
 
+    /// Adds an input of the run, named by `key` (`inputs`, `config`,
+    /// `frf`, `recording`, …): [`check`](Self::check) refuses any output
+    /// that is the same file (rule 6 of the [module docs](self)). A path
+    /// that does not exist (the built-in config's name) is no file, and
+    /// nothing can be written over it.
+    pub fn with_input(mut self, key: &'static str, path: &Path) -> Self {
+        self.add_input(key, path);
+        self
+    }
+
+    /// [`with_input`](Self::with_input) on a plan built elsewhere.
+    pub fn add_input(&mut self, key: &'static str, path: &Path) {
+        self.inputs.push(Input {
+            key,
+            path: path.to_path_buf(),
+        });
+    }
+
+    /// [`with_input`](Self::with_input) for each of `paths`.
+    pub fn with_inputs<P: AsRef<Path>>(
+        mut self,
+        key: &'static str,
+        paths: impl IntoIterator<Item = P>,
+    ) -> Self {
+        for p in paths {
+            self.add_input(key, p.as_ref());
+        }
+        self
+    }
+
+    /// Refuses `o` when it is one of the inputs (rule 6): the same device
+    /// and inode as an existing input (links followed: a symbolic or hard
+    /// link is the file); for an input that cannot be looked at, the same
+    /// canonical path. One `stat` per input: a catalogue's thousands of
+    /// recordings cost milliseconds.
+    fn check_not_an_input(&self, o: &Output) -> Result<(), RunError> {
+        if self.inputs.is_empty() {
+            return Ok(());
+        }
+        let out_id = file_id(&o.path);
+        let out_canonical = std::cell::OnceCell::new();
+        let out_canonical = || {
+            out_canonical
+                .get_or_init(|| {
+                    o.path.canonicalize().ok().or_else(|| {
+                        let name = o.path.file_name()?;
+                        Some(parent_dir(&o.path).canonicalize().ok()?.join(name))
+                    })
+                })
+                .clone()
+        };
+        for i in &self.inputs {
+            let in_id = file_id(&i.path);
+            let same = match (out_id, in_id) {
+                // Two files that exist: one file when one inode.
+                (Some(a), Some(b)) => a == b,
+                // A new output is no input that exists.
+                (None, Some(_)) => false,
+                // An input that could not be looked at: by the canonical
+                // path.
+                (_, None) => out_canonical().is_some_and(|c| Some(c) == i.path.canonicalize().ok()),
+            };
+            if same {
+                let what = match o.role {
+                    Role::Part | Role::ClaimedPart => {
+                        format!("the temporary name {} of the recording", o.path.display())
+                    }
+                    Role::File(_) => "the output".into(),
+                };
+                return Err(RunError::option(
+                    o.key,
+                    o.path.display(),
+                    format!(
+                        "{what} is the same file as {} {}; bench never writes over a file it reads, even with --overwrite",
+                        input_name(i.key),
+                        i.path.display()
+                    ),
+                ));
+            }
+        }
+        Ok(())
+    }
+
     /// What the writers do with a file that exists.
     pub fn existing(&self) -> Existing {
         self.existing
@@ -382,15 +498,20 @@ impl OutputPlan {
         self.claim.as_mut().and_then(|c| c.file.take())
     }
 
-    /// Checks every output, then every pair (rules 1, 2, 5, 6).
+    /// Checks every output against the inputs, then alone, then every
+    /// pair (rules 1, 2, 5, 6, 7).
     ///
     /// # Errors
-    /// [`RunError::BadOption`] naming the output's option and path: not
-    /// UTF-8; no file name; directory missing, not a directory or not
-    /// writable; an existing symlink or non-regular file; an existing file
-    /// without [`Existing::Replace`]; the same file as another output (the
-    /// reason names it).
+    /// [`RunError::BadOption`] naming the output's option and path: the
+    /// same file as an input (the reason names it; with or without
+    /// `--overwrite`); not UTF-8; no file name; directory missing, not a
+    /// directory or not writable; an existing symlink or non-regular file;
+    /// an existing file without [`Existing::Replace`]; the same file as
+    /// another output (the reason names it).
     pub fn check(&self) -> Result<(), RunError> {
+        for o in &self.outputs {
+            self.check_not_an_input(o)?;
+        }
         let mut seen: Vec<(&Output, (PathBuf, OsString))> = Vec::with_capacity(self.outputs.len());
         for o in &self.outputs {
             let id = self.check_one(o)?;
@@ -949,5 +1070,64 @@ mod tests {
             }
             prop_assert_eq!(names(dir.path()), ["link", "sub"]);
         }
+    }
+
+    /// Rule 6: every spelling of an input, a symbolic link to it and a
+    /// hard link of it are refused as any output, even with
+    /// `--overwrite`; another file is not, nor is an input that does not
+    /// exist (the built-in config's name).
+    #[test]
+    fn no_spelling_or_link_of_an_input_is_an_output() {
+        let dir = tempfile::tempdir().unwrap();
+        fs::create_dir(dir.path().join("sub")).unwrap();
+        std::os::unix::fs::symlink("sub", dir.path().join("link")).unwrap();
+        let input = dir.path().join("sub/x.csv");
+        fs::write(&input, b"measured").unwrap();
+        std::os::unix::fs::symlink(&input, dir.path().join("sym.csv")).unwrap();
+        fs::hard_link(&input, dir.path().join("hard.csv")).unwrap();
+        let mut outs: Vec<PathBuf> = (0..12)
+            .map(|how| spelling(dir.path(), "x.csv", how))
+            .collect();
+        outs.push(dir.path().join("sym.csv"));
+        outs.push(dir.path().join("hard.csv"));
+        for out in &outs {
+            for key in ["out", "png", "frf_csv"] {
+                for existing in [Existing::Refuse, Existing::Replace] {
+                    let plan = OutputPlan::new(existing)
+                        .with_output(key, out, Origin::Given)
+                        .with_input("inputs", &spelling(dir.path(), "x.csv", 3))
+                        .with_input("config", Path::new("(built-in)"));
+                    let msg = err_text(plan.check());
+                    assert!(
+                        msg.starts_with(&format!("{key} {}", out.display())),
+                        "{msg}"
+                    );
+                    assert!(
+                        msg.contains("the output is the same file as the input")
+                            && msg.contains("even with --overwrite"),
+                        "{msg}"
+                    );
+                }
+            }
+            // Another output, whichever spelling names the input.
+            let plan = OutputPlan::new(Existing::Replace)
+                .with_output("out", &dir.path().join("other.csv"), Origin::Given)
+                .with_input("config", out);
+            assert!(plan.check().is_ok(), "{out:?}");
+        }
+        let part_input = dir.path().join("sub/r.mcap.part");
+        fs::write(&part_input, b"killed run").unwrap();
+        let msg = err_text(
+            OutputPlan::new(Existing::Replace)
+                .with_recording(&dir.path().join("link/r.mcap"), Origin::Given)
+                .with_input("part", &part_input)
+                .check(),
+        );
+        assert!(
+            msg.contains("temporary name") && msg.contains("same file as the recording"),
+            "{msg}"
+        );
+        assert_eq!(fs::read(&input).unwrap(), b"measured");
+        assert_eq!(fs::read(&part_input).unwrap(), b"killed run");
     }
 }

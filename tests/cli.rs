@@ -711,3 +711,179 @@ fn exit_statuses_follow_the_one_table() {
         );
     }
 }
+
+/// A FIFO at `path` (opening it for reading would wait for a writer).
+fn mkfifo(path: &Path) {
+    let c = std::ffi::CString::new(path.display().to_string()).unwrap();
+    // SAFETY: a valid C string; mkfifo has no other precondition.
+    assert_eq!(unsafe { libc::mkfifo(c.as_ptr(), 0o600) }, 0);
+}
+
+/// Issue 46, items 3 and 4: every file argument of every command (the
+/// seven the audit found read unbounded and hanging on a FIFO: `design`
+/// inputs and `--config`, `fit`, `plot`, `campaign run`, `control --frf`
+/// and `export`; and the others) given a FIFO with no writer or
+/// `/dev/zero` is refused within 1 s, exit 2, the message naming the flag
+/// (a positional argument: its value), the file and what it is, and
+/// nothing is written.
+#[test]
+fn a_fifo_or_a_device_as_any_file_argument_is_refused_at_once() {
+    let dir = tmp();
+    let d = dir.path();
+    small_frf_csv(d, "X.csv");
+    // Each as a FIFO, and as a link to /dev/zero of the same name (the
+    // name says what is read: `.mcap` a recording).
+    for ext in ["csv", "mcap", "toml", "mcap.part"] {
+        mkfifo(&d.join(format!("fifo.{ext}")));
+        std::os::unix::fs::symlink("/dev/zero", d.join(format!("zero.{ext}"))).unwrap();
+    }
+    // (arguments with {F} for the file, the flag named, the FIFO's name,
+    // what is read)
+    let cases: &[(&str, &str, &str, &str)] = &[
+        ("design {F}", "", "fifo.csv", "FRF CSVs"),
+        ("design {F}", "", "fifo.mcap", "recordings"),
+        (
+            "design X.csv --config {F}",
+            "--config",
+            "fifo.toml",
+            "configs",
+        ),
+        ("fit {F}", "", "fifo.csv", "FRF CSVs"),
+        ("fit {F}", "", "fifo.mcap", "recordings"),
+        ("fit X.csv --config {F}", "--config", "fifo.toml", "configs"),
+        ("plot bode {F}", "", "fifo.csv", "FRF CSVs"),
+        (
+            "plot nyquist X.csv --config {F}",
+            "--config",
+            "fifo.toml",
+            "configs",
+        ),
+        (
+            "campaign run {F}",
+            "campaign file",
+            "fifo.toml",
+            "campaign files",
+        ),
+        (
+            "control --slow --check-only --frf {F}",
+            "--frf",
+            "fifo.csv",
+            "FRF CSVs",
+        ),
+        (
+            "control --slow --check-only --config {F}",
+            "--config",
+            "fifo.toml",
+            "configs",
+        ),
+        ("chirp --config {F}", "--config", "fifo.toml", "configs"),
+        ("export {F} --to csv", "", "fifo.mcap", "recordings"),
+        (
+            "export {F} --to csv --topic /sysid/frf",
+            "",
+            "fifo.mcap",
+            "recordings",
+        ),
+        ("recover {F}", "PART:", "fifo.mcap.part", "recordings"),
+        ("analyze --config {F}", "--config", "fifo.toml", "configs"),
+        ("map --config {F}", "--config", "fifo.toml", "configs"),
+        (
+            "map --measured {F}",
+            "--measured",
+            "fifo.csv",
+            "measured map CSVs",
+        ),
+        ("config check {F}", "", "fifo.toml", "configs"),
+    ];
+    let before = files_in(d);
+    let t0 = Instant::now();
+    let mut runs = 0;
+    for (args, flag, fifo, kind) in cases {
+        let mut files = vec![
+            (d.join(fifo).display().to_string(), "a FIFO"),
+            (
+                d.join(fifo.replace("fifo", "zero")).display().to_string(),
+                "a character device",
+            ),
+        ];
+        // The audit's own: /dev/zero itself, where no name says a
+        // recording.
+        if !fifo.contains("mcap") {
+            files.push(("/dev/zero".to_string(), "a character device"));
+        }
+        for (file, what) in files {
+            runs += 1;
+            let args: Vec<&str> = args
+                .split_whitespace()
+                .map(|a| if a == "{F}" { file.as_str() } else { a })
+                .collect();
+            let (o, ended) = run_within(&args, d, Duration::from_secs(1));
+            let err = String::from_utf8_lossy(&o.stderr);
+            assert!(ended, "{args:?} still running after 1 s: {err}");
+            assert_eq!(o.status.code(), Some(2), "{args:?}: {err}");
+            let named = format!("{flag} {file}: not a regular file ({what}); bench reads {kind} only from regular files");
+            assert!(err.contains(named.trim_start()), "{args:?}: {err}");
+            assert_eq!(files_in(d), before, "{args:?}: something was written");
+        }
+    }
+    eprintln!("{runs} runs refused in {:?}", t0.elapsed());
+}
+
+/// Issue 46, item 3: a file larger than its kind's limit is refused before
+/// it is read, naming its size and the limit (sparse files: nothing is
+/// written to the disk).
+#[test]
+fn a_file_over_its_limit_is_refused_naming_the_limit() {
+    let dir = tmp();
+    let d = dir.path();
+    small_frf_csv(d, "X.csv");
+    let sparse = |name: &str, bytes: u64| {
+        let p = d.join(name);
+        std::fs::File::create(&p).unwrap().set_len(bytes).unwrap();
+        p.display().to_string()
+    };
+    let csv = sparse("big.csv", (16 << 20) + 1);
+    let toml = sparse("big.toml", (1 << 20) + 1);
+    let mcap = sparse("big.mcap", (4u64 << 30) + 1);
+    for (args, needle) in [
+        (
+            vec!["design", &csv],
+            format!("{csv}: 16777217 bytes, larger than the 16 MiB bench reads as an FRF CSV"),
+        ),
+        (
+            vec!["fit", &csv],
+            format!("{csv}: 16777217 bytes, larger than the 16 MiB"),
+        ),
+        (
+            vec!["plot", "bode", &csv],
+            format!("{csv}: 16777217 bytes, larger than the 16 MiB"),
+        ),
+        (
+            vec!["control", "--slow", "--check-only", "--frf", &csv],
+            format!("--frf {csv}: 16777217 bytes"),
+        ),
+        (
+            vec!["design", "X.csv", "--config", &toml],
+            format!(
+                "--config {toml}: 1048577 bytes, larger than the 1 MiB bench reads as a config"
+            ),
+        ),
+        (
+            vec!["chirp", "--config", &toml],
+            format!("--config {toml}: 1048577 bytes, larger than the 1 MiB"),
+        ),
+        (
+            vec!["fit", &mcap],
+            format!("{mcap}: 4294967297 bytes, larger than the 4 GiB bench reads as a recording"),
+        ),
+        (
+            vec!["export", &mcap, "--to", "csv"],
+            format!("{mcap}: 4294967297 bytes, larger than the 4 GiB"),
+        ),
+    ] {
+        let (o, ended) = run_within(&args, d, Duration::from_secs(1));
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(ended && o.status.code() == Some(2), "{args:?}: {err}");
+        assert!(err.contains(&needle), "{args:?}: {needle:?} not in {err}");
+    }
+}

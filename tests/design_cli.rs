@@ -477,3 +477,224 @@ fn a_campaign_without_a_done_cell_is_refused() {
     );
     assert_eq!(listing(&out), before);
 }
+
+/// An FRF CSV of `lines` data lines (frequencies 1, 2, … mHz, every one
+/// within the range of a line; the four
+/// columns `bench chirp` writes before σ and the resolution) at
+/// `dir/name`.
+fn long_frf_csv(dir: &Path, name: &str, lines: usize) -> String {
+    use std::fmt::Write;
+    let mut text = String::with_capacity(16 * lines);
+    text.push_str("frequency_hz,magnitude_m_per_a,phase_deg,coherence\n");
+    for i in 1..=lines {
+        writeln!(text, "{i}e-3,1,0,1").unwrap();
+    }
+    let p = dir.join(name);
+    std::fs::write(&p, text).unwrap();
+    p.display().to_string()
+}
+
+/// Issue 46, item 3: a 1e6-line FRF CSV took 725 s in `design`. An FRF of
+/// more than 100 000 lines is refused as it is parsed (here 12.9 MB, under
+/// the 16 MiB size limit), within a second, by every reader of an FRF,
+/// naming the file, the line and the limit; a larger file by its size.
+#[test]
+fn an_over_long_frf_is_refused_at_once() {
+    let dir = tmp();
+    let d = dir.path();
+    let long = long_frf_csv(d, "long.csv", 1_000_000);
+    let just_over = long_frf_csv(d, "over.csv", 100_001);
+    let before = listing(d);
+    for csv in [&long, &just_over] {
+        for args in [
+            vec!["design", csv.as_str()],
+            vec!["fit", csv],
+            vec!["plot", "bode", csv],
+            vec!["control", "--slow", "--check-only", "--frf", csv],
+        ] {
+            let t0 = std::time::Instant::now();
+            let (o, ended) = run_within(&args, d, std::time::Duration::from_secs(1));
+            let err = String::from_utf8_lossy(&o.stderr);
+            assert!(ended, "{args:?} still running after 1 s");
+            assert_eq!(o.status.code(), Some(2), "{args:?}: {err}");
+            assert!(
+                err.contains(csv.as_str())
+                    && err.contains("line 100002: more than 100000 data lines"),
+                "{args:?}: {err}"
+            );
+            eprintln!("{args:?} refused in {:?}", t0.elapsed());
+        }
+    }
+    // 70 bytes a line (the audit's): over the 16 MiB limit, refused by
+    // its size before it is read.
+    let wide = d.join("wide.csv");
+    std::fs::write(&wide, "x".repeat((16 << 20) + 1)).unwrap();
+    let wide = wide.display().to_string();
+    let (o, ended) = run_within(&["design", &wide], d, std::time::Duration::from_secs(1));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(ended && o.status.code() == Some(2), "{err}");
+    assert!(
+        err.contains(&format!(
+            "{wide}: 16777217 bytes, larger than the 16 MiB bench reads as an FRF CSV"
+        )),
+        "{err}"
+    );
+    let mut after = listing(d);
+    after.retain(|n| n != "wide.csv");
+    assert_eq!(after, before, "something was written");
+}
+
+/// Issue 46, items 2–4: `{"cmd":"design","params":{"inputs":["/dev/zero"]}}`
+/// read until the daemon was OOM-killed, and a FIFO held its only job slot.
+/// Both, a FIFO or /dev/zero as `config`, and as the files of the other
+/// jobs that read one (`fit`, `plot`, `analyze`, `map`, `campaign`), are
+/// answered at once with `bad_params` naming the field, the file and what
+/// it is; the daemon
+/// stays at 0 A between jobs and serves the next request. The daemon's
+/// data is limited to 1 GiB (`RLIMIT_DATA`) and the client waits at most
+/// 5 s for an answer, so a daemon that reads /dev/zero fails the test
+/// without taking the machine's memory.
+#[test]
+fn the_daemon_refuses_a_device_or_a_fifo_as_any_file_and_keeps_serving() {
+    use std::os::unix::process::CommandExt;
+    let d = Daemon::start_adjusted(&[], "", |cmd| {
+        // SAFETY: only setrlimit between fork and exec.
+        unsafe {
+            cmd.pre_exec(|| {
+                let lim = libc::rlimit {
+                    rlim_cur: 1 << 30,
+                    rlim_max: 1 << 30,
+                };
+                if libc::setrlimit(libc::RLIMIT_DATA, &lim) != 0 {
+                    return Err(std::io::Error::last_os_error());
+                }
+                Ok(())
+            });
+        }
+    });
+    let dir = d.dir.path();
+    let fifo = dir.join("fifo.csv");
+    let c = std::ffi::CString::new(fifo.display().to_string()).unwrap();
+    // SAFETY: a valid C string; mkfifo has no other precondition.
+    assert_eq!(unsafe { libc::mkfifo(c.as_ptr(), 0o600) }, 0);
+    let csv = small_frf_csv(dir, "X.csv");
+    let fifo = fifo.display().to_string();
+    let csv = csv.display().to_string();
+    let mut c = d.client();
+    c.w.set_read_timeout(Some(std::time::Duration::from_secs(5)))
+        .unwrap();
+    use serde_json::json;
+    let zero = "/dev/zero";
+    // (job, its parameters, the field named, the file, what it is)
+    let cases = [
+        (
+            "design",
+            json!({ "inputs": [zero] }),
+            "inputs",
+            zero,
+            "a character device",
+        ),
+        (
+            "design",
+            json!({ "inputs": [fifo] }),
+            "inputs",
+            fifo.as_str(),
+            "a FIFO",
+        ),
+        (
+            "design",
+            json!({ "inputs": [csv], "config": zero }),
+            "config",
+            zero,
+            "a character device",
+        ),
+        (
+            "design",
+            json!({ "inputs": [csv], "config": fifo }),
+            "config",
+            fifo.as_str(),
+            "a FIFO",
+        ),
+        // The other jobs that read a named file.
+        (
+            "fit",
+            json!({ "input": fifo }),
+            "input",
+            fifo.as_str(),
+            "a FIFO",
+        ),
+        (
+            "fit",
+            json!({ "input": csv, "config": zero }),
+            "config",
+            zero,
+            "a character device",
+        ),
+        (
+            "plot",
+            json!({ "kind": "bode", "inputs": [zero] }),
+            "inputs",
+            zero,
+            "a character device",
+        ),
+        (
+            "plot",
+            json!({ "kind": "bode", "inputs": [csv], "config": fifo }),
+            "config",
+            fifo.as_str(),
+            "a FIFO",
+        ),
+        (
+            "analyze",
+            json!({ "config": fifo }),
+            "config",
+            fifo.as_str(),
+            "a FIFO",
+        ),
+        (
+            "map",
+            json!({ "config": zero }),
+            "config",
+            zero,
+            "a character device",
+        ),
+        (
+            "map",
+            json!({ "measured": fifo }),
+            "measured",
+            fifo.as_str(),
+            "a FIFO",
+        ),
+        (
+            "campaign",
+            json!({ "file": zero }),
+            "file",
+            zero,
+            "a character device",
+        ),
+    ];
+    for (job, params, field, file, what) in cases {
+        let t0 = std::time::Instant::now();
+        let r = c.call(job, params.clone());
+        assert!(
+            t0.elapsed() < std::time::Duration::from_secs(1),
+            "{params}: {:?}",
+            t0.elapsed()
+        );
+        assert_eq!(r["error"]["kind"], "bad_params", "{job} {params}: {r}");
+        let msg = r["error"]["message"].as_str().unwrap();
+        // `params.FIELD PATH: why` (a campaign: `params.file: campaign
+        // file PATH: why`).
+        assert!(
+            msg.starts_with(&format!("params.{field}"))
+                && msg.contains(&format!("{file}: not a regular file ({what})")),
+            "{job} {params}: {msg}"
+        );
+        let s = c.call("status", serde_json::json!({}))["result"].clone();
+        assert_eq!(s["state"], "disabled", "{s}");
+        assert_eq!(s["command_a"], 0.0, "{s}");
+        assert!(s["job"].is_null(), "{s}");
+    }
+    let mut d = d;
+    assert!(d.child.try_wait().unwrap().is_none(), "the daemon died");
+}

@@ -554,3 +554,209 @@ fn the_daemon_event_log_and_recordings_are_not_world_readable() {
     // The recordings directory the daemon created: rwxr-x---.
     assert_eq!(mode(&rec), 0o750);
 }
+
+/// Every file under `dir` (links not followed): its path and its bytes
+/// (a link: its target), to prove that nothing changed and nothing was
+/// added.
+fn tree(dir: &Path) -> Vec<(PathBuf, Vec<u8>)> {
+    let mut out = Vec::new();
+    for p in files_in(dir) {
+        let m = p.symlink_metadata().unwrap();
+        if m.is_dir() {
+            out.extend(tree(&p));
+        } else if m.file_type().is_symlink() {
+            let t = std::fs::read_link(&p).unwrap();
+            out.push((p, t.as_os_str().as_bytes().to_vec()));
+        } else {
+            out.push((p.clone(), std::fs::read(&p).unwrap()));
+        }
+    }
+    out
+}
+
+/// The inputs of the output-is-input cases, in `d`: under `sub/` (with
+/// `link` → `sub`) an FRF CSV `X.csv`, a config `C.toml`, measured
+/// verdicts `M.csv`, a recording `R.mcap` and the `.part` of a killed run
+/// `P.mcap.part` (these two are never parsed: the output check comes
+/// first), a recordings directory `recs/` with `x.mcap`; beside `sub/`, a
+/// symbolic link `sym-NAME` to each and a hard link `hard-NAME` of each.
+fn inputs_in(d: &Path) {
+    let sub = d.join("sub");
+    std::fs::create_dir(&sub).unwrap();
+    std::os::unix::fs::symlink("sub", d.join("link")).unwrap();
+    small_frf_csv(&sub, "X.csv");
+    std::fs::copy(config(), sub.join("C.toml")).unwrap();
+    std::fs::write(
+        sub.join("M.csv"),
+        "operating_point_m,mass_asymmetry,verdict\n0.0005,0.0,true\n",
+    )
+    .unwrap();
+    std::fs::write(sub.join("R.mcap"), b"a measurement").unwrap();
+    std::fs::write(sub.join("P.mcap.part"), b"a killed run").unwrap();
+    std::fs::create_dir(sub.join("recs")).unwrap();
+    std::fs::write(sub.join("recs/x.mcap"), b"a recording").unwrap();
+    for name in ["X.csv", "C.toml", "M.csv", "R.mcap", "P.mcap.part"] {
+        std::os::unix::fs::symlink(format!("sub/{name}"), d.join(format!("sym-{name}"))).unwrap();
+        std::fs::hard_link(sub.join(name), d.join(format!("hard-{name}"))).unwrap();
+    }
+    std::fs::hard_link(sub.join("recs/x.mcap"), d.join("hard-x.parquet")).unwrap();
+    std::os::unix::fs::symlink("sub/recs/x.mcap", d.join("sym-x.parquet")).unwrap();
+}
+
+/// Every way to name `sub/NAME` as an output: as the input is given,
+/// `./`, `sub/../sub/`, through the linked directory, absolute, a
+/// symbolic link to it, a hard link of it.
+fn spellings(d: &Path, name: &str) -> Vec<String> {
+    vec![
+        format!("sub/{name}"),
+        format!("./sub/{name}"),
+        format!("sub/../sub/{name}"),
+        format!("link/{name}"),
+        format!("{}/sub/{name}", d.display()),
+        format!("sym-{name}"),
+        format!("hard-{name}"),
+    ]
+}
+
+/// One writing command: its arguments with `{X}` (the FRF CSV), `{C}` (the
+/// config), `{M}`, `{R}`, `{P}` (see [`inputs_in`]) as given, the input
+/// its output is made to be, and its output flags.
+type WriterCase = (&'static str, &'static str, &'static [&'static str]);
+
+/// Runs every case × every output flag × every spelling of the input, with
+/// and without `--overwrite`: each is refused with exit 2 naming the flag
+/// and the input, before anything is read further or written, and the
+/// tree (every input, every link) is byte for byte as it was.
+fn refuses_every_spelling(cases: &[WriterCase]) {
+    let dir = tmp();
+    let d = dir.path();
+    inputs_in(d);
+    let before = tree(d);
+    let mut runs = 0;
+    let t0 = Instant::now();
+    for (args, input, flags) in cases {
+        let args: Vec<String> = args
+            .split_whitespace()
+            .map(|a| match a {
+                "{X}" => "sub/X.csv".to_string(),
+                "{C}" => "sub/C.toml".to_string(),
+                "{M}" => "sub/M.csv".to_string(),
+                "{R}" => "sub/R.mcap".to_string(),
+                "{P}" => "sub/P.mcap.part".to_string(),
+                a => a.to_string(),
+            })
+            .collect();
+        for flag in *flags {
+            for (i, out) in spellings(d, input).into_iter().enumerate() {
+                for overwrite in [true, false] {
+                    // Without --overwrite: two spellings suffice.
+                    if !overwrite && i > 1 {
+                        continue;
+                    }
+                    let mut cmd = bench_in(d);
+                    cmd.args(&args).arg(flag).arg(&out);
+                    if overwrite {
+                        cmd.arg("--overwrite");
+                    }
+                    let o = cmd.output().unwrap();
+                    runs += 1;
+                    let what = format!("{args:?} {flag} {out} (overwrite: {overwrite})");
+                    let e = stderr(&o);
+                    assert_eq!(o.status.code(), Some(2), "{what}: {e}");
+                    assert!(
+                        e.contains(&format!("{flag} {out}: the output is the same file as"))
+                            && e.contains("bench never writes over a file it reads"),
+                        "{what}: {e}"
+                    );
+                    assert_eq!(tree(d), before, "{what}: changed the files");
+                }
+            }
+        }
+    }
+    eprintln!("{runs} runs refused in {:?}", t0.elapsed());
+}
+
+/// Issue 46, item 6: `fit`, `design` and `plot` never write over the FRF
+/// or the config they read, however the output names it.
+#[test]
+fn the_analysis_commands_never_write_over_an_input() {
+    refuses_every_spelling(&[
+        ("design {X}", "X.csv", &["--out", "--png"]),
+        ("design {X} --config {C}", "C.toml", &["--out", "--png"]),
+        ("fit {X}", "X.csv", &["--png"]),
+        ("fit {X} --update", "X.csv", &["--out"]),
+        (
+            "fit {X} --config {C} --update",
+            "C.toml",
+            &["--out", "--png"],
+        ),
+        ("fit {X} --export-model tf", "X.csv", &["--model-out"]),
+        ("plot bode {X}", "X.csv", &["--out"]),
+        ("plot nyquist {X} --config {C}", "C.toml", &["--out"]),
+    ]);
+}
+
+/// Issue 46, item 6: neither do the commands that run the bench, map the
+/// model or read recordings (`chirp`, `control`, `analyze`, `map`,
+/// `export`, `recover`, `catalogue`).
+#[test]
+fn the_other_writing_commands_never_write_over_an_input() {
+    refuses_every_spelling(&[
+        (
+            "chirp --duration-s 1 --config {C}",
+            "C.toml",
+            &["--frf-csv", "--plot"],
+        ),
+        ("control --slow --config {C}", "C.toml", &["--plot"]),
+        // The outputs are checked before the loop check, which this toy
+        // FRF fails.
+        ("control --slow --frf {X}", "X.csv", &["--plot"]),
+        (
+            "analyze --config {C}",
+            "C.toml",
+            &["--pole-zero-png", "--modes-png"],
+        ),
+        ("map --config {C}", "C.toml", &["--png", "--csv"]),
+        ("map --measured {M}", "M.csv", &["--png", "--csv"]),
+        ("export {R} --to csv", "R.mcap", &["--out"]),
+        ("export {P} --to parquet", "P.mcap.part", &["--out"]),
+        ("recover {P}", "P.mcap.part", &["--out"]),
+    ]);
+    // The catalogue ends in .parquet and the recordings in .mcap: only a
+    // link can be both.
+    let dir = tmp();
+    let d = dir.path();
+    inputs_in(d);
+    let before = tree(d);
+    for out in ["hard-x.parquet", "sym-x.parquet"] {
+        let o = bench_in(d)
+            .args([
+                "catalogue",
+                "--recordings",
+                "sub/recs",
+                "--out",
+                out,
+                "--overwrite",
+            ])
+            .output()
+            .unwrap();
+        assert_refused(&o, &["--out", out]);
+        assert_eq!(tree(d), before, "{out}");
+    }
+    let o = bench_in(d)
+        .args([
+            "catalogue",
+            "--recordings",
+            "sub/recs",
+            "--out",
+            "hard-x.parquet",
+            "--overwrite",
+        ])
+        .output()
+        .unwrap();
+    assert!(
+        stderr(&o).contains("the same file as the recording"),
+        "{}",
+        stderr(&o)
+    );
+}

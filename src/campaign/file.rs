@@ -290,13 +290,14 @@ pub struct Campaign {
 /// Errors of the campaign file.
 #[derive(Debug, thiserror::Error)]
 pub enum CampaignError {
-    /// The file could not be read.
-    #[error("cannot read campaign file {}: {source}", path.display())]
+    /// The file could not be read, or is refused: not a regular file, or
+    /// larger than [`Kind::Campaign`](crate::input_file::Kind::Campaign)'s
+    /// limit ([`crate::input_file`]).
+    #[error("campaign file {}: {}", source.path.display(), source.reason())]
     Read {
-        /// The file.
-        path: PathBuf,
-        /// The OS error.
-        source: std::io::Error,
+        /// Why (the file, its kind, the reason).
+        #[from]
+        source: crate::input_file::InputError,
     },
     /// TOML syntax, a type or an unknown key.
     #[error("campaign file {}: {message}", path.display())]
@@ -341,10 +342,8 @@ impl Campaign {
     /// # Errors
     /// [`CampaignError`] naming the file and the key.
     pub fn load(path: &Path) -> Result<Self, CampaignError> {
-        let text = std::fs::read_to_string(path).map_err(|source| CampaignError::Read {
-            path: path.to_path_buf(),
-            source,
-        })?;
+        let text =
+            crate::input_file::read_to_string(path, crate::input_file::Kind::Campaign, "file")?;
         Self::from_text(path, text)
     }
 
@@ -486,14 +485,10 @@ impl Campaign {
                 } else {
                     dir.join(&spec.config)
                 };
-                // Read through BenchConfig::load's checks (regular file, size).
-                BenchConfig::load(&config_path).map_err(config_err)?;
-                let config_text = std::fs::read_to_string(&config_path).map_err(|source| {
-                    config_err(crate::config::ConfigError::Read {
-                        path: config_path.clone(),
-                        source,
-                    })
-                })?;
+                // Read once, with the file checks of every config
+                // (regular file, size: crate::input_file).
+                let config_text = crate::config::read_text(&config_path).map_err(config_err)?;
+                BenchConfig::from_toml(&config_text, &config_path).map_err(config_err)?;
                 (config_path, config_text)
             }
         };

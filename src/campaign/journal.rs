@@ -110,6 +110,14 @@ pub enum JournalError {
         /// The OS error.
         source: io::Error,
     },
+    /// The journal is not a regular file, or larger than
+    /// [`Kind::CampaignState`](crate::input_file::Kind::CampaignState)'s
+    /// limit ([`crate::input_file`]).
+    #[error("journal {}: {}", source.path.display(), source.reason())]
+    Refused {
+        /// Why.
+        source: crate::input_file::InputError,
+    },
     /// The journal has no valid header line.
     #[error("journal {}: {reason}", path.display())]
     NotAJournal {
@@ -130,12 +138,20 @@ pub fn sha256_hex(bytes: &[u8]) -> String {
     s
 }
 
-/// SHA-256 and size of a file, streamed.
+/// SHA-256 and size of a file, streamed: a cell's file, opened as every
+/// input is ([`crate::input_file`]: a regular file, never a FIFO waited on
+/// or a device read forever, of at most a recording's limit, the largest
+/// file a cell holds).
 ///
 /// # Errors
-/// The OS error of opening or reading it.
+/// The OS error of opening or reading it; a refusal as
+/// [`io::ErrorKind::InvalidInput`].
 pub fn file_sum(dir: &Path, relative: &str) -> io::Result<FileSum> {
-    let mut f = File::open(dir.join(relative))?;
+    use crate::input_file::{open, InputError, Kind};
+    let mut f = open(&dir.join(relative), Kind::Recording, "dir")
+        .map_err(InputError::into_io)?
+        .into_file()
+        .take(Kind::Recording.limit_bytes());
     let mut h = Sha256::new();
     let mut buf = vec![0u8; 1 << 16];
     let mut bytes = 0u64;
@@ -245,10 +261,16 @@ pub fn parse(bytes: &[u8]) -> ReadJournal {
 /// [`JournalError::Io`] if it cannot be read, [`JournalError::NotAJournal`]
 /// if its valid prefix does not start with a header.
 pub fn read(dir: &Path) -> Result<ReadJournal, JournalError> {
+    use crate::input_file::{Kind, Problem};
     let path = dir.join(JOURNAL_FILE);
-    let bytes = std::fs::read(&path).map_err(|source| JournalError::Io {
-        path: path.clone(),
-        source,
+    let bytes = crate::input_file::read(&path, Kind::CampaignState, "dir").map_err(|e| match e
+        .problem
+    {
+        Problem::Open(source) | Problem::Read(source) => JournalError::Io {
+            path: path.clone(),
+            source,
+        },
+        _ => JournalError::Refused { source: e },
     })?;
     let j = parse(&bytes);
     if j.header().is_none() {

@@ -157,7 +157,12 @@ pub type ReadRow = BTreeMap<String, Value>;
 /// # Errors
 /// The I/O or Parquet error, as [`io::Error`].
 pub fn read_rows(path: &Path) -> io::Result<Vec<ReadRow>> {
-    let reader = SerializedFileReader::new(std::fs::File::open(path)?).map_err(pq)?;
+    // A regular file within a catalogue row's limit (crate::input_file):
+    // never a FIFO waited on.
+    let file = crate::input_file::open(path, crate::input_file::Kind::CatalogueRow, "recordings")
+        .map_err(crate::input_file::InputError::into_io)?
+        .into_file();
+    let reader = SerializedFileReader::new(file).map_err(pq)?;
     let types: BTreeMap<&str, ColumnType> =
         COLUMNS.iter().map(|c| (c.name, c.column_type)).collect();
     let mut out = Vec::new();

@@ -5,10 +5,10 @@
 //! about what a 1-second one does, and memory holds one chunk at a time.
 
 use super::{finite, CatalogueRow, Outcome, MODE_COLUMNS};
+use crate::input_file::{Kind, Problem};
 use crate::record::TOPIC_EVENT;
 use serde_json::Value as Json;
 use std::collections::BTreeMap;
-use std::fs::File;
 use std::os::unix::fs::FileExt;
 use std::path::{Path, PathBuf};
 
@@ -65,7 +65,7 @@ const MAGIC: &[u8] = b"\x89MCAP0\r\n";
 /// `len` bytes of `file` at `offset`, which must lie within its `size`
 /// bytes (an index pointing past the end is a damaged file, not a reason
 /// to allocate what it says).
-fn read_at(file: &File, size: u64, offset: u64, len: u64) -> Result<Vec<u8>, String> {
+fn read_at(file: &std::fs::File, size: u64, offset: u64, len: u64) -> Result<Vec<u8>, String> {
     if offset.checked_add(len).is_none_or(|end| end > size) {
         return Err(format!(
             "its index points past its end ({len} bytes at byte {offset} of {size})"
@@ -97,12 +97,17 @@ pub fn row_of_recording(path: &Path) -> Result<CatalogueRow, CatalogueError> {
         path: path.to_path_buf(),
         reason,
     };
-    let mut file = File::open(path).map_err(io)?;
-    let meta = file.metadata().map_err(io)?;
-    if !meta.is_file() {
-        return Err(bad("not a regular file".into()));
-    }
-    let size = meta.len();
+    // A regular file within a recording's limit (crate::input_file); a
+    // FIFO named *.mcap is refused, not waited on.
+    let opened = match crate::input_file::open(path, Kind::Recording, "recordings") {
+        Ok(o) => o,
+        Err(e) => match e.problem {
+            Problem::Open(source) | Problem::Read(source) => return Err(io(source)),
+            _ => return Err(bad(e.reason())),
+        },
+    };
+    let size = opened.len();
+    let mut file = opened.into_file();
     let magic = MAGIC.len() as u64;
     if size < 2 * magic {
         return Err(bad(format!("{size} bytes: too short for an MCAP file")));

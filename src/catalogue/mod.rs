@@ -25,7 +25,7 @@
 //! unit and source; the README's *Run catalogue* table is the same list.
 //! Non-finite numbers are written as null.
 //!
-//! Layer rule: may use `record`.
+//! Layer rule: may use `input_file`, `record`.
 
 pub mod file;
 mod from_recording;

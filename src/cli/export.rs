@@ -2,7 +2,7 @@
 
 use super::{bad_input, status};
 use bench::jobs::export::export_topic as export_table;
-use bench::outputs::Existing;
+use bench::outputs::{Existing, Origin, OutputPlan};
 use bench::record::export::{ExportError, ExportFormat};
 use clap::{Args, ValueEnum};
 use std::path::PathBuf;
@@ -63,11 +63,20 @@ pub(super) fn export(a: ExportArgs) -> ExitCode {
         a.recording
             .with_file_name(format!("{stem}.{topic}.{}", format.extension()))
     });
-    if out.exists() && !a.overwrite {
-        return bad_input(format!(
-            "--out {}: exists (pass --overwrite to replace it)",
-            out.display()
-        ));
+    // The output rules (bench::outputs): nothing replaced without
+    // --overwrite, only a regular file, and never the recording read.
+    let given = if a.out.is_some() {
+        Origin::Given
+    } else {
+        Origin::Derived
+    };
+    if let Err(e) = OutputPlan::new(Existing::overwrite(a.overwrite))
+        .derived_from("the recording")
+        .with_output("out", &out, given)
+        .with_input("recording", &a.recording)
+        .check()
+    {
+        return super::run_failed(&e);
     }
     match export_table(
         &a.recording,

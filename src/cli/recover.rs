@@ -65,15 +65,11 @@ fn default_out(part: &Path) -> Option<PathBuf> {
 
 /// Runs `bench recover`.
 pub fn recover(args: RecoverArgs) -> ExitCode {
-    match std::fs::symlink_metadata(&args.part) {
-        Ok(m) if m.is_file() => {}
-        Ok(_) => {
-            return bad_input(format!(
-                "PART: {} is not a regular file",
-                args.part.display()
-            ))
-        }
-        Err(e) => return bad_input(format!("PART: {}: {e}", args.part.display())),
+    // A regular file within a recording's limit (bench::input_file),
+    // refused before anything is written; recover_part reads it so again.
+    if let Err(e) = bench::input_file::open(&args.part, bench::input_file::Kind::Recording, "part")
+    {
+        return bad_input(format!("PART: {e}"));
     }
     let Some(out) = args.out.clone().or_else(|| default_out(&args.part)) else {
         return bad_input(format!(
@@ -82,17 +78,10 @@ pub fn recover(args: RecoverArgs) -> ExitCode {
         ));
     };
     let existing = Existing::overwrite(args.overwrite);
-    let same = |a: &Path, b: &Path| {
-        a.canonicalize()
-            .ok()
-            .zip(b.canonicalize().ok())
-            .is_some_and(|(a, b)| a == b)
-    };
-    if same(&out, &args.part) {
-        return bad_input("--out: the output must not be the .part file it is read from");
-    }
+    // Never the .part it reads, however spelled (rule 6 of bench::outputs).
     if let Err(e) = OutputPlan::new(existing)
         .with_output("out", &out, Origin::Given)
+        .with_input("part", &args.part)
         .check()
     {
         return run_failed(&e);

@@ -6,7 +6,7 @@
 //! unknown keys), [`BenchConfig::validate`] checks physics and limits. Both
 //! report the dotted key and the reason.
 //!
-//! Layer rule: may use nothing of the crate.
+//! Layer rule: may use `input_file`.
 
 use bench_hal::model::Sr4dofParams;
 use bench_hal::sim::{ActuatorParams, ProbeParams, SimParams};
@@ -15,8 +15,9 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 /// Largest config file `bench` reads, bytes (1 MiB; the shipped ones are
-/// about 8 KiB).
-pub const MAX_CONFIG_BYTES: u64 = 1 << 20;
+/// under 16 KiB): [`Kind::Config`](crate::input_file::Kind::Config)'s
+/// limit.
+pub const MAX_CONFIG_BYTES: u64 = crate::input_file::Kind::Config.limit_bytes();
 
 /// The shipped bench description in the repository (the Chapter 5 bench),
 /// relative to the repository root. `bench` does not read it at run time:
@@ -122,6 +123,29 @@ pub enum ConfigError {
     },
 }
 
+/// The text of the config file at `path`, read under the rules of
+/// [`crate::input_file`] (a regular file, never a FIFO or a device, of at
+/// most [`MAX_CONFIG_BYTES`], read with that bound): every reader of a
+/// bench description given by path takes it from here.
+///
+/// # Errors
+/// [`ConfigError::Read`] when it cannot be opened or read,
+/// [`ConfigError::NotAConfigFile`] when it is not a regular file, is too
+/// large or is not UTF-8.
+pub fn read_text(path: &Path) -> Result<String, ConfigError> {
+    use crate::input_file::{read_to_string, Kind, Problem};
+    read_to_string(path, Kind::Config, "config").map_err(|e| match e.problem {
+        Problem::Open(source) | Problem::Read(source) => ConfigError::Read {
+            path: path.to_path_buf(),
+            source,
+        },
+        _ => ConfigError::NotAConfigFile {
+            path: path.to_path_buf(),
+            reason: e.reason(),
+        },
+    })
+}
+
 /// The whole bench description.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -179,66 +203,15 @@ pub struct BenchConfig {
 }
 
 impl BenchConfig {
-    /// Reads and parses a config file (no physical validation).
+    /// Reads ([`read_text`]: a regular file of at most
+    /// [`MAX_CONFIG_BYTES`]) and parses a config file (no physical
+    /// validation).
     ///
     /// # Errors
-    /// [`ConfigError::Read`] or [`ConfigError::Parse`].
+    /// [`ConfigError::Read`], [`ConfigError::NotAConfigFile`] or
+    /// [`ConfigError::Parse`].
     pub fn load(path: &Path) -> Result<Self, ConfigError> {
-        use std::io::Read;
-        use std::os::unix::fs::{FileTypeExt, OpenOptionsExt};
-        let read_err = |source| ConfigError::Read {
-            path: path.to_path_buf(),
-            source,
-        };
-        let not_config = |reason: String| ConfigError::NotAConfigFile {
-            path: path.to_path_buf(),
-            reason,
-        };
-        // Non-blocking, so that opening a FIFO does not wait for a writer;
-        // nothing is read before the type and size are known.
-        let file = std::fs::OpenOptions::new()
-            .read(true)
-            .custom_flags(libc::O_NONBLOCK)
-            .open(path)
-            .map_err(read_err)?;
-        let meta = file.metadata().map_err(read_err)?;
-        let t = meta.file_type();
-        if !t.is_file() {
-            let kind = if t.is_dir() {
-                "a directory"
-            } else if t.is_fifo() {
-                "a FIFO"
-            } else if t.is_char_device() {
-                "a character device"
-            } else if t.is_block_device() {
-                "a block device"
-            } else if t.is_socket() {
-                "a socket"
-            } else {
-                "not a regular file"
-            };
-            return Err(not_config(format!(
-                "{kind}: a config must be a regular TOML file"
-            )));
-        }
-        let too_large = || {
-            not_config(format!(
-                "larger than {MAX_CONFIG_BYTES} bytes (1 MiB): not a bench description"
-            ))
-        };
-        if meta.len() > MAX_CONFIG_BYTES {
-            return Err(too_large());
-        }
-        let mut bytes = Vec::new();
-        file.take(MAX_CONFIG_BYTES + 1)
-            .read_to_end(&mut bytes)
-            .map_err(read_err)?;
-        if bytes.len() as u64 > MAX_CONFIG_BYTES {
-            return Err(too_large());
-        }
-        let text = String::from_utf8(bytes)
-            .map_err(|e| read_err(std::io::Error::new(std::io::ErrorKind::InvalidData, e)))?;
-        Self::from_toml(&text, path)
+        Self::from_toml(&read_text(path)?, path)
     }
 
     /// Parses TOML text; `path` is only used in messages.

@@ -619,10 +619,12 @@ impl MeasuredFrf {
     ///
     /// # Errors
     /// [`RunError::BadOption`] naming `frf`, the file, the line and the
-    /// reason.
+    /// reason; the file's own refusals ([`crate::input_file`]: not a
+    /// regular file, too large) the same way.
     pub fn read_csv(path: &Path) -> Result<Self, RunError> {
         let bad = |why: String| RunError::option("frf", path.display(), why);
-        let text = std::fs::read_to_string(path).map_err(|e| bad(e.to_string()))?;
+        // A regular file within the FRF CSV's limit (crate::input_file).
+        let text = crate::input_file::read_to_string(path, crate::input_file::Kind::FrfCsv, "frf")?;
         let frf = crate::ident::frf::Frf::read_csv(&text).map_err(bad)?;
         let m = Self {
             frequency_hz: frf.frequency_hz,

@@ -89,7 +89,7 @@
 //! state with the setpoint at the measured position, so the first command
 //! is 0 A.
 //!
-//! Layer rule: may use `config`, `error`, `ident`.
+//! Layer rule: may use `config`, `error`, `ident`, `input_file`.
 
 mod design;
 mod discretize;

@@ -13,7 +13,7 @@ use crate::analysis::{analyze, Analysis};
 use crate::config::BenchConfig;
 use crate::error::RunError;
 use crate::jobs::request::RequestError;
-use crate::outputs::Existing;
+use crate::outputs::{Existing, Origin, OutputPlan};
 use crate::plot::{write_decomposed_bode_png, write_pole_zero_png};
 use bench_hal::model::{Sr4dof, Sr4dofParams};
 use serde::{Deserialize, Serialize};
@@ -61,7 +61,7 @@ impl AnalyzeRequest {
             Some(p) => BenchConfig::load(p),
             None => BenchConfig::builtin(),
         }
-        .map_err(|e| RunError::BadInput(e.to_string()))?;
+        .map_err(super::config_error)?;
         let point = self.point;
         point.check().map_err(field_error)?;
         let mut p = cfg.plant;
@@ -136,6 +136,19 @@ pub fn run_analyze(opts: &AnalyzeOptions) -> Result<AnalyzeSummary, RunError> {
     let params = req.plant()?;
     let model = Sr4dof::new(params)
         .map_err(|e| RunError::BadInput(format!("{}: {e}", req.config_name())))?;
+    // The output rules (crate::outputs), checked before anything is
+    // computed: never the config read.
+    let mut plan = OutputPlan::new(opts.existing);
+    if let Some(p) = &opts.pole_zero_png {
+        plan = plan.with_output("pole_zero_png", p, Origin::Given);
+    }
+    if let Some(p) = &opts.modes_png {
+        plan = plan.with_output("modes_png", p, Origin::Given);
+    }
+    if let Some(c) = &req.config {
+        plan = plan.with_input("config", c);
+    }
+    plan.check()?;
     let a = analyze(&model);
     let what = format!(
         "Y1o = {:.3} mm ({:.2} % of L), Δm23 = {:+.1} %",

@@ -475,6 +475,13 @@ pub fn run_catalogue(opts: &CatalogueOptions) -> Result<CatalogueSummary, RunErr
     let started = Instant::now();
     check_options(opts)?;
     let sources = sources_in(&opts.recordings)?;
+    // Never written over a file it reads (rule 6 of crate::outputs): a
+    // campaign's row, or a recording under another name (a hard link).
+    OutputPlan::new(opts.existing)
+        .with_output("out", &opts.out, opts.out_origin)
+        .with_inputs("recordings", &sources.campaign_rows)
+        .with_inputs("recordings", &sources.recordings)
+        .check()?;
     let recordings = &sources.recordings;
     let read: Vec<Result<CatalogueRow, CatalogueError>> = {
         use rayon::prelude::*;

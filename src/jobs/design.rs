@@ -21,6 +21,7 @@ use crate::design::{design, prepare, DesignError, DesignSpec, InputFrf, InputUse
 use crate::error::RunError;
 use crate::ident::frf::{read_frf, Frf};
 use crate::ident::modal_fit::Path as FitPath;
+use crate::input_file::{read, read_to_string, Kind};
 use crate::outputs::{beside, write_atomically, Existing, Origin, OutputPlan};
 use serde::{Deserialize, Serialize};
 use std::io::Write;
@@ -238,10 +239,11 @@ struct ReadInputs {
 fn read_inputs(inputs: &[DesignInput]) -> Result<ReadInputs, RunError> {
     let mut frfs = Vec::new();
     let mut config_toml: Option<(String, String)> = None;
+    // Every file through crate::input_file: a regular file within its
+    // kind's limit, read with that bound.
     let read_csv = |label: &str, path: &Path| -> Result<Frf, RunError> {
         let bad = |r: String| RunError::option("inputs", label, r);
-        let text = std::fs::read(path).map_err(|e| bad(e.to_string()))?;
-        let text = String::from_utf8(text).map_err(|_| bad("not a text CSV (not UTF-8)".into()))?;
+        let text = read_to_string(path, Kind::FrfCsv, "inputs").map_err(|e| bad(e.reason()))?;
         Frf::read_csv(&text).map_err(bad)
     };
     for inp in inputs {
@@ -249,8 +251,7 @@ fn read_inputs(inputs: &[DesignInput]) -> Result<ReadInputs, RunError> {
             DesignInput::File(p) => {
                 let label = p.display().to_string();
                 let frf = if is_recording(p) {
-                    let bytes = std::fs::read(p)
-                        .map_err(|e| RunError::option("inputs", &label, e.to_string()))?;
+                    let bytes = read(p, Kind::Recording, "inputs")?;
                     let r = read_frf(&bytes).map_err(|e| RunError::option("inputs", &label, e))?;
                     if config_toml.is_none() {
                         // In the layout of the file it was run with.
@@ -331,8 +332,7 @@ pub fn run_design(opts: &DesignOptions) -> Result<DesignSummary, RunError> {
     let read = read_inputs(&opts.inputs)?;
     let (base_toml, config_source) = match (&req.config, &read.config_toml) {
         (Some(p), _) => (
-            std::fs::read_to_string(p)
-                .map_err(|e| RunError::option("config", p.display(), e.to_string()))?,
+            read_to_string(p, Kind::Config, "config")?,
             p.display().to_string(),
         ),
         (None, Some((t, from))) => (t.clone(), from.clone()),
@@ -407,6 +407,20 @@ pub fn run_design(opts: &DesignOptions) -> Result<DesignSummary, RunError> {
         .with_output("out", &out, origin(opts.out.is_some()));
     if let Some(p) = &png {
         plan = plan.with_output("png", p, origin(opts.png.is_some()));
+    }
+    // Never written over an input (rule 6 of crate::outputs).
+    for inp in &opts.inputs {
+        match inp {
+            DesignInput::File(p) => plan.add_input("inputs", p),
+            DesignInput::Cells { cells, .. } => {
+                for (_, csv) in cells {
+                    plan.add_input("inputs", csv);
+                }
+            }
+        }
+    }
+    if let Some(c) = &req.config {
+        plan.add_input("config", c);
     }
     plan.check()?;
 

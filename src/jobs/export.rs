@@ -29,11 +29,7 @@ pub fn export_topic(
     if topic != TOPIC_FRF || format != ExportFormat::Csv {
         return export(recording, topic, format, out, existing);
     }
-    let unreadable = |reason: String| ExportError::Recording {
-        path: recording.to_path_buf(),
-        reason,
-    };
-    let bytes = std::fs::read(recording).map_err(|e| unreadable(e.to_string()))?;
+    let bytes = crate::record::export::read_recording(recording)?;
     // No FRF channel: the generic error, with the topics the recording has.
     let frf = match read_frf(&bytes) {
         Ok(r) => r.frf,

@@ -282,7 +282,7 @@ fn load_config(path: Option<&Path>) -> Result<BenchConfig, RunError> {
         Some(p) => BenchConfig::load(p),
         None => BenchConfig::builtin(),
     }
-    .map_err(|e| RunError::BadInput(e.to_string()))
+    .map_err(super::config_error)
 }
 
 /// The `free` list, or `default`.
@@ -364,8 +364,11 @@ fn start_toml(
     source: Option<&str>,
 ) -> Result<String, RunError> {
     match (config, recorded) {
-        (Some(p), _) => std::fs::read_to_string(p)
-            .map_err(|e| RunError::option("config", p.display(), e.to_string())),
+        (Some(p), _) => Ok(crate::input_file::read_to_string(
+            p,
+            crate::input_file::Kind::Config,
+            "config",
+        )?),
         // The recording's config in the layout of the file it was run
         // with (comments kept); the resolved text alone when the
         // recording has no source or the two cannot be merged.
@@ -388,8 +391,11 @@ fn sample_period_s(cfg: &BenchConfig) -> f64 {
 }
 
 /// Checks the outputs together ([`OutputPlan::check`]).
+/// `inputs`: the files the fit reads (`input`, `config`), which no output
+/// may be (rule 6 of [`crate::outputs`]).
 fn check_outputs(
     existing: Existing,
+    inputs: &[(&'static str, &Path)],
     png: Option<(&Path, bool)>,
     out: Option<(&Path, bool)>,
     model: Option<(&Path, bool)>,
@@ -411,6 +417,9 @@ fn check_outputs(
         }
     };
     let mut plan = OutputPlan::new(existing).derived_from("the input");
+    for (key, path) in inputs {
+        plan.add_input(key, path);
+    }
     if let Some((p, given)) = png {
         plan = plan.with_output("png", p, product(given));
     }
@@ -443,7 +452,9 @@ fn fit_frequencies(opts: &FitOptions, measured: &[f64]) -> Result<FrequencySumma
     check_frequencies(measured, 0.5 / sample_period_s(&cfg))?;
     let free = parse_free(req.free.as_deref(), &Parameter::FREQUENCIES_DEFAULT)?;
     if let Some(out) = &opts.out {
-        check_outputs(opts.existing, None, Some((out, true)), None)?;
+        let inputs: Vec<(&'static str, &Path)> =
+            req.config.iter().map(|c| ("config", c.as_path())).collect();
+        check_outputs(opts.existing, &inputs, None, Some((out, true)), None)?;
     }
     let start = start_toml(req.config.as_deref(), None, None)?;
     let update = match update_to_frequencies(&start_bench(&cfg), &free, measured) {
@@ -482,10 +493,18 @@ pub struct FrfInput {
 /// ([`Frf::read_csv`]).
 ///
 /// # Errors
-/// Why it is not an FRF (unreadable, not UTF-8, a bad header or line, a
-/// recording without `/sysid/frf`); the caller names the field.
+/// Why it is not an FRF (unreadable, not a regular file, larger than its
+/// kind's limit ([`crate::input_file`]), not UTF-8, a bad header or line,
+/// a recording without `/sysid/frf`); the caller names the field.
 pub fn read_frf_input(path: &Path) -> Result<FrfInput, String> {
-    let bytes = std::fs::read(path).map_err(|e| e.to_string())?;
+    use crate::input_file::{read, Kind};
+    // Through crate::input_file: a regular file within its kind's limit.
+    let kind = if is_recording(path) {
+        Kind::Recording
+    } else {
+        Kind::FrfCsv
+    };
+    let bytes = read(path, kind, "input").map_err(|e| e.reason())?;
     if is_recording(path) {
         let r = crate::ident::frf::read_frf(&bytes)?;
         Ok(FrfInput {
@@ -572,8 +591,11 @@ fn fit_frf(opts: &FitOptions, input_path: &Path) -> Result<FitSummary, RunError>
             .unwrap_or_else(|| model_path(input_path, format))
     });
     // Every output checked before anything is computed.
+    let mut inputs: Vec<(&'static str, &Path)> = vec![("input", input_path)];
+    inputs.extend(req.config.iter().map(|c| ("config", c.as_path())));
     check_outputs(
         opts.existing,
+        &inputs,
         plot.as_deref().map(|p| (p, opts.png.is_some())),
         out.as_deref().map(|o| (o, opts.out.is_some())),
         model_out.as_deref().map(|m| (m, opts.model_out.is_some())),

@@ -16,7 +16,7 @@ use crate::analysis::map::{
 };
 use crate::config::BenchConfig;
 use crate::error::RunError;
-use crate::outputs::{write_atomically, Existing};
+use crate::outputs::{write_atomically, Existing, Origin, OutputPlan};
 use crate::plot::{write_map_png, write_veering_png, MeasuredPoint};
 use bench_hal::model::{ranges, Sr4dofParams};
 use serde::{Deserialize, Serialize};
@@ -362,7 +362,7 @@ impl MapRequest {
                 crate::config::BUILTIN_CONFIG_NAME.to_string(),
             ),
         };
-        let p = cfg.map_err(|e| RunError::BadInput(e.to_string()))?.plant;
+        let p = cfg.map_err(super::config_error)?.plant;
         let (ops, dms) = self.grid(&p)?;
         self.check_combinations()?;
         for (op, dm) in [
@@ -426,11 +426,9 @@ pub fn read_measured(
     let at_line = |i: usize, reason: String| {
         RunError::option("measured", format!("{}:{}", path.display(), i + 1), reason)
     };
-    let meta = std::fs::metadata(path).map_err(|e| at_file(e.to_string()))?;
-    if !meta.is_file() || meta.len() > crate::config::MAX_CONFIG_BYTES * 16 {
-        return Err(at_file("not a regular file of at most 16 MiB".into()));
-    }
-    let text = std::fs::read_to_string(path).map_err(|e| at_file(e.to_string()))?;
+    // A regular file within the measured map's limit (crate::input_file).
+    let text =
+        crate::input_file::read_to_string(path, crate::input_file::Kind::MeasuredMap, "measured")?;
     let mut lines = text
         .lines()
         .enumerate()
@@ -531,6 +529,19 @@ pub fn run_map(opts: &MapOptions) -> Result<MapResult, RunError> {
         Some(path) => Some(read_measured(path, &p)?),
         None => None,
     };
+    // The output rules (crate::outputs), checked before anything is
+    // computed: never the config or the measured verdicts read.
+    let mut plan = OutputPlan::new(opts.existing).with_output("png", &opts.png, Origin::Given);
+    if let Some(c) = &opts.csv {
+        plan = plan.with_output("csv", c, Origin::Given);
+    }
+    if let Some(c) = &req.config {
+        plan = plan.with_input("config", c);
+    }
+    if let Some(m) = &req.measured {
+        plan = plan.with_input("measured", m);
+    }
+    plan.check()?;
     let bad_bench = |e: bench_hal::model::ParamError| RunError::BadInput(format!("{config}: {e}"));
     let png = &opts.png;
     let plot_failed = |e: crate::plot::PlotError| RunError::Output {

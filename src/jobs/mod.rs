@@ -24,7 +24,7 @@
 //!
 //! May use everything below it; never the CLI, the daemon or a campaign.
 //!
-//! Layer rule: may use `analysis`, `catalogue`, `config`, `control`, `design`, `error`, `ident`, `outputs`, `plot`, `record`, `rt`, `vocab`.
+//! Layer rule: may use `analysis`, `catalogue`, `config`, `control`, `design`, `error`, `ident`, `input_file`, `outputs`, `plot`, `record`, `rt`, `vocab`.
 
 pub mod analyze;
 pub mod catalogue;
@@ -39,3 +39,18 @@ pub mod request;
 pub mod session;
 pub mod step;
 pub mod verify;
+
+/// A config given by path that does not load, as a job's error: a file
+/// refused as an input ([`crate::input_file`]: not a regular file, too
+/// large) names its option, `config` (`--config`, the daemon's
+/// `params.config`); any other error (missing, a syntax or key error)
+/// is bad input, its text naming the file.
+pub(crate) fn config_error(e: crate::config::ConfigError) -> crate::error::RunError {
+    use crate::config::ConfigError;
+    match e {
+        ConfigError::NotAConfigFile { path, reason } => {
+            crate::error::RunError::option("config", path.display(), reason)
+        }
+        e => crate::error::RunError::BadInput(e.to_string()),
+    }
+}

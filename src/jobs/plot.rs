@@ -314,7 +314,11 @@ struct Loaded {
 fn given_config(path: &Path) -> Result<(BenchConfig, String), RunError> {
     BenchConfig::load(path)
         .map(|c| (c, path.display().to_string()))
-        .map_err(|e| RunError::option("config", path.display(), e.to_string()))
+        .map_err(|e| match e {
+            // Refused as an input (crate::input_file): `config PATH: why`.
+            e @ crate::config::ConfigError::NotAConfigFile { .. } => super::config_error(e),
+            e => RunError::option("config", path.display(), e.to_string()),
+        })
 }
 
 fn builtin() -> Result<(BenchConfig, String), RunError> {
@@ -574,10 +578,15 @@ pub fn run_plot(opts: &PlotOptions) -> Result<PlotSummary, RunError> {
     } else {
         Origin::Derived
     };
-    OutputPlan::new(opts.existing)
+    // Never written over an input (rule 6 of crate::outputs).
+    let mut plan = OutputPlan::new(opts.existing)
         .derived_from("the first input")
         .with_output("out", &out, origin)
-        .check()?;
+        .with_inputs("inputs", loaded.iter().map(|l| &l.input));
+    if let Some(c) = &req.config {
+        plan = plan.with_input("config", c);
+    }
+    plan.check()?;
     let fits = loaded
         .par_iter()
         .map(|l| fit_on(&l.frf, &l.cfg))

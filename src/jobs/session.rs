@@ -371,17 +371,15 @@ impl Runner<'_> {
 
 /// The config file's text as given (comments and layout; recorded as
 /// `bench.config` `source`, so `bench fit --update` can keep them): the
-/// built-in text, or the file at `path` when it is a regular file of at
-/// most [`crate::config::MAX_CONFIG_BYTES`] (never a FIFO read twice).
+/// built-in text, or the file at `path` read as every config is
+/// ([`crate::config::read_text`]: a regular file of at most
+/// [`crate::config::MAX_CONFIG_BYTES`], never a FIFO read twice).
 /// `None` when it cannot be read again.
 fn config_source(path: &Path) -> Option<String> {
     if path == Path::new(crate::config::BUILTIN_CONFIG_NAME) {
         return Some(crate::config::BUILTIN_CONFIG_TOML.to_string());
     }
-    let meta = std::fs::metadata(path).ok()?;
-    (meta.is_file() && meta.len() <= crate::config::MAX_CONFIG_BYTES)
-        .then(|| std::fs::read_to_string(path).ok())
-        .flatten()
+    crate::config::read_text(path).ok()
 }
 
 /// Creates the recording `opts.out` (as `.part`, by the rules of

@@ -392,6 +392,16 @@ fn run_control_with(
             format!("only allowed on the sim backend, not {spec}"),
         ));
     }
+    // The outputs, before the loop check's work (with --check-only none is
+    // written); no output may be a file the run reads (rule 6 of
+    // crate::outputs).
+    if !opts.check_only {
+        outputs.add_input("config", &opts.config_path);
+        if let Some(frf) = &opts.frf {
+            outputs.add_input("frf", frf);
+        }
+        outputs.check()?;
+    }
     // The loop check needs no device: with --check-only nothing is opened.
     let period_s = cfg.loop_.period_ns() as f64 * 1e-9;
     let ctrl = DiscreteController::new(ccfg, period_s, cfg.actuator.peak_current_a);
@@ -457,7 +467,6 @@ fn run_control_with(
         );
     }
     let step = &cfg.step;
-    outputs.check()?;
     let mut opened;
     let opened_info;
     let mut runner = match source {

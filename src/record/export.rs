@@ -122,16 +122,27 @@ pub enum ExportError {
     },
 }
 
+/// The bytes of the recording at `path`, read under the rules of
+/// [`crate::input_file`]: a regular file of at most
+/// [`Kind::Recording`](crate::input_file::Kind::Recording)'s limit.
+///
+/// # Errors
+/// [`ExportError::Recording`] naming the file and the reason.
+pub fn read_recording(path: &Path) -> Result<Vec<u8>, ExportError> {
+    use crate::input_file::{read, Kind};
+    read(path, Kind::Recording, "recording").map_err(|e| ExportError::Recording {
+        path: path.to_path_buf(),
+        reason: e.reason(),
+    })
+}
+
 /// The table of `topic` in the recording at `path` (complete, or the
 /// `.part` of a killed run: every completely written chunk).
 ///
 /// # Errors
 /// [`ExportError::Recording`], [`ExportError::NoTopic`].
 pub fn table_of(path: &Path, topic: &str) -> Result<Table, ExportError> {
-    let bytes = std::fs::read(path).map_err(|e| ExportError::Recording {
-        path: path.to_path_buf(),
-        reason: e.to_string(),
-    })?;
+    let bytes = read_recording(path)?;
     let read = read_messages_tolerant(&bytes);
     if read.messages.is_empty() {
         return Err(ExportError::Recording {

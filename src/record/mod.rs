@@ -96,7 +96,7 @@
 //! bytes to the OS (survives a killed process); only `finish` fsyncs
 //! (survives power loss).
 //!
-//! Layer rule: may use `error`, `live`, `outputs`, `vocab`.
+//! Layer rule: may use `error`, `input_file`, `live`, `outputs`, `vocab`.
 
 mod drain;
 pub mod export;

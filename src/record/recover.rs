@@ -26,13 +26,13 @@ use crate::outputs::{write_atomically, Existing};
 /// Errors of [`recover`].
 #[derive(Debug, thiserror::Error)]
 pub enum RecoverError {
-    /// The input could not be read.
-    #[error("cannot read {path}: {source}")]
+    /// The input could not be read, or is refused: not a regular file,
+    /// or larger than a recording may be ([`crate::input_file`]).
+    #[error("{}: {}", source.path.display(), source.reason())]
     Read {
-        /// The input.
-        path: PathBuf,
-        /// Why.
-        source: std::io::Error,
+        /// The input, its kind and why.
+        #[from]
+        source: crate::input_file::InputError,
     },
     /// The input is not an MCAP file (no valid header), or holds no message.
     #[error("{path} is not a recoverable recording: {reason}")]
@@ -141,10 +141,7 @@ pub struct CutRegion {
 /// [`RecoverError::Read`], [`RecoverError::NotARecording`] (no header, no
 /// message), [`RecoverError::Write`] (nothing is left under `to`).
 pub fn recover(part: &Path, to: &Path, existing: Existing) -> Result<Recovered, RecoverError> {
-    let bytes = std::fs::read(part).map_err(|source| RecoverError::Read {
-        path: part.to_path_buf(),
-        source,
-    })?;
+    let bytes = crate::input_file::read(part, crate::input_file::Kind::Recording, "part")?;
     let not = |reason: String| RecoverError::NotARecording {
         path: part.to_path_buf(),
         reason,

@@ -281,3 +281,50 @@ pub fn noisy_frf(
         frequency_hz: f,
     }
 }
+
+/// A small FRF CSV (`bench chirp`'s six columns, 20 lines from 10 to
+/// 200 Hz) at `dir/name`: enough for every reader of an FRF to take it, for
+/// the tests of what happens before any fit (the input and output checks).
+pub fn small_frf_csv(dir: &Path, name: &str) -> PathBuf {
+    let mut text = String::from(
+        "frequency_hz,magnitude_m_per_a,phase_deg,coherence,sigma_m_per_a,resolution_hz\n",
+    );
+    for i in 1..=20 {
+        let f = 10.0 * f64::from(i);
+        let mag = 1e-5 / (1.0 + (f / 50.0).powi(2));
+        text.push_str(&format!(
+            "{f},{mag:e},{},0.99,{:e},0.5\n",
+            -0.5 * f,
+            mag * 1e-3
+        ));
+    }
+    let p = dir.join(name);
+    std::fs::write(&p, text).unwrap();
+    p
+}
+
+/// Runs `bench` with `args` in `cwd`, killed after `limit`: the output,
+/// and whether it ended by itself within the limit.
+pub fn run_within(args: &[&str], cwd: &Path, limit: std::time::Duration) -> (Output, bool) {
+    use std::process::Stdio;
+    let mut child = bench()
+        .current_dir(cwd)
+        .args(args)
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("cannot start bench");
+    let t0 = std::time::Instant::now();
+    let ended = loop {
+        if child.try_wait().expect("wait").is_some() {
+            break true;
+        }
+        if t0.elapsed() > limit {
+            let _ = child.kill();
+            break false;
+        }
+        std::thread::sleep(std::time::Duration::from_millis(5));
+    };
+    (child.wait_with_output().expect("output"), ended)
+}

@@ -175,12 +175,13 @@ pub fn load_dir(
         return Err(not_campaign("not a directory".into()));
     }
     let j = journal::read(dir).map_err(|e| not_campaign(e.to_string()))?;
+    use crate::input_file::{read_to_string, Kind};
     let copy = dir.join(CAMPAIGN_COPY);
     let copy_text =
-        fs::read_to_string(&copy).map_err(|e| not_campaign(format!("{}: {e}", copy.display())))?;
+        read_to_string(&copy, Kind::Campaign, "dir").map_err(|e| not_campaign(e.to_string()))?;
     let config_copy = dir.join(CONFIG_COPY);
-    let config_copy_text = fs::read_to_string(&config_copy)
-        .map_err(|e| not_campaign(format!("{}: {e}", config_copy.display())))?;
+    let config_copy_text = read_to_string(&config_copy, Kind::Config, "dir")
+        .map_err(|e| not_campaign(e.to_string()))?;
     let was = current(&j);
     let campaign = match campaign_file {
         Some(p) => Campaign::load(p).map_err(|e| CampaignRunError::BadInput(e.to_string()))?,
@@ -215,16 +216,20 @@ pub fn load_dir(
     // Say so when the originals changed but the copies are used.
     let mut note = None;
     if campaign_file.is_none() {
-        if let Ok(text) = fs::read_to_string(dir.join(ORIGIN_FILE)) {
+        if let Ok(text) = read_to_string(&dir.join(ORIGIN_FILE), Kind::CampaignState, "dir") {
             if let Ok(origin) = serde_json::from_str::<Origin>(&text) {
-                let differs = |p: &Path, was: &str| {
-                    fs::read_to_string(p).map(|now| now != was).unwrap_or(false)
+                // The originals, read as every input (one may since have
+                // become a FIFO: refused, not waited on).
+                let differs = |p: &Path, was: &str, kind| {
+                    read_to_string(p, kind, "dir")
+                        .map(|now| now != was)
+                        .unwrap_or(false)
                 };
                 let mut which = Vec::new();
-                if differs(&origin.campaign_file, &copy_text) {
+                if differs(&origin.campaign_file, &copy_text, Kind::Campaign) {
                     which.push(origin.campaign_file.display().to_string());
                 }
-                if differs(&origin.config_file, &config_copy_text) {
+                if differs(&origin.config_file, &config_copy_text, Kind::Config) {
                     which.push(origin.config_file.display().to_string());
                 }
                 if !which.is_empty() {

@@ -32,6 +32,24 @@ pub const MAGNITUDE_RANGE_M_PER_A: (f64, f64) = (1e-20, 1e6);
 /// beyond 1e15° it cannot even tell a degree.
 pub const MAX_ABS_PHASE_DEG: f64 = 1e6;
 
+/// Most lines of an FRF (a CSV's data rows, a recording's `/sysid/frf`):
+/// 100 000. The densest grid `bench` estimates is
+/// `identification.points_per_decade` ≤ 10 000 over at most 6.7 decades
+/// (0.01 Hz to the 50 kHz Nyquist frequency of a 100 kHz loop), 67 000
+/// lines; a default chirp's has about 1 500, a real chirp's a few hundred
+/// to a few thousand. A file with more is not a measurement of this
+/// bench, and is refused before it is parsed whole (the fit and the
+/// design would spend minutes on it).
+pub const MAX_CSV_POINTS: usize = 100_000;
+
+/// The refusal of an FRF of more than [`MAX_CSV_POINTS`] lines.
+pub(crate) fn too_many_points(what: &str) -> String {
+    format!(
+        "more than {MAX_CSV_POINTS} {what}: the densest FRF bench estimates has 67 000 \
+         (10 000 points a decade from 0.01 Hz to 50 kHz); not an FRF of this bench"
+    )
+}
+
 impl Frf {
     /// Writes the CSV
     /// `frequency_hz,magnitude_m_per_a,phase_deg,coherence,sigma_m_per_a,resolution_hz`
@@ -59,7 +77,7 @@ impl Frf {
     /// [`MAGNITUDE_RANGE_M_PER_A`]; phases within ±[`MAX_ABS_PHASE_DEG`];
     /// coherence in 0 … 1; σ in 0 … the largest magnitude; resolution
     /// above 0 and at most the highest frequency; at least
-    /// [`MIN_CSV_POINTS`] rows.
+    /// [`MIN_CSV_POINTS`] rows, at most [`MAX_CSV_POINTS`].
     ///
     /// # Errors
     /// The reason, naming the line (1-based, the header is line 1) and the
@@ -86,6 +104,9 @@ impl Frf {
             let n = i + 2;
             if line.trim().is_empty() {
                 continue;
+            }
+            if frf.frequency_hz.len() == MAX_CSV_POINTS {
+                return Err(format!("line {n}: {}", too_many_points("data lines")));
             }
             let fields: Vec<&str> = line.split(',').collect();
             if fields.len() != columns {

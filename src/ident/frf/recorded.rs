@@ -64,6 +64,13 @@ pub fn read_frf(bytes: &[u8]) -> Result<RecordedFrf, String> {
         )
     })?;
     let n = p.frequency_hz.len();
+    if n > MAX_CSV_POINTS {
+        return Err(format!(
+            "{}: {}",
+            crate::record::TOPIC_FRF,
+            too_many_points("lines")
+        ));
+    }
     let unknown = |v: Option<Vec<Option<f64>>>| -> Vec<f64> {
         v.map(|v| v.into_iter().map(|x| x.unwrap_or(f64::NAN)).collect())
             .unwrap_or_else(|| vec![f64::NAN; n])

@@ -98,6 +98,8 @@ pub fn run_chirp(
     stop: Arc<AtomicBool>,
     ticks: Option<&Arc<AtomicU64>>,
 ) -> Result<ChirpSummary, RunError> {
+    // No output may be the config it reads (rule 6 of crate::outputs).
+    outputs.add_input("config", &opts.config_path);
     outputs.check()?;
     let spec = BackendSpec::resolve(opts.backend.as_ref(), &opts.config);
     let (mut stage, info) = backend::open(
@@ -183,6 +185,7 @@ pub(super) fn run_chirp_with(
 ) -> Result<ChirpSummary, RunError> {
     let cfg = &opts.config;
     let info = &runner.info().clone();
+    outputs.add_input("config", &opts.config_path);
     outputs.check()?;
     let model = Sr4dof::new(cfg.plant)
         .map_err(|e| RunError::BadInput(format!("config {}: {e}", opts.config_path.display())))?;
