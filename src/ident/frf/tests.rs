@@ -184,20 +184,21 @@ fn unwrap_and_grid() {
 }
 
 /// At most `MAX_CSV_POINTS` lines: that many are read, one more is refused
-/// at its line, before the rest of the file is looked at.
+/// at its line, before the rest of the file is looked at (lines 1, 2, …
+/// mHz, each within the range of a line).
 #[test]
 fn an_frf_csv_of_more_than_max_points_is_refused_at_the_line_over() {
     use std::fmt::Write;
     let mut text = String::from("frequency_hz,magnitude_m_per_a,phase_deg,coherence\n");
     for i in 1..=MAX_CSV_POINTS {
-        writeln!(text, "{i},1e-6,-1,1").unwrap();
+        writeln!(text, "{i}e-3,1e-6,-1,1").unwrap();
     }
     assert_eq!(
         Frf::read_csv(&text).unwrap().frequency_hz.len(),
         MAX_CSV_POINTS
     );
     // One more line, then garbage that is never parsed.
-    text.push_str("100001,1e-6,-1,1\nnot,a,line\n");
+    text.push_str("100001e-3,1e-6,-1,1\nnot,a,line\n");
     let e = Frf::read_csv(&text).unwrap_err();
     assert!(
         e.starts_with("line 100002: more than 100000 data lines"),
