@@ -19,6 +19,7 @@ pub mod daemon;
 pub mod design;
 pub mod error;
 pub mod ident;
+pub mod job_memory;
 pub mod jobs;
 pub mod live;
 pub mod outputs;

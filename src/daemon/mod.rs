@@ -132,6 +132,28 @@ pub const MAX_CLIENTS: usize = 64;
 /// clients keep being served.
 pub const ACCEPT_BACKOFF_MS: u64 = 100;
 
+/// How long a stopped job has to end, in milliseconds, before it is
+/// abandoned: its slot is freed, the amplifier disabled at 0 A, its client
+/// answered `interrupted`, and its thread left to end on its own (`status`
+/// lists it under `abandoned_jobs` until it does). What a job does after
+/// `stop` sets it: a bench job's loop ends within one tick, and its
+/// worker then finishes the recording, the tail of at most one chunk
+/// (chunks close every 50 ms, `record::writer::ChunkPolicy::REAL_TIME`),
+/// the summary and the index, written and synced: 8 ms here
+/// (`tests/daemon_hostile.rs` measures it). A campaign's cells stop the
+/// same way. A job that computes (fit, design, plot…) does not look at
+/// `stop`: it is abandoned after this time. One second leaves a slow or
+/// busy disk a hundred times that, and the rest of [`SHUTDOWN_BOUND_MS`]
+/// for disabling the amplifier and leaving.
+pub const JOB_STOP_TIMEOUT_MS: u64 = 1000;
+
+/// SIGTERM or SIGINT ends the daemon within this, in milliseconds, whatever
+/// its job does: the job is stopped and given [`JOB_STOP_TIMEOUT_MS`],
+/// then abandoned; the amplifier is disabled at 0 A, the loop and the
+/// socket closed, and the process exits. A thread blocked in a read (a
+/// FIFO) cannot be ended: the process exits around it.
+pub const SHUTDOWN_BOUND_MS: u64 = 2000;
+
 /// Deepest nesting of arrays and objects in a request (the `id` included),
 /// in levels; deeper is a `bad_request`.
 pub const MAX_JSON_DEPTH: usize = 64;
@@ -335,6 +357,11 @@ pub fn serve(opts: ServeOptions) -> Result<(), ServeError> {
             e.to_string(),
         ))
     })?;
+    if !crate::job_memory::installed() {
+        tracing::warn!(
+            "bench::job_memory::BudgetAllocator is not this program's global allocator: the jobs' memory budgets are not enforced"
+        );
+    }
     let (events, _) = broadcast::channel::<String>(1024);
     // The store refuses (no bucket, credentials): stop before the bench
     // is opened; an outage only delays the uploads.
@@ -374,6 +401,7 @@ pub fn serve(opts: ServeOptions) -> Result<(), ServeError> {
             }),
         jobs_run: 0,
         last_recording: None,
+        abandoned_jobs: Vec::new(),
     }));
     let (owner_tx, owner_rx) = mpsc::channel();
     // The real-time loop: one Loop and one supervisor for the daemon's
@@ -493,6 +521,8 @@ pub fn serve(opts: ServeOptions) -> Result<(), ServeError> {
         .enable_all()
         .build()
         .map_err(|e| ServeError::Other(format!("tokio: {e}")))?;
+    // When the shutdown began (a signal, `shutdown`): the bound's start.
+    let shutdown_at: Mutex<Option<std::time::Instant>> = Mutex::new(None);
     let result = rt.block_on(async {
         let listener = bind_socket(&opts.socket, opts.socket_group.as_deref())?;
         tokio::spawn(event_log(recordings.clone(), ctx.events.subscribe()));
@@ -519,16 +549,17 @@ pub fn serve(opts: ServeOptions) -> Result<(), ServeError> {
             () = ctx.shutdown.notified() => {}
         }
         // Stop safely: the running job ends at 0 A with its recording
-        // finished, then the owner disables and returns.
+        // finished, or is abandoned by the owner JOB_STOP_TIMEOUT_MS after
+        // the stop; then the owner disables and returns.
+        *lock(&shutdown_at) = Some(std::time::Instant::now());
         let running = lock(&ctx.running).clone();
         if let Some(h) = running {
             h.stop.store(true, Ordering::Relaxed);
             // Let the job's client get its (interrupted) response.
-            for _ in 0..400 {
-                if lock(&ctx.running).is_none() {
-                    break;
-                }
-                tokio::time::sleep(std::time::Duration::from_millis(25)).await;
+            let wait = std::time::Duration::from_millis(JOB_STOP_TIMEOUT_MS + 200);
+            let t0 = std::time::Instant::now();
+            while lock(&ctx.running).is_some() && t0.elapsed() < wait {
+                tokio::time::sleep(std::time::Duration::from_millis(10)).await;
             }
             tokio::time::sleep(std::time::Duration::from_millis(50)).await;
         }
@@ -539,9 +570,26 @@ pub fn serve(opts: ServeOptions) -> Result<(), ServeError> {
     // could not be bound): the owner must see Shutdown, or the joins below
     // wait for ever.
     let _ = lock(&ctx.owner).send(OwnerCmd::Shutdown);
-    // The owner finishes the job (its recording) before it sees Shutdown.
-    let _ = owner_thread.join();
-    let _ = rt_thread.join();
+    // The owner finishes the job (its recording) before it sees Shutdown,
+    // then has the loop disable the amplifier and stop. Neither is waited
+    // for past the shutdown bound: a thread stuck in a device call cannot
+    // be ended, and the device's own watchdog drops the current when the
+    // process is gone.
+    let bound = lock(&shutdown_at)
+        .unwrap_or_else(std::time::Instant::now)
+        .checked_add(std::time::Duration::from_millis(SHUTDOWN_BOUND_MS - 100));
+    for (name, thread) in [("owner", owner_thread), ("real-time loop", rt_thread)] {
+        while !thread.is_finished() && bound.is_some_and(|b| std::time::Instant::now() < b) {
+            std::thread::sleep(std::time::Duration::from_millis(2));
+        }
+        if thread.is_finished() {
+            let _ = thread.join();
+        } else {
+            tracing::error!(
+                "the {name} thread did not end within {SHUTDOWN_BOUND_MS} ms of the shutdown; leaving without it"
+            );
+        }
+    }
     // The metrics are served until the loop has stopped.
     drop(metrics);
     let _ = std::fs::remove_file(&opts.socket);

@@ -131,6 +131,18 @@ pub(super) struct Status {
     pub(super) hold: String,
     pub(super) jobs_run: u64,
     pub(super) last_recording: Option<String>,
+    /// Jobs abandoned (not done [`super::JOB_STOP_TIMEOUT_MS`] after
+    /// `stop`, or over their memory budget) whose threads have not ended.
+    pub(super) abandoned_jobs: Vec<AbandonedJob>,
+}
+
+/// A job abandoned whose thread has not ended, as `status` shows it.
+#[derive(Debug, Clone, Serialize)]
+pub(super) struct AbandonedJob {
+    pub(super) id: u64,
+    pub(super) kind: &'static str,
+    /// What its threads hold, bytes (0 for a bench job: not counted).
+    pub(super) memory_bytes: u64,
 }
 
 #[derive(Debug, Clone, Serialize)]
