@@ -31,7 +31,8 @@ pub(super) fn start(
 ) -> Result<Uploader, RunError> {
     let shown = url.to_string();
     let refuse = |reason: String| RunError::option("upload", &shown, reason);
-    let store = Store::open(url).map_err(refuse)?;
+    let timeout = std::time::Duration::from_secs_f64(crate::upload::store::DEFAULT_TIMEOUT_S);
+    let store = Store::open(url, timeout).map_err(refuse)?;
     let probe = tokio::runtime::Builder::new_current_thread()
         .enable_all()
         .build()
