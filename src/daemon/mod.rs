@@ -35,7 +35,7 @@
 //!
 //! | cmd | params | result |
 //! |---|---|---|
-//! | `status` | – | state, fault and cause, job and progress, backend, last reading |
+//! | `status` | – | state, fault and cause, job and progress, backend, last reading, the store of `--upload` |
 //! | `enable` / `disable` | – | amplifier enabled at 0 A / disabled (refused while faulted) |
 //! | `reset` | – | clears a latched fault (back to `disabled`) |
 //! | `chirp` | the fields of a [`ChirpRequest`], and `detach` | the `bench chirp --json` summary |
@@ -154,6 +154,21 @@ pub const JOB_STOP_TIMEOUT_MS: u64 = 1000;
 /// FIFO) cannot be ended: the process exits around it.
 pub const SHUTDOWN_BOUND_MS: u64 = 2000;
 
+/// How long `bench serve --upload` waits for the store's first answer
+/// before it opens the bench, in milliseconds. A store that refuses
+/// within it (no such bucket, credentials refused, an `http://` endpoint
+/// not allowed) stops the daemon (exit 2, naming `--upload`); one that
+/// has not answered by then does not hold the daemon: it opens the bench
+/// and its socket, and the probe goes on in the background, bounded by
+/// `--store-timeout` and tried again while the store does not answer
+/// (`status` shows the store's `state`: `probing`, `answering`,
+/// `unreachable` or `refused`; a refusal found then is reported, and the
+/// daemon runs on). An answer, a refusal included, takes a few round
+/// trips (TCP and TLS handshakes, one listing): milliseconds on a lab's
+/// network. A second leaves a distant store that margin, and delays the
+/// socket of a daemon whose store is silent by no more.
+pub const STORE_PROBE_GRACE_MS: u64 = 1000;
+
 /// Deepest nesting of arrays and objects in a request (the `id` included),
 /// in levels; deeper is a `bad_request`.
 pub const MAX_JSON_DEPTH: usize = 64;
@@ -222,13 +237,19 @@ pub struct ServeOptions {
     /// Upload each finished job's recording, companions, summary and
     /// catalogue row to this store (`--upload`); `None`: no uploads.
     pub upload: Option<crate::upload::StoreUrl>,
+    /// How long the store of `upload` has to connect and to answer each
+    /// request, s (`--store-timeout`, within
+    /// [`crate::upload::store::TIMEOUT_RANGE_S`]; default
+    /// [`crate::upload::store::DEFAULT_TIMEOUT_S`]).
+    pub store_timeout_s: f64,
 }
 
 /// Why the daemon did not start or stopped with an error.
 #[derive(Debug, thiserror::Error)]
 pub enum ServeError {
     /// Bad input before anything was opened (exit 2): an option
-    /// (`socket`, `socket_group`, `recordings`, `backend`) or the config.
+    /// (`socket`, `socket_group`, `recordings`, `backend`, `metrics`,
+    /// `upload`, `store_timeout`) or the config.
     #[error(transparent)]
     Input(RunError),
     /// Anything else (exit 1).
@@ -251,6 +272,9 @@ struct Ctx {
     next_job: AtomicU64,
     running: Mutex<Option<JobHandle>>,
     shutdown: tokio::sync::Notify,
+    /// `--upload`: the store's state, for `status` (its probe stops when
+    /// this is dropped).
+    store: Option<uploads::StoreProbe>,
 }
 
 fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
@@ -321,7 +345,9 @@ fn hold_factory(
 ///
 /// # Errors
 /// [`ServeError::Input`] for an unusable socket path, a busy socket, a
-/// device that cannot be opened; [`ServeError::Other`] otherwise.
+/// device that cannot be opened, a `store_timeout_s` out of its range, a
+/// store of `upload` without credentials or that refused within
+/// [`STORE_PROBE_GRACE_MS`]; [`ServeError::Other`] otherwise.
 pub fn serve(opts: ServeOptions) -> Result<(), ServeError> {
     // First: an address in use stops the daemon before anything else.
     let metrics_listener = opts
@@ -363,14 +389,23 @@ pub fn serve(opts: ServeOptions) -> Result<(), ServeError> {
         );
     }
     let (events, _) = broadcast::channel::<String>(1024);
-    // The store refuses (no bucket, credentials): stop before the bench
-    // is opened; an outage only delays the uploads.
-    let uploader = opts
-        .upload
-        .clone()
-        .map(|url| uploads::start(url, &recordings, opts.config.loop_.cpu, events.clone()))
-        .transpose()
-        .map_err(ServeError::Input)?;
+    // The store refuses (no bucket, credentials) within the probe's
+    // grace: stop before the bench is opened; one that has not answered
+    // by then only delays the uploads, its probe going on meanwhile.
+    let (uploader, store_probe) = match opts.upload.clone() {
+        Some(url) => {
+            let (u, p) = uploads::start(
+                url,
+                opts.store_timeout_s,
+                &recordings,
+                opts.config.loop_.cpu,
+                events.clone(),
+            )
+            .map_err(ServeError::Input)?;
+            (Some(u), Some(p))
+        }
+        None => (None, None),
+    };
     let spec = BackendSpec::resolve(opts.backend.as_ref(), &opts.config);
     let (mut stage, info) = backend::open(
         &spec,
@@ -402,6 +437,7 @@ pub fn serve(opts: ServeOptions) -> Result<(), ServeError> {
         jobs_run: 0,
         last_recording: None,
         abandoned_jobs: Vec::new(),
+        store: None,
     }));
     let (owner_tx, owner_rx) = mpsc::channel();
     // The real-time loop: one Loop and one supervisor for the daemon's
@@ -516,6 +552,7 @@ pub fn serve(opts: ServeOptions) -> Result<(), ServeError> {
         next_job: AtomicU64::new(0),
         running: Mutex::new(None),
         shutdown: tokio::sync::Notify::new(),
+        store: store_probe,
     });
     let rt = tokio::runtime::Builder::new_current_thread()
         .enable_all()

@@ -1,6 +1,7 @@
 //! The store a `--upload`/`--to` URL names: parsed and checked
 //! ([`StoreUrl::parse`]), opened ([`Store::open`]) and probed
-//! ([`Store::probe`]) before anything is queued.
+//! ([`Store::probe`]): by `bench upload` before it uploads, by `bench
+//! serve --upload` in the background (`crate::daemon`).
 
 use object_store::aws::{AmazonS3Builder, AmazonS3ConfigKey};
 use object_store::local::LocalFileSystem;
