@@ -20,6 +20,7 @@ pub mod design;
 pub mod error;
 pub mod ident;
 pub mod input_file;
+pub mod job_memory;
 pub mod jobs;
 pub mod live;
 pub mod outputs;

@@ -693,3 +693,272 @@ fn a_local_run_interrupted_while_preparing_exits_130_at_once() {
         files_in(dir.path())
     );
 }
+
+/// SIGTERMs the daemon and waits for it to exit, at most `bound`; the
+/// time it took, and the exit status.
+fn sigterm_within(d: &mut Daemon, bound: Duration) -> (Duration, std::process::ExitStatus) {
+    let t0 = Instant::now();
+    // SAFETY: plain kill(2) on our child.
+    unsafe { libc::kill(d.child.id() as i32, libc::SIGTERM) };
+    loop {
+        if let Some(st) = d.child.try_wait().unwrap() {
+            return (t0.elapsed(), st);
+        }
+        assert!(
+            t0.elapsed() < bound,
+            "the daemon did not exit within {bound:?} of SIGTERM"
+        );
+        std::thread::sleep(Duration::from_millis(5));
+    }
+}
+
+/// The audit's wedged job (issue 46, item 4): a `design` job whose
+/// thread never returns (it read a FIFO; the preparation-hang hook stands
+/// in for the read, as FIFOs are refused at open now) held the only job
+/// slot: `stop` was acknowledged and nothing stopped, chirp and control
+/// got `busy`, SIGTERM did not end the daemon within 15 s. Now the job is
+/// abandoned `JOB_STOP_TIMEOUT_MS` after `stop`, its slot freed, the
+/// amplifier disabled at 0 A, and SIGTERM ends the daemon within
+/// `SHUTDOWN_BOUND_MS` with another such job running.
+#[test]
+fn a_job_that_does_not_answer_stop_is_abandoned_and_sigterm_ends_the_daemon_in_2_s() {
+    let _g = one_at_a_time();
+    let timeout = Duration::from_millis(bench::daemon::JOB_STOP_TIMEOUT_MS);
+    // What a job that answers `stop` takes: a real-time chirp's loop ends
+    // within a tick, then its recording is finished (tail, summary, index,
+    // synced, renamed). The timeout is ten times that here.
+    {
+        let d = Daemon::start();
+        let mut c = d.client();
+        c.submit("chirp", json!({ "duration_s": 5 }));
+        std::thread::sleep(Duration::from_millis(400));
+        assert_eq!(d.client().call("stop", json!({}))["ok"], true);
+        let t0 = Instant::now();
+        let r = c.response();
+        let took = t0.elapsed();
+        eprintln!("a chirp answered its stop, recording finished, in {took:?}");
+        assert_eq!(r["error"]["kind"], "interrupted", "{r}");
+        let rec = r["error"]["summary"]["recording"].as_str().unwrap();
+        assert!(Path::new(rec).is_file(), "{r}");
+        assert!(took < timeout / 4, "{took:?}");
+    }
+    let mut d = hanging_daemon();
+    let input = d.dir.path().join("measured.frf.csv");
+    std::fs::write(
+        &input,
+        "frequency_hz,magnitude_m_per_a,phase_deg,coherence\n1,1e-6,0,1\n",
+    )
+    .unwrap();
+    let design = json!({ "inputs": [input], "no_plot": true });
+    let mut b = d.client();
+    assert_eq!(b.call("enable", json!({}))["ok"], true);
+    let mut a = d.client();
+    a.w.set_read_timeout(Some(Duration::from_secs(5))).unwrap();
+    let started = a.submit("design", design.clone());
+    let id = started["job"].as_u64().unwrap();
+    std::thread::sleep(Duration::from_millis(200));
+    let s = b.call("status", json!({}))["result"].clone();
+    assert_eq!(s["state"], "running", "{s}");
+    assert_eq!(s["job"]["kind"], "design", "{s}");
+    assert_eq!(b.call("chirp", json!({}))["error"]["kind"], "busy");
+    // `stop`: the job is abandoned JOB_STOP_TIMEOUT_MS later.
+    assert_eq!(b.call("stop", json!({}))["result"]["stopping"], id);
+    let t0 = Instant::now();
+    let r = a.response();
+    let waited = t0.elapsed();
+    eprintln!("stopped job answered after {waited:?}: {r}");
+    assert_eq!(r["error"]["kind"], "interrupted", "{r}");
+    assert!(
+        r["error"]["message"]
+            .as_str()
+            .unwrap()
+            .contains("abandoned"),
+        "{r}"
+    );
+    assert!(
+        waited >= timeout - Duration::from_millis(50)
+            && waited < timeout + Duration::from_millis(500),
+        "{waited:?}"
+    );
+    // Its slot is free; the stage was left at 0 A, disabled (it was
+    // enabled); the job is listed as abandoned.
+    let s = wait_state(&mut b, "disabled", Duration::from_secs(1));
+    assert_eq!(s["command_a"], 0.0, "{s}");
+    assert!(s["job"].is_null(), "{s}");
+    assert_eq!(s["abandoned_jobs"][0]["id"], id, "{s}");
+    assert_eq!(s["abandoned_jobs"][0]["kind"], "design", "{s}");
+    let chirp = b.submit("chirp", json!({ "duration_s": 1 }));
+    assert!(chirp["job"].as_u64().is_some(), "{chirp}");
+    assert_eq!(b.call("stop", json!({}))["ok"], true);
+    assert_eq!(b.response()["error"]["kind"], "interrupted");
+    // Another wedged job, not stopped: SIGTERM ends the daemon within the
+    // bound all the same, and the job's client gets its answer first.
+    a.submit("design", design);
+    std::thread::sleep(Duration::from_millis(200));
+    let bound = Duration::from_millis(bench::daemon::SHUTDOWN_BOUND_MS);
+    let (took, status) = sigterm_within(&mut d, bound);
+    eprintln!("exited {took:?} after SIGTERM with a wedged job");
+    assert!(status.success(), "{status:?}");
+    assert!(!d.socket.exists(), "socket left behind");
+    let r = a.response();
+    assert_eq!(r["error"]["kind"], "interrupted", "{r}");
+}
+
+/// A memory cgroup the test makes (cgroup v2, or v1's memory controller)
+/// with a limit, removed on drop (once its processes are gone).
+struct MemoryCgroup {
+    dir: std::path::PathBuf,
+    v2: bool,
+}
+
+impl MemoryCgroup {
+    /// A new group limited to `limit_bytes`, or why there can be none here.
+    fn new(limit_bytes: u64) -> Result<Self, String> {
+        let name = format!("bench-test-{}", std::process::id());
+        let write =
+            |p: &Path, v: &str| std::fs::write(p, v).map_err(|e| format!("{}: {e}", p.display()));
+        let v2_root = Path::new("/sys/fs/cgroup");
+        let controllers = std::fs::read_to_string(v2_root.join("cgroup.controllers"));
+        let (dir, v2) = if controllers.is_ok_and(|c| c.split_whitespace().any(|c| c == "memory")) {
+            // A child of the root, which may hold processes and children.
+            let _ = write(&v2_root.join("cgroup.subtree_control"), "+memory");
+            (v2_root.join(&name), true)
+        } else {
+            let own = std::fs::read_to_string("/proc/self/cgroup").map_err(|e| e.to_string())?;
+            let path = own
+                .lines()
+                .find_map(|l| {
+                    let mut f = l.splitn(3, ':');
+                    let (_, c, p) = (f.next()?, f.next()?, f.next()?);
+                    c.split(',').any(|c| c == "memory").then(|| p.to_string())
+                })
+                .ok_or("no cgroup v2 memory controller and no v1 memory hierarchy")?;
+            let root = Path::new("/sys/fs/cgroup/memory").join(path.trim_start_matches('/'));
+            (root.join(&name), false)
+        };
+        std::fs::create_dir(&dir).map_err(|e| format!("{}: {e}", dir.display()))?;
+        let g = Self { dir, v2 };
+        let file = if v2 {
+            "memory.max"
+        } else {
+            "memory.limit_in_bytes"
+        };
+        write(&g.dir.join(file), &limit_bytes.to_string())?;
+        if v2 {
+            let _ = write(&g.dir.join("memory.swap.max"), "0");
+        }
+        Ok(g)
+    }
+
+    fn add(&self, pid: u32) {
+        std::fs::write(self.dir.join("cgroup.procs"), pid.to_string()).unwrap();
+    }
+
+    /// The most the group has held, bytes.
+    fn peak_bytes(&self) -> u64 {
+        let f = if self.v2 {
+            "memory.peak"
+        } else {
+            "memory.max_usage_in_bytes"
+        };
+        std::fs::read_to_string(self.dir.join(f))
+            .ok()
+            .and_then(|s| s.trim().parse().ok())
+            .unwrap_or(0)
+    }
+}
+
+impl Drop for MemoryCgroup {
+    fn drop(&mut self) {
+        for _ in 0..100 {
+            if std::fs::remove_dir(&self.dir).is_ok() {
+                return;
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
+}
+
+/// The audit's `{"cmd":"design","params":{"inputs":["/dev/zero"]}}`
+/// (issue 46, item 4): it read until memory ran out, and in a 3 GiB
+/// memory cgroup the daemon was OOM-killed while enabled and holding the
+/// stage. Here, in a 512 MiB cgroup, each job that computes has a budget
+/// of a quarter of that: the request fails (over its budget, or refused
+/// as not a regular file) and the daemon lives, the stage at 0 A,
+/// disabled. The allocation hook (`BENCH_TEST_ALLOCATE_JOB=analyze`)
+/// stands in for any job whose memory grows without bound: each fails on
+/// its budget, until what the parked jobs hold leaves no room for another
+/// (`busy`); a bench job still runs, and SIGTERM still ends the daemon.
+#[test]
+fn a_job_over_its_memory_budget_fails_and_the_daemon_lives_in_a_memory_cgroup() {
+    let _g = one_at_a_time();
+    let limit: u64 = 512 << 20;
+    let cg = match MemoryCgroup::new(limit) {
+        Ok(g) => g,
+        Err(why) => {
+            eprintln!("SKIPPED: no memory cgroup can be made here: {why}");
+            return;
+        }
+    };
+    let mut d = Daemon::start_adjusted(&[], "", |cmd| {
+        cmd.env(bench::daemon::testing::ALLOCATE_JOB_ENV, "analyze");
+    });
+    cg.add(d.child.id());
+    let mut b = d.client();
+    assert_eq!(b.call("enable", json!({}))["ok"], true);
+    let mut a = d.client();
+    a.w.set_read_timeout(Some(Duration::from_secs(30))).unwrap();
+    let t0 = Instant::now();
+    let r = a.call(
+        "design",
+        json!({ "inputs": ["/dev/zero"], "no_plot": true }),
+    );
+    eprintln!("/dev/zero design answered after {:?}: {r}", t0.elapsed());
+    assert_eq!(r["ok"], false, "{r}");
+    assert!(d.child.try_wait().unwrap().is_none(), "the daemon died");
+    let s = wait_state(&mut b, "disabled", Duration::from_secs(1));
+    assert_eq!(s["command_a"], 0.0, "{s}");
+    // Jobs that grow without bound: each fails on its budget, until the
+    // memory the parked ones hold leaves no room (busy).
+    let mut busy = None;
+    for _ in 0..4 {
+        assert_eq!(b.call("enable", json!({}))["ok"], true);
+        let t0 = Instant::now();
+        let r = a.call("analyze", json!({ "no_plots": true }));
+        eprintln!("allocating job answered after {:?}: {r}", t0.elapsed());
+        assert_eq!(r["ok"], false, "{r}");
+        assert!(d.child.try_wait().unwrap().is_none(), "the daemon died");
+        let message = r["error"]["message"].as_str().unwrap().to_string();
+        if r["error"]["kind"] == "busy" {
+            busy = Some(message);
+            break;
+        }
+        assert_eq!(r["error"]["kind"], "error", "{r}");
+        assert!(message.contains("memory budget of 128 MiB"), "{message}");
+        let s = wait_state(&mut b, "disabled", Duration::from_secs(1));
+        assert_eq!(s["command_a"], 0.0, "{s}");
+    }
+    let busy = busy.expect("the abandoned jobs' memory never refused a job");
+    assert!(busy.contains("abandoned job(s) still hold"), "{busy}");
+    let s = b.call("status", json!({}))["result"].clone();
+    let held: u64 = s["abandoned_jobs"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|j| j["memory_bytes"].as_u64().unwrap())
+        .sum();
+    eprintln!(
+        "abandoned jobs hold {} MiB; the cgroup's peak {} MiB of {} MiB",
+        held >> 20,
+        cg.peak_bytes() >> 20,
+        limit >> 20
+    );
+    assert!(held <= limit / 2 + (16 << 20), "{s}");
+    // A bench job still runs.
+    let r = a.call("chirp", json!({ "duration_s": 0.5, "pace": "off" }));
+    assert_eq!(r["ok"], true, "{r}");
+    let bound = Duration::from_millis(bench::daemon::SHUTDOWN_BOUND_MS);
+    let (took, status) = sigterm_within(&mut d, bound);
+    eprintln!("exited {took:?} after SIGTERM with parked jobs");
+    assert!(status.success(), "{status:?}");
+}

@@ -229,6 +229,80 @@ fn pump(mut from: TcpStream, mut to: TcpStream, count: Option<&AtomicU64>, rate:
     let _ = to.shutdown(Shutdown::Write);
 }
 
+/// A store that takes every connection and never answers on it (the
+/// audit's hostile case, issue 46 item 7): a TCP listener whose thread
+/// accepts each connection and holds it open without reading or writing.
+/// It counts the connections taken (the store was reached, not refused).
+struct SilentStore {
+    addr: SocketAddr,
+    accepted: Arc<AtomicU64>,
+}
+
+impl SilentStore {
+    fn start() -> Self {
+        let listener = TcpListener::bind("127.0.0.1:0").unwrap();
+        let addr = listener.local_addr().unwrap();
+        let accepted = Arc::new(AtomicU64::new(0));
+        let count = Arc::clone(&accepted);
+        std::thread::spawn(move || {
+            let mut held = Vec::new();
+            for c in listener.incoming().flatten() {
+                count.fetch_add(1, Ordering::SeqCst);
+                held.push(c);
+            }
+        });
+        Self { addr, accepted }
+    }
+
+    fn endpoint(&self) -> String {
+        format!("http://{}", self.addr)
+    }
+
+    fn accepted(&self) -> u64 {
+        self.accepted.load(Ordering::SeqCst)
+    }
+}
+
+/// A store that answers late: each connection is held `delay`, then
+/// relayed to `upstream`.
+fn late_store(upstream: SocketAddr, delay: Duration) -> SocketAddr {
+    let listener = TcpListener::bind("127.0.0.1:0").unwrap();
+    let addr = listener.local_addr().unwrap();
+    std::thread::spawn(move || {
+        for client in listener.incoming().flatten() {
+            std::thread::spawn(move || {
+                std::thread::sleep(delay);
+                let Ok(server) = TcpStream::connect(upstream) else {
+                    return;
+                };
+                let (c2, s2) = (client.try_clone().unwrap(), server.try_clone().unwrap());
+                std::thread::spawn(move || pump(s2, c2, None, None));
+                pump(client, server, None, None);
+            });
+        }
+    });
+    addr
+}
+
+/// Sends SIGTERM to the daemon and waits for its exit, at most
+/// `SHUTDOWN_BOUND_MS` (its documented bound) and 1 s for the process to
+/// leave; returns its exit status and stderr.
+fn sigterm(mut d: Child) -> (std::process::ExitStatus, String) {
+    // SAFETY: plain kill(2) on our child.
+    unsafe { libc::kill(d.id() as i32, libc::SIGTERM) };
+    let t0 = Instant::now();
+    let bound = Duration::from_millis(bench::daemon::SHUTDOWN_BOUND_MS + 1000);
+    while d.try_wait().unwrap().is_none() {
+        if t0.elapsed() > bound {
+            let _ = d.kill();
+            panic!("the daemon did not end within {bound:?} of SIGTERM");
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let o = d.wait_with_output().unwrap();
+    (o.status, stderr(&o))
+}
+
 /// The `AWS_*` environment of a store at `endpoint` with this key.
 fn aws_env(cmd: &mut Command, endpoint: &str, id: &str, secret: &str) {
     for v in [
@@ -783,6 +857,30 @@ fn bad_stores_and_bad_files_exit_2_naming_the_flag_and_upload_nothing() {
             "--retry-for",
             "out of range",
         ),
+        (
+            "a store timeout too short",
+            Box::new(none),
+            vec!["--to", "s3://lab-bench/x", "--store-timeout", "0.4", r],
+            2,
+            "--store-timeout",
+            "out of range",
+        ),
+        (
+            "a store timeout too long",
+            Box::new(none),
+            vec!["--to", "s3://lab-bench/x", "--store-timeout", "301", r],
+            2,
+            "--store-timeout",
+            "out of range",
+        ),
+        (
+            "a NaN store timeout",
+            Box::new(none),
+            vec!["--to", "s3://lab-bench/x", "--store-timeout", "NaN", r],
+            2,
+            "--store-timeout",
+            "out of range",
+        ),
     ];
     for (what, env, args, code, flag, reason) in &cases {
         let o = run(env.as_ref(), args);
@@ -830,6 +928,84 @@ fn bad_stores_and_bad_files_exit_2_naming_the_flag_and_upload_nothing() {
         );
         assert!(!socket.exists(), "{what}: the daemon opened its socket");
     }
+    // --store-timeout out of its range, or without --upload.
+    for (what, args, reason) in [
+        (
+            "too short",
+            vec!["--upload", "s3://lab-bench/d", "--store-timeout", "0.4"],
+            "out of range",
+        ),
+        (
+            "infinite",
+            vec!["--upload", "s3://lab-bench/d", "--store-timeout", "inf"],
+            "out of range",
+        ),
+        ("without --upload", vec!["--store-timeout", "5"], "--upload"),
+    ] {
+        let mut c = bench();
+        aws_env(&mut c, &ep, &m.id, &m.secret);
+        let o = c
+            .args(["serve", "--config", config.to_str().unwrap(), "--socket"])
+            .arg(&socket)
+            .arg("--recordings")
+            .arg(dir.path().join("rec"))
+            .args(&args)
+            .output()
+            .unwrap();
+        let err = stderr(&o);
+        assert_eq!(o.status.code(), Some(2), "{what}: {err}");
+        assert!(
+            err.contains("--store-timeout") && err.contains(reason),
+            "{what}: {err}"
+        );
+        assert!(!socket.exists(), "{what}: the daemon opened its socket");
+    }
+    // A store that refuses after the probe's grace (its answer held 2 s,
+    // STORE_PROBE_GRACE_MS being 1 s): the daemon has opened the bench by
+    // then and runs on, the refusal on stderr and in `status`.
+    let late = late_store(m.addr(), Duration::from_secs(2));
+    let mut d = daemon_fixtures::spawn_serve_with(
+        &config,
+        &socket,
+        &dir.path().join("rec"),
+        &["--upload", "s3://lab-bench/d"],
+        |c| aws_env(c, &format!("http://{late}"), &m.id, "not-the-secret"),
+    );
+    let t0 = Instant::now();
+    let store = loop {
+        let store = store_status(&socket);
+        if store["state"] != "probing" {
+            break store;
+        }
+        assert!(t0.elapsed() < Duration::from_secs(20), "{store}");
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    assert_eq!(store["state"], "refused", "{store}");
+    assert!(
+        store["reason"]
+            .as_str()
+            .is_some_and(|r| r.contains("credentials")),
+        "{store}"
+    );
+    let mut client = daemon_fixtures::Client::new(&socket);
+    let r = client.call(
+        "control",
+        json!({"controller": "fast", "duration_s": 1, "seed": 5, "pace": "off"}),
+    );
+    assert_eq!(r["ok"], true, "the daemon did not run on: {r}");
+    assert!(d.try_wait().unwrap().is_none(), "the daemon ended");
+    let (status, err) = sigterm(d);
+    assert!(status.success(), "{status:?}: {err}");
+    assert!(
+        err.contains("error: --upload s3://lab-bench/d") && err.contains("credentials"),
+        "{err}"
+    );
+    let queued = journal_lines(&dir.path().join("rec"))
+        .iter()
+        .filter(|l| l["op"] == "queued")
+        .count();
+    assert!(queued > 0, "the run's files were not queued");
+    std::fs::remove_file(dir.path().join("rec").join("upload-journal.jsonl")).unwrap();
     // A journal with a bad line in its middle: refused, naming the line.
     let rec_dir = dir.path().join("rec");
     std::fs::create_dir_all(&rec_dir).unwrap();
@@ -1141,4 +1317,202 @@ fn campaigns_go_up_whole_from_the_cli_and_the_daemon() {
     d.kill().unwrap();
     d.wait().unwrap();
     assert_campaign_uploaded(&m.objects("daemon/"), "daemon", &cdir);
+}
+
+/// The `store` of the daemon's `status`, over a connection of its own.
+fn store_status(socket: &Path) -> Value {
+    let mut c = daemon_fixtures::Client::new(socket);
+    let r = c.call("status", json!({}));
+    assert_eq!(r["ok"], true, "{r}");
+    r["result"]["store"].clone()
+}
+
+/// Issue 46, item 7: a store that takes connections and never answers
+/// does not hold the daemon's socket. The daemon waits for the store's
+/// probe at most `STORE_PROBE_GRACE_MS` (1 s), then opens the bench and
+/// its socket while the probe goes on; `status` shows the store
+/// `probing`, then `unreachable` once the probe's request has had its
+/// `--store-timeout`; a job runs meanwhile and its files stay queued in
+/// the journal; SIGTERM ends the daemon as usual. Before the fix the
+/// probe ran before the socket was opened: 120 s without an answer (10 s
+/// with the default `--store-timeout`).
+#[test]
+fn a_silent_store_does_not_hold_the_daemons_socket_and_status_shows_its_probe() {
+    let silent = SilentStore::start();
+    let dir = tmp();
+    let config = common::quiet_config(dir.path(), 1.0, "");
+    // The socket must answer within the probe's grace and what the
+    // daemon's own start takes: the process, the config, the simulator,
+    // the socket (30–60 ms on this 2-core VM with a compiler running
+    // beside it: answered 1.03–1.06 s after the spawn); 0.5 s of margin
+    // for that.
+    let grace = Duration::from_millis(bench::daemon::STORE_PROBE_GRACE_MS);
+    let answer_bound = grace + Duration::from_millis(500);
+    let serve = |name: &str, extra: &[&str]| {
+        let socket = dir.path().join(format!("{name}.sock"));
+        let recordings = dir.path().join(name);
+        let mut args = vec!["--upload", "s3://lab-bench/silent"];
+        args.extend_from_slice(extra);
+        let t0 = Instant::now();
+        let d = daemon_fixtures::spawn_serve_with(&config, &socket, &recordings, &args, |c| {
+            aws_env(c, &silent.endpoint(), "AKIAEXAMPLE000000000", "not-checked");
+        });
+        let store = store_status(&socket);
+        let answered = t0.elapsed();
+        eprintln!("{name}: the socket answered `status` {answered:?} after the spawn");
+        assert!(
+            answered <= answer_bound,
+            "{name}: the socket answered after {answered:?} (bound {answer_bound:?})"
+        );
+        (d, socket, recordings, store, t0)
+    };
+
+    // The default --store-timeout (documented: at most 10 s): the socket
+    // answers well before it, the store still being probed.
+    let (d, socket, _, store, _) = serve("default", &[]);
+    assert_eq!(store["url"], "s3://lab-bench/silent", "{store}");
+    assert_eq!(store["state"], "probing", "{store}");
+    let timeout_s = store["timeout_s"].as_f64().unwrap();
+    assert!(timeout_s > 0.0 && timeout_s <= 10.0, "{store}");
+    assert!(silent.accepted() >= 1, "the probe never reached the store");
+    // `bench daemon status` shows it.
+    let o = bench()
+        .args(["daemon", "status", "--socket"])
+        .arg(&socket)
+        .output()
+        .unwrap();
+    let out = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(
+        out.lines()
+            .any(|l| l.starts_with("upload store") && l.contains("s3://lab-bench/silent probing")),
+        "{out}"
+    );
+    // SIGTERM while the probe still waits for the store.
+    let (status, err) = sigterm(d);
+    assert!(status.success(), "{status:?}: {err}");
+    assert!(!socket.exists(), "socket left behind");
+
+    // A short --store-timeout: probing, then unreachable once the probe
+    // has had its timeout, the daemon serving jobs all along.
+    let timeout = Duration::from_secs(2);
+    let (d, socket, recordings, store, t0) = serve("short", &["--store-timeout", "2"]);
+    assert_eq!(store["state"], "probing", "{store}");
+    assert_eq!(store["timeout_s"], 2.0, "{store}");
+    let mut c = daemon_fixtures::Client::new(&socket);
+    let r = c.call(
+        "chirp",
+        json!({"duration_s": 1, "f_start_hz": 5, "seed": 6, "pace": "off"}),
+    );
+    assert_eq!(r["ok"], true, "{r}");
+    let rec = PathBuf::from(r["result"]["recording"].as_str().unwrap());
+    let queued = journal_lines(&recordings)
+        .iter()
+        .filter(|l| l["op"] == "queued")
+        .count();
+    assert_eq!(queued, companions(&rec).len() + 1, "{rec:?}");
+    // The probe started before the grace, so within a timeout of the
+    // spawn; a margin of 1 s for the process's start and the polling.
+    let unreachable_bound = timeout + Duration::from_secs(1);
+    let store = loop {
+        let store = store_status(&socket);
+        if store["state"] != "probing" {
+            break store;
+        }
+        assert!(
+            t0.elapsed() <= unreachable_bound,
+            "still probing {:?} after the spawn: {store}",
+            t0.elapsed()
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    eprintln!("short: unreachable {:?} after the spawn", t0.elapsed());
+    assert_eq!(store["state"], "unreachable", "{store}");
+    assert!(
+        store["reason"].as_str().is_some_and(|r| !r.is_empty()),
+        "{store}"
+    );
+    // Still serving, the recording still queued, never confirmed.
+    assert_eq!(c.call("status", json!({}))["ok"], true);
+    assert!(journal_lines(&recordings)
+        .iter()
+        .all(|l| l["op"] == "queued"));
+    let (status, err) = sigterm(d);
+    assert!(status.success(), "{status:?}: {err}");
+    assert!(
+        err.contains("--upload s3://lab-bench/silent") && err.contains("did not answer"),
+        "{err}"
+    );
+    assert!(rec.is_file());
+}
+
+/// Issue 46, item 7: `bench upload --retry-for N` against a store that
+/// takes connections and never answers returns within N plus one
+/// `--store-timeout` (its probe counts as a try; no request waits longer
+/// than the timeout), plus 2 s for the process (start, the recording's
+/// check and SHA-256), exit 1 naming `--to`, the recording untouched.
+/// Before the fix: 240 s for `--retry-for 5` (a 120 s request timeout).
+/// The documented default `--store-timeout` is at most 10 s, for
+/// `bench upload` and `bench serve` alike.
+#[test]
+fn bench_upload_to_a_silent_store_returns_within_retry_for_plus_one_timeout() {
+    let silent = SilentStore::start();
+    let dir = tmp();
+    let rec = recording(dir.path(), "held", "1");
+    let before = sha256_of(&rec);
+    let (retry_for_s, timeout_s) = (2.0, 1.0);
+    let mut c = bench();
+    aws_env(
+        &mut c,
+        &silent.endpoint(),
+        "AKIAEXAMPLE000000000",
+        "not-checked",
+    );
+    let t0 = Instant::now();
+    let o = c
+        .args(["upload", "--to", "s3://lab-bench/silent", "--json"])
+        .args(["--retry-for", &retry_for_s.to_string()])
+        .args(["--store-timeout", &timeout_s.to_string()])
+        .arg(&rec)
+        .output()
+        .unwrap();
+    let took = t0.elapsed();
+    eprintln!("bench upload --retry-for {retry_for_s} --store-timeout {timeout_s}: {took:?}");
+    let err = stderr(&o);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains("--to") && err.contains("not confirmed"),
+        "{err}"
+    );
+    let bound = Duration::from_secs_f64(retry_for_s + timeout_s + 2.0);
+    assert!(took <= bound, "took {took:?} (bound {bound:?})");
+    assert!(silent.accepted() >= 1, "the store was never reached");
+    let summary = json_stdout(&o);
+    assert!(
+        summary["confirmed"].as_array().unwrap().is_empty(),
+        "{summary}"
+    );
+    assert_eq!(
+        summary["failed"].as_array().unwrap().len(),
+        companions(&rec).len() + 1,
+        "{summary}"
+    );
+    assert_eq!(sha256_of(&rec), before, "the recording changed");
+
+    // The documented defaults.
+    for cmd in ["upload", "serve"] {
+        let o = bench().args([cmd, "--help"]).output().unwrap();
+        let help = String::from_utf8_lossy(&o.stdout).into_owned();
+        let at = help
+            .find("--store-timeout")
+            .unwrap_or_else(|| panic!("bench {cmd} --help: no --store-timeout\n{help}"));
+        let rest = &help[at..];
+        let default: f64 = rest[rest.find("[default: ").unwrap() + 10..]
+            .split(']')
+            .next()
+            .unwrap()
+            .parse()
+            .unwrap();
+        assert!(default > 0.0 && default <= 10.0, "bench {cmd}: {default}");
+    }
 }

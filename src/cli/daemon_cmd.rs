@@ -133,6 +133,16 @@ struct StatusView {
     hold: String,
     jobs_run: u64,
     last_recording: Option<String>,
+    /// The store of `--upload` (absent or `null` without it).
+    #[serde(default)]
+    store: Option<StoreView>,
+}
+
+#[derive(Debug, Deserialize)]
+struct StoreView {
+    url: String,
+    state: String,
+    reason: Option<String>,
 }
 
 #[derive(Debug, Deserialize)]
@@ -213,6 +223,15 @@ impl StatusView {
                 self.last_recording.clone().unwrap_or_else(|| "none".into()),
             ),
         ]);
+        if let Some(s) = &self.store {
+            lines.push((
+                "upload store",
+                match &s.reason {
+                    Some(r) => format!("{} {} ({r})", s.url, s.state),
+                    None => format!("{} {}", s.url, s.state),
+                },
+            ));
+        }
         lines
     }
 }

@@ -59,10 +59,23 @@ pub(super) struct ServeArgs {
     /// and retried with a backoff (1 s doubling to 60 s) across restarts
     /// until the store confirms each file by its SHA-256 read back; local
     /// copies are kept. A store that refuses (no such bucket, credentials
-    /// refused) stops the daemon before it opens the bench (exit 2); one
-    /// that does not answer only delays the uploads.
+    /// refused) within 1 s of the start stops the daemon before it opens
+    /// the bench (exit 2); one that does not answer only delays the
+    /// uploads: the daemon opens its socket after at most 1 s, the store's
+    /// probe goes on in the background, and `status` shows the store.
     #[arg(long, value_name = "URL")]
     upload: Option<String>,
+    /// With --upload: how long the store has to take a connection, and to
+    /// answer each request (from sending it to the answer's first byte,
+    /// then between two reads), seconds (0.5 to 300).
+    #[arg(
+        long,
+        value_name = "SECONDS",
+        requires = "upload",
+        default_value_t = bench::upload::store::DEFAULT_TIMEOUT_S,
+        allow_negative_numbers = true
+    )]
+    store_timeout: f64,
     #[command(flatten)]
     live: super::LiveArgs,
 }
@@ -233,6 +246,9 @@ pub(super) fn serve(args: ServeArgs) -> ExitCode {
         Ok(u) => u,
         Err(e) => return bad_input(e),
     };
+    if let Err(reason) = bench::upload::store::check_timeout_s(args.store_timeout) {
+        return bad_input(format!("--store-timeout: {reason}"));
+    }
     // On while the daemon runs: every job's channels, as they are written.
     let _live = match args.live.start(cfg.loop_.cpu) {
         Ok(l) => l,
@@ -251,6 +267,7 @@ pub(super) fn serve(args: ServeArgs) -> ExitCode {
         backend: args.backend,
         metrics,
         upload,
+        store_timeout_s: args.store_timeout,
     };
     match bench::daemon::serve(opts) {
         Ok(()) => ExitCode::SUCCESS,

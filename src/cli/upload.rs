@@ -26,6 +26,17 @@ pub(super) struct UploadArgs {
         allow_negative_numbers = true
     )]
     retry_for: f64,
+    /// How long the store has to take a connection, and to answer each
+    /// request (from sending it to the answer's first byte, then between
+    /// two reads), seconds (0.5 to 300). A store that does not answer
+    /// costs at most --retry-for plus this.
+    #[arg(
+        long,
+        value_name = "SECONDS",
+        default_value_t = bench::upload::store::DEFAULT_TIMEOUT_S,
+        allow_negative_numbers = true
+    )]
+    store_timeout: f64,
     /// Print the summary as one JSON object.
     #[arg(long)]
     json: bool,
@@ -47,6 +58,7 @@ pub(super) fn upload(a: UploadArgs) -> ExitCode {
         to,
         recordings: a.recordings,
         retry_for_s: a.retry_for,
+        timeout_s: a.store_timeout,
     };
     match upload_recordings(&opts) {
         Ok(summary) => {
@@ -72,6 +84,7 @@ pub(super) fn upload(a: UploadArgs) -> ExitCode {
             bad_input(format!("--to {}: {reason}; nothing was uploaded", a.to))
         }
         Err(UploadError::RetryFor(reason)) => bad_input(format!("--retry-for: {reason}")),
+        Err(UploadError::Timeout(reason)) => bad_input(format!("--store-timeout: {reason}")),
     }
 }
 

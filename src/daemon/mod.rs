@@ -35,7 +35,7 @@
 //!
 //! | cmd | params | result |
 //! |---|---|---|
-//! | `status` | – | state, fault and cause, job and progress, backend, last reading |
+//! | `status` | – | state, fault and cause, job and progress, backend, last reading, the store of `--upload` |
 //! | `enable` / `disable` | – | amplifier enabled at 0 A / disabled (refused while faulted) |
 //! | `reset` | – | clears a latched fault (back to `disabled`) |
 //! | `chirp` | the fields of a [`ChirpRequest`], and `detach` | the `bench chirp --json` summary |
@@ -132,6 +132,43 @@ pub const MAX_CLIENTS: usize = 64;
 /// clients keep being served.
 pub const ACCEPT_BACKOFF_MS: u64 = 100;
 
+/// How long a stopped job has to end, in milliseconds, before it is
+/// abandoned: its slot is freed, the amplifier disabled at 0 A, its client
+/// answered `interrupted`, and its thread left to end on its own (`status`
+/// lists it under `abandoned_jobs` until it does). What a job does after
+/// `stop` sets it: a bench job's loop ends within one tick, and its
+/// worker then finishes the recording, the tail of at most one chunk
+/// (chunks close every 50 ms, `record::writer::ChunkPolicy::REAL_TIME`),
+/// the summary and the index, written and synced: 8 ms here
+/// (`tests/daemon_hostile.rs` measures it). A campaign's cells stop the
+/// same way. A job that computes (fit, design, plot…) does not look at
+/// `stop`: it is abandoned after this time. One second leaves a slow or
+/// busy disk a hundred times that, and the rest of [`SHUTDOWN_BOUND_MS`]
+/// for disabling the amplifier and leaving.
+pub const JOB_STOP_TIMEOUT_MS: u64 = 1000;
+
+/// SIGTERM or SIGINT ends the daemon within this, in milliseconds, whatever
+/// its job does: the job is stopped and given [`JOB_STOP_TIMEOUT_MS`],
+/// then abandoned; the amplifier is disabled at 0 A, the loop and the
+/// socket closed, and the process exits. A thread blocked in a read (a
+/// FIFO) cannot be ended: the process exits around it.
+pub const SHUTDOWN_BOUND_MS: u64 = 2000;
+
+/// How long `bench serve --upload` waits for the store's first answer
+/// before it opens the bench, in milliseconds. A store that refuses
+/// within it (no such bucket, credentials refused, an `http://` endpoint
+/// not allowed) stops the daemon (exit 2, naming `--upload`); one that
+/// has not answered by then does not hold the daemon: it opens the bench
+/// and its socket, and the probe goes on in the background, bounded by
+/// `--store-timeout` and tried again while the store does not answer
+/// (`status` shows the store's `state`: `probing`, `answering`,
+/// `unreachable` or `refused`; a refusal found then is reported, and the
+/// daemon runs on). An answer, a refusal included, takes a few round
+/// trips (TCP and TLS handshakes, one listing): milliseconds on a lab's
+/// network. A second leaves a distant store that margin, and delays the
+/// socket of a daemon whose store is silent by no more.
+pub const STORE_PROBE_GRACE_MS: u64 = 1000;
+
 /// Deepest nesting of arrays and objects in a request (the `id` included),
 /// in levels; deeper is a `bad_request`.
 pub const MAX_JSON_DEPTH: usize = 64;
@@ -200,13 +237,19 @@ pub struct ServeOptions {
     /// Upload each finished job's recording, companions, summary and
     /// catalogue row to this store (`--upload`); `None`: no uploads.
     pub upload: Option<crate::upload::StoreUrl>,
+    /// How long the store of `upload` has to connect and to answer each
+    /// request, s (`--store-timeout`, within
+    /// [`crate::upload::store::TIMEOUT_RANGE_S`]; default
+    /// [`crate::upload::store::DEFAULT_TIMEOUT_S`]).
+    pub store_timeout_s: f64,
 }
 
 /// Why the daemon did not start or stopped with an error.
 #[derive(Debug, thiserror::Error)]
 pub enum ServeError {
     /// Bad input before anything was opened (exit 2): an option
-    /// (`socket`, `socket_group`, `recordings`, `backend`) or the config.
+    /// (`socket`, `socket_group`, `recordings`, `backend`, `metrics`,
+    /// `upload`, `store_timeout`) or the config.
     #[error(transparent)]
     Input(RunError),
     /// Anything else (exit 1).
@@ -229,6 +272,9 @@ struct Ctx {
     next_job: AtomicU64,
     running: Mutex<Option<JobHandle>>,
     shutdown: tokio::sync::Notify,
+    /// `--upload`: the store's state, for `status` (its probe stops when
+    /// this is dropped).
+    store: Option<uploads::StoreProbe>,
 }
 
 fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
@@ -299,7 +345,9 @@ fn hold_factory(
 ///
 /// # Errors
 /// [`ServeError::Input`] for an unusable socket path, a busy socket, a
-/// device that cannot be opened; [`ServeError::Other`] otherwise.
+/// device that cannot be opened, a `store_timeout_s` out of its range, a
+/// store of `upload` without credentials or that refused within
+/// [`STORE_PROBE_GRACE_MS`]; [`ServeError::Other`] otherwise.
 pub fn serve(opts: ServeOptions) -> Result<(), ServeError> {
     // First: an address in use stops the daemon before anything else.
     let metrics_listener = opts
@@ -335,15 +383,29 @@ pub fn serve(opts: ServeOptions) -> Result<(), ServeError> {
             e.to_string(),
         ))
     })?;
+    if !crate::job_memory::installed() {
+        tracing::warn!(
+            "bench::job_memory::BudgetAllocator is not this program's global allocator: the jobs' memory budgets are not enforced"
+        );
+    }
     let (events, _) = broadcast::channel::<String>(1024);
-    // The store refuses (no bucket, credentials): stop before the bench
-    // is opened; an outage only delays the uploads.
-    let uploader = opts
-        .upload
-        .clone()
-        .map(|url| uploads::start(url, &recordings, opts.config.loop_.cpu, events.clone()))
-        .transpose()
-        .map_err(ServeError::Input)?;
+    // The store refuses (no bucket, credentials) within the probe's
+    // grace: stop before the bench is opened; one that has not answered
+    // by then only delays the uploads, its probe going on meanwhile.
+    let (uploader, store_probe) = match opts.upload.clone() {
+        Some(url) => {
+            let (u, p) = uploads::start(
+                url,
+                opts.store_timeout_s,
+                &recordings,
+                opts.config.loop_.cpu,
+                events.clone(),
+            )
+            .map_err(ServeError::Input)?;
+            (Some(u), Some(p))
+        }
+        None => (None, None),
+    };
     let spec = BackendSpec::resolve(opts.backend.as_ref(), &opts.config);
     let (mut stage, info) = backend::open(
         &spec,
@@ -374,6 +436,8 @@ pub fn serve(opts: ServeOptions) -> Result<(), ServeError> {
             }),
         jobs_run: 0,
         last_recording: None,
+        abandoned_jobs: Vec::new(),
+        store: None,
     }));
     let (owner_tx, owner_rx) = mpsc::channel();
     // The real-time loop: one Loop and one supervisor for the daemon's
@@ -488,11 +552,14 @@ pub fn serve(opts: ServeOptions) -> Result<(), ServeError> {
         next_job: AtomicU64::new(0),
         running: Mutex::new(None),
         shutdown: tokio::sync::Notify::new(),
+        store: store_probe,
     });
     let rt = tokio::runtime::Builder::new_current_thread()
         .enable_all()
         .build()
         .map_err(|e| ServeError::Other(format!("tokio: {e}")))?;
+    // When the shutdown began (a signal, `shutdown`): the bound's start.
+    let shutdown_at: Mutex<Option<std::time::Instant>> = Mutex::new(None);
     let result = rt.block_on(async {
         let listener = bind_socket(&opts.socket, opts.socket_group.as_deref())?;
         tokio::spawn(event_log(recordings.clone(), ctx.events.subscribe()));
@@ -519,16 +586,17 @@ pub fn serve(opts: ServeOptions) -> Result<(), ServeError> {
             () = ctx.shutdown.notified() => {}
         }
         // Stop safely: the running job ends at 0 A with its recording
-        // finished, then the owner disables and returns.
+        // finished, or is abandoned by the owner JOB_STOP_TIMEOUT_MS after
+        // the stop; then the owner disables and returns.
+        *lock(&shutdown_at) = Some(std::time::Instant::now());
         let running = lock(&ctx.running).clone();
         if let Some(h) = running {
             h.stop.store(true, Ordering::Relaxed);
             // Let the job's client get its (interrupted) response.
-            for _ in 0..400 {
-                if lock(&ctx.running).is_none() {
-                    break;
-                }
-                tokio::time::sleep(std::time::Duration::from_millis(25)).await;
+            let wait = std::time::Duration::from_millis(JOB_STOP_TIMEOUT_MS + 200);
+            let t0 = std::time::Instant::now();
+            while lock(&ctx.running).is_some() && t0.elapsed() < wait {
+                tokio::time::sleep(std::time::Duration::from_millis(10)).await;
             }
             tokio::time::sleep(std::time::Duration::from_millis(50)).await;
         }
@@ -539,9 +607,26 @@ pub fn serve(opts: ServeOptions) -> Result<(), ServeError> {
     // could not be bound): the owner must see Shutdown, or the joins below
     // wait for ever.
     let _ = lock(&ctx.owner).send(OwnerCmd::Shutdown);
-    // The owner finishes the job (its recording) before it sees Shutdown.
-    let _ = owner_thread.join();
-    let _ = rt_thread.join();
+    // The owner finishes the job (its recording) before it sees Shutdown,
+    // then has the loop disable the amplifier and stop. Neither is waited
+    // for past the shutdown bound: a thread stuck in a device call cannot
+    // be ended, and the device's own watchdog drops the current when the
+    // process is gone.
+    let bound = lock(&shutdown_at)
+        .unwrap_or_else(std::time::Instant::now)
+        .checked_add(std::time::Duration::from_millis(SHUTDOWN_BOUND_MS - 100));
+    for (name, thread) in [("owner", owner_thread), ("real-time loop", rt_thread)] {
+        while !thread.is_finished() && bound.is_some_and(|b| std::time::Instant::now() < b) {
+            std::thread::sleep(std::time::Duration::from_millis(2));
+        }
+        if thread.is_finished() {
+            let _ = thread.join();
+        } else {
+            tracing::error!(
+                "the {name} thread did not end within {SHUTDOWN_BOUND_MS} ms of the shutdown; leaving without it"
+            );
+        }
+    }
     // The metrics are served until the loop has stopped.
     drop(metrics);
     let _ = std::fs::remove_file(&opts.socket);

@@ -5,8 +5,9 @@
 
 use super::jobs::{JobResult, JobSpec};
 use super::lock;
-use super::protocol::{event, ApiError, ApiErrorKind, FaultStatus, Status};
+use super::protocol::{event, AbandonedJob, ApiError, ApiErrorKind, FaultStatus, Status};
 use crate::error::RunError;
+use crate::job_memory::JobMemory;
 use crate::record::topics::FaultKind;
 use crate::record::topics::SupervisorState;
 use crate::rt::service::{LoopReply, LoopRequest, ServiceClient};
@@ -125,13 +126,16 @@ struct Active {
     /// The loop gave the job back (0 A, disabled), or the job was
     /// stopped as it was about to reach the loop.
     loop_done: bool,
-    /// When `stop` was first seen while the job was being prepared.
+    /// When `stop` was first seen.
     stop_seen: Option<std::time::Instant>,
     /// A job that only computes (fit, analyze, map, campaign): it never
     /// reaches the loop, is never abandoned (a stop reaches the job, and a
     /// campaign ends after its running cells), and leaves the daemon in
     /// this state (unless a fault latched meanwhile).
     compute: Option<&'static str>,
+    /// The memory budget of a job that computes (`None`: a bench job,
+    /// bounded by its length, `config::ranges::JOB_TICKS_MAX` ticks).
+    memory: Option<JobMemory>,
 }
 
 /// How long a job stopped during its preparation is given to reach the
@@ -139,12 +143,73 @@ struct Active {
 /// finished) or to return, before it is abandoned.
 const PREPARATION_STOP_GRACE: std::time::Duration = std::time::Duration::from_millis(200);
 
+/// [`super::JOB_STOP_TIMEOUT_MS`].
+const JOB_STOP_TIMEOUT: std::time::Duration =
+    std::time::Duration::from_millis(super::JOB_STOP_TIMEOUT_MS);
+
 /// How an active job ended, for the owner.
 enum Outcome {
     /// The worker returned.
     Finished(JobResult),
-    /// Stopped before it reached the loop: its worker is left behind.
-    Abandoned,
+    /// Its worker is left behind, for this reason.
+    Abandoned(Abandon),
+}
+
+/// Why a job was abandoned (its thread left to end on its own).
+#[derive(Debug, Clone, Copy)]
+enum Abandon {
+    /// Stopped before it reached the loop: nothing was enabled.
+    Preparing,
+    /// The daemon shut down while the job was finishing.
+    Shutdown,
+    /// Stopped, and not done [`JOB_STOP_TIMEOUT`] later.
+    NoAnswer,
+    /// Over its memory budget: this allocation (bytes) was refused.
+    OverBudget(u64),
+}
+
+/// A job abandoned whose thread has not ended yet.
+struct Left {
+    id: u64,
+    kind: &'static str,
+    done: mpsc::Receiver<JobResult>,
+    memory: Option<JobMemory>,
+    /// Its recording (empty: none), finished by its thread if it can.
+    recording: String,
+}
+
+impl Left {
+    /// `None` while its thread runs; then what it returned (`Some(None)`:
+    /// it panicked).
+    fn ended(&self) -> Option<Option<JobResult>> {
+        match self.done.try_recv() {
+            Ok(r) => Some(Some(r)),
+            Err(mpsc::TryRecvError::Disconnected) => Some(None),
+            Err(mpsc::TryRecvError::Empty) => None,
+        }
+    }
+
+    /// What its threads hold, bytes (0 for a job without a budget).
+    fn held_bytes(&self) -> u64 {
+        self.memory.as_ref().map_or(0, JobMemory::live_bytes)
+    }
+}
+
+/// A rayon pool for a job that computes, whose threads count against its
+/// budget (`rayon`'s global pool is shared by every thread). `None`
+/// when it cannot be built: the job then uses the global pool, uncounted.
+fn job_pool(memory: &JobMemory, id: u64) -> Option<rayon::ThreadPool> {
+    let m = memory.clone();
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(rayon::current_num_threads())
+        .thread_name(move |i| format!("bench-job{id}-{i}"))
+        .start_handler(move |_| m.attach_thread())
+        .exit_handler(|_| crate::job_memory::detach_thread())
+        .build()
+        .map_err(|e| {
+            tracing::warn!("job {id}: no pool of its own ({e}); its rayon work is not counted")
+        })
+        .ok()
 }
 
 impl Active {
@@ -155,19 +220,28 @@ impl Active {
         before: &'static str,
         reply: Reply<Value>,
         client: &ServiceClient,
+        memory: Option<JobMemory>,
     ) -> Result<Self, (Reply<Value>, ApiError)> {
         let compute = (!job.uses_loop()).then_some(before);
+        let kind = job.kind();
         let (req_tx, req_rx) = rtrb::RingBuffer::<LoopRequest>::new(4);
         let (rep_tx, rep_rx) = rtrb::RingBuffer::<LoopReply>::new(4);
         let mut proxy = ServiceClient::new(req_tx, rep_rx, client.info.clone(), client.hardware);
         let (done_tx, done) = mpsc::channel();
         let (stop, ticks) = (Arc::clone(&handle.stop), Arc::clone(&handle.ticks));
         let hardware = client.hardware;
+        let (id, counted) = (handle.id, memory.clone());
         let spawned = std::thread::Builder::new()
-            .name(format!("bench-job{}", handle.id))
+            .name(format!("bench-job{id}"))
             .spawn(move || {
+                let _counted = counted.as_ref().map(JobMemory::enter);
                 crate::daemon::testing::prepare_hang_hook();
-                let result = super::jobs::run(job, &mut proxy, hardware, stop, &ticks);
+                crate::daemon::testing::allocate_hook(kind);
+                let run = || super::jobs::run(job, &mut proxy, hardware, stop, &ticks);
+                let result = match counted.as_ref().and_then(|m| job_pool(m, id)) {
+                    Some(pool) => pool.install(run),
+                    None => run(),
+                };
                 let _ = done_tx.send(result);
             });
         match spawned {
@@ -181,6 +255,7 @@ impl Active {
                 loop_done: false,
                 stop_seen: None,
                 compute,
+                memory,
             }),
             Err(e) => Err((
                 reply,
@@ -199,8 +274,10 @@ impl Active {
     /// (amplifier disabled, as at the end of any job; its recording
     /// finished by the worker), or, when its preparation does not get that
     /// far within [`PREPARATION_STOP_GRACE`], it is abandoned: it never
-    /// touched the stage. With `shutting_down` a job the loop already gave
-    /// back is not waited for either.
+    /// touched the stage. Any other job still running [`JOB_STOP_TIMEOUT`]
+    /// after its stop is abandoned too, and a job that computes as soon as
+    /// it goes over its memory budget. With `shutting_down` (the daemon
+    /// has given the job its time already) a stopped job is not waited for.
     fn step(
         &mut self,
         client: &mut ServiceClient,
@@ -256,18 +333,68 @@ impl Active {
                 ApiError::new(ApiErrorKind::Error, "the job thread panicked"),
                 Some(RunError::Thread("the job thread panicked".into())),
             )))),
-            Err(mpsc::TryRecvError::Empty) if self.compute.is_some() => None,
             Err(mpsc::TryRecvError::Empty) => {
-                let preparing = !self.in_loop && !self.loop_done;
-                if preparing && stopped() {
-                    let seen = *self.stop_seen.get_or_insert_with(std::time::Instant::now);
-                    if seen.elapsed() >= PREPARATION_STOP_GRACE {
-                        return Some(Outcome::Abandoned);
-                    }
+                if let Some(size) = self.memory.as_ref().and_then(JobMemory::over_budget) {
+                    return Some(Outcome::Abandoned(Abandon::OverBudget(size)));
                 }
-                (shutting_down && self.loop_done).then_some(Outcome::Abandoned)
+                if !stopped() {
+                    return None;
+                }
+                let seen = *self.stop_seen.get_or_insert_with(std::time::Instant::now);
+                let preparing = self.compute.is_none() && !self.in_loop && !self.loop_done;
+                if preparing && (shutting_down || seen.elapsed() >= PREPARATION_STOP_GRACE) {
+                    Some(Outcome::Abandoned(Abandon::Preparing))
+                } else if shutting_down {
+                    Some(Outcome::Abandoned(Abandon::Shutdown))
+                } else {
+                    (seen.elapsed() >= JOB_STOP_TIMEOUT)
+                        .then_some(Outcome::Abandoned(Abandon::NoAnswer))
+                }
             }
         }
+    }
+}
+
+/// The answer to the client of a job abandoned for `why`: its error kind
+/// and message. `recording`: the job's (empty: none); `memory`: its budget.
+fn abandoned_answer(
+    why: Abandon,
+    recording: &str,
+    memory: Option<&JobMemory>,
+) -> (ApiErrorKind, String) {
+    let safe = "0 A, amplifier disabled";
+    let rec = if recording.is_empty() {
+        String::new()
+    } else {
+        format!(
+            "; its recording is finished by its thread if it can, else left as {recording}{} for `bench recover`",
+            crate::outputs::PART_SUFFIX
+        )
+    };
+    match why {
+        Abandon::Preparing => (
+            ApiErrorKind::Interrupted,
+            "stopped while the job was being prepared; nothing was enabled, no recording".into(),
+        ),
+        Abandon::Shutdown => (
+            ApiErrorKind::Interrupted,
+            format!("the daemon shut down while the job was finishing{rec}; {safe}"),
+        ),
+        Abandon::NoAnswer => (
+            ApiErrorKind::Interrupted,
+            format!(
+                "stopped, and not done {} ms later (JOB_STOP_TIMEOUT_MS): abandoned, its thread left to end on its own{rec}; {safe}",
+                JOB_STOP_TIMEOUT.as_millis()
+            ),
+        ),
+        Abandon::OverBudget(size) => (
+            ApiErrorKind::Error,
+            format!(
+                "the job went over its memory budget of {} MiB (a quarter of the daemon's memory limit) at an allocation of {size} bytes: abandoned, its thread parked for good (what it holds, {} MiB, is kept until the daemon restarts); {safe}",
+                memory.map_or(0, |m| m.limit_bytes() >> 20),
+                memory.map_or(0, |m| m.live_bytes() >> 20),
+            ),
+        ),
     }
 }
 
@@ -309,6 +436,19 @@ pub(super) fn owner(mut client: ServiceClient, rx: mpsc::Receiver<OwnerCmd>, sha
     let gone = || ApiError::new(ApiErrorKind::Error, "the real-time loop is gone");
     let busy = || ApiError::new(ApiErrorKind::Busy, "a job is running: `stop` it first");
     let mut active: Option<Active> = None;
+    // Jobs abandoned whose threads still run (or sleep, parked over their
+    // budget), with what they hold.
+    let mut left: Vec<Left> = Vec::new();
+    let show_left = |left: &[Left]| {
+        lock(&status).abandoned_jobs = left
+            .iter()
+            .map(|l| AbandonedJob {
+                id: l.id,
+                kind: l.kind,
+                memory_bytes: l.held_bytes(),
+            })
+            .collect();
+    };
     let mut shutting_down = false;
     loop {
         let wait = std::time::Duration::from_millis(if active.is_some() { 1 } else { 10 });
@@ -387,7 +527,35 @@ pub(super) fn owner(mut client: ServiceClient, rx: mpsc::Receiver<OwnerCmd>, sha
                 let _ = reply.send(r);
             }
             Ok(OwnerCmd::Job(job, handle, before, reply)) => {
-                match Active::start(job, handle, before, reply, &client) {
+                // A job that computes gets a budget, if what abandoned
+                // jobs hold leaves room for it in half the memory limit.
+                let memory = if job.uses_loop() {
+                    None
+                } else {
+                    let limit = crate::job_memory::memory_limit_bytes();
+                    let budget = limit / crate::job_memory::JOB_SHARE_DIVISOR;
+                    let held: u64 = left.iter().map(Left::held_bytes).sum();
+                    if held.saturating_add(budget) > limit / 2 {
+                        let mib = |b: u64| b / (1 << 20);
+                        let e = ApiError::new(
+                            ApiErrorKind::Busy,
+                            format!(
+                                "{} abandoned job(s) still hold {} MiB; a new job's budget of {} MiB would take the daemon over half its memory limit of {} MiB: restart the daemon to free them",
+                                left.len(),
+                                mib(held),
+                                mib(budget),
+                                mib(limit)
+                            ),
+                        );
+                        tracing::error!(job = handle.id, "job refused: {}", e.message);
+                        lock(&status).job = None;
+                        set_state(before, None);
+                        let _ = reply.send(Err(e));
+                        continue;
+                    }
+                    Some(JobMemory::new(budget))
+                };
+                match Active::start(job, handle, before, reply, &client, memory) {
                     Ok(a) => {
                         if let Some(j) = lock(&status).job.as_ref() {
                             tracing::info!(
@@ -508,50 +676,71 @@ pub(super) fn owner(mut client: ServiceClient, rx: mpsc::Receiver<OwnerCmd>, sha
                         let _ = reply.send(result.map_err(|(api, _)| api));
                     }
                 }
-                Some(Outcome::Abandoned) => {
+                Some(Outcome::Abandoned(why)) => {
                     let Some(a) = active.take() else { continue };
-                    let was_in_loop = a.in_loop;
                     // Dropping the worker's queues: whatever it asks of
                     // the loop from now on gets "the loop is gone".
-                    let Active { handle, reply, .. } = a;
-                    let recording = lock(&status)
+                    let Active {
+                        handle,
+                        reply,
+                        done,
+                        memory,
+                        ..
+                    } = a;
+                    let (kind, recording) = lock(&status)
                         .job
                         .as_ref()
-                        .and_then(|j| j.recording.clone())
+                        .map(|j| (j.kind, j.recording.clone().unwrap_or_default()))
                         .unwrap_or_default();
-                    if let (Some(m), Some(kind)) =
-                        (metrics, lock(&status).job.as_ref().map(|j| j.kind))
-                    {
+                    let (api_kind, message) = abandoned_answer(why, &recording, memory.as_ref());
+                    if let Some(m) = metrics.filter(|_| !kind.is_empty()) {
                         let rec = Some(std::path::Path::new(&recording))
                             .filter(|_| !recording.is_empty());
-                        m.job_finished(kind, ApiErrorKind::Interrupted.as_str(), rec);
+                        m.job_finished(kind, api_kind.as_str(), rec);
                     }
                     tracing::warn!(
                         job = handle.id,
                         recording = %recording,
-                        "job abandoned {}; its thread is left to end on its own",
-                        if was_in_loop {
-                            "after the loop gave it back (shutdown)"
-                        } else {
-                            "while being prepared (nothing was enabled, no recording)"
-                        }
+                        "job abandoned, its thread left to end on its own: {message}"
                     );
-                    // A job ends disabled, this one too.
+                    // A job ends disabled, this one too: 0 A, enable off.
                     let r = client.call(LoopRequest::Disable);
                     lock(&status).job = None;
                     set_state("disabled", None);
-                    let message = if was_in_loop {
-                        "the daemon shut down while the job was finishing; 0 A, amplifier disabled"
-                    } else {
-                        "stopped while the job was being prepared; nothing was enabled, no recording"
-                    };
+                    left.push(Left {
+                        id: handle.id,
+                        kind,
+                        done,
+                        memory,
+                        recording,
+                    });
+                    show_left(&left);
                     let _ = reply.send(Err(if r.is_some() {
-                        ApiError::new(ApiErrorKind::Interrupted, message)
+                        ApiError::new(api_kind, message)
                     } else {
                         gone()
                     }));
                 }
             }
+        }
+        let before = left.len();
+        let mut i = 0;
+        while i < left.len() {
+            let Some(result) = left[i].ended() else {
+                i += 1;
+                continue;
+            };
+            let l = left.remove(i);
+            tracing::info!(job = l.id, "the thread of abandoned job {} has ended", l.id);
+            // A recording its thread finished after all goes up too.
+            if let (Some(u), Some(result)) = (uploader.as_ref(), result) {
+                if !l.recording.is_empty() {
+                    super::uploads::after_job(u, std::path::Path::new(&l.recording), &result);
+                }
+            }
+        }
+        if left.len() != before {
+            show_left(&left);
         }
         if shutting_down && active.is_none() {
             break;

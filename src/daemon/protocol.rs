@@ -131,6 +131,54 @@ pub(super) struct Status {
     pub(super) hold: String,
     pub(super) jobs_run: u64,
     pub(super) last_recording: Option<String>,
+    /// Jobs abandoned (not done [`super::JOB_STOP_TIMEOUT_MS`] after
+    /// `stop`, or over their memory budget) whose threads have not ended.
+    pub(super) abandoned_jobs: Vec<AbandonedJob>,
+    /// The store of `--upload` (`null` without it), filled in when
+    /// `status` is answered.
+    pub(super) store: Option<StoreStatus>,
+}
+
+/// What the daemon knows of the store of `--upload`, as `status` shows it
+/// and the `upload_store` event reports each change of it.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub(super) struct StoreStatus {
+    /// The store's URL.
+    pub(super) url: String,
+    pub(super) state: StoreState,
+    /// Why it is `unreachable` or `refused` (the last probe's error).
+    pub(super) reason: Option<String>,
+    /// How long the store has to connect and to answer each request, s
+    /// (`--store-timeout`).
+    pub(super) timeout_s: f64,
+}
+
+/// The store's state, as the daemon's probe (a listing under the prefix)
+/// found it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub(super) enum StoreState {
+    /// The first probe has not answered yet.
+    Probing,
+    /// The store answered: the bucket is there and takes the credentials.
+    Answering,
+    /// The store did not answer (refused connection, timeout, DNS); the
+    /// probe is tried again with the uploader's backoff until it does.
+    Unreachable,
+    /// The store answered and refused (no such bucket, credentials
+    /// refused, an `http://` endpoint not allowed). Found after the
+    /// daemon opened the bench, it is reported and the daemon runs on,
+    /// the recordings queued; not probed again.
+    Refused,
+}
+
+/// A job abandoned whose thread has not ended, as `status` shows it.
+#[derive(Debug, Clone, Serialize)]
+pub(super) struct AbandonedJob {
+    pub(super) id: u64,
+    pub(super) kind: &'static str,
+    /// What its threads hold, bytes (0 for a bench job: not counted).
+    pub(super) memory_bytes: u64,
 }
 
 #[derive(Debug, Clone, Serialize)]

@@ -482,6 +482,7 @@ pub(super) async fn connection(
                 let mut s = lock(&ctx.status).clone();
                 s.position_m = ctx.loop_status.position_m();
                 s.command_a = ctx.loop_status.command_a();
+                s.store = ctx.store.as_ref().map(super::uploads::StoreProbe::status);
                 if let (Some(j), Some(h)) = (s.job.as_mut(), lock(&ctx.running).as_ref()) {
                     j.ticks = h.ticks.load(Ordering::Relaxed);
                 }

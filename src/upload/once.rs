@@ -26,6 +26,9 @@ pub struct UploadOptions {
     /// How long a failing store is retried, s (`--retry-for`, 0 to
     /// [`MAX_RETRY_FOR_S`]).
     pub retry_for_s: f64,
+    /// How long the store has to connect and to answer a request, s
+    /// (`--store-timeout`, [`super::store::TIMEOUT_RANGE_S`]).
+    pub timeout_s: f64,
 }
 
 /// An item that did not go up.
@@ -116,6 +119,9 @@ pub enum UploadError {
     /// `--retry-for` out of range.
     #[error("{0}")]
     RetryFor(String),
+    /// `--store-timeout` out of range.
+    #[error("{0}")]
+    Timeout(String),
 }
 
 fn local_of(item: &Item) -> PathBuf {
@@ -127,10 +133,15 @@ fn local_of(item: &Item) -> PathBuf {
 
 /// Uploads the recordings of `opts` with their companions and rows.
 ///
+/// A store that does not answer costs at most `retry_for_s` plus one
+/// timeout: the probe and every try are retried only while the next try
+/// would start within `retry_for_s`, and no request waits longer than the
+/// timeout for an answer ([`Store::open`]).
+///
 /// # Errors
-/// [`UploadError`]: a recording is not finished, `--retry-for` is out of
-/// range, or the store cannot be opened or refuses (before anything
-/// is uploaded).
+/// [`UploadError`]: a recording is not finished, `--retry-for` or
+/// `--store-timeout` is out of range, or the store cannot be opened or
+/// refuses (before anything is uploaded).
 pub fn upload_recordings(opts: &UploadOptions) -> Result<UploadSummary, UploadError> {
     let started = Instant::now();
     if !(0.0..=MAX_RETRY_FOR_S).contains(&opts.retry_for_s) {
@@ -151,16 +162,24 @@ pub fn upload_recordings(opts: &UploadOptions) -> Result<UploadSummary, UploadEr
             }
         }
     }
-    let store = Store::open(opts.to.clone()).map_err(UploadError::Store)?;
+    let timeout = super::store::check_timeout_s(opts.timeout_s).map_err(UploadError::Timeout)?;
+    let store = Store::open(opts.to.clone(), timeout).map_err(UploadError::Store)?;
     let rt = tokio::runtime::Builder::new_current_thread()
         .enable_all()
         .build()
         .map_err(|e| UploadError::Store(format!("tokio: {e}")))?;
-    rt.block_on(async {
-        if let Err(ProbeError::Refused(m)) = store.probe().await {
-            return Err(UploadError::Store(m));
-        }
+    let result = rt.block_on(async {
         let deadline = started + Duration::from_secs_f64(opts.retry_for_s);
+        // The probe is the first try: a store that did not answer it is
+        // tried again only if there is time for a second try.
+        let unreachable = match store.probe().await {
+            Ok(()) => None,
+            Err(ProbeError::Refused(m)) => return Err(UploadError::Store(m)),
+            Err(ProbeError::Unreachable(m)) => {
+                let again = Instant::now() + Duration::from_secs_f64(FIRST_BACKOFF_S);
+                (again > deadline).then_some(m)
+            }
+        };
         let mut summary = UploadSummary {
             store: opts.to.to_string(),
             confirmed: Vec::new(),
@@ -171,6 +190,14 @@ pub fn upload_recordings(opts: &UploadOptions) -> Result<UploadSummary, UploadEr
         let mut backoff_s = FIRST_BACKOFF_S;
         let mut given_up = false;
         for item in &items {
+            if let Some(reason) = &unreachable {
+                summary.failed.push(NotUploaded {
+                    key: item.key.clone(),
+                    local: local_of(item),
+                    reason: reason.clone(),
+                });
+                continue;
+            }
             loop {
                 if given_up {
                     summary.failed.push(NotUploaded {
@@ -214,5 +241,9 @@ pub fn upload_recordings(opts: &UploadOptions) -> Result<UploadSummary, UploadEr
         }
         summary.elapsed_s = started.elapsed().as_secs_f64();
         Ok(summary)
-    })
+    });
+    // A call on a directory store that hangs (a NAS) holds a blocking
+    // thread: not waited for.
+    rt.shutdown_timeout(Duration::from_millis(100));
+    result
 }

@@ -1,6 +1,7 @@
 //! The store a `--upload`/`--to` URL names: parsed and checked
 //! ([`StoreUrl::parse`]), opened ([`Store::open`]) and probed
-//! ([`Store::probe`]) before anything is queued.
+//! ([`Store::probe`]): by `bench upload` before it uploads, by `bench
+//! serve --upload` in the background (`crate::daemon`).
 
 use object_store::aws::{AmazonS3Builder, AmazonS3ConfigKey};
 use object_store::local::LocalFileSystem;
@@ -154,12 +155,40 @@ fn check_bucket(b: &str) -> Result<(), String> {
     Ok(())
 }
 
+/// How long the store has to answer by default, seconds
+/// (`--store-timeout`, [`check_timeout_s`]).
+pub const DEFAULT_TIMEOUT_S: f64 = 10.0;
+
+/// The range of `--store-timeout`, seconds.
+pub const TIMEOUT_RANGE_S: (f64, f64) = (0.5, 300.0);
+
+/// How long one whole request may take, seconds, however steadily the
+/// store answers: reading back a recording of several GB on a slow link
+/// (a store that stops answering is caught by the timeout, not by this).
+pub const WHOLE_REQUEST_TIMEOUT_S: u64 = 3600;
+
+/// Checks a `--store-timeout` value: within [`TIMEOUT_RANGE_S`].
+///
+/// # Errors
+/// Why not, for the caller to name its flag with.
+pub fn check_timeout_s(s: f64) -> Result<Duration, String> {
+    let (lo, hi) = TIMEOUT_RANGE_S;
+    if s.is_finite() && (lo..=hi).contains(&s) {
+        Ok(Duration::from_secs_f64(s))
+    } else {
+        Err(format!("{s} s is out of range ({lo} to {hi} s)"))
+    }
+}
+
 /// An opened store.
 #[derive(Debug, Clone)]
 pub struct Store {
     /// What it was opened from.
     pub url: StoreUrl,
     pub(super) inner: Arc<dyn ObjectStore>,
+    /// How long the store has to connect, and to answer each request (its
+    /// first byte, and each read after it).
+    pub timeout: Duration,
 }
 
 /// Why a store cannot be used, as the probe found.
@@ -180,13 +209,20 @@ impl Store {
     /// `AWS_ACCESS_KEY_ID` and `AWS_SECRET_ACCESS_KEY` (required),
     /// `AWS_REGION` (default `us-east-1`), `AWS_ENDPOINT` (an S3-compatible
     /// server's URL: MinIO, Ceph, Garage…; default AWS) and
-    /// `AWS_ALLOW_HTTP=true` for an `http://` endpoint. A request times out
-    /// after 5 s to connect and 120 s in all, and is retried by the client
-    /// at most twice (the caller's own backoff does the rest).
+    /// `AWS_ALLOW_HTTP=true` for an `http://` endpoint. The store has
+    /// `timeout` to take a connection, and `timeout` to answer a request
+    /// (from when it is sent to the first byte of the answer, then between
+    /// two reads of it); a whole request may take at most
+    /// [`WHOLE_REQUEST_TIMEOUT_S`]. A request that fails fast is retried by
+    /// the client at most twice within `timeout`; one that timed out is
+    /// not (the caller's own backoff does the rest). Every call on the
+    /// store (a directory's too: a NAS that hangs) is also given up after
+    /// `timeout` without an answer ([`Self::within`]).
     ///
     /// # Errors
     /// The reason (missing credentials, a builder's refusal).
-    pub fn open(url: StoreUrl) -> Result<Self, String> {
+    pub fn open(url: StoreUrl, timeout: Duration) -> Result<Self, String> {
+        let ms = |d: Duration| format!("{}ms", d.as_millis().max(1));
         let inner: Arc<dyn ObjectStore> = match &url {
             StoreUrl::S3 { bucket, .. } => {
                 for var in ["AWS_ACCESS_KEY_ID", "AWS_SECRET_ACCESS_KEY"] {
@@ -201,16 +237,21 @@ impl Store {
                     // Set on the options `from_env` made (AWS_ALLOW_HTTP…).
                     .with_config(
                         AmazonS3ConfigKey::Client(ClientConfigKey::ConnectTimeout),
-                        "5 seconds",
+                        ms(timeout),
+                    )
+                    .with_config(
+                        AmazonS3ConfigKey::Client(ClientConfigKey::ReadTimeout),
+                        ms(timeout),
                     )
                     .with_config(
                         AmazonS3ConfigKey::Client(ClientConfigKey::Timeout),
-                        "120 seconds",
+                        format!("{WHOLE_REQUEST_TIMEOUT_S} seconds"),
                     )
                     .with_retry(RetryConfig {
                         backoff: BackoffConfig::default(),
                         max_retries: 2,
-                        retry_timeout: Duration::from_secs(30),
+                        // A request that timed out has used it all.
+                        retry_timeout: timeout,
                     });
                 if std::env::var_os("AWS_REGION").is_none()
                     && std::env::var_os("AWS_DEFAULT_REGION").is_none()
@@ -223,7 +264,33 @@ impl Store {
                 Arc::new(LocalFileSystem::new_with_prefix(dir).map_err(|e| e.to_string())?)
             }
         };
-        Ok(Self { url, inner })
+        Ok(Self {
+            url,
+            inner,
+            timeout,
+        })
+    }
+
+    /// `call` on the store, given up after [`Self::timeout`] without an
+    /// answer (an `object_store` error saying so).
+    ///
+    /// # Errors
+    /// The call's, or the timeout's.
+    pub(super) async fn within<T>(
+        &self,
+        call: impl std::future::Future<Output = object_store::Result<T>>,
+    ) -> object_store::Result<T> {
+        match tokio::time::timeout(self.timeout, call).await {
+            Ok(r) => r,
+            Err(_) => Err(object_store::Error::Generic {
+                store: "bench",
+                source: format!(
+                    "no answer within {} s (--store-timeout)",
+                    self.timeout.as_secs_f64()
+                )
+                .into(),
+            }),
+        }
     }
 
     /// The object path of `key`.
@@ -242,7 +309,10 @@ impl Store {
             StoreUrl::S3 { prefix, .. } if !prefix.is_empty() => Some(Self::path(prefix)),
             _ => None,
         };
-        match self.inner.list_with_delimiter(prefix.as_ref()).await {
+        match self
+            .within(self.inner.list_with_delimiter(prefix.as_ref()))
+            .await
+        {
             Ok(_) => Ok(()),
             Err(e) => Err(classify(&e)),
         }

@@ -321,14 +321,18 @@ fn store_error(what: &str, e: &object_store::Error) -> TransferError {
 /// SHA-256 and size of the object at `key`, read back from the store.
 async fn remote_digest(store: &Store, key: &str) -> Result<(u64, String), TransferError> {
     let get = store
-        .inner
-        .get(&Store::path(key))
+        .within(store.inner.get(&Store::path(key)))
         .await
         .map_err(|e| store_error("reading the object back", &e))?;
     let mut stream = get.into_stream();
     let mut h = Sha256::new();
     let mut n = 0u64;
-    while let Some(chunk) = stream.next().await {
+    // Each read is given the store's timeout (a store that stops sending).
+    while let Some(chunk) = store
+        .within(async { stream.next().await.transpose() })
+        .await
+        .transpose()
+    {
         let chunk = chunk.map_err(|e| store_error("reading the object back", &e))?;
         n += chunk.len() as u64;
         h.update(&chunk);
@@ -343,8 +347,7 @@ async fn put(store: &Store, key: &str, local: &Local) -> Result<(), TransferErro
     match local {
         Local::Bytes(b) => {
             store
-                .inner
-                .put(&path, PutPayload::from(b.clone()))
+                .within(store.inner.put(&path, PutPayload::from(b.clone())))
                 .await
                 .map_err(|e| store_error("uploading", &e))?;
         }
@@ -352,16 +355,14 @@ async fn put(store: &Store, key: &str, local: &Local) -> Result<(), TransferErro
             let bytes = std::fs::read(p)
                 .map_err(|e| TransferError::Drop(format!("{}: {e}", p.display())))?;
             store
-                .inner
-                .put(&path, PutPayload::from(bytes))
+                .within(store.inner.put(&path, PutPayload::from(bytes)))
                 .await
                 .map_err(|e| store_error("uploading", &e))?;
         }
         Local::File(p, _) => {
             let gone = |e: std::io::Error| TransferError::Drop(format!("{}: {e}", p.display()));
             let upload = store
-                .inner
-                .put_multipart(&path)
+                .within(store.inner.put_multipart(&path))
                 .await
                 .map_err(|e| store_error("starting the multipart upload", &e))?;
             let mut w = WriteMultipart::new_with_chunk_size(upload, PART_BYTES);
@@ -418,7 +419,10 @@ pub async fn transfer(store: &Store, item: &Item) -> Result<Transferred, Transfe
         sha256: sha256.clone(),
         uploaded,
     };
-    match store.inner.head(&Store::path(&item.key)).await {
+    match store
+        .within(store.inner.head(&Store::path(&item.key)))
+        .await
+    {
         Ok(meta) => {
             if meta.size == size_bytes && remote_digest(store, &item.key).await?.1 == sha256 {
                 return Ok(confirmed(false));
@@ -435,7 +439,9 @@ pub async fn transfer(store: &Store, item: &Item) -> Result<Transferred, Transfe
     put(store, &item.key, &local).await?;
     let (n, sum) = remote_digest(store, &item.key).await?;
     if n != size_bytes || sum != sha256 {
-        let _ = store.inner.delete(&Store::path(&item.key)).await;
+        let _ = store
+            .within(store.inner.delete(&Store::path(&item.key)))
+            .await;
         return Err(TransferError::Retry(format!(
             "the object read back ({n} bytes, SHA-256 {sum}) differs from the local file ({size_bytes} bytes, {sha256}); deleted, to be uploaded again"
         )));

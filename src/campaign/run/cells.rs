@@ -41,38 +41,45 @@ pub fn run_cells(
     let journal = Mutex::new(journal);
     let first_error: Mutex<Option<CampaignRunError>> = Mutex::new(None);
     let failed = AtomicBool::new(false);
+    // The cells count against the memory budget of the job that runs the
+    // campaign, if it has one (a daemon's job: `crate::job_memory`).
+    let memory = crate::job_memory::JobMemory::current();
+    let cell_loop = || loop {
+        if opts.stop.load(Ordering::SeqCst) || failed.load(Ordering::SeqCst) {
+            break;
+        }
+        let k = next.fetch_add(1, Ordering::SeqCst);
+        let Some(cell) = todo.get(k) else { break };
+        match run_cell(
+            campaign,
+            dir,
+            cell,
+            &journal,
+            &opts.stop,
+            &CellBench::Sim,
+            None,
+        ) {
+            Ok(()) => {
+                let n = done_count.fetch_add(1, Ordering::SeqCst) + 1;
+                if let Some(f) = opts.on_cell {
+                    f(n, total);
+                }
+            }
+            Err(e) => {
+                failed.store(true, Ordering::SeqCst);
+                let mut slot = first_error.lock().unwrap_or_else(|p| p.into_inner());
+                if slot.is_none() && !opts.stop.load(Ordering::SeqCst) {
+                    *slot = Some(e);
+                }
+                break;
+            }
+        }
+    };
     std::thread::scope(|s| {
         for _ in 0..opts.threads.max(1) {
-            s.spawn(|| loop {
-                if opts.stop.load(Ordering::SeqCst) || failed.load(Ordering::SeqCst) {
-                    break;
-                }
-                let k = next.fetch_add(1, Ordering::SeqCst);
-                let Some(cell) = todo.get(k) else { break };
-                match run_cell(
-                    campaign,
-                    dir,
-                    cell,
-                    &journal,
-                    &opts.stop,
-                    &CellBench::Sim,
-                    None,
-                ) {
-                    Ok(()) => {
-                        let n = done_count.fetch_add(1, Ordering::SeqCst) + 1;
-                        if let Some(f) = opts.on_cell {
-                            f(n, total);
-                        }
-                    }
-                    Err(e) => {
-                        failed.store(true, Ordering::SeqCst);
-                        let mut slot = first_error.lock().unwrap_or_else(|p| p.into_inner());
-                        if slot.is_none() && !opts.stop.load(Ordering::SeqCst) {
-                            *slot = Some(e);
-                        }
-                        break;
-                    }
-                }
+            s.spawn(|| {
+                let _counted = memory.as_ref().map(crate::job_memory::JobMemory::enter);
+                cell_loop();
             });
         }
     });
