@@ -914,9 +914,18 @@ fn a_job_over_its_memory_budget_fails_and_the_daemon_lives_in_a_memory_cgroup() 
         json!({ "inputs": ["/dev/zero"], "no_plot": true }),
     );
     eprintln!("/dev/zero design answered after {:?}: {r}", t0.elapsed());
+    // Refused before any job starts: not a regular file (the bounded
+    // reads, item 3); the budget below is the second line of defence.
     assert_eq!(r["ok"], false, "{r}");
+    assert_eq!(r["error"]["kind"], "bad_params", "{r}");
+    assert!(
+        r["error"]["message"]
+            .as_str()
+            .is_some_and(|m| m.contains("/dev/zero") && m.contains("not a regular file")),
+        "{r}"
+    );
     assert!(d.child.try_wait().unwrap().is_none(), "the daemon died");
-    let s = wait_state(&mut b, "disabled", Duration::from_secs(1));
+    let s = b.call("status", json!({}))["result"].clone();
     assert_eq!(s["command_a"], 0.0, "{s}");
     // Jobs that grow without bound: each fails on its budget, until the
     // memory the parked ones hold leaves no room (busy).
