@@ -19,6 +19,8 @@
 //! allocation. Memory freed on another thread than the one that allocated
 //! it is credited to that other thread's budget (if any): a job's figure
 //! is what its threads allocated less what they freed.
+//!
+//! Layer rule: may use nothing of the crate.
 
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::cell::Cell;

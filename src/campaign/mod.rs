@@ -14,7 +14,7 @@
 //!   a campaign survive SIGKILL and power loss without losing a completed
 //!   cell or counting a half-finished one.
 //!
-//! Layer rule: may use `analysis`, `catalogue`, `config`, `design`, `error`, `ident`, `input_file`, `jobs`, `outputs`, `plot`, `rt`, `splitmix`.
+//! Layer rule: may use `analysis`, `catalogue`, `config`, `design`, `error`, `ident`, `input_file`, `job_memory`, `jobs`, `outputs`, `plot`, `rt`, `splitmix`.
 
 pub mod disk;
 pub mod file;

@@ -89,7 +89,7 @@
 //! of input, as `socat` does) still gets its job's events and answer, and
 //! the daemon closes the connection once everything is answered.
 //!
-//! Layer rule: may use `analysis`, `campaign`, `config`, `control`, `design`, `error`, `ident`, `jobs`, `outputs`, `plot`, `record`, `rt`, `upload`, `vocab`.
+//! Layer rule: may use `analysis`, `campaign`, `config`, `control`, `design`, `error`, `ident`, `job_memory`, `jobs`, `outputs`, `plot`, `record`, `rt`, `upload`, `vocab`.
 
 pub mod client;
 mod jobs;
