@@ -56,21 +56,6 @@ impl JobSpec {
     pub(super) fn uses_loop(&self) -> bool {
         matches!(self, Self::Chirp(_) | Self::Control(_))
     }
-
-    /// The request's `cmd`.
-    pub(super) fn kind(&self) -> &'static str {
-        match self {
-            Self::Chirp(_) => "chirp",
-            Self::Control(_) => "control",
-            Self::Fit(_) => "fit",
-            Self::Design(_) => "design",
-            Self::Analyze(_) => "analyze",
-            Self::Map(_) => "map",
-            Self::Plot(_) => "plot",
-            Self::Campaign(_) => "campaign",
-            Self::Catalogue(_) => "catalogue",
-        }
-    }
 }
 
 /// A job accepted: what it is, its progress total, and its recording (the

@@ -22,6 +22,8 @@ use tokio::sync::{broadcast, oneshot};
 #[derive(Debug, Clone)]
 pub(super) struct JobHandle {
     pub(super) id: u64,
+    /// The request's `cmd` ([`crate::jobs::request::JobRequest::kind`]).
+    pub(super) kind: &'static str,
     pub(super) stop: Arc<AtomicBool>,
     pub(super) ticks: Arc<AtomicU64>,
 }
@@ -223,7 +225,7 @@ impl Active {
         memory: Option<JobMemory>,
     ) -> Result<Self, (Reply<Value>, ApiError)> {
         let compute = (!job.uses_loop()).then_some(before);
-        let kind = job.kind();
+        let kind = handle.kind;
         let (req_tx, req_rx) = rtrb::RingBuffer::<LoopRequest>::new(4);
         let (rep_tx, rep_rx) = rtrb::RingBuffer::<LoopReply>::new(4);
         let mut proxy = ServiceClient::new(req_tx, rep_rx, client.info.clone(), client.hardware);

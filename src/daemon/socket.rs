@@ -662,6 +662,7 @@ pub(super) fn submit(
     } = job_spec(ctx, &request, job_id)?;
     let handle = JobHandle {
         id: job_id,
+        kind,
         stop: Arc::new(AtomicBool::new(false)),
         ticks: Arc::new(AtomicU64::new(0)),
     };
