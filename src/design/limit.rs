@@ -83,7 +83,7 @@ pub fn loop_performance_bandwidth_rad_s(
     }
     let mut best = f64::INFINITY;
     for (&w, &s) in omega_rad_s.iter().zip(sensitivity_abs) {
-        if !(s <= s_max) {
+        if s.is_nan() || s > s_max {
             return None;
         }
         if s > 0.0 {
@@ -172,7 +172,7 @@ impl Basis {
     pub fn new(taps: u32, poles_rad_s: &[C64], period_s: f64) -> Self {
         let mut terms: Vec<Term> = (0..taps).map(Term::Delay).collect();
         for s in poles_rad_s {
-            if !(s.re < 0.0) || s.im.abs() * period_s >= PI || !s.is_finite() {
+            if !s.is_finite() || s.re >= 0.0 || s.im.abs() * period_s >= PI {
                 continue;
             }
             let p = (s * period_s).exp();
@@ -200,9 +200,21 @@ impl Basis {
     /// magnitude, never its phase). Q ≈ P⁻¹ where the loop has gain needs
     /// P's zeros among Q's poles.
     pub fn for_plant(zeros_rad_s: &[C64], lowest_rad_s: f64, period_s: f64) -> Self {
+        Self::sized(32, 16, zeros_rad_s, lowest_rad_s, period_s)
+    }
+
+    /// [`Self::for_plant`] with `taps` FIR taps and `log_poles`
+    /// frequencies of real and ζ = 0.5 poles.
+    pub fn sized(
+        taps: u32,
+        log_poles: usize,
+        zeros_rad_s: &[C64],
+        lowest_rad_s: f64,
+        period_s: f64,
+    ) -> Self {
         let nyquist = PI / period_s;
         let lo = lowest_rad_s.max(1e-3).min(nyquist / 10.0);
-        let n = 12;
+        let n = log_poles.max(2);
         let mut poles = Vec::new();
         for i in 0..n {
             let w = lo * (nyquist * 0.8 / lo).powf(i as f64 / (n - 1) as f64);
@@ -216,7 +228,7 @@ impl Basis {
                 poles.push(C64::new(-z.re.abs(), z.im.abs()));
             }
         }
-        Self::new(24, &poles, period_s)
+        Self::new(taps, &poles, period_s)
     }
 
     /// Q at `z` for the coefficients `q` (A/m per unit of the plant's
@@ -349,7 +361,7 @@ pub fn performance_limit(
             )));
         }
         for (&w, &p) in l.omega_rad_s.iter().zip(l.plant_m_per_a) {
-            if !(w > 0.0 && w < nyquist) || !p.is_finite() || p.norm() == 0.0 {
+            if !(w > 0.0 && w < nyquist && p.is_finite()) || p.norm() == 0.0 {
                 return Err(LimitError::BadLines(format!(
                     "{}: the line at {w} rad/s is not a finite, non-zero response below the Nyquist frequency {nyquist:.1} rad/s",
                     l.label
@@ -375,6 +387,9 @@ pub fn performance_limit(
     for r in &mut rows {
         r.plant /= lowest;
     }
+    // The basis orthonormalised on the lines (below).
+    let back = orthonormalise(&mut rows);
+    let n = back.ncols();
     let mut active = thinned(&rows, MAX_ACTIVE_LINES);
     let mut solves = 0;
     let mut lo = 0.0_f64;
@@ -385,8 +400,11 @@ pub fn performance_limit(
     while (hi - lo) > RELATIVE_TOLERANCE * hi {
         let mid = if lo > 0.0 { (lo * hi).sqrt() } else { hi / 8.0 };
         let (gamma, q) = loop {
-            let (gamma, q) = solve(&rows, &active, basis.terms.len(), mid, s_max)?;
+            let (gamma, q) = solve(&rows, &active, n, mid, s_max)?;
             solves += 1;
+            if std::env::var_os("BENCH_LIMIT_VERBOSE").is_some() {
+                eprintln!("ω* {mid:.2} rad/s: γ {gamma:.4} on {} lines", active.len());
+            }
             // Constraint generation: the worst lines left out.
             let worst = violations(&rows, &q, mid, s_max, gamma.max(1.0) * 1.001);
             let added: Vec<usize> = worst
@@ -407,8 +425,9 @@ pub fn performance_limit(
             hi = mid;
         }
     }
-    let q = best.unwrap_or_else(|| vec![0.0; basis.terms.len()]);
-    let binding = binding_lines(&rows, &q, lo, s_max, lines);
+    let y = best.unwrap_or_else(|| vec![0.0; n]);
+    let binding = binding_lines(&rows, &y, lo, s_max, lines);
+    let q = (&back * nalgebra::DVector::from_vec(y)).as_slice().to_vec();
     Ok(Limit {
         performance_bandwidth_rad_s: lo,
         infeasible_above_rad_s: hi,
@@ -418,6 +437,43 @@ pub fn performance_limit(
         plant_scale: lowest,
         binding,
         solves,
+    })
+}
+
+/// Replaces each row's basis values by those of an orthonormal basis of
+/// the same span over the lines (the left singular vectors of the real
+/// matrix `[Re B; Im B]`, lines × terms stacked; directions whose
+/// singular value is under 1e-9 of the largest dropped: terms that
+/// differ by nothing the lines can see). Returns the map back,
+/// `q = V Σ⁻¹ y` (terms × kept), from the new coefficients `y`. Nearly
+/// collinear terms (partial fractions on close poles, FIR taps at low
+/// frequency) otherwise leave the interior point ill-conditioned.
+fn orthonormalise(rows: &mut [Row]) -> nalgebra::DMatrix<f64> {
+    let (m, n) = (rows.len(), rows.first().map_or(0, |r| r.terms.len()));
+    let x = nalgebra::DMatrix::from_fn(2 * m, n, |i, j| {
+        let t = rows[i % m].terms[j];
+        if i < m {
+            t.re
+        } else {
+            t.im
+        }
+    });
+    let svd = x.svd(true, true);
+    let (Some(u), Some(v_t)) = (svd.u, svd.v_t) else {
+        return nalgebra::DMatrix::identity(n, n);
+    };
+    let top = svd.singular_values.max();
+    let keep: Vec<usize> = (0..svd.singular_values.len())
+        .filter(|&k| svd.singular_values[k] > 1e-9 * top)
+        .collect();
+    for (i, r) in rows.iter_mut().enumerate() {
+        r.terms = keep
+            .iter()
+            .map(|&k| C64::new(u[(i, k)], u[(m + i, k)]))
+            .collect();
+    }
+    nalgebra::DMatrix::from_fn(n, keep.len(), |i, j| {
+        v_t[(keep[j], i)] / svd.singular_values[keep[j]]
     })
 }
 
@@ -633,6 +689,159 @@ mod tests {
             loop_performance_bandwidth_rad_s(&[1.0, 2.0], &[0.5, 2.5], 2.0),
             None
         );
+    }
+
+    /// The limit on the true plant of the shipped bench and of two
+    /// held-out benches (`tests/data/limit_cases.json`) within 10 % of the
+    /// independent reference (`tests/data/limit_reference.py`: cvxpy and
+    /// Clarabel on the plant built from scratch with scipy, its own basis;
+    /// the stored `limit_reference.json`), and each right-half-plane
+    /// zeros' bound within 1 % of the reference's (its zeros from scipy's
+    /// `ss2zpk`, ours from the modal sum's numerator). The plant here is
+    /// the config's model on every 10th line of its grid within the
+    /// reference's band (π rad/s to 0.98 of the Nyquist frequency), Q's
+    /// poles from the model's modes as a fit would give them. (The band
+    /// matters: on a delay-limited bench the lines in the top 2 % below
+    /// Nyquist bind, and with them the limit is 8-11 % lower.)
+    #[test]
+    fn the_limit_matches_the_independent_reference_on_three_benches() {
+        use serde_json::Value;
+        let dir = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/data/");
+        let read = |f: &str| -> Value {
+            serde_json::from_str(&std::fs::read_to_string(format!("{dir}{f}")).unwrap()).unwrap()
+        };
+        let cases = read("limit_cases.json");
+        let refs = read("limit_reference.json");
+        let shipped = crate::config::BenchConfig::load(std::path::Path::new(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/bench-config/sr4dof-ch5.toml"
+        )))
+        .unwrap();
+        for (c, r) in cases["cases"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .zip(refs["cases"].as_array().unwrap())
+        {
+            assert_eq!(c["name"], r["name"]);
+            let f = |k: &str| c[k].as_f64().unwrap();
+            let m: Vec<f64> = c["m_kg"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .map(|v| v.as_f64().unwrap())
+                .collect();
+            let mut cfg = shipped.clone();
+            let p = &mut cfg.plant;
+            (p.m1_kg, p.m2_kg, p.m3_kg, p.m4_kg, p.m5_kg) = (m[0], m[1], m[2], m[3], m[4]);
+            p.k4_n_per_m = f("k4_n_per_m");
+            p.k5_n_per_m = f("k5_n_per_m");
+            p.parallelogram_stiffness_n_per_m = Some(f("kp_n_per_m"));
+            p.operating_point_m = f("y1o_fraction_of_l") * p.beam.length_m;
+            p.mass_asymmetry = f("mass_asymmetry");
+            let t = 1.0 / cfg.loop_.rate_hz;
+            let frf = crate::design::predict::model_frf(&cfg, f("delay_periods") * t).unwrap();
+            let band = |w: &f64| *w >= PI && *w <= 0.98 * PI / t;
+            let omega: Vec<f64> = frf
+                .omega_rad_s
+                .iter()
+                .step_by(10)
+                .copied()
+                .filter(band)
+                .collect();
+            let plant: Vec<C64> = frf
+                .omega_rad_s
+                .iter()
+                .zip(&frf.plant_m_per_a)
+                .step_by(10)
+                .filter(|(w, _)| band(w))
+                .map(|(_, p)| *p)
+                .collect();
+            let model = bench_hal::model::Sr4dof::new(cfg.plant).unwrap();
+            let modes = model.modes();
+            let zeros = crate::ident::modal_fit::damped_numerator_roots(
+                &modes.iter().map(|m| m.frequency_hz()).collect::<Vec<_>>(),
+                &modes.iter().map(|m| m.zeta).collect::<Vec<_>>(),
+                &modes.iter().map(|m| m.residue).collect::<Vec<_>>(),
+            );
+            let lines = [Lines {
+                label: "model",
+                omega_rad_s: &omega,
+                plant_m_per_a: &plant,
+            }];
+            let basis = Basis::for_plant(&zeros, omega[0], t);
+            let l = performance_limit(&lines, basis, t, f("s_max"), None).unwrap();
+            let want = r["limit_rad_s"].as_f64().unwrap();
+            let got = l.performance_bandwidth_rad_s;
+            eprintln!("{}: limit {got:.1} rad/s, reference {want:.1}", c["name"]);
+            assert!(
+                (got / want - 1.0).abs() <= 0.10,
+                "{}: {got} vs {want}",
+                c["name"]
+            );
+            for b in r["rhp_zero_bounds"].as_array().unwrap() {
+                let zr = C64::new(b["re_hz"].as_f64().unwrap(), b["im_hz"].as_f64().unwrap());
+                let ours = zeros
+                    .iter()
+                    .filter(|z| z.re > 0.0 && z.im >= 0.0)
+                    .min_by(|a, b| {
+                        (**a / (2.0 * PI) - zr)
+                            .norm()
+                            .total_cmp(&(**b / (2.0 * PI) - zr).norm())
+                    })
+                    .unwrap_or_else(|| panic!("{}: no RHP zero near {zr}", c["name"]));
+                let bound = rhp_zero_bound_rad_s(*ours, f("s_max")).unwrap();
+                let want = b["bound_rad_s"].as_f64().unwrap();
+                assert!(
+                    (bound / want - 1.0).abs() < 0.01,
+                    "{}: {bound} vs {want}",
+                    c["name"]
+                );
+                assert!(
+                    got <= bound * 1.01,
+                    "{}: {got} above the zero's bound {bound}",
+                    c["name"]
+                );
+            }
+        }
+    }
+
+    /// Experiment (by hand): the limit on the shipped bench's model for
+    /// several bases; `cargo test --lib design::limit -- --ignored
+    /// --nocapture`.
+    #[test]
+    #[ignore = "an experiment on the basis size, run by hand"]
+    fn basis_study_on_the_shipped_bench() {
+        let cfg = crate::config::BenchConfig::load(std::path::Path::new(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/bench-config/sr4dof-ch5.toml"
+        )))
+        .unwrap();
+        let t = 1.0 / cfg.loop_.rate_hz;
+        let frf = crate::design::predict::model_frf(&cfg, t).unwrap();
+        let hz = |re: f64, im: f64| C64::new(re, im) * (2.0 * PI);
+        let zeros = [hz(-2.3326, 83.289), hz(1.668, 83.297), hz(-0.2595, 22.567)];
+        // Every 10th line of the model's 20 001 (2 000 lines, 0.1 rad/s to
+        // Nyquist).
+        let omega: Vec<f64> = frf.omega_rad_s.iter().step_by(10).copied().collect();
+        let plant: Vec<C64> = frf.plant_m_per_a.iter().step_by(10).copied().collect();
+        let lines = [Lines {
+            label: "model",
+            omega_rad_s: &omega,
+            plant_m_per_a: &plant,
+        }];
+        for (taps, logp) in [(24, 12), (60, 16), (24, 32), (100, 32), (200, 48)] {
+            let t0 = std::time::Instant::now();
+            let basis = Basis::sized(taps, logp, &zeros, 1.0, t);
+            let n = basis.terms.len();
+            let l = performance_limit(&lines, basis, t, 2.0, None).unwrap();
+            eprintln!(
+                "taps {taps} log poles {logp} ({n} terms): {:.1} rad/s in {:?}, {} solves",
+                l.performance_bandwidth_rad_s,
+                t0.elapsed(),
+                l.solves
+            );
+        }
     }
 
     /// G(s) = (1 − s/z)/(1 + s/a)², sampled fast, no delay: the limit

@@ -19,9 +19,10 @@ of lines up to 0.98 of the Nyquist frequency,
 
 is a second-order cone program; the limit is the w* where gamma = 1, by
 bisection. Q is a real combination of an FIR of `taps` taps and, as a
-Kautz-like set of partial fractions, poles at every zero of the true
-plant (a zero outside the unit circle mirrored inside) and at 16 real and
-16 complex (zeta 0.5) poles spaced in log frequency: a basis chosen here,
+Kautz-like set of partial fractions, poles at e^{sT} for every zero s of
+the true mechanics below the Nyquist frequency (a right-half-plane one
+mirrored into the left) and at n_log real and n_log complex (zeta 0.5)
+poles spaced in log frequency: a basis chosen here,
 not the one of the Rust code. It also reports the analytic bound of each
 right-half-plane zero z of the continuous mechanics, |1/M + w*/z| <= 1
 (Skogestad & Postlethwaite Eq. 5.49).
@@ -61,27 +62,24 @@ def plant(c):
     Ca = np.zeros((1, 9)); Ca[0, 0] = 1.0
     T = 1.0 / c["rate_hz"]
     Ad, Bd, Cd, _, _ = signal.cont2discrete((Aa, Ba, Ca, np.zeros((1, 1))), T, method="zoh")
-    dzeros, _, _ = signal.ss2zpk(Ad, Bd, Cd, np.zeros((1, 1)))
     d = c["delay_periods"]
 
     def at(z):
         return np.array([(Cd @ np.linalg.solve(zi * np.eye(9) - Ad, Bd))[0, 0] * zi ** (-d) for zi in z])
 
-    return at, zeros, dzeros, w, T
+    return at, zeros, w, T
 
 
-def basis(T, dzeros, wn, taps, lowest, n_log=16):
+def basis(T, zeros, taps, lowest, n_log=16):
     """Columns: the basis functions' values at z (a function of z)."""
     nyq = np.pi / T
     poles = []
-    for zi in dzeros:
-        if not np.isfinite(zi) or abs(zi) < 1e-9:
+    for zi in zeros:
+        # Each zero of the mechanics below the Nyquist frequency, mirrored
+        # into the left half plane, as a pole of Q: e^{sT}.
+        if not np.isfinite(zi) or abs(zi) >= nyq or zi.imag < 0:
             continue
-        p = zi if abs(zi) < 1 else 1 / np.conj(zi)
-        if abs(p) >= 0.99999:
-            p = p / abs(p) * 0.99999
-        if p.imag >= 0:
-            poles.append(p)
+        poles.append(np.exp(complex(-abs(zi.real), zi.imag) * T))
     for f in np.logspace(np.log10(lowest), np.log10(0.8 * nyq), n_log):
         poles.append(np.exp(-f * T))
         poles.append(np.exp((-0.5 * f + 1j * f * np.sqrt(0.75)) * T))
@@ -107,8 +105,8 @@ def rhp_bound(z, M):
     return (-b + np.sqrt(b * b - 4 * a * c)) / (2 * a)
 
 
-def limit(c, taps=60, lines=1500, n_log=16):
-    at, zeros, dzeros, wn, T = plant(c)
+def limit(c, taps=30, lines=1000, n_log=16):
+    at, zeros, wn, T = plant(c)
     M = c["s_max"]
     nyq = np.pi / T
     w = np.logspace(np.log10(2 * np.pi * 0.5), np.log10(0.98 * nyq), lines)
@@ -119,7 +117,7 @@ def limit(c, taps=60, lines=1500, n_log=16):
     w = np.unique(w)
     z = np.exp(1j * w * T)
     P = at(z)
-    B = basis(T, dzeros, wn, taps, 1.0, n_log)(z)
+    B = basis(T, zeros, taps, 1.0, n_log)(z)
     scale = abs(P[0])
     PB = (P / scale)[:, None] * B
     n = B.shape[1]
@@ -144,6 +142,7 @@ def limit(c, taps=60, lines=1500, n_log=16):
             lo = mid
         else:
             hi = mid
+    zeros = [zi for zi in zeros if abs(zi) < 1e6 * nyq]  # drop the numerically infinite
     bounds = [{"re_hz": zi.real / (2 * np.pi), "im_hz": zi.imag / (2 * np.pi),
                "bound_rad_s": rhp_bound(zi, M)} for zi in zeros if zi.real > 0 and zi.imag >= 0]
     return {"name": c["name"], "limit_rad_s": lo, "infeasible_above_rad_s": hi,
