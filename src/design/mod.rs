@@ -54,6 +54,7 @@
 //! Layer rule: may use `config`, `control`, `error`, `ident`, `splitmix`.
 
 pub mod family;
+pub mod limit;
 pub mod loops;
 pub mod modes;
 pub mod predict;
