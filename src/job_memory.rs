@@ -39,8 +39,8 @@ pub const PARK_MIN_BYTES: usize = 64 * 1024;
 /// thread is parked anyway: this fraction of the budget.
 pub const SMALL_SLACK_FRACTION: u64 = 8;
 
-/// The share of the daemon's memory limit one job may allocate: a quarter
-/// ([`job_budget_bytes`]).
+/// The share of the daemon's memory limit one job may allocate: a
+/// quarter (the daemon's owner divides [`memory_limit_bytes`] by it).
 pub const JOB_SHARE_DIVISOR: u64 = 4;
 
 /// A budget and what its threads hold.
@@ -306,12 +306,6 @@ pub fn memory_limit_bytes() -> u64 {
     limit
 }
 
-/// The budget of one job that computes: [`memory_limit_bytes`] divided by
-/// [`JOB_SHARE_DIVISOR`].
-pub fn job_budget_bytes() -> u64 {
-    memory_limit_bytes() / JOB_SHARE_DIVISOR
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -320,7 +314,6 @@ mod tests {
     fn the_limit_is_at_most_the_machines() {
         let l = memory_limit_bytes();
         assert!(l > 16 << 20, "{l}");
-        assert_eq!(job_budget_bytes(), l / JOB_SHARE_DIVISOR);
     }
 
     #[test]

@@ -6,6 +6,7 @@
 //! with its summary ([`after_job`]).
 
 use super::jobs::JobResult;
+use super::lock;
 use super::protocol::{event, StoreState, StoreStatus};
 use super::STORE_PROBE_GRACE_MS;
 use crate::error::RunError;
@@ -18,10 +19,6 @@ use std::path::{Path, PathBuf};
 use std::sync::{Arc, Condvar, Mutex};
 use std::time::{Duration, Instant};
 use tokio::sync::broadcast;
-
-fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
-    m.lock().unwrap_or_else(|e| e.into_inner())
-}
 
 /// The store's state, shared by the probe's thread, the uploader's
 /// (a confirmed upload: the store answers) and the socket (`status`).
