@@ -1,5 +1,5 @@
-//! The daemon fixtures of the socket tests (`tests/daemon.rs`,
-//! `tests/daemon_hostile.rs`): start `bench serve` on a private socket, a
+//! The daemon fixtures of the socket tests (`tests/cli/daemon.rs`,
+//! `tests/cli/daemon_hostile.rs`): start `bench serve` on a private socket, a
 //! JSON-lines client, waiting for a state. Included with
 //! `#[path = "common/daemon.rs"] mod daemon_fixtures;` beside `mod common;`.
 #![allow(dead_code)]
@@ -29,7 +29,7 @@ pub fn spawn_serve_with(
 ) -> Child {
     let mut cmd = bench();
     // Its stderr is a pipe the tests do not read: warnings only, so a long
-    // test never fills it (tests/logging.rs reads the default `info`).
+    // test never fills it (tests/cli/logging.rs reads the default `info`).
     cmd.env("RUST_LOG", "warn");
     adjust(&mut cmd);
     let child = cmd

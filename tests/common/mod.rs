@@ -328,3 +328,50 @@ pub fn run_within(args: &[&str], cwd: &Path, limit: std::time::Duration) -> (Out
     };
     (child.wait_with_output().expect("output"), ended)
 }
+
+/// The documentation a user reads, as (path from the repository root,
+/// text): `README.md`, then the book's chapters (`docs/src`) in the order
+/// of its `SUMMARY.md`. Every chapter `SUMMARY.md` names must exist, and
+/// every Markdown file under `docs/src` must be named in it.
+pub fn doc_pages() -> Vec<(String, String)> {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let read = |rel: &str| {
+        std::fs::read_to_string(root.join(rel)).unwrap_or_else(|e| panic!("{rel}: {e}"))
+    };
+    let mut pages = vec![("README.md".to_string(), read("README.md"))];
+    let summary = read("docs/src/SUMMARY.md");
+    let mut named = std::collections::BTreeSet::new();
+    for line in summary.lines() {
+        if let Some((_, rest)) = line.split_once("](") {
+            let chapter = rest.split(')').next().unwrap();
+            let rel = format!("docs/src/{chapter}");
+            named.insert(rel.clone());
+            pages.push((rel.clone(), read(&rel)));
+        }
+    }
+    let mut on_disk = Vec::new();
+    let mut dirs = vec![root.join("docs/src")];
+    while let Some(d) = dirs.pop() {
+        for e in std::fs::read_dir(&d).unwrap() {
+            let p = e.unwrap().path();
+            if p.is_dir() {
+                dirs.push(p);
+            } else if p.extension().is_some_and(|x| x == "md") && !p.ends_with("SUMMARY.md") {
+                on_disk.push(p.strip_prefix(root).unwrap().display().to_string());
+            }
+        }
+    }
+    for p in on_disk {
+        assert!(named.contains(&p), "{p} is not in docs/src/SUMMARY.md");
+    }
+    pages
+}
+
+/// [`doc_pages`] as one text, each page after a blank line.
+pub fn docs_text() -> String {
+    doc_pages()
+        .into_iter()
+        .map(|(_, t)| t)
+        .collect::<Vec<_>>()
+        .join("\n")
+}

@@ -5,7 +5,7 @@ Recomputes, from a multisine record and without any of the Rust code, the
 robust method's quantities per excited line (Pintelon & Schoukens, *System
 Identification: A Frequency Domain Approach*, 2nd ed. 2012, sections 3.7
 and 4.3; Schoukens, Pintelon & Rolain, Automatica 41, 2005), so that
-`tests/multisine.rs` can check `bench::ident::bla` against a second
+`tests/cli/multisine.rs` can check `bench::ident::bla` against a second
 implementation.
 
 Input (argv[1], JSON):

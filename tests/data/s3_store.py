@@ -1,4 +1,4 @@
-"""The S3 side of tests/upload.rs, through boto3 (installed with moto by
+"""The S3 side of tests/servers/upload.rs, through boto3 (installed with moto by
 .ci/run), independent of the object_store crate that `bench` uses.
 
   s3_store.py setup ENDPOINT

@@ -5,6 +5,7 @@
 use bench_hal::model::{Beam, Damping, Sr4dofParams};
 use bench_hal::sim::{ActuatorParams, ProbeParams, SimParams};
 
+pub mod alloc;
 mod watchdog;
 #[allow(unused_imports)] // not every test file waits for a watchdog
 pub use watchdog::{wait_for_watchdog_trip, WatchdogTrip};

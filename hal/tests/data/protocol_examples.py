@@ -2,7 +2,7 @@
 
 Written from the specification only (postcard wire format, CRC-32C, COBS),
 without the Rust code: `python3 hal/tests/data/protocol_examples.py` prints the
-frames that `hal/tests/protocol.rs` checks the encoder and decoder against.
+frames that `hal/tests/hal/protocol.rs` checks the encoder and decoder against.
 """
 import struct
 

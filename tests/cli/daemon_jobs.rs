@@ -1,0 +1,354 @@
+//! Every job kind of the CLI runs through the daemon's socket (`--daemon`,
+//! and `bench campaign run --submit`) with the same results as the local
+//! run: `fit` (a CSV and a recording, with and without `--update`, and
+//! `--frequencies`), `analyze`, `map` (with measured verdicts and the cells
+//! CSV, and `--veering`) and a small campaign. Compared: the `--json`
+//! summaries without the output paths (the daemon names its own outputs in
+//! its recordings directory) and the outputs' contents (PNGs, CSVs, the
+//! updated bench without its time-stamped first line, the campaign's
+//! `cells.csv`, each cell's FRF and plot, the map). The daemon refuses what
+//! the CLI refuses, naming the same parameter.
+
+use crate::common;
+use crate::daemon_fixtures;
+
+use common::*;
+use daemon_fixtures::*;
+use serde_json::{json, Value};
+use std::path::{Path, PathBuf};
+use std::process::Output;
+
+fn ok(o: &Output, what: &str) {
+    assert!(
+        o.status.success(),
+        "{what}: exit {:?}\n{}",
+        o.status.code(),
+        String::from_utf8_lossy(&o.stderr)
+    );
+}
+
+/// `bench ARGS --json`, successful, and its summary.
+fn summary(args: &[&str], what: &str) -> Value {
+    let mut all = args.to_vec();
+    all.push("--json");
+    let o = run(&all);
+    ok(&o, what);
+    json_stdout(&o)
+}
+
+/// `v` without the keys `paths` (at the top level), for comparing a local
+/// summary with the daemon's.
+fn without(v: &Value, paths: &[&str]) -> Value {
+    let mut v = v.clone();
+    for p in paths {
+        v.as_object_mut().unwrap().remove(*p);
+    }
+    v
+}
+
+fn path_of(v: &Value, key: &str) -> PathBuf {
+    PathBuf::from(v[key].as_str().unwrap_or_else(|| panic!("no {key} in {v}")))
+}
+
+fn same_file(a: &Path, b: &Path) {
+    let (x, y) = (std::fs::read(a).unwrap(), std::fs::read(b).unwrap());
+    assert!(
+        x == y,
+        "{} and {} differ ({} and {} bytes)",
+        a.display(),
+        b.display(),
+        x.len(),
+        y.len()
+    );
+}
+
+/// A text file without its first line (the updated bench's header line
+/// carries the time it was written).
+fn after_first_line(p: &Path) -> String {
+    let t = std::fs::read_to_string(p).unwrap();
+    t.split_once('\n')
+        .map_or(String::new(), |(_, r)| r.to_string())
+}
+
+#[test]
+fn fit_analyze_map_and_a_campaign_through_the_daemon_equal_the_local_runs() {
+    let d = Daemon::start();
+    let sock = d.sock();
+    let sock = sock.as_str();
+    let dir = d.dir.path().to_path_buf();
+    let cfg = d.config.to_str().unwrap();
+    let at = |name: &str| dir.join(name).to_str().unwrap().to_string();
+    let in_recordings = |p: &Path| assert!(p.starts_with(dir.join("rec")), "{}", p.display());
+
+    // An FRF to fit: a short local chirp of the daemon's bench.
+    let mcap = at("c.mcap");
+    let chirp = summary(
+        &[
+            "chirp",
+            "--config",
+            cfg,
+            "--duration-s",
+            "4",
+            "--f-start-hz",
+            "5",
+            "--f-end-hz",
+            "300",
+            "--seed",
+            "3",
+            "--out",
+            &mcap,
+        ],
+        "chirp",
+    );
+    let csv = path_of(&chirp, "frf_csv").to_str().unwrap().to_string();
+    let csv = csv.as_str();
+
+    // fit: a CSV, and a recording with its recorded config; each with and
+    // without --update.
+    for (input, update) in [(csv, false), (csv, true), (mcap.as_str(), true)] {
+        let what = format!("fit {input} (update {update})");
+        let png = at(&format!("local-{update}.fit.png"));
+        let out = at(&format!("local-{update}.updated.toml"));
+        let mut local = vec!["fit", input, "--png", png.as_str()];
+        let mut remote = vec!["fit", input, "--daemon", sock];
+        if update {
+            local.extend(["--update", "--out", out.as_str(), "--overwrite"]);
+            remote.push("--update");
+        }
+        // The recording's fit also exports its model (a MATLAB script).
+        let model = at("local_model.m");
+        if input == mcap.as_str() {
+            let export = ["--export-model", "ss", "--model-format", "matlab"];
+            local.extend(export);
+            local.extend(["--model-out", model.as_str()]);
+            remote.extend(export);
+        }
+        let (l, r) = (summary(&local, &what), summary(&remote, &what));
+        if input == mcap.as_str() {
+            in_recordings(&path_of(&r, "model"));
+            same_file(&path_of(&l, "model"), &path_of(&r, "model"));
+        }
+        let paths = ["plot", "updated_config", "model"];
+        assert_eq!(without(&l, &paths), without(&r, &paths), "{what}");
+        assert!(l["fit"].is_object(), "{what}: no fit in {l}");
+        in_recordings(&path_of(&r, "plot"));
+        same_file(&path_of(&l, "plot"), &path_of(&r, "plot"));
+        if update {
+            in_recordings(&path_of(&r, "updated_config"));
+            assert_eq!(
+                after_first_line(&path_of(&l, "updated_config")),
+                after_first_line(&path_of(&r, "updated_config")),
+                "{what}"
+            );
+        }
+        std::fs::remove_file(path_of(&l, "plot")).unwrap();
+    }
+    // An update to natural frequencies: nothing written, the same answer.
+    let freq = [
+        "fit",
+        "--frequencies",
+        "18.2,27.6,153.2,154.3",
+        "--config",
+        cfg,
+    ];
+    let l = summary(&freq, "fit --frequencies");
+    let r = summary(
+        &[&freq[..], &["--daemon", sock]].concat(),
+        "fit --frequencies",
+    );
+    assert_eq!(l, r);
+
+    // analyze: the same summary and the same two plots; the human form
+    // too, but for the PNG lines.
+    let point = [
+        "analyze",
+        "--config",
+        cfg,
+        "--operating-point-pct",
+        "6",
+        "--mass-asymmetry-pct",
+        "4",
+    ];
+    let (pz, modes) = (at("pz.png"), at("modes.png"));
+    let l = summary(
+        &[
+            &point[..],
+            &[
+                "--pole-zero-png",
+                pz.as_str(),
+                "--modes-png",
+                modes.as_str(),
+            ],
+        ]
+        .concat(),
+        "analyze",
+    );
+    let r = summary(&[&point[..], &["--daemon", sock]].concat(), "analyze");
+    let pngs = ["pole_zero_png", "modes_png"];
+    assert_eq!(without(&l, &pngs), without(&r, &pngs));
+    for k in pngs {
+        in_recordings(&path_of(&r, k));
+        same_file(&path_of(&l, k), &path_of(&r, k));
+    }
+    let text = |o: Output| {
+        ok(&o, "analyze");
+        String::from_utf8(o.stdout)
+            .unwrap()
+            .lines()
+            .filter(|l| !l.contains(".png"))
+            .collect::<Vec<_>>()
+            .join("\n")
+    };
+    assert_eq!(
+        text(run(&[&point[..], &["--no-plots"]].concat())),
+        text(run(
+            &[&point[..], &["--no-plots", "--daemon", sock]].concat()
+        ))
+    );
+
+    // map: measured verdicts judged against the model, the cells CSV.
+    let measured = at("measured.csv");
+    std::fs::write(
+        &measured,
+        "operating_point_m,mass_asymmetry,verdict\n0.001,0.02,true\n0.003,-0.05,false\n0.004,0.08,\n0.002,0.1,true\n",
+    )
+    .unwrap();
+    let grid = [
+        "map",
+        "--config",
+        cfg,
+        "--operating-points",
+        "21",
+        "--mass-asymmetries",
+        "11",
+        "--measured",
+        measured.as_str(),
+    ];
+    let (map_png, cells_csv) = (at("map.png"), at("cells.csv"));
+    let l = summary(
+        &[
+            &grid[..],
+            &["--png", map_png.as_str(), "--csv", cells_csv.as_str()],
+        ]
+        .concat(),
+        "map",
+    );
+    let r = summary(&[&grid[..], &["--csv", "--daemon", sock]].concat(), "map");
+    assert_eq!(without(&l, &["png", "csv"]), without(&r, &["png", "csv"]));
+    assert!(
+        !l["disagreements"].as_array().unwrap().is_empty(),
+        "the measured verdicts are to disagree somewhere: {l}"
+    );
+    for k in ["png", "csv"] {
+        in_recordings(&path_of(&r, k));
+        same_file(&path_of(&l, k), &path_of(&r, k));
+    }
+    let veering = [
+        "map",
+        "--config",
+        cfg,
+        "--veering",
+        "--operating-points",
+        "31",
+        "--localisation-at-pct",
+        "2,6",
+    ];
+    let veer_png = at("veer.png");
+    let l = summary(
+        &[&veering[..], &["--png", veer_png.as_str()]].concat(),
+        "veering",
+    );
+    let r = summary(&[&veering[..], &["--daemon", sock]].concat(), "veering");
+    assert_eq!(without(&l, &["png"]), without(&r, &["png"]));
+    same_file(&path_of(&l, "png"), &path_of(&r, "png"));
+
+    // A campaign of four cells, run here and as one job of the daemon.
+    let campaign = at("small.toml");
+    std::fs::write(
+        &campaign,
+        format!(
+            "config = {cfg:?}\nseed = 26\nsettle_s = 0.0\nmass_increment_kg = 0.0005\n\
+             [grid]\noperating_point_pct = [3.6, 6.6]\nmass_asymmetry = [-0.05, 0.1]\n\
+             [chirp]\nduration_s = 2.0\nf_start_hz = 5.0\nf_end_hz = 200.0\n"
+        ),
+    )
+    .unwrap();
+    let run_args = ["campaign", "run", campaign.as_str(), "--threads", "2"];
+    let camp = at("camp");
+    let l = summary(
+        &[&run_args[..], &["--out", camp.as_str()]].concat(),
+        "campaign",
+    );
+    let r = summary(&[&run_args[..], &["--submit", sock]].concat(), "campaign");
+    let paths = ["dir", "cells_csv", "map_png"];
+    assert_eq!(without(&l, &paths), without(&r, &paths));
+    assert_eq!(l["done"], 4, "{l}");
+    let (ld, rd) = (path_of(&l, "dir"), path_of(&r, "dir"));
+    in_recordings(&rd);
+    for f in ["cells.csv", "map.png"] {
+        same_file(&ld.join(f), &rd.join(f));
+    }
+    for cell in 0..4 {
+        for f in ["frf.csv", "bode.png"] {
+            let name = format!("cells/{cell:03}/{f}");
+            same_file(&ld.join(&name), &rd.join(&name));
+        }
+    }
+
+    // The same refusals, naming the same parameter: the CLI's flag, the
+    // daemon's param, and the same reason after it.
+    for (args, flag, param) in [
+        (
+            vec!["map", "--operating-points", "1"],
+            "--operating-points",
+            "operating_points",
+        ),
+        (
+            vec!["analyze", "--operating-point-pct", "25", "--no-plots"],
+            "--operating-point-pct 25",
+            "operating_point_pct 25",
+        ),
+        (
+            vec!["fit", csv, "--free", "nope", "--update"],
+            "--free \"nope\"",
+            "free \"nope\"",
+        ),
+    ] {
+        let local = run(&args);
+        let remote = run(&[&args[..], &["--daemon", sock]].concat());
+        for o in [&local, &remote] {
+            assert_eq!(o.status.code(), Some(2), "{args:?}: {o:?}");
+        }
+        let (le, re) = (
+            String::from_utf8_lossy(&local.stderr).to_string(),
+            String::from_utf8_lossy(&remote.stderr).to_string(),
+        );
+        let reason = le
+            .split_once(&format!("error: {flag}: "))
+            .unwrap_or_else(|| panic!("{args:?}: {le}"))
+            .1
+            .trim()
+            .to_string();
+        assert!(
+            re.contains(&format!("params.{param}: {reason}")),
+            "{args:?}: local {le:?}, daemon {re:?}"
+        );
+    }
+
+    // Through the socket: a relative path is refused, the job slot is free
+    // again after every job, and the stage was never touched.
+    let mut c = d.client();
+    let r = c.call("fit", json!({ "input": "c.frf.csv" }));
+    assert_eq!(r["error"]["kind"], "bad_params", "{r}");
+    assert!(
+        r["error"]["message"]
+            .as_str()
+            .unwrap()
+            .starts_with("params.input: c.frf.csv is not an absolute path"),
+        "{r}"
+    );
+    let s = c.call("status", json!({}));
+    assert_eq!(s["result"]["state"], "disabled", "{s}");
+    assert_eq!(s["result"]["job"], Value::Null, "{s}");
+    assert_eq!(s["result"]["last_recording"], Value::Null, "{s}");
+}

@@ -1,0 +1,215 @@
+//! The book's generated reference pages: the exit statuses (from
+//! `bench::error::EXIT_STATUSES`) and the recording channels (from the
+//! recordings of a chirp and a step run: topic, encoding, schema and, for
+//! each JSON channel, its fields with their schema descriptions). Each page
+//! holds its generated part between the markers
+//! `<!-- generated: … -->` and `<!-- end generated -->`; the test fails when
+//! that part is not what the code gives now, and `BENCH_BLESS=1` rewrites
+//! it (then review the diff).
+
+use crate::common::{path_in, run, tmp};
+use bench::error::EXIT_STATUSES;
+use serde_json::Value;
+use std::collections::BTreeMap;
+use std::path::Path;
+
+const END: &str = "<!-- end generated -->";
+
+/// Checks (or, with `BENCH_BLESS=1`, rewrites) the generated part of
+/// `page` (from the repository root) against `body`.
+fn check_generated(page: &str, source: &str, body: &str) {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join(page);
+    let text = std::fs::read_to_string(&path).unwrap_or_else(|e| panic!("{page}: {e}"));
+    let begin = format!("<!-- generated: {source}; BENCH_BLESS=1 tests/run --test cli docs_reference rewrites it -->");
+    let a = text
+        .find(&begin)
+        .unwrap_or_else(|| panic!("{page} lacks the marker {begin}"));
+    let b = text[a..]
+        .find(END)
+        .map(|i| a + i)
+        .unwrap_or_else(|| panic!("{page} lacks {END} after its generated part"));
+    let now = &text[a + begin.len()..b];
+    let want = format!("\n{body}");
+    if now == want {
+        return;
+    }
+    if std::env::var_os("BENCH_BLESS").is_some_and(|v| v == "1") {
+        let new = format!("{}{want}{}", &text[..a + begin.len()], &text[b..]);
+        std::fs::write(&path, new).unwrap();
+        return;
+    }
+    panic!(
+        "{page} is stale: its generated part is not what {source} gives now.\n--- generated now ---\n{body}--- in the page ---{now}\nRun BENCH_BLESS=1 tests/run --test cli docs_reference and review the diff."
+    );
+}
+
+/// A table cell: pipes escaped, one line.
+fn cell(s: &str) -> String {
+    s.replace('|', "\\|").replace('\n', " ")
+}
+
+#[test]
+fn the_exit_status_page_is_the_codes_table() {
+    let mut body = String::from("| status | meaning | commands |\n|---|---|---|\n");
+    for s in EXIT_STATUSES {
+        let commands = if s.commands.is_empty() {
+            "every command".to_string()
+        } else {
+            s.commands
+                .iter()
+                .map(|c| format!("`{c}`"))
+                .collect::<Vec<_>>()
+                .join(", ")
+        };
+        body.push_str(&format!("| {} | {} | {commands} |\n", s.code, cell(s.meaning)));
+    }
+    check_generated(
+        "docs/src/reference/exit-statuses.md",
+        "bench::error::EXIT_STATUSES",
+        &body,
+    );
+}
+
+/// One recorded channel as the page lists it.
+struct Channel {
+    message_encoding: String,
+    schema_name: String,
+    schema_encoding: String,
+    /// JSON channels: (field, type, description) of the top-level object.
+    fields: Vec<(String, String, String)>,
+    /// The jobs whose recording has it.
+    jobs: Vec<&'static str>,
+}
+
+/// The JSON type of a schema node, as the page names it.
+fn type_of(node: &Value, root: &Value) -> String {
+    if let Some(r) = node.get("$ref").and_then(Value::as_str) {
+        let name = r.rsplit('/').next().unwrap_or(r);
+        let target = r
+            .strip_prefix('#')
+            .and_then(|p| root.pointer(p))
+            .unwrap_or(&Value::Null);
+        if target.get("enum").is_some() || target.get("oneOf").is_some() {
+            return format!("{name} (enum)");
+        }
+        return name.to_string();
+    }
+    match node.get("type") {
+        Some(Value::String(t)) if t == "array" => {
+            let item = node.get("items").map(|i| type_of(i, root));
+            format!("array of {}", item.unwrap_or_else(|| "values".into()))
+        }
+        Some(Value::String(t)) => t.clone(),
+        Some(Value::Array(ts)) => ts
+            .iter()
+            .filter_map(Value::as_str)
+            .collect::<Vec<_>>()
+            .join(" or "),
+        _ => {
+            for k in ["anyOf", "oneOf"] {
+                if let Some(alts) = node.get(k).and_then(Value::as_array) {
+                    return alts
+                        .iter()
+                        .map(|a| type_of(a, root))
+                        .collect::<Vec<_>>()
+                        .join(" or ");
+                }
+            }
+            "value".into()
+        }
+    }
+}
+
+fn add_channels(path: &Path, job: &'static str, out: &mut BTreeMap<String, Channel>) {
+    let bytes = std::fs::read(path).expect("recording");
+    let summary = mcap::Summary::read(&bytes)
+        .expect("mcap summary")
+        .expect("a summary section");
+    for ch in summary.channels.values() {
+        let entry = out.entry(ch.topic.clone()).or_insert_with(|| {
+            let schema = ch.schema.as_ref().expect("every channel has a schema");
+            let mut fields = Vec::new();
+            if schema.encoding == "jsonschema" {
+                let root: Value = serde_json::from_slice(&schema.data).expect("schema is JSON");
+                if let Some(props) = root.get("properties").and_then(Value::as_object) {
+                    for (name, node) in props {
+                        let desc = node
+                            .get("description")
+                            .and_then(Value::as_str)
+                            .unwrap_or("")
+                            .split("\n\n")
+                            .next()
+                            .unwrap_or("")
+                            .to_string();
+                        fields.push((name.clone(), type_of(node, &root), desc));
+                    }
+                }
+            }
+            Channel {
+                message_encoding: ch.message_encoding.clone(),
+                schema_name: schema.name.clone(),
+                schema_encoding: schema.encoding.clone(),
+                fields,
+                jobs: Vec::new(),
+            }
+        });
+        if !entry.jobs.contains(&job) {
+            entry.jobs.push(job);
+        }
+    }
+}
+
+#[test]
+fn the_recording_channels_page_is_the_recordings() {
+    let dir = tmp();
+    let chirp = path_in(dir.path(), "chirp.mcap");
+    let control = path_in(dir.path(), "control.mcap");
+    let runs: [(&'static str, Vec<&str>); 2] = [
+        (
+            "chirp",
+            vec!["chirp", "--out", &chirp, "--duration-s", "1", "--f-start-hz", "20"],
+        ),
+        (
+            "control",
+            vec!["control", "--fast", "--out", &control, "--duration-s", "1"],
+        ),
+    ];
+    let mut chans = BTreeMap::new();
+    for (job, args) in &runs {
+        let o = run(args);
+        assert!(
+            o.status.success(),
+            "bench {args:?}: {:?}\n{}",
+            o.status,
+            String::from_utf8_lossy(&o.stderr)
+        );
+        add_channels(Path::new(&args[2]), job, &mut chans);
+    }
+    assert!(chans.len() >= 5, "{} channels", chans.len());
+    let mut body = String::from(
+        "| topic | jobs | message encoding | schema (encoding) |\n|---|---|---|---|\n",
+    );
+    for (topic, c) in &chans {
+        body.push_str(&format!(
+            "| `{topic}` | {} | {} | `{}` ({}) |\n",
+            c.jobs.join(", "),
+            c.message_encoding,
+            c.schema_name,
+            c.schema_encoding
+        ));
+    }
+    for (topic, c) in &chans {
+        if c.fields.is_empty() {
+            continue;
+        }
+        body.push_str(&format!("\n### `{topic}`\n\n| field | type | meaning |\n|---|---|---|\n"));
+        for (name, ty, desc) in &c.fields {
+            body.push_str(&format!("| `{name}` | {} | {} |\n", cell(ty), cell(desc)));
+        }
+    }
+    check_generated(
+        "docs/src/reference/channels.md",
+        "the channels of a `bench chirp` and a `bench control --fast` recording",
+        &body,
+    );
+}

@@ -1,0 +1,48 @@
+//! The tests that run the `bench` process (the command line and the
+//! daemon on its socket) and read what it writes: one test binary with a
+//! module per command or subject.
+
+#[path = "../common/mod.rs"]
+mod common;
+#[path = "../common/daemon.rs"]
+mod daemon_fixtures;
+
+mod analyze;
+mod campaign;
+mod campaign_hardware;
+mod chirp;
+mod cli;
+mod config_bounds;
+mod config_mutation;
+mod control;
+mod corrupt_frames;
+mod daemon;
+mod daemon_cli;
+mod daemon_hostile;
+mod daemon_jobs;
+mod design_cli;
+mod disk_full;
+mod export;
+mod first_hour;
+mod fit;
+mod flag_bounds;
+mod foxglove_layout;
+mod hardware;
+mod inject_at_zero;
+mod limits;
+mod logging;
+mod lpm;
+mod model_export;
+mod multisine;
+mod outputs;
+mod pace;
+mod plot_overlay;
+mod readme_examples;
+mod readme_outputs;
+mod recover;
+mod schemas;
+mod stalls;
+mod uncertainty;
+mod update;
+mod verify;
+mod docs_reference;
