@@ -4,14 +4,14 @@
 //!
 //! - `cfg(bench_root)`: the build runs as root (effective uid 0), which the
 //!   tests that mount a small tmpfs to fill a disk need
-//!   (`tests/outputs.rs`).
+//!   (`tests/cli/outputs.rs`).
 //!
 //! - `cfg(bench_has_bash)`, `cfg(bench_has_man)`: `bash`, and `groff` or
-//!   `man`, are on `PATH` (`tests/first_hour.rs`: the completion script
+//!   `man`, are on `PATH` (`tests/cli/first_hour.rs`: the completion script
 //!   checked with `bash -n`, the man page rendered).
 //!
 //! - `cfg(bench_has_vcan0)`: a virtual CAN interface `vcan0` exists
-//!   (`tests/readme_examples.rs`: the README's CAN examples).
+//!   (`tests/cli/readme_examples.rs`: the README's CAN examples).
 //!
 //! The probe runs when this file changes (`touch build.rs` after changing
 //! the user that builds or installing those programs).

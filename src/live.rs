@@ -264,7 +264,7 @@ pub fn refused_handshake(event: &tracing::Event<'_>) -> Option<String> {
 
 /// The log line of a refused handshake (see [`refused_handshake`]).
 pub fn refusal_message(addr: &str) -> String {
-    format!("live view: refused the client at {addr}: its WebSocket handshake offered no subprotocol this server speaks (or was no WebSocket handshake); {CLIENTS} (README, Live view)")
+    format!("live view: refused the client at {addr}: its WebSocket handshake offered no subprotocol this server speaks (or was no WebSocket handshake); {CLIENTS} (docs/src/live.md)")
 }
 
 /// One recorder channel's live twin.

@@ -15,7 +15,7 @@
 //! * the cell's catalogue row: [`CATALOGUE_ROW_BYTES`], whatever is kept.
 //!
 //! The estimate is stated ±[`ESTIMATE_REL_UNCERTAINTY`]: compression
-//! depends on the noise, a plot on what it shows. `tests/campaign.rs`
+//! depends on the noise, a plot on what it shows. `tests/cli/campaign.rs`
 //! compares it with the bytes a small campaign wrote.
 
 use std::path::Path;

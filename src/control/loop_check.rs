@@ -972,7 +972,7 @@ mod thesis {
     /// The fast controller with its gain ×1.1 passes without the link's
     /// delay (‖S‖∞ 2.44 ≤ 2.5) and is refused with one period of it
     /// (2.67), the failure saying the delay was included
-    /// (`tests/loop_reference.rs` checks the same against python-control).
+    /// (`tests/it/loop_reference.rs` checks the same against python-control).
     #[test]
     fn a_controller_the_delay_breaks_is_refused_naming_the_delay() {
         let mut cfg = ch5();

@@ -140,7 +140,7 @@ pub const ACCEPT_BACKOFF_MS: u64 = 100;
 /// worker then finishes the recording, the tail of at most one chunk
 /// (chunks close every 50 ms, `record::writer::ChunkPolicy::REAL_TIME`),
 /// the summary and the index, written and synced: 8 ms here
-/// (`tests/daemon_hostile.rs` measures it). A campaign's cells stop the
+/// (`tests/cli/daemon_hostile.rs` measures it). A campaign's cells stop the
 /// same way. A job that computes (fit, design, plot…) does not look at
 /// `stop`: it is abandoned after this time. One second leaves a slow or
 /// busy disk a hundred times that, and the rest of [`SHUTDOWN_BOUND_MS`]

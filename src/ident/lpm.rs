@@ -94,7 +94,7 @@
 //! E[|Ĝ − G|² / σ̂_G²] = q / (q − 1)                (q = 7: 1.167)
 //! E|Ĝ − G|² = E[σ̂_G²]                             (σ̂² unbiased)
 //! ```
-//! (`tests/lpm.rs` checks these by Monte Carlo on the simulated bench.)
+//! (`tests/cli/lpm.rs` checks these by Monte Carlo on the simulated bench.)
 //!
 //! **Bias.** The polynomials approximate `G` and `T`; the part they miss
 //! biases `Ĝ` and inflates `σ̂²_V`. It grows with the window against the
@@ -109,7 +109,7 @@
 //! 1.17). And it stays narrow: on the default chirp record (65.5 s,
 //! `Δf` = 0.0153 Hz) the window is 0.20 Hz up to 46 Hz, 38 % of the
 //! half-power band of the X rigid-body mode (ζ = 0.009 at 29.3 Hz:
-//! 0.53 Hz); above, `ρ f`. Measured without noise (`tests/lpm.rs`): the
+//! 0.53 Hz); above, `ρ f`. Measured without noise (`tests/cli/lpm.rs`): the
 //! bias is 1.2e-3 of |G| at the 29.3 Hz peak and 4.0e-3 at the pair's
 //! upper peak (84.5 Hz, ζ = 0.004), where H1 is 2.9e-2 off; 5e-10 away
 //! from the modes.

@@ -29,7 +29,7 @@
 //!   of a sweep that spends a time proportional to `p_l` at each line, so
 //!   the signal's envelope is nearly flat. On many flat consecutive lines
 //!   its crest factor (peak / RMS) tends to a sweep's √2 times the Fresnel
-//!   overshoot of the band's edges, 1.17: 1.66 (`tests/multisine.rs`),
+//!   overshoot of the band's edges, 1.17: 1.66 (`tests/cli/multisine.rs`),
 //!   against `√(2 ln 2F)` and more for random phases. On sparse
 //!   (log-spaced) lines the gaps alias that sweep and the crest factor is
 //!   no better than random; so the phases are then refined by the

@@ -338,7 +338,7 @@ fn field(name: &str, number: i32, ty: Type, repeated: bool) -> FieldDescriptorPr
 
 /// The `bench.proto` file descriptor: messages `bench.SampleBlock` and
 /// `bench.Envelope`, enum `bench.State` (field names, numbers and types as
-/// the structs above; `tests/schemas.rs` decodes recorded messages with it).
+/// the structs above; `tests/cli/schemas.rs` decodes recorded messages with it).
 pub fn file_descriptor() -> FileDescriptorProto {
     use Type::*;
     let sample = DescriptorProto {

@@ -12,7 +12,7 @@
 //! is full (nobody reads it) it keeps them, and the next offer carries
 //! everything since the last one taken: nothing is lost and nothing waits.
 //! The reader adds the batches up ([`LoopCounts::add`]). On the tick: no
-//! allocation, lock, system call or formatting (`tests/alloc.rs`).
+//! allocation, lock, system call or formatting (`tests/it/alloc.rs`).
 //!
 //! Only ticks the loop runs in real time are counted: a job a simulator
 //! daemon runs in virtual time (paced or not) has no deadline, and its

@@ -166,7 +166,7 @@ impl Frf {
         if !(f_lo..=f_hi).contains(&v[0]) {
             return Err(format!(
                 "frequency_hz: {} is outside {f_lo:e} … {f_hi:e} Hz (no bench measures a line \
-                 there; README, FRF CSV)",
+                 there; docs/src/jobs/chirp.md, FRF CSV)",
                 show(v[0])
             ));
         }
@@ -183,14 +183,14 @@ impl Frf {
         if !(m_lo..=m_hi).contains(&v[1]) {
             return Err(format!(
                 "magnitude_m_per_a: {} is outside {m_lo:e} … {m_hi:e} m/A (no bench measures \
-                 a response there; README, FRF CSV)",
+                 a response there; docs/src/jobs/chirp.md, FRF CSV)",
                 show(v[1])
             ));
         }
         if v[2].abs() > MAX_ABS_PHASE_DEG {
             return Err(format!(
                 "phase_deg: {} is beyond ±{MAX_ABS_PHASE_DEG:e}° (2778 turns; no FRF a bench \
-                 measures unwraps that far; README, FRF CSV)",
+                 measures unwraps that far; docs/src/jobs/chirp.md, FRF CSV)",
                 show(v[2])
             ));
         }

@@ -76,7 +76,7 @@ pub use summary::*;
 /// the fit's path model (a `sinc` and a delay for the exact zero-order
 /// hold, a first-order amplifier) cannot represent, so that lines with a
 /// very high signal-to-noise ratio do not get unbounded weight. Measured
-/// on the simulator (`tests/uncertainty.rs`): with it, the fit's χ²/ν is
+/// on the simulator (`tests/cli/uncertainty.rs`): with it, the fit's χ²/ν is
 /// 0.67–0.91 over random benches (the LPM's noise estimate plus this
 /// floor covers the residual) and the 1σ cover the truth.
 pub const MODEL_ERROR_FLOOR: f64 = 2e-4;

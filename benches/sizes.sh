@@ -1,0 +1,25 @@
+#!/usr/bin/env bash
+# The sizes the README and the book quote: the release binary (with the line
+# tables the release profile keeps; and stripped, for comparison), whether
+# its backtraces name files and lines, and the test binaries of the workspace
+# (their count and sizes). Builds what is missing. Usage: benches/sizes.sh
+set -euo pipefail
+cd "$(dirname "$0")/.."
+cargo build --release --locked -q
+bin=target/release/bench
+size_mb() { echo "$(($(stat -c %s "$1") / 1000000)) MB"; }
+tmp=$(mktemp -d)
+trap 'rm -rf "$tmp"' EXIT
+cp "$bin" "$tmp/bench" && strip "$tmp/bench"
+echo "release binary: $(size_mb "$bin") (stripped: $(size_mb "$tmp/bench"))"
+# Readable backtraces: the line tables (.debug_line) are in the binary,
+# the rest of the debug information (.debug_info's types and variables) is
+# not: a panic's backtrace names file and line.
+echo "release line tables (.debug_line): $(readelf -S -W "$bin" | awk '$2 == ".debug_line" {printf "%d kB", strtonum("0x" $6) / 1000}')"
+cargo test --workspace --locked --no-run -q 2>"$tmp/list" || { cat "$tmp/list"; exit 1; }
+echo "test binaries:"
+grep -o 'Executable [^ ]* ([^)]*)' "$tmp/list" | sed 's/Executable //' | while read -r name path; do
+  path=${path#(}
+  path=${path%)}
+  echo "  $name $(size_mb "$path")"
+done
