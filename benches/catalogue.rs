@@ -107,8 +107,10 @@ fn row(rng: &mut rand_chacha::ChaCha8Rng, i: usize, now_us: i64) -> CatalogueRow
 
 /// The book's DuckDB query (docs/src/fleet/catalogue.md) (the block after its marker).
 fn readme_query() -> String {
-    let readme =
-        std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("docs/src/fleet/catalogue.md")).unwrap();
+    let readme = std::fs::read_to_string(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("docs/src/fleet/catalogue.md"),
+    )
+    .unwrap();
     let marker = "<!-- catalogue example: duckdb -->";
     let rest = &readme[readme.find(marker).expect("the book's query") + marker.len()..];
     let body = &rest[rest.find("```").unwrap()..];

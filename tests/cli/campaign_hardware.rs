@@ -156,8 +156,7 @@ fn the_operator_is_told_each_change_and_nothing_moves_before_the_answer() {
         "{third}"
     );
     // The README's sample prompt is one the operator was shown.
-    let readme =
-        crate::common::docs_text();
+    let readme = crate::common::docs_text();
     let start = readme
         .find("```text\ncell 3 of 4")
         .expect("the README's prompt sample")

@@ -670,8 +670,7 @@ fn exit_statuses_follow_the_one_table() {
     assert!(recover.contains("7 when data was lost"), "{recover}");
     // The README's table: the codes in order, the table's words, the
     // commands it lists.
-    let readme =
-        crate::common::docs_text();
+    let readme = crate::common::docs_text();
     let at = readme
         .find("**What each means, in detail**")
         .expect("the README's exit status table");

@@ -61,7 +61,11 @@ fn the_exit_status_page_is_the_codes_table() {
                 .collect::<Vec<_>>()
                 .join(", ")
         };
-        body.push_str(&format!("| {} | {} | {commands} |\n", s.code, cell(s.meaning)));
+        body.push_str(&format!(
+            "| {} | {} | {commands} |\n",
+            s.code,
+            cell(s.meaning)
+        ));
     }
     check_generated(
         "docs/src/reference/exit-statuses.md",
@@ -164,18 +168,28 @@ fn the_recording_channels_page_is_the_recordings() {
     let dir = tmp();
     let chirp = path_in(dir.path(), "chirp.mcap");
     let control = path_in(dir.path(), "control.mcap");
-    let runs: [(&'static str, Vec<&str>); 2] = [
+    let runs: [(&'static str, &str, Vec<&str>); 2] = [
         (
             "chirp",
-            vec!["chirp", "--out", &chirp, "--duration-s", "1", "--f-start-hz", "20"],
+            &chirp,
+            vec![
+                "chirp",
+                "--out",
+                &chirp,
+                "--duration-s",
+                "1",
+                "--f-start-hz",
+                "20",
+            ],
         ),
         (
             "control",
+            &control,
             vec!["control", "--fast", "--out", &control, "--duration-s", "1"],
         ),
     ];
     let mut chans = BTreeMap::new();
-    for (job, args) in &runs {
+    for (job, recording, args) in &runs {
         let o = run(args);
         assert!(
             o.status.success(),
@@ -183,7 +197,7 @@ fn the_recording_channels_page_is_the_recordings() {
             o.status,
             String::from_utf8_lossy(&o.stderr)
         );
-        add_channels(Path::new(&args[2]), job, &mut chans);
+        add_channels(Path::new(recording), job, &mut chans);
     }
     assert!(chans.len() >= 5, "{} channels", chans.len());
     let mut body = String::from(
@@ -202,7 +216,9 @@ fn the_recording_channels_page_is_the_recordings() {
         if c.fields.is_empty() {
             continue;
         }
-        body.push_str(&format!("\n### `{topic}`\n\n| field | type | meaning |\n|---|---|---|\n"));
+        body.push_str(&format!(
+            "\n## `{topic}`\n\n| field | type | meaning |\n|---|---|---|\n"
+        ));
         for (name, ty, desc) in &c.fields {
             body.push_str(&format!("| `{name}` | {} | {} |\n", cell(ty), cell(desc)));
         }

@@ -929,9 +929,9 @@ fn the_readme_describes_every_panel() {
     let readme = crate::common::docs_text();
     let start = readme
         .find("## The layout: `foxglove/bench-layout.json`")
-        .expect("README: Live view, The layout");
+        .expect("the book: Live view, The layout");
     let section = &readme[start..];
-    let end = ["\n## ", "\n### "]
+    let end = ["\n# ", "\n## ", "\n### "]
         .iter()
         .filter_map(|h| section[4..].find(h))
         .min()

@@ -258,10 +258,7 @@ fn run_lines(lines: &[(String, String)]) -> String {
         );
     }
     // Every line ran.
-    let ran = err
-        .lines()
-        .filter(|l| l.starts_with("::: "))
-        .count();
+    let ran = err.lines().filter(|l| l.starts_with("::: ")).count();
     assert_eq!(ran, lines.len());
     err.into_owned()
 }

@@ -665,8 +665,7 @@ fn run_python(script: &str) -> Value {
 /// The code block (```LANG) after the README's marker
 /// `<!-- catalogue example: NAME -->`.
 fn readme_block(name: &str) -> String {
-    let readme =
-        crate::common::docs_text();
+    let readme = crate::common::docs_text();
     let marker = format!("<!-- catalogue example: {name} -->");
     let at = readme
         .find(&marker)
@@ -784,8 +783,7 @@ print(json.dumps({{"folder": run({folder:?}), "compacted": run({compacted:?})}})
 /// The README's column table lists every column, in order, with its type.
 #[test]
 fn the_readme_documents_every_column() {
-    let readme =
-        crate::common::docs_text();
+    let readme = crate::common::docs_text();
     let at = readme
         .find("<!-- catalogue columns -->")
         .expect("the README's column table");

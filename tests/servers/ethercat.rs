@@ -506,9 +506,11 @@ fn faults_in_the_slave_end_the_run_at_zero_amps_latched() {
         let Some(seg) = Segment::new() else { return };
         let dir = tmp();
         let cfg = quiet_config(dir.path());
-        let out = dir.path().join("run.mcap");
         let mut attempt = 0;
-        let (slave, o) = loop {
+        let (slave, o, out) = loop {
+            // Each attempt its own recording (a retry must not meet the
+            // stalled attempt's file).
+            let out = std::path::PathBuf::from(attempt_path(dir.path(), "run", attempt));
             let slave = Slave::start(
                 &seg,
                 &cfg,
@@ -533,7 +535,7 @@ fn faults_in_the_slave_end_the_run_at_zero_amps_latched() {
                 eprintln!("{fault:?}: retrying a run the VM stalled: {}", stderr(&o));
                 continue;
             }
-            break (slave, o);
+            break (slave, o, out);
         };
         let err = stderr(&o);
         assert!(
@@ -1088,8 +1090,7 @@ fn fast_step_over_the_readmes_beckhoff_rack_matches_the_simulator() {
 /// The README's rack block with the tests' interface and bounds, as TOML
 /// to append to a config.
 fn readme_rack_toml() -> String {
-    let readme =
-        crate::common::docs_text();
+    let readme = crate::common::docs_text();
     let block = readme
         .split("```toml\n")
         .skip(1)

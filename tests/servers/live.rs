@@ -804,8 +804,7 @@ fn a_legacy_client_is_refused_and_the_log_says_why() {
     assert!(!rest.contains("Dropping client"), "{rest}");
     // The README says the same, word for word (markup and line breaks
     // aside).
-    let readme =
-        crate::common::docs_text();
+    let readme = crate::common::docs_text();
     let words = |t: &str| {
         t.replace('`', "")
             .split_whitespace()

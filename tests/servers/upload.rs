@@ -679,8 +679,7 @@ fn the_daemon_uploads_after_an_outage_and_a_kill_from_its_journal_once() {
 /// over the daemon's uploads under `daemon/`: the chirp's row, with its
 /// object's URL, and one ok run.
 fn readme_bucket_query(m: &Moto, rec: &Path) {
-    let readme =
-        crate::common::docs_text();
+    let readme = crate::common::docs_text();
     let block = readme
         .split("<!-- upload example: bucket-query -->\n```python\n")
         .nth(1)
