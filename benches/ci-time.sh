@@ -21,8 +21,9 @@ step() { # NAME COMMAND...
   shift
   local t0 t1
   t0=$(date +%s.%N)
-  local status=ok
-  "$@" >"$work/$name.log" 2>&1 || { status=FAILED; echo "step '$name' failed: $work/$name.log" >&2; tail -n 30 "$work/$name.log" >&2; }
+  local status=ok log
+  log="$work/$(echo "$name" | tr -c 'A-Za-z0-9\n' '_').log"
+  "$@" >"$log" 2>&1 || { status=FAILED; echo "step '$name' failed: $log" >&2; tail -n 30 "$log" >&2 || true; }
   t1=$(date +%s.%N)
   rows+=("| $name | $(printf '%.0f' "$(echo "$t1 - $t0" | bc)")$([ $status = ok ] || echo " ($status)") |")
 }

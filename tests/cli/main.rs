@@ -2,22 +2,21 @@
 //! daemon on its socket) and read what it writes: one test binary with a
 //! module per command or subject.
 
-#[path = "../common/mod.rs"]
-mod common;
-#[path = "../common/daemon.rs"]
-mod daemon_fixtures;
-
 mod analyze;
 mod campaign;
 mod campaign_hardware;
 mod chirp;
 mod cli;
+#[path = "../common/mod.rs"]
+mod common;
 mod config_bounds;
 mod config_mutation;
 mod control;
 mod corrupt_frames;
 mod daemon;
 mod daemon_cli;
+#[path = "../common/daemon.rs"]
+mod daemon_fixtures;
 mod daemon_hostile;
 mod daemon_jobs;
 mod design_cli;
@@ -43,6 +42,7 @@ mod readme_outputs;
 mod recover;
 mod schemas;
 mod stalls;
+mod test_command;
 mod uncertainty;
 mod update;
 mod verify;
