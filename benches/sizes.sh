@@ -6,7 +6,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 cargo build --release --locked -q
-bin=target/release/bench
+bin="${CARGO_TARGET_DIR:-target}/release/bench"
 size_mb() { echo "$(($(stat -c %s "$1") / 1000000)) MB"; }
 tmp=$(mktemp -d)
 trap 'rm -rf "$tmp"' EXIT
@@ -15,7 +15,8 @@ echo "release binary: $(size_mb "$bin") (stripped: $(size_mb "$tmp/bench"))"
 # Readable backtraces: the line tables (.debug_line) are in the binary,
 # the rest of the debug information (.debug_info's types and variables) is
 # not: a panic's backtrace names file and line.
-echo "release line tables (.debug_line): $(readelf -S -W "$bin" | awk '$2 == ".debug_line" {printf "%d kB", strtonum("0x" $6) / 1000}')"
+hex=$(readelf -S -W "$bin" | awk '{for (i = 1; i <= NF; i++) if ($i == ".debug_line") print $(i + 4)}')
+echo "release line tables (.debug_line): $((16#${hex:-0} / 1000)) kB"
 cargo test --workspace --locked --no-run -q 2>"$tmp/list" || { cat "$tmp/list"; exit 1; }
 echo "test binaries:"
 grep -o 'Executable [^ ]* ([^)]*)' "$tmp/list" | sed 's/Executable //' | while read -r name path; do

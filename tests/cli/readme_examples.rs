@@ -425,7 +425,7 @@ fn readme_cargo_lines_are_what_ci_runs() {
         "the README's test command is not what .ci/run runs"
     );
     assert!(
-        ci.contains("bench=target/debug/bench") && ci.contains("\"$bench\" chirp\n"),
+        ci.contains("bench=\"${CARGO_TARGET_DIR:-target}/debug/bench\"") && ci.contains("\"$bench\" chirp\n"),
         "the README's main command (cargo run -- chirp: target/debug/bench chirp) is not what .ci/run runs"
     );
     for l in &cargo {
