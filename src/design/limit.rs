@@ -278,7 +278,8 @@ pub enum LimitError {
     /// No lines, or a line not finite, or not below the Nyquist frequency.
     #[error("{0}")]
     BadLines(String),
-    /// A sample period that is not a positive time, or M ≤ 1.
+    /// A sample period that is not a positive time, M ≤ 1, or a search
+    /// upper end that is not a positive frequency.
     #[error("{0}")]
     BadArgument(String),
     /// The cone program did not solve.
@@ -342,8 +343,8 @@ struct Row {
 /// on every line and the worst violated ones are added until none is.
 ///
 /// # Errors
-/// [`LimitError::BadArgument`] for a period that is not a positive time
-/// or `s_max` ≤ 1; [`LimitError::BadLines`] for no lines or a line that
+/// [`LimitError::BadArgument`] for a period that is not a positive time,
+/// `s_max` ≤ 1 or an `upper_rad_s` that is not a positive frequency; [`LimitError::BadLines`] for no lines or a line that
 /// is not finite;
 /// [`LimitError::Solver`] when Clarabel neither solves nor proves a
 /// program infeasible.
@@ -363,6 +364,13 @@ pub fn performance_limit(
         return Err(LimitError::BadArgument(format!(
             "M = {s_max}: the largest |S| allowed must be above 1 (no loop with feedback keeps |S| ≤ 1 at every frequency: Bode's sensitivity integral)"
         )));
+    }
+    if let Some(u) = upper_rad_s {
+        if !(u.is_finite() && u > 0.0) {
+            return Err(LimitError::BadArgument(format!(
+                "the upper end of the search {u} rad/s is not a positive frequency"
+            )));
+        }
     }
     let nyquist = PI / period_s;
     let mut rows = Vec::new();
@@ -673,6 +681,57 @@ mod tests {
         assert!((r - 50.0).abs() < 1e-9, "{r}");
         assert_eq!(rhp_zero_bound_rad_s(C64::new(-1.0, 3.0), 2.0), None);
         assert_eq!(rhp_zero_bound_rad_s(C64::new(1.0, 3.0), 1.0), None);
+    }
+
+    /// Each argument outside its physical range is refused, naming it:
+    /// the period, M, the search's upper end, the lines.
+    #[test]
+    fn arguments_outside_their_range_are_refused() {
+        let t = 2e-4;
+        let w = [10.0, 100.0];
+        let p = [C64::new(1e-5, 0.0), C64::new(-1e-6, 1e-7)];
+        let ok = [Lines {
+            label: "frf",
+            omega_rad_s: &w,
+            plant_m_per_a: &p,
+        }];
+        let basis = || Basis::new(4, &[], t);
+        let bad = |r: Result<Limit, LimitError>, words: &str| match r {
+            Err(e) => assert!(e.to_string().contains(words), "{e}"),
+            Ok(l) => panic!("accepted: ω* {}", l.performance_bandwidth_rad_s),
+        };
+        for period in [0.0, -t, f64::NAN, f64::INFINITY] {
+            bad(
+                performance_limit(&ok, basis(), period, 2.0, None),
+                "sample period",
+            );
+        }
+        for m in [1.0, 0.5, f64::NAN] {
+            bad(performance_limit(&ok, basis(), t, m, None), "M =");
+        }
+        for u in [0.0, -1.0, f64::NAN, f64::INFINITY] {
+            bad(
+                performance_limit(&ok, basis(), t, 2.0, Some(u)),
+                "upper end",
+            );
+        }
+        bad(performance_limit(&[], basis(), t, 2.0, None), "no lines");
+        for (wl, pl) in [
+            (1e9, C64::new(1e-5, 0.0)),
+            (10.0, C64::new(f64::NAN, 0.0)),
+            (10.0, C64::new(0.0, 0.0)),
+        ] {
+            let (wa, pa) = ([wl], [pl]);
+            let l = [Lines {
+                label: "frf",
+                omega_rad_s: &wa,
+                plant_m_per_a: &pa,
+            }];
+            bad(
+                performance_limit(&l, basis(), t, 2.0, None),
+                "frf: the line",
+            );
+        }
     }
 
     /// The closed form against a bisection on |W_P S| ≤ 1 for the loop
