@@ -5,7 +5,9 @@ use super::serve::via_daemon;
 use super::{bad_input, finish, refuse_local_only, CONFIG_HELP};
 use bench::campaign::job::design_input;
 use bench::design::Strategy;
-use bench::jobs::design::{run_design, DesignInput, DesignOptions, DesignRequest, DesignSummary};
+use bench::jobs::design::{
+    run_design, DesignInput, DesignOptions, DesignRequest, DesignSummary, ModelChoice,
+};
 use bench::jobs::request::JobRequest;
 use bench::outputs::Existing;
 use clap::Args;
@@ -51,7 +53,13 @@ pub(super) struct DesignArgs {
     /// [controller.NAME], for `bench control --controller NAME`.
     #[arg(long, default_value = bench::jobs::design::NAME)]
     name: String,
-    #[arg(long, value_name = "FILE", help = CONFIG_HELP, long_help = "Bench description (TOML): the loop period, the amplifier, the model the step is predicted on, and the bench the controller is added to [default: the config the first recording holds, else the first campaign's bench.toml, else the built-in Chapter 5 bench]")]
+    /// The model the design is predicted and certified on besides the
+    /// measured lines: `fit` (each input's modal fit, the bench's own
+    /// model) or `config` (the config's lumped model: a nominal
+    /// description, not the bench measured).
+    #[arg(long, default_value = "fit", value_parser = ["fit", "config"])]
+    model: String,
+    #[arg(long, value_name = "FILE", help = CONFIG_HELP, long_help = "Bench description (TOML): the loop period, the amplifier, the computation delay's default and the limits, and the bench the controller is added to; its model only with --model config [default: the config the first recording holds, else the first campaign's bench.toml, else the built-in Chapter 5 bench]")]
     config: Option<PathBuf>,
     /// The bench config with [controller.NAME] added [default: beside the
     /// first input, <stem>.designed.toml; a campaign: DIR/designed.toml].
@@ -91,6 +99,7 @@ impl DesignArgs {
             computation_delay_s: self.computation_delay_s,
             settling_max_s: self.settling_max_s,
             name: Some(self.name.clone()),
+            model: self.model.parse::<ModelChoice>().unwrap_or_default(),
             no_plot: self.no_plot,
         }
     }
@@ -153,6 +162,15 @@ pub(super) fn design(a: DesignArgs) -> ExitCode {
 
 fn opt_num(v: Option<f64>, digits: usize, unit: &str) -> String {
     v.map_or("none".into(), |v| format!("{v:.digits$}{unit}"))
+}
+
+/// `v ± σ unit` (1σ from the FRF's noise; `σ unknown` when not known).
+fn with_sigma(v: Option<f64>, sigma: Option<f64>, digits: usize, unit: &str) -> String {
+    match (v, sigma) {
+        (None, _) => "none".into(),
+        (Some(v), Some(s)) => format!("{v:.digits$} ± {s:.digits$}{unit}"),
+        (Some(v), None) => format!("{v:.digits$}{unit} (σ unknown)"),
+    }
 }
 
 pub(super) fn print_summary(s: &DesignSummary) {
@@ -221,19 +239,59 @@ pub(super) fn print_summary(s: &DesignSummary) {
             g.margins.sensitivity_peak
         );
     }
+    let g = &s.sigma;
     outln!(
-        "result: ω_B {:.1} rad/s ({:.1} Hz), first crossover {} rad/s, least phase margin {}°, least gain margin {} dB, ‖S‖∞ {:.3}",
-        s.sensitivity_bandwidth_rad_s,
+        "result (1σ from the FRF's noise): ω_B {} ({:.1} Hz), first crossover {} rad/s, least phase margin {}, least gain margin {}, ‖S‖∞ {}",
+        with_sigma(Some(s.sensitivity_bandwidth_rad_s), g.sensitivity_bandwidth_rad_s, 1, " rad/s"),
         s.sensitivity_bandwidth_rad_s / (2.0 * PI),
         opt_num(s.crossover_rad_s, 1, ""),
-        opt_num(s.phase_margin_min_deg, 1, ""),
-        opt_num(s.gain_margin_min_db, 2, ""),
-        s.sensitivity_peak
+        with_sigma(s.phase_margin_min_deg, g.phase_margin_min_deg, 1, "°"),
+        with_sigma(s.gain_margin_min_db, g.gain_margin_db, 2, " dB"),
+        with_sigma(Some(s.sensitivity_peak), g.sensitivity_peak, 3, "")
     );
     if let Some(b) = &s.binding {
         outln!("tightest: {b}");
     }
+    let l = &s.limit;
+    let wp = format!(
+        "W_P(s) = (s/{} + ω*)/s",
+        s.requirements.sensitivity_peak_max
+    );
+    match (s.performance_bandwidth_rad_s, l.performance_bandwidth_rad_s) {
+        (Some(w), Some(lim)) => outln!(
+            "performance bandwidth ω* {} ({wp}): {:.2} of the limit {lim:.1} rad/s that any linear controller reaches on these inputs ({} measured and {} fitted lines, {} cone programs, {:.2} s)",
+            with_sigma(Some(w), g.performance_bandwidth_rad_s, 1, " rad/s"),
+            w / lim,
+            l.lines[0],
+            l.lines[1],
+            l.solves,
+            l.time_s
+        ),
+        (w, _) => outln!(
+            "performance bandwidth ω* {} ({wp}); limit not computed: {}",
+            with_sigma(w, g.performance_bandwidth_rad_s, 1, " rad/s"),
+            l.not_computed.as_deref().unwrap_or("unknown")
+        ),
+    }
+    if l.performance_bandwidth_rad_s.is_some() {
+        outln!("  the limit is bound by {}", l.binds);
+        if l.fit_stood_in_lines > 0 {
+            outln!(
+                "  {} measured lines too noisy to resolve the bound on |S| there (2σ |W_P| > 0.5): the fit stood in",
+                l.fit_stood_in_lines
+            );
+        }
+    }
+    for z in &l.rhp_zeros {
+        outln!(
+            "  right-half-plane zero {:.2} ± {:.2}j Hz: ω* ≤ {:.1} rad/s for every controller (|1/M + ω*/z| ≤ 1)",
+            z.re_hz,
+            z.im_hz,
+            z.bound_rad_s
+        );
+    }
     let m = &s.model;
+    outln!("model: {}", m.model);
     outln!(
         "on the model (to Nyquist): ω_B {} rad/s, least phase margin {}°, ‖S‖∞ {:.3}, closed loop {}",
         opt_num(m.figures.sensitivity_bandwidth_rad_s, 1, ""),

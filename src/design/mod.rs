@@ -53,12 +53,15 @@
 //!
 //! Layer rule: may use `config`, `control`, `error`, `ident`, `splitmix`.
 
+pub mod ceiling;
 pub mod family;
+pub mod fitted;
 pub mod limit;
 pub mod loops;
 pub mod modes;
 pub mod predict;
 pub mod search;
+pub mod sigma;
 
 use crate::control::{ControllerConfig, DiscreteController};
 use crate::ident::frf::{Frf, MIN_COHERENCE};
@@ -366,6 +369,23 @@ pub fn prepare(
     Ok((out, uses))
 }
 
+/// The 1σ of every line [`prepare`] keeps, relative to |P| (NaN where
+/// the FRF does not know it: a 4-column CSV), per input.
+pub fn coherent_relative_sigma(inputs: &[InputFrf]) -> Vec<Vec<f64>> {
+    inputs
+        .iter()
+        .map(|inp| {
+            let f = &inp.frf;
+            (0..f.frequency_hz.len())
+                .filter(|&k| f.coherence[k] >= MIN_COHERENCE && f.magnitude_m_per_a[k] > 0.0)
+                .map(|k| {
+                    f.sigma_m_per_a.get(k).copied().unwrap_or(f64::NAN) / f.magnitude_m_per_a[k]
+                })
+                .collect()
+        })
+        .collect()
+}
+
 fn median(mut v: Vec<f64>) -> Option<f64> {
     if v.is_empty() {
         return None;
@@ -665,7 +685,7 @@ pub struct Designed {
 /// the margins: the binding constraint, where and on which input.
 pub fn design(
     frfs: &[DesignFrf],
-    model: Option<&DesignFrf>,
+    model: &[DesignFrf],
     settling: Option<&SettlingLimit<'_>>,
     modes: &PlantModes,
     spec: &DesignSpec,
@@ -690,10 +710,10 @@ pub fn design(
         lines_total: f.lines_total,
     };
     let mut all: Vec<DesignFrf> = frfs.to_vec();
-    let mut models: Vec<DesignFrf> = model.into_iter().cloned().collect();
+    let mut models: Vec<DesignFrf> = model.to_vec();
     if tau > 0.0 {
         all.extend(frfs.iter().map(undelayed));
-        models.extend(model.map(undelayed));
+        models.extend(model.iter().map(undelayed));
     }
     let run = |s| {
         attempt(
@@ -710,7 +730,7 @@ pub fn design(
     let inputs = frfs
         .iter()
         .map(|f| f.label.as_str())
-        .chain(model.map(|m| m.label.as_str()))
+        .chain(model.iter().map(|m| m.label.as_str()))
         .collect::<Vec<_>>()
         .join(", ");
     let fail = |a: &Attempt| {

@@ -46,10 +46,22 @@ impl PlantModes {
     /// # Errors
     /// Naming the input whose fit fails or finds no mode.
     pub fn identify(inputs: &[InputFrf], path: Path) -> Result<Self, DesignError> {
+        Self::identify_with_fits(inputs, path).map(|(m, _)| m)
+    }
+
+    /// [`Self::identify`], and every input's modal fit (in input order):
+    /// the bench's own model, which the design predicts and certifies on.
+    ///
+    /// # Errors
+    /// Naming the input whose fit fails or finds no mode.
+    pub fn identify_with_fits(
+        inputs: &[InputFrf],
+        path: Path,
+    ) -> Result<(Self, Vec<modal_fit::ModalFit>), DesignError> {
         use rayon::prelude::*;
-        let out: Vec<InputModes> = inputs
+        let both: Vec<(InputModes, modal_fit::ModalFit)> = inputs
             .par_iter()
-            .map(|inp| -> Result<InputModes, DesignError> {
+            .map(|inp| -> Result<(InputModes, modal_fit::ModalFit), DesignError> {
             let fit = modal_fit::fit(&FrfData::from_frf(&inp.frf), &path)
                 .map_err(|e| derr(&inp.label, format!("modal fit: {e}")))?;
             let in_path: Vec<_> = fit.modes.iter().filter(|m| m.in_path).collect();
@@ -70,7 +82,7 @@ impl PlantModes {
                 }
                 _ => "no pair",
             };
-            Ok(InputModes {
+            Ok((InputModes {
                 input: inp.label.clone(),
                 first_resonance_hz: first.frequency_hz,
                 first_resonance_sigma_hz: first
@@ -82,15 +94,19 @@ impl PlantModes {
                 sign_sequence: fit.sign_sequence.clone(),
                 pair_signs: pair_signs.into(),
                 fit_error: fit.rms_relative_error,
-            })
+            }, fit))
             })
             .collect::<Result<_, _>>()?;
+        let (out, fits): (Vec<InputModes>, Vec<modal_fit::ModalFit>) = both.into_iter().unzip();
         let mut f: Vec<f64> = out.iter().map(|m| m.first_resonance_hz).collect();
         f.sort_by(f64::total_cmp);
-        Ok(Self {
-            first_resonance_rad_s: 2.0 * PI * f[f.len() / 2],
-            inputs: out,
-        })
+        Ok((
+            Self {
+                first_resonance_rad_s: 2.0 * PI * f[f.len() / 2],
+                inputs: out,
+            },
+            fits,
+        ))
     }
 
     /// Every resonance found on any input (ω_R, u, v), rad/s.

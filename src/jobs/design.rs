@@ -13,10 +13,14 @@
 
 use crate::config::{BenchConfig, BUILTIN_CONFIG_TOML};
 use crate::control::ControllerConfig;
+use crate::design::ceiling::{bench_limit, LimitReport};
+use crate::design::fitted::FittedPlant;
+use crate::design::limit::loop_performance_bandwidth_rad_s;
 use crate::design::loops::LoopFigures;
 use crate::design::modes::PlantModes;
-use crate::design::predict::{predict, ModelPrediction};
+use crate::design::predict::{model_frf_on, predict_on, BenchModel, ModelPrediction};
 use crate::design::search::{Binding, Requirements};
+use crate::design::sigma::{figure_sigmas, FigureSigmas};
 use crate::design::{design, prepare, DesignError, DesignSpec, InputFrf, InputUse, Strategy};
 use crate::error::RunError;
 use crate::ident::frf::{read_frf, Frf};
@@ -74,6 +78,11 @@ pub struct DesignRequest {
     /// Name of the controller (`[controller.NAME]`; default `designed`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub name: Option<String>,
+    /// The model predicted and certified on besides the measured lines:
+    /// `fit` (default: each input's modal fit, the bench's own model) or
+    /// `config` (the config's lumped model, only when asked).
+    #[serde(default)]
+    pub model: ModelChoice,
     /// Write no figure.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub no_plot: bool,
@@ -81,6 +90,29 @@ pub struct DesignRequest {
 
 fn auto() -> Strategy {
     Strategy::Auto
+}
+
+/// Which model a design predicts and certifies on (`--model`).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ModelChoice {
+    /// Each input's modal fit (the bench's own model).
+    #[default]
+    Fit,
+    /// The config's lumped model (thesis Eq. 2-5): a nominal description,
+    /// not the bench measured.
+    Config,
+}
+
+impl std::str::FromStr for ModelChoice {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "fit" => Ok(Self::Fit),
+            "config" => Ok(Self::Config),
+            _ => Err(format!("`{s}` is not a model: fit or config")),
+        }
+    }
 }
 
 impl Default for DesignRequest {
@@ -95,6 +127,7 @@ impl Default for DesignRequest {
             computation_delay_s: None,
             settling_max_s: None,
             name: None,
+            model: ModelChoice::Fit,
             no_plot: false,
         }
     }
@@ -139,6 +172,11 @@ pub struct InputFigures {
     pub input: String,
     /// Its loop figures.
     pub figures: LoopFigures,
+    /// The performance bandwidth ω* on its lines, rad/s (`null`: |S|
+    /// passes M on a line).
+    pub performance_bandwidth_rad_s: Option<f64>,
+    /// The 1σ of its figures from the FRF's noise (first order).
+    pub sigma: FigureSigmas,
 }
 
 /// One strategy tried.
@@ -194,7 +232,21 @@ pub struct DesignSummary {
     pub gain_margin_min_db: Option<f64>,
     /// Largest ‖S‖∞ over the inputs.
     pub sensitivity_peak: f64,
-    /// On the bench's model: figures to Nyquist and the predicted step.
+    /// The performance bandwidth ω* of `W_P(s) = (s/M + ω*)/s`, M =
+    /// `s_max`: the least over every input's lines and the models' from
+    /// the lowest measured line to Nyquist, rad/s (`null`: |S| passes M
+    /// somewhere).
+    pub performance_bandwidth_rad_s: Option<f64>,
+    /// The 1σ of the summary's figures (each from the input it is read
+    /// on; `null` where that input's noise is unknown or the figure comes
+    /// from a model).
+    pub sigma: FigureSigmas,
+    /// The best ω* any LTI controller reaches on the same inputs.
+    pub limit: LimitReport,
+    /// `performance_bandwidth_rad_s / limit.performance_bandwidth_rad_s`.
+    pub limit_fraction: Option<f64>,
+    /// On the bench's model (named in `model.model`): figures to Nyquist
+    /// and the predicted step.
     pub model: ModelPrediction,
     /// Every strategy tried.
     pub strategies: Vec<StrategyOutcome>,
@@ -431,36 +483,70 @@ pub fn run_design(opts: &DesignOptions) -> Result<DesignSummary, RunError> {
     // The lines first (the fit needs finite, ascending data), then the
     // modes, then the wiring against the first resonance.
     prepare(&read.frfs, spec.computation_delay_s, None).map_err(design_error)?;
-    let modes = PlantModes::identify(&read.frfs, path).map_err(design_error)?;
+    let (modes, fits) = PlantModes::identify_with_fits(&read.frfs, path).map_err(design_error)?;
     let (frfs, uses) = prepare(
         &read.frfs,
         spec.computation_delay_s,
         Some(modes.first_resonance_rad_s),
     )
     .map_err(design_error)?;
-    let model_loop =
-        crate::design::predict::model_frf(&cfg, spec.computation_delay_s).map_err(design_error)?;
+    let plants: Vec<FittedPlant> = fits.iter().map(|f| FittedPlant::new(f, path)).collect();
+    let model_of = |i: usize| match req.model {
+        ModelChoice::Fit => BenchModel::Fitted {
+            input: &frfs[i].label,
+            plant: &plants[i],
+        },
+        ModelChoice::Config => BenchModel::Config {
+            source: &config_source,
+        },
+    };
+    // The certificate's models: every input's fit (or the config's model).
+    let models = match req.model {
+        ModelChoice::Fit => (0..frfs.len())
+            .map(|i| model_frf_on(model_of(i), &cfg, spec.computation_delay_s))
+            .collect::<Result<Vec<_>, _>>(),
+        ModelChoice::Config => {
+            model_frf_on(model_of(0), &cfg, spec.computation_delay_s).map(|m| vec![m])
+        }
+    }
+    .map_err(design_error)?;
     let settle_of = |c: &ControllerConfig| {
-        crate::design::predict::predict_step(&cfg, c, spec.computation_delay_s)
+        crate::design::predict::predict_step_on(model_of(0), &cfg, c, spec.computation_delay_s)
             .ok()
             .and_then(|m| m.settling_time_s)
     };
-    let limit = req
+    let settling = req
         .settling_max_s
         .map(|max_s| crate::design::SettlingLimit {
             max_s,
             settling_s: &settle_of,
         });
-    let d = design(
-        &frfs,
-        Some(&model_loop),
-        limit.as_ref(),
-        &modes,
-        &spec,
-        period_s,
-        cfg.actuator.peak_current_a,
-    )
-    .map_err(design_error)?;
+    let s_max = spec.requirements.sensitivity_peak_max;
+    // The limit and the design are independent: side by side.
+    let (limit, d) = rayon::join(
+        || {
+            bench_limit(
+                &frfs,
+                &crate::design::coherent_relative_sigma(&read.frfs),
+                &plants,
+                period_s,
+                spec.computation_delay_s,
+                s_max,
+            )
+        },
+        || {
+            design(
+                &frfs,
+                &models,
+                settling.as_ref(),
+                &modes,
+                &spec,
+                period_s,
+                cfg.actuator.peak_current_a,
+            )
+        },
+    );
+    let d = d.map_err(design_error)?;
     let e = &d.chosen.evaluation;
     let mut controller = e.controller.clone();
     controller.description =
@@ -472,7 +558,93 @@ pub fn run_design(opts: &DesignOptions) -> Result<DesignSummary, RunError> {
         e.figures.iter().map(|f| f.margins.sensitivity_peak).fold(0.0, f64::max),
         frfs.len()
     );
-    let model = predict(&cfg, &controller, spec.computation_delay_s).map_err(design_error)?;
+    // ω* of the discrete controller on every input's lines and on every
+    // model's grid.
+    let ctrl =
+        crate::control::DiscreteController::new(&controller, period_s, cfg.actuator.peak_current_a);
+    let unit = ctrl.error_per_metre();
+    let reach = |f: &crate::design::loops::DesignFrf| {
+        let s: Vec<f64> = f
+            .omega_rad_s
+            .iter()
+            .zip(&f.plant_m_per_a)
+            .map(|(w, p)| 1.0 / (ctrl.response(*w, period_s) * p * unit + 1.0).norm())
+            .collect();
+        loop_performance_bandwidth_rad_s(&f.omega_rad_s, &s, s_max)
+    };
+    let per_input: Vec<Option<f64>> = frfs.iter().map(reach).collect();
+    // The models from the lowest measured line up (below it they only
+    // extrapolate the fit).
+    let lowest = frfs
+        .iter()
+        .map(|f| f.omega_rad_s[0])
+        .fold(f64::INFINITY, f64::min);
+    let on_band = |m: &crate::design::loops::DesignFrf| {
+        let k = m.omega_rad_s.partition_point(|w| *w < lowest);
+        crate::design::loops::DesignFrf {
+            label: m.label.clone(),
+            omega_rad_s: m.omega_rad_s[k..].to_vec(),
+            plant_m_per_a: m.plant_m_per_a[k..].to_vec(),
+            lines_total: m.lines_total,
+        }
+    };
+    let performance_bandwidth_rad_s = per_input
+        .iter()
+        .chain(
+            &models
+                .iter()
+                .map(|m| reach(&on_band(m)))
+                .collect::<Vec<_>>(),
+        )
+        .try_fold(f64::INFINITY, |m, w| w.map(|w| m.min(w)));
+    let limit_fraction = match (
+        performance_bandwidth_rad_s,
+        limit.performance_bandwidth_rad_s,
+    ) {
+        (Some(w), Some(l)) if l > 0.0 => Some(w / l),
+        _ => None,
+    };
+    let rel_sigma = crate::design::coherent_relative_sigma(&read.frfs);
+    let sigmas: Vec<FigureSigmas> = frfs
+        .iter()
+        .zip(&rel_sigma)
+        .zip(&e.figures)
+        .map(|((f, r), g)| {
+            let l: Vec<crate::ident::C64> = f
+                .omega_rad_s
+                .iter()
+                .zip(&f.plant_m_per_a)
+                .map(|(w, p)| ctrl.response(*w, period_s) * p * unit)
+                .collect();
+            figure_sigmas(&f.omega_rad_s, &l, r, g, s_max)
+        })
+        .collect();
+    // The summary's figures' 1σ: each from the input that sets it.
+    let pick = |key: &dyn Fn(usize) -> Option<f64>, least: bool| {
+        (0..frfs.len())
+            .filter_map(|i| key(i).map(|v| (i, v)))
+            .min_by(|a, b| {
+                if least {
+                    a.1.total_cmp(&b.1)
+                } else {
+                    b.1.total_cmp(&a.1)
+                }
+            })
+            .map(|(i, _)| i)
+    };
+    let summary_sigma = FigureSigmas {
+        performance_bandwidth_rad_s: pick(&|i| per_input[i], true)
+            .filter(|&i| per_input[i] == performance_bandwidth_rad_s)
+            .and_then(|i| sigmas[i].performance_bandwidth_rad_s),
+        sensitivity_bandwidth_rad_s: pick(&|i| e.figures[i].sensitivity_bandwidth_rad_s, true)
+            .and_then(|i| sigmas[i].sensitivity_bandwidth_rad_s),
+        phase_margin_min_deg: pick(&|i| e.figures[i].phase_margin_min_deg, true)
+            .and_then(|i| sigmas[i].phase_margin_min_deg),
+        gain_margin_db: pick(&|i| e.figures[i].margins.gain_margin_db, true)
+            .and_then(|i| sigmas[i].gain_margin_db),
+        sensitivity_peak: pick(&|i| Some(e.figures[i].margins.sensitivity_peak), false)
+            .and_then(|i| sigmas[i].sensitivity_peak),
+    };
     let worst_input = e
         .binding
         .as_ref()
@@ -481,6 +653,13 @@ pub fn run_design(opts: &DesignOptions) -> Result<DesignSummary, RunError> {
         .iter()
         .position(|f| f.label == worst_input)
         .unwrap_or(0);
+    let model = predict_on(
+        model_of(worst_index),
+        &cfg,
+        &controller,
+        spec.computation_delay_s,
+    )
+    .map_err(design_error)?;
     let text = designed_toml(&base_toml, &name, &controller, &d.why)
         .map_err(|e| RunError::BadInput(format!("the bench config with the design added: {e}")))?;
     // The written bench must load as it will be run.
@@ -491,7 +670,7 @@ pub fn run_design(opts: &DesignOptions) -> Result<DesignSummary, RunError> {
     })?;
     let summary = DesignSummary {
         inputs: uses,
-        config: config_source,
+        config: config_source.clone(),
         modes: modes.clone(),
         strategy: d.chosen.strategy.to_string(),
         why: d.why.clone(),
@@ -502,9 +681,13 @@ pub fn run_design(opts: &DesignOptions) -> Result<DesignSummary, RunError> {
         figures: frfs
             .iter()
             .zip(&e.figures)
-            .map(|(f, g)| InputFigures {
+            .zip(&per_input)
+            .zip(&sigmas)
+            .map(|(((f, g), w), sg)| InputFigures {
                 input: f.label.clone(),
                 figures: g.clone(),
+                performance_bandwidth_rad_s: *w,
+                sigma: sg.clone(),
             })
             .collect(),
         crossover_rad_s: e.figures[worst_index]
@@ -530,6 +713,10 @@ pub fn run_design(opts: &DesignOptions) -> Result<DesignSummary, RunError> {
             .iter()
             .map(|f| f.margins.sensitivity_peak)
             .fold(0.0, f64::max),
+        performance_bandwidth_rad_s,
+        sigma: summary_sigma,
+        limit,
+        limit_fraction,
         model,
         strategies: d
             .attempts
@@ -549,7 +736,15 @@ pub fn run_design(opts: &DesignOptions) -> Result<DesignSummary, RunError> {
     // The figure first (a failure leaves no config behind), then the config.
     let mut summary = summary;
     if let Some(png) = &png {
-        write_figure(png, opts.existing, &frfs, &cfg, &summary, worst_index)?;
+        write_figure(
+            png,
+            opts.existing,
+            &frfs,
+            &cfg,
+            model_of(worst_index),
+            &summary,
+            worst_index,
+        )?;
         summary.plot = Some(png.clone());
     }
     write_atomically(&out, opts.existing, |f| f.write_all(text.as_bytes())).map_err(|e| {
@@ -568,6 +763,7 @@ fn write_figure(
     existing: Existing,
     frfs: &[crate::design::loops::DesignFrf],
     cfg: &BenchConfig,
+    model: BenchModel<'_>,
     s: &DesignSummary,
     worst: usize,
 ) -> Result<(), RunError> {
@@ -585,8 +781,9 @@ fn write_figure(
                 .collect()
         })
         .collect();
-    let (mgrid, ml) = crate::design::predict::model_loop(cfg, &s.controller, s.computation_delay_s)
-        .map_err(|e| RunError::BadInput(e.to_string()))?;
+    let (mgrid, ml) =
+        crate::design::predict::model_loop_on(model, cfg, &s.controller, s.computation_delay_s)
+            .map_err(|e| RunError::BadInput(e.to_string()))?;
     let drawn: Vec<DesignLoop<'_>> = frfs
         .iter()
         .zip(&loops)
@@ -598,15 +795,29 @@ fn write_figure(
             worst: i == worst,
         })
         .collect();
+    let of_limit = match (
+        s.performance_bandwidth_rad_s,
+        s.limit.performance_bandwidth_rad_s,
+    ) {
+        (Some(w), Some(l)) => format!(
+            ", ω* {w:.0}{} of the limit {l:.0} rad/s ({:.2})",
+            s.sigma
+                .performance_bandwidth_rad_s
+                .map_or(String::new(), |g| format!(" ± {g:.0}")),
+            w / l
+        ),
+        (Some(w), None) => format!(", ω* {w:.0} rad/s (no limit)"),
+        _ => String::new(),
+    };
     let title = format!(
-        "bench design: {} controller `{}`, ω_B {:.0} rad/s, ‖S‖∞ {:.2}",
+        "bench design: {} controller `{}`, ω_B {:.0} rad/s, ‖S‖∞ {:.2}{of_limit}",
         s.strategy, s.name, s.sensitivity_bandwidth_rad_s, s.sensitivity_peak
     );
     let plot = DesignPlot {
         title: &title,
         loops: &drawn,
         model: Some(DesignLoop {
-            label: "model",
+            label: &s.model.model,
             omega_rad_s: &mgrid,
             loop_gain: &ml,
             worst: false,

@@ -20,6 +20,7 @@ mod daemon_fixtures;
 mod daemon_hostile;
 mod daemon_jobs;
 mod design_cli;
+mod design_limit;
 mod disk_full;
 mod docs_reference;
 mod export;

@@ -75,7 +75,7 @@ fn fast_design_on_the_chapter_5_model() {
     .unwrap();
     let d = design(
         &frfs,
-        None,
+        &[],
         None,
         &modes,
         &spec,
@@ -169,7 +169,7 @@ fn design_on(
     let model = bench::design::predict::model_frf(cfg, t).unwrap();
     let d = design(
         &frfs,
-        Some(&model),
+        std::slice::from_ref(&model),
         None,
         &modes,
         &spec,

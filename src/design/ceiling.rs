@@ -1,0 +1,478 @@
+//! The limit of a design's own inputs: [`super::limit::performance_limit`]
+//! on every coherent line of every input and on each input's fitted model
+//! between and above them, with what binds it, for `bench design`'s
+//! report.
+//!
+//! # The lines
+//! Each input's coherent lines (the plant with the computation delay, as
+//! the design judges it; every line within ±4 % of a fitted mode, and
+//! elsewhere every n-th so that at most [`LINES_PER_INPUT`] remain) and,
+//! from its modal fit ([`super::fitted`]) with
+//! the same delay: a log grid of [`MODEL_LINES_PER_DECADE`] from the
+//! input's lowest line to [`TOP_FRACTION`] of the Nyquist frequency,
+//! keeping the points above the measured band and those in a gap of the
+//! measurement wider than [`GAP_RATIO`]; and seven points across each
+//! fitted mode's half-power band `ω(1 + kζ)`, `k = −3…3`, where that band
+//! falls between two lines (a resonance narrower than their spacing).
+//! At a measured line whose noise (its 1σ from the FRF, `sigma_m_per_a`)
+//! cannot resolve the bound the weight sets on |S| there, the fit at the
+//! same frequency stands in for it ([`super::limit::NOISE_RESOLUTION`]):
+//! well below ω* the weight asks |S| ≈ ω/ω*, far under a line's relative
+//! noise, and only a smooth model can decide it.
+//!
+//! # When there is no limit
+//! The Youla form needs a stable plant. A fit whose mass line (`L/s²`) is
+//! significant (above 3σ and more than [`MASS_LINE_SHARE_MAX`] of the
+//! response at the lowest line) describes a free mass: the report says so
+//! and the design goes on with the search alone. A cone program that
+//! neither solves nor proves infeasibility leaves the limit uncomputed,
+//! with the solver's status.
+
+use super::fitted::FittedPlant;
+use super::limit::{
+    performance_limit, rhp_zero_bound_rad_s, Basis, BindingLine, LineNoise, Lines, ZeroBound,
+};
+use super::loops::DesignFrf;
+use crate::ident::C64;
+use serde::{Deserialize, Serialize};
+use std::f64::consts::PI;
+
+/// Model points per decade between and above the measured lines.
+pub const MODEL_LINES_PER_DECADE: f64 = 200.0;
+/// The model's lines end at this fraction of the Nyquist frequency (the
+/// independent reference's band, `tests/data/limit_reference.py`).
+pub const TOP_FRACTION: f64 = 0.98;
+/// A gap between two measured lines wider than this ratio gets model
+/// points.
+pub const GAP_RATIO: f64 = 1.02;
+/// Zeros of several fits closer than this fraction of their modulus are
+/// one pole pair of Q's basis (5 %: a workspace's zeros move a few % from
+/// cell to cell, and one pole pair serves them all).
+pub const ZERO_MERGE: f64 = 0.05;
+/// Most measured lines per input in the cone programs: every line within
+/// ±4 % of a fitted mode, and every n-th elsewhere so that at most this
+/// many remain (a default chirp's 400 lines per decade vary smoothly
+/// between the resonances).
+pub const LINES_PER_INPUT: usize = 300;
+
+/// Largest share of a fit's response at its lowest line that a mass line
+/// may have for the plant to count as stable (10 %).
+pub const MASS_LINE_SHARE_MAX: f64 = 0.1;
+
+/// The limit as `bench design` reports it (JSON `limit`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
+pub struct LimitReport {
+    /// The largest performance bandwidth ω* any stabilising LTI
+    /// controller reaches on these inputs with the same M, delay and
+    /// amplifier, rad/s (`null`: not computed, see `not_computed`).
+    pub performance_bandwidth_rad_s: Option<f64>,
+    /// The bisection's upper end: no Q of the basis reaches it, rad/s.
+    pub infeasible_above_rad_s: Option<f64>,
+    /// Why no limit was computed (`null`: it was).
+    pub not_computed: Option<String>,
+    /// `M`, the largest |S| of the weight (`--s-max`).
+    pub s_max: f64,
+    /// Each right-half-plane zero of the fits (upper half plane) and the
+    /// largest ω* it allows, `|1/M + ω*/z| ≤ 1`.
+    pub rhp_zeros: Vec<ZeroBound>,
+    /// Where `|W_P S|` is within 1 % of its largest value at the limit.
+    pub binding: Vec<BindingLine>,
+    /// What binds, in words.
+    pub binds: String,
+    /// Lines the cone programs held: measured (at most
+    /// [`LINES_PER_INPUT`] an input), and from the fits.
+    pub lines: [usize; 2],
+    /// Measured lines too noisy to resolve the bound on |S| at the limit
+    /// (2σ |W_P| > 0.5), where the fit stood in.
+    pub fit_stood_in_lines: usize,
+    /// Cone programs solved.
+    pub solves: usize,
+    /// Wall time, s.
+    pub time_s: f64,
+}
+
+/// The fits' model lines of one input (module docs), with the delay
+/// `delay_s`: `(ω, P)`.
+fn model_lines(
+    frf: &DesignFrf,
+    plant: &FittedPlant,
+    delay_s: f64,
+    period_s: f64,
+) -> (Vec<f64>, Vec<C64>) {
+    let w = &frf.omega_rad_s;
+    let (lo, hi) = (w[0], *w.last().expect("lines"));
+    let top = TOP_FRACTION * PI / period_s;
+    let mut grid: Vec<f64> = Vec::new();
+    let decades = (top / lo).log10();
+    let n = (decades * MODEL_LINES_PER_DECADE).ceil().max(1.0) as usize;
+    let in_gap = |x: f64| {
+        if x > hi {
+            return true;
+        }
+        let i = w.partition_point(|v| *v < x);
+        i > 0 && i < w.len() && w[i] / w[i - 1] > GAP_RATIO
+    };
+    for k in 0..=n {
+        let x = lo * (top / lo).powf(k as f64 / n as f64);
+        if x > lo && in_gap(x) {
+            grid.push(x);
+        }
+    }
+    for m in &plant.fit().modes {
+        let wn = 2.0 * PI * m.frequency_hz;
+        let z = m.damping_ratio;
+        let i = w.partition_point(|v| *v < wn);
+        let between = i > 0 && i < w.len() && (w[i] - w[i - 1]) > 2.0 * z * wn;
+        if between {
+            grid.extend(
+                (-3..=3)
+                    .map(|k| wn * (1.0 + f64::from(k) * z))
+                    .filter(|x| *x > lo && *x < top),
+            );
+        }
+    }
+    grid.sort_by(f64::total_cmp);
+    grid.dedup();
+    let p = grid
+        .iter()
+        .map(|&x| plant.frf(x) * C64::from_polar(1.0, -x * delay_s))
+        .collect();
+    (grid, p)
+}
+
+/// The limit of the inputs `frfs` (coherent lines, computation delay
+/// applied; `relative_sigma` the 1σ of each line relative to |P|, NaN
+/// unknown) and their fits `plants` (same order), for a loop of
+/// `period_s` with the computation delay `delay_s` and `M = s_max`.
+/// Where a line's noise cannot resolve the bound on |S| the fit stands in
+/// for it ([`super::limit::NOISE_RESOLUTION`]). Never fails: what
+/// prevents a limit is reported in `not_computed`.
+pub fn bench_limit(
+    frfs: &[DesignFrf],
+    relative_sigma: &[Vec<f64>],
+    plants: &[FittedPlant],
+    period_s: f64,
+    delay_s: f64,
+    s_max: f64,
+) -> LimitReport {
+    let t0 = std::time::Instant::now();
+    let hz = |z: C64| z / (2.0 * PI);
+    // Every fit's zeros, once (within 1 %).
+    let mut zeros: Vec<C64> = Vec::new();
+    for p in plants {
+        for z in &p.fit().zeros {
+            let s = C64::new(z.re_hz, z.im_hz.abs()) * (2.0 * PI);
+            if s.is_finite() && !zeros.iter().any(|x| (x - s).norm() < ZERO_MERGE * s.norm()) {
+                zeros.push(s);
+            }
+        }
+    }
+    let mut rhp_zeros: Vec<ZeroBound> = zeros
+        .iter()
+        .filter(|z| z.re > 0.0)
+        .filter_map(|z| {
+            rhp_zero_bound_rad_s(*z, s_max).map(|b| ZeroBound {
+                re_hz: hz(*z).re,
+                im_hz: hz(*z).im,
+                bound_rad_s: b,
+            })
+        })
+        .collect();
+    rhp_zeros.sort_by(|a, b| a.bound_rad_s.total_cmp(&b.bound_rad_s));
+    let mut report = LimitReport {
+        performance_bandwidth_rad_s: None,
+        infeasible_above_rad_s: None,
+        not_computed: None,
+        s_max,
+        rhp_zeros,
+        binding: vec![],
+        binds: String::new(),
+        lines: [0, 0],
+        fit_stood_in_lines: 0,
+        solves: 0,
+        time_s: 0.0,
+    };
+    for (f, p) in frfs.iter().zip(plants) {
+        let share = p.mass_line_share(f.omega_rad_s[0]);
+        if share > MASS_LINE_SHARE_MAX {
+            report.not_computed = Some(format!(
+                "the fit of {} has a mass line (L/s², {:.0} % of the response at its lowest line {:.2} Hz): a free mass is not a stable plant, and the limit's Youla form needs one; the design uses the search alone",
+                f.label,
+                100.0 * share,
+                f.omega_rad_s[0] / (2.0 * PI)
+            ));
+            report.binds = "not computed".into();
+            report.time_s = t0.elapsed().as_secs_f64();
+            return report;
+        }
+    }
+    let models: Vec<(String, Vec<f64>, Vec<C64>)> = frfs
+        .iter()
+        .zip(plants)
+        .map(|(f, p)| {
+            let (w, h) = model_lines(f, p, delay_s, period_s);
+            (format!("the fit of {}", f.label), w, h)
+        })
+        .collect();
+    // Each input's lines thinned ([`LINES_PER_INPUT`]), with their noise
+    // and the fit at each, to stand in where the line is noisy.
+    let thinned: Vec<(DesignFrf, Vec<f64>, Vec<C64>)> = frfs
+        .iter()
+        .zip(plants)
+        .zip(relative_sigma)
+        .map(|((f, p), sigma)| {
+            let n = f.omega_rad_s.len();
+            let every = n.div_ceil(LINES_PER_INPUT).max(1);
+            let modes: Vec<f64> = p
+                .fit()
+                .modes
+                .iter()
+                .map(|m| 2.0 * PI * m.frequency_hz)
+                .collect();
+            let keep: Vec<usize> = (0..n)
+                .filter(|&k| {
+                    let w = f.omega_rad_s[k];
+                    k % every == 0
+                        || k + 1 == n
+                        || modes.iter().any(|r| (w / r - 1.0).abs() <= 0.04)
+                })
+                .collect();
+            let d = DesignFrf {
+                label: f.label.clone(),
+                omega_rad_s: keep.iter().map(|&k| f.omega_rad_s[k]).collect(),
+                plant_m_per_a: keep.iter().map(|&k| f.plant_m_per_a[k]).collect(),
+                lines_total: f.lines_total,
+            };
+            let s = keep
+                .iter()
+                .map(|&k| sigma.get(k).copied().unwrap_or(f64::NAN))
+                .collect();
+            let m = d
+                .omega_rad_s
+                .iter()
+                .map(|&w| p.frf(w) * C64::from_polar(1.0, -w * delay_s))
+                .collect();
+            (d, s, m)
+        })
+        .collect();
+    let mut lines: Vec<Lines<'_>> = thinned
+        .iter()
+        .map(|(f, sigma, m)| Lines {
+            label: &f.label,
+            omega_rad_s: &f.omega_rad_s,
+            plant_m_per_a: &f.plant_m_per_a,
+            noise: Some(LineNoise {
+                relative_sigma: sigma,
+                model_m_per_a: m,
+            }),
+        })
+        .collect();
+    lines.extend(
+        models
+            .iter()
+            .filter(|m| !m.1.is_empty())
+            .map(|(l, w, h)| Lines {
+                label: l,
+                omega_rad_s: w,
+                plant_m_per_a: h,
+                noise: None,
+            }),
+    );
+    report.lines = [
+        thinned.iter().map(|f| f.0.omega_rad_s.len()).sum(),
+        models.iter().map(|m| m.1.len()).sum(),
+    ];
+    let lowest = frfs
+        .iter()
+        .map(|f| f.omega_rad_s[0])
+        .fold(f64::INFINITY, f64::min);
+    let basis = Basis::for_plant(&zeros, lowest, period_s);
+    // No controller passes the lowest zero bound (lines between the zeros
+    // may let the bisection pass it by a little): the search starts there.
+    let upper = report.rhp_zeros.first().map(|z| 1.05 * z.bound_rad_s);
+    match performance_limit(&lines, basis, period_s, s_max, upper) {
+        Ok(l) => {
+            let w = l.performance_bandwidth_rad_s;
+            report.performance_bandwidth_rad_s = Some(w);
+            report.infeasible_above_rad_s = Some(l.infeasible_above_rad_s);
+            report.solves = l.solves;
+            report.fit_stood_in_lines = l.stand_in_lines;
+            report.binds = what_binds(w, &report.rhp_zeros, &l.binding, period_s);
+            report.binding = l.binding;
+        }
+        Err(e) => {
+            report.not_computed = Some(format!("{e}; the design uses the search alone"));
+            report.binds = "not computed".into();
+        }
+    }
+    report.time_s = t0.elapsed().as_secs_f64();
+    report
+}
+
+/// What binds the limit `w` (rad/s), in words: a right-half-plane zero
+/// whose own bound is within 25 % of it, else the lines where `|W_P S|`
+/// reaches 1, named by where they lie.
+fn what_binds(w: f64, zeros: &[ZeroBound], binding: &[BindingLine], period_s: f64) -> String {
+    let nyquist = PI / period_s;
+    let mut parts = Vec::new();
+    if let Some(z) = zeros.first().filter(|z| z.bound_rad_s <= 1.25 * w) {
+        parts.push(format!(
+            "the right-half-plane zero pair {:.2} ± {:.2}j Hz (S = 1 there for every controller: ω* ≤ {:.0} rad/s on its own)",
+            z.re_hz, z.im_hz, z.bound_rad_s
+        ));
+    }
+    let high: Vec<&BindingLine> = binding
+        .iter()
+        .filter(|b| b.omega_rad_s > 0.25 * nyquist)
+        .collect();
+    if !high.is_empty() {
+        parts.push(format!(
+            "the delay and the amplifier (|W_P S| = 1 at {:.0} Hz, {:.0} % of the Nyquist frequency, where the loop's phase lag grows with frequency)",
+            high[0].omega_rad_s / (2.0 * PI),
+            100.0 * high[0].omega_rad_s / nyquist
+        ));
+    }
+    let low: Vec<String> = binding
+        .iter()
+        .filter(|b| b.omega_rad_s <= 0.25 * nyquist)
+        .take(3)
+        .map(|b| format!("{:.1} Hz of {}", b.omega_rad_s / (2.0 * PI), b.input))
+        .collect();
+    if !low.is_empty() {
+        parts.push(format!("the lines at {}", low.join(", ")));
+    }
+    parts.join("; ")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::design::fitted::test_support::{fit, mode};
+    use crate::ident::modal_fit::Path;
+
+    const T: f64 = 2e-4;
+
+    fn path() -> Path {
+        Path {
+            period_s: T,
+            amplifier_bandwidth_hz: 1000.0,
+        }
+    }
+
+    /// A bench of two modes measured exactly on 300 lines from 0.5 to
+    /// 400 Hz, with the computation delay of one period.
+    fn measured(f: &crate::ident::modal_fit::ModalFit) -> (DesignFrf, FittedPlant) {
+        let plant = FittedPlant::new(f, path());
+        let omega: Vec<f64> = (0..300)
+            .map(|k| 2.0 * PI * 0.5 * (800.0f64).powf(k as f64 / 299.0))
+            .collect();
+        let p = omega
+            .iter()
+            .map(|&w| plant.frf(w) * C64::from_polar(1.0, -w * T))
+            .collect();
+        (
+            DesignFrf {
+                label: "bench.frf.csv".into(),
+                omega_rad_s: omega,
+                plant_m_per_a: p,
+                lines_total: 300,
+            },
+            plant,
+        )
+    }
+
+    /// A fit with a significant mass line (L/s²) is a free mass: no limit,
+    /// and the report says why, naming the input; without it the limit is
+    /// computed and, for a plant with a right-half-plane zero pair, stays
+    /// under that pair's own bound, which the report lists.
+    #[test]
+    fn a_free_mass_has_no_limit_and_an_rhp_zero_bounds_it() {
+        let mut f = fit(
+            vec![mode(25.0, 0.01, 10.0), mode(80.0, 0.004, -3.0)],
+            0.0,
+            0.5 * T,
+        );
+        f.lower_residual = 2.0;
+        f.lower_residual_sigma = 0.01;
+        let (frf, plant) = measured(&f);
+        let sigma = vec![vec![f64::NAN; 300]];
+        let r = bench_limit(
+            std::slice::from_ref(&frf),
+            &sigma,
+            std::slice::from_ref(&plant),
+            T,
+            T,
+            2.0,
+        );
+        assert_eq!(r.performance_bandwidth_rad_s, None);
+        let why = r.not_computed.unwrap();
+        assert!(
+            why.contains("mass line") && why.contains("bench.frf.csv"),
+            "{why}"
+        );
+
+        let mut f = fit(
+            vec![mode(25.0, 0.01, 10.0), mode(80.0, 0.004, -3.0)],
+            0.0,
+            0.5 * T,
+        );
+        let z = C64::new(2.0, 83.0);
+        f.zeros = vec![crate::ident::modal_fit::FittedZero {
+            re_hz: z.re,
+            im_hz: z.im,
+            kind: "CMP-CNMP".into(),
+        }];
+        let (frf, plant) = measured(&f);
+        let r = bench_limit(
+            std::slice::from_ref(&frf),
+            &sigma,
+            std::slice::from_ref(&plant),
+            T,
+            T,
+            2.0,
+        );
+        let bound = super::super::limit::rhp_zero_bound_rad_s(z * (2.0 * PI), 2.0).unwrap();
+        assert_eq!(r.rhp_zeros.len(), 1);
+        assert!((r.rhp_zeros[0].bound_rad_s - bound).abs() < 1e-9 * bound);
+        let w = r.performance_bandwidth_rad_s.expect("a limit");
+        assert!(w > 0.0, "{r:?}");
+        // These two modes have no RHP zero of their own: the listed pair
+        // only places Q's poles, and the lines decide.
+        assert!(r.lines[1] > 0, "no fitted lines above the band: {r:?}");
+    }
+
+    /// Where the lines' noise is larger than the bound the weight sets on
+    /// |S| (the lowest lines, |S| ≈ ω/ω*), the fit stands in; noise-free
+    /// lines never need it.
+    #[test]
+    fn noisy_low_lines_are_replaced_by_the_fit() {
+        let f = fit(
+            vec![mode(25.0, 0.01, 10.0), mode(80.0, 0.004, 3.0)],
+            0.0,
+            0.5 * T,
+        );
+        let (frf, plant) = measured(&f);
+        let quiet = vec![vec![0.0; 300]];
+        let noisy = vec![vec![1e-2; 300]];
+        let run = |s: &Vec<Vec<f64>>| {
+            bench_limit(
+                std::slice::from_ref(&frf),
+                s,
+                std::slice::from_ref(&plant),
+                T,
+                T,
+                2.0,
+            )
+        };
+        let (q, n) = (run(&quiet), run(&noisy));
+        assert_eq!(q.fit_stood_in_lines, 0);
+        assert!(n.fit_stood_in_lines > 0, "{n:?}");
+        // The lines are exact here, so the fit standing in for them
+        // changes the limit by no more than the bisection's tolerance.
+        let (a, b) = (
+            q.performance_bandwidth_rad_s.unwrap(),
+            n.performance_bandwidth_rad_s.unwrap(),
+        );
+        assert!((a / b - 1.0).abs() < 0.02, "{a} vs {b}");
+    }
+}

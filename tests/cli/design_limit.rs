@@ -1,0 +1,205 @@
+//! `bench design` from one default chirp's CSV alone (no `--config`), on
+//! the shipped bench and two held-out benches (issue 41): the design is
+//! predicted and certified on the bench's own fitted model, the
+//! performance limit it reports is within 10 % of the independent
+//! reference computed on the true plant (`tests/data/limit_reference.py`:
+//! cvxpy and Clarabel on the plant built from scratch with scipy; stored
+//! in `limit_reference.json` for the cases of `limit_cases.json`), and
+//! the designed controller, judged on the true plant, is stable, meets the
+//! margins it was designed for, and has the ω* the report gives, under
+//! the limit. (The issue's aim, ω* ≥ 0.8 of the limit, is not reached by
+//! the thesis' families: 0.51, 0.07 and 0.16 of it on these benches.)
+
+use crate::common;
+
+use common::*;
+use serde_json::Value;
+
+fn data(name: &str) -> Value {
+    let p = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/data/");
+    serde_json::from_str(&std::fs::read_to_string(format!("{p}{name}")).unwrap()).unwrap()
+}
+
+/// The built-in bench's config with the case's plant.
+fn case_toml(c: &Value) -> String {
+    let mut doc: toml_edit::DocumentMut = bench::config::BUILTIN_CONFIG_TOML.parse().unwrap();
+    let f = |k: &str| c[k].as_f64().unwrap();
+    let plant = doc["plant"].as_table_mut().unwrap();
+    for (i, key) in ["m1_kg", "m2_kg", "m3_kg", "m4_kg", "m5_kg"]
+        .iter()
+        .enumerate()
+    {
+        plant[key] = toml_edit::value(c["m_kg"][i].as_f64().unwrap());
+    }
+    plant["k4_n_per_m"] = toml_edit::value(f("k4_n_per_m"));
+    plant["k5_n_per_m"] = toml_edit::value(f("k5_n_per_m"));
+    plant["parallelogram_stiffness_n_per_m"] = toml_edit::value(f("kp_n_per_m"));
+    plant["operating_point_m"] = toml_edit::value(f("y1o_fraction_of_l") * 0.0475);
+    plant["mass_asymmetry"] = toml_edit::value(f("mass_asymmetry"));
+    doc.to_string()
+}
+
+#[test]
+fn a_design_from_a_csv_alone_reports_the_benchs_limit_and_holds_on_the_true_plant() {
+    let dir = tmp();
+    let cases = data("limit_cases.json");
+    let refs = data("limit_reference.json");
+    for (c, r) in cases["cases"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .zip(refs["cases"].as_array().unwrap())
+    {
+        let name = c["name"].as_str().unwrap();
+        assert_eq!(c["name"], r["name"]);
+        let truth_toml = path_in(dir.path(), &format!("{name}.toml"));
+        std::fs::write(&truth_toml, case_toml(c)).unwrap();
+        let mcap = path_in(dir.path(), &format!("{name}.mcap"));
+        let o = run(&["chirp", "--config", &truth_toml, "--out", &mcap, "--json"]);
+        assert!(
+            o.status.success(),
+            "{name}: {}",
+            String::from_utf8_lossy(&o.stderr)
+        );
+        let csv = json_stdout(&o)["frf_csv"].as_str().unwrap().to_string();
+        let out = path_in(dir.path(), &format!("{name}.designed.toml"));
+        let o = run(&["design", &csv, "--out", &out, "--no-plot", "--json"]);
+        assert!(
+            o.status.success(),
+            "{name}: {}",
+            String::from_utf8_lossy(&o.stderr)
+        );
+        let s = json_stdout(&o);
+        // The bench's own model, named.
+        let model = s["model"]["model"].as_str().unwrap();
+        assert!(model.starts_with("the fit of "), "{name}: {model}");
+        // The limit from the measurement against the reference on the
+        // true plant.
+        let want = r["limit_rad_s"].as_f64().unwrap();
+        let got = s["limit"]["performance_bandwidth_rad_s"]
+            .as_f64()
+            .unwrap_or_else(|| panic!("{name}: no limit: {}", s["limit"]));
+        assert!(
+            (got / want - 1.0).abs() <= 0.10,
+            "{name}: limit {got:.1} rad/s from the CSV, {want:.1} on the true plant"
+        );
+        // Each right-half-plane zero the fit reports is one of the true
+        // mechanics', its bound within 3 % of the reference's. (Whether the
+        // fit of a noisy chirp finds the CMP-CNMP pair at all is the
+        // verdict's business: the limit holds either way, since the lines
+        // carry the zeros' phase.)
+        let zs = s["limit"]["rhp_zeros"].as_array().unwrap();
+        let want_z = r["rhp_zero_bounds"].as_array().unwrap();
+        for z in zs {
+            let a = z["bound_rad_s"].as_f64().unwrap();
+            assert!(
+                want_z
+                    .iter()
+                    .any(|w| (a / w["bound_rad_s"].as_f64().unwrap() - 1.0).abs() < 0.03),
+                "{name}: zero bound {a} is none of {want_z:?}"
+            );
+        }
+        // The designed controller on the true plant: the loop to Nyquist.
+        let truth = bench::config::BenchConfig::load(std::path::Path::new(&truth_toml)).unwrap();
+        let designed = bench::config::BenchConfig::load(std::path::Path::new(&out)).unwrap();
+        let ctrl = &designed.controller["designed"];
+        let t = 1.0 / truth.loop_.rate_hz;
+        let p = bench::design::predict::predict(&truth, ctrl, t).unwrap();
+        let (w, l) = bench::design::predict::model_loop(&truth, ctrl, t).unwrap();
+        let s_abs: Vec<f64> = l.iter().map(|l| 1.0 / (l + 1.0).norm()).collect();
+        let reach =
+            bench::design::limit::loop_performance_bandwidth_rad_s(&w, &s_abs, 2.0).unwrap_or(0.0);
+        let f = &p.figures;
+        eprintln!(
+            "{name}: {} ω* {reach:.1} rad/s on the true plant ({:.2} of the reference limit {want:.1}; reported {:.1} of {got:.1}), ‖S‖∞ {:.3}, PM {:?}°, GM {:?} dB",
+            s["strategy"],
+            reach / want,
+            s["performance_bandwidth_rad_s"].as_f64().unwrap_or(f64::NAN),
+            f.margins.sensitivity_peak,
+            f.phase_margin_min_deg,
+            f.margins.gain_margin_db
+        );
+        assert_eq!(
+            f.rhp_closed_loop_poles, 0,
+            "{name}: unstable on the true plant"
+        );
+        assert!(
+            f.margins.sensitivity_peak <= 2.0 * 1.05,
+            "{name}: ‖S‖∞ {}",
+            f.margins.sensitivity_peak
+        );
+        assert!(f.phase_margin_min_deg.unwrap() >= 38.0, "{name}: {f:?}");
+        assert!(
+            f.margins.gain_margin_db.is_none_or(|g| g >= 5.5),
+            "{name}: {f:?}"
+        );
+        // The fast loop where it exists (issue 41: from the CSV alone most
+        // designs fell back to the slow loop, ω_B 13–15 rad/s).
+        assert_eq!(s["strategy"], "fast", "{name}: {}", s["why"]);
+        // No controller passes the limit: the design's ω* on the true plant
+        // stays under the reference's (2 %: the reference's own bisection
+        // and its lines), and the ω* reported from the measurement is the
+        // true plant's within 5 %.
+        assert!(
+            reach <= 1.02 * want,
+            "{name}: ω* {reach} above the limit {want}"
+        );
+        let reported = s["performance_bandwidth_rad_s"].as_f64().unwrap();
+        assert!(
+            (reported / reach - 1.0).abs() < 0.05,
+            "{name}: ω* reported {reported}, on the true plant {reach}"
+        );
+    }
+}
+
+/// `--model config` predicts on the config's lumped model and says so;
+/// the default names the fit.
+#[test]
+fn the_report_names_the_model_it_predicts_on() {
+    let dir = tmp();
+    let mcap = path_in(dir.path(), "c.mcap");
+    let o = run(&["chirp", "--out", &mcap, "--json"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let csv = json_stdout(&o)["frf_csv"].as_str().unwrap().to_string();
+    for (flag, words) in [
+        ("fit", "the fit of "),
+        ("config", "the config's model (built-in"),
+    ] {
+        let out = path_in(dir.path(), &format!("{flag}.toml"));
+        let o = run(&[
+            "design",
+            &csv,
+            "--model",
+            flag,
+            "--out",
+            &out,
+            "--no-plot",
+            "--json",
+        ]);
+        assert!(
+            o.status.success(),
+            "{flag}: {}",
+            String::from_utf8_lossy(&o.stderr)
+        );
+        let s = json_stdout(&o);
+        let m = s["model"]["model"].as_str().unwrap();
+        assert!(m.starts_with(words), "{flag}: {m}");
+        // The text report names it too.
+        let o = run(&[
+            "design",
+            &csv,
+            "--model",
+            flag,
+            "--out",
+            &out,
+            "--no-plot",
+            "--overwrite",
+        ]);
+        let text = String::from_utf8_lossy(&o.stdout);
+        assert!(text.contains(&format!("model: {m}")), "{flag}: {text}");
+        assert!(text.contains("of the limit"), "{text}");
+    }
+    let o = run(&["design", &csv, "--model", "truth", "--no-plot"]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("--model"));
+}
