@@ -6,7 +6,8 @@
 //! # The lines
 //! Each input's coherent lines (the plant with the computation delay, as
 //! the design judges it; every line within ±4 % of a fitted mode, and
-//! elsewhere every n-th so that at most [`LINES_PER_INPUT`] remain) and,
+//! elsewhere every n-th so that at most [`LINES_PER_INPUT`] remain, fewer
+//! for many inputs, [`LINES_TOTAL`]) and,
 //! from its modal fit ([`super::fitted`]) with
 //! the same delay: a log grid of [`MODEL_LINES_PER_DECADE`] from the
 //! input's lowest line to [`TOP_FRACTION`] of the Nyquist frequency,
@@ -52,8 +53,13 @@ pub const ZERO_MERGE: f64 = 0.05;
 /// Most measured lines per input in the cone programs: every line within
 /// ±4 % of a fitted mode, and every n-th elsewhere so that at most this
 /// many remain (a default chirp's 400 lines per decade vary smoothly
-/// between the resonances).
+/// between the resonances) …
 pub const LINES_PER_INPUT: usize = 300;
+/// … and at most this many over all inputs, down to
+/// [`LINES_PER_INPUT_MIN`] an input (a workspace of 20 inputs: 150 each).
+pub const LINES_TOTAL: usize = 3000;
+/// The fewest lines an input keeps outside its modes' neighbourhoods.
+pub const LINES_PER_INPUT_MIN: usize = 100;
 
 /// Largest share of a fit's response at its lowest line that a mass line
 /// may have for the plant to count as stable (10 %).
@@ -222,7 +228,8 @@ pub fn bench_limit(
         .zip(relative_sigma)
         .map(|((f, p), sigma)| {
             let n = f.omega_rad_s.len();
-            let every = n.div_ceil(LINES_PER_INPUT).max(1);
+            let per_input = (LINES_TOTAL / frfs.len()).clamp(LINES_PER_INPUT_MIN, LINES_PER_INPUT);
+            let every = n.div_ceil(per_input).max(1);
             let modes: Vec<f64> = p
                 .fit()
                 .modes
