@@ -390,10 +390,10 @@ mod tests {
 
     /// A fit with a significant mass line (L/s²) is a free mass: no limit,
     /// and the report says why, naming the input; without it the limit is
-    /// computed and, for a plant with a right-half-plane zero pair, stays
-    /// under that pair's own bound, which the report lists.
+    /// computed, and a right-half-plane zero the fit lists is reported with
+    /// its maximum-modulus bound (Skogestad & Postlethwaite Eq. 5.49).
     #[test]
-    fn a_free_mass_has_no_limit_and_an_rhp_zero_bounds_it() {
+    fn a_free_mass_has_no_limit_and_each_listed_rhp_zero_has_its_bound() {
         let mut f = fit(
             vec![mode(25.0, 0.01, 10.0), mode(80.0, 0.004, -3.0)],
             0.0,
