@@ -563,13 +563,15 @@ pub fn run_design(opts: &DesignOptions) -> Result<DesignSummary, RunError> {
     let ctrl =
         crate::control::DiscreteController::new(&controller, period_s, cfg.actuator.peak_current_a);
     let unit = ctrl.error_per_metre();
-    let reach = |f: &crate::design::loops::DesignFrf| {
-        let s: Vec<f64> = f
-            .omega_rad_s
+    let loop_of = |f: &crate::design::loops::DesignFrf| -> Vec<crate::ident::C64> {
+        f.omega_rad_s
             .iter()
             .zip(&f.plant_m_per_a)
-            .map(|(w, p)| 1.0 / (ctrl.response(*w, period_s) * p * unit + 1.0).norm())
-            .collect();
+            .map(|(w, p)| ctrl.response(*w, period_s) * p * unit)
+            .collect()
+    };
+    let reach = |f: &crate::design::loops::DesignFrf| {
+        let s: Vec<f64> = loop_of(f).iter().map(|l| 1.0 / (l + 1.0).norm()).collect();
         loop_performance_bandwidth_rad_s(&f.omega_rad_s, &s, s_max)
     };
     let per_input: Vec<Option<f64>> = frfs.iter().map(reach).collect();
@@ -609,15 +611,7 @@ pub fn run_design(opts: &DesignOptions) -> Result<DesignSummary, RunError> {
         .iter()
         .zip(&rel_sigma)
         .zip(&e.figures)
-        .map(|((f, r), g)| {
-            let l: Vec<crate::ident::C64> = f
-                .omega_rad_s
-                .iter()
-                .zip(&f.plant_m_per_a)
-                .map(|(w, p)| ctrl.response(*w, period_s) * p * unit)
-                .collect();
-            figure_sigmas(&f.omega_rad_s, &l, r, g, s_max)
-        })
+        .map(|((f, r), g)| figure_sigmas(&f.omega_rad_s, &loop_of(f), r, g, s_max))
         .collect();
     // The summary's figures' 1σ: each from the input that sets it.
     let pick = |key: &dyn Fn(usize) -> Option<f64>, least: bool| {
