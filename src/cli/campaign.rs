@@ -90,7 +90,7 @@ pub(super) struct HowArgs {
     /// At the end, design one controller over every done cell's FRF
     /// (`bench design DIR --strategy STRATEGY`): DIR/designed.toml and
     /// DIR/designed.png, the report in the summary.
-    #[arg(long, value_name = "STRATEGY", value_parser = ["slow", "fast", "auto"])]
+    #[arg(long, value_name = "STRATEGY", value_parser = ["slow", "fast", "limit", "auto"])]
     design: Option<String>,
 }
 

@@ -24,10 +24,11 @@ pub(super) struct DesignArgs {
     inputs: Vec<PathBuf>,
     /// `slow` (integrator + low-pass, crossover 10 % of the first
     /// resonance, thesis Eq. 6-6), `fast` (lead, low-passes, notch between
-    /// the pair when the residue signs alternate, Eq. 6-7), or `auto`
-    /// (the one that meets the margins with the higher sensitivity
-    /// bandwidth).
-    #[arg(long, default_value = "auto", value_parser = ["slow", "fast", "auto"])]
+    /// the pair when the residue signs alternate, Eq. 6-7), `limit` (the
+    /// Youla program's own controller, reduced to at most 12 sections:
+    /// the bandwidth the limit allows), or `auto` (every one; the one
+    /// that meets the margins with the highest performance bandwidth ω*).
+    #[arg(long, default_value = "auto", value_parser = ["slow", "fast", "limit", "auto"])]
     strategy: String,
     /// Phase margin at every gain crossover of every input, degrees; range
     /// [20, 80].
@@ -318,17 +319,19 @@ pub(super) fn print_summary(s: &DesignSummary) {
     }
     for o in &s.strategies {
         outln!(
-            "  tried {}: {} (ω_B {:.1} rad/s)",
+            "  tried {}: {}",
             o.strategy,
             if o.meets_margins {
-                "meets the margins".to_string()
-            } else {
                 format!(
-                    "misses: {}",
-                    o.binding.as_ref().map_or(String::new(), |b| b.to_string())
+                    "meets the margins (ω* {:.1} rad/s, ω_B {:.1} rad/s)",
+                    o.performance_bandwidth_rad_s, o.sensitivity_bandwidth_rad_s
                 )
-            },
-            o.sensitivity_bandwidth_rad_s
+            } else {
+                match &o.binding {
+                    Some(b) => format!("misses: {b}"),
+                    None => format!("refused: {}", o.structure),
+                }
+            }
         );
     }
     outln!(

@@ -145,25 +145,35 @@ impl ControllerConfig {
             ));
         }
         let corner = |x: f64| x.is_finite() && (CORNER_RAD_S.0..=CORNER_RAD_S.1).contains(&x);
-        for (name, v) in [
-            ("real_zeros_rad_s", &self.real_zeros_rad_s),
-            ("real_poles_rad_s", &self.real_poles_rad_s),
+        // Zeros may lie in the right half plane (a negative corner or ζ):
+        // a controller's zeros need not be stable, its poles must.
+        for (name, v, zeros) in [
+            ("real_zeros_rad_s", &self.real_zeros_rad_s, true),
+            ("real_poles_rad_s", &self.real_poles_rad_s, false),
         ] {
             for (i, x) in v.iter().enumerate() {
-                if !corner(*x) {
+                let ok = if zeros { corner(x.abs()) } else { corner(*x) };
+                if !ok {
+                    let range = if zeros {
+                        format!(
+                            "|corner| in [{:?}, {:?}] rad/s (negative: a zero in the right half plane)",
+                            CORNER_RAD_S.0, CORNER_RAD_S.1
+                        )
+                    } else {
+                        format!("in [{:?}, {:?}] rad/s", CORNER_RAD_S.0, CORNER_RAD_S.1)
+                    };
                     return Err(cerr(
                         format!("{prefix}.{name}[{i}]"),
                         format!(
-                            "corner frequency must be in [{:?}, {:?}] rad/s, got {x} (use `integrators` for s = 0)",
-                            CORNER_RAD_S.0, CORNER_RAD_S.1
+                            "corner frequency must be {range}, got {x} (use `integrators` for s = 0)"
                         ),
                     ));
                 }
             }
         }
-        for (name, v) in [
-            ("complex_zeros", &self.complex_zeros),
-            ("complex_poles", &self.complex_poles),
+        for (name, v, zeros) in [
+            ("complex_zeros", &self.complex_zeros, true),
+            ("complex_poles", &self.complex_poles, false),
         ] {
             for (i, p) in v.iter().enumerate() {
                 if !corner(p.omega_rad_s) {
@@ -175,10 +185,11 @@ impl ControllerConfig {
                         ),
                     ));
                 }
-                if !p.zeta.is_finite() || !(ZETA.0..=ZETA.1).contains(&p.zeta) {
+                let lo = if zeros { -ZETA.1 } else { ZETA.0 };
+                if !p.zeta.is_finite() || !(lo..=ZETA.1).contains(&p.zeta) {
                     return Err(cerr(
                         format!("{prefix}.{name}[{i}].zeta"),
-                        format!("must be in [{:?}, {:?}], got {}", ZETA.0, ZETA.1, p.zeta),
+                        format!("must be in [{lo:?}, {:?}], got {}", ZETA.1, p.zeta),
                     ));
                 }
             }
@@ -221,6 +232,10 @@ pub enum Discretization {
     /// Poles matched (`z = e^{sT}`), numerators fitted by weighted least
     /// squares to the continuous response up to f_s/10.
     LeastSquares,
+    /// The bilinear map `s = (2/T)(z − 1)/(z + 1)` on every section, no
+    /// pre-warp: exact for a controller designed in discrete time and
+    /// written in `s` by the inverse map (`bench design --strategy limit`).
+    Bilinear,
 }
 
 impl Discretization {
@@ -229,6 +244,7 @@ impl Discretization {
         match self {
             Self::Tustin => "tustin",
             Self::LeastSquares => "least_squares",
+            Self::Bilinear => "bilinear",
         }
     }
 }

@@ -265,11 +265,21 @@ pub(super) fn discretize(
     cfg: &ControllerConfig,
     period_s: f64,
 ) -> (Vec<Biquad>, DiscretizationReport) {
-    let secs = sections(cfg);
+    let mut secs = sections(cfg);
+    if cfg.discretization == Discretization::Bilinear {
+        for s in &mut secs {
+            s.prewarp_rad_s = None;
+        }
+    }
     let up_to_hz = 0.1 / period_s;
     let tustin: Vec<Biquad> = secs.iter().map(|s| tustin(s, period_s)).collect();
     let tustin_error = cascade_error(cfg, &tustin, period_s, up_to_hz);
-    let mut chosen = (Discretization::Tustin, tustin, tustin_error);
+    let plain = if cfg.discretization == Discretization::Bilinear {
+        Discretization::Bilinear
+    } else {
+        Discretization::Tustin
+    };
+    let mut chosen = (plain, tustin, tustin_error);
     if cfg.discretization == Discretization::LeastSquares {
         let target = |w: f64| cfg.response(w) / cfg.gain;
         // One extra all-zero section (poles at z = 0) gives the fit

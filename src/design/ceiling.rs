@@ -163,16 +163,7 @@ pub fn bench_limit(
 ) -> LimitReport {
     let t0 = std::time::Instant::now();
     let hz = |z: C64| z / (2.0 * PI);
-    // Every fit's zeros, once (within 1 %).
-    let mut zeros: Vec<C64> = Vec::new();
-    for p in plants {
-        for z in &p.fit().zeros {
-            let s = C64::new(z.re_hz, z.im_hz.abs()) * (2.0 * PI);
-            if s.is_finite() && !zeros.iter().any(|x| (x - s).norm() < ZERO_MERGE * s.norm()) {
-                zeros.push(s);
-            }
-        }
-    }
+    let zeros = fit_zeros(plants);
     let mut rhp_zeros: Vec<ZeroBound> = zeros
         .iter()
         .filter(|z| z.re > 0.0)
@@ -198,20 +189,96 @@ pub fn bench_limit(
         solves: 0,
         time_s: 0.0,
     };
-    for (f, p) in frfs.iter().zip(plants) {
+    if let Some(why) = mass_line_refusal(frfs, plants) {
+        report.not_computed = Some(format!("{why}; the design uses the search alone"));
+        report.binds = "not computed".into();
+        report.time_s = t0.elapsed().as_secs_f64();
+        return report;
+    }
+    let set = program_lines(frfs, relative_sigma, plants, period_s, delay_s);
+    let lines = set.lines();
+    report.lines = [
+        set.measured.iter().map(|f| f.0.omega_rad_s.len()).sum(),
+        set.models.iter().map(|m| m.1.len()).sum(),
+    ];
+    let basis = Basis::for_plant(&zeros, set.lowest_rad_s, period_s);
+    // No controller passes the lowest zero bound (lines between the zeros
+    // may let the bisection pass it by a little): the search starts there.
+    let upper = report.rhp_zeros.first().map(|z| 1.05 * z.bound_rad_s);
+    match performance_limit(&lines, basis, period_s, s_max, upper) {
+        Ok(l) => {
+            let w = l.performance_bandwidth_rad_s;
+            report.performance_bandwidth_rad_s = Some(w);
+            report.infeasible_above_rad_s = Some(l.infeasible_above_rad_s);
+            report.solves = l.solves;
+            report.fit_stood_in_lines = l.stand_in_lines;
+            report.binds = what_binds(w, &report.rhp_zeros, &l.binding, period_s);
+            report.binding = l.binding;
+        }
+        Err(e) => {
+            report.not_computed = Some(format!("{e}; the design uses the search alone"));
+            report.binds = "not computed".into();
+        }
+    }
+    report.time_s = t0.elapsed().as_secs_f64();
+    report
+}
+
+/// Every fit's zeros (rad/s, Im ≥ 0), once: zeros of several fits within
+/// [`ZERO_MERGE`] of each other are one.
+pub fn fit_zeros(plants: &[FittedPlant]) -> Vec<C64> {
+    let mut zeros: Vec<C64> = Vec::new();
+    for p in plants {
+        for z in &p.fit().zeros {
+            let s = C64::new(z.re_hz, z.im_hz.abs()) * (2.0 * PI);
+            if s.is_finite() && !zeros.iter().any(|x| (x - s).norm() < ZERO_MERGE * s.norm()) {
+                zeros.push(s);
+            }
+        }
+    }
+    zeros
+}
+
+/// Why the Youla form does not apply to these fits: the first whose mass
+/// line (`L/s²`) is significant and more than [`MASS_LINE_SHARE_MAX`] of
+/// its response at its lowest line (a free mass, not a stable plant).
+pub fn mass_line_refusal(frfs: &[DesignFrf], plants: &[FittedPlant]) -> Option<String> {
+    frfs.iter().zip(plants).find_map(|(f, p)| {
         let share = p.mass_line_share(f.omega_rad_s[0]);
-        if share > MASS_LINE_SHARE_MAX {
-            report.not_computed = Some(format!(
-                "the fit of {} has a mass line (L/s², {:.0} % of the response at its lowest line {:.2} Hz): a free mass is not a stable plant, and the limit's Youla form needs one; the design uses the search alone",
+        (share > MASS_LINE_SHARE_MAX).then(|| {
+            format!(
+                "the fit of {} has a mass line (L/s², {:.0} % of the response at its lowest line {:.2} Hz): a free mass is not a stable plant, and the Youla form needs one",
                 f.label,
                 100.0 * share,
                 f.omega_rad_s[0] / (2.0 * PI)
-            ));
-            report.binds = "not computed".into();
-            report.time_s = t0.elapsed().as_secs_f64();
-            return report;
-        }
-    }
+            )
+        })
+    })
+}
+
+/// The lines of the limit's and a design's cone programs (see the module
+/// docs), owned: each input's coherent lines thinned, with their 1σ and
+/// the fit at each, and each fit's lines between and above them.
+#[derive(Debug, Clone)]
+pub struct ProgramLines {
+    /// Per input: its thinned lines, their relative 1σ (NaN: unknown)
+    /// and the fit at the same lines (m/A, the computation delay applied).
+    pub measured: Vec<(DesignFrf, Vec<f64>, Vec<C64>)>,
+    /// Per input: its fit's label, lines (rad/s) and response (m/A).
+    pub models: Vec<(String, Vec<f64>, Vec<C64>)>,
+    /// The lowest measured line over the inputs, rad/s.
+    pub lowest_rad_s: f64,
+}
+
+/// [`ProgramLines`] of `frfs` (the computation delay `delay_s` applied)
+/// and their fits `plants` at the loop period `period_s`.
+pub fn program_lines(
+    frfs: &[DesignFrf],
+    relative_sigma: &[Vec<f64>],
+    plants: &[FittedPlant],
+    period_s: f64,
+    delay_s: f64,
+) -> ProgramLines {
     let models: Vec<(String, Vec<f64>, Vec<C64>)> = frfs
         .iter()
         .zip(plants)
@@ -262,58 +329,47 @@ pub fn bench_limit(
             (d, s, m)
         })
         .collect();
-    let mut lines: Vec<Lines<'_>> = thinned
-        .iter()
-        .map(|(f, sigma, m)| Lines {
-            label: &f.label,
-            omega_rad_s: &f.omega_rad_s,
-            plant_m_per_a: &f.plant_m_per_a,
-            noise: Some(LineNoise {
-                relative_sigma: sigma,
-                model_m_per_a: m,
-            }),
-        })
-        .collect();
-    lines.extend(
-        models
-            .iter()
-            .filter(|m| !m.1.is_empty())
-            .map(|(l, w, h)| Lines {
-                label: l,
-                omega_rad_s: w,
-                plant_m_per_a: h,
-                noise: None,
-            }),
-    );
-    report.lines = [
-        thinned.iter().map(|f| f.0.omega_rad_s.len()).sum(),
-        models.iter().map(|m| m.1.len()).sum(),
-    ];
-    let lowest = frfs
+    let lowest_rad_s = frfs
         .iter()
         .map(|f| f.omega_rad_s[0])
         .fold(f64::INFINITY, f64::min);
-    let basis = Basis::for_plant(&zeros, lowest, period_s);
-    // No controller passes the lowest zero bound (lines between the zeros
-    // may let the bisection pass it by a little): the search starts there.
-    let upper = report.rhp_zeros.first().map(|z| 1.05 * z.bound_rad_s);
-    match performance_limit(&lines, basis, period_s, s_max, upper) {
-        Ok(l) => {
-            let w = l.performance_bandwidth_rad_s;
-            report.performance_bandwidth_rad_s = Some(w);
-            report.infeasible_above_rad_s = Some(l.infeasible_above_rad_s);
-            report.solves = l.solves;
-            report.fit_stood_in_lines = l.stand_in_lines;
-            report.binds = what_binds(w, &report.rhp_zeros, &l.binding, period_s);
-            report.binding = l.binding;
-        }
-        Err(e) => {
-            report.not_computed = Some(format!("{e}; the design uses the search alone"));
-            report.binds = "not computed".into();
-        }
+    ProgramLines {
+        measured: thinned,
+        models,
+        lowest_rad_s,
     }
-    report.time_s = t0.elapsed().as_secs_f64();
-    report
+}
+
+impl ProgramLines {
+    /// The lines as the cone program takes them: each input's, then each
+    /// fit's.
+    pub fn lines(&self) -> Vec<Lines<'_>> {
+        let mut lines: Vec<Lines<'_>> = self
+            .measured
+            .iter()
+            .map(|(f, sigma, m)| Lines {
+                label: &f.label,
+                omega_rad_s: &f.omega_rad_s,
+                plant_m_per_a: &f.plant_m_per_a,
+                noise: Some(LineNoise {
+                    relative_sigma: sigma,
+                    model_m_per_a: m,
+                }),
+            })
+            .collect();
+        lines.extend(
+            self.models
+                .iter()
+                .filter(|m| !m.1.is_empty())
+                .map(|(l, w, h)| Lines {
+                    label: l,
+                    omega_rad_s: w,
+                    plant_m_per_a: h,
+                    noise: None,
+                }),
+        );
+        lines
+    }
 }
 
 /// What binds the limit `w` (rad/s), in words: a right-half-plane zero

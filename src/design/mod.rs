@@ -56,6 +56,7 @@
 pub mod ceiling;
 pub mod family;
 pub mod fitted;
+pub mod fixed_order;
 pub mod limit;
 pub mod loops;
 pub mod modes;
@@ -105,7 +106,11 @@ pub enum Strategy {
     Slow,
     /// Bandwidth above it (§6.1.2).
     Fast,
-    /// Both; the one that meets the margins with the higher ω_B.
+    /// The Youla problem's own controller, reduced ([`youla`]): the
+    /// bandwidth the limit allows.
+    Limit,
+    /// Every strategy; the one that meets the margins with the highest
+    /// performance bandwidth ω*.
     Auto,
 }
 
@@ -115,8 +120,11 @@ impl std::str::FromStr for Strategy {
         match s {
             "slow" => Ok(Self::Slow),
             "fast" => Ok(Self::Fast),
+            "limit" => Ok(Self::Limit),
             "auto" => Ok(Self::Auto),
-            _ => Err(format!("`{s}` is not a strategy: slow, fast or auto")),
+            _ => Err(format!(
+                "`{s}` is not a strategy: slow, fast, limit or auto"
+            )),
         }
     }
 }
@@ -442,9 +450,21 @@ pub fn attempt(
     req: Requirements,
     period_s: f64,
     peak_current_a: f64,
+    climb: Option<(&ClimbInputs, &[&Attempt])>,
 ) -> Attempt {
     let wr = modes.first_resonance_rad_s;
     match strategy {
+        Strategy::Limit => {
+            let all = Problem::new(frfs.iter().chain(models).collect(), req, UNIT_PER_METRE);
+            limit_attempt(
+                &all,
+                climb.map(|c| c.0),
+                climb.map_or(&[], |c| c.1),
+                req,
+                period_s,
+                peak_current_a,
+            )
+        }
         Strategy::Slow => {
             let req = Requirements {
                 phase_margin_min_deg: req.phase_margin_min_deg.max(SLOW_PHASE_MARGIN_MIN_DEG),
@@ -655,6 +675,141 @@ pub fn attempt(
     }
 }
 
+/// What the `limit` strategy needs besides the lines the search judges:
+/// the lines of the limit's program (each input's and its fit's), the
+/// band edge and the computation delay ([`fixed_order`]).
+pub struct ClimbInputs {
+    /// The program's lines ([`ceiling::program_lines`]).
+    pub lines: ceiling::ProgramLines,
+    /// The lowest of the inputs' highest coherent lines, rad/s.
+    pub top_coherent_rad_s: f64,
+    /// The computation delay τ, s.
+    pub computation_delay_s: f64,
+}
+
+/// Most 2 % gain steps of a `limit` design's back-off.
+pub const LIMIT_BACK_OFF_STEPS: usize = 10;
+
+/// An attempt that gave no controller, with the reason.
+fn refused(strategy: &'static str, why: String) -> Attempt {
+    Attempt {
+        strategy,
+        evaluation: Evaluation {
+            // No controller: a placeholder that is never certified.
+            controller: ControllerConfig {
+                description: String::new(),
+                error_unit: crate::control::ErrorUnit::Micrometre,
+                form: crate::control::Form::UnityDc,
+                gain: 1e-3,
+                integrators: 1,
+                real_zeros_rad_s: vec![],
+                real_poles_rad_s: vec![],
+                complex_zeros: vec![],
+                complex_poles: vec![],
+                discretization: crate::control::Discretization::Tustin,
+            },
+            figures: vec![],
+            violation: f64::INFINITY,
+            per_input_violation: vec![],
+            binding: None,
+            sensitivity_bandwidth_min_rad_s: 0.0,
+            objective_rad_s: 0.0,
+            level_rad_s: 0.0,
+        },
+        structure: why,
+    }
+}
+
+/// The `limit` strategy ([`fixed_order`]): from each certified start
+/// (the fast and slow designs), the convex climb towards the limit; each
+/// result certified like every design (its gain backed off by 2 % steps
+/// when it misses a little); the one that meets the margins with the
+/// highest ω*.
+fn limit_attempt(
+    all: &Problem<'_>,
+    climb: Option<&ClimbInputs>,
+    starts: &[&Attempt],
+    req: Requirements,
+    period_s: f64,
+    peak_current_a: f64,
+) -> Attempt {
+    let Some(y) = climb else {
+        return refused("limit", "the climb needs each input's fit".into());
+    };
+    let starts: Vec<&Attempt> = starts
+        .iter()
+        .copied()
+        .filter(|a| a.evaluation.feasible())
+        .collect();
+    if starts.is_empty() {
+        return refused(
+            "limit",
+            "no design of the thesis' families meets the margins to start the climb from".into(),
+        );
+    }
+    let results: Vec<(String, Result<(fixed_order::Climb, Evaluation), String>)> = starts
+        .par_iter()
+        .map(|a| {
+            let r = fixed_order::climb(
+                &y.lines,
+                &a.evaluation.controller,
+                y.top_coherent_rad_s,
+                period_s,
+                y.computation_delay_s,
+                req,
+            )
+            .map(|c| {
+                let mut k = c.controller.clone();
+                let mut e = certify(all, k.clone(), period_s, peak_current_a);
+                for _ in 0..LIMIT_BACK_OFF_STEPS {
+                    if e.feasible() || e.violation > 0.5 {
+                        break;
+                    }
+                    k.gain *= 0.98;
+                    e = certify(all, k.clone(), period_s, peak_current_a);
+                }
+                (c, e)
+            });
+            (a.strategy.to_string(), r)
+        })
+        .collect();
+    let best = results
+        .iter()
+        .filter_map(|(s, r)| r.as_ref().ok().map(|(c, e)| (s, c, e)))
+        .filter(|(_, _, e)| e.feasible())
+        .max_by(|a, b| a.2.objective_rad_s.total_cmp(&b.2.objective_rad_s));
+    match best {
+        Some((from, c, e)) => Attempt {
+            strategy: "limit",
+            evaluation: e.clone(),
+            structure: format!(
+                "a controller of {} poles (integrator included) climbed from the {from} design by {} convex steps on every line (Karimi's inner approximation of |1 + L|: robust performance |W_P S| + w_I |T| ≤ 1 with the computation delay and the lines' 2σ, |T| bounded for the phase margin and at the band edge, a stable controller): robust ω* from {:.0} to {:.0} rad/s",
+                fixed_order::ORDER + 1,
+                c.steps,
+                c.start_bandwidth_rad_s,
+                c.robust_bandwidth_rad_s
+            ),
+        },
+        None => {
+            let why: Vec<String> = results
+                .iter()
+                .map(|(s, r)| match r {
+                    Ok((_, e)) => format!(
+                        "from {s}: {}",
+                        e.binding.as_ref().map_or("no figure".into(), |b| b.to_string())
+                    ),
+                    Err(m) => format!("from {s}: {m}"),
+                })
+                .collect();
+            let mut a = refused("limit", why.join("; "));
+            if let Some((_, Ok((_, e)))) = results.iter().find(|(_, r)| r.is_ok()) {
+                a.evaluation = e.clone();
+            }
+            a
+        }
+    }
+}
+
 /// Judges `controller` as it will run: discretised at `period_s`, its
 /// response `C_d(e^{jωT})` on every line.
 pub fn certify(
@@ -665,6 +820,17 @@ pub fn certify(
 ) -> Evaluation {
     let d = DiscreteController::new(&controller, period_s, peak_current_a);
     problem.evaluate_with(controller, &|w| d.response(w, period_s))
+}
+
+/// Why the `limit` strategy gave nothing: its refusal, or the margin its
+/// best reduction misses.
+fn limit_reason(a: &Attempt) -> String {
+    match &a.evaluation.binding {
+        None => a.structure.clone(),
+        Some(b) => format!(
+            "no reduction of the limit's controller meets the margins (the best misses by {b})"
+        ),
+    }
 }
 
 /// The chosen design and the story of the choice.
@@ -691,6 +857,7 @@ pub fn design(
     spec: &DesignSpec,
     period_s: f64,
     peak_current_a: f64,
+    climb: Option<&ClimbInputs>,
 ) -> Result<Designed, DesignError> {
     let req = spec.requirements;
     // The computation delay is at most τ, not exactly τ (a command may reach
@@ -715,7 +882,7 @@ pub fn design(
         all.extend(frfs.iter().map(undelayed));
         models.extend(model.iter().map(undelayed));
     }
-    let run = |s| {
+    let run_from = |s, starts: &[&Attempt]| {
         attempt(
             &all,
             &models,
@@ -725,8 +892,10 @@ pub fn design(
             req,
             period_s,
             peak_current_a,
+            climb.map(|c| (c, starts)),
         )
     };
+    let run = |s| run_from(s, &[]);
     let inputs = frfs
         .iter()
         .map(|f| f.label.as_str())
@@ -782,20 +951,71 @@ pub fn design(
                 chosen: s,
             })
         }
-        Strategy::Auto => {
-            let f = run(Strategy::Fast);
-            let s = run(Strategy::Slow);
-            let wb = |a: &Attempt| a.evaluation.sensitivity_bandwidth_min_rad_s;
-            let (chosen, why) = match (f.evaluation.feasible(), s.evaluation.feasible()) {
-                (true, true) if wb(&f) > wb(&s) => (f.clone(), format!("auto: fast meets the margins with ω_B {:.1} rad/s, above slow's {:.1} rad/s: {}", wb(&f), wb(&s), f.structure)),
-                (true, true) => (s.clone(), format!("auto: slow meets the margins with ω_B {:.1} rad/s, not below fast's {:.1} rad/s: {}", wb(&s), wb(&f), s.structure)),
-                (true, false) => (f.clone(), format!("auto: only fast meets the margins ({}): {}", fail(&s).reason, f.structure)),
-                (false, true) => (s.clone(), format!("auto: only slow meets the margins ({}): {}", fail(&f).reason, s.structure)),
-                (false, false) => return Err(fail(&f)),
+        Strategy::Limit => {
+            let (f, s) = rayon::join(|| run(Strategy::Fast), || run(Strategy::Slow));
+            let a = run_from(Strategy::Limit, &[&f, &s]);
+            if a.evaluation.feasible() {
+                return Ok(Designed {
+                    why: format!("limit requested: {}", a.structure),
+                    attempts: vec![a.clone(), f, s],
+                    chosen: a,
+                });
+            }
+            // Refuse limit with its reason, and give the best of the others.
+            let w = |a: &Attempt| a.evaluation.objective_rad_s;
+            let chosen = match (f.evaluation.feasible(), s.evaluation.feasible()) {
+                (true, true) if w(&f) > w(&s) => f.clone(),
+                (true, _) => f.clone(),
+                (false, true) => s.clone(),
+                (false, false) => return Err(fail(&a)),
             };
             Ok(Designed {
+                why: format!(
+                    "limit requested, but {}; the {} design is given instead: {}",
+                    limit_reason(&a),
+                    chosen.strategy,
+                    chosen.structure
+                ),
+                attempts: vec![a, f, s],
                 chosen,
-                attempts: vec![f, s],
+            })
+        }
+        Strategy::Auto => {
+            let (f, s) = rayon::join(|| run(Strategy::Fast), || run(Strategy::Slow));
+            let l = run_from(Strategy::Limit, &[&f, &s]);
+            let w = |a: &Attempt| a.evaluation.objective_rad_s;
+            let mut feasible: Vec<&Attempt> = [&l, &f, &s]
+                .into_iter()
+                .filter(|a| a.evaluation.feasible())
+                .collect();
+            feasible.sort_by(|a, b| w(b).total_cmp(&w(a)));
+            let Some(best) = feasible.first().copied() else {
+                return Err(fail(&f));
+            };
+            let others: Vec<String> = [&l, &f, &s]
+                .into_iter()
+                .filter(|a| a.strategy != best.strategy)
+                .map(|a| {
+                    if a.evaluation.feasible() {
+                        format!("{} ω* {:.1} rad/s", a.strategy, w(a))
+                    } else if a.strategy == "limit" {
+                        format!("limit: {}", limit_reason(a))
+                    } else {
+                        format!("{}: {}", a.strategy, fail(a).reason)
+                    }
+                })
+                .collect();
+            let why = format!(
+                "auto: {} meets the margins with the highest performance bandwidth ω* {:.1} rad/s (ω_B {:.1} rad/s; {}): {}",
+                best.strategy,
+                w(best),
+                best.evaluation.sensitivity_bandwidth_min_rad_s,
+                others.join("; "),
+                best.structure
+            );
+            Ok(Designed {
+                chosen: best.clone(),
+                attempts: vec![f, s, l],
                 why,
             })
         }

@@ -182,12 +182,14 @@ pub struct InputFigures {
 /// One strategy tried.
 #[derive(Debug, Clone, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct StrategyOutcome {
-    /// `slow` or `fast`.
+    /// `slow`, `fast` or `limit`.
     pub strategy: String,
     /// Meets every margin on every input.
     pub meets_margins: bool,
     /// Smallest ω_B over the inputs, rad/s.
     pub sensitivity_bandwidth_rad_s: f64,
+    /// Its performance bandwidth ω* over the inputs and models, rad/s.
+    pub performance_bandwidth_rad_s: f64,
     /// The structure and why.
     pub structure: String,
     /// The binding (or most violated) constraint.
@@ -522,12 +524,28 @@ pub fn run_design(opts: &DesignOptions) -> Result<DesignSummary, RunError> {
             settling_s: &settle_of,
         });
     let s_max = spec.requirements.sensitivity_peak_max;
+    let relative_sigma = crate::design::coherent_relative_sigma(&read.frfs);
+    // The `limit` strategy climbs on the limit's lines.
+    let climb = crate::design::ClimbInputs {
+        lines: crate::design::ceiling::program_lines(
+            &frfs,
+            &relative_sigma,
+            &plants,
+            period_s,
+            spec.computation_delay_s,
+        ),
+        top_coherent_rad_s: frfs
+            .iter()
+            .filter_map(|f| f.omega_rad_s.last().copied())
+            .fold(f64::INFINITY, f64::min),
+        computation_delay_s: spec.computation_delay_s,
+    };
     // The limit and the design are independent: side by side.
     let (limit, d) = rayon::join(
         || {
             bench_limit(
                 &frfs,
-                &crate::design::coherent_relative_sigma(&read.frfs),
+                &relative_sigma,
                 &plants,
                 period_s,
                 spec.computation_delay_s,
@@ -543,6 +561,7 @@ pub fn run_design(opts: &DesignOptions) -> Result<DesignSummary, RunError> {
                 &spec,
                 period_s,
                 cfg.actuator.peak_current_a,
+                Some(&climb),
             )
         },
     );
@@ -719,6 +738,7 @@ pub fn run_design(opts: &DesignOptions) -> Result<DesignSummary, RunError> {
                 strategy: a.strategy.to_string(),
                 meets_margins: a.evaluation.feasible(),
                 sensitivity_bandwidth_rad_s: a.evaluation.sensitivity_bandwidth_min_rad_s,
+                performance_bandwidth_rad_s: a.evaluation.objective_rad_s,
                 structure: a.structure.clone(),
                 binding: a.evaluation.binding.clone(),
             })

@@ -81,6 +81,7 @@ fn fast_design_on_the_chapter_5_model() {
         &spec,
         t,
         cfg.actuator.peak_current_a,
+        None,
     )
     .unwrap();
     eprintln!("design time {:.2} s", t0.elapsed().as_secs_f64());
@@ -111,6 +112,7 @@ fn fast_design_on_the_chapter_5_model() {
         cfg.controller["fast"].clone(),
         t,
         cfg.actuator.peak_current_a,
+        None,
     );
     let f = &thesis.figures[0];
     eprintln!(
@@ -175,6 +177,7 @@ fn design_on(
         &spec,
         t,
         cfg.actuator.peak_current_a,
+        None,
     )
     .map_err(|e| e.to_string())?;
     Ok((

@@ -1,0 +1,781 @@
+//! The `limit` strategy: a fixed-order discrete controller that climbs
+//! towards the limit by convex steps on the measured lines.
+//!
+//! # The controller
+//! `C(z) = X(z⁻¹) / ((1 − z⁻¹) Ȳ(z⁻¹))` (A/µm) with `X` of degree
+//! `n + 1`, `Ȳ` monic of degree `n` ([`ORDER`]): integral action, `n + 1`
+//! poles, at most twelve second-order sections.
+//!
+//! # One step (Karimi & Kammer, *Automatica* 85, 2017; Karimi, Nicoletti
+//! & Zhu, *Int. J. Robust Nonlinear Control* 28(12), 2018)
+//! With the loop `L = P C` and `Φ = Y + P X` (`Y = (1 − z⁻¹) Ȳ`), every
+//! constraint on a line is a bound on `|·|/|Φ|`, and
+//! `|Φ| ≥ Re{Φ Φ_c*}/|Φ_c|` for the current controller's `Φ_c`
+//! (Cauchy–Schwarz, equal at the current controller). Replacing `|Φ|` by
+//! that affine lower bound gives second-order cones in `(X, Ȳ)` whose
+//! solutions meet the true constraints: an inner convex approximation
+//! that holds the current controller, so every step keeps what it had.
+//! On each line `k` of every input and of its fit (the limit's lines,
+//! [`super::ceiling::program_lines`]):
+//! - robust performance `|W_P Y| + w_I |P X| ≤ Re{Φ Φ_c*}/|Φ_c| − t |Φ_c|`
+//!   (`|W_P S| + w_I |T| ≤ 1 − t`; Skogestad & Postlethwaite §7.5), with
+//!   `W_P(s) = (s/M + ω*)/s` and `w_I(ω) = 2 sin(ωτ/2) + 2σ(ω)`: the
+//!   computation delay anywhere in `[0, τ]` and the line's 2σ relative
+//!   error (the FRF's `sigma_m_per_a`; none on a fit's line);
+//! - `|T| ≤ t_max`: `1/(2 sin(PM/2))` for the phase margin (at a
+//!   crossover |S| = |T|), [`EDGE_T_MAX`] from [`EDGE_FRACTION`] of the
+//!   highest coherent line up (|L| ≤ −10 dB where the measurement ends);
+//! - a stable controller: `Re{Ȳ Ȳ_c*} > 0` on the unit circle, so `Ȳ`
+//!   winds as the stable `Ȳ_c` does and has no zero outside it.
+//!
+//! and `t` is maximised at a target ω*. When the closed loop's `Φ_c`
+//! has no zero outside the unit circle (a stabilising start) and
+//! `Re{Φ Φ_c*} > 0` on every frequency, `Φ` winds as `Φ_c` does, so the
+//! new loop is stable too (the plant is stable; the argument principle).
+//! The target rises while steps meet it and the step shrinks when they
+//! do not; the start is the best certified design of the thesis'
+//! families. The result is judged by the certificate like every design.
+//!
+//! # To the config
+//! Poles (the roots of `Ȳ`, and z = 1) and zeros (of `X`) go to the
+//! config's factored form by the inverse bilinear map
+//! `s = (2/T)(z − 1)/(z + 1)`, and the controller runs through the same
+//! map (`discretization = "bilinear"`), so what runs is `C` exactly.
+//! Zeros outside the unit circle are right-half-plane zeros, written
+//! with negative corners or ζ.
+
+use super::ceiling::ProgramLines;
+use super::limit::performance_weight_magnitude;
+use super::search::Requirements;
+use crate::config::controller::CORNER_RAD_S;
+use crate::control::{
+    ComplexPair, ControllerConfig, DiscreteController, Discretization, ErrorUnit, Form,
+};
+use crate::ident::C64;
+use clarabel::algebra::CscMatrix;
+use clarabel::solver::{DefaultSettings, DefaultSolver, IPSolver, SolverStatus, SupportedConeT};
+use nalgebra::{DMatrix, DVector};
+use std::f64::consts::PI;
+
+/// Poles of `Ȳ` (the controller has one more, the integrator).
+pub const ORDER: usize = 15;
+/// The band edge's bound on |T| (|L| ≤ 0.24/(1 − 0.24) = −10.0 dB).
+pub const EDGE_T_MAX: f64 = 0.24;
+/// The band edge starts at this fraction of the highest coherent line.
+pub const EDGE_FRACTION: f64 = 0.9;
+/// Most convex steps.
+pub const MAX_STEPS: usize = 40;
+/// The controller's poles stay inside this radius: no pole damped less
+/// than `ζω = −ln(r)/T` (2 s⁻¹ at 5 kHz), so that the poles that reach
+/// the factored form are stable with room.
+pub const MAX_POLE_RADIUS: f64 = 0.9996;
+/// `Re{Ȳ Ȳ_c*}/|Ȳ_c|²` kept at least this (a stable `Ȳ` with room).
+const DENOMINATOR_MARGIN: f64 = 0.05;
+/// The error unit per metre (µm).
+const PER_METRE: f64 = 1e6;
+
+/// `Σ cᵢ ζⁱ` (Horner).
+fn poly(c: &[f64], zeta: C64) -> C64 {
+    c.iter()
+        .rev()
+        .fold(C64::new(0.0, 0.0), |acc, &x| acc * zeta + x)
+}
+
+/// The controller's polynomials in `z⁻¹`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Polynomials {
+    /// `X`, `n + 2` coefficients (A/µm).
+    pub x: Vec<f64>,
+    /// `Ȳ`, `n + 1` coefficients, the first 1.
+    pub y: Vec<f64>,
+}
+
+impl Polynomials {
+    /// `X(ζ)`, `Y(ζ) = (1 − ζ) Ȳ(ζ)` and `Ȳ(ζ)` at `ζ = e^{−jωT}`.
+    fn at(&self, zeta: C64) -> (C64, C64, C64) {
+        let yb = poly(&self.y, zeta);
+        (poly(&self.x, zeta), (1.0 - zeta) * yb, yb)
+    }
+
+    /// `C(e^{jωT})`, A/µm.
+    pub fn response(&self, omega_rad_s: f64, period_s: f64) -> C64 {
+        let (x, y, _) = self.at(C64::from_polar(1.0, -omega_rad_s * period_s));
+        x / y
+    }
+
+    /// A discrete controller with one integrator as `X/((1 − z⁻¹)Ȳ)`,
+    /// padded to `order` (`None`: it has more poles, or no integrator).
+    pub fn of(c: &DiscreteController, order: usize) -> Option<Self> {
+        let mut num = vec![c.gain()];
+        let mut den = vec![1.0];
+        let mul = |p: &[f64], q: &[f64]| {
+            let mut r = vec![0.0; p.len() + q.len() - 1];
+            for (i, a) in p.iter().enumerate() {
+                for (j, b) in q.iter().enumerate() {
+                    r[i + j] += a * b;
+                }
+            }
+            r
+        };
+        for s in c.sections() {
+            num = mul(&num, &s.b);
+            den = mul(&den, &[1.0, s.a[0], s.a[1]]);
+        }
+        // Y = (1 − ζ) Ȳ: ȳ_i = y_i + ȳ_{i−1}; the remainder must vanish.
+        let mut yb = vec![0.0; den.len() - 1];
+        let mut acc = 0.0;
+        for i in 0..yb.len() {
+            acc += den[i];
+            yb[i] = acc;
+        }
+        let rem = acc + den[den.len() - 1];
+        if rem.abs() > 1e-6 * den.iter().map(|v| v.abs()).sum::<f64>() {
+            return None;
+        }
+        while yb.len() > 1 && yb.last() == Some(&0.0) {
+            yb.pop();
+        }
+        while num.len() > 1 && num.last().is_some_and(|v| v.abs() < 1e-300) {
+            num.pop();
+        }
+        if yb.len() > order + 1 || num.len() > order + 2 {
+            return None;
+        }
+        yb.resize(order + 1, 0.0);
+        num.resize(order + 2, 0.0);
+        Some(Self { x: num, y: yb })
+    }
+}
+
+/// One line of the program.
+#[derive(Debug, Clone, Copy)]
+struct Line {
+    omega_rad_s: f64,
+    /// The plant, µm/A, over the scale.
+    plant: C64,
+    /// The fit at the line (µm/A, over the scale) and the line's
+    /// relative 1σ, where measured.
+    stand_in: Option<(C64, f64)>,
+    uncertainty: f64,
+    t_max: f64,
+}
+
+impl Line {
+    /// The plant the program uses at ω*: the line, or the fit where the
+    /// line's 2σ hides the weight's bound (as the limit does,
+    /// [`super::limit::NOISE_RESOLUTION`]).
+    fn plant_at(&self, w_star: f64, s_max: f64) -> C64 {
+        match self.stand_in {
+            Some((m, sigma))
+                if 2.0 * sigma * performance_weight_magnitude(self.omega_rad_s, w_star, s_max)
+                    > super::limit::NOISE_RESOLUTION =>
+            {
+                m
+            }
+            _ => self.plant,
+        }
+    }
+}
+
+/// The robust ω* of `c` on `lines`: the largest ω* with
+/// `|W_P S| + w_I |T| ≤ 1` and `|T| ≤ t_max` on every line (0: none).
+fn robust_bandwidth(c: &Polynomials, lines: &[Line], period_s: f64, s_max: f64, guess: f64) -> f64 {
+    // The stand-in depends on ω*; two passes settle it.
+    let mut w = guess;
+    for _ in 0..3 {
+        let mut best = f64::INFINITY;
+        for l in lines {
+            let zeta = C64::from_polar(1.0, -l.omega_rad_s * period_s);
+            let (x, y, _) = c.at(zeta);
+            let px = l.plant_at(w.max(1e-9), s_max) * x;
+            let phi = y + px;
+            let (s, t) = ((y / phi).norm(), (px / phi).norm());
+            let room = 1.0 - l.uncertainty * t;
+            if t > l.t_max || room <= s / s_max || !phi.is_finite() {
+                return 0.0;
+            }
+            best = best.min(l.omega_rad_s * ((room / s).powi(2) - 1.0 / (s_max * s_max)).sqrt());
+        }
+        w = best;
+    }
+    w
+}
+
+/// A sparse constraint matrix built row by row (`s = b − A v`).
+#[derive(Default)]
+struct Rows {
+    ri: Vec<usize>,
+    ci: Vec<usize>,
+    vals: Vec<f64>,
+    b: Vec<f64>,
+    cones: Vec<SupportedConeT<f64>>,
+}
+
+impl Rows {
+    /// One row `s = constant + Σ coef·v` (so `A = −coef`).
+    fn row(&mut self, constant: f64, coefs: impl IntoIterator<Item = (usize, f64)>) {
+        let r = self.b.len();
+        for (c, v) in coefs {
+            if v != 0.0 {
+                self.ri.push(r);
+                self.ci.push(c);
+                self.vals.push(-v);
+            }
+        }
+        self.b.push(constant);
+    }
+}
+
+/// An affine complex expression `c0 + Σ cᵢ vᵢ` over the variables.
+#[derive(Clone)]
+struct Affine {
+    c0: C64,
+    terms: Vec<(usize, C64)>,
+}
+
+impl Affine {
+    fn scale(&self, k: C64) -> Self {
+        Self {
+            c0: self.c0 * k,
+            terms: self.terms.iter().map(|(i, c)| (*i, c * k)).collect(),
+        }
+    }
+    fn re(&self) -> (f64, Vec<(usize, f64)>) {
+        (
+            self.c0.re,
+            self.terms.iter().map(|(i, c)| (*i, c.re)).collect(),
+        )
+    }
+    fn im(&self) -> (f64, Vec<(usize, f64)>) {
+        (
+            self.c0.im,
+            self.terms.iter().map(|(i, c)| (*i, c.im)).collect(),
+        )
+    }
+}
+
+/// A change of variables `v = V Σ⁻¹ ṽ` that makes the columns `m`
+/// (real, rows × cols) orthonormal (`U`): the monomials `ζⁱ` are nearly
+/// collinear at low frequency, and the interior point needs well
+/// conditioned columns. Directions whose singular value is under 1e-9 of
+/// the largest are dropped (the lines cannot see them). Returns the map
+/// (cols × kept).
+fn conditioning(m: DMatrix<f64>) -> DMatrix<f64> {
+    let n = m.ncols();
+    let svd = m.svd(false, true);
+    let Some(vt) = svd.v_t else {
+        return DMatrix::identity(n, n);
+    };
+    let top = svd.singular_values.max();
+    let keep: Vec<usize> = (0..svd.singular_values.len())
+        .filter(|&k| svd.singular_values[k] > 1e-9 * top)
+        .collect();
+    DMatrix::from_fn(n, keep.len(), |i, j| {
+        vt[(keep[j], i)] / svd.singular_values[keep[j]]
+    })
+}
+
+/// One convex step at `w_star` from `cur`: the new polynomials and the
+/// margin `t` reached (`t ≥ 0`: the target is met). `None` when the
+/// solver fails.
+fn step(
+    cur: &Polynomials,
+    lines: &[Line],
+    grid: &[f64],
+    period_s: f64,
+    s_max: f64,
+    w_star: f64,
+) -> Option<(Polynomials, f64)> {
+    let (nx, ny) = (cur.x.len(), cur.y.len() - 1);
+    let nl = lines.len();
+    // Per line: Y_c/|Φ_c|, P X_c/|Φ_c|, Φ_c/|Φ_c|, and the columns of
+    // x and y (normalised by |Φ_c|).
+    struct At {
+        y: C64,
+        px: C64,
+        unit: C64,
+        cx: Vec<C64>,
+        cy: Vec<C64>,
+        w: f64,
+        u: f64,
+        t_max: f64,
+    }
+    let at: Vec<At> = lines
+        .iter()
+        .map(|l| {
+            let zeta = C64::from_polar(1.0, -l.omega_rad_s * period_s);
+            let p = l.plant_at(w_star, s_max);
+            let (xc, yc, _) = cur.at(zeta);
+            let phi = yc + p * xc;
+            let inv = 1.0 / phi.norm();
+            let one_minus = 1.0 - zeta;
+            At {
+                y: yc * inv,
+                px: p * xc * inv,
+                unit: phi * inv,
+                cx: (0..nx).map(|i| p * zeta.powi(i as i32) * inv).collect(),
+                cy: (1..=ny)
+                    .map(|i| one_minus * zeta.powi(i as i32) * inv)
+                    .collect(),
+                w: performance_weight_magnitude(l.omega_rad_s, w_star, s_max),
+                u: l.uncertainty,
+                t_max: l.t_max,
+            }
+        })
+        .collect();
+    // The grid of the denominator's winding: Ȳ_c/|Ȳ_c| and y's columns.
+    let gy: Vec<(C64, Vec<C64>)> = grid
+        .iter()
+        .map(|w| {
+            let zeta = C64::from_polar(1.0, -w * period_s);
+            let (_, _, ybc) = cur.at(zeta);
+            let inv = 1.0 / ybc.norm();
+            (
+                ybc * inv,
+                (1..=ny).map(|i| zeta.powi(i as i32) * inv).collect(),
+            )
+        })
+        .collect();
+    let stack = |cols: usize, rows: &mut dyn Iterator<Item = &Vec<C64>>| {
+        let v: Vec<&Vec<C64>> = rows.collect();
+        let r = v.len();
+        DMatrix::from_fn(2 * r, cols, |i, j| {
+            let c = v[i % r][j];
+            if i < r {
+                c.re
+            } else {
+                c.im
+            }
+        })
+    };
+    let tx = conditioning(stack(nx, &mut at.iter().map(|a| &a.cx)));
+    let ty = conditioning(stack(
+        ny,
+        &mut at.iter().map(|a| &a.cy).chain(gy.iter().map(|g| &g.1)),
+    ));
+    let (rx, ry) = (tx.ncols(), ty.ncols());
+    let map = |c: &[C64], t: &DMatrix<f64>| -> Vec<C64> {
+        (0..t.ncols())
+            .map(|j| c.iter().enumerate().map(|(i, v)| v * t[(i, j)]).sum())
+            .collect()
+    };
+    // Variables: x̃ (rx), ỹ (ry), t, then a_k, b_k per line.
+    let it = rx + ry;
+    let nv = it + 1 + 2 * nl;
+    let mut rows = Rows::default();
+    let mut soc = 0usize;
+    let mut lin_rows: Vec<(f64, Vec<(usize, f64)>)> = Vec::new();
+    for (k, a) in at.iter().enumerate() {
+        let cx = map(&a.cx, &tx);
+        let cy = map(&a.cy, &ty);
+        let y_aff = Affine {
+            c0: a.y,
+            terms: cy.iter().enumerate().map(|(j, c)| (rx + j, *c)).collect(),
+        };
+        let px_aff = Affine {
+            c0: a.px,
+            terms: cx.iter().enumerate().map(|(j, c)| (j, *c)).collect(),
+        };
+        // lin = Re{(Y + PX)/|Φ_c| · Φ_c*/|Φ_c|}.
+        let conj = a.unit.conj();
+        let mut terms: Vec<(usize, C64)> = px_aff.terms.clone();
+        terms.extend(y_aff.terms.iter().copied());
+        let lin = Affine {
+            c0: (a.y + a.px) * conj,
+            terms: terms.iter().map(|(i, c)| (*i, c * conj)).collect(),
+        }
+        .re();
+        let (ak, bk) = (it + 1 + 2 * k, it + 2 + 2 * k);
+        for (head, aff) in [
+            (ak, y_aff.scale(C64::new(a.w, 0.0))),
+            (bk, px_aff.scale(C64::new(a.u, 0.0))),
+        ] {
+            rows.row(0.0, [(head, 1.0)]);
+            let (c, t) = aff.re();
+            rows.row(c, t);
+            let (c, t) = aff.im();
+            rows.row(c, t);
+            soc += 1;
+        }
+        if a.t_max.is_finite() {
+            let mut head: Vec<(usize, f64)> =
+                lin.1.iter().map(|(i, v)| (*i, v * a.t_max)).collect();
+            head.push((it, -a.t_max));
+            rows.row(lin.0 * a.t_max, head);
+            let (c, t) = px_aff.re();
+            rows.row(c, t);
+            let (c, t) = px_aff.im();
+            rows.row(c, t);
+            soc += 1;
+        }
+        let mut r = lin.1.clone();
+        r.extend([(it, -1.0), (ak, -1.0), (bk, -1.0)]);
+        lin_rows.push((lin.0, r));
+    }
+    for _ in 0..soc {
+        rows.cones.push(SupportedConeT::SecondOrderConeT(3));
+    }
+    // A stable Ȳ: Re{Ȳ Ȳ_c*}/|Ȳ_c|² ≥ margin on the grid.
+    for (unit, cols) in &gy {
+        let conj = unit.conj();
+        let c = map(cols, &ty);
+        lin_rows.push((
+            1.0 - DENOMINATOR_MARGIN,
+            c.iter()
+                .enumerate()
+                .map(|(j, v)| (rx + j, (v * conj).re))
+                .collect(),
+        ));
+    }
+    // t ≤ 1.
+    lin_rows.push((1.0, vec![(it, -1.0)]));
+    let nn = lin_rows.len();
+    for (c, r) in lin_rows {
+        rows.row(c, r);
+    }
+    rows.cones.push(SupportedConeT::NonnegativeConeT(nn));
+    let m = rows.b.len();
+    let a = CscMatrix::new_from_triplets(m, nv, rows.ri, rows.ci, rows.vals);
+    let pm = CscMatrix::zeros((nv, nv));
+    let mut q = vec![0.0; nv];
+    q[it] = -1.0;
+    let settings = DefaultSettings::<f64> {
+        verbose: false,
+        max_iter: 100,
+        ..DefaultSettings::default()
+    };
+    let mut solver = DefaultSolver::new(&pm, &q, &a, &rows.b, &rows.cones, settings).ok()?;
+    solver.solve();
+    match solver.solution.status {
+        SolverStatus::Solved | SolverStatus::AlmostSolved => {
+            let v = &solver.solution.x;
+            let dx = &tx * DVector::from_column_slice(&v[..rx]);
+            let dy = &ty * DVector::from_column_slice(&v[rx..rx + ry]);
+            let x = cur.x.iter().zip(dx.iter()).map(|(a, b)| a + b).collect();
+            let mut y = vec![1.0];
+            y.extend(cur.y[1..].iter().zip(dy.iter()).map(|(a, b)| a + b));
+            Some((Polynomials { x, y }, v[it]))
+        }
+        s => {
+            tracing::debug!(status = ?s, w_star, "limit strategy: the step's program did not solve");
+            None
+        }
+    }
+}
+
+/// What the climb reached.
+#[derive(Debug, Clone)]
+pub struct Climb {
+    /// The controller, as the config writes it (A/µm).
+    pub controller: ControllerConfig,
+    /// Its robust ω* on the program's lines (rad/s).
+    pub robust_bandwidth_rad_s: f64,
+    /// The start's.
+    pub start_bandwidth_rad_s: f64,
+    /// Convex steps taken.
+    pub steps: usize,
+}
+
+/// Climbs from `start` (a certified design with one integrator) on the
+/// lines of `set`.
+///
+/// `top_coherent_rad_s` is the lowest of the inputs' highest coherent
+/// lines (the band edge), `delay_s` the computation delay.
+///
+/// # Errors
+/// A start that is not of the form (`C = X/((1 − z⁻¹)Ȳ)` of at most
+/// [`ORDER`] + 1 poles), or whose loop does not meet the robust
+/// constraints at any ω*; a result that does not convert to the
+/// factored form.
+pub fn climb(
+    set: &ProgramLines,
+    start: &ControllerConfig,
+    top_coherent_rad_s: f64,
+    period_s: f64,
+    delay_s: f64,
+    req: Requirements,
+) -> Result<Climb, String> {
+    let d = DiscreteController::new(start, period_s, f64::INFINITY);
+    let mut cur = Polynomials::of(&d, ORDER).ok_or_else(|| {
+        format!(
+            "the start ({} sections) is not X/((1 − z⁻¹)Ȳ) with at most {} poles",
+            d.sections().len(),
+            ORDER + 1
+        )
+    })?;
+    let m_gm = 1.0 / (1.0 - 10f64.powf(-req.gain_margin_min_db / 20.0));
+    let s_max = req.sensitivity_peak_max.min(m_gm) * 0.98;
+    let t_pm = 0.98 / (2.0 * (req.phase_margin_min_deg.to_radians() / 2.0).sin());
+    // The lines, the plant in µm/A over a scale (|P| at the lowest line).
+    let mut lines: Vec<Line> = Vec::new();
+    let shape = |w: f64, sigma: f64| {
+        let delay = 2.0 * (0.5 * w * delay_s).min(0.5 * PI).sin();
+        let noise = if sigma.is_finite() { 2.0 * sigma } else { 0.0 };
+        let t_max = if w >= EDGE_FRACTION * top_coherent_rad_s {
+            EDGE_T_MAX
+        } else {
+            t_pm
+        };
+        (delay + noise, t_max)
+    };
+    for (f, sigma, model) in &set.measured {
+        for k in 0..f.omega_rad_s.len() {
+            let (u, t_max) = shape(f.omega_rad_s[k], sigma[k]);
+            lines.push(Line {
+                omega_rad_s: f.omega_rad_s[k],
+                plant: f.plant_m_per_a[k] * PER_METRE,
+                stand_in: (sigma[k].is_finite() && sigma[k] > 0.0 && model[k].is_finite())
+                    .then(|| (model[k] * PER_METRE, sigma[k])),
+                uncertainty: u,
+                t_max,
+            });
+        }
+    }
+    for (_, w, h) in &set.models {
+        for (wk, hk) in w.iter().zip(h) {
+            let (u, t_max) = shape(*wk, f64::NAN);
+            lines.push(Line {
+                omega_rad_s: *wk,
+                plant: hk * PER_METRE,
+                stand_in: None,
+                uncertainty: u,
+                t_max,
+            });
+        }
+    }
+    if lines.is_empty() {
+        return Err("no lines".into());
+    }
+    let scale = lines
+        .iter()
+        .min_by(|a, b| a.omega_rad_s.total_cmp(&b.omega_rad_s))
+        .map(|l| l.plant.norm())
+        .unwrap_or(1.0);
+    for l in &mut lines {
+        l.plant /= scale;
+        if let Some((m, _)) = &mut l.stand_in {
+            *m /= scale;
+        }
+    }
+    for v in &mut cur.x {
+        *v *= scale;
+    }
+    let nyquist = PI / period_s;
+    // The winding grid: log-spaced from the lowest line to Nyquist, and
+    // every line.
+    let lowest = lines
+        .iter()
+        .map(|l| l.omega_rad_s)
+        .fold(f64::INFINITY, f64::min);
+    let mut grid: Vec<f64> = (0..=400)
+        .map(|i| lowest * (0.999 * nyquist / lowest).powf(i as f64 / 400.0))
+        .collect();
+    grid.extend(lines.iter().map(|l| l.omega_rad_s));
+    let start_w = robust_bandwidth(&cur, &lines, period_s, s_max, 1.0);
+    if start_w <= 0.0 {
+        return Err(format!(
+            "the start ({}) does not meet the robust constraints (|W_P S| + w_I |T| ≤ 1, |T| ≤ {t_pm:.2}) at any ω*",
+            start.description
+        ));
+    }
+    let mut w_cur = start_w;
+    let mut growth = 0.3;
+    let mut steps = 0;
+    while steps < MAX_STEPS && growth > 0.01 {
+        let target = w_cur * (1.0 + growth);
+        steps += 1;
+        let Some((next, t)) = step(&cur, &lines, &grid, period_s, s_max, target) else {
+            growth *= 0.5;
+            continue;
+        };
+        // The grid cannot see a root of Ȳ that crosses the unit circle
+        // between its points: the roots themselves are checked.
+        let stable = roots_in_z(&next.y)
+            .iter()
+            .all(|r| r.norm() < MAX_POLE_RADIUS);
+        let w_next = if stable {
+            robust_bandwidth(&next, &lines, period_s, s_max, target)
+        } else {
+            0.0
+        };
+        tracing::debug!(
+            step = steps,
+            target,
+            t,
+            w_next,
+            w_cur,
+            "limit strategy: one convex step"
+        );
+        if w_next > w_cur * (1.0 + 1e-3) {
+            cur = next;
+            w_cur = w_next;
+            if t >= 0.0 {
+                growth *= 1.5;
+            }
+        } else {
+            growth *= 0.5;
+        }
+    }
+    for v in &mut cur.x {
+        *v /= scale;
+    }
+    let controller = to_config(&cur, period_s)?;
+    Ok(Climb {
+        controller,
+        robust_bandwidth_rad_s: w_cur,
+        start_bandwidth_rad_s: start_w,
+        steps,
+    })
+}
+
+/// Roots of `Σ cᵢ ζⁱ` as values of `z = 1/ζ`: the eigenvalues of the
+/// companion matrix of `c₀ zᵐ + c₁ zᵐ⁻¹ + … + c_m` (trailing zeros of
+/// `c` are roots at z = 0 … no: a shorter polynomial, fewer roots).
+fn roots_in_z(c: &[f64]) -> Vec<C64> {
+    let mut c: Vec<f64> = c.to_vec();
+    while c.len() > 1 && c.last() == Some(&0.0) {
+        c.pop();
+    }
+    let m = c.len() - 1;
+    if m == 0 || c[0] == 0.0 {
+        return vec![];
+    }
+    let mut a = DMatrix::<f64>::zeros(m, m);
+    for j in 0..m {
+        a[(0, j)] = -c[j + 1] / c[0];
+    }
+    for i in 1..m {
+        a[(i, i - 1)] = 1.0;
+    }
+    a.complex_eigenvalues().iter().copied().collect()
+}
+
+/// `s = (2/T)(z − 1)/(z + 1)`.
+fn to_s(z: C64, period_s: f64) -> C64 {
+    (z - 1.0) / (z + 1.0) * (2.0 / period_s)
+}
+
+/// The polynomials as the config's factored form (module docs).
+///
+/// # Errors
+/// An unstable pole, or a corner outside the config's range.
+pub fn to_config(c: &Polynomials, period_s: f64) -> Result<ControllerConfig, String> {
+    let poles = roots_in_z(&c.y);
+    let mut zeros = roots_in_z(&c.x);
+    // X's leading coefficient near zero: a root at z = ∞ lost; the
+    // bilinear map of the continuous form puts it at z = −1.
+    zeros.retain(|z| z.is_finite());
+    let mut cfg = ControllerConfig {
+        description: String::new(),
+        error_unit: ErrorUnit::Micrometre,
+        form: Form::UnityDc,
+        gain: 1.0,
+        integrators: 1,
+        real_zeros_rad_s: vec![],
+        real_poles_rad_s: vec![],
+        complex_zeros: vec![],
+        complex_poles: vec![],
+        discretization: Discretization::Bilinear,
+    };
+    let (lo, hi) = CORNER_RAD_S;
+    let is_real = |r: &C64| r.im.abs() <= 1e-9 * r.norm().max(1e-300);
+    for p in &poles {
+        if !is_real(p) && p.im < 0.0 {
+            continue;
+        }
+        if p.norm() >= 1.0 - 1e-12 {
+            return Err(format!("an unstable controller pole at z = {p:.6}"));
+        }
+        let s = to_s(if is_real(p) { C64::new(p.re, 0.0) } else { *p }, period_s);
+        // A pole at z ≈ −1 is beyond any corner: the range's end.
+        let w = s.norm().clamp(lo, hi);
+        if is_real(p) {
+            cfg.real_poles_rad_s.push(w);
+        } else {
+            cfg.complex_poles.push(ComplexPair {
+                omega_rad_s: w,
+                zeta: -s.re / s.norm(),
+            });
+        }
+    }
+    for z in &zeros {
+        if !is_real(z) && z.im < 0.0 {
+            continue;
+        }
+        let s = to_s(if is_real(z) { C64::new(z.re, 0.0) } else { *z }, period_s);
+        let w = s.norm();
+        if !w.is_finite() || w > hi {
+            continue; // at z ≈ −1: the bilinear map's own zero
+        }
+        let w = w.max(lo);
+        if is_real(z) {
+            cfg.real_zeros_rad_s.push(if s.re > 0.0 { -w } else { w });
+        } else {
+            cfg.complex_zeros.push(ComplexPair {
+                omega_rad_s: w,
+                zeta: -s.re / s.norm(),
+            });
+        }
+    }
+    // The gain: C at a point of the unit circle over the factored form's.
+    let w0 = 0.05 * PI / period_s;
+    let z0 = C64::from_polar(1.0, w0 * period_s);
+    let ratio = c.response(w0, period_s) / cfg.eval(to_s(z0, period_s));
+    if !(ratio.is_finite() && ratio.im.abs() < 1e-3 * ratio.norm()) {
+        return Err(format!(
+            "the gain does not match the factored form ({ratio})"
+        ));
+    }
+    cfg.gain = ratio.re;
+    cfg.validate("controller.designed")
+        .map_err(|e| e.to_string())?;
+    Ok(cfg)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A controller's polynomials, its factored form and its discrete
+    /// sections have one response (the bilinear map both ways).
+    #[test]
+    fn polynomials_and_the_factored_form_agree() {
+        let t = 2e-4;
+        // Eq. 6-7's shape: integrator, lead, low-passes, a notch.
+        let start = ControllerConfig {
+            description: String::new(),
+            error_unit: ErrorUnit::Micrometre,
+            form: Form::UnityDc,
+            gain: 0.05,
+            integrators: 1,
+            real_zeros_rad_s: vec![100.0],
+            real_poles_rad_s: vec![900.0, 3000.0],
+            complex_zeros: vec![ComplexPair {
+                omega_rad_s: 520.0,
+                zeta: 0.02,
+            }],
+            complex_poles: vec![
+                ComplexPair {
+                    omega_rad_s: 530.0,
+                    zeta: 0.3,
+                },
+                ComplexPair {
+                    omega_rad_s: 2500.0,
+                    zeta: 0.7,
+                },
+            ],
+            discretization: Discretization::Bilinear,
+        };
+        let d = DiscreteController::new(&start, t, f64::INFINITY);
+        let p = Polynomials::of(&d, ORDER).expect("the fast controller fits the form");
+        let back = to_config(&p, t).unwrap();
+        let d2 = DiscreteController::new(&back, t, f64::INFINITY);
+        for w in [1.0, 30.0, 300.0, 3000.0, 12000.0] {
+            let a = d.response(w, t);
+            let b = p.response(w, t);
+            let c = d2.response(w, t);
+            assert!((a - b).norm() < 1e-6 * a.norm(), "{w}: {a} vs {b}");
+            assert!((a - c).norm() < 1e-6 * a.norm(), "{w}: {a} vs {c}");
+        }
+    }
+}
