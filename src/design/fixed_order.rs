@@ -63,8 +63,18 @@ pub const ORDER: usize = 15;
 pub const EDGE_T_MAX: f64 = 0.24;
 /// The band edge starts at this fraction of the highest coherent line.
 pub const EDGE_FRACTION: f64 = 0.9;
+/// The largest control effort `|K S|` (current per metre of error that
+/// reaches the controller: probe noise, a sharp setpoint) over the lines,
+/// as a multiple of the start's: the climb buys bandwidth with gain,
+/// and without a bound it buys it with a loop that saturates the
+/// amplifier on a step and passes the probe's noise to the coil.
+pub const EFFORT_RATIO: f64 = 4.0;
 /// Most convex steps.
-pub const MAX_STEPS: usize = 40;
+pub const MAX_STEPS: usize = 24;
+/// The target's rise over the best ω* after a step that meets it.
+const GROWTH: f64 = 0.15;
+/// The climb ends when the target is within this of the best ω*.
+const MIN_GROWTH: f64 = 0.005;
 /// The controller's poles stay inside this radius: no pole damped less
 /// than `ζω = −ln(r)/T` (2 s⁻¹ at 5 kHz), so that the poles that reach
 /// the factored form are stable with room.
@@ -201,6 +211,28 @@ fn robust_bandwidth(c: &Polynomials, lines: &[Line], period_s: f64, s_max: f64, 
     w
 }
 
+/// The program's measure of `c` at ω* = `w_star`: the largest over the
+/// lines of `|W_P S| + w_I |T|` and `|T|/t_max` (≤ 1: the target is met).
+fn gamma(c: &Polynomials, lines: &[Line], period_s: f64, s_max: f64, w_star: f64) -> f64 {
+    lines
+        .iter()
+        .map(|l| {
+            let zeta = C64::from_polar(1.0, -l.omega_rad_s * period_s);
+            let (x, y, _) = c.at(zeta);
+            let px = l.plant_at(w_star, s_max) * x;
+            let phi = y + px;
+            let (s, t) = ((y / phi).norm(), (px / phi).norm());
+            let w = performance_weight_magnitude(l.omega_rad_s, w_star, s_max);
+            let g = (w * s + l.uncertainty * t).max(t / l.t_max);
+            if g.is_finite() {
+                g
+            } else {
+                f64::INFINITY
+            }
+        })
+        .fold(0.0, f64::max)
+}
+
 /// A sparse constraint matrix built row by row (`s = b − A v`).
 #[derive(Default)]
 struct Rows {
@@ -278,6 +310,7 @@ fn conditioning(m: DMatrix<f64>) -> DMatrix<f64> {
 /// One convex step at `w_star` from `cur`: the new polynomials and the
 /// margin `t` reached (`t ≥ 0`: the target is met). `None` when the
 /// solver fails.
+#[allow(clippy::too_many_arguments)]
 fn step(
     cur: &Polynomials,
     lines: &[Line],
@@ -285,6 +318,7 @@ fn step(
     period_s: f64,
     s_max: f64,
     w_star: f64,
+    effort_max: f64,
 ) -> Option<(Polynomials, f64)> {
     let (nx, ny) = (cur.x.len(), cur.y.len() - 1);
     let nl = lines.len();
@@ -295,6 +329,9 @@ fn step(
         px: C64,
         unit: C64,
         cx: Vec<C64>,
+        /// X's columns over |Φ_c| (the effort K S = X/Φ).
+        ex: Vec<C64>,
+        x: C64,
         cy: Vec<C64>,
         w: f64,
         u: f64,
@@ -314,6 +351,8 @@ fn step(
                 px: p * xc * inv,
                 unit: phi * inv,
                 cx: (0..nx).map(|i| p * zeta.powi(i as i32) * inv).collect(),
+                ex: (0..nx).map(|i| zeta.powi(i as i32) * inv).collect(),
+                x: xc * inv,
                 cy: (1..=ny)
                     .map(|i| one_minus * zeta.powi(i as i32) * inv)
                     .collect(),
@@ -323,11 +362,22 @@ fn step(
             }
         })
         .collect();
-    // The grid of the denominator's winding: Ȳ_c/|Ȳ_c| and y's columns.
-    let gy: Vec<(C64, Vec<C64>)> = grid
+    // The winding of Ȳ on the circle |z| = ρ (MAX_POLE_RADIUS): on the
+    // grid's angles and, around each root of Ȳ_c near that circle, at
+    // steps of half its distance to it (the winding cannot be missed
+    // between points there). Ȳ_c/|Ȳ_c| and y's columns.
+    let rho = MAX_POLE_RADIUS;
+    let mut angles: Vec<f64> = grid.iter().map(|w| w * period_s).collect();
+    for r in roots_in_z(&cur.y) {
+        let gap = (rho - r.norm()).max(1e-6);
+        if gap < 0.05 {
+            angles.extend((-8..=8).map(|k| r.arg() + 0.5 * gap * k as f64));
+        }
+    }
+    let gy: Vec<(C64, Vec<C64>)> = angles
         .iter()
-        .map(|w| {
-            let zeta = C64::from_polar(1.0, -w * period_s);
+        .map(|theta| {
+            let zeta = C64::from_polar(1.0 / rho, -theta);
             let (_, _, ybc) = cur.at(zeta);
             let inv = 1.0 / ybc.norm();
             (
@@ -394,6 +444,23 @@ fn step(
             let (c, t) = aff.re();
             rows.row(c, t);
             let (c, t) = aff.im();
+            rows.row(c, t);
+            soc += 1;
+        }
+        // (effort_max (lin − t), X/|Φ_c|) ∈ SOC: |K S| bounded.
+        {
+            let ex = map(&a.ex, &tx);
+            let x_aff = Affine {
+                c0: a.x,
+                terms: ex.iter().enumerate().map(|(j, c)| (j, *c)).collect(),
+            };
+            let mut head: Vec<(usize, f64)> =
+                lin.1.iter().map(|(i, v)| (*i, v * effort_max)).collect();
+            head.push((it, -effort_max));
+            rows.row(lin.0 * effort_max, head);
+            let (c, t) = x_aff.re();
+            rows.row(c, t);
+            let (c, t) = x_aff.im();
             rows.row(c, t);
             soc += 1;
         }
@@ -508,8 +575,11 @@ pub fn climb(
     let t_pm = 0.98 / (2.0 * (req.phase_margin_min_deg.to_radians() / 2.0).sin());
     // The lines, the plant in µm/A over a scale (|P| at the lowest line).
     let mut lines: Vec<Line> = Vec::new();
+    // The nominal plant has half the computation delay: `w_I` then covers
+    // a delay anywhere in [0, τ] with `|e^{±jωτ/2} − 1| = 2 sin(ωτ/4)`.
+    let half = |w: f64| C64::from_polar(1.0, 0.5 * w * delay_s);
     let shape = |w: f64, sigma: f64| {
-        let delay = 2.0 * (0.5 * w * delay_s).min(0.5 * PI).sin();
+        let delay = 2.0 * (0.25 * w * delay_s).min(0.5 * PI).sin();
         let noise = if sigma.is_finite() { 2.0 * sigma } else { 0.0 };
         let t_max = if w >= EDGE_FRACTION * top_coherent_rad_s {
             EDGE_T_MAX
@@ -523,9 +593,9 @@ pub fn climb(
             let (u, t_max) = shape(f.omega_rad_s[k], sigma[k]);
             lines.push(Line {
                 omega_rad_s: f.omega_rad_s[k],
-                plant: f.plant_m_per_a[k] * PER_METRE,
+                plant: f.plant_m_per_a[k] * PER_METRE * half(f.omega_rad_s[k]),
                 stand_in: (sigma[k].is_finite() && sigma[k] > 0.0 && model[k].is_finite())
-                    .then(|| (model[k] * PER_METRE, sigma[k])),
+                    .then(|| (model[k] * PER_METRE * half(f.omega_rad_s[k]), sigma[k])),
                 uncertainty: u,
                 t_max,
             });
@@ -536,7 +606,7 @@ pub fn climb(
             let (u, t_max) = shape(*wk, f64::NAN);
             lines.push(Line {
                 omega_rad_s: *wk,
-                plant: hk * PER_METRE,
+                plant: hk * PER_METRE * half(*wk),
                 stand_in: None,
                 uncertainty: u,
                 t_max,
@@ -572,50 +642,73 @@ pub fn climb(
         .collect();
     grid.extend(lines.iter().map(|l| l.omega_rad_s));
     let start_w = robust_bandwidth(&cur, &lines, period_s, s_max, 1.0);
+    // The control effort |K S| (the current per metre of probe noise or
+    // of a sharp setpoint) stays within EFFORT_RATIO of the start's
+    // largest on the lines.
+    let effort = |c: &Polynomials| {
+        lines
+            .iter()
+            .map(|l| {
+                let zeta = C64::from_polar(1.0, -l.omega_rad_s * period_s);
+                let (x, y, _) = c.at(zeta);
+                (x / (y + l.plant * x)).norm()
+            })
+            .fold(0.0, f64::max)
+    };
+    let effort_max = EFFORT_RATIO * effort(&cur);
     if start_w <= 0.0 {
         return Err(format!(
             "the start ({}) does not meet the robust constraints (|W_P S| + w_I |T| ≤ 1, |T| ≤ {t_pm:.2}) at any ω*",
             start.description
         ));
     }
-    let mut w_cur = start_w;
-    let mut growth = 0.3;
+    // At a fixed target every step lowers γ (the inner approximation
+    // holds the current controller); the target rises when γ ≤ 1 and
+    // falls halfway back to the best ω* when the steps stall.
+    let mut best = cur.clone();
+    let mut w_best = start_w;
+    let mut target = w_best * (1.0 + GROWTH);
     let mut steps = 0;
-    while steps < MAX_STEPS && growth > 0.01 {
-        let target = w_cur * (1.0 + growth);
+    while steps < MAX_STEPS && target > w_best * (1.0 + MIN_GROWTH) {
         steps += 1;
-        let Some((next, t)) = step(&cur, &lines, &grid, period_s, s_max, target) else {
-            growth *= 0.5;
-            continue;
-        };
+        let next = step(&cur, &lines, &grid, period_s, s_max, target, effort_max);
         // The grid cannot see a root of Ȳ that crosses the unit circle
         // between its points: the roots themselves are checked.
-        let stable = roots_in_z(&next.y)
-            .iter()
-            .all(|r| r.norm() < MAX_POLE_RADIUS);
-        let w_next = if stable {
-            robust_bandwidth(&next, &lines, period_s, s_max, target)
-        } else {
-            0.0
+        let next =
+            next.filter(|(n, _)| roots_in_z(&n.y).iter().all(|r| r.norm() < MAX_POLE_RADIUS));
+        let g_cur = gamma(&cur, &lines, period_s, s_max, target);
+        let Some((next, g_next)) = next
+            .map(|(n, _)| {
+                let g = gamma(&n, &lines, period_s, s_max, target);
+                (n, g)
+            })
+            .filter(|(_, g)| *g < g_cur - 1e-4)
+        else {
+            tracing::debug!(step = steps, target, g_cur, "limit strategy: a step stalls");
+            target = 0.5 * (w_best + target);
+            cur = best.clone();
+            continue;
         };
+        cur = next;
+        let w_next = robust_bandwidth(&cur, &lines, period_s, s_max, target);
         tracing::debug!(
             step = steps,
             target,
-            t,
+            g_next,
             w_next,
-            w_cur,
+            w_best,
             "limit strategy: one convex step"
         );
-        if w_next > w_cur * (1.0 + 1e-3) {
-            cur = next;
-            w_cur = w_next;
-            if t >= 0.0 {
-                growth *= 1.5;
-            }
-        } else {
-            growth *= 0.5;
+        if w_next > w_best {
+            best = cur.clone();
+            w_best = w_next;
+        }
+        if g_next <= 1.0 {
+            target = w_best.max(target) * (1.0 + GROWTH);
         }
     }
+    let mut cur = best;
+    let w_cur = w_best;
     for v in &mut cur.x {
         *v /= scale;
     }

@@ -736,21 +736,28 @@ fn limit_attempt(
     let Some(y) = climb else {
         return refused("limit", "the climb needs each input's fit".into());
     };
-    let starts: Vec<&Attempt> = starts
+    // The best certified start first; the others only if its climb
+    // gives nothing (each climb is seconds of cone programs).
+    let mut starts: Vec<&Attempt> = starts
         .iter()
         .copied()
         .filter(|a| a.evaluation.feasible())
         .collect();
+    starts.sort_by(|a, b| {
+        b.evaluation
+            .objective_rad_s
+            .total_cmp(&a.evaluation.objective_rad_s)
+    });
     if starts.is_empty() {
         return refused(
             "limit",
             "no design of the thesis' families meets the margins to start the climb from".into(),
         );
     }
-    let results: Vec<(String, Result<(fixed_order::Climb, Evaluation), String>)> = starts
-        .par_iter()
-        .map(|a| {
-            let r = fixed_order::climb(
+    let mut results: Vec<(String, Result<(fixed_order::Climb, Evaluation), String>)> = Vec::new();
+    for a in starts {
+        let r = {
+            fixed_order::climb(
                 &y.lines,
                 &a.evaluation.controller,
                 y.top_coherent_rad_s,
@@ -769,10 +776,14 @@ fn limit_attempt(
                     e = certify(all, k.clone(), period_s, peak_current_a);
                 }
                 (c, e)
-            });
-            (a.strategy.to_string(), r)
-        })
-        .collect();
+            })
+        };
+        let done = matches!(&r, Ok((_, e)) if e.feasible());
+        results.push((a.strategy.to_string(), r));
+        if done {
+            break;
+        }
+    }
     let best = results
         .iter()
         .filter_map(|(s, r)| r.as_ref().ok().map(|(c, e)| (s, c, e)))
