@@ -545,12 +545,20 @@ fn documented(key: &str, c: &Value) -> Option<(Doc, bool)> {
             req,
         ),
         _ if controller && field == "integrators" => (closed(0.0, 3.0), opt),
-        _ if controller
-            && (generic.ends_with(".real_zeros_rad_s[]")
-                || generic.ends_with(".real_poles_rad_s[]")
-                || field == "omega_rad_s") =>
-        {
+        // A zero may lie in the right half plane: a negative corner, a
+        // negative ζ (the limit strategy's controllers); poles may not.
+        _ if controller && generic.ends_with(".real_zeros_rad_s[]") => (
+            Doc {
+                abs: true,
+                ..closed(1e-3, 1e6)
+            },
+            req,
+        ),
+        _ if controller && (generic.ends_with(".real_poles_rad_s[]") || field == "omega_rad_s") => {
             (closed(1e-3, 1e6), req)
+        }
+        _ if controller && field == "zeta" && generic.contains(".complex_zeros[") => {
+            (closed(-10.0, 10.0), req)
         }
         _ if controller && field == "zeta" => (closed(0.0, 10.0), req),
         _ => return None,
