@@ -112,7 +112,6 @@ fn fast_design_on_the_chapter_5_model() {
         cfg.controller["fast"].clone(),
         t,
         cfg.actuator.peak_current_a,
-        None,
     );
     let f = &thesis.figures[0];
     eprintln!(
