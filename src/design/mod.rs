@@ -993,18 +993,22 @@ pub fn design(
         }
         Strategy::Auto => {
             let (f, s) = rayon::join(|| run(Strategy::Fast), || run(Strategy::Slow));
-            let l = run_from(Strategy::Limit, &[&f, &s]);
+            // The climb needs the program's lines: without them (a caller
+            // that gives none) auto is the thesis' two.
+            let l = climb.map(|_| run_from(Strategy::Limit, &[&f, &s]));
             let w = |a: &Attempt| a.evaluation.objective_rad_s;
-            let mut feasible: Vec<&Attempt> = [&l, &f, &s]
-                .into_iter()
+            let all: Vec<&Attempt> = l.iter().chain([&f, &s]).collect();
+            let mut feasible: Vec<&Attempt> = all
+                .iter()
+                .copied()
                 .filter(|a| a.evaluation.feasible())
                 .collect();
             feasible.sort_by(|a, b| w(b).total_cmp(&w(a)));
             let Some(best) = feasible.first().copied() else {
                 return Err(fail(&f));
             };
-            let others: Vec<String> = [&l, &f, &s]
-                .into_iter()
+            let others: Vec<String> = all
+                .iter()
                 .filter(|a| a.strategy != best.strategy)
                 .map(|a| {
                     if a.evaluation.feasible() {
@@ -1024,9 +1028,10 @@ pub fn design(
                 others.join("; "),
                 best.structure
             );
+            let chosen = best.clone();
             Ok(Designed {
-                chosen: best.clone(),
-                attempts: vec![f, s, l],
+                chosen,
+                attempts: [f, s].into_iter().chain(l).collect(),
                 why,
             })
         }
