@@ -754,7 +754,8 @@ fn limit_attempt(
             "no design of the thesis' families meets the margins to start the climb from".into(),
         );
     }
-    let mut results: Vec<(String, Result<(fixed_order::Climb, Evaluation), String>)> = Vec::new();
+    type Judged = Result<(fixed_order::Climb, Evaluation), String>;
+    let mut results: Vec<(String, Judged)> = Vec::new();
     for a in starts {
         let r = {
             fixed_order::climb(
@@ -855,11 +856,13 @@ pub struct Designed {
     pub why: String,
 }
 
-/// Designs by `spec` on prepared inputs.
+/// Designs by `spec` on prepared inputs (`climb`: the `limit`
+/// strategy's lines; without them `auto` is the thesis' two).
 ///
 /// # Errors
 /// When no controller of the requested family (auto: of either) meets
 /// the margins: the binding constraint, where and on which input.
+#[allow(clippy::too_many_arguments)]
 pub fn design(
     frfs: &[DesignFrf],
     model: &[DesignFrf],
