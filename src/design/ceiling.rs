@@ -341,6 +341,16 @@ pub fn program_lines(
 }
 
 impl ProgramLines {
+    /// The lowest of the inputs' highest coherent lines, rad/s (where the
+    /// measurement of the narrowest input ends: the thinning keeps every
+    /// input's last line).
+    pub fn top_coherent_rad_s(&self) -> f64 {
+        self.measured
+            .iter()
+            .filter_map(|m| m.0.omega_rad_s.last().copied())
+            .fold(f64::INFINITY, f64::min)
+    }
+
     /// The lines as the cone program takes them: each input's, then each
     /// fit's.
     pub fn lines(&self) -> Vec<Lines<'_>> {

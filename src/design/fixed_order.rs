@@ -45,7 +45,10 @@
 //! with negative corners or ζ.
 
 use super::ceiling::ProgramLines;
-use super::limit::performance_weight_magnitude;
+use super::limit::{
+    noise_hides_bound, orthonormal_map, performance_weight_magnitude, thinned_lines,
+    MAX_ACTIVE_LINES,
+};
 use super::search::Requirements;
 use crate::config::controller::CORNER_RAD_S;
 use crate::control::{
@@ -176,32 +179,33 @@ impl Line {
     /// [`super::limit::NOISE_RESOLUTION`]).
     fn plant_at(&self, w_star: f64, s_max: f64) -> C64 {
         match self.stand_in {
-            Some((m, sigma))
-                if 2.0 * sigma * performance_weight_magnitude(self.omega_rad_s, w_star, s_max)
-                    > super::limit::NOISE_RESOLUTION =>
-            {
-                m
-            }
+            Some((m, sigma)) if noise_hides_bound(self.omega_rad_s, sigma, w_star, s_max) => m,
             _ => self.plant,
         }
     }
 }
 
+/// `|S|`, `|T|` and `|K S|` of `c` on the plant `p` at `omega_rad_s`
+/// (`S = Y/Φ`, `T = P X/Φ`, `K S = X/Φ`, `Φ = Y + P X`).
+fn sensitivities(c: &Polynomials, p: C64, omega_rad_s: f64, period_s: f64) -> (f64, f64, f64) {
+    let (x, y, _) = c.at(C64::from_polar(1.0, -omega_rad_s * period_s));
+    let phi = y + p * x;
+    ((y / phi).norm(), (p * x / phi).norm(), (x / phi).norm())
+}
+
 /// The robust ω* of `c` on `lines`: the largest ω* with
 /// `|W_P S| + w_I |T| ≤ 1` and `|T| ≤ t_max` on every line (0: none).
 fn robust_bandwidth(c: &Polynomials, lines: &[Line], period_s: f64, s_max: f64, guess: f64) -> f64 {
-    // The stand-in depends on ω*; two passes settle it.
+    // Which lines the fit stands in for depends on ω*: a few passes
+    // settle it.
     let mut w = guess;
     for _ in 0..3 {
         let mut best = f64::INFINITY;
         for l in lines {
-            let zeta = C64::from_polar(1.0, -l.omega_rad_s * period_s);
-            let (x, y, _) = c.at(zeta);
-            let px = l.plant_at(w.max(1e-9), s_max) * x;
-            let phi = y + px;
-            let (s, t) = ((y / phi).norm(), (px / phi).norm());
+            let p = l.plant_at(w.max(1e-9), s_max);
+            let (s, t, _) = sensitivities(c, p, l.omega_rad_s, period_s);
             let room = 1.0 - l.uncertainty * t;
-            if t > l.t_max || room <= s / s_max || !phi.is_finite() {
+            if !(s.is_finite() && t.is_finite()) || t > l.t_max || room <= s / s_max {
                 return 0.0;
             }
             best = best.min(l.omega_rad_s * ((room / s).powi(2) - 1.0 / (s_max * s_max)).sqrt());
@@ -211,25 +215,26 @@ fn robust_bandwidth(c: &Polynomials, lines: &[Line], period_s: f64, s_max: f64, 
     w
 }
 
-/// The program's measure of `c` at ω* = `w_star`: the largest over the
-/// lines of `|W_P S| + w_I |T|` and `|T|/t_max` (≤ 1: the target is met).
+/// The program's measure of `c` on line `l` at ω* = `w_star`: the larger
+/// of `|W_P S| + w_I |T|` and `|T|/t_max` (≤ 1: the target is met there;
+/// infinite for a loop that is not finite on the line).
+fn line_gamma(c: &Polynomials, l: &Line, period_s: f64, s_max: f64, w_star: f64) -> f64 {
+    let p = l.plant_at(w_star, s_max);
+    let (s, t, _) = sensitivities(c, p, l.omega_rad_s, period_s);
+    let w = performance_weight_magnitude(l.omega_rad_s, w_star, s_max);
+    let g = (w * s + l.uncertainty * t).max(t / l.t_max);
+    if g.is_finite() {
+        g
+    } else {
+        f64::INFINITY
+    }
+}
+
+/// [`line_gamma`], largest over `lines`.
 fn gamma(c: &Polynomials, lines: &[Line], period_s: f64, s_max: f64, w_star: f64) -> f64 {
     lines
         .iter()
-        .map(|l| {
-            let zeta = C64::from_polar(1.0, -l.omega_rad_s * period_s);
-            let (x, y, _) = c.at(zeta);
-            let px = l.plant_at(w_star, s_max) * x;
-            let phi = y + px;
-            let (s, t) = ((y / phi).norm(), (px / phi).norm());
-            let w = performance_weight_magnitude(l.omega_rad_s, w_star, s_max);
-            let g = (w * s + l.uncertainty * t).max(t / l.t_max);
-            if g.is_finite() {
-                g
-            } else {
-                f64::INFINITY
-            }
-        })
+        .map(|l| line_gamma(c, l, period_s, s_max, w_star))
         .fold(0.0, f64::max)
 }
 
@@ -284,27 +289,6 @@ impl Affine {
             self.terms.iter().map(|(i, c)| (*i, c.im)).collect(),
         )
     }
-}
-
-/// A change of variables `v = V Σ⁻¹ ṽ` that makes the columns `m`
-/// (real, rows × cols) orthonormal (`U`): the monomials `ζⁱ` are nearly
-/// collinear at low frequency, and the interior point needs well
-/// conditioned columns. Directions whose singular value is under 1e-9 of
-/// the largest are dropped (the lines cannot see them). Returns the map
-/// (cols × kept).
-fn conditioning(m: DMatrix<f64>) -> DMatrix<f64> {
-    let n = m.ncols();
-    let svd = m.svd(false, true);
-    let Some(vt) = svd.v_t else {
-        return DMatrix::identity(n, n);
-    };
-    let top = svd.singular_values.max();
-    let keep: Vec<usize> = (0..svd.singular_values.len())
-        .filter(|&k| svd.singular_values[k] > 1e-9 * top)
-        .collect();
-    DMatrix::from_fn(n, keep.len(), |i, j| {
-        vt[(keep[j], i)] / svd.singular_values[keep[j]]
-    })
 }
 
 /// One convex step at `w_star` from `cur`: the new polynomials and the
@@ -398,8 +382,8 @@ fn step(
             }
         })
     };
-    let tx = conditioning(stack(nx, &mut at.iter().map(|a| &a.cx)));
-    let ty = conditioning(stack(
+    let tx = orthonormal_map(&stack(nx, &mut at.iter().map(|a| &a.cx)));
+    let ty = orthonormal_map(&stack(
         ny,
         &mut at.iter().map(|a| &a.cy).chain(gy.iter().map(|g| &g.1)),
     ));
@@ -546,8 +530,8 @@ pub struct Climb {
 /// Climbs from `start` (a certified design with one integrator) on the
 /// lines of `set`.
 ///
-/// `top_coherent_rad_s` is the lowest of the inputs' highest coherent
-/// lines (the band edge), `delay_s` the computation delay.
+/// The band edge starts at [`EDGE_FRACTION`] of the lowest of the
+/// inputs' highest coherent lines; `delay_s` is the computation delay.
 ///
 /// # Errors
 /// A start that is not of the form (`C = X/((1 − z⁻¹)Ȳ)` of at most
@@ -557,7 +541,6 @@ pub struct Climb {
 pub fn climb(
     set: &ProgramLines,
     start: &ControllerConfig,
-    top_coherent_rad_s: f64,
     period_s: f64,
     delay_s: f64,
     req: Requirements,
@@ -575,6 +558,7 @@ pub fn climb(
     let t_pm = 0.98 / (2.0 * (req.phase_margin_min_deg.to_radians() / 2.0).sin());
     // The lines, the plant in µm/A over a scale (|P| at the lowest line).
     let mut lines: Vec<Line> = Vec::new();
+    let top_coherent_rad_s = set.top_coherent_rad_s();
     // The nominal plant has half the computation delay: `w_I` then covers
     // a delay anywhere in [0, τ] with `|e^{±jωτ/2} − 1| = 2 sin(ωτ/4)`.
     let half = |w: f64| C64::from_polar(1.0, 0.5 * w * delay_s);
@@ -637,25 +621,23 @@ pub fn climb(
         .iter()
         .map(|l| l.omega_rad_s)
         .fold(f64::INFINITY, f64::min);
-    let mut grid: Vec<f64> = (0..=400)
+    let log_grid: Vec<f64> = (0..=400)
         .map(|i| lowest * (0.999 * nyquist / lowest).powf(i as f64 / 400.0))
         .collect();
-    grid.extend(lines.iter().map(|l| l.omega_rad_s));
+    // The programs run on an active set of lines (every resonance, and
+    // evenly spread, as the limit's); each step is judged on every line,
+    // and the lines it fails most join the set.
+    let magnitude: Vec<f64> = lines.iter().map(|l| l.plant.norm()).collect();
+    let mut active = thinned_lines(&magnitude, MAX_ACTIVE_LINES);
     let start_w = robust_bandwidth(&cur, &lines, period_s, s_max, 1.0);
     // The control effort |K S| (the current per metre of probe noise or
     // of a sharp setpoint) stays within EFFORT_RATIO of the start's
     // largest on the lines.
-    let effort = |c: &Polynomials| {
-        lines
+    let effort_max = EFFORT_RATIO
+        * lines
             .iter()
-            .map(|l| {
-                let zeta = C64::from_polar(1.0, -l.omega_rad_s * period_s);
-                let (x, y, _) = c.at(zeta);
-                (x / (y + l.plant * x)).norm()
-            })
-            .fold(0.0, f64::max)
-    };
-    let effort_max = EFFORT_RATIO * effort(&cur);
+            .map(|l| sensitivities(&cur, l.plant, l.omega_rad_s, period_s).2)
+            .fold(0.0, f64::max);
     if start_w <= 0.0 {
         return Err(format!(
             "the start ({}) does not meet the robust constraints (|W_P S| + w_I |T| ≤ 1, |T| ≤ {t_pm:.2}) at any ω*",
@@ -671,24 +653,46 @@ pub fn climb(
     let mut steps = 0;
     while steps < MAX_STEPS && target > w_best * (1.0 + MIN_GROWTH) {
         steps += 1;
-        let next = step(&cur, &lines, &grid, period_s, s_max, target, effort_max);
+        let sub: Vec<Line> = active.iter().map(|&k| lines[k]).collect();
+        let mut grid = log_grid.clone();
+        grid.extend(sub.iter().map(|l| l.omega_rad_s));
+        let next = step(&cur, &sub, &grid, period_s, s_max, target, effort_max);
         // The grid cannot see a root of Ȳ that crosses the unit circle
         // between its points: the roots themselves are checked.
         let next =
             next.filter(|(n, _)| roots_in_z(&n.y).iter().all(|r| r.norm() < MAX_POLE_RADIUS));
         let g_cur = gamma(&cur, &lines, period_s, s_max, target);
-        let Some((next, g_next)) = next
-            .map(|(n, _)| {
-                let g = gamma(&n, &lines, period_s, s_max, target);
-                (n, g)
-            })
-            .filter(|(_, g)| *g < g_cur - 1e-4)
-        else {
+        let judged = next.map(|(n, _)| {
+            let g: Vec<f64> = lines
+                .iter()
+                .map(|l| line_gamma(&n, l, period_s, s_max, target))
+                .collect();
+            (n, g)
+        });
+        let g_next = judged.as_ref().map_or(f64::INFINITY, |(_, g)| {
+            g.iter().copied().fold(0.0, f64::max)
+        });
+        if g_next >= g_cur - 1e-4 {
+            // Lines outside the set that the step failed more than any
+            // inside: into the set, and the same target again.
+            if let Some((_, g)) = &judged {
+                let inside = active.iter().map(|&k| g[k]).fold(0.0, f64::max);
+                let mut worse: Vec<usize> = (0..lines.len())
+                    .filter(|k| g[*k] > inside && active.binary_search(k).is_err())
+                    .collect();
+                if !worse.is_empty() {
+                    worse.sort_by(|a, b| g[*b].total_cmp(&g[*a]));
+                    active.extend(worse.into_iter().take(64));
+                    active.sort_unstable();
+                    continue;
+                }
+            }
             tracing::debug!(step = steps, target, g_cur, "limit strategy: a step stalls");
             target = 0.5 * (w_best + target);
             cur = best.clone();
             continue;
-        };
+        }
+        let next = judged.map(|(n, _)| n).expect("judged");
         cur = next;
         let w_next = robust_bandwidth(&cur, &lines, period_s, s_max, target);
         tracing::debug!(

@@ -373,11 +373,23 @@ impl Row {
 
     /// Whether the line's noise hides the bound at ω* = `w_star`.
     fn noisy_at(&self, w_star: f64, s_max: f64) -> bool {
-        self.stand_in.is_some_and(|(_, sigma)| {
-            2.0 * sigma * performance_weight_magnitude(self.omega_rad_s, w_star, s_max)
-                > NOISE_RESOLUTION
-        })
+        self.stand_in
+            .is_some_and(|(_, sigma)| noise_hides_bound(self.omega_rad_s, sigma, w_star, s_max))
     }
+}
+
+/// Whether a measured line at `omega_rad_s` with relative 1σ
+/// `relative_sigma` cannot decide the bound the weight sets on |S| there
+/// at ω* = `w_star`: `2σ |W_P| >` [`NOISE_RESOLUTION`] (the fit stands in
+/// for it, in the limit and in a design's program alike).
+pub(super) fn noise_hides_bound(
+    omega_rad_s: f64,
+    relative_sigma: f64,
+    w_star: f64,
+    s_max: f64,
+) -> bool {
+    2.0 * relative_sigma * performance_weight_magnitude(omega_rad_s, w_star, s_max)
+        > NOISE_RESOLUTION
 }
 
 /// The largest ω* any Q of `basis` reaches on all `lines` with |S| ≤
@@ -559,20 +571,32 @@ fn orthonormalise(rows: &mut [Row]) -> nalgebra::DMatrix<f64> {
             t.im
         }
     });
-    let svd = x.svd(true, true);
-    let (Some(u), Some(v_t)) = (svd.u, svd.v_t) else {
+    let map = orthonormal_map(&x);
+    let u = &x * &map;
+    for (i, r) in rows.iter_mut().enumerate() {
+        r.terms = (0..map.ncols())
+            .map(|k| C64::new(u[(i, k)], u[(m + i, k)]))
+            .collect();
+    }
+    map
+}
+
+/// The map `V Σ⁻¹` (cols × kept) of the thin SVD `x = U Σ Vᵀ`, so that
+/// `x · V Σ⁻¹ = U` has orthonormal columns; directions whose singular
+/// value is under 1e-9 of the largest are dropped (nothing the rows can
+/// see). A change of variables for an interior point whose columns are
+/// nearly collinear (here: partial fractions on close poles, FIR taps or
+/// powers of `z⁻¹` at low frequency).
+pub(super) fn orthonormal_map(x: &nalgebra::DMatrix<f64>) -> nalgebra::DMatrix<f64> {
+    let n = x.ncols();
+    let svd = x.clone().svd(false, true);
+    let Some(v_t) = svd.v_t else {
         return nalgebra::DMatrix::identity(n, n);
     };
     let top = svd.singular_values.max();
     let keep: Vec<usize> = (0..svd.singular_values.len())
         .filter(|&k| svd.singular_values[k] > 1e-9 * top)
         .collect();
-    for (i, r) in rows.iter_mut().enumerate() {
-        r.terms = keep
-            .iter()
-            .map(|&k| C64::new(u[(i, k)], u[(m + i, k)]))
-            .collect();
-    }
     nalgebra::DMatrix::from_fn(n, keep.len(), |i, j| {
         v_t[(keep[j], i)] / svd.singular_values[keep[j]]
     })
@@ -626,23 +650,32 @@ fn binding_lines(
 /// At most `n` row indices: evenly spread in index, plus every local
 /// maximum of |P| and its two neighbours (the resonances).
 fn thinned(rows: &[Row], n: usize) -> Vec<usize> {
-    if rows.len() <= n {
-        return (0..rows.len()).collect();
+    let m: Vec<f64> = rows.iter().map(|r| r.plant.norm()).collect();
+    thinned_lines(&m, n)
+}
+
+/// At most about `n` indices of lines with plant magnitudes
+/// `magnitude`: every local maximum and its two neighbours (the
+/// resonances), then evenly spread in index, and the last line.
+pub(super) fn thinned_lines(magnitude: &[f64], n: usize) -> Vec<usize> {
+    let len = magnitude.len();
+    if len <= n {
+        return (0..len).collect();
     }
     let mut keep = std::collections::BTreeSet::new();
-    for k in 1..rows.len().saturating_sub(1) {
-        let m = rows[k].plant.norm();
-        if m > rows[k - 1].plant.norm() && m >= rows[k + 1].plant.norm() {
+    for k in 1..len.saturating_sub(1) {
+        let m = magnitude[k];
+        if m > magnitude[k - 1] && m >= magnitude[k + 1] {
             keep.extend([k - 1, k, k + 1]);
         }
     }
-    let step = rows.len() as f64 / n.saturating_sub(keep.len()).max(n / 2) as f64;
+    let step = len as f64 / n.saturating_sub(keep.len()).max(n / 2) as f64;
     let mut x = 0.0;
-    while (x as usize) < rows.len() {
+    while (x as usize) < len {
         keep.insert(x as usize);
         x += step;
     }
-    keep.insert(rows.len() - 1);
+    keep.insert(len - 1);
     keep.into_iter().collect()
 }
 

@@ -106,8 +106,9 @@ pub enum Strategy {
     Slow,
     /// Bandwidth above it (§6.1.2).
     Fast,
-    /// The Youla problem's own controller, reduced ([`youla`]): the
-    /// bandwidth the limit allows.
+    /// A fixed-order controller climbed from the best of the others
+    /// towards the limit by convex steps on every line
+    /// ([`fixed_order`]).
     Limit,
     /// Every strategy; the one that meets the margins with the highest
     /// performance bandwidth ω*.
@@ -619,16 +620,9 @@ pub fn attempt(
             // is small: back the gain off by 2 % steps until it passes.
             let all = Problem::new(frfs.iter().chain(models).collect(), req, UNIT_PER_METRE);
             let certified = |c0: &ControllerConfig, searched_violation: f64| {
-                let mut c = c0.clone();
-                let mut e = certify(&all, c.clone(), period_s, peak_current_a);
-                for _ in 0..BACK_OFF_STEPS {
-                    if e.feasible() || searched_violation > 0.5 {
-                        break;
-                    }
-                    c.gain *= 0.98;
-                    e = certify(&all, c.clone(), period_s, peak_current_a);
-                }
-                e
+                certify_backing_off(&all, c0, period_s, peak_current_a, BACK_OFF_STEPS, |_| {
+                    searched_violation > 0.5
+                })
             };
             // Every start's result is a candidate when the last round was a
             // multi-start on the inputs that bind (else the one found).
@@ -681,8 +675,6 @@ pub fn attempt(
 pub struct ClimbInputs {
     /// The program's lines ([`ceiling::program_lines`]).
     pub lines: ceiling::ProgramLines,
-    /// The lowest of the inputs' highest coherent lines, rad/s.
-    pub top_coherent_rad_s: f64,
     /// The computation delay τ, s.
     pub computation_delay_s: f64,
 }
@@ -734,7 +726,10 @@ fn limit_attempt(
     peak_current_a: f64,
 ) -> Attempt {
     let Some(y) = climb else {
-        return refused("limit", "the climb needs each input's fit".into());
+        return refused(
+            "limit",
+            "the climb needs the limit's lines (each input's and its fit's)".into(),
+        );
     };
     // The best certified start first; the others only if its climb
     // gives nothing (each climb is seconds of cone programs).
@@ -757,28 +752,24 @@ fn limit_attempt(
     type Judged = Result<(fixed_order::Climb, Evaluation), String>;
     let mut results: Vec<(String, Judged)> = Vec::new();
     for a in starts {
-        let r = {
-            fixed_order::climb(
-                &y.lines,
-                &a.evaluation.controller,
-                y.top_coherent_rad_s,
+        let r = fixed_order::climb(
+            &y.lines,
+            &a.evaluation.controller,
+            period_s,
+            y.computation_delay_s,
+            req,
+        )
+        .map(|c| {
+            let e = certify_backing_off(
+                all,
+                &c.controller,
                 period_s,
-                y.computation_delay_s,
-                req,
-            )
-            .map(|c| {
-                let mut k = c.controller.clone();
-                let mut e = certify(all, k.clone(), period_s, peak_current_a);
-                for _ in 0..LIMIT_BACK_OFF_STEPS {
-                    if e.feasible() || e.violation > 0.5 {
-                        break;
-                    }
-                    k.gain *= 0.98;
-                    e = certify(all, k.clone(), period_s, peak_current_a);
-                }
-                (c, e)
-            })
-        };
+                peak_current_a,
+                LIMIT_BACK_OFF_STEPS,
+                |e| e.violation > 0.5,
+            );
+            (c, e)
+        });
         let done = matches!(&r, Ok((_, e)) if e.feasible());
         results.push((a.strategy.to_string(), r));
         if done {
@@ -822,6 +813,29 @@ fn limit_attempt(
     }
 }
 
+/// [`certify`] `c`; while it misses by a little, its gain backed off in
+/// 2 % steps (at most `steps`: 0.98ⁿ), unless `hopeless` says the miss is
+/// not one a lower gain mends.
+fn certify_backing_off(
+    problem: &Problem<'_>,
+    c: &ControllerConfig,
+    period_s: f64,
+    peak_current_a: f64,
+    steps: usize,
+    hopeless: impl Fn(&Evaluation) -> bool,
+) -> Evaluation {
+    let mut c = c.clone();
+    let mut e = certify(problem, c.clone(), period_s, peak_current_a);
+    for _ in 0..steps {
+        if e.feasible() || hopeless(&e) {
+            break;
+        }
+        c.gain *= 0.98;
+        e = certify(problem, c.clone(), period_s, peak_current_a);
+    }
+    e
+}
+
 /// Judges `controller` as it will run: discretised at `period_s`, its
 /// response `C_d(e^{jωT})` on every line.
 pub fn certify(
@@ -835,13 +849,11 @@ pub fn certify(
 }
 
 /// Why the `limit` strategy gave nothing: its refusal, or the margin its
-/// best reduction misses.
+/// climbed controller misses.
 fn limit_reason(a: &Attempt) -> String {
     match &a.evaluation.binding {
         None => a.structure.clone(),
-        Some(b) => format!(
-            "no reduction of the limit's controller meets the margins (the best misses by {b})"
-        ),
+        Some(b) => format!("the climbed controller misses the margins by {b}"),
     }
 }
 
@@ -978,7 +990,7 @@ pub fn design(
             // Refuse limit with its reason, and give the best of the others.
             let w = |a: &Attempt| a.evaluation.objective_rad_s;
             let chosen = match (f.evaluation.feasible(), s.evaluation.feasible()) {
-                (true, true) if w(&f) > w(&s) => f.clone(),
+                (true, true) if w(&s) > w(&f) => s.clone(),
                 (true, _) => f.clone(),
                 (false, true) => s.clone(),
                 (false, false) => return Err(fail(&a)),

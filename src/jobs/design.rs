@@ -534,10 +534,6 @@ pub fn run_design(opts: &DesignOptions) -> Result<DesignSummary, RunError> {
             period_s,
             spec.computation_delay_s,
         ),
-        top_coherent_rad_s: frfs
-            .iter()
-            .filter_map(|f| f.omega_rad_s.last().copied())
-            .fold(f64::INFINITY, f64::min),
         computation_delay_s: spec.computation_delay_s,
     };
     // The limit and the design are independent: side by side.
@@ -625,10 +621,9 @@ pub fn run_design(opts: &DesignOptions) -> Result<DesignSummary, RunError> {
         (Some(w), Some(l)) if l > 0.0 => Some(w / l),
         _ => None,
     };
-    let rel_sigma = crate::design::coherent_relative_sigma(&read.frfs);
     let sigmas: Vec<FigureSigmas> = frfs
         .iter()
-        .zip(&rel_sigma)
+        .zip(&relative_sigma)
         .zip(&e.figures)
         .map(|((f, r), g)| figure_sigmas(&f.omega_rad_s, &loop_of(f), r, g, s_max))
         .collect();

@@ -143,7 +143,7 @@ fn a_design_from_a_csv_alone_reports_the_benchs_limit_and_holds_on_the_true_plan
         // the measured band (held-out a and b: ~1600 rad/s, crossovers
         // near 300 Hz with |L| ≤ −10 dB at the band's end and the effort
         // bounded) it is not reached (the note says so), and
-        // the design must at least beat the thesis' families.
+        // the design must beat the thesis' families.
         assert_eq!(s["strategy"], "limit", "{name}: {}", s["why"]);
         let zero_bound = want_z
             .iter()
@@ -163,8 +163,10 @@ fn a_design_from_a_csv_alone_reports_the_benchs_limit_and_holds_on_the_true_plan
                 reach / want
             );
         } else {
+            // The climb starts from the best of them and keeps only what
+            // gains: above it on the true plant too.
             assert!(
-                reach > 1.2 * families,
+                reach > families,
                 "{name}: ω* {reach:.1} rad/s, the families' {families:.1}"
             );
         }
