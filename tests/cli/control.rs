@@ -227,8 +227,8 @@ fn bad_controller_input() {
         ("gain = 0.12 ", "gain = 0.0 ", "controller.slow.gain"),
         (
             "discretization = \"least_squares\"   # within",
-            "discretization = \"bilinear\"   # within",
-            "discretization = \"bilinear\"",
+            "discretization = \"matched_zoh\"   # within",
+            "controller.fast.discretization",
         ),
     ];
     for (from, to, needle) in cases {
