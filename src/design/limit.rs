@@ -43,14 +43,12 @@
 
 use crate::ident::C64;
 use clarabel::algebra::CscMatrix;
-use clarabel::solver::{
-    DefaultInfo, DefaultSettings, DefaultSolver, IPSolver, SolverStatus, SupportedConeT,
-};
+use clarabel::solver::{DefaultSettings, DefaultSolver, IPSolver, SolverStatus, SupportedConeT};
 use serde::{Deserialize, Serialize};
 use std::f64::consts::PI;
 
 /// The relative width of the bracket at which the bisection on ω* stops.
-pub const RELATIVE_TOLERANCE: f64 = 5e-3;
+pub const RELATIVE_TOLERANCE: f64 = 1e-2;
 
 /// Largest number of lines one cone program holds; more lines are thinned
 /// (every resonance's neighbourhood kept) and the dropped ones checked on
@@ -497,11 +495,33 @@ pub fn performance_limit(
     let mut solves = 0;
     let mut lo = 0.0_f64;
     let mut hi = upper_rad_s.unwrap_or(nyquist).min(nyquist);
+    // ln γ at the bracket's ends, where a program gave it.
+    let (mut f_lo, mut f_hi): (Option<f64>, Option<f64>) = (None, None);
+    // Which end the last point replaced (Illinois: the other end's ln γ
+    // is halved when it is kept twice, so that the false position cannot
+    // stall on one side).
+    let mut replaced_low: Option<bool> = None;
     let mut best: Option<Vec<f64>> = None;
-    // Bisection in log ω*: the first point an eighth of the top (γ at the
-    // top is rarely ≤ 1), then geometric means.
+    // The root of ln γ(ln ω*) by the Illinois false position (Dowell &
+    // Jarratt, BIT 11, 1971) inside a bracket that only shrinks: γ grows
+    // with ω*, and is smooth where it crosses 1. The first point is an
+    // eighth of the top (γ at the top is rarely ≤ 1); without a value at
+    // both ends the next is the geometric mean. A point predicted within
+    // the tolerance of an end is pushed a tolerance inside, so that it
+    // closes the bracket from the other side.
     while (hi - lo) > RELATIVE_TOLERANCE * hi {
-        let mid = if lo > 0.0 { (lo * hi).sqrt() } else { hi / 8.0 };
+        let mid = match (lo > 0.0, f_lo, f_hi) {
+            (false, _, _) => hi / 8.0,
+            (true, Some(a), Some(b)) if b > a => {
+                let (x0, x1) = (lo.ln(), hi.ln());
+                let x = x1 - b * (x1 - x0) / (b - a);
+                // 0.9 of the tolerance in ln ω*: a point there on the
+                // far side of the root ends the search.
+                let margin = (-0.9 * (1.0 - RELATIVE_TOLERANCE).ln()).min(0.5 * (x1 - x0));
+                x.clamp(x0 + margin, x1 - margin).exp()
+            }
+            _ => (lo * hi).sqrt(),
+        };
         let (gamma, q) = loop {
             let (gamma, q) = solve(&rows, &active, n, mid, s_max)?;
             solves += 1;
@@ -511,9 +531,14 @@ pub fn performance_limit(
                 lines = active.len(),
                 "performance limit: one cone program"
             );
-            // Constraint generation: the worst lines left out, until none
-            // passes max(γ, 1): a q declared feasible keeps |W_P S| ≤ 1 on
-            // every line, not only the active ones.
+            // γ > 1 on the active lines is γ > 1 on all of them (more
+            // lines only raise the min-max). Otherwise, constraint
+            // generation: the worst lines left out, until none passes 1: a
+            // q declared feasible keeps |W_P S| ≤ 1 on every line, not
+            // only the active ones.
+            if gamma > 1.0 {
+                break (gamma, q);
+            }
             let worst = violations(&rows, &q, mid, s_max, gamma.max(1.0));
             let added: Vec<usize> = worst
                 .into_iter()
@@ -526,12 +551,23 @@ pub fn performance_limit(
             active.extend(added);
             active.sort_unstable();
         };
-        if gamma <= 1.0 {
+        let f = gamma.max(f64::MIN_POSITIVE).ln();
+        let low_side = gamma <= 1.0;
+        if low_side {
             lo = mid;
+            f_lo = Some(f);
             best = Some(q);
+            if replaced_low == Some(true) {
+                f_hi = f_hi.map(|v| 0.5 * v);
+            }
         } else {
             hi = mid;
+            f_hi = Some(f);
+            if replaced_low == Some(false) {
+                f_lo = f_lo.map(|v| 0.5 * v);
+            }
         }
+        replaced_low = Some(low_side);
     }
     let y = best.unwrap_or_else(|| vec![0.0; n]);
     let binding = binding_lines(&rows, &y, lo, s_max, lines);
@@ -682,11 +718,9 @@ pub(super) fn thinned_lines(magnitude: &[f64], n: usize) -> Vec<usize> {
 /// `min_q max_{k ∈ active} |W_P S_k|` at ω* = `w_star`: the cone program
 /// `min t  s.t. (t, |W_k| Re(1 − P_k b_kᵀq), |W_k| Im(…)) ∈ SOC(3)`.
 ///
-/// Only whether γ ≤ 1 matters to the bisection, so the interior point
-/// stops as soon as an iterate's `q`, evaluated exactly on the active
-/// lines, keeps every `|W_P S|` ≤ 1 (a `q` that reaches ω* is its own
-/// certificate); otherwise it solves to the end. The γ returned is the
-/// exact max over the active lines for the `q` returned.
+/// Solved to the end: the search interpolates ln γ, so γ must be the
+/// optimum, not the first iterate under 1. The γ returned is the exact
+/// max over the active lines for the `q` returned (its own certificate).
 fn solve(
     rows: &[Row],
     active: &[usize],
@@ -743,25 +777,9 @@ fn solve(
         bandwidth_rad_s: w_star,
         status,
     };
-    let mut solver = DefaultSolver::new(&p, &c, &a, &b, &cones, settings.clone())
+    let mut solver = DefaultSolver::new(&p, &c, &a, &b, &cones, settings)
         .map_err(|e| failed(format!("{e:?}")))?;
-    // An interior-point iterate's objectives are no bounds before it
-    // converges (the dual one is often above the primal one): only a q
-    // whose exact max is ≤ 1 decides early.
-    solver.set_termination_callback(|i: &DefaultInfo<f64>| {
-        i.res_primal < 1e-6 && i.res_dual < 1e-6 && i.cost_primal < 1.0 - 1e-3
-    });
     solver.solve();
-    if solver.solution.status == SolverStatus::CallbackTerminated {
-        let q = solver.solution.x[..n].to_vec();
-        let g = exact(&q);
-        if g <= 1.0 {
-            return Ok((g, q));
-        }
-        // The primal iterate was not feasible enough yet: to the end.
-        solver.unset_termination_callback();
-        solver.solve();
-    }
     match solver.solution.status {
         // The q found is its own certificate: γ is its exact max.
         SolverStatus::Solved | SolverStatus::AlmostSolved => {
