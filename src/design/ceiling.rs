@@ -72,7 +72,7 @@ pub struct LimitReport {
     /// controller reaches on these inputs with the same M, delay and
     /// amplifier, rad/s (`null`: not computed, see `not_computed`).
     pub performance_bandwidth_rad_s: Option<f64>,
-    /// The bisection's upper end: no Q of the basis reaches it, rad/s.
+    /// The search's upper end: no Q of the basis reaches it, rad/s.
     pub infeasible_above_rad_s: Option<f64>,
     /// Why no limit was computed (`null`: it was).
     pub not_computed: Option<String>,
@@ -203,7 +203,7 @@ pub fn bench_limit(
     ];
     let basis = Basis::for_plant(&zeros, set.lowest_rad_s, period_s);
     // No controller passes the lowest zero bound (lines between the zeros
-    // may let the bisection pass it by a little): the search starts there.
+    // may let the search pass it by a little): the search starts there.
     let upper = report.rhp_zeros.first().map(|z| 1.05 * z.bound_rad_s);
     match performance_limit(&lines, basis, period_s, s_max, upper) {
         Ok(l) => {
@@ -541,7 +541,7 @@ mod tests {
         assert_eq!(q.fit_stood_in_lines, 0);
         assert!(n.fit_stood_in_lines > 0, "{n:?}");
         // The lines are exact here, so the fit standing in for them
-        // changes the limit by no more than the bisection's tolerance.
+        // changes the limit by no more than the search's tolerance.
         let (a, b) = (
             q.performance_bandwidth_rad_s.unwrap(),
             n.performance_bandwidth_rad_s.unwrap(),

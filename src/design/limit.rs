@@ -26,9 +26,10 @@
 //! over the lines `k` is a second-order cone program (one 3-dimensional
 //! cone per line), solved by Clarabel (Goulart & Chen, 2024), and γ grows
 //! with ω* (|W_P(jω)| does at every ω). The limit is the ω* where γ = 1,
-//! found by bisection. A finite basis gives an **inner** approximation (a
-//! Q that exists: the limit is reached by a real controller), and a finite
-//! set of lines an outer one (between lines nothing is asked): the lines
+//! found by a false-position search on `ln γ(ln ω*)`. A finite basis gives
+//! an **inner** approximation (a Q that exists: the limit is reached by a
+//! real controller), and a finite set of lines an outer one (between
+//! lines nothing is asked): the lines
 //! should include the fitted model's between the measured ones.
 //!
 //! # The analytic bound of a right-half-plane zero
@@ -47,7 +48,7 @@ use clarabel::solver::{DefaultSettings, DefaultSolver, IPSolver, SolverStatus, S
 use serde::{Deserialize, Serialize};
 use std::f64::consts::PI;
 
-/// The relative width of the bracket at which the bisection on ω* stops.
+/// The relative width of the bracket at which the search on ω* stops.
 pub const RELATIVE_TOLERANCE: f64 = 1e-2;
 
 /// Largest number of lines one cone program holds; more lines are thinned
@@ -394,7 +395,7 @@ pub(super) fn noise_hides_bound(
 /// `s_max` (the module's Youla problem), to [`RELATIVE_TOLERANCE`].
 ///
 /// `period_s` is the controller's sample period T (z = e^{jωT}). The
-/// bisection starts from `[0, upper_rad_s]` (the Nyquist frequency when
+/// search starts from `[0, upper_rad_s]` (the Nyquist frequency when
 /// `None`). Lines beyond [`MAX_ACTIVE_LINES`] are handled by constraint
 /// generation: the program runs on a thinned set, the solution is checked
 /// on every line and the worst violated ones are added until none is.
@@ -539,7 +540,7 @@ pub fn performance_limit(
             if gamma > 1.0 {
                 break (gamma, q);
             }
-            let worst = violations(&rows, &q, mid, s_max, gamma.max(1.0));
+            let worst = violations(&rows, &q, mid, s_max, 1.0);
             let added: Vec<usize> = worst
                 .into_iter()
                 .filter(|k| !active.contains(k))
