@@ -31,7 +31,8 @@
 
 use super::fitted::FittedPlant;
 use super::limit::{
-    performance_limit, rhp_zero_bound_rad_s, Basis, BindingLine, LineNoise, Lines, ZeroBound,
+    performance_limit, rhp_zero_bound_rad_s, Basis, BindingLine, LineNoise, Lines, LoopBounds,
+    ZeroBound,
 };
 use super::loops::DesignFrf;
 use crate::ident::C64;
@@ -61,6 +62,12 @@ pub const LINES_TOTAL: usize = 3000;
 /// The fewest lines an input keeps outside its modes' neighbourhoods.
 pub const LINES_PER_INPUT_MIN: usize = 100;
 
+/// The band edge's bound on |T| (|L| ≤ 0.24/(1 − 0.24) = −10.0 dB), in
+/// the limit and in a design alike ([`ProgramLines::bounds`]).
+pub const EDGE_T_MAX: f64 = 0.24;
+/// The band edge starts at this fraction of the highest coherent line.
+pub const EDGE_FRACTION: f64 = 0.9;
+
 /// Largest share of a fit's response at its lowest line that a mass line
 /// may have for the plant to count as stable (10 %).
 pub const MASS_LINE_SHARE_MAX: f64 = 0.1;
@@ -85,6 +92,13 @@ pub struct LimitReport {
     pub binding: Vec<BindingLine>,
     /// What binds, in words.
     pub binds: String,
+    /// The effort bound the limit and the design keep, `|K S|` ≤ this on
+    /// every line, A/m: the peak current over the setpoint step
+    /// ([`LoopBounds::effort_for_step`]).
+    pub effort_max_a_per_m: f64,
+    /// The band edge, rad/s: from here up `|T|` ≤ [`EDGE_T_MAX`] in the
+    /// limit and the design.
+    pub band_edge_rad_s: f64,
     /// Lines the cone programs held: measured (at most
     /// [`LINES_PER_INPUT`] an input), and from the fits.
     pub lines: [usize; 2],
@@ -160,6 +174,7 @@ pub fn bench_limit(
     period_s: f64,
     delay_s: f64,
     s_max: f64,
+    effort_max_a_per_m: f64,
 ) -> LimitReport {
     let t0 = std::time::Instant::now();
     let hz = |z: C64| z / (2.0 * PI);
@@ -184,6 +199,8 @@ pub fn bench_limit(
         rhp_zeros,
         binding: vec![],
         binds: String::new(),
+        effort_max_a_per_m,
+        band_edge_rad_s: f64::NAN,
         lines: [0, 0],
         fit_stood_in_lines: 0,
         solves: 0,
@@ -205,14 +222,17 @@ pub fn bench_limit(
     // No controller passes the lowest zero bound (lines between the zeros
     // may let the search pass it by a little): the search starts there.
     let upper = report.rhp_zeros.first().map(|z| 1.05 * z.bound_rad_s);
-    match performance_limit(&lines, basis, period_s, s_max, upper) {
+    let bounds = set.bounds(effort_max_a_per_m);
+    report.effort_max_a_per_m = effort_max_a_per_m;
+    report.band_edge_rad_s = bounds.band_edge_rad_s;
+    match performance_limit(&lines, basis, period_s, s_max, upper, bounds) {
         Ok(l) => {
             let w = l.performance_bandwidth_rad_s;
             report.performance_bandwidth_rad_s = Some(w);
             report.infeasible_above_rad_s = Some(l.infeasible_above_rad_s);
             report.solves = l.solves;
             report.fit_stood_in_lines = l.stand_in_lines;
-            report.binds = what_binds(w, &report.rhp_zeros, &l.binding, period_s);
+            report.binds = what_binds(w, &report.rhp_zeros, &l, &bounds, period_s);
             report.binding = l.binding;
         }
         Err(e) => {
@@ -351,6 +371,19 @@ impl ProgramLines {
             .fold(f64::INFINITY, f64::min)
     }
 
+    /// The bounds the limit and a design keep on these lines: the effort
+    /// `|K S| ≤ effort_max_a_per_m` (A/m, [`LoopBounds::effort_for_step`])
+    /// and `|T| ≤` [`EDGE_T_MAX`] from [`EDGE_FRACTION`] of the lowest of
+    /// the inputs' highest coherent lines up (|L| ≤ −10 dB where the
+    /// measurement ends: no loop relies on the plant above it).
+    pub fn bounds(&self, effort_max_a_per_m: f64) -> LoopBounds {
+        LoopBounds {
+            effort_max_a_per_m,
+            band_edge_rad_s: EDGE_FRACTION * self.top_coherent_rad_s(),
+            band_edge_t_max: EDGE_T_MAX,
+        }
+    }
+
     /// The lines as the cone program takes them: each input's, then each
     /// fit's.
     pub fn lines(&self) -> Vec<Lines<'_>> {
@@ -385,13 +418,35 @@ impl ProgramLines {
 /// What binds the limit `w` (rad/s), in words: a right-half-plane zero
 /// whose own bound is within 25 % of it, else the lines where `|W_P S|`
 /// reaches 1, named by where they lie.
-fn what_binds(w: f64, zeros: &[ZeroBound], binding: &[BindingLine], period_s: f64) -> String {
+fn what_binds(
+    w: f64,
+    zeros: &[ZeroBound],
+    limit: &super::limit::Limit,
+    bounds: &LoopBounds,
+    period_s: f64,
+) -> String {
     let nyquist = PI / period_s;
+    let binding = &limit.binding;
     let mut parts = Vec::new();
     if let Some(z) = zeros.first().filter(|z| z.bound_rad_s <= 1.25 * w) {
         parts.push(format!(
             "the right-half-plane zero pair {:.2} ± {:.2}j Hz (S = 1 there for every controller: ω* ≤ {:.0} rad/s on its own)",
             z.re_hz, z.im_hz, z.bound_rad_s
+        ));
+    }
+    if let Some(at) = limit.effort_binds_at_rad_s {
+        parts.push(format!(
+            "the peak current (|K S| = {:.2} A/µm at {:.0} Hz: a setpoint step's edge takes the coil's peak current)",
+            1e-6 * bounds.effort_max_a_per_m,
+            at / (2.0 * PI)
+        ));
+    }
+    if let Some(at) = limit.band_edge_binds_at_rad_s {
+        parts.push(format!(
+            "the band edge (|T| = {:.2} at {:.0} Hz: the loop may not rely on the plant above {:.0} Hz, where the measurement ends)",
+            bounds.band_edge_t_max,
+            at / (2.0 * PI),
+            bounds.band_edge_rad_s / (2.0 * PI)
         ));
     }
     let high: Vec<&BindingLine> = binding
@@ -476,6 +531,7 @@ mod tests {
             T,
             T,
             2.0,
+            f64::INFINITY,
         );
         assert_eq!(r.performance_bandwidth_rad_s, None);
         let why = r.not_computed.unwrap();
@@ -503,6 +559,7 @@ mod tests {
             T,
             T,
             2.0,
+            f64::INFINITY,
         );
         let bound = super::super::limit::rhp_zero_bound_rad_s(z * (2.0 * PI), 2.0).unwrap();
         assert_eq!(r.rhp_zeros.len(), 1);
@@ -512,6 +569,48 @@ mod tests {
         // These two modes have no RHP zero of their own: the listed pair
         // only places Q's poles, and the lines decide.
         assert!(r.lines[1] > 0, "no fitted lines above the band: {r:?}");
+    }
+
+    /// The effort bound holds the limit's Q on every line and lowers the
+    /// limit when it binds, and the report says so; with a bound far
+    /// above what the limit needs it changes nothing.
+    #[test]
+    fn the_peak_current_bounds_the_limit_when_it_binds() {
+        let f = fit(
+            vec![mode(25.0, 0.01, 10.0), mode(80.0, 0.004, 3.0)],
+            0.0,
+            0.5 * T,
+        );
+        let (frf, plant) = measured(&f);
+        let quiet = vec![vec![0.0; 300]];
+        let run = |effort: f64| {
+            bench_limit(
+                std::slice::from_ref(&frf),
+                &quiet,
+                std::slice::from_ref(&plant),
+                T,
+                T,
+                2.0,
+                effort,
+            )
+        };
+        let free = run(f64::INFINITY);
+        let w_free = free.performance_bandwidth_rad_s.unwrap();
+        let loose = run(1e12);
+        let w_loose = loose.performance_bandwidth_rad_s.unwrap();
+        assert!(
+            (w_loose / w_free - 1.0).abs() < 0.02,
+            "{w_loose} vs {w_free}"
+        );
+        assert!(!loose.binds.contains("peak current"), "{}", loose.binds);
+        // |K S| at the free limit's crossover is about 1/|P| there: a
+        // tenth of the plant's inverse at the free limit binds.
+        let p_at = plant.frf(w_free).norm();
+        let tight = run(0.1 / p_at);
+        let w_tight = tight.performance_bandwidth_rad_s.unwrap();
+        assert!(w_tight < 0.9 * w_free, "{w_tight} vs {w_free}");
+        assert!(tight.binds.contains("peak current"), "{}", tight.binds);
+        assert_eq!(tight.effort_max_a_per_m, 0.1 / p_at);
     }
 
     /// Where the lines' noise is larger than the bound the weight sets on
@@ -535,6 +634,7 @@ mod tests {
                 T,
                 T,
                 2.0,
+                f64::INFINITY,
             )
         };
         let (q, n) = (run(&quiet), run(&noisy));

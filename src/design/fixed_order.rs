@@ -23,8 +23,13 @@
 //!   computation delay anywhere in `[0, τ]` and the line's 2σ relative
 //!   error (the FRF's `sigma_m_per_a`; none on a fit's line);
 //! - `|T| ≤ t_max`: `1/(2 sin(PM/2))` for the phase margin (at a
-//!   crossover |S| = |T|), [`EDGE_T_MAX`] from [`EDGE_FRACTION`] of the
-//!   highest coherent line up (|L| ≤ −10 dB where the measurement ends);
+//!   crossover |S| = |T|), and the band edge's bound from the band edge
+//!   up (|L| ≤ −10 dB where the measurement ends; [`LoopBounds`], the
+//!   limit's);
+//! - the control effort `|K S| = |X/Φ|` within the limit's bound (the
+//!   peak current for the setpoint step, [`LoopBounds::effort_for_step`]):
+//!   the climb buys bandwidth with gain, and the limit it is measured
+//!   against is held by the same current;
 //! - a stable controller: `Re{Ȳ Ȳ_c*} > 0` on the unit circle, so `Ȳ`
 //!   winds as the stable `Ȳ_c` does and has no zero outside it.
 //!
@@ -46,7 +51,7 @@
 
 use super::ceiling::ProgramLines;
 use super::limit::{
-    noise_hides_bound, orthonormal_map, performance_weight_magnitude, thinned_lines,
+    noise_hides_bound, orthonormal_map, performance_weight_magnitude, thinned_lines, LoopBounds,
     MAX_ACTIVE_LINES,
 };
 use super::search::Requirements;
@@ -61,17 +66,7 @@ use nalgebra::{DMatrix, DVector};
 use std::f64::consts::PI;
 
 /// Poles of `Ȳ` (the controller has one more, the integrator).
-pub const ORDER: usize = 15;
-/// The band edge's bound on |T| (|L| ≤ 0.24/(1 − 0.24) = −10.0 dB).
-pub const EDGE_T_MAX: f64 = 0.24;
-/// The band edge starts at this fraction of the highest coherent line.
-pub const EDGE_FRACTION: f64 = 0.9;
-/// The largest control effort `|K S|` (current per metre of error that
-/// reaches the controller: probe noise, a sharp setpoint) over the lines,
-/// as a multiple of the start's: the climb buys bandwidth with gain,
-/// and without a bound it buys it with a loop that saturates the
-/// amplifier on a step and passes the probe's noise to the coil.
-pub const EFFORT_RATIO: f64 = 4.0;
+pub const ORDER: usize = 23;
 /// Most convex steps.
 pub const MAX_STEPS: usize = 24;
 /// The target's rise over the best ω* after a step that meets it.
@@ -530,8 +525,8 @@ pub struct Climb {
 /// Climbs from `start` (a certified design with one integrator) on the
 /// lines of `set`.
 ///
-/// The band edge starts at [`EDGE_FRACTION`] of the lowest of the
-/// inputs' highest coherent lines; `delay_s` is the computation delay.
+/// `bounds` are the limit's (the band edge and the effort,
+/// [`ProgramLines::bounds`]); `delay_s` is the computation delay.
 ///
 /// # Errors
 /// A start that is not of the form (`C = X/((1 − z⁻¹)Ȳ)` of at most
@@ -544,6 +539,7 @@ pub fn climb(
     period_s: f64,
     delay_s: f64,
     req: Requirements,
+    bounds: LoopBounds,
 ) -> Result<Climb, String> {
     let d = DiscreteController::new(start, period_s, f64::INFINITY);
     let mut cur = Polynomials::of(&d, ORDER).ok_or_else(|| {
@@ -558,15 +554,14 @@ pub fn climb(
     let t_pm = 0.98 / (2.0 * (req.phase_margin_min_deg.to_radians() / 2.0).sin());
     // The lines, the plant in µm/A over a scale (|P| at the lowest line).
     let mut lines: Vec<Line> = Vec::new();
-    let top_coherent_rad_s = set.top_coherent_rad_s();
     // The nominal plant has half the computation delay: `w_I` then covers
     // a delay anywhere in [0, τ] with `|e^{±jωτ/2} − 1| = 2 sin(ωτ/4)`.
     let half = |w: f64| C64::from_polar(1.0, 0.5 * w * delay_s);
     let shape = |w: f64, sigma: f64| {
         let delay = 2.0 * (0.25 * w * delay_s).min(0.5 * PI).sin();
         let noise = if sigma.is_finite() { 2.0 * sigma } else { 0.0 };
-        let t_max = if w >= EDGE_FRACTION * top_coherent_rad_s {
-            EDGE_T_MAX
+        let t_max = if w >= bounds.band_edge_rad_s {
+            bounds.band_edge_t_max
         } else {
             t_pm
         };
@@ -630,14 +625,9 @@ pub fn climb(
     let magnitude: Vec<f64> = lines.iter().map(|l| l.plant.norm()).collect();
     let mut active = thinned_lines(&magnitude, MAX_ACTIVE_LINES);
     let start_w = robust_bandwidth(&cur, &lines, period_s, s_max, 1.0);
-    // The control effort |K S| (the current per metre of probe noise or
-    // of a sharp setpoint) stays within EFFORT_RATIO of the start's
-    // largest on the lines.
-    let effort_max = EFFORT_RATIO
-        * lines
-            .iter()
-            .map(|l| sensitivities(&cur, l.plant, l.omega_rad_s, period_s).2)
-            .fold(0.0, f64::max);
+    // The control effort |K S| in the program's units (A/µm times the
+    // plant's scale).
+    let effort_max = bounds.effort_max_a_per_m / PER_METRE * scale;
     if start_w <= 0.0 {
         return Err(format!(
             "the start ({}) does not meet the robust constraints (|W_P S| + w_I |T| ≤ 1, |T| ≤ {t_pm:.2}) at any ω*",
@@ -658,9 +648,38 @@ pub fn climb(
         grid.extend(sub.iter().map(|l| l.omega_rad_s));
         let next = step(&cur, &sub, &grid, period_s, s_max, target, effort_max);
         // The grid cannot see a root of Ȳ that crosses the unit circle
-        // between its points: the roots themselves are checked.
-        let next =
-            next.filter(|(n, _)| roots_in_z(&n.y).iter().all(|r| r.norm() < MAX_POLE_RADIUS));
+        // between its points: the roots themselves are checked. Where one
+        // crossed, a part of the step: the program's constraints are
+        // convex and the current controller meets them, so every point
+        // between it and the step's solution meets them too.
+        let next = next.and_then(|(n, t)| {
+            (0..4).find_map(|halvings| {
+                let a = 0.5f64.powi(halvings);
+                let p = Polynomials {
+                    x: cur
+                        .x
+                        .iter()
+                        .zip(&n.x)
+                        .map(|(c, v)| c + a * (v - c))
+                        .collect(),
+                    y: cur
+                        .y
+                        .iter()
+                        .zip(&n.y)
+                        .map(|(c, v)| c + a * (v - c))
+                        .collect(),
+                };
+                let stable = roots_in_z(&p.y).iter().all(|r| r.norm() < MAX_POLE_RADIUS);
+                if !stable {
+                    tracing::debug!(
+                        step = steps,
+                        a,
+                        "limit strategy: a root of Ȳ outside the radius"
+                    );
+                }
+                stable.then_some((p, t))
+            })
+        });
         let g_cur = gamma(&cur, &lines, period_s, s_max, target);
         let judged = next.map(|(n, _)| {
             let g: Vec<f64> = lines

@@ -677,6 +677,9 @@ pub struct ClimbInputs {
     pub lines: ceiling::ProgramLines,
     /// The computation delay τ, s.
     pub computation_delay_s: f64,
+    /// The effort bound `|K S|`, A/m, the limit's
+    /// ([`limit::LoopBounds::effort_for_step`]).
+    pub effort_max_a_per_m: f64,
 }
 
 /// Most 2 % gain steps of a `limit` design's back-off.
@@ -758,6 +761,7 @@ fn limit_attempt(
             period_s,
             y.computation_delay_s,
             req,
+            y.lines.bounds(y.effort_max_a_per_m),
         )
         .map(|c| {
             let e = certify_backing_off(
@@ -786,7 +790,7 @@ fn limit_attempt(
             strategy: "limit",
             evaluation: e.clone(),
             structure: format!(
-                "a controller of {} poles (integrator included) climbed from the {from} design by {} convex steps on every line (Karimi's inner approximation of |1 + L|: robust performance |W_P S| + w_I |T| ≤ 1 with the computation delay and the lines' 2σ, |T| bounded for the phase margin and at the band edge, a stable controller): robust ω* from {:.0} to {:.0} rad/s",
+                "a controller of {} poles (integrator included) climbed from the {from} design by {} convex steps on every line (Karimi's inner approximation of |1 + L|: robust performance |W_P S| + w_I |T| ≤ 1 with the computation delay and the lines' 2σ, |T| bounded for the phase margin and at the band edge, |K S| within the peak current for the setpoint step, a stable controller): robust ω* from {:.0} to {:.0} rad/s",
                 fixed_order::ORDER + 1,
                 c.steps,
                 c.start_bandwidth_rad_s,

@@ -525,8 +525,15 @@ pub fn run_design(opts: &DesignOptions) -> Result<DesignSummary, RunError> {
         });
     let s_max = spec.requirements.sensitivity_peak_max;
     let relative_sigma = crate::design::coherent_relative_sigma(&read.frfs);
+    // The effort bound of the limit and the design alike: the peak
+    // current for the config's setpoint step.
+    let effort_max_a_per_m = crate::design::limit::LoopBounds::effort_for_step(
+        cfg.actuator.peak_current_a,
+        cfg.step.step_m,
+    );
     // The `limit` strategy climbs on the limit's lines.
     let climb = crate::design::ClimbInputs {
+        effort_max_a_per_m,
         lines: crate::design::ceiling::program_lines(
             &frfs,
             &relative_sigma,
@@ -546,6 +553,7 @@ pub fn run_design(opts: &DesignOptions) -> Result<DesignSummary, RunError> {
                 period_s,
                 spec.computation_delay_s,
                 s_max,
+                effort_max_a_per_m,
             )
         },
         || {

@@ -18,7 +18,12 @@ of lines up to 0.98 of the Nyquist frequency,
     gamma(w*) = min_Q max_k |W_P(j w_k)| |1 - P(z_k) Q(z_k)|
 
 is a second-order cone program; the limit is the w* where gamma = 1, by
-bisection. Q is a real combination of an FIR of `taps` taps and, as a
+bisection. Two bounds hold every Q, as in `bench design` (LoopBounds):
+the control effort |K S| = |Q| <= peak_current_a / step_m on every line
+(a setpoint step's edge within the coil's peak current), and
+|T| = |P Q| <= edge_t_max from edge_fraction * band_top_hz up (the loop
+does not rely on the plant above the default chirp's highest coherent
+line). Q is a real combination of an FIR of `taps` taps and, as a
 Kautz-like set of partial fractions, poles at e^{sT} for every zero s of
 the true mechanics below the Nyquist frequency (a right-half-plane one
 mirrored into the left) and at n_log real and n_log complex (zeta 0.5)
@@ -30,8 +35,10 @@ right-half-plane zero z of the continuous mechanics, |1/M + w*/z| <= 1
 Input (JSON): {"cases": [{"name", "m_kg": [m1..m5], "k4_n_per_m",
 "k5_n_per_m", "kp_n_per_m", "y1o_fraction_of_l", "mass_asymmetry",
 "zeta_rigid", "zeta_csm", "force_constant_n_per_a", "amplifier_bandwidth_hz",
-"rate_hz", "delay_periods", "s_max"}]}
+"rate_hz", "delay_periods", "s_max", "peak_current_a", "step_m",
+"band_top_hz", "edge_fraction", "edge_t_max"}]}
 Output (JSON): {"cases": [{"name", "limit_rad_s", "infeasible_above_rad_s",
+"limit_without_bounds_rad_s" (the same problem without the two bounds),
 "rhp_zero_bounds": [{"re_hz", "im_hz", "bound_rad_s"}], "zeros_hz"}]}
 
 Run: python3 tests/data/limit_reference.py cases.json [out.json]
@@ -105,7 +112,7 @@ def rhp_bound(z, M):
     return (-b + np.sqrt(b * b - 4 * a * c)) / (2 * a)
 
 
-def limit(c, taps=30, lines=1000, n_log=16):
+def limit(c, taps=30, lines=600, n_log=16, bounds=True):
     at, zeros, wn, T = plant(c)
     M = c["s_max"]
     nyq = np.pi / T
@@ -125,7 +132,13 @@ def limit(c, taps=30, lines=1000, n_log=16):
     wt = cp.Parameter(len(w), nonneg=True)
     s = 1 - PB @ x
     t = cp.Variable()
-    prob = cp.Problem(cp.Minimize(t), [cp.multiply(wt, cp.abs(s)) <= t])
+    cons = [cp.multiply(wt, cp.abs(s)) <= t]
+    if bounds:
+        # Q in A/m is (B x)/scale: |Q| <= I_pk/|r| on every line.
+        cons.append(cp.abs(B @ x) <= c["peak_current_a"] / abs(c["step_m"]) * scale)
+        edge = w >= 2 * np.pi * c["edge_fraction"] * c["band_top_hz"]
+        cons.append(cp.abs(PB[edge] @ x) <= c["edge_t_max"])
+    prob = cp.Problem(cp.Minimize(t), cons)
 
     def gamma(ws):
         wt.value = np.abs(1j * w / M + ws) / w
@@ -143,16 +156,22 @@ def limit(c, taps=30, lines=1000, n_log=16):
         else:
             hi = mid
     zeros = [zi for zi in zeros if abs(zi) < 1e6 * nyq]  # drop the numerically infinite
-    bounds = [{"re_hz": zi.real / (2 * np.pi), "im_hz": zi.imag / (2 * np.pi),
-               "bound_rad_s": rhp_bound(zi, M)} for zi in zeros if zi.real > 0 and zi.imag >= 0]
+    zero_bounds = [{"re_hz": zi.real / (2 * np.pi), "im_hz": zi.imag / (2 * np.pi),
+                    "bound_rad_s": rhp_bound(zi, M)} for zi in zeros if zi.real > 0 and zi.imag >= 0]
+    if not bounds:
+        return lo
     return {"name": c["name"], "limit_rad_s": lo, "infeasible_above_rad_s": hi,
-            "rhp_zero_bounds": bounds,
+            "limit_without_bounds_rad_s": limit(c, taps, lines, n_log, bounds=False),
+            "rhp_zero_bounds": zero_bounds,
             "zeros_hz": [[zi.real / (2 * np.pi), zi.imag / (2 * np.pi)] for zi in zeros]}
 
 
 if __name__ == "__main__":
     cases = json.load(open(sys.argv[1]))["cases"]
-    out = {"cases": [limit(c) for c in cases]}
+    out = {"cases": []}
+    for c in cases:
+        out["cases"].append(limit(c))
+        print(c["name"], "done", file=sys.stderr, flush=True)
     text = json.dumps(out, indent=1)
     if len(sys.argv) > 2:
         open(sys.argv[2], "w").write(text)
