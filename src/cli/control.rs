@@ -514,8 +514,10 @@ fn print_verify(v: &Verify) {
     let pr = &r.predicted;
     if let Some(m) = &r.measured {
         outln!(
-            "  ‖S‖∞   measured {:.3} ({:.2} dB) at {:.1} rad/s (γ² {}); predicted {:.3} ({:.2} dB) at {:.1} rad/s; {}",
+            "  ‖S‖∞   measured {:.3} ± {} (1σ; {:.2} dB) at {:.1} rad/s (γ² {}); predicted {:.3} ({:.2} dB) at {:.1} rad/s; {} ({} at 95 % confidence on the {} lines that resolve 1 dB)",
             m.sensitivity_peak,
+            r.sensitivity_peak_sigma
+                .map_or("–".to_string(), |s| format!("{s:.3}")),
             db(m.sensitivity_peak),
             m.sensitivity_peak_at_rad_s,
             r.sensitivity_peak_coherence
@@ -524,7 +526,10 @@ fn print_verify(v: &Verify) {
             db(pr.sensitivity_peak),
             pr.sensitivity_peak_at_rad_s,
             r.sensitivity_peak_difference_db
-                .map_or("–".to_string(), |d| format!("{d:+.2} dB"))
+                .map_or("–".to_string(), |d| format!("{d:+.2} dB")),
+            r.sensitivity_peak_difference_range_db
+                .map_or("–".to_string(), |[lo, hi]| format!("{lo:+.2} … {hi:+.2} dB")),
+            r.lines_resolving_tolerance
         );
         outln!(
             "  crossover(s) measured {} rad/s; predicted {} rad/s; first {}",

@@ -205,3 +205,43 @@ fn an_frf_csv_of_more_than_max_points_is_refused_at_the_line_over() {
         "{e}"
     );
 }
+
+/// The 95 % confidence circle of H1 against scipy's F quantile
+/// (`tests/data/h1_radius_reference.py`, which also checks by Monte Carlo
+/// that the circle covers the true H in 95 % of estimates: 0.949–0.952
+/// for 3 to 20 averages): `r² = 2/(2n − 2) · F(2, 2n − 2; 0.95) · (1 −
+/// γ²)/γ² · |H|²`, for non-integer averages too.
+#[test]
+fn h1_radius_95_is_the_f_interval() {
+    let text = std::fs::read_to_string(
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("tests/data/h1_radius_reference.json"),
+    )
+    .unwrap();
+    let v: serde_json::Value = serde_json::from_str(&text).unwrap();
+    let h = C64::new(3.0, -4.0);
+    for c in v["cases"].as_array().unwrap() {
+        let n = c["averages"].as_f64().unwrap();
+        let f95 = c["f95"].as_f64().unwrap();
+        for g2 in [0.5, 0.9, 0.999] {
+            let want = h.norm() * (2.0 / (2.0 * n - 2.0) * f95 * (1.0 - g2) / g2).sqrt();
+            let got = h1_radius_95(h, g2, n);
+            assert!(
+                ((got - want) / want).abs() < 1e-9,
+                "n {n} γ² {g2}: {got} vs {want}"
+            );
+        }
+    }
+    for c in v["coverage"].as_array().unwrap() {
+        let p = c["coverage"].as_f64().unwrap();
+        assert!((p - 0.95).abs() < 0.005, "{c}");
+    }
+    // Many averages: √3 times the complex 1σ (χ²₂'s 95 % point over 2);
+    // no coherence or one average: no bound.
+    let (g2, n) = (0.9, 1e6);
+    let ratio = h1_radius_95(h, g2, n) / h1_sigma_m_per_a(h, g2, n);
+    assert!((ratio - 2.9957f64.sqrt()).abs() < 1e-3, "{ratio}");
+    assert!(h1_radius_95(h, 0.0, 5.0).is_infinite());
+    assert!(h1_radius_95(h, 0.9, 1.0).is_infinite());
+    assert!(h1_radius_95(C64::new(f64::NAN, 0.0), 0.9, 5.0).is_nan());
+}
