@@ -599,7 +599,10 @@ fn a_short_sweep_agrees_on_every_seed() {
             let d = f64_at(r, &format!("/sensitivity_peak_difference_range_db/{k}"));
             assert!(d.abs() < 0.5, "seed {seed}: {r}");
         }
-        assert!(r["lines_resolving_tolerance"].as_u64().unwrap() > 300, "{r}");
+        assert!(
+            r["lines_resolving_tolerance"].as_u64().unwrap() > 300,
+            "{r}"
+        );
     }
     eprintln!("raw largest line more than 1 dB off on {raw_off} of 12 seeds");
     assert!(raw_off >= 1);
