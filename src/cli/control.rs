@@ -514,7 +514,7 @@ fn print_verify(v: &Verify) {
     let pr = &r.predicted;
     if let Some(m) = &r.measured {
         outln!(
-            "  ‖S‖∞   measured {:.3} ± {} (1σ; {:.2} dB) at {:.1} rad/s (γ² {}); predicted {:.3} ({:.2} dB) at {:.1} rad/s; {} ({} at 95 % confidence on the {} lines that resolve 1 dB)",
+            "  ‖S‖∞   measured {:.3} ± {} (1σ; {:.2} dB) at {:.1} rad/s (γ² {}); predicted {:.3} ({:.2} dB) at {:.1} rad/s; {} ({} at 95 % confidence on the {} lines that resolve 1 dB, against the model's {} there{})",
             m.sensitivity_peak,
             r.sensitivity_peak_sigma
                 .map_or("–".to_string(), |s| format!("{s:.3}")),
@@ -529,7 +529,14 @@ fn print_verify(v: &Verify) {
                 .map_or("–".to_string(), |d| format!("{d:+.2} dB")),
             r.sensitivity_peak_difference_range_db
                 .map_or("–".to_string(), |[lo, hi]| format!("{lo:+.2} … {hi:+.2} dB")),
-            r.lines_resolving_tolerance
+            r.lines_resolving_tolerance,
+            r.model_sensitivity_peak_on_resolving_lines
+                .map_or("–".to_string(), |m| format!("{m:.3}")),
+            if r.sensitivity_peak_in_resolved_band == Some(false) {
+                "; the predicted peak lies outside them"
+            } else {
+                ""
+            }
         );
         outln!(
             "  crossover(s) measured {} rad/s; predicted {} rad/s; first {}",

@@ -38,9 +38,13 @@
 //! [`S_PEAK_TOLERANCE_DB`] beyond the random error of the lines that can
 //! tell: on the lines whose 95 % confidence circle
 //! ([`ClosedLoopFrf::s_radius`]) is within the tolerance (the lines that
-//! resolve 1 dB), some line's |S| surely above the prediction plus the
-//! tolerance, or every line's |S| surely below it minus the tolerance;
-//! no such line at all flags the run too (it cannot say). Near γ² = 0.5
+//! resolve 1 dB), some line's |S| surely above the model's largest |S|
+//! on those lines plus the tolerance, or every line's |S| surely below
+//! it minus the tolerance; no such line at all flags the run too (it
+//! cannot say). The model's largest |S| on those lines is the loop
+//! check's ‖S‖∞ when its peak lies in their band; when it lies above
+//! (near the band edge, where a sweep's coherence falls) the report says
+//! the measurement cannot see it. Near γ² = 0.5
 //! a line's |Ŝ| is ±30 % at 1σ, and among a thousand lines a few of the
 //! incoherent ones above the loop's band read γ² ≥ 0.5 by chance (their
 //! estimated γ² is then itself the error, so their confidence circle is
@@ -491,11 +495,19 @@ pub struct VerifyResult {
     /// [`S_PEAK_TOLERANCE_DB`] (`r ≤ (10^{1/20} − 1)|Ŝ|`), count: the
     /// lines the ‖S‖∞ comparison rests on.
     pub lines_resolving_tolerance: usize,
+    /// The model's largest |S| on those lines: the prediction of what
+    /// they can measure, dimensionless.
+    pub model_sensitivity_peak_on_resolving_lines: Option<f64>,
+    /// Whether the predicted ‖S‖∞'s frequency lies within the band of
+    /// those lines (`false`: the measurement cannot see the predicted
+    /// peak; the comparison is on the band it sees).
+    pub sensitivity_peak_in_resolved_band: Option<bool>,
     /// The difference's range at 95 % confidence on those lines, dB:
-    /// `20 log10(max(|Ŝ| − r) / predicted)` and `20 log10(max(|Ŝ| + r) /
-    /// predicted)`, `r` each line's [`ClosedLoopFrf::s_radius`]
-    /// (`null`: no line resolves the tolerance). The run is flagged when
-    /// the range lies wholly beyond ±[`S_PEAK_TOLERANCE_DB`].
+    /// `20 log10(max(|Ŝ| − r) / m)` and `20 log10(max(|Ŝ| + r) / m)`,
+    /// `r` each line's [`ClosedLoopFrf::s_radius`], `m`
+    /// [`Self::model_sensitivity_peak_on_resolving_lines`] (`null`: no
+    /// line resolves the tolerance). The run is flagged when the range
+    /// lies wholly beyond ±[`S_PEAK_TOLERANCE_DB`].
     pub sensitivity_peak_difference_range_db: Option<[f64; 2]>,
     /// `measured / predicted − 1` of the first crossover, %.
     pub crossover_difference_pct: Option<f64>,
@@ -543,6 +555,8 @@ impl VerifyResult {
             sensitivity_peak_sigma: None,
             sensitivity_peak_difference_db: None,
             lines_resolving_tolerance: 0,
+            model_sensitivity_peak_on_resolving_lines: None,
+            sensitivity_peak_in_resolved_band: None,
             sensitivity_peak_difference_range_db: None,
             crossover_difference_pct: None,
             s_model_difference_max_db: None,
@@ -628,18 +642,37 @@ impl VerifyResult {
                 used.len()
             )),
             Some((lo_line, lo)) => {
-                let (ds_lo, ds_hi) = (20.0 * (lo / pred).log10(), 20.0 * (hi / pred).log10());
+                // The prediction on the band the lines see.
+                let band = resolving
+                    .iter()
+                    .map(|&i| model.sensitivity(frf.frequency_hz[i]).norm())
+                    .fold(0.0f64, f64::max);
+                let w_of = |i: usize| 2.0 * PI * frf.frequency_hz[i];
+                let (w_lo, w_hi) = (w_of(resolving[0]), w_of(resolving[resolving.len() - 1]));
+                let at = r.predicted.sensitivity_peak_at_rad_s;
+                let inside = (w_lo..=w_hi).contains(&at);
+                r.model_sensitivity_peak_on_resolving_lines = Some(band);
+                r.sensitivity_peak_in_resolved_band = Some(inside);
+                let (ds_lo, ds_hi) = (20.0 * (lo / band).log10(), 20.0 * (hi / band).log10());
                 r.sensitivity_peak_difference_range_db = Some([ds_lo, ds_hi]);
+                let seen = if inside {
+                    String::new()
+                } else {
+                    format!(
+                        " (the predicted ‖S‖∞ at {at:.1} rad/s lies outside them, {w_lo:.1}–{w_hi:.1} rad/s)"
+                    )
+                };
                 if ds_lo > S_PEAK_TOLERANCE_DB {
                     r.reasons.push(format!(
-                        "{said}: |S| at {:.1} rad/s is {:.3} (γ² {:.3}), at least {ds_lo:+.2} dB above the prediction at 95 % confidence, more than {S_PEAK_TOLERANCE_DB} dB",
-                        2.0 * PI * frf.frequency_hz[lo_line],
+                        "{said}: |S| at {:.1} rad/s is {:.3} (γ² {:.3}), at least {ds_lo:+.2} dB above the model's largest |S| {band:.3} on the {} lines that resolve {S_PEAK_TOLERANCE_DB} dB at 95 % confidence{seen}, more than {S_PEAK_TOLERANCE_DB} dB",
+                        w_of(lo_line),
                         frf.s[lo_line].norm(),
                         frf.s_coherence[lo_line],
+                        resolving.len(),
                     ));
                 } else if ds_hi < -S_PEAK_TOLERANCE_DB {
                     r.reasons.push(format!(
-                        "{said}: on the {} lines that resolve {S_PEAK_TOLERANCE_DB} dB, |S| stays at least {:.2} dB below the prediction at 95 % confidence, more than {S_PEAK_TOLERANCE_DB} dB",
+                        "{said}: on the {} lines that resolve {S_PEAK_TOLERANCE_DB} dB, |S| stays at least {:.2} dB below the model's largest |S| {band:.3} on them at 95 % confidence{seen}, more than {S_PEAK_TOLERANCE_DB} dB",
                         resolving.len(),
                         -ds_hi
                     ));
@@ -684,6 +717,12 @@ impl VerifyResult {
     pub fn verdict_line(&self) -> String {
         if self.flagged {
             format!("VERIFY FAILED: {}", self.reasons.join("; "))
+        } else if self.sensitivity_peak_in_resolved_band == Some(false) {
+            format!(
+                "agrees with the prediction on the band its lines resolve (|S| within {S_PEAK_TOLERANCE_DB} dB beyond the lines' 95 % confidence, first crossover within {:.0} %); the predicted ‖S‖∞ at {:.1} rad/s lies outside that band and is not measured (a longer or stronger sweep resolves it: --verify-duration-s, --verify-amplitude-a)",
+                100.0 * CROSSOVER_TOLERANCE,
+                self.predicted.sensitivity_peak_at_rad_s
+            )
         } else {
             format!(
                 "agrees with the prediction (‖S‖∞ within {S_PEAK_TOLERANCE_DB} dB beyond the lines' 95 % confidence, first crossover within {:.0} %)",
@@ -876,7 +915,7 @@ mod tests {
         let r = VerifyResult::of(&spike, &keep, &predicted, &ml);
         assert!(r.flagged, "{r:?}");
         assert!(
-            r.reasons[0].contains("above the prediction at 95 % confidence"),
+            r.reasons[0].contains("above the model's largest |S|"),
             "{:?}",
             r.reasons
         );
@@ -887,7 +926,10 @@ mod tests {
         low.s.iter_mut().for_each(|s| *s *= 10f64.powf(-2.0 / 20.0));
         let r = VerifyResult::of(&low, &keep, &predicted, &ml);
         assert!(
-            r.flagged && r.reasons.iter().any(|m| m.contains("below the prediction")),
+            r.flagged
+                && r.reasons
+                    .iter()
+                    .any(|m| m.contains("below the model's largest |S|")),
             "{:?}",
             r.reasons
         );
@@ -898,6 +940,25 @@ mod tests {
             "{:?}",
             r.reasons
         );
+        // The lines near the predicted peak too noisy to resolve 1 dB:
+        // compared on the band the others resolve, and said.
+        let at = predicted.sensitivity_peak_at_rad_s / (2.0 * PI);
+        let mut blind = measured(1.0);
+        for (k, &fk) in f.iter().enumerate() {
+            if fk > 0.8 * at {
+                blind.s_radius[k] = 0.5 * blind.s[k].norm();
+            }
+        }
+        let r = VerifyResult::of(&blind, &keep, &predicted, &ml);
+        assert!(!r.flagged, "{:?}", r.reasons);
+        assert_eq!(r.sensitivity_peak_in_resolved_band, Some(false));
+        assert!(r.model_sensitivity_peak_on_resolving_lines.unwrap() < predicted.sensitivity_peak);
+        assert!(
+            r.verdict_line().contains("not measured"),
+            "{}",
+            r.verdict_line()
+        );
+        assert_eq!(same.sensitivity_peak_in_resolved_band, Some(true));
         // Lines left out for a stall are counted apart.
         let mut half = keep.clone();
         half.iter_mut().take(100).for_each(|k| *k = false);

@@ -774,6 +774,16 @@ fn limit_attempt(
             );
             (c, e)
         });
+        match &r {
+            Err(m) => tracing::debug!(from = a.strategy, why = %m, "limit strategy: no climb"),
+            Ok((c, e)) => tracing::debug!(
+                from = a.strategy,
+                robust_rad_s = c.robust_bandwidth_rad_s,
+                objective_rad_s = e.objective_rad_s,
+                violation = e.violation,
+                "limit strategy: a climb"
+            ),
+        }
         let done = matches!(&r, Ok((_, e)) if e.feasible());
         results.push((a.strategy.to_string(), r));
         if done {
