@@ -608,7 +608,7 @@ impl VerifyResult {
         // line surely highest (its |Ŝ| − r) and the highest the loop
         // could be (|Ŝ| + r).
         let resolve = 10f64.powf(S_PEAK_TOLERANCE_DB / 20.0) - 1.0;
-        let radius = |i: usize| frf.s_radius.get(i).copied().unwrap_or(0.0);
+        let radius = |i: usize| frf.s_radius[i];
         let resolving: Vec<usize> = used
             .iter()
             .copied()

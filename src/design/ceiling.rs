@@ -509,6 +509,28 @@ mod tests {
         )
     }
 
+    /// The limit of a two-mode bench (25 and 80 Hz) measured exactly
+    /// ([`measured`]), with its lines' relative 1σ `sigma` (one value for
+    /// all 300) and the effort bound `effort_a_per_m`; the plant too.
+    fn two_mode_limit(sigma: f64, effort_a_per_m: f64) -> (LimitReport, FittedPlant) {
+        let f = fit(
+            vec![mode(25.0, 0.01, 10.0), mode(80.0, 0.004, 3.0)],
+            0.0,
+            0.5 * T,
+        );
+        let (frf, plant) = measured(&f);
+        let r = bench_limit(
+            std::slice::from_ref(&frf),
+            &[vec![sigma; 300]],
+            std::slice::from_ref(&plant),
+            T,
+            T,
+            2.0,
+            effort_a_per_m,
+        );
+        (r, plant)
+    }
+
     /// A fit with a significant mass line (L/s²) is a free mass: no limit,
     /// and the report says why, naming the input; without it the limit is
     /// computed, and a right-half-plane zero the fit lists is reported with
@@ -576,25 +598,8 @@ mod tests {
     /// above what the limit needs it changes nothing.
     #[test]
     fn the_peak_current_bounds_the_limit_when_it_binds() {
-        let f = fit(
-            vec![mode(25.0, 0.01, 10.0), mode(80.0, 0.004, 3.0)],
-            0.0,
-            0.5 * T,
-        );
-        let (frf, plant) = measured(&f);
-        let quiet = vec![vec![0.0; 300]];
-        let run = |effort: f64| {
-            bench_limit(
-                std::slice::from_ref(&frf),
-                &quiet,
-                std::slice::from_ref(&plant),
-                T,
-                T,
-                2.0,
-                effort,
-            )
-        };
-        let free = run(f64::INFINITY);
+        let run = |effort: f64| two_mode_limit(0.0, effort).0;
+        let (free, plant) = two_mode_limit(0.0, f64::INFINITY);
         let w_free = free.performance_bandwidth_rad_s.unwrap();
         let loose = run(1e12);
         let w_loose = loose.performance_bandwidth_rad_s.unwrap();
@@ -618,26 +623,8 @@ mod tests {
     /// lines never need it.
     #[test]
     fn noisy_low_lines_are_replaced_by_the_fit() {
-        let f = fit(
-            vec![mode(25.0, 0.01, 10.0), mode(80.0, 0.004, 3.0)],
-            0.0,
-            0.5 * T,
-        );
-        let (frf, plant) = measured(&f);
-        let quiet = vec![vec![0.0; 300]];
-        let noisy = vec![vec![1e-2; 300]];
-        let run = |s: &Vec<Vec<f64>>| {
-            bench_limit(
-                std::slice::from_ref(&frf),
-                s,
-                std::slice::from_ref(&plant),
-                T,
-                T,
-                2.0,
-                f64::INFINITY,
-            )
-        };
-        let (q, n) = (run(&quiet), run(&noisy));
+        let run = |sigma: f64| two_mode_limit(sigma, f64::INFINITY).0;
+        let (q, n) = (run(0.0), run(1e-2));
         assert_eq!(q.fit_stood_in_lines, 0);
         assert!(n.fit_stood_in_lines > 0, "{n:?}");
         // The lines are exact here, so the fit standing in for them

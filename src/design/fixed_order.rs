@@ -111,6 +111,16 @@ pub struct Polynomials {
 }
 
 impl Polynomials {
+    /// The point a share `a` of the way from `self` to `other` (0: self,
+    /// 1: other), coefficient by coefficient.
+    fn toward(&self, other: &Self, a: f64) -> Self {
+        let mix = |c: &[f64], v: &[f64]| c.iter().zip(v).map(|(c, v)| c + a * (v - c)).collect();
+        Self {
+            x: mix(&self.x, &other.x),
+            y: mix(&self.y, &other.y),
+        }
+    }
+
     /// `X(ζ)`, `Y(ζ) = (1 − ζ) Ȳ(ζ)` and `Ȳ(ζ)` at `ζ = e^{−jωT}`.
     fn at(&self, zeta: C64) -> (C64, C64, C64) {
         let yb = poly(&self.y, zeta);
@@ -654,14 +664,14 @@ pub fn climb(
     while start_w <= 0.0 && backed_off < START_BACK_OFF_STEPS {
         backed_off += 1;
         for v in &mut cur.x {
-            *v *= 0.98;
+            *v *= super::GAIN_BACK_OFF;
         }
         start_w = robust_bandwidth(&cur, &lines, period_s, s_max, 1.0);
     }
     if backed_off > 0 {
         tracing::debug!(
             backed_off,
-            gain = 0.98f64.powi(backed_off as i32),
+            gain = super::GAIN_BACK_OFF.powi(backed_off as i32),
             start_w,
             "limit strategy: the start's gain backed off"
         );
@@ -671,7 +681,7 @@ pub fn climb(
     let effort_max = bounds.effort_max_a_per_m / PER_METRE * scale;
     if start_w <= 0.0 {
         return Err(format!(
-            "the start ({}) does not meet the robust constraints (|W_P S| + w_I |T| ≤ 1, |T| ≤ {t_pm:.2}) at any ω*, nor with its gain backed off to 0.98^{START_BACK_OFF_STEPS}",
+            "the start ({}) does not meet the robust constraints (|W_P S| + w_I |T| ≤ 1, |T| ≤ {t_pm:.2}) at any ω*, nor with its gain backed off {START_BACK_OFF_STEPS} times by 2 %",
             start.description
         ));
     }
@@ -696,20 +706,7 @@ pub fn climb(
         let next = next.and_then(|(n, t)| {
             (0..4).find_map(|halvings| {
                 let a = 0.5f64.powi(halvings);
-                let p = Polynomials {
-                    x: cur
-                        .x
-                        .iter()
-                        .zip(&n.x)
-                        .map(|(c, v)| c + a * (v - c))
-                        .collect(),
-                    y: cur
-                        .y
-                        .iter()
-                        .zip(&n.y)
-                        .map(|(c, v)| c + a * (v - c))
-                        .collect(),
-                };
+                let p = cur.toward(&n, a);
                 let stable = roots_in_z(&p.y).iter().all(|r| r.norm() < MAX_POLE_RADIUS);
                 if !stable {
                     tracing::debug!(

@@ -420,6 +420,26 @@ impl Row {
         self.stand_in
             .is_some_and(|(_, sigma)| noise_hides_bound(self.omega_rad_s, sigma, w_star, s_max))
     }
+
+    /// Q at this line for the basis coefficients `q`.
+    fn q_at(&self, q: &[f64]) -> C64 {
+        self.terms.iter().zip(q).map(|(t, c)| t * *c).sum()
+    }
+
+    /// `|Q|` over the effort bound at this line (`qz` = Q here).
+    fn effort_ratio(&self, qz: C64, bounds: &LoopBounds) -> f64 {
+        qz.norm() / bounds.effort_max_a_per_m
+    }
+
+    /// `|P Q|` over the band edge's bound at this line, 0 below the band
+    /// edge (`qz` = Q here, the plant the program uses at `w_star`).
+    fn edge_ratio(&self, qz: C64, w_star: f64, s_max: f64, bounds: &LoopBounds) -> f64 {
+        if self.omega_rad_s >= bounds.band_edge_rad_s {
+            (self.plant_at(w_star, s_max) * qz).norm() / bounds.band_edge_t_max
+        } else {
+            0.0
+        }
+    }
 }
 
 /// Whether a measured line at `omega_rad_s` with relative 1σ
@@ -478,6 +498,20 @@ pub fn performance_limit(
                 "the upper end of the search {u} rad/s is not a positive frequency"
             )));
         }
+    }
+    let e = bounds.effort_max_a_per_m;
+    if e.is_nan() || e <= 0.0 {
+        return Err(LimitError::BadArgument(format!(
+            "the effort bound {} A/m is not a positive current per metre (Q = 0 is the only controller it admits; infinite: no bound)",
+            bounds.effort_max_a_per_m
+        )));
+    }
+    let (t_max, edge) = (bounds.band_edge_t_max, bounds.band_edge_rad_s);
+    if t_max.is_nan() || t_max <= 0.0 || edge.is_nan() || edge < 0.0 {
+        return Err(LimitError::BadArgument(format!(
+            "the band edge's bound |T| ≤ {} from {} rad/s up: the bound must be positive and the edge a frequency (infinite: none)",
+            bounds.band_edge_t_max, bounds.band_edge_rad_s
+        )));
     }
     let nyquist = PI / period_s;
     let mut rows = Vec::new();
@@ -642,23 +676,15 @@ pub fn performance_limit(
     // the line where each is closest.
     let closest = |ratio: &dyn Fn(&Row, C64) -> f64| {
         rows.iter()
-            .map(|r| {
-                let qz: C64 = r.terms.iter().zip(&y).map(|(t, c)| t * *c).sum();
-                (ratio(r, qz), r.omega_rad_s)
-            })
+            .map(|r| (ratio(r, r.q_at(&y)), r.omega_rad_s))
             .filter(|(x, _)| x.is_finite())
             .max_by(|a, b| a.0.total_cmp(&b.0))
             .filter(|(x, _)| *x >= 0.98)
             .map(|(_, w)| w)
     };
-    let effort_binds_at_rad_s = closest(&|_, qz| qz.norm() / bounds.effort_max_a_per_m);
-    let band_edge_binds_at_rad_s = closest(&|r, qz| {
-        if r.omega_rad_s >= bounds.band_edge_rad_s {
-            (r.plant_at(lo.max(f64::MIN_POSITIVE), s_max) * qz).norm() / bounds.band_edge_t_max
-        } else {
-            0.0
-        }
-    });
+    let effort_binds_at_rad_s = closest(&|r, qz| r.effort_ratio(qz, &bounds));
+    let band_edge_binds_at_rad_s =
+        closest(&|r, qz| r.edge_ratio(qz, lo.max(f64::MIN_POSITIVE), s_max, &bounds));
     let q = (&back * nalgebra::DVector::from_vec(y)).as_slice().to_vec();
     let stand_in_lines = rows
         .iter()
@@ -730,8 +756,7 @@ pub(super) fn orthonormal_map(x: &nalgebra::DMatrix<f64>) -> nalgebra::DMatrix<f
 
 /// `|W_P S|` at row `r` for coefficients `q`.
 fn weighted(r: &Row, q: &[f64], w_star: f64, s_max: f64) -> f64 {
-    let qz: C64 = r.terms.iter().zip(q).map(|(t, c)| t * *c).sum();
-    let s = C64::new(1.0, 0.0) - r.plant_at(w_star, s_max) * qz;
+    let s = C64::new(1.0, 0.0) - r.plant_at(w_star, s_max) * r.q_at(q);
     s.norm() * performance_weight_magnitude(r.omega_rad_s, w_star, s_max)
 }
 
@@ -749,15 +774,12 @@ fn violations(
         .iter()
         .enumerate()
         .map(|(k, r)| {
-            let qz: C64 = r.terms.iter().zip(q).map(|(t, c)| t * *c).sum();
+            let qz = r.q_at(q);
             let mut x = weighted(r, q, w_star, s_max) / above;
             if r.effort {
-                x = x.max(qz.norm() / bounds.effort_max_a_per_m);
+                x = x.max(r.effort_ratio(qz, bounds));
             }
-            if r.omega_rad_s >= bounds.band_edge_rad_s {
-                x = x.max((r.plant_at(w_star, s_max) * qz).norm() / bounds.band_edge_t_max);
-            }
-            (k, x)
+            (k, x.max(r.edge_ratio(qz, w_star, s_max, bounds)))
         })
         .filter(|(_, x)| *x > 1.0 + 1e-6)
         .collect();
@@ -990,6 +1012,33 @@ mod tests {
             performance_limit(&[], basis(), t, 2.0, None, LoopBounds::NONE),
             "no lines",
         );
+        for e in [0.0, -1.0, f64::NAN] {
+            let b = LoopBounds {
+                effort_max_a_per_m: e,
+                ..LoopBounds::NONE
+            };
+            bad(
+                performance_limit(&ok, basis(), t, 2.0, None, b),
+                "effort bound",
+            );
+        }
+        for (edge, t_max) in [
+            (0.0, 0.0),
+            (0.0, -0.1),
+            (0.0, f64::NAN),
+            (f64::NAN, 0.24),
+            (-1.0, 0.24),
+        ] {
+            let b = LoopBounds {
+                band_edge_rad_s: edge,
+                band_edge_t_max: t_max,
+                ..LoopBounds::NONE
+            };
+            bad(
+                performance_limit(&ok, basis(), t, 2.0, None, b),
+                "band edge",
+            );
+        }
         for (wl, pl) in [
             (1e9, C64::new(1e-5, 0.0)),
             (10.0, C64::new(f64::NAN, 0.0)),

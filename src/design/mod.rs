@@ -84,6 +84,9 @@ pub const SLOW_CROSSOVER_FRACTION: f64 = 0.1;
 pub const SEARCH_KEEP_BAND: f64 = 0.04;
 /// … and every this many lines elsewhere.
 pub const SEARCH_EVERY: usize = 4;
+/// The gain's factor per back-off step (2 %): the certificate's, a
+/// `limit` design's, and the climb's start's.
+pub const GAIN_BACK_OFF: f64 = 0.98;
 /// Most 2 % gain steps of the certificate's back-off (0.98³⁰ = 0.55).
 pub const BACK_OFF_STEPS: usize = 30;
 /// Fewest coherent lines an input must have.
@@ -844,7 +847,7 @@ fn certify_backing_off(
         if e.feasible() || hopeless(&e) {
             break;
         }
-        c.gain *= 0.98;
+        c.gain *= GAIN_BACK_OFF;
         e = certify(problem, c.clone(), period_s, peak_current_a);
     }
     e
