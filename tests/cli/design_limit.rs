@@ -242,3 +242,33 @@ fn the_report_names_the_model_it_predicts_on() {
     assert_eq!(o.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&o.stderr).contains("--model"));
 }
+
+/// The README's main job, `bench chirp` then `bench design` on the
+/// recording: the design climbs from the thesis' fast design (its gain
+/// backed off until it meets the climb's band edge; from the slow design
+/// the climb stalled at 0.59 of the limit) and reaches at least 0.8 of
+/// the shipped bench's limit as the independent reference computes it on
+/// the true plant (`limit_reference.json`, `ch5`).
+#[test]
+fn the_readme_main_job_designs_near_the_limit_from_the_recording() {
+    let dir = tmp();
+    let mcap = path_in(dir.path(), "first.mcap");
+    let o = run(&["chirp", "--out", &mcap, "--json"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let out = path_in(dir.path(), "first.designed.toml");
+    let o = run(&["design", &mcap, "--out", &out, "--no-plot", "--json"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let s = json_stdout(&o);
+    let refs = data("limit_reference.json");
+    let r = &refs["cases"][0];
+    assert_eq!(r["name"], "ch5");
+    let want = r["limit_rad_s"].as_f64().unwrap();
+    let w = s["performance_bandwidth_rad_s"].as_f64().unwrap();
+    eprintln!(
+        "README main job: {} ω* {w:.1} rad/s, {:.2} of the reference limit {want:.1}",
+        s["strategy"],
+        w / want
+    );
+    assert_eq!(s["strategy"], "limit", "{}", s["why"]);
+    assert!(w >= 0.8 * want, "ω* {w} of {want}: {}", s["why"]);
+}
