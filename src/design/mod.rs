@@ -680,6 +680,9 @@ pub struct ClimbInputs {
     pub lines: ceiling::ProgramLines,
     /// The computation delay τ, s.
     pub computation_delay_s: f64,
+    /// The fits' MMP pairs ([`ceiling::light_pairs`]): a start that
+    /// cancels them is climbed first.
+    pub pairs: Vec<ceiling::LightPair>,
     /// The effort bound `|K S|`, A/m, the limit's
     /// ([`limit::LoopBounds::effort_for_step`]).
     pub effort_max_a_per_m: f64,
@@ -755,12 +758,17 @@ fn limit_attempt(
             "no design of the thesis' families meets the margins to start the climb from".into(),
         );
     }
+    // Each start as it is and with the fits' MMP pairs cancelled, where
+    // it has room for them (the climb's steps move the controller's poles
+    // and zeros only a little at a time, and cannot find a pair damped at
+    // 0.4 % by themselves; on a bench whose pairs the fit places less well
+    // the plain start climbs further): both climbed side by side, the
+    // next start only when neither gives a certified controller.
     type Judged = Result<(fixed_order::Climb, Evaluation), String>;
-    let mut results: Vec<(String, Judged)> = Vec::new();
-    for a in starts {
+    let run = |from: &str, start: &ControllerConfig| -> (String, Judged) {
         let r = fixed_order::climb(
             &y.lines,
-            &a.evaluation.controller,
+            start,
             period_s,
             y.computation_delay_s,
             req,
@@ -778,18 +786,33 @@ fn limit_attempt(
             (c, e)
         });
         match &r {
-            Err(m) => tracing::debug!(from = a.strategy, why = %m, "limit strategy: no climb"),
+            Err(m) => tracing::debug!(from, why = %m, "limit strategy: no climb"),
             Ok((c, e)) => tracing::debug!(
-                from = a.strategy,
+                from,
                 robust_rad_s = c.robust_bandwidth_rad_s,
                 objective_rad_s = e.objective_rad_s,
                 violation = e.violation,
                 "limit strategy: a climb"
             ),
         }
-        let done = matches!(&r, Ok((_, e)) if e.feasible());
-        results.push((a.strategy.to_string(), r));
-        if done {
+        (from.to_string(), r)
+    };
+    let mut results: Vec<(String, Judged)> = Vec::new();
+    for a in starts {
+        let plain = &a.evaluation.controller;
+        let (r, c) = match fixed_order::cancelling(plain, &y.pairs, period_s) {
+            Some(cancelled) => {
+                let name = format!("{} with the MMP pairs cancelled", a.strategy);
+                let (r, c) = rayon::join(|| run(a.strategy, plain), || run(&name, &cancelled));
+                (r, Some(c))
+            }
+            None => (run(a.strategy, plain), None),
+        };
+        results.extend([r].into_iter().chain(c));
+        if results
+            .iter()
+            .any(|(_, r)| matches!(r, Ok((_, e)) if e.feasible()))
+        {
             break;
         }
     }

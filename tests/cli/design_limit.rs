@@ -150,9 +150,12 @@ fn a_design_from_a_csv_alone_reports_the_benchs_limit_and_holds_on_the_true_plan
         // the CSV alone most designs fell back to the slow loop, ω_B
         // 13–15 rad/s). The limit and the design keep the same bounds:
         // the peak current for the setpoint step and |T| at the band
-        // edge. On held-out b the climb stalls near 300 rad/s (a third of
-        // its limit; the note says so): there the design must
-        // beat the thesis' families it starts from.
+        // edge. Held-out b (MMP pairs at 74/75.5 and 82.5/83.6 Hz, ζ 0.4 %)
+        // reaches 0.69, asked 0.65 here: its climb starts from the fast
+        // design with the pairs cancelled and stalls where |W_P S| is
+        // flat from 1 to 500 rad/s (0.29 before the cancellation and the
+        // fit's lines across the pairs; the note says what is
+        // left).
         assert_eq!(s["strategy"], "limit", "{name}: {}", s["why"]);
         let families = s["strategies"]
             .as_array()
@@ -161,20 +164,18 @@ fn a_design_from_a_csv_alone_reports_the_benchs_limit_and_holds_on_the_true_plan
             .filter(|a| a["strategy"] != "limit" && a["meets_margins"] == true)
             .filter_map(|a| a["performance_bandwidth_rad_s"].as_f64())
             .fold(0.0, f64::max);
-        if name != "held_out_b" {
-            assert!(
-                reach >= 0.8 * want,
-                "{name}: ω* {reach:.1} rad/s on the true plant, {:.2} of the limit {want:.1}",
-                reach / want
-            );
-        } else {
-            // The climb starts from the best of them and keeps only what
-            // gains: above it on the true plant too.
-            assert!(
-                reach > families,
-                "{name}: ω* {reach:.1} rad/s, the families' {families:.1}"
-            );
-        }
+        let floor = if name == "held_out_b" { 0.65 } else { 0.8 };
+        assert!(
+            reach >= floor * want,
+            "{name}: ω* {reach:.1} rad/s on the true plant, {:.2} of the limit {want:.1}",
+            reach / want
+        );
+        // The climb starts from the best of them and keeps only what
+        // gains: above it on the true plant too.
+        assert!(
+            reach > families,
+            "{name}: ω* {reach:.1} rad/s, the families' {families:.1}"
+        );
         // No controller passes the limit: the design's ω* on the true plant
         // stays under the reference's (2 %: the reference's own bisection
         // and its lines), and the ω* reported from the measurement is the
