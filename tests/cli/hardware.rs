@@ -483,6 +483,75 @@ fn verify_over_the_serial_link() {
     }
 }
 
+/// Issue 41, item 7: the controller `bench design` makes from a chirp's
+/// CSV alone (the `limit` strategy's 24 poles, on the fit of what was
+/// measured) runs through the serial link, and `--verify` there measures
+/// the loop it predicted: exit 0, not flagged (‖S‖∞ within 1 dB on the
+/// band the lines resolve, the first crossover within 5 %).
+#[test]
+fn the_designed_controller_verifies_over_the_serial_link() {
+    let _g = one_at_a_time();
+    let dir = tmp();
+    let cfg = quiet_config(dir.path());
+    let cfg_s = cfg.display().to_string();
+    let chirp = path_in(dir.path(), "first.mcap");
+    let o = run(&["chirp", "--config", &cfg_s, "--out", &chirp, "--json"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let csv = json_stdout(&o)["frf_csv"].as_str().unwrap().to_string();
+    let designed = path_in(dir.path(), "first.designed.toml");
+    let o = run(&[
+        "design",
+        &csv,
+        "--config",
+        &cfg_s,
+        "--out",
+        &designed,
+        "--no-plot",
+        "--json",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let d = json_stdout(&o);
+    assert_eq!(d["strategy"], "limit", "{}", d["why"]);
+    let emu = Emulator::lockstep(Path::new(&designed));
+    let out = path_in(dir.path(), "designed.mcap");
+    let o = run(&[
+        "control",
+        "--controller",
+        "designed",
+        "--config",
+        &designed,
+        "--backend",
+        &emu.backend(),
+        "--json",
+        "--out",
+        &out,
+        "--duration-s",
+        "1",
+        "--verify",
+        "--verify-duration-s",
+        "4",
+    ]);
+    drop(emu);
+    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+    let s = json_stdout(&o);
+    assert!(s["backend"].as_str().unwrap().starts_with("serial:"));
+    let r = &s["verify"]["result"];
+    assert_eq!(r["flagged"], Value::Bool(false), "{r}");
+    eprintln!(
+        "designed over serial: ω* {} rad/s predicted; ‖S‖∞ {:+.3} dB ({} on the resolved band), first crossover {:+.2} %, {} of {} lines",
+        d["performance_bandwidth_rad_s"],
+        r["sensitivity_peak_difference_db"],
+        r["sensitivity_peak_in_resolved_band"],
+        r["crossover_difference_pct"],
+        r["lines_used"],
+        r["lines_total"]
+    );
+    let crossover = r["crossover_difference_pct"]
+        .as_f64()
+        .unwrap_or_else(|| panic!("no crossover compared: {r}"));
+    assert!(crossover.abs() <= 5.0, "{r}");
+}
+
 /// `force_constant_n_per_a` of a config's text.
 fn ch5_force_constant(text: &str) -> f64 {
     text.lines()
