@@ -680,8 +680,8 @@ pub struct ClimbInputs {
     pub lines: ceiling::ProgramLines,
     /// The computation delay τ, s.
     pub computation_delay_s: f64,
-    /// The fits' MMP pairs ([`ceiling::light_pairs`]): a start that
-    /// cancels them is climbed first.
+    /// The MMP pairs every fit has ([`ceiling::light_pairs`]): each start
+    /// is also climbed with them cancelled.
     pub pairs: Vec<ceiling::LightPair>,
     /// The effort bound `|K S|`, A/m, the limit's
     /// ([`limit::LoopBounds::effort_for_step`]).
@@ -802,11 +802,12 @@ fn limit_attempt(
         let plain = &a.evaluation.controller;
         let (r, c) = match fixed_order::cancelling(plain, &y.pairs, period_s) {
             Some(cancelled) => {
-                let name = format!("{} with the MMP pairs cancelled", a.strategy);
-                let (r, c) = rayon::join(|| run(a.strategy, plain), || run(&name, &cancelled));
+                let name = format!("{} design with the fits' MMP pairs cancelled", a.strategy);
+                let plain_name = format!("{} design", a.strategy);
+                let (r, c) = rayon::join(|| run(&plain_name, plain), || run(&name, &cancelled));
                 (r, Some(c))
             }
-            None => (run(a.strategy, plain), None),
+            None => (run(&format!("{} design", a.strategy), plain), None),
         };
         results.extend([r].into_iter().chain(c));
         if results
@@ -826,7 +827,7 @@ fn limit_attempt(
             strategy: "limit",
             evaluation: e.clone(),
             structure: format!(
-                "a controller of {} poles (integrator included) climbed from the {from} design by {} convex steps on every line (Karimi's inner approximation of |1 + L|: robust performance |W_P S| + w_I |T| ≤ 1 with the computation delay and the lines' 2σ, |T| bounded for the phase margin and at the band edge, |K S| within the peak current for the setpoint step, a stable controller): robust ω* from {:.0} to {:.0} rad/s",
+                "a controller of {} poles (integrator included) climbed from the {from} by {} convex steps on every line (Karimi's inner approximation of |1 + L|: robust performance |W_P S| + w_I |T| ≤ 1 with the computation delay and the lines' 2σ, |T| bounded for the phase margin and at the band edge, |K S| within the peak current for the setpoint step, a stable controller): robust ω* from {:.0} to {:.0} rad/s",
                 fixed_order::ORDER + 1,
                 c.steps,
                 c.start_bandwidth_rad_s,
