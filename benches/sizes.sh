@@ -16,7 +16,13 @@ echo "release binary: $(size_mb "$bin") (stripped: $(size_mb "$tmp/bench"))"
 # the rest of the debug information (.debug_info's types and variables) is
 # not: a panic's backtrace names file and line.
 hex=$(readelf -S -W "$bin" | awk '{for (i = 1; i <= NF; i++) if ($i == ".debug_line") print $(i + 4)}')
-echo "release line tables (.debug_line): $((16#${hex:-0} / 1000)) kB"
+echo "release line tables (.debug_line, as stored): $((16#${hex:-0} / 1000)) kB"
+# build.rs has the linker compress the debug sections (zlib): the flag C.
+flags=$(readelf -S -W "$bin" | awk '$0 ~ /\.debug_line/ {print $(NF - 3)}')
+case "$flags" in
+*C*) echo "debug sections: compressed (zlib; std's backtrace reads them)" ;;
+*) echo "debug sections: not compressed (flags '$flags')" ;;
+esac
 cargo test --workspace --locked --no-run -q 2>"$tmp/list" || { cat "$tmp/list"; exit 1; }
 echo "test binaries:"
 grep -o 'Executable [^ ]* ([^)]*)' "$tmp/list" | sed 's/Executable //' | while read -r name path; do
