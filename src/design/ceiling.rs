@@ -355,12 +355,13 @@ pub fn light_pairs(plants: &[FittedPlant]) -> Vec<LightPair> {
         return vec![];
     };
     let close = |a: (f64, f64), b: (f64, f64)| (a.0 / b.0 - 1.0).abs() < ZERO_MERGE;
+    let others: Vec<Vec<LightPair>> = rest.iter().map(pairs_of).collect();
     pairs_of(first)
         .into_iter()
         .filter_map(|mut p| {
-            for other in rest {
-                let q = pairs_of(other)
-                    .into_iter()
+            for other in &others {
+                let q = other
+                    .iter()
                     .find(|q| close(p.pole, q.pole) && close(p.zero, q.zero))?;
                 // A spread of δω covered by ζ ≥ δω/ω.
                 p.pole.1 = p.pole.1.max((q.pole.0 - p.pole.0).abs() / p.pole.0);
@@ -398,6 +399,10 @@ pub struct ProgramLines {
     pub measured: Vec<(DesignFrf, Vec<f64>, Vec<C64>)>,
     /// Per input: its fit's label, lines (rad/s) and response (m/A).
     pub models: Vec<(String, Vec<f64>, Vec<C64>)>,
+    /// The MMP pairs every fit has ([`light_pairs`]): the model lines
+    /// sample them, and the `limit` strategy climbs each start with them
+    /// cancelled too.
+    pub pairs: Vec<LightPair>,
     /// The lowest measured line over the inputs, rad/s.
     pub lowest_rad_s: f64,
 }
@@ -469,6 +474,7 @@ pub fn program_lines(
     ProgramLines {
         measured: thinned,
         models,
+        pairs,
         lowest_rad_s,
     }
 }
@@ -681,11 +687,7 @@ mod tests {
             0.5 * T,
         );
         let z = C64::new(2.0, 83.0);
-        f.zeros = vec![crate::ident::modal_fit::FittedZero {
-            re_hz: z.re,
-            im_hz: z.im,
-            kind: "CMP-CNMP".into(),
-        }];
+        f.zeros = vec![zero_at(z)];
         let (frf, plant) = measured(&f);
         let r = bench_limit(
             std::slice::from_ref(&frf),
@@ -767,8 +769,10 @@ mod tests {
     /// a half-power half-width of 0.32 Hz at 80 Hz and of 0.31 Hz at its
     /// zero near 76.6 Hz, where the lines are 1.7 Hz apart) is sampled by
     /// the fit's lines: the largest |P| over the program's lines is the
-    /// fit's peak within 0.5 dB, the smallest its dip within 1 dB (both
-    /// found on a grid of 10⁻⁵ relative spacing).
+    /// fit's peak, the smallest its dip, each within 0.3 dB (a point
+    /// within a quarter of the half-width: 0.26 dB; found on a grid of
+    /// 10⁻⁵ relative spacing). Without the pair's points the dip was
+    /// 0.71 dB off (the peak, which the modes' seven points cover, 0.03).
     #[test]
     fn the_programs_lines_see_an_mmp_pair_between_lines() {
         let m = [(25.0, 0.01, 10.0), (80.0, 0.004, 1.0)];
@@ -779,11 +783,7 @@ mod tests {
         );
         let zero = two_mode_zero_hz(m);
         assert!(zero.re < 0.0 && zero.im > 76.0 && zero.im < 77.0, "{zero}");
-        f.zeros = vec![crate::ident::modal_fit::FittedZero {
-            re_hz: zero.re,
-            im_hz: zero.im,
-            kind: "MMP".into(),
-        }];
+        f.zeros = vec![zero_at(zero)];
         let (frf, plant) = measured(&f);
         let set = program_lines(
             std::slice::from_ref(&frf),
@@ -819,15 +819,15 @@ mod tests {
                 )
             };
             let off = (db(sampled) - db(truth)).abs();
-            let tolerance = if peak { 0.5 } else { 1.0 };
             assert!(
-                off <= tolerance,
+                off <= 0.3,
                 "{} at {centre_hz:.2} Hz: {off:.2} dB off on the program's lines",
                 if peak { "peak" } else { "dip" }
             );
         }
     }
 
+    /// A fitted zero at `hz` (s/2π); its type is not read here.
     fn zero_at(hz: C64) -> crate::ident::modal_fit::FittedZero {
         crate::ident::modal_fit::FittedZero {
             re_hz: hz.re,

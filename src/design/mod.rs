@@ -680,9 +680,6 @@ pub struct ClimbInputs {
     pub lines: ceiling::ProgramLines,
     /// The computation delay τ, s.
     pub computation_delay_s: f64,
-    /// The MMP pairs every fit has ([`ceiling::light_pairs`]): each start
-    /// is also climbed with them cancelled.
-    pub pairs: Vec<ceiling::LightPair>,
     /// The effort bound `|K S|`, A/m, the limit's
     /// ([`limit::LoopBounds::effort_for_step`]).
     pub effort_max_a_per_m: f64,
@@ -800,7 +797,7 @@ fn limit_attempt(
     let mut results: Vec<(String, Judged)> = Vec::new();
     for a in starts {
         let plain = &a.evaluation.controller;
-        let (r, c) = match fixed_order::cancelling(plain, &y.pairs, period_s) {
+        let (r, c) = match fixed_order::cancelling(plain, &y.lines.pairs, period_s) {
             Some(cancelled) => {
                 let name = format!("{} design with the fits' MMP pairs cancelled", a.strategy);
                 let plain_name = format!("{} design", a.strategy);

@@ -542,7 +542,6 @@ pub fn run_design(opts: &DesignOptions) -> Result<DesignSummary, RunError> {
             spec.computation_delay_s,
         ),
         computation_delay_s: spec.computation_delay_s,
-        pairs: crate::design::ceiling::light_pairs(&plants),
     };
     // The limit and the design are independent: side by side.
     let (limit, d) = rayon::join(
