@@ -1004,6 +1004,63 @@ mod tests {
         assert_eq!(cancelling(&start, &full, t), None);
     }
 
+    /// Zeros of `X` so close to z = −1 that their corner passes the
+    /// config's range (three at z = −0.985: 1.3·10⁶ rad/s) are left to
+    /// the bilinear map's own zeros at z = −1; that turns the form's phase
+    /// by 0.1° at the gain's reference point, and the form is kept (it was
+    /// refused beyond 0.06°), its gain matching the magnitude there: on
+    /// every line to a fifth of the Nyquist frequency the form runs the
+    /// polynomials' response within 1° and 1 %.
+    #[test]
+    fn a_form_whose_dropped_zeros_turn_its_phase_a_little_is_kept() {
+        let t = 2e-4;
+        let start = ControllerConfig {
+            description: String::new(),
+            error_unit: ErrorUnit::Micrometre,
+            form: Form::UnityDc,
+            gain: 0.05,
+            integrators: 1,
+            real_zeros_rad_s: vec![100.0],
+            real_poles_rad_s: vec![900.0, 3000.0],
+            complex_zeros: vec![],
+            complex_poles: vec![ComplexPair {
+                omega_rad_s: 2500.0,
+                zeta: 0.7,
+            }],
+            discretization: Discretization::Bilinear,
+        };
+        let d = DiscreteController::new(&start, t, f64::INFINITY);
+        let mut p = Polynomials::of(&d, ORDER).expect("the form");
+        // Three of the bilinear map's zeros at z = −1 moved to −0.985:
+        // X / (1 + ζ) × (1 + 0.985 ζ), three times.
+        for _ in 0..3 {
+            let mut q = vec![p.x[0]];
+            for i in 1..p.x.len() - 1 {
+                q.push(p.x[i] - q[i - 1]);
+            }
+            let rest = p.x[p.x.len() - 1] - q[q.len() - 1];
+            assert!(rest.abs() < 1e-9 * q[0].abs(), "no zero at z = −1 left");
+            p.x = (0..=q.len())
+                .map(|i| {
+                    q.get(i).copied().unwrap_or(0.0)
+                        + 0.985 * i.checked_sub(1).map_or(0.0, |j| q[j])
+                })
+                .collect();
+        }
+        let back = to_config(&p, t).unwrap_or_else(|e| panic!("{e}"));
+        let d2 = DiscreteController::new(&back, t, f64::INFINITY);
+        let nyquist = PI / t;
+        for k in 0..=40 {
+            let w = 1.0 * (0.2 * nyquist).powf(f64::from(k) / 40.0);
+            let (a, b) = (p.response(w, t), d2.response(w, t));
+            let ratio = b / a;
+            assert!(
+                (ratio.norm() - 1.0).abs() < 0.01 && ratio.arg().abs() < 1f64.to_radians(),
+                "{w}: form {b} against the polynomials' {a}"
+            );
+        }
+    }
+
     /// A controller's polynomials, its factored form and its discrete
     /// sections have one response (the bilinear map both ways).
     #[test]

@@ -1012,32 +1012,26 @@ mod tests {
             performance_limit(&[], basis(), t, 2.0, None, LoopBounds::NONE),
             "no lines",
         );
-        for e in [0.0, -1.0, f64::NAN] {
-            let b = LoopBounds {
-                effort_max_a_per_m: e,
-                ..LoopBounds::NONE
-            };
-            bad(
-                performance_limit(&ok, basis(), t, 2.0, None, b),
-                "effort bound",
-            );
-        }
-        for (edge, t_max) in [
-            (0.0, 0.0),
-            (0.0, -0.1),
-            (0.0, f64::NAN),
-            (f64::NAN, 0.24),
-            (-1.0, 0.24),
+        let effort = |e| LoopBounds {
+            effort_max_a_per_m: e,
+            ..LoopBounds::NONE
+        };
+        let edge = |w, t_max| LoopBounds {
+            band_edge_rad_s: w,
+            band_edge_t_max: t_max,
+            ..LoopBounds::NONE
+        };
+        for (b, needle) in [
+            (effort(0.0), "effort bound"),
+            (effort(-1.0), "effort bound"),
+            (effort(f64::NAN), "effort bound"),
+            (edge(0.0, 0.0), "band edge"),
+            (edge(0.0, -0.1), "band edge"),
+            (edge(0.0, f64::NAN), "band edge"),
+            (edge(f64::NAN, 0.24), "band edge"),
+            (edge(-1.0, 0.24), "band edge"),
         ] {
-            let b = LoopBounds {
-                band_edge_rad_s: edge,
-                band_edge_t_max: t_max,
-                ..LoopBounds::NONE
-            };
-            bad(
-                performance_limit(&ok, basis(), t, 2.0, None, b),
-                "band edge",
-            );
+            bad(performance_limit(&ok, basis(), t, 2.0, None, b), needle);
         }
         for (wl, pl) in [
             (1e9, C64::new(1e-5, 0.0)),

@@ -121,7 +121,21 @@ fn chirp_over_the_serial_link_matches_the_direct_simulator() {
 }
 
 fn control(cfg: &str, out: &str, backend: Option<&str>, extra: &[&str]) -> std::process::Output {
-    let mut args = vec!["control", "--fast", "--config", cfg, "--json", "--out", out];
+    control_with(&["--fast"], cfg, out, backend, extra)
+}
+
+/// `bench control` of the controller `controller` selects (`--fast`,
+/// `--controller NAME`) with `cfg`, JSON to stdout, recording `out`.
+fn control_with(
+    controller: &[&str],
+    cfg: &str,
+    out: &str,
+    backend: Option<&str>,
+    extra: &[&str],
+) -> std::process::Output {
+    let mut args = vec!["control"];
+    args.extend_from_slice(controller);
+    args.extend(["--config", cfg, "--json", "--out", out]);
     if let Some(b) = backend {
         args.extend(["--backend", b]);
     }
@@ -419,6 +433,9 @@ fn bad_devices_are_refused_before_anything_is_enabled() {
     );
 }
 
+/// A 1 s step, then `--verify` with a 4 s sweep.
+const SHORT_VERIFY: [&str; 5] = ["--duration-s", "1", "--verify", "--verify-duration-s", "4"];
+
 /// `bench control --verify` over the serial link: the same job and tick as
 /// on the simulator, nothing backend-specific. On the emulated bench the
 /// host's model describes, the measured loop agrees with the prediction
@@ -432,10 +449,9 @@ fn verify_over_the_serial_link() {
     let dir = tmp();
     let cfg = quiet_config(dir.path());
     let cfg_s = cfg.display().to_string();
-    let args = ["--duration-s", "1", "--verify", "--verify-duration-s", "4"];
     let emu = Emulator::lockstep(&cfg);
     let out = path_in(dir.path(), "ser.mcap");
-    let o = control(&cfg_s, &out, Some(&emu.backend()), &args);
+    let o = control(&cfg_s, &out, Some(&emu.backend()), &SHORT_VERIFY);
     drop(emu);
     assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
     let s = json_stdout(&o);
@@ -461,7 +477,7 @@ fn verify_over_the_serial_link() {
     .unwrap();
     let emu = Emulator::lockstep(&device);
     let out = path_in(dir.path(), "mismatch.mcap");
-    let o = control(&cfg_s, &out, Some(&emu.backend()), &args);
+    let o = control(&cfg_s, &out, Some(&emu.backend()), &SHORT_VERIFY);
     drop(emu);
     let err = stderr(&o);
     assert_eq!(o.status.code(), Some(8), "{err}");
@@ -514,23 +530,13 @@ fn the_designed_controller_verifies_over_the_serial_link() {
     assert_eq!(d["strategy"], "limit", "{}", d["why"]);
     let emu = Emulator::lockstep(Path::new(&designed));
     let out = path_in(dir.path(), "designed.mcap");
-    let o = run(&[
-        "control",
-        "--controller",
-        "designed",
-        "--config",
+    let o = control_with(
+        &["--controller", "designed"],
         &designed,
-        "--backend",
-        &emu.backend(),
-        "--json",
-        "--out",
         &out,
-        "--duration-s",
-        "1",
-        "--verify",
-        "--verify-duration-s",
-        "4",
-    ]);
+        Some(&emu.backend()),
+        &SHORT_VERIFY,
+    );
     drop(emu);
     assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
     let s = json_stdout(&o);
