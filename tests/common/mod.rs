@@ -3,9 +3,12 @@
 #![allow(dead_code)]
 
 pub mod emulator;
+pub mod host_stall;
 pub mod loop_reference;
 #[path = "../../hal/tests/common/watchdog.rs"]
 mod watchdog;
+#[allow(unused_imports)] // only the real-time job tests watch the machine
+pub use host_stall::HostStallWatch;
 #[allow(unused_imports)] // not every test file waits for a watchdog
 pub use watchdog::{wait_for_watchdog_trip, WatchdogTrip};
 
