@@ -762,6 +762,24 @@ fn limit_attempt(
     // the plain start climbs further): both climbed side by side, the
     // next start only when neither gives a certified controller.
     type Judged = Result<(fixed_order::Climb, Evaluation), String>;
+    let judge = |c: &ControllerConfig| {
+        certify_backing_off(
+            all,
+            c,
+            period_s,
+            peak_current_a,
+            LIMIT_BACK_OFF_STEPS,
+            |e| e.violation > 0.5,
+        )
+    };
+    let certified = |c: &ControllerConfig| {
+        let e = judge(c);
+        if e.feasible() {
+            e.objective_rad_s
+        } else {
+            f64::NEG_INFINITY
+        }
+    };
     let run = |from: &str, start: &ControllerConfig| -> (String, Judged) {
         let r = fixed_order::climb(
             &y.lines,
@@ -770,16 +788,10 @@ fn limit_attempt(
             y.computation_delay_s,
             req,
             y.lines.bounds(y.effort_max_a_per_m),
+            &certified,
         )
         .map(|c| {
-            let e = certify_backing_off(
-                all,
-                &c.controller,
-                period_s,
-                peak_current_a,
-                LIMIT_BACK_OFF_STEPS,
-                |e| e.violation > 0.5,
-            );
+            let e = judge(&c.controller);
             (c, e)
         });
         match &r {
