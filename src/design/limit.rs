@@ -56,19 +56,6 @@ pub const RELATIVE_TOLERANCE: f64 = 1e-2;
 /// the solution, the worst added back ([`performance_limit`]).
 pub const MAX_ACTIVE_LINES: usize = 300;
 
-/// Lines whose bound cones (the effort |Q| and the band edge's |T|) the
-/// limit's first program holds, thinned as the weight's lines; the lines
-/// where the solution passes a bound join them ([`performance_limit`]).
-/// Each bound cone is a dense row of the basis as the weight's is, and
-/// they bind on few lines: held on every line, they doubled the
-/// program's rows and its time (Chapter 5 bench: 6.3 s to 2.9 s for the
-/// whole search) for a limit within 2 %.
-pub const FIRST_BOUND_LINES: usize = 64;
-
-/// A line whose `|W_P S|` or bound ratio passes this joins the program
-/// when some line passes 1 ([`performance_limit`]'s constraint generation).
-pub const NEAR_BINDING: f64 = 0.95;
-
 /// `|W_P(jω)|` for `W_P(s) = (s/M + ω*)/s`: `|jω/M + ω*| / ω`.
 ///
 /// Units: ω and ω* in rad/s; dimensionless. Source: Skogestad &
@@ -606,7 +593,6 @@ pub fn performance_limit(
     let back = orthonormalise(&mut rows);
     let n = back.ncols();
     let mut active = thinned(&rows, MAX_ACTIVE_LINES);
-    let mut bound_active = thinned(&rows, FIRST_BOUND_LINES);
     let mut solves = 0;
     let mut lo = 0.0_f64;
     let mut hi = upper_rad_s.unwrap_or(nyquist).min(nyquist);
@@ -638,38 +624,33 @@ pub fn performance_limit(
             _ => (lo * hi).sqrt(),
         };
         let (gamma, q) = loop {
-            let (gamma, q) = solve(&rows, &active, &bound_active, n, mid, s_max, &bounds)?;
+            let (gamma, q) = solve(&rows, &active, n, mid, s_max, &bounds)?;
             solves += 1;
             tracing::debug!(
                 bandwidth_rad_s = mid,
                 gamma,
                 lines = active.len(),
-                bound_lines = bound_active.len(),
                 "performance limit: one cone program"
             );
             // γ > 1 on the active lines is γ > 1 on all of them (more
             // lines only raise the min-max). Otherwise, constraint
-            // generation: the lines left out that pass 1 (|W_P S| or a
-            // bound) join, with those near it, until none passes: a q
-            // declared feasible keeps |W_P S| ≤ 1 and the bounds on every
-            // line, not only the active ones.
+            // generation: the worst lines left out, until none passes 1: a
+            // q declared feasible keeps |W_P S| ≤ 1 on every line, not
+            // only the active ones.
             if gamma > 1.0 {
                 break (gamma, q);
             }
-            let (worst, worst_bounds) = violations(&rows, &q, mid, s_max, 1.0, &bounds);
-            let mut added = false;
-            for (set, worst) in [(&mut active, worst), (&mut bound_active, worst_bounds)] {
-                let new: Vec<usize> = worst
-                    .into_iter()
-                    .filter(|k| set.binary_search(k).is_err())
-                    .collect();
-                added |= !new.is_empty();
-                set.extend(new);
-                set.sort_unstable();
-            }
-            if !added {
+            let worst = violations(&rows, &q, mid, s_max, 1.0, &bounds);
+            let added: Vec<usize> = worst
+                .into_iter()
+                .filter(|k| !active.contains(k))
+                .take(64)
+                .collect();
+            if added.is_empty() {
                 break (gamma, q);
             }
+            active.extend(added);
+            active.sort_unstable();
         };
         let f = gamma.max(f64::MIN_POSITIVE).ln();
         let low_side = gamma <= 1.0;
@@ -779,12 +760,8 @@ fn weighted(r: &Row, q: &[f64], w_star: f64, s_max: f64) -> f64 {
     s.norm() * performance_weight_magnitude(r.omega_rad_s, w_star, s_max)
 }
 
-/// Where `q` stands against the lines: the rows where `|W_P S|` passes
-/// `above`, or a bound of `bounds` (scaled) is passed, and then every row
-/// within [`NEAR_BINDING`] of the one or the other (which the next program
-/// holds too: the lines about to bind join in one round, not one round
-/// each). Two lists, `|W_P S|`'s rows and the bounds' rows; both empty
-/// when nothing is passed.
+/// Rows (indices) where `|W_P S|` exceeds `above` or a bound of `bounds`
+/// (scaled) is passed, worst first (each as its ratio to its bound).
 fn violations(
     rows: &[Row],
     q: &[f64],
@@ -792,28 +769,22 @@ fn violations(
     s_max: f64,
     above: f64,
     bounds: &LoopBounds,
-) -> (Vec<usize>, Vec<usize>) {
-    let ratios: Vec<(f64, f64)> = rows
+) -> Vec<usize> {
+    let mut v: Vec<(usize, f64)> = rows
         .iter()
-        .map(|r| {
+        .enumerate()
+        .map(|(k, r)| {
             let qz = r.q_at(q);
-            let mut y = r.edge_ratio(qz, w_star, s_max, bounds);
+            let mut x = weighted(r, q, w_star, s_max) / above;
             if r.effort {
-                y = y.max(r.effort_ratio(qz, bounds));
+                x = x.max(r.effort_ratio(qz, bounds));
             }
-            (weighted(r, q, w_star, s_max) / above, y)
+            (k, x.max(r.edge_ratio(qz, w_star, s_max, bounds)))
         })
+        .filter(|(_, x)| *x > 1.0 + 1e-6)
         .collect();
-    let passed = ratios.iter().any(|&(x, y)| x.max(y) > 1.0 + 1e-6);
-    if !passed {
-        return (Vec::new(), Vec::new());
-    }
-    let near = |pick: fn(&(f64, f64)) -> f64| {
-        (0..rows.len())
-            .filter(|&k| pick(&ratios[k]) > NEAR_BINDING)
-            .collect::<Vec<usize>>()
-    };
-    (near(|r| r.0), near(|r| r.1))
+    v.sort_by(|a, b| b.1.total_cmp(&a.1));
+    v.into_iter().map(|(k, _)| k).collect()
 }
 
 fn binding_lines(
@@ -877,15 +848,12 @@ pub(super) fn thinned_lines(magnitude: &[f64], n: usize) -> Vec<usize> {
 /// `min_q max_{k ∈ active} |W_P S_k|` at ω* = `w_star`: the cone program
 /// `min t  s.t. (t, |W_k| Re(1 − P_k b_kᵀq), |W_k| Im(…)) ∈ SOC(3)`.
 ///
-/// with the bounds' cones on the lines `bound_active`.
-///
 /// Solved to the end: the search interpolates ln γ, so γ must be the
 /// optimum, not the first iterate under 1. The γ returned is the exact
 /// max over the active lines for the `q` returned (its own certificate).
 fn solve(
     rows: &[Row],
     active: &[usize],
-    bound_active: &[usize],
     n: usize,
     w_star: f64,
     s_max: f64,
@@ -895,8 +863,8 @@ fn solve(
     let m = 3 * active.len();
     let (mut ri, mut ci, mut vals) = (Vec::new(), Vec::new(), Vec::new());
     let mut b = vec![0.0; m];
-    // The bounds' cones after the weight's: (effort, Re Q, Im Q) on each
-    // of their lines, (t_max, Re PQ, Im PQ) from the band edge up.
+    // The bounds' cones after the weight's: (effort, Re Q, Im Q) on every
+    // line, (t_max, Re PQ, Im PQ) from the band edge up.
     let mut extra = 0usize;
     let mut bound_cone = |head: f64, cols: Vec<C64>, b: &mut Vec<f64>| {
         let r0 = m + 3 * extra;
@@ -911,7 +879,7 @@ fn solve(
         }
         extra += 1;
     };
-    for &k in bound_active {
+    for &k in active {
         let r = &rows[k];
         if r.effort && bounds.effort_max_a_per_m.is_finite() {
             bound_cone(bounds.effort_max_a_per_m, r.terms.clone(), &mut b);
@@ -1218,7 +1186,7 @@ mod tests {
                 got = l.performance_bandwidth_rad_s;
                 // The limit's Q is its certificate: the bounds hold on
                 // every line, not only on those its last program held
-                // (the bounds' cones join by constraint generation).
+                // (lines join by constraint generation).
                 for (&w, &p) in omega.iter().zip(&plant) {
                     let q = l.q_at(w, t);
                     assert!(
