@@ -21,6 +21,7 @@
 //! search moves in ratios), clamped into [`FREQ_MIN_FRACTION`] ω_R … 0.9 ×
 //! Nyquist and the damping ranges below.
 
+use crate::config::controller::CORNER_RAD_S;
 use crate::control::{ComplexPair, ControllerConfig, Discretization, ErrorUnit, Form};
 use std::f64::consts::PI;
 
@@ -113,6 +114,16 @@ impl Family {
                     });
                 }
             }
+        }
+        // Every corner within what a config can hold (a plant whose
+        // first resonance is near 0.01 rad/s scales the thesis' corners
+        // below it): the controller judged is the one written.
+        let (lo, hi) = CORNER_RAD_S;
+        for w in c.real_zeros_rad_s.iter_mut().chain(&mut c.real_poles_rad_s) {
+            *w = w.clamp(lo, hi);
+        }
+        for p in c.complex_zeros.iter_mut().chain(&mut c.complex_poles) {
+            p.omega_rad_s = p.omega_rad_s.clamp(lo, hi);
         }
         c
     }
