@@ -22,7 +22,7 @@ fn daemon_log(env: &[(&str, &str)]) -> (String, String) {
         }
     });
     let mut c = d.client();
-    let r = c.call("control", json!({"controller": "fast", "duration_s": 0.4}));
+    let r = c.call_realtime("control", json!({"controller": "fast", "duration_s": 0.4}));
     assert_eq!(r["ok"], json!(true), "{r}");
     let recording = r["result"]["recording"].as_str().unwrap().to_string();
     let mut d = d;
