@@ -166,38 +166,9 @@ impl Client {
     }
 
     /// [`Self::call`] for a real-time closed-loop job whose timing is not
-    /// the test's subject: a job that faults on a stall the machine made
-    /// (the host not running the vCPU, which a [`HostStallWatch`] on
-    /// every CPU sees too) is reset and run again, at most three times; a
-    /// stall the watch did not see fails the test.
-    ///
-    /// [`HostStallWatch`]: crate::common::HostStallWatch
+    /// the test's subject, through [`retry_machine_stalls`].
     pub fn call_realtime(&mut self, cmd: &str, params: Value) -> Value {
-        let mut seen = Vec::new();
-        for _ in 0..3 {
-            // One below the shipped config's loop priority (80).
-            let watch = crate::common::HostStallWatch::start(79);
-            let r = self.call(cmd, params.clone());
-            let machine_s = watch.stop();
-            let fault = &r["error"]["summary"]["fault"];
-            if r["ok"] == true || fault["kind"] != "overruns" {
-                return r;
-            }
-            let stall_s = fault["value"].as_f64().unwrap_or(f64::INFINITY);
-            assert!(
-                machine_s >= 0.5 * stall_s,
-                "the job stalled {:.1} ms where the machine's own real-time threads were at most {:.1} ms late: the daemon stalled its loop: {r}",
-                stall_s * 1e3,
-                machine_s * 1e3
-            );
-            seen.push(format!(
-                "job {:.1} ms, machine {:.1} ms",
-                stall_s * 1e3,
-                machine_s * 1e3
-            ));
-            assert_eq!(self.call("reset", json!({}))["ok"], true);
-        }
-        panic!("three jobs in a row ended by the machine's own stalls ({seen:?})");
+        retry_machine_stalls(self, |c| (c.call(cmd, params.clone()), ())).0
     }
 
     /// Submits a job without waiting for its end; returns the job id from
@@ -225,4 +196,47 @@ pub fn wait_state(c: &mut Client, state: &str, timeout: Duration) -> Value {
         assert!(t0.elapsed() < timeout, "state stayed {}", s["result"]);
         std::thread::sleep(Duration::from_millis(50));
     }
+}
+
+/// Runs `job` (a real-time closed-loop job through the daemon `client`
+/// talks to: its response, and what else the test wants) while a
+/// [`HostStallWatch`] runs on every CPU. A job that faults on a stall the
+/// machine made (the host not running the vCPU: the watch saw at least
+/// half of it) is reset through `client` and run again, at most three
+/// times; a stall the watch did not see fails the test, the daemon
+/// stalled its own loop. Returns the first response that is not such a
+/// fault, what `job` gave with it, and the machine's stalls before it.
+///
+/// [`HostStallWatch`]: crate::common::HostStallWatch
+pub fn retry_machine_stalls<T>(
+    client: &mut Client,
+    mut job: impl FnMut(&mut Client) -> (Value, T),
+) -> (Value, T, Vec<String>) {
+    let mut seen = Vec::new();
+    for _ in 0..3 {
+        // One below the shipped config's loop priority (80).
+        let watch = crate::common::HostStallWatch::start(79);
+        let (r, extra) = job(client);
+        let machine_s = watch.stop();
+        // A stall fault's value is the stall, s.
+        let fault = &r["error"]["summary"]["fault"];
+        if r["ok"] == true || fault["kind"] != "overruns" {
+            return (r, extra, seen);
+        }
+        let stall_s = fault["value"].as_f64().unwrap_or(f64::INFINITY);
+        assert!(
+            machine_s >= 0.5 * stall_s,
+            "the job stalled {:.1} ms where the machine's own real-time threads were at most {:.1} ms late: the daemon stalled its loop: {r}",
+            stall_s * 1e3,
+            machine_s * 1e3
+        );
+        seen.push(format!(
+            "job {:.1} ms, machine {:.1} ms",
+            stall_s * 1e3,
+            machine_s * 1e3
+        ));
+        // Faults latch: clear it for the next attempt.
+        assert_eq!(client.call("reset", json!({}))["ok"], true);
+    }
+    panic!("three jobs in a row ended by the machine's own stalls ({seen:?}): this machine cannot hold the loop's delay margin");
 }
