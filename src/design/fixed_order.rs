@@ -1033,6 +1033,30 @@ mod tests {
         assert_eq!(cancelling(&start, &full, t), None);
     }
 
+    /// An integrator, a lead (zero 100 rad/s, poles 900 and 3000 rad/s)
+    /// and the given pairs, gain 0.05, bilinear: Eq. 6-7's shape.
+    fn lead_lag(
+        complex_zeros: Vec<ComplexPair>,
+        complex_poles: Vec<ComplexPair>,
+    ) -> ControllerConfig {
+        ControllerConfig {
+            description: String::new(),
+            error_unit: ErrorUnit::Micrometre,
+            form: Form::UnityDc,
+            gain: 0.05,
+            integrators: 1,
+            real_zeros_rad_s: vec![100.0],
+            real_poles_rad_s: vec![900.0, 3000.0],
+            complex_zeros,
+            complex_poles,
+            discretization: Discretization::Bilinear,
+        }
+    }
+
+    fn pair(omega_rad_s: f64, zeta: f64) -> ComplexPair {
+        ComplexPair { omega_rad_s, zeta }
+    }
+
     /// Zeros of `X` so close to z = −1 that their corner passes the
     /// config's range (three at z = −0.985: 1.3·10⁶ rad/s) are left to
     /// the bilinear map's own zeros at z = −1; that turns the form's phase
@@ -1043,21 +1067,7 @@ mod tests {
     #[test]
     fn a_form_whose_dropped_zeros_turn_its_phase_a_little_is_kept() {
         let t = 2e-4;
-        let start = ControllerConfig {
-            description: String::new(),
-            error_unit: ErrorUnit::Micrometre,
-            form: Form::UnityDc,
-            gain: 0.05,
-            integrators: 1,
-            real_zeros_rad_s: vec![100.0],
-            real_poles_rad_s: vec![900.0, 3000.0],
-            complex_zeros: vec![],
-            complex_poles: vec![ComplexPair {
-                omega_rad_s: 2500.0,
-                zeta: 0.7,
-            }],
-            discretization: Discretization::Bilinear,
-        };
+        let start = lead_lag(vec![], vec![pair(2500.0, 0.7)]);
         let d = DiscreteController::new(&start, t, f64::INFINITY);
         let mut p = Polynomials::of(&d, ORDER).expect("the form");
         // Three of the bilinear map's zeros at z = −1 moved to −0.985:
@@ -1096,30 +1106,10 @@ mod tests {
     fn polynomials_and_the_factored_form_agree() {
         let t = 2e-4;
         // Eq. 6-7's shape: integrator, lead, low-passes, a notch.
-        let start = ControllerConfig {
-            description: String::new(),
-            error_unit: ErrorUnit::Micrometre,
-            form: Form::UnityDc,
-            gain: 0.05,
-            integrators: 1,
-            real_zeros_rad_s: vec![100.0],
-            real_poles_rad_s: vec![900.0, 3000.0],
-            complex_zeros: vec![ComplexPair {
-                omega_rad_s: 520.0,
-                zeta: 0.02,
-            }],
-            complex_poles: vec![
-                ComplexPair {
-                    omega_rad_s: 530.0,
-                    zeta: 0.3,
-                },
-                ComplexPair {
-                    omega_rad_s: 2500.0,
-                    zeta: 0.7,
-                },
-            ],
-            discretization: Discretization::Bilinear,
-        };
+        let start = lead_lag(
+            vec![pair(520.0, 0.02)],
+            vec![pair(530.0, 0.3), pair(2500.0, 0.7)],
+        );
         let d = DiscreteController::new(&start, t, f64::INFINITY);
         let p = Polynomials::of(&d, ORDER).expect("the fast controller fits the form");
         let back = to_config(&p, t).unwrap_or_else(|e| {
