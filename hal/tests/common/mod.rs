@@ -6,6 +6,10 @@ use bench_hal::model::{Beam, Damping, Sr4dofParams};
 use bench_hal::sim::{ActuatorParams, ProbeParams, SimParams};
 
 pub mod alloc;
+/// The machine's own stalls, told from the code's: one file for the hal's
+/// tests and the application's.
+#[path = "../../../tests/common/host_stall.rs"]
+pub mod host_stall;
 mod watchdog;
 #[allow(unused_imports)] // not every test file waits for a watchdog
 pub use watchdog::{wait_for_watchdog_trip, WatchdogTrip};
