@@ -24,12 +24,15 @@
 //! from the config: the same config and seed give the same samples, bit for
 //! bit.
 
+mod response;
+
 use crate::model::{positive, ParamError, Sr4dof, Sr4dofParams};
 use crate::{Clock, Command, DeviceInfo, ErrorKind, LifecycleError, Sample, SampleFlags, Stage};
 use nalgebra::{Complex, DMatrix, SMatrix, SVector};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, StandardNormal};
+use response::HessenbergResponse;
 use serde::{Deserialize, Serialize};
 use std::f64::consts::PI;
 
@@ -190,6 +193,10 @@ pub struct ZohPlant {
     pub a: SMatrix<f64, STATES, STATES>,
     /// Continuous input matrix `B`, columns `[u (A), d (N)]`.
     pub b: SMatrix<f64, STATES, 2>,
+    /// `x1 / u` of `Φ, Γ_u`, reduced once for [`Self::frf`].
+    sampled_response: HessenbergResponse<STATES>,
+    /// `x1 / u` of `A, B_u`, reduced once for [`Self::frf_continuous`].
+    continuous_response: HessenbergResponse<STATES>,
 }
 
 impl ZohPlant {
@@ -251,12 +258,15 @@ impl ZohPlant {
         let e = aug.exp();
         let phi = SMatrix::<f64, STATES, STATES>::from_fn(|i, j| e[(i, j)]);
         let gamma = SMatrix::<f64, STATES, 2>::from_fn(|i, j| e[(i, STATES + j)]);
+        let x1 = SVector::<f64, STATES>::from_fn(|i, _| if i == 0 { 1.0 } else { 0.0 });
         Self {
             phi,
             gamma,
             period_s,
             a,
             b,
+            sampled_response: HessenbergResponse::new(phi, gamma.column(0).into_owned(), x1),
+            continuous_response: HessenbergResponse::new(a, b.column(0).into_owned(), x1),
         }
     }
 
@@ -273,33 +283,14 @@ impl ZohPlant {
     /// continuous response by the hold's half-period delay and aliasing.
     pub fn frf(&self, frequency_hz: f64) -> Complex<f64> {
         let w = 2.0 * PI * frequency_hz * self.period_s;
-        let z = Complex::new(w.cos(), w.sin());
-        let m: SMatrix<Complex<f64>, STATES, STATES> = SMatrix::from_fn(|i, j| {
-            let d = if i == j { z } else { Complex::new(0.0, 0.0) };
-            d - Complex::new(self.phi[(i, j)], 0.0)
-        });
-        let rhs: SVector<Complex<f64>, STATES> =
-            SVector::from_fn(|i, _| Complex::new(self.gamma[(i, 0)], 0.0));
-        match m.lu().solve(&rhs) {
-            Some(x) => x[0],
-            None => Complex::new(f64::NAN, f64::NAN),
-        }
+        self.sampled_response.at(Complex::new(w.cos(), w.sin()))
     }
 
     /// Continuous frequency response from the current demand to `x1`,
     /// `cᵀ (jωI − A)⁻¹ B_u`, m/A (amplifier lag included, no hold).
     pub fn frf_continuous(&self, frequency_hz: f64) -> Complex<f64> {
-        let s = Complex::new(0.0, 2.0 * PI * frequency_hz);
-        let m: SMatrix<Complex<f64>, STATES, STATES> = SMatrix::from_fn(|i, j| {
-            let d = if i == j { s } else { Complex::new(0.0, 0.0) };
-            d - Complex::new(self.a[(i, j)], 0.0)
-        });
-        let rhs: SVector<Complex<f64>, STATES> =
-            SVector::from_fn(|i, _| Complex::new(self.b[(i, 0)], 0.0));
-        match m.lu().solve(&rhs) {
-            Some(x) => x[0],
-            None => Complex::new(f64::NAN, f64::NAN),
-        }
+        self.continuous_response
+            .at(Complex::new(0.0, 2.0 * PI * frequency_hz))
     }
 }
 

@@ -103,15 +103,22 @@ fn fit_numerator(zinv: &[Complex<f64>], g: &[Complex<f64>], w: &[f64]) -> Option
     if a.iter().chain(r.iter()).any(|v| !v.is_finite()) {
         return None;
     }
-    // Bounded: an SVD that does not converge is a failed fit (Tustin runs).
-    let b = a
+    // A = Q R (Householder, Q with orthonormal columns): the least squares
+    // of `A b ≈ r` are those of `R b ≈ Qᵀ r`, a 3 × 3 problem, solved by
+    // the SVD (rank-revealing; A's singular values are R's). Bounded: an
+    // SVD that does not converge is a failed fit (Tustin runs).
+    let qr = a.qr();
+    let mut qtr = r;
+    qr.q_tr_mul(&mut qtr);
+    let b = qr
+        .r()
         .try_svd(
             true,
             true,
             f64::EPSILON,
             bench_hal::model::MAX_EIGEN_ITERATIONS,
         )?
-        .solve(&r, 1e-300)
+        .solve(&qtr.rows(0, 3), 1e-300)
         .ok()?;
     let out = [b[(0, 0)], b[(1, 0)], b[(2, 0)]];
     out.iter().all(|x| x.is_finite()).then_some(out)
