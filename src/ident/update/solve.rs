@@ -84,7 +84,8 @@ pub(super) fn needs_the_pair(p: Parameter) -> bool {
 /// without it step 1 is skipped and `τ` starts at `T/2`.
 ///
 /// **A pair the FRF does not show.** When neither mode of the updated
-/// model's closely spaced pair pairs with a fitted mode (MAC ≥
+/// model that continues the start's closely spaced pair (its 3rd and 4th
+/// modes, followed by their shapes) pairs with a fitted mode (MAC ≥
 /// [`MIN_PAIR_MAC`]), e.g. near zero operating point where the Y modes
 /// barely couple into x1, the parameters only the pair determines
 /// (stiffness, asymmetry, operating point, `zeta_csm`) are not measured by
@@ -103,8 +104,15 @@ pub fn update_to_frf(
     fit: Option<&ModalFit>,
 ) -> Result<Update, UpdateError> {
     let u = update_frf_once(start, free, data, path, fit)?;
-    let pair_seen = u.modes[2..]
+    // The pair is the start's 3rd and 4th modes (the secondary stages'),
+    // followed through the update by their shapes (`start_mode`), not the
+    // updated model's 3rd and 4th by frequency: an update that fits noise
+    // can move the invisible pair below a mode the FRF shows, which would
+    // then pass for the pair.
+    let pair_seen = u
+        .modes
         .iter()
+        .filter(|m| m.start_mode >= 3)
         .any(|m| m.measured_frequency_hz.is_some());
     let held: Vec<Parameter> = free
         .iter()
