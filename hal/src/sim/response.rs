@@ -63,7 +63,8 @@ impl<const N: usize> HessenbergResponse<N> {
             for (x, u) in lower[0][k + 1..].iter_mut().zip(&upper[k][k + 1..]) {
                 *x -= l * u;
             }
-            y[k + 1] = y[k + 1] - l * y[k];
+            let yk = y[k];
+            y[k + 1] -= l * yk;
         }
         let mut out = zero;
         for i in (0..N).rev() {

@@ -91,7 +91,7 @@ fn zoh_frf_is_the_continuous_one_with_half_a_sample_of_delay() {
 fn zoh_frf_is_the_direct_solve_at_every_line() {
     for y in [0.02, 0.08] {
         let p = params(y, 0.0);
-        let s = SimStage::new(p.clone()).unwrap();
+        let s = SimStage::new(p).unwrap();
         let t = 200e-6;
         let zoh = ZohPlant::new(s.model(), &p.actuator, t);
         for k in 0..4000 {
