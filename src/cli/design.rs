@@ -169,6 +169,11 @@ fn opt_num(v: Option<f64>, digits: usize, unit: &str) -> String {
 fn with_sigma(v: Option<f64>, sigma: Option<f64>, digits: usize, unit: &str) -> String {
     match (v, sigma) {
         (None, _) => "none".into(),
+        // A 1σ smaller than the last digit shown keeps two significant
+        // digits: `± 0.0` would read as exact.
+        (Some(v), Some(s)) if s < 0.5 * 10f64.powi(-(digits as i32)) => {
+            format!("{v:.digits$} ± {s:.1e}{unit}")
+        }
         (Some(v), Some(s)) => format!("{v:.digits$} ± {s:.digits$}{unit}"),
         (Some(v), None) => format!("{v:.digits$}{unit} (σ unknown)"),
     }
@@ -323,8 +328,19 @@ pub(super) fn print_summary(s: &DesignSummary) {
             o.strategy,
             if o.meets_margins {
                 format!(
-                    "meets the margins (ω* {:.1} rad/s, ω_B {:.1} rad/s)",
-                    o.performance_bandwidth_rad_s, o.sensitivity_bandwidth_rad_s
+                    "meets the margins (ω* {}, ω_B {})",
+                    with_sigma(
+                        Some(o.performance_bandwidth_rad_s),
+                        o.sigma.performance_bandwidth_rad_s,
+                        1,
+                        " rad/s"
+                    ),
+                    with_sigma(
+                        Some(o.sensitivity_bandwidth_rad_s),
+                        o.sigma.sensitivity_bandwidth_rad_s,
+                        1,
+                        " rad/s"
+                    )
                 )
             } else {
                 match &o.binding {

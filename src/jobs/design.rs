@@ -179,6 +179,111 @@ pub struct InputFigures {
     pub sigma: FigureSigmas,
 }
 
+/// The figures of `e`'s controller (discrete at `period_s` with
+/// `peak_current_a`) and their 1σ. ω* (`M = s_max`) on every input's lines
+/// and on every model's grid from the lowest measured line up (below it a
+/// model only extrapolates the fit): the least, rad/s (`None` where |S|
+/// passes M), and each input's. The 1σ from each input's relative line
+/// noise `relative_sigma` (first order, [`crate::design::sigma`]): each
+/// input's, and those of the figures over the inputs, each from the input
+/// that sets the figure; ω*'s only when an input, not a model, sets it.
+/// All `None` for an evaluation without figures (a strategy refused
+/// before its certificate).
+#[allow(clippy::type_complexity)]
+fn evaluation_sigmas(
+    frfs: &[crate::design::loops::DesignFrf],
+    models: &[crate::design::loops::DesignFrf],
+    relative_sigma: &[Vec<f64>],
+    e: &crate::design::search::Evaluation,
+    period_s: f64,
+    peak_current_a: f64,
+    s_max: f64,
+) -> (
+    Option<f64>,
+    Vec<Option<f64>>,
+    Vec<FigureSigmas>,
+    FigureSigmas,
+) {
+    if e.figures.len() < frfs.len() {
+        // A strategy refused before it was certified: no figures to read.
+        let n = frfs.len();
+        return (
+            None,
+            vec![None; n],
+            vec![FigureSigmas::default(); n],
+            FigureSigmas::default(),
+        );
+    }
+    let ctrl = crate::control::DiscreteController::new(&e.controller, period_s, peak_current_a);
+    let unit = ctrl.error_per_metre();
+    let loop_of = |f: &crate::design::loops::DesignFrf| -> Vec<crate::ident::C64> {
+        f.omega_rad_s
+            .iter()
+            .zip(&f.plant_m_per_a)
+            .map(|(w, p)| ctrl.response(*w, period_s) * p * unit)
+            .collect()
+    };
+    let reach = |omega: &[f64], l: &[crate::ident::C64]| {
+        let s: Vec<f64> = l.iter().map(|l| 1.0 / (l + 1.0).norm()).collect();
+        loop_performance_bandwidth_rad_s(omega, &s, s_max)
+    };
+    let loops: Vec<Vec<crate::ident::C64>> = frfs.iter().map(loop_of).collect();
+    let per_input: Vec<Option<f64>> = frfs
+        .iter()
+        .zip(&loops)
+        .map(|(f, l)| reach(&f.omega_rad_s, l))
+        .collect();
+    let lowest = frfs
+        .iter()
+        .map(|f| f.omega_rad_s[0])
+        .fold(f64::INFINITY, f64::min);
+    let on_models: Vec<Option<f64>> = models
+        .iter()
+        .map(|m| {
+            let k = m.omega_rad_s.partition_point(|w| *w < lowest);
+            let l = loop_of(m);
+            reach(&m.omega_rad_s[k..], &l[k..])
+        })
+        .collect();
+    let performance_bandwidth_rad_s = per_input
+        .iter()
+        .chain(&on_models)
+        .try_fold(f64::INFINITY, |m, w| w.map(|w| m.min(w)));
+    let sigmas: Vec<FigureSigmas> = frfs
+        .iter()
+        .zip(&loops)
+        .zip(relative_sigma)
+        .zip(&e.figures)
+        .map(|(((f, l), r), g)| figure_sigmas(&f.omega_rad_s, l, r, g, s_max))
+        .collect();
+    let pick = |key: &dyn Fn(usize) -> Option<f64>, least: bool| {
+        (0..frfs.len())
+            .filter_map(|i| key(i).map(|v| (i, v)))
+            .min_by(|a, b| {
+                if least {
+                    a.1.total_cmp(&b.1)
+                } else {
+                    b.1.total_cmp(&a.1)
+                }
+            })
+            .map(|(i, _)| i)
+    };
+    let summary = FigureSigmas {
+        performance_bandwidth_rad_s: pick(&|i| per_input[i], true)
+            .filter(|&i| per_input[i] == performance_bandwidth_rad_s)
+            .and_then(|i| sigmas[i].performance_bandwidth_rad_s),
+        sensitivity_bandwidth_rad_s: pick(&|i| e.figures[i].sensitivity_bandwidth_rad_s, true)
+            .and_then(|i| sigmas[i].sensitivity_bandwidth_rad_s),
+        phase_margin_min_deg: pick(&|i| e.figures[i].phase_margin_min_deg, true)
+            .and_then(|i| sigmas[i].phase_margin_min_deg),
+        gain_margin_db: pick(&|i| e.figures[i].margins.gain_margin_db, true)
+            .and_then(|i| sigmas[i].gain_margin_db),
+        sensitivity_peak: pick(&|i| Some(e.figures[i].margins.sensitivity_peak), false)
+            .and_then(|i| sigmas[i].sensitivity_peak),
+    };
+    (performance_bandwidth_rad_s, per_input, sigmas, summary)
+}
+
 /// One strategy tried.
 #[derive(Debug, Clone, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct StrategyOutcome {
@@ -194,6 +299,11 @@ pub struct StrategyOutcome {
     pub structure: String,
     /// The binding (or most violated) constraint.
     pub binding: Option<Binding>,
+    /// 1σ of this strategy's figures from the inputs' line noise (first
+    /// order, each from the input that sets it; ω*'s `null` when a
+    /// model, not an input, sets it).
+    #[serde(default)]
+    pub sigma: FigureSigmas,
 }
 
 /// The result of a design.
@@ -582,84 +692,23 @@ pub fn run_design(opts: &DesignOptions) -> Result<DesignSummary, RunError> {
         frfs.len()
     );
     // ω* of the discrete controller on every input's lines and on every
-    // model's grid.
-    let ctrl =
-        crate::control::DiscreteController::new(&controller, period_s, cfg.actuator.peak_current_a);
-    let unit = ctrl.error_per_metre();
-    let loop_of = |f: &crate::design::loops::DesignFrf| -> Vec<crate::ident::C64> {
-        f.omega_rad_s
-            .iter()
-            .zip(&f.plant_m_per_a)
-            .map(|(w, p)| ctrl.response(*w, period_s) * p * unit)
-            .collect()
-    };
-    let reach = |f: &crate::design::loops::DesignFrf| {
-        let s: Vec<f64> = loop_of(f).iter().map(|l| 1.0 / (l + 1.0).norm()).collect();
-        loop_performance_bandwidth_rad_s(&f.omega_rad_s, &s, s_max)
-    };
-    let per_input: Vec<Option<f64>> = frfs.iter().map(reach).collect();
-    // The models from the lowest measured line up (below it they only
-    // extrapolate the fit).
-    let lowest = frfs
-        .iter()
-        .map(|f| f.omega_rad_s[0])
-        .fold(f64::INFINITY, f64::min);
-    let on_band = |m: &crate::design::loops::DesignFrf| {
-        let k = m.omega_rad_s.partition_point(|w| *w < lowest);
-        crate::design::loops::DesignFrf {
-            label: m.label.clone(),
-            omega_rad_s: m.omega_rad_s[k..].to_vec(),
-            plant_m_per_a: m.plant_m_per_a[k..].to_vec(),
-            lines_total: m.lines_total,
-        }
-    };
-    let performance_bandwidth_rad_s = per_input
-        .iter()
-        .chain(
-            &models
-                .iter()
-                .map(|m| reach(&on_band(m)))
-                .collect::<Vec<_>>(),
-        )
-        .try_fold(f64::INFINITY, |m, w| w.map(|w| m.min(w)));
+    // model's grid, and the 1σ of the figures. (The chosen evaluation's
+    // controller is `controller` but for its description.)
+    let (performance_bandwidth_rad_s, per_input, sigmas, summary_sigma) = evaluation_sigmas(
+        &frfs,
+        &models,
+        &relative_sigma,
+        e,
+        period_s,
+        cfg.actuator.peak_current_a,
+        s_max,
+    );
     let limit_fraction = match (
         performance_bandwidth_rad_s,
         limit.performance_bandwidth_rad_s,
     ) {
         (Some(w), Some(l)) if l > 0.0 => Some(w / l),
         _ => None,
-    };
-    let sigmas: Vec<FigureSigmas> = frfs
-        .iter()
-        .zip(&relative_sigma)
-        .zip(&e.figures)
-        .map(|((f, r), g)| figure_sigmas(&f.omega_rad_s, &loop_of(f), r, g, s_max))
-        .collect();
-    // The summary's figures' 1σ: each from the input that sets it.
-    let pick = |key: &dyn Fn(usize) -> Option<f64>, least: bool| {
-        (0..frfs.len())
-            .filter_map(|i| key(i).map(|v| (i, v)))
-            .min_by(|a, b| {
-                if least {
-                    a.1.total_cmp(&b.1)
-                } else {
-                    b.1.total_cmp(&a.1)
-                }
-            })
-            .map(|(i, _)| i)
-    };
-    let summary_sigma = FigureSigmas {
-        performance_bandwidth_rad_s: pick(&|i| per_input[i], true)
-            .filter(|&i| per_input[i] == performance_bandwidth_rad_s)
-            .and_then(|i| sigmas[i].performance_bandwidth_rad_s),
-        sensitivity_bandwidth_rad_s: pick(&|i| e.figures[i].sensitivity_bandwidth_rad_s, true)
-            .and_then(|i| sigmas[i].sensitivity_bandwidth_rad_s),
-        phase_margin_min_deg: pick(&|i| e.figures[i].phase_margin_min_deg, true)
-            .and_then(|i| sigmas[i].phase_margin_min_deg),
-        gain_margin_db: pick(&|i| e.figures[i].margins.gain_margin_db, true)
-            .and_then(|i| sigmas[i].gain_margin_db),
-        sensitivity_peak: pick(&|i| Some(e.figures[i].margins.sensitivity_peak), false)
-            .and_then(|i| sigmas[i].sensitivity_peak),
     };
     let worst_input = e
         .binding
@@ -744,6 +793,16 @@ pub fn run_design(opts: &DesignOptions) -> Result<DesignSummary, RunError> {
                 performance_bandwidth_rad_s: a.evaluation.objective_rad_s,
                 structure: a.structure.clone(),
                 binding: a.evaluation.binding.clone(),
+                sigma: evaluation_sigmas(
+                    &frfs,
+                    &models,
+                    &relative_sigma,
+                    &a.evaluation,
+                    period_s,
+                    cfg.actuator.peak_current_a,
+                    s_max,
+                )
+                .3,
             })
             .collect(),
         config_out: out.clone(),

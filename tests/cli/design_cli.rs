@@ -107,6 +107,103 @@ fn a_designed_fast_controller_runs_on_the_bench_and_beats_the_thesis() {
     );
 }
 
+/// Every strategy tried states the 1σ of its figures (issue 41, item 6),
+/// and they are first-order in the lines' noise: the same CSV with every
+/// line's σ four times larger gives the same slow design (the thesis'
+/// rule does not read the noise; the fit it reads ω_R from converges to
+/// within 1e-6) and four times the 1σ of each of its figures. The chosen strategy's row states the summary's 1σ, and the
+/// text prints them.
+#[test]
+fn each_strategy_states_its_figures_1_sigma_linear_in_the_lines_noise() {
+    let dir = tmp();
+    let (_, csv) = chirp(dir.path());
+    let text = std::fs::read_to_string(&csv).unwrap();
+    let mut lines = text.lines();
+    let header = lines.next().unwrap();
+    assert_eq!(header.split(',').nth(4), Some("sigma_m_per_a"));
+    let mut x4 = format!("{header}\n");
+    for l in lines {
+        let mut v: Vec<String> = l.split(',').map(str::to_string).collect();
+        v[4] = format!("{:e}", 4.0 * v[4].parse::<f64>().unwrap());
+        x4 += &(v.join(",") + "\n");
+    }
+    let csv4 = dir.path().join("x4.frf.csv");
+    std::fs::write(&csv4, x4).unwrap();
+    let design = |input: &str, out: &str, json: bool| {
+        let out = path_in(dir.path(), out);
+        let mut args = vec![
+            "design",
+            input,
+            "--strategy",
+            "slow",
+            "--out",
+            &out,
+            "--no-plot",
+        ];
+        if json {
+            args.push("--json");
+        }
+        let o = run(&args);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        o
+    };
+    let s1 = json_stdout(&design(&csv, "a.toml", true));
+    let s4 = json_stdout(&design(csv4.to_str().unwrap(), "b.toml", true));
+    // The rule reads ω_R from the fit, which the noise weights uniformly:
+    // the same up to the fit's convergence (1e-6 here).
+    let same = |a: &Value, b: &Value| {
+        let (a, b) = (a.as_f64().unwrap(), b.as_f64().unwrap());
+        (a - b).abs() <= 1e-5 * a.abs()
+    };
+    let (c1, c4) = (&s1["controller"], &s4["controller"]);
+    assert!(
+        same(&c1["gain"], &c4["gain"])
+            && same(
+                &c1["complex_poles"][0]["omega_rad_s"],
+                &c4["complex_poles"][0]["omega_rad_s"]
+            ),
+        "the slow rule read the noise: {c1} against {c4}"
+    );
+    let row = |s: &Value| -> Value {
+        s["strategies"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|r| r["strategy"] == "slow")
+            .unwrap_or_else(|| panic!("no slow row: {}", s["strategies"]))
+            .clone()
+    };
+    let (r1, r4) = (row(&s1), row(&s4));
+    assert_eq!(
+        r1["sigma"], s1["sigma"],
+        "the row's 1σ are not the summary's"
+    );
+    for key in [
+        "performance_bandwidth_rad_s",
+        "sensitivity_bandwidth_rad_s",
+        "phase_margin_min_deg",
+        "gain_margin_db",
+        "sensitivity_peak",
+    ] {
+        let a = r1["sigma"][key]
+            .as_f64()
+            .unwrap_or_else(|| panic!("{key}: no 1σ in {}", r1["sigma"]));
+        let b = r4["sigma"][key].as_f64().unwrap();
+        assert!(a > 0.0 && a.is_finite(), "{key}: 1σ {a}");
+        assert!(
+            (b / a - 4.0).abs() < 1e-3,
+            "{key}: 1σ {a} with σ, {b} with 4σ"
+        );
+    }
+    let human = design(&csv, "c.toml", false);
+    let out = String::from_utf8_lossy(&human.stdout);
+    let tried = out
+        .lines()
+        .find(|l| l.contains("tried slow"))
+        .unwrap_or_else(|| panic!("{out}"));
+    assert_eq!(tried.matches(" ± ").count(), 2, "{tried}");
+}
+
 #[test]
 fn bad_inputs_are_refused_naming_the_input_and_nothing_is_written() {
     let dir = tmp();
