@@ -400,36 +400,58 @@ fn the_exchange_deadline_follows_the_stall_bound_unless_the_key_is_set() {
     drop(slave);
 }
 
-/// Runs paced exchanges at `current_a` until one fails or `max` pass;
-/// returns the error and the number of good ticks.
 /// The SCHED_FIFO priority of the slave threads and of the fault tests' master:
 /// only the machine's own stalls, which [`common::host_stall`] sees, can
 /// then delay an exchange, not the other tests' threads.
 const FAULT_TEST_PRIORITY: i32 = 80;
 
-/// Runs one fault case (`case`: start the slave with the fault, configure,
-/// enable, run until the stage fails) up to three times. It runs again only
-/// when the case failed on a lost frame that is not its subject (a fault
-/// whose kind is not `Timeout`, or a lost frame before the fault, within
-/// 100 ticks), and the machine's own real-time threads were late at least
-/// half as long as the exchange waited: this VM stalls a vCPU for 20-120
-/// ms every few tens of seconds. A lost frame the watch did not see is the
-/// code's, and fails the test.
-fn past_machine_stalls<T>(
-    fault: &SlaveFault,
+/// Runs one fault case: `start` starts the slave with `fault` scheduled at
+/// 0.2 s, the master opens with `master_cfg` (a lost frame judged within
+/// 5 ms), configures, enables and runs until the stage fails; the failure
+/// must be of `kind`, after more than 100 good ticks. Returns the error,
+/// the good ticks, the slave and the stage.
+///
+/// The case runs again (at most three times in all) only when it failed on
+/// a lost frame that is not its subject (a fault whose kind is not
+/// `Timeout`, or a lost frame before the fault, within 100 ticks), and the
+/// machine's own real-time threads were late at least half as long as the
+/// exchange waited: this VM stalls a vCPU for 20-120 ms every few tens of
+/// seconds. A lost frame the watch did not see is the code's, and fails
+/// the test.
+fn run_fault_case(
+    fault: SlaveFault,
     kind: ErrorKind,
-    mut case: impl FnMut() -> (EthercatError, usize, T),
-) -> (EthercatError, usize, T) {
+    start: impl Fn(Vec<ScheduledSlaveFault>) -> Slave,
+    master_cfg: &EthercatConfig,
+) -> (EthercatError, usize, Slave, EthercatStage) {
+    bench_hal::os::set_fifo_priority(FAULT_TEST_PRIORITY);
+    let mut cfg = master_cfg.clone();
+    cfg.exchange_timeout_ms = Some(5.0);
     let mut seen = Vec::new();
     for _ in 0..3 {
         let watch = common::host_stall::HostStallWatch::start(FAULT_TEST_PRIORITY - 1);
-        let (err, ticks, state) = case();
+        let slave = start(vec![ScheduledSlaveFault {
+            at_s: 0.2,
+            kind: fault,
+        }]);
+        let mut stage = EthercatStage::open(&cfg).unwrap();
+        stage.configure(PERIOD_NS).unwrap();
+        stage.enable().unwrap();
+        let (err, ticks) = run_until_error(&mut stage, 0.3, 20_000);
         let machine_s = watch.stop();
+        let err = err.unwrap_or_else(|| panic!("{fault:?}: no error in {ticks} ticks"));
         let waited_s = match err {
             EthercatError::Timeout { waited_ns } if kind != ErrorKind::Timeout || ticks <= 100 => {
                 waited_ns as f64 * 1e-9
             }
-            _ => return (err, ticks, state),
+            _ => {
+                assert_eq!(err.kind(), kind, "{fault:?}: {err}");
+                assert!(
+                    ticks > 100,
+                    "{fault:?}: failed after only {ticks} ticks: {err}"
+                );
+                return (err, ticks, slave, stage);
+            }
         };
         assert!(
             machine_s >= 0.5 * waited_s,
@@ -446,10 +468,15 @@ fn past_machine_stalls<T>(
             "{fault:?}: the machine stalled ({}); again",
             seen.last().unwrap()
         );
+        // The stage before the slave, as at the end of a case.
+        drop(stage);
+        drop(slave);
     }
     panic!("{fault:?}: three runs in a row ended by the machine's own stalls ({seen:?})");
 }
 
+/// Runs paced exchanges at `current_a` until one fails or `max` pass;
+/// returns the error and the number of good ticks.
 fn run_until_error(
     stage: &mut EthercatStage,
     current_a: f64,
@@ -484,27 +511,11 @@ fn faults_in_the_slave_fail_the_tick_with_their_kind_and_leave_zero_amps() {
         (SlaveFault::DcDrift { ppm: 2000.0 }, ErrorKind::Link, None),
     ] {
         let Some(v) = Veth::new() else { return };
-        bench_hal::os::set_fifo_priority(FAULT_TEST_PRIORITY);
-        let (err, ticks, (slave, mut stage)) = past_machine_stalls(&fault, kind, || {
-            let faults = vec![ScheduledSlaveFault {
-                at_s: 0.2,
-                kind: fault,
-            }];
-            let slave = Slave::start(&v.slave, &host_cfg(&v.slave), default_id(), faults);
-            let mut cfg = host_cfg(&v.master);
-            // A lost frame is judged within 5 ms.
-            cfg.exchange_timeout_ms = Some(5.0);
-            let mut stage = EthercatStage::open(&cfg).unwrap();
-            stage.configure(PERIOD_NS).unwrap();
-            stage.enable().unwrap();
-            let (err, ticks) = run_until_error(&mut stage, 0.3, 20_000);
-            let err = err.unwrap_or_else(|| panic!("{fault:?}: no error in {ticks} ticks"));
-            (err, ticks, (slave, stage))
-        });
-        assert_eq!(err.kind(), kind, "{fault:?}: {err}");
-        assert!(
-            ticks > 100,
-            "{fault:?}: failed after only {ticks} ticks: {err}"
+        let (err, ticks, slave, mut stage) = run_fault_case(
+            fault,
+            kind,
+            |faults| Slave::start(&v.slave, &host_cfg(&v.slave), default_id(), faults),
+            &host_cfg(&v.master),
         );
         assert!(slave.status.commands_received.load(Ordering::Relaxed) > 100);
         // The supervisor's safe stop, in the same tick.
@@ -1050,26 +1061,11 @@ fn a_terminal_leaving_op_fails_the_tick_and_leaves_zero_amps() {
         (SlaveFault::DcDrift { ppm: 2000.0 }, ErrorKind::Link),
     ] {
         let Some(v) = Veth::new() else { return };
-        bench_hal::os::set_fifo_priority(FAULT_TEST_PRIORITY);
-        let (err, ticks, (slave, mut stage)) = past_machine_stalls(&fault, kind, || {
-            let faults = vec![ScheduledSlaveFault {
-                at_s: 0.2,
-                kind: fault,
-            }];
-            let slave = Slave::start_rack(&v.slave, &rack_cfg(&v.slave), faults);
-            let mut cfg = rack_cfg(&v.master);
-            cfg.exchange_timeout_ms = Some(5.0);
-            let mut stage = EthercatStage::open(&cfg).unwrap();
-            stage.configure(PERIOD_NS).unwrap();
-            stage.enable().unwrap();
-            let (err, ticks) = run_until_error(&mut stage, 0.3, 20_000);
-            let err = err.unwrap_or_else(|| panic!("{fault:?}: no error in {ticks} ticks"));
-            (err, ticks, (slave, stage))
-        });
-        assert_eq!(err.kind(), kind, "{fault:?}: {err}");
-        assert!(
-            ticks > 100,
-            "{fault:?}: failed after only {ticks} ticks: {err}"
+        let (err, ticks, slave, mut stage) = run_fault_case(
+            fault,
+            kind,
+            |faults| Slave::start_rack(&v.slave, &rack_cfg(&v.slave), faults),
+            &rack_cfg(&v.master),
         );
         if let Err(e) = stage.zero_and_disable(0) {
             eprintln!("{fault:?}: the safe stop reports {e}");
