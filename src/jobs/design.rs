@@ -179,6 +179,19 @@ pub struct InputFigures {
     pub sigma: FigureSigmas,
 }
 
+/// What [`evaluation_figures`] gives.
+struct EvaluationFigures {
+    /// ω* over the inputs' lines and the models' grids, rad/s (`None`
+    /// where |S| passes M).
+    performance_bandwidth_rad_s: Option<f64>,
+    /// Each input's ω*, rad/s.
+    per_input_rad_s: Vec<Option<f64>>,
+    /// Each input's 1σ.
+    per_input_sigma: Vec<FigureSigmas>,
+    /// The 1σ of the figures over the inputs.
+    sigma: FigureSigmas,
+}
+
 /// The figures of `e`'s controller (discrete at `period_s` with
 /// `peak_current_a`) and their 1σ. ω* (`M = s_max`) on every input's lines
 /// and on every model's grid from the lowest measured line up (below it a
@@ -189,8 +202,7 @@ pub struct InputFigures {
 /// that sets the figure; ω*'s only when an input, not a model, sets it.
 /// All `None` for an evaluation without figures (a strategy refused
 /// before its certificate).
-#[allow(clippy::type_complexity)]
-fn evaluation_sigmas(
+fn evaluation_figures(
     frfs: &[crate::design::loops::DesignFrf],
     models: &[crate::design::loops::DesignFrf],
     relative_sigma: &[Vec<f64>],
@@ -198,21 +210,16 @@ fn evaluation_sigmas(
     period_s: f64,
     peak_current_a: f64,
     s_max: f64,
-) -> (
-    Option<f64>,
-    Vec<Option<f64>>,
-    Vec<FigureSigmas>,
-    FigureSigmas,
-) {
+) -> EvaluationFigures {
     if e.figures.len() < frfs.len() {
         // A strategy refused before it was certified: no figures to read.
         let n = frfs.len();
-        return (
-            None,
-            vec![None; n],
-            vec![FigureSigmas::default(); n],
-            FigureSigmas::default(),
-        );
+        return EvaluationFigures {
+            performance_bandwidth_rad_s: None,
+            per_input_rad_s: vec![None; n],
+            per_input_sigma: vec![FigureSigmas::default(); n],
+            sigma: FigureSigmas::default(),
+        };
     }
     let ctrl = crate::control::DiscreteController::new(&e.controller, period_s, peak_current_a);
     let unit = ctrl.error_per_metre();
@@ -281,7 +288,12 @@ fn evaluation_sigmas(
         sensitivity_peak: pick(&|i| Some(e.figures[i].margins.sensitivity_peak), false)
             .and_then(|i| sigmas[i].sensitivity_peak),
     };
-    (performance_bandwidth_rad_s, per_input, sigmas, summary)
+    EvaluationFigures {
+        performance_bandwidth_rad_s,
+        per_input_rad_s: per_input,
+        per_input_sigma: sigmas,
+        sigma: summary,
+    }
 }
 
 /// One strategy tried.
@@ -301,7 +313,8 @@ pub struct StrategyOutcome {
     pub binding: Option<Binding>,
     /// 1σ of this strategy's figures from the inputs' line noise (first
     /// order, each from the input that sets it; ω*'s `null` when a
-    /// model, not an input, sets it).
+    /// model, not an input, sets it, or when the certificate's ω* above
+    /// is not the one on the lines).
     #[serde(default)]
     pub sigma: FigureSigmas,
 }
@@ -694,7 +707,12 @@ pub fn run_design(opts: &DesignOptions) -> Result<DesignSummary, RunError> {
     // ω* of the discrete controller on every input's lines and on every
     // model's grid, and the 1σ of the figures. (The chosen evaluation's
     // controller is `controller` but for its description.)
-    let (performance_bandwidth_rad_s, per_input, sigmas, summary_sigma) = evaluation_sigmas(
+    let EvaluationFigures {
+        performance_bandwidth_rad_s,
+        per_input_rad_s: per_input,
+        per_input_sigma: sigmas,
+        sigma: summary_sigma,
+    } = evaluation_figures(
         &frfs,
         &models,
         &relative_sigma,
@@ -786,14 +804,8 @@ pub fn run_design(opts: &DesignOptions) -> Result<DesignSummary, RunError> {
         strategies: d
             .attempts
             .iter()
-            .map(|a| StrategyOutcome {
-                strategy: a.strategy.to_string(),
-                meets_margins: a.evaluation.feasible(),
-                sensitivity_bandwidth_rad_s: a.evaluation.sensitivity_bandwidth_min_rad_s,
-                performance_bandwidth_rad_s: a.evaluation.objective_rad_s,
-                structure: a.structure.clone(),
-                binding: a.evaluation.binding.clone(),
-                sigma: evaluation_sigmas(
+            .map(|a| {
+                let f = evaluation_figures(
                     &frfs,
                     &models,
                     &relative_sigma,
@@ -801,8 +813,28 @@ pub fn run_design(opts: &DesignOptions) -> Result<DesignSummary, RunError> {
                     period_s,
                     cfg.actuator.peak_current_a,
                     s_max,
-                )
-                .3,
+                );
+                // The row states the certificate's ω*: its 1σ is that of
+                // the ω* on the lines only when the two are the same figure.
+                let same = f
+                    .performance_bandwidth_rad_s
+                    .is_some_and(|w| (w - a.evaluation.objective_rad_s).abs() <= 1e-9 * w.abs());
+                let sigma = FigureSigmas {
+                    performance_bandwidth_rad_s: f
+                        .sigma
+                        .performance_bandwidth_rad_s
+                        .filter(|_| same),
+                    ..f.sigma
+                };
+                StrategyOutcome {
+                    strategy: a.strategy.to_string(),
+                    meets_margins: a.evaluation.feasible(),
+                    sensitivity_bandwidth_rad_s: a.evaluation.sensitivity_bandwidth_min_rad_s,
+                    performance_bandwidth_rad_s: a.evaluation.objective_rad_s,
+                    structure: a.structure.clone(),
+                    binding: a.evaluation.binding.clone(),
+                    sigma,
+                }
             })
             .collect(),
         config_out: out.clone(),
