@@ -11,9 +11,15 @@ use crate::common;
 
 use bench_hal::emulator::{LinkFault, ScheduledLinkFault};
 use common::emulator::Emulator;
-use common::{bench, json_stdout, one_at_a_time, path_in, quiet_config_edited, tmp};
+use common::{
+    bench, fault_within, json_stdout, one_at_a_time, past_machine_stalls, path_in,
+    quiet_config_edited, tmp,
+};
 use serde_json::Value;
 use std::path::{Path, PathBuf};
+
+/// The shipped bench's loop rate, Hz.
+const RATE_HZ: f64 = 5000.0;
 
 fn config(dir: &Path, extra_safety: &str) -> PathBuf {
     quiet_config_edited(dir, 0.5, "", |t| {
@@ -50,27 +56,33 @@ fn control_with_stall(
     stall_ms: f64,
 ) -> (Option<i32>, Value) {
     let rec = path_in(dir, &format!("{controller}-{stall_ms}.mcap"));
-    let out = bench()
-        .args([
-            "control",
-            "--controller",
-            controller,
-            "--realtime",
-            "--duration-s",
-            "1.5",
-            "--json",
-        ])
-        .args([
-            "--inject-fault",
-            &format!("stall:{stall_ms}@0.6"),
-            "--out",
-            &rec,
-            "--config",
-        ])
-        .arg(cfg)
-        .output()
-        .unwrap();
-    (out.status.code(), json_stdout(&out))
+    let run = || {
+        let out = bench()
+            .args([
+                "control",
+                "--controller",
+                controller,
+                "--realtime",
+                "--duration-s",
+                "1.5",
+                "--json",
+            ])
+            .args([
+                "--inject-fault",
+                &format!("stall:{stall_ms}@0.6"),
+                "--out",
+                &rec,
+                "--config",
+            ])
+            .arg(cfg)
+            .output()
+            .unwrap();
+        (out.status.code(), json_stdout(&out))
+    };
+    // The injected stall ends the run, if it does, when it ends.
+    past_machine_stalls(run, |v| {
+        fault_within(v, RATE_HZ, 0.6, stall_ms * 1e-3 + 0.01)
+    })
 }
 
 /// Each controller's delay bound is its delay margin plus one period of
@@ -279,6 +291,10 @@ fn a_stall_on_a_large_held_current_stops_on_the_reach() {
             .output()
             .unwrap();
         (out.status.code(), json_stdout(&out))
+    };
+    let run = |at: &str| {
+        let at_s: f64 = at.parse().unwrap();
+        past_machine_stalls(|| run(at), |v| fault_within(v, RATE_HZ, at_s, 0.025))
     };
     // settle_s = 0.2 s: the step is at 0.2 s, the command near its peak
     // 1.8 ms later.
