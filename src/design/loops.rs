@@ -24,7 +24,12 @@
 //! it ends away from 0: each is one encirclement of −1 over ω > 0, two
 //! over the whole contour, so two closed-loop poles in the right half
 //! plane (the count returned). A step of more than 0.9π between two lines
-//! cannot be followed reliably and counts as one turn.
+//! cannot be followed reliably and counts as one turn. When `1 + L` at
+//! the first line points more than π/2 away from `−n·π/2`, the loop's
+//! gain at s → 0 has the wrong sign: `1 + L(s)` is large and negative
+//! just right of s = 0 and tends to 1 as s → +∞ (L is real on the real
+//! axis, the delay included), so a real closed-loop pole lies in the
+//! right half plane; the count is then at least 1.
 
 use crate::control::loop_check::{MarginScan, Margins};
 use crate::ident::C64;
@@ -112,6 +117,7 @@ pub fn figures(omega_rad_s: &[f64], l: &[C64], integrators: u32) -> LoopFigures 
     // Nyquist: the phase of 1 + L, unwrapped (see `nyquist_count`).
     let mut phase = 0.0;
     let mut ambiguous = false;
+    let mut wrong_sign = false;
     for k in 0..n {
         let lk = l[k];
         scan.push(omega_rad_s[k], lk, None);
@@ -121,6 +127,10 @@ pub fn figures(omega_rad_s: &[f64], l: &[C64], integrators: u32) -> LoopFigures 
             let start = -(integrators as f64) * PI / 2.0;
             phase = one.arg();
             phase += 2.0 * PI * ((start - phase) / (2.0 * PI)).round();
+            // 1 + L pointing away from −n·π/2: the loop's gain at s → 0
+            // is negative (or L(0) < −1 without an integrator), and
+            // 1 + L(s) changes sign on the positive real axis.
+            wrong_sign = (phase - start).abs() > PI / 2.0;
             continue;
         }
         let (w0, w1) = (omega_rad_s[k - 1].ln(), omega_rad_s[k].ln());
@@ -153,7 +163,7 @@ pub fn figures(omega_rad_s: &[f64], l: &[C64], integrators: u32) -> LoopFigures 
         } else {
             wb
         },
-        rhp_closed_loop_poles: 2 * turns.max(u32::from(ambiguous)),
+        rhp_closed_loop_poles: (2 * turns.max(u32::from(ambiguous))).max(u32::from(wrong_sign)),
         edge_gain_db: 20.0 * l.last().map_or(0.0, |v| v.norm()).log10(),
     }
 }
@@ -222,6 +232,21 @@ mod tests {
         assert_eq!(figures(&w, &l3(10.0), 1).rhp_closed_loop_poles, 0);
         assert_eq!(figures(&w, &l3(12.0), 1).rhp_closed_loop_poles, 2);
         assert_eq!(figures(&w, &l3(100.0), 1).rhp_closed_loop_poles, 2);
+        // A negative gain: s² + s − 1 has the root (√5 − 1)/2 > 0, one
+        // real closed-loop pole in the right half plane, however large
+        // the phase margin its crossing shows.
+        assert!(figures(&w, &l1(-1.0), 1).rhp_closed_loop_poles >= 1);
+        assert!(figures(&w, &l3(-0.5), 1).rhp_closed_loop_poles >= 1);
+        // No integrator: L = k/(s + 1), closed-loop pole at s = −1 − k:
+        // stable for k = −0.5, unstable for k = −2.
+        let l0 = |k: f64| -> Vec<C64> {
+            w.iter()
+                .map(|&w| C64::new(k, 0.0) / (C64::new(1.0, w)))
+                .collect()
+        };
+        assert_eq!(figures(&w, &l0(-0.5), 0).rhp_closed_loop_poles, 0);
+        assert!(figures(&w, &l0(-2.0), 0).rhp_closed_loop_poles >= 1);
+        assert_eq!(figures(&w, &l0(3.0), 0).rhp_closed_loop_poles, 0);
     }
 
     /// The one-pass figures are the loop check's on measured data: the
