@@ -274,7 +274,9 @@ fn faults_latch_until_reset() {
     let _g = one_at_a_time();
     let d = Daemon::start();
     let mut c = d.client();
-    let r = c.call(
+    // A machine stall beyond the loop's delay bound would latch an
+    // overruns fault before the injected drop (CI: 24.6 ms at 46 ms).
+    let r = c.call_realtime(
         "control",
         json!({ "controller": "fast", "duration_s": 1.5, "inject_fault": "drop@0.3" }),
     );
