@@ -15,21 +15,20 @@
 //! §10.2).
 //!
 //! For a stable plant and a controller whose only poles on the imaginary
-//! axis are `n` integrators, the closed loop is stable when the phase of
-//! `1 + L(jω)` turns by exactly `n·π/2` from ω → 0⁺ (where `1 + L ≈ L`
-//! points along `−n·π/2`) to ω → ∞ (where `1 + L → 1`). The count starts
-//! from the branch of `arg(1 + L)` nearest `−n·π/2` at the first line
-//! (which must lie where the integrators dominate), follows the phase
-//! line to line by the shortest turn, and counts the whole turns by which
-//! it ends away from 0: each is one encirclement of −1 over ω > 0, two
-//! over the whole contour, so two closed-loop poles in the right half
-//! plane (the count returned). A step of more than 0.9π between two lines
-//! cannot be followed reliably and counts as one turn. When `1 + L` at
-//! the first line points more than π/2 away from `−n·π/2`, the loop's
-//! gain at s → 0 has the wrong sign: `1 + L(s)` is large and negative
-//! just right of s = 0 and tends to 1 as s → +∞ (L is real on the real
-//! axis, the delay included), so a real closed-loop pole lies in the
-//! right half plane; the count is then at least 1.
+//! axis are `n` integrators, the closed loop has as many poles in the
+//! right half plane as the contour's image encircles −1: twice the turn
+//! of `arg(1 + L(jω))` from ω → 0⁺ to ω → ∞ (the negative frequencies
+//! mirror it), less the `n·π` that the small indentation around s = 0
+//! sweeps, over 2π. The turn runs from the first line (which must lie
+//! where the integrators dominate: `1 + L ≈ L` there) to the last (where
+//! `1 + L → 1`), following the phase line to line by the shortest turn.
+//! A stable loop turns by `n·π/2`, from `−n·π/2` to 0; a loop with a
+//! pair of unstable poles turns a whole turn less (two encirclements);
+//! a loop whose gain has the wrong sign at s → 0 starts from `π − n·π/2`
+//! and cannot end at an even count (one real closed-loop pole in the
+//! right half plane: `1 + L(s)` is large and negative just right of
+//! s = 0 and tends to 1 as s → +∞). A step of more than 0.9π between two
+//! lines cannot be followed reliably and counts as two.
 
 use crate::control::loop_check::{MarginScan, Margins};
 use crate::ident::C64;
@@ -114,23 +113,16 @@ pub fn figures(omega_rad_s: &[f64], l: &[C64], integrators: u32) -> LoopFigures 
     let mut scan = MarginScan::default();
     let mut wb: Option<f64> = None;
     let s_target = 0.5f64.sqrt();
-    // Nyquist: the phase of 1 + L, unwrapped (see `nyquist_count`).
-    let mut phase = 0.0;
+    // Nyquist: the turn of the phase of 1 + L from the first line, line
+    // by line (see the module's doc).
+    let mut turn = 0.0;
     let mut ambiguous = false;
-    let mut wrong_sign = false;
     for k in 0..n {
         let lk = l[k];
         scan.push(omega_rad_s[k], lk, None);
         let one = lk + 1.0;
         let s = 1.0 / one.norm();
         if k == 0 {
-            let start = -(integrators as f64) * PI / 2.0;
-            phase = one.arg();
-            phase += 2.0 * PI * ((start - phase) / (2.0 * PI)).round();
-            // 1 + L pointing away from −n·π/2: the loop's gain at s → 0
-            // is negative (or L(0) < −1 without an integrator), and
-            // 1 + L(s) changes sign on the positive real axis.
-            wrong_sign = (phase - start).abs() > PI / 2.0;
             continue;
         }
         let (w0, w1) = (omega_rad_s[k - 1].ln(), omega_rad_s[k].ln());
@@ -147,9 +139,12 @@ pub fn figures(omega_rad_s: &[f64], l: &[C64], integrators: u32) -> LoopFigures 
         }
         let d = (one / (l0 + 1.0)).arg();
         ambiguous |= d.abs() > 0.9 * PI;
-        phase += d;
+        turn += d;
     }
-    let turns = (phase / (2.0 * PI)).round().abs() as u32;
+    // Encirclements of −1 over the whole contour: the turn over ω > 0
+    // twice (the negative frequencies mirror it), less the n·π the
+    // integrators' indentation around s = 0 sweeps.
+    let encirclements = ((2.0 * turn - integrators as f64 * PI) / (2.0 * PI)).round();
     let margins = scan.finish();
     LoopFigures {
         phase_margin_min_deg: margins
@@ -163,7 +158,7 @@ pub fn figures(omega_rad_s: &[f64], l: &[C64], integrators: u32) -> LoopFigures 
         } else {
             wb
         },
-        rhp_closed_loop_poles: (2 * turns.max(u32::from(ambiguous))).max(u32::from(wrong_sign)),
+        rhp_closed_loop_poles: (encirclements.abs() as u32).max(2 * u32::from(ambiguous)),
         edge_gain_db: 20.0 * l.last().map_or(0.0, |v| v.norm()).log10(),
     }
 }
@@ -235,8 +230,9 @@ mod tests {
         // A negative gain: s² + s − 1 has the root (√5 − 1)/2 > 0, one
         // real closed-loop pole in the right half plane, however large
         // the phase margin its crossing shows.
-        assert!(figures(&w, &l1(-1.0), 1).rhp_closed_loop_poles >= 1);
-        assert!(figures(&w, &l3(-0.5), 1).rhp_closed_loop_poles >= 1);
+        assert_eq!(figures(&w, &l1(-1.0), 1).rhp_closed_loop_poles, 1);
+        // s³/10 + 1.1 s² + s − 0.5: one sign change, one root in the RHP.
+        assert_eq!(figures(&w, &l3(-0.5), 1).rhp_closed_loop_poles, 1);
         // No integrator: L = k/(s + 1), closed-loop pole at s = −1 − k:
         // stable for k = −0.5, unstable for k = −2.
         let l0 = |k: f64| -> Vec<C64> {
@@ -245,7 +241,7 @@ mod tests {
                 .collect()
         };
         assert_eq!(figures(&w, &l0(-0.5), 0).rhp_closed_loop_poles, 0);
-        assert!(figures(&w, &l0(-2.0), 0).rhp_closed_loop_poles >= 1);
+        assert_eq!(figures(&w, &l0(-2.0), 0).rhp_closed_loop_poles, 1);
         assert_eq!(figures(&w, &l0(3.0), 0).rhp_closed_loop_poles, 0);
     }
 
