@@ -12,14 +12,11 @@ use crate::common;
 use bench_hal::emulator::{LinkFault, ScheduledLinkFault};
 use common::emulator::Emulator;
 use common::{
-    bench, fault_within, json_stdout, one_at_a_time, past_machine_stalls, path_in,
+    bench, fault_in_injected_stall, json_stdout, one_at_a_time, past_machine_stalls, path_in,
     quiet_config_edited, tmp,
 };
 use serde_json::Value;
 use std::path::{Path, PathBuf};
-
-/// The shipped bench's loop rate, Hz.
-const RATE_HZ: f64 = 5000.0;
 
 fn config(dir: &Path, extra_safety: &str) -> PathBuf {
     quiet_config_edited(dir, 0.5, "", |t| {
@@ -80,9 +77,7 @@ fn control_with_stall(
         (out.status.code(), json_stdout(&out))
     };
     // The injected stall ends the run, if it does, when it ends.
-    past_machine_stalls(run, |v| {
-        fault_within(v, RATE_HZ, 0.6, stall_ms * 1e-3 + 0.01)
-    })
+    past_machine_stalls(run, |v| fault_in_injected_stall(v, 0.6, stall_ms * 1e-3))
 }
 
 /// Each controller's delay bound is its delay margin plus one period of
@@ -267,6 +262,7 @@ fn a_stall_on_a_large_held_current_stops_on_the_reach() {
     let _g = one_at_a_time();
     let dir = tmp();
     let cfg = config(dir.path(), "");
+    const STALL_MS: f64 = 15.0;
     let run = |at: &str| {
         let rec = path_in(dir.path(), &format!("reach{at}.mcap"));
         let out = bench()
@@ -282,7 +278,7 @@ fn a_stall_on_a_large_held_current_stops_on_the_reach() {
             ])
             .args([
                 "--inject-fault",
-                &format!("stall:15@{at}"),
+                &format!("stall:{STALL_MS}@{at}"),
                 "--out",
                 &rec,
                 "--config",
@@ -294,7 +290,10 @@ fn a_stall_on_a_large_held_current_stops_on_the_reach() {
     };
     let run = |at: &str| {
         let at_s: f64 = at.parse().unwrap();
-        past_machine_stalls(|| run(at), |v| fault_within(v, RATE_HZ, at_s, 0.025))
+        past_machine_stalls(
+            || run(at),
+            |v| fault_in_injected_stall(v, at_s, STALL_MS * 1e-3),
+        )
     };
     // settle_s = 0.2 s: the step is at 0.2 s, the command near its peak
     // 1.8 ms later.

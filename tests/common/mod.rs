@@ -422,11 +422,14 @@ pub fn machine_made(fault: &Value, machine_s: f64, what: &Value) -> String {
     )
 }
 
-/// Whether the summary `v` of a run at `rate_hz` ended on a fault at a tick
-/// within `window_s` after `at_s`: the fault is the stall a test injected
-/// there, not one the machine made elsewhere.
-pub fn fault_within(v: &Value, rate_hz: f64, at_s: f64, window_s: f64) -> bool {
+/// Whether the summary `v` of a run ended on a fault at a tick (at the
+/// run's own `timing.rate_hz`) from `at_s` to the end of a stall of
+/// `stall_s` injected there, plus 10 ms for the loop to judge it: the
+/// fault is that stall, not one the machine made elsewhere.
+pub fn fault_in_injected_stall(v: &Value, at_s: f64, stall_s: f64) -> bool {
+    let rate_hz = v["timing"]["rate_hz"].as_f64().unwrap_or(f64::NAN);
     v["fault"]["tick"]
         .as_f64()
-        .is_some_and(|t| t / rate_hz >= at_s && t / rate_hz <= at_s + window_s)
+        .map(|t| t / rate_hz)
+        .is_some_and(|t| t >= at_s && t <= at_s + stall_s + 0.01)
 }
