@@ -49,7 +49,27 @@ pub(super) struct ContinuousSection {
     pub(super) prewarp_rad_s: Option<f64>,
 }
 
-/// Groups the factors into continuous second-order sections.
+/// Groups the factors into continuous second-order sections, in the order
+/// the cascade runs them.
+///
+/// **Pairing** (the rule of `scipy.signal.zpk2sos`, "nearest"; Jackson,
+/// *Digital Filters and Signal Processing*, 3rd ed., §11.3): the complex
+/// pole pairs are taken from the least damped up, and each takes the
+/// remaining complex zero pair nearest to it in the s-plane (distance of
+/// the upper roots over their mean magnitude), or, when none is left, the
+/// two nearest real zeros (in log frequency). The lists' order in the
+/// config carries no meaning. A section that pairs a low zero with a high
+/// pole has a gain of `(ω_p/ω_z)²` at high frequencies, and a cascade of
+/// them amplifies the signal by many decades before later sections take it
+/// back: the rounding of the large intermediate values then rings at the
+/// least damped poles. A 24-pole `bench design` controller whose lists were
+/// paired by position (highest pole with lowest zero) commanded 7.6 A of
+/// rounding error on a 2 A signal within 0.4 s (its output against a
+/// 40-digit run of the same sections); paired by this rule, 4e-13 A.
+///
+/// **Order:** the most damped sections first, the least damped (and the
+/// integrators) last, so that a resonant section never amplifies the
+/// rounding of the sections after it (scipy's order as well).
 pub(super) fn sections(cfg: &ControllerConfig) -> Vec<ContinuousSection> {
     let unity = cfg.form == Form::UnityDc;
     let quad = |q: &ComplexPair| {
@@ -61,22 +81,43 @@ pub(super) fn sections(cfg: &ControllerConfig) -> Vec<ContinuousSection> {
         let n = if unity { r } else { 1.0 };
         [r / n, 1.0 / n]
     };
+    // The upper root of a pair, and the distance between two of them.
+    let root = |q: &ComplexPair| {
+        let z = q.zeta.clamp(-1.0, 1.0);
+        Complex::new(-z * q.omega_rad_s, q.omega_rad_s * (1.0 - z * z).sqrt())
+    };
+    let apart = |p: &ComplexPair, z: &ComplexPair| {
+        let (rp, rz) = (root(p), root(z));
+        (rp - rz).norm() / (0.5 * (rp.norm() + rz.norm())).max(f64::MIN_POSITIVE)
+    };
+    let log_apart = |a: f64, b: f64| {
+        (a.abs().max(f64::MIN_POSITIVE) / b.abs().max(f64::MIN_POSITIVE))
+            .ln()
+            .abs()
+    };
     let mut czeros: Vec<ComplexPair> = cfg.complex_zeros.clone();
     let mut rzeros: Vec<f64> = cfg.real_zeros_rad_s.clone();
-    let mut out = Vec::new();
-    for p in &cfg.complex_poles {
+    let mut poles: Vec<&ComplexPair> = cfg.complex_poles.iter().collect();
+    poles.sort_by(|a, b| a.zeta.total_cmp(&b.zeta));
+    // (section, the damping that orders it)
+    let mut out: Vec<(ContinuousSection, f64)> = Vec::new();
+    for p in poles {
         let a = quad(p);
-        let (b, warp) = if let Some(z) = czeros.pop() {
+        let nearest_zero = (0..czeros.len())
+            .min_by(|&i, &j| apart(p, &czeros[i]).total_cmp(&apart(p, &czeros[j])));
+        let (b, warp) = if let Some(i) = nearest_zero {
+            let z = czeros.swap_remove(i);
             // Notch-type section: keep its centre (the zeros) exact.
-            (
-                quad(&z),
-                Some(z.omega_rad_s.max(p.omega_rad_s).min(z.omega_rad_s)),
-            )
+            (quad(&z), Some(z.omega_rad_s))
         } else {
             let mut b = [1.0, 0.0, 0.0];
             for _ in 0..2 {
-                if let Some(z) = rzeros.pop() {
-                    let l = lin(z);
+                let nearest = (0..rzeros.len()).min_by(|&i, &j| {
+                    log_apart(rzeros[i], p.omega_rad_s)
+                        .total_cmp(&log_apart(rzeros[j], p.omega_rad_s))
+                });
+                if let Some(i) = nearest {
+                    let l = lin(rzeros.swap_remove(i));
                     b = [
                         b[0] * l[0],
                         b[0] * l[1] + b[1] * l[0],
@@ -86,11 +127,14 @@ pub(super) fn sections(cfg: &ControllerConfig) -> Vec<ContinuousSection> {
             }
             (b, Some(p.omega_rad_s))
         };
-        out.push(ContinuousSection {
-            b,
-            a,
-            prewarp_rad_s: warp,
-        });
+        out.push((
+            ContinuousSection {
+                b,
+                a,
+                prewarp_rad_s: warp,
+            },
+            p.zeta,
+        ));
     }
     // Real poles and integrators, two per section, with the remaining zeros
     // (leftover complex zero pairs cannot occur in a proper controller
@@ -102,6 +146,17 @@ pub(super) fn sections(cfg: &ControllerConfig) -> Vec<ContinuousSection> {
     // Larger corners first so a lead (zero below pole) pairs sensibly.
     first_order_poles.sort_by(|a, b| b.unwrap_or(0.0).total_cmp(&a.unwrap_or(0.0)));
     let mut chunks = first_order_poles.chunks(2);
+    // A chunk's damping for the order: an integrator rings forever (last),
+    // real poles not at all.
+    let chunk_key = |pp: &[Option<f64>]| {
+        if pp.iter().any(|p| p.is_none()) {
+            -1.0
+        } else {
+            1.0
+        }
+    };
+    // Leftover complex zeros, highest first, over the highest corners.
+    czeros.sort_by(|a, b| b.omega_rad_s.total_cmp(&a.omega_rad_s));
     for z in czeros.drain(..) {
         let pp = chunks.next().unwrap_or(&[]);
         let mut a = [1.0, 0.0, 0.0];
@@ -117,11 +172,14 @@ pub(super) fn sections(cfg: &ControllerConfig) -> Vec<ContinuousSection> {
             ];
         }
         let integ = pp.iter().any(|p| p.is_none());
-        out.push(ContinuousSection {
-            b: quad(&z),
-            a,
-            prewarp_rad_s: if integ { None } else { Some(z.omega_rad_s) },
-        });
+        out.push((
+            ContinuousSection {
+                b: quad(&z),
+                a,
+                prewarp_rad_s: if integ { None } else { Some(z.omega_rad_s) },
+            },
+            chunk_key(pp),
+        ));
     }
     for pp in chunks {
         let mut a = [1.0, 0.0, 0.0];
@@ -144,7 +202,12 @@ pub(super) fn sections(cfg: &ControllerConfig) -> Vec<ContinuousSection> {
                 a[0] * l[1] + a[1] * l[0],
                 a[1] * l[1] + a[2] * l[0],
             ];
-            if let Some(z) = rzeros.pop() {
+            // The real zero nearest this pole (an integrator's: the lowest).
+            let at = p.unwrap_or(0.0);
+            let nearest = (0..rzeros.len())
+                .min_by(|&i, &j| log_apart(rzeros[i], at).total_cmp(&log_apart(rzeros[j], at)));
+            if let Some(i) = nearest {
+                let z = rzeros.swap_remove(i);
                 let l = lin(z);
                 warp = Some(warp.unwrap_or(0.0).max(z));
                 b = [
@@ -154,14 +217,19 @@ pub(super) fn sections(cfg: &ControllerConfig) -> Vec<ContinuousSection> {
                 ];
             }
         }
-        out.push(ContinuousSection {
-            b,
-            a,
-            prewarp_rad_s: if integ { None } else { warp },
-        });
+        out.push((
+            ContinuousSection {
+                b,
+                a,
+                prewarp_rad_s: if integ { None } else { warp },
+            },
+            chunk_key(pp),
+        ));
     }
     debug_assert!(rzeros.is_empty(), "validate() rejects improper controllers");
-    out
+    // The most damped first (a stable sort: ties keep their order).
+    out.sort_by(|a, b| b.1.total_cmp(&a.1));
+    out.into_iter().map(|(s, _)| s).collect()
 }
 
 impl ContinuousSection {

@@ -401,6 +401,12 @@ pub struct LoopCheck {
     /// The discretisation that runs and its error against the continuous
     /// design up to f_s/10.
     pub discretization: DiscretizationReport,
+    /// The cascade's own rounding: RMS of the `f64` output's difference
+    /// from a double-double run of the same sections, over the output's RMS,
+    /// on a white input ([`DiscreteController::rounding_error`]);
+    /// dimensionless. Refused above [`ROUNDING_ERROR_MAX`].
+    #[serde(default)]
+    pub rounding_error: f64,
     /// How long a stall (the host late, the link late) may hold the last
     /// command before the loop is unsafe, and the bound the supervisor
     /// applies in this job.
@@ -635,6 +641,14 @@ impl MeasuredFrf {
     }
 }
 
+/// The largest rounding error a controller's cascade may have, relative to
+/// its output ([`LoopCheck::rounding_error`]): 120 dB below the signal,
+/// where the current's own resolution and the probe noise the controller
+/// passes lie far above it. A cascade paired by nearness gives 1e-15 to
+/// 1e-12; one whose sections amplify by decades what later ones take back
+/// gives 1e-3 to 10.
+pub const ROUNDING_ERROR_MAX: f64 = 1e-6;
+
 /// Runs the loop check of `name` against the model of `stage` (and a
 /// measured FRF if given), judged by the `[safety]` limits.
 ///
@@ -718,6 +732,12 @@ pub fn check_loop(
             ));
         }
     }
+    let rounding_error = ctrl.rounding_error();
+    if !(rounding_error <= ROUNDING_ERROR_MAX) {
+        failures.push(format!(
+            "the controller's sections lose {rounding_error:.1e} of their output to rounding (RMS, against a double-double run; must be at most {ROUNDING_ERROR_MAX:.0e}): a section amplifies what a later one takes back; check the poles and zeros of [controller.{name}]"
+        ));
+    }
     let stall = StallLimit::of(
         cfg,
         name,
@@ -740,6 +760,7 @@ pub fn check_loop(
         largest_pole_magnitude: largest,
         measured,
         discretization: ctrl.discretization(),
+        rounding_error,
         failures,
     }
 }

@@ -36,8 +36,10 @@
 //! # Discretisation
 //! ## Tustin (`discretization = "tustin"`, the default)
 //! The factors are grouped into second-order sections (each complex pole
-//! pair with a complex zero pair if one is left, else with real zeros;
-//! remaining real poles and integrators in pairs), and each section is
+//! pair, least damped first, with the nearest complex zero pair left, else
+//! with the nearest real zeros; remaining real poles and integrators in
+//! pairs; the most damped sections run first: see `design::sections`,
+//! the rule of `scipy.signal.zpk2sos`), and each section is
 //! mapped with Tustin's substitution `s = K (1 − z⁻¹)/(1 + z⁻¹)`,
 //! pre-warped at the section's own critical frequency,
 //! `K = ω_w / tan(ω_w T / 2)`: ω_w is the zero pair's ω for a notch-type
