@@ -733,24 +733,41 @@ fn orthonormalise(rows: &mut [Row]) -> nalgebra::DMatrix<f64> {
     map
 }
 
-/// The map `V Σ⁻¹` (cols × kept) of the thin SVD `x = U Σ Vᵀ`, so that
-/// `x · V Σ⁻¹ = U` has orthonormal columns; directions whose singular
+/// The map `D V Σ⁻¹` (cols × kept) of the thin SVD `x D = U Σ Vᵀ`, `D`
+/// the diagonal that scales each column of `x` to unit norm, so that
+/// `x · D V Σ⁻¹ = U` has orthonormal columns; directions whose singular
 /// value is under 1e-9 of the largest are dropped (nothing the rows can
 /// see). A change of variables for an interior point whose columns are
 /// nearly collinear (here: partial fractions on close poles, FIR taps or
-/// powers of `z⁻¹` at low frequency).
+/// powers of `1 − z⁻¹`, which span 10⁻⁴ to 10⁷ over the lines: unscaled,
+/// the largest would hide the low-frequency directions under the
+/// cut-off).
 pub(super) fn orthonormal_map(x: &nalgebra::DMatrix<f64>) -> nalgebra::DMatrix<f64> {
     let n = x.ncols();
-    let svd = x.clone().svd(false, true);
+    let scale: Vec<f64> = (0..n)
+        .map(|j| {
+            let c = x.column(j).norm();
+            if c > 0.0 && c.is_finite() {
+                1.0 / c
+            } else {
+                1.0
+            }
+        })
+        .collect();
+    let mut xs = x.clone();
+    for (j, s) in scale.iter().enumerate() {
+        xs.column_mut(j).scale_mut(*s);
+    }
+    let svd = xs.svd(false, true);
     let Some(v_t) = svd.v_t else {
-        return nalgebra::DMatrix::identity(n, n);
+        return nalgebra::DMatrix::from_fn(n, n, |i, j| if i == j { scale[i] } else { 0.0 });
     };
     let top = svd.singular_values.max();
     let keep: Vec<usize> = (0..svd.singular_values.len())
         .filter(|&k| svd.singular_values[k] > 1e-9 * top)
         .collect();
     nalgebra::DMatrix::from_fn(n, keep.len(), |i, j| {
-        v_t[(keep[j], i)] / svd.singular_values[keep[j]]
+        scale[i] * v_t[(keep[j], i)] / svd.singular_values[keep[j]]
     })
 }
 

@@ -780,45 +780,58 @@ fn limit_attempt(
             f64::NEG_INFINITY
         }
     };
-    let run = |from: &str, start: &ControllerConfig| -> (String, Judged) {
-        let r = fixed_order::climb(
-            &y.lines,
-            start,
-            period_s,
-            y.computation_delay_s,
-            req,
-            y.lines.bounds(y.effort_max_a_per_m),
-            &certified,
-        )
-        .map(|c| {
-            let e = judge(&c.controller);
-            (c, e)
-        });
-        match &r {
-            Err(m) => tracing::debug!(from, why = %m, "limit strategy: no climb"),
-            Ok((c, e)) => tracing::debug!(
-                from,
-                robust_rad_s = c.robust_bandwidth_rad_s,
-                objective_rad_s = e.objective_rad_s,
-                violation = e.violation,
-                "limit strategy: a climb"
-            ),
-        }
-        (from.to_string(), r)
-    };
+    let climb_in =
+        |from: &str, start: &ControllerConfig, v: fixed_order::Variable| -> (String, Judged) {
+            let from = format!("{from} (in {})", v.name());
+            let from = from.as_str();
+            let r = fixed_order::climb(
+                &y.lines,
+                (start, v),
+                period_s,
+                y.computation_delay_s,
+                req,
+                y.lines.bounds(y.effort_max_a_per_m),
+                &certified,
+            )
+            .map(|c| {
+                let e = judge(&c.controller);
+                (c, e)
+            });
+            match &r {
+                Err(m) => tracing::debug!(from, why = %m, "limit strategy: no climb"),
+                Ok((c, e)) => tracing::debug!(
+                    from,
+                    robust_rad_s = c.robust_bandwidth_rad_s,
+                    objective_rad_s = e.objective_rad_s,
+                    violation = e.violation,
+                    "limit strategy: a climb"
+                ),
+            }
+            (from.to_string(), r)
+        };
+    // Two climbs per start, side by side, in the variables that climbed
+    // furthest ([`fixed_order::Variable`]): with the fits' MMP pairs to
+    // cancel, the plain start in z⁻¹ and the cancelled one in 1 − z⁻¹;
+    // without, the plain start in both.
+    use fixed_order::Variable::{Delay, Difference};
     let mut results: Vec<(String, Judged)> = Vec::new();
     for a in starts {
         let plain = &a.evaluation.controller;
+        let plain_name = format!("{} design", a.strategy);
         let (r, c) = match fixed_order::cancelling(plain, &y.lines.pairs, period_s) {
             Some(cancelled) => {
                 let name = format!("{} design with the fits' MMP pairs cancelled", a.strategy);
-                let plain_name = format!("{} design", a.strategy);
-                let (r, c) = rayon::join(|| run(&plain_name, plain), || run(&name, &cancelled));
-                (r, Some(c))
+                rayon::join(
+                    || climb_in(&plain_name, plain, Delay),
+                    || climb_in(&name, &cancelled, Difference),
+                )
             }
-            None => (run(&format!("{} design", a.strategy), plain), None),
+            None => rayon::join(
+                || climb_in(&plain_name, plain, Delay),
+                || climb_in(&plain_name, plain, Difference),
+            ),
         };
-        results.extend([r].into_iter().chain(c));
+        results.extend([r, c]);
         if results
             .iter()
             .any(|(_, r)| matches!(r, Ok((_, e)) if e.feasible()))
