@@ -733,7 +733,7 @@ pub fn check_loop(
         }
     }
     let rounding_error = ctrl.rounding_error();
-    if !(rounding_error <= ROUNDING_ERROR_MAX) {
+    if rounding_error.is_nan() || rounding_error > ROUNDING_ERROR_MAX {
         failures.push(format!(
             "the controller's sections lose {rounding_error:.1e} of their output to rounding (RMS, against a double-double run; must be at most {ROUNDING_ERROR_MAX:.0e}): a section amplifies what a later one takes back; check the poles and zeros of [controller.{name}]"
         ));
