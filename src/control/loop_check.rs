@@ -642,11 +642,12 @@ impl MeasuredFrf {
 }
 
 /// The largest rounding error a controller's cascade may have, relative to
-/// its output ([`LoopCheck::rounding_error`]): 120 dB below the signal,
-/// where the current's own resolution and the probe noise the controller
-/// passes lie far above it. A cascade paired by nearness gives 1e-15 to
-/// 1e-12; one whose sections amplify by decades what later ones take back
-/// gives 1e-3 to 10.
+/// its output ([`LoopCheck::rounding_error`]). The finest command a
+/// backend sends, the serial link's `f32` current, resolves 6e-8 of its
+/// value: within 1e-6 the cascade's rounding stays within 16 of those
+/// steps, 120 dB below the signal. Paired by nearness, the shipped and
+/// designed controllers give 4e-14 to 3e-8; the 24-pole controller paired
+/// by position gave 52.
 pub const ROUNDING_ERROR_MAX: f64 = 1e-6;
 
 /// Runs the loop check of `name` against the model of `stage` (and a
