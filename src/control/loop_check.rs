@@ -322,8 +322,9 @@ pub fn closed_loop_poles(
 /// controller states in amperes per micrometre), and without balancing a
 /// controller with corners near the Nyquist frequency showed spurious
 /// eigenvalues far outside the unit circle for a loop the simulator and
-/// python-control find stable.
-fn balance(a: &mut DMatrix<f64>) {
+/// python-control find stable. The design's roots of a polynomial (the
+/// balanced companion matrix) use it as well.
+pub(crate) fn balance(a: &mut DMatrix<f64>) {
     let n = a.nrows();
     for _ in 0..100 {
         let mut converged = true;

@@ -988,7 +988,9 @@ fn roots_in_z(c: &[f64], var: Variable) -> Vec<C64> {
     for i in 1..m {
         a[(i, i - 1)] = 1.0;
     }
-    balance(&mut a);
+    // Balanced first: a polynomial with roots from 10⁻⁴ to 1 has
+    // coefficients over many orders of magnitude.
+    crate::control::loop_check::balance(&mut a);
     a.complex_eigenvalues()
         .iter()
         .map(|g| match var {
@@ -1006,54 +1008,6 @@ fn roots_in_z(c: &[f64], var: Variable) -> Vec<C64> {
 fn degree(c: &[f64]) -> usize {
     let top = c.iter().fold(0.0f64, |m, v| m.max(v.abs()));
     c.iter().rposition(|v| v.abs() > 1e-12 * top).unwrap_or(0)
-}
-
-/// Balances `a` in place by a diagonal similarity of powers of 2, so
-/// that each row and its column have about equal norms (Parlett &
-/// Reinsch, *Numer. Math.* 13, 1969; LAPACK's `gebal`): the eigenvalues
-/// are unchanged, and a companion matrix whose coefficients span many
-/// orders of magnitude (a polynomial with roots from 10⁻⁴ to 1) gets
-/// them to working accuracy.
-fn balance(a: &mut DMatrix<f64>) {
-    let n = a.nrows();
-    for _ in 0..100 {
-        let mut done = true;
-        for i in 0..n {
-            let (mut c, mut r) = (0.0, 0.0);
-            for j in 0..n {
-                if j != i {
-                    c += a[(j, i)].abs();
-                    r += a[(i, j)].abs();
-                }
-            }
-            if c == 0.0 || r == 0.0 {
-                continue;
-            }
-            let s = c + r;
-            let mut f = 1.0;
-            let (mut c2, mut r2) = (c, r);
-            while c2 < r2 / 2.0 {
-                c2 *= 2.0;
-                r2 /= 2.0;
-                f *= 2.0;
-            }
-            while c2 >= r2 * 2.0 {
-                c2 /= 2.0;
-                r2 *= 2.0;
-                f /= 2.0;
-            }
-            if (c2 + r2) < 0.95 * s {
-                done = false;
-                for j in 0..n {
-                    a[(i, j)] /= f;
-                    a[(j, i)] *= f;
-                }
-            }
-        }
-        if done {
-            break;
-        }
-    }
 }
 
 /// `s = (2/T)(z − 1)/(z + 1)`.
