@@ -76,6 +76,21 @@ impl Biquad {
         let z2 = z1 * z1;
         (z1 * self.b[1] + z2 * self.b[2] + self.b[0]) / (z1 * self.a[0] + z2 * self.a[1] + 1.0)
     }
+
+    /// One sample of direct form II transposed: the output for input `x`
+    /// with state `s`, and the next state. The tick's arithmetic, in this
+    /// order (the rounding check runs the same).
+    #[inline]
+    pub fn step(&self, s: [f64; 2], x: f64) -> (f64, [f64; 2]) {
+        let y = self.b[0] * x + s[0];
+        (
+            y,
+            [
+                self.b[1] * x - self.a[0] * y + s[1],
+                self.b[2] * x - self.a[1] * y,
+            ],
+        )
+    }
 }
 
 /// The discrete controller run on the tick: gain × cascade of biquads, with
@@ -170,9 +185,8 @@ impl DiscreteController {
         let mut x = x0;
         let mut next = self.state;
         for (i, s) in self.sections[..self.n].iter().enumerate() {
-            let st = self.state[i];
-            let y = s.b[0] * x + st[0];
-            next[i] = [s.b[1] * x - s.a[0] * y + st[1], s.b[2] * x - s.a[1] * y];
+            let (y, st) = s.step(self.state[i], x);
+            next[i] = st;
             x = y;
         }
         let u = self.gain * x;
@@ -217,9 +231,7 @@ impl DiscreteController {
             let x0 = (r >> 11) as f64 / (1u64 << 52) as f64 - 1.0;
             let (mut x, mut xd) = (x0, Dd::from(x0));
             for (i, s) in secs.iter().enumerate() {
-                let y = s.b[0] * x + lo[i][0];
-                lo[i] = [s.b[1] * x - s.a[0] * y + lo[i][1], s.b[2] * x - s.a[1] * y];
-                x = y;
+                (x, lo[i]) = s.step(lo[i], x);
                 let yd = xd.mul(s.b[0]).add(hi[i][0]);
                 hi[i] = [
                     xd.mul(s.b[1]).add(yd.mul(-s.a[0])).add(hi[i][1]),
