@@ -631,7 +631,11 @@ fn check_only_prints_the_plan_and_writes_nothing() {
 /// `--verify` through the daemon (`--daemon`, the request carries it): the
 /// same summary, the result, the files beside the daemon's recording and
 /// `/control/verify` in it; an amplitude the limits do not leave room for
-/// is refused before enable, naming the parameter.
+/// is refused before enable, naming the parameter. The job runs in
+/// virtual time (`--pace off`): what is tested is that `--verify` goes
+/// through the daemon, not the daemon's real-time loop (tests/cli/daemon.rs,
+/// with the host-stall watch), and this VM's own stalls would fault a
+/// real-time job.
 #[test]
 fn verify_through_the_daemon() {
     let d = daemon_fixtures::Daemon::start();
@@ -641,6 +645,8 @@ fn verify_through_the_daemon() {
         "--fast",
         "--daemon",
         &sock,
+        "--pace",
+        "off",
         "--duration-s",
         "1",
         "--verify",
