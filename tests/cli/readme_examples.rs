@@ -162,13 +162,8 @@ fn adapt(line: &str, campaign_done: &mut bool) -> (Vec<String>, String) {
         && l.contains("--daemon")
         && !l.contains("--pace")
     {
-        let (code, comment) = l.split_once(" #").unwrap_or((&l, ""));
-        let comment = if comment.is_empty() {
-            String::new()
-        } else {
-            format!(" #{comment}")
-        };
-        l = format!("{} --pace off{comment}", code.trim_end());
+        let code = l.split(" #").next().unwrap_or("").trim_end();
+        l = format!("{code} --pace off");
     }
     // An exit the example's comment announces (9: a flagged fit, the
     // figure written).
