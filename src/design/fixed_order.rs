@@ -51,8 +51,8 @@
 
 use super::ceiling::ProgramLines;
 use super::limit::{
-    noise_hides_bound, orthonormal_map, performance_weight_magnitude, thinned_lines, LoopBounds,
-    MAX_ACTIVE_LINES,
+    interior_point_settings, noise_hides_bound, orthonormal_map, performance_weight_magnitude,
+    thinned_lines, LoopBounds, MAX_ACTIVE_LINES,
 };
 use super::search::Requirements;
 use crate::config::controller::CORNER_RAD_S;
@@ -601,9 +601,8 @@ fn step(
     let mut q = vec![0.0; nv];
     q[it] = -1.0;
     let settings = DefaultSettings::<f64> {
-        verbose: false,
         max_iter: 100,
-        ..DefaultSettings::default()
+        ..interior_point_settings()
     };
     let mut solver = DefaultSolver::new(&pm, &q, &a, &rows.b, &rows.cones, settings).ok()?;
     solver.solve();
