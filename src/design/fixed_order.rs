@@ -51,8 +51,8 @@
 
 use super::ceiling::ProgramLines;
 use super::limit::{
-    interior_point_settings, noise_hides_bound, orthonormal_map, performance_weight_magnitude,
-    thinned_lines, LoopBounds, MAX_ACTIVE_LINES,
+    interior_point_settings, local_peak, noise_hides_bound, orthonormal_map,
+    performance_weight_magnitude, thinned_lines, LoopBounds, MAX_ACTIVE_LINES,
 };
 use super::search::Requirements;
 use crate::config::controller::CORNER_RAD_S;
@@ -849,6 +849,7 @@ pub fn climb(
                 let inside = active.iter().map(|&k| g[k]).fold(0.0, f64::max);
                 let mut worse: Vec<usize> = (0..lines.len())
                     .filter(|k| g[*k] > inside && active.binary_search(k).is_err())
+                    .filter(|&k| local_peak(g, k, |_| true))
                     .collect();
                 if !worse.is_empty() {
                     worse.sort_by(|a, b| g[*b].total_cmp(&g[*a]));
