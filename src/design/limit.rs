@@ -53,13 +53,8 @@ pub const RELATIVE_TOLERANCE: f64 = 1e-2;
 
 /// Largest number of lines one cone program holds; more lines are thinned
 /// (every resonance's neighbourhood kept) and the dropped ones checked on
-/// the solution, the worst added back ([`performance_limit`], and the
-/// climb's steps, [`super::fixed_order::climb`]). 150: one default
-/// chirp's design took 5.7–8.3 s where 300 took 7.0–12.4 s (the three
-/// benches of `tests/data/limit_cases.json`), the limits within 0.4 % and
-/// the designs' ω* within 2 % of what 300 lines gave; a step's program
-/// costs about a quarter (fewer lines and fewer interior-point steps).
-pub const MAX_ACTIVE_LINES: usize = 150;
+/// the solution, the worst added back ([`performance_limit`]).
+pub const MAX_ACTIVE_LINES: usize = 300;
 
 /// `|W_P(jω)|` for `W_P(s) = (s/M + ω*)/s`: `|jω/M + ω*| / ω`.
 ///
@@ -776,22 +771,6 @@ pub(super) fn orthonormal_map(x: &nalgebra::DMatrix<f64>) -> nalgebra::DMatrix<f
     })
 }
 
-/// Clarabel's settings for the design's cone programs: quiet, and
-/// without iterative refinement of the KKT solves. Every program's answer
-/// is judged by exact arithmetic afterwards (the limit's `q` by its own
-/// max of |W_P S|, a climb's step by the true constraints on every line),
-/// so the solver's accuracy moves only how close to optimal a step is,
-/// never what is certified; refinement took 30 % of the design's time
-/// (one default chirp: 10.0 s, 6.5 s without it, the same ω* and limit
-/// to 10⁻⁷).
-pub(super) fn interior_point_settings() -> DefaultSettings<f64> {
-    DefaultSettings {
-        verbose: false,
-        iterative_refinement_enable: false,
-        ..DefaultSettings::default()
-    }
-}
-
 /// `|W_P S|` at row `r` for coefficients `q`.
 fn weighted(r: &Row, q: &[f64], w_star: f64, s_max: f64) -> f64 {
     let s = C64::new(1.0, 0.0) - r.plant_at(w_star, s_max) * r.q_at(q);
@@ -799,8 +778,7 @@ fn weighted(r: &Row, q: &[f64], w_star: f64, s_max: f64) -> f64 {
 }
 
 /// Rows (indices) where `|W_P S|` exceeds `above` or a bound of `bounds`
-/// (scaled) is passed, worst first (by the ratio to its bound), each the
-/// peak of its run ([`local_peak`]).
+/// (scaled) is passed, worst first (each as its ratio to its bound).
 fn violations(
     rows: &[Row],
     q: &[f64],
@@ -809,35 +787,21 @@ fn violations(
     above: f64,
     bounds: &LoopBounds,
 ) -> Vec<usize> {
-    let ratio: Vec<f64> = rows
+    let mut v: Vec<(usize, f64)> = rows
         .iter()
-        .map(|r| {
+        .enumerate()
+        .map(|(k, r)| {
             let qz = r.q_at(q);
             let mut x = weighted(r, q, w_star, s_max) / above;
             if r.effort {
                 x = x.max(r.effort_ratio(qz, bounds));
             }
-            x.max(r.edge_ratio(qz, w_star, s_max, bounds))
+            (k, x.max(r.edge_ratio(qz, w_star, s_max, bounds)))
         })
+        .filter(|(_, x)| *x > 1.0 + 1e-6)
         .collect();
-    let mut v: Vec<usize> = (0..rows.len())
-        .filter(|&k| ratio[k] > 1.0 + 1e-6)
-        .filter(|&k| local_peak(&ratio, k, |j| rows[j].input == rows[k].input))
-        .collect();
-    v.sort_by(|a, b| ratio[*b].total_cmp(&ratio[*a]));
-    v
-}
-
-/// Whether `value[k]` is at least its neighbours' `k ± 1` that `same`
-/// admits (the same input's adjacent lines). The lines a solution fails
-/// come in runs around each peak of the failure, and across a workspace's
-/// inputs at the same frequencies: adding each run's peak, not the run,
-/// takes a 20-FRF limit through a third of the programs that adding the
-/// 64 worst lines did.
-pub(super) fn local_peak(value: &[f64], k: usize, same: impl Fn(usize) -> bool) -> bool {
-    let left = k.checked_sub(1).filter(|&j| same(j));
-    let right = Some(k + 1).filter(|&j| j < value.len() && same(j));
-    left.is_none_or(|j| value[j] <= value[k]) && right.is_none_or(|j| value[j] <= value[k])
+    v.sort_by(|a, b| b.1.total_cmp(&a.1));
+    v.into_iter().map(|(k, _)| k).collect()
 }
 
 fn binding_lines(
@@ -912,6 +876,7 @@ fn solve(
     s_max: f64,
     bounds: &LoopBounds,
 ) -> Result<(f64, Vec<f64>), LimitError> {
+    let nv = n + 1; // q, then t
     let m = 3 * active.len();
     let (mut ri, mut ci, mut vals) = (Vec::new(), Vec::new(), Vec::new());
     let mut b = vec![0.0; m];
@@ -964,44 +929,10 @@ fn solve(
             vals.push(pb.im);
         }
     }
-    // The coefficients in the program's own orthonormal coordinates
-    // ([`orthonormal_map`] of the rows' q columns, stacked): the basis is
-    // orthonormal on the lines, but the rows weigh it by the plant (m/A,
-    // 10⁻⁹…10⁻⁵) and by |W_P|, and the interior point took 40–50 short
-    // steps where it now takes about 25 (one default chirp's limit, 5.8
-    // s where it is now 4.4 s, the same limit). q = `back` · x.
-    let mut dense = nalgebra::DMatrix::<f64>::zeros(m, n);
-    let mut t_rows = Vec::new();
-    for ((&r, &c), &v) in ri.iter().zip(&ci).zip(&vals) {
-        if c == n {
-            t_rows.push((r, v));
-        } else {
-            dense[(r, c)] += v;
-        }
-    }
-    let back = orthonormal_map(&dense);
-    let reduced = &dense * &back;
-    let kept = back.ncols();
-    let (mut ri, mut ci, mut vals) = (Vec::new(), Vec::new(), Vec::new());
-    for col in 0..kept {
-        for (row, &v) in reduced.column(col).iter().enumerate() {
-            if v != 0.0 {
-                ri.push(row);
-                ci.push(col);
-                vals.push(v);
-            }
-        }
-    }
-    for (r, v) in t_rows {
-        ri.push(r);
-        ci.push(kept);
-        vals.push(v);
-    }
-    let nv = kept + 1; // x, then t
     let a = CscMatrix::new_from_triplets(m, nv, ri, ci, vals);
     let p = CscMatrix::zeros((nv, nv));
     let mut c = vec![0.0; nv];
-    c[kept] = 1.0;
+    c[n] = 1.0;
     let cones: Vec<SupportedConeT<f64>> = (0..m / 3)
         .map(|_| SupportedConeT::SecondOrderConeT(3))
         .collect();
@@ -1015,10 +946,11 @@ fn solve(
     // under 1 often evaluates just over it, and the limit comes out 7 %
     // low (held-out benches of `tests/data/limit_cases.json`).
     let settings = DefaultSettings::<f64> {
+        verbose: false,
         tol_gap_abs: 1e-7,
         tol_gap_rel: 1e-6,
         tol_feas: 1e-7,
-        ..interior_point_settings()
+        ..DefaultSettings::default()
     };
     let failed = |status: String| LimitError::Solver {
         bandwidth_rad_s: w_star,
@@ -1030,8 +962,7 @@ fn solve(
     match solver.solution.status {
         // The q found is its own certificate: γ is its exact max.
         SolverStatus::Solved | SolverStatus::AlmostSolved => {
-            let x = nalgebra::DVector::from_column_slice(&solver.solution.x[..kept]);
-            let q = (&back * x).as_slice().to_vec();
+            let q = solver.solution.x[..n].to_vec();
             Ok((exact(&q), q))
         }
         s => Err(failed(format!("{s:?}"))),
