@@ -406,7 +406,8 @@ impl Affine {
 /// step fails come in runs around each peak of the failure (and across a
 /// workspace's inputs at the same frequencies): each run's peak joins the
 /// active set, not the run's 64 worst neighbours (20 FRFs: 68 s where
-/// adding the 64 worst lines took 82 s).
+/// adding the 64 worst lines took 82 s, both with a faster limit than
+/// the one kept; `docs/src/jobs/design.md`).
 fn local_peak(value: &[f64], k: usize) -> bool {
     let left = k.checked_sub(1);
     let right = Some(k + 1).filter(|&j| j < value.len());
