@@ -51,7 +51,8 @@
 
 use super::ceiling::ProgramLines;
 use super::limit::{
-    noise_hides_bound, orthonormal_map, performance_weight_magnitude, thinned_lines, LoopBounds,
+    local_peak, noise_hides_bound, orthonormal_map, performance_weight_magnitude, thinned_lines,
+    LoopBounds,
 };
 use super::search::Requirements;
 use crate::config::controller::CORNER_RAD_S;
@@ -100,12 +101,12 @@ const DENOMINATOR_MARGIN: f64 = 0.05;
 /// Lines a step's program starts with (thinned as the limit's, every
 /// resonance's neighbourhood kept; each step is judged on every line and
 /// the peaks it fails join). 150, where the limit holds 300: one default
-/// chirp's design took 5.4–6.9 s where 300 took 7.0–12.4 s (the three
-/// benches of `tests/data/limit_cases.json`), the designs' ω* on the true
-/// plant within 2 % of what 300 lines gave (0.86, 0.92, 0.92 of the
-/// reference limit); a program costs about a quarter (fewer lines and
-/// fewer interior-point steps). At 100 lines held-out a and b fell to
-/// 0.71.
+/// chirp's design takes 5.2–8.5 s, where with 300 it took 7.0–12.4 s (the
+/// three benches of `tests/data/limit_cases.json`, refinement off in
+/// both), the designs' ω* on the true plant within 2.2 % of what 300
+/// lines gave (0.86, 0.92, 0.92 of the reference limit); a step's
+/// program costs about a quarter (fewer lines and fewer interior-point
+/// steps). At 100 lines held-out a and b fell to 0.71.
 const ACTIVE_LINES: usize = 150;
 /// The error unit per metre (µm).
 const PER_METRE: f64 = 1e6;
@@ -400,18 +401,6 @@ impl Affine {
             self.terms.iter().map(|(i, c)| (*i, c.im)).collect(),
         )
     }
-}
-
-/// Whether `value[k]` is at least its neighbours' `k ± 1`. The lines a
-/// step fails come in runs around each peak of the failure (and across a
-/// workspace's inputs at the same frequencies): each run's peak joins the
-/// active set, not the run's 64 worst neighbours (20 FRFs: 68 s where
-/// adding the 64 worst lines took 82 s, both with a faster limit than
-/// the one kept; `docs/src/jobs/design.md`).
-fn local_peak(value: &[f64], k: usize) -> bool {
-    let left = k.checked_sub(1);
-    let right = Some(k + 1).filter(|&j| j < value.len());
-    left.is_none_or(|j| value[j] <= value[k]) && right.is_none_or(|j| value[j] <= value[k])
 }
 
 /// Clarabel's settings for a step's program: quiet, at most 100
@@ -884,6 +873,12 @@ pub fn climb(
                 let inside = active.iter().map(|&k| g[k]).fold(0.0, f64::max);
                 let mut worse: Vec<usize> = (0..lines.len())
                     .filter(|k| g[*k] > inside && active.binary_search(k).is_err())
+                    // Each run's peak, not its 64 worst neighbours: the
+                    // lines a step fails come in runs around each peak
+                    // of the failure (and across a workspace's inputs at
+                    // the same frequencies); 20 FRFs: 68 s where the 64
+                    // worst took 82 s (both beside a faster limit than
+                    // the one kept; `docs/src/jobs/design.md`).
                     .filter(|&k| local_peak(g, k))
                     .collect();
                 if !worse.is_empty() {

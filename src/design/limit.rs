@@ -837,6 +837,14 @@ fn thinned(rows: &[Row], n: usize) -> Vec<usize> {
     thinned_lines(&m, n)
 }
 
+/// Whether `value[k]` is a local maximum: above its left neighbour and
+/// not below its right one (one index per plateau); a missing neighbour
+/// (the ends) passes.
+pub(super) fn local_peak(value: &[f64], k: usize) -> bool {
+    k.checked_sub(1).is_none_or(|j| value[k] > value[j])
+        && value.get(k + 1).is_none_or(|&r| value[k] >= r)
+}
+
 /// At most about `n` indices of lines with plant magnitudes
 /// `magnitude`: every local maximum and its two neighbours (the
 /// resonances), then evenly spread in index, and the last line.
@@ -847,8 +855,7 @@ pub(super) fn thinned_lines(magnitude: &[f64], n: usize) -> Vec<usize> {
     }
     let mut keep = std::collections::BTreeSet::new();
     for k in 1..len.saturating_sub(1) {
-        let m = magnitude[k];
-        if m > magnitude[k - 1] && m >= magnitude[k + 1] {
+        if local_peak(magnitude, k) {
             keep.extend([k - 1, k, k + 1]);
         }
     }
