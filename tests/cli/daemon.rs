@@ -446,7 +446,7 @@ fn sim_faults_between_jobs_latch_until_reset() {
             std::thread::sleep(Duration::from_millis(300));
             let s = c.call("status", json!({}))["result"].clone();
             assert_eq!(s["state"], "disabled", "{fault} after reset: {s}");
-            let r = c.call(
+            let r = c.call_realtime(
                 "control",
                 json!({ "controller": "fast", "duration_s": 0.5 }),
             );
@@ -472,7 +472,7 @@ fn a_stall_between_jobs_never_latches() {
         assert_ne!(s["state"], "faulted", "latched a stall between jobs: {s}");
         std::thread::sleep(Duration::from_millis(100));
     }
-    let r = c.call("chirp", json!({ "duration_s": 0.5 }));
+    let r = c.call_realtime("chirp", json!({ "duration_s": 0.5 }));
     assert_eq!(r["ok"], true, "{r}");
 }
 
@@ -493,7 +493,7 @@ fn a_silent_serial_link_between_jobs_never_latches() {
         );
         std::thread::sleep(Duration::from_millis(100));
     }
-    let r = c.call("chirp", json!({ "duration_s": 0.5 }));
+    let r = c.call_realtime("chirp", json!({ "duration_s": 0.5 }));
     assert_eq!(r["ok"], true, "{r}");
 }
 
@@ -524,7 +524,7 @@ fn twenty_serial_daemon_jobs_start_cleanly() {
     for i in 0..20 {
         // Some time between jobs: the loop keeps reading the device.
         std::thread::sleep(Duration::from_millis(50 + 20 * (i % 5)));
-        let r = c.call(
+        let r = c.call_realtime(
             "control",
             json!({ "controller": "fast", "duration_s": 0.5 }),
         );
@@ -613,7 +613,7 @@ fn hold_between_jobs_is_zero_current_or_the_hold_controller() {
         40 - driven
     );
     // A job takes over and leaves the amplifier disabled at 0 A.
-    let r = c.call(
+    let r = c.call_realtime(
         "control",
         json!({ "controller": "fast", "duration_s": 0.5 }),
     );

@@ -212,7 +212,7 @@ fn status_reset_stop_and_shutdown_against_a_daemon() {
     assert_eq!(status_json(&d)["state"], "disabled");
 
     // A job that faults latches the fault.
-    let r = c.call(
+    let r = c.call_realtime(
         "control",
         json!({ "controller": "fast", "duration_s": 1.5, "inject_fault": "drop@0.3" }),
     );
