@@ -100,11 +100,11 @@ const ACCEPTED_POLE_RADIUS: f64 = 1.0 - 0.99 * (1.0 - MAX_POLE_RADIUS);
 const DENOMINATOR_MARGIN: f64 = 0.05;
 /// Lines a step's program starts with (thinned as the limit's, every
 /// resonance's neighbourhood kept; each step is judged on every line and
-/// the peaks it fails join). 150, where the limit holds 300: one default
-/// chirp's design takes 5.2–8.5 s, where with 300 it took 7.0–12.4 s (the
+/// the peaks it fails join). 150, as the limit's programs: one default
+/// chirp's design took 5.2–8.5 s, where with 300 it took 7.0–12.4 s (the
 /// three benches of `tests/data/limit_cases.json`, refinement off in
-/// both), the designs' ω* on the true plant within 2.2 % of what 300
-/// lines gave (0.86, 0.92, 0.92 of the reference limit); a step's
+/// both, dev profile), the designs' ω* on the true plant within 2.2 % of
+/// what 300 lines gave (0.84, 0.88, 0.88 of the reference limit); a step's
 /// program costs about a quarter (fewer lines and fewer interior-point
 /// steps). At 100 lines held-out a and b fell to 0.71.
 const ACTIVE_LINES: usize = 150;
