@@ -503,7 +503,6 @@ fn a_scrape_counts_the_loop_s_ticks_jobs_faults_and_recordings() {
     );
     assert_eq!(r["error"]["kind"], "fault", "{r}");
     assert_eq!(r["error"]["summary"]["fault"]["kind"], "link", "{r}");
-    drop(run);
     let machine_stalls: f64 = stalled.values().sum();
     let s3 = scrape(&m.addr);
     check_loop_series(&s3);
