@@ -647,8 +647,12 @@ fn bad_can_interfaces_are_refused() {
 }
 
 /// A failing probe behind the serial link (issue 46, finding 1): `bench
-/// emulate serial` injects it 0.3 s into a fast step (before the step at
-/// 0.5 s), the probe's noise (40 nm) on. No reading (`nan`) is
+/// emulate serial` injects it 0.3 s into a fast step (before the step,
+/// here at 1.0 s: at the shipped settle_s, 0.2 s, a blind probe froze on
+/// the stage mid-settling, near the new setpoint, and the loop wound up
+/// on the small residue: the rule tripped 0.6 to 3.9 s later, or not
+/// within the run, as it must for a probe frozen where the loop wants
+/// the stage), the probe's noise (40 nm) on. No reading (`nan`) is
 /// `probe_not_finite`; a dead probe reading 0 V (`dead`) is
 /// `probe_frozen` after 29 bit-identical samples (30 nm quantisation and
 /// the link's 0.1 nm count at σ 40 nm); a probe that no longer sees the
@@ -672,7 +676,11 @@ fn a_failing_probe_behind_the_serial_link_stops_at_zero_amps_naming_it() {
             dir.path(),
             2.0,
             "\n[backend.serial]\nsample_timeout_periods = 200.0\n\n[emulator]\nwatchdog_ms = 300.0\n",
-            |t| set_key(t, "noise_rms_m", "4.0e-8"),
+            |t| {
+                let t = set_key(t, "noise_rms_m", "4.0e-8");
+                let t = set_key(&t, "settle_s", "1.0");
+                set_key(&t, "steady_state_window_s", "1.0")
+            },
         );
         let cfg_s = cfg.display().to_string();
         let inject = format!("{fault}@0.3");
@@ -683,7 +691,7 @@ fn a_failing_probe_behind_the_serial_link_stops_at_zero_amps_naming_it() {
             &cfg_s,
             &out.display().to_string(),
             Some(&format!("serial:{path}")),
-            &["--duration-s", "2"],
+            &["--duration-s", "3"],
         );
         // SAFETY: plain kill(2) on our child.
         unsafe { libc::kill(emu.id() as i32, libc::SIGINT) };
