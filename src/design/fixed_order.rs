@@ -1191,18 +1191,7 @@ mod tests {
             t,
             t,
         );
-        let start = ControllerConfig {
-            description: "slow".into(),
-            error_unit: ErrorUnit::Micrometre,
-            form: Form::UnityDc,
-            gain: 0.001,
-            integrators: 1,
-            real_zeros_rad_s: vec![30.0],
-            real_poles_rad_s: vec![900.0],
-            complex_zeros: vec![],
-            complex_poles: vec![],
-            discretization: Discretization::Bilinear,
-        };
+        let start = slow_start(0.001, 30.0);
         let req = Requirements {
             phase_margin_min_deg: 40.0,
             gain_margin_min_db: 6.0,
@@ -1249,18 +1238,7 @@ mod tests {
     #[test]
     fn the_cancelling_start_is_the_start_times_the_pairs_inverse() {
         let t = 2e-4;
-        let start = ControllerConfig {
-            description: "slow".into(),
-            error_unit: ErrorUnit::Micrometre,
-            form: Form::UnityDc,
-            gain: 0.05,
-            integrators: 1,
-            real_zeros_rad_s: vec![100.0],
-            real_poles_rad_s: vec![900.0],
-            complex_zeros: vec![],
-            complex_poles: vec![],
-            discretization: Discretization::Bilinear,
-        };
+        let start = slow_start(0.05, 100.0);
         let pair = LightPair {
             pole: (2.0 * PI * 83.6, 0.0039),
             zero: (2.0 * PI * 82.53, 0.001),
@@ -1281,6 +1259,18 @@ mod tests {
         }
         let full = vec![pair; 12];
         assert_eq!(cancelling(&start, &full, t), None);
+    }
+
+    /// An integrator, a zero at `zero_rad_s` and a pole at 900 rad/s,
+    /// gain `gain` (A/µm), bilinear.
+    fn slow_start(gain: f64, zero_rad_s: f64) -> ControllerConfig {
+        ControllerConfig {
+            description: "slow".into(),
+            real_zeros_rad_s: vec![zero_rad_s],
+            real_poles_rad_s: vec![900.0],
+            gain,
+            ..lead_lag(vec![], vec![])
+        }
     }
 
     /// An integrator, a lead (zero 100 rad/s, poles 900 and 3000 rad/s)

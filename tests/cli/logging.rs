@@ -147,9 +147,8 @@ fn faults_are_logged_with_their_name_and_the_recording() {
         // (A job the machine's own stall ended first, and was run again,
         // has its own line.)
         .find(|l| l.contains("job ended on a fault") && l.contains(&fault))
-        .unwrap_or_else(|| panic!("no 'job ended on a fault' line:\n{err}"));
+        .unwrap_or_else(|| panic!("no 'job ended on a fault' line naming {fault}:\n{err}"));
     assert!(ended.contains("ERROR"), "{ended}");
-    assert!(ended.contains(&fault), "{ended}");
     assert!(ended.contains(&recording), "{ended}");
     let between = err
         .lines()
