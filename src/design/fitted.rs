@@ -26,7 +26,7 @@
 //!
 //! Units: u in A, y in m; Aᵢ and L in m/(A·s²), U in m/A, ω in rad/s.
 
-use crate::ident::modal_fit::{evaluate, ModalFit, Path};
+use crate::ident::modal_fit::{evaluate, evaluate_sigma, ModalFit, Path};
 use crate::ident::C64;
 use nalgebra::{DMatrix, DVector};
 use std::f64::consts::PI;
@@ -89,6 +89,14 @@ impl FittedPlant {
     /// fit's own `Ĥ`, hold and amplifier included).
     pub fn frf(&self, omega_rad_s: f64) -> C64 {
         evaluate(&self.fit, &self.path, omega_rad_s / (2.0 * PI))
+    }
+
+    /// The 1σ of [`Self::frf`] relative to its magnitude at `omega_rad_s`
+    /// (dimensionless): the fit's covariance propagated to first order
+    /// ([`evaluate_sigma`]); NaN when the covariance is not known.
+    pub fn frf_relative_sigma(&self, omega_rad_s: f64) -> f64 {
+        let f_hz = omega_rad_s / (2.0 * PI);
+        evaluate_sigma(&self.fit, &self.path, f_hz) / evaluate(&self.fit, &self.path, f_hz).norm()
     }
 
     /// The fit.
@@ -195,6 +203,7 @@ pub(crate) mod test_support {
             cmp_cnmp: false,
             quality: FitQuality::default(),
             labels_unsure: None,
+            covariance: Vec::new(),
         }
     }
 }

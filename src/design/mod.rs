@@ -459,7 +459,7 @@ pub fn attempt(
     let wr = modes.first_resonance_rad_s;
     match strategy {
         Strategy::Limit => {
-            let all = Problem::new(frfs.iter().chain(models).collect(), req, UNIT_PER_METRE);
+            let all = Problem::with_models(frfs, models, req, UNIT_PER_METRE);
             limit_attempt(
                 &all,
                 climb.map(|c| c.0),
@@ -474,7 +474,7 @@ pub fn attempt(
                 phase_margin_min_deg: req.phase_margin_min_deg.max(SLOW_PHASE_MARGIN_MIN_DEG),
                 ..req
             };
-            let problem = Problem::new(frfs.iter().chain(models).collect(), req, UNIT_PER_METRE);
+            let problem = Problem::with_models(frfs, models, req, UNIT_PER_METRE);
             let fam = Family::Slow {
                 first_resonance_rad_s: wr,
             };
@@ -621,7 +621,7 @@ pub fn attempt(
             // certificate judges the discrete controller on every line by
             // the user's. A miss left (a skipped line, the discretisation)
             // is small: back the gain off by 2 % steps until it passes.
-            let all = Problem::new(frfs.iter().chain(models).collect(), req, UNIT_PER_METRE);
+            let all = Problem::with_models(frfs, models, req, UNIT_PER_METRE);
             let certified = |c0: &ControllerConfig, searched_violation: f64| {
                 certify_backing_off(&all, c0, period_s, peak_current_a, BACK_OFF_STEPS, |_| {
                     searched_violation > 0.5

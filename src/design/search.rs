@@ -118,7 +118,8 @@ pub struct Evaluation {
     /// Smallest ω_B over the FRFs, rad/s.
     pub sensitivity_bandwidth_min_rad_s: f64,
     /// What the search maximises, rad/s: the largest ω* for which
-    /// `|S(jω)| ≤ 1/|W_P(jω)|` on every line of every FRF, with the
+    /// `|S(jω)| ≤ 1/|W_P(jω)|` on every line of every FRF (a model's from
+    /// the lowest measured line up: [`Problem::with_models`]), with the
     /// standard performance weight `W_P(s) = (s/M + ω*)/s` (Skogestad &
     /// Postlethwaite §2.8.2, Eq. 2.72 with A = 0: integral action; M =
     /// `sensitivity_peak_max`): `ω* = min ω √(1/|S|² − 1/M²)`. It asks
@@ -154,9 +155,33 @@ pub struct Problem<'a> {
     index: Vec<Vec<usize>>,
     unit_per_metre: f64,
     req: Requirements,
+    /// ω* is read from here up, rad/s: the lowest measured line when
+    /// models join the inputs (below it a model only extrapolates the
+    /// fit, and the limit has no constraint there), else 0.
+    objective_from_rad_s: f64,
 }
 
 impl<'a> Problem<'a> {
+    /// The problem of the inputs `frfs` (measured lines) and the `models`
+    /// (their fits' or a config's response on a dense grid) under `req`:
+    /// every constraint on every point of both, ω* from the lowest
+    /// measured line up, as [`crate::design::limit`] bounds it.
+    pub fn with_models(
+        frfs: &'a [DesignFrf],
+        models: &'a [DesignFrf],
+        req: Requirements,
+        unit_per_metre: f64,
+    ) -> Self {
+        let lowest = frfs
+            .iter()
+            .filter_map(|f| f.omega_rad_s.first().copied())
+            .fold(f64::INFINITY, f64::min);
+        Self {
+            objective_from_rad_s: if lowest.is_finite() { lowest } else { 0.0 },
+            ..Self::new(frfs.iter().chain(models).collect(), req, unit_per_metre)
+        }
+    }
+
     /// The problem of `frfs` (non-empty, each with lines) under `req`,
     /// for controllers whose error unit is `unit_per_metre` per metre.
     pub fn new(frfs: Vec<&'a DesignFrf>, req: Requirements, unit_per_metre: f64) -> Self {
@@ -181,6 +206,7 @@ impl<'a> Problem<'a> {
             index,
             unit_per_metre,
             req,
+            objective_from_rad_s: 0.0,
         }
     }
 
@@ -281,12 +307,14 @@ impl<'a> Problem<'a> {
             let wb = f.sensitivity_bandwidth_rad_s.unwrap_or(frf.omega_rad_s[0]);
             wb_min = wb_min.min(wb);
             // The performance weight's bandwidth (see `objective_rad_s`):
-            // ω* ≤ ω √(1/|S|² − 1/M²) on every line.
+            // ω* ≤ ω √(1/|S|² − 1/M²) on every line from the lowest
+            // measured one up.
             let m2 = 1.0 / (req.sensitivity_peak_max * req.sensitivity_peak_max);
             let reach = frf
                 .omega_rad_s
                 .iter()
                 .zip(&l)
+                .filter(|(w, _)| **w >= self.objective_from_rad_s)
                 .map(|(w, v)| w * ((v + 1.0).norm_sqr() - m2).max(1e-12).sqrt())
                 .fold(f64::INFINITY, f64::min);
             objective = objective.min(reach);

@@ -72,6 +72,35 @@ fn slopes(omega: &[f64], l: &[C64], k: usize) -> Option<(f64, f64)> {
     Some((r.norm().ln() / dw, r.arg() / dw))
 }
 
+/// The 1σ of the performance bandwidth ω* (rad/s, `M = s_max`) of the
+/// loop `loop_gain` on the lines `omega_rad_s` (rad/s ascending) from each
+/// line's relative 1σ `relative_sigma` (NaN: unknown): at its binding
+/// line `k`, `σ_ω* = ω_k² σ_|S| / (|S_k|³ ω*)` with
+/// `σ_|S| = |S_k|² |L_k| σ_r / √2` (the module's model). `None` when
+/// |S| passes M, ω* is 0, or the binding line's σ is unknown.
+pub fn performance_bandwidth_sigma(
+    omega_rad_s: &[f64],
+    loop_gain: &[C64],
+    relative_sigma: &[f64],
+    s_max: f64,
+) -> Option<f64> {
+    let n = omega_rad_s.len();
+    if n == 0 || loop_gain.len() != n || relative_sigma.len() != n {
+        return None;
+    }
+    let s_abs: Vec<f64> = loop_gain.iter().map(|l| 1.0 / (l + 1.0).norm()).collect();
+    if !s_abs.iter().all(|s| *s <= s_max) {
+        return None;
+    }
+    let m2 = 1.0 / (s_max * s_max);
+    let reach = |k: usize| omega_rad_s[k] * (1.0 / (s_abs[k] * s_abs[k]) - m2).max(0.0).sqrt();
+    let k = (0..n).min_by(|a, b| reach(*a).total_cmp(&reach(*b)))?;
+    let ws = reach(k);
+    let sig_s = s_abs[k] * s_abs[k] * loop_gain[k].norm() * relative_sigma[k] / SQRT_2;
+    let v = omega_rad_s[k] * omega_rad_s[k] * sig_s / (s_abs[k].powi(3) * ws);
+    (ws > 0.0 && v.is_finite() && v >= 0.0).then_some(v)
+}
+
 /// The 1σ of `figures` (those of the loop `loop_gain` on the lines
 /// `omega_rad_s`, rad/s ascending) from each line's relative 1σ
 /// `relative_sigma` (NaN: unknown), with `M = s_max` for ω*.
@@ -92,20 +121,15 @@ pub fn figure_sigmas(
         v.is_finite().then_some(v)
     };
     let known = |x: f64| (x.is_finite() && x >= 0.0).then_some(x);
-    let mut out = FigureSigmas::default();
-    // ω* at its binding line.
-    let m2 = 1.0 / (s_max * s_max);
-    let reach = |k: usize| omega_rad_s[k] * (1.0 / (s_abs[k] * s_abs[k]) - m2).max(0.0).sqrt();
-    if s_abs.iter().all(|s| *s <= s_max) {
-        let k = (0..n)
-            .min_by(|a, b| reach(*a).total_cmp(&reach(*b)))
-            .expect("lines");
-        let ws = reach(k);
-        if ws > 0.0 {
-            out.performance_bandwidth_rad_s = sig_s(k)
-                .and_then(|s| known(omega_rad_s[k] * omega_rad_s[k] * s / (s_abs[k].powi(3) * ws)));
-        }
-    }
+    let mut out = FigureSigmas {
+        performance_bandwidth_rad_s: performance_bandwidth_sigma(
+            omega_rad_s,
+            loop_gain,
+            relative_sigma,
+            s_max,
+        ),
+        ..FigureSigmas::default()
+    };
     // ‖S‖∞ at its peak line.
     let peak = (0..n)
         .max_by(|a, b| s_abs[*a].total_cmp(&s_abs[*b]))

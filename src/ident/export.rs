@@ -612,6 +612,7 @@ mod tests {
             cmp_cnmp: true,
             quality: FitQuality::default(),
             labels_unsure: None,
+            covariance: Vec::new(),
         }
     }
 

@@ -20,7 +20,7 @@ use crate::design::loops::LoopFigures;
 use crate::design::modes::PlantModes;
 use crate::design::predict::{model_frf_on, predict_on, BenchModel, ModelPrediction};
 use crate::design::search::{Binding, Requirements};
-use crate::design::sigma::{figure_sigmas, FigureSigmas};
+use crate::design::sigma::{figure_sigmas, performance_bandwidth_sigma, FigureSigmas};
 use crate::design::{design, prepare, DesignError, DesignSpec, InputFrf, InputUse, Strategy};
 use crate::error::RunError;
 use crate::ident::frf::{read_frf, Frf};
@@ -192,25 +192,51 @@ struct EvaluationFigures {
     sigma: FigureSigmas,
 }
 
+/// What [`evaluation_figures`] reads a controller's figures on: the
+/// inputs and the models with their relative 1σ, and the loop.
+#[derive(Clone, Copy)]
+struct FiguresOn<'a> {
+    frfs: &'a [crate::design::loops::DesignFrf],
+    models: &'a [crate::design::loops::DesignFrf],
+    relative_sigma: &'a [Vec<f64>],
+    model_relative_sigma: &'a [Vec<f64>],
+    /// s.
+    computation_delay_s: f64,
+    /// s.
+    period_s: f64,
+    /// A.
+    peak_current_a: f64,
+    /// M of W_P.
+    s_max: f64,
+}
+
 /// The figures of `e`'s controller (discrete at `period_s` with
 /// `peak_current_a`) and their 1σ. ω* (`M = s_max`) on every input's lines
 /// and on every model's grid from the lowest measured line up (below it a
-/// model only extrapolates the fit): the least, rad/s (`None` where |S|
-/// passes M), and each input's. The 1σ from each input's relative line
-/// noise `relative_sigma` (first order, [`crate::design::sigma`]): each
-/// input's, and those of the figures over the inputs, each from the input
-/// that sets the figure; ω*'s only when an input, not a model, sets it.
+/// model only extrapolates the fit), each with the computation delay
+/// `computation_delay_s` and without it, as the certificate reads it
+/// ([`crate::design::search::Evaluation::objective_rad_s`]): the least,
+/// rad/s (`None` where |S| passes M), and each input's. The 1σ from each
+/// input's relative line noise `relative_sigma` (first order,
+/// [`crate::design::sigma`]) and each model's `model_relative_sigma` (the
+/// fit's covariance; NaN: unknown): each input's, and those of the
+/// figures over the inputs, each from the input or model that sets it.
 /// All `None` for an evaluation without figures (a strategy refused
 /// before its certificate).
 fn evaluation_figures(
-    frfs: &[crate::design::loops::DesignFrf],
-    models: &[crate::design::loops::DesignFrf],
-    relative_sigma: &[Vec<f64>],
+    on: &FiguresOn<'_>,
     e: &crate::design::search::Evaluation,
-    period_s: f64,
-    peak_current_a: f64,
-    s_max: f64,
 ) -> EvaluationFigures {
+    let FiguresOn {
+        frfs,
+        models,
+        relative_sigma,
+        model_relative_sigma,
+        computation_delay_s,
+        period_s,
+        peak_current_a,
+        s_max,
+    } = *on;
     if e.figures.len() < frfs.len() {
         // A strategy refused before it was certified: no figures to read.
         let n = frfs.len();
@@ -234,24 +260,51 @@ fn evaluation_figures(
         let s: Vec<f64> = l.iter().map(|l| 1.0 / (l + 1.0).norm()).collect();
         loop_performance_bandwidth_rad_s(omega, &s, s_max)
     };
+    // ω* and its 1σ on `omega` as the certificate reads it: the least of
+    // the loop `l` (with the computation delay τ) and of the same loop
+    // without it (`l·e^{jωτ}`), the 1σ from whichever sets it.
+    let reach_both = |omega: &[f64], l: &[crate::ident::C64], r: &[f64]| {
+        let free: Vec<crate::ident::C64> = omega
+            .iter()
+            .zip(l)
+            .map(|(w, l)| l * crate::ident::C64::from_polar(1.0, w * computation_delay_s))
+            .collect();
+        let with = (
+            reach(omega, l),
+            performance_bandwidth_sigma(omega, l, r, s_max),
+        );
+        let without = (
+            reach(omega, &free),
+            performance_bandwidth_sigma(omega, &free, r, s_max),
+        );
+        match (with.0, without.0) {
+            (Some(a), Some(b)) if b < a => without,
+            (Some(_), Some(_)) => with,
+            _ => (None, None),
+        }
+    };
     let loops: Vec<Vec<crate::ident::C64>> = frfs.iter().map(loop_of).collect();
-    let per_input: Vec<Option<f64>> = frfs
+    let (per_input, per_input_w_sigma): (Vec<Option<f64>>, Vec<Option<f64>>) = frfs
         .iter()
         .zip(&loops)
-        .map(|(f, l)| reach(&f.omega_rad_s, l))
-        .collect();
+        .zip(relative_sigma)
+        .map(|((f, l), r)| reach_both(&f.omega_rad_s, l, r))
+        .unzip();
     let lowest = frfs
         .iter()
         .map(|f| f.omega_rad_s[0])
         .fold(f64::INFINITY, f64::min);
-    let on_models: Vec<Option<f64>> = models
+    // Each model's ω* from the lowest measured line up, and its 1σ from
+    // the fit's covariance.
+    let (on_models, model_sigma): (Vec<Option<f64>>, Vec<Option<f64>>) = models
         .iter()
-        .map(|m| {
+        .zip(model_relative_sigma)
+        .map(|(m, r)| {
             let k = m.omega_rad_s.partition_point(|w| *w < lowest);
             let l = loop_of(m);
-            reach(&m.omega_rad_s[k..], &l[k..])
+            reach_both(&m.omega_rad_s[k..], &l[k..], &r[k..])
         })
-        .collect();
+        .unzip();
     let performance_bandwidth_rad_s = per_input
         .iter()
         .chain(&on_models)
@@ -261,7 +314,11 @@ fn evaluation_figures(
         .zip(&loops)
         .zip(relative_sigma)
         .zip(&e.figures)
-        .map(|(((f, l), r), g)| figure_sigmas(&f.omega_rad_s, l, r, g, s_max))
+        .zip(&per_input_w_sigma)
+        .map(|((((f, l), r), g), w)| FigureSigmas {
+            performance_bandwidth_rad_s: *w,
+            ..figure_sigmas(&f.omega_rad_s, l, r, g, s_max)
+        })
         .collect();
     let pick = |key: &dyn Fn(usize) -> Option<f64>, least: bool| {
         (0..frfs.len())
@@ -276,9 +333,17 @@ fn evaluation_figures(
             .map(|(i, _)| i)
     };
     let summary = FigureSigmas {
+        // From the input or the model that sets the least ω*.
         performance_bandwidth_rad_s: pick(&|i| per_input[i], true)
             .filter(|&i| per_input[i] == performance_bandwidth_rad_s)
-            .and_then(|i| sigmas[i].performance_bandwidth_rad_s),
+            .map(|i| sigmas[i].performance_bandwidth_rad_s)
+            .or_else(|| {
+                on_models
+                    .iter()
+                    .position(|w| *w == performance_bandwidth_rad_s)
+                    .map(|i| model_sigma[i])
+            })
+            .flatten(),
         sensitivity_bandwidth_rad_s: pick(&|i| e.figures[i].sensitivity_bandwidth_rad_s, true)
             .and_then(|i| sigmas[i].sensitivity_bandwidth_rad_s),
         phase_margin_min_deg: pick(&|i| e.figures[i].phase_margin_min_deg, true)
@@ -312,9 +377,9 @@ pub struct StrategyOutcome {
     /// The binding (or most violated) constraint.
     pub binding: Option<Binding>,
     /// 1σ of this strategy's figures from the inputs' line noise (first
-    /// order, each from the input that sets it; ω*'s `null` when a
-    /// model, not an input, sets it, or when the certificate's ω* above
-    /// is not the one on the lines).
+    /// order, each from the input that sets it; ω*'s from the fit's
+    /// covariance when a fit sets it; `null` when the certificate's ω*
+    /// above is not the one [`evaluation_figures`] reads).
     #[serde(default)]
     pub sigma: FigureSigmas,
 }
@@ -359,12 +424,12 @@ pub struct DesignSummary {
     pub sensitivity_peak: f64,
     /// The performance bandwidth ω* of `W_P(s) = (s/M + ω*)/s`, M =
     /// `s_max`: the least over every input's lines and the models' from
-    /// the lowest measured line to Nyquist, rad/s (`null`: |S| passes M
-    /// somewhere).
+    /// the lowest measured line to Nyquist, each with the computation
+    /// delay and without it, rad/s (`null`: |S| passes M somewhere).
     pub performance_bandwidth_rad_s: Option<f64>,
-    /// The 1σ of the summary's figures (each from the input it is read
-    /// on; `null` where that input's noise is unknown or the figure comes
-    /// from a model).
+    /// The 1σ of the summary's figures (each from the input or the fit it
+    /// is read on; `null` where that input's noise or the fit's covariance
+    /// is unknown).
     pub sigma: FigureSigmas,
     /// The best ω* any LTI controller reaches on the same inputs.
     pub limit: LimitReport,
@@ -635,6 +700,20 @@ pub fn run_design(opts: &DesignOptions) -> Result<DesignSummary, RunError> {
         }
     }
     .map_err(design_error)?;
+    // Each model's relative 1σ on its grid: the fit's covariance (a
+    // config's model has none: NaN).
+    let model_sigma: Vec<Vec<f64>> = models
+        .iter()
+        .enumerate()
+        .map(|(i, m)| match req.model {
+            ModelChoice::Fit => m
+                .omega_rad_s
+                .iter()
+                .map(|w| plants[i].frf_relative_sigma(*w))
+                .collect(),
+            ModelChoice::Config => vec![f64::NAN; m.omega_rad_s.len()],
+        })
+        .collect();
     let settle_of = |c: &ControllerConfig| {
         crate::design::predict::predict_step_on(model_of(0), &cfg, c, spec.computation_delay_s)
             .ok()
@@ -711,6 +790,16 @@ pub fn run_design(opts: &DesignOptions) -> Result<DesignSummary, RunError> {
         e.figures.iter().map(|f| f.margins.sensitivity_peak).fold(0.0, f64::max),
         frfs.len()
     );
+    let figures_on = FiguresOn {
+        frfs: &frfs,
+        models: &models,
+        relative_sigma: &relative_sigma,
+        model_relative_sigma: &model_sigma,
+        computation_delay_s: spec.computation_delay_s,
+        period_s,
+        peak_current_a: cfg.actuator.peak_current_a,
+        s_max,
+    };
     // ω* of the discrete controller on every input's lines and on every
     // model's grid, and the 1σ of the figures. (The chosen evaluation's
     // controller is `controller` but for its description.)
@@ -719,15 +808,7 @@ pub fn run_design(opts: &DesignOptions) -> Result<DesignSummary, RunError> {
         per_input_rad_s: per_input,
         per_input_sigma: sigmas,
         sigma: summary_sigma,
-    } = evaluation_figures(
-        &frfs,
-        &models,
-        &relative_sigma,
-        e,
-        period_s,
-        cfg.actuator.peak_current_a,
-        s_max,
-    );
+    } = evaluation_figures(&figures_on, e);
     let limit_fraction = match (
         performance_bandwidth_rad_s,
         limit.performance_bandwidth_rad_s,
@@ -812,15 +893,7 @@ pub fn run_design(opts: &DesignOptions) -> Result<DesignSummary, RunError> {
             .attempts
             .iter()
             .map(|a| {
-                let f = evaluation_figures(
-                    &frfs,
-                    &models,
-                    &relative_sigma,
-                    &a.evaluation,
-                    period_s,
-                    cfg.actuator.peak_current_a,
-                    s_max,
-                );
+                let f = evaluation_figures(&figures_on, &a.evaluation);
                 // The row states the certificate's ω*: its 1σ is that of
                 // the ω* on the lines only when the two are the same figure.
                 let same = f
@@ -918,7 +991,11 @@ fn write_figure(
             ", ω* {w:.0}{} of the limit {l:.0} rad/s ({:.2})",
             s.sigma
                 .performance_bandwidth_rad_s
-                .map_or(String::new(), |g| format!(" ± {g:.0}")),
+                // Two significant digits (at most three decimals).
+                .map_or(String::new(), |g| {
+                    let d = (1.0 - g.log10().floor()).clamp(0.0, 3.0) as usize;
+                    format!(" ± {g:.d$}")
+                }),
             w / l
         ),
         (Some(w), None) => format!(", ω* {w:.0} rad/s (no limit)"),

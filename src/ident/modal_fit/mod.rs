@@ -290,6 +290,13 @@ pub struct ModalFit {
     /// ([`crate::analysis::modal::PairLabels::unsure`]); `None` when sure.
     #[serde(default)]
     pub labels_unsure: Option<String>,
+    /// The parameters' covariance in natural units, row-major `(3n+3)²`
+    /// over `[f…, ζ…, A…, L, U, τ]` (n = `modes.len()`, the modes' order),
+    /// from `s² (JᵀJ)⁻¹` ([`evaluate_sigma`] reads it). Not written to
+    /// JSON: a fit read back has it empty, and its response's 1σ unknown.
+    #[serde(skip)]
+    #[schemars(skip)]
+    pub covariance: Vec<f64>,
 }
 
 impl ModalFit {

@@ -349,8 +349,29 @@ pub(super) fn refine(prep: &Prepared, start: &Params, period_s: f64) -> Params {
 }
 
 /// 1σ of every parameter in natural units (`[f…, ζ…, A…, L, U, τ]`),
-/// from `s² (JᵀJ)⁻¹`.
+/// from `s² (JᵀJ)⁻¹`: the square roots of [`covariance`]'s diagonal
+/// (infinite where the data do not determine the parameter, never 0).
 pub(super) fn sigmas(prep: &Prepared, p: &Params, period_s: f64) -> Vec<f64> {
+    let cov = covariance(prep, p, period_s);
+    (0..cov.nrows())
+        .map(|i| {
+            let v = cov[(i, i)];
+            if v > 0.0 && v.is_finite() {
+                v.sqrt()
+            } else {
+                f64::INFINITY
+            }
+        })
+        .collect()
+}
+
+/// The parameters' covariance in natural units (`[f…, ζ…, A…, L, U, τ]`:
+/// Hz, 1, m/A·(rad/s)², m/(A·s²), m/A, s; shape `(3n+3)²`), `s² (JᵀJ)⁻¹`
+/// mapped from the fit's coordinates (`ln f`, `ln ζ`, the scaled linear
+/// part, `τ/T`) by their derivatives. Its entries are infinite where
+/// `JᵀJ` is not finite or cannot be inverted; a variance that is not
+/// positive marks a parameter the data do not determine.
+pub(super) fn covariance(prep: &Prepared, p: &Params, period_s: f64) -> DMatrix<f64> {
     let problem = Problem::new(prep, p, period_s);
     let j = problem.jacobian_of(p);
     let n = p.f_hz.len();
@@ -374,30 +395,18 @@ pub(super) fn sigmas(prep: &Prepared, p: &Params, period_s: f64) -> Vec<f64> {
                 .unwrap_or(unknown),
         }
     };
-    // A variance that is not positive comes from a (near-)singular JᵀJ:
-    // the parameter is not determined by the data, its 1σ unknown (never 0).
-    let sd = |i: usize| {
-        let v = s2 * cov[(i, i)];
-        if v > 0.0 && v.is_finite() {
-            v.sqrt()
-        } else {
-            f64::INFINITY
-        }
-    };
-    let mut out = Vec::with_capacity(3 * n + 3);
-    for i in 0..n {
-        out.push(sd(i) * p.f_hz[i]);
-    }
-    for i in 0..n {
-        out.push(sd(n + i) * p.zeta[i]);
-    }
-    for i in 0..n {
-        out.push(sd(2 * n + i) * problem.lin_scale[i]);
-    }
-    out.push(sd(3 * n) * problem.lin_scale[n]);
-    out.push(sd(3 * n + 1) * problem.lin_scale[n + 1]);
-    out.push(sd(3 * n + 2) * period_s);
-    out
+    // d(natural)/d(coordinate) of each parameter.
+    let scale: Vec<f64> = p
+        .f_hz
+        .iter()
+        .chain(&p.zeta)
+        .copied()
+        .chain((0..n + 2).map(|i| problem.lin_scale[i]))
+        .chain([period_s])
+        .collect();
+    DMatrix::from_fn(3 * n + 3, 3 * n + 3, |a, b| {
+        s2 * cov[(a, b)] * scale[a] * scale[b]
+    })
 }
 
 /// Parameters with the linear part re-solved for the given poles/delay.

@@ -78,6 +78,7 @@ pub(super) fn summarise(prep: &Prepared, data: &FrfData, p: &Params, period_s: f
         dominant_sequence: seq.map(|s| s.notation).unwrap_or_default(),
         quality: quality(prep, p, &sd),
         labels_unsure,
+        covariance: covariance(prep, p, period_s).as_slice().to_vec(),
         zeros: typed
             .iter()
             .map(|z| FittedZero {
@@ -179,4 +180,49 @@ pub fn evaluate(fit: &ModalFit, path: &Path, frequency_hz: f64) -> C64 {
         m += md.modal_constant / (s * s + s * (2.0 * md.damping_ratio * wn) + wn * wn);
     }
     path.gain(w) * C64::from_polar(1.0, -w * fit.delay_s) * m
+}
+
+/// The 1σ of the fitted model [`evaluate`] at `frequency_hz` (m/A): the
+/// root of `E|δĤ|² = gᵣᵀ Σ gᵣ + gᵢᵀ Σ gᵢ`, `g` the analytic gradient of
+/// `Ĥ` over the parameters `[f…, ζ…, A…, L, U, τ]` and `Σ` the fit's
+/// [`ModalFit::covariance`] (first-order propagation, e.g. Pintelon &
+/// Schoukens, *System Identification*, 2nd ed., §7.2). With
+/// `D_i = s² + 2ζ_i ω_i s + ω_i²`, `ω_i = 2π f_i`, `G` the path with the
+/// delay: `∂Ĥ/∂A_i = G/D_i`, `∂Ĥ/∂f_i = −2π G A_i (2ζ_i s + 2ω_i)/D_i²`,
+/// `∂Ĥ/∂ζ_i = −G A_i 2ω_i s/D_i²`, `∂Ĥ/∂L = G/s²`, `∂Ĥ/∂U = G`,
+/// `∂Ĥ/∂τ = −jω Ĥ`. NaN when the covariance is not known (a fit read
+/// from JSON) or not finite (a parameter the data do not determine).
+pub fn evaluate_sigma(fit: &ModalFit, path: &Path, frequency_hz: f64) -> f64 {
+    let n = fit.modes.len();
+    let np = 3 * n + 3;
+    if fit.covariance.len() != np * np {
+        return f64::NAN;
+    }
+    let w = 2.0 * PI * frequency_hz;
+    let s = C64::new(0.0, w);
+    let g = path.gain(w) * C64::from_polar(1.0, -w * fit.delay_s);
+    let mut grad = vec![C64::new(0.0, 0.0); np];
+    for (i, md) in fit.modes.iter().enumerate() {
+        let wn = 2.0 * PI * md.frequency_hz;
+        let d = s * s + s * (2.0 * md.damping_ratio * wn) + wn * wn;
+        let ad2 = g * md.modal_constant / (d * d);
+        grad[i] = -ad2 * (s * (2.0 * md.damping_ratio) + 2.0 * wn) * (2.0 * PI);
+        grad[n + i] = -ad2 * s * (2.0 * wn);
+        grad[2 * n + i] = g / d;
+    }
+    grad[3 * n] = g / (s * s);
+    grad[3 * n + 1] = g;
+    grad[3 * n + 2] = -s * evaluate(fit, path, frequency_hz);
+    // Σ is symmetric: row-major and column-major read alike.
+    let cov = nalgebra::DMatrix::from_column_slice(np, np, &fit.covariance);
+    let (gr, gi) = (
+        nalgebra::DVector::from_iterator(np, grad.iter().map(|c| c.re)),
+        nalgebra::DVector::from_iterator(np, grad.iter().map(|c| c.im)),
+    );
+    let v = gr.dot(&(&cov * &gr)) + gi.dot(&(&cov * &gi));
+    if v >= 0.0 && v.is_finite() {
+        v.sqrt()
+    } else {
+        f64::NAN
+    }
 }
