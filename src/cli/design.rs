@@ -265,15 +265,10 @@ pub(super) fn print_summary(s: &DesignSummary) {
     );
     match (s.performance_bandwidth_rad_s, l.performance_bandwidth_rad_s) {
         (Some(w), Some(lim)) => outln!(
-            "performance bandwidth ω* {} ({wp}): {:.2} of the limit {lim:.1} rad/s that any linear controller reaches on these inputs ({} measured and {} fitted lines, {} cone programs, {:.2} s)",
-            if g.performance_bandwidth_rad_s.is_none()
-                && s.figures.iter().any(|f| f.sigma.performance_bandwidth_rad_s.is_some())
-            {
-                format!("{w:.1} rad/s (read on the fitted model, which has no line noise)")
-            } else {
-                with_sigma(Some(w), g.performance_bandwidth_rad_s, 1, " rad/s")
-            },
+            "performance bandwidth ω* {} ({wp}): {:.2} of the limit {} that any linear controller reaches on these inputs ({} measured and {} fitted lines, {} cone programs, {:.2} s)",
+            with_sigma(Some(w), g.performance_bandwidth_rad_s, 1, " rad/s"),
             w / lim,
+            with_sigma(Some(lim), l.performance_bandwidth_sigma_rad_s, 1, " rad/s"),
             l.lines[0],
             l.lines[1],
             l.solves,

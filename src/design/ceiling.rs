@@ -92,6 +92,11 @@ pub struct LimitReport {
     /// controller reaches on these inputs with the same M, delay and
     /// amplifier, rad/s (`null`: not computed, see `not_computed`).
     pub performance_bandwidth_rad_s: Option<f64>,
+    /// Its 1σ from the lines' noise and the fits' covariance, rad/s,
+    /// first order through the cone program's dual (`null`: not known,
+    /// e.g. a 4-column CSV, or not computed).
+    #[serde(default)]
+    pub performance_bandwidth_sigma_rad_s: Option<f64>,
     /// The search's upper end: no Q of the basis reaches it, rad/s.
     pub infeasible_above_rad_s: Option<f64>,
     /// Why no limit was computed (`null`: it was).
@@ -230,6 +235,7 @@ pub fn bench_limit(
     rhp_zeros.sort_by(|a, b| a.bound_rad_s.total_cmp(&b.bound_rad_s));
     let mut report = LimitReport {
         performance_bandwidth_rad_s: None,
+        performance_bandwidth_sigma_rad_s: None,
         infeasible_above_rad_s: None,
         not_computed: None,
         s_max,
@@ -266,6 +272,7 @@ pub fn bench_limit(
         Ok(l) => {
             let w = l.performance_bandwidth_rad_s;
             report.performance_bandwidth_rad_s = Some(w);
+            report.performance_bandwidth_sigma_rad_s = l.performance_bandwidth_sigma_rad_s;
             report.infeasible_above_rad_s = Some(l.infeasible_above_rad_s);
             report.solves = l.solves;
             report.fit_stood_in_lines = l.stand_in_lines;
@@ -399,6 +406,10 @@ pub struct ProgramLines {
     pub measured: Vec<(DesignFrf, Vec<f64>, Vec<C64>)>,
     /// Per input: its fit's label, lines (rad/s) and response (m/A).
     pub models: Vec<(String, Vec<f64>, Vec<C64>)>,
+    /// Per input: the fit's 1σ relative to its magnitude on the input's
+    /// thinned lines, then on the fit's own lines (the fit's covariance;
+    /// NaN: unknown), as `measured` and `models` hold them.
+    pub fit_sigma: Vec<(Vec<f64>, Vec<f64>)>,
     /// The MMP pairs every fit has ([`light_pairs`]): the model lines
     /// sample them, and the `limit` strategy climbs each start with them
     /// cancelled too.
@@ -471,8 +482,18 @@ pub fn program_lines(
         .iter()
         .map(|f| f.omega_rad_s[0])
         .fold(f64::INFINITY, f64::min);
+    let fit_sigma = thinned
+        .iter()
+        .zip(&models)
+        .zip(plants)
+        .map(|(((d, _, _), (_, w, _)), p)| {
+            let at = |w: &[f64]| w.iter().map(|w| p.frf_relative_sigma(*w)).collect();
+            (at(&d.omega_rad_s), at(w))
+        })
+        .collect();
     ProgramLines {
         measured: thinned,
+        fit_sigma,
         models,
         pairs,
         lowest_rad_s,
@@ -509,24 +530,31 @@ impl ProgramLines {
         let mut lines: Vec<Lines<'_>> = self
             .measured
             .iter()
-            .map(|(f, sigma, m)| Lines {
+            .zip(&self.fit_sigma)
+            .map(|((f, sigma, m), (fs, _))| Lines {
                 label: &f.label,
                 omega_rad_s: &f.omega_rad_s,
                 plant_m_per_a: &f.plant_m_per_a,
+                relative_sigma: sigma,
+                correlated: false,
                 noise: Some(LineNoise {
                     relative_sigma: sigma,
                     model_m_per_a: m,
+                    model_relative_sigma: fs,
                 }),
             })
             .collect();
         lines.extend(
             self.models
                 .iter()
-                .filter(|m| !m.1.is_empty())
-                .map(|(l, w, h)| Lines {
+                .zip(&self.fit_sigma)
+                .filter(|(m, _)| !m.1.is_empty())
+                .map(|((l, w, h), (_, fs))| Lines {
                     label: l,
                     omega_rad_s: w,
                     plant_m_per_a: h,
+                    relative_sigma: fs,
+                    correlated: true,
                     noise: None,
                 }),
         );
