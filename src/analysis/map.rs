@@ -8,7 +8,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 /// One cell of the map.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct MapCell {
     /// Operating point Y1o, m.
     pub operating_point_m: f64,
@@ -90,7 +90,7 @@ pub fn cnmp_map(
 }
 
 /// One operating point of a veering curve.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct VeeringPoint {
     /// Operating point Y1o, m.
     pub operating_point_m: f64,
@@ -110,7 +110,7 @@ pub struct VeeringPoint {
 }
 
 /// The pair's frequencies against operating point for one asymmetry.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct VeeringCurve {
     /// Mass asymmetry Δm23.
     pub mass_asymmetry: f64,

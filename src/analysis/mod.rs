@@ -21,7 +21,7 @@ use serde::{Deserialize, Serialize};
 use three_mode::ThreeModeTest;
 
 /// Everything `bench analyze` reports for one bench.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct Analysis {
     /// Operating point Y1o, m.
     pub operating_point_m: f64,

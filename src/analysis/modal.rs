@@ -32,7 +32,7 @@ pub const PARTICIPATION_RATIO: f64 = 1e-3;
 pub const RESIDUE_RATIO: f64 = 1e-4;
 
 /// One mode of the actuator-to-probe path.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct ModalTerm {
     /// Mode number, 1-based, ascending in frequency.
     pub mode: usize,
@@ -330,7 +330,7 @@ pub fn pair_and_remainder(
 }
 
 /// A zero of a transfer function with its type (thesis 3.2.1).
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct TypedZero {
     /// Real part, rad/s.
     pub re_rad_s: f64,
@@ -343,6 +343,7 @@ pub struct TypedZero {
         serialize_with = "serialize_zero_type",
         deserialize_with = "deserialize_zero_type"
     )]
+    #[schemars(with = "String")]
     pub kind: ZeroType,
 }
 

@@ -47,7 +47,7 @@ pub struct SeqTerm {
 }
 
 /// Why a mode takes over.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum TakeOverCause {
     /// Dominant at low frequency (ω → 0).
@@ -59,7 +59,7 @@ pub enum TakeOverCause {
 }
 
 /// A take-over: from `frequency_hz` upwards `to` dominates.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct TakeOver {
     /// Frequency of the take-over, Hz (0 for the low-frequency one).
     pub frequency_hz: f64,

@@ -25,7 +25,7 @@ use super::modal::ModalTerm;
 use serde::{Deserialize, Serialize};
 
 /// The result of the three-mode test for one bench.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct ThreeModeTest {
     /// Remainder residue α_R, 1/kg.
     pub alpha_r_per_kg: f64,

@@ -545,7 +545,7 @@ pub(super) fn load_config(path: Option<&Path>) -> Result<(BenchConfig, PathBuf),
 pub(super) const CONFIG_HELP: &str = "Bench description (TOML) [default: the built-in Chapter 5 bench; `bench config default` prints it]";
 
 /// Prints a summary: one JSON object with `--json`, else the human form.
-pub(super) fn emit<T: serde::Serialize>(
+pub(super) fn emit<T: serde::Serialize + schemars::JsonSchema>(
     summary: &T,
     json: bool,
     human: fn(&T),
@@ -564,7 +564,7 @@ pub(super) fn emit<T: serde::Serialize>(
 
 /// Prints a job's summary ([`emit`]) or its error ([`run_failed`]), and
 /// returns the exit status.
-pub(super) fn finish<T: serde::Serialize>(
+pub(super) fn finish<T: serde::Serialize + schemars::JsonSchema>(
     result: Result<T, RunError>,
     json: bool,
     human: fn(&T),

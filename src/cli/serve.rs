@@ -82,7 +82,9 @@ pub(super) struct ServeArgs {
 
 /// Submits a job to the daemon, shows its progress on stderr and prints the
 /// summary as the local run does.
-pub(super) fn via_daemon<T: serde::de::DeserializeOwned + serde::Serialize>(
+pub(super) fn via_daemon<
+    T: serde::de::DeserializeOwned + serde::Serialize + schemars::JsonSchema,
+>(
     socket: &str,
     job: &JobRequest,
     json: bool,
@@ -94,7 +96,9 @@ pub(super) fn via_daemon<T: serde::de::DeserializeOwned + serde::Serialize>(
 /// [`via_daemon`], the exit status of a summary that printed decided by
 /// `status_of` (`None`: success), as the local run decides it (`bench
 /// control --verify`'s disagreement).
-pub(super) fn via_daemon_then<T: serde::de::DeserializeOwned + serde::Serialize>(
+pub(super) fn via_daemon_then<
+    T: serde::de::DeserializeOwned + serde::Serialize + schemars::JsonSchema,
+>(
     socket: &str,
     job: &JobRequest,
     json: bool,

@@ -103,7 +103,7 @@ pub struct AnalyzeOptions {
 }
 
 /// The result of `bench analyze`.
-#[derive(Debug, Clone, Serialize, Deserialize)]
+#[derive(Debug, Clone, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct AnalyzeSummary {
     /// Where the bench came from (a path, or the built-in's name).
     pub config: String,

@@ -123,7 +123,7 @@ pub fn model_path(input: &Path, format: ModelFormat) -> PathBuf {
 }
 
 /// The result of a fit of an FRF (`bench fit INPUT`).
-#[derive(Debug, Clone, Serialize, Deserialize)]
+#[derive(Debug, Clone, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct FitSummary {
     /// The FRF fitted, as given.
     pub input: PathBuf,
@@ -166,7 +166,7 @@ impl FitSummary {
 
 /// The result of an update to natural frequencies (`bench fit
 /// --frequencies`).
-#[derive(Debug, Clone, Serialize, Deserialize)]
+#[derive(Debug, Clone, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct FrequencySummary {
     /// The measured natural frequencies, Hz.
     pub frequencies_hz: Vec<f64>,
@@ -179,7 +179,7 @@ pub struct FrequencySummary {
 
 /// What a fit job gives: one of the two summaries (as JSON, the summary
 /// itself).
-#[derive(Debug, Clone, Serialize, Deserialize)]
+#[derive(Debug, Clone, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(untagged)]
 pub enum FitResult {
     /// A fit of an FRF.

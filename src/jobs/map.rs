@@ -131,7 +131,7 @@ pub struct MapOptions {
 
 /// A measured cell whose verdict differs from the damped model's at the
 /// nearest grid cell.
-#[derive(Debug, Clone, Serialize, Deserialize)]
+#[derive(Debug, Clone, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct Disagreement {
     /// Operating point, m.
     pub operating_point_m: f64,
@@ -146,7 +146,7 @@ pub struct Disagreement {
 }
 
 /// The result of `bench map`.
-#[derive(Debug, Clone, Serialize, Deserialize)]
+#[derive(Debug, Clone, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct MapSummary {
     /// Where the bench came from.
     pub config: String,
@@ -177,7 +177,7 @@ pub struct MapSummary {
 }
 
 /// The pair's localisation at one operating point of a veering curve.
-#[derive(Debug, Clone, Serialize, Deserialize)]
+#[derive(Debug, Clone, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct LocalisationAt {
     /// Mass asymmetry of the curve.
     pub mass_asymmetry: f64,
@@ -194,7 +194,7 @@ pub struct LocalisationAt {
 }
 
 /// The result of `bench map --veering`.
-#[derive(Debug, Clone, Serialize, Deserialize)]
+#[derive(Debug, Clone, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct VeeringSummary {
     /// Where the bench came from.
     pub config: String,
@@ -210,7 +210,7 @@ pub struct VeeringSummary {
 
 /// What a map job gives: one of the two summaries (as JSON, the summary
 /// itself).
-#[derive(Debug, Clone, Serialize, Deserialize)]
+#[derive(Debug, Clone, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(untagged)]
 pub enum MapResult {
     /// The CNMP map.

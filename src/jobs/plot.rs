@@ -34,7 +34,7 @@ use std::path::{Path, PathBuf};
 pub const MAX_TEXT_CHARS: usize = 120;
 
 /// The figure: Bode or Nyquist.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(rename_all = "lowercase")]
 pub enum PlotKind {
     /// Magnitude, phase and coherence against frequency, and the pair
@@ -199,7 +199,8 @@ pub struct PlotOptions {
 }
 
 /// The model drawn.
-#[derive(Debug, Clone, Serialize, Deserialize)]
+#[derive(Debug, Clone, Serialize, Deserialize, schemars::JsonSchema)]
+#[schemars(rename = "PlottedModel")]
 pub struct ModelSummary {
     /// Where its bench config came from.
     pub config: String,
@@ -213,7 +214,7 @@ pub struct ModelSummary {
 
 /// One FRF of the overlay: what it is, how it is drawn, and its fit and
 /// verdict as `bench fit` gives them.
-#[derive(Debug, Clone, Serialize, Deserialize)]
+#[derive(Debug, Clone, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct TraceSummary {
     /// Its name in the legend.
     pub label: String,
@@ -261,7 +262,7 @@ pub struct TraceSummary {
 }
 
 /// The result of an overlay.
-#[derive(Debug, Clone, Serialize, Deserialize)]
+#[derive(Debug, Clone, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct PlotSummary {
     /// `bode` or `nyquist`.
     pub kind: PlotKind,

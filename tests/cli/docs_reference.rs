@@ -229,3 +229,164 @@ fn the_recording_channels_page_is_the_recordings() {
         &body,
     );
 }
+
+/// The JSON outputs page: for each command's `--json` summary (the type
+/// `emit` prints, which must derive `JsonSchema`: the compiler holds every
+/// summary to it), its fields, and every type they use, once, from the
+/// types' schemas (their doc comments). Every field has a description.
+#[test]
+fn the_json_outputs_page_is_the_summaries_schemas() {
+    use schemars::schema_for;
+    let outputs: Vec<(&str, Value)> = vec![
+        (
+            "bench chirp",
+            schema_for!(bench::jobs::chirp::ChirpSummary).to_value(),
+        ),
+        (
+            "bench control",
+            schema_for!(bench::jobs::step::ControlSummary).to_value(),
+        ),
+        (
+            "bench fit",
+            schema_for!(bench::jobs::fit::FitResult).to_value(),
+        ),
+        (
+            "bench design",
+            schema_for!(bench::jobs::design::DesignSummary).to_value(),
+        ),
+        (
+            "bench analyze",
+            schema_for!(bench::jobs::analyze::AnalyzeSummary).to_value(),
+        ),
+        (
+            "bench map",
+            schema_for!(bench::jobs::map::MapResult).to_value(),
+        ),
+        (
+            "bench plot",
+            schema_for!(bench::jobs::plot::PlotSummary).to_value(),
+        ),
+        (
+            "bench campaign",
+            schema_for!(bench::campaign::run::CampaignSummary).to_value(),
+        ),
+        (
+            "bench catalogue",
+            schema_for!(bench::jobs::catalogue::CatalogueSummary).to_value(),
+        ),
+        (
+            "bench upload",
+            schema_for!(bench::upload::once::UploadSummary).to_value(),
+        ),
+        (
+            "bench recover",
+            schema_for!(bench::record::recover::Recovered).to_value(),
+        ),
+    ];
+    let first_paragraph = |node: &Value| {
+        node.get("description")
+            .and_then(Value::as_str)
+            .unwrap_or("")
+            .split("\n\n")
+            .next()
+            .unwrap_or("")
+            .to_string()
+    };
+    let mut missing = Vec::new();
+    // A type's rows: its fields, or its variants.
+    let mut describe = |name: &str, node: &Value, root: &Value| -> String {
+        let mut out = String::new();
+        if let Some(props) = node.get("properties").and_then(Value::as_object) {
+            out.push_str("| field | type | meaning |\n|---|---|---|\n");
+            for (field, sub) in props {
+                let desc = first_paragraph(sub);
+                if desc.is_empty() {
+                    missing.push(format!("{name}.{field}"));
+                }
+                out.push_str(&format!(
+                    "| `{field}` | {} | {} |\n",
+                    cell(&type_of(sub, root)),
+                    cell(&desc)
+                ));
+            }
+        } else if let Some(values) = node.get("enum").and_then(Value::as_array) {
+            let v: Vec<String> = values.iter().map(|v| format!("`{v}`")).collect();
+            out.push_str(&format!("One of {}.\n", v.join(", ")));
+        } else if let Some(alts) = node
+            .get("oneOf")
+            .or_else(|| node.get("anyOf"))
+            .and_then(Value::as_array)
+        {
+            out.push_str("| one of | meaning |\n|---|---|\n");
+            for a in alts {
+                let what = match (a.get("const"), a.get("enum")) {
+                    (Some(c), _) => format!("`{c}`"),
+                    (_, Some(Value::Array(e))) => e
+                        .iter()
+                        .map(|v| format!("`{v}`"))
+                        .collect::<Vec<_>>()
+                        .join(", "),
+                    _ => type_of(a, root),
+                };
+                out.push_str(&format!(
+                    "| {} | {} |\n",
+                    cell(&what),
+                    cell(&first_paragraph(a))
+                ));
+            }
+        } else {
+            out.push_str(&format!("{}.\n", type_of(node, root)));
+        }
+        out
+    };
+    let mut body = String::new();
+    // Each type once: (name, its schema) as first met.
+    let mut types: BTreeMap<String, Value> = BTreeMap::new();
+    for (command, root) in &outputs {
+        let title = root.get("title").and_then(Value::as_str).unwrap_or("?");
+        body.push_str(&format!(
+            "\n## `{command} --json`: `{title}`\n\n{}\n\n",
+            first_paragraph(root)
+        ));
+        body.push_str(&describe(title, root, root));
+        if let Some(defs) = root.get("$defs").and_then(Value::as_object) {
+            for (name, def) in defs {
+                match types.get(name) {
+                    None => {
+                        types.insert(name.clone(), def.clone());
+                    }
+                    Some(seen) => assert_eq!(
+                        seen, def,
+                        "two types named {name} with different schemas: the page would confuse them"
+                    ),
+                }
+            }
+        }
+    }
+    body.push_str("\n# Types\n\nThe types the summaries name, in alphabetical order.\n");
+    let roots: Value = Value::Object(
+        [(
+            "$defs".to_string(),
+            Value::Object(types.clone().into_iter().collect()),
+        )]
+        .into_iter()
+        .collect(),
+    );
+    for (name, def) in &types {
+        body.push_str(&format!("\n## `{name}`\n\n"));
+        let d = first_paragraph(def);
+        if !d.is_empty() {
+            body.push_str(&format!("{d}\n\n"));
+        }
+        body.push_str(&describe(name, def, &roots));
+    }
+    assert!(
+        missing.is_empty(),
+        "fields without a description (a doc comment on the field): {missing:?}"
+    );
+    check_generated(
+        "docs/src/reference/json.md",
+        "the `JsonSchema` of each command's `--json` summary",
+        &body,
+    );
+}

@@ -128,7 +128,7 @@ pub struct Origin {
 }
 
 /// One row of `cells.csv` and of the summary.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct CellResult {
     /// Cell index (row-major, asymmetry slowest).
     pub index: usize,
@@ -154,7 +154,7 @@ pub struct CellResult {
 }
 
 /// The campaign summary (`summary.json`, `--json`).
-#[derive(Debug, Clone, Serialize, Deserialize)]
+#[derive(Debug, Clone, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct CampaignSummary {
     /// The campaign directory, absolute.
     pub dir: PathBuf,
