@@ -983,26 +983,33 @@ fn write_figure(
             worst: i == worst,
         })
         .collect();
+    // `v ± σ`, σ to one significant digit (at most three decimals): the
+    // title must fit the figure.
+    let pm = |v: f64, sigma: Option<f64>| match sigma {
+        Some(g) if g > 0.0 => {
+            let d = (-g.log10().floor()).clamp(0.0, 3.0) as usize;
+            format!("{v:.1} ± {g:.d$}")
+        }
+        _ => format!("{v:.1}"),
+    };
     let of_limit = match (
         s.performance_bandwidth_rad_s,
         s.limit.performance_bandwidth_rad_s,
     ) {
         (Some(w), Some(l)) => format!(
-            ", ω* {w:.0}{} of the limit {l:.0} rad/s ({:.2})",
-            s.sigma
-                .performance_bandwidth_rad_s
-                // Two significant digits (at most three decimals).
-                .map_or(String::new(), |g| {
-                    let d = (1.0 - g.log10().floor()).clamp(0.0, 3.0) as usize;
-                    format!(" ± {g:.d$}")
-                }),
-            w / l
+            ", ω* {}, {:.2} of the limit {} rad/s",
+            pm(w, s.sigma.performance_bandwidth_rad_s),
+            w / l,
+            pm(l, s.limit.performance_bandwidth_sigma_rad_s)
         ),
-        (Some(w), None) => format!(", ω* {w:.0} rad/s (no limit)"),
+        (Some(w), None) => format!(
+            ", ω* {} rad/s (no limit)",
+            pm(w, s.sigma.performance_bandwidth_rad_s)
+        ),
         _ => String::new(),
     };
     let title = format!(
-        "bench design: {} controller `{}`, ω_B {:.0} rad/s, ‖S‖∞ {:.2}{of_limit}",
+        "bench design: {} `{}`, ω_B {:.0} rad/s, ‖S‖∞ {:.2}{of_limit}",
         s.strategy, s.name, s.sensitivity_bandwidth_rad_s, s.sensitivity_peak
     );
     let plot = DesignPlot {
