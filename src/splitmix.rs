@@ -18,6 +18,15 @@ pub fn splitmix64(z: u64) -> u64 {
 /// The golden-ratio increment γ of a SplitMix64 stream.
 pub const GAMMA: u64 = 0x9e37_79b9_7f4a_7c15;
 
+/// The `i`-th standard normal draw of the SplitMix64 stream seeded 0, by
+/// Box–Muller from its uniforms `2i` and `2i + 1` (each `(x >> 11 + ½)/2⁵³`
+/// of an output, in (0, 1)): reproducible draws for tests that sample
+/// noise, without a generator's state.
+pub fn standard_normal(i: u64) -> f64 {
+    let u = |k: u64| ((splitmix64(k.wrapping_mul(GAMMA)) >> 11) as f64 + 0.5) / (1u64 << 53) as f64;
+    (-2.0 * u(2 * i).ln()).sqrt() * (2.0 * std::f64::consts::PI * u(2 * i + 1)).cos()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -538,7 +538,6 @@ impl ProgramLines {
                 relative_sigma: sigma,
                 correlated: false,
                 noise: Some(LineNoise {
-                    relative_sigma: sigma,
                     model_m_per_a: m,
                     model_relative_sigma: fs,
                 }),

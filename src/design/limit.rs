@@ -276,20 +276,18 @@ pub struct Lines<'a> {
     /// line: the limit's 1σ adds them as if fully correlated, the
     /// cautious bound) rather than independent measured lines.
     pub correlated: bool,
-    /// A measured line's noise: its 1σ relative to |P| (NaN: unknown),
-    /// and a smooth model of the same plant at the same lines (m/A, the
-    /// fit). Where a line's 2σ cannot resolve the bound on |S| that the
-    /// weight sets there (`2σ |W_P| > `[`NOISE_RESOLUTION`]), the model
-    /// stands in for it. `None`: the lines are exact (a model).
+    /// Measured lines' stand-in: a smooth model of the same plant at the
+    /// same lines (m/A, the fit). Where a line's 2σ (`relative_sigma`)
+    /// cannot resolve the bound on |S| that the weight sets there
+    /// (`2σ |W_P| > `[`NOISE_RESOLUTION`]), the model stands in for it.
+    /// `None`: the lines stand for themselves (a model's).
     pub noise: Option<LineNoise<'a>>,
 }
 
-/// The noise of measured lines and the model that stands in where it
-/// hides the bound (see [`Lines::noise`]).
+/// The model that stands in for measured lines where their noise hides
+/// the bound (see [`Lines::noise`]).
 #[derive(Debug, Clone, Copy)]
 pub struct LineNoise<'a> {
-    /// 1σ of each line relative to |P|.
-    pub relative_sigma: &'a [f64],
     /// The model at each line, m/A.
     pub model_m_per_a: &'a [C64],
     /// The model's 1σ at each line relative to its magnitude (the fit's
@@ -433,12 +431,11 @@ struct Row {
     input: usize,
     omega_rad_s: f64,
     plant: C64,
-    /// The model at the line and the line's relative 1σ, where noisy.
+    /// The model that stands in where the line is noisy, and the model's
+    /// relative 1σ (NaN: unknown); only for a line whose 1σ is known.
     stand_in: Option<(C64, f64)>,
-    /// The relative 1σ of `plant` (NaN: unknown), and of the stand-in's
-    /// model.
+    /// The relative 1σ of `plant` (NaN: unknown).
     sigma: f64,
-    model_sigma: f64,
     /// The index of the fit whose lines these are (their errors are
     /// correlated), `None` for a measured line.
     fit: Option<usize>,
@@ -463,17 +460,17 @@ impl Row {
     /// The relative 1σ of [`Self::plant_at`] and the fit it comes from
     /// (`None`: an independent measured line).
     fn sigma_at(&self, w_star: f64, s_max: f64) -> (f64, Option<usize>) {
-        if self.noisy_at(w_star, s_max) {
-            (self.model_sigma, Some(self.input))
-        } else {
-            (self.sigma, self.fit)
+        match self.stand_in {
+            Some((_, model_sigma)) if self.noisy_at(w_star, s_max) => {
+                (model_sigma, Some(self.input))
+            }
+            _ => (self.sigma, self.fit),
         }
     }
 
     /// Whether the line's noise hides the bound at ω* = `w_star`.
     fn noisy_at(&self, w_star: f64, s_max: f64) -> bool {
-        self.stand_in
-            .is_some_and(|(_, sigma)| noise_hides_bound(self.omega_rad_s, sigma, w_star, s_max))
+        self.stand_in.is_some() && noise_hides_bound(self.omega_rad_s, self.sigma, w_star, s_max)
     }
 
     /// Q at this line for the basis coefficients `q`.
@@ -580,7 +577,7 @@ pub fn performance_limit(
             )));
         }
         if let Some(n) = &l.noise {
-            if n.relative_sigma.len() != l.omega_rad_s.len()
+            if l.relative_sigma.len() != l.omega_rad_s.len()
                 || n.model_m_per_a.len() != l.omega_rad_s.len()
                 || n.model_relative_sigma.len() != l.omega_rad_s.len()
             {
@@ -588,7 +585,7 @@ pub fn performance_limit(
                     "{}: {} lines, {} noise figures, {} model values and {} model 1σ",
                     l.label,
                     l.omega_rad_s.len(),
-                    n.relative_sigma.len(),
+                    l.relative_sigma.len(),
                     n.model_m_per_a.len(),
                     n.model_relative_sigma.len()
                 )));
@@ -610,17 +607,17 @@ pub fn performance_limit(
                 )));
             }
             let z = C64::from_polar(1.0, w * period_s);
+            let sigma = l.relative_sigma.get(j).copied().unwrap_or(f64::NAN);
             rows.push(Row {
                 input: i,
                 omega_rad_s: w,
                 plant: p,
                 stand_in: l.noise.and_then(|n| {
-                    let (m, sigma) = (n.model_m_per_a[j], n.relative_sigma[j]);
+                    let m = n.model_m_per_a[j];
                     (sigma.is_finite() && sigma > 0.0 && m.is_finite() && m.norm() > 0.0)
-                        .then_some((m, sigma))
+                        .then_some((m, n.model_relative_sigma[j]))
                 }),
-                sigma: l.relative_sigma.get(j).copied().unwrap_or(f64::NAN),
-                model_sigma: l.noise.map_or(f64::NAN, |n| n.model_relative_sigma[j]),
+                sigma,
                 fit: l.correlated.then_some(i),
                 terms: basis.terms.iter().map(|t| t.at(z)).collect(),
                 effort: false,
@@ -1551,6 +1548,40 @@ mod tests {
         }
     }
 
+    /// `P(s) = (1 − s/z)/(1 + s/a)²`, z = 100 rad/s (a real RHP zero),
+    /// a = 30 rad/s, on 600 log-spaced lines from 0.05 rad/s to 0.999 of
+    /// the Nyquist frequency at T = 10⁻⁴ s.
+    struct RhpZeroPlant {
+        z: f64,
+        t: f64,
+        lowest: f64,
+        omega: Vec<f64>,
+        plant: Vec<C64>,
+    }
+
+    impl RhpZeroPlant {
+        fn new() -> Self {
+            let (z, a, t, lowest) = (100.0, 30.0, 1e-4, 0.05);
+            let omega: Vec<f64> = (0..600)
+                .map(|k| lowest * (0.999 * PI / t / lowest).powf(k as f64 / 599.0))
+                .collect();
+            let plant = omega
+                .iter()
+                .map(|&w| {
+                    let s = C64::new(0.0, w);
+                    (1.0 - s / z) / ((1.0 + s / a) * (1.0 + s / a))
+                })
+                .collect();
+            Self {
+                z,
+                t,
+                lowest,
+                omega,
+                plant,
+            }
+        }
+    }
+
     /// G(s) = (1 − s/z)/(1 + s/a)², sampled fast, no delay: the limit
     /// approaches the analytic bound z(1 − 1/M) from below (the bound is
     /// tight for a single real RHP zero as the delay vanishes). The lines
@@ -1562,20 +1593,13 @@ mod tests {
     /// 49.7, from 0.005 49.6.
     #[test]
     fn the_limit_of_a_real_rhp_zero_plant_is_near_its_analytic_bound() {
-        let z = 100.0;
-        let a = 30.0;
-        let t = 1e-4;
-        let lowest = 0.05;
-        let omega: Vec<f64> = (0..600)
-            .map(|k| lowest * (0.999 * PI / t / lowest).powf(k as f64 / 599.0))
-            .collect();
-        let plant: Vec<C64> = omega
-            .iter()
-            .map(|&w| {
-                let s = C64::new(0.0, w);
-                (1.0 - s / z) / ((1.0 + s / a) * (1.0 + s / a))
-            })
-            .collect();
+        let RhpZeroPlant {
+            z,
+            t,
+            lowest,
+            omega,
+            plant,
+        } = RhpZeroPlant::new();
         let lines = [Lines {
             label: "analytic",
             omega_rad_s: &omega,
@@ -1639,41 +1663,25 @@ mod tests {
     /// complex noise, its σ given, and the exact plant as the model that
     /// stands in where a line's noise hides the bound (as a design's fit
     /// does; here with no error of its own). Over 24 draws the mean stated
-    /// 1σ is 0.57 rad/s and the limit's spread 0.35 rad/s (mean 46.7 of
-    /// the noise-free 49.7): cautious, as the design's first-order 1σ are
+    /// 1σ is 0.56 rad/s and the limit's spread 0.27 rad/s (mean 46.7 of
+    /// the noise-free 49.7; 0.57 and 0.35 with another 24 draws): cautious,
+    /// as the design's first-order 1σ are
     /// (many binding lines, each taken at its full weight); the test asks
     /// 0.8–2.5× (the spread of 24 draws is itself uncertain by about
     /// 15 %). Without the σ the limit's 1σ is unknown, not 0.
     #[test]
     fn the_limit_s_1_sigma_matches_the_spread_over_noisy_lines() {
-        let z = 100.0;
-        let a = 30.0;
-        let t = 1e-4;
-        let lowest = 0.05;
-        let omega: Vec<f64> = (0..600)
-            .map(|k| lowest * (0.999 * PI / t / lowest).powf(k as f64 / 599.0))
-            .collect();
-        let exact: Vec<C64> = omega
-            .iter()
-            .map(|&w| {
-                let s = C64::new(0.0, w);
-                (1.0 - s / z) / ((1.0 + s / a) * (1.0 + s / a))
-            })
-            .collect();
+        let RhpZeroPlant {
+            z,
+            t,
+            lowest,
+            omega,
+            plant: exact,
+        } = RhpZeroPlant::new();
         let sigma_r = 0.02;
         let sigma = vec![sigma_r; omega.len()];
         let exact_sigma = vec![0.0; omega.len()];
-        // SplitMix64 and Box–Muller: a standard normal draw at `i`.
-        let normal = |i: u64| {
-            let mix = |x: u64| {
-                let mut x = x.wrapping_add(0x9E37_79B9_7F4A_7C15);
-                x = (x ^ (x >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-                x = (x ^ (x >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-                ((x ^ (x >> 31)) >> 11) as f64 / (1u64 << 53) as f64
-            };
-            let (u1, u2) = (1.0 - mix(2 * i), mix(2 * i + 1));
-            (-2.0 * u1.ln()).sqrt() * (2.0 * PI * u2).cos()
-        };
+        let normal = crate::splitmix::standard_normal;
         let limit = |plant: &[C64], sigma: &[f64]| {
             let lines = [Lines {
                 label: "noisy",
@@ -1682,7 +1690,6 @@ mod tests {
                 relative_sigma: sigma,
                 correlated: false,
                 noise: (!sigma.is_empty()).then_some(LineNoise {
-                    relative_sigma: sigma,
                     model_m_per_a: &exact,
                     model_relative_sigma: &exact_sigma,
                 }),

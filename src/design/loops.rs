@@ -52,6 +52,24 @@ pub struct DesignFrf {
 }
 
 impl DesignFrf {
+    /// The same lines without the computation delay `tau_s` the design
+    /// added (`P·e^{+jωτ}`), labelled so: every input and model is judged
+    /// with τ and with none (a command may reach the amplifier at once or
+    /// one period later).
+    pub fn undelayed(&self, tau_s: f64) -> Self {
+        Self {
+            label: format!("{} (no computation delay)", self.label),
+            omega_rad_s: self.omega_rad_s.clone(),
+            plant_m_per_a: self
+                .plant_m_per_a
+                .iter()
+                .zip(&self.omega_rad_s)
+                .map(|(p, w)| p * C64::from_polar(1.0, w * tau_s))
+                .collect(),
+            lines_total: self.lines_total,
+        }
+    }
+
     /// The same FRF on fewer lines for the search: every line within
     /// ±`band` (a fraction) of a frequency in `near_rad_s` (the resonances,
     /// where the response turns within a few lines), every `every`-th line

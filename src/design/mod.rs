@@ -954,17 +954,7 @@ pub fn design(
     // are judged with τ and with none. A controller that a delay stabilises
     // (high gain near Nyquist, where e^{−jωT} turns L over) is refused.
     let tau = spec.computation_delay_s;
-    let undelayed = |f: &DesignFrf| DesignFrf {
-        label: format!("{} (no computation delay)", f.label),
-        omega_rad_s: f.omega_rad_s.clone(),
-        plant_m_per_a: f
-            .plant_m_per_a
-            .iter()
-            .zip(&f.omega_rad_s)
-            .map(|(p, w)| p * C64::from_polar(1.0, w * tau))
-            .collect(),
-        lines_total: f.lines_total,
-    };
+    let undelayed = |f: &DesignFrf| f.undelayed(tau);
     let mut all: Vec<DesignFrf> = frfs.to_vec();
     let mut models: Vec<DesignFrf> = model.to_vec();
     if tau > 0.0 {

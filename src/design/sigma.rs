@@ -179,15 +179,8 @@ pub fn figure_sigmas(
 mod tests {
     use super::*;
     use crate::design::loops::figures;
-    use crate::splitmix::{splitmix64, GAMMA};
+    use crate::splitmix::standard_normal as normal;
     use std::f64::consts::PI;
-
-    /// A standard normal draw from the SplitMix64 stream at `i` (Box–Muller).
-    fn normal(i: u64) -> f64 {
-        let u =
-            |k: u64| ((splitmix64(k.wrapping_mul(GAMMA)) >> 11) as f64 + 0.5) / (1u64 << 53) as f64;
-        (-2.0 * u(2 * i).ln()).sqrt() * (2.0 * PI * u(2 * i + 1)).cos()
-    }
 
     /// Against sampling: a loop with an integrator, a lag and a delay
     /// (crossover near 560 rad/s, phase crossover near 1.7 krad/s), on 600

@@ -260,23 +260,19 @@ fn evaluation_figures(
         let s: Vec<f64> = l.iter().map(|l| 1.0 / (l + 1.0).norm()).collect();
         loop_performance_bandwidth_rad_s(omega, &s, s_max)
     };
-    // ω* and its 1σ on `omega` as the certificate reads it: the least of
-    // the loop `l` (with the computation delay τ) and of the same loop
-    // without it (`l·e^{jωτ}`), the 1σ from whichever sets it.
-    let reach_both = |omega: &[f64], l: &[crate::ident::C64], r: &[f64]| {
-        let free: Vec<crate::ident::C64> = omega
-            .iter()
-            .zip(l)
-            .map(|(w, l)| l * crate::ident::C64::from_polar(1.0, w * computation_delay_s))
-            .collect();
-        let with = (
-            reach(omega, l),
-            performance_bandwidth_sigma(omega, l, r, s_max),
-        );
-        let without = (
-            reach(omega, &free),
-            performance_bandwidth_sigma(omega, &free, r, s_max),
-        );
+    // ω* and its 1σ on the lines of `f` from index `k` up (relative 1σ
+    // `r`), as the certificate reads them: the least of the loop with the
+    // computation delay and without it ([`DesignFrf::undelayed`]), the 1σ
+    // from whichever sets it.
+    let reach_both = |f: &crate::design::loops::DesignFrf, k: usize, r: &[f64]| {
+        let at = |f: &crate::design::loops::DesignFrf| {
+            let (omega, l) = (&f.omega_rad_s[k..], &loop_of(f)[k..]);
+            (
+                reach(omega, l),
+                performance_bandwidth_sigma(omega, l, &r[k..], s_max),
+            )
+        };
+        let (with, without) = (at(f), at(&f.undelayed(computation_delay_s)));
         match (with.0, without.0) {
             (Some(a), Some(b)) if b < a => without,
             (Some(_), Some(_)) => with,
@@ -286,9 +282,8 @@ fn evaluation_figures(
     let loops: Vec<Vec<crate::ident::C64>> = frfs.iter().map(loop_of).collect();
     let (per_input, per_input_w_sigma): (Vec<Option<f64>>, Vec<Option<f64>>) = frfs
         .iter()
-        .zip(&loops)
         .zip(relative_sigma)
-        .map(|((f, l), r)| reach_both(&f.omega_rad_s, l, r))
+        .map(|(f, r)| reach_both(f, 0, r))
         .unzip();
     let lowest = frfs
         .iter()
@@ -299,11 +294,7 @@ fn evaluation_figures(
     let (on_models, model_sigma): (Vec<Option<f64>>, Vec<Option<f64>>) = models
         .iter()
         .zip(model_relative_sigma)
-        .map(|(m, r)| {
-            let k = m.omega_rad_s.partition_point(|w| *w < lowest);
-            let l = loop_of(m);
-            reach_both(&m.omega_rad_s[k..], &l[k..], &r[k..])
-        })
+        .map(|(m, r)| reach_both(m, m.omega_rad_s.partition_point(|w| *w < lowest), r))
         .unzip();
     let performance_bandwidth_rad_s = per_input
         .iter()
@@ -894,8 +885,8 @@ pub fn run_design(opts: &DesignOptions) -> Result<DesignSummary, RunError> {
             .iter()
             .map(|a| {
                 let f = evaluation_figures(&figures_on, &a.evaluation);
-                // The row states the certificate's ω*: its 1σ is that of
-                // the ω* on the lines only when the two are the same figure.
+                // The row states the certificate's ω*, which is the one read
+                // here; the 1σ is kept only while the two are the same figure.
                 let same = f
                     .performance_bandwidth_rad_s
                     .is_some_and(|w| (w - a.evaluation.objective_rad_s).abs() <= 1e-9 * w.abs());

@@ -43,6 +43,17 @@ fn check_generated(page: &str, source: &str, body: &str) {
     );
 }
 
+/// The first paragraph of a schema node's description ("" without one).
+fn first_paragraph(node: &Value) -> String {
+    node.get("description")
+        .and_then(Value::as_str)
+        .unwrap_or("")
+        .split("\n\n")
+        .next()
+        .unwrap_or("")
+        .to_string()
+}
+
 /// A table cell: pipes escaped, one line.
 fn cell(s: &str) -> String {
     s.replace('|', "\\|").replace('\n', " ")
@@ -137,15 +148,7 @@ fn add_channels(path: &Path, job: &'static str, out: &mut BTreeMap<String, Chann
                 let root: Value = serde_json::from_slice(&schema.data).expect("schema is JSON");
                 if let Some(props) = root.get("properties").and_then(Value::as_object) {
                     for (name, node) in props {
-                        let desc = node
-                            .get("description")
-                            .and_then(Value::as_str)
-                            .unwrap_or("")
-                            .split("\n\n")
-                            .next()
-                            .unwrap_or("")
-                            .to_string();
-                        fields.push((name.clone(), type_of(node, &root), desc));
+                        fields.push((name.clone(), type_of(node, &root), first_paragraph(node)));
                     }
                 }
             }
@@ -237,61 +240,24 @@ fn the_recording_channels_page_is_the_recordings() {
 #[test]
 fn the_json_outputs_page_is_the_summaries_schemas() {
     use schemars::schema_for;
-    let outputs: Vec<(&str, Value)> = vec![
-        (
-            "bench chirp",
-            schema_for!(bench::jobs::chirp::ChirpSummary).to_value(),
-        ),
-        (
-            "bench control",
-            schema_for!(bench::jobs::step::ControlSummary).to_value(),
-        ),
-        (
-            "bench fit",
-            schema_for!(bench::jobs::fit::FitResult).to_value(),
-        ),
-        (
-            "bench design",
-            schema_for!(bench::jobs::design::DesignSummary).to_value(),
-        ),
-        (
-            "bench analyze",
-            schema_for!(bench::jobs::analyze::AnalyzeSummary).to_value(),
-        ),
-        (
-            "bench map",
-            schema_for!(bench::jobs::map::MapResult).to_value(),
-        ),
-        (
-            "bench plot",
-            schema_for!(bench::jobs::plot::PlotSummary).to_value(),
-        ),
-        (
-            "bench campaign",
-            schema_for!(bench::campaign::run::CampaignSummary).to_value(),
-        ),
-        (
-            "bench catalogue",
-            schema_for!(bench::jobs::catalogue::CatalogueSummary).to_value(),
-        ),
-        (
-            "bench upload",
-            schema_for!(bench::upload::once::UploadSummary).to_value(),
-        ),
-        (
-            "bench recover",
-            schema_for!(bench::record::recover::Recovered).to_value(),
-        ),
+    macro_rules! outputs {
+        ($($command:literal: $t:ty),* $(,)?) => {
+            vec![$(($command, schema_for!($t).to_value())),*]
+        };
+    }
+    let outputs: Vec<(&str, Value)> = outputs![
+        "bench chirp": bench::jobs::chirp::ChirpSummary,
+        "bench control": bench::jobs::step::ControlSummary,
+        "bench fit": bench::jobs::fit::FitResult,
+        "bench design": bench::jobs::design::DesignSummary,
+        "bench analyze": bench::jobs::analyze::AnalyzeSummary,
+        "bench map": bench::jobs::map::MapResult,
+        "bench plot": bench::jobs::plot::PlotSummary,
+        "bench campaign": bench::campaign::run::CampaignSummary,
+        "bench catalogue": bench::jobs::catalogue::CatalogueSummary,
+        "bench upload": bench::upload::once::UploadSummary,
+        "bench recover": bench::record::recover::Recovered,
     ];
-    let first_paragraph = |node: &Value| {
-        node.get("description")
-            .and_then(Value::as_str)
-            .unwrap_or("")
-            .split("\n\n")
-            .next()
-            .unwrap_or("")
-            .to_string()
-    };
     let mut missing = Vec::new();
     // A type's rows: its fields, or its variants.
     let mut describe = |name: &str, node: &Value, root: &Value| -> String {

@@ -213,13 +213,13 @@ pub fn evaluate_sigma(fit: &ModalFit, path: &Path, frequency_hz: f64) -> f64 {
     grad[3 * n] = g / (s * s);
     grad[3 * n + 1] = g;
     grad[3 * n + 2] = -s * evaluate(fit, path, frequency_hz);
-    // Σ is symmetric: row-major and column-major read alike.
-    let cov = nalgebra::DMatrix::from_column_slice(np, np, &fit.covariance);
-    let (gr, gi) = (
-        nalgebra::DVector::from_iterator(np, grad.iter().map(|c| c.re)),
-        nalgebra::DVector::from_iterator(np, grad.iter().map(|c| c.im)),
-    );
-    let v = gr.dot(&(&cov * &gr)) + gi.dot(&(&cov * &gi));
+    // gᵣᵀ Σ gᵣ + gᵢᵀ Σ gᵢ = Σ_ab Σ_ab Re(g_a g_b*).
+    let mut v = 0.0;
+    for (a, ga) in grad.iter().enumerate() {
+        for (b, gb) in grad.iter().enumerate() {
+            v += fit.covariance[a * np + b] * (ga.re * gb.re + ga.im * gb.im);
+        }
+    }
     if v >= 0.0 && v.is_finite() {
         v.sqrt()
     } else {
