@@ -13,7 +13,7 @@ use bench_hal::emulator::{LinkFault, ScheduledLinkFault};
 use common::emulator::Emulator;
 use common::{
     bench, fault_in_injected_stall, json_stdout, one_at_a_time, past_machine_stalls, path_in,
-    quiet_config_edited, tmp,
+    quiet_config_edited, tmp, HostStallWatch,
 };
 use serde_json::Value;
 use std::path::{Path, PathBuf};
@@ -338,7 +338,7 @@ fn serial_with_hold(cfg: &Path, hold_ms: f64, at_s: f64, args: &[&str]) -> (Opti
     (out.status.code(), json_stdout(&out))
 }
 
-/// A serial link that goes silent for 5, 30 or 45 ms (the device keeps
+/// A serial link that goes silent for 5, 25 or 40 ms (the device keeps
 /// sampling, its frames arrive late, together) during an open-loop chirp
 /// (3 s after the emulator started: the chirp has started by then, even on
 /// a loaded machine):
@@ -346,20 +346,44 @@ fn serial_with_hold(cfg: &Path, hold_ms: f64, at_s: f64, args: &[&str]) -> (Opti
 /// the chirp finishes, with the stall (the device running on late
 /// commands) reported at its length. The host keeps every sample of the
 /// silence (its queue holds a watchdog's worth), so none is missing.
+///
+/// The device's watchdog counts the hold plus the link's round trip and
+/// whatever the machine adds: a run that ends on the watchdog while the
+/// host-stall watch saw the machine late by the margin left (watchdog −
+/// hold) is the machine's, and is run again (at most three times); one the
+/// watch did not explain fails.
 #[test]
 fn an_open_loop_chirp_rides_out_a_silent_serial_link() {
     let _g = one_at_a_time();
     let dir = tmp();
     let cfg = config(dir.path(), "");
-    for hold_ms in [5.0, 30.0, 45.0] {
+    let watchdog_ms = bench::config::BenchConfig::load(&cfg)
+        .unwrap()
+        .emulator
+        .watchdog_ms;
+    assert_eq!(watchdog_ms, 50.0);
+    for hold_ms in [5.0, 25.0, 40.0] {
         let rec = path_in(dir.path(), &format!("hold{hold_ms}.mcap"));
-        let (code, v) = serial_with_hold(
-            &cfg,
-            hold_ms,
-            3.0,
-            &["chirp", "--duration-s", "6", "--out", &rec],
-        );
-        assert_eq!(code, Some(0), "hold {hold_ms} ms: {v}");
+        let mut seen = Vec::new();
+        let (code, v) = loop {
+            let watch = HostStallWatch::start(79);
+            let (code, v) = serial_with_hold(
+                &cfg,
+                hold_ms,
+                3.0,
+                &["chirp", "--duration-s", "6", "--out", &rec],
+            );
+            let machine_ms = watch.stop() * 1e3;
+            let on_watchdog = v["outcome"] == "hal"
+                && v["hal"]["message"]
+                    .as_str()
+                    .is_some_and(|m| m.contains("watchdog"));
+            if !(on_watchdog && machine_ms >= watchdog_ms - hold_ms && seen.len() < 2) {
+                break (code, v);
+            }
+            seen.push(format!("machine late {machine_ms:.1} ms"));
+        };
+        assert_eq!(code, Some(0), "hold {hold_ms} ms (retried: {seen:?}): {v}");
         let longest = v["stalls"]["longest_s"].as_f64().unwrap();
         assert!(
             longest >= 0.9 * hold_ms * 1e-3,

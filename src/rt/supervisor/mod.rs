@@ -338,14 +338,15 @@ impl Supervisor {
             .time_to_reach_s(self.last_command_a, self.cfg.position_limit_m - x)
     }
 
-    /// A stall of `stalled` periods (deadlines missed, or late commands,
-    /// in a row) against its two rules: the job's bound in periods
-    /// (`bound`), and the reach of the held command. Returns the rule that
-    /// broke, and records its bound.
-    fn stall_broken(&mut self, stalled: u64, bound: u64) -> Option<StallRule> {
-        let stalled_s = stalled as f64 * self.cfg.period_s;
+    /// A stall against its two rules: `held` periods that one command has
+    /// stayed in force against the reach of that command, and `stalled`
+    /// periods in a row (deadlines missed, or late commands) against the
+    /// job's bound in periods (`bound`). Returns the rule that broke, and
+    /// records its bound.
+    fn stall_broken(&mut self, held: u64, stalled: u64, bound: u64) -> Option<StallRule> {
+        let held_s = held as f64 * self.cfg.period_s;
         let reach = self.reach_time_s();
-        let (rule, bound_s) = if stalled_s > reach {
+        let (rule, bound_s) = if held_s > reach {
             (StallRule::Reach, reach)
         } else if stalled > bound {
             (StallRule::Bound, bound as f64 * self.cfg.period_s)
@@ -487,7 +488,7 @@ impl Supervisor {
         } else if self.state == SupervisorState::Running
             && self.late > 0
             && self
-                .stall_broken(self.late, self.cfg.max_late_commands)
+                .stall_broken(self.late, self.late, self.cfg.max_late_commands)
                 .is_some()
         {
             Some(FaultKind::LinkLatency)
@@ -541,13 +542,20 @@ impl Supervisor {
     }
 
     /// Records how many deadlines this tick made the loop miss (0: it ended
-    /// before the next deadline, which ends the streak). Deadlines missed
-    /// in a row add up; more than `max_missed_deadlines` of them (the whole
-    /// periods in `safety.max_overrun_s`) trip [`FaultKind::Overruns`],
-    /// with the time the loop has been behind as its value, s. So one
-    /// stall of a given length trips or not whatever the loop rate, and so
-    /// does a loop that keeps ending a little late. Returns the fault if
-    /// this call tripped it.
+    /// before the next deadline, which ends the streak), judged by two
+    /// rules:
+    /// - the reach: the command sent before this tick stayed in force for
+    ///   this tick's own lateness; longer than the held current needs to
+    ///   carry x1 to the position limit trips. A streak of late ticks
+    ///   refreshes the command at every tick, so the streak is not a hold.
+    /// - the bound: deadlines missed in a row add up; more than
+    ///   `max_missed_deadlines` of them (the whole periods in the job's
+    ///   stall bound, from the loop's delay margin) trip. So one stall of a
+    ///   given length trips or not whatever the loop rate, and so does a
+    ///   loop that keeps ending a little late.
+    ///
+    /// Either trips [`FaultKind::Overruns`] with the time it judged as its
+    /// value, s. Returns the fault if this call tripped it.
     ///
     /// Only while `running` (a job or a hold controller drives the stage):
     /// disabled, or enabled at 0 A between jobs, a late loop holds 0 A and
@@ -559,12 +567,14 @@ impl Supervisor {
             return None;
         }
         self.missed_deadlines = self.missed_deadlines.saturating_add(missed);
-        let behind_s = self.missed_deadlines as f64 * self.cfg.period_s;
-        (self
-            .stall_broken(self.missed_deadlines, self.cfg.max_missed_deadlines)
-            .is_some()
-            && self.trip(FaultKind::Overruns, behind_s))
-        .then_some(FaultKind::Overruns)
+        let judged =
+            match self.stall_broken(missed, self.missed_deadlines, self.cfg.max_missed_deadlines) {
+                Some(StallRule::Reach) => missed,
+                Some(StallRule::Bound | StallRule::Watchdog) => self.missed_deadlines,
+                None => return None,
+            };
+        self.trip(FaultKind::Overruns, judged as f64 * self.cfg.period_s)
+            .then_some(FaultKind::Overruns)
     }
 
     /// Deadlines missed in a row so far.

@@ -540,3 +540,47 @@ fn whole_periods_of_a_bound() {
     assert_eq!(whole_periods(2e-3, 1e-2), 0);
     assert_eq!(whole_periods(0.1, 1.0 / 3.0), 0);
 }
+
+/// The reach rule judges how long one command stayed in force, the bound
+/// rule the deadlines missed in a row. On the shipped bench (5 kHz) with
+/// 3.2 A held at x1 = 0, the reach is a few ms (`time_to_reach_s`):
+/// - a loop that ends every tick one deadline late for twice that time
+///   refreshes the command every other period: below the bound (here 200
+///   periods, 40 ms) it runs on;
+/// - one stall of 1.5 times the reach trips at once, on the reach, with
+///   that stall as its value.
+#[test]
+fn the_reach_judges_one_held_command_not_a_streak_of_late_ticks() {
+    let bench = crate::config::BenchConfig::builtin().unwrap();
+    let period_s = 2e-4;
+    let fresh = || {
+        let mut s = Supervisor::new(SupervisorConfig {
+            max_missed_deadlines: 200,
+            reach: bench.reach_envelope(period_s),
+            ..config()
+        });
+        s.enabled();
+        s.running();
+        assert_eq!(s.command(3.2), (3.2, None));
+        s
+    };
+    let mut s = fresh();
+    let reach_s = s.reach_time_s();
+    assert!(reach_s > 1e-3 && reach_s < 20e-3, "{reach_s}");
+    let late_ticks = (2.0 * reach_s / period_s).ceil() as u64;
+    assert!(late_ticks < 200);
+    for _ in 0..late_ticks {
+        assert_eq!(s.check_overrun(1), None);
+        assert_eq!(s.command(3.2), (3.2, None));
+    }
+    assert_eq!(s.missed_deadlines(), late_ticks);
+
+    let mut s = fresh();
+    let stall = (1.5 * reach_s / period_s).ceil() as u64;
+    assert_eq!(s.check_overrun(stall), Some(FaultKind::Overruns));
+    let (_, value_s) = s.fault().unwrap();
+    assert!(
+        (value_s - stall as f64 * period_s).abs() < 1e-12,
+        "{value_s}"
+    );
+}
