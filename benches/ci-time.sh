@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Times CI on a clean clone of this repository's HEAD, step by step as
 # .ci/run runs them, then the contributor's inner loop: a one-line change
-# in src/ and `cargo test` rebuilding and running. Prints one Markdown
+# in src/, `cargo test` rebuilding (incremental, as cargo's default) and
+# the library's unit tests running. Prints one Markdown
 # table (step, seconds) and the disk the build took; the README and
 # docs/src/contributing.md quote it. Usage: benches/ci-time.sh [WORKDIR]
 # (default: a fresh temporary directory, removed afterwards).
@@ -30,18 +31,27 @@ step() { # NAME COMMAND...
 total0=$(date +%s.%N)
 step "cargo fmt --check" cargo fmt --all -- --check
 step "cargo clippy (all targets)" cargo clippy --workspace --all-targets --locked -- -D warnings
-step "test build (cargo test --no-run)" cargo test --workspace --locked --no-run
+step "test build (cargo test --no-run)" cargo test --workspace --locked --no-run --timings
+# Where the build's time went, crate by crate (cargo's --timings report),
+# kept beside the checkout's own target directory.
+mkdir -p "$src/target" && cp target/cargo-timings/cargo-timing.html "$src/target/ci-time-build-timings.html" 2>/dev/null || true
 step "tests/run (every test)" tests/run
 mkdir -p recordings
 step "smoke: bench chirp (the tests' build)" target/debug/bench chirp
 step "smoke: bench control --fast" target/debug/bench control --fast
 total1=$(date +%s.%N)
 rows+=("| **CI total (.ci/run's steps)** | **$(printf '%.0f' "$(echo "$total1 - $total0" | bc)")** |")
-# The inner loop: a one-line change in src/ (a comment at the end of the
-# library's root, so the library and every test binary build again); the
-# run that follows is the "tests/run" row above.
-echo "// ci-time: a one-line change" >>src/lib.rs
-step "one-line change in src/: rebuild (cargo test --no-run)" cargo test --workspace --locked --no-run
+# The inner loop, as a contributor has it: incremental compilation on
+# (cargo's default for the dev profile; CI turns it off), its caches made
+# by one build first (not timed), then a one-line change in src/ (an item
+# added to the library's root: its metadata changes, so the library and
+# every test binary build again), the rebuild, and the library's unit tests (the hal's and the
+# application's, `cargo test --lib`).
+CARGO_INCREMENTAL=1 cargo test --workspace --locked --no-run >"$work/incremental-warm.log" 2>&1
+echo "#[doc(hidden)] pub const CI_TIME_ONE_LINE: u32 = 1; // ci-time: a one-line change" >>src/lib.rs
+export CARGO_INCREMENTAL=1
+step "inner loop: one-line change in src/, rebuild (cargo test --no-run, incremental)" cargo test --workspace --locked --no-run
+step "inner loop: then the library's unit tests (cargo test --workspace --lib)" cargo test --workspace --locked --lib
 git checkout -q src/lib.rs
 echo "| step | seconds |"
 echo "|---|---|"

@@ -76,6 +76,14 @@ pub(super) struct ServeArgs {
         allow_negative_numbers = true
     )]
     store_timeout: f64,
+    /// The pace of the daemon's jobs on the simulator when a request gives
+    /// none: a factor of real time from 0.01 to 100 (1: real time, 10:
+    /// ten times faster), or off (virtual time as fast as it goes)
+    /// [default: real time, on the loop's deadlines]. A request's `pace`
+    /// overrides it; between jobs the loop keeps real time. The simulator
+    /// only (hardware always runs in real time): exit 2 otherwise.
+    #[arg(long, value_name = "FACTOR|off", allow_hyphen_values = true, value_parser = bench::jobs::request::parse_pace)]
+    pace: Option<bench::jobs::request::Pace>,
     #[command(flatten)]
     live: super::LiveArgs,
 }
@@ -272,6 +280,7 @@ pub(super) fn serve(args: ServeArgs) -> ExitCode {
         metrics,
         upload,
         store_timeout_s: args.store_timeout,
+        default_pace: args.pace,
     };
     match bench::daemon::serve(opts) {
         Ok(()) => ExitCode::SUCCESS,

@@ -130,8 +130,8 @@ pub(super) fn job_spec(ctx: &Ctx, request: &JobRequest, id: u64) -> Result<Accep
     };
     let kind = request.kind();
     // A bench job's pace, checked as `--pace` is: the daemon's jobs run in
-    // its loop's real time unless they ask for virtual time, which only a
-    // simulator has.
+    // its loop's real time unless they ask for virtual time (or the daemon
+    // was started with `--pace`), which only a simulator has.
     let pace = |p: Option<Pace>| -> Result<Option<Pace>, ApiError> {
         let p = check_pace(p).map_err(bad)?;
         match p {
@@ -144,7 +144,7 @@ pub(super) fn job_spec(ctx: &Ctx, request: &JobRequest, id: u64) -> Result<Accep
     };
     match request {
         JobRequest::Chirp(req) => {
-            let pace = pace(req.pace)?;
+            let pace = pace(req.pace.or(ctx.default_pace))?;
             req.apply(&mut cfg).map_err(bad)?;
             // A multisine refused at the device's period is refused here,
             // before the job is queued.
@@ -174,7 +174,7 @@ pub(super) fn job_spec(ctx: &Ctx, request: &JobRequest, id: u64) -> Result<Accep
             })
         }
         JobRequest::Control(req) => {
-            let pace = pace(req.pace)?;
+            let pace = pace(req.pace.or(ctx.default_pace))?;
             let inject = req.apply(&mut cfg).map_err(bad)?;
             let verify = req.verify_settings(&cfg).map_err(bad)?;
             let out = recording_path(&ctx.recordings, &format!("control-{}", req.controller), id);

@@ -242,6 +242,10 @@ pub struct ServeOptions {
     /// [`crate::upload::store::TIMEOUT_RANGE_S`]; default
     /// [`crate::upload::store::DEFAULT_TIMEOUT_S`]).
     pub store_timeout_s: f64,
+    /// The pace of a job whose request gives none (`--pace`): `None`, real
+    /// time on the loop's deadlines; the simulator only. Between jobs the
+    /// loop keeps real time.
+    pub default_pace: Option<crate::jobs::request::Pace>,
 }
 
 /// Why the daemon did not start or stopped with an error.
@@ -275,6 +279,8 @@ struct Ctx {
     /// `--upload`: the store's state, for `status` (its probe stops when
     /// this is dropped).
     store: Option<uploads::StoreProbe>,
+    /// `--pace`: a job's pace when its request gives none.
+    default_pace: Option<crate::jobs::request::Pace>,
 }
 
 fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
@@ -389,6 +395,16 @@ pub fn serve(opts: ServeOptions) -> Result<(), ServeError> {
         );
     }
     let (events, _) = broadcast::channel::<String>(1024);
+    // A pace is virtual time: the simulator's only, refused before
+    // anything is opened.
+    let spec = BackendSpec::resolve(opts.backend.as_ref(), &opts.config);
+    if let (Some(p), false) = (opts.default_pace, spec.is_sim()) {
+        return Err(ServeError::Input(RunError::option(
+            "pace",
+            p,
+            crate::jobs::request::pace_on_hardware(&spec.to_string()),
+        )));
+    }
     // The store refuses (no bucket, credentials) within the probe's
     // grace: stop before the bench is opened; one that has not answered
     // by then only delays the uploads, its probe going on meanwhile.
@@ -406,7 +422,6 @@ pub fn serve(opts: ServeOptions) -> Result<(), ServeError> {
         }
         None => (None, None),
     };
-    let spec = BackendSpec::resolve(opts.backend.as_ref(), &opts.config);
     let (mut stage, info) = backend::open(
         &spec,
         &opts.config,
@@ -434,6 +449,7 @@ pub fn serve(opts: ServeOptions) -> Result<(), ServeError> {
             .map_or("zero_current".into(), |c| {
                 format!("position (controller {c})")
             }),
+        pace: opts.default_pace,
         jobs_run: 0,
         last_recording: None,
         abandoned_jobs: Vec::new(),
@@ -553,6 +569,7 @@ pub fn serve(opts: ServeOptions) -> Result<(), ServeError> {
         running: Mutex::new(None),
         shutdown: tokio::sync::Notify::new(),
         store: store_probe,
+        default_pace: opts.default_pace,
     });
     let rt = tokio::runtime::Builder::new_current_thread()
         .enable_all()

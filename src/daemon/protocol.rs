@@ -129,6 +129,9 @@ pub(super) struct Status {
     /// What holds the stage between jobs when enabled: `zero_current`, or
     /// `position (controller NAME)` (`[daemon] hold_controller`).
     pub(super) hold: String,
+    /// The pace of a job whose request gives none (`bench serve --pace`):
+    /// a factor of real time, `off`, or `null`: real time.
+    pub(super) pace: Option<crate::jobs::request::Pace>,
     pub(super) jobs_run: u64,
     pub(super) last_recording: Option<String>,
     /// Jobs abandoned (not done [`super::JOB_STOP_TIMEOUT_MS`] after

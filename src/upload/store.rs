@@ -232,6 +232,10 @@ impl Store {
                         ));
                     }
                 }
+                // TLS: rustls with *ring*, the one provider compiled in,
+                // as the process's default (reqwest takes that one; a
+                // second call finds it installed, which is fine).
+                let _ = rustls::crypto::ring::default_provider().install_default();
                 let mut b = AmazonS3Builder::from_env()
                     .with_bucket_name(bucket)
                     // Set on the options `from_env` made (AWS_ALLOW_HTTP…).
@@ -337,6 +341,11 @@ pub(super) fn classify(e: &object_store::Error) -> ProbeError {
             "the endpoint (AWS_ENDPOINT) is http://, which is refused unless AWS_ALLOW_HTTP=true"
                 .into(),
         ),
+        // rustls' `Error::InvalidCertificate`: not a store that is away,
+        // one this machine does not trust (retrying cannot help).
+        _ if chain.contains("invalid peer certificate") => ProbeError::Refused(format!(
+            "the store's TLS certificate is not trusted here (the system's roots, or SSL_CERT_FILE / SSL_CERT_DIR): {chain}"
+        )),
         _ if chain.contains("InvalidAccessKeyId") || chain.contains("SignatureDoesNotMatch") => {
             ProbeError::Refused(format!("the store refused the credentials: {chain}"))
         }

@@ -156,12 +156,11 @@ fn the_operator_is_told_each_change_and_nothing_moves_before_the_answer() {
         "{third}"
     );
     // The README's sample prompt is one the operator was shown.
-    let readme = crate::common::docs_text();
-    let start = readme
-        .find("```text\ncell 3 of 4")
+    let sample = crate::common::doc_blocks()
+        .into_iter()
+        .find(|b| b.lang == "text" && b.body.starts_with("cell 3 of 4"))
         .expect("the README's prompt sample")
-        + 8;
-    let sample = &readme[start..start + readme[start..].find("```").unwrap()];
+        .body;
     let shown = err.text();
     for line in sample.lines() {
         assert!(

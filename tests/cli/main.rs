@@ -39,7 +39,6 @@ mod outputs;
 mod pace;
 mod plot_overlay;
 mod readme_examples;
-mod readme_outputs;
 mod recover;
 mod schemas;
 mod stalls;

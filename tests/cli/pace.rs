@@ -421,3 +421,92 @@ fn a_hardware_daemon_refuses_a_pace() {
     assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
     assert!(stderr(&o).contains("pace"), "{}", stderr(&o));
 }
+
+/// `bench serve --pace`: a simulator daemon gives its pace to every job
+/// whose request names none (a 20 s chirp in virtual time, unpaced, at
+/// the simulator's speed: far under its 20 s of loop time), a request's
+/// own `pace` wins (a 0.5 s step at 1×: at least its loop time), and
+/// `status` shows it. Bad values (generated mutations) exit 2 naming
+/// `--pace` before a socket exists; on hardware (the serial device
+/// emulator) `--pace` is refused with the reason, nothing opened.
+#[test]
+fn a_daemon_started_with_a_pace_gives_it_to_every_job_that_names_none() {
+    let _g = one_at_a_time();
+    let d = Daemon::start_with(&["--pace", "off"], "");
+    let mut c = d.client();
+    assert_eq!(c.call("status", json!({}))["result"]["pace"], "off");
+    let t0 = Instant::now();
+    let o = run(&[
+        "chirp",
+        "--daemon",
+        &d.sock(),
+        "--json",
+        "--duration-s",
+        "20",
+    ]);
+    let wall_s = t0.elapsed().as_secs_f64();
+    assert!(o.status.success(), "{}", stderr(&o));
+    let s = json_stdout(&o);
+    assert_eq!(s["timing"]["mode"], "virtual", "{s}");
+    assert!(loop_s(&s) >= 20.0, "{s}");
+    assert!(wall_s < 20.0, "a 20 s chirp took {wall_s} s of wall time");
+    let o = run(&[
+        "control",
+        "--daemon",
+        &d.sock(),
+        "--fast",
+        "--json",
+        "--duration-s",
+        "0.5",
+        "--pace",
+        "1",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let s = json_stdout(&o);
+    assert_eq!(s["timing"]["pace_factor"], 1.0, "{s}");
+    assert!(paced_floor_s(&s) >= 0.49, "{s}");
+    assert_eq!(c.call("status", json!({}))["result"]["jobs_run"], 2);
+
+    let dir = tmp();
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(42);
+    let mut bad: Vec<String> = [
+        "0", "-1", "1e9", "101", "0.001", "nan", "inf", "", "fast", "OFF",
+    ]
+    .iter()
+    .map(|s| s.to_string())
+    .collect();
+    for _ in 0..12 {
+        bad.push(match rng.random_range(0..3) {
+            0 => format!("{}", rng.random_range(100.5..1e6)),
+            1 => format!("{}", -rng.random_range(0.0..100.0)),
+            _ => format!("{:.6}", rng.random_range(1e-9..0.0099)),
+        });
+    }
+    for v in &bad {
+        let sock = dir.path().join("x.sock");
+        let o = run(&["serve", "--socket", sock.to_str().unwrap(), "--pace", v]);
+        assert_eq!(o.status.code(), Some(2), "--pace {v:?}: {}", stderr(&o));
+        assert!(stderr(&o).contains("--pace"), "{v:?}: {}", stderr(&o));
+        assert!(!sock.exists(), "--pace {v:?}: a socket was made");
+    }
+
+    let emu = common::emulator::Emulator::start(
+        &Path::new(env!("CARGO_MANIFEST_DIR")).join("bench-config/sr4dof-ch5.toml"),
+        vec![],
+        None,
+    );
+    let sock = dir.path().join("hw.sock");
+    let o = run(&[
+        "serve",
+        "--socket",
+        sock.to_str().unwrap(),
+        "--backend",
+        &emu.backend(),
+        "--pace",
+        "off",
+    ]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    let e = stderr(&o);
+    assert!(e.contains("--pace") && e.contains("real time"), "{e}");
+    assert!(!sock.exists());
+}

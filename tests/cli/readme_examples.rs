@@ -1,8 +1,16 @@
-//! Every shell example in the README, run (issue 29: "docs that cannot go
-//! stale"). The ```sh blocks are read from `README.md` and their lines run
-//! in README order by one `bash` in a scratch directory, with `bench` on
-//! `PATH` and `HOME`, `XDG_RUNTIME_DIR` and `XDG_DATA_HOME` inside the
-//! scratch directory; every line must exit 0.
+//! Every shell example of the README and the book, run (issue 29: "docs
+//! that cannot go stale"; issue 42: one runner, transcript-style where
+//! output is shown). The ```sh blocks and the `$ ` lines of the ```console
+//! blocks ([`crate::common::doc_blocks`]) run in reading order by one
+//! `bash` in a scratch directory, with `bench` on `PATH` and `HOME`,
+//! `XDG_RUNTIME_DIR` and `XDG_DATA_HOME` inside the scratch directory;
+//! every line must exit 0. A console block's lines after a `$ ` line are
+//! what it prints: its standard output must be that text, line by line,
+//! after [`normalise`] (what depends on the machine or the moment, the
+//! absolute paths and UTC stamps of the files written and the loop's wall
+//! time and latency figures, is `…` in both). A block that no longer
+//! matches fails with both texts, so a sample is regenerated from the
+//! binary, never edited by hand.
 //!
 //! A line runs as written, except where an example names a file the
 //! reader already has (a placeholder): the test makes that file first, or
@@ -19,24 +27,95 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-/// The shell example lines of the README and the book
-/// ([`crate::common::doc_pages`]), in reading order: (`page:line`, text).
-fn examples() -> Vec<(String, String)> {
-    let mut out = Vec::new();
-    for (page, text) in crate::common::doc_pages() {
-        let mut in_sh = false;
-        for (i, line) in text.lines().enumerate() {
-            if line.starts_with("```") {
-                in_sh = !in_sh && (line == "```sh" || line == "```bash");
-                continue;
+/// One command of the docs: where it is (`page:line`), its text, and for
+/// a console block's `$ ` line the output shown after it.
+#[derive(Debug, Clone)]
+struct Example {
+    at: String,
+    line: String,
+    shown: Option<String>,
+}
+
+/// The shell example lines of the README and the book, in reading order:
+/// every non-comment line of a ```sh block, and every `$ ` line of a
+/// ```console block with the lines after it (up to the next `$ ` line) as
+/// its shown output. A console block must start with a `$ ` line.
+fn examples() -> Vec<Example> {
+    let mut out: Vec<Example> = Vec::new();
+    for b in crate::common::doc_blocks() {
+        match b.lang.as_str() {
+            "sh" | "bash" => {
+                for (at, l) in b.numbered_lines() {
+                    let t = l.trim();
+                    if !t.is_empty() && !t.starts_with('#') {
+                        out.push(Example {
+                            at,
+                            line: l.to_string(),
+                            shown: None,
+                        });
+                    }
+                }
             }
-            let t = line.trim();
-            if in_sh && !t.is_empty() && !t.starts_with('#') {
-                out.push((format!("{page}:{}", i + 1), line.to_string()));
+            "console" => {
+                let mut mine: Vec<Example> = Vec::new();
+                for (at, l) in b.numbered_lines() {
+                    if let Some(cmd) = l.strip_prefix("$ ") {
+                        mine.push(Example {
+                            at,
+                            line: cmd.to_string(),
+                            shown: Some(String::new()),
+                        });
+                    } else {
+                        let e = mine.last_mut().unwrap_or_else(|| {
+                            panic!("{at}: a console block starts with a `$ ` command line")
+                        });
+                        let shown = e.shown.get_or_insert_with(String::new);
+                        shown.push_str(l);
+                        shown.push('\n');
+                    }
+                }
+                out.extend(mine);
             }
+            _ => {}
         }
     }
     out
+}
+
+/// Replaces what depends on the machine or the moment by `…`.
+fn normalise(text: &str) -> Vec<String> {
+    text.lines()
+        .map(|l| {
+            let t = l.trim_end();
+            // Files: `  recording   /any/path/chirp-<stamp>.mcap` etc.
+            if let Some(i) = t.find('/') {
+                let label = &t[..i];
+                if [
+                    "recording",
+                    "FRF (CSV)",
+                    "Bode plot",
+                    "catalogue",
+                    "plot",
+                    "updated bench",
+                ]
+                .iter()
+                .any(|k| label.trim() == *k)
+                {
+                    return format!("{label}…");
+                }
+            }
+            // The loop's timing: wall time and latency vary by machine.
+            if t.starts_with("loop:") {
+                return t.split(',').next().unwrap_or(t).to_string() + ", …";
+            }
+            for label in ["  wake-up latency", "  compute"] {
+                if t.starts_with(label) {
+                    return format!("{label} …");
+                }
+            }
+            t.to_string()
+        })
+        .collect()
 }
 
 fn root() -> &'static Path {
@@ -206,19 +285,28 @@ fn scratch() -> (tempfile::TempDir, PathBuf) {
     (dir, work)
 }
 
-/// Runs `lines` (README line number, text) as one bash script in a
-/// scratch directory; panics naming the first line that failed, with the
-/// tail of its output.
-fn run_lines(lines: &[(String, String)]) -> String {
+/// Runs `lines` as one bash script in a scratch directory; panics naming
+/// the first line that failed, with the tail of its output, or the first
+/// shown output that is not what its command printed. Returns the
+/// script's standard error.
+fn run_lines(lines: &[Example]) -> String {
     let (dir, work) = scratch();
+    let shown_dir = dir.path().join("shown");
+    std::fs::create_dir(&shown_dir).unwrap();
     let mut script = String::from(
         "set -a -u -o pipefail\ntrap 'kill $(jobs -p) 2>/dev/null; wait 2>/dev/null' EXIT\n",
     );
     script.push_str(WAIT_FOR);
     script.push('\n');
     let mut campaign_done = false;
-    for (n, line) in lines {
+    for (k, e) in lines.iter().enumerate() {
+        let (n, line) = (&e.at, &e.line);
         let (setup, l) = adapt(line, &mut campaign_done);
+        // A shown output: the command's standard output, kept.
+        let l = match e.shown {
+            Some(_) => format!("{{ {l}\n}} > {}", shown_dir.join(k.to_string()).display()),
+            None => l,
+        };
         script.push_str(&format!(
             "echo {} >&2\n",
             quote(&format!("::: {n}: {line}"))
@@ -253,6 +341,8 @@ fn run_lines(lines: &[(String, String)]) -> String {
         .env("EDITOR", "true")
         .env("MANPAGER", "cat")
         .env("PAGER", "cat")
+        .env_remove("RUST_LOG")
+        .env_remove("BENCH_LOG")
         .stdout(std::fs::File::create(&log).unwrap())
         .stderr(std::process::Stdio::piped())
         .output()
@@ -273,13 +363,24 @@ fn run_lines(lines: &[(String, String)]) -> String {
     // background example may have written a line without its end).
     let missing: Vec<&String> = lines
         .iter()
-        .map(|(n, _)| n)
+        .map(|e| &e.at)
         .filter(|n| !err.contains(&format!("::: {n}: ")))
         .collect();
     assert!(
         missing.is_empty(),
         "these lines did not run: {missing:?}\n{err}"
     );
+    for (k, e) in lines.iter().enumerate() {
+        let Some(shown) = &e.shown else { continue };
+        let got = std::fs::read_to_string(shown_dir.join(k.to_string())).unwrap();
+        assert_eq!(
+            normalise(shown),
+            normalise(&got),
+            "{}: the output shown for `{}` is stale; the binary prints:\n{got}",
+            e.at,
+            e.line
+        );
+    }
     err.into_owned()
 }
 
@@ -287,19 +388,13 @@ fn run_lines(lines: &[(String, String)]) -> String {
 /// starting with one of `starts`), each with what depends on the machine
 /// (the free space) cut off.
 fn stderr_samples(starts: &[&str]) -> Vec<String> {
-    let readme = crate::common::docs_text();
-    let mut out = Vec::new();
-    let mut rest = readme.as_str();
-    while let Some(i) = rest.find("```text\n") {
-        let body = &rest[i + "```text\n".len()..];
-        let end = body.find("```").unwrap();
-        let block = body[..end].trim_end();
-        if !block.contains('\n') && starts.iter().any(|s| block.starts_with(s)) {
-            out.push(machine_free(block));
-        }
-        rest = &body[end + 3..];
-    }
-    out
+    crate::common::doc_blocks()
+        .into_iter()
+        .filter(|b| b.lang == "text" && b.body.lines().count() == 1)
+        .map(|b| b.body.trim_end().to_string())
+        .filter(|l| starts.iter().any(|s| l.starts_with(s)))
+        .map(|l| machine_free(&l))
+        .collect()
 }
 
 /// `line` without its `; … free there` tail (the machine's free space).
@@ -317,14 +412,22 @@ fn machine_free(line: &str) -> String {
     ignore = "needs bash and man on PATH"
 )]
 fn every_readme_example_runs() {
-    let lines: Vec<(String, String)> = examples()
+    let lines: Vec<Example> = examples()
         .into_iter()
-        .filter(|(_, l)| runner(l) == Runner::Main)
+        .filter(|e| runner(&e.line) == Runner::Main)
         .collect();
     assert!(
         lines.len() > 50,
         "{} lines: the README lost its examples?",
         lines.len()
+    );
+    // The quick start's summary is shown as a transcript.
+    assert!(
+        lines
+            .iter()
+            .any(|e| e.line == "bench chirp"
+                && e.shown.as_ref().is_some_and(|s| s.lines().count() > 20)),
+        "the getting-started transcript of `bench chirp` is gone"
     );
     let err = run_lines(&lines);
     // The README's stderr samples are what the examples printed: the
@@ -353,17 +456,15 @@ fn every_readme_example_runs() {
     ignore = "no vcan0 here: ip link add vcan0 type vcan && ip link set up vcan0, then touch build.rs"
 )]
 fn readme_can_examples_run() {
-    let lines: Vec<(String, String)> = examples()
+    let lines: Vec<Example> = examples()
         .into_iter()
-        .filter(|(_, l)| runner(l) == Runner::Can)
-        .map(|(n, l)| {
+        .filter(|e| runner(&e.line) == Runner::Can)
+        .map(|mut e| {
             // The emulator runs in the background for the chirp.
-            let l = if l.starts_with("bench emulate can") {
-                "bench emulate can --iface vcan0 & sleep 1".to_string()
-            } else {
-                l
-            };
-            (n, l)
+            if e.line.starts_with("bench emulate can") {
+                e.line = "bench emulate can --iface vcan0 & sleep 1".to_string();
+            }
+            e
         })
         .collect();
     assert_eq!(lines.len(), 2);
@@ -381,11 +482,12 @@ fn readme_ethercat_examples_run() {
         return;
     }
     let id = std::process::id();
-    let lines: Vec<(String, String)> = examples()
+    let lines: Vec<Example> = examples()
         .into_iter()
-        .filter(|(_, l)| runner(l) == Runner::Ethercat)
-        .map(|(n, l)| {
-            let l = l
+        .filter(|e| runner(&e.line) == Runner::Ethercat)
+        .map(|mut e| {
+            let l = e
+                .line
                 .replace("ecm ", &format!("ecm{id} "))
                 .replace("ecs ", &format!("ecs{id} "));
             let l = if l.ends_with(" ecs") {
@@ -394,12 +496,12 @@ fn readme_ethercat_examples_run() {
                 l
             };
             // The slave runs in the background for the chirp.
-            let l = if l.ends_with('&') {
+            e.line = if l.ends_with('&') {
                 format!("{l} sleep 1")
             } else {
                 l
             };
-            (n, l)
+            e
         })
         .collect();
     assert_eq!(lines.len(), 6, "{lines:?}");
@@ -410,10 +512,13 @@ fn readme_ethercat_examples_run() {
 #[test]
 #[ignore = "the latency soak takes minutes of real-time load: run by hand (cargo test --test cli -- --ignored readme_latency_soak_runs)"]
 fn readme_latency_soak_runs() {
-    let lines: Vec<(String, String)> = examples()
+    let lines: Vec<Example> = examples()
         .into_iter()
-        .filter(|(_, l)| runner(l) == Runner::Soak)
-        .map(|(n, l)| (n, l.replace("sudo ", "")))
+        .filter(|e| runner(&e.line) == Runner::Soak)
+        .map(|mut e| {
+            e.line = e.line.replace("sudo ", "");
+            e
+        })
         .collect();
     assert_eq!(lines.len(), 2);
     run_lines(&lines);
@@ -427,8 +532,8 @@ fn readme_cargo_lines_are_what_ci_runs() {
     let ci = std::fs::read_to_string(root().join(".ci/run")).unwrap();
     let cargo: Vec<String> = examples()
         .into_iter()
-        .filter(|(_, l)| runner(l) == Runner::Cargo)
-        .map(|(_, l)| l)
+        .filter(|e| runner(&e.line) == Runner::Cargo)
+        .map(|e| e.line)
         .collect();
     assert!(cargo.iter().any(|l| l == "tests/run"), "{cargo:?}");
     assert!(cargo.iter().any(|l| l == "cargo run -- chirp"), "{cargo:?}");

@@ -2,12 +2,14 @@
 //! read its outputs, load the scipy reference (`tests/data/`).
 #![allow(dead_code)]
 
+pub mod docs;
 pub mod emulator;
 pub mod host_stall;
 pub mod loop_reference;
 #[path = "../../hal/tests/common/watchdog.rs"]
 mod watchdog;
 #[allow(unused_imports)] // only the real-time job tests watch the machine
+pub use docs::{doc_blocks, doc_pages, docs_text, DocBlock};
 pub use host_stall::HostStallWatch;
 #[allow(unused_imports)] // not every test file waits for a watchdog
 pub use watchdog::{wait_for_watchdog_trip, WatchdogTrip};
@@ -179,10 +181,42 @@ pub fn mcap_messages(path: &Path) -> Vec<(String, u64, Value)> {
 
 static SERIAL: std::sync::Mutex<()> = std::sync::Mutex::new(());
 
-/// Serialises the real-time tests of one test binary (they would disturb
-/// each other on a 2-core machine).
-pub fn one_at_a_time() -> std::sync::MutexGuard<'static, ()> {
-    SERIAL.lock().unwrap_or_else(|e| e.into_inner())
+/// Held by a real-time test while it runs ([`one_at_a_time`]).
+pub struct RealTimeTurn {
+    _file: std::fs::File,
+    _guard: std::sync::MutexGuard<'static, ()>,
+}
+
+/// Serialises the real-time tests (they would disturb each other on a
+/// 2-core machine): those of this test binary (a mutex), and those of the
+/// other test binaries that `tests/run` runs at the same time (an
+/// exclusive `flock` on `realtime.lock` in cargo's shared temporary
+/// directory, released when the returned turn is dropped or the process
+/// ends).
+pub fn one_at_a_time() -> RealTimeTurn {
+    let guard = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let path = Path::new(env!("CARGO_TARGET_TMPDIR")).join("realtime.lock");
+    let file = std::fs::OpenOptions::new()
+        .create(true)
+        .truncate(false)
+        .write(true)
+        .open(&path)
+        .unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    use std::os::fd::AsRawFd;
+    // SAFETY: a plain call on an open descriptor this function owns.
+    while unsafe { libc::flock(file.as_raw_fd(), libc::LOCK_EX) } != 0 {
+        let e = std::io::Error::last_os_error();
+        assert_eq!(
+            e.kind(),
+            std::io::ErrorKind::Interrupted,
+            "flock {}: {e}",
+            path.display()
+        );
+    }
+    RealTimeTurn {
+        _file: file,
+        _guard: guard,
+    }
 }
 
 /// `text` (a bench config) with the two optional stall bounds, where it
@@ -330,53 +364,6 @@ pub fn run_within(args: &[&str], cwd: &Path, limit: std::time::Duration) -> (Out
         std::thread::sleep(std::time::Duration::from_millis(5));
     };
     (child.wait_with_output().expect("output"), ended)
-}
-
-/// The documentation a user reads, as (path from the repository root,
-/// text): `README.md`, then the book's chapters (`docs/src`) in the order
-/// of its `SUMMARY.md`. Every chapter `SUMMARY.md` names must exist, and
-/// every Markdown file under `docs/src` must be named in it.
-pub fn doc_pages() -> Vec<(String, String)> {
-    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
-    let read = |rel: &str| {
-        std::fs::read_to_string(root.join(rel)).unwrap_or_else(|e| panic!("{rel}: {e}"))
-    };
-    let mut pages = vec![("README.md".to_string(), read("README.md"))];
-    let summary = read("docs/src/SUMMARY.md");
-    let mut named = std::collections::BTreeSet::new();
-    for line in summary.lines() {
-        if let Some((_, rest)) = line.split_once("](") {
-            let chapter = rest.split(')').next().unwrap();
-            let rel = format!("docs/src/{chapter}");
-            named.insert(rel.clone());
-            pages.push((rel.clone(), read(&rel)));
-        }
-    }
-    let mut on_disk = Vec::new();
-    let mut dirs = vec![root.join("docs/src")];
-    while let Some(d) = dirs.pop() {
-        for e in std::fs::read_dir(&d).unwrap() {
-            let p = e.unwrap().path();
-            if p.is_dir() {
-                dirs.push(p);
-            } else if p.extension().is_some_and(|x| x == "md") && !p.ends_with("SUMMARY.md") {
-                on_disk.push(p.strip_prefix(root).unwrap().display().to_string());
-            }
-        }
-    }
-    for p in on_disk {
-        assert!(named.contains(&p), "{p} is not in docs/src/SUMMARY.md");
-    }
-    pages
-}
-
-/// [`doc_pages`] as one text, each page after a blank line.
-pub fn docs_text() -> String {
-    doc_pages()
-        .into_iter()
-        .map(|(_, t)| t)
-        .collect::<Vec<_>>()
-        .join("\n")
 }
 
 /// A real-time `bench` process run by `job` (its exit code and JSON

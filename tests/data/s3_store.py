@@ -11,6 +11,10 @@
       every object under PREFIX as {key: {"size", "sha256",
       "last_modified", "recording"}}, "recording" being the `recording`
       column of a Parquet object (pyarrow), else null.
+  s3_store.py selfsigned DIR
+      A test CA (DIR/ca.pem) and a certificate it signed for 127.0.0.1 and
+      localhost, with its key (DIR/cert.pem, DIR/key.pem), by the
+      `cryptography` package moto brings: for a TLS front to moto.
 """
 import hashlib
 import io
@@ -77,10 +81,63 @@ def objects(endpoint, bucket, prefix):
     print(json.dumps(out))
 
 
+def selfsigned(out_dir):
+    import datetime
+    import ipaddress
+
+    from cryptography import x509
+    from cryptography.hazmat.primitives import hashes, serialization
+    from cryptography.hazmat.primitives.asymmetric import ec
+    from cryptography.x509.oid import NameOID
+
+    now = datetime.datetime.now(datetime.timezone.utc)
+
+    def cert(subject, key, issuer, issuer_key, ca):
+        b = (
+            x509.CertificateBuilder()
+            .subject_name(x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, subject)]))
+            .issuer_name(x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, issuer)]))
+            .public_key(key.public_key())
+            .serial_number(x509.random_serial_number())
+            .not_valid_before(now - datetime.timedelta(minutes=5))
+            .not_valid_after(now + datetime.timedelta(days=1))
+            .add_extension(x509.BasicConstraints(ca=ca, path_length=None), critical=True)
+        )
+        if not ca:
+            b = b.add_extension(
+                x509.SubjectAlternativeName(
+                    [x509.IPAddress(ipaddress.ip_address("127.0.0.1")), x509.DNSName("localhost")]
+                ),
+                critical=False,
+            )
+        return b.sign(issuer_key, hashes.SHA256())
+
+    ca_key = ec.generate_private_key(ec.SECP256R1())
+    ca = cert("bench test CA", ca_key, "bench test CA", ca_key, True)
+    key = ec.generate_private_key(ec.SECP256R1())
+    leaf = cert("127.0.0.1", key, "bench test CA", ca_key, False)
+    for name, data in [
+        ("ca.pem", ca.public_bytes(serialization.Encoding.PEM)),
+        ("cert.pem", leaf.public_bytes(serialization.Encoding.PEM)),
+        (
+            "key.pem",
+            key.private_bytes(
+                serialization.Encoding.PEM,
+                serialization.PrivateFormat.PKCS8,
+                serialization.NoEncryption(),
+            ),
+        ),
+    ]:
+        with open(os.path.join(out_dir, name), "wb") as f:
+            f.write(data)
+
+
 if __name__ == "__main__":
     if sys.argv[1] == "setup":
         setup(sys.argv[2])
     elif sys.argv[1] == "objects":
         objects(*sys.argv[2:5])
+    elif sys.argv[1] == "selfsigned":
+        selfsigned(sys.argv[2])
     else:
         sys.exit(f"unknown command {sys.argv[1]}")

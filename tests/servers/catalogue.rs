@@ -665,16 +665,12 @@ fn run_python(script: &str) -> Value {
 /// The code block (```LANG) after the README's marker
 /// `<!-- catalogue example: NAME -->`.
 fn readme_block(name: &str) -> String {
-    let readme = crate::common::docs_text();
-    let marker = format!("<!-- catalogue example: {name} -->");
-    let at = readme
-        .find(&marker)
-        .unwrap_or_else(|| panic!("README has no {marker}"));
-    let rest = &readme[at + marker.len()..];
-    let open = rest.find("```").unwrap();
-    let body = &rest[open..];
-    let body = &body[body.find('\n').unwrap() + 1..];
-    body[..body.find("\n```").unwrap()].to_string()
+    let marker = format!("catalogue example: {name}");
+    let b = crate::common::doc_blocks()
+        .into_iter()
+        .find(|b| b.marker.as_deref() == Some(marker.as_str()))
+        .unwrap_or_else(|| panic!("the docs have no block marked <!-- {marker} -->"));
+    b.body.trim_end_matches('\n').to_string()
 }
 
 /// The README's DuckDB query, run by DuckDB over the folder of per-run

@@ -24,22 +24,16 @@ use std::process::{Command, Stdio};
 use std::sync::mpsc;
 use std::time::Duration;
 
-/// The lines of the code block after "With `socat`:" in README.md.
+/// The lines of the ```sh block the docs introduce with "With `socat`:".
 fn readme_socat_block() -> Vec<String> {
-    let readme = crate::common::docs_text();
-    let at = readme
-        .find("With `socat`:")
-        .expect("README: no \"With `socat`:\" block");
-    let rest = &readme[at..];
-    let open = rest
-        .find("```sh\n")
-        .expect("README: the socat block is not ```sh")
-        + 6;
-    let close = rest[open..]
-        .find("```")
-        .expect("README: socat block not closed")
-        + open;
-    rest[open..close].lines().map(str::to_string).collect()
+    crate::common::doc_blocks()
+        .into_iter()
+        .find(|b| b.intro == "With `socat`:" && b.lang == "sh")
+        .expect("the docs: no ```sh block after \"With `socat`:\"")
+        .body
+        .lines()
+        .map(str::to_string)
+        .collect()
 }
 
 /// Runs `setup` and `line` in `sh -c`, with `XDG_RUNTIME_DIR` set to `dir`.
@@ -312,7 +306,9 @@ fn local_control(config: &Path, seed: u64, out: &Path) -> Value {
 /// local run with the daemon's `--seed` records, bit for bit; a later job
 /// with a request `seed` matches the local run with that seed (to 1e-12 m:
 /// the stage still carries the last job's ring-down, decayed by then to
-/// below 1e-13 m).
+/// below 1e-13 m). The jobs run in virtual time (`bench serve --pace
+/// off`: what a job computes does not depend on its pace; the idle second
+/// between them is the loop's real time).
 #[test]
 fn each_daemon_job_equals_the_local_run_with_its_seed() {
     let _g = one_at_a_time();
@@ -324,7 +320,7 @@ fn each_daemon_job_equals_the_local_run_with_its_seed() {
         &config,
         &socket,
         &dir.path().join("rec"),
-        &["--seed", "5"],
+        &["--seed", "5", "--pace", "off"],
     ));
     std::thread::sleep(Duration::from_secs(1));
     let mut c = Client::new(&socket);

@@ -1098,14 +1098,11 @@ fn fast_step_over_the_readmes_beckhoff_rack_matches_the_simulator() {
 /// The README's rack block with the tests' interface and bounds, as TOML
 /// to append to a config.
 fn readme_rack_toml() -> String {
-    let readme = crate::common::docs_text();
-    let block = readme
-        .split("```toml\n")
-        .skip(1)
-        .filter_map(|b| b.split("```").next())
-        .find(|b| b.contains("[[backend.ethercat.slaves]]"))
+    let block = crate::common::doc_blocks()
+        .into_iter()
+        .find(|b| b.lang == "toml" && b.body.contains("[[backend.ethercat.slaves]]"))
         .expect("the README's rack example")
-        .to_string();
+        .body;
     block.replace(
         "interface = \"eth1\"\nprofile = \"analog\"\n",
         &format!(

@@ -637,17 +637,11 @@ fn wait_for_value(web: &str, q: &str, want: f64, timeout: Duration) {
 
 /// The README's fenced blocks of `lang`.
 fn readme_blocks(lang: &str) -> Vec<String> {
-    let readme = crate::common::docs_text();
-    let fence = format!("```{lang}\n");
-    let mut out = Vec::new();
-    let mut rest = readme.as_str();
-    while let Some(i) = rest.find(&fence) {
-        let body = &rest[i + fence.len()..];
-        let end = body.find("```").unwrap();
-        out.push(body[..end].to_string());
-        rest = &body[end + 3..];
-    }
-    out
+    crate::common::doc_blocks()
+        .into_iter()
+        .filter(|b| b.lang == lang)
+        .map(|b| b.body)
+        .collect()
 }
 
 /// A free TCP port on loopback (bound, then released).

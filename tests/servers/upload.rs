@@ -488,6 +488,79 @@ fn bench_upload_confirms_every_file_by_checksum_and_never_uploads_twice() {
     );
 }
 
+/// An https endpoint: moto behind socat, which terminates TLS with a
+/// certificate for 127.0.0.1 signed by a test CA (`s3_store.py
+/// selfsigned`). `bench upload` speaks TLS through rustls on *ring*, the
+/// one crypto provider compiled in, and trusts the system's roots, which
+/// `SSL_CERT_FILE` names: with the test CA there, every file is confirmed
+/// by checksum; with the system's own roots only, the certificate is
+/// refused at once (exit 2 naming `--to` and the trust, not a store that
+/// is away) and nothing is uploaded.
+#[test]
+fn an_https_store_is_reached_over_tls_and_an_untrusted_certificate_refused() {
+    let m = Moto::start();
+    let certs = tmp();
+    let o = Command::new(python())
+        .arg(script())
+        .arg("selfsigned")
+        .arg(certs.path())
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "selfsigned: {}\n{PY_HINT}", stderr(&o));
+    let port = free_port();
+    let pem = |name: &str| certs.path().join(name).to_str().unwrap().to_string();
+    let mut socat = Command::new("socat")
+        .arg(format!(
+            "OPENSSL-LISTEN:{port},bind=127.0.0.1,reuseaddr,fork,cert={},key={},verify=0",
+            pem("cert.pem"),
+            pem("key.pem")
+        ))
+        .arg(format!("TCP:127.0.0.1:{}", m.port))
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .expect("socat (tests/run installs it)");
+    let t0 = Instant::now();
+    while TcpStream::connect(("127.0.0.1", port)).is_err() {
+        assert!(socat.try_wait().unwrap().is_none(), "socat exited");
+        assert!(
+            t0.elapsed() < Duration::from_secs(10),
+            "socat did not listen"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let dir = tmp();
+    let rec = recording(dir.path(), "tls", "1");
+    let https = format!("https://127.0.0.1:{port}");
+    let run = |ca: Option<&str>, prefix: &str| {
+        let mut c = bench();
+        aws_env(&mut c, &https, &m.id, &m.secret);
+        c.env_remove("AWS_ALLOW_HTTP").env_remove("SSL_CERT_DIR");
+        match ca {
+            Some(f) => c.env("SSL_CERT_FILE", f),
+            None => c.env_remove("SSL_CERT_FILE"),
+        };
+        c.args(["upload", "--retry-for", "0", "--to"])
+            .arg(format!("s3://lab-bench/{prefix}"))
+            .arg(&rec)
+            .output()
+            .unwrap()
+    };
+    let o = run(None, "untrusted");
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    let e = stderr(&o);
+    assert!(
+        e.contains("--to") && e.contains("certificate is not trusted"),
+        "{e}"
+    );
+    assert!(m.objects("untrusted").is_empty());
+    let o = run(Some(&pem("ca.pem")), "tls");
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert_uploaded(&m.objects("tls"), "tls", &rec);
+    let _ = socat.kill();
+    let _ = socat.wait();
+}
+
 #[test]
 fn a_multipart_upload_survives_the_store_going_away_in_the_middle() {
     let m = Moto::start();
@@ -679,12 +752,11 @@ fn the_daemon_uploads_after_an_outage_and_a_kill_from_its_journal_once() {
 /// over the daemon's uploads under `daemon/`: the chirp's row, with its
 /// object's URL, and one ok run.
 fn readme_bucket_query(m: &Moto, rec: &Path) {
-    let readme = crate::common::docs_text();
-    let block = readme
-        .split("<!-- upload example: bucket-query -->\n```python\n")
-        .nth(1)
-        .and_then(|r| r.split("```").next())
-        .expect("the README's bucket query");
+    let block = crate::common::doc_blocks()
+        .into_iter()
+        .find(|b| b.marker.as_deref() == Some("upload example: bucket-query") && b.lang == "python")
+        .expect("the README's bucket query")
+        .body;
     let script = format!(
         "{}\nimport json\nprint(json.dumps({{\"recordings\": list(runs.recording), \"ok\": int(per_host.runs.sum())}}))\n",
         block.replace("lab-bench/recordings/bench3/", "lab-bench/daemon/")
