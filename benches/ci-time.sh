@@ -13,6 +13,10 @@ src="$(cd "$(dirname "$0")/.." && pwd)"
 work="${1:-$(mktemp -d)}"
 keep="${1:+yes}"
 trap '[ -n "$keep" ] || rm -rf "$work"' EXIT
+# mktemp -d makes it 0700: the tests that run `bench` as another user
+# (uid 65534: the daemon's socket refuses it) must reach the binary, as in
+# any checkout others can read.
+chmod a+rx "$work"
 git clone -q "$src" "$work/bench"
 cd "$work/bench"
 export CARGO_TERM_COLOR=never CARGO_TARGET_DIR="$work/bench/target" CARGO_INCREMENTAL="${CARGO_INCREMENTAL:-0}"
