@@ -46,7 +46,7 @@ rebuild = seconds("inner loop: one-line change")
 unit = seconds("inner loop: then")
 binary = re.search(r"release binary: (\d+) MB \(stripped: (\d+) MB\)", sizes)
 verdict = lambda ok: "met" if ok else "not met"
-readme = f"""Measured by `benches/readme-figures.sh` on {date} ({machine[len('machine: '):].rsplit(',', 1)[0]}):
+readme = f"""Measured by `benches/readme-figures.sh` on {date} ({machine[len('machine: '):].rsplit(',', 1)[0]}; the scripts' whole output and how it was made: [contributing](docs/src/contributing.md)):
 
 | what | figure |
 |---|---|

@@ -23,7 +23,7 @@ case "$flags" in
 *C*) echo "debug sections: compressed (zlib; std's backtrace reads them)" ;;
 *) echo "debug sections: not compressed (flags '$flags')" ;;
 esac
-cargo test --workspace --locked --no-run -q 2>"$tmp/list" || { cat "$tmp/list"; exit 1; }
+cargo test --workspace --locked --no-run 2>"$tmp/list" || { cat "$tmp/list"; exit 1; }
 echo "test binaries:"
 grep -o 'Executable [^ ]* ([^)]*)' "$tmp/list" | sed 's/Executable //' | while read -r name path; do
   path=${path#(}
