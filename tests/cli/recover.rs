@@ -119,15 +119,20 @@ fn chunks_reach_the_disk_every_100_ms_under_load_and_a_killed_run_recovers() {
     let _g = one_at_a_time();
     let dir = tmp();
     let mut gaps_ms = Vec::new();
+    // The longest the machine's own real-time threads woke late in each
+    // run (a VM whose vCPU the host did not run delays the writer too).
+    let mut machine_ms = Vec::new();
     for n in 0..3u64 {
         let rec = dir.path().join(format!("run{n}.mcap"));
         let part = part_of(&rec);
+        let watch = HostStallWatch::start(79);
         let child = start_realtime_run(&rec);
         let load = Load::start();
         // Watch 1.5 s, 2 s, 2.5 s of the run, then kill it (SIGKILL).
         let times = growth_times(&part, Duration::from_millis(1500 + 500 * n));
         drop(load);
         drop(child);
+        machine_ms.push(watch.stop() * 1e3);
         assert!(times.len() > 10, "run {n}: the .part file hardly grew");
         let worst = times
             .windows(2)
@@ -176,9 +181,16 @@ fn chunks_reach_the_disk_every_100_ms_under_load_and_a_killed_run_recovers() {
         let o = run(&["recover", part.to_str().unwrap(), "--overwrite"]);
         assert!(o.status.success());
     }
-    eprintln!("largest gap between chunk writes per run, ms: {gaps_ms:?}");
-    for (run, g) in gaps_ms.iter().enumerate() {
-        assert!(*g <= 100.0, "run {run}: {g:.1} ms between two chunk writes");
+    eprintln!(
+        "largest gap between chunk writes per run, ms: {gaps_ms:?}; the machine's own lateness: {machine_ms:?}"
+    );
+    // 100 ms, plus what the machine itself held the threads up (seen by
+    // the host-stall watch): a gap the watch does not explain fails.
+    for (run, (g, m)) in gaps_ms.iter().zip(&machine_ms).enumerate() {
+        assert!(
+            *g <= 100.0 + m,
+            "run {run}: {g:.1} ms between two chunk writes, the machine late by at most {m:.1} ms"
+        );
     }
 }
 

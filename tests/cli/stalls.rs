@@ -67,6 +67,8 @@ fn control_with_stall(
             .args([
                 "--inject-fault",
                 &format!("stall:{stall_ms}@0.6"),
+                // A run again after a machine stall replaces the first's.
+                "--overwrite",
                 "--out",
                 &rec,
                 "--config",
@@ -279,6 +281,8 @@ fn a_stall_on_a_large_held_current_stops_on_the_reach() {
             .args([
                 "--inject-fault",
                 &format!("stall:{STALL_MS}@{at}"),
+                // A run again after a machine stall replaces the first's.
+                "--overwrite",
                 "--out",
                 &rec,
                 "--config",
