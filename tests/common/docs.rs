@@ -71,11 +71,6 @@ pub struct DocBlock {
 }
 
 impl DocBlock {
-    /// `page:line` of the fence.
-    pub fn at(&self) -> String {
-        format!("{}:{}", self.page, self.line)
-    }
-
     /// The body's lines with their `page:line`.
     pub fn numbered_lines(&self) -> impl Iterator<Item = (String, &str)> {
         self.body
