@@ -274,11 +274,12 @@ fn faults_latch_until_reset() {
     let _g = one_at_a_time();
     let d = Daemon::start();
     let mut c = d.client();
-    // A machine stall beyond the loop's delay bound would latch an
-    // overruns fault before the injected drop (CI: 24.6 ms at 46 ms).
-    let r = c.call_realtime(
+    // In virtual time: the latch is the subject, not the loop's timing
+    // (in real time a machine stall beyond the loop's delay bound could
+    // latch an overruns fault before the injected drop).
+    let r = c.call(
         "control",
-        json!({ "controller": "fast", "duration_s": 1.5, "inject_fault": "drop@0.3" }),
+        json!({ "controller": "fast", "duration_s": 1.5, "inject_fault": "drop@0.3", "pace": "off" }),
     );
     assert_eq!(r["error"]["kind"], "fault", "{r}");
     let s = c.call("status", json!({}))["result"].clone();
@@ -446,9 +447,9 @@ fn sim_faults_between_jobs_latch_until_reset() {
             std::thread::sleep(Duration::from_millis(300));
             let s = c.call("status", json!({}))["result"].clone();
             assert_eq!(s["state"], "disabled", "{fault} after reset: {s}");
-            let r = c.call_realtime(
+            let r = c.call(
                 "control",
-                json!({ "controller": "fast", "duration_s": 0.5 }),
+                json!({ "controller": "fast", "duration_s": 0.5, "pace": "off" }),
             );
             assert_eq!(r["ok"], true, "{fault}: {r}");
         }
@@ -472,7 +473,7 @@ fn a_stall_between_jobs_never_latches() {
         assert_ne!(s["state"], "faulted", "latched a stall between jobs: {s}");
         std::thread::sleep(Duration::from_millis(100));
     }
-    let r = c.call_realtime("chirp", json!({ "duration_s": 0.5 }));
+    let r = c.call("chirp", json!({ "duration_s": 0.5, "pace": "off" }));
     assert_eq!(r["ok"], true, "{r}");
 }
 
@@ -613,9 +614,9 @@ fn hold_between_jobs_is_zero_current_or_the_hold_controller() {
         40 - driven
     );
     // A job takes over and leaves the amplifier disabled at 0 A.
-    let r = c.call_realtime(
+    let r = c.call(
         "control",
-        json!({ "controller": "fast", "duration_s": 0.5 }),
+        json!({ "controller": "fast", "duration_s": 0.5, "pace": "off" }),
     );
     assert_eq!(r["ok"], true, "{r}");
     let s = c.call("status", json!({}))["result"].clone();

@@ -212,9 +212,9 @@ fn status_reset_stop_and_shutdown_against_a_daemon() {
     assert_eq!(status_json(&d)["state"], "disabled");
 
     // A job that faults latches the fault.
-    let r = c.call_realtime(
+    let r = c.call(
         "control",
-        json!({ "controller": "fast", "duration_s": 1.5, "inject_fault": "drop@0.3" }),
+        json!({ "controller": "fast", "duration_s": 1.5, "inject_fault": "drop@0.3", "pace": "off" }),
     );
     assert_eq!(r["error"]["kind"], "fault", "{r}");
     let s = check_status(&d);

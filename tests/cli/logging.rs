@@ -22,7 +22,10 @@ fn daemon_log(env: &[(&str, &str)]) -> (String, String) {
         }
     });
     let mut c = d.client();
-    let r = c.call_realtime("control", json!({"controller": "fast", "duration_s": 0.4}));
+    let r = c.call(
+        "control",
+        json!({"controller": "fast", "duration_s": 0.4, "pace": "off"}),
+    );
     assert_eq!(r["ok"], json!(true), "{r}");
     let recording = r["result"]["recording"].as_str().unwrap().to_string();
     let mut d = d;
@@ -115,9 +118,9 @@ fn faults_are_logged_with_their_name_and_the_recording() {
     let mut c = d.client();
     // The probe reads NaN 0.3 s into the job: the `probe_not_finite` fault
     // (the supervisor's name, as `status` reports it).
-    let r = c.call_realtime(
+    let r = c.call(
         "control",
-        json!({"controller": "fast", "duration_s": 1.0, "inject_fault": "nan@0.3"}),
+        json!({"controller": "fast", "duration_s": 1.0, "inject_fault": "nan@0.3", "pace": "off"}),
     );
     assert_eq!(r["error"]["kind"], json!("fault"), "{r}");
     let s = wait_state(&mut c, "faulted", Duration::from_secs(5));
