@@ -7,9 +7,13 @@
 # run (the fits, the search and the certificate; the process start and the
 # figure excluded) and the wall time of the whole command.
 #
-#   benches/design-time.sh [BENCH]      (default: target/release/bench)
+#   benches/design-time.sh [BENCH [ROUNDS [STRATEGY...]]]
+#   (defaults: target/release/bench, 5 rounds, fast and auto)
 set -euo pipefail
 bin=$(realpath "${1:-target/release/bench}")
+rounds=${2:-5}
+strategies=("${@:3}")
+[ ${#strategies[@]} -gt 0 ] || strategies=(fast auto)
 cfg=$(realpath bench-config/sr4dof-ch5.toml)
 work=$(mktemp -d)
 trap 'rm -rf "$work"' EXIT
@@ -23,11 +27,11 @@ operating_point_pct = { from = 0.0, to = 9.5, step = 0.5 }
 mass_asymmetry = [0.10]
 TOML
 "$bin" campaign run ws.toml --out ws --json > /dev/null
-for strategy in fast auto; do
-  for i in 1 2 3 4 5; do
+for strategy in "${strategies[@]}"; do
+  for i in $(seq "$rounds"); do
     start=$(date +%s.%N)
-    t=$("$bin" design ws --strategy "$strategy" --out "d-$strategy-$i.toml" --no-plot --json | python3 -c 'import json,sys; s=json.load(sys.stdin); l=s["limit"]; print("%.2f s (limit %.2f s), ω_B %.1f rad/s, ω* %s of the limit %s rad/s, %s, inputs %d" % (s["design_time_s"], l["time_s"], s["sensitivity_bandwidth_rad_s"], s["performance_bandwidth_rad_s"], l["performance_bandwidth_rad_s"], s["strategy"], len(s["inputs"])))')
+    t=$("$bin" design ws --strategy "$strategy" --out "d-$strategy-$i.toml" --no-plot --json | "${BENCH_PYTHON:-python3}" -c 'import json,sys; s=json.load(sys.stdin); l=s["limit"]; print("%.2f s (limit %.2f s), ω_B %.1f rad/s, ω* %s of the limit %s rad/s, %s, inputs %d" % (s["design_time_s"], l["time_s"], s["sensitivity_bandwidth_rad_s"], s["performance_bandwidth_rad_s"], l["performance_bandwidth_rad_s"], s["strategy"], len(s["inputs"])))')
     end=$(date +%s.%N)
-    echo "$strategy run $i: design $t; wall $(python3 -c "print(f'{$end - $start:.2f}')") s"
+    echo "$strategy run $i: design $t; wall $("${BENCH_PYTHON:-python3}" -c "print(f'{$end - $start:.2f}')") s"
   done
 done

@@ -127,13 +127,14 @@ fn a_design_from_a_csv_alone_reports_the_benchs_limit_and_holds_on_the_true_plan
             bench::design::limit::loop_performance_bandwidth_rad_s(&w, &s_abs, 2.0).unwrap_or(0.0);
         let f = &p.figures;
         eprintln!(
-            "{name}: {} ω* {reach:.1} rad/s on the true plant ({:.2} of the reference limit {want:.1}; reported {:.1} of {got:.1}), ‖S‖∞ {:.3}, PM {:?}°, GM {:?} dB",
+            "{name}: {} ω* {reach:.1} rad/s on the true plant ({:.2} of the reference limit {want:.1}; reported {:.1} of {got:.1}), ‖S‖∞ {:.3}, PM {:?}°, GM {:?} dB, design {:.2} s",
             s["strategy"],
             reach / want,
             s["performance_bandwidth_rad_s"].as_f64().unwrap_or(f64::NAN),
             f.margins.sensitivity_peak,
             f.phase_margin_min_deg,
-            f.margins.gain_margin_db
+            f.margins.gain_margin_db,
+            s["design_time_s"].as_f64().unwrap_or(f64::NAN)
         );
         assert_eq!(
             f.rhp_closed_loop_poles, 0,
