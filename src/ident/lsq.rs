@@ -56,9 +56,18 @@ pub(crate) fn minimise<R: Residuals>(
     x0: DVector<f64>,
     patience: usize,
 ) -> DVector<f64> {
-    let (at, _report) = LevenbergMarquardt::new()
+    let t0 = std::time::Instant::now();
+    let n = x0.len();
+    let (at, report) = LevenbergMarquardt::new()
         .with_patience(patience)
         .minimize(AtPoint { problem, x: x0 });
+    tracing::debug!(
+        n,
+        evaluations = report.number_of_evaluations,
+        termination = ?report.termination,
+        time_s = t0.elapsed().as_secs_f64(),
+        "least squares: one minimisation"
+    );
     at.x
 }
 

@@ -128,6 +128,63 @@ pub(super) fn quality(prep: &Prepared, p: &Params, sd: &[f64]) -> FitQuality {
         }
     }
     // The residual tests over the lines used.
+    let t = residual_tests(prep, p);
+    let (chi2_per_dof, chi2_per_dof_bound) = match t.chi2_per_dof {
+        Some((c, bound)) => {
+            if c > bound {
+                flags.push(format!(
+                    "the residual exceeds the estimated noise: χ²/ν = {c:.2} over {} lines (bound {bound:.2} at the {} level): the model misses part of the response",
+                    t.lines, RESIDUAL_TEST_LEVEL
+                ));
+            }
+            (Some(c), Some(bound))
+        }
+        None => (None, None),
+    };
+    let (q, q_bound) = (t.whiteness_q, t.whiteness_q_bound);
+    if let Some(q) = q.filter(|q| *q > q_bound) {
+        flags.push(format!(
+            "the residual is not white along frequency: Ljung–Box Q = {q:.1} over {WHITENESS_LAGS} lags (bound {q_bound:.1} at the {RESIDUAL_TEST_LEVEL} level): a structure the model does not have"
+        ));
+    }
+    let lines = t.lines;
+    FitQuality {
+        checked: true,
+        noise_estimated: prep.noise_estimated,
+        lines,
+        chi2_per_dof,
+        chi2_per_dof_bound,
+        whiteness_q: q,
+        whiteness_q_bound: q_bound,
+        flags,
+    }
+}
+
+/// The two residual tests of [`FitQuality`] for parameters `p`: χ²/ν
+/// against the estimated noise with its bound, and the Ljung–Box Q of
+/// the residual along frequency with its bound, both at
+/// [`RESIDUAL_TEST_LEVEL`] (`None` without a noise estimate).
+pub(super) struct ResidualTests {
+    pub lines: usize,
+    /// (χ²/ν, its bound).
+    pub chi2_per_dof: Option<(f64, f64)>,
+    pub whiteness_q: Option<f64>,
+    pub whiteness_q_bound: f64,
+}
+
+impl ResidualTests {
+    /// Whether both tests pass: the residual is the noise, and no further
+    /// mode can be told from it at the tests' level.
+    pub fn residual_is_noise(&self) -> bool {
+        matches!(self.chi2_per_dof, Some((c, b)) if c <= b)
+            && self
+                .whiteness_q
+                .is_some_and(|q| q <= self.whiteness_q_bound)
+    }
+}
+
+pub(super) fn residual_tests(prep: &Prepared, p: &Params) -> ResidualTests {
+    let n = p.f_hz.len();
     let e: Vec<C64> = (0..prep.len())
         .map(|k| (prep.model(k, p) - prep.h[k]) * prep.scale[k])
         .collect();
@@ -135,28 +192,17 @@ pub(super) fn quality(prep: &Prepared, p: &Params, sd: &[f64]) -> FitQuality {
     let params = 3 * n + 3;
     let nu = (2 * lines).saturating_sub(params).max(1) as f64;
     let chi2: f64 = e.iter().map(|v| v.norm_sqr()).sum();
-    let (chi2_per_dof, chi2_per_dof_bound) = if prep.noise_estimated {
-        let bound = chi2_quantile(nu) / nu;
-        if chi2 / nu > bound {
-            flags.push(format!(
-                "the residual exceeds the estimated noise: χ²/ν = {:.2} over {lines} lines (bound {:.2} at the {} level): the model misses part of the response",
-                chi2 / nu,
-                bound,
-                RESIDUAL_TEST_LEVEL
-            ));
-        }
-        (Some(chi2 / nu), Some(bound))
-    } else {
-        (None, None)
-    };
+    let chi2_per_dof = prep
+        .noise_estimated
+        .then(|| (chi2 / nu, chi2_quantile(nu) / nu));
     // Against the estimated noise: the lag products are compared with
     // what unit-variance noise gives (N), so a correlated residual far
     // below the noise (χ²/ν ≪ 1: a model error the data cannot see) does
     // not count; a residual above the noise is scaled to it (the χ² test
     // has judged its size). Without a noise estimate there is nothing to
     // judge a correlation against: not tested.
-    let q_bound = chi2_quantile(2.0 * WHITENESS_LAGS as f64);
-    let q = prep.noise_estimated.then(|| {
+    let whiteness_q_bound = chi2_quantile(2.0 * WHITENESS_LAGS as f64);
+    let whiteness_q = prep.noise_estimated.then(|| {
         // Unit variance in each part: E|eₖ|² = 2 under the noise alone.
         let energy = chi2.max(2.0 * lines as f64);
         (1..=WHITENESS_LAGS.min(lines.saturating_sub(1)))
@@ -168,19 +214,10 @@ pub(super) fn quality(prep: &Prepared, p: &Params, sd: &[f64]) -> FitQuality {
             * 2.0
             * lines as f64
     });
-    if let Some(q) = q.filter(|q| *q > q_bound) {
-        flags.push(format!(
-            "the residual is not white along frequency: Ljung–Box Q = {q:.1} over {WHITENESS_LAGS} lags (bound {q_bound:.1} at the {RESIDUAL_TEST_LEVEL} level): a structure the model does not have"
-        ));
-    }
-    FitQuality {
-        checked: true,
-        noise_estimated: prep.noise_estimated,
+    ResidualTests {
         lines,
         chi2_per_dof,
-        chi2_per_dof_bound,
-        whiteness_q: q,
-        whiteness_q_bound: q_bound,
-        flags,
+        whiteness_q,
+        whiteness_q_bound,
     }
 }

@@ -138,6 +138,11 @@ pub(super) fn add_mode(
     fs.push(trial.f_hz);
     zs.push(trial.zeta);
     let start = with_linear(prep, fs, zs, current.tau_s)?;
+    tracing::debug!(
+        f_hz = trial.f_hz,
+        modes = start.f_hz.len(),
+        "modal fit: a trial mode refined"
+    );
     Some([sorted(refine(prep, &start, period_s)), sorted(start)])
 }
 
