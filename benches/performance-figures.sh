@@ -18,12 +18,21 @@
 #   - a design over the 20 FRFs of a campaign (benches/design-time.sh,
 #     release build, ROUNDS rounds of `--strategy auto`).
 # No figure is written when a step fails. Takes about 15 minutes once built.
-# Usage: benches/performance-figures.sh [ROUNDS]   (default 3)
+# Each step's output is kept in target/performance-figures/; --splice
+# writes the figures from those again without measuring (after a change to
+# how they are written).
+# Usage: benches/performance-figures.sh [ROUNDS | --splice]   (default 3)
 set -euo pipefail
 cd "$(dirname "$0")/.."
+tmp=target/performance-figures
+if [ "${1:-}" = --splice ]; then
+  [ -f "$tmp/machine" ] || {
+    echo "performance-figures.sh: --splice: no earlier run's outputs in $tmp" >&2
+    exit 1
+  }
+else
 rounds=${1:-3}
-tmp=$(mktemp -d)
-trap 'rm -rf "$tmp"' EXIT
+rm -rf "$tmp" && mkdir -p "$tmp"
 step() { # NAME COMMAND...: its output to $tmp/NAME, shown if it fails
   local name=$1
   shift
@@ -45,6 +54,7 @@ step control cargo bench --locked --bench control -- 'fast_controller_plus_super
 step frf cargo bench --locked --bench chirp -- 'frf_h1_default_record|frf_lpm_default_record'
 step design20 benches/design-time.sh target/release/bench "$rounds" auto
 echo "machine: $(nproc) cores, $(grep -m1 'model name' /proc/cpuinfo | cut -d: -f2 | xargs), $(date -u +%F)" >"$tmp/machine"
+fi
 python3 - "$tmp" <<'PY'
 import re
 import sys
@@ -102,7 +112,7 @@ readme = f"""Measured by `benches/performance-figures.sh` on {date} ({where}; ev
 | FRF: LPM against H1 on the default chirp (`cargo bench --bench chirp`) | {lpm * 1e3:.1f} ms against {h1 * 1e3:.1f} ms, {lpm / h1:.2f}× (target ≤ 2×: {met(lpm <= 2 * h1)}) |
 | honest 1σ: {silent.group(1)} random hidden benches, fit and update (`tests/cli/uncertainty.rs`) | truth within the stated 2σ for {spread([c for _, c in cover], '{:.1f}')} % of every quantity ({len(cover)} quantities; asked ≥ 90 %); {silent.group(2)} flagged, {silent.group(3)} updates off by more than 5σ without a flag |
 | `bench design` from one chirp's CSV, with the bench's limit (`tests/cli/design_limit.rs`, dev profile, three benches) | {spread(one, '{:.1f}')} s (target ≤ 5 s: {met(max(one) <= 5)}); the design's ω* on the true plant {reach} of the reference limit (asked ≥ 0.8) |
-| `bench design` over 20 FRFs (a 20-cell campaign, `benches/design-time.sh`, release, {len(runs)} runs) | {spread(twenty, '{:.1f}')} s (target ≤ 30 s: {met(max(twenty) <= 30)}); one controller at ω* {wstar} of the workspace's {wlim} rad/s on the fitted models |
+| `bench design` over 20 FRFs (a 20-cell campaign, `benches/design-time.sh`, release, {len(runs)} runs) | {spread(twenty, '{:.1f}')} s (target ≤ 30 s: {met(max(twenty) <= 30)}); one controller at ω* {wstar:.1f} of the workspace's limit {wlim:.1f} rad/s on the fitted models ({wstar / wlim:.2f}) |
 """
 keep = lambda k, pat: "\n".join(l for l in out[k].splitlines() if re.search(pat, l))
 book = f"""Measured by `benches/performance-figures.sh` on {date} ({where}). What each step printed:
