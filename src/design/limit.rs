@@ -686,12 +686,19 @@ pub fn performance_limit(
     // The root of ln γ(ln ω*) by the Illinois false position (Dowell &
     // Jarratt, BIT 11, 1971) inside a bracket that only shrinks: γ grows
     // with ω*, and is smooth where it crosses 1. The first point is an
-    // eighth of the top (γ at the top is rarely ≤ 1); without a value at
-    // both ends the next is the geometric mean. A point predicted within
+    // eighth of the top (γ at the top is rarely ≤ 1); the second, with γ
+    // known only at the top, is the top over γ^(4/3) (γ grew about as
+    // ω*^0.75 between the limit and the top on the benches of
+    // `tests/data/limit_cases.json`: this lands just under the limit,
+    // where an eighth of the top again landed far under it and took two
+    // more feasible points, each a few programs of constraint
+    // generation), within [1/64, 1/2] of the top; without a value at both
+    // ends the next is the geometric mean. A point predicted within
     // the tolerance of an end is pushed a tolerance inside, so that it
     // closes the bracket from the other side.
     while (hi - lo) > RELATIVE_TOLERANCE * hi {
         let mid = match (lo > 0.0, f_lo, f_hi) {
+            (false, _, Some(b)) => hi * (-4.0 / 3.0 * b).exp().clamp(1.0 / 64.0, 0.5),
             (false, _, _) => hi / 8.0,
             (true, Some(a), Some(b)) if b > a => {
                 let (x0, x1) = (lo.ln(), hi.ln());
