@@ -489,6 +489,47 @@ fn fig_5_10_grid_is_decided_and_right() {
     }
 }
 
+/// Fig 5-10's cell 084 (6 % of L, +2 %, its campaign seed), whose peaks
+/// start the fit in a poor local minimum: the fit ends at the pruned
+/// model whose residual is the noise, unflagged, with the three modes and
+/// the verdict of the model's own zeros (`bench analyze`). Before the
+/// growth stopped there, it added modes around the start's error, and
+/// the final fit was flagged (χ² above its bound) and left the cell
+/// undecided.
+#[test]
+fn a_fit_from_a_poor_start_ends_unflagged_at_the_model_s_verdict() {
+    let dir = tempfile::tempdir().unwrap();
+    let bench_args = ["--operating-point-pct", "6", "--mass-asymmetry", "0.02"];
+    let rec = dir.path().join("c84.mcap");
+    let o = bench()
+        .arg("chirp")
+        .args(bench_args)
+        .args(["--seed", "327974129888930971", "--out"])
+        .arg(&rec)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let o = bench()
+        .args(["fit", "--no-plot", "--json"])
+        .arg(&rec)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let fit: Value = serde_json::from_slice(&o.stdout).unwrap();
+    let flags = &fit["fit"]["quality"]["flags"];
+    assert_eq!(flags, &serde_json::json!([]), "{fit}");
+    assert_eq!(fit["fit"]["modes"].as_array().unwrap().len(), 3, "{fit}");
+    let o = bench()
+        .arg("analyze")
+        .args(bench_args)
+        .args(["--json", "--no-plots"])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let model: Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(fit["verdict"]["cmp_cnmp"], model["cnmp"], "{fit}\n{model}");
+}
+
 /// The same grid with 5 s sweeps (noisier, coarser): every verdict is
 /// right or `null` with its reason, never wrong.
 #[test]

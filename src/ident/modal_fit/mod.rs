@@ -409,15 +409,26 @@ pub fn fit(data: &FrfData, path: &Path) -> Result<ModalFit, FitError> {
     'grow: while current.f_hz.len() < MAX_MODES {
         // The model order by the residual tests: once the residual is the
         // noise (χ²/ν and the Ljung–Box Q within their bounds at
-        // RESIDUAL_TEST_LEVEL), no further mode can be told from it. A
-        // mode added then would fit the noise, and `prune` would drop it
-        // after seconds of refinement (a campaign cell's fit added six
-        // modes at the rigid-body resonance and took 11 s, where it now
-        // stops at the three it keeps).
-        // A model that holds modes the data do not support (an early
+        // RESIDUAL_TEST_LEVEL), no further mode can be told from it, and
+        // a mode added then would fit the noise. A model that misses them
+        // only because it holds modes the data do not support (an early
         // mode pulled into a poor local minimum: the refinement cannot
-        // leave it while the mode is there) is pruned first; when the
-        // pruned model's residual is the noise, it is the fit.
+        // leave it while the mode is there) passes them once pruned, and
+        // then the pruned model is the fit. (A campaign cell's fit added
+        // six modes at the rigid-body resonance, each a refinement that
+        // lost patience, and took 11 s; the final `prune` dropped them
+        // all again.)
+        let t = residual_tests(&prep, &current);
+        tracing::debug!(
+            f_hz = ?current.f_hz,
+            chi2_per_dof = ?t.chi2_per_dof,
+            whiteness_q = ?t.whiteness_q,
+            whiteness_q_bound = t.whiteness_q_bound,
+            "modal fit: the residual tests before a mode is added"
+        );
+        if t.residual_is_noise() {
+            break;
+        }
         let pruned = prune(&prep, current.clone(), period_s);
         if pruned.f_hz.len() < current.f_hz.len()
             && residual_tests(&prep, &pruned).residual_is_noise()
@@ -428,18 +439,6 @@ pub fn fit(data: &FrfData, path: &Path) -> Result<ModalFit, FitError> {
                 "modal fit: pruned to a model whose residual is the noise"
             );
             current = pruned;
-            break;
-        }
-        let t = residual_tests(&prep, &current);
-        tracing::debug!(
-            f_hz = ?current.f_hz,
-            modes = current.f_hz.len(),
-            chi2_per_dof = ?t.chi2_per_dof,
-            whiteness_q = ?t.whiteness_q,
-            whiteness_q_bound = t.whiteness_q_bound,
-            "modal fit: the residual tests before a mode is added"
-        );
-        if t.residual_is_noise() {
             break;
         }
         let mut candidates = residual_peaks(&prep, &data.frequency_hz, &current, 3);

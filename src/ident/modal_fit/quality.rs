@@ -147,11 +147,10 @@ pub(super) fn quality(prep: &Prepared, p: &Params, sd: &[f64]) -> FitQuality {
             "the residual is not white along frequency: Ljung–Box Q = {q:.1} over {WHITENESS_LAGS} lags (bound {q_bound:.1} at the {RESIDUAL_TEST_LEVEL} level): a structure the model does not have"
         ));
     }
-    let lines = t.lines;
     FitQuality {
         checked: true,
         noise_estimated: prep.noise_estimated,
-        lines,
+        lines: t.lines,
         chi2_per_dof,
         chi2_per_dof_bound,
         whiteness_q: q,
