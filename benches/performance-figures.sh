@@ -59,6 +59,9 @@ python3 - "$tmp" <<'PY'
 import re
 import sys
 
+sys.path.insert(0, "benches")
+from figures import splice  # noqa: E402
+
 d = sys.argv[1]
 out = {k: open(f"{d}/{k}").read() for k in ["tests", "chirp", "control", "frf", "design20", "machine"]}
 machine = out["machine"].strip()[len("machine: "):]
@@ -131,9 +134,6 @@ $ benches/design-time.sh target/release/bench {len(runs)} auto
 ```
 """
 for path, figures in [("README.md", readme), ("docs/src/performance.md", book)]:
-    text = open(path).read()
-    a, b = "<!-- performance:begin -->\n", "<!-- performance:end -->"
-    i, j = text.index(a) + len(a), text.index(b)
-    open(path, "w").write(text[:i] + figures + text[j:])
+    splice(path, "performance", figures)
 PY
 echo "figures written into README.md and docs/src/performance.md"

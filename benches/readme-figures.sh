@@ -21,6 +21,9 @@ python3 - "$tmp/ci" "$tmp/sizes" <<'PY'
 import re
 import sys
 
+sys.path.insert(0, "benches")
+from figures import splice  # noqa: E402
+
 ci, sizes = open(sys.argv[1]).read(), open(sys.argv[2]).read()
 rows = {}
 for line in ci.splitlines():
@@ -56,9 +59,6 @@ readme = f"""Measured by `benches/readme-figures.sh` on {date} ({machine[len('ma
 """
 book = ci.rstrip() + "\n\n```text\n" + sizes.rstrip() + "\n```\n"
 for path, figures in [("README.md", readme), ("docs/src/contributing.md", book)]:
-    text = open(path).read()
-    a, b = "<!-- figures:begin -->\n", "<!-- figures:end -->"
-    i, j = text.index(a) + len(a), text.index(b)
-    open(path, "w").write(text[:i] + figures + text[j:])
+    splice(path, "figures", figures)
 PY
 echo "figures written into README.md and docs/src/contributing.md"
