@@ -118,48 +118,15 @@ fn a_design_from_a_csv_alone_reports_the_benchs_limit_and_holds_on_the_true_plan
         // The designed controller on the true plant: the loop to Nyquist.
         let truth = bench::config::BenchConfig::load(std::path::Path::new(&truth_toml)).unwrap();
         let designed = bench::config::BenchConfig::load(std::path::Path::new(&out)).unwrap();
-        let ctrl = &designed.controller["designed"];
-        let t = 1.0 / truth.loop_.rate_hz;
-        let p = bench::design::predict::predict(&truth, ctrl, t).unwrap();
-        let (w, l) = bench::design::predict::model_loop(&truth, ctrl, t).unwrap();
-        let s_abs: Vec<f64> = l.iter().map(|l| 1.0 / (l + 1.0).norm()).collect();
-        let reach =
-            bench::design::limit::loop_performance_bandwidth_rad_s(&w, &s_abs, 2.0).unwrap_or(0.0);
-        let f = &p.figures;
+        let (reach, check) = on_true_plant(name, &truth, &designed.controller["designed"]);
         eprintln!(
-            "{name}: {} ω* {reach:.1} rad/s on the true plant ({:.2} of the reference limit {want:.1}; reported {:.1} of {got:.1}), ‖S‖∞ {:.3}, PM {:?}°, GM {:?} dB, design {:.2} s",
+            "{name}: {} ω* {reach:.1} rad/s on the true plant ({:.2} of the reference limit {want:.1}; reported {:.1} of {got:.1}), design {:.2} s",
             s["strategy"],
             reach / want,
             s["performance_bandwidth_rad_s"].as_f64().unwrap_or(f64::NAN),
-            f.margins.sensitivity_peak,
-            f.phase_margin_min_deg,
-            f.margins.gain_margin_db,
             s["design_time_s"].as_f64().unwrap_or(f64::NAN)
         );
-        assert_eq!(
-            f.rhp_closed_loop_poles, 0,
-            "{name}: unstable on the true plant"
-        );
-        checks.push((
-            common::loop_reference::Case::new(name, &truth, ctrl, t).with_discrete_margins(),
-            f.margins.sensitivity_peak,
-            f.phase_margin_min_deg.unwrap_or(f64::NAN),
-            f.sensitivity_bandwidth_rad_s.unwrap_or(f64::NAN),
-        ));
-        eprintln!(
-            "{name}: bench's crossovers {:?} rad/s, phase margins {:?}°",
-            f.margins.crossovers_rad_s, f.margins.phase_margins_deg
-        );
-        assert!(
-            f.margins.sensitivity_peak <= 2.0 * 1.05,
-            "{name}: ‖S‖∞ {}",
-            f.margins.sensitivity_peak
-        );
-        assert!(f.phase_margin_min_deg.unwrap() >= 38.0, "{name}: {f:?}");
-        assert!(
-            f.margins.gain_margin_db.is_none_or(|g| g >= 5.5),
-            "{name}: {f:?}"
-        );
+        checks.push(check);
         // The limit strategy reaches 0.8 of the limit on the true plant
         // (issue 41, item 4; the thesis' families reached 0.51, 0.07 and
         // 0.16 of the limit without the bounds on these benches, and from
@@ -202,20 +169,185 @@ fn a_design_from_a_csv_alone_reports_the_benchs_limit_and_holds_on_the_true_plan
             "{name}: ω* reported {reported}, on the true plant {reach}"
         );
     }
-    // The same loops recomputed by python-control from scratch
-    // (`tests/data/loop_reference.py`: the SR4DoF model of
-    // make_reference.py with the amplifier sampled by zero-order hold, one
-    // period of delay, the controller by python-control's Tustin, which is
-    // the `bilinear` map the design writes for): stable, ‖S‖∞ within the
-    // margin, and the figures bench reads on the true plant within 1 %
-    // (0.5° of phase). The sampled loop, not the continuous one: the
-    // controller is designed in discrete time, and on held-out a its
-    // continuous form, 0.03 % off in frequency at 628 rad/s, crosses
-    // |L| = 1 twice more beside a cancelled pair (PM 59°).
+    check_by_python_control(&checks);
+}
+
+/// A workspace (issue 41, item 5): a campaign of the shipped bench over
+/// the thesis' 6.2.2 range (0–8 % of L in steps of 2 %, +10 % asymmetry),
+/// then `bench design` on the campaign's directory, no `--config`. The one
+/// controller, judged on every cell's true plant, is stable, meets the
+/// margins (python-control agrees), and stays under every cell's own limit
+/// as the independent reference computes it on the true plants
+/// (`limit_reference.json`, `workspaces`; no controller passes that), and
+/// the workspace's limit `bench` reports from the measurements does not
+/// pass the reference's joint limit (one Q for every cell's true plant)
+/// by more than 10 %.
+///
+/// Not asserted, because not met yet (issue 41 stays open on it): the
+/// item asks the controller's ω* to reach 0.8 of the workspace's limit
+/// and the reported limit to be within 10 % below as well. On this
+/// campaign the controller reaches 0.72 of the reference's 416 rad/s on
+/// the true plants (0.78 of the 374.5 it reports, which is 0.90 of the
+/// reference), where the controller designed from the 8 % cell's CSV
+/// alone reaches 0.88 on all five: the workspace's climb is what falls
+/// short. The test prints both ratios.
+#[test]
+fn one_controller_for_a_campaign_holds_on_every_cell_s_true_plant() {
+    let dir = tmp();
+    let cases = data("limit_cases.json");
+    let refs = data("limit_reference.json");
+    let ws = &cases["workspaces"][0];
+    let r = &refs["workspaces"][0];
+    assert_eq!(ws["name"], r["name"]);
+    let base = cases["cases"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|c| c["name"] == ws["base"])
+        .unwrap();
+    let fractions: Vec<f64> = ws["y1o_fraction_of_l"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|f| f.as_f64().unwrap())
+        .collect();
+    let asymmetry = ws["mass_asymmetry"].as_f64().unwrap();
+    // The campaign: the base bench, its cells at the workspace's points.
+    let mut cell = base.clone();
+    cell["mass_asymmetry"] = asymmetry.into();
+    std::fs::write(dir.path().join("bench.toml"), case_toml(&cell)).unwrap();
+    let pcts: Vec<String> = fractions.iter().map(|f| format!("{}", 100.0 * f)).collect();
+    let campaign = path_in(dir.path(), "ws.toml");
+    std::fs::write(
+        &campaign,
+        format!(
+            "config = \"bench.toml\"\nseed = 41\n[grid]\noperating_point_pct = [{}]\nmass_asymmetry = [{asymmetry}]\n",
+            pcts.join(", ")
+        ),
+    )
+    .unwrap();
+    let cells = path_in(dir.path(), "ws");
+    let o = run(&["campaign", "run", &campaign, "--out", &cells, "--json"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let out = path_in(dir.path(), "ws.designed.toml");
+    let o = run(&["design", &cells, "--out", &out, "--no-plot", "--json"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let s = json_stdout(&o);
+    assert_eq!(s["inputs"].as_array().unwrap().len(), fractions.len());
+    let model = s["model"]["model"].as_str().unwrap();
+    assert!(model.starts_with("the fit"), "{model}");
+    let want = r["limit_rad_s"].as_f64().unwrap();
+    let got = s["limit"]["performance_bandwidth_rad_s"].as_f64().unwrap();
+    eprintln!(
+        "workspace: {} ω* {:.1} rad/s reported, limit {got:.1} from the CSVs, {want:.1} on the true plants, design {:.2} s",
+        s["strategy"],
+        s["performance_bandwidth_rad_s"].as_f64().unwrap_or(f64::NAN),
+        s["design_time_s"].as_f64().unwrap_or(f64::NAN)
+    );
+    assert!(
+        got <= 1.10 * want,
+        "the workspace's limit {got:.1} rad/s from the CSVs, {want:.1} on the true plants"
+    );
+    let designed = bench::config::BenchConfig::load(std::path::Path::new(&out)).unwrap();
+    let ctrl = &designed.controller["designed"];
+    let mut checks = Vec::new();
+    let mut least = f64::INFINITY;
+    for (f, own) in fractions.iter().zip(r["cells"].as_array().unwrap()) {
+        assert_eq!(own["y1o_fraction_of_l"].as_f64(), Some(*f));
+        let mut c = cell.clone();
+        c["y1o_fraction_of_l"] = (*f).into();
+        let path = dir.path().join(format!("truth-{f}.toml"));
+        std::fs::write(&path, case_toml(&c)).unwrap();
+        let truth = bench::config::BenchConfig::load(&path).unwrap();
+        let name = format!("{:.0} % of L", 100.0 * f);
+        let (reach, check) = on_true_plant(&name, &truth, ctrl);
+        let own_limit = own["limit_rad_s"].as_f64().unwrap();
+        eprintln!(
+            "{name}: ω* {reach:.1} rad/s, {:.2} of the workspace's limit {want:.1}, {:.2} of the cell's own {own_limit:.1}",
+            reach / want,
+            reach / own_limit
+        );
+        assert!(
+            reach <= 1.02 * own_limit,
+            "{name}: ω* {reach:.1} above the cell's own limit {own_limit:.1}"
+        );
+        least = least.min(reach);
+        checks.push(check);
+    }
+    assert_eq!(s["strategy"], "limit", "{}", s["why"]);
+    eprintln!(
+        "workspace: the least ω* over the cells' true plants {least:.1} rad/s, {:.2} of the workspace's limit {want:.1} (the item asks 0.8); the limit reported {:.2} of it",
+        least / want,
+        got / want
+    );
+    check_by_python_control(&checks);
+}
+
+/// The designed controller `ctrl` on the true plant of `truth`, the loop
+/// to Nyquist: stable, ‖S‖∞ ≤ M = 2 (5 %), the least phase margin ≥ 38°
+/// and the gain margin ≥ 5.5 dB (the design's 40° and 6 dB, less the
+/// reading's tolerance). Returns its ω* (rad/s, M = 2) and the case for
+/// [`check_by_python_control`] with bench's ‖S‖∞, least phase margin and
+/// ω_B.
+fn on_true_plant(
+    name: &str,
+    truth: &bench::config::BenchConfig,
+    ctrl: &bench::control::ControllerConfig,
+) -> (f64, (common::loop_reference::Case, f64, f64, f64)) {
+    let t = 1.0 / truth.loop_.rate_hz;
+    let p = bench::design::predict::predict(truth, ctrl, t).unwrap();
+    let (w, l) = bench::design::predict::model_loop(truth, ctrl, t).unwrap();
+    let s_abs: Vec<f64> = l.iter().map(|l| 1.0 / (l + 1.0).norm()).collect();
+    let reach =
+        bench::design::limit::loop_performance_bandwidth_rad_s(&w, &s_abs, 2.0).unwrap_or(0.0);
+    let f = &p.figures;
+    eprintln!(
+        "{name}: on the true plant ω* {reach:.1} rad/s, ‖S‖∞ {:.3}, PM {:?}°, GM {:?} dB; crossovers {:?} rad/s, phase margins {:?}°",
+        f.margins.sensitivity_peak,
+        f.phase_margin_min_deg,
+        f.margins.gain_margin_db,
+        f.margins.crossovers_rad_s,
+        f.margins.phase_margins_deg
+    );
+    assert_eq!(
+        f.rhp_closed_loop_poles, 0,
+        "{name}: unstable on the true plant"
+    );
+    assert!(
+        f.margins.sensitivity_peak <= 2.0 * 1.05,
+        "{name}: ‖S‖∞ {}",
+        f.margins.sensitivity_peak
+    );
+    assert!(f.phase_margin_min_deg.unwrap() >= 38.0, "{name}: {f:?}");
+    assert!(
+        f.margins.gain_margin_db.is_none_or(|g| g >= 5.5),
+        "{name}: {f:?}"
+    );
+    let check = (
+        common::loop_reference::Case::new(name, truth, ctrl, t).with_discrete_margins(),
+        f.margins.sensitivity_peak,
+        f.phase_margin_min_deg.unwrap_or(f64::NAN),
+        f.sensitivity_bandwidth_rad_s.unwrap_or(f64::NAN),
+    );
+    (reach, check)
+}
+
+/// The designed loops on the true plants, recomputed by python-control
+/// from scratch (`tests/data/loop_reference.py`: the SR4DoF model of
+/// make_reference.py with the amplifier sampled by zero-order hold, one
+/// period of delay, the controller by python-control's Tustin, which is
+/// the `bilinear` map the design writes for): stable, ‖S‖∞ within the
+/// margin, and the figures bench reads on the true plant (`checks`: the
+/// case, bench's ‖S‖∞, least phase margin and ω_B) within 1 % (0.5° of
+/// phase). The sampled loop, not the continuous one: the controller is
+/// designed in discrete time, and on held-out a its continuous form,
+/// 0.03 % off in frequency at 628 rad/s, crosses |L| = 1 twice more beside
+/// a cancelled pair (PM 59°).
+fn check_by_python_control(checks: &[(common::loop_reference::Case, f64, f64, f64)]) {
     let cases: Vec<_> = checks.iter().map(|c| c.0.clone()).collect();
     for (r, (case, peak, pm, wb)) in common::loop_reference::python_reference(&cases)
         .iter()
-        .zip(&checks)
+        .zip(checks)
     {
         let m = r.discrete.as_ref().expect("the sampled loop's margins");
         // Each crossover's margin in (0°, 360°], as bench takes it: a

@@ -46,9 +46,17 @@ Input (JSON): {"cases": [{"name", "m_kg": [m1..m5], "k4_n_per_m",
 "zeta_rigid", "zeta_csm", "force_constant_n_per_a", "amplifier_bandwidth_hz",
 "rate_hz", "delay_periods", "s_max", "peak_current_a", "step_m",
 "band_top_hz", "edge_fraction", "edge_t_max"}]}
+Optional "workspaces": [{"name", "base" (a case's name),
+"y1o_fraction_of_l": [...], "mass_asymmetry"}]: the base case at each
+operating point (a campaign's cells); its joint limit has one Q for every
+cell's true plant, each cell's lines and bounds in one program (issue 41,
+item 5: "the same problem with all inputs' constraints"), with 300 lines
+a cell.
 Output (JSON): {"cases": [{"name", "limit_rad_s", "infeasible_above_rad_s",
 "limit_without_bounds_rad_s" (the same problem without the two bounds),
-"rhp_zero_bounds": [{"re_hz", "im_hz", "bound_rad_s"}], "zeros_hz"}]}
+"rhp_zero_bounds": [{"re_hz", "im_hz", "bound_rad_s"}], "zeros_hz"}],
+"workspaces": [{"name", "limit_rad_s", "infeasible_above_rad_s",
+"cells": [{"name", "y1o_fraction_of_l", "limit_rad_s" (the cell's own)}]}]}
 
 Run: python3 tests/data/limit_reference.py cases.json [out.json]
 Dependencies: pip install cvxpy clarabel 'control>=0.10,<0.11' (numpy, scipy).
@@ -121,21 +129,43 @@ def rhp_bound(z, M):
     return (-b + np.sqrt(b * b - 4 * a * c)) / (2 * a)
 
 
-def limit(c, taps=60, lines=600, n_log=32, bounds=True):
-    at, zeros, wn, T = plant(c)
-    M = c["s_max"]
+def lines_of(c, T, wn, zeros, lines):
     nyq = np.pi / T
     w = np.logspace(np.log10(2 * np.pi * 0.5), np.log10(0.98 * nyq), lines)
     # Every resonance and antiresonance resolved: 41 lines over +-5 % of each.
     near = [abs(x) for x in list(wn) + list(zeros) if 0 < abs(x) < 0.98 * nyq]
     for x in near:
         w = np.concatenate([w, x * np.linspace(0.95, 1.05, 41)])
-    w = np.unique(w)
-    z = np.exp(1j * w * T)
-    P = at(z)
-    B = basis(T, zeros, taps, 1.0, n_log)(z)
-    scale = abs(P[0])
-    PB = (P / scale)[:, None] * B
+    return np.unique(w)
+
+
+def joint_limit(cs, taps=60, lines=600, n_log=32, bounds=True):
+    """The largest w* one Q reaches on every plant of `cs` at once (each
+    plant's lines and bounds in one program): for one case its limit, for
+    a workspace the limit of "the same problem with all inputs'
+    constraints" (issue 41, item 5). Returns (w*, infeasible above,
+    [zeros of each plant])."""
+    plants = [plant(c) for c in cs]
+    T = plants[0][3]
+    M = cs[0]["s_max"]
+    nyq = np.pi / T
+    all_zeros = np.concatenate([p[1] for p in plants])
+    cols = basis(T, all_zeros, taps, 1.0, n_log)
+    rows_pb, rows_b, edges, ws = [], [], [], []
+    scale = None
+    for c, (at, zeros, wn, _) in zip(cs, plants):
+        w = lines_of(c, T, wn, zeros, lines)
+        z = np.exp(1j * w * T)
+        P = at(z)
+        if scale is None:
+            scale = abs(P[0])
+        B = cols(z)
+        rows_pb.append((P / scale)[:, None] * B)
+        rows_b.append(B)
+        edges.append(w >= 2 * np.pi * c["edge_fraction"] * c["band_top_hz"])
+        ws.append(w)
+    PB, B = np.vstack(rows_pb), np.vstack(rows_b)
+    edge, w = np.concatenate(edges), np.concatenate(ws)
     # The coefficients x = V y in orthonormal coordinates: P B V has
     # orthonormal (stacked real) columns on the lines.
     U, S, Vt = np.linalg.svd(np.vstack([PB.real, PB.imag]), full_matrices=False)
@@ -148,17 +178,18 @@ def limit(c, taps=60, lines=600, n_log=32, bounds=True):
     t = cp.Variable()
     cons = [cp.multiply(wt, cp.abs(s)) <= t]
     if bounds:
-        # Q in A/m is (B x)/scale: |Q| <= I_pk/|r| on every line.
-        cons.append(cp.abs(B @ x) <= c["peak_current_a"] / abs(c["step_m"]) * scale)
-        edge = w >= 2 * np.pi * c["edge_fraction"] * c["band_top_hz"]
-        cons.append(cp.abs(PB[edge] @ x) <= c["edge_t_max"])
+        # Q in A/m is (B x)/scale: |Q| <= I_pk/|r| on every line (Q is one
+        # function: the first plant's lines carry it).
+        n0 = len(ws[0])
+        cons.append(cp.abs(B[:n0] @ x) <= cs[0]["peak_current_a"] / abs(cs[0]["step_m"]) * scale)
+        cons.append(cp.abs(PB[edge] @ x) <= cs[0]["edge_t_max"])
     prob = cp.Problem(cp.Minimize(t), cons)
 
-    def gamma(ws):
-        wt.value = np.abs(1j * w / M + ws) / w
+    def gamma(ws_):
+        wt.value = np.abs(1j * w / M + ws_) / w
         prob.solve(solver=cp.CLARABEL)
         if prob.status not in ("optimal", "optimal_inaccurate"):
-            raise RuntimeError(f"cvxpy: {prob.status} at w* = {ws}")
+            raise RuntimeError(f"cvxpy: {prob.status} at w* = {ws_}")
         # The Q found, evaluated exactly: its own certificate.
         return float(np.max(wt.value * np.abs(1 - PB @ x.value)))
 
@@ -169,23 +200,54 @@ def limit(c, taps=60, lines=600, n_log=32, bounds=True):
             lo = mid
         else:
             hi = mid
+    return lo, hi, [p[1] for p in plants]
+
+
+def limit(c, taps=60, lines=600, n_log=32):
+    M = c["s_max"]
+    lo, hi, (zeros,) = joint_limit([c], taps, lines, n_log)
+    nyq = np.pi / (1.0 / c["rate_hz"])
     zeros = [zi for zi in zeros if abs(zi) < 1e6 * nyq]  # drop the numerically infinite
     zero_bounds = [{"re_hz": zi.real / (2 * np.pi), "im_hz": zi.imag / (2 * np.pi),
                     "bound_rad_s": rhp_bound(zi, M)} for zi in zeros if zi.real > 0 and zi.imag >= 0]
-    if not bounds:
-        return lo
     return {"name": c["name"], "limit_rad_s": lo, "infeasible_above_rad_s": hi,
-            "limit_without_bounds_rad_s": limit(c, taps, lines, n_log, bounds=False),
+            "limit_without_bounds_rad_s": joint_limit([c], taps, lines, n_log, bounds=False)[0],
             "rhp_zero_bounds": zero_bounds,
             "zeros_hz": [[zi.real / (2 * np.pi), zi.imag / (2 * np.pi)] for zi in zeros]}
 
 
+def workspace(ws, cases, taps=60, lines=300, n_log=32):
+    """A workspace: the base case at each operating point of the list (the
+    cells of a campaign over the operating point), its joint limit (one Q
+    for every cell) and each cell's own limit (with the bounds): no
+    single controller's w* on a cell passes that cell's own limit."""
+    base = next(c for c in cases if c["name"] == ws["base"])
+    cells = []
+    for y in ws["y1o_fraction_of_l"]:
+        c = dict(base)
+        c["y1o_fraction_of_l"] = y
+        c["mass_asymmetry"] = ws["mass_asymmetry"]
+        c["name"] = f"{ws['name']} at {100 * y:g} % of L"
+        cells.append(c)
+    lo, hi, _ = joint_limit(cells, taps, lines, n_log)
+    own = []
+    for c in cells:
+        own.append({"name": c["name"], "y1o_fraction_of_l": c["y1o_fraction_of_l"],
+                    "limit_rad_s": joint_limit([c], taps, lines, n_log)[0]})
+        print(c["name"], "done", file=sys.stderr, flush=True)
+    return {"name": ws["name"], "limit_rad_s": lo, "infeasible_above_rad_s": hi, "cells": own}
+
+
 if __name__ == "__main__":
-    cases = json.load(open(sys.argv[1]))["cases"]
-    out = {"cases": []}
+    spec = json.load(open(sys.argv[1]))
+    cases = spec["cases"]
+    out = {"cases": [], "workspaces": []}
     for c in cases:
         out["cases"].append(limit(c))
         print(c["name"], "done", file=sys.stderr, flush=True)
+    for ws in spec.get("workspaces", []):
+        out["workspaces"].append(workspace(ws, cases))
+        print(ws["name"], "done", file=sys.stderr, flush=True)
     text = json.dumps(out, indent=1)
     if len(sys.argv) > 2:
         open(sys.argv[2], "w").write(text)
