@@ -683,6 +683,42 @@ pub struct ClimbInputs {
     /// The effort bound `|K S|`, A/m, the limit's
     /// ([`limit::LoopBounds::effort_for_step`]).
     pub effort_max_a_per_m: f64,
+    /// A workspace's most demanding input ([`nominal_input`]) and its
+    /// lines alone: the `limit` strategy designs on it first and climbs
+    /// on every input from that design too; `None` for one input.
+    pub nominal: Option<Nominal>,
+}
+
+/// The input a workspace's `limit` design starts from ([`ClimbInputs`]).
+#[derive(Debug, Clone)]
+pub struct Nominal {
+    /// Its index among the inputs.
+    pub input: usize,
+    /// Its lines alone ([`ceiling::program_lines`] of that input).
+    pub lines: ceiling::ProgramLines,
+}
+
+/// The input of a workspace whose fit has the right-half-plane zero with
+/// the lowest analytic bound on ω* ([`limit::rhp_zero_bound_rad_s`]: no
+/// controller passes it on that plant, the most demanding one), `None`
+/// when no fit has one or there is one input. `plants` in the inputs'
+/// order.
+pub fn nominal_input(plants: &[fitted::FittedPlant], s_max: f64) -> Option<usize> {
+    if plants.len() < 2 {
+        return None;
+    }
+    plants
+        .iter()
+        .enumerate()
+        .filter_map(|(i, p)| {
+            ceiling::rhp_fit_zeros(std::slice::from_ref(p), s_max)
+                .into_iter()
+                .filter_map(|z| limit::rhp_zero_bound_rad_s(z, s_max))
+                .reduce(f64::min)
+                .map(|b| (i, b))
+        })
+        .min_by(|a, b| a.1.total_cmp(&b.1))
+        .map(|(i, _)| i)
 }
 
 /// Most 2 % gain steps of a `limit` design's back-off.
@@ -812,15 +848,42 @@ fn limit_attempt(
     // Two climbs per start, side by side, in the variables that climbed
     // furthest ([`fixed_order::Variable`]): with the fits' MMP pairs to
     // cancel, the plain start in z⁻¹ and the cancelled one in 1 − z⁻¹;
-    // without, the plain start in both.
+    // without, the plain start in both. The families' starts in turn
+    // until one gives a certified controller. Then a workspace's nominal
+    // input's own design (named `limit`, its structure says which), if
+    // it already does better on every input than the families' climbs
+    // reached (a climb keeps only what gains; from a start below them it
+    // rarely passes them, and two climbs over a workspace's lines are
+    // seconds): on the 5-cell campaign of `tests/cli/design_limit.rs` it
+    // starts at 335.1 rad/s where the families' climbs reached 292.8, and
+    // its climbs reach 346.2; on the 20-cell campaign of
+    // `benches/design-time.sh` its climbs reached only 258.5 and the fast
+    // design's 349.8, and they cost 11 s of the 31 s.
     use fixed_order::Variable::{Delay, Difference};
     let mut results: Vec<(String, Judged)> = Vec::new();
-    for a in starts {
+    let (nominals, families): (Vec<&Attempt>, Vec<&Attempt>) =
+        starts.iter().partition(|a| a.strategy == "limit");
+    let mut family_done = false;
+    for a in families.into_iter().chain(nominals) {
+        let nominal = a.strategy == "limit";
+        let reached = results
+            .iter()
+            .filter_map(|(_, r)| r.as_ref().ok())
+            .filter(|(_, e)| e.feasible())
+            .map(|(_, e)| e.objective_rad_s)
+            .fold(f64::NEG_INFINITY, f64::max);
+        if (family_done && !nominal) || (nominal && a.evaluation.objective_rad_s <= reached) {
+            continue;
+        }
         let plain = &a.evaluation.controller;
-        let plain_name = format!("{} design", a.strategy);
+        let plain_name = if nominal {
+            a.structure.clone()
+        } else {
+            format!("{} design", a.strategy)
+        };
         let (r, c) = match fixed_order::cancelling(plain, &y.lines.pairs, period_s) {
             Some(cancelled) => {
-                let name = format!("{} design with the fits' MMP pairs cancelled", a.strategy);
+                let name = format!("{plain_name} with the fits' MMP pairs cancelled");
                 rayon::join(
                     || climb_in(&plain_name, plain, Delay),
                     || climb_in(&name, &cancelled, Difference),
@@ -831,13 +894,11 @@ fn limit_attempt(
                 || climb_in(&plain_name, plain, Difference),
             ),
         };
-        results.extend([r, c]);
-        if results
+        let gave = [&r, &c]
             .iter()
-            .any(|(_, r)| matches!(r, Ok((_, e)) if e.feasible()))
-        {
-            break;
-        }
+            .any(|(_, r)| matches!(r, Ok((_, e)) if e.feasible()));
+        family_done |= gave && !nominal;
+        results.extend([r, c]);
     }
     let best = results
         .iter()
@@ -975,6 +1036,66 @@ pub fn design(
         )
     };
     let run = |s| run_from(s, &[]);
+    // A workspace's `limit` design also starts from the design of its most
+    // demanding input alone, certified on every input (its gain backed
+    // off where it misses a little). The climb is local and its start
+    // decides: on a campaign of the shipped bench at 0–8 % of L the
+    // climbs from the workspace's fast design (ω* 146 rad/s) reached 293,
+    // where the 8 % cell's own design reaches 366 on all five true plants.
+    let nominal_start = || -> Option<Attempt> {
+        let c = climb?;
+        let n = c.nominal.as_ref()?;
+        let k = n.input;
+        let one = ClimbInputs {
+            lines: n.lines.clone(),
+            computation_delay_s: c.computation_delay_s,
+            effort_max_a_per_m: c.effort_max_a_per_m,
+            nominal: None,
+        };
+        let own_model = if model.len() == frfs.len() {
+            &model[k..=k]
+        } else {
+            model
+        };
+        let spec_k = DesignSpec {
+            strategy: Strategy::Limit,
+            ..spec.clone()
+        };
+        let d = design(
+            frfs.get(k..=k)?,
+            own_model,
+            None,
+            &modes.of_input(k)?,
+            &spec_k,
+            period_s,
+            peak_current_a,
+            Some(&one),
+        )
+        .ok()?;
+        let problem = Problem::with_models(&all, &models, req, UNIT_PER_METRE);
+        let evaluation = certify_backing_off(
+            &problem,
+            &d.chosen.evaluation.controller,
+            period_s,
+            peak_current_a,
+            LIMIT_BACK_OFF_STEPS,
+            |e| e.violation > 0.5,
+        );
+        tracing::debug!(
+            input = %frfs[k].label,
+            alone_rad_s = d.chosen.evaluation.objective_rad_s,
+            on_every_input_rad_s = evaluation.objective_rad_s,
+            feasible = evaluation.feasible(),
+            "limit strategy: the most demanding input's own design"
+        );
+        // Named `limit`, the strategy it starts (its structure says which
+        // design of the input alone it is).
+        Some(Attempt {
+            strategy: "limit",
+            evaluation,
+            structure: format!("{} design of {} alone", d.chosen.strategy, frfs[k].label),
+        })
+    };
     let inputs = frfs
         .iter()
         .map(|f| f.label.as_str())
@@ -1031,8 +1152,12 @@ pub fn design(
             })
         }
         Strategy::Limit => {
-            let (f, s) = rayon::join(|| run(Strategy::Fast), || run(Strategy::Slow));
-            let a = run_from(Strategy::Limit, &[&f, &s]);
+            let ((f, s), n) = rayon::join(
+                || rayon::join(|| run(Strategy::Fast), || run(Strategy::Slow)),
+                nominal_start,
+            );
+            let starts: Vec<&Attempt> = [&f, &s].into_iter().chain(n.as_ref()).collect();
+            let a = run_from(Strategy::Limit, &starts);
             if a.evaluation.feasible() {
                 return Ok(Designed {
                     why: format!("limit requested: {}", a.structure),
@@ -1060,10 +1185,14 @@ pub fn design(
             })
         }
         Strategy::Auto => {
-            let (f, s) = rayon::join(|| run(Strategy::Fast), || run(Strategy::Slow));
+            let ((f, s), n) = rayon::join(
+                || rayon::join(|| run(Strategy::Fast), || run(Strategy::Slow)),
+                nominal_start,
+            );
+            let starts: Vec<&Attempt> = [&f, &s].into_iter().chain(n.as_ref()).collect();
             // The climb needs the program's lines: without them (a caller
             // that gives none) auto is the thesis' two.
-            let l = climb.map(|_| run_from(Strategy::Limit, &[&f, &s]));
+            let l = climb.map(|_| run_from(Strategy::Limit, &starts));
             let w = |a: &Attempt| a.evaluation.objective_rad_s;
             let all: Vec<&Attempt> = l.iter().chain([&f, &s]).collect();
             let mut feasible: Vec<&Attempt> = all

@@ -109,6 +109,15 @@ impl PlantModes {
         ))
     }
 
+    /// The modes of input `k` alone (its first resonance as ω_R); `None`
+    /// for an index past the inputs.
+    pub fn of_input(&self, k: usize) -> Option<Self> {
+        self.inputs.get(k).map(|m| Self {
+            first_resonance_rad_s: 2.0 * PI * m.first_resonance_hz,
+            inputs: vec![m.clone()],
+        })
+    }
+
     /// Every resonance found on any input (ω_R, u, v), rad/s.
     pub fn resonances_rad_s(&self) -> Vec<f64> {
         self.inputs

@@ -735,6 +735,16 @@ pub fn run_design(opts: &DesignOptions) -> Result<DesignSummary, RunError> {
             spec.computation_delay_s,
         ),
         computation_delay_s: spec.computation_delay_s,
+        nominal: crate::design::nominal_input(&plants, s_max).map(|k| crate::design::Nominal {
+            input: k,
+            lines: crate::design::ceiling::program_lines(
+                &frfs[k..=k],
+                &relative_sigma[k..=k],
+                &plants[k..=k],
+                period_s,
+                spec.computation_delay_s,
+            ),
+        }),
     };
     // The limit and the design are independent: side by side, the limit
     // on a thread of its own, outside the pool the design's searches and

@@ -183,21 +183,16 @@ fn a_design_from_a_csv_alone_reports_the_benchs_limit_and_holds_on_the_true_plan
 /// the thesis' 6.2.2 range (0–8 % of L in steps of 2 %, +10 % asymmetry),
 /// then `bench design` on the campaign's directory, no `--config`. The one
 /// controller, judged on every cell's true plant, is stable, meets the
-/// margins (python-control agrees), and stays under every cell's own limit
-/// as the independent reference computes it on the true plants
+/// margins (python-control agrees), stays under every cell's own limit as
+/// the independent reference computes it on the true plants
 /// (`limit_reference.json`, `workspaces`; no controller passes that), and
-/// the workspace's limit `bench` reports from the measurements does not
-/// pass the reference's joint limit (one Q for every cell's true plant)
-/// by more than 10 %.
-///
-/// Not asserted, because not met yet (issue 41 stays open on it): the
-/// item asks the controller's ω* to reach 0.8 of the workspace's limit
-/// and the reported limit to be within 10 % below as well. On this
-/// campaign the controller reaches 0.72 of the reference's 416 rad/s on
-/// the true plants (0.78 of the 376.7 it reports, which is 0.91 of the
-/// reference), where the controller designed from the 8 % cell's CSV
-/// alone reaches 0.88 on all five: the workspace's climb is what falls
-/// short. The test prints both ratios.
+/// its least ω* over the cells is at least 0.8 of the workspace's limit
+/// there (one Q for every cell's true plant: the same problem with all
+/// cells' constraints); the workspace's limit `bench` reports from the
+/// measurements is the reference's within 10 %. Before the `limit`
+/// strategy started a workspace's climb from its most demanding input's
+/// own design, the controller reached 0.72 of it (its climbs from the
+/// workspace's fast design stalled at 293 rad/s).
 #[test]
 fn one_controller_for_a_campaign_holds_on_every_cell_s_true_plant() {
     let dir = tmp();
@@ -243,15 +238,16 @@ fn one_controller_for_a_campaign_holds_on_every_cell_s_true_plant() {
     assert_eq!(s["inputs"].as_array().unwrap().len(), fractions.len());
     let model = s["model"]["model"].as_str().unwrap();
     assert!(model.starts_with("the fit"), "{model}");
-    // The cells at 6 and 8 % of L have the CMP-CNMP pair: the report
-    // names it, with the bound of the 8 % cell's (the lower).
+    // The cells at 6 and 8 % of L have the CMP-CNMP pair (their fits'
+    // 5 % apart): the report names the 8 % cell's, whose bound is the
+    // lower (448 rad/s where the 6 % cell's is 456).
     let zs = s["limit"]["rhp_zeros"].as_array().unwrap();
     let bound_8 = refs["cases"][0]["rhp_zero_bounds"][0]["bound_rad_s"]
         .as_f64()
         .unwrap();
     assert!(
         zs.iter()
-            .any(|z| (z["bound_rad_s"].as_f64().unwrap() / bound_8 - 1.0).abs() < 0.03),
+            .any(|z| (z["bound_rad_s"].as_f64().unwrap() / bound_8 - 1.0).abs() < 0.01),
         "the workspace's right-half-plane zeros {zs:?}, the 8 % cell's bound {bound_8:.1}"
     );
     let want = r["limit_rad_s"].as_f64().unwrap();
@@ -263,7 +259,7 @@ fn one_controller_for_a_campaign_holds_on_every_cell_s_true_plant() {
         s["design_time_s"].as_f64().unwrap_or(f64::NAN)
     );
     assert!(
-        got <= 1.10 * want,
+        (got / want - 1.0).abs() <= 0.10,
         "the workspace's limit {got:.1} rad/s from the CSVs, {want:.1} on the true plants"
     );
     let designed = bench::config::BenchConfig::load(std::path::Path::new(&out)).unwrap();
@@ -293,10 +289,10 @@ fn one_controller_for_a_campaign_holds_on_every_cell_s_true_plant() {
         checks.push(check);
     }
     assert_eq!(s["strategy"], "limit", "{}", s["why"]);
-    eprintln!(
-        "workspace: the least ω* over the cells' true plants {least:.1} rad/s, {:.2} of the workspace's limit {want:.1} (the item asks 0.8); the limit reported {:.2} of it",
-        least / want,
-        got / want
+    assert!(
+        least >= 0.8 * want,
+        "the least ω* over the cells' true plants {least:.1} rad/s, {:.2} of the workspace's limit {want:.1}",
+        least / want
     );
     check_by_python_control(&checks);
 }
