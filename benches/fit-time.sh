@@ -45,7 +45,7 @@ try:
     s = json.load(sys.stdin)
     f = s['fit']
     n = len(f.get('modes', []))
-    flags = f.get('flags') or f.get('quality', {}).get('flags') or []
+    flags = f['quality']['flags']
 except Exception as e:
     n, flags = -1, ['no fit: %s' % e]
 print('%.3f %d %s %s' % (t, n, '$csv', ';'.join(map(str, flags)) or '-'))

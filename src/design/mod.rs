@@ -454,7 +454,7 @@ pub fn attempt(
     req: Requirements,
     period_s: f64,
     peak_current_a: f64,
-    climb: Option<(&ClimbInputs, &[&Attempt])>,
+    climb: Option<(&ClimbInputs, &[&Attempt], Option<&Attempt>)>,
 ) -> Attempt {
     let wr = modes.first_resonance_rad_s;
     match strategy {
@@ -464,6 +464,7 @@ pub fn attempt(
                 &all,
                 climb.map(|c| c.0),
                 climb.map_or(&[], |c| c.1),
+                climb.and_then(|c| c.2),
                 req,
                 period_s,
                 peak_current_a,
@@ -755,14 +756,16 @@ fn refused(strategy: &'static str, why: String) -> Attempt {
 }
 
 /// The `limit` strategy ([`fixed_order`]): from each certified start
-/// (the fast and slow designs), the convex climb towards the limit; each
-/// result certified like every design (its gain backed off by 2 % steps
-/// when it misses a little); the one that meets the margins with the
-/// highest ω*.
+/// (the fast and slow designs, and a workspace's `nominal` input's own
+/// design), the convex climb towards the limit; each result certified
+/// like every design (its gain backed off by 2 % steps when it misses a
+/// little); the one that meets the margins with the highest ω*.
+#[allow(clippy::too_many_arguments)]
 fn limit_attempt(
     all: &Problem<'_>,
     climb: Option<&ClimbInputs>,
     starts: &[&Attempt],
+    nominal: Option<&Attempt>,
     req: Requirements,
     period_s: f64,
     peak_current_a: f64,
@@ -785,7 +788,8 @@ fn limit_attempt(
             .objective_rad_s
             .total_cmp(&a.evaluation.objective_rad_s)
     });
-    if starts.is_empty() {
+    let nominal = nominal.filter(|a| a.evaluation.feasible());
+    if starts.is_empty() && nominal.is_none() {
         return refused(
             "limit",
             "no design of the thesis' families meets the margins to start the climb from".into(),
@@ -850,8 +854,8 @@ fn limit_attempt(
     // cancel, the plain start in z⁻¹ and the cancelled one in 1 − z⁻¹;
     // without, the plain start in both. The families' starts in turn
     // until one gives a certified controller. Then a workspace's nominal
-    // input's own design (named `limit`, its structure says which), if
-    // it already does better on every input than the families' climbs
+    // input's own design (its structure names it), if it already does
+    // better on every input than the families' climbs
     // reached (a climb keeps only what gains; from a start below them it
     // rarely passes them, and two climbs over a workspace's lines are
     // seconds): on the 5-cell campaign of `tests/cli/design_limit.rs` it
@@ -861,22 +865,20 @@ fn limit_attempt(
     // design's 349.8, and they cost 11 s of the 31 s.
     use fixed_order::Variable::{Delay, Difference};
     let mut results: Vec<(String, Judged)> = Vec::new();
-    let (nominals, families): (Vec<&Attempt>, Vec<&Attempt>) =
-        starts.iter().partition(|a| a.strategy == "limit");
     let mut family_done = false;
-    for a in families.into_iter().chain(nominals) {
-        let nominal = a.strategy == "limit";
+    let families = starts.iter().map(|a| (*a, false));
+    for (a, is_nominal) in families.chain(nominal.map(|a| (a, true))) {
         let reached = results
             .iter()
             .filter_map(|(_, r)| r.as_ref().ok())
             .filter(|(_, e)| e.feasible())
             .map(|(_, e)| e.objective_rad_s)
             .fold(f64::NEG_INFINITY, f64::max);
-        if (family_done && !nominal) || (nominal && a.evaluation.objective_rad_s <= reached) {
+        if (family_done && !is_nominal) || (is_nominal && a.evaluation.objective_rad_s <= reached) {
             continue;
         }
         let plain = &a.evaluation.controller;
-        let plain_name = if nominal {
+        let plain_name = if is_nominal {
             a.structure.clone()
         } else {
             format!("{} design", a.strategy)
@@ -897,7 +899,7 @@ fn limit_attempt(
         let gave = [&r, &c]
             .iter()
             .any(|(_, r)| matches!(r, Ok((_, e)) if e.feasible()));
-        family_done |= gave && !nominal;
+        family_done |= gave && !is_nominal;
         results.extend([r, c]);
     }
     let best = results
@@ -1022,7 +1024,7 @@ pub fn design(
         all.extend(frfs.iter().map(undelayed));
         models.extend(model.iter().map(undelayed));
     }
-    let run_from = |s, starts: &[&Attempt]| {
+    let run_from = |s, starts: &[&Attempt], nominal: Option<&Attempt>| {
         attempt(
             &all,
             &models,
@@ -1032,10 +1034,10 @@ pub fn design(
             req,
             period_s,
             peak_current_a,
-            climb.map(|c| (c, starts)),
+            climb.map(|c| (c, starts, nominal)),
         )
     };
-    let run = |s| run_from(s, &[]);
+    let run = |s| run_from(s, &[], None);
     // A workspace's `limit` design also starts from the design of its most
     // demanding input alone, certified on every input (its gain backed
     // off where it misses a little). The climb is local and its start
@@ -1088,10 +1090,8 @@ pub fn design(
             feasible = evaluation.feasible(),
             "limit strategy: the most demanding input's own design"
         );
-        // Named `limit`, the strategy it starts (its structure says which
-        // design of the input alone it is).
         Some(Attempt {
-            strategy: "limit",
+            strategy: d.chosen.strategy,
             evaluation,
             structure: format!("{} design of {} alone", d.chosen.strategy, frfs[k].label),
         })
@@ -1156,8 +1156,7 @@ pub fn design(
                 || rayon::join(|| run(Strategy::Fast), || run(Strategy::Slow)),
                 nominal_start,
             );
-            let starts: Vec<&Attempt> = [&f, &s].into_iter().chain(n.as_ref()).collect();
-            let a = run_from(Strategy::Limit, &starts);
+            let a = run_from(Strategy::Limit, &[&f, &s], n.as_ref());
             if a.evaluation.feasible() {
                 return Ok(Designed {
                     why: format!("limit requested: {}", a.structure),
@@ -1189,10 +1188,9 @@ pub fn design(
                 || rayon::join(|| run(Strategy::Fast), || run(Strategy::Slow)),
                 nominal_start,
             );
-            let starts: Vec<&Attempt> = [&f, &s].into_iter().chain(n.as_ref()).collect();
             // The climb needs the program's lines: without them (a caller
             // that gives none) auto is the thesis' two.
-            let l = climb.map(|_| run_from(Strategy::Limit, &starts));
+            let l = climb.map(|_| run_from(Strategy::Limit, &[&f, &s], n.as_ref()));
             let w = |a: &Attempt| a.evaluation.objective_rad_s;
             let all: Vec<&Attempt> = l.iter().chain([&f, &s]).collect();
             let mut feasible: Vec<&Attempt> = all
