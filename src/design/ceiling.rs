@@ -115,8 +115,8 @@ pub struct LimitReport {
     /// ([`LoopBounds::effort_for_step`]).
     pub effort_max_a_per_m: f64,
     /// The band edge, rad/s: from here up `|T|` ≤ [`EDGE_T_MAX`] in the
-    /// limit and the design.
-    pub band_edge_rad_s: f64,
+    /// limit and the design; `None` where the limit was not computed.
+    pub band_edge_rad_s: Option<f64>,
     /// Lines the cone programs held: measured (at most
     /// [`LINES_PER_INPUT`] an input), and from the fits.
     pub lines: [usize; 2],
@@ -242,7 +242,7 @@ pub fn bench_limit(
         binding: vec![],
         binds: String::new(),
         effort_max_a_per_m,
-        band_edge_rad_s: f64::NAN,
+        band_edge_rad_s: None,
         lines: [0, 0],
         fit_stood_in_lines: 0,
         solves: 0,
@@ -266,7 +266,7 @@ pub fn bench_limit(
     let upper = report.rhp_zeros.first().map(|z| 1.05 * z.bound_rad_s);
     let bounds = set.bounds(effort_max_a_per_m);
     report.effort_max_a_per_m = effort_max_a_per_m;
-    report.band_edge_rad_s = bounds.band_edge_rad_s;
+    report.band_edge_rad_s = Some(bounds.band_edge_rad_s).filter(|w| w.is_finite());
     match performance_limit(&lines, basis, period_s, s_max, upper, bounds) {
         Ok(l) => {
             let w = l.performance_bandwidth_rad_s;
