@@ -53,6 +53,8 @@ fn default_chirp_frf() -> (Frf, FitPath) {
         // E|e|² = (2/3)(1.22 noise)² ≈ noise²; independent lines.
         sigma_m_per_a: h.iter().map(|h| h.norm() * noise).collect(),
         resolution_hz: vec![f64::NAN; f.len()],
+        // A known variance.
+        sigma_dof: vec![f64::INFINITY; f.len()],
         frequency_hz: f,
     };
     let path = FitPath {

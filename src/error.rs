@@ -398,7 +398,8 @@ pub enum RecordError {
     /// The arrays given to [`crate::record::Recorder::write_frf`] differ in length.
     #[error(
         "FRF arrays differ in length: frequency {frequency}, magnitude {magnitude}, \
-         phase {phase}, coherence {coherence}, sigma {sigma}, resolution {resolution}"
+         phase {phase}, coherence {coherence}, sigma {sigma}, resolution {resolution}, \
+         sigma_dof {dof}"
     )]
     FrfLength {
         /// Length of `frequency_hz`.
@@ -413,5 +414,7 @@ pub enum RecordError {
         sigma: usize,
         /// Length of `resolution_hz`.
         resolution: usize,
+        /// Length of `sigma_dof`.
+        dof: usize,
     },
 }

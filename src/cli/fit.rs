@@ -366,13 +366,24 @@ pub(super) fn print_quality(f: &ModalFit) {
         return;
     }
     let chi2 = match (q.chi2_per_dof, q.chi2_per_dof_bound) {
-        (Some(c), Some(b)) => format!("χ²/ν {c:.2} (bound {b:.2})"),
+        (Some(c), Some(b)) => {
+            let dof = q.sigma_dof.map_or(String::new(), |d| {
+                format!(", σ from {d} degrees of freedom")
+            });
+            format!(
+                "χ²/ν {c:.2} (expected {:.2}, bound {b:.2}{dof})",
+                q.chi2_per_dof_expected.unwrap_or(1.0)
+            )
+        }
         _ => "no noise estimate per line: 1σ scaled by the residual".to_string(),
     };
     let white = q.whiteness_q.map_or(String::new(), |w| {
         format!(", whiteness Q {w:.1} (bound {:.1})", q.whiteness_q_bound)
     });
     outln!("  checks over {} independent lines: {chi2}{white}", q.lines);
+    if let Some(why) = &q.noise_refused {
+        outln!("  noise: {why}");
+    }
     if let Some(u) = &f.labels_unsure {
         outln!("  labels unsure: {u}");
     }

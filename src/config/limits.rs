@@ -125,10 +125,12 @@ pub mod ranges {
     /// `multisine.periods`: two at least (the noise variance is the
     /// spread over periods), at most 1000.
     pub const MULTISINE_PERIODS: (u32, u32) = (2, 1000);
-    /// `multisine.realizations` with random phases: two at least (the
-    /// variance over realizations), at most 1000. With Schroeder phases
-    /// exactly 1.
-    pub const MULTISINE_REALIZATIONS: (u32, u32) = (2, 1000);
+    /// `multisine.realizations` with random phases: four at least (the
+    /// variance over M realizations has 2(M − 1) degrees of freedom, and
+    /// a fit weighted by it has a cost of finite variance and a finite
+    /// covariance only from 6 on: [`crate::ident::frf::MIN_SIGMA_DOF`]),
+    /// at most 1000. With Schroeder phases exactly 1.
+    pub const MULTISINE_REALIZATIONS: (u32, u32) = (4, 1000);
     /// `multisine.transient_periods`: 0 to 100 discarded periods.
     pub const MULTISINE_TRANSIENT_PERIODS: (u32, u32) = (0, 100);
     /// `multisine.lines_per_decade`, as `identification.points_per_decade`.

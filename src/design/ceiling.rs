@@ -115,7 +115,7 @@ pub struct LimitReport {
     /// ([`LoopBounds::effort_for_step`]).
     pub effort_max_a_per_m: f64,
     /// The band edge, rad/s: from here up `|T|` ≤ [`EDGE_T_MAX`] in the
-    /// limit and the design; `None` where the limit was not computed.
+    /// limit and the design; `null` where the limit was not computed.
     pub band_edge_rad_s: Option<f64>,
     /// Lines the cone programs held: measured (at most
     /// [`LINES_PER_INPUT`] an input), and from the fits.

@@ -337,8 +337,9 @@ impl Bla {
     /// The BLA as an [`Frf`] on its lines: magnitude, unwrapped phase,
     /// the signal-to-noise coherence `|Ĝ|² / (|Ĝ|² + σ̂²_BLA)`,
     /// `sigma_m_per_a` = `σ̂_BLA` (noise and distortion: what a fit
-    /// weights with) and `resolution_hz` = `1 / T_p` (each line is one DFT
-    /// bin of a period, so every two lines are independent).
+    /// weights with), `resolution_hz` = `1 / T_p` (each line is one DFT
+    /// bin of a period, so every two lines are independent) and
+    /// `sigma_dof` = [`Self::sigma_dof`].
     pub fn to_frf(&self) -> Frf {
         let mut phase_deg: Vec<f64> = self.response.iter().map(|g| g.arg().to_degrees()).collect();
         unwrap_deg(&mut phase_deg);
@@ -361,6 +362,18 @@ impl Bla {
                 .collect(),
             sigma_m_per_a: self.sigma_bla_m_per_a.clone(),
             resolution_hz: vec![self.resolution_hz; self.frequency_hz.len()],
+            sigma_dof: vec![self.sigma_dof(); self.frequency_hz.len()],
+        }
+    }
+
+    /// Degrees of freedom of `σ̂²_BLA` (real, as of a χ²): `2(M − 1)`, the
+    /// spread of M complex means; with one realization `2(P − 1)`, the
+    /// spread of its P periods (module docs).
+    pub fn sigma_dof(&self) -> f64 {
+        if self.realizations >= 2 {
+            2.0 * (self.realizations - 1) as f64
+        } else {
+            2.0 * (self.periods.max(1) - 1) as f64
         }
     }
 

@@ -531,7 +531,9 @@ fn backward_conj(l: &[C64], m: usize, v: &mut [C64]) {
 
 /// The LPM FRF on the log grid `f_lo … f_hi` (Hz, `points_per_decade`
 /// points per decade, as [`Frf::estimate`]): magnitude, unwrapped phase,
-/// the SNR-form coherence, σ per line and the resolution `(2n + 1) Δf`.
+/// the SNR-form coherence, σ per line, the resolution `(2n + 1) Δf` and
+/// σ's degrees of freedom stated as infinite (weighted as known: see the
+/// comment in the body).
 ///
 /// # Errors
 /// [`FrfError::Options`] (too few degrees of freedom),
@@ -556,6 +558,13 @@ pub fn estimate(
         frf.sigma_m_per_a.push(line.sigma_m_per_a);
         frf.resolution_hz
             .push((2 * line.half_width_bins + 1) as f64 * spectra.bin_hz());
+        // Weighted as known: σ̂²_V has 2q real degrees of freedom, but it
+        // also holds the local polynomials' approximation error, and the
+        // fits on it are calibrated with the known-variance law (χ²/ν
+        // 0.67–0.91 where 2q = 14 would predict 1.17: the model error
+        // floor, `tests/cli/uncertainty.rs`); its own interval uses q
+        // (module docs).
+        frf.sigma_dof.push(f64::INFINITY);
     }
     unwrap_deg(&mut frf.phase_deg);
     frf.frequency_hz = frequency_hz;

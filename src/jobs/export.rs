@@ -1,7 +1,7 @@
 //! `bench export` as a job: a recording's channel as a table
 //! ([`crate::record::export`]), except that the FRF channel exported as CSV
 //! is written in the FRF CSV format of `bench chirp`
-//! (`frequency_hz,magnitude_m_per_a,phase_deg,coherence,sigma_m_per_a,resolution_hz`,
+//! (`frequency_hz,magnitude_m_per_a,phase_deg,coherence,sigma_m_per_a,resolution_hz,sigma_dof`,
 //! [`crate::ident::frf::Frf::write_csv_to`]), the one `bench fit`,
 //! `bench design` and `bench control --frf` read: an exported FRF travels
 //! to the other commands as it is. Parquet keeps the generic table

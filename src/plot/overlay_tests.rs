@@ -23,6 +23,7 @@ fn frf(f: &[f64], h: impl Fn(f64) -> C64, coh: impl Fn(f64) -> f64) -> Frf {
             coh(x),
             f64::NAN,
             f64::NAN,
+            f64::NAN,
         ])
         .unwrap();
     }
@@ -281,8 +282,16 @@ fn overlay_nyquist_keeps_a_circle_round() {
         .collect();
     let mut fr = Frf::empty();
     for (x, v) in f.iter().zip(&h) {
-        fr.push_checked([*x, v.norm(), v.arg().to_degrees(), 0.2, f64::NAN, f64::NAN])
-            .unwrap();
+        fr.push_checked([
+            *x,
+            v.norm(),
+            v.arg().to_degrees(),
+            0.2,
+            f64::NAN,
+            f64::NAN,
+            f64::NAN,
+        ])
+        .unwrap();
     }
     unwrap_deg(&mut fr.phase_deg);
     let traces = [OverlayTrace {

@@ -174,6 +174,10 @@ pub struct FrfRecord<'a> {
     /// Width of the band of DFT bins each line's estimate draws on, Hz
     /// (absent in recordings made before it existed: unknown).
     pub resolution_hz: &'a [f64],
+    /// Degrees of freedom of the variance behind `sigma_m_per_a`
+    /// ([`crate::ident::frf::Frf::sigma_dof`]; null: known; absent in
+    /// recordings made before it existed: not stated, taken as known).
+    pub sigma_dof: &'a [f64],
 }
 
 /// A channel every recording opens with ([`base_channel_specs`]).
@@ -596,11 +600,11 @@ impl Recorder {
     /// Writes the identified frequency response `frf` on `/sysid/frf` at
     /// `log_time_ns` (ns of loop time). Arrays: `frequency_hz` in Hz,
     /// `magnitude_m_per_a` in m/A, `phase_deg` in degrees, `coherence`
-    /// dimensionless (0…1), `sigma_m_per_a` in m/A, `resolution_hz` in Hz;
-    /// non-finite entries become `null`.
+    /// dimensionless (0…1), `sigma_m_per_a` in m/A, `resolution_hz` in Hz,
+    /// `sigma_dof` dimensionless; non-finite entries become `null`.
     ///
     /// # Errors
-    /// [`RecordError::FrfLength`] if the six slices differ in length;
+    /// [`RecordError::FrfLength`] if the seven slices differ in length;
     /// [`RecordError::Json`] / [`RecordError::Mcap`].
     pub fn write_frf(&mut self, log_time_ns: u64, frf: &FrfRecord<'_>) -> Result<(), RecordError> {
         let n = frf.frequency_hz.len();
@@ -610,6 +614,7 @@ impl Recorder {
             frf.coherence.len(),
             frf.sigma_m_per_a.len(),
             frf.resolution_hz.len(),
+            frf.sigma_dof.len(),
         ];
         if lengths.iter().any(|l| *l != n) {
             return Err(RecordError::FrfLength {
@@ -619,6 +624,7 @@ impl Recorder {
                 coherence: lengths[2],
                 sigma: lengths[3],
                 resolution: lengths[4],
+                dof: lengths[5],
             });
         }
         // The channel's type is `FrfRecord<'static>`; this one borrows.

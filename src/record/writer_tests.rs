@@ -183,6 +183,7 @@ fn record_roundtrip_full_file() {
     let coh = [0.99, 0.95, 0.5];
     let sigma = [1e-5, 2e-5, f64::NAN];
     let resolution = [0.1, 0.1, 0.2];
+    let dof = [6.0, 6.0, f64::INFINITY];
     let lines = FrfRecord {
         frequency_hz: &freq,
         magnitude_m_per_a: &mag,
@@ -190,6 +191,7 @@ fn record_roundtrip_full_file() {
         coherence: &coh,
         sigma_m_per_a: &sigma,
         resolution_hz: &resolution,
+        sigma_dof: &dof,
     };
     rec.write_frf(log_time_ns(0.2), &lines).unwrap();
     // Extra channel through the generic API.
@@ -358,6 +360,7 @@ fn record_roundtrip_full_file() {
     assert_eq!(f["coherence"], json!([0.99, 0.95, 0.5]));
     assert_eq!(f["sigma_m_per_a"], json!([1e-5, 2e-5, null]));
     assert_eq!(f["resolution_hz"], json!([0.1, 0.1, 0.2]));
+    assert_eq!(f["sigma_dof"], json!([6.0, 6.0, null]));
     let frf_msg = msgs.iter().find(|m| m.channel.topic == TOPIC_FRF).unwrap();
     assert_eq!(frf_msg.log_time, 200_000_000);
 

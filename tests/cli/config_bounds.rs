@@ -440,7 +440,8 @@ fn documented(key: &str, c: &Value) -> Option<(Doc, bool)> {
         "chirp.taper_s" => (closed(0.0, f("chirp.duration_s")? / 2.0), req),
         "chirp.lead_in_s" | "chirp.tail_s" => (closed(0.0, 60.0), req),
         // [multisine] (README: the lowest line 1 / period_s at or below
-        // f_start_hz; random phases need two realizations).
+        // f_start_hz; random phases need four realizations: a variance of
+        // 2(M − 1) ≥ 6 degrees of freedom).
         "multisine.period_s" => (
             Doc {
                 fuzzy: true,
@@ -449,7 +450,7 @@ fn documented(key: &str, c: &Value) -> Option<(Doc, bool)> {
             opt,
         ),
         "multisine.periods" => (closed(2.0, 1000.0), opt),
-        "multisine.realizations" => (closed(2.0, 1000.0), opt),
+        "multisine.realizations" => (closed(4.0, 1000.0), opt),
         "multisine.transient_periods" => (closed(0.0, 100.0), opt),
         "multisine.lines_per_decade" => (closed(10.0, 10_000.0), opt),
         // At most 10 points per smoothing window (README: 10 ln(10) /

@@ -124,10 +124,7 @@ fn the_frf_exports_as_the_frf_csv_that_fit_reads() {
     let exported_path = dir.path().join("run.sysid-frf.csv");
     let exported = std::fs::read_to_string(&exported_path).unwrap();
     let frf_csv = std::fs::read_to_string(dir.path().join("run.frf.csv")).unwrap();
-    assert_eq!(
-        exported.lines().next(),
-        Some("frequency_hz,magnitude_m_per_a,phase_deg,coherence,sigma_m_per_a,resolution_hz")
-    );
+    assert_eq!(exported.lines().next(), Some(bench::ident::frf::CSV_HEADER));
     assert_eq!(exported, frf_csv, "the export is the chirp's FRF CSV");
     // bench fit: the exported CSV and the recording give the same modes
     // and the same exit status (this short sweep's fit may be flagged,

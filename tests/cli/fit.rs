@@ -822,17 +822,19 @@ fn non_finite<T: serde::Serialize>(v: &T) -> Vec<String> {
 /// One generated FRF: its lines, the CSV form, and how it was made.
 #[derive(Debug, Clone)]
 struct FuzzFrf {
-    /// `[frequency_hz, magnitude_m_per_a, phase_deg, coherence, sigma_m_per_a, resolution_hz]`.
-    lines: Vec<[f64; 6]>,
-    /// Six columns (else the four of earlier versions).
-    six: bool,
+    /// `[frequency_hz, magnitude_m_per_a, phase_deg, coherence, sigma_m_per_a,
+    /// resolution_hz, sigma_dof]`.
+    lines: Vec<[f64; 7]>,
+    /// Columns written: 7, or the 6 or 4 of earlier versions.
+    columns: usize,
     /// `{:e}` (else `{}`) for every number.
     exponent: bool,
 }
 
 impl FuzzFrf {
     /// The Chapter 5 bench's exact sampled response on `n` log-spaced
-    /// lines from `f_lo` to `f_hi` Hz, σ 0.1 % of |H|, phase unwrapped.
+    /// lines from `f_lo` to `f_hi` Hz, σ 0.1 % of |H| of 6 degrees of
+    /// freedom (a four-realization multisine's), phase unwrapped.
     fn model(n: usize, f_lo: f64, f_hi: f64) -> Self {
         use std::sync::OnceLock;
         static ZOH: OnceLock<ZohPlant> = OnceLock::new();
@@ -856,23 +858,23 @@ impl FuzzFrf {
                     off += 360.0;
                 }
                 last = p;
-                [f, h.norm(), p, 0.999, 1e-3 * h.norm(), 0.01 * f]
+                [f, h.norm(), p, 0.999, 1e-3 * h.norm(), 0.01 * f, 6.0]
             })
             .collect();
         Self {
             lines,
-            six: true,
+            columns: 7,
             exponent: true,
         }
     }
 
     fn csv(&self) -> String {
-        let mut s = String::from(if self.six {
-            "frequency_hz,magnitude_m_per_a,phase_deg,coherence,sigma_m_per_a,resolution_hz\n"
-        } else {
-            "frequency_hz,magnitude_m_per_a,phase_deg,coherence\n"
+        let mut s = String::from(match self.columns {
+            7 => "frequency_hz,magnitude_m_per_a,phase_deg,coherence,sigma_m_per_a,resolution_hz,sigma_dof\n",
+            6 => "frequency_hz,magnitude_m_per_a,phase_deg,coherence,sigma_m_per_a,resolution_hz\n",
+            _ => "frequency_hz,magnitude_m_per_a,phase_deg,coherence\n",
         });
-        let cols = if self.six { 6 } else { 4 };
+        let cols = self.columns;
         for l in &self.lines {
             let fields: Vec<String> = l[..cols]
                 .iter()
@@ -939,7 +941,8 @@ enum Mutation {
     PhaseOffset(f64),
     /// One line's phase.
     Phase(usize, f64),
-    /// One line's coherence, σ or resolution (column 3, 4 or 5).
+    /// One line's coherence, σ, resolution or σ's degrees of freedom
+    /// (column 3, 4, 5 or 6).
     Column(usize, usize, f64),
     /// Every line's magnitude log-uniform in 10^lo … 10^hi and phase
     /// uniform in ± the last, degrees: data no bench measured, within or
@@ -947,6 +950,8 @@ enum Mutation {
     Garbage(u64, i32, i32, f64),
     /// The 4-column form.
     FourColumns,
+    /// The 6-column form (degrees of freedom not stated).
+    SixColumns,
     /// `{}` formatting.
     Plain,
 }
@@ -979,7 +984,7 @@ impl Mutation {
             }
             Self::PhaseOffset(x) => l.iter_mut().for_each(|v| v[2] += x),
             Self::Phase(i, x) => l[i % n][2] = x,
-            Self::Column(i, c, x) => l[i % n][3 + c % 3] = x,
+            Self::Column(i, c, x) => l[i % n][3 + c % 4] = x,
             Self::Garbage(seed, lo, hi, span) => {
                 use rand::Rng;
                 let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
@@ -989,7 +994,8 @@ impl Mutation {
                     v[4] = 1e-2 * v[1];
                 }
             }
-            Self::FourColumns => frf.six = false,
+            Self::FourColumns => frf.columns = 4,
+            Self::SixColumns => frf.columns = frf.columns.min(6),
             Self::Plain => frf.exponent = false,
         }
     }
@@ -1022,7 +1028,13 @@ fn mutation() -> impl proptest::strategy::Strategy<Value = Mutation> {
         ])
         .prop_map(Mutation::PhaseOffset),
         (line.clone(), special.clone()).prop_map(|(i, x)| Mutation::Phase(i, x)),
-        (line, 0usize..3, special).prop_map(|(i, c, x)| Mutation::Column(i, c, x)),
+        (line.clone(), 0usize..4, special).prop_map(|(i, c, x)| Mutation::Column(i, c, x)),
+        // σ's degrees of freedom about the fewest the fit weights with.
+        (
+            line,
+            prop::sample::select(vec![0.5, 1.0, 2.0, 4.0, 5.999, 6.0, 1e12])
+        )
+            .prop_map(|(i, d)| Mutation::Column(i, 3, d)),
         (
             any::<u64>(),
             -21i32..=-2,
@@ -1031,6 +1043,7 @@ fn mutation() -> impl proptest::strategy::Strategy<Value = Mutation> {
         )
             .prop_map(|(s, lo, hi, span)| Mutation::Garbage(s, lo, hi, span)),
         Just(Mutation::FourColumns),
+        Just(Mutation::SixColumns),
         Just(Mutation::Plain),
     ]
 }
@@ -1187,6 +1200,15 @@ fn fuzzed_frfs_never_panic_design_fit_or_plot() {
         // CI's proptest find: one line's magnitude 5e-324 m/A (a mass
         // line the limit refuses) left the limit's band edge NaN.
         ("one-line-subnormal", vec![Mutation::Column(20, 1, 5e-324)]),
+        // σ's degrees of freedom: too few on one line (the fit does not
+        // take σ as the noise), not a number, infinite, the 6 columns.
+        ("one-line-dof-4", vec![Mutation::Column(20, 3, 4.0)]),
+        ("one-line-dof-nan", vec![Mutation::Column(5, 3, f64::NAN)]),
+        (
+            "one-line-dof-inf",
+            vec![Mutation::Column(5, 3, f64::INFINITY)],
+        ),
+        ("six-columns", vec![Mutation::SixColumns]),
     ];
     let mut ran = 0;
     let mut failures = Vec::new();

@@ -591,7 +591,7 @@ fn the_daemon_plays_a_multisine_config() {
     use daemon_fixtures::Daemon;
     let d = Daemon::start_edited(
         &[],
-        "\n[multisine]\nperiod_s = 0.2\nrealizations = 2\n",
+        "\n[multisine]\nperiod_s = 0.2\nrealizations = 4\n",
         |t| {
             t.lines()
                 .filter(|l| !l.starts_with("duration_s =") && !l.starts_with("taper_s ="))
@@ -628,7 +628,7 @@ fn the_daemon_plays_a_multisine_config() {
     let o = run(&["chirp", "--daemon", &d.sock(), "--pace", "off", "--json"]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let s = json_stdout(&o);
-    assert_eq!(s["multisine"]["realizations"], 2, "{s}");
+    assert_eq!(s["multisine"]["realizations"], 4, "{s}");
     assert!((s["multisine"]["period_s"].as_f64().unwrap() - 0.2).abs() < 1e-12);
     let bla = Path::new(s["multisine"]["bla_csv"].as_str().unwrap());
     assert!(bla.exists(), "{}", bla.display());

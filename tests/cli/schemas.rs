@@ -421,7 +421,10 @@ fn recorded_messages_match_their_channel_schemas() {
     assert_eq!(keys(&events[0]), names("tick t_s kind state fault value"));
     assert_eq!(
         keys(&chirp["/sysid/frf"].messages[0]),
-        names("frequency_hz magnitude_m_per_a phase_deg coherence sigma_m_per_a resolution_hz")
+        names(
+            "frequency_hz magnitude_m_per_a phase_deg coherence sigma_m_per_a resolution_hz \
+             sigma_dof"
+        )
     );
     assert_eq!(
         keys(&control["/control/metrics"].messages[0]),
@@ -511,7 +514,7 @@ fn recorded_messages_match_their_channel_schemas() {
         &frf.schema,
         &replaced(&frf.messages[0], "/coherence/0", json!(true))
     ));
-    for pointer in ["/sigma_m_per_a/0", "/resolution_hz/0"] {
+    for pointer in ["/sigma_m_per_a/0", "/resolution_hz/0", "/sigma_dof/0"] {
         assert!(
             !valid(
                 &frf.schema,

@@ -77,19 +77,21 @@ pub fn read_frf_csv(path: &Path) -> Vec<[f64; 4]> {
 }
 
 /// Rows of the FRF CSV, every column: (frequency_hz, magnitude_m_per_a,
-/// phase_deg, coherence, sigma_m_per_a, resolution_hz).
-pub fn read_frf_csv_full(path: &Path) -> Vec<[f64; 6]> {
+/// phase_deg, coherence, sigma_m_per_a, resolution_hz, sigma_dof).
+pub fn read_frf_csv_full(path: &Path) -> Vec<[f64; 7]> {
     let text = std::fs::read_to_string(path).expect("FRF CSV");
     let mut lines = text.lines();
     assert_eq!(
         lines.next(),
-        Some("frequency_hz,magnitude_m_per_a,phase_deg,coherence,sigma_m_per_a,resolution_hz")
+        Some(
+            "frequency_hz,magnitude_m_per_a,phase_deg,coherence,sigma_m_per_a,resolution_hz,sigma_dof"
+        )
     );
     lines
         .map(|l| {
             let v: Vec<f64> = l.split(',').map(|x| x.parse().expect("number")).collect();
-            assert_eq!(v.len(), 6, "{l}");
-            [v[0], v[1], v[2], v[3], v[4], v[5]]
+            assert_eq!(v.len(), 7, "{l}");
+            [v[0], v[1], v[2], v[3], v[4], v[5], v[6]]
         })
         .collect()
 }
@@ -315,6 +317,7 @@ pub fn noisy_frf(
         coherence: vec![1.0 / (1.0 + noise * noise); f.len()],
         sigma_m_per_a: sigma,
         resolution_hz: vec![0.0; f.len()],
+        sigma_dof: vec![f64::INFINITY; f.len()],
         frequency_hz: f,
     }
 }

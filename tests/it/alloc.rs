@@ -268,7 +268,7 @@ fn multisine_tick_allocates_nothing() {
     cfg.multisine = Some(MultisineConfig {
         period_s: Some(0.2),
         periods: 2,
-        realizations: 3,
+        realizations: 4,
         transient_periods: 1,
         ..Default::default()
     });

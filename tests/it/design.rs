@@ -40,6 +40,7 @@ fn model_frf(cfg: &BenchConfig) -> Frf {
         coherence: vec![1.0; f.len()],
         sigma_m_per_a: vec![0.0; f.len()],
         resolution_hz: vec![f64::NAN; f.len()],
+        sigma_dof: vec![f64::NAN; f.len()],
         frequency_hz: f,
     }
 }

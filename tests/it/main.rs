@@ -9,6 +9,7 @@ mod daemon_fixtures;
 
 mod alloc;
 mod analysis_reference;
+mod bla_statistics;
 mod design;
 mod layout;
 mod loop_reference;

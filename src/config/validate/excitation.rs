@@ -201,7 +201,7 @@ impl BenchConfig {
                 "multisine.realizations",
                 ms.realizations,
                 ranges::MULTISINE_REALIZATIONS,
-                "random phases need two realizations at least for the variance over them (four or more recommended)",
+                "random phases need four realizations at least: the variance over M realizations has 2(M − 1) degrees of freedom, and a fit weighted by fewer than 6 has no finite reference for its cost or its 1σ (Pintelon & Schoukens 2012, §10.3)",
             )?,
             MultisinePhases::Schroeder => {
                 if ms.realizations != 1 {

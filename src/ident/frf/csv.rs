@@ -1,5 +1,5 @@
-//! The FRF CSV: writing it (atomically) and reading it back, six columns or
-//! the older four.
+//! The FRF CSV: writing it (atomically) and reading it back, seven columns
+//! or the older six and four.
 
 use super::*;
 
@@ -52,7 +52,7 @@ pub(crate) fn too_many_points(what: &str) -> String {
 
 impl Frf {
     /// Writes the CSV
-    /// `frequency_hz,magnitude_m_per_a,phase_deg,coherence,sigma_m_per_a,resolution_hz`
+    /// `frequency_hz,magnitude_m_per_a,phase_deg,coherence,sigma_m_per_a,resolution_hz,sigma_dof`
     /// ([`CSV_HEADER`]) to `path` through a temporary file renamed when complete
     /// ([`outputs::write_atomically`](crate::outputs::write_atomically)):
     /// a failed write leaves nothing under `path`, and an existing `path`
@@ -69,14 +69,17 @@ impl Frf {
     }
 
     /// Reads the CSV `bench chirp` writes ([`CSV_HEADER`]:
-    /// `frequency_hz,magnitude_m_per_a,phase_deg,coherence,sigma_m_per_a,resolution_hz`),
-    /// or the 4-column one of earlier versions ([`CSV_HEADER_4`], without
-    /// the last two: σ and resolution are then NaN, unknown), checking
+    /// `frequency_hz,magnitude_m_per_a,phase_deg,coherence,sigma_m_per_a,resolution_hz,sigma_dof`),
+    /// or the 6-column one of earlier versions ([`CSV_HEADER_6`], without
+    /// the last: σ's degrees of freedom are then NaN, not stated) or the
+    /// 4-column one ([`CSV_HEADER_4`], without the last three: σ,
+    /// resolution and degrees of freedom NaN, unknown), checking
     /// every field ([`Self::push_checked`]): frequencies in
     /// [`FREQUENCY_RANGE_HZ`] and ascending; magnitudes in
     /// [`MAGNITUDE_RANGE_M_PER_A`]; phases within ±[`MAX_ABS_PHASE_DEG`];
     /// coherence in 0 … 1; σ in 0 … the largest magnitude; resolution
-    /// above 0 and at most the highest frequency; at least
+    /// above 0 and at most the highest frequency; degrees of freedom at
+    /// least 1 (or `inf`, a known variance); at least
     /// [`MIN_CSV_POINTS`] rows, at most [`MAX_CSV_POINTS`].
     ///
     /// # Errors
@@ -85,12 +88,13 @@ impl Frf {
     pub fn read_csv(text: &str) -> Result<Self, String> {
         let mut lines = text.lines();
         let columns = match lines.next() {
-            Some(h) if h.trim_end() == CSV_HEADER => 6,
+            Some(h) if h.trim_end() == CSV_HEADER => 7,
+            Some(h) if h.trim_end() == CSV_HEADER_6 => 6,
             Some(h) if h.trim_end() == CSV_HEADER_4 => 4,
             Some(h) => {
                 return Err(format!(
-                    "line 1: the header is {h:?}, not {CSV_HEADER} (the CSV bench chirp writes) \
-                     or {CSV_HEADER_4} (that of earlier versions)"
+                    "line 1: the header is {h:?}, not {CSV_HEADER} (the CSV bench chirp writes), \
+                     {CSV_HEADER_6} or {CSV_HEADER_4} (those of earlier versions)"
                 ))
             }
             None => {
@@ -116,7 +120,7 @@ impl Frf {
                     CSV_COLUMNS[..columns].join(",")
                 ));
             }
-            let mut v = [f64::NAN; 6];
+            let mut v = [f64::NAN; 7];
             for (j, f) in fields.iter().enumerate() {
                 v[j] = f.trim().parse::<f64>().map_err(|e| {
                     format!(
@@ -125,7 +129,8 @@ impl Frf {
                         f.trim()
                     )
                 })?;
-                if j >= 4 && !v[j].is_finite() {
+                // The degrees of freedom may be infinite (a known variance).
+                if j >= 4 && !v[j].is_finite() && !(j == 6 && v[j] == f64::INFINITY) {
                     return Err(format!(
                         "line {n}: {}: {} is not finite (only the 4-column CSV leaves it unknown)",
                         CSV_COLUMNS[j],
@@ -145,17 +150,18 @@ impl Frf {
     }
 
     /// Appends the point `[frequency_hz, magnitude_m_per_a, phase_deg,
-    /// coherence, sigma_m_per_a, resolution_hz]` after checking it: the
+    /// coherence, sigma_m_per_a, resolution_hz, sigma_dof]` after checking it: the
     /// first four finite; frequency in [`FREQUENCY_RANGE_HZ`] and above the
     /// last one; magnitude in [`MAGNITUDE_RANGE_M_PER_A`]; |phase| at most
     /// [`MAX_ABS_PHASE_DEG`]; coherence in 0 … 1; σ NaN (unknown) or in 0 …
     /// the largest magnitude; resolution NaN (unknown) or above 0 and at
-    /// most the highest frequency. The one check of every FRF read (CSV,
-    /// recording).
+    /// most the highest frequency; degrees of freedom NaN (not stated),
+    /// infinite (known) or at least 1. The one check of every FRF read
+    /// (CSV, recording).
     ///
     /// # Errors
     /// The reason, naming the column and the range; nothing is appended.
-    pub fn push_checked(&mut self, v: [f64; 6]) -> Result<(), String> {
+    pub fn push_checked(&mut self, v: [f64; 7]) -> Result<(), String> {
         if let Some(j) = v[..4].iter().position(|x| !x.is_finite()) {
             return Err(format!("{}: {} is not finite", CSV_COLUMNS[j], show(v[j])));
         }
@@ -209,12 +215,20 @@ impl Frf {
                 show(v[5])
             ));
         }
+        if !(v[6].is_nan() || v[6] >= 1.0) {
+            return Err(format!(
+                "sigma_dof: {} is not the degrees of freedom of a variance estimate (at least 1, \
+                 or inf for a known variance)",
+                show(v[6])
+            ));
+        }
         self.frequency_hz.push(v[0]);
         self.magnitude_m_per_a.push(v[1]);
         self.phase_deg.push(v[2]);
         self.coherence.push(v[3]);
         self.sigma_m_per_a.push(v[4]);
         self.resolution_hz.push(v[5]);
+        self.sigma_dof.push(v[6]);
         Ok(())
     }
 
@@ -227,13 +241,14 @@ impl Frf {
         for i in 0..self.frequency_hz.len() {
             writeln!(
                 w,
-                "{:.6},{:.6e},{:.3},{:.5},{:.6e},{:.6e}",
+                "{:.6},{:.6e},{:.3},{:.5},{:.6e},{:.6e},{}",
                 self.frequency_hz[i],
                 self.magnitude_m_per_a[i],
                 self.phase_deg[i],
                 self.coherence[i],
                 self.sigma_m_per_a[i],
-                self.resolution_hz[i]
+                self.resolution_hz[i],
+                self.sigma_dof[i]
             )?;
         }
         w.flush()

@@ -163,20 +163,70 @@ pub struct Frf {
     /// `(2n + 1) Δf`; H1: the Hann window's full width `2 h(f)`. NaN:
     /// unknown (as for `sigma_m_per_a`).
     pub resolution_hz: Vec<f64>,
+    /// Degrees of freedom of the variance `σ̂²` behind `sigma_m_per_a`
+    /// (real, as of a χ²): `σ̂²/σ² ~ χ²_d / d`. A multisine's BLA from M
+    /// realizations: `2(M − 1)` (one realization: `2(P − 1)` from its P
+    /// periods). Infinite: the variance is known, or weighted as known:
+    /// H1, whose σ is the first-order formula from the coherence
+    /// ([`h1_sigma_m_per_a`], its own interval [`h1_radius_95`]), and the
+    /// LPM, whose σ̂ has `2q` degrees of freedom but also holds the local
+    /// polynomials' approximation error, so that the fits on it follow
+    /// the known-variance law (`crate::ident::lpm::estimate`). NaN: not
+    /// stated (an FRF read from a CSV or a recording made before the
+    /// column existed), taken as known. A residual against σ̂ then follows
+    /// `|Ĥ − H|²/σ̂² ~ F(2, d)`, not `χ²₂/2` ([`radius_95`]).
+    pub sigma_dof: Vec<f64>,
+}
+
+/// Fewest degrees of freedom of a line's variance estimate that a fit
+/// weights with (6: M = 4 realizations of a multisine). With `d` degrees
+/// of freedom the cost of a fit weighted by `1/σ̂²` has the expectation
+/// `d/(d − 2)` and the variance `d³/((d − 2)²(d − 4))` times those of a
+/// known variance (`F(2, d)` per line) and its parameters' covariance
+/// `(d − 2)/(d − 4)` times (Pintelon & Schoukens, *System
+/// Identification*, 2nd ed. 2012, §10.3, the sample maximum likelihood
+/// estimator: `(M − 1)/(M − 2)` and `(M − 2)/(M − 3)` at `d = 2(M − 1)`):
+/// at `d ≤ 4` the cost test and the covariance have no finite reference.
+pub const MIN_SIGMA_DOF: f64 = 6.0;
+
+/// Radius of the 95 % confidence circle of a response whose complex 1σ
+/// `sigma` (m/A, `√E|Ĥ − H|²`) is estimated with `dof` real degrees of
+/// freedom ([`Frf::sigma_dof`]; infinite or NaN: known), in the unit of
+/// `sigma`: `|Ĥ − H|²/σ̂² ~ F(2, d)`, whose quantile is closed-form,
+/// `F(2, d; p) = (d/2)((1 − p)^{−2/d} − 1)`, and `−ln(1 − p)` for a known
+/// variance. So `r = 2.27 σ̂` at `d = 6` (a multisine's four
+/// realizations), `1.73 σ̂` for a known variance (Pintelon & Schoukens
+/// 2012, ch. 4; the H1 form is [`h1_radius_95`]). Infinite for `dof` ≤ 0.
+pub fn radius_95(sigma: f64, dof: f64) -> f64 {
+    let p = 0.95f64;
+    let f = if dof.is_nan() || dof.is_infinite() {
+        -(1.0 - p).ln()
+    } else if dof > 0.0 {
+        0.5 * dof * ((1.0 - p).powf(-2.0 / dof) - 1.0)
+    } else {
+        f64::INFINITY
+    };
+    sigma * f.sqrt()
 }
 
 /// The columns of the FRF CSV, in order.
-pub const CSV_COLUMNS: [&str; 6] = [
+pub const CSV_COLUMNS: [&str; 7] = [
     "frequency_hz",
     "magnitude_m_per_a",
     "phase_deg",
     "coherence",
     "sigma_m_per_a",
     "resolution_hz",
+    "sigma_dof",
 ];
 
 /// The header of the FRF CSV `bench chirp` writes.
 pub const CSV_HEADER: &str =
+    "frequency_hz,magnitude_m_per_a,phase_deg,coherence,sigma_m_per_a,resolution_hz,sigma_dof";
+
+/// The header of the 6-column FRF CSV of earlier versions, still read
+/// (σ's degrees of freedom not stated: taken as known).
+pub const CSV_HEADER_6: &str =
     "frequency_hz,magnitude_m_per_a,phase_deg,coherence,sigma_m_per_a,resolution_hz";
 
 /// The header of the 4-column FRF CSV of earlier versions, still read
@@ -291,6 +341,10 @@ impl Frf {
                 .iter()
                 .map(|&f| 2.0 * spectra.half_width_hz(f))
                 .collect(),
+            // H1's σ is the first-order formula from the coherence, not a
+            // variance estimate with a χ² law (its finite-sample interval
+            // is `h1_radius_95`'s): weighted as known.
+            sigma_dof: vec![f64::INFINITY; frequency_hz.len()],
             phase_deg,
             frequency_hz,
         }
@@ -329,6 +383,7 @@ impl Frf {
             coherence: Vec::new(),
             sigma_m_per_a: Vec::new(),
             resolution_hz: Vec::new(),
+            sigma_dof: Vec::new(),
         }
     }
 
@@ -343,6 +398,7 @@ impl Frf {
                 out.coherence.push(self.coherence[i]);
                 out.sigma_m_per_a.push(self.sigma_m_per_a[i]);
                 out.resolution_hz.push(self.resolution_hz[i]);
+                out.sigma_dof.push(self.sigma_dof[i]);
             }
         }
         out

@@ -36,6 +36,9 @@ pub fn read_frf(bytes: &[u8]) -> Result<RecordedFrf, String> {
         sigma_m_per_a: Option<Vec<Option<f64>>>,
         #[serde(default)]
         resolution_hz: Option<Vec<Option<f64>>>,
+        // Null: a known variance (infinite); absent: not stated.
+        #[serde(default)]
+        sigma_dof: Option<Vec<Option<f64>>>,
     }
     let read = crate::record::read_messages_tolerant(bytes);
     if read.messages.is_empty() {
@@ -77,12 +80,17 @@ pub fn read_frf(bytes: &[u8]) -> Result<RecordedFrf, String> {
     };
     let sigma = unknown(p.sigma_m_per_a);
     let resolution = unknown(p.resolution_hz);
+    let dof: Vec<f64> = match p.sigma_dof {
+        Some(v) => v.into_iter().map(|x| x.unwrap_or(f64::INFINITY)).collect(),
+        None => vec![f64::NAN; n],
+    };
     for (name, len) in [
         ("magnitude_m_per_a", p.magnitude_m_per_a.len()),
         ("phase_deg", p.phase_deg.len()),
         ("coherence", p.coherence.len()),
         ("sigma_m_per_a", sigma.len()),
         ("resolution_hz", resolution.len()),
+        ("sigma_dof", dof.len()),
     ] {
         if len != n {
             return Err(format!(
@@ -100,6 +108,7 @@ pub fn read_frf(bytes: &[u8]) -> Result<RecordedFrf, String> {
             p.coherence[k],
             sigma[k],
             resolution[k],
+            dof[k],
         ])
         .map_err(|e| format!("{}: point {}: {e}", crate::record::TOPIC_FRF, k + 1))?;
     }

@@ -63,51 +63,88 @@ fn small_frf() -> Frf {
     let mut frf = Frf::empty();
     for i in 0..12 {
         let f = 1.0 + i as f64;
-        frf.push_checked([f, 1e-4 / f, -10.0 * f, 0.9, 1e-6 / f, 0.2])
+        frf.push_checked([f, 1e-4 / f, -10.0 * f, 0.9, 1e-6 / f, 0.2, 14.0])
             .unwrap();
     }
     frf
 }
 
 #[test]
-fn the_csv_round_trips_and_the_four_column_form_still_reads() {
+fn the_csv_round_trips_and_the_six_and_four_column_forms_still_read() {
     let frf = small_frf();
     let mut out = Vec::new();
     frf.write_csv_to(&mut out).unwrap();
     let text = String::from_utf8(out).unwrap();
     assert!(text.starts_with(
-        "frequency_hz,magnitude_m_per_a,phase_deg,coherence,sigma_m_per_a,resolution_hz\n"
+        "frequency_hz,magnitude_m_per_a,phase_deg,coherence,sigma_m_per_a,resolution_hz,sigma_dof\n"
     ));
     let back = Frf::read_csv(&text).unwrap();
     for i in 0..12 {
         assert!((back.sigma_m_per_a[i] / frf.sigma_m_per_a[i] - 1.0).abs() < 1e-6);
         assert!((back.resolution_hz[i] - 0.2).abs() < 1e-9);
+        assert_eq!(back.sigma_dof[i], 14.0);
     }
-    // The 4-column form: σ and resolution unknown (NaN).
-    let four: String = text
-        .lines()
-        .map(|l| l.split(',').take(4).collect::<Vec<_>>().join(",") + "\n")
-        .collect();
+    let columns = |n: usize| -> String {
+        text.lines()
+            .map(|l| l.split(',').take(n).collect::<Vec<_>>().join(",") + "\n")
+            .collect()
+    };
+    // The 6-column form: the degrees of freedom not stated (NaN).
+    let six = Frf::read_csv(&columns(6)).unwrap();
+    assert_eq!(six.sigma_m_per_a, back.sigma_m_per_a);
+    assert!(six.sigma_dof.iter().all(|d| d.is_nan()));
+    // The 4-column form: σ, resolution and degrees of freedom unknown.
+    let four = columns(4);
     let old = Frf::read_csv(&four).unwrap();
     assert_eq!(old.frequency_hz, back.frequency_hz);
     assert!(old.sigma_m_per_a.iter().all(|s| s.is_nan()));
     assert!(old.resolution_hz.iter().all(|r| r.is_nan()));
-    // In the 6-column form σ and resolution must be given.
+    assert!(old.sigma_dof.iter().all(|d| d.is_nan()));
+    // In the 7-column form σ, resolution and degrees of freedom must be
+    // given; the degrees of freedom may be infinite (a known variance).
     for (from, to, col) in [
         (",1.000000e-6,", ",NaN,", "sigma_m_per_a"),
         (",1.000000e-6,", ",-1e-9,", "sigma_m_per_a"),
-        (",2.000000e-1\n", ",0\n", "resolution_hz"),
-        (",2.000000e-1\n", ",inf\n", "resolution_hz"),
+        (",2.000000e-1,", ",0,", "resolution_hz"),
+        (",2.000000e-1,", ",inf,", "resolution_hz"),
+        (",14\n", ",NaN\n", "sigma_dof"),
+        (",14\n", ",-inf\n", "sigma_dof"),
+        (",14\n", ",0.5\n", "sigma_dof"),
+        (",14\n", ",-6\n", "sigma_dof"),
     ] {
         assert!(text.contains(from), "{from}");
         let e = Frf::read_csv(&text.replacen(from, to, 1)).unwrap_err();
         assert!(e.starts_with("line 2: ") && e.contains(col), "{to}: {e}");
     }
-    // Four fields under the 6-column header, six under the 4-column one.
-    let e = Frf::read_csv(&text.replacen(",1.000000e-6,2.000000e-1", "", 1)).unwrap_err();
-    assert!(e.starts_with("line 2: 4 fields, expected 6"), "{e}");
-    let mixed = four.replacen("1.000000,", "1.000000,1,1,", 2);
+    let known = Frf::read_csv(&text.replacen(",14\n", ",inf\n", 1)).unwrap();
+    assert_eq!(known.sigma_dof[0], f64::INFINITY);
+    // Four fields under the 7-column header, seven under the 4-column one.
+    let e = Frf::read_csv(&text.replacen(",1.000000e-6,2.000000e-1,14", "", 1)).unwrap_err();
+    assert!(e.starts_with("line 2: 4 fields, expected 7"), "{e}");
+    let mixed = four.replacen("1.000000,", "1.000000,1,1,1,", 2);
     assert!(Frf::read_csv(&mixed).is_err());
+}
+
+/// The 95 % circle of a response whose variance has `d` degrees of
+/// freedom: `|Ĥ − H|²/σ̂² ~ F(2, d)`, against scipy's quantile
+/// (`scipy.stats.f.ppf(0.95, 2, d)`: 5.1433 at d = 6, 3.7389 at d = 14,
+/// 3.0411 at d = 200; `scipy.stats.expon.ppf(0.95)` = 2.9957 for a known
+/// variance), and the 2.27σ̂ at M = 4 against 1.73σ̂ known.
+#[test]
+fn the_95_circle_follows_f_of_2_and_the_degrees_of_freedom() {
+    for (d, q) in [
+        (6.0, 5.143_252_849_784_718),
+        (14.0, 3.738_891_832_440_735),
+        (200.0, 3.041_055_791_125_247_6),
+        (f64::INFINITY, 2.995_732_273_553_99),
+        (f64::NAN, 2.995_732_273_553_99),
+    ] {
+        let r = radius_95(2.0, d);
+        assert!((r / (2.0 * f64::sqrt(q)) - 1.0).abs() < 1e-9, "{d}: {r}");
+    }
+    assert!((radius_95(1.0, 6.0) - 2.27).abs() < 0.005);
+    assert!((radius_95(1.0, f64::INFINITY) - 1.73).abs() < 0.005);
+    assert!(radius_95(1.0, 0.0).is_infinite());
 }
 
 /// A recording written before σ and resolution existed: `read_frf`
@@ -152,15 +189,27 @@ fn recordings_with_and_without_sigma_read() {
     assert_eq!(r.frequency_hz, frf.frequency_hz);
     assert!(r.sigma_m_per_a.iter().all(|s| s.is_nan()));
     assert!(r.resolution_hz.iter().all(|s| s.is_nan()));
+    // Degrees of freedom absent: not stated (NaN, taken as known).
+    assert!(r.sigma_dof.iter().all(|d| d.is_nan()));
     let mut new = old.clone();
     let mut sigma: Vec<serde_json::Value> = frf.sigma_m_per_a.iter().map(|s| (*s).into()).collect();
     sigma[3] = serde_json::Value::Null;
     new["sigma_m_per_a"] = sigma.into();
     new["resolution_hz"] = frf.resolution_hz.clone().into();
+    let mut dof: Vec<serde_json::Value> = vec![6.0.into(); 12];
+    dof[5] = serde_json::Value::Null;
+    new["sigma_dof"] = dof.into();
     let r = read_frf(&write(new.clone())).unwrap().frf;
     assert_eq!(r.sigma_m_per_a[0], frf.sigma_m_per_a[0]);
     assert!(r.sigma_m_per_a[3].is_nan());
     assert_eq!(r.resolution_hz, frf.resolution_hz);
+    // A null is a known variance (what an infinite value is written as).
+    assert_eq!(r.sigma_dof[0], 6.0);
+    assert_eq!(r.sigma_dof[5], f64::INFINITY);
+    let mut bad = new.clone();
+    bad["sigma_dof"] = vec![0.5; 12].into();
+    let e = read_frf(&write(bad)).unwrap_err();
+    assert!(e.contains("point 1: sigma_dof"), "{e}");
     // Wrong lengths and values are refused naming the field.
     new["resolution_hz"] = vec![0.2; 3].into();
     let e = read_frf(&write(new.clone())).unwrap_err();

@@ -56,7 +56,7 @@
 //! `Σ = s² (JᵀJ)⁻¹` with `s²` the residual variance per degree of freedom
 //! (so they hold whatever the absolute noise level).
 
-use super::frf::{Frf, C64, MIN_COHERENCE};
+use super::frf::{Frf, C64, MIN_COHERENCE, MIN_SIGMA_DOF};
 use super::lsq::{self, Residuals};
 use nalgebra::{DMatrix, DVector};
 use rayon::prelude::*;
@@ -134,6 +134,9 @@ pub struct FrfData {
     /// line independent; NaN: unknown (the fit then thins only to
     /// [`MAX_POINTS_PER_DECADE`]).
     pub resolution_hz: Vec<f64>,
+    /// Degrees of freedom of each line's variance estimate
+    /// ([`Frf::sigma_dof`]; infinite or NaN: known). Empty: known.
+    pub sigma_dof: Vec<f64>,
 }
 
 impl FrfData {
@@ -142,6 +145,7 @@ impl FrfData {
         Self {
             sigma_m_per_a: frf.sigma_m_per_a.clone(),
             resolution_hz: frf.resolution_hz.clone(),
+            sigma_dof: frf.sigma_dof.clone(),
             frequency_hz: frf.frequency_hz.clone(),
             response: frf
                 .magnitude_m_per_a

@@ -30,10 +30,56 @@ pub(super) struct Params {
 /// - Without: `wₖ = 1/(|Hₖ| √((1 − γₖ²)/γₖ² + ε²))`, the relative,
 ///   coherence-weighted error (Bendat & Piersol, *Random Data*, Eq. 9.90),
 ///   which knows the noise only up to a common scale.
+/// - When a line's variance is estimated with fewer than
+///   [`MIN_SIGMA_DOF`] degrees of freedom ([`FrfData::sigma_dof`]: the
+///   cost test and the covariance then have no finite reference, and a
+///   weight `1/σ̂²` of 4 degrees of freedom has an infinite variance):
+///   the relative error `wₖ = 1/(ε|Hₖ|)`, one weight for every line's
+///   relative error (the coherence, made from the same σ̂, is not used
+///   either).
+///
+/// Each line's effective degrees of freedom (`dof`) are those of its
+/// weight's variance `σ̂ₖ² + (ε|Hₖ|)²`, of which only `σ̂ₖ²` is estimated
+/// (Satterthwaite: `dₖ / ρₖ²`, `ρₖ = σ̂ₖ² / (σ̂ₖ² + (ε|Hₖ|)²)`); infinite
+/// where the variance is known or not stated.
 pub fn weights(data: &FrfData) -> Weights {
-    let noise_estimated = !data.sigma_m_per_a.is_empty()
+    let has_sigma = !data.sigma_m_per_a.is_empty()
         && data.sigma_m_per_a.len() == data.response.len()
         && data.sigma_m_per_a.iter().all(|s| s.is_finite() && *s > 0.0);
+    let stated = |k: usize| {
+        data.sigma_dof
+            .get(k)
+            .copied()
+            .filter(|d| !d.is_nan())
+            .unwrap_or(f64::INFINITY)
+    };
+    let least_dof = (0..data.response.len())
+        .map(stated)
+        .fold(f64::INFINITY, f64::min);
+    let noise_refused = (has_sigma && least_dof < MIN_SIGMA_DOF).then(|| {
+        format!(
+            "σ per line is estimated with {least_dof} degrees of freedom, fewer than \
+             {MIN_SIGMA_DOF} (a multisine of fewer than 4 realizations, or one realization of \
+             fewer than 4 periods): the fit's cost and covariance have no finite reference \
+             with it (nor does the coherence made from it), so it weights every line's relative \
+             error alike and scales its 1σ by the residual"
+        )
+    });
+    let noise_estimated = has_sigma && noise_refused.is_none();
+    let dof = if noise_estimated {
+        data.response
+            .iter()
+            .zip(&data.sigma_m_per_a)
+            .enumerate()
+            .map(|(k, (h, s))| {
+                let floor = MODEL_ERROR_FLOOR * h.norm();
+                let rho = s * s / (s * s + floor * floor);
+                stated(k) / (rho * rho)
+            })
+            .collect()
+    } else {
+        vec![f64::INFINITY; data.response.len()]
+    };
     let scale = if noise_estimated {
         data.response
             .iter()
@@ -46,11 +92,16 @@ pub fn weights(data: &FrfData) -> Weights {
             })
             .collect()
     } else {
+        // A refused σ̂ also made the coherence (γ² = |Ĝ|²/(|Ĝ|² + σ̂²)):
+        // weighted by it, the estimate would scatter as with σ̂ itself
+        // (a weight of infinite variance at 4 degrees of freedom). Then
+        // every line has the same relative weight.
+        let refused = noise_refused.is_some();
         data.response
             .iter()
             .zip(&data.coherence)
             .map(|(h, g)| {
-                let g = g.clamp(1e-6, 1.0);
+                let g = if refused { 1.0 } else { g.clamp(1e-6, 1.0) };
                 let var = (1.0 - g) / g + MODEL_ERROR_FLOOR * MODEL_ERROR_FLOOR;
                 1.0 / (var.sqrt() * h.norm().max(f64::MIN_POSITIVE))
             })
@@ -59,7 +110,37 @@ pub fn weights(data: &FrfData) -> Weights {
     Weights {
         scale,
         noise_estimated,
+        dof,
+        noise_refused,
     }
+}
+
+/// The reference of a fit's weighted cost `Σₖ|eₖ|²` under the noise
+/// alone, over lines whose variances have `dof` effective degrees of
+/// freedom ([`Weights::dof`]) with `params` parameters fitted: each line
+/// adds `2F(2, d)` (`χ²₂` for a known variance), of mean `2d/(d − 2)` and
+/// variance `4d³/((d − 2)²(d − 4))` ([`MIN_SIGMA_DOF`]), both reduced by
+/// `ν/2N` for the fitted parameters (`ν = 2N − p`). Returns `(mean, g,
+/// h)`: the cost is about `g χ²_h` (Satterthwaite's scaled χ², matching
+/// the mean and the variance; exact, `g = 1`, `h = ν`, for known
+/// variances).
+pub(crate) fn cost_reference(dof: &[f64], params: usize) -> (f64, f64, f64) {
+    let lines = dof.len();
+    let nu = (2 * lines).saturating_sub(params).max(1) as f64;
+    let shrink = nu / (2 * lines).max(1) as f64;
+    let (mut mean, mut var) = (0.0, 0.0);
+    for &d in dof {
+        if d.is_finite() {
+            mean += 2.0 * d / (d - 2.0);
+            var += 4.0 * d.powi(3) / ((d - 2.0).powi(2) * (d - 4.0));
+        } else {
+            mean += 2.0;
+            var += 4.0;
+        }
+    }
+    let (mean, var) = (mean * shrink, var * shrink);
+    let g = var / (2.0 * mean);
+    (mean, g, mean / g)
 }
 
 /// The weights of [`weights`].
@@ -71,6 +152,12 @@ pub struct Weights {
     /// (the weighted residual sum of squares is then a χ²); otherwise they
     /// are relative and the noise level comes from the residual.
     pub noise_estimated: bool,
+    /// Effective degrees of freedom of each line's variance (infinite:
+    /// known, or no noise estimate).
+    pub dof: Vec<f64>,
+    /// Why σ per line was not used as the noise (too few degrees of
+    /// freedom), when it was given.
+    pub noise_refused: Option<String>,
 }
 
 /// Precomputed per-point data.
@@ -81,6 +168,13 @@ pub(super) struct Prepared<'a> {
     pub(super) scale: Vec<f64>,
     /// The weights are inverse standard deviations ([`Weights`]).
     pub(super) noise_estimated: bool,
+    /// Effective degrees of freedom of each line's variance ([`Weights::dof`]).
+    pub(super) dof: Vec<f64>,
+    /// [`Weights::noise_refused`].
+    pub(super) noise_refused: Option<String>,
+    /// Each line's stated degrees of freedom ([`FrfData::sigma_dof`],
+    /// NaN where not stated).
+    pub(super) stated_dof: Vec<f64>,
     pub(super) gain: Vec<C64>,
     pub(super) coherent: Vec<bool>,
 }
@@ -91,6 +185,8 @@ impl<'a> Prepared<'a> {
         let Weights {
             scale,
             noise_estimated,
+            dof,
+            noise_refused,
         } = weights(data);
         let gain = w.iter().map(|&w| path.gain(w)).collect();
         let coherent = data.coherence.iter().map(|g| *g >= MIN_COHERENCE).collect();
@@ -99,6 +195,11 @@ impl<'a> Prepared<'a> {
             h: &data.response,
             scale,
             noise_estimated,
+            dof,
+            noise_refused,
+            stated_dof: (0..data.response.len())
+                .map(|k| data.sigma_dof.get(k).copied().unwrap_or(f64::NAN))
+                .collect(),
             gain,
             coherent,
         }
@@ -377,11 +478,31 @@ pub(super) fn covariance(prep: &Prepared, p: &Params, period_s: f64) -> DMatrix<
     let n = p.f_hz.len();
     // With σ per line from the data the weighted cost is a χ² with
     // 2m − (3n + 3) degrees of freedom: the 1σ come from (JᵀJ)⁻¹ as they
-    // are, widened by χ²/ν when the model leaves more than the noise
-    // (Birge ratio); without, the noise level is the residual's.
+    // are, widened by the cost over its expectation when the model leaves
+    // more than the noise (Birge ratio); without, the noise level is the
+    // residual's.
     debug_assert_eq!(j.nrows(), 2 * prep.len());
     let s2 = residual_variance(prep, p, prep.cost(p));
     let jtj = j.transpose() * &j;
+    // A weight 1/σ̂² from a variance of d degrees of freedom is random:
+    // the estimate scatters as the sandwich (JᵀJ)⁻¹ B (JᵀJ)⁻¹ with each
+    // line's JₖᵀJₖ in B times E[w²]σ²/E[w] = d/(d − 4) (of an inverse
+    // χ²_d: Pintelon & Schoukens 2012, §10.3, whose (M − 2)/(M − 3) over
+    // the known-variance covariance is this times the (d − 2)/d by which
+    // the estimated weights' JᵀJ overstates the known one's).
+    let inflation: Vec<f64> = prep
+        .dof
+        .iter()
+        .map(|&d| if d.is_finite() { d / (d - 4.0) } else { 1.0 })
+        .collect();
+    let sandwich = inflation.iter().any(|x| *x != 1.0).then(|| {
+        let mut b = DMatrix::zeros(j.ncols(), j.ncols());
+        for (k, x) in inflation.iter().enumerate() {
+            let rows = j.rows(2 * k, 2);
+            b += (rows.transpose() * rows) * *x;
+        }
+        b
+    });
     let unknown = DMatrix::from_element(3 * n + 3, 3 * n + 3, f64::INFINITY);
     let cov = if !jtj.iter().all(|v| v.is_finite()) {
         unknown
@@ -394,6 +515,10 @@ pub(super) fn covariance(prep: &Prepared, p: &Params, period_s: f64) -> DMatrix<
                 .and_then(|svd| svd.pseudo_inverse(1e-300).ok())
                 .unwrap_or(unknown),
         }
+    };
+    let cov = match sandwich {
+        Some(b) if cov.iter().all(|v| v.is_finite()) => &cov * b * &cov,
+        _ => cov,
     };
     // d(natural)/d(coordinate) of each parameter.
     let scale: Vec<f64> = p

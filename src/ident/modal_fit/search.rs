@@ -216,13 +216,15 @@ pub(super) fn prune(prep: &Prepared, mut p: Params, period_s: f64) -> Params {
     }
 }
 
-/// `s²` of the 1σ: the weighted cost per degree of freedom
-/// (`2m − (3n + 3)` for `m` lines and `n` modes), at least 1 when the
-/// weights are the data's own noise (see [`sigmas`]).
+/// `s²` of the 1σ: when the weights are the data's own noise, the
+/// weighted cost over its expectation under the noise alone
+/// ([`cost_reference`]), at least 1 (see [`sigmas`]); otherwise the cost
+/// per degree of freedom (`2m − (3n + 3)` for `m` lines and `n` modes).
 pub(super) fn residual_variance(prep: &Prepared, p: &Params, cost: f64) -> f64 {
-    let dof = (2.0 * prep.len() as f64 - (3 * p.f_hz.len() + 3) as f64).max(1.0);
+    let params = 3 * p.f_hz.len() + 3;
+    let dof = (2.0 * prep.len() as f64 - params as f64).max(1.0);
     if prep.noise_estimated {
-        (cost / dof).max(1.0)
+        (cost / cost_reference(&prep.dof, params).0).max(1.0)
     } else {
         cost / dof
     }
@@ -276,6 +278,7 @@ pub(super) fn thin(data: &FrfData, per_decade: f64) -> Option<FrfData> {
         coherence: pick(&data.coherence),
         sigma_m_per_a: pick(&data.sigma_m_per_a),
         resolution_hz: pick(&data.resolution_hz),
+        sigma_dof: pick(&data.sigma_dof),
     })
 }
 

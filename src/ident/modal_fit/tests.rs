@@ -10,6 +10,7 @@ fn a_grid_denser_than_the_fit_uses_is_thinned_and_a_default_one_is_not() {
             coherence: vec![1.0; n],
             sigma_m_per_a: vec![f64::NAN; n],
             resolution_hz: vec![f64::NAN; n],
+            sigma_dof: vec![f64::NAN; n],
             frequency_hz: f,
         }
     };
@@ -56,6 +57,7 @@ fn exact(op: f64, dm: f64) -> (FrfData, Sr4dof, Path, f64) {
         coherence: vec![1.0; f.len()],
         sigma_m_per_a: vec![f64::NAN; f.len()],
         resolution_hz: vec![f64::NAN; f.len()],
+        sigma_dof: vec![f64::NAN; f.len()],
         frequency_hz: f,
     };
     let path = Path {

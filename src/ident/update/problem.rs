@@ -23,6 +23,9 @@ pub(super) struct Prepared<'a> {
     pub(super) scale: Vec<f64>,
     /// The weights are inverse standard deviations from the data.
     pub(super) noise_estimated: bool,
+    /// Effective degrees of freedom of each line's variance
+    /// ([`modal_fit::Weights::dof`]).
+    pub(super) dof: Vec<f64>,
     /// The path without its delay.
     pub(super) gain: Vec<C64>,
     pub(super) coherent: Vec<bool>,
@@ -37,6 +40,7 @@ impl<'a> Prepared<'a> {
             h: &data.response,
             scale: w.scale,
             noise_estimated: w.noise_estimated,
+            dof: w.dof,
             gain: data
                 .frequency_hz
                 .iter()
@@ -217,32 +221,55 @@ pub(super) fn minimise(problem: Problem) -> (DVector<f64>, f64) {
 /// The 1σ of each coordinate, `s² (JᵀJ)⁻¹` (`None` where not estimable).
 /// `s²` is the residual variance per degree of freedom, or with
 /// `noise_estimated` (weights that are inverse standard deviations from
-/// the data, [`modal_fit::weights`]) `max(1, χ²/ν)`: the noise's own
-/// covariance, widened when the model leaves more than the noise.
+/// the data, [`modal_fit::weights`]) the cost over its expectation under
+/// the noise alone, at least 1: the noise's own covariance, widened when
+/// the model leaves more than the noise. With variances of `line_dof`
+/// degrees of freedom (one per FRF line; empty: known) the covariance is
+/// the fit's sandwich, each line's `JₖᵀJₖ` times `d/(d − 4)` (the modal
+/// fit's `covariance`).
 pub(super) fn coordinate_sigmas(
     problem: &Problem,
     x: &DVector<f64>,
     cost: f64,
     noise_estimated: bool,
+    line_dof: &[f64],
 ) -> Vec<Option<f64>> {
     let n = x.len();
     let dof = problem.len() as f64 - n as f64;
     let Some(j) = problem.jacobian_at(x).filter(|_| dof > 0.0) else {
         return vec![None; n];
     };
-    let s2 = if noise_estimated {
+    let s2 = if noise_estimated && !line_dof.is_empty() {
+        (cost / modal_fit::cost_reference(line_dof, n).0).max(1.0)
+    } else if noise_estimated {
         (cost / dof).max(1.0)
     } else {
         cost / dof
     };
     let jtj = j.transpose() * &j;
+    let sandwich = (line_dof.iter().any(|d| d.is_finite()) && j.nrows() == 2 * line_dof.len())
+        .then(|| {
+            let mut b = DMatrix::zeros(n, n);
+            for (k, d) in line_dof.iter().enumerate() {
+                let x = if d.is_finite() { d / (d - 4.0) } else { 1.0 };
+                let rows = j.rows(2 * k, 2);
+                b += (rows.transpose() * rows) * x;
+            }
+            b
+        });
     match jtj.try_inverse() {
-        Some(cov) => (0..n)
-            .map(|i| {
-                let v = s2 * cov[(i, i)];
-                (v.is_finite() && v >= 0.0).then(|| v.sqrt())
-            })
-            .collect(),
+        Some(cov) => {
+            let cov = match sandwich {
+                Some(b) => &cov * b * &cov,
+                None => cov,
+            };
+            (0..n)
+                .map(|i| {
+                    let v = s2 * cov[(i, i)];
+                    (v.is_finite() && v >= 0.0).then(|| v.sqrt())
+                })
+                .collect()
+        }
         None => vec![None; n],
     }
 }
@@ -279,7 +306,7 @@ pub(super) fn fit_frequencies(
             continue;
         }
         let problem = Problem::new(start, free, &target, 0.0);
-        let sig = coordinate_sigmas(&problem, &x, cost, false);
+        let sig = coordinate_sigmas(&problem, &x, cost, false, &[]);
         let bench = problem.bench_at(&x);
         let Target::Frequencies { mode, .. } = target else {
             unreachable!()

@@ -246,7 +246,7 @@ pub(super) fn update_frf_once(
     let model = bench
         .model()
         .ok_or_else(|| UpdateError::NoFit("the result is outside the ranges".into()))?;
-    let sig = coordinate_sigmas(&problem, &x, cost, prep.noise_estimated);
+    let sig = coordinate_sigmas(&problem, &x, cost, prep.noise_estimated, &prep.dof);
     // The σ of a log or scaled coordinate of `origin` maps to the unit the
     // same way as for `start` (the transforms do not depend on the values).
     let parameters = parameter_report(start, &bench, free, &sig);
@@ -263,13 +263,18 @@ pub(super) fn update_frf_once(
         ));
     }
     if prep.noise_estimated {
+        // Against the cost's law under the noise alone, as the fit's
+        // (`modal_fit::FitQuality`): χ²_ν for known variances, the scaled
+        // χ² of a sum of 2F(2, d) for variances of d degrees of freedom.
         let nu = (problem.len() as f64 - x.len() as f64).max(1.0);
-        let bound = modal_fit::chi2_quantile(nu) / nu;
+        let (mean, g, h) = modal_fit::cost_reference(&prep.dof, x.len());
+        let bound = g * modal_fit::chi2_quantile(h) / nu;
         if cost / nu > bound {
             flags.push(format!(
-                "the updated model leaves more than the estimated noise: χ²/ν = {:.2} over {} lines (bound {bound:.2} at the {} level): the SR4DoF with these free parameters does not explain this FRF",
+                "the updated model leaves more than the estimated noise: χ²/ν = {:.2} over {} lines (expected {:.2}, bound {bound:.2} at the {} level): the SR4DoF with these free parameters does not explain this FRF",
                 cost / nu,
                 prep.h.len(),
+                mean / nu,
                 modal_fit::RESIDUAL_TEST_LEVEL
             ));
         }

@@ -461,6 +461,7 @@ pub(super) fn run_chirp_with(
                     coherence: &frf.coherence,
                     sigma_m_per_a: &frf.sigma_m_per_a,
                     resolution_hz: &frf.resolution_hz,
+                    sigma_dof: &frf.sigma_dof,
                 },
             )?;
             let ch =
