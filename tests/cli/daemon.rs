@@ -230,25 +230,47 @@ fn sigterm_mid_job_finishes_the_recording_and_removes_the_socket() {
     assert_eq!(r["error"]["kind"], "interrupted", "{r}");
 }
 
+/// The detached control job runs in real time: a machine stall beyond
+/// the loop's bound (the VM's vCPU not run for tens of ms, seen by
+/// [`HostStallWatch`]) ends it on `overruns`, rightly. That attempt is
+/// tried again (at most 3), as an operator would; a fault the machine
+/// did not make fails at once.
 #[test]
 fn a_client_that_leaves_stops_its_job_unless_detached() {
     let _g = one_at_a_time();
-    let d = Daemon::start();
-    {
-        let mut a = d.client();
-        a.submit("chirp", json!({ "duration_s": 30, "f_start_hz": 2 }));
-    } // disconnects
-    let mut b = d.client();
-    wait_state(&mut b, "disabled", Duration::from_secs(5));
-    {
-        let mut a = d.client();
-        a.submit(
-            "control",
-            json!({ "controller": "fast", "duration_s": 1.5, "detach": true }),
+    let mut seen = Vec::new();
+    let (d, mut b) = loop {
+        let d = Daemon::start();
+        let watch = HostStallWatch::start(79);
+        {
+            let mut a = d.client();
+            a.submit("chirp", json!({ "duration_s": 30, "f_start_hz": 2 }));
+        } // disconnects
+        let mut b = d.client();
+        wait_state(&mut b, "disabled", Duration::from_secs(5));
+        {
+            let mut a = d.client();
+            a.submit(
+                "control",
+                json!({ "controller": "fast", "duration_s": 1.5, "detach": true }),
+            );
+        }
+        std::thread::sleep(Duration::from_millis(500));
+        let s = b.call("status", json!({}))["result"].clone();
+        let machine_ms = watch.stop() * 1e3;
+        if s["state"] == "running" {
+            break (d, b);
+        }
+        let by_machine = s["fault"]["kind"] == "overruns" && machine_ms >= 5.0;
+        assert!(
+            by_machine && seen.len() < 2,
+            "the detached job is not running (machine late {machine_ms:.1} ms; retried: {seen:?}): {s}"
         );
-    }
-    std::thread::sleep(Duration::from_millis(500));
-    assert_eq!(b.call("status", json!({}))["result"]["state"], "running");
+        seen.push(format!(
+            "{} with the machine late {machine_ms:.1} ms",
+            s["fault"]
+        ));
+    };
     let s = wait_state(&mut b, "disabled", Duration::from_secs(20));
     assert_eq!(s["jobs_run"], 2);
     // `shutdown`: the daemon exits 0 and removes its socket.

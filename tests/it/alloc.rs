@@ -278,7 +278,7 @@ fn multisine_tick_allocates_nothing() {
     let excitation = Excitation::new(&cfg, info.period_ns as f64 * 1e-9, 7).unwrap();
     assert!(matches!(excitation, Excitation::Multisine(_)));
     let total = excitation.total_ticks();
-    assert_eq!(total, 500 + 3 * 3 * 1000 + 500);
+    assert_eq!(total, 500 + 4 * 3 * 1000 + 500);
     let opts = LoopOptions {
         period_ns: info.period_ns,
         pacing: Pacing::Virtual,

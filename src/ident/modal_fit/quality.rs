@@ -242,7 +242,8 @@ pub(super) fn residual_tests(prep: &Prepared, p: &Params) -> ResidualTests {
     let whiteness_q = prep.noise_estimated.then(|| {
         // Unit variance in each part: E|eₖ|² = 2 under a known noise
         // (2d/(d − 2) under one estimated with d degrees of freedom).
-        let energy = chi2.max(mean);
+        // (The unshrunk expectation: `mean` is less the fitted parameters.)
+        let energy = chi2.max(mean * 2.0 * lines as f64 / nu);
         (1..=WHITENESS_LAGS.min(lines.saturating_sub(1)))
             .map(|j| {
                 let r: C64 = (0..lines - j).map(|k| e[k] * e[k + j].conj()).sum();
