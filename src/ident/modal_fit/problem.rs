@@ -66,6 +66,7 @@ pub fn weights(data: &FrfData) -> Weights {
         )
     });
     let noise_estimated = has_sigma && noise_refused.is_none();
+    let least_dof = Some(least_dof).filter(|d| d.is_finite());
     let dof = if noise_estimated {
         data.response
             .iter()
@@ -111,6 +112,7 @@ pub fn weights(data: &FrfData) -> Weights {
         scale,
         noise_estimated,
         dof,
+        least_dof,
         noise_refused,
     }
 }
@@ -120,11 +122,12 @@ pub fn weights(data: &FrfData) -> Weights {
 /// freedom ([`Weights::dof`]) with `params` parameters fitted: each line
 /// adds `2F(2, d)` (`χ²₂` for a known variance), of mean `2d/(d − 2)` and
 /// variance `4d³/((d − 2)²(d − 4))` ([`MIN_SIGMA_DOF`]), both reduced by
-/// `ν/2N` for the fitted parameters (`ν = 2N − p`). Returns `(mean, g,
-/// h)`: the cost is about `g χ²_h` (Satterthwaite's scaled χ², matching
-/// the mean and the variance; exact, `g = 1`, `h = ν`, for known
-/// variances).
-pub(crate) fn cost_reference(dof: &[f64], params: usize) -> (f64, f64, f64) {
+/// `ν/2N` for the fitted parameters (`ν = 2N − p`). The cost is about
+/// `g χ²_h` (Satterthwaite's scaled χ², matching the mean and the
+/// variance; exact, `g = 1`, `h = ν`, for known variances). Returns
+/// `(mean, bound)`: the expected cost and its `1 −`
+/// [`RESIDUAL_TEST_LEVEL`] quantile `g ·` [`chi2_quantile`]`(h)`.
+pub(crate) fn cost_reference(dof: &[f64], params: usize) -> (f64, f64) {
     let lines = dof.len();
     let nu = (2 * lines).saturating_sub(params).max(1) as f64;
     let shrink = nu / (2 * lines).max(1) as f64;
@@ -140,7 +143,29 @@ pub(crate) fn cost_reference(dof: &[f64], params: usize) -> (f64, f64, f64) {
     }
     let (mean, var) = (mean * shrink, var * shrink);
     let g = var / (2.0 * mean);
-    (mean, g, mean / g)
+    (mean, g * chi2_quantile(mean / g))
+}
+
+/// The middle of the sandwich covariance `(JᵀJ)⁻¹ B (JᵀJ)⁻¹` of a fit
+/// weighted by variances of `dof` effective degrees of freedom (one per
+/// line, [`Weights::dof`]; `j` with rows `2k`, `2k + 1` for line `k`):
+/// each line's `JₖᵀJₖ` times `d/(d − 4)`, `E[w²]σ²/E[w]` of a weight
+/// `1/σ̂²` with `σ̂²` of `d` degrees of freedom (Pintelon & Schoukens 2012,
+/// §10.3, whose `(M − 2)/(M − 3)` over the known-variance covariance is
+/// this times the `(d − 2)/d` by which the estimated weights' `JᵀJ`
+/// overstates the known one's). `None` when every variance is known (then
+/// `B = JᵀJ`) or the rows do not match the lines.
+pub(crate) fn weight_scatter(j: &DMatrix<f64>, dof: &[f64]) -> Option<DMatrix<f64>> {
+    if !dof.iter().any(|d| d.is_finite()) || j.nrows() != 2 * dof.len() {
+        return None;
+    }
+    let mut b = DMatrix::zeros(j.ncols(), j.ncols());
+    for (k, d) in dof.iter().enumerate() {
+        let x = if d.is_finite() { d / (d - 4.0) } else { 1.0 };
+        let rows = j.rows(2 * k, 2);
+        b += (rows.transpose() * rows) * x;
+    }
+    Some(b)
 }
 
 /// The weights of [`weights`].
@@ -155,6 +180,9 @@ pub struct Weights {
     /// Effective degrees of freedom of each line's variance (infinite:
     /// known, or no noise estimate).
     pub dof: Vec<f64>,
+    /// The fewest degrees of freedom any line's variance is stated with
+    /// ([`FrfData::sigma_dof`]); `None`: known or not stated.
+    pub least_dof: Option<f64>,
     /// Why σ per line was not used as the noise (too few degrees of
     /// freedom), when it was given.
     pub noise_refused: Option<String>,
@@ -172,9 +200,8 @@ pub(super) struct Prepared<'a> {
     pub(super) dof: Vec<f64>,
     /// [`Weights::noise_refused`].
     pub(super) noise_refused: Option<String>,
-    /// Each line's stated degrees of freedom ([`FrfData::sigma_dof`],
-    /// NaN where not stated).
-    pub(super) stated_dof: Vec<f64>,
+    /// [`Weights::least_dof`].
+    pub(super) least_dof: Option<f64>,
     pub(super) gain: Vec<C64>,
     pub(super) coherent: Vec<bool>,
 }
@@ -186,6 +213,7 @@ impl<'a> Prepared<'a> {
             scale,
             noise_estimated,
             dof,
+            least_dof,
             noise_refused,
         } = weights(data);
         let gain = w.iter().map(|&w| path.gain(w)).collect();
@@ -197,9 +225,7 @@ impl<'a> Prepared<'a> {
             noise_estimated,
             dof,
             noise_refused,
-            stated_dof: (0..data.response.len())
-                .map(|k| data.sigma_dof.get(k).copied().unwrap_or(f64::NAN))
-                .collect(),
+            least_dof,
             gain,
             coherent,
         }
@@ -485,24 +511,8 @@ pub(super) fn covariance(prep: &Prepared, p: &Params, period_s: f64) -> DMatrix<
     let s2 = residual_variance(prep, p, prep.cost(p));
     let jtj = j.transpose() * &j;
     // A weight 1/σ̂² from a variance of d degrees of freedom is random:
-    // the estimate scatters as the sandwich (JᵀJ)⁻¹ B (JᵀJ)⁻¹ with each
-    // line's JₖᵀJₖ in B times E[w²]σ²/E[w] = d/(d − 4) (of an inverse
-    // χ²_d: Pintelon & Schoukens 2012, §10.3, whose (M − 2)/(M − 3) over
-    // the known-variance covariance is this times the (d − 2)/d by which
-    // the estimated weights' JᵀJ overstates the known one's).
-    let inflation: Vec<f64> = prep
-        .dof
-        .iter()
-        .map(|&d| if d.is_finite() { d / (d - 4.0) } else { 1.0 })
-        .collect();
-    let sandwich = inflation.iter().any(|x| *x != 1.0).then(|| {
-        let mut b = DMatrix::zeros(j.ncols(), j.ncols());
-        for (k, x) in inflation.iter().enumerate() {
-            let rows = j.rows(2 * k, 2);
-            b += (rows.transpose() * rows) * *x;
-        }
-        b
-    });
+    // the estimate scatters as the sandwich (JᵀJ)⁻¹ B (JᵀJ)⁻¹.
+    let sandwich = weight_scatter(&j, &prep.dof);
     let unknown = DMatrix::from_element(3 * n + 3, 3 * n + 3, f64::INFINITY);
     let cov = if !jtj.iter().all(|v| v.is_finite()) {
         unknown

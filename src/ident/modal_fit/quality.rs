@@ -166,12 +166,6 @@ pub(super) fn quality(prep: &Prepared, p: &Params, sd: &[f64]) -> FitQuality {
         }
         None => (None, None),
     };
-    let sigma_dof = prep
-        .stated_dof
-        .iter()
-        .copied()
-        .filter(|d| d.is_finite())
-        .reduce(f64::min);
     let (q, q_bound) = (t.whiteness_q, t.whiteness_q_bound);
     if let Some(q) = q.filter(|q| *q > q_bound) {
         flags.push(format!(
@@ -185,7 +179,7 @@ pub(super) fn quality(prep: &Prepared, p: &Params, sd: &[f64]) -> FitQuality {
         chi2_per_dof,
         chi2_per_dof_expected: t.chi2_per_dof_expected,
         chi2_per_dof_bound,
-        sigma_dof,
+        sigma_dof: prep.least_dof,
         noise_refused: prep.noise_refused.clone(),
         whiteness_q: q,
         whiteness_q_bound: q_bound,
@@ -227,10 +221,8 @@ pub(super) fn residual_tests(prep: &Prepared, p: &Params) -> ResidualTests {
     let params = 3 * n + 3;
     let nu = (2 * lines).saturating_sub(params).max(1) as f64;
     let chi2: f64 = e.iter().map(|v| v.norm_sqr()).sum();
-    let (mean, g, h) = cost_reference(&prep.dof, params);
-    let chi2_per_dof = prep
-        .noise_estimated
-        .then(|| (chi2 / nu, g * chi2_quantile(h) / nu));
+    let (mean, bound) = cost_reference(&prep.dof, params);
+    let chi2_per_dof = prep.noise_estimated.then(|| (chi2 / nu, bound / nu));
     let chi2_per_dof_expected = prep.noise_estimated.then_some(mean / nu);
     // Against the estimated noise: the lag products are compared with
     // what unit-variance noise gives (N), so a correlated residual far

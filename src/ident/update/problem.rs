@@ -247,16 +247,7 @@ pub(super) fn coordinate_sigmas(
         cost / dof
     };
     let jtj = j.transpose() * &j;
-    let sandwich = (line_dof.iter().any(|d| d.is_finite()) && j.nrows() == 2 * line_dof.len())
-        .then(|| {
-            let mut b = DMatrix::zeros(n, n);
-            for (k, d) in line_dof.iter().enumerate() {
-                let x = if d.is_finite() { d / (d - 4.0) } else { 1.0 };
-                let rows = j.rows(2 * k, 2);
-                b += (rows.transpose() * rows) * x;
-            }
-            b
-        });
+    let sandwich = modal_fit::weight_scatter(&j, line_dof);
     match jtj.try_inverse() {
         Some(cov) => {
             let cov = match sandwich {

@@ -267,8 +267,8 @@ pub(super) fn update_frf_once(
         // (`modal_fit::FitQuality`): χ²_ν for known variances, the scaled
         // χ² of a sum of 2F(2, d) for variances of d degrees of freedom.
         let nu = (problem.len() as f64 - x.len() as f64).max(1.0);
-        let (mean, g, h) = modal_fit::cost_reference(&prep.dof, x.len());
-        let bound = g * modal_fit::chi2_quantile(h) / nu;
+        let (mean, bound) = modal_fit::cost_reference(&prep.dof, x.len());
+        let bound = bound / nu;
         if cost / nu > bound {
             flags.push(format!(
                 "the updated model leaves more than the estimated noise: χ²/ν = {:.2} over {} lines (expected {:.2}, bound {bound:.2} at the {} level): the SR4DoF with these free parameters does not explain this FRF",
