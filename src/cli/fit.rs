@@ -384,6 +384,9 @@ pub(super) fn print_quality(f: &ModalFit) {
     if let Some(why) = &q.noise_refused {
         outln!("  noise: {why}");
     }
+    for m in &q.undecided_modes {
+        outln!("  undecided: {}", m.line());
+    }
     if let Some(u) = &f.labels_unsure {
         outln!("  labels unsure: {u}");
     }

@@ -33,6 +33,7 @@ mod inject_at_zero;
 mod limits;
 mod logging;
 mod lpm;
+mod mode_count;
 mod model_export;
 mod multisine;
 mod outputs;

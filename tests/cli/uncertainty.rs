@@ -21,7 +21,8 @@
 //!   than 5σ in any parameter without a flag on the fit or the update.
 
 use bench::config::BenchConfig;
-use bench::ident::excitation::Chirp;
+use bench::ident::bla::Bla;
+use bench::ident::excitation::Excitation;
 use bench::ident::frf::{fast_len, Frf, Spectra, C64};
 use bench::ident::modal_fit::{fit, FrfData, ModalFit, Path as FitPath};
 use bench::ident::update::{update_to_frf, Bench, Parameter, Update};
@@ -38,19 +39,19 @@ use std::sync::OnceLock;
 const BENCHES: usize = 200;
 const COVERAGE_BENCHES: usize = 100;
 
-fn ch5() -> BenchConfig {
+pub(crate) fn ch5() -> BenchConfig {
     let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("bench-config/sr4dof-ch5.toml");
     let c = BenchConfig::load(&p).unwrap();
     c.validate(&p).unwrap();
     c
 }
 
-fn period_s(cfg: &BenchConfig) -> f64 {
+pub(crate) fn period_s(cfg: &BenchConfig) -> f64 {
     cfg.loop_.period_ns() as f64 * 1e-9
 }
 
 /// The hidden bench of seed `seed`: the config it runs on.
-fn hidden(base: &BenchConfig, seed: u64) -> BenchConfig {
+pub(crate) fn hidden(base: &BenchConfig, seed: u64) -> BenchConfig {
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(28_000 + seed);
     let mut c = base.clone();
     let p = &mut c.plant;
@@ -65,9 +66,11 @@ fn hidden(base: &BenchConfig, seed: u64) -> BenchConfig {
 }
 
 /// The FRF `bench chirp` estimates on `cfg`'s simulated bench (noise seed
-/// `seed`): the chirp played the way the loop plays it (read the sample,
-/// command, keep both), the lead-in's mean taken off the reading.
-fn measure(cfg: &BenchConfig, seed: u64) -> Frf {
+/// `seed`): the excitation of `cfg` (its sweep, or its multisine with
+/// phases from `seed`) played the way the loop plays it (read the sample,
+/// command, keep both), the lead-in's mean taken off the reading; a
+/// sweep's FRF by the configured estimator, a multisine's BLA.
+pub(crate) fn measure(cfg: &BenchConfig, seed: u64) -> Frf {
     let mut stage = SimStage::new(SimParams {
         plant: cfg.plant,
         actuator: cfg.actuator,
@@ -76,14 +79,14 @@ fn measure(cfg: &BenchConfig, seed: u64) -> Frf {
         seed,
     })
     .unwrap();
-    let chirp = Chirp::new(&cfg.chirp, period_s(cfg));
+    let excitation = Excitation::new(cfg, period_s(cfg), seed).unwrap();
     stage.configure(cfg.loop_.period_ns()).unwrap();
     stage.enable().unwrap();
-    let n = chirp.total_ticks();
+    let n = excitation.total_ticks();
     let mut record = Vec::with_capacity(fast_len(n as usize));
     for tick in 0..n {
         let s = stage.read_sample().unwrap();
-        let u = chirp.value_a(tick);
+        let u = excitation.value_a(tick);
         stage
             .write_command(Command {
                 current_a: u,
@@ -92,10 +95,13 @@ fn measure(cfg: &BenchConfig, seed: u64) -> Frf {
             .unwrap();
         record.push(C64::new(u, s.position_m));
     }
-    let lead = (chirp.lead_in_ticks() as usize).max(1);
+    let lead = (excitation.lead_in_ticks() as usize).max(1);
     let offset = record[..lead].iter().map(|z| z.im).sum::<f64>() / lead as f64;
     for z in &mut record {
         z.im -= offset;
+    }
+    if let Excitation::Multisine(ms) = &excitation {
+        return Bla::estimate(&record, &ms.layout(), &[]).unwrap().to_frf();
     }
     let spectra = Spectra::from_record(
         record,

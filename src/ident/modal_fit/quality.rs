@@ -88,6 +88,64 @@ pub struct FitQuality {
     pub whiteness_q_bound: f64,
     /// Why the fit is not to be trusted; empty when it passed.
     pub flags: Vec<String>,
+    /// Further modes the data hint at but cannot decide (see
+    /// [`UndecidedMode`]): not in the model, reported so that a reader
+    /// knows the model order could be one more. Absent in JSON written
+    /// before it existed.
+    #[serde(default)]
+    pub undecided_modes: Vec<UndecidedMode>,
+}
+
+/// A mode the data cannot decide. Modes are added while the residual is
+/// not the noise (the χ² and whiteness tests of [`FitQuality`]); those
+/// tests judge the whole band, and a weak mode that changes a few lines
+/// passes them. So once they pass, the best further mode is still sought
+/// ([`probe`]): it is reported when it lowers the weighted cost by
+/// `delta_chi2` noise variances (the cost removed over the expected cost
+/// per degree of freedom), more than the noise alone gives at the best of
+/// the `N` lines it could sit on, the `χ²₃` quantile at
+/// [`RESIDUAL_TEST_LEVEL`]` / N` (a mode is three parameters; Bonferroni
+/// over the lines: 30.1 for 767 lines), and its modal constant lies at
+/// least [`MIN_SIGNIFICANCE`] of its 1σ from zero. It is not added: the
+/// path model's error and a multisine's heavy-tailed variance estimates
+/// reach that level on some fits without a mode (`tests/cli/mode_count.rs`:
+/// a few in a hundred, at 14–22 Hz where the chirp's amplitude falls),
+/// and a real mode there is the weak one of a pair closer than its
+/// half-power bandwidth, which a chirp's smoothed estimate cannot
+/// separate. Where it lies among the closely spaced pair, the pair's labels
+/// are unsure ([`ModalFit::labels_unsure`]), and the phase test does not
+/// decide.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
+pub struct UndecidedMode {
+    /// Natural frequency, Hz.
+    pub frequency_hz: f64,
+    /// Damping ratio.
+    pub damping_ratio: f64,
+    /// Modal constant, m/(A·s²).
+    pub modal_constant: f64,
+    /// `|A| / σ_A` of the modal constant in the model with the mode.
+    pub modal_constant_z: f64,
+    /// The cost it removes over the expected cost per degree of freedom
+    /// (`Δχ²` in noise variances).
+    pub delta_chi2: f64,
+    /// The level `Δχ²` exceeds: the `χ²₃` quantile at
+    /// [`RESIDUAL_TEST_LEVEL`]` / N` over the fit's `N` lines.
+    pub delta_chi2_level: f64,
+}
+
+impl UndecidedMode {
+    /// One line for a report.
+    pub fn line(&self) -> String {
+        format!(
+            "a further mode near {:.2} Hz (damping {:.4}, modal constant {:+.3e} m/(A·s²), {:.1}σ) would lower χ² by {:.1}, above the {:.1} the noise reaches at the best of all lines once in a thousand fits, while the residual is already the noise: the data cannot decide it, not added",
+            self.frequency_hz,
+            self.damping_ratio,
+            self.modal_constant,
+            self.modal_constant_z,
+            self.delta_chi2,
+            self.delta_chi2_level
+        )
+    }
 }
 
 /// Standard normal quantile at `1 − RESIDUAL_TEST_LEVEL` (3.0902).
@@ -98,6 +156,33 @@ pub(super) const Z_LEVEL: f64 = 3.090_232_306_167_813;
 pub fn chi2_quantile(nu: f64) -> f64 {
     let a = 2.0 / (9.0 * nu);
     nu * (1.0 - a + Z_LEVEL * a.sqrt()).powi(3)
+}
+
+/// `P(χ²₃ > x)`: `erfc(√(x/2)) + √(2x/π) e^{−x/2}` (Abramowitz & Stegun
+/// 26.4.5 for three degrees of freedom).
+pub fn chi2_3_tail(x: f64) -> f64 {
+    if x <= 0.0 {
+        return 1.0;
+    }
+    libm::erfc((0.5 * x).sqrt()) + (2.0 * x / PI).sqrt() * (-0.5 * x).exp()
+}
+
+/// The `1 − alpha` quantile of χ²₃ ([`chi2_3_tail`] solved by bisection;
+/// `alpha` in (0, 1)).
+pub fn chi2_3_quantile(alpha: f64) -> f64 {
+    let (mut lo, mut hi) = (0.0_f64, 1.0_f64);
+    while chi2_3_tail(hi) > alpha && hi < 1e4 {
+        hi *= 2.0;
+    }
+    for _ in 0..100 {
+        let mid = 0.5 * (lo + hi);
+        if chi2_3_tail(mid) > alpha {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+    }
+    0.5 * (lo + hi)
 }
 
 /// Trial damping ratios of [`try_mode`]: a mode whose damping still
@@ -184,6 +269,7 @@ pub(super) fn quality(prep: &Prepared, p: &Params, sd: &[f64]) -> FitQuality {
         whiteness_q: q,
         whiteness_q_bound: q_bound,
         flags,
+        undecided_modes: Vec::new(),
     }
 }
 

@@ -298,3 +298,99 @@ pub(super) fn coherent_band(prep: &Prepared, freq_hz: &[f64]) -> (f64, f64) {
     let last = prep.coherent.iter().rposition(|c| *c).unwrap_or(0);
     (freq_hz[first], freq_hz[last])
 }
+
+/// The best further mode the data offer beyond `current`: the trial
+/// modes at the residual's and the magnitude's peaks, the two best
+/// refined, the lowest cost kept if acceptable. Returns it with the cost
+/// it removes.
+pub(super) fn probe(
+    prep: &Prepared,
+    freq_hz: &[f64],
+    current: &Params,
+    period_s: f64,
+) -> Option<(Params, f64)> {
+    let cost = prep.cost(current);
+    let mut candidates = residual_peaks(prep, freq_hz, current, 3);
+    candidates.extend(
+        magnitude_peaks(prep, freq_hz, current, 3)
+            .into_iter()
+            .map(|(f, _)| f),
+    );
+    let mut trials: Vec<Trial> = candidates
+        .into_par_iter()
+        .filter_map(|f0| try_mode(prep, freq_hz, current, f0))
+        .collect();
+    trials.sort_by(|a, b| b.gain.total_cmp(&a.gain));
+    trials
+        .iter()
+        .take(2)
+        .filter_map(|t| add_mode(prep, current, t, period_s))
+        .flatten()
+        .filter(|p| acceptable(prep, freq_hz, p))
+        .map(|p| {
+            let c = prep.cost(&p);
+            (p, cost - c)
+        })
+        .max_by(|a, b| a.1.total_cmp(&b.1))
+}
+
+/// The mode the data cannot decide beyond `current` ([`UndecidedMode`]),
+/// if any: only where the noise is estimated and the residual is the noise
+/// (otherwise the search would have added it, or there is no noise to
+/// judge it by).
+pub(super) fn undecided(
+    prep: &Prepared,
+    freq_hz: &[f64],
+    current: &Params,
+    period_s: f64,
+) -> Option<UndecidedMode> {
+    if !prep.noise_estimated || !residual_tests(prep, current).residual_is_noise() {
+        return None;
+    }
+    let params = 3 * current.f_hz.len() + 3;
+    let nu = (2 * prep.len()).saturating_sub(params).max(1) as f64;
+    let (mean, _) = cost_reference(&prep.dof, params);
+    let per_dof = (prep.cost(current) / nu).max(mean / nu);
+    let level = chi2_3_quantile(RESIDUAL_TEST_LEVEL / prep.len().max(1) as f64);
+    let (p, removed) = probe(prep, freq_hz, current, period_s)?;
+    let delta_chi2 = removed / per_dof;
+    if delta_chi2 < level {
+        return None;
+    }
+    // The new mode: the one of `p` farthest from every mode of `current`
+    // (a mode split in two moves both halves).
+    let apart = |i: usize| {
+        current
+            .f_hz
+            .iter()
+            .map(|f| (p.f_hz[i] / f).ln().abs())
+            .fold(f64::INFINITY, f64::min)
+    };
+    let n = p.f_hz.len();
+    let i = (0..n).max_by(|&a, &b| apart(a).total_cmp(&apart(b)))?;
+    let sd = sigmas(prep, &p, period_s);
+    let z = p.a[i].abs() / sd[2 * n + i];
+    (z >= MIN_SIGNIFICANCE).then(|| UndecidedMode {
+        frequency_hz: p.f_hz[i],
+        damping_ratio: p.zeta[i],
+        modal_constant: p.a[i],
+        modal_constant_z: z,
+        delta_chi2,
+        delta_chi2_level: level,
+    })
+}
+
+/// Why the pair's labels are unsure when the undecided mode `m` lies
+/// among the closely spaced pair (closer to `u` or `v` than the pair's own
+/// frequency ratio): with it the sequence of signs could be another.
+pub(super) fn near_the_pair(fit: &ModalFit, m: &UndecidedMode) -> Option<String> {
+    let u = fit.modes.iter().find(|x| x.label == "u")?.frequency_hz;
+    let v = fit.modes.iter().find(|x| x.label == "v")?.frequency_hz;
+    let r = v / u;
+    (m.frequency_hz > u / r && m.frequency_hz < v * r).then(|| {
+        format!(
+            "a further mode near {:.2} Hz, which the data cannot decide, lies within the pair's ratio {r:.4} of u ({u:.2} Hz) and v ({v:.2} Hz): the pair could be another",
+            m.frequency_hz
+        )
+    })
+}

@@ -278,3 +278,23 @@ fn the_models_1_sigma_matches_the_spread_of_fits_to_noisy_data() {
         );
     }
 }
+
+/// The χ²₃ tail and quantile against scipy (`scipy.stats.chi2.sf` and
+/// `.isf` with 3 degrees of freedom).
+#[test]
+fn chi2_3_tail_and_quantile_match_scipy() {
+    for (x, sf) in [
+        (1.0, 0.801_251_956_901_200_9),
+        (16.266, 0.001_000_111_604_662_117),
+        (30.0, 1.380_057_031_293_255_3e-6),
+    ] {
+        assert!((chi2_3_tail(x) / sf - 1.0).abs() < 1e-9, "{x}");
+    }
+    for (a, q) in [
+        (1e-3, 16.266_236_196_238_13),
+        (1e-3 / 767.0, 30.117_380_717_558_67),
+        (0.05, 7.814_727_903_251_178),
+    ] {
+        assert!((chi2_3_quantile(a) / q - 1.0).abs() < 1e-9, "{a}");
+    }
+}
