@@ -378,10 +378,11 @@ fn an_open_loop_chirp_rides_out_a_silent_serial_link() {
                 &["chirp", "--duration-s", "6", "--out", &rec],
             );
             let machine_ms = watch.stop() * 1e3;
-            let on_watchdog = v["outcome"] == "hal"
-                && v["hal"]["message"]
-                    .as_str()
-                    .is_some_and(|m| m.contains("watchdog"));
+            // The device's watchdog tripped, or the host's supervisor saw
+            // the link silent past that same watchdog (a link fault).
+            let says_watchdog = |m: &Value| m.as_str().is_some_and(|m| m.contains("watchdog"));
+            let on_watchdog = (v["outcome"] == "hal" && says_watchdog(&v["hal"]["message"]))
+                || (v["fault"]["kind"] == "link" && says_watchdog(&v["fault"]["message"]));
             if !(on_watchdog && machine_ms >= watchdog_ms - hold_ms && seen.len() < 2) {
                 break (code, v);
             }
