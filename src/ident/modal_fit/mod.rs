@@ -493,19 +493,7 @@ pub fn fit(data: &FrfData, path: &Path) -> Result<ModalFit, FitError> {
             current = pruned;
             break;
         }
-        let mut candidates = residual_peaks(&prep, &data.frequency_hz, &current, 3);
-        candidates.extend(
-            magnitude_peaks(&prep, &data.frequency_hz, &current, 3)
-                .into_iter()
-                .map(|(f, _)| f),
-        );
-        // The candidates' grids are independent: tried side by side (in
-        // the candidates' order, so the result does not depend on it).
-        let mut trials: Vec<Trial> = candidates
-            .into_par_iter()
-            .filter_map(|f0| try_mode(&prep, &data.frequency_hz, &current, f0))
-            .collect();
-        trials.sort_by(|a, b| b.gain.total_cmp(&a.gain));
+        let trials = ranked_trials(&prep, &data.frequency_hz, &current);
         for trial in &trials {
             // Only a trial that removes a good part of the misfit is refined
             // (its window's half at the start, when the misfit is spread

@@ -299,17 +299,11 @@ pub(super) fn coherent_band(prep: &Prepared, freq_hz: &[f64]) -> (f64, f64) {
     (freq_hz[first], freq_hz[last])
 }
 
-/// The best further mode the data offer beyond `current`: the trial
-/// modes at the residual's and the magnitude's peaks, the two best
-/// refined, the lowest cost kept if acceptable. Returns it with the cost
-/// it removes.
-pub(super) fn probe(
-    prep: &Prepared,
-    freq_hz: &[f64],
-    current: &Params,
-    period_s: f64,
-) -> Option<(Params, f64)> {
-    let cost = prep.cost(current);
+/// Trial modes ([`try_mode`]) at the three largest peaks of the weighted
+/// residual and of |H| beyond `current`, the largest gain first. The
+/// candidates' grids are independent: tried side by side (in the
+/// candidates' order, so the result does not depend on it).
+pub(super) fn ranked_trials(prep: &Prepared, freq_hz: &[f64], current: &Params) -> Vec<Trial> {
     let mut candidates = residual_peaks(prep, freq_hz, current, 3);
     candidates.extend(
         magnitude_peaks(prep, freq_hz, current, 3)
@@ -321,6 +315,21 @@ pub(super) fn probe(
         .filter_map(|f0| try_mode(prep, freq_hz, current, f0))
         .collect();
     trials.sort_by(|a, b| b.gain.total_cmp(&a.gain));
+    trials
+}
+
+/// The best further mode the data offer beyond `current`: the trial
+/// modes at the residual's and the magnitude's peaks, the two best
+/// refined, the lowest cost kept if acceptable. Returns it with the cost
+/// it removes.
+pub(super) fn probe(
+    prep: &Prepared,
+    freq_hz: &[f64],
+    current: &Params,
+    period_s: f64,
+) -> Option<(Params, f64)> {
+    let cost = prep.cost(current);
+    let trials = ranked_trials(prep, freq_hz, current);
     trials
         .iter()
         .take(2)
