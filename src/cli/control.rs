@@ -362,14 +362,7 @@ pub(super) fn print_control_summary(s: &ControlSummary) {
     let c = &s.loop_check;
     outln!("loop check:");
     let d = &c.discretization;
-    outln!(
-        "  discretisation {}: within {:.3} dB / {:.2}° of the continuous design up to {:.0} Hz; above, at most {:+.2} dB",
-        d.method.as_str(),
-        d.max_error_db,
-        d.max_error_deg,
-        d.up_to_hz,
-        d.above_band_max_excess_db
-    );
+    outln!("  {}", d.line());
     if c.link_delay_periods > 0 {
         outln!(
             "  the link's pure delay in the loop: {} period(s), {:.0} µs (model, measured FRF, poles and stall bound with it)",

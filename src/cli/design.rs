@@ -258,6 +258,12 @@ pub(super) fn print_summary(s: &DesignSummary) {
     if let Some(b) = &s.binding {
         outln!("tightest: {b}");
     }
+    match &s.discretization {
+        Some(d) => outln!("{}", d.line()),
+        None => outln!(
+            "discretisation: none, designed in discrete time (the config holds its bilinear image, run through the same map): what runs is the design"
+        ),
+    }
     let l = &s.limit;
     let wp = format!(
         "W_P(s) = (s/{} + ω*)/s",

@@ -438,6 +438,13 @@ pub struct DesignSummary {
     pub plot: Option<PathBuf>,
     /// Wall time of the design (fits, search, certificate), s.
     pub design_time_s: f64,
+    /// How closely the discrete controller that runs follows the
+    /// continuous design (to f_s/10 and f_s/4, and the gain above);
+    /// `null` for a design made in discrete time (`discretization =
+    /// "bilinear"`: what runs is the design). Absent in JSON written
+    /// before it existed.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub discretization: Option<crate::control::DiscretizationReport>,
 }
 
 fn is_recording(p: &Path) -> bool {
@@ -840,7 +847,20 @@ pub fn run_design(opts: &DesignOptions) -> Result<DesignSummary, RunError> {
             "the bench config with the design added does not load: {e}"
         ))
     })?;
+    // A design made in discrete time (the `limit` strategy: its config
+    // form is the bilinear image, run through the same map) is what runs;
+    // a continuous one is discretised, and how closely is reported.
+    let discretization = (controller.discretization != crate::control::Discretization::Bilinear)
+        .then(|| {
+            crate::control::DiscreteController::new(
+                &controller,
+                period_s,
+                cfg.actuator.peak_current_a,
+            )
+            .discretization()
+        });
     let summary = DesignSummary {
+        discretization,
         inputs: uses,
         config: config_source.clone(),
         modes: modes.clone(),

@@ -220,6 +220,30 @@ fn check_by_reference(
     assert!(bad.is_empty(), "{name}: {bad:#?}");
 }
 
+/// Issue 45: the designed controller, as it runs, stays within 0.5 dB /
+/// 3° of its continuous design up to f_s/4 (on a grid of its own, from
+/// the continuous factored form), and the report says so.
+fn check_discretization(name: &str, cfg: &BenchConfig, c: &bench::control::ControllerConfig) {
+    let t = cfg.loop_.period_ns() as f64 * 1e-9;
+    let d = bench::control::DiscreteController::new(c, t, f64::INFINITY);
+    let (mut db, mut deg) = (0.0_f64, 0.0_f64);
+    for i in 0..=500 {
+        let f = 0.1 * (0.25 / t / 0.1_f64).powf(i as f64 / 500.0);
+        let w = 2.0 * std::f64::consts::PI * f;
+        let r = d.response(w, t) / c.response(w);
+        if r.norm() > 0.0 && r.re.is_finite() && r.im.is_finite() {
+            db = db.max((20.0 * r.norm().log10()).abs());
+            deg = deg.max(r.arg().to_degrees().abs());
+        }
+    }
+    eprintln!("{name}: {}", d.discretization().line());
+    assert!(
+        db <= 0.5 && deg <= 3.0,
+        "{name}: {db} dB, {deg}° up to f_s/4"
+    );
+    assert!(d.discretization().within_wide_target(), "{name}");
+}
+
 fn splitmix(seed: u64, k: u64) -> f64 {
     let x = bench::splitmix::splitmix64(seed.wrapping_add(k.wrapping_mul(bench::splitmix::GAMMA)));
     (x >> 11) as f64 / (1u64 << 53) as f64
@@ -252,6 +276,7 @@ fn designs_on_the_thesis_bench_meet_the_margins_by_python_control() {
     for strategy in [Strategy::Fast, Strategy::Slow] {
         let (c, why, got) = design_on(std::slice::from_ref(&cfg), strategy).unwrap();
         eprintln!("{got}: {why}\n{c:?}");
+        check_discretization(got, &cfg, &c);
         check_by_reference(got, std::slice::from_ref(&cfg), &c);
     }
 }
@@ -299,6 +324,7 @@ fn designs_on_random_benches_meet_the_margins_by_python_control() {
         match design_on(std::slice::from_ref(&cfg), Strategy::Auto) {
             Ok((c, why, got)) => {
                 eprintln!("seed {seed}: {got}: {why}");
+                check_discretization(&format!("seed {seed}"), &cfg, &c);
                 check_by_reference(&format!("seed {seed}"), std::slice::from_ref(&cfg), &c);
                 done += 1;
             }
