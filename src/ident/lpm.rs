@@ -532,8 +532,7 @@ fn backward_conj(l: &[C64], m: usize, v: &mut [C64]) {
 /// The LPM FRF on the log grid `f_lo … f_hi` (Hz, `points_per_decade`
 /// points per decade, as [`Frf::estimate`]): magnitude, unwrapped phase,
 /// the SNR-form coherence, σ per line, the resolution `(2n + 1) Δf` and
-/// σ's degrees of freedom stated as infinite (weighted as known: see the
-/// comment in the body).
+/// σ's real degrees of freedom `2q` (`q` of the line's window).
 ///
 /// # Errors
 /// [`FrfError::Options`] (too few degrees of freedom),
@@ -558,13 +557,15 @@ pub fn estimate(
         frf.sigma_m_per_a.push(line.sigma_m_per_a);
         frf.resolution_hz
             .push((2 * line.half_width_bins + 1) as f64 * spectra.bin_hz());
-        // Weighted as known: σ̂²_V has 2q real degrees of freedom, but it
-        // also holds the local polynomials' approximation error, and the
-        // fits on it are calibrated with the known-variance law (χ²/ν
-        // 0.67–0.91 where 2q = 14 would predict 1.17: the model error
-        // floor, `tests/cli/uncertainty.rs`); its own interval uses q
-        // (module docs).
-        frf.sigma_dof.push(f64::INFINITY);
+        // σ̂²_V has 2q real degrees of freedom (q in this line's window,
+        // wider windows more): a fit's cost reference is then F-shaped,
+        // its mean q/(q − 1) (1.17 at q = 7), where the known-variance
+        // law flagged fits of the true model at 10 % noise (χ²/ν
+        // 1.13–1.17 against a bound of 1.13, `tests/cli/real_links.rs`).
+        // Where the model error floor dominates (low noise) the fit's
+        // Satterthwaite degrees of freedom grow and it weighs as known.
+        let q = (2 * line.half_width_bins + 1) as f64 - opts.unknowns() as f64;
+        frf.sigma_dof.push(2.0 * q);
     }
     unwrap_deg(&mut frf.phase_deg);
     frf.frequency_hz = frequency_hz;

@@ -40,6 +40,7 @@ mod outputs;
 mod pace;
 mod plot_overlay;
 mod readme_examples;
+mod real_links;
 mod recover;
 mod schemas;
 mod stalls;

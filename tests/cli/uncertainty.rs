@@ -71,6 +71,41 @@ pub(crate) fn hidden(base: &BenchConfig, seed: u64) -> BenchConfig {
 /// command, keep both), the lead-in's mean taken off the reading; a
 /// sweep's FRF by the configured estimator, a multisine's BLA.
 pub(crate) fn measure(cfg: &BenchConfig, seed: u64) -> Frf {
+    measure_with_holds(cfg, seed, &[])
+}
+
+/// [`measure`] with the link dropping samples unseen: over each
+/// `(first_tick, ticks)` span the host keeps reading the last sample that
+/// arrived and the stage keeps the last command it received (a serial
+/// link's stall that no sequence number reveals).
+pub(crate) fn measure_with_holds(cfg: &BenchConfig, seed: u64, holds: &[(u64, u64)]) -> Frf {
+    let (record, excitation) = record_with_holds(cfg, seed, holds);
+    if let Excitation::Multisine(ms) = &excitation {
+        return Bla::estimate(&record, &ms.layout(), &[]).unwrap().to_frf();
+    }
+    let spectra = Spectra::from_record(
+        record,
+        1.0 / period_s(cfg),
+        &cfg.identification,
+        cfg.chirp.f_end_hz,
+    );
+    Frf::from_spectra(
+        &spectra,
+        cfg.chirp.f_start_hz,
+        cfg.chirp.f_end_hz,
+        &cfg.identification,
+    )
+    .unwrap()
+}
+
+/// The record [`measure_with_holds`] estimates from: (command A, reading
+/// m) per tick, the lead-in's mean taken off the reading; and the
+/// excitation played.
+pub(crate) fn record_with_holds(
+    cfg: &BenchConfig,
+    seed: u64,
+    holds: &[(u64, u64)],
+) -> (Vec<C64>, Excitation) {
     let mut stage = SimStage::new(SimParams {
         plant: cfg.plant,
         actuator: cfg.actuator,
@@ -84,37 +119,32 @@ pub(crate) fn measure(cfg: &BenchConfig, seed: u64) -> Frf {
     stage.enable().unwrap();
     let n = excitation.total_ticks();
     let mut record = Vec::with_capacity(fast_len(n as usize));
+    let (mut last_u, mut last_y) = (0.0, 0.0);
     for tick in 0..n {
         let s = stage.read_sample().unwrap();
-        let u = excitation.value_a(tick);
+        let held = holds
+            .iter()
+            .any(|&(first, len)| (first..first + len).contains(&tick));
+        let (u, y) = if held {
+            (last_u, last_y)
+        } else {
+            (excitation.value_a(tick), s.position_m)
+        };
         stage
             .write_command(Command {
                 current_a: u,
                 answers_seq: s.seq,
             })
             .unwrap();
-        record.push(C64::new(u, s.position_m));
+        (last_u, last_y) = (u, y);
+        record.push(C64::new(excitation.value_a(tick), y));
     }
     let lead = (excitation.lead_in_ticks() as usize).max(1);
     let offset = record[..lead].iter().map(|z| z.im).sum::<f64>() / lead as f64;
     for z in &mut record {
         z.im -= offset;
     }
-    if let Excitation::Multisine(ms) = &excitation {
-        return Bla::estimate(&record, &ms.layout(), &[]).unwrap().to_frf();
-    }
-    let spectra = Spectra::from_record(
-        record,
-        1.0 / period_s(cfg),
-        &cfg.identification,
-        cfg.chirp.f_end_hz,
-    );
-    Frf::estimate(
-        &spectra,
-        cfg.chirp.f_start_hz,
-        cfg.chirp.f_end_hz,
-        &cfg.identification,
-    )
+    (record, excitation)
 }
 
 /// One bench's truth and results.

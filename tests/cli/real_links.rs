@@ -1,0 +1,277 @@
+//! Issue 45, item 5: fits and verdicts on data as a real link gives it.
+//! The shipped Chapter 5 bench (its own noise seeds) and random hidden
+//! benches around it (`uncertainty.rs`'s draw: mass asymmetry of both
+//! signs, so CMP-CNMP zeros or none), measured by the default chirp
+//! (`uncertainty::measure`), fitted (`bench fit`) and judged (the verdict
+//! of `bench chirp`), under three hostile conditions:
+//!
+//! - **noise**: the probe's white noise raised to 10 % of the RMS
+//!   position the chirp makes on that bench (its noise-free record, the
+//!   lead-in left out): 3.5–5.5 µm where the shipped probe has 40 nm, a
+//!   median line 1.0–1.3 % of |H| in 1σ;
+//! - **outlier lines**: 20 % of the lines, drawn at random, multiplied by
+//!   `1 + r e^{jφ}` (r from 0.2 to 1, φ uniform), their stated σ and
+//!   coherence left as they were (a corrupted block that the estimator
+//!   does not know about);
+//! - **dropped samples**: three 30 ms spans at random times during which
+//!   the link delivers nothing and nothing tells the host: it reads the
+//!   last sample that arrived, the stage keeps the last command.
+//!
+//! What must hold, on every fit: the verdict is the truth's (the hidden
+//! model's zeros, Chapter 3) or `null` with a reason — never a confident
+//! wrong verdict. With outlier lines or dropped samples, a fit that is
+//! not flagged must also find the hidden model's in-path modes (each
+//! within 1 %, one to one, none added): every such fit is flagged.
+//!
+//! At 10 % noise the fits are counted, not asserted (issue 45 leaves it
+//! open): on 60 benches 3 are flagged, and 10 of the others miss one or
+//! both modes of the closely spaced pair without saying so, the
+//! residual white and at the noise (the pair, 2–5 % apart, sinks under
+//! it); one of those adds a mode at 153 Hz. Their verdicts are `null`
+//! (no pair, or the phase test's coherence and the residue test's
+//! confidence too low), as are all 60.
+
+use super::uncertainty::{ch5, hidden, measure, measure_with_holds, period_s, record_with_holds};
+use bench::analysis::modal::modal_terms;
+use bench::config::BenchConfig;
+use bench::ident::frf::Frf;
+use bench::ident::modal_fit::{fit, path_phase_deg, FrfData, Path as FitPath};
+use bench::ident::verdict::{verdict, without_fit};
+use bench_hal::model::Sr4dof;
+use rand::{Rng, SeedableRng};
+use rayon::prelude::*;
+
+/// Benches per condition: the shipped bench's noise seeds, then hidden
+/// benches.
+const SHIPPED: u64 = 10;
+const RANDOM: u64 = 50;
+/// The noisy condition's probe noise against the chirp's RMS position.
+const NOISE_TO_SIGNAL: f64 = 0.10;
+
+#[derive(Clone, Copy, Debug)]
+enum Condition {
+    Noise,
+    Outliers,
+    Dropped,
+}
+
+/// The hidden model's in-path modes in the band (Hz), the weak ones, and
+/// whether it has CMP-CNMP zeros.
+fn truth(cfg: &BenchConfig) -> (Vec<f64>, Vec<f64>, bool) {
+    let model = Sr4dof::new(cfg.plant).unwrap();
+    let band = cfg.chirp.f_start_hz..=cfg.chirp.f_end_hz;
+    let (path, weak): (Vec<_>, Vec<_>) = modal_terms(&model)
+        .into_iter()
+        .filter(|t| band.contains(&t.frequency_hz))
+        .partition(|t| t.in_path);
+    let hz = |v: Vec<bench::analysis::modal::ModalTerm>| v.iter().map(|t| t.frequency_hz).collect();
+    (hz(path), hz(weak), model.has_cnmp_zeros())
+}
+
+/// Corrupts 20 % of the lines of `frf` (see the module docs).
+fn with_outliers(mut frf: Frf, seed: u64) -> Frf {
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(45_500 + seed);
+    for k in 0..frf.frequency_hz.len() {
+        if rng.random_range(0.0..1.0) < 0.2 {
+            let r: f64 = rng.random_range(0.2..1.0);
+            let phi: f64 = rng.random_range(-std::f64::consts::PI..std::f64::consts::PI);
+            let h = bench::ident::frf::C64::from_polar(
+                frf.magnitude_m_per_a[k],
+                frf.phase_deg[k].to_radians(),
+            ) * (bench::ident::frf::C64::from_polar(r, phi) + 1.0);
+            frf.magnitude_m_per_a[k] = h.norm();
+            // Unwrapped as the estimator unwraps: the nearest turn to the
+            // line's phase as it was.
+            let was = frf.phase_deg[k];
+            let p = h.arg().to_degrees();
+            frf.phase_deg[k] = p + 360.0 * ((was - p) / 360.0).round();
+        }
+    }
+    frf
+}
+
+fn measured(cfg: &BenchConfig, seed: u64, c: Condition) -> Frf {
+    match c {
+        Condition::Noise => {
+            let mut c = cfg.clone();
+            c.probe.noise_rms_m = 0.0;
+            c.probe.quantization_m = 0.0;
+            let (clean, excitation) = record_with_holds(&c, seed, &[]);
+            let lead = excitation.lead_in_ticks() as usize;
+            let y = &clean[lead..];
+            let rms = (y.iter().map(|z| z.im * z.im).sum::<f64>() / y.len() as f64).sqrt();
+            let mut c = cfg.clone();
+            c.probe.noise_rms_m = NOISE_TO_SIGNAL * rms;
+
+            measure(&c, seed)
+        }
+        Condition::Outliers => with_outliers(measure(cfg, seed), seed),
+        Condition::Dropped => {
+            let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(45_700 + seed);
+            let rate = 1.0 / period_s(cfg);
+            let span = (0.030 * rate) as u64;
+            // After the lead-in, over the sweep.
+            let lead = (0.5 * rate) as u64;
+            let end = ((0.5 + cfg.chirp.duration_s.unwrap_or(20.0)) * rate) as u64;
+            let holds: Vec<(u64, u64)> = (0..3)
+                .map(|_| (rng.random_range(lead..end - span), span))
+                .collect();
+            measure_with_holds(cfg, seed, &holds)
+        }
+    }
+}
+
+/// The median line's relative 1σ.
+fn median_relative_sigma(frf: &Frf) -> f64 {
+    let mut r: Vec<f64> = frf
+        .sigma_m_per_a
+        .iter()
+        .zip(&frf.magnitude_m_per_a)
+        .map(|(s, m)| s / m)
+        .filter(|v| v.is_finite())
+        .collect();
+    r.sort_by(f64::total_cmp);
+    r[r.len() / 2]
+}
+
+/// One bench under one condition: (a confident wrong verdict, a trusted
+/// fit that is wrong, the fit flagged, the verdict null), each with why.
+struct Outcome {
+    wrong_verdict: Option<String>,
+    wrong_trusted_fit: Option<String>,
+    flagged: bool,
+    undecided: bool,
+    relative_sigma: f64,
+}
+
+fn one(name: &str, cfg: &BenchConfig, seed: u64, c: Condition) -> Outcome {
+    let frf = measured(cfg, seed, c);
+    let path = FitPath {
+        period_s: period_s(cfg),
+        amplifier_bandwidth_hz: cfg.actuator.bandwidth_hz,
+    };
+    let (modes, weak, cnmp) = truth(cfg);
+    let f = fit(&FrfData::from_frf(&frf), &path);
+    let v = match &f {
+        Ok(f) => verdict(&frf, f, |hz| path_phase_deg(f, &path, hz)),
+        Err(e) => without_fit(&e.to_string()),
+    };
+    let wrong_verdict = v.cmp_cnmp.filter(|&said| said != cnmp).map(|said| {
+        format!(
+            "{c:?}, {name}: verdict {said} where the truth is {cnmp} ({})",
+            v.reason.clone().unwrap_or_default()
+        )
+    });
+    let (flagged, wrong_trusted_fit) = match &f {
+        Err(_) => (true, None),
+        Ok(f) if !f.trusted() => {
+            if std::env::var_os("BENCH_SHOW_FLAGS").is_some() {
+                eprintln!("{c:?}, {name}: flagged: {}", f.quality.flags.join("; "));
+            }
+            (true, None)
+        }
+        Ok(f) => {
+            let found: Vec<f64> = f.modes.iter().map(|m| m.frequency_hz).collect();
+            let mut taken = vec![false; found.len()];
+            let mut missed = Vec::new();
+            for &t in &modes {
+                let best = (0..found.len())
+                    .filter(|&i| !taken[i] && (found[i] / t).ln().abs() < 0.01)
+                    .min_by(|&a, &b| {
+                        (found[a] / t)
+                            .ln()
+                            .abs()
+                            .total_cmp(&(found[b] / t).ln().abs())
+                    });
+                match best {
+                    Some(i) => taken[i] = true,
+                    None => missed.push(t),
+                }
+            }
+            let said = |t: &f64| {
+                f.quality
+                    .undecided_modes
+                    .iter()
+                    .any(|m| (m.frequency_hz / t).ln().abs() < 0.01)
+            };
+            let invented = (0..found.len())
+                .filter(|&i| !taken[i] && !weak.iter().any(|t| (found[i] / t).ln().abs() < 0.01))
+                .count();
+            let wrong = invented > 0 || !missed.iter().all(said);
+            (
+                false,
+                wrong.then(|| {
+                    format!("{c:?}, {name}: truth {modes:.2?} Hz, fitted {found:.2?} Hz, unflagged")
+                }),
+            )
+        }
+    };
+    Outcome {
+        wrong_verdict,
+        wrong_trusted_fit,
+        flagged,
+        undecided: v.cmp_cnmp.is_none(),
+        relative_sigma: median_relative_sigma(&frf),
+    }
+}
+
+fn survey(c: Condition) {
+    let base = ch5();
+    let benches: Vec<(String, BenchConfig, u64)> = (0..SHIPPED)
+        .map(|s| (format!("shipped, noise seed {s}"), base.clone(), 47_000 + s))
+        .chain((0..RANDOM).map(|s| {
+            (
+                format!("hidden bench {}", 700 + s),
+                hidden(&base, 700 + s),
+                48_000 + s,
+            )
+        }))
+        .collect();
+    let out: Vec<Outcome> = benches
+        .par_iter()
+        .map(|(name, cfg, seed)| one(name, cfg, *seed, c))
+        .collect();
+    let n = out.len();
+    let wrong: Vec<&String> = out
+        .iter()
+        .filter_map(|o| o.wrong_verdict.as_ref())
+        .collect();
+    let bad_fits: Vec<&String> = out
+        .iter()
+        .filter_map(|o| o.wrong_trusted_fit.as_ref())
+        .collect();
+    let flagged = out.iter().filter(|o| o.flagged).count();
+    let undecided = out.iter().filter(|o| o.undecided).count();
+    let mut rs: Vec<f64> = out.iter().map(|o| o.relative_sigma).collect();
+    rs.sort_by(f64::total_cmp);
+    eprintln!(
+        "{c:?}: {n} fits; verdict right {}, undecided {undecided}, wrong {}; fits flagged {flagged}, unflagged and wrong {}; median line's relative 1σ {:.3}–{:.3}",
+        n - undecided - wrong.len(),
+        wrong.len(),
+        bad_fits.len(),
+        rs[0],
+        rs[n - 1]
+    );
+    for w in wrong.iter().chain(&bad_fits) {
+        eprintln!("  {w}");
+    }
+    assert!(wrong.is_empty(), "{wrong:#?}");
+    if !matches!(c, Condition::Noise) {
+        assert!(bad_fits.is_empty(), "{bad_fits:#?}");
+    }
+}
+
+#[test]
+fn at_ten_percent_noise_no_verdict_is_confidently_wrong() {
+    survey(Condition::Noise);
+}
+
+#[test]
+fn with_a_fifth_of_the_lines_corrupted_no_verdict_is_confidently_wrong() {
+    survey(Condition::Outliers);
+}
+
+#[test]
+fn with_samples_dropped_unseen_no_verdict_is_confidently_wrong() {
+    survey(Condition::Dropped);
+}
