@@ -35,8 +35,8 @@ pub struct DiscretizationReport {
     /// Upper end of the wide band, Hz (a quarter of the sample rate).
     #[serde(default = "not_stated")]
     pub wide_up_to_hz: f64,
-    /// Largest `20 log10 |C_d/C|` from `wide_up_to_hz` to Nyquist, dB: how
-    /// far the discrete gain rises above the design where it is not fitted
+    /// Largest `20 log10 |C_d/C|` from `up_to_hz` to Nyquist, dB: how far
+    /// the discrete gain rises above the design where it is not fitted
     /// (negative: it stays below).
     pub above_band_max_excess_db: f64,
 }
@@ -128,9 +128,6 @@ fn matched_denominator(sec: &ContinuousSection, period_s: f64) -> [f64; 2] {
 /// Points of the least-squares fit grid (log-spaced, 5 decades below the
 /// top of the band).
 const FIT_POINTS: usize = 600;
-/// The least-squares fit's tolerance from f_s/10 to f_s/4 against its
-/// tolerance below: the targets' ratio (0.5 dB / 3° against 0.1 dB / 1°).
-const WIDE_TOLERANCE: f64 = 3.0;
 /// Plain block-coordinate sweeps before the minimax reweighting.
 const FIT_SWEEPS: usize = 60;
 /// Lawson reweighting sweeps (towards the minimax fit).
@@ -185,18 +182,16 @@ fn fit_numerator(zinv: &[Complex<f64>], g: &[Complex<f64>], w: &[f64]) -> Option
 /// responses is `target(ω) = C(jω)/g`): poles matched, then the section
 /// numerators are fitted jointly, one at a time with the others held
 /// (each step is linear), first in plain least squares on the relative
-/// error over its tolerance, then with Lawson's reweighting towards the
-/// smallest largest such error, on a log grid up to `f_max_hz`; the
-/// tolerance is 1 up to `f_tight_hz` and [`WIDE_TOLERANCE`] above. `None`
-/// when the fit fails numerically.
+/// error, then with Lawson's reweighting towards the smallest largest
+/// error, on a log grid up to `f_max_hz`. `None` when the fit fails
+/// numerically.
 fn least_squares(
     secs: &[ContinuousSection],
     target: &dyn Fn(f64) -> Complex<f64>,
     period_s: f64,
-    f_tight_hz: f64,
     f_max_hz: f64,
 ) -> Option<Vec<Biquad>> {
-    let f_lo = f_tight_hz * 1e-5;
+    let f_lo = f_max_hz * 1e-5;
     let omega: Vec<f64> = (0..FIT_POINTS)
         .map(|k| 2.0 * PI * f_lo * (f_max_hz / f_lo).powf(k as f64 / (FIT_POINTS - 1) as f64))
         .collect();
@@ -217,19 +212,7 @@ fn least_squares(
         let z = zinv[k];
         z * b[1] + z * z * b[2] + b[0]
     };
-    // Relative error over its tolerance: the fit's weights start at the
-    // tolerance's inverse, and the minimax is on the ratio.
-    let tol: Vec<f64> = omega
-        .iter()
-        .map(|w| {
-            if *w <= 2.0 * PI * f_tight_hz * (1.0 + 1e-12) {
-                1.0
-            } else {
-                WIDE_TOLERANCE
-            }
-        })
-        .collect();
-    let mut w: Vec<f64> = tol.iter().map(|t| 1.0 / t).collect();
+    let mut w = vec![1.0; FIT_POINTS];
     // Start: each section fitted to its own continuous response.
     let mut nums: Vec<[f64; 3]> = Vec::with_capacity(secs.len());
     for (i, sec) in secs.iter().enumerate() {
@@ -259,7 +242,7 @@ fn least_squares(
                     for (j, b) in nums.iter().enumerate() {
                         r *= num(b, k) / den(j, k);
                     }
-                    let e = (r - 1.0).norm() / tol[k];
+                    let e = (r - 1.0).norm();
                     if e.is_finite() {
                         e
                     } else {
@@ -351,18 +334,8 @@ pub(super) fn discretize(
     }
     let up_to_hz = 0.1 / period_s;
     let wide_up_to_hz = 0.25 / period_s;
-    // Both bands' errors on one scale: each over its target.
-    let errors = |b: &[Biquad]| {
-        let tight = cascade_error(cfg, b, period_s, up_to_hz);
-        let wide = cascade_error(cfg, b, period_s, wide_up_to_hz);
-        let score = (tight.0 / 0.1)
-            .max(tight.1)
-            .max(wide.0 / WIDE_MAX_ERROR_DB)
-            .max(wide.1 / WIDE_MAX_ERROR_DEG);
-        (tight, wide, score)
-    };
     let tustin: Vec<Biquad> = secs.iter().map(|s| tustin(s, period_s)).collect();
-    let tustin_error = errors(&tustin);
+    let tustin_error = cascade_error(cfg, &tustin, period_s, up_to_hz);
     let plain = if cfg.discretization == Discretization::Bilinear {
         Discretization::Bilinear
     } else {
@@ -381,16 +354,21 @@ pub(super) fn discretize(
                 prewarp_rad_s: None,
             });
         }
-        if let Some(fit) = least_squares(&fit_secs, &target, period_s, up_to_hz, wide_up_to_hz) {
-            let e = errors(&fit);
-            // Keep the fit unless it is worse than Tustin (each band on the
-            // scale of its target); the report says what runs.
-            if e.2 <= tustin_error.2 {
+        if let Some(fit) = least_squares(&fit_secs, &target, period_s, up_to_hz) {
+            let e = cascade_error(cfg, &fit, period_s, up_to_hz);
+            // Keep the fit unless it is worse than Tustin (on the scale
+            // of the 0.1 dB / 1° target); the report says what runs.
+            if (e.0 / 0.1).max(e.1) <= (tustin_error.0 / 0.1).max(tustin_error.1) {
                 chosen = (Discretization::LeastSquares, fit, e);
             }
         }
     }
-    let (method, biquads, ((max_error_db, max_error_deg), (wide_db, wide_deg), _)) = chosen;
+    let (method, biquads, (max_error_db, max_error_deg)) = chosen;
+    // The wide band is reported, not fitted: a fit to f_s/4 (tolerance 3
+    // above f_s/10) met 0.5 dB / 3° there but left Eq. (6-7) 0.04 dB /
+    // 0.25° off up to f_s/10 and |C_d/C − 1| = 4.9e-3 where its margins
+    // are read, ten times what the fit to f_s/10 leaves (issue 45).
+    let (wide_db, wide_deg) = cascade_error(cfg, &biquads, period_s, wide_up_to_hz);
     let report = DiscretizationReport {
         method,
         max_error_db,
@@ -399,7 +377,7 @@ pub(super) fn discretize(
         wide_max_error_db: wide_db,
         wide_max_error_deg: wide_deg,
         wide_up_to_hz,
-        above_band_max_excess_db: above_band_excess_db(cfg, &biquads, period_s, wide_up_to_hz),
+        above_band_max_excess_db: above_band_excess_db(cfg, &biquads, period_s, up_to_hz),
     };
     (biquads, report)
 }
@@ -495,7 +473,7 @@ mod tests {
         }
     }
 
-    /// Above the fitted band (f_s/4 to Nyquist) the least-squares
+    /// Above the fitted band (f_s/10 to Nyquist) the least-squares
     /// controllers exceed the continuous gain by at most 1.5 dB, where the
     /// design is already far below crossover, and the report says by how
     /// much. (Tustin, whose zeros at z = −1 pull it to nothing at Nyquist,
@@ -507,7 +485,7 @@ mod tests {
             let d = DiscreteController::new(&cfg, t, f64::INFINITY);
             let mut worst = (f64::NEG_INFINITY, 0.0);
             for i in 0..=400 {
-                let f = 1250.0 + (2490.0 - 1250.0) * i as f64 / 400.0;
+                let f = 500.0 + (2490.0 - 500.0) * i as f64 / 400.0;
                 let w = 2.0 * PI * f;
                 let db = 20.0 * (d.response(w, t).norm() / cfg.response(w).norm()).log10();
                 if db > worst.0 {
@@ -515,7 +493,7 @@ mod tests {
                 }
             }
             eprintln!(
-                "{name}: above f_s/4 at most {:.3} dB over the design (at {:.0} Hz)",
+                "{name}: above f_s/10 at most {:.3} dB over the design (at {:.0} Hz)",
                 worst.0, worst.1
             );
             assert!(worst.0 < 1.5, "{name}: {} dB at {} Hz", worst.0, worst.1);
@@ -528,11 +506,12 @@ mod tests {
         }
     }
 
-    /// Issue 45: up to f_s/4 every least-squares controller here (the
-    /// shipped ones and a lab's others) stays within 0.5 dB / 3° of its
-    /// continuous design, on an independent grid, and the report says so.
+    /// Issue 45: the report states the error up to f_s/4 as an
+    /// independent grid finds it, and whether the 0.5 dB / 3° target
+    /// holds there (the slow controller's does; the fast one's gain rises
+    /// above it between f_s/10 and f_s/4, and the report says so).
     #[test]
-    fn least_squares_is_within_half_a_db_and_3_degrees_to_a_quarter_of_the_rate() {
+    fn the_report_states_the_error_to_a_quarter_of_the_rate() {
         let t = 200e-6;
         let mut cases = shipped();
         cases.push((
@@ -545,24 +524,22 @@ mod tests {
         ));
         for (name, cfg) in cases {
             let (db, deg) = max_error(&cfg, t, 1250.0);
-            eprintln!("{name}: to f_s/4 max {db:.3} dB, {deg:.3}°");
-            assert!(
-                db <= WIDE_MAX_ERROR_DB && deg <= WIDE_MAX_ERROR_DEG,
-                "{name}: {db} dB, {deg}°"
-            );
             let d = DiscreteController::new(&cfg, t, f64::INFINITY);
             let r = d.discretization();
-            assert!(r.within_wide_target(), "{name}: {r:?}");
+            eprintln!("{name}: to f_s/4 max {db:.3} dB, {deg:.3}°; {}", r.line());
             assert!((r.wide_up_to_hz - 1250.0).abs() < 1e-9);
             assert!(
-                (r.wide_max_error_db - db).abs() < 0.05 && (r.wide_max_error_deg - deg).abs() < 0.3
+                (r.wide_max_error_db - db).abs() < 0.05 && (r.wide_max_error_deg - deg).abs() < 0.3,
+                "{name}: {r:?}"
+            );
+            assert_eq!(
+                r.within_wide_target(),
+                db <= WIDE_MAX_ERROR_DB && deg <= WIDE_MAX_ERROR_DEG,
+                "{name}"
             );
         }
     }
 
-    /// The least-squares sections keep the poles of the continuous design
-    /// mapped exactly by `z = e^{sT}`: the integrator at z = 1, the real
-    /// poles at e^{−pT}, the pairs at e^{(−ζω ± jω√(1−ζ²))T}.
     #[test]
     fn least_squares_poles_are_matched() {
         let t = 200e-6;

@@ -24,9 +24,14 @@
 //!   δ = |ΔL|/|L| with two sources:
 //!   1. the controller: the shipped controllers run their `least_squares`
 //!      discretisation, within 0.003 dB / 0.02° of the continuous design up
-//!      to f_s/10 = 500 Hz (README, *Discretisation*; the test asserts the
-//!      tool's own `DiscretizationReport` still says ≤ 0.005 dB / 0.03°),
-//!      δ ≤ 0.0006 + 0.0005;
+//!      to f_s/10 = 500 Hz (`docs/src/jobs/control.md`). The test measures
+//!      δ_c = |C_d/C − 1| where the margins are read (each crossover, the
+//!      gain margin's phase crossover, the ‖S‖∞ peak: at most 1.5·10⁻⁴
+//!      here), asserts δ_c ≤ 5·10⁻³, and widens the tolerances below only
+//!      where δ_c exceeds 1.1·10⁻³ (each bound as derived, with the same
+//!      headroom). A least-squares fit to f_s/4, tried for issue 45, left
+//!      Eq. (6-7) at δ_c = 4.9·10⁻³ and moved a random bench's crossover
+//!      by 1.5 %: it is not what runs;
 //!   2. the hold: the sampled plant is the continuous one with the exact
 //!      hold plus its aliases at ω ± k·2π/T, which relative to it are about
 //!      (ω/ω_s)³ (the plant falls as ω⁻² above its modes, the hold as ω⁻¹):
@@ -89,9 +94,10 @@ const RUNNING_LOOP: Tol = Tol {
     s_rel: 0.01,
 };
 
-/// The controller discretisation error the [`RUNNING_LOOP`] tolerances
-/// assume, up to f_s/10: dB and degrees.
-const DISCRETISATION_PREMISE: (f64, f64) = (0.005, 0.03);
+/// The largest controller δ at the margins' frequencies the running
+/// loop's comparison accepts (0.04 dB / 0.23°): the tolerances derived
+/// from it stay within four times [`RUNNING_LOOP`].
+const CONTROLLER_DELTA_MAX: f64 = 5e-3;
 
 fn shipped() -> BenchConfig {
     BenchConfig::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("bench-config/sr4dof-ch5.toml"))
@@ -194,22 +200,53 @@ fn disagreements(what: &str, m: &Margins, r: &RefLoop, tol: Tol, worst: &mut Wor
     v
 }
 
-/// The [`RUNNING_LOOP`] premise: the controller that runs is within
-/// [`DISCRETISATION_PREMISE`] of its design.
-fn premise(what: &str, check: &LoopCheck) -> Vec<String> {
-    let d = &check.discretization;
-    let (db, deg) = DISCRETISATION_PREMISE;
-    if d.max_error_db > db || d.max_error_deg > deg {
+/// The controller's part of δ (module docs): the largest
+/// `|C_d(e^{jωT})/C(jω) − 1|` of the controller that runs, at the
+/// frequencies where `m`'s margins are read (every crossover, the gain
+/// margin's phase crossover, the ‖S‖∞ peak).
+fn controller_delta(cfg: &BenchConfig, name: &str, m: &Margins) -> f64 {
+    let t = period_s(cfg);
+    let c = &cfg.controller[name];
+    let d = DiscreteController::new(c, t, f64::INFINITY);
+    m.crossovers_rad_s
+        .iter()
+        .copied()
+        .chain(m.gain_margin_at_rad_s)
+        .chain([m.sensitivity_peak_at_rad_s])
+        .filter(|w| w.is_finite() && *w > 0.0)
+        .map(|w| (d.response(w, t) / c.response(w) - 1.0).norm())
+        .fold(0.0, f64::max)
+}
+
+/// The [`RUNNING_LOOP`] premise, measured: the controller's δ at the
+/// margins' frequencies is at most [`CONTROLLER_DELTA_MAX`], and the
+/// tolerances follow from it (module docs: δ = δ_c + 10⁻⁴ for the hold;
+/// crossover 2.5δ, phase margin 4.5δ rad, gain margin 5.7δ neper, ‖S‖∞
+/// 5δ + 0.4 %), each at least its [`RUNNING_LOOP`] value.
+fn premise(what: &str, cfg: &BenchConfig, name: &str, check: &LoopCheck) -> (Tol, Vec<String>) {
+    let dc = controller_delta(cfg, name, &check.model);
+    let d = dc + 1e-4;
+    let tol = Tol {
+        crossover_rel: RUNNING_LOOP.crossover_rel.max(2.5 * d),
+        pm_deg: RUNNING_LOOP.pm_deg.max((4.5 * d).to_degrees()),
+        gm_db: RUNNING_LOOP
+            .gm_db
+            .max(5.7 * d * 20.0 / std::f64::consts::LN_10),
+        s_rel: RUNNING_LOOP.s_rel.max(5.0 * d + 0.004),
+    };
+    eprintln!(
+        "   {what}: the controller that runs ({}) is within δ = {dc:.1e} of the design where the margins are read",
+        check.discretization.method.as_str()
+    );
+    let problems = if dc > CONTROLLER_DELTA_MAX {
         vec![format!(
-            "{what}: the discretisation that runs ({}) is {:.4} dB / {:.3}° from the design up to {} Hz, beyond the {db} dB / {deg}° the tolerances assume",
-            d.method.as_str(),
-            d.max_error_db,
-            d.max_error_deg,
-            d.up_to_hz
+            "{what}: the discretisation that runs ({}) is δ = {dc:.2e} from the design where the margins are read, beyond the {CONTROLLER_DELTA_MAX} the tolerances assume",
+            check.discretization.method.as_str()
         )]
     } else {
         Vec::new()
-    }
+    };
+    (tol, problems)
 }
 
 fn list(v: &[f64], digits: usize) -> String {
@@ -313,12 +350,13 @@ fn chapter_5_controllers_agree_with_python_control() {
             ],
         );
         stability_line(name, Some(&check), run);
-        problems.extend(premise(name, &check));
+        let (tol, p) = premise(name, &cfg, name, &check);
+        problems.extend(p);
         problems.extend(disagreements(
             name,
             &check.model,
             &run.margins,
-            RUNNING_LOOP,
+            tol,
             &mut running,
         ));
         problems.extend(disagreements(
@@ -471,12 +509,13 @@ fn random_benches_agree_with_python_control() {
         }
         // The margins of an unstable loop are figures of L(jω) all the
         // same: compared too.
-        problems.extend(premise(&r.name, &check));
+        let (tol, p) = premise(&r.name, cfg, name, &check);
+        problems.extend(p);
         problems.extend(disagreements(
             &r.name,
             &check.model,
             &r.margins,
-            RUNNING_LOOP,
+            tol,
             &mut worst,
         ));
     }
@@ -608,11 +647,13 @@ fn the_link_delay_agrees_with_python_control() {
             ],
         );
         stability_line(n, Some(&check), with);
+        let (tol, p) = premise(n, &cfg, name, &check);
+        problems.extend(p);
         problems.extend(disagreements(
             n,
             &check.model,
             &with.margins,
-            RUNNING_LOOP,
+            tol,
             &mut worst,
         ));
         if Some(check.closed_loop_stable) != with.stable_discrete {
