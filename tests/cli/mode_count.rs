@@ -24,7 +24,7 @@ const RANDOM: u64 = 160;
 /// The hidden model's modes inside the excited band, Hz: those in the
 /// actuator-to-probe path (a modal residue at least `RESIDUE_RATIO` of the
 /// largest), which the fit must find, and the others, which it may.
-fn true_modes(cfg: &BenchConfig) -> (Vec<f64>, Vec<f64>) {
+pub(crate) fn true_modes(cfg: &BenchConfig) -> (Vec<f64>, Vec<f64>) {
     let model = Sr4dof::new(cfg.plant).unwrap();
     let band = cfg.chirp.f_start_hz..=cfg.chirp.f_end_hz;
     let (path, weak): (Vec<_>, Vec<_>) = modal_terms(&model)
@@ -46,7 +46,7 @@ fn multisine(cfg: &BenchConfig) -> BenchConfig {
 /// What one fit found against the truth: `None` when it found exactly
 /// the true modes (a true mode it reports as undecided, within 1 %, counts
 /// as found: the fit said the data cannot decide it), else why not.
-fn judge(truth: &[f64], weak: &[f64], fit: Option<&ModalFit>) -> Option<String> {
+pub(crate) fn judge(truth: &[f64], weak: &[f64], fit: Option<&ModalFit>) -> Option<String> {
     let Some(f) = fit else {
         return Some("no fit".into());
     };

@@ -31,8 +31,8 @@
 //! (no pair, or the phase test's coherence and the residue test's
 //! confidence too low), as are all 60.
 
+use super::mode_count::{judge, true_modes};
 use super::uncertainty::{ch5, hidden, measure, measure_with_holds, period_s, record_with_holds};
-use bench::analysis::modal::modal_terms;
 use bench::config::BenchConfig;
 use bench::ident::frf::Frf;
 use bench::ident::modal_fit::{fit, path_phase_deg, FrfData, Path as FitPath};
@@ -53,19 +53,6 @@ enum Condition {
     Noise,
     Outliers,
     Dropped,
-}
-
-/// The hidden model's in-path modes in the band (Hz), the weak ones, and
-/// whether it has CMP-CNMP zeros.
-fn truth(cfg: &BenchConfig) -> (Vec<f64>, Vec<f64>, bool) {
-    let model = Sr4dof::new(cfg.plant).unwrap();
-    let band = cfg.chirp.f_start_hz..=cfg.chirp.f_end_hz;
-    let (path, weak): (Vec<_>, Vec<_>) = modal_terms(&model)
-        .into_iter()
-        .filter(|t| band.contains(&t.frequency_hz))
-        .partition(|t| t.in_path);
-    let hz = |v: Vec<bench::analysis::modal::ModalTerm>| v.iter().map(|t| t.frequency_hz).collect();
-    (hz(path), hz(weak), model.has_cnmp_zeros())
 }
 
 /// Corrupts 20 % of the lines of `frf` (see the module docs).
@@ -150,7 +137,8 @@ fn one(name: &str, cfg: &BenchConfig, seed: u64, c: Condition) -> Outcome {
         period_s: period_s(cfg),
         amplifier_bandwidth_hz: cfg.actuator.bandwidth_hz,
     };
-    let (modes, weak, cnmp) = truth(cfg);
+    let (modes, weak) = true_modes(cfg);
+    let cnmp = Sr4dof::new(cfg.plant).unwrap().has_cnmp_zeros();
     let f = fit(&FrfData::from_frf(&frf), &path);
     let v = match &f {
         Ok(f) => verdict(&frf, f, |hz| path_phase_deg(f, &path, hz)),
@@ -164,47 +152,11 @@ fn one(name: &str, cfg: &BenchConfig, seed: u64, c: Condition) -> Outcome {
     });
     let (flagged, wrong_trusted_fit) = match &f {
         Err(_) => (true, None),
-        Ok(f) if !f.trusted() => {
-            if std::env::var_os("BENCH_SHOW_FLAGS").is_some() {
-                eprintln!("{c:?}, {name}: flagged: {}", f.quality.flags.join("; "));
-            }
-            (true, None)
-        }
-        Ok(f) => {
-            let found: Vec<f64> = f.modes.iter().map(|m| m.frequency_hz).collect();
-            let mut taken = vec![false; found.len()];
-            let mut missed = Vec::new();
-            for &t in &modes {
-                let best = (0..found.len())
-                    .filter(|&i| !taken[i] && (found[i] / t).ln().abs() < 0.01)
-                    .min_by(|&a, &b| {
-                        (found[a] / t)
-                            .ln()
-                            .abs()
-                            .total_cmp(&(found[b] / t).ln().abs())
-                    });
-                match best {
-                    Some(i) => taken[i] = true,
-                    None => missed.push(t),
-                }
-            }
-            let said = |t: &f64| {
-                f.quality
-                    .undecided_modes
-                    .iter()
-                    .any(|m| (m.frequency_hz / t).ln().abs() < 0.01)
-            };
-            let invented = (0..found.len())
-                .filter(|&i| !taken[i] && !weak.iter().any(|t| (found[i] / t).ln().abs() < 0.01))
-                .count();
-            let wrong = invented > 0 || !missed.iter().all(said);
-            (
-                false,
-                wrong.then(|| {
-                    format!("{c:?}, {name}: truth {modes:.2?} Hz, fitted {found:.2?} Hz, unflagged")
-                }),
-            )
-        }
+        Ok(f) if !f.trusted() => (true, None),
+        Ok(f) => (
+            false,
+            judge(&modes, &weak, Some(f)).map(|why| format!("{c:?}, {name}: {why}")),
+        ),
     };
     Outcome {
         wrong_verdict,
