@@ -387,6 +387,9 @@ pub(super) fn print_quality(f: &ModalFit) {
     for m in &q.undecided_modes {
         outln!("  undecided: {}", m.line());
     }
+    if let Some(d) = &q.detection_limit {
+        outln!("  detection limit: {}", d.line());
+    }
     if let Some(u) = &f.labels_unsure {
         outln!("  labels unsure: {u}");
     }

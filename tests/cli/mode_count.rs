@@ -64,6 +64,34 @@ fn multisine(cfg: &BenchConfig) -> BenchConfig {
     c
 }
 
+/// The true modes (indices into `truth`) that no fitted mode of `found`
+/// matches, and the fitted modes (indices into `found`) that match no
+/// true mode (nor a `weak` one): one to one, each true mode taking the
+/// nearest fitted mode not yet taken within 1 % (one fitted mode between
+/// a close pair is one).
+pub(crate) fn matching(truth: &[f64], weak: &[f64], found: &[f64]) -> (Vec<usize>, Vec<usize>) {
+    let mut taken = vec![false; found.len()];
+    let mut missed = Vec::new();
+    for (j, &t) in truth.iter().enumerate() {
+        let best = (0..found.len())
+            .filter(|&i| !taken[i] && (found[i] / t).ln().abs() < 0.01)
+            .min_by(|&a, &b| {
+                (found[a] / t)
+                    .ln()
+                    .abs()
+                    .total_cmp(&(found[b] / t).ln().abs())
+            });
+        match best {
+            Some(i) => taken[i] = true,
+            None => missed.push(j),
+        }
+    }
+    let invented = (0..found.len())
+        .filter(|&i| !taken[i] && !weak.iter().any(|t| (found[i] / t).ln().abs() < 0.01))
+        .collect();
+    (missed, invented)
+}
+
 /// What one fit found against the truth: `None` when it found exactly
 /// the true modes (a true mode it reports as undecided, within 1 %, counts
 /// as found: the fit said the data cannot decide it), else why not.
@@ -78,27 +106,9 @@ pub(crate) fn judge(truth: &[f64], weak: &[f64], fit: Option<&ModalFit>) -> Opti
         .iter()
         .map(|m| m.frequency_hz)
         .collect();
-    // One to one: each true mode takes the nearest fitted mode not yet
-    // taken, within 1 % (one fitted mode between a close pair is one).
-    let mut taken = vec![false; found.len()];
-    let mut missed = Vec::new();
-    for &t in truth {
-        let best = (0..found.len())
-            .filter(|&i| !taken[i] && (found[i] / t).ln().abs() < 0.01)
-            .min_by(|&a, &b| {
-                (found[a] / t)
-                    .ln()
-                    .abs()
-                    .total_cmp(&(found[b] / t).ln().abs())
-            });
-        match best {
-            Some(i) => taken[i] = true,
-            None => missed.push(t),
-        }
-    }
-    let invented = (0..found.len())
-        .filter(|&i| !taken[i] && !weak.iter().any(|t| (found[i] / t).ln().abs() < 0.01))
-        .count();
+    let (missed, invented) = matching(truth, weak, &found);
+    let missed: Vec<f64> = missed.iter().map(|&i| truth[i]).collect();
+    let invented = invented.len();
     let said = missed
         .iter()
         .all(|t| undecided.iter().any(|g| (g / t).ln().abs() < 0.01));
@@ -110,9 +120,12 @@ pub(crate) fn judge(truth: &[f64], weak: &[f64], fit: Option<&ModalFit>) -> Opti
     })
 }
 
+/// A fit that went wrong: why, and whether it was trusted.
+type Wrong = (String, bool);
+
 /// The fits that went wrong (why, and whether the fit was trusted), and
 /// the undecided modes reported that are no true mode.
-fn survey(kind: &str) -> (Vec<(String, bool)>, Vec<String>) {
+fn survey(kind: &str) -> (Vec<Wrong>, Vec<String>) {
     let base = ch5();
     let base = if kind == "multisine" {
         multisine(&base)
@@ -133,7 +146,7 @@ fn survey(kind: &str) -> (Vec<(String, bool)>, Vec<String>) {
             )
         }))
         .collect();
-    let results: Vec<(Option<(String, bool)>, Vec<String>)> = benches
+    let results: Vec<(Option<Wrong>, Vec<String>)> = benches
         .par_iter()
         .map(|(name, cfg, seed)| {
             let frf = measure(cfg, *seed);

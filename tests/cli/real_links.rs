@@ -23,16 +23,20 @@
 //! not flagged must also find the hidden model's in-path modes (each
 //! within 1 %, one to one, none added): every such fit is flagged.
 //!
-//! At 10 % noise the fits are counted, not asserted (issue 45 leaves it
-//! open): on 60 benches 3 are flagged, and 10 of the others miss one or
-//! both modes of the closely spaced pair without saying so, the
-//! residual white and at the noise (the pair, 2–5 % apart, sinks under
-//! it); one of those adds a mode at 153 Hz. Their verdicts are `null`
-//! (no pair, or the phase test's coherence and the residue test's
-//! confidence too low), as are all 60.
+//! At 10 % noise the pair (2–5 % apart) sinks under the noise on some
+//! benches, and a fit that misses it is not flagged (its residual is
+//! white and at the noise). What must hold there: every true in-path mode
+//! a trusted fit missed is one the fit said it could miss — reported
+//! undecided, in a fitted mode's unresolved band, or weaker than the
+//! detection limit it states at that frequency
+//! (`ModalFit::quality.detection_limit`). Fits that add a mode at 10 %
+//! noise are counted, not asserted (one of 60, at 153 Hz). The verdicts
+//! are all `null` (no pair, or the phase test's coherence and the
+//! residue test's confidence too low).
 
-use super::mode_count::{judge, true_modes};
+use super::mode_count::{judge, matching, true_modes};
 use super::uncertainty::{ch5, hidden, measure, measure_with_holds, period_s, record_with_holds};
+use bench::analysis::modal::modal_terms;
 use bench::config::BenchConfig;
 use bench::ident::frf::Frf;
 use bench::ident::modal_fit::{fit, path_phase_deg, FrfData, Path as FitPath};
@@ -129,6 +133,13 @@ struct Outcome {
     flagged: bool,
     undecided: bool,
     relative_sigma: f64,
+    /// True modes a trusted fit missed without saying so: not reported
+    /// undecided, outside the unresolved bands, and at or above the
+    /// detection limit it states (or where it states none).
+    missed_above_limit: Vec<String>,
+    /// True modes a trusted fit missed and said it could: reported
+    /// undecided, in an unresolved band, or below its stated limit.
+    missed_within_limit: Vec<String>,
 }
 
 fn one(name: &str, cfg: &BenchConfig, seed: u64, c: Condition) -> Outcome {
@@ -158,12 +169,59 @@ fn one(name: &str, cfg: &BenchConfig, seed: u64, c: Condition) -> Outcome {
             judge(&modes, &weak, Some(f)).map(|why| format!("{c:?}, {name}: {why}")),
         ),
     };
+    // Every true mode a trusted fit missed, against the limit it states.
+    let mut missed_above_limit = Vec::new();
+    let mut missed_within_limit = Vec::new();
+    if let Some(f) = f.as_ref().ok().filter(|f| f.trusted()) {
+        let found: Vec<f64> = f.modes.iter().map(|m| m.frequency_hz).collect();
+        let (missed, _) = matching(&modes, &weak, &found);
+        let terms = modal_terms(&Sr4dof::new(cfg.plant).unwrap());
+        let kf = cfg.actuator.force_constant_n_per_a;
+        for i in missed {
+            let t = terms
+                .iter()
+                .min_by(|a, b| {
+                    (a.frequency_hz / modes[i])
+                        .ln()
+                        .abs()
+                        .total_cmp(&(b.frequency_hz / modes[i]).ln().abs())
+                })
+                .expect("a true mode");
+            let a = (t.residue_per_kg * kf).abs();
+            let ft = t.frequency_hz;
+            let d = f.quality.detection_limit.as_ref();
+            let limit = d.and_then(|d| d.at(ft).map(|l| (l, d.damping_at(ft))));
+            let undecided = f
+                .quality
+                .undecided_modes
+                .iter()
+                .any(|u| (u.frequency_hz / ft).ln().abs() < 0.01);
+            let unresolved = d.is_some_and(|d| d.unresolved(ft));
+            let what = format!(
+                "{c:?}, {name}: true mode {ft:.2} Hz (ζ {:.4}) |A| {a:.3e}: {}",
+                t.damping_ratio,
+                match (undecided, unresolved, limit) {
+                    (true, _, _) => "reported undecided".to_string(),
+                    (_, true, _) => "in a fitted mode's unresolved band".to_string(),
+                    (_, _, Some((l, z))) => format!("stated limit {l:.3e} (ζ {z:.4})"),
+                    _ => "no limit stated".to_string(),
+                },
+            );
+            match limit {
+                _ if undecided || unresolved => missed_within_limit.push(what),
+                Some((l, _)) if a <= l => missed_within_limit.push(what),
+                _ => missed_above_limit.push(what),
+            }
+        }
+    }
     Outcome {
         wrong_verdict,
         wrong_trusted_fit,
         flagged,
         undecided: v.cmp_cnmp.is_none(),
         relative_sigma: median_relative_sigma(&frf),
+        missed_above_limit,
+        missed_within_limit,
     }
 }
 
@@ -207,7 +265,18 @@ fn survey(c: Condition) {
     for w in wrong.iter().chain(&bad_fits) {
         eprintln!("  {w}");
     }
+    let within: Vec<&String> = out.iter().flat_map(|o| &o.missed_within_limit).collect();
+    let above: Vec<&String> = out.iter().flat_map(|o| &o.missed_above_limit).collect();
+    eprintln!(
+        "{c:?}: true modes missed by trusted fits: {} that the fit said it could miss (undecided, unresolved, below its detection limit), {} that it did not",
+        within.len(),
+        above.len()
+    );
+    for w in within.iter().chain(&above) {
+        eprintln!("  {w}");
+    }
     assert!(wrong.is_empty(), "{wrong:#?}");
+    assert!(above.is_empty(), "missed without saying so: {above:#?}");
     if !matches!(c, Condition::Noise) {
         assert!(bad_fits.is_empty(), "{bad_fits:#?}");
     }

@@ -63,10 +63,12 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::f64::consts::PI;
 
+mod detection;
 mod problem;
 mod quality;
 mod search;
 mod summary;
+pub use detection::*;
 pub use problem::*;
 pub use quality::*;
 pub use search::*;
@@ -529,6 +531,7 @@ pub fn fit(data: &FrfData, path: &Path) -> Result<ModalFit, FitError> {
         }
         fitted.quality.undecided_modes.push(m);
     }
+    fitted.quality.detection_limit = detection_limit(&prep, &data.frequency_hz, &current, period_s);
     Ok(fitted)
 }
 

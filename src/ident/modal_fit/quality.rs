@@ -94,6 +94,12 @@ pub struct FitQuality {
     /// before it existed.
     #[serde(default)]
     pub undecided_modes: Vec<UndecidedMode>,
+    /// The weakest further mode the fit would have found, over its band
+    /// ([`DetectionLimit`]): a weaker one may be missed without a flag.
+    /// `null` without a noise estimate per line or a fitted mode; absent
+    /// in JSON written before it existed.
+    #[serde(default)]
+    pub detection_limit: Option<DetectionLimit>,
 }
 
 /// A mode the data cannot decide. Modes are added while the residual is
@@ -270,6 +276,7 @@ pub(super) fn quality(prep: &Prepared, p: &Params, sd: &[f64]) -> FitQuality {
         whiteness_q_bound: q_bound,
         flags,
         undecided_modes: Vec::new(),
+        detection_limit: None,
     }
 }
 
