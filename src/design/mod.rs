@@ -40,7 +40,10 @@
 //! as measured), `τ` the computation delay the design adds (default one
 //! loop period: a command applied at the next sample), and `C_d` the
 //! discrete controller that will run (A/µm). The search evaluates the
-//! continuous design `C(jω)`; the result is certified on `C_d`.
+//! continuous design times the discretisation's error `C_d/C` of its
+//! round's start on every line (it changes little with the parameters;
+//! [`search::Problem::discretized_as`]), so it sees what runs; the result
+//! is certified on the exact `C_d`.
 //!
 //! # Assumptions
 //! The plant is open-loop stable: a flexure whose every mode has stiffness
@@ -577,11 +580,15 @@ pub fn attempt(
             let mut round = 0;
             let mut candidates: Vec<(Vec<f64>, Evaluation)>;
             loop {
+                // The search judges what will run: the discretisation's
+                // error of the round's start on every line (refreshed
+                // each round; the certificate judges the exact C_d).
                 let sub = Problem::new(
                     active.iter().map(|&i| &coarse[i]).collect(),
                     tight,
                     UNIT_PER_METRE,
-                );
+                )
+                .discretized_as(&fam.controller(&start), period_s);
                 let (theta, e) = if round == 0 {
                     candidates = search::search_all(&sub, fam, &start);
                     candidates[0].clone()
@@ -598,7 +605,9 @@ pub fn attempt(
                     }
                 };
                 round += 1;
-                found = all.evaluate(e.controller.clone());
+                found = all
+                    .discretized_as(&e.controller, period_s)
+                    .evaluate(e.controller.clone());
                 start = theta;
                 if found.feasible() || !e.feasible() || active.len() == frfs.len() {
                     break;
