@@ -6,7 +6,7 @@ use super::*;
 /// Probability with which a mode at the detection limit is found.
 pub const DETECTION_PROBABILITY: f64 = 0.95;
 /// Grid points per decade of the detection limit over the coherent band.
-pub const DETECTION_POINTS_PER_DECADE: f64 = 100.0;
+pub const DETECTION_POINTS_PER_DECADE: f64 = 20.0;
 /// The unresolved band around a fitted mode, in half-power overlaps
 /// ([`DetectionLimit`]).
 pub const UNRESOLVED_FACTOR: f64 = 2.0;
