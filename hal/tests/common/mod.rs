@@ -11,6 +11,17 @@ pub mod alloc;
 #[path = "../../../tests/common/host_stall.rs"]
 pub mod host_stall;
 mod watchdog;
+
+/// One rig at a time in this process (the serial, CAN and EtherCAT
+/// emulators with their hosts): their timing checks should not compete
+/// for the two cores with another rig (two serial emulator tests beside
+/// each other and the servers lane missed their device-time bounds by
+/// 3 ms, one in each of two CI runs), and one EtherCAT master per
+/// process.
+pub fn one_rig_at_a_time() -> std::sync::MutexGuard<'static, ()> {
+    static RIG: std::sync::Mutex<()> = std::sync::Mutex::new(());
+    RIG.lock().unwrap_or_else(|e| e.into_inner())
+}
 #[allow(unused_imports)] // not every test file waits for a watchdog
 pub use watchdog::{wait_for_watchdog_trip, WatchdogTrip};
 

@@ -23,7 +23,7 @@ use socketcan::{CanDataFrame, EmbeddedFrame, Socket, StandardId};
 use std::os::fd::OwnedFd;
 use std::os::unix::net::UnixDatagram;
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::{Arc, Mutex, MutexGuard};
+use std::sync::{Arc, MutexGuard};
 use std::thread::{self, JoinHandle};
 use std::time::{Duration, Instant};
 
@@ -339,12 +339,9 @@ fn bad_ids_and_node_ids_are_refused_naming_the_key() {
 // ---------------------------------------------------------------------------
 // Host ↔ emulator over a socket pair.
 
-/// One rig at a time: the timing checks should not compete for the two
-/// cores with another rig.
-static SERIAL: Mutex<()> = Mutex::new(());
-
+/// One rig at a time ([`common::one_rig_at_a_time`]).
 fn serial() -> MutexGuard<'static, ()> {
-    SERIAL.lock().unwrap_or_else(|p| p.into_inner())
+    common::one_rig_at_a_time()
 }
 
 fn pair() -> (CanSocket, CanSocket) {

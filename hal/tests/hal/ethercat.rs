@@ -16,7 +16,7 @@ use bench_hal::sim::{SimParams, SimStage};
 use bench_hal::{Command, Error, ErrorKind, Stage};
 use std::process::Command as Cmd;
 use std::sync::atomic::{AtomicBool, AtomicU32, Ordering};
-use std::sync::{Arc, Mutex, MutexGuard};
+use std::sync::{Arc, MutexGuard};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
@@ -28,10 +28,10 @@ fn sim_params() -> SimParams {
     common::ch5_bench(0.08, 0.0, 1)
 }
 
-/// One at a time: one EtherCAT master per process.
+/// One at a time: one EtherCAT master per process, one rig at a time
+/// ([`common::one_rig_at_a_time`]).
 fn serial() -> MutexGuard<'static, ()> {
-    static M: Mutex<()> = Mutex::new(());
-    M.lock().unwrap_or_else(|e| e.into_inner())
+    common::one_rig_at_a_time()
 }
 
 /// A veth pair, deleted on drop.

@@ -77,6 +77,7 @@ fn wait_until(timeout: Duration, mut f: impl FnMut() -> bool) -> bool {
 
 #[test]
 fn round_trip_moves_the_stage_and_disable_leaves_zero_amps() {
+    let _rig = common::one_rig_at_a_time();
     let emu = Emulator::start(SerialEmulatorOptions::default());
     let mut stage = SerialStage::open(&emu.config()).unwrap();
     let info = stage.configure(PERIOD_NS).unwrap();
@@ -119,6 +120,7 @@ fn round_trip_moves_the_stage_and_disable_leaves_zero_amps() {
 
 #[test]
 fn quiet_host_trips_the_watchdog_within_its_time_plus_one_period() {
+    let _rig = common::one_rig_at_a_time();
     let emu = Emulator::start(SerialEmulatorOptions::default());
     let mut stage = SerialStage::open(&emu.config()).unwrap();
     stage.configure(PERIOD_NS).unwrap();
@@ -171,6 +173,7 @@ fn quiet_host_trips_the_watchdog_within_its_time_plus_one_period() {
 
 #[test]
 fn another_protocol_version_is_refused() {
+    let _rig = common::one_rig_at_a_time();
     let emu = Emulator::start(SerialEmulatorOptions {
         protocol_version: 2,
         ..Default::default()
@@ -184,6 +187,7 @@ fn another_protocol_version_is_refused() {
 
 #[test]
 fn another_rate_is_refused_with_both_rates() {
+    let _rig = common::one_rig_at_a_time();
     let emu = Emulator::start(SerialEmulatorOptions::default());
     let mut stage = SerialStage::open(&emu.config()).unwrap();
     let e = stage.configure(200_000).unwrap_err();
@@ -197,6 +201,7 @@ fn another_rate_is_refused_with_both_rates() {
 
 #[test]
 fn a_busy_port_and_a_missing_path_are_refused() {
+    let _rig = common::one_rig_at_a_time();
     let emu = Emulator::start(SerialEmulatorOptions::default());
     let _first = SerialStage::open(&emu.config()).unwrap();
     let e = SerialStage::open(&emu.config()).unwrap_err();
@@ -212,6 +217,7 @@ fn a_busy_port_and_a_missing_path_are_refused() {
 
 #[test]
 fn a_silent_peer_is_not_a_device() {
+    let _rig = common::one_rig_at_a_time();
     // A pty with nobody on the other side answers nothing.
     let pty = Pty::open().unwrap();
     let mut stage = SerialStage::open(&SerialConfig {
@@ -250,6 +256,7 @@ fn run_until_errors(stage: &mut SerialStage, n: usize, limit: usize) -> Vec<Erro
 
 #[test]
 fn link_faults_surface_as_their_kinds() {
+    let _rig = common::one_rig_at_a_time();
     // Stall: timeouts.
     let emu = Emulator::start(SerialEmulatorOptions {
         link_faults: vec![ScheduledLinkFault {
