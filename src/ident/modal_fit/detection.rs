@@ -48,7 +48,8 @@ pub const BESIDE_RATIOS: [f64; 3] = [1.01, 1.02, 1.05];
 ///
 /// `ζ₀` follows Rayleigh's law `ζ = α/(2ω) + βω/2` fitted to the fitted
 /// modes (the plant model's damping, thesis §5.2.2; least squares on the
-/// relative error, `α, β ≥ 0`), or the one fitted mode's damping. Only
+/// relative error, `α, β ≥ 0`); with one fitted mode, the law whose
+/// least damping is that mode's, at its frequency. Only
 /// with a noise estimate per line (without one the fit adds modes by
 /// [`MIN_IMPROVEMENT`], not against a noise) and at least one fitted mode.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
@@ -322,11 +323,7 @@ pub(super) fn detection_limit(
         return None;
     }
     let (alpha, beta) = rayleigh_fit(&current.f_hz, &current.zeta)?;
-    let params = 3 * current.f_hz.len() + 3;
-    let nu = (2 * prep.len()).saturating_sub(params).max(1) as f64;
-    let (mean, _) = cost_reference(&prep.dof, params);
-    let per_dof = (prep.cost(current) / nu).max(mean / nu);
-    let level = chi2_3_quantile(RESIDUAL_TEST_LEVEL / prep.len().max(1) as f64);
+    let (per_dof, level) = reporting_level(prep, current);
     let lambda = noncentrality_for(level, DETECTION_PROBABILITY);
     let j = with_second_order(
         prep,

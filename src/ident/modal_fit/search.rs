@@ -343,6 +343,20 @@ pub(super) fn probe(
         .max_by(|a, b| a.1.total_cmp(&b.1))
 }
 
+/// The noise variance a further mode's cost is counted in beyond
+/// `current` (the cost per degree of freedom, at least its expectation
+/// under the noise alone), and the level `Δχ²` must pass for the fit to
+/// report the mode: the `χ²₃` quantile at [`RESIDUAL_TEST_LEVEL`]` / N`
+/// ([`UndecidedMode`], [`DetectionLimit`]).
+pub(super) fn reporting_level(prep: &Prepared, current: &Params) -> (f64, f64) {
+    let params = 3 * current.f_hz.len() + 3;
+    let nu = (2 * prep.len()).saturating_sub(params).max(1) as f64;
+    let (mean, _) = cost_reference(&prep.dof, params);
+    let per_dof = (prep.cost(current) / nu).max(mean / nu);
+    let level = chi2_3_quantile(RESIDUAL_TEST_LEVEL / prep.len().max(1) as f64);
+    (per_dof, level)
+}
+
 /// The mode the data cannot decide beyond `current` ([`UndecidedMode`]),
 /// if any: only where the noise is estimated and the residual is the noise
 /// (otherwise the search would have added it, or there is no noise to
@@ -356,11 +370,7 @@ pub(super) fn undecided(
     if !prep.noise_estimated || !residual_tests(prep, current).residual_is_noise() {
         return None;
     }
-    let params = 3 * current.f_hz.len() + 3;
-    let nu = (2 * prep.len()).saturating_sub(params).max(1) as f64;
-    let (mean, _) = cost_reference(&prep.dof, params);
-    let per_dof = (prep.cost(current) / nu).max(mean / nu);
-    let level = chi2_3_quantile(RESIDUAL_TEST_LEVEL / prep.len().max(1) as f64);
+    let (per_dof, level) = reporting_level(prep, current);
     let (p, removed) = probe(prep, freq_hz, current, period_s)?;
     let delta_chi2 = removed / per_dof;
     if delta_chi2 < level {
