@@ -6,7 +6,7 @@
 
 use bench::config::BenchConfig;
 use bench::control::DiscreteController;
-use bench::jobs::step::{run_control, ControlJob, ControlOptions};
+use bench::jobs::control::{run_control, ControlJob, ControlOptions};
 use bench::outputs::{Existing, Origin, OutputPlan};
 use bench::rt::supervisor::Supervisor;
 use bench::rt::timing::Histogram;

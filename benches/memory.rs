@@ -15,7 +15,7 @@
 
 mod common;
 
-use bench::ident::excitation::Chirp;
+use bench::ident::chirp::Chirp;
 use bench::ident::frf::{fast_len, Frf, Spectra, C64};
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::sync::atomic::{AtomicUsize, Ordering};

@@ -7,8 +7,8 @@ use super::{
     refuse_non_mcap, refused_request, run_failed, run_failed_json, status, unclaimed_recording,
     CONFIG_HELP,
 };
+use bench::jobs::control::{run_control, ControlOptions, ControlSummary};
 use bench::jobs::request::{parse_seed, ControlRequest, JobRequest};
-use bench::jobs::step::{run_control, ControlOptions, ControlSummary};
 use bench::jobs::verify::{Verify, VerifyOptions};
 use bench::outputs::beside;
 use bench::outputs::{Existing, OutputPlan};

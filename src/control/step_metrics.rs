@@ -27,7 +27,7 @@
 //! - peak |command|, A.
 //!
 //! Pure computation on slices: no loop, no recording. The step job
-//! (`jobs::step`, above this folder) runs the experiment and calls it; the
+//! (`jobs::control`, above this folder) runs the experiment and calls it; the
 //! step figure (`plot::write_step_png`) draws its events and its band.
 
 use serde::{Deserialize, Serialize};

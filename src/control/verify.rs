@@ -66,7 +66,7 @@
 use crate::config::{ChirpConfig, IdentificationConfig};
 use crate::control::loop_check::{margins, Margins};
 use crate::control::DiscreteController;
-use crate::ident::excitation::Chirp;
+use crate::ident::chirp::Chirp;
 use crate::ident::frf::{
     h1_radius_95, h1_sigma_m_per_a, log_grid, unwrap_deg, Spectra, C64, MIN_COHERENCE,
 };

@@ -15,13 +15,13 @@ use crate::error::RunError;
 use crate::jobs::analyze::{run_analyze, AnalyzeOptions};
 use crate::jobs::catalogue::{check_options, run_catalogue, CatalogueOptions};
 use crate::jobs::chirp::{run_chirp_on, ChirpOptions};
+use crate::jobs::control::{run_control_from, ControlOptions, StageSource};
 use crate::jobs::design::{run_design, DesignInput, DesignOptions};
 use crate::jobs::fit::{run_fit, FitOptions};
 use crate::jobs::map::{run_map, MapOptions};
 use crate::jobs::plot::{run_plot, PlotInput, PlotOptions};
 use crate::jobs::request::{check_pace, pace_on_hardware, JobRequest, Pace, RequestError};
 use crate::jobs::session::Runner;
-use crate::jobs::step::{run_control_from, ControlOptions, StageSource};
 use crate::jobs::verify::VerifyOptions;
 use crate::outputs::{beside, Existing, Origin};
 use crate::rt::service::ServiceClient;
@@ -180,7 +180,7 @@ pub(super) fn job_spec(ctx: &Ctx, request: &JobRequest, id: u64) -> Result<Accep
             let out = recording_path(&ctx.recordings, &format!("control-{}", req.controller), id);
             let mut total = (cfg.step.duration_s / ctx.period_s).round() as u64;
             let verify = verify.map(|v| {
-                let chirp = crate::ident::excitation::Chirp::new(
+                let chirp = crate::ident::chirp::Chirp::new(
                     &crate::control::verify::chirp_config(&cfg.chirp, v.amplitude_a, v.duration_s),
                     ctx.period_s,
                 );

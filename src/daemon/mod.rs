@@ -179,7 +179,7 @@ use crate::config::BenchConfig;
 use crate::control::loop_check::check_loop;
 use crate::control::DiscreteController;
 use crate::error::RunError;
-use crate::jobs::step::ControlJob;
+use crate::jobs::control::ControlJob;
 use crate::rt::backend::{self, BackendSpec};
 use crate::rt::service::{run_service, LoopReply, LoopRequest, LoopStatus, ServiceClient};
 use crate::rt::{Job, LoopOptions, Pacing};

@@ -529,6 +529,33 @@ fn backward_conj(l: &[C64], m: usize, v: &mut [C64]) {
     }
 }
 
+impl Frf {
+    /// Estimates the FRF on the log grid `f_lo … f_hi` (Hz) with the
+    /// configured estimator (`cfg.estimator`): the LPM ([`estimate`]) or
+    /// H1 ([`Self::estimate`]). (Defined here, beside the LPM: the FRF's
+    /// own module does not depend on its estimators.)
+    ///
+    /// # Errors
+    /// The LPM's ([`FrfError`]); H1 has none.
+    pub fn from_spectra(
+        spectra: &Spectra,
+        f_lo: f64,
+        f_hi: f64,
+        cfg: &IdentificationConfig,
+    ) -> Result<Self, FrfError> {
+        match cfg.estimator {
+            crate::config::Estimator::Lpm => estimate(
+                spectra,
+                f_lo,
+                f_hi,
+                cfg.points_per_decade,
+                &LpmOptions::from_config(cfg),
+            ),
+            crate::config::Estimator::H1 => Ok(Self::estimate(spectra, f_lo, f_hi, cfg)),
+        }
+    }
+}
+
 /// The LPM FRF on the log grid `f_lo … f_hi` (Hz, `points_per_decade`
 /// points per decade, as [`Frf::estimate`]): magnitude, unwrapped phase,
 /// the SNR-form coherence, σ per line, the resolution `(2n + 1) Δf` and

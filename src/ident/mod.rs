@@ -14,6 +14,7 @@
 pub type C64 = nalgebra::Complex<f64>;
 
 pub mod bla;
+pub mod chirp;
 pub mod excitation;
 pub mod export;
 pub mod fft;

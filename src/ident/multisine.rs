@@ -48,7 +48,7 @@
 //! plant's response to the previous one decays.
 
 use crate::config::{ChirpConfig, MultisineConfig, MultisinePhases};
-use crate::ident::excitation::Chirp;
+use crate::ident::chirp::Chirp;
 use crate::ident::C64;
 use std::f64::consts::PI;
 

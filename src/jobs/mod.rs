@@ -5,7 +5,7 @@
 //! a summary.
 //!
 //! - [`session`] runs any [`crate::rt::Job`] on a stage into a recording;
-//!   [`chirp`] and [`step`] are the identification and closed-loop step
+//!   [`chirp`] and [`control`] are the identification and closed-loop step
 //!   jobs built on it (`bench chirp`, `bench control`); [`verify`] is
 //!   `bench control --verify`'s part of the step job (the injection
 //!   planned and checked before enable, the loop measured after).
@@ -29,6 +29,7 @@
 pub mod analyze;
 pub mod catalogue;
 pub mod chirp;
+pub mod control;
 pub mod design;
 pub mod export;
 pub mod fit;
@@ -37,7 +38,6 @@ pub mod plot;
 pub mod point;
 pub mod request;
 pub mod session;
-pub mod step;
 pub mod verify;
 
 /// A config given by path that does not load, as a job's error: a file

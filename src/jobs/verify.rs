@@ -17,7 +17,7 @@ use crate::control::verify::{
     chirp_config, ClosedLoopFrf, Envelope, ModelLoop, VerifyRecord, VerifyResult,
 };
 use crate::error::RunError;
-use crate::ident::excitation::Chirp;
+use crate::ident::chirp::Chirp;
 use crate::ident::frf::{log_grid, C64};
 use crate::jobs::chirp::StallReport;
 use crate::jobs::session::Collected;

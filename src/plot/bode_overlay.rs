@@ -12,11 +12,12 @@ use plotters::prelude::*;
 use super::axes::{
     frame, freq_chart, linear_axis, mesh, panel_chart, Chart, Ticked, MARGIN_TOP, X_LABEL_AREA,
 };
-use super::bode::{bode_curve, draw_measured_as, to_db, MeasuredStyle};
+use super::bode::bode_curve;
 use super::draw::{draw_polyline, draw_runs, hline, pairs, runs, shade, values_in};
 use super::legend::{
     entry, header_height, header_lines, legend_height, panel_legend, titled, Entry, Swatch,
 };
+use super::measured::{draw_measured_as, to_db, MeasuredStyle};
 use super::overlay::{
     band, check, draw_trace_table, good, pairs_window, resolved, trace_table, trace_width,
     OverlayPlot,

@@ -19,11 +19,12 @@ use super::axes::{
     frame, freq_chart, linear_axis, mesh, panel_chart, plot_columns, plot_rows, Chart, Ticked,
     X_LABEL_AREA,
 };
-use super::bode::{bode_curve, to_db};
+use super::bode::bode_curve;
 use super::draw::{draw_polyline, draw_runs, hline, pairs, runs, runs_in_box, values_in, vline};
 use super::legend::{
     area_legend, entry, legend_height, marker_style, panel_legend, titled, Entry, Swatch,
 };
+use super::measured::to_db;
 use super::palette::{
     BANDWIDTH_COLOR, MARKER_COLOR, MODEL_COLOR, OTHER_LOOP_COLOR, PHASE_MARGIN_COLOR,
     SENSITIVITY_LIMIT_COLOR, WORST_LOOP_COLOR,

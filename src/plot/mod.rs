@@ -95,6 +95,7 @@ mod design;
 mod draw;
 mod legend;
 mod map;
+mod measured;
 mod modes;
 mod nyquist;
 mod overlay;

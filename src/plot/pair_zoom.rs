@@ -9,12 +9,12 @@ use plotters::prelude::*;
 use plotters::style::text_anchor::{HPos, Pos, VPos};
 
 use super::axes::{frame, linear_axis, mesh, panel_chart, plot_columns, X_LABEL_AREA};
-use super::bode::{draw_measured, BodeCurves, BodePlot};
 use super::draw::{draw_runs, hline, runs, vline};
 use super::legend::{
     draw_marker_labels, entry, header_height, header_lines, layout_marker_labels, legend_height,
     marker_row_height, panel_legend, Swatch,
 };
+use super::measured::{draw_measured, BodeCurves};
 use super::palette::{BAND_END_COLOR, BAND_START_COLOR, MARKER_COLOR, MEASURED_COLOR, MODEL_COLOR};
 use super::style::{FONT, HEADER_SIZE, LINE_WIDTH};
 use super::ticks::{fmt_sig, linear_ticks, padded_range, phase_ticks, tick_formatter};
@@ -96,12 +96,23 @@ fn verdict_text(pair: &PairVerdict) -> &'static str {
     }
 }
 
+/// What the pair zoom labels: the measured and model curves and the
+/// magnitude axis (the Bode figure's).
+pub(super) struct ZoomLabels<'a> {
+    /// The measured curve's label.
+    pub(super) measured: &'a str,
+    /// The model curve's label (`None`: no model).
+    pub(super) model: Option<&'a str>,
+    /// The magnitude axis' label, with its unit.
+    pub(super) magnitude_axis: &'a str,
+}
+
 /// The pair zoom on `area` (see [`write_bode_png`](super::write_bode_png)):
 /// the header lines, then magnitude and phase over `window`.
 pub(super) fn draw_pair_zoom(
     root: &Area<'_>,
     area: &Area<'_>,
-    plot: &BodePlot<'_>,
+    names: &ZoomLabels<'_>,
     c: &BodeCurves,
     pair: &PairVerdict,
     band_phase_deg: (f64, f64),
@@ -148,11 +159,11 @@ pub(super) fn draw_pair_zoom(
         px0 + (f64::from(px1 - px0) * (f - window.start) / span) as i32
     })?;
     let mut mag_entries = vec![entry(
-        format!("{}, a dot per grid point", plot.measured.label),
+        format!("{}, a dot per grid point", names.measured),
         Swatch::Line(MEASURED_COLOR, LINE_WIDTH),
     )];
-    if let Some(m) = &plot.model {
-        mag_entries.push(entry(m.label, Swatch::Dashed(MODEL_COLOR)));
+    if let Some(m) = names.model {
+        mag_entries.push(entry(m, Swatch::Dashed(MODEL_COLOR)));
     }
     mag_entries.push(entry("modes of the pair", Swatch::Dashed(MARKER_COLOR)));
     let mag_top = legend_height(&panels, &mag_entries)?
@@ -199,12 +210,12 @@ pub(super) fn draw_pair_zoom(
         let y_fmt = tick_formatter(&y_ticks);
         let x = linear_axis(window, x_ticks.clone());
         let mut chart = panel_chart(&mag_area, x, &db_range, y_ticks, mag_top, false)?;
-        mesh(&mut chart, None, plot.magnitude_axis, &no_fmt, &y_fmt)?;
+        mesh(&mut chart, None, names.magnitude_axis, &no_fmt, &y_fmt)?;
         for &f in &modes {
             vline(&mut chart, f, &db_range, MARKER_COLOR, 1)?;
         }
         draw_measured(&mut chart, &c.meas_db, &c.good, window, false, true)?;
-        if plot.model.is_some() {
+        if names.model.is_some() {
             draw_runs(
                 &mut chart,
                 &runs(&c.model_db, window, false),
@@ -234,7 +245,7 @@ pub(super) fn draw_pair_zoom(
         hline(&mut chart, band_phase_deg.0, window, BAND_START_COLOR)?;
         hline(&mut chart, band_phase_deg.1, window, BAND_END_COLOR)?;
         draw_measured(&mut chart, &c.meas_phase, &c.good, window, false, true)?;
-        if plot.model.is_some() {
+        if names.model.is_some() {
             draw_runs(
                 &mut chart,
                 &runs(&c.model_phase, window, false),

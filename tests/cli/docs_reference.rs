@@ -247,7 +247,7 @@ fn the_json_outputs_page_is_the_summaries_schemas() {
     }
     let outputs: Vec<(&str, Value)> = outputs![
         "bench chirp": bench::jobs::chirp::ChirpSummary,
-        "bench control": bench::jobs::step::ControlSummary,
+        "bench control": bench::jobs::control::ControlSummary,
         "bench fit": bench::jobs::fit::FitResult,
         "bench design": bench::jobs::design::DesignSummary,
         "bench analyze": bench::jobs::analyze::AnalyzeSummary,

@@ -25,7 +25,7 @@
 use crate::common;
 
 use bench::config::{BenchConfig, Estimator};
-use bench::ident::excitation::Chirp;
+use bench::ident::chirp::Chirp;
 use bench::ident::frf::{fast_len, Frf, Spectra, C64};
 use bench::ident::lpm::{self, LpmOptions};
 use bench_hal::model::Sr4dof;

@@ -6,7 +6,7 @@
 //! step, noise), supervisor, job, HAL write, queue push, timing.
 
 use bench::config::BenchConfig;
-use bench::ident::excitation::Chirp;
+use bench::ident::chirp::Chirp;
 use bench::jobs::chirp::ChirpJob;
 use bench::rt::{self, Job, JobOutput, LoopOptions, Pacing, StopReason};
 use bench_hal::sim::SimStage;
@@ -303,7 +303,7 @@ fn multisine_tick_allocates_nothing() {
 #[test]
 fn closed_loop_tick_allocates_nothing() {
     use bench::control::DiscreteController;
-    use bench::jobs::step::ControlJob;
+    use bench::jobs::control::ControlJob;
     let cfg = ch5();
     assert!(cfg.plant.disturbance.is_some());
     let mut stage = SimStage::new(cfg.sim_params(7)).unwrap();
@@ -336,7 +336,7 @@ fn closed_loop_tick_allocates_nothing() {
 fn closed_loop_verify_tick_allocates_nothing() {
     use bench::control::verify::chirp_config;
     use bench::control::DiscreteController;
-    use bench::jobs::step::ControlJob;
+    use bench::jobs::control::ControlJob;
     let cfg = ch5();
     let mut stage = SimStage::new(cfg.sim_params(7)).unwrap();
     let info = stage.configure(cfg.loop_.period_ns()).unwrap();
@@ -371,7 +371,7 @@ fn closed_loop_verify_tick_allocates_nothing() {
 #[test]
 fn serial_tick_allocates_nothing() {
     use bench::control::DiscreteController;
-    use bench::jobs::step::ControlJob;
+    use bench::jobs::control::ControlJob;
     use bench_hal::emulator::serial::{self as serial_emulator, Pty, SerialEmulatorOptions};
     use bench_hal::emulator::{DeviceCore, EmulatorStatus};
     use bench_hal::serial::{SerialConfig, SerialStage};

@@ -10,8 +10,8 @@
 //! the pixel column its time or frequency maps to inside the frame.
 
 use bench::ident::frf::PairVerdict;
+use bench::jobs::control::{step_analysis, StepAnalysis};
 use bench::jobs::session::Collected;
-use bench::jobs::step::{step_analysis, StepAnalysis};
 use bench::outputs::Existing;
 use bench::plot::{
     write_bode_png, write_step_png, BodePlot, BodeSeries, PairZoom, StepPlot, COMMAND_COLOR,
@@ -232,7 +232,7 @@ fn step_plot_marks_rise_and_settling_where_the_response_has_them() {
         tau * 50f64.ln(),
     );
     // The window follows the metrics (rule as documented; they are checked
-    // against τ ln 9 and τ ln 50 in jobs::step); the markers are placed by
+    // against τ ln 9 and τ ln 50 in jobs::control); the markers are placed by
     // the analytic response.
     let m = a.metrics;
     let (lo, hi) = zoom_ms(

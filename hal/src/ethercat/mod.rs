@@ -119,7 +119,7 @@ pub mod slave;
 pub mod socket;
 pub mod wire;
 
-pub use config::{EthercatConfig, PdoEntry, Profile};
+pub use config::{EthercatConfig, PdoEntry, Profile, RackSlave};
 pub use error::EthercatError;
 pub use master::{EthercatStage, EthercatStats};
-pub use rack::{RackLayout, RackSlave, SignalAt};
+pub use rack::{RackLayout, SignalAt};

@@ -44,106 +44,11 @@
 //! at most `2 × MAX_PDO_BYTES` in all; `profile = "analog"`, and the
 //! single device's `rx_pdo`, `tx_pdo`, `product_id` unset.
 
-use super::config::{EthercatConfig, PdoEntry, Profile, MAX_PDO_BYTES};
+use super::config::{EthercatConfig, PdoEntry, Profile, RackSlave, MAX_PDO_BYTES};
 use crate::model::ParamError;
-use serde::{Deserialize, Serialize};
 
 /// The most slaves of a rack (the host's group holds this many).
 pub const MAX_RACK: usize = 8;
-
-/// One slave of the rack (`[[backend.ethercat.slaves]]`; see the [module
-/// docs](self)).
-#[derive(Debug, Clone, PartialEq, Eq, Default, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct RackSlave {
-    /// 0-based position on the segment, the coupler counted.
-    pub position: u16,
-    /// Expected vendor id (SII word 0x0008).
-    pub vendor_id: u32,
-    /// Expected product code (SII word 0x000A).
-    pub product_id: u32,
-    /// A name for messages (`"EL4132"`).
-    #[serde(default, skip_serializing_if = "String::is_empty")]
-    pub name: String,
-    /// The terminal's outputs in image order (empty: `dac`, `enable`).
-    #[serde(default, skip_serializing_if = "Vec::is_empty")]
-    pub rx_pdo: Vec<PdoEntry>,
-    /// The terminal's inputs in image order (empty: `adc`, `status`,
-    /// `fault`).
-    #[serde(default, skip_serializing_if = "Vec::is_empty")]
-    pub tx_pdo: Vec<PdoEntry>,
-    /// The probe's ADC channel (16 bits, input).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub adc: Option<PdoEntry>,
-    /// The amplifier's DAC channel (16 bits, output).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub dac: Option<PdoEntry>,
-    /// The amplifier's enable (bit 0, output).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub enable: Option<PdoEntry>,
-    /// The amplifier's ready line (bit 0; bit 1 its fault line when 2
-    /// bits or wider; input).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub status: Option<PdoEntry>,
-    /// The amplifier's fault line (bit 0, input), beside a 1-bit `status`.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub fault: Option<PdoEntry>,
-    /// The probe's ADC channel status word (16 bits, input; EL31xx layout:
-    /// bit 0 underrange, bit 1 overrange, bit 6 error).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub adc_status: Option<PdoEntry>,
-    /// The terminal's PDO contents are fixed (Beckhoff's analog terminals:
-    /// one PDO per channel, 0x1600/0x1601, 0x1A00/0x1A02, not writable):
-    /// the host writes no map over CoE and takes the terminal's own
-    /// assignment, which must lay out as `rx_pdo`/`tx_pdo` (checked by
-    /// size). Default false: a slave with a CoE mailbox gets its map
-    /// written.
-    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
-    pub fixed_pdo: bool,
-}
-
-impl RackSlave {
-    /// The outputs in force: `rx_pdo`, or the slave's output signals.
-    pub fn rx_entries(&self) -> Vec<PdoEntry> {
-        if self.rx_pdo.is_empty() {
-            [self.dac, self.enable].into_iter().flatten().collect()
-        } else {
-            self.rx_pdo.clone()
-        }
-    }
-
-    /// The inputs in force: `tx_pdo`, or the slave's input signals.
-    pub fn tx_entries(&self) -> Vec<PdoEntry> {
-        if self.tx_pdo.is_empty() {
-            [self.adc_status, self.adc, self.status, self.fault]
-                .into_iter()
-                .flatten()
-                .collect()
-        } else {
-            self.tx_pdo.clone()
-        }
-    }
-
-    /// Image bytes (outputs, inputs).
-    pub fn image_bytes(&self) -> (usize, usize) {
-        let bytes = |e: &[PdoEntry]| {
-            e.iter()
-                .map(|e| usize::from(e.bits))
-                .sum::<usize>()
-                .div_ceil(8)
-        };
-        (bytes(&self.rx_entries()), bytes(&self.tx_entries()))
-    }
-
-    /// `name` or `slave at position N`, for messages.
-    pub fn label(&self) -> String {
-        if self.name.is_empty() {
-            format!("slave at position {}", self.position)
-        } else {
-            format!("{} at position {}", self.name, self.position)
-        }
-    }
-}
 
 /// Where one signal lies: the slave's position and the bit offset in that
 /// slave's image of the signal's direction.

@@ -350,30 +350,6 @@ impl Frf {
         }
     }
 
-    /// Estimates the FRF on the log grid `f_lo … f_hi` (Hz) with the
-    /// configured estimator (`cfg.estimator`): the LPM
-    /// ([`crate::ident::lpm::estimate`]) or H1 ([`Self::estimate`]).
-    ///
-    /// # Errors
-    /// The LPM's ([`FrfError`]); H1 has none.
-    pub fn from_spectra(
-        spectra: &Spectra,
-        f_lo: f64,
-        f_hi: f64,
-        cfg: &IdentificationConfig,
-    ) -> Result<Self, FrfError> {
-        match cfg.estimator {
-            crate::config::Estimator::Lpm => crate::ident::lpm::estimate(
-                spectra,
-                f_lo,
-                f_hi,
-                cfg.points_per_decade,
-                &crate::ident::lpm::LpmOptions::from_config(cfg),
-            ),
-            crate::config::Estimator::H1 => Ok(Self::estimate(spectra, f_lo, f_hi, cfg)),
-        }
-    }
-
     /// An empty FRF (no lines).
     pub fn empty() -> Self {
         Self {

@@ -10,7 +10,8 @@
 use crate::config::BenchConfig;
 use crate::error::RunError;
 use crate::ident::bla::{Bla, DistortionTest};
-use crate::ident::excitation::{Chirp, Excitation};
+use crate::ident::chirp::Chirp;
+use crate::ident::excitation::Excitation;
 use crate::ident::frf::{Frf, PairVerdict, Resonance, Spectra};
 use crate::ident::multisine::{Layout, Multisine};
 use crate::jobs::session::{

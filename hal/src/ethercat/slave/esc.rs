@@ -4,7 +4,7 @@
 //! broadcast and logical addressing, read/write/read-write and
 //! read-multiple-write, with their working-counter increments), the AL
 //! state machine (ETG.1000.6 §5.3), SII EEPROM access (0x0500–0x050F),
-//! the mailbox sync managers SM0/SM1 carrying CoE to the [`Drive`](super::drive::Drive), the
+//! the mailbox sync managers SM0/SM1 carrying CoE to the application (the CiA 402 drive), the
 //! process-data sync managers SM2/SM3 mapped by FMMUs (0x0600..), the
 //! SM watchdog (0x0400, 0x0420, 0x0440), and the distributed clock's
 //! registers: receive times latched by a write to 0x0900, the system time
@@ -61,7 +61,7 @@ pub trait App {
 
 /// The ESC and the application behind it.
 #[derive(Debug)]
-pub struct Esc<A = super::drive::Drive> {
+pub struct Esc<A> {
     mem: Box<[u8; MEM]>,
     sii: Vec<u8>,
     /// The application (the drive, a terminal).

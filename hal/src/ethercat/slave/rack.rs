@@ -58,8 +58,9 @@ use super::{
     answer, find_datagram, intake, short_wkc, Faults, LocalClock, ScheduledSlaveFault, SlaveFault,
 };
 use crate::emulator::{DeviceCore, DeviceFault, EmulatorStatus};
+use crate::ethercat::config::RackSlave;
 use crate::ethercat::config::{EthercatConfig, PdoEntry};
-use crate::ethercat::rack::{RackSlave, MAX_RACK};
+use crate::ethercat::rack::MAX_RACK;
 use crate::ethercat::socket::RawSocket;
 use crate::ethercat::wire::{adc_status, al, cmd, get_bits, set_bits};
 use crate::ethercat::EthercatError;

@@ -24,7 +24,7 @@ pub use crate::control::step_metrics::{
 use crate::control::verify::ModelLoop;
 use crate::control::{ControllerConfig, DiscreteController};
 use crate::error::RunError;
-use crate::ident::excitation::Chirp;
+use crate::ident::chirp::Chirp;
 use crate::jobs::session::{
     finish, open_recording, run_recorded, Collected, Kept, Recorded, Runner, SessionOptions,
     TimingSummary,
