@@ -53,9 +53,6 @@
 //!    deviations from zero, refitting after each; where the noise is
 //!    estimated, also a mode whose removal raises χ² by less than the
 //!    level of an undecided mode (the data do not decide it).
-//! 5. Where the variances are estimated (`sigma_dof`), the final estimate
-//!    is the Student t's: the refinement reweighted per line
-//!    ([`student_t_weights`]), its 1σ the sandwich of [`student_t_bread`].
 //!
 //! The 1σ uncertainties come from the Jacobian at the optimum,
 //! `Σ = s² (JᵀJ)⁻¹` with `s²` the residual variance per degree of freedom
