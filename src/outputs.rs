@@ -684,6 +684,34 @@ fn ensure_regular(path: &Path) -> io::Result<()> {
     }
 }
 
+/// Removes the hidden temporaries ([`temp_path`]) that writes of `path`
+/// killed before their rename left beside it (`.<name>.<pid>.<n>.tmp`):
+/// call it only where no other writer of `path` can be running (a
+/// campaign cell about to be run again). A missing directory is none.
+///
+/// # Errors
+/// Reading the directory or removing a temporary.
+pub fn remove_stale_temporaries(path: &Path) -> io::Result<()> {
+    let prefix = format!(
+        ".{}.",
+        path.file_name().unwrap_or_default().to_string_lossy()
+    );
+    let entries = match fs::read_dir(parent_dir(path)) {
+        Ok(e) => e,
+        Err(e) if e.kind() == io::ErrorKind::NotFound => return Ok(()),
+        Err(e) => return Err(e),
+    };
+    for entry in entries {
+        let entry = entry?;
+        let name = entry.file_name();
+        let name = name.to_string_lossy();
+        if name.starts_with(&prefix) && name.ends_with(".tmp") {
+            fs::remove_file(entry.path())?;
+        }
+    }
+    Ok(())
+}
+
 /// A fresh hidden temporary name beside `path`:
 /// `.<name>.<pid>.<n>.tmp`.
 fn temp_path(path: &Path) -> PathBuf {
@@ -822,6 +850,23 @@ mod tests {
     use proptest::prelude::*;
     use std::io::Write;
     use std::os::unix::fs::PermissionsExt;
+
+    /// A write killed before its rename leaves `temp_path`'s temporary:
+    /// `remove_stale_temporaries` removes those of that file only.
+    #[test]
+    fn stale_temporaries_of_one_file_are_removed_and_no_other() {
+        let dir = tempfile::tempdir().unwrap();
+        let row = dir.path().join("cell-002.parquet");
+        let stale = temp_path(&row);
+        let other = temp_path(&dir.path().join("cell-003.parquet"));
+        for p in [&stale, &other, &row] {
+            fs::write(p, b"x").unwrap();
+        }
+        remove_stale_temporaries(&row).unwrap();
+        assert!(!stale.exists());
+        assert!(other.exists() && row.exists());
+        remove_stale_temporaries(&dir.path().join("gone/cell.parquet")).unwrap();
+    }
 
     /// One rule for the files beside another: a recording's, a table's, a
     /// partial recording's, and any other name kept whole.

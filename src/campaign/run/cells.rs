@@ -143,6 +143,8 @@ pub(super) fn run_cell(
         }
         _ => {}
     }
+    // A row an attempt killed mid-write left as its hidden temporary.
+    crate::outputs::remove_stale_temporaries(&row_file).map_err(io_at(&row_file))?;
     fs::create_dir_all(&cdir).map_err(io_at(&cdir))?;
     journal
         .lock()
