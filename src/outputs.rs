@@ -701,11 +701,19 @@ pub fn remove_stale_temporaries(path: &Path) -> io::Result<()> {
         Err(e) if e.kind() == io::ErrorKind::NotFound => return Ok(()),
         Err(e) => return Err(e),
     };
+    // Exactly `temp_path`'s form: the file's own, not one of a longer
+    // name that starts with it (`.<name>.x.<pid>.<n>.tmp`).
+    let is_number = |s: &str| !s.is_empty() && s.bytes().all(|b| b.is_ascii_digit());
     for entry in entries {
         let entry = entry?;
         let name = entry.file_name();
         let name = name.to_string_lossy();
-        if name.starts_with(&prefix) && name.ends_with(".tmp") {
+        let ours = name
+            .strip_prefix(&prefix)
+            .and_then(|rest| rest.strip_suffix(".tmp"))
+            .and_then(|rest| rest.split_once('.'))
+            .is_some_and(|(pid, n)| is_number(pid) && is_number(n));
+        if ours {
             fs::remove_file(entry.path())?;
         }
     }
@@ -859,12 +867,14 @@ mod tests {
         let row = dir.path().join("cell-002.parquet");
         let stale = temp_path(&row);
         let other = temp_path(&dir.path().join("cell-003.parquet"));
-        for p in [&stale, &other, &row] {
+        // A longer name that starts with the row's.
+        let longer = temp_path(&dir.path().join("cell-002.parquet.old"));
+        for p in [&stale, &other, &longer, &row] {
             fs::write(p, b"x").unwrap();
         }
         remove_stale_temporaries(&row).unwrap();
         assert!(!stale.exists());
-        assert!(other.exists() && row.exists());
+        assert!(other.exists() && longer.exists() && row.exists());
         remove_stale_temporaries(&dir.path().join("gone/cell.parquet")).unwrap();
     }
 
