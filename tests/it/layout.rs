@@ -18,6 +18,13 @@
 //! [`the_checker_catches_a_wrong_import_and_a_cycle`] gives it a file of
 //! `rt` that imports `jobs` (which `rt`'s rule does not allow), and two
 //! folders whose rules allow each other, and expects both to be reported.
+//!
+//! Within a folder the files are layered too (issue 43): no two files of
+//! the library or of the HAL import each other
+//! ([`no_two_files_import_each_other`]; a module and its own child are one
+//! unit). Run on the tree before the split of `ident/chirp.rs`,
+//! `plot/measured.rs` and the EtherCAT config, it names the five circles
+//! that `farm-studio look` counted.
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::Path;
@@ -286,4 +293,242 @@ fn the_checker_catches_a_wrong_import_and_a_cycle() {
         crate_paths("use crate::{a::X, b::{Y, Z}, c};\nlet v = crate::d::f();"),
         ["a", "b", "c", "d"].map(String::from).into_iter().collect()
     );
+}
+
+/// The module path of a file: `ident/frf/mod.rs` → `ident::frf`,
+/// `ident/lpm.rs` → `ident::lpm`, `lib.rs` → the crate.
+fn module_of(path: &str) -> Vec<String> {
+    let mut parts: Vec<String> = path
+        .trim_end_matches(".rs")
+        .split('/')
+        .map(String::from)
+        .collect();
+    if matches!(
+        parts.last().map(String::as_str),
+        Some("mod" | "lib" | "main")
+    ) {
+        parts.pop();
+    }
+    parts
+}
+
+/// The paths of a `use` tree: `a::{b, c::{d, e}}` → `a::b`, `a::c::d`,
+/// `a::c::e` (an `as` rename dropped).
+fn use_paths(tree: &str) -> Vec<String> {
+    let tree = tree.trim();
+    let Some(open) = tree.find('{') else {
+        let plain = tree.split(" as ").next().unwrap_or(tree).trim();
+        return vec![plain.to_string()];
+    };
+    let prefix = &tree[..open];
+    let inner = &tree[open + 1..tree.rfind('}').unwrap_or(tree.len())];
+    let (mut members, mut depth, mut member) = (Vec::new(), 0, String::new());
+    for c in inner.chars().chain([',']) {
+        match c {
+            '{' => depth += 1,
+            '}' => depth -= 1,
+            ',' if depth == 0 => {
+                if !member.trim().is_empty() {
+                    members.push(std::mem::take(&mut member));
+                }
+                member.clear();
+                continue;
+            }
+            _ => {}
+        }
+        member.push(c);
+    }
+    members
+        .iter()
+        .flat_map(|m| use_paths(m))
+        .map(|m| format!("{prefix}{m}"))
+        .collect()
+}
+
+/// Which files each file imports: its `use` paths and inline `crate::` /
+/// `super::` paths, resolved to the file of the longest module prefix
+/// they name. Not read: comments, the test module, re-exports (`pub use`:
+/// a module's face, not a dependency of its code) and glob imports.
+fn file_imports(tree: &Tree) -> BTreeMap<String, BTreeSet<String>> {
+    let modules: BTreeMap<Vec<String>, String> =
+        tree.keys().map(|p| (module_of(p), p.clone())).collect();
+    let mut out = BTreeMap::new();
+    for (path, src) in tree {
+        let module = module_of(path);
+        // Without comments, the test module and re-exports.
+        let mut body = String::new();
+        let mut statement = String::new();
+        for line in code(src).lines() {
+            let t = line.trim_start();
+            if !statement.is_empty()
+                || t.starts_with("pub use ")
+                || (t.starts_with("pub(") && t.contains(" use "))
+            {
+                statement.push_str(line);
+                if line.contains(';') {
+                    statement.clear();
+                }
+                continue;
+            }
+            body.push_str(line);
+            body.push('\n');
+        }
+        let children: BTreeSet<String> = body
+            .lines()
+            .filter_map(|l| {
+                let t = l.trim_start();
+                let t = t
+                    .strip_prefix("pub(crate) ")
+                    .or(t.strip_prefix("pub "))
+                    .unwrap_or(t);
+                t.strip_prefix("mod ")?
+                    .strip_suffix(';')
+                    .map(|m| m.trim().to_string())
+            })
+            .collect();
+        let mut paths = Vec::new();
+        // `use` statements start a line (a `use ` inside a string or a
+        // longer word is not one) and end at their `;`.
+        let mut statement: Option<String> = None;
+        for line in body.lines() {
+            let t = line.trim_start();
+            let s = match statement.take() {
+                Some(s) => s + " " + t,
+                None if t.starts_with("use ") => t["use ".len()..].to_string(),
+                None => continue,
+            };
+            match s.find(';') {
+                Some(end) => paths.extend(use_paths(&s[..end])),
+                None => statement = Some(s),
+            }
+        }
+        for root in ["crate::", "super::"] {
+            let mut rest = body.as_str();
+            while let Some(i) = rest.find(root) {
+                let before = rest[..i].chars().last();
+                let tail = &rest[i..];
+                rest = &rest[i + root.len()..];
+                if before.is_some_and(|c| c.is_alphanumeric() || c == '_' || c == ':' || c == '$') {
+                    continue;
+                }
+                let p: String = tail
+                    .chars()
+                    .take_while(|c| c.is_alphanumeric() || *c == '_' || *c == ':')
+                    .collect();
+                paths.push(p);
+            }
+        }
+        let mut targets = BTreeSet::new();
+        for p in paths {
+            let mut segs: Vec<&str> = p
+                .split("::")
+                .map(str::trim)
+                .filter(|s| !s.is_empty())
+                .collect();
+            if segs.last().is_none_or(|s| *s == "*") {
+                continue;
+            }
+            let mut base = module.clone();
+            match segs[0] {
+                "crate" => {
+                    base.clear();
+                    segs.remove(0);
+                }
+                "super" => {
+                    while segs.first() == Some(&"super") {
+                        base.pop();
+                        segs.remove(0);
+                    }
+                }
+                "self" => {
+                    segs.remove(0);
+                }
+                s if children.contains(s) => {}
+                _ => continue,
+            }
+            let full: Vec<String> = base
+                .into_iter()
+                .chain(segs.iter().map(|s| s.to_string()))
+                .collect();
+            if let Some(target) = (1..=full.len()).rev().find_map(|k| modules.get(&full[..k])) {
+                if target != path {
+                    targets.insert(target.clone());
+                }
+            }
+        }
+        out.insert(path.clone(), targets);
+    }
+    out
+}
+
+/// Every pair of files that import each other, other than a module and
+/// its own child (a `mod.rs` dispatching to a child that uses its
+/// parent's types is one unit), one line each.
+fn two_file_circles(tree: &Tree) -> Vec<String> {
+    let imports = file_imports(tree);
+    let mut out = Vec::new();
+    for (a, targets) in &imports {
+        for b in targets {
+            let (ma, mb) = (module_of(a), module_of(b));
+            let parent_and_child = ma.len() + 1 == mb.len() && mb.starts_with(&ma)
+                || mb.len() + 1 == ma.len() && ma.starts_with(&mb);
+            if a < b && !parent_and_child && imports.get(b).is_some_and(|t| t.contains(a)) {
+                out.push(format!("{a} and {b} import each other"));
+            }
+        }
+    }
+    out
+}
+
+/// No two files of the library or of `bench_hal` import each other
+/// (issue 43): the order of the files within a folder is a layering too.
+#[test]
+fn no_two_files_import_each_other() {
+    for dir in ["src", "hal/src"] {
+        let tree = read_tree(&Path::new(env!("CARGO_MANIFEST_DIR")).join(dir));
+        assert!(tree.len() > 20, "{dir}: {} files read", tree.len());
+        let circles = two_file_circles(&tree);
+        assert!(circles.is_empty(), "{dir}: {circles:#?}");
+    }
+}
+
+/// The circle check on a made-up tree: a circle between siblings is
+/// found, through a grouped `use`, an inline `crate::` path and a
+/// `super::` path; a parent and its child, a re-export, a glob and the
+/// test module are not circles.
+#[test]
+fn the_circle_check_finds_siblings_that_import_each_other() {
+    let tree: Tree = [
+        ("lib.rs", "pub mod ident;\n"),
+        (
+            "ident/mod.rs",
+            "mod chirp;\nmod sweep;\nuse chirp::Chirp;\npub use sweep::*;\n",
+        ),
+        ("ident/chirp.rs", "use super::{C64, sweep::{Sweep, X}};\n"),
+        (
+            "ident/sweep.rs",
+            "fn f() { crate::ident::chirp::Chirp::new(); }\n",
+        ),
+        (
+            "plot/a.rs",
+            "pub use crate::plot::b::B;\nuse super::c::*;\n",
+        ),
+        ("plot/b.rs", "use crate::plot::a::A;\n"),
+        (
+            "plot/c.rs",
+            "//! crate::plot::d in a comment\n#[cfg(test)]\nmod tests { use crate::plot::d::D; }\n",
+        ),
+        ("plot/d.rs", "use super::c::C;\n"),
+        ("plot/mod.rs", "mod a;\nmod b;\nmod c;\nmod d;\n"),
+    ]
+    .into_iter()
+    .map(|(p, s)| (p.to_string(), s.to_string()))
+    .collect();
+    assert_eq!(
+        two_file_circles(&tree),
+        vec!["ident/chirp.rs and ident/sweep.rs import each other".to_string()]
+    );
+    let imports = file_imports(&tree);
+    assert!(imports["ident/mod.rs"].contains("ident/chirp.rs"));
+    assert!(imports["ident/chirp.rs"].contains("ident/mod.rs"));
 }
