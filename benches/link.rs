@@ -11,11 +11,13 @@
 //! `cargo bench --bench link`. Not criterion: these are distributions and
 //! counts, printed as a table.
 
-use bench_hal::emulator::serial::{self as serial_emulator, Pty, SerialEmulatorOptions};
-use bench_hal::emulator::{DeviceCore, EmulatorStatus};
-use bench_hal::protocol::{self, DeviceMessage, Frame, FrameReader, HostMessage, MAX_FRAME};
+use bench_devices::emulator::serial::{self as serial_emulator, Pty, SerialEmulatorOptions};
+use bench_devices::emulator::{DeviceCore, EmulatorStatus};
 use bench_hal::serial::{SerialConfig, SerialStage};
 use bench_hal::{Command, Stage};
+use bench_protocol::serial::{
+    self as protocol, DeviceMessage, Frame, FrameReader, HostMessage, MAX_FRAME,
+};
 use std::io::{Read, Write};
 use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};

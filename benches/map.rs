@@ -14,7 +14,7 @@
 
 use bench::analysis::map::{cnmp_map, linspace};
 use bench::config::BenchConfig;
-use bench_hal::model::Sr4dofParams;
+use bench_plant::model::Sr4dofParams;
 use criterion::{black_box, Criterion};
 use std::path::Path;
 use std::process::Command;

@@ -3,8 +3,8 @@
 //! stop), as a tick would drive it.
 
 use bench::config::BenchConfig;
-use bench_hal::sim::{SimStage, ZohPlant};
 use bench_hal::{Command, Stage};
+use bench_plant::sim::{SimStage, ZohPlant};
 use criterion::{black_box, criterion_group, criterion_main, Criterion, Throughput};
 use nalgebra::SVector;
 use std::path::Path;

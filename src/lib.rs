@@ -2,7 +2,7 @@
 //! the SR4DoF flexure motion stage of the reference thesis.
 //!
 //! The hardware sits behind [`bench_hal::Stage`]; the simulated plant
-//! ([`bench_hal::sim::SimStage`]) is the default backend. The folders, from
+//! ([`bench_plant::sim::SimStage`]) is the default backend. The folders, from
 //! the tick outwards: [`rt`] (loop, supervisor, backends), [`ident`]
 //! (excitation, FRF), [`control`] (controllers, loop check), [`record`]
 //! (MCAP topics, writer, reader), [`jobs`] (chirp and step runs),

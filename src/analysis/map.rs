@@ -3,7 +3,8 @@
 //! Chapter 4).
 
 use super::modal::{closely_spaced_pair, modal_terms, model_cnmp_damped, model_cnmp_undamped};
-use bench_hal::model::{ParamError, Sr4dof, Sr4dofParams};
+use bench_hal::param::ParamError;
+use bench_plant::model::{Sr4dof, Sr4dofParams};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
@@ -359,7 +360,7 @@ mod tests {
         // Thesis 2.3 / Fig 2-6a (Chapter 2 bench): with Δm23 = 0 the loci of
         // the 3rd and 4th modes intersect at Y1o = 6.6 % of L (mode
         // crossing), near 153 Hz (the shipped stiffness is calibrated to
-        // Table 2-2's frequencies, see bench_hal::model).
+        // Table 2-2's frequencies, see bench_plant::model).
         let p = base("sr4dof-ch2.toml");
         let l = p.beam.length_m;
         let c = veering_curve(&p, 0.0, &linspace(0.0, 0.12 * l, 121)).unwrap();
@@ -436,7 +437,7 @@ mod tests {
         // of L: dual MMP zeros between the pair (which then become CMP-CNMP
         // towards the veering point).
         use crate::analysis::modal::undamped_zeros;
-        use bench_hal::model::ZeroType;
+        use bench_plant::model::ZeroType;
         let p = base("sr4dof-ch2.toml");
         let model = model_at(&p, 0.033 * p.beam.length_m, 0.01).unwrap();
         let terms = modal_terms(&model);

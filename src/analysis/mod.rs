@@ -3,7 +3,7 @@
 //! modes, the zeros typed MMP / RMP-RNMP / CMP-CNMP, Chapter 4's
 //! three-mode test, the CNMP map and curve veering.
 //!
-//! Everything here is computed from a [`bench_hal::model::Sr4dof`], so it
+//! Everything here is computed from a [`bench_plant::model::Sr4dof`], so it
 //! works for any bench a config describes. `bench analyze` and `bench map`
 //! print it; the fit, the campaign and a controller designer reuse it.
 //!
@@ -14,7 +14,7 @@ pub mod modal;
 pub mod sequence;
 pub mod three_mode;
 
-use bench_hal::model::Sr4dof;
+use bench_plant::model::Sr4dof;
 use modal::{damped_zeros, has_cmp_cnmp, modal_terms, undamped_zeros, ModalTerm, TypedZero};
 use sequence::{dominant_sequence, SeqTerm, TakeOver};
 use serde::{Deserialize, Serialize};
@@ -94,7 +94,7 @@ pub fn analyze(model: &Sr4dof) -> Analysis {
 mod tests {
     use super::*;
     use crate::config::BenchConfig;
-    use bench_hal::model::ZeroType;
+    use bench_plant::model::ZeroType;
 
     fn ch5_at(op_fraction: f64, dm: f64) -> Analysis {
         let path =

@@ -1,6 +1,6 @@
 //! The modes of the actuator-to-probe path and the zeros they make.
 //!
-//! For the SR4DoF (`bench_hal::model::Sr4dof`, thesis Eq. 2-5) with force
+//! For the SR4DoF (`bench_plant::model::Sr4dof`, thesis Eq. 2-5) with force
 //! input `q = [1, α, −2α, 0]ᵀ` and probe output `c = [1, 0, 0, 0]ᵀ`, each
 //! mode `i` of `K φ = ω² M φ` contributes `αᵢ / (s² + 2ζᵢωᵢ s + ωᵢ²)` to
 //! the force → x1 transfer function, with the modal residue of Eq. 4-15
@@ -10,10 +10,10 @@
 //! ```
 //!
 //! in 1/kg (m/(N·s²): metres of x1 per newton of actuator force, times
-//! s²). It equals the `residue` of [`bench_hal::model::Mode`] (computed
+//! s²). It equals the `residue` of [`bench_plant::model::Mode`] (computed
 //! there from the mass-normalised shape), which the tests check.
 
-use bench_hal::model::{Sr4dof, ZeroType};
+use bench_plant::model::{Sr4dof, ZeroType};
 use nalgebra::{Complex, Vector4};
 use serde::{Deserialize, Serialize};
 use std::f64::consts::PI;

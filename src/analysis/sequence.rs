@@ -26,7 +26,7 @@
 //! Computed this way, (sign sequence, dominant sequence) determines the
 //! zero types as in Table 3-3; `tests` check that on sampled residues.
 
-use bench_hal::model::{poly_mul, poly_roots, ZeroType};
+use bench_plant::model::{poly_mul, poly_roots, ZeroType};
 use nalgebra::Complex;
 use serde::{Deserialize, Serialize};
 use std::f64::consts::PI;

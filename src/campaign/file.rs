@@ -23,7 +23,8 @@
 //! refused.
 
 use crate::config::BenchConfig;
-use bench_hal::model::{ranges, ParamError};
+use bench_hal::param::ParamError;
+use bench_plant::model::ranges;
 use serde::Deserialize;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};

@@ -3,9 +3,9 @@
 
 use super::{bad_input, load_config, status, CONFIG_HELP};
 use bench::jobs::request::parse_fault;
-use bench_hal::emulator::serial::{Pty, SerialEmulatorOptions};
-use bench_hal::emulator::{DeviceCore, EmulatorStatus, LinkFault, ScheduledLinkFault};
-use bench_hal::sim::ScheduledFault;
+use bench_devices::emulator::serial::{Pty, SerialEmulatorOptions};
+use bench_devices::emulator::{DeviceCore, EmulatorStatus, LinkFault, ScheduledLinkFault};
+use bench_plant::sim::ScheduledFault;
 use clap::{Args, Subcommand};
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -197,13 +197,13 @@ pub(super) fn emulate(cmd: EmulateCommand, stop: Arc<AtomicBool>) -> ExitCode {
                 "serial DAQ emulator on {} at {rate_hz} Hz, watchdog {} ms, protocol v{}; connect with --backend serial:{}; Ctrl-C stops",
                 pty.path(),
                 cfg.emulator.watchdog_ms,
-                args.protocol_version.unwrap_or(bench_hal::protocol::VERSION),
+                args.protocol_version.unwrap_or(bench_protocol::serial::VERSION),
                 pty.path()
             );
             let opts = SerialEmulatorOptions {
                 protocol_version: args
                     .protocol_version
-                    .unwrap_or(bench_hal::protocol::VERSION),
+                    .unwrap_or(bench_protocol::serial::VERSION),
                 position_lsb_m: cfg.emulator.position_lsb_m,
                 link_faults,
                 seed,
@@ -215,7 +215,7 @@ pub(super) fn emulate(cmd: EmulateCommand, stop: Arc<AtomicBool>) -> ExitCode {
             let s = Arc::clone(&stop);
             std::thread::Builder::new()
                 .name("bench-emulator".into())
-                .spawn(move || bench_hal::emulator::serial::run(pty, core, &opts, &s, &st))
+                .spawn(move || bench_devices::emulator::serial::run(pty, core, &opts, &s, &st))
                 .map_err(|e| e.to_string())
                 .and_then(|t| t.join().map_err(|_| "emulator thread panicked".to_string()))
                 .and_then(|r| r.map_err(|e| e.to_string()))
@@ -247,7 +247,14 @@ pub(super) fn emulate(cmd: EmulateCommand, stop: Arc<AtomicBool>) -> ExitCode {
                     if let Some(p) = priority {
                         bench_hal::os::make_realtime(p, None);
                     }
-                    bench_hal::emulator::can::run_emulator(sock, &ccfg, core, &link_faults, &s, &st)
+                    bench_devices::emulator::can::run_emulator(
+                        sock,
+                        &ccfg,
+                        core,
+                        &link_faults,
+                        &s,
+                        &st,
+                    )
                 })
                 .map_err(|e| e.to_string())
                 .and_then(|t| t.join().map_err(|_| "emulator thread panicked".to_string()))
@@ -285,7 +292,7 @@ fn emulate_ethercat(
     args: EmulateArgs,
     stop: Arc<AtomicBool>,
 ) -> ExitCode {
-    use bench_hal::ethercat::slave::{ScheduledSlaveFault, SlaveFault, SlaveIdentity};
+    use bench_devices::slave::{ScheduledSlaveFault, SlaveFault, SlaveIdentity};
     let (cfg, config_path) = match load_config(args.config.as_deref())
         .and_then(|(c, p)| c.validate(&p).map(|_| (c, p)))
     {
@@ -392,24 +399,9 @@ fn emulate_ethercat(
                 bench_hal::os::make_realtime(p, None);
             }
             if rack {
-                bench_hal::ethercat::slave::rack::run_rack(
-                    &sock,
-                    &ecfg,
-                    core,
-                    &slave_faults,
-                    &s,
-                    &st,
-                )
+                bench_devices::slave::rack::run_rack(&sock, &ecfg, core, &slave_faults, &s, &st)
             } else {
-                bench_hal::ethercat::slave::run_slave(
-                    &sock,
-                    &ecfg,
-                    core,
-                    id,
-                    &slave_faults,
-                    &s,
-                    &st,
-                )
+                bench_devices::slave::run_slave(&sock, &ecfg, core, id, &slave_faults, &s, &st)
             }
         })
         .map_err(|e| e.to_string())

@@ -85,7 +85,7 @@ pub const POSITION_LSB_MAX_M: f64 = 1.0e-6;
 /// The bounds of the other numeric keys: what a flexure stage on a lab
 /// bench, its amplifier, probe and jobs can be, with room around the
 /// thesis' benches (the model's own ranges are in
-/// [`bench_hal::model::ranges`]). The README's configuration reference and
+/// [`bench_plant::model::ranges`]). The README's configuration reference and
 /// the comments in `bench-config/*.toml` give the same ranges.
 pub mod ranges {
     /// `loop.rate_hz`, Hz.

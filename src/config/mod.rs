@@ -8,8 +8,8 @@
 //!
 //! Layer rule: may use `input_file`.
 
-use bench_hal::model::Sr4dofParams;
-use bench_hal::sim::{ActuatorParams, ProbeParams, SimParams};
+use bench_plant::model::Sr4dofParams;
+use bench_plant::sim::{ActuatorParams, ProbeParams, SimParams};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -39,11 +39,11 @@ pub const BUILTIN_CONFIG_NAME: &str = "built-in (sr4dof-ch5)";
 /// in percent (`10` for 10 %: `0.10` is meant; magnitudes of 1 or more,
 /// i.e. at least 100 % as a fraction) or an operating point in
 /// millimetres (`3` for 3 mm: `0.003` is meant). `None` unless the value is
-/// outside the key's range ([`bench_hal::model::ranges`]) and the rescaled
+/// outside the key's range ([`bench_plant::model::ranges`]) and the rescaled
 /// one is inside it. `beam_length_m` bounds the operating point.
 #[must_use]
 pub fn unit_hint(key: &str, value: f64, beam_length_m: f64) -> Option<String> {
-    use bench_hal::model::ranges;
+    use bench_plant::model::ranges;
     if !value.is_finite() {
         return None;
     }

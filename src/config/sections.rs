@@ -22,10 +22,10 @@ pub struct DaemonConfig {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum BackendKind {
-    /// The simulated plant in-process (`bench_hal::sim`).
+    /// The simulated plant in-process (`bench_plant::sim`).
     #[default]
     Sim,
-    /// A serial DAQ speaking `hal/PROTOCOL.md`.
+    /// A serial DAQ speaking `hal/protocol/PROTOCOL.md`.
     Serial,
     /// A CAN analog I/O module on SocketCAN.
     Socketcan,

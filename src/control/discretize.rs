@@ -170,7 +170,7 @@ fn fit_numerator(zinv: &[Complex<f64>], g: &[Complex<f64>], w: &[f64]) -> Option
             true,
             true,
             f64::EPSILON,
-            bench_hal::model::MAX_EIGEN_ITERATIONS,
+            bench_plant::model::MAX_EIGEN_ITERATIONS,
         )?
         .solve(&qtr.rows(0, 3), 1e-300)
         .ok()?;

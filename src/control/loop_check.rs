@@ -41,8 +41,8 @@
 use crate::config::BenchConfig;
 use crate::control::{DiscreteController, DiscretizationReport};
 use crate::error::RunError;
-use bench_hal::model::{Sr4dof, MAX_EIGEN_ITERATIONS};
-use bench_hal::sim::{ZohPlant, STATES};
+use bench_plant::model::{Sr4dof, MAX_EIGEN_ITERATIONS};
+use bench_plant::sim::{ZohPlant, STATES};
 use nalgebra::{Complex, DMatrix, Schur};
 use serde::{Deserialize, Serialize};
 use std::f64::consts::PI;
@@ -811,7 +811,7 @@ mod tests {
 mod thesis {
     use super::*;
     use crate::config::BenchConfig;
-    use bench_hal::sim::SimStage;
+    use bench_plant::sim::SimStage;
 
     /// Eq. (6-6) and (6-7) on the Chapter 5 model reproduce Figs 6-8 and
     /// 6-10: slow 18 rad/s / 70°, fast 287 rad/s / 42° (thesis); with the
@@ -1034,7 +1034,7 @@ mod thesis {
         let plant = ZohPlant::new(&model, &cfg.actuator, t);
         for (current, room) in [(9.98, 790e-6), (2.0, 100e-6), (9.98, 20e-6)] {
             let reach = reach_time_s(&plant, current, room).unwrap();
-            let mut sim = bench_hal::sim::SimStage::new(cfg.sim_params(1)).unwrap();
+            let mut sim = bench_plant::sim::SimStage::new(cfg.sim_params(1)).unwrap();
             sim.configure(cfg.loop_.period_ns()).unwrap();
             sim.enable().unwrap();
             let x0 = sim.read_sample().unwrap().position_m;

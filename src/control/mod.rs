@@ -16,7 +16,7 @@
 //! plant input) and compares it with the loop check's prediction. The
 //! items are used through this module.
 //!
-//! May use `nalgebra` and `bench_hal::model`/`bench_hal::sim` (the plant
+//! May use `nalgebra` and `bench_plant::model`/`bench_plant::sim` (the plant
 //! the loop check closes the loop around); the loop check also reads the
 //! `[actuator]`/`[safety]` limits of [`crate::config`] and reports through
 //! [`crate::error::RunError`]. Never the loop, the recorder or the daemon.

@@ -70,7 +70,7 @@ use crate::ident::chirp::Chirp;
 use crate::ident::frf::{
     h1_radius_95, h1_sigma_m_per_a, log_grid, unwrap_deg, Spectra, C64, MIN_COHERENCE,
 };
-use bench_hal::sim::ZohPlant;
+use bench_plant::sim::ZohPlant;
 use serde::{Deserialize, Serialize};
 use std::f64::consts::PI;
 
@@ -736,7 +736,7 @@ impl VerifyResult {
 mod tests {
     use super::*;
     use crate::config::BenchConfig;
-    use bench_hal::model::Sr4dof;
+    use bench_plant::model::Sr4dof;
     use std::path::Path;
 
     fn ch5() -> BenchConfig {
@@ -766,7 +766,7 @@ mod tests {
             let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
             let n = 200_000;
             let (mut d, mut u, mut y) = (Vec::new(), Vec::new(), Vec::new());
-            let mut x = nalgebra::SVector::<f64, { bench_hal::sim::STATES }>::zeros();
+            let mut x = nalgebra::SVector::<f64, { bench_plant::sim::STATES }>::zeros();
             // The commands on their way through the link.
             let mut link: std::collections::VecDeque<f64> =
                 std::iter::repeat_n(0.0, delay as usize).collect();

@@ -230,7 +230,7 @@ pub struct ServeOptions {
     pub seed: u64,
     /// A simulator fault to inject, `at_s` after the daemon starts (tests
     /// of supervision between jobs).
-    pub inject: Option<bench_hal::sim::ScheduledFault>,
+    pub inject: Option<bench_plant::sim::ScheduledFault>,
     /// Serve Prometheus metrics on this address (`--metrics`,
     /// [`metrics::parse_addr`]); `None`: no metrics server.
     pub metrics: Option<std::net::SocketAddr>,
@@ -318,7 +318,7 @@ fn hold_factory(
             cfg.loop_.period_ns()
         )));
     }
-    let model = bench_hal::model::Sr4dof::new(cfg.plant).map_err(|e| refuse(e.to_string()))?;
+    let model = bench_plant::model::Sr4dof::new(cfg.plant).map_err(|e| refuse(e.to_string()))?;
     let ctrl = DiscreteController::new(ccfg, period_s, cfg.current_limits(info).peak_current_a);
     let check = check_loop(
         cfg,

@@ -1481,7 +1481,7 @@ mod tests {
                 .filter(|(w, _)| band(w))
                 .map(|(_, p)| *p)
                 .collect();
-            let model = bench_hal::model::Sr4dof::new(cfg.plant).unwrap();
+            let model = bench_plant::model::Sr4dof::new(cfg.plant).unwrap();
             let modes = model.modes();
             let zeros = crate::ident::modal_fit::damped_numerator_roots(
                 &modes.iter().map(|m| m.frequency_hz()).collect::<Vec<_>>(),

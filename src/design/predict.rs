@@ -16,8 +16,8 @@ use crate::control::loop_check::model_grid;
 use crate::control::step_metrics::{analyze_step, step_profile_m, StepMetrics, StepSignals};
 use crate::control::{ControllerConfig, DiscreteController};
 use crate::ident::C64;
-use bench_hal::model::Sr4dof;
-use bench_hal::sim::{ZohPlant, STATES};
+use bench_plant::model::Sr4dof;
+use bench_plant::sim::{ZohPlant, STATES};
 use serde::{Deserialize, Serialize};
 use std::f64::consts::PI;
 

@@ -4,7 +4,7 @@
 //! coherence, from a chirp; the best linear approximation with its noise
 //! and nonlinear distortion from a multisine).
 //!
-//! May use `bench_hal::model` (the lumped model, for comparison) and the
+//! May use `bench_plant::model` (the lumped model, for comparison) and the
 //! recording reader (an FRF from a recording, [`frf::read_frf`]); never the
 //! loop or the daemon.
 //!

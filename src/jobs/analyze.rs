@@ -15,7 +15,7 @@ use crate::error::RunError;
 use crate::jobs::request::RequestError;
 use crate::outputs::{Existing, Origin, OutputPlan};
 use crate::plot::{write_decomposed_bode_png, write_pole_zero_png};
-use bench_hal::model::{Sr4dof, Sr4dofParams};
+use bench_plant::model::{Sr4dof, Sr4dofParams};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 

@@ -18,7 +18,7 @@ use crate::config::BenchConfig;
 use crate::error::RunError;
 use crate::outputs::{write_atomically, Existing, Origin, OutputPlan};
 use crate::plot::{write_map_png, write_veering_png, MeasuredPoint};
-use bench_hal::model::{ranges, Sr4dofParams};
+use bench_plant::model::{ranges, Sr4dofParams};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 
@@ -542,7 +542,7 @@ pub fn run_map(opts: &MapOptions) -> Result<MapResult, RunError> {
         plan = plan.with_input("measured", m);
     }
     plan.check()?;
-    let bad_bench = |e: bench_hal::model::ParamError| RunError::BadInput(format!("{config}: {e}"));
+    let bad_bench = |e: bench_hal::param::ParamError| RunError::BadInput(format!("{config}: {e}"));
     let png = &opts.png;
     let plot_failed = |e: crate::plot::PlotError| RunError::Output {
         path: png.clone(),

@@ -822,10 +822,10 @@ fn model_response(
     band: &std::ops::Range<f64>,
     window: Option<&std::ops::Range<f64>>,
 ) -> Result<(Vec<f64>, Vec<C64>), RunError> {
-    let model = bench_hal::model::Sr4dof::new(cfg.plant)
+    let model = bench_plant::model::Sr4dof::new(cfg.plant)
         .map_err(|e| RunError::option("config", "", format!("the model: {e}")))?;
     let period_s = cfg.loop_.period_ns() as f64 * 1e-9;
-    let zoh = bench_hal::sim::ZohPlant::new(&model, &cfg.actuator, period_s);
+    let zoh = bench_plant::sim::ZohPlant::new(&model, &cfg.actuator, period_s);
     let mut f = log_grid(band.start, band.end, MODEL_POINTS_PER_DECADE);
     if let Some(w) = window.filter(|w| w.end > w.start) {
         let n = MODEL_POINTS_IN_WINDOW;

@@ -9,7 +9,7 @@
 //! Errors name the request field (`operating_point_pct`), never a flag.
 
 use super::request::RequestError;
-use bench_hal::model::{ranges, Sr4dofParams};
+use bench_plant::model::{ranges, Sr4dofParams};
 use serde::{Deserialize, Serialize};
 
 /// Y1o = `pct` % of the beam length `length_m`, m: `pct / 100 · L`.
@@ -87,7 +87,7 @@ impl PlantPoint {
 
     /// Checks the forms and the percent fields: one form per quantity, and
     /// each percent within its config key's range, said in percent (the
-    /// ranges are the model's, [`bench_hal::model::ranges`]; the key's own
+    /// ranges are the model's, [`bench_plant::model::ranges`]; the key's own
     /// check would say them as fractions and metres). The metre and
     /// fraction fields are checked with the plant they are written into.
     ///

@@ -74,7 +74,7 @@
 //! [`MIN_COHERENCE`]), [`crate::control`] (the step metrics),
 //! [`crate::analysis`] (modal terms, typed zeros, map cells, veering
 //! curves), [`crate::outputs`] (how a file is written) and
-//! `bench_hal::model` (the plant's modes and zero types); never `jobs`,
+//! `bench_plant::model` (the plant's modes and zero types); never `jobs`,
 //! `cli`, `daemon`, `campaign` or `rt` (nor `record`, `config`, `live`):
 //! they call the figures, not the reverse.
 //!

@@ -5,7 +5,7 @@
 use std::f64::consts::PI;
 use std::path::Path;
 
-use bench_hal::model::{Sr4dof, ZeroType};
+use bench_plant::model::{Sr4dof, ZeroType};
 use nalgebra::Complex;
 use plotters::prelude::*;
 

@@ -8,8 +8,8 @@
 use crate::config::{BackendKind, BenchConfig};
 use crate::error::RunError;
 use bench_hal::serial::{SerialError, SerialStage};
-use bench_hal::sim::{ScheduledFault, SimError, SimStage};
 use bench_hal::{Command, DeviceInfo, ErrorKind, Sample, Stage};
+use bench_plant::sim::{ScheduledFault, SimError, SimStage};
 use std::fmt;
 use std::str::FromStr;
 

@@ -12,8 +12,8 @@
 use crate::rt::backend::{AnyError, AnyStage, LinkCounters};
 use crate::rt::{HalFailure, HoldJob, Job, JobEnd, Loop, LoopOptions, Pacing};
 use crate::vocab::{FaultKind, SupervisorState};
-use bench_hal::sim::ScheduledFault;
 use bench_hal::Clock;
+use bench_plant::sim::ScheduledFault;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::Arc;
 

@@ -25,7 +25,7 @@ use crate::common;
 use bench::config::{BenchConfig, ConfigError};
 use bench::control::loop_check::check_loop;
 use bench::control::DiscreteController;
-use bench_hal::model::Sr4dof;
+use bench_plant::model::Sr4dof;
 use std::path::Path;
 use std::sync::mpsc;
 use std::time::Duration;

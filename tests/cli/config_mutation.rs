@@ -20,7 +20,7 @@ use crate::common;
 
 use bench::config::{BenchConfig, ConfigError};
 use bench::rt::backend::{self, BackendSpec};
-use bench_hal::model::Sr4dof;
+use bench_plant::model::Sr4dof;
 use proptest::prelude::*;
 use std::path::{Path, PathBuf};
 use toml::{Table, Value};

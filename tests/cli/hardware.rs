@@ -8,7 +8,7 @@
 
 use crate::common;
 
-use bench_hal::emulator::{LinkFault, ScheduledLinkFault};
+use bench_devices::emulator::{LinkFault, ScheduledLinkFault};
 use common::emulator::Emulator;
 use common::*;
 use serde_json::Value;

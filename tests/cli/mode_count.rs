@@ -16,7 +16,7 @@ use super::uncertainty::{ch5, hidden, measure, period_s};
 use bench::analysis::modal::modal_terms;
 use bench::config::{BenchConfig, ChirpKind};
 use bench::ident::modal_fit::{fit, FrfData, ModalFit, Path as FitPath};
-use bench_hal::model::Sr4dof;
+use bench_plant::model::Sr4dof;
 use rand::{Rng, SeedableRng};
 use rayon::prelude::*;
 

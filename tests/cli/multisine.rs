@@ -243,8 +243,8 @@ fn ch5_multisine(chirp: &[(&str, toml::Value)], multisine: &[(&str, toml::Value)
 #[test]
 fn bla_on_the_simulator_is_the_zoh_model_within_its_sigma() {
     let _one = one_at_a_time();
-    use bench_hal::model::Sr4dof;
-    use bench_hal::sim::ZohPlant;
+    use bench_plant::model::Sr4dof;
+    use bench_plant::sim::ZohPlant;
     let dir = tmp();
     let cfg_path = dir.path().join("ms.toml");
     let text = ch5_multisine(

@@ -41,7 +41,7 @@ use bench::config::BenchConfig;
 use bench::ident::frf::Frf;
 use bench::ident::modal_fit::{fit, path_phase_deg, FrfData, Path as FitPath};
 use bench::ident::verdict::{verdict, without_fit};
-use bench_hal::model::Sr4dof;
+use bench_plant::model::Sr4dof;
 use rand::{Rng, SeedableRng};
 use rayon::prelude::*;
 

@@ -9,7 +9,7 @@
 
 use crate::common;
 
-use bench_hal::emulator::{LinkFault, ScheduledLinkFault};
+use bench_devices::emulator::{LinkFault, ScheduledLinkFault};
 use common::emulator::Emulator;
 use common::{
     bench, fault_in_injected_stall, json_stdout, one_at_a_time, past_machine_stalls, path_in,

@@ -3,8 +3,8 @@
 //! `bench` binary over the serial backend and watch the device's state.
 
 use bench::config::BenchConfig;
-use bench_hal::emulator::serial::{self as serial_emulator, Pty, SerialEmulatorOptions};
-use bench_hal::emulator::{DeviceCore, EmulatorStatus, ScheduledLinkFault};
+use bench_devices::emulator::serial::{self as serial_emulator, Pty, SerialEmulatorOptions};
+use bench_devices::emulator::{DeviceCore, EmulatorStatus, ScheduledLinkFault};
 use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
@@ -60,7 +60,7 @@ impl Emulator {
         let pty = Pty::open().unwrap();
         let path = pty.path().to_string();
         let opts = SerialEmulatorOptions {
-            protocol_version: version.unwrap_or(bench_hal::protocol::VERSION),
+            protocol_version: version.unwrap_or(bench_protocol::serial::VERSION),
             position_lsb_m: cfg.emulator.position_lsb_m,
             link_faults: faults,
             seed: 1,

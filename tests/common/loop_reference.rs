@@ -15,8 +15,8 @@
 //! cannot check is not checked.
 
 use bench::config::{BenchConfig, ControllerConfig};
-use bench_hal::model::Sr4dofParams;
-use bench_hal::sim::ActuatorParams;
+use bench_plant::model::Sr4dofParams;
+use bench_plant::sim::ActuatorParams;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 use std::process::Command;

@@ -6,7 +6,7 @@ pub mod docs;
 pub mod emulator;
 pub mod host_stall;
 pub mod loop_reference;
-#[path = "../../hal/tests/common/watchdog.rs"]
+#[path = "../../hal/devices/tests/common/watchdog.rs"]
 mod watchdog;
 #[allow(unused_imports)] // only the real-time job tests watch the machine
 pub use docs::{doc_blocks, doc_pages, docs_text, DocBlock};
@@ -292,7 +292,7 @@ pub fn quiet_config_edited(
 /// 400 points per decade) with complex Gaussian noise of relative RMS
 /// `noise` per point, and the coherence that noise implies.
 pub fn noisy_frf(
-    zoh: &bench_hal::sim::ZohPlant,
+    zoh: &bench_plant::sim::ZohPlant,
     noise: f64,
     rng: &mut impl rand::Rng,
 ) -> bench::ident::modal_fit::FrfData {

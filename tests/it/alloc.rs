@@ -9,8 +9,8 @@ use bench::config::BenchConfig;
 use bench::ident::chirp::Chirp;
 use bench::jobs::chirp::ChirpJob;
 use bench::rt::{self, Job, JobOutput, LoopOptions, Pacing, StopReason};
-use bench_hal::sim::SimStage;
 use bench_hal::{Sample, Stage};
+use bench_plant::sim::SimStage;
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::cell::Cell;
 use std::path::Path;
@@ -372,8 +372,8 @@ fn closed_loop_verify_tick_allocates_nothing() {
 fn serial_tick_allocates_nothing() {
     use bench::control::DiscreteController;
     use bench::jobs::control::ControlJob;
-    use bench_hal::emulator::serial::{self as serial_emulator, Pty, SerialEmulatorOptions};
-    use bench_hal::emulator::{DeviceCore, EmulatorStatus};
+    use bench_devices::emulator::serial::{self as serial_emulator, Pty, SerialEmulatorOptions};
+    use bench_devices::emulator::{DeviceCore, EmulatorStatus};
     use bench_hal::serial::{SerialConfig, SerialStage};
     use std::sync::Arc;
     let cfg = ch5();
@@ -432,7 +432,7 @@ fn serial_tick_allocates_nothing() {
 #[test]
 fn faulting_tick_allocates_nothing() {
     use bench::record::topics::FaultKind;
-    use bench_hal::sim::{FaultInjection, ScheduledFault};
+    use bench_plant::sim::{FaultInjection, ScheduledFault};
     let cfg = ch5();
     for (kind, expect) in [
         (FaultInjection::Nan, FaultKind::ProbeNotFinite),
@@ -474,7 +474,7 @@ fn faulting_tick_allocates_nothing() {
 #[test]
 fn hold_and_a_fault_between_jobs_allocate_nothing() {
     use bench::record::topics::{FaultKind, SupervisorState};
-    use bench_hal::sim::{FaultInjection, ScheduledFault};
+    use bench_plant::sim::{FaultInjection, ScheduledFault};
     let cfg = ch5();
     let mut stage = SimStage::new(cfg.sim_params(7)).unwrap();
     let info = stage.configure(cfg.loop_.period_ns()).unwrap();

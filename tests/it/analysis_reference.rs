@@ -7,7 +7,7 @@
 use bench::analysis::sequence::table_3_3_zero_types;
 use bench::analysis::{analyze, Analysis};
 use bench::config::BenchConfig;
-use bench_hal::model::Sr4dof;
+use bench_plant::model::Sr4dof;
 use serde::Deserialize;
 use std::path::Path;
 

@@ -14,8 +14,8 @@ use bench::design::search::Requirements;
 use bench::design::{certify, design, prepare, DesignSpec, InputFrf, Strategy, UNIT_PER_METRE};
 use bench::ident::frf::{log_grid, Frf};
 use bench::ident::modal_fit::Path as FitPath;
-use bench_hal::model::Sr4dof;
-use bench_hal::sim::ZohPlant;
+use bench_plant::model::Sr4dof;
+use bench_plant::sim::ZohPlant;
 use std::path::Path;
 use std::time::Instant;
 

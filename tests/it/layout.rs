@@ -19,8 +19,12 @@
 //! `rt` that imports `jobs` (which `rt`'s rule does not allow), and two
 //! folders whose rules allow each other, and expects both to be reported.
 //!
+//! The rules hold in every crate of the workspace ([`CRATES`]: the
+//! application and the HAL's four crates), and the crate graph the book
+//! draws is Cargo's ([`the_crate_graph_in_the_book_is_cargos`]).
+//!
 //! Within a folder the files are layered too (issue 43): no two files of
-//! the library or of the HAL import each other
+//! any crate import each other
 //! ([`no_two_files_import_each_other`]; a module and its own child are one
 //! unit). Run on the tree before the split of `ident/chirp.rs`,
 //! `plot/measured.rs` and the EtherCAT config, it names the five circles
@@ -242,12 +246,25 @@ fn read_tree(root: &Path) -> Tree {
     out
 }
 
+/// The sources of every crate of the workspace: the application and the
+/// HAL's crates (between crates Cargo keeps the layers; within each, its
+/// folders' rules do).
+const CRATES: [&str; 5] = [
+    "src",
+    "hal/protocol/src",
+    "hal/hal/src",
+    "hal/plant/src",
+    "hal/devices/src",
+];
+
 #[test]
 fn every_folder_keeps_its_layer_rule() {
-    let tree = read_tree(&Path::new(env!("CARGO_MANIFEST_DIR")).join("src"));
-    assert!(tree.len() > 50, "{} files read", tree.len());
-    let problems = check(&tree);
-    assert!(problems.is_empty(), "{problems:#?}");
+    for dir in CRATES {
+        let tree = read_tree(&Path::new(env!("CARGO_MANIFEST_DIR")).join(dir));
+        assert!(tree.len() >= 4, "{dir}: {} files read", tree.len());
+        let problems = check(&tree);
+        assert!(problems.is_empty(), "{dir}: {problems:#?}");
+    }
 }
 
 #[test]
@@ -484,9 +501,9 @@ fn two_file_circles(tree: &Tree) -> Vec<String> {
 /// (issue 43): the order of the files within a folder is a layering too.
 #[test]
 fn no_two_files_import_each_other() {
-    for dir in ["src", "hal/src"] {
+    for dir in CRATES {
         let tree = read_tree(&Path::new(env!("CARGO_MANIFEST_DIR")).join(dir));
-        assert!(tree.len() > 20, "{dir}: {} files read", tree.len());
+        assert!(tree.len() >= 4, "{dir}: {} files read", tree.len());
         let circles = two_file_circles(&tree);
         assert!(circles.is_empty(), "{dir}: {circles:#?}");
     }
@@ -531,4 +548,65 @@ fn the_circle_check_finds_siblings_that_import_each_other() {
     let imports = file_imports(&tree);
     assert!(imports["ident/mod.rs"].contains("ident/chirp.rs"));
     assert!(imports["ident/chirp.rs"].contains("ident/mod.rs"));
+}
+
+/// The crate graph in the book (`docs/src/architecture.md`, between the
+/// `crate-graph` markers: `crate -> dep, dep`) is Cargo's: each crate of
+/// the workspace with the workspace crates its `[dependencies]` name.
+#[test]
+fn the_crate_graph_in_the_book_is_cargos() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let mut cargo: BTreeMap<String, BTreeSet<String>> = BTreeMap::new();
+    for manifest in [
+        "Cargo.toml",
+        "hal/protocol/Cargo.toml",
+        "hal/hal/Cargo.toml",
+        "hal/plant/Cargo.toml",
+        "hal/devices/Cargo.toml",
+    ] {
+        let t: toml::Table = std::fs::read_to_string(root.join(manifest))
+            .unwrap()
+            .parse()
+            .unwrap();
+        let name = t["package"]["name"].as_str().unwrap().to_string();
+        let deps = t
+            .get("dependencies")
+            .and_then(|d| d.as_table())
+            .map(|d| {
+                d.iter()
+                    .filter(|(_, v)| v.get("path").is_some())
+                    .map(|(k, _)| k.clone())
+                    .collect()
+            })
+            .unwrap_or_default();
+        cargo.insert(name, deps);
+    }
+    // Every member of the workspace is in the list above.
+    let ws: toml::Table = std::fs::read_to_string(root.join("Cargo.toml"))
+        .unwrap()
+        .parse()
+        .unwrap();
+    let members = ws["workspace"]["members"].as_array().unwrap().len();
+    assert_eq!(members, cargo.len(), "a workspace member is not checked");
+    let book = std::fs::read_to_string(root.join("docs/src/architecture.md")).unwrap();
+    let graph = book
+        .split("<!-- crate-graph -->")
+        .nth(1)
+        .and_then(|s| s.split("<!-- crate-graph:end -->").next())
+        .expect("architecture.md has the crate-graph markers");
+    let mut written: BTreeMap<String, BTreeSet<String>> = BTreeMap::new();
+    for line in graph.lines().filter(|l| l.contains("->")) {
+        let (name, deps) = line.split_once("->").unwrap();
+        let deps = deps
+            .split(',')
+            .map(str::trim)
+            .filter(|d| !d.is_empty() && *d != "(none)")
+            .map(String::from)
+            .collect();
+        written.insert(name.trim().to_string(), deps);
+    }
+    assert_eq!(
+        written, cargo,
+        "the book's crate graph (left) against Cargo's"
+    );
 }

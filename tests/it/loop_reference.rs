@@ -60,7 +60,7 @@ use bench::config::BenchConfig;
 use bench::control::loop_check::{check_loop, LoopCheck, Margins};
 use bench::control::DiscreteController;
 use bench::splitmix::{splitmix64, GAMMA};
-use bench_hal::model::Sr4dof;
+use bench_plant::model::Sr4dof;
 use common::loop_reference::{python_reference, Case, RefLoop, RefMargins, Requirements};
 use std::path::Path;
 

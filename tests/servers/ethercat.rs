@@ -18,8 +18,8 @@
 
 use crate::common;
 
-use bench_hal::emulator::{DeviceCore, EmulatorStatus};
-use bench_hal::ethercat::slave::{run_slave, ScheduledSlaveFault, SlaveFault, SlaveIdentity};
+use bench_devices::emulator::{DeviceCore, EmulatorStatus};
+use bench_devices::slave::{run_slave, ScheduledSlaveFault, SlaveFault, SlaveIdentity};
 use bench_hal::ethercat::socket::RawSocket;
 use bench_hal::ethercat::EthercatConfig;
 use common::*;

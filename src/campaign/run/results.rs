@@ -213,9 +213,9 @@ pub(super) fn write_map(
         let lo = if min >= 0.0 { lo.max(0.0) } else { lo };
         ((min - half).max(lo), (max + half).min(hi))
     };
-    let lim = bench_hal::model::ranges::OPERATING_POINT_OF_L * p.beam.length_m;
+    let lim = bench_plant::model::ranges::OPERATING_POINT_OF_L * p.beam.length_m;
     let (op_lo, op_hi) = edge(&campaign.operating_points_m, -lim, lim);
-    let (dlo, dhi) = bench_hal::model::ranges::MASS_ASYMMETRY;
+    let (dlo, dhi) = bench_plant::model::ranges::MASS_ASYMMETRY;
     let (dm_lo, dm_hi) = edge(&campaign.mass_asymmetries, dlo, dhi);
     let ops = linspace(op_lo, op_hi, 121);
     let dms = linspace(dm_lo, dm_hi, 91);

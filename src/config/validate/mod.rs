@@ -4,7 +4,7 @@
 //! TOML syntax and type errors, naming the key path.
 
 use super::*;
-use bench_hal::model::{non_negative, ParamError};
+use bench_hal::param::{non_negative, ParamError};
 
 mod excitation;
 mod safety;
@@ -86,7 +86,7 @@ impl BenchConfig {
         // refused by this check for exactly what the runs refuse in it
         // (a Rayleigh fit that gives a mode negative damping, matrices
         // that are not positive definite, modes that do not converge).
-        bench_hal::model::Sr4dof::new(self.plant)?;
+        bench_plant::model::Sr4dof::new(self.plant)?;
         let nyquist = self.loop_.rate_hz / 2.0;
         if let Some(d) = &self.plant.disturbance {
             if d.band_hz[1] >= nyquist {

@@ -127,7 +127,7 @@ pub fn labels(f_hz: &[f64], a: &[f64], a_sigma: &[f64]) -> (Vec<String>, Option<
 /// Roots (rad/s) of the numerator of `Σᵢ Aᵢ / (s² + 2ζᵢωᵢ s + ωᵢ²)`,
 /// computed in `s/ω̄` (ω̄ the geometric mean natural frequency).
 pub fn damped_numerator_roots(f_hz: &[f64], zeta: &[f64], a: &[f64]) -> Vec<C64> {
-    use bench_hal::model::{poly_mul, poly_roots};
+    use bench_plant::model::{poly_mul, poly_roots};
     let n = f_hz.len();
     let finite = f_hz.iter().chain(zeta).chain(a).all(|v| v.is_finite());
     if n < 2 || !finite {

@@ -32,8 +32,8 @@ fn a_grid_denser_than_the_fit_uses_is_thinned_and_a_default_one_is_not() {
 }
 use crate::analysis::modal::modal_terms;
 use crate::config::BenchConfig;
-use bench_hal::model::Sr4dof;
-use bench_hal::sim::ZohPlant;
+use bench_plant::model::Sr4dof;
+use bench_plant::sim::ZohPlant;
 
 fn ch5() -> BenchConfig {
     let path =

@@ -11,7 +11,7 @@
 //!
 //! - `G` (m/N) is the force → x1 response of the lumped model, Eq. 2-5
 //!   with Rayleigh damping fitted to `zeta_rigid` and `zeta_csm`
-//!   (`bench_hal::model`); `βᵢ` (1/kg) are its modal residues.
+//!   (`bench_plant::model`); `βᵢ` (1/kg) are its modal residues.
 //! - `k_f` (N/A) is the voice coil's force constant.
 //! - `D` is the path of the modal fit (`modal_fit::Path::response`): the
 //!   zero-order hold, the configured amplifier lag and a delay `τ`, fitted
@@ -59,7 +59,8 @@
 use super::frf::{C64, MIN_COHERENCE};
 use super::lsq::{self, Residuals};
 use super::modal_fit::{self, FrfData, ModalFit, Path};
-use bench_hal::model::{ranges, ParamError, Sr4dof, Sr4dofParams};
+use bench_hal::param::ParamError;
+use bench_plant::model::{ranges, Sr4dof, Sr4dofParams};
 use nalgebra::{DMatrix, DVector};
 use serde::{Deserialize, Serialize};
 use std::f64::consts::PI;

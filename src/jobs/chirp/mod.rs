@@ -21,9 +21,9 @@ use crate::outputs::{Existing, Origin, OutputPlan};
 use crate::plot::{bode_curve, write_bode_png, BodePlot, BodeSeries, PairZoom};
 use crate::rt::backend::{self, BackendSpec};
 use crate::rt::{Job, JobOutput};
-use bench_hal::model::Sr4dof;
-use bench_hal::sim::ZohPlant;
 use bench_hal::Sample;
+use bench_plant::model::Sr4dof;
+use bench_plant::sim::ZohPlant;
 use serde::{Deserialize, Serialize};
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, AtomicU64};
@@ -186,7 +186,7 @@ pub struct ChirpOptions {
     /// `--backend` (else `[backend]` of the config).
     pub backend: Option<BackendSpec>,
     /// A simulator fault to inject (local runs on the simulator only).
-    pub inject: Option<bench_hal::sim::ScheduledFault>,
+    pub inject: Option<bench_plant::sim::ScheduledFault>,
     /// Append the run's row to the run catalogue beside its recording
     /// once the recording is finished ([`crate::jobs::catalogue`]): the
     /// CLI's and the daemon's runs; not a campaign's cells (the campaign

@@ -17,7 +17,7 @@ pub use super::plot::PlotRequest;
 pub use super::point::OperatingPoint;
 use super::verify::{DEFAULT_AMPLITUDE_OF_CHIRP, DEFAULT_DURATION_S};
 use crate::config::{ranges, BenchConfig, ChirpKind};
-use bench_hal::sim::{FaultInjection, ScheduledFault};
+use bench_plant::sim::{FaultInjection, ScheduledFault};
 use serde::{Deserialize, Serialize};
 
 mod values;

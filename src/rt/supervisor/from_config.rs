@@ -24,8 +24,8 @@ impl crate::config::BenchConfig {
     /// none if the model cannot be built (the config's validation refuses
     /// that before any job).
     pub fn reach_envelope(&self, period_s: f64) -> crate::rt::supervisor::ReachEnvelope {
-        match bench_hal::model::Sr4dof::new(self.plant) {
-            Ok(m) => crate::rt::supervisor::ReachEnvelope::of(&bench_hal::sim::ZohPlant::new(
+        match bench_plant::model::Sr4dof::new(self.plant) {
+            Ok(m) => crate::rt::supervisor::ReachEnvelope::of(&bench_plant::sim::ZohPlant::new(
                 &m,
                 &self.actuator,
                 period_s,
@@ -48,9 +48,9 @@ impl crate::config::BenchConfig {
         continuous_current_a: f64,
     ) -> crate::rt::supervisor::ProbeValidity {
         let period_s = info.period_ns as f64 * 1e-9;
-        let (dc_gain, lowest_hz) = match bench_hal::model::Sr4dof::new(self.plant) {
+        let (dc_gain, lowest_hz) = match bench_plant::model::Sr4dof::new(self.plant) {
             Ok(m) => (
-                bench_hal::sim::ZohPlant::new(&m, &self.actuator, period_s)
+                bench_plant::sim::ZohPlant::new(&m, &self.actuator, period_s)
                     .frf_continuous(0.0)
                     .re,
                 m.modes()

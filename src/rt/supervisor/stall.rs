@@ -80,8 +80,8 @@ impl ReachEnvelope {
     }
 
     /// The envelope of `plant` (the model at the loop's period).
-    pub fn of(plant: &bench_hal::sim::ZohPlant) -> Self {
-        let mut x = nalgebra::SVector::<f64, { bench_hal::sim::STATES }>::zeros();
+    pub fn of(plant: &bench_plant::sim::ZohPlant) -> Self {
+        let mut x = nalgebra::SVector::<f64, { bench_plant::sim::STATES }>::zeros();
         let mut m_per_a = [0.0; REACH_POINTS];
         let mut t = 0.0;
         let mut peak = 0.0f64;
