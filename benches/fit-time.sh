@@ -2,7 +2,7 @@
 # Time of `bench fit` as a process on the default chirp's and the default
 # multisine's FRFs over many benches (issue 45, item 3: every default fit
 # at most 1 s on this 2-core machine): two campaigns of the shipped
-# Chapter 5 bench, one with `[chirp] kind = "exponential"` (the default)
+# Chapter 5 bench, one with `[excitation] kind = "exponential"` (the default)
 # and one with `kind = "multisine"`, over 0–9 % of L in steps of 1.5 % and
 # mass asymmetry −12, −6, +6 and +12 % (both residue-sign patterns: 28
 # cells each, each cell its own noise seed), then `bench fit CELL/frf.csv

@@ -69,7 +69,7 @@ fn peak_of<T>(f: impl FnOnce() -> T) -> (T, usize) {
 fn main() {
     let (config, _) = common::shipped();
     let period_s = 1.0 / config.loop_.rate_hz;
-    let chirp = Chirp::new(&config.chirp, period_s);
+    let chirp = Chirp::new(&config.chirp, config.excitation.kind, period_s);
     let n = chirp.total_ticks() as usize;
 
     // The FRF: a record with the default chirp's excitation and a response

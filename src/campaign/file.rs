@@ -242,6 +242,10 @@ pub struct CampaignSpec {
     /// ranges).
     #[serde(default)]
     pub chirp: Option<toml::Table>,
+    /// Overrides of the bench config's `[excitation]` table (same keys,
+    /// same values).
+    #[serde(default)]
+    pub excitation: Option<toml::Table>,
     /// What each cell keeps on disk.
     #[serde(default)]
     pub keep: Keep,
@@ -499,31 +503,57 @@ impl Campaign {
                 message: e.to_string(),
             })
         })?;
-        if let Some(over) = &spec.chirp {
-            let chirp = table
-                .entry("chirp")
-                .or_insert_with(|| toml::Value::Table(toml::Table::new()));
-            let toml::Value::Table(chirp) = chirp else {
+        // The bench config's old spellings where they are now (its own
+        // load above warned), then the campaign's overrides on top: its
+        // `[chirp] kind`, the old spelling, is `[excitation] kind`.
+        crate::config::move_old_spellings(&mut table).map_err(|(k, why)| invalid(&k, why))?;
+        let mut chirp_over = spec.chirp.clone().unwrap_or_default();
+        let mut excitation_over = spec.excitation.clone().unwrap_or_default();
+        if let Some(kind) = chirp_over.remove("kind") {
+            if excitation_over.contains_key("kind") {
                 return Err(invalid(
-                    "chirp",
-                    "the bench config's chirp is not a table".into(),
+                    "chirp.kind",
+                    "is the old spelling of excitation.kind, which is set too: remove chirp.kind"
+                        .into(),
+                ));
+            }
+            tracing::warn!(
+                "{}: chirp.kind is deprecated: write [excitation] kind = {kind} (read as that for now)",
+                path.display()
+            );
+            excitation_over.insert("kind".into(), kind);
+        }
+        for (name, over) in [("chirp", &chirp_over), ("excitation", &excitation_over)] {
+            if over.is_empty() {
+                continue;
+            }
+            let section = table
+                .entry(name)
+                .or_insert_with(|| toml::Value::Table(toml::Table::new()));
+            let toml::Value::Table(section) = section else {
+                return Err(invalid(
+                    name,
+                    format!("the bench config's {name} is not a table"),
                 ));
             };
             for (k, v) in over {
-                chirp.insert(k.clone(), v.clone());
+                section.insert(k.clone(), v.clone());
             }
         }
-        let merged = toml::to_string(&table).expect("a parsed table serialises");
-        let config: BenchConfig = toml::from_str(&merged).map_err(|e| CampaignError::Parse {
+        // From the table, not its text: the error names the key (the
+        // merged text's line numbers are no file's).
+        let config = BenchConfig::deserialize(table).map_err(|e| CampaignError::Parse {
             path: path.to_path_buf(),
             message: format!(
-                "[chirp] overrides on {}: {}",
+                "[chirp] and [excitation] overrides on {}: {}",
                 config_path.display(),
                 e.to_string().trim_end()
             ),
         })?;
         config.check().map_err(|e| {
-            let key = if e.key.starts_with("chirp.") && spec.chirp.is_some() {
+            let overridden = (e.key.starts_with("chirp.") && spec.chirp.is_some())
+                || (e.key.starts_with("excitation.") && spec.excitation.is_some());
+            let key = if overridden {
                 e.key.clone()
             } else {
                 format!("config ({}): {}", config_path.display(), e.key)

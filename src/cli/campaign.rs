@@ -56,13 +56,16 @@ pub(super) struct RunArgs {
     out: Option<PathBuf>,
     #[command(flatten)]
     how: HowArgs,
-    /// Submit the whole campaign as one job to a running `bench serve`
-    /// [SOCKET default: $XDG_RUNTIME_DIR/bench.sock, else
-    /// /run/bench/bench.sock]: the daemon reads the campaign file and runs
-    /// the cells on the simulator, in parallel, in a new directory of its
-    /// recordings (as `run` without --backend here). Unlike --daemon, no
-    /// cell runs on the daemon's bench.
-    #[arg(long, value_name = "SOCKET", num_args = 0..=1, default_missing_value = "", conflicts_with_all = ["out", "backend", "daemon"])]
+    /// Run the whole campaign as one job of a running `bench serve`, as
+    /// --daemon runs any job [SOCKET default: $XDG_RUNTIME_DIR/bench.sock,
+    /// else /run/bench/bench.sock]: the daemon reads the campaign file and
+    /// runs the cells on the simulator, in parallel, in a new directory of
+    /// its recordings (as `run` without --backend here). No cell runs on
+    /// the daemon's bench (that is --cells-on-daemon).
+    #[arg(long, value_name = "SOCKET", num_args = 0..=1, default_missing_value = "", conflicts_with_all = ["out", "backend", "cells_on_daemon"])]
+    daemon: Option<String>,
+    /// The old spelling of --daemon: refused, naming it.
+    #[arg(long, hide = true, value_name = "SOCKET", num_args = 0..=1, default_missing_value = "")]
     submit: Option<String>,
 }
 
@@ -79,11 +82,11 @@ pub(super) struct HowArgs {
     #[arg(long, value_name = "SPEC")]
     backend: Option<BackendSpec>,
     /// Run each cell as a chirp job of the running `bench serve` on
-    /// SOCKET [default: $XDG_RUNTIME_DIR/bench.sock, else
-    /// /run/bench/bench.sock]; the daemon's config and backend apply. The
-    /// operator is asked before each cell as on hardware.
+    /// SOCKET, on the daemon's bench [default: $XDG_RUNTIME_DIR/bench.sock,
+    /// else /run/bench/bench.sock]; the daemon's config and backend apply.
+    /// The operator is asked before each cell as on hardware.
     #[arg(long, value_name = "SOCKET", num_args = 0..=1, default_missing_value = "", conflicts_with = "backend")]
-    daemon: Option<String>,
+    cells_on_daemon: Option<String>,
     /// Print the summary as one JSON object on stdout.
     #[arg(long)]
     json: bool,
@@ -138,7 +141,13 @@ fn parse_keep(s: &str) -> Result<Keep, String> {
 }
 
 fn run(a: RunArgs, stop: Arc<AtomicBool>) -> ExitCode {
-    if let Some(sock) = &a.submit {
+    if a.submit.is_some() {
+        return super::bad_input(
+            "--submit is now --daemon: `bench campaign run --daemon [SOCKET]` runs the whole campaign as one job of the daemon, as --daemon runs every command's job (each cell as a job of the daemon's bench: --cells-on-daemon [SOCKET])"
+                .to_string(),
+        );
+    }
+    if let Some(sock) = &a.daemon {
         let request = CampaignRequest {
             file: a.file.as_deref().map(super::absolute_path),
             threads: a.how.threads,
@@ -160,7 +169,11 @@ fn run(a: RunArgs, stop: Arc<AtomicBool>) -> ExitCode {
         Ok(c) => c,
         Err(e) => return failed(&e),
     };
-    let bench = target(a.how.backend.as_ref(), a.how.daemon.as_deref(), &campaign);
+    let bench = target(
+        a.how.backend.as_ref(),
+        a.how.cells_on_daemon.as_deref(),
+        &campaign,
+    );
     match job::start(campaign, a.out.as_deref(), threads) {
         Ok(ready) => go(
             ready,
@@ -188,7 +201,7 @@ fn resume(a: ResumeArgs, stop: Arc<AtomicBool>) -> ExitCode {
     }
     let bench = target(
         a.how.backend.as_ref(),
-        a.how.daemon.as_deref(),
+        a.how.cells_on_daemon.as_deref(),
         &ready.campaign,
     );
     go(

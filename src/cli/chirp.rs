@@ -7,7 +7,7 @@ use super::{
     bad_input, emit, job_thread, load_config, origin, recording_plan, refuse_local_only,
     refuse_non_mcap, refused_request, run_failed, run_failed_json, CONFIG_HELP,
 };
-use bench::config::ChirpKind;
+use bench::config::ExcitationKind;
 use bench::jobs::chirp::{run_chirp, ChirpOptions, ChirpSummary};
 use bench::jobs::request::{parse_fault, parse_seed, ChirpRequest, JobRequest, LocalOverrides};
 use bench::outputs::beside;
@@ -72,13 +72,14 @@ pub(super) struct ChirpArgs {
     /// Sweep duration, s (overrides chirp.duration_s).
     #[arg(long, value_name = "S", allow_hyphen_values = true)]
     duration_s: Option<f64>,
-    /// What to play (overrides chirp.kind): a sweep law, or multisine
+    /// What to play (overrides excitation.kind): a sweep law, or multisine
     /// ([multisine] of the config, or its defaults; the config's
     /// chirp.duration_s and chirp.taper_s are set aside). A sweep sets
     /// aside the config's [multisine] and needs a chirp.duration_s (or
-    /// --duration-s); without chirp.taper_s it does not fade.
-    #[arg(long, value_enum)]
-    chirp_kind: Option<KindArg>,
+    /// --duration-s); without chirp.taper_s it does not fade. Also read
+    /// as --chirp-kind, its name before [excitation].
+    #[arg(long, value_enum, alias = "chirp-kind")]
+    excitation: Option<KindArg>,
     /// The BLA CSV of a multisine run (per line: the estimate, its
     /// total, noise and nonlinear 1σ, the distortion p-value) [default:
     /// beside --out, <stem>.bla.csv]. Refused with a sweep.
@@ -118,10 +119,10 @@ impl ChirpArgs {
         LocalOverrides {
             operating_point: self.point.point().operating_point(),
             mass_asymmetry: self.point.point().mass_asymmetry(),
-            chirp_kind: self.chirp_kind.map(|k| match k {
-                KindArg::Exponential => ChirpKind::Exponential,
-                KindArg::Linear => ChirpKind::Linear,
-                KindArg::Multisine => ChirpKind::Multisine,
+            excitation: self.excitation.map(|k| match k {
+                KindArg::Exponential => ExcitationKind::Exponential,
+                KindArg::Linear => ExcitationKind::Linear,
+                KindArg::Multisine => ExcitationKind::Multisine,
             }),
         }
     }
@@ -165,7 +166,7 @@ pub(super) fn chirp(args: ChirpArgs, stop: Arc<AtomicBool>) -> ExitCode {
         local_only.extend(args.point.given());
         local_only.extend([
             (args.backend.is_some(), "--backend"),
-            (args.chirp_kind.is_some(), "--chirp-kind"),
+            (args.excitation.is_some(), "--excitation"),
             (args.inject_fault.is_some(), "--inject-fault"),
         ]);
         if let Some(code) = refuse_local_only(
@@ -204,11 +205,11 @@ pub(super) fn chirp(args: ChirpArgs, stop: Arc<AtomicBool>) -> ExitCode {
         Ok(p) => p,
         Err(code) => return code,
     };
-    let multisine = !cfg.chirp.kind.is_sweep();
+    let multisine = !cfg.excitation.kind.is_sweep();
     if args.bla_csv.is_some() && !multisine {
         return bad_input(format!(
-            "--bla-csv: chirp.kind = \"{}\" plays a sweep, which has no BLA (chirp.kind = \"multisine\" or --chirp-kind multisine has)",
-            cfg.chirp.kind.as_str()
+            "--bla-csv: excitation.kind = \"{}\" plays a sweep, which has no BLA (excitation.kind = \"multisine\" or --excitation multisine has)",
+            cfg.excitation.kind.as_str()
         ));
     }
     let companions: &[&str] = if multisine {

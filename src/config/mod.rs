@@ -170,10 +170,14 @@ pub struct BenchConfig {
     pub stage: StageConfig,
     /// Supervisor limits.
     pub safety: SafetyConfig,
-    /// Chirp excitation defaults.
+    /// What `bench chirp` plays (`[excitation]`, default an exponential
+    /// sweep).
+    #[serde(default)]
+    pub excitation: ExcitationConfig,
+    /// The swept sine (and the band and amplitude a multisine shares).
     pub chirp: ChirpConfig,
-    /// The multisine of `chirp.kind = "multisine"` (absent: its defaults);
-    /// refused with a sweep kind.
+    /// The multisine of `excitation.kind = "multisine"` (absent: its
+    /// defaults); refused with a sweep kind.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub multisine: Option<MultisineConfig>,
     /// FRF estimation settings.
@@ -214,17 +218,36 @@ impl BenchConfig {
         Self::from_toml(&read_text(path)?, path)
     }
 
-    /// Parses TOML text; `path` is only used in messages.
+    /// Parses TOML text; `path` is only used in messages. A key an older
+    /// version spelled elsewhere (`[chirp] kind`) is read where it is
+    /// now ([`move_old_spellings`]), with a deprecation warning naming
+    /// `path` in the log.
     ///
     /// # Errors
     /// [`ConfigError::Parse`] naming the key and position, with the
     /// parser's multi-line display (the line and a caret under the
-    /// offending span).
+    /// offending span; in a file with an old spelling, the key without
+    /// the caret); [`ConfigError::Invalid`] when a key is set in both its
+    /// old and its new spelling.
     pub fn from_toml(text: &str, path: &Path) -> Result<Self, ConfigError> {
-        toml::from_str(text).map_err(|e| ConfigError::Parse {
+        let parse = |message| ConfigError::Parse {
             path: path.to_path_buf(),
-            message: toml_error_message(text, &e),
-        })
+            message,
+        };
+        if let Ok(mut table) = text.parse::<toml::Table>() {
+            let moved =
+                move_old_spellings(&mut table).map_err(|(key, reason)| ConfigError::Invalid {
+                    path: path.to_path_buf(),
+                    key,
+                    reason,
+                })?;
+            if let Some(note) = moved {
+                tracing::warn!("{}: {note}", path.display());
+                return Self::deserialize(table)
+                    .map_err(|e| parse(e.to_string().trim_end().to_string()));
+            }
+        }
+        toml::from_str(text).map_err(|e| parse(toml_error_message(text, &e)))
     }
 
     /// The built-in bench ([`BUILTIN_CONFIG_TOML`]), parsed (no physical

@@ -285,12 +285,13 @@ fn default_max_s() -> f64 {
     2.5
 }
 
-/// What `bench chirp` plays (`[chirp] kind`): a sweep law, or a periodic
-/// multisine (`[multisine]`).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+/// What `bench chirp` plays (`[excitation] kind`): a sweep law
+/// (`[chirp]`), or a periodic multisine (`[multisine]`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
-pub enum ChirpKind {
+pub enum ExcitationKind {
     /// Exponential (logarithmic) sweep: equal time per octave.
+    #[default]
     Exponential,
     /// Linear sweep: constant df/dt.
     Linear,
@@ -301,16 +302,16 @@ pub enum ChirpKind {
     Multisine,
 }
 
-impl ChirpKind {
+impl ExcitationKind {
     /// A swept sine (exponential or linear), which `chirp.duration_s` and
     /// `chirp.taper_s` describe.
     pub fn is_sweep(self) -> bool {
         !matches!(self, Self::Multisine)
     }
 
-    /// The sweep law a sweep built from this `[chirp]` uses (the injection
-    /// of `bench control --verify`): the kind itself, exponential for a
-    /// multisine config.
+    /// The sweep law a sweep of this excitation uses (the injection of
+    /// `bench control --verify`): the kind itself, exponential for a
+    /// multisine.
     pub fn sweep_law(self) -> Self {
         match self {
             Self::Multisine => Self::Exponential,
@@ -331,14 +332,58 @@ impl ChirpKind {
 /// Most breakpoints in `chirp.amplitude_profile`.
 pub const MAX_PROFILE_POINTS: usize = 16;
 
-/// `[chirp]`
+/// `[excitation]`: what `bench chirp` plays. Before it had its own
+/// table the kind was `[chirp] kind`; that spelling is still read, moved
+/// here with a deprecation warning ([`move_old_spellings`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ExcitationConfig {
+    /// `exponential` (default) or `linear`: a swept sine (`[chirp]`'s
+    /// band, amplitude, duration and fades); `multisine`: a periodic
+    /// multisine (`[chirp]`'s band and amplitude, the `[multisine]`
+    /// table).
+    #[serde(default)]
+    pub kind: ExcitationKind,
+}
+
+/// Moves the keys of `table` (a bench config, as parsed) that an older
+/// version spelled elsewhere to where they are now: `[chirp] kind` to
+/// `[excitation] kind` (issue 43: the field's word is excitation).
+/// Returns the deprecation note to show (`None`: nothing was moved).
+///
+/// # Errors
+/// The old key's name and the reason, when both spellings are set.
+pub fn move_old_spellings(table: &mut toml::Table) -> Result<Option<String>, (String, String)> {
+    let Some(toml::Value::Table(chirp)) = table.get_mut("chirp") else {
+        return Ok(None);
+    };
+    let Some(kind) = chirp.remove("kind") else {
+        return Ok(None);
+    };
+    let excitation = table
+        .entry("excitation")
+        .or_insert_with(|| toml::Value::Table(toml::Table::new()));
+    let toml::Value::Table(excitation) = excitation else {
+        return Err(("excitation".into(), "must be a table".into()));
+    };
+    if excitation.contains_key("kind") {
+        return Err((
+            "chirp.kind".into(),
+            "is the old spelling of excitation.kind, which is set too: remove chirp.kind".into(),
+        ));
+    }
+    let note = format!(
+        "chirp.kind is deprecated: write [excitation] kind = {kind} (read as that for now)"
+    );
+    excitation.insert("kind".into(), kind);
+    Ok(Some(note))
+}
+
+/// `[chirp]`: the swept sine's definition (and the band and amplitude a
+/// multisine shares).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct ChirpConfig {
-    /// What `bench chirp` plays: `exponential` or `linear` sweep, or
-    /// `multisine` (the `[multisine]` table).
-    #[serde(default = "default_kind")]
-    pub kind: ChirpKind,
     /// Start frequency, Hz: the sweep's, or the lowest excited line of a
     /// multisine.
     pub f_start_hz: f64,
@@ -359,11 +404,11 @@ pub struct ChirpConfig {
     #[serde(default)]
     pub amplitude_profile: Vec<[f64; 2]>,
     /// Sweep duration, s. Required for a sweep; refused with
-    /// `kind = "multisine"` (its length is `[multisine]`'s).
+    /// `excitation.kind = "multisine"` (its length is `[multisine]`'s).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub duration_s: Option<f64>,
     /// Raised-cosine fade-in and fade-out at each end of the sweep, s.
-    /// Required for a sweep; refused with `kind = "multisine"` (a
+    /// Required for a sweep; refused with `excitation.kind = "multisine"` (a
     /// periodic signal has no ends to fade; its transient periods are
     /// discarded instead).
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -372,10 +417,6 @@ pub struct ChirpConfig {
     pub lead_in_s: f64,
     /// Quiet tail after the sweep for ring-down, s.
     pub tail_s: f64,
-}
-
-fn default_kind() -> ChirpKind {
-    ChirpKind::Exponential
 }
 
 /// The FRF estimator of `bench chirp` (`identification.estimator`).
@@ -428,7 +469,7 @@ impl MultisinePhases {
     }
 }
 
-/// `[multisine]`: the periodic excitation of `chirp.kind = "multisine"`
+/// `[multisine]`: the periodic excitation of `excitation.kind = "multisine"`
 /// (its band and peak current are `[chirp]`'s `f_start_hz`, `f_end_hz`,
 /// `amplitude_a`, its line amplitudes follow `amplitude_profile`; its
 /// record is `chirp.lead_in_s | realizations × (transient_periods +

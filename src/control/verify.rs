@@ -147,12 +147,12 @@ impl ModelLoop<'_> {
 /// profile, fades, lead-in and tail) with the verify's `amplitude_a` (A)
 /// and sweep `duration_s` (s); each fade at most a quarter of the sweep,
 /// as a shortened `bench chirp` keeps them. The injection is always a
-/// sweep: exponential when `chirp.kind = "multisine"`, with fades of
+/// sweep ([`crate::ident::chirp::Chirp::new`] sweeps a multisine config
+/// exponentially), with fades of
 /// [`VERIFY_TAPER_OF_DURATION`] of the sweep when `[chirp]` has no
 /// `taper_s`.
 pub fn chirp_config(chirp: &ChirpConfig, amplitude_a: f64, duration_s: f64) -> ChirpConfig {
     ChirpConfig {
-        kind: chirp.kind.sweep_law(),
         amplitude_a,
         duration_s: Some(duration_s),
         taper_s: Some(

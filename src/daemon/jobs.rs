@@ -154,7 +154,7 @@ pub(super) fn job_spec(ctx: &Ctx, request: &JobRequest, id: u64) -> Result<Accep
             let opts = ChirpOptions {
                 frf_csv: beside(&out, ".frf.csv"),
                 plot: beside(&out, ".bode.png"),
-                bla_csv: (!cfg.chirp.kind.is_sweep()).then(|| beside(&out, ".bla.csv")),
+                bla_csv: (!cfg.excitation.kind.is_sweep()).then(|| beside(&out, ".bla.csv")),
                 out: out.clone(),
                 seed: req.seed.unwrap_or(ctx.seed),
                 config: cfg,
@@ -182,6 +182,7 @@ pub(super) fn job_spec(ctx: &Ctx, request: &JobRequest, id: u64) -> Result<Accep
             let verify = verify.map(|v| {
                 let chirp = crate::ident::chirp::Chirp::new(
                     &crate::control::verify::chirp_config(&cfg.chirp, v.amplitude_a, v.duration_s),
+                    cfg.excitation.kind,
                     ctx.period_s,
                 );
                 total = total.saturating_add(chirp.total_ticks());

@@ -20,13 +20,13 @@
 //! so the full-record DFT ratio is free of leakage. Values are computed in
 //! closed form from the tick index: no tables, no allocation on the tick.
 
-use crate::config::{ChirpConfig, ChirpKind, MAX_PROFILE_POINTS};
+use crate::config::{ChirpConfig, ExcitationKind, MAX_PROFILE_POINTS};
 use std::f64::consts::PI;
 
 /// A chirp sampled at the loop rate.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Chirp {
-    kind: ChirpKind,
+    kind: ExcitationKind,
     f_start_hz: f64,
     f_end_hz: f64,
     amplitude_a: f64,
@@ -47,13 +47,14 @@ pub struct Chirp {
 }
 
 impl Chirp {
-    /// Builds the chirp for a loop of period `period_s` (s). The config is
-    /// assumed validated ([`crate::config::BenchConfig::validate`]): a
-    /// sweep's `duration_s` and `taper_s` are present (absent: a
-    /// one-tick sweep without taper). A multisine config's sweep (the
-    /// injection of `bench control --verify`, which sets its own
-    /// duration) is exponential ([`ChirpKind::sweep_law`]).
-    pub fn new(cfg: &ChirpConfig, period_s: f64) -> Self {
+    /// Builds the chirp of `cfg` swept by the law of `excitation` for a
+    /// loop of period `period_s` (s). The config is assumed validated
+    /// ([`crate::config::BenchConfig::validate`]): a sweep's `duration_s`
+    /// and `taper_s` are present (absent: a one-tick sweep without
+    /// taper). A multisine config's sweep (the injection of `bench
+    /// control --verify`, which sets its own duration) is exponential
+    /// ([`ExcitationKind::sweep_law`]).
+    pub fn new(cfg: &ChirpConfig, excitation: ExcitationKind, period_s: f64) -> Self {
         // Checked: a duration beyond the tick range saturates (the job
         // refuses more than `ranges::JOB_TICKS_MAX` ticks), never wraps.
         let ticks = |s: f64| crate::config::ticks_in(s, period_s).unwrap_or(u64::MAX);
@@ -64,7 +65,7 @@ impl Chirp {
             *slot = (f.ln(), *scale);
         }
         Self {
-            kind: cfg.kind.sweep_law(),
+            kind: excitation.sweep_law(),
             f_start_hz: cfg.f_start_hz,
             f_end_hz: cfg.f_end_hz,
             amplitude_a: cfg.amplitude_a,
@@ -102,7 +103,7 @@ impl Chirp {
     /// (exponential) or `(f1 − f0) / T` (linear).
     pub fn sweep_rate_hz_per_s(&self, t: f64) -> f64 {
         match self.kind {
-            ChirpKind::Linear => (self.f_end_hz - self.f_start_hz) / self.sweep_s,
+            ExcitationKind::Linear => (self.f_end_hz - self.f_start_hz) / self.sweep_s,
             _ => self.frequency_hz(t) * self.ln_ratio / self.sweep_s,
         }
     }
@@ -112,7 +113,7 @@ impl Chirp {
         let big_t = self.sweep_s;
         let (f0, f1) = (self.f_start_hz, self.f_end_hz);
         match self.kind {
-            ChirpKind::Linear => f0 + (f1 - f0) * t / big_t,
+            ExcitationKind::Linear => f0 + (f1 - f0) * t / big_t,
             _ => f0 * (f1 / f0).powf(t / big_t),
         }
     }
@@ -149,7 +150,7 @@ impl Chirp {
         let big_t = self.sweep_s;
         let (f0, f1) = (self.f_start_hz, self.f_end_hz);
         let theta = match self.kind {
-            ChirpKind::Linear => 2.0 * PI * (f0 * t + (f1 - f0) * t * t / (2.0 * big_t)),
+            ExcitationKind::Linear => 2.0 * PI * (f0 * t + (f1 - f0) * t * t / (2.0 * big_t)),
             _ => {
                 let ln_r = self.ln_ratio;
                 2.0 * PI * f0 * big_t / ln_r * ((t / big_t * ln_r).exp() - 1.0)
@@ -159,7 +160,7 @@ impl Chirp {
         // ln f0 + (t/T)·ln(f1/f0): no pow and no ln on the tick.
         let scale = match (self.profile_len, self.kind) {
             (0, _) => 1.0,
-            (_, ChirpKind::Linear) => self.profile_scale(self.frequency_hz(t)),
+            (_, ExcitationKind::Linear) => self.profile_scale(self.frequency_hz(t)),
             _ => self.profile_scale_ln(self.ln_f_start + t / big_t * self.ln_ratio),
         };
         self.amplitude_a * scale * self.window(t, big_t) * theta.sin()
@@ -183,9 +184,8 @@ impl Chirp {
 mod tests {
     use super::*;
 
-    fn cfg(kind: ChirpKind) -> ChirpConfig {
+    fn cfg() -> ChirpConfig {
         ChirpConfig {
-            kind,
             f_start_hz: 1.0,
             f_end_hz: 100.0,
             amplitude_a: 0.5,
@@ -200,9 +200,9 @@ mod tests {
     /// Instantaneous frequency from zero crossings matches the sweep law.
     #[test]
     fn zero_crossings_follow_the_sweep_law() {
-        for kind in [ChirpKind::Exponential, ChirpKind::Linear] {
+        for kind in [ExcitationKind::Exponential, ExcitationKind::Linear] {
             let fs = 20_000.0;
-            let c = Chirp::new(&cfg(kind), 1.0 / fs);
+            let c = Chirp::new(&cfg(), kind, 1.0 / fs);
             let lead = c.lead_in_ticks();
             let x: Vec<f64> = (0..c.total_ticks()).map(|k| c.value_a(k)).collect();
             // Upward zero crossings between 2 s and 8 s of sweep time.
@@ -218,7 +218,7 @@ mod tests {
                 let f_meas = 1.0 / (w[1] - w[0]);
                 // Analytic law, independent of the implementation.
                 let f_true = match kind {
-                    ChirpKind::Linear => 1.0 + 99.0 * t_mid / 10.0,
+                    ExcitationKind::Linear => 1.0 + 99.0 * t_mid / 10.0,
                     _ => 100f64.powf(t_mid / 10.0),
                 };
                 assert!(
@@ -231,7 +231,7 @@ mod tests {
 
     #[test]
     fn quiet_outside_the_sweep_and_bounded_inside() {
-        let c = Chirp::new(&cfg(ChirpKind::Exponential), 1e-4);
+        let c = Chirp::new(&cfg(), ExcitationKind::Exponential, 1e-4);
         assert_eq!(c.total_ticks(), 2_000 + 100_000 + 10_000);
         assert_eq!(c.value_a(0), 0.0);
         assert_eq!(c.value_a(1_999), 0.0);
@@ -247,9 +247,9 @@ mod tests {
 
     #[test]
     fn amplitude_profile_is_log_linear_and_held() {
-        let mut p = cfg(ChirpKind::Exponential);
+        let mut p = cfg();
         p.amplitude_profile = vec![[10.0, 1.0], [20.0, 0.1], [40.0, 0.1], [80.0, 1.0]];
-        let c = Chirp::new(&p, 1e-4);
+        let c = Chirp::new(&p, ExcitationKind::Exponential, 1e-4);
         assert_eq!(c.profile_scale(1.0), 1.0);
         assert_eq!(c.profile_scale(10.0), 1.0);
         assert!((c.profile_scale(200f64.sqrt()) - 0.55).abs() < 1e-12);

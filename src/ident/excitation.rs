@@ -1,12 +1,12 @@
 //! [`Excitation`], what `bench chirp` plays: the sweep of
 //! [`crate::ident::chirp`] or the multisine of [`crate::ident::multisine`]
-//! (`chirp.kind`).
+//! (`excitation.kind`).
 
 use crate::ident::chirp::Chirp;
 use crate::ident::multisine::{Multisine, MultisineError};
 
 /// What `bench chirp` plays: a sweep ([`Chirp`]) or a multisine
-/// ([`Multisine`], `chirp.kind = "multisine"`).
+/// ([`Multisine`], `excitation.kind = "multisine"`).
 #[derive(Debug, Clone)]
 #[allow(
     clippy::large_enum_variant,
@@ -33,8 +33,12 @@ impl Excitation {
         period_s: f64,
         seed: u64,
     ) -> Result<Self, MultisineError> {
-        if cfg.chirp.kind.is_sweep() {
-            Ok(Self::Sweep(Chirp::new(&cfg.chirp, period_s)))
+        if cfg.excitation.kind.is_sweep() {
+            Ok(Self::Sweep(Chirp::new(
+                &cfg.chirp,
+                cfg.excitation.kind,
+                period_s,
+            )))
         } else {
             let ms = cfg.multisine.unwrap_or_default();
             Ok(Self::Multisine(Multisine::new(
@@ -52,8 +56,8 @@ impl Excitation {
         cfg: &crate::config::BenchConfig,
         period_s: f64,
     ) -> Result<u64, MultisineError> {
-        if cfg.chirp.kind.is_sweep() {
-            Ok(Chirp::new(&cfg.chirp, period_s).total_ticks())
+        if cfg.excitation.kind.is_sweep() {
+            Ok(Chirp::new(&cfg.chirp, cfg.excitation.kind, period_s).total_ticks())
         } else {
             Multisine::total_ticks_of(&cfg.chirp, &cfg.multisine.unwrap_or_default(), period_s)
         }

@@ -1,4 +1,4 @@
-//! The periodic multisine excitation of `chirp.kind = "multisine"`
+//! The periodic multisine excitation of `excitation.kind = "multisine"`
 //! (README, *Configuration reference*: `[multisine]`), and the layout of
 //! its record for the best linear approximation ([`crate::ident::bla`]).
 //!
@@ -47,7 +47,7 @@
 //! Each realization starts with its transient periods, discarded while the
 //! plant's response to the previous one decays.
 
-use crate::config::{ChirpConfig, MultisineConfig, MultisinePhases};
+use crate::config::{ChirpConfig, ExcitationKind, MultisineConfig, MultisinePhases};
 use crate::ident::chirp::Chirp;
 use crate::ident::C64;
 use std::f64::consts::PI;
@@ -127,7 +127,7 @@ impl Multisine {
         let t_p = n as f64 * tick_s;
         let m = ms.realizations.max(1) as usize;
         // Relative amplitudes: the profile's scale at each line.
-        let sweep = Chirp::new(chirp, tick_s);
+        let sweep = Chirp::new(chirp, ExcitationKind::Multisine, tick_s);
         let rel: Vec<f64> = lines
             .iter()
             .map(|&k| sweep.profile_scale(k as f64 / t_p))
@@ -512,11 +512,9 @@ pub fn lower_crest(k: &[u64], a: &[f64], phi: &[f64], n: usize, iterations: usiz
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::config::ChirpKind;
 
     fn chirp() -> ChirpConfig {
         ChirpConfig {
-            kind: ChirpKind::Multisine,
             f_start_hz: 1.0,
             f_end_hz: 200.0,
             amplitude_a: 0.5,

@@ -705,7 +705,7 @@ mod tests {
         let cfg = BenchConfig::load(&path).unwrap();
         let t = 2e-4;
         let ctrl = DiscreteController::new(&cfg.controller["fast"], t, 9.98);
-        let chirp = Chirp::new(&chirp_config(&cfg.chirp, 0.05, 1.0), t);
+        let chirp = Chirp::new(&chirp_config(&cfg.chirp, 0.05, 1.0), cfg.excitation.kind, t);
         let mut plain = ControlJob::new(ctrl, 1e-5, 100, 0, 1_000);
         let mut with = ControlJob::new(ctrl, 1e-5, 100, 0, 1_000).with_verify(chirp);
         assert_eq!(with.step_ticks(), 1_000);

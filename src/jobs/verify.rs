@@ -201,7 +201,11 @@ pub fn plan(
 ) -> Result<(VerifyPlan, Chirp), RunError> {
     let period_s = device.period_ns as f64 * 1e-9;
     let a = opts.amplitude_a;
-    let chirp = Chirp::new(&chirp_config(&cfg.chirp, a, opts.duration_s), period_s);
+    let chirp = Chirp::new(
+        &chirp_config(&cfg.chirp, a, opts.duration_s),
+        cfg.excitation.kind,
+        period_s,
+    );
     let env = Envelope::of(
         model,
         &chirp,
@@ -294,7 +298,11 @@ pub fn plan(
         // The largest amplitude whose planned command keeps within the
         // budget, by bisection on the same rule.
         let trips = |x: f64| {
-            let c = Chirp::new(&chirp_config(&cfg.chirp, x, opts.duration_s), period_s);
+            let c = Chirp::new(
+                &chirp_config(&cfg.chirp, x, opts.duration_s),
+                cfg.excitation.kind,
+                period_s,
+            );
             i2t_of(sup.clone(), planned_commands(&c, &env, steady, period_s)).1
         };
         let (mut lo, mut hi) = (0.0, a);

@@ -258,6 +258,17 @@ fn bad_campaign_input_exits_2_and_writes_nothing() {
             base.replace("duration_s = 2.0", "duration_s = 0.0"),
             "chirp.duration_s",
         ),
+        // The excitation's overrides: a kind no excitation has, and the
+        // old spelling beside the new one.
+        (
+            format!("{base}\n[excitation]\nkind = \"sine\"\n"),
+            "excitation.kind",
+        ),
+        (
+            base.replace("duration_s = 2.0", "duration_s = 2.0\nkind = \"linear\"")
+                + "\n[excitation]\nkind = \"linear\"\n",
+            "chirp.kind: is the old spelling of excitation.kind",
+        ),
     ];
     for (i, (text, needle)) in cases.iter().enumerate() {
         let p = tmp.path().join(format!("bad{i}.toml"));
@@ -304,6 +315,15 @@ fn bad_campaign_input_exits_2_and_writes_nothing() {
     assert_eq!(out.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&out.stderr).contains("--threads"));
     assert!(!tmp.path().join("t").exists());
+    // `--submit`, the old spelling of --daemon, with or without a socket:
+    // refused, saying what it is now; nothing submitted, nothing written.
+    for extra in [&["--submit"][..], &["--submit", "nowhere.sock"][..]] {
+        let out = run(&[&["campaign", "run", f][..], extra].concat(), tmp.path());
+        assert_eq!(out.status.code(), Some(2));
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(err.contains("--submit is now --daemon"), "{err}");
+        assert!(err.contains("--cells-on-daemon"), "{err}");
+    }
 }
 
 #[test]

@@ -241,7 +241,7 @@ fn with_daemon_each_cell_is_a_daemon_job_after_the_operator_answers() {
             "--out",
             "d",
             "--json",
-            "--daemon",
+            "--cells-on-daemon",
             socket.to_str().unwrap(),
         ],
         tmp.path(),

@@ -307,7 +307,7 @@ fn help_lists_every_chirp_option() {
         "--f-start-hz",
         "--f-end-hz",
         "--duration-s",
-        "--chirp-kind",
+        "--excitation",
         "--bla-csv",
     ] {
         assert!(help.contains(flag), "--help lacks {flag}");

@@ -978,7 +978,7 @@ fn every_numeric_key_of_the_chapter_2_bench() {
     every_numeric_key_of(SHIPPED[1]);
 }
 
-/// The Chapter 5 bench with `chirp.kind = "multisine"`: the sweep's
+/// The Chapter 5 bench with `excitation.kind = "multisine"`: the sweep's
 /// `duration_s` and `taper_s` deleted, `f_start_hz` 0.5 Hz, and a
 /// `[multisine]` table with every key.
 fn multisine_base() -> Value {
@@ -986,8 +986,11 @@ fn multisine_base() -> Value {
     let c = b["chirp"].as_table_mut().unwrap();
     c.remove("duration_s");
     c.remove("taper_s");
-    c.insert("kind".into(), Value::String("multisine".into()));
     c.insert("f_start_hz".into(), Value::Float(0.5));
+    b["excitation"]
+        .as_table_mut()
+        .unwrap()
+        .insert("kind".into(), Value::String("multisine".into()));
     let mut ms = Table::new();
     ms.insert("period_s".into(), Value::Float(2.0));
     ms.insert("periods".into(), Value::Integer(2));

@@ -1187,3 +1187,95 @@ fn a_refusal_between_two_keys_names_both() {
         assert!(reason.contains(other), "{to}: {msg}");
     }
 }
+
+/// `[chirp] kind`, the excitation's spelling before `[excitation]`, is
+/// read as `excitation.kind` (issue 43) for every kind: the config is the
+/// one the new spelling gives, and `bench config check` accepts it with a
+/// deprecation warning naming the file and the new spelling. Both
+/// spellings at once are refused naming `chirp.kind`; a bad old value is
+/// refused naming the kind.
+#[test]
+fn the_old_spelling_of_the_excitation_kind_is_read_with_a_warning() {
+    let new = shipped_text();
+    let block_start = new
+        .find("[excitation]\n")
+        .expect("[excitation] in the shipped file");
+    let block_end = block_start + new[block_start..].find("\n[chirp]\n").unwrap() + 1;
+    let dir = common::tmp();
+    for kind in ["exponential", "linear", "multisine"] {
+        // The new spelling with this kind (a multisine without the
+        // sweep's keys), and the old: the kind under [chirp].
+        let mut with_new = new.replacen("kind = \"exponential\"", &format!("kind = \"{kind}\""), 1);
+        if kind == "multisine" {
+            with_new = with_new
+                .lines()
+                .filter(|l| !l.starts_with("duration_s = ") && !l.starts_with("taper_s = "))
+                .map(|l| format!("{l}\n"))
+                .collect();
+        }
+        let start = with_new.find("[excitation]\n").unwrap();
+        let end = start + with_new[start..].find("\n[chirp]\n").unwrap() + 1;
+        let old = format!(
+            "{}[chirp]\nkind = \"{kind}\"\n{}",
+            &with_new[..start],
+            &with_new[end + "[chirp]\n".len()..]
+        );
+        assert!(
+            !old.contains("[excitation]"),
+            "{kind}: the old text has no [excitation]"
+        );
+        let p = Path::new("x.toml");
+        let (a, b) = (
+            BenchConfig::from_toml(&with_new, p).unwrap(),
+            BenchConfig::from_toml(&old, p).unwrap(),
+        );
+        assert_eq!(a, b, "{kind}: the old spelling reads as another config");
+        assert_eq!(b.excitation.kind.as_str(), kind);
+        b.validate(p).unwrap();
+        let f = dir.path().join(format!("old-{kind}.toml"));
+        std::fs::write(&f, &old).unwrap();
+        let o = common::run(&["config", "check", f.to_str().unwrap()]);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(o.status.success(), "{kind}: {err}");
+        assert!(
+            err.contains(&format!(
+                "{}: chirp.kind is deprecated: write [excitation] kind = \"{kind}\"",
+                f.display()
+            )),
+            "{kind}: {err}"
+        );
+        // The new spelling: no warning.
+        let f = dir.path().join(format!("new-{kind}.toml"));
+        std::fs::write(&f, &with_new).unwrap();
+        let o = common::run(&["config", "check", f.to_str().unwrap()]);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(
+            o.status.success() && !err.contains("deprecated"),
+            "{kind}: {err}"
+        );
+    }
+    // Both spellings: refused, naming the old key.
+    let both = new.replacen("[chirp]\n", "[chirp]\nkind = \"linear\"\n", 1);
+    assert!(block_end > block_start);
+    let f = dir.path().join("both.toml");
+    std::fs::write(&f, &both).unwrap();
+    let o = common::run(&["config", "check", f.to_str().unwrap()]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("chirp.kind: is the old spelling of excitation.kind"),
+        "{err}"
+    );
+    // A value no kind has, in the old spelling: refused, naming the kind.
+    let bad = format!(
+        "{}[chirp]\nkind = \"sine\"\n{}",
+        &new[..block_start],
+        &new[block_end + "[chirp]\n".len()..]
+    );
+    let f = dir.path().join("bad.toml");
+    std::fs::write(&f, &bad).unwrap();
+    let o = common::run(&["config", "check", f.to_str().unwrap()]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(err.contains("kind") && err.contains("sine"), "{err}");
+}

@@ -1,5 +1,5 @@
 //! Every job kind of the CLI runs through the daemon's socket (`--daemon`,
-//! and `bench campaign run --submit`) with the same results as the local
+//! and `bench campaign run --daemon`) with the same results as the local
 //! run: `fit` (a CSV and a recording, with and without `--update`, and
 //! `--frequencies`), `analyze`, `map` (with measured verdicts and the cells
 //! CSV, and `--veering`) and a small campaign. Compared: the `--json`
@@ -279,7 +279,7 @@ fn fit_analyze_map_and_a_campaign_through_the_daemon_equal_the_local_runs() {
         &[&run_args[..], &["--out", camp.as_str()]].concat(),
         "campaign",
     );
-    let r = summary(&[&run_args[..], &["--submit", sock]].concat(), "campaign");
+    let r = summary(&[&run_args[..], &["--daemon", sock]].concat(), "campaign");
     let paths = ["dir", "cells_csv", "map_png"];
     assert_eq!(without(&l, &paths), without(&r, &paths));
     assert_eq!(l["done"], 4, "{l}");

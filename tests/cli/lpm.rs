@@ -72,7 +72,7 @@ fn simulate(cfg: &BenchConfig, seed: u64) -> Vec<C64> {
         seed,
     })
     .unwrap();
-    let chirp = Chirp::new(&cfg.chirp, period_s(cfg));
+    let chirp = Chirp::new(&cfg.chirp, cfg.excitation.kind, period_s(cfg));
     stage.configure(cfg.loop_.period_ns()).unwrap();
     stage.enable().unwrap();
     let n = chirp.total_ticks();
@@ -318,7 +318,7 @@ fn the_shipped_bench_agrees_with_the_python_reference() {
         .iter()
         .map(|s| C64::new(s.excitation_a, s.position_m))
         .collect();
-    let chirp = Chirp::new(&cfg.chirp, period_s(&cfg));
+    let chirp = Chirp::new(&cfg.chirp, cfg.excitation.kind, period_s(&cfg));
     assert_eq!(record.len() as u64, chirp.total_ticks());
     remove_offset(&mut record, chirp.lead_in_ticks() as usize);
     let rate_hz = 1.0 / period_s(&cfg);

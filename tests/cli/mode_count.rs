@@ -14,7 +14,7 @@
 
 use super::uncertainty::{ch5, hidden, measure, period_s};
 use bench::analysis::modal::modal_terms;
-use bench::config::{BenchConfig, ChirpKind};
+use bench::config::{BenchConfig, ExcitationKind};
 use bench::ident::modal_fit::{fit, FrfData, ModalFit, Path as FitPath};
 use bench_plant::model::Sr4dof;
 use rand::{Rng, SeedableRng};
@@ -58,7 +58,7 @@ pub(crate) fn hidden_masses(base: &BenchConfig, seed: u64) -> BenchConfig {
 
 fn multisine(cfg: &BenchConfig) -> BenchConfig {
     let mut c = cfg.clone();
-    c.chirp.kind = ChirpKind::Multisine;
+    c.excitation.kind = ExcitationKind::Multisine;
     c.chirp.duration_s = None;
     c.chirp.taper_s = None;
     c

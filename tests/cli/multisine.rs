@@ -15,7 +15,7 @@
 use crate::common;
 use crate::daemon_fixtures;
 
-use bench::config::{BenchConfig, ChirpConfig, ChirpKind, MultisineConfig, MultisinePhases};
+use bench::config::{BenchConfig, ChirpConfig, MultisineConfig, MultisinePhases};
 use bench::ident::bla::Bla;
 use bench::ident::multisine::Multisine;
 use bench::ident::C64;
@@ -27,7 +27,6 @@ use std::process::Command;
 
 fn band(f_start_hz: f64, f_end_hz: f64) -> ChirpConfig {
     ChirpConfig {
-        kind: ChirpKind::Multisine,
         f_start_hz,
         f_end_hz,
         amplitude_a: 0.5,
@@ -219,10 +218,13 @@ fn ch5_multisine(chirp: &[(&str, toml::Value)], multisine: &[(&str, toml::Value)
     let c = t["chirp"].as_table_mut().unwrap();
     c.remove("duration_s");
     c.remove("taper_s");
-    c.insert("kind".into(), "multisine".into());
     for (k, v) in chirp {
         c.insert((*k).into(), v.clone());
     }
+    t["excitation"]
+        .as_table_mut()
+        .unwrap()
+        .insert("kind".into(), "multisine".into());
     let mut ms = toml::Table::new();
     for (k, v) in multisine {
         ms.insert((*k).into(), v.clone());
@@ -482,7 +484,7 @@ fn nonlinear_distortion_is_detected_and_agrees_with_numpy() {
 
 /// Keys that do not apply to the kind are refused, not ignored, at the
 /// process boundary (exit 2, the key named), as are the bad flag
-/// combinations; `--chirp-kind` switches the kind with its keys.
+/// combinations; `--excitation` switches the kind with its keys.
 #[test]
 fn keys_of_the_other_kind_are_refused() {
     let _one = one_at_a_time();
@@ -544,7 +546,7 @@ fn keys_of_the_other_kind_are_refused() {
         ),
         (
             write("h.toml", &ms),
-            vec!["--chirp-kind".into(), "exponential".into()],
+            vec!["--excitation".into(), "exponential".into()],
             "chirp.duration_s",
         ),
     ];
@@ -558,7 +560,7 @@ fn keys_of_the_other_kind_are_refused() {
         assert!(err.contains(key), "{key}: {err}");
         assert!(!Path::new(&out).exists());
     }
-    // --chirp-kind multisine on the shipped sweep config sets the sweep's
+    // --excitation multisine on the shipped sweep config sets the sweep's
     // keys aside and plays the [multisine] defaults (here a short one).
     let short = ch5
         .replace("f_start_hz = 0.1 ", "f_start_hz = 5.0 ")
@@ -569,7 +571,7 @@ fn keys_of_the_other_kind_are_refused() {
         "chirp",
         "--config",
         &p,
-        "--chirp-kind",
+        "--excitation",
         "multisine",
         "--json",
         "--out",

@@ -181,7 +181,7 @@ fn adapt(line: &str, campaign_done: &mut bool) -> (Vec<String>, String) {
     if l.contains("--config start.toml") {
         setup.push("[ -e start.toml ] || bench config default > start.toml".into());
     }
-    // `chirp.kind = "multisine"` in the reader's file, without the
+    // `excitation.kind = "multisine"` in the reader's file, without the
     // sweep's keys (as the README's TOML shows).
     if l.contains("my-multisine.toml") {
         setup.push(

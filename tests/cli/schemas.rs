@@ -271,7 +271,7 @@ fn recorded_messages_match_their_channel_schemas() {
             "--json",
             "--out",
             &p(&multisine),
-            "--chirp-kind",
+            "--excitation",
             "multisine",
             "--f-start-hz",
             "5",

@@ -138,7 +138,11 @@ fn short_real_time_chirp() -> (SimStage, bench_hal::DeviceInfo, Chirp, LoopOptio
     cfg.validate(Path::new("ch5")).unwrap();
     let mut stage = SimStage::new(cfg.sim_params(7)).unwrap();
     let info = stage.configure(cfg.loop_.period_ns()).unwrap();
-    let chirp = Chirp::new(&cfg.chirp, info.period_ns as f64 * 1e-9);
+    let chirp = Chirp::new(
+        &cfg.chirp,
+        cfg.excitation.kind,
+        info.period_ns as f64 * 1e-9,
+    );
     let opts = LoopOptions {
         period_ns: info.period_ns,
         pacing: Pacing::RealTime {
@@ -163,7 +167,11 @@ fn run_counted(pacing: Pacing, seconds: f64) -> (u64, u64) {
     cfg.validate(Path::new("ch5")).unwrap();
     let mut stage = SimStage::new(cfg.sim_params(7)).unwrap();
     let info = stage.configure(cfg.loop_.period_ns()).unwrap();
-    let chirp = Chirp::new(&cfg.chirp, info.period_ns as f64 * 1e-9);
+    let chirp = Chirp::new(
+        &cfg.chirp,
+        cfg.excitation.kind,
+        info.period_ns as f64 * 1e-9,
+    );
     let opts = LoopOptions {
         period_ns: info.period_ns,
         pacing,
@@ -250,16 +258,16 @@ fn a_paced_job_on_a_real_time_loop_and_back_allocate_nothing() {
     assert_eq!(allocations, 0, "{allocations} allocations");
 }
 
-/// The same with a multisine (`chirp.kind = "multisine"`, random phases):
+/// The same with a multisine (`excitation.kind = "multisine"`, random phases):
 /// the table is built before the loop, the tick reads it; counted from
 /// tick 100 through the lead-in's end, every realization's periods
 /// (transient and measured) and the tail.
 #[test]
 fn multisine_tick_allocates_nothing() {
-    use bench::config::{ChirpKind, MultisineConfig};
+    use bench::config::{ExcitationKind, MultisineConfig};
     use bench::ident::excitation::Excitation;
     let mut cfg = ch5();
-    cfg.chirp.kind = ChirpKind::Multisine;
+    cfg.excitation.kind = ExcitationKind::Multisine;
     cfg.chirp.duration_s = None;
     cfg.chirp.taper_s = None;
     cfg.chirp.f_start_hz = 5.0;
@@ -345,7 +353,7 @@ fn closed_loop_verify_tick_allocates_nothing() {
     let mut chirp_cfg = chirp_config(&cfg.chirp, 0.05, 2.0);
     chirp_cfg.f_start_hz = 5.0;
     chirp_cfg.tail_s = 0.5;
-    let chirp = Chirp::new(&chirp_cfg, period_s);
+    let chirp = Chirp::new(&chirp_cfg, cfg.excitation.kind, period_s);
     let job = ControlJob::new(ctrl, 1e-5, 1000, 0, 5_000).with_verify(chirp);
     let total = job.total_ticks();
     assert_eq!(total, 5_000 + chirp.total_ticks());
@@ -445,7 +453,7 @@ fn faulting_tick_allocates_nothing() {
         let info = stage.configure(cfg.loop_.period_ns()).unwrap();
         stage.inject(ScheduledFault { at_s: 0.2, kind });
         let period_s = info.period_ns as f64 * 1e-9;
-        let chirp = Chirp::new(&cfg.chirp, period_s);
+        let chirp = Chirp::new(&cfg.chirp, cfg.excitation.kind, period_s);
         let opts = LoopOptions {
             period_ns: info.period_ns,
             pacing: Pacing::Virtual,

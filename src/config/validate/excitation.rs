@@ -100,7 +100,7 @@ impl BenchConfig {
                 "0 to a minute of quiet time",
             )?;
         }
-        if c.kind.is_sweep() {
+        if self.excitation.kind.is_sweep() {
             self.check_sweep()
         } else {
             self.check_multisine()
@@ -111,19 +111,19 @@ impl BenchConfig {
     /// and in range, no `[multisine]` table.
     pub(super) fn check_sweep(&self) -> Result<(), ParamError> {
         let c = &self.chirp;
-        let kind = c.kind.as_str();
+        let kind = self.excitation.kind.as_str();
         if self.multisine.is_some() {
             return Err(ParamError::new(
                 "multisine",
                 format!(
-                    "the [multisine] table is set but chirp.kind = \"{kind}\" plays a sweep, which would not use it: set chirp.kind = \"multisine\", or delete the table"
+                    "the [multisine] table is set but excitation.kind = \"{kind}\" plays a sweep, which would not use it: set excitation.kind = \"multisine\", or delete the table"
                 ),
             ));
         }
         let missing = |key: &str, what: &str| {
             ParamError::new(
                 key,
-                format!("missing: the sweep (chirp.kind = \"{kind}\") needs its {what}"),
+                format!("missing: the sweep (excitation.kind = \"{kind}\") needs its {what}"),
             )
         };
         let duration_s = c
@@ -156,7 +156,7 @@ impl BenchConfig {
         Ok(())
     }
 
-    /// `chirp.kind = "multisine"`: no sweep keys, and the `[multisine]`
+    /// `excitation.kind = "multisine"`: no sweep keys, and the `[multisine]`
     /// table (or its defaults) in range: the phases' realizations, the
     /// period against the band's start, at least
     /// [`ranges::MULTISINE_LINES_MIN`] excited lines, the record at most
@@ -170,7 +170,7 @@ impl BenchConfig {
             if set {
                 return Err(ParamError::new(
                     key,
-                    "is a sweep's key and chirp.kind = \"multisine\" would not use it (the record's length is multisine.realizations × (multisine.transient_periods + multisine.periods) × multisine.period_s; a periodic signal has no ends to fade): delete it, or set chirp.kind to a sweep",
+                    "is a sweep's key and excitation.kind = \"multisine\" would not use it (the record's length is multisine.realizations × (multisine.transient_periods + multisine.periods) × multisine.period_s; a periodic signal has no ends to fade): delete it, or set excitation.kind to a sweep",
                 ));
             }
         }

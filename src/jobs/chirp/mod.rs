@@ -170,7 +170,7 @@ pub struct ChirpOptions {
     pub frf_csv: PathBuf,
     /// The Bode plot PNG.
     pub plot: PathBuf,
-    /// The BLA CSV of a multisine (`chirp.kind = "multisine"`:
+    /// The BLA CSV of a multisine (`excitation.kind = "multisine"`:
     /// [`Bla::CSV_HEADER`]); `None`: not written (a sweep ignores it).
     pub bla_csv: Option<PathBuf>,
     /// Real-time pacing instead of virtual time.
@@ -270,7 +270,7 @@ pub struct ChirpSummary {
     #[serde(default)]
     pub stalls: StallReport,
     /// The multisine and its best linear approximation
-    /// (`chirp.kind = "multisine"`); absent for a sweep.
+    /// (`excitation.kind = "multisine"`); absent for a sweep.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub multisine: Option<MultisineSummary>,
     /// The run's row in the run catalogue, or why it was not written;

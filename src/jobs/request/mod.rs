@@ -16,7 +16,7 @@ pub use super::map::MapRequest;
 pub use super::plot::PlotRequest;
 pub use super::point::OperatingPoint;
 use super::verify::{DEFAULT_AMPLITUDE_OF_CHIRP, DEFAULT_DURATION_S};
-use crate::config::{ranges, BenchConfig, ChirpKind};
+use crate::config::{ranges, BenchConfig, ExcitationKind};
 use bench_plant::sim::{FaultInjection, ScheduledFault};
 use serde::{Deserialize, Serialize};
 
@@ -65,7 +65,7 @@ pub enum JobRequest {
     Map(MapRequest),
     /// `bench plot bode|nyquist`.
     Plot(PlotRequest),
-    /// `bench campaign run --submit`.
+    /// `bench campaign run --daemon`.
     Campaign(CampaignRequest),
     /// `bench catalogue`.
     Catalogue(CatalogueRequest),
@@ -127,7 +127,7 @@ pub struct ChirpRequest {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub f_end_hz: Option<f64>,
     /// Sweep duration, s (`chirp.duration_s`). Each fade (`chirp.taper_s`)
-    /// shrinks to at most a quarter of it. Refused with `chirp.kind =
+    /// shrinks to at most a quarter of it. Refused with `excitation.kind =
     /// "multisine"` (naming `chirp.duration_s`): a multisine's length is
     /// its `[multisine]` table's.
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -166,7 +166,7 @@ impl ChirpRequest {
         set(&mut c.f_start_hz, self.f_start_hz);
         set(&mut c.f_end_hz, self.f_end_hz);
         if let Some(v) = self.duration_s {
-            // With chirp.kind = "multisine" the check below refuses it,
+            // With excitation.kind = "multisine" the check below refuses it,
             // naming chirp.duration_s (a multisine does not sweep).
             c.duration_s = Some(v);
             // Keep the fades inside a short sweep.
@@ -399,7 +399,7 @@ impl ControlRequest {
     }
 }
 
-/// A campaign (`bench campaign run --submit`, the daemon's `campaign`): a
+/// A campaign (`bench campaign run --daemon`, the daemon's `campaign`): a
 /// new campaign of the file's grid, run on the simulator in virtual time,
 /// cells in parallel, in a directory the runner names (the daemon: in its
 /// recordings directory; the file's `out` does not apply). See
@@ -435,14 +435,14 @@ pub struct LocalOverrides {
     pub operating_point: Option<OperatingPoint>,
     /// Mass asymmetry Δm23 = m2/m3 − 1 (`plant.mass_asymmetry`).
     pub mass_asymmetry: Option<f64>,
-    /// What `bench chirp` plays (`chirp.kind`). The keys of the other
+    /// What `bench chirp` plays (`excitation.kind`). The keys of the other
     /// kind are set aside with it, as the flag asks: a multisine drops
     /// the sweep's `chirp.duration_s` and `chirp.taper_s` (and takes the
     /// `[multisine]` table, or its defaults); a sweep drops the
     /// `[multisine]` table, needs a `chirp.duration_s` (the config's or
     /// `--duration-s`) and fades by the config's `chirp.taper_s`, 0 s
     /// (none) when the config has none.
-    pub chirp_kind: Option<ChirpKind>,
+    pub excitation: Option<ExcitationKind>,
 }
 
 impl LocalOverrides {
@@ -453,8 +453,8 @@ impl LocalOverrides {
             cfg.plant.operating_point_m = op.metres(cfg.plant.beam.length_m);
         }
         set(&mut cfg.plant.mass_asymmetry, self.mass_asymmetry);
-        if let Some(kind) = self.chirp_kind {
-            cfg.chirp.kind = kind;
+        if let Some(kind) = self.excitation {
+            cfg.excitation.kind = kind;
             if kind.is_sweep() {
                 cfg.multisine = None;
                 cfg.chirp.taper_s.get_or_insert(0.0);

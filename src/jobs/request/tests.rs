@@ -242,13 +242,13 @@ fn local_overrides_land_on_their_keys() {
     LocalOverrides {
         operating_point: Some(OperatingPoint::PercentOfBeamLength(5.0)),
         mass_asymmetry: Some(0.05),
-        chirp_kind: Some(ChirpKind::Linear),
+        excitation: Some(ExcitationKind::Linear),
     }
     .apply(&mut got);
     let mut want = ch5();
     want.plant.operating_point_m = 0.05 * want.plant.beam.length_m;
     want.plant.mass_asymmetry = 0.05;
-    want.chirp.kind = ChirpKind::Linear;
+    want.excitation.kind = ExcitationKind::Linear;
     assert_eq!(got, want);
     LocalOverrides {
         operating_point: Some(OperatingPoint::Metres(1e-3)),
