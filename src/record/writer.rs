@@ -12,7 +12,8 @@ use std::time::Duration;
 
 use mcap::records::MessageHeader;
 use schemars::JsonSchema;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
+use std::borrow::Cow;
 
 use crate::error::RecordError;
 use crate::outputs::part_path_for;
@@ -155,29 +156,77 @@ pub fn log_time_ns(t_s: f64) -> u64 {
 }
 
 /// The identified frequency response current → position (`/sysid/frf`):
-/// arrays of equal length, one entry per frequency line. Non-finite numbers
-/// are written as null.
-#[derive(Debug, Clone, Copy, Serialize, JsonSchema)]
+/// arrays of equal length, one entry per frequency line. The one type of
+/// the channel, written ([`Recorder::write_frf`], borrowing the FRF's
+/// columns) and read (`crate::ident::frf::read_frf`, owning them).
+/// Non-finite numbers are written as null and read back as NaN, except
+/// in `sigma_dof`, whose null is infinite (a known variance). A column
+/// added after the first recordings (`sigma_m_per_a`, `resolution_hz`,
+/// `sigma_dof`) reads as empty when absent.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
 pub struct FrfRecord<'a> {
     /// Frequency of each line, Hz.
-    pub frequency_hz: &'a [f64],
+    #[serde(deserialize_with = "null_as_nan")]
+    pub frequency_hz: Cow<'a, [f64]>,
     /// Magnitude of the position/current response, m/A.
-    pub magnitude_m_per_a: &'a [f64],
+    #[serde(deserialize_with = "null_as_nan")]
+    pub magnitude_m_per_a: Cow<'a, [f64]>,
     /// Phase of the position/current response, deg.
-    pub phase_deg: &'a [f64],
+    #[serde(deserialize_with = "null_as_nan")]
+    pub phase_deg: Cow<'a, [f64]>,
     /// Magnitude-squared coherence (H1), or its signal-to-noise form
     /// (LPM), dimensionless (0 … 1).
-    pub coherence: &'a [f64],
+    #[serde(deserialize_with = "null_as_nan")]
+    pub coherence: Cow<'a, [f64]>,
     /// 1σ of the complex response, sqrt(E|Ĥ − H|²), m/A (absent in
     /// recordings made before it existed: unknown).
-    pub sigma_m_per_a: &'a [f64],
+    #[serde(default, deserialize_with = "null_as_nan")]
+    pub sigma_m_per_a: Cow<'a, [f64]>,
     /// Width of the band of DFT bins each line's estimate draws on, Hz
     /// (absent in recordings made before it existed: unknown).
-    pub resolution_hz: &'a [f64],
+    #[serde(default, deserialize_with = "null_as_nan")]
+    pub resolution_hz: Cow<'a, [f64]>,
     /// Degrees of freedom of the variance behind `sigma_m_per_a`
     /// ([`crate::ident::frf::Frf::sigma_dof`]; null: known; absent in
-    /// recordings made before it existed: not stated, taken as known).
-    pub sigma_dof: &'a [f64],
+    /// recordings made before it existed: not stated).
+    #[serde(default, deserialize_with = "null_as_infinity")]
+    pub sigma_dof: Cow<'a, [f64]>,
+}
+
+impl<'a> FrfRecord<'a> {
+    /// The columns of `frf`, borrowed.
+    pub fn of(frf: &'a crate::ident::frf::Frf) -> Self {
+        Self {
+            frequency_hz: Cow::Borrowed(&frf.frequency_hz),
+            magnitude_m_per_a: Cow::Borrowed(&frf.magnitude_m_per_a),
+            phase_deg: Cow::Borrowed(&frf.phase_deg),
+            coherence: Cow::Borrowed(&frf.coherence),
+            sigma_m_per_a: Cow::Borrowed(&frf.sigma_m_per_a),
+            resolution_hz: Cow::Borrowed(&frf.resolution_hz),
+            sigma_dof: Cow::Borrowed(&frf.sigma_dof),
+        }
+    }
+}
+
+/// A JSON array of numbers and nulls, the nulls as `null_value`.
+fn nulls_as<'de, D: serde::Deserializer<'de>>(
+    d: D,
+    null_value: f64,
+) -> Result<Cow<'static, [f64]>, D::Error> {
+    let v: Vec<Option<f64>> = Deserialize::deserialize(d)?;
+    Ok(Cow::Owned(
+        v.into_iter().map(|x| x.unwrap_or(null_value)).collect(),
+    ))
+}
+
+fn null_as_nan<'de, D: serde::Deserializer<'de>>(d: D) -> Result<Cow<'static, [f64]>, D::Error> {
+    nulls_as(d, f64::NAN)
+}
+
+fn null_as_infinity<'de, D: serde::Deserializer<'de>>(
+    d: D,
+) -> Result<Cow<'static, [f64]>, D::Error> {
+    nulls_as(d, f64::INFINITY)
 }
 
 /// A channel every recording opens with ([`base_channel_specs`]).
@@ -627,7 +676,6 @@ impl Recorder {
                 dof: lengths[5],
             });
         }
-        // The channel's type is `FrfRecord<'static>`; this one borrows.
         self.write_at(self.frf.index, log_time_ns, frf)
     }
 

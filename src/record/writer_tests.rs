@@ -185,13 +185,13 @@ fn record_roundtrip_full_file() {
     let resolution = [0.1, 0.1, 0.2];
     let dof = [6.0, 6.0, f64::INFINITY];
     let lines = FrfRecord {
-        frequency_hz: &freq,
-        magnitude_m_per_a: &mag,
-        phase_deg: &phase,
-        coherence: &coh,
-        sigma_m_per_a: &sigma,
-        resolution_hz: &resolution,
-        sigma_dof: &dof,
+        frequency_hz: (&freq[..]).into(),
+        magnitude_m_per_a: (&mag[..]).into(),
+        phase_deg: (&phase[..]).into(),
+        coherence: (&coh[..]).into(),
+        sigma_m_per_a: (&sigma[..]).into(),
+        resolution_hz: (&resolution[..]).into(),
+        sigma_dof: (&dof[..]).into(),
     };
     rec.write_frf(log_time_ns(0.2), &lines).unwrap();
     // Extra channel through the generic API.
@@ -204,8 +204,8 @@ fn record_roundtrip_full_file() {
         rec.write_frf(
             0,
             &FrfRecord {
-                magnitude_m_per_a: &mag[..2],
-                ..lines
+                magnitude_m_per_a: (&mag[..2]).into(),
+                ..lines.clone()
             }
         ),
         Err(RecordError::FrfLength { magnitude: 2, .. })
@@ -214,8 +214,8 @@ fn record_roundtrip_full_file() {
         rec.write_frf(
             0,
             &FrfRecord {
-                sigma_m_per_a: &sigma[..1],
-                ..lines
+                sigma_m_per_a: (&sigma[..1]).into(),
+                ..lines.clone()
             }
         ),
         Err(RecordError::FrfLength { sigma: 1, .. })
@@ -591,4 +591,38 @@ fn record_log_time_rounding() {
     assert_eq!(log_time_ns(200e-6 * 3.0), 600_000);
     assert_eq!(log_time_ns(-1.0), 0);
     assert_eq!(log_time_ns(f64::NAN), 0);
+}
+
+/// The FRF channel's one type round-trips through its JSON: a NaN (here a
+/// magnitude) comes back NaN, an infinite `sigma_dof` (a known variance)
+/// infinite, and a message of a recording made before the σ columns
+/// existed reads with them empty.
+#[test]
+fn the_frf_record_reads_back_what_it_wrote() {
+    let nan_mag = [1e-3, f64::NAN];
+    let two = [1.0, 2.0];
+    let dof = [6.0, f64::INFINITY];
+    let written = FrfRecord {
+        frequency_hz: (&two[..]).into(),
+        magnitude_m_per_a: (&nan_mag[..]).into(),
+        phase_deg: (&two[..]).into(),
+        coherence: (&two[..]).into(),
+        sigma_m_per_a: (&two[..]).into(),
+        resolution_hz: (&two[..]).into(),
+        sigma_dof: (&dof[..]).into(),
+    };
+    let json = serde_json::to_string(&written).unwrap();
+    assert!(
+        json.contains("\"magnitude_m_per_a\":[0.001,null]"),
+        "{json}"
+    );
+    let back: FrfRecord = serde_json::from_str(&json).unwrap();
+    assert!(back.magnitude_m_per_a[1].is_nan());
+    assert_eq!(back.sigma_dof[1], f64::INFINITY);
+    assert_eq!(back.frequency_hz, written.frequency_hz);
+    let legacy: FrfRecord = serde_json::from_str(
+        r#"{"frequency_hz":[1.0],"magnitude_m_per_a":[1e-3],"phase_deg":[0.0],"coherence":[1.0]}"#,
+    )
+    .unwrap();
+    assert!(legacy.sigma_m_per_a.is_empty() && legacy.sigma_dof.is_empty());
 }

@@ -24,22 +24,6 @@ pub struct RecordedFrf {
 /// topics it has), or a `/sysid/frf` payload that is not an FRF (naming
 /// the field).
 pub fn read_frf(bytes: &[u8]) -> Result<RecordedFrf, String> {
-    #[derive(serde::Deserialize)]
-    struct Payload {
-        frequency_hz: Vec<f64>,
-        magnitude_m_per_a: Vec<f64>,
-        phase_deg: Vec<f64>,
-        coherence: Vec<f64>,
-        // Absent in recordings made before the columns existed; a
-        // non-finite value is written as null.
-        #[serde(default)]
-        sigma_m_per_a: Option<Vec<Option<f64>>>,
-        #[serde(default)]
-        resolution_hz: Option<Vec<Option<f64>>>,
-        // Null: a known variance (infinite); absent: not stated.
-        #[serde(default)]
-        sigma_dof: Option<Vec<Option<f64>>>,
-    }
     let read = crate::record::read_messages_tolerant(bytes);
     if read.messages.is_empty() {
         return Err(match read.error {
@@ -60,7 +44,7 @@ pub fn read_frf(bytes: &[u8]) -> Result<RecordedFrf, String> {
             topics.join(", ")
         ));
     };
-    let p: Payload = serde_json::from_slice(&msg.data).map_err(|e| {
+    let p: crate::record::FrfRecord = serde_json::from_slice(&msg.data).map_err(|e| {
         format!(
             "{}: the payload is not an FRF: {e}",
             crate::record::TOPIC_FRF
@@ -74,16 +58,18 @@ pub fn read_frf(bytes: &[u8]) -> Result<RecordedFrf, String> {
             too_many_points("lines")
         ));
     }
-    let unknown = |v: Option<Vec<Option<f64>>>| -> Vec<f64> {
-        v.map(|v| v.into_iter().map(|x| x.unwrap_or(f64::NAN)).collect())
-            .unwrap_or_else(|| vec![f64::NAN; n])
+    // A column absent (a recording made before it existed): unknown, or
+    // for the degrees of freedom, not stated.
+    let unknown = |v: std::borrow::Cow<'_, [f64]>| -> Vec<f64> {
+        if v.is_empty() && n > 0 {
+            vec![f64::NAN; n]
+        } else {
+            v.into_owned()
+        }
     };
     let sigma = unknown(p.sigma_m_per_a);
     let resolution = unknown(p.resolution_hz);
-    let dof: Vec<f64> = match p.sigma_dof {
-        Some(v) => v.into_iter().map(|x| x.unwrap_or(f64::INFINITY)).collect(),
-        None => vec![f64::NAN; n],
-    };
+    let dof = unknown(p.sigma_dof);
     for (name, len) in [
         ("magnitude_m_per_a", p.magnitude_m_per_a.len()),
         ("phase_deg", p.phase_deg.len()),

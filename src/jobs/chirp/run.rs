@@ -149,7 +149,7 @@ pub fn chirp_outputs(opts: &ChirpOptions) -> OutputPlan {
         .with_output("frf_csv", &opts.frf_csv, Origin::Derived)
         .with_output("plot", &opts.plot, Origin::Derived);
     match &opts.bla_csv {
-        Some(p) if !opts.config.chirp.kind.is_sweep() => {
+        Some(p) if !opts.config.excitation.kind.is_sweep() => {
             plan.with_output("bla_csv", p, Origin::Derived)
         }
         _ => plan,
@@ -452,18 +452,7 @@ pub(super) fn run_chirp_with(
             })
         },
         || -> Result<(), RunError> {
-            recorder.write_frf(
-                end_ns,
-                &crate::record::FrfRecord {
-                    frequency_hz: &frf.frequency_hz,
-                    magnitude_m_per_a: &frf.magnitude_m_per_a,
-                    phase_deg: &frf.phase_deg,
-                    coherence: &frf.coherence,
-                    sigma_m_per_a: &frf.sigma_m_per_a,
-                    resolution_hz: &frf.resolution_hz,
-                    sigma_dof: &frf.sigma_dof,
-                },
-            )?;
+            recorder.write_frf(end_ns, &crate::record::FrfRecord::of(&frf))?;
             let ch =
                 recorder.add_channel_for::<ChirpSummary>("/sysid/summary", "bench.ChirpSummary")?;
             recorder.write(ch, end_ns, &summary)?;
