@@ -134,8 +134,12 @@ pub(crate) fn cost_reference(dof: &[f64], params: usize) -> (f64, f64) {
     let (mut mean, mut var) = (0.0, 0.0);
     for &d in dof {
         if d.is_finite() {
-            mean += 2.0 * d / (d - 2.0);
-            var += 4.0 * d.powi(3) / ((d - 2.0).powi(2) * (d - 4.0));
+            // 2d/(d − 2) and 4d³/((d − 2)²(d − 4)), written in 1/d so that
+            // a large d (1e196 in a CSV) gives the known-variance 2 and 4,
+            // not ∞/∞.
+            let r = 1.0 / d;
+            mean += 2.0 / (1.0 - 2.0 * r);
+            var += 4.0 / ((1.0 - 2.0 * r).powi(2) * (1.0 - 4.0 * r));
         } else {
             mean += 2.0;
             var += 4.0;

@@ -298,3 +298,32 @@ fn chi2_3_tail_and_quantile_match_scipy() {
         assert!((chi2_3_quantile(a) / q - 1.0).abs() < 1e-9, "{a}");
     }
 }
+
+/// A variance stated with a huge number of degrees of freedom (1e196 in
+/// a CSV's `sigma_dof`: the fuzz case) is a known variance: the cost's
+/// reference is the χ² one, finite, not ∞/∞.
+#[test]
+fn a_huge_sigma_dof_is_a_known_variance_in_the_cost_reference() {
+    use super::problem::cost_reference;
+    let known = cost_reference(&[f64::INFINITY; 34], 10);
+    for d in [1e12, 1e196, f64::MAX] {
+        let (mean, bound) = cost_reference(&[d; 34], 10);
+        assert!(
+            mean.is_finite() && bound.is_finite(),
+            "d = {d}: {mean}, {bound}"
+        );
+        assert!(
+            (mean - known.0).abs() < 1e-9 * known.0,
+            "d = {d}: {mean} vs {}",
+            known.0
+        );
+        assert!(
+            (bound - known.1).abs() < 1e-6 * known.1,
+            "d = {d}: {bound} vs {}",
+            known.1
+        );
+    }
+    let mut one = [f64::INFINITY; 34];
+    one[0] = 1e196;
+    assert!(cost_reference(&one, 10).1.is_finite());
+}
