@@ -193,21 +193,6 @@ pub struct FrfRecord<'a> {
     pub sigma_dof: Cow<'a, [f64]>,
 }
 
-impl<'a> FrfRecord<'a> {
-    /// The columns of `frf`, borrowed.
-    pub fn of(frf: &'a crate::ident::frf::Frf) -> Self {
-        Self {
-            frequency_hz: Cow::Borrowed(&frf.frequency_hz),
-            magnitude_m_per_a: Cow::Borrowed(&frf.magnitude_m_per_a),
-            phase_deg: Cow::Borrowed(&frf.phase_deg),
-            coherence: Cow::Borrowed(&frf.coherence),
-            sigma_m_per_a: Cow::Borrowed(&frf.sigma_m_per_a),
-            resolution_hz: Cow::Borrowed(&frf.resolution_hz),
-            sigma_dof: Cow::Borrowed(&frf.sigma_dof),
-        }
-    }
-}
-
 /// A JSON array of numbers and nulls, the nulls as `null_value`.
 fn nulls_as<'de, D: serde::Deserializer<'de>>(
     d: D,

@@ -452,7 +452,7 @@ pub(super) fn run_chirp_with(
             })
         },
         || -> Result<(), RunError> {
-            recorder.write_frf(end_ns, &crate::record::FrfRecord::of(&frf))?;
+            recorder.write_frf(end_ns, &frf_record(&frf))?;
             let ch =
                 recorder.add_channel_for::<ChirpSummary>("/sysid/summary", "bench.ChirpSummary")?;
             recorder.write(ch, end_ns, &summary)?;
@@ -464,4 +464,17 @@ pub(super) fn run_chirp_with(
     finished?;
     plotted?;
     Ok(summary)
+}
+
+/// The columns of `frf` as the `/sysid/frf` message, borrowed.
+fn frf_record(frf: &crate::ident::frf::Frf) -> crate::record::FrfRecord<'_> {
+    crate::record::FrfRecord {
+        frequency_hz: (&frf.frequency_hz[..]).into(),
+        magnitude_m_per_a: (&frf.magnitude_m_per_a[..]).into(),
+        phase_deg: (&frf.phase_deg[..]).into(),
+        coherence: (&frf.coherence[..]).into(),
+        sigma_m_per_a: (&frf.sigma_m_per_a[..]).into(),
+        resolution_hz: (&frf.resolution_hz[..]).into(),
+        sigma_dof: (&frf.sigma_dof[..]).into(),
+    }
 }
