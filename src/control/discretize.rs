@@ -4,7 +4,7 @@
 //! error against the design. Runs once, when a controller is made; never on
 //! the tick.
 
-use super::design::{sections, ContinuousSection};
+use super::continuous::{sections, ContinuousSection};
 use super::Discretization;
 use super::{Biquad, ControllerConfig, MAX_SECTIONS};
 use nalgebra::{Complex, DMatrix};
@@ -385,7 +385,7 @@ pub(super) fn discretize(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::control::design::tests::{bare, fast, slow};
+    use crate::control::continuous::tests::{bare, fast, slow};
     use crate::control::{ComplexPair, DiscreteController, Form};
 
     /// Largest |dB| and |deg| error of the discrete response vs the

@@ -3,7 +3,7 @@
 //! matched poles with least-squares numerators) into second-order sections
 //! run in f64.
 //!
-//! Design time and run time are kept apart. `design.rs` holds the
+//! Design time and run time are kept apart. `continuous.rs` holds the
 //! controller as designed (`[controller.NAME]`, its validation, `C(s)` and
 //! its continuous sections); `discretize.rs` turns it into discrete
 //! sections and reports how closely they follow it; `section.rs` holds
@@ -38,7 +38,7 @@
 //! The factors are grouped into second-order sections (each complex pole
 //! pair, least damped first, with the nearest complex zero pair left, else
 //! with the nearest real zeros; remaining real poles and integrators in
-//! pairs; the most damped sections run first: see `design::sections`,
+//! pairs; the most damped sections run first: see `continuous::sections`,
 //! the rule of `scipy.signal.zpk2sos`), and each section is
 //! mapped with Tustin's substitution `s = K (1 − z⁻¹)/(1 + z⁻¹)`,
 //! pre-warped at the section's own critical frequency,
@@ -95,7 +95,7 @@
 //!
 //! Layer rule: may use `config`, `error`, `ident`, `input_file`.
 
-mod design;
+mod continuous;
 mod discretize;
 pub mod loop_check;
 mod section;

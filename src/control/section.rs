@@ -294,7 +294,7 @@ impl DiscreteController {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::control::design::tests::{bare, fast};
+    use crate::control::continuous::tests::{bare, fast};
     use crate::control::ErrorUnit;
 
     /// The 24-pole controller `bench design` wrote for a random bench
