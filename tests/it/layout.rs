@@ -610,3 +610,247 @@ fn the_crate_graph_in_the_book_is_cargos() {
         "the book's crate graph (left) against Cargo's"
     );
 }
+
+/// `src` with comments and string, raw-string and character literals
+/// blanked (newlines kept, so line numbers hold), so that its braces are
+/// the code's.
+fn blank_literals(src: &str) -> String {
+    let c: Vec<char> = src.chars().collect();
+    let mut out = String::with_capacity(src.len());
+    let blank = |out: &mut String, s: &[char]| {
+        out.extend(s.iter().map(|&ch| if ch == '\n' { '\n' } else { ' ' }));
+    };
+    let ident = |ch: char| ch.is_alphanumeric() || ch == '_';
+    let mut i = 0;
+    while i < c.len() {
+        let rest = &c[i..];
+        let end = if rest.starts_with(&['/', '/']) {
+            rest.iter().position(|&ch| ch == '\n').unwrap_or(rest.len())
+        } else if rest.starts_with(&['/', '*']) {
+            rest.windows(2)
+                .skip(2)
+                .position(|w| w == ['*', '/'])
+                .map_or(rest.len(), |p| p + 4)
+        } else if (rest[0] == 'r' || rest.starts_with(&['b', 'r']))
+            && (i == 0 || !ident(c[i - 1]))
+            && {
+                let k = if rest[0] == 'b' { 2 } else { 1 };
+                let hashes = rest[k..].iter().take_while(|&&ch| ch == '#').count();
+                rest.get(k + hashes) == Some(&'"')
+            }
+        {
+            let k = if rest[0] == 'b' { 2 } else { 1 };
+            let hashes = rest[k..].iter().take_while(|&&ch| ch == '#').count();
+            let open = k + hashes + 1;
+            (open..rest.len())
+                .find(|&j| {
+                    rest[j] == '"'
+                        && rest[j + 1..]
+                            .iter()
+                            .take(hashes)
+                            .filter(|&&h| h == '#')
+                            .count()
+                            == hashes
+                })
+                .map_or(rest.len(), |j| j + 1 + hashes)
+        } else if rest[0] == '"' {
+            let mut j = 1;
+            while j < rest.len() && rest[j] != '"' {
+                j += if rest[j] == '\\' { 2 } else { 1 };
+            }
+            (j + 1).min(rest.len())
+        } else if rest[0] == '\'' && rest.get(1) == Some(&'\\') {
+            rest[2..]
+                .iter()
+                .position(|&ch| ch == '\'')
+                .map_or(rest.len(), |p| p + 3)
+        } else if rest[0] == '\'' && rest.get(2) == Some(&'\'') {
+            3
+        } else {
+            out.push(rest[0]);
+            i += 1;
+            continue;
+        };
+        blank(&mut out, &rest[..end]);
+        i += end;
+    }
+    out
+}
+
+/// Every function with a body in the code of `src` (before a
+/// `#[cfg(test)]` at the start of a line): its name and its length in
+/// lines, from `fn` to its closing brace (closures and nested functions
+/// counted in it).
+fn function_lengths(src: &str) -> Vec<(String, usize)> {
+    let code = match src.find("\n#[cfg(test)]") {
+        Some(k) => &src[..k],
+        None => src,
+    };
+    let s = blank_literals(code);
+    let b = s.as_bytes();
+    let mut out = Vec::new();
+    let mut from = 0;
+    while let Some(k) = s[from..].find("fn ") {
+        let at = from + k;
+        from = at + 3;
+        if at > 0 && (b[at - 1].is_ascii_alphanumeric() || b[at - 1] == b'_') {
+            continue;
+        }
+        let name: String = s[at + 3..]
+            .trim_start()
+            .chars()
+            .take_while(|ch| ch.is_alphanumeric() || *ch == '_')
+            .collect();
+        if name.is_empty() {
+            continue;
+        }
+        // The body: the first `{` before any `;` (a declaration has none).
+        let Some(open) = s[at..].find(['{', ';']) else {
+            continue;
+        };
+        if b[at + open] == b';' {
+            continue;
+        }
+        let mut depth = 0usize;
+        let mut close = None;
+        for (j, ch) in s[at + open..].char_indices() {
+            match ch {
+                '{' => depth += 1,
+                '}' => {
+                    depth -= 1;
+                    if depth == 0 {
+                        close = Some(at + open + j);
+                        break;
+                    }
+                }
+                _ => {}
+            }
+        }
+        let Some(close) = close else { continue };
+        let lines = s[at..=close].matches('\n').count() + 1;
+        out.push((name, lines));
+    }
+    out
+}
+
+/// The longest functions are to be split (issue 43: none over 150 lines
+/// in non-test code). Until they are, each may only shrink: this list
+/// (path, function, lines as measured on 2026-11-28) is every one over
+/// [`LONGEST_FUNCTION_LINES`], and a new one, or one that grew, fails.
+const LONG_FUNCTIONS: &[(&str, &str, usize)] = &[
+    ("src/jobs/design.rs", "run_design", 407),
+    ("src/daemon/owner.rs", "owner", 349),
+    ("src/jobs/control.rs", "run_control_with", 317),
+    ("hal/hal/src/ethercat/master/bringup.rs", "bring_up", 312),
+    ("src/plot/step.rs", "draw_step", 303),
+    ("src/daemon/mod.rs", "serve", 295),
+    ("src/jobs/chirp/run.rs", "run_chirp_with", 290),
+    ("src/design/limit.rs", "performance_limit", 279),
+    ("src/daemon/jobs.rs", "job_spec", 277),
+    ("src/design/fixed_order.rs", "climb", 276),
+    ("hal/devices/src/emulator/serial.rs", "run", 267),
+    ("src/jobs/session.rs", "run_recorded", 247),
+    ("src/jobs/plot.rs", "run_plot", 246),
+    ("src/design/mod.rs", "attempt", 233),
+    ("src/design/mod.rs", "design", 231),
+    ("src/design/fixed_order.rs", "step", 230),
+    ("src/campaign/file.rs", "from_parts", 216),
+    ("hal/devices/src/slave/rack.rs", "run_rack", 199),
+    ("hal/hal/src/ethercat/rack.rs", "rack", 194),
+    ("src/campaign/run/cells.rs", "run_cell", 187),
+    ("src/control/verify.rs", "of", 184),
+    ("src/ident/modal_fit/mod.rs", "fit", 183),
+    ("src/analysis/sequence.rs", "dominant_sequence", 183),
+    ("src/cli/design.rs", "print_summary", 182),
+    ("src/design/mod.rs", "limit_attempt", 177),
+    ("src/ident/update/solve.rs", "update_frf_once", 172),
+    ("src/daemon/socket.rs", "connection", 171),
+    ("src/design/limit.rs", "solve", 165),
+    ("src/plot/bode.rs", "draw_bode_main", 163),
+    ("src/jobs/map.rs", "run_map", 162),
+    ("src/rt/tick/run.rs", "tick", 161),
+    ("src/control/continuous.rs", "sections", 161),
+    ("hal/plant/src/model/mod.rs", "validate", 158),
+    ("src/cli/emulate.rs", "emulate", 152),
+];
+
+/// The longest function a file of the workspace may have (issue 43).
+const LONGEST_FUNCTION_LINES: usize = 150;
+
+/// No function of the workspace's non-test code grows beyond
+/// [`LONGEST_FUNCTION_LINES`] lines, and the ones already longer
+/// ([`LONG_FUNCTIONS`]) do not grow; one that shrank below the limit must
+/// leave the list.
+#[test]
+fn no_function_grows_beyond_150_lines() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let mut problems = Vec::new();
+    let mut seen = BTreeSet::new();
+    for dir in CRATES {
+        for (path, src) in read_tree(&root.join(dir)) {
+            if path.ends_with("tests.rs") {
+                continue;
+            }
+            let path = format!("{dir}/{path}");
+            for (name, lines) in function_lengths(&src) {
+                if lines <= LONGEST_FUNCTION_LINES {
+                    continue;
+                }
+                let listed = LONG_FUNCTIONS
+                    .iter()
+                    .find(|(p, f, _)| *p == path && *f == name);
+                if listed.is_some() {
+                    seen.insert((path.clone(), name.clone()));
+                }
+                match listed {
+                    Some((_, _, was)) if lines <= *was => {}
+                    Some((_, _, was)) => problems.push(format!(
+                        "{path}: fn {name} grew to {lines} lines from {was}: split it"
+                    )),
+                    None => problems.push(format!(
+                        "{path}: fn {name} has {lines} lines, more than {LONGEST_FUNCTION_LINES}: split it"
+                    )),
+                }
+            }
+        }
+    }
+    for (p, f, _) in LONG_FUNCTIONS {
+        if !seen.contains(&(p.to_string(), f.to_string())) {
+            problems.push(format!(
+                "{p}: fn {f} is no longer over {LONGEST_FUNCTION_LINES} lines: remove it from LONG_FUNCTIONS"
+            ));
+        }
+    }
+    assert!(problems.is_empty(), "{problems:#?}");
+}
+
+/// The function-length reader on made-up code: braces in strings, raw
+/// strings, characters and comments do not count, lifetimes are not
+/// characters, declarations without a body are skipped, and the test
+/// module is not read.
+#[test]
+fn the_function_lengths_are_read_past_literals_and_comments() {
+    let src = r##"
+fn short<'a>(x: &'a str) -> char {
+    let _ = "}}}";
+    let _ = r#"{"#;
+    // }
+    /* { */
+    '{'
+}
+trait T {
+    fn declared(&self);
+}
+fn three() {
+    let c = '\'';
+}
+#[cfg(test)]
+mod tests {
+    fn hidden() {}
+}
+"##;
+    assert_eq!(
+        function_lengths(src),
+        vec![("short".to_string(), 7), ("three".to_string(), 3)]
+    );
+}
