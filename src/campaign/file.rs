@@ -251,6 +251,31 @@ pub struct CampaignSpec {
     pub keep: Keep,
 }
 
+/// The campaign's `[chirp]` and `[excitation]` overrides, their old
+/// spellings moved by the rule of a config's
+/// ([`crate::config::move_old_spellings`], warning with `path`).
+fn overrides(
+    spec: &CampaignSpec,
+    path: &Path,
+) -> Result<(toml::Table, toml::Table), (String, String)> {
+    let mut t = toml::Table::new();
+    for (name, over) in [("chirp", &spec.chirp), ("excitation", &spec.excitation)] {
+        if let Some(over) = over {
+            t.insert(name.into(), toml::Value::Table(over.clone()));
+        }
+    }
+    if let Some(note) = crate::config::move_old_spellings(&mut t)? {
+        tracing::warn!("{}: {note}", path.display());
+    }
+    let section = |name: &str| {
+        t.get(name)
+            .and_then(|v| v.as_table())
+            .cloned()
+            .unwrap_or_default()
+    };
+    Ok((section("chirp"), section("excitation")))
+}
+
 fn default_mass_increment() -> f64 {
     0.0005
 }
@@ -507,22 +532,8 @@ impl Campaign {
         // load above warned), then the campaign's overrides on top: its
         // `[chirp] kind`, the old spelling, is `[excitation] kind`.
         crate::config::move_old_spellings(&mut table).map_err(|(k, why)| invalid(&k, why))?;
-        let mut chirp_over = spec.chirp.clone().unwrap_or_default();
-        let mut excitation_over = spec.excitation.clone().unwrap_or_default();
-        if let Some(kind) = chirp_over.remove("kind") {
-            if excitation_over.contains_key("kind") {
-                return Err(invalid(
-                    "chirp.kind",
-                    "is the old spelling of excitation.kind, which is set too: remove chirp.kind"
-                        .into(),
-                ));
-            }
-            tracing::warn!(
-                "{}: chirp.kind is deprecated: write [excitation] kind = {kind} (read as that for now)",
-                path.display()
-            );
-            excitation_over.insert("kind".into(), kind);
-        }
+        let (chirp_over, excitation_over) =
+            overrides(&spec, path).map_err(|(k, why)| invalid(&k, why))?;
         for (name, over) in [("chirp", &chirp_over), ("excitation", &excitation_over)] {
             if over.is_empty() {
                 continue;
