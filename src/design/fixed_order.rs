@@ -900,7 +900,7 @@ pub fn climb(
         // A step that lowers γ is the next one's start, a stalled one
         // too (its target falls, but what it gained is kept: returning to
         // the best threw it away, and the README's chirp seeds 1–8 reached
-        // a mean 0.69 of the reference limit where they reach 0.73 now);
+        // a mean 0.69 of the reference limit where they reach 0.71 now);
         // one that does not lower γ returns to the best.
         match judged {
             Some((n, _)) if g_next < g_cur => cur = n,

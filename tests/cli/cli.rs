@@ -464,8 +464,8 @@ fn a_full_stderr_keeps_the_exit_status() {
 /// every grid point in the CSV and a fit (the modal fit thins it to 1 000
 /// per decade; its time, 104 s before, is measured by
 /// `benches/dense-grid-time.sh`, not asserted here: a loaded machine made
-/// a timed assertion fail); and a SIGINT during that post-processing lets it finish: exit 0, every
-/// output complete, a note saying so. The signal is sent when the CSV's
+/// a timed assertion fail); and a SIGINT during that post-processing lets
+/// it finish: exit 0, every output complete, a note saying so. The signal is sent when the CSV's
 /// temporary file appears after the recording was created: the CSV is
 /// written beside the fit.
 #[test]
