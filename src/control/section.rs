@@ -145,6 +145,28 @@ impl DiscreteController {
         &self.sections[..self.n]
     }
 
+    /// The complex pole pairs of the sections as resonances: each pair
+    /// `z = r·e^{±jθ}` as `(θ/T, −ln r / T)`, its frequency and its
+    /// half-width (the decay rate σ, where |C| is 3 dB below its peak),
+    /// both rad/s, `T` = `period_s`. A lightly damped pair's peak is a few
+    /// σ wide: a grid must sample it finer than that to see the loop there
+    /// ([`crate::control::loop_check::resolving`]).
+    pub fn resonances(&self, period_s: f64) -> Vec<(f64, f64)> {
+        self.sections()
+            .iter()
+            .filter_map(|s| {
+                let [a1, a2] = s.a;
+                // z² + a1 z + a2 = 0: complex when a1² < 4 a2.
+                if a1 * a1 >= 4.0 * a2 || a2 <= 0.0 {
+                    return None;
+                }
+                let r = a2.sqrt();
+                let theta = (-a1 / (2.0 * r)).clamp(-1.0, 1.0).acos();
+                Some((theta / period_s, -r.ln() / period_s))
+            })
+            .collect()
+    }
+
     /// The overall gain (A per error unit).
     pub fn gain(&self) -> f64 {
         self.gain
@@ -340,6 +362,45 @@ mod tests {
             ]),
             discretization: crate::control::Discretization::Bilinear,
             ..bare(4.8312)
+        }
+    }
+
+    /// Every section's lightly damped pole pair is a resonance where the
+    /// discrete response peaks, 3 dB down one half-width either side:
+    /// found on a dense scan of `C_d(e^{jωT})`, independent of the roots.
+    #[test]
+    fn resonances_are_where_the_response_peaks() {
+        let t = 2e-4;
+        let pair = |omega_rad_s: f64, zeta: f64| crate::control::ComplexPair { omega_rad_s, zeta };
+        let cfg = ControllerConfig {
+            complex_poles: vec![pair(14_000.0, 2.0 / 14_000.0), pair(900.0, 0.01)],
+            complex_zeros: vec![pair(14_100.0, 0.02), pair(2000.0, 0.5)],
+            discretization: crate::control::Discretization::Bilinear,
+            ..bare(1.0)
+        };
+        let d = DiscreteController::new(&cfg, t, f64::INFINITY);
+        let mut r = d.resonances(t);
+        r.sort_by(|a, b| a.0.total_cmp(&b.0));
+        assert_eq!(r.len(), 2, "{r:?}");
+        for &(w, sigma) in &r {
+            let mag = |x: f64| d.response(x, t).norm();
+            let scan: Vec<f64> = (-200_000..=200_000)
+                .map(|k| w + 20.0 * sigma * f64::from(k) / 200_000.0)
+                .collect();
+            let peak_at = scan
+                .iter()
+                .copied()
+                .max_by(|a, b| mag(*a).total_cmp(&mag(*b)))
+                .unwrap();
+            assert!(
+                (peak_at - w).abs() < 0.05 * sigma,
+                "peak at {peak_at}, pole at {w} ± {sigma}"
+            );
+            let peak = mag(peak_at);
+            for side in [-1.0, 1.0] {
+                let db = 20.0 * (mag(w + side * sigma) / peak).log10();
+                assert!((db + 3.01).abs() < 0.3, "{db} dB one half-width from {w}");
+            }
         }
     }
 

@@ -972,7 +972,8 @@ fn certify_backing_off(
 }
 
 /// Judges `controller` as it will run: discretised at `period_s`, its
-/// response `C_d(e^{jωT})` on every line.
+/// response `C_d(e^{jωT})` on every line, and on the models at points
+/// that resolve its lightly damped poles ([`Problem::models_resolving`]).
 pub fn certify(
     problem: &Problem<'_>,
     controller: ControllerConfig,
@@ -980,7 +981,17 @@ pub fn certify(
     peak_current_a: f64,
 ) -> Evaluation {
     let d = DiscreteController::new(&controller, period_s, peak_current_a);
-    problem.evaluate_with(controller, &|w| d.response(w, period_s))
+    let response = |w| d.response(w, period_s);
+    // The models' grids are dense, but a lightly damped controller pole
+    // can still fall between their points: judged there too.
+    let resolved = problem.models_resolving(&d.resonances(period_s));
+    if resolved.is_empty() {
+        problem.evaluate_with(controller, &response)
+    } else {
+        problem
+            .with_models_replaced(&resolved)
+            .evaluate_with(controller, &response)
+    }
 }
 
 /// Why the `limit` strategy gave nothing: its refusal, or the margin its

@@ -12,7 +12,7 @@ use super::fitted::FittedPlant;
 use super::loops::{figures, LoopFigures};
 use super::{derr, DesignError};
 use crate::config::BenchConfig;
-use crate::control::loop_check::model_grid;
+use crate::control::loop_check::{model_grid, resolving};
 use crate::control::step_metrics::{analyze_step, step_profile_m, StepMetrics, StepSignals};
 use crate::control::{ControllerConfig, DiscreteController};
 use crate::ident::C64;
@@ -80,8 +80,9 @@ pub fn model_loop(
 }
 
 /// The loop `L = C_d · P · e^{−jωτ}` of `controller` on `model` (the
-/// loop rate and amplifier limit from `cfg`), on [`model_grid`], rad/s
-/// and dimensionless.
+/// loop rate and amplifier limit from `cfg`), on [`model_grid`] with the
+/// controller's lightly damped poles resolved ([`resolving`]), rad/s and
+/// dimensionless.
 ///
 /// # Errors
 /// A config model whose `[plant]` cannot be modelled.
@@ -91,9 +92,10 @@ pub fn model_loop_on(
     controller: &ControllerConfig,
     delay_s: f64,
 ) -> Result<(Vec<f64>, Vec<C64>), DesignError> {
-    let p = model_frf_on(model, cfg, delay_s)?;
     let t = cfg.loop_.period_ns() as f64 * 1e-9;
     let ctrl = DiscreteController::new(controller, t, cfg.actuator.peak_current_a);
+    let grid = resolving(&model_grid(t), &ctrl.resonances(t));
+    let p = model_frf_at(model, cfg, delay_s, grid)?;
     let k = ctrl.error_per_metre();
     let l = p
         .omega_rad_s
@@ -127,7 +129,17 @@ pub fn model_frf_on(
     delay_s: f64,
 ) -> Result<super::loops::DesignFrf, DesignError> {
     let t = cfg.loop_.period_ns() as f64 * 1e-9;
-    let grid = model_grid(t);
+    model_frf_at(model, cfg, delay_s, model_grid(t))
+}
+
+/// [`model_frf_on`] on `grid` (rad/s, ascending).
+fn model_frf_at(
+    model: BenchModel<'_>,
+    cfg: &BenchConfig,
+    delay_s: f64,
+    grid: Vec<f64>,
+) -> Result<super::loops::DesignFrf, DesignError> {
+    let t = cfg.loop_.period_ns() as f64 * 1e-9;
     let delay = |w: f64| C64::from_polar(1.0, -w * delay_s);
     let p: Vec<C64> = match model {
         BenchModel::Fitted { plant, .. } => grid.iter().map(|&w| plant.frf(w) * delay(w)).collect(),

@@ -22,6 +22,7 @@
 
 use super::family::Family;
 use super::loops::{figures, open_loop, DesignFrf, LoopFigures};
+use crate::control::loop_check::resolving;
 use crate::control::{ControllerConfig, DiscreteController};
 use crate::ident::C64;
 use crate::splitmix::{splitmix64, GAMMA};
@@ -171,6 +172,9 @@ pub struct Problem<'a> {
     /// [`Self::evaluate`] judges `C · r`, what runs, not the continuous
     /// design. Empty: the continuous design.
     correction: Vec<C64>,
+    /// How many of `frfs`, at their end, are models (analytic responses on
+    /// a dense grid, [`Self::with_models`]) rather than measured lines.
+    models: usize,
 }
 
 impl<'a> Problem<'a> {
@@ -190,7 +194,60 @@ impl<'a> Problem<'a> {
             .fold(f64::INFINITY, f64::min);
         Self {
             objective_from_rad_s: if lowest.is_finite() { lowest } else { 0.0 },
+            models: models.len(),
             ..Self::new(frfs.iter().chain(models).collect(), req, unit_per_metre)
+        }
+    }
+
+    /// The models of this problem on grids that resolve `resonances`
+    /// (rad/s: frequency and half-width, a controller's lightly damped
+    /// poles, [`DiscreteController::resonances`]), with the points
+    /// [`resolving`] adds interpolated linearly in `ln ω` between the
+    /// model's own (its plant is smooth on the scale of its dense grid:
+    /// 0.06 % of ω apart, where the slowest mode a fit keeps is about 1 %
+    /// wide). Empty when every model already resolves them.
+    pub fn models_resolving(&self, resonances: &[(f64, f64)]) -> Vec<DesignFrf> {
+        let models = &self.frfs[self.frfs.len() - self.models..];
+        let refined: Vec<DesignFrf> = models
+            .iter()
+            .map(|m| {
+                let grid = resolving(&m.omega_rad_s, resonances);
+                let plant = grid.iter().map(|&w| interpolated(m, w)).collect();
+                DesignFrf {
+                    label: m.label.clone(),
+                    lines_total: grid.len(),
+                    omega_rad_s: grid,
+                    plant_m_per_a: plant,
+                }
+            })
+            .collect();
+        let grew = refined
+            .iter()
+            .zip(models)
+            .any(|(r, m)| r.omega_rad_s.len() > m.omega_rad_s.len());
+        if grew {
+            refined
+        } else {
+            Vec::new()
+        }
+    }
+
+    /// This problem with its models replaced by `models` (as many, in the
+    /// same order: [`Self::models_resolving`]'s).
+    pub fn with_models_replaced<'b>(&'b self, models: &'b [DesignFrf]) -> Problem<'b> {
+        let measured = self.frfs.len() - self.models;
+        Problem {
+            objective_from_rad_s: self.objective_from_rad_s,
+            models: models.len(),
+            ..Problem::new(
+                self.frfs[..measured]
+                    .iter()
+                    .copied()
+                    .chain(models)
+                    .collect(),
+                self.req,
+                self.unit_per_metre,
+            )
         }
     }
 
@@ -220,6 +277,7 @@ impl<'a> Problem<'a> {
             req,
             objective_from_rad_s: 0.0,
             correction: Vec::new(),
+            models: 0,
         }
     }
 
@@ -529,6 +587,25 @@ pub fn search_all(
         .collect();
     all.sort_by(|a, b| a.1.cost().total_cmp(&b.1.cost()));
     all
+}
+
+/// `frf`'s plant at `w_rad_s`, linear in `ln ω` between its two nearest
+/// points (the end point beyond its range).
+fn interpolated(frf: &DesignFrf, w_rad_s: f64) -> C64 {
+    let g = &frf.omega_rad_s;
+    let p = &frf.plant_m_per_a;
+    let i = g.partition_point(|x| *x < w_rad_s);
+    if i == 0 {
+        return p[0];
+    }
+    if i == g.len() {
+        return p[g.len() - 1];
+    }
+    if g[i] == w_rad_s {
+        return p[i];
+    }
+    let f = (w_rad_s / g[i - 1]).ln() / (g[i] / g[i - 1]).ln();
+    p[i - 1] * (1.0 - f) + p[i] * f
 }
 
 #[cfg(test)]
