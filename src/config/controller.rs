@@ -119,6 +119,23 @@ fn cerr(key: String, reason: impl Into<String>) -> ControllerError {
 }
 
 impl ControllerConfig {
+    /// The complex pole pairs as resonances: each `(ω√(1 − ζ²), ζω)`, the
+    /// frequency of its peak and its half-width (the decay rate σ), both
+    /// rad/s: the continuous counterpart of
+    /// [`crate::control::DiscreteController::resonances`], for
+    /// [`crate::control::loop_check::resolving`].
+    pub fn resonances(&self) -> Vec<(f64, f64)> {
+        self.complex_poles
+            .iter()
+            .map(|p| {
+                (
+                    p.omega_rad_s * (1.0 - p.zeta * p.zeta).max(0.0).sqrt(),
+                    p.zeta * p.omega_rad_s,
+                )
+            })
+            .collect()
+    }
+
     /// Checks the transfer function: finite positive gain, positive
     /// frequencies, 0 ≤ ζ, proper (zeros ≤ poles), at most
     /// [`MAX_SECTIONS`] sections. `prefix` is e.g. `controller.fast`.

@@ -219,20 +219,15 @@ pub const RESOLVED_SPACING: f64 = 0.25;
 /// points are 8 rad/s apart: without these points ‖S‖∞ reads low (1.746
 /// for python-control's 1.789 on held-out bench a's controller).
 pub fn resolving(grid: &[f64], resonances: &[(f64, f64)]) -> Vec<f64> {
-    let (Some(&lo), Some(&hi)) = (grid.first(), grid.last()) else {
-        return grid.to_vec();
-    };
+    let missing = unresolved(grid, resonances);
     let mut out = grid.to_vec();
-    for &(w, sigma) in resonances {
-        if !(w.is_finite() && sigma.is_finite() && sigma > 0.0) || w < lo || w > hi {
-            continue;
-        }
+    if missing.is_empty() {
+        return out;
+    }
+    let (lo, hi) = (grid[0], grid[grid.len() - 1]);
+    let n = (RESONANCE_WINDOW * POINTS_PER_HALF_WIDTH) as i64;
+    for (w, sigma) in missing {
         let step = sigma / POINTS_PER_HALF_WIDTH;
-        let i = grid.partition_point(|x| *x < w).clamp(1, grid.len() - 1);
-        if grid[i] - grid[i - 1] <= RESOLVED_SPACING * sigma {
-            continue;
-        }
-        let n = (RESONANCE_WINDOW * POINTS_PER_HALF_WIDTH) as i64;
         out.extend(
             (-n..=n)
                 .map(|k| w + k as f64 * step)
@@ -242,6 +237,26 @@ pub fn resolving(grid: &[f64], resonances: &[(f64, f64)]) -> Vec<f64> {
     out.sort_by(f64::total_cmp);
     out.dedup();
     out
+}
+
+/// The resonances `(ω, σ)` (rad/s) within `grid`'s range (rad/s,
+/// ascending) that it samples coarser than [`RESOLVED_SPACING`]·σ: those
+/// [`resolving`] adds points for (none: the grid is enough as it is).
+pub fn unresolved(grid: &[f64], resonances: &[(f64, f64)]) -> Vec<(f64, f64)> {
+    let (Some(&lo), Some(&hi)) = (grid.first(), grid.last()) else {
+        return Vec::new();
+    };
+    resonances
+        .iter()
+        .copied()
+        .filter(|&(w, sigma)| {
+            if !(w.is_finite() && sigma.is_finite() && sigma > 0.0) || w < lo || w > hi {
+                return false;
+            }
+            let i = grid.partition_point(|x| *x < w).clamp(1, grid.len() - 1);
+            grid[i] - grid[i - 1] > RESOLVED_SPACING * sigma
+        })
+        .collect()
 }
 
 /// The link's pure delay of `delay_periods` loop periods at `w_rad_s`:
@@ -722,17 +737,7 @@ pub fn check_loop(
     let continuous = cfg.controller.get(name).map(|c| {
         let per_unit = c.error_unit.per_metre() * cfg.actuator.force_constant_n_per_a;
         let l = |w: f64| c.response(w) * model.force_frf(w / (2.0 * PI)) * per_unit;
-        let poles: Vec<(f64, f64)> = c
-            .complex_poles
-            .iter()
-            .map(|p| {
-                (
-                    p.omega_rad_s * (1.0 - p.zeta * p.zeta).max(0.0).sqrt(),
-                    p.zeta * p.omega_rad_s,
-                )
-            })
-            .collect();
-        margins(&l, &resolving(&model_grid(period_s), &poles), true)
+        margins(&l, &resolving(&model_grid(period_s), &c.resonances()), true)
     });
     let plant = ZohPlant::new(model, &cfg.actuator, period_s);
     let ideal = ZohPlant::without_amplifier_lag(model, &cfg.actuator, period_s);

@@ -22,7 +22,7 @@
 
 use super::family::Family;
 use super::loops::{figures, open_loop, DesignFrf, LoopFigures};
-use crate::control::loop_check::resolving;
+use crate::control::loop_check::{resolving, unresolved};
 use crate::control::{ControllerConfig, DiscreteController};
 use crate::ident::C64;
 use crate::splitmix::{splitmix64, GAMMA};
@@ -208,7 +208,13 @@ impl<'a> Problem<'a> {
     /// wide). Empty when every model already resolves them.
     pub fn models_resolving(&self, resonances: &[(f64, f64)]) -> Vec<DesignFrf> {
         let models = &self.frfs[self.frfs.len() - self.models..];
-        let refined: Vec<DesignFrf> = models
+        if models
+            .iter()
+            .all(|m| unresolved(&m.omega_rad_s, resonances).is_empty())
+        {
+            return Vec::new();
+        }
+        models
             .iter()
             .map(|m| {
                 let grid = resolving(&m.omega_rad_s, resonances);
@@ -220,16 +226,7 @@ impl<'a> Problem<'a> {
                     plant_m_per_a: plant,
                 }
             })
-            .collect();
-        let grew = refined
-            .iter()
-            .zip(models)
-            .any(|(r, m)| r.omega_rad_s.len() > m.omega_rad_s.len());
-        if grew {
-            refined
-        } else {
-            Vec::new()
-        }
+            .collect()
     }
 
     /// This problem with its models replaced by `models` (as many, in the
