@@ -332,7 +332,7 @@ pub struct EmulatorStatus {
     /// A host has said hello (serial) since the emulator started.
     pub host_connected: std::sync::atomic::AtomicBool,
     /// Largest lateness of a device tick behind its deadline, ns (the
-    /// emulator's own timing jitter).
+    /// emulator's own timing jitter), a skipped tick's included.
     pub max_tick_lateness_ns: std::sync::atomic::AtomicU64,
 }
 

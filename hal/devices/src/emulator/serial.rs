@@ -446,7 +446,13 @@ pub fn run(
         let now = monotonic_ns();
         if now > next + period {
             // Fell behind (preempted): skip the missed ticks, as a timer
-            // interrupt that was masked would.
+            // interrupt that was masked would. The skipped tick was late by
+            // `now - next`: a trip it would have made comes that much later.
+            if !opts.lockstep {
+                status
+                    .max_tick_lateness_ns
+                    .fetch_max(now - next, Ordering::Relaxed);
+            }
             next = now - (now - next) % period + period;
         }
     }
