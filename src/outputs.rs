@@ -121,6 +121,51 @@ impl Existing {
     }
 }
 
+/// Where a job's outputs go: the one thing the command line and the
+/// daemon decide differently about a job, so that the rest of its plan is
+/// one function for both (`plan_*` in [`crate::jobs`]).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Destination {
+    /// A local run: `--out` when given, else the job's default name
+    /// (beside its input); an existing file replaced only as `existing`
+    /// says (`--overwrite`).
+    Local {
+        /// `--out`.
+        out: Option<PathBuf>,
+        /// `--overwrite` or not.
+        existing: Existing,
+    },
+    /// A daemon's job: its outputs beside `stem`, the daemon's stamped name
+    /// in its recordings directory (`export-<stamp>-job<N>.mcap`); nothing
+    /// is ever replaced.
+    Daemon {
+        /// The job's stamped stem ([`stamped_recording`]).
+        stem: PathBuf,
+    },
+}
+
+impl Destination {
+    /// What an existing output meets: the local `--overwrite`, never a
+    /// replacement on the daemon.
+    pub fn existing(&self) -> Existing {
+        match self {
+            Self::Local { existing, .. } => *existing,
+            Self::Daemon { .. } => Existing::Refuse,
+        }
+    }
+
+    /// The job's one output: `--out` ([`Origin::Given`]), else
+    /// `default()` locally ([`Origin::Derived`]), or the daemon's stem with
+    /// `suffix` ([`beside`], [`Origin::Default`]).
+    pub fn output(&self, suffix: &str, default: impl FnOnce() -> PathBuf) -> (PathBuf, Origin) {
+        match self {
+            Self::Local { out: Some(p), .. } => (p.clone(), Origin::Given),
+            Self::Local { out: None, .. } => (default(), Origin::Derived),
+            Self::Daemon { stem } => (beside(stem, suffix), Origin::Default),
+        }
+    }
+}
+
 /// Where an output's path came from (for the messages).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Origin {

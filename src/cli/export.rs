@@ -1,9 +1,11 @@
 //! `bench export`: a recording's channel as a CSV or Parquet table.
 
-use super::{bad_input, status};
-use bench::jobs::export::export_topic as export_table;
-use bench::outputs::{Existing, Origin, OutputPlan};
-use bench::record::export::{ExportError, ExportFormat};
+use super::serve::via_daemon;
+use super::{absolute_path, emit, refuse_local_only, run_failed};
+use bench::jobs::export::{plan_export, run_export, ExportRequest, ExportSummary};
+use bench::jobs::request::JobRequest;
+use bench::outputs::{Destination, Existing};
+use bench::record::export::ExportFormat;
 use clap::{Args, ValueEnum};
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -25,7 +27,7 @@ pub(super) struct ExportArgs {
     /// per 5 ms), /bench/timing, /bench/event, /sysid/frf (one row
     /// per frequency line; as CSV the FRF CSV of bench chirp, which bench
     /// fit, design and control --frf read), or any other recorded topic.
-    #[arg(long, value_name = "TOPIC", default_value = "/bench/sample")]
+    #[arg(long, value_name = "TOPIC", default_value = bench::jobs::export::DEFAULT_TOPIC)]
     topic: String,
     /// Output file [default: beside the recording, <stem>.<topic>.<csv|parquet>].
     #[arg(long, value_name = "FILE")]
@@ -34,66 +36,53 @@ pub(super) struct ExportArgs {
     /// is complete.
     #[arg(long)]
     overwrite: bool,
+    /// Print the summary as one JSON object.
+    #[arg(long)]
+    json: bool,
+    /// Submit to a running `bench serve` instead of reading here [SOCKET
+    /// default: $XDG_RUNTIME_DIR/bench.sock, else /run/bench/bench.sock].
+    /// The daemon reads the recording with its own permissions and writes
+    /// the table in its recordings directory.
+    #[arg(long, value_name = "SOCKET", num_args = 0..=1, default_missing_value = "")]
+    daemon: Option<String>,
 }
 
 pub(super) fn export(a: ExportArgs) -> ExitCode {
-    let format = match a.to {
-        FormatArg::Csv => ExportFormat::Csv,
-        FormatArg::Parquet => ExportFormat::Parquet,
+    let request = ExportRequest {
+        recording: a.recording.clone(),
+        to: match a.to {
+            FormatArg::Csv => ExportFormat::Csv,
+            FormatArg::Parquet => ExportFormat::Parquet,
+        },
+        topic: Some(a.topic.clone()),
     };
-    let out = a.out.clone().unwrap_or_else(|| {
-        let name = a
-            .recording
-            .file_name()
-            .map(|n| n.to_string_lossy().into_owned())
-            .unwrap_or_default();
-        let stem = name
-            .strip_suffix(".part")
-            .unwrap_or(&name)
-            .strip_suffix(".mcap")
-            .unwrap_or(&name)
-            .to_string();
-        let topic: String = a
-            .topic
-            .trim_start_matches('/')
-            .replace('/', "-")
-            .chars()
-            .filter(|c| c.is_ascii_alphanumeric() || *c == '-' || *c == '_')
-            .collect();
-        a.recording
-            .with_file_name(format!("{stem}.{topic}.{}", format.extension()))
-    });
-    // The output rules (bench::outputs): nothing replaced without
-    // --overwrite, only a regular file, and never the recording read.
-    let given = if a.out.is_some() {
-        Origin::Given
-    } else {
-        Origin::Derived
+    if let Some(sock) = &a.daemon {
+        if let Some(code) = refuse_local_only(
+            &[(a.out.is_some(), "--out"), (a.overwrite, "--overwrite")],
+            "the daemon names its table in its recordings directory",
+        ) {
+            return code;
+        }
+        let request = ExportRequest {
+            recording: absolute_path(&a.recording),
+            ..request
+        };
+        return via_daemon(sock, &JobRequest::Export(request), a.json, print_summary);
+    }
+    let dest = Destination::Local {
+        out: a.out.clone(),
+        existing: Existing::overwrite(a.overwrite),
     };
-    if let Err(e) = OutputPlan::new(Existing::overwrite(a.overwrite))
-        .derived_from("the recording")
-        .with_output("out", &out, given)
-        .with_input("recording", &a.recording)
-        .check()
-    {
-        return super::run_failed(&e);
+    let result = plan_export(request, &dest).and_then(|opts| run_export(&opts));
+    match result {
+        Ok(summary) => match emit(&summary, a.json, print_summary) {
+            Ok(()) => ExitCode::SUCCESS,
+            Err(code) => code,
+        },
+        Err(e) => run_failed(&e),
     }
-    match export_table(
-        &a.recording,
-        &a.topic,
-        format,
-        &out,
-        Existing::overwrite(a.overwrite),
-    ) {
-        Ok(rows) => {
-            let abs = std::path::absolute(&out).unwrap_or(out);
-            outln!("{rows} rows of {} -> {}", a.topic, abs.display());
-            ExitCode::SUCCESS
-        }
-        Err(e @ (ExportError::Recording { .. } | ExportError::NoTopic { .. })) => bad_input(e),
-        Err(e) => {
-            errln!("error: {}", bench::error::error_chain(&e));
-            ExitCode::from(status::ERROR)
-        }
-    }
+}
+
+fn print_summary(s: &ExportSummary) {
+    outln!("{} rows of {} -> {}", s.rows, s.topic, s.out.display());
 }

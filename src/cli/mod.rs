@@ -613,6 +613,9 @@ pub(super) fn refused_request(
 pub(super) fn option_flag(key: &str) -> String {
     match key {
         "input" | "inputs" => String::new(),
+        // Positional arguments: bench export RECORDING, bench recover PART.
+        "recording" => "RECORDING".into(),
+        "part" => "PART".into(),
         "frequencies_hz" => "--frequencies".into(),
         "labels" => "--label".into(),
         key => format!("--{}", key.replace('_', "-")),

@@ -1,12 +1,14 @@
 //! `bench recover FILE.mcap.part`: a killed run's `.part` file → a
 //! complete, indexed recording.
 
-use super::{bad_input, emit, run_failed, status};
-use bench::outputs::{Existing, Origin, OutputPlan};
-use bench::record::recover::{recover as recover_part, RecoverError, Recovered};
-use bench::record::PART_SUFFIX;
+use super::serve::via_daemon_then;
+use super::{absolute_path, emit, refuse_local_only, run_failed, status};
+use bench::jobs::recover::{plan_recover, run_recover, RecoverRequest};
+use bench::jobs::request::JobRequest;
+use bench::outputs::{Destination, Existing};
+use bench::record::recover::Recovered;
 use clap::Args;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::process::ExitCode;
 
 /// `bench recover` arguments.
@@ -25,6 +27,13 @@ pub struct RecoverArgs {
     /// Print the result as JSON on stdout.
     #[arg(long)]
     json: bool,
+    /// Submit to a running `bench serve` instead of recovering here
+    /// [SOCKET default: $XDG_RUNTIME_DIR/bench.sock, else
+    /// /run/bench/bench.sock]. The daemon reads the `.part` file with its
+    /// own permissions and writes the recording in its recordings
+    /// directory.
+    #[arg(long, value_name = "SOCKET", num_args = 0..=1, default_missing_value = "")]
+    daemon: Option<String>,
 }
 
 /// `bench recover --help`'s closing paragraphs: what is checked, and the
@@ -55,59 +64,58 @@ fn after_help() -> String {
     )
 }
 
-/// The default output: `x.mcap.part` → `x.mcap`.
-fn default_out(part: &Path) -> Option<PathBuf> {
-    let s = part.to_str()?;
-    s.strip_suffix(PART_SUFFIX)
-        .filter(|s| !s.is_empty())
-        .map(PathBuf::from)
-}
-
 /// Runs `bench recover`.
 pub fn recover(args: RecoverArgs) -> ExitCode {
-    // A regular file within a recording's limit (bench::input_file),
-    // refused before anything is written; recover_part reads it so again.
-    if let Err(e) = bench::input_file::open(&args.part, bench::input_file::Kind::Recording, "part")
-    {
-        return bad_input(format!("PART: {e}"));
-    }
-    let Some(out) = args.out.clone().or_else(|| default_out(&args.part)) else {
-        return bad_input(format!(
-            "PART: {} does not end in {PART_SUFFIX}; give --out",
-            args.part.display()
-        ));
+    let request = RecoverRequest {
+        part: args.part.clone(),
     };
-    let existing = Existing::overwrite(args.overwrite);
-    // Never the .part it reads, however spelled (rule 6 of bench::outputs).
-    if let Err(e) = OutputPlan::new(existing)
-        .with_output("out", &out, Origin::Given)
-        .with_input("part", &args.part)
-        .check()
-    {
-        return run_failed(&e);
+    if let Some(sock) = &args.daemon {
+        if let Some(code) = refuse_local_only(
+            &[
+                (args.out.is_some(), "--out"),
+                (args.overwrite, "--overwrite"),
+            ],
+            "the daemon names the recovered recording in its recordings directory",
+        ) {
+            return code;
+        }
+        let request = RecoverRequest {
+            part: absolute_path(&args.part),
+        };
+        return via_daemon_then(
+            sock,
+            &JobRequest::Recover(request),
+            args.json,
+            human,
+            data_lost,
+        );
     }
-    match recover_part(&args.part, &out, existing) {
+    let dest = Destination::Local {
+        out: args.out.clone(),
+        existing: Existing::overwrite(args.overwrite),
+    };
+    match plan_recover(request, &dest).and_then(|opts| run_recover(&opts)) {
         Ok(r) => match emit(&r, args.json, human) {
-            Ok(()) if r.lost => {
-                errln!(
-                    "error: {}: data lost: {}; {} recovered without it",
-                    r.from.display(),
-                    lost_in_words(&r),
-                    r.to.display()
-                );
-                ExitCode::from(status::DATA_LOST)
-            }
-            Ok(()) => ExitCode::SUCCESS,
+            Ok(()) => data_lost(&r).unwrap_or(ExitCode::SUCCESS),
             Err(code) => code,
         },
-        Err(e @ (RecoverError::NotARecording { .. } | RecoverError::Read { .. })) => {
-            bad_input(format!("PART: {e}"))
-        }
-        Err(e @ RecoverError::Write { .. }) => {
-            errln!("error: {}", bench::error::error_chain(&e));
-            ExitCode::from(status::ERROR)
-        }
+        Err(e) => run_failed(&e),
     }
+}
+
+/// The exit status of a recovery that lost data ([`status::DATA_LOST`],
+/// said on stderr); `None` when nothing was lost.
+fn data_lost(r: &Recovered) -> Option<ExitCode> {
+    if !r.lost {
+        return None;
+    }
+    errln!(
+        "error: {}: data lost: {}; {} recovered without it",
+        r.from.display(),
+        lost_in_words(r),
+        r.to.display()
+    );
+    Some(ExitCode::from(status::DATA_LOST))
 }
 
 /// What was lost, in a few words: the dropped regions and orphaned

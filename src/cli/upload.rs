@@ -1,9 +1,10 @@
 //! `bench upload`: finished recordings, with their companions and
 //! catalogue rows, to an S3-compatible store or a directory.
 
-use super::{bad_input, emit, status, ExitCode};
+use super::serve::via_daemon_then;
+use super::{absolute_path, bad_input, emit, status, ExitCode};
+use bench::jobs::request::{JobRequest, UploadRequest};
 use bench::upload::once::{upload_recordings, UploadError, UploadOptions, UploadSummary};
-use bench::upload::StoreUrl;
 use clap::Args;
 use std::path::PathBuf;
 
@@ -22,7 +23,7 @@ pub(super) struct UploadArgs {
     #[arg(
         long,
         value_name = "SECONDS",
-        default_value_t = 60.0,
+        default_value_t = bench::upload::once::DEFAULT_RETRY_FOR_S,
         allow_negative_numbers = true
     )]
     retry_for: f64,
@@ -40,6 +41,13 @@ pub(super) struct UploadArgs {
     /// Print the summary as one JSON object.
     #[arg(long)]
     json: bool,
+    /// Submit to a running `bench serve` instead of uploading from here
+    /// [SOCKET default: $XDG_RUNTIME_DIR/bench.sock, else
+    /// /run/bench/bench.sock]. The daemon reads the recordings with its own
+    /// permissions and reaches the store with its own environment's
+    /// credentials; `stop` ends the upload, keeping every local file.
+    #[arg(long, value_name = "SOCKET", num_args = 0..=1, default_missing_value = "")]
+    daemon: Option<String>,
     /// Finished recordings (*.mcap, not a .part): each goes up with every
     /// file of its stem beside it (FRF CSV, plots, summary) and its
     /// catalogue row, whose recording is the object's URL. Or campaign
@@ -50,42 +58,62 @@ pub(super) struct UploadArgs {
 }
 
 pub(super) fn upload(a: UploadArgs) -> ExitCode {
-    let to = match StoreUrl::parse(&a.to) {
-        Ok(u) => u,
-        Err(reason) => return bad_input(format!("--to {:?}: {reason}", a.to)),
+    let request = UploadRequest {
+        to: a.to.clone(),
+        recordings: a.recordings.clone(),
+        retry_for_s: Some(a.retry_for),
+        store_timeout_s: Some(a.store_timeout),
     };
-    let opts = UploadOptions {
-        to,
-        recordings: a.recordings,
-        retry_for_s: a.retry_for,
-        timeout_s: a.store_timeout,
-    };
-    match upload_recordings(&opts) {
-        Ok(summary) => {
-            if let Err(code) = emit(&summary, a.json, print_summary) {
-                return code;
-            }
-            if summary.complete() {
-                ExitCode::SUCCESS
-            } else {
-                errln!(
-                    "error: --to {}: {} file(s) not confirmed by the store; the local copies are kept",
-                    a.to,
-                    summary.failed.len() + summary.dropped.len()
-                );
-                ExitCode::from(status::ERROR)
-            }
-        }
-        Err(UploadError::Recording { path, reason }) => bad_input(format!(
+    if let Some(sock) = &a.daemon {
+        let request = UploadRequest {
+            recordings: a.recordings.iter().map(|p| absolute_path(p)).collect(),
+            ..request
+        };
+        return via_daemon_then(
+            sock,
+            &JobRequest::Upload(request),
+            a.json,
+            print_summary,
+            |s| incomplete(s, None),
+        );
+    }
+    let result = UploadOptions::from_request(&request).and_then(|o| upload_recordings(&o));
+    match result {
+        Ok(summary) => match emit(&summary, a.json, print_summary) {
+            Ok(()) => incomplete(&summary, Some(&a.to)).unwrap_or(ExitCode::SUCCESS),
+            Err(code) => code,
+        },
+        Err(e) => bad_input(refusal(&e, &a.to)),
+    }
+}
+
+/// An upload's refusal (nothing was uploaded), naming its argument.
+fn refusal(e: &UploadError, to: &str) -> String {
+    match e {
+        UploadError::Url { .. } => format!("--to {e}"),
+        UploadError::Recording { path, reason } => format!(
             "RECORDING {}: {reason}; nothing was uploaded",
             path.display()
-        )),
-        Err(UploadError::Store(reason)) => {
-            bad_input(format!("--to {}: {reason}; nothing was uploaded", a.to))
-        }
-        Err(UploadError::RetryFor(reason)) => bad_input(format!("--retry-for: {reason}")),
-        Err(UploadError::Timeout(reason)) => bad_input(format!("--store-timeout: {reason}")),
+        ),
+        UploadError::Store(reason) => format!("--to {to}: {reason}; nothing was uploaded"),
+        UploadError::RetryFor(reason) => format!("--retry-for: {reason}"),
+        UploadError::Timeout(reason) => format!("--store-timeout: {reason}"),
     }
+}
+
+/// The exit status of an upload that left files unconfirmed
+/// ([`status::ERROR`], said on stderr naming the store); `None` when all
+/// went up.
+fn incomplete(s: &UploadSummary, to: Option<&str>) -> Option<ExitCode> {
+    if s.complete() {
+        return None;
+    }
+    errln!(
+        "error: --to {}: {} file(s) not confirmed by the store; the local copies are kept",
+        to.unwrap_or(&s.store),
+        s.failed.len() + s.dropped.len()
+    );
+    Some(ExitCode::from(status::ERROR))
 }
 
 fn print_summary(s: &UploadSummary) {

@@ -2,8 +2,9 @@
 //! daemon's own output names ([`job_spec`], checked when the request
 //! arrives, the same checks as the CLI's), and the library job that runs
 //! them on a worker thread ([`run`]). Chirp and control run on the
-//! daemon's loop and record; fit, design, analyze, map, plot and campaign compute from
-//! files and the model and never touch the bench (their paths must be
+//! daemon's loop and record; fit, design, analyze, map, plot, campaign,
+//! catalogue, export, recover and upload compute from (or send) files and
+//! never touch the bench (their paths must be
 //! absolute: the daemon's working directory is not its clients').
 
 use super::protocol::{to_json, ApiError, ApiErrorKind};
@@ -17,14 +18,21 @@ use crate::jobs::catalogue::{check_options, run_catalogue, CatalogueOptions};
 use crate::jobs::chirp::{run_chirp_on, ChirpOptions};
 use crate::jobs::control::{run_control_from, ControlOptions, StageSource};
 use crate::jobs::design::{run_design, DesignInput, DesignOptions};
+use crate::jobs::export::{plan_export, run_export, ExportOptions};
 use crate::jobs::fit::{run_fit, FitOptions};
 use crate::jobs::map::{run_map, MapOptions};
 use crate::jobs::plot::{run_plot, PlotInput, PlotOptions};
-use crate::jobs::request::{check_pace, pace_on_hardware, JobRequest, Pace, RequestError};
+use crate::jobs::recover::{plan_recover, run_recover, RecoverOptions};
+use crate::jobs::request::{
+    check_pace, pace_on_hardware, AnalyzeRequest, CampaignRequest, CatalogueRequest, ChirpRequest,
+    ControlRequest, DesignRequest, ExportRequest, FitRequest, JobRequest, MapRequest, Pace,
+    PlotRequest, RecoverRequest, RequestError, UploadRequest,
+};
 use crate::jobs::session::Runner;
 use crate::jobs::verify::VerifyOptions;
-use crate::outputs::{beside, Existing, Origin};
+use crate::outputs::{beside, Destination, Existing, Origin};
 use crate::rt::service::ServiceClient;
+use crate::upload::once::{upload_recordings, UploadError, UploadOptions};
 use serde_json::Value;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, AtomicU64};
@@ -41,6 +49,9 @@ pub(super) enum JobSpec {
     Plot(Box<PlotOptions>),
     Campaign(Box<CampaignJob>),
     Catalogue(Box<CatalogueOptions>),
+    Export(Box<ExportOptions>),
+    Recover(Box<RecoverOptions>),
+    Upload(Box<UploadOptions>),
 }
 
 /// A campaign to start: the loaded file, its new directory, the threads.
@@ -66,6 +77,18 @@ pub(super) struct Accepted {
     /// Ticks of a bench job; 0 for a job without progress.
     pub(super) total: u64,
     pub(super) recording: Option<PathBuf>,
+}
+
+impl Accepted {
+    /// A job that computes from files: no progress total, no recording.
+    fn computing(spec: JobSpec, kind: &'static str) -> Self {
+        Self {
+            spec,
+            kind,
+            total: 0,
+            recording: None,
+        }
+    }
 }
 
 /// What a job's worker thread sends back: the summary, or the answer and
@@ -102,6 +125,18 @@ fn refused(e: &RunError) -> ApiError {
     }
 }
 
+/// An upload's refusal as the daemon answers it (nothing was uploaded):
+/// `bad_params` naming the parameter at fault.
+fn upload_refused(e: &UploadError) -> ApiError {
+    let field = match e {
+        UploadError::Url { .. } | UploadError::Store(_) => "to",
+        UploadError::Recording { .. } => "recordings",
+        UploadError::RetryFor(_) => "retry_for_s",
+        UploadError::Timeout(_) => "store_timeout_s",
+    };
+    bad_params(format!("params.{field}: {e}; nothing was uploaded"))
+}
+
 /// A campaign's error as the daemon answers it: `bad_params` for bad
 /// input (naming the field as `params.FIELD`), `interrupted` when stopped
 /// (every completed cell is kept), `error` otherwise.
@@ -119,281 +154,353 @@ fn campaign_answer(e: &CampaignRunError) -> ApiError {
 /// and output names; `Err` (`bad_params`) for a request the CLI would
 /// refuse too.
 pub(super) fn job_spec(ctx: &Ctx, request: &JobRequest, id: u64) -> Result<Accepted, ApiError> {
-    let mut cfg = ctx.cfg.clone();
-    // The request names a config key or its field; a field is a parameter.
-    let bad = |e: RequestError| {
-        let message = match e {
-            RequestError::Field { .. } => format!("params.{e}"),
-            RequestError::Invalid { .. } => e.to_string(),
-        };
-        bad_params(message)
-    };
-    let kind = request.kind();
-    // A bench job's pace, checked as `--pace` is: the daemon's jobs run in
-    // its loop's real time unless they ask for virtual time (or the daemon
-    // was started with `--pace`), which only a simulator has.
-    let pace = |p: Option<Pace>| -> Result<Option<Pace>, ApiError> {
-        let p = check_pace(p).map_err(bad)?;
-        match p {
-            Some(p) if !ctx.spec.is_sim() => Err(bad_params(format!(
-                "params.pace {p}: {}",
-                pace_on_hardware(&ctx.spec.to_string())
-            ))),
-            p => Ok(p),
-        }
-    };
     match request {
-        JobRequest::Chirp(req) => {
-            let pace = pace(req.pace.or(ctx.default_pace))?;
-            req.apply(&mut cfg).map_err(bad)?;
-            // A multisine refused at the device's period is refused here,
-            // before the job is queued.
-            let total = crate::ident::excitation::Excitation::total_ticks_of(&cfg, ctx.period_s)
-                .map_err(|e| bad_params(format!("config: {e}")))?;
-            let out = recording_path(&ctx.recordings, "chirp", id);
-            let opts = ChirpOptions {
-                frf_csv: beside(&out, ".frf.csv"),
-                plot: beside(&out, ".bode.png"),
-                bla_csv: (!cfg.excitation.kind.is_sweep()).then(|| beside(&out, ".bla.csv")),
-                out: out.clone(),
-                seed: req.seed.unwrap_or(ctx.seed),
-                config: cfg,
-                config_path: ctx.config_path.clone(),
-                realtime: pace.is_none(),
-                pace: pace.and_then(Pace::factor),
-                progress: false,
-                backend: Some(ctx.spec.clone()),
-                inject: None,
-                catalogue: true,
-            };
-            Ok(Accepted {
-                spec: JobSpec::Chirp(Box::new(opts)),
-                kind,
-                total,
-                recording: Some(out),
-            })
-        }
-        JobRequest::Control(req) => {
-            let pace = pace(req.pace.or(ctx.default_pace))?;
-            let inject = req.apply(&mut cfg).map_err(bad)?;
-            let verify = req.verify_settings(&cfg).map_err(bad)?;
-            let out = recording_path(&ctx.recordings, &format!("control-{}", req.controller), id);
-            let mut total = (cfg.step.duration_s / ctx.period_s).round() as u64;
-            let verify = verify.map(|v| {
-                let chirp = crate::ident::chirp::Chirp::new(
-                    &crate::control::verify::chirp_config(&cfg.chirp, v.amplitude_a, v.duration_s),
-                    cfg.excitation.kind,
-                    ctx.period_s,
-                );
-                total = total.saturating_add(chirp.total_ticks());
-                VerifyOptions {
-                    amplitude_a: v.amplitude_a,
-                    duration_s: v.duration_s,
-                    csv: beside(&out, ".verify.csv"),
-                    plot: beside(&out, ".verify.png"),
-                }
-            });
-            let opts = ControlOptions {
-                plot: beside(&out, ".step.png"),
-                out: out.clone(),
-                controller: req.controller.clone(),
-                check_only: false,
-                frf: None,
-                override_check: req.override_check,
-                realtime: pace.is_none(),
-                pace: pace.and_then(Pace::factor),
-                seed: req.seed.unwrap_or(ctx.seed),
-                progress: false,
-                inject,
-                backend: Some(ctx.spec.clone()),
-                config: cfg,
-                config_path: ctx.config_path.clone(),
-                verify,
-                catalogue: true,
-            };
-            Ok(Accepted {
-                spec: JobSpec::Control(Box::new(opts)),
-                kind,
-                total,
-                recording: Some(out),
-            })
-        }
-        JobRequest::Fit(req) => {
-            absolute("input", req.input.as_deref())?;
-            absolute("config", req.config.as_deref())?;
-            req.check().map_err(|e| refused(&e))?;
-            let stem = recording_path(&ctx.recordings, "fit", id);
-            let opts = FitOptions {
-                png: (req.input.is_some() && !req.no_plot).then(|| beside(&stem, ".fit.png")),
-                // As a local run: the updated bench of an FRF update; an
-                // update to frequencies is only answered.
-                out: req.update.then(|| beside(&stem, ".updated.toml")),
-                model_out: req.export_model.map(|_| {
-                    crate::jobs::fit::model_path(&stem, req.model_format.unwrap_or_default())
-                }),
-                request: req.clone(),
-                existing: Existing::Refuse,
-            };
-            Ok(Accepted {
-                spec: JobSpec::Fit(Box::new(opts)),
-                kind,
-                total: 0,
-                recording: None,
-            })
-        }
-        JobRequest::Design(req) => {
-            for p in &req.inputs {
-                absolute("inputs", Some(p))?;
-            }
-            absolute("config", req.config.as_deref())?;
-            let inputs = req
-                .inputs
-                .iter()
-                .map(|p| {
-                    if p.is_dir() {
-                        crate::campaign::job::design_input(p)
-                            .map_err(|e| bad_params(format!("params.inputs: {e}")))
-                    } else {
-                        Ok(DesignInput::File(p.clone()))
-                    }
-                })
-                .collect::<Result<Vec<_>, _>>()?;
-            let stem = recording_path(&ctx.recordings, "design", id);
-            let out = beside(&stem, ".designed.toml");
-            let opts = DesignOptions {
-                png: (!req.no_plot).then(|| beside(&stem, ".design.png")),
-                out: Some(out),
-                request: req.clone(),
-                inputs,
-                existing: Existing::Refuse,
-            };
-            Ok(Accepted {
-                spec: JobSpec::Design(Box::new(opts)),
-                kind,
-                total: 0,
-                recording: None,
-            })
-        }
-        JobRequest::Plot(req) => {
-            for p in &req.inputs {
-                absolute("inputs", Some(p))?;
-            }
-            absolute("config", req.config.as_deref())?;
-            req.check().map_err(|e| refused(&e))?;
-            let inputs = req
-                .inputs
-                .iter()
-                .map(|p| {
-                    if p.is_dir() {
-                        crate::campaign::job::plot_input(p)
-                            .map_err(|e| bad_params(format!("params.inputs: {e}")))
-                    } else {
-                        Ok(PlotInput::File(p.clone()))
-                    }
-                })
-                .collect::<Result<Vec<_>, _>>()?;
-            let stem = recording_path(&ctx.recordings, "plot", id);
-            let opts = PlotOptions {
-                out: Some(beside(&stem, &format!(".{}.png", req.kind.as_str()))),
-                request: req.clone(),
-                inputs,
-                existing: Existing::Refuse,
-            };
-            Ok(Accepted {
-                spec: JobSpec::Plot(Box::new(opts)),
-                kind,
-                total: 0,
-                recording: None,
-            })
-        }
-        JobRequest::Catalogue(req) => {
-            absolute("recordings", req.recordings.as_deref())?;
-            let stem = recording_path(&ctx.recordings, "catalogue", id);
-            let opts = CatalogueOptions {
-                recordings: req
-                    .recordings
-                    .clone()
-                    .unwrap_or_else(|| ctx.recordings.clone()),
-                out: beside(&stem, ".parquet"),
-                out_origin: Origin::Default,
-                existing: Existing::Refuse,
-                recording_url: req.recording_url.clone(),
-            };
-            check_options(&opts).map_err(|e| refused(&e))?;
-            Ok(Accepted {
-                spec: JobSpec::Catalogue(Box::new(opts)),
-                kind,
-                total: 0,
-                recording: None,
-            })
-        }
-        JobRequest::Analyze(req) => {
-            absolute("config", req.config.as_deref())?;
-            req.plant().map_err(|e| refused(&e))?;
-            let stem = recording_path(&ctx.recordings, "analyze", id);
-            let png = |suffix: &str| (!req.no_plots).then(|| beside(&stem, suffix));
-            let opts = AnalyzeOptions {
-                pole_zero_png: png(".pole-zero.png"),
-                modes_png: png(".modes.png"),
-                request: req.clone(),
-                existing: Existing::Refuse,
-            };
-            Ok(Accepted {
-                spec: JobSpec::Analyze(Box::new(opts)),
-                kind,
-                total: 0,
-                recording: None,
-            })
-        }
-        JobRequest::Campaign(req) => {
-            absolute("file", req.file.as_deref())?;
-            let threads = threads(req.threads).map_err(|e| campaign_answer(&e))?;
-            let keep = req
-                .keep
-                .as_deref()
-                .map(str::parse::<crate::campaign::file::Keep>)
-                .transpose()
-                .map_err(|e| bad_params(format!("params.keep: {e}")))?;
-            let campaign =
-                prepare(req.file.as_deref(), keep, req.design.is_some()).map_err(|e| match e {
-                    CampaignRunError::BadInput(m) => bad_params(format!("params.file: {m}")),
-                    e => campaign_answer(&e),
-                })?;
-            let total = campaign.cells().len() as u64;
-            // `campaign-<stamp>-job<id>`: a new, empty directory.
-            let dir = beside(&recording_path(&ctx.recordings, "campaign", id), "");
-            Ok(Accepted {
-                spec: JobSpec::Campaign(Box::new(CampaignJob {
-                    campaign,
-                    design: req.design,
-                    dir,
-                    threads,
-                })),
-                kind,
-                total,
-                recording: None,
-            })
-        }
-        JobRequest::Map(req) => {
-            absolute("config", req.config.as_deref())?;
-            absolute("measured", req.measured.as_deref())?;
-            req.check().map_err(|e| refused(&e))?;
-            let prefix = if req.veering { "veering" } else { "map" };
-            let stem = recording_path(&ctx.recordings, prefix, id);
-            let opts = MapOptions {
-                png: beside(&stem, ".png"),
-                csv: req.csv.then(|| beside(&stem, ".csv")),
-                request: req.clone(),
-                existing: Existing::Refuse,
-            };
-            Ok(Accepted {
-                spec: JobSpec::Map(Box::new(opts)),
-                kind,
-                total: 0,
-                recording: None,
-            })
-        }
+        JobRequest::Chirp(req) => chirp_job(ctx, req, id),
+        JobRequest::Control(req) => control_job(ctx, req, id),
+        JobRequest::Fit(req) => fit_job(ctx, req, id),
+        JobRequest::Design(req) => design_job(ctx, req, id),
+        JobRequest::Plot(req) => plot_job(ctx, req, id),
+        JobRequest::Catalogue(req) => catalogue_job(ctx, req, id),
+        JobRequest::Analyze(req) => analyze_job(ctx, req, id),
+        JobRequest::Campaign(req) => campaign_job(ctx, req, id),
+        JobRequest::Export(req) => export_job(ctx, req, id),
+        JobRequest::Recover(req) => recover_job(ctx, req, id),
+        JobRequest::Upload(req) => upload_job(req),
+        JobRequest::Map(req) => map_job(ctx, req, id),
     }
+}
+
+/// A request that does not apply, as the daemon answers it: a field is a
+/// parameter (`params.FIELD`), a config key is named as it is.
+fn request_refused(e: RequestError) -> ApiError {
+    let message = match e {
+        RequestError::Field { .. } => format!("params.{e}"),
+        RequestError::Invalid { .. } => e.to_string(),
+    };
+    bad_params(message)
+}
+
+/// A bench job's pace, checked as `--pace` is: the daemon's jobs run in
+/// its loop's real time unless they ask for virtual time (or the daemon
+/// was started with `--pace`), which only a simulator has.
+fn pace_of(ctx: &Ctx, p: Option<Pace>) -> Result<Option<Pace>, ApiError> {
+    let p = check_pace(p).map_err(request_refused)?;
+    match p {
+        Some(p) if !ctx.spec.is_sim() => Err(bad_params(format!(
+            "params.pace {p}: {}",
+            pace_on_hardware(&ctx.spec.to_string())
+        ))),
+        p => Ok(p),
+    }
+}
+
+/// The daemon's `chirp` job ([`job_spec`]).
+fn chirp_job(ctx: &Ctx, req: &ChirpRequest, id: u64) -> Result<Accepted, ApiError> {
+    let mut cfg = ctx.cfg.clone();
+    let pace = pace_of(ctx, req.pace.or(ctx.default_pace))?;
+    req.apply(&mut cfg).map_err(request_refused)?;
+    // A multisine refused at the device's period is refused here,
+    // before the job is queued.
+    let total = crate::ident::excitation::Excitation::total_ticks_of(&cfg, ctx.period_s)
+        .map_err(|e| bad_params(format!("config: {e}")))?;
+    let out = recording_path(&ctx.recordings, "chirp", id);
+    let opts = ChirpOptions {
+        frf_csv: beside(&out, ".frf.csv"),
+        plot: beside(&out, ".bode.png"),
+        bla_csv: (!cfg.excitation.kind.is_sweep()).then(|| beside(&out, ".bla.csv")),
+        out: out.clone(),
+        seed: req.seed.unwrap_or(ctx.seed),
+        config: cfg,
+        config_path: ctx.config_path.clone(),
+        realtime: pace.is_none(),
+        pace: pace.and_then(Pace::factor),
+        progress: false,
+        backend: Some(ctx.spec.clone()),
+        inject: None,
+        catalogue: true,
+    };
+    Ok(Accepted {
+        spec: JobSpec::Chirp(Box::new(opts)),
+        kind: "chirp",
+        total,
+        recording: Some(out),
+    })
+}
+
+/// The daemon's `control` job ([`job_spec`]).
+fn control_job(ctx: &Ctx, req: &ControlRequest, id: u64) -> Result<Accepted, ApiError> {
+    let mut cfg = ctx.cfg.clone();
+    let pace = pace_of(ctx, req.pace.or(ctx.default_pace))?;
+    let inject = req.apply(&mut cfg).map_err(request_refused)?;
+    let verify = req.verify_settings(&cfg).map_err(request_refused)?;
+    let out = recording_path(&ctx.recordings, &format!("control-{}", req.controller), id);
+    let mut total = (cfg.step.duration_s / ctx.period_s).round() as u64;
+    let verify = verify.map(|v| {
+        let chirp = crate::ident::chirp::Chirp::new(
+            &crate::control::verify::chirp_config(&cfg.chirp, v.amplitude_a, v.duration_s),
+            cfg.excitation.kind,
+            ctx.period_s,
+        );
+        total = total.saturating_add(chirp.total_ticks());
+        VerifyOptions {
+            amplitude_a: v.amplitude_a,
+            duration_s: v.duration_s,
+            csv: beside(&out, ".verify.csv"),
+            plot: beside(&out, ".verify.png"),
+        }
+    });
+    let opts = ControlOptions {
+        plot: beside(&out, ".step.png"),
+        out: out.clone(),
+        controller: req.controller.clone(),
+        check_only: false,
+        frf: None,
+        override_check: req.override_check,
+        realtime: pace.is_none(),
+        pace: pace.and_then(Pace::factor),
+        seed: req.seed.unwrap_or(ctx.seed),
+        progress: false,
+        inject,
+        backend: Some(ctx.spec.clone()),
+        config: cfg,
+        config_path: ctx.config_path.clone(),
+        verify,
+        catalogue: true,
+    };
+    Ok(Accepted {
+        spec: JobSpec::Control(Box::new(opts)),
+        kind: "control",
+        total,
+        recording: Some(out),
+    })
+}
+
+/// The daemon's `fit` job ([`job_spec`]).
+fn fit_job(ctx: &Ctx, req: &FitRequest, id: u64) -> Result<Accepted, ApiError> {
+    absolute("input", req.input.as_deref())?;
+    absolute("config", req.config.as_deref())?;
+    req.check().map_err(|e| refused(&e))?;
+    let stem = recording_path(&ctx.recordings, "fit", id);
+    let opts = FitOptions {
+        png: (req.input.is_some() && !req.no_plot).then(|| beside(&stem, ".fit.png")),
+        // As a local run: the updated bench of an FRF update; an
+        // update to frequencies is only answered.
+        out: req.update.then(|| beside(&stem, ".updated.toml")),
+        model_out: req
+            .export_model
+            .map(|_| crate::jobs::fit::model_path(&stem, req.model_format.unwrap_or_default())),
+        request: req.clone(),
+        existing: Existing::Refuse,
+    };
+    Ok(Accepted {
+        spec: JobSpec::Fit(Box::new(opts)),
+        kind: "fit",
+        total: 0,
+        recording: None,
+    })
+}
+
+/// The daemon's `design` job ([`job_spec`]).
+fn design_job(ctx: &Ctx, req: &DesignRequest, id: u64) -> Result<Accepted, ApiError> {
+    for p in &req.inputs {
+        absolute("inputs", Some(p))?;
+    }
+    absolute("config", req.config.as_deref())?;
+    let inputs = req
+        .inputs
+        .iter()
+        .map(|p| {
+            if p.is_dir() {
+                crate::campaign::job::design_input(p)
+                    .map_err(|e| bad_params(format!("params.inputs: {e}")))
+            } else {
+                Ok(DesignInput::File(p.clone()))
+            }
+        })
+        .collect::<Result<Vec<_>, _>>()?;
+    let stem = recording_path(&ctx.recordings, "design", id);
+    let out = beside(&stem, ".designed.toml");
+    let opts = DesignOptions {
+        png: (!req.no_plot).then(|| beside(&stem, ".design.png")),
+        out: Some(out),
+        request: req.clone(),
+        inputs,
+        existing: Existing::Refuse,
+    };
+    Ok(Accepted {
+        spec: JobSpec::Design(Box::new(opts)),
+        kind: "design",
+        total: 0,
+        recording: None,
+    })
+}
+
+/// The daemon's `plot` job ([`job_spec`]).
+fn plot_job(ctx: &Ctx, req: &PlotRequest, id: u64) -> Result<Accepted, ApiError> {
+    for p in &req.inputs {
+        absolute("inputs", Some(p))?;
+    }
+    absolute("config", req.config.as_deref())?;
+    req.check().map_err(|e| refused(&e))?;
+    let inputs = req
+        .inputs
+        .iter()
+        .map(|p| {
+            if p.is_dir() {
+                crate::campaign::job::plot_input(p)
+                    .map_err(|e| bad_params(format!("params.inputs: {e}")))
+            } else {
+                Ok(PlotInput::File(p.clone()))
+            }
+        })
+        .collect::<Result<Vec<_>, _>>()?;
+    let stem = recording_path(&ctx.recordings, "plot", id);
+    let opts = PlotOptions {
+        out: Some(beside(&stem, &format!(".{}.png", req.kind.as_str()))),
+        request: req.clone(),
+        inputs,
+        existing: Existing::Refuse,
+    };
+    Ok(Accepted {
+        spec: JobSpec::Plot(Box::new(opts)),
+        kind: "plot",
+        total: 0,
+        recording: None,
+    })
+}
+
+/// The daemon's `catalogue` job ([`job_spec`]).
+fn catalogue_job(ctx: &Ctx, req: &CatalogueRequest, id: u64) -> Result<Accepted, ApiError> {
+    absolute("recordings", req.recordings.as_deref())?;
+    let stem = recording_path(&ctx.recordings, "catalogue", id);
+    let opts = CatalogueOptions {
+        recordings: req
+            .recordings
+            .clone()
+            .unwrap_or_else(|| ctx.recordings.clone()),
+        out: beside(&stem, ".parquet"),
+        out_origin: Origin::Default,
+        existing: Existing::Refuse,
+        recording_url: req.recording_url.clone(),
+    };
+    check_options(&opts).map_err(|e| refused(&e))?;
+    Ok(Accepted {
+        spec: JobSpec::Catalogue(Box::new(opts)),
+        kind: "catalogue",
+        total: 0,
+        recording: None,
+    })
+}
+
+/// The daemon's `analyze` job ([`job_spec`]).
+fn analyze_job(ctx: &Ctx, req: &AnalyzeRequest, id: u64) -> Result<Accepted, ApiError> {
+    absolute("config", req.config.as_deref())?;
+    req.plant().map_err(|e| refused(&e))?;
+    let stem = recording_path(&ctx.recordings, "analyze", id);
+    let png = |suffix: &str| (!req.no_plots).then(|| beside(&stem, suffix));
+    let opts = AnalyzeOptions {
+        pole_zero_png: png(".pole-zero.png"),
+        modes_png: png(".modes.png"),
+        request: req.clone(),
+        existing: Existing::Refuse,
+    };
+    Ok(Accepted {
+        spec: JobSpec::Analyze(Box::new(opts)),
+        kind: "analyze",
+        total: 0,
+        recording: None,
+    })
+}
+
+/// The daemon's `campaign` job ([`job_spec`]).
+fn campaign_job(ctx: &Ctx, req: &CampaignRequest, id: u64) -> Result<Accepted, ApiError> {
+    absolute("file", req.file.as_deref())?;
+    let threads = threads(req.threads).map_err(|e| campaign_answer(&e))?;
+    let keep = req
+        .keep
+        .as_deref()
+        .map(str::parse::<crate::campaign::file::Keep>)
+        .transpose()
+        .map_err(|e| bad_params(format!("params.keep: {e}")))?;
+    let campaign =
+        prepare(req.file.as_deref(), keep, req.design.is_some()).map_err(|e| match e {
+            CampaignRunError::BadInput(m) => bad_params(format!("params.file: {m}")),
+            e => campaign_answer(&e),
+        })?;
+    let total = campaign.cells().len() as u64;
+    // `campaign-<stamp>-job<id>`: a new, empty directory.
+    let dir = beside(&recording_path(&ctx.recordings, "campaign", id), "");
+    Ok(Accepted {
+        spec: JobSpec::Campaign(Box::new(CampaignJob {
+            campaign,
+            design: req.design,
+            dir,
+            threads,
+        })),
+        kind: "campaign",
+        total,
+        recording: None,
+    })
+}
+
+/// The daemon's `export` job ([`job_spec`]).
+fn export_job(ctx: &Ctx, req: &ExportRequest, id: u64) -> Result<Accepted, ApiError> {
+    absolute("recording", Some(&req.recording))?;
+    let dest = Destination::Daemon {
+        stem: recording_path(&ctx.recordings, "export", id),
+    };
+    let opts = plan_export(req.clone(), &dest).map_err(|e| refused(&e))?;
+    Ok(Accepted::computing(
+        JobSpec::Export(Box::new(opts)),
+        "export",
+    ))
+}
+
+/// The daemon's `recover` job ([`job_spec`]).
+fn recover_job(ctx: &Ctx, req: &RecoverRequest, id: u64) -> Result<Accepted, ApiError> {
+    absolute("part", Some(&req.part))?;
+    let dest = Destination::Daemon {
+        stem: recording_path(&ctx.recordings, "recover", id),
+    };
+    let opts = plan_recover(req.clone(), &dest).map_err(|e| refused(&e))?;
+    Ok(Accepted::computing(
+        JobSpec::Recover(Box::new(opts)),
+        "recover",
+    ))
+}
+
+/// The daemon's `upload` job ([`job_spec`]).
+fn upload_job(req: &UploadRequest) -> Result<Accepted, ApiError> {
+    for p in &req.recordings {
+        absolute("recordings", Some(p))?;
+    }
+    let opts =
+        UploadOptions::from_request(req).map_err(|e| bad_params(format!("params.to {e}")))?;
+    Ok(Accepted::computing(
+        JobSpec::Upload(Box::new(opts)),
+        "upload",
+    ))
+}
+
+/// The daemon's `map` job ([`job_spec`]).
+fn map_job(ctx: &Ctx, req: &MapRequest, id: u64) -> Result<Accepted, ApiError> {
+    absolute("config", req.config.as_deref())?;
+    absolute("measured", req.measured.as_deref())?;
+    req.check().map_err(|e| refused(&e))?;
+    let prefix = if req.veering { "veering" } else { "map" };
+    let stem = recording_path(&ctx.recordings, prefix, id);
+    let opts = MapOptions {
+        png: beside(&stem, ".png"),
+        csv: req.csv.then(|| beside(&stem, ".csv")),
+        request: req.clone(),
+        existing: Existing::Refuse,
+    };
+    Ok(Accepted {
+        spec: JobSpec::Map(Box::new(opts)),
+        kind: "map",
+        total: 0,
+        recording: None,
+    })
 }
 
 /// Runs `job` on this (worker) thread: a bench job through `proxy`, the
@@ -441,6 +548,17 @@ pub(super) fn run(
         JobSpec::Catalogue(opts) => run_catalogue(&opts).map_err(answer).and_then(json),
         JobSpec::Map(opts) => run_map(&opts).map_err(answer).and_then(json),
         JobSpec::Plot(opts) => run_plot(&opts).map_err(answer).and_then(json),
+        JobSpec::Export(opts) => run_export(&opts).map_err(answer).and_then(json),
+        JobSpec::Recover(opts) => run_recover(&opts).map_err(answer).and_then(json),
+        JobSpec::Upload(opts) => {
+            let opts = UploadOptions {
+                stop: Some(stop),
+                ..*opts
+            };
+            upload_recordings(&opts)
+                .map_err(|e| (upload_refused(&e), None))
+                .and_then(json)
+        }
         JobSpec::Campaign(job) => {
             // Progress: the cells done.
             let on_cell = |done: usize, _cells: usize| {

@@ -47,6 +47,9 @@
 //! | `plot` | the fields of a [`PlotRequest`], and `detach` | the `bench plot bode\|nyquist --json` summary |
 //! | `campaign` | the fields of a [`CampaignRequest`], and `detach` | the `bench campaign run --json` summary |
 //! | `catalogue` | the fields of a [`CatalogueRequest`], and `detach` | the `bench catalogue --json` summary |
+//! | `export` | the fields of an [`ExportRequest`], and `detach` | the `bench export --json` summary |
+//! | `recover` | the fields of a [`RecoverRequest`], and `detach` | the `bench recover --json` summary |
+//! | `upload` | the fields of an [`UploadRequest`], and `detach` | the `bench upload --json` summary (the store's credentials are the daemon's environment's; `stop` ends it, keeping every local file) |
 //! | `stop` | – | the running job stops safely (0 A, recording finished) |
 //! | `subscribe` | – | this connection receives every event from now on |
 //! | `shutdown` | – | stops the job, then the daemon |
@@ -60,13 +63,19 @@
 //! [`PlotRequest`]: crate::jobs::plot::PlotRequest
 //! [`CampaignRequest`]: crate::jobs::request::CampaignRequest
 //! [`CatalogueRequest`]: crate::jobs::catalogue::CatalogueRequest
+//! [`ExportRequest`]: crate::jobs::export::ExportRequest
+//! [`RecoverRequest`]: crate::jobs::recover::RecoverRequest
+//! [`UploadRequest`]: crate::jobs::request::UploadRequest
 //!
 //! The jobs that compute take their files by absolute path (the daemon's
 //! working directory is not its clients'), read them with the daemon's
 //! permissions, and write their outputs in the recordings directory under
 //! stamped names (`fit-<UTC>-job<N>.fit.png`, `analyze-…-job<N>.modes.png`,
 //! `map-…-job<N>.png`, `plot-…-job<N>.bode.png`, `campaign-…-job<N>/`,
-//! `catalogue-…-job<N>.parquet`); the request names none.
+//! `catalogue-…-job<N>.parquet`, `export-…-job<N>.bench-sample.csv`,
+//! `recover-…-job<N>.mcap`); the request names none. Each job's outputs
+//! are planned by the same function as the CLI's (`plan_*` with a
+//! [`crate::outputs::Destination`]) where the job has one.
 //! Their summaries are the local run's.
 //!
 //! Lines are at most [`MAX_LINE_BYTES`], UTF-8, one JSON object with no

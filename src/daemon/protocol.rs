@@ -301,6 +301,9 @@ pub(super) fn job_request(cmd: &str, params: &Value) -> Result<(JobRequest, bool
         "plot" => JobRequest::Plot(from_params(params)?),
         "campaign" => JobRequest::Campaign(from_params(params)?),
         "catalogue" => JobRequest::Catalogue(from_params(params)?),
+        "export" => JobRequest::Export(from_params(params)?),
+        "recover" => JobRequest::Recover(from_params(params)?),
+        "upload" => JobRequest::Upload(from_params(params)?),
         other => {
             return Err(ApiError::new(
                 ApiErrorKind::UnknownCommand,

@@ -19,6 +19,10 @@
 //! - [`catalogue`]: the row every chirp and control run appends to the
 //!   run catalogue, and `bench catalogue`, which rebuilds it from the
 //!   recordings.
+//! - [`export`] (`bench export`: a recording's channel as a table) and
+//!   [`recover`] (`bench recover`: a killed run's `.part` file made
+//!   whole) work on one recording; each plans its output for a
+//!   [`crate::outputs::Destination`], the command line's or the daemon's.
 //! - [`point`]: the operating point and asymmetry every job that takes
 //!   one shares (% of L to metres, the range checks).
 //!
@@ -36,6 +40,7 @@ pub mod fit;
 pub mod map;
 pub mod plot;
 pub mod point;
+pub mod recover;
 pub mod request;
 pub mod session;
 pub mod verify;

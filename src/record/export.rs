@@ -34,8 +34,11 @@ use std::sync::Arc;
 /// Rows per Parquet row group.
 pub const ROW_GROUP_ROWS: usize = 1 << 20;
 
-/// The output format.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+/// The output format (`csv`, `parquet` in a request).
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize, schemars::JsonSchema,
+)]
+#[serde(rename_all = "lowercase")]
 pub enum ExportFormat {
     /// Comma-separated values with a header row.
     Csv,

@@ -18,7 +18,7 @@ use std::collections::BTreeMap;
 use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
 
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use super::salvage::{salvage, Orphaned, RegionKind};
 use crate::outputs::{write_atomically, Existing};
@@ -54,7 +54,7 @@ pub enum RecoverError {
 }
 
 /// What [`recover`] did.
-#[derive(Debug, Clone, PartialEq, Serialize, schemars::JsonSchema)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct Recovered {
     /// The `.part` file read.
     pub from: PathBuf,
@@ -92,7 +92,7 @@ pub struct Recovered {
 }
 
 /// A damaged region of the `.part` file, dropped whole.
-#[derive(Debug, Clone, PartialEq, Serialize, schemars::JsonSchema)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct DroppedRegion {
     /// What it held.
     pub kind: RegionKind,
@@ -116,7 +116,7 @@ pub struct DroppedRegion {
 }
 
 /// The incomplete record at the end of a killed run's `.part` file.
-#[derive(Debug, Clone, PartialEq, Serialize, schemars::JsonSchema)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct CutRegion {
     /// What it was, as far as its opcode says.
     pub kind: RegionKind,

@@ -49,7 +49,9 @@ const RECORD_LIMIT_BYTES: usize = 256 << 20;
 ///
 /// A chunk whose opcode alone was damaged is a chunk here, and dropped
 /// like any other damaged chunk.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, schemars::JsonSchema)]
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, Serialize, serde::Deserialize, schemars::JsonSchema,
+)]
 #[serde(rename_all = "snake_case")]
 pub enum RegionKind {
     /// A chunk (its opcode intact, or its body framed as a chunk, or a
@@ -127,7 +129,7 @@ pub struct Cut {
 
 /// Messages whose channel definition was lost with a damaged chunk and
 /// could not be rebuilt.
-#[derive(Debug, Clone, PartialEq, Serialize, schemars::JsonSchema)]
+#[derive(Debug, Clone, PartialEq, Serialize, serde::Deserialize, schemars::JsonSchema)]
 pub struct Orphaned {
     /// The MCAP channel id the messages name.
     pub channel_id: u16,

@@ -8,8 +8,11 @@
 use super::store::{ProbeError, Store, StoreUrl};
 use super::transfer::{transfer, upload_set_of, Item, TransferError, Transferred};
 use super::worker::{FIRST_BACKOFF_S, MAX_BACKOFF_S};
+use crate::jobs::request::UploadRequest;
 use serde::{Deserialize, Serialize};
 use std::path::PathBuf;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 /// The longest `--retry-for`, s (a day).
@@ -29,6 +32,38 @@ pub struct UploadOptions {
     /// How long the store has to connect and to answer a request, s
     /// (`--store-timeout`, [`super::store::TIMEOUT_RANGE_S`]).
     pub timeout_s: f64,
+    /// Set to stop (the daemon's `stop`): nothing more is tried, what was
+    /// not confirmed is reported as failed, and the local files are kept.
+    pub stop: Option<Arc<AtomicBool>>,
+}
+
+/// `--retry-for`'s default, s.
+pub const DEFAULT_RETRY_FOR_S: f64 = 60.0;
+
+impl UploadOptions {
+    /// The upload a request asks for (its store URL parsed, the defaults
+    /// filled in); the ranges are checked by [`upload_recordings`].
+    ///
+    /// # Errors
+    /// [`UploadError::Url`] for a `to` that is no store URL.
+    pub fn from_request(r: &UploadRequest) -> Result<Self, UploadError> {
+        Ok(Self {
+            to: StoreUrl::parse(&r.to).map_err(|reason| UploadError::Url {
+                url: r.to.clone(),
+                reason,
+            })?,
+            recordings: r.recordings.clone(),
+            retry_for_s: r.retry_for_s.unwrap_or(DEFAULT_RETRY_FOR_S),
+            timeout_s: r.store_timeout_s.unwrap_or(super::store::DEFAULT_TIMEOUT_S),
+            stop: None,
+        })
+    }
+
+    fn stopped(&self) -> bool {
+        self.stop
+            .as_ref()
+            .is_some_and(|s| s.load(Ordering::Relaxed))
+    }
 }
 
 /// An item that did not go up.
@@ -109,6 +144,14 @@ pub enum UploadError {
     Recording {
         /// The argument.
         path: PathBuf,
+        /// Why.
+        reason: String,
+    },
+    /// `--to`: not a store URL.
+    #[error("{url:?}: {reason}")]
+    Url {
+        /// The URL as given.
+        url: String,
         /// Why.
         reason: String,
     },
@@ -199,6 +242,14 @@ pub fn upload_recordings(opts: &UploadOptions) -> Result<UploadSummary, UploadEr
                 continue;
             }
             loop {
+                if opts.stopped() {
+                    summary.failed.push(NotUploaded {
+                        key: item.key.clone(),
+                        local: local_of(item),
+                        reason: "not tried: the upload was stopped".into(),
+                    });
+                    break;
+                }
                 if given_up {
                     summary.failed.push(NotUploaded {
                         key: item.key.clone(),
@@ -233,7 +284,12 @@ pub fn upload_recordings(opts: &UploadOptions) -> Result<UploadSummary, UploadEr
                             break;
                         }
                         tracing::warn!("{}: {reason}; again in {backoff_s} s", item.key);
-                        tokio::time::sleep(Duration::from_secs_f64(backoff_s)).await;
+                        // In slices, so that a stop ends the wait.
+                        let again = Instant::now() + Duration::from_secs_f64(backoff_s);
+                        while Instant::now() < again && !opts.stopped() {
+                            let left = again.saturating_duration_since(Instant::now());
+                            tokio::time::sleep(left.min(Duration::from_millis(100))).await;
+                        }
                         backoff_s = (backoff_s * 2.0).min(MAX_BACKOFF_S);
                     }
                 }

@@ -778,7 +778,7 @@ fn a_fifo_or_a_device_as_any_file_argument_is_refused_at_once() {
             "fifo.mcap",
             "recordings",
         ),
-        ("recover {F}", "PART:", "fifo.mcap.part", "recordings"),
+        ("recover {F}", "PART", "fifo.mcap.part", "recordings"),
         ("analyze --config {F}", "--config", "fifo.toml", "configs"),
         ("map --config {F}", "--config", "fifo.toml", "configs"),
         (

@@ -18,6 +18,10 @@ use serde_json::{json, Value};
 use std::path::{Path, PathBuf};
 use std::process::Output;
 
+fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
 fn ok(o: &Output, what: &str) {
     assert!(
         o.status.success(),
@@ -60,6 +64,23 @@ fn same_file(a: &Path, b: &Path) {
         x.len(),
         y.len()
     );
+}
+
+/// Every message of a recording: topic, log time, sequence and data.
+fn messages(p: &Path) -> Vec<(String, u64, u32, Vec<u8>)> {
+    let bytes = std::fs::read(p).unwrap();
+    mcap::MessageStream::new(&bytes)
+        .unwrap()
+        .map(|m| {
+            let m = m.unwrap();
+            (
+                m.channel.topic.clone(),
+                m.log_time,
+                m.sequence,
+                m.data.to_vec(),
+            )
+        })
+        .collect()
 }
 
 /// A text file without its first line (the updated bench's header line
@@ -351,4 +372,180 @@ fn fit_analyze_map_and_a_campaign_through_the_daemon_equal_the_local_runs() {
     assert_eq!(s["result"]["state"], "disabled", "{s}");
     assert_eq!(s["result"]["job"], Value::Null, "{s}");
     assert_eq!(s["result"]["last_recording"], Value::Null, "{s}");
+}
+
+/// `bench export`, `recover` and `upload` run through the daemon
+/// (`--daemon`) with the local runs' results: the same summaries but for
+/// the paths the daemon names in its recordings directory, the same table
+/// and recovered recording byte for byte, the same exit status for a
+/// recovery that lost data (7), and the same objects in a directory store.
+/// The daemon refuses what the CLI refuses, naming the parameter.
+#[test]
+fn export_recover_and_upload_through_the_daemon_equal_the_local_runs() {
+    let d = Daemon::start();
+    let sock = d.sock();
+    let sock = sock.as_str();
+    let dir = d.dir.path().to_path_buf();
+    let cfg = d.config.to_str().unwrap();
+    let at = |name: &str| dir.join(name).to_str().unwrap().to_string();
+    let in_recordings = |p: &Path| assert!(p.starts_with(dir.join("rec")), "{}", p.display());
+    let mcap = at("e.mcap");
+    summary(
+        &[
+            "chirp",
+            "--config",
+            cfg,
+            "--duration-s",
+            "1",
+            "--f-start-hz",
+            "20",
+            "--seed",
+            "4",
+            "--out",
+            &mcap,
+        ],
+        "chirp",
+    );
+
+    // export: the samples as CSV and the FRF as Parquet.
+    for (to, topic) in [("csv", "/bench/sample"), ("parquet", "/sysid/frf")] {
+        let what = format!("export {topic} to {to}");
+        let out = at(&format!("local.{to}"));
+        let args = ["export", mcap.as_str(), "--to", to, "--topic", topic];
+        let l = summary(&[&args[..], &["--out", &out]].concat(), &what);
+        let r = summary(&[&args[..], &["--daemon", sock]].concat(), &what);
+        assert_eq!(without(&l, &["out"]), without(&r, &["out"]), "{what}");
+        assert!(l["rows"].as_u64().unwrap() > 10, "{what}: {l}");
+        in_recordings(&path_of(&r, "out"));
+        same_file(&path_of(&l, "out"), &path_of(&r, "out"));
+    }
+
+    // recover: a killed run's .part (the last chunk cut), then one with
+    // damaged chunks too, which loses data (exit 7) both ways.
+    let bytes = std::fs::read(&mcap).unwrap();
+    let cut = &bytes[..bytes.len() * 2 / 3];
+    let mut damaged = cut.to_vec();
+    for i in 0..16 {
+        let k = damaged.len() / 3 + i * damaged.len() / 64;
+        damaged[k] ^= 0x5a;
+    }
+    for (name, part, code) in [("cut", cut, 0), ("damaged", &damaged[..], 7)] {
+        let what = format!("recover the {name} .part");
+        let part_path = at(&format!("{name}.mcap.part"));
+        std::fs::write(&part_path, part).unwrap();
+        let local = run(&["recover", &part_path, "--json"]);
+        let remote = run(&["recover", &part_path, "--daemon", sock, "--json"]);
+        assert_eq!(
+            local.status.code(),
+            Some(code),
+            "{what}: {}",
+            stderr(&local)
+        );
+        assert_eq!(
+            remote.status.code(),
+            Some(code),
+            "{what}: {}",
+            stderr(&remote)
+        );
+        if code == 7 {
+            assert!(stderr(&remote).contains("data lost"), "{}", stderr(&remote));
+        }
+        let (l, r) = (json_stdout(&local), json_stdout(&remote));
+        assert_eq!(without(&l, &["to"]), without(&r, &["to"]), "{what}");
+        in_recordings(&path_of(&r, "to"));
+        // The same messages (the MCAP writer orders its summary's schemas
+        // as its hash map does, so the files are not byte for byte alike).
+        let (ml, mr) = (messages(&path_of(&l, "to")), messages(&path_of(&r, "to")));
+        assert!(ml.len() > 100, "{what}: {} messages", ml.len());
+        assert!(
+            ml == mr,
+            "{what}: {} and {} messages differ",
+            ml.len(),
+            mr.len()
+        );
+    }
+
+    // upload: the recording, its companions and its row to two directory
+    // stores; the same objects, the recording's byte for byte.
+    let stores = [dir.join("store-local"), dir.join("store-daemon")];
+    for s in &stores {
+        std::fs::create_dir(s).unwrap();
+    }
+    let url = |s: &Path| format!("file://{}", s.display());
+    let l = summary(&["upload", "--to", &url(&stores[0]), &mcap], "upload");
+    let r = summary(
+        &["upload", "--to", &url(&stores[1]), &mcap, "--daemon", sock],
+        "upload",
+    );
+    let keys = |v: &Value| {
+        let mut k: Vec<String> = v["confirmed"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|c| c["key"].as_str().unwrap().to_string())
+            .collect();
+        k.sort();
+        k
+    };
+    assert_eq!(keys(&l), keys(&r));
+    assert!(keys(&l).iter().any(|k| k.ends_with("e.mcap")), "{l}");
+    same_file(&stores[0].join("e.mcap"), &stores[1].join("e.mcap"));
+
+    // Refusals name the parameter, as the CLI names its argument.
+    let mut c = d.client();
+    let refused = |r: Value, field: &str| {
+        assert_eq!(r["error"]["kind"], "bad_params", "{r}");
+        let m = r["error"]["message"].as_str().unwrap().to_string();
+        assert!(m.contains(&format!("params.{field}")), "{field}: {m}");
+    };
+    refused(
+        c.call("export", json!({ "recording": "e.mcap", "to": "csv" })),
+        "recording",
+    );
+    refused(
+        c.call(
+            "export",
+            json!({ "recording": mcap, "to": "csv", "topic": "/no/such" }),
+        ),
+        "recording",
+    );
+    refused(
+        c.call("export", json!({ "recording": mcap, "to": "xlsx" })),
+        "to",
+    );
+    refused(
+        c.call("recover", json!({ "part": at("none.mcap.part") })),
+        "part",
+    );
+    refused(
+        c.call("upload", json!({ "to": "ftp://x", "recordings": [mcap] })),
+        "to",
+    );
+    refused(
+        c.call(
+            "upload",
+            json!({ "to": url(&stores[1]), "recordings": ["e.mcap"] }),
+        ),
+        "recordings",
+    );
+    refused(
+        c.call(
+            "upload",
+            json!({ "to": url(&stores[1]), "recordings": [mcap], "retry_for_s": -1.0 }),
+        ),
+        "retry_for_s",
+    );
+    // The local-only flags are refused with --daemon.
+    let o = run(&[
+        "export",
+        &mcap,
+        "--to",
+        "csv",
+        "--out",
+        &at("x.csv"),
+        "--daemon",
+        sock,
+    ]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    assert!(stderr(&o).contains("--out"), "{}", stderr(&o));
 }

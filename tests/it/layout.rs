@@ -746,7 +746,6 @@ const LONG_FUNCTIONS: &[(&str, &str, usize)] = &[
     ("src/daemon/mod.rs", "serve", 295),
     ("src/jobs/chirp/run.rs", "run_chirp_with", 290),
     ("src/design/limit.rs", "performance_limit", 279),
-    ("src/daemon/jobs.rs", "job_spec", 277),
     ("src/design/fixed_order.rs", "climb", 276),
     ("hal/devices/src/emulator/serial.rs", "run", 267),
     ("src/jobs/session.rs", "run_recorded", 247),

@@ -11,10 +11,12 @@
 pub use super::analyze::AnalyzeRequest;
 pub use super::catalogue::CatalogueRequest;
 pub use super::design::DesignRequest;
+pub use super::export::ExportRequest;
 pub use super::fit::FitRequest;
 pub use super::map::MapRequest;
 pub use super::plot::PlotRequest;
 pub use super::point::OperatingPoint;
+pub use super::recover::RecoverRequest;
 use super::verify::{DEFAULT_AMPLITUDE_OF_CHIRP, DEFAULT_DURATION_S};
 use crate::config::{ranges, BenchConfig, ExcitationKind};
 use bench_plant::sim::{FaultInjection, ScheduledFault};
@@ -69,11 +71,17 @@ pub enum JobRequest {
     Campaign(CampaignRequest),
     /// `bench catalogue`.
     Catalogue(CatalogueRequest),
+    /// `bench export`.
+    Export(ExportRequest),
+    /// `bench recover`.
+    Recover(RecoverRequest),
+    /// `bench upload`.
+    Upload(UploadRequest),
 }
 
 impl JobRequest {
     /// Every job kind, as the daemon's `cmd`.
-    pub const KINDS: [&'static str; 9] = [
+    pub const KINDS: [&'static str; 12] = [
         "chirp",
         "control",
         "fit",
@@ -83,6 +91,9 @@ impl JobRequest {
         "plot",
         "campaign",
         "catalogue",
+        "export",
+        "recover",
+        "upload",
     ];
 
     /// The job kind, as the daemon's `cmd`: one of [`Self::KINDS`].
@@ -97,6 +108,9 @@ impl JobRequest {
             Self::Plot(_) => "plot",
             Self::Campaign(_) => "campaign",
             Self::Catalogue(_) => "catalogue",
+            Self::Export(_) => "export",
+            Self::Recover(_) => "recover",
+            Self::Upload(_) => "upload",
         }
     }
 
@@ -397,6 +411,27 @@ impl ControlRequest {
             })
             .transpose()
     }
+}
+
+/// `bench upload` as a job request (the daemon's `upload`): finished
+/// recordings, with their companions and catalogue rows, to a store. The
+/// store's credentials are the runner's (the daemon's environment).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct UploadRequest {
+    /// The store: `s3://BUCKET[/PREFIX]` or `file:///DIRECTORY` (`--to`).
+    pub to: String,
+    /// Finished recordings (`*.mcap`) or campaign directories (the daemon
+    /// takes absolute paths).
+    pub recordings: Vec<std::path::PathBuf>,
+    /// How long a failing store is retried, s (`--retry-for`, 0 to a
+    /// day); `None`: the runner's default (60 s).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub retry_for_s: Option<f64>,
+    /// How long the store has to connect and to answer each request, s
+    /// (`--store-timeout`, 0.5 to 300); `None`: the default (10 s).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub store_timeout_s: Option<f64>,
 }
 
 /// A campaign (`bench campaign run --daemon`, the daemon's `campaign`): a

@@ -442,19 +442,27 @@ pub fn run(
         if pty.is_some() {
             link.flush_due(now);
         }
-        next += period;
-        let now = monotonic_ns();
-        if now > next + period {
-            // Fell behind (preempted): skip the missed ticks, as a timer
-            // interrupt that was masked would. The skipped tick was late by
-            // `now - next`: a trip it would have made comes that much later.
-            if !opts.lockstep {
-                status
-                    .max_tick_lateness_ns
-                    .fetch_max(now - next, Ordering::Relaxed);
-            }
-            next = now - (now - next) % period + period;
-        }
+        next = next_deadline(next + period, period, status, !opts.lockstep);
     }
     Ok(())
+}
+
+/// The deadline of the tick after the one due at `next`: `next` itself,
+/// or, when the thread fell more than a period behind (preempted), the
+/// first period boundary ahead, the missed ticks skipped as a timer
+/// interrupt that was masked would skip them. A skipped tick was late by
+/// how far behind the thread fell (a watchdog trip it would have made
+/// comes that much later): kept in `status.max_tick_lateness_ns` when
+/// `jitter` (a lockstep device waits for its host on purpose).
+fn next_deadline(next: u64, period: u64, status: &EmulatorStatus, jitter: bool) -> u64 {
+    let now = monotonic_ns();
+    if now <= next + period {
+        return next;
+    }
+    if jitter {
+        status
+            .max_tick_lateness_ns
+            .fetch_max(now - next, Ordering::Relaxed);
+    }
+    now - (now - next) % period + period
 }
