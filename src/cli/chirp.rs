@@ -8,9 +8,8 @@ use super::{
     refuse_non_mcap, refused_request, run_failed, run_failed_json, CONFIG_HELP,
 };
 use bench::config::ExcitationKind;
-use bench::jobs::chirp::{run_chirp, ChirpOptions, ChirpSummary};
+use bench::jobs::chirp::{run_chirp, ChirpOptions, ChirpOutputs, ChirpSummary};
 use bench::jobs::request::{parse_fault, parse_seed, ChirpRequest, JobRequest, LocalOverrides};
-use bench::outputs::beside;
 use bench::rt::backend::BackendSpec;
 use clap::{Args, ValueEnum};
 use std::io::IsTerminal;
@@ -212,11 +211,7 @@ pub(super) fn chirp(args: ChirpArgs, stop: Arc<AtomicBool>) -> ExitCode {
             cfg.excitation.kind.as_str()
         ));
     }
-    let companions: &[&str] = if multisine {
-        &[".frf.csv", ".bode.png", ".bla.csv"]
-    } else {
-        &[".frf.csv", ".bode.png"]
-    };
+    let companions = ChirpOutputs::companions(multisine);
     let (out, outputs) =
         match recording_plan(args.out.as_deref(), "chirp", companions, args.overwrite) {
             Ok(r) => r,
@@ -225,22 +220,15 @@ pub(super) fn chirp(args: ChirpArgs, stop: Arc<AtomicBool>) -> ExitCode {
     if let Some(code) = refuse_non_mcap(&out) {
         return code;
     }
-    let frf_csv = args
-        .frf_csv
-        .clone()
-        .unwrap_or_else(|| beside(&out, ".frf.csv"));
-    let plot = args
-        .plot
-        .clone()
-        .unwrap_or_else(|| beside(&out, ".bode.png"));
+    let beside_out = ChirpOutputs::beside(&out, multisine);
+    let frf_csv = args.frf_csv.clone().unwrap_or(beside_out.frf_csv);
+    let plot = args.plot.clone().unwrap_or(beside_out.plot);
     let outputs = outputs
         .with_output("frf_csv", &frf_csv, origin(args.frf_csv.is_some()))
         .with_output("plot", &plot, origin(args.plot.is_some()));
-    let bla_csv = multisine.then(|| {
-        args.bla_csv
-            .clone()
-            .unwrap_or_else(|| beside(&out, ".bla.csv"))
-    });
+    let bla_csv = beside_out
+        .bla_csv
+        .map(|default| args.bla_csv.clone().unwrap_or(default));
     let outputs = match &bla_csv {
         Some(p) => outputs.with_output("bla_csv", p, origin(args.bla_csv.is_some())),
         None => outputs,

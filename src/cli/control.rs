@@ -9,8 +9,7 @@ use super::{
 };
 use bench::jobs::control::{run_control, ControlOptions, ControlSummary};
 use bench::jobs::request::{parse_seed, ControlRequest, JobRequest};
-use bench::jobs::verify::{Verify, VerifyOptions};
-use bench::outputs::beside;
+use bench::jobs::verify::{StepOutputs, Verify, VerifyOptions};
 use bench::outputs::{Existing, OutputPlan};
 use bench::rt::backend::BackendSpec;
 use clap::Args;
@@ -225,11 +224,7 @@ pub(super) fn control(args: ControlArgs, stop: Arc<AtomicBool>) -> ExitCode {
         Ok(p) => p,
         Err(code) => return code,
     };
-    let companions: &[&str] = if verify.is_some() {
-        &[".step.png", ".verify.csv", ".verify.png"]
-    } else {
-        &[".step.png"]
-    };
+    let companions = StepOutputs::companions(verify.is_some());
     let name = request.controller.clone();
     let prefix = format!("control-{name}");
     // --check-only writes nothing: no name is claimed, no path checked.
@@ -252,17 +247,17 @@ pub(super) fn control(args: ControlArgs, stop: Arc<AtomicBool>) -> ExitCode {
     if let Some(code) = refuse_non_mcap(&out) {
         return code;
     }
-    let plot = args
-        .plot
-        .clone()
-        .unwrap_or_else(|| beside(&out, ".step.png"));
+    let beside_out = StepOutputs::beside(&out, verify.is_some());
+    let plot = args.plot.clone().unwrap_or(beside_out.plot);
     let outputs = outputs.with_output("plot", &plot, origin(args.plot.is_some()));
-    let verify = verify.map(|v| VerifyOptions {
-        amplitude_a: v.amplitude_a,
-        duration_s: v.duration_s,
-        csv: beside(&out, ".verify.csv"),
-        plot: beside(&out, ".verify.png"),
-    });
+    let verify = verify
+        .zip(beside_out.verify)
+        .map(|(v, (csv, plot))| VerifyOptions {
+            amplitude_a: v.amplitude_a,
+            duration_s: v.duration_s,
+            csv,
+            plot,
+        });
     let outputs = match &verify {
         Some(v) => outputs
             .with_output("verify_csv", &v.csv, origin(false))

@@ -15,7 +15,7 @@ use crate::campaign::run::{CampaignRunError, RunOptions};
 use crate::error::RunError;
 use crate::jobs::analyze::{run_analyze, AnalyzeOptions};
 use crate::jobs::catalogue::{check_options, run_catalogue, CatalogueOptions};
-use crate::jobs::chirp::{run_chirp_on, ChirpOptions};
+use crate::jobs::chirp::{run_chirp_on, ChirpOptions, ChirpOutputs};
 use crate::jobs::control::{run_control_from, ControlOptions, StageSource};
 use crate::jobs::design::{run_design, DesignInput, DesignOptions};
 use crate::jobs::export::{plan_export, run_export, ExportOptions};
@@ -29,7 +29,7 @@ use crate::jobs::request::{
     PlotRequest, RecoverRequest, RequestError, UploadRequest,
 };
 use crate::jobs::session::Runner;
-use crate::jobs::verify::VerifyOptions;
+use crate::jobs::verify::{StepOutputs, VerifyOptions};
 use crate::outputs::{beside, Destination, Existing, Origin};
 use crate::rt::service::ServiceClient;
 use crate::upload::once::{upload_recordings, UploadError, UploadOptions};
@@ -204,10 +204,15 @@ fn chirp_job(ctx: &Ctx, req: &ChirpRequest, id: u64) -> Result<Accepted, ApiErro
     let total = crate::ident::excitation::Excitation::total_ticks_of(&cfg, ctx.period_s)
         .map_err(|e| bad_params(format!("config: {e}")))?;
     let out = recording_path(&ctx.recordings, "chirp", id);
+    let ChirpOutputs {
+        frf_csv,
+        plot,
+        bla_csv,
+    } = ChirpOutputs::beside(&out, !cfg.excitation.kind.is_sweep());
     let opts = ChirpOptions {
-        frf_csv: beside(&out, ".frf.csv"),
-        plot: beside(&out, ".bode.png"),
-        bla_csv: (!cfg.excitation.kind.is_sweep()).then(|| beside(&out, ".bla.csv")),
+        frf_csv,
+        plot,
+        bla_csv,
         out: out.clone(),
         seed: req.seed.unwrap_or(ctx.seed),
         config: cfg,
@@ -235,7 +240,8 @@ fn control_job(ctx: &Ctx, req: &ControlRequest, id: u64) -> Result<Accepted, Api
     let verify = req.verify_settings(&cfg).map_err(request_refused)?;
     let out = recording_path(&ctx.recordings, &format!("control-{}", req.controller), id);
     let mut total = (cfg.step.duration_s / ctx.period_s).round() as u64;
-    let verify = verify.map(|v| {
+    let outputs = StepOutputs::beside(&out, verify.is_some());
+    let verify = verify.zip(outputs.verify).map(|(v, (csv, plot))| {
         let chirp = crate::ident::chirp::Chirp::new(
             &crate::control::verify::chirp_config(&cfg.chirp, v.amplitude_a, v.duration_s),
             cfg.excitation.kind,
@@ -245,12 +251,12 @@ fn control_job(ctx: &Ctx, req: &ControlRequest, id: u64) -> Result<Accepted, Api
         VerifyOptions {
             amplitude_a: v.amplitude_a,
             duration_s: v.duration_s,
-            csv: beside(&out, ".verify.csv"),
-            plot: beside(&out, ".verify.png"),
+            csv,
+            plot,
         }
     });
     let opts = ControlOptions {
-        plot: beside(&out, ".step.png"),
+        plot: outputs.plot,
         out: out.clone(),
         controller: req.controller.clone(),
         check_only: false,

@@ -40,6 +40,43 @@ pub const DEFAULT_DURATION_S: f64 = 10.0;
 /// The topic of the verify's result.
 pub const TOPIC_VERIFY: &str = "/control/verify";
 
+/// A closed-loop step's outputs beside its recording `<stem>.mcap`: the
+/// one place their names are made, for `bench control` (where `--plot`
+/// may name another) and the daemon's jobs alike.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct StepOutputs {
+    /// `<stem>.step.png`: the step response.
+    pub plot: PathBuf,
+    /// With `--verify`: `<stem>.verify.csv` (the measured loop) and
+    /// `<stem>.verify.png`.
+    pub verify: Option<(PathBuf, PathBuf)>,
+}
+
+impl StepOutputs {
+    /// The suffixes: step plot, verify CSV, verify plot.
+    const SUFFIXES: [&'static str; 3] = [".step.png", ".verify.csv", ".verify.png"];
+
+    /// The suffixes a recording's name must leave free
+    /// ([`crate::outputs::claim_recording`]'s companions).
+    pub fn companions(verify: bool) -> &'static [&'static str] {
+        if verify {
+            &Self::SUFFIXES
+        } else {
+            &Self::SUFFIXES[..1]
+        }
+    }
+
+    /// The outputs beside the recording `out` ([`crate::outputs::beside`]).
+    pub fn beside(out: &std::path::Path, verify: bool) -> Self {
+        use crate::outputs::beside;
+        let [plot, csv, verify_plot] = Self::SUFFIXES;
+        Self {
+            plot: beside(out, plot),
+            verify: verify.then(|| (beside(out, csv), beside(out, verify_plot))),
+        }
+    }
+}
+
 /// What `--verify` asks for, with the outputs beside the recording.
 #[derive(Debug, Clone, PartialEq)]
 pub struct VerifyOptions {

@@ -17,7 +17,7 @@ use crate::ident::multisine::{Layout, Multisine};
 use crate::jobs::session::{
     finish, open_recording, run_recorded, Kept, Recorded, Runner, SessionOptions, TimingSummary,
 };
-use crate::outputs::{Existing, Origin, OutputPlan};
+use crate::outputs::{beside, Existing, Origin, OutputPlan};
 use crate::plot::{bode_curve, write_bode_png, BodePlot, BodeSeries, PairZoom};
 use crate::rt::backend::{self, BackendSpec};
 use crate::rt::{Job, JobOutput};
@@ -35,6 +35,45 @@ mod stall;
 pub use identify::*;
 pub use run::*;
 pub use stall::*;
+
+/// A chirp's outputs beside its recording `<stem>.mcap`: the one place
+/// their names are made, for `bench chirp` (where `--frf-csv`, `--plot`
+/// and `--bla-csv` may name others) and the daemon's jobs alike.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct ChirpOutputs {
+    /// `<stem>.frf.csv`: the FRF.
+    pub frf_csv: PathBuf,
+    /// `<stem>.bode.png`: its Bode plot.
+    pub plot: PathBuf,
+    /// `<stem>.bla.csv`: a multisine's best linear approximation; `None`
+    /// for a sweep.
+    pub bla_csv: Option<PathBuf>,
+}
+
+impl ChirpOutputs {
+    /// The suffixes, FRF CSV, Bode plot, BLA CSV.
+    const SUFFIXES: [&'static str; 3] = [".frf.csv", ".bode.png", ".bla.csv"];
+
+    /// The suffixes a recording's name must leave free
+    /// ([`crate::outputs::claim_recording`]'s companions).
+    pub fn companions(multisine: bool) -> &'static [&'static str] {
+        if multisine {
+            &Self::SUFFIXES
+        } else {
+            &Self::SUFFIXES[..2]
+        }
+    }
+
+    /// The outputs beside the recording `out` ([`beside`]).
+    pub fn beside(out: &std::path::Path, multisine: bool) -> Self {
+        let [frf, plot, bla] = Self::SUFFIXES;
+        Self {
+            frf_csv: beside(out, frf),
+            plot: beside(out, plot),
+            bla_csv: multisine.then(|| beside(out, bla)),
+        }
+    }
+}
 
 /// Fewest points per decade of the model curve in the Bode plot.
 pub const MODEL_POINTS_PER_DECADE: usize = 2000;
