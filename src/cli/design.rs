@@ -264,6 +264,43 @@ pub(super) fn print_summary(s: &DesignSummary) {
             "discretisation: none, designed in discrete time (the config holds its bilinear image, run through the same map): what runs is the design"
         ),
     }
+    print_limit(s);
+    let m = &s.model;
+    outln!("model: {}", m.model);
+    outln!(
+        "on the model (to Nyquist): ω_B {} rad/s, least phase margin {}°, ‖S‖∞ {:.3}, closed loop {}",
+        opt_num(m.figures.sensitivity_bandwidth_rad_s, 1, ""),
+        opt_num(m.figures.phase_margin_min_deg, 1, ""),
+        m.figures.margins.sensitivity_peak,
+        if m.figures.rhp_closed_loop_poles == 0 { "stable".to_string() } else { format!("UNSTABLE ({} right-half-plane poles)", m.figures.rhp_closed_loop_poles) }
+    );
+    outln!(
+        "predicted step of {} µm: rise {}, settling (2 %) {}, overshoot {:.1} %, peak command {:.2} A",
+        m.step.step_m * 1e6,
+        opt_num(m.step.rise_time_s.map(|t| t * 1e3), 1, " ms"),
+        opt_num(m.step.settling_time_s.map(|t| t * 1e3), 1, " ms"),
+        m.step.overshoot_pct,
+        m.step.peak_command_a
+    );
+    if let Some(g) = m.step.settling_margin {
+        outln!("  settling margin: {}", g.describe());
+    }
+    print_strategies(s);
+    outln!(
+        "config: {} (bench control --config {} --controller {})",
+        s.config_out.display(),
+        s.config_out.display(),
+        s.name
+    );
+    if let Some(p) = &s.plot {
+        outln!("figure: {}", p.display());
+    }
+}
+
+/// The limit's lines of [`print_summary`]: ω* against the limit any
+/// linear controller reaches, what binds it, and the RHP zeros' bounds.
+fn print_limit(s: &DesignSummary) {
+    let g = &s.sigma;
     let l = &s.limit;
     let wp = format!(
         "W_P(s) = (s/{} + ω*)/s",
@@ -303,26 +340,11 @@ pub(super) fn print_summary(s: &DesignSummary) {
             z.bound_rad_s
         );
     }
-    let m = &s.model;
-    outln!("model: {}", m.model);
-    outln!(
-        "on the model (to Nyquist): ω_B {} rad/s, least phase margin {}°, ‖S‖∞ {:.3}, closed loop {}",
-        opt_num(m.figures.sensitivity_bandwidth_rad_s, 1, ""),
-        opt_num(m.figures.phase_margin_min_deg, 1, ""),
-        m.figures.margins.sensitivity_peak,
-        if m.figures.rhp_closed_loop_poles == 0 { "stable".to_string() } else { format!("UNSTABLE ({} right-half-plane poles)", m.figures.rhp_closed_loop_poles) }
-    );
-    outln!(
-        "predicted step of {} µm: rise {}, settling (2 %) {}, overshoot {:.1} %, peak command {:.2} A",
-        m.step.step_m * 1e6,
-        opt_num(m.step.rise_time_s.map(|t| t * 1e3), 1, " ms"),
-        opt_num(m.step.settling_time_s.map(|t| t * 1e3), 1, " ms"),
-        m.step.overshoot_pct,
-        m.step.peak_command_a
-    );
-    if let Some(g) = m.step.settling_margin {
-        outln!("  settling margin: {}", g.describe());
-    }
+}
+
+/// The strategies [`print_summary`] tried, each with its ω* and ω_B (1σ),
+/// or what it missed.
+fn print_strategies(s: &DesignSummary) {
     for o in &s.strategies {
         outln!(
             "  tried {}: {}",
@@ -350,14 +372,5 @@ pub(super) fn print_summary(s: &DesignSummary) {
                 }
             }
         );
-    }
-    outln!(
-        "config: {} (bench control --config {} --controller {})",
-        s.config_out.display(),
-        s.config_out.display(),
-        s.name
-    );
-    if let Some(p) = &s.plot {
-        outln!("figure: {}", p.display());
     }
 }

@@ -261,6 +261,19 @@ pub(super) fn emulate(cmd: EmulateCommand, stop: Arc<AtomicBool>) -> ExitCode {
                 .and_then(|r| r.map_err(|e| e.to_string()))
         }
     };
+    report_stopped(&status);
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            errln!("error: emulator: {e}");
+            ExitCode::from(status::ERROR)
+        }
+    }
+}
+
+/// The serial or CAN emulator's closing line on stderr: what it sent and
+/// took, its timing, and whether its watchdog tripped.
+fn report_stopped(status: &EmulatorStatus) {
     use std::sync::atomic::Ordering::Relaxed;
     errln!(
         "emulator stopped: {} samples sent, {} commands, {} bad frames, {} late commands, largest tick lateness {} µs, watchdog {}",
@@ -275,13 +288,6 @@ pub(super) fn emulate(cmd: EmulateCommand, stop: Arc<AtomicBool>) -> ExitCode {
             "never tripped"
         }
     );
-    match result {
-        Ok(()) => ExitCode::SUCCESS,
-        Err(e) => {
-            errln!("error: emulator: {e}");
-            ExitCode::from(status::ERROR)
-        }
-    }
 }
 
 /// `bench emulate ethercat IFACE`.

@@ -186,13 +186,6 @@ impl Sr4dofParams {
     /// # Errors
     /// The first offending key with the reason.
     pub fn validate(&self, prefix: &str) -> Result<(), ParamError> {
-        // The dotted key, formatted only when a check fails.
-        struct Key<'a>(&'a str, &'a str);
-        impl std::fmt::Display for Key<'_> {
-            fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-                write!(f, "{}.{}", self.0, self.1)
-            }
-        }
         let k = |name| Key(prefix, name);
         for (name, v) in [
             ("m1_kg", self.m1_kg),
@@ -215,6 +208,54 @@ impl Sr4dofParams {
                 "1 N/m to 10 MN/m",
             )?;
         }
+        self.validate_beam(prefix)?;
+        let b = &self.beam;
+        if !self.operating_point_m.is_finite() {
+            return Err(ParamError::new(
+                k("operating_point_m").to_string(),
+                format!("must be a finite number, got {}", self.operating_point_m),
+            ));
+        }
+        // Eq. (2-1) is a small-rotation result; beyond ~15 % of L the beams
+        // are far outside the model (the thesis' bench goes to ~10 %).
+        if self.operating_point_m.abs() > ranges::OPERATING_POINT_OF_L * b.length_m {
+            return Err(ParamError::new(
+                k("operating_point_m").to_string(),
+                format!(
+                    "|{}| m is beyond 20 % of the beam length {prefix}.beam.length_m = {} m: outside the model's validity",
+                    self.operating_point_m, b.length_m
+                ),
+            ));
+        }
+        within(
+            k("mass_asymmetry"),
+            self.mass_asymmetry,
+            ranges::MASS_ASYMMETRY,
+            "",
+            "the heavier secondary stage at most about 1.5 times the lighter, so the two stay a closely spaced pair (thesis §2.2.1, §5.2.1; its grid spans -0.08 to +0.10)",
+        )?;
+        if let Some(d) = &self.disturbance {
+            validate_disturbance(d, prefix)?;
+        }
+        for (name, z) in [
+            ("damping.zeta_rigid", self.damping.zeta_rigid),
+            ("damping.zeta_csm", self.damping.zeta_csm),
+        ] {
+            let (lo, hi) = ranges::ZETA;
+            if !z.is_finite() || z < lo || z >= hi {
+                return Err(ParamError::new(
+                    k(name).to_string(),
+                    format!("{z:?} is outside [0, 1): a damping ratio of a lightly damped flexure"),
+                ));
+            }
+        }
+        Ok(())
+    }
+
+    /// The beam's checks of [`Self::validate`]: its dimensions, its
+    /// modulus, and the parallelogram stiffness given or made from them.
+    fn validate_beam(&self, prefix: &str) -> Result<(), ParamError> {
+        let k = |name| Key(prefix, name);
         let b = &self.beam;
         within(
             k("beam.length_m"),
@@ -275,72 +316,6 @@ impl Sr4dofParams {
                 }
             }
         }
-        if !self.operating_point_m.is_finite() {
-            return Err(ParamError::new(
-                k("operating_point_m").to_string(),
-                format!("must be a finite number, got {}", self.operating_point_m),
-            ));
-        }
-        // Eq. (2-1) is a small-rotation result; beyond ~15 % of L the beams
-        // are far outside the model (the thesis' bench goes to ~10 %).
-        if self.operating_point_m.abs() > ranges::OPERATING_POINT_OF_L * b.length_m {
-            return Err(ParamError::new(
-                k("operating_point_m").to_string(),
-                format!(
-                    "|{}| m is beyond 20 % of the beam length {prefix}.beam.length_m = {} m: outside the model's validity",
-                    self.operating_point_m, b.length_m
-                ),
-            ));
-        }
-        within(
-            k("mass_asymmetry"),
-            self.mass_asymmetry,
-            ranges::MASS_ASYMMETRY,
-            "",
-            "the heavier secondary stage at most about 1.5 times the lighter, so the two stay a closely spaced pair (thesis §2.2.1, §5.2.1; its grid spans -0.08 to +0.10)",
-        )?;
-        if let Some(d) = &self.disturbance {
-            within(
-                k("disturbance.rms_n"),
-                d.rms_n,
-                ranges::DISTURBANCE_RMS_N,
-                "N",
-                "0 to a tenth of the coil's 111 N peak force",
-            )?;
-            for (i, name) in ["disturbance.band_hz[0]", "disturbance.band_hz[1]"]
-                .into_iter()
-                .enumerate()
-            {
-                within(
-                    k(name),
-                    d.band_hz[i],
-                    (ranges::DISTURBANCE_MIN_HZ, f64::MAX),
-                    "Hz",
-                    "at least 0.01 Hz (and below the loop's Nyquist frequency)",
-                )?;
-            }
-            if d.band_hz[0] >= d.band_hz[1] {
-                return Err(ParamError::new(
-                    k("disturbance.band_hz[0]").to_string(),
-                    format!(
-                        "low edge {} Hz must be below the high edge {prefix}.disturbance.band_hz[1] = {} Hz",
-                        d.band_hz[0], d.band_hz[1]
-                    ),
-                ));
-            }
-        }
-        for (name, z) in [
-            ("damping.zeta_rigid", self.damping.zeta_rigid),
-            ("damping.zeta_csm", self.damping.zeta_csm),
-        ] {
-            let (lo, hi) = ranges::ZETA;
-            if !z.is_finite() || z < lo || z >= hi {
-                return Err(ParamError::new(
-                    k(name).to_string(),
-                    format!("{z:?} is outside [0, 1): a damping ratio of a lightly damped flexure"),
-                ));
-            }
-        }
         Ok(())
     }
 
@@ -392,4 +367,48 @@ impl Sr4dofParams {
             input: Vector4::new(1.0, a, -2.0 * a, 0.0),
         }
     }
+}
+
+/// A dotted config key (`PREFIX.NAME`), formatted only when a check fails.
+struct Key<'a>(&'a str, &'a str);
+
+impl std::fmt::Display for Key<'_> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{}.{}", self.0, self.1)
+    }
+}
+
+/// The disturbance's checks of [`Sr4dofParams::validate`]: its RMS force and
+/// its band.
+fn validate_disturbance(d: &Disturbance, prefix: &str) -> Result<(), ParamError> {
+    let k = |name| Key(prefix, name);
+    within(
+        k("disturbance.rms_n"),
+        d.rms_n,
+        ranges::DISTURBANCE_RMS_N,
+        "N",
+        "0 to a tenth of the coil's 111 N peak force",
+    )?;
+    for (i, name) in ["disturbance.band_hz[0]", "disturbance.band_hz[1]"]
+        .into_iter()
+        .enumerate()
+    {
+        within(
+            k(name),
+            d.band_hz[i],
+            (ranges::DISTURBANCE_MIN_HZ, f64::MAX),
+            "Hz",
+            "at least 0.01 Hz (and below the loop's Nyquist frequency)",
+        )?;
+    }
+    if d.band_hz[0] >= d.band_hz[1] {
+        return Err(ParamError::new(
+                k("disturbance.band_hz[0]").to_string(),
+                format!(
+                    "low edge {} Hz must be below the high edge {prefix}.disturbance.band_hz[1] = {} Hz",
+                    d.band_hz[0], d.band_hz[1]
+                ),
+            ));
+    }
+    Ok(())
 }
