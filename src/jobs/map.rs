@@ -555,23 +555,7 @@ pub fn run_map(opts: &MapOptions) -> Result<MapResult, RunError> {
             .map(|&dm| veering_curve(&p, dm, &ops))
             .collect::<Result<Vec<_>, _>>()
             .map_err(bad_bench)?;
-        let mut localisation = Vec::new();
-        for c in &curves {
-            for &pct in &req.localisation_at_pct {
-                let op = percent_of_length_m(pct, p.beam.length_m);
-                if let Ok(one) = veering_curve(&p, c.mass_asymmetry, &[op]) {
-                    let pt = one.points[0];
-                    localisation.push(LocalisationAt {
-                        mass_asymmetry: c.mass_asymmetry,
-                        operating_point_m: op,
-                        frequency_u_hz: pt.frequency_u_hz,
-                        frequency_v_hz: pt.frequency_v_hz,
-                        localisation_u: pt.localisation_u,
-                        localisation_v: pt.localisation_v,
-                    });
-                }
-            }
-        }
+        let localisation = localisation_at(&p, &curves, &req.localisation_at_pct);
         let title = "Curve veering of the closely spaced pair";
         write_veering_png(png, opts.existing, title, p.beam.length_m, &curves)
             .map_err(plot_failed)?;
@@ -636,24 +620,7 @@ pub fn run_map(opts: &MapOptions) -> Result<MapResult, RunError> {
     )
     .map_err(plot_failed)?;
     let csv = match &opts.csv {
-        Some(path) => {
-            let mut text = String::from("operating_point_m,mass_asymmetry,cnmp,cnmp_damped\n");
-            for c in &cells {
-                text.push_str(&format!(
-                    "{},{},{},{}\n",
-                    c.operating_point_m, c.mass_asymmetry, c.cnmp, c.cnmp_damped
-                ));
-            }
-            write_atomically(path, opts.existing, |f| {
-                use std::io::Write;
-                f.write_all(text.as_bytes())
-            })
-            .map_err(|e| RunError::Output {
-                path: path.clone(),
-                reason: e.to_string(),
-            })?;
-            Some(absolute(path))
-        }
+        Some(path) => Some(write_cells_csv(path, opts.existing, &cells)?),
         None => None,
     };
     Ok(MapResult::Map(Box::new(MapSummary {
@@ -671,6 +638,54 @@ pub fn run_map(opts: &MapOptions) -> Result<MapResult, RunError> {
         png: absolute(png),
         csv,
     })))
+}
+
+/// The localisation of each veering curve's pair at each of `pcts` (% of
+/// the beam length), where the model resolves the pair there.
+fn localisation_at(p: &Sr4dofParams, curves: &[VeeringCurve], pcts: &[f64]) -> Vec<LocalisationAt> {
+    let mut localisation = Vec::new();
+    for c in curves {
+        for &pct in pcts {
+            let op = percent_of_length_m(pct, p.beam.length_m);
+            if let Ok(one) = veering_curve(p, c.mass_asymmetry, &[op]) {
+                let pt = one.points[0];
+                localisation.push(LocalisationAt {
+                    mass_asymmetry: c.mass_asymmetry,
+                    operating_point_m: op,
+                    frequency_u_hz: pt.frequency_u_hz,
+                    frequency_v_hz: pt.frequency_v_hz,
+                    localisation_u: pt.localisation_u,
+                    localisation_v: pt.localisation_v,
+                });
+            }
+        }
+    }
+    localisation
+}
+
+/// The map's cells as CSV (`operating_point_m,mass_asymmetry,cnmp,cnmp_damped`,
+/// one row per cell) at `path`, written atomically; its absolute path.
+fn write_cells_csv(
+    path: &std::path::Path,
+    existing: crate::outputs::Existing,
+    cells: &[MapCell],
+) -> Result<String, RunError> {
+    let mut text = String::from("operating_point_m,mass_asymmetry,cnmp,cnmp_damped\n");
+    for c in cells {
+        text.push_str(&format!(
+            "{},{},{},{}\n",
+            c.operating_point_m, c.mass_asymmetry, c.cnmp, c.cnmp_damped
+        ));
+    }
+    write_atomically(path, existing, |f| {
+        use std::io::Write;
+        f.write_all(text.as_bytes())
+    })
+    .map_err(|e| RunError::Output {
+        path: path.to_path_buf(),
+        reason: e.to_string(),
+    })?;
+    Ok(absolute(path))
 }
 
 #[cfg(test)]

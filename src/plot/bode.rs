@@ -256,6 +256,33 @@ fn draw_bode(root: &Area<'_>, plot: &BodePlot<'_>) -> Result<(), BoxError> {
     Ok(())
 }
 
+/// The legend of the Bode figure's magnitude panel: the measurement (and
+/// its faint, incoherent lines), the model, the resonance markers and the
+/// zoomed window, each when drawn.
+fn main_legend(plot: &BodePlot<'_>, markers: bool, window: bool) -> Vec<super::legend::Entry> {
+    let meas = &plot.measured;
+    let mut entries = vec![
+        entry(meas.label, Swatch::Line(MEASURED_COLOR, LINE_WIDTH)),
+        entry(
+            format!("{}, coherence < {}", meas.label, fmt_sig(MIN_COHERENCE, 3)),
+            Swatch::Line(FAINT_COLOR, LINE_WIDTH),
+        ),
+    ];
+    if let Some(m) = plot.model.as_ref() {
+        entries.push(entry(m.label, Swatch::Dashed(MODEL_COLOR)));
+    }
+    if markers {
+        entries.push(entry("resonance found", Swatch::Dashed(MARKER_COLOR)));
+    }
+    if window {
+        entries.push(entry(
+            "zoomed below",
+            Swatch::Fill(ZOOM_SHADE, ZOOM_SHADE_ALPHA * 2.0),
+        ));
+    }
+    entries
+}
+
 /// The main panels on `area`: magnitude (with the legend and the marker
 /// labels above it), phase and coherence on `x_range`, the pair zoom's
 /// `window` shaded.
@@ -268,9 +295,6 @@ fn draw_bode_main(
     window: Option<&Range<f64>>,
 ) -> Result<(), BoxError> {
     let body = titled(area, plot.title)?;
-    let meas = &plot.measured;
-    let model = plot.model.as_ref();
-
     let clip = |pts: &[(f64, f64)]| runs(pts, x_range, true);
     let (model_db, model_phase) = (clip(&c.model_db), clip(&c.model_phase));
     let db_vals = BodeCurves::y_values(&c.meas_db, &c.good, &c.model_db, x_range);
@@ -286,25 +310,7 @@ fn draw_bode_main(
         .copied()
         .filter(|&f| f.is_finite() && f >= x_range.start && f <= x_range.end)
         .collect();
-    let mut entries = vec![
-        entry(meas.label, Swatch::Line(MEASURED_COLOR, LINE_WIDTH)),
-        entry(
-            format!("{}, coherence < {}", meas.label, fmt_sig(MIN_COHERENCE, 3)),
-            Swatch::Line(FAINT_COLOR, LINE_WIDTH),
-        ),
-    ];
-    if let Some(m) = model {
-        entries.push(entry(m.label, Swatch::Dashed(MODEL_COLOR)));
-    }
-    if !markers.is_empty() {
-        entries.push(entry("resonance found", Swatch::Dashed(MARKER_COLOR)));
-    }
-    if window.is_some() {
-        entries.push(entry(
-            "zoomed below",
-            Swatch::Fill(ZOOM_SHADE, ZOOM_SHADE_ALPHA * 2.0),
-        ));
-    }
+    let entries = main_legend(plot, !markers.is_empty(), window.is_some());
     let legend_h = legend_height(&body, &entries)?;
     // Marker labels go above the magnitude frame; reserve rows for them.
     let (px0, px1) = plot_columns(&body);

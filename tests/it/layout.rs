@@ -764,8 +764,6 @@ const LONG_FUNCTIONS: &[(&str, &str, usize)] = &[
     ("src/ident/update/solve.rs", "update_frf_once", 172),
     ("src/daemon/socket.rs", "connection", 171),
     ("src/design/limit.rs", "solve", 165),
-    ("src/plot/bode.rs", "draw_bode_main", 163),
-    ("src/jobs/map.rs", "run_map", 162),
     ("src/rt/tick/run.rs", "tick", 161),
     ("src/control/continuous.rs", "sections", 161),
 ];
