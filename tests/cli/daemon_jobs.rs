@@ -549,3 +549,29 @@ fn export_recover_and_upload_through_the_daemon_equal_the_local_runs() {
     assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
     assert!(stderr(&o).contains("--out"), "{}", stderr(&o));
 }
+
+/// `--daemon` means one thing on every command: every job kind the daemon
+/// takes ([`JobRequest::KINDS`]) is a command whose `--help` offers
+/// `--daemon [SOCKET]`, and the daemon answers each kind (a request
+/// without its required parameters is `bad_params`, never
+/// `unknown_command`).
+///
+/// [`JobRequest::KINDS`]: bench::jobs::request::JobRequest::KINDS
+#[test]
+fn every_job_kind_is_a_command_with_daemon_and_a_daemon_job() {
+    let d = Daemon::start();
+    let mut c = d.client();
+    for kind in bench::jobs::request::JobRequest::KINDS {
+        let cmd: &[&str] = match kind {
+            "campaign" => &["campaign", "run"],
+            "plot" => &["plot", "bode"],
+            k => &[k],
+        };
+        let o = run(&[cmd, &["--help"]].concat());
+        ok(&o, kind);
+        let help = String::from_utf8_lossy(&o.stdout);
+        assert!(help.contains("--daemon [<SOCKET>]"), "bench {kind}: {help}");
+        let r = c.call(kind, json!({ "no_such_parameter": 1 }));
+        assert_eq!(r["error"]["kind"], "bad_params", "{kind}: {r}");
+    }
+}
