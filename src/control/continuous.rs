@@ -118,11 +118,7 @@ pub(super) fn sections(cfg: &ControllerConfig) -> Vec<ContinuousSection> {
                 });
                 if let Some(i) = nearest {
                     let l = lin(rzeros.swap_remove(i));
-                    b = [
-                        b[0] * l[0],
-                        b[0] * l[1] + b[1] * l[0],
-                        b[1] * l[1] + b[2] * l[0],
-                    ];
+                    b = times_linear(b, l);
                 }
             }
             (b, Some(p.omega_rad_s))
@@ -165,11 +161,7 @@ pub(super) fn sections(cfg: &ControllerConfig) -> Vec<ContinuousSection> {
                 Some(p) => lin(*p),
                 None => [0.0, 1.0],
             };
-            a = [
-                a[0] * l[0],
-                a[0] * l[1] + a[1] * l[0],
-                a[1] * l[1] + a[2] * l[0],
-            ];
+            a = times_linear(a, l);
         }
         let integ = pp.iter().any(|p| p.is_none());
         out.push((
@@ -197,11 +189,7 @@ pub(super) fn sections(cfg: &ControllerConfig) -> Vec<ContinuousSection> {
                     [0.0, 1.0]
                 }
             };
-            a = [
-                a[0] * l[0],
-                a[0] * l[1] + a[1] * l[0],
-                a[1] * l[1] + a[2] * l[0],
-            ];
+            a = times_linear(a, l);
             // The real zero nearest this pole (an integrator's: the lowest).
             let at = p.unwrap_or(0.0);
             let nearest = (0..rzeros.len())
@@ -210,11 +198,7 @@ pub(super) fn sections(cfg: &ControllerConfig) -> Vec<ContinuousSection> {
                 let z = rzeros.swap_remove(i);
                 let l = lin(z);
                 warp = Some(warp.unwrap_or(0.0).max(z));
-                b = [
-                    b[0] * l[0],
-                    b[0] * l[1] + b[1] * l[0],
-                    b[1] * l[1] + b[2] * l[0],
-                ];
+                b = times_linear(b, l);
             }
         }
         out.push((
@@ -230,6 +214,17 @@ pub(super) fn sections(cfg: &ControllerConfig) -> Vec<ContinuousSection> {
     // The most damped first (a stable sort: ties keep their order).
     out.sort_by(|a, b| b.1.total_cmp(&a.1));
     out.into_iter().map(|(s, _)| s).collect()
+}
+
+/// `q(s) · l(s)`: a polynomial of degree ≤ 2 (coefficients from `s⁰`) times
+/// one of degree 1, where the product has degree ≤ 2 (the `s³` term,
+/// `q[2] · l[1]`, is zero for every caller: a section's first factor).
+fn times_linear(q: [f64; 3], l: [f64; 2]) -> [f64; 3] {
+    [
+        q[0] * l[0],
+        q[0] * l[1] + q[1] * l[0],
+        q[1] * l[1] + q[2] * l[0],
+    ]
 }
 
 impl ContinuousSection {

@@ -765,7 +765,6 @@ const LONG_FUNCTIONS: &[(&str, &str, usize)] = &[
     ("src/daemon/socket.rs", "connection", 171),
     ("src/design/limit.rs", "solve", 165),
     ("src/rt/tick/run.rs", "tick", 161),
-    ("src/control/continuous.rs", "sections", 161),
 ];
 
 /// The longest function a file of the workspace may have (issue 43).
