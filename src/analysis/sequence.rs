@@ -161,25 +161,7 @@ pub fn dominant_sequence(terms: &[SeqTerm]) -> DominantSequence {
     let mut events: Vec<TakeOver> = Vec::new();
     // ω → 0.
     if !groups.is_empty() {
-        let g0 = g(&all, 0.0);
-        let statics: Vec<f64> = groups.iter().map(|gr| g(gr, 0.0)).collect();
-        let (best, &s_best) = statics
-            .iter()
-            .enumerate()
-            .max_by(|a, b| a.1.abs().total_cmp(&b.1.abs()))
-            .expect("non-empty");
-        let to = if s_best.signum() == g0.signum() && s_best.abs() > (g0 - s_best).abs() {
-            name(&groups[best])
-        } else if g0 >= 0.0 {
-            "DC".into()
-        } else {
-            "-DC".into()
-        };
-        events.push(TakeOver {
-            frequency_hz: 0.0,
-            to,
-            cause: TakeOverCause::LowFrequency,
-        });
+        events.push(low_frequency_take_over(&all, &groups));
     }
     // Resonances.
     for gr in &groups {
@@ -210,16 +192,7 @@ pub fn dominant_sequence(terms: &[SeqTerm]) -> DominantSequence {
         // Rule 2a: candidate x, with the non-candidates alone, still takes
         // over at a zero between the same two poles of G; of those, the
         // one whose zero is nearest ω₀ (in log frequency).
-        let lo = poles
-            .iter()
-            .copied()
-            .filter(|p| *p < w0)
-            .fold(0.0, f64::max);
-        let hi = poles
-            .iter()
-            .copied()
-            .filter(|p| *p > w0)
-            .fold(f64::INFINITY, f64::min);
+        let (lo, hi) = poles_around(&poles, w0);
         let rest: Vec<&SeqTerm> = all
             .iter()
             .copied()
@@ -308,7 +281,59 @@ pub fn dominant_sequence(terms: &[SeqTerm]) -> DominantSequence {
         .map(|t| format!("[{}]", t.to))
         .collect::<Vec<_>>()
         .join("-");
-    let signs = sorted
+    let signs = residue_signs(&sorted);
+    let alternating = sorted.windows(2).all(|w| w[0].residue * w[1].residue < 0.0);
+    DominantSequence {
+        notation,
+        signs,
+        alternating,
+        take_overs,
+    }
+}
+
+/// The take-over as ω → 0: the group of in-phase neighbours whose static
+/// gain dominates the whole static gain, else the static gain itself (`DC`,
+/// `-DC` when negative).
+fn low_frequency_take_over(all: &[&SeqTerm], groups: &[Vec<&SeqTerm>]) -> TakeOver {
+    let g0 = g(all, 0.0);
+    let statics: Vec<f64> = groups.iter().map(|gr| g(gr, 0.0)).collect();
+    let (best, &s_best) = statics
+        .iter()
+        .enumerate()
+        .max_by(|a, b| a.1.abs().total_cmp(&b.1.abs()))
+        .expect("non-empty");
+    let to = if s_best.signum() == g0.signum() && s_best.abs() > (g0 - s_best).abs() {
+        groups[best].iter().map(|t| t.label.as_str()).collect()
+    } else if g0 >= 0.0 {
+        "DC".into()
+    } else {
+        "-DC".into()
+    };
+    TakeOver {
+        frequency_hz: 0.0,
+        to,
+        cause: TakeOverCause::LowFrequency,
+    }
+}
+
+/// The poles of G nearest below and above `w0`, rad/s (0 and ∞ when none).
+fn poles_around(poles: &[f64], w0: f64) -> (f64, f64) {
+    let lo = poles
+        .iter()
+        .copied()
+        .filter(|p| *p < w0)
+        .fold(0.0, f64::max);
+    let hi = poles
+        .iter()
+        .copied()
+        .filter(|p| *p > w0)
+        .fold(f64::INFINITY, f64::min);
+    (lo, hi)
+}
+
+/// The residues' signs in frequency order, `α_u > 0, α_v < 0, …`.
+fn residue_signs(sorted: &[&SeqTerm]) -> String {
+    sorted
         .iter()
         .map(|t| {
             format!(
@@ -318,14 +343,7 @@ pub fn dominant_sequence(terms: &[SeqTerm]) -> DominantSequence {
             )
         })
         .collect::<Vec<_>>()
-        .join(", ");
-    let alternating = sorted.windows(2).all(|w| w[0].residue * w[1].residue < 0.0);
-    DominantSequence {
-        notation,
-        signs,
-        alternating,
-        take_overs,
-    }
+        .join(", ")
 }
 
 /// Thesis Table 3-3 (a double integrator R and two modes u < v): the zero

@@ -478,16 +478,7 @@ pub(super) async fn connection(
             }
         };
         let r = match cmd.as_str() {
-            "status" => {
-                let mut s = lock(&ctx.status).clone();
-                s.position_m = ctx.loop_status.position_m();
-                s.command_a = ctx.loop_status.command_a();
-                s.store = ctx.store.as_ref().map(super::uploads::StoreProbe::status);
-                if let (Some(j), Some(h)) = (s.job.as_mut(), lock(&ctx.running).as_ref()) {
-                    j.ticks = h.ticks.load(Ordering::Relaxed);
-                }
-                serde_json::to_value(s).map_err(|e| ApiError::new(ApiErrorKind::Error, e.to_string()))
-            }
+            "status" => status_now(&ctx),
             "enable" | "disable" | "reset" if lock(&ctx.running).is_some() => Err(ApiError::new(
                 ApiErrorKind::Busy,
                 format!("a job is running: `stop` it first ({cmd} acts between jobs)"),
@@ -503,21 +494,7 @@ pub(super) async fn connection(
                 None => Ok(json!({ "stopping": null })),
             },
             "subscribe" => {
-                let mut rx = ctx.events.subscribe();
-                let out = out.clone();
-                tokio::spawn(async move {
-                    loop {
-                        match rx.recv().await {
-                            Ok(l) => {
-                                if !out.send(l) {
-                                    return;
-                                }
-                            }
-                            Err(broadcast::error::RecvError::Lagged(_)) => {}
-                            Err(broadcast::error::RecvError::Closed) => return,
-                        }
-                    }
-                });
+                subscribe(&ctx, &out);
                 Ok(json!({ "subscribed": true }))
             }
             "shutdown" => {
@@ -585,6 +562,40 @@ pub(super) async fn connection(
         () = hung_up(fd) => writer.abort(),
     }
     drop(reader);
+}
+
+/// The answer to `status`: the daemon's state, with the loop's last
+/// reading, the store's state and the running job's progress as of now.
+fn status_now(ctx: &Ctx) -> Result<Value, ApiError> {
+    let mut s = lock(&ctx.status).clone();
+    s.position_m = ctx.loop_status.position_m();
+    s.command_a = ctx.loop_status.command_a();
+    s.store = ctx.store.as_ref().map(super::uploads::StoreProbe::status);
+    if let (Some(j), Some(h)) = (s.job.as_mut(), lock(&ctx.running).as_ref()) {
+        j.ticks = h.ticks.load(Ordering::Relaxed);
+    }
+    serde_json::to_value(s).map_err(|e| ApiError::new(ApiErrorKind::Error, e.to_string()))
+}
+
+/// `subscribe`: every event from now on goes to `out`, until the client
+/// is gone or the daemon ends (a client too slow to keep up loses the
+/// events it lagged behind, never the connection).
+fn subscribe(ctx: &Ctx, out: &Outbox) {
+    let mut rx = ctx.events.subscribe();
+    let out = out.clone();
+    tokio::spawn(async move {
+        loop {
+            match rx.recv().await {
+                Ok(l) => {
+                    if !out.send(l) {
+                        return;
+                    }
+                }
+                Err(broadcast::error::RecvError::Lagged(_)) => {}
+                Err(broadcast::error::RecvError::Closed) => return,
+            }
+        }
+    });
 }
 
 /// How a connection's reading ended.

@@ -759,10 +759,8 @@ const LONG_FUNCTIONS: &[(&str, &str, usize)] = &[
     ("src/campaign/run/cells.rs", "run_cell", 187),
     ("src/control/verify.rs", "of", 184),
     ("src/ident/modal_fit/mod.rs", "fit", 183),
-    ("src/analysis/sequence.rs", "dominant_sequence", 183),
     ("src/design/mod.rs", "limit_attempt", 177),
     ("src/ident/update/solve.rs", "update_frf_once", 172),
-    ("src/daemon/socket.rs", "connection", 171),
     ("src/design/limit.rs", "solve", 165),
     ("src/rt/tick/run.rs", "tick", 161),
 ];
