@@ -541,29 +541,7 @@ impl VerifyResult {
             .copied()
             .filter(|&i| keep.get(i).copied().unwrap_or(true))
             .collect();
-        let predicted = Predicted::from(predicted);
-        let mut r = Self {
-            coherence_threshold: MIN_COHERENCE,
-            lines_total: n,
-            lines_used: used.len(),
-            lines_excluded_by_stalls: coherent.len() - used.len(),
-            used_band_hz: None,
-            measured: None,
-            predicted,
-            model_sensitivity_peak_on_lines: None,
-            sensitivity_peak_coherence: None,
-            sensitivity_peak_sigma: None,
-            sensitivity_peak_difference_db: None,
-            lines_resolving_tolerance: 0,
-            model_sensitivity_peak_on_resolving_lines: None,
-            sensitivity_peak_in_resolved_band: None,
-            sensitivity_peak_difference_range_db: None,
-            crossover_difference_pct: None,
-            s_model_difference_max_db: None,
-            s_model_difference_rms_db: None,
-            flagged: false,
-            reasons: Vec::new(),
-        };
+        let mut r = Self::unmeasured(n, used.len(), coherent.len() - used.len(), predicted);
         if used.len() < 2 {
             r.flagged = true;
             r.reasons.push(format!(
@@ -679,38 +657,78 @@ impl VerifyResult {
                 }
             }
         }
+        r.judge_crossover(&measured, &f_used);
+        r.measured = Some(measured);
+        r.flagged = !r.reasons.is_empty();
+        r
+    }
+
+    /// A result with nothing measured yet: the line counts and the
+    /// prediction.
+    fn unmeasured(
+        lines_total: usize,
+        lines_used: usize,
+        lines_excluded_by_stalls: usize,
+        predicted: &Margins,
+    ) -> Self {
+        Self {
+            coherence_threshold: MIN_COHERENCE,
+            lines_total,
+            lines_used,
+            lines_excluded_by_stalls,
+            used_band_hz: None,
+            measured: None,
+            predicted: Predicted::from(predicted),
+            model_sensitivity_peak_on_lines: None,
+            sensitivity_peak_coherence: None,
+            sensitivity_peak_sigma: None,
+            sensitivity_peak_difference_db: None,
+            lines_resolving_tolerance: 0,
+            model_sensitivity_peak_on_resolving_lines: None,
+            sensitivity_peak_in_resolved_band: None,
+            sensitivity_peak_difference_range_db: None,
+            crossover_difference_pct: None,
+            s_model_difference_max_db: None,
+            s_model_difference_rms_db: None,
+            flagged: false,
+            reasons: Vec::new(),
+        }
+    }
+
+    /// The first crossover measured against the predicted one: a reason
+    /// when they are more than [`CROSSOVER_TOLERANCE`] apart, or when only
+    /// one of them (or neither) has a crossover among the lines used
+    /// (`f_used`, Hz).
+    fn judge_crossover(&mut self, measured: &Margins, f_used: &[f64]) {
         match (
             measured.crossovers_rad_s.first(),
-            r.predicted.crossovers_rad_s.first(),
+            self.predicted.crossovers_rad_s.first(),
         ) {
             (Some(&m), Some(&p)) => {
                 let d = m / p - 1.0;
-                r.crossover_difference_pct = Some(100.0 * d);
+                self.crossover_difference_pct = Some(100.0 * d);
                 if d.abs() > CROSSOVER_TOLERANCE {
-                    r.reasons.push(format!(
+                    self.reasons.push(format!(
                         "first crossover measured {m:.1} rad/s, predicted {p:.1} rad/s: {:+.1} %, more than {:.0} % apart",
                         100.0 * d,
                         100.0 * CROSSOVER_TOLERANCE
                     ));
                 }
             }
-            (None, Some(&p)) => r.reasons.push(format!(
+            (None, Some(&p)) => self.reasons.push(format!(
                 "no crossover (|L| = 1) among the {} lines used ({:.2}–{:.2} Hz); predicted at {p:.1} rad/s ({:.2} Hz)",
-                used.len(),
+                f_used.len(),
                 f_used[0],
                 f_used[f_used.len() - 1],
                 p / (2.0 * PI)
             )),
-            (Some(&m), None) => r.reasons.push(format!(
+            (Some(&m), None) => self.reasons.push(format!(
                 "a crossover measured at {m:.1} rad/s where the model has none"
             )),
-            (None, None) => r
+            (None, None) => self
                 .reasons
                 .push("neither the model nor the measurement has a crossover".to_string()),
         }
-        r.measured = Some(measured);
-        r.flagged = !r.reasons.is_empty();
-        r
     }
 
     /// One line: agrees, or `VERIFY FAILED` with the reasons.

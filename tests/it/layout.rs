@@ -757,7 +757,6 @@ const LONG_FUNCTIONS: &[(&str, &str, usize)] = &[
     ("hal/devices/src/slave/rack.rs", "run_rack", 199),
     ("hal/hal/src/ethercat/rack.rs", "rack", 194),
     ("src/campaign/run/cells.rs", "run_cell", 187),
-    ("src/control/verify.rs", "of", 184),
     ("src/ident/modal_fit/mod.rs", "fit", 183),
     ("src/design/mod.rs", "limit_attempt", 177),
     ("src/ident/update/solve.rs", "update_frf_once", 172),
