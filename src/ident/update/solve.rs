@@ -143,6 +143,54 @@ pub fn update_to_frf(
     Ok(u)
 }
 
+/// The benches an FRF update starts from: `start`, and with the mass
+/// asymmetry free, `start` at the opposite asymmetry and ±0.05 from its own
+/// (within [`ranges::MASS_ASYMMETRY`], none twice): the pair's order is
+/// what an FRF decides least.
+fn asymmetry_starts(start: &Bench, free: &[Parameter]) -> Vec<Bench> {
+    let mut starts = vec![*start];
+    if free.contains(&Parameter::MassAsymmetry) {
+        let a0 = start.plant.mass_asymmetry;
+        for a in [-a0, a0 - 0.05, a0 + 0.05] {
+            let (lo, hi) = ranges::MASS_ASYMMETRY;
+            if a > lo
+                && a < hi
+                && starts
+                    .iter()
+                    .all(|s| (s.plant.mass_asymmetry - a).abs() > 1e-3)
+            {
+                let mut s = *start;
+                s.plant.mass_asymmetry = a;
+                starts.push(s);
+            }
+        }
+    }
+    starts
+}
+
+/// An updated model's warning: an RMS error above [`MAX_UPDATE_ERROR`], or
+/// a free parameter the FRF does not determine (1σ over half its value,
+/// or none).
+fn update_warning(rms: f64, parameters: &[super::UpdatedParameter]) -> Option<String> {
+    if rms > MAX_UPDATE_ERROR {
+        return Some(format!(
+            "the updated model leaves an RMS error of {:.1} % over the coherent band (more than {:.0} %): the SR4DoF model does not explain this FRF",
+            100.0 * rms,
+            100.0 * MAX_UPDATE_ERROR
+        ));
+    }
+    parameters
+        .iter()
+        .find(|p| p.free && p.sigma.is_none_or(|s| s > 0.5 * p.value.abs().max(1e-3)))
+        .map(|p| {
+            format!(
+                "{} is not determined by this FRF (1σ {}): at an operating point near 0 the Y modes barely couple into x1",
+                p.name,
+                p.sigma.map_or("not estimable".into(), |s| format!("{s:.3e} {}", p.unit))
+            )
+        })
+}
+
 pub(super) fn update_frf_once(
     start: &Bench,
     free: &[Parameter],
@@ -170,23 +218,7 @@ pub(super) fn update_frf_once(
         .filter(|p| p.shapes_frequencies())
         .collect();
     let measured = fit.map(measured_modes).unwrap_or_default();
-    let mut starts = vec![*start];
-    if free.contains(&Parameter::MassAsymmetry) {
-        let a0 = start.plant.mass_asymmetry;
-        for a in [-a0, a0 - 0.05, a0 + 0.05] {
-            let (lo, hi) = ranges::MASS_ASYMMETRY;
-            if a > lo
-                && a < hi
-                && starts
-                    .iter()
-                    .all(|s| (s.plant.mass_asymmetry - a).abs() > 1e-3)
-            {
-                let mut s = *start;
-                s.plant.mass_asymmetry = a;
-                starts.push(s);
-            }
-        }
-    }
+    let starts = asymmetry_starts(start, free);
     let mut candidates: Vec<Bench> = Vec::new();
     for s in &starts {
         let b = if freq_free.is_empty() || measured.is_empty() {
@@ -282,23 +314,7 @@ pub(super) fn update_frf_once(
     let mut start_kf = *start;
     start_kf.force_constant_n_per_a = bench.force_constant_n_per_a;
     let start_rms = prep.rms_error(&start_kf, &start_model, tau);
-    let mut warning = None;
-    if rms > MAX_UPDATE_ERROR {
-        warning = Some(format!(
-            "the updated model leaves an RMS error of {:.1} % over the coherent band (more than {:.0} %): the SR4DoF model does not explain this FRF",
-            100.0 * rms,
-            100.0 * MAX_UPDATE_ERROR
-        ));
-    } else if let Some(p) = parameters
-        .iter()
-        .find(|p| p.free && p.sigma.is_none_or(|s| s > 0.5 * p.value.abs().max(1e-3)))
-    {
-        warning = Some(format!(
-            "{} is not determined by this FRF (1σ {}): at an operating point near 0 the Y modes barely couple into x1",
-            p.name,
-            p.sigma.map_or("not estimable".into(), |s| format!("{s:.3e} {}", p.unit))
-        ));
-    }
+    let warning = update_warning(rms, &parameters);
     Ok(Update {
         source: "frf".into(),
         parameters,
