@@ -1075,35 +1075,9 @@ fn solve(
     // is 1793 rad/s here and 1803-1812 in the reference, which had stopped
     // short the same way); here it takes about 25 steps where it took
     // 40-50. q = `back` · x.
-    let mut dense = nalgebra::DMatrix::<f64>::zeros(m, n);
-    let mut t_rows = Vec::new();
-    for ((&r, &c), &v) in ri.iter().zip(&ci).zip(&vals) {
-        if c == n {
-            t_rows.push((r, v));
-        } else {
-            dense[(r, c)] += v;
-        }
-    }
-    let back = orthonormal_map(&dense);
-    let reduced = &dense * &back;
+    let (a, back) = in_orthonormal_coordinates(m, n, &ri, &ci, &vals);
     let kept = back.ncols();
-    let (mut ri, mut ci, mut vals) = (Vec::new(), Vec::new(), Vec::new());
-    for col in 0..kept {
-        for (row, &v) in reduced.column(col).iter().enumerate() {
-            if v != 0.0 {
-                ri.push(row);
-                ci.push(col);
-                vals.push(v);
-            }
-        }
-    }
-    for (r, v) in t_rows {
-        ri.push(r);
-        ci.push(kept);
-        vals.push(v);
-    }
     let nv = kept + 1; // x, then t
-    let a = CscMatrix::new_from_triplets(m, nv, ri, ci, vals);
     let p = CscMatrix::zeros((nv, nv));
     let mut c = vec![0.0; nv];
     c[kept] = 1.0;
@@ -1167,6 +1141,50 @@ fn solve(
         }
         s => Err(failed(format!("{s:?}"))),
     }
+}
+
+/// The program's constraint matrix (`m` rows; triplets `ri`, `ci`, `vals`
+/// over the `n` coefficients of q, then t in column `n`) with q in the
+/// orthonormal coordinates x of [`orthonormal_map`]: the matrix over (x,
+/// t), and `back`, q = `back` · x.
+fn in_orthonormal_coordinates(
+    m: usize,
+    n: usize,
+    ri: &[usize],
+    ci: &[usize],
+    vals: &[f64],
+) -> (CscMatrix<f64>, nalgebra::DMatrix<f64>) {
+    let mut dense = nalgebra::DMatrix::<f64>::zeros(m, n);
+    let mut t_rows = Vec::new();
+    for ((&r, &c), &v) in ri.iter().zip(ci).zip(vals) {
+        if c == n {
+            t_rows.push((r, v));
+        } else {
+            dense[(r, c)] += v;
+        }
+    }
+    let back = orthonormal_map(&dense);
+    let reduced = &dense * &back;
+    let kept = back.ncols();
+    let (mut ri, mut ci, mut vals) = (Vec::new(), Vec::new(), Vec::new());
+    for col in 0..kept {
+        for (row, &v) in reduced.column(col).iter().enumerate() {
+            if v != 0.0 {
+                ri.push(row);
+                ci.push(col);
+                vals.push(v);
+            }
+        }
+    }
+    for (r, v) in t_rows {
+        ri.push(r);
+        ci.push(kept);
+        vals.push(v);
+    }
+    (
+        CscMatrix::new_from_triplets(m, kept + 1, ri, ci, vals),
+        back,
+    )
 }
 
 /// One cone program's answer: `min max |W_P S|` over the active lines,

@@ -759,7 +759,6 @@ const LONG_FUNCTIONS: &[(&str, &str, usize)] = &[
     ("src/campaign/run/cells.rs", "run_cell", 187),
     ("src/ident/modal_fit/mod.rs", "fit", 183),
     ("src/design/mod.rs", "limit_attempt", 177),
-    ("src/design/limit.rs", "solve", 165),
     ("src/rt/tick/run.rs", "tick", 161),
 ];
 
