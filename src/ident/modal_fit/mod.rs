@@ -391,60 +391,7 @@ pub fn fit(data: &FrfData, path: &Path) -> Result<ModalFit, FitError> {
     //   shipped bench's v peak at 84.7 Hz was placed at 81.5 Hz, beside
     //   u, and the refinement of two modes on one resonance never
     //   recovered; on other benches the alone placement refines better.)
-    let peaks: Vec<f64> = magnitude_peaks(&prep, &data.frequency_hz, &current, MAX_MODES)
-        .into_iter()
-        .filter(|(_, prominence)| *prominence >= PEAK_PROMINENCE)
-        .map(|(f, _)| f)
-        .collect();
-    let mut alone: Vec<(f64, f64)> = peaks
-        .par_iter()
-        .filter_map(|&f0| try_mode(&prep, &data.frequency_hz, &current, f0))
-        .map(|t| (t.f_hz, t.zeta))
-        .collect();
-    alone.sort_by(|a, b| a.0.total_cmp(&b.0));
-    alone.dedup_by(|b, a| b.0 / a.0 <= MIN_SEPARATION);
-    let mut in_turn: Vec<(f64, f64)> = Vec::new();
-    for &f0 in &peaks {
-        let placed = Params {
-            f_hz: in_turn.iter().map(|x| x.0).collect(),
-            zeta: in_turn.iter().map(|x| x.1).collect(),
-            ..current.clone()
-        };
-        if let Some(t) = try_mode(&prep, &data.frequency_hz, &placed, f0) {
-            let apart = in_turn
-                .iter()
-                .all(|(f, _)| (t.f_hz / f).ln().abs() > MIN_SEPARATION.ln());
-            if apart {
-                in_turn.push((t.f_hz, t.zeta));
-            }
-        }
-    }
-    in_turn.sort_by(|a, b| a.0.total_cmp(&b.0));
-    // A trial grid reaches 4 % past its peak: one at the edge of the
-    // coherent band (a short sweep's end) would make the whole start
-    // unacceptable.
-    let (band_lo, band_hi) = coherent_band(&prep, &data.frequency_hz);
-    let starts: Vec<Params> = [alone, in_turn]
-        .into_iter()
-        .map(|mut start| {
-            start.retain(|(f, _)| (band_lo..=band_hi).contains(f));
-            start
-        })
-        .filter(|start| !start.is_empty())
-        .filter_map(|start| {
-            with_linear(
-                &prep,
-                start.iter().map(|x| x.0).collect(),
-                start.iter().map(|x| x.1).collect(),
-                current.tau_s,
-            )
-        })
-        .collect();
-    let starts = if starts.len() == 2 && starts[0].f_hz == starts[1].f_hz {
-        &starts[..1]
-    } else {
-        &starts[..]
-    };
+    let starts = &peak_starts(&prep, &data.frequency_hz, &current)[..];
     let refined: Vec<Params> = starts
         .par_iter()
         .map(|s0| sorted(refine(&prep, s0, period_s)))
@@ -535,6 +482,67 @@ pub fn fit(data: &FrfData, path: &Path) -> Result<ModalFit, FitError> {
     }
     fitted.quality.detection_limit = detection_limit(&prep, &data.frequency_hz, &current, period_s);
     Ok(fitted)
+}
+
+/// The peak-picked starts of [`fit`]: every peak at least
+/// [`PEAK_PROMINENCE`] above its flanks, placed by grids in two ways (each
+/// peak alone; the most prominent first, each with those placed before it),
+/// each start kept to the coherent band and its residual terms solved; one
+/// start when both placements agree.
+fn peak_starts(prep: &Prepared, frequency_hz: &[f64], current: &Params) -> Vec<Params> {
+    let peaks: Vec<f64> = magnitude_peaks(prep, frequency_hz, current, MAX_MODES)
+        .into_iter()
+        .filter(|(_, prominence)| *prominence >= PEAK_PROMINENCE)
+        .map(|(f, _)| f)
+        .collect();
+    let mut alone: Vec<(f64, f64)> = peaks
+        .par_iter()
+        .filter_map(|&f0| try_mode(prep, frequency_hz, current, f0))
+        .map(|t| (t.f_hz, t.zeta))
+        .collect();
+    alone.sort_by(|a, b| a.0.total_cmp(&b.0));
+    alone.dedup_by(|b, a| b.0 / a.0 <= MIN_SEPARATION);
+    let mut in_turn: Vec<(f64, f64)> = Vec::new();
+    for &f0 in &peaks {
+        let placed = Params {
+            f_hz: in_turn.iter().map(|x| x.0).collect(),
+            zeta: in_turn.iter().map(|x| x.1).collect(),
+            ..current.clone()
+        };
+        if let Some(t) = try_mode(prep, frequency_hz, &placed, f0) {
+            let apart = in_turn
+                .iter()
+                .all(|(f, _)| (t.f_hz / f).ln().abs() > MIN_SEPARATION.ln());
+            if apart {
+                in_turn.push((t.f_hz, t.zeta));
+            }
+        }
+    }
+    in_turn.sort_by(|a, b| a.0.total_cmp(&b.0));
+    // A trial grid reaches 4 % past its peak: one at the edge of the
+    // coherent band (a short sweep's end) would make the whole start
+    // unacceptable.
+    let (band_lo, band_hi) = coherent_band(prep, frequency_hz);
+    let mut starts: Vec<Params> = [alone, in_turn]
+        .into_iter()
+        .map(|mut start| {
+            start.retain(|(f, _)| (band_lo..=band_hi).contains(f));
+            start
+        })
+        .filter(|start| !start.is_empty())
+        .filter_map(|start| {
+            with_linear(
+                prep,
+                start.iter().map(|x| x.0).collect(),
+                start.iter().map(|x| x.1).collect(),
+                current.tau_s,
+            )
+        })
+        .collect();
+    if starts.len() == 2 && starts[0].f_hz == starts[1].f_hz {
+        starts.truncate(1);
+    }
+    starts
 }
 
 #[cfg(test)]
