@@ -155,14 +155,22 @@ impl Destination {
     }
 
     /// The job's one output: `--out` ([`Origin::Given`]), else
-    /// `default()` locally ([`Origin::Derived`]), or the daemon's stem with
-    /// `suffix` ([`beside`], [`Origin::Default`]).
-    pub fn output(&self, suffix: &str, default: impl FnOnce() -> PathBuf) -> (PathBuf, Origin) {
-        match self {
+    /// `default()` locally ([`Origin::Derived`]; its error when the job
+    /// has no default for that input), or the daemon's stem with `suffix`
+    /// ([`beside`], [`Origin::Default`]).
+    ///
+    /// # Errors
+    /// `default`'s.
+    pub fn output(
+        &self,
+        suffix: &str,
+        default: impl FnOnce() -> Result<PathBuf, RunError>,
+    ) -> Result<(PathBuf, Origin), RunError> {
+        Ok(match self {
             Self::Local { out: Some(p), .. } => (p.clone(), Origin::Given),
-            Self::Local { out: None, .. } => (default(), Origin::Derived),
+            Self::Local { out: None, .. } => (default()?, Origin::Derived),
             Self::Daemon { stem } => (beside(stem, suffix), Origin::Default),
-        }
+        })
     }
 }
 

@@ -74,13 +74,13 @@ pub(super) fn upload(a: UploadArgs) -> ExitCode {
             &JobRequest::Upload(request),
             a.json,
             print_summary,
-            |s| incomplete(s, None),
+            incomplete,
         );
     }
     let result = UploadOptions::from_request(&request).and_then(|o| upload_recordings(&o));
     match result {
         Ok(summary) => match emit(&summary, a.json, print_summary) {
-            Ok(()) => incomplete(&summary, Some(&a.to)).unwrap_or(ExitCode::SUCCESS),
+            Ok(()) => incomplete(&summary).unwrap_or(ExitCode::SUCCESS),
             Err(code) => code,
         },
         Err(e) => bad_input(refusal(&e, &a.to)),
@@ -104,13 +104,13 @@ fn refusal(e: &UploadError, to: &str) -> String {
 /// The exit status of an upload that left files unconfirmed
 /// ([`status::ERROR`], said on stderr naming the store); `None` when all
 /// went up.
-fn incomplete(s: &UploadSummary, to: Option<&str>) -> Option<ExitCode> {
+fn incomplete(s: &UploadSummary) -> Option<ExitCode> {
     if s.complete() {
         return None;
     }
     errln!(
         "error: --to {}: {} file(s) not confirmed by the store; the local copies are kept",
-        to.unwrap_or(&s.store),
+        s.store,
         s.failed.len() + s.dropped.len()
     );
     Some(ExitCode::from(status::ERROR))

@@ -220,6 +220,7 @@ pub(super) fn sections(cfg: &ControllerConfig) -> Vec<ContinuousSection> {
 /// one of degree 1, where the product has degree ≤ 2 (the `s³` term,
 /// `q[2] · l[1]`, is zero for every caller: a section's first factor).
 fn times_linear(q: [f64; 3], l: [f64; 2]) -> [f64; 3] {
+    debug_assert!(q[2] * l[1] == 0.0, "a section's polynomial of degree 3");
     [
         q[0] * l[0],
         q[0] * l[1] + q[1] * l[0],

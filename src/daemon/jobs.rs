@@ -69,11 +69,11 @@ impl JobSpec {
     }
 }
 
-/// A job accepted: what it is, its progress total, and its recording (the
-/// jobs that drive the bench) or `None`.
+/// A job accepted: what it runs, its progress total, and its recording
+/// (the jobs that drive the bench) or `None`. Its kind is the request's
+/// ([`JobRequest::kind`]).
 pub(super) struct Accepted {
     pub(super) spec: JobSpec,
-    pub(super) kind: &'static str,
     /// Ticks of a bench job; 0 for a job without progress.
     pub(super) total: u64,
     pub(super) recording: Option<PathBuf>,
@@ -81,10 +81,9 @@ pub(super) struct Accepted {
 
 impl Accepted {
     /// A job that computes from files: no progress total, no recording.
-    fn computing(spec: JobSpec, kind: &'static str) -> Self {
+    fn computing(spec: JobSpec) -> Self {
         Self {
             spec,
-            kind,
             total: 0,
             recording: None,
         }
@@ -226,7 +225,6 @@ fn chirp_job(ctx: &Ctx, req: &ChirpRequest, id: u64) -> Result<Accepted, ApiErro
     };
     Ok(Accepted {
         spec: JobSpec::Chirp(Box::new(opts)),
-        kind: "chirp",
         total,
         recording: Some(out),
     })
@@ -275,7 +273,6 @@ fn control_job(ctx: &Ctx, req: &ControlRequest, id: u64) -> Result<Accepted, Api
     };
     Ok(Accepted {
         spec: JobSpec::Control(Box::new(opts)),
-        kind: "control",
         total,
         recording: Some(out),
     })
@@ -298,12 +295,7 @@ fn fit_job(ctx: &Ctx, req: &FitRequest, id: u64) -> Result<Accepted, ApiError> {
         request: req.clone(),
         existing: Existing::Refuse,
     };
-    Ok(Accepted {
-        spec: JobSpec::Fit(Box::new(opts)),
-        kind: "fit",
-        total: 0,
-        recording: None,
-    })
+    Ok(Accepted::computing(JobSpec::Fit(Box::new(opts))))
 }
 
 /// The daemon's `design` job ([`job_spec`]).
@@ -333,12 +325,7 @@ fn design_job(ctx: &Ctx, req: &DesignRequest, id: u64) -> Result<Accepted, ApiEr
         inputs,
         existing: Existing::Refuse,
     };
-    Ok(Accepted {
-        spec: JobSpec::Design(Box::new(opts)),
-        kind: "design",
-        total: 0,
-        recording: None,
-    })
+    Ok(Accepted::computing(JobSpec::Design(Box::new(opts))))
 }
 
 /// The daemon's `plot` job ([`job_spec`]).
@@ -367,12 +354,7 @@ fn plot_job(ctx: &Ctx, req: &PlotRequest, id: u64) -> Result<Accepted, ApiError>
         inputs,
         existing: Existing::Refuse,
     };
-    Ok(Accepted {
-        spec: JobSpec::Plot(Box::new(opts)),
-        kind: "plot",
-        total: 0,
-        recording: None,
-    })
+    Ok(Accepted::computing(JobSpec::Plot(Box::new(opts))))
 }
 
 /// The daemon's `catalogue` job ([`job_spec`]).
@@ -390,12 +372,7 @@ fn catalogue_job(ctx: &Ctx, req: &CatalogueRequest, id: u64) -> Result<Accepted,
         recording_url: req.recording_url.clone(),
     };
     check_options(&opts).map_err(|e| refused(&e))?;
-    Ok(Accepted {
-        spec: JobSpec::Catalogue(Box::new(opts)),
-        kind: "catalogue",
-        total: 0,
-        recording: None,
-    })
+    Ok(Accepted::computing(JobSpec::Catalogue(Box::new(opts))))
 }
 
 /// The daemon's `analyze` job ([`job_spec`]).
@@ -410,12 +387,7 @@ fn analyze_job(ctx: &Ctx, req: &AnalyzeRequest, id: u64) -> Result<Accepted, Api
         request: req.clone(),
         existing: Existing::Refuse,
     };
-    Ok(Accepted {
-        spec: JobSpec::Analyze(Box::new(opts)),
-        kind: "analyze",
-        total: 0,
-        recording: None,
-    })
+    Ok(Accepted::computing(JobSpec::Analyze(Box::new(opts))))
 }
 
 /// The daemon's `campaign` job ([`job_spec`]).
@@ -443,7 +415,6 @@ fn campaign_job(ctx: &Ctx, req: &CampaignRequest, id: u64) -> Result<Accepted, A
             dir,
             threads,
         })),
-        kind: "campaign",
         total,
         recording: None,
     })
@@ -456,10 +427,7 @@ fn export_job(ctx: &Ctx, req: &ExportRequest, id: u64) -> Result<Accepted, ApiEr
         stem: recording_path(&ctx.recordings, "export", id),
     };
     let opts = plan_export(req.clone(), &dest).map_err(|e| refused(&e))?;
-    Ok(Accepted::computing(
-        JobSpec::Export(Box::new(opts)),
-        "export",
-    ))
+    Ok(Accepted::computing(JobSpec::Export(Box::new(opts))))
 }
 
 /// The daemon's `recover` job ([`job_spec`]).
@@ -469,10 +437,7 @@ fn recover_job(ctx: &Ctx, req: &RecoverRequest, id: u64) -> Result<Accepted, Api
         stem: recording_path(&ctx.recordings, "recover", id),
     };
     let opts = plan_recover(req.clone(), &dest).map_err(|e| refused(&e))?;
-    Ok(Accepted::computing(
-        JobSpec::Recover(Box::new(opts)),
-        "recover",
-    ))
+    Ok(Accepted::computing(JobSpec::Recover(Box::new(opts))))
 }
 
 /// The daemon's `upload` job ([`job_spec`]).
@@ -480,12 +445,8 @@ fn upload_job(req: &UploadRequest) -> Result<Accepted, ApiError> {
     for p in &req.recordings {
         absolute("recordings", Some(p))?;
     }
-    let opts =
-        UploadOptions::from_request(req).map_err(|e| bad_params(format!("params.to {e}")))?;
-    Ok(Accepted::computing(
-        JobSpec::Upload(Box::new(opts)),
-        "upload",
-    ))
+    let opts = UploadOptions::from_request(req).map_err(|e| upload_refused(&e))?;
+    Ok(Accepted::computing(JobSpec::Upload(Box::new(opts))))
 }
 
 /// The daemon's `map` job ([`job_spec`]).
@@ -501,12 +462,7 @@ fn map_job(ctx: &Ctx, req: &MapRequest, id: u64) -> Result<Accepted, ApiError> {
         request: req.clone(),
         existing: Existing::Refuse,
     };
-    Ok(Accepted {
-        spec: JobSpec::Map(Box::new(opts)),
-        kind: "map",
-        total: 0,
-        recording: None,
-    })
+    Ok(Accepted::computing(JobSpec::Map(Box::new(opts))))
 }
 
 /// Runs `job` on this (worker) thread: a bench job through `proxy`, the

@@ -667,10 +667,10 @@ pub(super) fn submit(
     let (request, detach) = job_request(cmd, params)?;
     let Accepted {
         spec,
-        kind,
         total,
         recording,
     } = job_spec(ctx, &request, job_id)?;
+    let kind = request.kind();
     let handle = JobHandle {
         id: job_id,
         kind,

@@ -54,20 +54,15 @@ pub fn plan_recover(
     let part = &request.part;
     crate::input_file::open(part, crate::input_file::Kind::Recording, "part")
         .map_err(|e| RunError::option("part", part.display(), e.reason()))?;
-    let mut missing_part_suffix = false;
     let (out, origin) = dest.output(".mcap", || {
-        without_part(part).unwrap_or_else(|| {
-            missing_part_suffix = true;
-            PathBuf::new()
+        without_part(part).ok_or_else(|| {
+            RunError::option(
+                "part",
+                part.display(),
+                format!("does not end in {PART_SUFFIX}; give --out"),
+            )
         })
-    });
-    if missing_part_suffix {
-        return Err(RunError::option(
-            "part",
-            part.display(),
-            format!("does not end in {PART_SUFFIX}; give --out"),
-        ));
-    }
+    })?;
     let existing = dest.existing();
     OutputPlan::new(existing)
         .derived_from("the .part file")

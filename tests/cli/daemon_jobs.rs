@@ -2,7 +2,8 @@
 //! and `bench campaign run --daemon`) with the same results as the local
 //! run: `fit` (a CSV and a recording, with and without `--update`, and
 //! `--frequencies`), `analyze`, `map` (with measured verdicts and the cells
-//! CSV, and `--veering`) and a small campaign. Compared: the `--json`
+//! CSV, and `--veering`), a small campaign, `export`, `recover` and
+//! `upload`. Compared: the `--json`
 //! summaries without the output paths (the daemon names its own outputs in
 //! its recordings directory) and the outputs' contents (PNGs, CSVs, the
 //! updated bench without its time-stamped first line, the campaign's
@@ -377,7 +378,7 @@ fn fit_analyze_map_and_a_campaign_through_the_daemon_equal_the_local_runs() {
 /// `bench export`, `recover` and `upload` run through the daemon
 /// (`--daemon`) with the local runs' results: the same summaries but for
 /// the paths the daemon names in its recordings directory, the same table
-/// and recovered recording byte for byte, the same exit status for a
+/// byte for byte, the same messages in the recovered recording, the same exit status for a
 /// recovery that lost data (7), and the same objects in a directory store.
 /// The daemon refuses what the CLI refuses, naming the parameter.
 #[test]
