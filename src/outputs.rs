@@ -121,17 +121,38 @@ impl Existing {
     }
 }
 
+/// The paths a local run's flags gave its outputs, by output name: the
+/// option key its errors name (`out`, `png`, `csv`, `model_out`, …).
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct Given(Vec<(&'static str, PathBuf)>);
+
+impl Given {
+    /// With `path` as output `name`'s, when a flag gave one.
+    pub fn with(mut self, name: &'static str, path: Option<PathBuf>) -> Self {
+        if let Some(p) = path {
+            self.0.push((name, p));
+        }
+        self
+    }
+
+    /// The path given for output `name`.
+    pub fn get(&self, name: &str) -> Option<&PathBuf> {
+        self.0.iter().find(|(n, _)| *n == name).map(|(_, p)| p)
+    }
+}
+
 /// Where a job's outputs go: the one thing the command line and the
 /// daemon decide differently about a job, so that the rest of its plan is
 /// one function for both (`plan_*` in [`crate::jobs`]).
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub enum Destination {
-    /// A local run: `--out` when given, else the job's default name
-    /// (beside its input); an existing file replaced only as `existing`
-    /// says (`--overwrite`).
+    /// A local run: each output where its flag put it, else the job's
+    /// default name (beside its input, or stamped in the default
+    /// recordings directory); an existing file replaced only as
+    /// `existing` says (`--overwrite`).
     Local {
-        /// `--out`.
-        out: Option<PathBuf>,
+        /// The outputs' paths the flags gave (`--out`, `--png`, …).
+        given: Given,
         /// `--overwrite` or not.
         existing: Existing,
     },
@@ -145,6 +166,15 @@ pub enum Destination {
 }
 
 impl Destination {
+    /// A local run's: the paths `given`, an existing file replaced when
+    /// `overwrite` (`--overwrite`).
+    pub fn local(given: Given, overwrite: bool) -> Self {
+        Self::Local {
+            given,
+            existing: Existing::overwrite(overwrite),
+        }
+    }
+
     /// What an existing output meets: the local `--overwrite`, never a
     /// replacement on the daemon.
     pub fn existing(&self) -> Existing {
@@ -154,7 +184,16 @@ impl Destination {
         }
     }
 
-    /// The job's one output: `--out` ([`Origin::Given`]), else
+    /// The path a flag gave output `name` (a local run's; `None` on the
+    /// daemon, which names its own).
+    pub fn given(&self, name: &str) -> Option<PathBuf> {
+        match self {
+            Self::Local { given, .. } => given.get(name).cloned(),
+            Self::Daemon { .. } => None,
+        }
+    }
+
+    /// Output `name`: its flag's path ([`Origin::Given`]), else
     /// `default()` locally ([`Origin::Derived`]; its error when the job
     /// has no default for that input), or the daemon's stem with `suffix`
     /// ([`beside`], [`Origin::Default`]).
@@ -163,15 +202,98 @@ impl Destination {
     /// `default`'s.
     pub fn output(
         &self,
+        name: &str,
         suffix: &str,
         default: impl FnOnce() -> Result<PathBuf, RunError>,
     ) -> Result<(PathBuf, Origin), RunError> {
         Ok(match self {
-            Self::Local { out: Some(p), .. } => (p.clone(), Origin::Given),
-            Self::Local { out: None, .. } => (default()?, Origin::Derived),
+            Self::Local { given, .. } => match given.get(name) {
+                Some(p) => (p.clone(), Origin::Given),
+                None => (default()?, Origin::Derived),
+            },
             Self::Daemon { stem } => (beside(stem, suffix), Origin::Default),
         })
     }
+
+    /// An output the job names itself when it runs locally: the flag's
+    /// path or `None` (the job's own default, beside its input), and on
+    /// the daemon `daemon_name(stem)` when the request `wants` the output.
+    pub fn optional(
+        &self,
+        name: &str,
+        wants: bool,
+        daemon_name: impl FnOnce(&Path) -> PathBuf,
+    ) -> Option<PathBuf> {
+        match self {
+            Self::Local { given, .. } => given.get(name).cloned(),
+            Self::Daemon { stem } => wants.then(|| daemon_name(stem)),
+        }
+    }
+
+    /// The stem of outputs that have no input to stand beside: the
+    /// daemon's, or locally a fresh stamped name `PREFIX-<stamp>` in the
+    /// default recordings directory ([`default_recordings`], created if
+    /// missing; the name is not claimed).
+    ///
+    /// # Errors
+    /// [`RunError::BadOption`] naming output `name` when there is no
+    /// default recordings directory.
+    pub fn stem(&self, prefix: &str, name: &'static str) -> Result<PathBuf, RunError> {
+        match self {
+            Self::Local { .. } => {
+                let dir = default_recordings(true, "its path")
+                    .map_err(|reason| RunError::option(name, "", reason))?;
+                Ok(stamped_recording(&dir, prefix, ""))
+            }
+            Self::Daemon { stem } => Ok(stem.clone()),
+        }
+    }
+}
+
+/// The recordings directory in the working directory that, when it
+/// exists, takes the recordings (a checkout of the repository has one).
+pub const LOCAL_RECORDINGS: &str = "recordings";
+
+/// Where a local run's recordings go by default, as an absolute path:
+/// `./recordings` when that directory exists in the working directory,
+/// else `$XDG_DATA_HOME/bench/recordings`, with `XDG_DATA_HOME` defaulting
+/// to `$HOME/.local/share` when it is unset, empty or relative (XDG Base
+/// Directory specification). With `create`, the XDG directory and its
+/// parents are made with mode [`DIR_MODE`].
+///
+/// # Errors
+/// A message that ends by asking to `give` the path (`--out`,
+/// `--recordings`) when neither `XDG_DATA_HOME` nor `HOME` is an absolute
+/// path, or the directory cannot be created.
+pub fn default_recordings(create: bool, give: &str) -> Result<PathBuf, String> {
+    let cwd = std::env::current_dir()
+        .map_err(|e| format!("the working directory is unreadable ({e}): give {give}"))?;
+    let local = cwd.join(LOCAL_RECORDINGS);
+    if local.is_dir() {
+        return Ok(local);
+    }
+    let absolute = |var: &str| {
+        std::env::var_os(var)
+            .map(PathBuf::from)
+            .filter(|p| p.is_absolute())
+    };
+    let data_home = absolute("XDG_DATA_HOME")
+        .or_else(|| absolute("HOME").map(|h| h.join(".local/share")))
+        .ok_or_else(|| {
+            format!(
+                "no ./recordings here, and neither XDG_DATA_HOME nor HOME is an absolute path: give {give}, or create ./recordings"
+            )
+        })?;
+    let dir = data_home.join("bench").join("recordings");
+    if create {
+        use std::os::unix::fs::DirBuilderExt;
+        fs::DirBuilder::new()
+            .recursive(true)
+            .mode(DIR_MODE)
+            .create(&dir)
+            .map_err(|e| format!("cannot create {} ({e}): give {give}", dir.display()))?;
+    }
+    Ok(dir)
 }
 
 /// Where an output's path came from (for the messages).

@@ -264,6 +264,47 @@ pub fn design_over(
     run_design(&opts)
 }
 
+/// The inputs of `bench design` (and of its daemon job): each path a
+/// file as it is, or a campaign directory as its done cells
+/// ([`design_input`]).
+///
+/// # Errors
+/// [`crate::error::RunError::BadOption`] naming `inputs`: a campaign
+/// directory that cannot be read.
+pub fn design_inputs(
+    paths: &[PathBuf],
+) -> Result<Vec<crate::jobs::design::DesignInput>, crate::error::RunError> {
+    expand(paths, design_input, crate::jobs::design::DesignInput::File)
+}
+
+/// The inputs of `bench plot` (and of its daemon job), as
+/// [`design_inputs`] ([`plot_input`]).
+///
+/// # Errors
+/// As [`design_inputs`].
+pub fn plot_inputs(
+    paths: &[PathBuf],
+) -> Result<Vec<crate::jobs::plot::PlotInput>, crate::error::RunError> {
+    expand(paths, plot_input, crate::jobs::plot::PlotInput::File)
+}
+
+fn expand<T>(
+    paths: &[PathBuf],
+    campaign: fn(&Path) -> Result<T, CampaignRunError>,
+    file: fn(PathBuf) -> T,
+) -> Result<Vec<T>, crate::error::RunError> {
+    paths
+        .iter()
+        .map(|p| {
+            if p.is_dir() {
+                campaign(p).map_err(|e| crate::error::RunError::option("inputs", "", e.to_string()))
+            } else {
+                Ok(file(p.clone()))
+            }
+        })
+        .collect()
+}
+
 /// The campaign in `dir` as the input of `bench design`: its bench
 /// config's text and the FRF of every done cell (`cells/NNN/frf.csv`),
 /// each checked against the journal's checksum.
@@ -271,7 +312,7 @@ pub fn design_over(
 /// # Errors
 /// [`CampaignRunError::BadInput`]: not a campaign directory, or a done
 /// cell whose files are missing or changed since they were recorded.
-pub fn design_input(dir: &Path) -> Result<crate::jobs::design::DesignInput, CampaignRunError> {
+fn design_input(dir: &Path) -> Result<crate::jobs::design::DesignInput, CampaignRunError> {
     let (campaign, j, _) = load_dir(dir, None, false)?;
     if let Some((cell, why)) = damaged_cells(dir, &j).into_iter().next() {
         return Err(CampaignRunError::BadInput(format!(
@@ -316,7 +357,7 @@ pub fn design_input(dir: &Path) -> Result<crate::jobs::design::DesignInput, Camp
 ///
 /// # Errors
 /// As [`design_input`].
-pub fn plot_input(dir: &Path) -> Result<crate::jobs::plot::PlotInput, CampaignRunError> {
+fn plot_input(dir: &Path) -> Result<crate::jobs::plot::PlotInput, CampaignRunError> {
     use super::journal::Entry;
     let (campaign, j, _) = load_dir(dir, None, false)?;
     if let Some((cell, why)) = damaged_cells(dir, &j).into_iter().next() {

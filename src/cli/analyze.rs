@@ -6,14 +6,14 @@
 
 use super::point::PointArgs;
 use super::serve::via_daemon;
-use super::{bad_input, finish, refuse_local_only, run_failed, CONFIG_HELP};
+use super::{finish, refuse_local_only, run_failed, CONFIG_HELP};
 use bench::analysis::map::MapCell;
-use bench::jobs::analyze::{run_analyze, AnalyzeOptions, AnalyzeRequest, AnalyzeSummary};
+use bench::jobs::analyze::{plan_analyze, run_analyze, AnalyzeRequest, AnalyzeSummary};
 use bench::jobs::map::{
-    defaults, run_map, MapOptions, MapRequest, MapResult, MapSummary, VeeringSummary,
+    defaults, plan_map, run_map, MapRequest, MapResult, MapSummary, VeeringSummary,
 };
 use bench::jobs::request::JobRequest;
-use bench::outputs::Existing;
+use bench::outputs::{Destination, Given};
 use clap::Args;
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -60,16 +60,6 @@ impl AnalyzeArgs {
     }
 }
 
-/// A default output path in the recordings directory (the rule of
-/// [`super::default_recordings`], created if missing):
-/// `<dir>/<prefix>-<UTC stamp><suffix>`; `flag` names the flag that
-/// overrides it in the error.
-fn default_output(prefix: &str, suffix: &str, flag: &str) -> Result<PathBuf, ExitCode> {
-    let dir = super::default_recordings(true, flag).map_err(bad_input)?;
-    let stem = bench::outputs::stamped_recording(&dir, prefix, "");
-    Ok(bench::outputs::beside(&stem, suffix))
-}
-
 pub(super) fn analyze(args: AnalyzeArgs) -> ExitCode {
     let request = args.request();
     if let Some(sock) = &args.daemon {
@@ -94,41 +84,12 @@ pub(super) fn analyze(args: AnalyzeArgs) -> ExitCode {
             print_analysis,
         );
     }
-    // The bench is checked before a default PNG name is made (and the
-    // recordings directory with it).
-    if let Err(e) = request.plant() {
-        return run_failed(&e);
-    }
-    let (mut pole_zero_png, mut modes_png) = (None, None);
-    if !args.no_plots {
-        let pz = match &args.pole_zero_png {
-            Some(p) => p.clone(),
-            None => match default_output("analyze", ".pole-zero.png", "--pole-zero-png") {
-                Ok(p) => p,
-                Err(code) => return code,
-            },
-        };
-        modes_png = Some(match (&args.modes_png, &args.pole_zero_png) {
-            (Some(p), _) => p.clone(),
-            // Same stamp as the pole-zero map when both are defaults.
-            (None, None) => pz.with_file_name(
-                pz.file_name()
-                    .unwrap_or_default()
-                    .to_string_lossy()
-                    .replace(".pole-zero.png", ".modes.png"),
-            ),
-            (None, Some(_)) => match default_output("analyze", ".modes.png", "--modes-png") {
-                Ok(p) => p,
-                Err(code) => return code,
-            },
-        });
-        pole_zero_png = Some(pz);
-    }
-    let opts = AnalyzeOptions {
-        request,
-        pole_zero_png,
-        modes_png,
-        existing: Existing::overwrite(args.overwrite),
+    let given = Given::default()
+        .with("pole_zero_png", args.pole_zero_png.clone())
+        .with("modes_png", args.modes_png.clone());
+    let opts = match plan_analyze(request, &Destination::local(given, args.overwrite)) {
+        Ok(o) => o,
+        Err(e) => return run_failed(&e),
     };
     finish(run_analyze(&opts), args.json, print_analysis)
 }
@@ -368,30 +329,12 @@ pub(super) fn map(args: MapArgs) -> ExitCode {
         };
         return via_daemon(sock, &JobRequest::Map(request), args.json, print_result);
     }
-    let png = match &args.png {
-        Some(p) => p.clone(),
-        None => {
-            // The request (config, grid) is checked before a default name
-            // is made (and the recordings directory with it).
-            if let Err(e) = request.check() {
-                return run_failed(&e);
-            }
-            let prefix = if args.veering { "veering" } else { "map" };
-            match default_output(prefix, ".png", "--png") {
-                Ok(p) => p,
-                Err(code) => return code,
-            }
-        }
-    };
-    let csv = args
-        .csv
-        .as_ref()
-        .map(|c| c.clone().unwrap_or_else(|| png.with_extension("csv")));
-    let opts = MapOptions {
-        request,
-        png,
-        csv,
-        existing: Existing::overwrite(args.overwrite),
+    let given = Given::default()
+        .with("png", args.png.clone())
+        .with("csv", args.csv.clone().flatten());
+    let opts = match plan_map(request, &Destination::local(given, args.overwrite)) {
+        Ok(o) => o,
+        Err(e) => return run_failed(&e),
     };
     finish(run_map(&opts), args.json, print_result)
 }

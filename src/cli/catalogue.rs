@@ -2,11 +2,10 @@
 //! as one compacted Parquet file.
 
 use super::serve::via_daemon;
-use super::{default_recordings, emit, origin, refuse_local_only, run_failed, ExitCode};
-use bench::catalogue::COMPACTED_NAME;
-use bench::jobs::catalogue::{run_catalogue, CatalogueOptions, CatalogueRequest, CatalogueSummary};
+use super::{emit, refuse_local_only, run_failed, ExitCode};
+use bench::jobs::catalogue::{plan_catalogue, run_catalogue, CatalogueRequest, CatalogueSummary};
 use bench::jobs::request::JobRequest;
-use bench::outputs::Existing;
+use bench::outputs::{Destination, Given};
 use clap::Args;
 use std::path::PathBuf;
 
@@ -56,22 +55,14 @@ pub(super) fn catalogue(a: CatalogueArgs) -> ExitCode {
         };
         return via_daemon(sock, &JobRequest::Catalogue(request), a.json, print_summary);
     }
-    let recordings = match a.recordings {
-        Some(d) => d,
-        None => match default_recordings(false, "--recordings DIR") {
-            Ok(d) => d,
-            Err(reason) => return super::bad_input(format!("--recordings: {reason}")),
-        },
-    };
-    let opts = CatalogueOptions {
-        out: a
-            .out
-            .clone()
-            .unwrap_or_else(|| recordings.join(COMPACTED_NAME)),
-        out_origin: origin(a.out.is_some()),
-        recordings,
-        existing: Existing::overwrite(a.overwrite),
+    let request = CatalogueRequest {
+        recordings: a.recordings.clone(),
         recording_url: a.recording_url.clone(),
+    };
+    let given = Given::default().with("out", a.out.clone());
+    let opts = match plan_catalogue(request, &Destination::local(given, a.overwrite)) {
+        Ok(o) => o,
+        Err(e) => return run_failed(&e),
     };
     match run_catalogue(&opts) {
         Ok(summary) => match emit(&summary, a.json, print_summary) {

@@ -2,14 +2,12 @@
 //! (`bench::jobs::design`), and the printed report.
 
 use super::serve::via_daemon;
-use super::{bad_input, finish, refuse_local_only, CONFIG_HELP};
-use bench::campaign::job::design_input;
+use super::{finish, refuse_local_only, run_failed, CONFIG_HELP};
+use bench::campaign::job::design_inputs;
 use bench::design::Strategy;
-use bench::jobs::design::{
-    run_design, DesignInput, DesignOptions, DesignRequest, DesignSummary, ModelChoice,
-};
+use bench::jobs::design::{plan_design, run_design, DesignRequest, DesignSummary, ModelChoice};
 use bench::jobs::request::JobRequest;
-use bench::outputs::Existing;
+use bench::outputs::{Destination, Given};
 use clap::Args;
 use std::f64::consts::PI;
 use std::path::PathBuf;
@@ -106,23 +104,6 @@ impl DesignArgs {
     }
 }
 
-/// The inputs with campaign directories expanded into their done cells.
-///
-/// # Errors
-/// The message for a campaign directory that cannot be read.
-pub(super) fn expand_inputs(inputs: &[PathBuf]) -> Result<Vec<DesignInput>, String> {
-    inputs
-        .iter()
-        .map(|p| {
-            if p.is_dir() {
-                design_input(p).map_err(|e| e.to_string())
-            } else {
-                Ok(DesignInput::File(p.clone()))
-            }
-        })
-        .collect()
-}
-
 pub(super) fn design(a: DesignArgs) -> ExitCode {
     let request = a.request();
     if let Some(sock) = &a.daemon {
@@ -147,17 +128,14 @@ pub(super) fn design(a: DesignArgs) -> ExitCode {
         };
         return via_daemon(sock, &JobRequest::Design(request), a.json, print_summary);
     }
-    let inputs = match expand_inputs(&request.inputs) {
+    let inputs = match design_inputs(&request.inputs) {
         Ok(i) => i,
-        Err(e) => return bad_input(e),
+        Err(e) => return run_failed(&e),
     };
-    let opts = DesignOptions {
-        request,
-        inputs,
-        out: a.out.clone(),
-        png: a.png.clone(),
-        existing: Existing::overwrite(a.overwrite),
-    };
+    let given = Given::default()
+        .with("out", a.out.clone())
+        .with("png", a.png.clone());
+    let opts = plan_design(request, inputs, &Destination::local(given, a.overwrite));
     finish(run_design(&opts), a.json, print_summary)
 }
 

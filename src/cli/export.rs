@@ -4,7 +4,7 @@ use super::serve::via_daemon;
 use super::{absolute_path, emit, refuse_local_only, run_failed};
 use bench::jobs::export::{plan_export, run_export, ExportRequest, ExportSummary};
 use bench::jobs::request::JobRequest;
-use bench::outputs::{Destination, Existing};
+use bench::outputs::{Destination, Given};
 use bench::record::export::ExportFormat;
 use clap::{Args, ValueEnum};
 use std::path::PathBuf;
@@ -69,10 +69,7 @@ pub(super) fn export(a: ExportArgs) -> ExitCode {
         };
         return via_daemon(sock, &JobRequest::Export(request), a.json, print_summary);
     }
-    let dest = Destination::Local {
-        out: a.out.clone(),
-        existing: Existing::overwrite(a.overwrite),
-    };
+    let dest = Destination::local(Given::default().with("out", a.out.clone()), a.overwrite);
     let result = plan_export(request, &dest).and_then(|opts| run_export(&opts));
     match result {
         Ok(summary) => match emit(&summary, a.json, print_summary) {

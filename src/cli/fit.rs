@@ -7,9 +7,9 @@ use bench::ident::export::{ModelForm, ModelFormat};
 use bench::ident::modal_fit::ModalFit;
 use bench::ident::update::{Parameter, Update};
 use bench::ident::verdict::Verdict;
-use bench::jobs::fit::{run_fit, FitOptions, FitRequest, FitResult, FitSummary, FrequencySummary};
+use bench::jobs::fit::{plan_fit, run_fit, FitRequest, FitResult, FitSummary, FrequencySummary};
 use bench::jobs::request::JobRequest;
-use bench::outputs::Existing;
+use bench::outputs::{Destination, Given};
 use clap::Args;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
@@ -166,13 +166,11 @@ pub(super) fn fit(a: FitArgs) -> ExitCode {
         };
         return via_daemon(sock, &JobRequest::Fit(request), a.json, print_result);
     }
-    let opts = FitOptions {
-        request,
-        png: a.png.clone(),
-        out: a.out.clone(),
-        model_out: a.model_out.clone(),
-        existing: Existing::overwrite(a.overwrite),
-    };
+    let given = Given::default()
+        .with("png", a.png.clone())
+        .with("out", a.out.clone())
+        .with("model_out", a.model_out.clone());
+    let opts = plan_fit(request, &Destination::local(given, a.overwrite));
     let result = run_fit(&opts);
     let flagged = match &result {
         Ok(FitResult::Fit(s)) if s.flagged() => Some(

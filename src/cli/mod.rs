@@ -412,51 +412,7 @@ pub(super) fn bad_input(msg: impl std::fmt::Display) -> ExitCode {
     ExitCode::from(status::BAD_INPUT)
 }
 
-/// The recordings directory in the working directory that, when it
-/// exists, takes the recordings (a checkout of the repository has one).
-const LOCAL_RECORDINGS: &str = "recordings";
-
-/// Where recordings go by default, as an absolute path: `./recordings`
-/// when that directory exists in the working directory, else
-/// `$XDG_DATA_HOME/bench/recordings`, with `XDG_DATA_HOME` defaulting to
-/// `$HOME/.local/share` when it is unset, empty or relative (XDG Base
-/// Directory specification). With `create`, the XDG directory and its
-/// parents are made with mode [`bench::outputs::DIR_MODE`].
-///
-/// # Errors
-/// A message for `flag` (`--out`, `--recordings`) when neither
-/// `XDG_DATA_HOME` nor `HOME` is an absolute path, or the directory cannot
-/// be created.
-pub(super) fn default_recordings(create: bool, flag: &str) -> Result<PathBuf, String> {
-    let cwd = std::env::current_dir()
-        .map_err(|e| format!("the working directory is unreadable ({e}): give {flag}"))?;
-    let local = cwd.join(LOCAL_RECORDINGS);
-    if local.is_dir() {
-        return Ok(local);
-    }
-    let absolute = |var: &str| {
-        std::env::var_os(var)
-            .map(PathBuf::from)
-            .filter(|p| p.is_absolute())
-    };
-    let data_home = absolute("XDG_DATA_HOME")
-        .or_else(|| absolute("HOME").map(|h| h.join(".local/share")))
-        .ok_or_else(|| {
-            format!(
-                "no ./recordings here, and neither XDG_DATA_HOME nor HOME is an absolute path: give {flag}, or create ./recordings"
-            )
-        })?;
-    let dir = data_home.join("bench").join("recordings");
-    if create {
-        use std::os::unix::fs::DirBuilderExt;
-        std::fs::DirBuilder::new()
-            .recursive(true)
-            .mode(bench::outputs::DIR_MODE)
-            .create(&dir)
-            .map_err(|e| format!("cannot create {} ({e}): give {flag}", dir.display()))?;
-    }
-    Ok(dir)
-}
+pub(super) use bench::outputs::default_recordings;
 
 /// The recording of a local run: `--out`, or a fresh default name
 /// `<recordings>/<prefix>-YYYYmmddTHHMMSS.mmmZ[-N].mcap` (an absolute path;

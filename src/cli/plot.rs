@@ -2,11 +2,11 @@
 //! (`bench::jobs::plot`), and the printed summary.
 
 use super::serve::via_daemon_then;
-use super::{bad_input, finish, refuse_local_only, status, CONFIG_HELP};
-use bench::campaign::job::plot_input;
-use bench::jobs::plot::{run_plot, PlotInput, PlotKind, PlotOptions, PlotRequest, PlotSummary};
+use super::{finish, refuse_local_only, status, CONFIG_HELP};
+use bench::campaign::job::plot_inputs;
+use bench::jobs::plot::{plan_plot, run_plot, PlotKind, PlotRequest, PlotSummary};
 use bench::jobs::request::JobRequest;
-use bench::outputs::Existing;
+use bench::outputs::{Destination, Given};
 use clap::{Args, Subcommand};
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -116,27 +116,12 @@ pub(super) fn plot(cmd: PlotCommand) -> ExitCode {
     if let Err(e) = request.check() {
         return super::run_failed(&e);
     }
-    let inputs: Result<Vec<PlotInput>, String> = request
-        .inputs
-        .iter()
-        .map(|p| {
-            if p.is_dir() {
-                plot_input(p).map_err(|e| e.to_string())
-            } else {
-                Ok(PlotInput::File(p.clone()))
-            }
-        })
-        .collect();
-    let inputs = match inputs {
+    let inputs = match plot_inputs(&request.inputs) {
         Ok(i) => i,
-        Err(e) => return bad_input(e),
+        Err(e) => return super::run_failed(&e),
     };
-    let opts = PlotOptions {
-        request,
-        inputs,
-        out: a.out.clone(),
-        existing: Existing::overwrite(a.overwrite),
-    };
+    let given = Given::default().with("out", a.out.clone());
+    let opts = plan_plot(request, inputs, &Destination::local(given, a.overwrite));
     let result = run_plot(&opts);
     let flagged = result.as_ref().ok().and_then(flagged_status);
     let code = finish(result, a.json, print_summary);

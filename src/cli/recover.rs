@@ -5,7 +5,7 @@ use super::serve::via_daemon_then;
 use super::{absolute_path, emit, refuse_local_only, run_failed, status};
 use bench::jobs::recover::{plan_recover, run_recover, RecoverRequest};
 use bench::jobs::request::JobRequest;
-use bench::outputs::{Destination, Existing};
+use bench::outputs::{Destination, Given};
 use bench::record::recover::Recovered;
 use clap::Args;
 use std::path::PathBuf;
@@ -90,10 +90,10 @@ pub fn recover(args: RecoverArgs) -> ExitCode {
             data_lost,
         );
     }
-    let dest = Destination::Local {
-        out: args.out.clone(),
-        existing: Existing::overwrite(args.overwrite),
-    };
+    let dest = Destination::local(
+        Given::default().with("out", args.out.clone()),
+        args.overwrite,
+    );
     match plan_recover(request, &dest).and_then(|opts| run_recover(&opts)) {
         Ok(r) => match emit(&r, args.json, human) {
             Ok(()) => data_lost(&r).unwrap_or(ExitCode::SUCCESS),

@@ -10,18 +10,18 @@
 use super::protocol::{to_json, ApiError, ApiErrorKind};
 use super::Ctx;
 use crate::campaign::file::Campaign;
-use crate::campaign::job::{prepare, start, threads};
+use crate::campaign::job::{design_inputs, plot_inputs, prepare, start, threads};
 use crate::campaign::run::{CampaignRunError, RunOptions};
 use crate::error::RunError;
-use crate::jobs::analyze::{run_analyze, AnalyzeOptions};
-use crate::jobs::catalogue::{check_options, run_catalogue, CatalogueOptions};
+use crate::jobs::analyze::{plan_analyze, run_analyze, AnalyzeOptions};
+use crate::jobs::catalogue::{check_options, plan_catalogue, run_catalogue, CatalogueOptions};
 use crate::jobs::chirp::{run_chirp_on, ChirpOptions, ChirpOutputs};
 use crate::jobs::control::{run_control_from, ControlOptions, StageSource};
-use crate::jobs::design::{run_design, DesignInput, DesignOptions};
+use crate::jobs::design::{plan_design, run_design, DesignOptions};
 use crate::jobs::export::{plan_export, run_export, ExportOptions};
-use crate::jobs::fit::{run_fit, FitOptions};
-use crate::jobs::map::{run_map, MapOptions};
-use crate::jobs::plot::{run_plot, PlotInput, PlotOptions};
+use crate::jobs::fit::{plan_fit, run_fit, FitOptions};
+use crate::jobs::map::{plan_map, run_map, MapOptions};
+use crate::jobs::plot::{plan_plot, run_plot, PlotOptions};
 use crate::jobs::recover::{plan_recover, run_recover, RecoverOptions};
 use crate::jobs::request::{
     check_pace, pace_on_hardware, AnalyzeRequest, CampaignRequest, CatalogueRequest, ChirpRequest,
@@ -30,7 +30,7 @@ use crate::jobs::request::{
 };
 use crate::jobs::session::Runner;
 use crate::jobs::verify::{StepOutputs, VerifyOptions};
-use crate::outputs::{beside, Destination, Existing, Origin};
+use crate::outputs::{beside, Destination};
 use crate::rt::service::ServiceClient;
 use crate::upload::once::{upload_recordings, UploadError, UploadOptions};
 use serde_json::Value;
@@ -98,6 +98,14 @@ pub(super) type JobResult = Result<Value, (ApiError, Option<RunError>)>;
 /// its other outputs ([`beside`]).
 pub(super) fn recording_path(dir: &Path, prefix: &str, id: u64) -> PathBuf {
     crate::outputs::stamped_recording(dir, prefix, &format!("-job{id}"))
+}
+
+/// Where job `id`'s outputs go: beside its stamped stem `PREFIX-<stamp>-job<id>`
+/// in the daemon's recordings directory.
+fn daemon_dest(ctx: &Ctx, prefix: &str, id: u64) -> Destination {
+    Destination::Daemon {
+        stem: recording_path(&ctx.recordings, prefix, id),
+    }
 }
 
 fn bad_params(message: impl Into<String>) -> ApiError {
@@ -283,18 +291,7 @@ fn fit_job(ctx: &Ctx, req: &FitRequest, id: u64) -> Result<Accepted, ApiError> {
     absolute("input", req.input.as_deref())?;
     absolute("config", req.config.as_deref())?;
     req.check().map_err(|e| refused(&e))?;
-    let stem = recording_path(&ctx.recordings, "fit", id);
-    let opts = FitOptions {
-        png: (req.input.is_some() && !req.no_plot).then(|| beside(&stem, ".fit.png")),
-        // As a local run: the updated bench of an FRF update; an
-        // update to frequencies is only answered.
-        out: req.update.then(|| beside(&stem, ".updated.toml")),
-        model_out: req
-            .export_model
-            .map(|_| crate::jobs::fit::model_path(&stem, req.model_format.unwrap_or_default())),
-        request: req.clone(),
-        existing: Existing::Refuse,
-    };
+    let opts = plan_fit(req.clone(), &daemon_dest(ctx, "fit", id));
     Ok(Accepted::computing(JobSpec::Fit(Box::new(opts))))
 }
 
@@ -304,27 +301,8 @@ fn design_job(ctx: &Ctx, req: &DesignRequest, id: u64) -> Result<Accepted, ApiEr
         absolute("inputs", Some(p))?;
     }
     absolute("config", req.config.as_deref())?;
-    let inputs = req
-        .inputs
-        .iter()
-        .map(|p| {
-            if p.is_dir() {
-                crate::campaign::job::design_input(p)
-                    .map_err(|e| bad_params(format!("params.inputs: {e}")))
-            } else {
-                Ok(DesignInput::File(p.clone()))
-            }
-        })
-        .collect::<Result<Vec<_>, _>>()?;
-    let stem = recording_path(&ctx.recordings, "design", id);
-    let out = beside(&stem, ".designed.toml");
-    let opts = DesignOptions {
-        png: (!req.no_plot).then(|| beside(&stem, ".design.png")),
-        out: Some(out),
-        request: req.clone(),
-        inputs,
-        existing: Existing::Refuse,
-    };
+    let inputs = design_inputs(&req.inputs).map_err(|e| refused(&e))?;
+    let opts = plan_design(req.clone(), inputs, &daemon_dest(ctx, "design", id));
     Ok(Accepted::computing(JobSpec::Design(Box::new(opts))))
 }
 
@@ -335,42 +313,16 @@ fn plot_job(ctx: &Ctx, req: &PlotRequest, id: u64) -> Result<Accepted, ApiError>
     }
     absolute("config", req.config.as_deref())?;
     req.check().map_err(|e| refused(&e))?;
-    let inputs = req
-        .inputs
-        .iter()
-        .map(|p| {
-            if p.is_dir() {
-                crate::campaign::job::plot_input(p)
-                    .map_err(|e| bad_params(format!("params.inputs: {e}")))
-            } else {
-                Ok(PlotInput::File(p.clone()))
-            }
-        })
-        .collect::<Result<Vec<_>, _>>()?;
-    let stem = recording_path(&ctx.recordings, "plot", id);
-    let opts = PlotOptions {
-        out: Some(beside(&stem, &format!(".{}.png", req.kind.as_str()))),
-        request: req.clone(),
-        inputs,
-        existing: Existing::Refuse,
-    };
+    let inputs = plot_inputs(&req.inputs).map_err(|e| refused(&e))?;
+    let opts = plan_plot(req.clone(), inputs, &daemon_dest(ctx, "plot", id));
     Ok(Accepted::computing(JobSpec::Plot(Box::new(opts))))
 }
 
 /// The daemon's `catalogue` job ([`job_spec`]).
 fn catalogue_job(ctx: &Ctx, req: &CatalogueRequest, id: u64) -> Result<Accepted, ApiError> {
     absolute("recordings", req.recordings.as_deref())?;
-    let stem = recording_path(&ctx.recordings, "catalogue", id);
-    let opts = CatalogueOptions {
-        recordings: req
-            .recordings
-            .clone()
-            .unwrap_or_else(|| ctx.recordings.clone()),
-        out: beside(&stem, ".parquet"),
-        out_origin: Origin::Default,
-        existing: Existing::Refuse,
-        recording_url: req.recording_url.clone(),
-    };
+    let opts =
+        plan_catalogue(req.clone(), &daemon_dest(ctx, "catalogue", id)).map_err(|e| refused(&e))?;
     check_options(&opts).map_err(|e| refused(&e))?;
     Ok(Accepted::computing(JobSpec::Catalogue(Box::new(opts))))
 }
@@ -378,15 +330,8 @@ fn catalogue_job(ctx: &Ctx, req: &CatalogueRequest, id: u64) -> Result<Accepted,
 /// The daemon's `analyze` job ([`job_spec`]).
 fn analyze_job(ctx: &Ctx, req: &AnalyzeRequest, id: u64) -> Result<Accepted, ApiError> {
     absolute("config", req.config.as_deref())?;
-    req.plant().map_err(|e| refused(&e))?;
-    let stem = recording_path(&ctx.recordings, "analyze", id);
-    let png = |suffix: &str| (!req.no_plots).then(|| beside(&stem, suffix));
-    let opts = AnalyzeOptions {
-        pole_zero_png: png(".pole-zero.png"),
-        modes_png: png(".modes.png"),
-        request: req.clone(),
-        existing: Existing::Refuse,
-    };
+    let opts =
+        plan_analyze(req.clone(), &daemon_dest(ctx, "analyze", id)).map_err(|e| refused(&e))?;
     Ok(Accepted::computing(JobSpec::Analyze(Box::new(opts))))
 }
 
@@ -423,20 +368,16 @@ fn campaign_job(ctx: &Ctx, req: &CampaignRequest, id: u64) -> Result<Accepted, A
 /// The daemon's `export` job ([`job_spec`]).
 fn export_job(ctx: &Ctx, req: &ExportRequest, id: u64) -> Result<Accepted, ApiError> {
     absolute("recording", Some(&req.recording))?;
-    let dest = Destination::Daemon {
-        stem: recording_path(&ctx.recordings, "export", id),
-    };
-    let opts = plan_export(req.clone(), &dest).map_err(|e| refused(&e))?;
+    let opts =
+        plan_export(req.clone(), &daemon_dest(ctx, "export", id)).map_err(|e| refused(&e))?;
     Ok(Accepted::computing(JobSpec::Export(Box::new(opts))))
 }
 
 /// The daemon's `recover` job ([`job_spec`]).
 fn recover_job(ctx: &Ctx, req: &RecoverRequest, id: u64) -> Result<Accepted, ApiError> {
     absolute("part", Some(&req.part))?;
-    let dest = Destination::Daemon {
-        stem: recording_path(&ctx.recordings, "recover", id),
-    };
-    let opts = plan_recover(req.clone(), &dest).map_err(|e| refused(&e))?;
+    let opts =
+        plan_recover(req.clone(), &daemon_dest(ctx, "recover", id)).map_err(|e| refused(&e))?;
     Ok(Accepted::computing(JobSpec::Recover(Box::new(opts))))
 }
 
@@ -453,15 +394,8 @@ fn upload_job(req: &UploadRequest) -> Result<Accepted, ApiError> {
 fn map_job(ctx: &Ctx, req: &MapRequest, id: u64) -> Result<Accepted, ApiError> {
     absolute("config", req.config.as_deref())?;
     absolute("measured", req.measured.as_deref())?;
-    req.check().map_err(|e| refused(&e))?;
     let prefix = if req.veering { "veering" } else { "map" };
-    let stem = recording_path(&ctx.recordings, prefix, id);
-    let opts = MapOptions {
-        png: beside(&stem, ".png"),
-        csv: req.csv.then(|| beside(&stem, ".csv")),
-        request: req.clone(),
-        existing: Existing::Refuse,
-    };
+    let opts = plan_map(req.clone(), &daemon_dest(ctx, prefix, id)).map_err(|e| refused(&e))?;
     Ok(Accepted::computing(JobSpec::Map(Box::new(opts))))
 }
 

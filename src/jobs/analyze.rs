@@ -13,7 +13,7 @@ use crate::analysis::{analyze, Analysis};
 use crate::config::BenchConfig;
 use crate::error::RunError;
 use crate::jobs::request::RequestError;
-use crate::outputs::{Existing, Origin, OutputPlan};
+use crate::outputs::{beside, Destination, Existing, Origin, OutputPlan};
 use crate::plot::{write_decomposed_bode_png, write_pole_zero_png};
 use bench_plant::model::{Sr4dof, Sr4dofParams};
 use serde::{Deserialize, Serialize};
@@ -100,6 +100,47 @@ pub struct AnalyzeOptions {
     /// What to do with an existing PNG (`--overwrite`; the daemon always
     /// refuses).
     pub existing: Existing,
+}
+
+/// The analysis of `request` with its PNGs where `dest` puts them (none
+/// with `no_plots`): locally the flags' paths (`--pole-zero-png`,
+/// `--modes-png`), else one stamped name `analyze-<stamp>` in the default
+/// recordings directory for both; on the daemon its stamped names. The
+/// command line and the daemon both plan an analysis here.
+///
+/// # Errors
+/// The request's bench refused ([`AnalyzeRequest::plant`]), checked
+/// before a default name is made (and the recordings directory with it);
+/// [`RunError::BadOption`] naming a PNG when it needs a default name and
+/// there is no default recordings directory.
+pub fn plan_analyze(
+    request: AnalyzeRequest,
+    dest: &Destination,
+) -> Result<AnalyzeOptions, RunError> {
+    request.plant()?;
+    let (mut pole_zero_png, mut modes_png) = (None, None);
+    if !request.no_plots {
+        // One stamp for both default names.
+        let mut stem: Option<PathBuf> = None;
+        let mut named = |name: &'static str, suffix: &str| {
+            dest.output(name, suffix, || {
+                let s = match &stem {
+                    Some(s) => s.clone(),
+                    None => stem.insert(dest.stem("analyze", name)?).clone(),
+                };
+                Ok(beside(&s, suffix))
+            })
+            .map(|(path, _)| path)
+        };
+        pole_zero_png = Some(named("pole_zero_png", ".pole-zero.png")?);
+        modes_png = Some(named("modes_png", ".modes.png")?);
+    }
+    Ok(AnalyzeOptions {
+        request,
+        pole_zero_png,
+        modes_png,
+        existing: dest.existing(),
+    })
 }
 
 /// The result of `bench analyze`.

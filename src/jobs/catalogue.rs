@@ -12,7 +12,9 @@
 use crate::catalogue::file::{in_column_order, write_rows, write_values};
 use crate::catalogue::{row_of_recording, row_path, CatalogueError, CatalogueRow, Value, COLUMNS};
 use crate::error::RunError;
-use crate::outputs::{write_buffered_atomically, Existing, Origin, OutputPlan, DIR_MODE};
+use crate::outputs::{
+    write_buffered_atomically, Destination, Existing, Origin, OutputPlan, DIR_MODE,
+};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -199,6 +201,43 @@ pub struct CatalogueOptions {
     /// The recordings' object prefix, if they are kept in a bucket (see
     /// [`CatalogueRequest::recording_url`]).
     pub recording_url: Option<String>,
+}
+
+/// The catalogue of `request` with its file where `dest` puts it. The
+/// recordings catalogued: the request's directory, else locally the
+/// default recordings directory
+/// ([`crate::outputs::default_recordings`]) and on the daemon its own
+/// (where its stem is). The file: locally `--out`, else
+/// `catalogue.parquet` in that directory; on the daemon its stamped name.
+/// The command line and the daemon both plan a catalogue here.
+///
+/// # Errors
+/// [`RunError::BadOption`] naming `recordings` when there is no default
+/// recordings directory.
+pub fn plan_catalogue(
+    request: CatalogueRequest,
+    dest: &Destination,
+) -> Result<CatalogueOptions, RunError> {
+    let recordings = match (request.recordings, dest) {
+        (Some(dir), _) => dir,
+        (None, Destination::Daemon { stem }) => {
+            stem.parent().map(Path::to_path_buf).unwrap_or_default()
+        }
+        (None, Destination::Local { .. }) => {
+            crate::outputs::default_recordings(false, "--recordings DIR")
+                .map_err(|reason| RunError::option("recordings", "", reason))?
+        }
+    };
+    let (out, out_origin) = dest.output("out", ".parquet", || {
+        Ok(recordings.join(crate::catalogue::COMPACTED_NAME))
+    })?;
+    Ok(CatalogueOptions {
+        recordings,
+        out,
+        out_origin,
+        existing: dest.existing(),
+        recording_url: request.recording_url,
+    })
 }
 
 /// The object URL of the file `name` under `prefix`: `prefix/name`, one

@@ -26,7 +26,7 @@ use crate::error::RunError;
 use crate::ident::frf::{read_frf, Frf};
 use crate::ident::modal_fit::Path as FitPath;
 use crate::input_file::{read, read_to_string, Kind};
-use crate::outputs::{beside, write_atomically, Existing, Origin, OutputPlan};
+use crate::outputs::{beside, write_atomically, Destination, Existing, Origin, OutputPlan};
 use serde::{Deserialize, Serialize};
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -163,6 +163,26 @@ pub struct DesignOptions {
     pub png: Option<PathBuf>,
     /// What to do with existing outputs.
     pub existing: Existing,
+}
+
+/// The design of `request` on `inputs` (its paths, campaign directories
+/// expanded: [`crate::campaign::job::design_inputs`]) with its outputs
+/// where `dest` puts them: locally the flags' paths (`--out`, `--png`;
+/// [`run_design`] names the others beside the first input), on the
+/// daemon its stamped names (the figure unless `no_plot`). The command
+/// line and the daemon both plan a design here.
+pub fn plan_design(
+    request: DesignRequest,
+    inputs: Vec<DesignInput>,
+    dest: &Destination,
+) -> DesignOptions {
+    DesignOptions {
+        png: dest.optional("png", !request.no_plot, |stem| beside(stem, ".design.png")),
+        out: dest.optional("out", true, |stem| beside(stem, ".designed.toml")),
+        request,
+        inputs,
+        existing: dest.existing(),
+    }
 }
 
 /// Figures of the design on one input.

@@ -121,7 +121,7 @@ pub struct ExportSummary {
 /// would be the recording itself).
 pub fn plan_export(request: ExportRequest, dest: &Destination) -> Result<ExportOptions, RunError> {
     let suffix = request.suffix();
-    let (out, origin) = dest.output(&suffix, || Ok(beside(&request.recording, &suffix)))?;
+    let (out, origin) = dest.output("out", &suffix, || Ok(beside(&request.recording, &suffix)))?;
     OutputPlan::new(dest.existing())
         .derived_from("the recording")
         .with_output("out", &out, origin)

@@ -19,7 +19,7 @@ use crate::ident::update::{
 };
 use crate::ident::verdict::Verdict;
 use crate::jobs::chirp::{identify, Identified, MODEL_POINTS_PER_DECADE};
-use crate::outputs::{beside, write_atomically, Existing, Origin, OutputPlan};
+use crate::outputs::{beside, write_atomically, Destination, Existing, Origin, OutputPlan};
 use crate::plot::{bode_curve, write_bode_png, BodePlot, BodeSeries, PairZoom};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
@@ -90,6 +90,28 @@ pub struct FitOptions {
     /// What to do with an existing output (`--overwrite`; the daemon
     /// always refuses).
     pub existing: Existing,
+}
+
+/// The fit of `request` with its outputs where `dest` puts them: locally
+/// the flags' paths (`--png`, `--out`, `--model-out`; [`run_fit`] names
+/// the others beside the input), on the daemon its stamped names for
+/// the outputs the request asks for (the plot of an FRF fit, the updated
+/// bench of an FRF update, the exported model). The command line and the
+/// daemon both plan a fit here.
+pub fn plan_fit(request: FitRequest, dest: &Destination) -> FitOptions {
+    let format = request.model_format.unwrap_or_default();
+    FitOptions {
+        png: dest.optional("png", request.input.is_some() && !request.no_plot, |stem| {
+            beside(stem, ".fit.png")
+        }),
+        // An update to frequencies is only answered.
+        out: dest.optional("out", request.update, |stem| beside(stem, ".updated.toml")),
+        model_out: dest.optional("model_out", request.export_model.is_some(), |stem| {
+            model_path(stem, format)
+        }),
+        existing: dest.existing(),
+        request,
+    }
 }
 
 /// The default file of an exported model beside `input`:

@@ -16,7 +16,7 @@ use crate::analysis::map::{
 };
 use crate::config::BenchConfig;
 use crate::error::RunError;
-use crate::outputs::{write_atomically, Existing, Origin, OutputPlan};
+use crate::outputs::{beside, write_atomically, Destination, Existing, Origin, OutputPlan};
 use crate::plot::{write_map_png, write_veering_png, MeasuredPoint};
 use bench_plant::model::{ranges, Sr4dofParams};
 use serde::{Deserialize, Serialize};
@@ -127,6 +127,39 @@ pub struct MapOptions {
     /// What to do with an existing output (`--overwrite`; the daemon
     /// always refuses).
     pub existing: Existing,
+}
+
+/// The map of `request` with its outputs where `dest` puts them: locally
+/// `--png` (else a stamped `map-<stamp>.png`, or `veering-…`, in the
+/// default recordings directory) and `--csv FILE` (else the PNG's name
+/// as `.csv`); on the daemon its stamped names. The command line and the
+/// daemon both plan a map here.
+///
+/// # Errors
+/// The request refused ([`MapRequest::check`]), checked before a default
+/// name is made (and the recordings directory with it);
+/// [`RunError::BadOption`] naming `png` when it needs a default name and
+/// there is no default recordings directory.
+pub fn plan_map(request: MapRequest, dest: &Destination) -> Result<MapOptions, RunError> {
+    request.check()?;
+    let prefix = if request.veering { "veering" } else { "map" };
+    let (png, _) = dest.output("png", ".png", || {
+        Ok(beside(&dest.stem(prefix, "png")?, ".png"))
+    })?;
+    let csv = if request.csv {
+        Some(
+            dest.output("csv", ".csv", || Ok(png.with_extension("csv")))?
+                .0,
+        )
+    } else {
+        None
+    };
+    Ok(MapOptions {
+        request,
+        png,
+        csv,
+        existing: dest.existing(),
+    })
 }
 
 /// A measured cell whose verdict differs from the damped model's at the

@@ -21,7 +21,7 @@ use crate::ident::modal_fit::ModalFit;
 use crate::ident::verdict::Verdict;
 use crate::jobs::chirp::MODEL_POINTS_PER_DECADE;
 use crate::jobs::fit::{fit_on, read_frf_input};
-use crate::outputs::{beside, Existing, Origin, OutputPlan};
+use crate::outputs::{beside, Destination, Existing, Origin, OutputPlan};
 use crate::plot::{
     overlay_colors, write_bode_overlay_png, write_nyquist_png, OverlayModel, OverlayPalette,
     OverlayPlot, OverlayTrace, FULL_LEGEND_MAX, MAX_OVERLAY_TRACES,
@@ -196,6 +196,21 @@ pub struct PlotOptions {
     pub out: Option<PathBuf>,
     /// What to do with an existing figure.
     pub existing: Existing,
+}
+
+/// The overlay of `request` on `inputs` (its paths, campaign directories
+/// expanded: [`crate::campaign::job::plot_inputs`]) with its figure where
+/// `dest` puts it: locally `--out` ([`run_plot`] names it beside the first
+/// input otherwise), on the daemon its stamped name. The command line and
+/// the daemon both plan an overlay here.
+pub fn plan_plot(request: PlotRequest, inputs: Vec<PlotInput>, dest: &Destination) -> PlotOptions {
+    let suffix = format!(".{}.png", request.kind.as_str());
+    PlotOptions {
+        out: dest.optional("out", true, |stem| beside(stem, &suffix)),
+        request,
+        inputs,
+        existing: dest.existing(),
+    }
 }
 
 /// The model drawn.

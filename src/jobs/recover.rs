@@ -54,7 +54,7 @@ pub fn plan_recover(
     let part = &request.part;
     crate::input_file::open(part, crate::input_file::Kind::Recording, "part")
         .map_err(|e| RunError::option("part", part.display(), e.reason()))?;
-    let (out, origin) = dest.output(".mcap", || {
+    let (out, origin) = dest.output("out", ".mcap", || {
         without_part(part).ok_or_else(|| {
             RunError::option(
                 "part",
