@@ -250,6 +250,65 @@ impl Destination {
     }
 }
 
+impl Destination {
+    /// The recording of a job that records (chirp, control) and the plan
+    /// its outputs join: locally `--out` (which must end in `.mcap`), else
+    /// a fresh name `PREFIX-<stamp>.mcap` in the default recordings
+    /// directory, claimed at once with its `companions`' names left free
+    /// ([`claim_recording`]); on the daemon its stem. With `claim` false
+    /// (`--check-only`, which writes nothing) a local default name is
+    /// neither claimed nor checked, and the directory not created.
+    ///
+    /// # Errors
+    /// [`RunError::BadOption`] naming `out`: not `.mcap`, no default
+    /// recordings directory, or no name could be claimed.
+    pub fn recording(
+        &self,
+        prefix: &str,
+        companions: &[&str],
+        claim: bool,
+    ) -> Result<(PathBuf, OutputPlan), RunError> {
+        let plan = OutputPlan::new(self.existing());
+        let no_dir = |reason| RunError::option("out", "", reason);
+        let (out, plan) = match self {
+            Self::Daemon { stem } => (stem.clone(), plan.with_recording(stem, Origin::Default)),
+            Self::Local { given, .. } => match given.get("out") {
+                Some(out) if !claim => (out.clone(), plan),
+                Some(out) => (out.clone(), plan.with_recording(out, Origin::Given)),
+                None if !claim => {
+                    let dir = default_recordings(false, "--out FILE.mcap").map_err(no_dir)?;
+                    (stamped_recording(&dir, prefix, ""), plan)
+                }
+                None => {
+                    let dir = default_recordings(true, "--out FILE.mcap").map_err(no_dir)?;
+                    let claim = claim_recording(&dir, prefix, companions)?;
+                    (
+                        claim.path().to_path_buf(),
+                        plan.with_claimed_recording(claim),
+                    )
+                }
+            },
+        };
+        if out.extension().and_then(|e| e.to_str()) != Some("mcap") {
+            return Err(RunError::option(
+                "out",
+                out.display(),
+                "the recording must end in .mcap",
+            ));
+        }
+        Ok((out, plan))
+    }
+
+    /// Output `name` beside a recording: its flag's path
+    /// ([`Origin::Given`]), else `default` ([`Origin::Derived`]).
+    pub fn beside_recording(&self, name: &str, default: PathBuf) -> (PathBuf, Origin) {
+        match self.given(name) {
+            Some(p) => (p, Origin::Given),
+            None => (default, Origin::Derived),
+        }
+    }
+}
+
 /// The recordings directory in the working directory that, when it
 /// exists, takes the recordings (a checkout of the repository has one).
 pub const LOCAL_RECORDINGS: &str = "recordings";

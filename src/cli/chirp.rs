@@ -4,12 +4,13 @@
 use super::point::PointArgs;
 use super::serve::via_daemon;
 use super::{
-    bad_input, emit, job_thread, load_config, origin, recording_plan, refuse_local_only,
-    refuse_non_mcap, refused_request, run_failed, run_failed_json, CONFIG_HELP,
+    bad_input, emit, job_thread, load_config, refuse_local_only, refused_request, run_failed,
+    run_failed_json, CONFIG_HELP,
 };
 use bench::config::ExcitationKind;
 use bench::jobs::chirp::{run_chirp, ChirpOptions, ChirpOutputs, ChirpSummary};
 use bench::jobs::request::{parse_fault, parse_seed, ChirpRequest, JobRequest, LocalOverrides};
+use bench::outputs::{Destination, Given};
 use bench::rt::backend::BackendSpec;
 use clap::{Args, ValueEnum};
 use std::io::IsTerminal;
@@ -204,35 +205,21 @@ pub(super) fn chirp(args: ChirpArgs, stop: Arc<AtomicBool>) -> ExitCode {
         Ok(p) => p,
         Err(code) => return code,
     };
-    let multisine = !cfg.excitation.kind.is_sweep();
-    if args.bla_csv.is_some() && !multisine {
-        return bad_input(format!(
-            "--bla-csv: excitation.kind = \"{}\" plays a sweep, which has no BLA (excitation.kind = \"multisine\" or --excitation multisine has)",
-            cfg.excitation.kind.as_str()
-        ));
-    }
-    let companions = ChirpOutputs::companions(multisine);
-    let (out, outputs) =
-        match recording_plan(args.out.as_deref(), "chirp", companions, args.overwrite) {
-            Ok(r) => r,
-            Err(e) => return run_failed(&e),
-        };
-    if let Some(code) = refuse_non_mcap(&out) {
-        return code;
-    }
-    let beside_out = ChirpOutputs::beside(&out, multisine);
-    let frf_csv = args.frf_csv.clone().unwrap_or(beside_out.frf_csv);
-    let plot = args.plot.clone().unwrap_or(beside_out.plot);
-    let outputs = outputs
-        .with_output("frf_csv", &frf_csv, origin(args.frf_csv.is_some()))
-        .with_output("plot", &plot, origin(args.plot.is_some()));
-    let bla_csv = beside_out
-        .bla_csv
-        .map(|default| args.bla_csv.clone().unwrap_or(default));
-    let outputs = match &bla_csv {
-        Some(p) => outputs.with_output("bla_csv", p, origin(args.bla_csv.is_some())),
-        None => outputs,
+    let given = Given::default()
+        .with("out", args.out.clone())
+        .with("frf_csv", args.frf_csv.clone())
+        .with("plot", args.plot.clone())
+        .with("bla_csv", args.bla_csv.clone());
+    let dest = Destination::local(given, args.overwrite);
+    let (out, named, outputs) = match ChirpOutputs::plan(&dest, cfg.excitation.kind) {
+        Ok(p) => p,
+        Err(e) => return run_failed(&e),
     };
+    let ChirpOutputs {
+        frf_csv,
+        plot,
+        bla_csv,
+    } = named;
     let opts = ChirpOptions {
         frf_csv,
         plot,

@@ -3,14 +3,13 @@
 
 use super::serve::via_daemon_then;
 use super::{
-    bad_input, emit, job_thread, load_config, origin, recording_plan, refuse_local_only,
-    refuse_non_mcap, refused_request, run_failed, run_failed_json, status, unclaimed_recording,
-    CONFIG_HELP,
+    bad_input, emit, job_thread, load_config, refuse_local_only, refused_request, run_failed,
+    run_failed_json, status, CONFIG_HELP,
 };
 use bench::jobs::control::{run_control, ControlOptions, ControlSummary};
 use bench::jobs::request::{parse_seed, ControlRequest, JobRequest};
 use bench::jobs::verify::{StepOutputs, Verify, VerifyOptions};
-use bench::outputs::{Existing, OutputPlan};
+use bench::outputs::{Destination, Given};
 use bench::rt::backend::BackendSpec;
 use clap::Args;
 use std::io::IsTerminal;
@@ -224,32 +223,23 @@ pub(super) fn control(args: ControlArgs, stop: Arc<AtomicBool>) -> ExitCode {
         Ok(p) => p,
         Err(code) => return code,
     };
-    let companions = StepOutputs::companions(verify.is_some());
     let name = request.controller.clone();
-    let prefix = format!("control-{name}");
-    // --check-only writes nothing: no name is claimed, no path checked.
-    let (out, outputs) = if args.check_only {
-        let out = match args
-            .out
-            .clone()
-            .map_or_else(|| unclaimed_recording(&prefix), Ok)
-        {
-            Ok(out) => out,
-            Err(e) => return bad_input(format!("--out: {e}")),
-        };
-        (out, OutputPlan::new(Existing::Refuse))
-    } else {
-        match recording_plan(args.out.as_deref(), &prefix, companions, args.overwrite) {
-            Ok(r) => r,
-            Err(e) => return run_failed(&e),
-        }
+    let given = Given::default()
+        .with("out", args.out.clone())
+        .with("plot", args.plot.clone());
+    let dest = Destination::local(given, args.overwrite);
+    let planned = StepOutputs::plan(
+        &dest,
+        &format!("control-{name}"),
+        verify.is_some(),
+        // --check-only writes nothing: no name is claimed, no path checked.
+        !args.check_only,
+    );
+    let (out, beside_out, outputs) = match planned {
+        Ok(p) => p,
+        Err(e) => return run_failed(&e),
     };
-    if let Some(code) = refuse_non_mcap(&out) {
-        return code;
-    }
-    let beside_out = StepOutputs::beside(&out, verify.is_some());
-    let plot = args.plot.clone().unwrap_or(beside_out.plot);
-    let outputs = outputs.with_output("plot", &plot, origin(args.plot.is_some()));
+    let plot = beside_out.plot;
     let verify = verify
         .zip(beside_out.verify)
         .map(|(v, (csv, plot))| VerifyOptions {
@@ -258,12 +248,6 @@ pub(super) fn control(args: ControlArgs, stop: Arc<AtomicBool>) -> ExitCode {
             csv,
             plot,
         });
-    let outputs = match &verify {
-        Some(v) => outputs
-            .with_output("verify_csv", &v.csv, origin(false))
-            .with_output("verify_plot", &v.plot, origin(false)),
-        None => outputs,
-    };
     let opts = ControlOptions {
         plot,
         out,

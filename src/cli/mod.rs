@@ -57,7 +57,6 @@ use anyhow::Context;
 use bench::config::{BenchConfig, ConfigError};
 use bench::error::RunError;
 use bench::jobs::request::RequestError;
-use bench::outputs::{claim_recording, Existing, Origin, OutputPlan};
 use campaign::{campaign, CampaignCommand};
 use catalogue::{catalogue, CatalogueArgs};
 use chirp::{chirp, ChirpArgs};
@@ -414,43 +413,6 @@ pub(super) fn bad_input(msg: impl std::fmt::Display) -> ExitCode {
 
 pub(super) use bench::outputs::default_recordings;
 
-/// The recording of a local run: `--out`, or a fresh default name
-/// `<recordings>/<prefix>-YYYYmmddTHHMMSS.mmmZ[-N].mcap` (an absolute path;
-/// the directory of [`default_recordings`]) claimed at once (its `.part`
-/// file created; see `bench::outputs::claim_recording`), with the plan of
-/// outputs it starts. `companions` are the suffixes of the default files
-/// beside it (`.frf.csv`, …).
-pub(super) fn recording_plan(
-    out: Option<&Path>,
-    prefix: &str,
-    companions: &[&str],
-    overwrite: bool,
-) -> Result<(PathBuf, OutputPlan), RunError> {
-    let plan = OutputPlan::new(Existing::overwrite(overwrite));
-    Ok(match out {
-        Some(out) => (out.to_path_buf(), plan.with_recording(out, Origin::Given)),
-        None => {
-            let dir = default_recordings(true, "--out FILE.mcap")
-                .map_err(|reason| RunError::option("out", "", reason))?;
-            let claim = claim_recording(&dir, prefix, companions)?;
-            (
-                claim.path().to_path_buf(),
-                plan.with_claimed_recording(claim),
-            )
-        }
-    })
-}
-
-/// `--out` must name an MCAP recording: exit 2 naming it otherwise.
-pub(super) fn refuse_non_mcap(out: &Path) -> Option<ExitCode> {
-    (out.extension().and_then(|e| e.to_str()) != Some("mcap")).then(|| {
-        bad_input(format!(
-            "--out {}: the recording must end in .mcap",
-            out.display()
-        ))
-    })
-}
-
 /// With `--daemon`: exit 2 for the first of `flags` (`(given, "--flag")`)
 /// that only a local run takes, saying `why`.
 pub(super) fn refuse_local_only(flags: &[(bool, &str)], why: &str) -> Option<ExitCode> {
@@ -460,28 +422,11 @@ pub(super) fn refuse_local_only(flags: &[(bool, &str)], why: &str) -> Option<Exi
         .map(|(_, flag)| bad_input(format!("{flag}: not with --daemon ({why})")))
 }
 
-/// An unclaimed default recording name (for `--check-only`, which writes
-/// nothing: the directory is not created).
-pub(super) fn unclaimed_recording(prefix: &str) -> Result<PathBuf, String> {
-    let dir = default_recordings(false, "--out FILE.mcap")?;
-    Ok(bench::outputs::stamped_recording(&dir, prefix, ""))
-}
-
 /// `path` as an absolute path (against the working directory), for a job
 /// submitted to the daemon, which runs elsewhere; as given if the working
 /// directory cannot be read (the daemon then names it).
 pub(super) fn absolute_path(path: &Path) -> PathBuf {
     std::path::absolute(path).unwrap_or_else(|_| path.to_path_buf())
-}
-
-/// [`Origin::Given`] for a path given by its flag, else
-/// [`Origin::Derived`] (from `--out`).
-pub(super) fn origin(given: bool) -> Origin {
-    if given {
-        Origin::Given
-    } else {
-        Origin::Derived
-    }
 }
 
 /// The config of `--config FILE` (read with the file checks of

@@ -210,12 +210,14 @@ fn chirp_job(ctx: &Ctx, req: &ChirpRequest, id: u64) -> Result<Accepted, ApiErro
     // before the job is queued.
     let total = crate::ident::excitation::Excitation::total_ticks_of(&cfg, ctx.period_s)
         .map_err(|e| bad_params(format!("config: {e}")))?;
-    let out = recording_path(&ctx.recordings, "chirp", id);
+    // Its plan is checked as the job starts ([`crate::jobs::chirp::chirp_outputs`]).
+    let (out, named, _) = ChirpOutputs::plan(&daemon_dest(ctx, "chirp", id), cfg.excitation.kind)
+        .map_err(|e| refused(&e))?;
     let ChirpOutputs {
         frf_csv,
         plot,
         bla_csv,
-    } = ChirpOutputs::beside(&out, !cfg.excitation.kind.is_sweep());
+    } = named;
     let opts = ChirpOptions {
         frf_csv,
         plot,
@@ -244,9 +246,16 @@ fn control_job(ctx: &Ctx, req: &ControlRequest, id: u64) -> Result<Accepted, Api
     let pace = pace_of(ctx, req.pace.or(ctx.default_pace))?;
     let inject = req.apply(&mut cfg).map_err(request_refused)?;
     let verify = req.verify_settings(&cfg).map_err(request_refused)?;
-    let out = recording_path(&ctx.recordings, &format!("control-{}", req.controller), id);
+    let prefix = format!("control-{}", req.controller);
+    // Its plan is checked as the job starts ([`crate::jobs::control::control_outputs`]).
+    let (out, outputs, _) = StepOutputs::plan(
+        &daemon_dest(ctx, &prefix, id),
+        &prefix,
+        verify.is_some(),
+        true,
+    )
+    .map_err(|e| refused(&e))?;
     let mut total = (cfg.step.duration_s / ctx.period_s).round() as u64;
-    let outputs = StepOutputs::beside(&out, verify.is_some());
     let verify = verify.zip(outputs.verify).map(|(v, (csv, plot))| {
         let chirp = crate::ident::chirp::Chirp::new(
             &crate::control::verify::chirp_config(&cfg.chirp, v.amplitude_a, v.duration_s),

@@ -21,7 +21,7 @@ use crate::ident::chirp::Chirp;
 use crate::ident::frf::{log_grid, C64};
 use crate::jobs::chirp::StallReport;
 use crate::jobs::session::Collected;
-use crate::outputs::Existing;
+use crate::outputs::{Destination, Existing, Origin, OutputPlan};
 use crate::plot::{bode_curve, write_bode_png, BodePlot, BodeSeries};
 use crate::record::Recorder;
 use crate::rt::supervisor::{CurrentLimits, Supervisor};
@@ -64,6 +64,39 @@ impl StepOutputs {
         } else {
             &Self::SUFFIXES[..1]
         }
+    }
+
+    /// The recording of a step named `PREFIX-…` (`control-fast`) and its
+    /// outputs where `dest` puts them ([`Destination::recording`]; `--plot`
+    /// beside it unless given, the `--verify` CSV and plot always beside
+    /// it), with the plan that checks them. With `claim` false
+    /// (`--check-only`, which writes nothing) no name is claimed and the
+    /// recording is not in the plan. The
+    /// command line and the daemon both name a step's outputs here.
+    ///
+    /// # Errors
+    /// The recording's ([`Destination::recording`]).
+    pub fn plan(
+        dest: &Destination,
+        prefix: &str,
+        verify: bool,
+        claim: bool,
+    ) -> Result<(PathBuf, Self, OutputPlan), RunError> {
+        let (out, plan) = dest.recording(prefix, Self::companions(verify), claim)?;
+        let beside = Self::beside(&out, verify);
+        let (plot, origin) = dest.beside_recording("plot", beside.plot);
+        let named = Self {
+            plot,
+            verify: beside.verify,
+        };
+        let plan = plan.with_output("plot", &named.plot, origin);
+        let plan = match &named.verify {
+            Some((csv, plot)) => plan
+                .with_output("verify_csv", csv, Origin::Derived)
+                .with_output("verify_plot", plot, Origin::Derived),
+            None => plan,
+        };
+        Ok((out, named, plan))
     }
 
     /// The outputs beside the recording `out` ([`crate::outputs::beside`]).

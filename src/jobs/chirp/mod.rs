@@ -7,7 +7,7 @@
 //! calling thread shows progress, then estimates, plots and summarises once
 //! the loop has stopped.
 
-use crate::config::BenchConfig;
+use crate::config::{BenchConfig, ExcitationKind};
 use crate::error::RunError;
 use crate::ident::bla::{Bla, DistortionTest};
 use crate::ident::chirp::Chirp;
@@ -17,7 +17,7 @@ use crate::ident::multisine::{Layout, Multisine};
 use crate::jobs::session::{
     finish, open_recording, run_recorded, Kept, Recorded, Runner, SessionOptions, TimingSummary,
 };
-use crate::outputs::{beside, Existing, Origin, OutputPlan};
+use crate::outputs::{beside, Destination, Existing, Origin, OutputPlan};
 use crate::plot::{bode_curve, write_bode_png, BodePlot, BodeSeries, PairZoom};
 use crate::rt::backend::{self, BackendSpec};
 use crate::rt::{Job, JobOutput};
@@ -62,6 +62,54 @@ impl ChirpOutputs {
         } else {
             &Self::SUFFIXES[..2]
         }
+    }
+
+    /// The recording of a chirp playing `kind` and its outputs where
+    /// `dest` puts them ([`Destination::recording`]; `--frf-csv`,
+    /// `--plot`, `--bla-csv` beside it unless given), with the plan that
+    /// checks them. The command line and the daemon both name a chirp's
+    /// outputs here.
+    ///
+    /// # Errors
+    /// [`RunError::BadOption`]: the recording's
+    /// ([`Destination::recording`]), or `bla_csv` given for a sweep (which
+    /// has no BLA).
+    pub fn plan(
+        dest: &Destination,
+        kind: ExcitationKind,
+    ) -> Result<(PathBuf, Self, OutputPlan), RunError> {
+        let multisine = !kind.is_sweep();
+        if !multisine && dest.given("bla_csv").is_some() {
+            return Err(RunError::option(
+                "bla_csv",
+                "",
+                format!(
+                    "excitation.kind = \"{}\" plays a sweep, which has no BLA (excitation.kind = \"multisine\" or --excitation multisine has)",
+                    kind.as_str()
+                ),
+            ));
+        }
+        let (out, plan) = dest.recording("chirp", Self::companions(multisine), true)?;
+        let beside = Self::beside(&out, multisine);
+        let (frf_csv, frf_origin) = dest.beside_recording("frf_csv", beside.frf_csv);
+        let (plot, plot_origin) = dest.beside_recording("plot", beside.plot);
+        let plan = plan
+            .with_output("frf_csv", &frf_csv, frf_origin)
+            .with_output("plot", &plot, plot_origin);
+        let (bla_csv, plan) = match beside.bla_csv {
+            Some(default) => {
+                let (p, origin) = dest.beside_recording("bla_csv", default);
+                let plan = plan.with_output("bla_csv", &p, origin);
+                (Some(p), plan)
+            }
+            None => (None, plan),
+        };
+        let outputs = Self {
+            frf_csv,
+            plot,
+            bla_csv,
+        };
+        Ok((out, outputs, plan))
     }
 
     /// The outputs beside the recording `out` ([`beside`]).
