@@ -35,18 +35,10 @@ pub(super) struct AnalyzeArgs {
     /// Write no PNG.
     #[arg(long, conflicts_with_all = ["pole_zero_png", "modes_png"])]
     no_plots: bool,
-    /// Replace existing PNGs (regular files only).
-    #[arg(long)]
-    overwrite: bool,
-    /// Print the result as one JSON object on stdout.
-    #[arg(long)]
-    json: bool,
-    /// Submit to a running `bench serve` instead of computing here [SOCKET
-    /// default: $XDG_RUNTIME_DIR/bench.sock, else /run/bench/bench.sock].
-    /// The daemon reads --config itself and writes the PNGs in its
-    /// recordings directory.
-    #[arg(long, value_name = "SOCKET", num_args = 0..=1, default_missing_value = "")]
-    daemon: Option<String>,
+    #[command(flatten)]
+    job: super::JobFlags,
+    #[command(flatten)]
+    outputs: super::OutputFlags,
 }
 
 impl AnalyzeArgs {
@@ -62,12 +54,12 @@ impl AnalyzeArgs {
 
 pub(super) fn analyze(args: AnalyzeArgs) -> ExitCode {
     let request = args.request();
-    if let Some(sock) = &args.daemon {
+    if let Some(sock) = &args.job.daemon {
         if let Some(code) = refuse_local_only(
             &[
                 (args.pole_zero_png.is_some(), "--pole-zero-png"),
                 (args.modes_png.is_some(), "--modes-png"),
-                (args.overwrite, "--overwrite"),
+                (args.outputs.overwrite, "--overwrite"),
             ],
             "the daemon writes its PNGs in its recordings directory",
         ) {
@@ -80,18 +72,18 @@ pub(super) fn analyze(args: AnalyzeArgs) -> ExitCode {
         return via_daemon(
             sock,
             &JobRequest::Analyze(request),
-            args.json,
+            args.job.json,
             print_analysis,
         );
     }
     let given = Given::default()
         .with("pole_zero_png", args.pole_zero_png.clone())
         .with("modes_png", args.modes_png.clone());
-    let opts = match plan_analyze(request, &Destination::local(given, args.overwrite)) {
+    let opts = match plan_analyze(request, &Destination::local(given, args.outputs.overwrite)) {
         Ok(o) => o,
         Err(e) => return run_failed(&e),
     };
-    finish(run_analyze(&opts), args.json, print_analysis)
+    finish(run_analyze(&opts), args.job.json, print_analysis)
 }
 
 fn print_analysis(s: &AnalyzeSummary) {
@@ -274,18 +266,10 @@ pub(super) struct MapArgs {
     /// FILE: the daemon names it].
     #[arg(long, value_name = "FILE.csv", num_args = 0..=1)]
     csv: Option<Option<PathBuf>>,
-    /// Replace existing output files (regular files only).
-    #[arg(long)]
-    overwrite: bool,
-    /// Print the result as one JSON object on stdout.
-    #[arg(long)]
-    json: bool,
-    /// Submit to a running `bench serve` instead of computing here [SOCKET
-    /// default: $XDG_RUNTIME_DIR/bench.sock, else /run/bench/bench.sock].
-    /// The daemon reads --config and --measured itself and writes the PNG
-    /// (and the CSV of --csv) in its recordings directory.
-    #[arg(long, value_name = "SOCKET", num_args = 0..=1, default_missing_value = "")]
-    daemon: Option<String>,
+    #[command(flatten)]
+    job: super::JobFlags,
+    #[command(flatten)]
+    outputs: super::OutputFlags,
 }
 
 impl MapArgs {
@@ -310,13 +294,13 @@ impl MapArgs {
 
 pub(super) fn map(args: MapArgs) -> ExitCode {
     let request = args.request();
-    if let Some(sock) = &args.daemon {
+    if let Some(sock) = &args.job.daemon {
         let csv_named = matches!(args.csv, Some(Some(_)));
         if let Some(code) = refuse_local_only(
             &[
                 (args.png.is_some(), "--png"),
                 (csv_named, "--csv FILE (--csv alone asks for the cells CSV)"),
-                (args.overwrite, "--overwrite"),
+                (args.outputs.overwrite, "--overwrite"),
             ],
             "the daemon writes its PNG and CSV in its recordings directory",
         ) {
@@ -327,16 +311,16 @@ pub(super) fn map(args: MapArgs) -> ExitCode {
             measured: request.measured.as_deref().map(super::absolute_path),
             ..request
         };
-        return via_daemon(sock, &JobRequest::Map(request), args.json, print_result);
+        return via_daemon(sock, &JobRequest::Map(request), args.job.json, print_result);
     }
     let given = Given::default()
         .with("png", args.png.clone())
         .with("csv", args.csv.clone().flatten());
-    let opts = match plan_map(request, &Destination::local(given, args.overwrite)) {
+    let opts = match plan_map(request, &Destination::local(given, args.outputs.overwrite)) {
         Ok(o) => o,
         Err(e) => return run_failed(&e),
     };
-    finish(run_map(&opts), args.json, print_result)
+    finish(run_map(&opts), args.job.json, print_result)
 }
 
 fn print_result(r: &MapResult) {

@@ -21,30 +21,24 @@ pub(super) struct CatalogueArgs {
     /// the recordings directory, beside its catalogue/ of per-run rows].
     #[arg(long, value_name = "FILE")]
     out: Option<PathBuf>,
-    /// Replace an existing catalogue (a regular file) once the new one is
-    /// complete.
-    #[arg(long)]
-    overwrite: bool,
     /// Where the recordings are kept as objects (e.g.
     /// s3://lab-bench/recordings): each row's recording is then this
     /// prefix and the file's name instead of its local path.
     #[arg(long, value_name = "URL")]
     recording_url: Option<String>,
-    /// Print the summary as one JSON object.
-    #[arg(long)]
-    json: bool,
-    /// Submit to a running `bench serve` instead of reading here [SOCKET
-    /// default: $XDG_RUNTIME_DIR/bench.sock, else /run/bench/bench.sock].
-    /// The daemon reads --recordings (default: its own) with its own
-    /// permissions and writes the catalogue in its recordings directory.
-    #[arg(long, value_name = "SOCKET", num_args = 0..=1, default_missing_value = "")]
-    daemon: Option<String>,
+    #[command(flatten)]
+    job: super::JobFlags,
+    #[command(flatten)]
+    outputs: super::OutputFlags,
 }
 
 pub(super) fn catalogue(a: CatalogueArgs) -> ExitCode {
-    if let Some(sock) = &a.daemon {
+    if let Some(sock) = &a.job.daemon {
         if let Some(code) = refuse_local_only(
-            &[(a.out.is_some(), "--out"), (a.overwrite, "--overwrite")],
+            &[
+                (a.out.is_some(), "--out"),
+                (a.outputs.overwrite, "--overwrite"),
+            ],
             "the daemon names its catalogue in its recordings directory",
         ) {
             return code;
@@ -53,19 +47,24 @@ pub(super) fn catalogue(a: CatalogueArgs) -> ExitCode {
             recordings: a.recordings.as_deref().map(super::absolute_path),
             recording_url: a.recording_url.clone(),
         };
-        return via_daemon(sock, &JobRequest::Catalogue(request), a.json, print_summary);
+        return via_daemon(
+            sock,
+            &JobRequest::Catalogue(request),
+            a.job.json,
+            print_summary,
+        );
     }
     let request = CatalogueRequest {
         recordings: a.recordings.clone(),
         recording_url: a.recording_url.clone(),
     };
     let given = Given::default().with("out", a.out.clone());
-    let opts = match plan_catalogue(request, &Destination::local(given, a.overwrite)) {
+    let opts = match plan_catalogue(request, &Destination::local(given, a.outputs.overwrite)) {
         Ok(o) => o,
         Err(e) => return run_failed(&e),
     };
     match run_catalogue(&opts) {
-        Ok(summary) => match emit(&summary, a.json, print_summary) {
+        Ok(summary) => match emit(&summary, a.job.json, print_summary) {
             Ok(()) => ExitCode::SUCCESS,
             Err(code) => code,
         },

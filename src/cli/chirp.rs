@@ -40,10 +40,6 @@ pub(super) struct ChirpArgs {
     /// Bode plot PNG [default: beside --out, <stem>.bode.png].
     #[arg(long, value_name = "FILE.png|svg|pdf")]
     plot: Option<PathBuf>,
-    /// Replace existing output files (regular files only), each once its
-    /// successor is complete. Without it an existing output is refused.
-    #[arg(long)]
-    overwrite: bool,
     /// Pace the loop in real time (absolute deadlines, SCHED_FIFO and
     /// mlockall when permitted) instead of virtual time.
     #[arg(long)]
@@ -55,9 +51,6 @@ pub(super) struct ChirpArgs {
     /// Simulator noise seed [default: sim.seed from the config].
     #[arg(long, value_name = "N", allow_hyphen_values = true, value_parser = parse_seed)]
     seed: Option<u64>,
-    /// Print the summary as one JSON object on stdout.
-    #[arg(long)]
-    json: bool,
     #[command(flatten)]
     point: PointArgs,
     /// Chirp current amplitude, A (overrides chirp.amplitude_a).
@@ -94,11 +87,10 @@ pub(super) struct ChirpArgs {
     /// the config]. Hardware always runs in real time.
     #[arg(long, value_name = "BACKEND")]
     backend: Option<BackendSpec>,
-    /// Submit to a running `bench serve` instead of opening the bench here
-    /// [SOCKET default: $XDG_RUNTIME_DIR/bench.sock, else
-    /// /run/bench/bench.sock]. The daemon's config and backend apply.
-    #[arg(long, value_name = "SOCKET", num_args = 0..=1, default_missing_value = "")]
-    daemon: Option<String>,
+    #[command(flatten)]
+    job: super::JobFlags,
+    #[command(flatten)]
+    outputs: super::OutputFlags,
 }
 
 impl ChirpArgs {
@@ -147,7 +139,7 @@ pub(super) fn chirp(args: ChirpArgs, stop: Arc<AtomicBool>) -> ExitCode {
     if let Err(code) = args.pace.check_realtime(args.realtime) {
         return code;
     }
-    if let Some(sock) = &args.daemon {
+    if let Some(sock) = &args.job.daemon {
         let mut local_only = vec![
             (
                 args.config.is_some(),
@@ -157,7 +149,7 @@ pub(super) fn chirp(args: ChirpArgs, stop: Arc<AtomicBool>) -> ExitCode {
             (args.frf_csv.is_some(), "--frf-csv"),
             (args.plot.is_some(), "--plot"),
             (args.bla_csv.is_some(), "--bla-csv"),
-            (args.overwrite, "--overwrite"),
+            (args.outputs.overwrite, "--overwrite"),
             (
                 args.live.given(),
                 "--live (bench serve --live shows the daemon's jobs)",
@@ -176,7 +168,7 @@ pub(super) fn chirp(args: ChirpArgs, stop: Arc<AtomicBool>) -> ExitCode {
             return code;
         }
         let job = JobRequest::Chirp(args.request());
-        return via_daemon(sock, &job, args.json, print_summary);
+        return via_daemon(sock, &job, args.job.json, print_summary);
     }
     let (mut cfg, config_path) = match load_config(args.config.as_deref()) {
         Ok(c) => c,
@@ -210,7 +202,7 @@ pub(super) fn chirp(args: ChirpArgs, stop: Arc<AtomicBool>) -> ExitCode {
         .with("frf_csv", args.frf_csv.clone())
         .with("plot", args.plot.clone())
         .with("bla_csv", args.bla_csv.clone());
-    let dest = Destination::local(given, args.overwrite);
+    let dest = Destination::local(given, args.outputs.overwrite);
     let (out, named, outputs) = match ChirpOutputs::plan(&dest, cfg.excitation.kind) {
         Ok(p) => p,
         Err(e) => return run_failed(&e),
@@ -251,7 +243,7 @@ pub(super) fn chirp(args: ChirpArgs, stop: Arc<AtomicBool>) -> ExitCode {
         Err(code) => return code,
     };
     match result {
-        Ok(summary) => match emit(&summary, args.json, print_summary) {
+        Ok(summary) => match emit(&summary, args.job.json, print_summary) {
             // SIGINT/SIGTERM after the sweep, during the FRF, the fit and
             // the plot (under a second at the densest grid the config
             // allows): those were finished, and nothing is missing.
@@ -265,7 +257,7 @@ pub(super) fn chirp(args: ChirpArgs, stop: Arc<AtomicBool>) -> ExitCode {
             Ok(()) => ExitCode::SUCCESS,
             Err(code) => code,
         },
-        Err(e) => run_failed_json(&e, args.json),
+        Err(e) => run_failed_json(&e, args.job.json),
     }
 }
 

@@ -49,13 +49,6 @@ pub(super) struct ControlArgs {
     /// Step plot PNG [default: beside --out, <stem>.step.png].
     #[arg(long, value_name = "FILE.png|svg|pdf")]
     plot: Option<PathBuf>,
-    /// Replace existing output files (regular files only), each once its
-    /// successor is complete. Without it an existing output is refused.
-    #[arg(long)]
-    overwrite: bool,
-    /// Print the summary as one JSON object on stdout.
-    #[arg(long)]
-    json: bool,
     /// Pace the loop in real time.
     #[arg(long)]
     realtime: bool,
@@ -115,11 +108,10 @@ pub(super) struct ControlArgs {
         requires = "verify"
     )]
     verify_duration_s: Option<f64>,
-    /// Submit to a running `bench serve` instead of opening the bench here
-    /// [SOCKET default: $XDG_RUNTIME_DIR/bench.sock, else
-    /// /run/bench/bench.sock]. The daemon's config and backend apply.
-    #[arg(long, value_name = "SOCKET", num_args = 0..=1, default_missing_value = "")]
-    daemon: Option<String>,
+    #[command(flatten)]
+    job: super::JobFlags,
+    #[command(flatten)]
+    outputs: super::OutputFlags,
 }
 
 impl ControlArgs {
@@ -176,7 +168,7 @@ pub(super) fn control(args: ControlArgs, stop: Arc<AtomicBool>) -> ExitCode {
     if let Err(code) = args.pace.check_realtime(args.realtime) {
         return code;
     }
-    if let Some(sock) = &args.daemon {
+    if let Some(sock) = &args.job.daemon {
         let local_only = [
             (
                 args.config.is_some(),
@@ -184,7 +176,7 @@ pub(super) fn control(args: ControlArgs, stop: Arc<AtomicBool>) -> ExitCode {
             ),
             (args.out.is_some(), "--out"),
             (args.plot.is_some(), "--plot"),
-            (args.overwrite, "--overwrite"),
+            (args.outputs.overwrite, "--overwrite"),
             (args.backend.is_some(), "--backend"),
             (args.check_only, "--check-only"),
             (args.frf.is_some(), "--frf"),
@@ -200,7 +192,13 @@ pub(super) fn control(args: ControlArgs, stop: Arc<AtomicBool>) -> ExitCode {
             return code;
         }
         let job = JobRequest::Control(args.request());
-        return via_daemon_then(sock, &job, args.json, print_control_summary, verify_status);
+        return via_daemon_then(
+            sock,
+            &job,
+            args.job.json,
+            print_control_summary,
+            verify_status,
+        );
     }
     let (mut cfg, config_path) = match load_config(args.config.as_deref()) {
         Ok(c) => c,
@@ -227,7 +225,7 @@ pub(super) fn control(args: ControlArgs, stop: Arc<AtomicBool>) -> ExitCode {
     let given = Given::default()
         .with("out", args.out.clone())
         .with("plot", args.plot.clone());
-    let dest = Destination::local(given, args.overwrite);
+    let dest = Destination::local(given, args.outputs.overwrite);
     let planned = StepOutputs::plan(
         &dest,
         &format!("control-{name}"),
@@ -280,7 +278,7 @@ pub(super) fn control(args: ControlArgs, stop: Arc<AtomicBool>) -> ExitCode {
     };
     match result {
         Ok(summary) => {
-            if let Err(code) = emit(&summary, args.json, print_control_summary) {
+            if let Err(code) = emit(&summary, args.job.json, print_control_summary) {
                 return code;
             }
             if args.check_only && !summary.loop_check.passed() {
@@ -293,7 +291,7 @@ pub(super) fn control(args: ControlArgs, stop: Arc<AtomicBool>) -> ExitCode {
             }
             verify_status(&summary).unwrap_or(ExitCode::SUCCESS)
         }
-        Err(e) => run_failed_json(&e, args.json),
+        Err(e) => run_failed_json(&e, args.job.json),
     }
 }
 

@@ -72,18 +72,10 @@ pub(super) struct DesignArgs {
     /// Write no figure.
     #[arg(long, conflicts_with = "png")]
     no_plot: bool,
-    /// Replace existing output files (regular files only).
-    #[arg(long)]
-    overwrite: bool,
-    /// Print the report as one JSON object on stdout.
-    #[arg(long)]
-    json: bool,
-    /// Submit to a running `bench serve` instead of designing here [SOCKET
-    /// default: $XDG_RUNTIME_DIR/bench.sock, else /run/bench/bench.sock].
-    /// The daemon reads the inputs (and --config) itself and writes its
-    /// outputs in its recordings directory.
-    #[arg(long, value_name = "SOCKET", num_args = 0..=1, default_missing_value = "")]
-    daemon: Option<String>,
+    #[command(flatten)]
+    job: super::JobFlags,
+    #[command(flatten)]
+    outputs: super::OutputFlags,
 }
 
 impl DesignArgs {
@@ -106,12 +98,12 @@ impl DesignArgs {
 
 pub(super) fn design(a: DesignArgs) -> ExitCode {
     let request = a.request();
-    if let Some(sock) = &a.daemon {
+    if let Some(sock) = &a.job.daemon {
         if let Some(code) = refuse_local_only(
             &[
                 (a.out.is_some(), "--out"),
                 (a.png.is_some(), "--png"),
-                (a.overwrite, "--overwrite"),
+                (a.outputs.overwrite, "--overwrite"),
             ],
             "the daemon writes its outputs in its recordings directory",
         ) {
@@ -126,7 +118,12 @@ pub(super) fn design(a: DesignArgs) -> ExitCode {
             config: request.config.as_deref().map(super::absolute_path),
             ..request
         };
-        return via_daemon(sock, &JobRequest::Design(request), a.json, print_summary);
+        return via_daemon(
+            sock,
+            &JobRequest::Design(request),
+            a.job.json,
+            print_summary,
+        );
     }
     let inputs = match design_inputs(&request.inputs) {
         Ok(i) => i,
@@ -135,8 +132,12 @@ pub(super) fn design(a: DesignArgs) -> ExitCode {
     let given = Given::default()
         .with("out", a.out.clone())
         .with("png", a.png.clone());
-    let opts = plan_design(request, inputs, &Destination::local(given, a.overwrite));
-    finish(run_design(&opts), a.json, print_summary)
+    let opts = plan_design(
+        request,
+        inputs,
+        &Destination::local(given, a.outputs.overwrite),
+    );
+    finish(run_design(&opts), a.job.json, print_summary)
 }
 
 fn opt_num(v: Option<f64>, digits: usize, unit: &str) -> String {

@@ -32,19 +32,10 @@ pub(super) struct ExportArgs {
     /// Output file [default: beside the recording, <stem>.<topic>.<csv|parquet>].
     #[arg(long, value_name = "FILE")]
     out: Option<PathBuf>,
-    /// Replace an existing output file (a regular file) once the new one
-    /// is complete.
-    #[arg(long)]
-    overwrite: bool,
-    /// Print the summary as one JSON object.
-    #[arg(long)]
-    json: bool,
-    /// Submit to a running `bench serve` instead of reading here [SOCKET
-    /// default: $XDG_RUNTIME_DIR/bench.sock, else /run/bench/bench.sock].
-    /// The daemon reads the recording with its own permissions and writes
-    /// the table in its recordings directory.
-    #[arg(long, value_name = "SOCKET", num_args = 0..=1, default_missing_value = "")]
-    daemon: Option<String>,
+    #[command(flatten)]
+    job: super::JobFlags,
+    #[command(flatten)]
+    outputs: super::OutputFlags,
 }
 
 pub(super) fn export(a: ExportArgs) -> ExitCode {
@@ -56,9 +47,12 @@ pub(super) fn export(a: ExportArgs) -> ExitCode {
         },
         topic: Some(a.topic.clone()),
     };
-    if let Some(sock) = &a.daemon {
+    if let Some(sock) = &a.job.daemon {
         if let Some(code) = refuse_local_only(
-            &[(a.out.is_some(), "--out"), (a.overwrite, "--overwrite")],
+            &[
+                (a.out.is_some(), "--out"),
+                (a.outputs.overwrite, "--overwrite"),
+            ],
             "the daemon names its table in its recordings directory",
         ) {
             return code;
@@ -67,12 +61,20 @@ pub(super) fn export(a: ExportArgs) -> ExitCode {
             recording: absolute_path(&a.recording),
             ..request
         };
-        return via_daemon(sock, &JobRequest::Export(request), a.json, print_summary);
+        return via_daemon(
+            sock,
+            &JobRequest::Export(request),
+            a.job.json,
+            print_summary,
+        );
     }
-    let dest = Destination::local(Given::default().with("out", a.out.clone()), a.overwrite);
+    let dest = Destination::local(
+        Given::default().with("out", a.out.clone()),
+        a.outputs.overwrite,
+    );
     let result = plan_export(request, &dest).and_then(|opts| run_export(&opts));
     match result {
-        Ok(summary) => match emit(&summary, a.json, print_summary) {
+        Ok(summary) => match emit(&summary, a.job.json, print_summary) {
             Ok(()) => ExitCode::SUCCESS,
             Err(code) => code,
         },

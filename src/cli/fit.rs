@@ -88,18 +88,10 @@ pub(super) struct FitArgs {
     /// an identifier].
     #[arg(long, value_name = "FILE", requires = "export_model")]
     model_out: Option<PathBuf>,
-    /// Replace existing output files (regular files only).
-    #[arg(long)]
-    overwrite: bool,
-    /// Print the result as one JSON object on stdout.
-    #[arg(long)]
-    json: bool,
-    /// Submit to a running `bench serve` instead of fitting here [SOCKET
-    /// default: $XDG_RUNTIME_DIR/bench.sock, else /run/bench/bench.sock].
-    /// The daemon reads the input (and --config) itself and writes the PNG
-    /// and the updated bench in its recordings directory.
-    #[arg(long, value_name = "SOCKET", num_args = 0..=1, default_missing_value = "")]
-    daemon: Option<String>,
+    #[command(flatten)]
+    job: super::JobFlags,
+    #[command(flatten)]
+    outputs: super::OutputFlags,
 }
 
 impl FitArgs {
@@ -145,13 +137,13 @@ pub(super) fn fit(a: FitArgs) -> ExitCode {
         Ok(r) => r,
         Err(e) => return bad_input(e),
     };
-    if let Some(sock) = &a.daemon {
+    if let Some(sock) = &a.job.daemon {
         if let Some(code) = refuse_local_only(
             &[
                 (a.out.is_some(), "--out"),
                 (a.png.is_some(), "--png"),
                 (a.model_out.is_some(), "--model-out"),
-                (a.overwrite, "--overwrite"),
+                (a.outputs.overwrite, "--overwrite"),
             ],
             "the daemon writes its outputs in its recordings directory",
         ) {
@@ -164,13 +156,13 @@ pub(super) fn fit(a: FitArgs) -> ExitCode {
             config: absolute(&request.config),
             ..request
         };
-        return via_daemon(sock, &JobRequest::Fit(request), a.json, print_result);
+        return via_daemon(sock, &JobRequest::Fit(request), a.job.json, print_result);
     }
     let given = Given::default()
         .with("png", a.png.clone())
         .with("out", a.out.clone())
         .with("model_out", a.model_out.clone());
-    let opts = plan_fit(request, &Destination::local(given, a.overwrite));
+    let opts = plan_fit(request, &Destination::local(given, a.outputs.overwrite));
     let result = run_fit(&opts);
     let flagged = match &result {
         Ok(FitResult::Fit(s)) if s.flagged() => Some(
@@ -180,7 +172,7 @@ pub(super) fn fit(a: FitArgs) -> ExitCode {
         ),
         _ => None,
     };
-    let code = finish(result, a.json, print_result);
+    let code = finish(result, a.job.json, print_result);
     match flagged {
         Some(why) if code == ExitCode::SUCCESS => {
             errln!("error: bench fit: FLAGGED, not to be trusted: {why} (every file asked for is written, except an updated bench)");

@@ -442,6 +442,34 @@ pub(super) fn load_config(path: Option<&Path>) -> Result<(BenchConfig, PathBuf),
     }
 }
 
+/// The flags of every job command (`bench chirp`, `fit`, … `upload`):
+/// how it answers and where it runs.
+#[derive(Debug, clap::Args)]
+pub(super) struct JobFlags {
+    /// Print the summary as one JSON object on stdout (its fields: the
+    /// book's reference, JSON outputs).
+    #[arg(long)]
+    pub(super) json: bool,
+    /// Submit the job to a running `bench serve` instead of running it
+    /// here [SOCKET default: $XDG_RUNTIME_DIR/bench.sock, else
+    /// /run/bench/bench.sock]. The daemon reads the input files (their
+    /// paths made absolute here) with its own permissions, runs a bench
+    /// job (chirp, control) with the bench config and backend it was
+    /// started with, and names every output in its recordings directory:
+    /// the flags that name a local output are refused.
+    #[arg(long, value_name = "SOCKET", num_args = 0..=1, default_missing_value = "")]
+    pub(super) daemon: Option<String>,
+}
+
+/// The output flags every job command that writes files shares.
+#[derive(Debug, clap::Args)]
+pub(super) struct OutputFlags {
+    /// Replace existing output files (regular files only), each once its
+    /// successor is complete. Without it an existing output is refused.
+    #[arg(long)]
+    pub(super) overwrite: bool,
+}
+
 /// The help of every `--config`.
 pub(super) const CONFIG_HELP: &str = "Bench description (TOML) [default: the built-in Chapter 5 bench; `bench config default` prints it]";
 

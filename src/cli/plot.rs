@@ -61,19 +61,10 @@ pub(super) struct PlotArgs {
     /// DIR/bode-overlay.png].
     #[arg(long, value_name = "FILE.png|svg|pdf")]
     out: Option<PathBuf>,
-    /// Replace an existing figure (a regular file only).
-    #[arg(long)]
-    overwrite: bool,
-    /// Print the result as one JSON object on stdout: every trace with its
-    /// colour, the fit and the verdict as `bench fit --json` gives them.
-    #[arg(long)]
-    json: bool,
-    /// Submit to a running `bench serve` instead of plotting here [SOCKET
-    /// default: $XDG_RUNTIME_DIR/bench.sock, else /run/bench/bench.sock].
-    /// The daemon reads the inputs (and --config) itself and writes the
-    /// figure in its recordings directory.
-    #[arg(long, value_name = "SOCKET", num_args = 0..=1, default_missing_value = "")]
-    daemon: Option<String>,
+    #[command(flatten)]
+    job: super::JobFlags,
+    #[command(flatten)]
+    outputs: super::OutputFlags,
 }
 
 pub(super) fn plot(cmd: PlotCommand) -> ExitCode {
@@ -89,9 +80,12 @@ pub(super) fn plot(cmd: PlotCommand) -> ExitCode {
         labels: (!a.label.is_empty()).then(|| a.label.clone()),
         title: a.title.clone(),
     };
-    if let Some(sock) = &a.daemon {
+    if let Some(sock) = &a.job.daemon {
         if let Some(code) = refuse_local_only(
-            &[(a.out.is_some(), "--out"), (a.overwrite, "--overwrite")],
+            &[
+                (a.out.is_some(), "--out"),
+                (a.outputs.overwrite, "--overwrite"),
+            ],
             "the daemon writes the figure in its recordings directory",
         ) {
             return code;
@@ -108,7 +102,7 @@ pub(super) fn plot(cmd: PlotCommand) -> ExitCode {
         return via_daemon_then(
             sock,
             &JobRequest::Plot(request),
-            a.json,
+            a.job.json,
             print_summary,
             flagged_status,
         );
@@ -121,10 +115,14 @@ pub(super) fn plot(cmd: PlotCommand) -> ExitCode {
         Err(e) => return super::run_failed(&e),
     };
     let given = Given::default().with("out", a.out.clone());
-    let opts = plan_plot(request, inputs, &Destination::local(given, a.overwrite));
+    let opts = plan_plot(
+        request,
+        inputs,
+        &Destination::local(given, a.outputs.overwrite),
+    );
     let result = run_plot(&opts);
     let flagged = result.as_ref().ok().and_then(flagged_status);
-    let code = finish(result, a.json, print_summary);
+    let code = finish(result, a.job.json, print_summary);
     match flagged {
         Some(f) if code == ExitCode::SUCCESS => f,
         _ => code,

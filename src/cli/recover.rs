@@ -21,19 +21,10 @@ pub struct RecoverArgs {
     /// An existing file is never replaced unless `--overwrite` is given.
     #[arg(long)]
     out: Option<PathBuf>,
-    /// Replace an existing `--out` (a regular file only).
-    #[arg(long)]
-    overwrite: bool,
-    /// Print the result as JSON on stdout.
-    #[arg(long)]
-    json: bool,
-    /// Submit to a running `bench serve` instead of recovering here
-    /// [SOCKET default: $XDG_RUNTIME_DIR/bench.sock, else
-    /// /run/bench/bench.sock]. The daemon reads the `.part` file with its
-    /// own permissions and writes the recording in its recordings
-    /// directory.
-    #[arg(long, value_name = "SOCKET", num_args = 0..=1, default_missing_value = "")]
-    daemon: Option<String>,
+    #[command(flatten)]
+    job: super::JobFlags,
+    #[command(flatten)]
+    outputs: super::OutputFlags,
 }
 
 /// `bench recover --help`'s closing paragraphs: what is checked, and the
@@ -69,11 +60,11 @@ pub fn recover(args: RecoverArgs) -> ExitCode {
     let request = RecoverRequest {
         part: args.part.clone(),
     };
-    if let Some(sock) = &args.daemon {
+    if let Some(sock) = &args.job.daemon {
         if let Some(code) = refuse_local_only(
             &[
                 (args.out.is_some(), "--out"),
-                (args.overwrite, "--overwrite"),
+                (args.outputs.overwrite, "--overwrite"),
             ],
             "the daemon names the recovered recording in its recordings directory",
         ) {
@@ -85,17 +76,17 @@ pub fn recover(args: RecoverArgs) -> ExitCode {
         return via_daemon_then(
             sock,
             &JobRequest::Recover(request),
-            args.json,
+            args.job.json,
             human,
             data_lost,
         );
     }
     let dest = Destination::local(
         Given::default().with("out", args.out.clone()),
-        args.overwrite,
+        args.outputs.overwrite,
     );
     match plan_recover(request, &dest).and_then(|opts| run_recover(&opts)) {
-        Ok(r) => match emit(&r, args.json, human) {
+        Ok(r) => match emit(&r, args.job.json, human) {
             Ok(()) => data_lost(&r).unwrap_or(ExitCode::SUCCESS),
             Err(code) => code,
         },

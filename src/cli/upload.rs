@@ -38,16 +38,6 @@ pub(super) struct UploadArgs {
         allow_negative_numbers = true
     )]
     store_timeout: f64,
-    /// Print the summary as one JSON object.
-    #[arg(long)]
-    json: bool,
-    /// Submit to a running `bench serve` instead of uploading from here
-    /// [SOCKET default: $XDG_RUNTIME_DIR/bench.sock, else
-    /// /run/bench/bench.sock]. The daemon reads the recordings with its own
-    /// permissions and reaches the store with its own environment's
-    /// credentials; `stop` ends the upload, keeping every local file.
-    #[arg(long, value_name = "SOCKET", num_args = 0..=1, default_missing_value = "")]
-    daemon: Option<String>,
     /// Finished recordings (*.mcap, not a .part): each goes up with every
     /// file of its stem beside it (FRF CSV, plots, summary) and its
     /// catalogue row, whose recording is the object's URL. Or campaign
@@ -55,6 +45,8 @@ pub(super) struct UploadArgs {
     /// naming their recordings' objects.
     #[arg(value_name = "RECORDING", required = true)]
     recordings: Vec<PathBuf>,
+    #[command(flatten)]
+    job: super::JobFlags,
 }
 
 pub(super) fn upload(a: UploadArgs) -> ExitCode {
@@ -64,7 +56,7 @@ pub(super) fn upload(a: UploadArgs) -> ExitCode {
         retry_for_s: Some(a.retry_for),
         store_timeout_s: Some(a.store_timeout),
     };
-    if let Some(sock) = &a.daemon {
+    if let Some(sock) = &a.job.daemon {
         let request = UploadRequest {
             recordings: a.recordings.iter().map(|p| absolute_path(p)).collect(),
             ..request
@@ -72,14 +64,14 @@ pub(super) fn upload(a: UploadArgs) -> ExitCode {
         return via_daemon_then(
             sock,
             &JobRequest::Upload(request),
-            a.json,
+            a.job.json,
             print_summary,
             incomplete,
         );
     }
     let result = UploadOptions::from_request(&request).and_then(|o| upload_recordings(&o));
     match result {
-        Ok(summary) => match emit(&summary, a.json, print_summary) {
+        Ok(summary) => match emit(&summary, a.job.json, print_summary) {
             Ok(()) => incomplete(&summary).unwrap_or(ExitCode::SUCCESS),
             Err(code) => code,
         },

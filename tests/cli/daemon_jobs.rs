@@ -562,17 +562,40 @@ fn export_recover_and_upload_through_the_daemon_equal_the_local_runs() {
 fn every_job_kind_is_a_command_with_daemon_and_a_daemon_job() {
     let d = Daemon::start();
     let mut c = d.client();
+    let mut shared = std::collections::BTreeMap::new();
     for kind in bench::jobs::request::JobRequest::KINDS {
         let cmd: &[&str] = match kind {
             "campaign" => &["campaign", "run"],
             "plot" => &["plot", "bode"],
             k => &[k],
         };
-        let o = run(&[cmd, &["--help"]].concat());
+        // `-h`: each flag's short help (`--help` gives a long help).
+        let o = run(&[cmd, &["-h"]].concat());
         ok(&o, kind);
         let help = String::from_utf8_lossy(&o.stdout);
         assert!(help.contains("--daemon [<SOCKET>]"), "bench {kind}: {help}");
+        // The shared flags are declared once: one help line each, on
+        // every command (campaign run's --daemon has its own, for the
+        // cells it keeps off the daemon's bench).
+        if kind != "campaign" {
+            for flag in ["--json", "--daemon [<SOCKET>]"] {
+                // Its help on its line, or on the next when clap wraps.
+                let lines: Vec<&str> = help.lines().collect();
+                let at = lines
+                    .iter()
+                    .position(|l| l.trim_start().starts_with(flag))
+                    .unwrap_or_else(|| panic!("bench {kind}: no {flag}: {help}"));
+                let mut words: Vec<&str> = lines[at].split_whitespace().collect();
+                if words.len() <= flag.split_whitespace().count() {
+                    words.extend(lines.get(at + 1).copied().unwrap_or("").split_whitespace());
+                }
+                let line = words.join(" ");
+                let first = shared.entry(flag).or_insert_with(|| line.clone());
+                assert_eq!(*first, line, "bench {kind}: {flag} is declared again");
+            }
+        }
         let r = c.call(kind, json!({ "no_such_parameter": 1 }));
         assert_eq!(r["error"]["kind"], "bad_params", "{kind}: {r}");
     }
+    assert_eq!(shared.len(), 2);
 }
