@@ -6,7 +6,9 @@
 
 use super::{finite, CatalogueRow, Outcome, MODE_COLUMNS};
 use crate::input_file::{Kind, Problem};
+use crate::record::topics::{EventKind, EventRecord};
 use crate::record::TOPIC_EVENT;
+use serde::Deserialize;
 use serde_json::Value as Json;
 use std::collections::BTreeMap;
 use std::os::unix::fs::FileExt;
@@ -269,16 +271,18 @@ fn row_of(
     }
 
     // How it ended: the events first, then the job's own summary.
-    let events = on(TOPIC_EVENT);
-    let kind = |e: &Json| e.get("kind").and_then(Json::as_str).map(str::to_string);
-    let fault = events.iter().find(|e| kind(e).as_deref() == Some("fault"));
-    let interrupted = events
+    // Read as the loop wrote them (`EventRecord`); a message that is not
+    // one (a damaged payload) says nothing about how the run ended.
+    let events: Vec<EventRecord> = on(TOPIC_EVENT)
         .iter()
-        .any(|e| kind(e).as_deref() == Some("interrupted"));
+        .filter_map(|e| EventRecord::deserialize(e).ok())
+        .collect();
+    let fault = events.iter().find(|e| e.kind == EventKind::Fault);
+    let interrupted = events.iter().any(|e| e.kind == EventKind::Interrupted);
     let chirp = on(TOPIC_CHIRP_SUMMARY).last();
     let control = on(TOPIC_CONTROL_SUMMARY).last();
     let outcome = if let Some(e) = fault {
-        row.fault_kind = e.get("fault").and_then(Json::as_str).map(str::to_string);
+        row.fault_kind = e.fault.map(|f| f.as_str().to_string());
         Outcome::Fault
     } else if interrupted {
         Outcome::Stopped
@@ -293,8 +297,8 @@ fn row_of(
     row.duration_s = events
         .iter()
         .rev()
-        .find(|e| kind(e).as_deref() == Some("loop_stopped"))
-        .and_then(|e| num(e, "t_s"));
+        .find(|e| e.kind == EventKind::LoopStopped)
+        .and_then(|e| finite(e.t_s));
 
     if let Some(s) = chirp {
         chirp_results(&mut row, s);
@@ -413,6 +417,7 @@ fn bench_name(path: &str) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::record::topics::{FaultKind, SupervisorState};
     use serde_json::json;
 
     fn run_meta() -> BTreeMap<String, String> {
@@ -436,16 +441,29 @@ mod tests {
         assert_eq!(bench_name("/etc/bench/lab"), "lab");
     }
 
+    /// A `/bench/event` message as the loop writes it.
+    fn event(kind: EventKind, t_s: f64, fault: Option<FaultKind>) -> Json {
+        serde_json::to_value(EventRecord {
+            tick: (t_s * 1e4) as u64,
+            t_s,
+            kind,
+            state: SupervisorState::Disabled,
+            fault,
+            value: f64::NAN,
+        })
+        .unwrap()
+    }
+
     #[test]
     fn a_fault_event_makes_a_fault_row_whatever_else_is_recorded() {
         let mut m: BTreeMap<&str, Vec<Json>> = BTreeMap::new();
         m.insert(
             TOPIC_EVENT,
             vec![
-                json!({"kind": "loop_started", "t_s": 0.0, "fault": null}),
-                json!({"kind": "fault", "t_s": 0.25, "fault": "position_limit"}),
-                json!({"kind": "fault", "t_s": 0.3, "fault": "i2t"}),
-                json!({"kind": "loop_stopped", "t_s": 0.3002, "fault": null}),
+                event(EventKind::LoopStarted, 0.0, None),
+                event(EventKind::Fault, 0.25, Some(FaultKind::PositionLimit)),
+                event(EventKind::Fault, 0.3, Some(FaultKind::I2t)),
+                event(EventKind::LoopStopped, 0.3002, None),
             ],
         );
         let row = row_of(&run_meta(), None, &m, "/r/x.mcap".into());
@@ -460,25 +478,28 @@ mod tests {
     fn without_a_summary_or_a_fault_a_run_is_an_error_and_interrupted_is_stopped() {
         let mut m: BTreeMap<&str, Vec<Json>> = BTreeMap::new();
         // A killed run, recovered: it never stopped its loop.
-        m.insert(
-            TOPIC_EVENT,
-            vec![json!({"kind": "job_started", "t_s": 0.0})],
-        );
+        m.insert(TOPIC_EVENT, vec![event(EventKind::JobStarted, 0.0, None)]);
         let row = row_of(&run_meta(), None, &m, String::new());
         assert_eq!(row.outcome.as_deref(), Some("error"));
         assert_eq!(row.duration_s, None);
         m.get_mut(TOPIC_EVENT)
             .unwrap()
-            .push(json!({"kind": "loop_stopped", "t_s": 1.0}));
+            .push(event(EventKind::LoopStopped, 1.0, None));
         let row = row_of(&run_meta(), None, &m, String::new());
         assert_eq!(row.outcome.as_deref(), Some("error"));
         assert_eq!(row.duration_s, Some(1.0));
         m.get_mut(TOPIC_EVENT)
             .unwrap()
-            .insert(0, json!({"kind": "interrupted", "t_s": 0.5}));
+            .insert(0, event(EventKind::Interrupted, 0.5, None));
         let row = row_of(&run_meta(), None, &m, String::new());
         assert_eq!(row.outcome.as_deref(), Some("stopped"));
         assert_eq!(row.fault_kind, None);
+        // A damaged event (not an event record) is no fault.
+        m.get_mut(TOPIC_EVENT)
+            .unwrap()
+            .push(json!({"kind": "fault", "t_s": 0.7}));
+        let row = row_of(&run_meta(), None, &m, String::new());
+        assert_eq!(row.outcome.as_deref(), Some("stopped"));
     }
 
     #[test]
