@@ -810,7 +810,6 @@ fn limit_attempt(
     // 0.4 % by themselves; on a bench whose pairs the fit places less well
     // the plain start climbs further): both climbed side by side, the
     // next start only when neither gives a certified controller.
-    type Judged = Result<(fixed_order::Climb, Evaluation), String>;
     let judge = |c: &ControllerConfig| {
         certify_backing_off(
             all,
@@ -911,6 +910,17 @@ fn limit_attempt(
         family_done |= gave && !is_nominal;
         results.extend([r, c]);
     }
+    limit_outcome(&results)
+}
+
+/// A climb from one start, named by the start: the climbed controller and
+/// its certificate, or why it did not climb.
+type Judged = Result<(fixed_order::Climb, Evaluation), String>;
+
+/// The limit strategy's attempt from its climbs' `results`: the best
+/// certified controller, or refused with each climb's reason (and the
+/// first climb's evaluation, for the report).
+fn limit_outcome(results: &[(String, Judged)]) -> Attempt {
     let best = results
         .iter()
         .filter_map(|(s, r)| r.as_ref().ok().map(|(c, e)| (s, c, e)))

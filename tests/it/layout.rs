@@ -757,7 +757,6 @@ const LONG_FUNCTIONS: &[(&str, &str, usize)] = &[
     ("hal/devices/src/slave/rack.rs", "run_rack", 199),
     ("hal/hal/src/ethercat/rack.rs", "rack", 194),
     ("src/campaign/run/cells.rs", "run_cell", 187),
-    ("src/design/mod.rs", "limit_attempt", 177),
     ("src/rt/tick/run.rs", "tick", 161),
 ];
 
