@@ -132,20 +132,8 @@ pub(super) fn run_cell(
     let rel = cell_dir(cell.index);
     let cdir = dir.join(&rel);
     let keep = campaign.spec.keep;
-    // Whatever an interrupted attempt left is not a result.
-    if cdir.exists() {
-        fs::remove_dir_all(&cdir).map_err(io_at(&cdir))?;
-    }
     let row_file = dir.join(cell_row(cell.index));
-    match fs::remove_file(&row_file) {
-        Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
-            return Err(io_at(&row_file)(e));
-        }
-        _ => {}
-    }
-    // A row an attempt killed mid-write left as its hidden temporary.
-    crate::outputs::remove_stale_temporaries(&row_file).map_err(io_at(&row_file))?;
-    fs::create_dir_all(&cdir).map_err(io_at(&cdir))?;
+    clear_cell(&cdir, &row_file)?;
     journal
         .lock()
         .unwrap_or_else(|p| p.into_inner())
@@ -210,34 +198,8 @@ pub(super) fn run_cell(
             summary
         }
         CellBench::Daemon(socket, submit) => {
-            let c = &config.chirp;
-            let job = JobRequest::Chirp(crate::jobs::request::ChirpRequest {
-                seed: Some(seed),
-                amplitude_a: Some(c.amplitude_a),
-                f_start_hz: Some(c.f_start_hz),
-                f_end_hz: Some(c.f_end_hz),
-                duration_s: c.duration_s,
-                pace: None,
-            });
-            let v = submit(socket, &job)
-                .map_err(|e| cell_err(format!("daemon {}: {e}", socket.display())))?;
-            let summary: ChirpSummary = serde_json::from_value(v)
-                .map_err(|e| cell_err(format!("the daemon's summary does not parse: {e}")))?;
-            // The FRF and the plot beside the cell's summary; the
-            // recording stays where the daemon wrote it.
-            for (from, i) in [(&summary.frf_csv, 1), (&summary.plot, 2)] {
-                if !keep.keeps(i) {
-                    continue;
-                }
-                let to = cdir.join(CELL_FILES[i]);
-                fs::copy(from, &to).map_err(|e| {
-                    cell_err(format!(
-                        "copying the daemon's {} to {}: {e}",
-                        from.display(),
-                        to.display()
-                    ))
-                })?;
-            }
+            let summary =
+                chirp_on_daemon(socket, *submit, &config, seed, keep, &cdir).map_err(cell_err)?;
             recording = summary.recording.display().to_string();
             summary
         }
@@ -306,4 +268,67 @@ pub(super) fn run_cell(
             files,
         })?;
     Ok(())
+}
+
+/// Removes what an interrupted attempt at a cell left (its directory, its
+/// catalogue row and the row's hidden temporary: none is a result), and
+/// makes the cell's directory anew.
+fn clear_cell(cdir: &Path, row_file: &Path) -> Result<(), CampaignRunError> {
+    if cdir.exists() {
+        fs::remove_dir_all(cdir).map_err(io_at(cdir))?;
+    }
+    match fs::remove_file(row_file) {
+        Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
+            return Err(io_at(row_file)(e));
+        }
+        _ => {}
+    }
+    crate::outputs::remove_stale_temporaries(row_file).map_err(io_at(row_file))?;
+    fs::create_dir_all(cdir).map_err(io_at(cdir))
+}
+
+/// A cell's chirp as a job of the daemon on `socket`: its summary, with
+/// the FRF and the plot the campaign keeps copied into the cell's
+/// directory `cdir` (the recording stays where the daemon wrote it).
+///
+/// # Errors
+/// Why the cell has no result: the daemon's answer, a summary that does
+/// not parse, or a copy that failed.
+fn chirp_on_daemon(
+    socket: &Path,
+    submit: SubmitJob,
+    config: &crate::config::BenchConfig,
+    seed: u64,
+    keep: Keep,
+    cdir: &Path,
+) -> Result<ChirpSummary, String> {
+    let c = &config.chirp;
+    let job = JobRequest::Chirp(crate::jobs::request::ChirpRequest {
+        seed: Some(seed),
+        amplitude_a: Some(c.amplitude_a),
+        f_start_hz: Some(c.f_start_hz),
+        f_end_hz: Some(c.f_end_hz),
+        duration_s: c.duration_s,
+        pace: None,
+    });
+    let v = submit(socket, &job).map_err(|e| format!("daemon {}: {e}", socket.display()))?;
+    let summary: ChirpSummary = serde_json::from_value(v)
+        .map_err(|e| format!("the daemon's summary does not parse: {e}"))?;
+    // The FRF and the plot beside the cell's summary; the
+    // recording stays where the daemon wrote it.
+    for (from, i) in [(&summary.frf_csv, 1), (&summary.plot, 2)] {
+        if !keep.keeps(i) {
+            continue;
+        }
+        let to = cdir.join(CELL_FILES[i]);
+        fs::copy(from, &to).map_err(|e| {
+            format!(
+                "copying the daemon's {} to {}: {e}",
+                from.display(),
+                to.display()
+            )
+        })?;
+    }
+
+    Ok(summary)
 }
