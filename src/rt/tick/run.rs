@@ -111,25 +111,7 @@ impl<'s, S: Stage> Loop<'s, S> {
                 self.offer_tap();
             }
         }
-        if missed > 0 {
-            em.event(
-                cur.tick,
-                t_s,
-                EventKind::Stall,
-                &self.sup,
-                missed as f64 * self.period_s,
-            );
-        }
-        // A run of late commands that ended at this sample.
-        if late_before > 0 && self.sup.late_commands() == 0 {
-            em.event(
-                cur.tick,
-                t_s,
-                EventKind::Stall,
-                &self.sup,
-                late_before as f64 * self.period_s,
-            );
-        }
+        self.stall_events(em, cur.tick, t_s, missed, late_before);
         em.push(Record::Sample(SampleRecord {
             tick: cur.tick,
             t_s,
@@ -151,6 +133,47 @@ impl<'s, S: Stage> Loop<'s, S> {
             let value = self.sup.fault().map_or(f64::NAN, |f| f.1);
             em.event(cur.tick, t_s, EventKind::Fault, &self.sup, value);
         }
+        self.count_timing_window(cur, t_s, em);
+        cur.tick += 1;
+        TickResult::Ran { done: out.done }
+    }
+
+    /// The stall events of a tick (no allocation): `missed` deadlines
+    /// (host stall), and a run of `late_before` late commands that ended
+    /// at this sample (the device ran on held commands).
+    #[inline]
+    fn stall_events(
+        &self,
+        em: &mut Emitter<'_>,
+        tick: u64,
+        t_s: f64,
+        missed: u64,
+        late_before: u64,
+    ) {
+        if missed > 0 {
+            em.event(
+                tick,
+                t_s,
+                EventKind::Stall,
+                &self.sup,
+                missed as f64 * self.period_s,
+            );
+        }
+        if late_before > 0 && self.sup.late_commands() == 0 {
+            em.event(
+                tick,
+                t_s,
+                EventKind::Stall,
+                &self.sup,
+                late_before as f64 * self.period_s,
+            );
+        }
+    }
+
+    /// Counts the tick in the timing window; a full window is recorded
+    /// (`/bench/timing`) and starts anew (no allocation).
+    #[inline]
+    fn count_timing_window(&mut self, cur: &mut JobCursor, t_s: f64, em: &mut Emitter<'_>) {
         cur.window_ticks += 1;
         if cur.window_ticks >= self.timing_interval_ticks {
             if em.records() {
@@ -165,8 +188,6 @@ impl<'s, S: Stage> Loop<'s, S> {
             self.window.reset();
             cur.window_ticks = 0;
         }
-        cur.tick += 1;
-        TickResult::Ran { done: out.done }
     }
 
     /// A new job's bookkeeping; resets the timing histograms (no
