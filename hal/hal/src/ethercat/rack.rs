@@ -113,6 +113,33 @@ impl EthercatConfig {
         v
     }
 
+    /// Every slave's `position` within the rack and taken once.
+    fn check_positions(&self, prefix: &str) -> Result<(), ParamError> {
+        let n = self.slaves.len();
+        let mut at_position = [usize::MAX; MAX_RACK];
+        for (i, s) in self.slaves.iter().enumerate() {
+            let p = usize::from(s.position);
+            let key = format!("{prefix}.slaves[{i}].position");
+            if p >= n {
+                return Err(ParamError::new(
+                    key,
+                    format!(
+                        "position {p} is beyond the rack of {n} slaves (0 to {})",
+                        n - 1
+                    ),
+                ));
+            }
+            if at_position[p] != usize::MAX {
+                return Err(ParamError::new(
+                    key,
+                    format!("position {p} is also slaves[{}]'s", at_position[p]),
+                ));
+            }
+            at_position[p] = i;
+        }
+        Ok(())
+    }
+
     /// The rack's layout (`None`: no `slaves`, the single device); see
     /// the [module docs](super::rack) for the rules.
     ///
@@ -150,59 +177,12 @@ impl EthercatConfig {
                 format!("{n} slaves, at most {MAX_RACK}"),
             );
         }
-        let mut at_position = [usize::MAX; MAX_RACK];
-        for (i, s) in self.slaves.iter().enumerate() {
-            let p = usize::from(s.position);
-            let key = format!("{prefix}.slaves[{i}].position");
-            if p >= n {
-                return err(
-                    key,
-                    format!(
-                        "position {p} is beyond the rack of {n} slaves (0 to {})",
-                        n - 1
-                    ),
-                );
-            }
-            if at_position[p] != usize::MAX {
-                return err(
-                    key,
-                    format!("position {p} is also slaves[{}]'s", at_position[p]),
-                );
-            }
-            at_position[p] = i;
-        }
+        self.check_positions(prefix)?;
         let mut image = [(0usize, 0usize); MAX_RACK];
         let mut found: [Option<(usize, SignalAt)>; 6] = [None; 6];
         for (i, s) in self.slaves.iter().enumerate() {
             let sk = format!("{prefix}.slaves[{i}]");
-            for (dir, entries) in [("rx_pdo", s.rx_entries()), ("tx_pdo", s.tx_entries())] {
-                let mut bits = 0usize;
-                for (j, e) in entries.iter().enumerate() {
-                    if !(1..=32).contains(&e.bits) {
-                        return err(
-                            format!("{sk}.{dir}[{j}]"),
-                            format!("bits must be 1 to 32, got {}", e.bits),
-                        );
-                    }
-                    if e.index != 0
-                        && entries[..j]
-                            .iter()
-                            .any(|p| p.index == e.index && p.subindex == e.subindex)
-                    {
-                        return err(
-                            format!("{sk}.{dir}[{j}]"),
-                            format!("0x{:04X}:{:02X} is mapped twice", e.index, e.subindex),
-                        );
-                    }
-                    bits += usize::from(e.bits);
-                }
-                if bits.div_ceil(8) > MAX_PDO_BYTES {
-                    return err(
-                        format!("{sk}.{dir}"),
-                        format!("the image is longer than {MAX_PDO_BYTES} bytes"),
-                    );
-                }
-            }
+            check_pdo_maps(s, &sk)?;
             let (rx, tx) = (s.rx_entries(), s.tx_entries());
             image[usize::from(s.position)] = s.image_bytes();
             for (k, (name, output)) in SIGNALS.iter().enumerate() {
@@ -313,6 +293,40 @@ impl EthercatConfig {
             image,
         }))
     }
+}
+
+/// A slave's own PDO maps: each entry 1 to 32 bits and mapped once, each
+/// image within [`MAX_PDO_BYTES`]; `sk` names the slave in errors.
+fn check_pdo_maps(s: &RackSlave, sk: &str) -> Result<(), ParamError> {
+    for (dir, entries) in [("rx_pdo", s.rx_entries()), ("tx_pdo", s.tx_entries())] {
+        let mut bits = 0usize;
+        for (j, e) in entries.iter().enumerate() {
+            if !(1..=32).contains(&e.bits) {
+                return Err(ParamError::new(
+                    format!("{sk}.{dir}[{j}]"),
+                    format!("bits must be 1 to 32, got {}", e.bits),
+                ));
+            }
+            if e.index != 0
+                && entries[..j]
+                    .iter()
+                    .any(|p| p.index == e.index && p.subindex == e.subindex)
+            {
+                return Err(ParamError::new(
+                    format!("{sk}.{dir}[{j}]"),
+                    format!("0x{:04X}:{:02X} is mapped twice", e.index, e.subindex),
+                ));
+            }
+            bits += usize::from(e.bits);
+        }
+        if bits.div_ceil(8) > MAX_PDO_BYTES {
+            return Err(ParamError::new(
+                format!("{sk}.{dir}"),
+                format!("the image is longer than {MAX_PDO_BYTES} bytes"),
+            ));
+        }
+    }
+    Ok(())
 }
 
 /// The Beckhoff rack of the docs: EK1100 coupler, EL3102 ADC, EL4132 DAC,
