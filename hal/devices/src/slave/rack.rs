@@ -398,27 +398,7 @@ pub fn run_rack(
     };
     let slaves = cfg.rack_slaves();
     let n = slaves.len();
-    let mut escs = Vec::with_capacity(n);
-    for (p, s) in slaves.iter().enumerate() {
-        let t = Terminal::new(s);
-        let coe = t.coe;
-        let name = if s.name.is_empty() {
-            "bench terminal"
-        } else {
-            &s.name
-        };
-        let image = sii::terminal_image(
-            name,
-            s.vendor_id,
-            s.product_id,
-            coe,
-            &s.rx_entries(),
-            &s.tx_entries(),
-        );
-        let mut esc = Esc::in_chain(image, t, coe, p + 1 < n, coe);
-        esc.set_loop_delay_ns(1000 * (n - 1 - p) as u64);
-        escs.push(esc);
-    }
+    let escs = chain_of(&slaves);
     let mut rack = Rack {
         escs,
         core,
@@ -479,39 +459,7 @@ pub fn run_rack(
             }
         }
         // The SM watchdogs, on the slaves' own clock.
-        let mut wake = now + super::POLL_NS;
-        for (p, last_p) in last_out.iter_mut().enumerate().take(n) {
-            let wd = rack.escs[p].watchdog_ns();
-            let Some(last) = *last_p else { continue };
-            if wd == 0 {
-                continue;
-            }
-            if rack.escs[p].al_state() == al::OP && now > last + wd {
-                let esc = &mut rack.escs[p];
-                esc.set_watchdog_expired(true);
-                esc.error(al::SAFE_OP, al::CODE_SM_WATCHDOG);
-                let carries = p == rack.dac || p == rack.enable;
-                if p == rack.dac {
-                    rack.core.trip(DeviceFault::Watchdog);
-                }
-                if p == rack.enable {
-                    rack.core.disable();
-                    rack.enable_bit = false;
-                }
-                rack.latch();
-                if carries && status.watchdog_trip_mono_ns.load(Ordering::Acquire) < last {
-                    status
-                        .watchdog_trip_deadline_mono_ns
-                        .store(last + wd, Ordering::Release);
-                    status.watchdog_trip_mono_ns.store(now, Ordering::Release);
-                    status.host_connected.store(false, Ordering::Release);
-                }
-                status.publish(&rack.core);
-                *last_p = None;
-            } else {
-                wake = wake.min(last + wd + 1);
-            }
-        }
+        let mut wake = rack.expire_watchdogs(&mut last_out[..n], now, status);
         if let (Some(op0), Some(s)) = (op_since, schedule.get(next_fault)) {
             wake = wake.min(op0 + (s.at_s * 1e9) as u64);
         }
@@ -580,6 +528,83 @@ pub fn run_rack(
     rack.core.disable();
     status.publish(&rack.core);
     Ok(())
+}
+
+/// The rack's ESCs in chain order, each with its terminal's SII image and
+/// its share of the loop delay (1 µs per slave behind it).
+fn chain_of(slaves: &[&RackSlave]) -> Vec<Esc<Terminal>> {
+    let n = slaves.len();
+    let mut escs = Vec::with_capacity(n);
+    for (p, s) in slaves.iter().enumerate() {
+        let t = Terminal::new(s);
+        let coe = t.coe;
+        let name = if s.name.is_empty() {
+            "bench terminal"
+        } else {
+            &s.name
+        };
+        let image = sii::terminal_image(
+            name,
+            s.vendor_id,
+            s.product_id,
+            coe,
+            &s.rx_entries(),
+            &s.tx_entries(),
+        );
+        let mut esc = Esc::in_chain(image, t, coe, p + 1 < n, coe);
+        esc.set_loop_delay_ns(1000 * (n - 1 - p) as u64);
+        escs.push(esc);
+    }
+    escs
+}
+
+impl Rack {
+    /// Expires the SM watchdog of every slave in OP whose last output
+    /// write (`last_out`, by position) is older than its watchdog time, as
+    /// the terminal would: it drops to SAFE-OP, the DAC terminal trips the
+    /// amplifier, the enable terminal disables it. Returns the next time
+    /// a watchdog can expire (or the next poll).
+    fn expire_watchdogs(
+        &mut self,
+        last_out: &mut [Option<u64>],
+        now: u64,
+        status: &EmulatorStatus,
+    ) -> u64 {
+        let mut wake = now + super::POLL_NS;
+        for (p, last_p) in last_out.iter_mut().enumerate() {
+            let wd = self.escs[p].watchdog_ns();
+            let Some(last) = *last_p else { continue };
+            if wd == 0 {
+                continue;
+            }
+            if self.escs[p].al_state() == al::OP && now > last + wd {
+                let esc = &mut self.escs[p];
+                esc.set_watchdog_expired(true);
+                esc.error(al::SAFE_OP, al::CODE_SM_WATCHDOG);
+                let carries = p == self.dac || p == self.enable;
+                if p == self.dac {
+                    self.core.trip(DeviceFault::Watchdog);
+                }
+                if p == self.enable {
+                    self.core.disable();
+                    self.enable_bit = false;
+                }
+                self.latch();
+                if carries && status.watchdog_trip_mono_ns.load(Ordering::Acquire) < last {
+                    status
+                        .watchdog_trip_deadline_mono_ns
+                        .store(last + wd, Ordering::Release);
+                    status.watchdog_trip_mono_ns.store(now, Ordering::Release);
+                    status.host_connected.store(false, Ordering::Release);
+                }
+                status.publish(&self.core);
+                *last_p = None;
+            } else {
+                wake = wake.min(last + wd + 1);
+            }
+        }
+        wake
+    }
 }
 
 #[cfg(test)]
