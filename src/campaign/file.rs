@@ -497,80 +497,7 @@ impl Campaign {
                 ),
             ));
         }
-        let dir = path.parent().unwrap_or(Path::new("."));
-        let config_err = |source| CampaignError::Config {
-            path: path.to_path_buf(),
-            source,
-        };
-        let (config_path, config_text) = match config_from {
-            ConfigFrom::Text { name, text } => {
-                BenchConfig::from_toml(text, name).map_err(config_err)?;
-                (name.to_path_buf(), text.to_string())
-            }
-            ConfigFrom::File(_) | ConfigFrom::Named => {
-                let config_path = if let ConfigFrom::File(p) = config_from {
-                    p.to_path_buf()
-                } else if spec.config.is_absolute() {
-                    spec.config.clone()
-                } else {
-                    dir.join(&spec.config)
-                };
-                // Read once, with the file checks of every config
-                // (regular file, size: crate::input_file).
-                let config_text = crate::config::read_text(&config_path).map_err(config_err)?;
-                BenchConfig::from_toml(&config_text, &config_path).map_err(config_err)?;
-                (config_path, config_text)
-            }
-        };
-        let mut table: toml::Table = toml::from_str(&config_text).map_err(|e| {
-            config_err(crate::config::ConfigError::Parse {
-                path: config_path.clone(),
-                message: e.to_string(),
-            })
-        })?;
-        // The bench config's old spellings where they are now (its own
-        // load above warned), then the campaign's overrides on top: its
-        // `[chirp] kind`, the old spelling, is `[excitation] kind`.
-        crate::config::move_old_spellings(&mut table).map_err(|(k, why)| invalid(&k, why))?;
-        let (chirp_over, excitation_over) =
-            overrides(&spec, path).map_err(|(k, why)| invalid(&k, why))?;
-        for (name, over) in [("chirp", &chirp_over), ("excitation", &excitation_over)] {
-            if over.is_empty() {
-                continue;
-            }
-            let section = table
-                .entry(name)
-                .or_insert_with(|| toml::Value::Table(toml::Table::new()));
-            let toml::Value::Table(section) = section else {
-                return Err(invalid(
-                    name,
-                    format!("the bench config's {name} is not a table"),
-                ));
-            };
-            for (k, v) in over {
-                section.insert(k.clone(), v.clone());
-            }
-        }
-        // From the table, not its text: the error names the key (the
-        // merged text's line numbers are no file's).
-        let config = BenchConfig::deserialize(table).map_err(|e| CampaignError::Parse {
-            path: path.to_path_buf(),
-            message: format!(
-                "[chirp] and [excitation] overrides on {}: {}",
-                config_path.display(),
-                e.to_string().trim_end()
-            ),
-        })?;
-        config.check().map_err(|e| {
-            let overridden = (e.key.starts_with("chirp.") && spec.chirp.is_some())
-                || (e.key.starts_with("excitation.") && spec.excitation.is_some());
-            let key = if overridden {
-                e.key.clone()
-            } else {
-                format!("config ({}): {}", config_path.display(), e.key)
-            };
-            invalid(&key, e.reason)
-        })?;
+        let (config_path, config_text, config) = campaign_config(path, &spec, config_from)?;
         let length_m = config.plant.beam.length_m;
         let ops = pick_axis(
             path,
@@ -843,6 +770,101 @@ pub fn changed_keys(old: &str, new: &str) -> Vec<String> {
     keys.sort();
     keys.dedup();
     keys
+}
+
+/// A campaign's bench config: read from where `config_from` says (the
+/// campaign's `config`, relative to its directory), its old spellings
+/// moved, the campaign's `[chirp]` and `[excitation]` overrides merged on
+/// top, and checked. Returns its path, its text as read, and the merged
+/// config.
+///
+/// # Errors
+/// [`CampaignError`] naming the campaign or the config file and the key.
+fn campaign_config(
+    path: &Path,
+    spec: &CampaignSpec,
+    config_from: ConfigFrom<'_>,
+) -> Result<(PathBuf, String, BenchConfig), CampaignError> {
+    let invalid = |key: &str, reason: String| CampaignError::Invalid {
+        path: path.to_path_buf(),
+        key: key.to_string(),
+        reason,
+    };
+    let dir = path.parent().unwrap_or(Path::new("."));
+    let config_err = |source| CampaignError::Config {
+        path: path.to_path_buf(),
+        source,
+    };
+    let (config_path, config_text) = match config_from {
+        ConfigFrom::Text { name, text } => {
+            BenchConfig::from_toml(text, name).map_err(config_err)?;
+            (name.to_path_buf(), text.to_string())
+        }
+        ConfigFrom::File(_) | ConfigFrom::Named => {
+            let config_path = if let ConfigFrom::File(p) = config_from {
+                p.to_path_buf()
+            } else if spec.config.is_absolute() {
+                spec.config.clone()
+            } else {
+                dir.join(&spec.config)
+            };
+            // Read once, with the file checks of every config
+            // (regular file, size: crate::input_file).
+            let config_text = crate::config::read_text(&config_path).map_err(config_err)?;
+            BenchConfig::from_toml(&config_text, &config_path).map_err(config_err)?;
+            (config_path, config_text)
+        }
+    };
+    let mut table: toml::Table = toml::from_str(&config_text).map_err(|e| {
+        config_err(crate::config::ConfigError::Parse {
+            path: config_path.clone(),
+            message: e.to_string(),
+        })
+    })?;
+    // The bench config's old spellings where they are now (its own
+    // load above warned), then the campaign's overrides on top: its
+    // `[chirp] kind`, the old spelling, is `[excitation] kind`.
+    crate::config::move_old_spellings(&mut table).map_err(|(k, why)| invalid(&k, why))?;
+    let (chirp_over, excitation_over) =
+        overrides(spec, path).map_err(|(k, why)| invalid(&k, why))?;
+    for (name, over) in [("chirp", &chirp_over), ("excitation", &excitation_over)] {
+        if over.is_empty() {
+            continue;
+        }
+        let section = table
+            .entry(name)
+            .or_insert_with(|| toml::Value::Table(toml::Table::new()));
+        let toml::Value::Table(section) = section else {
+            return Err(invalid(
+                name,
+                format!("the bench config's {name} is not a table"),
+            ));
+        };
+        for (k, v) in over {
+            section.insert(k.clone(), v.clone());
+        }
+    }
+    // From the table, not its text: the error names the key (the
+    // merged text's line numbers are no file's).
+    let config = BenchConfig::deserialize(table).map_err(|e| CampaignError::Parse {
+        path: path.to_path_buf(),
+        message: format!(
+            "[chirp] and [excitation] overrides on {}: {}",
+            config_path.display(),
+            e.to_string().trim_end()
+        ),
+    })?;
+    config.check().map_err(|e| {
+        let overridden = (e.key.starts_with("chirp.") && spec.chirp.is_some())
+            || (e.key.starts_with("excitation.") && spec.excitation.is_some());
+        let key = if overridden {
+            e.key.clone()
+        } else {
+            format!("config ({}): {}", config_path.display(), e.key)
+        };
+        invalid(&key, e.reason)
+    })?;
+    Ok((config_path, config_text, config))
 }
 
 #[cfg(test)]
