@@ -603,78 +603,16 @@ pub fn run_plot(opts: &PlotOptions) -> Result<PlotSummary, RunError> {
         plan = plan.with_input("config", c);
     }
     plan.check()?;
-    let fits = loaded
-        .par_iter()
-        .map(|l| fit_on(&l.frf, &l.cfg))
-        .collect::<Vec<_>>();
-    let mut ids = Vec::with_capacity(fits.len());
-    for (l, f) in loaded.iter().zip(fits) {
-        let subject = match (&l.campaign, &l.cell) {
-            (Some(d), Some(c)) => format!("{} cell {:03}", d.display(), c.index),
-            _ => l.input.display().to_string(),
-        };
-        ids.push(f.map_err(|r| RunError::option("inputs", subject, r))?);
-    }
+    let ids = fit_traces(&loaded)?;
     let model = if req.no_model {
         None
     } else {
         Some(model_config(opts, given.as_ref(), &loaded)?)
     };
 
-    // Colours: a campaign's cells (and only they) by a sequential map in
-    // their order; a few files each its own; many, sequential in order.
     let n = loaded.len();
-    let one_campaign = loaded.iter().all(|l| l.cell.is_some())
-        && opts
-            .inputs
-            .iter()
-            .filter(|i| matches!(i, PlotInput::Cells { .. }))
-            .count()
-            == 1;
-    let palette = if (one_campaign && n > 1) || n > crate::plot::OVERLAY_QUALITATIVE.len() {
-        OverlayPalette::Sequential
-    } else {
-        OverlayPalette::Qualitative
-    };
+    let (palette, colors_note) = overlay_palette(&loaded, &opts.inputs);
     let colors = overlay_colors(palette, n);
-    let colors_note = (palette == OverlayPalette::Sequential).then(|| {
-        if one_campaign {
-            let distinct = |f: fn(&PlotCell) -> f64| {
-                let mut v: Vec<f64> = loaded
-                    .iter()
-                    .filter_map(|l| l.cell.as_ref().map(f))
-                    .collect();
-                v.sort_by(f64::total_cmp);
-                v.dedup();
-                v.len()
-            };
-            let order = match (
-                distinct(|c| c.mass_asymmetry),
-                distinct(|c| c.operating_point_m),
-            ) {
-                (1, _) => "by operating point Y1o",
-                (_, 1) => "by mass asymmetry Δm23",
-                _ => "by mass asymmetry Δm23, then operating point Y1o",
-            };
-            format!(
-                "colours: viridis, dark to light {order} (the order of the legend){}",
-                if n > FULL_LEGEND_MAX {
-                    "; cells as NNN (Y1o in % of L, Δm23)"
-                } else {
-                    ""
-                }
-            )
-        } else {
-            format!(
-                "colours: viridis, dark to light in the order of the legend{}",
-                if n > FULL_LEGEND_MAX && loaded.iter().any(|l| l.cell.is_some()) {
-                    "; cells as NNN (Y1o in % of L, Δm23)"
-                } else {
-                    ""
-                }
-            )
-        }
-    });
 
     let texts: Vec<(String, String)> = loaded
         .iter()
@@ -761,7 +699,117 @@ pub fn run_plot(opts: &PlotOptions) -> Result<PlotSummary, RunError> {
         reason: e.to_string(),
     })?;
 
-    let summaries = loaded
+    let summaries = trace_summaries(loaded, ids, texts, &colors);
+    Ok(PlotSummary {
+        kind: req.kind,
+        plot: out,
+        title,
+        palette: match palette {
+            OverlayPalette::Qualitative => "qualitative",
+            OverlayPalette::Sequential => "sequential",
+        }
+        .to_string(),
+        colors_note,
+        model: model.map(|(cfg, source)| ModelSummary {
+            config: source,
+            operating_point_m: cfg.plant.operating_point_m,
+            operating_point_fraction_of_l: cfg.plant.operating_point_m / cfg.plant.beam.length_m,
+            mass_asymmetry: cfg.plant.mass_asymmetry,
+        }),
+        band_hz: [band.start, band.end],
+        pair_zoom_hz,
+        traces: summaries,
+    })
+}
+
+/// Every trace fitted as `bench fit` fits it, in parallel.
+///
+/// # Errors
+/// [`RunError::BadOption`] naming `inputs` and the input (or campaign
+/// cell) whose FRF cannot be fitted.
+fn fit_traces(loaded: &[Loaded]) -> Result<Vec<crate::jobs::chirp::Identified>, RunError> {
+    let fits = loaded
+        .par_iter()
+        .map(|l| fit_on(&l.frf, &l.cfg))
+        .collect::<Vec<_>>();
+    let mut ids = Vec::with_capacity(fits.len());
+    for (l, f) in loaded.iter().zip(fits) {
+        let subject = match (&l.campaign, &l.cell) {
+            (Some(d), Some(c)) => format!("{} cell {:03}", d.display(), c.index),
+            _ => l.input.display().to_string(),
+        };
+        ids.push(f.map_err(|r| RunError::option("inputs", subject, r))?);
+    }
+    Ok(ids)
+}
+
+/// The overlay's colours: a campaign's cells (and only they) by a
+/// sequential map in their order; a few files each its own; many,
+/// sequential in order. With the sequential map, the note that says how
+/// to read it.
+fn overlay_palette(loaded: &[Loaded], inputs: &[PlotInput]) -> (OverlayPalette, Option<String>) {
+    let n = loaded.len();
+    let one_campaign = loaded.iter().all(|l| l.cell.is_some())
+        && inputs
+            .iter()
+            .filter(|i| matches!(i, PlotInput::Cells { .. }))
+            .count()
+            == 1;
+    let palette = if (one_campaign && n > 1) || n > crate::plot::OVERLAY_QUALITATIVE.len() {
+        OverlayPalette::Sequential
+    } else {
+        OverlayPalette::Qualitative
+    };
+    let colors_note = (palette == OverlayPalette::Sequential).then(|| {
+        if one_campaign {
+            let distinct = |f: fn(&PlotCell) -> f64| {
+                let mut v: Vec<f64> = loaded
+                    .iter()
+                    .filter_map(|l| l.cell.as_ref().map(f))
+                    .collect();
+                v.sort_by(f64::total_cmp);
+                v.dedup();
+                v.len()
+            };
+            let order = match (
+                distinct(|c| c.mass_asymmetry),
+                distinct(|c| c.operating_point_m),
+            ) {
+                (1, _) => "by operating point Y1o",
+                (_, 1) => "by mass asymmetry Δm23",
+                _ => "by mass asymmetry Δm23, then operating point Y1o",
+            };
+            format!(
+                "colours: viridis, dark to light {order} (the order of the legend){}",
+                if n > FULL_LEGEND_MAX {
+                    "; cells as NNN (Y1o in % of L, Δm23)"
+                } else {
+                    ""
+                }
+            )
+        } else {
+            format!(
+                "colours: viridis, dark to light in the order of the legend{}",
+                if n > FULL_LEGEND_MAX && loaded.iter().any(|l| l.cell.is_some()) {
+                    "; cells as NNN (Y1o in % of L, Δm23)"
+                } else {
+                    ""
+                }
+            )
+        }
+    });
+    (palette, colors_note)
+}
+
+/// Each trace's summary: its input, its cell, its colour, its fit and
+/// verdict.
+fn trace_summaries(
+    loaded: Vec<Loaded>,
+    ids: Vec<crate::jobs::chirp::Identified>,
+    texts: Vec<(String, String)>,
+    colors: &[plotters::style::RGBColor],
+) -> Vec<TraceSummary> {
+    loaded
         .into_iter()
         .zip(ids)
         .zip(texts)
@@ -796,27 +844,7 @@ pub fn run_plot(opts: &PlotOptions) -> Result<PlotSummary, RunError> {
                 verdict: id.verdict,
             }
         })
-        .collect();
-    Ok(PlotSummary {
-        kind: req.kind,
-        plot: out,
-        title,
-        palette: match palette {
-            OverlayPalette::Qualitative => "qualitative",
-            OverlayPalette::Sequential => "sequential",
-        }
-        .to_string(),
-        colors_note,
-        model: model.map(|(cfg, source)| ModelSummary {
-            config: source,
-            operating_point_m: cfg.plant.operating_point_m,
-            operating_point_fraction_of_l: cfg.plant.operating_point_m / cfg.plant.beam.length_m,
-            mass_asymmetry: cfg.plant.mass_asymmetry,
-        }),
-        band_hz: [band.start, band.end],
-        pair_zoom_hz,
-        traces: summaries,
-    })
+        .collect()
 }
 
 /// Lines of the model inside the pair zoom's window, on top of its log

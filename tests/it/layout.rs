@@ -749,7 +749,6 @@ const LONG_FUNCTIONS: &[(&str, &str, usize)] = &[
     ("src/design/fixed_order.rs", "climb", 276),
     ("hal/devices/src/emulator/serial.rs", "run", 267),
     ("src/jobs/session.rs", "run_recorded", 247),
-    ("src/jobs/plot.rs", "run_plot", 246),
     ("src/design/mod.rs", "attempt", 233),
     ("src/design/mod.rs", "design", 231),
     ("src/design/fixed_order.rs", "step", 230),
