@@ -1068,63 +1068,18 @@ pub fn design(
         )
     };
     let run = |s| run_from(s, &[], None);
-    // A workspace's `limit` design also starts from the design of its most
-    // demanding input alone, certified on every input (its gain backed
-    // off where it misses a little). The climb is local and its start
-    // decides: on a campaign of the shipped bench at 0–8 % of L the
-    // climbs from the workspace's fast design (ω* 146 rad/s) reached 293,
-    // where the 8 % cell's own design reaches 366 on all five true plants.
-    let nominal_start = || -> Option<Attempt> {
-        let c = climb?;
-        let n = c.nominal.as_ref()?;
-        let k = n.input;
-        let one = ClimbInputs {
-            lines: n.lines.clone(),
-            computation_delay_s: c.computation_delay_s,
-            effort_max_a_per_m: c.effort_max_a_per_m,
-            nominal: None,
-        };
-        let own_model = if model.len() == frfs.len() {
-            &model[k..=k]
-        } else {
-            model
-        };
-        let spec_k = DesignSpec {
-            strategy: Strategy::Limit,
-            ..spec.clone()
-        };
-        let d = design(
-            frfs.get(k..=k)?,
-            own_model,
-            None,
-            &modes.of_input(k)?,
-            &spec_k,
+    // The most demanding input's own design, a start of the limit's climbs.
+    let nominal = || {
+        nominal_start(
+            frfs,
+            model,
+            modes,
+            spec,
             period_s,
             peak_current_a,
-            Some(&one),
+            climb,
+            &Problem::with_models(&all, &models, req, UNIT_PER_METRE),
         )
-        .ok()?;
-        let problem = Problem::with_models(&all, &models, req, UNIT_PER_METRE);
-        let evaluation = certify_backing_off(
-            &problem,
-            &d.chosen.evaluation.controller,
-            period_s,
-            peak_current_a,
-            LIMIT_BACK_OFF_STEPS,
-            |e| e.violation > 0.5,
-        );
-        tracing::debug!(
-            input = %frfs[k].label,
-            alone_rad_s = d.chosen.evaluation.objective_rad_s,
-            on_every_input_rad_s = evaluation.objective_rad_s,
-            feasible = evaluation.feasible(),
-            "limit strategy: the most demanding input's own design"
-        );
-        Some(Attempt {
-            strategy: d.chosen.strategy,
-            evaluation,
-            structure: format!("{} design of {} alone", d.chosen.strategy, frfs[k].label),
-        })
     };
     let inputs = frfs
         .iter()
@@ -1184,7 +1139,7 @@ pub fn design(
         Strategy::Limit => {
             let ((f, s), n) = rayon::join(
                 || rayon::join(|| run(Strategy::Fast), || run(Strategy::Slow)),
-                nominal_start,
+                nominal,
             );
             let a = run_from(Strategy::Limit, &[&f, &s], n.as_ref());
             if a.evaluation.feasible() {
@@ -1216,49 +1171,134 @@ pub fn design(
         Strategy::Auto => {
             let ((f, s), n) = rayon::join(
                 || rayon::join(|| run(Strategy::Fast), || run(Strategy::Slow)),
-                nominal_start,
+                nominal,
             );
             // The climb needs the program's lines: without them (a caller
             // that gives none) auto is the thesis' two.
             let l = climb.map(|_| run_from(Strategy::Limit, &[&f, &s], n.as_ref()));
-            let w = |a: &Attempt| a.evaluation.objective_rad_s;
-            let all: Vec<&Attempt> = l.iter().chain([&f, &s]).collect();
-            let mut feasible: Vec<&Attempt> = all
-                .iter()
-                .copied()
-                .filter(|a| a.evaluation.feasible())
-                .collect();
-            feasible.sort_by(|a, b| w(b).total_cmp(&w(a)));
-            let Some(best) = feasible.first().copied() else {
-                return Err(fail(&f));
-            };
-            let others: Vec<String> = all
-                .iter()
-                .filter(|a| a.strategy != best.strategy)
-                .map(|a| {
-                    if a.evaluation.feasible() {
-                        format!("{} ω* {:.1} rad/s", a.strategy, w(a))
-                    } else if a.strategy == "limit" {
-                        format!("limit: {}", limit_reason(a))
-                    } else {
-                        format!("{}: {}", a.strategy, fail(a).reason)
-                    }
-                })
-                .collect();
-            let why = format!(
-                "auto: {} meets the margins with the highest performance bandwidth ω* {:.1} rad/s (ω_B {:.1} rad/s; {}): {}",
-                best.strategy,
-                w(best),
-                best.evaluation.sensitivity_bandwidth_min_rad_s,
-                others.join("; "),
-                best.structure
-            );
-            let chosen = best.clone();
-            Ok(Designed {
-                chosen,
-                attempts: [f, s].into_iter().chain(l).collect(),
-                why,
-            })
+            choose_auto(f, s, l, &fail)
         }
     }
+}
+
+/// A workspace's `limit` design also starts from the design of its most
+/// demanding input alone (`climb.nominal`), certified on every input of
+/// `problem` (its gain backed off where it misses a little). The climb is
+/// local and its start decides: on a campaign of the shipped bench at
+/// 0–8 % of L the climbs from the workspace's fast design (ω* 146 rad/s)
+/// reached 293, where the 8 % cell's own design reaches 366 on all five
+/// true plants. `None` without a nominal input, or when its own design
+/// fails.
+#[allow(clippy::too_many_arguments)]
+fn nominal_start(
+    frfs: &[DesignFrf],
+    model: &[DesignFrf],
+    modes: &PlantModes,
+    spec: &DesignSpec,
+    period_s: f64,
+    peak_current_a: f64,
+    climb: Option<&ClimbInputs>,
+    problem: &Problem<'_>,
+) -> Option<Attempt> {
+    let c = climb?;
+    let n = c.nominal.as_ref()?;
+    let k = n.input;
+    let one = ClimbInputs {
+        lines: n.lines.clone(),
+        computation_delay_s: c.computation_delay_s,
+        effort_max_a_per_m: c.effort_max_a_per_m,
+        nominal: None,
+    };
+    let own_model = if model.len() == frfs.len() {
+        &model[k..=k]
+    } else {
+        model
+    };
+    let spec_k = DesignSpec {
+        strategy: Strategy::Limit,
+        ..spec.clone()
+    };
+    let d = design(
+        frfs.get(k..=k)?,
+        own_model,
+        None,
+        &modes.of_input(k)?,
+        &spec_k,
+        period_s,
+        peak_current_a,
+        Some(&one),
+    )
+    .ok()?;
+    let evaluation = certify_backing_off(
+        problem,
+        &d.chosen.evaluation.controller,
+        period_s,
+        peak_current_a,
+        LIMIT_BACK_OFF_STEPS,
+        |e| e.violation > 0.5,
+    );
+    tracing::debug!(
+        input = %frfs[k].label,
+        alone_rad_s = d.chosen.evaluation.objective_rad_s,
+        on_every_input_rad_s = evaluation.objective_rad_s,
+        feasible = evaluation.feasible(),
+        "limit strategy: the most demanding input's own design"
+    );
+    Some(Attempt {
+        strategy: d.chosen.strategy,
+        evaluation,
+        structure: format!("{} design of {} alone", d.chosen.strategy, frfs[k].label),
+    })
+}
+
+/// `auto`'s choice among the fast, slow and (with the climb's lines)
+/// limit attempts: the one that meets the margins with the highest
+/// performance bandwidth ω*, and why, naming the others' ω* or reasons.
+///
+/// # Errors
+/// `fail`'s of the fast attempt when none meets the margins.
+fn choose_auto(
+    f: Attempt,
+    s: Attempt,
+    l: Option<Attempt>,
+    fail: &dyn Fn(&Attempt) -> DesignError,
+) -> Result<Designed, DesignError> {
+    let w = |a: &Attempt| a.evaluation.objective_rad_s;
+    let all: Vec<&Attempt> = l.iter().chain([&f, &s]).collect();
+    let mut feasible: Vec<&Attempt> = all
+        .iter()
+        .copied()
+        .filter(|a| a.evaluation.feasible())
+        .collect();
+    feasible.sort_by(|a, b| w(b).total_cmp(&w(a)));
+    let Some(best) = feasible.first().copied() else {
+        return Err(fail(&f));
+    };
+    let others: Vec<String> = all
+        .iter()
+        .filter(|a| a.strategy != best.strategy)
+        .map(|a| {
+            if a.evaluation.feasible() {
+                format!("{} ω* {:.1} rad/s", a.strategy, w(a))
+            } else if a.strategy == "limit" {
+                format!("limit: {}", limit_reason(a))
+            } else {
+                format!("{}: {}", a.strategy, fail(a).reason)
+            }
+        })
+        .collect();
+    let why = format!(
+        "auto: {} meets the margins with the highest performance bandwidth ω* {:.1} rad/s (ω_B {:.1} rad/s; {}): {}",
+        best.strategy,
+        w(best),
+        best.evaluation.sensitivity_bandwidth_min_rad_s,
+        others.join("; "),
+        best.structure
+    );
+    let chosen = best.clone();
+    Ok(Designed {
+        chosen,
+        attempts: [f, s].into_iter().chain(l).collect(),
+        why,
+    })
 }

@@ -750,7 +750,6 @@ const LONG_FUNCTIONS: &[(&str, &str, usize)] = &[
     ("hal/devices/src/emulator/serial.rs", "run", 267),
     ("src/jobs/session.rs", "run_recorded", 247),
     ("src/design/mod.rs", "attempt", 233),
-    ("src/design/mod.rs", "design", 231),
     ("src/design/fixed_order.rs", "step", 230),
 ];
 
