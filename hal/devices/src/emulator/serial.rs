@@ -11,7 +11,7 @@
 
 use super::{DeviceCore, EmulatorStatus, LinkFault, ScheduledLinkFault};
 use bench_hal::os::{monotonic_ns, sleep_until_ns};
-use bench_hal::Command;
+use bench_hal::{Command, Sample};
 use bench_protocol::serial::{
     self as protocol, flags, DeviceHello, DeviceMessage, Frame, FrameReader, HostMessage,
     WireSample, WireStatus, INVALID_POSITION, MAX_FRAME,
@@ -187,7 +187,7 @@ fn status_msg(core: &DeviceCore, st: &EmulatorStatus) -> DeviceMessage {
 /// An I/O error on the pty other than a full buffer.
 pub fn run(
     pty: Pty,
-    mut core: DeviceCore,
+    core: DeviceCore,
     opts: &SerialEmulatorOptions,
     stop: &AtomicBool,
     status: &EmulatorStatus,
@@ -211,8 +211,8 @@ pub fn run(
         position_lsb_m: opts.position_lsb_m as f32,
     };
     let lsb = f64::from(hello.position_lsb_m);
-    let mut pty = Some(pty);
-    let mut link = Link {
+    let pty = Some(pty);
+    let link = Link {
         fd: pty.as_ref().map_or(-1, |p| p.master.as_raw_fd()),
         reader: FrameReader::new(),
         delayed: VecDeque::new(),
@@ -225,37 +225,105 @@ pub fn run(
     };
     let mut faults = opts.link_faults.clone();
     faults.sort_by(|a, b| a.at_s.total_cmp(&b.at_s));
-    let mut faults: VecDeque<_> = faults.into();
+    let faults: VecDeque<_> = faults.into();
 
     let period = core.period_ns();
     let start = monotonic_ns();
-    let mut next = start + period;
-    let mut session = false;
-    let mut last_sent_seq: u32 = 0;
-    let mut stalled_until = 0u64;
+    let mut emu = Emulator {
+        core,
+        opts,
+        status,
+        pty,
+        link,
+        hello,
+        lsb,
+        faults,
+        start,
+        next: start + period,
+        session: false,
+        last_sent_seq: 0,
+        stalled_until: 0,
+        answered: true,
+        last_tick_ns: start,
+    };
     let mut rx = [0u8; 512];
-    // Lockstep: the command answering the last sample has arrived.
-    let mut answered = true;
-    let mut last_tick_ns = start;
     while !stop.load(Ordering::Relaxed) {
+        emu.serve_host(&mut rx);
+        let now = monotonic_ns();
+        if !opts.lockstep {
+            status
+                .max_tick_lateness_ns
+                .fetch_max(now.saturating_sub(emu.next), Ordering::Relaxed);
+        }
+        emu.inject_faults(now);
+        if now >= emu.stalled_until {
+            emu.tick(now);
+        }
+        if emu.pty.is_some() {
+            emu.link.flush_due(now);
+        }
+        emu.next = next_deadline(emu.next + period, period, status, !opts.lockstep);
+    }
+    Ok(())
+}
+
+/// The running emulator of [`run`]: the device, the link to the host
+/// (with the faults still to inject), the session and the device's clock.
+struct Emulator<'a> {
+    core: DeviceCore,
+    opts: &'a SerialEmulatorOptions,
+    status: &'a EmulatorStatus,
+    /// The pty (`None` once a `Disconnect` fault pulled the cable).
+    pty: Option<Pty>,
+    link: Link,
+    /// The device's answer to a host hello.
+    hello: DeviceHello,
+    /// Size of one probe count as announced, m.
+    lsb: f64,
+    /// Link faults not injected yet, by time.
+    faults: VecDeque<ScheduledLinkFault>,
+    /// The device's time origin, monotonic ns.
+    start: u64,
+    /// The next tick's deadline, monotonic ns.
+    next: u64,
+    /// A host said hello (samples stream).
+    session: bool,
+    /// Sequence number of the last sample sent (a command answering
+    /// another one is late).
+    last_sent_seq: u32,
+    /// A `Stall` fault hangs the device until then, monotonic ns.
+    stalled_until: u64,
+    /// Lockstep: the command answering the last sample has arrived.
+    answered: bool,
+    /// When the device last ticked, monotonic ns (in lockstep, the answer
+    /// is awaited at most the watchdog time from then).
+    last_tick_ns: u64,
+}
+
+impl Emulator<'_> {
+    /// The host's turn between two ticks: waits for bytes on the pty,
+    /// deframes and decodes them (bad frames counted), answers each
+    /// message and publishes the device's state. A stalled device reads
+    /// nothing; without a pty it sleeps until the tick.
+    fn serve_host(&mut self, rx: &mut [u8; 512]) {
         // Serve the host until the next tick (in lockstep, also until the
         // answer to the last sample, at most the watchdog time).
         loop {
             let now = monotonic_ns();
-            let waiting = opts.lockstep
-                && session
-                && core.is_enabled()
-                && !answered
-                && now < last_tick_ns + core.watchdog_ns();
-            if now >= next && !waiting {
+            let waiting = self.opts.lockstep
+                && self.session
+                && self.core.is_enabled()
+                && !self.answered
+                && now < self.last_tick_ns + self.core.watchdog_ns();
+            if now >= self.next && !waiting {
                 break;
             }
-            let until = if now >= next {
-                last_tick_ns + core.watchdog_ns()
+            let until = if now >= self.next {
+                self.last_tick_ns + self.core.watchdog_ns()
             } else {
-                next
+                self.next
             };
-            if pty.is_none() {
+            if self.pty.is_none() {
                 sleep_until_ns(until);
                 continue;
             }
@@ -265,7 +333,7 @@ pub fn run(
                 tv_nsec: (left % 1_000_000_000) as libc::c_long,
             };
             let mut pfd = libc::pollfd {
-                fd: link.fd,
+                fd: self.link.fd,
                 events: libc::POLLIN,
                 revents: 0,
             };
@@ -279,87 +347,98 @@ pub fn run(
                 continue;
             }
             // SAFETY: valid fd and buffer.
-            let n = unsafe { libc::read(link.fd, rx.as_mut_ptr().cast(), rx.len()) };
+            let n = unsafe { libc::read(self.link.fd, rx.as_mut_ptr().cast(), rx.len()) };
             if n <= 0 {
                 continue;
             }
             let now = monotonic_ns();
-            if now < stalled_until {
+            if now < self.stalled_until {
                 continue; // a hung device reads nothing
             }
-            let t_dev = now - start;
+            let t_dev = now - self.start;
             for &b in &rx[..n as usize] {
-                let msg = match link.reader.push(b) {
+                let msg = match self.link.reader.push(b) {
                     None => continue,
                     Some(Frame::TooLong) => {
-                        status.bad_frames.fetch_add(1, Ordering::Relaxed);
+                        self.status.bad_frames.fetch_add(1, Ordering::Relaxed);
                         continue;
                     }
                     Some(Frame::Bytes(f)) => match protocol::decode::<HostMessage>(f) {
                         Ok(m) => m,
                         Err(_) => {
-                            status.bad_frames.fetch_add(1, Ordering::Relaxed);
+                            self.status.bad_frames.fetch_add(1, Ordering::Relaxed);
                             continue;
                         }
                     },
                 };
-                match msg {
-                    HostMessage::Hello { .. } => {
-                        core.disable();
-                        session = true;
-                        status.host_connected.store(true, Ordering::Relaxed);
-                        link.send(&DeviceMessage::Hello(hello), now, false);
-                    }
-                    HostMessage::Enable => {
-                        core.enable(t_dev);
-                        answered = true;
-                        status.last_command_mono_ns.store(now, Ordering::Relaxed);
-                        link.send(&status_msg(&core, status), now, false);
-                    }
-                    HostMessage::Disable => {
-                        core.disable();
-                        link.send(&status_msg(&core, status), now, false);
-                    }
-                    HostMessage::StatusRequest => {
-                        link.send(&status_msg(&core, status), now, false);
-                    }
-                    HostMessage::Command {
-                        answers_seq,
-                        current_a,
-                    } => {
-                        if answers_seq != last_sent_seq && current_a != 0.0 {
-                            status.late_commands.fetch_add(1, Ordering::Relaxed);
-                        }
-                        if answers_seq == last_sent_seq {
-                            answered = true;
-                        }
-                        let had_fault = core.fault().is_some();
-                        if core.command(
-                            Command {
-                                current_a: current_a.into(),
-                                answers_seq: answers_seq.into(),
-                            },
-                            t_dev,
-                        ) {
-                            status.commands_received.fetch_add(1, Ordering::Relaxed);
-                            status.last_command_mono_ns.store(now, Ordering::Relaxed);
-                        } else if !had_fault && core.fault().is_some() {
-                            link.send(&status_msg(&core, status), now, false);
-                        }
-                    }
+                self.answer(msg, now, t_dev);
+            }
+            self.status.publish(&self.core);
+        }
+    }
+
+    /// Acts on one host message as the firmware does, at `now` (monotonic
+    /// ns; `t_dev` on the device's clock): a hello opens the session
+    /// (device disabled, hello sent back), enable / disable / status
+    /// requests are answered with the status, a command drives the device
+    /// (a late one counted; the status sent when it faults the device).
+    fn answer(&mut self, msg: HostMessage, now: u64, t_dev: u64) {
+        let (core, status, link) = (&mut self.core, self.status, &mut self.link);
+        match msg {
+            HostMessage::Hello { .. } => {
+                core.disable();
+                self.session = true;
+                status.host_connected.store(true, Ordering::Relaxed);
+                link.send(&DeviceMessage::Hello(self.hello), now, false);
+            }
+            HostMessage::Enable => {
+                core.enable(t_dev);
+                self.answered = true;
+                status.last_command_mono_ns.store(now, Ordering::Relaxed);
+                link.send(&status_msg(core, status), now, false);
+            }
+            HostMessage::Disable => {
+                core.disable();
+                link.send(&status_msg(core, status), now, false);
+            }
+            HostMessage::StatusRequest => {
+                link.send(&status_msg(core, status), now, false);
+            }
+            HostMessage::Command {
+                answers_seq,
+                current_a,
+            } => {
+                if answers_seq != self.last_sent_seq && current_a != 0.0 {
+                    status.late_commands.fetch_add(1, Ordering::Relaxed);
+                }
+                if answers_seq == self.last_sent_seq {
+                    self.answered = true;
+                }
+                let had_fault = core.fault().is_some();
+                if core.command(
+                    Command {
+                        current_a: current_a.into(),
+                        answers_seq: answers_seq.into(),
+                    },
+                    t_dev,
+                ) {
+                    status.commands_received.fetch_add(1, Ordering::Relaxed);
+                    status.last_command_mono_ns.store(now, Ordering::Relaxed);
+                } else if !had_fault && core.fault().is_some() {
+                    link.send(&status_msg(core, status), now, false);
                 }
             }
-            status.publish(&core);
         }
-        let now = monotonic_ns();
-        if !opts.lockstep {
-            status
-                .max_tick_lateness_ns
-                .fetch_max(now.saturating_sub(next), Ordering::Relaxed);
-        }
-        let t_s = (now - start) as f64 * 1e-9;
-        while faults.front().is_some_and(|f| f.at_s <= t_s) {
-            let f = faults.pop_front().expect("checked");
+    }
+
+    /// Injects the link faults due by `now` (monotonic ns): bit flips,
+    /// dropped, delayed or held frames act on the frames sent from now on,
+    /// a stall hangs the device, a disconnect closes the pty.
+    fn inject_faults(&mut self, now: u64) {
+        let link = &mut self.link;
+        let t_s = (now - self.start) as f64 * 1e-9;
+        while self.faults.front().is_some_and(|f| f.at_s <= t_s) {
+            let f = self.faults.pop_front().expect("checked");
             match f.kind {
                 LinkFault::BitFlips { bits, frames } => {
                     link.flip_bits = bits;
@@ -371,80 +450,82 @@ pub fn run(
                     link.hold_until_ns = now + (duration_s * 1e9) as u64;
                 }
                 LinkFault::Stall { duration_s } => {
-                    stalled_until = now + (duration_s * 1e9) as u64;
+                    self.stalled_until = now + (duration_s * 1e9) as u64;
                 }
                 LinkFault::Disconnect => {
                     // The cable is pulled; the device itself keeps running
                     // (and its watchdog with it).
-                    pty.take();
+                    self.pty.take();
                     link.fd = -1;
-                    session = false;
-                    status.host_connected.store(false, Ordering::Relaxed);
+                    self.session = false;
+                    self.status.host_connected.store(false, Ordering::Relaxed);
                 }
             }
         }
-        if now >= stalled_until {
-            last_tick_ns = now;
-            answered = false;
-            let was_enabled = core.is_enabled();
-            // Device time is the timer's: the tick's scheduled time.
-            let s = core.tick(next.min(now) - start);
-            if was_enabled && !core.is_enabled() && core.fault() == Some(DeviceFault::Watchdog) {
-                // The device's state (0 A) is published before the trip
-                // stamps: whoever sees the stamp sees the current dropped.
-                status.publish(&core);
-                status
-                    .watchdog_trip_deadline_mono_ns
-                    .store(next, Ordering::Release);
-                status.watchdog_trip_mono_ns.store(now, Ordering::Release);
-                if session {
-                    link.send(&status_msg(&core, status), now, false);
-                }
-            }
-            status.publish(&core);
-            if session {
-                let position = if s.position_m.is_finite() {
-                    (s.position_m / lsb)
-                        .round()
-                        .clamp(f64::from(i32::MIN + 1), f64::from(i32::MAX))
-                        as i32
-                } else {
-                    INVALID_POSITION
-                };
-                let mut fl = 0;
-                if s.flags.out_of_range {
-                    fl |= flags::OUT_OF_RANGE;
-                }
-                if s.flags.amplifier_enabled {
-                    fl |= flags::AMPLIFIER_ENABLED;
-                }
-                if s.flags.amplifier_fault {
-                    fl |= flags::FAULT;
-                }
-                if s.flags.command_late {
-                    fl |= flags::COMMAND_LATE;
-                }
-                last_sent_seq = s.seq as u32;
-                link.send(
-                    &DeviceMessage::Sample(WireSample {
-                        seq: s.seq as u32,
-                        time_us: s.device_time_ns / 1000,
-                        position,
-                        current_a: s.measured_current_a as f32,
-                        flags: fl,
-                    }),
-                    now,
-                    true,
-                );
-                status.samples_sent.fetch_add(1, Ordering::Relaxed);
-            }
-        }
-        if pty.is_some() {
-            link.flush_due(now);
-        }
-        next = next_deadline(next + period, period, status, !opts.lockstep);
     }
-    Ok(())
+
+    /// The device's tick at `now` (monotonic ns), on its timer's time: the
+    /// plant steps, a watchdog trip is stamped (and its status sent to the
+    /// host), the status is published and, in a session, the sample sent.
+    fn tick(&mut self, now: u64) {
+        let (core, status, link) = (&mut self.core, self.status, &mut self.link);
+        self.last_tick_ns = now;
+        self.answered = false;
+        let was_enabled = core.is_enabled();
+        // Device time is the timer's: the tick's scheduled time.
+        let s = core.tick(self.next.min(now) - self.start);
+        if was_enabled && !core.is_enabled() && core.fault() == Some(DeviceFault::Watchdog) {
+            // The device's state (0 A) is published before the trip
+            // stamps: whoever sees the stamp sees the current dropped.
+            status.publish(core);
+            status
+                .watchdog_trip_deadline_mono_ns
+                .store(self.next, Ordering::Release);
+            status.watchdog_trip_mono_ns.store(now, Ordering::Release);
+            if self.session {
+                link.send(&status_msg(core, status), now, false);
+            }
+        }
+        status.publish(core);
+        if self.session {
+            self.last_sent_seq = s.seq as u32;
+            link.send(&DeviceMessage::Sample(wire_sample(&s, self.lsb)), now, true);
+            status.samples_sent.fetch_add(1, Ordering::Relaxed);
+        }
+    }
+}
+
+/// A sample as framed on the wire: the position in probe counts of `lsb`
+/// m (clamped to the i32 range, [`INVALID_POSITION`] when not finite), the
+/// device time in µs, the flags as their bits.
+fn wire_sample(s: &Sample, lsb: f64) -> WireSample {
+    let position = if s.position_m.is_finite() {
+        (s.position_m / lsb)
+            .round()
+            .clamp(f64::from(i32::MIN + 1), f64::from(i32::MAX)) as i32
+    } else {
+        INVALID_POSITION
+    };
+    let mut fl = 0;
+    if s.flags.out_of_range {
+        fl |= flags::OUT_OF_RANGE;
+    }
+    if s.flags.amplifier_enabled {
+        fl |= flags::AMPLIFIER_ENABLED;
+    }
+    if s.flags.amplifier_fault {
+        fl |= flags::FAULT;
+    }
+    if s.flags.command_late {
+        fl |= flags::COMMAND_LATE;
+    }
+    WireSample {
+        seq: s.seq as u32,
+        time_us: s.device_time_ns / 1000,
+        position,
+        current_a: s.measured_current_a as f32,
+        flags: fl,
+    }
 }
 
 /// The deadline of the tick after the one due at `next`: `next` itself,
