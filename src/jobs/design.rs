@@ -573,23 +573,21 @@ fn design_error(e: DesignError) -> RunError {
     }
 }
 
-/// Runs a design.
-///
-/// # Errors
-/// See the module docs; nothing is written on an error.
-pub fn run_design(opts: &DesignOptions) -> Result<DesignSummary, RunError> {
-    let t0 = Instant::now();
-    let req = &opts.request;
-    if opts.inputs.is_empty() {
-        return Err(RunError::option(
-            "inputs",
-            "",
-            "at least one FRF (CSV, recording or campaign directory) is needed",
-        ));
-    }
-    let name = req.name.clone().unwrap_or_else(|| NAME.to_string());
-    check_name(&name)?;
-    let read = read_inputs(&opts.inputs)?;
+/// The bench config a design reads: its text, where it came from, and
+/// the config itself.
+struct DesignBench {
+    base_toml: String,
+    config_source: String,
+    cfg: BenchConfig,
+}
+
+/// The bench config of a design: `--config`, else the first recording's or
+/// campaign's, else the built-in bench; `name` must be new in it.
+fn design_bench(
+    req: &DesignRequest,
+    read: &ReadInputs,
+    name: &str,
+) -> Result<DesignBench, RunError> {
     let (base_toml, config_source) = match (&req.config, &read.config_toml) {
         (Some(p), _) => (
             read_to_string(p, Kind::Config, "config")?,
@@ -607,13 +605,28 @@ pub fn run_design(opts: &DesignOptions) -> Result<DesignSummary, RunError> {
         .unwrap_or_else(|| PathBuf::from(&config_source));
     let cfg = BenchConfig::from_toml(&base_toml, &cfg_path)
         .map_err(|e| RunError::option("config", &config_source, e.to_string()))?;
-    if cfg.controller.contains_key(&name) {
+    if cfg.controller.contains_key(name) {
         return Err(RunError::option(
             "name",
-            &name,
+            name,
             format!("[controller.{name}] exists in the bench config ({config_source}): choose another name"),
         ));
     }
+    Ok(DesignBench {
+        base_toml,
+        config_source,
+        cfg,
+    })
+}
+
+/// The requirements and the delay of a design, checked against the
+/// config's loop: the settling bound within the predicted step, every
+/// input below the loop's Nyquist frequency.
+fn design_spec(
+    req: &DesignRequest,
+    cfg: &BenchConfig,
+    read: &ReadInputs,
+) -> Result<DesignSpec, RunError> {
     let period_s = cfg.loop_.period_ns() as f64 * 1e-9;
     let spec = DesignSpec {
         strategy: req.strategy,
@@ -645,7 +658,13 @@ pub fn run_design(opts: &DesignOptions) -> Result<DesignSummary, RunError> {
             ));
         }
     }
-    // Outputs, checked before anything is computed.
+    Ok(spec)
+}
+
+/// The design's outputs (the bench config and, unless `no_plot`, the
+/// figure), checked against what exists and against every input.
+fn plan_design_outputs(opts: &DesignOptions) -> Result<(PathBuf, Option<PathBuf>), RunError> {
+    let req = &opts.request;
     let out = opts.out.clone().unwrap_or_else(|| match &opts.inputs[0] {
         DesignInput::File(p) => beside(p, ".designed.toml"),
         DesignInput::Cells { dir, .. } => dir.join("designed.toml"),
@@ -683,55 +702,348 @@ pub fn run_design(opts: &DesignOptions) -> Result<DesignSummary, RunError> {
         plan.add_input("config", c);
     }
     plan.check()?;
+    Ok((out, png))
+}
+
+/// What a design works on: the inputs' lines prepared for the loop, what
+/// each is used for, their modes, and their modal fits as plants.
+struct Measured {
+    frfs: Vec<crate::design::loops::DesignFrf>,
+    uses: Vec<InputUse>,
+    modes: PlantModes,
+    plants: Vec<FittedPlant>,
+    /// Each input's relative 1σ on its coherent lines.
+    relative_sigma: Vec<Vec<f64>>,
+}
+
+impl Measured {
+    /// The lines first (the fit needs finite, ascending data), then the
+    /// modes, then the wiring against the first resonance.
+    fn identify(read: &ReadInputs, spec: &DesignSpec, path: FitPath) -> Result<Self, RunError> {
+        prepare(&read.frfs, spec.computation_delay_s, None).map_err(design_error)?;
+        let (modes, fits) =
+            PlantModes::identify_with_fits(&read.frfs, path).map_err(design_error)?;
+        let (frfs, uses) = prepare(
+            &read.frfs,
+            spec.computation_delay_s,
+            Some(modes.first_resonance_rad_s),
+        )
+        .map_err(design_error)?;
+        let plants = fits.iter().map(|f| FittedPlant::new(f, path)).collect();
+        Ok(Self {
+            frfs,
+            uses,
+            modes,
+            plants,
+            relative_sigma: crate::design::coherent_relative_sigma(&read.frfs),
+        })
+    }
+
+    /// The `limit` strategy climbs on the limit's lines (all inputs', and
+    /// a workspace's most demanding input's own), with the effort bound of
+    /// the limit and the design alike: the peak current for the config's
+    /// setpoint step.
+    fn climb_inputs(
+        &self,
+        spec: &DesignSpec,
+        period_s: f64,
+        cfg: &BenchConfig,
+    ) -> crate::design::ClimbInputs {
+        let effort_max_a_per_m = crate::design::limit::LoopBounds::effort_for_step(
+            cfg.actuator.peak_current_a,
+            cfg.step.step_m,
+        );
+        let delay_s = spec.computation_delay_s;
+        let s_max = spec.requirements.sensitivity_peak_max;
+        let (frfs, sigma, plants) = (&self.frfs, &self.relative_sigma, &self.plants);
+        crate::design::ClimbInputs {
+            effort_max_a_per_m,
+            lines: crate::design::ceiling::program_lines(frfs, sigma, plants, period_s, delay_s),
+            computation_delay_s: delay_s,
+            nominal: crate::design::nominal_input(plants, s_max).map(|k| crate::design::Nominal {
+                input: k,
+                lines: crate::design::ceiling::program_lines(
+                    &frfs[k..=k],
+                    &sigma[k..=k],
+                    &plants[k..=k],
+                    period_s,
+                    delay_s,
+                ),
+            }),
+        }
+    }
+
+    /// The model input `i` is predicted on: its fit, or the config's model
+    /// (read from `config_source`) when asked.
+    fn model<'a>(
+        &'a self,
+        choice: ModelChoice,
+        config_source: &'a str,
+        i: usize,
+    ) -> BenchModel<'a> {
+        match choice {
+            ModelChoice::Fit => BenchModel::Fitted {
+                input: &self.frfs[i].label,
+                plant: &self.plants[i],
+            },
+            ModelChoice::Config => BenchModel::Config {
+                source: config_source,
+            },
+        }
+    }
+
+    /// The certificate's models, every input's fit (or the config's
+    /// model), and each model's relative 1σ on its grid: the fit's
+    /// covariance (a config's model has none: NaN).
+    fn certificate_models(
+        &self,
+        choice: ModelChoice,
+        config_source: &str,
+        cfg: &BenchConfig,
+        spec: &DesignSpec,
+    ) -> Result<(Vec<crate::design::loops::DesignFrf>, Vec<Vec<f64>>), RunError> {
+        let delay_s = spec.computation_delay_s;
+        let models = match choice {
+            ModelChoice::Fit => (0..self.frfs.len())
+                .map(|i| model_frf_on(self.model(choice, config_source, i), cfg, delay_s))
+                .collect::<Result<Vec<_>, _>>(),
+            ModelChoice::Config => {
+                model_frf_on(self.model(choice, config_source, 0), cfg, delay_s).map(|m| vec![m])
+            }
+        }
+        .map_err(design_error)?;
+        let sigma = models
+            .iter()
+            .enumerate()
+            .map(|(i, m)| match choice {
+                ModelChoice::Fit => m
+                    .omega_rad_s
+                    .iter()
+                    .map(|w| self.plants[i].frf_relative_sigma(*w))
+                    .collect(),
+                ModelChoice::Config => vec![f64::NAN; m.omega_rad_s.len()],
+            })
+            .collect();
+        Ok((models, sigma))
+    }
+
+    /// The limit ([`bench_limit`]) and the design ([`design`]) of these
+    /// inputs. They are independent: side by side, the limit on a thread of
+    /// its own, outside the pool the design's searches and climbs share. (In
+    /// the pool, on two cores, the limit held one of its two threads for its
+    /// whole run, and the second climb waited for it: one default chirp's
+    /// design 6.6 s, 5.8 s with the limit on its own thread; dev profile,
+    /// the shipped bench.)
+    fn limit_beside_design(
+        &self,
+        models: &[crate::design::loops::DesignFrf],
+        settling: Option<&crate::design::SettlingLimit<'_>>,
+        spec: &DesignSpec,
+        period_s: f64,
+        peak_current_a: f64,
+        climb: &crate::design::ClimbInputs,
+    ) -> (LimitReport, Result<crate::design::Designed, DesignError>) {
+        std::thread::scope(|scope| {
+            let limit = scope.spawn(|| {
+                bench_limit(
+                    &self.frfs,
+                    &self.relative_sigma,
+                    &self.plants,
+                    period_s,
+                    spec.computation_delay_s,
+                    spec.requirements.sensitivity_peak_max,
+                    climb.effort_max_a_per_m,
+                )
+            });
+            let d = design(
+                &self.frfs,
+                models,
+                settling,
+                &self.modes,
+                spec,
+                period_s,
+                peak_current_a,
+                Some(climb),
+            );
+            let limit = limit
+                .join()
+                .unwrap_or_else(|panic| std::panic::resume_unwind(panic));
+            (limit, d)
+        })
+    }
+}
+
+/// The least margins over every input's loop.
+struct LeastMargins {
+    /// The least phase margin over every crossing, deg (`None`: no
+    /// crossing).
+    phase_margin_min_deg: Option<f64>,
+    /// The least gain margin, dB (`None`: none defined).
+    gain_margin_min_db: Option<f64>,
+    /// The largest ‖S‖∞.
+    sensitivity_peak: f64,
+}
+
+impl LeastMargins {
+    fn of(figures: &[LoopFigures]) -> Self {
+        Self {
+            phase_margin_min_deg: figures
+                .iter()
+                .filter_map(|f| f.phase_margin_min_deg)
+                .reduce(f64::min),
+            gain_margin_min_db: figures
+                .iter()
+                .filter_map(|f| f.margins.gain_margin_db)
+                .reduce(f64::min),
+            sensitivity_peak: figures
+                .iter()
+                .map(|f| f.margins.sensitivity_peak)
+                .fold(0.0, f64::max),
+        }
+    }
+}
+
+/// The bench config with `[controller.NAME]` added, checked to load as it
+/// will be run (read as if from `out`).
+fn designed_config(
+    base_toml: &str,
+    name: &str,
+    controller: &ControllerConfig,
+    why: &str,
+    out: &Path,
+) -> Result<String, RunError> {
+    let text = designed_toml(base_toml, name, controller, why)
+        .map_err(|e| RunError::BadInput(format!("the bench config with the design added: {e}")))?;
+    BenchConfig::from_toml(&text, out).map_err(|e| {
+        RunError::BadInput(format!(
+            "the bench config with the design added does not load: {e}"
+        ))
+    })?;
+    Ok(text)
+}
+
+/// How closely the discrete controller that runs follows a continuous
+/// design. A design made in discrete time (the `limit` strategy: its
+/// config form is the bilinear image, run through the same map) is what
+/// runs: `None`.
+fn discretization_of(
+    controller: &ControllerConfig,
+    period_s: f64,
+    peak_current_a: f64,
+) -> Option<crate::control::DiscretizationReport> {
+    (controller.discretization != crate::control::Discretization::Bilinear).then(|| {
+        crate::control::DiscreteController::new(controller, period_s, peak_current_a)
+            .discretization()
+    })
+}
+
+/// Every input's figures with its ω* and their 1σ, in input order.
+fn input_figures(
+    frfs: &[crate::design::loops::DesignFrf],
+    figures: &[LoopFigures],
+    per_input_rad_s: &[Option<f64>],
+    sigmas: &[FigureSigmas],
+) -> Vec<InputFigures> {
+    frfs.iter()
+        .zip(figures)
+        .zip(per_input_rad_s)
+        .zip(sigmas)
+        .map(|(((f, g), w), sg)| InputFigures {
+            input: f.label.clone(),
+            figures: g.clone(),
+            performance_bandwidth_rad_s: *w,
+            sigma: sg.clone(),
+        })
+        .collect()
+}
+
+/// Writes a design's outputs: the figure first (a failure leaves no config
+/// behind), then the config (`summary.config_out`; a failure removes the
+/// figure).
+fn write_outputs(
+    summary: &mut DesignSummary,
+    text: &str,
+    png: Option<&Path>,
+    existing: Existing,
+    figure: impl FnOnce(&Path, &DesignSummary) -> Result<(), RunError>,
+) -> Result<(), RunError> {
+    if let Some(png) = png {
+        figure(png, summary)?;
+        summary.plot = Some(png.to_path_buf());
+    }
+    let out = &summary.config_out;
+    write_atomically(out, existing, |f| f.write_all(text.as_bytes())).map_err(|e| {
+        if let Some(p) = &summary.plot {
+            let _ = std::fs::remove_file(p);
+        }
+        RunError::option("out", out.display(), e.to_string())
+    })
+}
+
+/// The design's ω* as a fraction of the limit's (`None`: either unknown).
+fn fraction_of_limit(performance_bandwidth_rad_s: Option<f64>, limit: &LimitReport) -> Option<f64> {
+    match (
+        performance_bandwidth_rad_s,
+        limit.performance_bandwidth_rad_s,
+    ) {
+        (Some(w), Some(l)) if l > 0.0 => Some(w / l),
+        _ => None,
+    }
+}
+
+/// The input whose loop binds, by label and index (the first input when
+/// none binds).
+fn binding_input(
+    binding: Option<&Binding>,
+    frfs: &[crate::design::loops::DesignFrf],
+) -> (String, usize) {
+    let label = binding.map_or_else(|| frfs[0].label.clone(), |b| b.input.clone());
+    let index = frfs.iter().position(|f| f.label == label).unwrap_or(0);
+    (label, index)
+}
+
+/// Runs a design.
+///
+/// # Errors
+/// See the module docs; nothing is written on an error.
+pub fn run_design(opts: &DesignOptions) -> Result<DesignSummary, RunError> {
+    let t0 = Instant::now();
+    let req = &opts.request;
+    if opts.inputs.is_empty() {
+        return Err(RunError::option(
+            "inputs",
+            "",
+            "at least one FRF (CSV, recording or campaign directory) is needed",
+        ));
+    }
+    let name = req.name.clone().unwrap_or_else(|| NAME.to_string());
+    check_name(&name)?;
+    let read = read_inputs(&opts.inputs)?;
+    let DesignBench {
+        base_toml,
+        config_source,
+        cfg,
+    } = design_bench(req, &read, &name)?;
+    let period_s = cfg.loop_.period_ns() as f64 * 1e-9;
+    let spec = design_spec(req, &cfg, &read)?;
+    // Outputs, checked before anything is computed.
+    let (out, png) = plan_design_outputs(opts)?;
 
     let path = FitPath {
         period_s,
         amplifier_bandwidth_hz: cfg.actuator.bandwidth_hz,
     };
-    // The lines first (the fit needs finite, ascending data), then the
-    // modes, then the wiring against the first resonance.
-    prepare(&read.frfs, spec.computation_delay_s, None).map_err(design_error)?;
-    let (modes, fits) = PlantModes::identify_with_fits(&read.frfs, path).map_err(design_error)?;
-    let (frfs, uses) = prepare(
-        &read.frfs,
-        spec.computation_delay_s,
-        Some(modes.first_resonance_rad_s),
-    )
-    .map_err(design_error)?;
-    let plants: Vec<FittedPlant> = fits.iter().map(|f| FittedPlant::new(f, path)).collect();
-    let model_of = |i: usize| match req.model {
-        ModelChoice::Fit => BenchModel::Fitted {
-            input: &frfs[i].label,
-            plant: &plants[i],
-        },
-        ModelChoice::Config => BenchModel::Config {
-            source: &config_source,
-        },
-    };
-    // The certificate's models: every input's fit (or the config's model).
-    let models = match req.model {
-        ModelChoice::Fit => (0..frfs.len())
-            .map(|i| model_frf_on(model_of(i), &cfg, spec.computation_delay_s))
-            .collect::<Result<Vec<_>, _>>(),
-        ModelChoice::Config => {
-            model_frf_on(model_of(0), &cfg, spec.computation_delay_s).map(|m| vec![m])
-        }
-    }
-    .map_err(design_error)?;
-    // Each model's relative 1σ on its grid: the fit's covariance (a
-    // config's model has none: NaN).
-    let model_sigma: Vec<Vec<f64>> = models
-        .iter()
-        .enumerate()
-        .map(|(i, m)| match req.model {
-            ModelChoice::Fit => m
-                .omega_rad_s
-                .iter()
-                .map(|w| plants[i].frf_relative_sigma(*w))
-                .collect(),
-            ModelChoice::Config => vec![f64::NAN; m.omega_rad_s.len()],
-        })
-        .collect();
+    let measured = Measured::identify(&read, &spec, path)?;
+    let Measured {
+        frfs,
+        uses,
+        modes,
+        relative_sigma,
+        ..
+    } = &measured;
+    let model_of = |i: usize| measured.model(req.model, &config_source, i);
+    let (models, model_sigma) =
+        measured.certificate_models(req.model, &config_source, &cfg, &spec)?;
     let settle_of = |c: &ControllerConfig| {
         crate::design::predict::predict_step_on(model_of(0), &cfg, c, spec.computation_delay_s)
             .ok()
@@ -743,90 +1055,36 @@ pub fn run_design(opts: &DesignOptions) -> Result<DesignSummary, RunError> {
             max_s,
             settling_s: &settle_of,
         });
-    let s_max = spec.requirements.sensitivity_peak_max;
-    let relative_sigma = crate::design::coherent_relative_sigma(&read.frfs);
-    // The effort bound of the limit and the design alike: the peak
-    // current for the config's setpoint step.
-    let effort_max_a_per_m = crate::design::limit::LoopBounds::effort_for_step(
+    let climb = measured.climb_inputs(&spec, period_s, &cfg);
+    let (limit, d) = measured.limit_beside_design(
+        &models,
+        settling.as_ref(),
+        &spec,
+        period_s,
         cfg.actuator.peak_current_a,
-        cfg.step.step_m,
+        &climb,
     );
-    // The `limit` strategy climbs on the limit's lines.
-    let climb = crate::design::ClimbInputs {
-        effort_max_a_per_m,
-        lines: crate::design::ceiling::program_lines(
-            &frfs,
-            &relative_sigma,
-            &plants,
-            period_s,
-            spec.computation_delay_s,
-        ),
-        computation_delay_s: spec.computation_delay_s,
-        nominal: crate::design::nominal_input(&plants, s_max).map(|k| crate::design::Nominal {
-            input: k,
-            lines: crate::design::ceiling::program_lines(
-                &frfs[k..=k],
-                &relative_sigma[k..=k],
-                &plants[k..=k],
-                period_s,
-                spec.computation_delay_s,
-            ),
-        }),
-    };
-    // The limit and the design are independent: side by side, the limit
-    // on a thread of its own, outside the pool the design's searches and
-    // climbs share. (In the pool, on two cores, the limit held one of its
-    // two threads for its whole run, and the second climb waited for it:
-    // one default chirp's design 6.6 s, 5.8 s with the limit on its own
-    // thread; dev profile, the shipped bench.)
-    let (limit, d) = std::thread::scope(|scope| {
-        let limit = scope.spawn(|| {
-            bench_limit(
-                &frfs,
-                &relative_sigma,
-                &plants,
-                period_s,
-                spec.computation_delay_s,
-                s_max,
-                effort_max_a_per_m,
-            )
-        });
-        let d = design(
-            &frfs,
-            &models,
-            settling.as_ref(),
-            &modes,
-            &spec,
-            period_s,
-            cfg.actuator.peak_current_a,
-            Some(&climb),
-        );
-        let limit = limit
-            .join()
-            .unwrap_or_else(|panic| std::panic::resume_unwind(panic));
-        (limit, d)
-    });
     let d = d.map_err(design_error)?;
     let e = &d.chosen.evaluation;
+    let least = LeastMargins::of(&e.figures);
     let mut controller = e.controller.clone();
-    controller.description =
-        format!(
+    controller.description = format!(
         "bench design ({}): ω_B {:.0} rad/s, least phase margin {:.0}°, ‖S‖∞ {:.2} on {} FRF(s)",
         d.chosen.strategy,
         e.sensitivity_bandwidth_min_rad_s,
-        e.figures.iter().filter_map(|f| f.phase_margin_min_deg).fold(f64::INFINITY, f64::min),
-        e.figures.iter().map(|f| f.margins.sensitivity_peak).fold(0.0, f64::max),
+        least.phase_margin_min_deg.unwrap_or(f64::INFINITY),
+        least.sensitivity_peak,
         frfs.len()
     );
     let figures_on = FiguresOn {
-        frfs: &frfs,
+        frfs,
         models: &models,
-        relative_sigma: &relative_sigma,
+        relative_sigma,
         model_relative_sigma: &model_sigma,
         computation_delay_s: spec.computation_delay_s,
         period_s,
         peak_current_a: cfg.actuator.peak_current_a,
-        s_max,
+        s_max: spec.requirements.sensitivity_peak_max,
     };
     // ω* of the discrete controller on every input's lines and on every
     // model's grid, and the 1σ of the figures. (The chosen evaluation's
@@ -837,21 +1095,7 @@ pub fn run_design(opts: &DesignOptions) -> Result<DesignSummary, RunError> {
         per_input_sigma: sigmas,
         sigma: summary_sigma,
     } = evaluation_figures(&figures_on, e);
-    let limit_fraction = match (
-        performance_bandwidth_rad_s,
-        limit.performance_bandwidth_rad_s,
-    ) {
-        (Some(w), Some(l)) if l > 0.0 => Some(w / l),
-        _ => None,
-    };
-    let worst_input = e
-        .binding
-        .as_ref()
-        .map_or_else(|| frfs[0].label.clone(), |b| b.input.clone());
-    let worst_index = frfs
-        .iter()
-        .position(|f| f.label == worst_input)
-        .unwrap_or(0);
+    let (worst_input, worst_index) = binding_input(e.binding.as_ref(), frfs);
     let model = predict_on(
         model_of(worst_index),
         &cfg,
@@ -859,29 +1103,10 @@ pub fn run_design(opts: &DesignOptions) -> Result<DesignSummary, RunError> {
         spec.computation_delay_s,
     )
     .map_err(design_error)?;
-    let text = designed_toml(&base_toml, &name, &controller, &d.why)
-        .map_err(|e| RunError::BadInput(format!("the bench config with the design added: {e}")))?;
-    // The written bench must load as it will be run.
-    BenchConfig::from_toml(&text, &out).map_err(|e| {
-        RunError::BadInput(format!(
-            "the bench config with the design added does not load: {e}"
-        ))
-    })?;
-    // A design made in discrete time (the `limit` strategy: its config
-    // form is the bilinear image, run through the same map) is what runs;
-    // a continuous one is discretised, and how closely is reported.
-    let discretization = (controller.discretization != crate::control::Discretization::Bilinear)
-        .then(|| {
-            crate::control::DiscreteController::new(
-                &controller,
-                period_s,
-                cfg.actuator.peak_current_a,
-            )
-            .discretization()
-        });
-    let summary = DesignSummary {
-        discretization,
-        inputs: uses,
+    let text = designed_config(&base_toml, &name, &controller, &d.why, &out)?;
+    let mut summary = DesignSummary {
+        discretization: discretization_of(&controller, period_s, cfg.actuator.peak_current_a),
+        inputs: uses.clone(),
         config: config_source.clone(),
         modes: modes.clone(),
         strategy: d.chosen.strategy.to_string(),
@@ -890,18 +1115,7 @@ pub fn run_design(opts: &DesignOptions) -> Result<DesignSummary, RunError> {
         computation_delay_s: spec.computation_delay_s,
         name: name.clone(),
         controller: controller.clone(),
-        figures: frfs
-            .iter()
-            .zip(&e.figures)
-            .zip(&per_input)
-            .zip(&sigmas)
-            .map(|(((f, g), w), sg)| InputFigures {
-                input: f.label.clone(),
-                figures: g.clone(),
-                performance_bandwidth_rad_s: *w,
-                sigma: sg.clone(),
-            })
-            .collect(),
+        figures: input_figures(frfs, &e.figures, &per_input, &sigmas),
         crossover_rad_s: e.figures[worst_index]
             .margins
             .crossovers_rad_s
@@ -910,79 +1124,60 @@ pub fn run_design(opts: &DesignOptions) -> Result<DesignSummary, RunError> {
         worst_input,
         binding: e.binding.clone(),
         sensitivity_bandwidth_rad_s: e.sensitivity_bandwidth_min_rad_s,
-        phase_margin_min_deg: e
-            .figures
-            .iter()
-            .filter_map(|f| f.phase_margin_min_deg)
-            .reduce(f64::min),
-        gain_margin_min_db: e
-            .figures
-            .iter()
-            .filter_map(|f| f.margins.gain_margin_db)
-            .reduce(f64::min),
-        sensitivity_peak: e
-            .figures
-            .iter()
-            .map(|f| f.margins.sensitivity_peak)
-            .fold(0.0, f64::max),
+        phase_margin_min_deg: least.phase_margin_min_deg,
+        gain_margin_min_db: least.gain_margin_min_db,
+        sensitivity_peak: least.sensitivity_peak,
         performance_bandwidth_rad_s,
         sigma: summary_sigma,
+        limit_fraction: fraction_of_limit(performance_bandwidth_rad_s, &limit),
         limit,
-        limit_fraction,
         model,
-        strategies: d
-            .attempts
-            .iter()
-            .map(|a| {
-                let f = evaluation_figures(&figures_on, &a.evaluation);
-                // The row states the certificate's ω*, which is the one read
-                // here; the 1σ is kept only while the two are the same figure.
-                let same = f
-                    .performance_bandwidth_rad_s
-                    .is_some_and(|w| (w - a.evaluation.objective_rad_s).abs() <= 1e-9 * w.abs());
-                let sigma = FigureSigmas {
-                    performance_bandwidth_rad_s: f
-                        .sigma
-                        .performance_bandwidth_rad_s
-                        .filter(|_| same),
-                    ..f.sigma
-                };
-                StrategyOutcome {
-                    strategy: a.strategy.to_string(),
-                    meets_margins: a.evaluation.feasible(),
-                    sensitivity_bandwidth_rad_s: a.evaluation.sensitivity_bandwidth_min_rad_s,
-                    performance_bandwidth_rad_s: a.evaluation.objective_rad_s,
-                    structure: a.structure.clone(),
-                    binding: a.evaluation.binding.clone(),
-                    sigma,
-                }
-            })
-            .collect(),
+        strategies: strategy_outcomes(&figures_on, &d.attempts),
         config_out: out.clone(),
         plot: None,
         design_time_s: t0.elapsed().as_secs_f64(),
     };
-    // The figure first (a failure leaves no config behind), then the config.
-    let mut summary = summary;
-    if let Some(png) = &png {
-        write_figure(
-            png,
-            opts.existing,
-            &frfs,
-            &cfg,
-            model_of(worst_index),
-            &summary,
-            worst_index,
-        )?;
-        summary.plot = Some(png.clone());
-    }
-    write_atomically(&out, opts.existing, |f| f.write_all(text.as_bytes())).map_err(|e| {
-        if let Some(p) = &summary.plot {
-            let _ = std::fs::remove_file(p);
-        }
-        RunError::option("out", out.display(), e.to_string())
-    })?;
+    let worst_model = model_of(worst_index);
+    write_outputs(
+        &mut summary,
+        &text,
+        png.as_deref(),
+        opts.existing,
+        |p, s| write_figure(p, opts.existing, frfs, &cfg, worst_model, s, worst_index),
+    )?;
     Ok(summary)
+}
+
+/// Every strategy tried, as the summary lists it: the certificate's ω*
+/// with its 1σ (kept only while the two are the same figure).
+fn strategy_outcomes(
+    figures_on: &FiguresOn<'_>,
+    attempts: &[crate::design::Attempt],
+) -> Vec<StrategyOutcome> {
+    attempts
+        .iter()
+        .map(|a| {
+            let f = evaluation_figures(figures_on, &a.evaluation);
+            // The row states the certificate's ω*, which is the one read
+            // here; the 1σ is kept only while the two are the same figure.
+            let same = f
+                .performance_bandwidth_rad_s
+                .is_some_and(|w| (w - a.evaluation.objective_rad_s).abs() <= 1e-9 * w.abs());
+            let sigma = FigureSigmas {
+                performance_bandwidth_rad_s: f.sigma.performance_bandwidth_rad_s.filter(|_| same),
+                ..f.sigma
+            };
+            StrategyOutcome {
+                strategy: a.strategy.to_string(),
+                meets_margins: a.evaluation.feasible(),
+                sensitivity_bandwidth_rad_s: a.evaluation.sensitivity_bandwidth_min_rad_s,
+                performance_bandwidth_rad_s: a.evaluation.objective_rad_s,
+                structure: a.structure.clone(),
+                binding: a.evaluation.binding.clone(),
+                sigma,
+            }
+        })
+        .collect()
 }
 
 /// The design figure: every input's loop with the discrete controller that
