@@ -400,6 +400,11 @@ fn abandoned_answer(
     }
 }
 
+/// The answer when the real-time loop is gone.
+fn gone() -> ApiError {
+    ApiError::new(ApiErrorKind::Error, "the real-time loop is gone")
+}
+
 fn gone_loop() -> (ApiError, Option<RunError>) {
     (
         ApiError::new(ApiErrorKind::Error, "the real-time loop is gone"),
@@ -413,36 +418,73 @@ fn gone_loop() -> (ApiError, Option<RunError>) {
 /// loop latched between jobs. Jobs are prepared on a worker thread each,
 /// so the owner keeps answering while one is prepared, and a job stopped
 /// (or a daemon shut down) during its preparation ends at once.
-pub(super) fn owner(mut client: ServiceClient, rx: mpsc::Receiver<OwnerCmd>, shared: OwnerShared) {
-    let OwnerShared {
-        status,
-        events,
-        safety,
-        hold,
-        metrics,
-        uploader,
-    } = shared;
-    let metrics = metrics.as_deref();
-    let set_state = |state: &'static str, fault: Option<FaultStatus>| {
-        // Every latch comes here once, with its fault.
-        if let (Some(m), "faulted", Some(f)) = (metrics, state, fault.as_ref()) {
+pub(super) fn owner(client: ServiceClient, rx: mpsc::Receiver<OwnerCmd>, shared: OwnerShared) {
+    let mut o = Owner {
+        client,
+        shared,
+        active: None,
+        left: Vec::new(),
+        shutting_down: false,
+    };
+    loop {
+        let wait = std::time::Duration::from_millis(if o.active.is_some() { 1 } else { 10 });
+        match rx.recv_timeout(wait) {
+            Ok(OwnerCmd::Shutdown) => o.shutting_down = true,
+            Err(mpsc::RecvTimeoutError::Disconnected) => {
+                o.shutting_down = true;
+                std::thread::sleep(wait);
+            }
+            Err(mpsc::RecvTimeoutError::Timeout) => {}
+            Ok(cmd) => o.command(cmd),
+        }
+        o.step_active();
+        o.reap_left();
+        if o.shutting_down && o.active.is_none() {
+            break;
+        }
+        o.report_faults();
+    }
+    let _ = o.client.call(LoopRequest::Shutdown);
+}
+
+/// The owner thread's state.
+struct Owner {
+    client: ServiceClient,
+    shared: OwnerShared,
+    /// The job being prepared or run.
+    active: Option<Active>,
+    /// Jobs abandoned whose threads still run (or sleep, parked over their
+    /// budget), with what they hold.
+    left: Vec<Left>,
+    shutting_down: bool,
+}
+
+impl Owner {
+    fn metrics(&self) -> Option<&super::metrics::Metrics> {
+        self.shared.metrics.as_deref()
+    }
+
+    /// Sets the daemon's state and tells the event stream; every latch
+    /// comes here once, with its fault.
+    fn set_state(&self, state: &'static str, fault: Option<FaultStatus>) {
+        if let (Some(m), "faulted", Some(f)) = (self.metrics(), state, fault.as_ref()) {
             m.fault(f.kind);
         }
-        let mut s = lock(&status);
+        let mut s = lock(&self.shared.status);
         s.state = state;
         if fault.is_some() || state != "faulted" {
             s.fault = fault;
         }
-        let _ = events.send(event("state", json!({ "state": state, "fault": s.fault })));
-    };
-    let gone = || ApiError::new(ApiErrorKind::Error, "the real-time loop is gone");
-    let busy = || ApiError::new(ApiErrorKind::Busy, "a job is running: `stop` it first");
-    let mut active: Option<Active> = None;
-    // Jobs abandoned whose threads still run (or sleep, parked over their
-    // budget), with what they hold.
-    let mut left: Vec<Left> = Vec::new();
-    let show_left = |left: &[Left]| {
-        lock(&status).abandoned_jobs = left
+        let _ = self
+            .shared
+            .events
+            .send(event("state", json!({ "state": state, "fault": s.fault })));
+    }
+
+    /// The abandoned jobs, as `status` shows them.
+    fn show_left(&self) {
+        lock(&self.shared.status).abandoned_jobs = self
+            .left
             .iter()
             .map(|l| AbandonedJob {
                 id: l.id,
@@ -450,61 +492,29 @@ pub(super) fn owner(mut client: ServiceClient, rx: mpsc::Receiver<OwnerCmd>, sha
                 memory_bytes: l.held_bytes(),
             })
             .collect();
-    };
-    let mut shutting_down = false;
-    loop {
-        let wait = std::time::Duration::from_millis(if active.is_some() { 1 } else { 10 });
-        let cmd = rx.recv_timeout(wait);
+    }
+
+    /// Answers one command other than `Shutdown`; a job running refuses
+    /// every one as busy.
+    fn command(&mut self, cmd: OwnerCmd) {
+        let busy = || ApiError::new(ApiErrorKind::Busy, "a job is running: `stop` it first");
         match cmd {
-            Ok(OwnerCmd::Shutdown) => shutting_down = true,
-            Err(mpsc::RecvTimeoutError::Disconnected) => {
-                shutting_down = true;
-                std::thread::sleep(wait);
-            }
-            Err(mpsc::RecvTimeoutError::Timeout) => {}
-            Ok(OwnerCmd::Enable(reply) | OwnerCmd::Disable(reply) | OwnerCmd::Reset(reply))
-                if active.is_some() =>
+            OwnerCmd::Enable(reply) | OwnerCmd::Disable(reply) | OwnerCmd::Reset(reply)
+                if self.active.is_some() =>
             {
                 let _ = reply.send(Err(busy()));
             }
-            Ok(OwnerCmd::Job(_, _, _, reply)) if active.is_some() => {
+            OwnerCmd::Job(_, _, _, reply) if self.active.is_some() => {
                 let _ = reply.send(Err(busy()));
             }
-            Ok(OwnerCmd::Enable(reply)) => {
-                let r = match client.call(LoopRequest::Enable(hold.as_ref().map(|f| f()))) {
-                    Some(LoopReply::Enabled(Ok(()), _)) => {
-                        set_state("enabled", None);
-                        Ok(())
-                    }
-                    Some(LoopReply::Enabled(Err(None), _)) => Err(ApiError::new(
-                        ApiErrorKind::Faulted,
-                        "a fault is latched: reset first",
-                    )),
-                    Some(LoopReply::Enabled(Err(Some(e)), _)) => {
-                        let api = ApiError::new(ApiErrorKind::Hal, format!("enable failed: {e}"));
-                        tracing::error!(
-                            fault = FaultKind::Hal.as_str(),
-                            "{}; between jobs, fault latched",
-                            api.message
-                        );
-                        set_state(
-                            "faulted",
-                            Some(FaultStatus {
-                                kind: FaultKind::Hal.as_str(),
-                                message: api.message.to_string(),
-                            }),
-                        );
-                        Err(api)
-                    }
-                    _ => Err(gone()),
-                };
-                let _ = reply.send(r);
+            OwnerCmd::Enable(reply) => {
+                let _ = reply.send(self.enable());
             }
-            Ok(OwnerCmd::Disable(reply)) => {
-                let r = match client.call(LoopRequest::Disable) {
+            OwnerCmd::Disable(reply) => {
+                let r = match self.client.call(LoopRequest::Disable) {
                     Some(_) => {
-                        if lock(&status).state != "faulted" {
-                            set_state("disabled", None);
+                        if lock(&self.shared.status).state != "faulted" {
+                            self.set_state("disabled", None);
                         }
                         Ok(())
                     }
@@ -512,253 +522,330 @@ pub(super) fn owner(mut client: ServiceClient, rx: mpsc::Receiver<OwnerCmd>, sha
                 };
                 let _ = reply.send(r);
             }
-            Ok(OwnerCmd::Reset(reply)) => {
-                let r = match client.call(LoopRequest::Reset) {
+            OwnerCmd::Reset(reply) => {
+                let r = match self.client.call(LoopRequest::Reset) {
                     Some(_) => {
                         // Faults reported before the reset are cleared by
                         // it; one that latches again after it is reported.
-                        client.forget_earlier_faults();
-                        if let Some(f) = lock(&status).fault.as_ref() {
+                        self.client.forget_earlier_faults();
+                        if let Some(f) = lock(&self.shared.status).fault.as_ref() {
                             tracing::info!(fault = f.kind, "reset: the latched fault is cleared");
                         }
-                        set_state("disabled", None);
+                        self.set_state("disabled", None);
                         Ok(())
                     }
                     None => Err(gone()),
                 };
                 let _ = reply.send(r);
             }
-            Ok(OwnerCmd::Job(job, handle, before, reply)) => {
-                // A job that computes gets a budget, if what abandoned
-                // jobs hold leaves room for it in half the memory limit.
-                let memory = if job.uses_loop() {
-                    None
-                } else {
-                    let limit = crate::job_memory::memory_limit_bytes();
-                    let budget = limit / crate::job_memory::JOB_SHARE_DIVISOR;
-                    let held: u64 = left.iter().map(Left::held_bytes).sum();
-                    if held.saturating_add(budget) > limit / 2 {
-                        let mib = |b: u64| b / (1 << 20);
-                        let e = ApiError::new(
-                            ApiErrorKind::Busy,
-                            format!(
-                                "{} abandoned job(s) still hold {} MiB; a new job's budget of {} MiB would take the daemon over half its memory limit of {} MiB: restart the daemon to free them",
-                                left.len(),
-                                mib(held),
-                                mib(budget),
-                                mib(limit)
-                            ),
-                        );
-                        tracing::error!(job = handle.id, "job refused: {}", e.message);
-                        lock(&status).job = None;
-                        set_state(before, None);
-                        let _ = reply.send(Err(e));
-                        continue;
-                    }
-                    Some(JobMemory::new(budget))
-                };
-                match Active::start(job, handle, before, reply, &client, memory) {
-                    Ok(a) => {
-                        if let Some(j) = lock(&status).job.as_ref() {
-                            tracing::info!(
-                                job = j.id,
-                                kind = j.kind,
-                                recording = j.recording.as_deref().unwrap_or("none"),
-                                "job started"
-                            );
-                        }
-                        active = Some(a);
-                    }
-                    Err((reply, e)) => {
-                        tracing::error!(error = %e.message, "job not started");
-                        lock(&status).job = None;
-                        set_state("disabled", None);
-                        let _ = reply.send(Err(e));
-                    }
-                }
-            }
+            OwnerCmd::Job(job, handle, before, reply) => self.start_job(job, handle, before, reply),
+            OwnerCmd::Shutdown => self.shutting_down = true,
         }
-        if let Some(a) = active.as_mut() {
-            if shutting_down {
-                a.handle
-                    .stop
-                    .store(true, std::sync::atomic::Ordering::Relaxed);
+    }
+
+    /// `enable`: the hold job (if one is configured) on the loop; an
+    /// enable the HAL refuses latches a fault.
+    fn enable(&mut self) -> Result<(), ApiError> {
+        let hold = self.shared.hold.as_ref().map(|f| f());
+        match self.client.call(LoopRequest::Enable(hold)) {
+            Some(LoopReply::Enabled(Ok(()), _)) => {
+                self.set_state("enabled", None);
+                Ok(())
             }
-            match a.step(&mut client, shutting_down, metrics) {
-                None => {}
-                Some(Outcome::Finished(result)) => {
-                    let (reply, compute) = match active.take() {
-                        Some(a) => (Some(a.reply), a.compute),
-                        None => (None, None),
-                    };
-                    let mut finished_recording = None;
-                    let is_campaign;
-                    {
-                        let mut s = lock(&status);
-                        is_campaign = s.job.as_ref().is_some_and(|j| j.kind == "campaign");
-                        s.jobs_run += 1;
-                        if let (Some(m), Some(j)) = (metrics, s.job.as_ref()) {
-                            let outcome = match &result {
-                                Ok(_) => "ok",
-                                Err((api, _)) => api.kind.as_str(),
-                            };
-                            let rec = j.recording.as_deref().map(std::path::Path::new);
-                            m.job_finished(j.kind, outcome, rec);
-                        }
-                        if let Some(j) = s.job.take() {
-                            match &result {
-                                Ok(_) => tracing::info!(
-                                    job = j.id,
-                                    kind = j.kind,
-                                    recording = j.recording.as_deref().unwrap_or("none"),
-                                    "job finished"
-                                ),
-                                Err((api, Some(RunError::Fault { kind: fault, .. }))) => {
-                                    tracing::error!(
-                                        job = j.id,
-                                        kind = j.kind,
-                                        fault = *fault,
-                                        recording = j.recording.as_deref().unwrap_or("none"),
-                                        error = %api.message,
-                                        "job ended on a fault; 0 A, amplifier disabled, fault latched"
-                                    )
-                                }
-                                Err((api, Some(RunError::Hal { .. }))) => tracing::error!(
-                                    job = j.id,
-                                    kind = j.kind,
-                                    fault = FaultKind::Hal.as_str(),
-                                    recording = j.recording.as_deref().unwrap_or("none"),
-                                    error = %api.message,
-                                    "job ended on a HAL error; 0 A, amplifier disabled, fault latched"
-                                ),
-                                Err((api, _)) => tracing::warn!(
-                                    job = j.id,
-                                    kind = j.kind,
-                                    recording = j.recording.as_deref().unwrap_or("none"),
-                                    error = %api.message,
-                                    "job ended with an error"
-                                ),
-                            }
-                            if j.recording.is_some() {
-                                finished_recording.clone_from(&j.recording);
-                                s.last_recording = j.recording;
-                            }
-                        }
-                    }
-                    if let (Some(u), Some(rec)) = (uploader.as_ref(), finished_recording) {
-                        super::uploads::after_job(u, std::path::Path::new(&rec), &result);
-                    } else if let (Some(u), true) = (uploader.as_ref(), is_campaign) {
-                        super::uploads::after_campaign(u, &result);
-                    }
-                    match &result {
-                        // The latched fault is reported by its supervisor name.
-                        Err((api, Some(RunError::Fault { kind, .. }))) => {
-                            let fault = FaultStatus {
-                                kind,
-                                message: api.message.to_string(),
-                            };
-                            set_state("faulted", Some(fault));
-                        }
-                        Err((api, Some(RunError::Hal { .. }))) => {
-                            let fault = FaultStatus {
-                                kind: FaultKind::Hal.as_str(),
-                                message: api.message.to_string(),
-                            };
-                            set_state("faulted", Some(fault));
-                        }
-                        // A job that did not use the loop leaves the stage
-                        // as it was, and a fault that latched meanwhile.
-                        _ => match compute {
-                            Some(_) if lock(&status).state == "faulted" => {}
-                            Some(before) => set_state(before, None),
-                            None => set_state("disabled", None),
-                        },
-                    }
-                    if let Some(reply) = reply {
-                        let _ = reply.send(result.map_err(|(api, _)| api));
-                    }
-                }
-                Some(Outcome::Abandoned(why)) => {
-                    let Some(a) = active.take() else { continue };
-                    // Dropping the worker's queues: whatever it asks of
-                    // the loop from now on gets "the loop is gone".
-                    let Active {
-                        handle,
-                        reply,
-                        done,
-                        memory,
-                        ..
-                    } = a;
-                    let (kind, recording) = lock(&status)
-                        .job
-                        .as_ref()
-                        .map(|j| (j.kind, j.recording.clone().unwrap_or_default()))
-                        .unwrap_or_default();
-                    let (api_kind, message) = abandoned_answer(why, &recording, memory.as_ref());
-                    if let Some(m) = metrics.filter(|_| !kind.is_empty()) {
-                        let rec = Some(std::path::Path::new(&recording))
-                            .filter(|_| !recording.is_empty());
-                        m.job_finished(kind, api_kind.as_str(), rec);
-                    }
-                    tracing::warn!(
-                        job = handle.id,
-                        recording = %recording,
-                        "job abandoned, its thread left to end on its own: {message}"
+            Some(LoopReply::Enabled(Err(None), _)) => Err(ApiError::new(
+                ApiErrorKind::Faulted,
+                "a fault is latched: reset first",
+            )),
+            Some(LoopReply::Enabled(Err(Some(e)), _)) => {
+                let api = ApiError::new(ApiErrorKind::Hal, format!("enable failed: {e}"));
+                tracing::error!(
+                    fault = FaultKind::Hal.as_str(),
+                    "{}; between jobs, fault latched",
+                    api.message
+                );
+                self.set_state(
+                    "faulted",
+                    Some(FaultStatus {
+                        kind: FaultKind::Hal.as_str(),
+                        message: api.message.to_string(),
+                    }),
+                );
+                Err(api)
+            }
+            _ => Err(gone()),
+        }
+    }
+
+    /// A job that computes gets a budget, if what abandoned jobs hold
+    /// leaves room for it in half the memory limit (`Ok(None)`: a job of
+    /// the loop, no budget).
+    fn job_memory(&self, job: &JobSpec) -> Result<Option<JobMemory>, ApiError> {
+        if job.uses_loop() {
+            return Ok(None);
+        }
+        let limit = crate::job_memory::memory_limit_bytes();
+        let budget = limit / crate::job_memory::JOB_SHARE_DIVISOR;
+        let held: u64 = self.left.iter().map(Left::held_bytes).sum();
+        if held.saturating_add(budget) > limit / 2 {
+            let mib = |b: u64| b / (1 << 20);
+            return Err(ApiError::new(
+                ApiErrorKind::Busy,
+                format!(
+                    "{} abandoned job(s) still hold {} MiB; a new job's budget of {} MiB would take the daemon over half its memory limit of {} MiB: restart the daemon to free them",
+                    self.left.len(),
+                    mib(held),
+                    mib(budget),
+                    mib(limit)
+                ),
+            ));
+        }
+        Ok(Some(JobMemory::new(budget)))
+    }
+
+    /// Starts a job's worker, or answers why not.
+    fn start_job(
+        &mut self,
+        job: JobSpec,
+        handle: JobHandle,
+        before: &'static str,
+        reply: Reply<Value>,
+    ) {
+        let memory = match self.job_memory(&job) {
+            Ok(m) => m,
+            Err(e) => {
+                tracing::error!(job = handle.id, "job refused: {}", e.message);
+                lock(&self.shared.status).job = None;
+                self.set_state(before, None);
+                let _ = reply.send(Err(e));
+                return;
+            }
+        };
+        match Active::start(job, handle, before, reply, &self.client, memory) {
+            Ok(a) => {
+                if let Some(j) = lock(&self.shared.status).job.as_ref() {
+                    tracing::info!(
+                        job = j.id,
+                        kind = j.kind,
+                        recording = j.recording.as_deref().unwrap_or("none"),
+                        "job started"
                     );
-                    // A job ends disabled, this one too: 0 A, enable off.
-                    let r = client.call(LoopRequest::Disable);
-                    lock(&status).job = None;
-                    set_state("disabled", None);
-                    left.push(Left {
-                        id: handle.id,
-                        kind,
-                        done,
-                        memory,
-                        recording,
-                    });
-                    show_left(&left);
-                    let _ = reply.send(Err(if r.is_some() {
-                        ApiError::new(api_kind, message)
-                    } else {
-                        gone()
-                    }));
+                }
+                self.active = Some(a);
+            }
+            Err((reply, e)) => {
+                tracing::error!(error = %e.message, "job not started");
+                lock(&self.shared.status).job = None;
+                self.set_state("disabled", None);
+                let _ = reply.send(Err(e));
+            }
+        }
+    }
+
+    /// Relays the active job's requests to the loop, and ends it when it
+    /// finished or must be abandoned.
+    fn step_active(&mut self) {
+        let metrics = self.shared.metrics.as_deref();
+        let Some(a) = self.active.as_mut() else {
+            return;
+        };
+        if self.shutting_down {
+            a.handle
+                .stop
+                .store(true, std::sync::atomic::Ordering::Relaxed);
+        }
+        match a.step(&mut self.client, self.shutting_down, metrics) {
+            None => {}
+            Some(Outcome::Finished(result)) => {
+                let (reply, compute) = match self.active.take() {
+                    Some(a) => (Some(a.reply), a.compute),
+                    None => (None, None),
+                };
+                self.finished(&result, compute);
+                if let Some(reply) = reply {
+                    let _ = reply.send(result.map_err(|(api, _)| api));
+                }
+            }
+            Some(Outcome::Abandoned(why)) => {
+                if let Some(a) = self.active.take() {
+                    self.abandoned(a, why);
                 }
             }
         }
-        let before = left.len();
+    }
+
+    /// A job's end: counted, logged, its recording uploaded, and the state
+    /// it leaves (a fault latched, or the state before a job that did not
+    /// use the loop).
+    fn finished(&mut self, result: &JobResult, compute: Option<&'static str>) {
+        let metrics = self.metrics();
+        let mut finished_recording = None;
+        let is_campaign;
+        {
+            let mut s = lock(&self.shared.status);
+            is_campaign = s.job.as_ref().is_some_and(|j| j.kind == "campaign");
+            s.jobs_run += 1;
+            if let (Some(m), Some(j)) = (metrics, s.job.as_ref()) {
+                let outcome = match result {
+                    Ok(_) => "ok",
+                    Err((api, _)) => api.kind.as_str(),
+                };
+                let rec = j.recording.as_deref().map(std::path::Path::new);
+                m.job_finished(j.kind, outcome, rec);
+            }
+            if let Some(j) = s.job.take() {
+                log_job_end(&j, result);
+                if j.recording.is_some() {
+                    finished_recording.clone_from(&j.recording);
+                    s.last_recording = j.recording;
+                }
+            }
+        }
+        let uploader = self.shared.uploader.as_ref();
+        if let (Some(u), Some(rec)) = (uploader, finished_recording) {
+            super::uploads::after_job(u, std::path::Path::new(&rec), result);
+        } else if let (Some(u), true) = (uploader, is_campaign) {
+            super::uploads::after_campaign(u, result);
+        }
+        match result {
+            // The latched fault is reported by its supervisor name.
+            Err((api, Some(RunError::Fault { kind, .. }))) => {
+                let fault = FaultStatus {
+                    kind,
+                    message: api.message.to_string(),
+                };
+                self.set_state("faulted", Some(fault));
+            }
+            Err((api, Some(RunError::Hal { .. }))) => {
+                let fault = FaultStatus {
+                    kind: FaultKind::Hal.as_str(),
+                    message: api.message.to_string(),
+                };
+                self.set_state("faulted", Some(fault));
+            }
+            // A job that did not use the loop leaves the stage
+            // as it was, and a fault that latched meanwhile.
+            _ => match compute {
+                Some(_) if lock(&self.shared.status).state == "faulted" => {}
+                Some(before) => self.set_state(before, None),
+                None => self.set_state("disabled", None),
+            },
+        }
+    }
+
+    /// Abandons a job for `why`: its thread is left to end on its own,
+    /// the loop disabled, and the client told.
+    fn abandoned(&mut self, a: Active, why: Abandon) {
+        // Dropping the worker's queues: whatever it asks of
+        // the loop from now on gets "the loop is gone".
+        let Active {
+            handle,
+            reply,
+            done,
+            memory,
+            ..
+        } = a;
+        let (kind, recording) = lock(&self.shared.status)
+            .job
+            .as_ref()
+            .map(|j| (j.kind, j.recording.clone().unwrap_or_default()))
+            .unwrap_or_default();
+        let (api_kind, message) = abandoned_answer(why, &recording, memory.as_ref());
+        if let Some(m) = self.metrics().filter(|_| !kind.is_empty()) {
+            let rec = Some(std::path::Path::new(&recording)).filter(|_| !recording.is_empty());
+            m.job_finished(kind, api_kind.as_str(), rec);
+        }
+        tracing::warn!(
+            job = handle.id,
+            recording = %recording,
+            "job abandoned, its thread left to end on its own: {message}"
+        );
+        // A job ends disabled, this one too: 0 A, enable off.
+        let r = self.client.call(LoopRequest::Disable);
+        lock(&self.shared.status).job = None;
+        self.set_state("disabled", None);
+        self.left.push(Left {
+            id: handle.id,
+            kind,
+            done,
+            memory,
+            recording,
+        });
+        self.show_left();
+        let _ = reply.send(Err(if r.is_some() {
+            ApiError::new(api_kind, message)
+        } else {
+            gone()
+        }));
+    }
+
+    /// Forgets the abandoned jobs whose threads have ended; a recording
+    /// such a thread finished after all goes up too.
+    fn reap_left(&mut self) {
+        let before = self.left.len();
         let mut i = 0;
-        while i < left.len() {
-            let Some(result) = left[i].ended() else {
+        while i < self.left.len() {
+            let Some(result) = self.left[i].ended() else {
                 i += 1;
                 continue;
             };
-            let l = left.remove(i);
+            let l = self.left.remove(i);
             tracing::info!(job = l.id, "the thread of abandoned job {} has ended", l.id);
-            // A recording its thread finished after all goes up too.
-            if let (Some(u), Some(result)) = (uploader.as_ref(), result) {
+            if let (Some(u), Some(result)) = (self.shared.uploader.as_ref(), result) {
                 if !l.recording.is_empty() {
                     super::uploads::after_job(u, std::path::Path::new(&l.recording), &result);
                 }
             }
         }
-        if left.len() != before {
-            show_left(&left);
+        if self.left.len() != before {
+            self.show_left();
         }
-        if shutting_down && active.is_none() {
-            break;
-        }
-        for f in client.take_faults() {
-            if let Some(api) = between_jobs_fault(f, &safety) {
-                let last = lock(&status).last_recording.clone();
+    }
+
+    /// Latches and logs the faults the loop reported between jobs.
+    fn report_faults(&mut self) {
+        for f in self.client.take_faults() {
+            if let Some(api) = between_jobs_fault(f, &self.shared.safety) {
+                let last = lock(&self.shared.status).last_recording.clone();
                 tracing::error!(
                     fault = api.kind,
                     last_recording = last.as_deref().unwrap_or("none"),
                     "{}; no job was running (nothing recorded); jobs and enable are refused until reset",
                     api.message
                 );
-                set_state("faulted", Some(api));
+                self.set_state("faulted", Some(api));
             }
         }
     }
-    let _ = client.call(LoopRequest::Shutdown);
+}
+
+/// Logs a job's end: finished, on a fault or a HAL error (both latch), or
+/// with an error.
+fn log_job_end(j: &super::protocol::JobStatus, result: &JobResult) {
+    let recording = j.recording.as_deref().unwrap_or("none");
+    match result {
+        Ok(_) => tracing::info!(job = j.id, kind = j.kind, recording, "job finished"),
+        Err((api, Some(RunError::Fault { kind: fault, .. }))) => tracing::error!(
+            job = j.id,
+            kind = j.kind,
+            fault = *fault,
+            recording,
+            error = %api.message,
+            "job ended on a fault; 0 A, amplifier disabled, fault latched"
+        ),
+        Err((api, Some(RunError::Hal { .. }))) => tracing::error!(
+            job = j.id,
+            kind = j.kind,
+            fault = FaultKind::Hal.as_str(),
+            recording,
+            error = %api.message,
+            "job ended on a HAL error; 0 A, amplifier disabled, fault latched"
+        ),
+        Err((api, _)) => tracing::warn!(
+            job = j.id,
+            kind = j.kind,
+            recording,
+            error = %api.message,
+            "job ended with an error"
+        ),
+    }
 }
