@@ -372,6 +372,327 @@ pub fn run_control_from(
     catalogued(opts, result)
 }
 
+/// The verify's injection, predicted on the model and checked against the
+/// host's limits before anything is opened (again later against the
+/// limits in force once the device has announced its own). `None`: no
+/// `--verify`.
+fn host_verify_plan(
+    opts: &ControlOptions,
+    plant: &ZohPlant,
+    ctrl: &DiscreteController,
+    spec: &BackendSpec,
+) -> Result<Option<Verify>, RunError> {
+    let Some(v) = &opts.verify else {
+        return Ok(None);
+    };
+    let model_loop = ModelLoop {
+        plant,
+        ctrl,
+        link_delay_periods: spec.process_data_delay_periods(),
+    };
+    let cfg = &opts.config;
+    let (plan, _) = verify::plan(cfg, &model_loop, v, &verify::host_device(cfg))?;
+    Ok(Some(Verify {
+        plan,
+        result: None,
+        csv: None,
+        plot: None,
+    }))
+}
+
+/// The `[step]` job of `ctrl` at the device's period: each duration in
+/// ticks, within the job's tick limit.
+fn step_job(
+    opts: &ControlOptions,
+    ctrl: DiscreteController,
+    period_s: f64,
+) -> Result<ControlJob, RunError> {
+    let step = &opts.config.step;
+    let ticks = |key: &str, s: f64| {
+        crate::config::ticks_in(s, period_s).ok_or_else(|| {
+            RunError::BadInput(format!(
+                "config {}: {key}: {s} s is more than {} ticks at the device's period",
+                opts.config_path.display(),
+                crate::config::ranges::JOB_TICKS_MAX
+            ))
+        })
+    };
+    let total = ticks("step.duration_s", step.duration_s)?;
+    let settle = ticks("step.settle_s", step.settle_s)?;
+    let smooth = ticks("step.smooth_s", step.smooth_s)?;
+    Ok(ControlJob::new(ctrl, step.step_m, settle, smooth, total))
+}
+
+/// The step's figure (`opts.plot`) on its first `n` ticks, in µm from the
+/// initial setpoint.
+fn write_step_figure(
+    opts: &ControlOptions,
+    existing: Existing,
+    data: &Collected,
+    n: usize,
+    analysis: &StepAnalysis,
+) -> Result<(), RunError> {
+    let step = &opts.config.step;
+    let StepAnalysis {
+        metrics,
+        events,
+        smoothed_position_m,
+    } = analysis;
+    let um = |v: &[f64], off: f64| v.iter().map(|x| (x - off) * 1e6).collect::<Vec<f64>>();
+    let y0 = data.setpoint_m.first().copied().unwrap_or(0.0);
+    let title = format!(
+        "bench control --controller {}: {:.1} µm step (seed {})",
+        opts.controller,
+        step.step_m * 1e6,
+        opts.seed
+    );
+    write_step_png(
+        &opts.plot,
+        existing,
+        &StepPlot {
+            title: &title,
+            t_s: &data.t_s[..n],
+            setpoint_um: &um(&data.setpoint_m[..n], y0),
+            position_um: &um(&data.position_m[..n], y0),
+            smoothed_um: &um(smoothed_position_m, y0),
+            command_a: &data.current_command_a[..n],
+            metrics,
+            events,
+        },
+    )
+    .map_err(|e| RunError::Output {
+        path: opts.plot.clone(),
+        reason: e.to_string(),
+    })
+}
+
+/// A loop check that failed refuses the run, unless `--override-check`
+/// (sim only, checked before) runs it anyway with a warning.
+fn refuse_failed_check(opts: &ControlOptions, check: &LoopCheck) -> Result<(), RunError> {
+    if check.passed() {
+        return Ok(());
+    }
+    if !opts.override_check {
+        return Err(RunError::Refused(format!(
+            "loop check refused controller {}: {}; nothing was enabled",
+            opts.controller,
+            check.failures.join("; ")
+        )));
+    }
+    tracing::warn!(
+        "loop check failed ({}); running anyway on the simulator (--override-check)",
+        check.failures.join("; ")
+    );
+    Ok(())
+}
+
+/// Schedules `--inject-fault` on the daemon's loop, which only its sim
+/// backend accepts.
+fn inject_on_service(client: &mut ServiceClient, fault: ScheduledFault) -> Result<(), RunError> {
+    match client.call(LoopRequest::Inject(fault)) {
+        Some(LoopReply::Injected(true)) => Ok(()),
+        _ => Err(RunError::BadInput(
+            "inject_fault: only the sim backend injects faults".into(),
+        )),
+    }
+}
+
+/// The device must run at the period the controller was discretised for.
+fn check_device_period(
+    info: &bench_hal::DeviceInfo,
+    cfg: &BenchConfig,
+    spec: &BackendSpec,
+) -> Result<(), RunError> {
+    if info.period_ns == cfg.loop_.period_ns() {
+        return Ok(());
+    }
+    Err(RunError::option(
+        "backend",
+        spec,
+        format!(
+            "runs every {} ns, the controller was discretised for {} ns; nothing was enabled",
+            info.period_ns,
+            cfg.loop_.period_ns()
+        ),
+    ))
+}
+
+/// The recorded session of a control run.
+fn control_session<'a>(
+    opts: &'a ControlOptions,
+    spec: &BackendSpec,
+    job: &ControlJob,
+    verify: bool,
+    progress_ticks: Option<&'a Arc<AtomicU64>>,
+    check: &'a LoopCheck,
+    period_s: f64,
+) -> SessionOptions<'a> {
+    SessionOptions {
+        command: "control",
+        config_path: &opts.config_path,
+        out: &opts.out,
+        // Hardware runs in real time whatever the flag says.
+        realtime: opts.realtime || !spec.is_sim(),
+        pace: opts.pace,
+        progress: opts.progress,
+        seed: opts.seed,
+        max_ticks: job.total_ticks(),
+        keep: if verify {
+            Kept::STEP_VERIFY
+        } else {
+            Kept::STEP
+        },
+        ticks: progress_ticks,
+        // Closed loop: a stall longer than the loop's own bound (delay
+        // margin, reach of the position limit) is the overruns or
+        // link_latency fault.
+        stall: Some(crate::rt::supervisor::StallBounds::of(
+            check.stall.bound_s,
+            period_s,
+        )),
+        stall_source: &check.stall.source,
+    }
+}
+
+/// What the verify's analysis reads of a run.
+struct VerifyRun<'a> {
+    data: &'a Collected,
+    /// The tick the verify's record starts at: the end of the step.
+    step_ticks: usize,
+    chirp: &'a Chirp,
+    stalls: &'a [(u64, f64)],
+    period_s: f64,
+    check: &'a LoopCheck,
+    model_loop: &'a ModelLoop<'a>,
+}
+
+/// The verify's analysis of a run, in the summary `s`, the recording and
+/// its own CSV and figure.
+fn write_verify(
+    opts: &ControlOptions,
+    v: &VerifyOptions,
+    run: &VerifyRun<'_>,
+    s: &mut Verify,
+    recorder: &mut crate::record::Recorder,
+    end_ns: u64,
+    existing: Existing,
+) -> Result<(), RunError> {
+    let analysis = verify::analyze(
+        run.data,
+        run.step_ticks,
+        run.chirp,
+        &opts.config,
+        run.period_s,
+        run.stalls,
+        &run.check.model,
+        run.model_loop,
+    );
+    s.result = Some(analysis.result.clone());
+    s.csv = Some(v.csv.clone());
+    s.plot = Some(v.plot.clone());
+    let title = format!(
+        "S = u/d, bench control --controller {} --verify ({} A, seed {}): {}",
+        opts.controller,
+        v.amplitude_a,
+        opts.seed,
+        if analysis.result.flagged {
+            "VERIFY FAILED"
+        } else {
+            "agrees"
+        }
+    );
+    verify::write_outputs(
+        recorder,
+        end_ns,
+        &analysis,
+        run.model_loop,
+        s,
+        v,
+        existing,
+        &title,
+    )
+}
+
+/// `--override-check` only on the sim; the outputs, before the loop
+/// check's work (with `--check-only` none is written), none a file the run
+/// reads (rule 6 of crate::outputs).
+fn check_outputs(
+    opts: &ControlOptions,
+    spec: &BackendSpec,
+    outputs: &mut OutputPlan,
+) -> Result<(), RunError> {
+    if opts.override_check && !spec.is_sim() {
+        return Err(RunError::option(
+            "override_check",
+            "",
+            format!("only allowed on the sim backend, not {spec}"),
+        ));
+    }
+    if !opts.check_only {
+        outputs.add_input("config", &opts.config_path);
+        if let Some(frf) = &opts.frf {
+            outputs.add_input("frf", frf);
+        }
+        outputs.check()?;
+    }
+    Ok(())
+}
+
+impl ControlSummary {
+    /// The summary before the run: the controller, its loop check and the
+    /// verify's plan on the host's limits.
+    fn before_run(
+        opts: &ControlOptions,
+        ccfg: &ControllerConfig,
+        check: &LoopCheck,
+        spec: &BackendSpec,
+        verify: Option<Verify>,
+    ) -> Self {
+        Self {
+            controller: opts.controller.clone(),
+            description: ccfg.description.clone(),
+            loop_check: check.clone(),
+            metrics: None,
+            recording: None,
+            plot: None,
+            backend: spec.to_string(),
+            seed: opts.seed,
+            disturbance_rms_n: opts.config.plant.disturbance.map_or(0.0, |d| d.rms_n),
+            link: None,
+            timing: None,
+            current_limits: None,
+            verify,
+            catalogue: None,
+        }
+    }
+}
+
+/// The step judged on its first `n` ticks ([`analyze_step`]), its metrics
+/// recorded on `/control/metrics` at `end_ns`.
+fn judge_step(
+    recorder: &mut crate::record::Recorder,
+    data: &Collected,
+    n: usize,
+    cfg: &BenchConfig,
+    end_ns: u64,
+) -> Result<StepAnalysis, RunError> {
+    let analysis = analyze_step(
+        StepSignals {
+            position_m: &data.position_m[..n],
+            setpoint_m: &data.setpoint_m[..n],
+            current_command_a: &data.current_command_a[..n],
+        },
+        cfg.step.settle_s,
+        cfg.step.step_m,
+        cfg.step.steady_state_window_s,
+        cfg.loop_.period_ns() as f64 * 1e-9,
+    );
+    let metrics_ch =
+        recorder.add_channel_for::<StepMetrics>("/control/metrics", "bench.StepMetrics")?;
+    recorder.write(metrics_ch, end_ns, &analysis.metrics)?;
+    Ok(analysis)
+}
+
 fn run_control_with(
     opts: &ControlOptions,
     outputs: &mut OutputPlan,
@@ -385,23 +706,7 @@ fn run_control_with(
     let model = Sr4dof::new(cfg.plant)
         .map_err(|e| RunError::BadInput(format!("config {}: {e}", opts.config_path.display())))?;
     let spec = BackendSpec::resolve(opts.backend.as_ref(), cfg);
-    if opts.override_check && !spec.is_sim() {
-        return Err(RunError::option(
-            "override_check",
-            "",
-            format!("only allowed on the sim backend, not {spec}"),
-        ));
-    }
-    // The outputs, before the loop check's work (with --check-only none is
-    // written); no output may be a file the run reads (rule 6 of
-    // crate::outputs).
-    if !opts.check_only {
-        outputs.add_input("config", &opts.config_path);
-        if let Some(frf) = &opts.frf {
-            outputs.add_input("frf", frf);
-        }
-        outputs.check()?;
-    }
+    check_outputs(opts, &spec, outputs)?;
     // The loop check needs no device: with --check-only nothing is opened.
     let period_s = cfg.loop_.period_ns() as f64 * 1e-9;
     let ctrl = DiscreteController::new(ccfg, period_s, cfg.actuator.peak_current_a);
@@ -416,57 +721,13 @@ fn run_control_with(
         cfg.step.step_m,
         spec.process_data_delay_periods(),
     );
-    let mut summary = ControlSummary {
-        controller: opts.controller.clone(),
-        description: ccfg.description.clone(),
-        loop_check: check.clone(),
-        metrics: None,
-        recording: None,
-        plot: None,
-        backend: spec.to_string(),
-        seed: opts.seed,
-        disturbance_rms_n: cfg.plant.disturbance.map_or(0.0, |d| d.rms_n),
-        link: None,
-        timing: None,
-        current_limits: None,
-        verify: None,
-        catalogue: None,
-    };
-    // The verify's injection, predicted on the model and checked against
-    // the host's limits before anything is opened (again below against
-    // the limits in force once the device has announced its own).
     let plant = ZohPlant::new(&model, &cfg.actuator, period_s);
-    if let Some(v) = &opts.verify {
-        let model_loop = ModelLoop {
-            plant: &plant,
-            ctrl: &ctrl,
-            link_delay_periods: spec.process_data_delay_periods(),
-        };
-        let (plan, _) = verify::plan(cfg, &model_loop, v, &verify::host_device(cfg))?;
-        summary.verify = Some(Verify {
-            plan,
-            result: None,
-            csv: None,
-            plot: None,
-        });
-    }
+    let verify = host_verify_plan(opts, &plant, &ctrl, &spec)?;
+    let mut summary = ControlSummary::before_run(opts, ccfg, &check, &spec, verify);
     if opts.check_only {
         return Ok(summary);
     }
-    if !check.passed() {
-        if !opts.override_check {
-            return Err(RunError::Refused(format!(
-                "loop check refused controller {}: {}; nothing was enabled",
-                opts.controller,
-                check.failures.join("; ")
-            )));
-        }
-        tracing::warn!(
-            "loop check failed ({}); running anyway on the simulator (--override-check)",
-            check.failures.join("; ")
-        );
-    }
-    let step = &cfg.step;
+    refuse_failed_check(opts, &check)?;
     let mut opened;
     let opened_info;
     let mut runner = match source {
@@ -488,47 +749,18 @@ fn run_control_with(
         }
         StageSource::Service(client) => {
             if let Some(f) = opts.inject {
-                match client.call(LoopRequest::Inject(f)) {
-                    Some(LoopReply::Injected(true)) => {}
-                    _ => {
-                        return Err(RunError::BadInput(
-                            "inject_fault: only the sim backend injects faults".into(),
-                        ))
-                    }
-                }
+                inject_on_service(client, f)?;
             }
             Runner::Service(client)
         }
     };
     let info = runner.info().clone();
     summary.backend = info.name.clone();
-    if info.period_ns != cfg.loop_.period_ns() {
-        return Err(RunError::option(
-            "backend",
-            &spec,
-            format!(
-                "runs every {} ns, the controller was discretised for {} ns; nothing was enabled",
-                info.period_ns,
-                cfg.loop_.period_ns()
-            ),
-        ));
-    }
+    check_device_period(&info, cfg, &spec)?;
     // Anti-windup at the peak current in force (the smaller of the
     // host's and the device's; same sections).
     let ctrl = ctrl.with_limit(cfg.current_limits(&info).peak_current_a);
-    let ticks = |key: &str, s: f64| {
-        crate::config::ticks_in(s, period_s).ok_or_else(|| {
-            RunError::BadInput(format!(
-                "config {}: {key}: {s} s is more than {} ticks at the device's period",
-                opts.config_path.display(),
-                crate::config::ranges::JOB_TICKS_MAX
-            ))
-        })
-    };
-    let total = ticks("step.duration_s", step.duration_s)?;
-    let settle = ticks("step.settle_s", step.settle_s)?;
-    let smooth = ticks("step.smooth_s", step.smooth_s)?;
-    let mut job = ControlJob::new(ctrl, step.step_m, settle, smooth, total);
+    let mut job = step_job(opts, ctrl, period_s)?;
     let model_loop = ModelLoop {
         plant: &plant,
         ctrl: &ctrl,
@@ -545,38 +777,16 @@ fn run_control_with(
         }
         None => None,
     };
-    if let (Some(f), false) = (opts.pace, spec.is_sim()) {
-        return Err(RunError::option(
-            "pace",
-            f,
-            crate::jobs::request::pace_on_hardware(&info.name),
-        ));
-    }
-    let session = SessionOptions {
-        command: "control",
-        config_path: &opts.config_path,
-        out: &opts.out,
-        // Hardware runs in real time whatever the flag says.
-        realtime: opts.realtime || !spec.is_sim(),
-        pace: opts.pace,
-        progress: opts.progress,
-        seed: opts.seed,
-        max_ticks: job.total_ticks(),
-        keep: if verify_chirp.is_some() {
-            Kept::STEP_VERIFY
-        } else {
-            Kept::STEP
-        },
-        ticks: progress_ticks,
-        // Closed loop: a stall longer than the loop's own bound (delay
-        // margin, reach of the position limit) is the overruns or
-        // link_latency fault.
-        stall: Some(crate::rt::supervisor::StallBounds::of(
-            check.stall.bound_s,
-            period_s,
-        )),
-        stall_source: &check.stall.source,
-    };
+    crate::jobs::request::refuse_pace_on_hardware(opts.pace, !spec.is_sim(), &info.name)?;
+    let session = control_session(
+        opts,
+        &spec,
+        &job,
+        verify_chirp.is_some(),
+        progress_ticks,
+        &check,
+        period_s,
+    );
     let mut recorder = open_recording(&session, cfg, &info, outputs)?;
     let check_ch =
         recorder.add_channel_for::<LoopCheck>("/control/loop_check", "bench.LoopCheck")?;
@@ -599,89 +809,23 @@ fn run_control_with(
     // The step is judged on its own ticks: the verify's injection after
     // it is not part of its steady state.
     let n = step_ticks.min(data.position_m.len());
-    let StepAnalysis {
-        metrics,
-        events,
-        smoothed_position_m,
-    } = analyze_step(
-        StepSignals {
-            position_m: &data.position_m[..n],
-            setpoint_m: &data.setpoint_m[..n],
-            current_command_a: &data.current_command_a[..n],
-        },
-        step.settle_s,
-        step.step_m,
-        step.steady_state_window_s,
-        period_s,
-    );
-    let metrics_ch =
-        recorder.add_channel_for::<StepMetrics>("/control/metrics", "bench.StepMetrics")?;
-    recorder.write(metrics_ch, end_ns, &metrics)?;
+    let analysis = judge_step(&mut recorder, &data, n, &opts.config, end_ns)?;
 
-    let um = |v: &[f64], off: f64| v.iter().map(|x| (x - off) * 1e6).collect::<Vec<f64>>();
-    let y0 = data.setpoint_m.first().copied().unwrap_or(0.0);
-    let title = format!(
-        "bench control --controller {}: {:.1} µm step (seed {})",
-        opts.controller,
-        step.step_m * 1e6,
-        opts.seed
-    );
-    write_step_png(
-        &opts.plot,
-        outputs.existing(),
-        &StepPlot {
-            title: &title,
-            t_s: &data.t_s[..n],
-            setpoint_um: &um(&data.setpoint_m[..n], y0),
-            position_um: &um(&data.position_m[..n], y0),
-            smoothed_um: &um(&smoothed_position_m, y0),
-            command_a: &data.current_command_a[..n],
-            metrics: &metrics,
-            events: &events,
-        },
-    )
-    .map_err(|e| RunError::Output {
-        path: opts.plot.clone(),
-        reason: e.to_string(),
-    })?;
-    summary.metrics = Some(metrics);
+    write_step_figure(opts, outputs.existing(), &data, n, &analysis)?;
+    summary.metrics = Some(analysis.metrics);
     summary.plot = Some(opts.plot.clone());
     summary.timing = Some(timing);
     if let (Some(v), Some(chirp), Some(s)) = (&opts.verify, verify_chirp, summary.verify.as_mut()) {
-        let analysis = verify::analyze(
-            &data,
+        let run = VerifyRun {
+            data: &data,
             step_ticks,
-            &chirp,
-            cfg,
+            chirp: &chirp,
+            stalls: &stalls,
             period_s,
-            &stalls,
-            &check.model,
-            &model_loop,
-        );
-        s.result = Some(analysis.result.clone());
-        s.csv = Some(v.csv.clone());
-        s.plot = Some(v.plot.clone());
-        let title = format!(
-            "S = u/d, bench control --controller {} --verify ({} A, seed {}): {}",
-            opts.controller,
-            v.amplitude_a,
-            opts.seed,
-            if analysis.result.flagged {
-                "VERIFY FAILED"
-            } else {
-                "agrees"
-            }
-        );
-        verify::write_outputs(
-            &mut recorder,
-            end_ns,
-            &analysis,
-            &model_loop,
-            s,
-            v,
-            outputs.existing(),
-            &title,
-        )?;
+            check: &check,
+            model_loop: &model_loop,
+        };
+        write_verify(opts, v, &run, s, &mut recorder, end_ns, outputs.existing())?;
     }
     let ch =
         recorder.add_channel_for::<ControlSummary>("/control/summary", "bench.ControlSummary")?;
