@@ -142,6 +142,234 @@ fn fmt_ms(s: f64) -> String {
     format!("{} ms", fmt_sig(s * 1e3, 3))
 }
 
+/// The whole record's position panel: setpoint and probe reading, the
+/// zoomed window shaded.
+fn draw_overview_position(
+    root: &Area<'_>,
+    area: &Area<'_>,
+    t_range: &Range<f64>,
+    zoom: &Range<f64>,
+    sp_stairs: &[(f64, f64)],
+    pos: &[(f64, f64)],
+) -> Result<(), BoxError> {
+    let entries = [
+        entry("setpoint", Swatch::Line(SETPOINT_COLOR, LINE_WIDTH)),
+        entry("position (probe)", Swatch::Line(POSITION_COLOR, LINE_WIDTH)),
+        entry(
+            format!(
+                "zoomed below ({} to {} s)",
+                fmt_sig(zoom.start, 4),
+                fmt_sig(zoom.end, 4)
+            ),
+            Swatch::Fill(ZOOM_SHADE, ZOOM_SHADE_ALPHA * 2.0),
+        ),
+    ];
+    let top = legend_height(area, &entries)? + 6;
+    let vals: Vec<f64> = values_in(sp_stairs, t_range)
+        .chain(values_in(pos, t_range))
+        .collect();
+    let y = padded_range(&vals, 0.06, 0.0, -1.0..1.0);
+    let mut chart = time_chart(area, t_range, &y, top, false, "", "position − start [µm]")?;
+    shade(
+        &mut chart,
+        (zoom.start, zoom.end),
+        (y.start, y.end),
+        ZOOM_SHADE,
+        ZOOM_SHADE_ALPHA,
+    )?;
+    draw_trace(&mut chart, sp_stairs, t_range, SETPOINT_COLOR, LINE_WIDTH)?;
+    draw_trace(&mut chart, pos, t_range, POSITION_COLOR, 1)?;
+    frame(&chart)?;
+    panel_legend(root, area, &chart, &entries)?;
+    Ok(())
+}
+
+/// The whole record's command panel, with the peak command, the zoomed
+/// window shaded.
+fn draw_overview_command(
+    root: &Area<'_>,
+    area: &Area<'_>,
+    t_range: &Range<f64>,
+    zoom: &Range<f64>,
+    cmd_stairs: &[(f64, f64)],
+    m: &StepMetrics,
+) -> Result<(), BoxError> {
+    let entries = [
+        entry(
+            "current command (held over each sample period)",
+            Swatch::Line(COMMAND_COLOR, LINE_WIDTH),
+        ),
+        entry(
+            format!("peak |command| {:.3} A", m.peak_command_a),
+            Swatch::Text,
+        ),
+    ];
+    let top = legend_height(area, &entries)? + 6;
+    let vals: Vec<f64> = values_in(cmd_stairs, t_range).collect();
+    let y = padded_range(&vals, 0.06, 0.0, -1.0..1.0);
+    let mut chart = time_chart(area, t_range, &y, top, false, "", "current command [A]")?;
+    shade(
+        &mut chart,
+        (zoom.start, zoom.end),
+        (y.start, y.end),
+        ZOOM_SHADE,
+        ZOOM_SHADE_ALPHA,
+    )?;
+    draw_trace(&mut chart, cmd_stairs, t_range, COMMAND_COLOR, 1)?;
+    frame(&chart)?;
+    panel_legend(root, area, &chart, &entries)?;
+    Ok(())
+}
+
+/// The whole record's error panel, the steady-state window (from
+/// `steady_from_s`) shaded, with its mean and σ.
+fn draw_overview_error(
+    root: &Area<'_>,
+    area: &Area<'_>,
+    t_range: &Range<f64>,
+    steady_from_s: Option<f64>,
+    err: &[(f64, f64)],
+    m: &StepMetrics,
+) -> Result<(), BoxError> {
+    let entries = [
+        entry("setpoint − position", Swatch::Line(ERROR_COLOR, LINE_WIDTH)),
+        entry(
+            format!(
+                "steady-state window (last {} s): mean {:.1} nm, σ {:.1} nm",
+                fmt_sig(m.steady_state_window_s, 3),
+                m.steady_state_error_mean_nm,
+                m.steady_state_error_std_nm
+            ),
+            Swatch::Fill(STEADY_COLOR, 0.25),
+        ),
+    ];
+    let top = legend_height(area, &entries)? + 6;
+    let vals: Vec<f64> = values_in(err, t_range).collect();
+    let y = padded_range(&vals, 0.06, 0.0, -1.0..1.0);
+    let mut chart = time_chart(area, t_range, &y, top, true, "Time [s]", "error [µm]")?;
+    if let Some(t0) = steady_from_s {
+        shade(
+            &mut chart,
+            (t0, t_range.end),
+            (y.start, y.end),
+            STEADY_COLOR,
+            0.12,
+        )?;
+    }
+    draw_trace(&mut chart, err, t_range, ERROR_COLOR, 1)?;
+    frame(&chart)?;
+    panel_legend(root, area, &chart, &entries)?;
+    Ok(())
+}
+
+/// The zoom's command panel, in ms since the step.
+fn draw_zoom_command(
+    root: &Area<'_>,
+    area: &Area<'_>,
+    z: &Range<f64>,
+    cmd_z: &[(f64, f64)],
+) -> Result<(), BoxError> {
+    let entries = [entry(
+        "current command (held over each sample period)",
+        Swatch::Line(COMMAND_COLOR, LINE_WIDTH),
+    )];
+    let top = legend_height(area, &entries)? + 6;
+    let vals: Vec<f64> = values_in(cmd_z, z).collect();
+    let y = padded_range(&vals, 0.06, 0.0, -1.0..1.0);
+    let mut chart = time_chart(
+        area,
+        z,
+        &y,
+        top,
+        true,
+        "Time since the step [ms]",
+        "current command [A]",
+    )?;
+    vline(&mut chart, 0.0, &y, MARKER_COLOR, 1)?;
+    draw_trace(&mut chart, cmd_z, z, COMMAND_COLOR, LINE_WIDTH)?;
+    frame(&chart)?;
+    panel_legend(root, area, &chart, &entries)?;
+    Ok(())
+}
+
+/// A mark on the zoom: (ms since the step, µm).
+type Mark = (f64, f64);
+
+/// The zoom's traces and marks, in ms since the step (see
+/// [`write_step_png`]): a mark is a point (ms, µm).
+struct Zoom {
+    /// The window, ms.
+    z: Range<f64>,
+    sp: Vec<(f64, f64)>,
+    pos: Vec<(f64, f64)>,
+    smooth: Vec<(f64, f64)>,
+    /// The 10 % and 90 % crossings.
+    rise: (Option<Mark>, Option<Mark>),
+    settled: Option<Mark>,
+    peak: Option<Mark>,
+    /// The settling band, µm.
+    band: (f64, f64),
+}
+
+/// The zoom's position panel: setpoint, raw and smoothed reading, the
+/// settling band, and the labelled markers `items`.
+fn draw_zoom_position(
+    root: &Area<'_>,
+    area: &Area<'_>,
+    zm: &Zoom,
+    items: Vec<(f64, String, RGBColor)>,
+    entries: &[super::legend::Entry],
+) -> Result<(), BoxError> {
+    let (px0, px1) = plot_columns(area);
+    let z = &zm.z;
+    let span = z.end - z.start;
+    let (labels, rows) = layout_marker_labels(area, items, |x| {
+        px0 + (f64::from(px1 - px0) * (x - z.start) / span) as i32
+    })?;
+    let legend_h = legend_height(area, entries)?;
+    let top = legend_h + 8 + u32::try_from(rows)? * u32::try_from(marker_row_height())?;
+    let vals: Vec<f64> = values_in(&zm.sp, z)
+        .chain(values_in(&zm.pos, z))
+        .chain(values_in(&zm.smooth, z))
+        .chain([zm.band.0, zm.band.1])
+        .collect();
+    let y = padded_range(&vals, 0.06, 0.0, -1.0..1.0);
+    let mut chart = time_chart(area, z, &y, top, false, "", "position − start [µm]")?;
+    shade(
+        &mut chart,
+        (0.0f64.max(z.start), z.end),
+        zm.band,
+        BAND_COLOR,
+        BAND_ALPHA,
+    )?;
+    draw_trace(&mut chart, &zm.pos, z, POSITION_RAW_COLOR, 1)?;
+    draw_trace(&mut chart, &zm.sp, z, SETPOINT_COLOR, LINE_WIDTH)?;
+    draw_trace(&mut chart, &zm.smooth, z, SMOOTHED_COLOR, LINE_WIDTH)?;
+    vline(&mut chart, 0.0, &y, MARKER_COLOR, 1)?;
+    if let (Some(a), Some(b)) = zm.rise {
+        for pt in [a, b] {
+            vline(&mut chart, pt.0, &y, RISE_COLOR, LINE_WIDTH)?;
+            chart.draw_series(std::iter::once(Circle::new(pt, 5, RISE_COLOR.filled())))?;
+        }
+    }
+    if let Some(s) = zm.settled {
+        vline(&mut chart, s.0, &y, SETTLE_COLOR, LINE_WIDTH)?;
+        chart.draw_series(std::iter::once(Circle::new(s, 5, SETTLE_COLOR.filled())))?;
+    }
+    if let Some(pk) = zm.peak {
+        vline(&mut chart, pk.0, &y, OVERSHOOT_COLOR, LINE_WIDTH)?;
+        chart.draw_series(std::iter::once(Circle::new(
+            pk,
+            6,
+            OVERSHOOT_COLOR.filled(),
+        )))?;
+    }
+    frame(&chart)?;
+    panel_legend(root, area, &chart, entries)?;
+    draw_marker_labels(root, &chart, &labels, y.end)?;
+    Ok(())
+}
+
 /// Draws the figure of [`write_step_png`].
 fn draw_step(root: &Area<'_>, p: &StepPlot<'_>) -> Result<(), BoxError> {
     let body = titled(root, p.title)?;
@@ -179,105 +407,11 @@ fn draw_step(root: &Area<'_>, p: &StepPlot<'_>) -> Result<(), BoxError> {
     let cmd_stairs = staircase(t, p.command_a);
     let pos = pairs(t, p.position_um);
 
-    // Whole record: position.
-    {
-        let entries = [
-            entry("setpoint", Swatch::Line(SETPOINT_COLOR, LINE_WIDTH)),
-            entry("position (probe)", Swatch::Line(POSITION_COLOR, LINE_WIDTH)),
-            entry(
-                format!(
-                    "zoomed below ({} to {} s)",
-                    fmt_sig(zoom.start, 4),
-                    fmt_sig(zoom.end, 4)
-                ),
-                Swatch::Fill(ZOOM_SHADE, ZOOM_SHADE_ALPHA * 2.0),
-            ),
-        ];
-        let top = legend_height(&ov_pos, &entries)? + 6;
-        let vals: Vec<f64> = values_in(&sp_stairs, &t_range)
-            .chain(values_in(&pos, &t_range))
-            .collect();
-        let y = padded_range(&vals, 0.06, 0.0, -1.0..1.0);
-        let mut chart = time_chart(
-            &ov_pos,
-            &t_range,
-            &y,
-            top,
-            false,
-            "",
-            "position − start [µm]",
-        )?;
-        shade(
-            &mut chart,
-            (zoom.start, zoom.end),
-            (y.start, y.end),
-            ZOOM_SHADE,
-            ZOOM_SHADE_ALPHA,
-        )?;
-        draw_trace(&mut chart, &sp_stairs, &t_range, SETPOINT_COLOR, LINE_WIDTH)?;
-        draw_trace(&mut chart, &pos, &t_range, POSITION_COLOR, 1)?;
-        frame(&chart)?;
-        panel_legend(root, &ov_pos, &chart, &entries)?;
-    }
-    // Whole record: command.
-    {
-        let entries = [
-            entry(
-                "current command (held over each sample period)",
-                Swatch::Line(COMMAND_COLOR, LINE_WIDTH),
-            ),
-            entry(
-                format!("peak |command| {:.3} A", m.peak_command_a),
-                Swatch::Text,
-            ),
-        ];
-        let top = legend_height(&ov_cmd, &entries)? + 6;
-        let vals: Vec<f64> = values_in(&cmd_stairs, &t_range).collect();
-        let y = padded_range(&vals, 0.06, 0.0, -1.0..1.0);
-        let mut chart = time_chart(&ov_cmd, &t_range, &y, top, false, "", "current command [A]")?;
-        shade(
-            &mut chart,
-            (zoom.start, zoom.end),
-            (y.start, y.end),
-            ZOOM_SHADE,
-            ZOOM_SHADE_ALPHA,
-        )?;
-        draw_trace(&mut chart, &cmd_stairs, &t_range, COMMAND_COLOR, 1)?;
-        frame(&chart)?;
-        panel_legend(root, &ov_cmd, &chart, &entries)?;
-    }
-    // Whole record: error, with the steady-state window.
-    {
-        let entries = [
-            entry("setpoint − position", Swatch::Line(ERROR_COLOR, LINE_WIDTH)),
-            entry(
-                format!(
-                    "steady-state window (last {} s): mean {:.1} nm, σ {:.1} nm",
-                    fmt_sig(m.steady_state_window_s, 3),
-                    m.steady_state_error_mean_nm,
-                    m.steady_state_error_std_nm
-                ),
-                Swatch::Fill(STEADY_COLOR, 0.25),
-            ),
-        ];
-        let top = legend_height(&ov_err, &entries)? + 6;
-        let err = pairs(t, &error_um);
-        let vals: Vec<f64> = values_in(&err, &t_range).collect();
-        let y = padded_range(&vals, 0.06, 0.0, -1.0..1.0);
-        let mut chart = time_chart(&ov_err, &t_range, &y, top, true, "Time [s]", "error [µm]")?;
-        if let Some(t0) = t_at(e.steady_state_from) {
-            shade(
-                &mut chart,
-                (t0, t_range.end),
-                (y.start, y.end),
-                STEADY_COLOR,
-                0.12,
-            )?;
-        }
-        draw_trace(&mut chart, &err, &t_range, ERROR_COLOR, 1)?;
-        frame(&chart)?;
-        panel_legend(root, &ov_err, &chart, &entries)?;
-    }
+    draw_overview_position(root, &ov_pos, &t_range, &zoom, &sp_stairs, &pos)?;
+    draw_overview_command(root, &ov_cmd, &t_range, &zoom, &cmd_stairs, m)?;
+    let err = pairs(t, &error_um);
+    let steady_from_s = t_at(e.steady_state_from);
+    draw_overview_error(root, &ov_err, &t_range, steady_from_s, &err, m)?;
 
     // The zoom, in ms since the step.
     let ms = |v: f64| (v - t_step) * 1e3;
@@ -372,78 +506,18 @@ fn draw_step(root: &Area<'_>, p: &StepPlot<'_>) -> Result<(), BoxError> {
         ),
     ];
     entries.extend(notes);
-    // Zoom: position.
-    {
-        let (px0, px1) = plot_columns(&zoom_pos);
-        let span = z.end - z.start;
-        let (labels, rows) = layout_marker_labels(&zoom_pos, items, |x| {
-            px0 + (f64::from(px1 - px0) * (x - z.start) / span) as i32
-        })?;
-        let legend_h = legend_height(&zoom_pos, &entries)?;
-        let top = legend_h + 8 + u32::try_from(rows)? * u32::try_from(marker_row_height())?;
-        let vals: Vec<f64> = values_in(&sp_z, &z)
-            .chain(values_in(&pos_z, &z))
-            .chain(values_in(&smooth_z, &z))
-            .chain([band.0, band.1])
-            .collect();
-        let y = padded_range(&vals, 0.06, 0.0, -1.0..1.0);
-        let mut chart = time_chart(&zoom_pos, &z, &y, top, false, "", "position − start [µm]")?;
-        shade(
-            &mut chart,
-            (0.0f64.max(z.start), z.end),
-            band,
-            BAND_COLOR,
-            BAND_ALPHA,
-        )?;
-        draw_trace(&mut chart, &pos_z, &z, POSITION_RAW_COLOR, 1)?;
-        draw_trace(&mut chart, &sp_z, &z, SETPOINT_COLOR, LINE_WIDTH)?;
-        draw_trace(&mut chart, &smooth_z, &z, SMOOTHED_COLOR, LINE_WIDTH)?;
-        vline(&mut chart, 0.0, &y, MARKER_COLOR, 1)?;
-        if let (Some(a), Some(b)) = rise {
-            for pt in [a, b] {
-                vline(&mut chart, pt.0, &y, RISE_COLOR, LINE_WIDTH)?;
-                chart.draw_series(std::iter::once(Circle::new(pt, 5, RISE_COLOR.filled())))?;
-            }
-        }
-        if let Some(s) = settled {
-            vline(&mut chart, s.0, &y, SETTLE_COLOR, LINE_WIDTH)?;
-            chart.draw_series(std::iter::once(Circle::new(s, 5, SETTLE_COLOR.filled())))?;
-        }
-        if let Some(pk) = peak {
-            vline(&mut chart, pk.0, &y, OVERSHOOT_COLOR, LINE_WIDTH)?;
-            chart.draw_series(std::iter::once(Circle::new(
-                pk,
-                6,
-                OVERSHOOT_COLOR.filled(),
-            )))?;
-        }
-        frame(&chart)?;
-        panel_legend(root, &zoom_pos, &chart, &entries)?;
-        draw_marker_labels(root, &chart, &labels, y.end)?;
-    }
-    // Zoom: command.
-    {
-        let entries = [entry(
-            "current command (held over each sample period)",
-            Swatch::Line(COMMAND_COLOR, LINE_WIDTH),
-        )];
-        let top = legend_height(&zoom_cmd, &entries)? + 6;
-        let vals: Vec<f64> = values_in(&cmd_z, &z).collect();
-        let y = padded_range(&vals, 0.06, 0.0, -1.0..1.0);
-        let mut chart = time_chart(
-            &zoom_cmd,
-            &z,
-            &y,
-            top,
-            true,
-            "Time since the step [ms]",
-            "current command [A]",
-        )?;
-        vline(&mut chart, 0.0, &y, MARKER_COLOR, 1)?;
-        draw_trace(&mut chart, &cmd_z, &z, COMMAND_COLOR, LINE_WIDTH)?;
-        frame(&chart)?;
-        panel_legend(root, &zoom_cmd, &chart, &entries)?;
-    }
+    let zm = Zoom {
+        z,
+        sp: sp_z,
+        pos: pos_z,
+        smooth: smooth_z,
+        rise,
+        settled,
+        peak,
+        band,
+    };
+    draw_zoom_position(root, &zoom_pos, &zm, items, &entries)?;
+    draw_zoom_command(root, &zoom_cmd, &zm.z, &cmd_z)?;
     Ok(())
 }
 
