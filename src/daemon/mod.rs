@@ -356,93 +356,29 @@ fn hold_factory(
     )))
 }
 
-/// Runs the daemon until `shutdown`, SIGTERM or SIGINT.
-///
-/// # Errors
-/// [`ServeError::Input`] for an unusable socket path, a busy socket, a
-/// device that cannot be opened, a `store_timeout_s` out of its range, a
-/// store of `upload` without credentials or that refused within
-/// [`STORE_PROBE_GRACE_MS`]; [`ServeError::Other`] otherwise.
-pub fn serve(opts: ServeOptions) -> Result<(), ServeError> {
-    // First: an address in use stops the daemon before anything else.
-    let metrics_listener = opts
-        .metrics
-        .map(|addr| {
-            metrics::bind(addr)
-                .map_err(|reason| ServeError::Input(RunError::option("metrics", addr, reason)))
-        })
-        .transpose()?;
-    prepare_socket(&opts.socket, opts.socket_group.as_deref())?;
-    // The recordings directory follows the files' policy (owner writes,
-    // group reads; `outputs::DIR_MODE`), whatever the umask lets through.
+/// The recordings directory, created if need be; it follows the files'
+/// policy (owner writes, group reads; `outputs::DIR_MODE`), whatever the
+/// umask lets through. Every path the daemon hands out (recordings, their
+/// CSV and plots, the event log) is absolute: its clients run elsewhere.
+fn recordings_dir(dir: &std::path::Path) -> Result<PathBuf, ServeError> {
+    let bad = |e: std::io::Error| {
+        ServeError::Input(RunError::option("recordings", dir.display(), e.to_string()))
+    };
     {
         use std::os::unix::fs::DirBuilderExt;
         std::fs::DirBuilder::new()
             .recursive(true)
             .mode(crate::outputs::DIR_MODE)
-            .create(&opts.recordings)
+            .create(dir)
     }
-    .map_err(|e| {
-        ServeError::Input(RunError::option(
-            "recordings",
-            opts.recordings.display(),
-            e.to_string(),
-        ))
-    })?;
-    // Every path the daemon hands out (recordings, their CSV and plots, the
-    // event log) is absolute: its clients run elsewhere.
-    let recordings = std::path::absolute(&opts.recordings).map_err(|e| {
-        ServeError::Input(RunError::option(
-            "recordings",
-            opts.recordings.display(),
-            e.to_string(),
-        ))
-    })?;
-    if !crate::job_memory::installed() {
-        tracing::warn!(
-            "bench::job_memory::BudgetAllocator is not this program's global allocator: the jobs' memory budgets are not enforced"
-        );
-    }
-    let (events, _) = broadcast::channel::<String>(1024);
-    // A pace is virtual time: the simulator's only, refused before
-    // anything is opened.
-    let spec = BackendSpec::resolve(opts.backend.as_ref(), &opts.config);
-    if let (Some(p), false) = (opts.default_pace, spec.is_sim()) {
-        return Err(ServeError::Input(RunError::option(
-            "pace",
-            p,
-            crate::jobs::request::pace_on_hardware(&spec.to_string()),
-        )));
-    }
-    // The store refuses (no bucket, credentials) within the probe's
-    // grace: stop before the bench is opened; one that has not answered
-    // by then only delays the uploads, its probe going on meanwhile.
-    let (uploader, store_probe) = match opts.upload.clone() {
-        Some(url) => {
-            let (u, p) = uploads::start(
-                url,
-                opts.store_timeout_s,
-                &recordings,
-                opts.config.loop_.cpu,
-                events.clone(),
-            )
-            .map_err(ServeError::Input)?;
-            (Some(u), Some(p))
-        }
-        None => (None, None),
-    };
-    let (mut stage, info) = backend::open(
-        &spec,
-        &opts.config,
-        &opts.config_path,
-        opts.seed,
-        opts.inject,
-        // Until the hold controller's bound is known (below): the user's.
-        opts.config.safety.max_overrun_s.unwrap_or(f64::INFINITY),
-    )
-    .map_err(ServeError::Input)?;
-    let backend_name = info.name.clone();
-    let status = Arc::new(Mutex::new(Status {
+    .map_err(bad)?;
+    std::path::absolute(dir).map_err(bad)
+}
+
+/// The daemon's status before its first request: disabled, holding as
+/// `[daemon] hold_controller` says.
+fn initial_status(opts: &ServeOptions, info: &bench_hal::DeviceInfo) -> Status {
+    Status {
         state: "disabled",
         fault: None,
         job: None,
@@ -463,7 +399,210 @@ pub fn serve(opts: ServeOptions) -> Result<(), ServeError> {
         last_recording: None,
         abandoned_jobs: Vec::new(),
         store: None,
-    }));
+    }
+}
+
+/// The real-time loop's options: paced in real time at the device's
+/// period, with the one supervisor; between jobs only the hold controller
+/// drives the stage (the timing rules are checked while it does, on its
+/// bounds).
+fn loop_options(
+    cfg: &BenchConfig,
+    info: &bench_hal::DeviceInfo,
+    hold_bounds: Option<crate::rt::supervisor::StallBounds>,
+) -> LoopOptions {
+    let period_s = info.period_ns as f64 * 1e-9;
+    let mut safety = cfg.supervisor(info);
+    if let Some(b) = hold_bounds {
+        // Between jobs only the hold controller drives the stage (the
+        // timing rules are checked while it does).
+        safety.max_missed_deadlines = safety.max_missed_deadlines.min(b.max_missed_deadlines);
+        safety.max_late_commands = safety.max_late_commands.min(b.max_late_commands);
+    }
+    LoopOptions {
+        period_ns: info.period_ns,
+        pacing: Pacing::RealTime {
+            priority: cfg.loop_.priority,
+            cpu: cfg.loop_.cpu,
+        },
+        timing_interval_ticks: ((cfg.loop_.timing_interval_s / period_s).round() as u64).max(1),
+        safety,
+        max_ticks: u64::MAX,
+    }
+}
+
+/// The metrics: the loop's counts handed off wait-free to the metrics
+/// thread, which serves them on `listener` with the owner's.
+fn start_metrics(
+    listener: std::net::TcpListener,
+    status: &Arc<Mutex<Status>>,
+    cfg: &BenchConfig,
+    info: &bench_hal::DeviceInfo,
+    uploads: Option<Arc<crate::upload::worker::UploadCounts>>,
+) -> Result<
+    (
+        crate::rt::tap::LoopTap,
+        (Arc<metrics::Metrics>, metrics::MetricsServer),
+    ),
+    ServeError,
+> {
+    let (tap, counts) = crate::rt::tap::loop_tap(info.period_ns);
+    let m = Arc::new(metrics::Metrics::new(
+        Arc::clone(status),
+        counts,
+        metrics::BuildInfo {
+            version: env!("CARGO_PKG_VERSION"),
+            config_hash: cfg.sha256_hex(),
+            backend: info.name.clone(),
+        },
+        uploads,
+    ));
+    let server = metrics::MetricsServer::start(listener, Arc::clone(&m), cfg.loop_.cpu)
+        .map_err(ServeError::Other)?;
+    // Never a panic on a stderr that cannot be written.
+    let _ = writeln!(
+        std::io::stderr(),
+        "bench serve: metrics on {}",
+        server.url()
+    );
+    Ok((tap, (m, server)))
+}
+
+/// Joins the threads, none waited for past the shutdown bound from
+/// `shutdown_at` (now if unknown): a thread stuck in a device call cannot
+/// be ended, and the device's own watchdog drops the current when the
+/// process is gone.
+fn join_within_bound(
+    shutdown_at: Option<std::time::Instant>,
+    threads: [(&str, std::thread::JoinHandle<()>); 2],
+) {
+    let bound = shutdown_at
+        .unwrap_or_else(std::time::Instant::now)
+        .checked_add(std::time::Duration::from_millis(SHUTDOWN_BOUND_MS - 100));
+    for (name, thread) in threads {
+        while !thread.is_finished() && bound.is_some_and(|b| std::time::Instant::now() < b) {
+            std::thread::sleep(std::time::Duration::from_millis(2));
+        }
+        if thread.is_finished() {
+            let _ = thread.join();
+        } else {
+            tracing::error!(
+                "the {name} thread did not end within {SHUTDOWN_BOUND_MS} ms of the shutdown; leaving without it"
+            );
+        }
+    }
+}
+
+/// Serves clients on the socket until `shutdown`, SIGTERM or SIGINT, then
+/// stops safely: the running job ends at 0 A with its recording finished,
+/// or is abandoned by the owner JOB_STOP_TIMEOUT_MS after the stop; then
+/// the owner disables and returns. `shutdown_at`: when the shutdown began.
+async fn serve_until_shutdown(
+    ctx: &Arc<Ctx>,
+    socket_path: &std::path::Path,
+    socket_group: Option<&str>,
+    shutdown_at: &Mutex<Option<std::time::Instant>>,
+) -> Result<(), ServeError> {
+    let listener = bind_socket(socket_path, socket_group)?;
+    tokio::spawn(event_log(ctx.recordings.clone(), ctx.events.subscribe()));
+    let _ = ctx.events.send(event(
+        "daemon_started",
+        json!({ "socket": socket_path, "backend": lock(&ctx.status).backend }),
+    ));
+    // Never a panic on a stderr that cannot be written (`/dev/full`).
+    let _ = writeln!(
+        std::io::stderr(),
+        "bench serve: {} on {} (backend {})",
+        std::process::id(),
+        socket_path.display(),
+        lock(&ctx.status).backend
+    );
+    let mut term = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())
+        .map_err(|e| ServeError::Other(format!("signals: {e}")))?;
+    let mut int = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::interrupt())
+        .map_err(|e| ServeError::Other(format!("signals: {e}")))?;
+    tokio::select! {
+        () = socket::accept_clients(Arc::clone(ctx), listener) => {}
+        _ = term.recv() => {}
+        _ = int.recv() => {}
+        () = ctx.shutdown.notified() => {}
+    }
+    // Stop safely: the running job ends at 0 A with its recording
+    // finished, or is abandoned by the owner JOB_STOP_TIMEOUT_MS after
+    // the stop; then the owner disables and returns.
+    *lock(shutdown_at) = Some(std::time::Instant::now());
+    let running = lock(&ctx.running).clone();
+    if let Some(h) = running {
+        h.stop.store(true, Ordering::Relaxed);
+        // Let the job's client get its (interrupted) response.
+        let wait = std::time::Duration::from_millis(JOB_STOP_TIMEOUT_MS + 200);
+        let t0 = std::time::Instant::now();
+        while lock(&ctx.running).is_some() && t0.elapsed() < wait {
+            tokio::time::sleep(std::time::Duration::from_millis(10)).await;
+        }
+        tokio::time::sleep(std::time::Duration::from_millis(50)).await;
+    }
+    let _ = lock(&ctx.owner).send(OwnerCmd::Shutdown);
+    Ok(())
+}
+
+/// Runs the daemon until `shutdown`, SIGTERM or SIGINT.
+///
+/// # Errors
+/// [`ServeError::Input`] for an unusable socket path, a busy socket, a
+/// device that cannot be opened, a `store_timeout_s` out of its range, a
+/// store of `upload` without credentials or that refused within
+/// [`STORE_PROBE_GRACE_MS`]; [`ServeError::Other`] otherwise.
+pub fn serve(opts: ServeOptions) -> Result<(), ServeError> {
+    // First: an address in use stops the daemon before anything else.
+    let metrics_listener = opts
+        .metrics
+        .map(|addr| {
+            metrics::bind(addr)
+                .map_err(|reason| ServeError::Input(RunError::option("metrics", addr, reason)))
+        })
+        .transpose()?;
+    prepare_socket(&opts.socket, opts.socket_group.as_deref())?;
+    let recordings = recordings_dir(&opts.recordings)?;
+    if !crate::job_memory::installed() {
+        tracing::warn!(
+            "bench::job_memory::BudgetAllocator is not this program's global allocator: the jobs' memory budgets are not enforced"
+        );
+    }
+    let (events, _) = broadcast::channel::<String>(1024);
+    let spec = BackendSpec::resolve(opts.backend.as_ref(), &opts.config);
+    // A pace is virtual time: the simulator's only, refused before
+    // anything is opened.
+    crate::jobs::request::refuse_pace_on_hardware(
+        opts.default_pace,
+        !spec.is_sim(),
+        &spec.to_string(),
+    )
+    .map_err(ServeError::Input)?;
+    // The store refuses (no bucket, credentials) within the probe's
+    // grace: stop before the bench is opened; one that has not answered
+    // by then only delays the uploads, its probe going on meanwhile.
+    let (uploader, store_probe) = opts
+        .upload
+        .clone()
+        .map(|url| {
+            let cpu = opts.config.loop_.cpu;
+            uploads::start(url, opts.store_timeout_s, &recordings, cpu, events.clone())
+        })
+        .transpose()
+        .map_err(ServeError::Input)?
+        .unzip();
+    let (mut stage, info) = backend::open(
+        &spec,
+        &opts.config,
+        &opts.config_path,
+        opts.seed,
+        opts.inject,
+        // Until the hold controller's bound is known (below): the user's.
+        opts.config.safety.max_overrun_s.unwrap_or(f64::INFINITY),
+    )
+    .map_err(ServeError::Input)?;
+    let status = Arc::new(Mutex::new(initial_status(&opts, &info)));
     let (owner_tx, owner_rx) = mpsc::channel();
     // The real-time loop: one Loop and one supervisor for the daemon's
     // life, paced in real time (jobs on a daemon always are).
@@ -472,63 +611,20 @@ pub fn serve(opts: ServeOptions) -> Result<(), ServeError> {
     let (rep_tx, rep_rx) = rtrb::RingBuffer::<LoopReply>::new(64);
     let period_s = info.period_ns as f64 * 1e-9;
     let (hold, hold_bounds) =
-        match hold_factory(&opts.config, &info, spec.process_data_delay_periods())? {
-            Some((h, b)) => (Some(h), Some(b)),
-            None => (None, None),
-        };
+        hold_factory(&opts.config, &info, spec.process_data_delay_periods())?.unzip();
     // The link's wait follows the hold controller's stall bound between
     // jobs, each job's own while it runs (`run_service`).
     if let Some(b) = hold_bounds {
         stage.set_stall_bound_s(b.missed_deadlines_s(period_s));
     }
-    let mut safety = opts.config.supervisor(&info);
-    if let Some(b) = hold_bounds {
-        // Between jobs only the hold controller drives the stage (the
-        // timing rules are checked while it does).
-        safety.max_missed_deadlines = safety.max_missed_deadlines.min(b.max_missed_deadlines);
-        safety.max_late_commands = safety.max_late_commands.min(b.max_late_commands);
-    }
-    let loop_opts = LoopOptions {
-        period_ns: info.period_ns,
-        pacing: Pacing::RealTime {
-            priority: opts.config.loop_.priority,
-            cpu: opts.config.loop_.cpu,
-        },
-        timing_interval_ticks: ((opts.config.loop_.timing_interval_s / period_s).round() as u64)
-            .max(1),
-        safety,
-        max_ticks: u64::MAX,
-    };
-    // The metrics: the loop's counts handed off wait-free to the
-    // metrics thread, which serves them with the owner's.
-    let (tap, metrics) = match metrics_listener {
-        Some(listener) => {
-            let (tap, counts) = crate::rt::tap::loop_tap(info.period_ns);
-            let m = Arc::new(metrics::Metrics::new(
-                Arc::clone(&status),
-                counts,
-                metrics::BuildInfo {
-                    version: env!("CARGO_PKG_VERSION"),
-                    config_hash: opts.config.sha256_hex(),
-                    backend: backend_name,
-                },
-                uploader
-                    .as_ref()
-                    .map(crate::upload::worker::Uploader::counts),
-            ));
-            let server =
-                metrics::MetricsServer::start(listener, Arc::clone(&m), opts.config.loop_.cpu)
-                    .map_err(ServeError::Other)?;
-            // Never a panic on a stderr that cannot be written.
-            let _ = writeln!(
-                std::io::stderr(),
-                "bench serve: metrics on {}",
-                server.url()
-            );
-            (Some(tap), Some((m, server)))
-        }
-        None => (None, None),
-    };
+    let loop_opts = loop_options(&opts.config, &info, hold_bounds);
+    let counts = uploader
+        .as_ref()
+        .map(crate::upload::worker::Uploader::counts);
+    let (tap, metrics) = metrics_listener
+        .map(|l| start_metrics(l, &status, &opts.config, &info, counts))
+        .transpose()?
+        .unzip();
     let rt_thread = {
         let loop_status = Arc::clone(&loop_status);
         let clock = info.clock;
@@ -586,73 +682,22 @@ pub fn serve(opts: ServeOptions) -> Result<(), ServeError> {
         .map_err(|e| ServeError::Other(format!("tokio: {e}")))?;
     // When the shutdown began (a signal, `shutdown`): the bound's start.
     let shutdown_at: Mutex<Option<std::time::Instant>> = Mutex::new(None);
-    let result = rt.block_on(async {
-        let listener = bind_socket(&opts.socket, opts.socket_group.as_deref())?;
-        tokio::spawn(event_log(recordings.clone(), ctx.events.subscribe()));
-        let _ = ctx.events.send(event(
-            "daemon_started",
-            json!({ "socket": opts.socket, "backend": lock(&ctx.status).backend }),
-        ));
-        // Never a panic on a stderr that cannot be written (`/dev/full`).
-        let _ = writeln!(
-            std::io::stderr(),
-            "bench serve: {} on {} (backend {})",
-            std::process::id(),
-            opts.socket.display(),
-            lock(&ctx.status).backend
-        );
-        let mut term = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())
-            .map_err(|e| ServeError::Other(format!("signals: {e}")))?;
-        let mut int = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::interrupt())
-            .map_err(|e| ServeError::Other(format!("signals: {e}")))?;
-        tokio::select! {
-            () = socket::accept_clients(Arc::clone(&ctx), listener) => {}
-            _ = term.recv() => {}
-            _ = int.recv() => {}
-            () = ctx.shutdown.notified() => {}
-        }
-        // Stop safely: the running job ends at 0 A with its recording
-        // finished, or is abandoned by the owner JOB_STOP_TIMEOUT_MS after
-        // the stop; then the owner disables and returns.
-        *lock(&shutdown_at) = Some(std::time::Instant::now());
-        let running = lock(&ctx.running).clone();
-        if let Some(h) = running {
-            h.stop.store(true, Ordering::Relaxed);
-            // Let the job's client get its (interrupted) response.
-            let wait = std::time::Duration::from_millis(JOB_STOP_TIMEOUT_MS + 200);
-            let t0 = std::time::Instant::now();
-            while lock(&ctx.running).is_some() && t0.elapsed() < wait {
-                tokio::time::sleep(std::time::Duration::from_millis(10)).await;
-            }
-            tokio::time::sleep(std::time::Duration::from_millis(50)).await;
-        }
-        let _ = lock(&ctx.owner).send(OwnerCmd::Shutdown);
-        Ok::<(), ServeError>(())
-    });
+    let result = rt.block_on(serve_until_shutdown(
+        &ctx,
+        &opts.socket,
+        opts.socket_group.as_deref(),
+        &shutdown_at,
+    ));
     // Also when the block above ended early with an error (the socket
     // could not be bound): the owner must see Shutdown, or the joins below
     // wait for ever.
     let _ = lock(&ctx.owner).send(OwnerCmd::Shutdown);
     // The owner finishes the job (its recording) before it sees Shutdown,
-    // then has the loop disable the amplifier and stop. Neither is waited
-    // for past the shutdown bound: a thread stuck in a device call cannot
-    // be ended, and the device's own watchdog drops the current when the
-    // process is gone.
-    let bound = lock(&shutdown_at)
-        .unwrap_or_else(std::time::Instant::now)
-        .checked_add(std::time::Duration::from_millis(SHUTDOWN_BOUND_MS - 100));
-    for (name, thread) in [("owner", owner_thread), ("real-time loop", rt_thread)] {
-        while !thread.is_finished() && bound.is_some_and(|b| std::time::Instant::now() < b) {
-            std::thread::sleep(std::time::Duration::from_millis(2));
-        }
-        if thread.is_finished() {
-            let _ = thread.join();
-        } else {
-            tracing::error!(
-                "the {name} thread did not end within {SHUTDOWN_BOUND_MS} ms of the shutdown; leaving without it"
-            );
-        }
-    }
+    // then has the loop disable the amplifier and stop.
+    join_within_bound(
+        *lock(&shutdown_at),
+        [("owner", owner_thread), ("real-time loop", rt_thread)],
+    );
     // The metrics are served until the loop has stopped.
     drop(metrics);
     let _ = std::fs::remove_file(&opts.socket);

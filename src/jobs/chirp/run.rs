@@ -175,64 +175,45 @@ pub fn run_chirp_on(
     catalogued(opts, result)
 }
 
-pub(super) fn run_chirp_with(
-    runner: &mut Runner<'_>,
-    hardware: bool,
-    opts: &ChirpOptions,
-    outputs: &mut OutputPlan,
-    stop: Arc<AtomicBool>,
-    ticks: Option<&Arc<AtomicU64>>,
-) -> Result<ChirpSummary, RunError> {
+/// The excitation of `opts` at the device's period, checked before
+/// anything is enabled: its ticks within the job's limit, and a sweep's
+/// band wide enough for the LPM's local window on the record's bin
+/// spacing (a multisine's FRF is the BLA on its own lines). A multisine's
+/// table is computed here, before the loop starts.
+fn checked_excitation(opts: &ChirpOptions, period_s: f64) -> Result<Excitation, RunError> {
     let cfg = &opts.config;
-    let info = &runner.info().clone();
-    outputs.add_input("config", &opts.config_path);
-    outputs.check()?;
-    let model = Sr4dof::new(cfg.plant)
-        .map_err(|e| RunError::BadInput(format!("config {}: {e}", opts.config_path.display())))?;
-    let period_s = info.period_ns as f64 * 1e-9;
-    let rate_hz = 1.0 / period_s;
-    // A multisine's table is computed here, before the loop starts.
-    let excitation = Excitation::new(cfg, period_s, opts.seed).map_err(|e| {
-        RunError::BadInput(format!(
-            "config {}: {e} (at the device's period of {period_s} s)",
-            opts.config_path.display()
-        ))
-    })?;
+    let bad = |e: String| RunError::BadInput(format!("config {}: {e}", opts.config_path.display()));
+    let excitation = Excitation::new(cfg, period_s, opts.seed)
+        .map_err(|e| bad(format!("{e} (at the device's period of {period_s} s)")))?;
     let total_ticks = excitation.total_ticks();
     if total_ticks > crate::config::ranges::JOB_TICKS_MAX {
-        return Err(RunError::BadInput(format!(
-            "config {}: chirp.duration_s: lead_in_s + duration_s + tail_s is more than {} ticks at the device's period",
-            opts.config_path.display(),
+        return Err(bad(format!(
+            "chirp.duration_s: lead_in_s + duration_s + tail_s is more than {} ticks at the device's period",
             crate::config::ranges::JOB_TICKS_MAX
         )));
     }
-    let lead_in_ticks = excitation.lead_in_ticks();
-    let (sweep, plan) = match &excitation {
-        Excitation::Sweep(c) => (Some(*c), None),
-        Excitation::Multisine(m) => (None, Some(MultisinePlan::of(m))),
-    };
-    // The LPM's local window must fit in the band: checked on the record's
-    // bin spacing before anything is enabled (a sweep's; a multisine's
-    // FRF is the BLA on its own lines).
-    if sweep.is_some() && cfg.identification.estimator == crate::config::Estimator::Lpm {
-        let bin_hz = rate_hz / crate::ident::frf::fast_len(total_ticks as usize) as f64;
+    let sweep = matches!(excitation, Excitation::Sweep(_));
+    if sweep && cfg.identification.estimator == crate::config::Estimator::Lpm {
+        let bin_hz = 1.0 / period_s / crate::ident::frf::fast_len(total_ticks as usize) as f64;
         crate::ident::lpm::check_band(
             bin_hz,
             cfg.chirp.f_start_hz,
             cfg.chirp.f_end_hz,
             &crate::ident::lpm::LpmOptions::from_config(&cfg.identification),
         )
-        .map_err(|e| RunError::BadInput(format!("config {}: {e}", opts.config_path.display())))?;
+        .map_err(|e| bad(e.to_string()))?;
     }
+    Ok(excitation)
+}
 
-    if let (Some(f), true) = (opts.pace, hardware) {
-        return Err(RunError::option(
-            "pace",
-            f,
-            crate::jobs::request::pace_on_hardware(&info.name),
-        ));
-    }
-    let session = SessionOptions {
+/// The recorded session of a chirp of `total_ticks`.
+fn chirp_session<'a>(
+    opts: &'a ChirpOptions,
+    hardware: bool,
+    total_ticks: u64,
+    ticks: Option<&'a Arc<AtomicU64>>,
+) -> SessionOptions<'a> {
+    SessionOptions {
         command: "chirp",
         config_path: &opts.config_path,
         out: &opts.out,
@@ -248,7 +229,177 @@ pub(super) fn run_chirp_with(
         // is recorded and its span left out of the FRF.
         stall: None,
         stall_source: "",
+    }
+}
+
+/// Takes the probe offset (the lead-in's mean) off the record's position
+/// in place; returns the largest |position| left, m.
+fn remove_probe_offset(record: &mut [crate::ident::frf::C64], lead_in_ticks: u64) -> f64 {
+    let lead = (lead_in_ticks as usize).min(record.len());
+    let offset = if lead > 0 {
+        record[..lead].iter().map(|z| z.im).sum::<f64>() / lead as f64
+    } else {
+        0.0
     };
+    let mut peak_position_m = 0.0_f64;
+    for z in record.iter_mut() {
+        z.im -= offset;
+        peak_position_m = peak_position_m.max(z.im.abs());
+    }
+    peak_position_m
+}
+
+/// The FRF CSV, and a multisine's BLA CSV when asked for.
+fn write_estimates(
+    opts: &ChirpOptions,
+    existing: Existing,
+    frf: &Frf,
+    bla: Option<&Bla>,
+) -> Result<(), RunError> {
+    frf.write_csv(&opts.frf_csv, existing)
+        .map_err(|e| RunError::Output {
+            path: opts.frf_csv.clone(),
+            reason: e.to_string(),
+        })?;
+    match (bla, &opts.bla_csv) {
+        (Some(b), Some(path)) => b.write_csv(path, existing).map_err(|e| RunError::Output {
+            path: path.clone(),
+            reason: e.to_string(),
+        }),
+        _ => Ok(()),
+    }
+}
+
+/// The chirp's Bode figure (`opts.plot`): the measured FRF with its
+/// coherence, the model's curve, the resonances marked and the closely
+/// spaced pair zoomed.
+fn write_chirp_figure(
+    opts: &ChirpOptions,
+    existing: Existing,
+    frf: &Frf,
+    summary: &ChirpSummary,
+    model: BodeSeries<'_>,
+) -> Result<(), RunError> {
+    let cfg = &opts.config;
+    let markers: Vec<f64> = summary.resonances.iter().map(|r| r.frequency_hz).collect();
+    let no_pair = PairZoom::reason_of(&summary.verdict.phase_test);
+    let pair_zoom = PairZoom::of(&summary.verdict.phase_test, frf, &no_pair);
+    let title = format!(
+        "x1 / current, Y1o = {:.1} % of L, Δm23 = {:+.0} % (seed {})",
+        100.0 * cfg.plant.operating_point_m / cfg.plant.beam.length_m,
+        100.0 * cfg.plant.mass_asymmetry,
+        opts.seed
+    );
+    write_bode_png(
+        &opts.plot,
+        existing,
+        &BodePlot {
+            title: &title,
+            magnitude_axis: crate::plot::MAGNITUDE_M_PER_A,
+            measured: BodeSeries::measured(
+                frf,
+                summary
+                    .frf_estimator
+                    .as_ref()
+                    .map_or("measured", |e| e.name.plot_label()),
+            ),
+            coherence: &frf.coherence,
+            model: Some(model),
+            markers_hz: &markers,
+            pair: Some(pair_zoom),
+        },
+    )
+    .map_err(|e| RunError::Output {
+        path: opts.plot.clone(),
+        reason: e.to_string(),
+    })
+}
+
+/// A sweep's FRF with the estimator of `identification.estimator` (LPM or
+/// H1), the stalls' spans left out. A NaN sample faults the run before it
+/// gets here; the check names it if not.
+fn estimate_sweep(
+    opts: &ChirpOptions,
+    model: &Sr4dof,
+    record: Vec<crate::ident::frf::C64>,
+    stalls: &[(u64, f64)],
+    chirp: &Chirp,
+    period_s: f64,
+) -> Result<(Frf, StallReport, FrfEstimator), RunError> {
+    let cfg = &opts.config;
+    let estimate_failed = |e: crate::ident::frf::FrfError| RunError::Output {
+        path: opts.frf_csv.clone(),
+        reason: format!("the FRF could not be estimated: {e}"),
+    };
+    crate::ident::frf::check_record(&record).map_err(estimate_failed)?;
+    let spectra = Spectra::from_record(
+        record,
+        1.0 / period_s,
+        &cfg.identification,
+        cfg.chirp.f_end_hz,
+    );
+    let (ident, estimator) = lpm_or_h1(cfg, model, spectra.bin_hz());
+    let frf = Frf::from_spectra(&spectra, cfg.chirp.f_start_hz, cfg.chirp.f_end_hz, &ident)
+        .map_err(estimate_failed)?;
+    let mut stall_report = StallReport::of(
+        stalls,
+        chirp,
+        period_s,
+        cfg.identification.relative_resolution,
+    );
+    let frf = stall_report.exclude(frf);
+    Ok((frf, stall_report, estimator))
+}
+
+/// The model's curve for the plot, on a grid at least as dense as
+/// MODEL_POINTS_PER_DECADE, so that its lightly damped peaks keep their
+/// shape in the plot's pair zoom.
+fn model_curve(cfg: &BenchConfig, zoh: &ZohPlant) -> (Vec<f64>, Vec<crate::ident::frf::C64>) {
+    let f = crate::ident::frf::log_grid(
+        cfg.chirp.f_start_hz,
+        cfg.chirp.f_end_hz,
+        cfg.identification
+            .points_per_decade
+            .max(MODEL_POINTS_PER_DECADE),
+    );
+    let h = f.iter().map(|&f| zoh.frf(f)).collect();
+    (f, h)
+}
+
+/// The samples go to the disk while the FRF and the fit are computed: an
+/// fsync of the part file now (any descriptor of a file syncs it) leaves
+/// the one in `finish` only the tail, the summary and the index.
+/// Durability is unchanged: `finish` still syncs before the rename, and
+/// reports the errors.
+fn sync_early(part: &std::path::Path) -> std::thread::JoinHandle<std::io::Result<()>> {
+    let part = part.to_path_buf();
+    std::thread::spawn(move || std::fs::File::open(part).and_then(|f| f.sync_data()))
+}
+
+pub(super) fn run_chirp_with(
+    runner: &mut Runner<'_>,
+    hardware: bool,
+    opts: &ChirpOptions,
+    outputs: &mut OutputPlan,
+    stop: Arc<AtomicBool>,
+    ticks: Option<&Arc<AtomicU64>>,
+) -> Result<ChirpSummary, RunError> {
+    let cfg = &opts.config;
+    let info = &runner.info().clone();
+    outputs.add_input("config", &opts.config_path);
+    outputs.check()?;
+    let model = Sr4dof::new(cfg.plant)
+        .map_err(|e| RunError::BadInput(format!("config {}: {e}", opts.config_path.display())))?;
+    let period_s = info.period_ns as f64 * 1e-9;
+    let excitation = checked_excitation(opts, period_s)?;
+    let total_ticks = excitation.total_ticks();
+    let lead_in_ticks = excitation.lead_in_ticks();
+    let (sweep, plan) = match &excitation {
+        Excitation::Sweep(c) => (Some(*c), None),
+        Excitation::Multisine(m) => (None, Some(MultisinePlan::of(m))),
+    };
+    crate::jobs::request::refuse_pace_on_hardware(opts.pace, hardware, &info.name)?;
+    let session = chirp_session(opts, hardware, total_ticks, ticks);
     let recorder = open_recording(&session, cfg, info, outputs)?;
     let run = run_recorded(
         runner,
@@ -267,53 +418,17 @@ pub(super) fn run_chirp_with(
         current_limits,
         stalls,
     } = run;
-    // The samples go to the disk while the FRF and the fit are computed: an
-    // fsync of the part file now (any descriptor of a file syncs it) leaves
-    // the one in `finish` only the tail, the summary and the index.
-    // Durability is unchanged: `finish` still syncs before the rename, and
-    // reports the errors.
-    let early_sync = {
-        let part = recorder.part_path().to_path_buf();
-        std::thread::spawn(move || std::fs::File::open(part).and_then(|f| f.sync_data()))
-    };
+    let early_sync = sync_early(recorder.part_path());
 
-    // Identification, in the record's own memory: the probe offset (the
-    // lead-in's mean) comes off the position in place, and the FFT runs in
-    // the packed record (16 bytes a tick at the peak).
+    // Identification, in the record's own memory (the FFT runs in the
+    // packed record, 16 bytes a tick at the peak).
     let mut record = data.frf_record;
-    let lead = (lead_in_ticks as usize).min(record.len());
-    let offset = if lead > 0 {
-        record[..lead].iter().map(|z| z.im).sum::<f64>() / lead as f64
-    } else {
-        0.0
-    };
-    let mut peak_position_m = 0.0_f64;
-    for z in &mut record {
-        z.im -= offset;
-        peak_position_m = peak_position_m.max(z.im.abs());
-    }
-    // With the estimator of `identification.estimator` (a NaN sample
-    // faults the run before it gets here; the check names it if not).
-    let estimate_failed = |e: crate::ident::frf::FrfError| RunError::Output {
-        path: opts.frf_csv.clone(),
-        reason: format!("the FRF could not be estimated: {e}"),
-    };
+    let peak_position_m = remove_probe_offset(&mut record, lead_in_ticks);
     let (frf, stall_report, bla, frf_estimator) = match (sweep, &plan) {
         (Some(chirp), _) => {
-            crate::ident::frf::check_record(&record).map_err(estimate_failed)?;
-            let spectra =
-                Spectra::from_record(record, rate_hz, &cfg.identification, cfg.chirp.f_end_hz);
-            let (ident, estimator) = lpm_or_h1(cfg, &model, spectra.bin_hz());
-            let frf = Frf::from_spectra(&spectra, cfg.chirp.f_start_hz, cfg.chirp.f_end_hz, &ident)
-                .map_err(estimate_failed)?;
-            let mut stall_report = StallReport::of(
-                &stalls,
-                &chirp,
-                period_s,
-                cfg.identification.relative_resolution,
-            );
-            let frf = stall_report.exclude(frf);
-            (frf, stall_report, None, estimator)
+            let (frf, stalls, estimator) =
+                estimate_sweep(opts, &model, record, &stalls, &chirp, period_s)?;
+            (frf, stalls, None, estimator)
         }
         (None, Some(plan)) => {
             let (stall_report, keep) = StallReport::of_multisine(&stalls, plan, period_s);
@@ -343,38 +458,14 @@ pub(super) fn run_chirp_with(
         tracing::warn!("{}", stall_report.line());
     }
     let zoh = ZohPlant::new(&model, &cfg.actuator, period_s);
-    // The fit and the model's curve for the plot, side by side. The model
-    // is drawn on a grid at least as dense as MODEL_POINTS_PER_DECADE, so
-    // its lightly damped peaks keep their shape in the plot's pair zoom.
-    // ... and the FRF CSV is written beside them.
+    // The fit and the model's curve for the plot ([`model_curve`]) side by
+    // side, and the FRF CSV written beside them.
     let (identified, ((model_f, model_h), csv)) = rayon::join(
         || identify(&frf, period_s, cfg.actuator.bandwidth_hz),
         || {
-            let f = crate::ident::frf::log_grid(
-                cfg.chirp.f_start_hz,
-                cfg.chirp.f_end_hz,
-                cfg.identification
-                    .points_per_decade
-                    .max(MODEL_POINTS_PER_DECADE),
-            );
-            let h: Vec<_> = f.iter().map(|&f| zoh.frf(f)).collect();
-            let csv = frf
-                .write_csv(&opts.frf_csv, outputs.existing())
-                .map_err(|e| RunError::Output {
-                    path: opts.frf_csv.clone(),
-                    reason: e.to_string(),
-                })
-                .and_then(|()| match (&bla, &opts.bla_csv) {
-                    (Some(b), Some(path)) => {
-                        b.write_csv(path, outputs.existing())
-                            .map_err(|e| RunError::Output {
-                                path: path.clone(),
-                                reason: e.to_string(),
-                            })
-                    }
-                    _ => Ok(()),
-                });
-            ((f, h), csv)
+            let curve = model_curve(cfg, &zoh);
+            let csv = write_estimates(opts, outputs.existing(), &frf, bla.as_ref());
+            (curve, csv)
         },
     );
     csv?;
@@ -408,49 +499,17 @@ pub(super) fn run_chirp_with(
             .map(|(plan, bla)| plan.summary(bla, &model, opts.bla_csv.clone())),
         catalogue: None,
     };
-    let markers: Vec<f64> = summary.resonances.iter().map(|r| r.frequency_hz).collect();
-    let no_pair = PairZoom::reason_of(&summary.verdict.phase_test);
-    let pair_zoom = PairZoom::of(&summary.verdict.phase_test, &frf, &no_pair);
-    let title = format!(
-        "x1 / current, Y1o = {:.1} % of L, Δm23 = {:+.0} % (seed {})",
-        100.0 * cfg.plant.operating_point_m / cfg.plant.beam.length_m,
-        100.0 * cfg.plant.mass_asymmetry,
-        opts.seed
-    );
+    let model_series = BodeSeries {
+        label: "model (ZOH)",
+        frequency_hz: &model_f,
+        magnitude: &model_mag,
+        phase_deg: &model_phase,
+    };
     // The plot is rendered while the recording is finished (its tail, the
     // summary and the index written and synced, then renamed): a failed
     // plot still leaves the recording complete.
     let (plotted, finished) = rayon::join(
-        || {
-            write_bode_png(
-                &opts.plot,
-                outputs.existing(),
-                &BodePlot {
-                    title: &title,
-                    magnitude_axis: crate::plot::MAGNITUDE_M_PER_A,
-                    measured: BodeSeries::measured(
-                        &frf,
-                        summary
-                            .frf_estimator
-                            .as_ref()
-                            .map_or("measured", |e| e.name.plot_label()),
-                    ),
-                    coherence: &frf.coherence,
-                    model: Some(BodeSeries {
-                        label: "model (ZOH)",
-                        frequency_hz: &model_f,
-                        magnitude: &model_mag,
-                        phase_deg: &model_phase,
-                    }),
-                    markers_hz: &markers,
-                    pair: Some(pair_zoom),
-                },
-            )
-            .map_err(|e| RunError::Output {
-                path: opts.plot.clone(),
-                reason: e.to_string(),
-            })
-        },
+        || write_chirp_figure(opts, outputs.existing(), &frf, &summary, model_series),
         || -> Result<(), RunError> {
             recorder.write_frf(end_ns, &frf_record(&frf))?;
             let ch =

@@ -168,6 +168,27 @@ pub fn pace_on_hardware(backend: &str) -> String {
     )
 }
 
+/// A pace on a hardware backend (`hardware`, named `backend`), refused as
+/// the option `pace` ([`pace_on_hardware`]); any pace on a simulator, and
+/// none anywhere, passes.
+///
+/// # Errors
+/// [`crate::error::RunError::BadOption`] for `pace` when both are given.
+pub fn refuse_pace_on_hardware(
+    pace: Option<impl ToString>,
+    hardware: bool,
+    backend: &str,
+) -> Result<(), crate::error::RunError> {
+    match pace {
+        Some(p) if hardware => Err(crate::error::RunError::option(
+            "pace",
+            p,
+            pace_on_hardware(backend),
+        )),
+        _ => Ok(()),
+    }
+}
+
 /// Parses a simulator fault `KIND@T_S`: KIND one of nan, frozen, drop (10
 /// samples), jump (0.2 mm), out_of_range, dead (reads 0 m, no noise),
 /// blind (reads its noise, not the stage), or `stall:MS` (the host stalls
