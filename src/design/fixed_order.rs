@@ -431,6 +431,135 @@ fn step_settings() -> DefaultSettings<f64> {
     }
 }
 
+/// Ȳ's free coefficients, `ny` of them, and what a unit step of the i-th
+/// does to Ȳ at the variable's value `g`: in z⁻¹ the first is 1 and the
+/// others free (ζ^{i+1}); in 1 − z⁻¹ the first `ny` are free and the last
+/// keeps their sum 1 (γⁱ − γⁿ).
+fn free_y(var: Variable, ny: usize, g: C64, i: usize) -> C64 {
+    match var {
+        Variable::Delay => g.powi(i as i32 + 1),
+        Variable::Difference => g.powi(i as i32) - g.powi(ny as i32),
+    }
+}
+
+/// A step's program at one line: Y_c/|Φ_c|, P X_c/|Φ_c|, Φ_c/|Φ_c|, and
+/// the columns of x and y (normalised by |Φ_c|).
+struct LineAt {
+    y: C64,
+    px: C64,
+    unit: C64,
+    cx: Vec<C64>,
+    /// X's columns over |Φ_c| (the effort K S = X/Φ).
+    ex: Vec<C64>,
+    x: C64,
+    cy: Vec<C64>,
+    w: f64,
+    u: f64,
+    t_max: f64,
+}
+
+/// [`LineAt`] on every line, around `cur` at ω* = `w_star`.
+fn lines_at(
+    cur: &Polynomials,
+    lines: &[Line],
+    period_s: f64,
+    s_max: f64,
+    w_star: f64,
+) -> Vec<LineAt> {
+    let (nx, ny, var) = (cur.x.len(), cur.y.len() - 1, cur.v);
+    lines
+        .iter()
+        .map(|l| {
+            let zeta = C64::from_polar(1.0, -l.omega_rad_s * period_s);
+            let p = l.plant_at(w_star, s_max);
+            let (xc, yc, _) = cur.at(zeta);
+            let phi = yc + p * xc;
+            let inv = 1.0 / phi.norm();
+            let g = var.at(zeta);
+            LineAt {
+                y: yc * inv,
+                px: p * xc * inv,
+                unit: phi * inv,
+                cx: (0..nx).map(|i| p * g.powi(i as i32) * inv).collect(),
+                ex: (0..nx).map(|i| g.powi(i as i32) * inv).collect(),
+                x: xc * inv,
+                cy: (0..ny)
+                    .map(|i| (1.0 - zeta) * free_y(var, ny, g, i) * inv)
+                    .collect(),
+                w: performance_weight_magnitude(l.omega_rad_s, w_star, s_max),
+                u: l.uncertainty,
+                t_max: l.t_max,
+            }
+        })
+        .collect()
+}
+
+/// The points where the winding of Ȳ on the circle |z| = ρ
+/// (MAX_POLE_RADIUS) is checked: the grid's angles and, around each root
+/// of Ȳ_c near that circle, steps of half its distance to it (the
+/// winding cannot be missed between points there); angles 0 and π too (a
+/// real root crosses the circle there, where Ȳ changes sign, however
+/// close to z = 1, a slow lag, it crosses). Each: Ȳ_c/|Ȳ_c| and y's
+/// columns.
+fn winding_points(cur: &Polynomials, grid: &[f64], period_s: f64) -> Vec<(C64, Vec<C64>)> {
+    let (ny, var) = (cur.y.len() - 1, cur.v);
+    let rho = MAX_POLE_RADIUS;
+    let mut angles: Vec<f64> = grid.iter().map(|w| w * period_s).collect();
+    angles.extend([0.0, PI]);
+    for r in roots_in_z(&cur.y, cur.v) {
+        let gap = (rho - r.norm()).max(1e-6);
+        if gap < 0.05 {
+            angles.extend((-8..=8).map(|k| r.arg() + 0.5 * gap * k as f64));
+        }
+    }
+    angles
+        .iter()
+        .map(|theta| {
+            let zeta = C64::from_polar(1.0 / rho, -theta);
+            let (_, _, ybc) = cur.at(zeta);
+            let inv = 1.0 / ybc.norm();
+            let g = var.at(zeta);
+            (
+                ybc * inv,
+                (0..ny).map(|i| free_y(var, ny, g, i) * inv).collect(),
+            )
+        })
+        .collect()
+}
+
+/// The real matrix `[Re C; Im C]` of the complex rows `rows`, each of
+/// `cols` values.
+fn stack_re_im<'a>(cols: usize, rows: impl Iterator<Item = &'a Vec<C64>>) -> DMatrix<f64> {
+    let v: Vec<&Vec<C64>> = rows.collect();
+    let r = v.len();
+    DMatrix::from_fn(2 * r, cols, |i, j| {
+        let c = v[i % r][j];
+        if i < r {
+            c.re
+        } else {
+            c.im
+        }
+    })
+}
+
+/// `cur` moved by the step `dx` in X's coefficients and `dy` in Ȳ's free
+/// ones ([`free_y`]).
+fn stepped(cur: &Polynomials, dx: DVector<f64>, dy: DVector<f64>) -> Polynomials {
+    let ny = cur.y.len() - 1;
+    let x = cur.x.iter().zip(dx.iter()).map(|(a, b)| a + b).collect();
+    let mut y = cur.y.clone();
+    for (i, d) in dy.iter().enumerate() {
+        match cur.v {
+            Variable::Delay => y[i + 1] += d,
+            Variable::Difference => {
+                y[i] += d;
+                y[ny] -= d;
+            }
+        }
+    }
+    Polynomials { x, y, v: cur.v }
+}
+
 /// One convex step at `w_star` from `cur`: the new polynomials and the
 /// margin `t` reached (`t ≥ 0`: the target is met). `None` when the
 /// solver fails.
@@ -445,95 +574,13 @@ fn step(
     effort_max: f64,
 ) -> Option<(Polynomials, f64)> {
     let (nx, ny) = (cur.x.len(), cur.y.len() - 1);
-    // Ȳ's free coefficients, `ny` of them, and what a unit step of the
-    // i-th does to Ȳ at the variable's value `g`: in z⁻¹ the first is 1
-    // and the others free (ζ^{i+1}); in 1 − z⁻¹ the first `ny` are free
-    // and the last keeps their sum 1 (γⁱ − γⁿ).
-    let var = cur.v;
-    let free_y = move |g: C64, i: usize| match var {
-        Variable::Delay => g.powi(i as i32 + 1),
-        Variable::Difference => g.powi(i as i32) - g.powi(ny as i32),
-    };
     let nl = lines.len();
-    // Per line: Y_c/|Φ_c|, P X_c/|Φ_c|, Φ_c/|Φ_c|, and the columns of
-    // x and y (normalised by |Φ_c|).
-    struct At {
-        y: C64,
-        px: C64,
-        unit: C64,
-        cx: Vec<C64>,
-        /// X's columns over |Φ_c| (the effort K S = X/Φ).
-        ex: Vec<C64>,
-        x: C64,
-        cy: Vec<C64>,
-        w: f64,
-        u: f64,
-        t_max: f64,
-    }
-    let at: Vec<At> = lines
-        .iter()
-        .map(|l| {
-            let zeta = C64::from_polar(1.0, -l.omega_rad_s * period_s);
-            let p = l.plant_at(w_star, s_max);
-            let (xc, yc, _) = cur.at(zeta);
-            let phi = yc + p * xc;
-            let inv = 1.0 / phi.norm();
-            let g = var.at(zeta);
-            At {
-                y: yc * inv,
-                px: p * xc * inv,
-                unit: phi * inv,
-                cx: (0..nx).map(|i| p * g.powi(i as i32) * inv).collect(),
-                ex: (0..nx).map(|i| g.powi(i as i32) * inv).collect(),
-                x: xc * inv,
-                cy: (0..ny).map(|i| (1.0 - zeta) * free_y(g, i) * inv).collect(),
-                w: performance_weight_magnitude(l.omega_rad_s, w_star, s_max),
-                u: l.uncertainty,
-                t_max: l.t_max,
-            }
-        })
-        .collect();
-    // The winding of Ȳ on the circle |z| = ρ (MAX_POLE_RADIUS): on the
-    // grid's angles and, around each root of Ȳ_c near that circle, at
-    // steps of half its distance to it (the winding cannot be missed
-    // between points there). Ȳ_c/|Ȳ_c| and y's columns.
-    let rho = MAX_POLE_RADIUS;
-    // Angles 0 and π too: a real root crosses the circle there, where
-    // Ȳ changes sign, however close to z = 1 (a slow lag) it crosses.
-    let mut angles: Vec<f64> = grid.iter().map(|w| w * period_s).collect();
-    angles.extend([0.0, PI]);
-    for r in roots_in_z(&cur.y, cur.v) {
-        let gap = (rho - r.norm()).max(1e-6);
-        if gap < 0.05 {
-            angles.extend((-8..=8).map(|k| r.arg() + 0.5 * gap * k as f64));
-        }
-    }
-    let gy: Vec<(C64, Vec<C64>)> = angles
-        .iter()
-        .map(|theta| {
-            let zeta = C64::from_polar(1.0 / rho, -theta);
-            let (_, _, ybc) = cur.at(zeta);
-            let inv = 1.0 / ybc.norm();
-            let g = var.at(zeta);
-            (ybc * inv, (0..ny).map(|i| free_y(g, i) * inv).collect())
-        })
-        .collect();
-    let stack = |cols: usize, rows: &mut dyn Iterator<Item = &Vec<C64>>| {
-        let v: Vec<&Vec<C64>> = rows.collect();
-        let r = v.len();
-        DMatrix::from_fn(2 * r, cols, |i, j| {
-            let c = v[i % r][j];
-            if i < r {
-                c.re
-            } else {
-                c.im
-            }
-        })
-    };
-    let tx = orthonormal_map(&stack(nx, &mut at.iter().map(|a| &a.cx)));
-    let ty = orthonormal_map(&stack(
+    let at = lines_at(cur, lines, period_s, s_max, w_star);
+    let gy = winding_points(cur, grid, period_s);
+    let tx = orthonormal_map(&stack_re_im(nx, at.iter().map(|a| &a.cx)));
+    let ty = orthonormal_map(&stack_re_im(
         ny,
-        &mut at.iter().map(|a| &a.cy).chain(gy.iter().map(|g| &g.1)),
+        at.iter().map(|a| &a.cy).chain(gy.iter().map(|g| &g.1)),
     ));
     let (rx, ry) = (tx.ncols(), ty.ncols());
     let map = |c: &[C64], t: &DMatrix<f64>| -> Vec<C64> {
@@ -644,20 +691,14 @@ fn step(
     match solver.solution.status {
         SolverStatus::Solved | SolverStatus::AlmostSolved => {
             let v = &solver.solution.x;
-            let dx = &tx * DVector::from_column_slice(&v[..rx]);
-            let dy = &ty * DVector::from_column_slice(&v[rx..rx + ry]);
-            let x = cur.x.iter().zip(dx.iter()).map(|(a, b)| a + b).collect();
-            let mut y = cur.y.clone();
-            for (i, d) in dy.iter().enumerate() {
-                match var {
-                    Variable::Delay => y[i + 1] += d,
-                    Variable::Difference => {
-                        y[i] += d;
-                        y[ny] -= d;
-                    }
-                }
-            }
-            Some((Polynomials { x, y, v: var }, v[it]))
+            Some((
+                stepped(
+                    cur,
+                    &tx * DVector::from_column_slice(&v[..rx]),
+                    &ty * DVector::from_column_slice(&v[rx..rx + ry]),
+                ),
+                v[it],
+            ))
         }
         s => {
             tracing::debug!(status = ?s, w_star, "limit strategy: the step's program did not solve");
@@ -666,57 +707,16 @@ fn step(
     }
 }
 
-/// What the climb reached.
-#[derive(Debug, Clone)]
-pub struct Climb {
-    /// The controller, as the config writes it (A/µm).
-    pub controller: ControllerConfig,
-    /// Its robust ω* on the program's lines (rad/s).
-    pub robust_bandwidth_rad_s: f64,
-    /// The start's.
-    pub start_bandwidth_rad_s: f64,
-    /// Convex steps taken.
-    pub steps: usize,
-}
-
-/// Climbs from `start.0` (a certified design with one integrator),
-/// written in the variable `start.1`, on the lines of `set`.
-///
-/// `bounds` are the limit's (the band edge and the effort,
-/// [`ProgramLines::bounds`]); `delay_s` is the computation delay.
-/// `judge` certifies a controller as the design will (its ω* on the
-/// dense grid of the fits and every line, `-inf` when it fails the
-/// margins): each iterate that raises the robust ω* on the program's
-/// lines is judged, and the climb returns the best judged, not the last
-/// (a step can gain on the lines and lose between them: on held-out b
-/// one climb's fifth step reached 521 rad/s on its lines and 511
-/// certified, its sixth 539 and 506).
-///
-/// # Errors
-/// A start that is not of the form (`C = X/((1 − z⁻¹)Ȳ)` of at most
-/// [`ORDER`] + 1 poles), or whose loop does not meet the robust
-/// constraints at any ω*; a result that does not convert to the
-/// factored form.
-pub fn climb(
+/// The climb's lines: every measured line (the fit standing in where it
+/// is noisy) and every model point, the plant in µm/A over a scale (|P|
+/// at the lowest line, returned), each with its uncertainty `w_I` and its
+/// bound on |T| (`t_pm` below the band edge, the band edge's above).
+fn climb_lines(
     set: &ProgramLines,
-    (start, v): (&ControllerConfig, Variable),
-    period_s: f64,
     delay_s: f64,
-    req: Requirements,
-    bounds: LoopBounds,
-    judge: &(dyn Fn(&ControllerConfig) -> f64 + Sync),
-) -> Result<Climb, String> {
-    let d = DiscreteController::new(start, period_s, f64::INFINITY);
-    let mut cur = Polynomials::of(&d, ORDER, v).ok_or_else(|| {
-        format!(
-            "the start ({} sections) is not X/((1 − z⁻¹)Ȳ) with at most {} poles",
-            d.sections().len(),
-            ORDER + 1
-        )
-    })?;
-    let m_gm = 1.0 / (1.0 - 10f64.powf(-req.gain_margin_min_db / 20.0));
-    let s_max = req.sensitivity_peak_max.min(m_gm) * 0.98;
-    let t_pm = 0.98 / (2.0 * (req.phase_margin_min_deg.to_radians() / 2.0).sin());
+    bounds: &LoopBounds,
+    t_pm: f64,
+) -> Result<(Vec<Line>, f64), String> {
     // The lines, the plant in µm/A over a scale (|P| at the lowest line).
     let mut lines: Vec<Line> = Vec::new();
     // The nominal plant has half the computation delay: `w_I` then covers
@@ -771,37 +771,25 @@ pub fn climb(
             *m /= scale;
         }
     }
-    for v in &mut cur.x {
-        *v *= scale;
-    }
-    let nyquist = PI / period_s;
-    // The winding grid: log-spaced from the lowest line to Nyquist, and
-    // every line.
-    let lowest = lines
-        .iter()
-        .map(|l| l.omega_rad_s)
-        .fold(f64::INFINITY, f64::min);
-    let log_grid: Vec<f64> = (0..=400)
-        .map(|i| lowest * (0.999 * nyquist / lowest).powf(i as f64 / 400.0))
-        .collect();
-    // The programs run on an active set of lines (every resonance, and
-    // evenly spread, as the limit's); each step is judged on every line,
-    // and the lines it fails most join the set.
-    let magnitude: Vec<f64> = lines.iter().map(|l| l.plant.norm()).collect();
-    let mut active = thinned_lines(&magnitude, ACTIVE_LINES);
+    Ok((lines, scale))
+}
+
+/// The start's robust ω* on the lines (≤ 0: it meets the constraints at
+/// no ω*), after backing off its gain if need be (below).
+fn back_off_start(cur: &mut Polynomials, lines: &[Line], period_s: f64, s_max: f64) -> f64 {
     // A start that misses the robust constraints (a family design with
     // ‖S‖∞ close to M: the delay's and the lines' uncertainty take it
     // over) has its gain backed off in 2 % steps until it meets them, at
     // most START_BACK_OFF_STEPS times: X scales the loop gain, Ȳ and the
     // integrator stay.
-    let mut start_w = robust_bandwidth(&cur, &lines, period_s, s_max, 1.0);
+    let mut start_w = robust_bandwidth(cur, lines, period_s, s_max, 1.0);
     let mut backed_off = 0;
     while start_w <= 0.0 && backed_off < START_BACK_OFF_STEPS {
         backed_off += 1;
         for v in &mut cur.x {
             *v *= super::GAIN_BACK_OFF;
         }
-        start_w = robust_bandwidth(&cur, &lines, period_s, s_max, 1.0);
+        start_w = robust_bandwidth(cur, lines, period_s, s_max, 1.0);
     }
     if backed_off > 0 {
         tracing::debug!(
@@ -811,6 +799,113 @@ pub fn climb(
             "limit strategy: the start's gain backed off"
         );
     }
+    start_w
+}
+
+/// The grid cannot see a root of Ȳ that crosses the unit circle between
+/// its points: the roots themselves are checked. Where one crossed, a part
+/// of the step from `cur` to `next` (halved up to three times): the
+/// program's constraints are convex and the current controller meets
+/// them, so every point between it and the step's solution meets them
+/// too. `None`: no part is stable.
+fn stable_part(cur: &Polynomials, next: &Polynomials, step: usize) -> Option<Polynomials> {
+    (0..4).find_map(|halvings| {
+        let a = 0.5f64.powi(halvings);
+        let p = cur.toward(next, a);
+        let stable = roots_in_z(&p.y, p.v)
+            .iter()
+            .all(|r| r.norm() < ACCEPTED_POLE_RADIUS);
+        if !stable {
+            tracing::debug!(step, a, "limit strategy: a root of Ȳ outside the radius");
+        }
+        stable.then_some(p)
+    })
+}
+
+/// The winding grid's log-spaced part: 401 points from the lowest line to
+/// just under Nyquist (every line joins it at each step).
+fn winding_grid(lines: &[Line], period_s: f64) -> Vec<f64> {
+    let nyquist = PI / period_s;
+    let lowest = lines
+        .iter()
+        .map(|l| l.omega_rad_s)
+        .fold(f64::INFINITY, f64::min);
+    (0..=400)
+        .map(|i| lowest * (0.999 * nyquist / lowest).powf(i as f64 / 400.0))
+        .collect()
+}
+
+/// `p` as the config writes it, its X back from the plant's scale.
+fn config_unscaled(p: &Polynomials, scale: f64, period_s: f64) -> Result<ControllerConfig, String> {
+    let mut p = p.clone();
+    for v in &mut p.x {
+        *v /= scale;
+    }
+    to_config(&p, period_s)
+}
+
+/// What the climb reached.
+#[derive(Debug, Clone)]
+pub struct Climb {
+    /// The controller, as the config writes it (A/µm).
+    pub controller: ControllerConfig,
+    /// Its robust ω* on the program's lines (rad/s).
+    pub robust_bandwidth_rad_s: f64,
+    /// The start's.
+    pub start_bandwidth_rad_s: f64,
+    /// Convex steps taken.
+    pub steps: usize,
+}
+
+/// Climbs from `start.0` (a certified design with one integrator),
+/// written in the variable `start.1`, on the lines of `set`.
+///
+/// `bounds` are the limit's (the band edge and the effort,
+/// [`ProgramLines::bounds`]); `delay_s` is the computation delay.
+/// `judge` certifies a controller as the design will (its ω* on the
+/// dense grid of the fits and every line, `-inf` when it fails the
+/// margins): each iterate that raises the robust ω* on the program's
+/// lines is judged, and the climb returns the best judged, not the last
+/// (a step can gain on the lines and lose between them: on held-out b
+/// one climb's fifth step reached 521 rad/s on its lines and 511
+/// certified, its sixth 539 and 506).
+///
+/// # Errors
+/// A start that is not of the form (`C = X/((1 − z⁻¹)Ȳ)` of at most
+/// [`ORDER`] + 1 poles), or whose loop does not meet the robust
+/// constraints at any ω*; a result that does not convert to the
+/// factored form.
+pub fn climb(
+    set: &ProgramLines,
+    (start, v): (&ControllerConfig, Variable),
+    period_s: f64,
+    delay_s: f64,
+    req: Requirements,
+    bounds: LoopBounds,
+    judge: &(dyn Fn(&ControllerConfig) -> f64 + Sync),
+) -> Result<Climb, String> {
+    let d = DiscreteController::new(start, period_s, f64::INFINITY);
+    let mut cur = Polynomials::of(&d, ORDER, v).ok_or_else(|| {
+        format!(
+            "the start ({} sections) is not X/((1 − z⁻¹)Ȳ) with at most {} poles",
+            d.sections().len(),
+            ORDER + 1
+        )
+    })?;
+    let m_gm = 1.0 / (1.0 - 10f64.powf(-req.gain_margin_min_db / 20.0));
+    let s_max = req.sensitivity_peak_max.min(m_gm) * 0.98;
+    let t_pm = 0.98 / (2.0 * (req.phase_margin_min_deg.to_radians() / 2.0).sin());
+    let (lines, scale) = climb_lines(set, delay_s, &bounds, t_pm)?;
+    for v in &mut cur.x {
+        *v *= scale;
+    }
+    let log_grid = winding_grid(&lines, period_s);
+    // The programs run on an active set of lines (every resonance, and
+    // evenly spread, as the limit's); each step is judged on every line,
+    // and the lines it fails most join the set.
+    let magnitude: Vec<f64> = lines.iter().map(|l| l.plant.norm()).collect();
+    let mut active = thinned_lines(&magnitude, ACTIVE_LINES);
+    let start_w = back_off_start(&mut cur, &lines, period_s, s_max);
     // The control effort |K S| in the program's units (A/µm times the
     // plant's scale).
     let effort_max = bounds.effort_max_a_per_m / PER_METRE * scale;
@@ -827,13 +922,7 @@ pub fn climb(
     let mut w_best = start_w;
     // The best judged iterate: (its certified ω*, the controller, its
     // robust ω* on the lines); the start first.
-    let as_config = |p: &Polynomials| {
-        let mut p = p.clone();
-        for v in &mut p.x {
-            *v /= scale;
-        }
-        to_config(&p, period_s)
-    };
+    let as_config = |p: &Polynomials| config_unscaled(p, scale, period_s);
     let mut judged_best: Option<(f64, ControllerConfig, f64)> =
         as_config(&cur).ok().map(|c| (judge(&c), c, start_w));
     let mut target = w_best * (1.0 + GROWTH);
@@ -844,28 +933,7 @@ pub fn climb(
         let mut grid = log_grid.clone();
         grid.extend(sub.iter().map(|l| l.omega_rad_s));
         let next = step(&cur, &sub, &grid, period_s, s_max, target, effort_max);
-        // The grid cannot see a root of Ȳ that crosses the unit circle
-        // between its points: the roots themselves are checked. Where one
-        // crossed, a part of the step: the program's constraints are
-        // convex and the current controller meets them, so every point
-        // between it and the step's solution meets them too.
-        let next = next.and_then(|(n, t)| {
-            (0..4).find_map(|halvings| {
-                let a = 0.5f64.powi(halvings);
-                let p = cur.toward(&n, a);
-                let stable = roots_in_z(&p.y, p.v)
-                    .iter()
-                    .all(|r| r.norm() < ACCEPTED_POLE_RADIUS);
-                if !stable {
-                    tracing::debug!(
-                        step = steps,
-                        a,
-                        "limit strategy: a root of Ȳ outside the radius"
-                    );
-                }
-                stable.then_some((p, t))
-            })
-        });
+        let next = next.and_then(|(n, t)| stable_part(&cur, &n, steps).map(|p| (p, t)));
         let g_cur = gamma(&cur, &lines, period_s, s_max, target);
         let judged = next.map(|(n, _)| {
             let g: Vec<f64> = lines

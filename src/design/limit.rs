@@ -518,32 +518,13 @@ pub(super) fn noise_hides_bound(
         > NOISE_RESOLUTION
 }
 
-/// The largest ω* any Q of `basis` reaches on all `lines` with |S| ≤
-/// `s_max` (the module's Youla problem), to [`RELATIVE_TOLERANCE`].
-///
-/// `period_s` is the controller's sample period T (z = e^{jωT}). The
-/// search starts from `[0, upper_rad_s]` (the Nyquist frequency when
-/// `None`). Lines beyond [`MAX_ACTIVE_LINES`] are handled by constraint
-/// generation: the program runs on a thinned set, the solution is checked
-/// on every line and the worst violated ones are added until none is.
-/// `bounds` adds `|Q| ≤ effort` on every line and `|P Q| ≤ t_max` from
-/// the band edge up (each a cone per line; Q = 0 meets both, so every
-/// program stays feasible).
-///
-/// # Errors
-/// [`LimitError::BadArgument`] for a period that is not a positive time,
-/// `s_max` ≤ 1 or an `upper_rad_s` that is not a positive frequency; [`LimitError::BadLines`] for no lines or a line that
-/// is not finite;
-/// [`LimitError::Solver`] when Clarabel neither solves nor proves a
-/// program infeasible.
-pub fn performance_limit(
-    lines: &[Lines<'_>],
-    basis: Basis,
+/// The arguments of [`performance_limit`], checked.
+fn check_arguments(
     period_s: f64,
     s_max: f64,
     upper_rad_s: Option<f64>,
-    bounds: LoopBounds,
-) -> Result<Limit, LimitError> {
+    bounds: &LoopBounds,
+) -> Result<(), LimitError> {
     if !(period_s.is_finite() && period_s > 0.0) {
         return Err(LimitError::BadArgument(format!(
             "the sample period {period_s} s is not a positive time"
@@ -575,6 +556,13 @@ pub fn performance_limit(
             bounds.band_edge_t_max, bounds.band_edge_rad_s
         )));
     }
+    Ok(())
+}
+
+/// One row per line of every input, with the basis' values at the line
+/// (z = e^{jωT}) and the effort bound kept on one line per 0.1 % of
+/// frequency.
+fn rows_of(lines: &[Lines<'_>], basis: &Basis, period_s: f64) -> Result<Vec<Row>, LimitError> {
     let nyquist = PI / period_s;
     let mut rows = Vec::new();
     for (i, l) in lines.iter().enumerate() {
@@ -648,6 +636,83 @@ pub fn performance_limit(
     if rows.is_empty() {
         return Err(LimitError::BadLines("no lines".into()));
     }
+    Ok(rows)
+}
+
+/// The cone program at ω* = `mid` on the `active` lines, with constraint
+/// generation: γ > 1 on the active lines is γ > 1 on all of them (more
+/// lines only raise the min-max); otherwise the worst lines left out are
+/// added until none passes 1, so that a q declared feasible keeps
+/// |W_P S| ≤ 1 on every line, not only the active ones. Returns γ, q and
+/// the 1σ of γ; `solves` counts the programs.
+fn solve_generating(
+    rows: &[Row],
+    active: &mut Vec<usize>,
+    n: usize,
+    mid: f64,
+    s_max: f64,
+    bounds: &LoopBounds,
+    solves: &mut usize,
+) -> Result<(f64, Vec<f64>, f64), LimitError> {
+    loop {
+        let Solved {
+            gamma,
+            q,
+            gamma_sigma,
+        } = solve(rows, active, n, mid, s_max, bounds)?;
+        *solves += 1;
+        tracing::debug!(
+            bandwidth_rad_s = mid,
+            gamma,
+            lines = active.len(),
+            "performance limit: one cone program"
+        );
+        if gamma > 1.0 {
+            return Ok((gamma, q, gamma_sigma));
+        }
+        let worst = violations(rows, &q, mid, s_max, 1.0, bounds);
+        let added: Vec<usize> = worst
+            .into_iter()
+            .filter(|k| active.binary_search(k).is_err())
+            .take(64)
+            .collect();
+        if added.is_empty() {
+            return Ok((gamma, q, gamma_sigma));
+        }
+        active.extend(added);
+        active.sort_unstable();
+    }
+}
+
+/// The largest ω* any Q of `basis` reaches on all `lines` with |S| ≤
+/// `s_max` (the module's Youla problem), to [`RELATIVE_TOLERANCE`].
+///
+/// `period_s` is the controller's sample period T (z = e^{jωT}). The
+/// search starts from `[0, upper_rad_s]` (the Nyquist frequency when
+/// `None`). Lines beyond [`MAX_ACTIVE_LINES`] are handled by constraint
+/// generation: the program runs on a thinned set, the solution is checked
+/// on every line and the worst violated ones are added until none is.
+/// `bounds` adds `|Q| ≤ effort` on every line and `|P Q| ≤ t_max` from
+/// the band edge up (each a cone per line; Q = 0 meets both, so every
+/// program stays feasible).
+///
+/// # Errors
+/// [`LimitError::BadArgument`] for a period that is not a positive time,
+/// `s_max` ≤ 1 or an `upper_rad_s` that is not a positive frequency; [`LimitError::BadLines`] for no lines or a line that
+/// is not finite;
+/// [`LimitError::Solver`] when Clarabel neither solves nor proves a
+/// program infeasible.
+pub fn performance_limit(
+    lines: &[Lines<'_>],
+    basis: Basis,
+    period_s: f64,
+    s_max: f64,
+    upper_rad_s: Option<f64>,
+    bounds: LoopBounds,
+) -> Result<Limit, LimitError> {
+    check_arguments(period_s, s_max, upper_rad_s, &bounds)?;
+    let nyquist = PI / period_s;
+    let mut rows = rows_of(lines, &basis, period_s)?;
     let lowest = rows
         .iter()
         .min_by(|a, b| a.omega_rad_s.total_cmp(&b.omega_rad_s))
@@ -718,39 +783,8 @@ pub fn performance_limit(
             }
             _ => (lo * hi).sqrt(),
         };
-        let (gamma, q, gamma_sigma) = loop {
-            let Solved {
-                gamma,
-                q,
-                gamma_sigma,
-            } = solve(&rows, &active, n, mid, s_max, &bounds)?;
-            solves += 1;
-            tracing::debug!(
-                bandwidth_rad_s = mid,
-                gamma,
-                lines = active.len(),
-                "performance limit: one cone program"
-            );
-            // γ > 1 on the active lines is γ > 1 on all of them (more
-            // lines only raise the min-max). Otherwise, constraint
-            // generation: the worst lines left out, until none passes 1: a
-            // q declared feasible keeps |W_P S| ≤ 1 on every line, not
-            // only the active ones.
-            if gamma > 1.0 {
-                break (gamma, q, gamma_sigma);
-            }
-            let worst = violations(&rows, &q, mid, s_max, 1.0, &bounds);
-            let added: Vec<usize> = worst
-                .into_iter()
-                .filter(|k| active.binary_search(k).is_err())
-                .take(64)
-                .collect();
-            if added.is_empty() {
-                break (gamma, q, gamma_sigma);
-            }
-            active.extend(added);
-            active.sort_unstable();
-        };
+        let (gamma, q, gamma_sigma) =
+            solve_generating(&rows, &mut active, n, mid, s_max, &bounds, &mut solves)?;
         let f = gamma.max(f64::MIN_POSITIVE).ln();
         let low_side = gamma <= 1.0;
         if low_side {

@@ -459,7 +459,6 @@ pub fn attempt(
     peak_current_a: f64,
     climb: Option<(&ClimbInputs, &[&Attempt], Option<&Attempt>)>,
 ) -> Attempt {
-    let wr = modes.first_resonance_rad_s;
     match strategy {
         Strategy::Limit => {
             let all = Problem::with_models(frfs, models, req, UNIT_PER_METRE);
@@ -473,212 +472,259 @@ pub fn attempt(
                 peak_current_a,
             )
         }
-        Strategy::Slow => {
-            let req = Requirements {
-                phase_margin_min_deg: req.phase_margin_min_deg.max(SLOW_PHASE_MARGIN_MIN_DEG),
-                ..req
-            };
-            let problem = Problem::with_models(frfs, models, req, UNIT_PER_METRE);
-            let fam = Family::Slow {
-                first_resonance_rad_s: wr,
-            };
-            let target =
-                problem.gain_for_crossover(&fam, &fam.start(), SLOW_CROSSOVER_FRACTION * wr);
-            let judge = |g: f64| certify(&problem, fam.controller(&[g]), period_s, peak_current_a);
-            let at_target = judge(target);
-            let evaluation = if at_target.feasible() {
-                at_target
+        Strategy::Slow => slow_attempt(
+            frfs,
+            models,
+            modes.first_resonance_rad_s,
+            req,
+            period_s,
+            peak_current_a,
+        ),
+        _ => fast_attempt(frfs, models, settling, modes, req, period_s, peak_current_a),
+    }
+}
+
+/// The slow strategy (thesis §6.1.1, Eq. 6-6): an integrator and a
+/// low-pass at ω_R/2, its crossover aimed at a fraction of ω_R = `wr`,
+/// the gain lowered (bisection) until the margins are met if the rule's
+/// does not meet them.
+fn slow_attempt(
+    frfs: &[DesignFrf],
+    models: &[DesignFrf],
+    wr: f64,
+    req: Requirements,
+    period_s: f64,
+    peak_current_a: f64,
+) -> Attempt {
+    let req = Requirements {
+        phase_margin_min_deg: req.phase_margin_min_deg.max(SLOW_PHASE_MARGIN_MIN_DEG),
+        ..req
+    };
+    let problem = Problem::with_models(frfs, models, req, UNIT_PER_METRE);
+    let fam = Family::Slow {
+        first_resonance_rad_s: wr,
+    };
+    let target = problem.gain_for_crossover(&fam, &fam.start(), SLOW_CROSSOVER_FRACTION * wr);
+    let judge = |g: f64| certify(&problem, fam.controller(&[g]), period_s, peak_current_a);
+    let at_target = judge(target);
+    let evaluation = if at_target.feasible() {
+        at_target
+    } else {
+        // The largest gain below the rule's that meets the margins.
+        let (mut lo, mut hi) = (target - 12.0, target);
+        for _ in 0..40 {
+            let m = 0.5 * (lo + hi);
+            if judge(m).feasible() {
+                lo = m;
             } else {
-                // The largest gain below the rule's that meets the margins.
-                let (mut lo, mut hi) = (target - 12.0, target);
-                for _ in 0..40 {
-                    let m = 0.5 * (lo + hi);
-                    if judge(m).feasible() {
-                        lo = m;
-                    } else {
-                        hi = m;
-                    }
-                }
-                let e = judge(lo);
-                if e.feasible() {
-                    e
-                } else {
-                    at_target
-                }
-            };
-            Attempt {
-                strategy: "slow",
-                evaluation,
-                structure: format!(
-                    "integrator and 2nd-order low-pass at ω_R/2 = {:.1} rad/s (ζ 0.7), crossover aimed at {:.0} % of ω_R = {:.1} rad/s (thesis §6.1.1, Eq. 6-6), phase margin at least {:.0}°",
-                    wr / 2.0,
-                    SLOW_CROSSOVER_FRACTION * 100.0,
-                    SLOW_CROSSOVER_FRACTION * wr,
-                    req.phase_margin_min_deg
-                ),
+                hi = m;
             }
         }
-        _ => {
-            let (pair, structure) = modes.notch_plan();
-            let fam = Family::Fast {
-                first_resonance_rad_s: wr,
-                pair,
-                nyquist_rad_s: family::nyquist_rad_s(period_s),
-            };
-            // The search aims a little inside the margins (half a degree,
-            // 1 % of ‖S‖∞, 0.1 dB) so that the discrete controller on all
-            // lines meets them.
-            let tight = Requirements {
-                phase_margin_min_deg: req.phase_margin_min_deg + 0.5,
-                gain_margin_min_db: req.gain_margin_min_db + 0.1,
-                sensitivity_peak_max: req.sensitivity_peak_max * 0.99,
-            };
-            let all = Problem::new(frfs.iter().collect(), tight, UNIT_PER_METRE);
-            // Active set: search on the inputs that bind, judge on all, add
-            // the ones that fail, until all pass (or the search itself
-            // fails). Most inputs of a campaign never bind.
-            // Start with the first input and those that bound the pair
-            // (the highest u, the lowest v): they decide the notch.
-            let mut active = vec![0usize];
-            let extreme = |key: fn(&modes::InputModes) -> Option<f64>, high: bool| {
-                modes
-                    .inputs
-                    .iter()
-                    .enumerate()
-                    .filter_map(|(i, m)| key(m).map(|f| (i, f)))
-                    .max_by(|a, b| {
-                        if high {
-                            a.1.total_cmp(&b.1)
-                        } else {
-                            b.1.total_cmp(&a.1)
-                        }
-                    })
-                    .map(|(i, _)| i)
-            };
-            for i in [extreme(|m| m.u_hz, true), extreme(|m| m.v_hz, false)]
-                .into_iter()
-                .flatten()
-            {
-                if i < frfs.len() && !active.contains(&i) {
-                    active.push(i);
+        let e = judge(lo);
+        if e.feasible() {
+            e
+        } else {
+            at_target
+        }
+    };
+    Attempt {
+        strategy: "slow",
+        evaluation,
+        structure: format!(
+            "integrator and 2nd-order low-pass at ω_R/2 = {:.1} rad/s (ζ 0.7), crossover aimed at {:.0} % of ω_R = {:.1} rad/s (thesis §6.1.1, Eq. 6-6), phase margin at least {:.0}°",
+            wr / 2.0,
+            SLOW_CROSSOVER_FRACTION * 100.0,
+            SLOW_CROSSOVER_FRACTION * wr,
+            req.phase_margin_min_deg
+        ),
+    }
+}
+
+/// The fast search's first active inputs: the first input and those that
+/// bound the pair (the highest u, the lowest v), which decide the notch.
+fn first_active(modes: &PlantModes, inputs: usize) -> Vec<usize> {
+    let mut active = vec![0usize];
+    let extreme = |key: fn(&modes::InputModes) -> Option<f64>, high: bool| {
+        modes
+            .inputs
+            .iter()
+            .enumerate()
+            .filter_map(|(i, m)| key(m).map(|f| (i, f)))
+            .max_by(|a, b| {
+                if high {
+                    a.1.total_cmp(&b.1)
+                } else {
+                    b.1.total_cmp(&a.1)
                 }
-            }
-            let mut start = fam.start();
-            // The thesis' crossover, 287/179 of ω_R.
-            start[0] = Problem::new(vec![&frfs[0]], tight, UNIT_PER_METRE).gain_for_crossover(
-                &fam,
-                &start,
-                1.6 * wr,
-            );
-            // The search runs on the lines that matter (every line near a
-            // resonance, every 4th elsewhere); the result is judged on all.
-            let coarse: Vec<DesignFrf> = frfs
+            })
+            .map(|(i, _)| i)
+    };
+    for i in [extreme(|m| m.u_hz, true), extreme(|m| m.v_hz, false)]
+        .into_iter()
+        .flatten()
+    {
+        if i < inputs && !active.contains(&i) {
+            active.push(i);
+        }
+    }
+    active
+}
+
+/// The highest ω_B of the certified `pool` that meets the margins, and the
+/// settling limit when one is set (the model's predicted step; else the
+/// fastest to settle); none meets the margins: the highest ω_B.
+fn choose_certified(mut pool: Vec<Evaluation>, settling: Option<&SettlingLimit<'_>>) -> Evaluation {
+    // The highest ω_B that meets the margins, and the settling limit
+    // when one is set (the model's predicted step).
+    let by_wb = |a: &Evaluation, b: &Evaluation| {
+        b.sensitivity_bandwidth_min_rad_s
+            .total_cmp(&a.sensitivity_bandwidth_min_rad_s)
+    };
+    pool.sort_by(by_wb);
+    let feasible: Vec<&Evaluation> = pool.iter().filter(|e| e.feasible()).collect();
+    match (settling, feasible.is_empty()) {
+        (_, true) => pool[0].clone(),
+        (None, false) => feasible[0].clone(),
+        (Some(limit), false) => {
+            let timed: Vec<(f64, &Evaluation)> = feasible
                 .iter()
-                .map(|f| f.decimated(&modes.resonances_rad_s(), SEARCH_KEEP_BAND, SEARCH_EVERY))
+                .map(|e| (limit.settling_s(&e.controller).unwrap_or(f64::INFINITY), *e))
                 .collect();
-            let mut found;
-            let mut round = 0;
-            let mut candidates: Vec<(Vec<f64>, Evaluation)>;
-            loop {
-                // The search judges what will run: the discretisation's
-                // error of the round's start on every line (refreshed
-                // each round; the certificate judges the exact C_d).
-                let sub = Problem::new(
-                    active.iter().map(|&i| &coarse[i]).collect(),
-                    tight,
-                    UNIT_PER_METRE,
-                )
-                .discretized_as(&fam.controller(&start), period_s);
-                let (theta, e) = if round == 0 {
-                    candidates = search::search_all(&sub, fam, &start);
-                    candidates[0].clone()
-                } else {
-                    // Warm start from the last design; if that cannot meet
-                    // the grown set, the whole multi-start again.
-                    let (t, e) = search::polish(&sub, fam, &start);
-                    if e.feasible() {
-                        candidates = vec![(t.clone(), e.clone())];
-                        (t, e)
-                    } else {
-                        candidates = search::search_all(&sub, fam, &fam.start_scaled(&start));
-                        candidates[0].clone()
-                    }
-                };
-                round += 1;
-                found = all
-                    .discretized_as(&e.controller, period_s)
-                    .evaluate(e.controller.clone());
-                start = theta;
-                if found.feasible() || !e.feasible() || active.len() == frfs.len() {
-                    break;
-                }
-                let mut failing: Vec<(usize, f64)> = found
-                    .per_input_violation
+            match timed.iter().find(|(t, _)| *t <= limit.max_s) {
+                Some((_, e)) => (*e).clone(),
+                None => timed
                     .iter()
-                    .enumerate()
-                    .filter(|(i, v)| **v > 0.0 && !active.contains(i))
-                    .map(|(i, v)| (i, *v))
-                    .collect();
-                failing.sort_by(|a, b| b.1.total_cmp(&a.1));
-                if failing.is_empty() {
-                    // Fails only on lines the search skipped (the back-off
-                    // below handles a small miss).
-                    break;
-                }
-                active.extend(failing.iter().take(2).map(|f| f.0));
-            }
-            // The search met tightened margins on its lines; the
-            // certificate judges the discrete controller on every line by
-            // the user's. A miss left (a skipped line, the discretisation)
-            // is small: back the gain off by 2 % steps until it passes.
-            let all = Problem::with_models(frfs, models, req, UNIT_PER_METRE);
-            let certified = |c0: &ControllerConfig, searched_violation: f64| {
-                certify_backing_off(&all, c0, period_s, peak_current_a, BACK_OFF_STEPS, |_| {
-                    searched_violation > 0.5
-                })
-            };
-            // Every start's result is a candidate when the last round was a
-            // multi-start on the inputs that bind (else the one found).
-            let mut pool: Vec<Evaluation> = if found.feasible() && candidates.len() > 1 {
-                candidates
-                    .par_iter()
-                    .map(|(_, e)| certified(&e.controller, e.violation))
-                    .collect()
-            } else {
-                vec![certified(&found.controller, found.violation)]
-            };
-            // The highest ω_B that meets the margins, and the settling limit
-            // when one is set (the model's predicted step).
-            let by_wb = |a: &Evaluation, b: &Evaluation| {
-                b.sensitivity_bandwidth_min_rad_s
-                    .total_cmp(&a.sensitivity_bandwidth_min_rad_s)
-            };
-            pool.sort_by(by_wb);
-            let feasible: Vec<&Evaluation> = pool.iter().filter(|e| e.feasible()).collect();
-            let evaluation = match (settling, feasible.is_empty()) {
-                (_, true) => pool[0].clone(),
-                (None, false) => feasible[0].clone(),
-                (Some(limit), false) => {
-                    let timed: Vec<(f64, &Evaluation)> = feasible
-                        .iter()
-                        .map(|e| (limit.settling_s(&e.controller).unwrap_or(f64::INFINITY), *e))
-                        .collect();
-                    match timed.iter().find(|(t, _)| *t <= limit.max_s) {
-                        Some((_, e)) => (*e).clone(),
-                        None => timed
-                            .iter()
-                            .min_by(|a, b| a.0.total_cmp(&b.0))
-                            .map(|(_, e)| (*e).clone())
-                            .expect("non-empty"),
-                    }
-                }
-            };
-            Attempt {
-                strategy: "fast",
-                evaluation,
-                structure,
+                    .min_by(|a, b| a.0.total_cmp(&b.0))
+                    .map(|(_, e)| (*e).clone())
+                    .expect("non-empty"),
             }
         }
+    }
+}
+
+/// The fast strategy (thesis §6.1.2, Eq. 6-7): the notch the residue
+/// signs call for, its parameters searched on the inputs that bind
+/// (active set, multi-start), every candidate certified on every line,
+/// and the highest ω_B that meets the margins (and the settling limit)
+/// chosen.
+fn fast_attempt(
+    frfs: &[DesignFrf],
+    models: &[DesignFrf],
+    settling: Option<&SettlingLimit<'_>>,
+    modes: &PlantModes,
+    req: Requirements,
+    period_s: f64,
+    peak_current_a: f64,
+) -> Attempt {
+    let wr = modes.first_resonance_rad_s;
+    let (pair, structure) = modes.notch_plan();
+    let fam = Family::Fast {
+        first_resonance_rad_s: wr,
+        pair,
+        nyquist_rad_s: family::nyquist_rad_s(period_s),
+    };
+    // The search aims a little inside the margins (half a degree,
+    // 1 % of ‖S‖∞, 0.1 dB) so that the discrete controller on all
+    // lines meets them.
+    let tight = Requirements {
+        phase_margin_min_deg: req.phase_margin_min_deg + 0.5,
+        gain_margin_min_db: req.gain_margin_min_db + 0.1,
+        sensitivity_peak_max: req.sensitivity_peak_max * 0.99,
+    };
+    let all = Problem::new(frfs.iter().collect(), tight, UNIT_PER_METRE);
+    // Active set: search on the inputs that bind, judge on all, add
+    // the ones that fail, until all pass (or the search itself
+    // fails). Most inputs of a campaign never bind.
+    let mut active = first_active(modes, frfs.len());
+    let mut start = fam.start();
+    // The thesis' crossover, 287/179 of ω_R.
+    start[0] = Problem::new(vec![&frfs[0]], tight, UNIT_PER_METRE).gain_for_crossover(
+        &fam,
+        &start,
+        1.6 * wr,
+    );
+    // The search runs on the lines that matter (every line near a
+    // resonance, every 4th elsewhere); the result is judged on all.
+    let coarse: Vec<DesignFrf> = frfs
+        .iter()
+        .map(|f| f.decimated(&modes.resonances_rad_s(), SEARCH_KEEP_BAND, SEARCH_EVERY))
+        .collect();
+    let mut found;
+    let mut round = 0;
+    let mut candidates: Vec<(Vec<f64>, Evaluation)>;
+    loop {
+        // The search judges what will run: the discretisation's
+        // error of the round's start on every line (refreshed
+        // each round; the certificate judges the exact C_d).
+        let sub = Problem::new(
+            active.iter().map(|&i| &coarse[i]).collect(),
+            tight,
+            UNIT_PER_METRE,
+        )
+        .discretized_as(&fam.controller(&start), period_s);
+        let (theta, e) = if round == 0 {
+            candidates = search::search_all(&sub, fam, &start);
+            candidates[0].clone()
+        } else {
+            // Warm start from the last design; if that cannot meet
+            // the grown set, the whole multi-start again.
+            let (t, e) = search::polish(&sub, fam, &start);
+            if e.feasible() {
+                candidates = vec![(t.clone(), e.clone())];
+                (t, e)
+            } else {
+                candidates = search::search_all(&sub, fam, &fam.start_scaled(&start));
+                candidates[0].clone()
+            }
+        };
+        round += 1;
+        found = all
+            .discretized_as(&e.controller, period_s)
+            .evaluate(e.controller.clone());
+        start = theta;
+        if found.feasible() || !e.feasible() || active.len() == frfs.len() {
+            break;
+        }
+        let mut failing: Vec<(usize, f64)> = found
+            .per_input_violation
+            .iter()
+            .enumerate()
+            .filter(|(i, v)| **v > 0.0 && !active.contains(i))
+            .map(|(i, v)| (i, *v))
+            .collect();
+        failing.sort_by(|a, b| b.1.total_cmp(&a.1));
+        if failing.is_empty() {
+            // Fails only on lines the search skipped (the back-off
+            // below handles a small miss).
+            break;
+        }
+        active.extend(failing.iter().take(2).map(|f| f.0));
+    }
+    // The search met tightened margins on its lines; the
+    // certificate judges the discrete controller on every line by
+    // the user's. A miss left (a skipped line, the discretisation)
+    // is small: back the gain off by 2 % steps until it passes.
+    let all = Problem::with_models(frfs, models, req, UNIT_PER_METRE);
+    let certified = |c0: &ControllerConfig, searched_violation: f64| {
+        certify_backing_off(&all, c0, period_s, peak_current_a, BACK_OFF_STEPS, |_| {
+            searched_violation > 0.5
+        })
+    };
+    // Every start's result is a candidate when the last round was a
+    // multi-start on the inputs that bind (else the one found).
+    let pool: Vec<Evaluation> = if found.feasible() && candidates.len() > 1 {
+        candidates
+            .par_iter()
+            .map(|(_, e)| certified(&e.controller, e.violation))
+            .collect()
+    } else {
+        vec![certified(&found.controller, found.violation)]
+    };
+    let evaluation = choose_certified(pool, settling);
+    Attempt {
+        strategy: "fast",
+        evaluation,
+        structure,
     }
 }
 
