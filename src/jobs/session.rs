@@ -466,6 +466,155 @@ fn host_name() -> String {
     String::from_utf8_lossy(&buf[..end]).into_owned()
 }
 
+impl Collected {
+    /// Room for `n` ticks in each column `keep` keeps (the FRF record at
+    /// its FFT length), none in the others.
+    fn reserved(keep: Kept, n: usize) -> Self {
+        let reserve = |kept: bool| Vec::with_capacity(if kept { n } else { 0 });
+        Self {
+            t_s: reserve(keep.t_s),
+            position_m: reserve(keep.position_m),
+            setpoint_m: reserve(keep.setpoint_m),
+            current_command_a: reserve(keep.current_command_a),
+            excitation_a: reserve(keep.excitation_a),
+            frf_record: Vec::with_capacity(if keep.frf_record {
+                crate::ident::frf::fast_len(n)
+            } else {
+                0
+            }),
+            stalls: Vec::new(),
+        }
+    }
+}
+
+/// Collects one record on the writer thread (never the real-time one):
+/// the kept columns of a sample, the stalls of the events.
+fn collect(sink: &Mutex<Collected>, keep: Kept, r: &Record) {
+    if let Record::Event(e) = r {
+        if e.kind == crate::record::topics::EventKind::Stall {
+            sink.lock()
+                .expect("collector poisoned")
+                .stalls
+                .push((e.tick, e.value));
+        }
+        return;
+    }
+    if let Record::Sample(s) = r {
+        let mut c = sink.lock().expect("collector poisoned");
+        let push = |v: &mut Vec<f64>, kept: bool, x: f64| {
+            if kept {
+                v.push(x);
+            }
+        };
+        push(&mut c.t_s, keep.t_s, s.t_s);
+        push(&mut c.position_m, keep.position_m, s.position_m);
+        push(&mut c.setpoint_m, keep.setpoint_m, s.setpoint_m);
+        push(
+            &mut c.current_command_a,
+            keep.current_command_a,
+            s.current_command_a,
+        );
+        push(&mut c.excitation_a, keep.excitation_a, s.excitation_a);
+        if keep.frf_record {
+            c.frf_record.push(C64::new(s.excitation_a, s.position_m));
+        }
+    }
+}
+
+/// The error of a run whose writer died on a write error: the loop saw its
+/// queue abandoned and stopped on the `recording` fault (0 A, disabled).
+/// What was written stays in the `.part` file, which is not renamed.
+fn writer_failed(
+    e: crate::record::RecordError,
+    stop: &StopReason,
+    part_path: &Path,
+    opts: &SessionOptions,
+    info: &DeviceInfo,
+    current_limits: CurrentLimits,
+) -> RunError {
+    match *stop {
+        StopReason::Fault {
+            kind: FaultKind::Recording,
+            value,
+            tick,
+            ..
+        } => RunError::Fault {
+            kind: FaultKind::Recording.as_str(),
+            value,
+            detail: format!("the recording failed: {}", crate::error::error_chain(&e)),
+            tick,
+            recording: format!("incomplete, left as {}", part_path.display()),
+            context: Box::new(serde_json::json!({
+                "command": opts.command,
+                "backend": info.name,
+                "current_limits": current_limits,
+            })),
+        },
+        _ => RunError::Record(e),
+    }
+}
+
+/// The recorder of a run that finished; a run that stopped otherwise
+/// (fault, HAL error, interrupt, tick limit) has its recording finished
+/// and returns the error, a fault's with its message (`safety`'s bounds)
+/// and `context`.
+fn unless_stopped(
+    stop: StopReason,
+    recorder: Recorder,
+    opts: &SessionOptions,
+    safety: &crate::rt::supervisor::SupervisorConfig,
+    context: serde_json::Value,
+) -> Result<Recorder, RunError> {
+    match stop {
+        StopReason::Finished => Ok(recorder),
+        StopReason::Fault {
+            kind,
+            value,
+            tick,
+            detail,
+            stall,
+        } => {
+            let recording = finish(recorder)?;
+            let source = if opts.stall_source.is_empty() {
+                match kind {
+                    FaultKind::LinkLatency => "safety.max_command_latency_s",
+                    _ => "safety.max_overrun_s",
+                }
+            } else {
+                opts.stall_source
+            };
+            let message = fault_message(kind, value, safety, stall, source, detail.as_deref());
+            Err(RunError::Fault {
+                kind: kind.as_str(),
+                value,
+                detail: message,
+                tick,
+                recording,
+                context: Box::new(context),
+            })
+        }
+        StopReason::Hal { message, tick } => {
+            let recording = finish(recorder)?;
+            Err(RunError::Hal {
+                message,
+                tick,
+                recording,
+            })
+        }
+        StopReason::Interrupted { tick } => {
+            let recording = finish(recorder)?;
+            Err(RunError::Interrupted { tick, recording })
+        }
+        StopReason::TickLimit => {
+            let recording = finish(recorder)?;
+            Err(RunError::TickLimit {
+                job: opts.command,
+                recording,
+            })
+        }
+    }
+}
+
 /// Runs `job` on `stage` (configured, described by `info`) into `recorder`.
 /// The loop thread borrows the stage and gives it back disabled at 0 A
 /// whatever happens, so an owner (the daemon) keeps its device across jobs.
@@ -490,20 +639,7 @@ pub fn run_recorded<J: Job + Send + 'static>(
     // only the columns the job reads.
     let n = opts.max_ticks.min(crate::config::ranges::JOB_TICKS_MAX) as usize;
     let keep = opts.keep;
-    let reserve = |kept: bool| Vec::with_capacity(if kept { n } else { 0 });
-    let collected = Arc::new(Mutex::new(Collected {
-        t_s: reserve(keep.t_s),
-        position_m: reserve(keep.position_m),
-        setpoint_m: reserve(keep.setpoint_m),
-        current_command_a: reserve(keep.current_command_a),
-        excitation_a: reserve(keep.excitation_a),
-        frf_record: Vec::with_capacity(if keep.frf_record {
-            crate::ident::frf::fast_len(n)
-        } else {
-            0
-        }),
-        stalls: Vec::new(),
-    }));
+    let collected = Arc::new(Mutex::new(Collected::reserved(keep, n)));
     let sink = Arc::clone(&collected);
     let writer_done = Arc::new(AtomicBool::new(false));
     let part_path = recorder.part_path().to_path_buf();
@@ -521,37 +657,7 @@ pub fn run_recorded<J: Job + Send + 'static>(
         // One below the loop's priority, in real-time runs only.
         opts.realtime
             .then(|| cfg.loop_.priority.saturating_sub(1).max(1)),
-        move |r| {
-            if let Record::Event(e) = r {
-                if e.kind == crate::record::topics::EventKind::Stall {
-                    sink.lock()
-                        .expect("collector poisoned")
-                        .stalls
-                        .push((e.tick, e.value));
-                }
-                return;
-            }
-            if let Record::Sample(s) = r {
-                let mut c = sink.lock().expect("collector poisoned");
-                let push = |v: &mut Vec<f64>, kept: bool, x: f64| {
-                    if kept {
-                        v.push(x);
-                    }
-                };
-                push(&mut c.t_s, keep.t_s, s.t_s);
-                push(&mut c.position_m, keep.position_m, s.position_m);
-                push(&mut c.setpoint_m, keep.setpoint_m, s.setpoint_m);
-                push(
-                    &mut c.current_command_a,
-                    keep.current_command_a,
-                    s.current_command_a,
-                );
-                push(&mut c.excitation_a, keep.excitation_a, s.excitation_a);
-                if keep.frf_record {
-                    c.frf_record.push(C64::new(s.excitation_a, s.position_m));
-                }
-            }
-        },
+        move |r| collect(&sink, keep, r),
     );
 
     let loop_opts = LoopOptions {
@@ -620,26 +726,14 @@ pub fn run_recorded<J: Job + Send + 'static>(
         // abandoned and stopped on the `recording` fault (0 A, disabled).
         // What was written stays in the `.part` file, which is not renamed.
         Err(e) => {
-            return Err(match report.stop {
-                StopReason::Fault {
-                    kind: FaultKind::Recording,
-                    value,
-                    tick,
-                    ..
-                } => RunError::Fault {
-                    kind: FaultKind::Recording.as_str(),
-                    value,
-                    detail: format!("the recording failed: {}", crate::error::error_chain(&e)),
-                    tick,
-                    recording: format!("incomplete, left as {}", part_path.display()),
-                    context: Box::new(serde_json::json!({
-                        "command": opts.command,
-                        "backend": info.name,
-                        "current_limits": current_limits,
-                    })),
-                },
-                _ => RunError::Record(e),
-            })
+            return Err(writer_failed(
+                e,
+                &report.stop,
+                &part_path,
+                opts,
+                &info,
+                current_limits,
+            ))
         }
     };
     let timing = TimingSummary::new(&report, loop_opts.pacing, info.period_ns, wall_s);
@@ -648,68 +742,14 @@ pub fn run_recorded<J: Job + Send + 'static>(
     }
 
     let end_ns = crate::record::log_time_ns(report.ticks as f64 * period_s);
-    match report.stop {
-        StopReason::Finished => {}
-        StopReason::Fault {
-            kind,
-            value,
-            tick,
-            detail,
-            stall,
-        } => {
-            let recording = finish(recorder)?;
-            let source = if opts.stall_source.is_empty() {
-                match kind {
-                    FaultKind::LinkLatency => "safety.max_command_latency_s",
-                    _ => "safety.max_overrun_s",
-                }
-            } else {
-                opts.stall_source
-            };
-            let message = fault_message(
-                kind,
-                value,
-                &loop_opts.safety,
-                stall,
-                source,
-                detail.as_deref(),
-            );
-            let context = serde_json::json!({
-                "command": opts.command,
-                "backend": info.name,
-                "current_limits": current_limits,
-                "timing": timing,
-                "link": link,
-            });
-            return Err(RunError::Fault {
-                kind: kind.as_str(),
-                value,
-                detail: message,
-                tick,
-                recording,
-                context: Box::new(context),
-            });
-        }
-        StopReason::Hal { message, tick } => {
-            let recording = finish(recorder)?;
-            return Err(RunError::Hal {
-                message,
-                tick,
-                recording,
-            });
-        }
-        StopReason::Interrupted { tick } => {
-            let recording = finish(recorder)?;
-            return Err(RunError::Interrupted { tick, recording });
-        }
-        StopReason::TickLimit => {
-            let recording = finish(recorder)?;
-            return Err(RunError::TickLimit {
-                job: opts.command,
-                recording,
-            });
-        }
-    }
+    let context = serde_json::json!({
+        "command": opts.command,
+        "backend": info.name,
+        "current_limits": current_limits,
+        "timing": timing,
+        "link": link,
+    });
+    let recorder = unless_stopped(report.stop, recorder, opts, &loop_opts.safety, context)?;
     let data = std::mem::take(&mut *collected.lock().expect("collector poisoned"));
     let stalls = data.stalls.clone();
     Ok(Recorded {
