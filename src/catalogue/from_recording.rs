@@ -310,56 +310,178 @@ fn row_of(
         step_results(&mut row, m);
     }
     if let Some(s) = control {
-        row.verify_flagged = s
-            .get("verify")
-            .and_then(|v| v.get("result"))
-            .and_then(|r| r.get("flagged"))
-            .and_then(Json::as_bool);
+        row.verify_flagged = at(s, control_field::VERIFY_FLAGGED).and_then(Json::as_bool);
     }
     row
 }
 
-/// A number of a JSON object, `None` when absent, null or not finite.
-fn num(v: &Json, key: &str) -> Option<f64> {
-    v.get(key).and_then(Json::as_f64).and_then(finite)
+/// The fields a row reads in `/sysid/summary` (`bench.ChirpSummary`).
+mod chirp_field {
+    pub const PEAK_POSITION_M: &str = "/peak_position_m";
+    pub const CMP_CNMP: &str = "/cmp_cnmp";
+    pub const MODEL_CMP_CNMP: &str = "/model/cmp_cnmp";
+    pub const FIT: &str = "/fit";
+    pub const FIT_MODES: &str = "/fit/modes";
+    pub const MODE_FREQUENCY_HZ: &str = "/fit/modes/*/frequency_hz";
+    pub const MODE_DAMPING_RATIO: &str = "/fit/modes/*/damping_ratio";
+    pub const MODE_LABEL: &str = "/fit/modes/*/label";
+    pub const FIT_QUALITY: &str = "/fit/quality";
+    pub const FIT_CHECKED: &str = "/fit/quality/checked";
+    pub const FIT_FLAGS: &str = "/fit/quality/flags";
+}
+
+/// The fields a row reads in `/control/summary` (`bench.ControlSummary`).
+mod control_field {
+    pub const VERIFY_FLAGGED: &str = "/verify/result/flagged";
+}
+
+/// The fields a row reads in `/control/loop_check` (`bench.LoopCheck`).
+mod check_field {
+    pub const CONTROLLER: &str = "/controller";
+    pub const FAILURES: &str = "/failures";
+    pub const CROSSOVERS_RAD_S: &str = "/model/crossovers_rad_s";
+    pub const PHASE_MARGIN_DEG: &str = "/model/phase_margin_deg";
+    pub const GAIN_MARGIN_DB: &str = "/model/gain_margin_db";
+    pub const SENSITIVITY_PEAK: &str = "/model/sensitivity_peak";
+}
+
+/// The fields a row reads in `/control/metrics` (`bench.StepMetrics`).
+mod step_field {
+    pub const STEP_M: &str = "/step_m";
+    pub const RISE_TIME_S: &str = "/rise_time_s";
+    pub const SETTLING_TIME_S: &str = "/settling_time_s";
+    pub const OVERSHOOT_PCT: &str = "/overshoot_pct";
+    pub const STEADY_STATE_ERROR_STD_NM: &str = "/steady_state_error_std_nm";
+    pub const PEAK_COMMAND_A: &str = "/peak_command_a";
+}
+
+/// What a row reads of one job's result channel: its topic, the name of
+/// the schema its writer records (the writing type's JSON Schema,
+/// `bench.<Type>`), and every field read, as a JSON pointer (RFC 6901)
+/// into a message, an array's elements written `*`.
+///
+/// The catalogue sits below the jobs (each run appends its row), so it
+/// cannot name their result types; it reads their JSON field by field,
+/// which keeps a NaN written as null, or a field an older version did not
+/// write, one unknown column rather than a lost row. These are all the
+/// fields it reads, and `schemas::recorded_messages_match_their_channel_schemas`
+/// finds each in the schema the writer records, so a field renamed or
+/// removed on the writing side fails that test instead of emptying a
+/// column.
+#[derive(Debug, Clone, Copy)]
+pub struct ResultReads {
+    /// The channel.
+    pub topic: &'static str,
+    /// Its schema's name, as recorded.
+    pub schema: &'static str,
+    /// The fields read (JSON pointers, `*` for every element).
+    pub fields: &'static [&'static str],
+}
+
+/// Every field a row reads of the jobs' result channels.
+pub const RESULT_READS: [ResultReads; 4] = {
+    use check_field as k;
+    use chirp_field as c;
+    use step_field as m;
+    [
+        ResultReads {
+            topic: TOPIC_CHIRP_SUMMARY,
+            schema: "bench.ChirpSummary",
+            fields: &[
+                c::PEAK_POSITION_M,
+                c::CMP_CNMP,
+                c::MODEL_CMP_CNMP,
+                c::FIT,
+                c::FIT_MODES,
+                c::MODE_FREQUENCY_HZ,
+                c::MODE_DAMPING_RATIO,
+                c::MODE_LABEL,
+                c::FIT_QUALITY,
+                c::FIT_CHECKED,
+                c::FIT_FLAGS,
+            ],
+        },
+        ResultReads {
+            topic: TOPIC_CONTROL_SUMMARY,
+            schema: "bench.ControlSummary",
+            fields: &[control_field::VERIFY_FLAGGED],
+        },
+        ResultReads {
+            topic: TOPIC_LOOP_CHECK,
+            schema: "bench.LoopCheck",
+            fields: &[
+                k::CONTROLLER,
+                k::FAILURES,
+                k::CROSSOVERS_RAD_S,
+                k::PHASE_MARGIN_DEG,
+                k::GAIN_MARGIN_DB,
+                k::SENSITIVITY_PEAK,
+            ],
+        },
+        ResultReads {
+            topic: TOPIC_STEP_METRICS,
+            schema: "bench.StepMetrics",
+            fields: &[
+                m::STEP_M,
+                m::RISE_TIME_S,
+                m::SETTLING_TIME_S,
+                m::OVERSHOOT_PCT,
+                m::STEADY_STATE_ERROR_STD_NM,
+                m::PEAK_COMMAND_A,
+            ],
+        },
+    ]
+};
+
+/// The value at JSON `pointer` in `v`, `None` when absent or null.
+fn at<'a>(v: &'a Json, pointer: &str) -> Option<&'a Json> {
+    v.pointer(pointer).filter(|x| !x.is_null())
+}
+
+/// The number at `pointer` in `v`, `None` when absent, null or not finite.
+fn num(v: &Json, pointer: &str) -> Option<f64> {
+    at(v, pointer).and_then(Json::as_f64).and_then(finite)
+}
+
+/// An element's part of `ARRAY/*/FIELD`: `/FIELD`.
+fn in_element(pointer: &'static str) -> &'static str {
+    pointer.split_once("/*").map_or(pointer, |(_, field)| field)
 }
 
 /// The chirp's headline results: the fit's modes, the pair, the verdicts.
 fn chirp_results(row: &mut CatalogueRow, s: &Json) {
-    row.peak_position_m = num(s, "peak_position_m");
-    row.verdict_cmp_cnmp = s.get("cmp_cnmp").and_then(Json::as_bool);
-    row.model_cmp_cnmp = s
-        .get("model")
-        .and_then(|m| m.get("cmp_cnmp"))
-        .and_then(Json::as_bool);
-    let Some(fit) = s.get("fit").filter(|f| !f.is_null()) else {
+    use chirp_field as c;
+    row.peak_position_m = num(s, c::PEAK_POSITION_M);
+    row.verdict_cmp_cnmp = at(s, c::CMP_CNMP).and_then(Json::as_bool);
+    row.model_cmp_cnmp = at(s, c::MODEL_CMP_CNMP).and_then(Json::as_bool);
+    if at(s, c::FIT).is_none() {
         return;
-    };
-    let mut modes: Vec<&Json> = fit
-        .get("modes")
+    }
+    let mut modes: Vec<&Json> = at(s, c::FIT_MODES)
         .and_then(Json::as_array)
         .map(|m| m.iter().collect())
         .unwrap_or_default();
+    let frequency = in_element(c::MODE_FREQUENCY_HZ);
     modes.sort_by(|a, b| {
-        let f = |m: &Json| num(m, "frequency_hz").unwrap_or(f64::INFINITY);
+        let f = |m: &Json| num(m, frequency).unwrap_or(f64::INFINITY);
         f(a).total_cmp(&f(b))
     });
     row.fit_modes = Some(modes.len() as i64);
     for (i, m) in modes.iter().take(MODE_COLUMNS).enumerate() {
-        row.mode_frequency_hz[i] = num(m, "frequency_hz");
-        row.mode_damping_ratio[i] = num(m, "damping_ratio");
+        row.mode_frequency_hz[i] = num(m, frequency);
+        row.mode_damping_ratio[i] = num(m, in_element(c::MODE_DAMPING_RATIO));
     }
     let labelled = |label: &str| {
         modes
             .iter()
-            .find(|m| m.get("label").and_then(Json::as_str) == Some(label))
-            .and_then(|m| num(m, "frequency_hz"))
+            .find(|m| at(m, in_element(c::MODE_LABEL)).and_then(Json::as_str) == Some(label))
+            .and_then(|m| num(m, frequency))
     };
     row.pair_u_frequency_hz = labelled("u");
     row.pair_v_frequency_hz = labelled("v");
-    row.fit_trusted = fit.get("quality").map(|q| {
-        q.get("checked").and_then(Json::as_bool) == Some(true)
-            && q.get("flags")
+    row.fit_trusted = s.pointer(c::FIT_QUALITY).map(|_| {
+        at(s, c::FIT_CHECKED).and_then(Json::as_bool) == Some(true)
+            && at(s, c::FIT_FLAGS)
                 .and_then(Json::as_array)
                 .is_some_and(Vec::is_empty)
     });
@@ -367,36 +489,32 @@ fn chirp_results(row: &mut CatalogueRow, s: &Json) {
 
 /// The loop check's margins (the model with the amplifier: what runs).
 fn loop_check_results(row: &mut CatalogueRow, c: &Json) {
-    row.controller = c
-        .get("controller")
+    use check_field as k;
+    row.controller = at(c, k::CONTROLLER)
         .and_then(Json::as_str)
         .map(str::to_string);
-    row.loop_check_passed = c
-        .get("failures")
+    row.loop_check_passed = at(c, k::FAILURES)
         .and_then(Json::as_array)
         .map(Vec::is_empty);
-    let Some(m) = c.get("model") else {
-        return;
-    };
-    row.crossover_rad_s = m
-        .get("crossovers_rad_s")
+    row.crossover_rad_s = at(c, k::CROSSOVERS_RAD_S)
         .and_then(Json::as_array)
         .and_then(|a| a.first())
         .and_then(Json::as_f64)
         .and_then(finite);
-    row.phase_margin_deg = num(m, "phase_margin_deg");
-    row.gain_margin_db = num(m, "gain_margin_db");
-    row.modulus_margin = num(m, "sensitivity_peak").and_then(|s| finite(1.0 / s));
+    row.phase_margin_deg = num(c, k::PHASE_MARGIN_DEG);
+    row.gain_margin_db = num(c, k::GAIN_MARGIN_DB);
+    row.modulus_margin = num(c, k::SENSITIVITY_PEAK).and_then(|s| finite(1.0 / s));
 }
 
 /// The step's figures.
 fn step_results(row: &mut CatalogueRow, m: &Json) {
-    row.step_m = num(m, "step_m");
-    row.rise_time_s = num(m, "rise_time_s");
-    row.settling_time_s = num(m, "settling_time_s");
-    row.overshoot_pct = num(m, "overshoot_pct");
-    row.steady_state_error_std_m = num(m, "steady_state_error_std_nm").map(|nm| nm * 1e-9);
-    row.peak_command_a = num(m, "peak_command_a");
+    use step_field as f;
+    row.step_m = num(m, f::STEP_M);
+    row.rise_time_s = num(m, f::RISE_TIME_S);
+    row.settling_time_s = num(m, f::SETTLING_TIME_S);
+    row.overshoot_pct = num(m, f::OVERSHOOT_PCT);
+    row.steady_state_error_std_m = num(m, f::STEADY_STATE_ERROR_STD_NM).map(|nm| nm * 1e-9);
+    row.peak_command_a = num(m, f::PEAK_COMMAND_A);
 }
 
 /// The bench's name from the config's recorded path: the file's stem

@@ -8,7 +8,9 @@
 //! (`/sysid/summary`; `/control/loop_check`, `/control/metrics`,
 //! `/control/summary`). So the row a run appends when it finishes and the
 //! row `bench catalogue` rebuilds from the same recording later are the
-//! same row, by construction.
+//! same row, by construction. The results are read field by field, by the
+//! JSON pointers of [`RESULT_READS`], each checked against the schema its
+//! writer records.
 //!
 //! Parquet files are immutable, so "append" is one small file per run,
 //! `<recordings>/catalogue/<recording stem>.parquet` ([`row_path`]),
@@ -30,7 +32,7 @@
 pub mod file;
 mod from_recording;
 
-pub use from_recording::{row_of_recording, CatalogueError};
+pub use from_recording::{row_of_recording, CatalogueError, ResultReads, RESULT_READS};
 
 use std::path::{Path, PathBuf};
 

@@ -160,6 +160,46 @@ fn validate_recording(path: &Path) -> BTreeMap<String, Channel> {
     chans
 }
 
+/// A JSON pointer's segments (`*`: every element of an array).
+fn segments(pointer: &str) -> Vec<&str> {
+    pointer.split('/').skip(1).collect()
+}
+
+/// `schema` with its `$ref` followed (within `root`).
+fn resolved<'a>(root: &'a Value, schema: &'a Value) -> &'a Value {
+    match schema.get("$ref").and_then(Value::as_str) {
+        Some(r) => resolved(
+            root,
+            root.pointer(r.trim_start_matches('#'))
+                .unwrap_or_else(|| panic!("$ref {r} does not resolve")),
+        ),
+        None => schema,
+    }
+}
+
+/// Whether the JSON Schema `schema` (its references resolved in `root`)
+/// describes the field at `segments`: an object's property by name, `*`
+/// an array's items; through `anyOf`, `oneOf` and `allOf` (an `Option` is
+/// `anyOf [T, null]`).
+fn schema_has(root: &Value, schema: &Value, segments: &[&str]) -> bool {
+    let schema = resolved(root, schema);
+    let Some((first, rest)) = segments.split_first() else {
+        return true;
+    };
+    let through = ["anyOf", "oneOf", "allOf"].iter().any(|k| {
+        schema
+            .get(*k)
+            .and_then(Value::as_array)
+            .is_some_and(|bs| bs.iter().any(|b| schema_has(root, b, segments)))
+    });
+    let next = if *first == "*" {
+        schema.get("items")
+    } else {
+        schema.get("properties").and_then(|p| p.get(*first))
+    };
+    through || next.is_some_and(|n| schema_has(root, n, rest))
+}
+
 /// Runs `bench` with `args`, expecting exit status `code`.
 fn bench_exits(args: &[&str], code: i32) {
     let o = run(args);
@@ -363,6 +403,34 @@ fn recorded_messages_match_their_channel_schemas() {
             ("/control/summary", "bench.ControlSummary"),
         ],
     );
+    // Every field the catalogue reads of the jobs' results
+    // (`bench::catalogue::RESULT_READS`) is in the schema its writer
+    // records: a field renamed or removed there fails here, not as an
+    // empty catalogue column.
+    for reads in bench::catalogue::RESULT_READS {
+        let ch = [&chirp, &verified]
+            .into_iter()
+            .find_map(|c| c.get(reads.topic))
+            .unwrap_or_else(|| panic!("no {} recorded", reads.topic));
+        assert_eq!(ch.schema_name, reads.schema, "{}", reads.topic);
+        for field in reads.fields {
+            assert!(
+                schema_has(&ch.schema, &ch.schema, &segments(field)),
+                "the catalogue reads {field} of {}, which its schema {} does not have",
+                reads.topic,
+                reads.schema
+            );
+        }
+    }
+    // ... and the check can fail.
+    let cs = &chirp["/sysid/summary"].schema;
+    for absent in [
+        "/peak_position_mm",
+        "/fit/modes/frequency_hz",
+        "/fit/modes/*/freq",
+    ] {
+        assert!(!schema_has(cs, cs, &segments(absent)), "{absent}");
+    }
     let v = &verified["/control/verify"];
     let keys_of =
         |v: &Value| -> BTreeSet<String> { v.as_object().unwrap().keys().cloned().collect() };
