@@ -429,7 +429,6 @@ pub(super) fn owner(client: ServiceClient, rx: mpsc::Receiver<OwnerCmd>, shared:
     loop {
         let wait = std::time::Duration::from_millis(if o.active.is_some() { 1 } else { 10 });
         match rx.recv_timeout(wait) {
-            Ok(OwnerCmd::Shutdown) => o.shutting_down = true,
             Err(mpsc::RecvTimeoutError::Disconnected) => {
                 o.shutting_down = true;
                 std::thread::sleep(wait);
@@ -494,8 +493,8 @@ impl Owner {
             .collect();
     }
 
-    /// Answers one command other than `Shutdown`; a job running refuses
-    /// every one as busy.
+    /// Answers one command; while a job runs, every one but `Shutdown` is
+    /// refused as busy.
     fn command(&mut self, cmd: OwnerCmd) {
         let busy = || ApiError::new(ApiErrorKind::Busy, "a job is running: `stop` it first");
         match cmd {
