@@ -412,8 +412,9 @@ fn flag(key: &str) -> &str {
     match key {
         "out" => "--out",
         "frf_csv" => "--frf-csv",
-        "plot" => "--plot",
-        "png" => "--png",
+        // The figure of `bench chirp` and `control` (`--png`; `--plot`,
+        // its old spelling, is read as it).
+        "plot" | "png" => "--png",
         other => other,
     }
 }

@@ -6,7 +6,7 @@
 
 use super::point::PointArgs;
 use super::serve::via_daemon;
-use super::{finish, refuse_local_only, run_failed, CONFIG_HELP};
+use super::{finish, refuse_local_only, run_failed};
 use bench::analysis::map::MapCell;
 use bench::jobs::analyze::{plan_analyze, run_analyze, AnalyzeRequest, AnalyzeSummary};
 use bench::jobs::map::{
@@ -19,9 +19,12 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 #[derive(Debug, Args)]
+#[command(
+    mut_arg("no_plot", |a| a.conflicts_with_all(["pole_zero_png", "modes_png"])),
+)]
 pub(super) struct AnalyzeArgs {
-    #[arg(long, value_name = "FILE", help = CONFIG_HELP)]
-    config: Option<PathBuf>,
+    #[command(flatten)]
+    config: super::ConfigFlag,
     #[command(flatten)]
     point: PointArgs,
     /// Pole-zero map PNG [default: analyze-<UTC time>.pole-zero.png in the
@@ -32,9 +35,8 @@ pub(super) struct AnalyzeArgs {
     /// the recordings directory].
     #[arg(long, value_name = "FILE.png|svg|pdf")]
     modes_png: Option<PathBuf>,
-    /// Write no PNG.
-    #[arg(long, conflicts_with_all = ["pole_zero_png", "modes_png"])]
-    no_plots: bool,
+    #[command(flatten)]
+    no_plot: super::NoPlotFlag,
     #[command(flatten)]
     job: super::JobFlags,
     #[command(flatten)]
@@ -45,9 +47,9 @@ impl AnalyzeArgs {
     /// The analysis request of the flags.
     fn request(&self) -> AnalyzeRequest {
         AnalyzeRequest {
-            config: self.config.clone(),
+            config: self.config.config.clone(),
             point: self.point.point(),
-            no_plots: self.no_plots,
+            no_plots: self.no_plot.no_plot,
         }
     }
 }
@@ -72,7 +74,7 @@ pub(super) fn analyze(args: AnalyzeArgs) -> ExitCode {
         return via_daemon(
             sock,
             &JobRequest::Analyze(request),
-            args.job.json,
+            args.job.json.json,
             print_analysis,
         );
     }
@@ -83,7 +85,7 @@ pub(super) fn analyze(args: AnalyzeArgs) -> ExitCode {
         Ok(o) => o,
         Err(e) => return run_failed(&e),
     };
-    finish(run_analyze(&opts), args.job.json, print_analysis)
+    finish(run_analyze(&opts), args.job.json.json, print_analysis)
 }
 
 fn print_analysis(s: &AnalyzeSummary) {
@@ -190,11 +192,13 @@ fn yes_no(b: bool) -> &'static str {
 }
 
 #[derive(Debug, Args)]
+#[command(
+    mut_arg("config", |a| a.long_help("Bench description (TOML) [default: the built-in Chapter 5 bench]; its operating point and asymmetry are replaced by the grid")),
+    mut_arg("png", |a| a.help("The map (or veering) figure [default: map-<UTC time>.png or veering-<UTC time>.png in the recordings directory]")),
+)]
 pub(super) struct MapArgs {
-    /// Bench description (TOML) [default: the built-in Chapter 5 bench];
-    /// its operating point and asymmetry are replaced by the grid.
-    #[arg(long, value_name = "FILE")]
-    config: Option<PathBuf>,
+    #[command(flatten)]
+    config: super::ConfigFlag,
     /// Lowest operating point of the grid, % of L.
     #[arg(
         long,
@@ -257,10 +261,8 @@ pub(super) struct MapArgs {
         allow_hyphen_values = true
     )]
     localisation_at_pct: Vec<f64>,
-    /// The map (or veering) PNG [default: map-<UTC time>.png or
-    /// veering-<UTC time>.png in the recordings directory].
-    #[arg(long, value_name = "FILE.png|svg|pdf")]
-    png: Option<PathBuf>,
+    #[command(flatten)]
+    png: super::PngFlag,
     /// One row per cell: operating_point_m,mass_asymmetry,cnmp,cnmp_damped
     /// [FILE default: the PNG's name with .csv; with --daemon give no
     /// FILE: the daemon names it].
@@ -276,7 +278,7 @@ impl MapArgs {
     /// The map request of the flags.
     fn request(&self) -> MapRequest {
         MapRequest {
-            config: self.config.clone(),
+            config: self.config.config.clone(),
             operating_point_from_pct: self.operating_point_from_pct,
             operating_point_to_pct: self.operating_point_to_pct,
             operating_points: self.operating_points,
@@ -298,7 +300,7 @@ pub(super) fn map(args: MapArgs) -> ExitCode {
         let csv_named = matches!(args.csv, Some(Some(_)));
         if let Some(code) = refuse_local_only(
             &[
-                (args.png.is_some(), "--png"),
+                (args.png.png.is_some(), "--png"),
                 (csv_named, "--csv FILE (--csv alone asks for the cells CSV)"),
                 (args.outputs.overwrite, "--overwrite"),
             ],
@@ -311,16 +313,21 @@ pub(super) fn map(args: MapArgs) -> ExitCode {
             measured: request.measured.as_deref().map(super::absolute_path),
             ..request
         };
-        return via_daemon(sock, &JobRequest::Map(request), args.job.json, print_result);
+        return via_daemon(
+            sock,
+            &JobRequest::Map(request),
+            args.job.json.json,
+            print_result,
+        );
     }
     let given = Given::default()
-        .with("png", args.png.clone())
+        .with("png", args.png.png.clone())
         .with("csv", args.csv.clone().flatten());
     let opts = match plan_map(request, &Destination::local(given, args.outputs.overwrite)) {
         Ok(o) => o,
         Err(e) => return run_failed(&e),
     };
-    finish(run_map(&opts), args.job.json, print_result)
+    finish(run_map(&opts), args.job.json.json, print_result)
 }
 
 fn print_result(r: &MapResult) {

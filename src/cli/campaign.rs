@@ -37,6 +37,12 @@ pub(super) enum CampaignCommand {
 }
 
 #[derive(Debug, Args)]
+#[command(
+    mut_arg("out", |a| a.value_name("DIR").help("Campaign directory: must not exist or be empty [default: the file's `out`]")),
+    mut_arg("daemon", |a| a
+        .long_help("Run the whole campaign as one job of a running `bench serve`, as --daemon runs any job [SOCKET default: $XDG_RUNTIME_DIR/bench.sock, else /run/bench/bench.sock]: the daemon reads the campaign file and runs the cells on the simulator, in parallel, in a new directory of its recordings (as `run` without --backend here). No cell runs on the daemon's bench (that is --cells-on-daemon)")
+        .conflicts_with_all(["out", "backend", "cells_on_daemon"])),
+)]
 pub(super) struct RunArgs {
     /// The campaign file (TOML) [default: the built-in campaign, the
     /// thesis' Fig 5-10 grid on the built-in bench; `bench campaign
@@ -50,20 +56,12 @@ pub(super) struct RunArgs {
     /// the file, so a resume keeps the same.
     #[arg(long, value_name = "WHAT", value_parser = parse_keep)]
     keep: Option<Keep>,
-    /// Campaign directory: must not exist or be empty [default: the
-    /// file's `out`].
-    #[arg(long, value_name = "DIR")]
-    out: Option<PathBuf>,
+    #[command(flatten)]
+    out: super::OutFlag,
     #[command(flatten)]
     how: HowArgs,
-    /// Run the whole campaign as one job of a running `bench serve`, as
-    /// --daemon runs any job [SOCKET default: $XDG_RUNTIME_DIR/bench.sock,
-    /// else /run/bench/bench.sock]: the daemon reads the campaign file and
-    /// runs the cells on the simulator, in parallel, in a new directory of
-    /// its recordings (as `run` without --backend here). No cell runs on
-    /// the daemon's bench (that is --cells-on-daemon).
-    #[arg(long, value_name = "SOCKET", num_args = 0..=1, default_missing_value = "", conflicts_with_all = ["out", "backend", "cells_on_daemon"])]
-    daemon: Option<String>,
+    #[command(flatten)]
+    job: super::JobFlags,
     /// The old spelling of --daemon: refused, naming it.
     #[arg(long, hide = true, value_name = "SOCKET", num_args = 0..=1, default_missing_value = "")]
     submit: Option<String>,
@@ -87,9 +85,6 @@ pub(super) struct HowArgs {
     /// The operator is asked before each cell as on hardware.
     #[arg(long, value_name = "SOCKET", num_args = 0..=1, default_missing_value = "", conflicts_with = "backend")]
     cells_on_daemon: Option<String>,
-    /// Print the summary as one JSON object on stdout.
-    #[arg(long)]
-    json: bool,
     /// At the end, design one controller over every done cell's FRF
     /// (`bench design DIR --strategy STRATEGY`): DIR/designed.toml and
     /// DIR/designed.png, the report in the summary.
@@ -112,15 +107,16 @@ pub(super) struct ResumeArgs {
     force: bool,
     #[command(flatten)]
     how: HowArgs,
+    #[command(flatten)]
+    json: super::JsonFlag,
 }
 
 #[derive(Debug, Args)]
 pub(super) struct DirArgs {
     /// The campaign directory.
     dir: PathBuf,
-    /// Print the summary as one JSON object on stdout.
-    #[arg(long)]
-    json: bool,
+    #[command(flatten)]
+    json: super::JsonFlag,
 }
 
 pub(super) fn campaign(cmd: CampaignCommand, stop: Arc<AtomicBool>) -> ExitCode {
@@ -147,7 +143,7 @@ fn run(a: RunArgs, stop: Arc<AtomicBool>) -> ExitCode {
                 .to_string(),
         );
     }
-    if let Some(sock) = &a.daemon {
+    if let Some(sock) = &a.job.daemon {
         let request = CampaignRequest {
             file: a.file.as_deref().map(super::absolute_path),
             threads: a.how.threads,
@@ -157,7 +153,7 @@ fn run(a: RunArgs, stop: Arc<AtomicBool>) -> ExitCode {
         return via_daemon(
             sock,
             &JobRequest::Campaign(request),
-            a.how.json,
+            a.job.json.json,
             print_summary,
         );
     }
@@ -174,13 +170,13 @@ fn run(a: RunArgs, stop: Arc<AtomicBool>) -> ExitCode {
         a.how.cells_on_daemon.as_deref(),
         &campaign,
     );
-    match job::start(campaign, a.out.as_deref(), threads) {
+    match job::start(campaign, a.out.out.as_deref(), threads) {
         Ok(ready) => go(
             ready,
             threads,
             bench,
             stop,
-            a.how.json,
+            a.job.json.json,
             a.how.design.as_deref(),
         ),
         Err(e) => failed(&e),
@@ -209,7 +205,7 @@ fn resume(a: ResumeArgs, stop: Arc<AtomicBool>) -> ExitCode {
         threads,
         bench,
         stop,
-        a.how.json,
+        a.json.json,
         a.how.design.as_deref(),
     )
 }
@@ -341,7 +337,7 @@ fn status_cmd(a: DirArgs) -> ExitCode {
     for (c, why) in damaged_cells(&a.dir, &read) {
         errln!("warning: cell {c}: {why}");
     }
-    match emit(&s, a.json, print_summary) {
+    match emit(&s, a.json.json, print_summary) {
         Ok(()) => ExitCode::SUCCESS,
         Err(code) => code,
     }
@@ -353,7 +349,7 @@ fn map_cmd(a: DirArgs) -> ExitCode {
         Err(e) => return failed(&e),
     };
     match write_results(&campaign, &a.dir) {
-        Ok(s) => match emit(&s, a.json, print_summary) {
+        Ok(s) => match emit(&s, a.json.json, print_summary) {
             Ok(()) => ExitCode::SUCCESS,
             Err(code) => code,
         },

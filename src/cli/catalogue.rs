@@ -10,6 +10,9 @@ use clap::Args;
 use std::path::PathBuf;
 
 #[derive(Debug, Args)]
+#[command(
+    mut_arg("out", |a| a.value_name("FILE").help("The catalogue to write (.parquet) [default: catalogue.parquet in the recordings directory, beside its catalogue/ of per-run rows]")),
+)]
 pub(super) struct CatalogueArgs {
     /// The recordings to catalogue: every *.mcap in this directory and
     /// its subdirectories (campaign cells), with the rows of campaign
@@ -17,10 +20,8 @@ pub(super) struct CatalogueArgs {
     /// exists, else $XDG_DATA_HOME/bench/recordings].
     #[arg(long, value_name = "DIR")]
     recordings: Option<PathBuf>,
-    /// The catalogue to write (.parquet) [default: catalogue.parquet in
-    /// the recordings directory, beside its catalogue/ of per-run rows].
-    #[arg(long, value_name = "FILE")]
-    out: Option<PathBuf>,
+    #[command(flatten)]
+    out: super::OutFlag,
     /// Where the recordings are kept as objects (e.g.
     /// s3://lab-bench/recordings): each row's recording is then this
     /// prefix and the file's name instead of its local path.
@@ -36,7 +37,7 @@ pub(super) fn catalogue(a: CatalogueArgs) -> ExitCode {
     if let Some(sock) = &a.job.daemon {
         if let Some(code) = refuse_local_only(
             &[
-                (a.out.is_some(), "--out"),
+                (a.out.out.is_some(), "--out"),
                 (a.outputs.overwrite, "--overwrite"),
             ],
             "the daemon names its catalogue in its recordings directory",
@@ -50,7 +51,7 @@ pub(super) fn catalogue(a: CatalogueArgs) -> ExitCode {
         return via_daemon(
             sock,
             &JobRequest::Catalogue(request),
-            a.job.json,
+            a.job.json.json,
             print_summary,
         );
     }
@@ -58,13 +59,13 @@ pub(super) fn catalogue(a: CatalogueArgs) -> ExitCode {
         recordings: a.recordings.clone(),
         recording_url: a.recording_url.clone(),
     };
-    let given = Given::default().with("out", a.out.clone());
+    let given = Given::default().with("out", a.out.out.clone());
     let opts = match plan_catalogue(request, &Destination::local(given, a.outputs.overwrite)) {
         Ok(o) => o,
         Err(e) => return run_failed(&e),
     };
     match run_catalogue(&opts) {
-        Ok(summary) => match emit(&summary, a.job.json, print_summary) {
+        Ok(summary) => match emit(&summary, a.job.json.json, print_summary) {
             Ok(()) => ExitCode::SUCCESS,
             Err(code) => code,
         },

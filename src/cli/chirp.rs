@@ -5,7 +5,7 @@ use super::point::PointArgs;
 use super::serve::via_daemon;
 use super::{
     bad_input, emit, job_thread, load_config, refuse_local_only, refused_request, run_failed,
-    run_failed_json, CONFIG_HELP,
+    run_failed_json,
 };
 use bench::config::ExcitationKind;
 use bench::jobs::chirp::{run_chirp, ChirpOptions, ChirpOutputs, ChirpSummary};
@@ -27,19 +27,20 @@ pub(super) enum KindArg {
 }
 
 #[derive(Debug, Args)]
+#[command(
+    mut_arg("out", |a| a.value_name("FILE.mcap").help("MCAP recording [default: chirp-<UTC time>.mcap in ./recordings if it exists, else in $XDG_DATA_HOME/bench/recordings]")),
+    mut_arg("png", |a| a.help("Bode plot [default: beside --out, <stem>.bode.png]")),
+)]
 pub(super) struct ChirpArgs {
-    #[arg(long, value_name = "FILE", help = CONFIG_HELP)]
-    config: Option<PathBuf>,
-    /// MCAP recording [default: chirp-<UTC time>.mcap in ./recordings if it
-    /// exists, else in $XDG_DATA_HOME/bench/recordings].
-    #[arg(long, value_name = "FILE.mcap")]
-    out: Option<PathBuf>,
+    #[command(flatten)]
+    config: super::ConfigFlag,
+    #[command(flatten)]
+    out: super::OutFlag,
     /// FRF CSV [default: beside --out, <stem>.frf.csv].
     #[arg(long, value_name = "FILE")]
     frf_csv: Option<PathBuf>,
-    /// Bode plot PNG [default: beside --out, <stem>.bode.png].
-    #[arg(long, value_name = "FILE.png|svg|pdf")]
-    plot: Option<PathBuf>,
+    #[command(flatten)]
+    png: super::PngFlag,
     /// Pace the loop in real time (absolute deadlines, SCHED_FIFO and
     /// mlockall when permitted) instead of virtual time.
     #[arg(long)]
@@ -142,12 +143,12 @@ pub(super) fn chirp(args: ChirpArgs, stop: Arc<AtomicBool>) -> ExitCode {
     if let Some(sock) = &args.job.daemon {
         let mut local_only = vec![
             (
-                args.config.is_some(),
+                args.config.config.is_some(),
                 "--config (the daemon runs the bench config it was started with: bench serve --config)",
             ),
-            (args.out.is_some(), "--out"),
+            (args.out.out.is_some(), "--out"),
             (args.frf_csv.is_some(), "--frf-csv"),
-            (args.plot.is_some(), "--plot"),
+            (args.png.png.is_some(), "--png"),
             (args.bla_csv.is_some(), "--bla-csv"),
             (args.outputs.overwrite, "--overwrite"),
             (
@@ -168,9 +169,9 @@ pub(super) fn chirp(args: ChirpArgs, stop: Arc<AtomicBool>) -> ExitCode {
             return code;
         }
         let job = JobRequest::Chirp(args.request());
-        return via_daemon(sock, &job, args.job.json, print_summary);
+        return via_daemon(sock, &job, args.job.json.json, print_summary);
     }
-    let (mut cfg, config_path) = match load_config(args.config.as_deref()) {
+    let (mut cfg, config_path) = match load_config(args.config.config.as_deref()) {
         Ok(c) => c,
         Err(e) => return bad_input(e),
     };
@@ -198,9 +199,9 @@ pub(super) fn chirp(args: ChirpArgs, stop: Arc<AtomicBool>) -> ExitCode {
         Err(code) => return code,
     };
     let given = Given::default()
-        .with("out", args.out.clone())
+        .with("out", args.out.out.clone())
         .with("frf_csv", args.frf_csv.clone())
-        .with("plot", args.plot.clone())
+        .with("plot", args.png.png.clone())
         .with("bla_csv", args.bla_csv.clone());
     let dest = Destination::local(given, args.outputs.overwrite);
     let (out, named, outputs) = match ChirpOutputs::plan(&dest, cfg.excitation.kind) {
@@ -243,7 +244,7 @@ pub(super) fn chirp(args: ChirpArgs, stop: Arc<AtomicBool>) -> ExitCode {
         Err(code) => return code,
     };
     match result {
-        Ok(summary) => match emit(&summary, args.job.json, print_summary) {
+        Ok(summary) => match emit(&summary, args.job.json.json, print_summary) {
             // SIGINT/SIGTERM after the sweep, during the FRF, the fit and
             // the plot (under a second at the densest grid the config
             // allows): those were finished, and nothing is missing.
@@ -257,7 +258,7 @@ pub(super) fn chirp(args: ChirpArgs, stop: Arc<AtomicBool>) -> ExitCode {
             Ok(()) => ExitCode::SUCCESS,
             Err(code) => code,
         },
-        Err(e) => run_failed_json(&e, args.job.json),
+        Err(e) => run_failed_json(&e, args.job.json.json),
     }
 }
 

@@ -4,7 +4,7 @@
 use super::serve::via_daemon_then;
 use super::{
     bad_input, emit, job_thread, load_config, refuse_local_only, refused_request, run_failed,
-    run_failed_json, status, CONFIG_HELP,
+    run_failed_json, status,
 };
 use bench::jobs::control::{run_control, ControlOptions, ControlSummary};
 use bench::jobs::request::{parse_seed, ControlRequest, JobRequest};
@@ -19,6 +19,10 @@ use std::sync::atomic::AtomicBool;
 use std::sync::Arc;
 
 #[derive(Debug, Args)]
+#[command(
+    mut_arg("out", |a| a.value_name("FILE.mcap").help("MCAP recording [default: control-<name>-<UTC time>.mcap in ./recordings if it exists, else in $XDG_DATA_HOME/bench/recordings]")),
+    mut_arg("png", |a| a.help("Step plot [default: beside --out, <stem>.step.png]")),
+)]
 #[command(group(clap::ArgGroup::new("which").required(true).args(["slow", "fast", "controller"])))]
 pub(super) struct ControlArgs {
     /// The slow controller of Eq. (6-6) (`[controller.slow]`).
@@ -30,8 +34,8 @@ pub(super) struct ControlArgs {
     /// Any `[controller.NAME]` of the config.
     #[arg(long, value_name = "NAME")]
     controller: Option<String>,
-    #[arg(long, value_name = "FILE", help = CONFIG_HELP)]
-    config: Option<PathBuf>,
+    #[command(flatten)]
+    config: super::ConfigFlag,
     /// Step size, m (overrides step.step_m).
     #[arg(long, value_name = "M", allow_hyphen_values = true)]
     step_m: Option<f64>,
@@ -42,13 +46,10 @@ pub(super) struct ControlArgs {
     /// (overrides step.smooth_s).
     #[arg(long, value_name = "S", allow_hyphen_values = true)]
     smooth_s: Option<f64>,
-    /// MCAP recording [default: control-<name>-<UTC time>.mcap in
-    /// ./recordings if it exists, else in $XDG_DATA_HOME/bench/recordings].
-    #[arg(long, value_name = "FILE.mcap")]
-    out: Option<PathBuf>,
-    /// Step plot PNG [default: beside --out, <stem>.step.png].
-    #[arg(long, value_name = "FILE.png|svg|pdf")]
-    plot: Option<PathBuf>,
+    #[command(flatten)]
+    out: super::OutFlag,
+    #[command(flatten)]
+    png: super::PngFlag,
     /// Pace the loop in real time.
     #[arg(long)]
     realtime: bool,
@@ -171,11 +172,11 @@ pub(super) fn control(args: ControlArgs, stop: Arc<AtomicBool>) -> ExitCode {
     if let Some(sock) = &args.job.daemon {
         let local_only = [
             (
-                args.config.is_some(),
+                args.config.config.is_some(),
                 "--config (the daemon runs the bench config it was started with: bench serve --config)",
             ),
-            (args.out.is_some(), "--out"),
-            (args.plot.is_some(), "--plot"),
+            (args.out.out.is_some(), "--out"),
+            (args.png.png.is_some(), "--png"),
             (args.outputs.overwrite, "--overwrite"),
             (args.backend.is_some(), "--backend"),
             (args.check_only, "--check-only"),
@@ -195,12 +196,12 @@ pub(super) fn control(args: ControlArgs, stop: Arc<AtomicBool>) -> ExitCode {
         return via_daemon_then(
             sock,
             &job,
-            args.job.json,
+            args.job.json.json,
             print_control_summary,
             verify_status,
         );
     }
-    let (mut cfg, config_path) = match load_config(args.config.as_deref()) {
+    let (mut cfg, config_path) = match load_config(args.config.config.as_deref()) {
         Ok(c) => c,
         Err(e) => return bad_input(e),
     };
@@ -223,8 +224,8 @@ pub(super) fn control(args: ControlArgs, stop: Arc<AtomicBool>) -> ExitCode {
     };
     let name = request.controller.clone();
     let given = Given::default()
-        .with("out", args.out.clone())
-        .with("plot", args.plot.clone());
+        .with("out", args.out.out.clone())
+        .with("plot", args.png.png.clone());
     let dest = Destination::local(given, args.outputs.overwrite);
     let planned = StepOutputs::plan(
         &dest,
@@ -278,7 +279,7 @@ pub(super) fn control(args: ControlArgs, stop: Arc<AtomicBool>) -> ExitCode {
     };
     match result {
         Ok(summary) => {
-            if let Err(code) = emit(&summary, args.job.json, print_control_summary) {
+            if let Err(code) = emit(&summary, args.job.json.json, print_control_summary) {
                 return code;
             }
             if args.check_only && !summary.loop_check.passed() {
@@ -291,7 +292,7 @@ pub(super) fn control(args: ControlArgs, stop: Arc<AtomicBool>) -> ExitCode {
             }
             verify_status(&summary).unwrap_or(ExitCode::SUCCESS)
         }
-        Err(e) => run_failed_json(&e, args.job.json),
+        Err(e) => run_failed_json(&e, args.job.json.json),
     }
 }
 

@@ -2,7 +2,7 @@
 //! (`bench::jobs::design`), and the printed report.
 
 use super::serve::via_daemon;
-use super::{finish, refuse_local_only, run_failed, CONFIG_HELP};
+use super::{finish, refuse_local_only, run_failed};
 use bench::campaign::job::design_inputs;
 use bench::design::Strategy;
 use bench::jobs::design::{plan_design, run_design, DesignRequest, DesignSummary, ModelChoice};
@@ -14,6 +14,12 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 #[derive(Debug, Args)]
+#[command(
+    mut_arg("config", |a| a.long_help("Bench description (TOML): the loop period, the amplifier, the computation delay's default and the limits, and the bench the controller is added to; its model only with --model config [default: the config the first recording holds, else the first campaign's bench.toml, else the built-in Chapter 5 bench]")),
+    mut_arg("out", |a| a.value_name("FILE.toml").help("The bench config with [controller.NAME] added [default: beside the first input, <stem>.designed.toml; a campaign: DIR/designed.toml]")),
+    mut_arg("png", |a| a.help("The figure: Nyquist of every input's loop with the modulus-margin circle, Bode of L and S, the worst input highlighted [default: beside --out, <stem>.png]")),
+    mut_arg("no_plot", |a| a.conflicts_with("png")),
+)]
 pub(super) struct DesignArgs {
     /// The measured FRFs: `bench chirp` CSVs, recordings (`.mcap`), or
     /// campaign directories (every done cell's FRF). All from the same
@@ -58,20 +64,14 @@ pub(super) struct DesignArgs {
     /// description, not the bench measured).
     #[arg(long, default_value = "fit", value_parser = ["fit", "config"])]
     model: String,
-    #[arg(long, value_name = "FILE", help = CONFIG_HELP, long_help = "Bench description (TOML): the loop period, the amplifier, the computation delay's default and the limits, and the bench the controller is added to; its model only with --model config [default: the config the first recording holds, else the first campaign's bench.toml, else the built-in Chapter 5 bench]")]
-    config: Option<PathBuf>,
-    /// The bench config with [controller.NAME] added [default: beside the
-    /// first input, <stem>.designed.toml; a campaign: DIR/designed.toml].
-    #[arg(long, value_name = "FILE.toml")]
-    out: Option<PathBuf>,
-    /// The figure: Nyquist of every input's loop with the modulus-margin
-    /// circle, Bode of L and S, the worst input highlighted [default:
-    /// beside --out, <stem>.png].
-    #[arg(long, value_name = "FILE.png|svg|pdf")]
-    png: Option<PathBuf>,
-    /// Write no figure.
-    #[arg(long, conflicts_with = "png")]
-    no_plot: bool,
+    #[command(flatten)]
+    config: super::ConfigFlag,
+    #[command(flatten)]
+    out: super::OutFlag,
+    #[command(flatten)]
+    png: super::PngFlag,
+    #[command(flatten)]
+    no_plot: super::NoPlotFlag,
     #[command(flatten)]
     job: super::JobFlags,
     #[command(flatten)]
@@ -82,7 +82,7 @@ impl DesignArgs {
     fn request(&self) -> DesignRequest {
         DesignRequest {
             inputs: self.inputs.clone(),
-            config: self.config.clone(),
+            config: self.config.config.clone(),
             strategy: self.strategy.parse::<Strategy>().unwrap_or(Strategy::Auto),
             pm_min_deg: Some(self.pm_min_deg),
             gm_min_db: Some(self.gm_min_db),
@@ -91,7 +91,7 @@ impl DesignArgs {
             settling_max_s: self.settling_max_s,
             name: Some(self.name.clone()),
             model: self.model.parse::<ModelChoice>().unwrap_or_default(),
-            no_plot: self.no_plot,
+            no_plot: self.no_plot.no_plot,
         }
     }
 }
@@ -101,8 +101,8 @@ pub(super) fn design(a: DesignArgs) -> ExitCode {
     if let Some(sock) = &a.job.daemon {
         if let Some(code) = refuse_local_only(
             &[
-                (a.out.is_some(), "--out"),
-                (a.png.is_some(), "--png"),
+                (a.out.out.is_some(), "--out"),
+                (a.png.png.is_some(), "--png"),
                 (a.outputs.overwrite, "--overwrite"),
             ],
             "the daemon writes its outputs in its recordings directory",
@@ -121,7 +121,7 @@ pub(super) fn design(a: DesignArgs) -> ExitCode {
         return via_daemon(
             sock,
             &JobRequest::Design(request),
-            a.job.json,
+            a.job.json.json,
             print_summary,
         );
     }
@@ -130,14 +130,14 @@ pub(super) fn design(a: DesignArgs) -> ExitCode {
         Err(e) => return run_failed(&e),
     };
     let given = Given::default()
-        .with("out", a.out.clone())
-        .with("png", a.png.clone());
+        .with("out", a.out.out.clone())
+        .with("png", a.png.png.clone());
     let opts = plan_design(
         request,
         inputs,
         &Destination::local(given, a.outputs.overwrite),
     );
-    finish(run_design(&opts), a.job.json, print_summary)
+    finish(run_design(&opts), a.job.json.json, print_summary)
 }
 
 fn opt_num(v: Option<f64>, digits: usize, unit: &str) -> String {

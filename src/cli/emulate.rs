@@ -1,13 +1,12 @@
 //! `bench emulate serial|can|ethercat`: the simulated plant as a DAQ
 //! device (or, on EtherCAT, as a CiA 402 drive).
 
-use super::{bad_input, load_config, status, CONFIG_HELP};
+use super::{bad_input, load_config, status};
 use bench::jobs::request::parse_fault;
 use bench_devices::emulator::serial::{Pty, SerialEmulatorOptions};
 use bench_devices::emulator::{DeviceCore, EmulatorStatus, LinkFault, ScheduledLinkFault};
 use bench_plant::sim::ScheduledFault;
 use clap::{Args, Subcommand};
-use std::path::PathBuf;
 use std::process::ExitCode;
 use std::sync::atomic::AtomicBool;
 use std::sync::Arc;
@@ -57,10 +56,12 @@ fn parse_u32(s: &str) -> Result<u32, String> {
 }
 
 #[derive(Debug, Args)]
+#[command(
+    mut_arg("config", |a| a.long_help("Bench description (TOML): its plant, rate and [emulator] watchdog apply [default: the built-in Chapter 5 bench; `bench config default` prints it]")),
+)]
 pub(super) struct EmulateArgs {
-    /// Its plant, rate and [emulator] watchdog apply.
-    #[arg(long, value_name = "FILE", help = CONFIG_HELP)]
-    config: Option<PathBuf>,
+    #[command(flatten)]
+    config: super::ConfigFlag,
     /// Plant noise seed [default: sim.seed].
     #[arg(long, value_name = "N")]
     seed: Option<u64>,
@@ -142,7 +143,7 @@ pub(super) fn emulate(cmd: EmulateCommand, stop: Arc<AtomicBool>) -> ExitCode {
             common,
         } => return emulate_ethercat(&iface, vendor_id, product_id, common, stop),
     };
-    let (cfg, config_path) = match load_config(args.config.as_deref())
+    let (cfg, config_path) = match load_config(args.config.config.as_deref())
         .and_then(|(c, p)| c.validate(&p).map(|_| (c, p)))
     {
         Ok(c) => c,
@@ -299,7 +300,7 @@ fn emulate_ethercat(
     stop: Arc<AtomicBool>,
 ) -> ExitCode {
     use bench_devices::slave::{ScheduledSlaveFault, SlaveFault, SlaveIdentity};
-    let (cfg, config_path) = match load_config(args.config.as_deref())
+    let (cfg, config_path) = match load_config(args.config.config.as_deref())
         .and_then(|(c, p)| c.validate(&p).map(|_| (c, p)))
     {
         Ok(c) => c,

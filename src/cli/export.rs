@@ -17,6 +17,9 @@ pub(super) enum FormatArg {
 }
 
 #[derive(Debug, Args)]
+#[command(
+    mut_arg("out", |a| a.value_name("FILE").help("Output file [default: beside the recording, <stem>.<topic>.<csv|parquet>]")),
+)]
 pub(super) struct ExportArgs {
     /// The recording (`.mcap`, or the `.mcap.part` of a killed run).
     recording: PathBuf,
@@ -29,9 +32,8 @@ pub(super) struct ExportArgs {
     /// fit, design and control --frf read), or any other recorded topic.
     #[arg(long, value_name = "TOPIC", default_value = bench::jobs::export::DEFAULT_TOPIC)]
     topic: String,
-    /// Output file [default: beside the recording, <stem>.<topic>.<csv|parquet>].
-    #[arg(long, value_name = "FILE")]
-    out: Option<PathBuf>,
+    #[command(flatten)]
+    out: super::OutFlag,
     #[command(flatten)]
     job: super::JobFlags,
     #[command(flatten)]
@@ -50,7 +52,7 @@ pub(super) fn export(a: ExportArgs) -> ExitCode {
     if let Some(sock) = &a.job.daemon {
         if let Some(code) = refuse_local_only(
             &[
-                (a.out.is_some(), "--out"),
+                (a.out.out.is_some(), "--out"),
                 (a.outputs.overwrite, "--overwrite"),
             ],
             "the daemon names its table in its recordings directory",
@@ -64,17 +66,17 @@ pub(super) fn export(a: ExportArgs) -> ExitCode {
         return via_daemon(
             sock,
             &JobRequest::Export(request),
-            a.job.json,
+            a.job.json.json,
             print_summary,
         );
     }
     let dest = Destination::local(
-        Given::default().with("out", a.out.clone()),
+        Given::default().with("out", a.out.out.clone()),
         a.outputs.overwrite,
     );
     let result = plan_export(request, &dest).and_then(|opts| run_export(&opts));
     match result {
-        Ok(summary) => match emit(&summary, a.job.json, print_summary) {
+        Ok(summary) => match emit(&summary, a.job.json.json, print_summary) {
             Ok(()) => ExitCode::SUCCESS,
             Err(code) => code,
         },

@@ -2,7 +2,7 @@
 //! (`bench::jobs::fit`), and the printed summary.
 
 use super::serve::via_daemon;
-use super::{bad_input, finish, refuse_local_only, CONFIG_HELP};
+use super::{bad_input, finish, refuse_local_only};
 use bench::ident::export::{ModelForm, ModelFormat};
 use bench::ident::modal_fit::ModalFit;
 use bench::ident::update::{Parameter, Update};
@@ -37,6 +37,12 @@ enum FormatArg {
 }
 
 #[derive(Debug, Args)]
+#[command(
+    mut_arg("config", |a| a.long_help("Bench description (TOML): the loop period and the amplifier bandwidth of the fit's path model, and the start bench of --update and --frequencies [default: the config a recording holds; for a CSV the built-in Chapter 5 bench]")),
+    mut_arg("out", |a| a.value_name("FILE.toml").help("The updated bench (TOML) [default with --update: beside the input, <stem>.updated.toml; with --frequencies: none, the result is only printed]")),
+    mut_arg("png", |a| a.help("Measured vs fitted Bode figure with the pair zoom [default: beside the input, <stem>.fit.png]")),
+    mut_arg("no_plot", |a| a.conflicts_with("png")),
+)]
 pub(super) struct FitArgs {
     /// The measured FRF: a `bench chirp` CSV
     /// (frequency_hz,magnitude_m_per_a,phase_deg,coherence,sigma_m_per_a,resolution_hz,
@@ -44,8 +50,8 @@ pub(super) struct FitArgs {
     /// (`.mcap`, or the `.mcap.part` of a killed run; its /sysid/frf).
     #[arg(required_unless_present = "frequencies")]
     input: Option<PathBuf>,
-    #[arg(long, value_name = "FILE", help = CONFIG_HELP, long_help = "Bench description (TOML): the loop period and the amplifier bandwidth of the fit's path model, and the start bench of --update and --frequencies [default: the config a recording holds; for a CSV the built-in Chapter 5 bench]")]
-    config: Option<PathBuf>,
+    #[command(flatten)]
+    config: super::ConfigFlag,
     /// Update the bench's physical parameters (--free) to the measured FRF
     /// and write the updated bench as TOML (--out).
     #[arg(long, requires = "input")]
@@ -61,18 +67,12 @@ pub(super) struct FitArgs {
     /// parallelogram_stiffness_n_per_m].
     #[arg(long, value_name = "NAMES", value_delimiter = ',')]
     free: Option<Vec<String>>,
-    /// The updated bench (TOML) [default with --update: beside the input,
-    /// <stem>.updated.toml; with --frequencies: none, the result is only
-    /// printed].
-    #[arg(long, value_name = "FILE.toml")]
-    out: Option<PathBuf>,
-    /// Measured vs fitted Bode PNG with the pair zoom [default: beside the
-    /// input, <stem>.fit.png].
-    #[arg(long, value_name = "FILE.png|svg|pdf")]
-    png: Option<PathBuf>,
-    /// Write no PNG.
-    #[arg(long, conflicts_with = "png")]
-    no_plot: bool,
+    #[command(flatten)]
+    out: super::OutFlag,
+    #[command(flatten)]
+    png: super::PngFlag,
+    #[command(flatten)]
+    no_plot: super::NoPlotFlag,
     /// Export the fitted model as a continuous-time linear system, SI
     /// units: transfer function, zeros/poles/gain or state space (modal
     /// form), from the demanded current (A) to x1 (m), with the fitted
@@ -113,11 +113,11 @@ impl FitArgs {
             .transpose()?;
         Ok(FitRequest {
             input: self.input.clone(),
-            config: self.config.clone(),
+            config: self.config.config.clone(),
             update: self.update,
             frequencies_hz,
             free: self.free.clone(),
-            no_plot: self.no_plot,
+            no_plot: self.no_plot.no_plot,
             export_model: self.export_model.map(|f| match f {
                 FormArg::Tf => ModelForm::Tf,
                 FormArg::Zpk => ModelForm::Zpk,
@@ -140,8 +140,8 @@ pub(super) fn fit(a: FitArgs) -> ExitCode {
     if let Some(sock) = &a.job.daemon {
         if let Some(code) = refuse_local_only(
             &[
-                (a.out.is_some(), "--out"),
-                (a.png.is_some(), "--png"),
+                (a.out.out.is_some(), "--out"),
+                (a.png.png.is_some(), "--png"),
                 (a.model_out.is_some(), "--model-out"),
                 (a.outputs.overwrite, "--overwrite"),
             ],
@@ -156,11 +156,16 @@ pub(super) fn fit(a: FitArgs) -> ExitCode {
             config: absolute(&request.config),
             ..request
         };
-        return via_daemon(sock, &JobRequest::Fit(request), a.job.json, print_result);
+        return via_daemon(
+            sock,
+            &JobRequest::Fit(request),
+            a.job.json.json,
+            print_result,
+        );
     }
     let given = Given::default()
-        .with("png", a.png.clone())
-        .with("out", a.out.clone())
+        .with("png", a.png.png.clone())
+        .with("out", a.out.out.clone())
         .with("model_out", a.model_out.clone());
     let opts = plan_fit(request, &Destination::local(given, a.outputs.overwrite));
     let result = run_fit(&opts);
@@ -172,7 +177,7 @@ pub(super) fn fit(a: FitArgs) -> ExitCode {
         ),
         _ => None,
     };
-    let code = finish(result, a.job.json, print_result);
+    let code = finish(result, a.job.json.json, print_result);
     match flagged {
         Some(why) if code == ExitCode::SUCCESS => {
             errln!("error: bench fit: FLAGGED, not to be trusted: {why} (every file asked for is written, except an updated bench)");

@@ -446,10 +446,8 @@ pub(super) fn load_config(path: Option<&Path>) -> Result<(BenchConfig, PathBuf),
 /// how it answers and where it runs.
 #[derive(Debug, clap::Args)]
 pub(super) struct JobFlags {
-    /// Print the summary as one JSON object on stdout (its fields: the
-    /// book's reference, JSON outputs).
-    #[arg(long)]
-    pub(super) json: bool,
+    #[command(flatten)]
+    pub(super) json: JsonFlag,
     /// Submit the job to a running `bench serve` instead of running it
     /// here [SOCKET default: $XDG_RUNTIME_DIR/bench.sock, else
     /// /run/bench/bench.sock]. The daemon reads the input files (their
@@ -461,6 +459,16 @@ pub(super) struct JobFlags {
     pub(super) daemon: Option<String>,
 }
 
+/// `--json`, on every job command and on `bench campaign status` and
+/// `map`: the summary as one JSON object.
+#[derive(Debug, clap::Args)]
+pub(super) struct JsonFlag {
+    /// Print the summary as one JSON object on stdout (its fields: the
+    /// book's reference, JSON outputs).
+    #[arg(long)]
+    pub(super) json: bool,
+}
+
 /// The output flags every job command that writes files shares.
 #[derive(Debug, clap::Args)]
 pub(super) struct OutputFlags {
@@ -470,8 +478,52 @@ pub(super) struct OutputFlags {
     pub(super) overwrite: bool,
 }
 
-/// The help of every `--config`.
-pub(super) const CONFIG_HELP: &str = "Bench description (TOML) [default: the built-in Chapter 5 bench; `bench config default` prints it]";
+/// `--config`, the bench description a command reads: one flag with one
+/// short help on every command that takes it. A command whose use of the
+/// file goes further (what it reads, another default) says so in its long
+/// help (`#[command(mut_arg("config", |a| a.long_help(…)))]`).
+#[derive(Debug, clap::Args)]
+pub(super) struct ConfigFlag {
+    /// Bench description (TOML) [default: the built-in Chapter 5 bench;
+    /// `bench config default` prints it]
+    #[arg(long, value_name = "FILE")]
+    pub(super) config: Option<PathBuf>,
+}
+
+/// `--out`, where a job writes its main output: one flag on every job
+/// command that has one. Each command names the output and its default in
+/// its help (`#[command(mut_arg("out", |a| a.value_name(…).help(…)))]`);
+/// with `--daemon` it is refused (the daemon names its outputs).
+#[derive(Debug, clap::Args)]
+pub(super) struct OutFlag {
+    /// The job's main output [default: named by the job]
+    #[arg(long, value_name = "FILE")]
+    pub(super) out: Option<PathBuf>,
+}
+
+/// `--png`, where a job draws its figure: one flag on every job command
+/// that draws one (`bench chirp`, `control`, `fit`, `design`, `map`). Each
+/// command names the figure and its default in its help
+/// (`#[command(mut_arg("png", |a| a.help(…)))]`); with `--daemon` it is
+/// refused (the daemon names its outputs). `--plot`, the spelling `bench
+/// chirp` and `bench control` had, is read as `--png`.
+#[derive(Debug, clap::Args)]
+pub(super) struct PngFlag {
+    /// The figure [default: beside the main output]
+    #[arg(long, value_name = "FILE.png|svg|pdf", alias = "plot")]
+    pub(super) png: Option<PathBuf>,
+}
+
+/// `--no-plot`: write no figure, on every job whose figures are optional
+/// (`bench fit`, `design`, `analyze`); it conflicts with the command's
+/// figure paths (`#[command(mut_arg("no_plot", |a| a.conflicts_with(…)))]`).
+/// `--no-plots`, the spelling `bench analyze` had, is read as `--no-plot`.
+#[derive(Debug, clap::Args)]
+pub(super) struct NoPlotFlag {
+    /// Write no figure.
+    #[arg(long, alias = "no-plots")]
+    pub(super) no_plot: bool,
+}
 
 /// Prints a summary: one JSON object with `--json`, else the human form.
 pub(super) fn emit<T: serde::Serialize + schemars::JsonSchema>(
@@ -537,7 +589,8 @@ pub(super) fn refused_request(
 /// The flag of a run option or request field (`RunError::BadOption`'s
 /// key): `--` and the key with `-` for `_` (`frf_csv` → `--frf-csv`,
 /// `operating_point_pct` → `--operating-point-pct`), but for
-/// `frequencies_hz` (`--frequencies`), `labels` (`--label`) and the
+/// `frequencies_hz` (`--frequencies`), `labels` (`--label`), `plot`
+/// (`--png`, the figure of `bench chirp` and `control`) and the
 /// positional `input` (`""`: its value names it).
 pub(super) fn option_flag(key: &str) -> String {
     match key {
@@ -547,6 +600,8 @@ pub(super) fn option_flag(key: &str) -> String {
         "part" => "PART".into(),
         "frequencies_hz" => "--frequencies".into(),
         "labels" => "--label".into(),
+        // The figure of `bench chirp` and `control`.
+        "plot" => "--png".into(),
         key => format!("--{}", key.replace('_', "-")),
     }
 }

@@ -2,7 +2,7 @@
 //! (`bench::jobs::plot`), and the printed summary.
 
 use super::serve::via_daemon_then;
-use super::{finish, refuse_local_only, status, CONFIG_HELP};
+use super::{finish, refuse_local_only, status};
 use bench::campaign::job::plot_inputs;
 use bench::jobs::plot::{plan_plot, run_plot, PlotKind, PlotRequest, PlotSummary};
 use bench::jobs::request::JobRequest;
@@ -35,6 +35,10 @@ pub(super) enum PlotCommand {
 }
 
 #[derive(Debug, Args)]
+#[command(
+    mut_arg("config", |a| a.long_help("Bench description (TOML): the model drawn, and the loop period and amplifier bandwidth of every input's fit (as `bench fit --config`) [default: each input is fitted as `bench fit` fits it (a recording with the config it holds, a campaign's cell with the campaign's bench.toml, a CSV with the built-in Chapter 5 bench); the model is the first recording's config, else the first campaign's, else the built-in bench]")),
+    mut_arg("out", |a| a.value_name("FILE.png|svg|pdf").help("The figure [default: beside the first input, <stem>.bode-overlay.png or <stem>.nyquist-overlay.png; a campaign: DIR/bode-overlay.png]")),
+)]
 pub(super) struct PlotArgs {
     /// The FRFs: `bench chirp` CSVs, recordings (`.mcap`, `.mcap.part`:
     /// their /sysid/frf) or campaign directories (every done cell's FRF,
@@ -42,8 +46,8 @@ pub(super) struct PlotArgs {
     /// frequency grids may differ. At most 200 FRFs in all.
     #[arg(required = true, value_name = "INPUT")]
     inputs: Vec<PathBuf>,
-    #[arg(long, value_name = "FILE", help = CONFIG_HELP, long_help = "Bench description (TOML): the model drawn, and the loop period and amplifier bandwidth of every input's fit (as `bench fit --config`) [default: each input is fitted as `bench fit` fits it (a recording with the config it holds, a campaign's cell with the campaign's bench.toml, a CSV with the built-in Chapter 5 bench); the model is the first recording's config, else the first campaign's, else the built-in bench]")]
-    config: Option<PathBuf>,
+    #[command(flatten)]
+    config: super::ConfigFlag,
     /// Draw no model.
     #[arg(long)]
     no_model: bool,
@@ -56,11 +60,8 @@ pub(super) struct PlotArgs {
     /// current)", or Nyquist].
     #[arg(long, value_name = "TEXT")]
     title: Option<String>,
-    /// The figure [default: beside the first input,
-    /// <stem>.bode-overlay.png or <stem>.nyquist-overlay.png; a campaign:
-    /// DIR/bode-overlay.png].
-    #[arg(long, value_name = "FILE.png|svg|pdf")]
-    out: Option<PathBuf>,
+    #[command(flatten)]
+    out: super::OutFlag,
     #[command(flatten)]
     job: super::JobFlags,
     #[command(flatten)]
@@ -75,7 +76,7 @@ pub(super) fn plot(cmd: PlotCommand) -> ExitCode {
     let request = PlotRequest {
         kind,
         inputs: a.inputs.clone(),
-        config: a.config.clone(),
+        config: a.config.config.clone(),
         no_model: a.no_model,
         labels: (!a.label.is_empty()).then(|| a.label.clone()),
         title: a.title.clone(),
@@ -83,7 +84,7 @@ pub(super) fn plot(cmd: PlotCommand) -> ExitCode {
     if let Some(sock) = &a.job.daemon {
         if let Some(code) = refuse_local_only(
             &[
-                (a.out.is_some(), "--out"),
+                (a.out.out.is_some(), "--out"),
                 (a.outputs.overwrite, "--overwrite"),
             ],
             "the daemon writes the figure in its recordings directory",
@@ -102,7 +103,7 @@ pub(super) fn plot(cmd: PlotCommand) -> ExitCode {
         return via_daemon_then(
             sock,
             &JobRequest::Plot(request),
-            a.job.json,
+            a.job.json.json,
             print_summary,
             flagged_status,
         );
@@ -114,7 +115,7 @@ pub(super) fn plot(cmd: PlotCommand) -> ExitCode {
         Ok(i) => i,
         Err(e) => return super::run_failed(&e),
     };
-    let given = Given::default().with("out", a.out.clone());
+    let given = Given::default().with("out", a.out.out.clone());
     let opts = plan_plot(
         request,
         inputs,
@@ -122,7 +123,7 @@ pub(super) fn plot(cmd: PlotCommand) -> ExitCode {
     );
     let result = run_plot(&opts);
     let flagged = result.as_ref().ok().and_then(flagged_status);
-    let code = finish(result, a.job.json, print_summary);
+    let code = finish(result, a.job.json.json, print_summary);
     match flagged {
         Some(f) if code == ExitCode::SUCCESS => f,
         _ => code,

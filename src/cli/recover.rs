@@ -13,14 +13,18 @@ use std::process::ExitCode;
 
 /// `bench recover` arguments.
 #[derive(Debug, Args)]
-#[command(after_help = after_help())]
+#[command(
+    after_help = after_help(),
+    mut_arg("out", |a| a
+        .value_name("FILE.mcap")
+        .help("The complete recording to write (default: the name without `.part`)")
+        .long_help("The complete recording to write (default: the name without `.part`). An existing file is never replaced unless `--overwrite` is given")),
+)]
 pub struct RecoverArgs {
     /// The `.part` file a killed or failed run left (`<name>.mcap.part`).
     part: PathBuf,
-    /// The complete recording to write (default: the name without `.part`).
-    /// An existing file is never replaced unless `--overwrite` is given.
-    #[arg(long)]
-    out: Option<PathBuf>,
+    #[command(flatten)]
+    out: super::OutFlag,
     #[command(flatten)]
     job: super::JobFlags,
     #[command(flatten)]
@@ -63,7 +67,7 @@ pub fn recover(args: RecoverArgs) -> ExitCode {
     if let Some(sock) = &args.job.daemon {
         if let Some(code) = refuse_local_only(
             &[
-                (args.out.is_some(), "--out"),
+                (args.out.out.is_some(), "--out"),
                 (args.outputs.overwrite, "--overwrite"),
             ],
             "the daemon names the recovered recording in its recordings directory",
@@ -76,17 +80,17 @@ pub fn recover(args: RecoverArgs) -> ExitCode {
         return via_daemon_then(
             sock,
             &JobRequest::Recover(request),
-            args.job.json,
+            args.job.json.json,
             human,
             data_lost,
         );
     }
     let dest = Destination::local(
-        Given::default().with("out", args.out.clone()),
+        Given::default().with("out", args.out.out.clone()),
         args.outputs.overwrite,
     );
     match plan_recover(request, &dest).and_then(|opts| run_recover(&opts)) {
-        Ok(r) => match emit(&r, args.job.json, human) {
+        Ok(r) => match emit(&r, args.job.json.json, human) {
             Ok(()) => data_lost(&r).unwrap_or(ExitCode::SUCCESS),
             Err(code) => code,
         },

@@ -1,6 +1,6 @@
 //! `bench serve`, and `--daemon` (a job submitted to a running daemon).
 
-use super::{bad_input, default_recordings, emit, load_config, run_failed, status, CONFIG_HELP};
+use super::{bad_input, default_recordings, emit, load_config, run_failed, status};
 use bench::daemon::client::ClientError;
 use bench::daemon::ApiErrorKind;
 use bench::jobs::request::{parse_fault, JobRequest};
@@ -12,8 +12,8 @@ use std::process::ExitCode;
 
 #[derive(Debug, Args)]
 pub(super) struct ServeArgs {
-    #[arg(long, value_name = "FILE", help = CONFIG_HELP)]
-    config: Option<PathBuf>,
+    #[command(flatten)]
+    config: super::ConfigFlag,
     /// Socket path [default: $XDG_RUNTIME_DIR/bench.sock when that is an
     /// absolute path, else /run/bench/bench.sock, /run/bench created if
     /// missing; the `--daemon` clients use the same rule]. Its directory
@@ -223,7 +223,7 @@ pub(super) fn answer_status(kind: ApiErrorKind) -> u8 {
 }
 
 pub(super) fn serve(args: ServeArgs) -> ExitCode {
-    let (cfg, config_path) = match load_config(args.config.as_deref())
+    let (cfg, config_path) = match load_config(args.config.config.as_deref())
         .and_then(|(c, p)| c.validate(&p).map(|_| (c, p)))
     {
         Ok(c) => c,

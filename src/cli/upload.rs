@@ -64,14 +64,14 @@ pub(super) fn upload(a: UploadArgs) -> ExitCode {
         return via_daemon_then(
             sock,
             &JobRequest::Upload(request),
-            a.job.json,
+            a.job.json.json,
             print_summary,
             incomplete,
         );
     }
     let result = UploadOptions::from_request(&request).and_then(|o| upload_recordings(&o));
     match result {
-        Ok(summary) => match emit(&summary, a.job.json, print_summary) {
+        Ok(summary) => match emit(&summary, a.job.json.json, print_summary) {
             Ok(()) => incomplete(&summary).unwrap_or(ExitCode::SUCCESS),
             Err(code) => code,
         },

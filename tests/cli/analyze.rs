@@ -82,7 +82,7 @@ fn analyze_reports_modes_sequence_zeros_and_the_three_mode_test() {
             "--mass-asymmetry",
             "0",
             "--json",
-            "--no-plots",
+            "--no-plot",
         ],
         dir.path(),
     ));
@@ -162,7 +162,7 @@ fn analyze_reports_modes_sequence_zeros_and_the_three_mode_test() {
             "5",
             "--mass-asymmetry",
             "0.05",
-            "--no-plots",
+            "--no-plot",
         ],
         dir.path(),
     );

@@ -110,7 +110,7 @@ fn unwritable_outputs() {
         ("--out", "/nonexistent-dir/run.mcap".to_string()),
         ("--out", format!("{file}/run.mcap")),
         ("--frf-csv", "/nonexistent-dir/frf.csv".to_string()),
-        ("--plot", format!("{file}/bode.png")),
+        ("--png", format!("{file}/bode.png")),
     ] {
         refused(&[flag, &value], None, flag);
     }
@@ -293,7 +293,7 @@ fn help_lists_every_chirp_option() {
         "--config",
         "--out",
         "--frf-csv",
-        "--plot",
+        "--png",
         "--overwrite",
         "--realtime",
         "--pace",
@@ -328,7 +328,7 @@ fn help_lists_every_control_option() {
         "--duration-s",
         "--smooth-s",
         "--out",
-        "--plot",
+        "--png",
         "--overwrite",
         "--json",
         "--realtime",

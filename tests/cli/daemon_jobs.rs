@@ -222,10 +222,8 @@ fn fit_analyze_map_and_a_campaign_through_the_daemon_equal_the_local_runs() {
             .join("\n")
     };
     assert_eq!(
-        text(run(&[&point[..], &["--no-plots"]].concat())),
-        text(run(
-            &[&point[..], &["--no-plots", "--daemon", sock]].concat()
-        ))
+        text(run(&[&point[..], &["--no-plot"]].concat())),
+        text(run(&[&point[..], &["--no-plot", "--daemon", sock]].concat()))
     );
 
     // map: measured verdicts judged against the model, the cells CSV.
@@ -326,7 +324,7 @@ fn fit_analyze_map_and_a_campaign_through_the_daemon_equal_the_local_runs() {
             "operating_points",
         ),
         (
-            vec!["analyze", "--operating-point-pct", "25", "--no-plots"],
+            vec!["analyze", "--operating-point-pct", "25", "--no-plot"],
             "--operating-point-pct 25",
             "operating_point_pct 25",
         ),
@@ -574,28 +572,26 @@ fn every_job_kind_is_a_command_with_daemon_and_a_daemon_job() {
         ok(&o, kind);
         let help = String::from_utf8_lossy(&o.stdout);
         assert!(help.contains("--daemon [<SOCKET>]"), "bench {kind}: {help}");
-        // The shared flags are declared once: one help line each, on
-        // every command (campaign run's --daemon has its own, for the
-        // cells it keeps off the daemon's bench).
-        if kind != "campaign" {
-            for flag in ["--json", "--daemon [<SOCKET>]"] {
-                // Its help on its line, or on the next when clap wraps.
-                let lines: Vec<&str> = help.lines().collect();
-                let at = lines
-                    .iter()
-                    .position(|l| l.trim_start().starts_with(flag))
-                    .unwrap_or_else(|| panic!("bench {kind}: no {flag}: {help}"));
-                let mut words: Vec<&str> = lines[at].split_whitespace().collect();
-                if words.len() <= flag.split_whitespace().count() {
-                    words.extend(lines.get(at + 1).copied().unwrap_or("").split_whitespace());
-                }
-                let line = words.join(" ");
-                let first = shared.entry(flag).or_insert_with(|| line.clone());
-                assert_eq!(*first, line, "bench {kind}: {flag} is declared again");
+        // The shared flags are declared once: one short help each, on
+        // every command (campaign run's --daemon says more in its long
+        // help); --config on every job that reads a bench description.
+        for flag in ["--json", "--daemon [<SOCKET>]", "--config <FILE>"] {
+            // Its help on its line, or on the next when clap wraps.
+            let lines: Vec<&str> = help.lines().collect();
+            let Some(at) = lines.iter().position(|l| l.trim_start().starts_with(flag)) else {
+                assert_eq!(flag, "--config <FILE>", "bench {kind}: no {flag}: {help}");
+                continue;
+            };
+            let mut words: Vec<&str> = lines[at].split_whitespace().collect();
+            if words.len() <= flag.split_whitespace().count() {
+                words.extend(lines.get(at + 1).copied().unwrap_or("").split_whitespace());
             }
+            let line = words.join(" ");
+            let first = shared.entry(flag).or_insert_with(|| line.clone());
+            assert_eq!(*first, line, "bench {kind}: {flag} is declared again");
         }
         let r = c.call(kind, json!({ "no_such_parameter": 1 }));
         assert_eq!(r["error"]["kind"], "bad_params", "{kind}: {r}");
     }
-    assert_eq!(shared.len(), 2);
+    assert_eq!(shared.len(), 3);
 }

@@ -140,7 +140,7 @@ fn a_full_disk_stops_a_real_time_chirp_at_zero_amps_within_100_ms() {
         .arg("--out")
         .arg(&rec)
         .args(["--frf-csv", &path_in(dir.path(), "frf.csv")])
-        .args(["--plot", &path_in(dir.path(), "bode.png")])
+        .args(["--png", &path_in(dir.path(), "bode.png")])
         .args(["--backend", &emu.backend()])
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
@@ -203,7 +203,7 @@ fn a_full_disk_is_a_fault_in_virtual_time_too() {
             .args(&args)
             .arg("--out")
             .arg(&rec)
-            .args(["--plot", &path_in(dir.path(), &format!("{}.png", args[0]))])
+            .args(["--png", &path_in(dir.path(), &format!("{}.png", args[0]))])
             .output()
             .unwrap();
         assert_fault_left_part(&out, &rec);
@@ -230,7 +230,7 @@ fn a_disk_full_at_the_finish_names_the_os_cause() {
         c.args(["chirp", "--duration-s", "5", "--out"])
             .arg(rec)
             .args(["--frf-csv", &path_in(dir.path(), "frf.csv"), "--overwrite"])
-            .args(["--plot", &path_in(dir.path(), "bode.png")])
+            .args(["--png", &path_in(dir.path(), "bode.png")])
             .stdout(Stdio::null());
         c.output().unwrap()
     };

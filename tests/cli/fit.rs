@@ -522,7 +522,7 @@ fn a_fit_from_a_poor_start_ends_unflagged_at_the_model_s_verdict() {
     let o = bench()
         .arg("analyze")
         .args(bench_args)
-        .args(["--json", "--no-plots"])
+        .args(["--json", "--no-plot"])
         .output()
         .unwrap();
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));

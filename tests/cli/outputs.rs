@@ -179,8 +179,8 @@ fn three_default_runs_in_one_second_give_three_complete_recordings() {
 fn existing_outputs_are_refused_and_kept_unless_overwrite() {
     let dir = tmp();
     let d = dir.path();
-    // --out and --plot of bench control.
-    for (flag, file) in [("--out", "run.mcap"), ("--plot", "run.png")] {
+    // --out and --png of bench control.
+    for (flag, file) in [("--out", "run.mcap"), ("--png", "run.png")] {
         let path = d.join(file);
         std::fs::write(&path, b"precious").unwrap();
         let mut args = os(&["--out", "run.mcap"]);
@@ -204,7 +204,7 @@ fn existing_outputs_are_refused_and_kept_unless_overwrite() {
     // The derived default names count too: run.step.png beside run.mcap.
     std::fs::write(d.join("run.step.png"), b"precious").unwrap();
     let o = control(d, &refs(&os(&["--out", "run.mcap"])));
-    assert_refused(&o, &["--plot", "run.step.png", "derived from --out"]);
+    assert_refused(&o, &["--png", "run.step.png", "derived from --out"]);
     assert_eq!(std::fs::read(d.join("run.step.png")).unwrap(), b"precious");
     std::fs::remove_file(d.join("run.step.png")).unwrap();
     // A .part left by a killed run is a recording too.
@@ -280,7 +280,7 @@ fn special_files_are_never_replaced_even_with_overwrite() {
     for (kind, make, is, words) in kinds {
         for (flag, name) in [
             ("--out", format!("{kind}.mcap")),
-            ("--plot", format!("{kind}.png")),
+            ("--png", format!("{kind}.png")),
             ("--frf-csv", format!("{kind}.csv")),
         ] {
             let p = d.join(&name);
@@ -310,29 +310,28 @@ fn colliding_outputs_are_refused_before_the_run() {
     std::fs::create_dir(d.join("sub")).unwrap();
     // (extra arguments, the two flags the message names)
     let cases: &[(&[&str], [&str; 2])] = &[
-        (
-            &["--out", "x.mcap", "--plot", "x.mcap"],
-            ["--plot", "--out"],
-        ),
+        (&["--out", "x.mcap", "--png", "x.mcap"], ["--png", "--out"]),
         (
             &["--out", "x.mcap", "--frf-csv", "x.mcap"],
             ["--frf-csv", "--out"],
         ),
+        // --plot, the old spelling of --png, is read as it.
+        (&["--out", "x.mcap", "--plot", "x.mcap"], ["--png", "--out"]),
         (
-            &["--out", "x.mcap", "--plot", "p.png", "--frf-csv", "p.png"],
-            ["--plot", "--frf-csv"],
+            &["--out", "x.mcap", "--png", "p.png", "--frf-csv", "p.png"],
+            ["--png", "--frf-csv"],
         ),
         (
-            &["--out", "x.mcap", "--plot", "x.frf.csv"],
-            ["--plot", "default --frf-csv"],
+            &["--out", "x.mcap", "--png", "x.frf.csv"],
+            ["--png", "default --frf-csv"],
         ),
         (
             &["--out", "x.mcap", "--frf-csv", "x.bode.png"],
-            ["--frf-csv", "default --plot"],
+            ["--frf-csv", "default --png"],
         ),
         (
-            &["--out", "x.mcap", "--plot", "./x.mcap"],
-            ["--plot", "--out"],
+            &["--out", "x.mcap", "--png", "./x.mcap"],
+            ["--png", "--out"],
         ),
         (
             &["--out", "./x.mcap", "--frf-csv", "sub/../x.mcap"],
@@ -343,8 +342,8 @@ fn colliding_outputs_are_refused_before_the_run() {
             ["--frf-csv", "temporary name of the --out"],
         ),
         (
-            &["--out", "x.mcap", "--plot", "./x.mcap.part"],
-            ["--plot", "temporary name of the --out"],
+            &["--out", "x.mcap", "--png", "./x.mcap.part"],
+            ["--png", "temporary name of the --out"],
         ),
     ];
     for (args, flags) in cases {
@@ -359,13 +358,10 @@ fn colliding_outputs_are_refused_before_the_run() {
         assert_eq!(names(d), ["sub"], "{args:?}: no file left");
     }
     for (args, flags) in [
+        (["--out", "y.mcap", "--png", "./y.mcap"], ["--png", "--out"]),
         (
-            ["--out", "y.mcap", "--plot", "./y.mcap"],
-            ["--plot", "--out"],
-        ),
-        (
-            ["--out", "y.mcap", "--plot", "y.mcap.part"],
-            ["--plot", "--out"],
+            ["--out", "y.mcap", "--png", "y.mcap.part"],
+            ["--png", "--out"],
         ),
     ] {
         let o = control(d, &refs(&os(&args)));
@@ -380,7 +376,7 @@ fn a_non_utf8_out_is_refused_before_the_run() {
     let d = dir.path();
     let bad = OsStr::from_bytes(b"run-\xff\xfe.mcap");
     for cmd in ["chirp", "control"] {
-        for flag in ["--out", "--plot"] {
+        for flag in ["--out", "--png"] {
             let mut args: Vec<&OsStr> = vec![OsStr::new(flag), bad];
             if flag != "--out" {
                 args.extend([OsStr::new("--out"), OsStr::new("ok.mcap")]);
@@ -450,8 +446,8 @@ fn a_full_disk_leaves_no_csv_or_plot_under_its_final_name() {
     std::fs::create_dir(&full).unwrap();
     // 8 KiB: the FRF CSV (~22 KB) and the plot (~110 KB) do not fit.
     let _fs = Tmpfs::mount(&full, "8k");
-    for flag in ["--frf-csv", "--plot"] {
-        let target = full.join(if flag == "--plot" { "b.png" } else { "f.csv" });
+    for flag in ["--frf-csv", "--png"] {
+        let target = full.join(if flag == "--png" { "b.png" } else { "f.csv" });
         let out = d.join("run.mcap");
         let o = chirp(
             d,
@@ -705,12 +701,12 @@ fn the_other_writing_commands_never_write_over_an_input() {
         (
             "chirp --duration-s 1 --config {C}",
             "C.toml",
-            &["--frf-csv", "--plot"],
+            &["--frf-csv", "--png"],
         ),
-        ("control --slow --config {C}", "C.toml", &["--plot"]),
+        ("control --slow --config {C}", "C.toml", &["--png"]),
         // The outputs are checked before the loop check, which this toy
         // FRF fails.
-        ("control --slow --frf {X}", "X.csv", &["--plot"]),
+        ("control --slow --frf {X}", "X.csv", &["--png"]),
         (
             "analyze --config {C}",
             "C.toml",

@@ -58,7 +58,7 @@ fn fit(input: &str, config: Option<&str>) -> Value {
 /// The model's damped CMP-CNMP answer for the built-in bench with `args`
 /// (`bench analyze`).
 fn model_cnmp(args: &[&str]) -> bool {
-    let mut a = vec!["analyze", "--no-plots", "--json"];
+    let mut a = vec!["analyze", "--no-plot", "--json"];
     a.extend_from_slice(args);
     let o = run(&a);
     assert!(o.status.success(), "{}", stderr(&o));

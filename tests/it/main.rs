@@ -15,3 +15,4 @@ mod layout;
 mod loop_reference;
 mod overrun_key;
 mod plots;
+mod shared_flags;
