@@ -18,7 +18,6 @@ use std::process::ExitCode;
     mut_arg("config", |a| a.long_help("Bench description (TOML): the loop period, the amplifier, the computation delay's default and the limits, and the bench the controller is added to; its model only with --model config [default: the config the first recording holds, else the first campaign's bench.toml, else the built-in Chapter 5 bench]")),
     mut_arg("out", |a| a.value_name("FILE.toml").help("The bench config with [controller.NAME] added [default: beside the first input, <stem>.designed.toml; a campaign: DIR/designed.toml]")),
     mut_arg("png", |a| a.help("The figure: Nyquist of every input's loop with the modulus-margin circle, Bode of L and S, the worst input highlighted [default: beside --out, <stem>.png]")),
-    mut_arg("no_plot", |a| a.conflicts_with("png")),
 )]
 pub(super) struct DesignArgs {
     /// The measured FRFs: `bench chirp` CSVs, recordings (`.mcap`), or
@@ -69,9 +68,7 @@ pub(super) struct DesignArgs {
     #[command(flatten)]
     out: super::OutFlag,
     #[command(flatten)]
-    png: super::PngFlag,
-    #[command(flatten)]
-    no_plot: super::NoPlotFlag,
+    figure: super::FigureFlags,
     #[command(flatten)]
     job: super::JobFlags,
     #[command(flatten)]
@@ -91,7 +88,7 @@ impl DesignArgs {
             settling_max_s: self.settling_max_s,
             name: Some(self.name.clone()),
             model: self.model.parse::<ModelChoice>().unwrap_or_default(),
-            no_plot: self.no_plot.no_plot,
+            no_plot: self.figure.no_plot.no_plot,
         }
     }
 }
@@ -102,7 +99,7 @@ pub(super) fn design(a: DesignArgs) -> ExitCode {
         if let Some(code) = refuse_local_only(
             &[
                 (a.out.out.is_some(), "--out"),
-                (a.png.png.is_some(), "--png"),
+                (a.figure.png.png.is_some(), "--png"),
                 (a.outputs.overwrite, "--overwrite"),
             ],
             "the daemon writes its outputs in its recordings directory",
@@ -131,7 +128,7 @@ pub(super) fn design(a: DesignArgs) -> ExitCode {
     };
     let given = Given::default()
         .with("out", a.out.out.clone())
-        .with("png", a.png.png.clone());
+        .with("png", a.figure.png.png.clone());
     let opts = plan_design(
         request,
         inputs,

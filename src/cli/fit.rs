@@ -41,7 +41,6 @@ enum FormatArg {
     mut_arg("config", |a| a.long_help("Bench description (TOML): the loop period and the amplifier bandwidth of the fit's path model, and the start bench of --update and --frequencies [default: the config a recording holds; for a CSV the built-in Chapter 5 bench]")),
     mut_arg("out", |a| a.value_name("FILE.toml").help("The updated bench (TOML) [default with --update: beside the input, <stem>.updated.toml; with --frequencies: none, the result is only printed]")),
     mut_arg("png", |a| a.help("Measured vs fitted Bode figure with the pair zoom [default: beside the input, <stem>.fit.png]")),
-    mut_arg("no_plot", |a| a.conflicts_with("png")),
 )]
 pub(super) struct FitArgs {
     /// The measured FRF: a `bench chirp` CSV
@@ -70,9 +69,7 @@ pub(super) struct FitArgs {
     #[command(flatten)]
     out: super::OutFlag,
     #[command(flatten)]
-    png: super::PngFlag,
-    #[command(flatten)]
-    no_plot: super::NoPlotFlag,
+    figure: super::FigureFlags,
     /// Export the fitted model as a continuous-time linear system, SI
     /// units: transfer function, zeros/poles/gain or state space (modal
     /// form), from the demanded current (A) to x1 (m), with the fitted
@@ -117,7 +114,7 @@ impl FitArgs {
             update: self.update,
             frequencies_hz,
             free: self.free.clone(),
-            no_plot: self.no_plot.no_plot,
+            no_plot: self.figure.no_plot.no_plot,
             export_model: self.export_model.map(|f| match f {
                 FormArg::Tf => ModelForm::Tf,
                 FormArg::Zpk => ModelForm::Zpk,
@@ -141,7 +138,7 @@ pub(super) fn fit(a: FitArgs) -> ExitCode {
         if let Some(code) = refuse_local_only(
             &[
                 (a.out.out.is_some(), "--out"),
-                (a.png.png.is_some(), "--png"),
+                (a.figure.png.png.is_some(), "--png"),
                 (a.model_out.is_some(), "--model-out"),
                 (a.outputs.overwrite, "--overwrite"),
             ],
@@ -164,7 +161,7 @@ pub(super) fn fit(a: FitArgs) -> ExitCode {
         );
     }
     let given = Given::default()
-        .with("png", a.png.png.clone())
+        .with("png", a.figure.png.png.clone())
         .with("out", a.out.out.clone())
         .with("model_out", a.model_out.clone());
     let opts = plan_fit(request, &Destination::local(given, a.outputs.overwrite));

@@ -514,6 +514,17 @@ pub(super) struct PngFlag {
     pub(super) png: Option<PathBuf>,
 }
 
+/// The figure flags of a job whose one figure is optional (`bench fit`,
+/// `design`): `--png` or `--no-plot`, never both.
+#[derive(Debug, clap::Args)]
+#[command(mut_arg("no_plot", |a| a.conflicts_with("png")))]
+pub(super) struct FigureFlags {
+    #[command(flatten)]
+    pub(super) png: PngFlag,
+    #[command(flatten)]
+    pub(super) no_plot: NoPlotFlag,
+}
+
 /// `--no-plot`: write no figure, on every job whose figures are optional
 /// (`bench fit`, `design`, `analyze`); it conflicts with the command's
 /// figure paths (`#[command(mut_arg("no_plot", |a| a.conflicts_with(…)))]`).
