@@ -140,8 +140,8 @@ fn model_lines(
     frf: &DesignFrf,
     plant: &FittedPlant,
     pairs: &[LightPair],
-    delay_s: f64,
-    period_s: f64,
+    (delay_s, period_s): (f64, f64),
+    points: ModelPoints,
 ) -> (Vec<f64>, Vec<C64>) {
     let w = &frf.omega_rad_s;
     let (lo, hi) = (w[0], *w.last().expect("lines"));
@@ -173,7 +173,11 @@ fn model_lines(
         .iter()
         .map(|m| (2.0 * PI * m.frequency_hz, m.damping_ratio));
     let pair_roots = pairs.iter().flat_map(|p| [p.pole, p.zero]);
-    for (wn, z) in modes.chain(pair_roots) {
+    let across = match points {
+        ModelPoints::AcrossModes => modes.chain(pair_roots).collect(),
+        ModelPoints::GapsOnly => Vec::new(),
+    };
+    for (wn, z) in across {
         let half_width = z * wn;
         let near_a_line = |x: f64| {
             let i = w.partition_point(|v| *v < x);
@@ -250,7 +254,13 @@ pub fn bench_limit(
         report.time_s = t0.elapsed().as_secs_f64();
         return report;
     }
-    let set = program_lines(frfs, relative_sigma, plants, period_s, delay_s);
+    let set = program_lines(
+        frfs,
+        relative_sigma,
+        plants,
+        (period_s, delay_s),
+        ModelPoints::AcrossModes,
+    );
     let lines = set.lines();
     report.lines = [
         set.measured.iter().map(|f| f.0.omega_rad_s.len()).sum(),
@@ -444,21 +454,71 @@ pub struct ProgramLines {
     pub lowest_rad_s: f64,
 }
 
+/// Where a fit's points go besides the measured lines (see the module
+/// docs).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ModelPoints {
+    /// In the measurement's gaps and above its band, and across every
+    /// fitted mode and MMP pair: the limit's, and a climb's first set.
+    AcrossModes,
+    /// In the gaps and above the band only: a climb's second set (the
+    /// climb is local, and its path on these lines is another; the
+    /// certificate's dense grid of the fits judges the result either
+    /// way).
+    GapsOnly,
+}
+
+/// The two sets of lines a climb runs on, the same but for the fits'
+/// points ([`ModelPoints`]): the `limit` strategy climbs each start on
+/// both, and the certificate picks.
+#[derive(Debug, Clone)]
+pub struct ClimbLines {
+    /// With the points across every mode ([`ModelPoints::AcrossModes`]).
+    pub across_modes: ProgramLines,
+    /// With the gaps' and above-band points only ([`ModelPoints::GapsOnly`]).
+    pub gaps_only: ProgramLines,
+}
+
+impl ClimbLines {
+    /// Both sets of [`program_lines`].
+    pub fn new(
+        frfs: &[DesignFrf],
+        relative_sigma: &[Vec<f64>],
+        plants: &[FittedPlant],
+        period_and_delay_s: (f64, f64),
+    ) -> Self {
+        let set = |points| program_lines(frfs, relative_sigma, plants, period_and_delay_s, points);
+        Self {
+            across_modes: set(ModelPoints::AcrossModes),
+            gaps_only: set(ModelPoints::GapsOnly),
+        }
+    }
+
+    /// The set of `points`.
+    pub fn of(&self, points: ModelPoints) -> &ProgramLines {
+        match points {
+            ModelPoints::AcrossModes => &self.across_modes,
+            ModelPoints::GapsOnly => &self.gaps_only,
+        }
+    }
+}
+
 /// [`ProgramLines`] of `frfs` (the computation delay `delay_s` applied)
-/// and their fits `plants` at the loop period `period_s`.
+/// and their fits `plants` at the loop period `period_s`, the fits'
+/// points placed as `points` says.
 pub fn program_lines(
     frfs: &[DesignFrf],
     relative_sigma: &[Vec<f64>],
     plants: &[FittedPlant],
-    period_s: f64,
-    delay_s: f64,
+    (period_s, delay_s): (f64, f64),
+    points: ModelPoints,
 ) -> ProgramLines {
     let pairs = light_pairs(plants);
     let models: Vec<(String, Vec<f64>, Vec<C64>)> = frfs
         .iter()
         .zip(plants)
         .map(|(f, p)| {
-            let (w, h) = model_lines(f, p, &pairs, delay_s, period_s);
+            let (w, h) = model_lines(f, p, &pairs, (delay_s, period_s), points);
             (format!("the fit of {}", f.label), w, h)
         })
         .collect();
@@ -842,8 +902,8 @@ mod tests {
             std::slice::from_ref(&frf),
             &[vec![f64::NAN; 300]],
             std::slice::from_ref(&plant),
-            T,
-            T,
+            (T, T),
+            ModelPoints::AcrossModes,
         );
         let seen: Vec<(f64, f64)> = set.measured[0]
             .0

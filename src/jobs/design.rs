@@ -13,7 +13,7 @@
 
 use crate::config::{BenchConfig, BUILTIN_CONFIG_TOML};
 use crate::control::ControllerConfig;
-use crate::design::ceiling::{bench_limit, LimitReport};
+use crate::design::ceiling::{bench_limit, ClimbLines, LimitReport};
 use crate::design::fitted::FittedPlant;
 use crate::design::limit::loop_performance_bandwidth_rad_s;
 use crate::design::loops::LoopFigures;
@@ -758,16 +758,15 @@ impl Measured {
         let (frfs, sigma, plants) = (&self.frfs, &self.relative_sigma, &self.plants);
         crate::design::ClimbInputs {
             effort_max_a_per_m,
-            lines: crate::design::ceiling::program_lines(frfs, sigma, plants, period_s, delay_s),
+            lines: ClimbLines::new(frfs, sigma, plants, (period_s, delay_s)),
             computation_delay_s: delay_s,
             nominal: crate::design::nominal_input(plants, s_max).map(|k| crate::design::Nominal {
                 input: k,
-                lines: crate::design::ceiling::program_lines(
+                lines: ClimbLines::new(
                     &frfs[k..=k],
                     &sigma[k..=k],
                     &plants[k..=k],
-                    period_s,
-                    delay_s,
+                    (period_s, delay_s),
                 ),
             }),
         }
