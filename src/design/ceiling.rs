@@ -23,6 +23,11 @@
 //! found |S| 1.48 that the climb's lines read as 1.27; over the README
 //! chirp's seeds 1–8 the design reached 0.72 of the limit on average
 //! before, 0.83 with them (and [`super::fixed_order::ABOVE_EDGE_DAMPING`]).
+//! The `limit` strategy climbs on these lines and, a second time, on the
+//! same lines without the points across the modes ([`ModelPoints`],
+//! [`ClimbLines`]): the climb is local and takes another path there (the
+//! 20-cell campaign of `benches/design-time.sh`: 0.79 of its limit
+//! across the modes, 1.01 without).
 //! (The same points across every lightly damped zero of the fits, not
 //! only the pairs', made the climb stall on the shipped bench, 0.75 of its
 //! limit against 0.87, and across each input's own pairs the 20-cell

@@ -112,8 +112,8 @@ pub enum Strategy {
     Slow,
     /// Bandwidth above it (§6.1.2).
     Fast,
-    /// A fixed-order controller climbed from the best of the others
-    /// towards the limit by convex steps on every line
+    /// A fixed-order controller climbed from the others (the widest ω_B
+    /// first) towards the limit by convex steps on every line
     /// ([`fixed_order`]).
     Limit,
     /// Every strategy; the one that meets the margins with the highest
