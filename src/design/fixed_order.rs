@@ -1325,24 +1325,16 @@ mod tests {
     use super::*;
     use crate::design::ceiling::LightPair;
 
-    /// The climb returns the best judged iterate, not the last: `judge`
-    /// (the certificate on the dense grid, in the design) sees the start
-    /// and every iterate that raises the robust ω* on the program's
-    /// lines, and the controller returned is the one it rated highest,
-    /// whichever came last (on held-out b one climb's sixth step gained on
-    /// its lines and lost between them). A two-mode bench (25 and 80 Hz)
-    /// measured exactly, a slow start; three judges on the same climb (the
-    /// climb's path does not depend on them): each iterate better than the
-    /// one before, the first iterate best, and only the start certified.
-    #[test]
-    fn the_climb_returns_the_best_judged_iterate_not_the_last() {
+    /// A two-mode bench (25 and 80 Hz, 5 kHz) measured exactly on 300
+    /// lines to 400 Hz: the climb's lines, the design's requirements
+    /// (40°, 6 dB, M = 2) and the limit's bounds (9.98 A over a 10 µm
+    /// step).
+    fn two_mode_bench(t: f64) -> (ProgramLines, Requirements, LoopBounds) {
         use crate::design::ceiling::program_lines;
         use crate::design::fitted::test_support::{fit, mode};
         use crate::design::fitted::FittedPlant;
         use crate::design::loops::DesignFrf;
         use crate::ident::modal_fit::Path;
-        use std::sync::Mutex;
-        let t = 2e-4;
         let f = fit(
             vec![mode(25.0, 0.01, 10.0), mode(80.0, 0.004, 3.0)],
             0.0,
@@ -1374,17 +1366,80 @@ mod tests {
             (t, t),
             crate::design::ceiling::ModelPoints::AcrossModes,
         );
-        let start = slow_start(0.001, 30.0);
         let req = Requirements {
             phase_margin_min_deg: 40.0,
             gain_margin_min_db: 6.0,
             sensitivity_peak_max: 2.0,
         };
         let bounds = set.bounds(LoopBounds::effort_for_step(9.98, 1e-5));
+        (set, req, bounds)
+    }
+
+    /// A start that no gain back-off brings within the robust constraints
+    /// (here 10⁴ times the gain that climbs: unstable at 0.45 of it too)
+    /// climbs from itself, unchanged, when the certificate passes it (the
+    /// judge, first called on the start, rates it), and is refused, with
+    /// the reason, when the certificate does not.
+    #[test]
+    fn a_start_no_back_off_fits_climbs_when_certified_and_is_refused_when_not() {
+        let t = 2e-4;
+        let (set, req, bounds) = two_mode_bench(t);
+        let start = slow_start(10.0, 30.0);
+        let first_judged = std::sync::Mutex::new(None);
+        let certified = |c: &ControllerConfig| {
+            first_judged
+                .lock()
+                .unwrap()
+                .get_or_insert_with(|| c.clone());
+            50.0
+        };
+        let r = climb(
+            &set,
+            (&start, Variable::Delay),
+            t,
+            t,
+            req,
+            bounds,
+            &certified,
+        )
+        .unwrap();
+        assert_eq!(r.start_bandwidth_rad_s, 0.0);
+        let first = first_judged.into_inner().unwrap().unwrap();
+        // The start as given: its gain at 100 rad/s as the start's, not
+        // backed off (0.98ⁿ).
+        let at = |c: &ControllerConfig| {
+            DiscreteController::new(c, t, f64::INFINITY)
+                .response(100.0, t)
+                .norm()
+        };
+        let ratio = at(&first) / at(&start);
+        assert!(
+            (ratio - 1.0).abs() < 1e-6,
+            "the start judged at {ratio} of its gain"
+        );
+        let refused = |_: &ControllerConfig| f64::NEG_INFINITY;
+        let e = climb(&set, (&start, Variable::Delay), t, t, req, bounds, &refused).unwrap_err();
+        assert!(e.contains("the certificate does not pass it"), "{e}");
+    }
+
+    /// The climb returns the best judged iterate, not the last: `judge`
+    /// (the certificate on the dense grid, in the design) sees the start
+    /// and every iterate that raises the robust ω* on the program's
+    /// lines, and the controller returned is the one it rated highest,
+    /// whichever came last (on held-out b one climb's sixth step gained on
+    /// its lines and lost between them). A two-mode bench (25 and 80 Hz)
+    /// measured exactly, a slow start; three judges on the same climb (the
+    /// climb's path does not depend on them): each iterate better than the
+    /// one before, the first iterate best, and only the start certified.
+    #[test]
+    fn the_climb_returns_the_best_judged_iterate_not_the_last() {
+        let t = 2e-4;
+        let (set, req, bounds) = two_mode_bench(t);
+        let start = slow_start(0.001, 30.0);
         // The climb with `value(k)` for the k-th controller judged: what
         // it returns, and every controller judged, in order.
         let run = |value: &(dyn Fn(usize) -> f64 + Sync)| {
-            let seen = Mutex::new(Vec::new());
+            let seen = std::sync::Mutex::new(Vec::new());
             let judge = |c: &ControllerConfig| {
                 let mut s = seen.lock().unwrap();
                 s.push(c.clone());
