@@ -972,26 +972,8 @@ pub fn climb(
     let as_config = |p: &Polynomials| config_unscaled(p, scale, period_s);
     let mut judged_best: Option<(f64, ControllerConfig, f64)> =
         as_config(&cur).ok().map(|c| (judge(&c), c, start_w));
-    // A start that misses the robust constraints at every gain it was
-    // backed off to, but that the certificate passes, climbs from where it
-    // is, its certified ω* the first target: the steps lower γ from it as
-    // at any target not yet met. (A fast design's lead sits at its
-    // crossover: backing its gain off moves the crossover below the lead
-    // and |T| there rises. README chirp, seed 5: |T| 1.48 at 223 rad/s
-    // where the phase margin asks ≤ 1.43, and 1.60 with the gain at
-    // 0.45; its climb then started from the slow design and stopped at
-    // 0.72 of the limit.)
     let certified_start = judged_best.as_ref().map_or(f64::NEG_INFINITY, |j| j.0);
-    let mut target = if start_w > 0.0 {
-        start_w * (1.0 + GROWTH)
-    } else if certified_start.is_finite() && certified_start > 0.0 {
-        certified_start
-    } else {
-        return Err(format!(
-            "the start ({}) does not meet the robust constraints (|W_P S| + w_I |T| ≤ 1, |T| ≤ {t_pm:.2}) at any ω*, nor with its gain backed off {START_BACK_OFF_STEPS} times by 2 %, and the certificate does not pass it",
-            start.description
-        ));
-    };
+    let mut target = first_target(start_w, certified_start, &start.description, t_pm)?;
     // At a fixed target every step lowers γ (the inner approximation
     // holds the current controller); the target rises when γ ≤ 1 and
     // falls halfway back to the best ω* when the steps stall.
@@ -1093,6 +1075,36 @@ pub fn climb(
         start_bandwidth_rad_s: start_w,
         steps,
     })
+}
+
+/// The climb's first target from the start's robust ω* on the lines
+/// (`start_w`, after any back-off; ≤ 0: none) and its certified ω*
+/// (`certified_start`, −∞: the certificate fails it): 15 % above the
+/// robust ω*; where there is none, the certified ω*, the steps lowering γ
+/// from it as at any target not yet met; when neither, why not (the
+/// start named by its `description`, `t_pm` the bound on |T|).
+///
+/// (A fast design's lead sits at its crossover: backing its gain off
+/// moves the crossover below the lead, and |T| there rises. README chirp,
+/// seed 5: |T| 1.48 at 223 rad/s where the phase margin asks ≤ 1.43, and
+/// 1.60 with the gain at 0.45; its climb then started from the slow
+/// design and stopped at 0.72 of the limit, where from the fast design as
+/// it is it reaches 0.91.)
+fn first_target(
+    start_w: f64,
+    certified_start: f64,
+    description: &str,
+    t_pm: f64,
+) -> Result<f64, String> {
+    if start_w > 0.0 {
+        Ok(start_w * (1.0 + GROWTH))
+    } else if certified_start.is_finite() && certified_start > 0.0 {
+        Ok(certified_start)
+    } else {
+        Err(format!(
+            "the start ({description}) does not meet the robust constraints (|W_P S| + w_I |T| ≤ 1, |T| ≤ {t_pm:.2}) at any ω*, nor with its gain backed off {START_BACK_OFF_STEPS} times by 2 %, and the certificate does not pass it"
+        ))
+    }
 }
 
 /// The lines outside `active` that a step failed (`g`, each line's γ)

@@ -831,25 +831,7 @@ fn limit_attempt(
             "the climb needs the limit's lines (each input's and its fit's)".into(),
         );
     };
-    // The certified starts, one after the other; the next only if the
-    // climbs of the one before give nothing (each climb is seconds of cone
-    // programs).
-    let mut starts: Vec<&Attempt> = starts
-        .iter()
-        .copied()
-        .filter(|a| a.evaluation.feasible())
-        .collect();
-    // The widest ω_B first: the climb raises a start's low-frequency gain
-    // a step at a time, but rarely builds the notch and lead that carry
-    // a fast design's crossover. (By ω*, the README chirp of seed 3 started
-    // from the slow design, ω* 18.2 against the fast one's 13.9, whose
-    // ω_B is 346 rad/s: its climbs stopped at 301 rad/s on the fit, 0.71
-    // of the limit on the true plant, where the fast design's reach 372.)
-    starts.sort_by(|a, b| {
-        b.evaluation
-            .sensitivity_bandwidth_min_rad_s
-            .total_cmp(&a.evaluation.sensitivity_bandwidth_min_rad_s)
-    });
+    let starts = ranked_starts(starts);
     let nominal = nominal.filter(|a| a.evaluation.feasible());
     if starts.is_empty() && nominal.is_none() {
         return refused(
@@ -976,6 +958,29 @@ fn limit_attempt(
         results.extend(pair);
     }
     limit_outcome(&results)
+}
+
+/// The certified starts of the climb, in the order they are climbed (the
+/// next only if the climbs of the one before give nothing: each climb is
+/// seconds of cone programs): the widest ω_B first. The climb raises a
+/// start's low-frequency gain a step at a time, but rarely builds the
+/// notch and lead that carry a fast design's crossover. (By ω*, the
+/// README chirp of seed 3 started from the slow design, ω* 18.2 against
+/// the fast one's 13.9, whose ω_B is 346 rad/s: its climbs stopped at 301
+/// rad/s on the fit, 0.71 of the limit on the true plant, where the fast
+/// design's reach 372.)
+fn ranked_starts<'a>(starts: &[&'a Attempt]) -> Vec<&'a Attempt> {
+    let mut starts: Vec<&Attempt> = starts
+        .iter()
+        .copied()
+        .filter(|a| a.evaluation.feasible())
+        .collect();
+    starts.sort_by(|a, b| {
+        b.evaluation
+            .sensitivity_bandwidth_min_rad_s
+            .total_cmp(&a.evaluation.sensitivity_bandwidth_min_rad_s)
+    });
+    starts
 }
 
 /// A climb from one start, named by the start: the climbed controller and
