@@ -883,6 +883,22 @@ mod tests {
         s / (2.0 * PI)
     }
 
+    /// Modes at 25 Hz (ζ 1 %) and 80 Hz (ζ 0.4 %) with the zero the two
+    /// make (an MMP pair with the 80 Hz mode), measured exactly: the
+    /// input, its fit, and the zero (Hz, s/2π).
+    fn mmp_pair_bench() -> (DesignFrf, FittedPlant, C64) {
+        let m = [(25.0, 0.01, 10.0), (80.0, 0.004, 1.0)];
+        let mut f = fit(
+            m.iter().map(|&(h, z, a)| mode(h, z, a)).collect(),
+            0.0,
+            0.5 * T,
+        );
+        let zero = two_mode_zero_hz(m);
+        f.zeros = vec![zero_at(zero)];
+        let (frf, plant) = measured(&f);
+        (frf, plant, zero)
+    }
+
     /// An MMP pair narrower than the measured lines' spacing (ζ = 0.4 %:
     /// a half-power half-width of 0.32 Hz at 80 Hz and of 0.31 Hz at its
     /// zero near 76.6 Hz, where the lines are 1.7 Hz apart) is sampled by
@@ -893,16 +909,8 @@ mod tests {
     /// 0.71 dB off (the peak, which the modes' seven points cover, 0.03).
     #[test]
     fn the_programs_lines_see_an_mmp_pair_between_lines() {
-        let m = [(25.0, 0.01, 10.0), (80.0, 0.004, 1.0)];
-        let mut f = fit(
-            m.iter().map(|&(h, z, a)| mode(h, z, a)).collect(),
-            0.0,
-            0.5 * T,
-        );
-        let zero = two_mode_zero_hz(m);
+        let (frf, plant, zero) = mmp_pair_bench();
         assert!(zero.re < 0.0 && zero.im > 76.0 && zero.im < 77.0, "{zero}");
-        f.zeros = vec![zero_at(zero)];
-        let (frf, plant) = measured(&f);
         let set = program_lines(
             std::slice::from_ref(&frf),
             &[vec![f64::NAN; 300]],
@@ -952,14 +960,7 @@ mod tests {
     /// set has at least 8 more.
     #[test]
     fn the_two_sets_differ_only_by_the_points_across_the_modes() {
-        let m = [(25.0, 0.01, 10.0), (80.0, 0.004, 1.0)];
-        let mut f = fit(
-            m.iter().map(|&(h, z, a)| mode(h, z, a)).collect(),
-            0.0,
-            0.5 * T,
-        );
-        f.zeros = vec![zero_at(two_mode_zero_hz(m))];
-        let (frf, plant) = measured(&f);
+        let (frf, plant, _) = mmp_pair_bench();
         let sets = ClimbLines::new(
             std::slice::from_ref(&frf),
             &[vec![f64::NAN; 300]],

@@ -903,7 +903,8 @@ fn limit_attempt(
     // Two climbs per start, side by side, in the variables that climbed
     // furthest ([`fixed_order::Variable`]): with the fits' MMP pairs to
     // cancel, the plain start in z⁻¹ and the cancelled one in 1 − z⁻¹;
-    // without, the plain start in both. The families' starts in turn
+    // without, the plain start in both; each pair on both sets of lines
+    // ([`ceiling::ClimbLines`]), four climbs. The families' starts in turn
     // until one gives a certified controller. Then a workspace's nominal
     // input's own design (its structure names it), if it already does
     // better on every input than the families' climbs
@@ -934,28 +935,29 @@ fn limit_attempt(
         } else {
             format!("{} design", a.strategy)
         };
+        // The second climb: the cancelled start, or the plain one again.
         let cancelled = fixed_order::cancelling(plain, &y.lines.across_modes.pairs, period_s);
-        let name = format!("{plain_name} with the fits' MMP pairs cancelled");
-        let pair = |points| match &cancelled {
-            Some(cancelled) => rayon::join(
+        let cancelled_name = format!("{plain_name} with the fits' MMP pairs cancelled");
+        let (second_name, second) = match &cancelled {
+            Some(c) => (&cancelled_name, c),
+            None => (&plain_name, plain),
+        };
+        let climb_pair = |points| {
+            rayon::join(
                 || climb_in(&plain_name, plain, Delay, points),
-                || climb_in(&name, cancelled, Difference, points),
-            ),
-            None => rayon::join(
-                || climb_in(&plain_name, plain, Delay, points),
-                || climb_in(&plain_name, plain, Difference, points),
-            ),
+                || climb_in(second_name, second, Difference, points),
+            )
         };
         let ((r, c), (r_gaps, c_gaps)) = rayon::join(
-            || pair(ceiling::ModelPoints::AcrossModes),
-            || pair(ceiling::ModelPoints::GapsOnly),
+            || climb_pair(ceiling::ModelPoints::AcrossModes),
+            || climb_pair(ceiling::ModelPoints::GapsOnly),
         );
-        let pair = [r, c, r_gaps, c_gaps];
-        let gave = pair
+        let climbs = [r, c, r_gaps, c_gaps];
+        let gave = climbs
             .iter()
             .any(|(_, r)| matches!(r, Ok((_, e)) if e.feasible()));
         family_done |= gave && !is_nominal;
-        results.extend(pair);
+        results.extend(climbs);
     }
     limit_outcome(&results)
 }
