@@ -139,13 +139,13 @@ pub struct LimitReport {
     pub time_s: f64,
 }
 
-/// The fits' model lines of one input (module docs), with the delay
-/// `delay_s`: `(ω, P)`.
+/// The fits' model lines of one input (module docs), at the loop period
+/// `period_s` with the delay `delay_s`: `(ω, P)`.
 fn model_lines(
     frf: &DesignFrf,
     plant: &FittedPlant,
     pairs: &[LightPair],
-    (delay_s, period_s): (f64, f64),
+    (period_s, delay_s): (f64, f64),
     points: ModelPoints,
 ) -> (Vec<f64>, Vec<C64>) {
     let w = &frf.omega_rad_s;
@@ -208,18 +208,19 @@ fn model_lines(
 }
 
 /// The limit of the inputs `frfs` (coherent lines, computation delay
-/// applied; `relative_sigma` the 1σ of each line relative to |P|, NaN
-/// unknown) and their fits `plants` (same order), for a loop of
-/// `period_s` with the computation delay `delay_s` and `M = s_max`.
-/// Where a line's noise cannot resolve the bound on |S| the fit stands in
-/// for it ([`super::limit::NOISE_RESOLUTION`]). Never fails: what
-/// prevents a limit is reported in `not_computed`.
+/// applied) and their fits `plants` (same order) on their program lines
+/// `set` (the [`program_lines`] of both with the fits' points across
+/// every mode, [`ModelPoints::AcrossModes`]: the set a climb's first
+/// climbs run on, [`ClimbLines::across_modes`]), for a loop of
+/// `period_s` and `M = s_max`. Where a line's noise cannot resolve the
+/// bound on |S| the fit stands in for it
+/// ([`super::limit::NOISE_RESOLUTION`]). Never fails: what prevents a
+/// limit is reported in `not_computed`.
 pub fn bench_limit(
     frfs: &[DesignFrf],
-    relative_sigma: &[Vec<f64>],
     plants: &[FittedPlant],
+    set: &ProgramLines,
     period_s: f64,
-    delay_s: f64,
     s_max: f64,
     effort_max_a_per_m: f64,
 ) -> LimitReport {
@@ -259,13 +260,6 @@ pub fn bench_limit(
         report.time_s = t0.elapsed().as_secs_f64();
         return report;
     }
-    let set = program_lines(
-        frfs,
-        relative_sigma,
-        plants,
-        (period_s, delay_s),
-        ModelPoints::AcrossModes,
-    );
     let lines = set.lines();
     report.lines = [
         set.measured.iter().map(|f| f.0.omega_rad_s.len()).sum(),
@@ -523,7 +517,7 @@ pub fn program_lines(
         .iter()
         .zip(plants)
         .map(|(f, p)| {
-            let (w, h) = model_lines(f, p, &pairs, (delay_s, period_s), points);
+            let (w, h) = model_lines(f, p, &pairs, (period_s, delay_s), points);
             (format!("the fit of {}", f.label), w, h)
         })
         .collect();
@@ -746,6 +740,21 @@ mod tests {
         )
     }
 
+    /// [`bench_limit`] of one exactly measured input `frf` and its fit
+    /// `plant` at the period and delay `T`, M = 2, on the lines of both
+    /// with the relative 1σ `sigma` (one per line) and the effort bound
+    /// `effort_a_per_m`.
+    fn limit_of(
+        frf: &DesignFrf,
+        plant: &FittedPlant,
+        sigma: Vec<f64>,
+        effort_a_per_m: f64,
+    ) -> LimitReport {
+        let (frfs, plants) = (std::slice::from_ref(frf), std::slice::from_ref(plant));
+        let set = program_lines(frfs, &[sigma], plants, (T, T), ModelPoints::AcrossModes);
+        bench_limit(frfs, plants, &set, T, 2.0, effort_a_per_m)
+    }
+
     /// The limit of a two-mode bench (25 and 80 Hz) measured exactly
     /// ([`measured`]), with its lines' relative 1σ `sigma` (one value for
     /// all 300) and the effort bound `effort_a_per_m`; the plant too.
@@ -756,15 +765,7 @@ mod tests {
             0.5 * T,
         );
         let (frf, plant) = measured(&f);
-        let r = bench_limit(
-            std::slice::from_ref(&frf),
-            &[vec![sigma; 300]],
-            std::slice::from_ref(&plant),
-            T,
-            T,
-            2.0,
-            effort_a_per_m,
-        );
+        let r = limit_of(&frf, &plant, vec![sigma; 300], effort_a_per_m);
         (r, plant)
     }
 
@@ -782,16 +783,8 @@ mod tests {
         f.lower_residual = 2.0;
         f.lower_residual_sigma = 0.01;
         let (frf, plant) = measured(&f);
-        let sigma = vec![vec![f64::NAN; 300]];
-        let r = bench_limit(
-            std::slice::from_ref(&frf),
-            &sigma,
-            std::slice::from_ref(&plant),
-            T,
-            T,
-            2.0,
-            f64::INFINITY,
-        );
+        let sigma = vec![f64::NAN; 300];
+        let r = limit_of(&frf, &plant, sigma.clone(), f64::INFINITY);
         assert_eq!(r.performance_bandwidth_rad_s, None);
         let why = r.not_computed.unwrap();
         assert!(
@@ -807,15 +800,7 @@ mod tests {
         let z = C64::new(2.0, 83.0);
         f.zeros = vec![zero_at(z)];
         let (frf, plant) = measured(&f);
-        let r = bench_limit(
-            std::slice::from_ref(&frf),
-            &sigma,
-            std::slice::from_ref(&plant),
-            T,
-            T,
-            2.0,
-            f64::INFINITY,
-        );
+        let r = limit_of(&frf, &plant, sigma.clone(), f64::INFINITY);
         let bound = super::super::limit::rhp_zero_bound_rad_s(z * (2.0 * PI), 2.0).unwrap();
         assert_eq!(r.rhp_zeros.len(), 1);
         assert!((r.rhp_zeros[0].bound_rad_s - bound).abs() < 1e-9 * bound);

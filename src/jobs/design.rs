@@ -846,10 +846,9 @@ impl Measured {
             let limit = scope.spawn(|| {
                 bench_limit(
                     &self.frfs,
-                    &self.relative_sigma,
                     &self.plants,
+                    &climb.lines.across_modes,
                     period_s,
-                    spec.computation_delay_s,
                     spec.requirements.sensitivity_peak_max,
                     climb.effort_max_a_per_m,
                 )
