@@ -473,7 +473,14 @@ pub fn fit(data: &FrfData, path: &Path) -> Result<ModalFit, FitError> {
     // trial grid (the unrefined option of `add_mode`) gets its own
     // frequency and damping here, or the quality check says it did not.
     let current = sorted(refine(&prep, &current, period_s));
-    let mut fitted = summarise(&prep, data, &current, period_s);
+    // The variances estimated from few realisations: each line weighted
+    // as the Student t its residual over σ̂ is (issue 45, item 1). The
+    // model order above is the search's, on the variances as if known.
+    let (fitted_prep, estimate) = match student_t(&prep, &current, period_s) {
+        Some((robust, p)) => (robust, p),
+        None => (prep.clone(), current.clone()),
+    };
+    let mut fitted = summarise(&fitted_prep, data, &estimate, period_s);
     if let Some(m) = undecided(&prep, &data.frequency_hz, &current, period_s) {
         if fitted.labels_unsure.is_none() {
             fitted.labels_unsure = near_the_pair(&fitted, &m);

@@ -172,6 +172,91 @@ pub(crate) fn weight_scatter(j: &DMatrix<f64>, dof: &[f64]) -> Option<DMatrix<f6
     Some(b)
 }
 
+/// The Student-t weight `uₖ = (dₖ + 2)/(dₖ + |eₖ|²)` of each line at
+/// `p`: `eₖ` the line's residual in the estimated standard deviations
+/// ([`Prepared::cost`]'s), `dₖ` its variance's effective degrees of
+/// freedom ([`Weights::dof`]; `uₖ = 1` where known). It is the
+/// iteratively reweighted least-squares weight of the likelihood of `eₖ`
+/// with `σ̂ₖ²` of `dₖ` degrees of freedom for its variance: the complex
+/// residual over `σ̂ₖ` is a bivariate Student t of `dₖ` degrees of
+/// freedom (`|eₖ|²/2 ~ F(2, dₖ)`), whose negative log-likelihood is
+/// `(dₖ + 2)/2 · ln(1 + |eₖ|²/dₖ)` (Lange, Little & Taylor, *Robust
+/// statistical modeling using the t distribution*, JASA 84, 1989, §3;
+/// Pintelon & Schoukens 2012, §10.3, for the sample variances).
+pub(super) fn student_t_weights(prep: &Prepared, p: &Params) -> Vec<f64> {
+    (0..prep.len())
+        .map(|k| {
+            let d = prep.dof[k];
+            if d.is_finite() {
+                let e2 = ((prep.model(k, p) - prep.h[k]) * prep.scale[k]).norm_sqr();
+                (d + 2.0) / (d + e2)
+            } else {
+                1.0
+            }
+        })
+        .collect()
+}
+
+/// The bread `A = Σₖ dₖ/(dₖ + 2) · JₖᵀJₖ` of the Student-t estimate's
+/// sandwich covariance `A⁻¹ (JᵀJ) A⁻¹`, for `j` the Jacobian of the
+/// residuals weighted by `√uₖ` ([`student_t_weights`]; rows `2k`, `2k + 1`
+/// for line `k`) and `dof` each line's degrees of freedom.
+///
+/// With `r` the line's residual in the true standard deviations and
+/// `W = dₖσ̂²/σ² ~ χ²_d` independent of it, the estimating function is
+/// `Gᵀ(d + 2) r/(W + |r|²)` (`G` the known-variance Jacobian).
+/// `T = W + |r|² ~ χ²_{d+2}` is independent of `r₁²/T ~ Beta(½, (d + 1)/2)`,
+/// so its slope is `E[(d + 2)(1/T − 2r₁²/T²)] = 1` and its variance
+/// `(d + 2)² E[r₁²/T²] = (d + 2)/d`: the covariance is `(d + 2)/d ·
+/// (GᵀG)⁻¹`, against `(d − 2)/(d − 4)` for weights `1/σ̂²` ([`weight_scatter`];
+/// 4/3 against 2 at the default multisine's d = 6). `GᵀG` is estimated
+/// by `d/(d + 2) · JᵀJ`, as `E[uₖ σ²/σ̂ₖ²] = E[(d + 2)/T] = (d + 2)/d`.
+pub(crate) fn student_t_bread(j: &DMatrix<f64>, dof: &[f64]) -> DMatrix<f64> {
+    let mut a = DMatrix::zeros(j.ncols(), j.ncols());
+    for (k, d) in dof.iter().enumerate() {
+        let x = if d.is_finite() { d / (d + 2.0) } else { 1.0 };
+        let rows = j.rows(2 * k, 2);
+        a += (rows.transpose() * rows) * x;
+    }
+    a
+}
+
+/// The Student-t estimate from `start` (an estimate weighted by the
+/// variances as if known): the refinement reweighted by
+/// [`student_t_weights`] until no weight moves by 10⁻⁴ (at most
+/// [`STUDENT_T_ROUNDS`] rounds), and the prepared data carrying the final
+/// weights ([`Prepared::student`], for its covariance). `None` when no
+/// line's variance is estimated (then the start is the estimate).
+pub(super) fn student_t<'a>(
+    prep: &Prepared<'a>,
+    start: &Params,
+    period_s: f64,
+) -> Option<(Prepared<'a>, Params)> {
+    if !prep.noise_estimated || prep.dof.iter().all(|d| !d.is_finite()) {
+        return None;
+    }
+    let mut p = start.clone();
+    let mut robust = prep.clone();
+    robust.student = Some(student_t_weights(prep, &p));
+    for _ in 0..STUDENT_T_ROUNDS {
+        p = super::search::sorted(refine(&robust, &p, period_s));
+        let u = student_t_weights(prep, &p);
+        let moved = u
+            .iter()
+            .zip(robust.student.as_deref().unwrap_or_default())
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0, f64::max);
+        robust.student = Some(u);
+        if moved < 1e-4 {
+            break;
+        }
+    }
+    Some((robust, p))
+}
+
+/// The most reweighting rounds of [`student_t`].
+pub(super) const STUDENT_T_ROUNDS: usize = 30;
+
 /// The weights of [`weights`].
 #[derive(Debug, Clone)]
 pub struct Weights {
@@ -193,6 +278,7 @@ pub struct Weights {
 }
 
 /// Precomputed per-point data.
+#[derive(Clone)]
 pub(super) struct Prepared<'a> {
     pub(super) w: Vec<f64>,
     pub(super) h: &'a [C64],
@@ -208,6 +294,11 @@ pub(super) struct Prepared<'a> {
     pub(super) least_dof: Option<f64>,
     pub(super) gain: Vec<C64>,
     pub(super) coherent: Vec<bool>,
+    /// The Student-t weight `uₖ` of each line ([`student_t_weights`]),
+    /// by which the refinement's objective multiplies the line's squared
+    /// residual; `None`: every `uₖ = 1`, the estimated variances taken as
+    /// known (the search's objective).
+    pub(super) student: Option<Vec<f64>>,
 }
 
 impl<'a> Prepared<'a> {
@@ -232,7 +323,25 @@ impl<'a> Prepared<'a> {
             least_dof,
             gain,
             coherent,
+            student: None,
         }
+    }
+
+    /// The weight of line `k` in the refinement's objective: `scale[k]`
+    /// times `√uₖ` under [`Self::student`].
+    pub(super) fn fit_scale(&self, k: usize) -> f64 {
+        match &self.student {
+            Some(u) => self.scale[k] * u[k].sqrt(),
+            None => self.scale[k],
+        }
+    }
+
+    /// The refinement's objective `Σₖ uₖ|eₖ|²` ([`Self::cost`] without
+    /// [`Self::student`]).
+    pub(super) fn objective(&self, p: &Params) -> f64 {
+        (0..self.len())
+            .map(|k| ((self.model(k, p) - self.h[k]) * self.fit_scale(k)).norm_sqr())
+            .sum()
     }
 
     pub(super) fn len(&self) -> usize {
@@ -281,10 +390,10 @@ impl<'a> Prepared<'a> {
         let mut rhs = DVector::<f64>::zeros(p);
         let mut row = Vec::with_capacity(p);
         for k in range.clone() {
-            let d = self.d(k, tau_s) * self.scale[k];
+            let d = self.d(k, tau_s) * self.fit_scale(k);
             self.basis(k, f_hz, zeta, &mut row);
             row.iter_mut().for_each(|c| *c *= d);
-            let t = self.h[k] * self.scale[k];
+            let t = self.h[k] * self.fit_scale(k);
             for i in 0..p {
                 let ci = row[i].conj();
                 rhs[i] += (ci * t).re;
@@ -318,10 +427,10 @@ impl<'a> Prepared<'a> {
         let coef: Vec<f64> = x.iter().zip(&norms).map(|(v, n)| v / n).collect();
         let mut cost = 0.0;
         for k in range {
-            let d = self.d(k, tau_s) * self.scale[k];
+            let d = self.d(k, tau_s) * self.fit_scale(k);
             self.basis(k, f_hz, zeta, &mut row);
             let m: C64 = row.iter().zip(&coef).map(|(c, x)| c * x).sum();
-            cost += (m * d - self.h[k] * self.scale[k]).norm_sqr();
+            cost += (m * d - self.h[k] * self.fit_scale(k)).norm_sqr();
         }
         cost.is_finite().then_some((coef, cost))
     }
@@ -337,6 +446,8 @@ impl<'a> Prepared<'a> {
         self.d(k, p.tau_s) * m
     }
 
+    /// The weighted cost `Σₖ|eₖ|²` (the χ² statistic of
+    /// [`cost_reference`]), without [`Self::student`]'s weights.
     pub(super) fn cost(&self, p: &Params) -> f64 {
         (0..self.len())
             .map(|k| ((self.model(k, p) - self.h[k]) * self.scale[k]).norm_sqr())
@@ -404,7 +515,7 @@ impl Problem<'_, '_> {
         let mut j = DMatrix::<f64>::zeros(2 * m, 3 * n + 3);
         for k in 0..m {
             let s = C64::new(0.0, self.prep.w[k]);
-            let sc = self.prep.scale[k];
+            let sc = self.prep.fit_scale(k);
             let d = self.prep.d(k, p.tau_s) * sc;
             let mut put = |col: usize, v: C64| {
                 j[(2 * k, col)] = v.re;
@@ -443,7 +554,7 @@ impl Residuals for Problem<'_, '_> {
         let m = self.prep.len();
         let mut r = DVector::<f64>::zeros(2 * m);
         for k in 0..m {
-            let e = (self.prep.model(k, &p) - self.prep.h[k]) * self.prep.scale[k];
+            let e = (self.prep.model(k, &p) - self.prep.h[k]) * self.prep.fit_scale(k);
             r[2 * k] = e.re;
             r[2 * k + 1] = e.im;
         }
@@ -472,7 +583,7 @@ pub(super) fn refine(prep: &Prepared, start: &Params, period_s: f64) -> Params {
         // An undamped pole (ln ζ run off to −∞) is no mode: a line fitted
         // between two measured points.
         && p.zeta.iter().all(|z| *z >= MIN_DAMPING);
-    if ok && prep.cost(&p) <= prep.cost(start) {
+    if ok && prep.objective(&p) <= prep.objective(start) {
         p
     } else {
         start.clone()
@@ -514,23 +625,29 @@ pub(super) fn covariance(prep: &Prepared, p: &Params, period_s: f64) -> DMatrix<
     debug_assert_eq!(j.nrows(), 2 * prep.len());
     let s2 = residual_variance(prep, p, prep.cost(p));
     let jtj = j.transpose() * &j;
-    // A weight 1/σ̂² from a variance of d degrees of freedom is random:
-    // the estimate scatters as the sandwich (JᵀJ)⁻¹ B (JᵀJ)⁻¹.
-    let sandwich = weight_scatter(&j, &prep.dof);
+    // A weight from a variance of d degrees of freedom is random: the
+    // estimate scatters as the sandwich A⁻¹ B A⁻¹ (`weight_scatter`,
+    // `student_t_bread`).
+    let (bread, meat) = match prep.student {
+        Some(_) => (student_t_bread(&j, &prep.dof), Some(jtj)),
+        None => {
+            let b = weight_scatter(&j, &prep.dof);
+            (jtj, b)
+        }
+    };
     let unknown = DMatrix::from_element(3 * n + 3, 3 * n + 3, f64::INFINITY);
-    let cov = if !jtj.iter().all(|v| v.is_finite()) {
+    let cov = if !bread.iter().all(|v| v.is_finite()) {
         unknown
     } else {
-        match jtj.clone().try_inverse() {
+        match bread.clone().try_inverse() {
             Some(c) => c,
-            None => jtj
-                .clone()
+            None => bread
                 .try_svd(true, true, f64::EPSILON, 500)
                 .and_then(|svd| svd.pseudo_inverse(1e-300).ok())
                 .unwrap_or(unknown),
         }
     };
-    let cov = match sandwich {
+    let cov = match meat {
         Some(b) if cov.iter().all(|v| v.is_finite()) => &cov * b * &cov,
         _ => cov,
     };

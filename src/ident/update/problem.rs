@@ -225,8 +225,9 @@ pub(super) fn minimise(problem: Problem) -> (DVector<f64>, f64) {
 /// the noise alone, at least 1: the noise's own covariance, widened when
 /// the model leaves more than the noise. With variances of `line_dof`
 /// degrees of freedom (one per FRF line; empty: known) the covariance is
-/// the fit's sandwich, each line's `JₖᵀJₖ` times `d/(d − 4)` (the modal
-/// fit's `covariance`).
+/// the sandwich of weights `1/σ̂²` taken as known, each line's `JₖᵀJₖ`
+/// times `d/(d − 4)` (`modal_fit::weight_scatter`; the update is not
+/// reweighted, the modal fit's final estimate is its Student t).
 pub(super) fn coordinate_sigmas(
     problem: &Problem,
     x: &DVector<f64>,
