@@ -238,7 +238,7 @@ pub(super) fn student_t<'a>(
     let mut p = start.clone();
     let mut robust = prep.clone();
     robust.student = Some(student_t_weights(prep, &p));
-    for _ in 0..STUDENT_T_ROUNDS {
+    for round in 1..=STUDENT_T_ROUNDS {
         p = super::search::sorted(refine(&robust, &p, period_s));
         let u = student_t_weights(prep, &p);
         let moved = u
@@ -247,7 +247,8 @@ pub(super) fn student_t<'a>(
             .map(|(a, b)| (a - b).abs())
             .fold(0.0, f64::max);
         robust.student = Some(u);
-        if moved < 1e-4 {
+        if moved < 1e-4 || round == STUDENT_T_ROUNDS {
+            tracing::debug!(round, moved, "modal fit: the Student-t reweighting");
             break;
         }
     }
