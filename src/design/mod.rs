@@ -959,6 +959,7 @@ fn limit_attempt(
         family_done |= gave && !is_nominal;
         results.extend(climbs);
     }
+    climb_again(&mut results, &climb_in);
     limit_outcome(&results)
 }
 
@@ -989,16 +990,64 @@ fn ranked_starts<'a>(starts: &[&'a Attempt]) -> Vec<&'a Attempt> {
 /// its certificate, or why it did not climb.
 type Judged = Result<(fixed_order::Climb, Evaluation), String>;
 
+/// The best climb of `results`, climbed again in both variables on the
+/// points across every mode (`climb_in` as in [`limit_attempt`]), both
+/// results added. A climb stops where its steps stall, a local optimum
+/// of the inner approximation that depends on the path (a fit moved by
+/// less than its 1σ moved the result by ±0.1 of the limit); written
+/// again, scaled and backed off afresh, it often climbs on. On the README
+/// chirp's seeds 1–8 with the Student-t fit it took seeds 1, 4 and 7 from
+/// 0.82, 0.79 and 0.80 of the limit on the true plant to 0.86, 0.83 and
+/// 0.86, and left the other five as they were, for 1.5–4.5 s more design
+/// time.
+fn climb_again(
+    results: &mut Vec<(String, Judged)>,
+    climb_in: &(dyn Fn(
+        &str,
+        &ControllerConfig,
+        fixed_order::Variable,
+        ceiling::ModelPoints,
+    ) -> (String, Judged)
+          + Sync),
+) {
+    use fixed_order::Variable::{Delay, Difference};
+    let Some((from, first, _)) = best_climb(results) else {
+        return;
+    };
+    let (again, first) = (format!("{from}, climbed again"), first.clone());
+    let again_in = |v| {
+        climb_in(
+            &again,
+            &first.controller,
+            v,
+            ceiling::ModelPoints::AcrossModes,
+        )
+    };
+    let (a, b) = rayon::join(|| again_in(Delay), || again_in(Difference));
+    for (name, mut r) in [a, b] {
+        if let Ok((c, _)) = &mut r {
+            c.steps += first.steps;
+            c.start_bandwidth_rad_s = first.start_bandwidth_rad_s;
+        }
+        results.push((name, r));
+    }
+}
+
+/// The climb of `results` that meets the margins with the highest ω*,
+/// where it started from, and its certificate.
+fn best_climb(results: &[(String, Judged)]) -> Option<(&String, &fixed_order::Climb, &Evaluation)> {
+    results
+        .iter()
+        .filter_map(|(s, r)| r.as_ref().ok().map(|(c, e)| (s, c, e)))
+        .filter(|(_, _, e)| e.feasible())
+        .max_by(|a, b| a.2.objective_rad_s.total_cmp(&b.2.objective_rad_s))
+}
+
 /// The limit strategy's attempt from its climbs' `results`: the best
 /// certified controller, or refused with each climb's reason (and the
 /// first climb's evaluation, for the report).
 fn limit_outcome(results: &[(String, Judged)]) -> Attempt {
-    let best = results
-        .iter()
-        .filter_map(|(s, r)| r.as_ref().ok().map(|(c, e)| (s, c, e)))
-        .filter(|(_, _, e)| e.feasible())
-        .max_by(|a, b| a.2.objective_rad_s.total_cmp(&b.2.objective_rad_s));
-    match best {
+    match best_climb(results) {
         Some((from, c, e)) => Attempt {
             strategy: "limit",
             evaluation: e.clone(),
