@@ -990,6 +990,12 @@ fn ranked_starts<'a>(starts: &[&'a Attempt]) -> Vec<&'a Attempt> {
 /// its certificate, or why it did not climb.
 type Judged = Result<(fixed_order::Climb, Evaluation), String>;
 
+/// One climb of [`limit_attempt`]: from a start, named, in a variable, on
+/// a set of lines.
+type ClimbIn<'a> = dyn Fn(&str, &ControllerConfig, fixed_order::Variable, ceiling::ModelPoints) -> (String, Judged)
+    + Sync
+    + 'a;
+
 /// The best climb of `results`, climbed again in both variables on the
 /// points across every mode (`climb_in` as in [`limit_attempt`]), both
 /// results added. A climb stops where its steps stall, a local optimum
@@ -1000,16 +1006,7 @@ type Judged = Result<(fixed_order::Climb, Evaluation), String>;
 /// 0.82, 0.79 and 0.80 of the limit on the true plant to 0.86, 0.83 and
 /// 0.86, and left the other five as they were, for 1.5–4.5 s more design
 /// time.
-fn climb_again(
-    results: &mut Vec<(String, Judged)>,
-    climb_in: &(dyn Fn(
-        &str,
-        &ControllerConfig,
-        fixed_order::Variable,
-        ceiling::ModelPoints,
-    ) -> (String, Judged)
-          + Sync),
-) {
+fn climb_again(results: &mut Vec<(String, Judged)>, climb_in: &ClimbIn<'_>) {
     use fixed_order::Variable::{Delay, Difference};
     let Some((from, first, _)) = best_climb(results) else {
         return;

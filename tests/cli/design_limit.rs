@@ -507,7 +507,8 @@ fn the_readme_main_job_designs_near_the_limit_from_the_recording() {
 /// Prints one line per seed and the least and mean; asserts that every
 /// design is stable and meets its margins on the true plant
 /// ([`on_true_plant`]) and reaches 0.8 of the limit there (issue 41's
-/// target; 0.835–0.910 on 2026-11-29). Run:
+/// target; 0.832–0.923 on 2026-11-29, with the Student-t fit and the
+/// best climb climbed again). Run:
 /// `cargo test --test cli readme_chirp_seeds -- --ignored --nocapture`.
 #[test]
 #[ignore]
