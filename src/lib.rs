@@ -28,5 +28,6 @@ pub mod plot;
 pub mod record;
 pub mod rt;
 pub mod splitmix;
+pub mod track;
 pub mod upload;
 pub mod vocab;

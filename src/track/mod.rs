@@ -1,0 +1,413 @@
+//! Tracking a periodic scan: the reference, the model-inverse feedforward
+//! and frequency-domain iterative learning control (ILC), for `bench
+//! track` ([`crate::jobs::track`]).
+//!
+//! Every signal here is periodic with the scan's period of `N` ticks and is
+//! held as its harmonics: `x[n] = X₀ + Σₖ Re(Xₖ·e^{j2πkn/N})`, `k = 1…K`
+//! ([`Harmonics`]). The tick plays one period of each as a table
+//! ([`TrackJob`]); the analysis between trials works on the harmonics.
+//!
+//! - **Reference** ([`Scan`]): a sine, or a triangle (a raster line) of
+//!   amplitude `A` whose Fourier series `(8A/π²)·Σ_{k odd} (−1)^{(k−1)/2}
+//!   sin(kωt)/k²` is truncated below the cut-off and smoothed with the
+//!   Lanczos σ factors `sinc(k/k_c)` (Gibbs' overshoot removed; Lanczos,
+//!   *Applied Analysis*, 1956, §IV.6).
+//! - **The band the zeros close** ([`ZeroBand`]): every zero `z` of the
+//!   plant takes its factor `|1 − jω/z|·|1 − jω/z̄| ≈ |1 − ω²/|z|²|`
+//!   (lightly damped pair) below ½ for `ω` within `[|z|/√2, |z|·√1.5]`: there the plant answers
+//!   at most half what it would without the zero, and at the zero itself
+//!   nothing, whatever the controller (`T(z) = 0`) and whatever the
+//!   feedforward costs. The default cut-off is the lowest band's lower
+//!   edge.
+//! - **Feedforward** ([`model_inverse`]): with `u = C(r − y) + f` the error
+//!   is `e = r − y = S·(r − P·f)`, so `F_k = R_k / P(jω_k)` tracks every
+//!   kept harmonic exactly on the model. For a periodic reference this is
+//!   the stable (non-causal) inversion of Devasia, Chen and Paden (IEEE
+//!   TAC 41(7), 1996) with a whole period of preview: the non-minimum-phase
+//!   zeros need no causal inverse.
+//! - **ILC** ([`Learning`]): `F_{j+1,k} = Q_k·(F_{j,k} + L_k·E_{j,k})`
+//!   with `L_k = α / PS_model(jω_k)` and `Q_k` 1 on the learned harmonics
+//!   (below the cut-off), 0 elsewhere (Bristow, Tharayil and Alleyne, IEEE
+//!   CSM 26(3), 2006, §"frequency-domain design"). On the true plant the
+//!   error of a learned harmonic is multiplied each trial by `1 − L_k·PS_k`;
+//!   monotonic convergence needs `|Q_k(1 − L_k·PS_k)| < 1` on every line.
+
+use crate::control::verify::ModelLoop;
+use crate::control::DiscreteController;
+use crate::rt::{Job, JobOutput};
+use bench_hal::Sample;
+use serde::{Deserialize, Serialize};
+use std::f64::consts::PI;
+
+use crate::ident::C64;
+
+/// How far below a zero's frequency its band reaches, as a factor: `1/√2`,
+/// where a lightly damped zero pair's factor `|1 − ω²/|z|²|` rises to ½.
+pub const ZERO_BAND_LOW: f64 = std::f64::consts::FRAC_1_SQRT_2;
+
+/// How far above a zero's frequency its band reaches, as a factor: `√1.5`,
+/// where the factor `|1 − ω²/|z|²|` falls to ½.
+pub const ZERO_BAND_HIGH: f64 = 1.224_744_871_391_589;
+
+/// The periodic scan.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum ScanKind {
+    /// `A·sin(ωt)`.
+    Sine,
+    /// The triangle of a raster line, smoothed (module docs).
+    Triangle,
+}
+
+impl std::str::FromStr for ScanKind {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "sine" => Ok(Self::Sine),
+            "triangle" => Ok(Self::Triangle),
+            _ => Err(format!("{s:?} is not a scan (sine or triangle)")),
+        }
+    }
+}
+
+/// A scan definition: what the user asks for.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
+pub struct Scan {
+    /// Sine or triangle.
+    pub kind: ScanKind,
+    /// Amplitude about the start position, m (the triangle's peak before
+    /// smoothing).
+    pub amplitude_m: f64,
+    /// Lines per second: the scan's fundamental, Hz.
+    pub line_rate_hz: f64,
+    /// Harmonics at or above this frequency are removed, Hz.
+    pub cutoff_hz: f64,
+}
+
+/// One period's harmonics `X₀, X₁ … X_K` of a signal of period `N` ticks
+/// (module docs); units those of the signal.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Harmonics {
+    /// `X₀ … X_K`.
+    pub coef: Vec<C64>,
+    /// Ticks per period.
+    pub period_ticks: usize,
+}
+
+impl Harmonics {
+    /// All zero, harmonics `0…k_max`.
+    pub fn zeros(k_max: usize, period_ticks: usize) -> Self {
+        Self {
+            coef: vec![C64::new(0.0, 0.0); k_max + 1],
+            period_ticks,
+        }
+    }
+
+    /// One period of samples, `N` values.
+    pub fn synthesize(&self) -> Vec<f64> {
+        let n = self.period_ticks;
+        (0..n)
+            .map(|i| {
+                let th = 2.0 * PI * i as f64 / n as f64;
+                self.coef
+                    .iter()
+                    .enumerate()
+                    .map(|(k, c)| {
+                        if k == 0 {
+                            c.re
+                        } else {
+                            (c * C64::from_polar(1.0, k as f64 * th)).re
+                        }
+                    })
+                    .sum()
+            })
+            .collect()
+    }
+
+    /// The harmonics `0…k_max` of one period `x` (`N` = its length): the
+    /// discrete Fourier sums `X₀ = Σx/N`, `X_k = 2·Σ x[n]e^{−j2πkn/N}/N`.
+    pub fn analyze(x: &[f64], k_max: usize) -> Self {
+        let n = x.len();
+        let coef = (0..=k_max)
+            .map(|k| {
+                let s: C64 = x
+                    .iter()
+                    .enumerate()
+                    .map(|(i, v)| {
+                        C64::from_polar(*v, -2.0 * PI * (k * i % n) as f64 / n as f64)
+                    })
+                    .sum();
+                if k == 0 {
+                    s / n as f64
+                } else {
+                    s * 2.0 / n as f64
+                }
+            })
+            .collect();
+        Self {
+            coef,
+            period_ticks: n,
+        }
+    }
+
+    /// The frequency of harmonic `k` at `line_rate_hz`, Hz.
+    pub fn frequency_hz(k: usize, line_rate_hz: f64) -> f64 {
+        k as f64 * line_rate_hz
+    }
+
+    /// RMS over one period, from Parseval: `√(X₀² + Σ|X_k|²/2)`.
+    pub fn rms(&self) -> f64 {
+        let dc = self.coef.first().map_or(0.0, |c| c.re * c.re);
+        let ac: f64 = self.coef.iter().skip(1).map(|c| c.norm_sqr() / 2.0).sum();
+        (dc + ac).sqrt()
+    }
+}
+
+/// The frequency band around one zero of the plant in which it answers at
+/// most half (module docs).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
+pub struct ZeroBand {
+    /// The zero's frequency `|z|/2π`, Hz.
+    pub zero_hz: f64,
+    /// MMP, RMP-RNMP or CMP-CNMP.
+    pub kind: String,
+    /// Lower edge `|z|/(2π·√2)`, Hz.
+    pub low_hz: f64,
+    /// Upper edge `|z|·√1.5/2π`, Hz.
+    pub high_hz: f64,
+}
+
+impl ZeroBand {
+    /// The bands of the zeros of the model ([`crate::analysis::modal::damped_zeros`]),
+    /// one per pair: the right-half-plane zeros in the upper half plane
+    /// (and on the real axis), and the minimum-phase ones that mirror none
+    /// (MMP); ascending.
+    pub fn of(zeros: &[crate::analysis::modal::TypedZero]) -> Vec<Self> {
+        use bench_plant::model::ZeroType;
+        let mut out: Vec<Self> = zeros
+            .iter()
+            .filter(|z| z.im_rad_s >= 0.0 && z.frequency_hz > 0.0)
+            .filter(|z| z.nmp() || z.kind == ZeroType::Mmp)
+            .map(|z| Self {
+                zero_hz: z.frequency_hz,
+                kind: z.kind.as_str().to_string(),
+                low_hz: z.frequency_hz * ZERO_BAND_LOW,
+                high_hz: z.frequency_hz * ZERO_BAND_HIGH,
+            })
+            .collect();
+        out.sort_by(|a, b| a.zero_hz.total_cmp(&b.zero_hz));
+        out
+    }
+
+    /// Whether `f_hz` lies in the band.
+    pub fn contains(&self, f_hz: f64) -> bool {
+        f_hz >= self.low_hz && f_hz <= self.high_hz
+    }
+}
+
+/// Lanczos' σ factor of harmonic `k` below the cut-off harmonic `k_c`
+/// (`sinc(k/k_c)`; 1 at `k = 0`).
+fn lanczos_sigma(k: usize, k_c: f64) -> f64 {
+    let x = PI * k as f64 / k_c;
+    if x == 0.0 {
+        1.0
+    } else {
+        x.sin() / x
+    }
+}
+
+impl Scan {
+    /// The highest harmonic kept: the last `k` with `k·line_rate < cutoff`.
+    pub fn k_max(&self) -> usize {
+        let k = (self.cutoff_hz / self.line_rate_hz).ceil() as usize;
+        k.saturating_sub(1)
+    }
+
+    /// The reference's harmonics at `period_ticks` per line, m: 0 at the
+    /// start of the period, rising (module docs).
+    pub fn harmonics(&self, period_ticks: usize) -> Harmonics {
+        let k_max = self.k_max();
+        let mut h = Harmonics::zeros(k_max, period_ticks);
+        match self.kind {
+            ScanKind::Sine => {
+                if k_max >= 1 {
+                    h.coef[1] = C64::new(0.0, -self.amplitude_m);
+                }
+            }
+            ScanKind::Triangle => {
+                let k_c = self.cutoff_hz / self.line_rate_hz;
+                for k in (1..=k_max).step_by(2) {
+                    let sign = if (k / 2) % 2 == 0 { 1.0 } else { -1.0 };
+                    let a = 8.0 * self.amplitude_m / (PI * PI) * sign / (k * k) as f64
+                        * lanczos_sigma(k, k_c);
+                    // a·sin(kθ) = Re(−j·a·e^{jkθ})
+                    h.coef[k] = C64::new(0.0, -a);
+                }
+            }
+        }
+        h
+    }
+}
+
+/// The model-inverse feedforward of `reference` (m) on `model`, A:
+/// `F_k = R_k / P(jω_k)` (module docs), `F₀ = 0` (the controller's
+/// integrator holds the mean).
+pub fn model_inverse(reference: &Harmonics, model: &ModelLoop<'_>, line_rate_hz: f64) -> Harmonics {
+    let mut f = Harmonics::zeros(reference.coef.len() - 1, reference.period_ticks);
+    for (k, r) in reference.coef.iter().enumerate().skip(1) {
+        f.coef[k] = r / model.plant(Harmonics::frequency_hz(k, line_rate_hz));
+    }
+    f
+}
+
+/// The model's answer to a reference and a feedforward: the command
+/// `u = CS·r + S·f` (A) and the error `e = S·(r − P·f)` (m), as harmonics.
+pub fn predict(
+    reference: &Harmonics,
+    feedforward: &Harmonics,
+    model: &ModelLoop<'_>,
+    line_rate_hz: f64,
+) -> (Harmonics, Harmonics) {
+    let k_max = reference.coef.len() - 1;
+    let mut u = Harmonics::zeros(k_max, reference.period_ticks);
+    let mut e = Harmonics::zeros(k_max, reference.period_ticks);
+    for k in 1..=k_max {
+        let f_hz = Harmonics::frequency_hz(k, line_rate_hz);
+        let s = model.sensitivity(f_hz);
+        let c = model.controller(f_hz);
+        let p = model.plant(f_hz);
+        let (r, ff) = (reference.coef[k], feedforward.coef[k]);
+        u.coef[k] = c * s * r + s * ff;
+        e.coef[k] = s * (r - p * ff);
+    }
+    (u, e)
+}
+
+/// The learning law: `L_k = α/PS_model(jω_k)` on the learned harmonics
+/// `1…K` (`Q_k = 1`), nothing elsewhere (`Q_k = 0`).
+#[derive(Debug, Clone)]
+pub struct Learning {
+    /// `α`, the learning gain, (0, 1].
+    pub gain: f64,
+    /// `L_k`, A/m, `k = 0…K` (`L₀ = 0`: the integrator's).
+    pub l: Vec<C64>,
+    /// The model's `PS_k`, m/A.
+    pub ps_model: Vec<C64>,
+}
+
+impl Learning {
+    /// The law on `model` for harmonics up to `k_max` at `line_rate_hz`.
+    pub fn new(model: &ModelLoop<'_>, gain: f64, k_max: usize, line_rate_hz: f64) -> Self {
+        let ps_model: Vec<C64> = (0..=k_max)
+            .map(|k| model.process_sensitivity(Harmonics::frequency_hz(k, line_rate_hz)))
+            .collect();
+        let l = ps_model
+            .iter()
+            .enumerate()
+            .map(|(k, ps)| {
+                if k == 0 || ps.norm() == 0.0 {
+                    C64::new(0.0, 0.0)
+                } else {
+                    gain / ps
+                }
+            })
+            .collect();
+        Self { gain, l, ps_model }
+    }
+
+    /// One update: `F ← Q(F + L·E)`, `E` the trial's error harmonics (m).
+    pub fn update(&self, f: &Harmonics, e: &Harmonics) -> Harmonics {
+        let mut next = Harmonics::zeros(self.l.len() - 1, f.period_ticks);
+        for k in 1..self.l.len() {
+            next.coef[k] = f.coef[k] + self.l[k] * e.coef[k];
+        }
+        next
+    }
+
+    /// `|Q_k(1 − L_k·PS_k)|` per learned harmonic for a plant `ps` (m/A,
+    /// `k = 0…K`): the factor the error of harmonic `k` is multiplied by
+    /// each trial.
+    pub fn contraction(&self, ps: &[C64]) -> Vec<f64> {
+        (1..self.l.len())
+            .map(|k| (C64::new(1.0, 0.0) - self.l[k] * ps[k]).norm())
+            .collect()
+    }
+}
+
+/// The tracking job: the controller on the reference table plus the
+/// feedforward table, both periodic, faded in over the first period with a
+/// raised cosine (bumpless: no step in the setpoint or the current at
+/// the start). The setpoint is the first finite reading plus the
+/// reference. Real-time safe: the tables are built before the run; the
+/// tick only indexes them.
+#[derive(Debug, Clone)]
+pub struct TrackJob {
+    ctrl: DiscreteController,
+    start_m: Option<f64>,
+    reference_m: Box<[f64]>,
+    feedforward_a: Box<[f64]>,
+    total_ticks: u64,
+}
+
+impl TrackJob {
+    /// `reference_m` and `feedforward_a`: one period each, equal lengths
+    /// (≥ 1); `total_ticks` the trial's length.
+    ///
+    /// # Panics
+    /// If the tables differ in length or are empty.
+    pub fn new(
+        ctrl: DiscreteController,
+        reference_m: Vec<f64>,
+        feedforward_a: Vec<f64>,
+        total_ticks: u64,
+    ) -> Self {
+        assert!(!reference_m.is_empty() && reference_m.len() == feedforward_a.len());
+        Self {
+            ctrl,
+            start_m: None,
+            reference_m: reference_m.into_boxed_slice(),
+            feedforward_a: feedforward_a.into_boxed_slice(),
+            total_ticks,
+        }
+    }
+
+    /// The fade-in weight at `tick`: `(1 − cos(π·tick/N))/2` over the
+    /// first period, then 1.
+    #[inline]
+    pub fn fade(&self, tick: u64) -> f64 {
+        let n = self.reference_m.len() as u64;
+        if tick >= n {
+            1.0
+        } else {
+            0.5 * (1.0 - (PI * tick as f64 / n as f64).cos())
+        }
+    }
+
+    /// Ticks of the trial.
+    pub fn total_ticks(&self) -> u64 {
+        self.total_ticks
+    }
+}
+
+impl Job for TrackJob {
+    #[inline]
+    fn tick(&mut self, tick: u64, sample: &Sample) -> JobOutput {
+        let y = sample.position_m;
+        if self.start_m.is_none() && y.is_finite() {
+            self.start_m = Some(y);
+        }
+        let i = (tick % self.reference_m.len() as u64) as usize;
+        let w = self.fade(tick);
+        let setpoint = self.start_m.unwrap_or(0.0) + w * self.reference_m[i];
+        let ff = w * self.feedforward_a[i];
+        JobOutput {
+            command_a: self.ctrl.update(setpoint - y) + ff,
+            excitation_a: ff,
+            setpoint_m: setpoint,
+            done: tick + 1 >= self.total_ticks,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,268 @@
+//! The scan against its analytic shape, and the feedforward and the
+//! learning law of the frequency domain against a simulation of the loop in
+//! the time domain (the zero-order-hold plant stepped tick by tick with the
+//! controller and [`TrackJob`] as the loop runs them).
+
+use super::*;
+use crate::config::BenchConfig;
+use bench_plant::model::Sr4dof;
+use bench_plant::sim::ZohPlant;
+use nalgebra::SVector;
+
+fn ch5() -> BenchConfig {
+    let path =
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("bench-config/sr4dof-ch5.toml");
+    BenchConfig::load(&path).unwrap()
+}
+
+struct Bench {
+    plant: ZohPlant,
+    ctrl: DiscreteController,
+    period_s: f64,
+    zeros: Vec<crate::analysis::modal::TypedZero>,
+}
+
+fn bench() -> Bench {
+    let cfg = ch5();
+    let model = Sr4dof::new(cfg.plant).unwrap();
+    let period_s = cfg.loop_.period_ns() as f64 * 1e-9;
+    Bench {
+        plant: ZohPlant::new(&model, &cfg.actuator, period_s),
+        ctrl: DiscreteController::new(&cfg.controller["fast"], period_s, 1e3),
+        period_s,
+        zeros: crate::analysis::modal::damped_zeros(&model),
+    }
+}
+
+impl Bench {
+    fn model(&self) -> ModelLoop<'_> {
+        ModelLoop {
+            plant: &self.plant,
+            ctrl: &self.ctrl,
+            link_delay_periods: 0,
+        }
+    }
+
+    /// The loop in the time domain, noise-free: the reading of tick `k`
+    /// answers the commands before it (as the simulator's stage does).
+    /// Returns the error `setpoint − reading` of every tick.
+    fn run(&self, mut job: TrackJob) -> Vec<f64> {
+        let mut x = SVector::<f64, 9>::zeros();
+        (0..job.total_ticks())
+            .map(|k| {
+                let y = x[0];
+                let s = Sample {
+                    seq: k,
+                    device_time_ns: 0,
+                    position_m: y,
+                    measured_current_a: f64::NAN,
+                    flags: Default::default(),
+                };
+                let out = job.tick(k, &s);
+                self.plant.step(&mut x, out.command_a, 0.0);
+                out.setpoint_m - y
+            })
+            .collect()
+    }
+}
+
+/// The mean period of `e` over its last `m` whole periods of `n` ticks.
+fn last_periods(e: &[f64], n: usize, m: usize) -> Vec<f64> {
+    let start = e.len() - m * n;
+    (0..n)
+        .map(|i| (0..m).map(|p| e[start + p * n + i]).sum::<f64>() / m as f64)
+        .collect()
+}
+
+fn rms(x: &[f64]) -> f64 {
+    (x.iter().map(|v| v * v).sum::<f64>() / x.len() as f64).sqrt()
+}
+
+#[test]
+fn the_sine_scan_is_the_sine() {
+    let scan = Scan {
+        kind: ScanKind::Sine,
+        amplitude_m: 5e-6,
+        line_rate_hz: 10.0,
+        cutoff_hz: 50.0,
+    };
+    let x = scan.harmonics(500).synthesize();
+    for (i, v) in x.iter().enumerate() {
+        let want = 5e-6 * (2.0 * PI * i as f64 / 500.0).sin();
+        assert!((v - want).abs() < 1e-15, "{i}: {v} {want}");
+    }
+}
+
+/// With a far cut-off the smoothed triangle is the triangle within
+/// Lanczos' smoothing (a corner rounded over about one period of the
+/// cut-off); it keeps no harmonic at or above the cut-off, and the
+/// analysis of its samples gives back its harmonics.
+#[test]
+fn the_triangle_scan_is_the_triangle_below_its_cut_off() {
+    let a = 5e-6;
+    let n = 2000;
+    let scan = Scan {
+        kind: ScanKind::Triangle,
+        amplitude_m: a,
+        line_rate_hz: 10.0,
+        cutoff_hz: 2000.0,
+    };
+    let h = scan.harmonics(n);
+    assert_eq!(h.coef.len() - 1, 199);
+    let x = h.synthesize();
+    // The exact triangle: 0 at the start, rising to A at a quarter period.
+    let tri = |t: f64| {
+        let p = t.rem_euclid(1.0);
+        if p < 0.25 {
+            4.0 * a * p
+        } else if p < 0.75 {
+            a * (2.0 - 4.0 * p)
+        } else {
+            a * (4.0 * p - 4.0)
+        }
+    };
+    let worst = x
+        .iter()
+        .enumerate()
+        .map(|(i, v)| (v - tri(i as f64 / n as f64)).abs())
+        .fold(0.0, f64::max);
+    // Corner rounding: the slope 4A per period times about 1/k_c periods.
+    assert!(worst < 4.0 * a / 200.0, "{worst}");
+    assert!(worst > 0.0);
+    let back = Harmonics::analyze(&x, 199);
+    for (k, (c, d)) in back.coef.iter().zip(&h.coef).enumerate() {
+        assert!((c - d).norm() < 1e-18, "{k}");
+    }
+    let coarse = Scan {
+        cutoff_hz: 55.0,
+        ..scan
+    };
+    assert_eq!(coarse.k_max(), 5);
+    let one = Scan {
+        cutoff_hz: 50.0,
+        ..scan
+    };
+    assert_eq!(one.k_max(), 4, "50 Hz itself is cut");
+}
+
+/// The Chapter 5 bench's CNMP pair (thesis: ≈ 83 Hz) closes a band of
+/// about 59–102 Hz; a 10 Hz triangle's 70 Hz and 90 Hz harmonics fall in
+/// it, its 50 Hz one does not.
+#[test]
+fn the_cnmp_pair_of_chapter_5_closes_its_band() {
+    let b = bench();
+    let bands = ZeroBand::of(&b.zeros);
+    let cnmp: Vec<&ZeroBand> = bands.iter().filter(|z| z.kind == "CMP-CNMP").collect();
+    assert_eq!(cnmp.len(), 1, "{bands:?}");
+    let z = cnmp[0];
+    assert!((80.0..87.0).contains(&z.zero_hz), "{z:?}");
+    assert!(z.contains(70.0) && z.contains(90.0) && !z.contains(50.0), "{z:?}");
+    // At the band's edges the pair's factor |1 − ω²/|z|²| is ½.
+    for f in [z.low_hz, z.high_hz] {
+        let factor = (1.0 - (f / z.zero_hz).powi(2)).abs();
+        assert!((factor - 0.5).abs() < 1e-12, "{factor}");
+    }
+}
+
+/// The model-inverse feedforward, played by the job around the
+/// time-domain loop, leaves of a 10 Hz triangle's tracking error less
+/// than 1e-4 of what feedback alone leaves after eight periods (what is
+/// left is the fade-in's transient in the lightly damped modes) (the frequency-domain algebra
+/// `e = S(r − Pf)` checked against the loop stepped tick by tick).
+#[test]
+fn the_model_inverse_tracks_the_scan_on_the_model() {
+    let b = bench();
+    let n = (0.1 / b.period_s).round() as usize;
+    let scan = Scan {
+        kind: ScanKind::Triangle,
+        amplitude_m: 5e-6,
+        line_rate_hz: 10.0,
+        cutoff_hz: 55.0,
+    };
+    let r = scan.harmonics(n);
+    let f = model_inverse(&r, &b.model(), scan.line_rate_hz);
+    let total = 8 * n as u64;
+    let alone = b.run(TrackJob::new(b.ctrl, r.synthesize(), vec![0.0; n], total));
+    let with = b.run(TrackJob::new(b.ctrl, r.synthesize(), f.synthesize(), total));
+    let e_alone = last_periods(&alone, n, 2);
+    let e_with = last_periods(&with, n, 2);
+    // Feedback alone: the error is S·r, predicted harmonic by harmonic.
+    let (_, e_pred) = predict(&r, &Harmonics::zeros(r.coef.len() - 1, n), &b.model(), 10.0);
+    let pred = e_pred.synthesize();
+    let dev = e_alone
+        .iter()
+        .zip(&pred)
+        .map(|(a, p)| (a - p).abs())
+        .fold(0.0, f64::max);
+    assert!(dev < 1e-3 * rms(&pred), "{dev} of {}", rms(&pred));
+    assert!(rms(&e_alone) > 1e-8, "{}", rms(&e_alone));
+    assert!(rms(&e_with) < 1e-4 * rms(&e_alone), "{} {}", rms(&e_with), rms(&e_alone));
+}
+
+/// Each learning trial multiplies a learned harmonic's error by
+/// `1 − α·PS/PS_model`: on the model itself by `1 − α`. Starting from no
+/// feedforward, trial `j`'s error is `(1 − α)^j` of the first one's, in
+/// the time-domain loop.
+#[test]
+fn learning_contracts_by_one_minus_the_gain_on_the_model() {
+    let b = bench();
+    let n = (0.1 / b.period_s).round() as usize;
+    let scan = Scan {
+        kind: ScanKind::Triangle,
+        amplitude_m: 5e-6,
+        line_rate_hz: 10.0,
+        cutoff_hz: 55.0,
+    };
+    let r = scan.harmonics(n);
+    let k_max = r.coef.len() - 1;
+    let alpha = 0.6;
+    let learning = Learning::new(&b.model(), alpha, k_max, 10.0);
+    let ps: Vec<C64> = learning.ps_model.clone();
+    for c in learning.contraction(&ps) {
+        assert!((c - (1.0 - alpha)).abs() < 1e-12, "{c}");
+    }
+    let mut f = Harmonics::zeros(k_max, n);
+    let mut first = 0.0;
+    for j in 0..4 {
+        let e = b.run(TrackJob::new(b.ctrl, r.synthesize(), f.synthesize(), 8 * n as u64));
+        let e = Harmonics::analyze(&last_periods(&e, n, 2), k_max);
+        let size = e.coef[1..].iter().map(|c| c.norm_sqr()).sum::<f64>().sqrt();
+        if j == 0 {
+            first = size;
+        } else {
+            let want = first * (1.0 - alpha).powi(j);
+            assert!((size / want - 1.0).abs() < 1e-3, "trial {j}: {size} {want}");
+        }
+        f = learning.update(&f, &e);
+    }
+}
+
+/// The job plays both tables from the first finite reading, faded in over
+/// the first period, then periodic; it ends at its length.
+#[test]
+fn the_job_plays_its_tables_periodically_after_the_fade() {
+    let b = bench();
+    let r: Vec<f64> = (0..10).map(|i| i as f64 * 1e-7).collect();
+    let f: Vec<f64> = (0..10).map(|i| i as f64 * 1e-2).collect();
+    let mut job = TrackJob::new(b.ctrl, r.clone(), f.clone(), 35);
+    for k in 0..35u64 {
+        let s = Sample {
+            seq: k,
+            device_time_ns: 0,
+            position_m: if k == 0 { f64::NAN } else { 2e-6 },
+            measured_current_a: f64::NAN,
+            flags: Default::default(),
+        };
+        let out = job.tick(k, &s);
+        let i = (k % 10) as usize;
+        let w = if k < 10 {
+            0.5 * (1.0 - (PI * k as f64 / 10.0).cos())
+        } else {
+            1.0
+        };
+        assert_eq!(out.excitation_a, w * f[i], "{k}");
+        let start = if k == 0 { 0.0 } else { 2e-6 };
+        assert!((out.setpoint_m - start - w * r[i]).abs() < 1e-18, "{k}");
+        assert_eq!(out.done, k == 34);
+    }
+}
