@@ -71,12 +71,12 @@ pub const EXIT_STATUSES: &[ExitStatus] = &[
     },
     ExitStatus {
         code: exit::FAULT,
-        commands: &["chirp", "control", "campaign", "daemon"],
+        commands: &["chirp", "control", "track", "campaign", "daemon"],
         meaning: "safety fault",
     },
     ExitStatus {
         code: exit::HAL,
-        commands: &["chirp", "control", "campaign"],
+        commands: &["chirp", "control", "track", "campaign"],
         meaning: "hardware (HAL) error",
     },
     ExitStatus {

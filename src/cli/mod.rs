@@ -50,6 +50,7 @@ mod plot;
 mod point;
 mod recover;
 mod serve;
+mod track;
 mod upload;
 
 use analyze::{analyze, map, AnalyzeArgs, MapArgs};
@@ -94,6 +95,11 @@ enum Command {
     /// under the supervisor and report rise, settling, overshoot and the
     /// steady-state positioning noise.
     Control(ControlArgs),
+    /// Track a periodic scan (triangle raster line or sine): feedback
+    /// alone, then with the model-inverse feedforward, then learned trial
+    /// by trial (ILC) until the error reaches the noise floor; one
+    /// recording per trial, the learned feedforward as a table.
+    Track(track::TrackArgs),
     /// Run the simulated plant as a DAQ device (serial over a
     /// pseudo-terminal, or SocketCAN), so the hardware backends can be
     /// exercised without hardware.
@@ -270,6 +276,7 @@ pub fn main() -> ExitCode {
     let code = match cli.command {
         Command::Chirp(args) => chirp(args, stop),
         Command::Control(args) => control(args, stop),
+        Command::Track(args) => track::track(args, stop),
         Command::Emulate(cmd) => emulate(cmd, stop),
         Command::Serve(args) => serve(args),
         Command::Daemon(args) => daemon(args),

@@ -28,7 +28,7 @@
 //!
 //! May use everything below it; never the CLI, the daemon or a campaign.
 //!
-//! Layer rule: may use `analysis`, `catalogue`, `config`, `control`, `design`, `error`, `ident`, `input_file`, `outputs`, `plot`, `record`, `rt`, `vocab`.
+//! Layer rule: may use `analysis`, `catalogue`, `config`, `control`, `design`, `error`, `ident`, `input_file`, `outputs`, `plot`, `record`, `rt`, `track`, `vocab`.
 
 pub mod analyze;
 pub mod catalogue;
@@ -43,6 +43,7 @@ pub mod point;
 pub mod recover;
 pub mod request;
 pub mod session;
+pub mod track;
 pub mod verify;
 
 /// A config given by path that does not load, as a job's error: a file

@@ -31,6 +31,8 @@
 //!   CSM 26(3), 2006, §"frequency-domain design"). On the true plant the
 //!   error of a learned harmonic is multiplied each trial by `1 − L_k·PS_k`;
 //!   monotonic convergence needs `|Q_k(1 − L_k·PS_k)| < 1` on every line.
+//!
+//! Layer rule: may use `analysis`, `config`, `control`, `ident`, `rt`.
 
 use crate::control::verify::ModelLoop;
 use crate::control::DiscreteController;
@@ -133,9 +135,7 @@ impl Harmonics {
                 let s: C64 = x
                     .iter()
                     .enumerate()
-                    .map(|(i, v)| {
-                        C64::from_polar(*v, -2.0 * PI * (k * i % n) as f64 / n as f64)
-                    })
+                    .map(|(i, v)| C64::from_polar(*v, -2.0 * PI * (k * i % n) as f64 / n as f64))
                     .sum();
                 if k == 0 {
                     s / n as f64

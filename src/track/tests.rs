@@ -156,7 +156,10 @@ fn the_cnmp_pair_of_chapter_5_closes_its_band() {
     assert_eq!(cnmp.len(), 1, "{bands:?}");
     let z = cnmp[0];
     assert!((80.0..87.0).contains(&z.zero_hz), "{z:?}");
-    assert!(z.contains(70.0) && z.contains(90.0) && !z.contains(50.0), "{z:?}");
+    assert!(
+        z.contains(70.0) && z.contains(90.0) && !z.contains(50.0),
+        "{z:?}"
+    );
     // At the band's edges the pair's factor |1 − ω²/|z|²| is ½.
     for f in [z.low_hz, z.high_hz] {
         let factor = (1.0 - (f / z.zero_hz).powi(2)).abs();
@@ -196,7 +199,12 @@ fn the_model_inverse_tracks_the_scan_on_the_model() {
         .fold(0.0, f64::max);
     assert!(dev < 1e-3 * rms(&pred), "{dev} of {}", rms(&pred));
     assert!(rms(&e_alone) > 1e-8, "{}", rms(&e_alone));
-    assert!(rms(&e_with) < 1e-4 * rms(&e_alone), "{} {}", rms(&e_with), rms(&e_alone));
+    assert!(
+        rms(&e_with) < 1e-4 * rms(&e_alone),
+        "{} {}",
+        rms(&e_with),
+        rms(&e_alone)
+    );
 }
 
 /// Each learning trial multiplies a learned harmonic's error by
@@ -224,7 +232,12 @@ fn learning_contracts_by_one_minus_the_gain_on_the_model() {
     let mut f = Harmonics::zeros(k_max, n);
     let mut first = 0.0;
     for j in 0..4 {
-        let e = b.run(TrackJob::new(b.ctrl, r.synthesize(), f.synthesize(), 8 * n as u64));
+        let e = b.run(TrackJob::new(
+            b.ctrl,
+            r.synthesize(),
+            f.synthesize(),
+            8 * n as u64,
+        ));
         let e = Harmonics::analyze(&last_periods(&e, n, 2), k_max);
         let size = e.coef[1..].iter().map(|c| c.norm_sqr()).sum::<f64>().sqrt();
         if j == 0 {

@@ -1,0 +1,226 @@
+//! `bench track`: its flags and the printed trials.
+
+use super::{bad_input, emit, job_thread, load_config, run_failed_json};
+use bench::jobs::request::parse_seed;
+use bench::jobs::track::{run_track, TrackOptions, TrackSummary};
+use bench::rt::backend::BackendSpec;
+use bench::track::{Scan, ScanKind};
+use clap::Args;
+use std::process::ExitCode;
+use std::sync::atomic::AtomicBool;
+use std::sync::Arc;
+
+#[derive(Debug, Args)]
+#[command(
+    mut_arg("out", |a| a.value_name("DIR").help("Output directory: one recording per trial, track.json, feedforward.csv [default: track-<controller>-<UTC time> in ./recordings if it exists, else in $XDG_DATA_HOME/bench/recordings]")),
+)]
+#[command(group(clap::ArgGroup::new("which").args(["slow", "fast", "controller"])))]
+pub(super) struct TrackArgs {
+    /// The slow controller of Eq. (6-6) (`[controller.slow]`).
+    #[arg(long)]
+    slow: bool,
+    /// The fast controller of Eq. (6-7) (`[controller.fast]`) [the default].
+    #[arg(long)]
+    fast: bool,
+    /// Any `[controller.NAME]` of the config.
+    #[arg(long, value_name = "NAME")]
+    controller: Option<String>,
+    #[command(flatten)]
+    config: super::ConfigFlag,
+    /// The model the feedforward and the learning filter are computed on:
+    /// a bench config whose [plant] is the bench as measured (`bench fit
+    /// --update` writes one) [default: the [plant] of --config]. The loop,
+    /// limits and backend stay --config's.
+    #[arg(long, value_name = "FILE")]
+    model: Option<std::path::PathBuf>,
+    /// The scan: triangle (a raster line, smoothed below the cut-off) or
+    /// sine.
+    #[arg(long, value_name = "KIND", default_value = "triangle")]
+    scan: ScanKind,
+    /// Amplitude about the start position, m. Range: above 0, the scan
+    /// within safety.position_limit_m and its predicted current within the
+    /// actuator's peak and continuous currents.
+    #[arg(
+        long,
+        value_name = "M",
+        default_value_t = 5e-6,
+        allow_hyphen_values = true
+    )]
+    amplitude_m: f64,
+    /// Lines per second, Hz. Range: a line of a whole number of ticks (at
+    /// least 8), its fundamental below the band of the plant's lowest zero.
+    #[arg(
+        long,
+        value_name = "HZ",
+        default_value_t = 10.0,
+        allow_hyphen_values = true
+    )]
+    line_rate_hz: f64,
+    /// Remove the scan's harmonics at or above this frequency, Hz
+    /// [default: the lower edge of the lowest zero's band]. Range: above
+    /// the line rate, at most the Nyquist frequency.
+    #[arg(long, value_name = "HZ", allow_hyphen_values = true)]
+    cutoff_hz: Option<f64>,
+    /// Learning trials at most (after the standstill, feedback and
+    /// feedforward trials). Range: 1 to 100.
+    #[arg(long, value_name = "N", default_value_t = 10)]
+    trials: u32,
+    /// The learning gain α: the share of the last trial's error learned.
+    /// Range: (0, 1].
+    #[arg(
+        long,
+        value_name = "ALPHA",
+        default_value_t = 0.7,
+        allow_hyphen_values = true
+    )]
+    learning_gain: f64,
+    /// Measured lines per trial (after two warm-up lines). Range: 1 to
+    /// 1000.
+    #[arg(long, value_name = "N", default_value_t = 5)]
+    periods: u32,
+    #[command(flatten)]
+    out: super::OutFlag,
+    /// Pace the loop in real time.
+    #[arg(long)]
+    realtime: bool,
+    /// Simulator noise seed [default: sim.seed].
+    #[arg(long, value_name = "N", allow_hyphen_values = true, value_parser = parse_seed)]
+    seed: Option<u64>,
+    /// Backend: sim, serial:PATH, socketcan:IFACE or ethercat:IFACE
+    /// [default: [backend] of the config]. Hardware always runs in real
+    /// time.
+    #[arg(long, value_name = "BACKEND")]
+    backend: Option<BackendSpec>,
+    #[command(flatten)]
+    json: super::JsonFlag,
+    #[command(flatten)]
+    outputs: super::OutputFlags,
+}
+
+impl TrackArgs {
+    fn controller(&self) -> String {
+        if self.slow {
+            "slow".to_string()
+        } else {
+            self.controller
+                .clone()
+                .unwrap_or_else(|| "fast".to_string())
+        }
+    }
+}
+
+pub(super) fn track(args: TrackArgs, stop: Arc<AtomicBool>) -> ExitCode {
+    let (cfg, config_path) = match load_config(args.config.config.as_deref()) {
+        Ok(c) => c,
+        Err(e) => return bad_input(e),
+    };
+    let model = match &args.model {
+        Some(p) => match bench::config::BenchConfig::load(p) {
+            Ok(c) => Some((c, p.clone())),
+            Err(e) => return bad_input(format!("--model: {e}")),
+        },
+        None => None,
+    };
+    let controller = args.controller();
+    let out_dir = match &args.out.out {
+        Some(d) => d.clone(),
+        None => match super::default_recordings(true, "--out") {
+            Ok(d) => d.join(format!("track-{controller}-{}", bench::outputs::stamp())),
+            Err(e) => return bad_input(e),
+        },
+    };
+    let opts = TrackOptions {
+        seed: args.seed.unwrap_or(cfg.sim.seed),
+        config: cfg,
+        config_path,
+        controller,
+        scan: Scan {
+            kind: args.scan,
+            amplitude_m: args.amplitude_m,
+            line_rate_hz: args.line_rate_hz,
+            cutoff_hz: args.cutoff_hz.unwrap_or(f64::NAN),
+        },
+        trials: args.trials,
+        learning_gain: args.learning_gain,
+        periods: args.periods,
+        out_dir,
+        backend: args.backend.clone(),
+        realtime: args.realtime,
+        overwrite: args.outputs.overwrite,
+        model,
+    };
+    let result = job_thread::run_job(stop, move |stop, _ticks| run_track(&opts, stop));
+    let result = match result {
+        Ok(r) => r,
+        Err(code) => return code,
+    };
+    match result {
+        Ok(summary) => match emit(&summary, args.json.json, print_track_summary) {
+            Ok(()) => ExitCode::SUCCESS,
+            Err(code) => code,
+        },
+        Err(e) => run_failed_json(&e, args.json.json),
+    }
+}
+
+fn nm(m: f64) -> String {
+    format!("{:.1} nm", m * 1e9)
+}
+
+fn print_track_summary(s: &TrackSummary) {
+    let p = &s.plan;
+    outln!(
+        "bench track --controller {} on {} (seed {}): {:?} scan ±{:.2} µm at {} lines/s, {} ticks a line, harmonics below {:.1} Hz (the {} kept)",
+        s.controller,
+        s.backend,
+        s.seed,
+        p.scan.kind,
+        p.scan.amplitude_m * 1e6,
+        p.scan.line_rate_hz,
+        p.period_ticks,
+        p.scan.cutoff_hz,
+        p.harmonics
+    );
+    for b in &p.zero_bands {
+        outln!(
+            "  {} zero at {:.1} Hz closes {:.1}–{:.1} Hz",
+            b.kind,
+            b.zero_hz,
+            b.low_hz,
+            b.high_hz
+        );
+    }
+    for (k, f) in &p.harmonics_removed {
+        outln!("  smoothing removed harmonic {k} ({f:.1} Hz): it lies in a zero's band");
+    }
+    for (k, f) in &p.harmonics_in_zero_bands {
+        outln!("  warning: harmonic {k} ({f:.1} Hz) lies in a zero's band: no loop tracks it; the default cut-off removes it");
+    }
+    outln!("  model: the [plant] of {}", p.model.display());
+    outln!(
+        "  predicted: feedback alone {} RMS error; with the feedforward {:.2} A peak, {:.2} A RMS; learning contracts the error by {:.3} a trial (α {})",
+        nm(p.predicted_feedback_rms_error_m),
+        p.predicted_peak_current_a,
+        p.predicted_rms_current_a,
+        p.model_contraction,
+        p.learning_gain
+    );
+    for t in &s.trials {
+        outln!(
+            "  {:<12} RMS error {:>10} ({:>6.2}× the noise floor), peak {:>10}, feedforward {:.3} A RMS",
+            t.name,
+            nm(t.rms_error_m),
+            t.of_noise_floor,
+            nm(t.peak_error_m),
+            t.feedforward_rms_a
+        );
+    }
+    if let (Some(best), Some(imp), Some(stop)) = (&s.best_trial, s.improvement, &s.stop) {
+        outln!(
+            "  best: {best}, {imp:.1}× lower RMS error than feedback alone; learning stopped: {stop}"
+        );
+    }
+    if let Some(csv) = &s.feedforward_csv {
+        outln!("  feedforward: {}", csv.display());
+    }
+}

@@ -1,0 +1,739 @@
+//! `bench track`: a periodic scan tracked by the feedback loop, then with
+//! the model-inverse feedforward, then learned trial by trial (ILC) until
+//! the error reaches the noise floor ([`crate::track`] for the reference,
+//! the feedforward and the learning law).
+//!
+//! The trials, each one real-time run recorded to its own MCAP file in the
+//! output directory:
+//! 1. `standstill`: the loop holds its start position, no reference: the
+//!    error's RMS over the measured periods is the noise floor.
+//! 2. `feedback`: the scan, the controller alone.
+//! 3. `feedforward`: the scan plus the model-inverse feedforward.
+//! 4. `learning-N`: the feedforward learned from the trial before.
+//!
+//! Every trial runs [`WARM_UP_PERIODS`] periods (the first faded in) and
+//! then the measured periods; the error (setpoint − reading) of the
+//! measured periods, averaged period by period, is what the learning reads.
+//!
+//! Learning stops when a trial's RMS error is within
+//! [`CONVERGED_OF_NOISE_FLOOR`] of the noise floor (`converged`), when it
+//! grew two trials in a row (`diverged`: the best trial's feedforward is
+//! kept), or after the trial budget (`budget`). The best feedforward is
+//! written as a CSV table (`feedforward.csv`) and the summary, rewritten
+//! after every trial, as `track.json`: a fault ends the learning with every
+//! recording finished and the summary of the trials before it on disk.
+//!
+//! Before anything is enabled the scan is planned on the model: its
+//! line must last a whole number of ticks, its fundamental must lie below
+//! the band of the plant's lowest zero (else no loop follows it at all),
+//! and the predicted command of the feedforward trial (`u = CS·r + S·f`)
+//! must stay within the peak current and, as RMS, the continuous current
+//! in force; its peak position within the position limit.
+
+use crate::config::BenchConfig;
+use crate::control::loop_check::check_loop;
+use crate::control::verify::ModelLoop;
+use crate::control::DiscreteController;
+use crate::error::RunError;
+use crate::jobs::session::{finish, open_recording, run_recorded, Kept, Runner, SessionOptions};
+use crate::outputs::{Existing, Origin, OutputPlan};
+use crate::rt::backend::{self, BackendSpec};
+use crate::rt::supervisor::StallBounds;
+use crate::track::{model_inverse, predict, Harmonics, Learning, Scan, TrackJob, ZeroBand};
+use bench_plant::model::Sr4dof;
+use bench_plant::sim::ZohPlant;
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+use std::sync::atomic::AtomicBool;
+use std::sync::Arc;
+
+/// Periods run before the measured ones: the first faded in, the second
+/// for the loop's transient to decay.
+pub const WARM_UP_PERIODS: u64 = 2;
+
+/// A learning trial whose RMS error is within this factor of the noise
+/// floor has converged (issue 44: "the error within 1.5× its noise floor").
+pub const CONVERGED_OF_NOISE_FLOOR: f64 = 1.5;
+
+/// Everything `bench track` needs.
+#[derive(Debug, Clone)]
+pub struct TrackOptions {
+    /// Validated config.
+    pub config: BenchConfig,
+    /// Where it came from.
+    pub config_path: PathBuf,
+    /// Controller name.
+    pub controller: String,
+    /// The scan; `cutoff_hz` NaN: the default (the lowest zero band's
+    /// lower edge).
+    pub scan: Scan,
+    /// Learning trials at most, 1–100.
+    pub trials: u32,
+    /// The learning gain `α`, (0, 1].
+    pub learning_gain: f64,
+    /// Measured periods per trial, 1–1000.
+    pub periods: u32,
+    /// The output directory.
+    pub out_dir: PathBuf,
+    /// Simulator seed.
+    pub seed: u64,
+    /// `--backend` (else `[backend]` of the config).
+    pub backend: Option<BackendSpec>,
+    /// Real-time pacing (hardware always).
+    pub realtime: bool,
+    /// Replace existing outputs.
+    pub overwrite: bool,
+    /// The model the feedforward and the learning law are computed on: a
+    /// bench config (`bench fit --update`'s, say) and where it came from;
+    /// `None`: the bench config's own `[plant]`.
+    pub model: Option<(BenchConfig, PathBuf)>,
+}
+
+/// The scan as planned on the model before the first trial.
+#[derive(Debug, Clone, Serialize, Deserialize, schemars::JsonSchema)]
+pub struct TrackPlan {
+    /// The model the feedforward and the learning law are computed on:
+    /// the config file whose `[plant]` it is.
+    pub model: PathBuf,
+    /// The scan, with the cut-off in force.
+    pub scan: Scan,
+    /// Ticks per line.
+    pub period_ticks: usize,
+    /// The highest harmonic kept (and learned).
+    pub harmonics: usize,
+    /// The bands the plant's zeros close, ascending.
+    pub zero_bands: Vec<ZeroBand>,
+    /// The reference's harmonics inside a zero band, each `(k, Hz)`: kept
+    /// only with a cut-off given (`--cutoff-hz`), and warned about.
+    pub harmonics_in_zero_bands: Vec<(usize, f64)>,
+    /// The harmonics below the default cut-off that the smoothing removed
+    /// because they lie in a zero's band, each `(k, Hz)`.
+    pub harmonics_removed: Vec<(usize, f64)>,
+    /// Predicted peak of the feedforward trial's command, A.
+    pub predicted_peak_current_a: f64,
+    /// Predicted RMS of its command, A.
+    pub predicted_rms_current_a: f64,
+    /// Peak of the reference about the start, m.
+    pub peak_reference_m: f64,
+    /// Predicted RMS error of feedback alone on the model, m.
+    pub predicted_feedback_rms_error_m: f64,
+    /// The learning gain `α`.
+    pub learning_gain: f64,
+    /// Largest `|1 − L_k·PS_k|` on the model over the learned harmonics:
+    /// the error's contraction per trial (`1 − α` on the model itself).
+    pub model_contraction: f64,
+}
+
+/// One trial's result.
+#[derive(Debug, Clone, Serialize, Deserialize, schemars::JsonSchema)]
+pub struct TrialReport {
+    /// `standstill`, `feedback`, `feedforward` or `learning-N`.
+    pub name: String,
+    /// RMS of the error over the measured periods, m.
+    pub rms_error_m: f64,
+    /// Largest |error| over them, m.
+    pub peak_error_m: f64,
+    /// RMS error over the noise floor (1 for the standstill trial).
+    pub of_noise_floor: f64,
+    /// RMS of the feedforward played, A.
+    pub feedforward_rms_a: f64,
+    /// The recording.
+    pub recording: PathBuf,
+}
+
+/// Result of `bench track`.
+#[derive(Debug, Clone, Serialize, Deserialize, schemars::JsonSchema)]
+pub struct TrackSummary {
+    /// Controller name.
+    pub controller: String,
+    /// Backend.
+    pub backend: String,
+    /// Seed.
+    pub seed: u64,
+    /// The plan.
+    pub plan: TrackPlan,
+    /// The noise floor: the standstill trial's RMS error, m.
+    pub noise_floor_m: f64,
+    /// The trials so far, in order.
+    pub trials: Vec<TrialReport>,
+    /// Why learning stopped: `converged`, `diverged`, `budget` (absent
+    /// while it runs or after a fault).
+    pub stop: Option<String>,
+    /// The trial with the least RMS error among those with a scan.
+    pub best_trial: Option<String>,
+    /// Feedback-alone RMS error over the best trial's.
+    pub improvement: Option<f64>,
+    /// The best feedforward's table (`feedforward.csv`).
+    pub feedforward_csv: Option<PathBuf>,
+}
+
+fn ticks_per_line(cfg: &BenchConfig, line_rate_hz: f64) -> Result<usize, RunError> {
+    let rate = cfg.loop_.rate_hz;
+    if !(line_rate_hz.is_finite() && line_rate_hz > 0.0) {
+        return Err(RunError::option(
+            "line_rate_hz",
+            line_rate_hz,
+            "must be a frequency > 0 Hz".to_string(),
+        ));
+    }
+    let n = rate / line_rate_hz;
+    let whole = n.round();
+    if (n - whole).abs() > 1e-9 * n || whole < 8.0 {
+        return Err(RunError::option(
+            "line_rate_hz",
+            line_rate_hz,
+            format!(
+                "a line must last a whole number of ticks, at least 8: loop.rate_hz {rate} / {line_rate_hz} = {n:.4}"
+            ),
+        ));
+    }
+    Ok(whole as usize)
+}
+
+/// Checks the scan against the plant's zero bands and sets the default
+/// cut-off; returns the scan in force and the harmonics inside a band.
+fn plan_scan(
+    scan: &Scan,
+    bands: &[ZeroBand],
+    rate_hz: f64,
+) -> Result<(Scan, Vec<(usize, f64)>), RunError> {
+    let a = scan.amplitude_m;
+    if !(a.is_finite() && a > 0.0) {
+        return Err(RunError::option(
+            "amplitude_m",
+            a,
+            "must be a length > 0 m".to_string(),
+        ));
+    }
+    let nyquist = rate_hz / 2.0;
+    // Above the lowest right-half-plane zero's band no feedforward helps
+    // (module docs); an MMP band only closes itself.
+    let nmp = bands.iter().find(|b| b.kind != "MMP");
+    let lowest = nmp.map_or(nyquist, |b| b.low_hz.min(nyquist));
+    let closing = bands.iter().find(|b| b.contains(scan.line_rate_hz));
+    if scan.line_rate_hz >= lowest || closing.is_some() {
+        let why = match closing.or(nmp) {
+            Some(b) => format!(
+                "lies in or above the band {:.1}–{:.1} Hz that the {} zero at {:.1} Hz closes",
+                b.low_hz, b.high_hz, b.kind, b.zero_hz
+            ),
+            None => format!("is at or above the Nyquist frequency {nyquist} Hz"),
+        };
+        return Err(RunError::option(
+            "line_rate_hz",
+            scan.line_rate_hz,
+            format!("the loop cannot follow this line at all: its fundamental {why}"),
+        ));
+    }
+    let cutoff = if scan.cutoff_hz.is_nan() {
+        lowest
+    } else {
+        scan.cutoff_hz
+    };
+    if !(cutoff.is_finite() && cutoff > scan.line_rate_hz && cutoff <= nyquist) {
+        return Err(RunError::option(
+            "cutoff_hz",
+            scan.cutoff_hz,
+            format!(
+                "must lie above the line rate {} Hz and at most at the Nyquist frequency {nyquist} Hz",
+                scan.line_rate_hz
+            ),
+        ));
+    }
+    let scan = Scan {
+        cutoff_hz: cutoff,
+        ..*scan
+    };
+    let inside: Vec<(usize, f64)> = (1..=scan.k_max())
+        .map(|k| (k, Harmonics::frequency_hz(k, scan.line_rate_hz)))
+        .filter(|(k, f)| {
+            bands.iter().any(|b| b.contains(*f)) && scan.harmonics(8 * k + 8).coef[*k].norm() > 0.0
+        })
+        .collect();
+    Ok((scan, inside))
+}
+
+/// Plans the scan on the model (module docs): the reference and the
+/// model-inverse feedforward's harmonics, the learning law and the plan.
+fn plan(
+    opts: &TrackOptions,
+    model: &ModelLoop<'_>,
+    bands: Vec<ZeroBand>,
+) -> Result<(TrackPlan, Harmonics, Harmonics, Learning), RunError> {
+    let cfg = &opts.config;
+    let n = ticks_per_line(cfg, opts.scan.line_rate_hz)?;
+    let (scan, inside) = plan_scan(&opts.scan, &bands, cfg.loop_.rate_hz)?;
+    let g = opts.learning_gain;
+    if !(g.is_finite() && g > 0.0 && g <= 1.0) {
+        return Err(RunError::option(
+            "learning_gain",
+            g,
+            "must lie in (0, 1]: the share of the last trial's error learned".to_string(),
+        ));
+    }
+    let mut r = scan.harmonics(n);
+    // The default smoothing also removes what lies in a band below the
+    // cut-off (an MMP zero's); a cut-off given keeps it, with a warning.
+    let (inside, removed) = if opts.scan.cutoff_hz.is_nan() {
+        for (k, _) in &inside {
+            r.coef[*k] = crate::ident::C64::new(0.0, 0.0);
+        }
+        (Vec::new(), inside)
+    } else {
+        (inside, Vec::new())
+    };
+    let f = model_inverse(&r, model, scan.line_rate_hz);
+    let (u, _) = predict(&r, &f, model, scan.line_rate_hz);
+    let (_, e_fb) = predict(
+        &r,
+        &Harmonics::zeros(r.coef.len() - 1, n),
+        model,
+        scan.line_rate_hz,
+    );
+    let u_t = u.synthesize();
+    let peak_u = u_t.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    let peak_r = r.synthesize().iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    let learning = Learning::new(model, g, scan.k_max(), scan.line_rate_hz);
+    let contraction = learning
+        .contraction(&learning.ps_model)
+        .into_iter()
+        .fold(0.0, f64::max);
+    let plan = TrackPlan {
+        model: opts
+            .model
+            .as_ref()
+            .map_or(opts.config_path.clone(), |(_, p)| p.clone()),
+        scan,
+        period_ticks: n,
+        harmonics: scan.k_max(),
+        zero_bands: bands,
+        harmonics_in_zero_bands: inside,
+        harmonics_removed: removed,
+        predicted_peak_current_a: peak_u,
+        predicted_rms_current_a: u.rms(),
+        peak_reference_m: peak_r,
+        predicted_feedback_rms_error_m: e_fb.rms(),
+        learning_gain: g,
+        model_contraction: contraction,
+    };
+    check_limits(cfg, &plan)?;
+    Ok((plan, r, f, learning))
+}
+
+/// The planned scan within the position limit and the current limits of
+/// the config (the device's, if lower, are checked again by the
+/// supervisor on the tick).
+fn check_limits(cfg: &BenchConfig, p: &TrackPlan) -> Result<(), RunError> {
+    let limit_m = cfg.safety.position_limit_m;
+    if p.peak_reference_m >= limit_m {
+        return Err(RunError::option(
+            "amplitude_m",
+            p.scan.amplitude_m,
+            format!(
+                "the scan reaches {:.3e} m from the start, beyond safety.position_limit_m {limit_m} m",
+                p.peak_reference_m
+            ),
+        ));
+    }
+    let peak_a = cfg.actuator.peak_current_a;
+    if p.predicted_peak_current_a > peak_a {
+        return Err(RunError::option(
+            "amplitude_m",
+            p.scan.amplitude_m,
+            format!(
+                "the scan with its feedforward needs {:.2} A peak (predicted on the model), above actuator.peak_current_a {peak_a} A: lower the amplitude or the line rate",
+                p.predicted_peak_current_a
+            ),
+        ));
+    }
+    let cont_a = cfg.actuator.continuous_current_a;
+    if p.predicted_rms_current_a > cont_a {
+        return Err(RunError::option(
+            "amplitude_m",
+            p.scan.amplitude_m,
+            format!(
+                "the scan with its feedforward needs {:.2} A RMS (predicted on the model), above actuator.continuous_current_a {cont_a} A (I²t): lower the amplitude or the line rate",
+                p.predicted_rms_current_a
+            ),
+        ));
+    }
+    Ok(())
+}
+
+/// The paths of the outputs in `dir`: one recording per trial, the
+/// feedforward table and the summary.
+fn trial_path(dir: &Path, index: usize, name: &str) -> PathBuf {
+    dir.join(format!("trial-{index:02}-{name}.mcap"))
+}
+
+/// The error of the measured periods: its RMS, its peak and the mean
+/// period (m).
+fn measured_error(
+    setpoint_m: &[f64],
+    position_m: &[f64],
+    n: usize,
+    warm_up: usize,
+) -> (f64, f64, Vec<f64>) {
+    let e: Vec<f64> = setpoint_m
+        .iter()
+        .zip(position_m)
+        .skip(warm_up)
+        .map(|(s, y)| s - y)
+        .collect();
+    let m = e.len() / n;
+    let rms = (e.iter().map(|v| v * v).sum::<f64>() / e.len().max(1) as f64).sqrt();
+    let peak = e.iter().fold(0.0f64, |a, v| a.max(v.abs()));
+    let mean = (0..n)
+        .map(|i| (0..m).map(|p| e[p * n + i]).sum::<f64>() / m.max(1) as f64)
+        .collect();
+    (rms, peak, mean)
+}
+
+/// The summary and the files of a run so far, written after every trial.
+fn write_summary(dir: &Path, s: &TrackSummary, existing: Existing) -> Result<(), RunError> {
+    let path = dir.join("track.json");
+    let text = serde_json::to_string_pretty(s).map_err(|e| RunError::BadInput(e.to_string()))?;
+    crate::outputs::write_atomically(&path, existing, |f| {
+        std::io::Write::write_all(f, text.as_bytes())
+    })
+    .map_err(|e| RunError::Output {
+        path,
+        reason: e.to_string(),
+    })
+}
+
+/// The best feedforward's period as a CSV table: tick in the line, time
+/// (s), reference (m), feedforward (A); a comment line first with the
+/// loop rate, the line rate and the controller it was learned with.
+fn write_feedforward(
+    path: &Path,
+    opts: &TrackOptions,
+    reference_m: &[f64],
+    feedforward_a: &[f64],
+    existing: Existing,
+) -> Result<(), RunError> {
+    let rate = opts.config.loop_.rate_hz;
+    crate::outputs::write_buffered_atomically(path, existing, |w| {
+        use std::io::Write;
+        writeln!(
+            w,
+            "# bench track feedforward: loop.rate_hz {rate}, line_rate_hz {}, controller {}, config {}",
+            opts.scan.line_rate_hz,
+            opts.controller,
+            opts.config_path.display()
+        )?;
+        writeln!(w, "tick,time_s,reference_m,feedforward_a")?;
+        for (i, (r, f)) in reference_m.iter().zip(feedforward_a).enumerate() {
+            writeln!(w, "{i},{:.9},{r:.6e},{f:.9e}", i as f64 / rate)?;
+        }
+        Ok(())
+    })
+    .map_err(|e| RunError::Output {
+        path: path.to_path_buf(),
+        reason: e.to_string(),
+    })
+}
+
+/// The outputs of a run of at most `trials` learning trials, checked
+/// together before anything is enabled.
+fn outputs(opts: &TrackOptions) -> Result<Vec<PathBuf>, RunError> {
+    let dir = &opts.out_dir;
+    std::fs::create_dir_all(dir)
+        .map_err(|e| RunError::option("out", dir.display(), format!("cannot create it: {e}")))?;
+    let names = [
+        "standstill".to_string(),
+        "feedback".into(),
+        "feedforward".into(),
+    ]
+    .into_iter()
+    .chain((1..=opts.trials).map(|j| format!("learning-{j}")));
+    let recordings: Vec<PathBuf> = names
+        .enumerate()
+        .map(|(i, n)| trial_path(dir, i, &n))
+        .collect();
+    let mut plan = OutputPlan::new(Existing::overwrite(opts.overwrite));
+    for r in &recordings {
+        plan = plan.with_recording(r, Origin::Derived);
+    }
+    plan = plan
+        .with_output("out", &dir.join("track.json"), Origin::Derived)
+        .with_output("out", &dir.join("feedforward.csv"), Origin::Derived)
+        .with_input("config", &opts.config_path);
+    plan.check()?;
+    Ok(recordings)
+}
+
+/// What every trial of a run shares.
+struct Trials<'a> {
+    opts: &'a TrackOptions,
+    ctrl: DiscreteController,
+    recordings: &'a [PathBuf],
+    stop: &'a Arc<AtomicBool>,
+    stall: StallBounds,
+    stall_source: &'a str,
+}
+
+impl Trials<'_> {
+    /// Runs trial `index` on `runner` and measures its error: its report
+    /// and the mean period of its error (m).
+    fn run(
+        &self,
+        runner: &mut Runner<'_>,
+        index: usize,
+        name: &str,
+        reference_m: &[f64],
+        feedforward_a: &[f64],
+    ) -> Result<(TrialReport, Vec<f64>), RunError> {
+        let opts = self.opts;
+        let recording = &self.recordings[index];
+        let n = reference_m.len();
+        let warm_up = WARM_UP_PERIODS * n as u64;
+        let total = warm_up + u64::from(opts.periods) * n as u64;
+        let job = TrackJob::new(
+            self.ctrl,
+            reference_m.to_vec(),
+            feedforward_a.to_vec(),
+            total,
+        );
+        let cfg = &opts.config;
+        let info = runner.info().clone();
+        let spec = BackendSpec::resolve(opts.backend.as_ref(), cfg);
+        let session = SessionOptions {
+            command: "track",
+            config_path: &opts.config_path,
+            out: recording,
+            realtime: opts.realtime || !spec.is_sim(),
+            pace: None,
+            progress: false,
+            seed: opts.seed,
+            max_ticks: total,
+            keep: Kept::STEP,
+            ticks: None,
+            stall: Some(self.stall),
+            stall_source: self.stall_source,
+        };
+        let mut plan = OutputPlan::new(Existing::overwrite(opts.overwrite))
+            .with_recording(recording, Origin::Derived);
+        let recorder = open_recording(&session, cfg, &info, &mut plan)?;
+        let recorded = run_recorded(runner, job, cfg, recorder, &session, Arc::clone(self.stop))?;
+        let data = &recorded.data;
+        let (rms, peak, mean) =
+            measured_error(&data.setpoint_m, &data.position_m, n, warm_up as usize);
+        let ff_rms = (feedforward_a.iter().map(|v| v * v).sum::<f64>() / n as f64).sqrt();
+        let mut recorder = recorded.recorder;
+        let report = TrialReport {
+            name: name.to_string(),
+            rms_error_m: rms,
+            peak_error_m: peak,
+            of_noise_floor: f64::NAN,
+            feedforward_rms_a: ff_rms,
+            recording: recording.clone(),
+        };
+        let ch = recorder.add_channel_for::<TrialReport>("/track/trial", "bench.TrackTrial")?;
+        recorder.write(ch, recorded.end_ns, &report)?;
+        finish(recorder)?;
+        Ok((report, mean))
+    }
+
+    /// The trials in order (module docs), the summary written after each.
+    fn learn(
+        &self,
+        runner: &mut Runner<'_>,
+        r: &Harmonics,
+        f_model: Harmonics,
+        learning: &Learning,
+        summary: &mut TrackSummary,
+    ) -> Result<(), RunError> {
+        let dir = &self.opts.out_dir;
+        let n = r.period_ticks;
+        let r_t = r.synthesize();
+        let still = vec![0.0; n];
+        let (t, _) = self.run(runner, 0, "standstill", &still, &still)?;
+        summary.noise_floor_m = t.rms_error_m;
+        summary.push(t);
+        write_summary(dir, summary, Existing::overwrite(self.opts.overwrite))?;
+        // From here on the summary replaces the run's own.
+        let (t, _) = self.run(runner, 1, "feedback", &r_t, &still)?;
+        summary.push(t);
+        write_summary(dir, summary, Existing::Replace)?;
+        let mut f = f_model;
+        let mut f_t = f.synthesize();
+        let (t, mut e_mean) = self.run(runner, 2, "feedforward", &r_t, &f_t)?;
+        let mut best = (t.rms_error_m, t.name.clone(), f_t.clone());
+        let mut rms = vec![t.rms_error_m];
+        summary.push(t);
+        write_summary(dir, summary, Existing::Replace)?;
+        let budget = self.opts.trials as usize;
+        let mut why = stop_rule(&rms, summary.noise_floor_m, budget + 1);
+        let mut j = 0;
+        while why.is_none() {
+            j += 1;
+            f = learning.update(&f, &Harmonics::analyze(&e_mean, learning.l.len() - 1));
+            f_t = f.synthesize();
+            let name = format!("learning-{j}");
+            let (t, e) = self.run(runner, 2 + j, &name, &r_t, &f_t)?;
+            e_mean = e;
+            if t.rms_error_m < best.0 {
+                best = (t.rms_error_m, name, f_t.clone());
+            }
+            rms.push(t.rms_error_m);
+            summary.push(t);
+            why = stop_rule(&rms, summary.noise_floor_m, budget + 1);
+            write_summary(dir, summary, Existing::Replace)?;
+        }
+        let csv = dir.join("feedforward.csv");
+        write_feedforward(
+            &csv,
+            self.opts,
+            &r_t,
+            &best.2,
+            Existing::overwrite(self.opts.overwrite),
+        )?;
+        summary.stop = why.map(str::to_string);
+        summary.improvement = Some(summary.trials[1].rms_error_m / best.0);
+        summary.best_trial = Some(best.1);
+        summary.feedforward_csv = Some(csv);
+        write_summary(dir, summary, Existing::Replace)
+    }
+}
+
+impl TrackSummary {
+    /// Adds a trial, its error relative to the noise floor set.
+    fn push(&mut self, mut t: TrialReport) {
+        t.of_noise_floor = t.rms_error_m / self.noise_floor_m;
+        self.trials.push(t);
+    }
+}
+
+/// Why learning stops after `rms` (the learning trials' RMS errors so far,
+/// m), or `None` to go on.
+pub fn stop_rule(rms: &[f64], noise_floor_m: f64, budget: usize) -> Option<&'static str> {
+    let last = *rms.last()?;
+    if last <= CONVERGED_OF_NOISE_FLOOR * noise_floor_m {
+        return Some("converged");
+    }
+    if rms.len() >= 3
+        && rms[rms.len() - 1] > rms[rms.len() - 2]
+        && rms[rms.len() - 2] > rms[rms.len() - 3]
+    {
+        return Some("diverged");
+    }
+    (rms.len() >= budget).then_some("budget")
+}
+
+/// Runs `bench track` (module docs).
+///
+/// # Errors
+/// [`RunError::BadOption`] naming the option for a scan the plan refuses,
+/// an unusable output; [`RunError::BadInput`] for an unknown controller;
+/// the errors of [`run_recorded`] for a trial that faults (its recording
+/// and every earlier one finished, `track.json` holding the trials before).
+pub fn run_track(opts: &TrackOptions, stop: Arc<AtomicBool>) -> Result<TrackSummary, RunError> {
+    let cfg = &opts.config;
+    let ccfg = cfg.controller.get(&opts.controller).ok_or_else(|| {
+        RunError::option(
+            "controller",
+            &opts.controller,
+            "no [controller.NAME] of that name in the config".to_string(),
+        )
+    })?;
+    if !(1..=100).contains(&opts.trials) {
+        return Err(RunError::option(
+            "trials",
+            opts.trials,
+            "must be 1 to 100".to_string(),
+        ));
+    }
+    if !(1..=1000).contains(&opts.periods) {
+        return Err(RunError::option(
+            "periods",
+            opts.periods,
+            "must be 1 to 1000".to_string(),
+        ));
+    }
+    let (plant_params, model_path) = opts
+        .model
+        .as_ref()
+        .map_or((cfg.plant, &opts.config_path), |(c, p)| (c.plant, p));
+    let model = Sr4dof::new(plant_params)
+        .map_err(|e| RunError::BadInput(format!("config {}: {e}", model_path.display())))?;
+    let period_s = cfg.loop_.period_ns() as f64 * 1e-9;
+    let spec = BackendSpec::resolve(opts.backend.as_ref(), cfg);
+    let ctrl = DiscreteController::new(ccfg, period_s, cfg.actuator.peak_current_a);
+    let plant = ZohPlant::new(&model, &cfg.actuator, period_s);
+    let model_loop = ModelLoop {
+        plant: &plant,
+        ctrl: &ctrl,
+        link_delay_periods: spec.process_data_delay_periods(),
+    };
+    let bands = ZeroBand::of(&crate::analysis::modal::damped_zeros(&model));
+    let (plan, r, f_model, learning) = plan(opts, &model_loop, bands)?;
+    let total = (WARM_UP_PERIODS + u64::from(opts.periods)) * plan.period_ticks as u64;
+    if total > crate::config::ranges::JOB_TICKS_MAX {
+        return Err(RunError::option(
+            "periods",
+            opts.periods,
+            format!("a trial of {total} ticks is longer than a job may be"),
+        ));
+    }
+    for (k, f_hz) in &plan.harmonics_in_zero_bands {
+        tracing::warn!(
+            "harmonic {k} of the scan ({f_hz:.1} Hz) lies in a band the plant's zeros close: no loop tracks it, and its feedforward costs current; the default smoothing (no --cutoff-hz) removes it"
+        );
+    }
+    // The loop on the model first: an unstable or marginal loop never runs.
+    let check = check_loop(
+        cfg,
+        &model,
+        &opts.controller,
+        &ctrl,
+        period_s,
+        None,
+        plan.peak_reference_m,
+        spec.process_data_delay_periods(),
+    );
+    if !check.passed() {
+        return Err(RunError::Refused(format!(
+            "loop check refused controller {}: {}; nothing was enabled",
+            opts.controller,
+            check.failures.join("; ")
+        )));
+    }
+    let recordings = outputs(opts)?;
+    let (mut stage, info) = backend::open(
+        &spec,
+        cfg,
+        &opts.config_path,
+        opts.seed,
+        None,
+        check.stall.bound_s,
+    )?;
+    let mut runner = Runner::Local {
+        stage: &mut stage,
+        info: &info,
+    };
+    let ctrl = ctrl.with_limit(cfg.current_limits(&info).peak_current_a);
+    let mut summary = TrackSummary {
+        controller: opts.controller.clone(),
+        backend: info.name.clone(),
+        seed: opts.seed,
+        plan,
+        noise_floor_m: f64::NAN,
+        trials: Vec::new(),
+        stop: None,
+        best_trial: None,
+        improvement: None,
+        feedforward_csv: None,
+    };
+    let period_s_stall = StallBounds::of(check.stall.bound_s, period_s);
+    let run = Trials {
+        opts,
+        ctrl,
+        recordings: &recordings,
+        stop: &stop,
+        stall: period_s_stall,
+        stall_source: &check.stall.source,
+    };
+    run.learn(&mut runner, &r, f_model, &learning, &mut summary)?;
+    Ok(summary)
+}
