@@ -63,7 +63,12 @@ pub(super) struct TrackArgs {
     cutoff_hz: Option<f64>,
     /// Learning trials at most (after the standstill, feedback and
     /// feedforward trials). Range: 1 to 100.
-    #[arg(long, value_name = "N", default_value_t = 10)]
+    #[arg(
+        long,
+        value_name = "N",
+        default_value_t = 10,
+        allow_hyphen_values = true
+    )]
     trials: u32,
     /// The learning gain α: the share of the last trial's error learned.
     /// Range: (0, 1].
@@ -76,7 +81,12 @@ pub(super) struct TrackArgs {
     learning_gain: f64,
     /// Measured lines per trial (after two warm-up lines). Range: 1 to
     /// 1000.
-    #[arg(long, value_name = "N", default_value_t = 5)]
+    #[arg(
+        long,
+        value_name = "N",
+        default_value_t = 5,
+        allow_hyphen_values = true
+    )]
     periods: u32,
     #[command(flatten)]
     out: super::OutFlag,
@@ -138,8 +148,9 @@ pub(super) fn track(args: TrackArgs, stop: Arc<AtomicBool>) -> ExitCode {
             kind: args.scan,
             amplitude_m: args.amplitude_m,
             line_rate_hz: args.line_rate_hz,
-            cutoff_hz: args.cutoff_hz.unwrap_or(f64::NAN),
+            cutoff_hz: f64::NAN,
         },
+        cutoff_hz: args.cutoff_hz,
         trials: args.trials,
         learning_gain: args.learning_gain,
         periods: args.periods,

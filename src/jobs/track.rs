@@ -11,9 +11,12 @@
 //! 3. `feedforward`: the scan plus the model-inverse feedforward.
 //! 4. `learning-N`: the feedforward learned from the trial before.
 //!
-//! Every trial runs [`WARM_UP_PERIODS`] periods (the first faded in) and
-//! then the measured periods; the error (setpoint − reading) of the
-//! measured periods, averaged period by period, is what the learning reads.
+//! Every trial runs [`WARM_UP_PERIODS`] periods (the first faded in), then
+//! the measured periods, then one period fading the scan out and one
+//! holding the start ([`TrackJob`]: the stage ends still where it began,
+//! so the next trial takes it at rest); the error (setpoint − reading) of
+//! the measured periods, averaged period by period, is what the learning
+//! reads.
 //!
 //! Learning stops when a trial's RMS error is within
 //! [`CONVERGED_OF_NOISE_FLOOR`] of the noise floor (`converged`), when it
@@ -64,9 +67,10 @@ pub struct TrackOptions {
     pub config_path: PathBuf,
     /// Controller name.
     pub controller: String,
-    /// The scan; `cutoff_hz` NaN: the default (the lowest zero band's
-    /// lower edge).
+    /// The scan (its `cutoff_hz` is set by the plan).
     pub scan: Scan,
+    /// `--cutoff-hz`; `None`: the default smoothing (module docs).
+    pub cutoff_hz: Option<f64>,
     /// Learning trials at most, 1–100.
     pub trials: u32,
     /// The learning gain `α`, (0, 1].
@@ -194,6 +198,7 @@ fn ticks_per_line(cfg: &BenchConfig, line_rate_hz: f64) -> Result<usize, RunErro
 /// cut-off; returns the scan in force and the harmonics inside a band.
 fn plan_scan(
     scan: &Scan,
+    cutoff_hz: Option<f64>,
     bands: &[ZeroBand],
     rate_hz: f64,
 ) -> Result<(Scan, Vec<(usize, f64)>), RunError> {
@@ -225,15 +230,11 @@ fn plan_scan(
             format!("the loop cannot follow this line at all: its fundamental {why}"),
         ));
     }
-    let cutoff = if scan.cutoff_hz.is_nan() {
-        lowest
-    } else {
-        scan.cutoff_hz
-    };
+    let cutoff = cutoff_hz.unwrap_or(lowest);
     if !(cutoff.is_finite() && cutoff > scan.line_rate_hz && cutoff <= nyquist) {
         return Err(RunError::option(
             "cutoff_hz",
-            scan.cutoff_hz,
+            cutoff,
             format!(
                 "must lie above the line rate {} Hz and at most at the Nyquist frequency {nyquist} Hz",
                 scan.line_rate_hz
@@ -262,7 +263,7 @@ fn plan(
 ) -> Result<(TrackPlan, Harmonics, Harmonics, Learning), RunError> {
     let cfg = &opts.config;
     let n = ticks_per_line(cfg, opts.scan.line_rate_hz)?;
-    let (scan, inside) = plan_scan(&opts.scan, &bands, cfg.loop_.rate_hz)?;
+    let (scan, inside) = plan_scan(&opts.scan, opts.cutoff_hz, &bands, cfg.loop_.rate_hz)?;
     let g = opts.learning_gain;
     if !(g.is_finite() && g > 0.0 && g <= 1.0) {
         return Err(RunError::option(
@@ -274,7 +275,7 @@ fn plan(
     let mut r = scan.harmonics(n);
     // The default smoothing also removes what lies in a band below the
     // cut-off (an MMP zero's); a cut-off given keeps it, with a warning.
-    let (inside, removed) = if opts.scan.cutoff_hz.is_nan() {
+    let (inside, removed) = if opts.cutoff_hz.is_none() {
         for (k, _) in &inside {
             r.coef[*k] = crate::ident::C64::new(0.0, 0.0);
         }
@@ -488,13 +489,15 @@ impl Trials<'_> {
         let recording = &self.recordings[index];
         let n = reference_m.len();
         let warm_up = WARM_UP_PERIODS * n as u64;
-        let total = warm_up + u64::from(opts.periods) * n as u64;
+        let lines = WARM_UP_PERIODS + u64::from(opts.periods);
         let job = TrackJob::new(
             self.ctrl,
             reference_m.to_vec(),
             feedforward_a.to_vec(),
-            total,
+            lines,
         );
+        let total = job.total_ticks();
+        let measured_end = (lines * n as u64) as usize;
         let cfg = &opts.config;
         let info = runner.info().clone();
         let spec = BackendSpec::resolve(opts.backend.as_ref(), cfg);
@@ -517,8 +520,12 @@ impl Trials<'_> {
         let recorder = open_recording(&session, cfg, &info, &mut plan)?;
         let recorded = run_recorded(runner, job, cfg, recorder, &session, Arc::clone(self.stop))?;
         let data = &recorded.data;
-        let (rms, peak, mean) =
-            measured_error(&data.setpoint_m, &data.position_m, n, warm_up as usize);
+        let (rms, peak, mean) = measured_error(
+            &data.setpoint_m[..measured_end.min(data.setpoint_m.len())],
+            &data.position_m[..measured_end.min(data.position_m.len())],
+            n,
+            warm_up as usize,
+        );
         let ff_rms = (feedforward_a.iter().map(|v| v * v).sum::<f64>() / n as f64).sqrt();
         let mut recorder = recorded.recorder;
         let report = TrialReport {
@@ -668,7 +675,7 @@ pub fn run_track(opts: &TrackOptions, stop: Arc<AtomicBool>) -> Result<TrackSumm
     };
     let bands = ZeroBand::of(&crate::analysis::modal::damped_zeros(&model));
     let (plan, r, f_model, learning) = plan(opts, &model_loop, bands)?;
-    let total = (WARM_UP_PERIODS + u64::from(opts.periods)) * plan.period_ticks as u64;
+    let total = (WARM_UP_PERIODS + u64::from(opts.periods) + 2) * plan.period_ticks as u64;
     if total > crate::config::ranges::JOB_TICKS_MAX {
         return Err(RunError::option(
             "periods",

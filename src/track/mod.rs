@@ -335,23 +335,27 @@ impl Learning {
 }
 
 /// The tracking job: the controller on the reference table plus the
-/// feedforward table, both periodic, faded in over the first period with a
-/// raised cosine (bumpless: no step in the setpoint or the current at
-/// the start). The setpoint is the first finite reading plus the
-/// reference. Real-time safe: the tables are built before the run; the
-/// tick only indexes them.
+/// feedforward table, both periodic. Both are faded in over the first
+/// period with a raised cosine (bumpless: no step in the setpoint or the
+/// current at the start), played at full amplitude to the end of line
+/// `lines`, faded out over the next period, and held at zero for one more:
+/// the stage ends where it started, still, before the loop lets it go (the
+/// next job takes it at rest, as the supervisor's probe rules assume). The
+/// setpoint is the first finite reading plus the reference. Real-time
+/// safe: the tables are built before the run; the tick only indexes them.
 #[derive(Debug, Clone)]
 pub struct TrackJob {
     ctrl: DiscreteController,
     start_m: Option<f64>,
     reference_m: Box<[f64]>,
     feedforward_a: Box<[f64]>,
-    total_ticks: u64,
+    lines: u64,
 }
 
 impl TrackJob {
     /// `reference_m` and `feedforward_a`: one period each, equal lengths
-    /// (≥ 1); `total_ticks` the trial's length.
+    /// (≥ 1); `lines` (≥ 1) periods played, the first faded in, then the
+    /// fade-out and the hold.
     ///
     /// # Panics
     /// If the tables differ in length or are empty.
@@ -359,7 +363,7 @@ impl TrackJob {
         ctrl: DiscreteController,
         reference_m: Vec<f64>,
         feedforward_a: Vec<f64>,
-        total_ticks: u64,
+        lines: u64,
     ) -> Self {
         assert!(!reference_m.is_empty() && reference_m.len() == feedforward_a.len());
         Self {
@@ -367,25 +371,31 @@ impl TrackJob {
             start_m: None,
             reference_m: reference_m.into_boxed_slice(),
             feedforward_a: feedforward_a.into_boxed_slice(),
-            total_ticks,
+            lines: lines.max(1),
         }
     }
 
-    /// The fade-in weight at `tick`: `(1 − cos(π·tick/N))/2` over the
-    /// first period, then 1.
+    /// The weight of both tables at `tick`: `(1 − cos(π·tick/N))/2` over
+    /// the first period, 1 to the end of line `lines`, `(1 + cos(π·t/N))/2`
+    /// over the next period (`t` ticks into it), then 0.
     #[inline]
     pub fn fade(&self, tick: u64) -> f64 {
         let n = self.reference_m.len() as u64;
-        if tick >= n {
+        let end = self.lines * n;
+        if tick >= end + n {
+            0.0
+        } else if tick >= end {
+            0.5 * (1.0 + (PI * (tick - end) as f64 / n as f64).cos())
+        } else if tick >= n {
             1.0
         } else {
             0.5 * (1.0 - (PI * tick as f64 / n as f64).cos())
         }
     }
 
-    /// Ticks of the trial.
+    /// Ticks of the trial: `lines + 2` periods.
     pub fn total_ticks(&self) -> u64 {
-        self.total_ticks
+        (self.lines + 2) * self.reference_m.len() as u64
     }
 }
 
@@ -404,7 +414,7 @@ impl Job for TrackJob {
             command_a: self.ctrl.update(setpoint - y) + ff,
             excitation_a: ff,
             setpoint_m: setpoint,
-            done: tick + 1 >= self.total_ticks,
+            done: tick + 1 >= self.total_ticks(),
         }
     }
 }

@@ -66,9 +66,10 @@ impl Bench {
     }
 }
 
-/// The mean period of `e` over its last `m` whole periods of `n` ticks.
+/// The mean period of `e` over its last `m` whole periods of `n` ticks
+/// at full amplitude (before the job's fade-out and hold, two periods).
 fn last_periods(e: &[f64], n: usize, m: usize) -> Vec<f64> {
-    let start = e.len() - m * n;
+    let start = e.len() - (m + 2) * n;
     (0..n)
         .map(|i| (0..m).map(|p| e[start + p * n + i]).sum::<f64>() / m as f64)
         .collect()
@@ -184,7 +185,7 @@ fn the_model_inverse_tracks_the_scan_on_the_model() {
     };
     let r = scan.harmonics(n);
     let f = model_inverse(&r, &b.model(), scan.line_rate_hz);
-    let total = 8 * n as u64;
+    let total = 8;
     let alone = b.run(TrackJob::new(b.ctrl, r.synthesize(), vec![0.0; n], total));
     let with = b.run(TrackJob::new(b.ctrl, r.synthesize(), f.synthesize(), total));
     let e_alone = last_periods(&alone, n, 2);
@@ -251,14 +252,16 @@ fn learning_contracts_by_one_minus_the_gain_on_the_model() {
 }
 
 /// The job plays both tables from the first finite reading, faded in over
-/// the first period, then periodic; it ends at its length.
+/// the first period, then periodic to the end of its lines, faded out over
+/// one period and held at the start for one more; it ends there.
 #[test]
-fn the_job_plays_its_tables_periodically_after_the_fade() {
+fn the_job_plays_its_tables_periodically_between_its_fades() {
     let b = bench();
     let r: Vec<f64> = (0..10).map(|i| i as f64 * 1e-7).collect();
     let f: Vec<f64> = (0..10).map(|i| i as f64 * 1e-2).collect();
-    let mut job = TrackJob::new(b.ctrl, r.clone(), f.clone(), 35);
-    for k in 0..35u64 {
+    let mut job = TrackJob::new(b.ctrl, r.clone(), f.clone(), 3);
+    assert_eq!(job.total_ticks(), 50);
+    for k in 0..50u64 {
         let s = Sample {
             seq: k,
             device_time_ns: 0,
@@ -268,14 +271,15 @@ fn the_job_plays_its_tables_periodically_after_the_fade() {
         };
         let out = job.tick(k, &s);
         let i = (k % 10) as usize;
-        let w = if k < 10 {
-            0.5 * (1.0 - (PI * k as f64 / 10.0).cos())
-        } else {
-            1.0
+        let w = match k {
+            0..10 => 0.5 * (1.0 - (PI * k as f64 / 10.0).cos()),
+            10..30 => 1.0,
+            30..40 => 0.5 * (1.0 + (PI * (k - 30) as f64 / 10.0).cos()),
+            _ => 0.0,
         };
         assert_eq!(out.excitation_a, w * f[i], "{k}");
         let start = if k == 0 { 0.0 } else { 2e-6 };
         assert!((out.setpoint_m - start - w * r[i]).abs() < 1e-18, "{k}");
-        assert_eq!(out.done, k == 34);
+        assert_eq!(out.done, k == 49);
     }
 }

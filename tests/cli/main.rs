@@ -45,6 +45,7 @@ mod recover;
 mod schemas;
 mod stalls;
 mod test_command;
+mod track;
 mod uncertainty;
 mod update;
 mod verify;

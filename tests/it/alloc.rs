@@ -337,6 +337,46 @@ fn closed_loop_tick_allocates_nothing() {
     );
 }
 
+/// `bench track`'s job: the controller on the scan's reference table
+/// plus the feedforward table, faded in and then played period after
+/// period, counted from tick 100 on.
+#[test]
+fn track_tick_allocates_nothing() {
+    use bench::control::DiscreteController;
+    use bench::track::{Scan, ScanKind, TrackJob};
+    let cfg = ch5();
+    let mut stage = SimStage::new(cfg.sim_params(7)).unwrap();
+    let info = stage.configure(cfg.loop_.period_ns()).unwrap();
+    let period_s = info.period_ns as f64 * 1e-9;
+    let ctrl = DiscreteController::new(&cfg.controller["fast"], period_s, info.peak_current_a);
+    let n = (0.1 / period_s).round() as usize;
+    let scan = Scan {
+        kind: ScanKind::Triangle,
+        amplitude_m: 5e-6,
+        line_rate_hz: 10.0,
+        cutoff_hz: 55.0,
+    };
+    let reference = scan.harmonics(n).synthesize();
+    let feedforward: Vec<f64> = reference.iter().map(|r| r * 1e3).collect();
+    let job = TrackJob::new(ctrl, reference, feedforward, 8);
+    let total = job.total_ticks();
+    let opts = LoopOptions {
+        period_ns: info.period_ns,
+        pacing: Pacing::Virtual,
+        timing_interval_ticks: 500,
+        safety: cfg.supervisor(&info),
+        max_ticks: total,
+    };
+    let (report, allocations, records) = run_counted_job(stage, job, opts, info.clock);
+    assert!(records >= total);
+    assert_eq!(report.stop, StopReason::Finished);
+    assert_eq!(
+        allocations, 0,
+        "{allocations} allocations in {} tracking ticks",
+        report.ticks
+    );
+}
+
 /// The same with `bench control --verify`'s injection: the step, then
 /// the chirp added to the controller's command at the plant input (its
 /// lead-in, sweep and tail), counted from tick 100 to the end.
