@@ -16,3 +16,4 @@ mod loop_reference;
 mod overrun_key;
 mod plots;
 mod shared_flags;
+mod track_reference;
