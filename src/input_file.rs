@@ -65,6 +65,9 @@ pub enum Kind {
     CampaignState,
     /// A campaign cell's catalogue row (Parquet).
     CatalogueRow,
+    /// A learned feedforward table (`bench track --feedforward`, the
+    /// `feedforward.csv` of a run).
+    Feedforward,
 }
 
 /// 1 MiB, bytes.
@@ -72,7 +75,7 @@ const MIB: u64 = 1 << 20;
 
 impl Kind {
     /// Every kind (for tests and documentation).
-    pub const ALL: [Kind; 7] = [
+    pub const ALL: [Kind; 8] = [
         Kind::Config,
         Kind::Campaign,
         Kind::FrfCsv,
@@ -80,6 +83,7 @@ impl Kind {
         Kind::Recording,
         Kind::CampaignState,
         Kind::CatalogueRow,
+        Kind::Feedforward,
     ];
 
     /// The largest file of this kind `bench` reads, bytes (see the
@@ -87,7 +91,7 @@ impl Kind {
     pub const fn limit_bytes(self) -> u64 {
         match self {
             Kind::Config | Kind::Campaign | Kind::CatalogueRow => MIB,
-            Kind::FrfCsv | Kind::MeasuredMap => 16 * MIB,
+            Kind::FrfCsv | Kind::MeasuredMap | Kind::Feedforward => 16 * MIB,
             Kind::Recording => 4 * 1024 * MIB,
             Kind::CampaignState => 64 * MIB,
         }
@@ -103,6 +107,7 @@ impl Kind {
             Kind::Recording => "recordings",
             Kind::CampaignState => "campaign journals",
             Kind::CatalogueRow => "catalogue rows",
+            Kind::Feedforward => "feedforward tables",
         }
     }
 
@@ -117,6 +122,7 @@ impl Kind {
             Kind::Recording => "a recording",
             Kind::CampaignState => "a campaign journal",
             Kind::CatalogueRow => "a catalogue row",
+            Kind::Feedforward => "a feedforward table",
         }
     }
 }

@@ -33,6 +33,12 @@ pub(super) struct TrackArgs {
     /// limits and backend stay --config's.
     #[arg(long, value_name = "FILE")]
     model: Option<std::path::PathBuf>,
+    /// Replay a learned feedforward (the feedforward.csv of an earlier
+    /// run) in place of the model-inverse one; learning goes on from it.
+    /// Refused when it was learned with another loop rate, amplifier,
+    /// controller, line or scan.
+    #[arg(long, value_name = "FILE.csv")]
+    feedforward: Option<std::path::PathBuf>,
     /// The scan: triangle (a raster line, smoothed below the cut-off) or
     /// sine.
     #[arg(long, value_name = "KIND", default_value = "triangle")]
@@ -159,6 +165,7 @@ pub(super) fn track(args: TrackArgs, stop: Arc<AtomicBool>) -> ExitCode {
         realtime: args.realtime,
         overwrite: args.outputs.overwrite,
         model,
+        feedforward: args.feedforward.clone(),
     };
     let result = job_thread::run_job(stop, move |stop, _ticks| run_track(&opts, stop));
     let result = match result {

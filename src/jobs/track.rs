@@ -91,6 +91,9 @@ pub struct TrackOptions {
     /// bench config (`bench fit --update`'s, say) and where it came from;
     /// `None`: the bench config's own `[plant]`.
     pub model: Option<(BenchConfig, PathBuf)>,
+    /// `--feedforward`: a learned table (`feedforward.csv`) replayed in
+    /// place of the model-inverse feedforward, learning going on from it.
+    pub feedforward: Option<PathBuf>,
 }
 
 /// The scan as planned on the model before the first trial.
@@ -409,6 +412,7 @@ fn write_summary(dir: &Path, s: &TrackSummary, existing: Existing) -> Result<(),
 fn write_feedforward(
     path: &Path,
     opts: &TrackOptions,
+    scan: &Scan,
     reference_m: &[f64],
     feedforward_a: &[f64],
     existing: Existing,
@@ -423,9 +427,10 @@ fn write_feedforward(
             opts.controller,
             opts.config_path.display()
         )?;
+        writeln!(w, "# {}", FeedforwardIdentity::of(opts, *scan, reference_m.len()).to_json())?;
         writeln!(w, "tick,time_s,reference_m,feedforward_a")?;
         for (i, (r, f)) in reference_m.iter().zip(feedforward_a).enumerate() {
-            writeln!(w, "{i},{:.9},{r:.6e},{f:.9e}", i as f64 / rate)?;
+            writeln!(w, "{i},{:.9},{r:e},{f:e}", i as f64 / rate)?;
         }
         Ok(())
     })
@@ -433,6 +438,147 @@ fn write_feedforward(
         path: path.to_path_buf(),
         reason: e.to_string(),
     })
+}
+
+/// What a feedforward table was learned for: the loop, the amplifier, the
+/// controller and the scan's line. A table is replayed only where all
+/// match ([`read_feedforward`]).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+struct FeedforwardIdentity {
+    rate_hz: f64,
+    line_rate_hz: f64,
+    period_ticks: usize,
+    scan: Scan,
+    controller: String,
+    controller_table: crate::control::ControllerConfig,
+    actuator: bench_plant::sim::ActuatorParams,
+}
+
+impl FeedforwardIdentity {
+    fn of(opts: &TrackOptions, scan: Scan, period_ticks: usize) -> Self {
+        Self {
+            rate_hz: opts.config.loop_.rate_hz,
+            line_rate_hz: opts.scan.line_rate_hz,
+            period_ticks,
+            scan,
+            controller: opts.controller.clone(),
+            controller_table: opts.config.controller[&opts.controller].clone(),
+            actuator: opts.config.actuator,
+        }
+    }
+
+    fn to_json(&self) -> String {
+        serde_json::to_string(self).unwrap_or_default()
+    }
+
+    /// What differs from `other` (this run's), for the refusal.
+    fn differences(&self, other: &Self) -> Vec<String> {
+        let mut d = Vec::new();
+        if self.rate_hz != other.rate_hz {
+            d.push(format!(
+                "loop.rate_hz {} (this run: {})",
+                self.rate_hz, other.rate_hz
+            ));
+        }
+        if self.line_rate_hz != other.line_rate_hz || self.period_ticks != other.period_ticks {
+            d.push(format!(
+                "a line of {} Hz, {} ticks (this run: {} Hz, {} ticks)",
+                self.line_rate_hz, self.period_ticks, other.line_rate_hz, other.period_ticks
+            ));
+        }
+        if self.scan != other.scan {
+            let s = |x: &Scan| {
+                format!(
+                    "a {:?} scan of {:e} m cut off at {:.3} Hz",
+                    x.kind, x.amplitude_m, x.cutoff_hz
+                )
+            };
+            d.push(format!("{} (this run: {})", s(&self.scan), s(&other.scan)));
+        }
+        if self.controller != other.controller || self.controller_table != other.controller_table {
+            d.push(format!(
+                "[controller.{}] as it was then (this run: [controller.{}] as it is now)",
+                self.controller, other.controller
+            ));
+        }
+        if self.actuator != other.actuator {
+            d.push("another [actuator]".to_string());
+        }
+        d
+    }
+}
+
+/// Reads a `feedforward.csv` for this run: its identity must match the
+/// run's loop, amplifier, controller and line, and its reference column
+/// the planned reference (within 1e-9 of the amplitude); returns the
+/// feedforward column, A.
+///
+/// # Errors
+/// [`RunError::BadOption`] naming `feedforward`: unreadable, not such a
+/// table, or learned for another loop, controller, line or scan.
+fn read_feedforward(
+    path: &Path,
+    opts: &TrackOptions,
+    scan: &Scan,
+    reference_m: &[f64],
+) -> Result<Vec<f64>, RunError> {
+    let bad = |why: String| RunError::option("feedforward", path.display(), why);
+    let text = crate::input_file::read_to_string(
+        path,
+        crate::input_file::Kind::Feedforward,
+        "feedforward",
+    )?;
+    let mut lines = text.lines();
+    let id: FeedforwardIdentity = lines
+        .nth(1)
+        .and_then(|l| l.strip_prefix("# "))
+        .and_then(|l| serde_json::from_str(l).ok())
+        .ok_or_else(|| bad("not a feedforward table of bench track (its second line names what it was learned for)".into()))?;
+    let here = FeedforwardIdentity::of(opts, *scan, reference_m.len());
+    let diff = id.differences(&here);
+    if !diff.is_empty() {
+        return Err(bad(format!("was learned with {}", diff.join(", "))));
+    }
+    if lines.next() != Some("tick,time_s,reference_m,feedforward_a") {
+        return Err(bad(
+            "its third line is not the header tick,time_s,reference_m,feedforward_a".into(),
+        ));
+    }
+    let mut ff = Vec::with_capacity(reference_m.len());
+    for (i, line) in lines.enumerate() {
+        let cols: Vec<&str> = line.split(',').collect();
+        let parsed = (cols.len() == 4).then(|| {
+            (
+                cols[0].parse::<usize>(),
+                cols[2].parse::<f64>(),
+                cols[3].parse::<f64>(),
+            )
+        });
+        let Some((Ok(tick), Ok(r), Ok(f))) = parsed else {
+            return Err(bad(format!(
+                "line {}: not tick,time_s,reference_m,feedforward_a",
+                i + 4
+            )));
+        };
+        if tick != i || i >= reference_m.len() || !f.is_finite() {
+            return Err(bad(format!("line {}: tick {tick} out of order, beyond the line, or a feedforward that is not finite", i + 4)));
+        }
+        if (r - reference_m[i]).abs() > 1e-9 * opts.scan.amplitude_m.abs().max(1e-12) {
+            return Err(bad(format!(
+                "was learned for another scan: its reference at tick {i} is {r:e} m, this run's {:e} m",
+                reference_m[i]
+            )));
+        }
+        ff.push(f);
+    }
+    if ff.len() != reference_m.len() {
+        return Err(bad(format!(
+            "holds {} ticks of a line of {}",
+            ff.len(),
+            reference_m.len()
+        )));
+    }
+    Ok(ff)
 }
 
 /// The outputs of a run of at most `trials` learning trials, checked
@@ -444,7 +590,11 @@ fn outputs(opts: &TrackOptions) -> Result<Vec<PathBuf>, RunError> {
     let names = [
         "standstill".to_string(),
         "feedback".into(),
-        "feedforward".into(),
+        if opts.feedforward.is_some() {
+            "replayed".into()
+        } else {
+            "feedforward".into()
+        },
     ]
     .into_iter()
     .chain((1..=opts.trials).map(|j| format!("learning-{j}")));
@@ -460,6 +610,12 @@ fn outputs(opts: &TrackOptions) -> Result<Vec<PathBuf>, RunError> {
         .with_output("out", &dir.join("track.json"), Origin::Derived)
         .with_output("out", &dir.join("feedforward.csv"), Origin::Derived)
         .with_input("config", &opts.config_path);
+    if let Some(p) = &opts.feedforward {
+        plan = plan.with_input("feedforward", p);
+    }
+    if let Some((_, p)) = &opts.model {
+        plan = plan.with_input("model", p);
+    }
     plan.check()?;
     Ok(recordings)
 }
@@ -547,7 +703,7 @@ impl Trials<'_> {
         &self,
         runner: &mut Runner<'_>,
         r: &Harmonics,
-        f_model: Harmonics,
+        (f_model, start_name): (Harmonics, &str),
         learning: &Learning,
         summary: &mut TrackSummary,
     ) -> Result<(), RunError> {
@@ -565,7 +721,7 @@ impl Trials<'_> {
         write_summary(dir, summary, Existing::Replace)?;
         let mut f = f_model;
         let mut f_t = f.synthesize();
-        let (t, mut e_mean) = self.run(runner, 2, "feedforward", &r_t, &f_t)?;
+        let (t, mut e_mean) = self.run(runner, 2, start_name, &r_t, &f_t)?;
         let mut best = (t.rms_error_m, t.name.clone(), f_t.clone());
         let mut rms = vec![t.rms_error_m];
         summary.push(t);
@@ -589,9 +745,11 @@ impl Trials<'_> {
             write_summary(dir, summary, Existing::Replace)?;
         }
         let csv = dir.join("feedforward.csv");
+        let scan = summary.plan.scan;
         write_feedforward(
             &csv,
             self.opts,
+            &scan,
             &r_t,
             &best.2,
             Existing::overwrite(self.opts.overwrite),
@@ -675,6 +833,13 @@ pub fn run_track(opts: &TrackOptions, stop: Arc<AtomicBool>) -> Result<TrackSumm
     };
     let bands = ZeroBand::of(&crate::analysis::modal::damped_zeros(&model));
     let (plan, r, f_model, learning) = plan(opts, &model_loop, bands)?;
+    let (f_start, start_name) = match &opts.feedforward {
+        Some(p) => {
+            let table = read_feedforward(p, opts, &plan.scan, &r.synthesize())?;
+            (Harmonics::analyze(&table, r.coef.len() - 1), "replayed")
+        }
+        None => (f_model, "feedforward"),
+    };
     let total = (WARM_UP_PERIODS + u64::from(opts.periods) + 2) * plan.period_ticks as u64;
     if total > crate::config::ranges::JOB_TICKS_MAX {
         return Err(RunError::option(
@@ -741,6 +906,12 @@ pub fn run_track(opts: &TrackOptions, stop: Arc<AtomicBool>) -> Result<TrackSumm
         stall: period_s_stall,
         stall_source: &check.stall.source,
     };
-    run.learn(&mut runner, &r, f_model, &learning, &mut summary)?;
+    run.learn(
+        &mut runner,
+        &r,
+        (f_start, start_name),
+        &learning,
+        &mut summary,
+    )?;
     Ok(summary)
 }

@@ -53,7 +53,7 @@ fn check_files(dir: &Path, v: &Value) {
     }
     let csv = std::fs::read_to_string(run.join("feedforward.csv")).unwrap();
     let n = v["plan"]["period_ticks"].as_u64().unwrap() as usize;
-    assert_eq!(csv.lines().count(), n + 2, "a comment, a header, a line");
+    assert_eq!(csv.lines().count(), n + 3, "two comments, a header, a line");
 }
 
 /// The target on the shipped bench: feedforward (and learning)
@@ -198,4 +198,115 @@ fn a_second_run_refuses_the_first_ones_files() {
     assert_eq!(again, first);
     let (_, v) = track(dir.path(), &["--periods", "1", "--overwrite"]);
     check_files(dir.path(), &v);
+}
+
+/// A learned feedforward replays: started from it, the run's first scan
+/// trial is as good as the learning trial it came from (within 10 %, the
+/// noise differing), and learning goes on from there. A table learned
+/// for another line, controller or scan, and every mutation of its text
+/// that breaks it, is refused with exit 2 naming `--feedforward`, nothing
+/// written.
+#[test]
+fn a_learned_feedforward_replays_and_a_foreign_one_is_refused() {
+    let dir = tmp();
+    let text = std::fs::read_to_string(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("bench-config/sr4dof-ch5.toml"),
+    )
+    .unwrap();
+    let off = set_key(&text, "m1_kg", "0.46");
+    let off = set_key(&off, "k4_n_per_m", "31.0e3");
+    let off = set_key(&off, "k5_n_per_m", "31.0e3");
+    let model = dir.path().join("off.toml");
+    std::fs::write(&model, off).unwrap();
+    let model = model.to_str().unwrap().to_string();
+    let (_, first) = track(dir.path(), &["--model", &model, "--trials", "1"]);
+    let learned = rms(&first["trials"][3]);
+    let csv = dir.path().join("run/feedforward.csv");
+    let csv_s = csv.to_str().unwrap().to_string();
+    let again = dir.path().join("again");
+    let o = run(&[
+        "track",
+        "--json",
+        "--out",
+        again.to_str().unwrap(),
+        "--model",
+        &model,
+        "--feedforward",
+        &csv_s,
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let v = json_stdout(&o);
+    assert_eq!(v["trials"][2]["name"], "replayed");
+    let replayed = rms(&v["trials"][2]);
+    assert!(
+        (replayed / learned - 1.0).abs() < 0.1,
+        "{replayed} {learned}"
+    );
+    assert!(again.join("trial-02-replayed.mcap").is_file());
+
+    let refused = |args: &[&str], what: &str| {
+        let out = path_in(dir.path(), "never");
+        let mut all = vec!["track", "--out", out.as_str(), "--model", &model];
+        all.extend_from_slice(args);
+        let o = run(&all);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(2), "{what}: {err}");
+        assert!(err.contains("--feedforward"), "{what}: {err}");
+        assert!(!Path::new(&out).exists(), "{what}");
+    };
+    refused(
+        &["--feedforward", &csv_s, "--line-rate-hz", "12.5"],
+        "another line",
+    );
+    refused(&["--feedforward", &csv_s, "--slow"], "another controller");
+    refused(
+        &["--feedforward", &csv_s, "--amplitude-m", "4e-6"],
+        "another scan",
+    );
+    // Generated mutations of the table's text.
+    let good = std::fs::read_to_string(&csv).unwrap();
+    let lines: Vec<&str> = good.lines().collect();
+    let mut mutants: Vec<(String, String)> = vec![
+        ("empty".into(), String::new()),
+        ("no identity".into(), lines[2..].join("\n")),
+        (
+            "no header".into(),
+            [&lines[..2], &lines[3..]].concat().join("\n"),
+        ),
+        ("a line short".into(), lines[..lines.len() - 1].join("\n")),
+        (
+            "a line more".into(),
+            format!("{good}{},0.1,0,0\n", lines.len() - 3),
+        ),
+        (
+            "another rate".into(),
+            good.replacen("\"rate_hz\":5000.0", "\"rate_hz\":4000.0", 1),
+        ),
+        (
+            "another amplifier".into(),
+            good.replacen("\"bandwidth_hz\":", "\"bandwidth_hz\":1", 1),
+        ),
+    ];
+    for i in [3, 100, lines.len() - 1] {
+        let cols: Vec<&str> = lines[i].split(',').collect();
+        for (what, col, value) in [
+            ("NaN feedforward", 3, "NaN"),
+            ("inf feedforward", 3, "inf"),
+            ("garbage", 3, "0x1p3"),
+            ("tick out of order", 0, "7"),
+            ("another reference", 2, "1e-3"),
+        ] {
+            let mut c = cols.clone();
+            c[col] = value;
+            let mut l = lines.clone();
+            let row = c.join(",");
+            l[i] = &row;
+            mutants.push((format!("{what} at line {i}"), l.join("\n")));
+        }
+    }
+    for (what, text) in mutants {
+        let p = dir.path().join("mutant.csv");
+        std::fs::write(&p, text).unwrap();
+        refused(&["--feedforward", p.to_str().unwrap()], &what);
+    }
 }

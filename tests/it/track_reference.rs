@@ -153,7 +153,10 @@ fn learning_converges_as_python_control_predicts() {
         assert!(*a < 1.0, "harmonic {}: {a} does not contract", k + 1);
     }
     let want_fb = want["feedback_rms_m"].as_f64().unwrap();
-    assert!(near(feedback, want_fb), "feedback {feedback} against {want_fb}");
+    assert!(
+        near(feedback, want_fb),
+        "feedback {feedback} against {want_fb}"
+    );
     let want_rms: Vec<f64> = want["rms_m"]
         .as_array()
         .unwrap()
