@@ -370,9 +370,9 @@ fn trial_path(dir: &Path, index: usize, name: &str) -> PathBuf {
     dir.join(format!("trial-{index:02}-{name}.mcap"))
 }
 
-/// The error of the measured periods: its RMS, its peak and the mean
-/// period (m).
-fn measured_error(
+/// The error (setpoint − reading, m) of a trial's ticks after `warm_up`:
+/// its RMS, its peak and its mean line of `n` ticks (m).
+pub fn measured_error(
     setpoint_m: &[f64],
     position_m: &[f64],
     n: usize,
