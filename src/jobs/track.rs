@@ -21,7 +21,9 @@
 //! Learning stops when a trial's RMS error is within
 //! [`CONVERGED_OF_NOISE_FLOOR`] of the noise floor (`converged`), when it
 //! grew two trials in a row (`diverged`: the best trial's feedforward is
-//! kept), or after the trial budget (`budget`). The best feedforward is
+//! kept), after the trial budget (`budget`), or before a trial whose
+//! learned feedforward would exceed the current limits on the model
+//! (`limit`: that trial is not run). The best feedforward is
 //! written as a CSV table (`feedforward.csv`) and the summary, rewritten
 //! after every trial, as `track.json`: a fault ends the learning with every
 //! recording finished and the summary of the trials before it on disk.
@@ -163,8 +165,10 @@ pub struct TrackSummary {
     pub noise_floor_m: f64,
     /// The trials so far, in order.
     pub trials: Vec<TrialReport>,
-    /// Why learning stopped: `converged`, `diverged`, `budget` (absent
-    /// while it runs or after a fault).
+    /// Why learning stopped: `converged`, `diverged`, `budget`, or
+    /// `limit` (the next learned feedforward would exceed the current
+    /// limits, predicted on the model: not run); absent while it runs or
+    /// after a fault.
     pub stop: Option<String>,
     /// The trial with the least RMS error among those with a scan.
     pub best_trial: Option<String>,
@@ -287,15 +291,13 @@ fn plan(
         (inside, Vec::new())
     };
     let f = model_inverse(&r, model, scan.line_rate_hz);
-    let (u, _) = predict(&r, &f, model, scan.line_rate_hz);
+    let (peak_u, rms_u) = predicted_current(&r, &f, model, scan.line_rate_hz);
     let (_, e_fb) = predict(
         &r,
         &Harmonics::zeros(r.coef.len() - 1, n),
         model,
         scan.line_rate_hz,
     );
-    let u_t = u.synthesize();
-    let peak_u = u_t.iter().fold(0.0f64, |m, v| m.max(v.abs()));
     let peak_r = r.synthesize().iter().fold(0.0f64, |m, v| m.max(v.abs()));
     let learning = Learning::new(model, g, scan.k_max(), scan.line_rate_hz);
     let contraction = learning
@@ -314,7 +316,7 @@ fn plan(
         harmonics_in_zero_bands: inside,
         harmonics_removed: removed,
         predicted_peak_current_a: peak_u,
-        predicted_rms_current_a: u.rms(),
+        predicted_rms_current_a: rms_u,
         peak_reference_m: peak_r,
         predicted_feedback_rms_error_m: e_fb.rms(),
         learning_gain: g,
@@ -322,6 +324,38 @@ fn plan(
     };
     check_limits(cfg, &plan)?;
     Ok((plan, r, f, learning))
+}
+
+/// The feedforward trial's command predicted on the model,
+/// `u = CS·r + S·f`: its peak and its RMS, A.
+fn predicted_current(
+    r: &Harmonics,
+    f: &Harmonics,
+    model: &ModelLoop<'_>,
+    line_rate_hz: f64,
+) -> (f64, f64) {
+    let (u, _) = predict(r, f, model, line_rate_hz);
+    let peak = u.synthesize().iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    (peak, u.rms())
+}
+
+/// Why a feedforward is refused by the current limits of the config, or
+/// `None` (`peak_a`, `rms_a` predicted by [`predicted_current`]).
+fn beyond_current_limits(cfg: &BenchConfig, peak_a: f64, rms_a: f64) -> Option<String> {
+    let peak_limit = cfg.actuator.peak_current_a;
+    let cont_limit = cfg.actuator.continuous_current_a;
+    // A NaN prediction is beyond every limit.
+    if peak_a.is_nan() || peak_a > peak_limit {
+        Some(format!(
+            "needs {peak_a:.2} A peak (predicted on the model), above actuator.peak_current_a {peak_limit} A"
+        ))
+    } else if rms_a.is_nan() || rms_a > cont_limit {
+        Some(format!(
+            "needs {rms_a:.2} A RMS (predicted on the model), above actuator.continuous_current_a {cont_limit} A (I²t)"
+        ))
+    } else {
+        None
+    }
 }
 
 /// The planned scan within the position limit and the current limits of
@@ -339,26 +373,13 @@ fn check_limits(cfg: &BenchConfig, p: &TrackPlan) -> Result<(), RunError> {
             ),
         ));
     }
-    let peak_a = cfg.actuator.peak_current_a;
-    if p.predicted_peak_current_a > peak_a {
+    if let Some(why) =
+        beyond_current_limits(cfg, p.predicted_peak_current_a, p.predicted_rms_current_a)
+    {
         return Err(RunError::option(
             "amplitude_m",
             p.scan.amplitude_m,
-            format!(
-                "the scan with its feedforward needs {:.2} A peak (predicted on the model), above actuator.peak_current_a {peak_a} A: lower the amplitude or the line rate",
-                p.predicted_peak_current_a
-            ),
-        ));
-    }
-    let cont_a = cfg.actuator.continuous_current_a;
-    if p.predicted_rms_current_a > cont_a {
-        return Err(RunError::option(
-            "amplitude_m",
-            p.scan.amplitude_m,
-            format!(
-                "the scan with its feedforward needs {:.2} A RMS (predicted on the model), above actuator.continuous_current_a {cont_a} A (I²t): lower the amplitude or the line rate",
-                p.predicted_rms_current_a
-            ),
+            format!("the scan with its feedforward {why}: lower the amplitude or the line rate"),
         ));
     }
     Ok(())
@@ -624,6 +645,8 @@ fn outputs(opts: &TrackOptions) -> Result<Vec<PathBuf>, RunError> {
 struct Trials<'a> {
     opts: &'a TrackOptions,
     ctrl: DiscreteController,
+    /// The model the learned feedforward's current is predicted on.
+    model: &'a ModelLoop<'a>,
     recordings: &'a [PathBuf],
     stop: &'a Arc<AtomicBool>,
     stall: StallBounds,
@@ -729,9 +752,17 @@ impl Trials<'_> {
         let budget = self.opts.trials as usize;
         let mut why = stop_rule(&rms, summary.noise_floor_m, budget + 1);
         let mut j = 0;
+        let mut why_limit = None;
         while why.is_none() {
             j += 1;
-            f = learning.update(&f, &Harmonics::analyze(&e_mean, learning.l.len() - 1));
+            let next = learning.update(&f, &Harmonics::analyze(&e_mean, learning.l.len() - 1));
+            let (peak_a, rms_a) = predicted_current(r, &next, self.model, r_line_hz(summary));
+            if let Some(why) = beyond_current_limits(&self.opts.config, peak_a, rms_a) {
+                tracing::warn!("learning stops before trial {j}: its feedforward {why}");
+                why_limit = Some("limit");
+                break;
+            }
+            f = next;
             f_t = f.synthesize();
             let name = format!("learning-{j}");
             let (t, e) = self.run(runner, 2 + j, &name, &r_t, &f_t)?;
@@ -754,12 +785,17 @@ impl Trials<'_> {
             &best.2,
             Existing::overwrite(self.opts.overwrite),
         )?;
-        summary.stop = why.map(str::to_string);
+        summary.stop = why.or(why_limit).map(str::to_string);
         summary.improvement = Some(summary.trials[1].rms_error_m / best.0);
         summary.best_trial = Some(best.1);
         summary.feedforward_csv = Some(csv);
         write_summary(dir, summary, Existing::Replace)
     }
+}
+
+/// The planned scan's line rate, Hz.
+fn r_line_hz(s: &TrackSummary) -> f64 {
+    s.plan.scan.line_rate_hz
 }
 
 impl TrackSummary {
@@ -836,7 +872,18 @@ pub fn run_track(opts: &TrackOptions, stop: Arc<AtomicBool>) -> Result<TrackSumm
     let (f_start, start_name) = match &opts.feedforward {
         Some(p) => {
             let table = read_feedforward(p, opts, &plan.scan, &r.synthesize())?;
-            (Harmonics::analyze(&table, r.coef.len() - 1), "replayed")
+            let mut f = Harmonics::analyze(&table, r.coef.len() - 1);
+            // The loop's integrator holds the mean: no feedforward has one.
+            f.coef[0] = crate::ident::C64::new(0.0, 0.0);
+            let (peak, rms) = predicted_current(&r, &f, &model_loop, plan.scan.line_rate_hz);
+            if let Some(why) = beyond_current_limits(cfg, peak, rms) {
+                return Err(RunError::option(
+                    "feedforward",
+                    p.display(),
+                    format!("the scan with this feedforward {why}; nothing was enabled"),
+                ));
+            }
+            (f, "replayed")
         }
         None => (f_model, "feedforward"),
     };
@@ -901,6 +948,7 @@ pub fn run_track(opts: &TrackOptions, stop: Arc<AtomicBool>) -> Result<TrackSumm
     let run = Trials {
         opts,
         ctrl,
+        model: &model_loop,
         recordings: &recordings,
         stop: &stop,
         stall: period_s_stall,

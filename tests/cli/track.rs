@@ -203,9 +203,10 @@ fn a_second_run_refuses_the_first_ones_files() {
 /// A learned feedforward replays: started from it, the run's first scan
 /// trial is as good as the learning trial it came from (within 10 %, the
 /// noise differing), and learning goes on from there. A table learned
-/// for another line, controller or scan, and every mutation of its text
-/// that breaks it, is refused with exit 2 naming `--feedforward`, nothing
-/// written.
+/// for another line, controller or scan, every mutation of its text that
+/// breaks it, and one whose feedforward needs more current than the coil
+/// may carry (predicted on the model) are refused with exit 2 naming
+/// `--feedforward`, nothing written.
 #[test]
 fn a_learned_feedforward_replays_and_a_foreign_one_is_refused() {
     let dir = tmp();
@@ -287,6 +288,21 @@ fn a_learned_feedforward_replays_and_a_foreign_one_is_refused() {
             good.replacen("\"bandwidth_hz\":", "\"bandwidth_hz\":1", 1),
         ),
     ];
+    // Every line parses and matches, but the feedforward needs more current
+    // than the coil may carry.
+    let scaled: Vec<String> = lines
+        .iter()
+        .enumerate()
+        .map(|(i, l)| {
+            if i < 3 {
+                return l.to_string();
+            }
+            let mut c: Vec<String> = l.split(',').map(str::to_string).collect();
+            c[3] = format!("{:e}", c[3].parse::<f64>().unwrap() * 500.0);
+            c.join(",")
+        })
+        .collect();
+    mutants.push(("500× the current".into(), scaled.join("\n")));
     for i in [3, 100, lines.len() - 1] {
         let cols: Vec<&str> = lines[i].split(',').collect();
         for (what, col, value) in [
