@@ -155,15 +155,32 @@ fn chown_group(path: &Path, gid: libc::gid_t) -> std::io::Result<()> {
     Ok(())
 }
 
-/// Binds the socket owner-only (0600), or 0660 with `group`.
+/// Binds the socket owner-only (0600), or 0660 with `group`. With a
+/// group the socket is bound under a temporary name beside `path`, given
+/// to the group and made 0660 there, then renamed to `path`: it appears at
+/// its path only with its final owner and mode (bound and listening under
+/// the temporary name, a client of the group could otherwise meet it at
+/// 0600 for a moment and be refused).
 pub(super) fn bind_socket(
     path: &Path,
     group: Option<&str>,
 ) -> Result<tokio::net::UnixListener, ServeError> {
+    let gid = match group {
+        Some(g) => Some((g, group_id(g)?)),
+        None => None,
+    };
+    let bound = match gid {
+        Some(_) => {
+            let mut name = path.as_os_str().to_owned();
+            name.push(format!(".{}.tmp", std::process::id()));
+            PathBuf::from(name)
+        }
+        None => path.to_path_buf(),
+    };
     // SAFETY: umask is process-wide and only read/written here, before any
     // other thread creates files.
     let old = unsafe { libc::umask(0o177) };
-    let listener = tokio::net::UnixListener::bind(path);
+    let listener = tokio::net::UnixListener::bind(&bound);
     // SAFETY: as above.
     unsafe { libc::umask(old) };
     let listener = listener.map_err(|e| {
@@ -173,20 +190,21 @@ pub(super) fn bind_socket(
             format!("cannot bind: {e}"),
         ))
     })?;
-    if let Some(g) = group {
-        let gid = group_id(g).inspect_err(|_| {
-            let _ = std::fs::remove_file(path);
-        })?;
-        if let Err(e) = chown_group(path, gid) {
-            let _ = std::fs::remove_file(path);
+    if let Some((g, gid)) = gid {
+        if let Err(e) = chown_group(&bound, gid) {
+            let _ = std::fs::remove_file(&bound);
             return Err(ServeError::Input(RunError::option(
                 "socket_group",
                 g,
                 format!("cannot give the socket to the group: {e}"),
             )));
         }
-        std::fs::set_permissions(path, std::fs::Permissions::from_mode(0o660))
-            .map_err(|e| ServeError::Other(format!("chmod socket: {e}")))?;
+        let placed = std::fs::set_permissions(&bound, std::fs::Permissions::from_mode(0o660))
+            .and_then(|()| std::fs::rename(&bound, path));
+        if let Err(e) = placed {
+            let _ = std::fs::remove_file(&bound);
+            return Err(ServeError::Other(format!("place the socket: {e}")));
+        }
     }
     Ok(listener)
 }
