@@ -756,7 +756,8 @@ impl Trials<'_> {
         while why.is_none() {
             j += 1;
             let next = learning.update(&f, &Harmonics::analyze(&e_mean, learning.l.len() - 1));
-            let (peak_a, rms_a) = predicted_current(r, &next, self.model, r_line_hz(summary));
+            let (peak_a, rms_a) =
+                predicted_current(r, &next, self.model, summary.plan.scan.line_rate_hz);
             if let Some(why) = beyond_current_limits(&self.opts.config, peak_a, rms_a) {
                 tracing::warn!("learning stops before trial {j}: its feedforward {why}");
                 why_limit = Some("limit");
@@ -791,11 +792,6 @@ impl Trials<'_> {
         summary.feedforward_csv = Some(csv);
         write_summary(dir, summary, Existing::Replace)
     }
-}
-
-/// The planned scan's line rate, Hz.
-fn r_line_hz(s: &TrackSummary) -> f64 {
-    s.plan.scan.line_rate_hz
 }
 
 impl TrackSummary {

@@ -350,6 +350,8 @@ pub struct TrackJob {
     reference_m: Box<[f64]>,
     feedforward_a: Box<[f64]>,
     lines: u64,
+    /// `(lines + 2)·N`, set once.
+    total_ticks: u64,
 }
 
 impl TrackJob {
@@ -366,12 +368,14 @@ impl TrackJob {
         lines: u64,
     ) -> Self {
         assert!(!reference_m.is_empty() && reference_m.len() == feedforward_a.len());
+        let lines = lines.max(1);
         Self {
+            total_ticks: (lines + 2) * reference_m.len() as u64,
             ctrl,
             start_m: None,
             reference_m: reference_m.into_boxed_slice(),
             feedforward_a: feedforward_a.into_boxed_slice(),
-            lines: lines.max(1),
+            lines,
         }
     }
 
@@ -395,7 +399,7 @@ impl TrackJob {
 
     /// Ticks of the trial: `lines + 2` periods.
     pub fn total_ticks(&self) -> u64 {
-        (self.lines + 2) * self.reference_m.len() as u64
+        self.total_ticks
     }
 }
 
@@ -414,7 +418,7 @@ impl Job for TrackJob {
             command_a: self.ctrl.update(setpoint - y) + ff,
             excitation_a: ff,
             setpoint_m: setpoint,
-            done: tick + 1 >= self.total_ticks(),
+            done: tick + 1 >= self.total_ticks,
         }
     }
 }

@@ -25,6 +25,21 @@ fn track(dir: &Path, extra: &[&str]) -> (std::process::Output, Value) {
     (o, v)
 }
 
+/// The shipped bench's config with m1 +15 % and the bearings k4, k5
+/// −14 %: a nominal model off the simulated bench, written in `dir`.
+fn off_model(dir: &Path) -> std::path::PathBuf {
+    let text = std::fs::read_to_string(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("bench-config/sr4dof-ch5.toml"),
+    )
+    .unwrap();
+    let off = set_key(&text, "m1_kg", "0.46");
+    let off = set_key(&off, "k4_n_per_m", "31.0e3");
+    let off = set_key(&off, "k5_n_per_m", "31.0e3");
+    let model = dir.join("off.toml");
+    std::fs::write(&model, off).unwrap();
+    model
+}
+
 fn rms(t: &Value) -> f64 {
     t["rms_error_m"].as_f64().unwrap()
 }
@@ -102,15 +117,7 @@ fn a_triangle_raster_reaches_the_noise_floor_on_the_shipped_bench() {
 #[test]
 fn learning_corrects_a_model_that_is_off() {
     let dir = tmp();
-    let text = std::fs::read_to_string(
-        Path::new(env!("CARGO_MANIFEST_DIR")).join("bench-config/sr4dof-ch5.toml"),
-    )
-    .unwrap();
-    let off = set_key(&text, "m1_kg", "0.46");
-    let off = set_key(&off, "k4_n_per_m", "31.0e3");
-    let off = set_key(&off, "k5_n_per_m", "31.0e3");
-    let model = dir.path().join("off.toml");
-    std::fs::write(&model, off).unwrap();
+    let model = off_model(dir.path());
     let (_, v) = track(dir.path(), &["--model", model.to_str().unwrap()]);
     let floor = v["noise_floor_m"].as_f64().unwrap();
     let trials = v["trials"].as_array().unwrap();
@@ -210,15 +217,7 @@ fn a_second_run_refuses_the_first_ones_files() {
 #[test]
 fn a_learned_feedforward_replays_and_a_foreign_one_is_refused() {
     let dir = tmp();
-    let text = std::fs::read_to_string(
-        Path::new(env!("CARGO_MANIFEST_DIR")).join("bench-config/sr4dof-ch5.toml"),
-    )
-    .unwrap();
-    let off = set_key(&text, "m1_kg", "0.46");
-    let off = set_key(&off, "k4_n_per_m", "31.0e3");
-    let off = set_key(&off, "k5_n_per_m", "31.0e3");
-    let model = dir.path().join("off.toml");
-    std::fs::write(&model, off).unwrap();
+    let model = off_model(dir.path());
     let model = model.to_str().unwrap().to_string();
     let (_, first) = track(dir.path(), &["--model", &model, "--trials", "1"]);
     let learned = rms(&first["trials"][3]);
