@@ -749,7 +749,7 @@ fn a_legacy_client_is_refused_and_the_log_says_why() {
     let mut child = bench()
         .env_remove("RUST_LOG")
         .env_remove("BENCH_LOG")
-        .args(["chirp", "--json", "--duration-s", "2", "--pace", "1"])
+        .args(["chirp", "--json", "--duration-s", "5", "--pace", "1"])
         .args(["--live", "127.0.0.1:0", "--config"])
         .arg(&cfg)
         .arg("--out")
