@@ -51,7 +51,7 @@ fn track(c: &mut Criterion) {
             |b| {
                 b.iter(|| {
                     let warm_up = if n < ticks { n } else { 0 };
-                    let (_, _, mean) = measured_error(&setpoint, &position, n, warm_up);
+                    let mean = measured_error(&setpoint, &position, n, warm_up).mean_line_m;
                     let e = Harmonics::analyze(&mean, k_max);
                     let next = learning.update(&f, &e);
                     black_box(next.synthesize())

@@ -182,7 +182,11 @@ pub(super) fn track(args: TrackArgs, stop: Arc<AtomicBool>) -> ExitCode {
 }
 
 fn nm(m: f64) -> String {
-    format!("{:.1} nm", m * 1e9)
+    if m.is_finite() {
+        format!("{:.1} nm", m * 1e9)
+    } else {
+        "n/a".to_string()
+    }
 }
 
 fn print_track_summary(s: &TrackSummary) {
@@ -225,19 +229,23 @@ fn print_track_summary(s: &TrackSummary) {
     );
     for t in &s.trials {
         outln!(
-            "  {:<12} RMS error {:>10} ({:>6.2}× the noise floor), peak {:>10}, feedforward {:.3} A RMS",
+            "  {:<12} RMS error {:>10} ± {:>6} ({:>6.2} ± {:.2}× the noise floor), peak {:>10}, feedforward {:.3} A RMS",
             t.name,
             nm(t.rms_error_m),
+            nm(t.rms_error_sigma_m),
             t.of_noise_floor,
+            t.of_noise_floor_sigma,
             nm(t.peak_error_m),
             t.feedforward_rms_a
         );
     }
     if let (Some(best), Some(imp), Some(stop)) = (&s.best_trial, s.improvement, &s.stop) {
+        let sigma = s.improvement_sigma.unwrap_or(f64::NAN);
         outln!(
-            "  best: {best}, {imp:.1}× lower RMS error than feedback alone; learning stopped: {stop}"
+            "  best: {best}, {imp:.1} ± {sigma:.1}× lower RMS error than feedback alone; learning stopped: {stop}"
         );
     }
+    outln!("  (± 1σ from the scatter between the measured lines; n/a with one line)");
     if let Some(csv) = &s.feedforward_csv {
         outln!("  feedforward: {}", csv.display());
     }

@@ -24,9 +24,12 @@
 //! kept), after the trial budget (`budget`), or before a trial whose
 //! learned feedforward would exceed the current limits on the model
 //! (`limit`: that trial is not run). The best feedforward is
-//! written as a CSV table (`feedforward.csv`) and the summary, rewritten
-//! after every trial, as `track.json`: a fault ends the learning with every
-//! recording finished and the summary of the trials before it on disk.
+//! written as a CSV table (`feedforward.csv`), the summary and its figure,
+//! rewritten after every trial, as `track.json` and `track.png`
+//! ([`write_track_png`]): a fault ends the learning with every recording
+//! finished and the summary and figure of the trials before it on disk.
+//! Every RMS error carries its 1σ from the scatter between the measured
+//! lines ([`measured_error`]).
 //!
 //! Before anything is enabled the scan is planned on the model: its
 //! line must last a whole number of ticks, its fundamental must lie below
@@ -42,6 +45,7 @@ use crate::control::DiscreteController;
 use crate::error::RunError;
 use crate::jobs::session::{finish, open_recording, run_recorded, Kept, Runner, SessionOptions};
 use crate::outputs::{Existing, Origin, OutputPlan};
+use crate::plot::{write_track_png, TrackPlot, TrackTrialPlot};
 use crate::rt::backend::{self, BackendSpec};
 use crate::rt::supervisor::StallBounds;
 use crate::track::{model_inverse, predict, Harmonics, Learning, Scan, TrackJob, ZeroBand};
@@ -140,10 +144,16 @@ pub struct TrialReport {
     pub name: String,
     /// RMS of the error over the measured periods, m.
     pub rms_error_m: f64,
+    /// 1σ of `rms_error_m` from the scatter between the measured lines, m
+    /// (null with one line).
+    pub rms_error_sigma_m: f64,
     /// Largest |error| over them, m.
     pub peak_error_m: f64,
     /// RMS error over the noise floor (1 for the standstill trial).
     pub of_noise_floor: f64,
+    /// 1σ of `of_noise_floor`, both RMS errors' σ propagated to first
+    /// order (the standstill trial's own: its σ alone).
+    pub of_noise_floor_sigma: f64,
     /// RMS of the feedforward played, A.
     pub feedforward_rms_a: f64,
     /// The recording.
@@ -174,6 +184,8 @@ pub struct TrackSummary {
     pub best_trial: Option<String>,
     /// Feedback-alone RMS error over the best trial's.
     pub improvement: Option<f64>,
+    /// 1σ of `improvement`, both RMS errors' σ propagated to first order.
+    pub improvement_sigma: Option<f64>,
     /// The best feedforward's table (`feedforward.csv`).
     pub feedforward_csv: Option<PathBuf>,
 }
@@ -391,27 +403,149 @@ fn trial_path(dir: &Path, index: usize, name: &str) -> PathBuf {
     dir.join(format!("trial-{index:02}-{name}.mcap"))
 }
 
-/// The error (setpoint − reading, m) of a trial's ticks after `warm_up`:
-/// its RMS, its peak and its mean line of `n` ticks (m).
+/// The error (setpoint − reading) of a trial's measured ticks.
+#[derive(Debug, Clone)]
+pub struct MeasuredError {
+    /// RMS over the measured ticks, m.
+    pub rms_m: f64,
+    /// 1σ of `rms_m` from the scatter of the lines' mean squares
+    /// (`σ(MS)/(2·RMS)`, `σ(MS)` the standard error of the mean of the
+    /// lines' mean squares), m; NaN with a single line.
+    pub rms_sigma_m: f64,
+    /// Largest |error|, m.
+    pub peak_m: f64,
+    /// The mean line: the error averaged line by line, `n` values, m.
+    pub mean_line_m: Vec<f64>,
+}
+
+/// The error (setpoint − reading, m) of a trial's ticks after `warm_up`,
+/// cut in lines of `n` ticks (a last partial line is left out of the mean
+/// line and the σ, kept in the RMS and the peak).
 pub fn measured_error(
     setpoint_m: &[f64],
     position_m: &[f64],
     n: usize,
     warm_up: usize,
-) -> (f64, f64, Vec<f64>) {
+) -> MeasuredError {
     let e: Vec<f64> = setpoint_m
         .iter()
         .zip(position_m)
         .skip(warm_up)
         .map(|(s, y)| s - y)
         .collect();
-    let m = e.len() / n;
-    let rms = (e.iter().map(|v| v * v).sum::<f64>() / e.len().max(1) as f64).sqrt();
-    let peak = e.iter().fold(0.0f64, |a, v| a.max(v.abs()));
-    let mean = (0..n)
+    let m = e.len() / n.max(1);
+    let rms_m = (e.iter().map(|v| v * v).sum::<f64>() / e.len().max(1) as f64).sqrt();
+    let peak_m = e.iter().fold(0.0f64, |a, v| a.max(v.abs()));
+    let mean_line_m = (0..n)
         .map(|i| (0..m).map(|p| e[p * n + i]).sum::<f64>() / m.max(1) as f64)
         .collect();
-    (rms, peak, mean)
+    let ms: Vec<f64> = e
+        .chunks_exact(n.max(1))
+        .map(|l| l.iter().map(|v| v * v).sum::<f64>() / n as f64)
+        .collect();
+    let rms_sigma_m = if ms.len() < 2 {
+        f64::NAN
+    } else {
+        let k = ms.len() as f64;
+        let mean = ms.iter().sum::<f64>() / k;
+        let var = ms.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (k - 1.0);
+        (var / k).sqrt() / (2.0 * rms_m.max(f64::MIN_POSITIVE))
+    };
+    MeasuredError {
+        rms_m,
+        rms_sigma_m,
+        peak_m,
+        mean_line_m,
+    }
+}
+
+/// Highest frequency of the figure's error spectrum, Hz: 4× the reference's
+/// cut-off or the highest zero band's upper edge, whichever is higher,
+/// below the loop's Nyquist frequency and at most 1000 harmonics.
+fn spectrum_top_hz(p: &TrackPlan, rate_hz: f64) -> f64 {
+    let top = p
+        .zero_bands
+        .iter()
+        .map(|b| b.high_hz)
+        .fold(p.scan.cutoff_hz, f64::max);
+    (4.0 * top)
+        .min(0.5 * rate_hz)
+        .min(1000.0 * p.scan.line_rate_hz)
+}
+
+/// `track.png` ([`write_track_png`]) of the trials so far; `lines` holds
+/// the mean error line (m) of the trials drawn in full, by index.
+fn write_figure(
+    dir: &Path,
+    s: &TrackSummary,
+    rate_hz: f64,
+    r_t: &[f64],
+    lines: &[(usize, Vec<f64>)],
+    existing: Existing,
+) -> Result<(), RunError> {
+    let path = dir.join("track.png");
+    let n = r_t.len();
+    let line_rate = s.plan.scan.line_rate_hz;
+    let k_max = ((spectrum_top_hz(&s.plan, rate_hz) / line_rate) as usize).clamp(1, n / 2);
+    let t_s: Vec<f64> = (0..n).map(|i| i as f64 / rate_hz).collect();
+    let reference_um: Vec<f64> = r_t.iter().map(|v| v * 1e6).collect();
+    let harmonic_hz: Vec<f64> = (1..=k_max).map(|k| k as f64 * line_rate).collect();
+    let drawn: Vec<(usize, Vec<f64>, Vec<f64>)> = lines
+        .iter()
+        .map(|(i, e)| {
+            let pos = r_t.iter().zip(e).map(|(r, e)| (r - e) * 1e6).collect();
+            let h = Harmonics::analyze(e, k_max);
+            let amp = h.coef[1..].iter().map(|c| c.norm() * 1e9).collect();
+            (*i, pos, amp)
+        })
+        .collect();
+    let trials = s
+        .trials
+        .iter()
+        .enumerate()
+        .map(|(i, t)| {
+            let d = drawn.iter().find(|d| d.0 == i);
+            TrackTrialPlot {
+                name: &t.name,
+                rms_error_nm: t.rms_error_m * 1e9,
+                rms_error_sigma_nm: t.rms_error_sigma_m * 1e9,
+                position_um: d.map_or(&[][..], |d| &d.1),
+                error_amplitude_nm: d.map_or(&[][..], |d| &d.2),
+            }
+        })
+        .collect();
+    let title = format!(
+        "bench track --controller {}: {:?} scan ±{:.2} µm at {} lines/s",
+        s.controller,
+        s.plan.scan.kind,
+        s.plan.scan.amplitude_m * 1e6,
+        line_rate
+    );
+    let plot = TrackPlot {
+        title: &title,
+        t_s: &t_s,
+        reference_um: &reference_um,
+        harmonic_hz: &harmonic_hz,
+        trials,
+        noise_floor_nm: s.noise_floor_m * 1e9,
+        cutoff_hz: s.plan.scan.cutoff_hz,
+        zero_bands: s
+            .plan
+            .zero_bands
+            .iter()
+            .map(|b| {
+                (
+                    format!("{} zero {:.1} Hz", b.kind, b.zero_hz),
+                    b.low_hz,
+                    b.high_hz,
+                )
+            })
+            .collect(),
+    };
+    write_track_png(&path, existing, &plot).map_err(|e| RunError::Output {
+        path,
+        reason: e.to_string(),
+    })
 }
 
 /// The summary and the files of a run so far, written after every trial.
@@ -630,6 +764,7 @@ fn outputs(opts: &TrackOptions) -> Result<Vec<PathBuf>, RunError> {
     plan = plan
         .with_output("out", &dir.join("track.json"), Origin::Derived)
         .with_output("out", &dir.join("feedforward.csv"), Origin::Derived)
+        .with_output("out", &dir.join("track.png"), Origin::Derived)
         .with_input("config", &opts.config_path);
     if let Some(p) = &opts.feedforward {
         plan = plan.with_input("feedforward", p);
@@ -699,7 +834,7 @@ impl Trials<'_> {
         let recorder = open_recording(&session, cfg, &info, &mut plan)?;
         let recorded = run_recorded(runner, job, cfg, recorder, &session, Arc::clone(self.stop))?;
         let data = &recorded.data;
-        let (rms, peak, mean) = measured_error(
+        let measured = measured_error(
             &data.setpoint_m[..measured_end.min(data.setpoint_m.len())],
             &data.position_m[..measured_end.min(data.position_m.len())],
             n,
@@ -709,16 +844,18 @@ impl Trials<'_> {
         let mut recorder = recorded.recorder;
         let report = TrialReport {
             name: name.to_string(),
-            rms_error_m: rms,
-            peak_error_m: peak,
+            rms_error_m: measured.rms_m,
+            rms_error_sigma_m: measured.rms_sigma_m,
+            peak_error_m: measured.peak_m,
             of_noise_floor: f64::NAN,
+            of_noise_floor_sigma: f64::NAN,
             feedforward_rms_a: ff_rms,
             recording: recording.clone(),
         };
         let ch = recorder.add_channel_for::<TrialReport>("/track/trial", "bench.TrackTrial")?;
         recorder.write(ch, recorded.end_ns, &report)?;
         finish(recorder)?;
-        Ok((report, mean))
+        Ok((report, measured.mean_line_m))
     }
 
     /// The trials in order (module docs), the summary written after each.
@@ -737,18 +874,22 @@ impl Trials<'_> {
         let (t, _) = self.run(runner, 0, "standstill", &still, &still)?;
         summary.noise_floor_m = t.rms_error_m;
         summary.push(t);
-        write_summary(dir, summary, Existing::overwrite(self.opts.overwrite))?;
-        // From here on the summary replaces the run's own.
-        let (t, _) = self.run(runner, 1, "feedback", &r_t, &still)?;
+        let mut lines = Vec::new();
+        let first = Existing::overwrite(self.opts.overwrite);
+        self.report(summary, &r_t, &lines, first)?;
+        // From here on the summary and the figure replace the run's own.
+        let (t, e) = self.run(runner, 1, "feedback", &r_t, &still)?;
         summary.push(t);
-        write_summary(dir, summary, Existing::Replace)?;
+        lines.push((1, e));
+        self.report(summary, &r_t, &lines, Existing::Replace)?;
         let mut f = f_model;
         let mut f_t = f.synthesize();
         let (t, mut e_mean) = self.run(runner, 2, start_name, &r_t, &f_t)?;
         let mut best = (t.rms_error_m, t.name.clone(), f_t.clone());
         let mut rms = vec![t.rms_error_m];
         summary.push(t);
-        write_summary(dir, summary, Existing::Replace)?;
+        lines.push((2, e_mean.clone()));
+        self.report(summary, &r_t, &lines, Existing::Replace)?;
         let budget = self.opts.trials as usize;
         let mut why = stop_rule(&rms, summary.noise_floor_m, budget + 1);
         let mut j = 0;
@@ -773,8 +914,11 @@ impl Trials<'_> {
             }
             rms.push(t.rms_error_m);
             summary.push(t);
+            // Feedback, the first feedforward and the latest learning trial.
+            lines.truncate(2);
+            lines.push((2 + j, e_mean.clone()));
             why = stop_rule(&rms, summary.noise_floor_m, budget + 1);
-            write_summary(dir, summary, Existing::Replace)?;
+            self.report(summary, &r_t, &lines, Existing::Replace)?;
         }
         let csv = dir.join("feedforward.csv");
         let scan = summary.plan.scan;
@@ -787,19 +931,59 @@ impl Trials<'_> {
             Existing::overwrite(self.opts.overwrite),
         )?;
         summary.stop = why.or(why_limit).map(str::to_string);
-        summary.improvement = Some(summary.trials[1].rms_error_m / best.0);
+        let fb = &summary.trials[1];
+        let best_sigma = summary
+            .trials
+            .iter()
+            .find(|t| t.name == best.1)
+            .map_or(f64::NAN, |t| t.rms_error_sigma_m);
+        let (imp, imp_sigma) = ratio((fb.rms_error_m, fb.rms_error_sigma_m), (best.0, best_sigma));
+        summary.improvement = Some(imp);
+        summary.improvement_sigma = Some(imp_sigma);
         summary.best_trial = Some(best.1);
         summary.feedforward_csv = Some(csv);
         write_summary(dir, summary, Existing::Replace)
+    }
+
+    /// Writes the summary (`track.json`) and the figure (`track.png`) of
+    /// the trials so far; `lines` as for [`write_figure`].
+    fn report(
+        &self,
+        summary: &TrackSummary,
+        r_t: &[f64],
+        lines: &[(usize, Vec<f64>)],
+        existing: Existing,
+    ) -> Result<(), RunError> {
+        let dir = &self.opts.out_dir;
+        write_summary(dir, summary, existing)?;
+        let rate_hz = self.opts.config.loop_.rate_hz;
+        write_figure(dir, summary, rate_hz, r_t, lines, existing)
     }
 }
 
 impl TrackSummary {
     /// Adds a trial, its error relative to the noise floor set.
     fn push(&mut self, mut t: TrialReport) {
-        t.of_noise_floor = t.rms_error_m / self.noise_floor_m;
+        let floor = self.trials.first().unwrap_or(&t);
+        let (of, sigma) = ratio(
+            (t.rms_error_m, t.rms_error_sigma_m),
+            (floor.rms_error_m, floor.rms_error_sigma_m),
+        );
+        t.of_noise_floor = of;
+        t.of_noise_floor_sigma = if self.trials.is_empty() {
+            t.rms_error_sigma_m / t.rms_error_m
+        } else {
+            sigma
+        };
         self.trials.push(t);
     }
+}
+
+/// `a/b` and its 1σ from `a`'s and `b`'s (value, 1σ), to first order:
+/// `σ = (a/b)·√((σa/a)² + (σb/b)²)`.
+pub fn ratio(a: (f64, f64), b: (f64, f64)) -> (f64, f64) {
+    let r = a.0 / b.0;
+    (r, r * ((a.1 / a.0).powi(2) + (b.1 / b.0).powi(2)).sqrt())
 }
 
 /// Why learning stops after `rms` (the learning trials' RMS errors so far,
@@ -938,6 +1122,7 @@ pub fn run_track(opts: &TrackOptions, stop: Arc<AtomicBool>) -> Result<TrackSumm
         stop: None,
         best_trial: None,
         improvement: None,
+        improvement_sigma: None,
         feedforward_csv: None,
     };
     let period_s_stall = StallBounds::of(check.stall.bound_s, period_s);
@@ -958,4 +1143,41 @@ pub fn run_track(opts: &TrackOptions, stop: Arc<AtomicBool>) -> Result<TrackSumm
         &mut summary,
     )?;
     Ok(summary)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::splitmix::standard_normal;
+
+    /// White Gaussian noise of σ = 40 nm in 400 lines of 100 ticks: the
+    /// RMS is σ within its own 1σ, and that 1σ is the analytic one of an
+    /// RMS of `N` independent samples, `σ/√(2N)` (the mean square's
+    /// variance is `2σ⁴/N`), within 15 %.
+    #[test]
+    fn the_rms_error_sigma_is_that_of_white_noise() {
+        let (n, lines, sigma) = (100, 400, 40e-9);
+        let y: Vec<f64> = (0..n * lines)
+            .map(|i| sigma * standard_normal(i as u64))
+            .collect();
+        let r = vec![0.0; y.len()];
+        let m = measured_error(&r, &y, n, 0);
+        let analytic = sigma / (2.0 * (n * lines) as f64).sqrt();
+        assert!(
+            (m.rms_sigma_m / analytic - 1.0).abs() < 0.15,
+            "{m:?} {analytic}"
+        );
+        assert!((m.rms_m - sigma).abs() < 3.0 * analytic, "{m:?}");
+        assert_eq!(m.mean_line_m.len(), n);
+        // One line: no scatter to measure.
+        assert!(measured_error(&r[..n], &y[..n], n, 0).rms_sigma_m.is_nan());
+    }
+
+    /// The ratio's first-order 1σ: 10 ± 1 over 2 ± 0.1 is 5 ± 5·√(0.01 + 0.0025).
+    #[test]
+    fn a_ratio_carries_both_sigmas() {
+        let (r, s) = ratio((10.0, 1.0), (2.0, 0.1));
+        assert!((r - 5.0).abs() < 1e-12);
+        assert!((s - 5.0 * 0.0125f64.sqrt()).abs() < 1e-12);
+    }
 }

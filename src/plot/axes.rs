@@ -31,7 +31,7 @@ pub(super) type Chart<'a, 'b, X> =
 
 /// A logarithmic frequency axis over `range` with ticks labelled at `bold`
 /// and grid lines also at `light`.
-fn freq_axis(range: &Range<f64>, bold: &[f64], light: &[f64]) -> Ticked<LogCoord<f64>> {
+pub(super) fn freq_axis(range: &Range<f64>, bold: &[f64], light: &[f64]) -> Ticked<LogCoord<f64>> {
     Ticked {
         inner: range.clone().log_scale().into(),
         bold: bold.to_vec(),

@@ -17,6 +17,10 @@
 //!   marked.
 //! * [`write_time_png`] (`time.rs`): one or more stacked time-series panels
 //!   sharing a time axis.
+//! * [`write_track_png`] (`track.rs`; `bench track`): the reference against
+//!   the position over one line, the RMS error of every trial with its 1σ
+//!   and the noise floor, and the error's harmonics beside the bands the
+//!   plant's zeros close.
 //! * [`write_design_png`] (`design.rs`; `bench design`): the open loop of
 //!   every input FRF, 1400×1000 px: the Nyquist plane left (equal scales,
 //!   around −1, with the unit circle, the modulus-margin circle and the
@@ -111,6 +115,7 @@ mod style;
 mod tests;
 mod ticks;
 mod time;
+mod track;
 
 pub use crate::ident::frf::MIN_COHERENCE;
 pub use bode::{bode_curve, write_bode_png, BodePlot, BodeSeries, MAGNITUDE_M_PER_A};
@@ -129,6 +134,7 @@ pub use palette::{
 pub use pole_zero::write_pole_zero_png;
 pub use step::{write_step_png, StepPlot};
 pub use time::{write_time_png, TimePanel};
+pub use track::{write_track_png, TrackPlot, TrackTrialPlot};
 
 /// Error writing a plot; every variant except [`PlotError::Font`] names the
 /// output path.

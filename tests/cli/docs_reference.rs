@@ -171,7 +171,9 @@ fn the_recording_channels_page_is_the_recordings() {
     let dir = tmp();
     let chirp = path_in(dir.path(), "chirp.mcap");
     let control = path_in(dir.path(), "control.mcap");
-    let runs: [(&'static str, &str, Vec<&str>); 2] = [
+    let track_dir = path_in(dir.path(), "track");
+    let track = path_in(dir.path(), "track/trial-00-standstill.mcap");
+    let runs: [(&'static str, &str, Vec<&str>); 3] = [
         (
             "chirp",
             &chirp,
@@ -189,6 +191,19 @@ fn the_recording_channels_page_is_the_recordings() {
             "control",
             &control,
             vec!["control", "--fast", "--out", &control, "--duration-s", "1"],
+        ),
+        (
+            "track",
+            &track,
+            vec![
+                "track",
+                "--out",
+                &track_dir,
+                "--periods",
+                "1",
+                "--trials",
+                "1",
+            ],
         ),
     ];
     let mut chans = BTreeMap::new();
@@ -228,7 +243,7 @@ fn the_recording_channels_page_is_the_recordings() {
     }
     check_generated(
         "docs/src/reference/channels.md",
-        "the channels of a `bench chirp` and a `bench control --fast` recording",
+        "the channels of a `bench chirp`, a `bench control --fast` and a `bench track` recording",
         &body,
     );
 }
@@ -250,6 +265,7 @@ fn the_json_outputs_page_is_the_summaries_schemas() {
         "bench control": bench::jobs::control::ControlSummary,
         "bench fit": bench::jobs::fit::FitResult,
         "bench design": bench::jobs::design::DesignSummary,
+        "bench track": bench::jobs::track::TrackSummary,
         "bench analyze": bench::jobs::analyze::AnalyzeSummary,
         "bench map": bench::jobs::map::MapResult,
         "bench plot": bench::jobs::plot::PlotSummary,

@@ -69,6 +69,29 @@ fn check_files(dir: &Path, v: &Value) {
     let csv = std::fs::read_to_string(run.join("feedforward.csv")).unwrap();
     let n = v["plan"]["period_ticks"].as_u64().unwrap() as usize;
     assert_eq!(csv.lines().count(), n + 3, "two comments, a header, a line");
+    let png = image::open(run.join("track.png")).unwrap().to_rgb8();
+    assert_eq!(png.dimensions(), (1400, 1500));
+    // The noise floor's 1σ is that of an RMS of white noise over the
+    // measured ticks, σ/√(2N), within a factor 2 (the loop colours it);
+    // with one measured line there is no scatter: no σ (null).
+    let floor = &v["trials"][0];
+    let periods = v["trials"][0]["rms_error_sigma_m"]
+        .as_f64()
+        .map_or(1, |_| 5); // --periods 1, or the default 5
+    for t in v["trials"].as_array().unwrap() {
+        let Some(s) = t["rms_error_sigma_m"].as_f64() else {
+            assert_eq!(periods, 1, "{t}");
+            continue;
+        };
+        assert!(s > 0.0 && s < 0.2 * rms(t), "{t}");
+        assert!(t["of_noise_floor_sigma"].as_f64().unwrap() > 0.0, "{t}");
+    }
+    if periods > 1 {
+        let white = rms(floor) / (2.0 * (n * periods) as f64).sqrt();
+        let sigma = floor["rms_error_sigma_m"].as_f64().unwrap();
+        assert!((0.5..2.0).contains(&(sigma / white)), "{sigma} {white}");
+        assert!(v["improvement_sigma"].as_f64().unwrap() > 0.0);
+    }
 }
 
 /// The target on the shipped bench: feedforward (and learning)
