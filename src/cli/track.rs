@@ -1,7 +1,7 @@
 //! `bench track`: its flags and the printed trials.
 
 use super::{bad_input, emit, job_thread, load_config, run_failed_json};
-use bench::jobs::request::parse_seed;
+use bench::jobs::request::{parse_fault, parse_seed};
 use bench::jobs::track::{run_track, TrackOptions, TrackSummary};
 use bench::rt::backend::BackendSpec;
 use bench::track::{Scan, ScanKind};
@@ -107,6 +107,12 @@ pub(super) struct TrackArgs {
     /// time.
     #[arg(long, value_name = "BACKEND")]
     backend: Option<BackendSpec>,
+    /// Inject a simulator fault: KIND@T_S with KIND one of nan, frozen,
+    /// drop (10 samples), jump (0.2 mm), out_of_range, dead, blind,
+    /// stall:MS, and T_S the loop time from the first trial's start, s
+    /// (the trials run back to back); e.g. nan@3.
+    #[arg(long, value_name = "KIND@T_S")]
+    inject_fault: Option<String>,
     #[command(flatten)]
     json: super::JsonFlag,
     #[command(flatten)]
@@ -137,6 +143,15 @@ pub(super) fn track(args: TrackArgs, stop: Arc<AtomicBool>) -> ExitCode {
         },
         None => None,
     };
+    let inject_fault = match args.inject_fault.as_deref().map(parse_fault).transpose() {
+        Ok(f) => f,
+        Err(e) => {
+            return bad_input(format!(
+                "--inject-fault {}: {e}",
+                args.inject_fault.as_deref().unwrap_or("")
+            ))
+        }
+    };
     let controller = args.controller();
     let out_dir = match &args.out.out {
         Some(d) => d.clone(),
@@ -166,6 +181,7 @@ pub(super) fn track(args: TrackArgs, stop: Arc<AtomicBool>) -> ExitCode {
         overwrite: args.outputs.overwrite,
         model,
         feedforward: args.feedforward.clone(),
+        inject_fault,
     };
     let result = job_thread::run_job(stop, move |stop, _ticks| run_track(&opts, stop));
     let result = match result {

@@ -27,7 +27,9 @@
 //! written as a CSV table (`feedforward.csv`), the summary and its figure,
 //! rewritten after every trial, as `track.json` and `track.png`
 //! ([`write_track_png`]): a fault ends the learning with every recording
-//! finished and the summary and figure of the trials before it on disk.
+//! finished and the summary and figure of the trials before it on disk;
+//! when a learning trial faults, the best feedforward learned before it is
+//! written too (`stop`: `fault`).
 //! Every RMS error carries its 1σ from the scatter between the measured
 //! lines ([`measured_error`]).
 //!
@@ -50,7 +52,7 @@ use crate::rt::backend::{self, BackendSpec};
 use crate::rt::supervisor::StallBounds;
 use crate::track::{model_inverse, predict, Harmonics, Learning, Scan, TrackJob, ZeroBand};
 use bench_plant::model::Sr4dof;
-use bench_plant::sim::ZohPlant;
+use bench_plant::sim::{ScheduledFault, ZohPlant};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
@@ -100,6 +102,9 @@ pub struct TrackOptions {
     /// `--feedforward`: a learned table (`feedforward.csv`) replayed in
     /// place of the model-inverse feedforward, learning going on from it.
     pub feedforward: Option<PathBuf>,
+    /// A simulator fault, its time counted from the first trial's start
+    /// (`--inject-fault`; refused on hardware).
+    pub inject_fault: Option<ScheduledFault>,
 }
 
 /// The scan as planned on the model before the first trial.
@@ -156,6 +161,14 @@ pub struct TrialReport {
     pub of_noise_floor_sigma: f64,
     /// RMS of the feedforward played, A.
     pub feedforward_rms_a: f64,
+    /// RMS of the command (feedback + feedforward) over the measured
+    /// lines, A: what the coil carried.
+    pub command_rms_a: f64,
+    /// The command's RMS predicted before the trial, A: on the model for
+    /// the feedforward trial (`u = CS·r + S·f`), from the last trial's
+    /// measured command for a learning trial (`u + S·Δf`); null for the
+    /// others.
+    pub predicted_command_rms_a: Option<f64>,
     /// The recording.
     pub recording: PathBuf,
 }
@@ -175,10 +188,11 @@ pub struct TrackSummary {
     pub noise_floor_m: f64,
     /// The trials so far, in order.
     pub trials: Vec<TrialReport>,
-    /// Why learning stopped: `converged`, `diverged`, `budget`, or
-    /// `limit` (the next learned feedforward would exceed the current
-    /// limits, predicted on the model: not run); absent while it runs or
-    /// after a fault.
+    /// Why learning stopped: `converged`, `diverged`, `budget`, `limit`
+    /// (the next learned feedforward would exceed the current limits,
+    /// predicted on the model: not run) or `fault` (a learning trial
+    /// faulted: the best feedforward before it is kept); absent while it
+    /// runs, or after a fault before learning began.
     pub stop: Option<String>,
     /// The trial with the least RMS error among those with a scan.
     pub best_trial: Option<String>,
@@ -351,19 +365,46 @@ fn predicted_current(
     (peak, u.rms())
 }
 
+/// The next learning trial's command, predicted from the last one's as
+/// measured: `u_next = u_measured + S·(f_next − f_last)`, its peak and its
+/// RMS, A. Only the change goes through the model, so a model that is off
+/// (which the learning is there to correct) misjudges only the change,
+/// not the whole current: on a bench whose feedforward needs 20 % more
+/// current than the model says, the model alone would predict the command
+/// 20 % low. `u_measured` is the last trial's mean command line (A).
+fn predicted_next_current(
+    u_measured: &[f64],
+    df: &Harmonics,
+    model: &ModelLoop<'_>,
+    line_rate_hz: f64,
+) -> (f64, f64) {
+    let mut du = Harmonics::zeros(df.coef.len() - 1, df.period_ticks);
+    for k in 1..df.coef.len() {
+        du.coef[k] = model.sensitivity(Harmonics::frequency_hz(k, line_rate_hz)) * df.coef[k];
+    }
+    let u: Vec<f64> = u_measured
+        .iter()
+        .zip(du.synthesize())
+        .map(|(a, b)| a + b)
+        .collect();
+    let peak = u.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    let rms = (u.iter().map(|v| v * v).sum::<f64>() / u.len().max(1) as f64).sqrt();
+    (peak, rms)
+}
+
 /// Why a feedforward is refused by the current limits of the config, or
-/// `None` (`peak_a`, `rms_a` predicted by [`predicted_current`]).
-fn beyond_current_limits(cfg: &BenchConfig, peak_a: f64, rms_a: f64) -> Option<String> {
+/// `None` (`peak_a`, `rms_a` predicted as `how` says).
+fn beyond_current_limits(cfg: &BenchConfig, peak_a: f64, rms_a: f64, how: &str) -> Option<String> {
     let peak_limit = cfg.actuator.peak_current_a;
     let cont_limit = cfg.actuator.continuous_current_a;
     // A NaN prediction is beyond every limit.
     if peak_a.is_nan() || peak_a > peak_limit {
         Some(format!(
-            "needs {peak_a:.2} A peak (predicted on the model), above actuator.peak_current_a {peak_limit} A"
+            "needs {peak_a:.2} A peak ({how}), above actuator.peak_current_a {peak_limit} A"
         ))
     } else if rms_a.is_nan() || rms_a > cont_limit {
         Some(format!(
-            "needs {rms_a:.2} A RMS (predicted on the model), above actuator.continuous_current_a {cont_limit} A (I²t)"
+            "needs {rms_a:.2} A RMS ({how}), above actuator.continuous_current_a {cont_limit} A (I²t)"
         ))
     } else {
         None
@@ -385,9 +426,12 @@ fn check_limits(cfg: &BenchConfig, p: &TrackPlan) -> Result<(), RunError> {
             ),
         ));
     }
-    if let Some(why) =
-        beyond_current_limits(cfg, p.predicted_peak_current_a, p.predicted_rms_current_a)
-    {
+    if let Some(why) = beyond_current_limits(
+        cfg,
+        p.predicted_peak_current_a,
+        p.predicted_rms_current_a,
+        "predicted on the model",
+    ) {
         return Err(RunError::option(
             "amplitude_m",
             p.scan.amplitude_m,
@@ -433,12 +477,9 @@ pub fn measured_error(
         .skip(warm_up)
         .map(|(s, y)| s - y)
         .collect();
-    let m = e.len() / n.max(1);
     let rms_m = (e.iter().map(|v| v * v).sum::<f64>() / e.len().max(1) as f64).sqrt();
     let peak_m = e.iter().fold(0.0f64, |a, v| a.max(v.abs()));
-    let mean_line_m = (0..n)
-        .map(|i| (0..m).map(|p| e[p * n + i]).sum::<f64>() / m.max(1) as f64)
-        .collect();
+    let mean_line_m = mean_line(&e, n);
     let ms: Vec<f64> = e
         .chunks_exact(n.max(1))
         .map(|l| l.iter().map(|v| v * v).sum::<f64>() / n as f64)
@@ -546,6 +587,15 @@ fn write_figure(
         path,
         reason: e.to_string(),
     })
+}
+
+/// The mean of the whole lines of `n` values in `x`: `n` values (zeros
+/// when `x` holds no whole line).
+pub fn mean_line(x: &[f64], n: usize) -> Vec<f64> {
+    let m = x.len() / n.max(1);
+    (0..n)
+        .map(|i| (0..m).map(|p| x[p * n + i]).sum::<f64>() / m.max(1) as f64)
+        .collect()
 }
 
 /// The summary and the files of a run so far, written after every trial.
@@ -789,8 +839,8 @@ struct Trials<'a> {
 }
 
 impl Trials<'_> {
-    /// Runs trial `index` on `runner` and measures its error: its report
-    /// and the mean period of its error (m).
+    /// Runs trial `index` on `runner` and measures its error: its report,
+    /// the mean line of its error (m) and of its command (A).
     fn run(
         &self,
         runner: &mut Runner<'_>,
@@ -798,7 +848,7 @@ impl Trials<'_> {
         name: &str,
         reference_m: &[f64],
         feedforward_a: &[f64],
-    ) -> Result<(TrialReport, Vec<f64>), RunError> {
+    ) -> Result<(TrialReport, Vec<f64>, Vec<f64>), RunError> {
         let opts = self.opts;
         let recording = &self.recordings[index];
         let n = reference_m.len();
@@ -840,6 +890,11 @@ impl Trials<'_> {
             n,
             warm_up as usize,
         );
+        let end = measured_end.min(data.current_command_a.len());
+        let measured_u = &data.current_command_a[(warm_up as usize).min(end)..end];
+        let command = mean_line(measured_u, n);
+        let command_rms_a =
+            (measured_u.iter().map(|v| v * v).sum::<f64>() / measured_u.len().max(1) as f64).sqrt();
         let ff_rms = (feedforward_a.iter().map(|v| v * v).sum::<f64>() / n as f64).sqrt();
         let mut recorder = recorded.recorder;
         let report = TrialReport {
@@ -850,12 +905,14 @@ impl Trials<'_> {
             of_noise_floor: f64::NAN,
             of_noise_floor_sigma: f64::NAN,
             feedforward_rms_a: ff_rms,
+            command_rms_a,
+            predicted_command_rms_a: None,
             recording: recording.clone(),
         };
         let ch = recorder.add_channel_for::<TrialReport>("/track/trial", "bench.TrackTrial")?;
         recorder.write(ch, recorded.end_ns, &report)?;
         finish(recorder)?;
-        Ok((report, measured.mean_line_m))
+        Ok((report, measured.mean_line_m, command))
     }
 
     /// The trials in order (module docs), the summary written after each.
@@ -867,24 +924,25 @@ impl Trials<'_> {
         learning: &Learning,
         summary: &mut TrackSummary,
     ) -> Result<(), RunError> {
-        let dir = &self.opts.out_dir;
         let n = r.period_ticks;
         let r_t = r.synthesize();
         let still = vec![0.0; n];
-        let (t, _) = self.run(runner, 0, "standstill", &still, &still)?;
+        let (t, _, _) = self.run(runner, 0, "standstill", &still, &still)?;
         summary.noise_floor_m = t.rms_error_m;
         summary.push(t);
         let mut lines = Vec::new();
         let first = Existing::overwrite(self.opts.overwrite);
         self.report(summary, &r_t, &lines, first)?;
         // From here on the summary and the figure replace the run's own.
-        let (t, e) = self.run(runner, 1, "feedback", &r_t, &still)?;
+        let (t, e, _) = self.run(runner, 1, "feedback", &r_t, &still)?;
         summary.push(t);
         lines.push((1, e));
         self.report(summary, &r_t, &lines, Existing::Replace)?;
         let mut f = f_model;
         let mut f_t = f.synthesize();
-        let (t, mut e_mean) = self.run(runner, 2, start_name, &r_t, &f_t)?;
+        let line_rate = summary.plan.scan.line_rate_hz;
+        let (mut t, mut e_mean, mut u_mean) = self.run(runner, 2, start_name, &r_t, &f_t)?;
+        t.predicted_command_rms_a = Some(predicted_current(r, &f, self.model, line_rate).1);
         let mut best = (t.rms_error_m, t.name.clone(), f_t.clone());
         let mut rms = vec![t.rms_error_m];
         summary.push(t);
@@ -897,9 +955,17 @@ impl Trials<'_> {
         while why.is_none() {
             j += 1;
             let next = learning.update(&f, &Harmonics::analyze(&e_mean, learning.l.len() - 1));
-            let (peak_a, rms_a) =
-                predicted_current(r, &next, self.model, summary.plan.scan.line_rate_hz);
-            if let Some(why) = beyond_current_limits(&self.opts.config, peak_a, rms_a) {
+            let mut df = next.clone();
+            for (d, c) in df.coef.iter_mut().zip(&f.coef) {
+                *d -= c;
+            }
+            let (peak_a, rms_a) = predicted_next_current(&u_mean, &df, self.model, line_rate);
+            if let Some(why) = beyond_current_limits(
+                &self.opts.config,
+                peak_a,
+                rms_a,
+                "predicted from the last trial's measured command",
+            ) {
                 tracing::warn!("learning stops before trial {j}: its feedforward {why}");
                 why_limit = Some("limit");
                 break;
@@ -907,8 +973,16 @@ impl Trials<'_> {
             f = next;
             f_t = f.synthesize();
             let name = format!("learning-{j}");
-            let (t, e) = self.run(runner, 2 + j, &name, &r_t, &f_t)?;
-            e_mean = e;
+            let (mut t, e, u) = match self.run(runner, 2 + j, &name, &r_t, &f_t) {
+                Ok(r) => r,
+                Err(e) => {
+                    // The learning so far is kept; the fault is the run's end.
+                    self.keep_best(summary, &r_t, best, Some("fault"))?;
+                    return Err(e);
+                }
+            };
+            (e_mean, u_mean) = (e, u);
+            t.predicted_command_rms_a = Some(rms_a);
             if t.rms_error_m < best.0 {
                 best = (t.rms_error_m, name, f_t.clone());
             }
@@ -920,17 +994,30 @@ impl Trials<'_> {
             why = stop_rule(&rms, summary.noise_floor_m, budget + 1);
             self.report(summary, &r_t, &lines, Existing::Replace)?;
         }
+        self.keep_best(summary, &r_t, best, why.or(why_limit))
+    }
+
+    /// Ends the learning: the best trial's feedforward written as
+    /// `feedforward.csv` and the summary with why it stopped.
+    fn keep_best(
+        &self,
+        summary: &mut TrackSummary,
+        r_t: &[f64],
+        best: (f64, String, Vec<f64>),
+        why: Option<&str>,
+    ) -> Result<(), RunError> {
+        let dir = &self.opts.out_dir;
         let csv = dir.join("feedforward.csv");
         let scan = summary.plan.scan;
         write_feedforward(
             &csv,
             self.opts,
             &scan,
-            &r_t,
+            r_t,
             &best.2,
             Existing::overwrite(self.opts.overwrite),
         )?;
-        summary.stop = why.or(why_limit).map(str::to_string);
+        summary.stop = why.map(str::to_string);
         let fb = &summary.trials[1];
         let best_sigma = summary
             .trials
@@ -1056,7 +1143,7 @@ pub fn run_track(opts: &TrackOptions, stop: Arc<AtomicBool>) -> Result<TrackSumm
             // The loop's integrator holds the mean: no feedforward has one.
             f.coef[0] = crate::ident::C64::new(0.0, 0.0);
             let (peak, rms) = predicted_current(&r, &f, &model_loop, plan.scan.line_rate_hz);
-            if let Some(why) = beyond_current_limits(cfg, peak, rms) {
+            if let Some(why) = beyond_current_limits(cfg, peak, rms, "predicted on the model") {
                 return Err(RunError::option(
                     "feedforward",
                     p.display(),
@@ -1104,7 +1191,7 @@ pub fn run_track(opts: &TrackOptions, stop: Arc<AtomicBool>) -> Result<TrackSumm
         cfg,
         &opts.config_path,
         opts.seed,
-        None,
+        opts.inject_fault,
         check.stall.bound_s,
     )?;
     let mut runner = Runner::Local {
