@@ -127,6 +127,9 @@ pub struct TrackPlan {
     /// The harmonics below the default cut-off that the smoothing removed
     /// because they lie in a zero's band, each `(k, Hz)`.
     pub harmonics_removed: Vec<(usize, f64)>,
+    /// The harmonics (number, Hz) the learning leaves as they are: those
+    /// inside a zero's band ([`Learning::leave_out_bands`]).
+    pub harmonics_not_learned: Vec<(usize, f64)>,
     /// Predicted peak of the feedforward trial's command, A.
     pub predicted_peak_current_a: f64,
     /// Predicted RMS of its command, A.
@@ -325,10 +328,14 @@ fn plan(
         scan.line_rate_hz,
     );
     let peak_r = r.synthesize().iter().fold(0.0f64, |m, v| m.max(v.abs()));
-    let learning = Learning::new(model, g, scan.k_max(), scan.line_rate_hz);
+    let mut learning = Learning::new(model, g, scan.k_max(), scan.line_rate_hz);
+    let not_learned = learning.leave_out_bands(&bands, scan.line_rate_hz);
     let contraction = learning
         .contraction(&learning.ps_model)
         .into_iter()
+        .enumerate()
+        .filter(|(i, _)| learning.learns(i + 1))
+        .map(|(_, c)| c)
         .fold(0.0, f64::max);
     let plan = TrackPlan {
         model: opts
@@ -341,6 +348,10 @@ fn plan(
         zero_bands: bands,
         harmonics_in_zero_bands: inside,
         harmonics_removed: removed,
+        harmonics_not_learned: not_learned
+            .iter()
+            .map(|&k| (k, Harmonics::frequency_hz(k, scan.line_rate_hz)))
+            .collect(),
         predicted_peak_current_a: peak_u,
         predicted_rms_current_a: rms_u,
         peak_reference_m: peak_r,
@@ -598,6 +609,31 @@ pub fn mean_line(x: &[f64], n: usize) -> Vec<f64> {
         .collect()
 }
 
+/// The 1σ of each harmonic `0…k_max` of the mean of the whole lines of
+/// `n` values in `e` (m): the scatter of the lines' own harmonics about
+/// their mean, over √(lines) (NaN with fewer than two lines).
+pub fn harmonic_sigma(e: &[f64], n: usize, k_max: usize) -> Vec<f64> {
+    let lines: Vec<Harmonics> = e
+        .chunks_exact(n.max(1))
+        .map(|l| Harmonics::analyze(l, k_max))
+        .collect();
+    let m = lines.len();
+    if m < 2 {
+        return vec![f64::NAN; k_max + 1];
+    }
+    (0..=k_max)
+        .map(|k| {
+            let mean = lines.iter().map(|h| h.coef[k]).sum::<crate::ident::C64>() / m as f64;
+            let var = lines
+                .iter()
+                .map(|h| (h.coef[k] - mean).norm_sqr())
+                .sum::<f64>()
+                / (m - 1) as f64;
+            (var / m as f64).sqrt()
+        })
+        .collect()
+}
+
 /// The summary and the files of a run so far, written after every trial.
 fn write_summary(dir: &Path, s: &TrackSummary, existing: Existing) -> Result<(), RunError> {
     let path = dir.join("track.json");
@@ -836,11 +872,24 @@ struct Trials<'a> {
     stop: &'a Arc<AtomicBool>,
     stall: StallBounds,
     stall_source: &'a str,
+    /// The learned harmonics' count `K`.
+    k_max: usize,
+}
+
+/// What a trial measured, beside its report.
+struct Outcome {
+    report: TrialReport,
+    /// The mean line of the error, m.
+    error_line_m: Vec<f64>,
+    /// The 1σ of each harmonic `0…K` of that mean line, m
+    /// ([`harmonic_sigma`]).
+    error_sigma_m: Vec<f64>,
+    /// The mean line of the command, A.
+    command_line_a: Vec<f64>,
 }
 
 impl Trials<'_> {
-    /// Runs trial `index` on `runner` and measures its error: its report,
-    /// the mean line of its error (m) and of its command (A).
+    /// Runs trial `index` on `runner` and measures its error and command.
     fn run(
         &self,
         runner: &mut Runner<'_>,
@@ -848,7 +897,7 @@ impl Trials<'_> {
         name: &str,
         reference_m: &[f64],
         feedforward_a: &[f64],
-    ) -> Result<(TrialReport, Vec<f64>, Vec<f64>), RunError> {
+    ) -> Result<Outcome, RunError> {
         let opts = self.opts;
         let recording = &self.recordings[index];
         let n = reference_m.len();
@@ -884,12 +933,16 @@ impl Trials<'_> {
         let recorder = open_recording(&session, cfg, &info, &mut plan)?;
         let recorded = run_recorded(runner, job, cfg, recorder, &session, Arc::clone(self.stop))?;
         let data = &recorded.data;
-        let measured = measured_error(
-            &data.setpoint_m[..measured_end.min(data.setpoint_m.len())],
-            &data.position_m[..measured_end.min(data.position_m.len())],
-            n,
-            warm_up as usize,
-        );
+        let setpoint = &data.setpoint_m[..measured_end.min(data.setpoint_m.len())];
+        let position = &data.position_m[..measured_end.min(data.position_m.len())];
+        let measured = measured_error(setpoint, position, n, warm_up as usize);
+        let e: Vec<f64> = setpoint
+            .iter()
+            .zip(position)
+            .skip(warm_up as usize)
+            .map(|(s, y)| s - y)
+            .collect();
+        let error_sigma_m = harmonic_sigma(&e, n, self.k_max);
         let end = measured_end.min(data.current_command_a.len());
         let measured_u = &data.current_command_a[(warm_up as usize).min(end)..end];
         let command = mean_line(measured_u, n);
@@ -912,7 +965,12 @@ impl Trials<'_> {
         let ch = recorder.add_channel_for::<TrialReport>("/track/trial", "bench.TrackTrial")?;
         recorder.write(ch, recorded.end_ns, &report)?;
         finish(recorder)?;
-        Ok((report, measured.mean_line_m, command))
+        Ok(Outcome {
+            report,
+            error_line_m: measured.mean_line_m,
+            error_sigma_m,
+            command_line_a: command,
+        })
     }
 
     /// The trials in order (module docs), the summary written after each.
@@ -927,39 +985,42 @@ impl Trials<'_> {
         let n = r.period_ticks;
         let r_t = r.synthesize();
         let still = vec![0.0; n];
-        let (t, _, _) = self.run(runner, 0, "standstill", &still, &still)?;
+        let t = self.run(runner, 0, "standstill", &still, &still)?.report;
         summary.noise_floor_m = t.rms_error_m;
         summary.push(t);
         let mut lines = Vec::new();
         let first = Existing::overwrite(self.opts.overwrite);
         self.report(summary, &r_t, &lines, first)?;
         // From here on the summary and the figure replace the run's own.
-        let (t, e, _) = self.run(runner, 1, "feedback", &r_t, &still)?;
-        summary.push(t);
-        lines.push((1, e));
+        let o = self.run(runner, 1, "feedback", &r_t, &still)?;
+        summary.push(o.report);
+        lines.push((1, o.error_line_m));
         self.report(summary, &r_t, &lines, Existing::Replace)?;
         let mut f = f_model;
         let mut f_t = f.synthesize();
         let line_rate = summary.plan.scan.line_rate_hz;
-        let (mut t, mut e_mean, mut u_mean) = self.run(runner, 2, start_name, &r_t, &f_t)?;
+        let mut last = self.run(runner, 2, start_name, &r_t, &f_t)?;
+        let mut t = last.report.clone();
         t.predicted_command_rms_a = Some(predicted_current(r, &f, self.model, line_rate).1);
         let mut best = (t.rms_error_m, t.name.clone(), f_t.clone());
         let mut rms = vec![t.rms_error_m];
         summary.push(t);
-        lines.push((2, e_mean.clone()));
+        lines.push((2, last.error_line_m.clone()));
         self.report(summary, &r_t, &lines, Existing::Replace)?;
         let budget = self.opts.trials as usize;
         let mut why = stop_rule(&rms, summary.noise_floor_m, budget + 1);
         let mut j = 0;
         let mut why_limit = None;
+        let mut e = Harmonics::analyze(&last.error_line_m, self.k_max);
         while why.is_none() {
             j += 1;
-            let next = learning.update(&f, &Harmonics::analyze(&e_mean, learning.l.len() - 1));
+            let next = learning.update_significant(&f, &e, &last.error_sigma_m);
             let mut df = next.clone();
             for (d, c) in df.coef.iter_mut().zip(&f.coef) {
                 *d -= c;
             }
-            let (peak_a, rms_a) = predicted_next_current(&u_mean, &df, self.model, line_rate);
+            let (peak_a, rms_a) =
+                predicted_next_current(&last.command_line_a, &df, self.model, line_rate);
             if let Some(why) = beyond_current_limits(
                 &self.opts.config,
                 peak_a,
@@ -973,7 +1034,7 @@ impl Trials<'_> {
             f = next;
             f_t = f.synthesize();
             let name = format!("learning-{j}");
-            let (mut t, e, u) = match self.run(runner, 2 + j, &name, &r_t, &f_t) {
+            last = match self.run(runner, 2 + j, &name, &r_t, &f_t) {
                 Ok(r) => r,
                 Err(e) => {
                     // The learning so far is kept; the fault is the run's end.
@@ -981,8 +1042,9 @@ impl Trials<'_> {
                     return Err(e);
                 }
             };
-            (e_mean, u_mean) = (e, u);
+            let mut t = last.report.clone();
             t.predicted_command_rms_a = Some(rms_a);
+            e = Harmonics::analyze(&last.error_line_m, self.k_max);
             if t.rms_error_m < best.0 {
                 best = (t.rms_error_m, name, f_t.clone());
             }
@@ -990,7 +1052,7 @@ impl Trials<'_> {
             summary.push(t);
             // Feedback, the first feedforward and the latest learning trial.
             lines.truncate(2);
-            lines.push((2 + j, e_mean.clone()));
+            lines.push((2 + j, last.error_line_m.clone()));
             why = stop_rule(&rms, summary.noise_floor_m, budget + 1);
             self.report(summary, &r_t, &lines, Existing::Replace)?;
         }
@@ -1221,6 +1283,7 @@ pub fn run_track(opts: &TrackOptions, stop: Arc<AtomicBool>) -> Result<TrackSumm
         stop: &stop,
         stall: period_s_stall,
         stall_source: &check.stall.source,
+        k_max: learning.l.len() - 1,
     };
     run.learn(
         &mut runner,

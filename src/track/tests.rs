@@ -283,3 +283,31 @@ fn the_job_plays_its_tables_periodically_between_its_fades() {
         assert_eq!(out.done, k == 49);
     }
 }
+
+/// What the learning leaves alone: on the Chapter 5 bench at 10 lines/s
+/// the harmonics inside a zero's band (20 Hz in the MMP pair's 16.0–27.6
+/// Hz; 60–100 Hz in the CNMP pair's 58.9–102.0 Hz), and any harmonic whose
+/// error is within 2σ of its noise.
+#[test]
+fn learning_leaves_out_the_zero_bands_and_the_noise() {
+    let b = bench();
+    let model = b.model();
+    let bands = ZeroBand::of(&b.zeros);
+    let mut learning = Learning::new(&model, 0.5, 12, 10.0);
+    let out = learning.leave_out_bands(&bands, 10.0);
+    assert_eq!(out, vec![2, 6, 7, 8, 9, 10]);
+    assert!(learning.learns(1) && learning.learns(3) && learning.learns(11));
+    assert!(!learning.learns(0) && !learning.learns(2));
+    let n = 500;
+    let f = Harmonics::zeros(12, n);
+    let mut e = Harmonics::zeros(12, n);
+    e.coef[1] = C64::new(3e-9, 0.0);
+    e.coef[3] = C64::new(0.0, 1.9e-9);
+    let sigma = vec![1e-9; 13];
+    let next = learning.update_significant(&f, &e, &sigma);
+    assert!(next.coef[1].norm() > 0.0, "3σ is learned");
+    assert_eq!(next.coef[3], f.coef[3], "1.9σ is noise");
+    // One line: no σ, everything learned.
+    let next = learning.update_significant(&f, &e, &[f64::NAN; 13]);
+    assert!(next.coef[3].norm() > 0.0);
+}
