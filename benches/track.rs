@@ -1,5 +1,6 @@
 //! `bench track` between two trials: the trial's analysis (the measured
-//! error, its mean line, its harmonics) and the learning update with the
+//! error, its mean line, its harmonics and their 1σ between lines) and the
+//! learning update (significant harmonics only) with the
 //! next trial's feedforward table, for a 1 s trial at 20 kHz (issue 44:
 //! ≤ 1 s). Two lines: 10 Hz (2 000 ticks, 5 harmonics) and 1 Hz (20 000
 //! ticks, the Chapter 5 bench's 58 harmonics below its CNMP band).
@@ -7,7 +8,7 @@
 use bench::config::BenchConfig;
 use bench::control::verify::ModelLoop;
 use bench::control::DiscreteController;
-use bench::jobs::track::measured_error;
+use bench::jobs::track::{harmonic_sigma, measured_error};
 use bench::track::{Harmonics, Learning, Scan, ScanKind};
 use bench_plant::model::Sr4dof;
 use bench_plant::sim::ZohPlant;
@@ -51,9 +52,10 @@ fn track(c: &mut Criterion) {
             |b| {
                 b.iter(|| {
                     let warm_up = if n < ticks { n } else { 0 };
-                    let mean = measured_error(&setpoint, &position, n, warm_up).mean_line_m;
-                    let e = Harmonics::analyze(&mean, k_max);
-                    let next = learning.update(&f, &e);
+                    let m = measured_error(&setpoint, &position, n, warm_up);
+                    let sigma = harmonic_sigma(&m.error_m, n, k_max);
+                    let e = Harmonics::analyze(&m.mean_line_m, k_max);
+                    let next = learning.update_significant(&f, &e, &sigma);
                     black_box(next.synthesize())
                 })
             },

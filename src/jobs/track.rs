@@ -399,8 +399,7 @@ fn predicted_next_current(
         .map(|(a, b)| a + b)
         .collect();
     let peak = u.iter().fold(0.0f64, |m, v| m.max(v.abs()));
-    let rms = (u.iter().map(|v| v * v).sum::<f64>() / u.len().max(1) as f64).sqrt();
-    (peak, rms)
+    (peak, rms(&u))
 }
 
 /// Why a feedforward is refused by the current limits of the config, or
@@ -471,6 +470,13 @@ pub struct MeasuredError {
     pub peak_m: f64,
     /// The mean line: the error averaged line by line, `n` values, m.
     pub mean_line_m: Vec<f64>,
+    /// The error of every measured tick, m.
+    pub error_m: Vec<f64>,
+}
+
+/// The RMS of `x` (0 when empty).
+fn rms(x: &[f64]) -> f64 {
+    (x.iter().map(|v| v * v).sum::<f64>() / x.len().max(1) as f64).sqrt()
 }
 
 /// The error (setpoint − reading, m) of a trial's ticks after `warm_up`,
@@ -488,13 +494,10 @@ pub fn measured_error(
         .skip(warm_up)
         .map(|(s, y)| s - y)
         .collect();
-    let rms_m = (e.iter().map(|v| v * v).sum::<f64>() / e.len().max(1) as f64).sqrt();
+    let rms_m = rms(&e);
     let peak_m = e.iter().fold(0.0f64, |a, v| a.max(v.abs()));
     let mean_line_m = mean_line(&e, n);
-    let ms: Vec<f64> = e
-        .chunks_exact(n.max(1))
-        .map(|l| l.iter().map(|v| v * v).sum::<f64>() / n as f64)
-        .collect();
+    let ms: Vec<f64> = e.chunks_exact(n.max(1)).map(|l| rms(l).powi(2)).collect();
     let rms_sigma_m = if ms.len() < 2 {
         f64::NAN
     } else {
@@ -508,6 +511,7 @@ pub fn measured_error(
         rms_sigma_m,
         peak_m,
         mean_line_m,
+        error_m: e,
     }
 }
 
@@ -936,19 +940,12 @@ impl Trials<'_> {
         let setpoint = &data.setpoint_m[..measured_end.min(data.setpoint_m.len())];
         let position = &data.position_m[..measured_end.min(data.position_m.len())];
         let measured = measured_error(setpoint, position, n, warm_up as usize);
-        let e: Vec<f64> = setpoint
-            .iter()
-            .zip(position)
-            .skip(warm_up as usize)
-            .map(|(s, y)| s - y)
-            .collect();
-        let error_sigma_m = harmonic_sigma(&e, n, self.k_max);
+        let error_sigma_m = harmonic_sigma(&measured.error_m, n, self.k_max);
         let end = measured_end.min(data.current_command_a.len());
         let measured_u = &data.current_command_a[(warm_up as usize).min(end)..end];
         let command = mean_line(measured_u, n);
-        let command_rms_a =
-            (measured_u.iter().map(|v| v * v).sum::<f64>() / measured_u.len().max(1) as f64).sqrt();
-        let ff_rms = (feedforward_a.iter().map(|v| v * v).sum::<f64>() / n as f64).sqrt();
+        let command_rms_a = rms(measured_u);
+        let ff_rms = rms(feedforward_a);
         let mut recorder = recorded.recorder;
         let report = TrialReport {
             name: name.to_string(),
@@ -1003,12 +1000,12 @@ impl Trials<'_> {
         let mut t = last.report.clone();
         t.predicted_command_rms_a = Some(predicted_current(r, &f, self.model, line_rate).1);
         let mut best = (t.rms_error_m, t.name.clone(), f_t.clone());
-        let mut rms = vec![t.rms_error_m];
+        let mut errors = vec![t.rms_error_m];
         summary.push(t);
         lines.push((2, last.error_line_m.clone()));
         self.report(summary, &r_t, &lines, Existing::Replace)?;
         let budget = self.opts.trials as usize;
-        let mut why = stop_rule(&rms, summary.noise_floor_m, budget + 1);
+        let mut why = stop_rule(&errors, summary.noise_floor_m, budget + 1);
         let mut j = 0;
         let mut why_limit = None;
         let mut e = Harmonics::analyze(&last.error_line_m, self.k_max);
@@ -1048,12 +1045,12 @@ impl Trials<'_> {
             if t.rms_error_m < best.0 {
                 best = (t.rms_error_m, name, f_t.clone());
             }
-            rms.push(t.rms_error_m);
+            errors.push(t.rms_error_m);
             summary.push(t);
             // Feedback, the first feedforward and the latest learning trial.
             lines.truncate(2);
             lines.push((2 + j, last.error_line_m.clone()));
-            why = stop_rule(&rms, summary.noise_floor_m, budget + 1);
+            why = stop_rule(&errors, summary.noise_floor_m, budget + 1);
             self.report(summary, &r_t, &lines, Existing::Replace)?;
         }
         self.keep_best(summary, &r_t, best, why.or(why_limit))
