@@ -31,6 +31,7 @@ fn track(c: &mut Criterion) {
         let n = (rate_hz / line_hz) as usize;
         let scan = Scan {
             kind: ScanKind::Triangle,
+            move_limits: None,
             amplitude_m: 5e-6,
             line_rate_hz: line_hz,
             cutoff_hz: 58.9,

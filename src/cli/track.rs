@@ -4,7 +4,7 @@ use super::{bad_input, emit, job_thread, load_config, run_failed_json};
 use bench::jobs::request::{parse_fault, parse_seed};
 use bench::jobs::track::{run_track, TrackOptions, TrackSummary};
 use bench::rt::backend::BackendSpec;
-use bench::track::{Scan, ScanKind};
+use bench::track::{MoveLimits, Scan, ScanKind};
 use clap::Args;
 use std::process::ExitCode;
 use std::sync::atomic::AtomicBool;
@@ -39,13 +39,15 @@ pub(super) struct TrackArgs {
     /// controller, line or scan.
     #[arg(long, value_name = "FILE.csv")]
     feedforward: Option<std::path::PathBuf>,
-    /// The scan: triangle (a raster line, smoothed below the cut-off) or
-    /// sine.
+    /// The scan: triangle (a raster line, smoothed below the cut-off),
+    /// sine, or move (point to point: up by the amplitude at the line's
+    /// start, back at its middle, each with a 3rd- or 4th-order profile
+    /// within the --max-* limits and a dwell after it).
     #[arg(long, value_name = "KIND", default_value = "triangle")]
     scan: ScanKind,
-    /// Amplitude about the start position, m. Range: above 0, the scan
-    /// within safety.position_limit_m and its predicted current within the
-    /// actuator's peak and continuous currents.
+    /// Amplitude about the start position (a move's distance), m. Range:
+    /// above 0, the scan within safety.position_limit_m and its predicted
+    /// current within the actuator's peak and continuous currents.
     #[arg(
         long,
         value_name = "M",
@@ -67,6 +69,49 @@ pub(super) struct TrackArgs {
     /// the line rate, at most the Nyquist frequency.
     #[arg(long, value_name = "HZ", allow_hyphen_values = true)]
     cutoff_hz: Option<f64>,
+    /// A move's peak velocity, m/s. Range: above 0; the move (the sum of
+    /// its phases) at most a quarter of the line.
+    #[arg(
+        long,
+        value_name = "M/S",
+        default_value_t = 1e-3,
+        allow_hyphen_values = true
+    )]
+    max_velocity_m_s: f64,
+    /// A move's peak acceleration, m/s². Range: above 0.
+    #[arg(
+        long,
+        value_name = "M/S2",
+        default_value_t = 0.1,
+        allow_hyphen_values = true
+    )]
+    max_acceleration_m_s2: f64,
+    /// A move's peak jerk, m/s³. Range: above 0.
+    #[arg(
+        long,
+        value_name = "M/S3",
+        default_value_t = 40.0,
+        allow_hyphen_values = true
+    )]
+    max_jerk_m_s3: f64,
+    /// A move's peak snap, m/s⁴: a 4th-order profile [default: 2e4];
+    /// `none`: a 3rd-order profile (the jerk steps). Range: above 0.
+    #[arg(
+        long,
+        value_name = "M/S4",
+        default_value = "2e4",
+        allow_hyphen_values = true
+    )]
+    max_snap_m_s4: String,
+    /// The band a move settles into, ± m. Range: above 0, below the
+    /// move's distance.
+    #[arg(
+        long,
+        value_name = "M",
+        default_value_t = 10e-9,
+        allow_hyphen_values = true
+    )]
+    settle_band_m: f64,
     /// Learning trials at most (after the standstill, feedback and
     /// feedforward trials). Range: 1 to 100.
     #[arg(
@@ -119,6 +164,15 @@ pub(super) struct TrackArgs {
     outputs: super::OutputFlags,
 }
 
+fn parse_snap(s: &str) -> Result<Option<f64>, String> {
+    if s == "none" {
+        return Ok(None);
+    }
+    s.parse::<f64>()
+        .map(Some)
+        .map_err(|e| format!("{s:?} is neither a snap in m/s⁴ nor `none`: {e}"))
+}
+
 impl TrackArgs {
     fn controller(&self) -> String {
         if self.slow {
@@ -152,6 +206,10 @@ pub(super) fn track(args: TrackArgs, stop: Arc<AtomicBool>) -> ExitCode {
             ))
         }
     };
+    let snap = match parse_snap(&args.max_snap_m_s4) {
+        Ok(s) => s,
+        Err(e) => return bad_input(format!("--max-snap-m-s4: {e}")),
+    };
     let controller = args.controller();
     let out_dir = match &args.out.out {
         Some(d) => d.clone(),
@@ -170,7 +228,14 @@ pub(super) fn track(args: TrackArgs, stop: Arc<AtomicBool>) -> ExitCode {
             amplitude_m: args.amplitude_m,
             line_rate_hz: args.line_rate_hz,
             cutoff_hz: f64::NAN,
+            move_limits: (args.scan == ScanKind::Move).then_some(MoveLimits {
+                velocity_m_s: args.max_velocity_m_s,
+                acceleration_m_s2: args.max_acceleration_m_s2,
+                jerk_m_s3: args.max_jerk_m_s3,
+                snap_m_s4: snap,
+            }),
         },
+        settle_band_m: args.settle_band_m,
         cutoff_hz: args.cutoff_hz,
         trials: args.trials,
         learning_gain: args.learning_gain,
@@ -219,6 +284,37 @@ fn print_track_summary(s: &TrackSummary) {
         p.scan.cutoff_hz,
         p.harmonics
     );
+    if let (Some(m), Some(band)) = (&p.move_profile, p.settle_band_m) {
+        let pk = m.peaks();
+        outln!(
+            "  move: {:.2} µm in {:.2} ms (peaks {:.3e} m/s, {:.3e} m/s², {:.3e} m/s³{}), settling into ±{:.1} nm",
+            m.distance_m * 1e6,
+            m.duration_s() * 1e3,
+            pk[0],
+            pk[1],
+            pk[2],
+            if pk[3].is_finite() { format!(", {:.3e} m/s⁴", pk[3]) } else { String::new() },
+            band * 1e9
+        );
+        if let Some(c) = p.move_in_zero_bands_m {
+            let flag = if c > band { "warning: " } else { "" };
+            outln!(
+                "  {flag}{:.2} nm of the move lies in the right-half-plane zeros' bands (no loop tracks it, only the feedforward)",
+                c * 1e9
+            );
+        }
+        if let Some(l) = &p.smoother_move {
+            let d = bench::track::MoveProfile::plan(m.distance_m, l).duration_s();
+            outln!(
+                "  smoother: --max-velocity-m-s {:.3e} --max-acceleration-m-s2 {:.3e} --max-jerk-m-s3 {:.3e}{} (a move of {:.2} ms) keeps it within the band",
+                l.velocity_m_s,
+                l.acceleration_m_s2,
+                l.jerk_m_s3,
+                l.snap_m_s4.map_or(String::new(), |s| format!(" --max-snap-m-s4 {s:.3e}")),
+                d * 1e3
+            );
+        }
+    }
     for b in &p.zero_bands {
         outln!(
             "  {} zero at {:.1} Hz closes {:.1}–{:.1} Hz",
@@ -231,7 +327,12 @@ fn print_track_summary(s: &TrackSummary) {
     for (k, f) in &p.harmonics_removed {
         outln!("  smoothing removed harmonic {k} ({f:.1} Hz): it lies in a zero's band");
     }
-    for (k, f) in &p.harmonics_in_zero_bands {
+    let in_bands = if p.move_profile.is_some() {
+        &[][..]
+    } else {
+        &p.harmonics_in_zero_bands[..]
+    };
+    for (k, f) in in_bands {
         outln!("  warning: harmonic {k} ({f:.1} Hz) lies in a zero's band: no loop tracks it; the default cut-off removes it");
     }
     outln!("  model: the [plant] of {}", p.model.display());
@@ -254,6 +355,27 @@ fn print_track_summary(s: &TrackSummary) {
             nm(t.peak_error_m),
             t.feedforward_rms_a
         );
+        if let (Some(noise), Some(band)) = (t.settle_noise_sigma_m, p.settle_band_m) {
+            let time = t
+                .settle_time_s
+                .map_or("not settled before the next move".to_string(), |v| {
+                    format!("settles in {:.2} ms", v * 1e3)
+                });
+            let flag = if noise.is_nan() || band < 4.0 * noise {
+                " (untrusted: the band is under 4σ of the averaged error's noise: more --periods)"
+            } else {
+                ""
+            };
+            outln!(
+                "  {:<12} {time} (±{:.1} nm; averaged error's noise {} 1σ){flag}",
+                "",
+                band * 1e9,
+                nm(noise)
+            );
+        }
+    }
+    if let Some(x) = s.settle_speedup {
+        outln!("  the move settles {x:.1}× sooner with the feedforward than with feedback alone");
     }
     if let (Some(best), Some(imp), Some(stop)) = (&s.best_trial, s.improvement, &s.stop) {
         let sigma = s.improvement_sigma.unwrap_or(f64::NAN);

@@ -50,7 +50,10 @@ use crate::outputs::{Existing, Origin, OutputPlan};
 use crate::plot::{write_track_png, TrackPlot, TrackTrialPlot};
 use crate::rt::backend::{self, BackendSpec};
 use crate::rt::supervisor::StallBounds;
-use crate::track::{model_inverse, predict, Harmonics, Learning, Scan, TrackJob, ZeroBand};
+use crate::track::{
+    model_inverse, predict, settle, Harmonics, Learning, MoveLimits, MoveProfile, Scan, ScanKind,
+    TrackJob, ZeroBand,
+};
 use bench_plant::model::Sr4dof;
 use bench_plant::sim::{ScheduledFault, ZohPlant};
 use serde::{Deserialize, Serialize};
@@ -105,6 +108,8 @@ pub struct TrackOptions {
     /// A simulator fault, its time counted from the first trial's start
     /// (`--inject-fault`; refused on hardware).
     pub inject_fault: Option<ScheduledFault>,
+    /// The band a move settles into, ± m (`--settle-band-m`).
+    pub settle_band_m: f64,
 }
 
 /// The scan as planned on the model before the first trial.
@@ -143,6 +148,18 @@ pub struct TrackPlan {
     /// Largest `|1 − L_k·PS_k|` on the model over the learned harmonics:
     /// the error's contraction per trial (`1 − α` on the model itself).
     pub model_contraction: f64,
+    /// A move's planned profile (its widths `w₁…w₄`, s); null for a scan.
+    pub move_profile: Option<MoveProfile>,
+    /// The band a move settles into, ± m; null for a scan.
+    pub settle_band_m: Option<f64>,
+    /// A move's reference inside the right-half-plane zeros' bands,
+    /// `Σ|R_k|` over those harmonics, m: no loop tracks it, only the
+    /// feedforward does, as well as the model is right there (warned
+    /// when above the settle band); null for a scan.
+    pub move_in_zero_bands_m: Option<f64>,
+    /// The slower limits that bring that content within the settle band,
+    /// when the move's own do not and a slower move still fits the line.
+    pub smoother_move: Option<MoveLimits>,
 }
 
 /// One trial's result.
@@ -172,6 +189,16 @@ pub struct TrialReport {
     /// measured command for a learning trial (`u + S·Δf`); null for the
     /// others.
     pub predicted_command_rms_a: Option<f64>,
+    /// A move's move-and-settle time: from each move's start until the
+    /// reference has arrived and the error, averaged over the lines and a
+    /// 1 ms window, stays within the settle band to the middle of the
+    /// dwell, the slower of a line's two moves, s
+    /// ([`crate::track::settle()`]); null for a scan, the standstill, or a
+    /// move that did not settle before the next.
+    pub settle_time_s: Option<f64>,
+    /// The 1σ noise of that averaged error, m (null for a scan): a
+    /// settle band under 4σ of it is flagged.
+    pub settle_noise_sigma_m: Option<f64>,
     /// The recording.
     pub recording: PathBuf,
 }
@@ -205,6 +232,9 @@ pub struct TrackSummary {
     pub improvement_sigma: Option<f64>,
     /// The best feedforward's table (`feedforward.csv`).
     pub feedforward_csv: Option<PathBuf>,
+    /// A move: the feedback trial's settling time over the feedforward
+    /// (or replayed) trial's; null when either did not settle.
+    pub settle_speedup: Option<f64>,
 }
 
 fn ticks_per_line(cfg: &BenchConfig, line_rate_hz: f64) -> Result<usize, RunError> {
@@ -237,6 +267,7 @@ fn plan_scan(
     cutoff_hz: Option<f64>,
     bands: &[ZeroBand],
     rate_hz: f64,
+    n: usize,
 ) -> Result<(Scan, Vec<(usize, f64)>), RunError> {
     let a = scan.amplitude_m;
     if !(a.is_finite() && a > 0.0) {
@@ -266,7 +297,20 @@ fn plan_scan(
             format!("the loop cannot follow this line at all: its fundamental {why}"),
         ));
     }
-    let cutoff = cutoff_hz.unwrap_or(lowest);
+    // A move's reference is played whole: its cut-off bounds only the
+    // feedforward and the learning, by default at 4× the highest band's
+    // upper edge (every zero's band inverted, module docs).
+    let default_cutoff = if scan.kind == ScanKind::Move {
+        let top = bands.iter().map(|b| b.high_hz).fold(0.0, f64::max);
+        if top > 0.0 {
+            (4.0 * top).min(nyquist)
+        } else {
+            nyquist
+        }
+    } else {
+        lowest
+    };
+    let cutoff = cutoff_hz.unwrap_or(default_cutoff);
     if !(cutoff.is_finite() && cutoff > scan.line_rate_hz && cutoff <= nyquist) {
         return Err(RunError::option(
             "cutoff_hz",
@@ -281,13 +325,97 @@ fn plan_scan(
         cutoff_hz: cutoff,
         ..*scan
     };
+    check_move(&scan, rate_hz)?;
+    let r = scan.harmonics(n);
     let inside: Vec<(usize, f64)> = (1..=scan.k_max())
         .map(|k| (k, Harmonics::frequency_hz(k, scan.line_rate_hz)))
-        .filter(|(k, f)| {
-            bands.iter().any(|b| b.contains(*f)) && scan.harmonics(8 * k + 8).coef[*k].norm() > 0.0
-        })
+        .filter(|(k, f)| bands.iter().any(|b| b.contains(*f)) && r.coef[*k].norm() > 0.0)
         .collect();
     Ok((scan, inside))
+}
+
+/// A move's limits valid and its profile within a quarter of the line:
+/// each move is followed by a dwell at least as long, in which it settles.
+fn check_move(scan: &Scan, rate_hz: f64) -> Result<(), RunError> {
+    if scan.kind != ScanKind::Move {
+        return Ok(());
+    }
+    let Some(limits) = scan.move_limits else {
+        return Err(RunError::BadInput(
+            "a move needs its limits (max_velocity_m_s, max_acceleration_m_s2, max_jerk_m_s3)"
+                .to_string(),
+        ));
+    };
+    limits.validate().map_err(|(name, v)| {
+        RunError::option(name, v, "must be a finite value above 0".to_string())
+    })?;
+    let p = scan.move_profile().expect("a move with limits");
+    let d = p.duration_s();
+    let quarter = 0.25 / scan.line_rate_hz;
+    if d > quarter || d * rate_hz < 2.0 {
+        return Err(RunError::option(
+            "line_rate_hz",
+            scan.line_rate_hz,
+            format!(
+                "a move of {:.2} ms within these limits needs a line of at least 4× it (a dwell as long as the move after each of its two moves): at most {:.3} lines/s, or faster limits; and a move must last 2 ticks at least",
+                d * 1e3,
+                0.25 / d
+            ),
+        ));
+    }
+    Ok(())
+}
+
+/// The move's content in the right-half-plane zeros' bands (module docs
+/// of [`crate::track`]), which no loop tracks and only the feedforward
+/// does, as well as the model is right there: `Σ|R_k|` over the
+/// harmonics of its table inside any such band, m, and the
+/// slowing `λ` of its profile ([`MoveLimits::slower`], 1.25ⁱ up to 16)
+/// that brings the content within `band_m`, if one does and still fits
+/// the line.
+fn move_in_zero_bands(
+    scan: &Scan,
+    n: usize,
+    bands: &[ZeroBand],
+    band_m: f64,
+) -> (f64, Option<f64>) {
+    let line = scan.line_rate_hz;
+    let bands: Vec<&ZeroBand> = bands.iter().filter(|b| b.kind != "MMP").collect();
+    let top = bands.iter().map(|b| b.high_hz).fold(0.0, f64::max);
+    let k_top = ((top / line) as usize).min(n / 2);
+    let content = |s: &Scan| -> f64 {
+        let h = Harmonics::analyze(&s.table(n), k_top);
+        (1..=k_top)
+            .filter(|&k| {
+                let f = Harmonics::frequency_hz(k, line);
+                bands.iter().any(|b| b.contains(f))
+            })
+            .map(|k| h.coef[k].norm())
+            .sum()
+    };
+    let now = content(scan);
+    if now <= band_m || k_top == 0 {
+        return (now, None);
+    }
+    let limits = scan.move_limits.expect("a move");
+    let mut lambda = 1.0;
+    while lambda < 16.0 {
+        lambda *= 1.25;
+        let slower = Scan {
+            move_limits: Some(limits.slower(lambda)),
+            ..*scan
+        };
+        let fits = slower
+            .move_profile()
+            .is_some_and(|p| p.duration_s() <= 0.25 / line);
+        if !fits {
+            break;
+        }
+        if content(&slower) <= band_m {
+            return (now, Some(lambda));
+        }
+    }
+    (now, None)
 }
 
 /// Plans the scan on the model (module docs): the reference and the
@@ -299,7 +427,8 @@ fn plan(
 ) -> Result<(TrackPlan, Harmonics, Harmonics, Learning), RunError> {
     let cfg = &opts.config;
     let n = ticks_per_line(cfg, opts.scan.line_rate_hz)?;
-    let (scan, inside) = plan_scan(&opts.scan, opts.cutoff_hz, &bands, cfg.loop_.rate_hz)?;
+    let (scan, inside) = plan_scan(&opts.scan, opts.cutoff_hz, &bands, cfg.loop_.rate_hz, n)?;
+    let is_move = scan.kind == ScanKind::Move;
     let g = opts.learning_gain;
     if !(g.is_finite() && g > 0.0 && g <= 1.0) {
         return Err(RunError::option(
@@ -311,7 +440,13 @@ fn plan(
     let mut r = scan.harmonics(n);
     // The default smoothing also removes what lies in a band below the
     // cut-off (an MMP zero's); a cut-off given keeps it, with a warning.
-    let (inside, removed) = if opts.cutoff_hz.is_none() {
+    // A move's reference is its profile: nothing is removed from it, and
+    // its feedforward leaves the bands alone (below).
+    let mut inside = inside;
+    if is_move {
+        inside.retain(|(_, f)| bands.iter().any(|b| b.kind != "MMP" && b.contains(*f)));
+    }
+    let (inside, removed) = if opts.cutoff_hz.is_none() && !is_move {
         for (k, _) in &inside {
             r.coef[*k] = crate::ident::C64::new(0.0, 0.0);
         }
@@ -319,6 +454,12 @@ fn plan(
     } else {
         (inside, Vec::new())
     };
+    // A move's feedforward inverts the model on every harmonic below the
+    // cut-off, inside the zeros' bands too: a move cannot avoid them (a
+    // step has content at every frequency), and the periodic inversion
+    // with a whole line of preview handles a right-half-plane zero
+    // exactly on the model (module docs of `crate::track`), where no
+    // loop can (`T(z) = 0`). The current check below judges its cost.
     let f = model_inverse(&r, model, scan.line_rate_hz);
     let (peak_u, rms_u) = predicted_current(&r, &f, model, scan.line_rate_hz);
     let (_, e_fb) = predict(
@@ -327,7 +468,21 @@ fn plan(
         model,
         scan.line_rate_hz,
     );
-    let peak_r = r.synthesize().iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    let peak_r = scan.table(n).iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    let settle_band_m = opts.settle_band_m;
+    if is_move && !(settle_band_m.is_finite() && settle_band_m > 0.0 && settle_band_m < peak_r) {
+        return Err(RunError::option(
+            "settle_band_m",
+            settle_band_m,
+            format!("must lie above 0 and below the move's {peak_r:.3e} m"),
+        ));
+    }
+    let (in_bands, slower) = if is_move {
+        let (c, l) = move_in_zero_bands(&scan, n, &bands, settle_band_m);
+        (Some(c), l)
+    } else {
+        (None, None)
+    };
     let mut learning = Learning::new(model, g, scan.k_max(), scan.line_rate_hz);
     let not_learned = learning.leave_out_bands(&bands, scan.line_rate_hz);
     let contraction = learning
@@ -358,6 +513,10 @@ fn plan(
         predicted_feedback_rms_error_m: e_fb.rms(),
         learning_gain: g,
         model_contraction: contraction,
+        move_profile: scan.move_profile(),
+        settle_band_m: is_move.then_some(settle_band_m),
+        move_in_zero_bands_m: in_bands,
+        smoother_move: slower.and_then(|l| scan.move_limits.map(|m| m.slower(l))),
     };
     check_limits(cfg, &plan)?;
     Ok((plan, r, f, learning))
@@ -946,6 +1105,21 @@ impl Trials<'_> {
         let command = mean_line(measured_u, n);
         let command_rms_a = rms(measured_u);
         let ff_rms = rms(feedforward_a);
+        let rate_hz = cfg.loop_.rate_hz;
+        let settled = (opts.scan.kind == ScanKind::Move && name != "standstill").then(|| {
+            let move_ticks = opts
+                .scan
+                .move_profile()
+                .map_or(0, |p| (p.duration_s() * rate_hz).ceil() as usize);
+            settle(
+                &measured.error_m,
+                n,
+                &[0, n / 2],
+                move_ticks,
+                rate_hz,
+                opts.settle_band_m,
+            )
+        });
         let mut recorder = recorded.recorder;
         let report = TrialReport {
             name: name.to_string(),
@@ -957,6 +1131,8 @@ impl Trials<'_> {
             feedforward_rms_a: ff_rms,
             command_rms_a,
             predicted_command_rms_a: None,
+            settle_time_s: settled.and_then(|s| s.time_s),
+            settle_noise_sigma_m: settled.map(|s| s.noise_sigma_m),
             recording: recording.clone(),
         };
         let ch = recorder.add_channel_for::<TrialReport>("/track/trial", "bench.TrackTrial")?;
@@ -980,7 +1156,7 @@ impl Trials<'_> {
         summary: &mut TrackSummary,
     ) -> Result<(), RunError> {
         let n = r.period_ticks;
-        let r_t = r.synthesize();
+        let r_t = summary.plan.scan.table(n);
         let still = vec![0.0; n];
         let t = self.run(runner, 0, "standstill", &still, &still)?.report;
         summary.noise_floor_m = t.rms_error_m;
@@ -1000,6 +1176,9 @@ impl Trials<'_> {
         let mut t = last.report.clone();
         t.predicted_command_rms_a = Some(predicted_current(r, &f, self.model, line_rate).1);
         let mut best = (t.rms_error_m, t.name.clone(), f_t.clone());
+        if let (Some(fb), Some(ff)) = (summary.trials[1].settle_time_s, t.settle_time_s) {
+            summary.settle_speedup = Some(fb / ff.max(1.0 / self.opts.config.loop_.rate_hz));
+        }
         let mut errors = vec![t.rms_error_m];
         summary.push(t);
         lines.push((2, last.error_line_m.clone()));
@@ -1197,7 +1376,7 @@ pub fn run_track(opts: &TrackOptions, stop: Arc<AtomicBool>) -> Result<TrackSumm
     let (plan, r, f_model, learning) = plan(opts, &model_loop, bands)?;
     let (f_start, start_name) = match &opts.feedforward {
         Some(p) => {
-            let table = read_feedforward(p, opts, &plan.scan, &r.synthesize())?;
+            let table = read_feedforward(p, opts, &plan.scan, &plan.scan.table(r.period_ticks))?;
             let mut f = Harmonics::analyze(&table, r.coef.len() - 1);
             // The loop's integrator holds the mean: no feedforward has one.
             f.coef[0] = crate::ident::C64::new(0.0, 0.0);
@@ -1222,9 +1401,36 @@ pub fn run_track(opts: &TrackOptions, stop: Arc<AtomicBool>) -> Result<TrackSumm
         ));
     }
     for (k, f_hz) in &plan.harmonics_in_zero_bands {
+        if plan.move_profile.is_some() {
+            // A move's content there is warned about as a whole (above).
+            break;
+        }
         tracing::warn!(
             "harmonic {k} of the scan ({f_hz:.1} Hz) lies in a band the plant's zeros close: no loop tracks it, and its feedforward costs current; the default smoothing (no --cutoff-hz) removes it"
         );
+    }
+    if let (Some(c), Some(band)) = (plan.move_in_zero_bands_m, plan.settle_band_m) {
+        if c > band {
+            let offer = plan.smoother_move.map_or(
+                "no slower move that still fits the line removes it: lower the line rate".to_string(),
+                |l| {
+                    let d = MoveProfile::plan(plan.scan.amplitude_m, &l).duration_s();
+                    format!(
+                        "limits v {:.3e} m/s, a {:.3e} m/s², j {:.3e} m/s³{} (a move of {:.2} ms) bring it within the band",
+                        l.velocity_m_s,
+                        l.acceleration_m_s2,
+                        l.jerk_m_s3,
+                        l.snap_m_s4.map_or(String::new(), |s| format!(", s {s:.3e} m/s⁴")),
+                        d * 1e3
+                    )
+                },
+            );
+            tracing::warn!(
+                "the move puts {:.1} nm of its reference in the bands the plant's right-half-plane zeros close, above the settle band ±{:.1} nm: no loop tracks it, only the feedforward, as well as the model is right there; {offer}",
+                c * 1e9,
+                band * 1e9
+            );
+        }
     }
     // The loop on the model first: an unstable or marginal loop never runs.
     let check = check_loop(
@@ -1270,6 +1476,7 @@ pub fn run_track(opts: &TrackOptions, stop: Arc<AtomicBool>) -> Result<TrackSumm
         improvement: None,
         improvement_sigma: None,
         feedforward_csv: None,
+        settle_speedup: None,
     };
     let period_s_stall = StallBounds::of(check.stall.bound_s, period_s);
     let run = Trials {

@@ -43,6 +43,11 @@ use std::f64::consts::PI;
 
 use crate::ident::C64;
 
+pub mod profile;
+pub mod settle;
+pub use profile::{MoveLimits, MoveProfile};
+pub use settle::{settle, Settle};
+
 /// How far below a zero's frequency its band reaches, as a factor: `1/√2`,
 /// where a lightly damped zero pair's factor `|1 − ω²/|z|²|` rises to ½.
 pub const ZERO_BAND_LOW: f64 = std::f64::consts::FRAC_1_SQRT_2;
@@ -59,6 +64,10 @@ pub enum ScanKind {
     Sine,
     /// The triangle of a raster line, smoothed (module docs).
     Triangle,
+    /// A point-to-point move and back: up by the amplitude at the line's
+    /// start, back at its middle, each with the planned profile
+    /// ([`MoveProfile`]) and a dwell after it.
+    Move,
 }
 
 impl std::str::FromStr for ScanKind {
@@ -67,7 +76,8 @@ impl std::str::FromStr for ScanKind {
         match s {
             "sine" => Ok(Self::Sine),
             "triangle" => Ok(Self::Triangle),
-            _ => Err(format!("{s:?} is not a scan (sine or triangle)")),
+            "move" => Ok(Self::Move),
+            _ => Err(format!("{s:?} is not a scan (sine, triangle or move)")),
         }
     }
 }
@@ -82,8 +92,14 @@ pub struct Scan {
     pub amplitude_m: f64,
     /// Lines per second: the scan's fundamental, Hz.
     pub line_rate_hz: f64,
-    /// Harmonics at or above this frequency are removed, Hz.
+    /// Harmonics at or above this frequency are removed, Hz (a move's
+    /// reference is played whole; its feedforward and learning stop
+    /// there).
     pub cutoff_hz: f64,
+    /// A move's limits (its profile: [`MoveProfile::plan`]); `None` for a
+    /// scan.
+    #[serde(default)]
+    pub move_limits: Option<MoveLimits>,
 }
 
 /// One period's harmonics `X₀, X₁ … X_K` of a signal of period `N` ticks
@@ -223,12 +239,47 @@ impl Scan {
         k.saturating_sub(1)
     }
 
+    /// A move's profile: the amplitude within the limits; `None` for a
+    /// scan.
+    pub fn move_profile(&self) -> Option<MoveProfile> {
+        match (self.kind, &self.move_limits) {
+            (ScanKind::Move, Some(l)) => Some(MoveProfile::plan(self.amplitude_m, l)),
+            _ => None,
+        }
+    }
+
+    /// One line of the reference as the tick plays it, `period_ticks`
+    /// values, m: a scan's harmonics ([`Self::harmonics`]) synthesised; a
+    /// move's profile itself, up from tick 0 and back down from the middle
+    /// of the line (`t = 1/(2·line_rate)`).
+    pub fn table(&self, period_ticks: usize) -> Vec<f64> {
+        match self.move_profile() {
+            Some(p) => {
+                let dt = 1.0 / (self.line_rate_hz * period_ticks as f64);
+                let half = 0.5 / self.line_rate_hz;
+                (0..period_ticks)
+                    .map(|i| {
+                        let t = i as f64 * dt;
+                        if t < half {
+                            p.at(t)[0]
+                        } else {
+                            self.amplitude_m - p.at(t - half)[0]
+                        }
+                    })
+                    .collect()
+            }
+            None => self.harmonics(period_ticks).synthesize(),
+        }
+    }
+
     /// The reference's harmonics at `period_ticks` per line, m: 0 at the
-    /// start of the period, rising (module docs).
+    /// start of the period, rising (module docs); a move's those of its
+    /// table below the cut-off.
     pub fn harmonics(&self, period_ticks: usize) -> Harmonics {
         let k_max = self.k_max();
         let mut h = Harmonics::zeros(k_max, period_ticks);
         match self.kind {
+            ScanKind::Move => return Harmonics::analyze(&self.table(period_ticks), k_max),
             ScanKind::Sine => {
                 if k_max >= 1 {
                     h.coef[1] = C64::new(0.0, -self.amplitude_m);

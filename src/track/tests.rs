@@ -83,6 +83,7 @@ fn rms(x: &[f64]) -> f64 {
 fn the_sine_scan_is_the_sine() {
     let scan = Scan {
         kind: ScanKind::Sine,
+        move_limits: None,
         amplitude_m: 5e-6,
         line_rate_hz: 10.0,
         cutoff_hz: 50.0,
@@ -104,6 +105,7 @@ fn the_triangle_scan_is_the_triangle_below_its_cut_off() {
     let n = 2000;
     let scan = Scan {
         kind: ScanKind::Triangle,
+        move_limits: None,
         amplitude_m: a,
         line_rate_hz: 10.0,
         cutoff_hz: 2000.0,
@@ -179,6 +181,7 @@ fn the_model_inverse_tracks_the_scan_on_the_model() {
     let n = (0.1 / b.period_s).round() as usize;
     let scan = Scan {
         kind: ScanKind::Triangle,
+        move_limits: None,
         amplitude_m: 5e-6,
         line_rate_hz: 10.0,
         cutoff_hz: 55.0,
@@ -218,6 +221,7 @@ fn learning_contracts_by_one_minus_the_gain_on_the_model() {
     let n = (0.1 / b.period_s).round() as usize;
     let scan = Scan {
         kind: ScanKind::Triangle,
+        move_limits: None,
         amplitude_m: 5e-6,
         line_rate_hz: 10.0,
         cutoff_hz: 55.0,

@@ -352,6 +352,7 @@ fn track_tick_allocates_nothing() {
     let n = (0.1 / period_s).round() as usize;
     let scan = Scan {
         kind: ScanKind::Triangle,
+        move_limits: None,
         amplitude_m: 5e-6,
         line_rate_hz: 10.0,
         cutoff_hz: 55.0,

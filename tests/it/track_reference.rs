@@ -98,6 +98,7 @@ fn learning_converges_as_python_control_predicts() {
     let (line_hz, alpha, trials) = (10.0, 0.5, 5usize);
     let scan = Scan {
         kind: ScanKind::Triangle,
+        move_limits: None,
         amplitude_m: 5e-6,
         line_rate_hz: line_hz,
         cutoff_hz: 58.0,
