@@ -65,8 +65,10 @@ pub(super) struct TrackArgs {
     )]
     line_rate_hz: f64,
     /// Remove the scan's harmonics at or above this frequency, Hz
-    /// [default: the lower edge of the lowest zero's band]. Range: above
-    /// the line rate, at most the Nyquist frequency.
+    /// [default: the lower edge of the lowest zero's band; for a move,
+    /// whose reference is played whole, the feedforward's and learning's
+    /// top, 4× the highest zero band's upper edge]. Range: above the line
+    /// rate, at most the Nyquist frequency.
     #[arg(long, value_name = "HZ", allow_hyphen_values = true)]
     cutoff_hz: Option<f64>,
     /// A move's peak velocity, m/s. Range: above 0; the move (the sum of
