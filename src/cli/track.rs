@@ -4,7 +4,7 @@ use super::{bad_input, emit, job_thread, load_config, run_failed_json};
 use bench::jobs::request::{parse_fault, parse_seed};
 use bench::jobs::track::{run_track, TrackOptions, TrackSummary};
 use bench::rt::backend::BackendSpec;
-use bench::track::{MoveLimits, Scan, ScanKind};
+use bench::track::{FeedforwardKind, MoveLimits, Scan, ScanKind};
 use clap::Args;
 use std::process::ExitCode;
 use std::sync::atomic::AtomicBool;
@@ -71,6 +71,13 @@ pub(super) struct TrackArgs {
     /// rate, at most the Nyquist frequency.
     #[arg(long, value_name = "HZ", allow_hyphen_values = true)]
     cutoff_hz: Option<f64>,
+    /// The feedforward trial's feedforward: inverse (the model's inverse
+    /// on every kept harmonic: stable inversion with a line of preview) or
+    /// snap (position to snap feedforward, its gains the Taylor series of
+    /// the model's 1/P at 0 Hz: right only well below the plant's lowest
+    /// zero). Learning starts from it.
+    #[arg(long, value_name = "KIND", default_value = "inverse")]
+    feedforward_kind: FeedforwardKind,
     /// A move's peak velocity, m/s. Range: above 0; the move (the sum of
     /// its phases) at most a quarter of the line.
     #[arg(
@@ -238,6 +245,7 @@ pub(super) fn track(args: TrackArgs, stop: Arc<AtomicBool>) -> ExitCode {
             }),
         },
         settle_band_m: args.settle_band_m,
+        feedforward_kind: args.feedforward_kind,
         cutoff_hz: args.cutoff_hz,
         trials: args.trials,
         learning_gain: args.learning_gain,
@@ -338,6 +346,19 @@ fn print_track_summary(s: &TrackSummary) {
         outln!("  warning: harmonic {k} ({f:.1} Hz) lies in a zero's band: no loop tracks it; the default cut-off removes it");
     }
     outln!("  model: the [plant] of {}", p.model.display());
+    if let Some(g) = &p.derivative_gains {
+        let c = g.gains;
+        outln!(
+            "  snap feedforward (1/P's Taylor series, fitted {:.2}–{:.2} Hz): {:.4e} A/m, {:.4e} A·s/m, {:.4e} A·s²/m, {:.4e} A·s³/m, {:.4e} A·s⁴/m",
+            g.fitted_hz.0,
+            g.fitted_hz.1,
+            c[0],
+            c[1],
+            c[2],
+            c[3],
+            c[4]
+        );
+    }
     outln!(
         "  predicted: feedback alone {} RMS error; with the feedforward {:.2} A peak, {:.2} A RMS; learning contracts the error by {:.3} a trial (α {})",
         nm(p.predicted_feedback_rms_error_m),

@@ -51,8 +51,8 @@ use crate::plot::{write_track_png, TrackPlot, TrackTrialPlot};
 use crate::rt::backend::{self, BackendSpec};
 use crate::rt::supervisor::StallBounds;
 use crate::track::{
-    model_inverse, predict, settle, Harmonics, Learning, MoveLimits, MoveProfile, Scan, ScanKind,
-    TrackJob, ZeroBand,
+    model_inverse, predict, settle, DerivativeGains, FeedforwardKind, Harmonics, Learning,
+    MoveLimits, MoveProfile, Scan, ScanKind, TrackJob, ZeroBand,
 };
 use bench_plant::model::Sr4dof;
 use bench_plant::sim::{ScheduledFault, ZohPlant};
@@ -110,6 +110,8 @@ pub struct TrackOptions {
     pub inject_fault: Option<ScheduledFault>,
     /// The band a move settles into, ± m (`--settle-band-m`).
     pub settle_band_m: f64,
+    /// The feedforward trial's feedforward (`--feedforward-kind`).
+    pub feedforward_kind: FeedforwardKind,
 }
 
 /// The scan as planned on the model before the first trial.
@@ -148,6 +150,12 @@ pub struct TrackPlan {
     /// Largest `|1 − L_k·PS_k|` on the model over the learned harmonics:
     /// the error's contraction per trial (`1 − α` on the model itself).
     pub model_contraction: f64,
+    /// The feedforward trial's feedforward: the model's inverse or the
+    /// reference's derivatives.
+    pub feedforward_kind: FeedforwardKind,
+    /// The derivatives' gains (`snap`), fitted on the model; null for
+    /// the inverse.
+    pub derivative_gains: Option<DerivativeGains>,
     /// A move's planned profile (its widths `w₁…w₄`, s); null for a scan.
     pub move_profile: Option<MoveProfile>,
     /// The band a move settles into, ± m; null for a scan.
@@ -460,7 +468,16 @@ fn plan(
     // with a whole line of preview handles a right-half-plane zero
     // exactly on the model (module docs of `crate::track`), where no
     // loop can (`T(z) = 0`). The current check below judges its cost.
-    let f = model_inverse(&r, model, scan.line_rate_hz);
+    let f_zero_hz = bands
+        .iter()
+        .map(|b| b.zero_hz)
+        .fold(cfg.loop_.rate_hz / 20.0, f64::min);
+    let gains = (opts.feedforward_kind == FeedforwardKind::Snap)
+        .then(|| DerivativeGains::fit(model, f_zero_hz));
+    let f = match &gains {
+        None => model_inverse(&r, model, scan.line_rate_hz),
+        Some(g) => g.feedforward(&r, scan.line_rate_hz),
+    };
     let (peak_u, rms_u) = predicted_current(&r, &f, model, scan.line_rate_hz);
     let (_, e_fb) = predict(
         &r,
@@ -513,6 +530,8 @@ fn plan(
         predicted_feedback_rms_error_m: e_fb.rms(),
         learning_gain: g,
         model_contraction: contraction,
+        feedforward_kind: opts.feedforward_kind,
+        derivative_gains: gains,
         move_profile: scan.move_profile(),
         settle_band_m: is_move.then_some(settle_band_m),
         move_in_zero_bands_m: in_bands,

@@ -311,6 +311,105 @@ pub fn model_inverse(reference: &Harmonics, model: &ModelLoop<'_>, line_rate_hz:
     f
 }
 
+/// Which feedforward the feedforward trial plays.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum FeedforwardKind {
+    /// The model's inverse on every kept harmonic ([`model_inverse`]).
+    Inverse,
+    /// Position, velocity, acceleration, jerk and snap feedforward
+    /// ([`DerivativeGains`]).
+    Snap,
+}
+
+impl std::str::FromStr for FeedforwardKind {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "inverse" => Ok(Self::Inverse),
+            "snap" => Ok(Self::Snap),
+            _ => Err(format!("{s:?} is not a feedforward (inverse or snap)")),
+        }
+    }
+}
+
+/// The feedforward of the reference's derivatives,
+/// `f = c₀r + c₁ṙ + c₂r̈ + c₃r⃛ + c₄r⁽⁴⁾` (Lambrechts, Boerlage and
+/// Steinbuch, Control Eng. Practice 13(2), 2005, §4: acceleration
+/// feedforward from the mass, snap feedforward from the compliance): the
+/// gains are the Taylor coefficients of `1/P(s)` at `s = 0`, the stage's
+/// stiffness (`c₀`, A/m), damping and the loop's delay (`c₁`, A·s/m),
+/// mass (`c₂`, A·s²/m), and the higher terms (`c₃`, A·s³/m; `c₄`,
+/// A·s⁴/m, which holds the compliance of the modes above). That series
+/// converges only below the plant's lowest zero (a pole of `1/P`), so
+/// this feedforward is right for content well below it, and the model
+/// inverse everywhere else.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
+pub struct DerivativeGains {
+    /// `c₀ … c₄`, A·sᵐ/m.
+    pub gains: [f64; 5],
+    /// The frequencies they were fitted on, Hz: the lowest and the
+    /// highest.
+    pub fitted_hz: (f64, f64),
+}
+
+impl DerivativeGains {
+    /// The gains fitted by least squares to the model's `1/P(jω)` on 40
+    /// lines log-spaced from 1 % to 30 % of `f_zero_hz` (the plant's
+    /// lowest zero): `Re(1/P) = c₀ − c₂ω² + c₄ω⁴`, `Im(1/P) = c₁ω − c₃ω³`,
+    /// each solved in `ω/ω_z` (scaled, so the columns are of one size).
+    pub fn fit(model: &ModelLoop<'_>, f_zero_hz: f64) -> Self {
+        use nalgebra::{DMatrix, DVector};
+        let (lo, hi) = (0.01 * f_zero_hz, 0.3 * f_zero_hz);
+        let n = 40;
+        let f: Vec<f64> = (0..n)
+            .map(|i| lo * (hi / lo).powf(i as f64 / (n - 1) as f64))
+            .collect();
+        let wz = 2.0 * PI * f_zero_hz;
+        let inv: Vec<C64> = f.iter().map(|&f| 1.0 / model.plant(f)).collect();
+        let x: Vec<f64> = f.iter().map(|&f| 2.0 * PI * f / wz).collect();
+        let solve = |cols: &[&dyn Fn(f64) -> f64], y: &dyn Fn(usize) -> f64| -> Vec<f64> {
+            let a = DMatrix::from_fn(n, cols.len(), |i, j| cols[j](x[i]));
+            let b = DVector::from_fn(n, |i, _| y(i));
+            a.svd(true, true)
+                .solve(&b, 1e-14)
+                .map_or(vec![f64::NAN; cols.len()], |v| v.iter().copied().collect())
+        };
+        let even = solve(&[&|_| 1.0, &|x: f64| -x * x, &|x: f64| x.powi(4)], &|i| {
+            inv[i].re
+        });
+        let odd = solve(&[&|x| x, &|x: f64| -x.powi(3)], &|i| inv[i].im);
+        Self {
+            gains: [
+                even[0],
+                odd[0] / wz,
+                even[1] / wz.powi(2),
+                odd[1] / wz.powi(3),
+                even[2] / wz.powi(4),
+            ],
+            fitted_hz: (lo, hi),
+        }
+    }
+
+    /// The feedforward of `reference`'s harmonics, A:
+    /// `F_k = Σ_m c_m·(jω_k)^m·R_k`, `F₀ = 0` (the integrator holds the
+    /// mean).
+    pub fn feedforward(&self, reference: &Harmonics, line_rate_hz: f64) -> Harmonics {
+        let mut f = Harmonics::zeros(reference.coef.len() - 1, reference.period_ticks);
+        for (k, r) in reference.coef.iter().enumerate().skip(1) {
+            let jw = C64::new(0.0, 2.0 * PI * Harmonics::frequency_hz(k, line_rate_hz));
+            let g: C64 = self
+                .gains
+                .iter()
+                .enumerate()
+                .map(|(m, c)| c * jw.powi(m as i32))
+                .sum();
+            f.coef[k] = g * r;
+        }
+        f
+    }
+}
+
 /// The model's answer to a reference and a feedforward: the command
 /// `u = CS·r + S·f` (A) and the error `e = S·(r − P·f)` (m), as harmonics.
 pub fn predict(
