@@ -1346,6 +1346,43 @@ pub fn stop_rule(rms: &[f64], noise_floor_m: f64, budget: usize) -> Option<&'sta
     (rms.len() >= budget).then_some("budget")
 }
 
+/// Warns of what the plan keeps that no loop tracks: a scan's harmonics
+/// in a zero's band, a move's content in the right-half-plane bands.
+fn warn_plan(plan: &TrackPlan) {
+    for (k, f_hz) in &plan.harmonics_in_zero_bands {
+        if plan.move_profile.is_some() {
+            // A move's content there is warned about as a whole (below).
+            break;
+        }
+        tracing::warn!(
+            "harmonic {k} of the scan ({f_hz:.1} Hz) lies in a band the plant's zeros close: no loop tracks it, and its feedforward costs current; the default smoothing (no --cutoff-hz) removes it"
+        );
+    }
+    if let (Some(c), Some(band)) = (plan.move_in_zero_bands_m, plan.settle_band_m) {
+        if c > band {
+            let offer = plan.smoother_move.map_or(
+                "no slower move that still fits the line removes it: lower the line rate".to_string(),
+                |l| {
+                    let d = MoveProfile::plan(plan.scan.amplitude_m, &l).duration_s();
+                    format!(
+                        "limits v {:.3e} m/s, a {:.3e} m/s², j {:.3e} m/s³{} (a move of {:.2} ms) bring it within the band",
+                        l.velocity_m_s,
+                        l.acceleration_m_s2,
+                        l.jerk_m_s3,
+                        l.snap_m_s4.map_or(String::new(), |s| format!(", s {s:.3e} m/s⁴")),
+                        d * 1e3
+                    )
+                },
+            );
+            tracing::warn!(
+                "the move puts {:.1} nm of its reference in the bands the plant's right-half-plane zeros close, above the settle band ±{:.1} nm: no loop tracks it, only the feedforward, as well as the model is right there; {offer}",
+                c * 1e9,
+                band * 1e9
+            );
+        }
+    }
+}
+
 /// Runs `bench track` (module docs).
 ///
 /// # Errors
@@ -1419,38 +1456,7 @@ pub fn run_track(opts: &TrackOptions, stop: Arc<AtomicBool>) -> Result<TrackSumm
             format!("a trial of {total} ticks is longer than a job may be"),
         ));
     }
-    for (k, f_hz) in &plan.harmonics_in_zero_bands {
-        if plan.move_profile.is_some() {
-            // A move's content there is warned about as a whole (above).
-            break;
-        }
-        tracing::warn!(
-            "harmonic {k} of the scan ({f_hz:.1} Hz) lies in a band the plant's zeros close: no loop tracks it, and its feedforward costs current; the default smoothing (no --cutoff-hz) removes it"
-        );
-    }
-    if let (Some(c), Some(band)) = (plan.move_in_zero_bands_m, plan.settle_band_m) {
-        if c > band {
-            let offer = plan.smoother_move.map_or(
-                "no slower move that still fits the line removes it: lower the line rate".to_string(),
-                |l| {
-                    let d = MoveProfile::plan(plan.scan.amplitude_m, &l).duration_s();
-                    format!(
-                        "limits v {:.3e} m/s, a {:.3e} m/s², j {:.3e} m/s³{} (a move of {:.2} ms) bring it within the band",
-                        l.velocity_m_s,
-                        l.acceleration_m_s2,
-                        l.jerk_m_s3,
-                        l.snap_m_s4.map_or(String::new(), |s| format!(", s {s:.3e} m/s⁴")),
-                        d * 1e3
-                    )
-                },
-            );
-            tracing::warn!(
-                "the move puts {:.1} nm of its reference in the bands the plant's right-half-plane zeros close, above the settle band ±{:.1} nm: no loop tracks it, only the feedforward, as well as the model is right there; {offer}",
-                c * 1e9,
-                band * 1e9
-            );
-        }
-    }
+    warn_plan(&plan);
     // The loop on the model first: an unstable or marginal loop never runs.
     let check = check_loop(
         cfg,
