@@ -283,13 +283,11 @@ fn nm(m: f64) -> String {
 fn print_track_summary(s: &TrackSummary) {
     let p = &s.plan;
     outln!(
-        "bench track --controller {} on {} (seed {}): {:?} scan ±{:.2} µm at {} lines/s, {} ticks a line, harmonics below {:.1} Hz (the {} kept)",
+        "bench track --controller {} on {} (seed {}): {}, {} ticks a line, harmonics below {:.1} Hz (the {} kept)",
         s.controller,
         s.backend,
         s.seed,
-        p.scan.kind,
-        p.scan.amplitude_m * 1e6,
-        p.scan.line_rate_hz,
+        p.scan.describe(),
         p.period_ticks,
         p.scan.cutoff_hz,
         p.harmonics

@@ -749,11 +749,9 @@ fn write_figure(
         })
         .collect();
     let title = format!(
-        "bench track --controller {}: {:?} scan ±{:.2} µm at {} lines/s",
+        "bench track --controller {}: {}",
         s.controller,
-        s.plan.scan.kind,
-        s.plan.scan.amplitude_m * 1e6,
-        line_rate
+        s.plan.scan.describe()
     );
     let plot = TrackPlot {
         title: &title,

@@ -239,6 +239,18 @@ impl Scan {
         k.saturating_sub(1)
     }
 
+    /// What the scan is, for a title: `triangle scan ±5.00 µm at 10
+    /// lines/s`, or `move of 10.00 µm and back at 1 lines/s`.
+    pub fn describe(&self) -> String {
+        let um = self.amplitude_m * 1e6;
+        let line = self.line_rate_hz;
+        match self.kind {
+            ScanKind::Sine => format!("sine scan ±{um:.2} µm at {line} lines/s"),
+            ScanKind::Triangle => format!("triangle scan ±{um:.2} µm at {line} lines/s"),
+            ScanKind::Move => format!("move of {um:.2} µm and back at {line} lines/s"),
+        }
+    }
+
     /// A move's profile: the amplitude within the limits; `None` for a
     /// scan.
     pub fn move_profile(&self) -> Option<MoveProfile> {
