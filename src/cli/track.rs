@@ -314,11 +314,8 @@ fn print_track_summary(s: &TrackSummary) {
         if let Some(l) = &p.smoother_move {
             let d = bench::track::MoveProfile::plan(m.distance_m, l).duration_s();
             outln!(
-                "  smoother: --max-velocity-m-s {:.3e} --max-acceleration-m-s2 {:.3e} --max-jerk-m-s3 {:.3e}{} (a move of {:.2} ms) keeps it within the band",
-                l.velocity_m_s,
-                l.acceleration_m_s2,
-                l.jerk_m_s3,
-                l.snap_m_s4.map_or(String::new(), |s| format!(" --max-snap-m-s4 {s:.3e}")),
+                "  smoother: {} (a move of {:.2} ms) keeps it within the band",
+                l.flags(),
                 d * 1e3
             );
         }
@@ -382,10 +379,10 @@ fn print_track_summary(s: &TrackSummary) {
                 .map_or("not settled before the next move".to_string(), |v| {
                     format!("settles in {:.2} ms", v * 1e3)
                 });
-            let flag = if noise.is_nan() || band < 4.0 * noise {
-                " (untrusted: the band is under 4σ of the averaged error's noise: more --periods)"
-            } else {
+            let flag = if t.settle_trusted == Some(true) {
                 ""
+            } else {
+                " (untrusted: the band is under 4σ of the averaged error's noise: more --periods)"
             };
             outln!(
                 "  {:<12} {time} (±{:.1} nm; averaged error's noise {} 1σ){flag}",

@@ -7,7 +7,9 @@
 //! ([`Harmonics`]). The tick plays one period of each as a table
 //! ([`TrackJob`]); the analysis between trials works on the harmonics.
 //!
-//! - **Reference** ([`Scan`]): a sine, or a triangle (a raster line) of
+//! - **Reference** ([`Scan`]): a sine, a point-to-point move and back
+//!   (a 3rd- or 4th-order profile, [`profile`], played whole; its settling
+//!   measured by [`settle()`]), or a triangle (a raster line) of
 //!   amplitude `A` whose Fourier series `(8A/π²)·Σ_{k odd} (−1)^{(k−1)/2}
 //!   sin(kωt)/k²` is truncated below the cut-off and smoothed with the
 //!   Lanczos σ factors `sinc(k/k_c)` (Gibbs' overshoot removed; Lanczos,
@@ -24,7 +26,9 @@
 //!   kept harmonic exactly on the model. For a periodic reference this is
 //!   the stable (non-causal) inversion of Devasia, Chen and Paden (IEEE
 //!   TAC 41(7), 1996) with a whole period of preview: the non-minimum-phase
-//!   zeros need no causal inverse.
+//!   zeros need no causal inverse. The alternative, [`DerivativeGains`],
+//!   feeds forward the reference's derivatives with the gains of `1/P`'s
+//!   Taylor series (acceleration and snap feedforward).
 //! - **ILC** ([`Learning`]): `F_{j+1,k} = Q_k·(F_{j,k} + L_k·E_{j,k})`
 //!   with `L_k = α / PS_model(jω_k)` and `Q_k` 1 on the learned harmonics
 //!   (below the cut-off), 0 elsewhere (Bristow, Tharayil and Alleyne, IEEE
@@ -215,6 +219,13 @@ impl ZeroBand {
         out
     }
 
+    /// Whether the band is a right-half-plane zero's (RMP-RNMP or
+    /// CMP-CNMP): no loop tracks there (`T(z) = 0`); an MMP band only
+    /// closes itself.
+    pub fn right_half_plane(&self) -> bool {
+        self.kind != "MMP"
+    }
+
     /// Whether `f_hz` lies in the band.
     pub fn contains(&self, f_hz: f64) -> bool {
         f_hz >= self.low_hz && f_hz <= self.high_hz
@@ -403,20 +414,23 @@ impl DerivativeGains {
         }
     }
 
+    /// The polynomial `Σ_m c_m·(jω)^m` at `f_hz`, A/m: the fitted `1/P`.
+    pub fn at(&self, f_hz: f64) -> C64 {
+        let jw = C64::new(0.0, 2.0 * PI * f_hz);
+        self.gains
+            .iter()
+            .enumerate()
+            .map(|(m, c)| c * jw.powi(m as i32))
+            .sum()
+    }
+
     /// The feedforward of `reference`'s harmonics, A:
     /// `F_k = Σ_m c_m·(jω_k)^m·R_k`, `F₀ = 0` (the integrator holds the
     /// mean).
     pub fn feedforward(&self, reference: &Harmonics, line_rate_hz: f64) -> Harmonics {
         let mut f = Harmonics::zeros(reference.coef.len() - 1, reference.period_ticks);
         for (k, r) in reference.coef.iter().enumerate().skip(1) {
-            let jw = C64::new(0.0, 2.0 * PI * Harmonics::frequency_hz(k, line_rate_hz));
-            let g: C64 = self
-                .gains
-                .iter()
-                .enumerate()
-                .map(|(m, c)| c * jw.powi(m as i32))
-                .sum();
-            f.coef[k] = g * r;
+            f.coef[k] = self.at(Harmonics::frequency_hz(k, line_rate_hz)) * r;
         }
         f
     }

@@ -50,8 +50,11 @@ pub struct MoveProfile {
 /// Largest `w` in `[lo, hi]` with `f(w) ≤ target`, `f` increasing, by
 /// bisection to 1e-15 s.
 fn largest_below(f: impl Fn(f64) -> f64, target: f64, mut lo: f64, mut hi: f64) -> f64 {
-    if f(hi) <= target || f(lo) > target {
-        return if f(hi) <= target { hi } else { lo };
+    if f(hi) <= target {
+        return hi;
+    }
+    if f(lo) > target {
+        return lo;
     }
     for _ in 0..200 {
         let mid = 0.5 * (lo + hi);
@@ -88,6 +91,19 @@ impl MoveLimits {
             }
         }
         Ok(())
+    }
+
+    /// The limits as `bench track` flags, for a message.
+    pub fn flags(&self) -> String {
+        let snap = self
+            .snap_m_s4
+            .map_or(" --max-snap-m-s4 none".to_string(), |s| {
+                format!(" --max-snap-m-s4 {s:.3e}")
+            });
+        format!(
+            "--max-velocity-m-s {:.3e} --max-acceleration-m-s2 {:.3e} --max-jerk-m-s3 {:.3e}{snap}",
+            self.velocity_m_s, self.acceleration_m_s2, self.jerk_m_s3
+        )
     }
 
     /// The same profile `λ` times slower (`λ > 1`): every limit of order

@@ -17,6 +17,10 @@
 /// The centred moving average's length, s (module docs).
 pub const SETTLE_WINDOW_S: f64 = 1e-3;
 
+/// A settle band is trusted when it is at least this many σ of the
+/// averaged error's noise (module docs).
+pub const TRUSTED_BAND_SIGMAS: f64 = 4.0;
+
 /// A trial's settling, from [`settle`].
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Settle {
@@ -30,6 +34,14 @@ pub struct Settle {
     /// of each tick's smoothed error over `√P`, RMS over the line; NaN
     /// with one line.
     pub noise_sigma_m: f64,
+}
+
+impl Settle {
+    /// Whether a band of `±band_m` can be judged on this noise: at least
+    /// [`TRUSTED_BAND_SIGMAS`] σ of it (false with one line).
+    pub fn trusted(&self, band_m: f64) -> bool {
+        band_m >= TRUSTED_BAND_SIGMAS * self.noise_sigma_m
+    }
 }
 
 /// The centred moving average of one periodic line over `w` ticks (odd).

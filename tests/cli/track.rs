@@ -166,6 +166,26 @@ fn learning_corrects_a_model_that_is_off() {
     check_files(dir.path(), &v);
 }
 
+/// `bench track` of a 10 µm move and back at 1 line/s, 200 lines, one
+/// learning trial, with the feedforward `kind`.
+fn ten_micron_move(dir: &Path, kind: &str) -> Value {
+    let args = [
+        "--scan",
+        "move",
+        "--amplitude-m",
+        "10e-6",
+        "--line-rate-hz",
+        "1",
+        "--periods",
+        "200",
+        "--trials",
+        "1",
+        "--feedforward-kind",
+        kind,
+    ];
+    track(dir, &args).1
+}
+
 /// A 10 µm move and back at 1 line/s with the default fourth-order
 /// limits (v 1 mm/s, a 0.1 m/s², j 40 m/s³, s 2·10⁴ m/s⁴), 200 lines
 /// averaged. The profile is the one worked out by hand from Lambrechts
@@ -178,21 +198,7 @@ fn learning_corrects_a_model_that_is_off() {
 #[test]
 fn a_move_settles_three_times_sooner_with_the_feedforward() {
     let dir = tmp();
-    let (_, v) = track(
-        dir.path(),
-        &[
-            "--scan",
-            "move",
-            "--amplitude-m",
-            "10e-6",
-            "--line-rate-hz",
-            "1",
-            "--periods",
-            "200",
-            "--trials",
-            "1",
-        ],
-    );
+    let v = ten_micron_move(dir.path(), "inverse");
     let plan = &v["plan"];
     let widths: Vec<f64> = plan["move_profile"]["widths_s"]
         .as_array()
@@ -217,6 +223,7 @@ fn a_move_settles_three_times_sooner_with_the_feedforward() {
     for t in &trials[1..] {
         let noise = t["settle_noise_sigma_m"].as_f64().unwrap();
         assert!(4.0 * noise < band, "{t}");
+        assert_eq!(t["settle_trusted"], true, "{t}");
     }
     check_files_of(dir.path(), &v, 200);
     // The snap feedforward: 1/P's Taylor series at 0 Hz, which diverges
@@ -224,23 +231,7 @@ fn a_move_settles_three_times_sooner_with_the_feedforward() {
     // move to the noise floor in RMS, but its error around 22.6 Hz and
     // above keeps the move out of ±10 nm long after the inverse's.
     let dir = tmp();
-    let (_, s) = track(
-        dir.path(),
-        &[
-            "--scan",
-            "move",
-            "--amplitude-m",
-            "10e-6",
-            "--line-rate-hz",
-            "1",
-            "--periods",
-            "200",
-            "--trials",
-            "1",
-            "--feedforward-kind",
-            "snap",
-        ],
-    );
+    let s = ten_micron_move(dir.path(), "snap");
     assert_eq!(s["plan"]["feedforward_kind"], "snap");
     let c2 = s["plan"]["derivative_gains"]["gains"][2].as_f64().unwrap();
     assert!(c2 > 0.0, "a mass: {c2}");
