@@ -1572,8 +1572,8 @@ mod tests {
     /// out, not the function's own sum.
     #[test]
     fn the_smoother_move_offered_is_the_least_slowing_that_empties_the_band() {
-        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-            .join("bench-config/sr4dof-ch5.toml");
+        let path =
+            std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("bench-config/sr4dof-ch5.toml");
         let cfg = BenchConfig::load(&path).unwrap();
         let model = Sr4dof::new(cfg.plant).unwrap();
         let bands = ZeroBand::of(&crate::analysis::modal::damped_zeros(&model));
@@ -1594,7 +1594,11 @@ mod tests {
         let in_band = |l: MoveLimits| -> f64 {
             let x = scan(l).table(n);
             (1..=n / 2)
-                .filter(|&k| bands.iter().any(|b| b.right_half_plane() && b.contains(k as f64)))
+                .filter(|&k| {
+                    bands
+                        .iter()
+                        .any(|b| b.right_half_plane() && b.contains(k as f64))
+                })
                 .map(|k| {
                     let (mut re, mut im) = (0.0, 0.0);
                     for (i, v) in x.iter().enumerate() {
