@@ -39,6 +39,14 @@ pub(super) struct TrackArgs {
     /// controller, line or scan.
     #[arg(long, value_name = "FILE.csv")]
     feedforward: Option<std::path::PathBuf>,
+    /// Learn with the process sensitivity PS measured on this loop: the
+    /// recording of `bench control --verify` with the same controller,
+    /// loop rate, amplifier and bench. L inverts the measured PS, and a
+    /// harmonic is learned only where |1 − L·PS| stays below 1 at the
+    /// measurement's 2σ (the convergence margin is reported) [default:
+    /// the model's PS]. Refused when measured on another loop
+    #[arg(long, value_name = "FILE.mcap")]
+    learning_ps: Option<std::path::PathBuf>,
     /// The scan: triangle (a raster line, smoothed below the cut-off),
     /// sine, or move (point to point: up by the amplitude at the line's
     /// start, back at its middle, each with a 3rd- or 4th-order profile
@@ -256,6 +264,7 @@ pub(super) fn track(args: TrackArgs, stop: Arc<AtomicBool>) -> ExitCode {
         overwrite: args.outputs.overwrite,
         model,
         feedforward: args.feedforward.clone(),
+        learning_ps: args.learning_ps.clone(),
         inject_fault,
     };
     let result = job_thread::run_job(stop, move |stop, _ticks| run_track(&opts, stop));
@@ -354,6 +363,7 @@ fn print_track_summary(s: &TrackSummary) {
             c[4]
         );
     }
+    print_learning_checks(p);
     outln!(
         "  predicted: feedback alone {} RMS error; with the feedforward {:.2} A peak, {:.2} A RMS; learning contracts the error by {:.3} a trial (α {})",
         nm(p.predicted_feedback_rms_error_m),
@@ -404,5 +414,66 @@ fn print_track_summary(s: &TrackSummary) {
     outln!("  (± 1σ from the scatter between the measured lines; n/a with one line)");
     if let Some(csv) = &s.feedforward_csv {
         outln!("  feedforward: {}", csv.display());
+    }
+}
+
+/// The learning filter's check against a measured PS: each harmonic's
+/// contraction bound at 2σ, the measured and the model's, and the margin.
+fn print_learning_checks(p: &bench::jobs::track::TrackPlan) {
+    let Some(ps) = &p.learning_ps else {
+        return;
+    };
+    outln!(
+        "  learning filter: L = α/PS measured in {} (|1 − L·PS| at 2σ; the model's L beside it)",
+        ps.display()
+    );
+    let bound = |b: Option<f64>| b.map_or("n/a".to_string(), |b| format!("{b:.3}"));
+    let why = |c: &bench::track::measured::HarmonicCheck| match (c.learned, c.contraction_bound) {
+        (true, _) => "learned",
+        (false, None) => "not learned: no coherent measured line",
+        (false, Some(b)) if b >= 1.0 => "not learned: the measurement cannot vouch for it",
+        (false, Some(_)) => "not learned: in a zero's band",
+    };
+    // Every harmonic of a short scan; of a long one, the learned harmonics
+    // with the largest bounds and a count of the rest by reason.
+    let mut shown: Vec<&bench::track::measured::HarmonicCheck> = p.learning_checks.iter().collect();
+    if shown.len() > 12 {
+        shown.retain(|c| c.learned);
+        shown.sort_by(|a, b| {
+            b.contraction_bound
+                .partial_cmp(&a.contraction_bound)
+                .unwrap_or(std::cmp::Ordering::Equal)
+        });
+        shown.truncate(5);
+        shown.sort_by_key(|c| c.harmonic);
+    }
+    for c in &shown {
+        outln!(
+            "    harmonic {:>3} ({:>7.1} Hz): measured {}, model's L {}: {}",
+            c.harmonic,
+            c.frequency_hz,
+            bound(c.contraction_bound),
+            bound(c.model_contraction_bound),
+            why(c)
+        );
+    }
+    if shown.len() < p.learning_checks.len() {
+        let mut counts = std::collections::BTreeMap::new();
+        for c in &p.learning_checks {
+            *counts.entry(why(c)).or_insert(0usize) += 1;
+        }
+        let list: Vec<String> = counts.iter().map(|(w, n)| format!("{n} {w}")).collect();
+        outln!(
+            "    (the {} learned with the largest bounds of {} harmonics: {})",
+            shown.len(),
+            p.learning_checks.len(),
+            list.join(", ")
+        );
+    }
+    match (p.convergence_margin, p.convergence_margin_at_hz) {
+        (Some(m), Some(f)) => outln!(
+            "  convergence margin {m:.3} at 2σ (set at {f:.1} Hz): every learned harmonic's error contracts each trial"
+        ),
+        _ => outln!("  warning: no harmonic is learned: the measurement vouches for none"),
     }
 }

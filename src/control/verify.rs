@@ -348,6 +348,11 @@ pub struct ClosedLoopFrf {
     pub ps: Vec<C64>,
     /// `γ²(d → y)`.
     pub ps_coherence: Vec<f64>,
+    /// 1σ of `PS` as a complex number, m/A: `√E|P̂S − PS|²` of the H1
+    /// estimate, `|PS| √(1 − γ²) / (|γ| √n_d)` ([`h1_sigma_m_per_a`];
+    /// Bendat & Piersol, ch. 9), the radius the learning filter of `bench
+    /// track --learning-ps` is checked with ([`crate::track::measured`]).
+    pub ps_sigma_m_per_a: Vec<f64>,
 }
 
 impl ClosedLoopFrf {
@@ -394,6 +399,7 @@ impl ClosedLoopFrf {
             t_coherence: Vec::with_capacity(frequency_hz.len()),
             ps: Vec::with_capacity(frequency_hz.len()),
             ps_coherence: Vec::with_capacity(frequency_hz.len()),
+            ps_sigma_m_per_a: Vec::with_capacity(frequency_hz.len()),
             frequency_hz,
         };
         for &f in &out.frequency_hz {
@@ -413,6 +419,11 @@ impl ClosedLoopFrf {
             out.t_coherence.push(ec.coherence);
             out.ps.push(ey.response);
             out.ps_coherence.push(ey.coherence);
+            out.ps_sigma_m_per_a.push(h1_sigma_m_per_a(
+                ey.response,
+                ey.coherence,
+                ey.equivalent_averages,
+            ));
         }
         out
     }
@@ -897,6 +908,7 @@ mod tests {
             t_coherence: vec![1.0; f.len()],
             ps: vec![C64::new(0.0, 0.0); f.len()],
             ps_coherence: vec![1.0; f.len()],
+            ps_sigma_m_per_a: vec![0.0; f.len()],
             frequency_hz: f.clone(),
         };
         let keep = vec![true; f.len()];

@@ -50,6 +50,7 @@ use crate::outputs::{Existing, Origin, OutputPlan};
 use crate::plot::{write_track_png, TrackPlot, TrackTrialPlot};
 use crate::rt::backend::{self, BackendSpec};
 use crate::rt::supervisor::StallBounds;
+use crate::track::measured::MeasuredPs;
 use crate::track::{
     model_inverse, predict, settle, DerivativeGains, FeedforwardKind, Harmonics, Learning,
     MoveLimits, MoveProfile, Scan, ScanKind, TrackJob, ZeroBand,
@@ -112,6 +113,10 @@ pub struct TrackOptions {
     pub settle_band_m: f64,
     /// The feedforward trial's feedforward (`--feedforward-kind`).
     pub feedforward_kind: FeedforwardKind,
+    /// `--learning-ps`: a `bench control --verify` recording of this
+    /// loop, whose measured PS the learning filter inverts
+    /// ([`crate::track::measured`]); `None`: the model's PS.
+    pub learning_ps: Option<PathBuf>,
 }
 
 /// The scan as planned on the model before the first trial.
@@ -168,6 +173,22 @@ pub struct TrackPlan {
     /// The slower limits that bring that content within the settle band,
     /// when the move's own do not and a slower move still fits the line.
     pub smoother_move: Option<MoveLimits>,
+    /// What the learning filter inverts: `model` (the model's PS) or
+    /// `measured` (the PS of `learning_ps`).
+    pub learning_filter: String,
+    /// The `bench control --verify` recording the measured PS is from.
+    pub learning_ps: Option<PathBuf>,
+    /// With a measured PS, each harmonic's check: the measured PS with
+    /// its 1σ beside the model's, the contraction bound at 2σ of the
+    /// measured and of the model's `L`, and whether it is learned
+    /// (empty with the model's PS).
+    pub learning_checks: Vec<crate::track::measured::HarmonicCheck>,
+    /// With a measured PS, `1 − max |1 − L_k·PS_k|` at 2σ over the learned
+    /// harmonics: the monotonic-convergence margin the measurement
+    /// vouches for (null with the model's PS, or nothing learned).
+    pub convergence_margin: Option<f64>,
+    /// The harmonic's frequency that sets it, Hz.
+    pub convergence_margin_at_hz: Option<f64>,
 }
 
 /// One trial's result.
@@ -437,6 +458,7 @@ fn plan(
     opts: &TrackOptions,
     model: &ModelLoop<'_>,
     bands: Vec<ZeroBand>,
+    measured_ps: Option<&MeasuredPs>,
 ) -> Result<(TrackPlan, Harmonics, Harmonics, Learning), RunError> {
     let cfg = &opts.config;
     let n = ticks_per_line(cfg, opts.scan.line_rate_hz)?;
@@ -508,8 +530,18 @@ fn plan(
     } else {
         (None, None)
     };
-    let mut learning = Learning::new(model, g, scan.k_max(), scan.line_rate_hz);
+    let (mut learning, mut checks) = match measured_ps {
+        Some(m) => crate::track::measured::learning(m, model, g, scan.k_max(), scan.line_rate_hz),
+        None => (
+            Learning::new(model, g, scan.k_max(), scan.line_rate_hz),
+            Vec::new(),
+        ),
+    };
     let not_learned = learning.leave_out_bands(&bands, scan.line_rate_hz);
+    for c in &mut checks {
+        c.learned &= !not_learned.contains(&c.harmonic);
+    }
+    let margin = crate::track::measured::margin(&checks);
     let contraction = learning
         .contraction(&learning.ps_model)
         .into_iter()
@@ -544,6 +576,17 @@ fn plan(
         settle_band_m: is_move.then_some(settle_band_m),
         move_in_zero_bands_m: in_bands,
         smoother_move: slower,
+        learning_filter: if measured_ps.is_some() {
+            "measured"
+        } else {
+            "model"
+        }
+        .to_string(),
+        learning_ps: measured_ps.and(opts.learning_ps.clone()),
+        learning_checks: checks,
+        convergence_margin: margin.map(|(m, _)| m),
+        convergence_margin_at_hz: margin
+            .map(|(_, k)| Harmonics::frequency_hz(k, scan.line_rate_hz)),
     };
     check_limits(cfg, &plan)?;
     Ok((plan, r, f, learning))
@@ -1010,6 +1053,57 @@ fn read_feedforward(
     Ok(ff)
 }
 
+/// Reads the measured PS of `--learning-ps` for this run: a `bench
+/// control --verify` recording ([`crate::jobs::verify::read_verify`]) of
+/// the same loop: the same controller (name and table), loop rate,
+/// amplifier and bench (`[plant]` of the config).
+///
+/// # Errors
+/// [`RunError::BadOption`] naming `learning_ps`: unreadable, not such a
+/// recording, or measured on another loop (what differs named).
+fn read_learning_ps(path: &Path, opts: &TrackOptions) -> Result<MeasuredPs, RunError> {
+    let bad = |why: String| RunError::option("learning_ps", path.display(), why);
+    let bytes = crate::input_file::read(path, crate::input_file::Kind::Recording, "learning_ps")?;
+    let rec = crate::jobs::verify::read_verify(&bytes).map_err(bad)?;
+    let then = BenchConfig::from_toml(&rec.config_toml, path)
+        .map_err(|e| bad(format!("its recorded config does not load: {e}")))?;
+    let cfg = &opts.config;
+    let mut d = Vec::new();
+    if then.loop_.rate_hz != cfg.loop_.rate_hz {
+        d.push(format!(
+            "loop.rate_hz {} (this run: {})",
+            then.loop_.rate_hz, cfg.loop_.rate_hz
+        ));
+    }
+    let table = |c: &BenchConfig, name: &str| c.controller.get(name).cloned();
+    if rec.controller != opts.controller
+        || table(&then, &rec.controller) != table(cfg, &opts.controller)
+    {
+        d.push(format!(
+            "[controller.{}] as it was then (this run: [controller.{}] as it is now)",
+            rec.controller, opts.controller
+        ));
+    }
+    if then.actuator != cfg.actuator {
+        d.push("another [actuator]".to_string());
+    }
+    if then.plant != cfg.plant {
+        d.push("another bench ([plant] of its config)".to_string());
+    }
+    if !d.is_empty() {
+        return Err(bad(format!(
+            "its PS was measured with {}: a learning filter must come from the loop it learns on",
+            d.join(", ")
+        )));
+    }
+    if !rec.ps.counts.iter().any(|&c| c) {
+        return Err(bad(
+            "no line of its PS is coherent (γ² ≥ 0.5): nothing to learn from".to_string(),
+        ));
+    }
+    Ok(rec.ps)
+}
+
 /// The outputs of a run of at most `trials` learning trials, checked
 /// together before anything is enabled.
 fn outputs(opts: &TrackOptions) -> Result<Vec<PathBuf>, RunError> {
@@ -1045,6 +1139,9 @@ fn outputs(opts: &TrackOptions) -> Result<Vec<PathBuf>, RunError> {
     }
     if let Some((_, p)) = &opts.model {
         plan = plan.with_input("model", p);
+    }
+    if let Some(p) = &opts.learning_ps {
+        plan = plan.with_input("learning_ps", p);
     }
     plan.check()?;
     Ok(recordings)
@@ -1441,7 +1538,11 @@ pub fn run_track(opts: &TrackOptions, stop: Arc<AtomicBool>) -> Result<TrackSumm
         link_delay_periods: spec.process_data_delay_periods(),
     };
     let bands = ZeroBand::of(&crate::analysis::modal::damped_zeros(&model));
-    let (plan, r, f_model, learning) = plan(opts, &model_loop, bands)?;
+    let measured_ps = match &opts.learning_ps {
+        Some(p) => Some(read_learning_ps(p, opts)?),
+        None => None,
+    };
+    let (plan, r, f_model, learning) = plan(opts, &model_loop, bands, measured_ps.as_ref())?;
     let (f_start, start_name) = match &opts.feedforward {
         Some(p) => {
             let table = read_feedforward(p, opts, &plan.scan, &plan.scan.table(r.period_ticks))?;

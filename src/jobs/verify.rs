@@ -37,6 +37,12 @@ pub const DEFAULT_AMPLITUDE_OF_CHIRP: f64 = 0.1;
 /// The default sweep duration, s.
 pub const DEFAULT_DURATION_S: f64 = 10.0;
 
+/// The header of `<stem>.verify.csv`: the measured S, T and PS (their
+/// magnitudes and unwrapped phases), `coherence` the γ² of S that selects
+/// the lines, `ps_coherence` PS's, `ps_sigma_m_per_a` PS's 1σ as a complex
+/// number.
+pub const VERIFY_CSV_HEADER: &str = "frequency_hz,s_magnitude,s_phase_deg,t_magnitude,t_phase_deg,ps_magnitude_m_per_a,ps_phase_deg,coherence,ps_coherence,ps_sigma_m_per_a";
+
 /// The topic of the verify's result.
 pub const TOPIC_VERIFY: &str = "/control/verify";
 
@@ -493,6 +499,9 @@ pub struct VerifyMessage {
     pub ps_phase_deg: Vec<f64>,
     /// γ²(d → y), 0 … 1.
     pub ps_coherence: Vec<f64>,
+    /// 1σ of PS as a complex number, m/A (the H1 estimate's
+    /// `√E|P̂S − PS|²`; absent from recordings made before it).
+    pub ps_sigma_m_per_a: Vec<f64>,
     /// The line counts (coherent, not biased by a stall).
     pub used: Vec<bool>,
     /// The model's |S| at the lines, dimensionless.
@@ -528,16 +537,21 @@ pub fn write_outputs(
     let used: Vec<bool> = (0..f.len()).map(|i| a.frf.counts(i) && a.keep[i]).collect();
     crate::outputs::write_atomically(&opts.csv, existing, |file| {
         let mut w = std::io::BufWriter::new(file);
-        writeln!(
-            w,
-            "frequency_hz,s_magnitude,s_phase_deg,t_magnitude,t_phase_deg,ps_magnitude_m_per_a,ps_phase_deg,coherence"
-        )?;
+        writeln!(w, "{VERIFY_CSV_HEADER}")?;
         for i in 0..f.len() {
             writeln!(
                 w,
-                "{:.6},{:.6e},{:.3},{:.6e},{:.3},{:.6e},{:.3},{:.5}",
-                f[i], s_mag[i], s_phase[i], t_mag[i], t_phase[i], ps_mag[i], ps_phase[i],
-                a.frf.s_coherence[i]
+                "{:.6},{:.6e},{:.3},{:.6e},{:.3},{:.6e},{:.3},{:.5},{:.5},{:.6e}",
+                f[i],
+                s_mag[i],
+                s_phase[i],
+                t_mag[i],
+                t_phase[i],
+                ps_mag[i],
+                ps_phase[i],
+                a.frf.s_coherence[i],
+                a.frf.ps_coherence[i],
+                a.frf.ps_sigma_m_per_a[i]
             )?;
         }
         w.flush()
@@ -597,10 +611,149 @@ pub fn write_outputs(
             ps_magnitude_m_per_a: ps_mag,
             ps_phase_deg: ps_phase,
             ps_coherence: a.frf.ps_coherence.clone(),
+            ps_sigma_m_per_a: a.frf.ps_sigma_m_per_a.clone(),
             used,
             model_s_magnitude: model_mag,
             model_s_phase_deg: model_phase,
         },
     )?;
     Ok(())
+}
+
+/// What a `bench control --verify` recording holds for `bench track
+/// --learning-ps`: the measured PS with its 1σ, the controller it was
+/// measured with and the resolved config of the run.
+#[derive(Debug, Clone)]
+pub struct RecordedVerify {
+    /// The measured process sensitivity; a line counts when the verify
+    /// used it (coherent in S, not biased by a stall), `γ²(d → y)` is at
+    /// least [`crate::ident::frf::MIN_COHERENCE`] and PS and its σ are
+    /// finite.
+    pub ps: crate::track::measured::MeasuredPs,
+    /// `/control/summary`'s `controller`.
+    pub controller: String,
+    /// The `toml` of the `bench.config` metadata (the run's resolved
+    /// config).
+    pub config_toml: String,
+}
+
+/// The fields of `/control/verify` the learning filter reads (a
+/// recording made before PS's σ was recorded has none: refused).
+#[derive(Deserialize)]
+struct VerifyPs {
+    frequency_hz: Vec<f64>,
+    ps_magnitude_m_per_a: Vec<f64>,
+    ps_phase_deg: Vec<f64>,
+    ps_coherence: Vec<f64>,
+    #[serde(default)]
+    ps_sigma_m_per_a: Vec<f64>,
+    used: Vec<bool>,
+}
+
+/// Reads the measured PS, the controller and the config of the `bench
+/// control --verify` recording in `bytes` (complete, or the `.part` of a
+/// killed run whose verify message was written).
+///
+/// # Errors
+/// The reason, in words: not a readable MCAP; no `/control/verify`
+/// message (a recording of `bench control` without `--verify`, or of
+/// another job: its topics named); a payload that is not the verify's,
+/// columns of different lengths, a recording made before PS's 1σ was
+/// recorded; no `/control/summary` or no `bench.config` metadata.
+pub fn read_verify(bytes: &[u8]) -> Result<RecordedVerify, String> {
+    let read = crate::record::read_messages_tolerant(bytes);
+    if read.messages.is_empty() {
+        return Err(match read.error {
+            Some(e) => format!("not a readable MCAP recording: {e}"),
+            None => "no messages: an empty recording".into(),
+        });
+    }
+    let last = |topic: &str| {
+        read.messages
+            .iter()
+            .rev()
+            .find(|m| m.channel.topic == topic)
+    };
+    let Some(msg) = last(TOPIC_VERIFY) else {
+        return Err(format!(
+            "no {TOPIC_VERIFY} message: not a recording of bench control --verify (its topics: {})",
+            read.topics().join(", ")
+        ));
+    };
+    let v: VerifyPs = serde_json::from_slice(&msg.data)
+        .map_err(|e| format!("{TOPIC_VERIFY}: not the verify's measurement: {e}"))?;
+    let n = v.frequency_hz.len();
+    if v.ps_sigma_m_per_a.is_empty() && n > 0 {
+        return Err(format!(
+            "{TOPIC_VERIFY} has no ps_sigma_m_per_a: recorded by a bench before PS's 1σ was; run bench control --verify again"
+        ));
+    }
+    for (name, len) in [
+        ("ps_magnitude_m_per_a", v.ps_magnitude_m_per_a.len()),
+        ("ps_phase_deg", v.ps_phase_deg.len()),
+        ("ps_coherence", v.ps_coherence.len()),
+        ("ps_sigma_m_per_a", v.ps_sigma_m_per_a.len()),
+        ("used", v.used.len()),
+    ] {
+        if len != n {
+            return Err(format!(
+                "{TOPIC_VERIFY}: {name} has {len} values for {n} frequencies"
+            ));
+        }
+    }
+    if !v.frequency_hz.windows(2).all(|w| w[0] < w[1])
+        || !v.frequency_hz.iter().all(|f| f.is_finite() && *f > 0.0)
+    {
+        return Err(format!(
+            "{TOPIC_VERIFY}: frequency_hz is not an ascending grid of positive frequencies"
+        ));
+    }
+    let ps: Vec<C64> = (0..n)
+        .map(|i| C64::from_polar(v.ps_magnitude_m_per_a[i], v.ps_phase_deg[i].to_radians()))
+        .collect();
+    let counts = (0..n)
+        .map(|i| {
+            v.used[i]
+                && v.ps_coherence[i] >= crate::ident::frf::MIN_COHERENCE
+                && ps[i].re.is_finite()
+                && ps[i].im.is_finite()
+                && ps[i].norm() > 0.0
+                && v.ps_sigma_m_per_a[i].is_finite()
+                && v.ps_sigma_m_per_a[i] >= 0.0
+        })
+        .collect();
+    #[derive(Deserialize)]
+    struct Summary {
+        controller: String,
+    }
+    let summary: Summary = last("/control/summary")
+        .ok_or("no /control/summary message: the run did not finish".to_string())
+        .and_then(|m| {
+            serde_json::from_slice(&m.data)
+                .map_err(|e| format!("/control/summary: not a control summary: {e}"))
+        })?;
+    let config_toml = mcap::read::LinearReader::new_with_options(
+        bytes,
+        mcap::read::Options::IgnoreEndMagic.into(),
+    )
+    .ok()
+    .and_then(|r| {
+        r.filter_map(Result::ok).find_map(|rec| match rec {
+            mcap::records::Record::Metadata(mut m) if m.name == "bench.config" => {
+                m.metadata.remove("toml")
+            }
+            _ => None,
+        })
+    })
+    .ok_or("no bench.config metadata: the run's config is not recorded")?;
+    Ok(RecordedVerify {
+        ps: crate::track::measured::MeasuredPs {
+            frequency_hz: v.frequency_hz,
+            ps,
+            sigma_m_per_a: v.ps_sigma_m_per_a,
+            counts,
+        },
+        controller: summary.controller,
+        config_toml,
+    })
 }

@@ -35,6 +35,8 @@
 //!   CSM 26(3), 2006, §"frequency-domain design"). On the true plant the
 //!   error of a learned harmonic is multiplied each trial by `1 − L_k·PS_k`;
 //!   monotonic convergence needs `|Q_k(1 − L_k·PS_k)| < 1` on every line.
+//!   With a measured `PS` ([`measured`]) `L_k = α / P̂S(jω_k)` and `Q_k`
+//!   is 1 only where that condition holds at the measurement's 2σ.
 //!
 //! Layer rule: may use `analysis`, `config`, `control`, `ident`, `rt`.
 
@@ -47,6 +49,7 @@ use std::f64::consts::PI;
 
 use crate::ident::C64;
 
+pub mod measured;
 pub mod profile;
 pub mod settle;
 pub use profile::{MoveLimits, MoveProfile};
@@ -467,7 +470,9 @@ pub struct Learning {
     pub gain: f64,
     /// `L_k`, A/m, `k = 0…K` (`L₀ = 0`: the integrator's).
     pub l: Vec<C64>,
-    /// The model's `PS_k`, m/A.
+    /// The `PS_k` the law inverts, m/A: the model's ([`Learning::new`]),
+    /// or on the learned harmonics the one `bench control --verify`
+    /// measured ([`measured::learning`]).
     pub ps_model: Vec<C64>,
 }
 

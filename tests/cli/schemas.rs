@@ -438,8 +438,8 @@ fn recorded_messages_match_their_channel_schemas() {
         keys_of(&v.messages[0]),
         BTreeSet::from_iter(
             "verify frequency_hz s_magnitude s_phase_deg s_coherence t_magnitude t_phase_deg \
-             t_coherence ps_magnitude_m_per_a ps_phase_deg ps_coherence used model_s_magnitude \
-             model_s_phase_deg"
+             t_coherence ps_magnitude_m_per_a ps_phase_deg ps_coherence ps_sigma_m_per_a used \
+             model_s_magnitude model_s_phase_deg"
                 .split(' ')
                 .map(String::from)
         )

@@ -459,6 +459,179 @@ fn a_learned_feedforward_replays_and_a_foreign_one_is_refused() {
     }
 }
 
+/// `--learning-ps`: the learning filter from the PS that `bench control
+/// --verify` measured on the shipped bench (the fast loop, simulated), for
+/// a model 15 % off. Each learned harmonic's measured PS is the true loop's
+/// (the analytic `P/(1 + CP)` of the simulated plant, its ZOH, amplifier
+/// and discrete controller) within 3σ + 1 %, and the contraction bound at
+/// 2σ that the plan reports covers the true contraction `|1 − α·PS/P̂S|`
+/// (which is `1 − α` within the measurement's error); learning converges.
+/// A PS of another controller, a recording without a verify, and
+/// generated mutations of the recording are refused, exit 2, nothing run.
+#[test]
+fn learning_from_the_measured_ps_holds_its_bound_and_a_foreign_one_is_refused() {
+    use bench::control::verify::ModelLoop;
+    use bench::control::DiscreteController;
+    use bench_plant::model::Sr4dof;
+    use bench_plant::sim::ZohPlant;
+    let dir = tmp();
+    let model = off_model(dir.path());
+    let model = model.to_str().unwrap().to_string();
+    let verified = path_in(dir.path(), "verify.mcap");
+    let o = run(&["control", "--fast", "--verify", "--out", &verified]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let (_, v) = track(dir.path(), &["--model", &model, "--learning-ps", &verified]);
+    let plan = &v["plan"];
+    assert_eq!(plan["learning_filter"], "measured");
+    assert_eq!(plan["learning_ps"], verified.as_str());
+    // The true loop, independent of the measurement.
+    let cfg = bench::config::BenchConfig::from_toml(
+        bench::config::BUILTIN_CONFIG_TOML,
+        Path::new("builtin"),
+    )
+    .unwrap();
+    let period_s = cfg.loop_.period_ns() as f64 * 1e-9;
+    let truth = Sr4dof::new(cfg.plant).unwrap();
+    let zoh = ZohPlant::new(&truth, &cfg.actuator, period_s);
+    let ctrl = DiscreteController::new(
+        &cfg.controller["fast"],
+        period_s,
+        cfg.actuator.peak_current_a,
+    );
+    let ml = ModelLoop {
+        plant: &zoh,
+        ctrl: &ctrl,
+        link_delay_periods: 0,
+    };
+    let alpha = plan["learning_gain"].as_f64().unwrap();
+    let checks = plan["learning_checks"].as_array().unwrap();
+    assert_eq!(checks.len(), 5, "{plan}");
+    let mut worst: f64 = 0.0;
+    for c in checks {
+        let f = c["frequency_hz"].as_f64().unwrap();
+        let ps_true = ml.process_sensitivity(f);
+        let m = c["measured_ps_magnitude_m_per_a"].as_f64().unwrap();
+        let ph = c["measured_ps_phase_deg"].as_f64().unwrap().to_radians();
+        let sigma = c["measured_ps_sigma_m_per_a"].as_f64().unwrap();
+        let ps = bench::ident::C64::from_polar(m, ph);
+        assert!(
+            (ps - ps_true).norm() <= 3.0 * sigma + 0.01 * ps_true.norm(),
+            "{f} Hz: measured {ps} ± {sigma}, true {ps_true}"
+        );
+        let bound = c["contraction_bound"].as_f64().unwrap();
+        let true_contraction = (bench::ident::C64::new(1.0, 0.0) - ps_true * alpha / ps).norm();
+        assert!(
+            true_contraction <= bound,
+            "{f} Hz: {true_contraction} > {bound}"
+        );
+        assert!(
+            (true_contraction - (1.0 - alpha)).abs() < 0.03,
+            "{f} Hz: {true_contraction}"
+        );
+        if c["learned"] == true {
+            assert!(bound < 1.0);
+            worst = worst.max(bound);
+        }
+    }
+    let margin = plan["convergence_margin"].as_f64().unwrap();
+    assert!(
+        (margin - (1.0 - worst)).abs() < 1e-12 && margin > 0.5,
+        "{margin}"
+    );
+    assert_eq!(v["stop"], "converged", "{v}");
+    check_files(dir.path(), &v);
+    // The text report says what was learned and the margin.
+    let text_run = path_in(dir.path(), "text");
+    let o = run(&[
+        "track",
+        "--out",
+        &text_run,
+        "--model",
+        &model,
+        "--learning-ps",
+        &verified,
+        "--trials",
+        "1",
+    ]);
+    let text = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success(), "{text}");
+    assert!(
+        text.contains("learning filter: L = α/PS measured")
+            && text.contains(&format!("convergence margin {margin:.3} at 2σ"))
+            && text.contains("harmonic   2 (   20.0 Hz)")
+            && text.contains("not learned: in a zero's band"),
+        "{text}"
+    );
+
+    // Refused: exit 2 naming the flag, nothing run or written.
+    let refused = |extra: &[&str], path: &str, what: &str| {
+        let out = path_in(dir.path(), "never");
+        let mut all = vec![
+            "track",
+            "--out",
+            out.as_str(),
+            "--model",
+            &model,
+            "--learning-ps",
+            path,
+        ];
+        all.extend_from_slice(extra);
+        let o = run(&all);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(2), "{what}: {err}");
+        assert!(err.contains("--learning-ps"), "{what}: {err}");
+        assert!(!Path::new(&out).exists(), "{what}");
+        err.to_string()
+    };
+    let err = refused(&["--slow"], &verified, "another controller");
+    assert!(err.contains("controller"), "{err}");
+    let step = path_in(dir.path(), "step.mcap");
+    assert!(run(&["control", "--fast", "--out", &step]).status.success());
+    let err = refused(&[], &step, "no verify");
+    assert!(err.contains("/control/verify"), "{err}");
+    let missing = path_in(dir.path(), "missing.mcap");
+    refused(&[], &missing, "missing");
+    // Generated mutations of the recording: cut short, bytes flipped, the
+    // verify's PS columns renamed or shortened in place.
+    let good = std::fs::read(&verified).unwrap();
+    let mut mutants: Vec<(String, Vec<u8>)> = vec![("empty".into(), Vec::new())];
+    for frac in [0.01, 0.3, 0.6] {
+        mutants.push((
+            format!("cut at {frac}"),
+            good[..(good.len() as f64 * frac) as usize].to_vec(),
+        ));
+    }
+    for (from, to) in [
+        (
+            &b"\"ps_sigma_m_per_a\":["[..],
+            &b"\"ps_sigma_m_per_b\":["[..],
+        ),
+        (
+            &b"\"ps_magnitude_m_per_a\":["[..],
+            &b"\"ps_magnitude_m_per_b\":["[..],
+        ),
+        (
+            &b"\"controller\":\"fast\""[..],
+            &b"\"controller\":\"slow\""[..],
+        ),
+    ] {
+        if let Some(i) = good.windows(from.len()).rposition(|w| w == from) {
+            let mut m = good.clone();
+            m[i..i + to.len()].copy_from_slice(to);
+            mutants.push((String::from_utf8_lossy(to).into_owned(), m));
+        }
+    }
+    assert!(
+        mutants.len() >= 6,
+        "the recording's fields are where the test looks"
+    );
+    for (what, bytes) in mutants {
+        let p = dir.path().join("mutant.mcap");
+        std::fs::write(&p, bytes).unwrap();
+        refused(&[], p.to_str().unwrap(), &what);
+    }
+}
+
 /// The learning judges the next trial's current from the last trial's
 /// measured command, not from the model alone: with a model 15 % off and a
 /// ±0.4 mm scan, the model predicts the feedforward trial's command
@@ -577,26 +750,29 @@ fn a_trial_that_faults_stops_the_learning_and_keeps_everything() {
 }
 
 /// Issue 44's target on five benches that differ from the shipped one,
-/// measured by hand (ignored: five chirps, designs and learning runs,
-/// ~3 min): each bench (masses and bearing stiffnesses ±15 %, operating
-/// point 2–8.5 % of L, mass asymmetry ±12 %, drawn from SplitMix64) is
-/// measured with `bench chirp`, its controller designed from the CSV alone
-/// (`bench design`), and the ±5 µm raster learned with that controller on
-/// a model 10 % off the bench (m1 +10 %, bearings −10 %: `track` takes a
-/// config's [plant], and `bench fit --update` cannot fit masses). Both residue
-/// sign patterns must be among the five; on every bench learning must
-/// converge (within 1.5× the noise floor) and never grow two trials in a
-/// row. Prints one line per bench.
+/// measured by hand (ignored: five chirps, designs, verifies and ten
+/// learning runs, ~3 min): each bench (masses and bearing stiffnesses
+/// ±15 %, operating point 2–8.5 % of L, mass asymmetry ±12 %, drawn from
+/// SplitMix64) is measured with `bench chirp`, its controller designed
+/// from the CSV alone (`bench design`), its loop measured with `bench
+/// control --verify`, and the ±5 µm raster learned (20 lines a trial) with
+/// that controller on a model 3 % off the bench (m1 +3 %, bearings −3 %:
+/// `track` takes a config's [plant]): once with `L` from the model's PS
+/// (printed), once from the measured PS (`--learning-ps`, asserted). Both
+/// residue sign patterns must be among the five; on every bench learning
+/// must converge (within 1.5× the noise floor) and never grow two trials
+/// in a row. Prints one line per run.
 ///
-/// Not met yet (2026-11-30, this VM): four of the five converge (1.2–1.5×
-/// the floor, 3.8–4.3× below feedback alone); bench 3 (alternating signs,
-/// `limit` controller, ω* 746 rad/s) stalls at 1.9–2.4× the floor for the
-/// ten trials. Its error stays at the scan's third harmonic (30 Hz, just
-/// above the band of its 23 Hz MMP zero), and the learned feedforward
-/// grows to 0.63 A RMS where the scan needs 0.03 A. The model 3 % off gives
-/// a `PS` there that the near-limit loop on the bench does not have; the
-/// route is the measured `PS` (issue 44's learning from `bench control
-/// --verify`). Run:
+/// Not met yet (2026-11-30, this VM): with the measured PS four of the
+/// five converge (1.39–1.45× the floor, 4.0–4.3× below feedback alone, in
+/// one or two trials); with the model's, three. Bench 3 (alternating
+/// signs), which the model's `L` leaves at 1.6–1.9× the floor, converges
+/// with the measured one in two trials. Bench 0 (non-alternating, `limit`
+/// controller, ω* 710 rad/s) reaches 1.55× the floor in its second trial
+/// and then grows by ~5 nm a trial (69 → 74 → 78 nm): every harmonic's
+/// bound at 2σ is below 0.68, so what grows is not a learned harmonic's
+/// contraction; the error learned below each trial's 2σ significance
+/// threshold stays in the feedforward from trial to trial. Run:
 /// `cargo test --test cli five_random_benches -- --ignored --nocapture`.
 #[test]
 #[ignore]
@@ -663,43 +839,81 @@ fn five_random_benches_learn_with_their_designed_controllers() {
         doc["controller"][name.as_str()] = designed_doc["controller"][name.as_str()].clone();
         let run_cfg = dir.path().join(format!("bench{b}.run.toml"));
         std::fs::write(&run_cfg, doc.to_string()).unwrap();
-        let out = path_in(dir.path(), &format!("track{b}"));
+        // The loop measured on the bench: the verify's PS for the learning.
+        let verified = path_in(dir.path(), &format!("bench{b}.verify.mcap"));
         let o = run(&[
-            "track",
-            "--json",
+            "control",
             "--config",
             run_cfg.to_str().unwrap(),
             "--controller",
             &name,
-            "--model",
-            &fitted,
+            "--verify",
             "--out",
-            &out,
+            &verified,
         ]);
         assert!(
-            o.status.success(),
+            matches!(o.status.code(), Some(0 | 8)),
             "bench {b}: {}",
             String::from_utf8_lossy(&o.stderr)
         );
-        let v = json_stdout(&o);
-        let trials = v["trials"].as_array().unwrap();
-        let errors: Vec<f64> = trials.iter().map(rms).collect();
-        eprintln!(
-            "bench {b} ({pattern}, {} ω* {:.0} rad/s): floor {:.1} nm, feedback {:.1} nm, feedforward {:.1} nm, learning {:?} nm, stop {}, {:.1}× below feedback",
-            d["strategy"],
-            d["performance_bandwidth_rad_s"].as_f64().unwrap_or(f64::NAN),
-            errors[0] * 1e9,
-            errors[1] * 1e9,
-            errors[2] * 1e9,
-            errors[3..].iter().map(|e| (e * 1e10).round() / 10.0).collect::<Vec<_>>(),
-            v["stop"],
-            v["improvement"].as_f64().unwrap()
-        );
-        if v["stop"] != "converged" {
-            failed.push(format!("bench {b}: stop {}", v["stop"]));
-        }
-        if errors[2..].windows(3).any(|w| w[2] > w[1] && w[1] > w[0]) {
-            failed.push(format!("bench {b} grew: {errors:?}"));
+        for learning_ps in [None, Some(verified.as_str())] {
+            let out = path_in(
+                dir.path(),
+                &format!(
+                    "track{b}-{}",
+                    if learning_ps.is_some() { "ps" } else { "model" }
+                ),
+            );
+            let mut args = vec![
+                "track",
+                "--json",
+                "--config",
+                run_cfg.to_str().unwrap(),
+                "--controller",
+                &name,
+                "--model",
+                &fitted,
+                "--periods",
+                "20",
+                "--out",
+                &out,
+            ];
+            if let Some(p) = learning_ps {
+                args.extend(["--learning-ps", p]);
+            }
+            let o = run(&args);
+            assert!(
+                o.status.success(),
+                "bench {b}: {}",
+                String::from_utf8_lossy(&o.stderr)
+            );
+            let v = json_stdout(&o);
+            let trials = v["trials"].as_array().unwrap();
+            let errors: Vec<f64> = trials.iter().map(rms).collect();
+            eprintln!(
+                "bench {b} ({pattern}, {} ω* {:.0} rad/s), L from the {}: floor {:.1} nm, feedback {:.1} nm, feedforward {:.1} nm, learning {:?} nm, stop {}, {:.1}× below feedback; convergence margin {}",
+                d["strategy"],
+                d["performance_bandwidth_rad_s"].as_f64().unwrap_or(f64::NAN),
+                v["plan"]["learning_filter"],
+                errors[0] * 1e9,
+                errors[1] * 1e9,
+                errors[2] * 1e9,
+                errors[3..].iter().map(|e| (e * 1e10).round() / 10.0).collect::<Vec<_>>(),
+                v["stop"],
+                v["improvement"].as_f64().unwrap(),
+                v["plan"]["convergence_margin"]
+            );
+            // The target is met with the measured PS; the model's is printed
+            // beside it.
+            if learning_ps.is_none() {
+                continue;
+            }
+            if v["stop"] != "converged" {
+                failed.push(format!("bench {b}: stop {}", v["stop"]));
+            }
+            if errors[2..].windows(3).any(|w| w[2] > w[1] && w[1] > w[0]) {
+                failed.push(format!("bench {b} grew: {errors:?}"));
+            }
         }
         patterns.push(pattern);
     }

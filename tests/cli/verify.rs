@@ -114,7 +114,7 @@ fn read_verify_csv(path: &Path) -> Vec<Row> {
     assert_eq!(
         lines.next(),
         Some(
-            "frequency_hz,s_magnitude,s_phase_deg,t_magnitude,t_phase_deg,ps_magnitude_m_per_a,ps_phase_deg,coherence"
+            "frequency_hz,s_magnitude,s_phase_deg,t_magnitude,t_phase_deg,ps_magnitude_m_per_a,ps_phase_deg,coherence,ps_coherence,ps_sigma_m_per_a"
         )
     );
     lines
