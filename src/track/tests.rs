@@ -370,3 +370,63 @@ fn the_snap_gains_are_the_inverse_plants_series() {
         );
     }
 }
+
+/// The law on a measured PS: where the measurement is the loop's own PS
+/// (the model's, sampled on a 400-a-decade grid) with a 1σ of `s·|PS|`,
+/// `L_k` inverts it (`1 − L·PS = 1 − α` within the interpolation's
+/// error), the bound is `(1 − α) + 2α·s`, and a harmonic is learned only
+/// where that is below 1 and a coherent line brackets it: a relative 1σ
+/// of 0.6 (bound 1.14 at α 0.7) or an incoherent line leaves it alone.
+#[test]
+fn the_measured_law_inverts_the_measurement_and_learns_only_what_it_vouches_for() {
+    use super::measured::{learning, margin, MeasuredPs};
+    let b = bench();
+    let model = b.model();
+    let f = crate::ident::frf::log_grid(1.0, 1000.0, 400);
+    let ps: Vec<C64> = f.iter().map(|&f| model.process_sensitivity(f)).collect();
+    let rel = |f: f64| if (38.0..42.0).contains(&f) { 0.6 } else { 0.01 };
+    let mut m = MeasuredPs {
+        sigma_m_per_a: f.iter().zip(&ps).map(|(&f, p)| rel(f) * p.norm()).collect(),
+        counts: vec![true; f.len()],
+        frequency_hz: f.clone(),
+        ps,
+    };
+    let i = f.partition_point(|&x| x < 30.0);
+    m.counts[i] = false;
+    let alpha = 0.7;
+    let (law, checks) = learning(&m, &model, alpha, 5, 10.0);
+    for c in &checks {
+        let f_hz = c.frequency_hz;
+        let k = c.harmonic;
+        let true_ps = model.process_sensitivity(f_hz);
+        match k {
+            3 => assert!(!c.learned && c.contraction_bound.is_none() && !law.learns(3)),
+            4 => {
+                let bound = c.contraction_bound.unwrap();
+                assert!(
+                    (bound - (1.0 - alpha + 2.0 * alpha * 0.6)).abs() < 1e-2,
+                    "{bound}"
+                );
+                assert!(!c.learned && !law.learns(4));
+            }
+            _ => {
+                assert!(c.learned && law.learns(k), "{c:?}");
+                let contraction = (C64::new(1.0, 0.0) - law.l[k] * true_ps).norm();
+                assert!(
+                    (contraction - (1.0 - alpha)).abs() < 2e-3,
+                    "{k}: {contraction}"
+                );
+                let bound = c.contraction_bound.unwrap();
+                assert!(
+                    (bound - (1.0 - alpha + 2.0 * alpha * 0.01)).abs() < 1e-3,
+                    "{bound}"
+                );
+            }
+        }
+    }
+    let (mg, at) = margin(&checks).unwrap();
+    assert!(
+        (mg - (alpha - 2.0 * alpha * 0.01)).abs() < 1e-3,
+        "{mg} at {at}"
+    );
+}
