@@ -35,6 +35,8 @@ fn track(c: &mut Criterion) {
             amplitude_m: 5e-6,
             line_rate_hz: line_hz,
             cutoff_hz: 58.9,
+            reference_csv: None,
+            reference: None,
         };
         let k_max = scan.k_max();
         let learning = Learning::new(&model, 0.7, k_max, line_hz);

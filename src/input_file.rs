@@ -68,6 +68,8 @@ pub enum Kind {
     /// A learned feedforward table (`bench track --feedforward`, the
     /// `feedforward.csv` of a run).
     Feedforward,
+    /// A reference line (`bench track --scan csv --reference`).
+    Reference,
 }
 
 /// 1 MiB, bytes.
@@ -75,7 +77,7 @@ const MIB: u64 = 1 << 20;
 
 impl Kind {
     /// Every kind (for tests and documentation).
-    pub const ALL: [Kind; 8] = [
+    pub const ALL: [Kind; 9] = [
         Kind::Config,
         Kind::Campaign,
         Kind::FrfCsv,
@@ -84,6 +86,7 @@ impl Kind {
         Kind::CampaignState,
         Kind::CatalogueRow,
         Kind::Feedforward,
+        Kind::Reference,
     ];
 
     /// The largest file of this kind `bench` reads, bytes (see the
@@ -91,7 +94,7 @@ impl Kind {
     pub const fn limit_bytes(self) -> u64 {
         match self {
             Kind::Config | Kind::Campaign | Kind::CatalogueRow => MIB,
-            Kind::FrfCsv | Kind::MeasuredMap | Kind::Feedforward => 16 * MIB,
+            Kind::FrfCsv | Kind::MeasuredMap | Kind::Feedforward | Kind::Reference => 16 * MIB,
             Kind::Recording => 4 * 1024 * MIB,
             Kind::CampaignState => 64 * MIB,
         }
@@ -108,6 +111,7 @@ impl Kind {
             Kind::CampaignState => "campaign journals",
             Kind::CatalogueRow => "catalogue rows",
             Kind::Feedforward => "feedforward tables",
+            Kind::Reference => "reference tables",
         }
     }
 
@@ -123,6 +127,7 @@ impl Kind {
             Kind::CampaignState => "a campaign journal",
             Kind::CatalogueRow => "a catalogue row",
             Kind::Feedforward => "a feedforward table",
+            Kind::Reference => "a reference table",
         }
     }
 }

@@ -1,6 +1,7 @@
 //! `bench track`: its flags and the printed trials.
 
 use super::{bad_input, emit, job_thread, load_config, run_failed_json};
+use bench::error::RunError;
 use bench::jobs::request::{parse_fault, parse_seed};
 use bench::jobs::track::{run_track, TrackOptions, TrackSummary};
 use bench::rt::backend::BackendSpec;
@@ -48,30 +49,33 @@ pub(super) struct TrackArgs {
     #[arg(long, value_name = "FILE.mcap")]
     learning_ps: Option<std::path::PathBuf>,
     /// The scan: triangle (a raster line, smoothed below the cut-off),
-    /// sine, or move (point to point: up by the amplitude at the line's
+    /// sine, move (point to point: up by the amplitude at the line's
     /// start, back at its middle, each with a 3rd- or 4th-order profile
-    /// within the --max-* limits and a dwell after it).
+    /// within the --max-* limits and a dwell after it), or csv (the line
+    /// of --reference, played whole).
     #[arg(long, value_name = "KIND", default_value = "triangle")]
     scan: ScanKind,
-    /// Amplitude about the start position (a move's distance), m. Range:
-    /// above 0, the scan within safety.position_limit_m and its predicted
-    /// current within the actuator's peak and continuous currents.
-    #[arg(
-        long,
-        value_name = "M",
-        default_value_t = 5e-6,
-        allow_hyphen_values = true
-    )]
-    amplitude_m: f64,
-    /// Lines per second, Hz. Range: a line of a whole number of ticks (at
-    /// least 8), its fundamental below the band of the plant's lowest zero.
-    #[arg(
-        long,
-        value_name = "HZ",
-        default_value_t = 10.0,
-        allow_hyphen_values = true
-    )]
-    line_rate_hz: f64,
+    /// With --scan csv: the reference line, a CSV of one row per tick
+    /// (header time_s,position_m; time_s = i / loop.rate_hz; position_m
+    /// about the start position, m). Its rows make the line: the line rate
+    /// is loop.rate_hz / rows. Range: at least 8 rows, finite positions
+    /// within safety.position_limit_m, its predicted current within the
+    /// actuator's peak and continuous currents.
+    #[arg(long, value_name = "FILE.csv")]
+    reference: Option<std::path::PathBuf>,
+    /// Amplitude about the start position (a move's distance), m
+    /// [default: 5e-6; with --scan csv, the reference's own, not to be
+    /// given]. Range: above 0, the scan within safety.position_limit_m and
+    /// its predicted current within the actuator's peak and continuous
+    /// currents.
+    #[arg(long, value_name = "M", allow_hyphen_values = true)]
+    amplitude_m: Option<f64>,
+    /// Lines per second, Hz [default: 10; with --scan csv, loop.rate_hz /
+    /// the reference's rows, and given only to state it]. Range: a line of
+    /// a whole number of ticks (at least 8), its fundamental below the
+    /// band of the plant's lowest zero.
+    #[arg(long, value_name = "HZ", allow_hyphen_values = true)]
+    line_rate_hz: Option<f64>,
     /// Remove the scan's harmonics at or above this frequency, Hz
     /// [default: the lower edge of the lowest zero's band; for a move,
     /// whose reference is played whole, the feedforward's and learning's
@@ -227,6 +231,10 @@ pub(super) fn track(args: TrackArgs, stop: Arc<AtomicBool>) -> ExitCode {
         Ok(s) => s,
         Err(e) => return bad_input(format!("--max-snap-m-s4: {e}")),
     };
+    let (reference, amplitude_m, line_rate_hz) = match scan_line(&args, &cfg) {
+        Ok(v) => v,
+        Err(e) => return super::run_failed(&e),
+    };
     let controller = args.controller();
     let out_dir = match &args.out.out {
         Some(d) => d.clone(),
@@ -242,8 +250,8 @@ pub(super) fn track(args: TrackArgs, stop: Arc<AtomicBool>) -> ExitCode {
         controller,
         scan: Scan {
             kind: args.scan,
-            amplitude_m: args.amplitude_m,
-            line_rate_hz: args.line_rate_hz,
+            amplitude_m,
+            line_rate_hz,
             cutoff_hz: f64::NAN,
             move_limits: (args.scan == ScanKind::Move).then_some(MoveLimits {
                 velocity_m_s: args.max_velocity_m_s,
@@ -251,6 +259,8 @@ pub(super) fn track(args: TrackArgs, stop: Arc<AtomicBool>) -> ExitCode {
                 jerk_m_s3: args.max_jerk_m_s3,
                 snap_m_s4: snap,
             }),
+            reference_csv: args.reference.clone(),
+            reference,
         },
         settle_band_m: args.settle_band_m,
         feedforward_kind: args.feedforward_kind,
@@ -346,8 +356,15 @@ fn print_track_summary(s: &TrackSummary) {
     } else {
         &p.harmonics_in_zero_bands[..]
     };
+    let fix = if p.scan.played_whole() {
+        "only the feedforward does; smooth the reference to remove it"
+    } else {
+        "the default cut-off removes it"
+    };
     for (k, f) in in_bands {
-        outln!("  warning: harmonic {k} ({f:.1} Hz) lies in a zero's band: no loop tracks it; the default cut-off removes it");
+        outln!(
+            "  warning: harmonic {k} ({f:.1} Hz) lies in a zero's band: no loop tracks it; {fix}"
+        );
     }
     outln!("  model: the [plant] of {}", p.model.display());
     if let Some(g) = &p.derivative_gains {
@@ -475,5 +492,64 @@ fn print_learning_checks(p: &bench::jobs::track::TrackPlan) {
             "  convergence margin {m:.3} at 2σ (set at {f:.1} Hz): every learned harmonic's error contracts each trial"
         ),
         _ => outln!("  warning: no harmonic is learned: the measurement vouches for none"),
+    }
+}
+
+/// The reference line of `--scan csv` (read at the config's loop rate)
+/// and the scan's amplitude and line rate: a CSV's own (its peak and
+/// `loop.rate_hz / rows`), else the flags' or their defaults.
+///
+/// # Errors
+/// [`RunError::BadOption`] naming `reference` for `--scan csv` without it,
+/// it with another scan, or a table [`read_reference`] refuses; naming
+/// `amplitude_m` given with a CSV, `line_rate_hz` given with a CSV and
+/// not the one its rows make.
+fn scan_line(
+    args: &TrackArgs,
+    cfg: &bench::config::BenchConfig,
+) -> Result<(Option<Vec<f64>>, f64, f64), RunError> {
+    match (args.scan, &args.reference) {
+        (ScanKind::Csv, Some(p)) => {
+            let (x, line_rate_hz) = bench::jobs::track::read_reference(p, cfg)?;
+            if let Some(a) = args.amplitude_m {
+                return Err(RunError::option(
+                    "amplitude_m",
+                    a,
+                    "a --scan csv reference has its own amplitude: leave --amplitude-m out"
+                        .to_string(),
+                ));
+            }
+            if let Some(l) = args
+                .line_rate_hz
+                .filter(|l| (l / line_rate_hz - 1.0).abs() > 1e-9)
+            {
+                return Err(RunError::option(
+                    "line_rate_hz",
+                    l,
+                    format!(
+                        "the reference's {} rows at loop.rate_hz {} make a line rate of {line_rate_hz} Hz",
+                        x.len(),
+                        cfg.loop_.rate_hz
+                    ),
+                ));
+            }
+            let peak = x.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+            Ok((Some(x), peak, line_rate_hz))
+        }
+        (ScanKind::Csv, None) => Err(RunError::option(
+            "reference",
+            "",
+            "--scan csv needs --reference FILE.csv, the line to track".to_string(),
+        )),
+        (_, Some(p)) => Err(RunError::option(
+            "reference",
+            p.display(),
+            "is the line of --scan csv only".to_string(),
+        )),
+        (_, None) => Ok((
+            None,
+            args.amplitude_m.unwrap_or(5e-6),
+            args.line_rate_hz.unwrap_or(10.0),
+        )),
     }
 }

@@ -20,8 +20,8 @@
 //!
 //! Learning stops when a trial's RMS error is within
 //! [`CONVERGED_OF_NOISE_FLOOR`] of the noise floor (`converged`), when it
-//! grew two trials in a row (`diverged`: the best trial's feedforward is
-//! kept), after the trial budget (`budget`), or before a trial whose
+//! grew beyond its 2σ two trials in a row (`diverged`: the best trial's
+//! feedforward is kept; [`stop_rule`]), after the trial budget (`budget`), or before a trial whose
 //! learned feedforward would exceed the current limits on the model
 //! (`limit`: that trial is not run). The best feedforward is
 //! written as a CSV table (`feedforward.csv`), the summary and its figure,
@@ -293,6 +293,10 @@ fn ticks_per_line(cfg: &BenchConfig, line_rate_hz: f64) -> Result<usize, RunErro
     Ok(whole as usize)
 }
 
+/// A harmonic of the reference below this fraction of its amplitude is
+/// nothing (a CSV's rounding, not content): not listed as inside a band.
+const NEGLIGIBLE_OF_AMPLITUDE: f64 = 1e-6;
+
 /// Checks the scan against the plant's zero bands and sets the default
 /// cut-off; returns the scan in force and the harmonics inside a band.
 fn plan_scan(
@@ -333,7 +337,7 @@ fn plan_scan(
     // A move's reference is played whole: its cut-off bounds only the
     // feedforward and the learning, by default at 4× the highest band's
     // upper edge (every zero's band inverted, module docs).
-    let default_cutoff = if scan.kind == ScanKind::Move {
+    let default_cutoff = if scan.played_whole() {
         let top = bands.iter().map(|b| b.high_hz).fold(0.0, f64::max);
         if top > 0.0 {
             (4.0 * top).min(nyquist)
@@ -356,13 +360,15 @@ fn plan_scan(
     }
     let scan = Scan {
         cutoff_hz: cutoff,
-        ..*scan
+        ..scan.clone()
     };
     check_move(&scan, rate_hz)?;
     let r = scan.harmonics(n);
     let inside: Vec<(usize, f64)> = (1..=scan.k_max())
         .map(|k| (k, Harmonics::frequency_hz(k, scan.line_rate_hz)))
-        .filter(|(k, f)| bands.iter().any(|b| b.contains(*f)) && r.coef[*k].norm() > 0.0)
+        .filter(|(k, f)| {
+            bands.iter().any(|b| b.contains(*f)) && r.coef[*k].norm() > NEGLIGIBLE_OF_AMPLITUDE * a
+        })
         .collect();
     Ok((scan, inside))
 }
@@ -437,7 +443,7 @@ fn move_in_zero_bands(
         let limits = limits.slower(lambda);
         let slower = Scan {
             move_limits: Some(limits),
-            ..*scan
+            ..scan.clone()
         };
         let fits = slower
             .move_profile()
@@ -479,10 +485,10 @@ fn plan(
     // feedforward inverts the bands too, below); only its harmonics in a
     // right-half-plane band are listed.
     let mut inside = inside;
-    if is_move {
+    if scan.played_whole() {
         inside.retain(|(_, f)| bands.iter().any(|b| b.right_half_plane() && b.contains(*f)));
     }
-    let (inside, removed) = if opts.cutoff_hz.is_none() && !is_move {
+    let (inside, removed) = if opts.cutoff_hz.is_none() && !scan.played_whole() {
         for (k, _) in &inside {
             r.coef[*k] = crate::ident::C64::new(0.0, 0.0);
         }
@@ -554,7 +560,7 @@ fn plan(
             .model
             .as_ref()
             .map_or(opts.config_path.clone(), |(_, p)| p.clone()),
-        scan,
+        scan: scan.clone(),
         period_ticks: n,
         harmonics: scan.k_max(),
         zero_bands: bands,
@@ -654,16 +660,17 @@ fn beyond_current_limits(cfg: &BenchConfig, peak_a: f64, rms_a: f64, how: &str) 
 /// the config (the device's, if lower, are checked again by the
 /// supervisor on the tick).
 fn check_limits(cfg: &BenchConfig, p: &TrackPlan) -> Result<(), RunError> {
+    // A CSV's amplitude is its own: the refusal names the file.
+    let bad = |why: String| match &p.scan.reference_csv {
+        Some(path) => RunError::option("reference", path.display(), why),
+        None => RunError::option("amplitude_m", p.scan.amplitude_m, why),
+    };
     let limit_m = cfg.safety.position_limit_m;
     if p.peak_reference_m >= limit_m {
-        return Err(RunError::option(
-            "amplitude_m",
-            p.scan.amplitude_m,
-            format!(
-                "the scan reaches {:.3e} m from the start, beyond safety.position_limit_m {limit_m} m",
-                p.peak_reference_m
-            ),
-        ));
+        return Err(bad(format!(
+            "the scan reaches {:.3e} m from the start, beyond safety.position_limit_m {limit_m} m",
+            p.peak_reference_m
+        )));
     }
     if let Some(why) = beyond_current_limits(
         cfg,
@@ -671,11 +678,9 @@ fn check_limits(cfg: &BenchConfig, p: &TrackPlan) -> Result<(), RunError> {
         p.predicted_rms_current_a,
         "predicted on the model",
     ) {
-        return Err(RunError::option(
-            "amplitude_m",
-            p.scan.amplitude_m,
-            format!("the scan with its feedforward {why}: lower the amplitude or the line rate"),
-        ));
+        return Err(bad(format!(
+            "the scan with its feedforward {why}: lower the amplitude or the line rate"
+        )));
     }
     Ok(())
 }
@@ -899,7 +904,7 @@ fn write_feedforward(
             opts.controller,
             opts.config_path.display()
         )?;
-        writeln!(w, "# {}", FeedforwardIdentity::of(opts, *scan, reference_m.len()).to_json())?;
+        writeln!(w, "# {}", FeedforwardIdentity::of(opts, scan, reference_m.len()).to_json())?;
         writeln!(w, "tick,time_s,reference_m,feedforward_a")?;
         for (i, (r, f)) in reference_m.iter().zip(feedforward_a).enumerate() {
             writeln!(w, "{i},{:.9},{r:e},{f:e}", i as f64 / rate)?;
@@ -927,12 +932,17 @@ struct FeedforwardIdentity {
 }
 
 impl FeedforwardIdentity {
-    fn of(opts: &TrackOptions, scan: Scan, period_ticks: usize) -> Self {
+    /// A CSV's line is not part of the identity (as in the plan's JSON):
+    /// the table's reference column is checked tick by tick.
+    fn of(opts: &TrackOptions, scan: &Scan, period_ticks: usize) -> Self {
         Self {
             rate_hz: opts.config.loop_.rate_hz,
             line_rate_hz: opts.scan.line_rate_hz,
             period_ticks,
-            scan,
+            scan: Scan {
+                reference: None,
+                ..scan.clone()
+            },
             controller: opts.controller.clone(),
             controller_table: opts.config.controller[&opts.controller].clone(),
             actuator: opts.config.actuator,
@@ -1006,7 +1016,7 @@ fn read_feedforward(
         .and_then(|l| l.strip_prefix("# "))
         .and_then(|l| serde_json::from_str(l).ok())
         .ok_or_else(|| bad("not a feedforward table of bench track (its second line names what it was learned for)".into()))?;
-    let here = FeedforwardIdentity::of(opts, *scan, reference_m.len());
+    let here = FeedforwardIdentity::of(opts, scan, reference_m.len());
     let diff = id.differences(&here);
     if !diff.is_empty() {
         return Err(bad(format!("was learned with {}", diff.join(", "))));
@@ -1051,6 +1061,74 @@ fn read_feedforward(
         )));
     }
     Ok(ff)
+}
+
+/// The header of a reference table (`bench track --scan csv
+/// --reference`): one row per tick of one line, `time_s` the tick's time
+/// from the line's start (`i / loop.rate_hz`), `position_m` the reference
+/// about the start position.
+pub const REFERENCE_CSV_HEADER: &str = "time_s,position_m";
+
+/// Reads the reference line of `--scan csv --reference FILE` at the loop
+/// rate of `cfg`: the header [`REFERENCE_CSV_HEADER`] (after any `#`
+/// comment lines), then one row per tick, its time `i / loop.rate_hz`
+/// within 0.1 % of a period. Returns the positions (m) and the line rate
+/// they make, `loop.rate_hz / rows` (Hz). The plan judges the rest: the
+/// line's length and fundamental, the position and current limits.
+///
+/// # Errors
+/// [`RunError::BadOption`] naming `reference`: unreadable, another
+/// header, a row that is not two numbers, a time off the loop's ticks, a
+/// position that is not finite, fewer than 8 rows, or a line that never
+/// leaves the start position.
+pub fn read_reference(path: &Path, cfg: &BenchConfig) -> Result<(Vec<f64>, f64), RunError> {
+    let bad = |why: String| RunError::option("reference", path.display(), why);
+    let text =
+        crate::input_file::read_to_string(path, crate::input_file::Kind::Reference, "reference")?;
+    let rate = cfg.loop_.rate_hz;
+    let period_s = 1.0 / rate;
+    let mut rows = text
+        .lines()
+        .enumerate()
+        .filter(|(_, l)| !l.starts_with('#'));
+    match rows.next() {
+        Some((_, h)) if h.trim_end() == REFERENCE_CSV_HEADER => {}
+        _ => {
+            return Err(bad(format!(
+                "its first line (after # comments) is not the header {REFERENCE_CSV_HEADER}"
+            )))
+        }
+    }
+    let mut x = Vec::new();
+    for (i, (line_no, l)) in rows.enumerate() {
+        let at = line_no + 1;
+        let cols: Vec<&str> = l.trim_end().split(',').collect();
+        let parsed = (cols.len() == 2).then(|| (cols[0].parse::<f64>(), cols[1].parse::<f64>()));
+        let Some((Ok(t), Ok(p))) = parsed else {
+            return Err(bad(format!("line {at}: not time_s,position_m")));
+        };
+        if !t.is_finite() || (t - i as f64 * period_s).abs() > 1e-3 * period_s {
+            return Err(bad(format!(
+                "line {at}: time {t} s is not tick {i} of loop.rate_hz {rate} ({:.9} s): one row per tick from 0",
+                i as f64 * period_s
+            )));
+        }
+        if !p.is_finite() {
+            return Err(bad(format!("line {at}: position {p} is not a length")));
+        }
+        x.push(p);
+    }
+    if x.len() < 8 {
+        return Err(bad(format!(
+            "{} rows: a line needs at least 8 ticks",
+            x.len()
+        )));
+    }
+    if x.iter().all(|&p| p == 0.0) {
+        return Err(bad("every position is 0: the line never moves".to_string()));
+    }
+    let line_rate_hz = rate / x.len() as f64;
+    Ok((x, line_rate_hz))
 }
 
 /// Reads the measured PS of `--learning-ps` for this run: a `bench
@@ -1309,7 +1387,7 @@ impl Trials<'_> {
             // A move lasts 2 ticks at least (`check_move`): b > 0.
             summary.settle_speedup = Some(a / b);
         }
-        let mut errors = vec![t.rms_error_m];
+        let mut errors = vec![(t.rms_error_m, t.rms_error_sigma_m)];
         summary.push(t);
         lines.push((2, last.error_line_m.clone()));
         self.report(summary, &r_t, &lines, Existing::Replace)?;
@@ -1354,7 +1432,7 @@ impl Trials<'_> {
             if t.rms_error_m < best.0 {
                 best = (t.rms_error_m, name, f_t.clone());
             }
-            errors.push(t.rms_error_m);
+            errors.push((t.rms_error_m, t.rms_error_sigma_m));
             summary.push(t);
             // Feedback, the first feedforward and the latest learning trial.
             lines.truncate(2);
@@ -1376,7 +1454,7 @@ impl Trials<'_> {
     ) -> Result<(), RunError> {
         let dir = &self.opts.out_dir;
         let csv = dir.join("feedforward.csv");
-        let scan = summary.plan.scan;
+        let scan = summary.plan.scan.clone();
         write_feedforward(
             &csv,
             self.opts,
@@ -1442,27 +1520,49 @@ pub fn ratio(a: (f64, f64), b: (f64, f64)) -> (f64, f64) {
 }
 
 /// Why learning stops after `rms` (the learning trials' RMS errors so far,
-/// m), or `None` to go on.
-pub fn stop_rule(rms: &[f64], noise_floor_m: f64, budget: usize) -> Option<&'static str> {
-    let last = *rms.last()?;
+/// each `(value, 1σ)`, m; the first the feedforward trial's), or `None` to
+/// go on: `converged` within [`CONVERGED_OF_NOISE_FLOOR`] of the noise
+/// floor, `diverged` when the error grew two trials in a row, `budget`
+/// after `budget` trials. A growth counts when it exceeds 2σ of the
+/// difference, `2·√(σ_a² + σ_b²)` (a 1σ that is not finite, one measured
+/// line, counts as 0): a plateau whose RMS wanders within its noise is not
+/// a divergence (a spurious stop: 68.09 → 68.23 → 68.33 nm, each ±1.3–3.3
+/// nm, ended a run on a plateau at 1.51× the floor).
+pub fn stop_rule(rms: &[(f64, f64)], noise_floor_m: f64, budget: usize) -> Option<&'static str> {
+    let last = rms.last()?.0;
     if last <= CONVERGED_OF_NOISE_FLOOR * noise_floor_m {
         return Some("converged");
     }
-    if rms.len() >= 3
-        && rms[rms.len() - 1] > rms[rms.len() - 2]
-        && rms[rms.len() - 2] > rms[rms.len() - 3]
-    {
+    let grew = |a: (f64, f64), b: (f64, f64)| {
+        let s = |x: f64| if x.is_finite() { x } else { 0.0 };
+        b.0 - a.0 > 2.0 * s(a.1).hypot(s(b.1))
+    };
+    let n = rms.len();
+    if n >= 3 && grew(rms[n - 2], rms[n - 1]) && grew(rms[n - 3], rms[n - 2]) {
         return Some("diverged");
     }
-    (rms.len() >= budget).then_some("budget")
+    (n >= budget).then_some("budget")
 }
 
 /// Warns of what the plan keeps that no loop tracks: a scan's harmonics
 /// in a zero's band, a move's content in the right-half-plane bands.
 fn warn_plan(plan: &TrackPlan) {
-    for (k, f_hz) in &plan.harmonics_in_zero_bands {
-        if plan.move_profile.is_some() {
-            // A move's content there is warned about as a whole (below).
+    let inside = &plan.harmonics_in_zero_bands;
+    if let (ScanKind::Csv, Some(first), Some(last)) =
+        (plan.scan.kind, inside.first(), inside.last())
+    {
+        tracing::warn!(
+            "{} harmonics of the reference ({:.1}–{:.1} Hz) lie in the bands the plant's right-half-plane zeros close: no loop tracks them, only the feedforward, as well as the model is right there; smooth the reference below {:.1} Hz to remove them",
+            inside.len(),
+            first.1,
+            last.1,
+            plan.zero_bands.iter().find(|b| b.right_half_plane()).map_or(f64::NAN, |b| b.low_hz)
+        );
+    }
+    for (k, f_hz) in inside {
+        if plan.scan.played_whole() {
+            // A move's content there is warned about as a whole (below), a
+            // CSV's above.
             break;
         }
         tracing::warn!(
@@ -1640,6 +1740,44 @@ pub fn run_track(opts: &TrackOptions, stop: Arc<AtomicBool>) -> Result<TrackSumm
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The stop rule on the RMS errors of bench 0 of the five-bench run
+    /// (50 lines, α 0.4): a plateau at 1.51× the floor whose RMS wanders
+    /// within its 1σ runs to the budget, not to `diverged`; growth beyond
+    /// 2σ twice is `diverged`, as is any growth with one measured line (no
+    /// σ); once is not; within 1.5× the floor is `converged`.
+    #[test]
+    fn only_a_growth_beyond_the_noise_is_a_divergence() {
+        let nm = |v: &[(f64, f64)]| -> Vec<(f64, f64)> {
+            v.iter().map(|(a, s)| (a * 1e-9, s * 1e-9)).collect()
+        };
+        let floor = 45e-9;
+        let plateau = nm(&[
+            (137.44, 1.31),
+            (96.86, 1.61),
+            (80.26, 1.04),
+            (73.67, 1.93),
+            (68.09, 1.34),
+            (68.23, 3.21),
+            (68.33, 3.25),
+        ]);
+        for n in 1..=plateau.len() {
+            assert_eq!(stop_rule(&plateau[..n], floor, 8), None, "{n}");
+        }
+        assert_eq!(stop_rule(&plateau, floor, 7), Some("budget"));
+        let growing = nm(&[(80.0, 1.0), (86.0, 1.0), (92.0, 1.5)]);
+        assert_eq!(stop_rule(&growing, floor, 10), Some("diverged"));
+        assert_eq!(stop_rule(&growing[..2], floor, 10), None);
+        let once = nm(&[(80.0, 1.0), (86.0, 1.0), (85.0, 1.0), (91.0, 1.0)]);
+        assert_eq!(stop_rule(&once, floor, 10), None);
+        let one_line = nm(&[(80.0, f64::NAN), (80.1, f64::NAN), (80.2, f64::NAN)]);
+        assert_eq!(stop_rule(&one_line, floor, 10), Some("diverged"));
+        assert_eq!(
+            stop_rule(&nm(&[(90.0, 1.0), (67.4, 1.0)]), floor, 10),
+            Some("converged")
+        );
+        assert_eq!(stop_rule(&[], floor, 10), None);
+    }
     use crate::splitmix::standard_normal;
 
     /// White Gaussian noise of σ = 40 nm in 400 lines of 100 ticks: the
@@ -1690,6 +1828,8 @@ mod tests {
             line_rate_hz: 1.0,
             cutoff_hz: 408.0,
             move_limits: Some(l),
+            reference_csv: None,
+            reference: None,
         };
         let n = 5000;
         let in_band = |l: MoveLimits| -> f64 {

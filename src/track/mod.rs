@@ -75,6 +75,9 @@ pub enum ScanKind {
     /// start, back at its middle, each with the planned profile
     /// ([`MoveProfile`]) and a dwell after it.
     Move,
+    /// A line read from a CSV (`--reference`): one position per tick,
+    /// played whole ([`Scan::reference`]).
+    Csv,
 }
 
 impl std::str::FromStr for ScanKind {
@@ -84,13 +87,14 @@ impl std::str::FromStr for ScanKind {
             "sine" => Ok(Self::Sine),
             "triangle" => Ok(Self::Triangle),
             "move" => Ok(Self::Move),
-            _ => Err(format!("{s:?} is not a scan (sine, triangle or move)")),
+            "csv" => Ok(Self::Csv),
+            _ => Err(format!("{s:?} is not a scan (sine, triangle, move or csv)")),
         }
     }
 }
 
 /// A scan definition: what the user asks for.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct Scan {
     /// Sine or triangle.
     pub kind: ScanKind,
@@ -107,6 +111,15 @@ pub struct Scan {
     /// scan.
     #[serde(default)]
     pub move_limits: Option<MoveLimits>,
+    /// A reference read from a CSV: the file (`None` for the other
+    /// kinds).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub reference_csv: Option<std::path::PathBuf>,
+    /// Its line, one position per tick about the start position, m (not
+    /// in the JSON: the file holds it).
+    #[serde(skip)]
+    #[schemars(skip)]
+    pub reference: Option<Vec<f64>>,
 }
 
 /// One period's harmonics `X₀, X₁ … X_K` of a signal of period `N` ticks
@@ -247,6 +260,13 @@ fn lanczos_sigma(k: usize, k_c: f64) -> f64 {
 }
 
 impl Scan {
+    /// Whether the reference is played whole, as planned or read (a move,
+    /// a CSV): the cut-off bounds only its feedforward and learning, and
+    /// nothing is removed from it.
+    pub fn played_whole(&self) -> bool {
+        matches!(self.kind, ScanKind::Move | ScanKind::Csv)
+    }
+
     /// The highest harmonic kept: the last `k` with `k·line_rate < cutoff`.
     pub fn k_max(&self) -> usize {
         let k = (self.cutoff_hz / self.line_rate_hz).ceil() as usize;
@@ -262,6 +282,13 @@ impl Scan {
             ScanKind::Sine => format!("sine scan ±{um:.2} µm at {line} lines/s"),
             ScanKind::Triangle => format!("triangle scan ±{um:.2} µm at {line} lines/s"),
             ScanKind::Move => format!("move of {um:.2} µm and back at {line} lines/s"),
+            ScanKind::Csv => format!(
+                "reference {} (peak {um:.2} µm) at {line} lines/s",
+                self.reference_csv
+                    .as_ref()
+                    .and_then(|p| p.file_name())
+                    .map_or("from a CSV".into(), |n| n.to_string_lossy())
+            ),
         }
     }
 
@@ -277,8 +304,12 @@ impl Scan {
     /// One line of the reference as the tick plays it, `period_ticks`
     /// values, m: a scan's harmonics ([`Self::harmonics`]) synthesised; a
     /// move's profile itself, up from tick 0 and back down from the middle
-    /// of the line (`t = 1/(2·line_rate)`).
+    /// of the line (`t = 1/(2·line_rate)`); a CSV's line as read (its
+    /// length is the line's: the plan checks it).
     pub fn table(&self, period_ticks: usize) -> Vec<f64> {
+        if let Some(r) = &self.reference {
+            return r.clone();
+        }
         match self.move_profile() {
             Some(p) => {
                 let dt = 1.0 / (self.line_rate_hz * period_ticks as f64);
@@ -305,7 +336,9 @@ impl Scan {
         let k_max = self.k_max();
         let mut h = Harmonics::zeros(k_max, period_ticks);
         match self.kind {
-            ScanKind::Move => return Harmonics::analyze(&self.table(period_ticks), k_max),
+            ScanKind::Move | ScanKind::Csv => {
+                return Harmonics::analyze(&self.table(period_ticks), k_max)
+            }
             ScanKind::Sine => {
                 if k_max >= 1 {
                     h.coef[1] = C64::new(0.0, -self.amplitude_m);

@@ -87,6 +87,8 @@ fn the_sine_scan_is_the_sine() {
         amplitude_m: 5e-6,
         line_rate_hz: 10.0,
         cutoff_hz: 50.0,
+        reference_csv: None,
+        reference: None,
     };
     let x = scan.harmonics(500).synthesize();
     for (i, v) in x.iter().enumerate() {
@@ -109,6 +111,8 @@ fn the_triangle_scan_is_the_triangle_below_its_cut_off() {
         amplitude_m: a,
         line_rate_hz: 10.0,
         cutoff_hz: 2000.0,
+        reference_csv: None,
+        reference: None,
     };
     let h = scan.harmonics(n);
     assert_eq!(h.coef.len() - 1, 199);
@@ -138,7 +142,7 @@ fn the_triangle_scan_is_the_triangle_below_its_cut_off() {
     }
     let coarse = Scan {
         cutoff_hz: 55.0,
-        ..scan
+        ..scan.clone()
     };
     assert_eq!(coarse.k_max(), 5);
     let one = Scan {
@@ -185,6 +189,8 @@ fn the_model_inverse_tracks_the_scan_on_the_model() {
         amplitude_m: 5e-6,
         line_rate_hz: 10.0,
         cutoff_hz: 55.0,
+        reference_csv: None,
+        reference: None,
     };
     let r = scan.harmonics(n);
     let f = model_inverse(&r, &b.model(), scan.line_rate_hz);
@@ -225,6 +231,8 @@ fn learning_contracts_by_one_minus_the_gain_on_the_model() {
         amplitude_m: 5e-6,
         line_rate_hz: 10.0,
         cutoff_hz: 55.0,
+        reference_csv: None,
+        reference: None,
     };
     let r = scan.harmonics(n);
     let k_max = r.coef.len() - 1;
@@ -336,6 +344,8 @@ fn the_inverse_carries_a_move_through_the_zeros_band() {
         amplitude_m: 10e-6,
         line_rate_hz: 1.0,
         cutoff_hz: 408.0,
+        reference_csv: None,
+        reference: None,
     };
     let table = scan.table(n);
     assert_eq!(table[0], 0.0);

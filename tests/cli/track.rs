@@ -459,6 +459,215 @@ fn a_learned_feedforward_replays_and_a_foreign_one_is_refused() {
     }
 }
 
+/// The CSV of one line of `x(t)` at the built-in bench's 5 kHz: `rows`
+/// rows, `time_s = i/5000`.
+fn reference_csv(path: &Path, rows: usize, x: impl Fn(f64) -> f64) {
+    let mut text = String::from("# a reference line\ntime_s,position_m\n");
+    for i in 0..rows {
+        let t = i as f64 / 5000.0;
+        text.push_str(&format!("{t:.9},{:e}\n", x(t)));
+    }
+    std::fs::write(path, text).unwrap();
+}
+
+/// `--scan csv`: a reference read from a CSV is the scan it describes. The
+/// ±5 µm sine at 10 lines/s written as 500 rows tracks as `--scan sine`
+/// does: the same predicted feedback error, and the same trial errors on
+/// the same seed (the reference is the same signal; the CSV's rounding is
+/// 1e-13 of it). The line played is the CSV's, row for row (the learned
+/// table's reference column), and that table replays only for that line.
+/// Bad references and flag combinations exit 2 naming the flag, nothing
+/// written.
+#[test]
+fn a_reference_from_a_csv_tracks_as_the_scan_it_describes() {
+    let dir = tmp();
+    let sine = |t: f64| 5e-6 * (2.0 * std::f64::consts::PI * 10.0 * t).sin();
+    let csv = dir.path().join("sine.csv");
+    reference_csv(&csv, 500, sine);
+    let csv_s = csv.to_str().unwrap().to_string();
+    let (_, v) = track(
+        dir.path(),
+        &["--scan", "csv", "--reference", &csv_s, "--trials", "1"],
+    );
+    let plan = &v["plan"];
+    assert_eq!(plan["scan"]["kind"], "csv");
+    assert_eq!(plan["scan"]["line_rate_hz"], 10.0);
+    assert_eq!(plan["period_ticks"], 500);
+    assert!((plan["scan"]["amplitude_m"].as_f64().unwrap() / 5e-6 - 1.0).abs() < 1e-6);
+    let other = dir.path().join("sine-run");
+    let o = run(&[
+        "track",
+        "--json",
+        "--out",
+        other.to_str().unwrap(),
+        "--scan",
+        "sine",
+        "--trials",
+        "1",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let w = json_stdout(&o);
+    let rel = |a: f64, b: f64| (a / b - 1.0).abs();
+    let key = "predicted_feedback_rms_error_m";
+    assert!(
+        rel(
+            plan[key].as_f64().unwrap(),
+            w["plan"][key].as_f64().unwrap()
+        ) < 1e-6
+    );
+    for i in 0..3 {
+        let (a, b) = (rms(&v["trials"][i]), rms(&w["trials"][i]));
+        assert!(rel(a, b) < 1e-3, "trial {i}: {a} {b}");
+    }
+    // The line played is the CSV's.
+    let table = std::fs::read_to_string(dir.path().join("run/feedforward.csv")).unwrap();
+    let rows: Vec<f64> = table
+        .lines()
+        .skip(3)
+        .map(|l| l.split(',').nth(2).unwrap().parse().unwrap())
+        .collect();
+    assert_eq!(rows.len(), 500);
+    for (i, r) in rows.iter().enumerate() {
+        assert!((r - sine(i as f64 / 5000.0)).abs() < 1e-15, "tick {i}");
+    }
+    check_files(dir.path(), &v);
+    let learned = dir.path().join("run/feedforward.csv");
+    let learned_s = learned.to_str().unwrap().to_string();
+    let again = path_in(dir.path(), "again");
+    let o = run(&[
+        "track",
+        "--out",
+        &again,
+        "--scan",
+        "csv",
+        "--reference",
+        &csv_s,
+        "--feedforward",
+        &learned_s,
+        "--trials",
+        "1",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+
+    let refused = |args: &[&str], flag: &str, what: &str| {
+        let out = path_in(dir.path(), "never");
+        let mut all = vec!["track", "--out", out.as_str(), "--trials", "1"];
+        all.extend_from_slice(args);
+        let o = run(&all);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(2), "{what}: {err}");
+        assert!(err.contains(flag), "{what}: {err}");
+        assert!(!Path::new(&out).exists(), "{what}");
+    };
+    let half = dir.path().join("half.csv");
+    reference_csv(&half, 500, |t| 0.5 * sine(t));
+    let half_s = half.to_str().unwrap().to_string();
+    refused(
+        &[
+            "--scan",
+            "csv",
+            "--reference",
+            &half_s,
+            "--feedforward",
+            &learned_s,
+        ],
+        "--feedforward",
+        "another line's table",
+    );
+    refused(&["--scan", "csv"], "--reference", "csv without a reference");
+    refused(
+        &["--reference", &csv_s],
+        "--reference",
+        "a reference with a triangle",
+    );
+    refused(
+        &[
+            "--scan",
+            "csv",
+            "--reference",
+            &csv_s,
+            "--amplitude-m",
+            "5e-6",
+        ],
+        "--amplitude-m",
+        "an amplitude with a csv",
+    );
+    refused(
+        &[
+            "--scan",
+            "csv",
+            "--reference",
+            &csv_s,
+            "--line-rate-hz",
+            "12.5",
+        ],
+        "--line-rate-hz",
+        "another line rate",
+    );
+    // Lines the plan refuses: beyond the stroke, a fundamental in the
+    // zeros' band (20 rows: 250 Hz), fewer than 8 rows.
+    let mut cases: Vec<(String, String, &str)> = Vec::new();
+    let mut write = |name: &str, rows: usize, x: &dyn Fn(f64) -> f64, flag: &'static str| {
+        let p = dir.path().join(name);
+        reference_csv(&p, rows, x);
+        cases.push((name.to_string(), p.to_str().unwrap().to_string(), flag));
+    };
+    write("beyond-stroke.csv", 500, &|t| 1e3 * sine(t), "--reference");
+    write("too-fast.csv", 20, &sine, "--line-rate-hz");
+    write("seven.csv", 7, &sine, "--reference");
+    write("still.csv", 500, &|_| 0.0, "--reference");
+    // Generated mutations of the good table's text.
+    let good = std::fs::read_to_string(&csv).unwrap();
+    let lines: Vec<&str> = good.lines().collect();
+    let mut mutants: Vec<(String, String)> = vec![
+        ("empty".into(), String::new()),
+        (
+            "no header".into(),
+            [&lines[..1], &lines[2..]].concat().join("\n"),
+        ),
+        (
+            "another header".into(),
+            good.replacen("time_s,position_m", "t,x", 1),
+        ),
+        (
+            "three columns".into(),
+            good.replacen("time_s,position_m", "time_s,position_m,v", 1),
+        ),
+    ];
+    for i in [2, 200, lines.len() - 1] {
+        let cols: Vec<&str> = lines[i].split(',').collect();
+        for (what, col, value) in [
+            ("NaN position", 1, "NaN"),
+            ("inf position", 1, "inf"),
+            ("garbage", 1, "0x1p3"),
+            ("a time off its tick", 0, "0.5"),
+            ("no time", 0, ""),
+        ] {
+            let mut c = cols.clone();
+            c[col] = value;
+            let row = c.join(",");
+            let mut l = lines.clone();
+            l[i] = &row;
+            mutants.push((format!("{what} at line {i}"), l.join("\n")));
+        }
+        // The last row missing is a shorter line, not a bad one.
+        if i + 1 < lines.len() {
+            let mut l = lines.clone();
+            l.remove(i);
+            mutants.push((format!("line {i} missing"), l.join("\n")));
+        }
+    }
+    for (n, (what, text)) in mutants.into_iter().enumerate() {
+        let name = format!("mutant-{n}.csv");
+        let p = dir.path().join(&name);
+        std::fs::write(&p, text).unwrap();
+        cases.push((what, p.to_str().unwrap().to_string(), "--reference"));
+    }
+    for (what, path, flag) in &cases {
+        refused(&["--scan", "csv", "--reference", path], flag, what);
+    }
+}
+
 /// `--learning-ps`: the learning filter from the PS that `bench control
 /// --verify` measured on the shipped bench (the fast loop, simulated), for
 /// a model 15 % off. Each learned harmonic's measured PS is the true loop's
@@ -769,10 +978,13 @@ fn a_trial_that_faults_stops_the_learning_and_keeps_everything() {
 /// signs), which the model's `L` leaves at 1.6–1.9× the floor, converges
 /// with the measured one in two trials. Bench 0 (non-alternating, `limit`
 /// controller, ω* 710 rad/s) reaches 1.55× the floor in its second trial
-/// and then grows by ~5 nm a trial (69 → 74 → 78 nm): every harmonic's
-/// bound at 2σ is below 0.68, so what grows is not a learned harmonic's
-/// contraction; the error learned below each trial's 2σ significance
-/// threshold stays in the feedforward from trial to trial. Run:
+/// and then grows, to 97.9 nm at the budget (the best trial's 69.0 nm
+/// kept). Every learned harmonic's bound at 2σ is below 0.68, and the
+/// scatter between a trial's lines grows with the error (the RMS's 1σ from
+/// 2 to 12.7 nm): what grows does not repeat from line to line, so the
+/// stop rule, which counts a growth beyond 2σ only, lets it run. A
+/// transient that outlasts the two warm-up lines (a lightly damped mode
+/// the learned feedforward excites at the fade-in) would do this. Run:
 /// `cargo test --test cli five_random_benches -- --ignored --nocapture`.
 #[test]
 #[ignore]

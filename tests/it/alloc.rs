@@ -356,6 +356,8 @@ fn track_tick_allocates_nothing() {
         amplitude_m: 5e-6,
         line_rate_hz: 10.0,
         cutoff_hz: 55.0,
+        reference_csv: None,
+        reference: None,
     };
     let reference = scan.harmonics(n).synthesize();
     let feedforward: Vec<f64> = reference.iter().map(|r| r * 1e3).collect();

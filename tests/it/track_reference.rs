@@ -102,6 +102,8 @@ fn learning_converges_as_python_control_predicts() {
         amplitude_m: 5e-6,
         line_rate_hz: line_hz,
         cutoff_hz: 58.0,
+        reference_csv: None,
+        reference: None,
     };
     let n = (cfg.loop_.rate_hz / line_hz).round() as usize;
     let k_max = scan.k_max();
