@@ -1134,12 +1134,17 @@ pub fn read_reference(path: &Path, cfg: &BenchConfig) -> Result<(Vec<f64>, f64),
 /// Reads the measured PS of `--learning-ps` for this run: a `bench
 /// control --verify` recording ([`crate::jobs::verify::read_verify`]) of
 /// the same loop: the same controller (name and table), loop rate,
-/// amplifier and bench (`[plant]` of the config).
+/// amplifier, bench (`[plant]` of the config) and kind of backend (sim,
+/// serial, socketcan, ethercat).
 ///
 /// # Errors
 /// [`RunError::BadOption`] naming `learning_ps`: unreadable, not such a
 /// recording, or measured on another loop (what differs named).
-fn read_learning_ps(path: &Path, opts: &TrackOptions) -> Result<MeasuredPs, RunError> {
+fn read_learning_ps(
+    path: &Path,
+    opts: &TrackOptions,
+    backend: &BackendSpec,
+) -> Result<MeasuredPs, RunError> {
     let bad = |why: String| RunError::option("learning_ps", path.display(), why);
     let bytes = crate::input_file::read(path, crate::input_file::Kind::Recording, "learning_ps")?;
     let rec = crate::jobs::verify::read_verify(&bytes).map_err(bad)?;
@@ -1167,6 +1172,18 @@ fn read_learning_ps(path: &Path, opts: &TrackOptions) -> Result<MeasuredPs, RunE
     }
     if then.plant != cfg.plant {
         d.push("another bench ([plant] of its config)".to_string());
+    }
+    // The kind of device (sim, serial, socketcan, ethercat): a simulated
+    // loop's PS is the model's, not the bench's, and the links differ in
+    // delay.
+    let kind = |name: &str| name.split(':').next().unwrap_or_default().to_string();
+    let here = kind(&backend.to_string());
+    match rec.backend.as_deref().map(kind) {
+        Some(there) if there == here => {}
+        there => d.push(format!(
+            "the backend {} (this run: {here})",
+            there.as_deref().unwrap_or("not recorded")
+        )),
     }
     if !d.is_empty() {
         return Err(bad(format!(
@@ -1639,7 +1656,7 @@ pub fn run_track(opts: &TrackOptions, stop: Arc<AtomicBool>) -> Result<TrackSumm
     };
     let bands = ZeroBand::of(&crate::analysis::modal::damped_zeros(&model));
     let measured_ps = match &opts.learning_ps {
-        Some(p) => Some(read_learning_ps(p, opts)?),
+        Some(p) => Some(read_learning_ps(p, opts, &spec)?),
         None => None,
     };
     let (plan, r, f_model, learning) = plan(opts, &model_loop, bands, measured_ps.as_ref())?;

@@ -635,6 +635,9 @@ pub struct RecordedVerify {
     /// The `toml` of the `bench.config` metadata (the run's resolved
     /// config).
     pub config_toml: String,
+    /// The `backend` of the `bench.run` metadata: the device the loop was
+    /// measured on (`sim:sr4dof`, `serial:/dev/ttyACM0 (protocol v3)`).
+    pub backend: Option<String>,
 }
 
 /// The fields of `/control/verify` the learning filter reads (a
@@ -732,20 +735,28 @@ pub fn read_verify(bytes: &[u8]) -> Result<RecordedVerify, String> {
             serde_json::from_slice(&m.data)
                 .map_err(|e| format!("/control/summary: not a control summary: {e}"))
         })?;
-    let config_toml = mcap::read::LinearReader::new_with_options(
+    let metadata: Vec<mcap::records::Metadata> = mcap::read::LinearReader::new_with_options(
         bytes,
         mcap::read::Options::IgnoreEndMagic.into(),
     )
-    .ok()
-    .and_then(|r| {
-        r.filter_map(Result::ok).find_map(|rec| match rec {
-            mcap::records::Record::Metadata(mut m) if m.name == "bench.config" => {
-                m.metadata.remove("toml")
-            }
-            _ => None,
-        })
+    .map(|r| {
+        r.filter_map(Result::ok)
+            .filter_map(|rec| match rec {
+                mcap::records::Record::Metadata(m) => Some(m),
+                _ => None,
+            })
+            .collect()
     })
-    .ok_or("no bench.config metadata: the run's config is not recorded")?;
+    .unwrap_or_default();
+    let entry = |name: &str, key: &str| {
+        metadata
+            .iter()
+            .find(|m| m.name == name)
+            .and_then(|m| m.metadata.get(key).cloned())
+    };
+    let config_toml = entry("bench.config", "toml")
+        .ok_or("no bench.config metadata: the run's config is not recorded")?;
+    let backend = entry("bench.run", "backend");
     Ok(RecordedVerify {
         ps: crate::track::measured::MeasuredPs {
             frequency_hz: v.frequency_hz,
@@ -755,5 +766,6 @@ pub fn read_verify(bytes: &[u8]) -> Result<RecordedVerify, String> {
         },
         controller: summary.controller,
         config_toml,
+        backend,
     })
 }

@@ -794,6 +794,12 @@ fn learning_from_the_measured_ps_holds_its_bound_and_a_foreign_one_is_refused() 
     };
     let err = refused(&["--slow"], &verified, "another controller");
     assert!(err.contains("controller"), "{err}");
+    let err = refused(
+        &["--backend", "serial:/dev/bench-none"],
+        &verified,
+        "another backend",
+    );
+    assert!(err.contains("the backend sim (this run: serial)"), "{err}");
     let step = path_in(dir.path(), "step.mcap");
     assert!(run(&["control", "--fast", "--out", &step]).status.success());
     let err = refused(&[], &step, "no verify");
