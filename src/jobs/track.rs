@@ -11,7 +11,8 @@
 //! 3. `feedforward`: the scan plus the model-inverse feedforward.
 //! 4. `learning-N`: the feedforward learned from the trial before.
 //!
-//! Every trial runs [`WARM_UP_PERIODS`] periods (the first faded in), then
+//! Every trial runs its warm-up periods ([`WARM_UP_PERIODS`] at least, and
+//! [`WARM_UP_TIME_CONSTANTS`] of the loop's slowest: the first faded in), then
 //! the measured periods, then one period fading the scan out and one
 //! holding the start ([`TrackJob`]: the stage ends still where it began,
 //! so the next trial takes it at rest); the error (setpoint − reading) of
@@ -62,9 +63,17 @@ use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
 use std::sync::Arc;
 
-/// Periods run before the measured ones: the first faded in, the second
-/// for the loop's transient to decay.
+/// Periods run before the measured ones at least: the first faded in, the
+/// second for the loop's transient to decay.
 pub const WARM_UP_PERIODS: u64 = 2;
+
+/// The warm-up lasts at least this many of the loop's slowest time
+/// constants (on the model): the fade-in's transient decays to `e⁻⁵`,
+/// 0.7 % of its start, before a line is measured. A lightly damped mode
+/// the loop leaves alone (ζ 1 % at 22 Hz: τ = 0.72 s) outlasts two lines
+/// of a 10 Hz scan by far; the part left of it differs from line to line
+/// and is no error learning can remove.
+pub const WARM_UP_TIME_CONSTANTS: f64 = 5.0;
 
 /// A learning trial whose RMS error is within this factor of the noise
 /// floor has converged (issue 44: "the error within 1.5× its noise floor").
@@ -189,6 +198,12 @@ pub struct TrackPlan {
     pub convergence_margin: Option<f64>,
     /// The harmonic's frequency that sets it, Hz.
     pub convergence_margin_at_hz: Option<f64>,
+    /// The slowest time constant of the closed loop on the model,
+    /// `−T/ln|z|` of its largest pole `z`, s.
+    pub slowest_time_constant_s: f64,
+    /// Lines run before the measured ones: [`WARM_UP_PERIODS`] at least,
+    /// and [`WARM_UP_TIME_CONSTANTS`] of the slowest time constant.
+    pub warm_up_periods: u64,
 }
 
 /// One trial's result.
@@ -548,6 +563,7 @@ fn plan(
         c.learned &= !not_learned.contains(&c.harmonic);
     }
     let margin = crate::track::measured::margin(&checks);
+    let (tau_s, warm_up) = warm_up_of(model, n, cfg.loop_.rate_hz);
     let contraction = learning
         .contraction(&learning.ps_model)
         .into_iter()
@@ -593,9 +609,29 @@ fn plan(
         convergence_margin: margin.map(|(m, _)| m),
         convergence_margin_at_hz: margin
             .map(|(_, k)| Harmonics::frequency_hz(k, scan.line_rate_hz)),
+        slowest_time_constant_s: tau_s,
+        warm_up_periods: warm_up,
     };
     check_limits(cfg, &plan)?;
     Ok((plan, r, f, learning))
+}
+
+/// The loop's slowest time constant on `model` (s; NaN for a loop the
+/// check will refuse) and the warm-up lines it needs at `n` ticks a line
+/// ([`WARM_UP_TIME_CONSTANTS`], [`WARM_UP_PERIODS`] at least).
+fn warm_up_of(model: &ModelLoop<'_>, n: usize, rate_hz: f64) -> (f64, u64) {
+    let (poles, stable) = crate::control::loop_check::closed_loop_poles(
+        model.plant,
+        model.ctrl,
+        model.link_delay_periods,
+    );
+    let slowest = poles.iter().map(|z| z.norm()).fold(0.0, f64::max);
+    let tau_ticks = -1.0 / slowest.ln();
+    if !(stable && tau_ticks.is_finite() && tau_ticks > 0.0) {
+        return (f64::NAN, WARM_UP_PERIODS);
+    }
+    let lines = (WARM_UP_TIME_CONSTANTS * tau_ticks / n as f64).ceil();
+    (tau_ticks / rate_hz, (lines as u64).max(WARM_UP_PERIODS))
 }
 
 /// The feedforward trial's command predicted on the model,
@@ -1254,6 +1290,8 @@ struct Trials<'a> {
     stall_source: &'a str,
     /// The learned harmonics' count `K`.
     k_max: usize,
+    /// Lines run before the measured ones.
+    warm_up_periods: u64,
 }
 
 /// What a trial measured, beside its report.
@@ -1281,8 +1319,8 @@ impl Trials<'_> {
         let opts = self.opts;
         let recording = &self.recordings[index];
         let n = reference_m.len();
-        let warm_up = WARM_UP_PERIODS * n as u64;
-        let lines = WARM_UP_PERIODS + u64::from(opts.periods);
+        let warm_up = self.warm_up_periods * n as u64;
+        let lines = self.warm_up_periods + u64::from(opts.periods);
         let job = TrackJob::new(
             self.ctrl,
             reference_m.to_vec(),
@@ -1678,7 +1716,7 @@ pub fn run_track(opts: &TrackOptions, stop: Arc<AtomicBool>) -> Result<TrackSumm
         }
         None => (f_model, "feedforward"),
     };
-    let total = (WARM_UP_PERIODS + u64::from(opts.periods) + 2) * plan.period_ticks as u64;
+    let total = (plan.warm_up_periods + u64::from(opts.periods) + 2) * plan.period_ticks as u64;
     if total > crate::config::ranges::JOB_TICKS_MAX {
         return Err(RunError::option(
             "periods",
@@ -1743,6 +1781,7 @@ pub fn run_track(opts: &TrackOptions, stop: Arc<AtomicBool>) -> Result<TrackSumm
         stall: period_s_stall,
         stall_source: &check.stall.source,
         k_max: learning.l.len() - 1,
+        warm_up_periods: summary.plan.warm_up_periods,
     };
     run.learn(
         &mut runner,
