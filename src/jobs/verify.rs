@@ -735,28 +735,13 @@ pub fn read_verify(bytes: &[u8]) -> Result<RecordedVerify, String> {
             serde_json::from_slice(&m.data)
                 .map_err(|e| format!("/control/summary: not a control summary: {e}"))
         })?;
-    let metadata: Vec<mcap::records::Metadata> = mcap::read::LinearReader::new_with_options(
-        bytes,
-        mcap::read::Options::IgnoreEndMagic.into(),
-    )
-    .map(|r| {
-        r.filter_map(Result::ok)
-            .filter_map(|rec| match rec {
-                mcap::records::Record::Metadata(m) => Some(m),
-                _ => None,
-            })
-            .collect()
-    })
-    .unwrap_or_default();
-    let entry = |name: &str, key: &str| {
-        metadata
-            .iter()
-            .find(|m| m.name == name)
-            .and_then(|m| m.metadata.get(key).cloned())
-    };
-    let config_toml = entry("bench.config", "toml")
-        .ok_or("no bench.config metadata: the run's config is not recorded")?;
-    let backend = entry("bench.run", "backend");
+    let config_toml = read
+        .metadata_entry("bench.config", "toml")
+        .ok_or("no bench.config metadata: the run's config is not recorded")?
+        .to_string();
+    let backend = read
+        .metadata_entry("bench.run", "backend")
+        .map(str::to_string);
     Ok(RecordedVerify {
         ps: crate::track::measured::MeasuredPs {
             frequency_hz: v.frequency_hz,

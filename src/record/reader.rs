@@ -14,6 +14,9 @@ pub struct TolerantRead {
     /// chunk cut by a kill, or input that is no MCAP); `None` if the file
     /// was read to its end.
     pub error: Option<String>,
+    /// Every intact top-level metadata record (`bench.config`,
+    /// `bench.run`), in file order.
+    pub metadata: Vec<mcap::records::Metadata>,
 }
 
 impl TolerantRead {
@@ -28,6 +31,16 @@ impl TolerantRead {
         topics.dedup();
         topics
     }
+
+    /// The value of `key` in the first metadata record named `name`
+    /// (`("bench.config", "toml")`: the run's resolved config).
+    pub fn metadata_entry(&self, name: &str, key: &str) -> Option<&str> {
+        self.metadata
+            .iter()
+            .find(|m| m.name == name)
+            .and_then(|m| m.metadata.get(key))
+            .map(String::as_str)
+    }
 }
 
 /// Reads every message of a possibly cut or damaged MCAP (e.g. the `.part`
@@ -38,10 +51,12 @@ pub fn read_messages_tolerant(bytes: &[u8]) -> TolerantRead {
         Ok(s) => TolerantRead {
             error: s.first_problem(),
             messages: s.messages,
+            metadata: s.metadata,
         },
         Err(e) => TolerantRead {
             messages: Vec::new(),
             error: Some(e),
+            metadata: Vec::new(),
         },
     }
 }
