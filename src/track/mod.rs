@@ -310,6 +310,11 @@ impl Scan {
         if let Some(r) = &self.reference {
             return r.clone();
         }
+        if self.kind == ScanKind::Csv {
+            // A CSV scan without its line (read back from JSON, where the
+            // line is not) stands still; its harmonics analyse this table.
+            return vec![0.0; period_ticks];
+        }
         match self.move_profile() {
             Some(p) => {
                 let dt = 1.0 / (self.line_rate_hz * period_ticks as f64);

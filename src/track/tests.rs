@@ -440,3 +440,22 @@ fn the_measured_law_inverts_the_measurement_and_learns_only_what_it_vouches_for(
         "{mg} at {at}"
     );
 }
+
+/// A CSV scan read back from JSON has no line (the JSON leaves it out): it
+/// stands still rather than recursing between its table and its
+/// harmonics.
+#[test]
+fn a_csv_scan_without_its_line_stands_still() {
+    let scan = Scan {
+        kind: ScanKind::Csv,
+        move_limits: None,
+        amplitude_m: 5e-6,
+        line_rate_hz: 10.0,
+        cutoff_hz: 55.0,
+        reference_csv: Some("line.csv".into()),
+        reference: None,
+    };
+    let back: Scan = serde_json::from_str(&serde_json::to_string(&scan).unwrap()).unwrap();
+    assert_eq!(back.table(500), vec![0.0; 500]);
+    assert!(back.harmonics(500).coef.iter().all(|c| c.norm() == 0.0));
+}
