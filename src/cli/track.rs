@@ -42,10 +42,11 @@ pub(super) struct TrackArgs {
     feedforward: Option<std::path::PathBuf>,
     /// Learn with the process sensitivity PS measured on this loop: the
     /// recording of `bench control --verify` with the same controller,
-    /// loop rate, amplifier and bench. L inverts the measured PS, and a
-    /// harmonic is learned only where |1 − L·PS| stays below 1 at the
-    /// measurement's 2σ (the convergence margin is reported) [default:
-    /// the model's PS]. Refused when measured on another loop
+    /// loop rate, amplifier, bench and kind of backend. L inverts the
+    /// measured PS, and a harmonic is learned only where |1 − L·PS| stays
+    /// below 1 at the measurement's 2σ (the convergence margin is
+    /// reported) [default: the model's PS]. Refused when measured on
+    /// another loop.
     #[arg(long, value_name = "FILE.mcap")]
     learning_ps: Option<std::path::PathBuf>,
     /// The scan: triangle (a raster line, smoothed below the cut-off),
