@@ -96,6 +96,7 @@ pub const EXIT_STATUSES: &[ExitStatus] = &[
             "export",
             "recover",
             "upload",
+            "track",
         ],
         meaning: "the daemon refused",
     },

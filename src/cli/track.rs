@@ -1,12 +1,14 @@
 //! `bench track`: its flags and the printed trials.
 
-use super::{bad_input, emit, job_thread, load_config, run_failed_json};
-use bench::error::RunError;
-use bench::jobs::request::{parse_fault, parse_seed};
-use bench::jobs::track::{run_track, TrackOptions, TrackSummary};
+use super::serve::via_daemon_then;
+use super::{bad_input, emit, job_thread, load_config, refuse_local_only, run_failed_json};
+use bench::jobs::request::{parse_seed, JobRequest, SnapLimit, TrackRequest};
+use bench::jobs::track::{run_track, TrackSummary};
+use bench::jobs::track_request::TrackRunner;
 use bench::rt::backend::BackendSpec;
-use bench::track::{FeedforwardKind, MoveLimits, Scan, ScanKind};
+use bench::track::{FeedforwardKind, ScanKind};
 use clap::Args;
+use std::path::PathBuf;
 use std::process::ExitCode;
 use std::sync::atomic::AtomicBool;
 use std::sync::Arc;
@@ -122,9 +124,10 @@ pub(super) struct TrackArgs {
         long,
         value_name = "M/S4",
         default_value = "2e4",
-        allow_hyphen_values = true
+        allow_hyphen_values = true,
+        value_parser = SnapLimit::parse
     )]
-    max_snap_m_s4: String,
+    max_snap_m_s4: SnapLimit,
     /// The band a move settles into, ± m. Range: above 0, below the
     /// move's distance.
     #[arg(
@@ -181,18 +184,9 @@ pub(super) struct TrackArgs {
     #[arg(long, value_name = "KIND@T_S")]
     inject_fault: Option<String>,
     #[command(flatten)]
-    json: super::JsonFlag,
+    job: super::JobFlags,
     #[command(flatten)]
     outputs: super::OutputFlags,
-}
-
-fn parse_snap(s: &str) -> Result<Option<f64>, String> {
-    if s == "none" {
-        return Ok(None);
-    }
-    s.parse::<f64>()
-        .map(Some)
-        .map_err(|e| format!("{s:?} is neither a snap in m/s⁴ nor `none`: {e}"))
 }
 
 impl TrackArgs {
@@ -205,38 +199,72 @@ impl TrackArgs {
                 .unwrap_or_else(|| "fast".to_string())
         }
     }
+
+    /// The request the flags make (paths absolute: the daemon's working
+    /// directory is not this one's).
+    fn request(&self) -> TrackRequest {
+        let abs = |p: &Option<PathBuf>| p.as_deref().map(super::absolute_path);
+        TrackRequest {
+            controller: Some(self.controller()),
+            model: abs(&self.model),
+            feedforward: abs(&self.feedforward),
+            learning_ps: abs(&self.learning_ps),
+            scan: Some(self.scan),
+            reference: abs(&self.reference),
+            amplitude_m: self.amplitude_m,
+            line_rate_hz: self.line_rate_hz,
+            cutoff_hz: self.cutoff_hz,
+            feedforward_kind: Some(self.feedforward_kind),
+            max_velocity_m_s: Some(self.max_velocity_m_s),
+            max_acceleration_m_s2: Some(self.max_acceleration_m_s2),
+            max_jerk_m_s3: Some(self.max_jerk_m_s3),
+            max_snap_m_s4: Some(self.max_snap_m_s4),
+            settle_band_m: Some(self.settle_band_m),
+            trials: Some(self.trials),
+            learning_gain: Some(self.learning_gain),
+            periods: Some(self.periods),
+            seed: self.seed,
+            inject_fault: self.inject_fault.clone(),
+            pace: None,
+        }
+    }
 }
 
 pub(super) fn track(args: TrackArgs, stop: Arc<AtomicBool>) -> ExitCode {
+    let request = args.request();
+    if let Some(sock) = &args.job.daemon {
+        let local_only = [
+            (
+                args.config.config.is_some(),
+                "--config (the daemon runs the bench config it was started with: bench serve --config)",
+            ),
+            (args.out.out.is_some(), "--out"),
+            (args.outputs.overwrite, "--overwrite"),
+            (args.backend.is_some(), "--backend"),
+            (
+                args.realtime,
+                "--realtime (the daemon's jobs run in real time unless bench serve --pace says otherwise)",
+            ),
+        ];
+        if let Some(code) = refuse_local_only(
+            &local_only,
+            "run it locally, or let the daemon choose the directory",
+        ) {
+            return code;
+        }
+        return via_daemon_then(
+            sock,
+            &JobRequest::Track(request),
+            args.job.json.json,
+            print_track_summary,
+            |_| None,
+        );
+    }
     let (cfg, config_path) = match load_config(args.config.config.as_deref()) {
         Ok(c) => c,
         Err(e) => return bad_input(e),
     };
-    let model = match &args.model {
-        Some(p) => match bench::config::BenchConfig::load(p) {
-            Ok(c) => Some((c, p.clone())),
-            Err(e) => return bad_input(format!("--model: {e}")),
-        },
-        None => None,
-    };
-    let inject_fault = match args.inject_fault.as_deref().map(parse_fault).transpose() {
-        Ok(f) => f,
-        Err(e) => {
-            return bad_input(format!(
-                "--inject-fault {}: {e}",
-                args.inject_fault.as_deref().unwrap_or("")
-            ))
-        }
-    };
-    let snap = match parse_snap(&args.max_snap_m_s4) {
-        Ok(s) => s,
-        Err(e) => return bad_input(format!("--max-snap-m-s4: {e}")),
-    };
-    let (reference, amplitude_m, line_rate_hz) = match scan_line(&args, &cfg) {
-        Ok(v) => v,
-        Err(e) => return super::run_failed(&e),
-    };
-    let controller = args.controller();
+    let controller = request.controller();
     let out_dir = match &args.out.out {
         Some(d) => d.clone(),
         None => match super::default_recordings(true, "--out") {
@@ -244,39 +272,18 @@ pub(super) fn track(args: TrackArgs, stop: Arc<AtomicBool>) -> ExitCode {
             Err(e) => return bad_input(e),
         },
     };
-    let opts = TrackOptions {
-        seed: args.seed.unwrap_or(cfg.sim.seed),
-        config: cfg,
-        config_path,
-        controller,
-        scan: Scan {
-            kind: args.scan,
-            amplitude_m,
-            line_rate_hz,
-            cutoff_hz: f64::NAN,
-            move_limits: (args.scan == ScanKind::Move).then_some(MoveLimits {
-                velocity_m_s: args.max_velocity_m_s,
-                acceleration_m_s2: args.max_acceleration_m_s2,
-                jerk_m_s3: args.max_jerk_m_s3,
-                snap_m_s4: snap,
-            }),
-            reference_csv: args.reference.clone(),
-            reference,
-        },
-        settle_band_m: args.settle_band_m,
-        feedforward_kind: args.feedforward_kind,
-        cutoff_hz: args.cutoff_hz,
-        trials: args.trials,
-        learning_gain: args.learning_gain,
-        periods: args.periods,
+    let runner = TrackRunner {
+        seed: cfg.sim.seed,
+        config: (cfg, config_path),
         out_dir,
         backend: args.backend.clone(),
         realtime: args.realtime,
+        pace: None,
         overwrite: args.outputs.overwrite,
-        model,
-        feedforward: args.feedforward.clone(),
-        learning_ps: args.learning_ps.clone(),
-        inject_fault,
+    };
+    let opts = match request.options(runner) {
+        Ok(o) => o,
+        Err(e) => return super::run_failed(&e),
     };
     let result = job_thread::run_job(stop, move |stop, _ticks| run_track(&opts, stop));
     let result = match result {
@@ -284,11 +291,11 @@ pub(super) fn track(args: TrackArgs, stop: Arc<AtomicBool>) -> ExitCode {
         Err(code) => return code,
     };
     match result {
-        Ok(summary) => match emit(&summary, args.json.json, print_track_summary) {
+        Ok(summary) => match emit(&summary, args.job.json.json, print_track_summary) {
             Ok(()) => ExitCode::SUCCESS,
             Err(code) => code,
         },
-        Err(e) => run_failed_json(&e, args.json.json),
+        Err(e) => run_failed_json(&e, args.job.json.json),
     }
 }
 
@@ -493,64 +500,5 @@ fn print_learning_checks(p: &bench::jobs::track::TrackPlan) {
             "  convergence margin {m:.3} at 2σ (set at {f:.1} Hz): every learned harmonic's error contracts each trial"
         ),
         _ => outln!("  warning: no harmonic is learned: the measurement vouches for none"),
-    }
-}
-
-/// The reference line of `--scan csv` (read at the config's loop rate)
-/// and the scan's amplitude and line rate: a CSV's own (its peak and
-/// `loop.rate_hz / rows`), else the flags' or their defaults.
-///
-/// # Errors
-/// [`RunError::BadOption`] naming `reference` for `--scan csv` without it,
-/// it with another scan, or a table [`read_reference`] refuses; naming
-/// `amplitude_m` given with a CSV, `line_rate_hz` given with a CSV and
-/// not the one its rows make.
-fn scan_line(
-    args: &TrackArgs,
-    cfg: &bench::config::BenchConfig,
-) -> Result<(Option<Vec<f64>>, f64, f64), RunError> {
-    match (args.scan, &args.reference) {
-        (ScanKind::Csv, Some(p)) => {
-            let (x, line_rate_hz) = bench::jobs::track::read_reference(p, cfg)?;
-            if let Some(a) = args.amplitude_m {
-                return Err(RunError::option(
-                    "amplitude_m",
-                    a,
-                    "a --scan csv reference has its own amplitude: leave --amplitude-m out"
-                        .to_string(),
-                ));
-            }
-            if let Some(l) = args
-                .line_rate_hz
-                .filter(|l| (l / line_rate_hz - 1.0).abs() > 1e-9)
-            {
-                return Err(RunError::option(
-                    "line_rate_hz",
-                    l,
-                    format!(
-                        "the reference's {} rows at loop.rate_hz {} make a line rate of {line_rate_hz} Hz",
-                        x.len(),
-                        cfg.loop_.rate_hz
-                    ),
-                ));
-            }
-            let peak = x.iter().fold(0.0f64, |m, v| m.max(v.abs()));
-            Ok((Some(x), peak, line_rate_hz))
-        }
-        (ScanKind::Csv, None) => Err(RunError::option(
-            "reference",
-            "",
-            "--scan csv needs --reference FILE.csv, the line to track".to_string(),
-        )),
-        (_, Some(p)) => Err(RunError::option(
-            "reference",
-            p.display(),
-            "is the line of --scan csv only".to_string(),
-        )),
-        (_, None) => Ok((
-            None,
-            args.amplitude_m.unwrap_or(5e-6),
-            args.line_rate_hz.unwrap_or(10.0),
-        )),
     }
 }

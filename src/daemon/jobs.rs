@@ -29,6 +29,9 @@ use crate::jobs::request::{
     PlotRequest, RecoverRequest, RequestError, UploadRequest,
 };
 use crate::jobs::session::Runner;
+use crate::jobs::track::run_track_from;
+use crate::jobs::track::TrackOptions;
+use crate::jobs::track_request::{TrackRequest, TrackRunner};
 use crate::jobs::verify::{StepOutputs, VerifyOptions};
 use crate::outputs::{beside, Destination};
 use crate::rt::service::ServiceClient;
@@ -52,6 +55,7 @@ pub(super) enum JobSpec {
     Export(Box<ExportOptions>),
     Recover(Box<RecoverOptions>),
     Upload(Box<UploadOptions>),
+    Track(Box<TrackOptions>),
 }
 
 /// A campaign to start: the loaded file, its new directory, the threads.
@@ -65,7 +69,7 @@ pub(super) struct CampaignJob {
 impl JobSpec {
     /// Whether the job runs on the real-time loop (else it only computes).
     pub(super) fn uses_loop(&self) -> bool {
-        matches!(self, Self::Chirp(_) | Self::Control(_))
+        matches!(self, Self::Chirp(_) | Self::Control(_) | Self::Track(_))
     }
 }
 
@@ -174,6 +178,7 @@ pub(super) fn job_spec(ctx: &Ctx, request: &JobRequest, id: u64) -> Result<Accep
         JobRequest::Recover(req) => recover_job(ctx, req, id),
         JobRequest::Upload(req) => upload_job(req),
         JobRequest::Map(req) => map_job(ctx, req, id),
+        JobRequest::Track(req) => track_job(ctx, req, id),
     }
 }
 
@@ -408,6 +413,34 @@ fn map_job(ctx: &Ctx, req: &MapRequest, id: u64) -> Result<Accepted, ApiError> {
     Ok(Accepted::computing(JobSpec::Map(Box::new(opts))))
 }
 
+/// The daemon's `track` job ([`job_spec`]): its trials in a new
+/// directory `track-<stamp>-job<id>` of the recordings directory, its
+/// progress the trials done of the most it may run.
+fn track_job(ctx: &Ctx, req: &TrackRequest, id: u64) -> Result<Accepted, ApiError> {
+    for (field, path) in req.inputs() {
+        absolute(field, path)?;
+    }
+    let pace = pace_of(ctx, req.pace.or(ctx.default_pace))?;
+    let dir = beside(&recording_path(&ctx.recordings, "track", id), "");
+    let runner = TrackRunner {
+        config: (ctx.cfg.clone(), ctx.config_path.clone()),
+        out_dir: dir.clone(),
+        backend: Some(ctx.spec.clone()),
+        realtime: pace.is_none(),
+        pace: pace.and_then(Pace::factor),
+        overwrite: false,
+        seed: ctx.seed,
+    };
+    let opts = req.options(runner).map_err(|e| refused(&e))?;
+    // Standstill, feedback, feedforward, then the learning trials.
+    let total = 3 + u64::from(opts.trials);
+    Ok(Accepted {
+        spec: JobSpec::Track(Box::new(opts)),
+        total,
+        recording: Some(dir),
+    })
+}
+
 /// Runs `job` on this (worker) thread: a bench job through `proxy`, the
 /// daemon's loop; `stop` ends it safely, `ticks` follows its progress.
 /// A summary as the response's `result`.
@@ -443,6 +476,16 @@ pub(super) fn run(
                         key: "verify_amplitude_a",
                         ..
                     } => answer(e),
+                    _ => answer_run(e),
+                })
+                .and_then(json)
+        }
+        JobSpec::Track(opts) => {
+            run_track_from(&opts, stop, StageSource::Service(proxy), Some(ticks))
+                .map_err(|e| match &e {
+                    // The plan refuses a field before anything is enabled:
+                    // named as the request names it.
+                    RunError::BadOption { .. } => answer(e),
                     _ => answer_run(e),
                 })
                 .and_then(json)

@@ -50,6 +50,7 @@
 //! | `export` | the fields of an [`ExportRequest`], and `detach` | the `bench export --json` summary |
 //! | `recover` | the fields of a [`RecoverRequest`], and `detach` | the `bench recover --json` summary |
 //! | `upload` | the fields of an [`UploadRequest`], and `detach` | the `bench upload --json` summary (the store's credentials are the daemon's environment's; `stop` ends it, keeping every local file) |
+//! | `track` | the fields of a [`TrackRequest`], and `detach` | the `bench track --json` summary (the trials in `track-<UTC>-job<N>/`; progress counts trials) |
 //! | `stop` | – | the running job stops safely (0 A, recording finished) |
 //! | `subscribe` | – | this connection receives every event from now on |
 //! | `shutdown` | – | stops the job, then the daemon |
@@ -66,6 +67,7 @@
 //! [`ExportRequest`]: crate::jobs::export::ExportRequest
 //! [`RecoverRequest`]: crate::jobs::recover::RecoverRequest
 //! [`UploadRequest`]: crate::jobs::request::UploadRequest
+//! [`TrackRequest`]: crate::jobs::track_request::TrackRequest
 //!
 //! The jobs that compute take their files by absolute path (the daemon's
 //! working directory is not its clients'), read them with the daemon's

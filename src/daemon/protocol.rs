@@ -304,6 +304,7 @@ pub(super) fn job_request(cmd: &str, params: &Value) -> Result<(JobRequest, bool
         "export" => JobRequest::Export(from_params(params)?),
         "recover" => JobRequest::Recover(from_params(params)?),
         "upload" => JobRequest::Upload(from_params(params)?),
+        "track" => JobRequest::Track(from_params(params)?),
         other => {
             return Err(ApiError::new(
                 ApiErrorKind::UnknownCommand,

@@ -488,7 +488,10 @@ fn refuse_failed_check(opts: &ControlOptions, check: &LoopCheck) -> Result<(), R
 
 /// Schedules `--inject-fault` on the daemon's loop, which only its sim
 /// backend accepts.
-fn inject_on_service(client: &mut ServiceClient, fault: ScheduledFault) -> Result<(), RunError> {
+pub(crate) fn inject_on_service(
+    client: &mut ServiceClient,
+    fault: ScheduledFault,
+) -> Result<(), RunError> {
     match client.call(LoopRequest::Inject(fault)) {
         Some(LoopReply::Injected(true)) => Ok(()),
         _ => Err(RunError::BadInput(
@@ -498,7 +501,7 @@ fn inject_on_service(client: &mut ServiceClient, fault: ScheduledFault) -> Resul
 }
 
 /// The device must run at the period the controller was discretised for.
-fn check_device_period(
+pub(crate) fn check_device_period(
     info: &bench_hal::DeviceInfo,
     cfg: &BenchConfig,
     spec: &BackendSpec,

@@ -44,6 +44,7 @@ pub mod recover;
 pub mod request;
 pub mod session;
 pub mod track;
+pub mod track_request;
 pub mod verify;
 
 /// A config given by path that does not load, as a job's error: a file

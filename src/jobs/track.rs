@@ -46,6 +46,7 @@ use crate::control::loop_check::check_loop;
 use crate::control::verify::ModelLoop;
 use crate::control::DiscreteController;
 use crate::error::RunError;
+use crate::jobs::control::{check_device_period, inject_on_service, StageSource};
 use crate::jobs::session::{finish, open_recording, run_recorded, Kept, Runner, SessionOptions};
 use crate::outputs::{Existing, Origin, OutputPlan};
 use crate::plot::{write_track_png, TrackPlot, TrackTrialPlot};
@@ -60,7 +61,7 @@ use bench_plant::model::Sr4dof;
 use bench_plant::sim::{ScheduledFault, ZohPlant};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
-use std::sync::atomic::AtomicBool;
+use std::sync::atomic::{AtomicBool, AtomicU64};
 use std::sync::Arc;
 
 /// Periods run before the measured ones at least: the first faded in, the
@@ -106,6 +107,9 @@ pub struct TrackOptions {
     pub backend: Option<BackendSpec>,
     /// Real-time pacing (hardware always).
     pub realtime: bool,
+    /// Virtual time at this factor of real time on a simulator (the
+    /// daemon's `pace`); `None`: as fast as it goes, or real time.
+    pub pace: Option<f64>,
     /// Replace existing outputs.
     pub overwrite: bool,
     /// The model the feedforward and the learning law are computed on: a
@@ -1292,6 +1296,8 @@ struct Trials<'a> {
     k_max: usize,
     /// Lines run before the measured ones.
     warm_up_periods: u64,
+    /// The trials done, for the daemon's progress.
+    progress: Option<&'a Arc<AtomicU64>>,
 }
 
 /// What a trial measured, beside its report.
@@ -1337,7 +1343,7 @@ impl Trials<'_> {
             config_path: &opts.config_path,
             out: recording,
             realtime: opts.realtime || !spec.is_sim(),
-            pace: None,
+            pace: opts.pace,
             progress: false,
             seed: opts.seed,
             max_ticks: total,
@@ -1394,6 +1400,9 @@ impl Trials<'_> {
         let ch = recorder.add_channel_for::<TrialReport>("/track/trial", "bench.TrackTrial")?;
         recorder.write(ch, recorded.end_ns, &report)?;
         finish(recorder)?;
+        if let Some(p) = self.progress {
+            p.store(index as u64 + 1, std::sync::atomic::Ordering::Relaxed);
+        }
         Ok(Outcome {
             report,
             error_line_m: measured.mean_line_m,
@@ -1655,6 +1664,21 @@ fn warn_plan(plan: &TrackPlan) {
 /// the errors of [`run_recorded`] for a trial that faults (its recording
 /// and every earlier one finished, `track.json` holding the trials before).
 pub fn run_track(opts: &TrackOptions, stop: Arc<AtomicBool>) -> Result<TrackSummary, RunError> {
+    run_track_from(opts, stop, StageSource::Open, None)
+}
+
+/// [`run_track`] on a stage from `source` (the daemon's loop: its stage
+/// stays with it and holds 0 A between the trials); `progress`, if given,
+/// counts the trials done.
+///
+/// # Errors
+/// As [`run_track`].
+pub fn run_track_from(
+    opts: &TrackOptions,
+    stop: Arc<AtomicBool>,
+    source: StageSource<'_>,
+    progress: Option<&Arc<AtomicU64>>,
+) -> Result<TrackSummary, RunError> {
     let cfg = &opts.config;
     let ccfg = cfg.controller.get(&opts.controller).ok_or_else(|| {
         RunError::option(
@@ -1744,18 +1768,34 @@ pub fn run_track(opts: &TrackOptions, stop: Arc<AtomicBool>) -> Result<TrackSumm
         )));
     }
     let recordings = outputs(opts)?;
-    let (mut stage, info) = backend::open(
-        &spec,
-        cfg,
-        &opts.config_path,
-        opts.seed,
-        opts.inject_fault,
-        check.stall.bound_s,
-    )?;
-    let mut runner = Runner::Local {
-        stage: &mut stage,
-        info: &info,
+    let mut opened;
+    let opened_info;
+    let mut runner = match source {
+        StageSource::Open => {
+            let (s, i) = backend::open(
+                &spec,
+                cfg,
+                &opts.config_path,
+                opts.seed,
+                opts.inject_fault,
+                check.stall.bound_s,
+            )?;
+            opened = s;
+            opened_info = i;
+            Runner::Local {
+                stage: &mut opened,
+                info: &opened_info,
+            }
+        }
+        StageSource::Service(client) => {
+            if let Some(f) = opts.inject_fault {
+                inject_on_service(client, f)?;
+            }
+            Runner::Service(client)
+        }
     };
+    let info = runner.info().clone();
+    check_device_period(&info, cfg, &spec)?;
     let ctrl = ctrl.with_limit(cfg.current_limits(&info).peak_current_a);
     let mut summary = TrackSummary {
         controller: opts.controller.clone(),
@@ -1782,6 +1822,7 @@ pub fn run_track(opts: &TrackOptions, stop: Arc<AtomicBool>) -> Result<TrackSumm
         stall_source: &check.stall.source,
         k_max: learning.l.len() - 1,
         warm_up_periods: summary.plan.warm_up_periods,
+        progress,
     };
     run.learn(
         &mut runner,

@@ -17,6 +17,7 @@ pub use super::map::MapRequest;
 pub use super::plot::PlotRequest;
 pub use super::point::OperatingPoint;
 pub use super::recover::RecoverRequest;
+pub use super::track_request::{SnapLimit, TrackRequest};
 use super::verify::{DEFAULT_AMPLITUDE_OF_CHIRP, DEFAULT_DURATION_S};
 use crate::config::{ranges, BenchConfig, ExcitationKind};
 use bench_plant::sim::{FaultInjection, ScheduledFault};
@@ -77,11 +78,13 @@ pub enum JobRequest {
     Recover(RecoverRequest),
     /// `bench upload`.
     Upload(UploadRequest),
+    /// `bench track`.
+    Track(TrackRequest),
 }
 
 impl JobRequest {
     /// Every job kind, as the daemon's `cmd`.
-    pub const KINDS: [&'static str; 12] = [
+    pub const KINDS: [&'static str; 13] = [
         "chirp",
         "control",
         "fit",
@@ -94,6 +97,7 @@ impl JobRequest {
         "export",
         "recover",
         "upload",
+        "track",
     ];
 
     /// The job kind, as the daemon's `cmd`: one of [`Self::KINDS`].
@@ -111,14 +115,15 @@ impl JobRequest {
             Self::Export(_) => "export",
             Self::Recover(_) => "recover",
             Self::Upload(_) => "upload",
+            Self::Track(_) => "track",
         }
     }
 
-    /// Whether the job drives the bench (chirp, control): it runs on the
-    /// real-time loop and makes a recording. The others compute from
-    /// files and the model and never touch the bench.
+    /// Whether the job drives the bench (chirp, control, track): it runs
+    /// on the real-time loop and makes recordings. The others compute
+    /// from files and the model and never touch the bench.
     pub fn uses_bench(&self) -> bool {
-        matches!(self, Self::Chirp(_) | Self::Control(_))
+        matches!(self, Self::Chirp(_) | Self::Control(_) | Self::Track(_))
     }
 }
 
