@@ -46,6 +46,7 @@ mod schemas;
 mod stalls;
 mod test_command;
 mod track;
+mod track_daemon;
 mod uncertainty;
 mod update;
 mod verify;

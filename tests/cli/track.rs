@@ -27,7 +27,7 @@ fn track(dir: &Path, extra: &[&str]) -> (std::process::Output, Value) {
 
 /// The shipped bench's config with m1 +15 % and the bearings k4, k5
 /// −14 %: a nominal model off the simulated bench, written in `dir`.
-fn off_model(dir: &Path) -> std::path::PathBuf {
+pub(crate) fn off_model(dir: &Path) -> std::path::PathBuf {
     let text = std::fs::read_to_string(
         Path::new(env!("CARGO_MANIFEST_DIR")).join("bench-config/sr4dof-ch5.toml"),
     )
