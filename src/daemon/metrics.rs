@@ -268,8 +268,13 @@ impl Metrics {
 
     /// A job went into the loop, recording through the queue `room`.
     /// Owner thread.
+    /// A job of several runs (a track job's trials) goes in once per run:
+    /// the run before's bytes are counted as done then.
     pub(super) fn job_in_loop(&self, room: Arc<QueueRoom>) {
-        lock(&self.state.recorder).current = Some(room);
+        let mut r = lock(&self.state.recorder);
+        if let Some(before) = r.current.replace(room) {
+            r.done_bytes += before.file_bytes();
+        }
     }
 
     /// The loop gave the job back, having dropped `dropped` records on a
@@ -295,6 +300,7 @@ impl Metrics {
             // than the live figure showed.
             let finished = recording
                 .and_then(|p| std::fs::metadata(p).ok())
+                .filter(std::fs::Metadata::is_file)
                 .map_or(0, |m| m.len());
             r.done_bytes += finished.max(room.file_bytes());
         }

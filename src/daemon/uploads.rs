@@ -280,8 +280,21 @@ pub(super) fn start(
 /// a `.part`), writes the job's summary beside it (`<stem>.summary.json`:
 /// the summary a client got, or for a run that ended without one the
 /// `error.summary` the daemon answered with, as `--json` prints it) and queues them for the store.
-/// Never fails the job: a problem is logged.
+/// A track job's `recording` is its directory: queued whole, whatever the
+/// outcome. Never fails the job: a problem is logged.
 pub(super) fn after_job(uploader: &Uploader, recording: &Path, result: &JobResult) {
+    if recording.is_dir() {
+        // A track job's directory, whatever its outcome (a run that
+        // faulted keeps every trial finished and is never resumed): its
+        // summary is its own `track.json`.
+        if recording
+            .join(crate::upload::transfer::TRACK_SUMMARY_FILE)
+            .is_file()
+        {
+            queue(uploader, recording);
+        }
+        return;
+    }
     if !recording.is_file() {
         return;
     }

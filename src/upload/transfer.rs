@@ -118,7 +118,13 @@ pub fn upload_set_of(url: &StoreUrl, path: &Path) -> Result<Vec<Item>, String> {
 /// (`cells/NNN/chirp.mcap` is 2 below it).
 const CAMPAIGN_DEPTH: usize = 4;
 
-/// What a campaign directory's upload consists of: every regular file
+/// The summary `bench track` writes in its directory: a directory that
+/// holds it uploads as a campaign's does (every regular file below it,
+/// under `DIR/`; it has no catalogue rows).
+pub const TRACK_SUMMARY_FILE: &str = "track.json";
+
+/// What a campaign directory's (or a track run's directory's) upload
+/// consists of: every regular file
 /// below it (its cells' kept files, `cells.csv`, `summary.json`, the map,
 /// the journal, its copy of the campaign and bench files, its catalogue
 /// rows; never a `.part`, a temporary or hidden file, or a link), each
@@ -130,13 +136,16 @@ const CAMPAIGN_DEPTH: usize = 4;
 /// then the rows, then the campaign's own files.
 ///
 /// # Errors
-/// `dir` is not a campaign directory (no `journal.jsonl`), cannot be
+/// `dir` is not a campaign directory (no `journal.jsonl`) nor a track
+/// run's (no [`TRACK_SUMMARY_FILE`]), cannot be
 /// read, or holds a name a store cannot keep.
 pub fn campaign_upload_set(url: &StoreUrl, dir: &Path) -> Result<Vec<Item>, String> {
     let dir = std::path::absolute(dir).map_err(|e| e.to_string())?;
-    if !dir.join(crate::catalogue::CAMPAIGN_JOURNAL_FILE).is_file() {
+    if !dir.join(crate::catalogue::CAMPAIGN_JOURNAL_FILE).is_file()
+        && !dir.join(TRACK_SUMMARY_FILE).is_file()
+    {
         return Err(format!(
-            "{} is not a campaign directory (no {}) nor a finished recording",
+            "{} is not a campaign directory (no {}), a track run's directory (no {TRACK_SUMMARY_FILE}) nor a finished recording",
             dir.display(),
             crate::catalogue::CAMPAIGN_JOURNAL_FILE
         ));

@@ -399,6 +399,7 @@ const SEEDS: &[&str] = &[
     r#"{"id":2,"cmd":"chirp","params":{"duration_s":0.2,"amplitude_a":0.1,"f_start_hz":5,"f_end_hz":50,"seed":3}}"#,
     r#"{"id":3,"cmd":"control","params":{"controller":"fast","duration_s":0.2,"step_m":1e-6,"smooth_s":0.01,"seed":1,"override_check":false,"detach":false}}"#,
     r#"{"id":[4],"cmd":"control","params":{"controller":"slow","duration_s":0.2,"inject_fault":"nan@0.1"}}"#,
+    r#"{"id":7,"cmd":"track","params":{"trials":1,"periods":1,"seed":2,"pace":"off"}}"#,
     r#"{"id":5,"cmd":"disable"}"#,
     r#"{"id":6,"cmd":"reset"}"#,
 ];

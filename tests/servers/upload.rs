@@ -1268,6 +1268,17 @@ fn files_below(dir: &Path, rel: &Path, out: &mut Vec<PathBuf>) {
 /// up, which name the recording's object; nothing else is under
 /// `PREFIX/NAME/`.
 fn assert_campaign_uploaded(objects: &serde_json::Map<String, Value>, prefix: &str, dir: &Path) {
+    assert_dir_uploaded(objects, prefix, dir, 2);
+}
+
+/// Every file below `dir` is in the store under `PREFIX/DIR/`, byte for
+/// byte, `rows` of them a campaign cell's catalogue row.
+fn assert_dir_uploaded(
+    objects: &serde_json::Map<String, Value>,
+    prefix: &str,
+    dir: &Path,
+    want_rows: usize,
+) {
     let name = dir.file_name().unwrap().to_str().unwrap();
     let mut files = Vec::new();
     files_below(dir, Path::new(""), &mut files);
@@ -1309,12 +1320,13 @@ fn assert_campaign_uploaded(objects: &serde_json::Map<String, Value>, prefix: &s
         );
         assert_eq!(o["sha256"], json!(sha256_of(&f)), "{key}");
     }
-    assert_eq!(rows, 2, "{files:?}");
+    assert_eq!(rows, want_rows, "{files:?}");
 }
 
 /// A campaign directory goes up whole with `bench upload` (the cells'
 /// rows naming their recordings' objects, or null when not kept), and a
-/// daemon with `--upload` uploads the campaign jobs it ran.
+/// daemon with `--upload` uploads the campaign jobs it ran, and a track
+/// job's directory.
 #[test]
 fn campaigns_go_up_whole_from_the_cli_and_the_daemon() {
     let m = Moto::start();
@@ -1370,6 +1382,18 @@ fn campaigns_go_up_whole_from_the_cli_and_the_daemon() {
     let cdir = PathBuf::from(r["result"]["dir"].as_str().unwrap());
     let mut files = Vec::new();
     files_below(&cdir, Path::new(""), &mut files);
+    // A track job's directory goes up whole too (its trials, track.json,
+    // the feedforward and the figure).
+    let r = c.call(
+        "track",
+        json!({"trials": 1, "periods": 1, "pace": "off"}),
+    );
+    assert_eq!(r["ok"], true, "{r}");
+    let tdir = PathBuf::from(r["result"]["trials"][0]["recording"].as_str().unwrap())
+        .parent()
+        .unwrap()
+        .to_path_buf();
+    files_below(&tdir, Path::new(""), &mut files);
     let t0 = Instant::now();
     while journal_lines(&recordings)
         .iter()
@@ -1387,6 +1411,7 @@ fn campaigns_go_up_whole_from_the_cli_and_the_daemon() {
     d.kill().unwrap();
     d.wait().unwrap();
     assert_campaign_uploaded(&m.objects("daemon/"), "daemon", &cdir);
+    assert_dir_uploaded(&m.objects("daemon/"), "daemon", &tdir, 0);
 }
 
 /// The `store` of the daemon's `status`, over a connection of its own.
