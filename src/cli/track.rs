@@ -155,7 +155,8 @@ pub(super) struct TrackArgs {
         allow_hyphen_values = true
     )]
     learning_gain: f64,
-    /// Measured lines per trial (after two warm-up lines). Range: 1 to
+    /// Measured lines per trial (after the warm-up lines: five of the
+    /// loop's slowest time constants, two at least). Range: 1 to
     /// 1000.
     #[arg(
         long,

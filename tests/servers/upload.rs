@@ -1384,10 +1384,7 @@ fn campaigns_go_up_whole_from_the_cli_and_the_daemon() {
     files_below(&cdir, Path::new(""), &mut files);
     // A track job's directory goes up whole too (its trials, track.json,
     // the feedforward and the figure).
-    let r = c.call(
-        "track",
-        json!({"trials": 1, "periods": 1, "pace": "off"}),
-    );
+    let r = c.call("track", json!({"trials": 1, "periods": 1, "pace": "off"}));
     assert_eq!(r["ok"], true, "{r}");
     let tdir = PathBuf::from(r["result"]["trials"][0]["recording"].as_str().unwrap())
         .parent()
