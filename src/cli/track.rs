@@ -2,6 +2,7 @@
 
 use super::serve::via_daemon_then;
 use super::{bad_input, emit, job_thread, load_config, refuse_local_only, run_failed_json};
+use bench::error::RunError;
 use bench::jobs::request::{parse_seed, JobRequest, SnapLimit, TrackRequest};
 use bench::jobs::track::{run_track, TrackSummary};
 use bench::jobs::track_request::TrackRunner;
@@ -55,9 +56,10 @@ pub(super) struct TrackArgs {
     /// sine, move (point to point: up by the amplitude at the line's
     /// start, back at its middle, each with a 3rd- or 4th-order profile
     /// within the --max-* limits and a dwell after it), or csv (the line
-    /// of --reference, played whole).
-    #[arg(long, value_name = "KIND", default_value = "triangle")]
-    scan: ScanKind,
+    /// of --reference, played whole) [default: trajectory.scan of the
+    /// config, else triangle].
+    #[arg(long, value_name = "KIND")]
+    scan: Option<ScanKind>,
     /// With --scan csv: the reference line, a CSV of one row per tick
     /// (header time_s,position_m; time_s = i / loop.rate_hz; position_m
     /// about the start position, m). Its rows make the line: the line rate
@@ -93,50 +95,29 @@ pub(super) struct TrackArgs {
     /// zero). Learning starts from it.
     #[arg(long, value_name = "KIND", default_value = "inverse")]
     feedforward_kind: FeedforwardKind,
-    /// A move's peak velocity, m/s. Range: above 0; the move (the sum of
-    /// its phases) at most a quarter of the line.
-    #[arg(
-        long,
-        value_name = "M/S",
-        default_value_t = 1e-3,
-        allow_hyphen_values = true
-    )]
-    max_velocity_m_s: f64,
-    /// A move's peak acceleration, m/s². Range: above 0.
-    #[arg(
-        long,
-        value_name = "M/S2",
-        default_value_t = 0.1,
-        allow_hyphen_values = true
-    )]
-    max_acceleration_m_s2: f64,
-    /// A move's peak jerk, m/s³. Range: above 0.
-    #[arg(
-        long,
-        value_name = "M/S3",
-        default_value_t = 40.0,
-        allow_hyphen_values = true
-    )]
-    max_jerk_m_s3: f64,
-    /// A move's peak snap, m/s⁴: a 4th-order profile [default: 2e4];
-    /// `none`: a 3rd-order profile (the jerk steps). Range: above 0.
-    #[arg(
-        long,
-        value_name = "M/S4",
-        default_value = "2e4",
-        allow_hyphen_values = true,
-        value_parser = SnapLimit::parse
-    )]
-    max_snap_m_s4: SnapLimit,
-    /// The band a move settles into, ± m. Range: above 0, below the
+    /// A move's peak velocity, m/s [default: trajectory.max_velocity_m_s
+    /// of the config, else 1e-3]. Range: above 0; the move (the sum of its
+    /// phases) at most a quarter of the line.
+    #[arg(long, value_name = "M/S", allow_hyphen_values = true)]
+    max_velocity_m_s: Option<f64>,
+    /// A move's peak acceleration, m/s² [default: the config's
+    /// trajectory.max_acceleration_m_s2, else 0.1]. Range: above 0.
+    #[arg(long, value_name = "M/S2", allow_hyphen_values = true)]
+    max_acceleration_m_s2: Option<f64>,
+    /// A move's peak jerk, m/s³ [default: the config's
+    /// trajectory.max_jerk_m_s3, else 40]. Range: above 0.
+    #[arg(long, value_name = "M/S3", allow_hyphen_values = true)]
+    max_jerk_m_s3: Option<f64>,
+    /// A move's peak snap, m/s⁴: a 4th-order profile; `none`: a 3rd-order
+    /// profile (the jerk steps) [default: the config's
+    /// trajectory.max_snap_m_s4, else 2e4]. Range: above 0.
+    #[arg(long, value_name = "M/S4", allow_hyphen_values = true, value_parser = SnapLimit::parse)]
+    max_snap_m_s4: Option<SnapLimit>,
+    /// The band a move settles into, ± m [default: the config's
+    /// trajectory.settle_band_m, else 1e-8]. Range: above 0, below the
     /// move's distance.
-    #[arg(
-        long,
-        value_name = "M",
-        default_value_t = 10e-9,
-        allow_hyphen_values = true
-    )]
-    settle_band_m: f64,
+    #[arg(long, value_name = "M", allow_hyphen_values = true)]
+    settle_band_m: Option<f64>,
     /// Learning trials at most (after the standstill, feedback and
     /// feedforward trials). Range: 1 to 100.
     #[arg(
@@ -210,17 +191,17 @@ impl TrackArgs {
             model: abs(&self.model),
             feedforward: abs(&self.feedforward),
             learning_ps: abs(&self.learning_ps),
-            scan: Some(self.scan),
+            scan: self.scan,
             reference: abs(&self.reference),
             amplitude_m: self.amplitude_m,
             line_rate_hz: self.line_rate_hz,
             cutoff_hz: self.cutoff_hz,
             feedforward_kind: Some(self.feedforward_kind),
-            max_velocity_m_s: Some(self.max_velocity_m_s),
-            max_acceleration_m_s2: Some(self.max_acceleration_m_s2),
-            max_jerk_m_s3: Some(self.max_jerk_m_s3),
-            max_snap_m_s4: Some(self.max_snap_m_s4),
-            settle_band_m: Some(self.settle_band_m),
+            max_velocity_m_s: self.max_velocity_m_s,
+            max_acceleration_m_s2: self.max_acceleration_m_s2,
+            max_jerk_m_s3: self.max_jerk_m_s3,
+            max_snap_m_s4: self.max_snap_m_s4,
+            settle_band_m: self.settle_band_m,
             trials: Some(self.trials),
             learning_gain: Some(self.learning_gain),
             periods: Some(self.periods),
@@ -273,6 +254,9 @@ pub(super) fn track(args: TrackArgs, stop: Arc<AtomicBool>) -> ExitCode {
             Err(e) => return bad_input(e),
         },
     };
+    // An error about a field the config's [trajectory] gave names it so.
+    let (named_cfg, named_path) = (cfg.clone(), config_path.clone());
+    let name_of = |key: &str| request.name_of(&named_cfg, &named_path, key, super::option_flag);
     let runner = TrackRunner {
         seed: cfg.sim.seed,
         config: (cfg, config_path),
@@ -284,8 +268,9 @@ pub(super) fn track(args: TrackArgs, stop: Arc<AtomicBool>) -> ExitCode {
     };
     let opts = match request.options(runner) {
         Ok(o) => o,
-        Err(e) => return super::run_failed(&e),
+        Err(e) => return failed(&e, args.job.json.json, name_of),
     };
+    let opts_named = opts.clone();
     let result = job_thread::run_job(stop, move |stop, _ticks| run_track(&opts, stop));
     let result = match result {
         Ok(r) => r,
@@ -296,7 +281,25 @@ pub(super) fn track(args: TrackArgs, stop: Arc<AtomicBool>) -> ExitCode {
             Ok(()) => ExitCode::SUCCESS,
             Err(code) => code,
         },
-        Err(e) => run_failed_json(&e, args.job.json.json),
+        Err(e) => failed(&e, args.job.json.json, |key| {
+            opts_named.name_of(key, super::option_flag)
+        }),
+    }
+}
+
+/// A run's error as every command prints it, a bad option named by
+/// `name_of` (a flag, or a key of the config's `[trajectory]`).
+fn failed(e: &RunError, json: bool, name_of: impl FnOnce(&str) -> String) -> ExitCode {
+    match e {
+        RunError::BadOption { key, .. } => {
+            let key: &str = key;
+            errln!(
+                "error: {}",
+                e.option_message(|_| name_of(key)).unwrap_or_default()
+            );
+            ExitCode::from(bench::error::exit::BAD_INPUT)
+        }
+        e => run_failed_json(e, json),
     }
 }
 

@@ -75,12 +75,14 @@ pub mod controller;
 pub mod limits;
 mod sections;
 mod source;
+pub mod trajectory;
 mod validate;
 
 pub use controller::ControllerConfig;
 pub use limits::ranges;
 pub use sections::*;
 pub use source::in_source_layout;
+pub use trajectory::{ScanKind, SnapLimit, TrajectoryConfig};
 pub use validate::{ticks_in, toml_error_message};
 
 /// A configuration problem, with the file and the key.
@@ -204,6 +206,13 @@ pub struct BenchConfig {
     /// `bench serve` (`[daemon]`).
     #[serde(default)]
     pub daemon: DaemonConfig,
+    /// The reference of `bench track` (`[trajectory]`, every key optional).
+    #[serde(default, skip_serializing_if = "trajectory_is_empty")]
+    pub trajectory: TrajectoryConfig,
+}
+
+fn trajectory_is_empty(t: &TrajectoryConfig) -> bool {
+    *t == TrajectoryConfig::default()
 }
 
 impl BenchConfig {

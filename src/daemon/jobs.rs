@@ -136,6 +136,17 @@ fn refused(e: &RunError) -> ApiError {
     }
 }
 
+/// As [`refused`], a bad option named by `name_of`.
+fn named_refusal(e: &RunError, name_of: impl FnOnce(&str) -> String) -> ApiError {
+    match e {
+        RunError::BadOption { key, .. } => {
+            let key: &str = key;
+            bad_params(e.option_message(|_| name_of(key)).unwrap_or_default())
+        }
+        e => ApiError::from_run(e),
+    }
+}
+
 /// An upload's refusal as the daemon answers it (nothing was uploaded):
 /// `bad_params` naming the parameter at fault.
 fn upload_refused(e: &UploadError) -> ApiError {
@@ -431,7 +442,11 @@ fn track_job(ctx: &Ctx, req: &TrackRequest, id: u64) -> Result<Accepted, ApiErro
         overwrite: false,
         seed: ctx.seed,
     };
-    let opts = req.options(runner).map_err(|e| refused(&e))?;
+    let opts = req.options(runner).map_err(|e| {
+        named_refusal(&e, |key| {
+            req.name_of(&ctx.cfg, &ctx.config_path, key, |k| format!("params.{k}"))
+        })
+    })?;
     // Standstill, feedback, feedforward, then the learning trials.
     let total = 3 + u64::from(opts.trials);
     Ok(Accepted {
@@ -484,8 +499,12 @@ pub(super) fn run(
             run_track_from(&opts, stop, StageSource::Service(proxy), Some(ticks))
                 .map_err(|e| match &e {
                     // The plan refuses a field before anything is enabled:
-                    // named as the request names it.
-                    RunError::BadOption { .. } => answer(e),
+                    // named as the request (or the config's
+                    // [trajectory]) names it.
+                    RunError::BadOption { .. } => (
+                        named_refusal(&e, |key| opts.name_of(key, |k| format!("params.{k}"))),
+                        Some(e),
+                    ),
                     _ => answer_run(e),
                 })
                 .and_then(json)

@@ -130,6 +130,22 @@ pub struct TrackOptions {
     /// loop, whose measured PS the learning filter inverts
     /// ([`crate::track::measured`]); `None`: the model's PS.
     pub learning_ps: Option<PathBuf>,
+    /// The fields the config's `[trajectory]` gave (an error about one
+    /// names it `trajectory.KEY`: [`TrackOptions::name_of`]).
+    pub from_trajectory: Vec<&'static str>,
+}
+
+impl TrackOptions {
+    /// How an error names option `key`: `trajectory.KEY of CONFIG` when
+    /// the config's `[trajectory]` gave it, else by `field` (the CLI's
+    /// flag, the daemon's `params.KEY`).
+    pub fn name_of(&self, key: &str, field: impl FnOnce(&str) -> String) -> String {
+        if self.from_trajectory.contains(&key) {
+            format!("trajectory.{key} of {}", self.config_path.display())
+        } else {
+            field(key)
+        }
+    }
 }
 
 /// The scan as planned on the model before the first trial.

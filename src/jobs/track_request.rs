@@ -14,75 +14,7 @@ use crate::track::{FeedforwardKind, MoveLimits, Scan, ScanKind};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 
-/// A move's snap limit as a request gives it: a number (m/s⁴, a 4th-order
-/// profile) or `"none"` (a 3rd-order profile: the jerk steps).
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub enum SnapLimit {
-    /// The peak snap, m/s⁴.
-    Limit(f64),
-    /// No snap limit: a 3rd-order profile.
-    None,
-}
-
-impl SnapLimit {
-    /// `--max-snap-m-s4`'s text: a number, or `none`.
-    ///
-    /// # Errors
-    /// The reason, for text that is neither.
-    pub fn parse(s: &str) -> Result<Self, String> {
-        if s == "none" {
-            return Ok(Self::None);
-        }
-        s.parse::<f64>()
-            .map(Self::Limit)
-            .map_err(|e| format!("{s:?} is neither a snap in m/s⁴ nor `none`: {e}"))
-    }
-
-    fn limit(self) -> Option<f64> {
-        match self {
-            Self::Limit(v) => Some(v),
-            Self::None => None,
-        }
-    }
-}
-
-impl Serialize for SnapLimit {
-    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
-        match self {
-            Self::None => s.serialize_str("none"),
-            Self::Limit(x) => s.serialize_f64(*x),
-        }
-    }
-}
-
-impl<'de> Deserialize<'de> for SnapLimit {
-    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
-        struct V;
-        impl serde::de::Visitor<'_> for V {
-            type Value = SnapLimit;
-            fn expecting(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-                f.write_str("a peak snap in m/s⁴ (a number) or \"none\" (a 3rd-order profile)")
-            }
-            fn visit_f64<E: serde::de::Error>(self, v: f64) -> Result<SnapLimit, E> {
-                Ok(SnapLimit::Limit(v))
-            }
-            fn visit_i64<E: serde::de::Error>(self, v: i64) -> Result<SnapLimit, E> {
-                Ok(SnapLimit::Limit(v as f64))
-            }
-            fn visit_u64<E: serde::de::Error>(self, v: u64) -> Result<SnapLimit, E> {
-                Ok(SnapLimit::Limit(v as f64))
-            }
-            fn visit_str<E: serde::de::Error>(self, v: &str) -> Result<SnapLimit, E> {
-                if v == "none" {
-                    Ok(SnapLimit::None)
-                } else {
-                    Err(E::invalid_value(serde::de::Unexpected::Str(v), &self))
-                }
-            }
-        }
-        d.deserialize_any(V)
-    }
-}
+pub use crate::config::SnapLimit;
 
 /// A move's peak velocity by default, m/s.
 pub const DEFAULT_MAX_VELOCITY_M_S: f64 = 1e-3;
@@ -214,20 +146,148 @@ impl TrackRequest {
     /// the config's loop rate), the scan built.
     ///
     /// # Errors
-    /// [`RunError::BadOption`] naming the field: a `model` that does not
-    /// load; an `inject_fault` that does not parse; `scan` `csv` without
+    /// [`RunError::BadInput`] for a bench config with a key out of its
+    /// range (naming it); [`RunError::BadOption`] naming the field: a
+    /// `model` that does not load or validate; an `inject_fault` that does not parse; `scan` `csv` without
     /// `reference`, `reference` with another scan, or a table
     /// [`read_reference`] refuses; `amplitude_m` given with a CSV;
     /// `line_rate_hz` given with a CSV and not the one its rows make.
     /// The ranges of every other field are checked when the run plans
     /// ([`super::track::run_track`]).
     pub fn options(&self, runner: TrackRunner) -> Result<TrackOptions, RunError> {
+        // Every key of the bench config in its range before anything uses
+        // it (the supervisor's limits, the loop, the trajectory).
+        runner
+            .config
+            .0
+            .validate(&runner.config.1)
+            .map_err(super::config_error)?;
+        let (req, filled) = self.with_trajectory(&runner.config.0, &runner.config.1);
+        let mut opts = req.options_as_given(runner)?;
+        opts.from_trajectory = filled;
+        Ok(opts)
+    }
+
+    /// The request with the config's `[trajectory]` filling the fields it
+    /// leaves out, and the fields so filled. A key applies only where it
+    /// can: `reference` with a csv scan (the config's), `amplitude_m` and
+    /// `line_rate_hz` with any other; a relative `reference` is taken
+    /// from the config file's directory.
+    pub fn with_trajectory(
+        &self,
+        cfg: &BenchConfig,
+        config_path: &Path,
+    ) -> (TrackRequest, Vec<&'static str>) {
+        let t = &cfg.trajectory;
+        let mut r = self.clone();
+        let mut filled = Vec::new();
+        let mut fill = |name: &'static str, given: bool, from: bool| {
+            if !given && from {
+                filled.push(name);
+                true
+            } else {
+                false
+            }
+        };
+        if fill("scan", r.scan.is_some(), t.scan.is_some()) {
+            r.scan = t.scan;
+        }
+        let csv = r.scan == Some(ScanKind::Csv);
+        if fill(
+            "reference",
+            r.reference.is_some(),
+            csv && t.scan == Some(ScanKind::Csv) && t.reference.is_some(),
+        ) {
+            let dir = config_path
+                .parent()
+                .filter(|_| config_path != Path::new(crate::config::BUILTIN_CONFIG_NAME));
+            r.reference = t
+                .reference
+                .as_ref()
+                .map(|p| dir.map_or_else(|| p.clone(), |d| d.join(p)));
+        }
+        if fill(
+            "amplitude_m",
+            r.amplitude_m.is_some(),
+            !csv && t.amplitude_m.is_some(),
+        ) {
+            r.amplitude_m = t.amplitude_m;
+        }
+        if fill(
+            "line_rate_hz",
+            r.line_rate_hz.is_some(),
+            !csv && t.line_rate_hz.is_some(),
+        ) {
+            r.line_rate_hz = t.line_rate_hz;
+        }
+        if fill("cutoff_hz", r.cutoff_hz.is_some(), t.cutoff_hz.is_some()) {
+            r.cutoff_hz = t.cutoff_hz;
+        }
+        if fill(
+            "max_velocity_m_s",
+            r.max_velocity_m_s.is_some(),
+            t.max_velocity_m_s.is_some(),
+        ) {
+            r.max_velocity_m_s = t.max_velocity_m_s;
+        }
+        if fill(
+            "max_acceleration_m_s2",
+            r.max_acceleration_m_s2.is_some(),
+            t.max_acceleration_m_s2.is_some(),
+        ) {
+            r.max_acceleration_m_s2 = t.max_acceleration_m_s2;
+        }
+        if fill(
+            "max_jerk_m_s3",
+            r.max_jerk_m_s3.is_some(),
+            t.max_jerk_m_s3.is_some(),
+        ) {
+            r.max_jerk_m_s3 = t.max_jerk_m_s3;
+        }
+        if fill(
+            "max_snap_m_s4",
+            r.max_snap_m_s4.is_some(),
+            t.max_snap_m_s4.is_some(),
+        ) {
+            r.max_snap_m_s4 = t.max_snap_m_s4;
+        }
+        if fill(
+            "settle_band_m",
+            r.settle_band_m.is_some(),
+            t.settle_band_m.is_some(),
+        ) {
+            r.settle_band_m = t.settle_band_m;
+        }
+        (r, filled)
+    }
+
+    /// How an error names field `key`: as `trajectory.KEY` of the config
+    /// when the config's `[trajectory]` gave it, else by `field` (the
+    /// CLI's flag, the daemon's `params.KEY`).
+    pub fn name_of(
+        &self,
+        cfg: &BenchConfig,
+        config_path: &Path,
+        key: &str,
+        field: impl FnOnce(&str) -> String,
+    ) -> String {
+        let (_, filled) = self.with_trajectory(cfg, config_path);
+        if filled.contains(&key) {
+            format!("trajectory.{key} of {}", config_path.display())
+        } else {
+            field(key)
+        }
+    }
+
+    /// [`Self::options`] of the request as it stands (no `[trajectory]`).
+    fn options_as_given(&self, runner: TrackRunner) -> Result<TrackOptions, RunError> {
         let (cfg, config_path) = runner.config;
         let model = self
             .model
             .as_ref()
             .map(|p| {
                 BenchConfig::load(p)
+                    .and_then(|c| c.validate(p).map(|()| c))
                     .map(|c| (c, p.clone()))
                     .map_err(|e| RunError::option("model", p.display(), e.to_string()))
             })
@@ -278,6 +338,7 @@ impl TrackRequest {
             feedforward: self.feedforward.clone(),
             learning_ps: self.learning_ps.clone(),
             inject_fault,
+            from_trajectory: Vec::new(),
         })
     }
 

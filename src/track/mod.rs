@@ -63,35 +63,7 @@ pub const ZERO_BAND_LOW: f64 = std::f64::consts::FRAC_1_SQRT_2;
 /// where the factor `|1 − ω²/|z|²|` falls to ½.
 pub const ZERO_BAND_HIGH: f64 = 1.224_744_871_391_589;
 
-/// The periodic scan.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
-#[serde(rename_all = "snake_case")]
-pub enum ScanKind {
-    /// `A·sin(ωt)`.
-    Sine,
-    /// The triangle of a raster line, smoothed (module docs).
-    Triangle,
-    /// A point-to-point move and back: up by the amplitude at the line's
-    /// start, back at its middle, each with the planned profile
-    /// ([`MoveProfile`]) and a dwell after it.
-    Move,
-    /// A line read from a CSV (`--reference`): one position per tick,
-    /// played whole ([`Scan::reference`]).
-    Csv,
-}
-
-impl std::str::FromStr for ScanKind {
-    type Err = String;
-    fn from_str(s: &str) -> Result<Self, String> {
-        match s {
-            "sine" => Ok(Self::Sine),
-            "triangle" => Ok(Self::Triangle),
-            "move" => Ok(Self::Move),
-            "csv" => Ok(Self::Csv),
-            _ => Err(format!("{s:?} is not a scan (sine, triangle, move or csv)")),
-        }
-    }
-}
+pub use crate::config::ScanKind;
 
 /// A scan definition: what the user asks for.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]

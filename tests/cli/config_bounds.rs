@@ -268,7 +268,7 @@ fn tables(v: &Value, path: &str, out: &mut Vec<String>) {
 
 /// The optional keys the shipped files show commented out (or leave out),
 /// with a value to start from: covered as if present.
-const OPTIONAL: [(&str, Value); 12] = [
+const OPTIONAL: [(&str, Value); 20] = [
     ("loop.cpu", Value::Integer(0)),
     ("plant.parallelogram_stiffness_n_per_m", Value::Float(8.5e3)),
     ("backend.serial.handshake_timeout_ms", Value::Float(500.0)),
@@ -281,6 +281,14 @@ const OPTIONAL: [(&str, Value); 12] = [
     ("emulator.priority", Value::Integer(70)),
     ("safety.max_overrun_s", Value::Float(0.002)),
     ("safety.max_command_latency_s", Value::Float(0.002)),
+    ("trajectory.amplitude_m", Value::Float(5e-6)),
+    ("trajectory.line_rate_hz", Value::Float(10.0)),
+    ("trajectory.cutoff_hz", Value::Float(58.8)),
+    ("trajectory.max_velocity_m_s", Value::Float(1e-3)),
+    ("trajectory.max_acceleration_m_s2", Value::Float(0.1)),
+    ("trajectory.max_jerk_m_s3", Value::Float(40.0)),
+    ("trajectory.max_snap_m_s4", Value::Float(2e4)),
+    ("trajectory.settle_band_m", Value::Float(10e-9)),
 ];
 
 /// What the documentation says about `key` in the config `c` (the shipped
@@ -538,6 +546,13 @@ fn documented(key: &str, c: &Value) -> Option<(Doc, bool)> {
             opt,
         ),
         "emulator.priority" => (closed(0.0, 99.0), opt),
+        "trajectory.amplitude_m" | "trajectory.settle_band_m" => (open(0.0, limit), opt),
+        "trajectory.line_rate_hz" => (open_closed(0.0, rate / 8.0), opt),
+        "trajectory.cutoff_hz" => (open_closed(0.0, nyquist), opt),
+        "trajectory.max_velocity_m_s"
+        | "trajectory.max_acceleration_m_s2"
+        | "trajectory.max_jerk_m_s3"
+        | "trajectory.max_snap_m_s4" => (open(0.0, f64::INFINITY), opt),
         _ if controller && field == "gain" => (
             Doc {
                 abs: true,

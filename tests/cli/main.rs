@@ -47,6 +47,7 @@ mod stalls;
 mod test_command;
 mod track;
 mod track_daemon;
+mod track_trajectory;
 mod uncertainty;
 mod update;
 mod verify;

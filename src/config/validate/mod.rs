@@ -156,7 +156,101 @@ impl BenchConfig {
                 .map_err(|e| ParamError::new(e.key, e.reason))?;
         }
         self.check_step()?;
+        self.check_trajectory()?;
         self.check_identification()
+    }
+
+    /// `[trajectory]`: each key given in its range
+    /// ([`super::trajectory::TrajectoryConfig`]); what needs the model
+    /// (the line rate against the zeros' bands, a move within its line,
+    /// the predicted current) is checked when `bench track` plans it.
+    fn check_trajectory(&self) -> Result<(), ParamError> {
+        let t = &self.trajectory;
+        let limit = self.safety.position_limit_m;
+        let rate = self.loop_.rate_hz;
+        let csv = t.scan == Some(ScanKind::Csv);
+        match (csv, &t.reference) {
+            (true, None) => {
+                return Err(ParamError::new(
+                    "trajectory.reference",
+                    "scan = \"csv\" needs a reference (FILE.csv), the line to track",
+                ))
+            }
+            (false, Some(p)) => {
+                return Err(ParamError::new(
+                    "trajectory.reference",
+                    format!("{} is the line of scan = \"csv\" only", p.display()),
+                ))
+            }
+            _ => {}
+        }
+        for (key, v) in [
+            ("trajectory.amplitude_m", t.amplitude_m),
+            ("trajectory.line_rate_hz", t.line_rate_hz),
+        ] {
+            if csv && v.is_some() {
+                return Err(ParamError::new(
+                    key,
+                    "a csv scan's reference has its own amplitude and line rate (its rows): leave it out",
+                ));
+            }
+        }
+        if let Some(a) = t.amplitude_m {
+            in_range(
+                "trajectory.amplitude_m",
+                a,
+                Range::open(0.0, limit),
+                "m",
+                "about the start position, inside safety.position_limit_m",
+            )?;
+        }
+        if let Some(l) = t.line_rate_hz {
+            in_range(
+                "trajectory.line_rate_hz",
+                l,
+                Range::open_closed(0.0, rate / 8.0),
+                "Hz",
+                "a line of 8 ticks of loop.rate_hz at least",
+            )?;
+        }
+        if let Some(c) = t.cutoff_hz {
+            in_range(
+                "trajectory.cutoff_hz",
+                c,
+                Range::open_closed(t.line_rate_hz.unwrap_or(0.0), rate / 2.0),
+                "Hz",
+                "above the line rate, at most the Nyquist frequency of loop.rate_hz",
+            )?;
+        }
+        for (key, v) in [
+            ("trajectory.max_velocity_m_s", t.max_velocity_m_s),
+            ("trajectory.max_acceleration_m_s2", t.max_acceleration_m_s2),
+            ("trajectory.max_jerk_m_s3", t.max_jerk_m_s3),
+            (
+                "trajectory.max_snap_m_s4",
+                t.max_snap_m_s4.and_then(SnapLimit::limit),
+            ),
+        ] {
+            if let Some(v) = v {
+                in_range(
+                    key,
+                    v,
+                    Range::open(0.0, f64::INFINITY),
+                    "",
+                    "a move's limit is finite and above 0 (the move must then fit a quarter of the line, checked when it is planned)",
+                )?;
+            }
+        }
+        if let Some(b) = t.settle_band_m {
+            in_range(
+                "trajectory.settle_band_m",
+                b,
+                Range::open(0.0, limit),
+                "m",
+                "the band a move settles into, inside safety.position_limit_m (and below the move's distance)",
+            )?;
+        }
+        Ok(())
     }
 
     /// `[step]`: each key in its range ([`ranges`]), the phases inside the
