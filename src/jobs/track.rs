@@ -1672,6 +1672,34 @@ fn warn_plan(plan: &TrackPlan) {
     }
 }
 
+/// The feedforward the first feedforward trial plays and its name: the
+/// replayed table of `--feedforward` (checked against the current limits
+/// on the model), else the model's.
+fn start_feedforward(
+    opts: &TrackOptions,
+    plan: &TrackPlan,
+    r: &Harmonics,
+    f_model: Harmonics,
+    model_loop: &ModelLoop<'_>,
+) -> Result<(Harmonics, &'static str), RunError> {
+    let Some(p) = &opts.feedforward else {
+        return Ok((f_model, "feedforward"));
+    };
+    let table = read_feedforward(p, opts, &plan.scan, &plan.scan.table(r.period_ticks))?;
+    let mut f = Harmonics::analyze(&table, r.coef.len() - 1);
+    // The loop's integrator holds the mean: no feedforward has one.
+    f.coef[0] = crate::ident::C64::new(0.0, 0.0);
+    let (peak, rms) = predicted_current(r, &f, model_loop, plan.scan.line_rate_hz);
+    if let Some(why) = beyond_current_limits(&opts.config, peak, rms, "predicted on the model") {
+        return Err(RunError::option(
+            "feedforward",
+            p.display(),
+            format!("the scan with this feedforward {why}; nothing was enabled"),
+        ));
+    }
+    Ok((f, "replayed"))
+}
+
 /// Runs `bench track` (module docs).
 ///
 /// # Errors
@@ -1738,24 +1766,7 @@ pub fn run_track_from(
         None => None,
     };
     let (plan, r, f_model, learning) = plan(opts, &model_loop, bands, measured_ps.as_ref())?;
-    let (f_start, start_name) = match &opts.feedforward {
-        Some(p) => {
-            let table = read_feedforward(p, opts, &plan.scan, &plan.scan.table(r.period_ticks))?;
-            let mut f = Harmonics::analyze(&table, r.coef.len() - 1);
-            // The loop's integrator holds the mean: no feedforward has one.
-            f.coef[0] = crate::ident::C64::new(0.0, 0.0);
-            let (peak, rms) = predicted_current(&r, &f, &model_loop, plan.scan.line_rate_hz);
-            if let Some(why) = beyond_current_limits(cfg, peak, rms, "predicted on the model") {
-                return Err(RunError::option(
-                    "feedforward",
-                    p.display(),
-                    format!("the scan with this feedforward {why}; nothing was enabled"),
-                ));
-            }
-            (f, "replayed")
-        }
-        None => (f_model, "feedforward"),
-    };
+    let (f_start, start_name) = start_feedforward(opts, &plan, &r, f_model, &model_loop)?;
     let total = (plan.warm_up_periods + u64::from(opts.periods) + 2) * plan.period_ticks as u64;
     if total > crate::config::ranges::JOB_TICKS_MAX {
         return Err(RunError::option(
