@@ -61,9 +61,11 @@ pub(super) struct FitArgs {
     frequencies: Option<Vec<String>>,
     /// The parameters to update, comma separated, from
     /// parallelogram_stiffness_n_per_m, mass_asymmetry, zeta_rigid,
-    /// zeta_csm, force_constant_n_per_a, operating_point_m [default with
-    /// --update: all but operating_point_m; with --frequencies:
-    /// parallelogram_stiffness_n_per_m].
+    /// zeta_csm, force_constant_n_per_a, operating_point_m, m1_kg (the
+    /// stage's mass), k4_n_per_m (the X bearings, k5 in its ratio)
+    /// [default with --update: the first five; with --frequencies:
+    /// parallelogram_stiffness_n_per_m]. Free m1_kg and k4_n_per_m with
+    /// the force constant held: the three scale one FRF alike.
     #[arg(long, value_name = "NAMES", value_delimiter = ',')]
     free: Option<Vec<String>>,
     #[command(flatten)]

@@ -1141,3 +1141,81 @@ fn five_random_benches_learn_with_their_designed_controllers() {
         "{patterns:?}"
     );
 }
+
+/// Issue 44, item 2: the feedforward from the bench's fitted model. The
+/// bench is the shipped one with the stage 15 % heavier and the X
+/// bearings 14 % softer than its nominal file. One default chirp of it,
+/// `bench fit --update` from the nominal file with the stage's mass and
+/// the bearings free (the force constant held), gives both within 3σ +
+/// 0.1 % of the bench's own values (the independent reference: the file
+/// the simulator runs). With that fitted model the feedforward trial is
+/// within the convergence band of the noise floor at once, with both
+/// feedforward kinds; with the nominal model it leaves more than 3× it.
+#[test]
+fn the_fitted_model_carries_the_feedforward_to_the_noise_floor() {
+    let dir = tmp();
+    let d = dir.path();
+    let bench = off_model(d);
+    let bench_s = bench.to_str().unwrap();
+    let nominal = Path::new(env!("CARGO_MANIFEST_DIR")).join("bench-config/sr4dof-ch5.toml");
+    let nominal_s = nominal.to_str().unwrap();
+    let chirp = path_in(d, "chirp.mcap");
+    let o = run(&["chirp", "--config", bench_s, "--out", &chirp, "--json"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let csv = json_stdout(&o)["frf_csv"].as_str().unwrap().to_string();
+    let fitted = path_in(d, "fitted.toml");
+    let o = run(&[
+        "fit",
+        &csv,
+        "--config",
+        nominal_s,
+        "--update",
+        "--free",
+        "parallelogram_stiffness_n_per_m,mass_asymmetry,zeta_rigid,zeta_csm,m1_kg,k4_n_per_m",
+        "--out",
+        &fitted,
+        "--json",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let update = json_stdout(&o)["update"].clone();
+    let truth = bench::config::BenchConfig::load(&bench).unwrap().plant;
+    for (name, want) in [("m1_kg", truth.m1_kg), ("k4_n_per_m", truth.k4_n_per_m)] {
+        let p = update["parameters"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|p| p["name"] == name)
+            .unwrap_or_else(|| panic!("no {name} in {update}"));
+        let (v, s) = (p["value"].as_f64().unwrap(), p["sigma"].as_f64().unwrap());
+        assert!(
+            (v - want).abs() <= 3.0 * s + 1e-3 * want,
+            "{name}: {v} ± {s}, the bench's {want}"
+        );
+    }
+    let written = bench::config::BenchConfig::load(Path::new(&fitted)).unwrap();
+    assert!((written.plant.k5_n_per_m / truth.k5_n_per_m - 1.0).abs() < 1e-3);
+    let ff = |model: &str, kind: &str, out: &str| -> f64 {
+        let (_, v) = track(
+            d,
+            &[
+                "--config",
+                bench_s,
+                "--model",
+                model,
+                "--feedforward-kind",
+                kind,
+                "--trials",
+                "1",
+                "--overwrite",
+            ],
+        );
+        std::fs::rename(d.join("run"), d.join(out)).unwrap();
+        v["trials"][2]["of_noise_floor"].as_f64().unwrap()
+    };
+    for kind in ["inverse", "snap"] {
+        let x = ff(&fitted, kind, &format!("fitted-{kind}"));
+        assert!(x < 1.5, "{kind} from the fitted model: {x}× the floor");
+    }
+    let x = ff(nominal_s, "inverse", "nominal");
+    assert!(x > 3.0, "from the nominal model: {x}× the floor");
+}

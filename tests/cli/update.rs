@@ -545,7 +545,7 @@ fn bad_update_arguments_exit_2_naming_the_argument() {
         ("", "--free"),
         ("zeta_rigid", "--free"),
         ("force_constant_n_per_a", "--free"),
-        ("m1_kg", "--free"),
+        ("m2_kg", "--free"),
         ("Mass_Asymmetry", "--free"),
         (
             "parallelogram_stiffness_n_per_m,mass_asymmetry,operating_point_m",

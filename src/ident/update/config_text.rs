@@ -53,5 +53,31 @@ pub fn updated_toml(start_toml: &str, update: &Update, header: &str) -> Result<S
             }
         }
     }
+    // The X bearings scale together: k5 follows k4 in the start's ratio.
+    let bearings = update
+        .parameters
+        .iter()
+        .any(|p| p.free && p.name == Parameter::BearingStiffness.name());
+    if let (true, Some(b)) = (bearings, &update.bench) {
+        if let Some(plant) = doc.get_mut("plant").and_then(|t| t.as_table_like_mut()) {
+            let prefix = plant
+                .get("k5_n_per_m")
+                .and_then(|v| v.as_value())
+                .and_then(|v| v.decor().prefix().cloned());
+            let mut value = toml_edit::Value::from(b.plant.k5_n_per_m);
+            if let Some(prefix) = prefix {
+                value.decor_mut().set_prefix(prefix);
+            }
+            value.decor_mut().set_suffix(format!(
+                "  # updated by bench fit with k4_n_per_m (their ratio kept), start {}",
+                plant
+                    .get("k5_n_per_m")
+                    .and_then(|v| v.as_value())
+                    .and_then(toml_edit::Value::as_float)
+                    .map_or(String::new(), |v| v.to_string())
+            ));
+            plant.insert("k5_n_per_m", toml_edit::Item::Value(value));
+        }
+    }
     Ok(format!("{header}{doc}"))
 }

@@ -104,17 +104,24 @@ pub enum Parameter {
     ForceConstant,
     /// `plant.operating_point_m`, m.
     OperatingPoint,
+    /// `plant.m1_kg`, kg: the motion stage's mass.
+    StageMass,
+    /// `plant.k4_n_per_m`, N/m: the X bearings' stiffness, `k5_n_per_m`
+    /// kept in its ratio to it.
+    BearingStiffness,
 }
 
 impl Parameter {
     /// All, in report order.
-    pub const ALL: [Self; 6] = [
+    pub const ALL: [Self; 8] = [
         Self::ParallelogramStiffness,
         Self::MassAsymmetry,
         Self::ZetaRigid,
         Self::ZetaCsm,
         Self::ForceConstant,
         Self::OperatingPoint,
+        Self::StageMass,
+        Self::BearingStiffness,
     ];
     /// Free by default when fitting an FRF (the operating point is set on
     /// the bench, so it is known unless asked for).
@@ -137,6 +144,8 @@ impl Parameter {
             Self::ZetaCsm => "zeta_csm",
             Self::ForceConstant => "force_constant_n_per_a",
             Self::OperatingPoint => "operating_point_m",
+            Self::StageMass => "m1_kg",
+            Self::BearingStiffness => "k4_n_per_m",
         }
     }
 
@@ -149,14 +158,17 @@ impl Parameter {
             Self::ZetaCsm => "plant.damping.zeta_csm",
             Self::ForceConstant => "actuator.force_constant_n_per_a",
             Self::OperatingPoint => "plant.operating_point_m",
+            Self::StageMass => "plant.m1_kg",
+            Self::BearingStiffness => "plant.k4_n_per_m",
         }
     }
 
     /// Unit of the value (`1`: dimensionless).
     pub fn unit(self) -> &'static str {
         match self {
-            Self::ParallelogramStiffness => "N/m",
+            Self::ParallelogramStiffness | Self::BearingStiffness => "N/m",
             Self::ForceConstant => "N/A",
+            Self::StageMass => "kg",
             Self::OperatingPoint => "m",
             _ => "1",
         }
@@ -171,7 +183,11 @@ impl Parameter {
     pub fn shapes_frequencies(self) -> bool {
         matches!(
             self,
-            Self::ParallelogramStiffness | Self::MassAsymmetry | Self::OperatingPoint
+            Self::ParallelogramStiffness
+                | Self::MassAsymmetry
+                | Self::OperatingPoint
+                | Self::StageMass
+                | Self::BearingStiffness
         )
     }
 
@@ -184,6 +200,8 @@ impl Parameter {
             Self::ZetaCsm => b.plant.damping.zeta_csm,
             Self::ForceConstant => b.force_constant_n_per_a,
             Self::OperatingPoint => b.plant.operating_point_m,
+            Self::StageMass => b.plant.m1_kg,
+            Self::BearingStiffness => b.plant.k4_n_per_m,
         }
     }
 
@@ -195,6 +213,13 @@ impl Parameter {
             Self::ZetaCsm => b.plant.damping.zeta_csm = v,
             Self::ForceConstant => b.force_constant_n_per_a = v,
             Self::OperatingPoint => b.plant.operating_point_m = v,
+            Self::StageMass => b.plant.m1_kg = v,
+            Self::BearingStiffness => {
+                // Both bearings scale together: their ratio is the start's.
+                let ratio = b.plant.k5_n_per_m / b.plant.k4_n_per_m;
+                b.plant.k4_n_per_m = v;
+                b.plant.k5_n_per_m = v * ratio;
+            }
         }
     }
 
@@ -296,7 +321,7 @@ pub struct UpdatedMode {
 pub struct Update {
     /// `frf` or `frequencies`.
     pub source: String,
-    /// The six parameters, free and held.
+    /// The eight parameters, free and held.
     pub parameters: Vec<UpdatedParameter>,
     /// The four modes of the updated model, ascending.
     pub modes: Vec<UpdatedMode>,
@@ -344,7 +369,7 @@ pub enum UpdateError {
     #[error("no parameter to update")]
     NoFreeParameter,
     /// A parameter the frequencies do not determine.
-    #[error("{0} does not change the natural frequencies (with frequencies only parallelogram_stiffness_n_per_m, mass_asymmetry and operating_point_m can be updated)")]
+    #[error("{0} does not change the natural frequencies (with frequencies only parallelogram_stiffness_n_per_m, mass_asymmetry, operating_point_m, m1_kg and k4_n_per_m can be updated)")]
     NotFromFrequencies(&'static str),
     /// Fewer frequencies than parameters.
     #[error("{given} natural frequencies for {free} free parameters: give at least one frequency per parameter")]
