@@ -140,11 +140,12 @@ impl TrackOptions {
     /// the config's `[trajectory]` gave it, else by `field` (the CLI's
     /// flag, the daemon's `params.KEY`).
     pub fn name_of(&self, key: &str, field: impl FnOnce(&str) -> String) -> String {
-        if self.from_trajectory.contains(&key) {
-            format!("trajectory.{key} of {}", self.config_path.display())
-        } else {
-            field(key)
-        }
+        crate::jobs::track_request::trajectory_name(
+            &self.from_trajectory,
+            &self.config_path,
+            key,
+            field,
+        )
     }
 }
 

@@ -181,83 +181,83 @@ impl TrackRequest {
         let t = &cfg.trajectory;
         let mut r = self.clone();
         let mut filled = Vec::new();
-        let mut fill = |name: &'static str, given: bool, from: bool| {
-            if !given && from {
+        // The key fills a field the request left out, where it applies.
+        fn fill<T: Clone>(
+            filled: &mut Vec<&'static str>,
+            name: &'static str,
+            field: &mut Option<T>,
+            key: Option<&T>,
+        ) {
+            if let (None, Some(v)) = (&field, key) {
+                *field = Some(v.clone());
                 filled.push(name);
-                true
-            } else {
-                false
             }
-        };
-        if fill("scan", r.scan.is_some(), t.scan.is_some()) {
-            r.scan = t.scan;
         }
+        fill(&mut filled, "scan", &mut r.scan, t.scan.as_ref());
         let csv = r.scan == Some(ScanKind::Csv);
-        if fill(
+        let dir = config_path
+            .parent()
+            .filter(|_| config_path != Path::new(crate::config::BUILTIN_CONFIG_NAME));
+        let reference = t
+            .reference
+            .as_ref()
+            .filter(|_| csv && t.scan == Some(ScanKind::Csv))
+            .map(|p| dir.map_or_else(|| p.clone(), |d| d.join(p)));
+        fill(
+            &mut filled,
             "reference",
-            r.reference.is_some(),
-            csv && t.scan == Some(ScanKind::Csv) && t.reference.is_some(),
-        ) {
-            let dir = config_path
-                .parent()
-                .filter(|_| config_path != Path::new(crate::config::BUILTIN_CONFIG_NAME));
-            r.reference = t
-                .reference
-                .as_ref()
-                .map(|p| dir.map_or_else(|| p.clone(), |d| d.join(p)));
-        }
-        if fill(
+            &mut r.reference,
+            reference.as_ref(),
+        );
+        let not_csv = |v: &Option<f64>| v.filter(|_| !csv);
+        fill(
+            &mut filled,
             "amplitude_m",
-            r.amplitude_m.is_some(),
-            !csv && t.amplitude_m.is_some(),
-        ) {
-            r.amplitude_m = t.amplitude_m;
-        }
-        if fill(
+            &mut r.amplitude_m,
+            not_csv(&t.amplitude_m).as_ref(),
+        );
+        fill(
+            &mut filled,
             "line_rate_hz",
-            r.line_rate_hz.is_some(),
-            !csv && t.line_rate_hz.is_some(),
-        ) {
-            r.line_rate_hz = t.line_rate_hz;
-        }
-        if fill("cutoff_hz", r.cutoff_hz.is_some(), t.cutoff_hz.is_some()) {
-            r.cutoff_hz = t.cutoff_hz;
-        }
-        if fill(
+            &mut r.line_rate_hz,
+            not_csv(&t.line_rate_hz).as_ref(),
+        );
+        fill(
+            &mut filled,
+            "cutoff_hz",
+            &mut r.cutoff_hz,
+            t.cutoff_hz.as_ref(),
+        );
+        fill(
+            &mut filled,
             "max_velocity_m_s",
-            r.max_velocity_m_s.is_some(),
-            t.max_velocity_m_s.is_some(),
-        ) {
-            r.max_velocity_m_s = t.max_velocity_m_s;
-        }
-        if fill(
+            &mut r.max_velocity_m_s,
+            t.max_velocity_m_s.as_ref(),
+        );
+        fill(
+            &mut filled,
             "max_acceleration_m_s2",
-            r.max_acceleration_m_s2.is_some(),
-            t.max_acceleration_m_s2.is_some(),
-        ) {
-            r.max_acceleration_m_s2 = t.max_acceleration_m_s2;
-        }
-        if fill(
+            &mut r.max_acceleration_m_s2,
+            t.max_acceleration_m_s2.as_ref(),
+        );
+        fill(
+            &mut filled,
             "max_jerk_m_s3",
-            r.max_jerk_m_s3.is_some(),
-            t.max_jerk_m_s3.is_some(),
-        ) {
-            r.max_jerk_m_s3 = t.max_jerk_m_s3;
-        }
-        if fill(
+            &mut r.max_jerk_m_s3,
+            t.max_jerk_m_s3.as_ref(),
+        );
+        fill(
+            &mut filled,
             "max_snap_m_s4",
-            r.max_snap_m_s4.is_some(),
-            t.max_snap_m_s4.is_some(),
-        ) {
-            r.max_snap_m_s4 = t.max_snap_m_s4;
-        }
-        if fill(
+            &mut r.max_snap_m_s4,
+            t.max_snap_m_s4.as_ref(),
+        );
+        fill(
+            &mut filled,
             "settle_band_m",
-            r.settle_band_m.is_some(),
-            t.settle_band_m.is_some(),
-        ) {
-            r.settle_band_m = t.settle_band_m;
-        }
+            &mut r.settle_band_m,
+            t.settle_band_m.as_ref(),
+        );
         (r, filled)
     }
 
@@ -272,11 +272,7 @@ impl TrackRequest {
         field: impl FnOnce(&str) -> String,
     ) -> String {
         let (_, filled) = self.with_trajectory(cfg, config_path);
-        if filled.contains(&key) {
-            format!("trajectory.{key} of {}", config_path.display())
-        } else {
-            field(key)
-        }
+        trajectory_name(&filled, config_path, key, field)
     }
 
     /// [`Self::options`] of the request as it stands (no `[trajectory]`).
@@ -404,5 +400,21 @@ impl TrackRequest {
             ("learning_ps", self.learning_ps.as_deref()),
             ("reference", self.reference.as_deref()),
         ]
+    }
+}
+
+/// `trajectory.KEY of CONFIG` when `KEY` is among the fields the config's
+/// `[trajectory]` gave (`filled`), else `field(KEY)`: how an error names
+/// an option ([`TrackRequest::name_of`], [`TrackOptions::name_of`]).
+pub fn trajectory_name(
+    filled: &[&'static str],
+    config_path: &Path,
+    key: &str,
+    field: impl FnOnce(&str) -> String,
+) -> String {
+    if filled.contains(&key) {
+        format!("trajectory.{key} of {}", config_path.display())
+    } else {
+        field(key)
     }
 }
