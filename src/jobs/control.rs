@@ -356,6 +356,59 @@ pub enum StageSource<'a> {
     Service(&'a mut ServiceClient),
 }
 
+/// The stage a job runs on ([`StageSource::stage`]).
+pub(crate) enum Stage<'a> {
+    /// Opened for this run, dropped (disabled at 0 A) after it.
+    Opened(backend::AnyStage, bench_hal::DeviceInfo),
+    /// The daemon's loop.
+    Service(&'a mut ServiceClient),
+}
+
+impl<'a> StageSource<'a> {
+    /// The stage: the backend `spec` opened with `inject` scheduled and
+    /// `stall_bound_s` its stall bound, or the daemon's loop with `inject`
+    /// scheduled on it. Either must run at the period the controller was
+    /// discretised for ([`check_device_period`]).
+    ///
+    /// # Errors
+    /// [`backend::open`]'s; a fault on a daemon that is no simulator; a
+    /// device at another period.
+    pub(crate) fn stage(
+        self,
+        spec: &BackendSpec,
+        cfg: &BenchConfig,
+        config_path: &std::path::Path,
+        seed: u64,
+        inject: Option<ScheduledFault>,
+        stall_bound_s: f64,
+    ) -> Result<Stage<'a>, RunError> {
+        let mut stage = match self {
+            Self::Open => {
+                let (s, i) = backend::open(spec, cfg, config_path, seed, inject, stall_bound_s)?;
+                Stage::Opened(s, i)
+            }
+            Self::Service(client) => {
+                if let Some(f) = inject {
+                    inject_on_service(client, f)?;
+                }
+                Stage::Service(client)
+            }
+        };
+        check_device_period(stage.runner().info(), cfg, spec)?;
+        Ok(stage)
+    }
+}
+
+impl Stage<'_> {
+    /// The runner of a job on this stage.
+    pub(crate) fn runner(&mut self) -> Runner<'_> {
+        match self {
+            Stage::Opened(stage, info) => Runner::Local { stage, info },
+            Stage::Service(client) => Runner::Service(client),
+        }
+    }
+}
+
 /// [`run_control`] on a stage from `source`; `ticks`, if given, follows
 /// the loop's tick count (progress).
 ///
@@ -488,10 +541,7 @@ fn refuse_failed_check(opts: &ControlOptions, check: &LoopCheck) -> Result<(), R
 
 /// Schedules `--inject-fault` on the daemon's loop, which only its sim
 /// backend accepts.
-pub(crate) fn inject_on_service(
-    client: &mut ServiceClient,
-    fault: ScheduledFault,
-) -> Result<(), RunError> {
+fn inject_on_service(client: &mut ServiceClient, fault: ScheduledFault) -> Result<(), RunError> {
     match client.call(LoopRequest::Inject(fault)) {
         Some(LoopReply::Injected(true)) => Ok(()),
         _ => Err(RunError::BadInput(
@@ -501,7 +551,7 @@ pub(crate) fn inject_on_service(
 }
 
 /// The device must run at the period the controller was discretised for.
-pub(crate) fn check_device_period(
+fn check_device_period(
     info: &bench_hal::DeviceInfo,
     cfg: &BenchConfig,
     spec: &BackendSpec,
@@ -731,35 +781,17 @@ fn run_control_with(
         return Ok(summary);
     }
     refuse_failed_check(opts, &check)?;
-    let mut opened;
-    let opened_info;
-    let mut runner = match source {
-        StageSource::Open => {
-            let (s, i) = backend::open(
-                &spec,
-                cfg,
-                &opts.config_path,
-                opts.seed,
-                opts.inject,
-                check.stall.bound_s,
-            )?;
-            opened = s;
-            opened_info = i;
-            Runner::Local {
-                stage: &mut opened,
-                info: &opened_info,
-            }
-        }
-        StageSource::Service(client) => {
-            if let Some(f) = opts.inject {
-                inject_on_service(client, f)?;
-            }
-            Runner::Service(client)
-        }
-    };
+    let mut stage = source.stage(
+        &spec,
+        cfg,
+        &opts.config_path,
+        opts.seed,
+        opts.inject,
+        check.stall.bound_s,
+    )?;
+    let mut runner = stage.runner();
     let info = runner.info().clone();
     summary.backend = info.name.clone();
-    check_device_period(&info, cfg, &spec)?;
     // Anti-windup at the peak current in force (the smaller of the
     // host's and the device's; same sections).
     let ctrl = ctrl.with_limit(cfg.current_limits(&info).peak_current_a);

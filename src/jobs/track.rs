@@ -46,11 +46,11 @@ use crate::control::loop_check::check_loop;
 use crate::control::verify::ModelLoop;
 use crate::control::DiscreteController;
 use crate::error::RunError;
-use crate::jobs::control::{check_device_period, inject_on_service, StageSource};
+use crate::jobs::control::StageSource;
 use crate::jobs::session::{finish, open_recording, run_recorded, Kept, Runner, SessionOptions};
 use crate::outputs::{Existing, Origin, OutputPlan};
 use crate::plot::{write_track_png, TrackPlot, TrackTrialPlot};
-use crate::rt::backend::{self, BackendSpec};
+use crate::rt::backend::BackendSpec;
 use crate::rt::supervisor::StallBounds;
 use crate::track::measured::MeasuredPs;
 use crate::track::{
@@ -1796,34 +1796,16 @@ pub fn run_track_from(
         )));
     }
     let recordings = outputs(opts)?;
-    let mut opened;
-    let opened_info;
-    let mut runner = match source {
-        StageSource::Open => {
-            let (s, i) = backend::open(
-                &spec,
-                cfg,
-                &opts.config_path,
-                opts.seed,
-                opts.inject_fault,
-                check.stall.bound_s,
-            )?;
-            opened = s;
-            opened_info = i;
-            Runner::Local {
-                stage: &mut opened,
-                info: &opened_info,
-            }
-        }
-        StageSource::Service(client) => {
-            if let Some(f) = opts.inject_fault {
-                inject_on_service(client, f)?;
-            }
-            Runner::Service(client)
-        }
-    };
+    let mut stage = source.stage(
+        &spec,
+        cfg,
+        &opts.config_path,
+        opts.seed,
+        opts.inject_fault,
+        check.stall.bound_s,
+    )?;
+    let mut runner = stage.runner();
     let info = runner.info().clone();
-    check_device_period(&info, cfg, &spec)?;
     let ctrl = ctrl.with_limit(cfg.current_limits(&info).peak_current_a);
     let mut summary = TrackSummary {
         controller: opts.controller.clone(),
