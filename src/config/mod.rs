@@ -82,7 +82,7 @@ pub use controller::ControllerConfig;
 pub use limits::ranges;
 pub use sections::*;
 pub use source::in_source_layout;
-pub use trajectory::{ScanKind, SnapLimit, TrajectoryConfig};
+pub use trajectory::{number_or_word, ScanKind, SnapLimit, TrajectoryConfig};
 pub use validate::{ticks_in, toml_error_message};
 
 /// A configuration problem, with the file and the key.

@@ -80,31 +80,50 @@ impl Serialize for SnapLimit {
 
 impl<'de> Deserialize<'de> for SnapLimit {
     fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
-        struct V;
-        impl serde::de::Visitor<'_> for V {
-            type Value = SnapLimit;
-            fn expecting(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-                f.write_str("a peak snap in m/s⁴ (a number) or \"none\" (a 3rd-order profile)")
-            }
-            fn visit_f64<E: serde::de::Error>(self, v: f64) -> Result<SnapLimit, E> {
-                Ok(SnapLimit::Limit(v))
-            }
-            fn visit_i64<E: serde::de::Error>(self, v: i64) -> Result<SnapLimit, E> {
-                Ok(SnapLimit::Limit(v as f64))
-            }
-            fn visit_u64<E: serde::de::Error>(self, v: u64) -> Result<SnapLimit, E> {
-                Ok(SnapLimit::Limit(v as f64))
-            }
-            fn visit_str<E: serde::de::Error>(self, v: &str) -> Result<SnapLimit, E> {
-                if v == "none" {
-                    Ok(SnapLimit::None)
-                } else {
-                    Err(E::invalid_value(serde::de::Unexpected::Str(v), &self))
-                }
+        let v = number_or_word(
+            d,
+            "none",
+            "a peak snap in m/s⁴ (a number) or \"none\" (a 3rd-order profile)",
+        )?;
+        Ok(v.map_or(SnapLimit::None, SnapLimit::Limit))
+    }
+}
+
+/// A number, or the one word `word` (`None`): the serde form of a value
+/// that may be switched off (`max_snap_m_s4 = "none"`, a request's
+/// `pace: "off"`). `expecting` says what the value is, for the error.
+///
+/// # Errors
+/// Anything else, with `expecting`.
+pub fn number_or_word<'de, D: serde::Deserializer<'de>>(
+    d: D,
+    word: &'static str,
+    expecting: &'static str,
+) -> Result<Option<f64>, D::Error> {
+    struct V(&'static str, &'static str);
+    impl serde::de::Visitor<'_> for V {
+        type Value = Option<f64>;
+        fn expecting(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+            f.write_str(self.1)
+        }
+        fn visit_f64<E: serde::de::Error>(self, v: f64) -> Result<Option<f64>, E> {
+            Ok(Some(v))
+        }
+        fn visit_i64<E: serde::de::Error>(self, v: i64) -> Result<Option<f64>, E> {
+            Ok(Some(v as f64))
+        }
+        fn visit_u64<E: serde::de::Error>(self, v: u64) -> Result<Option<f64>, E> {
+            Ok(Some(v as f64))
+        }
+        fn visit_str<E: serde::de::Error>(self, v: &str) -> Result<Option<f64>, E> {
+            if v == self.0 {
+                Ok(None)
+            } else {
+                Err(E::invalid_value(serde::de::Unexpected::Str(v), &self))
             }
         }
-        d.deserialize_any(V)
     }
+    d.deserialize_any(V(word, expecting))
 }
 
 /// `[trajectory]` (module docs). Ranges, checked when the config loads

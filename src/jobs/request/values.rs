@@ -71,30 +71,12 @@ impl Serialize for Pace {
 
 impl<'de> Deserialize<'de> for Pace {
     fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
-        struct V;
-        impl serde::de::Visitor<'_> for V {
-            type Value = Pace;
-            fn expecting(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-                f.write_str("a factor of real time (a number, 1: real time) or \"off\"")
-            }
-            fn visit_f64<E: serde::de::Error>(self, v: f64) -> Result<Pace, E> {
-                Ok(Pace::Factor(v))
-            }
-            fn visit_i64<E: serde::de::Error>(self, v: i64) -> Result<Pace, E> {
-                Ok(Pace::Factor(v as f64))
-            }
-            fn visit_u64<E: serde::de::Error>(self, v: u64) -> Result<Pace, E> {
-                Ok(Pace::Factor(v as f64))
-            }
-            fn visit_str<E: serde::de::Error>(self, v: &str) -> Result<Pace, E> {
-                if v == "off" {
-                    Ok(Pace::Off)
-                } else {
-                    Err(E::invalid_value(serde::de::Unexpected::Str(v), &self))
-                }
-            }
-        }
-        d.deserialize_any(V)
+        let v = crate::config::number_or_word(
+            d,
+            "off",
+            "a factor of real time (a number, 1: real time) or \"off\"",
+        )?;
+        Ok(v.map_or(Pace::Off, Pace::Factor))
     }
 }
 
