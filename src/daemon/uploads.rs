@@ -288,7 +288,7 @@ pub(super) fn after_job(uploader: &Uploader, recording: &Path, result: &JobResul
         // faulted keeps every trial finished and is never resumed): its
         // summary is its own `track.json`.
         if recording
-            .join(crate::upload::transfer::TRACK_SUMMARY_FILE)
+            .join(crate::jobs::track::TRACK_SUMMARY_FILE)
             .is_file()
         {
             queue(uploader, recording);

@@ -80,6 +80,11 @@ pub const WARM_UP_TIME_CONSTANTS: f64 = 5.0;
 /// floor has converged (issue 44: "the error within 1.5× its noise floor").
 pub const CONVERGED_OF_NOISE_FLOOR: f64 = 1.5;
 
+/// The summary a run writes in its directory, rewritten after every trial
+/// (a directory that holds it is a track run's: `bench upload` sends it
+/// whole).
+pub const TRACK_SUMMARY_FILE: &str = "track.json";
+
 /// Everything `bench track` needs.
 #[derive(Debug, Clone)]
 pub struct TrackOptions {
@@ -929,7 +934,7 @@ pub fn harmonic_sigma(e: &[f64], n: usize, k_max: usize) -> Vec<f64> {
 
 /// The summary and the files of a run so far, written after every trial.
 fn write_summary(dir: &Path, s: &TrackSummary, existing: Existing) -> Result<(), RunError> {
-    let path = dir.join("track.json");
+    let path = dir.join(TRACK_SUMMARY_FILE);
     let text = serde_json::to_string_pretty(s).map_err(|e| RunError::BadInput(e.to_string()))?;
     crate::outputs::write_atomically(&path, existing, |f| {
         std::io::Write::write_all(f, text.as_bytes())
@@ -1282,7 +1287,7 @@ fn outputs(opts: &TrackOptions) -> Result<Vec<PathBuf>, RunError> {
         plan = plan.with_recording(r, Origin::Derived);
     }
     plan = plan
-        .with_output("out", &dir.join("track.json"), Origin::Derived)
+        .with_output("out", &dir.join(TRACK_SUMMARY_FILE), Origin::Derived)
         .with_output("out", &dir.join("feedforward.csv"), Origin::Derived)
         .with_output("out", &dir.join("track.png"), Origin::Derived)
         .with_input("config", &opts.config_path);

@@ -118,11 +118,6 @@ pub fn upload_set_of(url: &StoreUrl, path: &Path) -> Result<Vec<Item>, String> {
 /// (`cells/NNN/chirp.mcap` is 2 below it).
 const CAMPAIGN_DEPTH: usize = 4;
 
-/// The summary `bench track` writes in its directory: a directory that
-/// holds it uploads as a campaign's does (every regular file below it,
-/// under `DIR/`; it has no catalogue rows).
-pub const TRACK_SUMMARY_FILE: &str = "track.json";
-
 /// What a campaign directory's (or a track run's directory's) upload
 /// consists of: every regular file
 /// below it (its cells' kept files, `cells.csv`, `summary.json`, the map,
@@ -137,9 +132,11 @@ pub const TRACK_SUMMARY_FILE: &str = "track.json";
 ///
 /// # Errors
 /// `dir` is not a campaign directory (no `journal.jsonl`) nor a track
-/// run's (no [`TRACK_SUMMARY_FILE`]), cannot be
+/// run's (no [`crate::jobs::track::TRACK_SUMMARY_FILE`]: it uploads as
+/// a campaign's, without catalogue rows), cannot be
 /// read, or holds a name a store cannot keep.
 pub fn campaign_upload_set(url: &StoreUrl, dir: &Path) -> Result<Vec<Item>, String> {
+    use crate::jobs::track::TRACK_SUMMARY_FILE;
     let dir = std::path::absolute(dir).map_err(|e| e.to_string())?;
     if !dir.join(crate::catalogue::CAMPAIGN_JOURNAL_FILE).is_file()
         && !dir.join(TRACK_SUMMARY_FILE).is_file()
