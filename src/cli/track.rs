@@ -96,21 +96,25 @@ pub(super) struct TrackArgs {
     #[arg(long, value_name = "KIND", default_value = "inverse")]
     feedforward_kind: FeedforwardKind,
     /// A move's peak velocity, m/s [default: trajectory.max_velocity_m_s
-    /// of the config, else 1e-3]. Range: above 0; the move (the sum of its
-    /// phases) at most a quarter of the line.
+    /// of the config, else 1e-3]. Range: above 0, at most 2
+    /// safety.position_limit_m × loop.rate_hz (the stroke in one tick);
+    /// the move (the sum of its phases) at most a quarter of the line.
     #[arg(long, value_name = "M/S", allow_hyphen_values = true)]
     max_velocity_m_s: Option<f64>,
     /// A move's peak acceleration, m/s² [default: the config's
-    /// trajectory.max_acceleration_m_s2, else 0.1]. Range: above 0.
+    /// trajectory.max_acceleration_m_s2, else 0.1]. Range: above 0, at
+    /// most 2 safety.position_limit_m × loop.rate_hz².
     #[arg(long, value_name = "M/S2", allow_hyphen_values = true)]
     max_acceleration_m_s2: Option<f64>,
     /// A move's peak jerk, m/s³ [default: the config's
-    /// trajectory.max_jerk_m_s3, else 40]. Range: above 0.
+    /// trajectory.max_jerk_m_s3, else 40]. Range: above 0, at most 2
+    /// safety.position_limit_m × loop.rate_hz³.
     #[arg(long, value_name = "M/S3", allow_hyphen_values = true)]
     max_jerk_m_s3: Option<f64>,
     /// A move's peak snap, m/s⁴: a 4th-order profile; `none`: a 3rd-order
     /// profile (the jerk steps) [default: the config's
-    /// trajectory.max_snap_m_s4, else 2e4]. Range: above 0.
+    /// trajectory.max_snap_m_s4, else 2e4]. Range: above 0, at most 2
+    /// safety.position_limit_m × loop.rate_hz⁴.
     #[arg(long, value_name = "M/S4", allow_hyphen_values = true, value_parser = SnapLimit::parse)]
     max_snap_m_s4: Option<SnapLimit>,
     /// The band a move settles into, ± m [default: the config's

@@ -126,12 +126,22 @@ pub fn number_or_word<'de, D: serde::Deserializer<'de>>(
     d.deserialize_any(V(word, expecting))
 }
 
+/// The largest meaningful limit of a move's derivative of `order` (1:
+/// velocity, m/s; 2: acceleration, m/s²; 3: jerk, m/s³; 4: snap, m/s⁴):
+/// `stroke_m · rate_hz^order`, the limit that crosses the whole stroke
+/// within one tick of the loop. A faster limit cannot shape a move the
+/// loop samples (a move lasts 2 ticks at least).
+pub fn move_limit_max(order: i32, stroke_m: f64, rate_hz: f64) -> f64 {
+    stroke_m * rate_hz.powi(order)
+}
+
 /// `[trajectory]` (module docs). Ranges, checked when the config loads
 /// (the rest when `bench track` plans the scan on the model, naming the
 /// key as `trajectory.KEY`): `amplitude_m` in (0, `safety.position_limit_m`);
 /// `line_rate_hz` in (0, `loop.rate_hz`/8] (a line of 8 ticks at least);
 /// `cutoff_hz` above the line rate, at most Nyquist; the move's limits
-/// finite and above 0; `settle_band_m` in (0, `safety.position_limit_m`);
+/// above 0 and at most [`move_limit_max`] of the stroke
+/// (2 `safety.position_limit_m`); `settle_band_m` in (0, `safety.position_limit_m`);
 /// `reference` given exactly with `scan = "csv"`, which takes neither
 /// `amplitude_m` nor `line_rate_hz` (the file's rows make both).
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]

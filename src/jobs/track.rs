@@ -344,7 +344,7 @@ fn plan_scan(
     scan: &Scan,
     cutoff_hz: Option<f64>,
     bands: &[ZeroBand],
-    rate_hz: f64,
+    (rate_hz, stroke_m): (f64, f64),
     n: usize,
 ) -> Result<(Scan, Vec<(usize, f64)>), RunError> {
     let a = scan.amplitude_m;
@@ -403,7 +403,7 @@ fn plan_scan(
         cutoff_hz: cutoff,
         ..scan.clone()
     };
-    check_move(&scan, rate_hz)?;
+    check_move(&scan, rate_hz, stroke_m)?;
     let r = scan.harmonics(n);
     let inside: Vec<(usize, f64)> = (1..=scan.k_max())
         .map(|k| (k, Harmonics::frequency_hz(k, scan.line_rate_hz)))
@@ -414,9 +414,10 @@ fn plan_scan(
     Ok((scan, inside))
 }
 
-/// A move's limits valid and its profile within a quarter of the line:
+/// A move's limits in their ranges (`stroke_m` the stroke) and its
+/// profile within a quarter of the line:
 /// each move is followed by a dwell at least as long, in which it settles.
-fn check_move(scan: &Scan, rate_hz: f64) -> Result<(), RunError> {
+fn check_move(scan: &Scan, rate_hz: f64, stroke_m: f64) -> Result<(), RunError> {
     if scan.kind != ScanKind::Move {
         return Ok(());
     }
@@ -426,8 +427,12 @@ fn check_move(scan: &Scan, rate_hz: f64) -> Result<(), RunError> {
                 .to_string(),
         ));
     };
-    limits.validate().map_err(|(name, v)| {
-        RunError::option(name, v, "must be a finite value above 0".to_string())
+    limits.validate(stroke_m, rate_hz).map_err(|(name, v, max)| {
+        RunError::option(
+            name,
+            v,
+            format!("must lie above 0 and at most {max:e}, which crosses the whole stroke (2 safety.position_limit_m) within one tick"),
+        )
     })?;
     let p = scan.move_profile().expect("a move with limits");
     let d = p.duration_s();
@@ -509,7 +514,13 @@ fn plan(
 ) -> Result<(TrackPlan, Harmonics, Harmonics, Learning), RunError> {
     let cfg = &opts.config;
     let n = ticks_per_line(cfg, opts.scan.line_rate_hz)?;
-    let (scan, inside) = plan_scan(&opts.scan, opts.cutoff_hz, &bands, cfg.loop_.rate_hz, n)?;
+    let (scan, inside) = plan_scan(
+        &opts.scan,
+        opts.cutoff_hz,
+        &bands,
+        (cfg.loop_.rate_hz, 2.0 * cfg.safety.position_limit_m),
+        n,
+    )?;
     let is_move = scan.kind == ScanKind::Move;
     let g = opts.learning_gain;
     if !(g.is_finite() && g > 0.0 && g <= 1.0) {

@@ -71,22 +71,25 @@ fn largest_below(f: impl Fn(f64) -> f64, target: f64, mut lo: f64, mut hi: f64) 
 }
 
 impl MoveLimits {
-    /// Checks every limit is a finite value above 0; names the one that
-    /// is not.
+    /// Checks every limit is above 0 and at most
+    /// [`crate::config::trajectory::move_limit_max`] of `stroke_m` at
+    /// `rate_hz` (the limit that crosses the stroke within one tick);
+    /// names the one that is not, with that bound.
     ///
     /// # Errors
-    /// The limit's name and why.
-    pub fn validate(&self) -> Result<(), (&'static str, f64)> {
+    /// The limit's name, its value and its bound.
+    pub fn validate(&self, stroke_m: f64, rate_hz: f64) -> Result<(), (&'static str, f64, f64)> {
         let all = [
-            ("max_velocity_m_s", Some(self.velocity_m_s)),
-            ("max_acceleration_m_s2", Some(self.acceleration_m_s2)),
-            ("max_jerk_m_s3", Some(self.jerk_m_s3)),
-            ("max_snap_m_s4", self.snap_m_s4),
+            (1, "max_velocity_m_s", Some(self.velocity_m_s)),
+            (2, "max_acceleration_m_s2", Some(self.acceleration_m_s2)),
+            (3, "max_jerk_m_s3", Some(self.jerk_m_s3)),
+            (4, "max_snap_m_s4", self.snap_m_s4),
         ];
-        for (name, v) in all {
+        for (order, name, v) in all {
             if let Some(v) = v {
-                if !(v.is_finite() && v > 0.0) {
-                    return Err((name, v));
+                let max = crate::config::trajectory::move_limit_max(order, stroke_m, rate_hz);
+                if !(v > 0.0 && v <= max) {
+                    return Err((name, v, max));
                 }
             }
         }

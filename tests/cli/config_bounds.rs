@@ -549,10 +549,11 @@ fn documented(key: &str, c: &Value) -> Option<(Doc, bool)> {
         "trajectory.amplitude_m" | "trajectory.settle_band_m" => (open(0.0, limit), opt),
         "trajectory.line_rate_hz" => (open_closed(0.0, rate / 8.0), opt),
         "trajectory.cutoff_hz" => (open_closed(0.0, nyquist), opt),
-        "trajectory.max_velocity_m_s"
-        | "trajectory.max_acceleration_m_s2"
-        | "trajectory.max_jerk_m_s3"
-        | "trajectory.max_snap_m_s4" => (open(0.0, f64::INFINITY), opt),
+        // At most what crosses the stroke (2 position_limit_m) within a tick.
+        "trajectory.max_velocity_m_s" => (open_closed(0.0, 2.0 * limit * rate), opt),
+        "trajectory.max_acceleration_m_s2" => (open_closed(0.0, 2.0 * limit * rate.powi(2)), opt),
+        "trajectory.max_jerk_m_s3" => (open_closed(0.0, 2.0 * limit * rate.powi(3)), opt),
+        "trajectory.max_snap_m_s4" => (open_closed(0.0, 2.0 * limit * rate.powi(4)), opt),
         _ if controller && field == "gain" => (
             Doc {
                 abs: true,

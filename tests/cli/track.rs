@@ -290,13 +290,21 @@ fn bad_scans_exit_2_naming_the_flag_and_write_nothing() {
             assert!(!Path::new(&out).exists(), "{flag} {value}");
         }
     }
-    // A move's limits and band, each alone: none, negative, not a number;
-    // a band beyond the move; a line too short for the move and its dwell.
+    // A move's limits and band, each alone: none, negative, not a number,
+    // beyond what crosses the stroke (1.6 mm) within one tick (0.2 ms:
+    // 8 m/s, 4e4 m/s², 2e8 m/s³, 1e12 m/s⁴); a band beyond the move; a
+    // line too short for the move and its dwell.
     let move_cases: Vec<(&str, Vec<&str>)> = vec![
-        ("--max-velocity-m-s", vec!["0", "-1e-3", nan, "inf"]),
-        ("--max-acceleration-m-s2", vec!["0", "-0.1", nan, "inf"]),
-        ("--max-jerk-m-s3", vec!["0", "-40", nan, "-inf"]),
-        ("--max-snap-m-s4", vec!["0", "-2e4", nan, "inf", "x", ""]),
+        ("--max-velocity-m-s", vec!["0", "-1e-3", nan, "inf", "8.1"]),
+        (
+            "--max-acceleration-m-s2",
+            vec!["0", "-0.1", nan, "inf", "4.1e4"],
+        ),
+        ("--max-jerk-m-s3", vec!["0", "-40", nan, "-inf", "2.1e8"]),
+        (
+            "--max-snap-m-s4",
+            vec!["0", "-2e4", nan, "inf", "x", "", "1.1e12"],
+        ),
         ("--settle-band-m", vec!["0", "-1e-8", nan, "1e-5", "inf"]),
         // The default 5 µm move lasts 19.3 ms: a line of 1/(4·19.3 ms)
         // = 12.9 lines/s at most.

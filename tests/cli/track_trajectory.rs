@@ -184,6 +184,9 @@ fn bad_trajectory_keys_are_refused_naming_them() {
             "trajectory.cutoff_hz",
         ),
         ("max_jerk_m_s3 = inf\n", "trajectory.max_jerk_m_s3"),
+        // Faster than crossing the 1.6 mm stroke within a 0.2 ms tick.
+        ("max_velocity_m_s = 8.1\n", "trajectory.max_velocity_m_s"),
+        ("max_snap_m_s4 = 1.1e12\n", "trajectory.max_snap_m_s4"),
         ("max_snap_m_s4 = \"loud\"\n", "max_snap_m_s4"),
         ("settle_band_m = 0.0\n", "trajectory.settle_band_m"),
         ("scan = \"spiral\"\n", "scan"),

@@ -222,12 +222,19 @@ impl BenchConfig {
                 "above the line rate, at most the Nyquist frequency of loop.rate_hz",
             )?;
         }
-        for (key, v) in [
-            ("trajectory.max_velocity_m_s", t.max_velocity_m_s),
-            ("trajectory.max_acceleration_m_s2", t.max_acceleration_m_s2),
-            ("trajectory.max_jerk_m_s3", t.max_jerk_m_s3),
+        for (order, key, unit, v) in [
+            (1, "trajectory.max_velocity_m_s", "m/s", t.max_velocity_m_s),
             (
+                2,
+                "trajectory.max_acceleration_m_s2",
+                "m/s²",
+                t.max_acceleration_m_s2,
+            ),
+            (3, "trajectory.max_jerk_m_s3", "m/s³", t.max_jerk_m_s3),
+            (
+                4,
                 "trajectory.max_snap_m_s4",
+                "m/s⁴",
                 t.max_snap_m_s4.and_then(SnapLimit::limit),
             ),
         ] {
@@ -235,9 +242,9 @@ impl BenchConfig {
                 in_range(
                     key,
                     v,
-                    Range::open(0.0, f64::INFINITY),
-                    "",
-                    "a move's limit is finite and above 0 (the move must then fit a quarter of the line, checked when it is planned)",
+                    Range::open_closed(0.0, trajectory::move_limit_max(order, 2.0 * limit, rate)),
+                    unit,
+                    "above 0, and at most what crosses the whole stroke (2 safety.position_limit_m) within one tick of loop.rate_hz (the move must then fit a quarter of the line, checked when it is planned)",
                 )?;
             }
         }
