@@ -945,27 +945,8 @@ fn a_trial_that_faults_stops_the_learning_and_keeps_everything() {
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(err.contains("safety fault: probe_not_finite"), "{err}");
     assert!(err.contains("trial-03-learning-1.mcap"), "{err}");
-    let run_dir = Path::new(&out);
-    let v: Value =
-        serde_json::from_str(&std::fs::read_to_string(run_dir.join("track.json")).unwrap())
-            .unwrap();
-    assert_eq!(v["stop"], "fault");
+    let v = faulted_in_learning_1(Path::new(&out));
     assert_eq!(v["best_trial"], "feedforward");
-    assert_eq!(v["trials"].as_array().unwrap().len(), 3);
-    for name in [
-        "trial-00-standstill.mcap",
-        "trial-01-feedback.mcap",
-        "trial-02-feedforward.mcap",
-        "trial-03-learning-1.mcap",
-    ] {
-        let rec = run_dir.join(name);
-        assert!(rec.is_file(), "{rec:?}");
-        assert!(!run_dir.join(format!("{name}.part")).exists());
-        assert!(!mcap_messages(&rec).is_empty(), "{rec:?}");
-    }
-    assert!(!run_dir.join("trial-04-learning-2.mcap").exists());
-    assert!(run_dir.join("feedforward.csv").is_file());
-    assert!(run_dir.join("track.png").is_file());
     // A fault of no known kind is refused before anything runs.
     let o = run(&[
         "track",
@@ -977,6 +958,32 @@ fn a_trial_that_faults_stops_the_learning_and_keeps_everything() {
     assert_eq!(o.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&o.stderr).contains("--inject-fault smoke@1"));
     assert!(!dir.path().join("hw").exists());
+}
+
+/// The directory of a run whose first learning trial faulted: its
+/// summary stops at `fault` after the three trials before, and those and
+/// the faulted one are finished recordings (none after it); the
+/// feedforward learned before and the figure are written. The summary.
+pub(crate) fn faulted_in_learning_1(dir: &Path) -> Value {
+    let v: Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("track.json")).unwrap()).unwrap();
+    assert_eq!(v["stop"], "fault", "{v}");
+    assert_eq!(v["trials"].as_array().unwrap().len(), 3);
+    for name in [
+        "trial-00-standstill.mcap",
+        "trial-01-feedback.mcap",
+        "trial-02-feedforward.mcap",
+        "trial-03-learning-1.mcap",
+    ] {
+        let rec = dir.join(name);
+        assert!(rec.is_file(), "{rec:?}");
+        assert!(!dir.join(format!("{name}.part")).exists());
+        assert!(!mcap_messages(&rec).is_empty(), "{rec:?}");
+    }
+    assert!(!dir.join("trial-04-learning-2.mcap").exists());
+    assert!(dir.join("feedforward.csv").is_file());
+    assert!(dir.join("track.png").is_file());
+    v
 }
 
 /// Issue 44's target on five benches that differ from the shipped one,
