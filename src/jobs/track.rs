@@ -145,12 +145,7 @@ impl TrackOptions {
     /// the config's `[trajectory]` gave it, else by `field` (the CLI's
     /// flag, the daemon's `params.KEY`).
     pub fn name_of(&self, key: &str, field: impl FnOnce(&str) -> String) -> String {
-        crate::jobs::track_request::trajectory_name(
-            &self.from_trajectory,
-            &self.config_path,
-            key,
-            field,
-        )
+        trajectory_name(&self.from_trajectory, &self.config_path, key, field)
     }
 }
 
@@ -1858,6 +1853,22 @@ pub fn run_track_from(
         &mut summary,
     )?;
     Ok(summary)
+}
+
+/// `trajectory.KEY of CONFIG` when `KEY` is among the fields the config's
+/// `[trajectory]` gave (`filled`), else `field(KEY)`: how an error names
+/// an option ([`crate::jobs::track_request::TrackRequest::name_of`], [`TrackOptions::name_of`]).
+pub fn trajectory_name(
+    filled: &[&'static str],
+    config_path: &Path,
+    key: &str,
+    field: impl FnOnce(&str) -> String,
+) -> String {
+    if filled.contains(&key) {
+        format!("trajectory.{key} of {}", config_path.display())
+    } else {
+        field(key)
+    }
 }
 
 #[cfg(test)]

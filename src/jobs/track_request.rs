@@ -6,7 +6,7 @@
 //! (`--amplitude-m`), the daemon as `params.amplitude_m`.
 
 use super::request::{parse_fault, Pace};
-use super::track::{read_reference, TrackOptions};
+use super::track::{read_reference, trajectory_name, TrackOptions};
 use crate::config::BenchConfig;
 use crate::error::RunError;
 use crate::rt::backend::BackendSpec;
@@ -400,21 +400,5 @@ impl TrackRequest {
             ("learning_ps", self.learning_ps.as_deref()),
             ("reference", self.reference.as_deref()),
         ]
-    }
-}
-
-/// `trajectory.KEY of CONFIG` when `KEY` is among the fields the config's
-/// `[trajectory]` gave (`filled`), else `field(KEY)`: how an error names
-/// an option ([`TrackRequest::name_of`], [`TrackOptions::name_of`]).
-pub fn trajectory_name(
-    filled: &[&'static str],
-    config_path: &Path,
-    key: &str,
-    field: impl FnOnce(&str) -> String,
-) -> String {
-    if filled.contains(&key) {
-        format!("trajectory.{key} of {}", config_path.display())
-    } else {
-        field(key)
     }
 }
