@@ -1349,6 +1349,93 @@ mod tests {
     /// most about 2n lines in all (every local maximum: some 3000); 400
     /// lines with 20 ripples of 0.5 % (fewer than n/3, none prominent)
     /// keep every ripple's maximum.
+    /// Balanced rows describe the same program: each cone's rows of
+    /// `[A b]` at unit norm together, each nonnegative row alone, the
+    /// returned scale what multiplied them; and Clarabel finds the same
+    /// optimum, and the original's dual from the balanced one's (the
+    /// dual's complementarity `zᵀ s = 0` and `Aᵀ z = c` on the original
+    /// data). The program: min t s.t. ‖(x − 3, 2(y + 1))‖ ≤ t scaled by
+    /// 10⁴, x ≥ 1 scaled by 10⁻³, y ≤ −2: the optimum t = 2 at (3, −2).
+    #[test]
+    fn balanced_rows_are_the_same_program() {
+        // Variables (x, y, t); rows s = b − A x, triplets of A.
+        // Cone: (1e4 t, 1e4 (x − 3), 1e4·2(y + 1)); then 10⁻³(x − 1) ≥ 0
+        // and −2 − y ≥ 0.
+        let trip = [
+            (0, 2, -1e4),
+            (1, 0, -1e4),
+            (2, 1, -2e4),
+            (3, 0, -1e-3),
+            (4, 1, 1.0),
+        ];
+        let ri: Vec<usize> = trip.iter().map(|t| t.0).collect();
+        let ci: Vec<usize> = trip.iter().map(|t| t.1).collect();
+        let vals: Vec<f64> = trip.iter().map(|t| t.2).collect();
+        let b0 = vec![0.0, -3e4, 2e4, -1e-3, -2.0];
+        let cones = [
+            SupportedConeT::SecondOrderConeT(3),
+            SupportedConeT::NonnegativeConeT(2),
+        ];
+        let solve = |balance: bool| {
+            let mut a = CscMatrix::new_from_triplets(5, 3, ri.clone(), ci.clone(), vals.clone());
+            let mut b = b0.clone();
+            let d = if balance {
+                balance_rows(&a.rowval, &mut a.nzval, &mut b, &cones)
+            } else {
+                vec![1.0; 5]
+            };
+            if balance {
+                // Each block at unit norm.
+                let mut norm2 = b.iter().map(|v| v * v).collect::<Vec<f64>>();
+                for (&r, v) in a.rowval.iter().zip(&a.nzval) {
+                    norm2[r] += v * v;
+                }
+                assert!((norm2[..3].iter().sum::<f64>() - 1.0).abs() < 1e-12);
+                assert!((norm2[3] - 1.0).abs() < 1e-12 && (norm2[4] - 1.0).abs() < 1e-12);
+                assert_eq!(d[0], d[1]);
+                assert_eq!(d[1], d[2]);
+            }
+            let settings = DefaultSettings::<f64> {
+                verbose: false,
+                equilibrate_enable: !balance,
+                ..DefaultSettings::default()
+            };
+            let p = CscMatrix::zeros((3, 3));
+            let mut solver =
+                DefaultSolver::new(&p, &[0.0, 0.0, 1.0], &a, &b, &cones, settings).unwrap();
+            solver.solve();
+            assert_eq!(solver.solution.status, SolverStatus::Solved);
+            let z: Vec<f64> = solver
+                .solution
+                .z
+                .iter()
+                .zip(&d)
+                .map(|(z, d)| z * d)
+                .collect();
+            (solver.solution.x.clone(), z)
+        };
+        for balance in [false, true] {
+            let (x, z) = solve(balance);
+            assert!(
+                (x[0] - 3.0).abs() < 1e-6 && (x[1] + 2.0).abs() < 1e-6,
+                "{x:?}"
+            );
+            assert!((x[2] - 2.0).abs() < 1e-6, "{x:?}");
+            // The dual's stationarity on the original data: c + Aᵀ z = 0.
+            let mut atz = [0.0; 3];
+            for ((&r, &c), &v) in ri.iter().zip(&ci).zip(&vals) {
+                atz[c] += v * z[r];
+            }
+            let c = [0.0, 0.0, 1.0];
+            for k in 0..3 {
+                assert!(
+                    (atz[k] + c[k]).abs() < 1e-6,
+                    "balanced {balance}: Aᵀz {atz:?}"
+                );
+            }
+        }
+    }
+
     #[test]
     fn the_thinning_keeps_the_resonances_and_not_the_noise_s_peaks() {
         let n = 150;
