@@ -1342,18 +1342,11 @@ fn gamma_sigma(
 mod tests {
     use super::*;
 
-    /// The thinning keeps the resonances of many noisy inputs within its
-    /// budget, and every peak of one input's few: 3000 lines of ±1 %
-    /// noise (about a thousand local maxima) with two resonances (20×,
-    /// ten lines wide) keep both resonances and their neighbours, and at
-    /// most about 2n lines in all (every local maximum: some 3000); 400
-    /// lines with 20 ripples of 0.5 % (fewer than n/3, none prominent)
-    /// keep every ripple's maximum.
     /// Balanced rows describe the same program: each cone's rows of
     /// `[A b]` at unit norm together, each nonnegative row alone, the
     /// returned scale what multiplied them; and Clarabel finds the same
-    /// optimum, and the original's dual from the balanced one's (the
-    /// dual's complementarity `zᵀ s = 0` and `Aᵀ z = c` on the original
+    /// optimum, and the original's dual from the balanced one's (`D z`
+    /// meets the dual's stationarity `c + Aᵀ z = 0` on the original
     /// data). The program: min t s.t. ‖(x − 3, 2(y + 1))‖ ≤ t scaled by
     /// 10⁴, x ≥ 1 scaled by 10⁻³, y ≤ −2: the optimum t = 2 at (3, −2).
     #[test]
@@ -1436,6 +1429,13 @@ mod tests {
         }
     }
 
+    /// The thinning keeps the resonances of many noisy inputs within its
+    /// budget, and every peak of one input's few: 3000 lines of ±1 %
+    /// noise (about a thousand local maxima) with two resonances (20×,
+    /// ten lines wide) keep both resonances and their neighbours, and at
+    /// most about 2n lines in all (every local maximum: some 3000); 400
+    /// lines with 20 ripples of 0.5 % (fewer than n/3, none prominent)
+    /// keep every ripple's maximum.
     #[test]
     fn the_thinning_keeps_the_resonances_and_not_the_noise_s_peaks() {
         let n = 150;
