@@ -52,7 +52,7 @@
 use super::ceiling::ProgramLines;
 use super::limit::{
     balance_rows, local_peak, noise_hides_bound, orthonormal_map, performance_weight_magnitude,
-    thinned_lines, LoopBounds,
+    thinned_lines, ConeRows, LoopBounds,
 };
 use super::search::Requirements;
 use crate::config::controller::CORNER_RAD_S;
@@ -401,59 +401,6 @@ fn gamma(c: &Polynomials, lines: &[Line], period_s: f64, s_max: f64, w_star: f64
         .fold(0.0, f64::max)
 }
 
-/// A sparse constraint matrix built row by row (`s = b − A v`).
-#[derive(Default)]
-struct Rows {
-    ri: Vec<usize>,
-    ci: Vec<usize>,
-    vals: Vec<f64>,
-    b: Vec<f64>,
-    cones: Vec<SupportedConeT<f64>>,
-}
-
-impl Rows {
-    /// One row `s = constant + Σ coef·v` (so `A = −coef`).
-    fn row(&mut self, constant: f64, coefs: impl IntoIterator<Item = (usize, f64)>) {
-        let r = self.b.len();
-        for (c, v) in coefs {
-            if v != 0.0 {
-                self.ri.push(r);
-                self.ci.push(c);
-                self.vals.push(-v);
-            }
-        }
-        self.b.push(constant);
-    }
-}
-
-/// An affine complex expression `c0 + Σ cᵢ vᵢ` over the variables.
-#[derive(Clone)]
-struct Affine {
-    c0: C64,
-    terms: Vec<(usize, C64)>,
-}
-
-impl Affine {
-    fn scale(&self, k: C64) -> Self {
-        Self {
-            c0: self.c0 * k,
-            terms: self.terms.iter().map(|(i, c)| (*i, c * k)).collect(),
-        }
-    }
-    fn re(&self) -> (f64, Vec<(usize, f64)>) {
-        (
-            self.c0.re,
-            self.terms.iter().map(|(i, c)| (*i, c.re)).collect(),
-        )
-    }
-    fn im(&self) -> (f64, Vec<(usize, f64)>) {
-        (
-            self.c0.im,
-            self.terms.iter().map(|(i, c)| (*i, c.im)).collect(),
-        )
-    }
-}
-
 /// Clarabel's settings for a step's program: quiet, at most 100
 /// interior-point steps, and without iterative refinement of the KKT
 /// solves. A step's answer is judged by exact arithmetic on every line
@@ -484,16 +431,15 @@ fn free_y(var: Variable, ny: usize, g: C64, i: usize) -> C64 {
     }
 }
 
-/// A step's program at one line: Y_c/|Φ_c|, P X_c/|Φ_c|, Φ_c/|Φ_c|, and
-/// the columns of x and y (normalised by |Φ_c|).
+/// A step's program at one line: Y_c/|Φ_c|, P X_c/|Φ_c|, Φ_c/|Φ_c|, the
+/// plant P, and the columns of P X and of Y (each over |Φ_c|).
 struct LineAt {
     y: C64,
     px: C64,
     unit: C64,
+    /// The plant on the line (µm/A over the scale).
+    p: C64,
     cx: Vec<C64>,
-    /// X's columns over |Φ_c| (the effort K S = X/Φ).
-    ex: Vec<C64>,
-    x: C64,
     cy: Vec<C64>,
     w: f64,
     u: f64,
@@ -522,9 +468,8 @@ fn lines_at(
                 y: yc * inv,
                 px: p * xc * inv,
                 unit: phi * inv,
+                p,
                 cx: (0..nx).map(|i| p * g.powi(i as i32) * inv).collect(),
-                ex: (0..nx).map(|i| g.powi(i as i32) * inv).collect(),
-                x: xc * inv,
                 cy: (0..ny)
                     .map(|i| (1.0 - zeta) * free_y(var, ny, g, i) * inv)
                     .collect(),
@@ -639,78 +584,78 @@ fn step(
             .map(|j| c.iter().enumerate().map(|(i, v)| v * t[(i, j)]).sum())
             .collect()
     };
-    // Variables: x̃ (rx), ỹ (ry), t, then a_k, b_k per line.
+    // Variables: x̃ (rx), ỹ (ry), t, then per line a_k, b_k and the
+    // values P X/|Φ_c| = x_r + j x_i and Y/|Φ_c| = y_r + j y_i (T's and
+    // S's, of order one on every line), each tied to x̃ or ỹ by an
+    // equality. Every cone then holds a few of the line's own variables,
+    // and only the four equalities hold the coefficients: the KKT
+    // factorisation's fill per line is about 2(rx² + ry²) where the cones
+    // over the coefficients themselves gave about 3(rx + ry)² for each of
+    // the effort's and |T|'s cones alone.
     let it = rx + ry;
-    let nv = it + 1 + 2 * nl;
-    let mut rows = Rows::default();
-    let mut soc = 0usize;
+    let per_line = 6;
+    let nv = it + 1 + per_line * nl;
+    let mut rows = ConeRows::default();
     let mut lin_rows: Vec<(f64, Vec<(usize, f64)>)> = Vec::new();
     for (k, a) in at.iter().enumerate() {
         let cx = map(&a.cx, &tx);
         let cy = map(&a.cy, &ty);
-        let y_aff = Affine {
-            c0: a.y,
-            terms: cy.iter().enumerate().map(|(j, c)| (rx + j, *c)).collect(),
-        };
-        let px_aff = Affine {
-            c0: a.px,
-            terms: cx.iter().enumerate().map(|(j, c)| (j, *c)).collect(),
-        };
-        // lin = Re{(Y + PX)/|Φ_c| · Φ_c*/|Φ_c|}.
-        let conj = a.unit.conj();
-        let mut terms: Vec<(usize, C64)> = px_aff.terms.clone();
-        terms.extend(y_aff.terms.iter().copied());
-        let lin = Affine {
-            c0: (a.y + a.px) * conj,
-            terms: terms.iter().map(|(i, c)| (*i, c * conj)).collect(),
-        }
-        .re();
-        let (ak, bk) = (it + 1 + 2 * k, it + 2 + 2 * k);
-        for (head, aff) in [
-            (ak, y_aff.scale(C64::new(a.w, 0.0))),
-            (bk, px_aff.scale(C64::new(a.u, 0.0))),
-        ] {
-            rows.row(0.0, [(head, 1.0)]);
-            let (c, t) = aff.re();
-            rows.row(c, t);
-            let (c, t) = aff.im();
-            rows.row(c, t);
-            soc += 1;
-        }
-        // (effort_max (lin − t), X/|Φ_c|) ∈ SOC: |K S| bounded.
+        let base = it + 1 + per_line * k;
+        let (ak, bk, xr, xi, yr, yi) = (base, base + 1, base + 2, base + 3, base + 4, base + 5);
+        // x_r + j x_i = P X/|Φ_c| = a.px + Σ cx_j x̃_j; y likewise from ỹ.
+        for (value, cols, offset, (vr, vi)) in [(a.px, &cx, 0, (xr, xi)), (a.y, &cy, rx, (yr, yi))]
         {
-            let ex = map(&a.ex, &tx);
-            let x_aff = Affine {
-                c0: a.x,
-                terms: ex.iter().enumerate().map(|(j, c)| (j, *c)).collect(),
-            };
-            let mut head: Vec<(usize, f64)> =
-                lin.1.iter().map(|(i, v)| (*i, v * effort_max)).collect();
-            head.push((it, -effort_max));
-            rows.row(lin.0 * effort_max, head);
-            let (c, t) = x_aff.re();
-            rows.row(c, t);
-            let (c, t) = x_aff.im();
-            rows.row(c, t);
-            soc += 1;
+            let mut re: Vec<(usize, f64)> = cols
+                .iter()
+                .enumerate()
+                .map(|(j, c)| (offset + j, c.re))
+                .collect();
+            re.push((vr, -1.0));
+            rows.affine(value.re, re);
+            let mut im: Vec<(usize, f64)> = cols
+                .iter()
+                .enumerate()
+                .map(|(j, c)| (offset + j, c.im))
+                .collect();
+            im.push((vi, -1.0));
+            rows.affine(value.im, im);
         }
-        if a.t_max.is_finite() {
-            let mut head: Vec<(usize, f64)> =
-                lin.1.iter().map(|(i, v)| (*i, v * a.t_max)).collect();
-            head.push((it, -a.t_max));
-            rows.row(lin.0 * a.t_max, head);
-            let (c, t) = px_aff.re();
-            rows.row(c, t);
-            let (c, t) = px_aff.im();
-            rows.row(c, t);
-            soc += 1;
-        }
-        let mut r = lin.1.clone();
-        r.extend([(it, -1.0), (ak, -1.0), (bk, -1.0)]);
-        lin_rows.push((lin.0, r));
-    }
-    for _ in 0..soc {
+        rows.cones.push(SupportedConeT::ZeroConeT(4));
+        // lin = Re{(Y + P X)/|Φ_c| · Φ_c*/|Φ_c|}.
+        let conj = a.unit.conj();
+        let lin = [(yr, conj.re), (yi, -conj.im), (xr, conj.re), (xi, -conj.im)];
+        // (a_k, w Y/|Φ_c|) and (b_k, w_I P X/|Φ_c|) ∈ SOC.
+        rows.affine(0.0, [(ak, 1.0)]);
+        rows.affine(0.0, [(yr, a.w)]);
+        rows.affine(0.0, [(yi, a.w)]);
+        rows.affine(0.0, [(bk, 1.0)]);
+        rows.affine(0.0, [(xr, a.u)]);
+        rows.affine(0.0, [(xi, a.u)]);
+        rows.cones.extend([
+            SupportedConeT::SecondOrderConeT(3),
+            SupportedConeT::SecondOrderConeT(3),
+        ]);
+        // (effort_max (lin − t), X/|Φ_c|) ∈ SOC: |K S| bounded, X = (P X)/P.
+        let head = |bound: f64| {
+            let mut h: Vec<(usize, f64)> = lin.iter().map(|(i, v)| (*i, v * bound)).collect();
+            h.push((it, -bound));
+            h
+        };
+        let g = 1.0 / a.p;
+        rows.affine(0.0, head(effort_max));
+        rows.affine(0.0, [(xr, g.re), (xi, -g.im)]);
+        rows.affine(0.0, [(xr, g.im), (xi, g.re)]);
         rows.cones.push(SupportedConeT::SecondOrderConeT(3));
+        // (t_max (lin − t), P X/|Φ_c|) ∈ SOC: |T| bounded.
+        if a.t_max.is_finite() {
+            rows.affine(0.0, head(a.t_max));
+            rows.affine(0.0, [(xr, 1.0)]);
+            rows.affine(0.0, [(xi, 1.0)]);
+            rows.cones.push(SupportedConeT::SecondOrderConeT(3));
+        }
+        let mut r = lin.to_vec();
+        r.extend([(it, -1.0), (ak, -1.0), (bk, -1.0)]);
+        lin_rows.push((0.0, r));
     }
     // A stable Ȳ: Re{Ȳ Ȳ_c*}/|Ȳ_c|² ≥ margin on the grid.
     for (unit, cols) in &gy {
@@ -728,7 +673,7 @@ fn step(
     lin_rows.push((1.0, vec![(it, -1.0)]));
     let nn = lin_rows.len();
     for (c, r) in lin_rows {
-        rows.row(c, r);
+        rows.affine(c, r);
     }
     rows.cones.push(SupportedConeT::NonnegativeConeT(nn));
     let m = rows.b.len();

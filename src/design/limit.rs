@@ -944,8 +944,8 @@ pub(super) fn balance_rows(
     for cone in cones {
         let (dim, together) = match cone {
             SupportedConeT::SecondOrderConeT(d) => (*d, true),
-            SupportedConeT::NonnegativeConeT(d) => (*d, false),
-            _ => unreachable!("balance_rows: only second-order and nonnegative cones"),
+            SupportedConeT::NonnegativeConeT(d) | SupportedConeT::ZeroConeT(d) => (*d, false),
+            _ => unreachable!("balance_rows: only second-order, nonnegative and zero cones"),
         };
         let rows = r0..r0 + dim;
         if together {
@@ -1285,6 +1285,34 @@ fn in_orthonormal_coordinates(
     )
 }
 
+/// A cone program's constraints built row by row in the cones' order
+/// (Clarabel's `s = b − A x ∈ K`).
+#[derive(Default)]
+pub(super) struct ConeRows {
+    pub(super) ri: Vec<usize>,
+    pub(super) ci: Vec<usize>,
+    pub(super) vals: Vec<f64>,
+    pub(super) b: Vec<f64>,
+    pub(super) cones: Vec<SupportedConeT<f64>>,
+}
+
+impl ConeRows {
+    /// One row, the slack as an affine function of the variables:
+    /// `s = constant + Σ coef·x` (`coefs` by column; zeros left out), so
+    /// `b = constant` and `A = −coef`.
+    pub(super) fn affine(&mut self, constant: f64, coefs: impl IntoIterator<Item = (usize, f64)>) {
+        let r = self.b.len();
+        for (c, v) in coefs {
+            if v != 0.0 {
+                self.ri.push(r);
+                self.ci.push(c);
+                self.vals.push(-v);
+            }
+        }
+        self.b.push(constant);
+    }
+}
+
 /// One cone program's answer: `min max |W_P S|` over the active lines,
 /// the coefficients that reach it, and its 1σ.
 struct Solved {
@@ -1343,39 +1371,43 @@ mod tests {
     use super::*;
 
     /// Balanced rows describe the same program: each cone's rows of
-    /// `[A b]` at unit norm together, each nonnegative row alone, the
+    /// `[A b]` at unit norm together, each nonnegative and zero row alone, the
     /// returned scale what multiplied them; and Clarabel finds the same
     /// optimum, and the original's dual from the balanced one's (`D z`
     /// meets the dual's stationarity `c + Aᵀ z = 0` on the original
     /// data). The program: min t s.t. ‖(x − 3, 2(y + 1))‖ ≤ t scaled by
-    /// 10⁴, x ≥ 1 scaled by 10⁻³, y ≤ −2: the optimum t = 2 at (3, −2).
+    /// 10⁴, w = x scaled by 10³, w ≥ 1 scaled by 10⁻³, y ≤ −2: the
+    /// optimum t = 2 at x = w = 3, y = −2.
     #[test]
     fn balanced_rows_are_the_same_program() {
-        // Variables (x, y, t); rows s = b − A x, triplets of A.
-        // Cone: (1e4 t, 1e4 (x − 3), 1e4·2(y + 1)); then 10⁻³(x − 1) ≥ 0
-        // and −2 − y ≥ 0.
+        // Variables (x, y, t, w); rows s = b − A x, triplets of A.
+        // Cone: (1e4 t, 1e4 (x − 3), 1e4·2(y + 1)); then 10³(x − w) = 0;
+        // then 10⁻³(w − 1) ≥ 0 and −2 − y ≥ 0.
         let trip = [
             (0, 2, -1e4),
             (1, 0, -1e4),
             (2, 1, -2e4),
-            (3, 0, -1e-3),
-            (4, 1, 1.0),
+            (3, 0, -1e3),
+            (3, 3, 1e3),
+            (4, 3, -1e-3),
+            (5, 1, 1.0),
         ];
         let ri: Vec<usize> = trip.iter().map(|t| t.0).collect();
         let ci: Vec<usize> = trip.iter().map(|t| t.1).collect();
         let vals: Vec<f64> = trip.iter().map(|t| t.2).collect();
-        let b0 = vec![0.0, -3e4, 2e4, -1e-3, -2.0];
+        let b0 = vec![0.0, -3e4, 2e4, 0.0, -1e-3, -2.0];
         let cones = [
             SupportedConeT::SecondOrderConeT(3),
+            SupportedConeT::ZeroConeT(1),
             SupportedConeT::NonnegativeConeT(2),
         ];
         let solve = |balance: bool| {
-            let mut a = CscMatrix::new_from_triplets(5, 3, ri.clone(), ci.clone(), vals.clone());
+            let mut a = CscMatrix::new_from_triplets(6, 4, ri.clone(), ci.clone(), vals.clone());
             let mut b = b0.clone();
             let d = if balance {
                 balance_rows(&a.rowval, &mut a.nzval, &mut b, &cones)
             } else {
-                vec![1.0; 5]
+                vec![1.0; 6]
             };
             if balance {
                 // Each block at unit norm.
@@ -1384,7 +1416,9 @@ mod tests {
                     norm2[r] += v * v;
                 }
                 assert!((norm2[..3].iter().sum::<f64>() - 1.0).abs() < 1e-12);
-                assert!((norm2[3] - 1.0).abs() < 1e-12 && (norm2[4] - 1.0).abs() < 1e-12);
+                for r in 3..6 {
+                    assert!((norm2[r] - 1.0).abs() < 1e-12, "row {r}: {}", norm2[r]);
+                }
                 assert_eq!(d[0], d[1]);
                 assert_eq!(d[1], d[2]);
             }
@@ -1393,9 +1427,9 @@ mod tests {
                 equilibrate_enable: !balance,
                 ..DefaultSettings::default()
             };
-            let p = CscMatrix::zeros((3, 3));
+            let p = CscMatrix::zeros((4, 4));
             let mut solver =
-                DefaultSolver::new(&p, &[0.0, 0.0, 1.0], &a, &b, &cones, settings).unwrap();
+                DefaultSolver::new(&p, &[0.0, 0.0, 1.0, 0.0], &a, &b, &cones, settings).unwrap();
             solver.solve();
             assert_eq!(solver.solution.status, SolverStatus::Solved);
             let z: Vec<f64> = solver
@@ -1413,14 +1447,17 @@ mod tests {
                 (x[0] - 3.0).abs() < 1e-6 && (x[1] + 2.0).abs() < 1e-6,
                 "{x:?}"
             );
-            assert!((x[2] - 2.0).abs() < 1e-6, "{x:?}");
+            assert!(
+                (x[2] - 2.0).abs() < 1e-6 && (x[3] - 3.0).abs() < 1e-6,
+                "{x:?}"
+            );
             // The dual's stationarity on the original data: c + Aᵀ z = 0.
-            let mut atz = [0.0; 3];
+            let mut atz = [0.0; 4];
             for ((&r, &c), &v) in ri.iter().zip(&ci).zip(&vals) {
                 atz[c] += v * z[r];
             }
-            let c = [0.0, 0.0, 1.0];
-            for k in 0..3 {
+            let c = [0.0, 0.0, 1.0, 0.0];
+            for k in 0..4 {
                 assert!(
                     (atz[k] + c[k]).abs() < 1e-6,
                     "balanced {balance}: Aᵀz {atz:?}"
