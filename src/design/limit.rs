@@ -1416,8 +1416,8 @@ mod tests {
                     norm2[r] += v * v;
                 }
                 assert!((norm2[..3].iter().sum::<f64>() - 1.0).abs() < 1e-12);
-                for r in 3..6 {
-                    assert!((norm2[r] - 1.0).abs() < 1e-12, "row {r}: {}", norm2[r]);
+                for (r, n2) in norm2.iter().enumerate().skip(3) {
+                    assert!((n2 - 1.0).abs() < 1e-12, "row {r}: {n2}");
                 }
                 assert_eq!(d[0], d[1]);
                 assert_eq!(d[1], d[2]);
