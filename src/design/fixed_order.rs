@@ -52,7 +52,7 @@
 use super::ceiling::ProgramLines;
 use super::limit::{
     balance_rows, local_peak, noise_hides_bound, orthonormal_map, performance_weight_magnitude,
-    thinned_lines, ConeRows, LoopBounds,
+    thinned_lines, LoopBounds,
 };
 use super::search::Requirements;
 use crate::config::controller::CORNER_RAD_S;
@@ -401,6 +401,32 @@ fn gamma(c: &Polynomials, lines: &[Line], period_s: f64, s_max: f64, w_star: f64
         .fold(0.0, f64::max)
 }
 
+/// A step's constraints built row by row in the cones' order (Clarabel's
+/// `s = b − A v ∈ K`).
+#[derive(Default)]
+struct Rows {
+    ri: Vec<usize>,
+    ci: Vec<usize>,
+    vals: Vec<f64>,
+    b: Vec<f64>,
+    cones: Vec<SupportedConeT<f64>>,
+}
+
+impl Rows {
+    /// One row `s = constant + Σ coef·v` (zeros left out; so `A = −coef`).
+    fn row(&mut self, constant: f64, coefs: impl IntoIterator<Item = (usize, f64)>) {
+        let r = self.b.len();
+        for (c, v) in coefs {
+            if v != 0.0 {
+                self.ri.push(r);
+                self.ci.push(c);
+                self.vals.push(-v);
+            }
+        }
+        self.b.push(constant);
+    }
+}
+
 /// Clarabel's settings for a step's program: quiet, at most 100
 /// interior-point steps, and without iterative refinement of the KKT
 /// solves. A step's answer is judged by exact arithmetic on every line
@@ -595,7 +621,7 @@ fn step(
     let it = rx + ry;
     let per_line = 6;
     let nv = it + 1 + per_line * nl;
-    let mut rows = ConeRows::default();
+    let mut rows = Rows::default();
     let mut lin_rows: Vec<(f64, Vec<(usize, f64)>)> = Vec::new();
     for (k, a) in at.iter().enumerate() {
         let cx = map(&a.cx, &tx);
@@ -605,32 +631,28 @@ fn step(
         // x_r + j x_i = P X/|Φ_c| = a.px + Σ cx_j x̃_j; y likewise from ỹ.
         for (value, cols, offset, (vr, vi)) in [(a.px, &cx, 0, (xr, xi)), (a.y, &cy, rx, (yr, yi))]
         {
-            let mut re: Vec<(usize, f64)> = cols
-                .iter()
-                .enumerate()
-                .map(|(j, c)| (offset + j, c.re))
-                .collect();
-            re.push((vr, -1.0));
-            rows.affine(value.re, re);
-            let mut im: Vec<(usize, f64)> = cols
-                .iter()
-                .enumerate()
-                .map(|(j, c)| (offset + j, c.im))
-                .collect();
-            im.push((vi, -1.0));
-            rows.affine(value.im, im);
+            for (imaginary, v) in [(false, vr), (true, vi)] {
+                let part = |c: &C64| if imaginary { c.im } else { c.re };
+                let mut r: Vec<(usize, f64)> = cols
+                    .iter()
+                    .enumerate()
+                    .map(|(j, c)| (offset + j, part(c)))
+                    .collect();
+                r.push((v, -1.0));
+                rows.row(part(&value), r);
+            }
         }
         rows.cones.push(SupportedConeT::ZeroConeT(4));
         // lin = Re{(Y + P X)/|Φ_c| · Φ_c*/|Φ_c|}.
         let conj = a.unit.conj();
         let lin = [(yr, conj.re), (yi, -conj.im), (xr, conj.re), (xi, -conj.im)];
         // (a_k, w Y/|Φ_c|) and (b_k, w_I P X/|Φ_c|) ∈ SOC.
-        rows.affine(0.0, [(ak, 1.0)]);
-        rows.affine(0.0, [(yr, a.w)]);
-        rows.affine(0.0, [(yi, a.w)]);
-        rows.affine(0.0, [(bk, 1.0)]);
-        rows.affine(0.0, [(xr, a.u)]);
-        rows.affine(0.0, [(xi, a.u)]);
+        rows.row(0.0, [(ak, 1.0)]);
+        rows.row(0.0, [(yr, a.w)]);
+        rows.row(0.0, [(yi, a.w)]);
+        rows.row(0.0, [(bk, 1.0)]);
+        rows.row(0.0, [(xr, a.u)]);
+        rows.row(0.0, [(xi, a.u)]);
         rows.cones.extend([
             SupportedConeT::SecondOrderConeT(3),
             SupportedConeT::SecondOrderConeT(3),
@@ -642,15 +664,15 @@ fn step(
             h
         };
         let g = 1.0 / a.p;
-        rows.affine(0.0, head(effort_max));
-        rows.affine(0.0, [(xr, g.re), (xi, -g.im)]);
-        rows.affine(0.0, [(xr, g.im), (xi, g.re)]);
+        rows.row(0.0, head(effort_max));
+        rows.row(0.0, [(xr, g.re), (xi, -g.im)]);
+        rows.row(0.0, [(xr, g.im), (xi, g.re)]);
         rows.cones.push(SupportedConeT::SecondOrderConeT(3));
         // (t_max (lin − t), P X/|Φ_c|) ∈ SOC: |T| bounded.
         if a.t_max.is_finite() {
-            rows.affine(0.0, head(a.t_max));
-            rows.affine(0.0, [(xr, 1.0)]);
-            rows.affine(0.0, [(xi, 1.0)]);
+            rows.row(0.0, head(a.t_max));
+            rows.row(0.0, [(xr, 1.0)]);
+            rows.row(0.0, [(xi, 1.0)]);
             rows.cones.push(SupportedConeT::SecondOrderConeT(3));
         }
         let mut r = lin.to_vec();
@@ -673,7 +695,7 @@ fn step(
     lin_rows.push((1.0, vec![(it, -1.0)]));
     let nn = lin_rows.len();
     for (c, r) in lin_rows {
-        rows.affine(c, r);
+        rows.row(c, r);
     }
     rows.cones.push(SupportedConeT::NonnegativeConeT(nn));
     let m = rows.b.len();

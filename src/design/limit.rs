@@ -919,7 +919,7 @@ pub(super) fn orthonormal_map(x: &nalgebra::DMatrix<f64>) -> nalgebra::DMatrix<f
 /// Balances a cone program's rows for the interior point, in place: each
 /// second-order cone's rows of `[A b]` (triplets `ri`, `vals` and `b`)
 /// scaled together to unit norm (a cone is unchanged by a positive
-/// scale), each nonnegative row to unit norm alone. Returns the scale of
+/// scale), each nonnegative or zero (equality) row to unit norm alone. Returns the scale of
 /// every row, `D`: the program's constraint is then `D (b − A x) ∈ K`,
 /// the same set, and the dual of the original is `D z`.
 ///
@@ -1283,34 +1283,6 @@ fn in_orthonormal_coordinates(
         CscMatrix::new_from_triplets(m, kept + 1, ri, ci, vals),
         back,
     )
-}
-
-/// A cone program's constraints built row by row in the cones' order
-/// (Clarabel's `s = b − A x ∈ K`).
-#[derive(Default)]
-pub(super) struct ConeRows {
-    pub(super) ri: Vec<usize>,
-    pub(super) ci: Vec<usize>,
-    pub(super) vals: Vec<f64>,
-    pub(super) b: Vec<f64>,
-    pub(super) cones: Vec<SupportedConeT<f64>>,
-}
-
-impl ConeRows {
-    /// One row, the slack as an affine function of the variables:
-    /// `s = constant + Σ coef·x` (`coefs` by column; zeros left out), so
-    /// `b = constant` and `A = −coef`.
-    pub(super) fn affine(&mut self, constant: f64, coefs: impl IntoIterator<Item = (usize, f64)>) {
-        let r = self.b.len();
-        for (c, v) in coefs {
-            if v != 0.0 {
-                self.ri.push(r);
-                self.ci.push(c);
-                self.vals.push(-v);
-            }
-        }
-        self.b.push(constant);
-    }
 }
 
 /// One cone program's answer: `min max |W_P S|` over the active lines,
