@@ -211,19 +211,8 @@ fn with_daemon_each_cell_is_a_daemon_job_after_the_operator_answers() {
     let recordings = tmp.path().join("daemon-recordings");
     std::fs::create_dir(&recordings).unwrap();
     // Killed on drop, also when an assertion fails.
-    struct Serve(std::process::Child);
-    impl Drop for Serve {
-        fn drop(&mut self) {
-            let _ = self.0.kill();
-            let _ = self.0.wait();
-        }
-    }
-    let _serve = Serve(daemon_fixtures::spawn_serve(
-        &tmp.path().join("bench.toml"),
-        &socket,
-        &recordings,
-        &[],
-    ));
+    let _serve =
+        daemon_fixtures::spawn_serve(&tmp.path().join("bench.toml"), &socket, &recordings, &[]);
     let text = std::fs::read_to_string(&file).unwrap();
     std::fs::write(
         &file,

@@ -388,28 +388,22 @@ fn the_default_socket_is_the_servers() {
     std::fs::set_permissions(dir.path(), std::fs::Permissions::from_mode(0o700)).unwrap();
     let config = quiet_config(dir.path(), 1.0, "");
     let mut serve = bench();
-    let serve = serve
-        .env("XDG_RUNTIME_DIR", dir.path())
-        .env("RUST_LOG", "warn")
-        .args([
-            "serve",
-            "--config",
-            config.to_str().unwrap(),
-            "--recordings",
-            dir.path().join("rec").to_str().unwrap(),
-        ])
-        .stdout(std::process::Stdio::null())
-        .stderr(std::process::Stdio::null())
-        .spawn()
-        .unwrap();
-    struct Kill(std::process::Child);
-    impl Drop for Kill {
-        fn drop(&mut self) {
-            let _ = self.0.kill();
-            let _ = self.0.wait();
-        }
-    }
-    let _serve = Kill(serve);
+    let _serve = KillOnDrop::new(
+        serve
+            .env("XDG_RUNTIME_DIR", dir.path())
+            .env("RUST_LOG", "warn")
+            .args([
+                "serve",
+                "--config",
+                config.to_str().unwrap(),
+                "--recordings",
+                dir.path().join("rec").to_str().unwrap(),
+            ])
+            .stdout(std::process::Stdio::null())
+            .stderr(std::process::Stdio::null())
+            .spawn()
+            .unwrap(),
+    );
     let socket = dir.path().join("bench.sock");
     let t0 = Instant::now();
     while std::os::unix::net::UnixStream::connect(&socket).is_err() {

@@ -4,17 +4,18 @@
 //! `#[path = "common/daemon.rs"] mod daemon_fixtures;` beside `mod common;`.
 #![allow(dead_code)]
 
-use crate::common::{bench, tmp};
+use crate::common::{bench, tmp, KillOnDrop};
 use serde_json::{json, Value};
 use std::io::{BufRead, BufReader, Write};
 use std::os::unix::fs::PermissionsExt;
 use std::os::unix::net::UnixStream;
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
+use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
-/// Starts `bench serve` and waits until its socket answers.
-pub fn spawn_serve(config: &Path, socket: &Path, recordings: &Path, extra: &[&str]) -> Child {
+/// Starts `bench serve` and waits until its socket answers. The daemon is
+/// killed when the returned guard drops (a failed assertion too).
+pub fn spawn_serve(config: &Path, socket: &Path, recordings: &Path, extra: &[&str]) -> KillOnDrop {
     spawn_serve_with(config, socket, recordings, extra, |_| {})
 }
 
@@ -26,14 +27,14 @@ pub fn spawn_serve_with(
     recordings: &Path,
     extra: &[&str],
     adjust: impl FnOnce(&mut Command),
-) -> Child {
+) -> KillOnDrop {
     let mut cmd = bench();
     // Its stderr is a pipe the tests do not read: warnings only, so a long
     // test never fills it (tests/cli/logging.rs reads the default `info`).
     cmd.env("RUST_LOG", "warn");
     adjust(&mut cmd);
-    let child = cmd
-        .args([
+    let child = KillOnDrop::new(
+        cmd.args([
             "serve",
             "--config",
             config.to_str().unwrap(),
@@ -46,7 +47,8 @@ pub fn spawn_serve_with(
         .stdout(Stdio::null())
         .stderr(Stdio::piped())
         .spawn()
-        .unwrap();
+        .unwrap(),
+    );
     let t0 = Instant::now();
     while UnixStream::connect(socket).is_err() {
         assert!(
@@ -58,8 +60,10 @@ pub fn spawn_serve_with(
     child
 }
 
+/// A daemon on a private socket and config, killed when dropped (its
+/// `child` first, then its directory removed).
 pub struct Daemon {
-    pub child: Child,
+    pub child: KillOnDrop,
     pub socket: PathBuf,
     pub dir: tempfile::TempDir,
     pub config: PathBuf,
@@ -111,13 +115,6 @@ impl Daemon {
 
     pub fn sock(&self) -> String {
         self.socket.display().to_string()
-    }
-}
-
-impl Drop for Daemon {
-    fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
     }
 }
 

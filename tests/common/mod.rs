@@ -16,7 +16,7 @@ pub use watchdog::{wait_for_watchdog_trip, WatchdogTrip};
 
 use serde_json::Value;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::{Child, Command, Output};
 
 /// The `bench` binary under test.
 pub fn bench() -> Command {
@@ -28,6 +28,46 @@ pub fn bench() -> Command {
 /// Runs `bench` with `args`, returns the output.
 pub fn run(args: &[&str]) -> Output {
     bench().args(args).output().expect("cannot start bench")
+}
+
+/// A child process (a daemon, a server) that is killed and reaped when
+/// dropped: at the end of its test, and on a failed assertion too, so a
+/// test that panics leaves nothing running to load the machine or hold a
+/// socket. Dereferences to the [`Child`]; [`Self::into_inner`] takes it
+/// back (to wait for its output).
+pub struct KillOnDrop(Option<Child>);
+
+impl KillOnDrop {
+    pub fn new(child: Child) -> Self {
+        Self(Some(child))
+    }
+
+    /// The child, no longer killed when dropped.
+    pub fn into_inner(mut self) -> Child {
+        self.0.take().expect("a child until into_inner")
+    }
+}
+
+impl std::ops::Deref for KillOnDrop {
+    type Target = Child;
+    fn deref(&self) -> &Child {
+        self.0.as_ref().expect("a child until into_inner")
+    }
+}
+
+impl std::ops::DerefMut for KillOnDrop {
+    fn deref_mut(&mut self) -> &mut Child {
+        self.0.as_mut().expect("a child until into_inner")
+    }
+}
+
+impl Drop for KillOnDrop {
+    fn drop(&mut self) {
+        if let Some(c) = self.0.as_mut() {
+            let _ = c.kill();
+            let _ = c.wait();
+        }
+    }
 }
 
 /// A fresh temporary directory.

@@ -316,12 +316,12 @@ fn each_daemon_job_equals_the_local_run_with_its_seed() {
     std::fs::set_permissions(dir.path(), std::fs::Permissions::from_mode(0o700)).unwrap();
     let config = noisy_config(dir.path());
     let socket = dir.path().join("bench.sock");
-    let mut child = KillOnDrop(spawn_serve(
+    let mut child = spawn_serve(
         &config,
         &socket,
         &dir.path().join("rec"),
         &["--seed", "5", "--pace", "off"],
-    ));
+    );
     std::thread::sleep(Duration::from_secs(1));
     let mut c = Client::new(&socket);
     let compare = |daemon: &Value, local: &Value, tol_m: f64| {
@@ -383,16 +383,7 @@ fn each_daemon_job_equals_the_local_run_with_its_seed() {
     let l = local_control(&config, 7, &dir.path().join("local7.mcap"));
     compare(&r["result"], &l, 1e-12);
     drop(c);
-    let _ = child.0.kill();
-}
-
-struct KillOnDrop(std::process::Child);
-
-impl Drop for KillOnDrop {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
+    let _ = child.kill();
 }
 
 /// With a relative `--recordings`, every path the daemon returns is
@@ -404,15 +395,9 @@ fn the_daemon_returns_absolute_paths() {
     std::fs::set_permissions(dir.path(), std::fs::Permissions::from_mode(0o700)).unwrap();
     let config = quiet_config(dir.path(), 1.0, "");
     let socket = dir.path().join("bench.sock");
-    let _d = KillOnDrop(spawn_serve_with(
-        &config,
-        &socket,
-        Path::new("rec"),
-        &[],
-        |c| {
-            c.current_dir(dir.path());
-        },
-    ));
+    let _d = spawn_serve_with(&config, &socket, Path::new("rec"), &[], |c| {
+        c.current_dir(dir.path());
+    });
     let mut c = Client::new(&socket);
     let r = c.call(
         "control",
@@ -504,7 +489,7 @@ fn server_and_client_agree_on_the_default_socket_without_xdg_runtime_dir() {
             );
             continue;
         }
-        let mut child = KillOnDrop(
+        let mut child = KillOnDrop::new(
             serve
                 .stdout(Stdio::null())
                 .stderr(Stdio::piped())
@@ -513,9 +498,9 @@ fn server_and_client_agree_on_the_default_socket_without_xdg_runtime_dir() {
         );
         let t0 = std::time::Instant::now();
         while UnixStream::connect(&socket).is_err() {
-            if let Some(st) = child.0.try_wait().unwrap() {
+            if let Some(st) = child.try_wait().unwrap() {
                 let mut err = String::new();
-                let _ = std::io::Read::read_to_string(child.0.stderr.as_mut().unwrap(), &mut err);
+                let _ = std::io::Read::read_to_string(child.stderr.as_mut().unwrap(), &mut err);
                 panic!("XDG_RUNTIME_DIR={xdg:?}: bench serve exited {st}: {err}");
             }
             assert!(
@@ -581,8 +566,8 @@ fn server_and_client_agree_on_the_default_socket_without_xdg_runtime_dir() {
             "{r}"
         );
         // SIGTERM: the daemon removes its socket.
-        unsafe { libc::kill(child.0.id() as i32, libc::SIGTERM) };
-        let st = child.0.wait().unwrap();
+        unsafe { libc::kill(child.id() as i32, libc::SIGTERM) };
+        let st = child.wait().unwrap();
         assert!(st.success(), "{st}");
         assert!(!socket.exists());
     }

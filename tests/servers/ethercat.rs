@@ -875,8 +875,8 @@ fn daemon_jobs_wait_for_the_link_as_long_as_their_own_stall_bound() {
 
     let slave = Slave::start(&seg, &cfg, vec![], None);
     let sock = dir.path().join("b.sock");
-    let mut serve = seg
-        .bench_in_master(&[
+    let serve = KillOnDrop::new(
+        seg.bench_in_master(&[
             "serve",
             "--config",
             &cfg_s,
@@ -891,7 +891,8 @@ fn daemon_jobs_wait_for_the_link_as_long_as_their_own_stall_bound() {
         .stdout(Stdio::null())
         .stderr(Stdio::null())
         .spawn()
-        .unwrap();
+        .unwrap(),
+    );
     let t0 = Instant::now();
     while std::os::unix::net::UnixStream::connect(&sock).is_err() {
         assert!(
@@ -935,8 +936,7 @@ fn daemon_jobs_wait_for_the_link_as_long_as_their_own_stall_bound() {
         "--duration-s",
         "1",
     ]);
-    let _ = serve.kill();
-    let _ = serve.wait();
+    drop(serve);
     // The local fast step's deadline.
     let o =
         retrying_vm_stalls(|a| control(&seg, &cfg_s, &attempt_path(dir.path(), "local", a), &[]));

@@ -19,7 +19,7 @@ use std::collections::BTreeMap;
 use std::io::{BufRead, BufReader, Read, Write};
 use std::net::TcpStream;
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
+use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 // ---------------------------------------------------------------------
@@ -578,16 +578,6 @@ fn a_scrape_counts_the_loop_s_ticks_jobs_faults_and_recordings() {
     }
 }
 
-/// Kills a process when dropped (on failure too).
-struct KillOnDrop(Child);
-
-impl Drop for KillOnDrop {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
-
 /// `s` percent-encoded for a URL query (everything but the unreserved).
 fn url_encode(s: &str) -> String {
     s.bytes()
@@ -707,7 +697,7 @@ fn a_real_prometheus_scrapes_the_daemon_and_answers_the_readme_s_queries() {
     std::fs::write(&config, yaml.replace("127.0.0.1:9464", &m.addr)).unwrap();
     let web = format!("127.0.0.1:{}", free_port());
     let log = dir.path().join("prometheus.log");
-    let prom = KillOnDrop(
+    let prom = KillOnDrop::new(
         Command::new(&prometheus)
             .arg(format!("--config.file={}", config.display()))
             .arg(format!(

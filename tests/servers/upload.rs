@@ -16,7 +16,7 @@
 use crate::common;
 use crate::daemon_fixtures;
 
-use common::{bench, json_stdout, tmp};
+use common::{bench, json_stdout, tmp, KillOnDrop};
 use serde_json::{json, Value};
 use sha2::{Digest, Sha256};
 use std::io::{Read, Write};
@@ -286,7 +286,7 @@ fn late_store(upstream: SocketAddr, delay: Duration) -> SocketAddr {
 /// Sends SIGTERM to the daemon and waits for its exit, at most
 /// `SHUTDOWN_BOUND_MS` (its documented bound) and 1 s for the process to
 /// leave; returns its exit status and stderr.
-fn sigterm(mut d: Child) -> (std::process::ExitStatus, String) {
+fn sigterm(mut d: KillOnDrop) -> (std::process::ExitStatus, String) {
     // SAFETY: plain kill(2) on our child.
     unsafe { libc::kill(d.id() as i32, libc::SIGTERM) };
     let t0 = Instant::now();
@@ -298,7 +298,7 @@ fn sigterm(mut d: Child) -> (std::process::ExitStatus, String) {
         }
         std::thread::sleep(Duration::from_millis(20));
     }
-    let o = d.wait_with_output().unwrap();
+    let o = d.into_inner().wait_with_output().unwrap();
     (o.status, stderr(&o))
 }
 
@@ -575,8 +575,8 @@ fn a_multipart_upload_survives_the_store_going_away_in_the_middle() {
     );
     let mut c = bench();
     aws_env(&mut c, &proxy.endpoint(), &m.id, &m.secret);
-    let child = c
-        .args([
+    let child = KillOnDrop::new(
+        c.args([
             "upload",
             "--to",
             "s3://lab-bench/big",
@@ -588,7 +588,8 @@ fn a_multipart_upload_survives_the_store_going_away_in_the_middle() {
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
         .spawn()
-        .unwrap();
+        .unwrap(),
+    );
     // Mid-upload: more than one part's worth sent, less than the file.
     let t0 = Instant::now();
     while proxy.sent() < bench::upload::PART_BYTES as u64 + 1_000_000 {
@@ -606,7 +607,7 @@ fn a_multipart_upload_survives_the_store_going_away_in_the_middle() {
     );
     std::thread::sleep(Duration::from_secs(3));
     proxy.up();
-    let o = child.wait_with_output().unwrap();
+    let o = child.into_inner().wait_with_output().unwrap();
     let err = stderr(&o);
     assert_eq!(o.status.code(), Some(0), "{err}");
     assert!(err.contains("again in"), "no retry was needed:\n{err}");
@@ -1111,7 +1112,7 @@ fn bad_stores_and_bad_files_exit_2_naming_the_flag_and_upload_nothing() {
     );
     assert_eq!(r["ok"], true, "a failed upload failed the run: {r}");
     d.kill().unwrap();
-    let o = d.wait_with_output().unwrap();
+    let o = d.into_inner().wait_with_output().unwrap();
     let err = stderr(&o);
     assert!(
         err.contains("--upload s3://lab-bench/d") && err.contains("did not answer"),
