@@ -405,6 +405,22 @@ fn print_track_summary(s: &TrackSummary) {
         p.model_contraction,
         p.learning_gain
     );
+    if let Some(still) = s.trials.first() {
+        let q = nm(s.quantization_floor_m);
+        if s.noise_floor_sigma_m == 0.0 && still.rms_error_m < s.noise_floor_m {
+            outln!(
+                "  noise floor {}: the reading's quantisation q/√12, above the standstill's {} (a still reading stays on one code; a scan crosses them)",
+                nm(s.noise_floor_m),
+                nm(still.rms_error_m)
+            );
+        } else {
+            outln!(
+                "  noise floor {} ± {}: the standstill's RMS error (the reading's quantisation q/√12 is {q})",
+                nm(s.noise_floor_m),
+                nm(s.noise_floor_sigma_m)
+            );
+        }
+    }
     for t in &s.trials {
         outln!(
             "  {:<12} RMS error {:>10} ± {:>6} ({:>6.2} ± {:.2}× the noise floor), peak {:>10}, feedforward {:.3} A RMS",

@@ -282,8 +282,29 @@ pub struct TrackSummary {
     pub seed: u64,
     /// The plan.
     pub plan: TrackPlan,
-    /// The noise floor: the standstill trial's RMS error, m.
+    /// The noise floor, m: the larger of the standstill trial's RMS error
+    /// and the reading's quantisation floor (`quantization_floor_m`). The
+    /// trials' `of_noise_floor` and the `converged` rule are relative to
+    /// it.
     pub noise_floor_m: f64,
+    /// 1σ of `noise_floor_m`, m: the standstill trial's when it is the
+    /// floor; 0 when the quantisation floor is (a stated code width, not a
+    /// measurement).
+    pub noise_floor_sigma_m: f64,
+    /// The reading's quantisation floor, m: `q/√12`, `q` the wider of the
+    /// probe's code (`probe.quantization_m`) and the link's count
+    /// ([`bench_hal::DeviceInfo::probe_lsb_m`]; 0 on the simulator). It is
+    /// the RMS of the quantisation error of a reading that crosses many
+    /// codes, and, for any reference, the RMS distance from the reference
+    /// to the nearest code with the probe's zero anywhere within a code
+    /// (Widrow & Kollár, *Quantization Noise*, 2008: the uniform model,
+    /// variance `q²/12`). The wider code, not the two combined: the two
+    /// may describe the same converter, and two in series leave at least
+    /// the wider one's. A scan's error is about this at best (0.95× on
+    /// one bench with a 1 µm code, where the zero sat well); a standstill
+    /// reading that stays on one code does not show it when the probe's
+    /// noise is below about one code.
+    pub quantization_floor_m: f64,
     /// The trials so far, in order.
     pub trials: Vec<TrialReport>,
     /// Why learning stopped: `converged`, `diverged`, `budget`, `limit`
@@ -1452,7 +1473,7 @@ impl Trials<'_> {
         let r_t = summary.plan.scan.table(n);
         let still = vec![0.0; n];
         let t = self.run(runner, 0, "standstill", &still, &still)?.report;
-        summary.noise_floor_m = t.rms_error_m;
+        summary.set_noise_floor(&t);
         summary.push(t);
         let mut lines = Vec::new();
         let first = Existing::overwrite(self.opts.overwrite);
@@ -1587,15 +1608,25 @@ impl Trials<'_> {
 }
 
 impl TrackSummary {
-    /// Adds a trial, its error relative to the noise floor set.
+    /// Sets the noise floor from the standstill trial `t`: its RMS error
+    /// with its 1σ, or the quantisation floor with 0 when that is larger
+    /// ([`Self::quantization_floor_m`]).
+    fn set_noise_floor(&mut self, t: &TrialReport) {
+        (self.noise_floor_m, self.noise_floor_sigma_m) =
+            if t.rms_error_m >= self.quantization_floor_m {
+                (t.rms_error_m, t.rms_error_sigma_m)
+            } else {
+                (self.quantization_floor_m, 0.0)
+            };
+    }
+
+    /// Adds a trial, its error relative to the noise floor set. The
+    /// standstill trial that is the floor is 1, with its own relative 1σ.
     fn push(&mut self, mut t: TrialReport) {
-        let floor = self.trials.first().unwrap_or(&t);
-        let (of, sigma) = ratio(
-            (t.rms_error_m, t.rms_error_sigma_m),
-            (floor.rms_error_m, floor.rms_error_sigma_m),
-        );
+        let floor = (self.noise_floor_m, self.noise_floor_sigma_m);
+        let (of, sigma) = ratio((t.rms_error_m, t.rms_error_sigma_m), floor);
         t.of_noise_floor = of;
-        t.of_noise_floor_sigma = if self.trials.is_empty() {
+        t.of_noise_floor_sigma = if self.trials.is_empty() && t.rms_error_m == floor.0 {
             t.rms_error_sigma_m / t.rms_error_m
         } else {
             sigma
@@ -1605,10 +1636,11 @@ impl TrackSummary {
 }
 
 /// `a/b` and its 1σ from `a`'s and `b`'s (value, 1σ), to first order:
-/// `σ = (a/b)·√((σa/a)² + (σb/b)²)`.
+/// `σ = (a/b)·√((σa/a)² + (σb/b)²)`, written `√((σa/b)² + (a·σb/b²)²)`
+/// so that `a = 0` (a standstill on one code) has the 1σ `σa/b`.
 pub fn ratio(a: (f64, f64), b: (f64, f64)) -> (f64, f64) {
     let r = a.0 / b.0;
-    (r, r * ((a.1 / a.0).powi(2) + (b.1 / b.0).powi(2)).sqrt())
+    (r, ((a.1 / b.0).powi(2) + (r * b.1 / b.0).powi(2)).sqrt())
 }
 
 /// Why learning stops after `rms` (the learning trials' RMS errors so far,
@@ -1824,6 +1856,8 @@ pub fn run_track_from(
         seed: opts.seed,
         plan,
         noise_floor_m: f64::NAN,
+        noise_floor_sigma_m: f64::NAN,
+        quantization_floor_m: cfg.probe.quantization_m.max(info.probe_lsb_m) / 12f64.sqrt(),
         trials: Vec::new(),
         stop: None,
         best_trial: None,
@@ -2000,5 +2034,10 @@ mod tests {
         let (r, s) = ratio((10.0, 1.0), (2.0, 0.1));
         assert!((r - 5.0).abs() < 1e-12);
         assert!((s - 5.0 * 0.0125f64.sqrt()).abs() < 1e-12);
+        // A zero numerator (a standstill on one code) keeps its own 1σ
+        // over the floor, σa/b, where (a/b)·(σa/a) is 0·∞.
+        let (r, s) = ratio((0.0, 0.5), (2.0, 0.0));
+        assert_eq!(r, 0.0);
+        assert!((s - 0.25).abs() < 1e-12, "{s}");
     }
 }

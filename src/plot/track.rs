@@ -47,7 +47,8 @@ pub struct TrackPlot<'a> {
     pub harmonic_hz: &'a [f64],
     /// The trials in order, the first the standstill one.
     pub trials: Vec<TrackTrialPlot<'a>>,
-    /// The noise floor (the standstill trial's RMS error), nm.
+    /// The noise floor (the standstill trial's RMS error, or the reading's
+    /// quantisation floor when that is larger), nm.
     pub noise_floor_nm: f64,
     /// The reference's cut-off, Hz.
     pub cutoff_hz: f64,

@@ -828,21 +828,26 @@ fn status_storm_during_a_job(d: &Daemon) -> (Value, Duration) {
 /// A track job on the daemon's serial bench (the emulator on a pty): the
 /// trials run one after the other on the daemon's loop, which holds 0 A
 /// between them; the summary names the serial backend; the feedforward
-/// takes the raster's error ≥ 10× below feedback alone; the daemon ends
-/// disabled, ready for the next job.
+/// and one learning trial take the raster's error ≥ 10× below feedback
+/// alone; the daemon ends disabled, ready for the next job. The model is
+/// off the bench
+/// ([`crate::track::off_model`]), so that the feedforward leaves more
+/// than the noise floor and a learning trial runs.
 #[test]
 fn a_track_job_runs_on_the_daemons_serial_bench() {
     let _g = one_at_a_time();
     let s = SerialDaemon::start(&[]);
+    let model = crate::track::off_model(s.daemon.dir.path());
     let mut c = s.daemon.client();
-    let r = c.call_realtime("track", json!({ "trials": 1 }));
+    let r = c.call_realtime("track", json!({ "trials": 1, "model": model }));
     assert_eq!(r["ok"], true, "{r}");
     let v = &r["result"];
     assert!(v["backend"].as_str().unwrap().starts_with("serial:"), "{v}");
     let trials = v["trials"].as_array().unwrap();
     assert_eq!(trials.len(), 4, "{v}");
     let rms = |i: usize| trials[i]["rms_error_m"].as_f64().unwrap();
-    assert!(rms(1) / rms(2) >= 10.0, "{v}");
+    assert!(rms(3) < rms(2), "learning lowers the error: {v}");
+    assert!(rms(1) / rms(3) >= 10.0, "{v}");
     for t in trials {
         assert!(Path::new(t["recording"].as_str().unwrap()).is_file(), "{t}");
     }

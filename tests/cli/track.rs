@@ -113,6 +113,12 @@ fn a_triangle_raster_reaches_the_noise_floor_on_the_shipped_bench() {
     assert!((35e-9..80e-9).contains(&floor), "{floor}");
     let trials = v["trials"].as_array().unwrap();
     assert_eq!(trials[0]["name"], "standstill");
+    // The probe's 40 nm noise dithers its 30 nm code: the standstill is
+    // the floor, above the quantisation's q/√12.
+    let q = v["quantization_floor_m"].as_f64().unwrap();
+    assert!((q / (30e-9 / 12f64.sqrt()) - 1.0).abs() < 1e-12, "{q}");
+    assert_eq!(floor, rms(&trials[0]));
+    assert_eq!(v["noise_floor_sigma_m"], trials[0]["rms_error_sigma_m"]);
     assert_eq!(trials[1]["name"], "feedback");
     assert_eq!(trials[2]["name"], "feedforward");
     let predicted = v["plan"]["predicted_feedback_rms_error_m"]
@@ -137,6 +143,43 @@ fn a_triangle_raster_reaches_the_noise_floor_on_the_shipped_bench() {
         .unwrap()
         .is_empty());
     check_files(dir.path(), &v);
+}
+
+/// A probe whose code (300 nm) is far wider than its noise (none): a
+/// still reading stays on one code, so the standstill's RMS error (a few
+/// tens of nm of the loop hunting between two codes) is no floor for a
+/// scan, which crosses codes and leaves about the uniform quantisation
+/// error, `q/√12` = 86.6 nm (Widrow & Kollár, *Quantization Noise*,
+/// 2008). The noise floor is that, exactly and without a σ, and the
+/// feedforward trial converges on it (against the standstill it read 5×
+/// "the floor", and learning ran its whole budget for nothing).
+#[test]
+fn a_coarse_probes_noise_floor_is_its_quantisation() {
+    let dir = tmp();
+    let text = std::fs::read_to_string(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("bench-config/sr4dof-ch5.toml"),
+    )
+    .unwrap();
+    let text = set_key(&text, "noise_rms_m", "0.0");
+    let text = set_key(&text, "quantization_m", "300e-9");
+    let cfg = dir.path().join("coarse.toml");
+    std::fs::write(&cfg, text).unwrap();
+    let (_, v) = track(dir.path(), &["--config", cfg.to_str().unwrap()]);
+    let want = 300e-9 / 12f64.sqrt();
+    for key in ["quantization_floor_m", "noise_floor_m"] {
+        let got = v[key].as_f64().unwrap();
+        assert!((got / want - 1.0).abs() < 1e-12, "{key}: {got} {want}");
+    }
+    assert_eq!(v["noise_floor_sigma_m"], 0.0);
+    let trials = v["trials"].as_array().unwrap();
+    assert!(rms(&trials[0]) < 0.5 * want, "one code: {}", trials[0]);
+    let ff = &trials[2];
+    assert_eq!(ff["name"], "feedforward");
+    let of = ff["of_noise_floor"].as_f64().unwrap();
+    assert!((0.8..1.5).contains(&of), "{ff}");
+    assert!((of - rms(ff) / want).abs() < 1e-9 * of, "{ff}");
+    assert_eq!(v["stop"], "converged", "{v}");
+    assert_eq!(v["best_trial"], "feedforward");
 }
 
 /// With a nominal model off the bench (masses +15 %, bearings −14 %) the
