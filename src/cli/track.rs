@@ -407,7 +407,7 @@ fn print_track_summary(s: &TrackSummary) {
     );
     if let Some(still) = s.trials.first() {
         let q = nm(s.quantization_floor_m);
-        if s.noise_floor_sigma_m == 0.0 && still.rms_error_m < s.noise_floor_m {
+        if s.floor_is_quantization() {
             outln!(
                 "  noise floor {}: the reading's quantisation q/√12, above the standstill's {} (a still reading stays on one code; a scan crosses them)",
                 nm(s.noise_floor_m),

@@ -905,6 +905,11 @@ fn write_figure(
         harmonic_hz: &harmonic_hz,
         trials,
         noise_floor_nm: s.noise_floor_m * 1e9,
+        noise_floor_of: if s.floor_is_quantization() {
+            "the reading's quantisation q/√12"
+        } else {
+            "the standstill"
+        },
         cutoff_hz: s.plan.scan.cutoff_hz,
         zero_bands: s
             .plan
@@ -1618,6 +1623,14 @@ impl TrackSummary {
             } else {
                 (self.quantization_floor_m, 0.0)
             };
+    }
+
+    /// Whether the noise floor is the reading's quantisation floor (larger
+    /// than the standstill's RMS error), not the standstill's.
+    pub fn floor_is_quantization(&self) -> bool {
+        self.trials
+            .first()
+            .is_some_and(|t| t.rms_error_m < self.noise_floor_m)
     }
 
     /// Adds a trial, its error relative to the noise floor set. The

@@ -50,6 +50,8 @@ pub struct TrackPlot<'a> {
     /// The noise floor (the standstill trial's RMS error, or the reading's
     /// quantisation floor when that is larger), nm.
     pub noise_floor_nm: f64,
+    /// What the noise floor is, for the legend ("the standstill").
+    pub noise_floor_of: &'a str,
     /// The reference's cut-off, Hz.
     pub cutoff_hz: f64,
     /// The bands the plant's zeros close: (label, low, high), Hz.
@@ -214,7 +216,11 @@ fn draw_trials(root: &Area<'_>, area: &Area<'_>, plot: &TrackPlot<'_>) -> Result
         })
         .collect();
     entries.push(entry(
-        format!("noise floor {} nm, and 1.5× it", fmt_sig(floor, 3)),
+        format!(
+            "noise floor {} nm ({}), and 1.5× it",
+            fmt_sig(floor, 3),
+            plot.noise_floor_of
+        ),
         Swatch::Dashed(MARKER_COLOR),
     ));
     let top = MARGIN_TOP.max(legend_height(area, &entries)? + 6);
@@ -371,6 +377,7 @@ mod tests {
                 trial("learning-1", 50.0, &r, &a),
             ],
             noise_floor_nm: 43.0,
+            noise_floor_of: "the standstill",
             cutoff_hz: 58.9,
             zero_bands: vec![("CMP-CNMP 83.3 Hz".into(), 58.9, 102.0)],
         };
