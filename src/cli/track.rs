@@ -406,7 +406,6 @@ fn print_track_summary(s: &TrackSummary) {
         p.learning_gain
     );
     if let Some(still) = s.trials.first() {
-        let q = nm(s.quantization_floor_m);
         if s.floor_is_quantization() {
             outln!(
                 "  noise floor {}: the reading's quantisation q/√12, above the standstill's {} (a still reading stays on one code; a scan crosses them)",
@@ -415,9 +414,10 @@ fn print_track_summary(s: &TrackSummary) {
             );
         } else {
             outln!(
-                "  noise floor {} ± {}: the standstill's RMS error (the reading's quantisation q/√12 is {q})",
+                "  noise floor {} ± {}: the standstill's RMS error (the reading's quantisation q/√12 is {})",
                 nm(s.noise_floor_m),
-                nm(s.noise_floor_sigma_m)
+                nm(s.noise_floor_sigma_m),
+                nm(s.quantization_floor_m)
             );
         }
     }

@@ -830,9 +830,8 @@ fn status_storm_during_a_job(d: &Daemon) -> (Value, Duration) {
 /// between them; the summary names the serial backend; the feedforward
 /// and one learning trial take the raster's error ≥ 10× below feedback
 /// alone; the daemon ends disabled, ready for the next job. The model is
-/// off the bench
-/// ([`crate::track::off_model`]), so that the feedforward leaves more
-/// than the noise floor and a learning trial runs.
+/// off the bench ([`crate::track::off_model`]), so that the feedforward
+/// leaves more than the noise floor and a learning trial runs.
 #[test]
 fn a_track_job_runs_on_the_daemons_serial_bench() {
     let _g = one_at_a_time();

@@ -154,13 +154,19 @@ fn runner(line: &str) -> Runner {
 /// Waits (≤ 10 s) until `$1` exists.
 const WAIT_FOR: &str = "wait_for() { for _ in $(seq 100); do [ -e \"$1\" ] && [ -s \"$1\" -o -S \"$1\" ] && return 0; sleep 0.1; done; echo \"$1 never appeared\" >&2; return 1; }";
 
+/// `line` stopped with SIGINT after `s` seconds (its exit status kept:
+/// 130 when it was still running then).
+fn until_stopped(s: u32, line: &str) -> String {
+    format!(
+        "timeout --preserve-status -s INT {s} bash -c {}",
+        quote(line)
+    )
+}
+
 /// Runs `line` for at most `s` seconds: it must still be running then
 /// (stopped with SIGINT: exit 130) or have ended well.
 fn stopped_after(s: u32, line: &str) -> String {
-    format!(
-        "timeout --preserve-status -s INT {s} bash -c {} || [ $? -eq 130 ]",
-        quote(line)
-    )
+    format!("{} || [ $? -eq 130 ]", until_stopped(s, line))
 }
 
 /// The line as the test runs it: setup commands first where the example
@@ -286,10 +292,7 @@ fn in_realtime_turn(line: &str) -> String {
     let lock = "flock \"$BENCH_REALTIME_LOCK\"";
     let (run, ok) = if code.contains("--live") {
         (
-            format!(
-                "{lock} timeout --preserve-status -s INT 4 bash -c {}",
-                quote(code)
-            ),
+            format!("{lock} {}", until_stopped(4, code)),
             "[ $rc -eq 0 -o $rc -eq 130 ]",
         )
     } else {

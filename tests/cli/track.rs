@@ -180,6 +180,22 @@ fn a_coarse_probes_noise_floor_is_its_quantisation() {
     assert!((of - rms(ff) / want).abs() < 1e-9 * of, "{ff}");
     assert_eq!(v["stop"], "converged", "{v}");
     assert_eq!(v["best_trial"], "feedforward");
+    // The text names the floor's source as the book shows it
+    // (docs/src/jobs/track.md, *The noise floor*).
+    let out = path_in(dir.path(), "text");
+    let o = run(&["track", "--config", cfg.to_str().unwrap(), "--out", &out]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let text = String::from_utf8_lossy(&o.stdout);
+    let line = text
+        .lines()
+        .find(|l| l.starts_with("  noise floor"))
+        .unwrap_or_else(|| panic!("no noise floor line:\n{text}"));
+    let shown: Vec<String> = doc_blocks()
+        .into_iter()
+        .filter(|b| b.lang == "text" && b.body.starts_with("  noise floor"))
+        .map(|b| b.body.trim_end().to_string())
+        .collect();
+    assert_eq!(shown, [line], "the book's sample is stale");
 }
 
 /// With a nominal model off the bench (masses +15 %, bearings −14 %) the
