@@ -542,21 +542,23 @@ fn record_writer_thread_drains_and_flushes() {
     // 5000 samples = 1 s of loop time at 5 kHz, pushed much faster than
     // real time: log-time flushing must give ~10 chunks.
     let n = 5000u64;
-    let mut pushed = 0;
-    while pushed < n {
-        if prod.push(Record::Sample(sample(pushed))).is_ok() {
-            pushed += 1;
-        } else {
+    // The ring may be full at any push, the last one included (the
+    // writer drains at its own pace): wait for room.
+    let mut push_waiting = |mut r: Record| {
+        while let Err(rtrb::PushError::Full(back)) = prod.push(r) {
+            r = back;
             std::thread::yield_now();
         }
+    };
+    for tick in 0..n {
+        push_waiting(Record::Sample(sample(tick)));
     }
-    prod.push(Record::Event(event(
+    push_waiting(Record::Event(event(
         n,
         EventKind::LoopStopped,
         None,
         f64::NAN,
-    )))
-    .unwrap();
+    )));
     done.store(true, Ordering::Release);
     let (rec, stats) = h.join().unwrap().unwrap();
     assert_eq!(stats.records_written, n + 1);
