@@ -571,8 +571,21 @@ impl Residuals for Problem<'_, '_> {
 /// Refines all parameters from `start` by Levenberg-Marquardt; returns the
 /// refined parameters (or `start` if the refinement made it worse).
 pub(super) fn refine(prep: &Prepared, start: &Params, period_s: f64) -> Params {
+    refine_within(prep, start, period_s, PATIENCE)
+}
+
+/// The refinement's bound on evaluations, × (n + 1) for n parameters.
+pub(super) const PATIENCE: usize = 20;
+
+/// [`refine`] with its bound on evaluations, `patience` × (n + 1).
+pub(super) fn refine_within(
+    prep: &Prepared,
+    start: &Params,
+    period_s: f64,
+    patience: usize,
+) -> Params {
     let problem = Problem::new(prep, start, period_s);
-    let x = lsq::minimise(&problem, problem.x0.clone(), 20);
+    let x = lsq::minimise(&problem, problem.x0.clone(), patience);
     let p = problem.params_at(&x);
     let ok = p
         .f_hz
