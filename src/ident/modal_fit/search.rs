@@ -271,12 +271,11 @@ pub(super) fn residual_variance(prep: &Prepared, p: &Params, cost: f64) -> f64 {
 /// within 3.1 (n + 1) (16 default chirps of the shipped bench); those
 /// chirps' fits print the same with 5 as with 20, and
 /// `tests/cli/real_links.rs` and `tests/cli/mode_count.rs` count and list
-/// the same fits. One that runs longer is
-/// on data the model does not describe: with a fifth of the lines
-/// corrupted, pruning ten modes to three ran six refits of 320–596
-/// evaluations, five of them to the full bound (2.3 s of a 3.3 s fit;
-/// with 5, 0.55 s of 1.4 s). A refit's result is kept only where it
-/// lowers the cost ([`refine`]).
+/// the same fits. One that runs longer is on data the model does not
+/// describe: with a fifth of the lines corrupted, pruning ten modes to
+/// three ran six refits of 320–596 evaluations, five of them to the full
+/// bound (2.3 s of a 3.3 s fit; with 5, 0.55 s of 1.4 s). A refit's result
+/// is kept only where it lowers the cost ([`refine`]).
 const REMOVAL_PATIENCE: usize = 5;
 
 /// `p` without mode `i`, the linear part re-solved and all refined (at
