@@ -312,19 +312,60 @@ fn chirp_over_ethercat_is_the_simulator_one_period_late() {
         worst_deg = worst_deg.max(deg.abs());
         n += 1;
     }
-    // The modal fit sees the period too: its pure delay is one period
-    // longer.
-    let dd = ec["fit"]["delay_s"].as_f64().unwrap() - sim["fit"]["delay_s"].as_f64().unwrap();
-    assert!(
-        (dd - period_s).abs() < 0.05 * period_s,
-        "fitted delay over EtherCAT − direct = {dd} s, expected one period {period_s} s"
-    );
     assert!(n > 100, "only {n} points compared");
     eprintln!("EtherCAT vs direct (one period removed): worst {worst_db:.4} dB, {worst_deg:.3}° over {n} points; link {link}");
     assert!(
         worst_db <= 0.2 && worst_deg <= 2.0,
         "EtherCAT vs direct: worst {worst_db:.3} dB, {worst_deg:.2}° over {n} points; link {link}"
     );
+    // The modal fit sees the period too: its pure delay is one period
+    // longer. The direct fit is trusted (noise-free, every line). Stalls
+    // of a loaded VM leave bands out of the EtherCAT run's FRF
+    // (`stalls.excluded_lines`); where they took the lines of a mode, the
+    // fit misses it and says so (quality flags, a wider delay σ). A
+    // trusted EtherCAT fit holds the delay to 5 % of the period; a flagged
+    // one is held to its own 3σ, and only when stalls left lines out
+    // (the one reason it may see other data than the direct run's).
+    let sim_fit = &sim["fit"];
+    let ec_fit = &ec["fit"];
+    assert!(
+        fit_flags(sim_fit) == 0,
+        "the direct fit is flagged: {}",
+        fit_summary(sim_fit)
+    );
+    let dd = ec_fit["delay_s"].as_f64().unwrap() - sim_fit["delay_s"].as_f64().unwrap();
+    let excluded = ec["stalls"]["excluded_lines"].as_u64().unwrap_or(0);
+    let bound_s = if fit_flags(ec_fit) == 0 {
+        0.05 * period_s
+    } else {
+        assert!(
+            excluded > 0,
+            "the EtherCAT fit is flagged on the same lines as the direct one: {}",
+            fit_summary(ec_fit)
+        );
+        let sigma_s = ec_fit["delay_sigma_s"]
+            .as_f64()
+            .unwrap()
+            .hypot(sim_fit["delay_sigma_s"].as_f64().unwrap());
+        (3.0 * sigma_s).max(0.05 * period_s)
+    };
+    eprintln!(
+        "fitted delay over EtherCAT − direct {dd} s (bound {bound_s} s); EtherCAT fit {}",
+        fit_summary(ec_fit)
+    );
+    assert!(
+        (dd - period_s).abs() < bound_s,
+        "fitted delay over EtherCAT − direct = {dd} s, expected one period {period_s} s \
+         within {bound_s} s; direct fit {}, EtherCAT fit {}, stalls {}",
+        fit_summary(sim_fit),
+        fit_summary(ec_fit),
+        ec["stalls"]
+    );
+}
+
+/// How many quality flags a chirp's modal fit raised (0: trusted).
+fn fit_flags(fit: &serde_json::Value) -> usize {
+    fit["quality"]["flags"].as_array().map_or(0, Vec::len)
 }
 
 /// Whether a run ended in the supervisor's overrun rule: this 2-core VM
@@ -1251,4 +1292,26 @@ fn a_raster_over_ethercat_tracks_as_on_the_simulator() {
         part.push(".part");
         assert!(!Path::new(&part).exists(), "{rec:?}");
     }
+}
+
+/// One line on a chirp's modal fit for a failure message: the modes'
+/// frequencies, the delay with its 1σ, the RMS error, the lines and flags.
+fn fit_summary(fit: &serde_json::Value) -> String {
+    let modes: Vec<String> = fit["modes"]
+        .as_array()
+        .map(|m| {
+            m.iter()
+                .map(|m| format!("{:.2}", m["frequency_hz"].as_f64().unwrap_or(f64::NAN)))
+                .collect()
+        })
+        .unwrap_or_default();
+    format!(
+        "modes [{}] Hz, delay {} ± {} s, rms {}, {} lines, flags {}",
+        modes.join(", "),
+        fit["delay_s"],
+        fit["delay_sigma_s"],
+        fit["rms_relative_error"],
+        fit["coherent_points"],
+        fit["quality"]["flags"]
+    )
 }
