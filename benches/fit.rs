@@ -7,11 +7,11 @@
 //! the model update (`bench fit --update`) of the same FRF from the
 //! Fig 5-11 start (the bench configured symmetric, textbook stiffness, the
 //! five default parameters free), given the modal fit. And the fit on the
-//! same FRF with a fifth of its lines corrupted as `real_links`' outlier
-//! condition does it (each multiplied by `1 + r e^{jφ}`, r from 0.2 to 1,
-//! φ uniform, σ and coherence left as they were): a fit that ends flagged
-//! after pruning the modes the corruption made it try (the slowest fits
-//! the tests meet). Eight draws, each timed once and all eight together.
+//! same FRF with a fifth of its lines corrupted by `real_links`' outlier
+//! condition (`tests/common/outliers.rs`: each multiplied by
+//! `1 + r e^{jφ}`, r from 0.2 to 1, φ uniform, σ and coherence left as
+//! they were): a fit that ends flagged after pruning the modes the
+//! corruption made it try (the slowest fits the tests meet). Eight draws, each timed once and all eight together.
 //!
 //!     cargo bench --bench fit
 
@@ -24,6 +24,9 @@ use bench_plant::sim::ZohPlant;
 use criterion::{black_box, Criterion};
 use rand::{Rng, SeedableRng};
 use std::path::Path;
+
+#[path = "../tests/common/outliers.rs"]
+mod outliers;
 
 fn ch5() -> BenchConfig {
     let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("bench-config/sr4dof-ch5.toml");
@@ -69,32 +72,7 @@ fn default_chirp_frf() -> (Frf, FitPath) {
     (frf, path)
 }
 
-/// `frf` with a fifth of its lines, drawn at random (seeded), multiplied
-/// by `1 + r e^{jφ}` (r uniform in [0.2, 1], φ uniform): `real_links`'
-/// outlier lines, their σ and coherence left as they were.
-fn with_a_fifth_corrupted(frf: &Frf, seed: u64) -> Frf {
-    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
-    let mut out = frf.clone();
-    let mut h: Vec<C64> = frf
-        .magnitude_m_per_a
-        .iter()
-        .zip(&frf.phase_deg)
-        .map(|(m, p)| C64::from_polar(*m, p.to_radians()))
-        .collect();
-    for h in h.iter_mut() {
-        if rng.random_range(0.0..1.0) < 0.2 {
-            let r = rng.random_range(0.2..1.0);
-            let phi = rng.random_range(0.0..std::f64::consts::TAU);
-            *h *= C64::new(1.0, 0.0) + C64::from_polar(r, phi);
-        }
-    }
-    out.magnitude_m_per_a = h.iter().map(|h| h.norm()).collect();
-    out.phase_deg = h.iter().map(|h| h.arg().to_degrees()).collect();
-    unwrap_deg(&mut out.phase_deg);
-    out
-}
-
-/// Draws of [`with_a_fifth_corrupted`] timed together.
+/// Draws of [`outliers::with_outliers`] timed together.
 const CORRUPTED_DRAWS: u64 = 8;
 
 fn main() {
@@ -107,7 +85,7 @@ fn main() {
     // Eight draws of the corruption: the pruning's cost depends on which
     // modes a draw makes the fit try.
     let corrupted: Vec<FrfData> = (1..=CORRUPTED_DRAWS)
-        .map(|seed| FrfData::from_frf(&with_a_fifth_corrupted(&frf, seed)))
+        .map(|seed| FrfData::from_frf(&outliers::with_outliers(frf.clone(), seed)))
         .collect();
     for (seed, d) in corrupted.iter().enumerate() {
         let t = std::time::Instant::now();

@@ -36,6 +36,8 @@ mod lpm;
 mod mode_count;
 mod model_export;
 mod multisine;
+#[path = "../common/outliers.rs"]
+mod outliers;
 mod outputs;
 mod pace;
 mod plot_overlay;

@@ -35,6 +35,7 @@
 //! test's coherence and the residue test's confidence too low).
 
 use super::mode_count::{judge, matching, true_modes};
+use super::outliers::with_outliers;
 use super::uncertainty::{ch5, hidden, measure, measure_with_holds, period_s, record_with_holds};
 use bench::analysis::modal::modal_terms;
 use bench::config::BenchConfig;
@@ -59,28 +60,6 @@ enum Condition {
     Dropped,
 }
 
-/// Corrupts 20 % of the lines of `frf` (see the module docs).
-fn with_outliers(mut frf: Frf, seed: u64) -> Frf {
-    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(45_500 + seed);
-    for k in 0..frf.frequency_hz.len() {
-        if rng.random_range(0.0..1.0) < 0.2 {
-            let r: f64 = rng.random_range(0.2..1.0);
-            let phi: f64 = rng.random_range(-std::f64::consts::PI..std::f64::consts::PI);
-            let h = bench::ident::frf::C64::from_polar(
-                frf.magnitude_m_per_a[k],
-                frf.phase_deg[k].to_radians(),
-            ) * (bench::ident::frf::C64::from_polar(r, phi) + 1.0);
-            frf.magnitude_m_per_a[k] = h.norm();
-            // Unwrapped as the estimator unwraps: the nearest turn to the
-            // line's phase as it was.
-            let was = frf.phase_deg[k];
-            let p = h.arg().to_degrees();
-            frf.phase_deg[k] = p + 360.0 * ((was - p) / 360.0).round();
-        }
-    }
-    frf
-}
-
 fn measured(cfg: &BenchConfig, seed: u64, c: Condition) -> Frf {
     match c {
         Condition::Noise => {
@@ -96,7 +75,7 @@ fn measured(cfg: &BenchConfig, seed: u64, c: Condition) -> Frf {
 
             measure(&c, seed)
         }
-        Condition::Outliers => with_outliers(measure(cfg, seed), seed),
+        Condition::Outliers => with_outliers(measure(cfg, seed), 45_500 + seed),
         Condition::Dropped => {
             let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(45_700 + seed);
             let rate = 1.0 / period_s(cfg);

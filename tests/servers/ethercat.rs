@@ -363,6 +363,28 @@ fn chirp_over_ethercat_is_the_simulator_one_period_late() {
     );
 }
 
+/// One line on a chirp's modal fit for a failure message: the modes'
+/// frequencies, the delay with its 1σ, the RMS error, the lines and flags.
+fn fit_summary(fit: &serde_json::Value) -> String {
+    let modes: Vec<String> = fit["modes"]
+        .as_array()
+        .map(|m| {
+            m.iter()
+                .map(|m| format!("{:.2}", m["frequency_hz"].as_f64().unwrap_or(f64::NAN)))
+                .collect()
+        })
+        .unwrap_or_default();
+    format!(
+        "modes [{}] Hz, delay {} ± {} s, rms {}, {} lines, flags {}",
+        modes.join(", "),
+        fit["delay_s"],
+        fit["delay_sigma_s"],
+        fit["rms_relative_error"],
+        fit["coherent_points"],
+        fit["quality"]["flags"]
+    )
+}
+
 /// How many quality flags a chirp's modal fit raised (0: trusted).
 fn fit_flags(fit: &serde_json::Value) -> usize {
     fit["quality"]["flags"].as_array().map_or(0, Vec::len)
@@ -1292,26 +1314,4 @@ fn a_raster_over_ethercat_tracks_as_on_the_simulator() {
         part.push(".part");
         assert!(!Path::new(&part).exists(), "{rec:?}");
     }
-}
-
-/// One line on a chirp's modal fit for a failure message: the modes'
-/// frequencies, the delay with its 1σ, the RMS error, the lines and flags.
-fn fit_summary(fit: &serde_json::Value) -> String {
-    let modes: Vec<String> = fit["modes"]
-        .as_array()
-        .map(|m| {
-            m.iter()
-                .map(|m| format!("{:.2}", m["frequency_hz"].as_f64().unwrap_or(f64::NAN)))
-                .collect()
-        })
-        .unwrap_or_default();
-    format!(
-        "modes [{}] Hz, delay {} ± {} s, rms {}, {} lines, flags {}",
-        modes.join(", "),
-        fit["delay_s"],
-        fit["delay_sigma_s"],
-        fit["rms_relative_error"],
-        fit["coherent_points"],
-        fit["quality"]["flags"]
-    )
 }
